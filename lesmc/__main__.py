@@ -1,0 +1,5 @@
+"""``python -m lesmc`` runs the command line."""
+
+from lesmc.cli.main import main
+
+main()

@@ -1,0 +1,307 @@
+"""Engine ``bnb``: exact best-first branch and bound with dominance at shared states.
+
+Phase 1 finds the optimum: labels (partial paths) are popped in order of a
+lower bound on their final objective; the first complete path that violates
+the constraint is optimal. Phase 2 finds the representative path ρ*: the
+largest objective below the optimum among paths that do not violate, popped in
+order of an upper bound. Both measures only grow along a path (space.py), so
+
+* prefix value ⊕ suffix bound is a valid bound (⊕ is + or max);
+* at a shared state, a label whose objective is no worse and whose constraint
+  value is no less favourable dominates another: every completion of the
+  second is matched by the same completion of the first.
+
+For a max-aggregate the "effective" value max(value, smallest suffix) is what
+a completion can still see, so dominance compares effective values. Suffix
+bounds come from one dynamic programme over the reachable sub-DAG, which is
+linear in the model (not in the number of paths).
+"""
+
+from __future__ import annotations
+
+import heapq
+import math
+import time
+from dataclasses import dataclass
+
+import numpy as np
+
+from lesmc.engines.result import EngineOutcome, Stats
+from lesmc.engines.space import Space
+
+
+@dataclass(frozen=True)
+class Bounds:
+    """Per state: smallest/largest suffix aggregate of objective and constraint.
+
+    ``alive`` is False for states from which no admissible complete path exists
+    (every continuation is cut by the monitor).
+    """
+
+    obj_min: np.ndarray
+    obj_max: np.ndarray
+    con_min: np.ndarray
+    con_max: np.ndarray
+    alive: np.ndarray
+    states: int
+
+
+@dataclass
+class _Label:
+    """A partial path: accumulated values, its state and a link to its parent."""
+
+    obj: float
+    con: float
+    q: int
+    parent: _Label | None
+    t: int  # transition entering q (−1 at the root)
+    complete: bool = False
+
+
+class _Budget:
+    def __init__(self, max_states: int | None, timeout: float | None) -> None:
+        self.max_states = max_states
+        self.deadline = None if timeout is None else time.perf_counter() + timeout
+        self.used = 0
+        self.stopped = "finished"
+
+    def spend(self) -> bool:
+        """Count one expansion; False once a budget is exhausted."""
+        self.used += 1
+        if self.max_states is not None and self.used > self.max_states:
+            self.stopped = "max_states"
+            return False
+        if self.deadline is not None and self.used % 256 == 0 and time.perf_counter() > self.deadline:
+            self.stopped = "timeout"
+            return False
+        return True
+
+
+def suffix_bounds(space: Space) -> Bounds:
+    """Exact suffix min/max of both measures by one backward pass over reachable states."""
+    cm = space.cm
+    order = _reachable(space)
+    n = len(cm.ids)
+    inf = math.inf
+    omin, omax = np.full(n, inf), np.full(n, -inf)
+    cmin, cmax = np.full(n, inf), np.full(n, -inf)
+    alive = np.zeros(n, dtype=bool)
+    for q in reversed(order):
+        if space.is_leaf(q):
+            to, tc = space.tail(q)
+            omin[q] = omax[q] = to
+            cmin[q] = cmax[q] = tc
+            alive[q] = True
+            continue
+        for t in space.successors(q):
+            d = int(cm.dst[t])
+            if not alive[d]:
+                continue
+            alive[q] = True
+            co, cc = float(space.c_obj[t]), float(space.c_con[t])
+            omin[q] = min(omin[q], space.agg(space.obj_max, co, omin[d]))
+            omax[q] = max(omax[q], space.agg(space.obj_max, co, omax[d]))
+            cmin[q] = min(cmin[q], space.agg(space.con_max, cc, cmin[d]))
+            cmax[q] = max(cmax[q], space.agg(space.con_max, cc, cmax[d]))
+    return Bounds(omin, omax, cmin, cmax, alive, len(order))
+
+
+def _reachable(space: Space) -> list[int]:
+    """States reachable from the root under the window, in step (topological) order."""
+    seen = {space.root}
+    frontier = [space.root]
+    order = [space.root]
+    while frontier:
+        nxt = []
+        for q in frontier:
+            if space.is_leaf(q):
+                continue
+            for t in space.successors(q):
+                d = int(space.cm.dst[t])
+                if d not in seen:
+                    seen.add(d)
+                    nxt.append(d)
+        order.extend(nxt)
+        frontier = nxt
+    return order
+
+
+def branch_and_bound(
+    space: Space,
+    max_states: int | None = None,
+    timeout: float | None = None,
+    use_bounds: bool = True,
+) -> EngineOutcome:
+    """Optimum, counterexample and representative path, exactly (or bounds if a budget ran out)."""
+    t0 = time.perf_counter()
+    stats = Stats(engine="bnb")
+    budget = _Budget(max_states, timeout)
+    bounds = suffix_bounds(space) if use_bounds else None
+    if bounds is not None:
+        stats.extra["bound_states"] = bounds.states
+    opt, lower, upper, cex = _optimum(space, bounds, budget, stats)
+    exact = budget.stopped == "finished"
+    witness, w_exact = None, False
+    if exact:
+        witness, w_exact = _witness(space, bounds, budget, opt, stats)
+    stats.states_expanded = budget.used
+    stats.stopped = budget.stopped  # type: ignore[assignment]
+    stats.seconds = time.perf_counter() - t0
+    return EngineOutcome(
+        optimum=opt if exact else math.inf,
+        lower=lower,
+        upper=upper,
+        counterexample=_transitions(cex),
+        witness=_transitions(witness),
+        witness_exact=w_exact,
+        stats=stats,
+    )
+
+
+def _optimum(
+    space: Space, b: Bounds | None, budget: _Budget, stats: Stats
+) -> tuple[float, float, float, _Label | None]:
+    """Phase 1: best-first on the lower bound of the objective."""
+    cm = space.cm
+    con_up = space.con_up
+    obj_mx, con_mx = space.obj_max, space.con_max
+    best_con: dict[int, float] = {}  # per state, best effective constraint value popped so far
+    heap: list[tuple[float, int, _Label]] = []
+    tick = 0
+    upper, incumbent = math.inf, None
+
+    def push(lab: _Label) -> None:
+        nonlocal tick, upper, incumbent
+        q = lab.q
+        if lab.complete or space.is_leaf(q):
+            if not lab.complete:
+                to, tc = space.tail(q)
+                lab = _Label(space.agg(obj_mx, lab.obj, to), space.agg(con_mx, lab.con, tc),
+                             q, lab.parent, lab.t, True)
+            if not space.violates(lab.con):
+                return  # in P−: phase 2's business
+            if lab.obj < upper:
+                upper, incumbent = lab.obj, lab
+            key = lab.obj
+        else:
+            if b is not None:
+                if not b.alive[q]:
+                    return
+                reach = space.agg(con_mx, lab.con, b.con_max[q] if con_up else b.con_min[q])
+                if not space.violates(reach):
+                    return  # no completion can violate
+                key = space.agg(obj_mx, lab.obj, b.obj_min[q])
+            else:
+                key = lab.obj
+            if key > upper:
+                return
+        tick += 1
+        heapq.heappush(heap, (key, tick, lab))
+
+    push(_Label(space.root_obj, space.root_con, space.root, None, -1))
+    while heap:
+        key, _, lab = heapq.heappop(heap)
+        if lab.complete:
+            return lab.obj, lab.obj, lab.obj, lab
+        q = lab.q
+        eff = _effective(con_mx, lab.con, None if b is None else b.con_min[q])
+        prev = best_con.get(q)
+        if prev is not None and (prev >= eff if con_up else prev <= eff):
+            continue  # dominated: an earlier label here has no larger effective objective
+        best_con[q] = eff
+        if not budget.spend():
+            return math.inf, key, upper, incumbent
+        for t in space.successors(q):
+            stats.transitions += 1
+            push(_Label(space.agg(obj_mx, lab.obj, float(space.c_obj[t])),
+                        space.agg(con_mx, lab.con, float(space.c_con[t])), int(cm.dst[t]), lab, int(t)))
+    return math.inf, math.inf, math.inf, None
+
+
+def _witness(
+    space: Space, b: Bounds | None, budget: _Budget, opt: float, stats: Stats
+) -> tuple[_Label | None, bool]:
+    """Phase 2: the largest objective below ``opt`` among non-violating paths (ρ*)."""
+    cm = space.cm
+    con_up = space.con_up
+    obj_mx, con_mx = space.obj_max, space.con_max
+    heap: list[tuple[float, int, _Label]] = []
+    front: dict[int, list[tuple[float, float, bool]]] = {}  # per state: popped (obj, con, capped)
+    tick = 0
+    best = -math.inf
+
+    def push(lab: _Label) -> None:
+        nonlocal tick, best
+        q = lab.q
+        if space.is_leaf(q):
+            to, tc = space.tail(q)
+            lab = _Label(space.agg(obj_mx, lab.obj, to), space.agg(con_mx, lab.con, tc),
+                         q, lab.parent, lab.t, True)
+            if space.violates(lab.con) or not lab.obj < opt or lab.obj <= best:
+                return
+            best = lab.obj
+            key = lab.obj
+        else:
+            if b is not None:
+                if not b.alive[q] or not space.agg(obj_mx, lab.obj, b.obj_min[q]) < opt:
+                    return
+                least = space.agg(con_mx, lab.con, b.con_min[q] if con_up else b.con_max[q])
+                if space.violates(least):
+                    return  # every completion violates
+                key = min(space.agg(obj_mx, lab.obj, b.obj_max[q]), opt)
+            else:
+                if not lab.obj < opt or (con_up and space.violates(lab.con)):
+                    return
+                key = opt
+            if key <= best:
+                return
+        tick += 1
+        heapq.heappush(heap, (-key, tick, lab))
+
+    push(_Label(space.root_obj, space.root_con, space.root, None, -1))
+    while heap:
+        negkey, _, lab = heapq.heappop(heap)
+        if lab.complete:
+            return lab, True
+        q = lab.q
+        mo = None if b is None else b.obj_min[q]
+        mc = None if b is None else b.con_min[q]
+        eo, ec = _effective(obj_mx, lab.obj, mo), _effective(con_mx, lab.con, mc)
+        capped = b is not None and space.agg(obj_mx, lab.obj, b.obj_max[q]) < opt
+        if _dominated(front.setdefault(q, []), eo, ec, con_up):
+            continue
+        front[q].append((eo, ec, capped))
+        if not budget.spend():
+            return None, False
+        for t in space.successors(q):
+            stats.transitions += 1
+            push(_Label(space.agg(obj_mx, lab.obj, float(space.c_obj[t])),
+                        space.agg(con_mx, lab.con, float(space.c_con[t])), int(cm.dst[t]), lab, int(t)))
+    return None, True
+
+
+def _dominated(front: list[tuple[float, float, bool]], eo: float, ec: float, con_up: bool) -> bool:
+    """A popped label with ≥ objective (capped below the optimum, or equal) and a constraint
+    value no closer to violating dominates (eo, ec) for the representative path."""
+    for o, c, capped in front:
+        better_con = c <= ec if con_up else c >= ec
+        if better_con and (o == eo or (capped and o >= eo)):
+            return True
+    return False
+
+
+def _effective(is_max: bool, value: float, least_suffix: float | None) -> float:
+    if is_max and least_suffix is not None:
+        return max(value, least_suffix)
+    return value
+
+
+def _transitions(lab: _Label | None) -> list[int] | None:
+    if lab is None:
+        return None
+    out = []
+    while lab is not None and lab.t >= 0:
+        out.append(lab.t)
+        lab = lab.parent
+    out.reverse()
+    return out

@@ -1,0 +1,190 @@
+"""What a check returns: verdict, optimum, counterexample, witness and statistics."""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from typing import Any, Literal
+
+from lesmc.engines.space import Space
+
+Verdict = Literal["holds", "violated", "unknown"]
+
+#: Why a search stopped: it finished, or a budget ran out (then bounds are reported).
+StopReason = Literal["finished", "max_states", "timeout"]
+
+
+@dataclass(frozen=True)
+class PathStep:
+    """One step of a reported path: the state entered, its observation and measures."""
+
+    step: int
+    state: str
+    obs: str | None
+    rank: int | None
+    combined_payoff: float
+    deviation: float
+    attacked: bool
+
+
+@dataclass(frozen=True)
+class PathInfo:
+    """A complete path from step 0 to the property's end (or to a halt)."""
+
+    states: tuple[str, ...]
+    objective: float
+    constraint: float
+    steps: tuple[PathStep, ...]
+    halted: bool
+
+    def to_json(self, with_constraint: bool = True) -> dict[str, Any]:
+        d: dict[str, Any] = {"states": list(self.states), "objective": _num(self.objective)}
+        if with_constraint:
+            d["constraint"] = _num(self.constraint)
+        d["halted"] = self.halted
+        d["steps"] = [
+            {
+                "step": s.step,
+                "state": s.state,
+                "obs": s.obs,
+                "rank": s.rank,
+                "combined_payoff": _num(s.combined_payoff),
+                "deviation": _num(s.deviation),
+                "attacked": s.attacked,
+            }
+            for s in self.steps
+        ]
+        return d
+
+
+@dataclass
+class Stats:
+    """How the engine got its answer; ``seconds`` is the search alone, not loading."""
+
+    engine: str
+    states_expanded: int = 0
+    transitions: int = 0
+    seconds: float = 0.0
+    stopped: StopReason = "finished"
+    paths: int | None = None
+    extra: dict[str, Any] = field(default_factory=dict)
+
+    def to_json(self) -> dict[str, Any]:
+        d: dict[str, Any] = {
+            "engine": self.engine,
+            "states_expanded": self.states_expanded,
+            "transitions": self.transitions,
+            "seconds": round(self.seconds, 6),
+            "stopped": self.stopped,
+        }
+        if self.paths is not None:
+            d["paths"] = self.paths
+        d.update(self.extra)
+        return d
+
+
+@dataclass
+class EngineOutcome:
+    """An engine's raw answer; paths are transition-index lists from the root."""
+
+    optimum: float  # +inf when no path violates (or not yet found)
+    lower: float
+    upper: float
+    counterexample: list[int] | None
+    witness: list[int] | None
+    witness_exact: bool
+    stats: Stats
+
+
+@dataclass
+class CheckResult:
+    """The answer to one property."""
+
+    property: str
+    verdict: Verdict
+    optimum: float | None
+    threshold: float
+    holds_op: str
+    objective: str
+    constraint: str
+    lower: float
+    upper: float
+    counterexample: PathInfo | None
+    witness: PathInfo | None
+    witness_value: float | None
+    witness_exact: bool
+    stats: Stats
+    notes: list[str] = field(default_factory=list)
+
+    def to_json(self) -> dict[str, Any]:
+        return {
+            "property": self.property,
+            "verdict": self.verdict,
+            "optimum": None if self.optimum is None else _num(self.optimum),
+            "threshold": self.threshold,
+            "holds_if": f"optimum {self.holds_op} {self.threshold:g}",
+            "objective": self.objective,
+            "constraint": self.constraint,
+            "bounds": {"lower": _num(self.lower), "upper": _num(self.upper)},
+            "counterexample": None if self.counterexample is None else self.counterexample.to_json(),
+            "witness": None if self.witness is None else self.witness.to_json(),
+            "witness_value": None if self.witness_value is None else _num(self.witness_value),
+            "witness_exact": self.witness_exact,
+            "notes": self.notes,
+            "stats": self.stats.to_json(),
+        }
+
+
+def _num(x: float) -> float | str:
+    """JSON has no infinity: write it as the string "inf"."""
+    if math.isinf(x):
+        return "inf" if x > 0 else "-inf"
+    return float(x)
+
+
+def path_info(space: Space, transitions: list[int]) -> PathInfo:
+    """Recompute a path's states and measures from its transitions (root onwards)."""
+    cm, bp = space.cm, space.bp
+    steps: list[PathStep] = []
+    prefix = [int(q) for q in cm.original[: bp.l]]
+    for k, q in enumerate(prefix):
+        t = _entering(space, prefix[k - 1], q) if k else None
+        steps.append(_step(space, q, t, attacked=False))
+    obj, con = space.root_obj, space.root_con
+    q = space.root
+    for t in transitions:
+        q = int(cm.dst[t])
+        obj = space.agg(space.obj_max, obj, float(space.c_obj[t]))
+        con = space.agg(space.con_max, con, float(space.c_con[t]))
+        steps.append(_step(space, q, t, attacked=bp.l <= cm.step[q] <= bp.u))
+    t_obj, t_con = space.tail(q)
+    obj = space.agg(space.obj_max, obj, t_obj)
+    con = space.agg(space.con_max, con, t_con)
+    return PathInfo(
+        states=tuple(s.state for s in steps),
+        objective=obj,
+        constraint=con,
+        steps=tuple(steps),
+        halted=bool(cm.halted[q]) and int(cm.step[q]) < bp.end,
+    )
+
+
+def _entering(space: Space, q0: int, q1: int) -> int:
+    cm = space.cm
+    for t in range(int(cm.ptr[q0]), int(cm.ptr[q0 + 1])):
+        if cm.dst[t] == q1:
+            return t
+    raise AssertionError("original path edge missing")  # pragma: no cover - validated on load
+
+
+def _step(space: Space, q: int, t: int | None, attacked: bool) -> PathStep:
+    cm = space.cm
+    return PathStep(
+        step=int(cm.step[q]),
+        state=cm.ids[q],
+        obs=None if t is None else cm.obs[t],
+        rank=None if t is None else int(cm.rank[t]),
+        combined_payoff=0.0 if t is None else float(cm.combined[t]),
+        deviation=float(space.dist[q]),
+        attacked=attacked,
+    )

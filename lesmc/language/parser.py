@@ -1,0 +1,257 @@
+"""Parse property files (grammars/lesmc.lark) into :class:`Property` objects.
+
+Syntax errors and file-local meaning errors (missing or repeated clauses,
+non-finite thresholds, duplicate names) are raised as :class:`SpecError`
+with ``FILE:LINE:COL``; checks that need a model live in :mod:`.semantics`.
+"""
+
+from __future__ import annotations
+
+import math
+from functools import cache
+from importlib import resources
+from pathlib import Path
+from typing import Any
+
+from lark import Lark, Token, Tree, UnexpectedCharacters, UnexpectedEOF, UnexpectedInput, UnexpectedToken
+
+from lesmc.errors import Location, SpecError, source_line
+from lesmc.language.properties import (
+    Constraint,
+    Measure,
+    Monitor,
+    Pos,
+    Property,
+    SpecFile,
+    StepRef,
+)
+
+#: Readable names for grammar terminals in "expected ..." messages.
+_TERMINAL_NAMES = {
+    "NAME": "a name",
+    "INT": "a whole number",
+    "NUMBER": "a number",
+    "CMP": "a comparison (>, >=, <, <=)",
+    "HOLDS_CMP": "'>' or '>='",
+    "NORM": "1, 2 or inf",
+    "END": "'end'",
+    "PAYOFF_AGG": "'sum' or 'mean'",
+    "RANGE_AGG": "'sum' or 'max'",
+    "LBRACE": "'{'",
+    "RBRACE": "'}'",
+    "LPAR": "'('",
+    "RPAR": "')'",
+    "COMMA": "','",
+    "DOT": "'.'",
+    "$END": "end of file",
+}
+
+_REQUIRED = {
+    "window": "'attack window L..U'",
+    "objective": "'minimize MEASURE'",
+    "constraint": "'subject to MEASURE > NUMBER'",
+    "verdict": "'holds if optimum > NUMBER'",
+}
+
+
+def grammar_text() -> str:
+    """The grammar source: packaged copy when installed, else the repository's."""
+    packaged = resources.files("lesmc.language").joinpath("lesmc.lark")
+    if packaged.is_file():
+        return packaged.read_text(encoding="utf-8")
+    repo = Path(__file__).resolve().parents[2] / "grammars" / "lesmc.lark"
+    return repo.read_text(encoding="utf-8")
+
+
+@cache
+def _parser() -> Lark:
+    return Lark(grammar_text(), parser="lalr", lexer="contextual", propagate_positions=True)
+
+
+def parse_spec(text: str, path: str = "<spec>") -> SpecFile:
+    """Parse the text of a property file; raise :class:`SpecError` on any problem."""
+    try:
+        tree = _parser().parse(text)
+    except UnexpectedInput as exc:
+        raise _syntax_error(exc, text, path) from None
+    builder = _Builder(text, path)
+    props = tuple(builder.property(node) for node in tree.children)
+    seen: dict[str, Property] = {}
+    for prop in props:
+        if prop.name in seen:
+            first = seen[prop.name].pos.line
+            raise builder.error(f"duplicate property name '{prop.name}' (first at line {first})", prop.pos)
+        seen[prop.name] = prop
+    if not props:
+        raise SpecError("the file defines no property", Location(path, 1, 1, source_line(text, 1)))
+    return SpecFile(path=path, text=text, properties=props)
+
+
+def load_spec(path: str | Path) -> SpecFile:
+    """Read and parse a property file."""
+    p = Path(path)
+    try:
+        text = p.read_text(encoding="utf-8")
+    except (OSError, UnicodeDecodeError) as exc:
+        raise SpecError(f"cannot read property file: {exc}", Location(str(path))) from None
+    return parse_spec(text, str(path))
+
+
+def _syntax_error(exc: UnexpectedInput, text: str, path: str) -> SpecError:
+    line = getattr(exc, "line", None) or 1
+    col = getattr(exc, "column", None) or 1
+    if isinstance(exc, UnexpectedEOF):
+        lines = text.splitlines() or [""]
+        line, col = len(lines), len(lines[-1]) + 1
+        found = "end of file"
+        expected = exc.expected
+    elif isinstance(exc, UnexpectedToken):
+        found = "end of file" if exc.token.type == "$END" else f"'{exc.token}'"
+        expected = exc.accepts or exc.expected
+    elif isinstance(exc, UnexpectedCharacters):
+        found = f"'{exc.char}'"
+        expected = exc.allowed or set()
+    else:  # pragma: no cover - lark has no other subclasses
+        found, expected = "input", set()
+    names = sorted({_terminal_name(t) for t in expected})
+    message = f"unexpected {found}"
+    if names:
+        message += "; expected " + _join(names)
+    return SpecError(message, Location(path, line, col, source_line(text, line)))
+
+
+def _terminal_name(name: str) -> str:
+    if name in _TERMINAL_NAMES:
+        return _TERMINAL_NAMES[name]
+    pattern = _parser().get_terminal(name).pattern if name in _terminals() else None
+    if pattern is not None and pattern.type == "str":
+        return f"'{pattern.value}'"
+    return name.lower()
+
+
+@cache
+def _terminals() -> frozenset[str]:
+    return frozenset(t.name for t in _parser().terminals)
+
+
+def _join(items: list[str]) -> str:
+    if len(items) <= 1:
+        return "".join(items)
+    return ", ".join(items[:-1]) + " or " + items[-1]
+
+
+class _Builder:
+    """Turns the parse tree of one property into a :class:`Property`."""
+
+    def __init__(self, text: str, path: str) -> None:
+        self.text = text
+        self.path = path
+
+    def error(self, message: str, pos: Pos) -> SpecError:
+        return SpecError(
+            message, Location(self.path, pos.line, pos.column, source_line(self.text, pos.line))
+        )
+
+    def property(self, node: Tree[Any]) -> Property:
+        name_tok: Token = node.children[0]
+        prop_pos = Pos(node.meta.line, node.meta.column)
+        fields: dict[str, Any] = {}
+        clause_pos: dict[str, Pos] = {}
+        for clause in node.children[1:]:
+            key, value = self.clause(clause)
+            pos = Pos(clause.meta.line, clause.meta.column)
+            if key in fields:
+                raise self.error(
+                    f"property '{name_tok}' repeats its {key} clause "
+                    f"(first at line {clause_pos[key].line})",
+                    pos,
+                )
+            fields[key] = value
+            clause_pos[key] = pos
+        for key, shown in _REQUIRED.items():
+            if key not in fields:
+                raise self.error(f"property '{name_tok}' lacks {shown}", prop_pos)
+        holds_op, threshold = fields["verdict"]
+        return Property(
+            name=str(name_tok),
+            window=fields["window"],
+            objective=fields["objective"],
+            constraint=fields["constraint"],
+            holds_op=holds_op,
+            threshold=threshold,
+            end=fields.get("end"),
+            norm=fields.get("norm", 2.0),
+            components=fields.get("on"),
+            monitor=fields.get("monitor"),
+            pos=prop_pos,
+            clause_pos=clause_pos,
+        )
+
+    def clause(self, node: Tree[Any]) -> tuple[str, Any]:
+        kind = node.data
+        ch = node.children
+        if kind == "window":
+            return "window", (int(ch[0]), self.step(ch[1]))
+        if kind == "objective":
+            return "objective", self.measure(ch[0])
+        if kind == "constraint":
+            measure = self.measure(ch[0])
+            value = self.number(ch[2], "constraint threshold")
+            return "constraint", Constraint(measure, str(ch[1]), value, _pos(node))  # type: ignore[arg-type]
+        if kind == "verdict":
+            return "verdict", (str(ch[0]), self.number(ch[1], "verdict threshold"))
+        if kind == "end_clause":
+            return "end", int(ch[0])
+        if kind == "norm_clause":
+            return "norm", math.inf if str(ch[0]) == "inf" else float(str(ch[0]))
+        if kind == "on_clause":
+            return "on", self.names(ch[0])
+        if kind == "monitor_clause":
+            names: tuple[str, ...] | None = None
+            tol = 1e-9
+            for item in ch:
+                if isinstance(item, Tree) and item.data == "name_list":
+                    names = self.names(item)
+                elif isinstance(item, Tree) and item.data == "number":
+                    tol = self.number(item, "monitor tolerance")
+                    if tol < 0:
+                        raise self.error("the monitor tolerance must be >= 0", _pos(item))
+            return "monitor", Monitor(names, tol, _pos(node))
+        raise AssertionError(f"unhandled clause {kind}")  # pragma: no cover
+
+    def names(self, node: Tree[Any]) -> tuple[str, ...]:
+        names = tuple(str(t) for t in node.children)
+        for tok in node.children:
+            if names.count(str(tok)) > 1:
+                raise self.error(f"component '{tok}' is named twice", Pos(tok.line, tok.column))
+        return names
+
+    def measure(self, node: Tree[Any]) -> Measure:
+        pos = _pos(node)
+        ch = node.children
+        if node.data == "payoff":
+            agg = str(ch[0]) if ch else "sum"
+            return Measure("payoff", agg, pos=pos)  # type: ignore[arg-type]
+        if node.data == "dist_at":
+            at = self.step(ch[0])
+            return Measure("dist", "at", at, at, pos=pos)
+        lo, hi = self.step(ch[1]), self.step(ch[2])
+        if lo is not None and hi is not None and lo > hi:
+            raise self.error(f"empty step range {lo}..{hi}", pos)
+        return Measure("dist", str(ch[0]), lo, hi, pos=pos)  # type: ignore[arg-type]
+
+    def step(self, node: Tree[Any]) -> StepRef:
+        tok = node.children[0]
+        return None if tok.type == "END" else int(tok)
+
+    def number(self, node: Tree[Any], what: str) -> float:
+        tok = node.children[0]
+        value = float(tok)
+        if not math.isfinite(value):
+            raise self.error(f"the {what} must be finite, got {tok}", Pos(tok.line, tok.column))
+        return value
+
+
+def _pos(node: Tree[Any]) -> Pos:
+    return Pos(node.meta.line, node.meta.column)
+

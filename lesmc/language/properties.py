@@ -1,0 +1,117 @@
+"""Property objects: the typed, position-carrying form of a spec file.
+
+A property is the constrained minimisation of the paper's Eq. 6 (robustness)
+or Eq. 7 (resilience), generalised: minimise a path measure over the attacked
+paths subject to one threshold constraint on another measure, and compare the
+optimum with a threshold (section 4: holds iff optimum > threshold).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Literal
+
+#: A step reference in a spec: a number, or None for ``end``.
+StepRef = int | None
+
+MeasureKind = Literal["payoff", "dist"]
+Aggregate = Literal["sum", "mean", "max", "at"]
+Comparison = Literal[">", ">=", "<", "<="]
+
+
+@dataclass(frozen=True)
+class Pos:
+    """A 1-based source position, kept so semantic errors can point at the text."""
+
+    line: int
+    column: int
+
+
+@dataclass(frozen=True)
+class Measure:
+    """A quantity of a path.
+
+    ``payoff`` (sum, Eq. 8 over the attack window), ``payoff.mean`` (the same
+    divided by the number of attacked steps, Algorithm 1), ``dist.sum(a..b)``
+    (Eq. 9 on a range), ``dist.max(a..b)`` (dist^max) and ``dist.at(k)``
+    (dist^{k,k}).
+    """
+
+    kind: MeasureKind
+    aggregate: Aggregate
+    lo: StepRef = None
+    hi: StepRef = None
+    pos: Pos = field(default=Pos(0, 0), compare=False)
+
+    def text(self) -> str:
+        """The measure as it is written in the language."""
+        if self.kind == "payoff":
+            return "payoff" if self.aggregate == "sum" else f"payoff.{self.aggregate}"
+        if self.aggregate == "at":
+            return f"dist.at({_step_text(self.lo)})"
+        return f"dist.{self.aggregate}({_step_text(self.lo)}..{_step_text(self.hi)})"
+
+
+@dataclass(frozen=True)
+class Constraint:
+    """``subject to MEASURE CMP NUMBER``: the paths that break the system."""
+
+    measure: Measure
+    op: Comparison
+    threshold: float
+    pos: Pos = field(default=Pos(0, 0), compare=False)
+
+    def text(self) -> str:
+        return f"{self.measure.text()} {self.op} {_num(self.threshold)}"
+
+
+@dataclass(frozen=True)
+class Monitor:
+    """``monitor uncertainty``: the runtime monitor Γ of Eq. 13 filters paths.
+
+    An attacked path counts only if the covariance-trace τ (Eq. 12, over
+    ``components``) never rises by more than ``tolerance`` (relative) on a
+    transition entering steps l..end.
+    """
+
+    components: tuple[str, ...] | None = None
+    tolerance: float = 1e-9
+    pos: Pos = field(default=Pos(0, 0), compare=False)
+
+
+@dataclass(frozen=True)
+class Property:
+    """One ``property NAME { ... }`` block, before it is bound to a model."""
+
+    name: str
+    window: tuple[int, StepRef]
+    objective: Measure
+    constraint: Constraint
+    holds_op: Literal[">", ">="]
+    threshold: float
+    end: int | None = None
+    norm: float = 2.0
+    components: tuple[str, ...] | None = None
+    monitor: Monitor | None = None
+    pos: Pos = field(default=Pos(0, 0), compare=False)
+    clause_pos: dict[str, Pos] = field(default_factory=dict, compare=False, hash=False)
+
+    def holds_text(self) -> str:
+        return f"optimum {self.holds_op} {_num(self.threshold)}"
+
+
+@dataclass(frozen=True)
+class SpecFile:
+    """A parsed property file; ``text`` is kept for error messages."""
+
+    path: str
+    text: str
+    properties: tuple[Property, ...]
+
+
+def _step_text(ref: StepRef) -> str:
+    return "end" if ref is None else str(ref)
+
+
+def _num(x: float) -> str:
+    return f"{x:g}"

@@ -1,0 +1,127 @@
+"""Bind a property to a model: resolve ``end``, check ranges and component names.
+
+The result, :class:`BoundProperty`, has only concrete step numbers and component
+indices, which is what the engines need. Errors point into the spec file.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+from lesmc.errors import Location, SpecError, source_line
+from lesmc.language.properties import Measure, Pos, Property, SpecFile, StepRef
+
+#: Names that ``monitor uncertainty`` takes as the location block (Eq. 12) by default.
+LOCATION_COMPONENTS = ("x", "y")
+
+
+@dataclass(frozen=True)
+class BoundMeasure:
+    """A measure with concrete steps: ``kind`` payoff/dist, ``aggregate`` sum/max.
+
+    ``dist.at(k)`` becomes a sum over k..k; ``payoff.mean`` a sum with
+    ``weight`` 1/(u−l+1).
+    """
+
+    source: str
+    aggregate: str
+    lo: int
+    hi: int
+    weight: float
+    text: str
+
+
+@dataclass(frozen=True)
+class BoundProperty:
+    """A property ready for an engine, bound to a model whose original path ends at e."""
+
+    prop: Property
+    l: int
+    u: int
+    end: int
+    objective: BoundMeasure
+    constraint: BoundMeasure
+    op: str
+    bound: float
+    norm: float
+    components: tuple[int, ...]
+    monitor_components: tuple[int, ...] | None
+    monitor_tolerance: float
+
+    @property
+    def name(self) -> str:
+        return self.prop.name
+
+
+def bind(
+    spec: SpecFile, prop: Property, e: int, components: tuple[str, ...], has_covariance: bool
+) -> BoundProperty:
+    """Resolve ``prop`` against a model with steps 0..e and the given components."""
+
+    def fail(message: str, pos: Pos) -> SpecError:
+        return SpecError(message, Location(spec.path, pos.line, pos.column, source_line(spec.text, pos.line)))
+
+    cpos = prop.clause_pos
+    end = e if prop.end is None else prop.end
+    if end > e:
+        raise fail(f"end {end} is beyond the model's original path, which ends at step {e}", cpos["end"])
+    l, u_ref = prop.window
+    u = end if u_ref is None else u_ref
+    if l < 1:
+        raise fail("the attack window must start at step 1 or later (step 0 has no incoming "
+                   "transition to attack)", cpos["window"])
+    if not l <= u <= end:
+        raise fail(f"attack window {l}..{u} must satisfy 1 <= l <= u <= end = {end}", cpos["window"])
+
+    def measure(m: Measure) -> BoundMeasure:
+        if m.kind == "payoff":
+            weight = 1.0 / (u - l + 1) if m.aggregate == "mean" else 1.0
+            return BoundMeasure("payoff", "sum", l, u, weight, m.text())
+        lo, hi = _resolve(m.lo, end), _resolve(m.hi, end)
+        if lo > hi:
+            raise fail(f"empty step range {lo}..{hi}", m.pos)
+        if hi > end:
+            raise fail(f"step {hi} is beyond end = {end}", m.pos)
+        agg = "sum" if m.aggregate in ("sum", "at") else "max"
+        return BoundMeasure("dist", agg, lo, hi, 1.0, m.text())
+
+    def indices(names: tuple[str, ...] | None, pos: Pos) -> tuple[int, ...]:
+        if names is None:
+            return tuple(range(len(components)))
+        for n in names:
+            if n not in components:
+                raise fail(f"unknown component '{n}'; the model has {', '.join(components)}", pos)
+        return tuple(components.index(n) for n in names)
+
+    monitor_idx = None
+    tol = 0.0
+    if prop.monitor is not None:
+        if not has_covariance:
+            raise fail("'monitor uncertainty' needs the covariance P in every model state",
+                       prop.monitor.pos)
+        names = prop.monitor.components
+        if names is None and all(c in components for c in LOCATION_COMPONENTS):
+            names = LOCATION_COMPONENTS
+        monitor_idx = indices(names, prop.monitor.pos)
+        tol = prop.monitor.tolerance
+    if not math.isfinite(prop.threshold) or not math.isfinite(prop.constraint.threshold):
+        raise fail("thresholds must be finite", prop.pos)  # the parser already refuses these
+    return BoundProperty(
+        prop=prop,
+        l=l,
+        u=u,
+        end=end,
+        objective=measure(prop.objective),
+        constraint=measure(prop.constraint.measure),
+        op=prop.constraint.op,
+        bound=prop.constraint.threshold,
+        norm=prop.norm,
+        components=indices(prop.components, cpos.get("on", prop.pos)),
+        monitor_components=monitor_idx,
+        monitor_tolerance=tol,
+    )
+
+
+def _resolve(ref: StepRef, end: int) -> int:
+    return end if ref is None else ref

@@ -1,0 +1,80 @@
+"""Readable tables of check results (rich) and the ``--json`` document."""
+
+from __future__ import annotations
+
+import json
+import math
+from collections.abc import Sequence
+from typing import Any
+
+from rich.console import Console
+from rich.table import Table
+
+from lesmc.engines.result import CheckResult, PathInfo
+
+_COLOURS = {"holds": "green", "violated": "red", "unknown": "yellow"}
+
+
+def results_json(results: Sequence[CheckResult], meta: dict[str, Any] | None = None) -> str:
+    """The ``--json`` output: ``{"results": [...]}`` (docs/cli.md)."""
+    doc: dict[str, Any] = {"results": [r.to_json() for r in results]}
+    if meta:
+        doc.update(meta)
+    return json.dumps(doc, indent=1, allow_nan=False)
+
+
+def fmt(x: float | None, digits: int = 4) -> str:
+    """A number for a table: '-' for None, '+inf' for infinity."""
+    if x is None:
+        return "-"
+    if math.isinf(x):
+        return "+inf" if x > 0 else "-inf"
+    return f"{x:.{digits}g}" if abs(x) >= 1e4 else f"{x:.{digits}f}".rstrip("0").rstrip(".") or "0"
+
+
+def print_results(console: Console, results: Sequence[CheckResult], paths: bool = True) -> None:
+    """A summary table, then each property's counterexample and witness, step by step."""
+    summary = Table(title="lesmc check", title_justify="left")
+    for col in ("property", "verdict", "optimum", "holds if", "witness θ*", "engine", "states", "seconds"):
+        summary.add_column(col, justify="right" if col in ("optimum", "witness θ*", "states", "seconds") else "left")
+    for r in results:
+        opt = fmt(r.optimum) if r.optimum is not None or r.stats.stopped != "finished" else "+inf"
+        if r.stats.stopped != "finished":
+            opt = f"[{fmt(r.lower)}, {fmt(r.upper)}]"
+        summary.add_row(
+            r.property,
+            f"[{_COLOURS[r.verdict]}]{r.verdict}[/]",
+            opt,
+            f"optimum {r.holds_op} {r.threshold:g}",
+            fmt(r.witness_value),
+            r.stats.engine,
+            str(r.stats.states_expanded),
+            f"{r.stats.seconds:.3f}",
+        )
+    console.print(summary)
+    for r in results:
+        console.print(f"[bold]{r.property}[/]: minimize {r.objective} subject to {r.constraint}")
+        for note in r.notes:
+            console.print(f"  note: {note}")
+        if not paths:
+            continue
+        if r.counterexample is not None:
+            _print_path(console, "counterexample (cheapest violating path)", r.counterexample)
+        else:
+            console.print("  counterexample: none (no path violates)")
+        if r.witness is not None:
+            _print_path(console, "witness ρ* (representative path)", r.witness)
+        else:
+            console.print("  witness: none")
+
+
+def _print_path(console: Console, title: str, p: PathInfo) -> None:
+    table = Table(title=f"{title}: objective {fmt(p.objective)}, constraint {fmt(p.constraint)}"
+                  + (" (halted)" if p.halted else ""), title_justify="left", show_edge=False)
+    for col in ("step", "state", "obs", "rank", "combined payoff", "deviation"):
+        table.add_column(col, justify="left" if col in ("state", "obs") else "right")
+    for s in p.steps:
+        style = "bold" if s.attacked else None
+        table.add_row(str(s.step), s.state, s.obs or "-", "-" if s.rank is None else str(s.rank),
+                      fmt(s.combined_payoff), fmt(s.deviation), style=style)
+    console.print(table)
