@@ -15,24 +15,51 @@ from lesmc.errors import UsageError
 from lesmc.language.parser import load_spec
 from lesmc.model.lts_format import load_lts
 from lesmc.report.exit import exit_status
-from lesmc.report.text import print_results, results_json
+from lesmc.report.text import make_console, print_results, results_json
 
 
 @click.command("check")
 @click.argument("model", type=click.Path(dir_okay=False))
 @click.argument("specs", nargs=-1, required=True, type=click.Path(dir_okay=False))
-@click.option("--engine", type=click.Choice(["bnb", "enumerate"]), default="bnb", show_default=True,
-              help="bnb: exact branch and bound; enumerate: the paper's Algorithms 1-2 (all paths).")
+@click.option(
+    "--engine",
+    type=click.Choice(["bnb", "enumerate"]),
+    default="bnb",
+    show_default=True,
+    help="bnb: exact branch and bound; enumerate: the paper's Algorithms 1-2 (all paths).",
+)
 @click.option("--json", "as_json", is_flag=True, help="Print the results as JSON on stdout.")
-@click.option("--max-states", type=click.IntRange(min=1), default=DEFAULT_MAX_STATES, show_default=True,
-              help="Budget of expanded states per property; past it the verdict may be 'unknown'.")
-@click.option("--timeout", type=click.FloatRange(min=0, min_open=True), default=None,
-              help="Seconds of search per property; past it the verdict may be 'unknown'.")
-@click.option("--property", "only", multiple=True, metavar="NAME",
-              help="Check only the named properties (repeatable).")
+@click.option(
+    "--max-states",
+    type=click.IntRange(min=1),
+    default=DEFAULT_MAX_STATES,
+    show_default=True,
+    help="Budget of expanded states per property; past it the verdict may be 'unknown'.",
+)
+@click.option(
+    "--timeout",
+    type=click.FloatRange(min=0, min_open=True),
+    default=None,
+    help="Seconds of search per property; past it the verdict may be 'unknown'.",
+)
+@click.option(
+    "--property",
+    "only",
+    multiple=True,
+    metavar="NAME",
+    help="Check only the named properties (repeatable).",
+)
 @click.option("--no-paths", is_flag=True, help="Table output: omit the step-by-step paths.")
-def check_cmd(model: str, specs: tuple[str, ...], engine: str, as_json: bool, max_states: int,
-              timeout: float | None, only: tuple[str, ...], no_paths: bool) -> None:
+def check_cmd(
+    model: str,
+    specs: tuple[str, ...],
+    engine: str,
+    as_json: bool,
+    max_states: int,
+    timeout: float | None,
+    only: tuple[str, ...],
+    no_paths: bool,
+) -> None:
     """Check the properties in SPEC files on MODEL (a .lts file).
 
     For each property: the verdict (holds iff optimum > threshold), the optimum,
@@ -47,8 +74,10 @@ def check_cmd(model: str, specs: tuple[str, ...], engine: str, as_json: bool, ma
         names = {bp.name for bp in bound}
         missing = [n for n in only if n not in names]
         if missing:
-            raise UsageError(f"no property named {', '.join(missing)}; the specs define "
-                             f"{', '.join(sorted(names))}")
+            raise UsageError(
+                f"no property named {', '.join(missing)}; the specs define "
+                f"{', '.join(sorted(names))}"
+            )
         bound = [bp for bp in bound if bp.name in only]
     names_seen: set[str] = set()
     for bp in bound:
@@ -58,8 +87,14 @@ def check_cmd(model: str, specs: tuple[str, ...], engine: str, as_json: bool, ma
     cm = CompiledModel.from_lts(lts)
     err = Console(stderr=True)
     results: list[CheckResult] = []
-    with Progress(SpinnerColumn(), TextColumn("{task.description}"), TimeElapsedColumn(),
-                  console=err, transient=True, disable=not err.is_terminal) as progress:
+    with Progress(
+        SpinnerColumn(),
+        TextColumn("{task.description}"),
+        TimeElapsedColumn(),
+        console=err,
+        transient=True,
+        disable=not err.is_terminal,
+    ) as progress:
         task = progress.add_task("checking", total=len(bound))
         for bp in bound:
             progress.update(task, description=f"checking {bp.name} ({engine})")
@@ -68,5 +103,5 @@ def check_cmd(model: str, specs: tuple[str, ...], engine: str, as_json: bool, ma
     if as_json:
         click.echo(results_json(results))
     else:
-        print_results(Console(), results, paths=not no_paths)
+        print_results(make_console(), results, paths=not no_paths)
     sys.exit(exit_status(results))

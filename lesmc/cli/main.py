@@ -7,6 +7,7 @@ stderr and exit with status 2, without a traceback and without writing output.
 from __future__ import annotations
 
 import sys
+
 import click
 from rich.console import Console
 

@@ -21,13 +21,30 @@ def reduce_group() -> None:
 @reduce_group.command("knapsack")
 @click.argument("items", type=click.Path(dir_okay=False))
 @click.option("--demand", type=float, required=True, help="W: the capacity to exceed (Eq. 10).")
-@click.option("--budget", type=float, default=0.0, show_default=True,
-              help="The property holds iff every selection meeting the demand costs more than this.")
-@click.option("-o", "--output", required=True, type=click.Path(dir_okay=False),
-              help="The model file to write (.lts).")
-@click.option("--spec", "spec_out", type=click.Path(dir_okay=False), default=None,
-              help="The property file to write [default: OUTPUT with .spec].")
-def knapsack_cmd(items: str, demand: float, budget: float, output: str, spec_out: str | None) -> None:
+@click.option(
+    "--budget",
+    type=float,
+    default=0.0,
+    show_default=True,
+    help="The property holds iff every selection meeting the demand costs more than this.",
+)
+@click.option(
+    "-o",
+    "--output",
+    required=True,
+    type=click.Path(dir_okay=False),
+    help="The model file to write (.lts).",
+)
+@click.option(
+    "--spec",
+    "spec_out",
+    type=click.Path(dir_okay=False),
+    default=None,
+    help="The property file to write [default: OUTPUT with .spec].",
+)
+def knapsack_cmd(
+    items: str, demand: float, budget: float, output: str, spec_out: str | None
+) -> None:
     """Build the knapsack reduction of section 4.5 from ITEMS.csv (columns cost, capacity).
 
     The optimum of the written property is the minimum cost of a selection

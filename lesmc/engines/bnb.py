@@ -71,7 +71,11 @@ class _Budget:
         if self.max_states is not None and self.used > self.max_states:
             self.stopped = "max_states"
             return False
-        if self.deadline is not None and self.used % 256 == 0 and time.perf_counter() > self.deadline:
+        if (
+            self.deadline is not None
+            and self.used % 256 == 0
+            and time.perf_counter() > self.deadline
+        ):
             self.stopped = "timeout"
             return False
         return True
@@ -176,8 +180,14 @@ def _optimum(
         if lab.complete or space.is_leaf(q):
             if not lab.complete:
                 to, tc = space.tail(q)
-                lab = _Label(space.agg(obj_mx, lab.obj, to), space.agg(con_mx, lab.con, tc),
-                             q, lab.parent, lab.t, True)
+                lab = _Label(
+                    space.agg(obj_mx, lab.obj, to),
+                    space.agg(con_mx, lab.con, tc),
+                    q,
+                    lab.parent,
+                    lab.t,
+                    True,
+                )
             if not space.violates(lab.con):
                 return  # in P−: phase 2's business
             if lab.obj < upper:
@@ -213,8 +223,15 @@ def _optimum(
             return math.inf, key, upper, incumbent
         for t in space.successors(q):
             stats.transitions += 1
-            push(_Label(space.agg(obj_mx, lab.obj, float(space.c_obj[t])),
-                        space.agg(con_mx, lab.con, float(space.c_con[t])), int(cm.dst[t]), lab, int(t)))
+            push(
+                _Label(
+                    space.agg(obj_mx, lab.obj, float(space.c_obj[t])),
+                    space.agg(con_mx, lab.con, float(space.c_con[t])),
+                    int(cm.dst[t]),
+                    lab,
+                    int(t),
+                )
+            )
     return math.inf, math.inf, math.inf, None
 
 
@@ -235,8 +252,14 @@ def _witness(
         q = lab.q
         if space.is_leaf(q):
             to, tc = space.tail(q)
-            lab = _Label(space.agg(obj_mx, lab.obj, to), space.agg(con_mx, lab.con, tc),
-                         q, lab.parent, lab.t, True)
+            lab = _Label(
+                space.agg(obj_mx, lab.obj, to),
+                space.agg(con_mx, lab.con, tc),
+                q,
+                lab.parent,
+                lab.t,
+                True,
+            )
             if space.violates(lab.con) or not lab.obj < opt or lab.obj <= best:
                 return
             best = lab.obj
@@ -260,7 +283,7 @@ def _witness(
 
     push(_Label(space.root_obj, space.root_con, space.root, None, -1))
     while heap:
-        negkey, _, lab = heapq.heappop(heap)
+        _, _, lab = heapq.heappop(heap)
         if lab.complete:
             return lab, True
         q = lab.q
@@ -275,8 +298,15 @@ def _witness(
             return None, False
         for t in space.successors(q):
             stats.transitions += 1
-            push(_Label(space.agg(obj_mx, lab.obj, float(space.c_obj[t])),
-                        space.agg(con_mx, lab.con, float(space.c_con[t])), int(cm.dst[t]), lab, int(t)))
+            push(
+                _Label(
+                    space.agg(obj_mx, lab.obj, float(space.c_obj[t])),
+                    space.agg(con_mx, lab.con, float(space.c_con[t])),
+                    int(cm.dst[t]),
+                    lab,
+                    int(t),
+                )
+            )
     return None, True
 
 

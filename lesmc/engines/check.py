@@ -86,7 +86,11 @@ def to_result(space: Space, out: EngineOutcome) -> CheckResult:
     if not out.witness_exact and wit is not None:
         notes.append("the witness is the best found before the budget ran out, maybe not ρ*")
     if exact and math.isinf(out.optimum):
-        notes.append("no attacked path satisfies the constraint: optimum is +inf")
+        notes.append(
+            "no attacked path violates: optimum is +inf"
+            if cex is None
+            else "only paths with an infinite objective violate (a halted track): optimum is +inf"
+        )
     return CheckResult(
         property=prop.name,
         verdict=verdict,

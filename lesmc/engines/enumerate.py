@@ -110,11 +110,14 @@ def _algorithm2(
     )
 
 
-def _path(i: int, refs: list[tuple[int, np.ndarray]], levels: list[tuple[np.ndarray, np.ndarray]]) -> list[int]:
+def _path(
+    i: int, refs: list[tuple[int, np.ndarray]], levels: list[tuple[np.ndarray, np.ndarray]]
+) -> list[int]:
     """Transitions from the root to the i-th finished path, walking parent links up."""
-    for level, idx in refs:
+    level, node = 0, 0
+    for lv, idx in refs:
         if i < idx.size:
-            node = int(idx[i])
+            level, node = lv, int(idx[i])
             break
         i -= idx.size
     out: list[int] = []
@@ -127,7 +130,8 @@ def _path(i: int, refs: list[tuple[int, np.ndarray]], levels: list[tuple[np.ndar
 
 
 def _agg(is_max: bool, acc: np.ndarray, c: np.ndarray) -> np.ndarray:
-    return np.maximum(acc, c) if is_max else acc + c
+    out: np.ndarray = np.maximum(acc, c) if is_max else acc + c
+    return out
 
 
 def _tails(space: Space, nodes: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

@@ -126,7 +126,9 @@ class CheckResult:
             "objective": self.objective,
             "constraint": self.constraint,
             "bounds": {"lower": _num(self.lower), "upper": _num(self.upper)},
-            "counterexample": None if self.counterexample is None else self.counterexample.to_json(),
+            "counterexample": None
+            if self.counterexample is None
+            else self.counterexample.to_json(),
             "witness": None if self.witness is None else self.witness.to_json(),
             "witness_value": None if self.witness_value is None else _num(self.witness_value),
             "witness_exact": self.witness_exact,
@@ -156,7 +158,7 @@ def path_info(space: Space, transitions: list[int]) -> PathInfo:
         q = int(cm.dst[t])
         obj = space.agg(space.obj_max, obj, float(space.c_obj[t]))
         con = space.agg(space.con_max, con, float(space.c_con[t]))
-        steps.append(_step(space, q, t, attacked=bp.l <= cm.step[q] <= bp.u))
+        steps.append(_step(space, q, t, attacked=bool(bp.l <= cm.step[q] <= bp.u)))
     t_obj, t_con = space.tail(q)
     obj = space.agg(space.obj_max, obj, t_obj)
     con = space.agg(space.con_max, con, t_con)

@@ -87,14 +87,16 @@ def deviations(cm: CompiledModel, norm: float, components: tuple[int, ...]) -> n
     """dist(ρ_k, ρ̃_k) = ||s_k − s̃_k||_p of every state against the original (Eq. 4)."""
     ref = cm.S[cm.original[cm.step]]
     diff = (cm.S - ref)[:, list(components)]
-    return np.linalg.norm(diff, ord=norm, axis=1)
+    out: np.ndarray = np.linalg.norm(diff, ord=norm, axis=1)
+    return out
 
 
 def location_trace(cm: CompiledModel, components: tuple[int, ...]) -> np.ndarray:
     """τ = tr(Σ_ll) of every state (Eq. 12) over the given components."""
     assert cm.P is not None
     idx = list(components)
-    return np.trace(cm.P[:, idx][:, :, idx], axis1=1, axis2=2)
+    out: np.ndarray = np.trace(cm.P[:, idx][:, :, idx], axis1=1, axis2=2)
+    return out
 
 
 @dataclass
@@ -156,7 +158,9 @@ def _tail(m: BoundMeasure, h: int, end: int) -> float:
     return math.inf if m.hi > h else 0.0
 
 
-def contributions(cm: CompiledModel, m: BoundMeasure, dist: np.ndarray, bp: BoundProperty) -> np.ndarray:
+def contributions(
+    cm: CompiledModel, m: BoundMeasure, dist: np.ndarray, bp: BoundProperty
+) -> np.ndarray:
     """Each transition's contribution to measure ``m`` (entering step k = step(dst))."""
     k = cm.step[cm.dst]
     inside = (k >= m.lo) & (k <= m.hi)

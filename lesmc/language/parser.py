@@ -8,12 +8,20 @@ with ``FILE:LINE:COL``; checks that need a model live in :mod:`.semantics`.
 from __future__ import annotations
 
 import math
+from collections.abc import Collection
 from functools import cache
 from importlib import resources
 from pathlib import Path
 from typing import Any
 
-from lark import Lark, Token, Tree, UnexpectedCharacters, UnexpectedEOF, UnexpectedInput, UnexpectedToken
+from lark import (
+    Lark,
+    Tree,
+    UnexpectedCharacters,
+    UnexpectedEOF,
+    UnexpectedInput,
+    UnexpectedToken,
+)
 
 from lesmc.errors import Location, SpecError, source_line
 from lesmc.language.properties import (
@@ -75,12 +83,15 @@ def parse_spec(text: str, path: str = "<spec>") -> SpecFile:
     except UnexpectedInput as exc:
         raise _syntax_error(exc, text, path) from None
     builder = _Builder(text, path)
-    props = tuple(builder.property(node) for node in tree.children)
+    nodes: list[Any] = tree.children
+    props = tuple(builder.property(node) for node in nodes)
     seen: dict[str, Property] = {}
     for prop in props:
         if prop.name in seen:
             first = seen[prop.name].pos.line
-            raise builder.error(f"duplicate property name '{prop.name}' (first at line {first})", prop.pos)
+            raise builder.error(
+                f"duplicate property name '{prop.name}' (first at line {first})", prop.pos
+            )
         seen[prop.name] = prop
     if not props:
         raise SpecError("the file defines no property", Location(path, 1, 1, source_line(text, 1)))
@@ -100,6 +111,7 @@ def load_spec(path: str | Path) -> SpecFile:
 def _syntax_error(exc: UnexpectedInput, text: str, path: str) -> SpecError:
     line = getattr(exc, "line", None) or 1
     col = getattr(exc, "column", None) or 1
+    expected: Collection[str]
     if isinstance(exc, UnexpectedEOF):
         lines = text.splitlines() or [""]
         line, col = len(lines), len(lines[-1]) + 1
@@ -153,7 +165,7 @@ class _Builder:
         )
 
     def property(self, node: Tree[Any]) -> Property:
-        name_tok: Token = node.children[0]
+        name_tok: Any = node.children[0]
         prop_pos = Pos(node.meta.line, node.meta.column)
         fields: dict[str, Any] = {}
         clause_pos: dict[str, Pos] = {}
@@ -189,7 +201,7 @@ class _Builder:
 
     def clause(self, node: Tree[Any]) -> tuple[str, Any]:
         kind = node.data
-        ch = node.children
+        ch: list[Any] = node.children
         if kind == "window":
             return "window", (int(ch[0]), self.step(ch[1]))
         if kind == "objective":
@@ -220,15 +232,17 @@ class _Builder:
         raise AssertionError(f"unhandled clause {kind}")  # pragma: no cover
 
     def names(self, node: Tree[Any]) -> tuple[str, ...]:
-        names = tuple(str(t) for t in node.children)
-        for tok in node.children:
-            if names.count(str(tok)) > 1:
+        names: list[str] = []
+        toks: list[Any] = node.children
+        for tok in toks:
+            if str(tok) in names:
                 raise self.error(f"component '{tok}' is named twice", Pos(tok.line, tok.column))
-        return names
+            names.append(str(tok))
+        return tuple(names)
 
     def measure(self, node: Tree[Any]) -> Measure:
         pos = _pos(node)
-        ch = node.children
+        ch: list[Any] = node.children
         if node.data == "payoff":
             agg = str(ch[0]) if ch else "sum"
             return Measure("payoff", agg, pos=pos)  # type: ignore[arg-type]
@@ -241,11 +255,11 @@ class _Builder:
         return Measure("dist", str(ch[0]), lo, hi, pos=pos)  # type: ignore[arg-type]
 
     def step(self, node: Tree[Any]) -> StepRef:
-        tok = node.children[0]
+        tok: Any = node.children[0]
         return None if tok.type == "END" else int(tok)
 
     def number(self, node: Tree[Any], what: str) -> float:
-        tok = node.children[0]
+        tok: Any = node.children[0]
         value = float(tok)
         if not math.isfinite(value):
             raise self.error(f"the {what} must be finite, got {tok}", Pos(tok.line, tok.column))
@@ -254,4 +268,3 @@ class _Builder:
 
 def _pos(node: Tree[Any]) -> Pos:
     return Pos(node.meta.line, node.meta.column)
-

@@ -60,19 +60,28 @@ def bind(
     """Resolve ``prop`` against a model with steps 0..e and the given components."""
 
     def fail(message: str, pos: Pos) -> SpecError:
-        return SpecError(message, Location(spec.path, pos.line, pos.column, source_line(spec.text, pos.line)))
+        return SpecError(
+            message, Location(spec.path, pos.line, pos.column, source_line(spec.text, pos.line))
+        )
 
     cpos = prop.clause_pos
     end = e if prop.end is None else prop.end
     if end > e:
-        raise fail(f"end {end} is beyond the model's original path, which ends at step {e}", cpos["end"])
+        raise fail(
+            f"end {end} is beyond the model's original path, which ends at step {e}", cpos["end"]
+        )
     l, u_ref = prop.window
     u = end if u_ref is None else u_ref
     if l < 1:
-        raise fail("the attack window must start at step 1 or later (step 0 has no incoming "
-                   "transition to attack)", cpos["window"])
+        raise fail(
+            "the attack window must start at step 1 or later (step 0 has no incoming "
+            "transition to attack)",
+            cpos["window"],
+        )
     if not l <= u <= end:
-        raise fail(f"attack window {l}..{u} must satisfy 1 <= l <= u <= end = {end}", cpos["window"])
+        raise fail(
+            f"attack window {l}..{u} must satisfy 1 <= l <= u <= end = {end}", cpos["window"]
+        )
 
     def measure(m: Measure) -> BoundMeasure:
         if m.kind == "payoff":
@@ -98,8 +107,10 @@ def bind(
     tol = 0.0
     if prop.monitor is not None:
         if not has_covariance:
-            raise fail("'monitor uncertainty' needs the covariance P in every model state",
-                       prop.monitor.pos)
+            raise fail(
+                "'monitor uncertainty' needs the covariance P in every model state",
+                prop.monitor.pos,
+            )
         names = prop.monitor.components
         if names is None and all(c in components for c in LOCATION_COMPONENTS):
             names = LOCATION_COMPONENTS

@@ -49,26 +49,32 @@ def read_items(path: str | Path) -> list[Item]:
     header = [h.strip().lower() for h in rows[0]]
     for col in ("cost", "capacity"):
         if col not in header:
-            raise InputError(f"the header lacks a '{col}' column", Location(p, 1, 1, text.splitlines()[0]))
+            raise InputError(
+                f"the header lacks a '{col}' column", Location(p, 1, 1, text.splitlines()[0])
+            )
     ci, gi = header.index("cost"), header.index("capacity")
     items = []
     for n, row in enumerate(rows[1:], start=2):
         if not any(cell.strip() for cell in row):
             continue
-        line = text.splitlines()[n - 1]
+        src = text.splitlines()[n - 1]
         if len(row) != len(header):
-            raise InputError(f"{len(row)} fields, the header has {len(header)}", Location(p, n, 1, line))
+            raise InputError(
+                f"{len(row)} fields, the header has {len(header)}", Location(p, n, 1, src)
+            )
         values = []
         for idx in (ci, gi):
             cell = row[idx].strip()
-            col = line.find(row[idx]) + 1 if row[idx] else 1
+            column = src.find(row[idx]) + 1 if row[idx] else 1
             try:
                 v = float(cell)
             except ValueError:
-                raise InputError(f"'{cell}' is not a number", Location(p, n, col, line)) from None
+                raise InputError(f"'{cell}' is not a number", Location(p, n, column, src)) from None
             if not math.isfinite(v) or v < 0:
-                raise InputError(f"{header[idx]} must be finite and >= 0, got {cell}",
-                                 Location(p, n, col, line))
+                raise InputError(
+                    f"{header[idx]} must be finite and >= 0, got {cell}",
+                    Location(p, n, column, src),
+                )
             values.append(v)
         items.append(Item(values[0], values[1]))
     if not items:
@@ -93,7 +99,7 @@ def knapsack_lts(items: list[Item]) -> LTS:
 
 
 def knapsack_spec(n: int, demand: float, budget: float, name: str = "knapsack") -> str:
-    """The matching property (Eq. 11): holds iff every selection meeting the demand costs > budget."""
+    """The matching property (Eq. 11): holds iff meeting the demand costs more than ``budget``."""
     return (
         f"# 0-1 minimisation knapsack with {n} items (paper Eq. 10-12): the cheapest\n"
         f"# selection whose total capacity exceeds the demand {demand:g}.\n"

@@ -18,8 +18,17 @@ from lesmc.model.lts import LTS, State, Transition
 
 FORMAT = "lesmc-lts"
 VERSION = 1
-_TOP_KEYS = {"format", "version", "components", "initial", "original", "states", "transitions",
-             "comment", "meta"}
+_TOP_KEYS = {
+    "format",
+    "version",
+    "components",
+    "initial",
+    "original",
+    "states",
+    "transitions",
+    "comment",
+    "meta",
+}
 _STATE_KEYS = {"id", "step", "s", "P", "labels", "meta"}
 _TRANS_KEYS = {"src", "dst", "payoff", "rank", "obs"}
 
@@ -47,7 +56,7 @@ def lts_from_dict(data: Any, path: str = "<model>") -> LTS:
     for key in sorted(set(data) - _TOP_KEYS):
         pr.add(f"key '{key}'", "unknown top-level key")
     if data.get("format") != FORMAT:
-        pr.add("format", f"must be \"{FORMAT}\", got {data.get('format')!r}")
+        pr.add("format", f'must be "{FORMAT}", got {data.get("format")!r}')
     if data.get("version") != VERSION:
         pr.add("version", f"must be {VERSION}, got {data.get('version')!r}")
     components = data.get("components")
@@ -92,7 +101,7 @@ def _state(raw: Any, i: int, pr: _Problems) -> State | None:
         pr.add(item, f"unknown key '{key}'")
         ok = False
     step = raw.get("step")
-    if not _is_int(step) or step < 0:
+    if not _is_int(step) or step < 0:  # type: ignore[operator]
         pr.add(item, f"step must be an integer >= 0, got {step!r}")
         ok = False
     s = _vector(raw.get("s"))
@@ -130,7 +139,7 @@ def _transition(raw: Any, i: int, pr: _Problems) -> Transition | None:
         pr.add(item, "src and dst must be state ids")
         ok = False
     payoff = raw.get("payoff")
-    if not _is_number(payoff) or not math.isfinite(payoff) or payoff < 0:
+    if not _is_number(payoff) or not math.isfinite(payoff) or payoff < 0:  # type: ignore[arg-type,operator]
         pr.add(item, f"payoff must be a finite number >= 0, got {payoff!r}")
         ok = False
     rank = raw.get("rank")

@@ -70,8 +70,11 @@ def _check_order(graph: nx.DiGraph) -> list[tuple[str, str]]:
         ranks = [d["transition"].rank for _, _, d in graph.out_edges(sid, data=True)]
         if ranks and ranks.count(min(ranks)) > 1:
             problems.append(
-                (f"state '{sid}'", f"{ranks.count(min(ranks))} transitions share the lowest rank "
-                 f"{min(ranks)}; the unattacked successor must be unique")
+                (
+                    f"state '{sid}'",
+                    f"{ranks.count(min(ranks))} transitions share the lowest rank "
+                    f"{min(ranks)}; the unattacked successor must be unique",
+                )
             )
     return problems
 
@@ -92,15 +95,28 @@ def _check_paths(graph: nx.DiGraph, initial: str, original: Sequence[str]) -> li
             problems.append((f"original[{k}]", f"unknown state '{sid}'"))
             return problems
         if graph.nodes[sid]["state"].step != k:
-            problems.append((f"original[{k}]", f"state '{sid}' is at step "
-                             f"{graph.nodes[sid]['state'].step}, not {k}"))
+            problems.append(
+                (
+                    f"original[{k}]",
+                    f"state '{sid}' is at step {graph.nodes[sid]['state'].step}, not {k}",
+                )
+            )
         if k > 0 and graph.has_edge(original[k - 1], sid):
-            pick = min(graph.out_edges(original[k - 1], data=True), key=lambda x: x[2]["transition"].rank)
+            pick = min(
+                graph.out_edges(original[k - 1], data=True), key=lambda x: x[2]["transition"].rank
+            )
             if pick[1] != sid:
-                problems.append((f"original[{k}]", f"'{sid}' is not the unattacked (rank-minimal) "
-                                 f"successor of '{original[k - 1]}', which is '{pick[1]}'"))
+                problems.append(
+                    (
+                        f"original[{k}]",
+                        f"'{sid}' is not the unattacked (rank-minimal) "
+                        f"successor of '{original[k - 1]}', which is '{pick[1]}'",
+                    )
+                )
         elif k > 0:
-            problems.append((f"original[{k}]", f"no transition from '{original[k - 1]}' to '{sid}'"))
+            problems.append(
+                (f"original[{k}]", f"no transition from '{original[k - 1]}' to '{sid}'")
+            )
     reachable = nx.descendants(graph, initial) | {initial}
     for sid in graph.nodes:
         st = graph.nodes[sid]["state"]
@@ -113,6 +129,11 @@ def _check_paths(graph: nx.DiGraph, initial: str, original: Sequence[str]) -> li
         if st.halted and succ:
             problems.append((item, "is labelled halted but has successors"))
         elif not succ and st.step < e and not st.halted:
-            problems.append((item, f"has no successor before step {e}; label it 'halted' if the "
-                             "tracker stopped there"))
+            problems.append(
+                (
+                    item,
+                    f"has no successor before step {e}; label it 'halted' if the "
+                    "tracker stopped there",
+                )
+            )
     return problems

@@ -32,13 +32,26 @@ def fmt(x: float | None, digits: int = 4) -> str:
     return f"{x:.{digits}g}" if abs(x) >= 1e4 else f"{x:.{digits}f}".rstrip("0").rstrip(".") or "0"
 
 
+def make_console() -> Console:
+    """stdout console; at least 110 columns when piped so tables stay on one line."""
+    console = Console()
+    if not console.is_terminal:
+        console = Console(width=max(console.width, 110))
+    return console
+
+
 def print_results(console: Console, results: Sequence[CheckResult], paths: bool = True) -> None:
     """A summary table, then each property's counterexample and witness, step by step."""
-    summary = Table(title="lesmc check", title_justify="left")
-    for col in ("property", "verdict", "optimum", "holds if", "witness θ*", "engine", "states", "seconds"):
-        summary.add_column(col, justify="right" if col in ("optimum", "witness θ*", "states", "seconds") else "left")
+    engines = sorted({r.stats.engine for r in results})
+    summary = Table(title=f"lesmc check ({', '.join(engines)})", title_justify="left")
+    for col in ("property", "verdict", "optimum", "holds if", "θ*", "states", "seconds"):
+        summary.add_column(
+            col,
+            justify="left" if col in ("property", "verdict", "holds if") else "right",
+            no_wrap=True,
+        )
     for r in results:
-        opt = fmt(r.optimum) if r.optimum is not None or r.stats.stopped != "finished" else "+inf"
+        opt = fmt(r.optimum) if r.optimum is not None else "+inf"
         if r.stats.stopped != "finished":
             opt = f"[{fmt(r.lower)}, {fmt(r.upper)}]"
         summary.add_row(
@@ -47,7 +60,6 @@ def print_results(console: Console, results: Sequence[CheckResult], paths: bool 
             opt,
             f"optimum {r.holds_op} {r.threshold:g}",
             fmt(r.witness_value),
-            r.stats.engine,
             str(r.stats.states_expanded),
             f"{r.stats.seconds:.3f}",
         )
@@ -69,12 +81,22 @@ def print_results(console: Console, results: Sequence[CheckResult], paths: bool 
 
 
 def _print_path(console: Console, title: str, p: PathInfo) -> None:
-    table = Table(title=f"{title}: objective {fmt(p.objective)}, constraint {fmt(p.constraint)}"
-                  + (" (halted)" if p.halted else ""), title_justify="left", show_edge=False)
+    console.print(
+        f"  {title}: objective {fmt(p.objective)}, constraint {fmt(p.constraint)}"
+        + (" (the track halted)" if p.halted else "")
+    )
+    table = Table(show_edge=False, padding=(0, 1, 0, 1))
     for col in ("step", "state", "obs", "rank", "combined payoff", "deviation"):
         table.add_column(col, justify="left" if col in ("state", "obs") else "right")
     for s in p.steps:
         style = "bold" if s.attacked else None
-        table.add_row(str(s.step), s.state, s.obs or "-", "-" if s.rank is None else str(s.rank),
-                      fmt(s.combined_payoff), fmt(s.deviation), style=style)
+        table.add_row(
+            str(s.step),
+            s.state,
+            s.obs or "-",
+            "-" if s.rank is None else str(s.rank),
+            fmt(s.combined_payoff),
+            fmt(s.deviation),
+            style=style,
+        )
     console.print(table)

@@ -1,0 +1,95 @@
+"""An independent brute force: every attacked path, measures straight from the definitions.
+
+It reads the LTS object (not lesmc's compiled arrays) and recomputes Eq. 4, 5,
+8, 9 and dist^max per path, then optimum and ρ* as in section 5.2.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from lesmc.language.semantics import BoundMeasure, BoundProperty
+from lesmc.model.lts import LTS
+
+
+@dataclass
+class BruteResult:
+    optimum: float  # +inf when no path violates
+    witness_value: float | None
+    paths: list[tuple[list[str], float, float]]  # (states, objective, constraint)
+
+
+def brute_force(model: LTS, bp: BoundProperty) -> BruteResult:
+    orig = [model.state(q) for q in model.original]
+    comps = list(bp.components)
+
+    def dist(sid: str) -> float:
+        st = model.state(sid)
+        d = st.s[comps] - orig[st.step].s[comps]
+        if bp.norm == 1:
+            return float(np.sum(np.abs(d)))
+        if math.isinf(bp.norm):
+            return float(np.max(np.abs(d)))
+        return float(np.sqrt(np.sum(d * d)))
+
+    def tau(sid: str) -> float:
+        P = model.state(sid).P
+        idx = list(bp.monitor_components or ())
+        return float(sum(P[i, i] for i in idx))
+
+    def allowed(sid: str) -> list:
+        out = sorted(model.out(sid), key=lambda t: t.rank)
+        k = model.state(sid).step + 1
+        ts = out if bp.l <= k <= bp.u else [min(out, key=lambda t: t.rank)] if out else []
+        if bp.monitor_components is not None and k >= bp.l:
+            ts = [
+                t for t in ts if not tau(t.dst) > tau(t.src) * (1 + bp.monitor_tolerance) + 1e-300
+            ]
+        return ts
+
+    complete: list[tuple[list[str], list]] = []
+
+    def walk(path: list[str], edges: list) -> None:
+        st = model.state(path[-1])
+        if st.step >= bp.end or st.halted:
+            complete.append((path, edges))
+            return
+        for t in allowed(path[-1]):
+            walk([*path, t.dst], [*edges, t])
+
+    walk([model.initial], [])
+
+    def value(m: BoundMeasure, path: list[str], edges: list) -> float:
+        per_step = {}
+        for k in range(m.lo, m.hi + 1):
+            if k < len(path):
+                if m.source == "dist":
+                    per_step[k] = dist(path[k])
+                else:
+                    t = edges[k - 1]
+                    comb = math.fsum(o.payoff for o in model.out(t.src) if o.rank < t.rank)
+                    per_step[k] = comb * m.weight
+            else:  # after a halt
+                per_step[k] = math.inf if m.source == "dist" else 0.0
+        vals = [per_step[k] for k in sorted(per_step)]
+        if m.aggregate == "max":
+            return max(vals)
+        acc = 0.0
+        for v in vals:
+            acc += v
+        return acc
+
+    ops = {
+        ">": lambda a, b: a > b,
+        ">=": lambda a, b: a >= b,
+        "<": lambda a, b: a < b,
+        "<=": lambda a, b: a <= b,
+    }
+    rows = [(p, value(bp.objective, p, e), value(bp.constraint, p, e)) for p, e in complete]
+    plus = [r for r in rows if ops[bp.op](r[2], bp.bound)]
+    opt = min((r[1] for r in plus), default=math.inf)
+    below = [r[1] for r in rows if not ops[bp.op](r[2], bp.bound) and r[1] < opt]
+    return BruteResult(opt, max(below) if below else None, rows)

@@ -1,0 +1,146 @@
+"""Engines against an independent brute force, and against each other (hypothesis)."""
+
+from __future__ import annotations
+
+import math
+
+import pytest
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
+from oracle import brute_force
+
+from lesmc.engines.check import check_bound
+from lesmc.engines.space import CompiledModel
+from lesmc.language.parser import parse_spec
+from lesmc.language.semantics import bind
+from lesmc.model.random_models import RandomModelConfig, random_lts
+
+ENGINES = [
+    pytest.param({"engine": "enumerate"}, id="enumerate"),
+    pytest.param({"engine": "bnb"}, id="bnb"),
+]
+
+MEASURES = ["payoff", "payoff.mean", "dist.sum({a}..{b})", "dist.max({a}..{b})", "dist.at({b})"]
+
+
+@st.composite
+def cases(draw: st.DrawFn) -> tuple:
+    steps = draw(st.integers(2, 7))
+    cfg = RandomModelConfig(
+        steps=steps,
+        width=draw(st.integers(1, 5)),
+        branching=(1, draw(st.integers(1, 4))),
+        dim=draw(st.integers(1, 3)),
+        halt_prob=draw(st.sampled_from([0.0, 0.1, 0.3])),
+        covariance=True,
+        tree=draw(st.booleans()),
+        integer_values=draw(st.booleans()),
+    )
+    model = random_lts(cfg, draw(st.integers(0, 2**31)))
+    e = model.end
+    l = draw(st.integers(1, e))
+    u = draw(st.integers(l, e))
+    end = draw(st.integers(u, e))
+    a = draw(st.integers(0, end))
+    b = draw(st.integers(a, end))
+    obj = draw(st.sampled_from(MEASURES)).format(a=a, b=b)
+    con = draw(st.sampled_from(MEASURES)).format(a=draw(st.integers(0, b)), b=b)
+    op = draw(st.sampled_from([">", ">=", "<", "<="]))
+    norm = draw(st.sampled_from(["1", "2", "inf"]))
+    monitor = draw(
+        st.sampled_from(["", "monitor uncertainty", "monitor uncertainty tolerance 0.2"])
+    )
+    return model, (l, u, end, obj, con, op, norm, monitor), draw(st.floats(0, 1))
+
+
+def _spec(params: tuple, bound: float) -> str:
+    l, u, end, obj, con, op, norm, monitor = params
+    return (
+        f"property p {{ attack window {l}..{u} end {end} minimize {obj} "
+        f"subject to {con} {op} {bound!r} holds if optimum > 1 norm {norm} {monitor} }}"
+    )
+
+
+def _bound_property(model, params, quantile):  # type: ignore[no-untyped-def]
+    """Pick the constraint threshold among the values that occur, so both P+ and P− are used."""
+    spec = parse_spec(_spec(params, 0.0))
+    bp = bind(spec, spec.properties[0], model.end, model.components, True)
+    values = sorted(v for _, _, v in brute_force(model, bp).paths if math.isfinite(v)) or [0.0]
+    threshold = values[min(int(quantile * len(values)), len(values) - 1)]
+    spec = parse_spec(_spec(params, threshold))
+    return bind(spec, spec.properties[0], model.end, model.components, True)
+
+
+@settings(max_examples=300, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(cases())
+def test_optimum_and_witness_equal_brute_force(case: tuple) -> None:
+    model, params, quantile = case
+    bp = _bound_property(model, params, quantile)
+    truth = brute_force(model, bp)
+    cm = CompiledModel.from_lts(model)
+    by_states = {tuple(p): (o, c) for p, o, c in truth.paths}
+    for engine in ("enumerate", "bnb"):
+        r = check_bound(cm, bp, engine)  # type: ignore[arg-type]
+        assert r.stats.stopped == "finished"
+        if math.isinf(truth.optimum):
+            assert r.optimum is None
+            assert r.counterexample is None or math.isinf(r.counterexample.objective)
+        else:
+            assert r.optimum == pytest.approx(truth.optimum, rel=1e-12, abs=1e-12)
+            o, c = by_states[r.counterexample.states]
+            assert o == pytest.approx(truth.optimum, rel=1e-12, abs=1e-12)
+            assert (r.counterexample.objective, r.counterexample.constraint) == pytest.approx(
+                (o, c)
+            )
+        if truth.witness_value is None:
+            assert r.witness is None
+        else:
+            assert r.witness_value == pytest.approx(truth.witness_value, rel=1e-12, abs=1e-12)
+            assert by_states[r.witness.states][0] == pytest.approx(truth.witness_value)
+
+
+@settings(max_examples=150, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(cases())
+def test_engines_agree_and_bounds_do_not_change_answers(case: tuple) -> None:
+    from lesmc.engines.bnb import branch_and_bound
+    from lesmc.engines.enumerate import enumerate_paths
+    from lesmc.engines.space import build_space
+
+    model, params, quantile = case
+    bp = _bound_property(model, params, quantile)
+    space = build_space(CompiledModel.from_lts(model), bp)
+    a = enumerate_paths(space)
+    b = branch_and_bound(space, use_bounds=True)
+    c = branch_and_bound(space, use_bounds=False)
+    assert a.optimum == b.optimum == c.optimum
+    wa = [space.c_obj[t] for t in a.witness] if a.witness is not None else None
+    for other in (b, c):
+        assert (other.witness is None) == (wa is None)
+
+
+@pytest.mark.parametrize("kw", ENGINES)
+def test_budget_exhaustion_reports_unknown_with_bounds(kw: dict) -> None:
+    model = random_lts(RandomModelConfig(steps=8, width=8, branching=(3, 4), tree=True), seed=3)
+    spec = parse_spec(
+        "property p { attack window 1..8 minimize payoff "
+        "subject to dist.max(0..end) > 60 holds if optimum > 1 }"
+    )
+    bp = bind(spec, spec.properties[0], model.end, model.components, False)
+    r = check_bound(CompiledModel.from_lts(model), bp, max_states=3, **kw)
+    assert r.stats.stopped == "max_states"
+    assert r.verdict == "unknown" and r.optimum is None
+    assert r.lower <= r.upper
+
+
+def test_bnb_expands_far_fewer_states_than_enumerate_on_shared_dags() -> None:
+    model = random_lts(RandomModelConfig(steps=10, width=6, branching=(3, 4)), seed=11)
+    spec = parse_spec(
+        "property p { attack window 2..9 minimize payoff "
+        "subject to dist.sum(0..end) > 300 holds if optimum > 1 }"
+    )
+    bp = bind(spec, spec.properties[0], model.end, model.components, False)
+    cm = CompiledModel.from_lts(model)
+    e = check_bound(cm, bp, "enumerate")
+    b = check_bound(cm, bp, "bnb")
+    assert e.optimum == b.optimum
+    assert b.stats.states_expanded * 100 < e.stats.states_expanded
