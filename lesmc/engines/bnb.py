@@ -144,10 +144,12 @@ def branch_and_bound(
     if bounds is not None:
         stats.extra["bound_states"] = bounds.states
     opt, lower, upper, cex = _optimum(space, bounds, budget, stats)
+    stats.extra["optimum_states"] = budget.used
     exact = budget.stopped == "finished"
     witness, w_exact = None, False
     if exact:
         witness, w_exact = _witness(space, bounds, budget, opt, stats)
+        stats.extra["witness_states"] = budget.used - stats.extra["optimum_states"]
     stats.states_expanded = budget.used
     stats.stopped = budget.stopped  # type: ignore[assignment]
     stats.seconds = time.perf_counter() - t0
@@ -197,10 +199,13 @@ def _optimum(
             if b is not None:
                 if not b.alive[q]:
                     return
-                reach = space.agg(con_mx, lab.con, b.con_max[q] if con_up else b.con_min[q])
+                if con_up:
+                    reach = _hi(space.agg(con_mx, lab.con, b.con_max[q]))
+                else:
+                    reach = _lo(space.agg(con_mx, lab.con, b.con_min[q]))
                 if not space.violates(reach):
                     return  # no completion can violate
-                key = space.agg(obj_mx, lab.obj, b.obj_min[q])
+                key = _lo(space.agg(obj_mx, lab.obj, b.obj_min[q]))
             else:
                 key = lab.obj
             if key > upper:
@@ -238,12 +243,20 @@ def _optimum(
 def _witness(
     space: Space, b: Bounds | None, budget: _Budget, opt: float, stats: Stats
 ) -> tuple[_Label | None, bool]:
-    """Phase 2: the largest objective below ``opt`` among non-violating paths (ρ*)."""
+    """Phase 2: ρ*, the largest objective below the exact optimum ``opt``.
+
+    Section 5.2 takes ρ* among the non-violating paths (P−) with objective
+    below the optimum; but a path with objective below the optimum cannot
+    violate (it would then be a cheaper violating path), so the constraint is
+    implied and only the objective matters. That makes dominance strong: at a
+    state, a label with the same effective objective, or a larger one whose
+    every completion stays below ``opt`` ("capped"), makes another redundant.
+    """
     cm = space.cm
-    con_up = space.con_up
-    obj_mx, con_mx = space.obj_max, space.con_max
-    heap: list[tuple[float, int, _Label]] = []
-    front: dict[int, list[tuple[float, float, bool]]] = {}  # per state: popped (obj, con, capped)
+    obj_mx = space.obj_max
+    heap: list[tuple[float, float, int, _Label]] = []
+    seen: dict[int, set[float]] = {}  # per state: effective objectives popped
+    capped_best: dict[int, float] = {}  # per state: largest capped effective objective popped
     tick = 0
     best = -math.inf
 
@@ -251,73 +264,60 @@ def _witness(
         nonlocal tick, best
         q = lab.q
         if space.is_leaf(q):
-            to, tc = space.tail(q)
-            lab = _Label(
-                space.agg(obj_mx, lab.obj, to),
-                space.agg(con_mx, lab.con, tc),
-                q,
-                lab.parent,
-                lab.t,
-                True,
-            )
-            if space.violates(lab.con) or not lab.obj < opt or lab.obj <= best:
+            obj = space.agg(obj_mx, lab.obj, space.tail(q)[0])
+            if not obj < opt or obj <= best:
                 return
-            best = lab.obj
-            key = lab.obj
+            lab = _Label(obj, lab.con, q, lab.parent, lab.t, True)
+            best = key = obj
         else:
             if b is not None:
-                if not b.alive[q] or not space.agg(obj_mx, lab.obj, b.obj_min[q]) < opt:
+                if not b.alive[q] or not _lo(space.agg(obj_mx, lab.obj, b.obj_min[q])) < opt:
                     return
-                least = space.agg(con_mx, lab.con, b.con_min[q] if con_up else b.con_max[q])
-                if space.violates(least):
-                    return  # every completion violates
-                key = min(space.agg(obj_mx, lab.obj, b.obj_max[q]), opt)
+                key = min(_hi(space.agg(obj_mx, lab.obj, b.obj_max[q])), opt)
             else:
-                if not lab.obj < opt or (con_up and space.violates(lab.con)):
+                if not lab.obj < opt:
                     return
                 key = opt
             if key <= best:
                 return
         tick += 1
-        heapq.heappush(heap, (-key, tick, lab))
+        heapq.heappush(heap, (-key, -lab.obj, tick, lab))
 
     push(_Label(space.root_obj, space.root_con, space.root, None, -1))
     while heap:
-        _, _, lab = heapq.heappop(heap)
+        _, _, _, lab = heapq.heappop(heap)
         if lab.complete:
             return lab, True
         q = lab.q
-        mo = None if b is None else b.obj_min[q]
-        mc = None if b is None else b.con_min[q]
-        eo, ec = _effective(obj_mx, lab.obj, mo), _effective(con_mx, lab.con, mc)
-        capped = b is not None and space.agg(obj_mx, lab.obj, b.obj_max[q]) < opt
-        if _dominated(front.setdefault(q, []), eo, ec, con_up):
-            continue
-        front[q].append((eo, ec, capped))
+        eo = _effective(obj_mx, lab.obj, None if b is None else b.obj_min[q])
+        values = seen.setdefault(q, set())
+        if eo in values or eo <= capped_best.get(q, -math.inf):
+            continue  # dominated
+        values.add(eo)
+        if b is not None and _hi(space.agg(obj_mx, lab.obj, b.obj_max[q])) < opt:
+            capped_best[q] = max(eo, capped_best.get(q, -math.inf))
         if not budget.spend():
             return None, False
         for t in space.successors(q):
             stats.transitions += 1
-            push(
-                _Label(
-                    space.agg(obj_mx, lab.obj, float(space.c_obj[t])),
-                    space.agg(con_mx, lab.con, float(space.c_con[t])),
-                    int(cm.dst[t]),
-                    lab,
-                    int(t),
-                )
-            )
+            dst = int(cm.dst[t])
+            push(_Label(space.agg(obj_mx, lab.obj, float(space.c_obj[t])), 0.0, dst, lab, int(t)))
     return None, True
 
 
-def _dominated(front: list[tuple[float, float, bool]], eo: float, ec: float, con_up: bool) -> bool:
-    """A popped label with ≥ objective (capped below the optimum, or equal) and a constraint
-    value no closer to violating dominates (eo, ec) for the representative path."""
-    for o, c, capped in front:
-        better_con = c <= ec if con_up else c >= ec
-        if better_con and (o == eo or (capped and o >= eo)):
-            return True
-    return False
+#: Relative slack on suffix bounds: they are summed in another order than a path's own
+#: value, so rounding may differ in the last bits; a looser bound stays exact.
+_SLACK = 1e-9
+
+
+def _lo(x: float) -> float:
+    """A lower bound made safe against rounding."""
+    return x - _SLACK * max(1.0, abs(x)) if math.isfinite(x) else x
+
+
+def _hi(x: float) -> float:
+    """An upper bound made safe against rounding."""
+    return x + _SLACK * max(1.0, abs(x)) if math.isfinite(x) else x
 
 
 def _effective(is_max: bool, value: float, least_suffix: float | None) -> float:
