@@ -58,7 +58,14 @@ def knapsack_cases(quick: bool) -> list[tuple[str, LTS, str, float]]:
         rng = random.Random(n)
         items = [Item(float(rng.randint(1, 100)), float(rng.randint(1, 60))) for _ in range(n)]
         demand = int(sum(i.capacity for i in items) * 0.4)
-        out.append((f"knapsack n={n}", knapsack_lts(items), knapsack_spec(n, demand, 0), _dp(items, demand)))
+        out.append(
+            (
+                f"knapsack n={n}",
+                knapsack_lts(items),
+                knapsack_spec(n, demand, 0),
+                _dp(items, demand),
+            )
+        )
     return out
 
 
@@ -84,8 +91,21 @@ def main() -> int:
     args = ap.parse_args()
     console = Console(width=190)
     table = Table(title="enumerate vs bnb (same answers required)")
-    for col in ("instance", "property", "optimum", "enum states", "bnb states", "state ratio",
-                "bnb verdict states", "verdict ratio", "bnb bound states", "enum s", "bnb s", "time ratio", "enum trans/s"):
+    for col in (
+        "instance",
+        "property",
+        "optimum",
+        "enum states",
+        "bnb states",
+        "state ratio",
+        "bnb verdict states",
+        "verdict ratio",
+        "bnb bound states",
+        "enum s",
+        "bnb s",
+        "time ratio",
+        "enum trans/s",
+    ):
         table.add_column(col, justify="left" if col in ("instance", "property") else "right")
     ok = True
     cases = [(n, m, s, None) for n, m, s in layered_cases(args.quick)] + knapsack_cases(args.quick)
@@ -96,7 +116,9 @@ def main() -> int:
             done = re_.stats.stopped == "finished"
             if done and (re_.optimum != rb.optimum or re_.witness_value != rb.witness_value):
                 ok = False
-                console.print(f"[red]MISMATCH[/] {name} {rb.property}: {re_.optimum} vs {rb.optimum}")
+                console.print(
+                    f"[red]MISMATCH[/] {name} {rb.property}: {re_.optimum} vs {rb.optimum}"
+                )
             if truth is not None and (rb.optimum if rb.optimum is not None else math.inf) != truth:
                 ok = False
                 console.print(f"[red]DP MISMATCH[/] {name}: {rb.optimum} vs {truth}")
@@ -117,7 +139,9 @@ def main() -> int:
                 f"{re_.stats.transitions / max(re_.stats.seconds, 1e-9):,.0f}" if done else "-",
             )
     console.print(table)
-    console.print(f"machine: {sys.platform}, python {sys.version.split()[0]}, {time.strftime('%Y-%m-%d')}")
+    console.print(
+        f"machine: {sys.platform}, python {sys.version.split()[0]}, {time.strftime('%Y-%m-%d')}"
+    )
     return 0 if ok else 1
 
 
