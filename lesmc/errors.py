@@ -9,6 +9,7 @@ with status 2; nothing else in lesmc prints tracebacks for user mistakes.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Self
 
 
 @dataclass
@@ -40,6 +41,16 @@ class LesmcError(Exception):
         self.location = location
         self.preformatted = False
 
+    @classmethod
+    def many(cls, path: str, problems: list[tuple[str, str]], limit: int = 20) -> Self:
+        """One error listing every ``(item, message)`` problem, a line each."""
+        lines = [f"{path}: {item}: {msg}" if item else f"{path}: {msg}" for item, msg in problems]
+        if len(lines) > limit:
+            lines = [*lines[:limit], f"{path}: ... and {len(problems) - limit} more problems"]
+        err = cls("\n".join(lines))
+        err.preformatted = True
+        return err
+
     def render(self) -> str:
         """The full user-facing text: locator, message and, if known, a caret line."""
         if self.preformatted:
@@ -65,16 +76,6 @@ class SpecError(LesmcError):
 
 class ModelError(LesmcError):
     """A model (.lts) file is malformed or inconsistent."""
-
-    @classmethod
-    def many(cls, path: str, problems: list[tuple[str, str]], limit: int = 20) -> ModelError:
-        """One error listing every ``(item, message)`` problem, a line each."""
-        lines = [f"{path}: {item}: {msg}" if item else f"{path}: {msg}" for item, msg in problems]
-        if len(lines) > limit:
-            lines = [*lines[:limit], f"{path}: ... and {len(problems) - limit} more problems"]
-        err = cls("\n".join(lines))
-        err.preformatted = True
-        return err
 
 
 class InputError(LesmcError):

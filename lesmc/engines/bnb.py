@@ -27,7 +27,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from lesmc.engines.result import EngineOutcome, Stats
-from lesmc.engines.space import Space
+from lesmc.engines.space import SearchSpace
 
 
 @dataclass(frozen=True)
@@ -81,7 +81,7 @@ class _Budget:
         return True
 
 
-def suffix_bounds(space: Space) -> Bounds:
+def suffix_bounds(space: SearchSpace) -> Bounds:
     """Exact suffix min/max of both measures by one backward pass over reachable states."""
     cm = space.cm
     order = _reachable(space)
@@ -110,7 +110,7 @@ def suffix_bounds(space: Space) -> Bounds:
     return Bounds(omin, omax, cmin, cmax, alive, len(order))
 
 
-def _reachable(space: Space) -> list[int]:
+def _reachable(space: SearchSpace) -> list[int]:
     """States reachable from the root under the window, in step (topological) order."""
     seen = {space.root}
     frontier = [space.root]
@@ -131,7 +131,7 @@ def _reachable(space: Space) -> list[int]:
 
 
 def branch_and_bound(
-    space: Space,
+    space: SearchSpace,
     max_states: int | None = None,
     timeout: float | None = None,
     use_bounds: bool = True,
@@ -165,7 +165,7 @@ def branch_and_bound(
 
 
 def _optimum(
-    space: Space, b: Bounds | None, budget: _Budget, stats: Stats
+    space: SearchSpace, b: Bounds | None, budget: _Budget, stats: Stats
 ) -> tuple[float, float, float, _Label | None]:
     """Phase 1: best-first on the lower bound of the objective."""
     cm = space.cm
@@ -241,7 +241,7 @@ def _optimum(
 
 
 def _witness(
-    space: Space, b: Bounds | None, budget: _Budget, opt: float, stats: Stats
+    space: SearchSpace, b: Bounds | None, budget: _Budget, opt: float, stats: Stats
 ) -> tuple[_Label | None, bool]:
     """Phase 2: ρ*, the largest objective below the exact optimum ``opt``.
 

@@ -9,10 +9,14 @@ from typing import Literal
 from lesmc.engines.bnb import branch_and_bound
 from lesmc.engines.enumerate import enumerate_paths
 from lesmc.engines.result import CheckResult, EngineOutcome, Verdict, path_info
-from lesmc.engines.space import CompiledModel, Space, build_space
+from lesmc.engines.space import CompiledModel, SearchSpace, build_space
 from lesmc.language.properties import SpecFile
 from lesmc.language.semantics import BoundProperty, bind
+from lesmc.engines.lazy import LazySpace
+from lesmc.model.builder import COMPONENTS, build_model, original_run
 from lesmc.model.lts import LTS
+from lesmc.tracking.design import make_design
+from lesmc.tracking.scene import Scene
 
 EngineName = Literal["enumerate", "bnb"]
 ENGINES: dict[str, Callable[..., EngineOutcome]] = {
@@ -59,7 +63,7 @@ def check_bound(
     return to_result(space, outcome)
 
 
-def to_result(space: Space, out: EngineOutcome) -> CheckResult:
+def to_result(space: SearchSpace, out: EngineOutcome) -> CheckResult:
     """Turn an engine's outcome into a verdict with readable paths (section 4's rule)."""
     bp = space.bp
     prop = bp.prop
@@ -108,3 +112,42 @@ def to_result(space: Space, out: EngineOutcome) -> CheckResult:
         stats=out.stats,
         notes=notes,
     )
+
+
+def check_scene(
+    scene: Scene,
+    specs: Iterable[SpecFile],
+    engine: EngineName = "bnb",
+    max_states: int | None = DEFAULT_MAX_STATES,
+    timeout: float | None = None,
+) -> list[CheckResult]:
+    """Check properties on the model of a scene without writing it out.
+
+    ``bnb`` builds the model on the fly (only the states it expands); ``enumerate``
+    first builds the whole model for each property's window (Algorithm 1).
+    """
+    return [check_scene_bound(scene, bp, engine, max_states, timeout) for bp in bind_scene(scene, specs)]
+
+
+def bind_scene(scene: Scene, specs: Iterable[SpecFile]) -> list[BoundProperty]:
+    """Bind properties to a scene's model: steps 0..e of the unattacked track."""
+    e = len(original_run(make_design(scene))) - 1
+    return [bind(spec, prop, e, COMPONENTS, True) for spec in specs for prop in spec.properties]
+
+
+def check_scene_bound(
+    scene: Scene,
+    bp: BoundProperty,
+    engine: EngineName = "bnb",
+    max_states: int | None = DEFAULT_MAX_STATES,
+    timeout: float | None = None,
+) -> CheckResult:
+    """One bound property on a scene (see :func:`check_scene`)."""
+    if engine == "enumerate":
+        model = build_model(scene, (bp.l, bp.u), bp.end)
+        return check_bound(CompiledModel.from_lts(model), bp, engine, max_states, timeout)
+    design = make_design(scene)
+    space = LazySpace(design, original_run(design, bp.end), bp)
+    out = branch_and_bound(space, max_states=max_states, timeout=timeout, use_bounds=False)
+    out.stats.extra["states_built"] = space.states_built
+    return to_result(space, out)

@@ -6,7 +6,7 @@ import math
 from dataclasses import dataclass, field
 from typing import Any, Literal
 
-from lesmc.engines.space import Space
+from lesmc.engines.space import SearchSpace
 
 Verdict = Literal["holds", "violated", "unknown"]
 
@@ -144,13 +144,13 @@ def _num(x: float) -> float | str:
     return float(x)
 
 
-def path_info(space: Space, transitions: list[int]) -> PathInfo:
+def path_info(space: SearchSpace, transitions: list[int]) -> PathInfo:
     """Recompute a path's states and measures from its transitions (root onwards)."""
     cm, bp = space.cm, space.bp
     steps: list[PathStep] = []
     prefix = [int(q) for q in cm.original[: bp.l]]
     for k, q in enumerate(prefix):
-        t = _entering(space, prefix[k - 1], q) if k else None
+        t = space.entering(prefix[k - 1], q) if k else None
         steps.append(_step(space, q, t, attacked=False))
     obj, con = space.root_obj, space.root_con
     q = space.root
@@ -171,15 +171,7 @@ def path_info(space: Space, transitions: list[int]) -> PathInfo:
     )
 
 
-def _entering(space: Space, q0: int, q1: int) -> int:
-    cm = space.cm
-    for t in range(int(cm.ptr[q0]), int(cm.ptr[q0 + 1])):
-        if cm.dst[t] == q1:
-            return t
-    raise AssertionError("original path edge missing")  # pragma: no cover - validated on load
-
-
-def _step(space: Space, q: int, t: int | None, attacked: bool) -> PathStep:
+def _step(space: SearchSpace, q: int, t: int | None, attacked: bool) -> PathStep:
     cm = space.cm
     return PathStep(
         step=int(cm.step[q]),

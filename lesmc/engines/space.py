@@ -11,8 +11,9 @@ from __future__ import annotations
 
 import math
 import operator
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
+from typing import Any, Protocol
 
 import numpy as np
 
@@ -86,9 +87,7 @@ class CompiledModel:
 def deviations(cm: CompiledModel, norm: float, components: tuple[int, ...]) -> np.ndarray:
     """dist(ρ_k, ρ̃_k) = ||s_k − s̃_k||_p of every state against the original (Eq. 4)."""
     ref = cm.S[cm.original[cm.step]]
-    diff = (cm.S - ref)[:, list(components)]
-    out: np.ndarray = np.linalg.norm(diff, ord=norm, axis=1)
-    return out
+    return deviation((cm.S - ref)[:, list(components)], norm)
 
 
 def location_trace(cm: CompiledModel, components: tuple[int, ...]) -> np.ndarray:
@@ -99,25 +98,44 @@ def location_trace(cm: CompiledModel, components: tuple[int, ...]) -> np.ndarray
     return out
 
 
-@dataclass
-class Space:
-    """One property's search space: allowed transitions and their contributions.
+class SearchSpace(Protocol):
+    """What the engines and reports need: the explicit :class:`Space` or the lazy one."""
 
-    ``adj_ptr``/``adj`` list, per state, the transitions an attacked path may
-    take (all of them when the entered step is in the window, else only the
-    rank-minimal one; minus those the monitor forbids), in rank order.
-    """
-
-    cm: CompiledModel
     bp: BoundProperty
-    dist: np.ndarray
-    adj_ptr: np.ndarray
-    adj: np.ndarray
-    c_obj: np.ndarray  # per transition
-    c_con: np.ndarray
+    cm: Any  # per-state and per-transition sequences, named as in CompiledModel
+    dist: Any
+    c_obj: Any
+    c_con: Any
     root: int
     root_obj: float
     root_con: float
+
+    @property
+    def obj_max(self) -> bool: ...
+
+    @property
+    def con_max(self) -> bool: ...
+
+    @property
+    def con_up(self) -> bool: ...
+
+    def violates(self, con: float) -> bool: ...
+
+    def agg(self, is_max: bool, acc: float, c: float) -> float: ...
+
+    def is_leaf(self, q: int) -> bool: ...
+
+    def successors(self, q: int) -> Sequence[int] | np.ndarray: ...
+
+    def tail(self, q: int) -> tuple[float, float]: ...
+
+    def entering(self, q0: int, q1: int) -> int: ...
+
+
+class SpaceOps:
+    """Operations shared by the explicit :class:`Space` and the on-the-fly one (lazy.py)."""
+
+    bp: BoundProperty
     satisfies: Callable[[float, float], bool]
 
     @property
@@ -137,6 +155,35 @@ class Space:
         """The constraint holds for this value: the path is in P+ (breaks the system)."""
         return self.satisfies(con, self.bp.bound)
 
+    def agg(self, is_max: bool, acc: float, c: float) -> float:
+        return max(acc, c) if is_max else acc + c
+
+    def tail_at(self, h: int) -> tuple[float, float]:
+        """Contributions of the steps after a leaf at step h: +inf deviation after a halt."""
+        return _tail(self.bp.objective, h, self.bp.end), _tail(self.bp.constraint, h, self.bp.end)
+
+
+@dataclass
+class Space(SpaceOps):
+    """One property's search space on an explicit model: allowed transitions, contributions.
+
+    ``adj_ptr``/``adj`` list, per state, the transitions an attacked path may
+    take (all of them when the entered step is in the window, else only the
+    rank-minimal one; minus those the monitor forbids), in rank order.
+    """
+
+    cm: CompiledModel
+    bp: BoundProperty
+    dist: np.ndarray
+    adj_ptr: np.ndarray
+    adj: np.ndarray
+    c_obj: np.ndarray  # per transition
+    c_con: np.ndarray
+    root: int
+    root_obj: float
+    root_con: float
+    satisfies: Callable[[float, float], bool]
+
     def is_leaf(self, q: int) -> bool:
         return bool(self.cm.step[q] >= self.bp.end or self.cm.halted[q])
 
@@ -144,12 +191,11 @@ class Space:
         return self.adj[self.adj_ptr[q] : self.adj_ptr[q + 1]]
 
     def tail(self, q: int) -> tuple[float, float]:
-        """Contributions of the steps after a leaf q: +inf deviation after a halt."""
-        h = int(self.cm.step[q])
-        return _tail(self.bp.objective, h, self.bp.end), _tail(self.bp.constraint, h, self.bp.end)
+        return self.tail_at(int(self.cm.step[q]))
 
-    def agg(self, is_max: bool, acc: float, c: float) -> float:
-        return max(acc, c) if is_max else acc + c
+    def entering(self, q0: int, q1: int) -> int:
+        """The transition from q0 to q1."""
+        return _edge(self.cm, q0, q1)
 
 
 def _tail(m: BoundMeasure, h: int, end: int) -> float:
@@ -158,15 +204,25 @@ def _tail(m: BoundMeasure, h: int, end: int) -> float:
     return math.inf if m.hi > h else 0.0
 
 
-def contributions(
-    cm: CompiledModel, m: BoundMeasure, dist: np.ndarray, bp: BoundProperty
-) -> np.ndarray:
-    """Each transition's contribution to measure ``m`` (entering step k = step(dst))."""
-    k = cm.step[cm.dst]
+def contributions(m: BoundMeasure, k: np.ndarray, combined: np.ndarray, dist_dst: np.ndarray) -> np.ndarray:
+    """Contributions to measure ``m`` of transitions entering steps ``k``."""
     inside = (k >= m.lo) & (k <= m.hi)
     if m.source == "payoff":
-        return np.where(inside, cm.combined * m.weight, 0.0)
-    return np.where(inside, dist[cm.dst], 0.0)
+        return np.where(inside, combined * m.weight, 0.0)
+    return np.where(inside, dist_dst, 0.0)
+
+
+def alarms(bp: BoundProperty, k: np.ndarray, tau_src: np.ndarray, tau_dst: np.ndarray) -> np.ndarray:
+    """Transitions on which the monitor Γ fires (Eq. 13): τ rises on a step in l..end."""
+    rise = tau_dst > tau_src * (1.0 + bp.monitor_tolerance) + 1e-300
+    out: np.ndarray = (k >= bp.l) & rise
+    return out
+
+
+def deviation(diff: np.ndarray, norm: float) -> np.ndarray:
+    """‖·‖_p of each row (Eq. 4)."""
+    out: np.ndarray = np.linalg.norm(diff, ord=norm, axis=-1)
+    return out
 
 
 def build_space(cm: CompiledModel, bp: BoundProperty) -> Space:
@@ -181,13 +237,12 @@ def build_space(cm: CompiledModel, bp: BoundProperty) -> Space:
     allowed = in_window | first
     if bp.monitor_components is not None:
         tau = location_trace(cm, bp.monitor_components)
-        rise = tau[cm.dst] > tau[src] * (1.0 + bp.monitor_tolerance) + 1e-300
-        allowed &= ~((k >= bp.l) & rise)
+        allowed &= ~alarms(bp, k, tau[src], tau[cm.dst])
     adj = np.nonzero(allowed)[0]
     counts = np.bincount(src[adj], minlength=len(cm.ids)) if m else np.zeros(len(cm.ids), int)
     adj_ptr = np.concatenate([[0], np.cumsum(counts)]).astype(np.int64)
-    c_obj = contributions(cm, bp.objective, dist, bp)
-    c_con = contributions(cm, bp.constraint, dist, bp)
+    c_obj = contributions(bp.objective, k, cm.combined, dist[cm.dst])
+    c_con = contributions(bp.constraint, k, cm.combined, dist[cm.dst])
     # the common prefix: steps 0..l−1 follow the original path
     obj = _initial(bp.objective, dist, cm)
     con = _initial(bp.constraint, dist, cm)

@@ -11,6 +11,7 @@ from __future__ import annotations
 import math
 from collections.abc import Iterable, Sequence
 from dataclasses import dataclass, field
+from typing import Any
 
 import networkx as nx
 import numpy as np
@@ -58,6 +59,8 @@ class LTS:
     initial: str
     original: tuple[str, ...]
     graph: nx.DiGraph = field(repr=False)
+    meta: dict[str, Any] = field(default_factory=dict)
+    """Free-form provenance (e.g. the builder's window); written to and read from files."""
 
     @property
     def end(self) -> int:

@@ -84,7 +84,11 @@ def lts_from_dict(data: Any, path: str = "<model>") -> LTS:
     trans = [t for i, r in enumerate(raw_trans) if (t := _transition(r, i, pr)) is not None]
     if pr.items:
         raise ModelError.many(path, pr.items)
-    return LTS.from_parts(states, trans, str(initial), original, components, path)
+    model = LTS.from_parts(states, trans, str(initial), original, components, path)
+    meta = data.get("meta")
+    if isinstance(meta, dict):
+        model.meta = meta
+    return model
 
 
 def _state(raw: Any, i: int, pr: _Problems) -> State | None:
@@ -181,6 +185,7 @@ def lts_to_dict(model: LTS) -> dict[str, Any]:
         "original": list(model.original),
         "states": doc_states,
         "transitions": doc_trans,
+        **({"meta": model.meta} if model.meta else {}),
     }
 
 

@@ -1,0 +1,182 @@
+"""Design "joint": joint Kalman filters around the target (paper section 7.2).
+
+A joint state holds the primary track, the refining tracks of nearby vehicles
+and the unassociated detections of the previous frame (candidates to start
+tracks). One step:
+
+1. carry every position into the new frame (homography) and predict every track;
+2. score every gated (track, detection) pair by the likelihood N(z; Hx̂, S), sort
+   from the largest, and associate greedily one-to-one;
+3. update the associated tracks (the others skip the update);
+4. an unassociated detection within ``init_radius`` of the primary starts a
+   refining track if a previous unassociated detection lies within
+   ``init_distance`` (their difference over dt is its velocity); otherwise it is
+   kept for the next step;
+5. refining tracks farther than ``prune_radius`` from the primary, or whose
+   trace(P) exceeds ``max_trace``, are dropped.
+
+Attacks (docs/scene-format.md#joint-design): the attacker hides the detections
+nearest to the primary's prediction, as for the single design: option j hides
+the j nearest (up to the last one the primary's gate accepts) and costs their
+payoffs. The hidden detections are gone for every track. Outcomes that leave
+the whole joint state identical are merged (the cheapest kept).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from lesmc.tracking.association import gate_mask, gate_radius
+from lesmc.tracking.kalman import Innovation, Matrices, innovation, matrices, predict, warp
+from lesmc.tracking.scene import Scene
+from lesmc.tracking.design import Outcome
+
+
+@dataclass(frozen=True, eq=False)
+class JointState:
+    """The whole joint tracker: primary and refining (x, P), and pending detections."""
+
+    tracks: tuple[tuple[np.ndarray, np.ndarray], ...]  # tracks[0] is the primary
+    pending: np.ndarray  # (n, 2) unassociated detections of the previous frame
+    halted: bool = False
+
+    @property
+    def x(self) -> np.ndarray:
+        return self.tracks[0][0]
+
+    @property
+    def P(self) -> np.ndarray:
+        return self.tracks[0][1]
+
+    def estimate(self) -> tuple[np.ndarray, np.ndarray]:
+        return self.tracks[0]
+
+    def key(self) -> bytes:
+        parts = [a.tobytes() for x, P in self.tracks for a in (x, P)]
+        return b"|".join([*parts, self.pending.tobytes()])
+
+
+class JointDesign:
+    """Primary plus refining tracks with likelihood-sorted one-to-one association."""
+
+    name = "joint"
+
+    def __init__(self, scene: Scene) -> None:
+        self.scene = scene
+        self.cfg = scene.tracker
+        self.m: Matrices = matrices(self.cfg, scene.dt)
+
+    def initial(self) -> JointState:
+        t = self.scene.target
+        x0 = np.array([*t.start, *t.velocity], dtype=float)
+        Z = self.scene.frame(t.step).positions()
+        near = Z[np.hypot(*(Z - x0[:2]).T) <= self.cfg.init_radius] if len(Z) else Z
+        return JointState(((x0, self.m.P0.copy()),), near.reshape(-1, 2))
+
+    def options(self, st: JointState, step: int) -> list[Outcome]:
+        """Outcomes of hiding the j detections nearest to the primary's prediction, j = 0, 1, ..."""
+        scene, cfg = self.scene, self.cfg
+        Hm = scene.frame(step - 1).to_next
+        preds = []
+        for x, P in st.tracks:
+            x = x.copy()
+            x[:2] = warp(Hm, x[:2])
+            xp, Pp = predict(self.m, x, P)
+            preds.append((xp, Pp, innovation(self.m, Pp)))
+        pending = warp(Hm, st.pending) if len(st.pending) else st.pending
+        frame = scene.frame(step)
+        Z = frame.positions()
+        xp0, Pp0, inn0 = preds[0]
+        y0 = Z - xp0[:2]
+        dist = np.sqrt(np.einsum("ij,ij->i", y0, y0))
+        order = np.argsort(dist, kind="stable")
+        radius = gate_radius(inn0, Pp0, cfg.gate, cfg.gate_type)
+        near = order[dist[order] <= radius]
+        gated = gate_mask(y0[near], inn0, Pp0, cfg.gate, cfg.gate_type)
+        last = int(np.nonzero(gated)[0].max()) + 1 if gated.any() else 0
+        payoffs = frame.payoffs()
+        kept: list[tuple[float, JointState, str | None]] = []  # (cost of hiding, state, obs)
+        seen: set[bytes] = set()
+        cost = 0.0
+        for j in range(last + 1):  # option j hides the j nearest detections
+            if j > 0:
+                p = float(payoffs[near[j - 1]])
+                if not math.isfinite(p):
+                    break  # an unattackable detection cannot be hidden
+                cost += p
+            visible = np.ones(len(Z), dtype=bool)
+            visible[near[:j]] = False
+            nxt, obs = self._associate(preds, pending, Z, visible, frame)
+            if nxt.key() not in seen:  # identical joint states: keep the cheapest
+                seen.add(nxt.key())
+                kept.append((cost, nxt, obs))
+        # own payoffs so that Eq. 5 (sum over lower ranks) gives each option's cost
+        return [
+            Outcome(st_, obs, (kept[r + 1][0] - c) if r + 1 < len(kept) else 0.0)  # type: ignore[arg-type]
+            for r, (c, st_, obs) in enumerate(kept)
+        ]
+
+    def _associate(
+        self,
+        preds: list[tuple[np.ndarray, np.ndarray, Innovation]],
+        pending: np.ndarray,
+        Z: np.ndarray,
+        visible: np.ndarray,
+        frame: object,
+    ) -> tuple[JointState, str | None]:
+        cfg = self.cfg
+        idx = np.nonzero(visible)[0]
+        pairs: list[tuple[float, int, int]] = []
+        for ti, (xp, Pp, inn) in enumerate(preds):
+            y = Z[idx] - xp[:2]
+            ok = gate_mask(y, inn, Pp, cfg.gate, cfg.gate_type) if len(idx) else np.zeros(0, bool)
+            d2 = np.einsum("ij,jk,ik->i", y, inn.S_inv, y) if len(idx) else np.zeros(0)
+            norm = 2 * math.pi * math.sqrt(float(np.linalg.det(inn.S)))
+            for r in np.nonzero(ok)[0]:
+                like = math.exp(-0.5 * float(d2[r])) / norm
+                pairs.append((-like, ti, int(idx[r])))
+        pairs.sort()
+        used_t: set[int] = set()
+        used_z: set[int] = set()
+        assign: dict[int, int] = {}
+        for _, ti, zi in pairs:
+            if ti in used_t or zi in used_z:
+                continue
+            used_t.add(ti)
+            used_z.add(zi)
+            assign[ti] = zi
+        tracks = []
+        for ti, (xp, Pp, inn) in enumerate(preds):
+            if ti in assign:
+                z = Z[assign[ti]]
+                tracks.append((xp + inn.K @ (z - xp[:2]), inn.P_post))
+            else:
+                tracks.append((xp, Pp))
+        primary = tracks[0]
+        halted = float(np.trace(primary[1])) > cfg.max_trace
+        # track initiation from unassociated detections near the primary
+        free = [i for i in idx if i not in used_z]
+        free_z = Z[free].reshape(-1, 2)
+        near_p = free_z[np.hypot(*(free_z - primary[0][:2]).T) <= cfg.init_radius] if len(free_z) else free_z
+        pool = [p for p in pending]
+        keep: list[np.ndarray] = []
+        for z in near_p:
+            if pool:
+                dd = [float(np.hypot(*(z - p))) for p in pool]
+                b = int(np.argmin(dd))
+                if dd[b] < cfg.init_distance:
+                    v = (z - pool.pop(b)) / self.scene.dt
+                    tracks.append((np.array([z[0], z[1], v[0], v[1]]), self.m.P0.copy()))
+                    continue
+            keep.append(z)
+        refining = [
+            t for t in tracks[1:]
+            if float(np.hypot(*(t[0][:2] - primary[0][:2]))) <= cfg.prune_radius
+            and float(np.trace(t[1])) <= cfg.max_trace
+        ]
+        pend = np.array(keep, dtype=float).reshape(-1, 2)
+        obs = frame.detections[assign[0]].id if 0 in assign else None  # type: ignore[attr-defined]
+        return JointState((primary, *refining), pend, halted), obs

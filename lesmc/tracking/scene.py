@@ -1,0 +1,352 @@
+"""Scene files (.json): what the perception unit hands the tracker, frame by frame.
+
+Documented in docs/scene-format.md. A scene holds, per frame, the detections
+(candidate observations Z_k with the attack payoff of hiding each one), the
+camera motion to the next frame, where the target's track starts, and the
+tracker's configuration. Validation is as strict as the .lts loader's.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field, fields
+from pathlib import Path
+from typing import Any, Literal
+
+import numpy as np
+
+from lesmc.errors import InputError
+from lesmc.fileio import read_json, write_json
+
+FORMAT = "lesmc-scene"
+VERSION = 1
+UNATTACKABLE = "unattackable"
+"""Payoff marker of a detection the attack could not flip within its iteration cap."""
+
+
+@dataclass(frozen=True)
+class Detection:
+    """A candidate observation z ∈ Z_k and the payoff of hiding it (∞ if unattackable)."""
+
+    id: str
+    x: float
+    y: float
+    payoff: float
+
+    @property
+    def attackable(self) -> bool:
+        return math.isfinite(self.payoff)
+
+
+@dataclass(frozen=True)
+class Frame:
+    """One frame: its detections and the homography to the next frame's coordinates."""
+
+    step: int
+    detections: tuple[Detection, ...]
+    to_next: np.ndarray | None = None
+
+    def positions(self) -> np.ndarray:
+        """(n, 2) detection positions."""
+        return np.array([[d.x, d.y] for d in self.detections], dtype=float).reshape(-1, 2)
+
+    def payoffs(self) -> np.ndarray:
+        return np.array([d.payoff for d in self.detections], dtype=float)
+
+
+@dataclass(frozen=True)
+class TrackerConfig:
+    """The tracker's parameters (paper section 6.7 and 7); defaults are the paper's."""
+
+    design: Literal["single", "joint"] = "single"
+    sigma_q: float = 3.0  # process noise σ_q of Eq. 17 (the paper's code used 5)
+    sigma_r: float = 5.0  # measurement noise σ_r of Eq. 18 (the paper's code used 6)
+    P0_sd: tuple[float, float, float, float] = (30.0, 30.0, 20.0, 20.0)  # P0 = diag(P0_sd)²
+    gate: float = 2.0  # g of Eq. 19 (Mahalanobis) or k of the Euclidean gate
+    gate_type: Literal["mahalanobis", "euclidean"] = "mahalanobis"
+    max_trace: float = 1e5  # halt the track when trace(P) exceeds this
+    # joint design (section 7.2)
+    init_radius: float = 150.0  # unassociated detections this close to the primary may start tracks
+    init_distance: float = 60.0  # max distance to a previous unassociated detection to start one
+    prune_radius: float = 200.0  # refining tracks farther than this from the primary are dropped
+
+    def to_json(self) -> dict[str, Any]:
+        d: dict[str, Any] = {}
+        for f in fields(self):
+            v = getattr(self, f.name)
+            d[f.name] = list(v) if isinstance(v, tuple) else v
+        return d
+
+
+@dataclass(frozen=True)
+class Target:
+    """Where the track starts: frame step, position, and (default zero) velocity."""
+
+    step: int
+    start: tuple[float, float]
+    velocity: tuple[float, float] = (0.0, 0.0)
+
+
+@dataclass(frozen=True)
+class Scene:
+    """A validated scene; ``frames[i].step == first_step + i``."""
+
+    dt: float
+    frames: tuple[Frame, ...]
+    target: Target
+    tracker: TrackerConfig = field(default_factory=TrackerConfig)
+    meta: dict[str, Any] = field(default_factory=dict, compare=False)
+
+    def frame(self, step: int) -> Frame:
+        return self.frames[step - self.frames[0].step]
+
+    @property
+    def last_step(self) -> int:
+        return self.frames[-1].step
+
+    def with_tracker(self, **changes: Any) -> Scene:
+        """The same scene with some tracker parameters replaced (e.g. design)."""
+        from dataclasses import replace
+
+        return replace(self, tracker=replace(self.tracker, **changes))
+
+
+# ---------------------------------------------------------------- loading
+
+
+class _Problems:
+    def __init__(self) -> None:
+        self.items: list[tuple[str, str]] = []
+
+    def add(self, item: str, msg: str) -> None:
+        self.items.append((item, msg))
+
+
+def load_scene(path: str | Path) -> Scene:
+    """Read and validate a scene file (every problem reported by frame and detection id)."""
+    return scene_from_dict(read_json(path, InputError), str(path))
+
+
+def scene_from_dict(data: Any, path: str = "<scene>") -> Scene:
+    pr = _Problems()
+    if not isinstance(data, dict):
+        raise InputError.many(path, [("", "the top level must be a JSON object")])
+    allowed = {"format", "version", "dt", "frames", "target", "tracker", "meta", "comment"}
+    for key in sorted(set(data) - allowed):
+        pr.add(f"key '{key}'", "unknown top-level key")
+    if data.get("format") != FORMAT:
+        pr.add("format", f'must be "{FORMAT}", got {data.get("format")!r}')
+    if data.get("version") != VERSION:
+        pr.add("version", f"must be {VERSION}, got {data.get('version')!r}")
+    dt = data.get("dt", 1.0)
+    if not _num(dt) or not dt > 0:
+        pr.add("dt", f"must be a finite number > 0, got {dt!r}")
+        dt = 1.0
+    raw_frames = data.get("frames")
+    frames: list[Frame] = []
+    if not isinstance(raw_frames, list) or not raw_frames:
+        pr.add("frames", "must be a non-empty list")
+    else:
+        for i, rf in enumerate(raw_frames):
+            fr = _frame(rf, i, pr)
+            if fr is not None:
+                frames.append(fr)
+        for a, b in zip(frames, frames[1:], strict=False):
+            if b.step != a.step + 1:
+                pr.add(f"frame {b.step}", f"steps must be consecutive: follows frame {a.step}")
+    tracker = _tracker(data.get("tracker", {}), pr)
+    target = _target(data.get("target"), pr)
+    if target is not None and frames and not frames[0].step <= target.step <= frames[-1].step:
+        pr.add("target", f"step {target.step} is not among the frames {frames[0].step}..{frames[-1].step}")
+    if pr.items:
+        raise InputError.many(path, pr.items)
+    assert target is not None and tracker is not None
+    meta = data.get("meta") if isinstance(data.get("meta"), dict) else {}
+    return Scene(float(dt), tuple(frames), target, tracker, meta)
+
+
+def _frame(raw: Any, i: int, pr: _Problems) -> Frame | None:
+    if not isinstance(raw, dict):
+        pr.add(f"frames[{i}]", "must be an object")
+        return None
+    step = raw.get("step")
+    item = f"frame {step}" if _int(step) else f"frames[{i}]"
+    ok = True
+    for key in sorted(set(raw) - {"step", "detections", "to_next", "meta"}):
+        pr.add(item, f"unknown key '{key}'")
+        ok = False
+    if not _int(step) or step < 0:
+        pr.add(item, f"step must be an integer >= 0, got {step!r}")
+        ok = False
+    dets_raw = raw.get("detections", [])
+    dets: list[Detection] = []
+    if not isinstance(dets_raw, list):
+        pr.add(item, "detections must be a list")
+        ok = False
+        dets_raw = []
+    seen: set[str] = set()
+    for j, rd in enumerate(dets_raw):
+        d = _detection(rd, f"{item}, detections[{j}]", pr)
+        if d is None:
+            ok = False
+            continue
+        if d.id in seen:
+            pr.add(f"{item}, detection '{d.id}'", "duplicate detection id")
+            ok = False
+        seen.add(d.id)
+        dets.append(d)
+    H = None
+    if raw.get("to_next") is not None:
+        H = _matrix3(raw["to_next"])
+        if H is None:
+            pr.add(item, "to_next must be an invertible 3x3 matrix of finite numbers")
+            ok = False
+    if not ok:
+        return None
+    return Frame(int(step), tuple(dets), H)  # type: ignore[arg-type]
+
+
+def _detection(raw: Any, where: str, pr: _Problems) -> Detection | None:
+    if not isinstance(raw, dict):
+        pr.add(where, "must be an object")
+        return None
+    did = raw.get("id")
+    item = where if not isinstance(did, str) else f"{where.split(',')[0]}, detection '{did}'"
+    ok = True
+    for key in sorted(set(raw) - {"id", "x", "y", "payoff", "meta"}):
+        pr.add(item, f"unknown key '{key}'")
+        ok = False
+    if not (isinstance(did, str) and did):
+        pr.add(item, "id must be a non-empty string")
+        ok = False
+    for c in ("x", "y"):
+        if not _num(raw.get(c)):
+            pr.add(item, f"{c} must be a finite number, got {raw.get(c)!r}")
+            ok = False
+    payoff = raw.get("payoff", None)
+    if "payoff" not in raw:
+        pr.add(item, "payoff is missing (a number >= 0, or \"unattackable\")")
+        ok = False
+    elif payoff == UNATTACKABLE:
+        payoff = math.inf
+    elif not _num(payoff) or payoff < 0:
+        pr.add(item, f"payoff must be a finite number >= 0 or \"unattackable\", got {payoff!r}")
+        ok = False
+    if not ok:
+        return None
+    return Detection(str(did), float(raw["x"]), float(raw["y"]), float(payoff))
+
+
+def _tracker(raw: Any, pr: _Problems) -> TrackerConfig | None:
+    if not isinstance(raw, dict):
+        pr.add("tracker", "must be an object")
+        return None
+    defaults = TrackerConfig()
+    names = {f.name for f in fields(TrackerConfig)}
+    values: dict[str, Any] = {}
+    for key, v in raw.items():
+        if key not in names:
+            pr.add("tracker", f"unknown key '{key}'")
+            continue
+        if key == "design":
+            if v not in ("single", "joint"):
+                pr.add("tracker", f"design must be \"single\" or \"joint\", got {v!r}")
+                continue
+        elif key == "gate_type":
+            if v not in ("mahalanobis", "euclidean"):
+                pr.add("tracker", f"gate_type must be \"mahalanobis\" or \"euclidean\", got {v!r}")
+                continue
+        elif key == "P0_sd":
+            if not (isinstance(v, list) and len(v) == 4 and all(_num(x) and x > 0 for x in v)):
+                pr.add("tracker", "P0_sd must be a list of 4 numbers > 0")
+                continue
+            v = tuple(float(x) for x in v)
+        elif not _num(v) or v <= 0:
+            pr.add("tracker", f"{key} must be a finite number > 0, got {v!r}")
+            continue
+        values[key] = v
+    try:
+        return TrackerConfig(**{**defaults.__dict__, **values})
+    except TypeError as exc:  # pragma: no cover - names are checked above
+        pr.add("tracker", str(exc))
+        return None
+
+
+def _target(raw: Any, pr: _Problems) -> Target | None:
+    if not isinstance(raw, dict):
+        pr.add("target", "is missing (an object with step and start)")
+        return None
+    ok = True
+    for key in sorted(set(raw) - {"step", "start", "velocity"}):
+        pr.add("target", f"unknown key '{key}'")
+        ok = False
+    step = raw.get("step")
+    if not _int(step) or step < 0:
+        pr.add("target", f"step must be an integer >= 0, got {step!r}")
+        ok = False
+    pairs = {}
+    for key in ("start", "velocity"):
+        v = raw.get(key, [0.0, 0.0] if key == "velocity" else None)
+        if not (isinstance(v, list) and len(v) == 2 and all(_num(x) for x in v)):
+            pr.add("target", f"{key} must be [x, y] (finite numbers), got {v!r}")
+            ok = False
+            continue
+        pairs[key] = (float(v[0]), float(v[1]))
+    if not ok:
+        return None
+    return Target(int(step), pairs["start"], pairs["velocity"])  # type: ignore[arg-type]
+
+
+def _num(x: Any) -> bool:
+    return isinstance(x, int | float) and not isinstance(x, bool) and math.isfinite(x)
+
+
+def _int(x: Any) -> bool:
+    return isinstance(x, int) and not isinstance(x, bool)
+
+
+def _matrix3(raw: Any) -> np.ndarray | None:
+    if not (isinstance(raw, list) and len(raw) == 3):
+        return None
+    if not all(isinstance(r, list) and len(r) == 3 and all(_num(x) for x in r) for r in raw):
+        return None
+    m = np.array(raw, dtype=float)
+    if abs(np.linalg.det(m)) < 1e-12:
+        return None
+    return m
+
+
+# ---------------------------------------------------------------- writing
+
+
+def scene_to_dict(scene: Scene) -> dict[str, Any]:
+    frames = []
+    for fr in scene.frames:
+        d: dict[str, Any] = {
+            "step": fr.step,
+            "detections": [
+                {"id": det.id, "x": det.x, "y": det.y,
+                 "payoff": det.payoff if det.attackable else UNATTACKABLE}
+                for det in fr.detections
+            ],
+        }
+        if fr.to_next is not None:
+            d["to_next"] = fr.to_next.tolist()
+        frames.append(d)
+    doc: dict[str, Any] = {
+        "format": FORMAT,
+        "version": VERSION,
+        "dt": scene.dt,
+        "frames": frames,
+        "target": {"step": scene.target.step, "start": list(scene.target.start),
+                   "velocity": list(scene.target.velocity)},
+        "tracker": scene.tracker.to_json(),
+    }
+    if scene.meta:
+        doc["meta"] = scene.meta
+    return doc
+
+
+def save_scene(scene: Scene, path: str | Path) -> None:
+    """Write a scene atomically."""
+    write_json(path, scene_to_dict(scene))
