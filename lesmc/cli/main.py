@@ -11,6 +11,7 @@ import sys
 import click
 from rich.console import Console
 
+from lesmc.cli.build import build_cmd, track_cmd
 from lesmc.cli.check import check_cmd
 from lesmc.cli.reduce import reduce_group
 from lesmc.errors import LesmcError
@@ -24,13 +25,19 @@ def cli() -> None:
 
     \b
     Typical use:
+      lesmc track SCENE.json                 the unattacked track and its monitor
+      lesmc build SCENE.json --window 6..8 -o MODEL.lts
+                                             unfold every attacked run into a model
       lesmc check MODEL.lts SPEC.spec        check properties on a model
+      lesmc check SCENE.json SPEC.spec       ... or on a scene, building on the fly
       lesmc reduce knapsack ITEMS.csv ...    build a knapsack instance as a model
     Exit status: 0 all hold, 1 some violated, 2 bad input, 3 some unknown.
     """
 
 
 cli.add_command(check_cmd)
+cli.add_command(build_cmd)
+cli.add_command(track_cmd)
 cli.add_command(reduce_group)
 
 

@@ -8,11 +8,11 @@ from typing import Literal
 
 from lesmc.engines.bnb import branch_and_bound
 from lesmc.engines.enumerate import enumerate_paths
+from lesmc.engines.lazy import LazySpace
 from lesmc.engines.result import CheckResult, EngineOutcome, Verdict, path_info
 from lesmc.engines.space import CompiledModel, SearchSpace, build_space
 from lesmc.language.properties import SpecFile
 from lesmc.language.semantics import BoundProperty, bind
-from lesmc.engines.lazy import LazySpace
 from lesmc.model.builder import COMPONENTS, build_model, original_run
 from lesmc.model.lts import LTS
 from lesmc.tracking.design import make_design
@@ -47,7 +47,12 @@ def check(
     """Check every property of ``specs`` on ``model`` with the chosen engine."""
     bound = bind_all(model, specs)
     cm = CompiledModel.from_lts(model)
-    return [check_bound(cm, bp, engine, max_states, timeout) for bp in bound]
+    results = []
+    for bp in bound:
+        r = check_bound(cm, bp, engine, max_states, timeout)
+        r.notes.extend(window_notes(model, bp))
+        results.append(r)
+    return results
 
 
 def check_bound(
@@ -126,7 +131,9 @@ def check_scene(
     ``bnb`` builds the model on the fly (only the states it expands); ``enumerate``
     first builds the whole model for each property's window (Algorithm 1).
     """
-    return [check_scene_bound(scene, bp, engine, max_states, timeout) for bp in bind_scene(scene, specs)]
+    return [
+        check_scene_bound(scene, bp, engine, max_states, timeout) for bp in bind_scene(scene, specs)
+    ]
 
 
 def bind_scene(scene: Scene, specs: Iterable[SpecFile]) -> list[BoundProperty]:
@@ -151,3 +158,18 @@ def check_scene_bound(
     out = branch_and_bound(space, max_states=max_states, timeout=timeout, use_bounds=False)
     out.stats.extra["states_built"] = space.states_built
     return to_result(space, out)
+
+
+def window_notes(model: LTS, bp: BoundProperty) -> list[str]:
+    """Warn when a built model holds fewer alternatives than the property's window asks."""
+    built = model.meta.get("window")
+    if not (isinstance(built, list) and len(built) == 2):
+        return []
+    lo, hi = built
+    if lo <= bp.l and bp.u <= hi:
+        return []
+    return [
+        f"the model was built for attacks in {lo}..{hi}; outside those steps it holds only the "
+        f"unattacked transitions, so window {bp.l}..{bp.u} is checked on fewer paths than the "
+        f"system has (build with --window {bp.l}..{bp.u}, or check the scene directly)"
+    ]

@@ -18,6 +18,7 @@ import numpy as np
 from lesmc.engines.space import _OPS, SpaceOps, alarms, contributions, deviation
 from lesmc.language.semantics import BoundProperty
 from lesmc.tracking.design import Design, TrackerState
+from lesmc.tracking.monitor import tau
 
 
 @dataclass
@@ -80,8 +81,8 @@ class LazySpace(SpaceOps):
         self.cm.step.append(step)
         self.cm.halted.append(ts.halted)
         self.cm.S.append(s)
-        comps = list(self.bp.monitor_components or ())
-        self.cm.tau.append(float(np.trace(P[np.ix_(comps, comps)])) if comps else 0.0)
+        comps = self.bp.monitor_components
+        self.cm.tau.append(float(tau(P, comps)) if comps is not None else 0.0)
         diff = (s - self._ref[step])[list(self.bp.components)]
         self.dist.append(float(deviation(diff, self.bp.norm)))
         self._tstate.append(ts)
@@ -105,7 +106,7 @@ class LazySpace(SpaceOps):
         return next(t for t in self._out[q0] if self.cm.dst[t] == q1)
 
     def _expand(self, q: int) -> None:
-        """Run the tracker one step from q: all outcomes inside the window, else the unattacked one."""
+        """One tracker step from q: every outcome inside the window, else the unattacked one."""
         bp, cm = self.bp, self.cm
         k = cm.step[q] + 1
         opts = self.design.options(self._tstate[q], self.first_frame + k)

@@ -19,6 +19,7 @@ import numpy as np
 
 from lesmc.language.semantics import BoundMeasure, BoundProperty
 from lesmc.model.lts import LTS
+from lesmc.tracking.monitor import alarm, tau
 
 _OPS: dict[str, Callable[[float, float], bool]] = {
     ">": operator.gt,
@@ -93,9 +94,7 @@ def deviations(cm: CompiledModel, norm: float, components: tuple[int, ...]) -> n
 def location_trace(cm: CompiledModel, components: tuple[int, ...]) -> np.ndarray:
     """τ = tr(Σ_ll) of every state (Eq. 12) over the given components."""
     assert cm.P is not None
-    idx = list(components)
-    out: np.ndarray = np.trace(cm.P[:, idx][:, :, idx], axis1=1, axis2=2)
-    return out
+    return tau(cm.P, components)
 
 
 class SearchSpace(Protocol):
@@ -204,7 +203,9 @@ def _tail(m: BoundMeasure, h: int, end: int) -> float:
     return math.inf if m.hi > h else 0.0
 
 
-def contributions(m: BoundMeasure, k: np.ndarray, combined: np.ndarray, dist_dst: np.ndarray) -> np.ndarray:
+def contributions(
+    m: BoundMeasure, k: np.ndarray, combined: np.ndarray, dist_dst: np.ndarray
+) -> np.ndarray:
     """Contributions to measure ``m`` of transitions entering steps ``k``."""
     inside = (k >= m.lo) & (k <= m.hi)
     if m.source == "payoff":
@@ -212,10 +213,11 @@ def contributions(m: BoundMeasure, k: np.ndarray, combined: np.ndarray, dist_dst
     return np.where(inside, dist_dst, 0.0)
 
 
-def alarms(bp: BoundProperty, k: np.ndarray, tau_src: np.ndarray, tau_dst: np.ndarray) -> np.ndarray:
+def alarms(
+    bp: BoundProperty, k: np.ndarray, tau_src: np.ndarray, tau_dst: np.ndarray
+) -> np.ndarray:
     """Transitions on which the monitor Γ fires (Eq. 13): τ rises on a step in l..end."""
-    rise = tau_dst > tau_src * (1.0 + bp.monitor_tolerance) + 1e-300
-    out: np.ndarray = (k >= bp.l) & rise
+    out: np.ndarray = (k >= bp.l) & alarm(tau_src, tau_dst, bp.monitor_tolerance)
     return out
 
 

@@ -75,13 +75,16 @@ def build_model(
     l, u = window
     limit = max_end(scene)
     if end is not None and end > limit:
-        raise UsageError(f"end {end} is beyond the scene: its frames allow steps 0..{limit} "
-                         f"from the target's frame {scene.target.step}")
+        raise UsageError(
+            f"end {end} is beyond the scene: its frames allow steps 0..{limit} "
+            f"from the target's frame {scene.target.step}"
+        )
     run = original_run(design, end)
     e = len(run) - 1
     if end is not None and e < end:
-        raise UsageError(f"the unattacked track halts at step {e} (trace(P) > max_trace); "
-                         f"use --end {e} or less")
+        raise UsageError(
+            f"the unattacked track halts at step {e} (trace(P) > max_trace); use --end {e} or less"
+        )
     if not 1 <= l <= u <= e:
         raise UsageError(f"window {l}..{u} must satisfy 1 <= l <= u <= end = {e}")
     g = _Graph()

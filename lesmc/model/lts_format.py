@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import math
 from pathlib import Path
-from typing import Any
+from typing import Any, TypeGuard
 
 import numpy as np
 
@@ -105,7 +105,7 @@ def _state(raw: Any, i: int, pr: _Problems) -> State | None:
         pr.add(item, f"unknown key '{key}'")
         ok = False
     step = raw.get("step")
-    if not _is_int(step) or step < 0:  # type: ignore[operator]
+    if not _is_int(step) or step < 0:
         pr.add(item, f"step must be an integer >= 0, got {step!r}")
         ok = False
     s = _vector(raw.get("s"))
@@ -143,7 +143,7 @@ def _transition(raw: Any, i: int, pr: _Problems) -> Transition | None:
         pr.add(item, "src and dst must be state ids")
         ok = False
     payoff = raw.get("payoff")
-    if not _is_number(payoff) or not math.isfinite(payoff) or payoff < 0:  # type: ignore[arg-type,operator]
+    if not _is_number(payoff) or not math.isfinite(payoff) or payoff < 0:
         pr.add(item, f"payoff must be a finite number >= 0, got {payoff!r}")
         ok = False
     rank = raw.get("rank")
@@ -194,11 +194,11 @@ def save_lts(model: LTS, path: str | Path) -> None:
     write_json(path, lts_to_dict(model))
 
 
-def _is_int(x: Any) -> bool:
+def _is_int(x: Any) -> TypeGuard[int]:
     return isinstance(x, int) and not isinstance(x, bool)
 
 
-def _is_number(x: Any) -> bool:
+def _is_number(x: Any) -> TypeGuard[int | float]:
     return isinstance(x, int | float) and not isinstance(x, bool)
 
 

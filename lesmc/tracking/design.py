@@ -49,3 +49,22 @@ def make_design(scene: Scene) -> Design:
     if scene.tracker.design == "joint":
         return JointDesign(scene)  # type: ignore[return-value]
     return SingleDesign(scene)  # type: ignore[return-value]
+
+
+def merge_equal(options: list[Outcome]) -> list[Outcome]:
+    """Drop outcomes whose state equals an earlier one's (a costlier way to the same place).
+
+    The dropped payoff is added to the kept outcome just before it, so the
+    combined payoff (Eq. 5, sum over lower ranks) of every later outcome is unchanged.
+    """
+    seen: set[bytes] = set()
+    out: list[Outcome] = []
+    for o in options:
+        key = o.state.key()
+        if key in seen:
+            prev = out[-1]
+            out[-1] = Outcome(prev.state, prev.obs, prev.payoff + o.payoff)
+            continue
+        seen.add(key)
+        out.append(o)
+    return out

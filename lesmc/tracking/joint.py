@@ -30,9 +30,9 @@ from dataclasses import dataclass
 import numpy as np
 
 from lesmc.tracking.association import gate_mask, gate_radius
+from lesmc.tracking.design import Outcome
 from lesmc.tracking.kalman import Innovation, Matrices, innovation, matrices, predict, warp
 from lesmc.tracking.scene import Scene
-from lesmc.tracking.design import Outcome
 
 
 @dataclass(frozen=True, eq=False)
@@ -115,7 +115,7 @@ class JointDesign:
                 kept.append((cost, nxt, obs))
         # own payoffs so that Eq. 5 (sum over lower ranks) gives each option's cost
         return [
-            Outcome(st_, obs, (kept[r + 1][0] - c) if r + 1 < len(kept) else 0.0)  # type: ignore[arg-type]
+            Outcome(st_, obs, (kept[r + 1][0] - c) if r + 1 < len(kept) else 0.0)
             for r, (c, st_, obs) in enumerate(kept)
         ]
 
@@ -160,7 +160,11 @@ class JointDesign:
         # track initiation from unassociated detections near the primary
         free = [i for i in idx if i not in used_z]
         free_z = Z[free].reshape(-1, 2)
-        near_p = free_z[np.hypot(*(free_z - primary[0][:2]).T) <= cfg.init_radius] if len(free_z) else free_z
+        near_p = (
+            free_z[np.hypot(*(free_z - primary[0][:2]).T) <= cfg.init_radius]
+            if len(free_z)
+            else free_z
+        )
         pool = [p for p in pending]
         keep: list[np.ndarray] = []
         for z in near_p:
@@ -173,7 +177,8 @@ class JointDesign:
                     continue
             keep.append(z)
         refining = [
-            t for t in tracks[1:]
+            t
+            for t in tracks[1:]
             if float(np.hypot(*(t[0][:2] - primary[0][:2]))) <= cfg.prune_radius
             and float(np.trace(t[1])) <= cfg.max_trace
         ]

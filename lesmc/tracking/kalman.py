@@ -38,8 +38,9 @@ def matrices(cfg: TrackerConfig, dt: float) -> Matrices:
     """Eq. 16 (F), Eq. 17 (Q = σ_q² · continuous white-noise acceleration), Eq. 18 (H, R)."""
     F = np.eye(4)
     F[0, 2] = F[1, 3] = dt
-    Q = Q_continuous_white_noise(dim=2, dt=dt, spectral_density=cfg.sigma_q**2, block_size=2,
-                                 order_by_dim=False)
+    Q = Q_continuous_white_noise(
+        dim=2, dt=dt, spectral_density=cfg.sigma_q**2, block_size=2, order_by_dim=False
+    )
     R = np.eye(2) * cfg.sigma_r**2
     P0 = np.diag(np.square(np.asarray(cfg.P0_sd, dtype=float)))
     return Matrices(F, np.asarray(Q, dtype=float), H_POS.copy(), R, P0)

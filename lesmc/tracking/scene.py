@@ -8,10 +8,11 @@ tracker's configuration. Validation is as strict as the .lts loader's.
 
 from __future__ import annotations
 
+import itertools
 import math
 from dataclasses import dataclass, field, fields
 from pathlib import Path
-from typing import Any, Literal
+from typing import Any, Literal, TypeGuard
 
 import numpy as np
 
@@ -151,17 +152,22 @@ def scene_from_dict(data: Any, path: str = "<scene>") -> Scene:
             fr = _frame(rf, i, pr)
             if fr is not None:
                 frames.append(fr)
-        for a, b in zip(frames, frames[1:], strict=False):
+        pairs = list(itertools.pairwise(frames)) if len(frames) == len(raw_frames) else []
+        for a, b in pairs:
             if b.step != a.step + 1:
                 pr.add(f"frame {b.step}", f"steps must be consecutive: follows frame {a.step}")
     tracker = _tracker(data.get("tracker", {}), pr)
     target = _target(data.get("target"), pr)
     if target is not None and frames and not frames[0].step <= target.step <= frames[-1].step:
-        pr.add("target", f"step {target.step} is not among the frames {frames[0].step}..{frames[-1].step}")
+        pr.add(
+            "target",
+            f"step {target.step} is not among the frames {frames[0].step}..{frames[-1].step}",
+        )
     if pr.items:
         raise InputError.many(path, pr.items)
     assert target is not None and tracker is not None
-    meta = data.get("meta") if isinstance(data.get("meta"), dict) else {}
+    raw_meta = data.get("meta")
+    meta: dict[str, Any] = raw_meta if isinstance(raw_meta, dict) else {}
     return Scene(float(dt), tuple(frames), target, tracker, meta)
 
 
@@ -225,16 +231,16 @@ def _detection(raw: Any, where: str, pr: _Problems) -> Detection | None:
             ok = False
     payoff = raw.get("payoff", None)
     if "payoff" not in raw:
-        pr.add(item, "payoff is missing (a number >= 0, or \"unattackable\")")
+        pr.add(item, 'payoff is missing (a number >= 0, or "unattackable")')
         ok = False
     elif payoff == UNATTACKABLE:
         payoff = math.inf
     elif not _num(payoff) or payoff < 0:
-        pr.add(item, f"payoff must be a finite number >= 0 or \"unattackable\", got {payoff!r}")
+        pr.add(item, f'payoff must be a finite number >= 0 or "unattackable", got {payoff!r}')
         ok = False
     if not ok:
         return None
-    return Detection(str(did), float(raw["x"]), float(raw["y"]), float(payoff))
+    return Detection(str(did), float(raw["x"]), float(raw["y"]), float(payoff))  # type: ignore[arg-type]
 
 
 def _tracker(raw: Any, pr: _Problems) -> TrackerConfig | None:
@@ -250,11 +256,11 @@ def _tracker(raw: Any, pr: _Problems) -> TrackerConfig | None:
             continue
         if key == "design":
             if v not in ("single", "joint"):
-                pr.add("tracker", f"design must be \"single\" or \"joint\", got {v!r}")
+                pr.add("tracker", f'design must be "single" or "joint", got {v!r}')
                 continue
         elif key == "gate_type":
             if v not in ("mahalanobis", "euclidean"):
-                pr.add("tracker", f"gate_type must be \"mahalanobis\" or \"euclidean\", got {v!r}")
+                pr.add("tracker", f'gate_type must be "mahalanobis" or "euclidean", got {v!r}')
                 continue
         elif key == "P0_sd":
             if not (isinstance(v, list) and len(v) == 4 and all(_num(x) and x > 0 for x in v)):
@@ -297,11 +303,11 @@ def _target(raw: Any, pr: _Problems) -> Target | None:
     return Target(int(step), pairs["start"], pairs["velocity"])  # type: ignore[arg-type]
 
 
-def _num(x: Any) -> bool:
+def _num(x: Any) -> TypeGuard[int | float]:
     return isinstance(x, int | float) and not isinstance(x, bool) and math.isfinite(x)
 
 
-def _int(x: Any) -> bool:
+def _int(x: Any) -> TypeGuard[int]:
     return isinstance(x, int) and not isinstance(x, bool)
 
 
@@ -325,8 +331,12 @@ def scene_to_dict(scene: Scene) -> dict[str, Any]:
         d: dict[str, Any] = {
             "step": fr.step,
             "detections": [
-                {"id": det.id, "x": det.x, "y": det.y,
-                 "payoff": det.payoff if det.attackable else UNATTACKABLE}
+                {
+                    "id": det.id,
+                    "x": det.x,
+                    "y": det.y,
+                    "payoff": det.payoff if det.attackable else UNATTACKABLE,
+                }
                 for det in fr.detections
             ],
         }
@@ -338,8 +348,11 @@ def scene_to_dict(scene: Scene) -> dict[str, Any]:
         "version": VERSION,
         "dt": scene.dt,
         "frames": frames,
-        "target": {"step": scene.target.step, "start": list(scene.target.start),
-                   "velocity": list(scene.target.velocity)},
+        "target": {
+            "step": scene.target.step,
+            "start": list(scene.target.start),
+            "velocity": list(scene.target.velocity),
+        },
         "tracker": scene.tracker.to_json(),
     }
     if scene.meta:

@@ -11,8 +11,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from lesmc.tracking.design import Outcome
 from lesmc.tracking.association import attack_options, gate_mask, gate_radius
+from lesmc.tracking.design import Outcome, merge_equal
 from lesmc.tracking.kalman import Matrices, innovation, matrices, predict, update_many, warp
 from lesmc.tracking.scene import Scene
 
@@ -76,4 +76,4 @@ class SingleDesign:
                 det = frame.detections[int(near[o.detection])]
                 out.append(Outcome(SingleState(X[row], inn.P_post, halt_post), det.id, o.payoff))
                 row += 1
-        return out
+        return merge_equal(out)

@@ -1,0 +1,135 @@
+"""The builder and on-the-fly checking agree; `lesmc build`, `track` and `check SCENE`."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from lesmc.engines.check import bind_scene, check_bound, check_scene_bound
+from lesmc.engines.space import CompiledModel
+from lesmc.errors import UsageError
+from lesmc.language.parser import parse_spec
+from lesmc.model.builder import build_model
+from lesmc.model.lts_format import load_lts
+from lesmc.tracking.scene import load_scene
+
+ROOT = Path(__file__).resolve().parents[1]
+SCENES = ROOT / "tests" / "scenes"
+NAMES = ["rq1_platoon", "rq1_oncoming", "rq2_parallel", "rq2_stop", "rq4_merge"]
+
+
+@settings(max_examples=40, deadline=None)
+@given(
+    name=st.sampled_from(NAMES),
+    design=st.sampled_from(["single", "joint"]),
+    l=st.integers(3, 10),
+    span=st.integers(0, 3),
+    obj=st.sampled_from(["payoff", "payoff.mean", "dist.max({l}..{u})", "dist.sum(0..end)"]),
+    con=st.sampled_from(["dist.sum(0..end) > 40", "dist.at(end) > 1", "dist.max({l}..end) >= 8"]),
+    monitor=st.booleans(),
+)
+def test_on_the_fly_equals_explicit_model(name, design, l, span, obj, con, monitor) -> None:  # type: ignore[no-untyped-def]
+    u = l + span
+    measures = (obj.format(l=l, u=u), con.format(l=l, u=u))
+    text = (
+        f"property p {{ attack window {l}..{u} minimize {measures[0]} subject to {measures[1]} "
+        f"holds if optimum > 3 {'monitor uncertainty' if monitor else ''} }}"
+    )
+    scene = load_scene(SCENES / f"{name}.json").with_tracker(design=design)
+    (bp,) = bind_scene(scene, [parse_spec(text)])
+    lazy = check_scene_bound(scene, bp, "bnb")
+    model = build_model(scene, (l, u))
+    cm = CompiledModel.from_lts(model)
+    for engine in ("bnb", "enumerate"):
+        explicit = check_bound(cm, bp, engine)  # type: ignore[arg-type]
+        assert (lazy.verdict, lazy.optimum, lazy.witness_value) == (
+            explicit.verdict,
+            explicit.optimum,
+            explicit.witness_value,
+        )
+    # the lazy engine builds no more than the model holds
+    assert lazy.stats.extra["states_built"] <= model.graph.number_of_nodes()
+
+
+def test_build_errors() -> None:
+    scene = load_scene(SCENES / "rq2_parallel.json")
+    with pytest.raises(UsageError, match=r"window 6\.\.30 must satisfy"):
+        build_model(scene, (6, 30))
+    with pytest.raises(UsageError, match="end 40 is beyond the scene"):
+        build_model(scene, (6, 8), end=40)
+
+
+def lesmc(*args: str) -> subprocess.CompletedProcess[str]:
+    return subprocess.run(
+        [sys.executable, "-m", "lesmc", *args],
+        capture_output=True,
+        text=True,
+        cwd=ROOT,
+        timeout=300,
+    )
+
+
+def test_cli_build_then_check_equals_check_scene(tmp_path: Path) -> None:
+    out = tmp_path / "m.lts"
+    r = lesmc("build", str(SCENES / "rq4_merge.json"), "--window", "6..8", "-o", str(out))
+    assert r.returncode == 0, r.stderr
+    model = load_lts(out)
+    assert model.meta["window"] == [6, 8] and model.meta["design"] == "single"
+    spec = str(SCENES / "rq4_merge.spec")
+    a = json.loads(lesmc("check", str(out), spec, "--json").stdout)["results"]
+    b = json.loads(lesmc("check", str(SCENES / "rq4_merge.json"), spec, "--json").stdout)["results"]
+    assert [(x["verdict"], x["optimum"]) for x in a] == [(x["verdict"], x["optimum"]) for x in b]
+    # a property whose window the model was not built for gets a note
+    wide = tmp_path / "wide.spec"
+    wide.write_text(
+        "property w { attack window 5..9 minimize payoff subject to dist.at(end) > 1 "
+        "holds if optimum > 1 }"
+    )
+    r = lesmc("check", str(out), str(wide), "--json")
+    notes = json.loads(r.stdout)["results"][0]["notes"]
+    assert any("built for attacks in 6..8" in n for n in notes)
+
+
+def test_cli_joint_design_and_track(tmp_path: Path) -> None:
+    r = lesmc(
+        "check",
+        str(SCENES / "rq4_merge.json"),
+        str(SCENES / "rq4_merge.spec"),
+        "--design",
+        "joint",
+        "--json",
+    )
+    res = {x["property"]: x for x in json.loads(r.stdout)["results"]}
+    assert res["robustness"]["optimum"] is None and res["robustness"]["verdict"] == "holds"
+    r = lesmc("track", str(SCENES / "rq2_stop.json"), "--json")
+    doc = json.loads(r.stdout)
+    assert doc["design"] == "single" and len(doc["track"]) == 20
+    assert {"step", "frame", "obs", "s", "tau", "alarm", "halted"} <= set(doc["track"][0])
+    r = lesmc("track", str(SCENES / "rq2_stop.json"))
+    assert r.returncode == 0 and "unattacked track" in r.stdout
+
+
+def test_cli_scene_errors(tmp_path: Path) -> None:
+    bad = tmp_path / "bad.json"
+    bad.write_text('{"format": "lesmc-scene", "version": 1, "frames": []}')
+    r = lesmc("build", str(bad), "--window", "1..2", "-o", str(tmp_path / "m.lts"))
+    assert r.returncode == 2 and f"{bad}: frames: must be a non-empty list" in r.stderr
+    assert not (tmp_path / "m.lts").exists()
+    r = lesmc(
+        "build", str(SCENES / "rq2_stop.json"), "--window", "8-6", "-o", str(tmp_path / "m.lts")
+    )
+    assert r.returncode == 2 and "--window must look like L..U" in r.stderr
+    r = lesmc(
+        "check",
+        str(ROOT / "tests/golden/tiny/model.lts"),
+        str(SCENES / "rq2_stop.spec"),
+        "--design",
+        "joint",
+    )
+    assert r.returncode == 2 and "--design applies to scenes" in r.stderr
