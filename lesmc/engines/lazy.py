@@ -15,9 +15,9 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from lesmc.engines.space import _OPS, SpaceOps, alarms, contributions, deviation
+from lesmc.engines.space import _OPS, SpaceOps, alarms, contributions
 from lesmc.language.semantics import BoundProperty
-from lesmc.tracking.design import Design, TrackerState
+from lesmc.tracking.design import Design, Outcome, TrackerState
 from lesmc.tracking.monitor import tau
 
 
@@ -53,7 +53,8 @@ class LazySpace(SpaceOps):
         self._index: dict[tuple[int, bytes], int] = {}
         self._succ: dict[int, list[int]] = {}  # allowed transitions, once expanded
         self._out: dict[int, list[int]] = {}  # every transition created from a state
-        self._ref = [ts.estimate()[0] for ts in original[: bp.end + 1]]
+        self._ref_lists = [ts.estimate()[0].tolist() for ts in original[: bp.end + 1]]
+        self._pending: dict[int, list[int]] = {}  # per step: built states awaiting their step
         self.cm.original = [self._add(k, ts) for k, ts in enumerate(original[: bp.end + 1])]
         obj = self._dist_term(bp.objective.source, bp.objective.lo, 0)
         con = self._dist_term(bp.constraint.source, bp.constraint.lo, 0)
@@ -73,21 +74,42 @@ class LazySpace(SpaceOps):
 
     def _add(self, step: int, ts: TrackerState) -> int:
         key = (step, ts.key())
-        if key in self._index:
-            return self._index[key]
+        q = self._index.get(key)
+        if q is not None:
+            return q
         q = len(self.cm.ids)
         s, P = ts.estimate()
-        self.cm.ids.append(f"k{step}.{q}")
-        self.cm.step.append(step)
-        self.cm.halted.append(ts.halted)
-        self.cm.S.append(s)
+        cm = self.cm
+        cm.ids.append(f"k{step}.{q}")
+        cm.step.append(step)
+        cm.halted.append(ts.halted)
+        cm.S.append(s)
         comps = self.bp.monitor_components
-        self.cm.tau.append(float(tau(P, comps)) if comps is not None else 0.0)
-        diff = (s - self._ref[step])[list(self.bp.components)]
-        self.dist.append(float(deviation(diff, self.bp.norm)))
+        cm.tau.append(float(tau(P, comps)) if comps is not None else 0.0)
+        self.dist.append(self._deviation(s, step))
         self._tstate.append(ts)
         self._index[key] = q
+        k = step + 1
+        if not self.bp.l <= k <= self.bp.u and step < self.bp.end and not ts.halted:
+            self._pending.setdefault(step, []).append(q)
         return q
+
+    def _deviation(self, s: np.ndarray, step: int) -> float:
+        """Eq. 4 for one state, in plain floats (this runs once per state built)."""
+        ref = self._ref_lists[step]
+        sl = s.tolist()
+        d = [abs(sl[i] - ref[i]) for i in self.bp.components]
+        p = self.bp.norm
+        acc = 0.0
+        if p == 2:  # summed in order, as numpy's norm does for short vectors
+            for x in d:
+                acc += x * x
+            return math.sqrt(acc)
+        if p == 1:
+            for x in d:
+                acc += x
+            return acc
+        return max(d)
 
     def is_leaf(self, q: int) -> bool:
         return self.cm.step[q] >= self.bp.end or self.cm.halted[q]
@@ -106,28 +128,53 @@ class LazySpace(SpaceOps):
         return next(t for t in self._out[q0] if self.cm.dst[t] == q1)
 
     def _expand(self, q: int) -> None:
-        """One tracker step from q: every outcome inside the window, else the unattacked one."""
+        """One tracker step from q: every outcome inside the window, else the unattacked one.
+
+        Outside the window the unattacked step of every state of q's step that
+        is waiting for it is computed in one batch (its only transition is
+        needed as soon as any path through that state is completed).
+        """
+        bp = self.bp
+        step = self.cm.step[q]
+        k = step + 1
+        frame = self.first_frame + k
+        if bp.l <= k <= bp.u:
+            self._record([q], k, [self.design.options(self._tstate[q], frame)])
+            return
+        batch = [x for x in self._pending.pop(step, []) if x not in self._out]
+        if q not in batch:
+            batch.append(q)
+        outs = self.design.unattacked([self._tstate[x] for x in batch], frame)
+        self._record(batch, k, [[o] for o in outs])
+
+    def _record(self, sources: list[int], k: int, option_lists: list[list[Outcome]]) -> None:
+        """Add the transitions (rank = list position) and their contributions."""
         bp, cm = self.bp, self.cm
-        k = cm.step[q] + 1
-        opts = self.design.options(self._tstate[q], self.first_frame + k)
-        if not bp.l <= k <= bp.u:
-            opts = opts[:1]
         first = len(cm.dst)
-        for rank, o in enumerate(opts):
-            cm.dst.append(self._add(k, o.state))
-            cm.rank.append(rank)
-            cm.combined.append(math.fsum(x.payoff for x in opts[:rank]))
-            cm.obs.append(o.obs)
-        ts = np.arange(first, len(cm.dst))
-        dst = np.array(cm.dst[first:], dtype=np.int64)
-        ks = np.full(len(ts), k)
+        src_of: list[int] = []
+        for q, opts in zip(sources, option_lists, strict=True):
+            payoffs: list[float] = []
+            for rank, o in enumerate(opts):
+                cm.dst.append(self._add(k, o.state))
+                cm.rank.append(rank)
+                cm.combined.append(math.fsum(payoffs) if rank else 0.0)
+                cm.obs.append(o.obs)
+                payoffs.append(o.payoff)
+                src_of.append(q)
+        n = len(cm.dst) - first
+        ks = np.full(n, k)
         comb = np.array(cm.combined[first:])
-        dd = np.array([self.dist[d] for d in dst])
+        dd = np.array([self.dist[d] for d in cm.dst[first:]])
         self.c_obj.extend(contributions(bp.objective, ks, comb, dd).tolist())
         self.c_con.extend(contributions(bp.constraint, ks, comb, dd).tolist())
-        allowed = np.ones(len(ts), dtype=bool)
+        allowed = np.ones(n, dtype=bool)
         if bp.monitor_components is not None:
-            tau = np.array(cm.tau)
-            allowed &= ~alarms(bp, ks, np.full(len(ts), tau[q]), tau[dst])
-        self._out[q] = ts.tolist()
-        self._succ[q] = ts[allowed].tolist()
+            t_src = np.array([cm.tau[q] for q in src_of])
+            t_dst = np.array([cm.tau[d] for d in cm.dst[first:]])
+            allowed &= ~alarms(bp, ks, t_src, t_dst)
+        t = first
+        for q, opts in zip(sources, option_lists, strict=True):
+            ids = list(range(t, t + len(opts)))
+            self._out[q] = ids
+            self._succ[q] = [i for i in ids if allowed[i - first]]
+            t += len(opts)

@@ -34,7 +34,7 @@ def original_run(design: Design, end: int | None = None) -> list[TrackerState]:
     for k in range(1, last + 1):
         if run[-1].halted:
             break
-        run.append(design.options(run[-1], scene.target.step + k)[0].state)
+        run.append(design.unattacked([run[-1]], scene.target.step + k)[0].state)
     return run
 
 
@@ -55,7 +55,7 @@ class _Graph:
         sid = f"k{step}.{len(self.states)}"
         s, P = ts.estimate()
         labels = frozenset({HALTED}) if ts.halted else frozenset()
-        self.states.append(State(sid, step, s.copy(), P.copy(), labels))
+        self.states.append(State(sid, step, s, P, labels))  # tracker arrays are never mutated
         self.index[key] = sid
         self.tstate[sid] = ts
         return sid, True
@@ -92,13 +92,14 @@ def build_model(
     frontier = [root]
     for k in range(1, e + 1):
         nxt: list[str] = []
-        for sid in frontier:
-            ts = g.tstate[sid]
-            if ts.halted:
-                continue
-            opts = design.options(ts, scene.target.step + k)
-            chosen = opts if l <= k <= u else opts[:1]
-            for rank, o in enumerate(chosen):
+        live = [sid for sid in frontier if not g.tstate[sid].halted]
+        frame = scene.target.step + k
+        if l <= k <= u:
+            expanded = [design.options(g.tstate[sid], frame) for sid in live]
+        else:  # outside the window only the unattacked outcome, for all states at once
+            expanded = [[o] for o in design.unattacked([g.tstate[sid] for sid in live], frame)]
+        for sid, opts in zip(live, expanded, strict=True):
+            for rank, o in enumerate(opts):
                 child, new = g.add(k, o.state)
                 g.trans.append(Transition(sid, child, o.payoff, rank, o.obs))
                 if new:
@@ -107,7 +108,7 @@ def build_model(
         if on_level is not None:
             on_level(k, len(g.states))
     original = [g.index[(k, ts.key())] for k, ts in enumerate(run)]
-    model = LTS.from_parts(g.states, g.trans, root, original, COMPONENTS, "<built model>")
+    model = LTS.from_parts(g.states, g.trans, root, original, COMPONENTS, check=False)
     model.meta = {
         "source": "lesmc build",
         "design": design.name,

@@ -17,7 +17,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from lesmc.tracking.kalman import Innovation
+from lesmc.tracking.kalman import Innovation, mahalanobis2
 
 
 def gate_mask(
@@ -30,9 +30,9 @@ def gate_mask(
     """
     if gate_type == "euclidean":
         radius = gate * math.sqrt(P_pred[0, 0] + P_pred[1, 1])
-        out: np.ndarray = np.einsum("ij,ij->i", y, y) <= radius * radius
+        out: np.ndarray = y[..., 0] ** 2 + y[..., 1] ** 2 <= radius * radius
         return out
-    d2 = np.einsum("ij,jk,ik->i", y, inn.S_inv, y)
+    d2 = mahalanobis2(y, inn.S_inv)
     res: np.ndarray = np.sqrt(np.maximum(d2, 0.0)) <= gate
     return res
 

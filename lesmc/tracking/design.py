@@ -40,6 +40,10 @@ class Design(Protocol):
 
     def options(self, st: TrackerState, step: int) -> list[Outcome]: ...
 
+    def unattacked(self, states: list[TrackerState], step: int) -> list[Outcome]:
+        """``options(st, step)[0]`` for every state (designs may batch it)."""
+        ...
+
 
 def make_design(scene: Scene) -> Design:
     """The design the scene's tracker configuration names."""

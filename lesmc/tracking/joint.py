@@ -31,7 +31,16 @@ import numpy as np
 
 from lesmc.tracking.association import gate_mask, gate_radius
 from lesmc.tracking.design import Outcome
-from lesmc.tracking.kalman import Innovation, Matrices, innovation, matrices, predict, warp
+from lesmc.tracking.kalman import (
+    Innovation,
+    Matrices,
+    innovation,
+    mahalanobis2,
+    matrices,
+    predict,
+    update_means,
+    warp,
+)
 from lesmc.tracking.scene import Scene
 
 
@@ -91,7 +100,7 @@ class JointDesign:
         Z = frame.positions()
         xp0, Pp0, inn0 = preds[0]
         y0 = Z - xp0[:2]
-        dist = np.sqrt(np.einsum("ij,ij->i", y0, y0))
+        dist = np.sqrt(y0[:, 0] ** 2 + y0[:, 1] ** 2)
         order = np.argsort(dist, kind="stable")
         radius = gate_radius(inn0, Pp0, cfg.gate, cfg.gate_type)
         near = order[dist[order] <= radius]
@@ -119,6 +128,10 @@ class JointDesign:
             for r, (c, st_, obs) in enumerate(kept)
         ]
 
+    def unattacked(self, states: list[JointState], step: int) -> list[Outcome]:
+        """The unattacked outcome of each state (no batching for the joint design)."""
+        return [self.options(st, step)[0] for st in states]
+
     def _associate(
         self,
         preds: list[tuple[np.ndarray, np.ndarray, Innovation]],
@@ -133,7 +146,7 @@ class JointDesign:
         for ti, (xp, Pp, inn) in enumerate(preds):
             y = Z[idx] - xp[:2]
             ok = gate_mask(y, inn, Pp, cfg.gate, cfg.gate_type) if len(idx) else np.zeros(0, bool)
-            d2 = np.einsum("ij,jk,ik->i", y, inn.S_inv, y) if len(idx) else np.zeros(0)
+            d2 = mahalanobis2(y, inn.S_inv) if len(idx) else np.zeros(0)
             norm = 2 * math.pi * math.sqrt(float(np.linalg.det(inn.S)))
             for r in np.nonzero(ok)[0]:
                 like = math.exp(-0.5 * float(d2[r])) / norm
@@ -152,7 +165,7 @@ class JointDesign:
         for ti, (xp, Pp, inn) in enumerate(preds):
             if ti in assign:
                 z = Z[assign[ti]]
-                tracks.append((xp + inn.K @ (z - xp[:2]), inn.P_post))
+                tracks.append((update_means(xp, inn.K, z), inn.P_post))
             else:
                 tracks.append((xp, Pp))
         primary = tracks[0]

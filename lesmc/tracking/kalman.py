@@ -1,7 +1,8 @@
 """The near-constant-velocity Kalman filter of section 6.7 (Eq. 16-18), two ways.
 
 * :func:`reference_filter` builds a filterpy ``KalmanFilter``: the reference.
-* :func:`predict` and :func:`update_many` are the fast path the builder uses:
+* :func:`predict_means`, :func:`innovation` and :func:`update_means` are the
+  fast path the builder uses:
   P̂, S and the gain K depend only on the parent state, not on the observation,
   so one predict and one gain serve every candidate detection and only the
   means differ (x_j = x̂ + K(z_j − Hx̂), Eq. 2-3). The covariance update uses the
@@ -67,7 +68,7 @@ def warp(Hm: np.ndarray | None, xy: np.ndarray) -> np.ndarray:
 
 def predict(m: Matrices, x: np.ndarray, P: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Eq. 2: x̂ = F x, P̂ = F P Fᵀ + Q."""
-    return m.F @ x, m.F @ P @ m.F.T + m.Q
+    return predict_means(x, m.F[0, 2]), m.F @ P @ m.F.T + m.Q
 
 
 @dataclass(frozen=True)
@@ -90,8 +91,26 @@ def innovation(m: Matrices, P_pred: np.ndarray) -> Innovation:
     return Innovation(S, S_inv, K, P_post)
 
 
-def update_many(x_pred: np.ndarray, inn: Innovation, Z: np.ndarray) -> np.ndarray:
-    """Eq. 2 for every row of Z at once: x_j = x̂ + K (z_j − H x̂); returns (n, 4)."""
-    y = Z - x_pred[:2]
-    out: np.ndarray = x_pred + y @ inn.K.T
+def predict_means(X: np.ndarray, dt: float) -> np.ndarray:
+    """x̂ = F x for one state (4,) or many (n, 4), written out elementwise.
+
+    Elementwise rather than a matrix product so the result does not depend on
+    how many states are predicted together (BLAS kernels may round differently).
+    """
+    out = np.array(X, dtype=float, copy=True)
+    out[..., :2] = X[..., :2] + dt * X[..., 2:]
+    return out
+
+
+def update_means(X_pred: np.ndarray, K: np.ndarray, Z: np.ndarray) -> np.ndarray:
+    """Eq. 2: x = x̂ + K (z − H x̂), row by row (elementwise, batch-size independent)."""
+    y = Z - X_pred[..., :2]
+    out: np.ndarray = X_pred + y[..., 0:1] * K[:, 0] + y[..., 1:2] * K[:, 1]
+    return out
+
+
+def mahalanobis2(y: np.ndarray, S_inv: np.ndarray) -> np.ndarray:
+    """yᵀ S⁻¹ y for rows of y (n, 2), elementwise."""
+    a, b, d = S_inv[0, 0], S_inv[0, 1] + S_inv[1, 0], S_inv[1, 1]
+    out: np.ndarray = a * y[..., 0] ** 2 + b * y[..., 0] * y[..., 1] + d * y[..., 1] ** 2
     return out

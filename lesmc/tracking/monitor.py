@@ -64,7 +64,7 @@ def track(design: Design, end: int | None = None) -> list[TrackPoint]:
     for k in range(1, last + 1):
         if st.halted:
             break
-        o = design.options(st, scene.target.step + k)[0]
+        o = design.unattacked([st], scene.target.step + k)[0]
         st = o.state
         x, P = st.estimate()
         t = float(tau(P))

@@ -11,10 +11,12 @@ from __future__ import annotations
 import itertools
 import math
 from dataclasses import dataclass, field, fields
+from functools import cached_property
 from pathlib import Path
 from typing import Any, Literal, TypeGuard
 
 import numpy as np
+from scipy.spatial import cKDTree
 
 from lesmc.errors import InputError
 from lesmc.fileio import read_json, write_json
@@ -47,12 +49,47 @@ class Frame:
     detections: tuple[Detection, ...]
     to_next: np.ndarray | None = None
 
+    @cached_property
+    def _positions(self) -> np.ndarray:
+        arr = np.array([[d.x, d.y] for d in self.detections], dtype=float).reshape(-1, 2)
+        arr.flags.writeable = False
+        return arr
+
+    @cached_property
+    def _payoffs(self) -> np.ndarray:
+        arr = np.array([d.payoff for d in self.detections], dtype=float)
+        arr.flags.writeable = False
+        return arr
+
     def positions(self) -> np.ndarray:
-        """(n, 2) detection positions."""
-        return np.array([[d.x, d.y] for d in self.detections], dtype=float).reshape(-1, 2)
+        """(n, 2) detection positions (computed once, read-only)."""
+        return self._positions
+
+    @cached_property
+    def _tree(self) -> cKDTree | None:
+        return cKDTree(self._positions) if len(self.detections) else None
+
+    def near(self, point: np.ndarray, radius: float) -> list[int]:
+        """Indices of the detections within ``radius`` of ``point`` (a k-d tree, built once)."""
+        if self._tree is None:
+            return []
+        out: list[int] = self._tree.query_ball_point(point, radius, return_sorted=True)
+        return out
+
+    def nearest(self, points: np.ndarray, k: int, radius: float) -> np.ndarray:
+        """For each point (n, 2), the indices of its k nearest detections within ``radius``
+        (nearest first), −1 where there are fewer."""
+        n = len(points)
+        if self._tree is None or not n:
+            return np.full((n, k), -1, dtype=np.int64)
+        _, idx = self._tree.query(points, k=k, distance_upper_bound=radius * (1 + 1e-12))
+        idx = np.asarray(idx, dtype=np.int64).reshape(n, k)
+        out: np.ndarray = np.where(idx >= len(self.detections), -1, idx)
+        return out
 
     def payoffs(self) -> np.ndarray:
-        return np.array([d.payoff for d in self.detections], dtype=float)
+        """(n,) payoffs of hiding each detection (inf: unattackable); read-only."""
+        return self._payoffs
 
 
 @dataclass(frozen=True)
