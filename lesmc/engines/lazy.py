@@ -109,7 +109,7 @@ class LazySpace(SpaceOps):
             for x in d:
                 acc += x
             return acc
-        return max(d)
+        return float(max(d))
 
     def is_leaf(self, q: int) -> bool:
         return self.cm.step[q] >= self.bp.end or self.cm.halted[q]
