@@ -88,8 +88,8 @@ def main() -> int:
     build_model(make_design_warm, (1, 1))  # import and warm-up costs out of the figures
     for n, (l, u), design in [
         (300, (6, 9), "single"),
-        (300, (6, 9), "joint"),
-        (300, (8, 11), "single"),
+        (300, (6, 8), "joint"),
+        (300, (8, 10), "single"),
         (20, (6, 9), "single"),
     ]:
         scene = dense_scene(n, 20, seed=1, design=design)
