@@ -92,3 +92,13 @@ def source_line(text: str, line: int) -> str | None:
     if 1 <= line <= len(lines):
         return lines[line - 1]
     return None
+
+
+class Problems:
+    """Collects ``(item, message)`` pairs so one validation pass reports every problem."""
+
+    def __init__(self) -> None:
+        self.items: list[tuple[str, str]] = []
+
+    def add(self, item: str, message: str) -> None:
+        self.items.append((item, message))

@@ -12,7 +12,7 @@ from typing import Any, TypeGuard
 
 import numpy as np
 
-from lesmc.errors import ModelError
+from lesmc.errors import ModelError, Problems
 from lesmc.fileio import read_json, write_json
 from lesmc.model.lts import LTS, State, Transition
 
@@ -33,16 +33,6 @@ _STATE_KEYS = {"id", "step", "s", "P", "labels", "meta"}
 _TRANS_KEYS = {"src", "dst", "payoff", "rank", "obs"}
 
 
-class _Problems:
-    """Collects (item, message) pairs so one run reports every problem."""
-
-    def __init__(self) -> None:
-        self.items: list[tuple[str, str]] = []
-
-    def add(self, item: str, message: str) -> None:
-        self.items.append((item, message))
-
-
 def load_lts(path: str | Path) -> LTS:
     """Read and validate a .lts file."""
     return lts_from_dict(read_json(path, ModelError), str(path))
@@ -50,7 +40,7 @@ def load_lts(path: str | Path) -> LTS:
 
 def lts_from_dict(data: Any, path: str = "<model>") -> LTS:
     """Validate a decoded .lts document and build the model."""
-    pr = _Problems()
+    pr = Problems()
     if not isinstance(data, dict):
         raise ModelError.many(path, [("", "the top level must be a JSON object")])
     for key in sorted(set(data) - _TOP_KEYS):
@@ -91,7 +81,7 @@ def lts_from_dict(data: Any, path: str = "<model>") -> LTS:
     return model
 
 
-def _state(raw: Any, i: int, pr: _Problems) -> State | None:
+def _state(raw: Any, i: int, pr: Problems) -> State | None:
     if not isinstance(raw, dict):
         pr.add(f"states[{i}]", "must be an object")
         return None
@@ -127,7 +117,7 @@ def _state(raw: Any, i: int, pr: _Problems) -> State | None:
     return State(str(sid), int(step), s, P, frozenset(labels))  # type: ignore[arg-type]
 
 
-def _transition(raw: Any, i: int, pr: _Problems) -> Transition | None:
+def _transition(raw: Any, i: int, pr: Problems) -> Transition | None:
     item = f"transitions[{i}]"
     if not isinstance(raw, dict):
         pr.add(item, "must be an object")

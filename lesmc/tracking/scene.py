@@ -18,7 +18,7 @@ from typing import Any, Literal, TypeGuard
 import numpy as np
 from scipy.spatial import cKDTree
 
-from lesmc.errors import InputError
+from lesmc.errors import InputError, Problems
 from lesmc.fileio import read_json, write_json
 
 FORMAT = "lesmc-scene"
@@ -152,21 +152,13 @@ class Scene:
 # ---------------------------------------------------------------- loading
 
 
-class _Problems:
-    def __init__(self) -> None:
-        self.items: list[tuple[str, str]] = []
-
-    def add(self, item: str, msg: str) -> None:
-        self.items.append((item, msg))
-
-
 def load_scene(path: str | Path) -> Scene:
     """Read and validate a scene file (every problem reported by frame and detection id)."""
     return scene_from_dict(read_json(path, InputError), str(path))
 
 
 def scene_from_dict(data: Any, path: str = "<scene>") -> Scene:
-    pr = _Problems()
+    pr = Problems()
     if not isinstance(data, dict):
         raise InputError.many(path, [("", "the top level must be a JSON object")])
     allowed = {"format", "version", "dt", "frames", "target", "tracker", "meta", "comment"}
@@ -208,7 +200,7 @@ def scene_from_dict(data: Any, path: str = "<scene>") -> Scene:
     return Scene(float(dt), tuple(frames), target, tracker, meta)
 
 
-def _frame(raw: Any, i: int, pr: _Problems) -> Frame | None:
+def _frame(raw: Any, i: int, pr: Problems) -> Frame | None:
     if not isinstance(raw, dict):
         pr.add(f"frames[{i}]", "must be an object")
         return None
@@ -249,7 +241,7 @@ def _frame(raw: Any, i: int, pr: _Problems) -> Frame | None:
     return Frame(int(step), tuple(dets), H)  # type: ignore[arg-type]
 
 
-def _detection(raw: Any, where: str, pr: _Problems) -> Detection | None:
+def _detection(raw: Any, where: str, pr: Problems) -> Detection | None:
     if not isinstance(raw, dict):
         pr.add(where, "must be an object")
         return None
@@ -280,7 +272,7 @@ def _detection(raw: Any, where: str, pr: _Problems) -> Detection | None:
     return Detection(str(did), float(raw["x"]), float(raw["y"]), float(payoff))  # type: ignore[arg-type]
 
 
-def _tracker(raw: Any, pr: _Problems) -> TrackerConfig | None:
+def _tracker(raw: Any, pr: Problems) -> TrackerConfig | None:
     if not isinstance(raw, dict):
         pr.add("tracker", "must be an object")
         return None
@@ -315,7 +307,7 @@ def _tracker(raw: Any, pr: _Problems) -> TrackerConfig | None:
         return None
 
 
-def _target(raw: Any, pr: _Problems) -> Target | None:
+def _target(raw: Any, pr: Problems) -> Target | None:
     if not isinstance(raw, dict):
         pr.add("target", "is missing (an object with step and start)")
         return None
