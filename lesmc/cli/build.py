@@ -9,19 +9,14 @@ from rich.console import Console
 from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
 from rich.table import Table
 
-from lesmc.cli.options import load_scene_file, parse_window
+from lesmc.cli.options import design_option, load_scene_file, model_output, parse_window
 from lesmc.model.builder import build_model, max_end
 from lesmc.model.lts_format import save_lts
 from lesmc.report.text import fmt, make_console
 from lesmc.tracking.design import make_design
 from lesmc.tracking.monitor import track
 
-_DESIGN = click.option(
-    "--design",
-    type=click.Choice(["single", "joint"]),
-    default=None,
-    help="Override the tracker design the scene names.",
-)
+_DESIGN = design_option("Override the tracker design the scene names.")
 
 
 @click.command("build")
@@ -39,13 +34,7 @@ _DESIGN = click.option(
     default=None,
     help="Last step of the model [default: the scene's last frame].",
 )
-@click.option(
-    "-o",
-    "--output",
-    required=True,
-    type=click.Path(dir_okay=False),
-    help="The model file to write (.lts).",
-)
+@model_output
 @_DESIGN
 def build_cmd(
     scene: str, window_text: str, end: int | None, output: str, design: str | None

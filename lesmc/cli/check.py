@@ -8,7 +8,7 @@ import click
 from rich.console import Console
 from rich.progress import Progress, SpinnerColumn, TextColumn, TimeElapsedColumn
 
-from lesmc.cli.options import load_model_or_scene
+from lesmc.cli.options import design_option, load_model_or_scene
 from lesmc.engines.check import (
     DEFAULT_MAX_STATES,
     bind_all,
@@ -58,12 +58,7 @@ from lesmc.tracking.scene import Scene
     help="Check only the named properties (repeatable).",
 )
 @click.option("--no-paths", is_flag=True, help="Table output: omit the step-by-step paths.")
-@click.option(
-    "--design",
-    type=click.Choice(["single", "joint"]),
-    default=None,
-    help="For a scene: override the tracker design it names.",
-)
+@design_option("For a scene: override the tracker design it names.")
 def check_cmd(
     model: str,
     specs: tuple[str, ...],

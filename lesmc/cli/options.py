@@ -3,13 +3,35 @@
 from __future__ import annotations
 
 import re
+from collections.abc import Callable
 from pathlib import Path
+from typing import Any, TypeVar
+
+import click
 
 from lesmc.errors import InputError, UsageError
 from lesmc.fileio import read_json
 from lesmc.model.lts import LTS
 from lesmc.model.lts_format import lts_from_dict
 from lesmc.tracking.scene import Scene, scene_from_dict
+
+F = TypeVar("F", bound=Callable[..., Any])
+
+#: ``-o/--output`` of the verbs that write a model.
+model_output = click.option(
+    "-o",
+    "--output",
+    required=True,
+    type=click.Path(dir_okay=False),
+    help="The model file to write (.lts).",
+)
+
+
+def design_option(help_text: str) -> Callable[[F], F]:
+    """``--design single|joint``, overriding the design a scene names."""
+    return click.option(
+        "--design", type=click.Choice(["single", "joint"]), default=None, help=help_text
+    )
 
 
 def parse_window(text: str) -> tuple[int, int]:

@@ -7,6 +7,7 @@ from pathlib import Path
 
 import click
 
+from lesmc.cli.options import model_output
 from lesmc.errors import UsageError
 from lesmc.fileio import atomic_write_text
 from lesmc.model.knapsack import knapsack_lts, knapsack_spec, read_items
@@ -28,13 +29,7 @@ def reduce_group() -> None:
     show_default=True,
     help="The property holds iff every selection meeting the demand costs more than this.",
 )
-@click.option(
-    "-o",
-    "--output",
-    required=True,
-    type=click.Path(dir_okay=False),
-    help="The model file to write (.lts).",
-)
+@model_output
 @click.option(
     "--spec",
     "spec_out",
