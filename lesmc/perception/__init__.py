@@ -1,0 +1,7 @@
+"""Perception: the paper's vehicle detector (section 6, Figure 4).
+
+Stages, each a separate module: ``registration`` (camera motion, Eq. 15),
+``background`` (median of aligned previous frames, Eq. 14), ``blobs``
+(subtraction, morphology, candidates Q_bc, Eq. 16), and ``frontend``, the object
+that runs them frame by frame; ``quality`` scores candidates against truth.
+"""

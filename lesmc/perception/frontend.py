@@ -1,0 +1,81 @@
+"""The classical front end run frame by frame: register, align, median, subtract, blobs.
+
+``FrontEnd.push`` takes frames in order and, once L previous frames are held,
+returns the candidates Q_bc of the new frame together with what later stages
+(the CNNs) need: the aligned previous frames and the homography to the
+previous frame. Frames before that only fill the history.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from lesmc.perception.background import Aligned, FrameHistory, background
+from lesmc.perception.blobs import BlobConfig, Blobs, blobs, foreground
+from lesmc.perception.registration import (
+    Features,
+    Registration,
+    RegistrationConfig,
+    describe,
+    register,
+)
+
+
+@dataclass(frozen=True)
+class FrontEndConfig:
+    """All front-end settings; ``history`` is the paper's L (4 or 5)."""
+
+    history: int = 4
+    registration: RegistrationConfig = field(default_factory=RegistrationConfig)
+    blobs: BlobConfig = field(default_factory=BlobConfig)
+
+
+@dataclass
+class FrontEndOutput:
+    """What the front end found in one frame."""
+
+    index: int  # position of the frame in the video
+    frame: np.ndarray
+    candidates: Blobs
+    aligned: Aligned  # previous frames in this frame's pixels, oldest first
+    background: np.ndarray
+    registration: Registration  # previous frame -> this frame
+
+
+class FrontEnd:
+    """Stateful frame-by-frame runner of the front end."""
+
+    def __init__(self, cfg: FrontEndConfig | None = None) -> None:
+        self.cfg = cfg or FrontEndConfig()
+        if self.cfg.history < 1:
+            raise ValueError("history (L) must be at least 1")
+        self.history = FrameHistory(self.cfg.history)
+        self.features: Features | None = None
+        self.index = -1
+        self.homographies: list[np.ndarray] = []  # h_k^{k-1} for k = 1, 2, ...
+
+    def push(self, frame: np.ndarray) -> FrontEndOutput | None:
+        """Feed the next uint8 grey frame; candidates once L previous frames are known."""
+        self.index += 1
+        feats = describe(frame, self.cfg.registration)
+        out = None
+        if self.features is not None:
+            prev = self.history.frames[-1]
+            reg = register(self.features, feats, self.cfg.registration, prev, frame)
+            self.homographies.append(reg.homography)
+            self.history.advance(reg.homography)
+            if self.history.full():
+                out = self._detect(frame, reg)
+        self.history.push(frame)
+        self.features = feats
+        return out
+
+    def _detect(self, frame: np.ndarray, reg: Registration) -> FrontEndOutput:
+        size = (frame.shape[1], frame.shape[0])
+        aligned = self.history.aligned(size)
+        bg = background(aligned, frame)
+        diff, mask = foreground(frame, bg, aligned.valid, self.cfg.blobs)
+        cands = blobs(mask, diff, self.cfg.blobs)
+        return FrontEndOutput(self.index, frame, cands, aligned, bg, reg)

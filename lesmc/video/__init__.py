@@ -1,0 +1,1 @@
+"""Video in: the synthetic WAMI generator and reading frames from disk."""

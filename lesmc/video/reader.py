@@ -1,0 +1,115 @@
+"""Reading a directory of frames: natural sort order, grey or colour, 8 or 16 bit.
+
+Everything is checked before the first frame is processed (every file decodes,
+all have one size, there are enough of them), so a bad directory fails at once
+with the file named and nothing written.
+"""
+
+from __future__ import annotations
+
+import re
+from collections.abc import Iterator
+from dataclasses import dataclass
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+from lesmc.errors import InputError, Location
+
+EXTENSIONS = {".png", ".tif", ".tiff", ".jpg", ".jpeg"}
+
+
+def natural_key(name: str) -> list[object]:
+    """Sort key so that ``frame2.png`` comes before ``frame10.png``."""
+    return [int(t) if t.isdigit() else t.lower() for t in re.split(r"(\d+)", name)]
+
+
+@dataclass(frozen=True)
+class FrameSet:
+    """A checked list of frame files of one size, and the scale that maps them to 8 bit."""
+
+    paths: list[Path]
+    width: int
+    height: int
+    scale: float  # multiply raw values by this to get grey levels 0..255
+
+    def __len__(self) -> int:
+        return len(self.paths)
+
+    def read(self, i: int) -> np.ndarray:
+        """Frame ``i`` as a uint8 grey image."""
+        return to_grey8(_imread(self.paths[i]), self.scale)
+
+    def __iter__(self) -> Iterator[np.ndarray]:
+        for i in range(len(self.paths)):
+            yield self.read(i)
+
+
+def _imread(path: Path) -> np.ndarray:
+    img = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
+    if img is None or img.size == 0:
+        raise InputError("cannot decode the image (not a PNG, TIFF or JPEG?)", Location(str(path)))
+    if img.dtype not in (np.uint8, np.uint16):
+        raise InputError(
+            f"unsupported pixel type {img.dtype} (8 or 16 bit only)", Location(str(path))
+        )
+    if img.ndim == 3 and img.shape[2] not in (1, 3, 4):
+        raise InputError(f"unsupported channel count {img.shape[2]}", Location(str(path)))
+    return img
+
+
+def to_grey8(img: np.ndarray, scale: float) -> np.ndarray:
+    """Colour to grey (OpenCV's luma weights), then scale to 0..255 uint8."""
+    if img.ndim == 3:
+        code = cv2.COLOR_BGRA2GRAY if img.shape[2] == 4 else cv2.COLOR_BGR2GRAY
+        img = cv2.cvtColor(img, code) if img.shape[2] != 1 else img[:, :, 0]
+    if img.dtype == np.uint8 and scale == 1.0:
+        return img
+    return cv2.convertScaleAbs(img, alpha=scale)
+
+
+def open_frames(directory: str | Path, minimum: int) -> FrameSet:
+    """List, sort and check the frames of ``directory`` (at least ``minimum`` of them).
+
+    16-bit frames are scaled to 8 bit by one factor for the whole video (taken
+    from the first frame's 99.9th percentile), so that grey levels stay
+    comparable between frames, which background subtraction relies on.
+    """
+    root = Path(directory)
+    if not root.is_dir():
+        raise InputError("not a directory of frames", Location(str(root)))
+    paths = sorted(
+        (
+            p
+            for p in root.iterdir()
+            if p.suffix.lower() in EXTENSIONS and not p.name.startswith(".")
+        ),
+        key=lambda p: natural_key(p.name),
+    )
+    if len(paths) < minimum:
+        raise InputError(
+            f"{len(paths)} frame(s) found, at least {minimum} are needed "
+            f"(the background model uses the previous frames)",
+            Location(str(root)),
+        )
+    size: tuple[int, int] | None = None
+    scale = 1.0
+    for p in paths:
+        # a header-only check would be faster, but decoding is the only sure test
+        img = _imread(p)
+        shape = (img.shape[1], img.shape[0])
+        if size is None:
+            size = shape
+            if img.dtype == np.uint16:
+                top = float(np.percentile(img, 99.9)) or 1.0
+                scale = 255.0 / top
+        elif shape != size:
+            raise InputError(
+                f"frame is {shape[0]}x{shape[1]} but {paths[0].name} is {size[0]}x{size[1]}: "
+                "all frames must have one size",
+                Location(str(p)),
+            )
+        del img
+    assert size is not None
+    return FrameSet(paths, size[0], size[1], scale)

@@ -1,0 +1,167 @@
+"""The classical front end: registration, median background, subtraction, quality scoring."""
+
+from __future__ import annotations
+
+import itertools
+
+import cv2
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+from hypothesis.extra.numpy import arrays
+
+from lesmc.perception.background import median
+from lesmc.perception.frontend import FrontEnd, FrontEndConfig
+from lesmc.perception.quality import match, score
+from lesmc.perception.registration import RegistrationConfig, describe, register
+
+
+def texture(size: int, seed: int) -> np.ndarray:
+    """A static scene with detail at several scales (what registration needs)."""
+    rng = np.random.default_rng(seed)
+    img = np.zeros((size, size), np.float32)
+    for cells, amp in ((8, 50.0), (32, 30.0), (128, 20.0)):
+        low = rng.normal(0, amp, (cells, cells)).astype(np.float32)
+        img += cv2.resize(low, (size, size), interpolation=cv2.INTER_CUBIC)
+    img = cv2.GaussianBlur(img + 128, (0, 0), 0.8)
+    return img.clip(0, 255).astype(np.uint8)
+
+
+def known_homography(size: int) -> np.ndarray:
+    c = size / 2
+    ang = np.deg2rad(1.5)
+    rot = np.array([[np.cos(ang), -np.sin(ang), 0], [np.sin(ang), np.cos(ang), 0], [0, 0, 1]])
+    move = np.array([[1.01, 0, c + 7.3], [0, 1.01, c - 4.6], [2e-6, -1e-6, 1]])
+    return move @ rot @ np.array([[1, 0, -c], [0, 1, -c], [0, 0, 1]])
+
+
+def mapping_error(h_est: np.ndarray, h_true: np.ndarray, size: int) -> float:
+    """Largest distance between where the two homographies send an inner grid of points."""
+    g = np.stack(
+        np.meshgrid(np.linspace(size * 0.1, size * 0.9, 9), np.linspace(size * 0.1, size * 0.9, 9)),
+        -1,
+    ).reshape(1, -1, 2)
+    a = cv2.perspectiveTransform(g, h_est)[0]
+    b = cv2.perspectiveTransform(g, h_true)[0]
+    return float(np.linalg.norm(a - b, axis=1).max())
+
+
+def test_registration_recovers_a_known_homography_to_subpixel_accuracy() -> None:
+    size = 768
+    a = texture(size, 3)
+    h = known_homography(size)
+    b = cv2.warpPerspective(
+        a, h, (size, size), flags=cv2.INTER_CUBIC, borderMode=cv2.BORDER_REFLECT
+    )
+    cfg = RegistrationConfig()
+    reg = register(describe(a, cfg), describe(b, cfg), cfg, a, b)
+    assert mapping_error(reg.homography, h, size) < 0.1
+    assert reg.inliers > 100
+
+
+def test_registration_without_refinement_is_only_pixel_accurate() -> None:
+    """The subpixel step matters: without images, the ORB-only estimate is coarser."""
+    size = 768
+    a = texture(size, 4)
+    h = known_homography(size)
+    b = cv2.warpPerspective(
+        a, h, (size, size), flags=cv2.INTER_CUBIC, borderMode=cv2.BORDER_REFLECT
+    )
+    cfg = RegistrationConfig()
+    coarse = register(describe(a, cfg), describe(b, cfg), cfg)
+    fine = register(describe(a, cfg), describe(b, cfg), cfg, a, b)
+    assert mapping_error(fine.homography, h, size) < mapping_error(coarse.homography, h, size)
+    assert mapping_error(coarse.homography, h, size) < 2.0
+
+
+@settings(max_examples=60, deadline=None)
+@given(
+    st.integers(1, 7).flatmap(lambda n: st.lists(arrays(np.uint8, (3, 4)), min_size=n, max_size=n))
+)
+def test_median_network_equals_numpy_median(frames: list[np.ndarray]) -> None:
+    got = median(frames)
+    want = np.median(np.stack(frames).astype(float), axis=0)
+    # even counts: mean of the middle two, rounded half up
+    assert np.array_equal(got, np.floor(want + 0.5).astype(np.uint8))
+
+
+def _video(n: int, size: int, blob_path: list[tuple[float, float]], shift: tuple[float, float]):
+    """A static textured scene seen by a translating camera, with a dark 5x5 blob driving."""
+    world = texture(size + 64, 11)
+    for k in range(n):
+        dx, dy = 32 + shift[0] * k, 32 + shift[1] * k
+        m = np.array([[1, 0, -dx], [0, 1, -dy]], np.float64)
+        img = cv2.warpAffine(world, m, (size, size), flags=cv2.INTER_CUBIC)
+        x, y = blob_path[k]
+        xi, yi = round(x), round(y)
+        img[yi - 2 : yi + 3, xi - 2 : xi + 3] = 20
+        yield img
+
+
+def test_median_background_removes_static_content_and_a_moving_blob_is_found() -> None:
+    size, n = 320, 7
+    path = [(60.0 + 12 * k, 150.0 + 3 * k) for k in range(n)]
+    fe = FrontEnd(FrontEndConfig(history=4))
+    outs = [
+        o for o in (fe.push(img) for img in _video(n, size, path, (1.7, -0.9))) if o is not None
+    ]
+    assert [o.index for o in outs] == [4, 5, 6]
+    for o in outs:
+        valid = o.aligned.valid > 0
+        # static texture is gone: away from the blob the difference is tiny
+        diff = cv2.absdiff(o.frame, o.background).astype(float)
+        x, y = path[o.index]
+        far = valid.copy()
+        far[int(y) - 8 : int(y) + 9, int(x) - 8 : int(x) + 9] = False
+        assert np.percentile(diff[far], 99.5) < 6
+        # exactly one candidate, at the blob
+        assert len(o.candidates) == 1
+        assert np.allclose(o.candidates.centroid[0], (x, y), atol=0.5)
+
+
+def test_a_stopped_blob_vanishes_into_the_background() -> None:
+    size, n = 256, 7
+    # fixed on the ground (whole-pixel camera steps, so drawing it does not jitter)
+    path = [(100.0 - 1.0 * k, 100.0 - 2.0 * k) for k in range(n)]
+    fe = FrontEnd(FrontEndConfig(history=4))
+    outs = [o for o in (fe.push(img) for img in _video(n, size, path, (1.0, 2.0))) if o is not None]
+    assert all(len(o.candidates) == 0 for o in outs)
+
+
+def brute_force_matching(det: np.ndarray, truth: np.ndarray, radius: float) -> tuple[int, float]:
+    """(most pairs within radius, least total distance among those): by enumeration."""
+    best = (0, 0.0)
+    n, m = len(det), len(truth)
+    for k in range(min(n, m), 0, -1):
+        for ds in itertools.combinations(range(n), k):
+            for ts in itertools.permutations(range(m), k):
+                d = [np.linalg.norm(det[i] - truth[j]) for i, j in zip(ds, ts, strict=True)]
+                if max(d) <= radius and (k > best[0] or sum(d) < best[1]):
+                    best = (k, sum(d)) if k > best[0] or sum(d) < best[1] else best
+        if best[0] == k:
+            return best
+    return best
+
+
+@settings(max_examples=80, deadline=None)
+@given(
+    arrays(np.float64, st.tuples(st.integers(0, 4), st.just(2)), elements=st.floats(0, 10)),
+    arrays(np.float64, st.tuples(st.integers(0, 4), st.just(2)), elements=st.floats(0, 10)),
+)
+def test_matching_is_maximal_and_optimal(det: np.ndarray, truth: np.ndarray) -> None:
+    pairs = match(det, truth, 3.0)
+    assert len({i for i, _, _ in pairs}) == len(pairs) == len({j for _, j, _ in pairs})
+    k, total = brute_force_matching(det, truth, 3.0)
+    assert len(pairs) == k
+    assert sum(d for _, _, d in pairs) == pytest.approx(total, abs=1e-9)
+
+
+def test_score_counts_dont_care_vehicles_as_neither_hit_nor_false_alarm() -> None:
+    truth = np.array([[0.0, 0.0], [10.0, 0.0], [20.0, 0.0]])
+    care = np.array([True, False, True])
+    det = np.array([[0.5, 0.0], [10.2, 0.0], [40.0, 0.0]])
+    s = score(det, truth, care, 2.0)
+    assert (s.tp, s.fp, s.fn, s.ignored) == (1, 1, 1, 1)
+    assert s.precision == 0.5 and s.recall == 0.5
+    assert s.error == pytest.approx(0.5)

@@ -1,0 +1,148 @@
+"""The synthetic WAMI generator, reading frame directories, and the synth/perceive verbs."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pytest
+from click.testing import CliRunner
+
+from lesmc.cli.main import cli
+from lesmc.errors import InputError
+from lesmc.video.reader import natural_key, open_frames
+from lesmc.video.synth import SynthConfig, frames, write_video
+
+SMALL = SynthConfig(frames=6, width=384, height=320, seed=5, density=3.0)
+
+
+@pytest.fixture(scope="module")
+def small_video(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    out = tmp_path_factory.mktemp("video")
+    write_video(SMALL, out)
+    return out
+
+
+def test_generator_is_deterministic_by_seed() -> None:
+    a = [(img.copy(), t) for img, t in frames(SMALL)]
+    b = [(img.copy(), t) for img, t in frames(SMALL)]
+    assert all(np.array_equal(x[0], y[0]) and x[1] == y[1] for x, y in zip(a, b, strict=True))
+    c = next(frames(SynthConfig(frames=1, width=384, height=320, seed=6)))[0]
+    assert not np.array_equal(a[0][0], c)
+
+
+def test_truth_describes_the_frames(small_video: Path) -> None:
+    truth = json.loads((small_video / "truth.json").read_text())
+    assert truth["format"] == "lesmc-truth" and len(truth["frames"]) == 6
+    f0 = truth["frames"][0]
+    assert f0["to_prev"] is None and f0["file"] == "frame_00000.png"
+    speeds = [v["speed_mps"] for fr in truth["frames"] for v in fr["vehicles"]]
+    assert speeds and max(speeds) <= 25.0 + 1e-9 and min(speeds) >= 0.0
+    lengths = [v["length_px"] for fr in truth["frames"] for v in fr["vehicles"]]
+    assert min(lengths) >= 2.5 and max(lengths) <= 9.5
+    for fr in truth["frames"]:
+        for v in fr["vehicles"]:
+            assert 0 <= v["x"] < SMALL.width and 0 <= v["y"] < SMALL.height
+
+
+def test_truth_homography_aligns_the_static_ground(small_video: Path) -> None:
+    """Warping frame k by ``to_prev`` reproduces frame k-1 away from movers and buildings."""
+    truth = json.loads((small_video / "truth.json").read_text())
+    k = 3
+    cur = cv2.imread(str(small_video / truth["frames"][k]["file"]), 0).astype(np.float32)
+    prev = cv2.imread(str(small_video / truth["frames"][k - 1]["file"]), 0).astype(np.float32)
+    h = np.array(truth["frames"][k]["to_prev"])
+    warped = cv2.warpPerspective(cur, h, cur.shape[::-1])
+    inner = (slice(40, -40), slice(40, -40))
+    diff = np.abs(warped - prev)[inner]
+    # most of the ground agrees to sensor noise; registration by identity would not
+    assert np.median(diff) < 3.5
+    ident = np.abs(cur - prev)[inner]
+    assert np.percentile(ident, 95) > 2 * np.percentile(diff, 95)
+
+
+def test_sixteen_bit_tiff_and_colour_frames_are_read(tmp_path: Path) -> None:
+    cfg = SynthConfig(frames=2, width=128, height=96, seed=2, depth=16)
+    paths = write_video(cfg, tmp_path / "v16")
+    assert all(p.suffix == ".tif" for p in paths)
+    raw = cv2.imread(str(paths[0]), cv2.IMREAD_UNCHANGED)
+    assert raw.dtype == np.uint16
+    fs = open_frames(tmp_path / "v16", 2)
+    assert fs.read(0).dtype == np.uint8 and fs.read(0).shape == (96, 128)
+    colour = tmp_path / "colour"
+    colour.mkdir()
+    rgb = np.zeros((20, 30, 3), np.uint8)
+    rgb[..., 1] = 200
+    cv2.imwrite(str(colour / "a.jpg"), rgb)
+    cv2.imwrite(str(colour / "b.jpg"), rgb)
+    g = open_frames(colour, 2).read(0)
+    assert g.shape == (20, 30) and 100 < g.mean() < 140  # luma of pure green
+
+
+def test_natural_sort_order(tmp_path: Path) -> None:
+    names = ["f10.png", "f2.png", "f1.png", "F3.png"]
+    assert sorted(names, key=natural_key) == ["f1.png", "f2.png", "F3.png", "f10.png"]
+    img = np.zeros((8, 8), np.uint8)
+    for i, n in enumerate(names):
+        cv2.imwrite(str(tmp_path / n), img + i)
+    assert [p.name for p in open_frames(tmp_path, 4).paths] == [
+        "f1.png",
+        "f2.png",
+        "F3.png",
+        "f10.png",
+    ]
+
+
+def test_bad_frame_directories_name_the_file(tmp_path: Path) -> None:
+    img = np.zeros((8, 8), np.uint8)
+    for i in range(3):
+        cv2.imwrite(str(tmp_path / f"f{i}.png"), img)
+    with pytest.raises(InputError, match="at least 5"):
+        open_frames(tmp_path, 5)
+    cv2.imwrite(str(tmp_path / "f3.png"), np.zeros((9, 8), np.uint8))
+    with pytest.raises(InputError, match=r"f3\.png.*one size"):
+        open_frames(tmp_path, 2)
+    (tmp_path / "f3.png").write_bytes(b"not an image")
+    with pytest.raises(InputError, match=r"f3\.png.*cannot decode"):
+        open_frames(tmp_path, 2)
+
+
+def test_perceive_reports_quality_on_a_synthetic_video(small_video: Path) -> None:
+    res = CliRunner().invoke(
+        cli, ["perceive", str(small_video), "--truth", str(small_video / "truth.json"), "--json"]
+    )
+    assert res.exit_code == 0, res.output
+    doc = json.loads(res.output)
+    assert len(doc["frames"]) == 6 - 4
+    overall = doc["overall"]
+    assert overall["tp"] + overall["fn"] > 5
+    assert overall["recall"] >= 0.8
+    assert 0 < overall["precision"] <= 1 and overall["error_px"] < 2.0
+
+
+def test_perceive_errors_exit_2_without_traceback(tmp_path: Path) -> None:
+    import subprocess
+    import sys
+
+    (tmp_path / "a.png").write_bytes(b"junk")
+    r = subprocess.run(
+        [sys.executable, "-m", "lesmc", "perceive", str(tmp_path)], capture_output=True, text=True
+    )
+    assert r.returncode == 2
+    assert "Traceback" not in r.stderr and "frame(s) found" in r.stderr
+
+
+def test_synth_cli_writes_frames_and_truth(tmp_path: Path) -> None:
+    res = CliRunner().invoke(
+        cli, ["synth", str(tmp_path / "v"), "--frames", "2", "--size", "96x64"]
+    )
+    assert res.exit_code == 0, res.output
+    assert sorted(p.name for p in (tmp_path / "v").iterdir()) == [
+        "frame_00000.png",
+        "frame_00001.png",
+        "truth.json",
+    ]
+    bad = CliRunner().invoke(cli, ["synth", str(tmp_path / "w"), "--size", "96by64"])
+    assert bad.exit_code != 0 and not (tmp_path / "w").exists()
