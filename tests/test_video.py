@@ -116,10 +116,16 @@ def test_perceive_reports_quality_on_a_synthetic_video(small_video: Path) -> Non
     assert res.exit_code == 0, res.output
     doc = json.loads(res.output)
     assert len(doc["frames"]) == 6 - 4
-    overall = doc["overall"]
-    assert overall["tp"] + overall["fn"] > 5
-    assert overall["recall"] >= 0.8
-    assert 0 < overall["precision"] <= 1 and overall["error_px"] < 2.0
+    fe, det = doc["overall"]["frontend"], doc["overall"]["detector"]
+    assert fe["tp"] + fe["fn"] > 5
+    assert fe["recall"] >= 0.8 and 0 < fe["precision"] <= 1 and fe["error_px"] < 2.0
+    # the CNNs remove most false candidates and keep most vehicles
+    assert det["precision"] > fe["precision"] and det["recall"] >= 0.8
+    front_only = CliRunner().invoke(
+        cli, ["perceive", str(small_video), "--truth", str(small_video / "truth.json"), "--json",
+              "--no-cnn"]
+    )
+    assert json.loads(front_only.output)["overall"] == {"frontend": fe}
 
 
 def test_perceive_errors_exit_2_without_traceback(tmp_path: Path) -> None:

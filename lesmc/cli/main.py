@@ -13,8 +13,10 @@ from rich.console import Console
 
 from lesmc.cli.build import build_cmd, track_cmd
 from lesmc.cli.check import check_cmd
+from lesmc.cli.perceive import perceive_cmd
 from lesmc.cli.reduce import reduce_group
-from lesmc.cli.video import perceive_cmd, synth_cmd
+from lesmc.cli.train import train_cmd
+from lesmc.cli.video import synth_cmd
 from lesmc.errors import LesmcError
 from lesmc.report.exit import EXIT_USAGE
 
@@ -42,6 +44,7 @@ cli.add_command(track_cmd)
 cli.add_command(reduce_group)
 cli.add_command(synth_cmd)
 cli.add_command(perceive_cmd)
+cli.add_command(train_cmd)
 
 
 def main(argv: list[str] | None = None) -> None:

@@ -106,6 +106,7 @@ class TruthFrame:
     speed_mps: np.ndarray
     occluded: np.ndarray
     ids: list[int] = field(default_factory=list)
+    velocity: np.ndarray | None = None  # (n, 2) frame px per second
 
 
 def load_truth(path: str) -> dict[str, TruthFrame]:
@@ -123,6 +124,9 @@ def load_truth(path: str) -> dict[str, TruthFrame]:
                 np.array([float(v.get("speed_mps", 0.0)) for v in vs]),
                 np.array([bool(v.get("occluded", False)) for v in vs], bool),
                 [int(v["id"]) for v in vs],
+                np.array([[float(v.get("vx", 0.0)), float(v.get("vy", 0.0))] for v in vs]).reshape(
+                    -1, 2
+                ),
             )
         except (KeyError, TypeError, ValueError) as exc:
             raise InputError(

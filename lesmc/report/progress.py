@@ -29,7 +29,7 @@ def progress_bar(label: str, total: int | None) -> Iterator[Bar]:
     """A transient bar labelled ``label`` counting to ``total`` items."""
     err = Console(stderr=True)
     with Progress(
-        TextColumn(f"{label:<12}"),
+        TextColumn("{task.description:<12}"),
         BarColumn(),
         MofNCompleteColumn(),
         TimeElapsedColumn(),

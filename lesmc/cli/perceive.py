@@ -1,0 +1,243 @@
+"""``lesmc perceive``: frames -> detections (-> payoffs -> scene), with quality against truth."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+from typing import Any
+
+import click
+from rich.table import Table
+
+from lesmc.errors import InputError, Location, UsageError
+from lesmc.perception.attacks import AttackConfig, Method, Norm
+from lesmc.perception.cnn import load_nets
+from lesmc.perception.quality import load_truth
+from lesmc.perception.run import PerceiveOptions, PerceiveRun, perceive
+from lesmc.perception.to_scene import make_scene, parse_target
+from lesmc.report.progress import progress_bar
+from lesmc.report.text import make_console
+from lesmc.tracking.scene import save_scene
+from lesmc.video.reader import open_frames
+from lesmc.video.synth import FPS
+
+
+@click.command("perceive")
+@click.argument("frames_dir", type=click.Path(file_okay=False))
+@click.option(
+    "-o",
+    "--output",
+    type=click.Path(dir_okay=False),
+    default=None,
+    help="Write the scene (detections, payoffs, homographies, target) here.",
+)
+@click.option(
+    "--target",
+    "target_text",
+    default=None,
+    metavar="X,Y[@STEP]",
+    help="The tracked vehicle: its position in frame STEP [default: first detected frame].",
+)
+@click.option(
+    "--truth",
+    type=click.Path(dir_okay=False),
+    default=None,
+    help="truth.json of the video: print precision, recall, F1 and error.",
+)
+@click.option(
+    "--nets",
+    "nets_dir",
+    type=click.Path(file_okay=False),
+    default=None,
+    help="Trained networks (lesmc train --out) [default: the shipped ones].",
+)
+@click.option("--no-cnn", is_flag=True, help="Front end only: the candidates Q_bc.")
+@click.option(
+    "--attack",
+    type=click.Choice(["deepfool", "pgd"]),
+    default="deepfool",
+    show_default=True,
+    help="How payoffs are computed (docs/cnn.md).",
+)
+@click.option(
+    "--payoff-norm",
+    type=click.Choice(["l2", "per-pixel"]),
+    default="l2",
+    show_default=True,
+    help="l2: ||delta||_2 on [0,1] pixels; per-pixel: divided by 441 (the paper's code).",
+)
+@click.option(
+    "--overshoot", type=click.FloatRange(min=0.0, max=1.0), default=0.02, show_default=True
+)
+@click.option("--max-iter", type=click.IntRange(min=1, max=10000), default=50, show_default=True)
+@click.option(
+    "--history",
+    type=click.IntRange(min=3, max=16),
+    default=4,
+    show_default=True,
+    help="L, the number of previous frames in the background median (at least m=3).",
+)
+@click.option(
+    "--delta-bc",
+    type=click.IntRange(min=1, max=255),
+    default=12,
+    show_default=True,
+    help="Background subtraction threshold (grey levels).",
+)
+@click.option(
+    "--dt",
+    type=click.FloatRange(min=0.0, min_open=True),
+    default=None,
+    help=f"Seconds between frames [default: from --truth, else {1 / FPS:g} (1.25 Hz)].",
+)
+@click.option(
+    "--radius",
+    type=click.FloatRange(min=0.1),
+    default=4.0,
+    show_default=True,
+    help="Match distance for --truth, pixels.",
+)
+@click.option(
+    "--min-speed",
+    type=click.FloatRange(min=0.0),
+    default=1.5,
+    show_default=True,
+    help="Slower vehicles (m/s) are don't care for --truth.",
+)
+@click.option("--json", "as_json", is_flag=True, help="Print the per-frame figures as JSON.")
+def perceive_cmd(
+    frames_dir: str,
+    output: str | None,
+    target_text: str | None,
+    truth: str | None,
+    nets_dir: str | None,
+    no_cnn: bool,
+    attack: str,
+    payoff_norm: str,
+    overshoot: float,
+    max_iter: int,
+    history: int,
+    delta_bc: int,
+    dt: float | None,
+    radius: float,
+    min_speed: float,
+    as_json: bool,
+) -> None:
+    """Run the vehicle detector of the paper's Figure 4 on FRAMES_DIR (PNG/TIFF/JPEG).
+
+    Registration, median background and subtraction give candidates Q_bc; N_dr
+    keeps the vehicles, N_lp splits crowded blobs. With -o and --target, each
+    detection's payoff (the smallest perturbation that hides it from N_dr) is
+    computed and a scene is written for `lesmc build` / `lesmc check`.
+    """
+    if (output is None) != (target_text is None):
+        raise UsageError("-o/--output and --target go together: the scene needs a target")
+    if output is not None and no_cnn:
+        raise UsageError("--no-cnn cannot write a scene: payoffs need the CNN")
+    spec = parse_target(target_text) if target_text else None
+    frames = open_frames(frames_dir, history + 1)
+    truths = load_truth(truth) if truth else None
+    if truths is not None:
+        missing = [p.name for p in frames.paths if p.name not in truths]
+        if missing:
+            raise InputError(f"no truth for frame {missing[0]}", Location(truth or ""))
+    nets = None if no_cnn else load_nets(nets_dir)
+    method: Method = "pgd" if attack == "pgd" else "deepfool"
+    norm: Norm = "per-pixel" if payoff_norm == "per-pixel" else "l2"
+    att = (
+        AttackConfig(method=method, overshoot=overshoot, max_iter=max_iter, norm=norm)
+        if output
+        else None
+    )
+    opts = PerceiveOptions(
+        history=history,
+        delta_bc=delta_bc,
+        nets=nets,
+        attack=att,
+        radius=radius,
+        min_speed=min_speed,
+    )
+    with progress_bar("perceiving", len(frames)) as bar:
+        run = perceive(frames, opts, truths, bar.advance)
+    if output is not None and spec is not None and nets is not None and att is not None:
+        step_dt = dt or (_truth_dt(truth) if truth else None) or 1 / FPS
+        tf = None
+        if truths is not None and spec.step is not None and spec.step < len(frames.paths):
+            tf = truths[frames.paths[spec.step].name]
+        elif truths is not None and run.detections:
+            tf = truths[frames.paths[run.detections[0].index].name]
+        meta = {
+            "source": str(Path(frames_dir)),
+            "detector": nets.settings.trained_on,
+            "attack": {
+                "method": attack,
+                "overshoot": overshoot,
+                "max_iter": max_iter,
+                "norm": payoff_norm,
+                "pixel_scale": "[0, 1]",
+                "input": "N_dr window, 21x21 x (m+1) frames",
+            },
+        }
+        scene = make_scene(run.detections, run.payoffs, step_dt, spec, tf, meta=meta)
+        save_scene(scene, output)
+        n = sum(len(f.detections) for f in scene.frames)
+        click.echo(
+            f"wrote {output}: {len(scene.frames)} frames (steps {scene.frames[0].step}.."
+            f"{scene.last_step}), {n} detections, {run.unattackable} unattackable; target at "
+            f"step {scene.target.step}, velocity {scene.meta['target_velocity_from']}",
+            err=as_json,
+        )
+    if as_json:
+        doc: dict[str, Any] = {"frames": run.rows}
+        if truths is not None:
+            doc["overall"] = {"frontend": run.frontend_total.to_json()}
+            if nets is not None:
+                doc["overall"]["detector"] = run.detector_total.to_json()
+        click.echo(json.dumps(doc, indent=1))
+        return
+    _print(run, truths is not None, nets is not None)
+
+
+def _truth_dt(path: str) -> float | None:
+    from lesmc.fileio import read_json
+
+    data = read_json(path, InputError)
+    v = data.get("dt") if isinstance(data, dict) else None
+    return float(v) if isinstance(v, (int, float)) and v > 0 else None
+
+
+def _print(run: PerceiveRun, with_truth: bool, with_cnn: bool) -> None:
+    console = make_console()
+    table = Table(title="detector" if with_cnn else "front end (candidates Q_bc)")
+    cols = ["frame", "candidates"] + (["accepted", "detections"] if with_cnn else [])
+    quality = ["tp", "fp", "fn", "precision", "recall", "f1", "error_px"]
+    stage = "detector" if with_cnn else "frontend"
+    for c in cols + (quality if with_truth else []):
+        table.add_column(_HEAD.get(c, c), justify="left" if c == "frame" else "right", no_wrap=True)
+    for r in run.rows:
+        q = [_cell(r[stage][c]) for c in quality] if with_truth else []
+        table.add_row(Path(r["frame"]).stem, *(_cell(r[c]) for c in cols[1:]), *q)
+    if with_truth:
+        table.add_section()
+        blanks = [""] * (len(cols) - 1)
+        if with_cnn:
+            table.add_row(
+                "front end", *blanks, *(_cell(run.frontend_total.to_json()[c]) for c in quality)
+            )
+        total = run.detector_total if with_cnn else run.frontend_total
+        table.add_row("overall", *blanks, *(_cell(total.to_json()[c]) for c in quality))
+    console.print(table)
+
+
+_HEAD = {
+    "candidates": "Q_bc",
+    "accepted": "Q_dr",
+    "detections": "dets",
+    "precision": "prec",
+    "recall": "rec",
+    "error_px": "err px",
+}
+
+
+def _cell(v: Any) -> str:
+    return f"{v:.3f}" if isinstance(v, float) else str(v)

@@ -1,0 +1,142 @@
+"""The two CNNs of the detector (paper sections 6.4-6.5), small enough for a CPU.
+
+- ``DetectNet`` (N_dr): 21x21x(m+1) window -> two logits (no vehicle, vehicle).
+- ``LocateNet`` (N_lp): 45x45x(m+1) window -> 15x15 map; pixels above delta_lp
+  that are local maxima are vehicles (one map cell = 3x3 input pixels).
+
+Weights are stored as safetensors (plain tensors, no code is executed on
+loading) with a JSON header of settings; the package ships a trained pair.
+"""
+
+from __future__ import annotations
+
+import json
+from dataclasses import asdict, dataclass
+from importlib import resources
+from pathlib import Path
+from typing import Any
+
+import torch
+from safetensors.torch import load_file, save_file
+from torch import nn
+
+from lesmc.errors import InputError, Location
+from lesmc.perception.windows import M_PREVIOUS
+
+DR_SIZE = 21
+LP_SIZE = 45
+LP_OUT = 15
+LP_STRIDE = LP_SIZE // LP_OUT
+
+
+class DetectNet(nn.Module):
+    """N_dr: is there a moving vehicle in the window? Two logits, index 1 = vehicle."""
+
+    def __init__(self, channels: int = M_PREVIOUS + 1) -> None:
+        super().__init__()
+        self.features = nn.Sequential(
+            nn.Conv2d(channels, 16, 3, padding=1),
+            nn.ReLU(),
+            nn.Conv2d(16, 32, 3, stride=2, padding=1),
+            nn.ReLU(),  # 11x11
+            nn.Conv2d(32, 32, 3, padding=1),
+            nn.ReLU(),
+            nn.Conv2d(32, 32, 3, stride=2, padding=1),
+            nn.ReLU(),  # 6x6
+        )
+        self.head = nn.Sequential(
+            nn.Flatten(), nn.Linear(32 * 6 * 6, 64), nn.ReLU(), nn.Linear(64, 2)
+        )
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        # brightness invariance: remove each window's mean grey level
+        x = x - x.mean(dim=(1, 2, 3), keepdim=True)
+        out: torch.Tensor = self.head(self.features(x))
+        return out
+
+
+class LocateNet(nn.Module):
+    """N_lp: a 15x15 map of vehicle centres for a 45x45 window (values in [0, 1])."""
+
+    def __init__(self, channels: int = M_PREVIOUS + 1) -> None:
+        super().__init__()
+        self.body = nn.Sequential(
+            nn.Conv2d(channels, 8, 3, padding=1),
+            nn.ReLU(),
+            nn.Conv2d(8, 16, 3, padding=1),
+            nn.ReLU(),
+            nn.Conv2d(16, 32, LP_STRIDE, stride=LP_STRIDE),
+            nn.ReLU(),  # 15x15
+            nn.Conv2d(32, 32, 3, padding=1),
+            nn.ReLU(),
+            nn.Conv2d(32, 1, 1),
+        )
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        x = x - x.mean(dim=(1, 2, 3), keepdim=True)
+        out: torch.Tensor = torch.sigmoid(self.body(x)[:, 0])
+        return out
+
+
+@dataclass(frozen=True)
+class NetSettings:
+    """Thresholds that travel with a trained pair of networks."""
+
+    m: int = M_PREVIOUS
+    delta_dr: float = 0.5  #: N_dr accepts a window when P(vehicle) > delta_dr
+    delta_lp: float = 0.5  #: N_lp map threshold
+    trained_on: str = ""
+
+
+@dataclass
+class Nets:
+    """A trained N_dr and N_lp and their settings, in eval mode."""
+
+    dr: DetectNet
+    lp: LocateNet
+    settings: NetSettings
+
+
+DEFAULT_WEIGHTS = "wami"  #: the pair shipped in lesmc/perception/weights/
+
+
+def save_nets(nets: Nets, directory: str | Path) -> None:
+    """Write ``dr.safetensors``, ``lp.safetensors`` and ``nets.json``."""
+    d = Path(directory)
+    d.mkdir(parents=True, exist_ok=True)
+    save_file(
+        {k: v.contiguous() for k, v in nets.dr.state_dict().items()}, str(d / "dr.safetensors")
+    )
+    save_file(
+        {k: v.contiguous() for k, v in nets.lp.state_dict().items()}, str(d / "lp.safetensors")
+    )
+    (d / "nets.json").write_text(
+        json.dumps(
+            {"format": "lesmc-nets", "version": 1, "settings": asdict(nets.settings)}, indent=1
+        )
+        + "\n"
+    )
+
+
+def load_nets(directory: str | Path | None = None) -> Nets:
+    """Load a pair written by ``save_nets`` (default: the shipped weights)."""
+    if directory is None:
+        d = Path(str(resources.files("lesmc.perception") / "weights" / DEFAULT_WEIGHTS))
+    else:
+        d = Path(directory)
+    meta_path = d / "nets.json"
+    try:
+        meta: Any = json.loads(meta_path.read_text())
+        settings = NetSettings(**meta["settings"])
+    except (OSError, ValueError, KeyError, TypeError) as exc:
+        raise InputError(
+            f"not a lesmc network directory ({exc})", Location(str(meta_path))
+        ) from None
+    dr, lp = DetectNet(settings.m + 1), LocateNet(settings.m + 1)
+    for net, name in ((dr, "dr.safetensors"), (lp, "lp.safetensors")):
+        try:
+            net.load_state_dict(load_file(str(d / name)))
+        except Exception as exc:  # safetensors raises its own error type for bad headers
+            raise InputError(f"cannot load weights ({exc})", Location(str(d / name))) from None
+        net.eval()
+    return Nets(dr, lp, settings)

@@ -1,0 +1,169 @@
+"""The whole detector of the paper's Figure 4, frame by frame.
+
+Front end -> candidates Q_bc -> N_dr keeps the windows that hold a moving
+vehicle (Q_dr) -> a blob of Q_dr that is larger than ``big_px`` or closer than
+``close_px`` to another goes to N_lp, whose map peaks are the vehicles (or,
+with no peak, the blob itself: the paper's "default blob"); every other blob
+is output directly. Each detection remembers the Q_dr blob it came from: that
+blob's N_dr window is what an attacker perturbs to hide it (see attacks.py).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+import torch
+from scipy.spatial import cKDTree
+
+from lesmc.perception.cnn import DR_SIZE, LP_SIZE, LP_STRIDE, Nets
+from lesmc.perception.frontend import FrontEnd, FrontEndConfig, FrontEndOutput
+from lesmc.perception.windows import cut, origins, stack
+
+
+@dataclass(frozen=True)
+class DetectorConfig:
+    """Detector settings beyond the front end's and the networks' thresholds."""
+
+    frontend: FrontEndConfig = field(default_factory=FrontEndConfig)
+    big_px: int = 20  #: a blob wider or taller than this may hold several vehicles
+    close_px: float = 10.0  #: blobs nearer than this may be pieces of one vehicle or a queue
+    merge_px: float = 3.0  #: N_lp peaks nearer than this are one vehicle
+    batch: int = 2048
+
+
+@dataclass
+class FrameDetections:
+    """The detections of one frame and what the attack needs to hide each of them."""
+
+    index: int
+    positions: np.ndarray  # (n, 2) x, y
+    source: np.ndarray  # (n,) row of ``windows`` (the Q_dr blob) each detection came from
+    via_lp: np.ndarray  # (n,) True when N_lp located it
+    windows: np.ndarray  # (b, m+1, 21, 21) N_dr inputs of the source blobs
+    to_prev: np.ndarray  # homography from this frame's pixels to the previous frame's
+    n_candidates: int  # |Q_bc|
+    n_accepted: int  # |Q_dr|
+
+
+def dr_probability(nets: Nets, windows: np.ndarray, batch: int = 2048) -> np.ndarray:
+    """P(vehicle) of N_dr for (n, m+1, 21, 21) windows."""
+    out = np.empty(len(windows), np.float32)
+    with torch.inference_mode():
+        for a in range(0, len(windows), batch):
+            logits = nets.dr(torch.from_numpy(windows[a : a + batch]))
+            out[a : a + batch] = torch.softmax(logits, dim=1)[:, 1].numpy()
+    return out
+
+
+def lp_maps(nets: Nets, windows: np.ndarray, batch: int = 512) -> np.ndarray:
+    """N_lp maps (n, 15, 15) for (n, m+1, 45, 45) windows."""
+    out = np.empty((len(windows), 15, 15), np.float32)
+    with torch.inference_mode():
+        for a in range(0, len(windows), batch):
+            out[a : a + batch] = nets.lp(torch.from_numpy(windows[a : a + batch])).numpy()
+    return out
+
+
+def peaks(maps: np.ndarray, threshold: float) -> list[np.ndarray]:
+    """Per map, the local maxima above ``threshold`` as window pixel (x, y) and value.
+
+    A cell covers 3x3 input pixels; the position is refined by the value-weighted
+    centroid of the cell's 3x3 neighbourhood.
+    """
+    t = torch.from_numpy(maps)[:, None]
+    pooled = torch.nn.functional.max_pool2d(t, 3, stride=1, padding=1)[:, 0].numpy()
+    result = []
+    padded = np.pad(maps, ((0, 0), (1, 1), (1, 1)))
+    for i in range(len(maps)):
+        ys, xs = np.nonzero((maps[i] >= pooled[i]) & (maps[i] > threshold))
+        rows = []
+        for y, x in zip(ys, xs, strict=True):
+            nb = padded[i, y : y + 3, x : x + 3]
+            w = nb.sum()
+            dy = float((nb.sum(axis=1) * np.array([-1, 0, 1])).sum() / w)
+            dx = float((nb.sum(axis=0) * np.array([-1, 0, 1])).sum() / w)
+            rows.append(((x + dx) * LP_STRIDE + 1, (y + dy) * LP_STRIDE + 1, float(maps[i, y, x])))
+        result.append(np.array(rows, float).reshape(-1, 3))
+    return result
+
+
+class Detector:
+    """Runs front end and CNNs on a video, one ``push`` per frame."""
+
+    def __init__(self, nets: Nets, cfg: DetectorConfig | None = None) -> None:
+        self.nets = nets
+        self.cfg = cfg or DetectorConfig()
+        if self.cfg.frontend.history < nets.settings.m:
+            raise ValueError(f"history L={self.cfg.frontend.history} < m={nets.settings.m}")
+        self.frontend = FrontEnd(self.cfg.frontend)
+
+    def push(self, frame: np.ndarray) -> tuple[FrontEndOutput, FrameDetections] | None:
+        out = self.frontend.push(frame)
+        if out is None:
+            return None
+        return out, self.detect(out)
+
+    def detect(self, out: FrontEndOutput) -> FrameDetections:
+        """N_dr on every candidate, N_lp on the crowded ones (Figure 4)."""
+        cfg, nets = self.cfg, self.nets
+        frames = stack(out.frame, out.aligned.frames, nets.settings.m)
+        cand = out.candidates
+        win = cut(frames, cand.centroid, DR_SIZE)
+        keep = np.flatnonzero(dr_probability(nets, win, cfg.batch) > nets.settings.delta_dr)
+        cents, boxes, win = cand.centroid[keep], cand.box[keep], win[keep]
+        crowded = (boxes[:, 2] > cfg.big_px) | (boxes[:, 3] > cfg.big_px)
+        if len(cents) > 1:
+            d, _ = cKDTree(cents).query(cents, k=2)
+            crowded |= d[:, 1] < cfg.close_px
+        pos: list[np.ndarray] = [cents[~crowded]]
+        src: list[np.ndarray] = [np.flatnonzero(~crowded)]
+        lp: list[np.ndarray] = [np.zeros(int((~crowded).sum()), bool)]
+        rows = np.flatnonzero(crowded)
+        if len(rows):
+            p, s = self._locate(frames, cents[rows], boxes[rows], rows)
+            pos.append(p)
+            src.append(s)
+            lp.append(np.ones(len(p), bool))
+        h_inv = np.linalg.inv(out.registration.homography)
+        return FrameDetections(
+            index=out.index,
+            positions=np.concatenate(pos).reshape(-1, 2),
+            source=np.concatenate(src).astype(int),
+            via_lp=np.concatenate(lp),
+            windows=win,
+            to_prev=h_inv / h_inv[2, 2],
+            n_candidates=len(cand),
+            n_accepted=len(keep),
+        )
+
+    def _locate(
+        self, frames: list[np.ndarray], cents: np.ndarray, boxes: np.ndarray, rows: np.ndarray
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """N_lp peaks inside each crowded blob's box (3 px margin), merged across blobs."""
+        maps = lp_maps(self.nets, cut(frames, cents, LP_SIZE))
+        org = origins(cents, LP_SIZE)
+        found: list[tuple[float, float, float, int]] = []
+        for i, pk in enumerate(peaks(maps, self.nets.settings.delta_lp)):
+            x0, y0, bw, bh = boxes[i]
+            xy = pk[:, :2] + org[i]
+            inside = (
+                (xy[:, 0] >= x0 - 3)
+                & (xy[:, 0] <= x0 + bw + 2)
+                & (xy[:, 1] >= y0 - 3)
+                & (xy[:, 1] <= y0 + bh + 2)
+            )
+            if inside.any():
+                found += [
+                    (x, y, v, int(rows[i]))
+                    for (x, y), v in zip(xy[inside], pk[inside, 2], strict=True)
+                ]
+            else:  # the paper's "default blob": keep the blob itself
+                found.append((float(cents[i, 0]), float(cents[i, 1]), 0.0, int(rows[i])))
+        found.sort(key=lambda r: -r[2])
+        kept: list[tuple[float, float, float, int]] = []
+        for r in found:  # greedy merge, strongest peak first
+            if all((r[0] - k[0]) ** 2 + (r[1] - k[1]) ** 2 >= self.cfg.merge_px**2 for k in kept):
+                kept.append(r)
+        arr = np.array([(r[0], r[1]) for r in kept], float).reshape(-1, 2)
+        return arr, np.array([r[3] for r in kept], int)

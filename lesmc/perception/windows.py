@@ -1,0 +1,46 @@
+"""Cutting the CNN inputs: square windows of the current and m previous aligned frames.
+
+N_dr sees 21x21x(m+1) windows, N_lp 45x45x(m+1) (paper sections 6.4-6.5).
+Channels are ordered oldest first, current frame last; values are grey levels
+scaled to [0, 1], the pixel scale in which payoffs are measured. Windows that
+reach past the frame edge repeat the edge pixels.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+M_PREVIOUS = 3  #: m, the previous frames a CNN sees (paper: the time a vehicle needs to cross)
+
+
+def stack(frame: np.ndarray, aligned: list[np.ndarray], m: int = M_PREVIOUS) -> list[np.ndarray]:
+    """The m most recent aligned previous frames and the current one, oldest first."""
+    if len(aligned) < m:
+        raise ValueError(f"need {m} previous frames, have {len(aligned)}")
+    return [*aligned[len(aligned) - m :], frame]
+
+
+def cut(frames: list[np.ndarray], centres: np.ndarray, size: int) -> np.ndarray:
+    """Windows of ``size`` x ``size`` around integer-rounded ``centres`` (n, 2) as float32.
+
+    Returns (n, len(frames), size, size) in [0, 1].
+    """
+    n = len(centres)
+    h, w = frames[0].shape
+    half = size // 2
+    cx = np.rint(np.asarray(centres, float)[:, 0]).astype(np.int64) if n else np.zeros(0, np.int64)
+    cy = np.rint(np.asarray(centres, float)[:, 1]).astype(np.int64) if n else np.zeros(0, np.int64)
+    offs = np.arange(-half, size - half)
+    xs = np.clip(cx[:, None] + offs[None, :], 0, w - 1)  # (n, size)
+    ys = np.clip(cy[:, None] + offs[None, :], 0, h - 1)
+    out = np.empty((n, len(frames), size, size), np.float32)
+    for c, f in enumerate(frames):
+        out[:, c] = f[ys[:, :, None], xs[:, None, :]]
+    out *= 1.0 / 255.0
+    return out
+
+
+def origins(centres: np.ndarray, size: int) -> np.ndarray:
+    """Top-left pixel (x, y) of the windows ``cut`` takes around ``centres``."""
+    c: np.ndarray = np.rint(np.asarray(centres, float).reshape(-1, 2)).astype(np.int64)
+    return c - size // 2

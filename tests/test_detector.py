@@ -1,0 +1,135 @@
+"""The learning-enabled detector: shipped CNNs, the Figure 4 pipeline, scenes out, training."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+from click.testing import CliRunner
+
+from lesmc.cli.main import cli
+from lesmc.errors import InputError, UsageError
+from lesmc.perception.cnn import load_nets, save_nets
+from lesmc.perception.detector import Detector, peaks
+from lesmc.perception.quality import care_mask, score
+from lesmc.perception.to_scene import parse_target
+from lesmc.perception.training import TrainConfig, train, truth_frame
+from lesmc.tracking.scene import load_scene
+from lesmc.video.synth import SynthConfig, frames, write_video
+
+VIDEO = SynthConfig(frames=8, width=640, height=640, seed=21)
+
+
+@pytest.fixture(scope="module")
+def video(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    out = tmp_path_factory.mktemp("video")
+    write_video(VIDEO, out)
+    return out
+
+
+def test_shipped_networks_load_from_safetensors() -> None:
+    nets = load_nets()
+    assert nets.settings.m == 3 and 0 < nets.settings.delta_dr < 1
+    assert not nets.dr.training and not nets.lp.training
+
+
+def test_a_broken_network_directory_is_a_user_error(tmp_path: Path) -> None:
+    save_nets(load_nets(), tmp_path)
+    (tmp_path / "dr.safetensors").write_bytes(b"\x80\x04 pickle? no")
+    with pytest.raises(InputError, match=r"dr\.safetensors"):
+        load_nets(tmp_path)
+    with pytest.raises(InputError, match=r"nets\.json"):
+        load_nets(tmp_path / "missing")
+
+
+def test_detector_finds_moving_vehicles_on_an_unseen_video() -> None:
+    det = Detector(load_nets())
+    total = None
+    for img, ft in frames(VIDEO):
+        res = det.push(img)
+        if res is None:
+            continue
+        out, fd = res
+        tf = truth_frame(ft)
+        s = score(fd.positions, tf.positions, care_mask(tf, out.aligned.valid, 1.5), 4.0)
+        total = s if total is None else total + s
+        assert len(fd.source) == len(fd.positions) and fd.source.max(initial=-1) < len(fd.windows)
+    assert total is not None and total.tp + total.fn > 20
+    assert total.recall >= 0.9 and total.precision >= 0.9
+
+
+def test_map_peaks_are_local_maxima_above_threshold() -> None:
+    m = np.zeros((1, 15, 15), np.float32)
+    m[0, 4, 6] = 0.9  # cell (x=6, y=4) -> window pixel (19, 13)
+    m[0, 4, 7] = 0.3  # a shoulder, not a peak
+    m[0, 10, 2] = 0.4  # below threshold
+    (pk,) = peaks(m, 0.5)
+    assert pk.shape == (1, 3)
+    assert pk[0, 0] == pytest.approx(6 * 3 + 1 + 3 * 0.3 / 1.2) and pk[0, 1] == pytest.approx(13)
+
+
+def test_parse_target() -> None:
+    t = parse_target("812.5, 96@4")
+    assert (t.x, t.y, t.step) == (812.5, 96.0, 4)
+    assert parse_target("1,2").step is None
+    with pytest.raises(UsageError):
+        parse_target("1;2")
+
+
+def test_perceive_writes_a_scene_the_checker_takes(video: Path, tmp_path: Path) -> None:
+    truth = json.loads((video / "truth.json").read_text())
+    v = max(truth["frames"][4]["vehicles"], key=lambda v: v["speed_mps"])
+    out = tmp_path / "scene.json"
+    res = CliRunner().invoke(
+        cli,
+        [
+            "perceive",
+            str(video),
+            "-o",
+            str(out),
+            "--target",
+            f"{v['x']},{v['y']}@4",
+            "--truth",
+            str(video / "truth.json"),
+            "--json",
+        ],
+    )
+    assert res.exit_code == 0, res.output
+    scene = load_scene(out)
+    assert [f.step for f in scene.frames] == list(range(4, 8))
+    assert scene.dt == pytest.approx(0.8)
+    assert scene.target.step == 4
+    assert np.allclose(scene.target.velocity, (v["vx"], v["vy"]))  # from the truth
+    pays = np.concatenate([f.payoffs() for f in scene.frames])
+    assert len(pays) > 20 and (pays[np.isfinite(pays)] > 0).all()
+    assert np.isfinite(pays).mean() > 0.9
+    # homographies agree with the generator's camera
+    for a, b in zip(scene.frames, scene.frames[1:], strict=False):
+        want = np.linalg.inv(np.array(truth["frames"][b.step]["to_prev"]))
+        p = np.array([[100.0, 100.0, 1.0], [500.0, 300.0, 1.0]])
+        got_p, want_p = p @ a.to_next.T, p @ want.T
+        assert np.allclose(got_p[:, :2] / got_p[:, 2:], want_p[:, :2] / want_p[:, 2:], atol=0.3)
+    chk = CliRunner().invoke(cli, ["check", str(out), "specs/robustness.spec", "--json"])
+    assert chk.exit_code in (0, 1, 3), chk.output
+
+
+def test_perceive_refuses_half_a_scene_request(video: Path, tmp_path: Path) -> None:
+    out = tmp_path / "scene.json"
+    r = CliRunner().invoke(cli, ["perceive", str(video), "-o", str(out)])
+    assert r.exit_code != 0 and not out.exists()
+    r = CliRunner().invoke(cli, ["perceive", str(video), "-o", str(out), "--target", "1,1@1"])
+    assert r.exit_code != 0 and not out.exists()  # frame 1 only fills the background
+
+
+def test_training_smoke_run_produces_loadable_networks(tmp_path: Path) -> None:
+    cfg = TrainConfig(
+        train_seeds=(5,), val_seed=6, frames=6, width=320, height=320, epochs_dr=1, epochs_lp=1
+    )
+    nets, val = train(cfg)
+    assert 0.0 <= val.dr_accuracy <= 1.0 and val.samples_dr > 0 and val.samples_lp > 0
+    save_nets(nets, tmp_path / "n")
+    again = load_nets(tmp_path / "n")
+    for a, b in zip(nets.dr.state_dict().values(), again.dr.state_dict().values(), strict=True):
+        assert np.array_equal(a.numpy(), b.numpy())
