@@ -122,8 +122,15 @@ def test_perceive_reports_quality_on_a_synthetic_video(small_video: Path) -> Non
     # the CNNs remove most false candidates and keep most vehicles
     assert det["precision"] > fe["precision"] and det["recall"] >= 0.8
     front_only = CliRunner().invoke(
-        cli, ["perceive", str(small_video), "--truth", str(small_video / "truth.json"), "--json",
-              "--no-cnn"]
+        cli,
+        [
+            "perceive",
+            str(small_video),
+            "--truth",
+            str(small_video / "truth.json"),
+            "--json",
+            "--no-cnn",
+        ],
     )
     assert json.loads(front_only.output)["overall"] == {"frontend": fe}
 

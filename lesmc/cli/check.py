@@ -21,6 +21,9 @@ from lesmc.engines.result import CheckResult
 from lesmc.engines.space import CompiledModel
 from lesmc.errors import UsageError
 from lesmc.language.parser import load_spec
+from lesmc.language.properties import SpecFile
+from lesmc.language.semantics import BoundProperty
+from lesmc.model.lts import LTS
 from lesmc.report.exit import exit_status
 from lesmc.report.text import make_console, print_results, results_json
 from lesmc.tracking.scene import Scene
@@ -58,6 +61,14 @@ from lesmc.tracking.scene import Scene
     help="Check only the named properties (repeatable).",
 )
 @click.option("--no-paths", is_flag=True, help="Table output: omit the step-by-step paths.")
+@click.option(
+    "--report",
+    "report_dir",
+    type=click.Path(file_okay=False),
+    default=None,
+    help="Also write DIR/report.html, DIR/figures/ and DIR/results.json (a scene is then "
+    "checked on its built model).",
+)
 @design_option("For a scene: override the tracker design it names.")
 def check_cmd(
     model: str,
@@ -68,6 +79,7 @@ def check_cmd(
     timeout: float | None,
     only: tuple[str, ...],
     no_paths: bool,
+    report_dir: str | None,
     design: str | None,
 ) -> None:
     """Check the properties in SPEC files on MODEL (a .lts file) or on a SCENE (.json).
@@ -119,8 +131,47 @@ def check_cmd(
                 r.notes.extend(window_notes(source, bp))  # type: ignore[arg-type]
                 results.append(r)
             progress.advance(task)
+    if report_dir is not None:
+        results = _report(source, parsed, bound, results, engine, report_dir, model, only)
     if as_json:
         click.echo(results_json(results))
     else:
         print_results(make_console(), results, paths=not no_paths)
     sys.exit(exit_status(results))
+
+
+def _report(
+    source: LTS | Scene,
+    parsed: list[SpecFile],
+    bound: list[BoundProperty],
+    results: list[CheckResult],
+    engine: str,
+    report_dir: str,
+    path: str,
+    only: tuple[str, ...],
+) -> list[CheckResult]:
+    """Write the report; a scene is checked again on its built model (same verdicts)."""
+    from lesmc.report.html import DesignRun, write_report
+    from lesmc.verify import check_designs, frame_reader
+
+    err = Console(stderr=True)
+    image_for = None
+    if isinstance(source, Scene):
+        with err.status("building the model for the report"):
+            runs = check_designs(
+                source,
+                parsed,
+                [source.tracker.design],
+                engine,
+                improved=False,
+                only=(lambda n: n in only) if only else None,
+            )
+        image_for = frame_reader(source)
+        results = runs[0].results
+    else:
+        design = str(source.meta.get("design", "model"))
+        runs = [DesignRun(design, source, bound, results, None)]
+    with err.status("writing the report"):
+        out = write_report(runs, report_dir, image_for, {"model": path})
+    err.print(f"report: {out}")
+    return results

@@ -16,6 +16,7 @@ from lesmc.cli.check import check_cmd
 from lesmc.cli.perceive import perceive_cmd
 from lesmc.cli.reduce import reduce_group
 from lesmc.cli.train import train_cmd
+from lesmc.cli.verify import verify_cmd
 from lesmc.cli.video import synth_cmd
 from lesmc.errors import LesmcError
 from lesmc.report.exit import EXIT_USAGE
@@ -45,6 +46,7 @@ cli.add_command(reduce_group)
 cli.add_command(synth_cmd)
 cli.add_command(perceive_cmd)
 cli.add_command(train_cmd)
+cli.add_command(verify_cmd)
 
 
 def main(argv: list[str] | None = None) -> None:

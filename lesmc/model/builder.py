@@ -107,7 +107,12 @@ def build_model(
         frontier = nxt
         if on_level is not None:
             on_level(k, len(g.states))
-    original = [g.index[(k, ts.key())] for k, ts in enumerate(run)]
+    # the original path is the rank-0 (unattacked) chain of the graph itself: recomputing it
+    # apart would differ in the last bits wherever a design batches its arithmetic
+    first_choice = {t.src: t.dst for t in g.trans if t.rank == 0}
+    original = [root]
+    while len(original) <= e and original[-1] in first_choice:
+        original.append(first_choice[original[-1]])
     model = LTS.from_parts(g.states, g.trans, root, original, COMPONENTS, check=False)
     model.meta = {
         "source": "lesmc build",

@@ -1,0 +1,215 @@
+"""Every attacked path of a built model and its measures (the paper's Table 3).
+
+A path starts at the initial state and follows transitions to the last step
+(or a halted state). In a model from ``lesmc build`` alternatives exist only
+inside the attack window, so these are exactly the attacked tracks of Figure 9c.
+Measures are computed here directly from the states, independently of the
+engines (the tests compare the two).
+"""
+
+from __future__ import annotations
+
+import itertools
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from lesmc.language.semantics import BoundMeasure, BoundProperty
+from lesmc.model.lts import LTS, Transition
+
+
+@dataclass(frozen=True)
+class TrackPath:
+    """One path: its states and entering transitions, and its Table 3 measures."""
+
+    states: tuple[str, ...]
+    transitions: tuple[Transition, ...]
+    payoff: float  # combined payoff (Eq. 5, summed as Eq. 8) over the window
+    dist: tuple[float, ...]  # dist.at(k) for k = 0..end (inf after a halt)
+
+    @property
+    def dist_sum(self) -> float:
+        return math.fsum(self.dist)
+
+    @property
+    def dist_max(self) -> float:
+        return max(self.dist)
+
+    @property
+    def dist_end(self) -> float:
+        return self.dist[-1]
+
+    def labels(self) -> list[str]:
+        """Node labels "step-detection" (the paper's Figure 9c); "-" is no observation."""
+        out = ["0-start"]
+        for k, t in enumerate(self.transitions, start=1):
+            out.append(f"{k}-{_short(t.obs)}")
+        return out
+
+
+def _short(obs: str | None) -> str:
+    if obs is None:
+        return "none"
+    return obs.split(":")[-1]
+
+
+@dataclass(frozen=True)
+class PathSet:
+    """The enumerated paths (up to a cap), and how many exist in all."""
+
+    paths: list[TrackPath]
+    total: int
+    window: tuple[int, int]
+    end: int
+
+    @property
+    def left_out(self) -> int:
+        return self.total - len(self.paths)
+
+
+def position(model: LTS, sid: str, comps: tuple[int, ...] = (0, 1)) -> np.ndarray:
+    return np.asarray(model.state(sid).s, float)[list(comps)]
+
+
+def count_paths(model: LTS) -> int:
+    """Number of root-to-leaf paths (dynamic programming over the DAG)."""
+    memo: dict[str, int] = {}
+    order = sorted(model.graph.nodes, key=lambda q: -model.state(q).step)
+    for q in order:
+        succ = list(model.graph.successors(q))
+        memo[q] = sum(memo[c] for c in succ) if succ else 1
+    return memo[model.initial]
+
+
+def enumerate_tracks(
+    model: LTS,
+    window: tuple[int, int],
+    limit: int = 20000,
+    comps: tuple[int, ...] = (0, 1),
+    first: list[tuple[str, ...]] | None = None,
+) -> PathSet:
+    """Up to ``limit`` paths, depth first in rank order; ``first`` paths are always included."""
+    end = model.end
+    ref = [position(model, q, comps) for q in model.original]
+    l, u = window
+    found: list[tuple[str, ...]] = []
+    seen: set[tuple[str, ...]] = set()
+    for p in first or []:
+        if p not in seen:
+            seen.add(p)
+            found.append(p)
+    stack: list[tuple[str, ...]] = [(model.initial,)]
+    while stack and len(found) < limit:
+        path = stack.pop()
+        out = model.out(path[-1])
+        if not out:
+            if path not in seen:
+                seen.add(path)
+                found.append(path)
+            continue
+        for t in reversed(out):  # rank order when popped
+            stack.append((*path, t.dst))
+    paths = [_measure(model, p, ref, window, end, comps) for p in found]
+    return PathSet(paths, count_paths(model), (l, u), end)
+
+
+def _measure(
+    model: LTS,
+    states: tuple[str, ...],
+    ref: list[np.ndarray],
+    window: tuple[int, int],
+    end: int,
+    comps: tuple[int, ...],
+) -> TrackPath:
+    trans = [model.graph.edges[a, b]["transition"] for a, b in itertools.pairwise(states)]
+    l, u = window
+    payoff = math.fsum(
+        model.combined_payoff(t) for k, t in enumerate(trans, start=1) if l <= k <= u
+    )
+    dist = []
+    for k in range(end + 1):
+        if k < len(states):
+            dist.append(float(np.linalg.norm(position(model, states[k], comps) - ref[k])))
+        else:
+            dist.append(math.inf)  # the track halted
+    return TrackPath(tuple(states), tuple(trans), payoff, tuple(dist))
+
+
+_OPS = {
+    ">": lambda a, b: a > b,
+    ">=": lambda a, b: a >= b,
+    "<": lambda a, b: a < b,
+    "<=": lambda a, b: a <= b,
+}
+
+
+def dist_series(
+    model: LTS, path: TrackPath, components: tuple[int, ...], norm: float
+) -> np.ndarray:
+    """dist.at(k) of a path for k = 0..end with a property's components and norm (Eq. 4)."""
+    out = np.full(model.end + 1, np.inf)
+    for k, sid in enumerate(path.states):
+        diff = (
+            np.asarray(model.state(sid).s, float)[list(components)]
+            - np.asarray(model.state(model.original[k]).s, float)[list(components)]
+        )
+        out[k] = float(np.linalg.norm(diff, ord=norm))
+    return out
+
+
+def tau_series(model: LTS, path: TrackPath, components: tuple[int, ...] = (0, 1)) -> np.ndarray:
+    """τ (Eq. 12) along a path: the trace of the location block of P."""
+    vals = []
+    for sid in path.states:
+        P = model.state(sid).P
+        vals.append(
+            float(np.trace(np.asarray(P)[np.ix_(components, components)]))
+            if P is not None
+            else math.nan
+        )
+    return np.array(vals)
+
+
+@dataclass(frozen=True)
+class Judged:
+    """A path seen through one property: objective, constraint, breaks the system, monitored out."""
+
+    path: TrackPath
+    objective: float
+    constraint: float
+    violates: bool
+    alarmed: bool
+    admissible: bool  # attacks (non-minimal transitions) only inside the property's window
+
+
+def judge(model: LTS, path: TrackPath, bp: BoundProperty) -> Judged:
+    """Evaluate a property's measures on a path (independently of the engines)."""
+    dist = dist_series(model, path, bp.components, bp.norm)
+    pays = np.zeros(model.end + 1)
+    for k, t in enumerate(path.transitions, start=1):
+        pays[k] = model.combined_payoff(t)
+
+    def value(m: BoundMeasure) -> float:
+        src = pays if m.source == "payoff" else dist
+        seg = src[m.lo : m.hi + 1]
+        if m.aggregate == "max":
+            return float(np.max(seg))
+        return math.fsum(seg.tolist()) * m.weight if np.isfinite(seg).all() else math.inf
+
+    alarmed = False
+    if bp.monitor_components is not None:
+        tau = tau_series(model, path, bp.monitor_components)
+        for k in range(max(bp.l, 1), len(tau)):
+            if tau[k] > tau[k - 1] * (1.0 + bp.monitor_tolerance) + 1e-300:
+                alarmed = True
+                break
+    admissible = all(
+        bp.l <= k <= bp.u
+        for k, t in enumerate(path.transitions, start=1)
+        if t.rank > min(o.rank for o in model.out(t.src))
+    )
+    con = value(bp.constraint)
+    return Judged(
+        path, value(bp.objective), con, bool(_OPS[bp.op](con, bp.bound)), alarmed, admissible
+    )

@@ -1,0 +1,213 @@
+"""``verify``: the paper's whole experiment in one call (section 8).
+
+frames -> scene (perception, payoffs) -> model per design -> check every
+property -> report. Each stage is the same code as its own verb; this module
+only chains them and picks defaults: the embedded synthetic video, a target
+with neighbouring traffic, the bundled robustness and resilience specs.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from importlib import resources
+from pathlib import Path
+
+import numpy as np
+
+from lesmc.engines.check import bind_all, check_bound
+from lesmc.engines.result import CheckResult
+from lesmc.engines.space import CompiledModel
+from lesmc.errors import UsageError
+from lesmc.language.parser import load_spec
+from lesmc.language.properties import Monitor, SpecFile
+from lesmc.model.builder import build_model
+from lesmc.perception.quality import TruthFrame
+from lesmc.perception.to_scene import TargetSpec
+from lesmc.report.html import DesignRun, window_of
+from lesmc.tracking.scene import Scene
+
+#: The embedded default video: `lesmc synth` with these settings.
+DEFAULT_VIDEO = {"frames": 24, "width": 2048, "height": 2048, "seed": 1}
+DESIGNS = {"single": ["single"], "joint": ["joint"], "both": ["single", "joint"]}
+
+
+def bundled_specs() -> list[Path]:
+    """The robustness and resilience specs shipped with lesmc (specs/ in the repository)."""
+    names = ("robustness.spec", "resilience.spec")
+    packaged = resources.files("lesmc") / "specs"
+    if all((packaged / n).is_file() for n in names):  # an installed wheel
+        return [Path(str(packaged / n)) for n in names]
+    repo = Path(__file__).resolve().parents[1] / "specs"  # an editable install or a checkout
+    return [repo / n for n in names]
+
+
+def with_window(spec: SpecFile, window: tuple[int, int] | None) -> SpecFile:
+    if window is None:
+        return spec
+    props = tuple(dataclasses.replace(p, window=window) for p in spec.properties)
+    return dataclasses.replace(spec, properties=props)
+
+
+def with_monitor(spec: SpecFile) -> SpecFile:
+    """Every property filtered by the runtime monitor (the improved design of section 7.1)."""
+    props = tuple(
+        p if p.monitor else dataclasses.replace(p, monitor=Monitor()) for p in spec.properties
+    )
+    return dataclasses.replace(spec, properties=props)
+
+
+@dataclass(frozen=True)
+class Candidate:
+    """A possible target: where it starts and where it truly is at each later step."""
+
+    vid: int
+    crowd: int  # moving neighbours within ``near`` px, summed over the window's frames
+    spec: TargetSpec
+    truth_track: np.ndarray  # (n, 2) true positions at steps 0..n-1
+
+
+def rank_targets(
+    frames: list[TruthFrame],
+    size: tuple[int, int],
+    window: tuple[int, int],
+    margin: float = 150.0,
+    near: float = 40.0,
+    min_speed: float = 5.0,
+    max_turn_deg: float = 30.0,
+) -> list[Candidate]:
+    """Vehicles of ``frames[0]`` worth attacking, most neighbouring traffic first.
+
+    A candidate keeps moving (>= ``min_speed`` m/s), stays visible and inside the
+    frame, and does not turn by more than ``max_turn_deg`` between frames until
+    two steps after the window (the tracker's model is constant velocity); its
+    score is the number of moving vehicles within ``near`` pixels of it over the
+    window's frames: the observations an attacker can make the tracker take.
+    Ties go to the lower vehicle id, so the choice is deterministic.
+    """
+    l, u = window
+    horizon = min(u + 2, len(frames) - 1)
+    first = frames[0]
+    out = []
+    for vid in first.ids:
+        track, ok = [], True
+        for tf in frames[: horizon + 1]:
+            if vid not in tf.ids:
+                ok = False
+                break
+            j = tf.ids.index(vid)
+            x, y = tf.positions[j]
+            if (
+                tf.occluded[j]
+                or tf.speed_mps[j] < min_speed
+                or not (margin <= x <= size[0] - margin and margin <= y <= size[1] - margin)
+            ):
+                ok = False
+                break
+            track.append((x, y))
+        if not ok:
+            continue
+        pts = np.array(track)
+        steps = np.diff(pts, axis=0)
+        ang = np.degrees(np.arctan2(steps[:, 1], steps[:, 0]))
+        turn = np.abs((np.diff(ang) + 180) % 360 - 180)
+        if len(turn) and turn.max() > max_turn_deg:
+            continue
+        crowd = 0
+        for k in range(l, horizon + 1 if horizon < u else u + 1):
+            tf = frames[k]
+            moving = (tf.speed_mps >= 1.5) & ~tf.occluded
+            d = np.linalg.norm(tf.positions[moving] - pts[k], axis=1)
+            crowd += int(((d > 0.5) & (d < near)).sum())
+        if crowd == 0:
+            continue
+        out.append(Candidate(vid, crowd, TargetSpec(float(pts[0, 0]), float(pts[0, 1])), pts))
+    out.sort(key=lambda c: (-c.crowd, c.vid))
+    return out
+
+
+def follows(scene: Scene, truth_track: np.ndarray, tolerance: float = 6.0) -> bool:
+    """Whether the unattacked single-KF track stays on the vehicle for ``truth_track``'s steps."""
+    from lesmc.model.builder import original_run
+    from lesmc.tracking.design import make_design
+
+    run = original_run(make_design(scene.with_tracker(design="single")), len(truth_track) - 1)
+    if len(run) < len(truth_track):
+        return False
+    est = np.array([st.estimate()[0][:2] for st in run])
+    return bool((np.linalg.norm(est[1:] - truth_track[1:], axis=1) <= tolerance).all())
+
+
+@dataclass
+class VerifyResult:
+    """What a verification produced."""
+
+    scene: Scene
+    runs: list[DesignRun] = field(default_factory=list)
+
+    @property
+    def results(self) -> list[CheckResult]:
+        return [r for run in self.runs for r in run.results]
+
+
+def load_specs(paths: list[Path], window: tuple[int, int] | None) -> list[SpecFile]:
+    if not paths:
+        raise UsageError("no property files")
+    return [with_window(load_spec(str(p)), window) for p in paths]
+
+
+def check_designs(
+    scene: Scene,
+    specs: list[SpecFile],
+    designs: list[str],
+    engine: str = "bnb",
+    on_stage: Callable[[str], None] | None = None,
+    improved: bool = True,
+    only: Callable[[str], bool] | None = None,
+) -> list[DesignRun]:
+    """Build the model of each design over the properties' window and check them on it.
+
+    With ``improved``, ``joint`` is the improved design of section 7: joint KFs and
+    the runtime monitor on every property. ``only`` filters properties by name.
+    """
+    from lesmc.engines.check import bind_scene
+
+    runs = []
+    for d in designs:
+        sc = scene.with_tracker(design=d)
+        sp = [with_monitor(s) for s in specs] if d == "joint" and improved else specs
+        bound0 = [bp for bp in bind_scene(sc, sp) if only is None or only(bp.name)]
+        win = window_of(bound0)
+        if on_stage:
+            on_stage(f"building the {d} model")
+        model = build_model(sc, win)
+        bound = [bp for bp in bind_all(model, sp) if only is None or only(bp.name)]
+        cm = CompiledModel.from_lts(model)
+        results = []
+        for bp in bound:
+            if on_stage:
+                on_stage(f"checking {bp.name} ({d})")
+            results.append(check_bound(cm, bp, engine))  # type: ignore[arg-type]
+        name = d if not improved or d == "single" else "joint KFs + monitor"
+        runs.append(DesignRun(name, model, bound, results, sc))
+    return runs
+
+
+def frame_reader(scene: Scene) -> Callable[[int], np.ndarray | None] | None:
+    """Frame images of the video a scene came from (its ``meta.source``), when still there."""
+    from lesmc.errors import LesmcError
+    from lesmc.video.reader import open_frames
+
+    src = scene.meta.get("source")
+    if not (isinstance(src, str) and Path(src).is_dir()):
+        return None
+    try:
+        frames = open_frames(src, 1)
+    except LesmcError:
+        return None
+
+    def read(index: int) -> np.ndarray | None:
+        return frames.read(index) if 0 <= index < len(frames) else None
+
+    return read
