@@ -15,6 +15,7 @@ import matplotlib
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt
 import numpy as np
+from matplotlib.figure import Figure
 
 from lesmc.model.lts import LTS
 from lesmc.report.paths import TrackPath, position, tau_series
@@ -57,7 +58,8 @@ def _to_frame(scene: Scene, first: int, k_from: int, k_to: int) -> np.ndarray:
 
 def _map(h: np.ndarray, pts: np.ndarray) -> np.ndarray:
     q = np.c_[pts, np.ones(len(pts))] @ h.T
-    return q[:, :2] / q[:, 2:]
+    out: np.ndarray = q[:, :2] / q[:, 2:]
+    return out
 
 
 def track_crop(
