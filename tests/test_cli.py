@@ -91,7 +91,7 @@ def test_model_error_exit_2(tmp_path: Path) -> None:
 def test_semantic_error_names_the_spec_line(tmp_path: Path) -> None:
     r = lesmc("check", str(TINY / "model.lts"), str(ROOT / "specs" / "robustness.spec"))
     assert r.returncode == 2
-    assert "robustness.spec:4:5: attack window 6..8 must satisfy" in r.stderr
+    assert "robustness.spec:5:5: attack window 6..8 must satisfy" in r.stderr
 
 
 def test_missing_file_and_bad_option() -> None:

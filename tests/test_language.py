@@ -26,7 +26,7 @@ def test_robustness_spec_means_eq6() -> None:
         ">",
         3.0,
         2.0,
-        None,
+        ("x", "y"),  # deviation of the position, in pixels
         None,
         None,
     )
@@ -45,7 +45,7 @@ def test_end_binds_to_last_original_step() -> None:
     bp = bind(spec, spec.properties[0], 19, ("x", "y", "vx", "vy"), False)
     assert (bp.l, bp.u, bp.end) == (6, 8, 19)
     assert (bp.constraint.lo, bp.constraint.hi, bp.constraint.aggregate) == (19, 19, "sum")
-    assert bp.components == (0, 1, 2, 3)
+    assert bp.components == (0, 1)  # on x, y
 
 
 def test_all_optional_clauses() -> None:

@@ -69,7 +69,13 @@ class PathSet:
 
 
 def position(model: LTS, sid: str, comps: tuple[int, ...] = (0, 1)) -> np.ndarray:
-    return np.asarray(model.state(sid).s, float)[list(comps)]
+    """The state's components ``comps`` (those it has; a 1-D state gets y = 0)."""
+    s = np.asarray(model.state(sid).s, float)
+    out = np.zeros(len(comps))
+    for i, c in enumerate(comps):
+        if c < len(s):
+            out[i] = s[c]
+    return out
 
 
 def count_paths(model: LTS) -> int:
@@ -200,7 +206,7 @@ def judge(model: LTS, path: TrackPath, bp: BoundProperty) -> Judged:
     alarmed = False
     if bp.monitor_components is not None:
         tau = tau_series(model, path, bp.monitor_components)
-        for k in range(max(bp.l, 1), len(tau)):
+        for k in range(max(bp.l, 1), min(len(tau), bp.end + 1)):
             if tau[k] > tau[k - 1] * (1.0 + bp.monitor_tolerance) + 1e-300:
                 alarmed = True
                 break

@@ -1,0 +1,230 @@
+"""The verification report: path measures against the engines, files, figures, the browser view."""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import math
+import shutil
+import subprocess
+from pathlib import Path
+
+import numpy as np
+import pytest
+from click.testing import CliRunner
+from hypothesis import HealthCheck, assume, given, settings
+from test_engines import _bound_property, cases
+
+from lesmc.cli.main import cli
+from lesmc.engines.check import check_bound
+from lesmc.engines.space import CompiledModel
+from lesmc.language.parser import load_spec
+from lesmc.report.html import DesignRun, write_report
+from lesmc.report.paths import count_paths, enumerate_tracks, judge
+from lesmc.tracking.scene import load_scene
+from lesmc.verify import check_designs
+
+SCENES = Path(__file__).parent / "scenes"
+
+
+@settings(max_examples=150, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(cases())
+def test_paths_recomputed_by_the_report_give_the_engines_optimum(case: tuple) -> None:
+    """Table 3's measures are computed from the states, apart from the engines: they must agree."""
+    model, params, quantile = case
+    bp = _bound_property(model, params, quantile)
+    # the threshold is one of the values that occur; move it off them, so that two independent
+    # float sums cannot round to different sides of it
+    if math.isfinite(bp.bound):
+        bp = dataclasses.replace(bp, bound=bp.bound * (1 + 1e-7) + 1e-9)
+    ps = enumerate_tracks(model, (bp.l, bp.u), limit=10**6)
+    assert len(ps.paths) == ps.total == count_paths(model)
+    judged = [judge(model, p, bp) for p in ps.paths]
+    assume(
+        all(not math.isclose(j.constraint, bp.bound, rel_tol=1e-9, abs_tol=1e-12) for j in judged)
+    )
+    bad = [j.objective for j in judged if j.admissible and j.violates and not j.alarmed]
+    best = min(bad, default=math.inf)
+    r = check_bound(CompiledModel.from_lts(model), bp, "bnb")
+    if r.optimum is None:
+        assert math.isinf(best)
+    else:
+        assert best == pytest.approx(r.optimum, rel=1e-12, abs=1e-12)
+
+
+def _runs(design: str = "single") -> tuple[list[DesignRun], object]:
+    scene = load_scene(SCENES / "rq4_merge.json")
+    specs = [load_spec(str(SCENES / "rq4_merge.spec"))]
+    return check_designs(scene, specs, [design], improved=False), scene
+
+
+def test_report_files_and_contents(tmp_path: Path) -> None:
+    runs, _ = _runs()
+    out = write_report(runs, tmp_path / "rep", None, {"scene": "rq4_merge.json"})
+    html = out.read_text()
+    assert html.startswith("<!DOCTYPE html>")
+    assert html.count("data:image/png;base64,") == len(
+        list((tmp_path / "rep/figures").glob("*.png"))
+    )
+    assert "src='@@" not in html and "http" not in html.split("</style>")[1]  # self-contained
+    for title in ("Verdicts (Table 4)", "Measures of the attacked tracks (Table 3)"):
+        assert title in html
+    for png in (tmp_path / "rep/figures").glob("*.png"):
+        assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    doc = json.loads((tmp_path / "rep/results.json").read_text())
+    run = doc["runs"][0]
+    assert run["paths_total"] == count_paths(runs[0].model) == len(run["paths"])
+    assert [r["verdict"] for r in run["results"]] == [r.verdict for r in runs[0].results]
+    assert not [p for p in (tmp_path / "rep").iterdir() if p.name.startswith(".")]
+
+
+def test_two_designs_are_compared(tmp_path: Path) -> None:
+    scene = load_scene(SCENES / "rq4_merge.json")
+    specs = [load_spec(str(SCENES / "rq1_platoon.spec"))]
+    runs = check_designs(scene, specs, ["single", "joint"])
+    assert [r.name for r in runs] == ["single", "joint KFs + monitor"]
+    assert all(bp.monitor_components is not None for bp in runs[1].bound)
+    html = write_report(runs, tmp_path / "rep").read_text()
+    assert "Designs compared (Table 5)" in html
+
+
+def test_a_large_tree_is_summarised(tmp_path: Path) -> None:
+    from lesmc.report import figures
+    from lesmc.report.html import _analyse, _tree_highlight
+
+    runs, _ = _runs()
+    a = _analyse(runs[0])
+    png, drawn = figures.tree(
+        sorted(a.paths.paths, key=lambda p: p.states),
+        _tree_highlight(a),
+        a.paths.total,
+        a.window,
+        max_leaves=3,
+    )
+    assert png[:4] == b"\x89PNG" and drawn <= max(3, len(_tree_highlight(a)))
+
+
+def test_check_report_cli_on_a_scene_and_on_a_model(tmp_path: Path) -> None:
+    scene, spec = str(SCENES / "rq2_stop.json"), str(SCENES / "rq2_stop.spec")
+    r = CliRunner().invoke(cli, ["check", scene, spec, "--report", str(tmp_path / "a"), "--json"])
+    plain = CliRunner().invoke(cli, ["check", scene, spec, "--json"])
+    assert r.exit_code == plain.exit_code
+    got = [(x["property"], x["verdict"], x["optimum"]) for x in json.loads(r.stdout)["results"]]
+    want = [
+        (x["property"], x["verdict"], x["optimum"]) for x in json.loads(plain.stdout)["results"]
+    ]
+    assert got == want  # the built model gives the same answers as checking on the fly
+    assert (tmp_path / "a/report.html").is_file()
+    model = tmp_path / "m.lts"
+    assert (
+        CliRunner().invoke(cli, ["build", scene, "--window", "6..8", "-o", str(model)]).exit_code
+        == 0
+    )
+    r2 = CliRunner().invoke(cli, ["check", str(model), spec, "--report", str(tmp_path / "b")])
+    assert r2.exit_code in (0, 1) and (tmp_path / "b/report.html").is_file()
+
+
+def test_verify_on_a_scene(tmp_path: Path) -> None:
+    r = CliRunner().invoke(
+        cli,
+        [
+            "verify",
+            "--scene",
+            str(SCENES / "rq4_merge.json"),
+            "--spec",
+            str(SCENES / "rq1_platoon.spec"),
+            "--out",
+            str(tmp_path / "v"),
+            "--json",
+        ],
+    )
+    assert r.exit_code in (0, 1), r.output
+    doc = json.loads(r.stdout)
+    assert [run["design"] for run in doc["runs"]] == ["single", "joint KFs + monitor"]
+    assert (tmp_path / "v/report.html").is_file()
+
+
+def test_verify_end_to_end_on_a_small_video(tmp_path: Path) -> None:
+    """Frames -> scene -> models -> verdicts -> report, with the target chosen from the truth."""
+    video = tmp_path / "video"
+    assert (
+        CliRunner()
+        .invoke(
+            cli,
+            [
+                "synth",
+                str(video),
+                "--frames",
+                "16",
+                "--size",
+                "768x768",
+                "--seed",
+                "4",
+                "--density",
+                "2.5",
+            ],
+        )
+        .exit_code
+        == 0
+    )
+    r = CliRunner().invoke(
+        cli,
+        [
+            "verify",
+            str(video),
+            "--truth",
+            str(video / "truth.json"),
+            "--window",
+            "3..5",
+            "--out",
+            str(tmp_path / "v"),
+            "--json",
+        ],
+    )
+    assert r.exit_code in (0, 1, 3), r.output
+    doc = json.loads(r.stdout)
+    assert "target choice" in doc["meta"]
+    scene = load_scene(tmp_path / "v/scene.json")
+    assert scene.target.step == 4 and len(scene.frames) == 12
+    html = (tmp_path / "v/report.html").read_text()
+    assert "detections of step 5" in html
+
+
+def _chromium() -> str | None:
+    for name in ("chromium", "chromium-browser", "google-chrome"):
+        path = shutil.which(name)
+        if path:
+            return path
+    return None
+
+
+@pytest.mark.skipif(_chromium() is None, reason="Chromium is not installed (.ci/run installs it)")
+def test_report_renders_in_a_real_browser(tmp_path: Path) -> None:
+    import cv2
+
+    runs, _ = _runs()
+    report = write_report(runs, tmp_path / "rep")
+    shot = tmp_path / "shot.png"
+    cmd = [
+        _chromium(),
+        "--headless",
+        "--no-sandbox",
+        "--disable-gpu",
+        "--disable-background-networking",
+        "--disable-component-update",
+        "--disable-sync",
+        "--no-first-run",
+        f"--user-data-dir={tmp_path / 'profile'}",
+        "--window-size=1200,2000",
+        f"--screenshot={shot}",
+        report.as_uri(),
+    ]
+    subprocess.run(cmd, capture_output=True, timeout=120, check=False)
+    img = cv2.imread(str(shot))
+    assert img is not None, "Chromium wrote no screenshot"
+    grey = cv2.cvtColor(img, cv2.COLOR_BGR2GRAY)
+    assert (grey < 200).mean() > 0.03  # text, tables and figures, not a blank page
+    # the figures were decoded and drawn: plenty of colour (green, red, blue lines)
+    hsv = cv2.cvtColor(img, cv2.COLOR_BGR2HSV)
+    assert (hsv[..., 1] > 100).mean() > 0.001
+    assert np.unique(grey).size > 50
