@@ -168,63 +168,74 @@ def _batches(n: int, size: int, gen: torch.Generator) -> list[torch.Tensor]:
     return [perm[a : a + size] for a in range(0, n, size)]
 
 
-def train_dr(
-    x: np.ndarray, y: np.ndarray, cfg: TrainConfig, progress: Progress | None
-) -> DetectNet:
-    """Cross-entropy with class weights (vehicles are the minority), Adam, flips and rotations."""
-    net = DetectNet(x.shape[1])
+LossOf = Callable[[nn.Module, torch.Tensor, torch.Tensor, torch.Generator], torch.Tensor]
+
+
+def _fit(
+    net: nn.Module,
+    x: np.ndarray,
+    y: np.ndarray,
+    loss_of: LossOf,
+    epochs: int,
+    seed: int,
+    label: str,
+    cfg: TrainConfig,
+    progress: Progress | None,
+) -> None:
+    """Adam with a one-cycle schedule over shuffled mini-batches of uint8 windows."""
     opt = torch.optim.Adam(net.parameters(), lr=cfg.lr)
-    pos = float(y.mean())
-    loss_fn = nn.CrossEntropyLoss(
-        weight=torch.tensor([0.5 / (1 - pos), 0.5 / pos], dtype=torch.float32)
-    )
-    gen = torch.Generator().manual_seed(cfg.seed)
+    gen = torch.Generator().manual_seed(seed)
     xt, yt = torch.from_numpy(x), torch.from_numpy(y)
-    steps = cfg.epochs_dr * ((len(x) + cfg.batch - 1) // cfg.batch)
+    steps = epochs * ((len(x) + cfg.batch - 1) // cfg.batch)
     sched = torch.optim.lr_scheduler.OneCycleLR(opt, max_lr=cfg.lr, total_steps=steps)
     done = 0
     net.train()
-    for _ in range(cfg.epochs_dr):
+    for _ in range(epochs):
         for idx in _batches(len(x), cfg.batch, gen):
-            xb = _augment(xt[idx].float() / 255.0, gen)
-            loss = loss_fn(net(xb), yt[idx])
-            opt.zero_grad()
-            loss.backward()
-            opt.step()
-            sched.step()
-            done += 1
-            if progress:
-                progress("N_dr", done, steps)
-    net.eval()
-    return net
-
-
-def train_lp(
-    x: np.ndarray, y: np.ndarray, cfg: TrainConfig, progress: Progress | None
-) -> LocateNet:
-    """Binary cross-entropy against the Gaussian maps, Adam."""
-    net = LocateNet(x.shape[1])
-    opt = torch.optim.Adam(net.parameters(), lr=cfg.lr)
-    gen = torch.Generator().manual_seed(cfg.seed + 1)
-    xt, yt = torch.from_numpy(x), torch.from_numpy(y)
-    steps = cfg.epochs_lp * ((len(x) + cfg.batch - 1) // cfg.batch)
-    sched = torch.optim.lr_scheduler.OneCycleLR(opt, max_lr=cfg.lr, total_steps=steps)
-    done = 0
-    net.train()
-    for _ in range(cfg.epochs_lp):
-        for idx in _batches(len(x), cfg.batch, gen):
-            pred = net(xt[idx].float() / 255.0)
-            target = yt[idx]
-            weight = 1.0 + 20.0 * target  # peaks are rare cells
-            loss: torch.Tensor = nn.functional.binary_cross_entropy(pred, target, weight=weight)
+            loss = loss_of(net, xt[idx].float() / 255.0, yt[idx], gen)
             opt.zero_grad()
             loss.backward()  # type: ignore[no-untyped-call]
             opt.step()
             sched.step()
             done += 1
             if progress:
-                progress("N_lp", done, steps)
+                progress(label, done, steps)
     net.eval()
+
+
+def train_dr(
+    x: np.ndarray, y: np.ndarray, cfg: TrainConfig, progress: Progress | None
+) -> DetectNet:
+    """Cross-entropy with class weights (vehicles are the minority), flips and rotations."""
+    net = DetectNet(x.shape[1])
+    pos = float(y.mean())
+    loss_fn = nn.CrossEntropyLoss(
+        weight=torch.tensor([0.5 / (1 - pos), 0.5 / pos], dtype=torch.float32)
+    )
+
+    def loss_of(
+        m: nn.Module, xb: torch.Tensor, yb: torch.Tensor, gen: torch.Generator
+    ) -> torch.Tensor:
+        out: torch.Tensor = loss_fn(m(_augment(xb, gen)), yb)
+        return out
+
+    _fit(net, x, y, loss_of, cfg.epochs_dr, cfg.seed, "N_dr", cfg, progress)
+    return net
+
+
+def train_lp(
+    x: np.ndarray, y: np.ndarray, cfg: TrainConfig, progress: Progress | None
+) -> LocateNet:
+    """Binary cross-entropy against the Gaussian maps, weighted towards the rare peak cells."""
+    net = LocateNet(x.shape[1])
+
+    def loss_of(
+        m: nn.Module, xb: torch.Tensor, yb: torch.Tensor, gen: torch.Generator
+    ) -> torch.Tensor:
+        out: torch.Tensor = nn.functional.binary_cross_entropy(m(xb), yb, weight=1.0 + 20.0 * yb)
+        return out
+
+    _fit(net, x, y, loss_of, cfg.epochs_lp, cfg.seed + 1, "N_lp", cfg, progress)
     return net
 
 
