@@ -133,3 +133,31 @@ def test_training_smoke_run_produces_loadable_networks(tmp_path: Path) -> None:
     again = load_nets(tmp_path / "n")
     for a, b in zip(nets.dr.state_dict().values(), again.dr.state_dict().values(), strict=True):
         assert np.array_equal(a.numpy(), b.numpy())
+
+
+def test_payoffs_of_real_detections_flip_the_shipped_detector() -> None:
+    """DeepFool on the shipped N_dr and real windows: the perturbation hides the vehicle."""
+    import torch
+
+    from lesmc.perception.attacks import AttackConfig, payoffs
+
+    nets = load_nets()
+    det = Detector(nets)
+    fd = None
+    for img, _ in frames(VIDEO):
+        res = det.push(img)
+        if res is not None:
+            fd = res[1]
+            break
+    assert fd is not None and len(fd.windows) > 10
+    res = payoffs(nets.dr, fd.windows, nets.settings.delta_dr, AttackConfig())
+    ok = res.flipped
+    assert ok.mean() > 0.9
+    with torch.no_grad():
+        p_before = torch.softmax(nets.dr(torch.from_numpy(fd.windows)), 1)[:, 1].numpy()
+        adv = torch.from_numpy(fd.windows + res.perturbation)
+        p_after = torch.softmax(nets.dr(adv), 1)[:, 1].numpy()
+    assert (p_before > nets.settings.delta_dr).all()  # every Q_dr window was accepted
+    assert (p_after[ok] <= nets.settings.delta_dr).all()
+    norms = np.linalg.norm(res.perturbation.reshape(len(ok), -1).astype(np.float64), axis=1)
+    assert np.allclose(res.payoff[ok], norms[ok], rtol=1e-6)

@@ -28,12 +28,22 @@ def cli() -> None:
     """lesmc: model checking robustness and resilience of learning-enabled state estimators.
 
     \b
-    Typical use:
+    The whole experiment (paper section 8) in one command:
+      lesmc verify                           embedded synthetic video, both designs, report
+      lesmc verify FRAMES/ --target X,Y      your video
+    \b
+    Stage by stage (frames -> scene -> model -> check -> report):
+      lesmc synth OUT/                       a synthetic WAMI video with truth.json
+      lesmc perceive FRAMES/ --truth T       detector quality against the truth
+      lesmc perceive FRAMES/ -o SCENE.json --target X,Y[@STEP]
+                                             detections, payoffs, homographies: a scene
+      lesmc train --out NETS/                retrain the detection CNNs
       lesmc track SCENE.json                 the unattacked track and its monitor
       lesmc build SCENE.json --window 6..8 -o MODEL.lts
                                              unfold every attacked run into a model
       lesmc check MODEL.lts SPEC.spec        check properties on a model
       lesmc check SCENE.json SPEC.spec       ... or on a scene, building on the fly
+      lesmc check ... --report DIR           ... and write the HTML report
       lesmc reduce knapsack ITEMS.csv ...    build a knapsack instance as a model
     Exit status: 0 all hold, 1 some violated, 2 bad input, 3 some unknown.
     """

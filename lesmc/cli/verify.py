@@ -142,6 +142,8 @@ def verify_cmd(
             )
         else:
             meta["video"] = frames_dir
+        if not target_text and not truth:
+            raise UsageError("--target is needed (or --truth, to choose one)")
         frames = open_frames(frames_dir, HISTORY + 1)
         truths = load_truth(truth) if truth else None
         nets = load_nets(nets_dir)
