@@ -170,7 +170,7 @@ def tree(
         for k in range(start, len(p.states) + 1):
             acc.setdefault(p.states[:k], []).append(ypos[p.states])
     fig_h = max(3.0, 0.22 * len(chosen) + 1.5)
-    fig, ax = plt.subplots(figsize=(10, fig_h))
+    fig, ax = plt.subplots(figsize=(11, fig_h))
     colour = {d.path.states: d for d in highlight}
     drawn_edges: set[tuple[tuple[str, ...], tuple[str, ...]]] = set()
     for p in chosen:
@@ -217,7 +217,7 @@ def tree(
     left = total - len(chosen)
     note = f"{len(chosen)} of {total} paths drawn" + (f", {left} left out" if left else "")
     ax.set_title(f"all attacked paths from step {start} ({note})")
-    ax.legend(loc="upper left", fontsize=7, framealpha=0.85)
+    ax.legend(loc="upper left", bbox_to_anchor=(1.01, 1.0), fontsize=7, framealpha=0.85)
     return _png(fig), len(chosen)
 
 

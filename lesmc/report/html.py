@@ -106,10 +106,10 @@ def _drawn(a: _Analysed, i: int) -> list[Drawn]:
     out = []
     if a.original is not None:
         out.append(Drawn(a.original, "original track", ORIGINAL))
-    if a.cex[i] is not None:
-        out.append(Drawn(a.cex[i], "counterexample", PALETTE[0], dashed=True))  # type: ignore[arg-type]
     if a.wit[i] is not None:
         out.append(Drawn(a.wit[i], "witness ρ*", PALETTE[1]))  # type: ignore[arg-type]
+    if a.cex[i] is not None:  # last, so that it is drawn on top
+        out.append(Drawn(a.cex[i], "counterexample", PALETTE[0], dashed=True))  # type: ignore[arg-type]
     return out
 
 
