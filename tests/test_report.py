@@ -228,3 +228,41 @@ def test_report_renders_in_a_real_browser(tmp_path: Path) -> None:
     hsv = cv2.cvtColor(img, cv2.COLOR_BGR2HSV)
     assert (hsv[..., 1] > 100).mean() > 0.001
     assert np.unique(grey).size > 50
+
+
+@pytest.mark.parametrize("case", ["tiny", "knapsack12", "wami_single"])
+def test_report_on_any_model(case: str, tmp_path: Path) -> None:
+    """Models that are not tracks (1-D states, no images) still get a report."""
+    d = Path(__file__).parent / "golden" / case
+    specs = [str(p) for p in sorted(d.glob("*.spec"))]
+    r = CliRunner().invoke(
+        cli, ["check", str(d / "model.lts"), *specs, "--report", str(tmp_path / "r"), "--json"]
+    )
+    assert r.exit_code in (0, 1), r.output
+    doc = json.loads((tmp_path / "r/results.json").read_text())
+    assert [x["verdict"] for x in doc["runs"][0]["results"]] == [
+        x["verdict"] for x in json.loads(r.stdout)["results"]
+    ]
+
+
+def test_verify_refuses_a_window_past_the_track(tmp_path: Path) -> None:
+    import sys
+
+    r = subprocess.run(
+        [
+            sys.executable,
+            "-m",
+            "lesmc",
+            "verify",
+            "--scene",
+            str(SCENES / "rq4_merge.json"),
+            "--window",
+            "30..40",
+            "--out",
+            str(tmp_path / "v"),
+        ],
+        capture_output=True,
+        text=True,
+    )
+    assert r.returncode == 2 and "--window 30..40" in r.stderr and "Traceback" not in r.stderr
+    assert not (tmp_path / "v" / "report.html").exists()

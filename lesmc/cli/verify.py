@@ -168,6 +168,8 @@ def verify_cmd(
         out.mkdir(parents=True, exist_ok=True)
         save_scene(scene, out / "scene.json")
         meta["scene"] = str(out / "scene.json")
+    if window is not None:
+        _check_window(scene, window)
     meta["target"] = (
         f"({scene.target.start[0]:.1f}, {scene.target.start[1]:.1f}) in frame "
         f"{scene.target.step}, velocity ({scene.target.velocity[0]:.1f}, "
@@ -220,6 +222,19 @@ def _auto_target(
     raise UsageError(
         "no vehicle with neighbouring traffic is tracked correctly unattacked; give --target"
     )
+
+
+def _check_window(scene: Scene, window: tuple[int, int]) -> None:
+    """--window against the unattacked track's length, before any model is built."""
+    from lesmc.model.builder import original_run
+    from lesmc.tracking.design import make_design
+
+    e = len(original_run(make_design(scene))) - 1
+    if not 1 <= window[0] <= window[1] <= e:
+        raise UsageError(
+            f"--window {window[0]}..{window[1]} must satisfy 1 <= L <= U <= {e}, the last step "
+            f"of the unattacked track from frame {scene.target.step}"
+        )
 
 
 def _default_video(out: Path, err: Console) -> tuple[str, str]:

@@ -169,11 +169,11 @@ def tau_series(model: LTS, path: TrackPath, components: tuple[int, ...] = (0, 1)
     vals = []
     for sid in path.states:
         P = model.state(sid).P
-        vals.append(
-            float(np.trace(np.asarray(P)[np.ix_(components, components)]))
-            if P is not None
-            else math.nan
-        )
+        if P is None:
+            vals.append(math.nan)
+            continue
+        idx = [c for c in components if c < len(P)]  # a 1-D model has no y
+        vals.append(float(np.trace(np.asarray(P)[np.ix_(idx, idx)])))
     return np.array(vals)
 
 
