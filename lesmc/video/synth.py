@@ -317,10 +317,15 @@ def frames(cfg: SynthConfig) -> Iterator[tuple[np.ndarray, FrameTruth]]:
             m = prev_h @ np.linalg.inv(H)
             to_prev = (m / m[2, 2]).round(12).tolist()
         prev_h = H
+        # in place: no frame-sized temporaries (large frames are 480 MB as float32)
         if cfg.depth == 16:
-            out = (img * 257.0).clip(0, 65535).astype(np.uint16)
+            img *= 257.0
+            np.clip(img, 0, 65535, out=img)
+            out = img.astype(np.uint16)
         else:
-            out = np.rint(img).clip(0, 255).astype(np.uint8)
+            np.rint(img, out=img)
+            np.clip(img, 0, 255, out=img)
+            out = img.astype(np.uint8)
         del img
         yield out, FrameTruth(k, vehicles, to_prev)
         world.traffic.step(dt)
