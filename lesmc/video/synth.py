@@ -94,7 +94,7 @@ class World:
         yy, xx = np.mgrid[0 : coarse[1], 0 : coarse[0]]
         _, idx = cKDTree(seeds).query(np.stack([xx.ravel(), yy.ravel()], axis=1))
         tones = rng.uniform(70, 170, size=len(seeds)).astype(np.float32)
-        fields = tones[idx].reshape(coarse[1], coarse[0]).astype(np.uint8)  # 8 bit before scaling up
+        fields = tones[idx].reshape(coarse[1], coarse[0]).astype(np.uint8)  # 8 bit, then scale
         ground = cv2.resize(fields, (w, h), interpolation=cv2.INTER_NEAREST)
         del fields, idx, yy, xx
         for cells, amp in ((w // 64, 18.0), (w // 6, 8.0)):
