@@ -12,7 +12,7 @@ from rich.table import Table
 from lesmc.errors import InputError, Location, UsageError
 from lesmc.perception.attacks import AttackConfig, Method, Norm
 from lesmc.perception.cnn import load_nets
-from lesmc.perception.quality import load_truth
+from lesmc.perception.quality import load_truth, truth_dt
 from lesmc.perception.run import PerceiveOptions, PerceiveRun, perceive
 from lesmc.perception.to_scene import make_scene, parse_target
 from lesmc.report.progress import progress_bar
@@ -160,7 +160,7 @@ def perceive_cmd(
     with progress_bar("perceiving", len(frames)) as bar:
         run = perceive(frames, opts, truths, bar.advance)
     if output is not None and spec is not None and nets is not None and att is not None:
-        step_dt = dt or (_truth_dt(truth) if truth else None) or 1 / FPS
+        step_dt = dt or (truth_dt(truth) if truth else None) or 1 / FPS
         tf = None
         if truths is not None and spec.step is not None and spec.step < len(frames.paths):
             tf = truths[frames.paths[spec.step].name]
@@ -196,14 +196,6 @@ def perceive_cmd(
         click.echo(json.dumps(doc, indent=1))
         return
     _print(run, truths is not None, nets is not None)
-
-
-def _truth_dt(path: str) -> float | None:
-    from lesmc.fileio import read_json
-
-    data = read_json(path, InputError)
-    v = data.get("dt") if isinstance(data, dict) else None
-    return float(v) if isinstance(v, (int, float)) and v > 0 else None
 
 
 def _print(run: PerceiveRun, with_truth: bool, with_cnn: bool) -> None:

@@ -15,7 +15,7 @@ from lesmc.cli.options import load_scene_file, parse_window
 from lesmc.errors import UsageError
 from lesmc.perception.attacks import AttackConfig
 from lesmc.perception.cnn import load_nets
-from lesmc.perception.quality import load_truth
+from lesmc.perception.quality import load_truth, truth_dt
 from lesmc.perception.run import PerceiveOptions, perceive
 from lesmc.perception.to_scene import make_scene, parse_target
 from lesmc.report.exit import exit_status
@@ -33,7 +33,7 @@ from lesmc.verify import (
     rank_targets,
 )
 from lesmc.video.reader import FrameSet, open_frames
-from lesmc.video.synth import SynthConfig, write_video
+from lesmc.video.synth import FPS, SynthConfig, write_video
 
 HISTORY = 4
 
@@ -146,6 +146,7 @@ def verify_cmd(
             raise UsageError("--target is needed (or --truth, to choose one)")
         frames = open_frames(frames_dir, HISTORY + 1)
         truths = load_truth(truth) if truth else None
+        dt = (truth_dt(truth) if truth else None) or 1 / FPS
         nets = load_nets(nets_dir)
         opts = PerceiveOptions(history=HISTORY, nets=nets, attack=AttackConfig())
         with progress_bar("perceiving", len(frames)) as bar:
@@ -157,10 +158,11 @@ def verify_cmd(
         if target_text:
             spec = parse_target(target_text)
             step = spec.step if spec.step is not None else first
-            tf = truths.get(frames.paths[step].name) if truths is not None else None
-            scene = make_scene(run.detections, run.payoffs, 1 / 1.25, spec, tf, meta=scene_meta)
+            known = truths is not None and 0 <= step < len(frames)
+            tf = truths.get(frames.paths[step].name) if truths is not None and known else None
+            scene = make_scene(run.detections, run.payoffs, dt, spec, tf, meta=scene_meta)
         elif truths is not None:
-            scene = _auto_target(run, frames, truths, spec_files, scene_meta)
+            scene = _auto_target(run, frames, truths, spec_files, scene_meta, dt)
             meta["target choice"] = scene.meta["target_choice"]
         else:
             raise UsageError("--target is needed (or --truth, to choose one)")
@@ -200,7 +202,7 @@ def verify_cmd(
 
 
 def _auto_target(
-    run: Any, frames: FrameSet, truths: Any, spec_files: Any, meta: dict[str, Any]
+    run: Any, frames: FrameSet, truths: Any, spec_files: Any, meta: dict[str, Any], dt: float
 ) -> Scene:
     """The best-ranked vehicle (rank_targets) whose unattacked track follows it."""
     first = run.detections[0].index
@@ -211,7 +213,7 @@ def _auto_target(
     )
     cands = rank_targets(tfs, (frames.width, frames.height), window)
     for rank, c in enumerate(cands[:40]):
-        scene = make_scene(run.detections, run.payoffs, 1 / 1.25, c.spec, tfs[0], meta=dict(meta))
+        scene = make_scene(run.detections, run.payoffs, dt, c.spec, tfs[0], meta=dict(meta))
         if follows(scene, c.truth_track):
             scene.meta["target_choice"] = (
                 f"vehicle {c.vid} of the truth: rank {rank + 1} of {len(cands)} by neighbouring "

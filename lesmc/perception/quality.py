@@ -137,6 +137,13 @@ def load_truth(path: str) -> dict[str, TruthFrame]:
     return out
 
 
+def truth_dt(path: str) -> float | None:
+    """Seconds between frames recorded in a truth file (``dt``), if any."""
+    data = read_json(path, InputError)
+    v = data.get("dt") if isinstance(data, dict) else None
+    return float(v) if isinstance(v, (int, float)) and v > 0 else None
+
+
 def care_mask(tf: TruthFrame, valid: np.ndarray, min_speed: float) -> np.ndarray:
     """The vehicles that count: moving, visible, inside the background's coverage."""
     h, w = valid.shape
