@@ -60,6 +60,24 @@ def test_registration_recovers_a_known_homography_to_subpixel_accuracy() -> None
     assert reg.inliers > 100
 
 
+def test_guided_matching_agrees_with_brute_force() -> None:
+    """Large feature sets are matched near a coarse homography's prediction: same answer."""
+    size = 768
+    a = texture(size, 5)
+    h = known_homography(size)
+    b = cv2.warpPerspective(
+        a, h, (size, size), flags=cv2.INTER_CUBIC, borderMode=cv2.BORDER_REFLECT
+    )
+    brute = RegistrationConfig()
+    guided = RegistrationConfig(guided_above=500, guided_subset=300)
+    fa, fb = describe(a, brute), describe(b, brute)
+    assert len(fa.points) > 500  # the guided path is taken
+    r_g = register(fa, fb, guided, a, b)
+    r_b = register(fa, fb, brute, a, b)
+    assert mapping_error(r_g.homography, h, size) < 0.1
+    assert r_g.inliers >= 0.8 * r_b.inliers
+
+
 def test_registration_without_refinement_is_only_pixel_accurate() -> None:
     """The subpixel step matters: without images, the ORB-only estimate is coarser."""
     size = 768
