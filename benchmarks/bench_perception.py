@@ -10,20 +10,35 @@ Figures are recorded in docs/performance.md.
 from __future__ import annotations
 
 import argparse
-import resource
 import subprocess
 import sys
 import tempfile
 import time
 from pathlib import Path
 
+# runs lesmc in a child that reports its own peak resident memory (KiB) on exit
+_WRAP = (
+    "import atexit, resource, sys\n"
+    "atexit.register(lambda: print('PEAK_KIB', resource.getrusage(resource.RUSAGE_SELF)"
+    ".ru_maxrss, file=sys.stderr))\n"
+    "sys.argv = ['lesmc', *sys.argv[1:]]\n"
+    "from lesmc.cli.main import main\n"
+    "main()\n"
+)
 
-def peak_rss_gib(cmd: list[str]) -> tuple[float, float]:
-    """Run ``cmd``; return (seconds, peak resident memory of the child in GiB)."""
+
+def peak_rss_gib(args: list[str]) -> tuple[float, float]:
+    """Run ``lesmc ARGS``; return (seconds, that process's own peak resident memory in GiB)."""
     t = time.perf_counter()
-    subprocess.run(cmd, check=True, stdout=subprocess.DEVNULL)
+    r = subprocess.run(
+        [sys.executable, "-c", _WRAP, *args],
+        check=True,
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
     wall = time.perf_counter() - t
-    kib = resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss
+    kib = max(int(line.split()[1]) for line in r.stderr.splitlines() if line.startswith("PEAK_KIB"))
     return wall, kib / 2**20
 
 
@@ -76,15 +91,18 @@ def main() -> None:
     args = ap.parse_args()
     with tempfile.TemporaryDirectory() as tmp:
         d = Path(tmp) / "video"
-        lesmc = [sys.executable, "-m", "lesmc"]
         wall, rss = peak_rss_gib(
-            [*lesmc, "synth", str(d), "--frames", str(args.frames), "--size", args.size]
+            ["synth", str(d), "--frames", str(args.frames), "--size", args.size]
         )
         print(f"synth {args.size} x {args.frames}: {wall:.1f} s, peak RSS {rss:.2f} GiB")
-        wall, rss2 = peak_rss_gib(
-            [*lesmc, "perceive", str(d), "--history", str(args.history), "--json"]
-        )
-        print(f"perceive: {wall:.1f} s, peak RSS {max(rss, rss2):.2f} GiB (max of both children)")
+        for extra, what in (
+            (["--no-cnn"], "perceive --no-cnn (front end)"),
+            ([], "perceive (front end + CNNs)"),
+        ):
+            wall, rss2 = peak_rss_gib(
+                ["perceive", str(d), "--history", str(args.history), "--json", *extra]
+            )
+            print(f"{what}: {wall:.1f} s, peak RSS {rss2:.2f} GiB")
         for k, v in stage_times(d, args.history).items():
             print(f"  {k:<9} {v * 1000:8.1f} ms/frame")
 
