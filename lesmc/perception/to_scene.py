@@ -31,6 +31,7 @@ class TargetSpec:
 
 
 def parse_target(text: str) -> TargetSpec:
+    """``X,Y`` or ``X,Y@STEP`` (pixels of that frame) -> TargetSpec; a UsageError otherwise."""
     num = r"\s*(-?\d+(?:\.\d*)?)\s*"
     m = re.fullmatch(num + "," + num + r"(?:@\s*(\d+)\s*)?", text)
     if not m:
