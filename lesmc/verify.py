@@ -23,6 +23,7 @@ from lesmc.errors import UsageError
 from lesmc.language.parser import load_spec
 from lesmc.language.properties import Monitor, SpecFile
 from lesmc.model.builder import build_model
+from lesmc.model.lts import LTS
 from lesmc.perception.quality import TruthFrame
 from lesmc.perception.to_scene import TargetSpec
 from lesmc.report.html import DesignRun, window_of
@@ -30,7 +31,13 @@ from lesmc.tracking.scene import Scene
 
 #: The embedded default video: `lesmc synth` with these settings.
 DEFAULT_VIDEO = {"frames": 24, "width": 2048, "height": 2048, "seed": 1}
-DESIGNS = {"single": ["single"], "joint": ["joint"], "both": ["single", "joint"]}
+DESIGNS = {
+    "single": ["single"],
+    "joint": ["joint"],
+    "improved": ["improved"],
+    "both": ["single", "improved"],
+    "all": ["single", "joint", "improved"],
+}
 
 
 def bundled_specs() -> list[Path]:
@@ -157,40 +164,47 @@ def load_specs(paths: list[Path], window: tuple[int, int] | None) -> list[SpecFi
     return [with_window(load_spec(str(p)), window) for p in paths]
 
 
+#: Display name and tracker design of each design run.
+RUN_NAMES = {"single": "single", "joint": "joint KFs", "improved": "joint KFs + monitor"}
+
+
 def check_designs(
     scene: Scene,
     specs: list[SpecFile],
     designs: list[str],
     engine: str = "bnb",
     on_stage: Callable[[str], None] | None = None,
-    improved: bool = True,
     only: Callable[[str], bool] | None = None,
 ) -> list[DesignRun]:
     """Build the model of each design over the properties' window and check them on it.
 
-    With ``improved``, ``joint`` is the improved design of section 7: joint KFs and
-    the runtime monitor on every property. ``only`` filters properties by name.
+    Designs: ``single`` (plain KF, section 6.7), ``joint`` (joint KFs, section 7.2)
+    and ``improved`` (joint KFs and the runtime monitor of section 7.1 on every
+    property: the paper's Table 5). ``only`` filters properties by name.
     """
     from lesmc.engines.check import bind_scene
 
     runs = []
+    models: dict[tuple[str, tuple[int, int]], LTS] = {}
     for d in designs:
-        sc = scene.with_tracker(design=d)
-        sp = [with_monitor(s) for s in specs] if d == "joint" and improved else specs
+        tracker = "single" if d == "single" else "joint"
+        sc = scene.with_tracker(design=tracker)
+        sp = [with_monitor(s) for s in specs] if d == "improved" else specs
         bound0 = [bp for bp in bind_scene(sc, sp) if only is None or only(bp.name)]
         win = window_of(bound0)
-        if on_stage:
-            on_stage(f"building the {d} model")
-        model = build_model(sc, win)
+        if (tracker, win) not in models:  # joint and improved share one model
+            if on_stage:
+                on_stage(f"building the {tracker} model")
+            models[(tracker, win)] = build_model(sc, win)
+        model = models[(tracker, win)]
         bound = [bp for bp in bind_all(model, sp) if only is None or only(bp.name)]
         cm = CompiledModel.from_lts(model)
         results = []
         for bp in bound:
             if on_stage:
-                on_stage(f"checking {bp.name} ({d})")
+                on_stage(f"checking {bp.name} ({RUN_NAMES[d]})")
             results.append(check_bound(cm, bp, engine))  # type: ignore[arg-type]
-        name = d if not improved or d == "single" else "joint KFs + monitor"
-        runs.append(DesignRun(name, model, bound, results, sc))
+        runs.append(DesignRun(RUN_NAMES[d], model, bound, results, sc))
     return runs
 
 

@@ -55,7 +55,7 @@ def test_paths_recomputed_by_the_report_give_the_engines_optimum(case: tuple) ->
 def _runs(design: str = "single") -> tuple[list[DesignRun], object]:
     scene = load_scene(SCENES / "rq4_merge.json")
     specs = [load_spec(str(SCENES / "rq4_merge.spec"))]
-    return check_designs(scene, specs, [design], improved=False), scene
+    return check_designs(scene, specs, [design]), scene
 
 
 def test_report_files_and_contents(tmp_path: Path) -> None:
@@ -81,9 +81,11 @@ def test_report_files_and_contents(tmp_path: Path) -> None:
 def test_two_designs_are_compared(tmp_path: Path) -> None:
     scene = load_scene(SCENES / "rq4_merge.json")
     specs = [load_spec(str(SCENES / "rq1_platoon.spec"))]
-    runs = check_designs(scene, specs, ["single", "joint"])
-    assert [r.name for r in runs] == ["single", "joint KFs + monitor"]
-    assert all(bp.monitor_components is not None for bp in runs[1].bound)
+    runs = check_designs(scene, specs, ["single", "joint", "improved"])
+    assert [r.name for r in runs] == ["single", "joint KFs", "joint KFs + monitor"]
+    assert all(bp.monitor_components is None for bp in runs[1].bound)
+    assert all(bp.monitor_components is not None for bp in runs[2].bound)
+    assert runs[1].model is runs[2].model  # one model for the joint tracker
     html = write_report(runs, tmp_path / "rep").read_text()
     assert "Designs compared (Table 5)" in html
 
@@ -140,7 +142,7 @@ def test_verify_on_a_scene(tmp_path: Path) -> None:
     )
     assert r.exit_code in (0, 1), r.output
     doc = json.loads(r.stdout)
-    assert [run["design"] for run in doc["runs"]] == ["single", "joint KFs + monitor"]
+    assert [run["design"] for run in doc["runs"]] == ["single", "joint KFs", "joint KFs + monitor"]
     assert (tmp_path / "v/report.html").is_file()
 
 

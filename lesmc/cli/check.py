@@ -163,7 +163,6 @@ def _report(
                 parsed,
                 [source.tracker.design],
                 engine,
-                improved=False,
                 only=(lambda n: n in only) if only else None,
             )
         image_for = frame_reader(source)

@@ -76,10 +76,11 @@ HISTORY = 4
 )
 @click.option(
     "--design",
-    type=click.Choice(["single", "joint", "both"]),
-    default="both",
+    type=click.Choice(["single", "joint", "improved", "both", "all"]),
+    default="all",
     show_default=True,
-    help="single: plain KF; joint: joint KFs + runtime monitor (section 7); both.",
+    help="single: plain KF; joint: joint KFs; improved: joint KFs + runtime monitor "
+    "(section 7); both: single and improved (Table 5); all: the three.",
 )
 @click.option(
     "--out",
