@@ -185,10 +185,11 @@ def _header(runs: list[DesignRun], analysed: list[_Analysed], meta: dict[str, An
     return (
         "<h1>lesmc verification report</h1>"
         "<p>Robustness and resilience of a learning-enabled state estimator, checked exactly on "
-        "its &lt;PO&gt;²-LTS (every attacked track of the attack window). Colours: "
-        f"<span style='color:{ORIGINAL}'>original track</span>, "
-        f"<span style='color:{PALETTE[0]}'>counterexample / first property</span>, "
-        f"<span style='color:{PALETTE[1]}'>witness ρ* / second property</span>.</p>"
+        "its &lt;PO&gt;²-LTS (every attacked track of the attack window). In the track and "
+        f"deviation figures: <span style='color:{ORIGINAL}'>original track</span>, "
+        f"<span style='color:{PALETTE[0]}'>counterexample</span> (dashed), "
+        f"<span style='color:{PALETTE[1]}'>witness ρ*</span>; in the tree and uncertainty "
+        "figures each property has its own colour.</p>"
         f"<table class='meta'>{rows}</table><h2>Verdicts</h2><ul>{''.join(verdicts)}</ul>"
     )
 
