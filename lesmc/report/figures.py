@@ -6,7 +6,6 @@ Every function draws one figure from a run and returns PNG bytes.
 from __future__ import annotations
 
 import io
-import math
 from collections.abc import Sequence
 from dataclasses import dataclass
 
@@ -19,6 +18,8 @@ from matplotlib.figure import Figure
 
 from lesmc.model.lts import LTS
 from lesmc.report.paths import TrackPath, position, tau_series
+from lesmc.tracking.kalman import warp
+from lesmc.tracking.monitor import DEFAULT_TOLERANCE, alarm
 from lesmc.tracking.scene import Scene
 
 ORIGINAL = "#1a9850"  # green, as in the paper
@@ -42,23 +43,17 @@ def _png(fig: Figure) -> bytes:
     return buf.getvalue()
 
 
-def _to_frame(scene: Scene, first: int, k_from: int, k_to: int) -> np.ndarray:
-    """Homography from model step ``k_from``'s frame pixels to step ``k_to``'s."""
-    h = np.eye(3)
-    if k_from <= k_to:
-        for k in range(k_from, k_to):
-            m = scene.frame(first + k).to_next
-            h = (np.eye(3) if m is None else m) @ h
-    else:
-        for k in range(k_to, k_from):
-            m = scene.frame(first + k).to_next
-            h = np.linalg.inv(np.eye(3) if m is None else m) @ h
-    return h
-
-
-def _map(h: np.ndarray, pts: np.ndarray) -> np.ndarray:
-    q = np.c_[pts, np.ones(len(pts))] @ h.T
-    out: np.ndarray = q[:, :2] / q[:, 2:]
+def _to_step(scene: Scene, first: int, end: int, ref: int) -> list[np.ndarray]:
+    """Homographies from each model step k = 0..end's frame pixels to step ``ref``'s."""
+    nxt: list[np.ndarray] = []
+    for k in range(end):
+        m = scene.frame(first + k).to_next
+        nxt.append(np.eye(3) if m is None else m)
+    out = [np.eye(3)] * (end + 1)
+    for k in range(ref - 1, -1, -1):  # earlier steps: forward through to_next
+        out[k] = out[k + 1] @ nxt[k]
+    for k in range(ref + 1, end + 1):  # later steps: backward
+        out[k] = out[k - 1] @ np.linalg.inv(nxt[k - 1])
     return out
 
 
@@ -73,13 +68,12 @@ def track_crop(
     """Tracks over the frame of ``ref_step`` (Figures 6-8): image crop, detections, paths."""
     first = int(model.meta.get("first_frame", 0))
     fig, ax = plt.subplots(figsize=(6.4, 6.4))
+    to_ref = _to_step(scene, first, model.end, ref_step) if scene is not None else None
     tracks = []
     for d in drawn:
         pts = np.array([position(model, q) for q in d.path.states])
-        if scene is not None:
-            pts = np.array(
-                [_map(_to_frame(scene, first, k, ref_step), p[None])[0] for k, p in enumerate(pts)]
-            )
+        if to_ref is not None:
+            pts = np.array([warp(to_ref[k], p) for k, p in enumerate(pts)])
         tracks.append(pts)
     allpts = np.concatenate(tracks)
     lo, hi = allpts.min(axis=0) - 40, allpts.max(axis=0) + 40
@@ -276,7 +270,10 @@ def deviation(
 
 
 def uncertainty(
-    model: LTS, drawn: Sequence[Drawn], window: tuple[int, int], tolerance: float = 1e-9
+    model: LTS,
+    drawn: Sequence[Drawn],
+    window: tuple[int, int],
+    tolerance: float = DEFAULT_TOLERANCE,
 ) -> bytes:
     """τ = tr(P_ll) per step with the monitor's alarms, Eq. 12-13 (Figure 10)."""
     fig, ax = plt.subplots(figsize=(6.4, 3.6))
@@ -284,12 +281,9 @@ def uncertainty(
         tau = tau_series(model, d.path)
         ks = np.arange(len(tau))
         ax.plot(ks, tau, "--" if d.dashed else "-", color=d.color, marker="o", ms=3, label=d.label)
-        rise = [
-            k
-            for k in range(max(window[0], 1), len(tau))
-            if tau[k] > tau[k - 1] * (1 + tolerance) + 1e-300
-        ]
-        if rise:
+        ks_on = np.arange(max(window[0], 1), len(tau))
+        rise = ks_on[alarm(tau[ks_on - 1], tau[ks_on], tolerance)]
+        if len(rise):
             ax.scatter(rise, tau[rise], marker="x", s=70, color=d.color, zorder=5)
     ax.axvspan(window[0] - 0.5, window[1] + 0.5, color="#fee08b", alpha=0.35)
     ax.set_yscale("log")
@@ -298,7 +292,3 @@ def uncertainty(
     ax.set_title("Bayesian uncertainty; × = monitor alarm (τ rises, Eq. 13)", fontsize=9)
     ax.legend(fontsize=7)
     return _png(fig)
-
-
-def finite_or(x: float, text: str = "inf") -> str:
-    return f"{x:.4g}" if math.isfinite(x) else text

@@ -28,7 +28,7 @@ from lesmc.language.semantics import BoundProperty
 from lesmc.model.lts import LTS
 from lesmc.report import figures
 from lesmc.report.figures import ORIGINAL, PALETTE, Drawn
-from lesmc.report.paths import PathSet, TrackPath, dist_series, enumerate_tracks, judge
+from lesmc.report.paths import PathSet, TrackPath, deviations, enumerate_tracks, judge
 from lesmc.report.text import fmt
 from lesmc.tracking.scene import Scene
 
@@ -84,8 +84,7 @@ def _analyse(run: DesignRun) -> _Analysed:
                 wanted.append(complete(model, p.states))
     ps = enumerate_tracks(model, win, MAX_PATHS, first=wanted)
     by_states = {p.states: p for p in ps.paths}
-    order = sorted(ps.paths, key=lambda p: p.states)
-    a = _Analysed(run, win, ps, {p.states: i + 1 for i, p in enumerate(order)})
+    a = _Analysed(run, win, ps, {p.states: i + 1 for i, p in enumerate(ps.paths)})
     a.original = by_states.get(tuple(model.original))
 
     def find(p: PathInfo | None) -> TrackPath | None:
@@ -143,7 +142,7 @@ def write_report(
         analysed = [_analyse(r) for r in runs]
         body: list[str] = []
         figs: dict[str, bytes] = {}
-        body.append(_header(runs, analysed, meta or {}))
+        body.append(_header(analysed, meta or {}))
         if len(analysed) > 1:
             body.append(_table5(analysed))
         for a in analysed:
@@ -172,7 +171,7 @@ def _e(x: object) -> str:
     return html.escape(str(x))
 
 
-def _header(runs: list[DesignRun], analysed: list[_Analysed], meta: dict[str, Any]) -> str:
+def _header(analysed: list[_Analysed], meta: dict[str, Any]) -> str:
     rows = "".join(f"<tr><th>{_e(k)}</th><td>{_e(v)}</td></tr>" for k, v in meta.items())
     verdicts = []
     for a in analysed:
@@ -295,7 +294,7 @@ def _section(
             )
         )
         series = [
-            (d.label, d.color, d.dashed, dist_series(model, d.path, bp.components, bp.norm))
+            (d.label, d.color, d.dashed, deviations(model, d.path.states, bp.components, bp.norm))
             for d in drawn
         ]
         cumulative = (
@@ -318,9 +317,8 @@ def _section(
             )
         )
     highlight = _tree_highlight(a)
-    order = sorted(a.paths.paths, key=lambda p: p.states)
     name = f"{tag}-tree.png"
-    figs[name], drawn_n = figures.tree(order, highlight, a.paths.total, a.window)
+    figs[name], drawn_n = figures.tree(a.paths.paths, highlight, a.paths.total, a.window)
     left = a.paths.total - drawn_n
     parts.append(
         _img(
@@ -356,7 +354,7 @@ def _table3(a: _Analysed) -> str:
             marks.setdefault(cex.states, []).append(f"{bp.name} counterexample")
         if wit is not None:
             marks.setdefault(wit.states, []).append(f"{bp.name} ρ*")
-    order = sorted(a.paths.paths, key=lambda p: p.states)
+    order = a.paths.paths  # tree order, as numbered
     shown = [p for p in order if p.states in marks]
     shown += [p for p in order if p.states not in marks][: max(MAX_TABLE_ROWS - len(shown), 0)]
     shown.sort(key=lambda p: a.number[p.states])
@@ -415,7 +413,7 @@ def _results_json(analysed: list[_Analysed], meta: dict[str, Any]) -> dict[str, 
                         "dist_max": num(p.dist_max),
                         "dist_end": num(p.dist_end),
                     }
-                    for p in sorted(a.paths.paths, key=lambda p: a.number[p.states])
+                    for p in a.paths.paths
                 ],
             }
         )

@@ -11,12 +11,15 @@ from __future__ import annotations
 
 import itertools
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
 
+from lesmc.engines.space import _OPS
 from lesmc.language.semantics import BoundMeasure, BoundProperty
 from lesmc.model.lts import LTS, Transition
+from lesmc.tracking.monitor import LOCATION, alarm, tau
 
 
 @dataclass(frozen=True)
@@ -41,7 +44,7 @@ class TrackPath:
         return self.dist[-1]
 
     def labels(self) -> list[str]:
-        """Node labels "step-detection" (the paper's Figure 9c); "-" is no observation."""
+        """Node labels "step-detection" (the paper's Figure 9c); "none": no observation."""
         out = ["0-start"]
         for k, t in enumerate(self.transitions, start=1):
             out.append(f"{k}-{_short(t.obs)}")
@@ -58,10 +61,8 @@ def _short(obs: str | None) -> str:
 class PathSet:
     """The enumerated paths (up to a cap), and how many exist in all."""
 
-    paths: list[TrackPath]
+    paths: list[TrackPath]  # in tree order (sorted by states)
     total: int
-    window: tuple[int, int]
-    end: int
 
     @property
     def left_out(self) -> int:
@@ -95,10 +96,10 @@ def enumerate_tracks(
     comps: tuple[int, ...] = (0, 1),
     first: list[tuple[str, ...]] | None = None,
 ) -> PathSet:
-    """Up to ``limit`` paths, depth first in rank order; ``first`` paths are always included."""
-    end = model.end
-    ref = [position(model, q, comps) for q in model.original]
-    l, u = window
+    """Up to ``limit`` paths, depth first in rank order; ``first`` paths are always included.
+
+    The result lists them in tree order (sorted by their state sequences).
+    """
     found: list[tuple[str, ...]] = []
     seen: set[tuple[str, ...]] = set()
     for p in first or []:
@@ -116,64 +117,40 @@ def enumerate_tracks(
             continue
         for t in reversed(out):  # rank order when popped
             stack.append((*path, t.dst))
-    paths = [_measure(model, p, ref, window, end, comps) for p in found]
-    return PathSet(paths, count_paths(model), (l, u), end)
+    paths = [_measure(model, p, window, comps) for p in sorted(found)]
+    return PathSet(paths, count_paths(model))
 
 
 def _measure(
-    model: LTS,
-    states: tuple[str, ...],
-    ref: list[np.ndarray],
-    window: tuple[int, int],
-    end: int,
-    comps: tuple[int, ...],
+    model: LTS, states: tuple[str, ...], window: tuple[int, int], comps: tuple[int, ...]
 ) -> TrackPath:
     trans = [model.graph.edges[a, b]["transition"] for a, b in itertools.pairwise(states)]
     l, u = window
     payoff = math.fsum(
         model.combined_payoff(t) for k, t in enumerate(trans, start=1) if l <= k <= u
     )
-    dist = []
-    for k in range(end + 1):
-        if k < len(states):
-            dist.append(float(np.linalg.norm(position(model, states[k], comps) - ref[k])))
-        else:
-            dist.append(math.inf)  # the track halted
-    return TrackPath(tuple(states), tuple(trans), payoff, tuple(dist))
+    dist = deviations(model, states, comps, 2.0)
+    return TrackPath(tuple(states), tuple(trans), payoff, tuple(dist.tolist()))
 
 
-_OPS = {
-    ">": lambda a, b: a > b,
-    ">=": lambda a, b: a >= b,
-    "<": lambda a, b: a < b,
-    "<=": lambda a, b: a <= b,
-}
-
-
-def dist_series(
-    model: LTS, path: TrackPath, components: tuple[int, ...], norm: float
+def deviations(
+    model: LTS, states: Sequence[str], components: tuple[int, ...], norm: float
 ) -> np.ndarray:
-    """dist.at(k) of a path for k = 0..end with a property's components and norm (Eq. 4)."""
+    """dist.at(k) of a path against the original path, k = 0..end (Eq. 4); inf after a halt."""
     out = np.full(model.end + 1, np.inf)
-    for k, sid in enumerate(path.states):
-        diff = (
-            np.asarray(model.state(sid).s, float)[list(components)]
-            - np.asarray(model.state(model.original[k]).s, float)[list(components)]
-        )
+    for k, sid in enumerate(states):
+        diff = position(model, sid, components) - position(model, model.original[k], components)
         out[k] = float(np.linalg.norm(diff, ord=norm))
     return out
 
 
-def tau_series(model: LTS, path: TrackPath, components: tuple[int, ...] = (0, 1)) -> np.ndarray:
-    """τ (Eq. 12) along a path: the trace of the location block of P."""
+def tau_series(model: LTS, path: TrackPath, components: tuple[int, ...] = LOCATION) -> np.ndarray:
+    """τ (Eq. 12) along a path, nan where a state has no covariance."""
     vals = []
     for sid in path.states:
         P = model.state(sid).P
-        if P is None:
-            vals.append(math.nan)
-            continue
-        idx = [c for c in components if c < len(P)]  # a 1-D model has no y
-        vals.append(float(np.trace(np.asarray(P)[np.ix_(idx, idx)])))
+        idx = [c for c in components if P is not None and c < len(P)]  # a 1-D model has no y
+        vals.append(math.nan if P is None else float(tau(np.asarray(P), idx)))
     return np.array(vals)
 
 
@@ -191,7 +168,7 @@ class Judged:
 
 def judge(model: LTS, path: TrackPath, bp: BoundProperty) -> Judged:
     """Evaluate a property's measures on a path (independently of the engines)."""
-    dist = dist_series(model, path, bp.components, bp.norm)
+    dist = deviations(model, path.states, bp.components, bp.norm)
     pays = np.zeros(model.end + 1)
     for k, t in enumerate(path.transitions, start=1):
         pays[k] = model.combined_payoff(t)
@@ -205,11 +182,9 @@ def judge(model: LTS, path: TrackPath, bp: BoundProperty) -> Judged:
 
     alarmed = False
     if bp.monitor_components is not None:
-        tau = tau_series(model, path, bp.monitor_components)
-        for k in range(max(bp.l, 1), min(len(tau), bp.end + 1)):
-            if tau[k] > tau[k - 1] * (1.0 + bp.monitor_tolerance) + 1e-300:
-                alarmed = True
-                break
+        taus = tau_series(model, path, bp.monitor_components)
+        ks = np.arange(max(bp.l, 1), min(len(taus), bp.end + 1))
+        alarmed = bool(alarm(taus[ks - 1], taus[ks], bp.monitor_tolerance).any())
     admissible = all(
         bp.l <= k <= bp.u
         for k, t in enumerate(path.transitions, start=1)
