@@ -9,25 +9,30 @@ with neighbouring traffic, the bundled robustness and resilience specs.
 from __future__ import annotations
 
 import dataclasses
+import json
 from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import asdict, dataclass
 from importlib import resources
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
 from lesmc.engines.check import bind_all, check_bound
-from lesmc.engines.result import CheckResult
 from lesmc.engines.space import CompiledModel
-from lesmc.errors import UsageError
+from lesmc.errors import LesmcError, UsageError
 from lesmc.language.parser import load_spec
 from lesmc.language.properties import Monitor, SpecFile
-from lesmc.model.builder import build_model
+from lesmc.model.builder import build_model, original_run
 from lesmc.model.lts import LTS
-from lesmc.perception.quality import TruthFrame
-from lesmc.perception.to_scene import TargetSpec
+from lesmc.perception.quality import Truth, TruthFrame
+from lesmc.perception.run import PerceiveRun
+from lesmc.perception.to_scene import TargetSpec, make_scene
 from lesmc.report.html import DesignRun, window_of
+from lesmc.tracking.design import make_design
 from lesmc.tracking.scene import Scene
+from lesmc.video.reader import FrameSet, open_frames
+from lesmc.video.synth import SynthConfig, write_video
 
 #: The embedded default video: `lesmc synth` with these settings.
 DEFAULT_VIDEO = {"frames": 24, "width": 2048, "height": 2048, "seed": 1}
@@ -122,7 +127,7 @@ def rank_targets(
         if len(turn) and turn.max() > max_turn_deg:
             continue
         crowd = 0
-        for k in range(l, horizon + 1 if horizon < u else u + 1):
+        for k in range(l, min(horizon, u) + 1):
             tf = frames[k]
             moving = (tf.speed_mps >= 1.5) & ~tf.occluded
             d = np.linalg.norm(tf.positions[moving] - pts[k], axis=1)
@@ -136,26 +141,11 @@ def rank_targets(
 
 def follows(scene: Scene, truth_track: np.ndarray, tolerance: float = 6.0) -> bool:
     """Whether the unattacked single-KF track stays on the vehicle for ``truth_track``'s steps."""
-    from lesmc.model.builder import original_run
-    from lesmc.tracking.design import make_design
-
     run = original_run(make_design(scene.with_tracker(design="single")), len(truth_track) - 1)
     if len(run) < len(truth_track):
         return False
     est = np.array([st.estimate()[0][:2] for st in run])
     return bool((np.linalg.norm(est[1:] - truth_track[1:], axis=1) <= tolerance).all())
-
-
-@dataclass
-class VerifyResult:
-    """What a verification produced."""
-
-    scene: Scene
-    runs: list[DesignRun] = field(default_factory=list)
-
-    @property
-    def results(self) -> list[CheckResult]:
-        return [r for run in self.runs for r in run.results]
 
 
 def load_specs(paths: list[Path], window: tuple[int, int] | None) -> list[SpecFile]:
@@ -185,7 +175,7 @@ def check_designs(
     from lesmc.engines.check import bind_scene
 
     runs = []
-    models: dict[tuple[str, tuple[int, int]], LTS] = {}
+    models: dict[tuple[str, tuple[int, int]], tuple[LTS, CompiledModel]] = {}
     for d in designs:
         tracker = "single" if d == "single" else "joint"
         sc = scene.with_tracker(design=tracker)
@@ -195,10 +185,10 @@ def check_designs(
         if (tracker, win) not in models:  # joint and improved share one model
             if on_stage:
                 on_stage(f"building the {tracker} model")
-            models[(tracker, win)] = build_model(sc, win)
-        model = models[(tracker, win)]
+            built = build_model(sc, win)
+            models[(tracker, win)] = (built, CompiledModel.from_lts(built))
+        model, cm = models[(tracker, win)]
         bound = [bp for bp in bind_all(model, sp) if only is None or only(bp.name)]
-        cm = CompiledModel.from_lts(model)
         results = []
         for bp in bound:
             if on_stage:
@@ -208,20 +198,84 @@ def check_designs(
     return runs
 
 
-def frame_reader(scene: Scene) -> Callable[[int], np.ndarray | None] | None:
-    """Frame images of the video a scene came from (its ``meta.source``), when still there."""
-    from lesmc.errors import LesmcError
-    from lesmc.video.reader import open_frames
+def scene_frames(scene: Scene) -> FrameSet | None:
+    """The frames of the video a scene came from (its ``meta.source``), when still there.
 
+    Only the first frame is decoded here: the report reads a frame or two.
+    """
     src = scene.meta.get("source")
     if not (isinstance(src, str) and Path(src).is_dir()):
         return None
     try:
-        frames = open_frames(src, 1)
+        return open_frames(src, 1, check=False)
     except LesmcError:
         return None
 
+
+def frame_reader(frames: FrameSet | None) -> Callable[[int], np.ndarray | None] | None:
+    """``index -> grey frame`` for the report's images (None past the video's end)."""
+    if frames is None:
+        return None
+    fs = frames
+
     def read(index: int) -> np.ndarray | None:
-        return frames.read(index) if 0 <= index < len(frames) else None
+        return fs.read(index) if 0 <= index < len(fs) else None
 
     return read
+
+
+def check_window(scene: Scene, window: tuple[int, int]) -> None:
+    """``--window`` against the unattacked track's length, before any model is built."""
+    e = len(original_run(make_design(scene))) - 1
+    if not 1 <= window[0] <= window[1] <= e:
+        raise UsageError(
+            f"--window {window[0]}..{window[1]} must satisfy 1 <= L <= U <= {e}, the last step "
+            f"of the unattacked track from frame {scene.target.step}"
+        )
+
+
+def default_video_ready(video: Path) -> bool:
+    """Whether ``video`` already holds exactly the embedded default video."""
+    truth = video / "truth.json"
+    if not truth.is_file():
+        return False
+    try:
+        same = json.loads(truth.read_text()).get("config") == asdict(SynthConfig(**DEFAULT_VIDEO))
+    except ValueError:
+        return False
+    return same and len(list(video.glob("frame_*.png"))) == DEFAULT_VIDEO["frames"]
+
+
+def write_default_video(video: Path, progress: Callable[[], None] | None = None) -> None:
+    """Generate the embedded default video (``lesmc synth`` with ``DEFAULT_VIDEO``)."""
+    write_video(SynthConfig(**DEFAULT_VIDEO), video, progress=progress)
+
+
+def auto_target(
+    run: PerceiveRun,
+    frames: FrameSet,
+    truth: Truth,
+    spec_files: list[SpecFile],
+    dt: float,
+    meta: dict[str, Any],
+) -> Scene:
+    """The scene of the best-ranked vehicle (``rank_targets``) whose unattacked track follows it."""
+    first = run.detections[0].index
+    tfs = [truth.frames[p.name] for p in frames.paths[first:] if p.name in truth.frames]
+    window = (
+        min(p.window[0] for s in spec_files for p in s.properties),
+        max(p.window[1] or len(tfs) - 1 for s in spec_files for p in s.properties),
+    )
+    cands = rank_targets(tfs, (frames.width, frames.height), window)
+    for rank, c in enumerate(cands[:40]):
+        scene = make_scene(run.detections, run.payoffs, dt, c.spec, tfs[0], meta=dict(meta))
+        if follows(scene, c.truth_track):
+            scene.meta["target_choice"] = (
+                f"vehicle {c.vid} of the truth: rank {rank + 1} of {len(cands)} by neighbouring "
+                f"traffic ({c.crowd} vehicle-frames within 40 px in the window), the first whose "
+                "unattacked track follows it"
+            )
+            return scene
+    raise UsageError(
+        "no vehicle with neighbouring traffic is tracked correctly unattacked; give --target"
+    )

@@ -13,9 +13,9 @@ from lesmc.cli.main import cli
 from lesmc.errors import InputError, UsageError
 from lesmc.perception.cnn import load_nets, save_nets
 from lesmc.perception.detector import Detector, peaks
-from lesmc.perception.quality import care_mask, score
+from lesmc.perception.quality import care_mask, score, truth_frame
 from lesmc.perception.to_scene import parse_target
-from lesmc.perception.training import TrainConfig, train, truth_frame
+from lesmc.perception.training import TrainConfig, train
 from lesmc.tracking.scene import load_scene
 from lesmc.video.synth import SynthConfig, frames, write_video
 
@@ -52,7 +52,7 @@ def test_detector_finds_moving_vehicles_on_an_unseen_video() -> None:
         if res is None:
             continue
         out, fd = res
-        tf = truth_frame(ft)
+        tf = truth_frame(ft.vehicles)
         s = score(fd.positions, tf.positions, care_mask(tf, out.aligned.valid, 1.5), 4.0)
         total = s if total is None else total + s
         assert len(fd.source) == len(fd.positions) and fd.source.max(initial=-1) < len(fd.windows)

@@ -152,7 +152,7 @@ def _report(
 ) -> list[CheckResult]:
     """Write the report; a scene is checked again on its built model (same verdicts)."""
     from lesmc.report.html import DesignRun, write_report
-    from lesmc.verify import check_designs, frame_reader
+    from lesmc.verify import check_designs, frame_reader, scene_frames
 
     err = Console(stderr=True)
     image_for = None
@@ -165,7 +165,7 @@ def _report(
                 engine,
                 only=(lambda n: n in only) if only else None,
             )
-        image_for = frame_reader(source)
+        image_for = frame_reader(scene_frames(source))
         results = runs[0].results
     else:
         design = str(source.meta.get("design", "model"))

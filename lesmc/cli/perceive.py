@@ -12,9 +12,9 @@ from rich.table import Table
 from lesmc.errors import InputError, Location, UsageError
 from lesmc.perception.attacks import AttackConfig, Method, Norm
 from lesmc.perception.cnn import load_nets
-from lesmc.perception.quality import load_truth, truth_dt
+from lesmc.perception.quality import load_truth
 from lesmc.perception.run import PerceiveOptions, PerceiveRun, perceive
-from lesmc.perception.to_scene import make_scene, parse_target
+from lesmc.perception.to_scene import parse_target, scene_from_run
 from lesmc.report.progress import progress_bar
 from lesmc.report.text import make_console
 from lesmc.tracking.scene import save_scene
@@ -138,7 +138,7 @@ def perceive_cmd(
     frames = open_frames(frames_dir, history + 1)
     truths = load_truth(truth) if truth else None
     if truths is not None:
-        missing = [p.name for p in frames.paths if p.name not in truths]
+        missing = [p.name for p in frames.paths if p.name not in truths.frames]
         if missing:
             raise InputError(f"no truth for frame {missing[0]}", Location(truth or ""))
     nets = None if no_cnn else load_nets(nets_dir)
@@ -160,12 +160,7 @@ def perceive_cmd(
     with progress_bar("perceiving", len(frames)) as bar:
         run = perceive(frames, opts, truths, bar.advance)
     if output is not None and spec is not None and nets is not None and att is not None:
-        step_dt = dt or (truth_dt(truth) if truth else None) or 1 / FPS
-        tf = None
-        if truths is not None and spec.step is not None and spec.step < len(frames.paths):
-            tf = truths[frames.paths[spec.step].name]
-        elif truths is not None and run.detections:
-            tf = truths[frames.paths[run.detections[0].index].name]
+        step_dt = dt or (truths.dt if truths else None) or 1 / FPS
         meta = {
             "source": str(Path(frames_dir)),
             "detector": nets.settings.trained_on,
@@ -178,7 +173,7 @@ def perceive_cmd(
                 "input": "N_dr window, 21x21 x (m+1) frames",
             },
         }
-        scene = make_scene(run.detections, run.payoffs, step_dt, spec, tf, meta=meta)
+        scene = scene_from_run(run, frames, spec, step_dt, truths, meta)
         save_scene(scene, output)
         n = sum(len(f.detections) for f in scene.frames)
         click.echo(

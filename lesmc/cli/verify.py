@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import json
 import sys
 from pathlib import Path
 from typing import Any
@@ -15,25 +14,29 @@ from lesmc.cli.options import load_scene_file, parse_window
 from lesmc.errors import UsageError
 from lesmc.perception.attacks import AttackConfig
 from lesmc.perception.cnn import load_nets
-from lesmc.perception.quality import load_truth, truth_dt
+from lesmc.perception.quality import load_truth
 from lesmc.perception.run import PerceiveOptions, perceive
-from lesmc.perception.to_scene import make_scene, parse_target
+from lesmc.perception.to_scene import parse_target, scene_from_run
 from lesmc.report.exit import exit_status
 from lesmc.report.html import write_report
 from lesmc.report.progress import progress_bar
 from lesmc.report.text import fmt, make_console
-from lesmc.tracking.scene import Scene, save_scene
+from lesmc.tracking.scene import save_scene
 from lesmc.verify import (
     DEFAULT_VIDEO,
     DESIGNS,
+    auto_target,
     bundled_specs,
     check_designs,
-    follows,
+    check_window,
+    default_video_ready,
+    frame_reader,
     load_specs,
-    rank_targets,
+    scene_frames,
+    write_default_video,
 )
-from lesmc.video.reader import FrameSet, open_frames
-from lesmc.video.synth import FPS, SynthConfig, write_video
+from lesmc.video.reader import open_frames
+from lesmc.video.synth import FPS
 
 HISTORY = 4
 
@@ -124,21 +127,24 @@ def verify_cmd(
     window = parse_window(window_text) if window_text else None
     spec_files = load_specs([Path(s) for s in specs] or bundled_specs(), window)
     err = Console(stderr=True)
-    frames: FrameSet | None = None
     meta: dict[str, Any] = {}
     if scene_path is not None:
         if frames_dir is not None:
             raise UsageError("give FRAMES_DIR or --scene, not both")
         scene = load_scene_file(scene_path)
-        src = scene.meta.get("source")
-        if isinstance(src, str) and Path(src).is_dir():
-            frames = open_frames(src, 1)
+        frames = scene_frames(scene)
         meta["scene"] = scene_path
     else:
         if frames_dir is None:
-            frames_dir, truth = _default_video(out, err)
+            video = out / "video"
+            if default_video_ready(video):
+                err.print(f"reusing the default video in {video}")
+            else:
+                with progress_bar("rendering", DEFAULT_VIDEO["frames"]) as bar:
+                    write_default_video(video, bar.advance)
+            frames_dir, truth = str(video), str(video / "truth.json")
             meta["video"] = (
-                f"embedded default: lesmc synth {out / 'video'} --seed {DEFAULT_VIDEO['seed']} "
+                f"embedded default: lesmc synth {video} --seed {DEFAULT_VIDEO['seed']} "
                 f"--frames {DEFAULT_VIDEO['frames']}"
             )
         else:
@@ -147,7 +153,7 @@ def verify_cmd(
             raise UsageError("--target is needed (or --truth, to choose one)")
         frames = open_frames(frames_dir, HISTORY + 1)
         truths = load_truth(truth) if truth else None
-        dt = (truth_dt(truth) if truth else None) or 1 / FPS
+        dt = (truths.dt if truths else None) or 1 / FPS
         nets = load_nets(nets_dir)
         opts = PerceiveOptions(history=HISTORY, nets=nets, attack=AttackConfig())
         with progress_bar("perceiving", len(frames)) as bar:
@@ -155,24 +161,19 @@ def verify_cmd(
         if not run.detections:
             raise UsageError("the video produced no detections")
         scene_meta = {"source": str(frames_dir), "detector": nets.settings.trained_on}
-        first = run.detections[0].index
         if target_text:
             spec = parse_target(target_text)
-            step = spec.step if spec.step is not None else first
-            known = truths is not None and 0 <= step < len(frames)
-            tf = truths.get(frames.paths[step].name) if truths is not None and known else None
-            scene = make_scene(run.detections, run.payoffs, dt, spec, tf, meta=scene_meta)
-        elif truths is not None:
-            scene = _auto_target(run, frames, truths, spec_files, scene_meta, dt)
-            meta["target choice"] = scene.meta["target_choice"]
+            scene = scene_from_run(run, frames, spec, dt, truths, scene_meta)
         else:
-            raise UsageError("--target is needed (or --truth, to choose one)")
+            assert truths is not None
+            scene = auto_target(run, frames, truths, spec_files, dt, scene_meta)
+            meta["target choice"] = scene.meta["target_choice"]
         meta["detector"] = nets.settings.trained_on
         out.mkdir(parents=True, exist_ok=True)
         save_scene(scene, out / "scene.json")
         meta["scene"] = str(out / "scene.json")
     if window is not None:
-        _check_window(scene, window)
+        check_window(scene, window)
     meta["target"] = (
         f"({scene.target.start[0]:.1f}, {scene.target.start[1]:.1f}) in frame "
         f"{scene.target.step}, velocity ({scene.target.velocity[0]:.1f}, "
@@ -184,15 +185,8 @@ def verify_cmd(
         runs = check_designs(
             scene, spec_files, DESIGNS[design], on_stage=lambda s: status.update(s)
         )
-    fs = frames
-
-    def image_for(index: int) -> Any:
-        if fs is None or not 0 <= index < len(fs):
-            return None
-        return fs.read(index)
-
     with err.status("writing the report"):
-        report = write_report(runs, out, image_for, meta)
+        report = write_report(runs, out, frame_reader(frames), meta)
     results = [r for run in runs for r in run.results]
     if as_json:
         click.echo((out / "results.json").read_text(), nl=False)
@@ -200,65 +194,6 @@ def verify_cmd(
         _summary(runs)
         click.echo(f"report: {report}")
     sys.exit(exit_status(results))
-
-
-def _auto_target(
-    run: Any, frames: FrameSet, truths: Any, spec_files: Any, meta: dict[str, Any], dt: float
-) -> Scene:
-    """The best-ranked vehicle (rank_targets) whose unattacked track follows it."""
-    first = run.detections[0].index
-    tfs = [truths[p.name] for p in frames.paths[first:] if p.name in truths]
-    window = (
-        min(p.window[0] for s in spec_files for p in s.properties),
-        max(p.window[1] or len(tfs) - 1 for s in spec_files for p in s.properties),
-    )
-    cands = rank_targets(tfs, (frames.width, frames.height), window)
-    for rank, c in enumerate(cands[:40]):
-        scene = make_scene(run.detections, run.payoffs, dt, c.spec, tfs[0], meta=dict(meta))
-        if follows(scene, c.truth_track):
-            scene.meta["target_choice"] = (
-                f"vehicle {c.vid} of the truth: rank {rank + 1} of {len(cands)} by neighbouring "
-                f"traffic ({c.crowd} vehicle-frames within 40 px in the window), the first whose "
-                "unattacked track follows it"
-            )
-            return scene
-    raise UsageError(
-        "no vehicle with neighbouring traffic is tracked correctly unattacked; give --target"
-    )
-
-
-def _check_window(scene: Scene, window: tuple[int, int]) -> None:
-    """--window against the unattacked track's length, before any model is built."""
-    from lesmc.model.builder import original_run
-    from lesmc.tracking.design import make_design
-
-    e = len(original_run(make_design(scene))) - 1
-    if not 1 <= window[0] <= window[1] <= e:
-        raise UsageError(
-            f"--window {window[0]}..{window[1]} must satisfy 1 <= L <= U <= {e}, the last step "
-            f"of the unattacked track from frame {scene.target.step}"
-        )
-
-
-def _default_video(out: Path, err: Console) -> tuple[str, str]:
-    """Generate (or reuse, when it is the same) the embedded default video under OUT/video."""
-    video = out / "video"
-    truth = video / "truth.json"
-    cfg = SynthConfig(**DEFAULT_VIDEO)
-    if truth.is_file():
-        from dataclasses import asdict
-
-        try:
-            same = json.loads(truth.read_text()).get("config") == asdict(cfg)
-        except ValueError:
-            same = False
-        n = len(list(video.glob("frame_*.png")))
-        if same and n == cfg.frames:
-            err.print(f"reusing the default video in {video}")
-            return str(video), str(truth)
-    with progress_bar("rendering", cfg.frames) as bar:
-        write_video(cfg, video, progress=bar.advance)
-    return str(video), str(truth)
 
 
 def _summary(runs: list[Any]) -> None:

@@ -185,9 +185,9 @@ def payoffs(
     pert = np.zeros_like(windows, dtype=np.float32)
     flipped = np.zeros(n, bool)
     iters = np.zeros(n, np.int64)
+    attack = deepfool if cfg.method == "deepfool" else pgd_min_norm
     for a in range(0, n, cfg.batch):
         x0 = torch.from_numpy(np.ascontiguousarray(windows[a : a + cfg.batch], np.float32))
-        attack = deepfool if cfg.method == "deepfool" else pgd_min_norm
         x_adv, it = attack(net, x0, t, cfg)
         with torch.no_grad():
             ok = (margin(net, x_adv, t) <= 0).numpy()

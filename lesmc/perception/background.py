@@ -50,6 +50,7 @@ class FrameHistory:
         """Warp every stored frame into the current frame's pixels."""
         width, height = size
         valid = np.full((height, width), 255, np.uint8)
+        covered = np.empty_like(valid)  # one buffer for every frame's footprint
         out = []
         for frame, m in zip(self.frames, self.to_current, strict=True):
             out.append(cv2.warpPerspective(frame, m, (width, height), flags=cv2.INTER_LINEAR))
@@ -63,7 +64,7 @@ class FrameHistory:
                 np.float32,
             )
             quad = cv2.perspectiveTransform(corners[None], m)[0]
-            covered = np.zeros_like(valid)
+            covered.fill(0)
             cv2.fillConvexPoly(covered, np.round(quad).astype(np.int32), 255)
             cv2.bitwise_and(valid, covered, dst=valid)
         # a pixel next to the edge of a warped frame mixes in the border value

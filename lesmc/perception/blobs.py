@@ -63,11 +63,8 @@ def blobs(mask: np.ndarray, diff: np.ndarray, cfg: BlobConfig) -> Blobs:
     keep = np.flatnonzero(stats[1:, cv2.CC_STAT_AREA] >= cfg.min_area) + 1
     if len(keep) == 0:
         return Blobs.empty()
-    sums = np.zeros(n)
-    for r in range(0, labels.shape[0], 512):  # in bands: no full-frame float copy
-        sums += np.bincount(
-            labels[r : r + 512].ravel(), weights=diff[r : r + 512].ravel(), minlength=n
-        )
+    fg = np.flatnonzero(mask)  # the blobs' pixels only, not the whole frame
+    sums = np.bincount(labels.ravel()[fg], weights=diff.ravel()[fg], minlength=n)
     area = stats[keep, cv2.CC_STAT_AREA]
     return Blobs(
         centroid=cents[keep].astype(float),

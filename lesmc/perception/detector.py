@@ -41,7 +41,7 @@ class FrameDetections:
     source: np.ndarray  # (n,) row of ``windows`` (the Q_dr blob) each detection came from
     via_lp: np.ndarray  # (n,) True when N_lp located it
     windows: np.ndarray  # (b, m+1, 21, 21) N_dr inputs of the source blobs
-    to_prev: np.ndarray  # homography from this frame's pixels to the previous frame's
+    from_prev: np.ndarray  # homography from the previous frame's pixels to this frame's
     n_candidates: int  # |Q_bc|
     n_accepted: int  # |Q_dr|
 
@@ -88,6 +88,15 @@ def peaks(maps: np.ndarray, threshold: float) -> list[np.ndarray]:
     return result
 
 
+def crowded_blobs(cents: np.ndarray, boxes: np.ndarray, big_px: int, close_px: float) -> np.ndarray:
+    """Blobs that may hold several vehicles or a piece of one (section 6.6): to N_lp."""
+    crowded: np.ndarray = (boxes[:, 2] > big_px) | (boxes[:, 3] > big_px)
+    if len(cents) > 1:
+        d, _ = cKDTree(cents).query(cents, k=2)
+        crowded |= d[:, 1] < close_px
+    return crowded
+
+
 class Detector:
     """Runs front end and CNNs on a video, one ``push`` per frame."""
 
@@ -112,10 +121,7 @@ class Detector:
         win = cut(frames, cand.centroid, DR_SIZE)
         keep = np.flatnonzero(dr_probability(nets, win, cfg.batch) > nets.settings.delta_dr)
         cents, boxes, win = cand.centroid[keep], cand.box[keep], win[keep]
-        crowded = (boxes[:, 2] > cfg.big_px) | (boxes[:, 3] > cfg.big_px)
-        if len(cents) > 1:
-            d, _ = cKDTree(cents).query(cents, k=2)
-            crowded |= d[:, 1] < cfg.close_px
+        crowded = crowded_blobs(cents, boxes, cfg.big_px, cfg.close_px)
         pos: list[np.ndarray] = [cents[~crowded]]
         src: list[np.ndarray] = [np.flatnonzero(~crowded)]
         lp: list[np.ndarray] = [np.zeros(int((~crowded).sum()), bool)]
@@ -125,14 +131,13 @@ class Detector:
             pos.append(p)
             src.append(s)
             lp.append(np.ones(len(p), bool))
-        h_inv = np.linalg.inv(out.registration.homography)
         return FrameDetections(
             index=out.index,
             positions=np.concatenate(pos).reshape(-1, 2),
             source=np.concatenate(src).astype(int),
             via_lp=np.concatenate(lp),
             windows=win,
-            to_prev=h_inv / h_inv[2, 2],
+            from_prev=out.registration.homography,
             n_candidates=len(cand),
             n_accepted=len(keep),
         )

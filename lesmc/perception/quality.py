@@ -109,39 +109,44 @@ class TruthFrame:
     velocity: np.ndarray | None = None  # (n, 2) frame px per second
 
 
-def load_truth(path: str) -> dict[str, TruthFrame]:
-    """Read ``truth.json`` (as written by ``lesmc synth``), keyed by frame file name."""
+def truth_frame(vehicles: list[dict[str, Any]]) -> TruthFrame:
+    """The vehicles of one frame of ``truth.json`` (or of ``synth.frames``) as arrays."""
+    return TruthFrame(
+        np.array([[float(v["x"]), float(v["y"])] for v in vehicles]).reshape(-1, 2),
+        np.array([float(v.get("speed_mps", 0.0)) for v in vehicles]),
+        np.array([bool(v.get("occluded", False)) for v in vehicles], bool),
+        [int(v["id"]) for v in vehicles],
+        np.array([[float(v.get("vx", 0.0)), float(v.get("vy", 0.0))] for v in vehicles]).reshape(
+            -1, 2
+        ),
+    )
+
+
+@dataclass(frozen=True)
+class Truth:
+    """A truth file: seconds between frames (if recorded) and the frames by file name."""
+
+    dt: float | None
+    frames: dict[str, TruthFrame]
+
+
+def load_truth(path: str) -> Truth:
+    """Read ``truth.json`` (as written by ``lesmc synth``)."""
     data = read_json(path, InputError)
     if not isinstance(data, dict) or data.get("format") != "lesmc-truth":
         raise InputError("not a lesmc truth file (format must be 'lesmc-truth')", Location(path))
     out: dict[str, TruthFrame] = {}
     for i, fr in enumerate(data.get("frames", [])):
         try:
-            vs = fr["vehicles"]
-            pos = np.array([[float(v["x"]), float(v["y"])] for v in vs]).reshape(-1, 2)
-            out[str(fr["file"])] = TruthFrame(
-                pos,
-                np.array([float(v.get("speed_mps", 0.0)) for v in vs]),
-                np.array([bool(v.get("occluded", False)) for v in vs], bool),
-                [int(v["id"]) for v in vs],
-                np.array([[float(v.get("vx", 0.0)), float(v.get("vy", 0.0))] for v in vs]).reshape(
-                    -1, 2
-                ),
-            )
+            out[str(fr["file"])] = truth_frame(fr["vehicles"])
         except (KeyError, TypeError, ValueError) as exc:
             raise InputError(
                 f"frame {i}: malformed entry ({exc})", Location(path, item=f"frame {i}")
             ) from None
     if not out:
         raise InputError("no frames", Location(path))
-    return out
-
-
-def truth_dt(path: str) -> float | None:
-    """Seconds between frames recorded in a truth file (``dt``), if any."""
-    data = read_json(path, InputError)
-    v = data.get("dt") if isinstance(data, dict) else None
-    return float(v) if isinstance(v, (int, float)) and v > 0 else None
+    dt = data.get("dt")
+    return Truth(float(dt) if isinstance(dt, (int, float)) and dt > 0 else None, out)
 
 
 def care_mask(tf: TruthFrame, valid: np.ndarray, min_speed: float) -> np.ndarray:

@@ -143,15 +143,10 @@ def _matches(
     dist = _POPCOUNT[np.bitwise_xor(prev.descriptors[qi], cur.descriptors[ti])].sum(axis=1)
     order = np.lexsort((dist, qi))
     qi, ti, dist = qi[order], ti[order], dist[order]
-    first = np.flatnonzero(np.r_[True, qi[1:] != qi[:-1]])
-    has_second = (
-        np.r_[qi[first[:-1] + 1] == qi[first[:-1]], first[-1] + 1 < len(qi)]
-        if len(first)
-        else first
-    )
-    second = np.where(
-        has_second, dist[np.minimum(first + 1, len(dist) - 1)], cfg.max_hamming / cfg.ratio
-    )
+    first = np.flatnonzero(np.r_[True, qi[1:] != qi[:-1]])  # each feature's best candidate
+    nxt = np.minimum(first + 1, len(qi) - 1)
+    has_second = (first + 1 < len(qi)) & (qi[nxt] == qi[first])
+    second = np.where(has_second, dist[nxt], cfg.max_hamming / cfg.ratio)
     keep = dist[first] < cfg.ratio * second
     return qi[first][keep], ti[first][keep]
 

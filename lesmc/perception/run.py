@@ -17,7 +17,7 @@ from lesmc.perception.blobs import BlobConfig
 from lesmc.perception.cnn import Nets
 from lesmc.perception.detector import Detector, DetectorConfig, FrameDetections
 from lesmc.perception.frontend import FrontEnd, FrontEndConfig
-from lesmc.perception.quality import Score, TruthFrame, care_mask, score
+from lesmc.perception.quality import Score, Truth, care_mask, score
 from lesmc.perception.registration import RegistrationError
 from lesmc.video.reader import FrameSet
 
@@ -51,10 +51,10 @@ class PerceiveRun:
 def perceive(
     frames: FrameSet,
     opts: PerceiveOptions,
-    truths: dict[str, TruthFrame] | None = None,
+    truth: Truth | None = None,
     on_frame: Callable[[], None] | None = None,
 ) -> PerceiveRun:
-    """Run the detector over every frame; score against ``truths`` when given."""
+    """Run the detector over every frame; score against ``truth`` when given."""
     fe_cfg = FrontEndConfig(history=opts.history, blobs=BlobConfig(delta_bc=opts.delta_bc))
     det = Detector(opts.nets, DetectorConfig(frontend=fe_cfg)) if opts.nets else None
     fe = det.frontend if det else FrontEnd(fe_cfg)
@@ -87,8 +87,8 @@ def perceive(
             if opts.attack is not None and opts.nets is not None:
                 run.payoffs.append(_payoffs(opts.nets, fd, opts.attack))
                 run.unattackable += int(np.isinf(run.payoffs[-1]).sum())
-        if truths is not None:
-            tf = truths[name]
+        if truth is not None:
+            tf = truth.frames[name]
             care = care_mask(tf, out.aligned.valid, opts.min_speed)
             s_fe = score(out.candidates.centroid, tf.positions, care, opts.radius)
             run.frontend_total = run.frontend_total + s_fe

@@ -17,8 +17,11 @@ from scipy.spatial import cKDTree
 
 from lesmc.errors import UsageError
 from lesmc.perception.detector import FrameDetections
-from lesmc.perception.quality import TruthFrame
+from lesmc.perception.quality import Truth, TruthFrame
+from lesmc.perception.run import PerceiveRun
+from lesmc.tracking.kalman import warp
 from lesmc.tracking.scene import Detection, Frame, Scene, Target, TrackerConfig
+from lesmc.video.reader import FrameSet
 
 
 @dataclass(frozen=True)
@@ -45,8 +48,7 @@ def frames_of(dets: list[FrameDetections], pays: list[np.ndarray]) -> tuple[Fram
     for i, (fd, p) in enumerate(zip(dets, pays, strict=True)):
         to_next = None
         if i + 1 < len(dets):
-            m = np.linalg.inv(dets[i + 1].to_prev)
-            to_next = m / m[2, 2]
+            to_next = dets[i + 1].from_prev
         ds = tuple(
             Detection(f"{fd.index}:{j}", float(x), float(y), float(p[j]))
             for j, (x, y) in enumerate(fd.positions)
@@ -81,8 +83,7 @@ def target_velocity(
         if len(cur.detections) and len(prev.detections) and prev.to_next is not None:
             d, j = cKDTree(cur.positions()).query(here)
             p0 = cur.positions()[j] if d <= snap_px else here
-            pts = np.c_[prev.positions(), np.ones(len(prev.detections))] @ prev.to_next.T
-            pts = pts[:, :2] / pts[:, 2:]
+            pts = warp(prev.to_next, prev.positions())
             d2, k = cKDTree(pts).query(p0)
             if d2 <= max_move_px:
                 v = (p0 - pts[k]) / dt
@@ -113,3 +114,20 @@ def make_scene(
     info = dict(meta or {})
     info["target_velocity_from"] = how
     return Scene(dt, frames, Target(step, (spec.x, spec.y), vel), tracker or TrackerConfig(), info)
+
+
+def scene_from_run(
+    run: PerceiveRun,
+    frames: FrameSet,
+    spec: TargetSpec,
+    dt: float,
+    truth: Truth | None = None,
+    meta: dict[str, Any] | None = None,
+) -> Scene:
+    """The scene of a ``perceive`` run; the truth of the target's frame gives its velocity."""
+    first = run.detections[0].index if run.detections else 0
+    step = spec.step if spec.step is not None else first
+    tf = None
+    if truth is not None and 0 <= step < len(frames):
+        tf = truth.frames.get(frames.paths[step].name)
+    return make_scene(run.detections, run.payoffs, dt, spec, tf, meta=meta)

@@ -32,10 +32,11 @@ from lesmc.perception.cnn import (
     Nets,
     NetSettings,
 )
+from lesmc.perception.detector import DetectorConfig, crowded_blobs
 from lesmc.perception.frontend import FrontEnd, FrontEndConfig
-from lesmc.perception.quality import TruthFrame, care_mask, match
+from lesmc.perception.quality import care_mask, match, truth_frame
 from lesmc.perception.windows import M_PREVIOUS, cut, origins, stack
-from lesmc.video.synth import FrameTruth, SynthConfig, frames
+from lesmc.video.synth import SynthConfig, frames
 
 Progress = Callable[[str, int, int], None]
 
@@ -77,17 +78,6 @@ class Samples:
         )
 
 
-def truth_frame(ft: FrameTruth) -> TruthFrame:
-    vs = ft.vehicles
-    return TruthFrame(
-        np.array([[v["x"], v["y"]] for v in vs], float).reshape(-1, 2),
-        np.array([v["speed_mps"] for v in vs], float),
-        np.array([v["occluded"] for v in vs], bool),
-        [v["id"] for v in vs],
-        np.array([[v["vx"], v["vy"]] for v in vs], float).reshape(-1, 2),
-    )
-
-
 def heatmaps(org: np.ndarray, truth_xy: np.ndarray, sd: float = 0.8) -> np.ndarray:
     """N_lp targets: a Gaussian bump per vehicle, in map cells, max over vehicles."""
     cells = np.arange(LP_OUT)
@@ -121,7 +111,7 @@ def collect(
             progress(f"video {seed}", k + 1, cfg.frames)
         if out is None:
             continue
-        tf = truth_frame(ft)
+        tf = truth_frame(ft.vehicles)
         care = care_mask(tf, out.aligned.valid, cfg.min_speed)
         fr = stack(out.frame, out.aligned.frames, M_PREVIOUS)
         cents = out.candidates.centroid
@@ -139,11 +129,8 @@ def collect(
         samples.dr_x.append(_u8(cut(fr, dr_c, DR_SIZE)))
         samples.dr_y.append(dr_l)
         # N_lp windows: crowded candidates, close pairs of vehicles, and a share of the rest
-        box = out.candidates.box
-        crowded = (box[:, 2] > 20) | (box[:, 3] > 20)
-        if len(cents) > 1:
-            d, _ = cKDTree(cents).query(cents, k=2)
-            crowded |= d[:, 1] < 10
+        dc = DetectorConfig()
+        crowded = crowded_blobs(cents, out.candidates.box, dc.big_px, dc.close_px)
         centres = [cents[crowded]]
         if len(pos_truth) > 1:
             d, nn_idx = cKDTree(pos_truth).query(pos_truth, k=2)

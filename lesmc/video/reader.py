@@ -69,8 +69,11 @@ def to_grey8(img: np.ndarray, scale: float) -> np.ndarray:
     return cv2.convertScaleAbs(img, alpha=scale)
 
 
-def open_frames(directory: str | Path, minimum: int) -> FrameSet:
+def open_frames(directory: str | Path, minimum: int, check: bool = True) -> FrameSet:
     """List, sort and check the frames of ``directory`` (at least ``minimum`` of them).
+
+    With ``check`` every frame is decoded up front (so a bad file fails before
+    any work); without, only the first (for its size and scale).
 
     16-bit frames are scaled to 8 bit by one factor for the whole video (taken
     from the first frame's 99.9th percentile), so that grey levels stay
@@ -95,7 +98,7 @@ def open_frames(directory: str | Path, minimum: int) -> FrameSet:
         )
     size: tuple[int, int] | None = None
     scale = 1.0
-    for p in paths:
+    for p in paths if check else paths[:1]:
         # a header-only check would be faster, but decoding is the only sure test
         img = _imread(p)
         shape = (img.shape[1], img.shape[0])

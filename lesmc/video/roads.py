@@ -99,14 +99,14 @@ def road_graph(roads: list[Road], size: tuple[int, int], step: float = 4.0) -> n
     """
     width, height = size
     graph = nx.Graph()
-    hs = [r for r in roads if r.horizontal]
-    vs = [r for r in roads if not r.horizontal]
+    hs = [i for i, r in enumerate(roads) if r.horizontal]
+    vs = [i for i, r in enumerate(roads) if not r.horizontal]
+    cross = {(i, j): _crossing(roads[i], roads[j]) for i in hs for j in vs}  # once per pair
     for ri, road in enumerate(roads):
         along = width if road.horizontal else height
-        others = vs if road.horizontal else hs
         stops = [0.0, float(along)]
-        for other in others:
-            x, y = _crossing(road, other) if road.horizontal else _crossing(other, road)
+        for oi in vs if road.horizontal else hs:
+            x, y = cross[(ri, oi)] if road.horizontal else cross[(oi, ri)]
             t = x if road.horizontal else y
             if 0 < t < along:
                 stops.append(t)

@@ -11,8 +11,11 @@ is a few frames' worth whatever the length of the video. See docs/synthetic.md.
 
 from __future__ import annotations
 
+import json
 import math
 import os
+import shutil
+import tempfile
 from collections.abc import Iterator
 from dataclasses import asdict, dataclass
 from pathlib import Path
@@ -355,10 +358,6 @@ def write_video(cfg: SynthConfig, out_dir: Path, progress: Any = None) -> list[P
     Files go to a temporary directory first and are moved in at the end, so an
     interrupted run leaves nothing half-written behind.
     """
-    import json
-    import shutil
-    import tempfile
-
     out_dir.mkdir(parents=True, exist_ok=True)
     tmp = Path(tempfile.mkdtemp(prefix=".synth.", dir=out_dir))
     try:

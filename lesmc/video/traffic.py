@@ -39,6 +39,15 @@ class Vehicle:
     history: list[tuple[float, float]] = field(default_factory=list)
 
 
+def _tier(rng: np.random.Generator, tiers: list[tuple[float, float, float]]) -> float:
+    """Pick a tier by cumulative probability, then a uniform value in its (low, high)."""
+    u = rng.random()
+    for cum, low, high in tiers:
+        if u < cum:
+            return float(rng.uniform(low, high))
+    return float(rng.uniform(tiers[-1][1], tiers[-1][2]))
+
+
 class Traffic:
     """All vehicles of the world, advanced together in small time steps."""
 
@@ -51,6 +60,9 @@ class Traffic:
         self.dense_x = dense_x
         self.vehicles: list[Vehicle] = []
         self.next_id = 0
+        self.borders = [  # where replacement vehicles enter
+            n for n, d in graph.nodes(data=True) if d["border"] and graph.degree(n) > 0
+        ]
         edges = list(graph.edges)
         lengths = np.array([graph.edges[e]["edge"].length for e in edges])
         for _ in range(count):
@@ -62,14 +74,7 @@ class Traffic:
 
     def _new(self, u: tuple[int, int], w: tuple[int, int], s: float) -> Vehicle:
         rng = self.rng
-        kind = rng.random()
-        desired = (
-            rng.uniform(5, 11)
-            if kind < 0.3
-            else rng.uniform(11, 18)
-            if kind < 0.8
-            else rng.uniform(18, 25)
-        )
+        desired = _tier(rng, [(0.3, 5, 11), (0.8, 11, 18), (1.0, 18, 25)])
         if max(self.graph.nodes[u]["pos"]) < self.dense_x:
             desired *= 0.7  # downtown traffic is slower
         # motorbikes, cars, vans and lorries; WAMI pixels make all of them 3-9 px long
@@ -80,14 +85,7 @@ class Traffic:
             )
         )
         length_px = float(np.clip(length_m / self.gsd, 3.0, 9.0))
-        tone = rng.random()
-        intensity = (
-            rng.uniform(15, 55)
-            if tone < 0.45
-            else rng.uniform(185, 250)
-            if tone < 0.85
-            else rng.uniform(110, 150)
-        )
+        intensity = _tier(rng, [(0.45, 15, 55), (0.85, 185, 250), (1.0, 110, 150)])  # grey
         v = Vehicle(
             self.next_id,
             u,
@@ -182,9 +180,6 @@ class Traffic:
         v.will_stop = self.rng.random() < 0.25
 
     def _respawn(self) -> None:
-        borders = [
-            n for n, d in self.graph.nodes(data=True) if d["border"] and self.graph.degree(n) > 0
-        ]
-        u = borders[self.rng.integers(len(borders))]
+        u = self.borders[self.rng.integers(len(self.borders))]
         w = next(iter(self.graph.neighbors(u)))
         self.vehicles.append(self._new(u, w, 0.0))
