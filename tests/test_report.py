@@ -245,6 +245,15 @@ def test_report_on_any_model(case: str, tmp_path: Path) -> None:
     assert [x["verdict"] for x in doc["runs"][0]["results"]] == [
         x["verdict"] for x in json.loads(r.stdout)["results"]
     ]
+    # the report's path count, against an independent enumeration by networkx
+    import networkx as nx
+
+    from lesmc.model.lts_format import load_lts
+
+    model = load_lts(d / "model.lts")
+    leaves = [q for q in model.graph if model.graph.out_degree(q) == 0]
+    n = sum(len(list(nx.all_simple_paths(model.graph, model.initial, leaf))) for leaf in leaves)
+    assert doc["runs"][0]["paths_total"] == n
 
 
 def test_verify_refuses_a_window_past_the_track(tmp_path: Path) -> None:
