@@ -36,6 +36,16 @@ def known_homography(size: int) -> np.ndarray:
     return move @ rot @ np.array([[1, 0, -c], [0, 1, -c], [0, 0, 1]])
 
 
+def warped_pair(size: int, seed: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """A textured image, the same seen through ``known_homography``, and that homography."""
+    a = texture(size, seed)
+    h = known_homography(size)
+    b = cv2.warpPerspective(
+        a, h, (size, size), flags=cv2.INTER_CUBIC, borderMode=cv2.BORDER_REFLECT
+    )
+    return a, b, h
+
+
 def mapping_error(h_est: np.ndarray, h_true: np.ndarray, size: int) -> float:
     """Largest distance between where the two homographies send an inner grid of points."""
     g = np.stack(
@@ -49,11 +59,7 @@ def mapping_error(h_est: np.ndarray, h_true: np.ndarray, size: int) -> float:
 
 def test_registration_recovers_a_known_homography_to_subpixel_accuracy() -> None:
     size = 768
-    a = texture(size, 3)
-    h = known_homography(size)
-    b = cv2.warpPerspective(
-        a, h, (size, size), flags=cv2.INTER_CUBIC, borderMode=cv2.BORDER_REFLECT
-    )
+    a, b, h = warped_pair(size, 3)
     cfg = RegistrationConfig()
     reg = register(describe(a, cfg), describe(b, cfg), cfg, a, b)
     assert mapping_error(reg.homography, h, size) < 0.1
@@ -63,11 +69,7 @@ def test_registration_recovers_a_known_homography_to_subpixel_accuracy() -> None
 def test_guided_matching_agrees_with_brute_force() -> None:
     """Large feature sets are matched near a coarse homography's prediction: same answer."""
     size = 768
-    a = texture(size, 5)
-    h = known_homography(size)
-    b = cv2.warpPerspective(
-        a, h, (size, size), flags=cv2.INTER_CUBIC, borderMode=cv2.BORDER_REFLECT
-    )
+    a, b, h = warped_pair(size, 5)
     brute = RegistrationConfig()
     guided = RegistrationConfig(guided_above=500, guided_subset=300)
     fa, fb = describe(a, brute), describe(b, brute)
@@ -81,11 +83,7 @@ def test_guided_matching_agrees_with_brute_force() -> None:
 def test_registration_without_refinement_is_only_pixel_accurate() -> None:
     """The subpixel step matters: without images, the ORB-only estimate is coarser."""
     size = 768
-    a = texture(size, 4)
-    h = known_homography(size)
-    b = cv2.warpPerspective(
-        a, h, (size, size), flags=cv2.INTER_CUBIC, borderMode=cv2.BORDER_REFLECT
-    )
+    a, b, h = warped_pair(size, 4)
     cfg = RegistrationConfig()
     coarse = register(describe(a, cfg), describe(b, cfg), cfg)
     fine = register(describe(a, cfg), describe(b, cfg), cfg, a, b)
