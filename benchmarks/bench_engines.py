@@ -20,7 +20,7 @@ from rich.table import Table
 
 from lesmc.engines.check import check_bound
 from lesmc.engines.result import CheckResult
-from lesmc.engines.space import CompiledModel
+from lesmc.model.lts import to_arrays
 from lesmc.language.parser import parse_spec
 from lesmc.language.semantics import bind
 from lesmc.model.knapsack import Item, knapsack_lts, knapsack_spec
@@ -80,7 +80,7 @@ def _dp(items: list[Item], demand: int) -> float:
 
 def run(engine: str, model: LTS, spec_text: str) -> list[CheckResult]:
     spec = parse_spec(spec_text)
-    cm = CompiledModel.from_lts(model)
+    cm = to_arrays(model)
     bps = [bind(spec, p, model.end, model.components, False) for p in spec.properties]
     return [check_bound(cm, bp, engine, max_states=ENUMERATE_BUDGET) for bp in bps]  # type: ignore[arg-type]
 

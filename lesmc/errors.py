@@ -8,8 +8,59 @@ with status 2; nothing else in lesmc prints tracebacks for user mistakes.
 
 from __future__ import annotations
 
+import re
 from dataclasses import dataclass
 from typing import Self
+
+#: Characters that must not reach a terminal verbatim: C0 controls except tab and
+#: newline, DEL, C1 controls, lone surrogates, line/paragraph separators and the
+#: bidirectional overrides and isolates (which can make text read out of order).
+_CONTROL_RE = re.compile(
+    r"[\x00-\x08\x0b-\x1f\x7f-\x9f\ud800-\udfff\u2028\u2029\u200e\u200f\u202a-\u202e\u2066-\u2069]"
+)
+
+#: Longest stretch of a quoted source line shown on each side of the caret.
+_SHOWN_HALF = 80
+
+
+def _escape_char(match: re.Match[str]) -> str:
+    code = ord(match.group())
+    return f"\\x{code:02x}" if code <= 0xFF else f"\\u{code:04x}"
+
+
+def escape_control(text: str) -> str:
+    """``text`` with terminal control characters shown as ``\\x1b``, ``\\u2028`` etc.
+
+    Tabs and newlines are kept; so is everything printable. Used on every string
+    from an input file that an error message quotes.
+    """
+    if _CONTROL_RE.search(text) is None:
+        return text
+    return _CONTROL_RE.sub(_escape_char, text)
+
+
+def escape_text(text: str) -> str:
+    """``text`` made safe to print through rich: no markup, no control characters.
+
+    Ids, observation names and messages read from input files may contain ``[``
+    (rich markup) or escape sequences; pass them through this before handing them
+    to a rich ``Console``/``Table``. The result shows the same text, escapes
+    written out (``\\x1b``), markup brackets preceded by a backslash that rich
+    removes again when rendering.
+    """
+    from rich.markup import escape  # lazy: rich is slow to import and errors.py is not
+
+    return escape(escape_control(text))
+
+
+def split_lines(text: str) -> list[str]:
+    """The lines of ``text``: split at ``\\n`` only, a ``\\r`` before it dropped.
+
+    This is the rule the spec parser (lark) and ``json`` use to count lines and
+    columns; ``str.splitlines`` also splits at ``\\x0b``, ``\\x0c``, ``\\x1c``-``\\x1e``,
+    ``\\x85``, U+2028 and U+2029 and so must not be used for positions.
+    """
+    return [line.removesuffix("\r") for line in text.split("\n")]
 
 
 @dataclass
@@ -30,6 +81,15 @@ class Location:
         if self.item is not None:
             return f"{self.path}: {self.item}"
         return self.path
+
+    @classmethod
+    def at(cls, path: str, text: str, pos: int) -> Location:
+        """The location of character offset ``pos`` of ``text`` (lines split at ``\\n``)."""
+        pos = min(max(pos, 0), len(text))
+        line_start = text.rfind("\n", 0, pos) + 1
+        line_end = text.find("\n", pos)
+        shown = text[line_start : len(text) if line_end < 0 else line_end].removesuffix("\r")
+        return cls(path, text.count("\n", 0, pos) + 1, pos - line_start + 1, shown)
 
 
 class LesmcError(Exception):
@@ -52,18 +112,19 @@ class LesmcError(Exception):
         return err
 
     def render(self) -> str:
-        """The full user-facing text: locator, message and, if known, a caret line."""
+        """The full user-facing text: locator, message and, if known, a caret line.
+
+        Control characters from the input (in the path, item, message or quoted
+        line) are shown escaped, so that an error never drives the terminal.
+        """
         if self.preformatted:
-            return self.message
+            return escape_control(self.message)
         if self.location is None:
-            return f"error: {self.message}"
-        text = f"{self.location.prefix()}: {self.message}"
+            return f"error: {escape_control(self.message)}"
         loc = self.location
+        text = escape_control(f"{loc.prefix()}: {self.message}")
         if loc.source_line is not None and loc.column is not None:
-            line = loc.source_line.rstrip("\n")
-            # keep tabs so the caret lines up with what the terminal shows
-            pad = "".join("\t" if ch == "\t" else " " for ch in line[: max(loc.column - 1, 0)])
-            text += f"\n    {line}\n    {pad}^"
+            text += _quote(loc.source_line, loc.column)
         return text
 
     def __str__(self) -> str:
@@ -87,11 +148,28 @@ class UsageError(LesmcError):
 
 
 def source_line(text: str, line: int) -> str | None:
-    """The 1-based ``line`` of ``text``, or None when out of range."""
-    lines = text.splitlines()
-    if 1 <= line <= len(lines):
-        return lines[line - 1]
-    return None
+    """The 1-based ``line`` of ``text`` as :func:`split_lines` counts, or None when out of range."""
+    if line < 1:
+        return None
+    parts = text.split("\n", line)
+    if len(parts) < line:
+        return None
+    return parts[line - 1].removesuffix("\r")
+
+
+def _quote(line: str, column: int) -> str:
+    """The quoted source line and a caret under ``column``, escaped and clipped."""
+    line = line.rstrip("\r\n")
+    cut = min(max(column - 1, 0), len(line))
+    before = escape_control(line[:cut])
+    after = escape_control(line[cut:])
+    if len(before) > _SHOWN_HALF:
+        before = "…" + before[-_SHOWN_HALF:]
+    if len(after) > _SHOWN_HALF:
+        after = after[:_SHOWN_HALF] + "…"
+    # keep tabs so the caret lines up with what the terminal shows
+    pad = "".join("\t" if ch == "\t" else " " for ch in before)
+    return f"\n    {before}{after}\n    {pad}^"
 
 
 class Problems:

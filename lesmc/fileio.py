@@ -1,33 +1,269 @@
-"""File plumbing shared by every stage: strict JSON reading and atomic writing."""
+"""File plumbing shared by every stage: strict text and JSON reading, atomic writing.
+
+Input files are UTF-8 (a leading byte-order mark is skipped). JSON inputs are
+strict: no duplicate keys, no NaN or infinities, integers within 64 bits, floats
+that stay finite, nesting at most :data:`MAX_JSON_DEPTH` deep. Every violation
+is reported as ``FILE:LINE:COL: message`` (docs/cli.md, "Limits").
+"""
 
 from __future__ import annotations
 
+import codecs
 import json
+import math
 import os
+import re
 import tempfile
 from pathlib import Path
 from typing import Any
 
-from lesmc.errors import InputError, LesmcError, Location, source_line
+from lesmc.errors import InputError, LesmcError, Location
+
+#: Deepest nesting of arrays and objects a JSON input may have.
+MAX_JSON_DEPTH = 64
+
+#: Integers in JSON inputs must fit in a signed 64-bit integer (at most 19 digits).
+INT64_MIN, INT64_MAX = -(2**63), 2**63 - 1
+
+_BOM = codecs.BOM_UTF8.decode("utf-8")
+
+# JSON's structural bytes are ASCII and never occur inside a UTF-8 multi-byte
+# sequence, so the depth check can work on the raw bytes.
+_KEEP = frozenset(b'"[]{}')
+_STRUCTURE_DELETE = bytes(b for b in range(256) if b not in _KEEP)
+_STRUCTURE_TABLE = bytes.maketrans(b"{}", b"[]")
+
+_WS_RE = re.compile(r"[ \t\n\r]*")
+# json's own NUMBER_RE uses \d, which also matches non-ASCII digits; json does not.
+_NUMBER_RE = re.compile(r"-?(?:0|[1-9][0-9]*)(\.[0-9]+)?([eE][-+]?[0-9]+)?")
+_SHOWN_NUMBER = 24
+_STRING_DECODER = json.JSONDecoder()  # raw_decode at a '"' reads one string token
+
+
+class _Rejected(Exception):
+    """Raised by the decoding hooks; the caller locates the problem by re-scanning."""
+
+
+def decode_text(data: bytes, path: str, error: type[LesmcError] = InputError) -> str:
+    """``data`` decoded as UTF-8, a leading BOM skipped; bad bytes give ``FILE:LINE:COL``."""
+    if data.startswith(codecs.BOM_UTF8):
+        data = data[len(codecs.BOM_UTF8) :]
+    try:
+        return data.decode("utf-8")
+    except UnicodeDecodeError as exc:
+        bad = exc.start
+        line_start = data.rfind(b"\n", 0, bad) + 1
+        line_end = data.find(b"\n", bad)
+        if line_end < 0:
+            line_end = len(data)
+        column = len(data[line_start:bad].decode("utf-8")) + 1  # valid: before the first bad byte
+        shown = data[line_start:line_end].removesuffix(b"\r").decode("utf-8", "backslashreplace")
+        line = data.count(b"\n", 0, bad) + 1
+        raise error(
+            f"invalid UTF-8 (byte 0x{data[bad]:02x}); the file must be UTF-8 text",
+            Location(path, line, column, shown),
+        ) from None
+
+
+def read_text(path: str | Path, error: type[LesmcError] = InputError) -> str:
+    """Read a UTF-8 text file (BOM skipped); unreadable files and bad bytes become ``error``."""
+    try:
+        data = Path(path).read_bytes()
+    except OSError as exc:
+        raise error(f"cannot read file: {exc.strerror or exc}", Location(str(path))) from None
+    return decode_text(data, str(path), error)
 
 
 def read_json(path: str | Path, error: type[LesmcError] = InputError) -> Any:
-    """Parse a JSON file; syntax errors and NaN/Infinity become ``FILE:LINE:COL`` errors."""
-
-    def reject(token: str) -> Any:
-        raise ValueError(f"{token} is not allowed (numbers must be finite)")
-
+    """Parse a JSON file strictly; every problem becomes a ``FILE:LINE:COL`` ``error``."""
     try:
-        text = Path(path).read_text(encoding="utf-8")
-    except (OSError, UnicodeDecodeError) as exc:
-        raise error(f"cannot read file: {exc}", Location(str(path))) from None
+        data = Path(path).read_bytes()
+    except OSError as exc:
+        raise error(f"cannot read file: {exc.strerror or exc}", Location(str(path))) from None
+    return parse_json(data, str(path), error)
+
+
+def parse_json(
+    data: bytes | str, path: str = "<json>", error: type[LesmcError] = InputError
+) -> Any:
+    """Parse JSON text (bytes are decoded as by :func:`decode_text`) as :func:`read_json` does.
+
+    The happy path is :func:`json.loads` with light hooks (duplicate keys,
+    integer range, finite floats) and a depth check on the raw bytes; only when
+    something is wrong is the text re-scanned in Python to find the position.
+    """
+    if isinstance(data, str):
+        text = data.removeprefix(_BOM)
+        raw = text.encode("utf-8", "surrogatepass")
+    else:
+        text = decode_text(data, path, error)
+        raw = data
     try:
-        return json.loads(text, parse_constant=reject)
+        value = json.loads(
+            text,
+            object_pairs_hook=_object,
+            parse_constant=_constant,
+            parse_int=_int,
+            parse_float=_float,
+        )
     except json.JSONDecodeError as exc:
-        loc = Location(str(path), exc.lineno, exc.colno, source_line(text, exc.lineno))
-        raise error(f"invalid JSON: {exc.msg}", loc) from None
-    except ValueError as exc:
-        raise error(str(exc), Location(str(path))) from None
+        raise error(f"invalid JSON: {exc.msg}", Location.at(path, text, exc.pos)) from None
+    except _Rejected as exc:
+        raise _located(text, path, error, str(exc)) from None
+    except RecursionError:
+        raise _located(text, path, error, f"nesting deeper than {MAX_JSON_DEPTH}") from None
+    if _deeper_than(raw, MAX_JSON_DEPTH):
+        raise _located(text, path, error, f"nesting deeper than {MAX_JSON_DEPTH}")
+    return value
+
+
+# --- hooks: cheap checks on the happy path ---------------------------------------------
+
+
+def _object(pairs: list[tuple[str, Any]]) -> dict[str, Any]:
+    obj = dict(pairs)
+    if len(obj) != len(pairs):
+        raise _Rejected("duplicate key")
+    return obj
+
+
+def _constant(name: str) -> Any:
+    raise _Rejected(f"{name} is not allowed")
+
+
+def _int(token: str) -> int:
+    if len(token) > 18:  # anything shorter fits in 64 bits
+        problem = _int_problem(token)
+        if problem:
+            raise _Rejected(problem)
+    return int(token)
+
+
+def _float(token: str) -> float:
+    value = float(token)
+    if value - value != 0.0:  # inf - inf is nan; the parser never produces nan here
+        raise _Rejected(_float_problem(token))
+    return value
+
+
+def _int_problem(token: str) -> str | None:
+    digits = token.removeprefix("-")
+    if len(digits) <= 19 and INT64_MIN <= int(token) <= INT64_MAX:
+        return None
+    return f"integer {_clip(token)} is out of range (integers must fit in 64 bits)"
+
+
+def _float_problem(token: str) -> str:
+    return f"number {_clip(token)} is out of range (it overflows to infinity)"
+
+
+def _clip(token: str) -> str:
+    if len(token) <= _SHOWN_NUMBER:
+        return token
+    return f"{token[: _SHOWN_NUMBER - 4]}... ({len(token)} characters)"
+
+
+def _deeper_than(raw: bytes, limit: int) -> bool:
+    """Whether the valid JSON ``raw`` nests arrays/objects more than ``limit`` deep.
+
+    Works on the bytes with C-speed string operations only: drop escaped
+    backslashes and quotes, keep quotes and brackets, drop string contents, then
+    peel one level of innermost ``[]`` per round.
+    """
+    if raw.count(b"[") + raw.count(b"{") <= limit:
+        return False
+    if b"\\" in raw:
+        raw = raw.replace(b"\\\\", b"").replace(b'\\"', b"")
+    shape = raw.translate(_STRUCTURE_TABLE, _STRUCTURE_DELETE).replace(b'""', b"")
+    if b'"' in shape:  # strings that contain brackets: keep what lies between them
+        shape = b"".join(shape.split(b'"')[::2])
+    for _ in range(limit):  # round k removes every container of height k
+        if not shape:
+            return False
+        shape = shape.replace(b"[]", b"")
+    return bool(shape)
+
+
+# --- slow path: find where the problem is -------------------------------------------------
+
+
+def _located(text: str, path: str, error: type[LesmcError], fallback: str) -> LesmcError:
+    found = _first_problem(text)
+    if found is None:  # pragma: no cover - the hooks and the scan agree on what is wrong
+        return error(fallback, Location(path))
+    pos, message = found
+    return error(message, Location.at(path, text, pos))
+
+
+def _first_problem(text: str) -> tuple[int, str] | None:
+    """Position and message of the first strictness problem in ``text``, scanning in order.
+
+    Only called after :func:`json.loads` rejected something, so the text is valid
+    JSON up to that problem; on anything unexpected the scan gives up (None).
+    """
+    stack: list[set[str] | None] = []  # the keys seen so far for an object, None for an array
+    expect_key = False
+    pos, end = 0, len(text)
+    while True:
+        pos = _WS_RE.match(text, pos).end()  # type: ignore[union-attr]  # always matches
+        if pos >= end:
+            return None
+        ch = text[pos]
+        if ch in "[{":
+            if len(stack) >= MAX_JSON_DEPTH:
+                return pos, f"nesting deeper than {MAX_JSON_DEPTH}"
+            stack.append(set() if ch == "{" else None)
+            expect_key = ch == "{"
+            pos += 1
+        elif ch in "]}":
+            if stack:
+                stack.pop()
+            expect_key = False
+            pos += 1
+        elif ch == ",":
+            expect_key = bool(stack) and stack[-1] is not None
+            pos += 1
+        elif ch == ":":
+            expect_key = False
+            pos += 1
+        elif ch == '"':
+            try:
+                string, after = _STRING_DECODER.raw_decode(text, pos)
+            except ValueError:
+                return None
+            keys = stack[-1] if stack else None
+            if expect_key and keys is not None:
+                if string in keys:
+                    return pos, f"duplicate key {_show_key(string)}"
+                keys.add(string)
+            expect_key = False
+            pos = after
+        else:
+            for name in ("NaN", "Infinity", "-Infinity"):
+                if text.startswith(name, pos):
+                    return pos, f"{name} is not allowed (numbers must be finite)"
+            match = _NUMBER_RE.match(text, pos)
+            if match is not None:
+                token = match.group()
+                if match.group(1) or match.group(2):
+                    if not math.isfinite(float(token)):
+                        return pos, _float_problem(token)
+                else:
+                    problem = _int_problem(token) if len(token) > 18 else None
+                    if problem:
+                        return pos, problem
+                pos = match.end()
+            elif text.startswith(("true", "null"), pos):
+                pos += 4
+            elif text.startswith("false", pos):
+                pos += 5
+            else:
+                return None
+
+
+def _show_key(key: str) -> str:
+    shown = json.dumps(key, ensure_ascii=False)
+    return shown if len(shown) <= 60 else shown[:56] + '..."'
 
 
 def atomic_write_text(path: str | Path, text: str) -> None:

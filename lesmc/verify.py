@@ -19,17 +19,17 @@ from typing import Any
 import numpy as np
 
 from lesmc.engines.check import bind_all, check_bound
-from lesmc.engines.space import CompiledModel
 from lesmc.errors import LesmcError, UsageError
 from lesmc.language.parser import load_spec
 from lesmc.language.properties import Monitor, SpecFile
-from lesmc.model.builder import build_model, original_run
-from lesmc.model.lts import LTS
+from lesmc.model.arrays import ArrayModel
+from lesmc.model.lts import LTS, to_lts
 from lesmc.perception.quality import Truth, TruthFrame
 from lesmc.perception.run import PerceiveRun
 from lesmc.perception.to_scene import TargetSpec, make_scene
 from lesmc.report.html import DesignRun, window_of
 from lesmc.tracking.design import make_design
+from lesmc.tracking.monitor import track
 from lesmc.tracking.scene import Scene
 from lesmc.video.reader import FrameSet, open_frames
 from lesmc.video.synth import SynthConfig, write_video
@@ -141,10 +141,10 @@ def rank_targets(
 
 def follows(scene: Scene, truth_track: np.ndarray, tolerance: float = 6.0) -> bool:
     """Whether the unattacked single-KF track stays on the vehicle for ``truth_track``'s steps."""
-    run = original_run(make_design(scene.with_tracker(design="single")), len(truth_track) - 1)
+    run = track(make_design(scene.with_tracker(design="single")), len(truth_track) - 1)
     if len(run) < len(truth_track):
         return False
-    est = np.array([st.estimate()[0][:2] for st in run])
+    est = np.array([p.x[:2] for p in run])
     return bool((np.linalg.norm(est[1:] - truth_track[1:], axis=1) <= tolerance).all())
 
 
@@ -172,10 +172,10 @@ def check_designs(
     and ``improved`` (joint KFs and the runtime monitor of section 7.1 on every
     property: the paper's Table 5). ``only`` filters properties by name.
     """
-    from lesmc.engines.check import bind_scene
+    from lesmc.unfold import bind_scene, build_model
 
     runs = []
-    models: dict[tuple[str, tuple[int, int]], tuple[LTS, CompiledModel]] = {}
+    models: dict[tuple[str, tuple[int, int]], tuple[ArrayModel, LTS]] = {}
     for d in designs:
         tracker = "single" if d == "single" else "joint"
         sc = scene.with_tracker(design=tracker)
@@ -186,15 +186,15 @@ def check_designs(
             if on_stage:
                 on_stage(f"building the {tracker} model")
             built = build_model(sc, win)
-            models[(tracker, win)] = (built, CompiledModel.from_lts(built))
-        model, cm = models[(tracker, win)]
+            models[(tracker, win)] = (built, to_lts(built))
+        model, view = models[(tracker, win)]
         bound = [bp for bp in bind_all(model, sp) if only is None or only(bp.name)]
         results = []
         for bp in bound:
             if on_stage:
                 on_stage(f"checking {bp.name} ({RUN_NAMES[d]})")
-            results.append(check_bound(cm, bp, engine))  # type: ignore[arg-type]
-        runs.append(DesignRun(RUN_NAMES[d], model, bound, results, sc))
+            results.append(check_bound(model, bp, engine))  # type: ignore[arg-type]
+        runs.append(DesignRun(RUN_NAMES[d], view, bound, results, sc))
     return runs
 
 
@@ -226,7 +226,9 @@ def frame_reader(frames: FrameSet | None) -> Callable[[int], np.ndarray | None] 
 
 def check_window(scene: Scene, window: tuple[int, int]) -> None:
     """``--window`` against the unattacked track's length, before any model is built."""
-    e = len(original_run(make_design(scene))) - 1
+    from lesmc.unfold import original_end
+
+    e = original_end(scene)
     if not 1 <= window[0] <= window[1] <= e:
         raise UsageError(
             f"--window {window[0]}..{window[1]} must satisfy 1 <= L <= U <= {e}, the last step "

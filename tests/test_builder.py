@@ -11,11 +11,10 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from lesmc.engines.check import bind_scene, check_bound, check_scene_bound
-from lesmc.engines.space import CompiledModel
+from lesmc.engines.check import check_bound
 from lesmc.errors import UsageError
 from lesmc.language.parser import parse_spec
-from lesmc.model.builder import build_model
+from lesmc.unfold import bind_scene, build_model, check_scene_bound
 from lesmc.model.lts_format import load_lts
 from lesmc.tracking.scene import load_scene
 
@@ -45,7 +44,7 @@ def test_on_the_fly_equals_explicit_model(name, design, l, span, obj, con, monit
     (bp,) = bind_scene(scene, [parse_spec(text)])
     lazy = check_scene_bound(scene, bp, "bnb")
     model = build_model(scene, (l, u))
-    cm = CompiledModel.from_lts(model)
+    cm = model
     for engine in ("bnb", "enumerate"):
         explicit = check_bound(cm, bp, engine)  # type: ignore[arg-type]
         assert (lazy.verdict, lazy.optimum, lazy.witness_value) == (
@@ -54,7 +53,7 @@ def test_on_the_fly_equals_explicit_model(name, design, l, span, obj, con, monit
             explicit.witness_value,
         )
     # the lazy engine builds no more than the model holds
-    assert lazy.stats.extra["states_built"] <= model.graph.number_of_nodes()
+    assert lazy.stats.extra["states_built"] <= model.n_states
 
 
 def test_build_errors() -> None:

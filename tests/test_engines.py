@@ -10,7 +10,7 @@ from hypothesis import strategies as st
 from oracle import brute_force
 
 from lesmc.engines.check import check_bound
-from lesmc.engines.space import CompiledModel
+from lesmc.model.lts import to_arrays
 from lesmc.language.parser import parse_spec
 from lesmc.language.semantics import bind
 from lesmc.model.random_models import RandomModelConfig, random_lts
@@ -77,7 +77,7 @@ def test_optimum_and_witness_equal_brute_force(case: tuple) -> None:
     model, params, quantile = case
     bp = _bound_property(model, params, quantile)
     truth = brute_force(model, bp)
-    cm = CompiledModel.from_lts(model)
+    cm = to_arrays(model)
     by_states = {tuple(p): (o, c) for p, o, c in truth.paths}
     for engine in ("enumerate", "bnb"):
         r = check_bound(cm, bp, engine)  # type: ignore[arg-type]
@@ -108,7 +108,7 @@ def test_engines_agree_and_bounds_do_not_change_answers(case: tuple) -> None:
 
     model, params, quantile = case
     bp = _bound_property(model, params, quantile)
-    space = build_space(CompiledModel.from_lts(model), bp)
+    space = build_space(to_arrays(model), bp)
     a = enumerate_paths(space)
     b = branch_and_bound(space, use_bounds=True)
     c = branch_and_bound(space, use_bounds=False)
@@ -126,7 +126,7 @@ def test_budget_exhaustion_reports_unknown_with_bounds(kw: dict) -> None:
         "subject to dist.max(0..end) > 60 holds if optimum > 1 }"
     )
     bp = bind(spec, spec.properties[0], model.end, model.components, False)
-    r = check_bound(CompiledModel.from_lts(model), bp, max_states=3, **kw)
+    r = check_bound(to_arrays(model), bp, max_states=3, **kw)
     assert r.stats.stopped == "max_states"
     assert r.verdict == "unknown" and r.optimum is None
     assert r.lower <= r.upper
@@ -139,7 +139,7 @@ def test_bnb_expands_far_fewer_states_than_enumerate_on_shared_dags() -> None:
         "subject to dist.sum(0..end) > 300 holds if optimum > 1 }"
     )
     bp = bind(spec, spec.properties[0], model.end, model.components, False)
-    cm = CompiledModel.from_lts(model)
+    cm = to_arrays(model)
     e = check_bound(cm, bp, "enumerate")
     b = check_bound(cm, bp, "bnb")
     assert e.optimum == b.optimum

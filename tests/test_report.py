@@ -17,7 +17,7 @@ from test_engines import _bound_property, cases
 
 from lesmc.cli.main import cli
 from lesmc.engines.check import check_bound
-from lesmc.engines.space import CompiledModel
+from lesmc.model.lts import to_arrays
 from lesmc.language.parser import load_spec
 from lesmc.report.html import DesignRun, write_report
 from lesmc.report.paths import count_paths, enumerate_tracks, judge
@@ -45,7 +45,7 @@ def test_paths_recomputed_by_the_report_give_the_engines_optimum(case: tuple) ->
     )
     bad = [j.objective for j in judged if j.admissible and j.violates and not j.alarmed]
     best = min(bad, default=math.inf)
-    r = check_bound(CompiledModel.from_lts(model), bp, "bnb")
+    r = check_bound(to_arrays(model), bp, "bnb")
     if r.optimum is None:
         assert math.isinf(best)
     else:
@@ -248,9 +248,10 @@ def test_report_on_any_model(case: str, tmp_path: Path) -> None:
     # the report's path count, against an independent enumeration by networkx
     import networkx as nx
 
+    from lesmc.model.lts import to_lts
     from lesmc.model.lts_format import load_lts
 
-    model = load_lts(d / "model.lts")
+    model = to_lts(load_lts(d / "model.lts"))
     leaves = [q for q in model.graph if model.graph.out_degree(q) == 0]
     n = sum(len(list(nx.all_simple_paths(model.graph, model.initial, leaf))) for leaf in leaves)
     assert doc["runs"][0]["paths_total"] == n

@@ -7,7 +7,7 @@ from pathlib import Path
 
 import pytest
 
-from lesmc.engines.check import check_scene
+from lesmc.unfold import check_scene
 from lesmc.language.parser import load_spec
 from lesmc.tracking.scene import load_scene
 

@@ -8,12 +8,14 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from kf_reference import reference_filter
 
 from lesmc.errors import InputError
-from lesmc.model.builder import build_model
+from lesmc.model.lts import to_lts
+from lesmc.unfold import build_model
 from lesmc.tracking.association import attack_options
 from lesmc.tracking.design import make_design
-from lesmc.tracking.kalman import matrices, reference_filter
+from lesmc.tracking.kalman import matrices, white_noise_q
 from lesmc.tracking.monitor import track
 from lesmc.tracking.scene import Frame, Scene, load_scene, scene_from_dict, scene_to_dict
 from lesmc.tracking.toy import Vehicle, vehicle_scene
@@ -98,7 +100,7 @@ def test_unattacked_track_equals_textbook_kalman_filter(name: str, camera: bool)
 def test_every_attacked_path_equals_filterpy_replaying_its_observations() -> None:
     """Each path of a built model, replayed with filterpy's KalmanFilter."""
     scene = load_scene(SCENES / "rq1_platoon.json")
-    model = build_model(scene, (6, 8))
+    model = to_lts(build_model(scene, (6, 8)))
     m = matrices(scene.tracker, scene.dt)
     ids = {d.id: (d.x, d.y) for fr in scene.frames for d in fr.detections}
 
@@ -121,6 +123,20 @@ def test_every_attacked_path_equals_filterpy_replaying_its_observations() -> Non
             np.testing.assert_allclose(kf.P, st.P, rtol=1e-9, atol=1e-9)
         count += 1
     assert count > 10
+
+
+@pytest.mark.parametrize("dt", [0.8, 1 / 1.25, 0.1, 1.0, 2.5, 1e-3, 37.0])
+@pytest.mark.parametrize("sigma_q", [0.0, 0.5, 1.0, 3.0, 12.3])
+def test_q_is_bit_for_bit_filterpy(dt: float, sigma_q: float) -> None:
+    """Eq. 17 written out equals filterpy's Q_continuous_white_noise exactly."""
+    from filterpy.common import Q_continuous_white_noise
+
+    theirs = Q_continuous_white_noise(
+        dim=2, dt=dt, spectral_density=sigma_q**2, block_size=2, order_by_dim=False
+    )
+    ours = white_noise_q(dt, sigma_q**2)
+    assert np.array_equal(ours, theirs)
+    assert ours.dtype == theirs.dtype and ours.tobytes() == theirs.tobytes()
 
 
 def test_attack_options_combined_payoff_is_the_cost_of_hiding_every_nearer_detection() -> None:
@@ -167,7 +183,7 @@ def test_dense_frames_keep_branching_small() -> None:
         )
     ]
     scene = vehicle_scene([t, *others], 20, t)
-    model = build_model(scene, (6, 9))
+    model = to_lts(build_model(scene, (6, 9)))
     assert max(len(model.out(q)) for q in model.graph.nodes) <= 10
     assert model.graph.number_of_nodes() < 5000
 

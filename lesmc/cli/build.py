@@ -5,16 +5,8 @@ from __future__ import annotations
 import json
 
 import click
-from rich.console import Console
-from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
-from rich.table import Table
 
 from lesmc.cli.options import design_option, load_scene_file, model_output, parse_window
-from lesmc.model.builder import build_model, max_end
-from lesmc.model.lts_format import save_lts
-from lesmc.report.text import fmt, make_console
-from lesmc.tracking.design import make_design
-from lesmc.tracking.monitor import track
 
 _DESIGN = design_option("Override the tracker design the scene names.")
 
@@ -45,6 +37,12 @@ def build_cmd(
     transition per outcome an attacker can force (nearest detection first);
     outside it, the unattacked one.
     """
+    from rich.console import Console
+    from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
+
+    from lesmc.unfold import build_model, max_end
+    from lesmc.model.lts_format import save_lts
+
     window = parse_window(window_text)
     sc = load_scene_file(scene, design)
     last = end if end is not None else max_end(sc)
@@ -65,8 +63,8 @@ def build_cmd(
         )
     save_lts(model, output)
     click.echo(
-        f"wrote {output}: {model.graph.number_of_nodes()} states, "
-        f"{model.graph.number_of_edges()} transitions, steps 0..{model.end}, "
+        f"wrote {output}: {model.n_states} states, "
+        f"{model.n_transitions} transitions, steps 0..{model.end}, "
         f"design {model.meta['design']}, window {window[0]}..{window[1]}"
     )
 
@@ -78,6 +76,12 @@ def build_cmd(
 @_DESIGN
 def track_cmd(scene: str, end: int | None, as_json: bool, design: str | None) -> None:
     """Run the tracker on SCENE unattacked: estimates, τ (Eq. 12) and monitor alarms (Eq. 13)."""
+    from rich.table import Table
+
+    from lesmc.report.text import fmt, make_console
+    from lesmc.tracking.design import make_design
+    from lesmc.tracking.monitor import track
+
     sc = load_scene_file(scene, design)
     points = track(make_design(sc), end)
     if as_json:

@@ -3,30 +3,23 @@
 from __future__ import annotations
 
 import sys
+from typing import TYPE_CHECKING
 
 import click
-from rich.console import Console
-from rich.progress import Progress, SpinnerColumn, TextColumn, TimeElapsedColumn
 
 from lesmc.cli.options import design_option, load_model_or_scene
-from lesmc.engines.check import (
-    DEFAULT_MAX_STATES,
-    bind_all,
-    bind_scene,
-    check_bound,
-    check_scene_bound,
-    window_notes,
-)
-from lesmc.engines.result import CheckResult
-from lesmc.engines.space import CompiledModel
 from lesmc.errors import UsageError
-from lesmc.language.parser import load_spec
-from lesmc.language.properties import SpecFile
-from lesmc.language.semantics import BoundProperty
-from lesmc.model.lts import LTS
-from lesmc.report.exit import exit_status
-from lesmc.report.text import make_console, print_results, results_json
-from lesmc.tracking.scene import Scene
+
+if TYPE_CHECKING:
+    from lesmc.engines.result import CheckResult
+    from lesmc.language.properties import SpecFile
+    from lesmc.language.semantics import BoundProperty
+    from lesmc.model.arrays import ArrayModel
+    from lesmc.tracking.scene import Scene
+
+DEFAULT_MAX_STATES = 10_000_000
+"""``lesmc.engines.check.DEFAULT_MAX_STATES``, repeated so that the option's declaration
+does not import the engines (tests/test_startup.py checks that the two agree)."""
 
 
 @click.command("check")
@@ -90,8 +83,19 @@ def check_cmd(
     For each property: the verdict (holds iff optimum > threshold), the optimum,
     the counterexample (cheapest path that breaks the system) and the witness
     (the paper's representative path ρ* and value θ*).
-    Exit status: 0 all hold, 1 some violated, 2 bad input, 3 some unknown.
+    Exit status: 0 all hold, 1 some violated, 2 bad input, 3 some unknown,
+    4 internal error, 130 interrupted.
     """
+    from rich.console import Console
+    from rich.progress import Progress, SpinnerColumn, TextColumn, TimeElapsedColumn
+
+    from lesmc.engines.check import bind_all, check_bound, window_notes
+    from lesmc.unfold import bind_scene, check_scene_bound
+    from lesmc.language.parser import load_spec
+    from lesmc.report.exit import exit_status
+    from lesmc.report.text import make_console, print_results, results_json
+    from lesmc.tracking.scene import Scene
+
     parsed = [load_spec(s) for s in specs]
     source = load_model_or_scene(model, design)
     bound = bind_scene(source, parsed) if isinstance(source, Scene) else bind_all(source, parsed)
@@ -109,7 +113,7 @@ def check_cmd(
         if bp.name in names_seen:
             raise UsageError(f"property name '{bp.name}' is defined in more than one spec file")
         names_seen.add(bp.name)
-    cm = None if isinstance(source, Scene) else CompiledModel.from_lts(source)
+    cm = None if isinstance(source, Scene) else source
     err = Console(stderr=True)
     results: list[CheckResult] = []
     with Progress(
@@ -141,7 +145,7 @@ def check_cmd(
 
 
 def _report(
-    source: LTS | Scene,
+    source: ArrayModel | Scene,
     parsed: list[SpecFile],
     bound: list[BoundProperty],
     results: list[CheckResult],
@@ -151,7 +155,11 @@ def _report(
     only: tuple[str, ...],
 ) -> list[CheckResult]:
     """Write the report; a scene is checked again on its built model (same verdicts)."""
+    from rich.console import Console
+
+    from lesmc.model.lts import to_lts
     from lesmc.report.html import DesignRun, write_report
+    from lesmc.tracking.scene import Scene
     from lesmc.verify import check_designs, frame_reader, scene_frames
 
     err = Console(stderr=True)
@@ -169,7 +177,7 @@ def _report(
         results = runs[0].results
     else:
         design = str(source.meta.get("design", "model"))
-        runs = [DesignRun(design, source, bound, results, None)]
+        runs = [DesignRun(design, to_lts(source), bound, results, None)]
     with err.status("writing the report"):
         out = write_report(runs, report_dir, image_for, {"model": path})
     err.print(f"report: {out}")

@@ -1,19 +1,26 @@
-"""Option parsing shared by several verbs."""
+"""Option parsing shared by several verbs.
+
+Every ``lesmc/cli`` module imports at module level only what its option
+declarations need (click, the standard library, lesmc.errors): the rest is
+imported inside the command, so that ``lesmc --help`` and the light verbs do
+not pay for numpy, torch, cv2, matplotlib or scipy (tests/test_startup.py).
+"""
 
 from __future__ import annotations
 
 import re
 from collections.abc import Callable
 from pathlib import Path
-from typing import Any, TypeVar
+from typing import TYPE_CHECKING, Any, TypeVar
 
 import click
 
 from lesmc.errors import InputError, UsageError
 from lesmc.fileio import read_json
-from lesmc.model.lts import LTS
-from lesmc.model.lts_format import lts_from_dict
-from lesmc.tracking.scene import Scene, scene_from_dict
+
+if TYPE_CHECKING:
+    from lesmc.model.arrays import ArrayModel
+    from lesmc.tracking.scene import Scene
 
 F = TypeVar("F", bound=Callable[..., Any])
 
@@ -45,8 +52,11 @@ def parse_window(text: str) -> tuple[int, int]:
     return lo, hi
 
 
-def load_model_or_scene(path: str, design: str | None = None) -> LTS | Scene:
+def load_model_or_scene(path: str, design: str | None = None) -> ArrayModel | Scene:
     """A .lts model or a scene, told apart by the file's ``format`` field."""
+    from lesmc.model.lts_format import lts_from_dict
+    from lesmc.tracking.scene import scene_from_dict
+
     data = read_json(Path(path), InputError)
     kind = data.get("format") if isinstance(data, dict) else None
     if kind == "lesmc-scene":
@@ -58,6 +68,8 @@ def load_model_or_scene(path: str, design: str | None = None) -> LTS | Scene:
 
 
 def load_scene_file(path: str, design: str | None = None) -> Scene:
+    from lesmc.tracking.scene import scene_from_dict
+
     data = read_json(Path(path), InputError)
     scene = scene_from_dict(data, path)
     return scene.with_tracker(design=design) if design else scene

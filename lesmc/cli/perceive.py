@@ -4,22 +4,16 @@ from __future__ import annotations
 
 import json
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import click
-from rich.table import Table
 
 from lesmc.errors import InputError, Location, UsageError
-from lesmc.perception.attacks import AttackConfig, Method, Norm
-from lesmc.perception.cnn import load_nets
-from lesmc.perception.quality import load_truth
-from lesmc.perception.run import PerceiveOptions, PerceiveRun, perceive
-from lesmc.perception.to_scene import parse_target, scene_from_run
-from lesmc.report.progress import progress_bar
-from lesmc.report.text import make_console
-from lesmc.tracking.scene import save_scene
-from lesmc.video.reader import open_frames
-from lesmc.video.synth import FPS
+from lesmc.video import FPS
+
+if TYPE_CHECKING:
+    from lesmc.perception.attacks import Method, Norm
+    from lesmc.perception.run import PerceiveRun
 
 
 @click.command("perceive")
@@ -130,6 +124,16 @@ def perceive_cmd(
     detection's payoff (the smallest perturbation that hides it from N_dr) is
     computed and a scene is written for `lesmc build` / `lesmc check`.
     """
+    # Imported here, not at module level: torch, cv2 and scipy cost seconds to import.
+    from lesmc.perception.attacks import AttackConfig
+    from lesmc.perception.cnn import load_nets
+    from lesmc.perception.quality import load_truth
+    from lesmc.perception.run import PerceiveOptions, perceive
+    from lesmc.perception.to_scene import parse_target, scene_from_run
+    from lesmc.report.progress import progress_bar
+    from lesmc.tracking.scene import save_scene
+    from lesmc.video.reader import open_frames
+
     if (output is None) != (target_text is None):
         raise UsageError("-o/--output and --target go together: the scene needs a target")
     if output is not None and no_cnn:
@@ -194,6 +198,10 @@ def perceive_cmd(
 
 
 def _print(run: PerceiveRun, with_truth: bool, with_cnn: bool) -> None:
+    from rich.table import Table
+
+    from lesmc.report.text import make_console
+
     console = make_console()
     table = Table(title="detector" if with_cnn else "front end (candidates Q_bc)")
     cols = ["frame", "candidates"] + (["accepted", "detections"] if with_cnn else [])

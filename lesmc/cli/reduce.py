@@ -10,8 +10,6 @@ import click
 from lesmc.cli.options import model_output
 from lesmc.errors import UsageError
 from lesmc.fileio import atomic_write_text
-from lesmc.model.knapsack import knapsack_lts, knapsack_spec, read_items
-from lesmc.model.lts_format import save_lts
 
 
 @click.group("reduce")
@@ -45,6 +43,9 @@ def knapsack_cmd(
     The optimum of the written property is the minimum cost of a selection
     whose total capacity exceeds DEMAND (+inf if none does).
     """
+    from lesmc.model.knapsack import knapsack_lts, knapsack_spec, read_items
+    from lesmc.model.lts_format import save_lts
+
     if not (math.isfinite(demand) and math.isfinite(budget)):
         raise UsageError("--demand and --budget must be finite")
     parsed = read_items(items)

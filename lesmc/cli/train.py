@@ -3,12 +3,6 @@
 from __future__ import annotations
 
 import click
-from rich.table import Table
-
-from lesmc.perception.cnn import save_nets
-from lesmc.perception.training import TrainConfig, train
-from lesmc.report.progress import progress_bar
-from lesmc.report.text import make_console
 
 
 @click.command("train")
@@ -56,7 +50,13 @@ def train_cmd(
     The shipped weights were made with the defaults. Point `lesmc perceive
     --nets DIR` at the output to use your own.
     """
+    from rich.table import Table
+
     from lesmc.cli.video import parse_size
+    from lesmc.perception.cnn import save_nets
+    from lesmc.perception.training import TrainConfig, train
+    from lesmc.report.progress import progress_bar
+    from lesmc.report.text import make_console
 
     w, h = parse_size(size_text)
     cfg = TrainConfig(

@@ -7,36 +7,10 @@ from pathlib import Path
 from typing import Any
 
 import click
-from rich.console import Console
-from rich.table import Table
 
 from lesmc.cli.options import load_scene_file, parse_window
 from lesmc.errors import UsageError
-from lesmc.perception.attacks import AttackConfig
-from lesmc.perception.cnn import load_nets
-from lesmc.perception.quality import load_truth
-from lesmc.perception.run import PerceiveOptions, perceive
-from lesmc.perception.to_scene import parse_target, scene_from_run
-from lesmc.report.exit import exit_status
-from lesmc.report.html import write_report
-from lesmc.report.progress import progress_bar
-from lesmc.report.text import fmt, make_console
-from lesmc.tracking.scene import save_scene
-from lesmc.verify import (
-    DEFAULT_VIDEO,
-    DESIGNS,
-    auto_target,
-    bundled_specs,
-    check_designs,
-    check_window,
-    default_video_ready,
-    frame_reader,
-    load_specs,
-    scene_frames,
-    write_default_video,
-)
-from lesmc.video.reader import open_frames
-from lesmc.video.synth import FPS
+from lesmc.video import FPS
 
 HISTORY = 4
 
@@ -121,8 +95,35 @@ def verify_cmd(
     target with neighbouring traffic is chosen from its truth.
     Writes OUT/scene.json, OUT/report.html (self-contained), OUT/figures/*.png
     and OUT/results.json. Exit status as for lesmc check: 0 all hold,
-    1 some violated, 2 bad input, 3 some unknown.
+    1 some violated, 2 bad input, 3 some unknown, 4 internal error, 130 interrupted.
     """
+    # Imported here, not at module level: torch, cv2, matplotlib and scipy cost seconds.
+    from rich.console import Console
+
+    from lesmc.perception.attacks import AttackConfig
+    from lesmc.perception.cnn import load_nets
+    from lesmc.perception.quality import load_truth
+    from lesmc.perception.run import PerceiveOptions, perceive
+    from lesmc.perception.to_scene import parse_target, scene_from_run
+    from lesmc.report.exit import exit_status
+    from lesmc.report.html import write_report
+    from lesmc.report.progress import progress_bar
+    from lesmc.tracking.scene import save_scene
+    from lesmc.verify import (
+        DEFAULT_VIDEO,
+        DESIGNS,
+        auto_target,
+        bundled_specs,
+        check_designs,
+        check_window,
+        default_video_ready,
+        frame_reader,
+        load_specs,
+        scene_frames,
+        write_default_video,
+    )
+    from lesmc.video.reader import open_frames
+
     out = Path(out_dir)
     window = parse_window(window_text) if window_text else None
     spec_files = load_specs([Path(s) for s in specs] or bundled_specs(), window)
@@ -197,6 +198,10 @@ def verify_cmd(
 
 
 def _summary(runs: list[Any]) -> None:
+    from rich.table import Table
+
+    from lesmc.report.text import fmt, make_console
+
     console = make_console()
     table = Table(title="lesmc verify", title_justify="left")
     for c in ("design", "property", "verdict", "optimum", "holds if", "θ*", "model"):

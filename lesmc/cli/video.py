@@ -8,8 +8,7 @@ from pathlib import Path
 import click
 
 from lesmc.errors import UsageError
-from lesmc.report.progress import progress_bar
-from lesmc.video.synth import SynthConfig, write_video
+from lesmc.video import DEFAULT_DENSITY
 
 
 def parse_size(text: str) -> tuple[int, int]:
@@ -31,7 +30,7 @@ def parse_size(text: str) -> tuple[int, int]:
 @click.option(
     "--density",
     type=click.FloatRange(min=0.0, max=20.0),
-    default=SynthConfig.density,
+    default=DEFAULT_DENSITY,
     show_default=True,
     help="Vehicles per 100 m of road.",
 )
@@ -43,6 +42,9 @@ def synth_cmd(
 
     Deterministic for a seed. See docs/synthetic.md for what it models and what not.
     """
+    from lesmc.report.progress import progress_bar
+    from lesmc.video.synth import SynthConfig, write_video
+
     w, h = parse_size(size_text)
     cfg = SynthConfig(
         frames=frames, width=w, height=h, seed=seed, density=density, depth=16 if tiff16 else 8

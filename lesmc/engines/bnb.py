@@ -27,7 +27,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from lesmc.engines.result import EngineOutcome, Stats
-from lesmc.engines.space import SearchSpace
+from lesmc.engines.space import SearchSpace, Space
+from lesmc.model.kernel import aggregate_arrays
 
 
 @dataclass(frozen=True)
@@ -71,63 +72,89 @@ class _Budget:
         if self.max_states is not None and self.used > self.max_states:
             self.stopped = "max_states"
             return False
-        if (
-            self.deadline is not None
-            and self.used % 256 == 0
-            and time.perf_counter() > self.deadline
-        ):
+        if self.deadline is not None and time.perf_counter() > self.deadline:
             self.stopped = "timeout"
             return False
         return True
 
 
-def suffix_bounds(space: SearchSpace) -> Bounds:
-    """Exact suffix min/max of both measures by one backward pass over reachable states."""
-    cm = space.cm
-    order = _reachable(space)
-    n = len(cm.ids)
+def suffix_bounds(space: Space) -> Bounds:
+    """Exact suffix min/max of both measures over the states reachable from the root.
+
+    Vectorised level by level (a transition always enters the next step): one
+    forward pass collects the reachable states of each step, one backward pass
+    reduces each state's allowed transitions with ``minimum/maximum.reduceat``.
+    """
+    cm, bp = space.cm, space.bp
+    n = cm.n_states
+    leaf = (cm.step >= bp.end) | cm.halted
+    levels = _reachable_levels(space, leaf)
     inf = math.inf
     omin, omax = np.full(n, inf), np.full(n, -inf)
     cmin, cmax = np.full(n, inf), np.full(n, -inf)
     alive = np.zeros(n, dtype=bool)
-    for q in reversed(order):
-        if space.is_leaf(q):
-            to, tc = space.tail(q)
-            omin[q] = omax[q] = to
-            cmin[q] = cmax[q] = tc
-            alive[q] = True
+    for level in reversed(levels):
+        leaves = level[leaf[level]]
+        if leaves.size:
+            h = cm.step[leaves]
+            tails = {int(k): space.tail_at(int(k)) for k in np.unique(h)}
+            to = np.array([tails[int(k)][0] for k in h])
+            tc = np.array([tails[int(k)][1] for k in h])
+            omin[leaves] = omax[leaves] = to
+            cmin[leaves] = cmax[leaves] = tc
+            alive[leaves] = True
+        inner = level[~leaf[level]]
+        if not inner.size:
             continue
-        for t in space.successors(q):
-            d = int(cm.dst[t])
-            if not alive[d]:
-                continue
-            alive[q] = True
-            co, cc = float(space.c_obj[t]), float(space.c_con[t])
-            omin[q] = min(omin[q], space.agg(space.obj_max, co, omin[d]))
-            omax[q] = max(omax[q], space.agg(space.obj_max, co, omax[d]))
-            cmin[q] = min(cmin[q], space.agg(space.con_max, cc, cmin[d]))
-            cmax[q] = max(cmax[q], space.agg(space.con_max, cc, cmax[d]))
-    return Bounds(omin, omax, cmin, cmax, alive, len(order))
+        t, seg, has = _gather(space, inner)
+        if not t.size:
+            continue
+        d = cm.dst[t]
+        ok = alive[d]
+        o_mx, c_mx = space.obj_max, space.con_max
+        co, cc = space.c_obj[t], space.c_con[t]
+        starts = seg[:-1][has]
+        q = inner[has]
+        alive[q] = np.add.reduceat(ok.astype(np.int64), starts) > 0
+        for arr, c, bound, is_max, red, fill in (
+            (omin, co, omin, o_mx, np.minimum, inf),
+            (omax, co, omax, o_mx, np.maximum, -inf),
+            (cmin, cc, cmin, c_mx, np.minimum, inf),
+            (cmax, cc, cmax, c_mx, np.maximum, -inf),
+        ):
+            vals = np.where(ok, aggregate_arrays(is_max, c, bound[d]), fill)
+            arr[q] = red.reduceat(vals, starts)
+    return Bounds(omin, omax, cmin, cmax, alive, int(sum(len(lv) for lv in levels)))
 
 
-def _reachable(space: SearchSpace) -> list[int]:
-    """States reachable from the root under the window, in step (topological) order."""
-    seen = {space.root}
-    frontier = [space.root]
-    order = [space.root]
-    while frontier:
-        nxt = []
-        for q in frontier:
-            if space.is_leaf(q):
-                continue
-            for t in space.successors(q):
-                d = int(space.cm.dst[t])
-                if d not in seen:
-                    seen.add(d)
-                    nxt.append(d)
-        order.extend(nxt)
-        frontier = nxt
-    return order
+def _gather(space: Space, states: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The allowed transitions of ``states`` in order, each state's offset into them, and
+    which states have any."""
+    lo = space.adj_ptr[states]
+    deg = space.adj_ptr[states + 1] - lo
+    seg = np.r_[0, np.cumsum(deg)]
+    total = int(seg[-1])
+    offs = np.arange(total) - np.repeat(seg[:-1], deg)
+    t = space.adj[np.repeat(lo, deg) + offs]
+    return t, seg, deg > 0
+
+
+def _reachable_levels(space: Space, leaf: np.ndarray) -> list[np.ndarray]:
+    """The states reachable from the root under the window, one array per step."""
+    seen = np.zeros(space.cm.n_states, dtype=bool)
+    level = np.array([space.root], dtype=np.int64)
+    seen[space.root] = True
+    levels = [level]
+    while True:
+        inner = level[~leaf[level]]
+        t, _, _ = _gather(space, inner)
+        nxt = np.unique(space.cm.dst[t])
+        nxt = nxt[~seen[nxt]]
+        if not nxt.size:
+            return levels
+        seen[nxt] = True
+        levels.append(nxt)
+        level = nxt
 
 
 def branch_and_bound(
@@ -140,7 +167,7 @@ def branch_and_bound(
     t0 = time.perf_counter()
     stats = Stats(engine="bnb")
     budget = _Budget(max_states, timeout)
-    bounds = suffix_bounds(space) if use_bounds else None
+    bounds = suffix_bounds(space) if use_bounds and isinstance(space, Space) else None
     if bounds is not None:
         stats.extra["bound_states"] = bounds.states
     opt, lower, upper, cex = _optimum(space, bounds, budget, stats)

@@ -10,13 +10,12 @@ from lesmc.engines.bnb import branch_and_bound
 from lesmc.engines.enumerate import enumerate_paths
 from lesmc.engines.lazy import LazySpace
 from lesmc.engines.result import CheckResult, EngineOutcome, Verdict, path_info
-from lesmc.engines.space import CompiledModel, SearchSpace, build_space
+from lesmc.engines.space import SearchSpace, build_space
 from lesmc.language.properties import SpecFile
 from lesmc.language.semantics import BoundProperty, bind
-from lesmc.model.builder import COMPONENTS, build_model, original_run
-from lesmc.model.lts import LTS
-from lesmc.tracking.design import make_design
-from lesmc.tracking.scene import Scene
+from lesmc.model.arrays import ArrayModel
+from lesmc.model.growing import GrowingModel
+from lesmc.model.kernel import holds
 
 EngineName = Literal["enumerate", "bnb"]
 ENGINES: dict[str, Callable[..., EngineOutcome]] = {
@@ -28,7 +27,7 @@ ENGINES: dict[str, Callable[..., EngineOutcome]] = {
 DEFAULT_MAX_STATES = 10_000_000
 
 
-def bind_all(model: LTS, specs: Iterable[SpecFile]) -> list[BoundProperty]:
+def bind_all(model: ArrayModel, specs: Iterable[SpecFile]) -> list[BoundProperty]:
     """Bind every property of every spec file to the model (semantic errors raise)."""
     return [
         bind(spec, prop, model.end, model.components, model.has_covariance)
@@ -38,7 +37,7 @@ def bind_all(model: LTS, specs: Iterable[SpecFile]) -> list[BoundProperty]:
 
 
 def check(
-    model: LTS,
+    model: ArrayModel,
     specs: Iterable[SpecFile],
     engine: EngineName = "bnb",
     max_states: int | None = DEFAULT_MAX_STATES,
@@ -46,23 +45,22 @@ def check(
 ) -> list[CheckResult]:
     """Check every property of ``specs`` on ``model`` with the chosen engine."""
     bound = bind_all(model, specs)
-    cm = CompiledModel.from_lts(model)
     results = []
     for bp in bound:
-        r = check_bound(cm, bp, engine, max_states, timeout)
+        r = check_bound(model, bp, engine, max_states, timeout)
         r.notes.extend(window_notes(model, bp))
         results.append(r)
     return results
 
 
 def check_bound(
-    cm: CompiledModel,
+    cm: ArrayModel,
     bp: BoundProperty,
     engine: EngineName = "bnb",
     max_states: int | None = DEFAULT_MAX_STATES,
     timeout: float | None = None,
 ) -> CheckResult:
-    """Check one bound property on a compiled model."""
+    """Check one bound property on a model."""
     space = build_space(cm, bp)
     outcome = ENGINES[engine](space, max_states=max_states, timeout=timeout)
     return to_result(space, outcome)
@@ -75,7 +73,7 @@ def to_result(space: SearchSpace, out: EngineOutcome) -> CheckResult:
     exact = out.stats.stopped == "finished"
 
     def above(x: float) -> bool:
-        return x > prop.threshold if prop.holds_op == ">" else x >= prop.threshold
+        return holds(prop.holds_op, x, prop.threshold)
 
     notes: list[str] = []
     verdict: Verdict
@@ -119,48 +117,20 @@ def to_result(space: SearchSpace, out: EngineOutcome) -> CheckResult:
     )
 
 
-def check_scene(
-    scene: Scene,
-    specs: Iterable[SpecFile],
-    engine: EngineName = "bnb",
-    max_states: int | None = DEFAULT_MAX_STATES,
-    timeout: float | None = None,
-) -> list[CheckResult]:
-    """Check properties on the model of a scene without writing it out.
-
-    ``bnb`` builds the model on the fly (only the states it expands); ``enumerate``
-    first builds the whole model for each property's window (Algorithm 1).
-    """
-    return [
-        check_scene_bound(scene, bp, engine, max_states, timeout) for bp in bind_scene(scene, specs)
-    ]
-
-
-def bind_scene(scene: Scene, specs: Iterable[SpecFile]) -> list[BoundProperty]:
-    """Bind properties to a scene's model: steps 0..e of the unattacked track."""
-    e = len(original_run(make_design(scene))) - 1
-    return [bind(spec, prop, e, COMPONENTS, True) for spec in specs for prop in spec.properties]
-
-
-def check_scene_bound(
-    scene: Scene,
+def check_lazy(
+    model: GrowingModel,
     bp: BoundProperty,
-    engine: EngineName = "bnb",
     max_states: int | None = DEFAULT_MAX_STATES,
     timeout: float | None = None,
 ) -> CheckResult:
-    """One bound property on a scene (see :func:`check_scene`)."""
-    if engine == "enumerate":
-        model = build_model(scene, (bp.l, bp.u), bp.end)
-        return check_bound(CompiledModel.from_lts(model), bp, engine, max_states, timeout)
-    design = make_design(scene)
-    space = LazySpace(design, original_run(design, bp.end), bp)
+    """One bound property on a model unfolded on demand (``bnb`` expands what it visits)."""
+    space = LazySpace(model, bp)
     out = branch_and_bound(space, max_states=max_states, timeout=timeout, use_bounds=False)
     out.stats.extra["states_built"] = space.states_built
     return to_result(space, out)
 
 
-def window_notes(model: LTS, bp: BoundProperty) -> list[str]:
+def window_notes(model: ArrayModel, bp: BoundProperty) -> list[str]:
     """Warn when a built model holds fewer alternatives than the property's window asks."""
     built = model.meta.get("window")
     if not (isinstance(built, list) and len(built) == 2):

@@ -17,9 +17,8 @@ import numpy as np
 
 from lesmc.engines.result import EngineOutcome, Stats
 from lesmc.engines.space import Space
+from lesmc.model.kernel import COMPARE, aggregate_arrays
 
-#: Ops on whole arrays for Algorithm 2's split into P+ / P−.
-_VEC_OPS = {">": np.greater, ">=": np.greater_equal, "<": np.less, "<=": np.less_equal}
 
 
 def enumerate_paths(
@@ -45,8 +44,8 @@ def enumerate_paths(
         if leaf.any():
             idx = np.nonzero(leaf)[0]
             t_obj, t_con = _tails(space, node[idx])
-            done_obj.append(_agg(space.obj_max, obj[idx], t_obj))
-            done_con.append(_agg(space.con_max, con[idx], t_con))
+            done_obj.append(aggregate_arrays(space.obj_max, obj[idx], t_obj))
+            done_con.append(aggregate_arrays(space.con_max, con[idx], t_con))
             done_ref.append((level, idx))
         live = np.nonzero(~leaf)[0]
         lo = space.adj_ptr[node[live]]
@@ -63,8 +62,8 @@ def enumerate_paths(
         offs = np.arange(total) - np.repeat(np.cumsum(deg) - deg, deg)
         trans = space.adj[np.repeat(lo, deg) + offs]
         levels.append((parent, trans))
-        obj = _agg(space.obj_max, obj[parent], space.c_obj[trans])
-        con = _agg(space.con_max, con[parent], space.c_con[trans])
+        obj = aggregate_arrays(space.obj_max, obj[parent], space.c_obj[trans])
+        con = aggregate_arrays(space.con_max, con[parent], space.c_con[trans])
         node = cm.dst[trans]
         created += total
         stats.transitions += total
@@ -88,7 +87,7 @@ def _algorithm2(
     stats: Stats,
 ) -> EngineOutcome:
     """Optimum over P+, representative path ρ* = argmax obj over P− below the optimum."""
-    plus = _VEC_OPS[space.bp.op](con, space.bp.bound)
+    plus = COMPARE[space.bp.op](con, space.bp.bound)
     finished = stats.stopped == "finished"
     optimum, cex = math.inf, None
     if plus.any():
@@ -126,11 +125,6 @@ def _path(
         out.append(int(trans[node]))
         node = int(parent[node])
     out.reverse()
-    return out
-
-
-def _agg(is_max: bool, acc: np.ndarray, c: np.ndarray) -> np.ndarray:
-    out: np.ndarray = np.maximum(acc, c) if is_max else acc + c
     return out
 
 

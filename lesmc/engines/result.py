@@ -175,8 +175,8 @@ def _step(space: SearchSpace, q: int, t: int | None, attacked: bool) -> PathStep
     cm = space.cm
     return PathStep(
         step=int(cm.step[q]),
-        state=cm.ids[q],
-        obs=None if t is None else cm.obs[t],
+        state=cm.state_id(q),
+        obs=None if t is None else cm.obs_of(t),
         rank=None if t is None else int(cm.rank[t]),
         combined_payoff=0.0 if t is None else float(cm.combined[t]),
         deviation=float(space.dist[q]),

@@ -9,99 +9,35 @@ path; this is what makes best-first search and dominance pruning exact.
 
 from __future__ import annotations
 
-import math
-import operator
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from typing import Any, Protocol
 
 import numpy as np
 
-from lesmc.language.semantics import BoundMeasure, BoundProperty
-from lesmc.model.lts import LTS
-from lesmc.tracking.monitor import alarm, tau
-
-_OPS: dict[str, Callable[[float, float], bool]] = {
-    ">": operator.gt,
-    ">=": operator.ge,
-    "<": operator.lt,
-    "<=": operator.le,
-}
+from lesmc.language.semantics import BoundProperty
+from lesmc.model import kernel
+from lesmc.model.arrays import ArrayModel
 
 
-@dataclass
-class CompiledModel:
-    """A model's arrays, independent of any property (compile once, check many)."""
-
-    ids: list[str]
-    index: dict[str, int]
-    step: np.ndarray  # (n,) int
-    S: np.ndarray  # (n, d) state estimates
-    P: np.ndarray | None  # (n, d, d) covariances or None
-    halted: np.ndarray  # (n,) bool
-    ptr: np.ndarray  # (n+1,) CSR offsets into the transition arrays, rank order per state
-    dst: np.ndarray  # (m,) int
-    payoff: np.ndarray  # (m,) own payoff
-    rank: np.ndarray  # (m,) int
-    combined: np.ndarray  # (m,) Eq. 5, strict: payoffs of lower-ranked siblings
-    obs: list[str | None]
-    original: np.ndarray  # (e+1,) state indices
-
-    @classmethod
-    def from_lts(cls, model: LTS) -> CompiledModel:
-        states = sorted(model.states(), key=lambda st: (st.step, st.id))
-        ids = [st.id for st in states]
-        index = {sid: i for i, sid in enumerate(ids)}
-        ptr = [0]
-        dst: list[int] = []
-        payoff: list[float] = []
-        rank: list[int] = []
-        combined: list[float] = []
-        obs: list[str | None] = []
-        for st in states:
-            out = model.out(st.id)
-            for t in out:
-                dst.append(index[t.dst])
-                payoff.append(t.payoff)
-                rank.append(t.rank)
-                combined.append(math.fsum(o.payoff for o in out if o.rank < t.rank))
-                obs.append(t.obs)
-            ptr.append(len(dst))
-        has_p = all(st.P is not None for st in states)
-        return cls(
-            ids=ids,
-            index=index,
-            step=np.array([st.step for st in states], dtype=np.int64),
-            S=np.array([st.s for st in states], dtype=float),
-            P=np.array([st.P for st in states], dtype=float) if has_p else None,
-            halted=np.array([st.halted for st in states], dtype=bool),
-            ptr=np.array(ptr, dtype=np.int64),
-            dst=np.array(dst, dtype=np.int64),
-            payoff=np.array(payoff, dtype=float),
-            rank=np.array(rank, dtype=np.int64),
-            combined=np.array(combined, dtype=float),
-            obs=obs,
-            original=np.array([index[q] for q in model.original], dtype=np.int64),
-        )
+def deviations(cm: ArrayModel, norm: float, components: tuple[int, ...]) -> np.ndarray:
+    """dist(ρ_k, ρ̃_k) of every state against the original path's state of its step (Eq. 4)."""
+    ref = cm.S[cm.original[np.minimum(cm.step, cm.end)]]
+    return kernel.deviation((cm.S - ref)[:, list(components)], norm)
 
 
-def deviations(cm: CompiledModel, norm: float, components: tuple[int, ...]) -> np.ndarray:
-    """dist(ρ_k, ρ̃_k) = ||s_k − s̃_k||_p of every state against the original (Eq. 4)."""
-    ref = cm.S[cm.original[cm.step]]
-    return deviation((cm.S - ref)[:, list(components)], norm)
-
-
-def location_trace(cm: CompiledModel, components: tuple[int, ...]) -> np.ndarray:
-    """τ = tr(Σ_ll) of every state (Eq. 12) over the given components."""
-    assert cm.P is not None
-    return tau(cm.P, components)
+def location_trace(cm: ArrayModel, components: tuple[int, ...]) -> np.ndarray:
+    """τ (Eq. 12) of every state, computed once per distinct covariance."""
+    assert cm.cov is not None and cm.P_table is not None
+    out: np.ndarray = kernel.tau(cm.P_table, components)[cm.cov]
+    return out
 
 
 class SearchSpace(Protocol):
     """What the engines and reports need: the explicit :class:`Space` or the lazy one."""
 
     bp: BoundProperty
-    cm: Any  # per-state and per-transition sequences, named as in CompiledModel
+    cm: Any  # an ArrayModel, or a GrowingModel (lazy.py): the same array names
     dist: Any
     c_obj: Any
     c_con: Any
@@ -154,12 +90,12 @@ class SpaceOps:
         """The constraint holds for this value: the path is in P+ (breaks the system)."""
         return self.satisfies(con, self.bp.bound)
 
-    def agg(self, is_max: bool, acc: float, c: float) -> float:
-        return max(acc, c) if is_max else acc + c
+    agg = staticmethod(kernel.aggregate)
 
     def tail_at(self, h: int) -> tuple[float, float]:
         """Contributions of the steps after a leaf at step h: +inf deviation after a halt."""
-        return _tail(self.bp.objective, h, self.bp.end), _tail(self.bp.constraint, h, self.bp.end)
+        bp = self.bp
+        return kernel.tail(bp.objective, h, bp.end), kernel.tail(bp.constraint, h, bp.end)
 
 
 @dataclass
@@ -171,7 +107,7 @@ class Space(SpaceOps):
     rank-minimal one; minus those the monitor forbids), in rank order.
     """
 
-    cm: CompiledModel
+    cm: ArrayModel
     bp: BoundProperty
     dist: np.ndarray
     adj_ptr: np.ndarray
@@ -194,44 +130,15 @@ class Space(SpaceOps):
 
     def entering(self, q0: int, q1: int) -> int:
         """The transition from q0 to q1."""
-        return _edge(self.cm, q0, q1)
+        return self.cm.edge(q0, q1)
 
 
-def _tail(m: BoundMeasure, h: int, end: int) -> float:
-    if h >= end or m.source == "payoff":
-        return 0.0
-    return math.inf if m.hi > h else 0.0
-
-
-def contributions(
-    m: BoundMeasure, k: np.ndarray, combined: np.ndarray, dist_dst: np.ndarray
-) -> np.ndarray:
-    """Contributions to measure ``m`` of transitions entering steps ``k``."""
-    inside = (k >= m.lo) & (k <= m.hi)
-    if m.source == "payoff":
-        return np.where(inside, combined * m.weight, 0.0)
-    return np.where(inside, dist_dst, 0.0)
-
-
-def alarms(
-    bp: BoundProperty, k: np.ndarray, tau_src: np.ndarray, tau_dst: np.ndarray
-) -> np.ndarray:
-    """Transitions on which the monitor Γ fires (Eq. 13): τ rises on a step in l..end."""
-    out: np.ndarray = (k >= bp.l) & alarm(tau_src, tau_dst, bp.monitor_tolerance)
-    return out
-
-
-def deviation(diff: np.ndarray, norm: float) -> np.ndarray:
-    """‖·‖_p of each row (Eq. 4)."""
-    out: np.ndarray = np.linalg.norm(diff, ord=norm, axis=-1)
-    return out
-
-
-def build_space(cm: CompiledModel, bp: BoundProperty) -> Space:
-    """Compile a bound property against a compiled model."""
+def build_space(cm: ArrayModel, bp: BoundProperty) -> Space:
+    """Compile a bound property against a model: allowed transitions and contributions."""
     dist = deviations(cm, bp.norm, bp.components)
-    m = len(cm.dst)
-    src = np.repeat(np.arange(len(cm.ids)), np.diff(cm.ptr))
+    m = cm.n_transitions
+    n = cm.n_states
+    src = cm.src
     k = cm.step[cm.dst] if m else np.zeros(0, dtype=np.int64)
     in_window = (k >= bp.l) & (k <= bp.u)
     first = np.zeros(m, dtype=bool)
@@ -239,20 +146,22 @@ def build_space(cm: CompiledModel, bp: BoundProperty) -> Space:
     allowed = in_window | first
     if bp.monitor_components is not None:
         tau = location_trace(cm, bp.monitor_components)
-        allowed &= ~alarms(bp, k, tau[src], tau[cm.dst])
+        allowed &= ~kernel.monitor_cuts(bp.l, k, tau[src], tau[cm.dst], bp.monitor_tolerance)
     adj = np.nonzero(allowed)[0]
-    counts = np.bincount(src[adj], minlength=len(cm.ids)) if m else np.zeros(len(cm.ids), int)
+    counts = np.bincount(src[adj], minlength=n) if m else np.zeros(n, int)
     adj_ptr = np.concatenate([[0], np.cumsum(counts)]).astype(np.int64)
-    c_obj = contributions(bp.objective, k, cm.combined, dist[cm.dst])
-    c_con = contributions(bp.constraint, k, cm.combined, dist[cm.dst])
+    combined = cm.combined
+    c_obj = kernel.contributions(bp.objective, k, combined, dist[cm.dst])
+    c_con = kernel.contributions(bp.constraint, k, combined, dist[cm.dst])
     # the common prefix: steps 0..l−1 follow the original path
-    obj = _initial(bp.objective, dist, cm)
-    con = _initial(bp.constraint, dist, cm)
+    d0 = float(dist[cm.original[0]])
+    obj = kernel.initial_value(bp.objective, d0)
+    con = kernel.initial_value(bp.constraint, d0)
+    obj_max, con_max = bp.objective.aggregate == "max", bp.constraint.aggregate == "max"
     for kk in range(1, bp.l):
-        q0, q1 = int(cm.original[kk - 1]), int(cm.original[kk])
-        t = _edge(cm, q0, q1)
-        obj = _agg(bp.objective, obj, float(c_obj[t]))
-        con = _agg(bp.constraint, con, float(c_con[t]))
+        t = cm.edge(int(cm.original[kk - 1]), int(cm.original[kk]))
+        obj = kernel.aggregate(obj_max, obj, float(c_obj[t]))
+        con = kernel.aggregate(con_max, con, float(c_con[t]))
     return Space(
         cm=cm,
         bp=bp,
@@ -264,21 +173,5 @@ def build_space(cm: CompiledModel, bp: BoundProperty) -> Space:
         root=int(cm.original[bp.l - 1]),
         root_obj=obj,
         root_con=con,
-        satisfies=_OPS[bp.op],
+        satisfies=kernel.COMPARE[bp.op],
     )
-
-
-def _initial(m: BoundMeasure, dist: np.ndarray, cm: CompiledModel) -> float:
-    if m.source == "dist" and m.lo == 0:
-        return float(dist[cm.original[0]])
-    return 0.0
-
-
-def _agg(m: BoundMeasure, acc: float, c: float) -> float:
-    return max(acc, c) if m.aggregate == "max" else acc + c
-
-
-def _edge(cm: CompiledModel, q0: int, q1: int) -> int:
-    lo, hi = int(cm.ptr[q0]), int(cm.ptr[q0 + 1])
-    hits = np.nonzero(cm.dst[lo:hi] == q1)[0]
-    return lo + int(hits[0])

@@ -1,8 +1,10 @@
 """Parse property files (grammars/lesmc.lark) into :class:`Property` objects.
 
 Syntax errors and file-local meaning errors (missing or repeated clauses,
-non-finite thresholds, duplicate names) are raised as :class:`SpecError`
-with ``FILE:LINE:COL``; checks that need a model live in :mod:`.semantics`.
+non-finite thresholds, steps beyond :data:`MAX_STEP`, duplicate names) are
+raised as :class:`SpecError` with ``FILE:LINE:COL``; checks that need a model
+live in :mod:`.semantics`. Lines are counted at ``\n`` only, as lark does
+(:func:`lesmc.errors.split_lines`); a leading byte-order mark is skipped.
 """
 
 from __future__ import annotations
@@ -23,8 +25,10 @@ from lark import (
     UnexpectedToken,
 )
 
-from lesmc.errors import Location, SpecError, source_line
+from lesmc.errors import Location, SpecError, source_line, split_lines
+from lesmc.fileio import read_text
 from lesmc.language.properties import (
+    DEFAULT_MONITOR_TOLERANCE,
     Constraint,
     Measure,
     Monitor,
@@ -33,6 +37,12 @@ from lesmc.language.properties import (
     SpecFile,
     StepRef,
 )
+
+#: Largest step number a property may name (window bounds, ``end N``, measure ranges).
+MAX_STEP = 10**6
+
+#: Longest token text quoted in a message; longer tokens are clipped.
+_SHOWN_TOKEN = 24
 
 #: Readable names for grammar terminals in "expected ..." messages.
 _TERMINAL_NAMES = {
@@ -78,6 +88,7 @@ def _parser() -> Lark:
 
 def parse_spec(text: str, path: str = "<spec>") -> SpecFile:
     """Parse the text of a property file; raise :class:`SpecError` on any problem."""
+    text = text.removeprefix("\ufeff")
     try:
         tree = _parser().parse(text)
     except UnexpectedInput as exc:
@@ -100,12 +111,7 @@ def parse_spec(text: str, path: str = "<spec>") -> SpecFile:
 
 def load_spec(path: str | Path) -> SpecFile:
     """Read and parse a property file."""
-    p = Path(path)
-    try:
-        text = p.read_text(encoding="utf-8")
-    except (OSError, UnicodeDecodeError) as exc:
-        raise SpecError(f"cannot read property file: {exc}", Location(str(path))) from None
-    return parse_spec(text, str(path))
+    return parse_spec(read_text(path, SpecError), str(path))
 
 
 def _syntax_error(exc: UnexpectedInput, text: str, path: str) -> SpecError:
@@ -113,12 +119,12 @@ def _syntax_error(exc: UnexpectedInput, text: str, path: str) -> SpecError:
     col = getattr(exc, "column", None) or 1
     expected: Collection[str]
     if isinstance(exc, UnexpectedEOF):
-        lines = text.splitlines() or [""]
+        lines = split_lines(text)
         line, col = len(lines), len(lines[-1]) + 1
         found = "end of file"
         expected = exc.expected
     elif isinstance(exc, UnexpectedToken):
-        found = "end of file" if exc.token.type == "$END" else f"'{exc.token}'"
+        found = "end of file" if exc.token.type == "$END" else f"'{_clip(str(exc.token))}'"
         expected = exc.accepts or exc.expected
     elif isinstance(exc, UnexpectedCharacters):
         found = f"'{exc.char}'"
@@ -203,7 +209,7 @@ class _Builder:
         kind = node.data
         ch: list[Any] = node.children
         if kind == "window":
-            return "window", (int(ch[0]), self.step(ch[1]))
+            return "window", (self.whole(ch[0]), self.step(ch[1]))
         if kind == "objective":
             return "objective", self.measure(ch[0])
         if kind == "constraint":
@@ -213,14 +219,14 @@ class _Builder:
         if kind == "verdict":
             return "verdict", (str(ch[0]), self.number(ch[1], "verdict threshold"))
         if kind == "end_clause":
-            return "end", int(ch[0])
+            return "end", self.whole(ch[0])
         if kind == "norm_clause":
             return "norm", math.inf if str(ch[0]) == "inf" else float(str(ch[0]))
         if kind == "on_clause":
             return "on", self.names(ch[0])
         if kind == "monitor_clause":
             names: tuple[str, ...] | None = None
-            tol = 1e-9
+            tol = DEFAULT_MONITOR_TOLERANCE
             for item in ch:
                 if isinstance(item, Tree) and item.data == "name_list":
                     names = self.names(item)
@@ -256,15 +262,45 @@ class _Builder:
 
     def step(self, node: Tree[Any]) -> StepRef:
         tok: Any = node.children[0]
-        return None if tok.type == "END" else int(tok)
+        return None if tok.type == "END" else self.whole(tok)
+
+    def whole(self, tok: Any) -> int:
+        """A step number: ASCII digits, at most :data:`MAX_STEP` (checked before ``int()``)."""
+        digits = str(tok)
+        if not (digits.isascii() and digits.isdigit()):  # the grammar admits only 0-9
+            raise self.error(
+                f"a step must be written with digits 0-9, got '{_clip(digits)}'", _tok_pos(tok)
+            )
+        significant = digits.lstrip("0") or "0"  # int() refuses over 4300 digits
+        if len(significant) > len(str(MAX_STEP)) or int(significant) > MAX_STEP:
+            raise self.error(
+                f"step {_clip(digits)} is too large (steps are at most {MAX_STEP})", _tok_pos(tok)
+            )
+        return int(significant)
 
     def number(self, node: Tree[Any], what: str) -> float:
         tok: Any = node.children[0]
+        shown = _clip(str(tok))
+        if not str(tok).isascii():  # the grammar admits only 0-9
+            raise self.error(
+                f"the {what} must be written with digits 0-9, got {shown}", _tok_pos(tok)
+            )
         value = float(tok)
         if not math.isfinite(value):
-            raise self.error(f"the {what} must be finite, got {tok}", Pos(tok.line, tok.column))
+            raise self.error(f"the {what} must be finite, got {shown}", _tok_pos(tok))
         return value
 
 
 def _pos(node: Tree[Any]) -> Pos:
     return Pos(node.meta.line, node.meta.column)
+
+
+def _tok_pos(tok: Any) -> Pos:
+    return Pos(tok.line, tok.column)
+
+
+def _clip(token: str) -> str:
+    """``token`` for a message: long ones (a 5000-digit number) shortened."""
+    if len(token) <= _SHOWN_TOKEN:
+        return token
+    return f"{token[: _SHOWN_TOKEN - 4]}... ({len(token)} characters)"

@@ -14,6 +14,9 @@ from typing import Literal
 #: A step reference in a spec: a number, or None for ``end``.
 StepRef = int | None
 
+#: Relative rise of τ the runtime monitor ignores by default: it only absorbs rounding.
+DEFAULT_MONITOR_TOLERANCE = 1e-9
+
 MeasureKind = Literal["payoff", "dist"]
 Aggregate = Literal["sum", "mean", "max", "at"]
 Comparison = Literal[">", ">=", "<", "<="]
@@ -75,7 +78,7 @@ class Monitor:
     """
 
     components: tuple[str, ...] | None = None
-    tolerance: float = 1e-9
+    tolerance: float = DEFAULT_MONITOR_TOLERANCE
     pos: Pos = field(default=Pos(0, 0), compare=False)
 
 

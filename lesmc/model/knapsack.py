@@ -25,7 +25,8 @@ from pathlib import Path
 import numpy as np
 
 from lesmc.errors import InputError, Location
-from lesmc.model.lts import LTS, State, Transition
+from lesmc.model.arrays import ArrayModel
+from lesmc.model.validate import Parts, build
 
 
 @dataclass(frozen=True)
@@ -82,20 +83,46 @@ def read_items(path: str | Path) -> list[Item]:
     return items
 
 
-def knapsack_lts(items: list[Item]) -> LTS:
+def knapsack_lts(items: list[Item]) -> ArrayModel:
     """The reduction: a layered DAG of 2 states per item, 4 transitions per layer."""
-    states = [State("0:1", 0, np.zeros(1))]
-    trans = []
+    n = len(items)
+    ids = ["0:1"]
+    cap = [0.0]
+    src: list[str] = []
+    dst: list[str] = []
+    payoff: list[float] = []
+    obs: list[str | None] = []
     prev = ["0:1"]
     for i, item in enumerate(items, start=1):
         off, on = f"{i}:0", f"{i}:1"
-        states += [State(off, i, np.zeros(1)), State(on, i, np.array([item.capacity]))]
-        for src in prev:
-            trans.append(Transition(src, off, item.cost, 0, f"skip{i}"))
-            trans.append(Transition(src, on, 0.0, 1, f"take{i}"))
+        ids += [off, on]
+        cap += [0.0, item.capacity]
+        for p in prev:
+            src += [p, p]
+            dst += [off, on]
+            payoff += [item.cost, 0.0]
+            obs += [f"skip{i}", f"take{i}"]
         prev = [off, on]
-    original = ["0:1"] + [f"{i}:0" for i in range(1, len(items) + 1)]
-    return LTS.from_parts(states, trans, "0:1", original, ["capacity"])
+    m = len(src)
+    parts = Parts(
+        ids=ids,
+        step=np.array([0, *(k for k in range(1, n + 1) for _ in range(2))], dtype=np.int64),
+        s_len=np.ones(len(ids), dtype=np.int64),
+        s_flat=np.array(cap, dtype=np.float64),
+        P_shape=np.full((len(ids), 2), -1, dtype=np.int64),
+        P_flat=np.zeros(0),
+        halted=np.zeros(len(ids), dtype=bool),
+        labels={},
+        src=src,
+        dst=dst,
+        payoff=np.array(payoff, dtype=np.float64).reshape(m),
+        rank=np.tile(np.array([0, 1], dtype=np.int64), m // 2),
+        obs=obs,
+        initial="0:1",
+        original=["0:1"] + [f"{i}:0" for i in range(1, n + 1)],
+        components=["capacity"],
+    )
+    return build(parts, "<knapsack>")
 
 
 def knapsack_spec(n: int, demand: float, budget: float, name: str = "knapsack") -> str:

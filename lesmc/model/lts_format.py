@@ -2,19 +2,34 @@
 
 The format is documented in docs/lts-format.md. Nothing in a file is executed;
 every field is type-checked and every problem is reported with the offending id.
+
+Reading goes straight from the decoded JSON to an
+:class:`~lesmc.model.arrays.ArrayModel`: one list comprehension per field pulls
+the values out of the state and transition objects, their types are checked
+over whole columns at once (``set(map(type, column))``) and numpy does the
+rest (:mod:`lesmc.model.validate`). Only when a column holds a wrong value is
+it walked item by item, to name the offending ids.
 """
 
 from __future__ import annotations
 
 import math
+import reprlib
+from collections.abc import Callable, Iterable, Sequence
+from itertools import chain
+from operator import itemgetter
 from pathlib import Path
-from typing import Any, TypeGuard
+from typing import TYPE_CHECKING, Any, TypeGuard
 
 import numpy as np
 
 from lesmc.errors import ModelError, Problems
 from lesmc.fileio import read_json, write_json
-from lesmc.model.lts import LTS, State, Transition
+from lesmc.model.arrays import ArrayModel
+from lesmc.model.validate import HALTED, Parts, build, state_order
+
+if TYPE_CHECKING:
+    from lesmc.model.lts import LTS
 
 FORMAT = "lesmc-lts"
 VERSION = 1
@@ -31,24 +46,32 @@ _TOP_KEYS = {
 }
 _STATE_KEYS = {"id", "step", "s", "P", "labels", "meta"}
 _TRANS_KEYS = {"src", "dst", "payoff", "rank", "obs"}
+_NUMBER_TYPES = {int, float}
+_I64 = (-(2**63), 2**63 - 1)
+_ABSENT: Any = object()
+
+_REPR = reprlib.Repr()
+_REPR.maxstring = 60
+_REPR.maxother = 60
 
 
-def load_lts(path: str | Path) -> LTS:
+def load_lts(path: str | Path) -> ArrayModel:
     """Read and validate a .lts file."""
     return lts_from_dict(read_json(path, ModelError), str(path))
 
 
-def lts_from_dict(data: Any, path: str = "<model>") -> LTS:
+def lts_from_dict(data: Any, path: str = "<model>") -> ArrayModel:
     """Validate a decoded .lts document and build the model."""
     pr = Problems()
     if not isinstance(data, dict):
         raise ModelError.many(path, [("", "the top level must be a JSON object")])
-    for key in sorted(set(data) - _TOP_KEYS):
+    for key in sorted(set(data) - _TOP_KEYS, key=str):
         pr.add(f"key '{key}'", "unknown top-level key")
     if data.get("format") != FORMAT:
-        pr.add("format", f'must be "{FORMAT}", got {data.get("format")!r}')
-    if data.get("version") != VERSION:
-        pr.add("version", f"must be {VERSION}, got {data.get('version')!r}")
+        pr.add("format", f'must be "{FORMAT}", got {_show(data.get("format"))}')
+    version = data.get("version")
+    if not (_is_int(version) and version == VERSION):
+        pr.add("version", f"must be {VERSION}, got {_show(version)}")
     components = data.get("components")
     if components is not None and not (
         isinstance(components, list) and components and all(_is_name(c) for c in components)
@@ -70,118 +93,377 @@ def lts_from_dict(data: Any, path: str = "<model>") -> LTS:
     if not isinstance(raw_trans, list):
         pr.add("transitions", "must be a list")
         raw_trans = []
-    states = [s for i, r in enumerate(raw_states) if (s := _state(r, i, pr)) is not None]
-    trans = [t for i, r in enumerate(raw_trans) if (t := _transition(r, i, pr)) is not None]
+    states = _States(raw_states)
+    trans = _Transitions(raw_trans)
+    pr.items.extend(states.problems)
+    pr.items.extend(trans.problems)
     if pr.items:
         raise ModelError.many(path, pr.items)
-    model = LTS.from_parts(states, trans, str(initial), original, components, path)
     meta = data.get("meta")
-    if isinstance(meta, dict):
-        model.meta = meta
-    return model
+    parts = Parts(
+        ids=states.ids,
+        step=states.step,
+        s_len=states.s_len,
+        s_flat=states.s_flat,
+        P_shape=states.P_shape,
+        P_flat=states.P_flat,
+        halted=states.halted,
+        labels=states.labels,
+        src=trans.src,
+        dst=trans.dst,
+        payoff=trans.payoff,
+        rank=trans.rank,
+        obs=trans.obs,
+        initial=str(initial),
+        original=original,
+        components=components,
+        meta=meta if isinstance(meta, dict) else {},
+    )
+    return build(parts, path)
 
 
-def _state(raw: Any, i: int, pr: Problems) -> State | None:
-    if not isinstance(raw, dict):
-        pr.add(f"states[{i}]", "must be an object")
-        return None
-    sid = raw.get("id")
-    item = f"state '{sid}'" if isinstance(sid, str) and sid else f"states[{i}]"
-    ok = True
-    if not (isinstance(sid, str) and sid):
-        pr.add(item, "id must be a non-empty string")
-        ok = False
-    for key in sorted(set(raw) - _STATE_KEYS):
-        pr.add(item, f"unknown key '{key}'")
-        ok = False
-    step = raw.get("step")
-    if not _is_int(step) or step < 0:
-        pr.add(item, f"step must be an integer >= 0, got {step!r}")
-        ok = False
-    s = _vector(raw.get("s"))
-    if s is None:
-        pr.add(item, "s must be a non-empty list of finite numbers")
-        ok = False
-    P = None
-    if "P" in raw:
-        P = _matrix(raw["P"])
-        if P is None:
-            pr.add(item, "P must be a square list of lists of finite numbers")
-            ok = False
-    labels = raw.get("labels", [])
-    if not (isinstance(labels, list) and all(isinstance(x, str) for x in labels)):
-        pr.add(item, "labels must be a list of strings")
-        ok = False
-    if not ok:
-        return None
-    return State(str(sid), int(step), s, P, frozenset(labels))  # type: ignore[arg-type]
+class _Rows:
+    """The objects of one list, checked column by column; problems in file order."""
+
+    section = ""
+
+    def __init__(self, raw: list[Any]) -> None:
+        self._found: list[tuple[tuple[int, int], str, str]] = []
+        rows = list(range(len(raw)))
+        self._plain = set(map(type, raw)) <= {dict}  # no subclass may answer a missing key
+        if not self._plain:
+            rows = [i for i, r in enumerate(raw) if isinstance(r, dict)]
+            for i in sorted(set(range(len(raw))) - set(rows)):
+                self._found.append(((i, 0), f"{self.section}[{i}]", "must be an object"))
+        self.rows = rows  # file index of each object
+        self.recs: list[dict[Any, Any]] = raw if len(rows) == len(raw) else [raw[i] for i in rows]
+        self.keys: set[Any] = set().union(*self.recs)
+
+    def item(self, j: int) -> str:
+        raise NotImplementedError
+
+    def bad(
+        self, field: int, js: Sequence[int] | np.ndarray, message: Callable[[int], str]
+    ) -> None:
+        """Report the objects ``js`` (positions among the objects) with ``message(j)``."""
+        idx = js.tolist() if isinstance(js, np.ndarray) else js
+        for j in idx:
+            self._found.append(((self.rows[j], field), self.item(j), message(j)))
+
+    def unknown_keys(self, field: int, allowed: set[str]) -> None:
+        if not self.keys - allowed:
+            return
+        for j, r in enumerate(self.recs):
+            for key in sorted(set(r) - allowed, key=str):
+                self._found.append(((self.rows[j], field), self.item(j), f"unknown key '{key}'"))
+
+    def column(self, key: str, default: Any = None) -> list[Any]:
+        """The values of ``key`` (``default`` where absent), in one pass."""
+        if key not in self.keys:
+            return [default] * len(self.recs)
+        if self._plain:
+            try:
+                return list(map(itemgetter(key), self.recs))
+            except KeyError:
+                pass
+        return [r.get(key, default) for r in self.recs]
+
+    @property
+    def problems(self) -> list[tuple[str, str]]:
+        self._found.sort(key=lambda x: x[0])  # stable: one field's messages keep their order
+        return [(item, msg) for _, item, msg in self._found]
 
 
-def _transition(raw: Any, i: int, pr: Problems) -> Transition | None:
-    item = f"transitions[{i}]"
-    if not isinstance(raw, dict):
-        pr.add(item, "must be an object")
-        return None
-    src, dst = raw.get("src"), raw.get("dst")
-    if isinstance(src, str) and isinstance(dst, str):
-        item = f"transition {i} ({src} -> {dst})"
-    ok = True
-    for key in sorted(set(raw) - _TRANS_KEYS):
-        pr.add(item, f"unknown key '{key}'")
-        ok = False
-    if not (isinstance(src, str) and isinstance(dst, str)):
-        pr.add(item, "src and dst must be state ids")
-        ok = False
-    payoff = raw.get("payoff")
-    if not _is_number(payoff) or not math.isfinite(payoff) or payoff < 0:
-        pr.add(item, f"payoff must be a finite number >= 0, got {payoff!r}")
-        ok = False
-    rank = raw.get("rank")
-    if not _is_int(rank):
-        pr.add(item, f"rank must be an integer, got {rank!r}")
-        ok = False
-    obs = raw.get("obs")
-    if obs is not None and not isinstance(obs, str):
-        pr.add(item, "obs must be a string or absent")
-        ok = False
-    if not ok:
-        return None
-    return Transition(str(src), str(dst), float(payoff), int(rank), obs)  # type: ignore[arg-type]
+class _States(_Rows):
+    section = "states"
+
+    def __init__(self, raw: list[Any]) -> None:
+        super().__init__(raw)
+        n = len(self.recs)
+        ids = self.column("id")
+        self._ids = ids
+        if not (_all_types(ids, {str}) and (n == 0 or min(map(len, ids)) > 0)):
+            self.bad(
+                0,
+                _where(ids, lambda x: not (isinstance(x, str) and x)),
+                _msg("id must be a non-empty string"),
+            )
+        self.unknown_keys(1, _STATE_KEYS)
+        steps = self.column("step")
+        self.step, fits = _ints(steps)
+        self.bad(
+            2,
+            np.flatnonzero(~fits | (self.step < 0)),
+            lambda j: f"step must be an integer >= 0{_fit(steps[j])}, got {_show(steps[j])}",
+        )
+        self.s_flat, self.s_len, ok = _vectors(self.column("s"))
+        self.bad(3, np.flatnonzero(~ok), _msg("s must be a non-empty list of finite numbers"))
+        self.P_shape = np.full((n, 2), -1, dtype=np.int64)
+        self.P_flat = np.zeros(0)
+        if "P" in self.keys:
+            Ps = self.column("P", _ABSENT)
+            has = [j for j, p in enumerate(Ps) if p is not _ABSENT]
+            self.P_flat, size, ok = _matrices([Ps[j] for j in has])
+            self.P_shape[has] = size[:, None]
+            self.bad(
+                4,
+                [has[i] for i in np.flatnonzero(~ok).tolist()],
+                _msg("P must be a square list of lists of finite numbers"),
+            )
+        self.halted = np.zeros(n, dtype=bool)
+        self.labels: dict[int, tuple[str, ...]] = {}
+        if "labels" in self.keys:
+            raw_labels = self.column("labels", _ABSENT)
+            wrong = []
+            for j, labs in enumerate(raw_labels):
+                if labs is _ABSENT:
+                    continue
+                if not (isinstance(labs, list) and all(isinstance(x, str) for x in labs)):
+                    wrong.append(j)
+                    continue
+                self.halted[j] = HALTED in labs
+                other = set(labs) - {HALTED}
+                if other:
+                    self.labels[j] = tuple(sorted(other))
+            self.bad(5, wrong, _msg("labels must be a list of strings"))
+        self.ids: list[str] = ids
+
+    def item(self, j: int) -> str:
+        sid = self._ids[j]
+        return f"state '{sid}'" if isinstance(sid, str) and sid else f"states[{self.rows[j]}]"
 
 
-def lts_to_dict(model: LTS) -> dict[str, Any]:
-    """The JSON document of a model (states in step order, transitions in rank order)."""
-    states = sorted(model.states(), key=lambda st: (st.step, st.id))
-    doc_states = []
-    for st in states:
-        d: dict[str, Any] = {"id": st.id, "step": st.step, "s": [float(x) for x in st.s]}
-        if st.P is not None:
-            d["P"] = [[float(x) for x in row] for row in st.P]
-        if st.labels:
-            d["labels"] = sorted(st.labels)
-        doc_states.append(d)
-    doc_trans = []
-    for st in states:
-        for t in model.out(st.id):
-            d = {"src": t.src, "dst": t.dst, "payoff": t.payoff, "rank": t.rank}
-            if t.obs is not None:
-                d["obs"] = t.obs
-            doc_trans.append(d)
+class _Transitions(_Rows):
+    section = "transitions"
+
+    def __init__(self, raw: list[Any]) -> None:
+        super().__init__(raw)
+        self.src = self.column("src")
+        self.dst = self.column("dst")
+        self.unknown_keys(1, _TRANS_KEYS)
+        if not (_all_types(self.src, {str}) and _all_types(self.dst, {str})):
+            ends = zip(self.src, self.dst, strict=True)
+            wrong = [j for j, (a, b) in enumerate(ends) if not (_is_str(a) and _is_str(b))]
+            self.bad(2, wrong, _msg("src and dst must be state ids"))
+        payoffs = self.column("payoff")
+        self.payoff, ok = _floats(payoffs)
+        self.bad(
+            3,
+            np.flatnonzero(~ok | ~(self.payoff >= 0)),
+            lambda j: f"payoff must be a finite number >= 0, got {_show(payoffs[j])}",
+        )
+        ranks = self.column("rank")
+        self.rank, fits = _ints(ranks)
+        self.bad(
+            4,
+            np.flatnonzero(~fits),
+            lambda j: f"rank must be an integer{_fit(ranks[j])}, got {_show(ranks[j])}",
+        )
+        obs = self.column("obs")
+        self.obs: list[str | None] | None = obs
+        types = set(map(type, obs))
+        if types <= {type(None)}:
+            self.obs = None
+        elif types - {str, type(None)}:
+            wrong = _where(obs, lambda x: x is not None and not isinstance(x, str))
+            self.bad(5, wrong, _msg("obs must be a string or absent"))
+
+    def item(self, j: int) -> str:
+        src, dst = self.src[j], self.dst[j]
+        if isinstance(src, str) and isinstance(dst, str):
+            return f"transition {self.rows[j]} ({src} -> {dst})"
+        return f"transitions[{self.rows[j]}]"
+
+
+def lts_to_dict(model: ArrayModel | LTS) -> dict[str, Any]:
+    """The JSON document of a model (states in (step, id) order, transitions in rank order).
+
+    States with the same covariance share one list for ``P`` (copy it before
+    mutating one). An :class:`~lesmc.model.lts.LTS` is converted first.
+    """
+    if not isinstance(model, ArrayModel):
+        from lesmc.model.lts import to_arrays
+
+        model = to_arrays(model)
+    n = model.n_states
+    ids = model.ids if model.ids is not None else [model.state_id(i) for i in range(n)]
+    perm = state_order(model.step, ids)
+    order = np.arange(n, dtype=np.int64) if perm is None else perm
+    pos = np.empty(n, dtype=np.int64)
+    pos[order] = np.arange(n, dtype=np.int64)
+    src, dst = model.src, model.dst
+    torder = np.lexsort((pos[dst], model.rank, pos[src]))
+
+    rows = order.tolist()
+    doc_states: list[dict[str, Any]] = [
+        {"id": ids[i], "step": k, "s": s}
+        for i, k, s in zip(rows, model.step[order].tolist(), model.S[order].tolist(), strict=True)
+    ]
+    if model.cov is not None and model.P_table is not None:
+        table = model.P_table.tolist()
+        for d, c in zip(doc_states, model.cov[order].tolist(), strict=True):
+            if c >= 0:
+                d["P"] = table[c]
+    marked = set(model.labels) | set(np.flatnonzero(model.halted).tolist())
+    for i in sorted(marked, key=pos.__getitem__):
+        labs = set(model.labels.get(i, ()))
+        if model.halted[i]:
+            labs.add(HALTED)
+        if labs:
+            doc_states[int(pos[i])]["labels"] = sorted(labs)
+
+    doc_trans: list[dict[str, Any]] = [
+        {"src": ids[a], "dst": ids[b], "payoff": p, "rank": r}
+        for a, b, p, r in zip(
+            src[torder].tolist(),
+            dst[torder].tolist(),
+            model.payoff[torder].tolist(),
+            model.rank[torder].tolist(),
+            strict=True,
+        )
+    ]
+    if model.obs is not None:
+        names = model.obs_names
+        for d, c in zip(doc_trans, model.obs[torder].tolist(), strict=True):
+            if c >= 0:
+                d["obs"] = names[c]
     return {
         "format": FORMAT,
         "version": VERSION,
         "components": list(model.components),
-        "initial": model.initial,
-        "original": list(model.original),
+        "initial": ids[model.initial],
+        "original": [ids[q] for q in model.original.tolist()],
         "states": doc_states,
         "transitions": doc_trans,
         **({"meta": model.meta} if model.meta else {}),
     }
 
 
-def save_lts(model: LTS, path: str | Path) -> None:
+def save_lts(model: ArrayModel | LTS, path: str | Path) -> None:
     """Write a model atomically."""
     write_json(path, lts_to_dict(model))
+
+
+# --- columns ---------------------------------------------------------------
+
+
+def _ints(values: list[Any]) -> tuple[np.ndarray, np.ndarray]:
+    """int64 values (0 where not) and which values are integers that fit in 64 bits."""
+    n = len(values)
+    if _all_types(values, {int}):
+        try:
+            return np.fromiter(values, dtype=np.int64, count=n), np.ones(n, dtype=bool)
+        except OverflowError:
+            pass
+    ok = [_is_int(v) and _I64[0] <= v <= _I64[1] for v in values]
+    arr = np.fromiter((v if k else 0 for v, k in zip(values, ok, strict=True)), np.int64, n)
+    return arr, np.array(ok, dtype=bool).reshape(n)
+
+
+def _floats(values: list[Any]) -> tuple[np.ndarray, np.ndarray]:
+    """float64 values (0 where not) and which values are finite numbers."""
+    n = len(values)
+    if _all_types(values, _NUMBER_TYPES):
+        try:
+            arr = np.fromiter(values, dtype=np.float64, count=n)
+        except OverflowError:
+            pass
+        else:
+            return arr, np.isfinite(arr)
+    ok = [_is_number(v) and _finite(v) for v in values]
+    arr = np.fromiter((v if k else 0.0 for v, k in zip(values, ok, strict=True)), np.float64, n)
+    return arr, np.array(ok, dtype=bool).reshape(n)
+
+
+def _vectors(values: list[Any]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Flattened entries, the length of each value, and which are non-empty lists of
+    finite numbers (the entries only matter when all are)."""
+    n = len(values)
+    if n and _all_types(values, {list}):
+        lens = np.fromiter(map(len, values), dtype=np.int64, count=n)
+        ok = lens > 0
+        flat = _flat_numbers(chain.from_iterable(values), int(lens.sum()), ok, lens)
+        if flat is not None:
+            return flat, lens, ok
+    vecs = [_vector(v) for v in values]
+    lens = np.array([0 if v is None else v.shape[0] for v in vecs], dtype=np.int64).reshape(n)
+    ok = np.array([v is not None for v in vecs], dtype=bool).reshape(n)
+    present = [v for v in vecs if v is not None]
+    flat = np.concatenate(present) if present else np.zeros(0)
+    return flat, lens, ok
+
+
+def _matrices(values: list[Any]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Flattened entries, the size r of each (r x r) value, and which are square lists
+    of lists of finite numbers."""
+    n = len(values)
+    if n and _all_types(values, {list}):
+        rows = list(chain.from_iterable(values))
+        if rows and _all_types(rows, {list}):
+            size = np.fromiter(map(len, values), dtype=np.int64, count=n)
+            row_len = np.fromiter(map(len, rows), dtype=np.int64, count=len(rows))
+            if bool((size > 0).all()) and np.array_equal(row_len, np.repeat(size, size)):
+                ok = np.ones(n, dtype=bool)
+                entries = chain.from_iterable(rows)
+                flat = _flat_numbers(entries, int(row_len.sum()), ok, size * size)
+                if flat is not None:
+                    return flat, size, ok
+    mats = [_matrix(v) for v in values]
+    size = np.array([-1 if m is None else m.shape[0] for m in mats], dtype=np.int64).reshape(n)
+    ok = np.array([m is not None for m in mats], dtype=bool).reshape(n)
+    present = [m.reshape(-1) for m in mats if m is not None]
+    flat = np.concatenate(present) if present else np.zeros(0)
+    return flat, np.where(ok, size, 0), ok
+
+
+def _flat_numbers(
+    entries: Iterable[Any], count: int, ok: np.ndarray, per_value: np.ndarray
+) -> np.ndarray | None:
+    """The entries of all values as one array if every one is a number (None: walk the
+    values one by one); clears ``ok`` of the values with a non-finite entry."""
+    flat = list(entries)
+    if not _all_types(flat, _NUMBER_TYPES):
+        return None
+    try:
+        arr = np.fromiter(flat, dtype=np.float64, count=count)
+    except OverflowError:  # an int beyond the float range
+        return None
+    inf = ~np.isfinite(arr)
+    if inf.any():
+        owner = np.repeat(np.arange(per_value.shape[0]), per_value)
+        ok[owner[inf]] = False
+    return arr
+
+
+# --- single values -----------------------------------------------------------
+
+
+def _all_types(values: list[Any], types: set[type]) -> bool:
+    """Every value's exact type is one of ``types`` (bool is not int)."""
+    return set(map(type, values)) <= types
+
+
+def _where(values: list[Any], wrong: Callable[[Any], bool]) -> list[int]:
+    return [j for j, v in enumerate(values) if wrong(v)]
+
+
+def _msg(text: str) -> Callable[[int], str]:
+    return lambda _j: text
+
+
+def _fit(x: Any) -> str:
+    """A hint for integers beyond int64."""
+    return " that fits in 64 bits" if _is_int(x) and not _I64[0] <= x <= _I64[1] else ""
+
+
+def _show(x: Any) -> str:
+    """A short repr of a value from the file (huge integers and deep lists abridged)."""
+    if _is_int(x) and x.bit_length() > 64:
+        return f"{'-' if x < 0 else ''}<an integer of {x.bit_length()} bits>"
+    try:
+        return _REPR.repr(x)
+    except (ValueError, RecursionError):
+        return f"<{type(x).__name__}>"
 
 
 def _is_int(x: Any) -> TypeGuard[int]:
@@ -192,22 +474,31 @@ def _is_number(x: Any) -> TypeGuard[int | float]:
     return isinstance(x, int | float) and not isinstance(x, bool)
 
 
+def _is_str(x: Any) -> bool:
+    return isinstance(x, str)
+
+
 def _is_name(x: Any) -> bool:
     return isinstance(x, str) and x.isidentifier()
 
 
+def _finite(x: int | float) -> bool:
+    try:
+        return math.isfinite(x)
+    except OverflowError:  # an int beyond the float range
+        return False
+
+
 def _vector(raw: Any) -> np.ndarray | None:
-    if not (isinstance(raw, list) and raw and all(_is_number(x) for x in raw)):
+    if not (isinstance(raw, list) and raw and all(_is_number(x) and _finite(x) for x in raw)):
         return None
-    v = np.asarray(raw, dtype=float)
-    return v if np.all(np.isfinite(v)) else None
+    return np.asarray([float(x) for x in raw], dtype=np.float64)
 
 
 def _matrix(raw: Any) -> np.ndarray | None:
     if not (isinstance(raw, list) and raw and all(isinstance(r, list) for r in raw)):
         return None
     n = len(raw)
-    if any(len(r) != n or not all(_is_number(x) for x in r) for r in raw):
+    if any(len(r) != n or not all(_is_number(x) and _finite(x) for x in r) for r in raw):
         return None
-    m = np.asarray(raw, dtype=float)
-    return m if np.all(np.isfinite(m)) else None
+    return np.asarray([[float(x) for x in r] for r in raw], dtype=np.float64)

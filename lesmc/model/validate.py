@@ -1,139 +1,447 @@
-"""Structural checks of a <PO>²-LTS, reported item by item (docs/lts-format.md)."""
+"""Structural checks of a <PO>²-LTS over arrays, reported item by item (docs/lts-format.md).
+
+:class:`Parts` holds a model's columns in file order, as read: ids, steps,
+the entries of every s and P flattened, transitions by their endpoints' ids.
+:func:`build` checks every structural rule with numpy, reports each problem
+with the offending id and lays the model out as an
+:class:`~lesmc.model.arrays.ArrayModel`: states in (step, id) order,
+transitions grouped by source (CSR) and sorted by (rank, target id).
+
+Messages and their order are those of the object-based checker this replaces:
+first the states' and transitions' own problems (duplicate ids, sizes, unknown
+endpoints, steps, duplicate pairs); only when there are none, the order and
+path rules (unique lowest rank, initial, original, reachability, halting).
+"""
 
 from __future__ import annotations
 
-import math
+import operator
 from collections.abc import Sequence
+from dataclasses import dataclass, field
+from itertools import islice, pairwise, repeat
+from typing import Any
 
-import networkx as nx
+import numpy as np
 
 from lesmc.errors import ModelError
-from lesmc.model.lts import State, Transition
+from lesmc.model.arrays import ArrayModel
+
+HALTED = "halted"
+"""Label of a state where the tracker stopped (trace(P) too large): no successors."""
+
+_LEVEL_LOOP_MAX = 2048
+"""Reachability propagates level by level (one numpy pass per step) up to this many
+distinct steps; beyond, a plain depth-first search over the CSR lists is cheaper."""
+
+_HASH = np.random.default_rng(0x1E5).integers(-(2**62), 2**62, size=4096, dtype=np.int64)
+"""Fixed multipliers of the row hash that deduplicates covariances (deterministic)."""
 
 
-def validate_parts(
-    states: Sequence[State],
-    transitions: Sequence[Transition],
-    initial: str,
-    original: Sequence[str],
-    components: Sequence[str] | None,
-    path: str,
-) -> nx.DiGraph:
-    """Build the graph and check every rule; raise one ModelError listing all problems."""
-    problems: list[tuple[str, str]] = []
-    graph = nx.DiGraph()
-    if not states:
+def default_components(n: int) -> tuple[str, ...]:
+    """Names s0, s1, ... used when a model does not name its components."""
+    return tuple(f"s{i}" for i in range(n))
+
+
+@dataclass
+class Parts:
+    """A model's columns in file order, each field type-checked, the structure not yet."""
+
+    ids: list[str]
+    step: np.ndarray  # (n,) int64
+    s_len: np.ndarray  # (n,) int64: entries of each s
+    s_flat: np.ndarray  # (sum s_len,) float64: the s's one after the other
+    P_shape: np.ndarray  # (n, 2) int64: rows and columns of each P, -1 where none
+    P_flat: np.ndarray  # float64: the P's present, row-major, in state order
+    halted: np.ndarray  # (n,) bool
+    labels: dict[int, tuple[str, ...]]  # file row -> labels other than halted, sorted
+    src: list[str]
+    dst: list[str]
+    payoff: np.ndarray  # (m,) float64
+    rank: np.ndarray  # (m,) int64
+    obs: list[str | None] | None  # None: no transition has an observation
+    initial: str
+    original: list[str]
+    components: Sequence[str] | None = None
+    meta: dict[str, Any] = field(default_factory=dict)
+
+
+class _Report:
+    """Problems keyed by (section, row, field) so that they come out in file order."""
+
+    def __init__(self) -> None:
+        self.items: list[tuple[tuple[int, int, int], str, str]] = []
+
+    def add(self, key: tuple[int, int, int], item: str, message: str) -> None:
+        self.items.append((key, item, message))
+
+    def raise_if_any(self, path: str, before: list[tuple[str, str]] | None = None) -> None:
+        if self.items or before:
+            self.items.sort(key=lambda x: x[0])  # stable: same-key messages keep their order
+            listed = [*(before or []), *((item, msg) for _, item, msg in self.items)]
+            raise ModelError.many(path, listed)
+
+
+def build(parts: Parts, path: str = "<model>") -> ArrayModel:
+    """Check every structural rule and lay the model out; raise one ModelError listing all."""
+    ids = parts.ids
+    n = len(ids)
+    if n == 0:
         raise ModelError.many(path, [("", "the model has no states")])
-    dim = len(states[0].s)
-    if components is not None:
-        if len(set(components)) != len(components):
-            problems.append(("components", "component names must be unique"))
-        dim = len(components)
-    for st in states:
-        item = f"state '{st.id}'"
-        if st.id in graph:
-            problems.append((item, "duplicate state id"))
-            continue
-        if len(st.s) != dim:
-            problems.append((item, f"s has {len(st.s)} entries, expected {dim}"))
-        if st.P is not None and st.P.shape != (dim, dim):
-            problems.append((item, f"P must be {dim}x{dim}, got {'x'.join(map(str, st.P.shape))}"))
-        graph.add_node(st.id, state=st)
-    for i, t in enumerate(transitions):
-        item = f"transition {i} ({t.src} -> {t.dst})"
-        missing = [x for x in (t.src, t.dst) if x not in graph]
-        if missing:
-            problems.append((item, f"unknown state '{missing[0]}'"))
-            continue
-        ks, kd = graph.nodes[t.src]["state"].step, graph.nodes[t.dst]["state"].step
-        if kd != ks + 1:
-            problems.append((item, f"goes from step {ks} to step {kd}; must go to step {ks + 1}"))
-        if not (math.isfinite(t.payoff) and t.payoff >= 0):
-            problems.append((item, f"payoff must be finite and >= 0, got {t.payoff}"))
-        if graph.has_edge(t.src, t.dst):
-            problems.append((item, "a second transition between the same states"))
-            continue
-        graph.add_edge(t.src, t.dst, transition=t)
-    if problems:
-        raise ModelError.many(path, problems)
-    problems.extend(_check_order(graph))
-    problems.extend(_check_paths(graph, initial, original))
-    if problems:
-        raise ModelError.many(path, problems)
-    return graph
+    head: list[tuple[str, str]] = []
+    dim = int(parts.s_len[0])
+    if parts.components is not None:
+        if len(set(parts.components)) != len(parts.components):
+            head.append(("components", "component names must be unique"))
+        dim = len(parts.components)
+    index = _first_index(ids)
+    src_f, dst_f = _endpoints(parts, index)
+    _check_parts(parts, index, src_f, dst_f, dim, head, path)
+
+    # layout: states in (step, id) order, transitions by (source, rank, target)
+    perm = state_order(parts.step, ids)
+    pos = np.arange(n, dtype=np.int64)
+    if perm is not None:
+        pos[perm] = np.arange(n, dtype=np.int64)
+    src_p, dst_p = pos[src_f], pos[dst_f]
+    torder = np.lexsort((dst_p, parts.rank, src_p))
+    src = src_p[torder]
+    dst = dst_p[torder]
+    rank = parts.rank[torder]
+    step = parts.step if perm is None else parts.step[perm]
+    ptr = np.zeros(n + 1, dtype=np.int64)
+    np.cumsum(np.bincount(src, minlength=n), out=ptr[1:])
+    halted = parts.halted if perm is None else parts.halted[perm]
+    sorted_ids = ids if perm is None else [ids[i] for i in perm.tolist()]
+
+    rep = _Report()
+    _check_order(rep, ptr, src, rank, perm, ids)
+    original = _check_paths(rep, parts, index, pos, step, halted, ptr, src, dst, perm, ids)
+    rep.raise_if_any(path)
+    assert original is not None
+
+    S = parts.s_flat.reshape(n, dim)
+    if perm is not None:
+        S = S[perm]
+    cov, P_table = _covariances(parts, perm, dim)
+    obs, obs_names = _observations(parts.obs, torder)
+    labels = {int(pos[r]): labs for r, labs in parts.labels.items()}
+    comps = tuple(parts.components) if parts.components else default_components(dim)
+    return ArrayModel(
+        components=comps,
+        step=np.ascontiguousarray(step, dtype=np.int64),
+        S=np.ascontiguousarray(S, dtype=np.float64),
+        halted=np.ascontiguousarray(halted, dtype=bool),
+        ptr=ptr,
+        dst=dst,
+        payoff=np.ascontiguousarray(parts.payoff[torder], dtype=np.float64),
+        rank=np.ascontiguousarray(rank, dtype=np.int64),
+        original=original,
+        cov=cov,
+        P_table=P_table,
+        obs=obs,
+        obs_names=obs_names,
+        ids=list(sorted_ids),
+        labels=dict(sorted(labels.items())),
+        meta=parts.meta,
+    )
 
 
-def _check_order(graph: nx.DiGraph) -> list[tuple[str, str]]:
+def state_order(step: np.ndarray, ids: Sequence[str]) -> np.ndarray | None:
+    """The rows in (step, id) order (Python string order), or None if they already are."""
+    n = len(ids)
+    if n < 2:
+        return None
+    less = np.fromiter(map(operator.lt, ids, islice(ids, 1, None)), dtype=bool, count=n - 1)
+    same, up = step[1:] == step[:-1], step[1:] > step[:-1]
+    if bool(np.all(up | (same & less))):
+        return None
+    # numpy's fixed-width strings drop trailing NULs and cost n * width: Python sorts those
+    if max(map(len, ids)) * n <= 1 << 26 and "\x00" not in "".join(ids):
+        return np.lexsort((np.array(ids), step))
+    key = list(zip(step.tolist(), ids, strict=True))
+    return np.array(sorted(range(n), key=key.__getitem__), dtype=np.int64)
+
+
+def _first_index(ids: list[str]) -> dict[str, int]:
+    """id -> the row of its first occurrence."""
+    n = len(ids)
+    index = dict(zip(ids, range(n), strict=True))
+    if len(index) < n:
+        index = dict(zip(reversed(ids), range(n - 1, -1, -1), strict=True))
+    return index
+
+
+def _endpoints(parts: Parts, index: dict[str, int]) -> tuple[np.ndarray, np.ndarray]:
+    """The rows of the transitions' endpoints (first occurrences), −1 for unknown ids."""
+    return _lookup(index, parts.src), _lookup(index, parts.dst)
+
+
+def _lookup(index: dict[str, int], keys: list[str]) -> np.ndarray:
+    try:
+        return np.array(list(map(index.__getitem__, keys)), dtype=np.int64).reshape(-1)
+    except KeyError:
+        return np.fromiter(map(index.get, keys, repeat(-1)), dtype=np.int64, count=len(keys))
+
+
+def _check_parts(
+    parts: Parts,
+    index: dict[str, int],
+    src: np.ndarray,
+    dst: np.ndarray,
+    dim: int,
+    head: list[tuple[str, str]],
+    path: str,
+) -> None:
+    """Duplicate ids, sizes of s and P, endpoints, steps, payoffs, duplicate pairs."""
+    ids = parts.ids
+    n = len(ids)
+    rep = _Report()
+    rows = np.arange(n, dtype=np.int64)
+    dup = np.zeros(n, dtype=bool)
+    if len(index) < n:
+        first = np.fromiter(map(index.__getitem__, ids), dtype=np.int64, count=n)
+        dup = first != rows
+        for i in np.flatnonzero(dup).tolist():
+            rep.add((0, i, 0), f"state '{ids[i]}'", "duplicate state id")
+    for i in np.flatnonzero(~dup & (parts.s_len != dim)).tolist():
+        rep.add((0, i, 1), f"state '{ids[i]}'", f"s has {parts.s_len[i]} entries, expected {dim}")
+    shape = parts.P_shape
+    bad_p = ~dup & (shape[:, 0] >= 0) & ((shape[:, 0] != dim) | (shape[:, 1] != dim))
+    for i in np.flatnonzero(bad_p).tolist():
+        got = f"{shape[i, 0]}x{shape[i, 1]}"
+        rep.add((0, i, 2), f"state '{ids[i]}'", f"P must be {dim}x{dim}, got {got}")
+
+    def item(j: int) -> str:
+        return f"transition {j} ({parts.src[j]} -> {parts.dst[j]})"
+
+    unknown = (src < 0) | (dst < 0)
+    for j in np.flatnonzero(unknown).tolist():
+        missing = parts.src[j] if src[j] < 0 else parts.dst[j]
+        rep.add((1, j, 0), item(j), f"unknown state '{missing}'")
+    known = np.flatnonzero(~unknown)
+    ks, kd = parts.step[src[known]], parts.step[dst[known]]
+    jump = kd != ks + 1
+    for j, a, b in zip(known[jump].tolist(), ks[jump].tolist(), kd[jump].tolist(), strict=True):
+        rep.add((1, j, 1), item(j), f"goes from step {a} to step {b}; must go to step {a + 1}")
+    payoff = parts.payoff
+    bad_pay = ~unknown & ~(np.isfinite(payoff) & (payoff >= 0))
+    for j in np.flatnonzero(bad_pay).tolist():
+        rep.add((1, j, 2), item(j), f"payoff must be finite and >= 0, got {payoff[j]}")
+    if known.size > 1:
+        key = src[known] * n + dst[known]
+        o = np.argsort(key, kind="stable")
+        again = np.zeros(known.size, dtype=bool)
+        again[o[1:]] = key[o[1:]] == key[o[:-1]]
+        for j in known[again].tolist():
+            rep.add((1, j, 3), item(j), "a second transition between the same states")
+    rep.raise_if_any(path, head)
+
+
+def _check_order(
+    rep: _Report,
+    ptr: np.ndarray,
+    src: np.ndarray,
+    rank: np.ndarray,
+    perm: np.ndarray | None,
+    ids: list[str],
+) -> None:
     """≺ must have a unique minimum per state: the transition taken when not attacked."""
-    problems = []
-    for sid in graph.nodes:
-        ranks = [d["transition"].rank for _, _, d in graph.out_edges(sid, data=True)]
-        if ranks and ranks.count(min(ranks)) > 1:
-            problems.append(
-                (
-                    f"state '{sid}'",
-                    f"{ranks.count(min(ranks))} transitions share the lowest rank "
-                    f"{min(ranks)}; the unattacked successor must be unique",
-                )
-            )
-    return problems
+    m = rank.shape[0]
+    if m < 2:
+        return
+    lowest = rank[np.minimum(ptr[:-1], m - 1)]  # each state's first (lowest) rank
+    at_min = rank == lowest[src]
+    count = np.bincount(src[at_min], minlength=ptr.shape[0] - 1)
+    bad = np.flatnonzero(count > 1)
+    rows = _file_rows(bad, perm).tolist()
+    for r, c, lo in zip(rows, count[bad].tolist(), lowest[bad].tolist(), strict=True):
+        rep.add(
+            (0, r, 0),
+            f"state '{ids[r]}'",
+            f"{c} transitions share the lowest rank {lo}; the unattacked successor must be unique",
+        )
 
 
-def _check_paths(graph: nx.DiGraph, initial: str, original: Sequence[str]) -> list[tuple[str, str]]:
-    problems: list[tuple[str, str]] = []
-    if initial not in graph:
-        return [("initial", f"unknown state '{initial}'")]
-    if graph.nodes[initial]["state"].step != 0:
-        problems.append(("initial", f"state '{initial}' must be at step 0"))
+def _check_paths(
+    rep: _Report,
+    parts: Parts,
+    index: dict[str, int],
+    pos: np.ndarray,
+    step: np.ndarray,
+    halted: np.ndarray,
+    ptr: np.ndarray,
+    src: np.ndarray,
+    dst: np.ndarray,
+    perm: np.ndarray | None,
+    ids: list[str],
+) -> np.ndarray | None:
+    """Initial, original path, reachability, steps beyond e, halting; the original's rows."""
+    initial, original = parts.initial, parts.original
+    if initial not in index:
+        rep.add((1, 0, 0), "initial", f"unknown state '{initial}'")
+        return None
+    q0 = int(pos[index[initial]])
+    if step[q0] != 0:
+        rep.add((1, 0, 1), "initial", f"state '{initial}' must be at step 0")
     if not original:
-        return [*problems, ("original", "the original path is empty")]
+        rep.add((1, 0, 2), "original", "the original path is empty")
+        return None
     if original[0] != initial:
-        problems.append(("original", f"must start at the initial state '{initial}'"))
+        rep.add((1, 0, 2), "original", f"must start at the initial state '{initial}'")
     e = len(original) - 1
-    for k, sid in enumerate(original):
-        if sid not in graph:
-            problems.append((f"original[{k}]", f"unknown state '{sid}'"))
-            return problems
-        if graph.nodes[sid]["state"].step != k:
-            problems.append(
-                (
-                    f"original[{k}]",
-                    f"state '{sid}' is at step {graph.nodes[sid]['state'].step}, not {k}",
-                )
-            )
-        if k > 0 and graph.has_edge(original[k - 1], sid):
-            pick = min(
-                graph.out_edges(original[k - 1], data=True), key=lambda x: x[2]["transition"].rank
-            )
-            if pick[1] != sid:
-                problems.append(
-                    (
-                        f"original[{k}]",
-                        f"'{sid}' is not the unattacked (rank-minimal) "
-                        f"successor of '{original[k - 1]}', which is '{pick[1]}'",
+    rows = _lookup(index, original)
+    missing = np.flatnonzero(rows < 0)
+    stop = int(missing[0]) if missing.size else e + 1
+    op = pos[rows[:stop]]
+    m = dst.shape[0]
+    deg = np.diff(ptr)
+    k = np.arange(stop, dtype=np.int64)
+    for kk in np.flatnonzero(step[op] != k).tolist():
+        sid = original[kk]
+        rep.add((2, kk, 0), f"original[{kk}]", f"state '{sid}' is at step {step[op[kk]]}, not {kk}")
+    if stop > 1 and m:
+        prev, cur = op[:-1], op[1:]
+        pick = np.where(deg[prev] > 0, dst[np.minimum(ptr[prev], m - 1)], -1)
+        off = np.flatnonzero(pick != cur)
+        if off.size:
+            edges = src * len(ids) + dst
+            exists = np.isin(prev[off] * len(ids) + cur[off], edges)
+            for i, ok in zip(off.tolist(), exists.tolist(), strict=True):
+                kk, a, b = i + 1, original[i], original[i + 1]
+                if ok:
+                    p = _id(ids, perm, int(pick[i]))
+                    msg = (
+                        f"'{b}' is not the unattacked (rank-minimal) successor of '{a}', "
+                        f"which is '{p}'"
                     )
-                )
-        elif k > 0:
-            problems.append(
-                (f"original[{k}]", f"no transition from '{original[k - 1]}' to '{sid}'")
-            )
-    reachable = nx.descendants(graph, initial) | {initial}
-    for sid in graph.nodes:
-        st = graph.nodes[sid]["state"]
-        item = f"state '{sid}'"
-        if sid not in reachable:
-            problems.append((item, "not reachable from the initial state"))
-        if st.step > e:
-            problems.append((item, f"step {st.step} is beyond the original path's end {e}"))
-        succ = graph.out_degree(sid)
-        if st.halted and succ:
-            problems.append((item, "is labelled halted but has successors"))
-        elif not succ and st.step < e and not st.halted:
-            problems.append(
-                (
-                    item,
+                else:
+                    msg = f"no transition from '{a}' to '{b}'"
+                rep.add((2, kk, 1), f"original[{kk}]", msg)
+    elif stop > 1:
+        for kk in range(1, stop):
+            msg = f"no transition from '{original[kk - 1]}' to '{original[kk]}'"
+            rep.add((2, kk, 1), f"original[{kk}]", msg)
+    if missing.size:
+        rep.add((2, stop, 0), f"original[{stop}]", f"unknown state '{original[stop]}'")
+        return None
+
+    reach = _reachable(q0, step, ptr, src, dst)
+    succ = deg > 0
+    masks = (~reach, step > e, (halted & succ) | (~succ & (step < e) & ~halted))
+    for kind, mask in enumerate(masks):
+        qs = np.flatnonzero(mask)
+        for r, q in zip(_file_rows(qs, perm).tolist(), qs.tolist(), strict=True):
+            if kind == 0:
+                msg = "not reachable from the initial state"
+            elif kind == 1:
+                msg = f"step {step[q]} is beyond the original path's end {e}"
+            elif halted[q]:
+                msg = "is labelled halted but has successors"
+            else:
+                msg = (
                     f"has no successor before step {e}; label it 'halted' if the "
-                    "tracker stopped there",
+                    "tracker stopped there"
                 )
-            )
-    return problems
+            rep.add((3, r, kind), f"state '{ids[r]}'", msg)
+    return op
+
+
+def _file_rows(rows: np.ndarray, perm: np.ndarray | None) -> np.ndarray:
+    """The file rows of sorted rows, so that problems are listed in file order."""
+    return rows if perm is None else perm[rows]
+
+
+def _id(ids: list[str], perm: np.ndarray | None, row: int) -> str:
+    return ids[row] if perm is None else ids[int(perm[row])]
+
+
+def _reachable(
+    q0: int, step: np.ndarray, ptr: np.ndarray, src: np.ndarray, dst: np.ndarray
+) -> np.ndarray:
+    """States reachable from q0; rows are sorted by step and every transition climbs one step."""
+    n = step.shape[0]
+    reach = np.zeros(n, dtype=bool)
+    reach[q0] = True
+    starts = np.flatnonzero(np.r_[True, step[1:] != step[:-1]])
+    if starts.size <= _LEVEL_LOOP_MAX:
+        bounds = np.r_[starts, n]
+        tb = ptr[bounds].tolist()
+        for a, b in pairwise(tb):
+            if a < b:
+                reach[dst[a:b][reach[src[a:b]]]] = True
+        return reach
+    ptr_l, dst_l = ptr.tolist(), dst.tolist()
+    seen = bytearray(n)
+    seen[q0] = 1
+    todo = [q0]
+    while todo:
+        q = todo.pop()
+        for t in dst_l[ptr_l[q] : ptr_l[q + 1]]:
+            if not seen[t]:
+                seen[t] = 1
+                todo.append(t)
+    return np.frombuffer(bytes(seen), dtype=np.uint8).astype(bool)
+
+
+def _covariances(
+    parts: Parts, perm: np.ndarray | None, dim: int
+) -> tuple[np.ndarray | None, np.ndarray | None]:
+    """cov (row -> table index, −1: none) and the distinct P's, in order of first use."""
+    has = parts.P_shape[:, 0] >= 0
+    if not has.any():
+        return None, None
+    n = has.shape[0]
+    which = np.full(n, -1, dtype=np.int64)  # file row -> its P among those present
+    which[has] = np.arange(int(has.sum()), dtype=np.int64)
+    if perm is not None:
+        which = which[perm]
+    rows = parts.P_flat.reshape(-1, dim * dim)
+    present = which >= 0
+    table, inverse = dedup_rows(rows[which[present]])
+    cov = np.full(n, -1, dtype=np.int64)
+    cov[present] = inverse
+    return cov, table.reshape(-1, dim, dim)
+
+
+def dedup_rows(rows: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The distinct rows of a float64 (p, k) array by exact bytes, in order of first
+    appearance, and each row's index among them."""
+    rows = np.ascontiguousarray(rows, dtype=np.float64)
+    p, k = rows.shape
+    if p == 0:
+        return rows, np.zeros(0, dtype=np.int64)
+    bits = rows.view(np.int64)
+    if k <= _HASH.shape[0]:
+        h = bits @ _HASH[:k]  # wraps around: a hash of the exact bit patterns
+        _, first, inverse = np.unique(h, return_index=True, return_inverse=True)
+        inverse = inverse.reshape(-1)
+        if not np.array_equal(bits, bits[first[inverse]]):  # a hash collision: compare bytes
+            first, inverse = _unique_bytes(bits)
+    else:
+        first, inverse = _unique_bytes(bits)
+    o = np.argsort(first, kind="stable")
+    renumber = np.empty_like(o)
+    renumber[o] = np.arange(o.shape[0], dtype=np.int64)
+    return rows[first[o]], renumber[inverse].astype(np.int64)
+
+
+def _unique_bytes(bits: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    void = bits.view(np.dtype((np.void, bits.shape[1] * 8))).reshape(-1)
+    _, first, inverse = np.unique(void, return_index=True, return_inverse=True)
+    return first, inverse.reshape(-1)
+
+
+def _observations(
+    obs: list[str | None] | None, torder: np.ndarray
+) -> tuple[np.ndarray | None, tuple[str, ...]]:
+    if obs is None:
+        return None, ()
+    distinct = set(obs)
+    distinct.discard(None)
+    if not distinct:
+        return None, ()
+    names = sorted(n for n in distinct if n is not None)
+    code: dict[str | None, int] = {name: i for i, name in enumerate(names)}
+    code[None] = -1
+    codes = np.array(list(map(code.__getitem__, obs)), dtype=np.int64).reshape(-1)
+    return codes[torder], tuple(names)

@@ -1,10 +1,16 @@
-"""The exit-status contract of ``lesmc check`` (and of every verb that checks)."""
+"""The exit-status contract of ``lesmc check`` (and of every verb that checks).
+
+Light on purpose (no lesmc imports at run time): the command line's entry point
+reads the constants before any command has imported the engines.
+"""
 
 from __future__ import annotations
 
 from collections.abc import Sequence
+from typing import TYPE_CHECKING
 
-from lesmc.engines.result import CheckResult
+if TYPE_CHECKING:
+    from lesmc.engines.result import CheckResult
 
 EXIT_HOLDS = 0
 """Every property holds."""
@@ -14,6 +20,10 @@ EXIT_USAGE = 2
 """Bad input or usage; nothing was checked or written."""
 EXIT_UNKNOWN = 3
 """None violated, but a budget ran out before at least one verdict was proven."""
+EXIT_INTERNAL = 4
+"""A bug in lesmc (an unexpected exception): no verdict; please report it."""
+EXIT_INTERRUPTED = 130
+"""Interrupted (SIGINT, Ctrl-C): no verdict (128 + SIGINT, as shells report it)."""
 
 
 def exit_status(results: Sequence[CheckResult]) -> int:

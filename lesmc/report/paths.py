@@ -16,10 +16,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from lesmc.engines.space import _OPS
 from lesmc.language.semantics import BoundMeasure, BoundProperty
+from lesmc.model import kernel
+from lesmc.model.kernel import LOCATION, alarm, tau
 from lesmc.model.lts import LTS, Transition
-from lesmc.tracking.monitor import LOCATION, alarm, tau
 
 
 @dataclass(frozen=True)
@@ -140,7 +140,7 @@ def deviations(
     out = np.full(model.end + 1, np.inf)
     for k, sid in enumerate(states):
         diff = position(model, sid, components) - position(model, model.original[k], components)
-        out[k] = float(np.linalg.norm(diff, ord=norm))
+        out[k] = float(kernel.deviation(diff, norm))
     return out
 
 
@@ -167,18 +167,20 @@ class Judged:
 
 
 def judge(model: LTS, path: TrackPath, bp: BoundProperty) -> Judged:
-    """Evaluate a property's measures on a path (independently of the engines)."""
+    """Evaluate a property's measures on one path with the semantics kernel."""
     dist = deviations(model, path.states, bp.components, bp.norm)
     pays = np.zeros(model.end + 1)
     for k, t in enumerate(path.transitions, start=1):
         pays[k] = model.combined_payoff(t)
 
+    steps = np.arange(1, model.end + 1)
+
     def value(m: BoundMeasure) -> float:
-        src = pays if m.source == "payoff" else dist
-        seg = src[m.lo : m.hi + 1]
-        if m.aggregate == "max":
-            return float(np.max(seg))
-        return math.fsum(seg.tolist()) * m.weight if np.isfinite(seg).all() else math.inf
+        """The measure along the path: the kernel's contributions, aggregated step by step."""
+        acc = kernel.initial_value(m, float(dist[0]))
+        for c in kernel.contributions(m, steps, pays[1:], dist[1:]).tolist():
+            acc = kernel.aggregate(m.aggregate == "max", acc, c)
+        return float(acc)
 
     alarmed = False
     if bp.monitor_components is not None:
@@ -192,5 +194,5 @@ def judge(model: LTS, path: TrackPath, bp: BoundProperty) -> Judged:
     )
     con = value(bp.constraint)
     return Judged(
-        path, value(bp.objective), con, bool(_OPS[bp.op](con, bp.bound)), alarmed, admissible
+        path, value(bp.objective), con, kernel.compare(bp.op, con, bp.bound), alarmed, admissible
     )

@@ -59,32 +59,98 @@ class Option:
 def attack_options(dist: np.ndarray, gated: np.ndarray, payoffs: np.ndarray) -> list[Option]:
     """The outcomes, nearest first, for detections at distances ``dist`` from the prediction.
 
-    Scanning detections by distance: a gated one is an update outcome (reached by
-    hiding all nearer ones); the first non-gated one is the skip outcome (the
-    nearest visible detection fails the gate). Later non-gated detections lead to
-    the same skip, so their payoffs fold into the previous outcome's payoff, which
-    keeps every later combined payoff exact. An unattackable detection (payoff ∞)
-    ends the list: nothing beyond it can be reached. Hiding everything skips.
+    One row of :func:`attack_option_rows` (ties in distance go to the lower index).
     """
     order = np.argsort(dist, kind="stable")
-    options: list[Option] = []
-    skip_seen = False
-    for i in order:
-        p = float(payoffs[i])
-        if gated[i]:
-            options.append(Option(int(i), p))
-        elif not skip_seen:
-            options.append(Option(None, p))
-            skip_seen = True
-        else:
-            last = options[-1]
-            options[-1] = Option(last.detection, last.payoff + p)
-        if not math.isfinite(p):
-            break
-    else:
-        if not skip_seen:
-            options.append(Option(None, 0.0))
-    if options and not math.isfinite(options[-1].payoff):
-        last = options[-1]
-        options[-1] = Option(last.detection, 0.0)  # never part of a combined payoff
-    return options
+    rows = attack_option_rows(
+        np.asarray(gated, bool)[order][None, :],
+        np.asarray(payoffs, float)[order][None, :],
+        np.ones((1, len(order)), dtype=bool),
+    )
+    return [
+        Option(None if c < 0 else int(order[c]), float(p))
+        for c, p in zip(rows.col.tolist(), rows.payoff.tolist(), strict=True)
+    ]
+
+
+@dataclass(frozen=True)
+class OptionRows:
+    """The options of many rows, flattened in (row, rank) order.
+
+    ``col`` is the candidate column the option updates with, −1 for the skip.
+    """
+
+    row: np.ndarray
+    col: np.ndarray
+    payoff: np.ndarray
+
+
+def attack_option_rows(
+    gated: np.ndarray, payoffs: np.ndarray, valid: np.ndarray, same: np.ndarray | None = None
+) -> OptionRows:
+    """The attacker's options for many predictions at once (g rows of k candidates).
+
+    Each row lists its candidate detections nearest first (``valid`` marks real
+    ones). Scanning a row: a gated candidate is an update outcome (reached by
+    hiding every nearer one); the first non-gated one is the skip outcome (the
+    nearest visible detection fails the gate). Later non-gated candidates lead
+    to the same skip, so their payoffs fold into the previous outcome's own
+    payoff, which keeps every later combined payoff (Eq. 5) exact. An
+    unattackable candidate (payoff ∞) ends the row: nothing beyond it can be
+    reached, and the last outcome's own payoff, never part of a combined
+    payoff, is 0. Hiding everything skips (own payoff 0).
+
+    ``same`` (g, k), optional, identifies candidates at identical positions: a
+    gated one that repeats an earlier outcome's detection leads to the same
+    state and is dropped, its own payoff added to the outcome before it (so
+    later combined payoffs do not change).
+
+    Payoffs are accumulated column by column, left to right, so every own
+    payoff is summed in the order of the scan whatever the batch.
+    """
+    g, k = gated.shape
+    cols = np.arange(k)
+    finite = np.isfinite(payoffs)
+    bad = valid & ~finite
+    included = valid & ((np.cumsum(bad, axis=1) - bad) == 0)
+    broke = (included & bad).any(axis=1)
+    nongated = included & ~gated
+    first_ng = nongated & (np.cumsum(nongated, axis=1) == 1)
+    update = included & gated
+    produce = update | first_ng
+    own = np.where(produce, payoffs, 0.0)
+    prev = np.maximum.accumulate(np.where(produce, cols, -1), axis=1)
+    fold = included & ~produce
+    for j in np.nonzero(fold.any(axis=0))[0]:
+        r = np.nonzero(fold[:, j])[0]
+        own[r, prev[r, j]] += payoffs[r, j]
+    # a row that broke off at an unattackable candidate: its last outcome costs nothing
+    last = np.where(produce, cols, -1).max(axis=1, initial=-1)
+    rb = np.nonzero(broke)[0]
+    own[rb, last[rb]] = 0.0
+    if same is not None:
+        dup = np.zeros_like(update)
+        for j in range(1, k):
+            earlier = update[:, :j] & (same[:, :j] == same[:, j : j + 1])
+            dup[:, j] = update[:, j] & earlier.any(axis=1)
+        if dup.any():
+            for j in np.nonzero(dup.any(axis=0))[0]:
+                keep = produce & ~dup
+                keep[:, j:] = False
+                before = np.where(keep, cols, -1).max(axis=1, initial=-1)
+                r = np.nonzero(dup[:, j])[0]
+                own[r, before[r]] += own[r, j]
+            produce &= ~dup
+    r_idx, c_idx = np.nonzero(produce)
+    trailing = np.nonzero(~broke & ~first_ng.any(axis=1))[0]
+    row = np.concatenate([r_idx, trailing])
+    col = np.concatenate([c_idx, np.full(trailing.size, k)])
+    order = np.lexsort((col, row))
+    row, col = row[order], col[order]
+    is_skip = col == k
+    skip_col = np.zeros(col.size, dtype=bool)
+    skip_col[~is_skip] = first_ng[row[~is_skip], col[~is_skip]]
+    pay = np.zeros(col.size)
+    pay[~is_skip] = own[row[~is_skip], col[~is_skip]]
+    out_col = np.where(is_skip | skip_col, -1, col)
+    return OptionRows(row, out_col, pay)

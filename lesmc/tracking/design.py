@@ -1,47 +1,119 @@
-"""What the model builder needs from a tracker design, and the factory for the two designs."""
+"""What the unfolder needs from a tracker design: batches of states and their successors.
+
+A design is assembled from the parts in tracking/ (kalman.py: predictor and
+updater; association.py: gate and the attacker's options; the deleter is the
+trace(P) > max_trace halt), as Stone Soup composes its trackers. Its states
+travel in batches of arrays: the estimate X (n, d), an index into the design's
+table of distinct covariances, and the halted flag; a design whose state is
+more than one filter (joint) also keeps the whole states as objects.
+"""
 
 from __future__ import annotations
 
-from dataclasses import dataclass
-from typing import Protocol
+from dataclasses import dataclass, field
+from typing import Any, Protocol
 
 import numpy as np
 
 from lesmc.tracking.scene import Scene
 
 
-class TrackerState(Protocol):
-    """A tracker state ρ: its estimate (s, P) for the model, identity and halting."""
+class CovarianceTable:
+    """The distinct covariances P of a design's states, each stored once, by exact value."""
 
-    @property
-    def halted(self) -> bool: ...
+    def __init__(self) -> None:
+        self.matrices: list[np.ndarray] = []
+        self._index: dict[bytes, int] = {}
 
-    def estimate(self) -> tuple[np.ndarray, np.ndarray]: ...
+    def add(self, P: np.ndarray) -> int:
+        """The index of ``P`` (added if new)."""
+        key = P.tobytes()
+        i = self._index.get(key)
+        if i is None:
+            i = len(self.matrices)
+            self.matrices.append(P)
+            self._index[key] = i
+        return i
 
-    def key(self) -> bytes: ...
+    def __getitem__(self, i: int) -> np.ndarray:
+        return self.matrices[i]
+
+    def __len__(self) -> int:
+        return len(self.matrices)
+
+    def stack(self) -> np.ndarray:
+        """All covariances (c, d, d)."""
+        return np.array(self.matrices, dtype=float)
 
 
-@dataclass(frozen=True)
-class Outcome:
-    """A successor of a tracker state: the observation used (None: no update), own payoff."""
+@dataclass
+class Batch:
+    """n tracker states: estimates X (n, d), covariance indices, halted flags, and for
+    designs whose state is more than one filter, the states themselves (``objects``)."""
 
-    state: TrackerState
-    obs: str | None
-    payoff: float
+    X: np.ndarray
+    cov: np.ndarray
+    halted: np.ndarray
+    objects: list[Any] | None = None
+
+    def __len__(self) -> int:
+        return int(self.X.shape[0])
+
+    def take(self, idx: np.ndarray) -> Batch:
+        objs = None if self.objects is None else [self.objects[int(i)] for i in idx]
+        return Batch(self.X[idx], self.cov[idx], self.halted[idx], objs)
+
+    @staticmethod
+    def concat(batches: list[Batch]) -> Batch:
+        objs = None
+        if batches and batches[0].objects is not None:
+            objs = [o for b in batches for o in (b.objects or [])]
+        return Batch(
+            np.concatenate([b.X for b in batches]),
+            np.concatenate([b.cov for b in batches]),
+            np.concatenate([b.halted for b in batches]),
+            objs,
+        )
+
+
+@dataclass
+class Successors:
+    """Every outcome of a batch at the next frame, grouped by source and in rank order.
+
+    ``src`` is the position of the source in the batch; ``payoff`` the
+    transition's own payoff (so that Eq. 5, the sum over lower ranks, is the
+    cost of forcing the outcome); ``det`` the detection used (index into the
+    frame), −1 when the tracker skips the update.
+    """
+
+    src: np.ndarray
+    rank: np.ndarray
+    payoff: np.ndarray
+    det: np.ndarray
+    states: Batch
+    extra: dict[str, Any] = field(default_factory=dict)
 
 
 class Design(Protocol):
-    """A tracker design: an initial state and, per state, the attacker-forced outcomes."""
+    """A tracker design: an initial state and, per batch of states, the attacker-forced outcomes."""
 
     name: str
     scene: Scene
+    covariances: CovarianceTable
 
-    def initial(self) -> TrackerState: ...
+    def initial(self) -> Batch:
+        """The one state at the target's frame."""
+        ...
 
-    def options(self, st: TrackerState, step: int) -> list[Outcome]: ...
+    def successors(self, batch: Batch, step: int, attacked: bool) -> Successors:
+        """Outcomes of moving every state of ``batch`` from frame ``step − 1`` to ``step``:
+        all the attacker can force when ``attacked``, else only the unattacked one
+        (rank 0, own payoff 0)."""
+        ...
 
-    def unattacked(self, states: list[TrackerState], step: int) -> list[Outcome]:
-        """``options(st, step)[0]`` for every state (designs may batch it)."""
+    def keys(self, batch: Batch) -> np.ndarray:
+        """Exact identity of each state as a row of 64-bit words (n, w), so that
+        coinciding states are shared."""
         ...
 
 
@@ -51,24 +123,5 @@ def make_design(scene: Scene) -> Design:
     from lesmc.tracking.single import SingleDesign
 
     if scene.tracker.design == "joint":
-        return JointDesign(scene)  # type: ignore[return-value]
-    return SingleDesign(scene)  # type: ignore[return-value]
-
-
-def merge_equal(options: list[Outcome]) -> list[Outcome]:
-    """Drop outcomes whose state equals an earlier one's (a costlier way to the same place).
-
-    The dropped payoff is added to the kept outcome just before it, so the
-    combined payoff (Eq. 5, sum over lower ranks) of every later outcome is unchanged.
-    """
-    seen: set[bytes] = set()
-    out: list[Outcome] = []
-    for o in options:
-        key = o.state.key()
-        if key in seen:
-            prev = out[-1]
-            out[-1] = Outcome(prev.state, prev.obs, prev.payoff + o.payoff)
-            continue
-        seen.add(key)
-        out.append(o)
-    return out
+        return JointDesign(scene)
+    return SingleDesign(scene)

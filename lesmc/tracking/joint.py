@@ -30,7 +30,9 @@ from dataclasses import dataclass
 import numpy as np
 
 from lesmc.tracking.association import gate_mask, gate_radius
-from lesmc.tracking.design import Outcome
+import hashlib
+
+from lesmc.tracking.design import Batch, CovarianceTable, Successors
 from lesmc.tracking.kalman import (
     Innovation,
     Matrices,
@@ -77,15 +79,57 @@ class JointDesign:
         self.scene = scene
         self.cfg = scene.tracker
         self.m: Matrices = matrices(self.cfg, scene.dt)
+        self.covariances = CovarianceTable()
 
-    def initial(self) -> JointState:
+    def initial(self) -> Batch:
         t = self.scene.target
         x0 = np.array([*t.start, *t.velocity], dtype=float)
         Z = self.scene.frame(t.step).positions()
         near = Z[np.hypot(*(Z - x0[:2]).T) <= self.cfg.init_radius] if len(Z) else Z
-        return JointState(((x0, self.m.P0.copy()),), near.reshape(-1, 2))
+        return self._batch([JointState(((x0, self.m.P0.copy()),), near.reshape(-1, 2))])
 
-    def options(self, st: JointState, step: int) -> list[Outcome]:
+    def _batch(self, states: list[JointState]) -> Batch:
+        """Joint states as a batch: the primary's estimate and covariance are the model's."""
+        X = np.array([st.x for st in states], dtype=float).reshape(-1, 4)
+        cov = np.array([self.covariances.add(st.P) for st in states], dtype=np.int64)
+        halted = np.array([st.halted for st in states], dtype=bool)
+        return Batch(X, cov, halted, list(states))
+
+    def keys(self, batch: Batch) -> np.ndarray:
+        """A 128-bit digest of each whole joint state (tracks and pending detections)."""
+        assert batch.objects is not None
+        digests = b"".join(
+            hashlib.blake2b(st.key(), digest_size=16).digest() for st in batch.objects
+        )
+        return np.frombuffer(digests, dtype=np.uint64).reshape(-1, 2)
+
+    def successors(self, batch: Batch, step: int, attacked: bool) -> Successors:
+        """Every state's outcomes, one state at a time (association is greedy and per state)."""
+        assert batch.objects is not None
+        src: list[int] = []
+        rank: list[int] = []
+        pay: list[float] = []
+        det: list[int] = []
+        states: list[JointState] = []
+        for i, st in enumerate(batch.objects):
+            opts = self.options(st, step)
+            if not attacked:
+                opts = opts[:1]  # its own payoff is kept: it is part of no combined payoff
+            for r, (nxt, d, p) in enumerate(opts):
+                src.append(i)
+                rank.append(r)
+                pay.append(p)
+                det.append(d)
+                states.append(nxt)
+        return Successors(
+            np.array(src, dtype=np.int64),
+            np.array(rank, dtype=np.int64),
+            np.array(pay, dtype=float),
+            np.array(det, dtype=np.int64),
+            self._batch(states),
+        )
+
+    def options(self, st: JointState, step: int) -> list[tuple[JointState, int, float]]:
         """Outcomes of hiding the j detections nearest to the primary's prediction, j = 0, 1, ..."""
         scene, cfg = self.scene, self.cfg
         Hm = scene.frame(step - 1).to_next
@@ -107,7 +151,7 @@ class JointDesign:
         gated = gate_mask(y0[near], inn0, Pp0, cfg.gate, cfg.gate_type)
         last = int(np.nonzero(gated)[0].max()) + 1 if gated.any() else 0
         payoffs = frame.payoffs()
-        kept: list[tuple[float, JointState, str | None]] = []  # (cost of hiding, state, obs)
+        kept: list[tuple[float, JointState, int]] = []  # (cost of hiding, state, detection)
         seen: set[bytes] = set()
         cost = 0.0
         for j in range(last + 1):  # option j hides the j nearest detections
@@ -124,13 +168,9 @@ class JointDesign:
                 kept.append((cost, nxt, obs))
         # own payoffs so that Eq. 5 (sum over lower ranks) gives each option's cost
         return [
-            Outcome(st_, obs, (kept[r + 1][0] - c) if r + 1 < len(kept) else 0.0)
+            (st_, obs, (kept[r + 1][0] - c) if r + 1 < len(kept) else 0.0)
             for r, (c, st_, obs) in enumerate(kept)
         ]
-
-    def unattacked(self, states: list[JointState], step: int) -> list[Outcome]:
-        """The unattacked outcome of each state (no batching for the joint design)."""
-        return [self.options(st, step)[0] for st in states]
 
     def _associate(
         self,
@@ -139,7 +179,7 @@ class JointDesign:
         Z: np.ndarray,
         visible: np.ndarray,
         frame: object,
-    ) -> tuple[JointState, str | None]:
+    ) -> tuple[JointState, int]:
         cfg = self.cfg
         idx = np.nonzero(visible)[0]
         pairs: list[tuple[float, int, int]] = []
@@ -196,5 +236,4 @@ class JointDesign:
             and float(np.trace(t[1])) <= cfg.max_trace
         ]
         pend = np.array(keep, dtype=float).reshape(-1, 2)
-        obs = frame.detections[assign[0]].id if 0 in assign else None  # type: ignore[attr-defined]
-        return JointState((primary, *refining), pend, halted), obs
+        return JointState((primary, *refining), pend, halted), assign.get(0, -1)

@@ -1,6 +1,7 @@
-"""The near-constant-velocity Kalman filter of section 6.7 (Eq. 16-18), two ways.
+"""The near-constant-velocity Kalman filter of section 6.7 (Eq. 16-18).
 
-* :func:`reference_filter` builds a filterpy ``KalmanFilter``: the reference.
+* The reference is filterpy's ``KalmanFilter`` (a test dependency only:
+  ``tests/kf_reference.py`` builds one from :func:`matrices`).
 * :func:`predict_means`, :func:`innovation` and :func:`update_means` are the
   fast path the builder uses:
   P̂, S and the gain K depend only on the parent state, not on the observation,
@@ -15,8 +16,6 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from filterpy.common import Q_continuous_white_noise
-from filterpy.kalman import KalmanFilter
 
 from lesmc.tracking.scene import TrackerConfig
 
@@ -39,30 +38,40 @@ def matrices(cfg: TrackerConfig, dt: float) -> Matrices:
     """Eq. 16 (F), Eq. 17 (Q = σ_q² · continuous white-noise acceleration), Eq. 18 (H, R)."""
     F = np.eye(4)
     F[0, 2] = F[1, 3] = dt
-    Q = Q_continuous_white_noise(
-        dim=2, dt=dt, spectral_density=cfg.sigma_q**2, block_size=2, order_by_dim=False
-    )
+    Q = white_noise_q(dt, cfg.sigma_q**2)
     R = np.eye(2) * cfg.sigma_r**2
     P0 = np.diag(np.square(np.asarray(cfg.P0_sd, dtype=float)))
-    return Matrices(F, np.asarray(Q, dtype=float), H_POS.copy(), R, P0)
+    return Matrices(F, Q, H_POS.copy(), R, P0)
 
 
-def reference_filter(m: Matrices, x0: np.ndarray, P: np.ndarray | None = None) -> KalmanFilter:
-    """A filterpy KalmanFilter in the given state (the reference implementation)."""
-    kf = KalmanFilter(dim_x=4, dim_z=2)
-    kf.F, kf.Q, kf.H, kf.R = m.F.copy(), m.Q.copy(), m.H.copy(), m.R.copy()
-    kf.x = np.asarray(x0, dtype=float).reshape(4, 1).copy()
-    kf.P = (m.P0 if P is None else P).copy()
-    return kf
+def white_noise_q(dt: float, spectral_density: float) -> np.ndarray:
+    """Eq. 17: discretised continuous white-noise acceleration for state (x, y, vx, vy).
+
+    Per axis the block is [[dt³/3, dt²/2], [dt²/2, dt]]; x and y are independent,
+    so with the state ordered by derivative each entry becomes that value times
+    I₂. Bit for bit what filterpy's ``Q_continuous_white_noise(dim=2, dt,
+    spectral_density, block_size=2, order_by_dim=False)`` returns (same
+    expressions, same operations; tests/test_tracking.py checks it).
+    """
+    q = np.array([[dt**3 / 3.0, dt**2 / 2.0], [dt**2 / 2.0, dt]], dtype=float)
+    out: np.ndarray = np.kron(q, np.eye(2)) * spectral_density
+    return out
 
 
 def warp(Hm: np.ndarray | None, xy: np.ndarray) -> np.ndarray:
-    """Carry positions (…, 2) into the next frame's coordinates with a homography."""
+    """Carry positions (…, 2) into the next frame's coordinates with a homography.
+
+    The result of each point does not depend on how many are carried together.
+    """
     if Hm is None:
         return xy
-    pts = np.asarray(xy, dtype=float).reshape(-1, 2)
-    hom = np.c_[pts, np.ones(len(pts))] @ Hm.T
-    out: np.ndarray = (hom[:, :2] / hom[:, 2:3]).reshape(np.shape(xy))
+    pts = np.asarray(xy, dtype=float)
+    x, y = pts[..., 0], pts[..., 1]
+    # written out elementwise: a matrix product rounds differently with the batch size
+    w = Hm[2, 0] * x + Hm[2, 1] * y + Hm[2, 2]
+    out = np.empty(pts.shape)
+    out[..., 0] = (Hm[0, 0] * x + Hm[0, 1] * y + Hm[0, 2]) / w
+    out[..., 1] = (Hm[1, 0] * x + Hm[1, 1] * y + Hm[1, 2]) / w
     return out
 
 

@@ -8,35 +8,14 @@ causes. The alarm fires when τ rises: Eq. 13's Γ = 0.
 
 from __future__ import annotations
 
-from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
-from numpy.typing import ArrayLike
 
+from lesmc.model.kernel import DEFAULT_TOLERANCE, LOCATION, alarm, tau
 from lesmc.tracking.design import Design
 
-LOCATION = (0, 1)
-"""Indices of the location block (x, y) in the state (x, y, vx, vy)."""
-
-DEFAULT_TOLERANCE = 1e-9
-"""Relative rise of τ ignored by the alarm: only absorbs rounding."""
-
-
-def tau(P: np.ndarray, components: Sequence[int] = LOCATION) -> np.ndarray:
-    """τ = tr(Σ_ll) of one covariance (d, d) or of a stack (n, d, d) (Eq. 12)."""
-    idx = list(components)
-    sub = P[..., idx, :][..., :, idx]
-    out: np.ndarray = np.trace(sub, axis1=-2, axis2=-1)
-    return out
-
-
-def alarm(
-    tau_prev: ArrayLike, tau_next: ArrayLike, tolerance: float = DEFAULT_TOLERANCE
-) -> np.ndarray:
-    """Γ = 0 of Eq. 13: τ rose from one step to the next (beyond the relative tolerance)."""
-    out: np.ndarray = np.asarray(tau_next) > np.asarray(tau_prev) * (1.0 + tolerance) + 1e-300
-    return out
+__all__ = ["DEFAULT_TOLERANCE", "LOCATION", "TrackPoint", "alarm", "tau", "track"]
 
 
 @dataclass(frozen=True)
@@ -57,20 +36,23 @@ def track(design: Design, end: int | None = None) -> list[TrackPoint]:
     """The unattacked track from the target's frame, with τ and the alarm per step."""
     scene = design.scene
     last = scene.last_step - scene.target.step if end is None else end
-    st = design.initial()
-    x, P = st.estimate()
+    b = design.initial()
+    P = design.covariances[int(b.cov[0])]
     t0 = float(tau(P))
-    points = [TrackPoint(0, scene.target.step, None, x, P, t0, False, st.halted)]
+    points = [TrackPoint(0, scene.target.step, None, b.X[0], P, t0, False, bool(b.halted[0]))]
     for k in range(1, last + 1):
-        if st.halted:
+        if b.halted[0]:
             break
-        o = design.unattacked([st], scene.target.step + k)[0]
-        st = o.state
-        x, P = st.estimate()
+        frame = scene.target.step + k
+        succ = design.successors(b, frame, False)
+        b = succ.states
+        det = int(succ.det[0])
+        obs = None if det < 0 else scene.frame(frame).detections[det].id
+        P = design.covariances[int(b.cov[0])]
         t = float(tau(P))
         points.append(
             TrackPoint(
-                k, scene.target.step + k, o.obs, x, P, t, bool(alarm(points[-1].tau, t)), st.halted
+                k, frame, obs, b.X[0], P, t, bool(alarm(points[-1].tau, t)), bool(b.halted[0])
             )
         )
     return points

@@ -13,13 +13,15 @@ import math
 from dataclasses import dataclass, field, fields
 from functools import cached_property
 from pathlib import Path
-from typing import Any, Literal, TypeGuard
+from typing import TYPE_CHECKING, Any, Literal, TypeGuard
 
 import numpy as np
-from scipy.spatial import cKDTree
 
 from lesmc.errors import InputError, Problems
 from lesmc.fileio import read_json, write_json
+
+if TYPE_CHECKING:
+    from scipy.spatial import cKDTree
 
 FORMAT = "lesmc-scene"
 VERSION = 1
@@ -67,7 +69,12 @@ class Frame:
 
     @cached_property
     def _tree(self) -> cKDTree | None:
-        return cKDTree(self._positions) if len(self.detections) else None
+        if not len(self.detections):
+            return None
+        # scipy.spatial costs ~0.3-0.5 s to import: only scenes that are searched pay it.
+        from scipy.spatial import cKDTree
+
+        return cKDTree(self._positions)
 
     def near(self, point: np.ndarray, radius: float) -> list[int]:
         """Indices of the detections within ``radius`` of ``point`` (a k-d tree, built once)."""
@@ -90,6 +97,26 @@ class Frame:
     def payoffs(self) -> np.ndarray:
         """(n,) payoffs of hiding each detection (inf: unattackable); read-only."""
         return self._payoffs
+
+    @cached_property
+    def _position_ids(self) -> np.ndarray:
+        _, first, inverse = np.unique(
+            self._positions, axis=0, return_index=True, return_inverse=True
+        )
+        out: np.ndarray = first[inverse.reshape(-1)]
+        out.flags.writeable = False
+        return out
+
+    def position_ids(self) -> np.ndarray:
+        """(n,) for each detection, the lowest index of a detection at the same position."""
+        return self._position_ids
+
+    @cached_property
+    def has_repeats(self) -> bool:
+        """Two detections of this frame sit at exactly the same position."""
+        return bool(len(self.detections)) and bool(
+            (self._position_ids != np.arange(len(self.detections))).any()
+        )
 
 
 @dataclass(frozen=True)

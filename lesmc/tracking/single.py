@@ -1,13 +1,16 @@
 """Design "single": one Kalman filter with gated nearest-neighbour association (section 6.7).
 
-A tracker state is (x, P) plus a halted flag. :meth:`SingleDesign.options`
-returns every outcome an attacker can force at the next frame, in rank order;
-option 0 is what the unattacked tracker does.
+A state is (x, P) plus a halted flag; states travel in batches (tracking/design.py).
+For a batch, :meth:`SingleDesign.successors` returns every outcome an attacker
+can force at the next frame, in rank order; rank 0 is what the unattacked
+tracker does.
 
-Speed: P̂, S, K and the updated P depend only on the parent's P (which is
-shared by every state with the same history of updates and skips), so they
-are computed once per distinct P and cached; a successor then costs one
-mean update, and the detections near the prediction come from a k-d tree.
+Speed: P̂, S, K, the gate and the updated P depend only on the parent's P,
+which is shared by every state with the same history of updates and skips. So
+covariances live in a table, what derives from each is computed once
+(:class:`Gain`), and a batch is processed per distinct P with array arithmetic
+only: predict, the candidate detections from a k-d tree, gate, the attacker's
+options (association.attack_option_rows) and one mean update per outcome.
 """
 
 from __future__ import annotations
@@ -16,8 +19,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from lesmc.tracking.association import attack_options, gate_mask, gate_radius
-from lesmc.tracking.design import Outcome, merge_equal
+from lesmc.tracking.association import attack_option_rows, gate_mask, gate_radius
+from lesmc.tracking.design import Batch, CovarianceTable, Successors
 from lesmc.tracking.kalman import (
     Innovation,
     Matrices,
@@ -30,29 +33,15 @@ from lesmc.tracking.kalman import (
 from lesmc.tracking.scene import Frame, Scene
 
 
-@dataclass(frozen=True, eq=False)
-class SingleState:
-    """ρ = (s, P) of one Kalman filter."""
-
-    x: np.ndarray
-    P: np.ndarray
-    halted: bool = False
-
-    def estimate(self) -> tuple[np.ndarray, np.ndarray]:
-        return self.x, self.P
-
-    def key(self) -> bytes:
-        """Exact identity, so coinciding states can be shared."""
-        return self.x.tobytes() + self.P.tobytes()
-
-
 @dataclass(frozen=True)
-class _Covariance:
-    """Everything that depends on the parent's P only (Eq. 2-3 and the gate)."""
+class Gain:
+    """Everything that depends on a parent's covariance only (Eq. 2-3, the gate, the halt)."""
 
     P_pred: np.ndarray
     inn: Innovation
     radius: float
+    pred: int  # table index of P̂ (the state after a skipped update)
+    post: int  # table index of the updated P
     halt_pred: bool
     halt_post: bool
 
@@ -66,32 +55,44 @@ class SingleDesign:
         self.scene = scene
         self.cfg = scene.tracker
         self.m: Matrices = matrices(self.cfg, scene.dt)
-        self._cov: dict[bytes, _Covariance] = {}
+        self.covariances = CovarianceTable()
+        self._gains: dict[int, Gain] = {}
 
-    def initial(self) -> SingleState:
+    def initial(self) -> Batch:
         """At the target's frame: (start, velocity) with P0; that frame's detections unused."""
         t = self.scene.target
-        return SingleState(np.array([*t.start, *t.velocity], dtype=float), self.m.P0.copy())
+        x0 = np.array([[*t.start, *t.velocity]], dtype=float)
+        c0 = self.covariances.add(self.m.P0.copy())
+        return Batch(x0, np.array([c0], dtype=np.int64), np.zeros(1, dtype=bool))
 
-    def covariance(self, P: np.ndarray) -> _Covariance:
-        """Predict and gain for a parent covariance, cached by value."""
-        key = P.tobytes()
-        c = self._cov.get(key)
-        if c is None:
+    def keys(self, batch: Batch) -> np.ndarray:
+        """(x bits, covariance index) per state: equal rows are equal states."""
+        out: np.ndarray = np.column_stack(
+            [np.ascontiguousarray(batch.X).view(np.uint64), batch.cov.astype(np.uint64)]
+        )
+        return out
+
+    def gain(self, c: int) -> Gain:
+        """Predict and gain for the covariance with table index ``c`` (computed once)."""
+        g = self._gains.get(c)
+        if g is None:
             m, cfg = self.m, self.cfg
+            P = self.covariances[c]
             P_pred = m.F @ P @ m.F.T + m.Q
             inn = innovation(m, P_pred)
-            c = _Covariance(
+            g = Gain(
                 P_pred,
                 inn,
                 gate_radius(inn, P_pred, cfg.gate, cfg.gate_type),
+                self.covariances.add(P_pred),
+                self.covariances.add(inn.P_post),
                 float(np.trace(P_pred)) > cfg.max_trace,
                 float(np.trace(inn.P_post)) > cfg.max_trace,
             )
-            self._cov[key] = c
-        return c
+            self._gains[c] = g
+        return g
 
-    def _predict(self, X: np.ndarray, step: int) -> np.ndarray:
+    def predict(self, X: np.ndarray, step: int) -> np.ndarray:
         """Carry positions into frame ``step`` (homography of the previous frame), then predict."""
         to_next = self.scene.frame(step - 1).to_next
         if to_next is not None:
@@ -99,85 +100,83 @@ class SingleDesign:
             X[..., :2] = warp(to_next, X[..., :2])
         return predict_means(X, self.scene.dt)
 
-    def options(self, st: SingleState, step: int) -> list[Outcome]:
-        """All attacker-forced outcomes of moving from frame ``step − 1`` to ``step``."""
-        cfg = self.cfg
-        c = self.covariance(st.P)
-        x_pred = self._predict(st.x, step)
+    def successors(self, batch: Batch, step: int, attacked: bool) -> Successors:
+        """Outcomes of moving the states of ``batch`` (none halted) to frame ``step``."""
         frame = self.scene.frame(step)
-        near = frame.near(x_pred[:2], c.radius)
-        skip = Outcome(SingleState(x_pred, c.P_pred, c.halt_pred), None, 0.0)
-        if not near:
-            return [skip]
-        Z = frame.positions()[near]
-        y = Z - x_pred[:2]
-        dist = np.sqrt(y[:, 0] ** 2 + y[:, 1] ** 2)
-        gated = gate_mask(y, c.inn, c.P_pred, cfg.gate, cfg.gate_type)
-        opts = attack_options(dist, gated, frame.payoffs()[near])
-        rows = [o.detection for o in opts if o.detection is not None]
-        X = update_means(x_pred, c.inn.K, Z[rows]) if rows else None
-        out: list[Outcome] = []
-        r = 0
-        for o in opts:
-            if o.detection is None:
-                out.append(Outcome(skip.state, None, o.payoff))
-            else:
-                assert X is not None
-                det = frame.detections[near[o.detection]]
-                out.append(Outcome(SingleState(X[r], c.inn.P_post, c.halt_post), det.id, o.payoff))
-                r += 1
-        return merge_equal(out)
+        Xp = self.predict(batch.X, step)
+        parts: list[tuple[np.ndarray, ...]] = []
+        for c in np.unique(batch.cov).tolist():
+            members = np.nonzero(batch.cov == c)[0]
+            parts.append(self._group(frame, members, Xp[members], self.gain(c), attacked))
+        src, rank, payoff, det, X, cov, halted = (np.concatenate(a) for a in zip(*parts, strict=True))
+        order = np.lexsort((rank, src))
+        return Successors(
+            src[order],
+            rank[order],
+            payoff[order],
+            det[order],
+            Batch(X[order], cov[order], halted[order]),
+        )
 
-    @staticmethod
-    def _nearest(frame: Frame, points: np.ndarray, radius: float) -> np.ndarray:
-        """Index of the nearest detection within ``radius`` of each point (−1: none).
-
-        Distances as in :meth:`options`; ties go to the lowest detection index.
-        The k-d tree proposes the 3 nearest, which are re-ranked with that arithmetic.
-        """
-        idx = frame.nearest(points, 3, radius)  # (n, 3), −1 where fewer
-        valid = idx >= 0
-        if not valid.any():
-            return np.full(len(points), -1)
-        y = frame.positions()[np.where(valid, idx, 0)] - points[:, None, :]
-        dist = np.where(valid, np.sqrt(y[..., 0] ** 2 + y[..., 1] ** 2), np.inf)
-        key = np.where(valid, idx, np.iinfo(np.int64).max)
-        best = np.lexsort((key, dist), axis=1)[:, 0]
-        rows = np.arange(len(points))
-        out: np.ndarray = np.where(valid[rows, best], idx[rows, best], -1)
-        return out
-
-    def unattacked(self, states: list[SingleState], step: int) -> list[Outcome]:
-        """The rank-minimal outcome (no attack) of many states at once: ``options(st)[0]``.
-
-        Nearest detection (ties: lowest index), gate, update or skip; the same
-        arithmetic as :meth:`options`, batched over states that share P.
-        """
+    def _group(
+        self, frame: Frame, members: np.ndarray, Xp: np.ndarray, g: Gain, attacked: bool
+    ) -> tuple[np.ndarray, ...]:
+        """Successors of predictions ``Xp`` sharing one covariance."""
         cfg = self.cfg
-        frame = self.scene.frame(step)
-        Zall = frame.positions()
-        Xp_all = self._predict(np.array([s.x for s in states], dtype=float).reshape(-1, 4), step)
-        groups: dict[bytes, list[int]] = {}
-        for i, s in enumerate(states):
-            groups.setdefault(s.P.tobytes(), []).append(i)
-        out: list[Outcome | None] = [None] * len(states)
-        for members in groups.values():
-            c = self.covariance(states[members[0]].P)
-            Xp = Xp_all[members]
-            picks = self._nearest(frame, Xp[:, :2], c.radius)
-            has = picks >= 0
-            ok = np.zeros(len(members), dtype=bool)
-            if has.any():
-                y = Zall[picks[has]] - Xp[has, :2]
-                ok[has] = gate_mask(y, c.inn, c.P_pred, cfg.gate, cfg.gate_type)
-            Xu = update_means(Xp[ok], c.inn.K, Zall[picks[ok]]) if ok.any() else None
-            r = 0
-            for i, g in enumerate(members):
-                if ok[i]:
-                    assert Xu is not None
-                    det = frame.detections[int(picks[i])]
-                    out[g] = Outcome(SingleState(Xu[r], c.inn.P_post, c.halt_post), det.id, 0.0)
-                    r += 1
-                else:
-                    out[g] = Outcome(SingleState(Xp[i], c.P_pred, c.halt_pred), None, 0.0)
-        return out  # type: ignore[return-value]
+        idx, valid = _candidates(frame, Xp[:, :2], g.radius, wide=attacked)
+        Z = frame.positions()[np.where(valid, idx, 0)]
+        y = Z - Xp[:, None, :2]
+        gated = valid & gate_mask(y, g.inn, g.P_pred, cfg.gate, cfg.gate_type)
+        if attacked:
+            same = frame.position_ids()[np.where(valid, idx, 0)] if frame.has_repeats else None
+            opts = attack_option_rows(gated, frame.payoffs()[np.where(valid, idx, 0)], valid, same)
+            row, col, payoff = opts.row, opts.col, opts.payoff
+            rank = np.arange(row.size) - np.repeat(
+                np.r_[0, np.cumsum(np.bincount(row, minlength=len(Xp)))[:-1]],
+                np.bincount(row, minlength=len(Xp)),
+            )
+        else:  # the unattacked tracker: the nearest visible detection, if it passes the gate
+            row = np.arange(len(Xp))
+            col = np.where(valid[:, 0] & gated[:, 0], 0, -1) if idx.shape[1] else -np.ones_like(row)
+            payoff = np.zeros(row.size)
+            rank = np.zeros(row.size, dtype=np.int64)
+        upd = col >= 0
+        X = Xp[row].copy()
+        X[upd] = update_means(Xp[row[upd]], g.inn.K, Z[row[upd], col[upd]])
+        det = np.where(upd, idx[row, np.maximum(col, 0)] if idx.shape[1] else -1, -1)
+        cov = np.where(upd, g.post, g.pred).astype(np.int64)
+        halted = np.where(upd, g.halt_post, g.halt_pred)
+        return members[row], rank, payoff, det, X, cov, halted
+
+
+#: Candidates asked of the k-d tree at first; rows that fill them all ask again for twice as many.
+_FIRST_K = 8
+
+
+def _candidates(
+    frame: Frame, points: np.ndarray, radius: float, wide: bool
+) -> tuple[np.ndarray, np.ndarray]:
+    """The detections within ``radius`` of each point, nearest first (ties: lower index).
+
+    Returns indices (n, k) and a validity mask; ``wide=False`` asks only for the
+    nearest few (the unattacked tracker needs the nearest alone; three resolve ties).
+    """
+    n = len(points)
+    k = min(_FIRST_K if wide else 3, max(len(frame.detections), 1))
+    while True:
+        idx = frame.nearest(points, k, radius)
+        if not wide or k >= len(frame.detections) or not (idx[:, -1] >= 0).any():
+            break
+        k = min(2 * k, len(frame.detections))
+    valid = idx >= 0
+    if not len(frame.detections):
+        return np.zeros((n, 0), dtype=np.int64), np.zeros((n, 0), dtype=bool)
+    y = frame.positions()[np.where(valid, idx, 0)] - points[:, None, :]
+    dist = np.where(valid, np.sqrt(y[..., 0] ** 2 + y[..., 1] ** 2), np.inf)
+    valid &= dist <= radius
+    dist = np.where(valid, dist, np.inf)
+    key = np.where(valid, idx, np.iinfo(np.int64).max)
+    order = np.lexsort((key, dist), axis=1)
+    idx = np.take_along_axis(idx, order, axis=1)
+    valid = np.take_along_axis(valid, order, axis=1)
+    return idx, valid

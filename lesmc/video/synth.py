@@ -25,10 +25,10 @@ import cv2
 import numpy as np
 from scipy.spatial import cKDTree
 
+from lesmc.video import DEFAULT_DENSITY
+from lesmc.video import FPS as FPS  # re-exported: lives in lesmc.video for the CLI's help
 from lesmc.video.roads import make_roads, road_graph
 from lesmc.video.traffic import LANE_M, Traffic
-
-FPS = 1.25  #: frames per second of WPAFB 2009
 
 
 @dataclass(frozen=True)
@@ -39,7 +39,7 @@ class SynthConfig:
     width: int = 2048
     height: int = 2048
     seed: int = 1
-    density: float = 1.5  #: vehicles per 100 m of road (both directions)
+    density: float = DEFAULT_DENSITY  #: vehicles per 100 m of road (both directions)
     gsd_m: float = 0.6  #: ground sampling distance, metres per pixel
     altitude_m: float = 2500.0
     orbit_radius_m: float = 2000.0

@@ -1,0 +1,183 @@
+"""A model unfolded on demand: arrays that grow as an engine asks for successors.
+
+This is the model interface for models given by a successor function (paper
+Algorithm 1 run lazily): the engines read the state and transition arrays,
+and call :meth:`GrowingModel.expand` with a *batch* of states of one step to
+have all their successors computed at once. Whoever produces the successors
+(lesmc/unfold.py for scenes) implements :class:`Expander`; engines import
+only this module and never know what a scene is.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Protocol
+
+import numpy as np
+
+from lesmc.model.kernel import combined_payoffs
+
+
+class GrowArray:
+    """A numpy array with amortised appends along the first axis (``data`` may be longer)."""
+
+    def __init__(self, dtype: type | np.dtype, width: tuple[int, ...] = ()) -> None:
+        self.data = np.empty((256, *width), dtype=dtype)
+        self.n = 0
+
+    def extend(self, values: np.ndarray) -> None:
+        need = self.n + len(values)
+        if need > len(self.data):
+            cap = max(need, 2 * len(self.data))
+            bigger = np.empty((cap, *self.data.shape[1:]), dtype=self.data.dtype)
+            bigger[: self.n] = self.data[: self.n]
+            self.data = bigger
+        self.data[self.n : need] = values
+        self.n = need
+
+    @property
+    def view(self) -> np.ndarray:
+        return self.data[: self.n]
+
+
+@dataclass
+class Expansion:
+    """Successors of a batch of states: CSR over the batch, rank order within each source."""
+
+    counts: np.ndarray  # (b,) transitions per source
+    dst: np.ndarray  # (m,) global state indices (new states already added)
+    payoff: np.ndarray
+    rank: np.ndarray
+    obs: np.ndarray  # codes into the expander's observation names, −1 none
+
+
+class Expander(Protocol):
+    """Computes successors and adds the new states to the model it is given."""
+
+    def expand(self, model: GrowingModel, states: np.ndarray, step: int) -> Expansion: ...
+
+
+class GrowingModel:
+    """States and transitions as growing arrays; out-transitions of state q are
+    ``out_lo[q]:out_hi[q]`` once q is expanded (``expanded[q]``)."""
+
+    def __init__(self, components: tuple[str, ...], dim: int) -> None:
+        self.components = components
+        self._step = GrowArray(np.int32)
+        self._S = GrowArray(np.float64, (dim,))
+        self._cov = GrowArray(np.int32)
+        self._halted = GrowArray(np.bool_)
+        self._lo = GrowArray(np.int64)
+        self._hi = GrowArray(np.int64)
+        self._src = GrowArray(np.int64)
+        self._dst = GrowArray(np.int64)
+        self._payoff = GrowArray(np.float64)
+        self._rank = GrowArray(np.int64)
+        self._obs = GrowArray(np.int64)
+        self._combined = GrowArray(np.float64)
+        self.original = np.zeros(0, dtype=np.int64)
+        self.P_table = np.zeros((0, dim, dim))
+        self.obs_names: tuple[str, ...] = ()
+        self.expander: Expander | None = None
+
+    # -- states -------------------------------------------------------------
+    def add_states(self, step: int, S: np.ndarray, cov: np.ndarray, halted: np.ndarray) -> int:
+        """Append states at one step; returns the index of the first."""
+        first = self._step.n
+        n = len(S)
+        self._step.extend(np.full(n, step, dtype=np.int32))
+        self._S.extend(S)
+        self._cov.extend(cov)
+        self._halted.extend(halted)
+        self._lo.extend(np.full(n, -1, dtype=np.int64))
+        self._hi.extend(np.full(n, -1, dtype=np.int64))
+        return first
+
+    @property
+    def n_states(self) -> int:
+        return self._step.n
+
+    @property
+    def step(self) -> np.ndarray:
+        return self._step.view
+
+    @property
+    def S(self) -> np.ndarray:
+        return self._S.view
+
+    @property
+    def cov(self) -> np.ndarray:
+        return self._cov.view
+
+    @property
+    def halted(self) -> np.ndarray:
+        return self._halted.view
+
+    @property
+    def out_lo(self) -> np.ndarray:
+        return self._lo.view
+
+    @property
+    def out_hi(self) -> np.ndarray:
+        return self._hi.view
+
+    def expanded(self, q: int) -> bool:
+        return bool(self._lo.data[q] >= 0)
+
+    # -- transitions --------------------------------------------------------
+    @property
+    def src(self) -> np.ndarray:
+        return self._src.view
+
+    @property
+    def dst(self) -> np.ndarray:
+        return self._dst.view
+
+    @property
+    def payoff(self) -> np.ndarray:
+        return self._payoff.view
+
+    @property
+    def rank(self) -> np.ndarray:
+        return self._rank.view
+
+    @property
+    def obs(self) -> np.ndarray:
+        return self._obs.view
+
+    @property
+    def combined(self) -> np.ndarray:
+        return self._combined.view
+
+    @property
+    def n_transitions(self) -> int:
+        return self._dst.n
+
+    def expand(self, states: np.ndarray, step: int) -> np.ndarray:
+        """Compute the successors of ``states`` (all at ``step``, none expanded yet, none
+        halted); returns the indices of their transitions."""
+        assert self.expander is not None
+        exp = self.expander.expand(self, states, step)
+        first = self._dst.n
+        ptr = np.r_[0, np.cumsum(exp.counts)]
+        self._src.extend(np.repeat(states, exp.counts))
+        self._dst.extend(exp.dst)
+        self._payoff.extend(exp.payoff)
+        self._rank.extend(exp.rank)
+        self._obs.extend(exp.obs)
+        self._combined.extend(combined_payoffs(ptr, exp.payoff, exp.rank))
+        self._lo.data[states] = first + ptr[:-1]
+        self._hi.data[states] = first + ptr[1:]
+        return np.arange(first, self._dst.n)
+
+    def obs_of(self, t: int) -> str | None:
+        o = int(self._obs.data[t])
+        return None if o < 0 else self.obs_names[o]
+
+    def state_id(self, q: int) -> str:
+        return f"k{int(self._step.data[q])}.{q}"
+
+    def nbytes(self) -> int:
+        grows = [self._step, self._S, self._cov, self._halted, self._lo, self._hi]
+        grows += [self._src, self._dst, self._payoff, self._rank, self._obs, self._combined]
+        return sum(int(g.view.nbytes) for g in grows)

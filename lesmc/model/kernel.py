@@ -1,0 +1,161 @@
+"""The semantics kernel: every equation of the paper that gives a path its meaning, once.
+
+Engines, the scene unfolder, the tracker's monitor and the report all call
+these functions; none has a copy of its own. Each works on one value or on a
+whole array of them (numpy broadcasting), so hot paths call them on batches.
+
+* :func:`deviation`: dist(ρ_k, ρ̃_k) = ‖s_k − s̃_k‖_p (Eq. 4).
+* :func:`combined_payoffs`: the combined payoff of a transition, the sum of the
+  payoffs of the transitions ≺ it out of the same state (Eq. 5, read strictly:
+  docs/semantics.md).
+* :func:`contributions`, :func:`aggregate`, :func:`tail`: the path measures
+  (payoff sum/mean, Eq. 8; dist sum/at/max, Eq. 9 and dist^max) as running
+  aggregates of non-negative per-step contributions.
+* :data:`COMPARE` and :func:`holds`: the comparisons of constraints and verdicts.
+* :func:`tau` and :func:`alarm`: the runtime monitor's uncertainty τ (Eq. 12)
+  and its alarm Γ = 0 (Eq. 13).
+
+The independent oracle in tests/oracle.py does not use this module.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable, Sequence
+from typing import Any
+
+import numpy as np
+from numpy.typing import ArrayLike
+
+from lesmc.language.properties import DEFAULT_MONITOR_TOLERANCE
+from lesmc.language.semantics import BoundMeasure
+
+#: Comparison operators of the language, on scalars and arrays alike.
+COMPARE: dict[str, Callable[[Any, Any], Any]] = {
+    ">": np.greater,
+    ">=": np.greater_equal,
+    "<": np.less,
+    "<=": np.less_equal,
+}
+
+LOCATION = (0, 1)
+"""Indices of the location block (x, y) of a tracker state (x, y, vx, vy): Eq. 12's Σ_ll."""
+
+DEFAULT_TOLERANCE = DEFAULT_MONITOR_TOLERANCE
+"""Relative rise of τ that the alarm ignores: only absorbs rounding (docs/language.md)."""
+
+
+def compare(op: str, a: float, b: float) -> bool:
+    """``a op b`` for one pair of numbers."""
+    return bool(COMPARE[op](a, b))
+
+
+def holds(holds_op: str, optimum: float, threshold: float) -> bool:
+    """Section 4's verdict rule: the property holds iff ``optimum holds_op threshold``."""
+    return compare(holds_op, optimum, threshold)
+
+
+def deviation(diff: np.ndarray, norm: float) -> np.ndarray:
+    """Eq. 4: ‖s − s̃‖_p of each row of ``diff`` = s − s̃ (last axis: the chosen components)."""
+    out: np.ndarray = np.linalg.norm(diff, ord=norm, axis=-1)
+    return out
+
+
+def combined_payoffs(ptr: np.ndarray, payoff: np.ndarray, rank: np.ndarray) -> np.ndarray:
+    """Eq. 5 for every transition of a CSR model whose rows are sorted by rank.
+
+    The combined payoff of a transition is the exactly rounded sum
+    (``math.fsum``) of the payoffs of the transitions of strictly lower rank out
+    of the same state. A sum of one or two terms is exactly rounded already, so
+    those are vectorised and only longer prefixes are summed with fsum.
+    """
+    m = len(payoff)
+    out = np.zeros(m)
+    if m == 0:
+        return out
+    deg = np.diff(ptr)
+    start = np.repeat(ptr[:-1], deg)
+    pos = np.arange(m) - start
+    # the first position of each transition's rank group: ties share a combined payoff
+    new_group = (pos == 0) | np.r_[True, rank[1:] != rank[:-1]]
+    first = np.maximum.accumulate(np.where(new_group, np.arange(m), 0))
+    lead = first[new_group]  # group starts, each summing the payoffs before it in its row
+    n_terms = lead - start[lead]
+    sums = np.zeros(lead.size)
+    one = n_terms == 1
+    sums[one] = payoff[lead[one] - 1]
+    two = n_terms == 2
+    sums[two] = payoff[lead[two] - 2] + payoff[lead[two] - 1]
+    many = np.nonzero(n_terms >= 3)[0]
+    if many.size:
+        vals = payoff.tolist()
+        rows = zip(start[lead[many]].tolist(), lead[many].tolist(), strict=True)
+        sums[many] = [math.fsum(vals[a:b]) for a, b in rows]
+    out[new_group] = sums
+    return out[first]
+
+
+def contributions(
+    m: BoundMeasure, k: np.ndarray, combined: np.ndarray, dist_dst: np.ndarray
+) -> np.ndarray:
+    """Each transition's contribution to measure ``m``: it enters step ``k``.
+
+    A payoff measure adds the (weighted) combined payoff of transitions entering
+    its steps (Eq. 8; ``mean`` is the weight 1/(u−l+1)); a dist measure adds the
+    deviation of the entered state (Eq. 9; ``at`` is a sum over one step).
+    """
+    inside = (k >= m.lo) & (k <= m.hi)
+    if m.source == "payoff":
+        return np.where(inside, combined * m.weight, 0.0)
+    return np.where(inside, dist_dst, 0.0)
+
+
+def initial_value(m: BoundMeasure, dist0: float) -> float:
+    """A measure's value on the path prefix of step 0 alone (only dist counts step 0)."""
+    return dist0 if m.source == "dist" and m.lo == 0 else 0.0
+
+
+def aggregate(is_max: bool, acc: float, c: float) -> float:
+    """A measure after one more step: the running sum, or the running max (dist^max)."""
+    return max(acc, c) if is_max else acc + c
+
+
+def aggregate_arrays(is_max: bool, acc: np.ndarray, c: np.ndarray) -> np.ndarray:
+    """:func:`aggregate` elementwise."""
+    out: np.ndarray = np.maximum(acc, c) if is_max else acc + c
+    return out
+
+
+def tail(m: BoundMeasure, h: int, end: int) -> float:
+    """What the steps after a path's last state h add: nothing, or +∞ after a halt.
+
+    A halted track has lost the target, so its deviation at every later step of
+    a dist measure is infinite (docs/semantics.md); payoffs add nothing.
+    """
+    if h >= end or m.source == "payoff":
+        return 0.0
+    return math.inf if m.hi > h else 0.0
+
+
+def tau(P: np.ndarray, components: Sequence[int] = LOCATION) -> np.ndarray:
+    """Eq. 12: τ = tr(Σ_ll) of one covariance (d, d) or of a stack (n, d, d)."""
+    idx = list(components)
+    sub = P[..., idx, :][..., :, idx]
+    out: np.ndarray = np.trace(sub, axis1=-2, axis2=-1)
+    return out
+
+
+def alarm(
+    tau_prev: ArrayLike, tau_next: ArrayLike, tolerance: float = DEFAULT_TOLERANCE
+) -> np.ndarray:
+    """Eq. 13's Γ = 0: τ rose from one step to the next beyond the relative tolerance."""
+    out: np.ndarray = np.asarray(tau_next) > np.asarray(tau_prev) * (1.0 + tolerance) + 1e-300
+    return out
+
+
+def monitor_cuts(
+    l: int, k: np.ndarray, tau_src: np.ndarray, tau_dst: np.ndarray, tolerance: float
+) -> np.ndarray:
+    """Transitions the monitored property drops: entering a step k ≥ l, τ rises (Eq. 13)."""
+    out: np.ndarray = (k >= l) & alarm(tau_src, tau_dst, tolerance)
+    return out
