@@ -20,11 +20,11 @@ from rich.table import Table
 
 from lesmc.engines.check import check_bound
 from lesmc.engines.result import CheckResult
-from lesmc.model.lts import to_arrays
 from lesmc.language.parser import parse_spec
 from lesmc.language.semantics import bind
+from lesmc.model.arrays import ArrayModel
 from lesmc.model.knapsack import Item, knapsack_lts, knapsack_spec
-from lesmc.model.lts import LTS
+from lesmc.model.lts import LTS, to_arrays
 from lesmc.model.random_models import RandomModelConfig, random_lts
 
 #: enumerate is skipped (reported as over budget) past this many tree nodes.
@@ -78,9 +78,9 @@ def _dp(items: list[Item], demand: int) -> float:
     return best[need]
 
 
-def run(engine: str, model: LTS, spec_text: str) -> list[CheckResult]:
+def run(engine: str, model: LTS | ArrayModel, spec_text: str) -> list[CheckResult]:
     spec = parse_spec(spec_text)
-    cm = to_arrays(model)
+    cm = model if isinstance(model, ArrayModel) else to_arrays(model)
     bps = [bind(spec, p, model.end, model.components, False) for p in spec.properties]
     return [check_bound(cm, bp, engine, max_states=ENUMERATE_BUDGET) for bp in bps]  # type: ignore[arg-type]
 

@@ -25,9 +25,9 @@ from rich.table import Table
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from lesmc.tracking.kalman import matrices  # noqa: E402
-from lesmc.tracking.toy import Vehicle, vehicle_scene  # noqa: E402
-from lesmc.unfold import build_model  # noqa: E402
+from lesmc.tracking.kalman import matrices
+from lesmc.tracking.toy import Vehicle, vehicle_scene
+from lesmc.unfold import build_model
 
 
 def dense_scene(n: int, frames: int, seed: int, design: str = "single"):  # type: ignore[no-untyped-def]
@@ -48,7 +48,6 @@ def dense_scene(n: int, frames: int, seed: int, design: str = "single"):  # type
         for i in range(n)
     ]
     return vehicle_scene([t, *platoon, *others], frames, t).with_tracker(design=design)
-
 
 
 def filterpy_rate(scene, n: int) -> float:  # type: ignore[no-untyped-def]

@@ -4,6 +4,11 @@ Every user-facing error renders as ``FILE:LINE:COL: message`` (text files) or
 ``FILE: <id>: message`` (JSON files, where the offending id is the locator),
 optionally followed by the source line and a caret. The CLI prints it and exits
 with status 2; nothing else in lesmc prints tracebacks for user mistakes.
+
+Lines are counted at ``\\n`` only (:func:`split_lines`), as lark and ``json``
+count them. Text from input files is shown with control characters escaped
+(:func:`escape_control`); :func:`escape_text` also neutralises rich markup, for
+tables and other output printed through rich.
 """
 
 from __future__ import annotations

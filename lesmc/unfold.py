@@ -1,4 +1,4 @@
-"""Unfold a tracked scene into a <PO>²-LTS (paper section 3.3, Algorithm 1): the scene -> model stage.
+"""The scene -> model stage: unfold a tracked scene into a <PO>²-LTS (section 3.3, Alg. 1).
 
 Model step k is frame ``target.step + k``. From step l to u every
 attacker-forced outcome of the tracker is a transition (ranked nearest
@@ -132,9 +132,7 @@ class SceneExpander:
         seen = self._seen.setdefault(step, {})
         found = np.array([seen.get(x, -1) for x in uniq.tolist()], dtype=np.int64)
         old = np.nonzero(found >= 0)[0]
-        if old.size and not np.array_equal(
-            design.keys(self.batch(found[old])), keys[first[old]]
-        ):
+        if old.size and not np.array_equal(design.keys(self.batch(found[old])), keys[first[old]]):
             return self._add_exact(model, step, batch, keys)
         new = np.nonzero(found < 0)[0]
         new = new[np.argsort(first[new], kind="stable")]  # first-occurrence order

@@ -12,13 +12,13 @@ from kf_reference import reference_filter
 
 from lesmc.errors import InputError
 from lesmc.model.lts import to_lts
-from lesmc.unfold import build_model
 from lesmc.tracking.association import attack_options
 from lesmc.tracking.design import make_design
 from lesmc.tracking.kalman import matrices, white_noise_q
 from lesmc.tracking.monitor import track
 from lesmc.tracking.scene import Frame, Scene, load_scene, scene_from_dict, scene_to_dict
 from lesmc.tracking.toy import Vehicle, vehicle_scene
+from lesmc.unfold import build_model
 
 SCENES = Path(__file__).parent / "scenes"
 

@@ -40,8 +40,8 @@ def build_cmd(
     from rich.console import Console
     from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
 
-    from lesmc.unfold import build_model, max_end
     from lesmc.model.lts_format import save_lts
+    from lesmc.unfold import build_model, max_end
 
     window = parse_window(window_text)
     sc = load_scene_file(scene, design)

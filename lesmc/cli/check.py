@@ -2,7 +2,9 @@
 
 from __future__ import annotations
 
+import math
 import sys
+import time
 from typing import TYPE_CHECKING
 
 import click
@@ -44,7 +46,9 @@ does not import the engines (tests/test_startup.py checks that the two agree).""
     "--timeout",
     type=click.FloatRange(min=0, min_open=True),
     default=None,
-    help="Seconds of search per property; past it the verdict may be 'unknown'.",
+    callback=lambda _ctx, _p, v: _finite_seconds(v),
+    help="Seconds for the whole command, loading included; past it the remaining "
+    "properties are 'unknown' with the bounds found so far.",
 )
 @click.option(
     "--property",
@@ -86,15 +90,16 @@ def check_cmd(
     Exit status: 0 all hold, 1 some violated, 2 bad input, 3 some unknown,
     4 internal error, 130 interrupted.
     """
+    started = time.monotonic()
     from rich.console import Console
     from rich.progress import Progress, SpinnerColumn, TextColumn, TimeElapsedColumn
 
     from lesmc.engines.check import bind_all, check_bound, window_notes
-    from lesmc.unfold import bind_scene, check_scene_bound
     from lesmc.language.parser import load_spec
     from lesmc.report.exit import exit_status
     from lesmc.report.text import make_console, print_results, results_json
     from lesmc.tracking.scene import Scene
+    from lesmc.unfold import bind_scene, check_scene_bound
 
     parsed = [load_spec(s) for s in specs]
     source = load_model_or_scene(model, design)
@@ -127,11 +132,12 @@ def check_cmd(
         task = progress.add_task("checking", total=len(bound))
         for bp in bound:
             progress.update(task, description=f"checking {bp.name} ({engine})")
+            left = None if timeout is None else max(0.0, timeout - (time.monotonic() - started))
             if cm is None:
                 assert isinstance(source, Scene)
-                results.append(check_scene_bound(source, bp, engine, max_states, timeout))  # type: ignore[arg-type]
+                results.append(check_scene_bound(source, bp, engine, max_states, left))  # type: ignore[arg-type]
             else:
-                r = check_bound(cm, bp, engine, max_states, timeout)  # type: ignore[arg-type]
+                r = check_bound(cm, bp, engine, max_states, left)  # type: ignore[arg-type]
                 r.notes.extend(window_notes(source, bp))  # type: ignore[arg-type]
                 results.append(r)
             progress.advance(task)
@@ -182,3 +188,10 @@ def _report(
         out = write_report(runs, report_dir, image_for, {"model": path})
     err.print(f"report: {out}")
     return results
+
+
+def _finite_seconds(value: float | None) -> float | None:
+    """``--timeout``: a finite number of seconds (nan and inf are refused)."""
+    if value is not None and not math.isfinite(value):
+        raise click.BadParameter(f"{value} is not a finite number of seconds")
+    return value

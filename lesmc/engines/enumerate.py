@@ -20,7 +20,6 @@ from lesmc.engines.space import Space
 from lesmc.model.kernel import COMPARE, aggregate_arrays
 
 
-
 def enumerate_paths(
     space: Space, max_states: int | None = None, timeout: float | None = None
 ) -> EngineOutcome:

@@ -1,4 +1,4 @@
-"""On-the-fly search space: a model given by its successor function, unfolded where the engine looks.
+"""On-the-fly search space: a model given by its successor function, unfolded where looked at.
 
 The model is a :class:`~lesmc.model.growing.GrowingModel`: its arrays grow
 when :meth:`~lesmc.model.growing.GrowingModel.expand` is called for a batch of

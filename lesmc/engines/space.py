@@ -36,11 +36,21 @@ def location_trace(cm: ArrayModel, components: tuple[int, ...]) -> np.ndarray:
 class SearchSpace(Protocol):
     """What the engines and reports need: the explicit :class:`Space` or the lazy one."""
 
-    bp: BoundProperty
-    cm: Any  # an ArrayModel, or a GrowingModel (lazy.py): the same array names
-    dist: Any
-    c_obj: Any
-    c_con: Any
+    @property
+    def bp(self) -> BoundProperty: ...
+
+    @property
+    def cm(self) -> Any: ...  # an ArrayModel, or a GrowingModel (lazy.py): the same array names
+
+    @property
+    def dist(self) -> Any: ...
+
+    @property
+    def c_obj(self) -> Any: ...
+
+    @property
+    def c_con(self) -> Any: ...
+
     root: int
     root_obj: float
     root_con: float

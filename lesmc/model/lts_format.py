@@ -129,7 +129,7 @@ class _Rows:
 
     def __init__(self, raw: list[Any]) -> None:
         self._found: list[tuple[tuple[int, int], str, str]] = []
-        rows = list(range(len(raw)))
+        rows: Sequence[int] = range(len(raw))
         self._plain = set(map(type, raw)) <= {dict}  # no subclass may answer a missing key
         if not self._plain:
             rows = [i for i, r in enumerate(raw) if isinstance(r, dict)]
@@ -304,8 +304,8 @@ def lts_to_dict(model: ArrayModel | LTS) -> dict[str, Any]:
         for d, c in zip(doc_states, model.cov[order].tolist(), strict=True):
             if c >= 0:
                 d["P"] = table[c]
-    marked = set(model.labels) | set(np.flatnonzero(model.halted).tolist())
-    for i in sorted(marked, key=pos.__getitem__):
+    halted = np.flatnonzero(model.halted).tolist()
+    for i in set(model.labels) | set(halted):
         labs = set(model.labels.get(i, ()))
         if model.halted[i]:
             labs.add(HALTED)
@@ -380,7 +380,7 @@ def _vectors(values: list[Any]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     finite numbers (the entries only matter when all are)."""
     n = len(values)
     if n and _all_types(values, {list}):
-        lens = np.fromiter(map(len, values), dtype=np.int64, count=n)
+        lens = _lengths(values)
         ok = lens > 0
         flat = _flat_numbers(chain.from_iterable(values), int(lens.sum()), ok, lens)
         if flat is not None:
@@ -400,8 +400,8 @@ def _matrices(values: list[Any]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     if n and _all_types(values, {list}):
         rows = list(chain.from_iterable(values))
         if rows and _all_types(rows, {list}):
-            size = np.fromiter(map(len, values), dtype=np.int64, count=n)
-            row_len = np.fromiter(map(len, rows), dtype=np.int64, count=len(rows))
+            size = _lengths(values)
+            row_len = _lengths(rows)
             if bool((size > 0).all()) and np.array_equal(row_len, np.repeat(size, size)):
                 ok = np.ones(n, dtype=bool)
                 entries = chain.from_iterable(rows)
@@ -414,6 +414,14 @@ def _matrices(values: list[Any]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     present = [m.reshape(-1) for m in mats if m is not None]
     flat = np.concatenate(present) if present else np.zeros(0)
     return flat, np.where(ok, size, 0), ok
+
+
+def _lengths(values: list[Any]) -> np.ndarray:
+    """len() of each value (all of one length is the common case: one set, no array)."""
+    distinct = set(map(len, values))
+    if len(distinct) == 1:
+        return np.full(len(values), distinct.pop(), dtype=np.int64)
+    return np.fromiter(map(len, values), dtype=np.int64, count=len(values))
 
 
 def _flat_numbers(

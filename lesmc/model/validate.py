@@ -292,7 +292,7 @@ def _check_paths(
     rows = _lookup(index, original)
     missing = np.flatnonzero(rows < 0)
     stop = int(missing[0]) if missing.size else e + 1
-    op = pos[rows[:stop]]
+    op: np.ndarray = pos[rows[:stop]]
     m = dst.shape[0]
     deg = np.diff(ptr)
     k = np.arange(stop, dtype=np.int64)

@@ -108,7 +108,7 @@ def attack_option_rows(
     Payoffs are accumulated column by column, left to right, so every own
     payoff is summed in the order of the scan whatever the batch.
     """
-    g, k = gated.shape
+    k = int(gated.shape[1])
     cols = np.arange(k)
     finite = np.isfinite(payoffs)
     bad = valid & ~finite
@@ -130,9 +130,9 @@ def attack_option_rows(
     own[rb, last[rb]] = 0.0
     if same is not None:
         dup = np.zeros_like(update)
-        for j in range(1, k):
-            earlier = update[:, :j] & (same[:, :j] == same[:, j : j + 1])
-            dup[:, j] = update[:, j] & earlier.any(axis=1)
+        for c in range(1, k):
+            earlier = update[:, :c] & (same[:, :c] == same[:, c : c + 1])
+            dup[:, c] = update[:, c] & earlier.any(axis=1)
         if dup.any():
             for j in np.nonzero(dup.any(axis=0))[0]:
                 keep = produce & ~dup

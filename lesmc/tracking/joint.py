@@ -24,14 +24,13 @@ the whole joint state identical are merged (the cheapest kept).
 
 from __future__ import annotations
 
+import hashlib
 import math
 from dataclasses import dataclass
 
 import numpy as np
 
 from lesmc.tracking.association import gate_mask, gate_radius
-import hashlib
-
 from lesmc.tracking.design import Batch, CovarianceTable, Successors
 from lesmc.tracking.kalman import (
     Innovation,

@@ -23,6 +23,12 @@ from lesmc.fileio import read_json, write_json
 if TYPE_CHECKING:
     from scipy.spatial import cKDTree
 
+#: Frames with at most this many detections are searched by a numpy scan, larger ones by a
+#: k-d tree (scipy.spatial, imported only then).
+SCAN_LIMIT = 2048
+#: Distances computed at once by the scan (bounds its temporaries).
+SCAN_CELLS = 1 << 20
+
 FORMAT = "lesmc-scene"
 VERSION = 1
 UNATTACKABLE = "unattackable"
@@ -71,28 +77,46 @@ class Frame:
     def _tree(self) -> cKDTree | None:
         if not len(self.detections):
             return None
-        # scipy.spatial costs ~0.3-0.5 s to import: only scenes that are searched pay it.
+        # scipy.spatial costs 0.3-1 s to import: only frames too large to scan pay it.
         from scipy.spatial import cKDTree
 
         return cKDTree(self._positions)
 
-    def near(self, point: np.ndarray, radius: float) -> list[int]:
-        """Indices of the detections within ``radius`` of ``point`` (a k-d tree, built once)."""
-        if self._tree is None:
-            return []
-        out: list[int] = self._tree.query_ball_point(point, radius, return_sorted=True)
-        return out
-
     def nearest(self, points: np.ndarray, k: int, radius: float) -> np.ndarray:
         """For each point (n, 2), the indices of its k nearest detections within ``radius``
-        (nearest first), −1 where there are fewer."""
-        n = len(points)
-        if self._tree is None or not n:
+        (nearest first), −1 where there are fewer.
+
+        A frame of at most :data:`SCAN_LIMIT` detections is scanned with numpy (in
+        chunks of points); a larger one is searched with a k-d tree, built once.
+        """
+        n, m = len(points), len(self.detections)
+        if not m or not n:
             return np.full((n, k), -1, dtype=np.int64)
-        _, idx = self._tree.query(points, k=k, distance_upper_bound=radius * (1 + 1e-12))
-        idx = np.asarray(idx, dtype=np.int64).reshape(n, k)
-        out: np.ndarray = np.where(idx >= len(self.detections), -1, idx)
-        return out
+        bound = radius * (1 + 1e-12)
+        if m > SCAN_LIMIT:
+            assert self._tree is not None
+            _, idx = self._tree.query(points, k=k, distance_upper_bound=bound)
+            idx = np.asarray(idx, dtype=np.int64).reshape(n, k)
+            out: np.ndarray = np.where(idx >= m, -1, idx)
+            return out
+        Z = self._positions
+        kk = min(k, m)
+        res = np.full((n, k), -1, dtype=np.int64)
+        step = max(1, SCAN_CELLS // m)
+        for lo in range(0, n, step):
+            p = points[lo : lo + step]
+            d2 = (p[:, 0:1] - Z[:, 0]) ** 2 + (p[:, 1:2] - Z[:, 1]) ** 2
+            part = (
+                np.argpartition(d2, kk - 1, axis=1)[:, :kk]
+                if kk < m
+                else np.tile(np.arange(m), (len(p), 1))
+            )
+            dd = np.take_along_axis(d2, part, axis=1)
+            order = np.argsort(dd, axis=1, kind="stable")
+            part = np.take_along_axis(part, order, axis=1)
+            dd = np.take_along_axis(dd, order, axis=1)
+            res[lo : lo + step, :kk] = np.where(dd <= bound * bound, part, -1)
+        return res
 
     def payoffs(self) -> np.ndarray:
         """(n,) payoffs of hiding each detection (inf: unattackable); read-only."""

@@ -108,7 +108,9 @@ class SingleDesign:
         for c in np.unique(batch.cov).tolist():
             members = np.nonzero(batch.cov == c)[0]
             parts.append(self._group(frame, members, Xp[members], self.gain(c), attacked))
-        src, rank, payoff, det, X, cov, halted = (np.concatenate(a) for a in zip(*parts, strict=True))
+        src, rank, payoff, det, X, cov, halted = (
+            np.concatenate(a) for a in zip(*parts, strict=True)
+        )
         order = np.lexsort((rank, src))
         return Successors(
             src[order],
