@@ -1,4 +1,4 @@
-"""The batched attacker's options against a scalar oracle written as the scan of docs/tracking.md."""
+"""The batched attacker's options against a scalar oracle: the scan of docs/tracking.md."""
 
 from __future__ import annotations
 

@@ -14,9 +14,9 @@ from hypothesis import strategies as st
 from lesmc.engines.check import check_bound
 from lesmc.errors import UsageError
 from lesmc.language.parser import parse_spec
-from lesmc.unfold import bind_scene, build_model, check_scene_bound
 from lesmc.model.lts_format import load_lts
 from lesmc.tracking.scene import load_scene
+from lesmc.unfold import bind_scene, build_model, check_scene_bound
 
 ROOT = Path(__file__).resolve().parents[1]
 SCENES = ROOT / "tests" / "scenes"

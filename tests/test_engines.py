@@ -10,9 +10,9 @@ from hypothesis import strategies as st
 from oracle import brute_force
 
 from lesmc.engines.check import check_bound
-from lesmc.model.lts import to_arrays
 from lesmc.language.parser import parse_spec
 from lesmc.language.semantics import bind
+from lesmc.model.lts import to_arrays
 from lesmc.model.random_models import RandomModelConfig, random_lts
 
 ENGINES = [

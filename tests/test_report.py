@@ -17,8 +17,8 @@ from test_engines import _bound_property, cases
 
 from lesmc.cli.main import cli
 from lesmc.engines.check import check_bound
-from lesmc.model.lts import to_arrays
 from lesmc.language.parser import load_spec
+from lesmc.model.lts import to_arrays
 from lesmc.report.html import DesignRun, write_report
 from lesmc.report.paths import count_paths, enumerate_tracks, judge
 from lesmc.tracking.scene import load_scene

@@ -7,9 +7,9 @@ from pathlib import Path
 
 import pytest
 
-from lesmc.unfold import check_scene
 from lesmc.language.parser import load_spec
 from lesmc.tracking.scene import load_scene
+from lesmc.unfold import check_scene
 
 SCENES = Path(__file__).parent / "scenes"
 
