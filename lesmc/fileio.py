@@ -98,14 +98,15 @@ def parse_json(
     else:
         text = decode_text(data, path, error)
         raw = data
+    # number hooks run once per number: only where a token could be out of range
+    long_digits = _LONG_DIGITS.search(raw) is not None
+    hooks: dict[str, Any] = {}
+    if long_digits:
+        hooks["parse_int"] = _int
+    if long_digits or _BIG_EXPONENT.search(raw) is not None:
+        hooks["parse_float"] = _float
     try:
-        value = json.loads(
-            text,
-            object_pairs_hook=_object,
-            parse_constant=_constant,
-            parse_int=_int,
-            parse_float=_float,
-        )
+        value = json.loads(text, object_pairs_hook=_object, parse_constant=_constant, **hooks)
     except json.JSONDecodeError as exc:
         raise error(f"invalid JSON: {exc.msg}", Location.at(path, text, exc.pos)) from None
     except _Rejected as exc:
@@ -118,6 +119,12 @@ def parse_json(
 
 
 # --- hooks: cheap checks on the happy path ---------------------------------------------
+
+#: A run of 19 digits or more: an integer that may not fit in 64 bits (or a float with a
+#: mantissa long enough to overflow).
+_LONG_DIGITS = re.compile(rb"[0-9]{19,}")
+#: An exponent of three digits or more: a float that may overflow to infinity.
+_BIG_EXPONENT = re.compile(rb"[eE][+-]?[0-9]{3,}")
 
 
 def _object(pairs: list[tuple[str, Any]]) -> dict[str, Any]:
