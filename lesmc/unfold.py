@@ -19,7 +19,6 @@ coinciding ones. Following stormpy: ``build_model(scene, ...)``, then
 
 from __future__ import annotations
 
-import time
 from collections.abc import Callable, Iterable
 
 import numpy as np
@@ -45,28 +44,6 @@ COMPONENTS = ("x", "y", "vx", "vy")
 EAGER_BATCH = 65_536
 
 
-class BudgetExceeded(Exception):
-    """Unfolding stopped: the time or state budget ran out (``reason``: timeout / max_states)."""
-
-    def __init__(self, reason: str) -> None:
-        super().__init__(reason)
-        self.reason = reason
-
-
-class Budget:
-    """A deadline and a cap on states, checked between batches."""
-
-    def __init__(self, deadline: float | None = None, max_states: int | None = None) -> None:
-        self.deadline = deadline
-        self.max_states = max_states
-
-    def check(self, states: int) -> None:
-        if self.max_states is not None and states > self.max_states:
-            raise BudgetExceeded("max_states")
-        if self.deadline is not None and time.monotonic() > self.deadline:
-            raise BudgetExceeded("timeout")
-
-
 def max_end(scene: Scene) -> int:
     """The last model step the scene's frames allow."""
     return scene.last_step - scene.target.step
@@ -89,30 +66,31 @@ def _splitmix(words: np.ndarray) -> np.ndarray:
 class SceneExpander:
     """The successors of a scene's tracker states, batch by batch, with exact sharing."""
 
-    def __init__(self, scene: Scene, window: tuple[int, int], budget: Budget | None = None):
+    def __init__(self, scene: Scene, window: tuple[int, int]) -> None:
         self.scene = scene
         self.design: Design = make_design(scene)
         self.window = window
-        self.budget = budget
-        self.model: GrowingModel | None = None
+        self.model = GrowingModel(COMPONENTS, 4)
+        self.model.expander = self
         self.objects: list[object] | None = None  # whole tracker states, for designs that have them
         self._seen: dict[int, dict[int, int]] = {}  # per step: state hash -> index
-        self._exact: dict[int, dict[bytes, int]] = {}  # per step, after a hash collision
         # detection index -> observation code: frames' detections numbered in order
-        first = scene.frames[0].step
         self._obs_offset = np.cumsum([0] + [len(f.detections) for f in scene.frames])
-        self._first_frame = first
-        self.obs_names = tuple(d.id for f in scene.frames for d in f.detections)
+        self._first_frame = scene.frames[0].step
+        self.model.obs_names = tuple(d.id for f in scene.frames for d in f.detections)
+        self.add(0, self.design.initial())
 
     # ---------------------------------------------------------------- states
     def batch(self, idx: np.ndarray) -> Batch:
         """The tracker states with model indices ``idx`` (read from the model's arrays)."""
         m = self.model
-        assert m is not None
         objs = None if self.objects is None else [self.objects[int(i)] for i in idx]
         return Batch(m.S[idx], m.cov[idx].astype(np.int64), m.halted[idx], objs)
 
-    def _append(self, model: GrowingModel, step: int, fresh: Batch) -> int:
+    def _append(self, step: int, fresh: Batch) -> int:
+        model = self.model
+        if len(self.design.covariances) != len(model.P_table):  # the table grew
+            model.P_table = self.design.covariances.stack()
         first = model.add_states(step, fresh.X, fresh.cov.astype(np.int32), fresh.halted)
         if fresh.objects is not None:
             if self.objects is None:
@@ -120,78 +98,65 @@ class SceneExpander:
             self.objects.extend(fresh.objects)
         return first
 
-    def add(self, model: GrowingModel, step: int, batch: Batch) -> np.ndarray:
+    def add(self, step: int, batch: Batch) -> np.ndarray:
         """Model indices of the states of ``batch`` at ``step``; new ones are appended."""
+        model = self.model
         design = self.design
         keys = design.keys(batch)
         h = _splitmix(keys)
         uniq, first, inverse = np.unique(h, return_index=True, return_inverse=True)
         inverse = inverse.reshape(-1)
         if not np.array_equal(keys, keys[first[inverse]]):  # two states share a hash
-            return self._add_exact(model, step, batch, keys)
+            return self._add_exact(step, batch, keys)
         seen = self._seen.setdefault(step, {})
         found = np.array([seen.get(x, -1) for x in uniq.tolist()], dtype=np.int64)
         old = np.nonzero(found >= 0)[0]
         if old.size and not np.array_equal(design.keys(self.batch(found[old])), keys[first[old]]):
-            return self._add_exact(model, step, batch, keys)
+            return self._add_exact(step, batch, keys)
         new = np.nonzero(found < 0)[0]
         new = new[np.argsort(first[new], kind="stable")]  # first-occurrence order
         start = model.n_states
         if new.size:
-            self._append(model, step, batch.take(first[new]))
+            self._append(step, batch.take(first[new]))
             found[new] = start + np.arange(new.size)
             seen.update(zip(uniq[new].tolist(), found[new].tolist(), strict=True))
         out: np.ndarray = found[inverse]
         return out
 
-    def _add_exact(
-        self, model: GrowingModel, step: int, batch: Batch, keys: np.ndarray
-    ) -> np.ndarray:
+    def _add_exact(self, step: int, batch: Batch, keys: np.ndarray) -> np.ndarray:
         """The slow path after a 64-bit hash collision: share by the exact key bytes."""
-        exact = self._exact.setdefault(step, {})
-        if not exact:  # index what exists at this step by exact key
-            at = np.nonzero(model.step == step)[0]
-            if at.size:
-                old_keys = self.design.keys(self.batch(at))
-                exact.update((old_keys[i].tobytes(), int(q)) for i, q in enumerate(at))
+        at = np.nonzero(self.model.step == step)[0]  # what exists at this step, by exact key
+        old_keys = self.design.keys(self.batch(at)) if at.size else keys[:0]
+        exact = {old_keys[i].tobytes(): int(q) for i, q in enumerate(at.tolist())}
         out = np.empty(len(batch), dtype=np.int64)
         for i in range(len(batch)):
             kb = keys[i].tobytes()
             q = exact.get(kb)
             if q is None:
-                q = self._append(model, step, batch.take(np.array([i])))
+                q = self._append(step, batch.take(np.array([i])))
                 exact[kb] = q
                 self._seen.setdefault(step, {})[int(_splitmix(keys[i : i + 1])[0])] = q
             out[i] = q
         return out
 
     # ------------------------------------------------------------ successors
-    def expand(self, model: GrowingModel, states: np.ndarray, step: int) -> Expansion:
+    def expand(self, states: np.ndarray, step: int) -> Expansion:
         """All successors of ``states`` (at ``step``) at step + 1, new states added."""
         k = step + 1
         l, u = self.window
         frame = self.scene.target.step + k
         succ = self.design.successors(self.batch(states), frame, l <= k <= u)
-        model.P_table = self.design.covariances.stack()
-        dst = self.add(model, k, succ.states)
+        dst = self.add(k, succ.states)
         obs_base = int(self._obs_offset[frame - self._first_frame])
         obs = np.where(succ.det >= 0, succ.det + obs_base, -1)
         counts = np.bincount(succ.src, minlength=len(states))
-        if self.budget is not None:
-            self.budget.check(model.n_states)
         return Expansion(counts, dst, succ.payoff, succ.rank, obs)
 
 
 def original_end(scene: Scene, design: Design | None = None, end: int | None = None) -> int:
     """e: the last step of the unattacked track (up to ``end``, or until it halts)."""
     design = make_design(scene) if design is None else design
-    limit = max_end(scene)
-    if end is not None and end > limit:
-        raise UsageError(
-            f"end {end} is beyond the scene: its frames allow steps 0..{limit} "
-            f"from the target's frame {scene.target.step}"
-        )
-    last = limit if end is None else end
+    last = _last_step(scene, end)
     b = design.initial()
     e = 0
     for k in range(1, last + 1):
@@ -199,49 +164,45 @@ def original_end(scene: Scene, design: Design | None = None, end: int | None = N
             break
         b = design.successors(b, scene.target.step + k, False).states
         e = k
+    _check_end(e, end, None)
+    return e
+
+
+def _last_step(scene: Scene, end: int | None) -> int:
+    """The last step to unfold: ``end``, or the last the scene's frames allow."""
+    limit = max_end(scene)
+    if end is not None and end > limit:
+        raise UsageError(
+            f"end {end} is beyond the scene: its frames allow steps 0..{limit} "
+            f"from the target's frame {scene.target.step}"
+        )
+    return limit if end is None else end
+
+
+def _check_end(e: int, end: int | None, window: tuple[int, int] | None) -> None:
+    """The unattacked track reaches ``end``, and ``window`` lies within 1..e."""
     if end is not None and e < end:
         raise UsageError(
             f"the unattacked track halts at step {e} (trace(P) > max_trace); use --end {e} or less"
         )
-    return e
+    if window is not None and not 1 <= window[0] <= window[1] <= e:
+        raise UsageError(f"window {window[0]}..{window[1]} must satisfy 1 <= l <= u <= end = {e}")
 
 
-def _start(
-    scene: Scene, window: tuple[int, int], end: int | None, budget: Budget | None
-) -> tuple[GrowingModel, SceneExpander, int]:
-    """A model holding the root state, and its expander; e, the original path's last step."""
-    exp = SceneExpander(scene, window, budget)
-    e = original_end(scene, exp.design, end)
-    l, u = window
-    if not 1 <= l <= u <= e:
-        raise UsageError(f"window {l}..{u} must satisfy 1 <= l <= u <= end = {e}")
-    model = GrowingModel(COMPONENTS, 4)
-    model.expander = exp
-    model.obs_names = exp.obs_names
-    exp.model = model
-    root = exp.add(model, 0, exp.design.initial())
-    model.P_table = exp.design.covariances.stack()
-    model.original = root
-    return model, exp, e
-
-
-def lazy_model(
-    scene: Scene, window: tuple[int, int], end: int | None = None, budget: Budget | None = None
-) -> GrowingModel:
+def lazy_model(scene: Scene, window: tuple[int, int], end: int | None = None) -> GrowingModel:
     """The model of ``scene`` for attacks in ``window``, unfolded as an engine asks.
 
-    The original path is unfolded at once (the engines need it); everything
-    else when :meth:`GrowingModel.expand` is called.
+    The original path is unfolded at once, in the model itself (the engines
+    need it); everything else when :meth:`GrowingModel.expand` is called.
     """
-    model, _, e = _start(scene, window, end, budget)
-    original = [int(model.original[0])]
-    for k in range(e):
+    model = SceneExpander(scene, window).model
+    last = _last_step(scene, end)
+    original = [0]
+    while len(original) <= last and not model.halted[original[-1]]:
         q = original[-1]
-        if model.halted[q]:
-            break
-        t = model.expand(np.array([q]), k) if not model.expanded(q) else None
-        lo = int(model.out_lo[q]) if t is None else int(t[0])
-        original.append(int(model.dst[lo]))
+        model.expand(np.array([q]), len(original) - 1)
+        original.append(int(model.dst[model.out_lo[q]]))
+    _check_end(len(original) - 1, end, window)
     model.original = np.array(original, dtype=np.int64)
     return model
 
@@ -251,16 +212,17 @@ def build_model(
     window: tuple[int, int],
     end: int | None = None,
     on_level: Callable[[int, int], None] | None = None,
-    budget: Budget | None = None,
 ) -> ArrayModel:
     """The whole LTS of ``scene`` for attacks in ``window`` = (l, u), up to step ``end``.
 
     Level by level: every state of step k is expanded (in batches of
     :data:`EAGER_BATCH`) before any of step k + 1. ``on_level(step, states)``
-    is called after each step (for progress bars). Raises
-    :class:`BudgetExceeded` when ``budget`` runs out.
+    is called after each step (for progress bars).
     """
-    model, exp, e = _start(scene, window, end, budget)
+    exp = SceneExpander(scene, window)
+    e = original_end(scene, exp.design, end)
+    _check_end(e, None, window)
+    model = exp.model
     frontier = np.arange(model.n_states, dtype=np.int64)
     for k in range(e):
         before = model.n_states
@@ -271,14 +233,14 @@ def build_model(
         if on_level is not None:
             on_level(k + 1, model.n_states)
     # the original path is the rank-0 (unattacked) chain of the graph itself
-    original = [int(model.original[0])]
+    original = [0]
     while len(original) <= e and model.expanded(original[-1]):
         original.append(int(model.dst[model.out_lo[original[-1]]]))
     model.original = np.array(original, dtype=np.int64)
-    return to_arrays(model, scene, window, e, exp.design.name)
+    return freeze(model, scene, window, e, exp.design.name)
 
 
-def to_arrays(
+def freeze(
     model: GrowingModel, scene: Scene, window: tuple[int, int], end: int, design: str
 ) -> ArrayModel:
     """Freeze a fully unfolded model into an :class:`ArrayModel` (CSR by source state)."""

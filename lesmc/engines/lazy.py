@@ -32,6 +32,8 @@ BATCH_SECONDS = 0.05
 class LazySpace(SpaceOps):
     """A :class:`~lesmc.engines.space.SearchSpace` over a model unfolded on demand."""
 
+    cm: GrowingModel
+
     def __init__(self, model: GrowingModel, bp: BoundProperty) -> None:
         self.cm = model
         self.bp = bp
@@ -104,12 +106,6 @@ class LazySpace(SpaceOps):
         self._mask.extend(allowed)
         self._t_known = cm.n_transitions
 
-    def is_leaf(self, q: int) -> bool:
-        return bool(self.cm.step[q] >= self.bp.end or self.cm.halted[q])
-
-    def tail(self, q: int) -> tuple[float, float]:
-        return self.tail_at(int(self.cm.step[q]))
-
     def successors(self, q: int) -> np.ndarray:
         got = self._allowed.get(q)
         if got is None:
@@ -123,9 +119,7 @@ class LazySpace(SpaceOps):
     def entering(self, q0: int, q1: int) -> int:
         if not self.cm.expanded(q0):
             self._expand(q0)
-        lo, hi = int(self.cm.out_lo[q0]), int(self.cm.out_hi[q0])
-        hits = np.nonzero(self.cm.dst[lo:hi] == q1)[0]
-        return lo + int(hits[0])
+        return self.cm.edge(q0, q1)
 
     def _expand(self, q: int) -> None:
         """Successors of q; outside the window, of every state of q's step still waiting."""

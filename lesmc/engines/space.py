@@ -81,6 +81,7 @@ class SpaceOps:
     """Operations shared by the explicit :class:`Space` and the on-the-fly one (lazy.py)."""
 
     bp: BoundProperty
+    cm: Any  # an ArrayModel or a GrowingModel
     satisfies: Callable[[float, float], bool]
 
     @property
@@ -101,6 +102,13 @@ class SpaceOps:
         return self.satisfies(con, self.bp.bound)
 
     agg = staticmethod(kernel.aggregate)
+
+    def is_leaf(self, q: int) -> bool:
+        """A path ends here: the property's last step, or the track halted."""
+        return bool(self.cm.step[q] >= self.bp.end or self.cm.halted[q])
+
+    def tail(self, q: int) -> tuple[float, float]:
+        return self.tail_at(int(self.cm.step[q]))
 
     def tail_at(self, h: int) -> tuple[float, float]:
         """Contributions of the steps after a leaf at step h: +inf deviation after a halt."""
@@ -129,14 +137,8 @@ class Space(SpaceOps):
     root_con: float
     satisfies: Callable[[float, float], bool]
 
-    def is_leaf(self, q: int) -> bool:
-        return bool(self.cm.step[q] >= self.bp.end or self.cm.halted[q])
-
     def successors(self, q: int) -> np.ndarray:
         return self.adj[self.adj_ptr[q] : self.adj_ptr[q + 1]]
-
-    def tail(self, q: int) -> tuple[float, float]:
-        return self.tail_at(int(self.cm.step[q]))
 
     def entering(self, q0: int, q1: int) -> int:
         """The transition from q0 to q1."""

@@ -52,9 +52,9 @@ class Expansion:
 
 
 class Expander(Protocol):
-    """Computes successors and adds the new states to the model it is given."""
+    """Computes successors and adds the new states to its model."""
 
-    def expand(self, model: GrowingModel, states: np.ndarray, step: int) -> Expansion: ...
+    def expand(self, states: np.ndarray, step: int) -> Expansion: ...
 
 
 class GrowingModel:
@@ -157,7 +157,7 @@ class GrowingModel:
         """Compute the successors of ``states`` (all at ``step``, none expanded yet, none
         halted); returns the indices of their transitions."""
         assert self.expander is not None
-        exp = self.expander.expand(self, states, step)
+        exp = self.expander.expand(states, step)
         first = self._dst.n
         ptr = np.r_[0, np.cumsum(exp.counts)]
         self._src.extend(np.repeat(states, exp.counts))
@@ -169,6 +169,11 @@ class GrowingModel:
         self._lo.data[states] = first + ptr[:-1]
         self._hi.data[states] = first + ptr[1:]
         return np.arange(first, self._dst.n)
+
+    def edge(self, q0: int, q1: int) -> int:
+        """The transition from q0 (expanded) to q1, the first in rank order."""
+        lo, hi = int(self._lo.data[q0]), int(self._hi.data[q0])
+        return lo + int(np.nonzero(self._dst.data[lo:hi] == q1)[0][0])
 
     def obs_of(self, t: int) -> str | None:
         o = int(self._obs.data[t])

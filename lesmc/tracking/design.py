@@ -10,7 +10,7 @@ more than one filter (joint) also keeps the whole states as objects.
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from typing import Any, Protocol
 
 import numpy as np
@@ -63,18 +63,6 @@ class Batch:
         objs = None if self.objects is None else [self.objects[int(i)] for i in idx]
         return Batch(self.X[idx], self.cov[idx], self.halted[idx], objs)
 
-    @staticmethod
-    def concat(batches: list[Batch]) -> Batch:
-        objs = None
-        if batches and batches[0].objects is not None:
-            objs = [o for b in batches for o in (b.objects or [])]
-        return Batch(
-            np.concatenate([b.X for b in batches]),
-            np.concatenate([b.cov for b in batches]),
-            np.concatenate([b.halted for b in batches]),
-            objs,
-        )
-
 
 @dataclass
 class Successors:
@@ -91,7 +79,6 @@ class Successors:
     payoff: np.ndarray
     det: np.ndarray
     states: Batch
-    extra: dict[str, Any] = field(default_factory=dict)
 
 
 class Design(Protocol):
