@@ -67,20 +67,19 @@ def decode_text(data: bytes, path: str, error: type[LesmcError] = InputError) ->
 
 def read_text(path: str | Path, error: type[LesmcError] = InputError) -> str:
     """Read a UTF-8 text file (BOM skipped); unreadable files and bad bytes become ``error``."""
-    try:
-        data = Path(path).read_bytes()
-    except OSError as exc:
-        raise error(f"cannot read file: {exc.strerror or exc}", Location(str(path))) from None
-    return decode_text(data, str(path), error)
+    return decode_text(_read_bytes(path, error), str(path), error)
 
 
 def read_json(path: str | Path, error: type[LesmcError] = InputError) -> Any:
     """Parse a JSON file strictly; every problem becomes a ``FILE:LINE:COL`` ``error``."""
+    return parse_json(_read_bytes(path, error), str(path), error)
+
+
+def _read_bytes(path: str | Path, error: type[LesmcError]) -> bytes:
     try:
-        data = Path(path).read_bytes()
+        return Path(path).read_bytes()
     except OSError as exc:
         raise error(f"cannot read file: {exc.strerror or exc}", Location(str(path))) from None
-    return parse_json(data, str(path), error)
 
 
 def parse_json(
@@ -99,11 +98,12 @@ def parse_json(
         text = decode_text(data, path, error)
         raw = data
     # number hooks run once per number: only where a token could be out of range
-    long_digits = _LONG_DIGITS.search(raw) is not None
+    classes = raw.translate(_NUMBER_CLASSES)
+    long_digits = _LONG_DIGITS in classes
     hooks: dict[str, Any] = {}
     if long_digits:
         hooks["parse_int"] = _int
-    if long_digits or _BIG_EXPONENT.search(raw) is not None:
+    if long_digits or any(x in classes for x in _BIG_EXPONENTS):
         hooks["parse_float"] = _float
     try:
         value = json.loads(text, object_pairs_hook=_object, parse_constant=_constant, **hooks)
@@ -120,11 +120,13 @@ def parse_json(
 
 # --- hooks: cheap checks on the happy path ---------------------------------------------
 
-#: A run of 19 digits or more: an integer that may not fit in 64 bits (or a float with a
-#: mantissa long enough to overflow).
-_LONG_DIGITS = re.compile(rb"[0-9]{19,}")
+#: Bytes mapped to classes (digits -> 1, e/E -> e, signs -> s) for a quick scan in C.
+_NUMBER_CLASSES = bytes.maketrans(b"0123456789eE+-", b"1111111111eess")
+#: A run of 19 digits: an integer that may not fit in 64 bits (or a float with a mantissa
+#: long enough to overflow).
+_LONG_DIGITS = b"1" * 19
 #: An exponent of three digits or more: a float that may overflow to infinity.
-_BIG_EXPONENT = re.compile(rb"[eE][+-]?[0-9]{3,}")
+_BIG_EXPONENTS = (b"e111", b"es111")
 
 
 def _object(pairs: list[tuple[str, Any]]) -> dict[str, Any]:

@@ -16,10 +16,10 @@ import matplotlib.pyplot as plt
 import numpy as np
 from matplotlib.figure import Figure
 
+from lesmc.model.kernel import DEFAULT_TOLERANCE, alarm
 from lesmc.model.lts import LTS
 from lesmc.report.paths import TrackPath, position, tau_series
 from lesmc.tracking.kalman import warp
-from lesmc.tracking.monitor import DEFAULT_TOLERANCE, alarm
 from lesmc.tracking.scene import Scene
 
 ORIGINAL = "#1a9850"  # green, as in the paper

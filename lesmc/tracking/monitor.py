@@ -3,7 +3,8 @@
 τ is the trace of the location block of the covariance P. During normal
 tracking it shrinks towards convergence; it rises when an update is skipped
 (no observation accepted), which is what an attack that hides detections
-causes. The alarm fires when τ rises: Eq. 13's Γ = 0.
+causes. The alarm fires when τ rises: Eq. 13's Γ = 0. Both equations live in the
+semantics kernel (lesmc/model/kernel.py); this module runs the unattacked track.
 """
 
 from __future__ import annotations
@@ -12,10 +13,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from lesmc.model.kernel import DEFAULT_TOLERANCE, LOCATION, alarm, tau
+from lesmc.model.kernel import alarm, tau
 from lesmc.tracking.design import Design
-
-__all__ = ["DEFAULT_TOLERANCE", "LOCATION", "TrackPoint", "alarm", "tau", "track"]
 
 
 @dataclass(frozen=True)

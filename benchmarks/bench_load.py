@@ -1,0 +1,159 @@
+"""Benchmark: `lesmc check` of a large .lts file against a bare `json.load` of it.
+
+Row of docs/performance.md ("A fast core"): the whole process wall time of
+``lesmc check BIG.lts SPEC`` (start-up, strict JSON reading, validation into
+arrays, one check) against ``python -c "import json; json.load(open(BIG))"``,
+alternated N times in one run; also the in-process stages. BIG is a layered
+68,890-state model (steps 0..20, fan-out 1-4), made here with a fixed seed.
+
+Run ``python benchmarks/bench_load.py [-n 7] [--keep DIR]``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import shutil
+import statistics
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+from rich.console import Console
+from rich.table import Table
+
+from lesmc.fileio import read_json
+from lesmc.model.lts_format import lts_from_dict, save_lts
+
+SPEC = (
+    "property p { attack window 1..3 minimize payoff subject to dist.max(0..end) > 600 "
+    "holds if optimum > 1 }\n"
+)
+
+
+def make(n: int = 68890, e: int = 20, seed: int = 0) -> dict:  # type: ignore[type-arg]
+    """The model document: states in layers of growing width, 1-4 successors each."""
+    rng = np.random.default_rng(seed)
+    sizes = [1]
+    while len(sizes) <= e and sizes[-1] * 3 < (n - sum(sizes)) / (e + 1 - len(sizes)):
+        sizes.append(sizes[-1] * 3)
+    rest, left = n - sum(sizes), e + 1 - len(sizes)
+    sizes += [rest // left + (1 if i < rest % left else 0) for i in range(left)]
+    assert sum(sizes) == n and len(sizes) == e + 1
+    layers: list[list[str]] = []
+    c = 0
+    for k, w in enumerate(sizes):
+        layers.append([f"k{k}.{c + i}" for i in range(w)])
+        c += w
+    states = []
+    for k, layer in enumerate(layers):
+        S = np.round(rng.uniform(0, 1000, (len(layer), 4)), 3).tolist()
+        for sid, s in zip(layer, S, strict=True):
+            states.append({"id": sid, "step": k, "s": s})
+    trans = []
+    for k in range(e):
+        A, B = len(layers[k]), len(layers[k + 1])
+        succ = [set() for _ in range(A)]
+        for j in range(B):
+            succ[j * A // B].add(j)
+        for i in range(A):
+            if not succ[i]:
+                succ[i].add(i * B // A)
+        for i in range(0, A, 4):
+            succ[i].add((min(succ[i]) + 1) % B)
+        for i in range(A):
+            for r, j in enumerate(sorted(succ[i], key=lambda j: layers[k + 1][j])):
+                trans.append(
+                    {
+                        "src": layers[k][i],
+                        "dst": layers[k + 1][j],
+                        "payoff": round(float(rng.uniform(0, 5)), 3),
+                        "rank": r,
+                        "obs": f"{k + 1}:{r}",
+                    }
+                )
+    first = {}
+    for t in trans:
+        if t["rank"] == 0:
+            first[t["src"]] = t["dst"]
+    original = [layers[0][0]]
+    for _ in range(e):
+        original.append(first[original[-1]])
+    return {
+        "format": "lesmc-lts",
+        "version": 1,
+        "components": ["x", "y", "vx", "vy"],
+        "initial": original[0],
+        "original": original,
+        "states": states,
+        "transitions": trans,
+        "meta": {"source": "bench"},
+    }
+
+
+def timed(argv: list[str]) -> float:
+    t0 = time.perf_counter()
+    r = subprocess.run(argv, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    assert r.returncode in (0, 1), argv
+    return time.perf_counter() - t0
+
+
+def main() -> int:
+    ap = argparse.ArgumentParser()
+    ap.add_argument("-n", type=int, default=7)
+    ap.add_argument("--keep", type=Path, default=None, help="write the files here")
+    args = ap.parse_args()
+    d = args.keep or Path(tempfile.mkdtemp(prefix="lesmc-bench-"))
+    d.mkdir(parents=True, exist_ok=True)
+    big, spec = d / "big.lts", d / "p.spec"
+    save_lts(lts_from_dict(make()), big)
+    spec.write_text(SPEC)
+    lesmc = shutil.which("lesmc") or "lesmc"
+    bare = [sys.executable, "-c", f"import json; json.load(open({str(big)!r}))"]
+    check = [lesmc, "check", str(big), str(spec)]
+    runs: dict[str, list[float]] = {"json.load": [], "lesmc check": []}
+    stages: dict[str, list[float]] = {"json.load": [], "read_json": [], "lts_from_dict": []}
+    for _ in range(args.n):
+        runs["json.load"].append(timed(bare))
+        runs["lesmc check"].append(timed(check))
+        t0 = time.perf_counter()
+        with open(big) as fh:
+            json.load(fh)
+        t1 = time.perf_counter()
+        data = read_json(big)
+        t2 = time.perf_counter()
+        lts_from_dict(data)
+        t3 = time.perf_counter()
+        for k, v in zip(stages, (t1 - t0, t2 - t1, t3 - t2), strict=True):
+            stages[k].append(v)
+    table = Table(
+        title=f"{big.stat().st_size / 1e6:.1f} MB .lts, 68,890 states (min / median of {args.n})"
+    )
+    for c in ("what", "min s", "median s", "min / json.load"):
+        table.add_column(c, justify="right")
+    base_p, base_s = min(runs["json.load"]), min(stages["json.load"])
+    for name, vals in runs.items():
+        table.add_row(
+            f"process: {name}",
+            f"{min(vals):.3f}",
+            f"{statistics.median(vals):.3f}",
+            f"{min(vals) / base_p:.2f}x",
+        )
+    for name, vals in stages.items():
+        table.add_row(
+            f"in process: {name}",
+            f"{min(vals):.3f}",
+            f"{statistics.median(vals):.3f}",
+            f"{min(vals) / base_s:.2f}x",
+        )
+    Console(width=120).print(table)
+    if args.keep is None:
+        shutil.rmtree(d)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
