@@ -285,7 +285,7 @@ def bind_scene(scene: Scene, specs: Iterable[SpecFile]) -> list[BoundProperty]:
 def check_scene(
     scene: Scene,
     specs: Iterable[SpecFile],
-    engine: EngineName = "bnb",
+    engine: EngineName = "levels",
     max_states: int | None = DEFAULT_MAX_STATES,
     timeout: float | None = None,
 ) -> list[CheckResult]:
@@ -302,7 +302,7 @@ def check_scene(
 def check_scene_bound(
     scene: Scene,
     bp: BoundProperty,
-    engine: EngineName = "bnb",
+    engine: EngineName = "levels",
     max_states: int | None = DEFAULT_MAX_STATES,
     timeout: float | None = None,
 ) -> CheckResult:
@@ -310,4 +310,4 @@ def check_scene_bound(
     if engine == "enumerate":
         model = build_model(scene, (bp.l, bp.u), bp.end)
         return check_bound(model, bp, engine, max_states, timeout)
-    return check_lazy(lazy_model(scene, (bp.l, bp.u), bp.end), bp, max_states, timeout)
+    return check_lazy(lazy_model(scene, (bp.l, bp.u), bp.end), bp, max_states, timeout, engine)

@@ -162,7 +162,7 @@ def check_designs(
     scene: Scene,
     specs: list[SpecFile],
     designs: list[str],
-    engine: str = "bnb",
+    engine: str = "levels",
     on_stage: Callable[[str], None] | None = None,
     only: Callable[[str], bool] | None = None,
 ) -> list[DesignRun]:

@@ -18,6 +18,7 @@ from lesmc.model.random_models import RandomModelConfig, random_lts
 ENGINES = [
     pytest.param({"engine": "enumerate"}, id="enumerate"),
     pytest.param({"engine": "bnb"}, id="bnb"),
+    pytest.param({"engine": "levels"}, id="levels"),
 ]
 
 MEASURES = ["payoff", "payoff.mean", "dist.sum({a}..{b})", "dist.max({a}..{b})", "dist.at({b})"]
@@ -79,7 +80,7 @@ def test_optimum_and_witness_equal_brute_force(case: tuple) -> None:
     truth = brute_force(model, bp)
     cm = to_arrays(model)
     by_states = {tuple(p): (o, c) for p, o, c in truth.paths}
-    for engine in ("enumerate", "bnb"):
+    for engine in ("enumerate", "bnb", "levels"):
         r = check_bound(cm, bp, engine)  # type: ignore[arg-type]
         assert r.stats.stopped == "finished"
         if math.isinf(truth.optimum):
@@ -130,6 +131,35 @@ def test_budget_exhaustion_reports_unknown_with_bounds(kw: dict) -> None:
     assert r.stats.stopped == "max_states"
     assert r.verdict == "unknown" and r.optimum is None
     assert r.lower <= r.upper
+
+
+@settings(max_examples=200, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(cases(), st.integers(1, 60))
+def test_budgeted_bounds_contain_the_truth(case: tuple, budget: int) -> None:
+    """Under any state budget, the reported bounds contain the true optimum and θ*,
+    a reported optimum is the true one, and a counterexample really violates."""
+    model, params, quantile = case
+    bp = _bound_property(model, params, quantile)
+    truth = brute_force(model, bp)
+    cm = to_arrays(model)
+    by_states = {tuple(p): (o, c) for p, o, c in truth.paths}
+    for engine in ("bnb", "levels"):
+        r = check_bound(cm, bp, engine, max_states=budget)  # type: ignore[arg-type]
+        tol = 1e-9 * max(1.0, abs(truth.optimum)) if math.isfinite(truth.optimum) else 0
+        assert r.lower - tol <= truth.optimum <= r.upper + tol
+        if r.optimum is not None:
+            assert r.optimum == pytest.approx(truth.optimum, rel=1e-12, abs=1e-12)
+        if r.counterexample is not None and math.isfinite(r.counterexample.objective):
+            assert r.counterexample.objective >= truth.optimum - tol
+            assert r.counterexample.objective <= r.upper + tol
+        doc = r.to_json()
+        if doc["optimum"] is None:
+            assert math.isinf(truth.optimum)
+        if r.witness_bounds is not None and truth.witness_value is not None:
+            lo, hi = r.witness_bounds
+            assert lo - 1e-9 <= truth.witness_value <= hi + 1e-9
+        if r.witness is not None and r.witness_exact:
+            assert by_states[r.witness.states][0] == pytest.approx(truth.witness_value)
 
 
 def test_bnb_expands_far_fewer_states_than_enumerate_on_shared_dags() -> None:

@@ -29,10 +29,12 @@ does not import the engines (tests/test_startup.py checks that the two agree).""
 @click.argument("specs", nargs=-1, required=True, type=click.Path(dir_okay=False))
 @click.option(
     "--engine",
-    type=click.Choice(["bnb", "enumerate"]),
-    default="bnb",
+    type=click.Choice(["levels", "bnb", "enumerate"]),
+    default="levels",
     show_default=True,
-    help="bnb: exact branch and bound; enumerate: the paper's Algorithms 1-2 (all paths).",
+    help="levels: exact search in lock step with bounds, dominance and a dive for an incumbent "
+    "(anytime); bnb: best-first branch and bound; enumerate: the paper's Algorithms 1-2 "
+    "(all paths).",
 )
 @click.option("--json", "as_json", is_flag=True, help="Print the results as JSON on stdout.")
 @click.option(

@@ -9,7 +9,8 @@ from typing import Literal
 from lesmc.engines.bnb import branch_and_bound
 from lesmc.engines.enumerate import enumerate_paths
 from lesmc.engines.lazy import LazySpace
-from lesmc.engines.result import CheckResult, EngineOutcome, Verdict, path_info
+from lesmc.engines.levels import level_search
+from lesmc.engines.result import CheckResult, EngineOutcome, PathInfo, Verdict, path_info
 from lesmc.engines.space import SearchSpace, build_space
 from lesmc.language.properties import SpecFile
 from lesmc.language.semantics import BoundProperty, bind
@@ -17,10 +18,11 @@ from lesmc.model.arrays import ArrayModel
 from lesmc.model.growing import GrowingModel
 from lesmc.model.kernel import holds
 
-EngineName = Literal["enumerate", "bnb"]
+EngineName = Literal["enumerate", "bnb", "levels"]
 ENGINES: dict[str, Callable[..., EngineOutcome]] = {
     "enumerate": enumerate_paths,
     "bnb": branch_and_bound,
+    "levels": level_search,
 }
 
 #: Default budget on expanded states: keeps a runaway search inside 2 cores / 24 GiB.
@@ -39,7 +41,7 @@ def bind_all(model: ArrayModel, specs: Iterable[SpecFile]) -> list[BoundProperty
 def check(
     model: ArrayModel,
     specs: Iterable[SpecFile],
-    engine: EngineName = "bnb",
+    engine: EngineName = "levels",
     max_states: int | None = DEFAULT_MAX_STATES,
     timeout: float | None = None,
 ) -> list[CheckResult]:
@@ -56,7 +58,7 @@ def check(
 def check_bound(
     cm: ArrayModel,
     bp: BoundProperty,
-    engine: EngineName = "bnb",
+    engine: EngineName = "levels",
     max_states: int | None = DEFAULT_MAX_STATES,
     timeout: float | None = None,
 ) -> CheckResult:
@@ -77,22 +79,30 @@ def to_result(space: SearchSpace, out: EngineOutcome) -> CheckResult:
 
     notes: list[str] = []
     verdict: Verdict
-    if exact:
-        verdict = "holds" if above(out.optimum) else "violated"
-        lower = upper = out.optimum
+    # the optimum is known when the search finished, or when its proven bounds meet
+    known = exact or (out.lower >= out.upper and math.isfinite(out.upper))
+    optimum = out.optimum if exact else out.upper
+    if known:
+        verdict = "holds" if above(optimum) else "violated"
+        lower = upper = optimum
     else:
         lower, upper = out.lower, out.upper
         verdict = "holds" if above(lower) else "violated" if not above(upper) else "unknown"
+    if not exact:
         notes.append(
-            f"search stopped ({out.stats.stopped}) before it finished: the optimum lies in "
-            f"[{lower:g}, {upper:g}]"
-            + ("" if verdict == "unknown" else f", which already decides '{verdict}'")
+            f"search stopped ({out.stats.stopped}) before it finished: the optimum "
+            + (
+                f"is proven to be {optimum:g}"
+                if known
+                else f"lies in [{lower:g}, {upper:g}]"
+                + ("" if verdict == "unknown" else f", which already decides '{verdict}'")
+            )
         )
     cex = None if out.counterexample is None else path_info(space, out.counterexample)
     wit = None if out.witness is None else path_info(space, out.witness)
     if not out.witness_exact and wit is not None:
         notes.append("the witness is the best found before the budget ran out, maybe not ρ*")
-    if exact and math.isinf(out.optimum):
+    if known and math.isinf(optimum):
         notes.append(
             "no attacked path violates: optimum is +inf"
             if cex is None
@@ -101,7 +111,7 @@ def to_result(space: SearchSpace, out: EngineOutcome) -> CheckResult:
     return CheckResult(
         property=prop.name,
         verdict=verdict,
-        optimum=out.optimum if exact and math.isfinite(out.optimum) else None,
+        optimum=optimum if known and math.isfinite(optimum) else None,
         threshold=prop.threshold,
         holds_op=prop.holds_op,
         objective=bp.objective.text,
@@ -114,7 +124,24 @@ def to_result(space: SearchSpace, out: EngineOutcome) -> CheckResult:
         witness_exact=out.witness_exact,
         stats=out.stats,
         notes=notes,
+        optimum_known=known,
+        witness_bounds=_witness_bounds(out, wit, known, upper),
     )
+
+
+def _witness_bounds(
+    out: EngineOutcome, wit: PathInfo | None, known: bool, upper: float
+) -> tuple[float, float] | None:
+    """Proven bounds on θ*: the witness itself when exact, else what the engine proved."""
+    if out.witness_exact and wit is not None:
+        return (wit.objective, wit.objective)
+    got = out.stats.extra.pop("witness_bounds", None)
+    if got is not None:
+        lo, hi = (float(x) for x in got)
+        return (lo, hi)
+    if not known:
+        return (-math.inf, upper)
+    return None
 
 
 def check_lazy(
@@ -122,10 +149,14 @@ def check_lazy(
     bp: BoundProperty,
     max_states: int | None = DEFAULT_MAX_STATES,
     timeout: float | None = None,
+    engine: EngineName = "levels",
 ) -> CheckResult:
-    """One bound property on a model unfolded on demand (``bnb`` expands what it visits)."""
+    """One bound property on a model unfolded on demand (the engine expands what it visits)."""
     space = LazySpace(model, bp)
-    out = branch_and_bound(space, max_states=max_states, timeout=timeout, use_bounds=False)
+    if engine == "bnb":
+        out = branch_and_bound(space, max_states=max_states, timeout=timeout, use_bounds=False)
+    else:
+        out = level_search(space, max_states=max_states, timeout=timeout)
     out.stats.extra["states_built"] = space.states_built
     return to_result(space, out)
 

@@ -16,7 +16,7 @@ import time
 
 import numpy as np
 
-from lesmc.engines.space import SpaceOps
+from lesmc.engines.space import SpaceOps, ranges
 from lesmc.language.semantics import BoundProperty
 from lesmc.model import kernel
 from lesmc.model.growing import GrowArray, GrowingModel
@@ -40,6 +40,7 @@ class LazySpace(SpaceOps):
         self.satisfies = kernel.COMPARE[bp.op]
         self._dist = GrowArray(np.float64)
         self._tau = GrowArray(np.float64)
+        self._tau_table = GrowArray(np.float64)  # τ per entry of the model's covariance table
         self._c_obj = GrowArray(np.float64)
         self._c_con = GrowArray(np.float64)
         self._allowed: dict[int, np.ndarray] = {}  # per expanded state: its allowed transitions
@@ -85,7 +86,7 @@ class LazySpace(SpaceOps):
             diff = (cm.S[new] - self._ref[steps])[:, list(bp.components)]
             self._dist.extend(kernel.deviation(diff, bp.norm))
             if bp.monitor_components is not None:
-                self._tau.extend(kernel.tau(cm.P_table, bp.monitor_components)[cm.cov[new]])
+                self._tau.extend(self._tau_of_table()[cm.cov[new]])
             for q, k in zip(new.tolist(), steps.tolist(), strict=True):
                 if not bp.l <= k + 1 <= bp.u and k < bp.end:
                     self._waiting.setdefault(k, []).append(q)
@@ -106,6 +107,15 @@ class LazySpace(SpaceOps):
         self._mask.extend(allowed)
         self._t_known = cm.n_transitions
 
+    def _tau_of_table(self) -> np.ndarray:
+        """τ (Eq. 12) of every covariance in the model's table, computed once per entry."""
+        table = self.cm.P_table
+        known = self._tau_table.n
+        if len(table) > known:
+            assert self.bp.monitor_components is not None
+            self._tau_table.extend(kernel.tau(table[known:], self.bp.monitor_components))
+        return self._tau_table.data
+
     def successors(self, q: int) -> np.ndarray:
         got = self._allowed.get(q)
         if got is None:
@@ -115,6 +125,23 @@ class LazySpace(SpaceOps):
             got = np.arange(lo, hi)[self._mask.data[lo:hi]]
             self._allowed[q] = got
         return got
+
+    def successors_batch(self, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """The allowed transitions of states ``q``: (position in ``q``, transition), in order.
+
+        States not yet expanded are expanded together, one batch per step.
+        """
+        cm = self.cm
+        u = np.unique(q)
+        todo = u[cm.out_lo[u] < 0]
+        if todo.size:
+            steps = cm.step[todo]
+            for k in np.unique(steps).tolist():
+                cm.expand(todo[steps == k], int(k))
+            self._sync()
+        owner, t = ranges(cm.out_lo[q], cm.out_hi[q])
+        ok = self._mask.data[t]
+        return owner[ok], t[ok]
 
     def entering(self, q0: int, q1: int) -> int:
         if not self.cm.expanded(q0):

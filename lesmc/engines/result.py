@@ -115,12 +115,23 @@ class CheckResult:
     witness_exact: bool
     stats: Stats
     notes: list[str] = field(default_factory=list)
+    #: False when a budget stopped the search before the optimum's bounds met
+    optimum_known: bool = True
+    #: proven bounds on θ* (equal when the witness is exact); None: not searched
+    witness_bounds: tuple[float, float] | None = None
 
     def to_json(self) -> dict[str, Any]:
+        optimum: float | str | None
+        if not self.optimum_known:
+            optimum = "unknown"  # null means only: no path violates
+        else:
+            optimum = None if self.optimum is None else _num(self.optimum)
+        wb = self.witness_bounds
         return {
             "property": self.property,
             "verdict": self.verdict,
-            "optimum": None if self.optimum is None else _num(self.optimum),
+            "optimum": optimum,
+            "witness_bounds": None if wb is None else {"lower": _num(wb[0]), "upper": _num(wb[1])},
             "threshold": self.threshold,
             "holds_if": f"optimum {self.holds_op} {self.threshold:g}",
             "objective": self.objective,

@@ -33,6 +33,17 @@ def location_trace(cm: ArrayModel, components: tuple[int, ...]) -> np.ndarray:
     return out
 
 
+def ranges(
+    lo: np.ndarray, hi: np.ndarray, values: np.ndarray | None = None
+) -> tuple[np.ndarray, np.ndarray]:
+    """Concatenate the index ranges lo[i]:hi[i]: (i of each entry, the index or values[index])."""
+    deg = hi - lo
+    owner = np.repeat(np.arange(lo.size, dtype=np.int64), deg)
+    starts = np.cumsum(deg) - deg
+    idx = np.arange(int(deg.sum()), dtype=np.int64) - np.repeat(starts - lo, deg)
+    return owner, (idx if values is None else values[idx])
+
+
 class SearchSpace(Protocol):
     """What the engines and reports need: the explicit :class:`Space` or the lazy one."""
 
@@ -66,11 +77,17 @@ class SearchSpace(Protocol):
 
     def violates(self, con: float) -> bool: ...
 
+    def satisfies(self, con: Any, bound: Any) -> Any: ...
+
+    def tail_at(self, h: int) -> tuple[float, float]: ...
+
     def agg(self, is_max: bool, acc: float, c: float) -> float: ...
 
     def is_leaf(self, q: int) -> bool: ...
 
     def successors(self, q: int) -> Sequence[int] | np.ndarray: ...
+
+    def successors_batch(self, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]: ...
 
     def tail(self, q: int) -> tuple[float, float]: ...
 
@@ -139,6 +156,10 @@ class Space(SpaceOps):
 
     def successors(self, q: int) -> np.ndarray:
         return self.adj[self.adj_ptr[q] : self.adj_ptr[q + 1]]
+
+    def successors_batch(self, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """The allowed transitions of states ``q``: (position in ``q``, transition), in order."""
+        return ranges(self.adj_ptr[q], self.adj_ptr[q + 1], self.adj)
 
     def entering(self, q0: int, q1: int) -> int:
         """The transition from q0 to q1."""

@@ -23,16 +23,25 @@ from lesmc.tracking.kalman import Innovation, mahalanobis2
 def gate_mask(
     y: np.ndarray, inn: Innovation, P_pred: np.ndarray, gate: float, gate_type: str
 ) -> np.ndarray:
-    """Which innovations y (n, 2) pass the gate.
+    """Which innovations y (n, 2) of one predicted state pass the gate (:func:`gate_test`)."""
+    return gate_test(y, inn.S_inv, P_pred, gate, gate_type)
+
+
+def gate_test(
+    y: np.ndarray, S_inv: np.ndarray, P_pred: np.ndarray, gate: float, gate_type: str
+) -> np.ndarray:
+    """Which innovations y (..., 2) pass the gate; ``S_inv`` (2, 2) and ``P_pred`` (4, 4)
+    serve every row, or (n, 2, 2) and (n, 4, 4) one leading row of y each.
 
     ``mahalanobis`` (paper Eq. 19): sqrt(yᵀ S⁻¹ y) ≤ g. ``euclidean`` (the paper's
     public code): ‖y‖ ≤ k · sqrt(P̂₀₀ + P̂₁₁).
     """
     if gate_type == "euclidean":
-        radius = gate * math.sqrt(P_pred[0, 0] + P_pred[1, 1])
+        radius = gate * np.sqrt(P_pred[..., 0, 0] + P_pred[..., 1, 1])
+        radius = np.reshape(radius, np.shape(radius) + (1,) * (y.ndim - 1 - np.ndim(radius)))
         out: np.ndarray = y[..., 0] ** 2 + y[..., 1] ** 2 <= radius * radius
         return out
-    d2 = mahalanobis2(y, inn.S_inv)
+    d2 = mahalanobis2(y, S_inv)
     res: np.ndarray = np.sqrt(np.maximum(d2, 0.0)) <= gate
     return res
 

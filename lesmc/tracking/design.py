@@ -15,14 +15,19 @@ from typing import Any, Protocol
 
 import numpy as np
 
+from lesmc.model.growing import GrowArray
 from lesmc.tracking.scene import Scene
 
 
 class CovarianceTable:
-    """The distinct covariances P of a design's states, each stored once, by exact value."""
+    """The distinct covariances P of a design's states, each stored once, by exact value.
+
+    They are kept in one growing (c, d, d) array, so :meth:`stack` is a view and
+    costs nothing however often the unfolder asks for it.
+    """
 
     def __init__(self) -> None:
-        self.matrices: list[np.ndarray] = []
+        self._rows: GrowArray | None = None
         self._index: dict[bytes, int] = {}
 
     def add(self, P: np.ndarray) -> int:
@@ -30,20 +35,30 @@ class CovarianceTable:
         key = P.tobytes()
         i = self._index.get(key)
         if i is None:
-            i = len(self.matrices)
-            self.matrices.append(P)
+            if self._rows is None:
+                self._rows = GrowArray(np.float64, P.shape)
+            i = self._rows.n
+            self._rows.extend(P[None])
             self._index[key] = i
         return i
 
     def __getitem__(self, i: int) -> np.ndarray:
-        return self.matrices[i]
+        if not 0 <= i < len(self):
+            raise IndexError(i)
+        assert self._rows is not None
+        out: np.ndarray = self._rows.data[i]
+        return out
 
     def __len__(self) -> int:
-        return len(self.matrices)
+        return 0 if self._rows is None else self._rows.n
 
     def stack(self) -> np.ndarray:
-        """All covariances (c, d, d)."""
-        return np.array(self.matrices, dtype=float)
+        """All covariances (c, d, d), as a read-only view."""
+        if self._rows is None:
+            return np.zeros((0, 0, 0))
+        view = self._rows.view
+        view.flags.writeable = False
+        return view
 
 
 @dataclass

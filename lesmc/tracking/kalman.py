@@ -112,14 +112,22 @@ def predict_means(X: np.ndarray, dt: float) -> np.ndarray:
 
 
 def update_means(X_pred: np.ndarray, K: np.ndarray, Z: np.ndarray) -> np.ndarray:
-    """Eq. 2: x = x̂ + K (z − H x̂), row by row (elementwise, batch-size independent)."""
+    """Eq. 2: x = x̂ + K (z − H x̂), row by row (elementwise, batch-size independent).
+
+    ``K`` is one gain (4, 2) for every row, or one per row (n, 4, 2).
+    """
     y = Z - X_pred[..., :2]
-    out: np.ndarray = X_pred + y[..., 0:1] * K[:, 0] + y[..., 1:2] * K[:, 1]
+    out: np.ndarray = X_pred + y[..., 0:1] * K[..., 0] + y[..., 1:2] * K[..., 1]
     return out
 
 
 def mahalanobis2(y: np.ndarray, S_inv: np.ndarray) -> np.ndarray:
-    """yᵀ S⁻¹ y for rows of y (n, 2), elementwise."""
-    a, b, d = S_inv[0, 0], S_inv[0, 1] + S_inv[1, 0], S_inv[1, 1]
+    """yᵀ S⁻¹ y for innovations y (..., 2), elementwise.
+
+    ``S_inv`` is one matrix (2, 2), or one per leading row of y (n, 2, 2) for y (n, ..., 2).
+    """
+    a, b, d = S_inv[..., 0, 0], S_inv[..., 0, 1] + S_inv[..., 1, 0], S_inv[..., 1, 1]
+    extra = (1,) * (y.ndim - 1 - np.ndim(a))
+    a, b, d = (np.reshape(v, np.shape(v) + extra) for v in (a, b, d))
     out: np.ndarray = a * y[..., 0] ** 2 + b * y[..., 0] * y[..., 1] + d * y[..., 1] ** 2
     return out

@@ -19,7 +19,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from lesmc.tracking.association import attack_option_rows, gate_mask, gate_radius
+from lesmc.tracking.association import attack_option_rows, gate_radius, gate_test
 from lesmc.tracking.design import Batch, CovarianceTable, Successors
 from lesmc.tracking.kalman import (
     Innovation,
@@ -101,16 +101,17 @@ class SingleDesign:
         return predict_means(X, self.scene.dt)
 
     def successors(self, batch: Batch, step: int, attacked: bool) -> Successors:
-        """Outcomes of moving the states of ``batch`` (none halted) to frame ``step``."""
+        """Outcomes of moving the states of ``batch`` (none halted) to frame ``step``.
+
+        One pass over the whole batch: what derives from each state's covariance
+        (gate, S⁻¹, K, the next covariances) is computed once per distinct P and
+        spread to the rows, so states with different histories share the arrays.
+        """
         frame = self.scene.frame(step)
         Xp = self.predict(batch.X, step)
-        parts: list[tuple[np.ndarray, ...]] = []
-        for c in np.unique(batch.cov).tolist():
-            members = np.nonzero(batch.cov == c)[0]
-            parts.append(self._group(frame, members, Xp[members], self.gain(c), attacked))
-        src, rank, payoff, det, X, cov, halted = (
-            np.concatenate(a) for a in zip(*parts, strict=True)
-        )
+        covs, which = np.unique(batch.cov, return_inverse=True)
+        rows = _GainRows.of([self.gain(c) for c in covs.tolist()], which.reshape(-1))
+        src, rank, payoff, det, X, cov, halted = self._rows(frame, Xp, rows, attacked)
         order = np.lexsort((rank, src))
         return Successors(
             src[order],
@@ -120,23 +121,21 @@ class SingleDesign:
             Batch(X[order], cov[order], halted[order]),
         )
 
-    def _group(
-        self, frame: Frame, members: np.ndarray, Xp: np.ndarray, g: Gain, attacked: bool
+    def _rows(
+        self, frame: Frame, Xp: np.ndarray, g: _GainRows, attacked: bool
     ) -> tuple[np.ndarray, ...]:
-        """Successors of predictions ``Xp`` sharing one covariance."""
+        """Successors of predictions ``Xp``, row i with the gain rows ``g`` of its P."""
         cfg = self.cfg
         idx, valid = _candidates(frame, Xp[:, :2], g.radius, wide=attacked)
         Z = frame.positions()[np.where(valid, idx, 0)]
         y = Z - Xp[:, None, :2]
-        gated = valid & gate_mask(y, g.inn, g.P_pred, cfg.gate, cfg.gate_type)
+        gated = valid & gate_test(y, g.S_inv, g.P_pred, cfg.gate, cfg.gate_type)
         if attacked:
             same = frame.position_ids()[np.where(valid, idx, 0)] if frame.has_repeats else None
             opts = attack_option_rows(gated, frame.payoffs()[np.where(valid, idx, 0)], valid, same)
             row, col, payoff = opts.row, opts.col, opts.payoff
-            rank = np.arange(row.size) - np.repeat(
-                np.r_[0, np.cumsum(np.bincount(row, minlength=len(Xp)))[:-1]],
-                np.bincount(row, minlength=len(Xp)),
-            )
+            counts = np.bincount(row, minlength=len(Xp))
+            rank = np.arange(row.size) - np.repeat(np.r_[0, np.cumsum(counts)[:-1]], counts)
         else:  # the unattacked tracker: the nearest visible detection, if it passes the gate
             row = np.arange(len(Xp))
             col = np.where(valid[:, 0] & gated[:, 0], 0, -1) if idx.shape[1] else -np.ones_like(row)
@@ -144,11 +143,39 @@ class SingleDesign:
             rank = np.zeros(row.size, dtype=np.int64)
         upd = col >= 0
         X = Xp[row].copy()
-        X[upd] = update_means(Xp[row[upd]], g.inn.K, Z[row[upd], col[upd]])
+        ru = row[upd]
+        X[upd] = update_means(Xp[ru], g.K[ru], Z[ru, col[upd]])
         det = np.where(upd, idx[row, np.maximum(col, 0)] if idx.shape[1] else -1, -1)
-        cov = np.where(upd, g.post, g.pred).astype(np.int64)
-        halted = np.where(upd, g.halt_post, g.halt_pred)
-        return members[row], rank, payoff, det, X, cov, halted
+        cov = np.where(upd, g.post[row], g.pred[row]).astype(np.int64)
+        halted = np.where(upd, g.halt_post[row], g.halt_pred[row])
+        return row, rank, payoff, det, X, cov, halted
+
+
+@dataclass(frozen=True)
+class _GainRows:
+    """The :class:`Gain` of each row's covariance, as arrays over the rows."""
+
+    radius: np.ndarray
+    S_inv: np.ndarray  # (n, 2, 2)
+    P_pred: np.ndarray  # (n, 4, 4)
+    K: np.ndarray  # (n, 4, 2)
+    pred: np.ndarray
+    post: np.ndarray
+    halt_pred: np.ndarray
+    halt_post: np.ndarray
+
+    @staticmethod
+    def of(gains: list[Gain], which: np.ndarray) -> _GainRows:
+        return _GainRows(
+            np.array([g.radius for g in gains])[which],
+            np.array([g.inn.S_inv for g in gains])[which],
+            np.array([g.P_pred for g in gains])[which],
+            np.array([g.inn.K for g in gains])[which],
+            np.array([g.pred for g in gains], dtype=np.int64)[which],
+            np.array([g.post for g in gains], dtype=np.int64)[which],
+            np.array([g.halt_pred for g in gains])[which],
+            np.array([g.halt_post for g in gains])[which],
+        )
 
 
 #: Candidates asked of the k-d tree at first; rows that fill them all ask again for twice as many.
@@ -156,9 +183,9 @@ _FIRST_K = 8
 
 
 def _candidates(
-    frame: Frame, points: np.ndarray, radius: float, wide: bool
+    frame: Frame, points: np.ndarray, radius: np.ndarray, wide: bool
 ) -> tuple[np.ndarray, np.ndarray]:
-    """The detections within ``radius`` of each point, nearest first (ties: lower index).
+    """The detections within ``radius[i]`` of each point i, nearest first (ties: lower index).
 
     Returns indices (n, k) and a validity mask; ``wide=False`` asks only for the
     nearest few (the unattacked tracker needs the nearest alone; three resolve ties).
@@ -166,7 +193,7 @@ def _candidates(
     n = len(points)
     k = min(_FIRST_K if wide else 3, max(len(frame.detections), 1))
     while True:
-        idx = frame.nearest(points, k, radius)
+        idx = frame.nearest(points, k, float(radius.max()) if n else 0.0)
         if not wide or k >= len(frame.detections) or not (idx[:, -1] >= 0).any():
             break
         k = min(2 * k, len(frame.detections))
@@ -175,7 +202,7 @@ def _candidates(
         return np.zeros((n, 0), dtype=np.int64), np.zeros((n, 0), dtype=bool)
     y = frame.positions()[np.where(valid, idx, 0)] - points[:, None, :]
     dist = np.where(valid, np.sqrt(y[..., 0] ** 2 + y[..., 1] ** 2), np.inf)
-    valid &= dist <= radius
+    valid &= dist <= radius[:, None]
     dist = np.where(valid, dist, np.inf)
     key = np.where(valid, idx, np.iinfo(np.int64).max)
     order = np.lexsort((key, dist), axis=1)

@@ -1,0 +1,635 @@
+"""Engine ``levels``: exact label search in lock step, one numpy pass per step.
+
+Every transition enters the next step, so the partial paths of a search
+space advance together: a *level* holds the labels (state, objective so far,
+constraint so far) of the paths that have reached one step. Both measures
+only grow along a path (space.py), which makes three prunings exact:
+
+* **bounds**: a label whose objective can no longer end below the incumbent,
+  or whose constraint can no longer be violated, has no useful completion;
+* **dominance** at shared states: a label with no larger objective and a
+  constraint value no less favourable makes another one redundant (every
+  completion of the second is matched by the same completion of the first),
+  kept as a Pareto front per state by one sort;
+* **an incumbent first**: a beam dive (the best labels per level only) finds a
+  violating path before the exact pass, so the exact pass prunes from the start.
+
+On an explicit model the bounds are suffix minima and maxima (one backward
+pass) and, when objective and constraint are both sums, Lagrangian bounds
+``o + min_suffix Σ(c_obj − sλ c_con) + sλ(B − c)`` for a grid of λ ≥ 0: the
+relaxation that makes the 0-1 knapsack's fractional bound (docs/engines.md).
+
+The representative path ρ* (phase 2) is an optimisation of its own: the
+largest objective below the optimum. A max objective keeps one label per
+state (the largest below the optimum); a sum keeps distinct values, pruned by
+suffix bounds and the incumbent, and is seeded by a meet-in-the-middle dive
+against the suffix values of the last steps. When every contribution is a
+multiple of g, no objective lies strictly between opt − g and opt, which
+proves a witness at opt − g optimal at once.
+
+Under a budget both phases stop with proven bounds (docs/engines.md, "anytime").
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from lesmc.engines.result import EngineOutcome, Stats
+from lesmc.engines.space import SearchSpace, Space
+from lesmc.model.kernel import aggregate_arrays
+
+#: Labels expanded per slice: the clock and the budgets are checked between slices.
+SLICE = 16_384
+#: Labels kept per level by the beam dives.
+BEAM = 256
+#: Largest table of suffix values the witness dive builds (entries).
+SUFFIX_VALUES = 1 << 21
+#: λ values of the Lagrangian bound.
+LAMBDAS = 48
+#: Relative slack on bounds summed in another order than a path's own value.
+_SLACK = 1e-9
+
+
+class _Stop(Exception):
+    """A budget ran out."""
+
+    def __init__(self, reason: str) -> None:
+        super().__init__(reason)
+        self.reason = reason
+
+
+class _Budget:
+    def __init__(self, max_states: int | None, timeout: float | None) -> None:
+        self.max_states = max_states
+        self.deadline = None if timeout is None else time.perf_counter() + timeout
+        self.used = 0
+
+    def spend(self, n: int) -> None:
+        if self.max_states is not None and self.used + n > self.max_states:
+            raise _Stop("max_states")
+        if self.deadline is not None and time.perf_counter() > self.deadline:
+            raise _Stop("timeout")
+        self.used += n
+
+
+@dataclass
+class _Trail:
+    """Every label's state, parent (index in the previous level) and entering transition."""
+
+    q: list[np.ndarray] = field(default_factory=list)
+    parent: list[np.ndarray] = field(default_factory=list)
+    t: list[np.ndarray] = field(default_factory=list)
+
+    def add(self, q: np.ndarray, parent: np.ndarray, t: np.ndarray) -> int:
+        self.q.append(q)
+        self.parent.append(parent)
+        self.t.append(t)
+        return len(self.q) - 1
+
+    def path(self, level: int, i: int) -> list[int]:
+        """Transitions from the root to label i of ``level``."""
+        out = []
+        while level > 0:
+            out.append(int(self.t[level][i]))
+            i = int(self.parent[level][i])
+            level -= 1
+        out.reverse()
+        return out
+
+
+# ----------------------------------------------------------------------------- bounds
+class _Bounds:
+    """What can still happen after a label: trivial on a lazy space, exact suffix bounds
+    (and Lagrangian ones) on an explicit one."""
+
+    def __init__(self, space: SearchSpace) -> None:
+        self.space = space
+        self.omin = self.omax = self.cmin = self.cmax = None
+        self.alive: np.ndarray | None = None
+        self.lam: np.ndarray | None = None
+        self.h: np.ndarray | None = None  # (n, K): min suffix Σ(c_obj − sλ c_con)
+        if isinstance(space, Space):
+            from lesmc.engines.bnb import suffix_bounds
+
+            b = suffix_bounds(space)
+            self.omin, self.omax, self.cmin, self.cmax = b.obj_min, b.obj_max, b.con_min, b.con_max
+            self.alive = b.alive
+            self.reachable = b.states
+            if not space.obj_max and not space.con_max:
+                self._lagrangian(space)
+
+    @property
+    def exact(self) -> bool:
+        return self.omin is not None
+
+    def violating_lb(self, q: np.ndarray, o: np.ndarray, c: np.ndarray) -> np.ndarray:
+        """A lower bound on the final objective of any *violating* completion; +inf
+        where none can violate."""
+        sp = self.space
+        if self.omin is None:
+            return o.copy()
+        assert self.alive is not None and self.cmax is not None and self.cmin is not None
+        lb = _lo(aggregate_arrays(sp.obj_max, o, self.omin[q]))
+        if sp.con_up:
+            reach = _hi(aggregate_arrays(sp.con_max, c, self.cmax[q]))
+        else:
+            reach = _lo(aggregate_arrays(sp.con_max, c, self.cmin[q]))
+        can = self.alive[q] & _truth(sp.satisfies(reach, sp.bp.bound))
+        if self.h is not None and self.lam is not None:
+            s = 1.0 if sp.con_up else -1.0
+            with np.errstate(invalid="ignore"):
+                lag = self.h[q] + s * self.lam[None, :] * (sp.bp.bound - c)[:, None]
+            lag = np.where(np.isnan(lag), -math.inf, lag)
+            lb = np.maximum(lb, _lo(o + lag.max(axis=1)))
+        return np.where(can, lb, math.inf)
+
+    def range(self, q: np.ndarray, o: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Smallest and largest final objective over all completions (dead: +inf, −inf)."""
+        sp = self.space
+        if self.omin is None:
+            return o.copy(), np.full(o.shape, math.inf)
+        assert self.omax is not None and self.alive is not None
+        lo = _lo(aggregate_arrays(sp.obj_max, o, self.omin[q]))
+        hi = _hi(aggregate_arrays(sp.obj_max, o, self.omax[q]))
+        return np.where(self.alive[q], lo, math.inf), np.where(self.alive[q], hi, -math.inf)
+
+    def _lagrangian(self, space: Space) -> None:
+        """h[q, k] = min over completions of Σ(c_obj − sλ_k c_con), tails included.
+
+        λ runs over a geometric grid spanning the transitions' cost/constraint ratios,
+        then over a finer grid around the λ that bounds the root best.
+        """
+        co, cc = space.c_obj[space.adj], space.c_con[space.adj]
+        ok = (cc > 0) & np.isfinite(cc) & np.isfinite(co) & (co > 0)
+        if not ok.any() or space.cm.n_states == 0:
+            return
+        k = max(2, min(LAMBDAS, int(1e7 // max(space.cm.n_states, 1))))
+        lo, hi = np.quantile(co[ok] / cc[ok], [0.01, 0.99])
+        lam = np.r_[0.0, np.geomspace(lo / 4, hi * 4, k - 1)]
+        h = self._suffix_lagrangian(space, lam)
+        s = 1.0 if space.con_up else -1.0
+        with np.errstate(invalid="ignore"):
+            root = h[space.root] + s * lam * (space.bp.bound - space.root_con)
+        i = int(np.nanargmax(np.where(np.isnan(root), -math.inf, root)))
+        fine = np.linspace(lam[max(i - 1, 0)], lam[min(i + 1, lam.size - 1)], k + 2)[1:-1]
+        self.lam = np.r_[lam, fine]
+        self.h = np.concatenate([h, self._suffix_lagrangian(space, fine)], axis=1)
+
+    @staticmethod
+    def _suffix_lagrangian(space: Space, lam: np.ndarray) -> np.ndarray:
+        from lesmc.engines.bnb import _gather, _reachable_levels
+
+        cm = space.cm
+        s = 1.0 if space.con_up else -1.0
+        leaf = (cm.step >= space.bp.end) | cm.halted
+        h = np.full((cm.n_states, lam.size), math.inf)
+        for level in reversed(_reachable_levels(space, leaf)):
+            for q in level[leaf[level]].tolist():
+                to, tc = space.tail(int(q))
+                with np.errstate(invalid="ignore"):
+                    row = to - s * lam * tc
+                h[q] = np.where(np.isnan(row), to, row)
+            inner = level[~leaf[level]]
+            if not inner.size:
+                continue
+            t, seg, has = _gather(space, inner)
+            if not t.size:
+                continue
+            vals = (space.c_obj[t] - s * np.outer(space.c_con[t], lam).T).T + h[cm.dst[t]]
+            vals = np.where(np.isnan(vals), math.inf, vals)
+            h[inner[has]] = np.minimum.reduceat(vals, seg[:-1][has], axis=0)
+        return h
+
+
+# ----------------------------------------------------------------------------- search
+def _expand(
+    space: SearchSpace, q: np.ndarray, budget: _Budget, stats: Stats
+) -> tuple[np.ndarray, np.ndarray]:
+    """The allowed transitions out of labels ``q`` (all at one step): label index, transition."""
+    budget.spend(int(q.size))
+    idx, t = space.successors_batch(q)
+    stats.transitions += int(t.size)
+    return idx, t
+
+
+def _pareto(q: np.ndarray, o: np.ndarray, c: np.ndarray, up: bool) -> np.ndarray:
+    """Indices of the labels no other label at the same state dominates.
+
+    Sorted by state, objective ascending and constraint best-first, a label is
+    kept when its constraint beats every earlier label of its state (ranks, so
+    that one running maximum serves all states at once).
+    """
+    if q.size <= 1:
+        return np.arange(q.size)
+    cc = c if up else -c
+    order = np.lexsort((-cc, o, q))
+    qs, cs = q[order], cc[order]
+    # equal constraint values share a rank: a later equal label is dominated
+    srt = np.sort(cs)
+    rank = np.searchsorted(srt, cs, side="left").astype(np.int64)
+    start = np.r_[True, qs[1:] != qs[:-1]]
+    group = np.cumsum(start) - 1
+    key = group * (cs.size + 1) + rank
+    best_before = np.maximum.accumulate(np.r_[-1, key[:-1]])
+    keep = start | (best_before < key)
+    return np.asarray(order[keep])
+
+
+@dataclass
+class _Front:
+    """One level's labels."""
+
+    level: int
+    q: np.ndarray
+    o: np.ndarray
+    c: np.ndarray
+
+
+def _optimum_pass(
+    space: SearchSpace,
+    bounds: _Bounds,
+    budget: _Budget,
+    stats: Stats,
+    upper: float,
+    beam: int | None,
+) -> tuple[float, tuple[_Trail, int, int] | None, float, str | None]:
+    """The cheapest violating path with objective below ``upper`` (exact unless ``beam``).
+
+    Returns the best objective found, where its label is (trail, level, index), a proven
+    lower bound on the optimum (−inf for a beam), and why it stopped early (None: it
+    finished). Stopped early, the lower bound is the least bound of the labels left.
+    """
+    trail = _Trail()
+    root = np.array([space.root], dtype=np.int64)
+    trail.add(root, np.array([-1]), np.array([-1]))
+    fq, fo, fc = root, np.array([space.root_obj]), np.array([space.root_con])
+    best, where = upper, None
+    cm, bp = space.cm, space.bp
+    while fq.size:
+        leaf = (cm.step[fq] >= bp.end) | cm.halted[fq]
+        if leaf.any():
+            li = np.nonzero(leaf)[0]
+            to, tc = _tails(space, fq[li])
+            lo_ = aggregate_arrays(space.obj_max, fo[li], to)
+            lc_ = aggregate_arrays(space.con_max, fc[li], tc)
+            bad = _truth(space.satisfies(lc_, bp.bound)) & (lo_ < best)
+            if bad.any():
+                j = int(np.argmin(np.where(bad, lo_, math.inf)))
+                best, where = float(lo_[j]), (trail, len(trail.q) - 1, int(li[j]))
+        live = np.nonzero(~leaf)[0]
+        parts: list[tuple[np.ndarray, ...]] = []
+        for s0 in range(0, live.size, SLICE):
+            sl = live[s0 : s0 + SLICE]
+            try:
+                idx, t = _expand(space, fq[sl], budget, stats)
+            except _Stop as stop:
+                if beam is not None:
+                    return best, where, -math.inf, stop.reason
+                rest = live[s0:]
+                lbs = [bounds.violating_lb(fq[rest], fo[rest], fc[rest])]
+                lbs += [bounds.violating_lb(p[0], p[1], p[2]) for p in parts]
+                lower = min([best, *(float(x.min()) for x in lbs if x.size)])
+                return best, where, lower, stop.reason
+            par = sl[idx]
+            dst = cm.dst[t]
+            o2 = aggregate_arrays(space.obj_max, fo[par], space.c_obj[t])
+            c2 = aggregate_arrays(space.con_max, fc[par], space.c_con[t])
+            fine = bounds.violating_lb(dst, o2, c2) < best
+            parts.append((dst[fine], o2[fine], c2[fine], par[fine], t[fine]))
+        if not parts:
+            break
+        q, o, c, p, t = (np.concatenate([x[i] for x in parts]) for i in range(5))
+        lb = bounds.violating_lb(q, o, c)
+        keep = np.nonzero(lb < best)[0]  # the incumbent may have improved
+        keep = keep[_pareto(q[keep], o[keep], c[keep], space.con_up)]
+        if beam is not None and keep.size > beam:
+            keep = _beam(space, keep, lb, q, c, beam)
+        trail.add(q[keep], p[keep], t[keep])
+        fq, fo, fc = q[keep], o[keep], c[keep]
+    return best, where, (best if beam is None else -math.inf), None
+
+
+def _beam(
+    space: SearchSpace, keep: np.ndarray, lb: np.ndarray, q: np.ndarray, c: np.ndarray, b: int
+) -> np.ndarray:
+    """The labels a dive keeps: half the best bounds, half the closest to violating."""
+    half = max(1, b // 2)
+    by_bound = keep[np.argsort(lb[keep], kind="stable")[:half]]
+    proxy = c[keep] + np.asarray(space.dist)[q[keep]]
+    by_con = keep[np.argsort(-proxy if space.con_up else proxy, kind="stable")[:half]]
+    return np.unique(np.r_[by_bound, by_con])
+
+
+def _tails(space: SearchSpace, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    steps = space.cm.step[q]
+    to = np.empty(q.size)
+    tc = np.empty(q.size)
+    for h in np.unique(steps).tolist():
+        a, b = space.tail_at(int(h))
+        m = steps == h
+        to[m], tc[m] = a, b
+    return to, tc
+
+
+# ----------------------------------------------------------------------------- witness
+def _grain(space: SearchSpace) -> float | None:
+    """g when every objective contribution (and the root value) is an integer multiple of
+    g; None otherwise. Then no sum objective lies strictly between opt − g and opt."""
+    vals = _known(space)
+    vals = vals[np.isfinite(vals)]
+    vals = np.r_[vals, space.root_obj if math.isfinite(space.root_obj) else 0.0]
+    if vals.size == 0 or np.abs(vals).max() >= 2.0**52:
+        return None
+    if not np.all(vals == np.round(vals)):
+        return None
+    g = int(np.gcd.reduce(np.abs(vals).astype(np.int64)))
+    return float(g) if g > 0 else None
+
+
+def _known(space: SearchSpace) -> np.ndarray:
+    """The objective contributions of the transitions built so far."""
+    return np.asarray(space.c_obj)[: space.cm.n_transitions]
+
+
+def _witness_cap(space: SearchSpace, opt: float) -> float:
+    """An upper bound on θ*: below ``opt`` and, where the values allow, tighter."""
+    if not math.isfinite(opt):
+        return math.inf
+    if space.obj_max:
+        vals = np.r_[_known(space), space.root_obj]
+        below = vals[vals < opt]
+        return float(below.max()) if below.size else -math.inf
+    g = _grain(space)
+    return opt - g if g is not None else opt
+
+
+def _witness_pass(
+    space: SearchSpace,
+    bounds: _Bounds,
+    budget: _Budget,
+    stats: Stats,
+    opt: float,
+    best: float,
+    cap: float,
+    beam: int | None,
+    suffix: _SuffixValues | None = None,
+) -> tuple[float, tuple[_Trail, int, int, list[int]] | None]:
+    """The largest objective below ``opt`` and above ``best``, and where its label is.
+
+    A max objective keeps one label per state (the largest: every completion that
+    stays below ``opt`` keeps it largest), a sum each distinct value. Exact without a
+    beam or a suffix table; with them a dive.
+    """
+    trail = _Trail()
+    root = np.array([space.root], dtype=np.int64)
+    trail.add(root, np.array([-1]), np.array([-1]))
+    q, o = root, np.array([space.root_obj])
+    where: tuple[_Trail, int, int, list[int]] | None = None
+    cm, bp = space.cm, space.bp
+    while q.size and best < cap:
+        level = len(trail.q) - 1
+        leaf = (cm.step[q] >= bp.end) | cm.halted[q]
+        if leaf.any():
+            li = np.nonzero(leaf)[0]
+            fo = aggregate_arrays(space.obj_max, o[li], _tails(space, q[li])[0])
+            ok = (fo < opt) & (fo > best)
+            if ok.any():
+                j = int(np.argmax(np.where(ok, fo, -math.inf)))
+                best, where = float(fo[j]), (trail, level, int(li[j]), [])
+        live = np.nonzero(~leaf)[0]
+        if suffix is not None and live.size and suffix.covers(int(cm.step[q[live[0]]])):
+            val, hit = suffix.meet(q[live], o[live], opt, best)
+            if hit is not None:
+                best, where = val, (trail, level, int(live[hit[0]]), hit[1])
+            break
+        parts: list[tuple[np.ndarray, ...]] = []
+        for s0 in range(0, live.size, SLICE):
+            sl = live[s0 : s0 + SLICE]
+            idx, t = _expand(space, q[sl], budget, stats)
+            par = sl[idx]
+            dst = cm.dst[t]
+            o2 = aggregate_arrays(space.obj_max, o[par], space.c_obj[t])
+            lo, hi = bounds.range(dst, o2)
+            keep = (lo < opt) & (hi > best)
+            parts.append((dst[keep], o2[keep], par[keep], t[keep]))
+        if not parts:
+            break
+        q2, o2, p2, t2 = (np.concatenate([x[i] for x in parts]) for i in range(4))
+        keep = _distinct(q2, o2, space.obj_max)
+        if beam is not None and keep.size > beam:
+            lo, hi = bounds.range(q2[keep], o2[keep])
+            target = min(cap, opt)
+            gap = np.maximum(target - hi, 0.0) + np.maximum(lo - target, 0.0)
+            # a max keeps the largest; a sum aims at the middle of what the rest can add
+            aim = -o2[keep] if space.obj_max else np.abs(target - (lo + hi) / 2)
+            keep = keep[np.lexsort((aim, gap))[:beam]]
+        trail.add(q2[keep], p2[keep], t2[keep])
+        q, o = q2[keep], o2[keep]
+    return best, where
+
+
+def _distinct(q: np.ndarray, o: np.ndarray, obj_max: bool) -> np.ndarray:
+    """Labels worth keeping for ρ*: per state the largest (max objective) or each value."""
+    if q.size == 0:
+        return np.arange(0)
+    if obj_max:
+        order = np.lexsort((-o, q))
+        first = np.r_[True, q[order][1:] != q[order][:-1]]
+        return np.asarray(order[first])
+    order = np.lexsort((o, q))
+    qs, os_ = q[order], o[order]
+    first = np.r_[True, (qs[1:] != qs[:-1]) | (os_[1:] != os_[:-1])]
+    return np.asarray(order[first])
+
+
+class _SuffixValues:
+    """The distinct sums of objective contributions over every completion of the states of
+    the last steps (sum objectives on explicit spaces): a meet-in-the-middle table."""
+
+    def __init__(self, space: Space, limit: int = SUFFIX_VALUES) -> None:
+        from lesmc.engines.bnb import _gather, _reachable_levels
+
+        self.space = space
+        cm = space.cm
+        leaf = (cm.step >= space.bp.end) | cm.halted
+        levels = _reachable_levels(space, leaf)
+        self.start_step: int | None = None
+        self.table: dict[int, tuple[np.ndarray, np.ndarray, np.ndarray]] = {}
+        total = 0
+        for level in reversed(levels):
+            entries: dict[int, tuple[np.ndarray, np.ndarray, np.ndarray]] = {}
+            for q in level[leaf[level]].tolist():
+                to = space.tail(int(q))[0]
+                entries[q] = (np.array([to]), np.array([-1]), np.array([-1]))
+            inner = level[~leaf[level]]
+            if inner.size:
+                t, seg, _ = _gather(space, inner)
+                for i, q in enumerate(inner.tolist()):
+                    vs: list[np.ndarray] = []
+                    ts: list[np.ndarray] = []
+                    js: list[np.ndarray] = []
+                    for tt in t[seg[i] : seg[i + 1]].tolist():
+                        d = int(cm.dst[tt])
+                        if d not in self.table:
+                            vs = []
+                            break
+                        sub = self.table[d][0]
+                        vs.append(sub + space.c_obj[tt])
+                        ts.append(np.full(sub.size, tt))
+                        js.append(np.arange(sub.size))
+                    if not vs:
+                        entries = {}
+                        break
+                    v, tt_, jj = np.concatenate(vs), np.concatenate(ts), np.concatenate(js)
+                    v, first = np.unique(v, return_index=True)
+                    entries[q] = (v, tt_[first], jj[first])
+            size = sum(e[0].size for e in entries.values())
+            if not entries or total + size > limit:
+                break
+            total += size
+            self.table.update(entries)
+            self.start_step = int(cm.step[level[0]])
+        self.entries = total
+
+    def covers(self, step: int) -> bool:
+        return self.start_step is not None and step >= self.start_step
+
+    def meet(
+        self, q: np.ndarray, o: np.ndarray, opt: float, best: float
+    ) -> tuple[float, tuple[int, list[int]] | None]:
+        """The largest o + suffix value below ``opt``, over labels (q, o)."""
+        val, hit = best, None
+        for i, (qq, oo) in enumerate(zip(q.tolist(), o.tolist(), strict=True)):
+            v = self.table[qq][0]
+            j = int(np.searchsorted(v, _lo(opt - oo), side="left")) - 1
+            while j >= 0 and not oo + v[j] < opt:
+                j -= 1
+            if j >= 0 and oo + v[j] > val:
+                val, hit = oo + float(v[j]), (i, self._path(qq, j))
+        return val, hit
+
+    def _path(self, q: int, j: int) -> list[int]:
+        out: list[int] = []
+        while True:
+            _, ts, js = self.table[q]
+            t = int(ts[j])
+            if t < 0:
+                return out
+            out.append(t)
+            q, j = int(self.space.cm.dst[t]), int(js[j])
+
+
+# ----------------------------------------------------------------------------- engine
+def level_search(
+    space: SearchSpace,
+    max_states: int | None = None,
+    timeout: float | None = None,
+) -> EngineOutcome:
+    """Optimum, counterexample and ρ*, exactly; under a budget, proven bounds on both."""
+    t0 = time.perf_counter()
+    stats = Stats(engine="levels")
+    budget = _Budget(max_states, timeout)
+    bounds = _Bounds(space)
+    if bounds.exact:
+        stats.extra["bound_states"] = bounds.reachable
+    # phase 1: a dive for an incumbent, then the exact pass below it
+    upper, at, _, stopped = _optimum_pass(space, bounds, budget, stats, math.inf, BEAM)
+    stats.extra["dive_states"] = budget.used
+    lower = -math.inf
+    if stopped is None:
+        best, at2, lower, stopped = _optimum_pass(space, bounds, budget, stats, upper, None)
+        if at2 is not None:
+            upper, at = best, at2
+    cex = _path_of(at)
+    stats.extra["optimum_states"] = budget.used
+    exact = stopped is None
+    # phase 2: ρ*, the largest objective below the optimum
+    witness, w_exact, w_value, w_upper = None, False, -math.inf, upper
+    if exact:
+        witness, w_value, w_upper, stopped = _representative(space, bounds, budget, stats, upper)
+        w_exact = stopped is None
+    stats.extra["witness_states"] = budget.used - stats.extra["optimum_states"]
+    if not w_exact:
+        stats.extra["witness_bounds"] = [w_value, w_upper]  # to_result moves them
+    stats.states_expanded = budget.used
+    stats.stopped = stopped or "finished"  # type: ignore[assignment]
+    stats.seconds = time.perf_counter() - t0
+    return EngineOutcome(
+        optimum=upper if exact else math.inf,
+        lower=upper if exact else lower,
+        upper=upper,
+        counterexample=cex,
+        witness=witness,
+        witness_exact=w_exact,
+        stats=stats,
+    )
+
+
+def _representative(
+    space: SearchSpace, bounds: _Bounds, budget: _Budget, stats: Stats, opt: float
+) -> tuple[list[int] | None, float, float, str | None]:
+    """ρ*: dives (beam, then meet-in-the-middle for sums), then the exact pass.
+
+    Returns the path, θ*, a proven upper bound on θ*, and why it stopped early.
+    """
+    cap = _witness_cap(space, opt)
+    best, at = -math.inf, None
+    try:
+        value, got = _witness_pass(space, bounds, budget, stats, opt, best, cap, BEAM)
+        if got is not None:
+            best, at = value, got
+        if best < cap and isinstance(space, Space) and not space.obj_max and math.isfinite(opt):
+            suffix = _SuffixValues(space)
+            if suffix.entries:
+                value, got = _witness_pass(
+                    space, bounds, budget, stats, opt, best, cap, BEAM, suffix
+                )
+                if got is not None:
+                    best, at = value, got
+        if best < cap:
+            value, got = _witness_pass(space, bounds, budget, stats, opt, best, cap, None)
+            if got is not None:
+                best, at = value, got
+        return _witness_path(at), best, best, None
+    except _Stop as stop:
+        return _witness_path(at), best, cap, stop.reason
+
+
+def _path_of(at: tuple[_Trail, int, int] | None) -> list[int] | None:
+    if at is None:
+        return None
+    trail, level, i = at
+    return trail.path(level, i)
+
+
+def _witness_path(at: tuple[_Trail, int, int, list[int]] | None) -> list[int] | None:
+    if at is None:
+        return None
+    trail, level, i, tail = at
+    return trail.path(level, i) + tail
+
+
+def _truth(x: object) -> np.ndarray:
+    """A comparison's result as a boolean array."""
+    out: np.ndarray = np.asarray(x).astype(bool)
+    return out
+
+
+def _lo(x: np.ndarray | float) -> np.ndarray:
+    """Lower bounds made safe against rounding."""
+    a = np.asarray(x, dtype=float)
+    with np.errstate(invalid="ignore"):
+        out: np.ndarray = np.where(np.isfinite(a), a - _SLACK * np.maximum(1.0, np.abs(a)), a)
+    return out
+
+
+def _hi(x: np.ndarray | float) -> np.ndarray:
+    """Upper bounds made safe against rounding."""
+    a = np.asarray(x, dtype=float)
+    with np.errstate(invalid="ignore"):
+        out: np.ndarray = np.where(np.isfinite(a), a + _SLACK * np.maximum(1.0, np.abs(a)), a)
+    return out
