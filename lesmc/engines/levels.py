@@ -46,6 +46,9 @@ from lesmc.model.kernel import aggregate_arrays
 SLICE = 16_384
 #: Labels kept per level by the beam dives.
 BEAM = 256
+#: Most extra dives that bisect a threshold, and the relative gap at which they stop.
+TIGHTEN = 8
+TIGHT_GAP = 0.02
 #: Largest table of suffix values the witness dive builds (entries).
 SUFFIX_VALUES = 1 << 21
 #: λ values of the Lagrangian bound.
@@ -538,7 +541,10 @@ def level_search(
         stats.extra["bound_states"] = bounds.reachable
     # phase 1: a dive for an incumbent, then the exact pass below it
     upper, at, _, stopped = _optimum_pass(space, bounds, budget, stats, math.inf, BEAM)
+    if stopped is None and math.isfinite(upper):
+        upper, at, stopped = _tighten(space, bounds, budget, stats, upper, at)
     stats.extra["dive_states"] = budget.used
+    stats.extra["dive_upper"] = upper if math.isfinite(upper) else None
     lower = -math.inf
     if stopped is None:
         best, at2, lower, stopped = _optimum_pass(space, bounds, budget, stats, upper, None)
@@ -567,6 +573,37 @@ def level_search(
         witness_exact=w_exact,
         stats=stats,
     )
+
+
+def _tighten(
+    space: SearchSpace,
+    bounds: _Bounds,
+    budget: _Budget,
+    stats: Stats,
+    upper: float,
+    at: tuple[_Trail, int, int] | None,
+) -> tuple[float, tuple[_Trail, int, int] | None, str | None]:
+    """Bisect a threshold with more dives while the incumbent is far above the root's bound.
+
+    A dive below threshold T keeps only labels that can still end below T; when it
+    finds a violating path the incumbent improves, otherwise T only guides the next try
+    (a beam proves nothing). Cheap next to an exact pass that a poor incumbent would widen.
+    """
+    root = np.array([space.root], dtype=np.int64)
+    low = float(bounds.violating_lb(root, np.array([space.root_obj]), np.array([space.root_con]))[0])
+    low = max(low, space.root_obj) if math.isfinite(low) else space.root_obj
+    for _ in range(TIGHTEN):
+        if not upper - low > TIGHT_GAP * max(abs(upper), 1e-12):
+            break
+        mid = low + (upper - low) / 2
+        best, got, _, why = _optimum_pass(space, bounds, budget, stats, mid, BEAM)
+        if got is not None and best < upper:
+            upper, at = best, got
+        elif why is None:
+            low = mid
+        if why is not None:
+            return upper, at, why
+    return upper, at, None
 
 
 def _representative(

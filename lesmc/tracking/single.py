@@ -19,6 +19,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from lesmc.model.growing import GrowArray
 from lesmc.tracking.association import attack_option_rows, gate_radius, gate_test
 from lesmc.tracking.design import Batch, CovarianceTable, Successors
 from lesmc.tracking.kalman import (
@@ -57,6 +58,7 @@ class SingleDesign:
         self.m: Matrices = matrices(self.cfg, scene.dt)
         self.covariances = CovarianceTable()
         self._gains: dict[int, Gain] = {}
+        self._table = _GainTable()
 
     def initial(self) -> Batch:
         """At the target's frame: (start, velocity) with P0; that frame's detections unused."""
@@ -92,6 +94,14 @@ class SingleDesign:
             self._gains[c] = g
         return g
 
+    def _gain_rows(self, cov: np.ndarray) -> _GainRows:
+        """The gains of covariances ``cov`` as row arrays, from per-covariance tables."""
+        t = self._table
+        for c in np.unique(cov).tolist():
+            if c >= t.known.n or not t.known.data[c]:
+                t.put(c, self.gain(c))
+        return t.rows(cov)
+
     def predict(self, X: np.ndarray, step: int) -> np.ndarray:
         """Carry positions into frame ``step`` (homography of the previous frame), then predict."""
         to_next = self.scene.frame(step - 1).to_next
@@ -109,8 +119,7 @@ class SingleDesign:
         """
         frame = self.scene.frame(step)
         Xp = self.predict(batch.X, step)
-        covs, which = np.unique(batch.cov, return_inverse=True)
-        rows = _GainRows.of([self.gain(c) for c in covs.tolist()], which.reshape(-1))
+        rows = self._gain_rows(batch.cov)
         src, rank, payoff, det, X, cov, halted = self._rows(frame, Xp, rows, attacked)
         order = np.lexsort((rank, src))
         return Successors(
@@ -164,18 +173,47 @@ class _GainRows:
     halt_pred: np.ndarray
     halt_post: np.ndarray
 
-    @staticmethod
-    def of(gains: list[Gain], which: np.ndarray) -> _GainRows:
-        return _GainRows(
-            np.array([g.radius for g in gains])[which],
-            np.array([g.inn.S_inv for g in gains])[which],
-            np.array([g.P_pred for g in gains])[which],
-            np.array([g.inn.K for g in gains])[which],
-            np.array([g.pred for g in gains], dtype=np.int64)[which],
-            np.array([g.post for g in gains], dtype=np.int64)[which],
-            np.array([g.halt_pred for g in gains])[which],
-            np.array([g.halt_post for g in gains])[which],
+
+class _GainTable:
+    """:class:`_GainRows`' fields for the covariances whose gain is known, by table index."""
+
+    FIELDS = ("radius", "S_inv", "P_pred", "K", "pred", "post", "halt_pred", "halt_post")
+
+    def __init__(self) -> None:
+        self.known = GrowArray(np.bool_)
+        self.cols = {
+            "radius": GrowArray(np.float64),
+            "S_inv": GrowArray(np.float64, (2, 2)),
+            "P_pred": GrowArray(np.float64, (4, 4)),
+            "K": GrowArray(np.float64, (4, 2)),
+            "pred": GrowArray(np.int64),
+            "post": GrowArray(np.int64),
+            "halt_pred": GrowArray(np.bool_),
+            "halt_post": GrowArray(np.bool_),
+        }
+
+    def put(self, c: int, g: Gain) -> None:
+        if c >= self.known.n:  # make room up to c (unknown rows stay marked so)
+            grow = c + 1 - self.known.n
+            self.known.extend(np.zeros(grow, dtype=bool))
+            for col in self.cols.values():
+                col.extend(np.zeros((grow, *col.data.shape[1:]), dtype=col.data.dtype))
+        values = (
+            g.radius,
+            g.inn.S_inv,
+            g.P_pred,
+            g.inn.K,
+            g.pred,
+            g.post,
+            g.halt_pred,
+            g.halt_post,
         )
+        for name, v in zip(self.FIELDS, values, strict=True):
+            self.cols[name].data[c] = v
+        self.known.data[c] = True
+
+    def rows(self, cov: np.ndarray) -> _GainRows:
+        return _GainRows(*(self.cols[name].data[cov] for name in self.FIELDS))
 
 
 #: Candidates asked of the k-d tree at first; rows that fill them all ask again for twice as many.
