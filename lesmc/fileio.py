@@ -9,13 +9,16 @@ is reported as ``FILE:LINE:COL: message`` (docs/cli.md, "Limits").
 from __future__ import annotations
 
 import codecs
+import contextlib
 import json
 import math
 import os
 import re
+import stat
 import tempfile
+from collections.abc import Iterator
 from pathlib import Path
-from typing import Any
+from typing import IO, Any
 
 from lesmc.errors import InputError, LesmcError, Location
 
@@ -275,18 +278,57 @@ def _show_key(key: str) -> str:
     return shown if len(shown) <= 60 else shown[:56] + '..."'
 
 
-def atomic_write_text(path: str | Path, text: str) -> None:
-    """Write ``text`` to ``path`` so that readers never see a half-written file."""
+def _umask() -> int:
+    """The process umask (read by setting it and putting it back)."""
+    mask = os.umask(0o022)
+    os.umask(mask)
+    return mask
+
+
+def new_file_mode(target: str | Path) -> int:
+    """Permission bits a file written to ``target`` gets: the existing file's if it is
+    replaced, otherwise ``0o666`` minus the process umask (as ``open(path, "w")`` gives)."""
+    try:
+        return stat.S_IMODE(os.stat(target).st_mode)
+    except OSError:
+        return 0o666 & ~_umask()
+
+
+@contextlib.contextmanager
+def atomic_open(path: str | Path, binary: bool = False) -> Iterator[IO[Any]]:
+    """A file to write ``path`` through, so that readers never see it half-written.
+
+    The data go to a temporary file beside ``path`` (``.NAME.XXXXXXXX``), renamed
+    over ``path`` when the ``with`` block ends normally, with the permissions of
+    :func:`new_file_mode`. On any exception, Ctrl-C and SIGTERM included
+    (lesmc/cli/signals.py), the temporary file is removed and ``path`` is untouched.
+    """
     target = Path(path)
     target.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{target.name}.", dir=target.parent)
+    tmp: str | None = None
     try:
-        with os.fdopen(fd, "w", encoding="utf-8") as fh:
-            fh.write(text)
+        fd, tmp = tempfile.mkstemp(prefix=f".{target.name}.", dir=target.parent)
+        mode = new_file_mode(target)
+        with os.fdopen(fd, "wb" if binary else "w", encoding=None if binary else "utf-8") as fh:
+            os.fchmod(fh.fileno(), mode)
+            yield fh
         os.replace(tmp, target)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
+        tmp = None
+    finally:
+        if tmp is not None:
+            Path(tmp).unlink(missing_ok=True)
+
+
+def atomic_write_bytes(path: str | Path, data: bytes) -> None:
+    """Write ``data`` to ``path`` atomically (:func:`atomic_open`)."""
+    with atomic_open(path, binary=True) as fh:
+        fh.write(data)
+
+
+def atomic_write_text(path: str | Path, text: str) -> None:
+    """Write ``text`` (UTF-8) to ``path`` atomically (:func:`atomic_open`)."""
+    with atomic_open(path) as fh:
+        fh.write(text)
 
 
 def write_json(path: str | Path, data: Any) -> None:
