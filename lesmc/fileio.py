@@ -16,7 +16,7 @@ import os
 import re
 import stat
 import tempfile
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import IO, Any
 
@@ -331,6 +331,72 @@ def atomic_write_text(path: str | Path, text: str) -> None:
         fh.write(text)
 
 
-def write_json(path: str | Path, data: Any) -> None:
-    """Atomically write ``data`` as indented JSON (NaN and infinities are refused)."""
-    atomic_write_text(path, json.dumps(data, indent=1, allow_nan=False) + "\n")
+def write_json(path: str | Path, data: Any, on_chunk: Callable[[], None] | None = None) -> None:
+    """Atomically write ``data`` as JSON (NaN and infinities are refused).
+
+    Layout: lists that hold objects, and objects that hold those or other objects,
+    are spread over lines, one member or item a line; everything else is written
+    on one line by json's C encoder (``indent`` would send all of it through the
+    pure-Python one, several times slower and holding every fragment in memory).
+    Written in chunks as produced; ``on_chunk()`` is called between them (a
+    budget: it raises to stop, and the temporary file is removed).
+    """
+    with atomic_open(path) as fh:
+        for chunk in _json_chunks(data, 0):
+            fh.write(chunk)
+            if on_chunk is not None:
+                on_chunk()
+        fh.write("\n")
+
+
+_DUMPS = json.JSONEncoder(allow_nan=False).encode
+_CHUNK_ITEMS = 4096
+
+
+def _spread(value: Any) -> bool:
+    """Whether ``value`` is written over several lines: a list holding objects, or an
+    object holding such a list or another object."""
+    if isinstance(value, dict):
+        return any(isinstance(v, dict) or _has_objects(v) for v in value.values())
+    return _has_objects(value)
+
+
+def _has_objects(value: Any) -> bool:
+    return isinstance(value, list) and any(isinstance(x, dict) for x in value)
+
+
+def _json_chunks(value: Any, depth: int) -> Iterator[str]:
+    if not _spread(value):
+        yield _DUMPS(value)
+        return
+    pad = "\n" + " " * (depth + 1)
+    if isinstance(value, dict):
+        if not value:
+            yield "{}"
+            return
+        yield "{"
+        for i, (key, item) in enumerate(value.items()):
+            yield ("," if i else "") + pad + _DUMPS(str(key)) + ": "
+            yield from _json_chunks(item, depth + 1)
+        yield "\n" + " " * depth + "}"
+        return
+    yield "["
+    sep = "," + pad
+    simple: list[str] = []
+    first = True
+    for item in value:
+        if _spread(item):
+            if simple:
+                yield ("" if first else ",") + pad + sep.join(simple)
+                first, simple = False, []
+            yield ("" if first else ",") + pad
+            first = False
+            yield from _json_chunks(item, depth + 1)
+        else:
+            simple.append(_DUMPS(item))
+            if len(simple) >= _CHUNK_ITEMS:
+                yield ("" if first else ",") + pad + sep.join(simple)
+                first, simple = False, []
+    if simple:
+        yield ("" if first else ",") + pad + sep.join(simple)
+    yield "\n" + " " * depth + "]"

@@ -28,8 +28,8 @@ from lesmc.cli.signals import Terminated, handlers, stdout_closed
 from lesmc.cli.train import train_cmd
 from lesmc.cli.verify import verify_cmd
 from lesmc.cli.video import synth_cmd
-from lesmc.errors import LesmcError
-from lesmc.report.exit import EXIT_INTERNAL, EXIT_INTERRUPTED, EXIT_USAGE
+from lesmc.errors import BudgetError, LesmcError
+from lesmc.report.exit import EXIT_INTERNAL, EXIT_INTERRUPTED, EXIT_UNKNOWN, EXIT_USAGE
 
 
 class _Group(click.Group):
@@ -143,6 +143,9 @@ def _main(argv: list[str] | None) -> None:
     except click.ClickException as exc:
         exc.show()
         sys.exit(EXIT_USAGE if exc.exit_code != 0 else 0)
+    except BudgetError as exc:
+        sys.stderr.write(exc.render() + "\n")
+        sys.exit(EXIT_UNKNOWN)
     except LesmcError as exc:
         sys.stderr.write(exc.render() + "\n")
         sys.exit(EXIT_USAGE)

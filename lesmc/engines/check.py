@@ -59,10 +59,14 @@ def check_bound(
     engine: EngineName = "bnb",
     max_states: int | None = DEFAULT_MAX_STATES,
     timeout: float | None = None,
+    max_memory: int | None = None,
 ) -> CheckResult:
-    """Check one bound property on a model."""
+    """Check one bound property on a model (``max_memory``: bytes, for ``bnb``)."""
     space = build_space(cm, bp)
-    outcome = ENGINES[engine](space, max_states=max_states, timeout=timeout)
+    if engine == "bnb":
+        outcome = branch_and_bound(space, max_states, timeout, max_memory=max_memory)
+    else:
+        outcome = ENGINES[engine](space, max_states=max_states, timeout=timeout)
     return to_result(space, outcome)
 
 
@@ -122,10 +126,11 @@ def check_lazy(
     bp: BoundProperty,
     max_states: int | None = DEFAULT_MAX_STATES,
     timeout: float | None = None,
+    max_memory: int | None = None,
 ) -> CheckResult:
     """One bound property on a model unfolded on demand (``bnb`` expands what it visits)."""
     space = LazySpace(model, bp)
-    out = branch_and_bound(space, max_states=max_states, timeout=timeout, use_bounds=False)
+    out = branch_and_bound(space, max_states, timeout, use_bounds=False, max_memory=max_memory)
     out.stats.extra["states_built"] = space.states_built
     return to_result(space, out)
 
