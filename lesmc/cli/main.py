@@ -24,7 +24,7 @@ from lesmc.cli.build import build_cmd, track_cmd
 from lesmc.cli.check import check_cmd
 from lesmc.cli.perceive import perceive_cmd
 from lesmc.cli.reduce import reduce_group
-from lesmc.cli.signals import Terminated, handlers, stdout_closed
+from lesmc.cli.signals import DeadlinePassed, Terminated, handlers, stdout_closed
 from lesmc.cli.train import train_cmd
 from lesmc.cli.verify import verify_cmd
 from lesmc.cli.video import synth_cmd
@@ -140,6 +140,11 @@ def _main(argv: list[str] | None) -> None:
     except Terminated as exc:
         sys.stderr.write("terminated\n")
         sys.exit(exc.exit_status)
+    except DeadlinePassed:
+        sys.stderr.write(
+            "error: --timeout ran out in work that could not stop sooner; nothing was written\n"
+        )
+        sys.exit(EXIT_UNKNOWN)
     except click.ClickException as exc:
         exc.show()
         sys.exit(EXIT_USAGE if exc.exit_code != 0 else 0)

@@ -86,18 +86,23 @@ def _size(_ctx: click.Context, _param: click.Parameter, value: str | None) -> in
         raise click.BadParameter(escape_control(str(exc))) from None
 
 
+def memory_option(what: str) -> Callable[[F], F]:
+    """``--max-memory SIZE``; ``what`` says what happens past it."""
+    return click.option(
+        "--max-memory",
+        default=None,
+        metavar="SIZE",
+        callback=_size,
+        help="Memory ceiling of the process, e.g. 512M or 4G ('off': none) [default: what "
+        f"it holds at start + 80% of the memory available then]; past it {what}.",
+    )
+
+
 def budget_options(max_states_default: int | None, what: str) -> Callable[[F], F]:
     """``--timeout``, ``--max-states`` and ``--max-memory``; ``what`` says what a budget stops."""
 
     def decorate(f: F) -> F:
-        f = click.option(
-            "--max-memory",
-            default=None,
-            metavar="SIZE",
-            callback=_size,
-            help="Memory ceiling of the process, e.g. 512M or 4G ('off': none) [default: what "
-            f"it holds at start + 80% of the memory available then]; past it {what}.",
-        )(f)
+        f = memory_option(what)(f)
         f = click.option(
             "--timeout",
             type=click.FloatRange(min=0, min_open=True),
@@ -118,10 +123,22 @@ def budget_options(max_states_default: int | None, what: str) -> Callable[[F], F
 
 def budget_from(timeout: float | None, max_states: int | None, max_memory: int | None) -> Budget:
     """The command's :class:`~lesmc.engines.budget.Budget`; its clock starts now (call it
-    first thing in the command, so that loading counts)."""
+    first thing in the command, so that loading counts).
+
+    With a timeout, an alarm also stops the command :data:`~lesmc.cli.signals.HARD_GRACE`
+    seconds past it, should it be in work that checks no clock; it is disarmed when
+    the command ends.
+    """
+    from lesmc.cli.signals import arm_deadline
     from lesmc.engines.budget import Budget
 
-    return Budget(timeout, max_states, max_memory)
+    budget = Budget(timeout, max_states, max_memory)
+    if timeout is not None:
+        disarm = arm_deadline(timeout)
+        ctx = click.get_current_context(silent=True)
+        if ctx is not None:
+            ctx.call_on_close(disarm)
+    return budget
 
 
 def load_model_or_scene(path: str, design: str | None = None) -> ArrayModel | Scene:

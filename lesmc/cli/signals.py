@@ -43,6 +43,34 @@ class Terminated(BaseException):
         return 128 + self.signum
 
 
+class DeadlinePassed(BaseException):
+    """``--timeout`` passed by :data:`HARD_GRACE` seconds in work that checks no clock
+    (imports, loading, a long numpy call): the command stops, exit 3, nothing written."""
+
+
+#: Seconds past ``--timeout`` after which the alarm stops the command whatever it does.
+HARD_GRACE = 0.4
+
+
+def _deadline(_signum: int, _frame: FrameType | None) -> None:
+    raise DeadlinePassed
+
+
+def arm_deadline(seconds: float) -> Callable[[], None]:
+    """Raise :class:`DeadlinePassed` in ``seconds`` + :data:`HARD_GRACE` (SIGALRM, main thread
+    only); returns the function that disarms it and puts the previous handler back."""
+    if not (hasattr(signal, "setitimer") and _main_thread()):  # pragma: no cover - Windows
+        return lambda: None
+    previous = signal.signal(signal.SIGALRM, _deadline)
+    signal.setitimer(signal.ITIMER_REAL, seconds + HARD_GRACE)
+
+    def disarm() -> None:
+        signal.setitimer(signal.ITIMER_REAL, 0)
+        signal.signal(signal.SIGALRM, previous if previous is not None else signal.SIG_DFL)
+
+    return disarm
+
+
 def _terminate(signum: int, _frame: FrameType | None) -> None:
     raise Terminated(signum)
 
