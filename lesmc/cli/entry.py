@@ -31,3 +31,16 @@ def main(argv: list[str] | None = None) -> None:
     except KeyboardInterrupt:
         sys.stderr.write("interrupted\n")
         sys.exit(EXIT_INTERRUPTED)
+    finally:
+        _decided()
+
+
+def _decided() -> None:
+    """The exit status is decided and the outputs are written: a signal during the
+    interpreter's shutdown (torch's finalisers take a while) is ignored rather than
+    printed as a traceback from a finaliser."""
+    import signal
+
+    for name in ("SIGINT", "SIGTERM", "SIGHUP"):
+        if hasattr(signal, name):
+            signal.signal(getattr(signal, name), signal.SIG_IGN)
