@@ -15,7 +15,7 @@ from lesmc.cli.options import (
     model_output,
     parse_window,
 )
-from lesmc.errors import escape_control
+from lesmc.errors import escape_control, escape_text
 
 _DESIGN = design_option("Override the tracker design the scene names.")
 
@@ -132,7 +132,7 @@ def track_cmd(scene: str, end: int | None, as_json: bool, design: str | None) ->
         table.add_row(
             str(p.step),
             str(p.frame),
-            p.obs or "-",
+            escape_text(p.obs) if p.obs else "-",
             *(fmt(v, 2) for v in p.x),
             fmt(p.tau, 2),
             "ALARM" if p.alarm else ("halted" if p.halted else ""),
