@@ -316,7 +316,7 @@ def test_symlinks_leading_out_of_the_frames_directory_are_refused(tmp_path: Path
 
 def test_a_target_outside_the_frames_is_refused_before_perception(tmp_path: Path) -> None:
     _frames(tmp_path / "f", 64)
-    code, out, err = run_main(
+    code, _, err = run_main(
         ["perceive", str(tmp_path / "f"), "--target", "99999,99999", "-o", str(tmp_path / "s")]
     )
     assert code == 2, err
