@@ -1,5 +1,5 @@
 """``python -m lesmc`` runs the command line."""
 
-from lesmc.cli.main import main
+from lesmc.cli.entry import main
 
 main()

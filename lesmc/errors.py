@@ -152,6 +152,11 @@ class UsageError(LesmcError):
     """Command-line options that contradict each other or the inputs."""
 
 
+class BudgetError(LesmcError):
+    """A budget (``--timeout``, ``--max-states``, ``--max-memory``) ran out before a
+    command that has no verdict to give (``build``) was done: exit 3, nothing written."""
+
+
 def source_line(text: str, line: int) -> str | None:
     """The 1-based ``line`` of ``text`` as :func:`split_lines` counts, or None when out of range."""
     if line < 1:

@@ -9,13 +9,16 @@ is reported as ``FILE:LINE:COL: message`` (docs/cli.md, "Limits").
 from __future__ import annotations
 
 import codecs
+import contextlib
 import json
 import math
 import os
 import re
+import stat
 import tempfile
+from collections.abc import Callable, Iterator
 from pathlib import Path
-from typing import Any
+from typing import IO, Any
 
 from lesmc.errors import InputError, LesmcError, Location
 
@@ -275,20 +278,125 @@ def _show_key(key: str) -> str:
     return shown if len(shown) <= 60 else shown[:56] + '..."'
 
 
-def atomic_write_text(path: str | Path, text: str) -> None:
-    """Write ``text`` to ``path`` so that readers never see a half-written file."""
+def _umask() -> int:
+    """The process umask (read by setting it and putting it back)."""
+    mask = os.umask(0o022)
+    os.umask(mask)
+    return mask
+
+
+def new_file_mode(target: str | Path) -> int:
+    """Permission bits a file written to ``target`` gets: the existing file's if it is
+    replaced, otherwise ``0o666`` minus the process umask (as ``open(path, "w")`` gives)."""
+    try:
+        return stat.S_IMODE(os.stat(target).st_mode)
+    except OSError:
+        return 0o666 & ~_umask()
+
+
+@contextlib.contextmanager
+def atomic_open(path: str | Path, binary: bool = False) -> Iterator[IO[Any]]:
+    """A file to write ``path`` through, so that readers never see it half-written.
+
+    The data go to a temporary file beside ``path`` (``.NAME.XXXXXXXX``), renamed
+    over ``path`` when the ``with`` block ends normally, with the permissions of
+    :func:`new_file_mode`. On any exception, Ctrl-C and SIGTERM included
+    (lesmc/cli/signals.py), the temporary file is removed and ``path`` is untouched.
+    """
     target = Path(path)
     target.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{target.name}.", dir=target.parent)
+    tmp: str | None = None
     try:
-        with os.fdopen(fd, "w", encoding="utf-8") as fh:
-            fh.write(text)
+        fd, tmp = tempfile.mkstemp(prefix=f".{target.name}.", dir=target.parent)
+        mode = new_file_mode(target)
+        with os.fdopen(fd, "wb" if binary else "w", encoding=None if binary else "utf-8") as fh:
+            os.fchmod(fh.fileno(), mode)
+            yield fh
         os.replace(tmp, target)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
+        tmp = None
+    finally:
+        if tmp is not None:
+            Path(tmp).unlink(missing_ok=True)
 
 
-def write_json(path: str | Path, data: Any) -> None:
-    """Atomically write ``data`` as indented JSON (NaN and infinities are refused)."""
-    atomic_write_text(path, json.dumps(data, indent=1, allow_nan=False) + "\n")
+def atomic_write_bytes(path: str | Path, data: bytes) -> None:
+    """Write ``data`` to ``path`` atomically (:func:`atomic_open`)."""
+    with atomic_open(path, binary=True) as fh:
+        fh.write(data)
+
+
+def atomic_write_text(path: str | Path, text: str) -> None:
+    """Write ``text`` (UTF-8) to ``path`` atomically (:func:`atomic_open`)."""
+    with atomic_open(path) as fh:
+        fh.write(text)
+
+
+def write_json(path: str | Path, data: Any, on_chunk: Callable[[], None] | None = None) -> None:
+    """Atomically write ``data`` as JSON (NaN and infinities are refused).
+
+    Layout: lists that hold objects, and objects that hold those or other objects,
+    are spread over lines, one member or item a line; everything else is written
+    on one line by json's C encoder (``indent`` would send all of it through the
+    pure-Python one, several times slower and holding every fragment in memory).
+    Written in chunks as produced; ``on_chunk()`` is called between them (a
+    budget: it raises to stop, and the temporary file is removed).
+    """
+    with atomic_open(path) as fh:
+        for chunk in _json_chunks(data, 0):
+            fh.write(chunk)
+            if on_chunk is not None:
+                on_chunk()
+        fh.write("\n")
+
+
+_DUMPS = json.JSONEncoder(allow_nan=False).encode
+_CHUNK_ITEMS = 4096
+
+
+def _spread(value: Any) -> bool:
+    """Whether ``value`` is written over several lines: a list holding objects, or an
+    object holding such a list or another object."""
+    if isinstance(value, dict):
+        return any(isinstance(v, dict) or _has_objects(v) for v in value.values())
+    return _has_objects(value)
+
+
+def _has_objects(value: Any) -> bool:
+    return isinstance(value, list) and any(isinstance(x, dict) for x in value)
+
+
+def _json_chunks(value: Any, depth: int) -> Iterator[str]:
+    if not _spread(value):
+        yield _DUMPS(value)
+        return
+    pad = "\n" + " " * (depth + 1)
+    if isinstance(value, dict):
+        if not value:
+            yield "{}"
+            return
+        yield "{"
+        for i, (key, item) in enumerate(value.items()):
+            yield ("," if i else "") + pad + _DUMPS(str(key)) + ": "
+            yield from _json_chunks(item, depth + 1)
+        yield "\n" + " " * depth + "}"
+        return
+    yield "["
+    sep = "," + pad
+    simple: list[str] = []
+    first = True
+    for item in value:
+        if _spread(item):
+            if simple:
+                yield ("" if first else ",") + pad + sep.join(simple)
+                first, simple = False, []
+            yield ("" if first else ",") + pad
+            first = False
+            yield from _json_chunks(item, depth + 1)
+        else:
+            simple.append(_DUMPS(item))
+            if len(simple) >= _CHUNK_ITEMS:
+                yield ("" if first else ",") + pad + sep.join(simple)
+                first, simple = False, []
+    if simple:
+        yield ("" if first else ",") + pad + sep.join(simple)
+    yield "\n" + " " * depth + "]"

@@ -19,6 +19,7 @@ coinciding ones. Following stormpy: ``build_model(scene, ...)``, then
 
 from __future__ import annotations
 
+import time
 from collections.abc import Callable, Iterable
 
 import numpy as np
@@ -29,6 +30,7 @@ from lesmc.engines.check import (
     check_bound,
     check_lazy,
 )
+from lesmc.engines.lazy import BATCH_SECONDS
 from lesmc.engines.result import CheckResult
 from lesmc.errors import UsageError
 from lesmc.language.properties import SpecFile
@@ -212,23 +214,34 @@ def build_model(
     window: tuple[int, int],
     end: int | None = None,
     on_level: Callable[[int, int], None] | None = None,
+    on_batch: Callable[[GrowingModel], None] | None = None,
 ) -> ArrayModel:
     """The whole LTS of ``scene`` for attacks in ``window`` = (l, u), up to step ``end``.
 
-    Level by level: every state of step k is expanded (in batches of
-    :data:`EAGER_BATCH`) before any of step k + 1. ``on_level(step, states)``
-    is called after each step (for progress bars).
+    Level by level: every state of step k is expanded (in batches of at most
+    :data:`EAGER_BATCH`, fewer when states are slow to expand: about
+    :data:`~lesmc.engines.lazy.BATCH_SECONDS` each) before any of step k + 1.
+    ``on_level(step, states)`` is called after each step (for progress bars),
+    ``on_batch(model)`` before each batch (budgets: it raises to stop).
     """
     exp = SceneExpander(scene, window)
     e = original_end(scene, exp.design, end)
     _check_end(e, None, window)
     model = exp.model
     frontier = np.arange(model.n_states, dtype=np.int64)
+    cap = EAGER_BATCH
     for k in range(e):
         before = model.n_states
         live = frontier[~model.halted[frontier]]
-        for lo in range(0, len(live), EAGER_BATCH):
-            model.expand(live[lo : lo + EAGER_BATCH], k)
+        lo = 0
+        while lo < len(live):
+            if on_batch is not None:
+                on_batch(model)
+            t0 = time.perf_counter()
+            model.expand(live[lo : lo + cap], k)
+            took = (time.perf_counter() - t0) / len(live[lo : lo + cap])
+            lo += cap
+            cap = max(1, min(EAGER_BATCH, int(BATCH_SECONDS / max(took, 1e-9)) + 1))
         frontier = np.arange(before, model.n_states, dtype=np.int64)
         if on_level is not None:
             on_level(k + 1, model.n_states)
@@ -305,9 +318,13 @@ def check_scene_bound(
     engine: EngineName = "levels",
     max_states: int | None = DEFAULT_MAX_STATES,
     timeout: float | None = None,
+    max_memory: int | None = None,
+    on_batch: Callable[[GrowingModel], None] | None = None,
 ) -> CheckResult:
-    """One bound property on a scene (see :func:`check_scene`)."""
+    """One bound property on a scene (see :func:`check_scene`); ``on_batch`` as for
+    :func:`build_model`, when ``enumerate`` builds the model first."""
     if engine == "enumerate":
-        model = build_model(scene, (bp.l, bp.u), bp.end)
+        model = build_model(scene, (bp.l, bp.u), bp.end, on_batch=on_batch)
         return check_bound(model, bp, engine, max_states, timeout)
-    return check_lazy(lazy_model(scene, (bp.l, bp.u), bp.end), bp, max_states, timeout, engine)
+    lazy = lazy_model(scene, (bp.l, bp.u), bp.end)
+    return check_lazy(lazy, bp, max_states, timeout, engine, max_memory)

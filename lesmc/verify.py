@@ -18,11 +18,13 @@ from typing import Any
 
 import numpy as np
 
-from lesmc.engines.check import bind_all, check_bound
+from lesmc.engines.budget import Budget
+from lesmc.engines.check import DEFAULT_MAX_STATES, bind_all, check_bound
 from lesmc.errors import LesmcError, UsageError
 from lesmc.language.parser import load_spec
 from lesmc.language.properties import Monitor, SpecFile
 from lesmc.model.arrays import ArrayModel
+from lesmc.model.growing import GrowingModel
 from lesmc.model.lts import LTS, to_lts
 from lesmc.perception.quality import Truth, TruthFrame
 from lesmc.perception.run import PerceiveRun
@@ -165,13 +167,18 @@ def check_designs(
     engine: str = "levels",
     on_stage: Callable[[str], None] | None = None,
     only: Callable[[str], bool] | None = None,
+    budget: Budget | None = None,
+    on_batch: Callable[[GrowingModel], None] | None = None,
 ) -> list[DesignRun]:
     """Build the model of each design over the properties' window and check them on it.
 
     Designs: ``single`` (plain KF, section 6.7), ``joint`` (joint KFs, section 7.2)
     and ``improved`` (joint KFs and the runtime monitor of section 7.1 on every
     property: the paper's Table 5). ``only`` filters properties by name.
+    ``budget`` limits each check (what is left of its time, its states and memory;
+    past it the verdict may be unknown); ``on_batch`` is :func:`lesmc.unfold.build_model`'s.
     """
+    b = Budget() if budget is None else budget
     from lesmc.unfold import bind_scene, build_model
 
     runs = []
@@ -185,7 +192,7 @@ def check_designs(
         if (tracker, win) not in models:  # joint and improved share one model
             if on_stage:
                 on_stage(f"building the {tracker} model")
-            built = build_model(sc, win)
+            built = build_model(sc, win, on_batch=on_batch)
             models[(tracker, win)] = (built, to_lts(built))
         model, view = models[(tracker, win)]
         bound = [bp for bp in bind_all(model, sp) if only is None or only(bp.name)]
@@ -193,7 +200,8 @@ def check_designs(
         for bp in bound:
             if on_stage:
                 on_stage(f"checking {bp.name} ({RUN_NAMES[d]})")
-            results.append(check_bound(model, bp, engine))  # type: ignore[arg-type]
+            limits = (b.max_states or DEFAULT_MAX_STATES, b.seconds_left(), b.max_memory)
+            results.append(check_bound(model, bp, engine, *limits))  # type: ignore[arg-type]
         runs.append(DesignRun(RUN_NAMES[d], view, bound, results, sc))
     return runs
 

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import copy
 import json
+from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
@@ -12,6 +13,7 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as hs
 
+from lesmc import fileio
 from lesmc.errors import ModelError
 from lesmc.model.arrays import ArrayModel
 from lesmc.model.lts import to_arrays
@@ -153,10 +155,11 @@ def test_writing_is_atomic(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> N
     m = load_lts(TINY)
     doc = lts_to_dict(m)
 
-    def broken(*_a: object, **_k: object) -> str:
+    def broken(*_a: object, **_k: object) -> Iterator[str]:
+        yield '{"format": '  # half a file written, then the disk fills up
         raise RuntimeError("disk full")
 
-    monkeypatch.setattr(json, "dumps", broken)
+    monkeypatch.setattr(fileio, "_json_chunks", broken)
     with pytest.raises(RuntimeError):
         save_lts(m, target)
     assert target.read_text() == "old"

@@ -6,7 +6,16 @@ import json
 
 import click
 
-from lesmc.cli.options import design_option, load_scene_file, model_output, parse_window
+from lesmc.cli.budgets import stop_if_spent, write_model
+from lesmc.cli.options import (
+    budget_from,
+    budget_options,
+    design_option,
+    load_scene_file,
+    model_output,
+    parse_window,
+)
+from lesmc.errors import escape_control, escape_text
 
 _DESIGN = design_option("Override the tracker design the scene names.")
 
@@ -28,8 +37,16 @@ _DESIGN = design_option("Override the tracker design the scene names.")
 )
 @model_output
 @_DESIGN
+@budget_options(None, "the build stops with exit 3 and writes nothing")
 def build_cmd(
-    scene: str, window_text: str, end: int | None, output: str, design: str | None
+    scene: str,
+    window_text: str,
+    end: int | None,
+    output: str,
+    design: str | None,
+    max_states: int | None,
+    timeout: float | None,
+    max_memory: int | None,
 ) -> None:
     """Unfold SCENE into a <PO>²-LTS (Algorithm 1): every attacked run in the window.
 
@@ -37,10 +54,10 @@ def build_cmd(
     transition per outcome an attacker can force (nearest detection first);
     outside it, the unattacked one.
     """
+    budget = budget_from(timeout, max_states, max_memory)
     from rich.console import Console
     from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
 
-    from lesmc.model.lts_format import save_lts
     from lesmc.unfold import build_model, max_end
 
     window = parse_window(window_text)
@@ -58,12 +75,18 @@ def build_cmd(
         disable=not err.is_terminal,
     ) as progress:
         task = progress.add_task("build", total=last, states=0)
+        stop_if_spent(budget, None, "loading the scene")
         model = build_model(
-            sc, window, end, on_level=lambda k, n: progress.update(task, completed=k, states=n)
+            sc,
+            window,
+            end,
+            on_level=lambda k, n: progress.update(task, completed=k, states=n),
+            on_batch=lambda m: stop_if_spent(budget, m, "unfolding"),
         )
-    save_lts(model, output)
+    stop_if_spent(budget, model, "unfolding")
+    write_model(model, output, budget)
     click.echo(
-        f"wrote {output}: {model.n_states} states, "
+        f"wrote {escape_control(output)}: {model.n_states} states, "
         f"{model.n_transitions} transitions, steps 0..{model.end}, "
         f"design {model.meta['design']}, window {window[0]}..{window[1]}"
     )
@@ -109,7 +132,7 @@ def track_cmd(scene: str, end: int | None, as_json: bool, design: str | None) ->
         table.add_row(
             str(p.step),
             str(p.frame),
-            p.obs or "-",
+            escape_text(p.obs) if p.obs else "-",
             *(fmt(v, 2) for v in p.x),
             fmt(p.tau, 2),
             "ALARM" if p.alarm else ("halted" if p.halted else ""),

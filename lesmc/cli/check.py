@@ -9,7 +9,8 @@ from typing import TYPE_CHECKING
 
 import click
 
-from lesmc.cli.options import design_option, load_model_or_scene
+from lesmc.cli.budgets import stop_if_spent
+from lesmc.cli.options import budget_from, design_option, load_model_or_scene, memory_option
 from lesmc.errors import UsageError
 
 if TYPE_CHECKING:
@@ -17,6 +18,7 @@ if TYPE_CHECKING:
     from lesmc.language.properties import SpecFile
     from lesmc.language.semantics import BoundProperty
     from lesmc.model.arrays import ArrayModel
+    from lesmc.model.growing import GrowingModel
     from lesmc.tracking.scene import Scene
 
 DEFAULT_MAX_STATES = 10_000_000
@@ -52,6 +54,7 @@ does not import the engines (tests/test_startup.py checks that the two agree).""
     help="Seconds for the whole command, loading included; past it the remaining "
     "properties are 'unknown' with the bounds found so far.",
 )
+@memory_option("the remaining properties are 'unknown'")
 @click.option(
     "--property",
     "only",
@@ -80,6 +83,7 @@ def check_cmd(
     no_paths: bool,
     report_dir: str | None,
     design: str | None,
+    max_memory: int | None,
 ) -> None:
     """Check the properties in SPEC files on MODEL (a .lts file) or on a SCENE (.json).
 
@@ -92,7 +96,8 @@ def check_cmd(
     Exit status: 0 all hold, 1 some violated, 2 bad input, 3 some unknown,
     4 internal error, 130 interrupted.
     """
-    started = time.monotonic()
+    budget = budget_from(timeout, None, max_memory)
+    started = budget.started
     from rich.console import Console
     from rich.progress import Progress, SpinnerColumn, TextColumn, TimeElapsedColumn
 
@@ -121,6 +126,10 @@ def check_cmd(
             raise UsageError(f"property name '{bp.name}' is defined in more than one spec file")
         names_seen.add(bp.name)
     cm = None if isinstance(source, Scene) else source
+
+    def on_batch(model: GrowingModel) -> None:  # --engine enumerate builds the scene's model
+        stop_if_spent(budget, model, "building the model for --engine enumerate")
+
     err = Console(stderr=True)
     results: list[CheckResult] = []
     with Progress(
@@ -137,9 +146,11 @@ def check_cmd(
             left = None if timeout is None else max(0.0, timeout - (time.monotonic() - started))
             if cm is None:
                 assert isinstance(source, Scene)
-                results.append(check_scene_bound(source, bp, engine, max_states, left))  # type: ignore[arg-type]
+                results.append(
+                    check_scene_bound(source, bp, engine, max_states, left, max_memory, on_batch)  # type: ignore[arg-type]
+                )
             else:
-                r = check_bound(cm, bp, engine, max_states, left)  # type: ignore[arg-type]
+                r = check_bound(cm, bp, engine, max_states, left, max_memory)  # type: ignore[arg-type]
                 r.notes.extend(window_notes(source, bp))  # type: ignore[arg-type]
                 results.append(r)
             progress.advance(task)

@@ -3,7 +3,8 @@
 User mistakes (bad files, bad options) print ``FILE:LINE:COL: message`` on
 stderr and exit with status 2, without a traceback and without writing output.
 A bug in lesmc (any other exception) exits with status 4 and one line on stderr,
-never with 1, which means "violated"; Ctrl-C exits with 130.
+never with 1, which means "violated"; Ctrl-C exits with 130, SIGTERM with 143
+(lesmc/cli/signals.py: both unwind, so nothing temporary is left behind).
 
 Start-up is kept light: this module and the command modules import only click
 and what option declarations need; each command imports its pipeline (numpy,
@@ -15,7 +16,7 @@ from __future__ import annotations
 import os
 import sys
 import traceback
-from typing import NoReturn
+from typing import Any, NoReturn
 
 import click
 
@@ -23,14 +24,37 @@ from lesmc.cli.build import build_cmd, track_cmd
 from lesmc.cli.check import check_cmd
 from lesmc.cli.perceive import perceive_cmd
 from lesmc.cli.reduce import reduce_group
+from lesmc.cli.signals import DeadlinePassed, Terminated, handlers, stdout_closed
 from lesmc.cli.train import train_cmd
 from lesmc.cli.verify import verify_cmd
 from lesmc.cli.video import synth_cmd
-from lesmc.errors import LesmcError
-from lesmc.report.exit import EXIT_INTERNAL, EXIT_INTERRUPTED, EXIT_USAGE
+from lesmc.errors import BudgetError, LesmcError
+from lesmc.report.exit import EXIT_INTERNAL, EXIT_INTERRUPTED, EXIT_UNKNOWN, EXIT_USAGE
 
 
-@click.group(context_settings={"help_option_names": ["-h", "--help"]})
+class _Group(click.Group):
+    """click's group, except that a closed stdout is not click's exit 1 ("violated")."""
+
+    def make_context(
+        self,
+        info_name: str | None,
+        args: list[str],
+        parent: click.Context | None = None,
+        **extra: Any,
+    ) -> click.Context:
+        try:  # --help and --version write while the arguments are parsed
+            return super().make_context(info_name, args, parent, **extra)
+        except BrokenPipeError:
+            sys.exit(stdout_closed())
+
+    def invoke(self, ctx: click.Context) -> object:
+        try:
+            return super().invoke(ctx)
+        except BrokenPipeError:
+            sys.exit(stdout_closed())
+
+
+@click.group(cls=_Group, context_settings={"help_option_names": ["-h", "--help"]})
 @click.version_option(package_name="lesmc")
 def cli() -> None:
     """lesmc: model checking robustness and resilience of learning-enabled state estimators.
@@ -55,7 +79,8 @@ def cli() -> None:
       lesmc reduce knapsack ITEMS.csv ...    build a knapsack instance as a model
     \b
     Exit status: 0 all hold, 1 some violated, 2 bad input, 3 some unknown,
-    4 internal error (a bug: please report it), 130 interrupted.
+    4 internal error (a bug: please report it), 130 interrupted (SIGINT),
+    143 terminated (SIGTERM), 141 stdout closed (e.g. piped into head).
     Set LESMC_DEBUG=1 to see the traceback of an internal error.
     """
 
@@ -93,8 +118,14 @@ def main(argv: list[str] | None = None) -> None:
     """Console entry point: every way out of lesmc maps to a documented exit status.
 
     0/1/3 come from the commands (verdicts), 2 from LesmcError and click usage
-    errors, 4 from any other exception (an internal error), 130 from Ctrl-C.
+    errors, 4 from any other exception (an internal error), 130 from Ctrl-C,
+    128 + N from signal N (SIGTERM 143), 141 from a closed stdout.
     """
+    with handlers():
+        _main(argv)
+
+
+def _main(argv: list[str] | None) -> None:
     try:
         cli.main(args=argv, prog_name="lesmc", standalone_mode=False)
     except click.exceptions.Abort as exc:
@@ -106,9 +137,20 @@ def main(argv: list[str] | None = None) -> None:
         _interrupted("aborted")
     except KeyboardInterrupt:
         _interrupted()
+    except Terminated as exc:
+        sys.stderr.write("terminated\n")
+        sys.exit(exc.exit_status)
+    except DeadlinePassed:
+        sys.stderr.write(
+            "error: --timeout ran out in work that could not stop sooner; nothing was written\n"
+        )
+        sys.exit(EXIT_UNKNOWN)
     except click.ClickException as exc:
         exc.show()
         sys.exit(EXIT_USAGE if exc.exit_code != 0 else 0)
+    except BudgetError as exc:
+        sys.stderr.write(exc.render() + "\n")
+        sys.exit(EXIT_UNKNOWN)
     except LesmcError as exc:
         sys.stderr.write(exc.render() + "\n")
         sys.exit(EXIT_USAGE)
@@ -116,7 +158,7 @@ def main(argv: list[str] | None = None) -> None:
         sys.exit(exc.exit_code)
     except SystemExit:
         raise
-    except BrokenPipeError:  # pragma: no cover - e.g. piped into head
-        sys.exit(0)
+    except BrokenPipeError:  # stdout closed outside a command (--help, --version)
+        sys.exit(stdout_closed())
     except Exception as exc:
         _internal_error(exc)

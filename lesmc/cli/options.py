@@ -8,6 +8,7 @@ not pay for numpy, torch, cv2, matplotlib or scipy (tests/test_startup.py).
 
 from __future__ import annotations
 
+import math
 import re
 from collections.abc import Callable
 from pathlib import Path
@@ -15,10 +16,11 @@ from typing import TYPE_CHECKING, Any, TypeVar
 
 import click
 
-from lesmc.errors import InputError, UsageError
+from lesmc.errors import InputError, UsageError, escape_control
 from lesmc.fileio import read_json
 
 if TYPE_CHECKING:
+    from lesmc.engines.budget import Budget
     from lesmc.model.arrays import ArrayModel
     from lesmc.tracking.scene import Scene
 
@@ -41,15 +43,102 @@ def design_option(help_text: str) -> Callable[[F], F]:
     )
 
 
+#: Largest step a ``--window`` bound may name (as in the spec grammar's step numbers).
+MAX_STEP = 10**6
+
+
 def parse_window(text: str) -> tuple[int, int]:
-    """``L..U`` -> (L, U)."""
-    m = re.fullmatch(r"\s*(\d+)\s*\.\.\s*(\d+)\s*", text)
+    """``L..U`` -> (L, U): ASCII digits only, each at most :data:`MAX_STEP`."""
+    m = re.fullmatch(r"\s*([0-9]+)\s*\.\.\s*([0-9]+)\s*", text, re.ASCII)
+    shown = escape_control(text if len(text) <= 40 else text[:37] + "...")
     if not m:
-        raise UsageError(f"--window must look like L..U (e.g. 6..8), got '{text}'")
+        raise UsageError(f"--window must look like L..U (e.g. 6..8), got '{shown}'")
+    if any(len(g.lstrip("0")) > len(str(MAX_STEP)) for g in m.groups()):
+        raise UsageError(f"--window {shown}: steps must be at most {MAX_STEP}")
     lo, hi = int(m.group(1)), int(m.group(2))
+    if hi > MAX_STEP:
+        raise UsageError(f"--window {shown}: steps must be at most {MAX_STEP}")
     if lo > hi:
-        raise UsageError(f"--window {text}: L must not exceed U")
+        raise UsageError(f"--window {shown}: L must not exceed U")
     return lo, hi
+
+
+def _finite_seconds(
+    _ctx: click.Context, _param: click.Parameter, value: float | None
+) -> float | None:
+    """``--timeout``: a finite number of seconds (nan and inf are refused)."""
+    if value is not None and not math.isfinite(value):
+        raise click.BadParameter(f"{value} is not a finite number of seconds")
+    return value
+
+
+def _size(_ctx: click.Context, _param: click.Parameter, value: str | None) -> int | None:
+    """``--max-memory``: a size such as 512M or 4G (default: derived from the free memory)."""
+    from lesmc.engines.budget import default_max_memory, parse_size
+
+    if value is None:
+        return default_max_memory()
+    if value.strip().lower() in ("none", "off"):
+        return None
+    try:
+        return parse_size(value)
+    except ValueError as exc:
+        raise click.BadParameter(escape_control(str(exc))) from None
+
+
+def memory_option(what: str) -> Callable[[F], F]:
+    """``--max-memory SIZE``; ``what`` says what happens past it."""
+    return click.option(
+        "--max-memory",
+        default=None,
+        metavar="SIZE",
+        callback=_size,
+        help="Memory ceiling of the process, e.g. 512M or 4G ('off': none) [default: what "
+        f"it holds at start + 80% of the memory available then]; past it {what}.",
+    )
+
+
+def budget_options(max_states_default: int | None, what: str) -> Callable[[F], F]:
+    """``--timeout``, ``--max-states`` and ``--max-memory``; ``what`` says what a budget stops."""
+
+    def decorate(f: F) -> F:
+        f = memory_option(what)(f)
+        f = click.option(
+            "--timeout",
+            type=click.FloatRange(min=0, min_open=True),
+            default=None,
+            callback=_finite_seconds,
+            help=f"Seconds for the whole command, loading included; past it {what}.",
+        )(f)
+        return click.option(
+            "--max-states",
+            type=click.IntRange(min=1),
+            default=max_states_default,
+            show_default=max_states_default is not None,
+            help=f"Budget of states (made, or expanded per property); past it {what}.",
+        )(f)
+
+    return decorate
+
+
+def budget_from(timeout: float | None, max_states: int | None, max_memory: int | None) -> Budget:
+    """The command's :class:`~lesmc.engines.budget.Budget`; its clock starts now (call it
+    first thing in the command, so that loading counts).
+
+    With a timeout, an alarm also stops the command :data:`~lesmc.cli.signals.HARD_GRACE`
+    seconds past it, should it be in work that checks no clock; it is disarmed when
+    the command ends.
+    """
+    from lesmc.cli.signals import arm_deadline
+    from lesmc.engines.budget import Budget
+
+    budget = Budget(timeout, max_states, max_memory)
+    if timeout is not None:
+        disarm = arm_deadline(timeout)
+        ctx = click.get_current_context(silent=True)
+        if ctx is not None:
+            ctx.call_on_close(disarm)
+    return budget
 
 
 def load_model_or_scene(path: str, design: str | None = None) -> ArrayModel | Scene:

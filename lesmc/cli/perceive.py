@@ -129,7 +129,7 @@ def perceive_cmd(
     from lesmc.perception.cnn import load_nets
     from lesmc.perception.quality import load_truth
     from lesmc.perception.run import PerceiveOptions, perceive
-    from lesmc.perception.to_scene import parse_target, scene_from_run
+    from lesmc.perception.to_scene import check_target, parse_target, scene_from_run
     from lesmc.report.progress import progress_bar
     from lesmc.tracking.scene import save_scene
     from lesmc.video.reader import open_frames
@@ -140,6 +140,8 @@ def perceive_cmd(
         raise UsageError("--no-cnn cannot write a scene: payoffs need the CNN")
     spec = parse_target(target_text) if target_text else None
     frames = open_frames(frames_dir, history + 1)
+    if spec is not None:
+        check_target(spec, frames.width, frames.height, len(frames))
     truths = load_truth(truth) if truth else None
     if truths is not None:
         missing = [p.name for p in frames.paths if p.name not in truths.frames]

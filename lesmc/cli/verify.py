@@ -8,7 +8,9 @@ from typing import Any
 
 import click
 
-from lesmc.cli.options import load_scene_file, parse_window
+from lesmc.cli.budgets import stop_if_spent
+from lesmc.cli.check import DEFAULT_MAX_STATES
+from lesmc.cli.options import budget_from, budget_options, load_scene_file, parse_window
 from lesmc.errors import UsageError
 from lesmc.video import FPS
 
@@ -75,6 +77,11 @@ HISTORY = 4
     help="Trained networks [default: the shipped ones].",
 )
 @click.option("--json", "as_json", is_flag=True, help="Print results.json on stdout.")
+@budget_options(
+    DEFAULT_MAX_STATES,
+    "the remaining verdicts are 'unknown' (while perceiving or building a model, verify "
+    "stops with exit 3 and writes nothing)",
+)
 def verify_cmd(
     frames_dir: str | None,
     scene_path: str | None,
@@ -86,6 +93,9 @@ def verify_cmd(
     out_dir: str,
     nets_dir: str | None,
     as_json: bool,
+    max_states: int,
+    timeout: float | None,
+    max_memory: int | None,
 ) -> None:
     """Verify a tracker on a video end to end: perceive, build, check, report.
 
@@ -97,6 +107,7 @@ def verify_cmd(
     and OUT/results.json. Exit status as for lesmc check: 0 all hold,
     1 some violated, 2 bad input, 3 some unknown, 4 internal error, 130 interrupted.
     """
+    budget = budget_from(timeout, max_states, max_memory)
     # Imported here, not at module level: torch, cv2, matplotlib and scipy cost seconds.
     from rich.console import Console
 
@@ -104,7 +115,7 @@ def verify_cmd(
     from lesmc.perception.cnn import load_nets
     from lesmc.perception.quality import load_truth
     from lesmc.perception.run import PerceiveOptions, perceive
-    from lesmc.perception.to_scene import parse_target, scene_from_run
+    from lesmc.perception.to_scene import check_target, parse_target, scene_from_run
     from lesmc.report.exit import exit_status
     from lesmc.report.html import write_report
     from lesmc.report.progress import progress_bar
@@ -129,6 +140,7 @@ def verify_cmd(
     spec_files = load_specs([Path(s) for s in specs] or bundled_specs(), window)
     err = Console(stderr=True)
     meta: dict[str, Any] = {}
+    new_scene = None
     if scene_path is not None:
         if frames_dir is not None:
             raise UsageError("give FRAMES_DIR or --scene, not both")
@@ -142,7 +154,12 @@ def verify_cmd(
                 err.print(f"reusing the default video in {video}")
             else:
                 with progress_bar("rendering", DEFAULT_VIDEO["frames"]) as bar:
-                    write_default_video(video, bar.advance)
+
+                    def rendered() -> None:
+                        bar.advance()
+                        stop_if_spent(budget, None, "rendering the default video")
+
+                    write_default_video(video, rendered)
             frames_dir, truth = str(video), str(video / "truth.json")
             meta["video"] = (
                 f"embedded default: lesmc synth {video} --seed {DEFAULT_VIDEO['seed']} "
@@ -153,25 +170,32 @@ def verify_cmd(
         if not target_text and not truth:
             raise UsageError("--target is needed (or --truth, to choose one)")
         frames = open_frames(frames_dir, HISTORY + 1)
+        target = parse_target(target_text) if target_text else None
+        if target is not None:
+            check_target(target, frames.width, frames.height, len(frames))
         truths = load_truth(truth) if truth else None
         dt = (truths.dt if truths else None) or 1 / FPS
         nets = load_nets(nets_dir)
         opts = PerceiveOptions(history=HISTORY, nets=nets, attack=AttackConfig())
         with progress_bar("perceiving", len(frames)) as bar:
-            run = perceive(frames, opts, None, bar.advance)
+
+            def advance() -> None:
+                bar.advance()
+                stop_if_spent(budget, None, "perceiving the video")
+
+            stop_if_spent(budget, None, "loading the video and the networks")
+            run = perceive(frames, opts, None, advance)
         if not run.detections:
             raise UsageError("the video produced no detections")
         scene_meta = {"source": str(frames_dir), "detector": nets.settings.trained_on}
-        if target_text:
-            spec = parse_target(target_text)
-            scene = scene_from_run(run, frames, spec, dt, truths, scene_meta)
+        if target is not None:
+            scene = scene_from_run(run, frames, target, dt, truths, scene_meta)
         else:
             assert truths is not None
             scene = auto_target(run, frames, truths, spec_files, dt, scene_meta)
             meta["target choice"] = scene.meta["target_choice"]
         meta["detector"] = nets.settings.trained_on
-        out.mkdir(parents=True, exist_ok=True)
-        save_scene(scene, out / "scene.json")
+        new_scene = scene  # written after the report: an interrupted run leaves --out as it was
         meta["scene"] = str(out / "scene.json")
     if window is not None:
         check_window(scene, window)
@@ -184,10 +208,17 @@ def verify_cmd(
     err.print(f"target: {meta['target']}")
     with err.status("checking") as status:
         runs = check_designs(
-            scene, spec_files, DESIGNS[design], on_stage=lambda s: status.update(s)
+            scene,
+            spec_files,
+            DESIGNS[design],
+            on_stage=lambda s: status.update(s),
+            budget=budget,
+            on_batch=lambda m: stop_if_spent(budget, m, "building a model"),
         )
     with err.status("writing the report"):
         report = write_report(runs, out, frame_reader(frames), meta)
+    if new_scene is not None:
+        save_scene(new_scene, out / "scene.json")
     results = [r for run in runs for r in run.results]
     if as_json:
         click.echo((out / "results.json").read_text(), nl=False)

@@ -22,10 +22,12 @@ from __future__ import annotations
 import heapq
 import math
 import time
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
 
+from lesmc.engines.budget import resident_bytes
 from lesmc.engines.result import EngineOutcome, Stats
 from lesmc.engines.space import SearchSpace, Space
 from lesmc.model.kernel import aggregate_arrays
@@ -60,9 +62,17 @@ class _Label:
 
 
 class _Budget:
-    def __init__(self, max_states: int | None, timeout: float | None) -> None:
+    def __init__(
+        self,
+        max_states: int | None,
+        timeout: float | None,
+        max_memory: int | None = None,
+        reserve: Callable[[], int] | None = None,
+    ) -> None:
         self.max_states = max_states
         self.deadline = None if timeout is None else time.perf_counter() + timeout
+        self.max_memory = max_memory
+        self.reserve = reserve  # bytes the model's next growth may take
         self.used = 0
         self.stopped = "finished"
 
@@ -75,7 +85,16 @@ class _Budget:
         if self.deadline is not None and time.perf_counter() > self.deadline:
             self.stopped = "timeout"
             return False
+        if self.max_memory is not None and self.used % _MEMORY_EVERY == 0:
+            extra = self.reserve() if self.reserve is not None else 0
+            if resident_bytes() + extra > self.max_memory:
+                self.stopped = "max_memory"
+                return False
         return True
+
+
+#: Expansions between two looks at the process's memory (one look reads /proc, ~10 µs).
+_MEMORY_EVERY = 64
 
 
 def suffix_bounds(space: Space) -> Bounds:
@@ -162,11 +181,12 @@ def branch_and_bound(
     max_states: int | None = None,
     timeout: float | None = None,
     use_bounds: bool = True,
+    max_memory: int | None = None,
 ) -> EngineOutcome:
     """Optimum, counterexample and representative path, exactly (or bounds if a budget ran out)."""
     t0 = time.perf_counter()
     stats = Stats(engine="bnb")
-    budget = _Budget(max_states, timeout)
+    budget = _Budget(max_states, timeout, max_memory, getattr(space.cm, "capacity_bytes", None))
     bounds = suffix_bounds(space) if use_bounds and isinstance(space, Space) else None
     if bounds is not None:
         stats.extra["bound_states"] = bounds.states

@@ -61,10 +61,16 @@ def check_bound(
     engine: EngineName = "levels",
     max_states: int | None = DEFAULT_MAX_STATES,
     timeout: float | None = None,
+    max_memory: int | None = None,
 ) -> CheckResult:
-    """Check one bound property on a model."""
+    """Check one bound property on a model (``max_memory``: bytes, for bnb and levels)."""
     space = build_space(cm, bp)
-    outcome = ENGINES[engine](space, max_states=max_states, timeout=timeout)
+    if engine == "bnb":
+        outcome = branch_and_bound(space, max_states, timeout, max_memory=max_memory)
+    elif engine == "levels":
+        outcome = level_search(space, max_states, timeout, max_memory=max_memory)
+    else:
+        outcome = ENGINES[engine](space, max_states=max_states, timeout=timeout)
     return to_result(space, outcome)
 
 
@@ -150,13 +156,14 @@ def check_lazy(
     max_states: int | None = DEFAULT_MAX_STATES,
     timeout: float | None = None,
     engine: EngineName = "levels",
+    max_memory: int | None = None,
 ) -> CheckResult:
     """One bound property on a model unfolded on demand (the engine expands what it visits)."""
     space = LazySpace(model, bp)
     if engine == "bnb":
-        out = branch_and_bound(space, max_states=max_states, timeout=timeout, use_bounds=False)
+        out = branch_and_bound(space, max_states, timeout, use_bounds=False, max_memory=max_memory)
     else:
-        out = level_search(space, max_states=max_states, timeout=timeout)
+        out = level_search(space, max_states, timeout, max_memory=max_memory)
     out.stats.extra["states_built"] = space.states_built
     return to_result(space, out)
 

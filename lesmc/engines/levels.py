@@ -34,10 +34,12 @@ from __future__ import annotations
 
 import math
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, field
 
 import numpy as np
 
+from lesmc.engines.budget import resident_bytes
 from lesmc.engines.result import EngineOutcome, Stats
 from lesmc.engines.space import SearchSpace, Space
 from lesmc.model.kernel import aggregate_arrays
@@ -66,16 +68,29 @@ class _Stop(Exception):
 
 
 class _Budget:
-    def __init__(self, max_states: int | None, timeout: float | None) -> None:
+    def __init__(
+        self,
+        max_states: int | None,
+        timeout: float | None,
+        max_memory: int | None = None,
+        reserve: Callable[[], int] | None = None,
+    ) -> None:
         self.max_states = max_states
         self.deadline = None if timeout is None else time.perf_counter() + timeout
+        self.max_memory = max_memory
+        self.reserve = reserve  # bytes the model's next growth may take
         self.used = 0
 
     def spend(self, n: int) -> None:
+        """Count n expansions; raise :class:`_Stop` once a budget is exhausted."""
         if self.max_states is not None and self.used + n > self.max_states:
             raise _Stop("max_states")
         if self.deadline is not None and time.perf_counter() > self.deadline:
             raise _Stop("timeout")
+        if self.max_memory is not None:
+            extra = self.reserve() if self.reserve is not None else 0
+            if resident_bytes() + extra > self.max_memory:
+                raise _Stop("max_memory")
         self.used += n
 
 
@@ -531,11 +546,13 @@ def level_search(
     space: SearchSpace,
     max_states: int | None = None,
     timeout: float | None = None,
+    max_memory: int | None = None,
 ) -> EngineOutcome:
-    """Optimum, counterexample and ρ*, exactly; under a budget, proven bounds on both."""
+    """Optimum, counterexample and ρ*, exactly; under a budget (states, seconds, bytes of
+    memory), proven bounds on both."""
     t0 = time.perf_counter()
     stats = Stats(engine="levels")
-    budget = _Budget(max_states, timeout)
+    budget = _Budget(max_states, timeout, max_memory, getattr(space.cm, "capacity_bytes", None))
     bounds = _Bounds(space)
     if bounds.exact:
         stats.extra["bound_states"] = bounds.reachable
@@ -590,7 +607,9 @@ def _tighten(
     (a beam proves nothing). Cheap next to an exact pass that a poor incumbent would widen.
     """
     root = np.array([space.root], dtype=np.int64)
-    low = float(bounds.violating_lb(root, np.array([space.root_obj]), np.array([space.root_con]))[0])
+    low = float(
+        bounds.violating_lb(root, np.array([space.root_obj]), np.array([space.root_con]))[0]
+    )
     low = max(low, space.root_obj) if math.isfinite(low) else space.root_obj
     for _ in range(TIGHTEN):
         if not upper - low > TIGHT_GAP * max(abs(upper), 1e-12):

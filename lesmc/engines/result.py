@@ -11,7 +11,7 @@ from lesmc.engines.space import SearchSpace
 Verdict = Literal["holds", "violated", "unknown"]
 
 #: Why a search stopped: it finished, or a budget ran out (then bounds are reported).
-StopReason = Literal["finished", "max_states", "timeout"]
+StopReason = Literal["finished", "max_states", "timeout", "max_memory"]
 
 
 @dataclass(frozen=True)

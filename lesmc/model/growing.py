@@ -182,7 +182,14 @@ class GrowingModel:
     def state_id(self, q: int) -> str:
         return f"k{int(self._step.data[q])}.{q}"
 
-    def nbytes(self) -> int:
+    def _grows(self) -> list[GrowArray]:
         grows = [self._step, self._S, self._cov, self._halted, self._lo, self._hi]
-        grows += [self._src, self._dst, self._payoff, self._rank, self._obs, self._combined]
-        return sum(int(g.view.nbytes) for g in grows)
+        return [*grows, self._src, self._dst, self._payoff, self._rank, self._obs, self._combined]
+
+    def nbytes(self) -> int:
+        return sum(int(g.view.nbytes) for g in self._grows())
+
+    def capacity_bytes(self) -> int:
+        """Bytes the arrays have room for: about what their next doubling copies (a
+        memory budget keeps this much in reserve)."""
+        return sum(int(g.data.nbytes) for g in self._grows())

@@ -11,7 +11,7 @@ loading) with a JSON header of settings; the package ships a trained pair.
 from __future__ import annotations
 
 import json
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, fields
 from importlib import resources
 from pathlib import Path
 from typing import Any
@@ -20,7 +20,8 @@ import torch
 from safetensors.torch import load_file, save_file
 from torch import nn
 
-from lesmc.errors import InputError, Location
+from lesmc.errors import InputError, Location, Problems
+from lesmc.fileio import read_json
 from lesmc.perception.windows import M_PREVIOUS
 
 DR_SIZE = 21
@@ -118,6 +119,41 @@ def save_nets(nets: Nets, directory: str | Path) -> None:
     )
 
 
+def nets_settings(meta: Any, path: str) -> NetSettings:
+    """The settings of a ``nets.json`` document, checked strictly.
+
+    ``format`` must be ``"lesmc-nets"`` (weights in safetensors files beside it:
+    nothing is ever unpickled), ``version`` 1, ``settings.m`` an integer in 1..16,
+    the thresholds numbers in [0, 1], ``trained_on`` a string.
+    """
+    pr = Problems()
+    if not isinstance(meta, dict):
+        raise InputError.many(path, [("", "the top level must be a JSON object")])
+    if meta.get("format") != "lesmc-nets":
+        pr.add("format", f'must be "lesmc-nets" (safetensors weights), got {meta.get("format")!r}')
+    version = meta.get("version")
+    if not (type(version) is int and version == 1):
+        pr.add("version", f"must be 1, got {version!r}")
+    raw = meta.get("settings")
+    if not isinstance(raw, dict):
+        pr.add("settings", "must be an object")
+        raise InputError.many(path, pr.items)
+    for key in sorted(set(raw) - {f.name for f in fields(NetSettings)}):
+        pr.add("settings", f"unknown key '{key}'")
+    m = raw.get("m", M_PREVIOUS)
+    if not (type(m) is int and 1 <= m <= 16):
+        pr.add("settings", f"m must be an integer in 1..16, got {m!r}")
+    for key in ("delta_dr", "delta_lp"):
+        x = raw.get(key, 0.5)
+        if not (type(x) in (int, float) and 0.0 <= x <= 1.0):
+            pr.add("settings", f"{key} must be a number in [0, 1], got {x!r}")
+    if not isinstance(raw.get("trained_on", ""), str):
+        pr.add("settings", "trained_on must be a string")
+    if pr.items:
+        raise InputError.many(path, pr.items)
+    return NetSettings(**raw)
+
+
 def load_nets(directory: str | Path | None = None) -> Nets:
     """Load a pair written by ``save_nets`` (default: the shipped weights)."""
     if directory is None:
@@ -125,13 +161,9 @@ def load_nets(directory: str | Path | None = None) -> Nets:
     else:
         d = Path(directory)
     meta_path = d / "nets.json"
-    try:
-        meta: Any = json.loads(meta_path.read_text())
-        settings = NetSettings(**meta["settings"])
-    except (OSError, ValueError, KeyError, TypeError) as exc:
-        raise InputError(
-            f"not a lesmc network directory ({exc})", Location(str(meta_path))
-        ) from None
+    if not meta_path.is_file():
+        raise InputError("not a lesmc network directory (no nets.json)", Location(str(d)))
+    settings = nets_settings(read_json(meta_path, InputError), str(meta_path))
     dr, lp = DetectNet(settings.m + 1), LocateNet(settings.m + 1)
     for net, name in ((dr, "dr.safetensors"), (lp, "lp.safetensors")):
         try:

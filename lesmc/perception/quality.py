@@ -10,14 +10,15 @@ where all L aligned frames have data (``valid``).
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
-from typing import Any
+from typing import Any, TypeGuard
 
 import numpy as np
 from scipy.optimize import linear_sum_assignment
 from scipy.spatial import cKDTree
 
-from lesmc.errors import InputError, Location
+from lesmc.errors import InputError, Location, Problems
 from lesmc.fileio import read_json
 
 
@@ -130,23 +131,89 @@ class Truth:
     frames: dict[str, TruthFrame]
 
 
+#: Largest magnitude of a truth coordinate or velocity (pixels, pixels per second).
+TRUTH_MAX_COORD = 1e6
+#: Largest truth speed (m/s) and frame interval (s).
+TRUTH_MAX_SPEED, TRUTH_MAX_DT = 1e4, 3600.0
+
+
 def load_truth(path: str) -> Truth:
-    """Read ``truth.json`` (as written by ``lesmc synth``)."""
+    """Read ``truth.json`` (as written by ``lesmc synth``), every field checked strictly.
+
+    Problems are reported together, each with its frame and vehicle
+    (docs/synthetic.md lists the fields and their ranges).
+    """
     data = read_json(path, InputError)
     if not isinstance(data, dict) or data.get("format") != "lesmc-truth":
         raise InputError("not a lesmc truth file (format must be 'lesmc-truth')", Location(path))
-    out: dict[str, TruthFrame] = {}
-    for i, fr in enumerate(data.get("frames", [])):
-        try:
-            out[str(fr["file"])] = truth_frame(fr["vehicles"])
-        except (KeyError, TypeError, ValueError) as exc:
-            raise InputError(
-                f"frame {i}: malformed entry ({exc})", Location(path, item=f"frame {i}")
-            ) from None
-    if not out:
-        raise InputError("no frames", Location(path))
+    pr = Problems()
     dt = data.get("dt")
-    return Truth(float(dt) if isinstance(dt, (int, float)) and dt > 0 else None, out)
+    if dt is not None and not (_number(dt) and 0 < dt <= TRUTH_MAX_DT):
+        pr.add("dt", f"must be a number of seconds in (0, {TRUTH_MAX_DT:g}], got {_show(dt)}")
+    frames = data.get("frames")
+    out: dict[str, TruthFrame] = {}
+    if not isinstance(frames, list) or not frames:
+        pr.add("frames", "must be a non-empty list")
+        frames = []
+    for i, fr in enumerate(frames):
+        where = f"frames[{i}]"
+        if not isinstance(fr, dict):
+            pr.add(where, "must be an object")
+            continue
+        name = fr.get("file")
+        if not (isinstance(name, str) and name):
+            pr.add(where, f"file must be a non-empty string, got {_show(name)}")
+            continue
+        where = f"frame '{name}'"
+        if name in out:
+            pr.add(where, "appears twice")
+            continue
+        vehicles = fr.get("vehicles")
+        if not isinstance(vehicles, list):
+            pr.add(where, "vehicles must be a list")
+            continue
+        before = len(pr.items)
+        for j, v in enumerate(vehicles):
+            _check_vehicle(v, f"{where}, vehicles[{j}]", pr)
+        if len(pr.items) == before:
+            out[name] = truth_frame(vehicles)
+    if pr.items:
+        raise InputError.many(path, pr.items)
+    return Truth(float(dt) if dt is not None else None, out)
+
+
+def _check_vehicle(v: Any, where: str, pr: Problems) -> None:
+    if not isinstance(v, dict):
+        pr.add(where, "must be an object")
+        return
+    vid = v.get("id")
+    if not (isinstance(vid, int) and not isinstance(vid, bool) and 0 <= vid < 2**63):
+        pr.add(where, f"id must be an integer >= 0, got {_show(vid)}")
+    for key, required, limit in (
+        ("x", True, TRUTH_MAX_COORD),
+        ("y", True, TRUTH_MAX_COORD),
+        ("vx", False, TRUTH_MAX_COORD),
+        ("vy", False, TRUTH_MAX_COORD),
+        ("speed_mps", False, TRUTH_MAX_SPEED),
+    ):
+        x = v.get(key)
+        if x is None and not required and key not in v:
+            continue
+        low = 0.0 if key == "speed_mps" else -limit
+        if not (_number(x) and low <= float(x) <= limit):
+            pr.add(where, f"{key} must be a number in [{low:g}, {limit:g}], got {_show(x)}")
+    occluded = v.get("occluded", False)
+    if not isinstance(occluded, bool):
+        pr.add(where, f"occluded must be true or false, got {_show(occluded)}")
+
+
+def _number(x: Any) -> TypeGuard[int | float]:
+    return isinstance(x, int | float) and not isinstance(x, bool) and math.isfinite(x)
+
+
+def _show(x: Any) -> str:
+    text = repr(x)
+    return text if len(text) <= 40 else text[:37] + "..."
 
 
 def care_mask(tf: TruthFrame, valid: np.ndarray, min_speed: float) -> np.ndarray:

@@ -15,7 +15,7 @@ from typing import Any
 import numpy as np
 from scipy.spatial import cKDTree
 
-from lesmc.errors import UsageError
+from lesmc.errors import UsageError, escape_control
 from lesmc.perception.detector import FrameDetections
 from lesmc.perception.quality import Truth, TruthFrame
 from lesmc.perception.run import PerceiveRun
@@ -34,12 +34,29 @@ class TargetSpec:
 
 
 def parse_target(text: str) -> TargetSpec:
-    """``X,Y`` or ``X,Y@STEP`` (pixels of that frame) -> TargetSpec; a UsageError otherwise."""
-    num = r"\s*(-?\d+(?:\.\d*)?)\s*"
-    m = re.fullmatch(num + "," + num + r"(?:@\s*(\d+)\s*)?", text)
-    if not m:
-        raise UsageError(f"--target must look like X,Y or X,Y@STEP (e.g. 812.5,96@4), got '{text}'")
+    """``X,Y`` or ``X,Y@STEP`` (pixels of that frame) -> TargetSpec; a UsageError otherwise.
+
+    ASCII digits only; coordinates of at most 9 digits before the point, STEP at most 10**6.
+    """
+    num = r"\s*(-?[0-9]{1,9}(?:\.[0-9]{0,12})?)\s*"
+    m = re.fullmatch(num + "," + num + r"(?:@\s*([0-9]{1,7})\s*)?", text, re.ASCII)
+    if not m or (m.group(3) and int(m.group(3)) > 10**6):
+        shown = escape_control(text if len(text) <= 40 else text[:37] + "...")
+        raise UsageError(
+            f"--target must look like X,Y or X,Y@STEP (e.g. 812.5,96@4), got '{shown}'"
+        )
     return TargetSpec(float(m.group(1)), float(m.group(2)), int(m.group(3)) if m.group(3) else None)
+
+
+def check_target(spec: TargetSpec, width: int, height: int, n_frames: int) -> None:
+    """``--target`` inside a ``width`` x ``height`` frame and among the ``n_frames`` frames."""
+    if not (0 <= spec.x < width and 0 <= spec.y < height):
+        raise UsageError(
+            f"--target {spec.x:g},{spec.y:g} is outside the frames: x must lie in 0..{width} "
+            f"and y in 0..{height} (pixels)"
+        )
+    if spec.step is not None and spec.step >= n_frames:
+        raise UsageError(f"--target step {spec.step}: the video has frames 0..{n_frames - 1}")
 
 
 def frames_of(dets: list[FrameDetections], pays: list[np.ndarray]) -> tuple[Frame, ...]:
@@ -125,6 +142,7 @@ def scene_from_run(
     meta: dict[str, Any] | None = None,
 ) -> Scene:
     """The scene of a ``perceive`` run; the truth of the target's frame gives its velocity."""
+    check_target(spec, frames.width, frames.height, len(frames))
     first = run.detections[0].index if run.detections else 0
     step = spec.step if spec.step is not None else first
     tf = None

@@ -32,11 +32,20 @@ def fmt(x: float | None, digits: int = 4) -> str:
     return f"{x:.{digits}g}" if abs(x) >= 1e4 else f"{x:.{digits}f}".rstrip("0").rstrip(".") or "0"
 
 
+class _StdoutConsole(Console):
+    """A console whose closed stdout is the CLI's to report (exit 141, lesmc/cli/signals.py);
+    rich's own handling exits 1, which would read as "violated"."""
+
+    def on_broken_pipe(self) -> None:
+        self.quiet = True
+        raise BrokenPipeError
+
+
 def make_console() -> Console:
     """stdout console; at least 110 columns when piped so tables stay on one line."""
-    console = Console()
+    console = _StdoutConsole()
     if not console.is_terminal:
-        console = Console(width=max(console.width, 110))
+        console = _StdoutConsole(width=max(console.width, 110))
     return console
 
 

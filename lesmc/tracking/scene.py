@@ -29,6 +29,25 @@ SCAN_LIMIT = 2048
 #: Distances computed at once by the scan (bounds its temporaries).
 SCAN_CELLS = 1 << 20
 
+#: Ranges of a scene's numbers (docs/scene-format.md, "Limits"): wide enough for any
+#: real video, narrow enough that the tracker's arithmetic stays finite.
+MAX_DT = 3600.0  #: seconds between frames
+MAX_STEP = 10**6  #: frame steps
+MAX_COORD = 1e7  #: |x|, |y| of detections and of the target's start (pixels)
+MAX_VELOCITY = 1e6  #: |vx|, |vy| of the target's initial velocity (pixels per second)
+MAX_PAYOFF = 1e12  #: a detection's payoff
+MAX_HOMOGRAPHY = 1e6  #: |entry| of a frame-to-frame homography
+#: Upper limits of the tracker's parameters (all must also be > 0).
+TRACKER_LIMITS = {
+    "sigma_q": 1e6,
+    "sigma_r": 1e6,
+    "P0_sd": 1e6,
+    "gate": 1e6,
+    "max_trace": 1e30,
+    "init_radius": 1e7,
+    "init_distance": 1e7,
+    "prune_radius": 1e7,
+}
 FORMAT = "lesmc-scene"
 VERSION = 1
 UNATTACKABLE = "unattackable"
@@ -220,8 +239,8 @@ def scene_from_dict(data: Any, path: str = "<scene>") -> Scene:
     if data.get("version") != VERSION:
         pr.add("version", f"must be {VERSION}, got {data.get('version')!r}")
     dt = data.get("dt", 1.0)
-    if not _num(dt) or not dt > 0:
-        pr.add("dt", f"must be a finite number > 0, got {dt!r}")
+    if not (_num(dt) and 0 < dt <= MAX_DT):
+        pr.add("dt", f"must be a number of seconds in (0, {MAX_DT:g}], got {_show(dt)}")
         dt = 1.0
     raw_frames = data.get("frames")
     frames: list[Frame] = []
@@ -236,6 +255,17 @@ def scene_from_dict(data: Any, path: str = "<scene>") -> Scene:
         for a, b in pairs:
             if b.step != a.step + 1:
                 pr.add(f"frame {b.step}", f"steps must be consecutive: follows frame {a.step}")
+        for fr in frames:
+            if fr.to_next is not None and fr.detections:
+                xy = np.array([(d.x, d.y) for d in fr.detections])
+                w = fr.to_next[2, 0] * xy[:, 0] + fr.to_next[2, 1] * xy[:, 1] + fr.to_next[2, 2]
+                if not (w > 0).all():
+                    bad = fr.detections[int(np.argmin(w))].id
+                    pr.add(
+                        f"frame {fr.step}",
+                        f"to_next sends detection '{bad}' to infinity or behind the camera "
+                        "(its third homogeneous coordinate must be > 0 at every detection)",
+                    )
     tracker = _tracker(data.get("tracker", {}), pr)
     target = _target(data.get("target"), pr)
     if target is not None and frames and not frames[0].step <= target.step <= frames[-1].step:
@@ -261,8 +291,8 @@ def _frame(raw: Any, i: int, pr: Problems) -> Frame | None:
     for key in sorted(set(raw) - {"step", "detections", "to_next", "meta"}):
         pr.add(item, f"unknown key '{key}'")
         ok = False
-    if not _int(step) or step < 0:
-        pr.add(item, f"step must be an integer >= 0, got {step!r}")
+    if not _int(step) or not 0 <= step <= MAX_STEP:
+        pr.add(item, f"step must be an integer in 0..{MAX_STEP}, got {_show(step)}")
         ok = False
     dets_raw = raw.get("detections", [])
     dets: list[Detection] = []
@@ -285,7 +315,10 @@ def _frame(raw: Any, i: int, pr: Problems) -> Frame | None:
     if raw.get("to_next") is not None:
         H = _matrix3(raw["to_next"])
         if H is None:
-            pr.add(item, "to_next must be an invertible 3x3 matrix of finite numbers")
+            pr.add(
+                item,
+                f"to_next must be an invertible 3x3 matrix of numbers within ±{MAX_HOMOGRAPHY:g}",
+            )
             ok = False
     if not ok:
         return None
@@ -306,8 +339,8 @@ def _detection(raw: Any, where: str, pr: Problems) -> Detection | None:
         pr.add(item, "id must be a non-empty string")
         ok = False
     for c in ("x", "y"):
-        if not _num(raw.get(c)):
-            pr.add(item, f"{c} must be a finite number, got {raw.get(c)!r}")
+        if not _within(raw.get(c), MAX_COORD):
+            pr.add(item, f"{c} must be a number within ±{MAX_COORD:g}, got {_show(raw.get(c))}")
             ok = False
     payoff = raw.get("payoff", None)
     if "payoff" not in raw:
@@ -315,8 +348,12 @@ def _detection(raw: Any, where: str, pr: Problems) -> Detection | None:
         ok = False
     elif payoff == UNATTACKABLE:
         payoff = math.inf
-    elif not _num(payoff) or payoff < 0:
-        pr.add(item, f'payoff must be a finite number >= 0 or "unattackable", got {payoff!r}')
+    elif not (_num(payoff) and 0 <= payoff <= MAX_PAYOFF):
+        pr.add(
+            item,
+            f'payoff must be a number in [0, {MAX_PAYOFF:g}] or "unattackable", '
+            f"got {_show(payoff)}",
+        )
         ok = False
     if not ok:
         return None
@@ -343,12 +380,14 @@ def _tracker(raw: Any, pr: Problems) -> TrackerConfig | None:
                 pr.add("tracker", f'gate_type must be "mahalanobis" or "euclidean", got {v!r}')
                 continue
         elif key == "P0_sd":
-            if not (isinstance(v, list) and len(v) == 4 and all(_num(x) and x > 0 for x in v)):
-                pr.add("tracker", "P0_sd must be a list of 4 numbers > 0")
+            hi = TRACKER_LIMITS[key]
+            if not (isinstance(v, list) and len(v) == 4 and all(_positive(x, hi) for x in v)):
+                pr.add("tracker", f"P0_sd must be a list of 4 numbers in (0, {hi:g}]")
                 continue
             v = tuple(float(x) for x in v)
-        elif not _num(v) or v <= 0:
-            pr.add("tracker", f"{key} must be a finite number > 0, got {v!r}")
+        elif not _positive(v, TRACKER_LIMITS[key]):
+            hi = TRACKER_LIMITS[key]
+            pr.add("tracker", f"{key} must be a number in (0, {hi:g}], got {_show(v)}")
             continue
         values[key] = v
     try:
@@ -367,14 +406,14 @@ def _target(raw: Any, pr: Problems) -> Target | None:
         pr.add("target", f"unknown key '{key}'")
         ok = False
     step = raw.get("step")
-    if not _int(step) or step < 0:
-        pr.add("target", f"step must be an integer >= 0, got {step!r}")
+    if not _int(step) or not 0 <= step <= MAX_STEP:
+        pr.add("target", f"step must be an integer in 0..{MAX_STEP}, got {_show(step)}")
         ok = False
     pairs = {}
-    for key in ("start", "velocity"):
+    for key, hi in (("start", MAX_COORD), ("velocity", MAX_VELOCITY)):
         v = raw.get(key, [0.0, 0.0] if key == "velocity" else None)
-        if not (isinstance(v, list) and len(v) == 2 and all(_num(x) for x in v)):
-            pr.add("target", f"{key} must be [x, y] (finite numbers), got {v!r}")
+        if not (isinstance(v, list) and len(v) == 2 and all(_within(x, hi) for x in v)):
+            pr.add("target", f"{key} must be [x, y], numbers within ±{hi:g}, got {_show(v)}")
             ok = False
             continue
         pairs[key] = (float(v[0]), float(v[1]))
@@ -391,10 +430,29 @@ def _int(x: Any) -> TypeGuard[int]:
     return isinstance(x, int) and not isinstance(x, bool)
 
 
+def _within(x: Any, limit: float) -> bool:
+    """A number with ``|x| <= limit``."""
+    return _num(x) and -limit <= x <= limit
+
+
+def _positive(x: Any, limit: float) -> bool:
+    """A number in ``(0, limit]``."""
+    return _num(x) and 0 < x <= limit
+
+
+def _show(x: Any) -> str:
+    """``repr(x)``, clipped to 40 characters (a value quoted in an error)."""
+    text = repr(x)
+    return text if len(text) <= 40 else text[:37] + "..."
+
+
 def _matrix3(raw: Any) -> np.ndarray | None:
     if not (isinstance(raw, list) and len(raw) == 3):
         return None
-    if not all(isinstance(r, list) and len(r) == 3 and all(_num(x) for x in r) for r in raw):
+    if not all(
+        isinstance(r, list) and len(r) == 3 and all(_within(x, MAX_HOMOGRAPHY) for x in r)
+        for r in raw
+    ):
         return None
     m = np.array(raw, dtype=float)
     if abs(np.linalg.det(m)) < 1e-12:

@@ -1,8 +1,9 @@
 """Reading a directory of frames: natural sort order, grey or colour, 8 or 16 bit.
 
 Everything is checked before the first frame is processed (every file decodes,
-all have one size, there are enough of them), so a bad directory fails at once
-with the file named and nothing written.
+all have one size of at least :data:`MIN_SIDE` pixels a side, there are enough of
+them, none is a symbolic link leading out of the directory), so a bad directory
+fails at once with the file named and nothing written.
 """
 
 from __future__ import annotations
@@ -18,6 +19,8 @@ import numpy as np
 from lesmc.errors import InputError, Location
 
 EXTENSIONS = {".png", ".tif", ".tiff", ".jpg", ".jpeg"}
+#: Smallest width and height of a frame (pixels): less cannot be registered or windowed.
+MIN_SIDE = 32
 
 
 def natural_key(name: str) -> list[object]:
@@ -69,6 +72,25 @@ def to_grey8(img: np.ndarray, scale: float) -> np.ndarray:
     return cv2.convertScaleAbs(img, alpha=scale)
 
 
+def _check_inside(path: Path, root: Path) -> None:
+    """``path`` (listed in ``root``) is a regular file inside ``root``: a symbolic link that
+    leads out of the directory the user named is refused, so is anything but a file."""
+    if path.is_symlink():
+        try:
+            target = path.resolve(strict=True)
+            inside = target.is_relative_to(root.resolve(strict=True))
+        except (OSError, RuntimeError):  # dangling link, or a loop
+            raise InputError("a broken symbolic link", Location(str(path))) from None
+        if not inside:
+            raise InputError(
+                "a symbolic link leading out of the frames directory (refused: only the "
+                "directory given is read)",
+                Location(str(path)),
+            )
+    if not path.is_file():
+        raise InputError("not a regular file", Location(str(path)))
+
+
 def open_frames(directory: str | Path, minimum: int, check: bool = True) -> FrameSet:
     """List, sort and check the frames of ``directory`` (at least ``minimum`` of them).
 
@@ -90,6 +112,8 @@ def open_frames(directory: str | Path, minimum: int, check: bool = True) -> Fram
         ),
         key=lambda p: natural_key(p.name),
     )
+    for p in paths:
+        _check_inside(p, root)
     if len(paths) < minimum:
         raise InputError(
             f"{len(paths)} frame(s) found, at least {minimum} are needed "
@@ -102,6 +126,12 @@ def open_frames(directory: str | Path, minimum: int, check: bool = True) -> Fram
         # a header-only check would be faster, but decoding is the only sure test
         img = _imread(p)
         shape = (img.shape[1], img.shape[0])
+        if min(shape) < MIN_SIDE:
+            raise InputError(
+                f"frame is {shape[0]}x{shape[1]} pixels; frames must be at least "
+                f"{MIN_SIDE}x{MIN_SIDE}",
+                Location(str(p)),
+            )
         if size is None:
             size = shape
             if img.dtype == np.uint16:

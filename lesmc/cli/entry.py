@@ -1,0 +1,46 @@
+"""The console entry point: signal handlers first, then the command line.
+
+``lesmc`` (pyproject.toml) and ``python -m lesmc`` start here. This module
+imports nothing at module level but ``sys`` (already loaded by the
+interpreter): SIGINT or SIGTERM while the signal handlers, click, numpy and the
+rest are being imported also exits 130/143 with one line and no traceback;
+:func:`lesmc.cli.main.main` handles everything after that. Only a signal during
+the interpreter's own start-up (before this module runs) is Python's to report.
+"""
+
+from __future__ import annotations
+
+import sys
+
+EXIT_INTERRUPTED = 130
+
+
+def main(argv: list[str] | None = None) -> None:
+    """Install the handlers (lesmc/cli/signals.py), import the command line and run it."""
+    try:
+        from lesmc.cli import signals
+
+        try:
+            with signals.handlers():
+                from lesmc.cli.main import main as run
+
+                run(argv)
+        except signals.Terminated as exc:  # before lesmc.cli.main took over
+            sys.stderr.write("terminated\n")
+            sys.exit(exc.exit_status)
+    except KeyboardInterrupt:
+        sys.stderr.write("interrupted\n")
+        sys.exit(EXIT_INTERRUPTED)
+    finally:
+        _decided()
+
+
+def _decided() -> None:
+    """The exit status is decided and the outputs are written: a signal during the
+    interpreter's shutdown (torch's finalisers take a while) is ignored rather than
+    printed as a traceback from a finaliser."""
+    import signal
+
+    for name in ("SIGINT", "SIGTERM", "SIGHUP"):
+        if hasattr(signal, name):
+            signal.signal(getattr(signal, name), signal.SIG_IGN)
