@@ -115,6 +115,16 @@ class CheckResult:
     witness_exact: bool
     stats: Stats
     notes: list[str] = field(default_factory=list)
+    original_alarms: list[int] | None = None  # monitored: the unattacked track's alarm steps
+    vacuous: bool = False  # the monitor excludes the unattacked track itself
+
+    @property
+    def verdict_text(self) -> str:
+        """The verdict as tables and reports print it: a vacuous 'holds' says so."""
+        if self.vacuous and self.verdict == "holds":
+            steps = ", ".join(str(k) for k in self.original_alarms or [])
+            return f"holds (vacuous: the unattacked track raises the alarm at steps {steps})"
+        return self.verdict
 
     def to_json(self) -> dict[str, Any]:
         return {
@@ -134,7 +144,13 @@ class CheckResult:
             "witness_exact": self.witness_exact,
             "notes": self.notes,
             "stats": self.stats.to_json(),
-        }
+        } | self.monitor_json()
+
+    def monitor_json(self) -> dict[str, Any]:
+        """``original_alarms`` and ``vacuous``, for a monitored property only."""
+        if self.original_alarms is None:
+            return {}
+        return {"original_alarms": list(self.original_alarms), "vacuous": self.vacuous}
 
 
 def _num(x: float) -> float | str:
