@@ -121,10 +121,7 @@ class CheckResult:
     @property
     def verdict_text(self) -> str:
         """The verdict as tables and reports print it: a vacuous 'holds' says so."""
-        if self.vacuous and self.verdict == "holds":
-            steps = ", ".join(str(k) for k in self.original_alarms or [])
-            return f"holds (vacuous: the unattacked track raises the alarm at steps {steps})"
-        return self.verdict
+        return verdict_words(self.verdict, self.vacuous, self.original_alarms or [])
 
     def to_json(self) -> dict[str, Any]:
         return {
@@ -151,6 +148,14 @@ class CheckResult:
         if self.original_alarms is None:
             return {}
         return {"original_alarms": list(self.original_alarms), "vacuous": self.vacuous}
+
+
+def verdict_words(verdict: str, vacuous: bool, alarms: list[int]) -> str:
+    """A verdict in words; a 'holds' that the monitor makes vacuous says why."""
+    if vacuous and verdict == "holds":
+        steps = ", ".join(str(k) for k in alarms)
+        return f"holds (vacuous: the unattacked track raises the alarm at steps {steps})"
+    return verdict
 
 
 def _num(x: float) -> float | str:
