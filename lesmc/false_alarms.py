@@ -54,7 +54,9 @@ def truth_starts(
     return out
 
 
-def truth_track(frames: Sequence[TruthFrame], start: tuple[float, float], snap: float = 6.0) -> list:
+def truth_track(
+    frames: Sequence[TruthFrame], start: tuple[float, float], snap: float = 6.0
+) -> list:
     """The true positions, per step, of the vehicle nearest ``start`` in ``frames[0]``.
 
     None at steps where the vehicle is not in the truth; [] when none is within ``snap`` px.

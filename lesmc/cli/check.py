@@ -207,7 +207,9 @@ def _report(
     meta = {"model" if scene is None else "scene": path}
     timings = {"load, build and check": time.monotonic() - started}
     with err.status("writing the report"):
-        out, _ = publish(runs, report_dir, meta, provenance(parsed), frames_reader(frames_dir), timings)
+        out, _ = publish(
+            runs, report_dir, meta, provenance(parsed), frames_reader(frames_dir), timings
+        )
     err.print(f"report: {out}")
 
 

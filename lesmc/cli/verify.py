@@ -118,7 +118,6 @@ def verify_cmd(
         check_designs,
         check_window,
         default_video_ready,
-        frame_reader,
         load_specs,
         write_default_video,
     )

@@ -36,7 +36,9 @@ MAX_TREE_LEAVES = 40
 ImageFor = Callable[[int], np.ndarray | None]
 
 
-def write_report(doc: dict[str, Any], out_dir: str | Path, image_for: ImageFor | None = None) -> Path:
+def write_report(
+    doc: dict[str, Any], out_dir: str | Path, image_for: ImageFor | None = None
+) -> Path:
     """Write report.html, figures/*.png and results.json (``doc``) into ``out_dir``.
 
     Staged and moved in at the end (lesmc/report/staging.py): nothing the run did
@@ -449,7 +451,9 @@ def _tree_figure(run: _Run, figs: dict[str, bytes]) -> str:
             role = "counterexample"
         if any(r == "original" for r, _ in rl):
             role = "original"
-        tps.append(TreePath(p["no"], tuple(p["states"]), tuple(p["labels"]), role, run.role_text(p["no"])))
+        tps.append(
+            TreePath(p["no"], tuple(p["states"]), tuple(p["labels"]), role, run.role_text(p["no"]))
+        )
     name = f"{run.tag}-tree.png"
     figs[name] = figures.tree(tps, run.d["paths_total"], run.window)
     left = run.d["paths_total"] - len(tps)
@@ -524,7 +528,9 @@ def _patches(run: _Run, figs: dict[str, bytes], image_for: ImageFor | None) -> s
         for h in items:
             img = image_for(int(h["frame"])) if "x" in h else None
             if img is not None:
-                crops.append((f"{prop} step {h['step']}\n{h['obs']}", figures.patch(img, (h["x"], h["y"]))))
+                crops.append(
+                    (f"{prop} step {h['step']}\n{h['obs']}", figures.patch(img, (h["x"], h["y"])))
+                )
     if crops:
         name = f"{run.tag}-hidden.png"
         figs[name] = figures.patches(crops[:12])
@@ -543,9 +549,7 @@ def _table3(run: _Run) -> str:
     for p in shown:
         rl = roles.get(p["no"], [])
         cls = "original" if any(r == "original" for r, _ in rl) else ("marked" if rl else "")
-        breaks = "".join(
-            f"<td>{'yes' if j['violates'] else 'no'}</td>" for j in p["judged"]
-        )
+        breaks = "".join(f"<td>{'yes' if j['violates'] else 'no'}</td>" for j in p["judged"])
         alarms = "".join(
             f"<td>{_e(', '.join(map(str, p['judged'][i]['alarms'])) or '-')}</td>"
             for i in monitored
@@ -583,9 +587,7 @@ def _table3(run: _Run) -> str:
 
 def _specs(doc: dict[str, Any]) -> str:
     specs = doc.get("provenance", {}).get("specs", [])
-    blocks = "".join(
-        f"<h3>{_e(s['path'])}</h3><pre>{_e(s['text'])}</pre>" for s in specs
-    )
+    blocks = "".join(f"<h3>{_e(s['path'])}</h3><pre>{_e(s['text'])}</pre>" for s in specs)
     extra = ""
     for run in doc["runs"]:
         mon = [p for p in run["properties"] if p["monitor"] is not None]

@@ -37,7 +37,6 @@ from lesmc.report.paths import (
     position,
     tau_series,
 )
-from lesmc.tracking.kalman import warp
 from lesmc.tracking.scene import Scene
 
 FORMAT = "lesmc-results"
