@@ -56,7 +56,7 @@ def truth_starts(
 
 def truth_track(
     frames: Sequence[TruthFrame], start: tuple[float, float], snap: float = 6.0
-) -> list:
+) -> list[list[float] | None]:
     """The true positions, per step, of the vehicle nearest ``start`` in ``frames[0]``.
 
     None at steps where the vehicle is not in the truth; [] when none is within ``snap`` px.
@@ -79,7 +79,9 @@ def truth_track(
     return out
 
 
-def unattacked_taus(scene: Scene, starts: Sequence[TruthStart], design: str, steps: int) -> list:
+def unattacked_taus(
+    scene: Scene, starts: Sequence[TruthStart], design: str, steps: int
+) -> list[np.ndarray]:
     """τ along the unattacked track (Eq. 12) started at each truth vehicle, up to ``steps``."""
     out = []
     for s in starts:
@@ -148,7 +150,8 @@ def false_alarm_report(
             f"vehicles of the truth in the target's frame {scene.target.step} (its true "
             f"position and velocity), run for up to {steps} steps; alarms counted at steps "
             f"{first}..{steps} as Eq. 13 defines them. Every alarm here is a false alarm: "
-            "nothing is attacked. The calibrated tolerances are measured on the same tracks, not held out. 'except original' "
+            "nothing is attacked. The calibrated tolerances are measured on the same tracks, "
+            "not held out. 'except original' "
             "(docs/language.md) is not a runtime monitor: it needs the unattacked track, "
             "which the checker knows and a deployed tracker does not."
         ),

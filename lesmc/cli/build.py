@@ -78,6 +78,7 @@ def track_cmd(scene: str, end: int | None, as_json: bool, design: str | None) ->
     """Run the tracker on SCENE unattacked: estimates, τ (Eq. 12) and monitor alarms (Eq. 13)."""
     from rich.table import Table
 
+    from lesmc.errors import escape_text
     from lesmc.report.text import fmt, make_console
     from lesmc.tracking.design import make_design
     from lesmc.tracking.monitor import track
@@ -86,6 +87,8 @@ def track_cmd(scene: str, end: int | None, as_json: bool, design: str | None) ->
     points = track(make_design(sc), end)
     if as_json:
         doc = {
+            "format": "lesmc-track",
+            "version": 1,
             "design": sc.tracker.design,
             "track": [
                 {
@@ -109,7 +112,7 @@ def track_cmd(scene: str, end: int | None, as_json: bool, design: str | None) ->
         table.add_row(
             str(p.step),
             str(p.frame),
-            p.obs or "-",
+            escape_text(p.obs or "-"),
             *(fmt(v, 2) for v in p.x),
             fmt(p.tau, 2),
             "ALARM" if p.alarm else ("halted" if p.halted else ""),

@@ -39,7 +39,6 @@ def report_cmd(results: str, out_dir: str, frames_dir: str | None, as_json: bool
 
     doc = load_results(results)
     out = write_report(doc, out_dir, frames_reader(frames_dir))
-    figures = sorted(p.name for p in (Path(out_dir) / "figures").glob("*.png"))
     if as_json:
         click.echo(
             json.dumps(

@@ -265,7 +265,7 @@ def _summary(runs: list[Any]) -> None:
             table.add_row(
                 escape_text(run.name),
                 escape_text(r.property),
-                f"[{colours[r.verdict]}]{escape_text(r.verdict_text)}[/]",
+                f"[{colours[r.verdict]}]{escape_text(r.verdict_text())}[/]",
                 opt,
                 f"{r.holds_op} {r.threshold:g}",
                 fmt(r.witness_value),

@@ -118,7 +118,6 @@ class CheckResult:
     original_alarms: list[int] | None = None  # monitored: the unattacked track's alarm steps
     vacuous: bool = False  # the monitor excludes the unattacked track itself
 
-    @property
     def verdict_text(self) -> str:
         """The verdict as tables and reports print it: a vacuous 'holds' says so."""
         return verdict_words(self.verdict, self.vacuous, self.original_alarms or [])

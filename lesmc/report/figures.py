@@ -9,6 +9,7 @@ marker (:data:`MARKERS`), so a legend entry names both and no two look alike.
 from __future__ import annotations
 
 import io
+import itertools
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 
@@ -149,7 +150,7 @@ def track_crop(
     ax.set_xlim(lo[0], hi[0])
     ax.set_ylim(hi[1], lo[1])
     ax.set_aspect("equal")
-    ax.set_xlabel("x (pixels of frame %d)" % frame)
+    ax.set_xlabel(f"x (pixels of frame {frame})")
     ax.set_ylabel("y (pixels)")
     ax.set_title(title, fontsize=10)
     ax.legend(loc="upper left", fontsize=8, framealpha=0.9)
@@ -268,7 +269,7 @@ def tree(
     legend_roles: dict[str, str] = {}
     for p in sorted(paths, key=lambda p: p.role != "other"):  # roles drawn on top
         drawn_cols = [k for k in cols if k < len(p.states)]
-        for a, b in zip(drawn_cols, drawn_cols[1:], strict=False):
+        for a, b in itertools.pairwise(drawn_cols):
             pa, pb = p.states[: a + 1], p.states[: b + 1]
             if (pa, pb) in seen_edges and p.role == "other":
                 continue
@@ -337,7 +338,7 @@ def tree(
 def patch(image: np.ndarray, centre: tuple[float, float], half: int = 10) -> np.ndarray:
     """The (2·half+1)² patch of a frame around a detection, zero-padded at the border."""
     h, w = image.shape[:2]
-    cx, cy = int(round(centre[0])), int(round(centre[1]))
+    cx, cy = round(centre[0]), round(centre[1])
     out = np.zeros((2 * half + 1, 2 * half + 1), dtype=float)
     y0, y1 = max(cy - half, 0), min(cy + half + 1, h)
     x0, x1 = max(cx - half, 0), min(cx + half + 1, w)

@@ -491,7 +491,8 @@ def _tau_figure(run: _Run, figs: dict[str, bytes]) -> str:
     figs[name] = figures.uncertainty(series, run.window)
     return _img(
         name,
-        f"Covariance trace τ ({run.name}) along {_drawn_words([(0, s.role, None) for s in series])}; "
+        f"Covariance trace τ ({run.name}) along "
+        f"{_drawn_words([(0, s.role, None) for s in series])}; "
         + (
             f"a cross marks an alarm of the monitor of {', '.join(monitored)} (Eq. 13)."
             if monitored

@@ -172,7 +172,9 @@ def tau_of(model: LTS, sid: str, components: tuple[int, ...]) -> float:
     return float(kernel.tau(np.asarray(P), idx))
 
 
-def _hidden(model: LTS, path: TrackPath, scene: Scene | None, window: tuple[int, int]) -> list:
+def _hidden(
+    model: LTS, path: TrackPath, scene: Scene | None, window: tuple[int, int]
+) -> list[dict[str, Any]]:
     """The detections the attacker hides on a path: at each attacked step, the observations of
     the transitions ranked before the one taken (Eq. 5), with their positions and payoffs."""
     out: list[dict[str, Any]] = []
@@ -220,8 +222,12 @@ def _scene_part(
             keep = np.nonzero(d <= NEAR_PX)[0].tolist()
         dets.append(
             [
-                [float(pos[j, 0]), float(pos[j, 1]), frame.detections[j].id]
-                + [num(frame.detections[j].payoff)]
+                [
+                    float(pos[j, 0]),
+                    float(pos[j, 1]),
+                    frame.detections[j].id,
+                    num(frame.detections[j].payoff),
+                ]
                 for j in keep
             ]
         )
@@ -241,9 +247,9 @@ def run_json(
     win = window_of(run.bound)
     wanted: list[tuple[str, ...]] = [tuple(model.original)]
     for r in run.results:
-        for p in (r.counterexample, r.witness):
-            if p is not None:
-                wanted.append(complete(model, p.states))
+        for info in (r.counterexample, r.witness):
+            if info is not None:
+                wanted.append(complete(model, info.states))
     ps: PathSet = enumerate_tracks(model, win, limit, first=wanted)
     number = {p.states: i + 1 for i, p in enumerate(ps.paths)}
 

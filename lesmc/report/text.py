@@ -64,7 +64,7 @@ def print_results(console: Console, results: Sequence[CheckResult], paths: bool 
             opt = f"[{fmt(r.lower)}, {fmt(r.upper)}]"
         summary.add_row(
             escape_text(r.property),
-            f"[{_COLOURS[r.verdict]}]{escape_text(r.verdict_text)}[/]",
+            f"[{_COLOURS[r.verdict]}]{escape_text(r.verdict_text())}[/]",
             opt,
             f"optimum {r.holds_op} {r.threshold:g}",
             fmt(r.witness_value),

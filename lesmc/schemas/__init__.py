@@ -23,11 +23,6 @@ SCHEMAS = {
     "lesmc-results": "results",
     "lesmc-check": "check",
     "lesmc-track": "track",
-    "lesmc-build": "build",
-    "lesmc-synth": "synth",
-    "lesmc-perceive": "perceive",
-    "lesmc-train": "train",
-    "lesmc-reduce": "reduce",
     "lesmc-report": "report",
 }
 
