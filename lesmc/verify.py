@@ -29,7 +29,7 @@ from lesmc.model.lts import LTS, to_lts
 from lesmc.perception.quality import Truth, TruthFrame
 from lesmc.perception.run import PerceiveRun
 from lesmc.perception.to_scene import TargetSpec, make_scene
-from lesmc.report.html import DesignRun, window_of
+from lesmc.report.results import DesignRun, window_of
 from lesmc.tracking.design import make_design
 from lesmc.tracking.monitor import track
 from lesmc.tracking.scene import Scene

@@ -130,3 +130,46 @@ def test_reduce_bad_items_writes_nothing(tmp_path: Path) -> None:
     r = lesmc("reduce", "knapsack", str(items), "--demand", "1", "-o", str(tmp_path / "k.lts"))
     assert r.returncode == 2 and f"{items}:2:3: 'oops' is not a number" in r.stderr
     assert not (tmp_path / "k.lts").exists()
+
+
+def test_json_outputs_validate_against_their_shipped_schemas(tmp_path: Path) -> None:
+    """check, track and report print documents with format and version, valid per schema."""
+    import jsonschema
+
+    from lesmc.schemas import SCHEMAS, schema
+
+    scenes = ROOT / "tests" / "scenes"
+    docs = []
+    r = lesmc("check", str(TINY / "model.lts"), str(TINY / "properties.spec"), "--json")
+    docs.append(json.loads(r.stdout))
+    r = lesmc("track", str(scenes / "rq4_merge.json"), "--json", "--design", "joint")
+    assert r.returncode == 0, r.stderr
+    docs.append(json.loads(r.stdout))
+    scene, spec = str(scenes / "rq4_merge.json"), str(scenes / "rq4_merge.spec")
+    r = lesmc("check", scene, spec, "--report", str(tmp_path / "a"), "--json")
+    assert r.returncode in (0, 1), r.stderr
+    docs.append(json.loads(r.stdout))
+    results = json.loads((tmp_path / "a" / "results.json").read_text())
+    docs.append(results)
+    r = lesmc(
+        "report", str(tmp_path / "a" / "results.json"), "--out", str(tmp_path / "b"), "--json"
+    )
+    assert r.returncode == 0, r.stderr
+    docs.append(json.loads(r.stdout))
+    for doc in docs:
+        assert isinstance(doc["version"], int)
+        jsonschema.validate(doc, schema(SCHEMAS[doc["format"]]))
+    assert [d["format"] for d in docs] == [
+        "lesmc-check",
+        "lesmc-track",
+        "lesmc-check",
+        "lesmc-results",
+        "lesmc-report",
+    ]
+
+
+def test_frames_without_report_is_an_error() -> None:
+    r = lesmc(
+        "check", str(TINY / "model.lts"), str(TINY / "properties.spec"), "--frames", str(TINY)
+    )
+    assert r.returncode == 2 and "--frames" in r.stderr and "Traceback" not in r.stderr

@@ -49,7 +49,15 @@ def cases(draw: st.DrawFn) -> tuple:
     op = draw(st.sampled_from([">", ">=", "<", "<="]))
     norm = draw(st.sampled_from(["1", "2", "inf"]))
     monitor = draw(
-        st.sampled_from(["", "monitor uncertainty", "monitor uncertainty tolerance 0.2"])
+        st.sampled_from(
+            [
+                "",
+                "monitor uncertainty",
+                "monitor uncertainty tolerance 0.2",
+                "monitor uncertainty except original",
+                "monitor uncertainty tolerance 0.2 except original",
+            ]
+        )
     )
     return model, (l, u, end, obj, con, op, norm, monitor), draw(st.floats(0, 1))
 
@@ -98,6 +106,24 @@ def test_optimum_and_witness_equal_brute_force(case: tuple) -> None:
         else:
             assert r.witness_value == pytest.approx(truth.witness_value, rel=1e-12, abs=1e-12)
             assert by_states[r.witness.states][0] == pytest.approx(truth.witness_value)
+        _assert_monitor_facts(model, bp, truth, r)
+
+
+def _assert_monitor_facts(model, bp, truth, r) -> None:  # type: ignore[no-untyped-def]
+    """``vacuous`` iff the brute force never reaches the unattacked track's end; alarms from P."""
+    if bp.monitor_components is None:
+        assert r.original_alarms is None and not r.vacuous
+        return
+    orig = list(model.original[: bp.end + 1])
+    reached = any(p == orig for p, _, _ in truth.paths)
+    assert r.vacuous == (not reached)
+    taus = [sum(model.state(q).P[i, i] for i in bp.monitor_components) for q in orig]
+    expect = [
+        k
+        for k in range(bp.l, len(orig))
+        if taus[k] > taus[k - 1] * (1 + bp.monitor_tolerance) + 1e-300
+    ]
+    assert r.original_alarms == expect
 
 
 @settings(max_examples=150, deadline=None, suppress_health_check=[HealthCheck.too_slow])

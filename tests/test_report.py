@@ -19,8 +19,9 @@ from lesmc.cli.main import cli
 from lesmc.engines.check import check_bound
 from lesmc.language.parser import load_spec
 from lesmc.model.lts import to_arrays
-from lesmc.report.html import DesignRun, write_report
 from lesmc.report.paths import count_paths, enumerate_tracks, judge
+from lesmc.report.publish import publish
+from lesmc.report.results import DesignRun, provenance
 from lesmc.tracking.scene import load_scene
 from lesmc.verify import check_designs
 
@@ -58,9 +59,14 @@ def _runs(design: str = "single") -> tuple[list[DesignRun], object]:
     return check_designs(scene, specs, [design]), scene
 
 
+def write_report(runs: list[DesignRun], out: Path, meta: dict | None = None) -> Path:
+    specs = [load_spec(str(SCENES / "rq4_merge.spec"))]
+    return publish(runs, out, meta or {}, provenance(specs, ["test"]))[0]
+
+
 def test_report_files_and_contents(tmp_path: Path) -> None:
     runs, _ = _runs()
-    out = write_report(runs, tmp_path / "rep", None, {"scene": "rq4_merge.json"})
+    out = write_report(runs, tmp_path / "rep", {"scene": "rq4_merge.json"})
     html = out.read_text()
     assert html.startswith("<!DOCTYPE html>")
     assert html.count("data:image/png;base64,") == len(
@@ -90,20 +96,108 @@ def test_two_designs_are_compared(tmp_path: Path) -> None:
     assert "Designs compared (Table 5)" in html
 
 
-def test_a_large_tree_is_summarised(tmp_path: Path) -> None:
+def test_a_large_tree_is_summarised_and_compressed(tmp_path: Path) -> None:
     from lesmc.report import figures
-    from lesmc.report.html import _analyse, _tree_highlight
+    from lesmc.report.figures import TreePath
 
     runs, _ = _runs()
-    a = _analyse(runs[0])
-    png, drawn = figures.tree(
-        sorted(a.paths.paths, key=lambda p: p.states),
-        _tree_highlight(a),
-        a.paths.total,
-        a.window,
-        max_leaves=3,
+    doc = json.loads((write_report(runs, tmp_path / "rep").parent / "results.json").read_text())
+    run = doc["runs"][0]
+    paths = [TreePath(p["no"], tuple(p["states"]), tuple(p["labels"])) for p in run["paths"]]
+    png = figures.tree(paths[:3], run["paths_total"], tuple(run["window"]))
+    assert png[:4] == b"\x89PNG"
+    # only steps where some path branches are drawn, plus the first and the last
+    cols = figures.tree_columns(paths, run["window"][0] - 1)
+    last = max(len(p.states) for p in paths) - 1
+    assert cols[0] == run["window"][0] - 1 and cols[-1] == last
+    for k in cols[1:-1]:
+        assert len({p.states[: k + 1] for p in paths}) > len({p.states[:k] for p in paths})
+    assert all(run["window"][0] <= k <= run["window"][1] for k in cols[1:-1])
+
+
+def test_report_redraws_from_the_results_file_alone(tmp_path: Path) -> None:
+    """``lesmc report`` needs only results.json: the scene and specs may be gone."""
+    runs, _ = _runs()
+    first = write_report(runs, tmp_path / "a")
+    copy = tmp_path / "only" / "results.json"
+    copy.parent.mkdir()
+    copy.write_text((first.parent / "results.json").read_text())
+    r = CliRunner().invoke(cli, ["report", str(copy), "--out", str(tmp_path / "b"), "--json"])
+    assert r.exit_code == 0, r.output
+    out = json.loads(r.stdout)
+    assert out["format"] == "lesmc-report" and out["version"] == 1
+    assert (tmp_path / "b/report.html").read_text() == first.read_text()
+    broken = tmp_path / "broken.json"
+    doc = json.loads(copy.read_text())
+    del doc["runs"][0]["paths"]
+    broken.write_text(json.dumps(doc))
+    from test_cli import lesmc
+
+    r2 = lesmc("report", str(broken), "--out", str(tmp_path / "c"))
+    assert r2.returncode == 2 and "runs[0]" in r2.stderr and "paths" in r2.stderr
+    assert "Traceback" not in r2.stderr and not (tmp_path / "c").exists()
+
+
+def test_report_dir_keeps_what_the_run_did_not_create(tmp_path: Path) -> None:
+    runs, _ = _runs()
+    out = tmp_path / "rep"
+    (out / "figures").mkdir(parents=True)
+    (out / "figures" / "mine.txt").write_text("keep me")
+    (out / "notes.txt").write_text("keep me too")
+    write_report(runs, out)
+    assert (out / "figures" / "mine.txt").read_text() == "keep me"
+    assert (out / "notes.txt").read_text() == "keep me too"
+    assert (out / "report.html").is_file()
+    assert not [p for p in tmp_path.iterdir() if p.name.startswith(".")]  # no staging left
+
+
+def test_a_second_run_into_a_locked_dir_fails_clearly(tmp_path: Path) -> None:
+    import fcntl
+    import os
+
+    from lesmc.errors import UsageError
+    from lesmc.report.staging import staged
+
+    out = tmp_path / "rep"
+    with staged(out) as tmp:
+        (tmp / "a.txt").write_text("first")
+        with pytest.raises(UsageError, match="another lesmc run"), staged(out):
+            pass
+    assert (out / "a.txt").read_text() == "first"
+    lock = tmp_path / ".rep.lesmc-lock"
+    fd = os.open(lock, os.O_RDWR | os.O_CREAT)
+    fcntl.flock(fd, fcntl.LOCK_EX)
+    try:
+        from test_cli import lesmc
+
+        runs, _ = _runs()
+        results = write_report(runs, tmp_path / "src").parent / "results.json"
+        r = lesmc("report", str(results), "--out", str(out))
+        assert r.returncode == 2 and "another lesmc run" in r.stderr, r.stderr
+        assert not (out / "report.html").exists()
+    finally:
+        os.close(fd)
+
+
+def test_results_file_validates_against_the_shipped_schema(tmp_path: Path) -> None:
+    import jsonschema
+
+    from lesmc.schemas import schema
+
+    runs = check_designs(
+        load_scene(SCENES / "rq4_merge.json"),
+        [load_spec(str(SCENES / "rq1_platoon.spec"))],
+        ["single", "improved"],
     )
-    assert png[:4] == b"\x89PNG" and drawn <= max(3, len(_tree_highlight(a)))
+    doc = json.loads((write_report(runs, tmp_path / "r").parent / "results.json").read_text())
+    jsonschema.validate(doc, schema("results"))
+    assert doc["format"] == "lesmc-results" and doc["version"] == 1
+    prov = doc["provenance"]
+    assert prov["command"] == ["test"] and prov["specs"][0]["text"].startswith("#")
+    assert set(prov["model_sha256"]) == {"single", "joint KFs + monitor"}
+    monitored = doc["runs"][1]["results"]
+    assert all("original_alarms" in r and "vacuous" in r for r in monitored)
+    assert all("original_alarms" not in r for r in doc["runs"][0]["results"])
 
 
 def test_check_report_cli_on_a_scene_and_on_a_model(tmp_path: Path) -> None:
@@ -190,6 +284,11 @@ def test_verify_end_to_end_on_a_small_video(tmp_path: Path) -> None:
     assert scene.target.step == 4 and len(scene.frames) == 12
     html = (tmp_path / "v/report.html").read_text()
     assert "detections of step 5" in html
+    doc = json.loads((tmp_path / "v/results.json").read_text())
+    assert doc["runs"][0]["truth"]  # the target's ground truth, drawn in the track figures
+    assert "ground truth" in html
+    fa = doc["monitor_false_alarms"]["rows"]
+    assert fa[0]["tracks"] > 0 and fa[-1]["alarms"] == 0  # the largest-rise tolerance is silent
 
 
 def _chromium() -> str | None:

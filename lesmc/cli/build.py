@@ -109,6 +109,8 @@ def track_cmd(scene: str, end: int | None, as_json: bool, design: str | None) ->
     points = track(make_design(sc), end)
     if as_json:
         doc = {
+            "format": "lesmc-track",
+            "version": 1,
             "design": sc.tracker.design,
             "track": [
                 {
@@ -132,7 +134,7 @@ def track_cmd(scene: str, end: int | None, as_json: bool, design: str | None) ->
         table.add_row(
             str(p.step),
             str(p.frame),
-            escape_text(p.obs) if p.obs else "-",
+            escape_text(p.obs or "-"),
             *(fmt(v, 2) for v in p.x),
             fmt(p.tau, 2),
             "ALARM" if p.alarm else ("halted" if p.halted else ""),

@@ -68,8 +68,15 @@ does not import the engines (tests/test_startup.py checks that the two agree).""
     "report_dir",
     type=click.Path(file_okay=False),
     default=None,
-    help="Also write DIR/report.html, DIR/figures/ and DIR/results.json (a scene is then "
-    "checked on its built model).",
+    help="Also write DIR/results.json, DIR/report.html and DIR/figures/ (a scene is then "
+    "checked once, on its built model).",
+)
+@click.option(
+    "--frames",
+    "frames_dir",
+    type=click.Path(file_okay=False, exists=True),
+    default=None,
+    help="With --report: the video's frames, for the report's images (read from nowhere else).",
 )
 @design_option("For a scene: override the tracker design it names.")
 def check_cmd(
@@ -82,6 +89,7 @@ def check_cmd(
     only: tuple[str, ...],
     no_paths: bool,
     report_dir: str | None,
+    frames_dir: str | None,
     design: str | None,
     max_memory: int | None,
 ) -> None:
@@ -108,9 +116,15 @@ def check_cmd(
     from lesmc.tracking.scene import Scene
     from lesmc.unfold import bind_scene, check_scene_bound
 
+    if frames_dir is not None and report_dir is None:
+        raise UsageError("--frames gives the report's images: it needs --report DIR")
     parsed = [load_spec(s) for s in specs]
     source = load_model_or_scene(model, design)
     bound = bind_scene(source, parsed) if isinstance(source, Scene) else bind_all(source, parsed)
+    scene: Scene | None = None
+    if report_dir is not None and isinstance(source, Scene):
+        scene = source  # the report draws the whole model: build it, check once on it
+        bound, source = _built(source, parsed, bound, only)
     if only:
         names = {bp.name for bp in bound}
         missing = [n for n in only if n not in names]
@@ -155,12 +169,29 @@ def check_cmd(
                 results.append(r)
             progress.advance(task)
     if report_dir is not None:
-        results = _report(source, parsed, bound, results, engine, report_dir, model, only)
+        _report(source, parsed, bound, results, report_dir, model, frames_dir, started, scene)
     if as_json:
-        click.echo(results_json(results))
+        click.echo(results_json(results, parsed))
     else:
         print_results(make_console(), results, paths=not no_paths)
     sys.exit(exit_status(results))
+
+
+def _built(
+    scene: Scene, parsed: list[SpecFile], bound: list[BoundProperty], only: tuple[str, ...]
+) -> tuple[list[BoundProperty], ArrayModel]:
+    """For --report: the scene's whole model over the properties' windows, built once, and
+    the properties bound to it; the check then runs on it (one check, one model)."""
+    from rich.console import Console
+
+    from lesmc.engines.check import bind_all
+    from lesmc.report.results import window_of
+    from lesmc.unfold import build_model
+
+    wanted = [bp for bp in bound if not only or bp.name in only] or bound
+    with Console(stderr=True).status("building the model for the report"):
+        cm = build_model(scene, window_of(wanted))
+    return bind_all(cm, parsed), cm
 
 
 def _report(
@@ -168,39 +199,31 @@ def _report(
     parsed: list[SpecFile],
     bound: list[BoundProperty],
     results: list[CheckResult],
-    engine: str,
     report_dir: str,
     path: str,
-    only: tuple[str, ...],
-) -> list[CheckResult]:
-    """Write the report; a scene is checked again on its built model (same verdicts)."""
+    frames_dir: str | None,
+    started: float,
+    scene: Scene | None,
+) -> None:
+    """Write the results file and draw the report from it (lesmc/report/publish.py)."""
     from rich.console import Console
 
     from lesmc.model.lts import to_lts
-    from lesmc.report.html import DesignRun, write_report
+    from lesmc.report.publish import frames_reader, publish
+    from lesmc.report.results import DesignRun, provenance
     from lesmc.tracking.scene import Scene
-    from lesmc.verify import check_designs, frame_reader, scene_frames
 
+    assert not isinstance(source, Scene)
     err = Console(stderr=True)
-    image_for = None
-    if isinstance(source, Scene):
-        with err.status("building the model for the report"):
-            runs = check_designs(
-                source,
-                parsed,
-                [source.tracker.design],
-                engine,
-                only=(lambda n: n in only) if only else None,
-            )
-        image_for = frame_reader(scene_frames(source))
-        results = runs[0].results
-    else:
-        design = str(source.meta.get("design", "model"))
-        runs = [DesignRun(design, to_lts(source), bound, results, None)]
+    design = str(source.meta.get("design", "model"))
+    runs = [DesignRun(design, to_lts(source), bound, results, scene)]
+    meta = {"model" if scene is None else "scene": path}
+    timings = {"load, build and check": time.monotonic() - started}
     with err.status("writing the report"):
-        out = write_report(runs, report_dir, image_for, {"model": path})
+        out, _ = publish(
+            runs, report_dir, meta, provenance(parsed), frames_reader(frames_dir), timings
+        )
     err.print(f"report: {out}")
-    return results
 
 
 def _finite_seconds(value: float | None) -> float | None:

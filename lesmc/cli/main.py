@@ -24,6 +24,7 @@ from lesmc.cli.build import build_cmd, track_cmd
 from lesmc.cli.check import check_cmd
 from lesmc.cli.perceive import perceive_cmd
 from lesmc.cli.reduce import reduce_group
+from lesmc.cli.report import report_cmd
 from lesmc.cli.signals import DeadlinePassed, Terminated, handlers, stdout_closed
 from lesmc.cli.train import train_cmd
 from lesmc.cli.verify import verify_cmd
@@ -75,7 +76,9 @@ def cli() -> None:
                                              unfold every attacked run into a model
       lesmc check MODEL.lts SPEC.spec        check properties on a model
       lesmc check SCENE.json SPEC.spec       ... or on a scene, building on the fly
-      lesmc check ... --report DIR           ... and write the HTML report
+      lesmc check ... --report DIR           ... and write results.json and the HTML report
+      lesmc report RESULTS.json --out DIR [--frames VIDEO/]
+                                             redraw the report from a results file alone
       lesmc reduce knapsack ITEMS.csv ...    build a knapsack instance as a model
     \b
     Exit status: 0 all hold, 1 some violated, 2 bad input, 3 some unknown,
@@ -93,6 +96,7 @@ cli.add_command(synth_cmd)
 cli.add_command(perceive_cmd)
 cli.add_command(train_cmd)
 cli.add_command(verify_cmd)
+cli.add_command(report_cmd)
 
 
 def _debug() -> bool:

@@ -189,7 +189,7 @@ def perceive_cmd(
             err=as_json,
         )
     if as_json:
-        doc: dict[str, Any] = {"frames": run.rows}
+        doc: dict[str, Any] = {"format": "lesmc-perceive", "version": 1, "frames": run.rows}
         if truths is not None:
             doc["overall"] = {"frontend": run.frontend_total.to_json()}
             if nets is not None:

@@ -2,7 +2,9 @@
 
 from __future__ import annotations
 
+import json
 import sys
+import time
 from pathlib import Path
 from typing import Any
 
@@ -117,7 +119,6 @@ def verify_cmd(
     from lesmc.perception.run import PerceiveOptions, perceive
     from lesmc.perception.to_scene import check_target, parse_target, scene_from_run
     from lesmc.report.exit import exit_status
-    from lesmc.report.html import write_report
     from lesmc.report.progress import progress_bar
     from lesmc.tracking.scene import save_scene
     from lesmc.verify import (
@@ -128,13 +129,12 @@ def verify_cmd(
         check_designs,
         check_window,
         default_video_ready,
-        frame_reader,
         load_specs,
-        scene_frames,
         write_default_video,
     )
     from lesmc.video.reader import open_frames
 
+    started = time.monotonic()
     out = Path(out_dir)
     window = parse_window(window_text) if window_text else None
     spec_files = load_specs([Path(s) for s in specs] or bundled_specs(), window)
@@ -145,7 +145,7 @@ def verify_cmd(
         if frames_dir is not None:
             raise UsageError("give FRAMES_DIR or --scene, not both")
         scene = load_scene_file(scene_path)
-        frames = scene_frames(scene)
+        frames = truths = None  # images only from a directory named on the command line
         meta["scene"] = scene_path
     else:
         if frames_dir is None:
@@ -206,6 +206,7 @@ def verify_cmd(
     )
     meta["properties"] = ", ".join(s.path for s in spec_files)
     err.print(f"target: {meta['target']}")
+    checked = time.monotonic()
     with err.status("checking") as status:
         runs = check_designs(
             scene,
@@ -215,22 +216,68 @@ def verify_cmd(
             budget=budget,
             on_batch=lambda m: stop_if_spent(budget, m, "building a model"),
         )
+    timings = {"video, perception and scene": checked - started}
+    timings["models and checks"] = time.monotonic() - checked
     with err.status("writing the report"):
-        report = write_report(runs, out, frame_reader(frames), meta)
+        report, doc = _publish(runs, out, meta, spec_files, frames, truths, scene, timings)
     if new_scene is not None:
         save_scene(new_scene, out / "scene.json")
     results = [r for run in runs for r in run.results]
     if as_json:
-        click.echo((out / "results.json").read_text(), nl=False)
+        click.echo(json.dumps(doc, indent=1, allow_nan=False))
     else:
         _summary(runs)
         click.echo(f"report: {report}")
     sys.exit(exit_status(results))
 
 
+def _publish(
+    runs: list[Any],
+    out: Path,
+    meta: dict[str, Any],
+    specs: list[Any],
+    frames: Any,
+    truths: Any,
+    scene: Any,
+    timings: dict[str, float],
+) -> tuple[Path, dict[str, Any]]:
+    """results.json and the report from it; with the truth, the target's true track and the
+    monitor's false alarms on every truth track (lesmc/false_alarms.py)."""
+    from lesmc.report.publish import publish
+    from lesmc.report.results import provenance
+    from lesmc.verify import DEFAULT_VIDEO, frame_reader
+
+    truth, extra = None, {}
+    if frames is not None and truths is not None:
+        from lesmc.false_alarms import false_alarm_report, truth_track
+
+        tfs = [truths.frames.get(p.name) for p in frames.paths[scene.target.step :]]
+        tfs = tfs[: next((i for i, t in enumerate(tfs) if t is None), len(tfs))]
+        if tfs:
+            truth = truth_track(tfs, scene.target.start) or None
+            t0 = time.monotonic()
+            end = max(run.model.end for run in runs)
+            extra["monitor_false_alarms"] = false_alarm_report(
+                scene, tfs, (frames.width, frames.height), min(end, len(tfs) - 1)
+            )
+            timings["monitor false alarms"] = time.monotonic() - t0
+    seeds = {"video": DEFAULT_VIDEO["seed"]} if "embedded default" in meta.get("video", "") else {}
+    return publish(
+        runs,
+        out,
+        meta,
+        provenance(specs, seeds=seeds),
+        frame_reader(frames),
+        timings,
+        truth,
+        extra,
+    )
+
+
 def _summary(runs: list[Any]) -> None:
     from rich.table import Table
 
+    from lesmc.errors import escape_text
     from lesmc.report.text import fmt, make_console
 
     console = make_console()
@@ -239,7 +286,7 @@ def _summary(runs: list[Any]) -> None:
         table.add_column(
             c,
             justify="left" if c in ("design", "property", "verdict", "holds if") else "right",
-            no_wrap=True,
+            overflow="fold",
         )
     colours = {"holds": "green", "violated": "red", "unknown": "yellow"}
     for run in runs:
@@ -247,9 +294,9 @@ def _summary(runs: list[Any]) -> None:
         for r in run.results:
             opt = fmt(r.optimum) if r.optimum is not None else "+inf"
             table.add_row(
-                run.name,
-                r.property,
-                f"[{colours[r.verdict]}]{r.verdict}[/]",
+                escape_text(run.name),
+                escape_text(r.property),
+                f"[{colours[r.verdict]}]{escape_text(r.verdict_text())}[/]",
                 opt,
                 f"{r.holds_op} {r.threshold:g}",
                 fmt(r.witness_value),

@@ -14,6 +14,7 @@ from lesmc.engines.result import CheckResult, EngineOutcome, PathInfo, Verdict, 
 from lesmc.engines.space import SearchSpace, build_space
 from lesmc.language.properties import SpecFile
 from lesmc.language.semantics import BoundProperty, bind
+from lesmc.model import kernel
 from lesmc.model.arrays import ArrayModel
 from lesmc.model.growing import GrowingModel
 from lesmc.model.kernel import holds
@@ -114,6 +115,13 @@ def to_result(space: SearchSpace, out: EngineOutcome) -> CheckResult:
             if cex is None
             else "only paths with an infinite objective violate (a halted track): optimum is +inf"
         )
+    alarms, vacuous = monitor_facts(space)
+    if vacuous:
+        notes.append(
+            "the monitor excludes the unattacked track itself (alarms at steps "
+            + ", ".join(map(str, alarms or []))
+            + "): every path is monitored out, so 'holds' says nothing about the attack"
+        )
     return CheckResult(
         property=prop.name,
         verdict=verdict,
@@ -132,6 +140,8 @@ def to_result(space: SearchSpace, out: EngineOutcome) -> CheckResult:
         notes=notes,
         optimum_known=known,
         witness_bounds=_witness_bounds(out, wit, known, upper),
+        original_alarms=alarms,
+        vacuous=vacuous,
     )
 
 
@@ -148,6 +158,18 @@ def _witness_bounds(
     if not known:
         return (-math.inf, upper)
     return None
+
+
+def monitor_facts(space: SearchSpace) -> tuple[list[int] | None, bool]:
+    """A monitored property: the steps l..end where the unattacked track raises Eq. 13's
+    alarm, and whether the monitor thereby excludes the unattacked track (vacuity)."""
+    bp, cm = space.bp, space.cm
+    if bp.monitor_components is None:
+        return None, False
+    tau_orig = kernel.tau(cm.P_table, bp.monitor_components)[cm.cov[cm.original]]
+    fired = kernel.original_alarms(tau_orig, bp.monitor_tolerance)
+    steps = [k for k in range(bp.l, min(bp.end, len(fired) - 1) + 1) if fired[k]]
+    return steps, bool(steps) and not bp.monitor_except_original
 
 
 def check_lazy(

@@ -16,7 +16,7 @@ import time
 
 import numpy as np
 
-from lesmc.engines.space import SpaceOps, ranges
+from lesmc.engines.space import SpaceOps, excused_steps, ranges
 from lesmc.language.semantics import BoundProperty
 from lesmc.model import kernel
 from lesmc.model.growing import GrowArray, GrowingModel
@@ -50,6 +50,7 @@ class LazySpace(SpaceOps):
         self._waiting: dict[int, list[int]] = {}  # per step outside the window: unexpanded states
         self._known = 0  # states whose deviation and τ are computed
         self._ref = model.S[model.original]
+        self._excused: np.ndarray | None = None
         self._sync()
         obj = kernel.initial_value(bp.objective, self.dist[model.original[0]])
         con = kernel.initial_value(bp.constraint, self.dist[model.original[0]])
@@ -87,6 +88,8 @@ class LazySpace(SpaceOps):
             self._dist.extend(kernel.deviation(diff, bp.norm))
             if bp.monitor_components is not None:
                 self._tau.extend(self._tau_of_table()[cm.cov[new]])
+                if self._excused is None:  # the original path is unfolded before the search
+                    self._excused = excused_steps(bp, self._tau.data[cm.original])
             for q, k in zip(new.tolist(), steps.tolist(), strict=True):
                 if not bp.l <= k + 1 <= bp.u and k < bp.end:
                     self._waiting.setdefault(k, []).append(q)
@@ -103,7 +106,9 @@ class LazySpace(SpaceOps):
         if bp.monitor_components is not None:
             tau = self._tau.data
             src = cm.src[t]
-            allowed &= ~kernel.monitor_cuts(bp.l, ks, tau[src], tau[dst], bp.monitor_tolerance)
+            allowed &= ~kernel.monitor_cuts(
+                bp.l, ks, tau[src], tau[dst], bp.monitor_tolerance, self._excused
+            )
         self._mask.extend(allowed)
         self._t_known = cm.n_transitions
 

@@ -119,6 +119,12 @@ class CheckResult:
     optimum_known: bool = True
     #: proven bounds on θ* (equal when the witness is exact); None: not searched
     witness_bounds: tuple[float, float] | None = None
+    original_alarms: list[int] | None = None  # monitored: the unattacked track's alarm steps
+    vacuous: bool = False  # the monitor excludes the unattacked track itself
+
+    def verdict_text(self) -> str:
+        """The verdict as tables and reports print it: a vacuous 'holds' says so."""
+        return verdict_words(self.verdict, self.vacuous, self.original_alarms or [])
 
     def to_json(self) -> dict[str, Any]:
         optimum: float | str | None
@@ -145,7 +151,21 @@ class CheckResult:
             "witness_exact": self.witness_exact,
             "notes": self.notes,
             "stats": self.stats.to_json(),
-        }
+        } | self.monitor_json()
+
+    def monitor_json(self) -> dict[str, Any]:
+        """``original_alarms`` and ``vacuous``, for a monitored property only."""
+        if self.original_alarms is None:
+            return {}
+        return {"original_alarms": list(self.original_alarms), "vacuous": self.vacuous}
+
+
+def verdict_words(verdict: str, vacuous: bool, alarms: list[int]) -> str:
+    """A verdict in words; a 'holds' that the monitor makes vacuous says why."""
+    if vacuous and verdict == "holds":
+        steps = ", ".join(str(k) for k in alarms)
+        return f"holds (vacuous: the unattacked track raises the alarm at steps {steps})"
+    return verdict
 
 
 def _num(x: float) -> float | str:

@@ -44,6 +44,13 @@ def ranges(
     return owner, (idx if values is None else values[idx])
 
 
+def excused_steps(bp: BoundProperty, tau_original: np.ndarray) -> np.ndarray | None:
+    """The original track's alarm steps when the monitor excuses them (``except original``)."""
+    if not bp.monitor_except_original:
+        return None
+    return kernel.original_alarms(tau_original, bp.monitor_tolerance)
+
+
 class SearchSpace(Protocol):
     """What the engines and reports need: the explicit :class:`Space` or the lazy one."""
 
@@ -179,7 +186,10 @@ def build_space(cm: ArrayModel, bp: BoundProperty) -> Space:
     allowed = in_window | first
     if bp.monitor_components is not None:
         tau = location_trace(cm, bp.monitor_components)
-        allowed &= ~kernel.monitor_cuts(bp.l, k, tau[src], tau[cm.dst], bp.monitor_tolerance)
+        excused = excused_steps(bp, tau[cm.original])
+        allowed &= ~kernel.monitor_cuts(
+            bp.l, k, tau[src], tau[cm.dst], bp.monitor_tolerance, excused
+        )
     adj = np.nonzero(allowed)[0]
     counts = np.bincount(src[adj], minlength=n) if m else np.zeros(n, int)
     adj_ptr = np.concatenate([[0], np.cumsum(counts)]).astype(np.int64)

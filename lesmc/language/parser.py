@@ -227,6 +227,7 @@ class _Builder:
         if kind == "monitor_clause":
             names: tuple[str, ...] | None = None
             tol = DEFAULT_MONITOR_TOLERANCE
+            excuse = False
             for item in ch:
                 if isinstance(item, Tree) and item.data == "name_list":
                     names = self.names(item)
@@ -234,7 +235,9 @@ class _Builder:
                     tol = self.number(item, "monitor tolerance")
                     if tol < 0:
                         raise self.error("the monitor tolerance must be >= 0", _pos(item))
-            return "monitor", Monitor(names, tol, _pos(node))
+                elif isinstance(item, Tree) and item.data == "except_original":
+                    excuse = True
+            return "monitor", Monitor(names, tol, _pos(node), except_original=excuse)
         raise AssertionError(f"unhandled clause {kind}")  # pragma: no cover
 
     def names(self, node: Tree[Any]) -> tuple[str, ...]:

@@ -74,12 +74,15 @@ class Monitor:
 
     An attacked path counts only if the covariance-trace τ (Eq. 12, over
     ``components``) never rises by more than ``tolerance`` (relative) on a
-    transition entering steps l..end.
+    transition entering steps l..end. With ``except_original`` (``monitor
+    uncertainty ... except original``) an alarm counts only at a step where the
+    original (unattacked) track raises none: the attack, not the scene, caused it.
     """
 
     components: tuple[str, ...] | None = None
     tolerance: float = DEFAULT_MONITOR_TOLERANCE
     pos: Pos = field(default=Pos(0, 0), compare=False)
+    except_original: bool = False
 
 
 @dataclass(frozen=True)

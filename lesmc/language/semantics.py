@@ -48,6 +48,7 @@ class BoundProperty:
     components: tuple[int, ...]
     monitor_components: tuple[int, ...] | None
     monitor_tolerance: float
+    monitor_except_original: bool = False  # alarms at the original track's alarm steps excused
 
     @property
     def name(self) -> str:
@@ -131,6 +132,7 @@ def bind(
         components=indices(prop.components, cpos.get("on", prop.pos)),
         monitor_components=monitor_idx,
         monitor_tolerance=tol,
+        monitor_except_original=prop.monitor is not None and prop.monitor.except_original,
     )
 
 

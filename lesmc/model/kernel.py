@@ -153,9 +153,30 @@ def alarm(
     return out
 
 
+def original_alarms(tau_original: np.ndarray, tolerance: float) -> np.ndarray:
+    """Per step k = 0..e of the original (unattacked) path: Eq. 13's alarm fires entering k."""
+    tau_original = np.asarray(tau_original, dtype=float)
+    out = np.zeros(tau_original.shape[0], dtype=bool)
+    out[1:] = alarm(tau_original[:-1], tau_original[1:], tolerance)
+    return out
+
+
 def monitor_cuts(
-    l: int, k: np.ndarray, tau_src: np.ndarray, tau_dst: np.ndarray, tolerance: float
+    l: int,
+    k: np.ndarray,
+    tau_src: np.ndarray,
+    tau_dst: np.ndarray,
+    tolerance: float,
+    excused: np.ndarray | None = None,
 ) -> np.ndarray:
-    """Transitions the monitored property drops: entering a step k ≥ l, τ rises (Eq. 13)."""
+    """Transitions the monitored property drops: entering a step k ≥ l, τ rises (Eq. 13).
+
+    ``excused`` (per step, from :func:`original_alarms`) is the practitioner's
+    monitor, ``monitor uncertainty ... except original``: an alarm at a step
+    where the unattacked track raises one too is not the attack's doing and
+    does not cut.
+    """
     out: np.ndarray = (k >= l) & alarm(tau_src, tau_dst, tolerance)
+    if excused is not None and excused.size:
+        out &= ~excused[np.minimum(k, excused.size - 1)]
     return out

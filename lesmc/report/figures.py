@@ -1,81 +1,109 @@
 """The report's figures (matplotlib, no display needed): the paper's Figures 6-10.
 
-Every function draws one figure from a run and returns PNG bytes.
+Every function draws one figure from plain arrays (read from a results file)
+and returns PNG bytes at twice the usual resolution. One colour scheme holds in
+every figure: each *role* has its colour (:data:`COLOURS`), each property its
+marker (:data:`MARKERS`), so a legend entry names both and no two look alike.
 """
 
 from __future__ import annotations
 
 import io
+import itertools
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import matplotlib
 
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt
 import numpy as np
+from matplotlib.axes import Axes
 from matplotlib.figure import Figure
+from matplotlib.ticker import MaxNLocator
 
-from lesmc.model.kernel import DEFAULT_TOLERANCE, alarm
-from lesmc.model.lts import LTS
-from lesmc.report.paths import TrackPath, position, tau_series
-from lesmc.tracking.kalman import warp
-from lesmc.tracking.scene import Scene
-
-ORIGINAL = "#1a9850"  # green, as in the paper
-PALETTE = ["#d73027", "#4575b4", "#984ea3", "#ff7f00"]  # red, blue, ...
+#: One colour per role, in every figure and in the report's text.
+COLOURS = {
+    "original": "#1a9850",  # green, as in the paper
+    "counterexample": "#d73027",  # red
+    "witness": "#4575b4",  # blue
+    "truth": "#111111",  # black
+    "other": "#b0b0b0",  # grey: the remaining attacked tracks
+    "window": "#fee08b",  # the attack window's band
+    "detections": "#ffbf00",  # amber rings
+}
+#: One line style per role.
+STYLES = {"original": "-", "counterexample": "--", "witness": "-", "truth": ":", "other": "-"}
+#: One marker per property (by its index in the run).
+MARKERS = ["o", "s", "^", "D", "v", "P"]
+DPI = 200
 
 
 @dataclass(frozen=True)
-class Drawn:
-    """A path to draw: what it is, its colour and line style."""
+class Series:
+    """One drawn path: its label, role (colour), property index (marker), values per step."""
 
-    path: TrackPath
     label: str
-    color: str
-    dashed: bool = False
+    role: str
+    values: np.ndarray  # per step k = 0..; inf/nan where there is none
+    prop: int | None = None
+    alarms: tuple[int, ...] = ()
+    number: int | None = None  # Table 3's row
+
+    @property
+    def colour(self) -> str:
+        return COLOURS[self.role]
+
+    @property
+    def marker(self) -> str:
+        return "o" if self.prop is None else MARKERS[self.prop % len(MARKERS)]
 
 
 def _png(fig: Figure) -> bytes:
     buf = io.BytesIO()
-    fig.savefig(buf, format="png", dpi=110, bbox_inches="tight")
+    fig.savefig(buf, format="png", dpi=DPI, bbox_inches="tight")
     plt.close(fig)
     return buf.getvalue()
 
 
-def _to_step(scene: Scene, first: int, end: int, ref: int) -> list[np.ndarray]:
-    """Homographies from each model step k = 0..end's frame pixels to step ``ref``'s."""
-    nxt: list[np.ndarray] = []
-    for k in range(end):
-        m = scene.frame(first + k).to_next
-        nxt.append(np.eye(3) if m is None else m)
-    out = [np.eye(3)] * (end + 1)
-    for k in range(ref - 1, -1, -1):  # earlier steps: forward through to_next
-        out[k] = out[k + 1] @ nxt[k]
-    for k in range(ref + 1, end + 1):  # later steps: backward
-        out[k] = out[k - 1] @ np.linalg.inv(nxt[k - 1])
-    return out
+def _steps_axis(ax: Axes, window: tuple[int, int]) -> None:
+    ax.xaxis.set_major_locator(MaxNLocator(integer=True, nbins=12, min_n_ticks=2))
+    ax.axvspan(window[0] - 0.5, window[1] + 0.5, color=COLOURS["window"], alpha=0.45, zorder=0)
+    ax.set_xlabel("step k")
+
+
+def _plot(ax: Axes, s: Series, ks: np.ndarray, ys: np.ndarray) -> None:
+    ax.plot(
+        ks,
+        ys,
+        STYLES[s.role],
+        color=s.colour,
+        lw=5.0 if s.role == "original" else 1.8,
+        alpha=0.55 if s.role == "original" else 1.0,
+        marker=s.marker,
+        ms=4,
+        mfc="white" if s.role == "counterexample" else s.colour,
+        label=s.label,
+        zorder=4 if s.role == "counterexample" else 3,
+    )
 
 
 def track_crop(
-    model: LTS,
-    drawn: Sequence[Drawn],
+    tracks: Sequence[tuple[Series, np.ndarray]],
     ref_step: int,
-    scene: Scene | None = None,
+    frame: int,
+    detections: np.ndarray | None = None,
+    truth: np.ndarray | None = None,
     image: np.ndarray | None = None,
     title: str = "",
 ) -> bytes:
-    """Tracks over the frame of ``ref_step`` (Figures 6-8): image crop, detections, paths."""
-    first = int(model.meta.get("first_frame", 0))
-    fig, ax = plt.subplots(figsize=(6.4, 6.4))
-    to_ref = _to_step(scene, first, model.end, ref_step) if scene is not None else None
-    tracks = []
-    for d in drawn:
-        pts = np.array([position(model, q) for q in d.path.states])
-        if to_ref is not None:
-            pts = np.array([warp(to_ref[k], p) for k, p in enumerate(pts)])
-        tracks.append(pts)
-    allpts = np.concatenate(tracks)
+    """Tracks in the frame of ``ref_step`` (Figures 6-8): image crop, detections, truth, paths.
+
+    ``tracks`` pairs each series with its (n, 2) positions, already in that frame's pixels.
+    """
+    fig, ax = plt.subplots(figsize=(6.0, 6.0))
+    pts_all = [p for _, p in tracks] + ([truth] if truth is not None else [])
+    allpts = np.concatenate([p[np.isfinite(p).all(axis=1)] for p in pts_all])
     lo, hi = allpts.min(axis=0) - 40, allpts.max(axis=0) + 40
     size = max(float((hi - lo).max()), 160.0)
     centre = (lo + hi) / 2
@@ -93,202 +121,241 @@ def track_crop(
                 extent=(x0 - 0.5, x1 - 0.5, y1 - 0.5, y0 - 0.5),
                 interpolation="nearest",
             )
-    if scene is not None and first + ref_step <= scene.last_step:
-        det = scene.frame(first + ref_step).positions()
-        if len(det):
-            ax.scatter(
-                det[:, 0],
-                det[:, 1],
-                s=40,
-                facecolors="none",
-                edgecolors="#ffd92f",
-                linewidths=1.0,
-                label=f"detections (frame {first + ref_step})",
-                zorder=3,
-            )
-    for d, pts in zip(drawn, tracks, strict=True):
-        ax.plot(
-            pts[:, 0],
-            pts[:, 1],
-            "--" if d.dashed else "-",
-            color=d.color,
-            lw=2,
-            marker="o",
-            ms=3,
-            label=d.label,
-            zorder=4,
+    if detections is not None and len(detections):
+        ax.scatter(
+            detections[:, 0],
+            detections[:, 1],
+            s=60,
+            facecolors="none",
+            edgecolors=COLOURS["detections"],
+            linewidths=1.4,
+            label=f"detections of step {ref_step} (frame {frame})",
+            zorder=2,
         )
+    if truth is not None:
+        ok = np.isfinite(truth).all(axis=1)
+        ax.plot(
+            truth[ok, 0],
+            truth[ok, 1],
+            ":",
+            color=COLOURS["truth"],
+            lw=1.6,
+            marker="x",
+            ms=4,
+            label="ground truth of the target",
+            zorder=3,
+        )
+    for s, pts in tracks:
+        _plot(ax, s, pts[:, 0], pts[:, 1])
     ax.set_xlim(lo[0], hi[0])
     ax.set_ylim(hi[1], lo[1])
     ax.set_aspect("equal")
-    ax.set_xlabel("x (pixels)")
+    ax.set_xlabel(f"x (pixels of frame {frame})")
     ax.set_ylabel("y (pixels)")
-    ax.set_title(title or f"tracks in the frame of step {ref_step}")
-    ax.legend(loc="upper left", fontsize=7, framealpha=0.85)
+    ax.set_title(title, fontsize=10)
+    ax.legend(loc="upper left", fontsize=8, framealpha=0.9)
     return _png(fig)
 
 
-def tree(
-    paths: Sequence[TrackPath],
-    highlight: Sequence[Drawn],
-    total: int,
-    window: tuple[int, int],
-    max_leaves: int = 40,
-) -> tuple[bytes, int]:
-    """The tree of attacked paths (Figure 9c), nodes "step-detection"; returns (png, drawn)."""
-    merged: dict[tuple[str, ...], Drawn] = {}
-    for d in highlight:  # one path may play several roles: one line, joined labels
-        if d.path.states in merged:
-            m = merged[d.path.states]
-            merged[d.path.states] = Drawn(m.path, f"{m.label}; {d.label}", m.color, m.dashed)
-        else:
-            merged[d.path.states] = d
-    highlight = list(merged.values())
-    keep = set(merged)
-    chosen = [d.path for d in highlight]
-    for p in paths:
-        if len(chosen) >= max_leaves:
-            break
-        if p.states not in keep:
-            chosen.append(p)
-            keep.add(p.states)
-    chosen.sort(key=lambda p: p.states)
-    l, _ = window
-    start = max(l - 1, 0)
-    ypos: dict[tuple[str, ...], float] = {}
-    for i, p in enumerate(chosen):
-        ypos[p.states] = float(i)
-    # internal node y = mean of its leaves' y
-    acc: dict[tuple[str, ...], list[float]] = {}
-    for p in chosen:
-        for k in range(start, len(p.states) + 1):
-            acc.setdefault(p.states[:k], []).append(ypos[p.states])
-    fig_h = max(3.0, 0.22 * len(chosen) + 1.5)
-    fig, ax = plt.subplots(figsize=(11, fig_h))
-    colour = {d.path.states: d for d in highlight}
-    drawn_edges: set[tuple[tuple[str, ...], tuple[str, ...]]] = set()
-    for p in chosen:
-        labels = p.labels()
-        for k in range(start + 1, len(p.states)):
-            a, b = p.states[:k], p.states[: k + 1]
-            if (a, b) in drawn_edges:
-                continue
-            drawn_edges.add((a, b))
-            ya, yb = float(np.mean(acc[a])), float(np.mean(acc[b]))
-            ax.plot([k - 1, k], [ya, yb], color="#bbbbbb", lw=0.8, zorder=1)
-            if k <= window[1] + 1 or k == len(p.states) - 1:
-                ax.text(
-                    k,
-                    yb,
-                    labels[k],
-                    fontsize=6,
-                    ha="center",
-                    va="bottom",
-                    zorder=3,
-                    bbox={"boxstyle": "round,pad=0.1", "fc": "white", "ec": "none", "alpha": 0.7},
-                )
-    for states, d in colour.items():
-        ys = [float(np.mean(acc[states[: k + 1]])) for k in range(start, len(states))]
-        ax.plot(
-            range(start, len(states)),
-            ys,
-            "--" if d.dashed else "-",
-            color=d.color,
-            lw=2.2,
-            label=d.label,
-            zorder=2,
-        )
-    ax.axvspan(
-        window[0] - 0.5,
-        window[1] + 0.5,
-        color="#fee08b",
-        alpha=0.35,
-        zorder=0,
-        label=f"attack window {window[0]}..{window[1]}",
-    )
-    ax.set_yticks([])
-    ax.set_xlabel("step k")
-    left = total - len(chosen)
-    note = f"{len(chosen)} of {total} paths drawn" + (f", {left} left out" if left else "")
-    ax.set_title(f"all attacked paths from step {start} ({note})")
-    ax.legend(loc="upper left", bbox_to_anchor=(1.01, 1.0), fontsize=7, framealpha=0.85)
-    return _png(fig), len(chosen)
-
-
 def deviation(
-    series: Sequence[tuple[str, str, bool, np.ndarray]],
+    series: Sequence[Series],
     bound: float | None,
     cumulative: bool,
     window: tuple[int, int],
     title: str,
 ) -> bytes:
     """dist.at(k) per step (and the running sum) against the threshold (Figure 7c-d)."""
-    fig, axes = plt.subplots(
-        1, 2 if cumulative else 1, figsize=(10 if cumulative else 6, 3.6), squeeze=False
-    )
+    n = 2 if cumulative else 1
+    fig, axes = plt.subplots(1, n, figsize=(5.4 * n, 3.6), squeeze=False)
     ax = axes[0][0]
-    for label, color, dashed, d in series:
-        ks = np.arange(len(d))
-        finite = np.isfinite(d)
-        ax.plot(
-            ks[finite],
-            d[finite],
-            "--" if dashed else "-",
-            color=color,
-            marker="o",
-            ms=3,
-            label=label,
-        )
+    for s in series:
+        ks = np.arange(len(s.values))
+        finite = np.isfinite(s.values)
+        _plot(ax, s, ks[finite], s.values[finite])
         if (~finite).any():
-            ax.axvline(ks[~finite][0], color=color, ls=":", lw=1)
+            ax.axvline(ks[~finite][0], color=s.colour, ls=":", lw=1)
     if bound is not None and not cumulative:
-        ax.axhline(bound, color="k", ls="--", lw=1, label=f"threshold {bound:g}")
-    ax.axvspan(window[0] - 0.5, window[1] + 0.5, color="#fee08b", alpha=0.35)
-    ax.set_xlabel("step k")
-    ax.set_ylabel("deviation dist.at(k)")
+        ax.axhline(bound, color="k", ls="-.", lw=1, label=f"threshold {bound:g}")
+    _steps_axis(ax, window)
+    ax.set_ylabel("deviation dist.at(k) (pixels)")
     ax.set_title(title, fontsize=9)
-    ax.legend(fontsize=7)
+    ax.legend(fontsize=8)
     if cumulative:
         ax2 = axes[0][1]
-        for label, color, dashed, d in series:
-            c = np.cumsum(np.where(np.isfinite(d), d, np.nan))
-            ax2.plot(
-                np.arange(len(d)),
-                c,
-                "--" if dashed else "-",
-                color=color,
-                marker="o",
-                ms=3,
-                label=label,
-            )
+        for s in series:
+            c = np.cumsum(np.where(np.isfinite(s.values), s.values, np.nan))
+            _plot(ax2, s, np.arange(len(c)), c)
         if bound is not None:
-            ax2.axhline(bound, color="k", ls="--", lw=1, label=f"threshold {bound:g}")
-        ax2.set_xlabel("step k")
-        ax2.set_ylabel("accumulated deviation")
-        ax2.legend(fontsize=7)
+            ax2.axhline(bound, color="k", ls="-.", lw=1, label=f"threshold {bound:g}")
+        _steps_axis(ax2, window)
+        ax2.set_ylabel("accumulated deviation (pixels)")
+        ax2.legend(fontsize=8)
     return _png(fig)
 
 
-def uncertainty(
-    model: LTS,
-    drawn: Sequence[Drawn],
-    window: tuple[int, int],
-    tolerance: float = DEFAULT_TOLERANCE,
-) -> bytes:
+def uncertainty(series: Sequence[Series], window: tuple[int, int]) -> bytes:
     """τ = tr(P_ll) per step with the monitor's alarms, Eq. 12-13 (Figure 10)."""
-    fig, ax = plt.subplots(figsize=(6.4, 3.6))
-    for d in drawn:
-        tau = tau_series(model, d.path)
-        ks = np.arange(len(tau))
-        ax.plot(ks, tau, "--" if d.dashed else "-", color=d.color, marker="o", ms=3, label=d.label)
-        ks_on = np.arange(max(window[0], 1), len(tau))
-        rise = ks_on[alarm(tau[ks_on - 1], tau[ks_on], tolerance)]
-        if len(rise):
-            ax.scatter(rise, tau[rise], marker="x", s=70, color=d.color, zorder=5)
-    ax.axvspan(window[0] - 0.5, window[1] + 0.5, color="#fee08b", alpha=0.35)
+    fig, ax = plt.subplots(figsize=(7.0, 3.8))
+    for s in series:
+        ks = np.arange(len(s.values))
+        ok = np.isfinite(s.values)
+        _plot(ax, s, ks[ok], s.values[ok])
+        al = [k for k in s.alarms if k < len(s.values) and np.isfinite(s.values[k])]
+        if al:
+            ax.scatter(al, s.values[al], marker="x", s=90, color=s.colour, zorder=6, linewidths=2)
+    ax.scatter([], [], marker="x", s=60, color="k", label="× monitor alarm (Eq. 13)")
+    _steps_axis(ax, window)
     ax.set_yscale("log")
-    ax.set_xlabel("step k")
-    ax.set_ylabel("τ = trace of P (location), px²")
-    ax.set_title("Bayesian uncertainty; × = monitor alarm (τ rises, Eq. 13)", fontsize=9)
-    ax.legend(fontsize=7)
+    ax.set_ylabel("τ = trace of P over (x, y), px²")
+    ax.set_title("Bayesian uncertainty τ (Eq. 12) and the monitor's alarms", fontsize=9)
+    ax.legend(fontsize=8, loc="upper left", bbox_to_anchor=(1.01, 1.0))
+    return _png(fig)
+
+
+@dataclass
+class TreePath:
+    """A path of the tree figure: its Table 3 number, states and node labels per step."""
+
+    number: int
+    states: tuple[str, ...]
+    labels: tuple[str, ...]
+    role: str = "other"
+    tags: list[str] = field(default_factory=list)
+
+
+def tree_columns(paths: Sequence[TreePath], start: int) -> list[int]:
+    """The steps drawn: ``start``, every step at which some drawn path branches, the last.
+
+    Steps at which no path branches are compressed into one gap between columns.
+    """
+    last = max(len(p.states) for p in paths) - 1
+    cols = [start]
+    for k in range(start + 1, last + 1):
+        before = {p.states[:k] for p in paths if len(p.states) >= k}
+        after = {p.states[: k + 1] for p in paths if len(p.states) > k}
+        if len(after) > len(before):
+            cols.append(k)
+    if cols[-1] != last:
+        cols.append(last)
+    return cols
+
+
+def tree(
+    paths: Sequence[TreePath],
+    total: int,
+    window: tuple[int, int],
+) -> bytes:
+    """The tree of attacked paths (Figure 9c): leaves numbered as Table 3, quiet steps compressed.
+
+    ``paths`` are in tree order (sorted by their states), which is Table 3's numbering.
+    """
+    start = max(window[0] - 1, 0)
+    cols = tree_columns(paths, start)
+    xcol = {k: i for i, k in enumerate(cols)}
+    y_leaf = {p.number: float(i) for i, p in enumerate(paths)}
+    acc: dict[tuple[str, ...], list[float]] = {}
+    for p in paths:
+        for k in cols:
+            if k < len(p.states):
+                acc.setdefault(p.states[: k + 1], []).append(y_leaf[p.number])
+
+    def y(prefix: tuple[str, ...]) -> float:
+        return float(np.mean(acc[prefix]))
+
+    fig_h = max(3.2, 0.36 * len(paths) + 1.4)
+    fig, ax = plt.subplots(figsize=(2.0 + 1.5 * len(cols), fig_h))
+    seen_edges: set[tuple[tuple[str, ...], tuple[str, ...]]] = set()
+    labelled: set[tuple[str, ...]] = set()
+    legend_roles: dict[str, str] = {}
+    for p in sorted(paths, key=lambda p: p.role != "other"):  # roles drawn on top
+        drawn_cols = [k for k in cols if k < len(p.states)]
+        for a, b in itertools.pairwise(drawn_cols):
+            pa, pb = p.states[: a + 1], p.states[: b + 1]
+            if (pa, pb) in seen_edges and p.role == "other":
+                continue
+            seen_edges.add((pa, pb))
+            gap = b - a > 1
+            ax.plot(
+                [xcol[a], xcol[b]],
+                [y(pa), y(pb)],
+                ":" if gap else STYLES[p.role],
+                color=COLOURS[p.role],
+                lw=1.0 if p.role == "other" else 2.2,
+                zorder=1 if p.role == "other" else 2,
+            )
+        if p.role != "other":
+            legend_roles.setdefault(p.role, p.role)
+        for k in drawn_cols:
+            node = p.states[: k + 1]
+            if node in labelled:
+                continue
+            labelled.add(node)
+            ax.text(
+                xcol[k],
+                y(node),
+                p.labels[k].split("-", 1)[1] if "-" in p.labels[k] else p.labels[k],
+                fontsize=8,
+                ha="center",
+                va="center",
+                zorder=5,
+                bbox={"boxstyle": "round,pad=0.2", "fc": "white", "ec": "#888888", "lw": 0.5},
+            )
+        leaf_x = xcol[drawn_cols[-1]]
+        tag = f"#{p.number}" + (f"  {'; '.join(p.tags)}" if p.tags else "")
+        if len(p.states) < max(len(q.states) for q in paths):
+            tag += "  (halted)"
+        ax.text(
+            leaf_x + 0.35,
+            y_leaf[p.number],
+            tag,
+            fontsize=8.5,
+            ha="left",
+            va="center",
+            color=COLOURS[p.role] if p.role != "other" else "#333333",
+            fontweight="bold" if p.role != "other" else "normal",
+        )
+    for role in ("original", "counterexample", "witness"):
+        if role in legend_roles:
+            ax.plot([], [], STYLES[role], color=COLOURS[role], lw=2.2, label=role)
+    ax.plot([], [], ":", color="#777777", lw=1, label="steps without branching (compressed)")
+    lo = [xcol[k] for k in cols if window[0] <= k <= window[1]]
+    if lo:
+        ax.axvspan(min(lo) - 0.45, max(lo) + 0.45, color=COLOURS["window"], alpha=0.45, zorder=0)
+    ax.set_xticks(range(len(cols)), [str(k) for k in cols])
+    ax.set_xlim(-0.6, len(cols) - 0.2 + 1.4)
+    ax.set_ylim(len(paths) - 0.5, -0.5)
+    ax.set_yticks([])
+    ax.set_xlabel("step k (attack window shaded); node: detection taken (none: no observation)")
+    left = total - len(paths)
+    note = f"{len(paths)} of {total} attacked tracks" + (f", {left} not drawn" if left else "")
+    ax.set_title(f"attacked tracks from step {start} ({note}); #n = row n of Table 3", fontsize=10)
+    ax.legend(loc="upper center", bbox_to_anchor=(0.5, -0.14), fontsize=8, ncol=4)
+    for side in ("top", "right", "left"):
+        ax.spines[side].set_visible(False)
+    return _png(fig)
+
+
+def patch(image: np.ndarray, centre: tuple[float, float], half: int = 10) -> np.ndarray:
+    """The (2·half+1)² patch of a frame around a detection, zero-padded at the border."""
+    h, w = image.shape[:2]
+    cx, cy = round(centre[0]), round(centre[1])
+    out = np.zeros((2 * half + 1, 2 * half + 1), dtype=float)
+    y0, y1 = max(cy - half, 0), min(cy + half + 1, h)
+    x0, x1 = max(cx - half, 0), min(cx + half + 1, w)
+    if y1 > y0 and x1 > x0:
+        out[y0 - (cy - half) : y1 - (cy - half), x0 - (cx - half) : x1 - (cx - half)] = image[
+            y0:y1, x0:x1
+        ]
+    return out
+
+
+def patches(rows: Sequence[tuple[str, np.ndarray]]) -> bytes:
+    """The original patches of the detections an attack hides, one per column, with titles."""
+    n = len(rows)
+    fig, axes = plt.subplots(1, n, figsize=(1.6 * n + 0.4, 2.0), squeeze=False)
+    for ax, (title, img) in zip(axes[0], rows, strict=True):
+        ax.imshow(img, cmap="gray", vmin=0, vmax=255, interpolation="nearest")
+        ax.set_title(title, fontsize=7)
+        ax.set_xticks([])
+        ax.set_yticks([])
     return _png(fig)

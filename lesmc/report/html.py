@@ -1,11 +1,13 @@
-"""The verification report: one self-contained report.html, the figures as PNG, results.json.
+"""The verification report, drawn from a results file alone (``lesmc report``).
 
-For each design run (a model, its properties and their check results) the
-report draws the paper's section 8: the frame crop with the original track,
-counterexample and witness (Figures 6-8), the tree of attacked paths (Figure
-9c), deviation per step against the threshold (Figure 7c-d), the covariance
-trace with the monitor's alarms (Figure 10), the per-path measures (Table 3),
-the verdicts (Table 4) and, with two runs, the comparison (Table 5).
+For each design run of the results document the report draws the paper's
+section 8: the frame crop with the original track, counterexample, witness
+and ground truth (Figures 6-8), the tree of attacked paths (Figure 9c),
+deviation per step against the threshold (Figure 7c-d), the covariance trace
+with the monitor's alarms (Figure 10), the per-path measures (Table 3), the
+verdicts (Table 4) and, with several runs, the comparison (Table 5); then the
+spec text, provenance and timings. Video frames are read only from a
+directory the user names (``--frames``); without one the figures have no image.
 """
 
 from __future__ import annotations
@@ -14,215 +16,242 @@ import base64
 import html
 import json
 import math
-import shutil
-import tempfile
 from collections.abc import Callable
-from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from lesmc.engines.result import CheckResult, PathInfo
-from lesmc.language.semantics import BoundProperty
-from lesmc.model.lts import LTS
+from lesmc.engines.result import verdict_words
+from lesmc.model import kernel
 from lesmc.report import figures
-from lesmc.report.figures import ORIGINAL, PALETTE, Drawn
-from lesmc.report.paths import PathSet, TrackPath, deviations, enumerate_tracks, judge
+from lesmc.report.figures import COLOURS, Series, TreePath
+from lesmc.report.staging import staged
 from lesmc.report.text import fmt
-from lesmc.tracking.scene import Scene
+from lesmc.tracking.kalman import warp
 
 MAX_TABLE_ROWS = 60
-MAX_PATHS = 20000
+MAX_TREE_LEAVES = 40
 
-
-@dataclass
-class DesignRun:
-    """One design's model, its bound properties and their results (same order)."""
-
-    name: str
-    model: LTS
-    bound: list[BoundProperty]
-    results: list[CheckResult]
-    scene: Scene | None = None
-
-
-@dataclass
-class _Analysed:
-    run: DesignRun
-    window: tuple[int, int]
-    paths: PathSet
-    number: dict[tuple[str, ...], int]  # path states -> row number (1-based, tree order)
-    cex: list[TrackPath | None] = field(default_factory=list)
-    wit: list[TrackPath | None] = field(default_factory=list)
-    original: TrackPath | None = None
-    adversarial: list[int] = field(default_factory=list)  # per property: P+ paths not monitored out
-    brute: list[float] = field(default_factory=list)  # per property: min objective over P+
-
-
-def complete(model: LTS, states: tuple[str, ...]) -> tuple[str, ...]:
-    """Extend a path that stops at a property's end with unattacked steps to the model's end."""
-    out = list(states)
-    while True:
-        nxt = model.out(out[-1])
-        if not nxt:
-            return tuple(out)
-        out.append(nxt[0].dst)
-
-
-def window_of(bound: list[BoundProperty]) -> tuple[int, int]:
-    return min(bp.l for bp in bound), max(bp.u for bp in bound)
-
-
-def _analyse(run: DesignRun) -> _Analysed:
-    model = run.model
-    win = window_of(run.bound)
-    wanted: list[tuple[str, ...]] = [tuple(model.original)]
-    for r in run.results:
-        for p in (r.counterexample, r.witness):
-            if p is not None:
-                wanted.append(complete(model, p.states))
-    ps = enumerate_tracks(model, win, MAX_PATHS, first=wanted)
-    by_states = {p.states: p for p in ps.paths}
-    a = _Analysed(run, win, ps, {p.states: i + 1 for i, p in enumerate(ps.paths)})
-    a.original = by_states.get(tuple(model.original))
-
-    def find(p: PathInfo | None) -> TrackPath | None:
-        return None if p is None else by_states.get(complete(model, p.states))
-
-    for bp, r in zip(run.bound, run.results, strict=True):
-        a.cex.append(find(r.counterexample))
-        a.wit.append(find(r.witness))
-        judged = [judge(model, p, bp) for p in ps.paths]
-        bad = [j for j in judged if j.admissible and j.violates and not j.alarmed]
-        a.adversarial.append(len(bad))
-        a.brute.append(min((j.objective for j in bad), default=math.inf))
-    return a
-
-
-def _drawn(a: _Analysed, i: int) -> list[Drawn]:
-    """Original (green), counterexample (red, dashed), witness (blue) of property ``i``."""
-    out = []
-    if a.original is not None:
-        out.append(Drawn(a.original, "original track", ORIGINAL))
-    if a.wit[i] is not None:
-        out.append(Drawn(a.wit[i], "witness ρ*", PALETTE[1]))  # type: ignore[arg-type]
-    if a.cex[i] is not None:  # last, so that it is drawn on top
-        out.append(Drawn(a.cex[i], "counterexample", PALETTE[0], dashed=True))  # type: ignore[arg-type]
-    return out
-
-
-def _tree_highlight(a: _Analysed) -> list[Drawn]:
-    """Original, and per property its witness ρ* (paper: red robustness, blue resilience)."""
-    out = [Drawn(a.original, "original", ORIGINAL)] if a.original is not None else []
-    for i, (bp, wit, cex) in enumerate(zip(a.run.bound, a.wit, a.cex, strict=True)):
-        colour = PALETTE[i % len(PALETTE)]
-        if wit is not None:
-            out.append(Drawn(wit, f"{bp.name}: witness ρ*", colour))
-        if cex is not None and (wit is None or cex.states != wit.states):
-            out.append(Drawn(cex, f"{bp.name}: counterexample", colour, dashed=True))
-    return out
+ImageFor = Callable[[int], np.ndarray | None]
 
 
 def write_report(
-    runs: list[DesignRun],
-    out_dir: str | Path,
-    image_for: Callable[[int], np.ndarray | None] | None = None,
-    meta: dict[str, Any] | None = None,
+    doc: dict[str, Any], out_dir: str | Path, image_for: ImageFor | None = None
 ) -> Path:
-    """Write report.html, figures/*.png and results.json into ``out_dir`` (atomically).
+    """Write report.html, figures/*.png and results.json (``doc``) into ``out_dir``.
 
+    Staged and moved in at the end (lesmc/report/staging.py): nothing the run did
+    not create is deleted, and two runs into one directory do not mix.
     ``image_for(frame)`` returns the grey video frame with that index, when known.
     """
-    out = Path(out_dir)
-    out.mkdir(parents=True, exist_ok=True)
-    tmp = Path(tempfile.mkdtemp(prefix=".report.", dir=out))
-    try:
+    page, figs = render(doc, image_for)
+    with staged(out_dir) as tmp:
         (tmp / "figures").mkdir()
-        analysed = [_analyse(r) for r in runs]
-        body: list[str] = []
-        figs: dict[str, bytes] = {}
-        body.append(_header(analysed, meta or {}))
-        if len(analysed) > 1:
-            body.append(_table5(analysed))
-        for a in analysed:
-            body.append(_section(a, figs, image_for))
         for name, png in figs.items():
             (tmp / "figures" / name).write_bytes(png)
-        (tmp / "results.json").write_text(
-            json.dumps(_results_json(analysed, meta or {}), indent=1, allow_nan=False) + "\n"
-        )
-        (tmp / "report.html").write_text(_page(body, figs), encoding="utf-8")
-        dest_fig = out / "figures"
-        if dest_fig.exists():
-            shutil.rmtree(dest_fig)
-        (tmp / "figures").rename(dest_fig)
-        for name in ("results.json", "report.html"):
-            (tmp / name).replace(out / name)
-    finally:
-        shutil.rmtree(tmp, ignore_errors=True)
-    return out / "report.html"
-
-
-# -- pieces -----------------------------------------------------------------------------
+        (tmp / "results.json").write_text(json.dumps(doc, indent=1, allow_nan=False) + "\n")
+        (tmp / "report.html").write_text(page, encoding="utf-8")
+    return Path(out_dir) / "report.html"
 
 
 def _e(x: object) -> str:
     return html.escape(str(x))
 
 
-def _header(analysed: list[_Analysed], meta: dict[str, Any]) -> str:
-    rows = "".join(f"<tr><th>{_e(k)}</th><td>{_e(v)}</td></tr>" for k, v in meta.items())
-    verdicts = []
-    for a in analysed:
-        for r in a.run.results:
-            verdicts.append(
-                f"<li><b>{_e(a.run.name)}</b> · {_e(r.property)}: "
-                f"<span class='{r.verdict}'>{r.verdict}</span> "
-                f"(optimum {_e(_opt(r))}, holds if {_e(r.holds_op)} {r.threshold:g})</li>"
-            )
-    return (
+def _f(x: Any) -> float:
+    """A number of the results file ("inf" strings, None) as a float."""
+    if x is None:
+        return math.nan
+    if isinstance(x, str):
+        return float(x)  # "inf", "-inf"
+    return float(x)
+
+
+def _fmt(x: Any) -> str:
+    return "-" if x is None else fmt(_f(x))
+
+
+def verdict_of(r: dict[str, Any]) -> str:
+    """A result's verdict as printed: a vacuous 'holds' says so."""
+    return verdict_words(r["verdict"], bool(r.get("vacuous")), r.get("original_alarms") or [])
+
+
+def _opt(r: dict[str, Any]) -> str:
+    if r["stats"]["stopped"] != "finished":
+        return f"[{_fmt(r['bounds']['lower'])}, {_fmt(r['bounds']['upper'])}]"
+    return "+inf" if r["optimum"] is None else _fmt(r["optimum"])
+
+
+def _tag(name: str) -> str:
+    return "".join(ch if ch.isalnum() else "-" for ch in name)
+
+
+class _Run:
+    """Accessors over one run of the results document."""
+
+    def __init__(self, run: dict[str, Any]) -> None:
+        self.d = run
+        self.name: str = run["design"]
+        self.tag = _tag(self.name)
+        self.paths: list[dict[str, Any]] = run["paths"]
+        self.by_no = {p["no"]: p for p in self.paths}
+        self.states: dict[str, Any] = run["states"]
+        self.props: list[dict[str, Any]] = run["properties"]
+        self.results: list[dict[str, Any]] = run["results"]
+        self.window = (int(run["window"][0]), int(run["window"][1]))
+        self.comps: list[str] = run["model"]["components"]
+        roles = run["roles"]
+        self.original: int | None = roles["original"]
+        self.cex: list[int | None] = roles["counterexample"]
+        self.wit: list[int | None] = roles["witness"]
+
+    def s(self, no: int) -> np.ndarray:
+        return np.array([self.states[q]["s"] for q in self.by_no[no]["states"]], float)
+
+    def tau(self, no: int) -> np.ndarray:
+        return np.array([_f(self.states[q]["tau"]) for q in self.by_no[no]["states"]])
+
+    def end(self) -> int:
+        return int(self.d["model"]["end"])
+
+    def deviations(self, no: int, prop: dict[str, Any]) -> np.ndarray:
+        """dist.at(k) of a path against the original, k = 0..end (Eq. 4); inf after a halt."""
+        idx = [self.comps.index(c) for c in prop["components"]]
+        out = np.full(self.end() + 1, np.inf)
+        if self.original is None:
+            return out
+        s, ref = self.s(no), self.s(self.original)
+        n = min(len(s), len(ref))
+        out[:n] = kernel.deviation((s[:n] - ref[:n])[:, idx], _f(prop["norm"]))
+        return out
+
+    def roles(self) -> dict[int, list[tuple[str, int | None]]]:
+        """Path number -> (role, property index) pairs: original first, then per property."""
+        out: dict[int, list[tuple[str, int | None]]] = {}
+        if self.original is not None:
+            out.setdefault(self.original, []).append(("original", None))
+        for i in range(len(self.props)):
+            if self.wit[i] is not None:
+                out.setdefault(self.wit[i], []).append(("witness", i))  # type: ignore[arg-type]
+            if self.cex[i] is not None:
+                out.setdefault(self.cex[i], []).append(("counterexample", i))  # type: ignore[arg-type]
+        return out
+
+    def role_text(self, no: int) -> list[str]:
+        return [
+            r if i is None else f"{self.props[i]['name']} {'ρ*' if r == 'witness' else r}"
+            for r, i in self.roles().get(no, [])
+        ]
+
+
+def render(doc: dict[str, Any], image_for: ImageFor | None = None) -> tuple[str, dict[str, bytes]]:
+    """The report page (figures referenced as data URIs) and its figures by file name."""
+    runs = [_Run(r) for r in doc["runs"]]
+    figs: dict[str, bytes] = {}
+    toc: list[tuple[str, str]] = [("verdicts", "Verdicts")]
+    body = [_verdicts(runs)]
+    if len(runs) > 1:
+        toc.append(("designs", "Designs compared (Table 5)"))
+        body.append(_table5(runs))
+    if doc.get("monitor_false_alarms"):
+        toc.append(("false-alarms", "The monitor on unattacked tracks"))
+        body.append(_false_alarms(doc["monitor_false_alarms"]))
+    for run in runs:
+        toc.append((f"design-{run.tag}", f"Design: {run.name}"))
+        body.append(_section(run, figs, image_for))
+    toc.append(("specs", "Properties (spec text)"))
+    body.append(_specs(doc))
+    toc.append(("provenance", "Provenance and timings"))
+    body.append(_provenance(doc))
+    head = (
         "<h1>lesmc verification report</h1>"
         "<p>Robustness and resilience of a learning-enabled state estimator, checked exactly on "
-        "its &lt;PO&gt;²-LTS (every attacked track of the attack window). In the track and "
-        f"deviation figures: <span style='color:{ORIGINAL}'>original track</span>, "
-        f"<span style='color:{PALETTE[0]}'>counterexample</span> (dashed), "
-        f"<span style='color:{PALETTE[1]}'>witness ρ*</span>; in the tree and uncertainty "
-        "figures each property has its own colour.</p>"
-        f"<table class='meta'>{rows}</table><h2>Verdicts</h2><ul>{''.join(verdicts)}</ul>"
+        "its &lt;PO&gt;²-LTS (every attacked track of the attack window). Colours, in every "
+        f"figure: {_swatch('original', 'original (unattacked) track')}, "
+        f"{_swatch('counterexample', 'counterexample (dashed, hollow markers)')}, "
+        f"{_swatch('witness', 'witness ρ*')}, {_swatch('truth', 'ground truth (dotted)')}, "
+        f"{_swatch('other', 'other attacked tracks')}; the attack window is shaded "
+        f"{_swatch('window', 'yellow')}. Each property has its own marker "
+        "(● first, ■ second, ▲ third).</p>"
+        + _meta(doc)
+        + "<nav><h2>Contents</h2><ol>"
+        + "".join(f"<li><a href='#{a}'>{_e(t)}</a></li>" for a, t in toc)
+        + "</ol></nav>"
     )
+    return _page([head, *body], figs), figs
 
 
-def _opt(r: CheckResult) -> str:
-    if r.stats.stopped != "finished":
-        return f"[{fmt(r.lower)}, {fmt(r.upper)}]"
-    return fmt(r.optimum) if r.optimum is not None else "+inf"
+def _swatch(role: str, text: str) -> str:
+    return f"<span style='color:{COLOURS[role]};font-weight:bold'>{_e(text)}</span>"
 
 
-def _table5(analysed: list[_Analysed]) -> str:
-    names = [a.run.name for a in analysed]
-    head = "".join(f"<th colspan=4>{_e(n)}</th>" for n in names)
-    sub = "<th>verdict</th><th>optimum</th><th>θ*</th><th>adversarial tracks</th>" * len(names)
-    props = [bp.name for bp in analysed[0].run.bound]
+def _meta(doc: dict[str, Any]) -> str:
+    prov = doc.get("provenance", {})
+    rows = dict(doc.get("meta", {}))
+    rows["lesmc"] = f"{prov.get('tool_version', '?')} (Python {prov.get('python', '?')})"
+    rows["date"] = prov.get("date", "?")
+    rows["command"] = " ".join(prov.get("command", []))
+    body = "".join(f"<tr><th>{_e(k)}</th><td>{_e(v)}</td></tr>" for k, v in rows.items())
+    return f"<table class='meta'>{body}</table>"
+
+
+def _verdicts(runs: list[_Run]) -> str:
+    items = []
+    for run in runs:
+        for r in run.results:
+            items.append(
+                f"<li><b>{_e(run.name)}</b> · {_e(r['property'])}: "
+                f"<span class='{r['verdict']}'>{_e(verdict_of(r))}</span> "
+                f"(optimum {_e(_opt(r))}, holds if {_e(r['holds_if'])})</li>"
+            )
+    return f"<h2 id='verdicts'>Verdicts</h2><ul>{''.join(items)}</ul>"
+
+
+def _table5(runs: list[_Run]) -> str:
+    head = "".join(f"<th colspan=4>{_e(r.name)}</th>" for r in runs)
+    sub = "<th>verdict</th><th>optimum</th><th>θ*</th><th>adversarial tracks</th>" * len(runs)
+    props = [p["name"] for p in runs[0].props]
     rows = []
     for i, p in enumerate(props):
         cells = []
-        for a in analysed:
-            if i >= len(a.run.results):
+        for run in runs:
+            if i >= len(run.results):
                 cells.append("<td colspan=4>-</td>")
                 continue
-            r = a.run.results[i]
+            r = run.results[i]
             cells.append(
-                f"<td class='{r.verdict}'>{r.verdict}</td><td>{_e(_opt(r))}</td>"
-                f"<td>{_e(fmt(r.witness_value))}</td><td>{a.adversarial[i]}</td>"
+                f"<td class='{r['verdict']}'>{_e(verdict_of(r))}</td><td>{_e(_opt(r))}</td>"
+                f"<td>{_e(_fmt(r['witness_value']))}</td>"
+                f"<td>{run.d['adversarial_tracks'][r['property']]}</td>"
             )
         rows.append(f"<tr><th>{_e(p)}</th>{''.join(cells)}</tr>")
     return (
-        "<h2>Designs compared (Table 5)</h2><p>Adversarial tracks: attacked paths that break "
-        "the system (the constraint holds) and that the runtime monitor, where the design "
-        "has one, does not flag.</p>"
+        "<h2 id='designs'>Designs compared (Table 5)</h2><p>Adversarial tracks: attacked paths "
+        "that break the system (the constraint holds) and that the runtime monitor, where the "
+        "design has one, does not flag. A monitor that flags the unattacked track itself makes "
+        "'holds' vacuous: it then excludes every path, the harmless ones too.</p>"
         f"<table><tr><th rowspan=2>property</th>{head}</tr><tr>{sub}</tr>{''.join(rows)}</table>"
     )
+
+
+def _false_alarms(fa: dict[str, Any]) -> str:
+    rows = "".join(
+        f"<tr><th>{_e(r['monitor'])}</th><td>{r['tracks']}</td><td>{r['steps']}</td>"
+        f"<td>{r['alarms']}</td><td>{_e(_pct(r['alarms'], r['steps']))}</td>"
+        f"<td>{r['tracks_alarmed']}</td><td>{_e(_pct(r['tracks_alarmed'], r['tracks']))}</td></tr>"
+        for r in fa["rows"]
+    )
+    return (
+        "<h2 id='false-alarms'>The monitor on unattacked tracks</h2>"
+        f"<p>{_e(fa['what'])}</p><table><tr><th>monitor</th><th>tracks</th><th>steps</th>"
+        "<th>alarms</th><th>per step</th><th>tracks with an alarm</th><th>per track</th></tr>"
+        f"{rows}</table>"
+    )
+
+
+def _pct(a: int, b: int) -> str:
+    return "-" if b == 0 else f"{100.0 * a / b:.1f} %"
 
 
 def _img(name: str, caption: str) -> str:
@@ -232,215 +261,407 @@ def _img(name: str, caption: str) -> str:
     )
 
 
-def _section(
-    a: _Analysed, figs: dict[str, bytes], image_for: Callable[[int], np.ndarray | None] | None
-) -> str:
-    run, model = a.run, a.run.model
-    tag = "".join(ch if ch.isalnum() else "-" for ch in run.name)
+def _series_for(run: _Run, i: int) -> list[tuple[int, str, int | None]]:
+    """(path number, role, property) drawn in property ``i``'s figures: original, ρ*, cex."""
+    out: list[tuple[int, str, int | None]] = []
+    if run.original is not None:
+        out.append((run.original, "original", None))
+    w, c = run.wit[i], run.cex[i]
+    if w is not None:
+        out.append((w, "witness", i))
+    if c is not None:
+        out.append((c, "counterexample", i))
+    return out
+
+
+def _label(run: _Run, no: int, role: str, prop: int | None) -> str:
+    name = "original track" if role == "original" else ("witness ρ*" if role == "witness" else role)
+    if prop is not None and len(run.props) > 1:
+        name = f"{run.props[prop]['name']}: {name}"
+    return f"{name} (#{no})"
+
+
+def _drawn_words(drawn: list[tuple[int, str, int | None]]) -> str:
+    words = {"original": "the original track (green)", "witness": "the witness ρ* (blue)"}
+    words["counterexample"] = "the counterexample (red, dashed)"
+    return ", ".join(words[r] for _, r, _ in drawn)
+
+
+def _section(run: _Run, figs: dict[str, bytes], image_for: ImageFor | None) -> str:
+    m = run.d["model"]
     parts = [
-        f"<h2>Design: {_e(run.name)}</h2>",
-        f"<p>{model.graph.number_of_nodes()} states, {model.graph.number_of_edges()} "
-        f"transitions, steps 0..{model.end}, attack window {a.window[0]}..{a.window[1]}, "
-        f"{a.paths.total} attacked paths.</p>",
+        f"<section><h2 id='design-{run.tag}'>Design: {_e(run.name)}</h2>",
+        f"<p>{m['states']} states, {m['transitions']} transitions, steps 0..{m['end']} "
+        f"(frames {m['first_frame']}..{m['first_frame'] + m['end']}), attack window "
+        f"{run.window[0]}..{run.window[1]}, {run.d['paths_total']} attacked tracks. "
+        f"Model sha256 <code>{_e(m['sha256'][:16])}…</code>.</p>",
+        _table4(run),
     ]
-    # Table 4: verdicts
-    rows = []
-    for i, r in enumerate(run.results):
-        cex, wit = a.cex[i], a.wit[i]
-        check = (
-            "exhaustive"
-            if a.paths.left_out == 0
-            else f"over {len(a.paths.paths)} of {a.paths.total} paths"
-        )
-        rows.append(
-            f"<tr><th>{_e(r.property)}</th><td class='{r.verdict}'>{r.verdict}</td>"
-            f"<td>{_e(r.objective)}</td><td>{_e(r.constraint)}</td><td>{_e(_opt(r))}</td>"
-            f"<td>{_e(r.holds_op)} {r.threshold:g}</td>"
-            f"<td>{_e(fmt(r.witness_value))}</td>"
-            f"<td>{a.number.get(wit.states, '-') if wit else '-'}</td>"
-            f"<td>{a.number.get(cex.states, '-') if cex else '-'}</td>"
-            f"<td>{a.adversarial[i]}</td><td>{_e(fmt(a.brute[i]))} ({check})</td></tr>"
-        )
-    parts.append(
-        "<h3>Verdicts (Table 4)</h3><table><tr><th>property</th><th>verdict</th><th>minimise</th>"
-        "<th>subject to</th><th>optimum</th><th>holds if</th><th>θ*</th><th>ρ* (track no.)</th>"
-        "<th>counterexample (track no.)</th><th>adversarial tracks</th>"
-        "<th>min over them, recomputed from the paths</th></tr>" + "".join(rows) + "</table>"
-    )
-    # figures
-    ref = a.window[1]
-    for i, (bp, r) in enumerate(zip(run.bound, run.results, strict=True)):
-        drawn = _drawn(a, i)
-        if not drawn:
-            continue
-        img = None
-        first = int(model.meta.get("first_frame", 0))
-        if image_for is not None:
-            img = image_for(first + ref)
-        name = f"{tag}-{bp.name}-tracks.png"
-        figs[name] = figures.track_crop(
-            model,
-            drawn,
-            ref,
-            run.scene,
-            img,
-            f"{bp.name}: tracks in the frame of step {ref} (frame {first + ref})",
-        )
-        parts.append(
-            _img(
-                name,
-                f"{bp.name} ({run.name}): original track (green), counterexample "
-                f"(dashed), witness ρ* (blue) over the detections of step {ref}.",
+    scene = run.d.get("scene")
+    truth = run.d.get("truth")
+    for i, prop in enumerate(run.props):
+        drawn = _series_for(run, i)
+        if not any(role != "original" for _, role, _ in drawn):
+            parts.append(
+                f"<p>{_e(prop['name'])}: no attacked track to draw (no counterexample, no "
+                "witness: the monitor excludes every path"
+                + (", the unattacked track included" if run.results[i].get("vacuous") else "")
+                + ").</p>"
             )
-        )
+            continue
+        r = run.results[i]
+        if scene is not None:
+            parts.append(_track_figure(run, i, drawn, scene, truth, figs, image_for))
         series = [
-            (d.label, d.color, d.dashed, deviations(model, d.path.states, bp.components, bp.norm))
-            for d in drawn
+            Series(_label(run, no, role, p), role, run.deviations(no, prop), p, number=no)
+            for no, role, p in drawn
         ]
         cumulative = (
-            bp.constraint.source == "dist"
-            and bp.constraint.aggregate == "sum"
-            and bp.constraint.hi > bp.constraint.lo
+            prop["constraint_source"] == "dist"
+            and prop["constraint_aggregate"] == "sum"
+            and prop["constraint_range"][1] > prop["constraint_range"][0]
         )
-        bound = bp.bound if bp.constraint.source == "dist" else None
-        name = f"{tag}-{bp.name}-deviation.png"
+        bound = float(prop["bound"]) if prop["constraint_source"] == "dist" else None
+        name = f"{run.tag}-{_tag(prop['name'])}-deviation.png"
         figs[name] = figures.deviation(
-            series, bound, cumulative, (bp.l, bp.u), f"{bp.name}: {r.constraint}"
+            series, bound, cumulative, run.window, f"{prop['name']}: {r['constraint']}"
         )
         parts.append(
             _img(
                 name,
-                f"{bp.name} ({run.name}): deviation from the original track per "
-                "step"
+                f"{prop['name']} ({run.name}): deviation from the original track per step"
                 + (" and accumulated" if cumulative else "")
-                + ", against the constraint's threshold.",
+                + f" of {_drawn_words(drawn[1:]) or 'no attacked track'}"
+                + (f", against the constraint's threshold {bound:g}" if bound is not None else "")
+                + ". "
+                + ("" if run.cex[i] is not None else "No path violates: no counterexample drawn."),
             )
         )
-    highlight = _tree_highlight(a)
-    name = f"{tag}-tree.png"
-    figs[name], drawn_n = figures.tree(a.paths.paths, highlight, a.paths.total, a.window)
-    left = a.paths.total - drawn_n
-    parts.append(
-        _img(
-            name,
-            f"All attacked paths ({run.name}); nodes are step-detection; "
-            f"{drawn_n} of {a.paths.total} drawn"
-            + (f", {left} left out of the drawing" if left else "")
-            + ".",
-        )
-    )
-    name = f"{tag}-uncertainty.png"
-    figs[name] = figures.uncertainty(model, highlight, a.window)
-    parts.append(
-        _img(
-            name,
-            f"Covariance trace τ along the highlighted tracks ({run.name}); "
-            "a cross marks a monitor alarm.",
-        )
-    )
-    parts.append(_table3(a))
+    parts.append(_tree_figure(run, figs))
+    parts.append(_tau_figure(run, figs))
+    parts.append(_patches(run, figs, image_for))
+    parts.append(_table3(run))
     for r in run.results:
-        for n in r.notes:
-            parts.append(f"<p class='note'>{_e(r.property)}: {_e(n)}</p>")
-    return "<section>" + "".join(parts) + "</section>"
+        for n in r["notes"]:
+            parts.append(f"<p class='note'>{_e(r['property'])}: {_e(n)}</p>")
+    return "".join(parts) + "</section>"
 
 
-def _table3(a: _Analysed) -> str:
-    marks: dict[tuple[str, ...], list[str]] = {}
-    if a.original is not None:
-        marks.setdefault(a.original.states, []).append("original")
-    for bp, cex, wit in zip(a.run.bound, a.cex, a.wit, strict=True):
-        if cex is not None:
-            marks.setdefault(cex.states, []).append(f"{bp.name} counterexample")
-        if wit is not None:
-            marks.setdefault(wit.states, []).append(f"{bp.name} ρ*")
-    order = a.paths.paths  # tree order, as numbered
-    shown = [p for p in order if p.states in marks]
-    shown += [p for p in order if p.states not in marks][: max(MAX_TABLE_ROWS - len(shown), 0)]
-    shown.sort(key=lambda p: a.number[p.states])
-    l, u = a.window
+def _table4(run: _Run) -> str:
     rows = []
-    for p in shown:
-        labels = p.labels()[l : u + 1]
-        cls = (
-            "original"
-            if "original" in marks.get(p.states, [])
-            else ("marked" if p.states in marks else "")
+    for i, r in enumerate(run.results):
+        check = (
+            "exhaustive"
+            if run.d["paths_total"] == len(run.paths)
+            else f"over {len(run.paths)} of {run.d['paths_total']} paths"
+        )
+        alarms = r.get("original_alarms")
+        mon = run.props[i]["monitor"]
+        monitor = (
+            "-"
+            if mon is None
+            else ("except original; " if mon["except_original"] else "")
+            + ("unattacked track alarms at " + ", ".join(map(str, alarms)) if alarms else "none")
         )
         rows.append(
-            f"<tr class='{cls}'><td>{a.number[p.states]}</td><td>{_e(' → '.join(labels))}</td>"
-            f"<td>{fmt(p.payoff)}</td><td>{fmt(p.dist_sum)}</td><td>{fmt(p.dist_max)}</td>"
-            f"<td>{fmt(p.dist_end)}</td><td>{_e(', '.join(marks.get(p.states, [])))}</td></tr>"
+            f"<tr><th>{_e(r['property'])}</th><td class='{r['verdict']}'>{_e(verdict_of(r))}</td>"
+            f"<td>{_e(r['objective'])}</td><td>{_e(r['constraint'])}</td><td>{_e(_opt(r))}</td>"
+            f"<td>{_e(r['holds_if'])}</td><td>{_e(_fmt(r['witness_value']))}</td>"
+            f"<td>{_no(run.wit[i])}</td><td>{_no(run.cex[i])}</td><td>{_e(monitor)}</td>"
+            f"<td>{run.d['adversarial_tracks'][r['property']]}</td>"
+            f"<td>{_e(_fmt(run.d['recomputed_optimum'][r['property']]))} ({check})</td>"
+            f"<td>{r['stats']['seconds']:.3f} s, {r['stats']['states_expanded']} states</td></tr>"
         )
-    left = a.paths.total - len(shown)
+    return (
+        "<h3>Verdicts (Table 4)</h3><table><tr><th>property</th><th>verdict</th><th>minimise</th>"
+        "<th>subject to</th><th>optimum</th><th>holds if</th><th>θ*</th><th>ρ* (track no.)</th>"
+        "<th>counterexample (track no.)</th><th>monitor</th><th>adversarial tracks</th>"
+        "<th>min over them, recomputed from the paths</th><th>check</th></tr>"
+        + "".join(rows)
+        + "</table>"
+    )
+
+
+def _no(n: int | None) -> str:
+    return "-" if n is None else f"#{n}"
+
+
+def _to_ref(scene: dict[str, Any], k: int, pts: np.ndarray) -> np.ndarray:
+    H = np.array(scene["to_ref"][k], float)
+    return np.array(warp(H, pts))
+
+
+def _track_figure(
+    run: _Run,
+    i: int,
+    drawn: list[tuple[int, str, int | None]],
+    scene: dict[str, Any],
+    truth: list[list[float]] | None,
+    figs: dict[str, bytes],
+    image_for: ImageFor | None,
+) -> str:
+    prop = run.props[i]
+    ref = int(scene["ref_step"])
+    frame = int(scene["first_frame"]) + ref
+    tracks = []
+    for no, role, p in drawn:
+        xy = run.s(no)[:, :2]
+        pts = np.array([_to_ref(scene, k, xy[k]) for k in range(len(xy))])
+        tracks.append((Series(_label(run, no, role, p), role, np.zeros(0), p, number=no), pts))
+    dets = np.array([d[:2] for d in scene["detections"][ref]], float).reshape(-1, 2)
+    tr = None
+    if truth:
+        tr = np.array(
+            [
+                _to_ref(scene, k, np.array(t, float)) if t is not None else [np.nan, np.nan]
+                for k, t in enumerate(truth[: run.end() + 1])
+            ],
+            float,
+        )
+    img = image_for(frame) if image_for is not None else None
+    name = f"{run.tag}-{_tag(prop['name'])}-tracks.png"
+    figs[name] = figures.track_crop(
+        tracks, ref, frame, dets, tr, img, f"{prop['name']}: tracks in the frame of step {ref}"
+    )
+    return _img(
+        name,
+        f"{prop['name']} ({run.name}): {_drawn_words(drawn)}"
+        + (", the target's ground truth (black, dotted)" if tr is not None else "")
+        + f" and the detections of step {ref} (amber rings), in the pixels of frame {frame}"
+        + ("" if img is not None else " (no video frames given: lesmc report --frames DIR)")
+        + "."
+        + ("" if run.cex[i] is not None else " No path violates: no counterexample drawn."),
+    )
+
+
+def _tree_figure(run: _Run, figs: dict[str, bytes]) -> str:
+    roles = run.roles()
+    chosen = [p for p in run.paths if p["no"] in roles]
+    for p in run.paths:
+        if len(chosen) >= MAX_TREE_LEAVES:
+            break
+        if p["no"] not in roles:
+            chosen.append(p)
+    chosen.sort(key=lambda p: p["no"])
+    tps = []
+    for p in chosen:
+        rl = roles.get(p["no"], [])
+        role = rl[0][0] if rl else "other"
+        if any(r == "counterexample" for r, _ in rl):
+            role = "counterexample"
+        if any(r == "original" for r, _ in rl):
+            role = "original"
+        tps.append(
+            TreePath(p["no"], tuple(p["states"]), tuple(p["labels"]), role, run.role_text(p["no"]))
+        )
+    name = f"{run.tag}-tree.png"
+    figs[name] = figures.tree(tps, run.d["paths_total"], run.window)
+    left = run.d["paths_total"] - len(tps)
+    return _img(
+        name,
+        f"Attacked tracks ({run.name}), {len(tps)} of {run.d['paths_total']} drawn"
+        + (f" ({left} not drawn; all are in Table 3 and results.json)" if left else "")
+        + ". A node is the detection the tracker takes at that step; each leaf carries its "
+        "row number in Table 3 and its roles. Steps at which no track branches are "
+        "compressed (dotted edges).",
+    )
+
+
+def _tau_figure(run: _Run, figs: dict[str, bytes]) -> str:
+    series = []
+    seen: set[int] = set()
+    for i in range(len(run.props)):
+        for no, role, p in _series_for(run, i):
+            if no in seen:
+                continue
+            seen.add(no)
+            alarms = set()
+            for j in range(len(run.props)):
+                alarms |= set(run.by_no[no]["judged"][j]["alarms"])
+            if role == "original":
+                for r in run.results:
+                    alarms |= set(r.get("original_alarms") or [])
+            series.append(
+                Series(_label(run, no, role, p), role, run.tau(no), p, tuple(sorted(alarms)), no)
+            )
+    if not series or all(not np.isfinite(s.values).any() for s in series):
+        return "<p>No covariances in this model: no uncertainty figure.</p>"
+    monitored = [p["name"] for p in run.props if p["monitor"] is not None]
+    name = f"{run.tag}-uncertainty.png"
+    figs[name] = figures.uncertainty(series, run.window)
+    return _img(
+        name,
+        f"Covariance trace τ ({run.name}) along "
+        f"{_drawn_words([(0, s.role, None) for s in series])}; "
+        + (
+            f"a cross marks an alarm of the monitor of {', '.join(monitored)} (Eq. 13)."
+            if monitored
+            else "no property of this design is monitored: no alarms marked."
+        ),
+    )
+
+
+def _patches(run: _Run, figs: dict[str, bytes], image_for: ImageFor | None) -> str:
+    hidden = run.d.get("hidden") or {}
+    if not any(hidden.values()):
+        return ""
+    rows = []
+    for prop, items in hidden.items():
+        for h in items:
+            where = f"({h['x']:.1f}, {h['y']:.1f})" if "x" in h else "-"
+            rows.append(
+                f"<tr><th>{_e(prop)}</th><td>{h['step']}</td><td>{h['frame']}</td>"
+                f"<td>{_e(h['obs'])}</td><td>{_e(where)}</td><td>{_e(_fmt(h['payoff']))}</td></tr>"
+            )
+    out = (
+        "<h3>What the counterexamples' attacks hide</h3><p>At each attacked step the tracker "
+        "takes a detection of lower priority because the attacker hid those ranked before it "
+        "(Eq. 5). Payoff: the size of the perturbation that makes N_dr miss that detection "
+        "(see the payoff unit above). The perturbations themselves are not in the results file "
+        "(the scene keeps only their sizes) and are not recomputed here; with --frames, the "
+        "original patches are shown.</p><table><tr><th>property</th><th>step</th><th>frame</th>"
+        "<th>detection</th><th>position</th><th>payoff</th></tr>" + "".join(rows) + "</table>"
+    )
+    if image_for is None:
+        return out
+    crops = []
+    for prop, items in hidden.items():
+        for h in items:
+            img = image_for(int(h["frame"])) if "x" in h else None
+            if img is not None:
+                crops.append(
+                    (f"{prop} step {h['step']}\n{h['obs']}", figures.patch(img, (h["x"], h["y"])))
+                )
+    if crops:
+        name = f"{run.tag}-hidden.png"
+        figs[name] = figures.patches(crops[:12])
+        out += _img(name, "The original 21×21 patches of the hidden detections (frame pixels).")
+    return out
+
+
+def _table3(run: _Run) -> str:
+    roles = run.roles()
+    l, u = run.window
+    shown = [p for p in run.paths if p["no"] in roles]
+    shown += [p for p in run.paths if p["no"] not in roles][: max(MAX_TABLE_ROWS - len(shown), 0)]
+    shown.sort(key=lambda p: p["no"])
+    monitored = [i for i, p in enumerate(run.props) if p["monitor"] is not None]
+    rows = []
+    for p in shown:
+        rl = roles.get(p["no"], [])
+        cls = "original" if any(r == "original" for r, _ in rl) else ("marked" if rl else "")
+        breaks = "".join(f"<td>{'yes' if j['violates'] else 'no'}</td>" for j in p["judged"])
+        alarms = "".join(
+            f"<td>{_e(', '.join(map(str, p['judged'][i]['alarms'])) or '-')}</td>"
+            for i in monitored
+        )
+        rows.append(
+            f"<tr class='{cls}'><td>{p['no']}</td>"
+            f"<td class='obs'>{_e(' → '.join(p['labels'][l : u + 1]))}</td>"
+            f"<td>{_fmt(p['payoff'])}</td><td>{_fmt(p['dist_sum'])}</td><td>{_fmt(p['dist_max'])}</td>"
+            f"<td>{_fmt(p['dist_end'])}</td>{breaks}{alarms}"
+            f"<td>{_e(', '.join(run.role_text(p['no'])))}</td></tr>"
+        )
+    left = run.d["paths_total"] - len(shown)
     note = (
-        f"<p>{len(shown)} of {a.paths.total} tracks listed"
-        + (f"; {left} left out (all are in results.json up to {MAX_PATHS})." if left else ".")
+        f"<p>{len(shown)} of {run.d['paths_total']} tracks listed"
+        + (f"; {left} left out (results.json lists up to {len(run.paths)})." if left else ".")
         + "</p>"
     )
+    heads = "".join(f"<th>breaks {_e(p['name'])}</th>" for p in run.props)
+    heads += "".join(f"<th>alarms ({_e(run.props[i]['name'])})</th>" for i in monitored)
     return (
         "<h3>Measures of the attacked tracks (Table 3)</h3>"
-        "<p>φ: combined payoff over the window (Eq. 5, 8); deviations of the position (x, y) "
-        "from the original track in pixels: accumulated dist<sup>0,e</sup>, maximum, and at the "
-        f"end. Observations along the window {l}..{u} as step-detection.</p>"
+        "<p>φ: combined payoff over the window (Eq. 5, 8), in payoff units; deviations of the "
+        "position (x, y) from the original track in pixels: accumulated dist<sup>0,e</sup>, "
+        "maximum, and at the end. 'breaks P': the path satisfies P's constraint (it is in P+). "
+        "Alarms: the steps at which P's monitor counts an alarm on the path (Eq. 13). "
+        f"Observations along the window {l}..{u} as step-detection; row numbers are the tree's "
+        "leaf numbers.</p>"
         + note
         + "<table><tr><th>no.</th><th>observations in the window</th><th>φ</th><th>dist.sum</th>"
-        "<th>dist.max</th><th>dist.at(end)</th><th></th></tr>" + "".join(rows) + "</table>"
+        f"<th>dist.max</th><th>dist.at(end)</th>{heads}<th>role</th></tr>"
+        + "".join(rows)
+        + "</table>"
     )
 
 
-def _results_json(analysed: list[_Analysed], meta: dict[str, Any]) -> dict[str, Any]:
-    def num(x: float) -> float | str:
-        return x if math.isfinite(x) else ("inf" if x > 0 else "-inf")
+def _specs(doc: dict[str, Any]) -> str:
+    specs = doc.get("provenance", {}).get("specs", [])
+    blocks = "".join(f"<h3>{_e(s['path'])}</h3><pre>{_e(s['text'])}</pre>" for s in specs)
+    extra = ""
+    for run in doc["runs"]:
+        mon = [p for p in run["properties"] if p["monitor"] is not None]
+        if mon:
+            extra += (
+                f"<p>Design {_e(run['design'])}: "
+                + "; ".join(
+                    f"{_e(p['name'])} monitored (monitor uncertainty on "
+                    f"{_e(', '.join(p['monitor']['components']))}, tolerance "
+                    f"{p['monitor']['tolerance']:g}"
+                    + (", except original" if p["monitor"]["except_original"] else "")
+                    + ")"
+                    for p in mon
+                )
+                + ".</p>"
+            )
+    return f"<h2 id='specs'>Properties (spec text)</h2>{blocks}{extra}"
 
-    runs = []
-    for a in analysed:
-        runs.append(
-            {
-                "design": a.run.name,
-                "results": [r.to_json() for r in a.run.results],
-                "adversarial_tracks": dict(
-                    zip([bp.name for bp in a.run.bound], a.adversarial, strict=True)
-                ),
-                "paths_total": a.paths.total,
-                "paths": [
-                    {
-                        "no": a.number[p.states],
-                        "states": list(p.states),
-                        "labels": p.labels(),
-                        "payoff": num(p.payoff),
-                        "dist_sum": num(p.dist_sum),
-                        "dist_max": num(p.dist_max),
-                        "dist_end": num(p.dist_end),
-                    }
-                    for p in a.paths.paths
-                ],
-            }
-        )
-    return {"format": "lesmc-report", "version": 1, "meta": meta, "runs": runs}
+
+def _provenance(doc: dict[str, Any]) -> str:
+    prov = doc.get("provenance", {})
+    rows = [
+        ("format", f"{doc['format']} version {doc['version']}"),
+        ("tool", f"{prov.get('tool', 'lesmc')} {prov.get('tool_version', '?')}"),
+        ("date", prov.get("date", "?")),
+        ("command", " ".join(prov.get("command", []))),
+        ("seeds", ", ".join(f"{k} {v}" for k, v in prov.get("seeds", {}).items()) or "-"),
+    ]
+    for design, h in prov.get("model_sha256", {}).items():
+        rows.append((f"model sha256 ({design})", h))
+    t = "".join(f"<tr><th>{_e(k)}</th><td>{_e(v)}</td></tr>" for k, v in rows)
+    timings = doc.get("timings", {})
+    tt = "".join(f"<tr><th>{_e(k)}</th><td>{v:.3f} s</td></tr>" for k, v in timings.items())
+    per = "".join(
+        f"<tr><th>{_e(run['design'])} · {_e(r['property'])}</th>"
+        f"<td>{r['stats']['seconds']:.3f} s ({_e(r['stats']['engine'])}, "
+        f"{r['stats']['states_expanded']} states expanded)</td></tr>"
+        for run in doc["runs"]
+        for r in run["results"]
+    )
+    return (
+        "<h2 id='provenance'>Provenance and timings</h2>"
+        f"<table class='meta'>{t}</table><h3>Timings</h3><table class='meta'>{tt}{per}</table>"
+    )
 
 
 _CSS = """
-body{font-family:system-ui,Segoe UI,Helvetica,Arial,sans-serif;margin:2em auto;max-width:1100px;
-color:#222;line-height:1.4}
+body{font-family:system-ui,Segoe UI,Helvetica,Arial,sans-serif;margin:2em auto;max-width:1150px;
+color:#222;line-height:1.4;padding:0 1em}
 h1{font-size:1.6em}h2{border-bottom:2px solid #ddd;padding-bottom:.2em;margin-top:1.6em}
 table{border-collapse:collapse;margin:.6em 0;font-size:.85em}
 td,th{border:1px solid #ccc;padding:.25em .5em;text-align:right}th{background:#f4f4f4}
-td:nth-child(2){text-align:left}
+td:nth-child(2){text-align:left}td.obs{white-space:nowrap}
 .holds{color:#1a7f37;font-weight:bold}.violated{color:#c62828;font-weight:bold}
 .unknown{color:#b26a00;font-weight:bold}tr.original{background:#e8f5e9}tr.marked{background:#fdecea}
 figure{display:inline-block;margin:.8em;vertical-align:top;max-width:100%}
-figure img{max-width:100%;border:1px solid #ddd}
+figure img{max-width:100%;height:auto;border:1px solid #ddd}\n.scroll{overflow-x:auto}
 figcaption{font-size:.85em;color:#555;max-width:640px}
-.note{color:#8a6d3b;font-size:.9em}table.meta th{text-align:left}
+.note{color:#8a6d3b;font-size:.9em}table.meta th,table.meta td{text-align:left}
+pre{background:#f7f7f7;border:1px solid #ddd;padding:.6em;font-size:.85em;overflow-x:auto}
+nav ol{columns:2}
 """
 
 
 def _page(body: list[str], figs: dict[str, bytes]) -> str:
-    text = "".join(body)
-    for name, png in figs.items():
+    text = "".join(body).replace("<table", "<div class='scroll'><table")
+    text = text.replace("</table>", "</table></div>")
+    for name, png in figs.items():  # drawn at 2x: shown at half the natural size, sharp
+        w, h = int.from_bytes(png[16:20], "big"), int.from_bytes(png[20:24], "big")
         text = text.replace(
-            f"@@{name}@@", "data:image/png;base64," + base64.b64encode(png).decode()
+            f"'@@{name}@@'",
+            f"'data:image/png;base64,{base64.b64encode(png).decode()}' "
+            f"width='{w // 2}' height='{h // 2}'",
         )
     return (
         "<!DOCTYPE html><html lang='en'><head><meta charset='utf-8'>"

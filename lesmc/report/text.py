@@ -11,15 +11,23 @@ from rich.console import Console
 from rich.table import Table
 
 from lesmc.engines.result import CheckResult, PathInfo
+from lesmc.errors import escape_text
+from lesmc.language.properties import SpecFile
 
 _COLOURS = {"holds": "green", "violated": "red", "unknown": "yellow"}
 
 
-def results_json(results: Sequence[CheckResult], meta: dict[str, Any] | None = None) -> str:
-    """The ``--json`` output: ``{"results": [...]}`` (docs/cli.md)."""
-    doc: dict[str, Any] = {"results": [r.to_json() for r in results]}
-    if meta:
-        doc.update(meta)
+def results_json(results: Sequence[CheckResult], specs: Sequence[SpecFile] = ()) -> str:
+    """The ``--json`` output of ``lesmc check``: format ``lesmc-check`` (docs/cli.md,
+    lesmc/schemas/check.json), the results and the provenance."""
+    from lesmc.report.results import provenance
+
+    doc: dict[str, Any] = {
+        "format": "lesmc-check",
+        "version": 1,
+        "provenance": provenance(specs),
+        "results": [r.to_json() for r in results],
+    }
     return json.dumps(doc, indent=1, allow_nan=False)
 
 
@@ -57,15 +65,15 @@ def print_results(console: Console, results: Sequence[CheckResult], paths: bool 
         summary.add_column(
             col,
             justify="left" if col in ("property", "verdict", "holds if") else "right",
-            no_wrap=True,
+            overflow="fold",
         )
     for r in results:
         opt = fmt(r.optimum) if r.optimum is not None else "+inf"
         if r.stats.stopped != "finished":
             opt = f"[{fmt(r.lower)}, {fmt(r.upper)}]"
         summary.add_row(
-            r.property,
-            f"[{_COLOURS[r.verdict]}]{r.verdict}[/]",
+            escape_text(r.property),
+            f"[{_COLOURS[r.verdict]}]{escape_text(r.verdict_text())}[/]",
             opt,
             f"optimum {r.holds_op} {r.threshold:g}",
             fmt(r.witness_value),
@@ -74,9 +82,12 @@ def print_results(console: Console, results: Sequence[CheckResult], paths: bool 
         )
     console.print(summary)
     for r in results:
-        console.print(f"[bold]{r.property}[/]: minimize {r.objective} subject to {r.constraint}")
+        console.print(
+            f"[bold]{escape_text(r.property)}[/]: minimize {escape_text(r.objective)} "
+            f"subject to {escape_text(r.constraint)}"
+        )
         for note in r.notes:
-            console.print(f"  note: {note}")
+            console.print(f"  note: {escape_text(note)}")
         if not paths:
             continue
         if r.counterexample is not None:
@@ -96,13 +107,15 @@ def _print_path(console: Console, title: str, p: PathInfo) -> None:
     )
     table = Table(show_edge=False, padding=(0, 1, 0, 1))
     for col in ("step", "state", "obs", "rank", "combined payoff", "deviation"):
-        table.add_column(col, justify="left" if col in ("state", "obs") else "right")
+        table.add_column(
+            col, justify="left" if col in ("state", "obs") else "right", overflow="fold"
+        )
     for s in p.steps:
         style = "bold" if s.attacked else None
         table.add_row(
             str(s.step),
-            s.state,
-            s.obs or "-",
+            escape_text(s.state),
+            escape_text(s.obs or "-"),
             "-" if s.rank is None else str(s.rank),
             fmt(s.combined_payoff),
             fmt(s.deviation),

@@ -1,0 +1,58 @@
+"""``lesmc report RESULTS.json --out DIR [--frames DIR]``: the report, from a results file alone."""
+
+from __future__ import annotations
+
+import click
+
+
+@click.command("report")
+@click.argument("results", type=click.Path(dir_okay=False, exists=True))
+@click.option(
+    "--out",
+    "out_dir",
+    required=True,
+    type=click.Path(file_okay=False),
+    help="Directory for report.html, figures/ and a copy of results.json.",
+)
+@click.option(
+    "--frames",
+    "frames_dir",
+    type=click.Path(file_okay=False, exists=True),
+    default=None,
+    help="The video's frames, for the report's images (read from nowhere else).",
+)
+@click.option("--json", "as_json", is_flag=True, help="Print what was written as JSON on stdout.")
+def report_cmd(results: str, out_dir: str, frames_dir: str | None, as_json: bool) -> None:
+    """Draw the verification report from RESULTS (results.json of lesmc verify or of
+    lesmc check ... --report DIR), without checking anything again.
+
+    \b
+    Writes OUT/report.html (self-contained), OUT/figures/*.png and OUT/results.json.
+    Files are staged and moved in at the end; nothing else in OUT is touched.
+    Exit status: 0 written, 2 bad input, 4 internal error, 130 interrupted.
+    """
+    import json
+    from pathlib import Path
+
+    from lesmc.report.html import write_report
+    from lesmc.report.publish import frames_reader, load_results
+
+    doc = load_results(results)
+    out = write_report(doc, out_dir, frames_reader(frames_dir))
+    if as_json:
+        click.echo(
+            json.dumps(
+                {
+                    "format": "lesmc-report",
+                    "version": 1,
+                    "results": results,
+                    "report": str(out),
+                    "results_copy": str(Path(out_dir) / "results.json"),
+                    "frames": frames_dir,
+                    "runs": [r["design"] for r in doc["runs"]],
+                },
+                indent=1,
+            )
+        )
+    else:
+        click.echo(f"report: {out}")

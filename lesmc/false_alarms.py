@@ -1,0 +1,159 @@
+"""How often the runtime monitor fires without an attack: its false-alarm rate.
+
+The monitor of section 7.1 (Eq. 12-13) flags a track when its uncertainty τ
+rises. A detector that misses a vehicle now and then makes τ rise with no
+attack at all; then the monitor also flags unattacked tracks, and a property
+checked under it "holds" vacuously. This module runs the unattacked tracker
+from every vehicle of the truth (the video's truth tracks) and counts the
+steps at which Eq. 13 fires, for the default tolerance and for a tolerance
+calibrated on these tracks (the largest relative rise of τ they show, the
+smallest tolerance that keeps them all silent).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from collections.abc import Sequence
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from lesmc.language.properties import DEFAULT_MONITOR_TOLERANCE
+from lesmc.model.kernel import alarm
+from lesmc.perception.quality import TruthFrame
+from lesmc.tracking.design import make_design
+from lesmc.tracking.monitor import track
+from lesmc.tracking.scene import Scene, Target
+
+
+@dataclass(frozen=True)
+class TruthStart:
+    """A truth vehicle where a track may start: id, position and velocity (frame px, px/s)."""
+
+    vid: int
+    x: float
+    y: float
+    vx: float
+    vy: float
+
+
+def truth_starts(
+    tf: TruthFrame, size: tuple[int, int], margin: float = 150.0, min_speed: float = 5.0
+) -> list[TruthStart]:
+    """The moving, visible vehicles of a truth frame away from its border."""
+    out = []
+    for j, vid in enumerate(tf.ids):
+        x, y = tf.positions[j]
+        if tf.occluded[j] or tf.speed_mps[j] < min_speed:
+            continue
+        if not (margin <= x <= size[0] - margin and margin <= y <= size[1] - margin):
+            continue
+        v = tf.velocity[j] if tf.velocity is not None else np.zeros(2)
+        out.append(TruthStart(vid, float(x), float(y), float(v[0]), float(v[1])))
+    return out
+
+
+def truth_track(
+    frames: Sequence[TruthFrame], start: tuple[float, float], snap: float = 6.0
+) -> list[list[float] | None]:
+    """The true positions, per step, of the vehicle nearest ``start`` in ``frames[0]``.
+
+    None at steps where the vehicle is not in the truth; [] when none is within ``snap`` px.
+    """
+    tf0 = frames[0]
+    if not len(tf0.positions):
+        return []
+    d = np.linalg.norm(tf0.positions - np.asarray(start), axis=1)
+    j = int(np.argmin(d))
+    if d[j] > snap:
+        return []
+    vid = tf0.ids[j]
+    out: list[list[float] | None] = []
+    for tf in frames:
+        if vid in tf.ids:
+            x, y = tf.positions[tf.ids.index(vid)]
+            out.append([float(x), float(y)])
+        else:
+            out.append(None)
+    return out
+
+
+def unattacked_taus(
+    scene: Scene, starts: Sequence[TruthStart], design: str, steps: int
+) -> list[np.ndarray]:
+    """τ along the unattacked track (Eq. 12) started at each truth vehicle, up to ``steps``."""
+    out = []
+    for s in starts:
+        sc = dataclasses.replace(
+            scene.with_tracker(design=design),
+            target=Target(scene.target.step, (s.x, s.y), (s.vx, s.vy)),
+        )
+        out.append(np.array([p.tau for p in track(make_design(sc), steps)]))
+    return out
+
+
+def rates(taus: Sequence[np.ndarray], tolerance: float, first: int = 1) -> dict[str, int]:
+    """Alarms (Eq. 13) over steps ``first``.. of every track, and tracks with at least one."""
+    steps = alarms = alarmed = 0
+    for t in taus:
+        if len(t) <= first:
+            continue
+        fired = alarm(t[first - 1 : -1], t[first:], tolerance)
+        steps += int(fired.size)
+        alarms += int(fired.sum())
+        alarmed += int(fired.any())
+    n = sum(1 for t in taus if len(t) > first)
+    return {"tracks": n, "steps": steps, "alarms": alarms, "tracks_alarmed": alarmed}
+
+
+def calibrated_tolerance(taus: Sequence[np.ndarray], rate: float = 0.0, first: int = 1) -> float:
+    """The least tolerance under which at most ``rate`` of the steps raise an alarm.
+
+    ``rate`` 0 gives the largest relative rise of τ over the tracks (all silent);
+    0.01 the 99th percentile of the rises (one step in a hundred alarms).
+    """
+    rises = np.concatenate(
+        [t[first:] / t[first - 1 : -1] - 1.0 for t in taus if len(t) > first] or [np.zeros(0)]
+    )
+    if not rises.size:
+        return 0.0
+    return max(float(np.quantile(rises, 1.0 - rate, method="higher")), 0.0)
+
+
+def false_alarm_report(
+    scene: Scene,
+    frames: Sequence[TruthFrame],
+    size: tuple[int, int],
+    steps: int,
+    designs: Sequence[str] = ("joint",),
+    first: int = 1,
+) -> dict[str, Any]:
+    """The monitor's false alarms on the video's truth tracks, for the results file."""
+    starts = truth_starts(frames[0], size)
+    rows = []
+    for design in designs:
+        taus = unattacked_taus(scene, starts, design, steps)
+        default = DEFAULT_MONITOR_TOLERANCE
+        one = calibrated_tolerance(taus, 0.01, first)
+        none = calibrated_tolerance(taus, 0.0, first)
+        for label, tol in (
+            (f"{design}: Eq. 13, tolerance {default:g} (default)", default),
+            (f"{design}: tolerance {one:.4g} (calibrated: 99th percentile of the rises)", one),
+            (f"{design}: tolerance {none:.4g} (calibrated: the largest rise)", none),
+        ):
+            row = {"monitor": label, "design": design, "tolerance": tol}
+            rows.append(row | rates(taus, tol, first))
+    return {
+        "what": (
+            f"The unattacked tracker started at each of the {len(starts)} moving, visible "
+            f"vehicles of the truth in the target's frame {scene.target.step} (its true "
+            f"position and velocity), run for up to {steps} steps; alarms counted at steps "
+            f"{first}..{steps} as Eq. 13 defines them. Every alarm here is a false alarm: "
+            "nothing is attacked. The calibrated tolerances are measured on the same tracks, "
+            "not held out. 'except original' "
+            "(docs/language.md) is not a runtime monitor: it needs the unattacked track, "
+            "which the checker knows and a deployed tracker does not."
+        ),
+        "rows": rows,
+    }

@@ -1,0 +1,70 @@
+"""Results, then report: the one path ``check --report``, ``verify`` and ``report`` share.
+
+:func:`publish` turns checked design runs into the results document
+(lesmc/report/results.py) and draws the report from that document alone
+(lesmc/report/html.py), exactly as ``lesmc report RESULTS.json`` does later.
+Video frames come only from a directory named on the command line.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from lesmc.errors import InputError, Location
+from lesmc.report.results import FORMAT, VERSION, DesignRun, results_document
+
+
+def frames_reader(frames_dir: str | None) -> Callable[[int], np.ndarray | None] | None:
+    """``frame index -> grey image`` from a directory the user named (None: no images)."""
+    if frames_dir is None:
+        return None
+    from lesmc.video.reader import open_frames
+
+    fs = open_frames(frames_dir, 1, check=False)
+
+    def read(index: int) -> np.ndarray | None:
+        return fs.read(index) if 0 <= index < len(fs) else None
+
+    return read
+
+
+def publish(
+    runs: list[DesignRun],
+    out_dir: str | Path,
+    meta: dict[str, Any],
+    prov: dict[str, Any],
+    image_for: Callable[[int], np.ndarray | None] | None = None,
+    timings: dict[str, float] | None = None,
+    truth: list[Any] | None = None,
+    extra: dict[str, Any] | None = None,
+) -> tuple[Path, dict[str, Any]]:
+    """Write OUT/results.json and OUT/report.html (+ figures/); return the report and the doc."""
+    from lesmc.report.html import write_report
+
+    doc = results_document(runs, meta, prov, timings, truth, extra)
+    return write_report(doc, out_dir, image_for), doc
+
+
+def load_results(path: str) -> dict[str, Any]:
+    """Read a results file strictly and check it against the shipped schema."""
+    from lesmc.fileio import read_json
+    from lesmc.schemas import validate
+
+    doc = read_json(Path(path), InputError)
+    if not isinstance(doc, dict) or doc.get("format") != FORMAT:
+        raise InputError(
+            f"not a lesmc results file (format must be '{FORMAT}'; write one with "
+            "lesmc verify or lesmc check ... --report DIR)",
+            Location(path),
+        )
+    if doc.get("version") != VERSION:
+        raise InputError(
+            f"results file version {doc.get('version')!r}; this lesmc reads version {VERSION}",
+            Location(path, item="version"),
+        )
+    validate(doc, "results", path)
+    return doc

@@ -1,0 +1,103 @@
+"""JSON Schemas of lesmc's JSON documents, shipped in the package (``lesmc/schemas/*.json``).
+
+Every document lesmc writes (``--json`` of each verb, results files) has a
+``format`` and a ``version`` and is described by one schema here; the tests
+validate every output against its schema with the ``jsonschema`` package.
+:func:`validate` checks a document at run time with a small validator of the
+subset these schemas use (type, enum, const, minimum, properties, required,
+additionalProperties, items, anyOf, $ref to #/$defs), so that reading a
+results file needs no extra dependency.
+"""
+
+from __future__ import annotations
+
+import json
+from functools import cache
+from importlib import resources
+from typing import Any
+
+from lesmc.errors import InputError, Location
+
+#: format name of each document -> its schema file (without .json)
+SCHEMAS = {
+    "lesmc-results": "results",
+    "lesmc-check": "check",
+    "lesmc-track": "track",
+    "lesmc-report": "report",
+}
+
+
+@cache
+def schema(name: str) -> dict[str, Any]:
+    """The schema ``lesmc/schemas/NAME.json``."""
+    text = resources.files("lesmc.schemas").joinpath(f"{name}.json").read_text(encoding="utf-8")
+    out: dict[str, Any] = json.loads(text)
+    return out
+
+
+_TYPES: dict[str, tuple[type, ...]] = {
+    "object": (dict,),
+    "array": (list,),
+    "string": (str,),
+    "boolean": (bool,),
+    "null": (type(None),),
+    "integer": (int,),
+    "number": (int, float),
+}
+
+
+def _is(value: Any, t: str) -> bool:
+    if t in ("integer", "number") and isinstance(value, bool):
+        return False
+    return isinstance(value, _TYPES[t])
+
+
+def errors(value: Any, sch: dict[str, Any], root: dict[str, Any], where: str = "") -> list[str]:
+    """Where ``value`` breaks ``sch`` (empty: it conforms), as 'path: what' lines."""
+    if "$ref" in sch:
+        name = sch["$ref"].removeprefix("#/$defs/")
+        return errors(value, root["$defs"][name], root, where)
+    at = where or "(document)"
+    if "anyOf" in sch:
+        if all(errors(value, s, root, where) for s in sch["anyOf"]):
+            return [f"{at}: matches none of the allowed forms"]
+        return []
+    out: list[str] = []
+    if "type" in sch:
+        types = sch["type"] if isinstance(sch["type"], list) else [sch["type"]]
+        if not any(_is(value, t) for t in types):
+            return [f"{at}: expected {' or '.join(types)}, got {type(value).__name__}"]
+    if "const" in sch and value != sch["const"]:
+        out.append(f"{at}: must be {sch['const']!r}")
+    if "enum" in sch and value not in sch["enum"]:
+        out.append(f"{at}: must be one of {', '.join(map(repr, sch['enum']))}")
+    if "minimum" in sch and _is(value, "number") and value < sch["minimum"]:
+        out.append(f"{at}: must be >= {sch['minimum']}")
+    if isinstance(value, dict):
+        for key in sch.get("required", []):
+            if key not in value:
+                out.append(f"{at}: missing '{key}'")
+        props = sch.get("properties", {})
+        extra = sch.get("additionalProperties", True)
+        for key, v in value.items():
+            sub = f"{where}.{key}" if where else key
+            if key in props:
+                out += errors(v, props[key], root, sub)
+            elif extra is False:
+                out.append(f"{at}: unknown field '{key}'")
+            elif isinstance(extra, dict):
+                out += errors(v, extra, root, sub)
+    if isinstance(value, list) and "items" in sch:
+        for i, v in enumerate(value):
+            out += errors(v, sch["items"], root, f"{where}[{i}]")
+    return out
+
+
+def validate(doc: Any, name: str, path: str = "<document>") -> None:
+    """Raise an InputError naming the first offending field when ``doc`` breaks schema NAME."""
+    sch = schema(name)
+    problems = errors(doc, sch, sch)
+    if problems:
+        field, _, what = problems[0].partition(": ")
+        more = f" (and {len(problems) - 1} more)" if len(problems) > 1 else ""
+        raise InputError(f"{what}{more}", Location(path, item=field))
