@@ -432,7 +432,8 @@ def _witness_pass(
             dst = cm.dst[t]
             o2 = aggregate_arrays(space.obj_max, o[par], space.c_obj[t])
             lo, hi = bounds.range(dst, o2)
-            keep = (lo < opt) & (hi > best)
+            # o2 itself is exact and never decreases: o2 >= opt can never end below opt
+            keep = (o2 < opt) & (lo < opt) & (hi > best)
             parts.append((dst[keep], o2[keep], par[keep], t[keep]))
         if not parts:
             break
