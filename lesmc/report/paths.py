@@ -186,7 +186,14 @@ def judge(model: LTS, path: TrackPath, bp: BoundProperty) -> Judged:
     if bp.monitor_components is not None:
         taus = tau_series(model, path, bp.monitor_components)
         ks = np.arange(max(bp.l, 1), min(len(taus), bp.end + 1))
-        alarmed = bool(alarm(taus[ks - 1], taus[ks], bp.monitor_tolerance).any())
+        fired = alarm(taus[ks - 1], taus[ks], bp.monitor_tolerance)
+        if bp.monitor_except_original:  # alarms where the unattacked track alarms too: excused
+            orig = TrackPath(tuple(model.original), (), 0.0, ())
+            excused = kernel.original_alarms(
+                tau_series(model, orig, bp.monitor_components), bp.monitor_tolerance
+            )
+            fired &= ~excused[ks]
+        alarmed = bool(fired.any())
     admissible = all(
         bp.l <= k <= bp.u
         for k, t in enumerate(path.transitions, start=1)
