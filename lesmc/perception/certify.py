@@ -152,7 +152,9 @@ def detect_chain(net: nn.Module, t: float) -> Chain:
     """The Chain of the shipped ``DetectNet`` (21x21 windows, mean subtracted)."""
     from lesmc.perception.cnn import DR_SIZE
 
-    c_in = int(net.features[0].in_channels)  # type: ignore[index]
+    first = net.get_submodule("features.0")
+    assert isinstance(first, nn.Conv2d)
+    c_in = first.in_channels
     net.in_shape = (c_in, DR_SIZE, DR_SIZE)  # type: ignore[assignment]
     try:
         return chain_of(net, t, subtract_mean=True)
@@ -230,7 +232,7 @@ class Coeffs:
 
 def _patches(maps: torch.Tensor, win: torch.Tensor, offset: torch.Tensor, r: int) -> torch.Tensor:
     """Patches (G, M, r, r) of ``maps`` (B, M, H, W) at ``offset``, zero outside the layer."""
-    b, m, h, w = maps.shape
+    _, m, h, w = maps.shape
     lo = int(offset.min())
     hi = int(offset.max()) + r
     q = max(0, -lo, hi - min(h, w))
@@ -247,7 +249,7 @@ def _through_relu(c: Coeffs, relax: Relax) -> Coeffs:
     """Coefficients on h = ReLU(y) -> on y (lower bounds: A+ takes the lower line)."""
     if c.a.dim() == 5:
         m = _patches(relax.maps.flatten(1, 2), c.win, c.offset, c.a.shape[-1])
-        m = m.unflatten(1, (3, -1))[:, None]  # (G, 1, 3, C, r, r)
+        m = m.reshape(len(m), 3, -1, *m.shape[2:])[:, None]  # (G, 1, 3, C, r, r)
     else:
         m = relax.maps[c.win][:, None]  # (G, 1, 3, n)
     pos, neg = c.a.clamp(min=0), c.a.clamp(max=0)
@@ -354,9 +356,7 @@ def _start(chain: Chain, i: int, win: torch.Tensor, neuron: torch.Tensor, signs:
     const = layer.bias[neuron][:, None] * sgn
     below = _level_shape(chain, i)
     if below is not None:  # first dense layer after the convolutions (or on the input)
-        ch, hh, ww = below
-        a = a.reshape(len(neuron), signs, ch, hh, ww)
-        return Coeffs(a, torch.zeros(len(neuron), 2, dtype=torch.long), win, const)
+        a = a.reshape(len(neuron), signs, *below)
     return Coeffs(a, torch.zeros(len(neuron), 2, dtype=torch.long), win, const)
 
 
