@@ -66,6 +66,15 @@ does not import the engines (tests/test_startup.py checks that the two agree).""
     help="Also write DIR/report.html, DIR/figures/ and DIR/results.json (a scene is then "
     "checked on its built model).",
 )
+@click.option(
+    "--payoffs",
+    type=click.Choice(["attack", "certified", "interval"]),
+    default="attack",
+    show_default=True,
+    help="For a scene: the attack's payoffs (the paper), the certified lower bounds "
+    "(payoff_lower), or both: holds only if proven with the lower bounds, violated only "
+    "with the attack's counterexample, else unknown (docs/semantics.md).",
+)
 @design_option("For a scene: override the tracker design it names.")
 def check_cmd(
     model: str,
@@ -77,6 +86,7 @@ def check_cmd(
     only: tuple[str, ...],
     no_paths: bool,
     report_dir: str | None,
+    payoffs: str,
     design: str | None,
 ) -> None:
     """Check the properties in SPEC files on MODEL (a .lts file) or on a SCENE (.json).
@@ -99,10 +109,14 @@ def check_cmd(
     from lesmc.report.exit import exit_status
     from lesmc.report.text import make_console, print_results, results_json
     from lesmc.tracking.scene import Scene
-    from lesmc.unfold import bind_scene, check_scene_bound
+    from lesmc.unfold import bind_scene, check_scene_payoffs
 
     parsed = [load_spec(s) for s in specs]
     source = load_model_or_scene(model, design)
+    if payoffs != "attack" and not isinstance(source, Scene):
+        raise UsageError(f"--payoffs {payoffs} needs a scene: a model's payoffs are built in")
+    if payoffs != "attack" and report_dir is not None:
+        raise UsageError("--report draws the attack payoffs' model: use --payoffs attack")
     bound = bind_scene(source, parsed) if isinstance(source, Scene) else bind_all(source, parsed)
     if only:
         names = {bp.name for bp in bound}
@@ -135,7 +149,9 @@ def check_cmd(
             left = None if timeout is None else max(0.0, timeout - (time.monotonic() - started))
             if cm is None:
                 assert isinstance(source, Scene)
-                results.append(check_scene_bound(source, bp, engine, max_states, left))  # type: ignore[arg-type]
+                results.append(
+                    check_scene_payoffs(source, bp, payoffs, engine, max_states, left, model)  # type: ignore[arg-type]
+                )
             else:
                 r = check_bound(cm, bp, engine, max_states, left)  # type: ignore[arg-type]
                 r.notes.extend(window_notes(source, bp))  # type: ignore[arg-type]

@@ -115,8 +115,16 @@ class CheckResult:
     witness_exact: bool
     stats: Stats
     notes: list[str] = field(default_factory=list)
+    payoffs: str = "attack"  #: attack | certified | interval (docs/semantics.md)
+    optimum_certified: float | None = None  #: interval mode: the optimum with lower payoffs
+    optimum_attack: float | None = None  #: interval mode: the optimum with attack payoffs
 
     def to_json(self) -> dict[str, Any]:
+        extra: dict[str, Any] = {"payoffs": self.payoffs}
+        if self.payoffs == "interval":
+            for key in ("optimum_certified", "optimum_attack"):
+                v = getattr(self, key)
+                extra[key] = None if v is None else _num(v)
         return {
             "property": self.property,
             "verdict": self.verdict,
@@ -134,7 +142,7 @@ class CheckResult:
             "witness_exact": self.witness_exact,
             "notes": self.notes,
             "stats": self.stats.to_json(),
-        }
+        } | extra
 
 
 def _num(x: float) -> float | str:
