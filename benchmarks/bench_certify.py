@@ -57,9 +57,8 @@ def main() -> None:
     print(f"certified bounds:   {t2 - t1:8.2f} s  ({(t2 - t1) / (t1 - t0):.1f}x DeepFool)")
     q10, med, q90 = np.quantile(ratio, [0.1, 0.5, 0.9])
     print(f"certified/attack:   median {med:.3f} (10th {q10:.3f}, 90th {q90:.3f}), n={ok.sum()}")
-    print(
-        f"certified radius:   median {np.median(cert[ok]):.4f}; attack median {np.median(pay[ok]):.3f}"
-    )
+    c_med, a_med = np.median(cert[ok]), np.median(pay[ok])
+    print(f"certified radius:   median {c_med:.4f}; attack median {a_med:.3f}")
 
 
 if __name__ == "__main__":
