@@ -328,3 +328,53 @@ def check_scene_bound(
         return check_bound(model, bp, engine, max_states, timeout)
     lazy = lazy_model(scene, (bp.l, bp.u), bp.end)
     return check_lazy(lazy, bp, max_states, timeout, engine, max_memory)
+
+
+PAYOFF_MODES = ("attack", "certified", "interval")
+"""``--payoffs``: which payoff column of a scene the model uses (docs/semantics.md)."""
+
+
+def check_scene_payoffs(
+    scene: Scene,
+    bp: BoundProperty,
+    payoffs: str = "attack",
+    engine: EngineName = "levels",
+    max_states: int | None = DEFAULT_MAX_STATES,
+    timeout: float | None = None,
+    path: str = "<scene>",
+    max_memory: int | None = None,
+    on_batch: Callable[[GrowingModel], None] | None = None,
+) -> CheckResult:
+    """One property with the attack payoffs, the certified lower ones, or both (interval).
+
+    ``interval`` checks twice and combines the verdicts (lesmc/engines/interval.py);
+    ``timeout`` is then shared between the two checks.
+    """
+    from dataclasses import replace
+
+    from lesmc.engines.interval import combine
+
+    if payoffs == "attack":
+        return check_scene_bound(scene, bp, engine, max_states, timeout, max_memory, on_batch)
+    low = scene.priced("certified", path)
+    if payoffs == "certified":
+        return replace(
+            check_scene_bound(low, bp, engine, max_states, timeout, max_memory, on_batch),
+            payoffs=payoffs,
+        )
+    if payoffs != "interval":
+        raise UsageError(f"--payoffs must be one of {', '.join(PAYOFF_MODES)}, got {payoffs!r}")
+    import time
+
+    started = time.monotonic()
+    half = None if timeout is None else timeout / 2
+    cert = check_scene_bound(low, bp, engine, max_states, half, max_memory, on_batch)
+    left = None if timeout is None else max(0.0, timeout - (time.monotonic() - started))
+    att = check_scene_bound(scene, bp, engine, max_states, left, max_memory, on_batch)
+    return combine(cert, att, payoff_monotone(bp))
+
+
+def payoff_monotone(bp: BoundProperty) -> bool:
+    """Lowering payoffs can only lower the optimum: true unless the constraint asks for a
+    large payoff (``subject to payoff > c``), which lower payoffs can make false."""
+    return not (bp.constraint.source == "payoff" and bp.op in (">", ">="))

@@ -104,7 +104,9 @@ def test_optimum_and_witness_equal_brute_force(case: tuple) -> None:
         if truth.witness_value is None:
             assert r.witness is None
         else:
-            assert r.witness_value == pytest.approx(truth.witness_value, rel=1e-12, abs=1e-12), engine
+            assert r.witness_value == pytest.approx(truth.witness_value, rel=1e-12, abs=1e-12), (
+                engine
+            )
             assert by_states[r.witness.states][0] == pytest.approx(truth.witness_value)
         _assert_monitor_facts(model, bp, truth, r)
 

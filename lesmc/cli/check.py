@@ -78,6 +78,15 @@ does not import the engines (tests/test_startup.py checks that the two agree).""
     default=None,
     help="With --report: the video's frames, for the report's images (read from nowhere else).",
 )
+@click.option(
+    "--payoffs",
+    type=click.Choice(["attack", "certified", "interval"]),
+    default="attack",
+    show_default=True,
+    help="For a scene: the attack's payoffs (the paper), the certified lower bounds "
+    "(payoff_lower), or both: holds only if proven with the lower bounds, violated only "
+    "with the attack's counterexample, else unknown (docs/semantics.md).",
+)
 @design_option("For a scene: override the tracker design it names.")
 def check_cmd(
     model: str,
@@ -90,6 +99,7 @@ def check_cmd(
     no_paths: bool,
     report_dir: str | None,
     frames_dir: str | None,
+    payoffs: str,
     design: str | None,
     max_memory: int | None,
 ) -> None:
@@ -114,12 +124,16 @@ def check_cmd(
     from lesmc.report.exit import exit_status
     from lesmc.report.text import make_console, print_results, results_json
     from lesmc.tracking.scene import Scene
-    from lesmc.unfold import bind_scene, check_scene_bound
+    from lesmc.unfold import bind_scene, check_scene_payoffs
 
     if frames_dir is not None and report_dir is None:
         raise UsageError("--frames gives the report's images: it needs --report DIR")
     parsed = [load_spec(s) for s in specs]
     source = load_model_or_scene(model, design)
+    if payoffs != "attack" and not isinstance(source, Scene):
+        raise UsageError(f"--payoffs {payoffs} needs a scene: a model's payoffs are built in")
+    if payoffs != "attack" and report_dir is not None:
+        raise UsageError("--report draws the attack payoffs' model: use --payoffs attack")
     bound = bind_scene(source, parsed) if isinstance(source, Scene) else bind_all(source, parsed)
     scene: Scene | None = None
     if report_dir is not None and isinstance(source, Scene):
@@ -161,7 +175,17 @@ def check_cmd(
             if cm is None:
                 assert isinstance(source, Scene)
                 results.append(
-                    check_scene_bound(source, bp, engine, max_states, left, max_memory, on_batch)  # type: ignore[arg-type]
+                    check_scene_payoffs(
+                        source,
+                        bp,
+                        payoffs,
+                        engine,  # type: ignore[arg-type]
+                        max_states,
+                        left,
+                        model,
+                        max_memory,
+                        on_batch,
+                    )
                 )
             else:
                 r = check_bound(cm, bp, engine, max_states, left, max_memory)  # type: ignore[arg-type]

@@ -65,6 +65,12 @@ if TYPE_CHECKING:
 )
 @click.option("--max-iter", type=click.IntRange(min=1, max=10000), default=50, show_default=True)
 @click.option(
+    "--certify",
+    is_flag=True,
+    help="Also certify a lower bound on each payoff (payoff_lower; docs/cnn.md). "
+    "Slow: about 0.1-0.5 s per detection on 2 cores.",
+)
+@click.option(
     "--history",
     type=click.IntRange(min=3, max=16),
     default=4,
@@ -110,6 +116,7 @@ def perceive_cmd(
     payoff_norm: str,
     overshoot: float,
     max_iter: int,
+    certify: bool,
     history: int,
     delta_bc: int,
     dt: float | None,
@@ -126,6 +133,7 @@ def perceive_cmd(
     """
     # Imported here, not at module level: torch, cv2 and scipy cost seconds to import.
     from lesmc.perception.attacks import AttackConfig
+    from lesmc.perception.certify import CertifyConfig
     from lesmc.perception.cnn import load_nets
     from lesmc.perception.quality import load_truth
     from lesmc.perception.run import PerceiveOptions, perceive
@@ -155,11 +163,14 @@ def perceive_cmd(
         if output
         else None
     )
+    if certify and output is None:
+        raise UsageError("--certify needs -o/--output: the bounds go into the scene")
     opts = PerceiveOptions(
         history=history,
         delta_bc=delta_bc,
         nets=nets,
         attack=att,
+        certify=CertifyConfig() if certify else None,
         radius=radius,
         min_speed=min_speed,
     )
@@ -179,6 +190,8 @@ def perceive_cmd(
                 "input": "N_dr window, 21x21 x (m+1) frames",
             },
         }
+        if certify:
+            meta["certify"] = {"method": "CROWN, L2 ball", "steps": CertifyConfig().steps}
         scene = scene_from_run(run, frames, spec, step_dt, truths, meta)
         save_scene(scene, output)
         n = sum(len(f.detections) for f in scene.frames)

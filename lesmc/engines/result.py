@@ -122,36 +122,51 @@ class CheckResult:
     original_alarms: list[int] | None = None  # monitored: the unattacked track's alarm steps
     vacuous: bool = False  # the monitor excludes the unattacked track itself
 
+    payoffs: str = "attack"  #: attack | certified | interval (docs/semantics.md)
+    optimum_certified: float | None = None  #: interval mode: the optimum with lower payoffs
+    optimum_attack: float | None = None  #: interval mode: the optimum with attack payoffs
+
     def verdict_text(self) -> str:
         """The verdict as tables and reports print it: a vacuous 'holds' says so."""
         return verdict_words(self.verdict, self.vacuous, self.original_alarms or [])
 
     def to_json(self) -> dict[str, Any]:
+        extra: dict[str, Any] = {"payoffs": self.payoffs}
+        if self.payoffs == "interval":
+            for key in ("optimum_certified", "optimum_attack"):
+                v = getattr(self, key)
+                extra[key] = None if v is None else _num(v)
         optimum: float | str | None
         if not self.optimum_known:
             optimum = "unknown"  # null means only: no path violates
         else:
             optimum = None if self.optimum is None else _num(self.optimum)
         wb = self.witness_bounds
-        return {
-            "property": self.property,
-            "verdict": self.verdict,
-            "optimum": optimum,
-            "witness_bounds": None if wb is None else {"lower": _num(wb[0]), "upper": _num(wb[1])},
-            "threshold": self.threshold,
-            "holds_if": f"optimum {self.holds_op} {self.threshold:g}",
-            "objective": self.objective,
-            "constraint": self.constraint,
-            "bounds": {"lower": _num(self.lower), "upper": _num(self.upper)},
-            "counterexample": None
-            if self.counterexample is None
-            else self.counterexample.to_json(),
-            "witness": None if self.witness is None else self.witness.to_json(),
-            "witness_value": None if self.witness_value is None else _num(self.witness_value),
-            "witness_exact": self.witness_exact,
-            "notes": self.notes,
-            "stats": self.stats.to_json(),
-        } | self.monitor_json()
+        return (
+            {
+                "property": self.property,
+                "verdict": self.verdict,
+                "optimum": optimum,
+                "witness_bounds": None
+                if wb is None
+                else {"lower": _num(wb[0]), "upper": _num(wb[1])},
+                "threshold": self.threshold,
+                "holds_if": f"optimum {self.holds_op} {self.threshold:g}",
+                "objective": self.objective,
+                "constraint": self.constraint,
+                "bounds": {"lower": _num(self.lower), "upper": _num(self.upper)},
+                "counterexample": None
+                if self.counterexample is None
+                else self.counterexample.to_json(),
+                "witness": None if self.witness is None else self.witness.to_json(),
+                "witness_value": None if self.witness_value is None else _num(self.witness_value),
+                "witness_exact": self.witness_exact,
+                "notes": self.notes,
+                "stats": self.stats.to_json(),
+            }
+            | self.monitor_json()
+            | extra
+        )
 
     def monitor_json(self) -> dict[str, Any]:
         """``original_alarms`` and ``vacuous``, for a monitored property only."""

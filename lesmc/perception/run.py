@@ -14,7 +14,8 @@ import numpy as np
 from lesmc.errors import InputError, Location
 from lesmc.perception.attacks import AttackConfig, payoffs
 from lesmc.perception.blobs import BlobConfig
-from lesmc.perception.cnn import Nets
+from lesmc.perception.certify import CertifyConfig
+from lesmc.perception.cnn import DR_SIZE, Nets
 from lesmc.perception.detector import Detector, DetectorConfig, FrameDetections
 from lesmc.perception.frontend import FrontEnd, FrontEndConfig
 from lesmc.perception.quality import Score, Truth, care_mask, score
@@ -32,6 +33,7 @@ class PerceiveOptions:
     delta_bc: int = 12
     nets: Nets | None = None
     attack: AttackConfig | None = None
+    certify: CertifyConfig | None = None  #: also certified lower bounds (with ``attack``)
     radius: float = 4.0
     min_speed: float = 1.5
 
@@ -42,6 +44,7 @@ class PerceiveRun:
 
     detections: list[FrameDetections] = field(default_factory=list)
     payoffs: list[np.ndarray] = field(default_factory=list)
+    payoffs_lower: list[np.ndarray] = field(default_factory=list)  #: with --certify
     rows: list[dict[str, Any]] = field(default_factory=list)
     frontend_total: Score = ZERO
     detector_total: Score = ZERO
@@ -85,7 +88,10 @@ def perceive(
             }
             run.detections.append(fd)
             if opts.attack is not None and opts.nets is not None:
-                run.payoffs.append(_payoffs(opts.nets, fd, opts.attack))
+                upper, lower = _payoffs(opts.nets, fd, opts.attack, opts.certify)
+                run.payoffs.append(upper)
+                if lower is not None:
+                    run.payoffs_lower.append(lower)
                 run.unattackable += int(np.isinf(run.payoffs[-1]).sum())
         if truth is not None:
             tf = truth.frames[name]
@@ -101,11 +107,28 @@ def perceive(
     return run
 
 
-def _payoffs(nets: Nets, fd: FrameDetections, cfg: AttackConfig) -> np.ndarray:
-    """One attack per Q_dr blob that produced detections; each detection gets its blob's payoff."""
+def _payoffs(
+    nets: Nets, fd: FrameDetections, cfg: AttackConfig, cert: CertifyConfig | None
+) -> tuple[np.ndarray, np.ndarray | None]:
+    """One attack per Q_dr blob that produced detections; each detection gets its blob's payoff.
+
+    With ``cert``, also the blob's certified lower bound (certify.py), in the
+    attack's norm (``per-pixel`` divides by the window's pixel count too).
+    """
     used = np.unique(fd.source)
     res = payoffs(nets.dr, fd.windows[used], nets.settings.delta_dr, cfg)
     per_blob = np.full(len(fd.windows), np.inf)
     per_blob[used] = res.payoff
     out: np.ndarray = per_blob[fd.source]
-    return out
+    if cert is None:
+        return out, None
+    from lesmc.perception.attacks import threshold_logit
+    from lesmc.perception.certify import certified_radius, detect_chain
+
+    scale = DR_SIZE * DR_SIZE if cfg.norm == "per-pixel" else 1.0
+    chain = detect_chain(nets.dr, threshold_logit(nets.settings.delta_dr))
+    low = certified_radius(chain, fd.windows[used], res.payoff * scale, cert) / scale
+    per_blob_low = np.zeros(len(fd.windows))
+    per_blob_low[used] = np.minimum(low, res.payoff)
+    lower: np.ndarray = per_blob_low[fd.source]
+    return out, lower

@@ -59,15 +59,25 @@ def check_target(spec: TargetSpec, width: int, height: int, n_frames: int) -> No
         raise UsageError(f"--target step {spec.step}: the video has frames 0..{n_frames - 1}")
 
 
-def frames_of(dets: list[FrameDetections], pays: list[np.ndarray]) -> tuple[Frame, ...]:
-    """Scene frames: detection ids ``"FRAME:I"``, payoffs, homographies to the next frame."""
+def frames_of(
+    dets: list[FrameDetections], pays: list[np.ndarray], lower: list[np.ndarray] | None = None
+) -> tuple[Frame, ...]:
+    """Scene frames: detection ids ``"FRAME:I"``, payoffs [and certified lower bounds],
+    homographies to the next frame."""
     out = []
-    for i, (fd, p) in enumerate(zip(dets, pays, strict=True)):
+    lows: list[np.ndarray | None] = list(lower) if lower else [None] * len(dets)
+    for i, (fd, p, lo) in enumerate(zip(dets, pays, lows, strict=True)):
         to_next = None
         if i + 1 < len(dets):
             to_next = dets[i + 1].from_prev
         ds = tuple(
-            Detection(f"{fd.index}:{j}", float(x), float(y), float(p[j]))
+            Detection(
+                f"{fd.index}:{j}",
+                float(x),
+                float(y),
+                float(p[j]),
+                None if lo is None else float(lo[j]),
+            )
             for j, (x, y) in enumerate(fd.positions)
         )
         out.append(Frame(fd.index, ds, to_next))
@@ -116,11 +126,12 @@ def make_scene(
     truth: TruthFrame | None = None,
     tracker: TrackerConfig | None = None,
     meta: dict[str, Any] | None = None,
+    lower: list[np.ndarray] | None = None,
 ) -> Scene:
     """Assemble and check a scene; the target's frame must be one of the detected frames."""
     if not dets:
         raise UsageError("no frame produced detections: the video is shorter than L+1 frames")
-    frames = frames_of(dets, pays)
+    frames = frames_of(dets, pays, lower)
     step = spec.step if spec.step is not None else frames[0].step
     if not frames[0].step <= step <= frames[-1].step:
         raise UsageError(
@@ -148,4 +159,5 @@ def scene_from_run(
     tf = None
     if truth is not None and 0 <= step < len(frames):
         tf = truth.frames.get(frames.paths[step].name)
-    return make_scene(run.detections, run.payoffs, dt, spec, tf, meta=meta)
+    lower = run.payoffs_lower or None
+    return make_scene(run.detections, run.payoffs, dt, spec, tf, meta=meta, lower=lower)

@@ -62,6 +62,8 @@ class Detection:
     x: float
     y: float
     payoff: float
+    #: certified lower bound on every hiding perturbation's norm (docs/cnn.md); None: not computed
+    payoff_lower: float | None = None
 
     @property
     def attackable(self) -> bool:
@@ -212,6 +214,42 @@ class Scene:
     def last_step(self) -> int:
         return self.frames[-1].step
 
+    @property
+    def has_lower(self) -> bool:
+        """Every detection carries ``payoff_lower`` (perceive --certify)."""
+        return all(d.payoff_lower is not None for f in self.frames for d in f.detections)
+
+    def priced(self, payoffs: str, path: str = "<scene>") -> Scene:
+        """The scene whose ``payoff`` column the model uses: ``attack`` or ``certified``.
+
+        ``certified`` puts each detection's ``payoff_lower`` in place of its
+        payoff (docs/semantics.md, "Payoff intervals"); every detection must have one.
+        """
+        if payoffs == "attack":
+            return self
+        if payoffs != "certified":
+            raise ValueError(f"unknown payoff column {payoffs!r}")
+        from dataclasses import replace
+
+        frames = []
+        for f in self.frames:
+            dets = []
+            for d in f.detections:
+                if d.payoff_lower is None:
+                    raise InputError.many(
+                        path,
+                        [
+                            (
+                                f"frame {f.step}, detection '{d.id}'",
+                                "payoff_lower is missing (needed by --payoffs certified|"
+                                "interval; write the scene with `lesmc perceive --certify`)",
+                            )
+                        ],
+                    )
+                dets.append(replace(d, payoff=d.payoff_lower))
+            frames.append(replace(f, detections=tuple(dets)))
+        return replace(self, frames=tuple(frames))
+
     def with_tracker(self, **changes: Any) -> Scene:
         """The same scene with some tracker parameters replaced (e.g. design)."""
         from dataclasses import replace
@@ -332,7 +370,7 @@ def _detection(raw: Any, where: str, pr: Problems) -> Detection | None:
     did = raw.get("id")
     item = where if not isinstance(did, str) else f"{where.split(',')[0]}, detection '{did}'"
     ok = True
-    for key in sorted(set(raw) - {"id", "x", "y", "payoff", "meta"}):
+    for key in sorted(set(raw) - {"id", "x", "y", "payoff", "payoff_lower", "meta"}):
         pr.add(item, f"unknown key '{key}'")
         ok = False
     if not (isinstance(did, str) and did):
@@ -355,9 +393,30 @@ def _detection(raw: Any, where: str, pr: Problems) -> Detection | None:
             f"got {_show(payoff)}",
         )
         ok = False
+    lower = raw.get("payoff_lower", None)
+    if "payoff_lower" in raw:
+        if lower == UNATTACKABLE:
+            lower = math.inf
+        elif not _num(lower) or lower < 0:
+            pr.add(
+                item,
+                f'payoff_lower must be a finite number >= 0 or "unattackable", got {lower!r}',
+            )
+            ok = False
+            lower = None
+        if ok and lower is not None and lower > payoff:  # type: ignore[operator]
+            shown = UNATTACKABLE if lower == math.inf else lower
+            pr.add(item, f"payoff_lower {shown!r} exceeds payoff {raw.get('payoff')!r}")
+            ok = False
     if not ok:
         return None
-    return Detection(str(did), float(raw["x"]), float(raw["y"]), float(payoff))  # type: ignore[arg-type]
+    return Detection(
+        str(did),
+        float(raw["x"]),
+        float(raw["y"]),
+        float(payoff),  # type: ignore[arg-type]
+        None if lower is None else float(lower),
+    )
 
 
 def _tracker(raw: Any, pr: Problems) -> TrackerConfig | None:
@@ -468,15 +527,7 @@ def scene_to_dict(scene: Scene) -> dict[str, Any]:
     for fr in scene.frames:
         d: dict[str, Any] = {
             "step": fr.step,
-            "detections": [
-                {
-                    "id": det.id,
-                    "x": det.x,
-                    "y": det.y,
-                    "payoff": det.payoff if det.attackable else UNATTACKABLE,
-                }
-                for det in fr.detections
-            ],
+            "detections": [_det_json(det) for det in fr.detections],
         }
         if fr.to_next is not None:
             d["to_next"] = fr.to_next.tolist()
@@ -496,6 +547,19 @@ def scene_to_dict(scene: Scene) -> dict[str, Any]:
     if scene.meta:
         doc["meta"] = scene.meta
     return doc
+
+
+def _det_json(det: Detection) -> dict[str, Any]:
+    out: dict[str, Any] = {
+        "id": det.id,
+        "x": det.x,
+        "y": det.y,
+        "payoff": det.payoff if det.attackable else UNATTACKABLE,
+    }
+    if det.payoff_lower is not None:
+        low = det.payoff_lower
+        out["payoff_lower"] = low if math.isfinite(low) else UNATTACKABLE
+    return out
 
 
 def save_scene(scene: Scene, path: str | Path) -> None:

@@ -1,0 +1,65 @@
+"""Certified payoff lower bounds on the default synthetic video (docs/cnn.md, docs/performance.md).
+
+    python benchmarks/bench_certify.py [--frames 30] [--n 300] [--steps 4]
+
+Runs the detector over the default video (``lesmc synth`` defaults), samples
+``--n`` attacked N_dr windows (seed 0), and times side by side on them:
+DeepFool payoffs (the reference) and certified lower bounds (lesmc/perception/
+certify.py). Prints the seconds of each, their ratio, and the certified/attack
+ratio per window (median, 10th and 90th percentiles). Target: 300 windows in
+<= 10 s on 2 cores; median certified/attack ratio >= 0.3 (an aim).
+"""
+
+from __future__ import annotations
+
+import argparse
+import time
+
+import numpy as np
+import torch
+
+from lesmc.perception.attacks import AttackConfig, payoffs, threshold_logit
+from lesmc.perception.certify import CertifyConfig, certified_radius, detect_chain
+from lesmc.perception.cnn import load_nets
+from lesmc.perception.detector import Detector
+from lesmc.video.synth import SynthConfig, frames
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser()
+    ap.add_argument("--frames", type=int, default=SynthConfig.frames)
+    ap.add_argument("--n", type=int, default=300)
+    ap.add_argument("--steps", type=int, default=CertifyConfig.steps)
+    args = ap.parse_args()
+    print(f"torch threads: {torch.get_num_threads()}")
+    nets = load_nets()
+    det = Detector(nets)
+    windows = []
+    for img, _ in frames(SynthConfig(frames=args.frames)):
+        res = det.push(img)
+        if res is not None:
+            fd = res[1]
+            windows.append(fd.windows[np.unique(fd.source)])
+    pool = np.concatenate(windows)
+    pick = np.random.default_rng(0).choice(len(pool), min(args.n, len(pool)), replace=False)
+    w = pool[np.sort(pick)]
+    print(f"{len(pool)} attacked windows on {args.frames} frames; {len(w)} sampled")
+    t0 = time.perf_counter()
+    pay = payoffs(nets.dr, w, nets.settings.delta_dr, AttackConfig()).payoff
+    t1 = time.perf_counter()
+    chain = detect_chain(nets.dr, threshold_logit(nets.settings.delta_dr))
+    cert = certified_radius(chain, w, pay, CertifyConfig(steps=args.steps))
+    t2 = time.perf_counter()
+    ok = np.isfinite(pay)
+    ratio = cert[ok] / pay[ok]
+    assert (cert <= pay).all()
+    print(f"DeepFool payoffs:   {t1 - t0:8.2f} s")
+    print(f"certified bounds:   {t2 - t1:8.2f} s  ({(t2 - t1) / (t1 - t0):.1f}x DeepFool)")
+    q10, med, q90 = np.quantile(ratio, [0.1, 0.5, 0.9])
+    print(f"certified/attack:   median {med:.3f} (10th {q10:.3f}, 90th {q90:.3f}), n={ok.sum()}")
+    c_med, a_med = np.median(cert[ok]), np.median(pay[ok])
+    print(f"certified radius:   median {c_med:.4f}; attack median {a_med:.3f}")
+
+
+if __name__ == "__main__":
+    main()

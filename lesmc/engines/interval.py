@@ -1,0 +1,58 @@
+"""Verdicts from two payoff sets: certified lower bounds and attack payoffs (docs/semantics.md).
+
+Domain-free: it only combines two results of the same property, one checked
+with every payoff replaced by a lower bound of the true cheapest attack
+(``certified``), one with the payoffs an attack achieved (``attack``, upper
+bounds). When lowering payoffs can only lower the optimum (``monotone``: the
+constraint does not demand a *large* payoff), the true optimum lies in
+[certified optimum, attack optimum]:
+
+- ``holds`` iff the certified result holds: proven against every attack;
+- ``violated`` iff the attack result is violated, with its counterexample;
+- ``unknown`` otherwise, with the interval.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import replace
+
+from lesmc.engines.result import CheckResult, Verdict
+
+
+def combine(certified: CheckResult, attack: CheckResult, monotone: bool = True) -> CheckResult:
+    """The interval verdict of one property from its certified and attack results."""
+    verdict: Verdict
+    if attack.verdict == "violated":
+        verdict = "violated"
+    elif certified.verdict == "holds" and monotone:
+        verdict = "holds"
+    else:
+        verdict = "unknown"
+    notes = list(attack.notes)
+    notes += [f"certified payoffs: {n}" for n in certified.notes]
+    if not monotone:
+        notes.append(
+            "the constraint asks for a large payoff: lower payoffs do not bound the optimum "
+            "from below, so 'holds' cannot be proven with certified payoffs"
+        )
+    if verdict == "unknown":
+        notes.append(
+            f"the optimum lies between the certified {_fmt(certified.lower)} and the "
+            f"attack's {_fmt(attack.upper)}; the threshold {attack.threshold:g} is inside"
+        )
+    return replace(
+        attack,
+        verdict=verdict,
+        optimum=attack.optimum if verdict == "violated" else None,
+        lower=certified.lower if monotone else -math.inf,
+        upper=attack.upper,
+        notes=notes,
+        payoffs="interval",
+        optimum_certified=certified.lower if certified.lower == certified.upper else None,
+        optimum_attack=attack.lower if attack.lower == attack.upper else None,
+    )
+
+
+def _fmt(x: float) -> str:
+    return f"{x:g}"

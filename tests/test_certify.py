@@ -1,0 +1,192 @@
+"""Certified payoff lower bounds (CROWN on our layer types) against search, sampling and attacks."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+import torch
+from torch import nn
+
+from lesmc.perception.certify import (
+    Ball,
+    CertifyConfig,
+    certified_radius,
+    chain_of,
+    detect_chain,
+    layer_bounds,
+    margin_form,
+)
+
+
+class Small(nn.Module):
+    """An N_dr-shaped network of any size: [mean subtraction], convs + ReLUs, dense head."""
+
+    def __init__(
+        self, in_shape: tuple[int, int, int], convs: list[tuple[int, int, int, int]], hidden: int
+    ) -> None:
+        super().__init__()
+        self.in_shape = in_shape
+        mods: list[nn.Module] = []
+        c, hw = in_shape[0], in_shape[1]
+        for out, k, s, p in convs:
+            mods += [nn.Conv2d(c, out, k, stride=s, padding=p), nn.ReLU()]
+            c, hw = out, (hw + 2 * p - k) // s + 1
+        self.features = nn.Sequential(*mods)
+        self.head = nn.Sequential(
+            nn.Flatten(), nn.Linear(c * hw * hw, hidden), nn.ReLU(), nn.Linear(hidden, 2)
+        )
+        self.subtract_mean = True
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        if self.subtract_mean:
+            x = x - x.mean(dim=(1, 2, 3), keepdim=True)
+        out: torch.Tensor = self.head(self.features(x))
+        return out
+
+
+def margins(net: nn.Module, x: torch.Tensor) -> torch.Tensor:
+    with torch.no_grad():
+        logits = net(x)
+    return logits[:, 1] - logits[:, 0]
+
+
+def ray_search(net: nn.Module, x0: np.ndarray, t: float, r_max: float) -> float:
+    """Smallest flipping radius on 7200 rays in the plane (steps of r_max/4000): >= the true one."""
+    theta = np.linspace(0, 2 * math.pi, 7200, endpoint=False)
+    dirs = np.stack([np.cos(theta), np.sin(theta)], 1)
+    radii = np.linspace(0, r_max, 4001)[1:]
+    best = math.inf
+    for chunk in np.array_split(radii, 40):
+        pts = x0.reshape(1, 1, 2) + chunk[None, :, None] * dirs[:, None, :]
+        f = margins(net, torch.from_numpy(pts.reshape(-1, 2, 1, 1).astype(np.float32)))
+        flip = (f <= t).numpy().reshape(len(dirs), len(chunk))
+        if flip.any():
+            best = min(best, float(chunk[flip.any(0).argmax()]))
+            break
+    return best
+
+
+@pytest.mark.parametrize("seed", range(6))
+@pytest.mark.parametrize("subtract_mean", [False, True])
+def test_bound_is_below_the_smallest_flip_found_by_exhaustive_rays(
+    seed: int, subtract_mean: bool
+) -> None:
+    torch.manual_seed(seed)
+    net = Small((2, 1, 1), [(6, 1, 1, 0)], 8)
+    net.subtract_mean = subtract_mean
+    rng = np.random.default_rng(seed)
+    x = rng.uniform(-1, 1, (40, 2, 1, 1)).astype(np.float32)
+    f = margins(net, torch.from_numpy(x)).numpy()
+    t = float(np.median(f))  # half the points are "vehicle"
+    chain = chain_of(net, t, subtract_mean)
+    x = x[f > t][:8]
+    cert = certified_radius(chain, x, cfg=CertifyConfig(steps=12))
+    truth = np.array([ray_search(net, xi, t, 6.0) for xi in x])
+    resolution = 6.0 / 4000 + 6.0 * 2 * math.pi / 7200
+    assert (cert <= truth + 1e-6).all(), (cert, truth)
+    assert (cert > 0).all()
+    finite = np.isfinite(truth)
+    # a useful bound: CROWN on a 2-input network is close to the truth
+    assert np.median(cert[finite] / (truth[finite] + resolution)) >= 0.3
+
+
+def test_layer_bounds_contain_every_sampled_activation() -> None:
+    """Strides, padding and the flatten, checked against the network's own forward pass."""
+    torch.manual_seed(3)
+    net = Small((2, 9, 9), [(4, 3, 1, 1), (5, 3, 2, 1), (3, 3, 2, 0)], 6)
+    chain = chain_of(net, 0.3)
+    x0 = torch.rand(3, 2, 9, 9)
+    eps = torch.tensor([0.05, 0.2, 0.5])
+    z0 = x0 - x0.mean(dim=(1, 2, 3), keepdim=True)
+    ball = Ball(z0, eps, 2 * 81, True)
+    with torch.no_grad():
+        bounds, relaxes = layer_bounds(chain, ball)
+        value, norm = margin_form(chain, ball, relaxes)
+    f_low = value - eps * norm
+    # random points of the sphere (the extreme ones) and of the ball
+    n = 400
+    d = torch.randn(3, n, 2 * 81)
+    d = d / d.norm(dim=2, keepdim=True) * eps.view(3, 1, 1)
+    d[:, n // 2 :] *= torch.rand(3, n // 2, 1)
+    xs = (x0[:, None] + d.view(3, n, 2, 9, 9)).view(-1, 2, 9, 9)
+    h = xs - xs.mean(dim=(1, 2, 3), keepdim=True)
+    layers = list(net.features) + list(net.head)
+    k = 0
+    with torch.no_grad():
+        for mod in layers:
+            h = mod(h)
+            if isinstance(mod, (nn.Conv2d, nn.Linear)) and k < len(bounds):
+                lo, hi = bounds[k]
+                lo_s = lo.repeat_interleave(n, 0)
+                hi_s = hi.repeat_interleave(n, 0)
+                assert (h >= lo_s - 1e-4).all() and (h <= hi_s + 1e-4).all(), k
+                k += 1
+        f = (h[:, 1] - h[:, 0] - 0.3).view(3, n)
+    assert k == len(bounds) == 4
+    assert (f >= f_low[:, None] - 1e-4).all()
+    # the bounds are not vacuous: the smallest ball keeps most neurons stable
+    lo, hi = bounds[0]
+    assert float(((lo[0] < 0) & (hi[0] > 0)).float().mean()) < 0.5
+
+
+def test_chain_refuses_layers_it_cannot_bound() -> None:
+    net = Small((1, 5, 5), [(2, 3, 1, 1)], 4)
+    net.features[1] = nn.Sigmoid()
+    with pytest.raises(ValueError):
+        chain_of(net, 0.0)
+
+
+@pytest.fixture(scope="module")
+def shipped() -> tuple[nn.Module, np.ndarray, np.ndarray]:
+    """Real detection windows of an unseen video, their DeepFool payoffs."""
+    from lesmc.perception.attacks import AttackConfig, payoffs
+    from lesmc.perception.cnn import load_nets
+    from lesmc.perception.detector import Detector
+    from lesmc.video.synth import SynthConfig, frames
+
+    nets = load_nets()
+    det = Detector(nets)
+    for img, _ in frames(SynthConfig(frames=6, width=512, height=512, seed=33)):
+        res = det.push(img)
+        if res is not None:
+            windows = res[1].windows
+            break
+    rng = np.random.default_rng(0)
+    w = windows[rng.choice(len(windows), 6, replace=False)]
+    pay = payoffs(nets.dr, w, nets.settings.delta_dr, AttackConfig()).payoff
+    return nets.dr, w, pay
+
+
+def test_shipped_detector_bound_is_below_the_attack_and_no_attack_beats_it(shipped) -> None:
+    from lesmc.perception.attacks import margin, threshold_logit
+
+    net, w, pay = shipped
+    t = threshold_logit(0.5)
+    cert = certified_radius(detect_chain(net, t), w, pay)
+    assert (cert > 0).all() and (cert <= pay).all()
+    # PGD with restarts inside 0.99x the bound, plus random directions on its sphere
+    x0 = torch.from_numpy(w)
+    eps = torch.from_numpy(0.99 * cert).float().view(-1, 1, 1, 1)
+    gen = torch.Generator().manual_seed(0)
+    lowest = margin(net, x0, t).detach()
+    for _ in range(4):
+        delta = torch.randn(x0.shape, generator=gen)
+        delta = delta / delta.flatten(1).norm(dim=1).view(-1, 1, 1, 1) * eps
+        for _ in range(40):
+            delta.requires_grad_(True)
+            f = margin(net, (x0 + delta).clamp(0, 1), t)
+            (g,) = torch.autograd.grad(f.sum(), delta)
+            with torch.no_grad():
+                lowest = torch.minimum(lowest, f)
+                step = g / (g.flatten(1).norm(dim=1).view(-1, 1, 1, 1) + 1e-12)
+                delta = delta - 0.1 * eps * step
+                norm = delta.flatten(1).norm(dim=1).view(-1, 1, 1, 1)
+                delta = delta * torch.clamp(eps / (norm + 1e-12), max=1.0)
+    with torch.no_grad():
+        for _ in range(20):
+            d = torch.randn(x0.shape, generator=gen)
+            d = d / d.flatten(1).norm(dim=1).view(-1, 1, 1, 1) * eps
+            lowest = torch.minimum(lowest, margin(net, (x0 + d).clamp(0, 1), t))
+    assert (lowest > 0).all()

@@ -1,0 +1,172 @@
+"""Payoff intervals: scenes with payoff_lower, and --payoffs attack|certified|interval
+checked against the independent brute force over both payoff sets."""
+
+from __future__ import annotations
+
+import json
+import math
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+from oracle import brute_force
+
+from lesmc.errors import InputError
+from lesmc.language.parser import parse_spec
+from lesmc.model.lts import to_lts
+from lesmc.tracking.scene import load_scene, scene_from_dict
+from lesmc.unfold import bind_scene, build_model
+
+ROOT = Path(__file__).resolve().parents[1]
+SCENES = ROOT / "tests" / "scenes"
+
+
+def lesmc(*args: str) -> subprocess.CompletedProcess[str]:
+    return subprocess.run(
+        [sys.executable, "-m", "lesmc", *args], capture_output=True, text=True, cwd=ROOT
+    )
+
+
+def with_lower(name: str, seed: int) -> dict:
+    """A bundled scene with a payoff_lower per detection: the payoff times U(0, 1);
+    some unattackable detections get a finite lower bound."""
+    doc = json.loads((SCENES / f"{name}.json").read_text())
+    rng = np.random.default_rng(seed)
+    for fr in doc["frames"]:
+        for d in fr["detections"]:
+            if d["payoff"] == "unattackable":
+                d["payoff_lower"] = float(rng.uniform(0, 5)) if rng.random() < 0.5 else 0.0
+            else:
+                d["payoff_lower"] = float(d["payoff"]) * float(rng.uniform(0, 1))
+    return doc
+
+
+def test_scene_loader_checks_payoff_lower() -> None:
+    doc = with_lower("rq1_platoon", 0)
+    scene = scene_from_dict(doc)
+    assert scene.has_lower
+    bad = json.loads(json.dumps(doc))
+    d = bad["frames"][2]["detections"][1]
+    d["payoff_lower"] = float(d["payoff"]) + 1
+    with pytest.raises(InputError, match=rf"frame 2, detection '{d['id']}': payoff_lower"):
+        scene_from_dict(bad, "s.json")
+    d["payoff_lower"] = -1
+    with pytest.raises(InputError, match="payoff_lower must be a finite number >= 0"):
+        scene_from_dict(bad, "s.json")
+    d["payoff_lower"] = "unattackable"  # above a finite payoff
+    with pytest.raises(InputError, match="exceeds payoff"):
+        scene_from_dict(bad, "s.json")
+    plain = load_scene(SCENES / "rq1_platoon.json")
+    assert not plain.has_lower
+    with pytest.raises(InputError, match="payoff_lower is missing"):
+        plain.priced("certified")
+    # written back, the bounds survive
+    from lesmc.tracking.scene import scene_to_dict
+
+    again = scene_from_dict(json.loads(json.dumps(scene_to_dict(scene))))
+    assert again == scene
+
+
+def brute(scene, spec_text: str) -> list[float]:
+    spec = parse_spec(spec_text, "p.spec")
+    out = []
+    for bp in bind_scene(scene, [spec]):
+        model = build_model(scene, (bp.l, bp.u), bp.end)
+        out.append(brute_force(to_lts(model), bp).optimum)
+    return out
+
+
+SPEC = """property robustness {{
+    attack window {l}..{u}
+    minimize payoff
+    subject to dist.sum(0..end) > {c}
+    holds if optimum > {theta}
+}}
+property resilience {{
+    attack window {l}..{u}
+    minimize dist.max({l}..{u})
+    subject to dist.at(end) > 1
+    holds if optimum > {theta2}
+}}
+"""
+
+
+@pytest.mark.parametrize("name", ["rq1_platoon", "rq2_parallel", "rq4_merge"])
+@pytest.mark.parametrize("seed", range(3))
+def test_interval_verdicts_match_brute_force_over_both_payoff_sets(
+    name: str, seed: int, tmp_path: Path
+) -> None:
+    doc = with_lower(name, seed)
+    scene = scene_from_dict(doc)
+    end = scene.last_step - scene.target.step
+    l, u = max(1, end - 4), max(1, end - 2)
+    base = SPEC.format(l=l, u=u, c=40, theta=0, theta2=0)
+    att = brute(scene, base)
+    cer = brute(scene.priced("certified"), base)
+    for a, c in zip(att, cer, strict=True):
+        assert c <= a  # lower payoffs, more hideable detections: never a larger optimum
+    # thresholds below, between and above the two optima exercise every verdict
+    rng = np.random.default_rng(seed)
+    path = tmp_path / "s.json"
+    path.write_text(json.dumps(doc))
+    seen = set()
+    for _ in range(4):
+        th = []
+        for a, c in zip(att, cer, strict=True):
+            lo_, hi_ = (c, a) if math.isfinite(a) else (c, c + 10)
+            pick = rng.choice(["below", "between", "above"])
+            if not math.isfinite(lo_):
+                th.append(1.0)
+            elif pick == "below":
+                th.append(lo_ - 0.5)
+            elif pick == "between" and hi_ > lo_:
+                th.append((lo_ + hi_) / 2)
+            else:
+                th.append(hi_ + 0.5)
+        spec = tmp_path / "p.spec"
+        spec.write_text(SPEC.format(l=l, u=u, c=40, theta=th[0], theta2=th[1]))
+        r = lesmc("check", str(path), str(spec), "--payoffs", "interval", "--json")
+        assert "Traceback" not in r.stderr
+        doc_out = json.loads(r.stdout)
+        verdicts = []
+        for res, a, c, t in zip(doc_out["results"], att, cer, th, strict=True):
+            expect = "holds" if c > t else "violated" if a <= t else "unknown"
+            assert res["verdict"] == expect, (res["property"], a, c, t)
+            assert res["payoffs"] == "interval"
+            for key, v in (("optimum_certified", c), ("optimum_attack", a)):
+                got = res[key]
+                assert (got == "inf") if math.isinf(v) else math.isclose(got, v, rel_tol=1e-9)
+            if expect == "violated":
+                assert res["counterexample"] is not None
+            verdicts.append(expect)
+            seen.add(expect)
+        want = 1 if "violated" in verdicts else 3 if "unknown" in verdicts else 0
+        assert r.returncode == want
+        # the single modes agree with the brute force on their own payoff set
+    for mode, truth in (("attack", att), ("certified", cer)):
+        spec = tmp_path / "q.spec"
+        spec.write_text(base)
+        r = lesmc("check", str(path), str(spec), "--payoffs", mode, "--json")
+        for res, v in zip(json.loads(r.stdout)["results"], truth, strict=True):
+            assert res["payoffs"] == mode
+            assert res["verdict"] == ("holds" if v > 0 else "violated")
+    assert seen  # at least one verdict was compared
+
+
+def test_payoffs_refused_without_lower_bounds_or_on_a_model(tmp_path: Path) -> None:
+    r = lesmc(
+        "check",
+        str(SCENES / "rq1_platoon.json"),
+        str(SCENES / "rq1_platoon.spec"),
+        "--payoffs",
+        "interval",
+    )
+    assert r.returncode == 2 and "payoff_lower is missing" in r.stderr
+    assert "Traceback" not in r.stderr
+    tiny = ROOT / "tests" / "golden" / "tiny"
+    r = lesmc(
+        "check", str(tiny / "model.lts"), str(tiny / "properties.spec"), "--payoffs", "certified"
+    )
+    assert r.returncode == 2 and "needs a scene" in r.stderr
