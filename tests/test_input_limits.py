@@ -298,7 +298,7 @@ def test_tiny_frames_are_refused_with_the_file_named(tmp_path: Path) -> None:
     _frames(tmp_path / "f", 1)
     with pytest.raises(InputError) as info:
         open_frames(tmp_path / "f", 2)
-    assert "frame_00.png: frame is 1x1 pixels; frames must be at least 32x32" in str(info.value)
+    assert "frame_00.png: frame is 1x1 pixels; frames must be at least 8x8" in str(info.value)
 
 
 def test_symlinks_leading_out_of_the_frames_directory_are_refused(tmp_path: Path) -> None:

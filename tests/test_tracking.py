@@ -195,7 +195,7 @@ BAD = [
     ),
     (
         lambda d: d["frames"][1]["detections"][0].update(x="NaN"),
-        "frame 1, detection '1:t': x must be a finite number",
+        "frame 1, detection '1:t': x must be a number within ±1e+07, got 'NaN'",
     ),
     (lambda d: d["tracker"].update(design="triple"), 'tracker: design must be "single" or "joint"'),
     (lambda d: d["frames"].pop(3), "frame 4: steps must be consecutive: follows frame 2"),
@@ -210,10 +210,13 @@ BAD = [
     (lambda d: d["target"].update(step=99), "target: step 99 is not among the frames 0..19"),
     (
         lambda d: d["frames"][1]["detections"][0].update(payoff=-1),
-        "frame 1, detection '1:t': payoff must be a finite number >= 0",
+        "frame 1, detection '1:t': payoff must be a number in [0, 1e+12]",
     ),
-    (lambda d: d["tracker"].update(sigma_q=0), "tracker: sigma_q must be a finite number > 0"),
-    (lambda d: d.update(dt=0), "dt: must be a finite number > 0"),
+    (
+        lambda d: d["tracker"].update(sigma_q=0),
+        "tracker: sigma_q must be a number in (0, 1e+06], got 0",
+    ),
+    (lambda d: d.update(dt=0), "dt: must be a number of seconds in (0, 3600], got 0"),
 ]
 
 

@@ -20,7 +20,7 @@ from lesmc.errors import InputError, Location
 
 EXTENSIONS = {".png", ".tif", ".tiff", ".jpg", ".jpeg"}
 #: Smallest width and height of a frame (pixels): less cannot be registered or windowed.
-MIN_SIDE = 32
+MIN_SIDE = 8
 
 
 def natural_key(name: str) -> list[object]:
