@@ -54,10 +54,10 @@ f._json_chunks = _json_chunks
     "report": """
 import lesmc.report.html as h
 _write = h.write_report
-def write_report(runs, out_dir, image_for=None, meta=None):
+def write_report(doc, out_dir, image_for=None):
     def image(i):
         ready()
-    return _write(runs, out_dir, image, meta)
+    return _write(doc, out_dir, image)
 h.write_report = write_report
 """,
     # while numpy is being imported (before any lesmc work)
