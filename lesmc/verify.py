@@ -56,9 +56,10 @@ def bundled_specs() -> list[Path]:
 
 
 def with_window(spec: SpecFile, window: tuple[int, int] | None) -> SpecFile:
+    """``spec`` attacked in ``window`` (see :meth:`Property.with_window`); None keeps it."""
     if window is None:
         return spec
-    props = tuple(dataclasses.replace(p, window=window) for p in spec.properties)
+    props = tuple(p.with_window(window) for p in spec.properties)
     return dataclasses.replace(spec, properties=props)
 
 

@@ -9,7 +9,7 @@ from typing import TYPE_CHECKING
 
 import click
 
-from lesmc.cli.options import design_option, load_model_or_scene
+from lesmc.cli.options import design_option, load_model_or_scene, scene_target
 from lesmc.errors import UsageError
 
 if TYPE_CHECKING:
@@ -67,6 +67,7 @@ does not import the engines (tests/test_startup.py checks that the two agree).""
     "checked on its built model).",
 )
 @design_option("For a scene: override the tracker design it names.")
+@scene_target
 def check_cmd(
     model: str,
     specs: tuple[str, ...],
@@ -78,6 +79,7 @@ def check_cmd(
     no_paths: bool,
     report_dir: str | None,
     design: str | None,
+    target_text: str | None,
 ) -> None:
     """Check the properties in SPEC files on MODEL (a .lts file) or on a SCENE (.json).
 
@@ -102,7 +104,7 @@ def check_cmd(
     from lesmc.unfold import bind_scene, check_scene_bound
 
     parsed = [load_spec(s) for s in specs]
-    source = load_model_or_scene(model, design)
+    source = load_model_or_scene(model, design, target_text)
     bound = bind_scene(source, parsed) if isinstance(source, Scene) else bind_all(source, parsed)
     if only:
         names = {bp.name for bp in bound}

@@ -8,7 +8,7 @@ optimum with a threshold (section 4: holds iff optimum > threshold).
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Literal
 
 #: A step reference in a spec: a number, or None for ``end``.
@@ -101,6 +101,24 @@ class Property:
 
     def holds_text(self) -> str:
         return f"optimum {self.holds_op} {_num(self.threshold)}"
+
+    def with_window(self, window: tuple[int, int]) -> Property:
+        """The property attacked in ``window`` instead: measure ranges written as the
+        property's own window (``dist.max(6..8)`` in ``attack window 6..8``, resilience's
+        "maximum deviation within the window", Eq. 7) follow it."""
+        own = self.window
+
+        def move(m: Measure) -> Measure:
+            if m.kind == "dist" and m.aggregate != "at" and (m.lo, m.hi) == own:
+                return replace(m, lo=window[0], hi=window[1])
+            return m
+
+        return replace(
+            self,
+            window=window,
+            objective=move(self.objective),
+            constraint=replace(self.constraint, measure=move(self.constraint.measure)),
+        )
 
 
 @dataclass(frozen=True)
