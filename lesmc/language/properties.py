@@ -129,6 +129,17 @@ class SpecFile:
     text: str
     properties: tuple[Property, ...]
 
+    def with_window(self, window: tuple[int, int] | None) -> SpecFile:
+        """Every property attacked in ``window`` (:meth:`Property.with_window`); None keeps it."""
+        if window is None:
+            return self
+        return replace(self, properties=tuple(p.with_window(window) for p in self.properties))
+
+    def with_monitor(self) -> SpecFile:
+        """Every property filtered by the runtime monitor (the improved design, section 7.1)."""
+        props = tuple(p if p.monitor else replace(p, monitor=Monitor()) for p in self.properties)
+        return replace(self, properties=props)
+
 
 def _step_text(ref: StepRef) -> str:
     return "end" if ref is None else str(ref)
