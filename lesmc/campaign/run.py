@@ -250,6 +250,8 @@ def execute(
     ``workers`` single-threaded processes, or the cluster at ``scheduler``. A
     group whose worker dies is run again (``retries``).
     """
+    if not groups:
+        return  # all done: no cluster to start
     if scheduler is None and workers == 0:
         from lesmc.campaign.work import run_group
 

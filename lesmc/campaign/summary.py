@@ -261,7 +261,7 @@ def write_html(
         f"<p>{s['rows']} results: {len(s['videos'])} video(s), {s['targets']} targets, "
         f"{s['windows']} windows, designs {', '.join(DESIGN_NAMES[d] for d in s['designs'])}, "
         f"properties {', '.join(s['properties'])}.</p>",
-        "<h2>Verdicts and optima</h2>",
+        "<h2>Verdicts and optima (ECDF over targets and windows)</h2>",
     ]
     rows = []
     for d in s["designs"]:
