@@ -121,7 +121,8 @@ def test_perceive_writes_a_scene_without_a_target(video: Path, tmp_path: Path) -
     assert isinstance(r.exception, UsageError) and "-o" in str(r.exception)  # no scene
     r = CliRunner().invoke(cli, ["perceive", str(video), "-o", str(out), "--target", "1,1@1"])
     assert r.exit_code != 0 and not out.exists()  # frame 1 only fills the background
-    r = CliRunner().invoke(cli, ["perceive", str(video), "-o", str(out)])
+    # few DeepFool iterations: this test is about the scene's shape, not the payoffs
+    r = CliRunner().invoke(cli, ["perceive", str(video), "-o", str(out), "--max-iter", "2"])
     assert r.exit_code == 0, r.output
     doc = json.loads(out.read_text())
     assert "target" not in doc and len(doc["frames"]) == 4

@@ -114,8 +114,10 @@ def prepare(video: Video, out: Path, nets_dir: str | None = None) -> Prepared:
 
 
 def truth_targets(p: Prepared, window: tuple[int, int], horizon: int) -> list[AutoTarget]:
-    """Vehicles of the truth at the first frame (lesmc verify's ranking) that the unattacked
-    plain tracker, started on them from the scene, follows through ``horizon``."""
+    """Vehicles of the truth ranked as lesmc verify ranks them (``rank_targets``), starting at
+    each frame that leaves ``horizon`` steps, each vehicle once (at its earliest start), kept
+    when the unattacked plain tracker, started on it from the scene, follows it through
+    ``horizon``. Most neighbouring traffic first; ties by frame, then vehicle id."""
     from lesmc.perception.quality import load_truth
     from lesmc.tracking.targets import place_target, rounded
     from lesmc.unfold import original_end
@@ -126,17 +128,28 @@ def truth_targets(p: Prepared, window: tuple[int, int], horizon: int) -> list[Au
     truth = load_truth(str(p.video.truth))
     frames = open_frames(p.video.frames_dir, HISTORY + 1, check=False)
     first = p.footage.frames[0].step
-    tfs = [truth.frames[f.name] for f in frames.paths[first:] if f.name in truth.frames]
-    out = []
-    for c in rank_targets(tfs, (frames.width, frames.height), (window[0], horizon - 1)):
-        spec = rounded(c.spec.x, c.spec.y, first)
-        try:
-            scene = place_target(p.footage, spec)
-        except UsageError:
-            continue  # no detection of it in the gate: the detector missed it
-        if original_end(scene) >= horizon and follows(scene, c.truth_track[: horizon + 1]):
-            out.append(AutoTarget(spec, c.crowd, f"vehicle {c.vid} of the truth"))
-    return out
+    tfs = [truth.frames.get(f.name) for f in frames.paths[first : p.footage.last_step + 1]]
+    found: list[tuple[int, int, int, AutoTarget]] = []
+    seen: set[int] = set()
+    for s in range(first, p.footage.last_step - horizon + 1):
+        window_s = tfs[s - first :]
+        if any(tf is None for tf in window_s):
+            break
+        ranked = rank_targets(window_s, (frames.width, frames.height), (window[0], horizon - 1))  # type: ignore[arg-type]
+        for c in ranked:
+            if c.vid in seen:
+                continue
+            spec = rounded(c.spec.x, c.spec.y, s)
+            try:
+                scene = place_target(p.footage, spec)
+            except UsageError:
+                continue  # no detection of it in the gate: the detector missed it
+            if original_end(scene) >= horizon and follows(scene, c.truth_track[: horizon + 1]):
+                seen.add(c.vid)
+                origin = f"vehicle {c.vid} of the truth, from frame {s}"
+                found.append((-c.crowd, s, c.vid, AutoTarget(spec, c.crowd, origin)))
+    found.sort(key=lambda f: f[:3])
+    return [f[3] for f in found]
 
 
 def auto_targets(p: Prepared, windows: list[tuple[int, int]], use_truth: bool) -> list[AutoTarget]:
