@@ -10,7 +10,6 @@ from __future__ import annotations
 
 import json
 import os
-from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
@@ -84,8 +83,3 @@ class Appender:
 
     def __exit__(self, *exc: object) -> None:
         self.close()
-
-
-def iter_keys(rows: list[dict[str, Any]]) -> Iterator[str]:
-    for r in rows:
-        yield str(r["key"])
