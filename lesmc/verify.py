@@ -8,7 +8,6 @@ with neighbouring traffic, the bundled robustness and resilience specs.
 
 from __future__ import annotations
 
-import dataclasses
 import json
 from collections.abc import Callable
 from dataclasses import asdict, dataclass
@@ -22,7 +21,7 @@ from lesmc.engines.budget import Budget
 from lesmc.engines.check import DEFAULT_MAX_STATES, bind_all, check_bound
 from lesmc.errors import LesmcError, UsageError
 from lesmc.language.parser import load_spec
-from lesmc.language.properties import Monitor, SpecFile
+from lesmc.language.properties import SpecFile
 from lesmc.model.arrays import ArrayModel
 from lesmc.model.growing import GrowingModel
 from lesmc.model.lts import LTS, to_lts
@@ -58,18 +57,13 @@ def bundled_specs() -> list[Path]:
 
 
 def with_window(spec: SpecFile, window: tuple[int, int] | None) -> SpecFile:
-    if window is None:
-        return spec
-    props = tuple(dataclasses.replace(p, window=window) for p in spec.properties)
-    return dataclasses.replace(spec, properties=props)
+    """``spec`` attacked in ``window`` (see :meth:`Property.with_window`); None keeps it."""
+    return spec.with_window(window)
 
 
 def with_monitor(spec: SpecFile) -> SpecFile:
     """Every property filtered by the runtime monitor (the improved design of section 7.1)."""
-    props = tuple(
-        p if p.monitor else dataclasses.replace(p, monitor=Monitor()) for p in spec.properties
-    )
-    return dataclasses.replace(spec, properties=props)
+    return spec.with_monitor()
 
 
 @dataclass(frozen=True)

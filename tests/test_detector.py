@@ -115,12 +115,27 @@ def test_perceive_writes_a_scene_the_checker_takes(video: Path, tmp_path: Path) 
     assert chk.exit_code in (0, 1, 3), chk.output
 
 
-def test_perceive_refuses_half_a_scene_request(video: Path, tmp_path: Path) -> None:
+def test_perceive_writes_a_scene_without_a_target(video: Path, tmp_path: Path) -> None:
     out = tmp_path / "scene.json"
-    r = CliRunner().invoke(cli, ["perceive", str(video), "-o", str(out)])
-    assert r.exit_code != 0 and not out.exists()
+    r = CliRunner().invoke(cli, ["perceive", str(video), "--target", "1,1@4"])
+    assert isinstance(r.exception, UsageError) and "-o" in str(r.exception)  # no scene
     r = CliRunner().invoke(cli, ["perceive", str(video), "-o", str(out), "--target", "1,1@1"])
     assert r.exit_code != 0 and not out.exists()  # frame 1 only fills the background
+    # few DeepFool iterations: this test is about the scene's shape, not the payoffs
+    r = CliRunner().invoke(cli, ["perceive", str(video), "-o", str(out), "--max-iter", "2"])
+    assert r.exit_code == 0, r.output
+    doc = json.loads(out.read_text())
+    assert "target" not in doc and len(doc["frames"]) == 4
+    spec = str(Path(__file__).parents[1] / "specs" / "robustness.spec")
+    r = CliRunner().invoke(cli, ["check", str(out), spec])
+    assert isinstance(r.exception, UsageError) and "has no target" in str(r.exception)
+    z = doc["frames"][0]["detections"][0]
+    # a target far from every detection is refused, one on a detection is checked
+    r = CliRunner().invoke(cli, ["check", str(out), spec, "--target", "-500,-500@4"])
+    assert isinstance(r.exception, UsageError) and "gate" in str(r.exception)
+    r = CliRunner().invoke(cli, ["track", str(out), "--target", f"{z['x']},{z['y']}@4", "--json"])
+    assert r.exit_code == 0, r.output
+    assert json.loads(r.stdout)["track"][0]["s"][:2] == [z["x"], z["y"]]
 
 
 def test_training_smoke_run_produces_loadable_networks(tmp_path: Path) -> None:

@@ -14,6 +14,7 @@ from lesmc.cli.options import (
     load_scene_file,
     model_output,
     parse_window,
+    scene_target,
 )
 from lesmc.errors import escape_control, escape_text
 
@@ -38,6 +39,7 @@ _DESIGN = design_option("Override the tracker design the scene names.")
 @model_output
 @_DESIGN
 @budget_options(None, "the build stops with exit 3 and writes nothing")
+@scene_target
 def build_cmd(
     scene: str,
     window_text: str,
@@ -47,6 +49,7 @@ def build_cmd(
     max_states: int | None,
     timeout: float | None,
     max_memory: int | None,
+    target_text: str | None,
 ) -> None:
     """Unfold SCENE into a <PO>²-LTS (Algorithm 1): every attacked run in the window.
 
@@ -61,7 +64,7 @@ def build_cmd(
     from lesmc.unfold import build_model, max_end
 
     window = parse_window(window_text)
-    sc = load_scene_file(scene, design)
+    sc = load_scene_file(scene, design, target_text)
     last = end if end is not None else max_end(sc)
     err = Console(stderr=True)
     with Progress(
@@ -97,7 +100,10 @@ def build_cmd(
 @click.option("--end", type=click.IntRange(min=0), default=None, help="Last step to track.")
 @click.option("--json", "as_json", is_flag=True, help="Print the track as JSON.")
 @_DESIGN
-def track_cmd(scene: str, end: int | None, as_json: bool, design: str | None) -> None:
+@scene_target
+def track_cmd(
+    scene: str, end: int | None, as_json: bool, design: str | None, target_text: str | None
+) -> None:
     """Run the tracker on SCENE unattacked: estimates, τ (Eq. 12) and monitor alarms (Eq. 13)."""
     from rich.table import Table
 
@@ -105,7 +111,7 @@ def track_cmd(scene: str, end: int | None, as_json: bool, design: str | None) ->
     from lesmc.tracking.design import make_design
     from lesmc.tracking.monitor import track
 
-    sc = load_scene_file(scene, design)
+    sc = load_scene_file(scene, design, target_text)
     points = track(make_design(sc), end)
     if as_json:
         doc = {

@@ -10,7 +10,13 @@ from typing import TYPE_CHECKING
 import click
 
 from lesmc.cli.budgets import stop_if_spent
-from lesmc.cli.options import budget_from, design_option, load_model_or_scene, memory_option
+from lesmc.cli.options import (
+    budget_from,
+    design_option,
+    load_model_or_scene,
+    memory_option,
+    scene_target,
+)
 from lesmc.errors import UsageError
 
 if TYPE_CHECKING:
@@ -88,6 +94,7 @@ does not import the engines (tests/test_startup.py checks that the two agree).""
     "with the attack's counterexample, else unknown (docs/semantics.md).",
 )
 @design_option("For a scene: override the tracker design it names.")
+@scene_target
 def check_cmd(
     model: str,
     specs: tuple[str, ...],
@@ -102,6 +109,7 @@ def check_cmd(
     payoffs: str,
     design: str | None,
     max_memory: int | None,
+    target_text: str | None,
 ) -> None:
     """Check the properties in SPEC files on MODEL (a .lts file) or on a SCENE (.json).
 
@@ -129,7 +137,7 @@ def check_cmd(
     if frames_dir is not None and report_dir is None:
         raise UsageError("--frames gives the report's images: it needs --report DIR")
     parsed = [load_spec(s) for s in specs]
-    source = load_model_or_scene(model, design)
+    source = load_model_or_scene(model, design, target_text)
     if payoffs != "attack" and not isinstance(source, Scene):
         raise UsageError(f"--payoffs {payoffs} needs a scene: a model's payoffs are built in")
     if payoffs != "attack" and report_dir is not None:

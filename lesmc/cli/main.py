@@ -21,6 +21,7 @@ from typing import Any, NoReturn
 import click
 
 from lesmc.cli.build import build_cmd, track_cmd
+from lesmc.cli.campaign import campaign_cmd
 from lesmc.cli.check import check_cmd
 from lesmc.cli.perceive import perceive_cmd
 from lesmc.cli.reduce import reduce_group
@@ -64,6 +65,7 @@ def cli() -> None:
     The whole experiment (paper section 8) in one command:
       lesmc verify                           embedded synthetic video, both designs, report
       lesmc verify FRAMES/ --target X,Y      your video
+      lesmc campaign --out DIR               many targets x the paper's 36 windows, in parallel
     \b
     Stage by stage (frames -> scene -> model -> check -> report):
       lesmc synth OUT/                       a synthetic WAMI video with truth.json
@@ -97,6 +99,7 @@ cli.add_command(perceive_cmd)
 cli.add_command(train_cmd)
 cli.add_command(verify_cmd)
 cli.add_command(report_cmd)
+cli.add_command(campaign_cmd)
 
 
 def _debug() -> bool:

@@ -47,6 +47,20 @@ def design_option(help_text: str) -> Callable[[F], F]:
 MAX_STEP = 10**6
 
 
+def target_option(help_text: str) -> Callable[[F], F]:
+    """``--target X,Y@STEP``: where the tracked vehicle starts, overriding a scene's own."""
+    return click.option(
+        "--target", "target_text", default=None, metavar="X,Y[@STEP]", help=help_text
+    )
+
+
+#: ``--target`` of the verbs that read a scene.
+scene_target = target_option(
+    "Track the vehicle at X,Y of frame STEP [default: the first], overriding the scene's "
+    "target (needed when the scene has none)."
+)
+
+
 def parse_window(text: str) -> tuple[int, int]:
     """``L..U`` -> (L, U): ASCII digits only, each at most :data:`MAX_STEP`."""
     m = re.fullmatch(r"\s*([0-9]+)\s*\.\.\s*([0-9]+)\s*", text, re.ASCII)
@@ -141,24 +155,37 @@ def budget_from(timeout: float | None, max_states: int | None, max_memory: int |
     return budget
 
 
-def load_model_or_scene(path: str, design: str | None = None) -> ArrayModel | Scene:
+def load_model_or_scene(
+    path: str, design: str | None = None, target: str | None = None
+) -> ArrayModel | Scene:
     """A .lts model or a scene, told apart by the file's ``format`` field."""
     from lesmc.model.lts_format import lts_from_dict
-    from lesmc.tracking.scene import scene_from_dict
 
     data = read_json(Path(path), InputError)
     kind = data.get("format") if isinstance(data, dict) else None
     if kind == "lesmc-scene":
-        scene = scene_from_dict(data, path)
-        return scene.with_tracker(design=design) if design else scene
+        return _scene(data, path, design, target)
     if design:
         raise UsageError("--design applies to scenes, not to .lts models")
+    if target:
+        raise UsageError("--target applies to scenes, not to .lts models (built for one target)")
     return lts_from_dict(data, path)
 
 
-def load_scene_file(path: str, design: str | None = None) -> Scene:
-    from lesmc.tracking.scene import scene_from_dict
+def load_scene_file(path: str, design: str | None = None, target: str | None = None) -> Scene:
+    """A scene file; ``target`` (``X,Y@STEP``) overrides or supplies its target."""
+    return _scene(read_json(Path(path), InputError), path, design, target)
 
-    data = read_json(Path(path), InputError)
-    scene = scene_from_dict(data, path)
+
+def _scene(data: Any, path: str, design: str | None, target: str | None) -> Scene:
+    from lesmc.tracking.scene import footage_from_dict
+    from lesmc.tracking.targets import parse_target, place_target
+
+    footage, own = footage_from_dict(data, path)
+    if target is not None:
+        scene = place_target(footage, parse_target(target))
+    elif own is None:
+        raise UsageError(f"{path} has no target: give --target X,Y@STEP")
+    else:
+        scene = footage.with_target(own, footage.meta)
     return scene.with_tracker(design=design) if design else scene

@@ -14,6 +14,7 @@ from lesmc.video import FPS
 if TYPE_CHECKING:
     from lesmc.perception.attacks import Method, Norm
     from lesmc.perception.run import PerceiveRun
+    from lesmc.tracking.scene import Footage, Scene
 
 
 @click.command("perceive")
@@ -23,7 +24,8 @@ if TYPE_CHECKING:
     "--output",
     type=click.Path(dir_okay=False),
     default=None,
-    help="Write the scene (detections, payoffs, homographies, target) here.",
+    help="Write the scene (detections, payoffs, homographies, and the target if --target "
+    "is given) here.",
 )
 @click.option(
     "--target",
@@ -127,9 +129,11 @@ def perceive_cmd(
     """Run the vehicle detector of the paper's Figure 4 on FRAMES_DIR (PNG/TIFF/JPEG).
 
     Registration, median background and subtraction give candidates Q_bc; N_dr
-    keeps the vehicles, N_lp splits crowded blobs. With -o and --target, each
+    keeps the vehicles, N_lp splits crowded blobs. With -o, each
     detection's payoff (the smallest perturbation that hides it from N_dr) is
-    computed and a scene is written for `lesmc build` / `lesmc check`.
+    computed and a scene is written for `lesmc build` / `lesmc check`. Without
+    --target the scene has no target: give one to check, build or verify with
+    --target X,Y@STEP (lesmc campaign finds them itself).
     """
     # Imported here, not at module level: torch, cv2 and scipy cost seconds to import.
     from lesmc.perception.attacks import AttackConfig
@@ -137,13 +141,18 @@ def perceive_cmd(
     from lesmc.perception.cnn import load_nets
     from lesmc.perception.quality import load_truth
     from lesmc.perception.run import PerceiveOptions, perceive
-    from lesmc.perception.to_scene import check_target, parse_target, scene_from_run
+    from lesmc.perception.to_scene import (
+        check_target,
+        footage_from_run,
+        parse_target,
+        scene_from_run,
+    )
     from lesmc.report.progress import progress_bar
     from lesmc.tracking.scene import save_scene
     from lesmc.video.reader import open_frames
 
-    if (output is None) != (target_text is None):
-        raise UsageError("-o/--output and --target go together: the scene needs a target")
+    if target_text is not None and output is None:
+        raise UsageError("--target needs -o/--output: it is the target of the scene written")
     if output is not None and no_cnn:
         raise UsageError("--no-cnn cannot write a scene: payoffs need the CNN")
     spec = parse_target(target_text) if target_text else None
@@ -176,7 +185,7 @@ def perceive_cmd(
     )
     with progress_bar("perceiving", len(frames)) as bar:
         run = perceive(frames, opts, truths, bar.advance)
-    if output is not None and spec is not None and nets is not None and att is not None:
+    if output is not None and nets is not None and att is not None:
         step_dt = dt or (truths.dt if truths else None) or 1 / FPS
         meta = {
             "source": str(Path(frames_dir)),
@@ -192,13 +201,21 @@ def perceive_cmd(
         }
         if certify:
             meta["certify"] = {"method": "CROWN, L2 ball", "steps": CertifyConfig().steps}
-        scene = scene_from_run(run, frames, spec, step_dt, truths, meta)
+        if spec is None:
+            scene: Scene | Footage = footage_from_run(run, step_dt, meta)
+            where = "no target (give --target to check, build or verify)"
+        else:
+            placed = scene_from_run(run, frames, spec, step_dt, truths, meta)
+            where = (
+                f"target at step {placed.target.step}, velocity "
+                f"{placed.meta['target_velocity_from']}"
+            )
+            scene = placed
         save_scene(scene, output)
         n = sum(len(f.detections) for f in scene.frames)
         click.echo(
             f"wrote {output}: {len(scene.frames)} frames (steps {scene.frames[0].step}.."
-            f"{scene.last_step}), {n} detections, {run.unattackable} unattackable; target at "
-            f"step {scene.target.step}, velocity {scene.meta['target_velocity_from']}",
+            f"{scene.last_step}), {n} detections, {run.unattackable} unattackable; {where}",
             err=as_json,
         )
     if as_json:

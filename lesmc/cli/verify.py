@@ -33,7 +33,8 @@ HISTORY = 4
     "target_text",
     default=None,
     metavar="X,Y[@STEP]",
-    help="The vehicle to track [default: chosen from --truth where traffic is dense].",
+    help="The vehicle to track, X,Y of frame STEP; with --scene it overrides the scene's "
+    "target [default: chosen from --truth where traffic is dense].",
 )
 @click.option(
     "--truth",
@@ -144,7 +145,9 @@ def verify_cmd(
     if scene_path is not None:
         if frames_dir is not None:
             raise UsageError("give FRAMES_DIR or --scene, not both")
-        scene = load_scene_file(scene_path)
+        if truth is not None or nets_dir is not None:
+            raise UsageError("--truth and --nets apply to a video, not to --scene")
+        scene = load_scene_file(scene_path, None, target_text)
         frames = truths = None  # images only from a directory named on the command line
         meta["scene"] = scene_path
     else:

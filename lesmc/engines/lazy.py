@@ -8,6 +8,11 @@ state of that step still waiting, in one batch. Deviations, τ and the
 contributions of new transitions are computed per batch with the kernel,
 exactly as :func:`lesmc.engines.space.build_space` computes them for a
 whole model, so both give the same answers (tests/test_builder.py).
+
+The model may have been unfolded for a wider attack window than the property's
+(one model serves every window of a campaign, lesmc/campaign): as in
+``build_space``, a transition entering a step outside the property's window is
+allowed only if it is rank-minimal (the unattacked outcome).
 """
 
 from __future__ import annotations
@@ -48,6 +53,7 @@ class LazySpace(SpaceOps):
         self._t_known = 0  # transitions whose contributions are computed
         self._per_state = 0.0  # seconds one state's expansion took, as last measured
         self._waiting: dict[int, list[int]] = {}  # per step outside the window: unexpanded states
+        self._queued: set[int] = set()  # every state ever put in _waiting
         self._known = 0  # states whose deviation and τ are computed
         self._ref = model.S[model.original]
         self._excused: np.ndarray | None = None
@@ -90,9 +96,6 @@ class LazySpace(SpaceOps):
                 self._tau.extend(self._tau_of_table()[cm.cov[new]])
                 if self._excused is None:  # the original path is unfolded before the search
                     self._excused = excused_steps(bp, self._tau.data[cm.original])
-            for q, k in zip(new.tolist(), steps.tolist(), strict=True):
-                if not bp.l <= k + 1 <= bp.u and k < bp.end:
-                    self._waiting.setdefault(k, []).append(q)
             self._known = cm.n_states
         t = np.arange(self._t_known, cm.n_transitions)
         if not t.size:
@@ -102,7 +105,7 @@ class LazySpace(SpaceOps):
         comb = cm.combined[t]
         self._c_obj.extend(kernel.contributions(bp.objective, ks, comb, self.dist[dst]))
         self._c_con.extend(kernel.contributions(bp.constraint, ks, comb, self.dist[dst]))
-        allowed = np.ones(t.size, dtype=bool)
+        allowed = ((ks >= bp.l) & (ks <= bp.u)) | (cm.rank[t] == 0)
         if bp.monitor_components is not None:
             tau = self._tau.data
             src = cm.src[t]
@@ -129,6 +132,7 @@ class LazySpace(SpaceOps):
             lo, hi = int(self.cm.out_lo[q]), int(self.cm.out_hi[q])
             got = np.arange(lo, hi)[self._mask.data[lo:hi]]
             self._allowed[q] = got
+            self._queue(self.cm.dst[got])
         return got
 
     def successors_batch(self, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -139,14 +143,39 @@ class LazySpace(SpaceOps):
         cm = self.cm
         u = np.unique(q)
         todo = u[cm.out_lo[u] < 0]
-        if todo.size:
-            steps = cm.step[todo]
-            for k in np.unique(steps).tolist():
-                cm.expand(todo[steps == k], int(k))
-            self._sync()
+        steps = cm.step[todo]
+        for k in np.unique(steps).tolist():
+            group = todo[steps == k]
+            while group.size:  # batches of about BATCH_SECONDS, so that deadlines hold
+                cap = BATCH if self._per_state <= 0 else int(BATCH_SECONDS / self._per_state) + 1
+                part, group = group[: max(1, min(BATCH, cap))], group[max(1, min(BATCH, cap)) :]
+                t0 = time.perf_counter()
+                cm.expand(part, int(k))
+                self._per_state = (time.perf_counter() - t0) / part.size
+                self._sync()
+
         owner, t = ranges(cm.out_lo[q], cm.out_hi[q])
         ok = self._mask.data[t]
         return owner[ok], t[ok]
+
+    def slice_size(self) -> int:
+        """How many states to hand :meth:`successors_batch` at once: about BATCH_SECONDS of
+        unfolding, so that the caller's clock is read often enough."""
+        if self._per_state <= 0:
+            return 64
+        return max(1, min(BATCH, int(BATCH_SECONDS / self._per_state) + 1))
+
+    def _queue(self, states: np.ndarray) -> None:
+        """States the search can reach whose successors lie outside the window: expanded
+        together, per step, when the first of them is."""
+        cm, bp = self.cm, self.bp
+        for q in states.tolist():
+            k = int(cm.step[q])
+            if bp.l <= k + 1 <= bp.u or k >= bp.end or q in self._queued:
+                continue
+            if not cm.expanded(q) and not cm.halted[q]:
+                self._queued.add(q)
+                self._waiting.setdefault(k, []).append(q)
 
     def entering(self, q0: int, q1: int) -> int:
         if not self.cm.expanded(q0):

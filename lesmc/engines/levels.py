@@ -234,6 +234,12 @@ def _expand(
     return idx, t
 
 
+def _slice(space: SearchSpace) -> int:
+    """Labels expanded between two looks at the budgets: fewer where unfolding is slow."""
+    size = getattr(space, "slice_size", None)
+    return SLICE if size is None else min(SLICE, int(size()))
+
+
 def _pareto(q: np.ndarray, o: np.ndarray, c: np.ndarray, up: bool) -> np.ndarray:
     """Indices of the labels no other label at the same state dominates.
 
@@ -300,14 +306,16 @@ def _optimum_pass(
                 best, where = float(lo_[j]), (trail, len(trail.q) - 1, int(li[j]))
         live = np.nonzero(~leaf)[0]
         parts: list[tuple[np.ndarray, ...]] = []
-        for s0 in range(0, live.size, SLICE):
-            sl = live[s0 : s0 + SLICE]
+        s0 = 0
+        while s0 < live.size:
+            sl = live[s0 : s0 + _slice(space)]
+            s0 += sl.size
             try:
                 idx, t = _expand(space, fq[sl], budget, stats)
             except _Stop as stop:
                 if beam is not None:
                     return best, where, -math.inf, stop.reason
-                rest = live[s0:]
+                rest = live[s0 - sl.size :]  # this slice was not expanded
                 lbs = [bounds.violating_lb(fq[rest], fo[rest], fc[rest])]
                 lbs += [bounds.violating_lb(p[0], p[1], p[2]) for p in parts]
                 lower = min([best, *(float(x.min()) for x in lbs if x.size)])
@@ -425,8 +433,10 @@ def _witness_pass(
                 best, where = val, (trail, level, int(live[hit[0]]), hit[1])
             break
         parts: list[tuple[np.ndarray, ...]] = []
-        for s0 in range(0, live.size, SLICE):
-            sl = live[s0 : s0 + SLICE]
+        s0 = 0
+        while s0 < live.size:
+            sl = live[s0 : s0 + _slice(space)]
+            s0 += sl.size
             idx, t = _expand(space, q[sl], budget, stats)
             par = sl[idx]
             dst = cm.dst[t]

@@ -8,7 +8,7 @@ optimum with a threshold (section 4: holds iff optimum > threshold).
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Literal
 
 #: A step reference in a spec: a number, or None for ``end``.
@@ -105,6 +105,24 @@ class Property:
     def holds_text(self) -> str:
         return f"optimum {self.holds_op} {_num(self.threshold)}"
 
+    def with_window(self, window: tuple[int, int]) -> Property:
+        """The property attacked in ``window`` instead: measure ranges written as the
+        property's own window (``dist.max(6..8)`` in ``attack window 6..8``, resilience's
+        "maximum deviation within the window", Eq. 7) follow it."""
+        own = self.window
+
+        def move(m: Measure) -> Measure:
+            if m.kind == "dist" and m.aggregate != "at" and (m.lo, m.hi) == own:
+                return replace(m, lo=window[0], hi=window[1])
+            return m
+
+        return replace(
+            self,
+            window=window,
+            objective=move(self.objective),
+            constraint=replace(self.constraint, measure=move(self.constraint.measure)),
+        )
+
 
 @dataclass(frozen=True)
 class SpecFile:
@@ -113,6 +131,17 @@ class SpecFile:
     path: str
     text: str
     properties: tuple[Property, ...]
+
+    def with_window(self, window: tuple[int, int] | None) -> SpecFile:
+        """Every property attacked in ``window`` (:meth:`Property.with_window`); None keeps it."""
+        if window is None:
+            return self
+        return replace(self, properties=tuple(p.with_window(window) for p in self.properties))
+
+    def with_monitor(self) -> SpecFile:
+        """Every property filtered by the runtime monitor (the improved design, section 7.1)."""
+        props = tuple(p if p.monitor else replace(p, monitor=Monitor()) for p in self.properties)
+        return replace(self, properties=props)
 
 
 def _step_text(ref: StepRef) -> str:

@@ -8,44 +8,20 @@ an attack at step k hides detections of frame k only.
 
 from __future__ import annotations
 
-import re
-from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
 from scipy.spatial import cKDTree
 
-from lesmc.errors import UsageError, escape_control
+from lesmc.errors import UsageError
 from lesmc.perception.detector import FrameDetections
 from lesmc.perception.quality import Truth, TruthFrame
 from lesmc.perception.run import PerceiveRun
-from lesmc.tracking.kalman import warp
-from lesmc.tracking.scene import Detection, Frame, Scene, Target, TrackerConfig
+from lesmc.tracking.scene import Detection, Footage, Frame, Scene, Target, TrackerConfig
+from lesmc.tracking.targets import TargetSpec as TargetSpec  # re-exported
+from lesmc.tracking.targets import check_gate, previous_velocity
+from lesmc.tracking.targets import parse_target as parse_target  # re-exported for the verbs
 from lesmc.video.reader import FrameSet
-
-
-@dataclass(frozen=True)
-class TargetSpec:
-    """``--target X,Y[@STEP]``: where the tracked vehicle is, in which frame (default: first)."""
-
-    x: float
-    y: float
-    step: int | None = None
-
-
-def parse_target(text: str) -> TargetSpec:
-    """``X,Y`` or ``X,Y@STEP`` (pixels of that frame) -> TargetSpec; a UsageError otherwise.
-
-    ASCII digits only; coordinates of at most 9 digits before the point, STEP at most 10**6.
-    """
-    num = r"\s*(-?[0-9]{1,9}(?:\.[0-9]{0,12})?)\s*"
-    m = re.fullmatch(num + "," + num + r"(?:@\s*([0-9]{1,7})\s*)?", text, re.ASCII)
-    if not m or (m.group(3) and int(m.group(3)) > 10**6):
-        shown = escape_control(text if len(text) <= 40 else text[:37] + "...")
-        raise UsageError(
-            f"--target must look like X,Y or X,Y@STEP (e.g. 812.5,96@4), got '{shown}'"
-        )
-    return TargetSpec(float(m.group(1)), float(m.group(2)), int(m.group(3)) if m.group(3) else None)
 
 
 def check_target(spec: TargetSpec, width: int, height: int, n_frames: int) -> None:
@@ -85,37 +61,23 @@ def frames_of(
 
 
 def target_velocity(
-    frames: tuple[Frame, ...],
+    footage: Footage,
     spec: TargetSpec,
     step: int,
-    dt: float,
     truth: TruthFrame | None,
     snap_px: float = 6.0,
-    max_move_px: float = 45.0,
 ) -> tuple[tuple[float, float], str]:
     """The target's initial velocity (px/s) and how it was obtained.
 
     From the truth when given (the nearest true vehicle within ``snap_px``);
-    otherwise from the nearest detection in the previous frame, mapped into this
-    frame, within ``max_move_px``; otherwise zero (the tracker's P0 covers it).
+    otherwise from the previous frame (tracking/targets.py: previous_velocity).
     """
     here = np.array([spec.x, spec.y])
     if truth is not None and len(truth.positions):
         d, j = cKDTree(truth.positions).query(here)
         if d <= snap_px and truth.velocity is not None:
             return (float(truth.velocity[j, 0]), float(truth.velocity[j, 1])), "truth"
-    first = frames[0].step
-    if step - 1 >= first:
-        prev, cur = frames[step - 1 - first], frames[step - first]
-        if len(cur.detections) and len(prev.detections) and prev.to_next is not None:
-            d, j = cKDTree(cur.positions()).query(here)
-            p0 = cur.positions()[j] if d <= snap_px else here
-            pts = warp(prev.to_next, prev.positions())
-            d2, k = cKDTree(pts).query(p0)
-            if d2 <= max_move_px:
-                v = (p0 - pts[k]) / dt
-                return (float(v[0]), float(v[1])), "previous frame"
-    return (0.0, 0.0), "none (zero)"
+    return previous_velocity(footage, spec.x, spec.y, step)
 
 
 def make_scene(
@@ -138,10 +100,19 @@ def make_scene(
             f"--target step {step} is not a detected frame ({frames[0].step}..{frames[-1].step}; "
             "the first L frames only build the background)"
         )
-    vel, how = target_velocity(frames, spec, step, dt, truth)
+    footage = Footage(dt, frames, tracker or TrackerConfig(), dict(meta or {}))
+    check_gate(footage, spec, step)
+    vel, how = target_velocity(footage, spec, step, truth)
     info = dict(meta or {})
     info["target_velocity_from"] = how
-    return Scene(dt, frames, Target(step, (spec.x, spec.y), vel), tracker or TrackerConfig(), info)
+    return footage.with_target(Target(step, (spec.x, spec.y), vel), info)
+
+
+def footage_from_run(run: PerceiveRun, dt: float, meta: dict[str, Any] | None = None) -> Footage:
+    """The scene without a target of a ``perceive`` run (``lesmc perceive -o`` alone)."""
+    if not run.detections:
+        raise UsageError("no frame produced detections: the video is shorter than L+1 frames")
+    return Footage(dt, frames_of(run.detections, run.payoffs), TrackerConfig(), dict(meta or {}))
 
 
 def scene_from_run(

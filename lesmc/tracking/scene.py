@@ -198,6 +198,32 @@ class Target:
 
 
 @dataclass(frozen=True)
+class Footage:
+    """A scene without a target: what perception produces once per video.
+
+    ``lesmc perceive -o`` without ``--target`` writes one; ``--target X,Y@STEP``
+    (lesmc/tracking/targets.py) turns it into a :class:`Scene` per vehicle.
+    """
+
+    dt: float
+    frames: tuple[Frame, ...]
+    tracker: TrackerConfig = field(default_factory=TrackerConfig)
+    meta: dict[str, Any] = field(default_factory=dict, compare=False)
+
+    def frame(self, step: int) -> Frame:
+        return self.frames[step - self.frames[0].step]
+
+    @property
+    def last_step(self) -> int:
+        return self.frames[-1].step
+
+    def with_target(self, target: Target, meta: dict[str, Any] | None = None) -> Scene:
+        """The scene tracking from ``target`` (its step must be one of the frames)."""
+        info = dict(self.meta) if meta is None else meta
+        return Scene(self.dt, self.frames, target, self.tracker, info)
+
+
+@dataclass(frozen=True)
 class Scene:
     """A validated scene; ``frames[i].step == first_step + i``."""
 
@@ -256,6 +282,11 @@ class Scene:
 
         return replace(self, tracker=replace(self.tracker, **changes))
 
+    @property
+    def footage(self) -> Footage:
+        """The scene without its target."""
+        return Footage(self.dt, self.frames, self.tracker, self.meta)
+
 
 # ---------------------------------------------------------------- loading
 
@@ -266,6 +297,16 @@ def load_scene(path: str | Path) -> Scene:
 
 
 def scene_from_dict(data: Any, path: str = "<scene>") -> Scene:
+    """A scene with its target (a file without one is an error)."""
+    footage, target = footage_from_dict(data, path, need_target=True)
+    assert target is not None
+    return footage.with_target(target, footage.meta)
+
+
+def footage_from_dict(
+    data: Any, path: str = "<scene>", need_target: bool = False
+) -> tuple[Footage, Target | None]:
+    """A scene file's frames and tracker, and its target if it has one."""
     pr = Problems()
     if not isinstance(data, dict):
         raise InputError.many(path, [("", "the top level must be a JSON object")])
@@ -305,7 +346,9 @@ def scene_from_dict(data: Any, path: str = "<scene>") -> Scene:
                         "(its third homogeneous coordinate must be > 0 at every detection)",
                     )
     tracker = _tracker(data.get("tracker", {}), pr)
-    target = _target(data.get("target"), pr)
+    target = None
+    if need_target or data.get("target") is not None:
+        target = _target(data.get("target"), pr)
     if target is not None and frames and not frames[0].step <= target.step <= frames[-1].step:
         pr.add(
             "target",
@@ -313,10 +356,10 @@ def scene_from_dict(data: Any, path: str = "<scene>") -> Scene:
         )
     if pr.items:
         raise InputError.many(path, pr.items)
-    assert target is not None and tracker is not None
+    assert tracker is not None
     raw_meta = data.get("meta")
     meta: dict[str, Any] = raw_meta if isinstance(raw_meta, dict) else {}
-    return Scene(float(dt), tuple(frames), target, tracker, meta)
+    return Footage(float(dt), tuple(frames), tracker, meta), target
 
 
 def _frame(raw: Any, i: int, pr: Problems) -> Frame | None:
@@ -522,7 +565,8 @@ def _matrix3(raw: Any) -> np.ndarray | None:
 # ---------------------------------------------------------------- writing
 
 
-def scene_to_dict(scene: Scene) -> dict[str, Any]:
+def scene_to_dict(scene: Scene | Footage) -> dict[str, Any]:
+    """The file form of a scene (a :class:`Footage` is written without ``target``)."""
     frames = []
     for fr in scene.frames:
         d: dict[str, Any] = {
@@ -537,13 +581,14 @@ def scene_to_dict(scene: Scene) -> dict[str, Any]:
         "version": VERSION,
         "dt": scene.dt,
         "frames": frames,
-        "target": {
+    }
+    if isinstance(scene, Scene):
+        doc["target"] = {
             "step": scene.target.step,
             "start": list(scene.target.start),
             "velocity": list(scene.target.velocity),
-        },
-        "tracker": scene.tracker.to_json(),
-    }
+        }
+    doc["tracker"] = scene.tracker.to_json()
     if scene.meta:
         doc["meta"] = scene.meta
     return doc
@@ -562,6 +607,6 @@ def _det_json(det: Detection) -> dict[str, Any]:
     return out
 
 
-def save_scene(scene: Scene, path: str | Path) -> None:
-    """Write a scene atomically."""
+def save_scene(scene: Scene | Footage, path: str | Path) -> None:
+    """Write a scene (or a scene without a target) atomically."""
     write_json(path, scene_to_dict(scene))

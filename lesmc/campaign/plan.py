@@ -1,0 +1,128 @@
+"""What a campaign checks: windows, designs, units of work, and the key of each unit.
+
+A *unit* is one (video, target, window, design, property): one row of
+``results.jsonl``. A *group* is every unit of one (video, target, tracker):
+one unfolded model serves them all (the union of their windows is unfolded
+once, lesmc/engines/lazy.py restricts each property to its own window), and
+the joint KFs and joint KFs + monitor designs share the joint tracker's model.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import re
+from dataclasses import dataclass
+from typing import Any, Literal
+
+from lesmc.errors import UsageError
+from lesmc.language.properties import Property, SpecFile
+from lesmc.tracking.targets import TargetSpec
+
+#: The paper's windows (section 8.2): l from 4 to 12, u − l from 1 to 4.
+DEFAULT_WINDOWS = "4..12:1..4"
+DESIGN_SETS = {
+    "single": ("single",),
+    "joint": ("joint",),
+    "improved": ("improved",),
+    "both": ("single", "improved"),
+    "all": ("single", "joint", "improved"),
+}
+#: The tracker each design runs (joint and improved share one model).
+TRACKER: dict[str, Literal["single", "joint"]] = {
+    "single": "single",
+    "joint": "joint",
+    "improved": "joint",
+}
+#: Bumped when a unit's answer could change for the same inputs: old keys are then redone.
+KEY_VERSION = 1
+
+
+def parse_windows(text: str) -> list[tuple[int, int]]:
+    """``L1..L2:D1..D2`` -> every (l, l + d) with l in L1..L2 and d in D1..D2, l-major."""
+    r = r"\s*(\d+)\s*\.\.\s*(\d+)\s*"
+    m = re.fullmatch(r + ":" + r, text)
+    if not m:
+        raise UsageError(
+            f"--windows must look like L1..L2:D1..D2 (e.g. {DEFAULT_WINDOWS}), got '{text}'"
+        )
+    l1, l2, d1, d2 = (int(g) for g in m.groups())
+    if l1 < 1 or l1 > l2 or d1 > d2:
+        raise UsageError(f"--windows {text}: need 1 <= L1 <= L2 and D1 <= D2")
+    return [(lo, lo + d) for lo in range(l1, l2 + 1) for d in range(d1, d2 + 1)]
+
+
+def design_specs(specs: list[SpecFile], window: tuple[int, int], design: str) -> list[SpecFile]:
+    """The properties a design is checked against in a window (improved: with the monitor)."""
+    out = [s.with_window(window) for s in specs]
+    return [s.with_monitor() for s in out] if design == "improved" else out
+
+
+def property_text(p: Property) -> str:
+    """Everything that decides a property's answer, as one canonical line."""
+    mon = "none" if p.monitor is None else f"{p.monitor.components}/{p.monitor.tolerance!r}"
+    return (
+        f"{p.name}|window {p.window}|min {p.objective.text()}|s.t. {p.constraint.text()}|"
+        f"{p.holds_text()}|end {p.end}|norm {p.norm!r}|on {p.components}|monitor {mon}"
+    )
+
+
+def unit_key(scene_key: str, target: TargetSpec, design: str, prop: Property) -> str:
+    """The hash of a unit's inputs: the scene, the target, the design and the property."""
+    text = json.dumps(
+        [KEY_VERSION, scene_key, target.text(), design, property_text(prop)], separators=(",", ":")
+    )
+    return hashlib.sha256(text.encode()).hexdigest()[:20]
+
+
+@dataclass(frozen=True)
+class Unit:
+    """One row to compute: a window, a design, a property (by name), and its key."""
+
+    key: str
+    window: tuple[int, int]
+    design: str
+    prop: str
+
+
+@dataclass(frozen=True)
+class Group:
+    """Every unit of one (video, target, tracker): one model serves them all."""
+
+    video: str
+    scene_key: str
+    target: TargetSpec
+    tracker: Literal["single", "joint"]
+    units: tuple[Unit, ...]
+    specs: tuple[tuple[str, str], ...]  # (path, text) of each spec file: workers read no files
+    timeout: float | None
+    max_states: int | None
+
+    @property
+    def name(self) -> str:
+        return f"{self.video} {self.target.text()} {self.tracker}"
+
+
+def plan_units(
+    scene_key: str,
+    target: TargetSpec,
+    specs: list[SpecFile],
+    windows: list[tuple[int, int]],
+    designs: tuple[str, ...],
+) -> dict[str, list[Unit]]:
+    """Every unit of one target, by tracker."""
+    out: dict[str, list[Unit]] = {}
+    for d in designs:
+        for w in windows:
+            for spec in design_specs(specs, w, d):
+                for p in spec.properties:
+                    key = unit_key(scene_key, target, d, p)
+                    out.setdefault(TRACKER[d], []).append(Unit(key, w, d, p.name))
+    return out
+
+
+def scene_key(doc: dict[str, Any]) -> str:
+    """The hash of a scene's content (frames, dt, tracker; not its meta or target)."""
+    body = {k: doc[k] for k in ("dt", "frames", "tracker") if k in doc}
+    text = json.dumps(body, sort_keys=True, separators=(",", ":"), allow_nan=False)
+    return hashlib.sha256(text.encode()).hexdigest()[:20]

@@ -1,0 +1,310 @@
+"""A campaign from videos to ``results.jsonl``: perceive once, choose targets, run the groups.
+
+Per video: the frames are perceived once into a scene without a target, saved
+as ``DIR/scenes/<video>.json`` (reused by a rerun when the frames are the same);
+targets are read from a file or found automatically; every (target, tracker)
+becomes a :class:`~lesmc.campaign.plan.Group` of the units not yet in
+``results.jsonl``. Groups run in this process (``workers=0``), on a Dask
+``LocalCluster`` of worker processes, or on a cluster the user started; each
+row is appended by this process as soon as its group returns.
+"""
+
+from __future__ import annotations
+
+import hashlib
+from collections.abc import Callable, Iterable
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from lesmc.campaign.plan import Group, plan_units, scene_key
+from lesmc.errors import InputError, Location, UsageError
+from lesmc.fileio import read_json
+from lesmc.language.properties import SpecFile
+from lesmc.tracking.scene import Footage
+from lesmc.tracking.targets import AutoTarget, TargetSpec
+
+#: Frames in the background median (as lesmc verify).
+HISTORY = 4
+#: Retries of a group whose worker died (Dask's ``retries``).
+RETRIES = 3
+
+
+@dataclass(frozen=True)
+class Video:
+    """One input video: its name in the results, its frames and (optional) truth."""
+
+    name: str
+    frames_dir: Path
+    truth: Path | None
+    origin: str
+
+
+@dataclass
+class Prepared:
+    """A perceived video: its scene (no target), the scene's JSON and content key."""
+
+    video: Video
+    footage: Footage
+    doc: dict[str, Any]
+    key: str
+    scene_path: Path
+    targets: list[TargetSpec] = field(default_factory=list)
+    origins: list[str] = field(default_factory=list)
+
+
+def fingerprint(paths: Iterable[Path]) -> str:
+    """The frames' names and contents, hashed: a rerun reuses a scene only for the same video."""
+    h = hashlib.sha256()
+    for p in paths:
+        h.update(p.name.encode() + b"\0")
+        with open(p, "rb") as fh:
+            while chunk := fh.read(1 << 20):
+                h.update(chunk)
+    return h.hexdigest()[:20]
+
+
+def prepare(video: Video, out: Path, nets_dir: str | None = None) -> Prepared:
+    """The video's scene: ``DIR/scenes/<name>.json`` if made from these frames, else perceived."""
+    from lesmc.perception.to_scene import footage_from_run
+    from lesmc.tracking.scene import footage_from_dict, save_scene, scene_to_dict
+    from lesmc.video import FPS
+    from lesmc.video.reader import open_frames
+
+    path = out / "scenes" / f"{video.name}.json"
+    frames = open_frames(video.frames_dir, HISTORY + 1, check=not path.exists())
+    fp = fingerprint(frames.paths)
+    if path.exists():
+        doc = read_json(path, InputError)
+        meta = doc.get("meta") if isinstance(doc, dict) else None
+        if not (isinstance(meta, dict) and meta.get("fingerprint") == fp):
+            raise UsageError(
+                f"{path} was perceived from other frames than {video.frames_dir}: "
+                "use another --out (or remove that scene to perceive again)"
+            )
+        footage, _ = footage_from_dict(doc, str(path))
+        return Prepared(video, footage, doc, scene_key(doc), path)
+    from lesmc.perception.attacks import AttackConfig
+    from lesmc.perception.cnn import load_nets
+    from lesmc.perception.quality import load_truth
+    from lesmc.perception.run import PerceiveOptions, perceive
+    from lesmc.report.progress import progress_bar
+
+    truth = load_truth(str(video.truth)) if video.truth else None
+    dt = (truth.dt if truth else None) or 1 / FPS
+    nets = load_nets(nets_dir)
+    opts = PerceiveOptions(history=HISTORY, nets=nets, attack=AttackConfig())
+    with progress_bar(f"perceiving {video.name}", len(frames)) as bar:
+        run = perceive(frames, opts, None, bar.advance)
+    meta = {
+        "source": str(video.frames_dir),
+        "video": video.origin,
+        "fingerprint": fp,
+        "size": [frames.width, frames.height],
+        "detector": nets.settings.trained_on,
+    }
+    footage = footage_from_run(run, dt, meta)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    save_scene(footage, path)
+    doc = scene_to_dict(footage)
+    return Prepared(video, footage, doc, scene_key(doc), path)
+
+
+# ------------------------------------------------------------------ targets
+
+
+def truth_targets(p: Prepared, window: tuple[int, int], horizon: int) -> list[AutoTarget]:
+    """Vehicles of the truth ranked as lesmc verify ranks them (``rank_targets``), starting at
+    each frame that leaves ``horizon`` steps, each vehicle once (at its earliest start), kept
+    when the unattacked plain tracker, started on it from the scene, follows it through
+    ``horizon``. Most neighbouring traffic first; ties by frame, then vehicle id."""
+    from lesmc.perception.quality import load_truth
+    from lesmc.tracking.targets import place_target, rounded
+    from lesmc.unfold import original_end
+    from lesmc.verify import follows, rank_targets
+    from lesmc.video.reader import open_frames
+
+    assert p.video.truth is not None
+    truth = load_truth(str(p.video.truth))
+    frames = open_frames(p.video.frames_dir, HISTORY + 1, check=False)
+    first = p.footage.frames[0].step
+    tfs = [truth.frames.get(f.name) for f in frames.paths[first : p.footage.last_step + 1]]
+    found: list[tuple[int, int, int, AutoTarget]] = []
+    seen: set[int] = set()
+    for s in range(first, p.footage.last_step - horizon + 1):
+        window_s = tfs[s - first :]
+        if any(tf is None for tf in window_s):
+            break
+        ranked = rank_targets(window_s, (frames.width, frames.height), (window[0], horizon - 1))  # type: ignore[arg-type]
+        for c in ranked:
+            if c.vid in seen:
+                continue
+            spec = rounded(c.spec.x, c.spec.y, s)
+            try:
+                scene = place_target(p.footage, spec)
+            except UsageError:
+                continue  # no detection of it in the gate: the detector missed it
+            if original_end(scene) >= horizon and follows(scene, c.truth_track[: horizon + 1]):
+                seen.add(c.vid)
+                origin = f"vehicle {c.vid} of the truth, from frame {s}"
+                found.append((-c.crowd, s, c.vid, AutoTarget(spec, c.crowd, origin)))
+    found.sort(key=lambda f: f[:3])
+    return [f[3] for f in found]
+
+
+def auto_targets(p: Prepared, windows: list[tuple[int, int]], use_truth: bool) -> list[AutoTarget]:
+    """Ranked automatic targets: from the truth when there is one, else initiated tracks."""
+    from lesmc.tracking.targets import initiated_targets
+
+    lo = min(w[0] for w in windows)
+    hi = max(w[1] for w in windows)
+    horizon = hi + 1  # one step after the last window, to see a recovery
+    if use_truth and p.video.truth is not None:
+        return truth_targets(p, (lo, hi), horizon)
+    return initiated_targets(p.footage, horizon, (lo, hi))
+
+
+def file_targets(path: Path, videos: list[str]) -> dict[str, list[tuple[TargetSpec, Location]]]:
+    """``--targets FILE``: one ``X,Y@STEP`` per line (``VIDEO X,Y@STEP`` with several videos);
+    blank lines and ``#`` comments are skipped."""
+    from lesmc.tracking.targets import parse_target
+
+    try:
+        text = path.read_text(encoding="utf-8")
+    except (OSError, UnicodeDecodeError) as exc:
+        raise InputError(f"cannot read the targets file: {exc}", Location(str(path))) from None
+    out: dict[str, list[tuple[TargetSpec, Location]]] = {v: [] for v in videos}
+    for n, raw in enumerate(text.splitlines(), start=1):
+        line = raw.split("#", 1)[0].strip()
+        if not line:
+            continue
+        where = Location(str(path), n, raw.index(line[0]) + 1)
+        parts = line.split()
+        if len(videos) > 1 and len(parts) != 2:
+            raise InputError("with several videos a line is 'VIDEO X,Y@STEP'", where)
+        name, text_t = (parts[0], parts[1]) if len(parts) == 2 else (videos[0], parts[0])
+        if len(parts) > 2 or name not in out:
+            raise InputError(f"unknown video '{name}' (videos: {', '.join(videos)})", where)
+        try:
+            spec = parse_target(text_t)
+        except UsageError as exc:
+            raise InputError(str(exc), where) from None
+        if spec.step is None:
+            raise InputError("give the target's frame: X,Y@STEP", where)
+        out[name].append((spec, where))
+    return out
+
+
+def check_file_target(
+    p: Prepared, spec: TargetSpec, where: Location, windows: list[tuple[int, int]]
+) -> None:
+    """A file's target must be in the gate of a detection and tracked past every window."""
+    from lesmc.tracking.targets import place_target
+    from lesmc.unfold import original_end
+
+    try:
+        scene = place_target(p.footage, spec)
+    except UsageError as exc:
+        raise InputError(str(exc), where) from None
+    e = original_end(scene)
+    hi = max(w[1] for w in windows)
+    if e < hi:
+        raise InputError(
+            f"the unattacked track of {spec.text()} ends at step {e}, before the last "
+            f"window's step {hi}",
+            where,
+        )
+
+
+# ------------------------------------------------------------------ groups
+
+
+def make_groups(
+    prepared: list[Prepared],
+    specs: list[SpecFile],
+    windows: list[tuple[int, int]],
+    designs: tuple[str, ...],
+    done: set[str],
+    timeout: float | None,
+    max_states: int | None,
+) -> tuple[list[Group], int]:
+    """The groups still to run (finished units left out) and the number of units in all."""
+    texts = tuple((s.path, s.text) for s in specs)
+    groups = []
+    total = 0
+    for p in prepared:
+        for t in p.targets:
+            for tracker, units in plan_units(p.key, t, specs, windows, designs).items():
+                total += len(units)
+                todo = tuple(u for u in units if u.key not in done)
+                if todo:
+                    groups.append(
+                        Group(p.video.name, p.key, t, tracker, todo, texts, timeout, max_states)  # type: ignore[arg-type]
+                    )
+    # the joint tracker's groups cost most: start them first (longest first balances workers)
+    groups.sort(key=lambda g: (g.tracker != "joint", -len(g.units)))
+    return groups, total
+
+
+RowsHandler = Callable[[list[dict[str, Any]]], None]
+
+
+def execute(
+    groups: list[Group],
+    docs: dict[str, dict[str, Any]],
+    on_rows: RowsHandler,
+    workers: int,
+    scheduler: str | None,
+) -> None:
+    """Run every group; ``on_rows`` gets each group's rows as soon as it is done.
+
+    ``workers == 0`` and no scheduler: in this process, one group after the
+    other (debugging). Otherwise Dask distributed: a ``LocalCluster`` of
+    ``workers`` single-threaded processes, or the cluster at ``scheduler``. A
+    group whose worker dies is run again (``retries``).
+    """
+    if not groups:
+        return  # all done: no cluster to start
+    if scheduler is None and workers == 0:
+        from lesmc.campaign.work import run_group
+
+        for g in groups:
+            on_rows(run_group(g, docs[g.scene_key]))
+        return
+    try:
+        from distributed import Client, LocalCluster, as_completed
+    except ImportError:  # pragma: no cover - a runtime dependency
+        raise UsageError(
+            "the campaign's parallel mode needs dask distributed: pip install 'dask[distributed]'"
+            " (or run with --workers 0)"
+        ) from None
+    from lesmc.campaign.work import run_group
+
+    cluster = None
+    if scheduler is None:
+        cluster = LocalCluster(
+            n_workers=workers,
+            threads_per_worker=1,
+            processes=True,
+            dashboard_address=None,
+            silence_logs=40,
+        )
+        client = Client(cluster)
+    else:
+        try:
+            client = Client(scheduler, timeout="20s")
+        except (OSError, TimeoutError) as exc:
+            raise UsageError(f"--scheduler {scheduler}: cannot connect ({exc})") from None
+    try:
+        shared = {k: client.scatter(doc, broadcast=True, hash=False) for k, doc in docs.items()}
+        futures = [
+            client.submit(run_group, g, shared[g.scene_key], retries=RETRIES, pure=False)
+            for g in groups
+        ]
+        for fut in as_completed(futures):
+            on_rows(fut.result())
+            fut.release()
+    finally:
+        client.close()
+        if cluster is not None:
+            cluster.close()

@@ -1,0 +1,361 @@
+"""A campaign's statistics, read from its rows (never re-checked): numbers, figures, HTML.
+
+* per design and property, the distribution (ECDF) of the optima over targets
+  and windows: robustness' cheapest attack payoff, resilience's smallest
+  deviation that is not recovered from (+inf: no attacked path violates);
+* the fraction violated per window length u − l + 1;
+* the paper's Table 5 as statistics: of the (target, window) pairs where the
+  plain tracker is violated (an adversarial track exists), how many each
+  improved design removes (holds there), and how many it adds;
+* the worst cases, each with the ``lesmc verify`` command that reproduces it.
+"""
+
+from __future__ import annotations
+
+import base64
+import html
+import io
+import math
+from collections import Counter, defaultdict
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any
+
+FORMAT = "lesmc-campaign-summary"
+VERSION = 1
+#: Worst cases listed per (design, property).
+WORST = 5
+DESIGN_NAMES = {"single": "single", "joint": "joint KFs", "improved": "joint KFs + monitor"}
+
+
+def _value(x: Any) -> float | None:
+    """A row's number: floats, "inf" for +inf, None for unknown."""
+    if isinstance(x, int | float) and not isinstance(x, bool):
+        return float(x)
+    if x == "inf":
+        return math.inf
+    return None
+
+
+def _target_text(t: dict[str, Any]) -> str:
+    return f"{t['x']:.2f},{t['y']:.2f}@{t['step']}"
+
+
+def command(row: dict[str, Any], scenes: str) -> str:
+    """The ``lesmc verify`` line that reproduces ``row``."""
+    w = row["window"]
+    return (
+        f"lesmc verify --scene {scenes}/{row['video']}.json --target {_target_text(row['target'])}"
+        f" --window {w[0]}..{w[1]} --design {row['design']}"
+    )
+
+
+def quantiles(values: Sequence[float]) -> dict[str, float | str]:
+    """Min, quartiles, 90th percentile and max ("inf" where infinite), by the nearest rank."""
+    v = sorted(values)
+    out: dict[str, float | str] = {}
+    for name, q in (
+        ("min", 0),
+        ("p25", 25),
+        ("median", 50),
+        ("p75", 75),
+        ("p90", 90),
+        ("max", 100),
+    ):
+        x = v[min(len(v) - 1, max(0, math.ceil(q / 100 * len(v)) - 1))]
+        out[name] = "inf" if math.isinf(x) else round(x, 6)
+    return out
+
+
+def summarise(rows: list[dict[str, Any]], scenes: str) -> dict[str, Any]:
+    """Every number of the summary (``lesmc campaign --json``)."""
+    by: dict[tuple[str, str], list[dict[str, Any]]] = defaultdict(list)
+    for r in rows:
+        by[(r["design"], r["property"])].append(r)
+    designs = [d for d in DESIGN_NAMES if any(k[0] == d for k in by)]
+    props = sorted({k[1] for k in by})
+    cells: dict[str, dict[str, Any]] = {}
+    for d in designs:
+        cells[d] = {}
+        for p in props:
+            rs = by.get((d, p), [])
+            verdicts = Counter(r["verdict"] for r in rs)
+            optima = [v for r in rs if (v := _value(r["optimum"])) is not None]
+            lengths: dict[int, list[int]] = defaultdict(lambda: [0, 0])
+            for r in rs:
+                n = r["window"][1] - r["window"][0] + 1
+                lengths[n][0] += 1
+                lengths[n][1] += r["verdict"] == "violated"
+            worst = sorted(
+                (r for r in rs if r["verdict"] == "violated" and _value(r["optimum"]) is not None),
+                key=lambda r: (_value(r["optimum"]), r["video"], r["key"]),
+            )[:WORST]
+            cells[d][p] = {
+                "rows": len(rs),
+                "holds": verdicts.get("holds", 0),
+                "violated": verdicts.get("violated", 0),
+                "unknown": verdicts.get("unknown", 0),
+                "optimum_quantiles": quantiles(optima) if optima else None,
+                "optima": ["inf" if math.isinf(x) else x for x in sorted(optima)],
+                "violated_by_window_length": {
+                    str(n): {"rows": c[0], "violated": c[1], "fraction": c[1] / c[0]}
+                    for n, c in sorted(lengths.items())
+                },
+                "worst": [
+                    {
+                        "video": r["video"],
+                        "target": r["target"],
+                        "window": r["window"],
+                        "optimum": r["optimum"],
+                        "command": command(r, scenes),
+                    }
+                    for r in worst
+                ],
+            }
+    return {
+        "format": FORMAT,
+        "version": VERSION,
+        "rows": len(rows),
+        "videos": sorted({r["video"] for r in rows}),
+        "targets": len({(r["video"], _target_text(r["target"])) for r in rows}),
+        "windows": len({tuple(r["window"]) for r in rows}),
+        "designs": designs,
+        "properties": props,
+        "cells": cells,
+        "improvements": improvements(rows, props),
+    }
+
+
+def improvements(rows: list[dict[str, Any]], props: list[str]) -> dict[str, Any]:
+    """Table 5 over many tracks: per property, the (target, window) pairs violated by the
+    plain tracker, and for each other design how many of them it removes and adds."""
+    verdict: dict[tuple[str, str, str, tuple[int, int], str], str] = {}
+    for r in rows:
+        case = (r["property"], r["video"], _target_text(r["target"]), tuple(r["window"]))
+        verdict[(*case, r["design"])] = r["verdict"]
+    out: dict[str, Any] = {}
+    for p in props:
+        cases = {k[:4] for k in verdict if k[0] == p and k[4] == "single"}
+        single_bad = {c for c in cases if verdict[(*c, "single")] == "violated"}
+        per: dict[str, Any] = {}
+        for d in ("joint", "improved"):
+            both = {c for c in cases if (*c, d) in verdict}
+            if not both:
+                continue
+            per[d] = {
+                "compared": len(both),
+                "removed": sum(verdict[(*c, d)] == "holds" for c in both & single_bad),
+                "still_violated": sum(verdict[(*c, d)] == "violated" for c in both & single_bad),
+                "added": sum(
+                    verdict[(*c, d)] == "violated" and verdict[(*c, "single")] == "holds"
+                    for c in both
+                ),
+            }
+        out[p] = {"single_violated": len(single_bad), "cases": len(cases), "designs": per}
+    return out
+
+
+# ------------------------------------------------------------------ figures
+
+
+def figures(summary: dict[str, Any]) -> dict[str, bytes]:
+    """PNG figures: one ECDF of the optima per property, the fraction violated per length."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    colours = {"single": "#d73027", "joint": "#4575b4", "improved": "#1a9850"}
+    out: dict[str, bytes] = {}
+    for p in summary["properties"]:
+        fig, ax = plt.subplots(figsize=(6, 3.6))
+        finite_max = 0.0
+        for d in summary["designs"]:
+            vals = [x for x in summary["cells"][d][p]["optima"] if x != "inf"]
+            finite_max = max([finite_max, *vals])
+        for d in summary["designs"]:
+            opt = summary["cells"][d][p]["optima"]
+            if not opt:
+                continue
+            n = len(opt)
+            xs = [x for x in opt if x != "inf"]
+            ys = [(i + 1) / n for i in range(len(xs))]
+            ax.step([0.0, *xs], [0.0, *ys], where="post", color=colours[d], label=DESIGN_NAMES[d])
+        ax.set_xlabel(f"{p} optimum (curves stop where the rest is +inf)")
+        ax.set_ylabel("fraction of (target, window)")
+        ax.set_ylim(0, 1.02)
+        ax.set_xlim(0, finite_max * 1.05 if finite_max > 0 else 1)
+        ax.legend(fontsize=8)
+        ax.set_title(f"{p}: ECDF of the optimum")
+        out[f"ecdf_{p}"] = _png(fig, plt)
+    fig, axes = plt.subplots(
+        1, len(summary["properties"]), figsize=(5 * len(summary["properties"]), 3.4), squeeze=False
+    )
+    for ax, p in zip(axes[0], summary["properties"], strict=True):
+        for d in summary["designs"]:
+            by = summary["cells"][d][p]["violated_by_window_length"]
+            xs = [int(n) for n in by]
+            ax.plot(
+                xs,
+                [by[str(n)]["fraction"] for n in xs],
+                "o-",
+                color=colours[d],
+                label=DESIGN_NAMES[d],
+            )
+        ax.set_xlabel("window length u - l + 1")
+        ax.set_ylabel("fraction violated")
+        ax.set_ylim(-0.02, 1.02)
+        ax.set_title(p)
+        ax.legend(fontsize=8)
+    out["violated_by_length"] = _png(fig, plt)
+    return out
+
+
+def _png(fig: Any, plt: Any) -> bytes:
+    buf = io.BytesIO()
+    fig.savefig(buf, format="png", dpi=100, bbox_inches="tight")
+    plt.close(fig)
+    return buf.getvalue()
+
+
+# ------------------------------------------------------------------ html
+
+_CSS = """
+body{font-family:system-ui,Segoe UI,Helvetica,Arial,sans-serif;margin:2em auto;max-width:1100px;
+color:#222;line-height:1.4}h2{border-bottom:2px solid #ddd;padding-bottom:.2em;margin-top:1.6em}
+table{border-collapse:collapse;margin:.6em 0;font-size:.85em}
+td,th{border:1px solid #ccc;padding:.25em .5em;text-align:right}th{background:#f4f4f4}
+td.l,th.l{text-align:left}code{font-size:.85em}figure{display:inline-block;margin:.6em}
+figure img{max-width:100%;border:1px solid #ddd}
+"""
+
+
+def _table(head: list[str], rows: list[list[str]]) -> str:
+    th = "".join(
+        f"<th class='l'>{html.escape(h)}</th>" if i == 0 else f"<th>{html.escape(h)}</th>"
+        for i, h in enumerate(head)
+    )
+    body = "".join(
+        "<tr>"
+        + "".join(f"<td class='l'>{c}</td>" if i == 0 else f"<td>{c}</td>" for i, c in enumerate(r))
+        + "</tr>"
+        for r in rows
+    )
+    return f"<table><tr>{th}</tr>{body}</table>"
+
+
+def write_html(
+    summary: dict[str, Any], figs: dict[str, bytes], out: Path, meta: dict[str, str]
+) -> Path:
+    """``DIR/campaign.html`` (self-contained) and ``DIR/figures/campaign_*.png``."""
+    from lesmc.fileio import atomic_write_text
+
+    fig_dir = out / "figures"
+    fig_dir.mkdir(parents=True, exist_ok=True)
+    for name, png in figs.items():
+        (fig_dir / f"campaign_{name}.png").write_bytes(png)
+    s = summary
+    parts = [
+        "<h1>lesmc campaign</h1>",
+        _table(["", ""], [[html.escape(k), html.escape(v)] for k, v in meta.items()]),
+        f"<p>{s['rows']} results: {len(s['videos'])} video(s), {s['targets']} targets, "
+        f"{s['windows']} windows, designs {', '.join(DESIGN_NAMES[d] for d in s['designs'])}, "
+        f"properties {', '.join(s['properties'])}.</p>",
+        "<h2>Verdicts and optima (ECDF over targets and windows)</h2>",
+    ]
+    rows = []
+    for d in s["designs"]:
+        for p in s["properties"]:
+            c = s["cells"][d][p]
+            q = c["optimum_quantiles"] or {}
+            rows.append(
+                [
+                    DESIGN_NAMES[d],
+                    p,
+                    str(c["rows"]),
+                    str(c["holds"]),
+                    str(c["violated"]),
+                    str(c["unknown"]),
+                ]
+                + [str(q.get(k, "-")) for k in ("min", "p25", "median", "p75", "max")]
+            )
+    parts.append(
+        _table(
+            [
+                "design",
+                "property",
+                "rows",
+                "holds",
+                "violated",
+                "unknown",
+                "min",
+                "p25",
+                "median",
+                "p75",
+                "max",
+            ],
+            rows,
+        )
+    )
+    for p in s["properties"]:
+        parts.append(
+            _img(figs, f"ecdf_{p}", f"Distribution of the {p} optimum over targets and windows.")
+        )
+    parts.append("<h2>Fraction violated per window length</h2>")
+    parts.append(
+        _img(
+            figs, "violated_by_length", "Fraction of (target, window) pairs violated, by u - l + 1."
+        )
+    )
+    parts.append(
+        "<h2>Adversarial tracks removed by the improvements (Table 5 over many tracks)</h2>"
+    )
+    rows = []
+    for p, imp in s["improvements"].items():
+        for d, v in imp["designs"].items():
+            rows.append(
+                [
+                    p,
+                    DESIGN_NAMES[d],
+                    str(imp["single_violated"]),
+                    str(v["removed"]),
+                    str(v["still_violated"]),
+                    str(v["added"]),
+                ]
+            )
+    parts.append(
+        _table(
+            ["property", "design", "violated (single)", "removed", "still violated", "added"], rows
+        )
+    )
+    parts.append("<h2>Worst cases</h2>")
+    rows = []
+    for d in s["designs"]:
+        for p in s["properties"]:
+            for w in s["cells"][d][p]["worst"]:
+                rows.append(
+                    [
+                        DESIGN_NAMES[d],
+                        p,
+                        str(w["optimum"]),
+                        f"<code>{html.escape(w['command'])}</code>",
+                    ]
+                )
+    parts.append(_table(["design", "property", "optimum", "reproduce with"], rows))
+    page = (
+        "<!DOCTYPE html><html lang='en'><head><meta charset='utf-8'><title>lesmc campaign</title>"
+        f"<style>{_CSS}</style></head><body>{''.join(parts)}</body></html>\n"
+    )
+    path = out / "campaign.html"
+    atomic_write_text(path, page)
+    return path
+
+
+def _img(figs: dict[str, bytes], name: str, caption: str) -> str:
+    if name not in figs:
+        return ""
+    data = base64.b64encode(figs[name]).decode()
+    return (
+        f"<figure><img src='data:image/png;base64,{data}' alt='{name}'>"
+        f"<figcaption>{html.escape(caption)}</figcaption></figure>"
+    )

@@ -1,0 +1,95 @@
+"""One group of units on one unfolded model: what a Dask worker (or the serial mode) runs.
+
+The worker gets the scene as its JSON document (scattered once per video) and
+the spec files as text, so it reads no file. Its answer is plain rows (JSON
+objects), written to ``results.jsonl`` by the client alone.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Any
+
+from lesmc.campaign.plan import Group, design_specs
+from lesmc.engines.result import CheckResult
+from lesmc.tracking.scene import Footage
+
+#: The scenes this process has parsed, by content key (a worker serves many groups).
+_FOOTAGE: dict[str, Footage] = {}
+
+
+def footage_of(key: str, doc: dict[str, Any]) -> Footage:
+    """The scene ``doc`` parsed once per process (it is validated as any scene file)."""
+    from lesmc.tracking.scene import footage_from_dict
+
+    got = _FOOTAGE.get(key)
+    if got is None:
+        if len(_FOOTAGE) >= 4:  # a worker of a many-video campaign keeps a few
+            _FOOTAGE.pop(next(iter(_FOOTAGE)))
+        got = footage_from_dict(doc, "scene")[0]
+        _FOOTAGE[key] = got
+    return got
+
+
+def run_group(group: Group, doc: dict[str, Any]) -> list[dict[str, Any]]:
+    """Check every unit of ``group`` on one lazily unfolded model; one row per unit.
+
+    The model is unfolded for the union of the units' windows; each property
+    sees only its own window's attacks (a rank-minimal transition elsewhere),
+    so every row is what ``lesmc verify --window L..U`` answers for it. Each
+    check has ``group.timeout`` seconds: past it the row is 'unknown' with the
+    bounds found.
+    """
+    from lesmc.engines.check import check_lazy
+    from lesmc.language.parser import parse_spec
+    from lesmc.tracking.targets import place_target
+    from lesmc.unfold import bind_scene, lazy_model
+
+    if not group.units:
+        return []
+    scene = place_target(footage_of(group.scene_key, doc), group.target)
+    scene = scene.with_tracker(design=group.tracker)
+    specs = [parse_spec(text, path) for path, text in group.specs]
+    lo = min(u.window[0] for u in group.units)
+    hi = max(u.window[1] for u in group.units)
+    model = None
+    rows = []
+    for u in group.units:
+        bound = {bp.name: bp for bp in bind_scene(scene, design_specs(specs, u.window, u.design))}
+        bp = bound[u.prop]
+        if model is None:
+            model = lazy_model(scene, (lo, hi), bp.end)
+        r = check_lazy(model, bp, group.max_states, group.timeout)
+        rows.append(row(group, u.key, u.window, u.design, r))
+    return rows
+
+
+def row(
+    group: Group, key: str, window: tuple[int, int], design: str, r: CheckResult
+) -> dict[str, Any]:
+    """The ``results.jsonl`` object of one unit (docs/campaign.md)."""
+    exact = r.stats.stopped == "finished"
+    optimum: float | str | None = r.optimum
+    if r.optimum is None and exact:
+        optimum = "inf"  # no attacked path violates
+    return {
+        "key": key,
+        "video": group.video,
+        "target": {"step": group.target.step, "x": group.target.x, "y": group.target.y},
+        "window": [window[0], window[1]],
+        "design": design,
+        "property": r.property,
+        "verdict": r.verdict,
+        "optimum": optimum,
+        "witness_value": _num(r.witness_value),
+        "bounds": [_num(r.lower), _num(r.upper)],
+        "holds_if": f"optimum {r.holds_op} {r.threshold:g}",
+        "stats": r.stats.to_json(),
+    }
+
+
+def _num(x: float | None) -> float | str | None:
+    """JSON has no infinity: "inf" / "-inf" as strings (as in ``lesmc check --json``)."""
+    if x is None or math.isfinite(x):
+        return x
+    return "inf" if x > 0 else "-inf"

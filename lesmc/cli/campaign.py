@@ -1,0 +1,375 @@
+"""``lesmc campaign``: every target of some videos over many windows and designs, in parallel."""
+
+from __future__ import annotations
+
+import json
+import os
+import sys
+from pathlib import Path
+from typing import Any
+
+import click
+
+from lesmc.errors import UsageError
+
+DEFAULT_WINDOWS = "4..12:1..4"
+"""``lesmc.campaign.plan.DEFAULT_WINDOWS``, repeated so that the option's declaration
+imports nothing heavy."""
+DEFAULT_MAX_STATES = 10_000_000
+"""``lesmc.engines.check.DEFAULT_MAX_STATES`` (as in lesmc check)."""
+
+
+def _cores() -> int:
+    try:
+        return len(os.sched_getaffinity(0))
+    except AttributeError:  # pragma: no cover - not Linux
+        return os.cpu_count() or 1
+
+
+@click.command("campaign")
+@click.argument("frames_dirs", nargs=-1, type=click.Path(file_okay=False))
+@click.option(
+    "--out",
+    "out_dir",
+    required=True,
+    type=click.Path(file_okay=False),
+    help="Directory for results.jsonl, scenes/, campaign.html, figures/ (rerun to resume).",
+)
+@click.option(
+    "--targets",
+    "targets_text",
+    default="10",
+    show_default=True,
+    metavar="N|all|FILE",
+    help="The N best-ranked automatic targets per video, all of them, or a file with one "
+    "X,Y@STEP per line ('VIDEO X,Y@STEP' with several videos).",
+)
+@click.option(
+    "--windows",
+    "windows_text",
+    default=DEFAULT_WINDOWS,
+    show_default=True,
+    metavar="L1..L2:D1..D2",
+    help="Attack windows l..u with l in L1..L2 and u - l in D1..D2 (the paper's: 36).",
+)
+@click.option(
+    "--design",
+    type=click.Choice(["single", "joint", "improved", "both", "all"]),
+    default="all",
+    show_default=True,
+    help="As for lesmc verify: single, joint KFs, joint KFs + monitor; both = single and "
+    "improved; all = the three.",
+)
+@click.option(
+    "--spec",
+    "specs",
+    multiple=True,
+    type=click.Path(dir_okay=False),
+    help="Property file (repeatable) [default: the bundled robustness and resilience].",
+)
+@click.option(
+    "--workers",
+    type=click.IntRange(min=0),
+    default=None,
+    help="Dask worker processes of the local cluster; 0 runs in this process, one group "
+    "after the other (debugging) [default: the cores available].",
+)
+@click.option(
+    "--scheduler",
+    default=None,
+    metavar="tcp://HOST:PORT",
+    help="Run on this Dask cluster (started with `dask scheduler` and `dask worker`) "
+    "instead of a local one.",
+)
+@click.option(
+    "--timeout",
+    type=click.FloatRange(min=0, min_open=True),
+    default=60.0,
+    show_default=True,
+    help="Seconds per result; past it the result is 'unknown' with the bounds found.",
+)
+@click.option(
+    "--max-states",
+    type=click.IntRange(min=1),
+    default=DEFAULT_MAX_STATES,
+    show_default=True,
+    help="Budget of expanded states per result; past it the verdict may be 'unknown'.",
+)
+@click.option(
+    "--no-truth",
+    is_flag=True,
+    help="Find targets from tracks initiated on the detections even where FRAMES_DIR has "
+    "a truth.json.",
+)
+@click.option(
+    "--nets",
+    "nets_dir",
+    type=click.Path(file_okay=False),
+    default=None,
+    help="Trained networks [default: the shipped ones].",
+)
+@click.option("--json", "as_json", is_flag=True, help="Print the summary's numbers as JSON.")
+def campaign_cmd(
+    frames_dirs: tuple[str, ...],
+    out_dir: str,
+    targets_text: str,
+    windows_text: str,
+    design: str,
+    specs: tuple[str, ...],
+    workers: int | None,
+    scheduler: str | None,
+    timeout: float,
+    max_states: int,
+    no_truth: bool,
+    nets_dir: str | None,
+    as_json: bool,
+) -> None:
+    """Verify many targets of each video over the paper's attack windows and designs.
+
+    \b
+    Each video (FRAMES_DIR; none: the embedded default, generated into
+    OUT/video) is perceived once into OUT/scenes/VIDEO.json, a scene without a
+    target. Targets come from --targets: automatic ones from the video's
+    truth.json when it has one, else from tracks the tracker initiates on the
+    detections and keeps through the last window. Every (target, window,
+    design, property) is one line of OUT/results.jsonl, appended as soon as it
+    is known; a rerun of the same command skips the lines already there.
+    Each line is reproduced by
+      lesmc verify --scene OUT/scenes/VIDEO.json --target X,Y@STEP --window L..U --design D
+    Writes OUT/campaign.html and OUT/figures/campaign_*.png. Exit status:
+    0 all hold, 1 some violated, 2 bad input, 3 some unknown, 4 internal error,
+    130 interrupted (the lines written are kept).
+    """
+    from lesmc.campaign.plan import DESIGN_SETS, parse_windows
+    from lesmc.verify import bundled_specs, load_specs
+
+    if scheduler is not None and workers is not None:
+        raise UsageError("--workers sizes the local cluster: it does not apply with --scheduler")
+    windows = parse_windows(windows_text)
+    spec_files = load_specs([Path(s) for s in specs] or bundled_specs(), None)
+    names = [p.name for s in spec_files for p in s.properties]
+    dup = sorted({n for n in names if names.count(n) > 1})
+    if dup:
+        raise UsageError(f"property name '{dup[0]}' is defined more than once")
+    out = Path(out_dir)
+    videos = _videos(frames_dirs, out, no_truth)
+    count, target_file = _targets_option(targets_text)
+    from lesmc.campaign.run import Prepared, prepare
+
+    out.mkdir(parents=True, exist_ok=True)
+    prepared: list[Prepared] = [prepare(v, out, nets_dir) for v in videos]
+    _choose_targets(prepared, count, target_file, windows, not no_truth)
+    rows = _run(
+        prepared,
+        spec_files,
+        windows,
+        DESIGN_SETS[design],
+        out,
+        workers,
+        scheduler,
+        timeout,
+        max_states,
+    )
+    _finish(rows, out, out_dir, prepared, windows, design, as_json)
+
+
+def _videos(frames_dirs: tuple[str, ...], out: Path, no_truth: bool) -> list[Any]:
+    """The videos: each FRAMES_DIR (named after its directory), or the embedded default."""
+    from lesmc.campaign.run import Video
+
+    if not frames_dirs:
+        from lesmc.report.progress import progress_bar
+        from lesmc.verify import DEFAULT_VIDEO, default_video_ready, write_default_video
+
+        video = out / "video"
+        if not default_video_ready(video):
+            if video.exists() and any(video.iterdir()):
+                raise UsageError(f"{video} exists and is not the default video: use another --out")
+            with progress_bar("rendering", DEFAULT_VIDEO["frames"]) as bar:
+                write_default_video(video, bar.advance)
+        origin = (
+            f"embedded default: lesmc synth {video} --seed {DEFAULT_VIDEO['seed']} "
+            f"--frames {DEFAULT_VIDEO['frames']}"
+        )
+        truth = None if no_truth else video / "truth.json"
+        return [Video("default", video, truth, origin)]
+    out_v = []
+    seen: dict[str, str] = {}
+    for d in frames_dirs:
+        p = Path(d)
+        name = p.resolve().name or "video"
+        if name in seen:
+            raise UsageError(f"two videos are named '{name}' ({seen[name]} and {d}): rename one")
+        seen[name] = d
+        truth = p / "truth.json"
+        out_v.append(Video(name, p, truth if truth.is_file() and not no_truth else None, d))
+    return out_v
+
+
+def _targets_option(text: str) -> tuple[int | None, Path | None]:
+    """``--targets``: N (> 0), ``all``, or a file."""
+    if text == "all":
+        return None, None
+    if text.isdigit():
+        n = int(text)
+        if n < 1:
+            raise UsageError("--targets N needs N >= 1")
+        return n, None
+    path = Path(text)
+    if not path.is_file():
+        raise UsageError(f"--targets must be a number, 'all' or a file; no file '{text}'")
+    return None, path
+
+
+def _choose_targets(
+    prepared: list[Any],
+    count: int | None,
+    target_file: Path | None,
+    windows: list[tuple[int, int]],
+    use_truth: bool,
+) -> None:
+    from rich.console import Console
+
+    from lesmc.campaign.run import auto_targets, check_file_target, file_targets
+
+    err = Console(stderr=True)
+    if target_file is not None:
+        by_video = file_targets(target_file, [p.video.name for p in prepared])
+        for p in prepared:
+            for spec, where in by_video[p.video.name]:
+                check_file_target(p, spec, where, windows)
+                p.targets.append(spec)
+                p.origins.append(f"{where.path}:{where.line}")
+        return
+    for p in prepared:
+        with err.status(f"choosing targets of {p.video.name}"):
+            found = auto_targets(p, windows, use_truth)
+        if not found:
+            raise UsageError(
+                f"no automatic target in video {p.video.name}: no vehicle is tracked through "
+                f"step {max(w[1] for w in windows) + 1}; give --targets FILE or shorter --windows"
+            )
+        chosen = found if count is None else found[:count]
+        p.targets.extend(a.spec for a in chosen)
+        p.origins.extend(a.origin for a in chosen)
+        err.print(f"{p.video.name}: {len(chosen)} targets ({len(found)} found)")
+
+
+def _run(
+    prepared: list[Any],
+    spec_files: list[Any],
+    windows: list[tuple[int, int]],
+    designs: tuple[str, ...],
+    out: Path,
+    workers: int | None,
+    scheduler: str | None,
+    timeout: float,
+    max_states: int,
+) -> list[dict[str, Any]]:
+    """Run what is not yet in results.jsonl; return the rows of this campaign."""
+    from lesmc.campaign.plan import plan_units
+    from lesmc.campaign.run import execute, make_groups
+    from lesmc.campaign.store import Appender, read_rows
+    from lesmc.report.progress import progress_counter
+
+    results = out / "results.jsonl"
+    existing = read_rows(results, repair=True)
+    done = {str(r["key"]) for r in existing}
+    groups, total = make_groups(prepared, spec_files, windows, designs, done, timeout, max_states)
+    keys = {
+        u.key
+        for p in prepared
+        for t in p.targets
+        for us in plan_units(p.key, t, spec_files, windows, designs).values()
+        for u in us
+    }
+    docs = {p.key: p.doc for p in prepared}
+    todo = sum(len(g.units) for g in groups)
+    with Appender(results, done) as app, progress_counter("campaign", total) as bar:
+        bar.advance(total - todo)
+
+        def on_rows(rows: list[dict[str, Any]]) -> None:
+            for r in rows:
+                app.append(r)
+            bar.advance(len(rows))
+
+        execute(groups, docs, on_rows, _cores() if workers is None else workers, scheduler)
+    seen: set[str] = set()
+    mine = []
+    for r in read_rows(results):
+        if r["key"] in keys and r["key"] not in seen:
+            seen.add(r["key"])
+            mine.append(r)
+    return mine
+
+
+def _finish(
+    rows: list[dict[str, Any]],
+    out: Path,
+    out_dir: str,
+    prepared: list[Any],
+    windows: list[tuple[int, int]],
+    design: str,
+    as_json: bool,
+) -> None:
+    from lesmc.campaign.summary import figures, summarise, write_html
+    from lesmc.report.exit import EXIT_HOLDS, EXIT_UNKNOWN, EXIT_VIOLATED
+
+    scenes = f"{out_dir.rstrip('/')}/scenes"
+    summary = summarise(rows, scenes)
+    meta = {
+        "videos": "; ".join(f"{p.video.name}: {p.video.origin}" for p in prepared),
+        "windows": f"{len(windows)} ({windows[0][0]}..{windows[0][1]} to "
+        f"{windows[-1][0]}..{windows[-1][1]})",
+        "design": design,
+        "results": str(out / "results.jsonl"),
+    }
+    report = write_html(summary, figures(summary), out, meta)
+    if as_json:
+        click.echo(json.dumps(summary, indent=1, allow_nan=False))
+    else:
+        _print(summary)
+        click.echo(f"results: {out / 'results.jsonl'}\nreport: {report}")
+    verdicts = {r["verdict"] for r in rows}
+    sys.exit(
+        EXIT_VIOLATED
+        if "violated" in verdicts
+        else EXIT_UNKNOWN
+        if "unknown" in verdicts
+        else EXIT_HOLDS
+    )
+
+
+def _print(summary: dict[str, Any]) -> None:
+    from rich.table import Table
+
+    from lesmc.campaign.summary import DESIGN_NAMES
+    from lesmc.report.text import make_console
+
+    console = make_console()
+    table = Table(
+        title=f"lesmc campaign: {summary['targets']} targets x {summary['windows']} windows",
+        title_justify="left",
+    )
+    for c in ("design", "property", "rows", "holds", "violated", "unknown", "median optimum"):
+        table.add_column(c, justify="left" if c in ("design", "property") else "right")
+    for d in summary["designs"]:
+        for p in summary["properties"]:
+            c = summary["cells"][d][p]
+            q = c["optimum_quantiles"] or {}
+            table.add_row(
+                DESIGN_NAMES[d],
+                p,
+                str(c["rows"]),
+                str(c["holds"]),
+                str(c["violated"]),
+                str(c["unknown"]),
+                str(q.get("median", "-")),
+            )
+    console.print(table)
+    for p, imp in summary["improvements"].items():
+        for d, v in imp["designs"].items():
+            console.print(
+                f"{p}: {DESIGN_NAMES[d]} removes {v['removed']} of the {imp['single_violated']} "
+                f"adversarial cases of the plain tracker (adds {v['added']})"
+            )

@@ -1,0 +1,211 @@
+"""Targets apart from perception: ``--target X,Y@STEP`` on a scene, and automatic targets.
+
+A video is perceived once into a scene without a target (a :class:`Footage`:
+detections, payoffs, homographies, tracker settings); each vehicle to verify
+is then a :class:`TargetSpec` placed on it (:func:`place_target`). Where a
+vehicle starts is given by the user, or found here: :func:`initiated_targets`
+lets the tracker start tracks from the detections, as the joint design's
+initiation does (section 7.2: a detection with a previous detection close
+enough starts a track whose velocity is their difference over dt), and keeps
+those the unattacked tracker follows, one update per frame, through the
+horizon. Targets from a truth file are chosen in lesmc/campaign/targets.py.
+"""
+
+from __future__ import annotations
+
+import re
+from dataclasses import dataclass
+
+import numpy as np
+
+from lesmc.errors import UsageError, escape_control
+from lesmc.tracking.association import gate_mask
+from lesmc.tracking.design import Batch
+from lesmc.tracking.kalman import innovation, matrices, warp
+from lesmc.tracking.scene import Footage, Scene, Target
+
+#: A detection this close (px) to the given position is the target's own detection.
+SNAP_PX = 6.0
+#: The target's detection in the previous frame lies at most this far (px) from it.
+MAX_MOVE_PX = 45.0
+#: Other detections this close (px) to a track are the traffic an attacker can use.
+NEAR_PX = 40.0
+
+
+@dataclass(frozen=True)
+class TargetSpec:
+    """``--target X,Y[@STEP]``: where the tracked vehicle is, in which frame (default: first)."""
+
+    x: float
+    y: float
+    step: int | None = None
+
+    def text(self) -> str:
+        """The ``X,Y@STEP`` form; :func:`parse_target` reads back exactly these numbers
+        for a target rounded with :func:`rounded`."""
+        at = "" if self.step is None else f"@{self.step}"
+        return f"{self.x:.2f},{self.y:.2f}{at}"
+
+
+def rounded(x: float, y: float, step: int | None) -> TargetSpec:
+    """A target at 0.01 px, so that its ``X,Y@STEP`` text reproduces it bit for bit."""
+    return TargetSpec(float(f"{x:.2f}"), float(f"{y:.2f}"), step)
+
+
+def parse_target(text: str) -> TargetSpec:
+    """``X,Y`` or ``X,Y@STEP`` (pixels of that frame) -> TargetSpec; a UsageError otherwise.
+
+    ASCII digits only; coordinates of at most 9 digits before the point, STEP at most 10**6.
+    """
+    num = r"\s*(-?[0-9]{1,9}(?:\.[0-9]{0,12})?)\s*"
+    m = re.fullmatch(num + "," + num + r"(?:@\s*([0-9]{1,7})\s*)?", text, re.ASCII)
+    if not m or (m.group(3) and int(m.group(3)) > 10**6):
+        shown = escape_control(text if len(text) <= 40 else text[:37] + "...")
+        raise UsageError(
+            f"--target must look like X,Y or X,Y@STEP (e.g. 812.5,96@4), got '{shown}'"
+        )
+    return TargetSpec(float(m.group(1)), float(m.group(2)), int(m.group(3)) if m.group(3) else None)
+
+
+def target_step(footage: Footage, spec: TargetSpec) -> int:
+    """The target's frame (default: the first); an error if the scene has no such frame."""
+    step = spec.step if spec.step is not None else footage.frames[0].step
+    if not footage.frames[0].step <= step <= footage.last_step:
+        raise UsageError(
+            f"--target step {step} is not a frame of the scene ({footage.frames[0].step}.."
+            f"{footage.last_step}; a video's first L frames only build the background)"
+        )
+    return step
+
+
+def previous_velocity(
+    footage: Footage, x: float, y: float, step: int
+) -> tuple[tuple[float, float], str]:
+    """The initial velocity (px/s) from the previous frame, and how it was obtained.
+
+    The target's detection (the nearest within :data:`SNAP_PX`, else the given
+    position) minus the nearest detection of the previous frame, carried into
+    this frame, within :data:`MAX_MOVE_PX`, over dt; zero without one (P0
+    covers it).
+    """
+    first = footage.frames[0].step
+    if step - 1 < first:
+        return (0.0, 0.0), "none (zero)"
+    prev, cur = footage.frame(step - 1), footage.frame(step)
+    if not (len(cur.detections) and len(prev.detections) and prev.to_next is not None):
+        return (0.0, 0.0), "none (zero)"
+    here = np.array([x, y])
+    Z = cur.positions()
+    d = np.hypot(*(Z - here).T)
+    j = int(np.argmin(d))
+    p0 = Z[j] if d[j] <= SNAP_PX else here
+    pts = warp(prev.to_next, prev.positions())
+    d2 = np.hypot(*(pts - p0).T)
+    k = int(np.argmin(d2))
+    if d2[k] > MAX_MOVE_PX:
+        return (0.0, 0.0), "none (zero)"
+    v = (p0 - pts[k]) / footage.dt
+    return (float(v[0]), float(v[1])), "previous frame"
+
+
+def check_gate(footage: Footage, spec: TargetSpec, step: int) -> None:
+    """A target must have a detection inside the tracker's gate at its step.
+
+    The gate is the tracker's own (Eq. 19) for the initial covariance P0: a
+    target far from every detection is a typing mistake, not a vehicle.
+    """
+    cfg = footage.tracker
+    m = matrices(cfg, footage.dt)
+    Z = footage.frame(step).positions()
+    y = Z - np.array([spec.x, spec.y])
+    if len(Z) and gate_mask(y, innovation(m, m.P0), m.P0, cfg.gate, cfg.gate_type).any():
+        return
+    near = f"; the nearest is {float(np.hypot(*y.T).min()):.1f} px away" if len(Z) else ""
+    raise UsageError(
+        f"--target {spec.x:g},{spec.y:g}@{step}: no detection of frame {step} lies inside the "
+        f"tracker's gate around it{near}"
+    )
+
+
+def place_target(footage: Footage, spec: TargetSpec) -> Scene:
+    """The scene tracking the vehicle at ``spec`` (velocity from the previous frame)."""
+    step = target_step(footage, spec)
+    check_gate(footage, spec, step)
+    vel, how = previous_velocity(footage, spec.x, spec.y, step)
+    meta = dict(footage.meta)
+    meta["target_velocity_from"] = how
+    return footage.with_target(Target(step, (spec.x, spec.y), vel), meta)
+
+
+@dataclass(frozen=True)
+class AutoTarget:
+    """A target found automatically, with why it was chosen."""
+
+    spec: TargetSpec
+    traffic: int  # other detections within NEAR_PX of the track, summed over the window
+    origin: str
+
+
+def initiated_targets(
+    footage: Footage,
+    horizon: int,
+    window: tuple[int, int],
+    min_move_px: float = 2.0,
+) -> list[AutoTarget]:
+    """Tracks the tracker itself starts from the detections and keeps through ``horizon``.
+
+    At every frame s with a previous frame and ``horizon`` frames after it,
+    each detection whose previous-frame detection lies within
+    :data:`MAX_MOVE_PX` (and at least ``min_move_px`` away: a moving vehicle)
+    starts a track (:func:`previous_velocity`). A track persists if the
+    unattacked plain tracker takes a detection at every step 1..horizon.
+    Tracks ending on the same detection follow one vehicle: the earliest is
+    kept. Ranked by the traffic around them in ``window`` (model steps), most
+    first; ties by frame, then position.
+    """
+    from lesmc.tracking.single import SingleDesign
+
+    found: dict[tuple[int, int], AutoTarget] = {}
+    order: list[tuple[int, int, float, float, tuple[int, int]]] = []
+    first = footage.frames[0].step
+    for s in range(first + 1, footage.last_step - horizon + 1):
+        specs = []
+        vels = []
+        for x, y in footage.frame(s).positions():
+            spec = rounded(float(x), float(y), s)
+            vel, how = previous_velocity(footage, spec.x, spec.y, s)
+            if how == "previous frame" and np.hypot(*vel) * footage.dt >= min_move_px:
+                specs.append(spec)
+                vels.append(vel)
+        if not specs:
+            continue
+        scene = footage.with_target(Target(s, (0.0, 0.0)))
+        design = SingleDesign(scene)
+        c0 = design.covariances.add(design.m.P0.copy())
+        X0 = np.array([[sp.x, sp.y, v[0], v[1]] for sp, v in zip(specs, vels, strict=True)])
+        b = Batch(X0, np.full(len(specs), c0, dtype=np.int64), np.zeros(len(specs), dtype=bool))
+        traffic = np.zeros(len(specs), dtype=np.int64)
+        last_det = np.full(len(specs), -1, dtype=np.int64)
+        for k in range(1, horizon + 1):
+            frame = footage.frame(s + k)
+            succ = design.successors(b, s + k, False)
+            b = succ.states
+            if window[0] <= k <= window[1]:
+                near = frame.nearest(b.X[:, :2], 8, NEAR_PX)
+                traffic += (near >= 0).sum(axis=1) - (succ.det >= 0)
+            keep = np.nonzero((succ.det >= 0) & ~b.halted)[0]
+            b = b.take(keep)
+            specs = [specs[i] for i in keep.tolist()]
+            traffic, last_det = traffic[keep], succ.det[keep]
+            if not specs:
+                break
+        for i, sp in enumerate(specs):
+            end = (s + horizon, int(last_det[i]))
+            if end in found:
+                continue
+            found[end] = AutoTarget(
+                sp, int(traffic[i]), f"track initiated at frame {s} from the detections"
+            )
+            order.append((-int(traffic[i]), s, sp.x, sp.y, end))
+    order.sort()
+    return [found[o[-1]] for o in order]

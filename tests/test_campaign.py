@@ -1,0 +1,227 @@
+"""``lesmc campaign``: rows as verify computes them, the same in serial and on a cluster,
+durable across a rerun, a SIGKILL of the client and the death of a worker.
+
+One tiny synthetic video is perceived once for the module; every other run
+reuses its scene (OUT/scenes/), so each test pays only for checking.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import shutil
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+from typing import Any
+
+import pytest
+
+from lesmc.campaign.run import Video, execute, make_groups, prepare
+from lesmc.campaign.store import read_rows
+from lesmc.tracking.targets import TargetSpec, place_target
+from lesmc.verify import bundled_specs, check_designs, load_specs
+from lesmc.video.synth import SynthConfig, write_video
+
+ROOT = Path(__file__).resolve().parents[1]
+WINDOWS = "2..3:0..1"  # 4 windows: l in 2..3, u - l in 0..1
+ARGS = ["--windows", WINDOWS, "--targets", "2", "--no-truth"]
+
+
+def lesmc(*args: str) -> subprocess.CompletedProcess[str]:
+    return subprocess.run(
+        [sys.executable, "-m", "lesmc", *args],
+        capture_output=True,
+        text=True,
+        cwd=ROOT,
+        timeout=600,
+        env={**os.environ, "PYTHONPATH": str(ROOT)},
+    )
+
+
+def no_trace(r: subprocess.CompletedProcess[str]) -> None:
+    assert "Traceback" not in r.stderr and "internal error" not in r.stderr, r.stderr
+
+
+@pytest.fixture(scope="module")
+def base(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, Path]:
+    """A tiny video and a finished serial campaign on it (the reference rows)."""
+    tmp = tmp_path_factory.mktemp("campaign")
+    video = tmp / "tiny"
+    write_video(SynthConfig(frames=11, width=448, height=448, seed=4, density=3.0), video)
+    out = tmp / "base"
+    r = lesmc("campaign", str(video), "--out", str(out), "--workers", "0", *ARGS)
+    no_trace(r)
+    assert r.returncode in (0, 1, 3), r.stderr
+    return video, out
+
+
+def seeded(base: tuple[Path, Path], tmp_path: Path) -> Path:
+    """A fresh campaign directory holding only the perceived scene of ``base``."""
+    out = tmp_path / "out"
+    shutil.copytree(base[1] / "scenes", out / "scenes")
+    return out
+
+
+def content(rows: list[dict[str, Any]]) -> dict[str, dict[str, Any]]:
+    """Rows by key, without the timings (which differ from run to run)."""
+    skip = {"stats", "format", "version"}
+    return {r["key"]: {k: v for k, v in r.items() if k not in skip} for r in rows}
+
+
+def lines(path: Path) -> list[str]:
+    return path.read_text().splitlines()
+
+
+def test_rows_are_what_verify_computes_window_by_window(base: tuple[Path, Path]) -> None:
+    """Each row (one model shared by all windows, unfolded lazily) against an eager model
+    built for that window alone (the path of lesmc verify)."""
+    rows = read_rows(base[1] / "results.jsonl")
+    assert len(rows) == 2 * 4 * 3 * 2  # targets x windows x designs x properties
+    assert len({r["key"] for r in rows}) == len(rows)
+    footage = prepare(Video("tiny", base[0], None, "test"), base[1]).footage
+    seen = {}
+    for r in rows:
+        t, w = r["target"], tuple(r["window"])
+        case = (t["x"], t["y"], t["step"], w, r["design"])
+        if case not in seen:
+            scene = place_target(footage, TargetSpec(t["x"], t["y"], t["step"]))
+            run = check_designs(scene, load_specs(bundled_specs(), w), [r["design"]])[0]  # type: ignore[arg-type]
+            seen[case] = {x.property: x for x in run.results}
+        want = seen[case][r["property"]]
+        assert r["verdict"] == want.verdict
+        assert r["optimum"] == (want.optimum if want.optimum is not None else "inf")
+        assert r["witness_value"] == want.witness_value
+
+
+def test_resume_adds_no_row_and_the_summary_counts_the_rows(base: tuple[Path, Path]) -> None:
+    before = (base[1] / "results.jsonl").read_bytes()
+    r = lesmc("campaign", str(base[0]), "--out", str(base[1]), "--workers", "0", "--json", *ARGS)
+    no_trace(r)
+    assert (base[1] / "results.jsonl").read_bytes() == before
+    html = (base[1] / "campaign.html").read_text()
+    assert "ECDF" in html and "reproduce with" in html
+    assert (base[1] / "figures" / "campaign_violated_by_length.png").stat().st_size > 1000
+    doc = json.loads(r.stdout)
+    rows = read_rows(base[1] / "results.jsonl")
+    assert doc["rows"] == len(rows) and doc["targets"] == 2 and doc["windows"] == 4
+    for d, cells in doc["cells"].items():
+        for prop, c in cells.items():
+            mine = [x for x in rows if x["design"] == d and x["property"] == prop]
+            assert c["violated"] == sum(x["verdict"] == "violated" for x in mine)
+            assert len(c["optima"]) == sum(x["optimum"] is not None for x in mine)
+    for prop, imp in doc["improvements"].items():
+        bad = {
+            (x["target"]["x"], tuple(x["window"]))
+            for x in rows
+            if x["property"] == prop and x["design"] == "single" and x["verdict"] == "violated"
+        }
+        assert imp["single_violated"] == len(bad)
+        for d, v in imp["designs"].items():
+            fixed = {
+                (x["target"]["x"], tuple(x["window"]))
+                for x in rows
+                if x["property"] == prop and x["design"] == d and x["verdict"] == "holds"
+            }
+            assert v["removed"] == len(bad & fixed)
+
+
+def test_the_worst_case_command_reproduces_its_row(base: tuple[Path, Path]) -> None:
+    from lesmc.campaign.summary import command
+
+    rows = read_rows(base[1] / "results.jsonl")
+    bad = [x for x in rows if x["verdict"] == "violated" and x["design"] == "single"]
+    assert bad
+    w = min(bad, key=lambda x: (x["optimum"], x["key"]))
+    cmd = command(w, str(base[1] / "scenes")).split()[1:]
+    rep = lesmc(*cmd, "--out", str(base[1] / "repro"), "--json")
+    no_trace(rep)
+    got = {x["property"]: x for run in json.loads(rep.stdout)["runs"] for x in run["results"]}
+    assert got[w["property"]]["optimum"] == w["optimum"]
+    assert got[w["property"]]["witness_value"] == w["witness_value"]
+
+
+def test_local_cluster_gives_the_rows_of_the_serial_mode(
+    base: tuple[Path, Path], tmp_path: Path
+) -> None:
+    out = seeded(base, tmp_path)
+    r = lesmc("campaign", str(base[0]), "--out", str(out), "--workers", "2", *ARGS)
+    no_trace(r)
+    assert r.returncode in (0, 1, 3), r.stderr
+    got = read_rows(out / "results.jsonl")
+    assert len(got) == len(lines(out / "results.jsonl"))
+    assert content(got) == content(read_rows(base[1] / "results.jsonl"))
+
+
+def test_killed_client_then_rerun_ends_complete_without_duplicates(
+    base: tuple[Path, Path], tmp_path: Path
+) -> None:
+    out = seeded(base, tmp_path)
+    results = out / "results.jsonl"
+    cmd = [sys.executable, "-m", "lesmc", "campaign", str(base[0]), "--out", str(out)]
+    env = {**os.environ, "PYTHONPATH": str(ROOT)}
+    proc = subprocess.Popen(
+        [*cmd, "--workers", "0", *ARGS],
+        cwd=ROOT,
+        env=env,
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.DEVNULL,
+    )
+    deadline = time.monotonic() + 300
+    while time.monotonic() < deadline and proc.poll() is None:
+        if results.exists() and results.stat().st_size > 0:
+            break
+        time.sleep(0.02)
+    proc.send_signal(signal.SIGKILL)
+    proc.wait()
+    total = len(read_rows(base[1] / "results.jsonl"))
+    kept = len(lines(results))
+    assert 0 < kept < total  # killed mid-way
+    with open(results, "a") as fh:  # and a line torn by the kill
+        fh.write('{"format":"lesmc-campaign-row","version":1,"key":"tor')
+    r = lesmc("campaign", str(base[0]), "--out", str(out), "--workers", "0", *ARGS)
+    no_trace(r)
+    got = [json.loads(x) for x in lines(results)]  # every line whole
+    assert len(got) == total == len({x["key"] for x in got})
+    assert content(got) == content(read_rows(base[1] / "results.jsonl"))
+
+
+def test_a_killed_worker_has_its_group_retried(base: tuple[Path, Path], tmp_path: Path) -> None:
+    from distributed import Client, LocalCluster
+
+    out = seeded(base, tmp_path)
+    p = prepare(Video("tiny", base[0], None, "test"), out)
+    ref = read_rows(base[1] / "results.jsonl")
+    for r in ref:
+        spec = TargetSpec(r["target"]["x"], r["target"]["y"], r["target"]["step"])
+        if spec not in p.targets:
+            p.targets.append(spec)
+    specs = load_specs(bundled_specs(), None)
+    from lesmc.campaign.plan import DESIGN_SETS, parse_windows
+
+    groups, total = make_groups(
+        [p], specs, parse_windows(WINDOWS), DESIGN_SETS["all"], set(), 60.0, None
+    )
+    assert len(groups) == 4 and total == len(ref)
+    rows: list[dict[str, Any]] = []
+    killed: list[int] = []
+    with (
+        LocalCluster(n_workers=2, threads_per_worker=1, dashboard_address=None) as cluster,
+        Client(cluster) as client,
+    ):
+
+        def on_rows(batch: list[dict[str, Any]]) -> None:
+            rows.extend(batch)
+            if killed:
+                return
+            busy = [w for w, keys in client.processing().items() if keys]
+            if busy:
+                pid = client.run(os.getpid, workers=busy[:1])[busy[0]]
+                os.kill(pid, signal.SIGKILL)
+                killed.append(pid)
+
+        execute(groups, {p.key: p.doc}, on_rows, 0, cluster.scheduler_address)
+    assert killed  # a worker died with a group in flight
+    assert content(rows) == content(ref)
