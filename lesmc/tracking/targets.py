@@ -57,7 +57,7 @@ def parse_target(text: str) -> TargetSpec:
 
     ASCII digits only; coordinates of at most 9 digits before the point, STEP at most 10**6.
     """
-    num = r"\s*(-?[0-9]{1,9}(?:\.[0-9]{0,12})?)\s*"
+    num = r"\s*(-?[0-9]{1,9}(?:\.[0-9]{0,20})?)\s*"
     m = re.fullmatch(num + "," + num + r"(?:@\s*([0-9]{1,7})\s*)?", text, re.ASCII)
     if not m or (m.group(3) and int(m.group(3)) > 10**6):
         shown = escape_control(text if len(text) <= 40 else text[:37] + "...")
