@@ -53,6 +53,8 @@ TIGHTEN = 8
 TIGHT_GAP = 0.02
 #: Largest table of suffix values the witness dive builds (entries).
 SUFFIX_VALUES = 1 << 21
+#: Most reachable states for which the witness dive builds its suffix table.
+SUFFIX_STATES = 50_000
 #: λ values of the Lagrangian bound.
 LAMBDAS = 48
 #: Relative slack on bounds summed in another order than a path's own value.
@@ -649,7 +651,13 @@ def _representative(
         value, got = _witness_pass(space, bounds, budget, stats, opt, best, cap, BEAM)
         if got is not None:
             best, at = value, got
-        if best < cap and isinstance(space, Space) and not space.obj_max and math.isfinite(opt):
+        if (
+            best < cap
+            and isinstance(space, Space)
+            and not space.obj_max
+            and math.isfinite(opt)
+            and bounds.reachable <= SUFFIX_STATES  # the table is built state by state
+        ):
             suffix = _SuffixValues(space)
             if suffix.entries:
                 value, got = _witness_pass(
