@@ -22,12 +22,11 @@ from __future__ import annotations
 import heapq
 import math
 import time
-from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
 
-from lesmc.engines.budget import resident_bytes
+from lesmc.engines.budget import SearchBudget
 from lesmc.engines.result import EngineOutcome, Stats
 from lesmc.engines.space import SearchSpace, Space
 from lesmc.model.kernel import aggregate_arrays
@@ -61,35 +60,18 @@ class _Label:
     complete: bool = False
 
 
-class _Budget:
-    def __init__(
-        self,
-        max_states: int | None,
-        timeout: float | None,
-        max_memory: int | None = None,
-        reserve: Callable[[], int] | None = None,
-    ) -> None:
-        self.max_states = max_states
-        self.deadline = None if timeout is None else time.perf_counter() + timeout
-        self.max_memory = max_memory
-        self.reserve = reserve  # bytes the model's next growth may take
-        self.used = 0
-        self.stopped = "finished"
+class _Budget(SearchBudget):
+    """bnb counts an expansion first, then asks whether it may be made."""
+
+    stopped = "finished"
 
     def spend(self) -> bool:
         """Count one expansion; False once a budget is exhausted."""
         self.used += 1
-        if self.max_states is not None and self.used > self.max_states:
-            self.stopped = "max_states"
+        why = self.over()
+        if why is not None:
+            self.stopped = why
             return False
-        if self.deadline is not None and time.perf_counter() > self.deadline:
-            self.stopped = "timeout"
-            return False
-        if self.max_memory is not None and self.used % _MEMORY_EVERY == 0:
-            extra = self.reserve() if self.reserve is not None else 0
-            if resident_bytes() + extra > self.max_memory:
-                self.stopped = "max_memory"
-                return False
         return True
 
 
@@ -104,9 +86,9 @@ def suffix_bounds(space: Space) -> Bounds:
     forward pass collects the reachable states of each step, one backward pass
     reduces each state's allowed transitions with ``minimum/maximum.reduceat``.
     """
-    cm, bp = space.cm, space.bp
+    cm = space.cm
     n = cm.n_states
-    leaf = (cm.step >= bp.end) | cm.halted
+    leaf = space.leaves()
     levels = _reachable_levels(space, leaf)
     inf = math.inf
     omin, omax = np.full(n, inf), np.full(n, -inf)
@@ -115,10 +97,7 @@ def suffix_bounds(space: Space) -> Bounds:
     for level in reversed(levels):
         leaves = level[leaf[level]]
         if leaves.size:
-            h = cm.step[leaves]
-            tails = {int(k): space.tail_at(int(k)) for k in np.unique(h)}
-            to = np.array([tails[int(k)][0] for k in h])
-            tc = np.array([tails[int(k)][1] for k in h])
+            to, tc = space.tails(leaves)
             omin[leaves] = omax[leaves] = to
             cmin[leaves] = cmax[leaves] = tc
             alive[leaves] = True
@@ -186,7 +165,9 @@ def branch_and_bound(
     """Optimum, counterexample and representative path, exactly (or bounds if a budget ran out)."""
     t0 = time.perf_counter()
     stats = Stats(engine="bnb")
-    budget = _Budget(max_states, timeout, max_memory, getattr(space.cm, "capacity_bytes", None))
+    budget = _Budget(
+        max_states, timeout, max_memory, getattr(space.cm, "capacity_bytes", None), _MEMORY_EVERY
+    )
     bounds = suffix_bounds(space) if use_bounds and isinstance(space, Space) else None
     if bounds is not None:
         stats.extra["bound_states"] = bounds.states

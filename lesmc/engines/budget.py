@@ -15,6 +15,7 @@ import math
 import os
 import re
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, field
 
 #: Share of the memory available at start that ``--max-memory`` defaults to.
@@ -114,3 +115,39 @@ class Budget:
         if reason == "max_states":
             return f"--max-states {self.max_states}"
         return f"--max-memory {show_size(self.max_memory or 0)}"
+
+
+class SearchBudget:
+    """An engine's running budget: expansions counted against ``max_states``, a deadline
+    ``timeout`` seconds from now, and a memory ceiling (the resident set plus ``reserve()``,
+    what the model's next growth may take, looked at every ``memory_every`` checks)."""
+
+    def __init__(
+        self,
+        max_states: int | None,
+        timeout: float | None,
+        max_memory: int | None = None,
+        reserve: Callable[[], int] | None = None,
+        memory_every: int = 1,
+    ) -> None:
+        self.max_states = max_states
+        self.deadline = None if timeout is None else time.perf_counter() + timeout
+        self.max_memory = max_memory
+        self.reserve = reserve
+        self.memory_every = memory_every
+        self.used = 0
+        self._checks = 0
+
+    def over(self, more: int = 0) -> str | None:
+        """Why the search must stop with ``more`` expansions counted (``max_states``,
+        ``timeout``, ``max_memory``), or None."""
+        if self.max_states is not None and self.used + more > self.max_states:
+            return "max_states"
+        if self.deadline is not None and time.perf_counter() > self.deadline:
+            return "timeout"
+        self._checks += 1
+        if self.max_memory is not None and self._checks % self.memory_every == 0:
+            extra = self.reserve() if self.reserve is not None else 0
+            if resident_bytes() + extra > self.max_memory:
+                return "max_memory"
+        return None

@@ -39,10 +39,10 @@ def enumerate_paths(
     stopped = "finished"
     level = 0
     while node.size:
-        leaf = (cm.step[node] >= space.bp.end) | cm.halted[node]
+        leaf = space.leaves(node)
         if leaf.any():
             idx = np.nonzero(leaf)[0]
-            t_obj, t_con = _tails(space, node[idx])
+            t_obj, t_con = space.tails(node[idx])
             done_obj.append(aggregate_arrays(space.obj_max, obj[idx], t_obj))
             done_con.append(aggregate_arrays(space.con_max, con[idx], t_con))
             done_ref.append((level, idx))
@@ -125,11 +125,3 @@ def _path(
         node = int(parent[node])
     out.reverse()
     return out
-
-
-def _tails(space: Space, nodes: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    pairs = [space.tail(int(q)) for q in nodes] if space.cm.halted[nodes].any() else None
-    if pairs is None:
-        z = np.zeros(nodes.size)
-        return z, z
-    return np.array([p[0] for p in pairs]), np.array([p[1] for p in pairs])

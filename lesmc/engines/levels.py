@@ -34,12 +34,11 @@ from __future__ import annotations
 
 import math
 import time
-from collections.abc import Callable
 from dataclasses import dataclass, field
 
 import numpy as np
 
-from lesmc.engines.budget import resident_bytes
+from lesmc.engines.budget import SearchBudget
 from lesmc.engines.result import EngineOutcome, Stats
 from lesmc.engines.space import SearchSpace, Space
 from lesmc.model.kernel import aggregate_arrays
@@ -67,33 +66,6 @@ class _Stop(Exception):
     def __init__(self, reason: str) -> None:
         super().__init__(reason)
         self.reason = reason
-
-
-class _Budget:
-    def __init__(
-        self,
-        max_states: int | None,
-        timeout: float | None,
-        max_memory: int | None = None,
-        reserve: Callable[[], int] | None = None,
-    ) -> None:
-        self.max_states = max_states
-        self.deadline = None if timeout is None else time.perf_counter() + timeout
-        self.max_memory = max_memory
-        self.reserve = reserve  # bytes the model's next growth may take
-        self.used = 0
-
-    def spend(self, n: int) -> None:
-        """Count n expansions; raise :class:`_Stop` once a budget is exhausted."""
-        if self.max_states is not None and self.used + n > self.max_states:
-            raise _Stop("max_states")
-        if self.deadline is not None and time.perf_counter() > self.deadline:
-            raise _Stop("timeout")
-        if self.max_memory is not None:
-            extra = self.reserve() if self.reserve is not None else 0
-            if resident_bytes() + extra > self.max_memory:
-                raise _Stop("max_memory")
-        self.used += n
 
 
 @dataclass
@@ -205,14 +177,15 @@ class _Bounds:
 
         cm = space.cm
         s = 1.0 if space.con_up else -1.0
-        leaf = (cm.step >= space.bp.end) | cm.halted
+        leaf = space.leaves()
         h = np.full((cm.n_states, lam.size), math.inf)
         for level in reversed(_reachable_levels(space, leaf)):
-            for q in level[leaf[level]].tolist():
-                to, tc = space.tail(int(q))
+            ends = level[leaf[level]]
+            if ends.size:
+                to, tc = space.tails(ends)
                 with np.errstate(invalid="ignore"):
-                    row = to - s * lam * tc
-                h[q] = np.where(np.isnan(row), to, row)
+                    rows = to[:, None] - s * lam[None, :] * tc[:, None]
+                h[ends] = np.where(np.isnan(rows), to[:, None], rows)
             inner = level[~leaf[level]]
             if not inner.size:
                 continue
@@ -227,10 +200,13 @@ class _Bounds:
 
 # ----------------------------------------------------------------------------- search
 def _expand(
-    space: SearchSpace, q: np.ndarray, budget: _Budget, stats: Stats
+    space: SearchSpace, q: np.ndarray, budget: SearchBudget, stats: Stats
 ) -> tuple[np.ndarray, np.ndarray]:
     """The allowed transitions out of labels ``q`` (all at one step): label index, transition."""
-    budget.spend(int(q.size))
+    why = budget.over(int(q.size))
+    if why is not None:
+        raise _Stop(why)
+    budget.used += int(q.size)
     idx, t = space.successors_batch(q)
     stats.transitions += int(t.size)
     return idx, t
@@ -278,7 +254,7 @@ class _Front:
 def _optimum_pass(
     space: SearchSpace,
     bounds: _Bounds,
-    budget: _Budget,
+    budget: SearchBudget,
     stats: Stats,
     upper: float,
     beam: int | None,
@@ -296,10 +272,10 @@ def _optimum_pass(
     best, where = upper, None
     cm, bp = space.cm, space.bp
     while fq.size:
-        leaf = (cm.step[fq] >= bp.end) | cm.halted[fq]
+        leaf = space.leaves(fq)
         if leaf.any():
             li = np.nonzero(leaf)[0]
-            to, tc = _tails(space, fq[li])
+            to, tc = space.tails(fq[li])
             lo_ = aggregate_arrays(space.obj_max, fo[li], to)
             lc_ = aggregate_arrays(space.con_max, fc[li], tc)
             bad = _truth(space.satisfies(lc_, bp.bound)) & (lo_ < best)
@@ -352,17 +328,6 @@ def _beam(
     return np.unique(np.r_[by_bound, by_con])
 
 
-def _tails(space: SearchSpace, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    steps = space.cm.step[q]
-    to = np.empty(q.size)
-    tc = np.empty(q.size)
-    for h in np.unique(steps).tolist():
-        a, b = space.tail_at(int(h))
-        m = steps == h
-        to[m], tc[m] = a, b
-    return to, tc
-
-
 # ----------------------------------------------------------------------------- witness
 def _grain(space: SearchSpace) -> float | None:
     """g when every objective contribution (and the root value) is an integer multiple of
@@ -398,7 +363,7 @@ def _witness_cap(space: SearchSpace, opt: float) -> float:
 def _witness_pass(
     space: SearchSpace,
     bounds: _Bounds,
-    budget: _Budget,
+    budget: SearchBudget,
     stats: Stats,
     opt: float,
     best: float,
@@ -417,13 +382,13 @@ def _witness_pass(
     trail.add(root, np.array([-1]), np.array([-1]))
     q, o = root, np.array([space.root_obj])
     where: tuple[_Trail, int, int, list[int]] | None = None
-    cm, bp = space.cm, space.bp
+    cm = space.cm
     while q.size and best < cap:
         level = len(trail.q) - 1
-        leaf = (cm.step[q] >= bp.end) | cm.halted[q]
+        leaf = space.leaves(q)
         if leaf.any():
             li = np.nonzero(leaf)[0]
-            fo = aggregate_arrays(space.obj_max, o[li], _tails(space, q[li])[0])
+            fo = aggregate_arrays(space.obj_max, o[li], space.tails(q[li])[0])
             ok = (fo < opt) & (fo > best)
             if ok.any():
                 j = int(np.argmax(np.where(ok, fo, -math.inf)))
@@ -486,7 +451,7 @@ class _SuffixValues:
 
         self.space = space
         cm = space.cm
-        leaf = (cm.step >= space.bp.end) | cm.halted
+        leaf = space.leaves()
         levels = _reachable_levels(space, leaf)
         self.start_step: int | None = None
         self.table: dict[int, tuple[np.ndarray, np.ndarray, np.ndarray]] = {}
@@ -565,7 +530,9 @@ def level_search(
     memory), proven bounds on both."""
     t0 = time.perf_counter()
     stats = Stats(engine="levels")
-    budget = _Budget(max_states, timeout, max_memory, getattr(space.cm, "capacity_bytes", None))
+    budget = SearchBudget(
+        max_states, timeout, max_memory, getattr(space.cm, "capacity_bytes", None)
+    )
     bounds = _Bounds(space)
     if bounds.exact:
         stats.extra["bound_states"] = bounds.reachable
@@ -608,7 +575,7 @@ def level_search(
 def _tighten(
     space: SearchSpace,
     bounds: _Bounds,
-    budget: _Budget,
+    budget: SearchBudget,
     stats: Stats,
     upper: float,
     at: tuple[_Trail, int, int] | None,
@@ -639,7 +606,7 @@ def _tighten(
 
 
 def _representative(
-    space: SearchSpace, bounds: _Bounds, budget: _Budget, stats: Stats, opt: float
+    space: SearchSpace, bounds: _Bounds, budget: SearchBudget, stats: Stats, opt: float
 ) -> tuple[list[int] | None, float, float, str | None]:
     """ρ*: dives (beam, then meet-in-the-middle for sums), then the exact pass.
 

@@ -88,9 +88,13 @@ class SearchSpace(Protocol):
 
     def tail_at(self, h: int) -> tuple[float, float]: ...
 
+    def tails(self, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]: ...
+
     def agg(self, is_max: bool, acc: float, c: float) -> float: ...
 
     def is_leaf(self, q: int) -> bool: ...
+
+    def leaves(self, q: np.ndarray | None = None) -> np.ndarray: ...
 
     def successors(self, q: int) -> Sequence[int] | np.ndarray: ...
 
@@ -131,6 +135,15 @@ class SpaceOps:
         """A path ends here: the property's last step, or the track halted."""
         return bool(self.cm.step[q] >= self.bp.end or self.cm.halted[q])
 
+    def leaves(self, q: np.ndarray | None = None) -> np.ndarray:
+        """:meth:`is_leaf` of states ``q`` (of every state when None), as a mask."""
+        cm = self.cm
+        if q is None:
+            out: np.ndarray = (cm.step >= self.bp.end) | cm.halted
+            return out
+        out = (cm.step[q] >= self.bp.end) | cm.halted[q]
+        return out
+
     def tail(self, q: int) -> tuple[float, float]:
         return self.tail_at(int(self.cm.step[q]))
 
@@ -138,6 +151,15 @@ class SpaceOps:
         """Contributions of the steps after a leaf at step h: +inf deviation after a halt."""
         bp = self.bp
         return kernel.tail(bp.objective, h, bp.end), kernel.tail(bp.constraint, h, bp.end)
+
+    def tails(self, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """:meth:`tail` of leaves ``q``, as arrays (computed once per distinct step)."""
+        steps = self.cm.step[q]
+        to, tc = np.zeros(q.size), np.zeros(q.size)
+        for h in np.unique(steps).tolist():
+            at = steps == h
+            to[at], tc[at] = self.tail_at(int(h))
+        return to, tc
 
 
 @dataclass
