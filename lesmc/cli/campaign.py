@@ -10,6 +10,7 @@ from typing import Any
 
 import click
 
+from lesmc.cli.options import designs_option, finite_seconds, nets_option, spec_option
 from lesmc.errors import UsageError
 
 DEFAULT_WINDOWS = "4..12:1..4"
@@ -52,21 +53,11 @@ def _cores() -> int:
     metavar="L1..L2:D1..D2",
     help="Attack windows l..u with l in L1..L2 and u - l in D1..D2 (the paper's: 36).",
 )
-@click.option(
-    "--design",
-    type=click.Choice(["single", "joint", "improved", "both", "all"]),
-    default="all",
-    show_default=True,
-    help="As for lesmc verify: single, joint KFs, joint KFs + monitor; both = single and "
-    "improved; all = the three.",
+@designs_option(
+    "As for lesmc verify: single, joint KFs, joint KFs + monitor; both = single and "
+    "improved; all = the three."
 )
-@click.option(
-    "--spec",
-    "specs",
-    multiple=True,
-    type=click.Path(dir_okay=False),
-    help="Property file (repeatable) [default: the bundled robustness and resilience].",
-)
+@spec_option
 @click.option(
     "--workers",
     type=click.IntRange(min=0),
@@ -84,6 +75,7 @@ def _cores() -> int:
 @click.option(
     "--timeout",
     type=click.FloatRange(min=0, min_open=True),
+    callback=finite_seconds,
     default=60.0,
     show_default=True,
     help="Seconds per result; past it the result is 'unknown' with the bounds found.",
@@ -101,13 +93,7 @@ def _cores() -> int:
     help="Find targets from tracks initiated on the detections even where FRAMES_DIR has "
     "a truth.json.",
 )
-@click.option(
-    "--nets",
-    "nets_dir",
-    type=click.Path(file_okay=False),
-    default=None,
-    help="Trained networks [default: the shipped ones].",
-)
+@nets_option
 @click.option("--json", "as_json", is_flag=True, help="Print the summary's numbers as JSON.")
 def campaign_cmd(
     frames_dirs: tuple[str, ...],

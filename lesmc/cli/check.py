@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import math
 import sys
 import time
 from typing import TYPE_CHECKING
@@ -12,9 +11,9 @@ import click
 from lesmc.cli.budgets import stop_if_spent
 from lesmc.cli.options import (
     budget_from,
+    budget_options,
     design_option,
     load_model_or_scene,
-    memory_option,
     scene_target,
 )
 from lesmc.errors import UsageError
@@ -45,22 +44,10 @@ does not import the engines (tests/test_startup.py checks that the two agree).""
     "(all paths).",
 )
 @click.option("--json", "as_json", is_flag=True, help="Print the results as JSON on stdout.")
-@click.option(
-    "--max-states",
-    type=click.IntRange(min=1),
-    default=DEFAULT_MAX_STATES,
-    show_default=True,
-    help="Budget of expanded states per property; past it the verdict may be 'unknown'.",
+@budget_options(
+    DEFAULT_MAX_STATES,
+    "the remaining properties are 'unknown' with the bounds found so far",
 )
-@click.option(
-    "--timeout",
-    type=click.FloatRange(min=0, min_open=True),
-    default=None,
-    callback=lambda _ctx, _p, v: _finite_seconds(v),
-    help="Seconds for the whole command, loading included; past it the remaining "
-    "properties are 'unknown' with the bounds found so far.",
-)
-@memory_option("the remaining properties are 'unknown'")
 @click.option(
     "--property",
     "only",
@@ -256,10 +243,3 @@ def _report(
             runs, report_dir, meta, provenance(parsed), frames_reader(frames_dir), timings
         )
     err.print(f"report: {out}")
-
-
-def _finite_seconds(value: float | None) -> float | None:
-    """``--timeout``: a finite number of seconds (nan and inf are refused)."""
-    if value is not None and not math.isfinite(value):
-        raise click.BadParameter(f"{value} is not a finite number of seconds")
-    return value

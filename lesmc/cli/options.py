@@ -43,6 +43,36 @@ def design_option(help_text: str) -> Callable[[F], F]:
     )
 
 
+#: ``--spec FILE`` (repeatable) of the verbs that check a video's designs.
+spec_option = click.option(
+    "--spec",
+    "specs",
+    multiple=True,
+    type=click.Path(dir_okay=False),
+    help="Property file (repeatable) [default: the bundled robustness and resilience].",
+)
+
+#: ``--nets DIR`` of the verbs that perceive a video.
+nets_option = click.option(
+    "--nets",
+    "nets_dir",
+    type=click.Path(file_okay=False),
+    default=None,
+    help="Trained networks [default: the shipped ones].",
+)
+
+
+def designs_option(help_text: str) -> Callable[[F], F]:
+    """``--design single|joint|improved|both|all``: the designs a video is verified with."""
+    return click.option(
+        "--design",
+        type=click.Choice(["single", "joint", "improved", "both", "all"]),
+        default="all",
+        show_default=True,
+        help=help_text,
+    )
+
+
 #: Largest step a ``--window`` bound may name (as in the spec grammar's step numbers).
 MAX_STEP = 10**6
 
@@ -77,7 +107,7 @@ def parse_window(text: str) -> tuple[int, int]:
     return lo, hi
 
 
-def _finite_seconds(
+def finite_seconds(
     _ctx: click.Context, _param: click.Parameter, value: float | None
 ) -> float | None:
     """``--timeout``: a finite number of seconds (nan and inf are refused)."""
@@ -121,7 +151,7 @@ def budget_options(max_states_default: int | None, what: str) -> Callable[[F], F
             "--timeout",
             type=click.FloatRange(min=0, min_open=True),
             default=None,
-            callback=_finite_seconds,
+            callback=finite_seconds,
             help=f"Seconds for the whole command, loading included; past it {what}.",
         )(f)
         return click.option(

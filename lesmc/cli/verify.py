@@ -12,7 +12,15 @@ import click
 
 from lesmc.cli.budgets import stop_if_spent
 from lesmc.cli.check import DEFAULT_MAX_STATES
-from lesmc.cli.options import budget_from, budget_options, load_scene_file, parse_window
+from lesmc.cli.options import (
+    budget_from,
+    budget_options,
+    designs_option,
+    load_scene_file,
+    nets_option,
+    parse_window,
+    spec_option,
+)
 from lesmc.errors import UsageError
 from lesmc.video import FPS
 
@@ -42,13 +50,7 @@ HISTORY = 4
     default=None,
     help="truth.json of the video (target choice, initial velocity).",
 )
-@click.option(
-    "--spec",
-    "specs",
-    multiple=True,
-    type=click.Path(dir_okay=False),
-    help="Property file (repeatable) [default: the bundled robustness and resilience].",
-)
+@spec_option
 @click.option(
     "--window",
     "window_text",
@@ -56,13 +58,9 @@ HISTORY = 4
     metavar="L..U",
     help="Override every property's attack window.",
 )
-@click.option(
-    "--design",
-    type=click.Choice(["single", "joint", "improved", "both", "all"]),
-    default="all",
-    show_default=True,
-    help="single: plain KF; joint: joint KFs; improved: joint KFs + runtime monitor "
-    "(section 7); both: single and improved (Table 5); all: the three.",
+@designs_option(
+    "single: plain KF; joint: joint KFs; improved: joint KFs + runtime monitor "
+    "(section 7); both: single and improved (Table 5); all: the three."
 )
 @click.option(
     "--out",
@@ -72,13 +70,7 @@ HISTORY = 4
     show_default=True,
     help="Directory for scene.json, report.html, figures/, results.json.",
 )
-@click.option(
-    "--nets",
-    "nets_dir",
-    type=click.Path(file_okay=False),
-    default=None,
-    help="Trained networks [default: the shipped ones].",
-)
+@nets_option
 @click.option("--json", "as_json", is_flag=True, help="Print results.json on stdout.")
 @budget_options(
     DEFAULT_MAX_STATES,

@@ -147,13 +147,9 @@ class LazySpace(SpaceOps):
         for k in np.unique(steps).tolist():
             group = todo[steps == k]
             while group.size:  # batches of about BATCH_SECONDS, so that deadlines hold
-                cap = BATCH if self._per_state <= 0 else int(BATCH_SECONDS / self._per_state) + 1
-                part, group = group[: max(1, min(BATCH, cap))], group[max(1, min(BATCH, cap)) :]
-                t0 = time.perf_counter()
-                cm.expand(part, int(k))
-                self._per_state = (time.perf_counter() - t0) / part.size
-                self._sync()
-
+                n = self._cap(BATCH)
+                self._expand_batch(group[:n], int(k))
+                group = group[n:]
         owner, t = ranges(cm.out_lo[q], cm.out_hi[q])
         ok = self._mask.data[t]
         return owner[ok], t[ok]
@@ -161,9 +157,20 @@ class LazySpace(SpaceOps):
     def slice_size(self) -> int:
         """How many states to hand :meth:`successors_batch` at once: about BATCH_SECONDS of
         unfolding, so that the caller's clock is read often enough."""
+        return self._cap(64)
+
+    def _cap(self, unmeasured: int) -> int:
+        """States that take about BATCH_SECONDS to expand (``unmeasured`` before any)."""
         if self._per_state <= 0:
-            return 64
+            return unmeasured
         return max(1, min(BATCH, int(BATCH_SECONDS / self._per_state) + 1))
+
+    def _expand_batch(self, states: np.ndarray, k: int) -> None:
+        """Expand ``states`` (all at step k), timing it, and sync the new arrays."""
+        t0 = time.perf_counter()
+        self.cm.expand(states, k)
+        self._per_state = (time.perf_counter() - t0) / states.size
+        self._sync()
 
     def _queue(self, states: np.ndarray) -> None:
         """States the search can reach whose successors lie outside the window: expanded
@@ -190,12 +197,8 @@ class LazySpace(SpaceOps):
         if not bp.l <= k + 1 <= bp.u:
             waiting = self._waiting.pop(k, [])
             batch += [x for x in waiting if x != q and not cm.expanded(x) and not cm.halted[x]]
-            cap = BATCH if self._per_state <= 0 else int(BATCH_SECONDS / self._per_state) + 1
-            cap = max(1, min(BATCH, cap))
+            cap = self._cap(BATCH)
             if len(batch) > cap:
                 self._waiting[k] = batch[cap:]
                 batch = batch[:cap]
-        t0 = time.perf_counter()
-        cm.expand(np.array(batch, dtype=np.int64), k)
-        self._per_state = (time.perf_counter() - t0) / len(batch)
-        self._sync()
+        self._expand_batch(np.array(batch, dtype=np.int64), k)
