@@ -197,8 +197,21 @@ class Target:
     velocity: tuple[float, float] = (0.0, 0.0)
 
 
+class _Frames:
+    """Frames numbered ``frames[0].step``, ``frames[0].step + 1``, ...: the steps of a video."""
+
+    frames: tuple[Frame, ...]
+
+    def frame(self, step: int) -> Frame:
+        return self.frames[step - self.frames[0].step]
+
+    @property
+    def last_step(self) -> int:
+        return self.frames[-1].step
+
+
 @dataclass(frozen=True)
-class Footage:
+class Footage(_Frames):
     """A scene without a target: what perception produces once per video.
 
     ``lesmc perceive -o`` without ``--target`` writes one; ``--target X,Y@STEP``
@@ -210,13 +223,6 @@ class Footage:
     tracker: TrackerConfig = field(default_factory=TrackerConfig)
     meta: dict[str, Any] = field(default_factory=dict, compare=False)
 
-    def frame(self, step: int) -> Frame:
-        return self.frames[step - self.frames[0].step]
-
-    @property
-    def last_step(self) -> int:
-        return self.frames[-1].step
-
     def with_target(self, target: Target, meta: dict[str, Any] | None = None) -> Scene:
         """The scene tracking from ``target`` (its step must be one of the frames)."""
         info = dict(self.meta) if meta is None else meta
@@ -224,7 +230,7 @@ class Footage:
 
 
 @dataclass(frozen=True)
-class Scene:
+class Scene(_Frames):
     """A validated scene; ``frames[i].step == first_step + i``."""
 
     dt: float
@@ -232,13 +238,6 @@ class Scene:
     target: Target
     tracker: TrackerConfig = field(default_factory=TrackerConfig)
     meta: dict[str, Any] = field(default_factory=dict, compare=False)
-
-    def frame(self, step: int) -> Frame:
-        return self.frames[step - self.frames[0].step]
-
-    @property
-    def last_step(self) -> int:
-        return self.frames[-1].step
 
     @property
     def has_lower(self) -> bool:
