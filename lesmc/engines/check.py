@@ -64,14 +64,9 @@ def check_bound(
     timeout: float | None = None,
     max_memory: int | None = None,
 ) -> CheckResult:
-    """Check one bound property on a model (``max_memory``: bytes, for bnb and levels)."""
+    """Check one bound property on a model (``max_memory``: bytes)."""
     space = build_space(cm, bp)
-    if engine == "bnb":
-        outcome = branch_and_bound(space, max_states, timeout, max_memory=max_memory)
-    elif engine == "levels":
-        outcome = level_search(space, max_states, timeout, max_memory=max_memory)
-    else:
-        outcome = ENGINES[engine](space, max_states=max_states, timeout=timeout)
+    outcome = ENGINES[engine](space, max_states, timeout, max_memory=max_memory)
     return to_result(space, outcome)
 
 
@@ -180,12 +175,12 @@ def check_lazy(
     engine: EngineName = "levels",
     max_memory: int | None = None,
 ) -> CheckResult:
-    """One bound property on a model unfolded on demand (the engine expands what it visits)."""
+    """One bound property on a model unfolded on demand (the engine expands what it visits;
+    ``enumerate`` needs the whole model: lesmc.unfold.check_scene_bound builds it first)."""
+    if engine == "enumerate":
+        raise ValueError("enumerate runs on a built model, not on one unfolded on demand")
     space = LazySpace(model, bp)
-    if engine == "bnb":
-        out = branch_and_bound(space, max_states, timeout, use_bounds=False, max_memory=max_memory)
-    else:
-        out = level_search(space, max_states, timeout, max_memory=max_memory)
+    out = ENGINES[engine](space, max_states, timeout, max_memory=max_memory)
     out.stats.extra["states_built"] = space.states_built
     return to_result(space, out)
 

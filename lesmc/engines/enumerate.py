@@ -15,17 +15,23 @@ import time
 
 import numpy as np
 
+from lesmc.engines.budget import SearchBudget
 from lesmc.engines.result import EngineOutcome, Stats
 from lesmc.engines.space import Space
 from lesmc.model.kernel import COMPARE, aggregate_arrays
 
 
 def enumerate_paths(
-    space: Space, max_states: int | None = None, timeout: float | None = None
+    space: Space,
+    max_states: int | None = None,
+    timeout: float | None = None,
+    max_memory: int | None = None,
 ) -> EngineOutcome:
     """Run Algorithms 1 and 2 on ``space``; stop early (unknown) past a budget."""
     t0 = time.perf_counter()
     stats = Stats(engine="enumerate")
+    budget = SearchBudget(max_states, timeout, max_memory)
+    budget.used = 1  # the root
     cm = space.cm
     # one level of the tree: state, accumulated objective/constraint, parent, entering transition
     node = np.array([space.root], dtype=np.int64)
@@ -35,7 +41,6 @@ def enumerate_paths(
     done_obj: list[np.ndarray] = []
     done_con: list[np.ndarray] = []
     done_ref: list[tuple[int, np.ndarray]] = []  # (level, node index) of finished paths
-    created = 1
     stopped = "finished"
     level = 0
     while node.size:
@@ -47,27 +52,22 @@ def enumerate_paths(
             done_con.append(aggregate_arrays(space.con_max, con[idx], t_con))
             done_ref.append((level, idx))
         live = np.nonzero(~leaf)[0]
-        lo = space.adj_ptr[node[live]]
-        deg = space.adj_ptr[node[live] + 1] - lo
-        total = int(deg.sum())
-        if max_states is not None and created + total > max_states:
-            stopped = "max_states"
-            break
-        if timeout is not None and time.perf_counter() - t0 > timeout:
-            stopped = "timeout"
-            break
         # children: for each live node, each allowed transition in rank order
-        parent = np.repeat(live, deg)
-        offs = np.arange(total) - np.repeat(np.cumsum(deg) - deg, deg)
-        trans = space.adj[np.repeat(lo, deg) + offs]
+        owner, trans = space.successors_batch(node[live])
+        total = int(trans.size)
+        why = budget.over(total)
+        if why is not None:
+            stopped = why
+            break
+        parent = live[owner]
         levels.append((parent, trans))
         obj = aggregate_arrays(space.obj_max, obj[parent], space.c_obj[trans])
         con = aggregate_arrays(space.con_max, con[parent], space.c_con[trans])
         node = cm.dst[trans]
-        created += total
+        budget.used += total
         stats.transitions += total
         level += 1
-    stats.states_expanded = created
+    stats.states_expanded = budget.used
     stats.stopped = stopped  # type: ignore[assignment]
     all_obj = np.concatenate(done_obj) if done_obj else np.zeros(0)
     all_con = np.concatenate(done_con) if done_con else np.zeros(0)
