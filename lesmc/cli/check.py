@@ -101,7 +101,7 @@ def check_cmd(
     """Check the properties in SPEC files on MODEL (a .lts file) or on a SCENE (.json).
 
     A scene's model is built on the fly from each property's attack window
-    (engine bnb expands only the states it needs; enumerate builds it whole).
+    (levels and bnb expand only the states they visit; enumerate builds it whole).
 
     For each property: the verdict (holds iff optimum > threshold), the optimum,
     the counterexample (cheapest path that breaks the system) and the witness
