@@ -89,7 +89,7 @@ def suffix_bounds(space: Space) -> Bounds:
     cm = space.cm
     n = cm.n_states
     leaf = space.leaves()
-    levels = _reachable_levels(space, leaf)
+    levels = space.reachable_levels()
     inf = math.inf
     omin, omax = np.full(n, inf), np.full(n, -inf)
     cmin, cmax = np.full(n, inf), np.full(n, -inf)
@@ -104,7 +104,7 @@ def suffix_bounds(space: Space) -> Bounds:
         inner = level[~leaf[level]]
         if not inner.size:
             continue
-        t, seg, has = _gather(space, inner)
+        t, seg, has = space.allowed(inner)
         if not t.size:
             continue
         d = cm.dst[t]
@@ -123,36 +123,6 @@ def suffix_bounds(space: Space) -> Bounds:
             vals = np.where(ok, aggregate_arrays(is_max, c, bound[d]), fill)
             arr[q] = red.reduceat(vals, starts)
     return Bounds(omin, omax, cmin, cmax, alive, int(sum(len(lv) for lv in levels)))
-
-
-def _gather(space: Space, states: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """The allowed transitions of ``states`` in order, each state's offset into them, and
-    which states have any."""
-    lo = space.adj_ptr[states]
-    deg = space.adj_ptr[states + 1] - lo
-    seg = np.r_[0, np.cumsum(deg)]
-    total = int(seg[-1])
-    offs = np.arange(total) - np.repeat(seg[:-1], deg)
-    t = space.adj[np.repeat(lo, deg) + offs]
-    return t, seg, deg > 0
-
-
-def _reachable_levels(space: Space, leaf: np.ndarray) -> list[np.ndarray]:
-    """The states reachable from the root under the window, one array per step."""
-    seen = np.zeros(space.cm.n_states, dtype=bool)
-    level = np.array([space.root], dtype=np.int64)
-    seen[space.root] = True
-    levels = [level]
-    while True:
-        inner = level[~leaf[level]]
-        t, _, _ = _gather(space, inner)
-        nxt = np.unique(space.cm.dst[t])
-        nxt = nxt[~seen[nxt]]
-        if not nxt.size:
-            return levels
-        seen[nxt] = True
-        levels.append(nxt)
-        level = nxt
 
 
 def branch_and_bound(

@@ -173,13 +173,11 @@ class _Bounds:
 
     @staticmethod
     def _suffix_lagrangian(space: Space, lam: np.ndarray) -> np.ndarray:
-        from lesmc.engines.bnb import _gather, _reachable_levels
-
         cm = space.cm
         s = 1.0 if space.con_up else -1.0
         leaf = space.leaves()
         h = np.full((cm.n_states, lam.size), math.inf)
-        for level in reversed(_reachable_levels(space, leaf)):
+        for level in reversed(space.reachable_levels()):
             ends = level[leaf[level]]
             if ends.size:
                 to, tc = space.tails(ends)
@@ -189,7 +187,7 @@ class _Bounds:
             inner = level[~leaf[level]]
             if not inner.size:
                 continue
-            t, seg, has = _gather(space, inner)
+            t, seg, has = space.allowed(inner)
             if not t.size:
                 continue
             vals = (space.c_obj[t] - s * np.outer(space.c_con[t], lam).T).T + h[cm.dst[t]]
@@ -239,16 +237,6 @@ def _pareto(q: np.ndarray, o: np.ndarray, c: np.ndarray, up: bool) -> np.ndarray
     best_before = np.maximum.accumulate(np.r_[-1, key[:-1]])
     keep = start | (best_before < key)
     return np.asarray(order[keep])
-
-
-@dataclass
-class _Front:
-    """One level's labels."""
-
-    level: int
-    q: np.ndarray
-    o: np.ndarray
-    c: np.ndarray
 
 
 def _optimum_pass(
@@ -349,7 +337,14 @@ def _known(space: SearchSpace) -> np.ndarray:
 
 
 def _witness_cap(space: SearchSpace, opt: float) -> float:
-    """An upper bound on θ*: below ``opt`` and, where the values allow, tighter."""
+    """An upper bound on θ*: below ``opt`` and, where the values allow, tighter.
+
+    A max objective is one of the contributions (or the root's value), so θ* is at most
+    the largest one below ``opt``. On a model unfolded on demand only the transitions
+    built so far are known; that suffices, because the exact optimum pass has expanded
+    every state a path below ``opt`` passes through (its running value never exceeds
+    its final one), so every transition of such a path is built.
+    """
     if not math.isfinite(opt):
         return math.inf
     if space.obj_max:
@@ -447,12 +442,10 @@ class _SuffixValues:
     the last steps (sum objectives on explicit spaces): a meet-in-the-middle table."""
 
     def __init__(self, space: Space, limit: int = SUFFIX_VALUES) -> None:
-        from lesmc.engines.bnb import _gather, _reachable_levels
-
         self.space = space
         cm = space.cm
         leaf = space.leaves()
-        levels = _reachable_levels(space, leaf)
+        levels = space.reachable_levels()
         self.start_step: int | None = None
         self.table: dict[int, tuple[np.ndarray, np.ndarray, np.ndarray]] = {}
         total = 0
@@ -463,7 +456,7 @@ class _SuffixValues:
                 entries[q] = (np.array([to]), np.array([-1]), np.array([-1]))
             inner = level[~leaf[level]]
             if inner.size:
-                t, seg, _ = _gather(space, inner)
+                t, seg, _ = space.allowed(inner)
                 for i, q in enumerate(inner.tolist()):
                     vs: list[np.ndarray] = []
                     ts: list[np.ndarray] = []

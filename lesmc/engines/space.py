@@ -190,6 +190,31 @@ class Space(SpaceOps):
         """The allowed transitions of states ``q``: (position in ``q``, transition), in order."""
         return ranges(self.adj_ptr[q], self.adj_ptr[q + 1], self.adj)
 
+    def allowed(self, states: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """The allowed transitions of ``states`` in order, each state's offset into them
+        (for ``ufunc.reduceat``), and which states have any."""
+        lo, hi = self.adj_ptr[states], self.adj_ptr[states + 1]
+        _, t = ranges(lo, hi, self.adj)
+        deg = hi - lo
+        return t, np.r_[0, np.cumsum(deg)], deg > 0
+
+    def reachable_levels(self) -> list[np.ndarray]:
+        """The states reachable from the root under the window, one array per step."""
+        leaf = self.leaves()
+        seen = np.zeros(self.cm.n_states, dtype=bool)
+        level = np.array([self.root], dtype=np.int64)
+        seen[self.root] = True
+        levels = [level]
+        while True:
+            t, _, _ = self.allowed(level[~leaf[level]])
+            nxt = np.unique(self.cm.dst[t])
+            nxt = nxt[~seen[nxt]]
+            if not nxt.size:
+                return levels
+            seen[nxt] = True
+            levels.append(nxt)
+            level = nxt
+
     def entering(self, q0: int, q1: int) -> int:
         """The transition from q0 to q1."""
         return self.cm.edge(q0, q1)
