@@ -8,15 +8,17 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 from kf_reference import reference_filter
 
 from lesmc.errors import InputError
 from lesmc.model.lts import to_lts
-from lesmc.tracking.association import attack_options
+from lesmc.tracking.association import attack_options, gate_radii
 from lesmc.tracking.design import make_design
-from lesmc.tracking.kalman import matrices, white_noise_q
+from lesmc.tracking.kalman import innovations, matrices, predict_covariances, white_noise_q
 from lesmc.tracking.monitor import track
-from lesmc.tracking.scene import Frame, Scene, load_scene, scene_from_dict, scene_to_dict
+from lesmc.tracking.scene import Detection, Frame, Scene, load_scene, scene_from_dict, scene_to_dict
 from lesmc.tracking.toy import Vehicle, vehicle_scene
 from lesmc.unfold import build_model
 
@@ -245,3 +247,57 @@ def test_scene_round_trip(tmp_path: Path) -> None:
     s = with_camera_motion(load_scene(SCENES / "rq4_merge.json"))
     save_scene(s, tmp_path / "s.json")
     assert scene_to_dict(load_scene(tmp_path / "s.json")) == scene_to_dict(s)
+
+
+@settings(max_examples=60, deadline=None)
+@given(
+    st.integers(1, 60),
+    st.integers(1, 12),
+    st.floats(0.5, 40.0),
+    st.integers(0, 2**32 - 1),
+)
+def test_nearest_equals_a_full_scan(m: int, k: int, radius: float, seed: int) -> None:
+    """Frame.nearest's x-band scan gives the k nearest within the radius, ties to the
+    lower index, exactly as sorting every (distance, index) pair does."""
+    rng = np.random.default_rng(seed)
+    grid = rng.integers(0, 12, size=(m, 2)).astype(float) * 3.0  # many equal distances
+    dets = tuple(Detection(f"d{i}", float(x), float(y), 1.0) for i, (x, y) in enumerate(grid))
+    frame = Frame(0, dets)
+    points = np.r_[grid[: min(m, 5)], rng.integers(0, 36, size=(30, 2)).astype(float)]
+    got = frame.nearest(points, k, radius)
+    for p, row in zip(points, got, strict=True):
+        d = [math.hypot(x - p[0], y - p[1]) for x, y in grid]
+        want = sorted((di, i) for i, di in enumerate(d) if di <= radius)[:k]
+        assert [i for i in row if i >= 0] == [i for _, i in want]
+
+
+@settings(max_examples=40, deadline=None)
+@given(st.integers(0, 2**32 - 1), st.sampled_from(["mahalanobis", "euclidean"]))
+def test_batched_gain_equals_the_textbook_and_does_not_depend_on_the_batch(
+    seed: int, gate_type: str
+) -> None:
+    """innovations/gate_radii over a stack: each entry equals the same matrix done alone
+    (bit for bit) and the textbook Eq. 3 with numpy's inverse and eigvalsh (to 1e-9)."""
+    rng = np.random.default_rng(seed)
+    m = matrices(load_scene(SCENES / "rq4_merge.json").tracker, 1.0)
+    A = rng.normal(size=(6, 4, 4))
+    P = np.einsum("nij,nkj->nik", A, A) + 0.1 * np.eye(4)
+    P_pred = predict_covariances(m, P)
+    inn = innovations(m, P_pred)
+    radii = gate_radii(inn.S, P_pred, 3.0, gate_type)
+    for i in range(len(P)):
+        one = innovations(m, predict_covariances(m, P[i : i + 1]))
+        assert one.P_post[0].tobytes() == inn.P_post[i].tobytes()
+        assert one.K[0].tobytes() == inn.K[i].tobytes()
+        Pp = m.F @ P[i] @ m.F.T + m.Q
+        S = m.H @ Pp @ m.H.T + m.R
+        K = Pp @ m.H.T @ np.linalg.inv(S)
+        P_post = (np.eye(4) - K @ m.H) @ Pp  # the simple form: equal to Joseph's in exact math
+        assert np.allclose(P_pred[i], Pp, rtol=1e-9, atol=1e-9)
+        assert np.allclose(inn.K[i], K, rtol=1e-9, atol=1e-9)
+        assert np.allclose(inn.P_post[i], P_post, rtol=1e-7, atol=1e-7)
+        if gate_type == "mahalanobis":
+            want = 3.0 * math.sqrt(max(np.linalg.eigvalsh(S)))
+        else:
+            want = 3.0 * math.sqrt(Pp[0, 0] + Pp[1, 1])
+        assert want <= radii[i] <= want * (1 + 1e-9)

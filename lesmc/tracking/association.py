@@ -12,7 +12,6 @@ every nearer detection.
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -48,9 +47,26 @@ def gate_test(
 
 def gate_radius(inn: Innovation, P_pred: np.ndarray, gate: float, gate_type: str) -> float:
     """No detection farther than this (Euclidean) from the prediction can pass the gate."""
+    return float(gate_radii(inn.S[None], P_pred[None], gate, gate_type)[0])
+
+
+def gate_radii(S: np.ndarray, P_pred: np.ndarray, gate: float, gate_type: str) -> np.ndarray:
+    """:func:`gate_radius` for stacks S (k, 2, 2) and P̂ (k, 4, 4).
+
+    ``mahalanobis``: g times the square root of S's largest eigenvalue (closed
+    form for a symmetric 2×2); ``euclidean``: k · sqrt(P̂₀₀ + P̂₁₁). The radius
+    only preselects candidates for the exact gate test, so it is widened by a
+    relative 1e-12 against rounding.
+    """
     if gate_type == "euclidean":
-        return gate * math.sqrt(P_pred[0, 0] + P_pred[1, 1])
-    return gate * math.sqrt(float(np.max(np.linalg.eigvalsh(inn.S))))
+        out: np.ndarray = gate * np.sqrt(P_pred[:, 0, 0] + P_pred[:, 1, 1]) * (1 + 1e-12)
+        return out
+    half_trace = 0.5 * (S[:, 0, 0] + S[:, 1, 1])
+    half_gap = 0.5 * (S[:, 0, 0] - S[:, 1, 1])
+    off = 0.5 * (S[:, 0, 1] + S[:, 1, 0])
+    top = half_trace + np.sqrt(half_gap * half_gap + off * off)
+    res: np.ndarray = gate * np.sqrt(top) * (1 + 1e-12)
+    return res
 
 
 @dataclass(frozen=True)

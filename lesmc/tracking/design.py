@@ -42,6 +42,26 @@ class CovarianceTable:
             self._index[key] = i
         return i
 
+    def add_many(self, Ps: np.ndarray) -> np.ndarray:
+        """The indices of covariances ``Ps`` (k, d, d), the new ones appended in one go."""
+        out = np.empty(len(Ps), dtype=np.int64)
+        raw = np.ascontiguousarray(Ps, dtype=np.float64).tobytes()
+        w = len(raw) // max(len(Ps), 1)
+        fresh: list[int] = []
+        n = len(self)
+        for j in range(len(Ps)):
+            key = raw[j * w : (j + 1) * w]
+            i = self._index.get(key)
+            if i is None:
+                i = self._index[key] = n + len(fresh)
+                fresh.append(j)
+            out[j] = i
+        if fresh:
+            if self._rows is None:
+                self._rows = GrowArray(np.float64, Ps.shape[1:])
+            self._rows.extend(Ps[fresh])
+        return out
+
     def __getitem__(self, i: int) -> np.ndarray:
         if not 0 <= i < len(self):
             raise IndexError(i)

@@ -77,12 +77,26 @@ def warp(Hm: np.ndarray | None, xy: np.ndarray) -> np.ndarray:
 
 def predict(m: Matrices, x: np.ndarray, P: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Eq. 2: x̂ = F x, P̂ = F P Fᵀ + Q."""
-    return predict_means(x, m.F[0, 2]), m.F @ P @ m.F.T + m.Q
+    return predict_means(x, m.F[0, 2]), predict_covariances(m, P[None])[0]
+
+
+def predict_covariances(m: Matrices, P: np.ndarray) -> np.ndarray:
+    """Eq. 2 for a stack of covariances (k, 4, 4): P̂ = F P Fᵀ + Q.
+
+    einsum's summation order per entry does not depend on k, so a covariance
+    predicted alone or in a batch gives the same bits (states are shared by
+    their covariance's exact value).
+    """
+    out: np.ndarray = np.einsum("ij,njk,lk->nil", m.F, P, m.F) + m.Q
+    return out
 
 
 @dataclass(frozen=True)
 class Innovation:
-    """What every candidate observation of one predicted state shares: S, S⁻¹, K, P⁺."""
+    """What every candidate observation of one predicted state shares: S, S⁻¹, K, P⁺.
+
+    Each field is one matrix, or a stack of them (k, …) from :func:`innovations`.
+    """
 
     S: np.ndarray
     S_inv: np.ndarray
@@ -91,12 +105,31 @@ class Innovation:
 
 
 def innovation(m: Matrices, P_pred: np.ndarray) -> Innovation:
-    """Eq. 3: S = H P̂ Hᵀ + R, K = P̂ Hᵀ S⁻¹; P⁺ in Joseph form (I−KH)P̂(I−KH)ᵀ + K R Kᵀ."""
-    S = m.H @ P_pred @ m.H.T + m.R
-    S_inv = np.linalg.inv(S)
-    K = P_pred @ m.H.T @ S_inv
-    I_KH = np.eye(4) - K @ m.H
-    P_post = I_KH @ P_pred @ I_KH.T + K @ m.R @ K.T
+    """Eq. 3 for one predicted covariance (4, 4): :func:`innovations` of a stack of one."""
+    inn = innovations(m, P_pred[None])
+    return Innovation(inn.S[0], inn.S_inv[0], inn.K[0], inn.P_post[0])
+
+
+def innovations(m: Matrices, P_pred: np.ndarray) -> Innovation:
+    """Eq. 3 for a stack of predicted covariances (k, 4, 4).
+
+    S = H P̂ Hᵀ + R, S⁻¹ (closed form of a 2×2 inverse), K = P̂ Hᵀ S⁻¹, and P⁺
+    in Joseph form (I−KH)P̂(I−KH)ᵀ + K R Kᵀ. Written with einsum so that each
+    result is the same whether computed alone or in a batch.
+    """
+    S = np.einsum("ij,njk,lk->nil", m.H, P_pred, m.H) + m.R
+    a, b, c, d = S[:, 0, 0], S[:, 0, 1], S[:, 1, 0], S[:, 1, 1]
+    det = a * d - b * c
+    S_inv = np.empty_like(S)
+    S_inv[:, 0, 0] = d / det
+    S_inv[:, 0, 1] = -b / det
+    S_inv[:, 1, 0] = -c / det
+    S_inv[:, 1, 1] = a / det
+    K = np.einsum("nij,kj,nkl->nil", P_pred, m.H, S_inv)
+    I_KH = np.eye(P_pred.shape[-1]) - np.einsum("nij,jk->nik", K, m.H)
+    P_post = np.einsum("nij,njk,nlk->nil", I_KH, P_pred, I_KH) + np.einsum(
+        "nij,jk,nlk->nil", K, m.R, K
+    )
     return Innovation(S, S_inv, K, P_post)
 
 

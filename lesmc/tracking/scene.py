@@ -107,8 +107,10 @@ class Frame:
         """For each point (n, 2), the indices of its k nearest detections within ``radius``
         (nearest first), −1 where there are fewer.
 
-        A frame of at most :data:`SCAN_LIMIT` detections is scanned with numpy (in
-        chunks of points); a larger one is searched with a k-d tree, built once.
+        A frame of at most :data:`SCAN_LIMIT` detections is scanned with numpy:
+        only the detections whose x lies within ``radius`` of the point's (sorted
+        once per frame), in chunks of points; a larger frame is searched with a
+        k-d tree, built once. Ties in distance go to the lower detection index.
         """
         n, m = len(points), len(self.detections)
         if not m or not n:
@@ -120,24 +122,38 @@ class Frame:
             idx = np.asarray(idx, dtype=np.int64).reshape(n, k)
             out: np.ndarray = np.where(idx >= m, -1, idx)
             return out
-        Z = self._positions
-        kk = min(k, m)
         res = np.full((n, k), -1, dtype=np.int64)
-        step = max(1, SCAN_CELLS // m)
-        for lo in range(0, n, step):
-            p = points[lo : lo + step]
-            d2 = (p[:, 0:1] - Z[:, 0]) ** 2 + (p[:, 1:2] - Z[:, 1]) ** 2
-            part = (
-                np.argpartition(d2, kk - 1, axis=1)[:, :kk]
-                if kk < m
-                else np.tile(np.arange(m), (len(p), 1))
-            )
-            dd = np.take_along_axis(d2, part, axis=1)
-            order = np.argsort(dd, axis=1, kind="stable")
-            part = np.take_along_axis(part, order, axis=1)
-            dd = np.take_along_axis(dd, order, axis=1)
-            res[lo : lo + step, :kk] = np.where(dd <= bound * bound, part, -1)
+        xs, by_x = self._by_x
+        lo = np.searchsorted(xs, points[:, 0] - bound, side="left")
+        hi = np.searchsorted(xs, points[:, 0] + bound, side="right")
+        width = int((hi - lo).max())
+        if width == 0:
+            return res
+        Z = self._positions
+        step = max(1, SCAN_CELLS // width)
+        for s in range(0, n, step):
+            p, a, e = points[s : s + step], lo[s : s + step], hi[s : s + step]
+            cols = a[:, None] + np.arange(width)
+            inside = cols < e[:, None]
+            idx = by_x[np.minimum(cols, m - 1)]
+            d2 = (p[:, 0:1] - Z[idx, 0]) ** 2 + (p[:, 1:2] - Z[idx, 1]) ** 2
+            d2 = np.where(inside & (d2 <= bound * bound), d2, np.inf)
+            kk = min(k, width)
+            if kk < width:  # the kk nearest, ties to the lower detection index
+                part = np.argpartition(d2, kk - 1, axis=1)[:, :kk]
+                cut = np.take_along_axis(d2, part, axis=1).max(axis=1, keepdims=True)
+                d2 = np.where(d2 <= cut, d2, np.inf)
+            order = np.lexsort((np.where(np.isinf(d2), m, idx), d2), axis=1)[:, :kk]
+            dd = np.take_along_axis(d2, order, axis=1)
+            nearest = np.take_along_axis(idx, order, axis=1)
+            res[s : s + step, :kk] = np.where(np.isinf(dd), -1, nearest)
         return res
+
+    @cached_property
+    def _by_x(self) -> tuple[np.ndarray, np.ndarray]:
+        """Detections sorted by x (values, indices): a point's candidates lie in an x band."""
+        order = np.argsort(self._positions[:, 0], kind="stable")
+        return self._positions[order, 0], order
 
     def payoffs(self) -> np.ndarray:
         """(n,) payoffs of hiding each detection (inf: unattackable); read-only."""

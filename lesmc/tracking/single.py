@@ -7,8 +7,9 @@ tracker does.
 
 Speed: P̂, S, K, the gate and the updated P depend only on the parent's P,
 which is shared by every state with the same history of updates and skips. So
-covariances live in a table, what derives from each is computed once
-(:class:`Gain`), and a batch is processed per distinct P with array arithmetic
+covariances live in a table, what derives from each is computed once, for
+all new covariances of a batch together (:class:`_GainTable`), and a batch is
+processed with array arithmetic
 only: predict, the candidate detections from a k-d tree, gate, the attacker's
 options (association.attack_option_rows) and one mean update per outcome.
 """
@@ -20,31 +21,18 @@ from dataclasses import dataclass
 import numpy as np
 
 from lesmc.model.growing import GrowArray
-from lesmc.tracking.association import attack_option_rows, gate_radius, gate_test
+from lesmc.tracking.association import attack_option_rows, gate_radii, gate_test
 from lesmc.tracking.design import Batch, CovarianceTable, Successors
 from lesmc.tracking.kalman import (
-    Innovation,
     Matrices,
-    innovation,
+    innovations,
     matrices,
+    predict_covariances,
     predict_means,
     update_means,
     warp,
 )
 from lesmc.tracking.scene import Frame, Scene
-
-
-@dataclass(frozen=True)
-class Gain:
-    """Everything that depends on a parent's covariance only (Eq. 2-3, the gate, the halt)."""
-
-    P_pred: np.ndarray
-    inn: Innovation
-    radius: float
-    pred: int  # table index of P̂ (the state after a skipped update)
-    post: int  # table index of the updated P
-    halt_pred: bool
-    halt_post: bool
 
 
 class SingleDesign:
@@ -57,7 +45,6 @@ class SingleDesign:
         self.cfg = scene.tracker
         self.m: Matrices = matrices(self.cfg, scene.dt)
         self.covariances = CovarianceTable()
-        self._gains: dict[int, Gain] = {}
         self._table = _GainTable()
 
     def initial(self) -> Batch:
@@ -74,33 +61,41 @@ class SingleDesign:
         )
         return out
 
-    def gain(self, c: int) -> Gain:
-        """Predict and gain for the covariance with table index ``c`` (computed once)."""
-        g = self._gains.get(c)
-        if g is None:
-            m, cfg = self.m, self.cfg
-            P = self.covariances[c]
-            P_pred = m.F @ P @ m.F.T + m.Q
-            inn = innovation(m, P_pred)
-            g = Gain(
-                P_pred,
-                inn,
-                gate_radius(inn, P_pred, cfg.gate, cfg.gate_type),
-                self.covariances.add(P_pred),
-                self.covariances.add(inn.P_post),
-                float(np.trace(P_pred)) > cfg.max_trace,
-                float(np.trace(inn.P_post)) > cfg.max_trace,
-            )
-            self._gains[c] = g
-        return g
-
     def _gain_rows(self, cov: np.ndarray) -> _GainRows:
-        """The gains of covariances ``cov`` as row arrays, from per-covariance tables."""
+        """The gains of covariances ``cov`` as row arrays; new covariances are done in one batch."""
         t = self._table
-        for c in np.unique(cov).tolist():
-            if c >= t.known.n or not t.known.data[c]:
-                t.put(c, self.gain(c))
+        cs = np.unique(cov)
+        known = t.known.data[cs[cs < t.known.n]] if t.known.n else np.zeros(0, bool)
+        new = np.r_[cs[cs < t.known.n][~known], cs[cs >= t.known.n]].astype(np.int64)
+        if new.size:
+            self._fill_gains(new)
         return t.rows(cov)
+
+    def _fill_gains(self, cs: np.ndarray) -> None:
+        """Predict and gain (Eq. 2-3), gate radius and halts for the covariances ``cs``.
+
+        Everything that depends on a parent's covariance only, computed once per
+        distinct P and for all new ones together; P̂ and P⁺ join the table.
+        """
+        m, cfg = self.m, self.cfg
+        P_pred = predict_covariances(m, self.covariances.stack()[cs])
+        inn = innovations(m, P_pred)
+        radius = gate_radii(inn.S, P_pred, cfg.gate, cfg.gate_type)
+        pred = self.covariances.add_many(P_pred)
+        post = self.covariances.add_many(inn.P_post)
+        trace_pred = np.trace(P_pred, axis1=1, axis2=2)
+        trace_post = np.trace(inn.P_post, axis1=1, axis2=2)
+        self._table.put(
+            cs,
+            radius=radius,
+            S_inv=inn.S_inv,
+            P_pred=P_pred,
+            K=inn.K,
+            pred=pred,
+            post=post,
+            halt_pred=trace_pred > cfg.max_trace,
+            halt_post=trace_post > cfg.max_trace,
+        )
 
     def predict(self, X: np.ndarray, step: int) -> np.ndarray:
         """Carry positions into frame ``step`` (homography of the previous frame), then predict."""
@@ -162,7 +157,7 @@ class SingleDesign:
 
 @dataclass(frozen=True)
 class _GainRows:
-    """The :class:`Gain` of each row's covariance, as arrays over the rows."""
+    """What derives from each row's covariance (Eq. 2-3, the gate, the halt), over the rows."""
 
     radius: np.ndarray
     S_inv: np.ndarray  # (n, 2, 2)
@@ -192,25 +187,17 @@ class _GainTable:
             "halt_post": GrowArray(np.bool_),
         }
 
-    def put(self, c: int, g: Gain) -> None:
-        if c >= self.known.n:  # make room up to c (unknown rows stay marked so)
-            grow = c + 1 - self.known.n
+    def put(self, cs: np.ndarray, **values: np.ndarray) -> None:
+        """Store the fields of covariances ``cs`` (one row each)."""
+        top = int(cs.max()) + 1
+        if top > self.known.n:  # make room up to the largest (unknown rows stay marked so)
+            grow = top - self.known.n
             self.known.extend(np.zeros(grow, dtype=bool))
             for col in self.cols.values():
                 col.extend(np.zeros((grow, *col.data.shape[1:]), dtype=col.data.dtype))
-        values = (
-            g.radius,
-            g.inn.S_inv,
-            g.P_pred,
-            g.inn.K,
-            g.pred,
-            g.post,
-            g.halt_pred,
-            g.halt_post,
-        )
-        for name, v in zip(self.FIELDS, values, strict=True):
-            self.cols[name].data[c] = v
-        self.known.data[c] = True
+        for name in self.FIELDS:
+            self.cols[name].data[cs] = values[name]
+        self.known.data[cs] = True
 
     def rows(self, cov: np.ndarray) -> _GainRows:
         return _GainRows(*(self.cols[name].data[cov] for name in self.FIELDS))
