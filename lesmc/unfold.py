@@ -65,6 +65,37 @@ def _splitmix(words: np.ndarray) -> np.ndarray:
     return h
 
 
+class HashIndex:
+    """Model indices by 64-bit state hash, as sorted runs of arrays (no per-state objects).
+
+    New entries come as a run of their own; runs of similar size are merged, so
+    a lookup searches O(log n) sorted arrays and every entry is copied O(log n)
+    times in all (a log-structured merge).
+    """
+
+    def __init__(self) -> None:
+        self._runs: list[tuple[np.ndarray, np.ndarray]] = []  # (sorted hashes, indices)
+
+    def find(self, h: np.ndarray) -> np.ndarray:
+        """The index stored under each hash of ``h``, −1 where there is none."""
+        out = np.full(h.shape, -1, dtype=np.int64)
+        for keys, vals in self._runs:
+            at = np.minimum(np.searchsorted(keys, h), len(keys) - 1)
+            hit = keys[at] == h
+            out[hit] = vals[at[hit]]
+        return out
+
+    def add(self, h: np.ndarray, idx: np.ndarray) -> None:
+        """Store ``idx`` under the (new, distinct) hashes ``h``."""
+        order = np.argsort(h, kind="stable")
+        self._runs.append((h[order], idx[order].astype(np.int64)))
+        while len(self._runs) > 1 and 2 * len(self._runs[-1][0]) >= len(self._runs[-2][0]):
+            (k2, v2), (k1, v1) = self._runs.pop(), self._runs.pop()
+            keys, vals = np.concatenate([k1, k2]), np.concatenate([v1, v2])
+            order = np.argsort(keys, kind="stable")
+            self._runs.append((keys[order], vals[order]))
+
+
 class SceneExpander:
     """The successors of a scene's tracker states, batch by batch, with exact sharing."""
 
@@ -75,7 +106,7 @@ class SceneExpander:
         self.model = GrowingModel(COMPONENTS, 4)
         self.model.expander = self
         self.objects: list[object] | None = None  # whole tracker states, for designs that have them
-        self._seen: dict[int, dict[int, int]] = {}  # per step: state hash -> index
+        self._seen: dict[int, HashIndex] = {}  # per step: state hash -> index
         # detection index -> observation code: frames' detections numbered in order
         self._obs_offset = np.cumsum([0] + [len(f.detections) for f in scene.frames])
         self._first_frame = scene.frames[0].step
@@ -110,8 +141,8 @@ class SceneExpander:
         inverse = inverse.reshape(-1)
         if not np.array_equal(keys, keys[first[inverse]]):  # two states share a hash
             return self._add_exact(step, batch, keys)
-        seen = self._seen.setdefault(step, {})
-        found = np.array([seen.get(x, -1) for x in uniq.tolist()], dtype=np.int64)
+        seen = self._seen.setdefault(step, HashIndex())
+        found = seen.find(uniq)
         old = np.nonzero(found >= 0)[0]
         if old.size and not np.array_equal(design.keys(self.batch(found[old])), keys[first[old]]):
             return self._add_exact(step, batch, keys)
@@ -121,7 +152,7 @@ class SceneExpander:
         if new.size:
             self._append(step, batch.take(first[new]))
             found[new] = start + np.arange(new.size)
-            seen.update(zip(uniq[new].tolist(), found[new].tolist(), strict=True))
+            seen.add(uniq[new], found[new])
         out: np.ndarray = found[inverse]
         return out
 
@@ -137,7 +168,9 @@ class SceneExpander:
             if q is None:
                 q = self._append(step, batch.take(np.array([i])))
                 exact[kb] = q
-                self._seen.setdefault(step, {})[int(_splitmix(keys[i : i + 1])[0])] = q
+                self._seen.setdefault(step, HashIndex()).add(
+                    _splitmix(keys[i : i + 1]), np.array([q])
+                )
             out[i] = q
         return out
 

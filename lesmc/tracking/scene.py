@@ -105,7 +105,13 @@ class Frame:
 
     def nearest(self, points: np.ndarray, k: int, radius: float) -> np.ndarray:
         """For each point (n, 2), the indices of its k nearest detections within ``radius``
-        (nearest first), −1 where there are fewer.
+        (nearest first, ties to the lower index), −1 where there are fewer."""
+        return self.nearest_d2(points, k, radius)[0]
+
+    def nearest_d2(
+        self, points: np.ndarray, k: int, radius: float
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """:meth:`nearest`, and the squared distances (inf where −1).
 
         A frame of at most :data:`SCAN_LIMIT` detections is scanned with numpy:
         only the detections whose x lies within ``radius`` of the point's (sorted
@@ -113,41 +119,53 @@ class Frame:
         k-d tree, built once. Ties in distance go to the lower detection index.
         """
         n, m = len(points), len(self.detections)
+        res = np.full((n, k), -1, dtype=np.int64)
+        res_d2 = np.full((n, k), np.inf)
         if not m or not n:
-            return np.full((n, k), -1, dtype=np.int64)
+            return res, res_d2
         bound = radius * (1 + 1e-12)
+        Z = self._positions
         if m > SCAN_LIMIT:
             assert self._tree is not None
-            _, idx = self._tree.query(points, k=k, distance_upper_bound=bound)
-            idx = np.asarray(idx, dtype=np.int64).reshape(n, k)
-            out: np.ndarray = np.where(idx >= m, -1, idx)
-            return out
-        res = np.full((n, k), -1, dtype=np.int64)
-        xs, by_x = self._by_x
-        lo = np.searchsorted(xs, points[:, 0] - bound, side="left")
-        hi = np.searchsorted(xs, points[:, 0] + bound, side="right")
-        width = int((hi - lo).max())
-        if width == 0:
-            return res
-        Z = self._positions
-        step = max(1, SCAN_CELLS // width)
-        for s in range(0, n, step):
-            p, a, e = points[s : s + step], lo[s : s + step], hi[s : s + step]
-            cols = a[:, None] + np.arange(width)
-            inside = cols < e[:, None]
-            idx = by_x[np.minimum(cols, m - 1)]
+            _, found = self._tree.query(points, k=k, distance_upper_bound=bound)
+            found = np.asarray(found, dtype=np.int64).reshape(n, k)
+            cand = [(points, np.minimum(found, m - 1), found < m)]
+        else:
+            xs, by_x = self._by_x
+            lo = np.searchsorted(xs, points[:, 0] - bound, side="left")
+            hi = np.searchsorted(xs, points[:, 0] + bound, side="right")
+            width = int((hi - lo).max())
+            if width == 0:
+                return res, res_d2
+            step = max(1, SCAN_CELLS // width)
+            cand = []
+            for s in range(0, n, step):
+                cols = lo[s : s + step, None] + np.arange(width)
+                inside = cols < hi[s : s + step, None]
+                cand.append((points[s : s + step], by_x[np.minimum(cols, m - 1)], inside))
+        s = 0
+        for p, idx, inside in cand:
             d2 = (p[:, 0:1] - Z[idx, 0]) ** 2 + (p[:, 1:2] - Z[idx, 1]) ** 2
             d2 = np.where(inside & (d2 <= bound * bound), d2, np.inf)
-            kk = min(k, width)
-            if kk < width:  # the kk nearest, ties to the lower detection index
-                part = np.argpartition(d2, kk - 1, axis=1)[:, :kk]
-                cut = np.take_along_axis(d2, part, axis=1).max(axis=1, keepdims=True)
-                d2 = np.where(d2 <= cut, d2, np.inf)
-            order = np.lexsort((np.where(np.isinf(d2), m, idx), d2), axis=1)[:, :kk]
+            kk = min(k, idx.shape[1])
+            order = np.argsort(d2, axis=1, kind="stable")[:, : kk + 1]
             dd = np.take_along_axis(d2, order, axis=1)
-            nearest = np.take_along_axis(idx, order, axis=1)
-            res[s : s + step, :kk] = np.where(np.isinf(dd), -1, nearest)
-        return res
+            near = np.take_along_axis(idx, order, axis=1)
+            # equal distances go to the lower index: rows with a tie among the first kk + 1
+            # (the kept and the first one left out) are sorted again by (distance, index)
+            tied = np.isfinite(dd[:, 1:]) & (dd[:, 1:] == dd[:, :-1])
+            dd, near = dd[:, :kk], near[:, :kk]
+            rows = np.nonzero(tied.any(axis=1))[0]
+            if rows.size:
+                d2r, idxr = d2[rows], idx[rows]
+                full = np.lexsort((np.where(np.isinf(d2r), m, idxr), d2r), axis=1)[:, :kk]
+                dd[rows] = np.take_along_axis(d2r, full, axis=1)
+                near[rows] = np.take_along_axis(idxr, full, axis=1)
+            e = s + len(p)
+            res[s:e, :kk] = np.where(np.isinf(dd), -1, near)
+            res_d2[s:e, :kk] = dd
+            s = e
+        return res, res_d2
 
     @cached_property
     def _by_x(self) -> tuple[np.ndarray, np.ndarray]:

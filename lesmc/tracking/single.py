@@ -116,13 +116,16 @@ class SingleDesign:
         Xp = self.predict(batch.X, step)
         rows = self._gain_rows(batch.cov)
         src, rank, payoff, det, X, cov, halted = self._rows(frame, Xp, rows, attacked)
-        order = np.lexsort((rank, src))
+        if src.size > 1 and (np.diff(src) < 0).any():  # by source, then rank
+            order = np.lexsort((rank, src))
+            src, rank, payoff, det = src[order], rank[order], payoff[order], det[order]
+            X, cov, halted = X[order], cov[order], halted[order]
         return Successors(
-            src[order],
-            rank[order],
-            payoff[order],
-            det[order],
-            Batch(X[order], cov[order], halted[order]),
+            src,
+            rank,
+            payoff,
+            det,
+            Batch(X, cov, halted),
         )
 
     def _rows(
@@ -215,22 +218,21 @@ def _candidates(
     Returns indices (n, k) and a validity mask; ``wide=False`` asks only for the
     nearest few (the unattacked tracker needs the nearest alone; three resolve ties).
     """
-    n = len(points)
-    k = min(_FIRST_K if wide else 3, max(len(frame.detections), 1))
-    while True:
-        idx = frame.nearest(points, k, float(radius.max()) if n else 0.0)
-        if not wide or k >= len(frame.detections) or not (idx[:, -1] >= 0).any():
-            break
-        k = min(2 * k, len(frame.detections))
-    valid = idx >= 0
-    if not len(frame.detections):
+    n, m = len(points), len(frame.detections)
+    if not m:
         return np.zeros((n, 0), dtype=np.int64), np.zeros((n, 0), dtype=bool)
-    y = frame.positions()[np.where(valid, idx, 0)] - points[:, None, :]
-    dist = np.where(valid, np.sqrt(y[..., 0] ** 2 + y[..., 1] ** 2), np.inf)
-    valid &= dist <= radius[:, None]
-    dist = np.where(valid, dist, np.inf)
-    key = np.where(valid, idx, np.iinfo(np.int64).max)
-    order = np.lexsort((key, dist), axis=1)
-    idx = np.take_along_axis(idx, order, axis=1)
-    valid = np.take_along_axis(valid, order, axis=1)
+    reach = float(radius.max()) if n else 0.0
+    k = min(_FIRST_K if wide else 3, m)
+    idx, d2 = frame.nearest_d2(points, k, reach)
+    while wide and k < m:  # rows that filled every slot ask again for twice as many
+        full = np.nonzero(idx[:, -1] >= 0)[0]
+        if not full.size:
+            break
+        k2 = min(2 * k, m)
+        more_idx, more_d2 = frame.nearest_d2(points[full], k2, reach)
+        idx = np.c_[idx, np.full((n, k2 - k), -1, dtype=np.int64)]
+        d2 = np.c_[d2, np.full((n, k2 - k), np.inf)]
+        idx[full], d2[full], k = more_idx, more_d2, k2
+    # sorted by (distance, index), so each row's own radius keeps a prefix
+    valid = (idx >= 0) & (np.sqrt(d2) <= radius[:, None])
     return idx, valid
