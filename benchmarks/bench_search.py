@@ -128,7 +128,7 @@ def main() -> int:
                         r.stats.stopped,
                         flush=True,
                     )
-    Console().print(table)
+    Console(width=160).print(table)
     return 0
 
 

@@ -104,6 +104,7 @@ class _Bounds:
         self.alive: np.ndarray | None = None
         self.lam: np.ndarray | None = None
         self.h: np.ndarray | None = None  # (n, K): min suffix Σ(c_obj − sλ c_con)
+        self.grain: float | None = None  # every objective a multiple of it (explicit sums)
         if isinstance(space, Space):
             from lesmc.engines.bnb import suffix_bounds
 
@@ -113,10 +114,22 @@ class _Bounds:
             self.reachable = b.states
             if not space.obj_max and not space.con_max:
                 self._lagrangian(space)
+            if not space.obj_max:
+                self.grain = _grain(space)
 
     @property
     def exact(self) -> bool:
         return self.omin is not None
+
+    def cut(self, best: float) -> float:
+        """Labels whose violating lower bound is not below this cannot beat ``best``.
+
+        On an explicit model whose objective contributions are all multiples of g
+        (sums), a better path ends at best − g or lower, so the cut is best − g
+        (less a hair, so that a bound equal to best − g is kept).
+        """
+        g = self.grain
+        return best if g is None or not math.isfinite(best) else best - g * (1 - 1e-9)
 
     def violating_lb(self, q: np.ndarray, o: np.ndarray, c: np.ndarray) -> np.ndarray:
         """A lower bound on the final objective of any *violating* completion; +inf
@@ -133,11 +146,21 @@ class _Bounds:
         can = self.alive[q] & _truth(sp.satisfies(reach, sp.bp.bound))
         if self.h is not None and self.lam is not None:
             s = 1.0 if sp.con_up else -1.0
+            # past the bound, λ·(B − c) ≤ 0 only weakens the bound; λ = 0 alone is valid there
+            cb = np.minimum(c, sp.bp.bound) if sp.con_up else c
             with np.errstate(invalid="ignore"):
-                lag = self.h[q] + s * self.lam[None, :] * (sp.bp.bound - c)[:, None]
+                lag = self.h[q] + s * self.lam[None, :] * (sp.bp.bound - cb)[:, None]
             lag = np.where(np.isnan(lag), -math.inf, lag)
             lb = np.maximum(lb, _lo(o + lag.max(axis=1)))
         return np.where(can, lb, math.inf)
+
+    def least_lb(self, q: np.ndarray, o: np.ndarray, c: np.ndarray) -> float:
+        """The least :meth:`violating_lb` of many labels, in chunks (its λ grid is wide)."""
+        out = math.inf
+        for a in range(0, q.size, SLICE):
+            lb = self.violating_lb(q[a : a + SLICE], o[a : a + SLICE], c[a : a + SLICE])
+            out = min(out, float(lb.min(initial=math.inf)))
+        return out
 
     def range(self, q: np.ndarray, o: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Smallest and largest final objective over all completions (dead: +inf, −inf)."""
@@ -282,27 +305,46 @@ def _optimum_pass(
                 if beam is not None:
                     return best, where, -math.inf, stop.reason
                 rest = live[s0 - sl.size :]  # this slice was not expanded
-                lbs = [bounds.violating_lb(fq[rest], fo[rest], fc[rest])]
-                lbs += [bounds.violating_lb(p[0], p[1], p[2]) for p in parts]
-                lower = min([best, *(float(x.min()) for x in lbs if x.size)])
+                lower = min(
+                    best,
+                    bounds.least_lb(fq[rest], fo[rest], fc[rest]),
+                    *(float(part[5].min()) for part in parts if part[5].size),
+                )
                 return best, where, lower, stop.reason
             par = sl[idx]
             dst = cm.dst[t]
             o2 = aggregate_arrays(space.obj_max, fo[par], space.c_obj[t])
-            c2 = aggregate_arrays(space.con_max, fc[par], space.c_con[t])
-            fine = bounds.violating_lb(dst, o2, c2) < best
-            parts.append((dst[fine], o2[fine], c2[fine], par[fine], t[fine]))
+            c2 = _saturate(space, aggregate_arrays(space.con_max, fc[par], space.c_con[t]))
+            lb2 = bounds.violating_lb(dst, o2, c2)
+            fine = lb2 < bounds.cut(best)
+            parts.append((dst[fine], o2[fine], c2[fine], par[fine], t[fine], lb2[fine]))
         if not parts:
             break
-        q, o, c, p, t = (np.concatenate([x[i] for x in parts]) for i in range(5))
-        lb = bounds.violating_lb(q, o, c)
-        keep = np.nonzero(lb < best)[0]  # the incumbent may have improved
+        q, o, c, p, t, lb = (np.concatenate([x[i] for x in parts]) for i in range(6))
+        why = budget.over(0)
+        if why is not None and beam is None:  # a huge level: stop before filtering it
+            return best, where, min(best, float(lb.min(initial=math.inf))), why
+        keep = np.nonzero(lb < bounds.cut(best))[0]  # the incumbent may have improved
         keep = keep[_pareto(q[keep], o[keep], c[keep], space.con_up)]
         if beam is not None and keep.size > beam:
             keep = _beam(space, keep, lb, q, c, beam)
         trail.add(q[keep], p[keep], t[keep])
         fq, fo, fc = q[keep], o[keep], c[keep]
     return best, where, (best if beam is None else -math.inf), None
+
+
+def _saturate(space: SearchSpace, c: np.ndarray) -> np.ndarray:
+    """Constraint values that already violate, whatever follows, made one value (+inf).
+
+    With ``>``/``>=`` the constraint measure only grows along a path, so once it
+    is past the bound (with the rounding slack) every completion violates and
+    the exact value no longer matters: the labels of a state that are all past
+    it then differ only in their objective, and the Pareto filter keeps one.
+    """
+    if not space.con_up:
+        return c
+    done = _truth(space.satisfies(_lo(c), space.bp.bound)) & np.isfinite(c)
+    return np.where(done, math.inf, c) if done.any() else c
 
 
 def _beam(
