@@ -43,12 +43,12 @@ def test_golden(case: str, engine: str) -> None:
     if os.environ.get("LESMC_UPDATE_GOLDEN") and engine == "bnb":
         expected_file.write_text(json.dumps(got, indent=1) + "\n")
     expected = json.loads(expected_file.read_text())
-    if engine != "bnb":
-        for g, x in zip(got, expected, strict=True):
-            for key in ("counterexample", "witness"):
-                if g[key] is not None and x[key] is not None and g[key] != x[key]:
-                    assert g[key]["objective"] == x[key]["objective"]
-                    g[key] = x[key]
+    # paths of equal objective are equally right: an engine may return another one
+    for g, x in zip(got, expected, strict=True):
+        for key in ("counterexample", "witness"):
+            if g[key] is not None and x[key] is not None and g[key] != x[key]:
+                assert g[key]["objective"] == x[key]["objective"]
+                g[key] = x[key]
     assert got == expected
 
 

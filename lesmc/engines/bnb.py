@@ -2,9 +2,9 @@
 
 Phase 1 finds the optimum: labels (partial paths) are popped in order of a
 lower bound on their final objective; the first complete path that violates
-the constraint is optimal. Phase 2 finds the representative path ρ*: the
-largest objective below the optimum among paths that do not violate, popped in
-order of an upper bound. Both measures only grow along a path (space.py), so
+the constraint is optimal. Phase 2, the representative path ρ* (the largest
+objective below the optimum), is levels' search (levels.representative): one
+ρ* algorithm for both engines. Both measures only grow along a path (space.py), so
 
 * prefix value ⊕ suffix bound is a valid bound (⊕ is + or max);
 * at a shared state, a label whose objective is no worse and whose constraint
@@ -145,8 +145,14 @@ def branch_and_bound(
     stats.extra["optimum_states"] = budget.used
     exact = budget.stopped == "finished"
     witness, w_exact = None, False
-    if exact:
-        witness, w_exact = _witness(space, bounds, budget, opt, stats)
+    if exact:  # phase 2, ρ*: the same search as levels' (docs/engines.md)
+        from lesmc.engines.levels import representative
+
+        witness, w_value, w_upper, why = representative(space, budget, stats, opt)
+        w_exact = why is None
+        if not w_exact:
+            budget.stopped = why
+            stats.extra["witness_bounds"] = [w_value, w_upper]  # to_result moves them
         stats.extra["witness_states"] = budget.used - stats.extra["optimum_states"]
     stats.states_expanded = budget.used
     stats.stopped = budget.stopped  # type: ignore[assignment]
@@ -156,7 +162,7 @@ def branch_and_bound(
         lower=lower,
         upper=upper,
         counterexample=_transitions(cex),
-        witness=_transitions(witness),
+        witness=witness,
         witness_exact=w_exact,
         stats=stats,
     )
@@ -236,71 +242,6 @@ def _optimum(
                 )
             )
     return math.inf, math.inf, math.inf, None
-
-
-def _witness(
-    space: SearchSpace, b: Bounds | None, budget: _Budget, opt: float, stats: Stats
-) -> tuple[_Label | None, bool]:
-    """Phase 2: ρ*, the largest objective below the exact optimum ``opt``.
-
-    Section 5.2 takes ρ* among the non-violating paths (P−) with objective
-    below the optimum; but a path with objective below the optimum cannot
-    violate (it would then be a cheaper violating path), so the constraint is
-    implied and only the objective matters. That makes dominance strong: at a
-    state, a label with the same effective objective, or a larger one whose
-    every completion stays below ``opt`` ("capped"), makes another redundant.
-    """
-    cm = space.cm
-    obj_mx = space.obj_max
-    heap: list[tuple[float, float, int, _Label]] = []
-    seen: dict[int, set[float]] = {}  # per state: effective objectives popped
-    capped_best: dict[int, float] = {}  # per state: largest capped effective objective popped
-    tick = 0
-    best = -math.inf
-
-    def push(lab: _Label) -> None:
-        nonlocal tick, best
-        q = lab.q
-        if space.is_leaf(q):
-            obj = space.agg(obj_mx, lab.obj, space.tail(q)[0])
-            if not obj < opt or obj <= best:
-                return
-            lab = _Label(obj, lab.con, q, lab.parent, lab.t, True)
-            best = key = obj
-        else:
-            if b is not None:
-                if not b.alive[q] or not _lo(space.agg(obj_mx, lab.obj, b.obj_min[q])) < opt:
-                    return
-                key = min(_hi(space.agg(obj_mx, lab.obj, b.obj_max[q])), opt)
-            else:
-                if not lab.obj < opt:
-                    return
-                key = opt
-            if key <= best:
-                return
-        tick += 1
-        heapq.heappush(heap, (-key, -lab.obj, tick, lab))
-
-    push(_Label(space.root_obj, space.root_con, space.root, None, -1))
-    while heap:
-        _, _, _, lab = heapq.heappop(heap)
-        if lab.complete:
-            return lab, True
-        q = lab.q
-        eo = _effective(obj_mx, lab.obj, None if b is None else b.obj_min[q])
-        values = seen.setdefault(q, set())
-        if eo in values or eo <= capped_best.get(q, -math.inf):
-            continue  # dominated
-        values.add(eo)
-        if b is not None and _hi(space.agg(obj_mx, lab.obj, b.obj_max[q])) < opt:
-            capped_best[q] = max(eo, capped_best.get(q, -math.inf))
-        if not budget.spend():
-            return None, False
-        for t in space.successors(q):
-            stats.transitions += 1
-            dst = int(cm.dst[t])
-            push(_Label(space.agg(obj_mx, lab.obj, float(space.c_obj[t])), 0.0, dst, lab, int(t)))
-    return None, True
 
 
 #: Relative slack on suffix bounds: they are summed in another order than a path's own

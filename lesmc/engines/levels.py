@@ -98,7 +98,7 @@ class _Bounds:
     """What can still happen after a label: trivial on a lazy space, exact suffix bounds
     (and Lagrangian ones) on an explicit one."""
 
-    def __init__(self, space: SearchSpace) -> None:
+    def __init__(self, space: SearchSpace, lagrangian: bool = True) -> None:
         self.space = space
         self.omin = self.omax = self.cmin = self.cmax = None
         self.alive: np.ndarray | None = None
@@ -112,7 +112,7 @@ class _Bounds:
             self.omin, self.omax, self.cmin, self.cmax = b.obj_min, b.obj_max, b.con_min, b.con_max
             self.alive = b.alive
             self.reachable = b.states
-            if not space.obj_max and not space.con_max:
+            if lagrangian and not space.obj_max and not space.con_max:
                 self._lagrangian(space)
             if not space.obj_max:
                 self.grain = _grain(space)
@@ -638,6 +638,21 @@ def _tighten(
         if why is not None:
             return upper, at, why
     return upper, at, None
+
+
+def representative(
+    space: SearchSpace, budget: SearchBudget, stats: Stats, opt: float
+) -> tuple[list[int] | None, float, float, str | None]:
+    """ρ* and θ* below an exact optimum ``opt`` found by another engine (bnb's phase 2).
+
+    Returns the path's transitions, θ*, a proven upper bound on θ* and why it stopped
+    early (None: finished). The constraint plays no part (section 5.2: a path below the
+    optimum cannot violate), so only suffix bounds of the objective are built.
+    """
+    try:
+        return _representative(space, _Bounds(space, lagrangian=False), budget, stats, opt)
+    except _Stop as stop:  # raised while the bounds were built: nothing found yet
+        return None, -math.inf, _witness_cap(space, opt), stop.reason
 
 
 def _representative(
