@@ -38,6 +38,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from lesmc.engines.bounds import Bounds, suffix_bounds
 from lesmc.engines.budget import SearchBudget
 from lesmc.engines.result import EngineOutcome, Stats
 from lesmc.engines.space import SearchSpace, Space
@@ -98,7 +99,9 @@ class _Bounds:
     """What can still happen after a label: trivial on a lazy space, exact suffix bounds
     (and Lagrangian ones) on an explicit one."""
 
-    def __init__(self, space: SearchSpace, lagrangian: bool = True) -> None:
+    def __init__(
+        self, space: SearchSpace, lagrangian: bool = True, suffix: Bounds | None = None
+    ) -> None:
         self.space = space
         self.omin = self.omax = self.cmin = self.cmax = None
         self.alive: np.ndarray | None = None
@@ -106,9 +109,7 @@ class _Bounds:
         self.h: np.ndarray | None = None  # (n, K): min suffix Σ(c_obj − sλ c_con)
         self.grain: float | None = None  # every objective a multiple of it (explicit sums)
         if isinstance(space, Space):
-            from lesmc.engines.bnb import suffix_bounds
-
-            b = suffix_bounds(space)
+            b = suffix if suffix is not None else suffix_bounds(space)
             self.omin, self.omax, self.cmin, self.cmax = b.obj_min, b.obj_max, b.con_min, b.con_max
             self.alive = b.alive
             self.reachable = b.states
@@ -641,16 +642,21 @@ def _tighten(
 
 
 def representative(
-    space: SearchSpace, budget: SearchBudget, stats: Stats, opt: float
+    space: SearchSpace,
+    budget: SearchBudget,
+    stats: Stats,
+    opt: float,
+    suffix: Bounds | None = None,
 ) -> tuple[list[int] | None, float, float, str | None]:
     """ρ* and θ* below an exact optimum ``opt`` found by another engine (bnb's phase 2).
 
     Returns the path's transitions, θ*, a proven upper bound on θ* and why it stopped
     early (None: finished). The constraint plays no part (section 5.2: a path below the
-    optimum cannot violate), so only suffix bounds of the objective are built.
+    optimum cannot violate), so only suffix bounds are needed (``suffix``: already built).
     """
     try:
-        return _representative(space, _Bounds(space, lagrangian=False), budget, stats, opt)
+        bounds = _Bounds(space, lagrangian=False, suffix=suffix)
+        return _representative(space, bounds, budget, stats, opt)
     except _Stop as stop:  # raised while the bounds were built: nothing found yet
         return None, -math.inf, _witness_cap(space, opt), stop.reason
 
