@@ -270,8 +270,10 @@ def _optimum_pass(
     stats: Stats,
     upper: float,
     beam: int | None,
+    saturated_first: bool = True,
 ) -> tuple[float, tuple[_Trail, int, int] | None, float, str | None]:
-    """The cheapest violating path with objective below ``upper`` (exact unless ``beam``).
+    """The cheapest violating path with objective below ``upper`` (exact unless ``beam``;
+    ``saturated_first``: how the beam ranks labels that already violate, see :func:`_beam`).
 
     Returns the best objective found, where its label is (trail, level, index), a proven
     lower bound on the optimum (−inf for a beam), and why it stopped early (None: it
@@ -328,7 +330,7 @@ def _optimum_pass(
         keep = np.nonzero(lb < bounds.cut(best))[0]  # the incumbent may have improved
         keep = keep[_pareto(q[keep], o[keep], c[keep], space.con_up)]
         if beam is not None and keep.size > beam:
-            keep = _beam(space, keep, lb, q, c, beam)
+            keep = _beam(space, keep, lb, q, c, beam, saturated_first)
         trail.add(q[keep], p[keep], t[keep])
         fq, fo, fc = q[keep], o[keep], c[keep]
     return best, where, (best if beam is None else -math.inf), None
@@ -349,13 +351,26 @@ def _saturate(space: SearchSpace, c: np.ndarray) -> np.ndarray:
 
 
 def _beam(
-    space: SearchSpace, keep: np.ndarray, lb: np.ndarray, q: np.ndarray, c: np.ndarray, b: int
+    space: SearchSpace,
+    keep: np.ndarray,
+    lb: np.ndarray,
+    q: np.ndarray,
+    c: np.ndarray,
+    b: int,
+    saturated_first: bool,
 ) -> np.ndarray:
-    """The labels a dive keeps: half the best bounds, half the closest to violating."""
+    """The labels a dive keeps: half the best bounds, half the closest to violating.
+
+    Labels that already violate (saturated, :func:`_saturate`) either come first in
+    the second half, the better bound first, or are left to the first half; which
+    gives the better incumbent depends on the model, so phase 1 dives both ways.
+    """
     half = max(1, b // 2)
     by_bound = keep[np.argsort(lb[keep], kind="stable")[:half]]
     proxy = c[keep] + np.asarray(space.dist)[q[keep]]
-    by_con = keep[np.argsort(-proxy if space.con_up else proxy, kind="stable")[:half]]
+    if not saturated_first:
+        proxy = np.where(np.isinf(c[keep]), -math.inf if space.con_up else math.inf, proxy)
+    by_con = keep[np.lexsort((lb[keep], -proxy if space.con_up else proxy))[:half]]
     return np.unique(np.r_[by_bound, by_con])
 
 
@@ -574,6 +589,10 @@ def level_search(
         stats.extra["bound_states"] = bounds.reachable
     # phase 1: a dive for an incumbent, then the exact pass below it
     upper, at, _, stopped = _optimum_pass(space, bounds, budget, stats, math.inf, BEAM)
+    if stopped is None and space.con_up:
+        best, got, _, stopped = _optimum_pass(space, bounds, budget, stats, upper, BEAM, False)
+        if got is not None and best < upper:
+            upper, at = best, got
     if stopped is None and math.isfinite(upper):
         upper, at, stopped = _tighten(space, bounds, budget, stats, upper, at)
     stats.extra["dive_states"] = budget.used
