@@ -144,21 +144,8 @@ def main() -> int:
                     str(states),
                     agree,
                 )
-                print(
-                    n,
-                    r,
-                    cls,
-                    c_opt,
-                    c_theta,
-                    round(c_s, 3),
-                    l_opt,
-                    l_theta,
-                    round(l_s, 3),
-                    states,
-                    stopped,
-                    flush=True,
-                )
-    Console().print(table)
+                print(f"done: n={n} R={r:g} {cls}", file=sys.stderr, flush=True)
+    Console(width=160).print(table)
     return 0
 
 
