@@ -9,12 +9,14 @@ import pytest
 import torch
 from torch import nn
 
+from lesmc.perception import certify
 from lesmc.perception.certify import (
     Ball,
     CertifyConfig,
     certified_radius,
     chain_of,
     detect_chain,
+    flip_distances,
     layer_bounds,
     margin_form,
 )
@@ -129,6 +131,86 @@ def test_layer_bounds_contain_every_sampled_activation() -> None:
     # the bounds are not vacuous: the smallest ball keeps most neurons stable
     lo, hi = bounds[0]
     assert float(((lo[0] < 0) & (hi[0] > 0)).float().mean()) < 0.5
+
+
+def strided_case() -> tuple[nn.Module, certify.Chain, np.ndarray]:
+    torch.manual_seed(5)
+    net = Small((2, 9, 9), [(4, 3, 1, 1), (5, 3, 2, 1), (3, 3, 2, 0)], 6)
+    x = torch.rand(5, 2, 9, 9).numpy()
+    f = margins(net, torch.from_numpy(x)).numpy()
+    return net, chain_of(net, float(f.min()) - 0.5), x
+
+
+def test_local_patches_equal_whole_level_propagation() -> None:
+    """A conv neuron's CROWN bound in local form (patch + offset) equals the same row
+    propagated as whole layers (transposed convolutions with padding)."""
+    _, chain, x = strided_case()
+    xt = torch.from_numpy(x)
+    z0 = xt - xt.mean(dim=(1, 2, 3), keepdim=True)
+    ball = Ball(z0, torch.full((len(x),), 0.3), 2 * 81, True)
+    with torch.no_grad():
+        _, relaxes = layer_bounds(chain, ball)
+        for i in (1, 2):
+            layer = chain.layers[i]
+            assert isinstance(layer, certify.Conv)
+            n = layer.weight.shape[0] * layer.out_hw**2
+            win = torch.arange(len(x)).repeat_interleave(n)
+            neuron = torch.arange(n).repeat(len(x))
+            views = certify._conv_views(chain, i, relaxes, ball)
+            low, up = certify._crown_conv(chain, i, views, ball, win, neuron)
+            # the same rows as whole maps: W^T applied to a one-hot of the neuron
+            below = certify._shape(chain, i - 1)
+            onehot = torch.eye(n).view(n, *certify._shape(chain, i))
+            size = (layer.out_hw - 1) * layer.stride - 2 * layer.padding + 3
+            rows = torch.nn.functional.conv_transpose2d(
+                onehot,
+                layer.weight,
+                stride=layer.stride,
+                padding=layer.padding,
+                output_padding=below[1] - size,
+            ).repeat(len(x), 1, 1, 1)
+            bias = layer.bias.repeat_interleave(layer.out_hw**2).repeat(len(x))
+            v1, n1 = certify._crown_full(chain, i, relaxes, ball, win, rows, bias)
+            v2, n2 = certify._crown_full(chain, i, relaxes, ball, win, -rows, -bias)
+            assert torch.allclose(low, v1 - 0.3 * n1, atol=1e-4)
+            assert torch.allclose(up, -(v2 - 0.3 * n2), atol=1e-4)
+
+
+def test_batched_and_chunked_runs_equal_one_window_at_a_time(monkeypatch) -> None:
+    _, chain, x = strided_case()
+    together = certified_radius(chain, x, cfg=CertifyConfig(steps=3, batch=5))
+    monkeypatch.setattr(certify, "CHUNK_FLOATS", 1)  # one row per propagation chunk
+    alone = np.concatenate(
+        [certified_radius(chain, x[k : k + 1], cfg=CertifyConfig(steps=3)) for k in range(5)]
+    )
+    assert (together > 0).any()
+    np.testing.assert_allclose(together, alone, rtol=1e-4, atol=1e-7)
+
+
+def test_flip_distances_set_the_first_layers_unstable_fraction() -> None:
+    """A ball of radius d (a flip distance) leaves unstable exactly the neurons nearer than d."""
+    _, chain, x = strided_case()
+    xt = torch.from_numpy(x)
+    z0 = xt - xt.mean(dim=(1, 2, 3), keepdim=True)
+    dist = flip_distances(chain, z0)
+    r = dist.median(dim=1).values
+    with torch.no_grad():
+        (lo, hi), *_ = layer_bounds(chain, Ball(z0, r * 1.0001, 2 * 81, True))[0]
+    unstable = ((lo < 0) & (hi > 0)).flatten(1)
+    assert torch.equal(unstable, dist < r[:, None] * 1.0001)
+    # the distance is the true one: 1.001 d along the projected weights flips the neuron
+    layer = chain.layers[0]
+    assert isinstance(layer, certify.Conv)
+    k = int(dist[0].argmin())
+    onehot = torch.zeros(1, *certify._shape(chain, 0))
+    onehot.view(-1)[k] = 1
+    g = torch.nn.functional.conv_transpose2d(onehot, layer.weight, padding=layer.padding)
+    g = g - g.mean()
+    y = lambda z: torch.nn.functional.conv2d(z, layer.weight, layer.bias, padding=1).view(-1)[k]  # noqa: E731
+    y0 = y(z0[:1])
+    step = -torch.sign(y0) * g / g.norm() * dist[0, k]
+    assert torch.sign(y(z0[:1] + 1.001 * step)) != torch.sign(y0)
+    assert torch.sign(y(z0[:1] + 0.999 * step)) == torch.sign(y0)
 
 
 def test_chain_refuses_layers_it_cannot_bound() -> None:

@@ -198,87 +198,22 @@ def _affine_abs(layer: Layer, r: torch.Tensor) -> torch.Tensor:
 class Relax:
     """Per window and neuron, the lines replacing ReLU(y) on [l, u].
 
-    Lower line ``lo * y``; upper line ``up * y + cut``. Stacked (B, 3, *shape).
+    ``lo * y <= ReLU(y) <= up * y + cut``; ``maps`` stacks (lo, up - lo, cut)
+    along dimension 1: (B, 3, *shape).
     """
 
     maps: torch.Tensor
 
     @staticmethod
     def of(lower: torch.Tensor, upper: torch.Tensor) -> Relax:
+        """CROWN's lines: the chord above, ``y`` or 0 below (whichever is closer)."""
         active = lower >= 0
         unstable = (lower < 0) & (upper > 0)
         den = torch.where(unstable, upper - lower, torch.ones_like(upper))
         up = torch.where(unstable, upper / den, active.to(upper.dtype))
         cut = torch.where(unstable, -lower * upper / den, torch.zeros_like(upper))
         lo = torch.where(unstable, (upper > -lower).to(upper.dtype), active.to(upper.dtype))
-        return Relax(torch.stack([lo, up, cut], dim=1))
-
-
-@dataclass
-class Coeffs:
-    """Linear lower bounds under construction: ``sum A * h + const`` for G rows of S specs.
-
-    For a conv level, ``a`` is (G, S, C, r, r), a patch whose top-left pixel is
-    ``offset`` (G, 2) (row, column; may lie outside the layer: padding). For a
-    dense level, ``a`` is (G, S, n) and ``offset`` is unused. ``win`` (G,) is
-    each row's window.
-    """
-
-    a: torch.Tensor
-    offset: torch.Tensor
-    win: torch.Tensor
-    const: torch.Tensor
-
-
-def _patches(maps: torch.Tensor, win: torch.Tensor, offset: torch.Tensor, r: int) -> torch.Tensor:
-    """Patches (G, M, r, r) of ``maps`` (B, M, H, W) at ``offset``, zero outside the layer."""
-    _, m, h, w = maps.shape
-    lo = int(offset.min())
-    hi = int(offset.max()) + r
-    q = max(0, -lo, hi - min(h, w))
-    padded = F.pad(maps, (q, q, q, q)).permute(0, 2, 3, 1).reshape(-1, m)
-    hp, wp = h + 2 * q, w + 2 * q
-    d = torch.arange(r, device=maps.device)
-    rows = offset[:, 0, None] + q + d  # (G, r)
-    cols = offset[:, 1, None] + q + d
-    idx = win[:, None, None] * (hp * wp) + rows[:, :, None] * wp + cols[:, None, :]
-    return padded[idx].permute(0, 3, 1, 2)
-
-
-def _through_relu(c: Coeffs, relax: Relax) -> Coeffs:
-    """Coefficients on h = ReLU(y) -> on y (lower bounds: A+ takes the lower line)."""
-    if c.a.dim() == 5:
-        m = _patches(relax.maps.flatten(1, 2), c.win, c.offset, c.a.shape[-1])
-        m = m.reshape(len(m), 3, -1, *m.shape[2:])[:, None]  # (G, 1, 3, C, r, r)
-    else:
-        m = relax.maps[c.win][:, None]  # (G, 1, 3, n)
-    pos, neg = c.a.clamp(min=0), c.a.clamp(max=0)
-    a = pos * m[:, :, 0] + neg * m[:, :, 1]
-    const = c.const + (neg * m[:, :, 2]).flatten(2).sum(-1)
-    return Coeffs(a, c.offset, c.win, const)
-
-
-def _through_affine(c: Coeffs, layer: Layer, below: tuple[int, int, int] | None) -> Coeffs:
-    """Coefficients on y = layer(h) -> on h. ``below``: h's (C, H, W) when it is a conv level."""
-    a = c.a
-    g, s = a.shape[:2]
-    if isinstance(layer, Conv):
-        const = c.const + (a.sum(dim=(-2, -1)) * layer.bias).sum(-1)
-        r = a.shape[-1]
-        out = F.conv_transpose2d(a.reshape(g * s, *a.shape[2:]), layer.weight, stride=layer.stride)
-        k = (r - 1) * layer.stride + layer.weight.shape[-1]
-        offset = c.offset * layer.stride - layer.padding
-        return Coeffs(out.reshape(g, s, -1, k, k), offset, c.win, const)
-    const = c.const + a @ layer.bias
-    a = a @ layer.weight
-    if below is not None:  # flatten: a conv level, the whole layer as one patch
-        ch, hh, ww = below
-        side = max(hh, ww)
-        a = a.reshape(g, s, ch, hh, ww)
-        if hh != ww:
-            a = F.pad(a, (0, side - ww, 0, side - hh))
-        return Coeffs(a, torch.zeros(g, 2, dtype=torch.long), c.win, const)
-    return Coeffs(a, c.offset, c.win, const)
+        return Relax(torch.stack([lo, up - lo, cut], dim=1))
 
 
 @dataclass
@@ -291,22 +226,85 @@ class Ball:
     subtract_mean: bool
 
 
-def _concretise(c: Coeffs, ball: Ball) -> tuple[torch.Tensor, torch.Tensor]:
-    """(a.x0 + c, ||P a||_2) per row and spec for coefficients on the input."""
-    if c.a.dim() == 5:
-        r = c.a.shape[-1]
-        inside = torch.ones_like(ball.z0[:1, :1]).expand(len(ball.z0), 1, -1, -1)
-        maps = torch.cat([ball.z0, inside], dim=1)
-        m = _patches(maps, c.win, c.offset, r)[:, None]  # (G, 1, C+1, r, r)
-        a = c.a * m[:, :, -1:]
-        z = m[:, :, :-1]
-    else:
-        a = c.a
-        z = ball.z0.flatten(1)[c.win][:, None]
-    value = (a * z).flatten(2).sum(-1) + c.const
-    sq = a.square().flatten(2).sum(-1)
+def _relu_back(
+    a: torch.Tensor, const: torch.Tensor, maps: torch.Tensor
+) -> tuple[torch.Tensor, torch.Tensor]:
+    """Coefficients on h = ReLU(y) -> on y, for a lower bound (a >= 0 takes the lower line).
+
+    ``a`` (N, *s); ``maps`` (N, 3 * s[0], *s[1:]) or (N, 3, *s): lo, up - lo, cut.
+    """
+    lo, gap, cut = maps.reshape(len(a), 3, -1).unbind(1)
+    flat = a.reshape(len(a), -1)
+    neg = flat.clamp(max=0)
+    const = const + torch.einsum("ni,ni->n", neg, cut)
+    return torch.addcmul(flat * lo, neg, gap).reshape(a.shape), const
+
+
+def _conv_back_local(
+    a: torch.Tensor, const: torch.Tensor, layer: Conv
+) -> tuple[torch.Tensor, torch.Tensor]:
+    """Patch coefficients on y = conv(h) + b -> on h: a patch (r-1)s + k wide, no padding."""
+    const = const + a.sum(dim=(2, 3)) @ layer.bias
+    return F.conv_transpose2d(a, layer.weight, stride=layer.stride), const
+
+
+def _back_full(
+    a: torch.Tensor, const: torch.Tensor, layer: Layer, below: tuple[int, ...]
+) -> tuple[torch.Tensor, torch.Tensor]:
+    """Whole-level coefficients on y = layer(h) -> on h (shape ``below``)."""
+    if isinstance(layer, Dense):
+        const = const + a @ layer.bias
+        return (a @ layer.weight).reshape(len(a), *below), const
+    const = const + a.sum(dim=(2, 3)) @ layer.bias
+    size = (layer.out_hw - 1) * layer.stride - 2 * layer.padding + layer.weight.shape[-1]
+    out = F.conv_transpose2d(
+        a,
+        layer.weight,
+        stride=layer.stride,
+        padding=layer.padding,
+        output_padding=layer.in_hw - size,
+    )
+    return out, const
+
+
+@dataclass(frozen=True)
+class _Grid:
+    """Where a conv neuron's patch lies on a level: top-left ``pos * stride + origin``."""
+
+    r: int
+    stride: int
+    origin: int
+    cells: int  # positions per side (the neuron's layer)
+
+    def back(self, layer: Conv) -> _Grid:
+        """The same neuron's patch one conv layer further down."""
+        r = (self.r - 1) * layer.stride + layer.weight.shape[-1]
+        return _Grid(
+            r, self.stride * layer.stride, self.origin * layer.stride - layer.padding, self.cells
+        )
+
+    def patches(self, maps: torch.Tensor) -> torch.Tensor:
+        """(B * cells^2, M, r, r): every position's patch of ``maps`` (B, M, H, H), zero outside."""
+        h = maps.shape[-1]
+        left = -self.origin
+        right = (self.cells - 1) * self.stride + self.origin + self.r - h
+        padded = F.pad(maps, (left, right, left, right)).contiguous()
+        sb, sm, sh, sw = padded.stride()
+        view = padded.as_strided(
+            (len(maps), self.cells, self.cells, maps.shape[1], self.r, self.r),
+            (sb, self.stride * sh, self.stride * sw, sm, sh, sw),
+        )
+        return view.reshape(-1, maps.shape[1], self.r, self.r)
+
+
+def _concretise(
+    a: torch.Tensor, const: torch.Tensor, z: torch.Tensor, ball: Ball
+) -> tuple[torch.Tensor, torch.Tensor]:
+    """(a.z0 + c, ||P a||_2) per row for coefficients ``a`` on the input (zero outside it)."""
+    value = (a * z).flatten(1).sum(1) + const
+    sq = a.square().flatten(1).sum(1)
     if ball.subtract_mean:
-        sq = sq - a.flatten(2).sum(-1).square() / ball.d
+        sq = sq - a.flatten(1).sum(1).square() / ball.d
     return value, sq.clamp(min=0).sqrt()
 
 
@@ -314,78 +312,115 @@ def _concretise(c: Coeffs, ball: Ball) -> tuple[torch.Tensor, torch.Tensor]:
 
 
 def _shape(chain: Chain, i: int) -> tuple[int, ...]:
+    """The output shape of layer ``i`` (``-1``: the input)."""
+    if i < 0:
+        return chain.in_shape
     layer = chain.layers[i]
     if isinstance(layer, Conv):
         return (layer.weight.shape[0], layer.out_hw, layer.out_hw)
     return (layer.weight.shape[0],)
 
 
-def _level_shape(chain: Chain, i: int) -> tuple[int, int, int] | None:
-    """(C, H, W) of the input of layer ``i`` when it is a conv level (h_{i-1}, or x for i = 0)."""
-    if i == 0:
-        return chain.in_shape
-    prev = chain.layers[i - 1]
-    if isinstance(prev, Conv):
-        return (prev.weight.shape[0], prev.out_hw, prev.out_hw)
-    return None
-
-
-def _backward(
-    chain: Chain, i: int, c: Coeffs, relaxes: list[Relax], ball: Ball
-) -> tuple[torch.Tensor, torch.Tensor]:
-    """Coefficients on the input of layer ``i`` -> (value at x0, dual norm) per row and spec."""
-    for j in range(i - 1, -1, -1):
-        c = _through_relu(c, relaxes[j])
-        c = _through_affine(c, chain.layers[j], _level_shape(chain, j))
-    return _concretise(c, ball)
-
-
-def _start(chain: Chain, i: int, win: torch.Tensor, neuron: torch.Tensor, signs: int) -> Coeffs:
-    """Rows of layer ``i``'s weights for the selected neurons (flat index), ``+W`` [and ``-W``]."""
-    layer = chain.layers[i]
-    sgn = torch.tensor([1.0, -1.0][:signs])
+def _first_layer(chain: Chain, ball: Ball) -> tuple[torch.Tensor, torch.Tensor]:
+    """Exact bounds of the first layer (linear in x): ``y(x0) -+ eps ||P w||``."""
+    layer = chain.layers[0]
+    shape = (1, *chain.in_shape)
+    ones = torch.ones(shape)
     if isinstance(layer, Conv):
-        per = layer.out_hw * layer.out_hw
-        ch, pos = neuron // per, neuron % per
-        offset = torch.stack([pos // layer.out_hw, pos % layer.out_hw], 1)
-        offset = offset * layer.stride - layer.padding
-        a = layer.weight[ch][:, None] * sgn.view(1, -1, 1, 1, 1)
-        const = layer.bias[ch][:, None] * sgn
-        return Coeffs(a, offset, win, const)
-    a = layer.weight[neuron][:, None] * sgn.view(1, -1, 1)
-    const = layer.bias[neuron][:, None] * sgn
-    below = _level_shape(chain, i)
-    if below is not None:  # first dense layer after the convolutions (or on the input)
-        a = a.reshape(len(neuron), signs, *below)
-    return Coeffs(a, torch.zeros(len(neuron), 2, dtype=torch.long), win, const)
-
-
-def _patch_floats(chain: Chain, i: int) -> int:
-    """Largest number of coefficients one spec row carries while propagating from layer ``i``."""
-    layer = chain.layers[i]
-    below = _level_shape(chain, i)
-    if isinstance(layer, Conv):
-        r = layer.weight.shape[-1]
-        most = layer.weight.shape[1] * r * r
-    elif below is not None:
-        r = max(below[1], below[2])
-        most = below[0] * r * r
+        sq = F.conv2d(ones, layer.weight.square(), None, layer.stride, layer.padding)
+        total = F.conv2d(ones, layer.weight, None, layer.stride, layer.padding)
     else:
-        r = 0
-        most = layer.weight.shape[1]
+        sq, total = layer.weight.square().sum(1)[None], layer.weight.sum(1)[None]
+    if ball.subtract_mean:
+        sq = sq - total.square() / ball.d
+    norm = sq.clamp(min=0).sqrt()
+    mid = _affine(layer, ball.z0)
+    rad = ball.eps.view(-1, *[1] * (mid.dim() - 1)) * norm
+    return mid - rad, mid + rad
+
+
+def _conv_views(
+    chain: Chain, i: int, relaxes: list[Relax], ball: Ball
+) -> tuple[list[torch.Tensor], torch.Tensor]:
+    """Every position's patches, for the neurons of conv layer ``i``: of each level's relaxation
+    maps (layers ``i-1`` down to 0), and of the input with an inside-the-image channel."""
+    layer = chain.layers[i]
+    assert isinstance(layer, Conv)
+    grid = _Grid(layer.weight.shape[-1], layer.stride, -layer.padding, layer.out_hw)
+    views = []
     for j in range(i - 1, -1, -1):
-        lj = chain.layers[j]
-        if isinstance(lj, Conv):
-            r = (r - 1) * lj.stride + lj.weight.shape[-1]
-            most = max(most, lj.weight.shape[1] * r * r)
-        else:
-            nb = _level_shape(chain, j)
-            if nb is not None:
-                r = max(nb[1], nb[2])
-                most = max(most, nb[0] * r * r)
-            else:
-                most = max(most, lj.weight.shape[1])
-    return most
+        views.append(grid.patches(relaxes[j].maps.flatten(1, 2)))
+        below = chain.layers[j]
+        assert isinstance(below, Conv)
+        grid = grid.back(below)
+    inside = torch.ones_like(ball.z0[:, :1])
+    return views, grid.patches(torch.cat([ball.z0, inside], dim=1))
+
+
+def _crown_conv(
+    chain: Chain,
+    i: int,
+    views: tuple[list[torch.Tensor], torch.Tensor],
+    ball: Ball,
+    win: torch.Tensor,
+    neuron: torch.Tensor,
+) -> tuple[torch.Tensor, torch.Tensor]:
+    """Lower and upper CROWN bounds of conv neurons ``(win, neuron)`` of layer ``i`` (local form).
+
+    A row's coefficients are a patch of its receptive field (``_Grid``): +W and -W
+    of the neuron pass back through each ReLU's lines and transposed convolution.
+    """
+    layer = chain.layers[i]
+    assert isinstance(layer, Conv)
+    cells = layer.out_hw
+    ch, pos = neuron // (cells * cells), neuron % (cells * cells)
+    n = len(win)
+    win2 = win.repeat(2)
+    at = (win * cells * cells + pos).repeat(2)  # row of the patch tables
+    a = torch.cat([layer.weight[ch], -layer.weight[ch]])
+    const = torch.cat([layer.bias[ch], -layer.bias[ch]])
+    for j, view in zip(range(i - 1, -1, -1), views[0], strict=True):
+        a, const = _relu_back(a, const, view.index_select(0, at))
+        below = chain.layers[j]
+        assert isinstance(below, Conv)
+        a, const = _conv_back_local(a, const, below)
+    zm = views[1].index_select(0, at)
+    value, norm = _concretise(a * zm[:, -1:], const, zm[:, :-1], ball)
+    bound = value - ball.eps[win2] * norm
+    return bound[:n], -bound[n:]
+
+
+def _crown_full(
+    chain: Chain,
+    i: int,
+    relaxes: list[Relax],
+    ball: Ball,
+    win: torch.Tensor,
+    rows: torch.Tensor,
+    bias: torch.Tensor,
+) -> tuple[torch.Tensor, torch.Tensor]:
+    """(value at x0, dual norm) of ``rows . h_{i-1} + bias`` propagated as whole levels."""
+    a = rows.reshape(len(rows), *_shape(chain, i - 1))
+    const = bias
+    for j in range(i - 1, -1, -1):
+        a, const = _relu_back(a, const, relaxes[j].maps[win])
+        a, const = _back_full(a, const, chain.layers[j], _shape(chain, j - 1))
+    return _concretise(a, const, ball.z0[win], ball)
+
+
+def _row_floats(chain: Chain, i: int) -> int:
+    """Most floats one row of layer ``i`` carries while propagating (x 3 for the relaxations)."""
+    layer = chain.layers[i]
+    if isinstance(layer, Dense):
+        return 3 * max(math.prod(_shape(chain, j)) for j in range(-1, i))
+    grid = _Grid(layer.weight.shape[-1], layer.stride, -layer.padding, layer.out_hw)
+    most = 0
+    for j in range(i - 1, -1, -1):
+        most = max(most, 3 * _shape(chain, j)[0] * grid.r**2)
+        below = chain.layers[j]
+        assert isinstance(below, Conv)
+        grid = grid.back(below)
+    return max(most, (chain.in_shape[0] + 1) * grid.r**2)
 
 
 def layer_bounds(
@@ -396,6 +431,8 @@ def layer_bounds(
 ) -> tuple[list[tuple[torch.Tensor, torch.Tensor]], list[Relax]]:
     """Bounds (l, u) on every hidden pre-activation over the balls, and their relaxations.
 
+    The first layer's are exact. A deeper neuron first gets one interval step
+    from the previous layer's bounds; only those still unstable get CROWN.
     ``prior``: bounds valid for balls at least as large (intersected with the new ones).
     ``give_up``: once more than this fraction of a window's neurons in a layer is
     unstable, its deeper layers keep their interval bounds (sound, loose, cheap):
@@ -406,29 +443,41 @@ def layer_bounds(
     nb = len(ball.z0)
     hopeful = torch.ones(nb, dtype=torch.bool)
     for i in range(len(chain.layers) - 1):
-        shape = _shape(chain, i)
+        layer = chain.layers[i]
         if i == 0:
-            lo = torch.full((nb, *shape), -math.inf)
-            hi = torch.full((nb, *shape), math.inf)
+            lo, hi = _first_layer(chain, ball)
         else:  # one step of interval arithmetic from the previous layer's bounds
             pl, pu = bounds[-1]
             hl, hu = pl.clamp(min=0), pu.clamp(min=0)
-            mid = _affine(chain.layers[i], (hl + hu) / 2)
-            rad = _affine_abs(chain.layers[i], (hu - hl) / 2)
-            lo, hi = (mid - rad).reshape(nb, *shape), (mid + rad).reshape(nb, *shape)
+            mid = _affine(layer, (hl + hu) / 2)
+            rad = _affine_abs(layer, (hu - hl) / 2)
+            lo, hi = mid - rad, mid + rad
         if prior is not None:
             lo, hi = torch.maximum(lo, prior[i][0]), torch.minimum(hi, prior[i][1])
         todo = (((lo < 0) & (hi > 0)).flatten(1) & hopeful[:, None]).nonzero()
-        if len(todo):
-            per_row = 2 * _patch_floats(chain, i)
-            step = max(1, CHUNK_FLOATS // per_row)
+        if i > 0 and len(todo):
+            step = max(1, CHUNK_FLOATS // (2 * _row_floats(chain, i)))
             flat_lo, flat_hi = lo.flatten(1), hi.flatten(1)
+            views = _conv_views(chain, i, relaxes, ball) if isinstance(layer, Conv) else None
             for s in range(0, len(todo), step):
                 win, neuron = todo[s : s + step, 0], todo[s : s + step, 1]
-                value, norm = _backward(chain, i, _start(chain, i, win, neuron, 2), relaxes, ball)
-                bound = value - ball.eps[win, None] * norm
-                flat_lo[win, neuron] = torch.maximum(flat_lo[win, neuron], bound[:, 0])
-                flat_hi[win, neuron] = torch.minimum(flat_hi[win, neuron], -bound[:, 1])
+                if views is not None:
+                    low, up = _crown_conv(chain, i, views, ball, win, neuron)
+                else:
+                    w, b = layer.weight[neuron], layer.bias[neuron]
+                    value, norm = _crown_full(
+                        chain,
+                        i,
+                        relaxes,
+                        ball,
+                        win.repeat(2),
+                        torch.cat([w, -w]),
+                        torch.cat([b, -b]),
+                    )
+                    bound = value - ball.eps[win.repeat(2)] * norm
+                    low, up = bound[: len(win)], -bound[len(win) :]
+                flat_lo[win, neuron] = torch.maximum(flat_lo[win, neuron], low)
+                flat_hi[win, neuron] = torch.minimum(flat_hi[win, neuron], up)
         bounds.append((lo, hi))
         relaxes.append(Relax.of(lo, hi))
         hopeful &= ((lo < 0) & (hi > 0)).flatten(1).float().mean(1) <= give_up
@@ -439,12 +488,13 @@ def margin_form(
     chain: Chain, ball: Ball, relaxes: list[Relax]
 ) -> tuple[torch.Tensor, torch.Tensor]:
     """The margin's linear lower bound at x0 and its dual norm: f >= value - eps * norm."""
-    nb = len(ball.z0)
     last = len(chain.layers) - 1
+    layer = chain.layers[last]
+    nb = len(ball.z0)
     win = torch.arange(nb)
-    start = _start(chain, last, win, torch.zeros(nb, dtype=torch.long), 1)
-    value, norm = _backward(chain, last, start, relaxes, ball)
-    return value[:, 0], norm[:, 0]
+    return _crown_full(
+        chain, last, relaxes, ball, win, layer.weight.expand(nb, -1), layer.bias.expand(nb)
+    )
 
 
 # ---------------------------------------------------------------- radius search
@@ -454,9 +504,10 @@ def margin_form(
 class CertifyConfig:
     """Settings of the radius search (docs/cnn.md, "Certified lower bounds")."""
 
-    steps: int = 4  #: bound propagations per window
-    seed: float = 0.05  #: first radius tried, as a fraction of the upper bracket (attack payoff)
-    start: float = 0.05  #: first radius tried when no upper bracket is known
+    steps: int = 2  #: bound propagations per window
+    level: float = 0.25  #: first radius: where this fraction of first-layer ReLUs is unstable
+    spread: float = 0.08  #: change of that fraction after the first propagation
+    seed: float = 0.5  #: ... but at most this fraction of the upper bracket (attack payoff)
     batch: int = 32  #: windows propagated together
     give_up: float = 0.7  #: unstable fraction of a layer beyond which a ball is abandoned
 
@@ -470,13 +521,13 @@ def certified_radius(
     """Per window, an L2 radius within which the margin stays positive (0 when it is not).
 
     ``upper``: a known flipping radius per window (the attack's payoff, ``inf``
-    when none): the search stays below it and starts at ``cfg.seed`` times it.
-    It only steers the search; every returned radius is certified on its own.
+    when none): the search stays below it. It only steers the search; every
+    returned radius is certified on its own.
     """
     cfg = cfg or CertifyConfig()
     n = len(windows)
     out = np.zeros(n)
-    with torch.no_grad():
+    with torch.inference_mode():
         for a in range(0, n, cfg.batch):
             x = torch.from_numpy(np.ascontiguousarray(windows[a : a + cfg.batch], np.float32))
             up = None if upper is None else np.asarray(upper[a : a + cfg.batch], float)
@@ -484,35 +535,64 @@ def certified_radius(
     return out
 
 
+def flip_distances(chain: Chain, z0: torch.Tensor) -> torch.Tensor:
+    """(B, n): each first-layer neuron's L2 distance to its hinge (exact: the layer is linear).
+
+    A ball of radius r makes exactly the neurons with distance < r unstable;
+    its quantiles put the radius search on a per-window scale.
+    """
+    lo, hi = _first_layer(chain, Ball(z0, torch.ones(len(z0)), _dim(chain), chain.subtract_mean))
+    mid, rad = (lo + hi) / 2, (hi - lo) / 2
+    dist = torch.where(rad > 0, mid.abs() / rad.clamp(min=1e-30), torch.full_like(mid, math.inf))
+    return dist.flatten(1)
+
+
+def _dim(chain: Chain) -> int:
+    return math.prod(chain.in_shape)
+
+
 def _search(
     chain: Chain, x: torch.Tensor, upper: np.ndarray | None, cfg: CertifyConfig
 ) -> np.ndarray:
-    """Geometric bisection towards the fixed point r*(R) = R; keeps the best min(R, r*(R))."""
+    """Geometric bisection on R from a per-window start; keeps the best min(R, r*(R)).
+
+    The start is the ``cfg.level``-quantile of the first layer's flip distances
+    (the radius making that fraction of its ReLUs unstable), and the steps until
+    a bracket is found are the ratios to the ``level -+ spread`` quantiles (at
+    least 1.5x down): a window's CROWN bound
+    collapses once too many of its ReLUs are unstable, at about the same
+    fraction for every window (docs/cnn.md), while the radius varies 20x.
+    """
     nb = len(x)
     z0 = _centre(chain, x)
-    d = int(np.prod(chain.in_shape))
     f0 = margin_of(chain, x)
-    best = torch.zeros(nb, dtype=torch.float64)
-    lo = torch.zeros(nb, dtype=torch.float64)
-    hi = torch.full((nb,), math.inf, dtype=torch.float64)
-    r = torch.full((nb,), cfg.start, dtype=torch.float64)
+    dist = flip_distances(chain, z0).double()
+    levels = [max(cfg.level - cfg.spread, 0.0), cfg.level, min(cfg.level + cfg.spread, 1.0)]
+    nearer, start, further = torch.quantile(
+        dist, torch.tensor(levels, dtype=torch.float64), dim=1
+    ).clamp(min=1e-6)
+    grow = (further / start).clamp(min=1.05)
+    shrink = (start / nearer).clamp(min=1.5)
+    cap = torch.full((nb,), math.inf, dtype=torch.float64)
     if upper is not None:
         u = torch.from_numpy(upper)
-        known = torch.isfinite(u) & (u > 0)
-        hi = torch.where(known, u, hi)
-        r = torch.where(known, cfg.seed * u, r)
+        cap = torch.where(torch.isfinite(u) & (u > 0), u, cap)
+    r = torch.minimum(start, cfg.seed * cap)
+    best = torch.zeros(nb, dtype=torch.float64)
+    r_ok = torch.zeros(nb, dtype=torch.float64)
+    r_bad = torch.full((nb,), math.inf, dtype=torch.float64)
     live = f0 > 0
     # bounds of the smallest ball that failed so far: valid for every smaller ball
     prior: list[tuple[torch.Tensor, torch.Tensor]] | None = None
-    prior_r = torch.full((nb,), math.inf, dtype=torch.float64)
     for _ in range(cfg.steps):
         if not bool(live.any()):
             break
         idx = live.nonzero().ravel()
-        ball = Ball(z0[idx], r[idx].float(), d, chain.subtract_mean)
+        ri = r[idx]
+        ball = Ball(z0[idx], ri.float(), _dim(chain), chain.subtract_mean)
         pri = None
         if prior is not None:
-            inside = r[idx] <= prior_r[idx]
+            inside = ri <= r_bad[idx]
             pri = [
                 (_where(inside, pl[idx], -math.inf), _where(inside, pu[idx], math.inf))
                 for pl, pu in prior
@@ -521,12 +601,10 @@ def _search(
         value, norm = margin_form(chain, ball, relaxes)
         value, norm = value.double(), norm.double()
         rstar = torch.where(value > 0, value / norm.clamp(min=1e-30), torch.zeros_like(value))
-        ri = r[idx]
         best[idx] = torch.maximum(best[idx], torch.minimum(ri, rstar))
-        failed = rstar < ri
-        # r* decreases with R: the fixed point lies in [r*, R] after a failure, else in [R, r*]
-        lo[idx] = torch.maximum(lo[idx], torch.where(failed, rstar, ri))
-        hi[idx] = torch.minimum(hi[idx], torch.where(failed, ri, rstar))
+        ok = rstar >= ri
+        r_ok[idx] = torch.where(ok, torch.maximum(r_ok[idx], ri), r_ok[idx])
+        failed = ~ok
         if bool(failed.any()):
             if prior is None:
                 prior = [
@@ -539,12 +617,12 @@ def _search(
             fidx = idx[failed]
             for (pl, pu), (bl, bu) in zip(prior, bounds, strict=True):
                 pl[fidx], pu[fidx] = bl[failed], bu[failed]
-            prior_r[fidx] = ri[failed]
-        l, h = lo[idx], hi[idx]
-        r[idx] = torch.where(
-            torch.isfinite(h), torch.sqrt(torch.clamp(l, min=1e-3 * h) * h), 2 * ri
-        )
-        live[idx] = ~torch.isfinite(h) | (h - l > 0.02 * h)
+            r_bad[fidx] = ri[failed]
+        lo, hi = r_ok[idx], r_bad[idx]
+        step = torch.where(ok, ri * grow[idx], ri / shrink[idx])
+        bracketed = (lo > 0) & torch.isfinite(hi)
+        r[idx] = torch.minimum(torch.where(bracketed, torch.sqrt(lo * hi), step), cap[idx])
+        live[idx] = ~(ok & (ri >= cap[idx])) & ~(bracketed & (hi - lo <= 0.02 * hi))
     result: np.ndarray = (best * (1 - SAFETY)).numpy()
     return result
 
