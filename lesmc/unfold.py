@@ -45,6 +45,10 @@ COMPONENTS = ("x", "y", "vx", "vy")
 #: States expanded together when building eagerly: bounds the temporaries of one batch.
 EAGER_BATCH = 65_536
 
+#: Successors one state is assumed to have at most before a step's first batch is measured
+#: (with ``--max-states``; a larger fan-out only makes that first batch a probe of one).
+MAX_FAN = 64
+
 
 def max_end(scene: Scene) -> int:
     """The last model step the scene's frames allow."""
@@ -215,6 +219,7 @@ def build_model(
     end: int | None = None,
     on_level: Callable[[int, int], None] | None = None,
     on_batch: Callable[[GrowingModel], None] | None = None,
+    max_states: int | None = None,
 ) -> ArrayModel:
     """The whole LTS of ``scene`` for attacks in ``window`` = (l, u), up to step ``end``.
 
@@ -223,6 +228,10 @@ def build_model(
     :data:`~lesmc.engines.lazy.BATCH_SECONDS` each) before any of step k + 1.
     ``on_level(step, states)`` is called after each step (for progress bars),
     ``on_batch(model)`` before each batch (budgets: it raises to stop).
+    With ``max_states`` (the caller's budget, enforced by ``on_batch``) batches
+    shrink near it, by the most states one expanded state has made so far, so
+    that the unfolding stops within about one state's successors of the limit
+    instead of one whole batch past it.
     """
     exp = SceneExpander(scene, window)
     e = original_end(scene, exp.design, end)
@@ -234,13 +243,17 @@ def build_model(
         before = model.n_states
         live = frontier[~model.halted[frontier]]
         lo = 0
+        fan = 0.0  # new states per expanded state of this step, the most seen in a batch
         while lo < len(live):
             if on_batch is not None:
                 on_batch(model)
-            t0 = time.perf_counter()
-            model.expand(live[lo : lo + cap], k)
-            took = (time.perf_counter() - t0) / len(live[lo : lo + cap])
-            lo += cap
+            n = cap if max_states is None else _room(max_states - model.n_states, fan, cap)
+            batch = live[lo : lo + n]
+            t0, made = time.perf_counter(), model.n_states
+            model.expand(batch, k)
+            took = (time.perf_counter() - t0) / len(batch)
+            fan = max(fan, (model.n_states - made) / len(batch))
+            lo += n
             cap = max(1, min(EAGER_BATCH, int(BATCH_SECONDS / max(took, 1e-9)) + 1))
         frontier = np.arange(before, model.n_states, dtype=np.int64)
         if on_level is not None:
@@ -251,6 +264,15 @@ def build_model(
         original.append(int(model.dst[model.out_lo[original[-1]]]))
     model.original = np.array(original, dtype=np.int64)
     return freeze(model, scene, window, e, exp.design.name)
+
+
+def _room(room: int, fan: float, cap: int) -> int:
+    """States to expand next so that about ``room`` more states are made (at least one);
+    ``fan``: new states per expanded state measured at this step (0: not yet, then a
+    batch of one measures it, unless a whole batch fits in the room whatever it makes)."""
+    if fan <= 0:
+        return cap if room >= cap * MAX_FAN else 1
+    return max(1, min(cap, int(room / fan)))
 
 
 def freeze(

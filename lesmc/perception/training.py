@@ -280,6 +280,14 @@ def train(cfg: TrainConfig, progress: Progress | None = None) -> tuple[Nets, Val
     for seed in cfg.train_seeds:
         collect(cfg, seed, tr, rng, progress)
     x, y, lx, ly = tr.arrays()
+    if not (0 < int(y.sum()) < len(y)) or not len(lx):
+        from lesmc.errors import UsageError
+
+        raise UsageError(
+            f"the training videos ({cfg.frames} frames of {cfg.width}x{cfg.height}) gave "
+            f"{int(y.sum())} vehicle and {len(y) - int(y.sum())} background windows: both "
+            "networks need some of each; use a larger --size or more --frames or --videos"
+        )
     dr = train_dr(x, y, cfg, progress)
     lp = train_lp(lx, ly, cfg, progress)
     settings = NetSettings(
