@@ -24,12 +24,7 @@ from collections.abc import Callable, Iterable
 
 import numpy as np
 
-from lesmc.engines.check import (
-    DEFAULT_MAX_STATES,
-    EngineName,
-    check_bound,
-    check_lazy,
-)
+from lesmc.engines.check import DEFAULT_MAX_STATES, EngineName, check_lazy
 from lesmc.engines.lazy import BATCH_SECONDS
 from lesmc.engines.result import CheckResult
 from lesmc.errors import UsageError
@@ -326,8 +321,8 @@ def check_scene(
 ) -> list[CheckResult]:
     """Check properties on the model of a scene without writing it out.
 
-    ``bnb`` unfolds the model on demand (only the states it expands); ``enumerate``
-    first builds the whole model for each property's window (Algorithm 1).
+    The model is unfolded on demand: ``levels`` and ``bnb`` unfold only the states
+    they expand, ``enumerate`` every state its paths reach (Algorithm 1), level by level.
     """
     return [
         check_scene_bound(scene, bp, engine, max_states, timeout) for bp in bind_scene(scene, specs)
@@ -341,13 +336,9 @@ def check_scene_bound(
     max_states: int | None = DEFAULT_MAX_STATES,
     timeout: float | None = None,
     max_memory: int | None = None,
-    on_batch: Callable[[GrowingModel], None] | None = None,
 ) -> CheckResult:
-    """One bound property on a scene (see :func:`check_scene`); ``on_batch`` as for
-    :func:`build_model`, when ``enumerate`` builds the model first."""
-    if engine == "enumerate":
-        model = build_model(scene, (bp.l, bp.u), bp.end, on_batch=on_batch)
-        return check_bound(model, bp, engine, max_states, timeout)
+    """One bound property on a scene (see :func:`check_scene`), on its model unfolded on
+    demand (every engine, ``enumerate`` included: a budget then stops it with bounds)."""
     lazy = lazy_model(scene, (bp.l, bp.u), bp.end)
     return check_lazy(lazy, bp, max_states, timeout, engine, max_memory)
 
@@ -365,7 +356,6 @@ def check_scene_payoffs(
     timeout: float | None = None,
     path: str = "<scene>",
     max_memory: int | None = None,
-    on_batch: Callable[[GrowingModel], None] | None = None,
 ) -> CheckResult:
     """One property with the attack payoffs, the certified lower ones, or both (interval).
 
@@ -377,11 +367,11 @@ def check_scene_payoffs(
     from lesmc.engines.interval import combine
 
     if payoffs == "attack":
-        return check_scene_bound(scene, bp, engine, max_states, timeout, max_memory, on_batch)
+        return check_scene_bound(scene, bp, engine, max_states, timeout, max_memory)
     low = scene.priced("certified", path)
     if payoffs == "certified":
         return replace(
-            check_scene_bound(low, bp, engine, max_states, timeout, max_memory, on_batch),
+            check_scene_bound(low, bp, engine, max_states, timeout, max_memory),
             payoffs=payoffs,
         )
     if payoffs != "interval":
@@ -390,9 +380,9 @@ def check_scene_payoffs(
 
     started = time.monotonic()
     half = None if timeout is None else timeout / 2
-    cert = check_scene_bound(low, bp, engine, max_states, half, max_memory, on_batch)
+    cert = check_scene_bound(low, bp, engine, max_states, half, max_memory)
     left = None if timeout is None else max(0.0, timeout - (time.monotonic() - started))
-    att = check_scene_bound(scene, bp, engine, max_states, left, max_memory, on_batch)
+    att = check_scene_bound(scene, bp, engine, max_states, left, max_memory)
     return combine(cert, att, payoff_monotone(bp))
 
 

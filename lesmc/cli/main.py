@@ -26,7 +26,13 @@ from lesmc.cli.check import check_cmd
 from lesmc.cli.perceive import perceive_cmd
 from lesmc.cli.reduce import reduce_group
 from lesmc.cli.report import report_cmd
-from lesmc.cli.signals import DeadlinePassed, Terminated, handlers, stdout_closed
+from lesmc.cli.signals import (
+    DEADLINE_MESSAGE,
+    DeadlinePassed,
+    Terminated,
+    handlers,
+    stdout_closed,
+)
 from lesmc.cli.train import train_cmd
 from lesmc.cli.verify import verify_cmd
 from lesmc.cli.video import synth_cmd
@@ -148,9 +154,7 @@ def _main(argv: list[str] | None) -> None:
         sys.stderr.write("terminated\n")
         sys.exit(exc.exit_status)
     except DeadlinePassed:
-        sys.stderr.write(
-            "error: --timeout ran out in work that could not stop sooner; nothing was written\n"
-        )
+        sys.stderr.write(DEADLINE_MESSAGE)
         sys.exit(EXIT_UNKNOWN)
     except click.ClickException as exc:
         exc.show()
