@@ -89,6 +89,9 @@ def cli() -> None:
                                              redraw the report from a results file alone
       lesmc reduce knapsack ITEMS.csv ...    build a knapsack instance as a model
     \b
+    Every verb takes --json: one versioned document on stdout, described by a
+    schema in lesmc/schemas/ (docs/cli.md). Options that would be ignored are errors.
+    \b
     Exit status: 0 all hold, 1 some violated, 2 bad input, 3 some unknown,
     4 internal error (a bug: please report it), 130 interrupted (SIGINT),
     143 terminated (SIGTERM), 141 stdout closed (e.g. piped into head).
