@@ -24,12 +24,7 @@ from collections.abc import Callable, Iterable
 
 import numpy as np
 
-from lesmc.engines.check import (
-    DEFAULT_MAX_STATES,
-    EngineName,
-    check_bound,
-    check_lazy,
-)
+from lesmc.engines.check import DEFAULT_MAX_STATES, EngineName, check_lazy
 from lesmc.engines.lazy import BATCH_SECONDS
 from lesmc.engines.result import CheckResult
 from lesmc.errors import UsageError
@@ -44,6 +39,10 @@ COMPONENTS = ("x", "y", "vx", "vy")
 
 #: States expanded together when building eagerly: bounds the temporaries of one batch.
 EAGER_BATCH = 65_536
+
+#: Successors one state is assumed to have at most before a step's first batch is measured
+#: (with ``--max-states``; a larger fan-out only makes that first batch a probe of one).
+MAX_FAN = 64
 
 
 def max_end(scene: Scene) -> int:
@@ -248,6 +247,7 @@ def build_model(
     end: int | None = None,
     on_level: Callable[[int, int], None] | None = None,
     on_batch: Callable[[GrowingModel], None] | None = None,
+    max_states: int | None = None,
 ) -> ArrayModel:
     """The whole LTS of ``scene`` for attacks in ``window`` = (l, u), up to step ``end``.
 
@@ -256,6 +256,10 @@ def build_model(
     :data:`~lesmc.engines.lazy.BATCH_SECONDS` each) before any of step k + 1.
     ``on_level(step, states)`` is called after each step (for progress bars),
     ``on_batch(model)`` before each batch (budgets: it raises to stop).
+    With ``max_states`` (the caller's budget, enforced by ``on_batch``) batches
+    shrink near it, by the most states one expanded state has made so far, so
+    that the unfolding stops within about one state's successors of the limit
+    instead of one whole batch past it.
     """
     exp = SceneExpander(scene, window)
     e = original_end(scene, exp.design, end)
@@ -267,13 +271,17 @@ def build_model(
         before = model.n_states
         live = frontier[~model.halted[frontier]]
         lo = 0
+        fan = 0.0  # new states per expanded state of this step, the most seen in a batch
         while lo < len(live):
             if on_batch is not None:
                 on_batch(model)
-            t0 = time.perf_counter()
-            model.expand(live[lo : lo + cap], k)
-            took = (time.perf_counter() - t0) / len(live[lo : lo + cap])
-            lo += cap
+            n = cap if max_states is None else _room(max_states - model.n_states, fan, cap)
+            batch = live[lo : lo + n]
+            t0, made = time.perf_counter(), model.n_states
+            model.expand(batch, k)
+            took = (time.perf_counter() - t0) / len(batch)
+            fan = max(fan, (model.n_states - made) / len(batch))
+            lo += n
             cap = max(1, min(EAGER_BATCH, int(BATCH_SECONDS / max(took, 1e-9)) + 1))
         frontier = np.arange(before, model.n_states, dtype=np.int64)
         if on_level is not None:
@@ -284,6 +292,15 @@ def build_model(
         original.append(int(model.dst[model.out_lo[original[-1]]]))
     model.original = np.array(original, dtype=np.int64)
     return freeze(model, scene, window, e, exp.design.name)
+
+
+def _room(room: int, fan: float, cap: int) -> int:
+    """States to expand next so that about ``room`` more states are made (at least one);
+    ``fan``: new states per expanded state measured at this step (0: not yet, then a
+    batch of one measures it, unless a whole batch fits in the room whatever it makes)."""
+    if fan <= 0:
+        return cap if room >= cap * MAX_FAN else 1
+    return max(1, min(cap, int(room / fan)))
 
 
 def freeze(
@@ -337,8 +354,8 @@ def check_scene(
 ) -> list[CheckResult]:
     """Check properties on the model of a scene without writing it out.
 
-    ``bnb`` unfolds the model on demand (only the states it expands); ``enumerate``
-    first builds the whole model for each property's window (Algorithm 1).
+    The model is unfolded on demand: ``levels`` and ``bnb`` unfold only the states
+    they expand, ``enumerate`` every state its paths reach (Algorithm 1), level by level.
     """
     return [
         check_scene_bound(scene, bp, engine, max_states, timeout) for bp in bind_scene(scene, specs)
@@ -352,13 +369,9 @@ def check_scene_bound(
     max_states: int | None = DEFAULT_MAX_STATES,
     timeout: float | None = None,
     max_memory: int | None = None,
-    on_batch: Callable[[GrowingModel], None] | None = None,
 ) -> CheckResult:
-    """One bound property on a scene (see :func:`check_scene`); ``on_batch`` as for
-    :func:`build_model`, when ``enumerate`` builds the model first."""
-    if engine == "enumerate":
-        model = build_model(scene, (bp.l, bp.u), bp.end, on_batch=on_batch)
-        return check_bound(model, bp, engine, max_states, timeout)
+    """One bound property on a scene (see :func:`check_scene`), on its model unfolded on
+    demand (every engine, ``enumerate`` included: a budget then stops it with bounds)."""
     lazy = lazy_model(scene, (bp.l, bp.u), bp.end)
     return check_lazy(lazy, bp, max_states, timeout, engine, max_memory)
 
@@ -376,7 +389,6 @@ def check_scene_payoffs(
     timeout: float | None = None,
     path: str = "<scene>",
     max_memory: int | None = None,
-    on_batch: Callable[[GrowingModel], None] | None = None,
 ) -> CheckResult:
     """One property with the attack payoffs, the certified lower ones, or both (interval).
 
@@ -388,11 +400,11 @@ def check_scene_payoffs(
     from lesmc.engines.interval import combine
 
     if payoffs == "attack":
-        return check_scene_bound(scene, bp, engine, max_states, timeout, max_memory, on_batch)
+        return check_scene_bound(scene, bp, engine, max_states, timeout, max_memory)
     low = scene.priced("certified", path)
     if payoffs == "certified":
         return replace(
-            check_scene_bound(low, bp, engine, max_states, timeout, max_memory, on_batch),
+            check_scene_bound(low, bp, engine, max_states, timeout, max_memory),
             payoffs=payoffs,
         )
     if payoffs != "interval":
@@ -401,9 +413,9 @@ def check_scene_payoffs(
 
     started = time.monotonic()
     half = None if timeout is None else timeout / 2
-    cert = check_scene_bound(low, bp, engine, max_states, half, max_memory, on_batch)
+    cert = check_scene_bound(low, bp, engine, max_states, half, max_memory)
     left = None if timeout is None else max(0.0, timeout - (time.monotonic() - started))
-    att = check_scene_bound(scene, bp, engine, max_states, left, max_memory, on_batch)
+    att = check_scene_bound(scene, bp, engine, max_states, left, max_memory)
     return combine(cert, att, payoff_monotone(bp))
 
 

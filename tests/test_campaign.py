@@ -107,6 +107,13 @@ def test_resume_adds_no_row_and_the_summary_counts_the_rows(base: tuple[Path, Pa
     doc = json.loads(r.stdout)
     rows = read_rows(base[1] / "results.jsonl")
     assert doc["rows"] == len(rows) and doc["targets"] == 2 and doc["windows"] == 4
+    import jsonschema
+
+    from lesmc.schemas import schema
+
+    jsonschema.validate(doc, schema("campaign-summary"))
+    for row in rows:
+        jsonschema.validate(row, schema("campaign-row"))
     for d, cells in doc["cells"].items():
         for prop, c in cells.items():
             mine = [x for x in rows if x["design"] == d and x["property"] == prop]

@@ -3,10 +3,12 @@
 from __future__ import annotations
 
 import json
+import time
 
 import click
 
 from lesmc.cli.budgets import stop_if_spent, write_model
+from lesmc.cli.documents import emit, file_facts, run_provenance, say
 from lesmc.cli.options import (
     budget_from,
     budget_options,
@@ -40,6 +42,13 @@ _DESIGN = design_option("Override the tracker design the scene names.")
 @_DESIGN
 @budget_options(None, "the build stops with exit 3 and writes nothing")
 @scene_target
+@click.option(
+    "--json",
+    "as_json",
+    is_flag=True,
+    help="Print what was built as JSON on stdout (format lesmc-build, schema "
+    "lesmc/schemas/build.json): sizes, timings, the model's sha256.",
+)
 def build_cmd(
     scene: str,
     window_text: str,
@@ -50,12 +59,14 @@ def build_cmd(
     timeout: float | None,
     max_memory: int | None,
     target_text: str | None,
+    as_json: bool,
 ) -> None:
     """Unfold SCENE into a <PO>²-LTS (Algorithm 1): every attacked run in the window.
 
     Step 0 is the target's frame. Within the window each state gets one
     transition per outcome an attacker can force (nearest detection first);
-    outside it, the unattacked one.
+    outside it, the unattacked one. Exit status: 0 written, 2 bad input,
+    3 a budget ran out (nothing written), 4 internal error, 130 interrupted.
     """
     budget = budget_from(timeout, max_states, max_memory)
     from rich.console import Console
@@ -65,6 +76,7 @@ def build_cmd(
 
     window = parse_window(window_text)
     sc = load_scene_file(scene, design, target_text)
+    loaded = time.monotonic()
     last = end if end is not None else max_end(sc)
     err = Console(stderr=True)
     with Progress(
@@ -85,14 +97,48 @@ def build_cmd(
             end,
             on_level=lambda k, n: progress.update(task, completed=k, states=n),
             on_batch=lambda m: stop_if_spent(budget, m, "unfolding"),
+            max_states=max_states,
         )
     stop_if_spent(budget, model, "unfolding")
+    unfolded = time.monotonic()
     write_model(model, output, budget)
-    click.echo(
+    written = time.monotonic()
+    say(
         f"wrote {escape_control(output)}: {model.n_states} states, "
         f"{model.n_transitions} transitions, steps 0..{model.end}, "
-        f"design {model.meta['design']}, window {window[0]}..{window[1]}"
+        f"design {model.meta['design']}, window {window[0]}..{window[1]}",
+        as_json,
     )
+    if as_json:
+        from lesmc.model.lts import to_lts
+        from lesmc.report.results import model_hash
+
+        emit(
+            {
+                "format": "lesmc-build",
+                "version": 1,
+                "provenance": run_provenance(),
+                "scene": scene,
+                "model": file_facts(output),
+                "model_sha256": model_hash(to_lts(model)),
+                "states": model.n_states,
+                "transitions": model.n_transitions,
+                "end": model.end,
+                "window": [window[0], window[1]],
+                "design": model.meta["design"],
+                "target": {
+                    "step": sc.target.step,
+                    "x": float(sc.target.start[0]),
+                    "y": float(sc.target.start[1]),
+                },
+                "seconds": {
+                    "load": loaded - budget.started,
+                    "unfold": unfolded - loaded,
+                    "write": written - unfolded,
+                    "total": time.monotonic() - budget.started,
+                },
+            }
+        )
 
 
 @click.command("track")

@@ -19,11 +19,11 @@ from lesmc.cli.options import (
 from lesmc.errors import UsageError
 
 if TYPE_CHECKING:
+    from lesmc.engines.budget import Budget
     from lesmc.engines.result import CheckResult
     from lesmc.language.properties import SpecFile
     from lesmc.language.semantics import BoundProperty
     from lesmc.model.arrays import ArrayModel
-    from lesmc.model.growing import GrowingModel
     from lesmc.tracking.scene import Scene
 
 DEFAULT_MAX_STATES = 10_000_000
@@ -100,8 +100,9 @@ def check_cmd(
 ) -> None:
     """Check the properties in SPEC files on MODEL (a .lts file) or on a SCENE (.json).
 
-    A scene's model is built on the fly from each property's attack window
-    (levels and bnb expand only the states they visit; enumerate builds it whole).
+    A scene's model is unfolded on the fly from each property's attack window
+    (levels and bnb unfold only the states they visit, enumerate every state its
+    paths reach); a budget stops every engine with 'unknown' and the bounds found.
 
     For each property: the verdict (holds iff optimum > threshold), the optimum,
     the counterexample (cheapest path that breaks the system) and the witness
@@ -123,6 +124,8 @@ def check_cmd(
 
     if frames_dir is not None and report_dir is None:
         raise UsageError("--frames gives the report's images: it needs --report DIR")
+    if no_paths and as_json:
+        raise UsageError("--no-paths shortens the table: --json always carries the paths")
     parsed = [load_spec(s) for s in specs]
     source = load_model_or_scene(model, design, target_text)
     if payoffs != "attack" and not isinstance(source, Scene):
@@ -133,7 +136,7 @@ def check_cmd(
     scene: Scene | None = None
     if report_dir is not None and isinstance(source, Scene):
         scene = source  # the report draws the whole model: build it, check once on it
-        bound, source = _built(source, parsed, bound, only)
+        bound, source = _built(source, parsed, bound, only, budget)
     if only:
         names = {bp.name for bp in bound}
         missing = [n for n in only if n not in names]
@@ -149,10 +152,6 @@ def check_cmd(
             raise UsageError(f"property name '{bp.name}' is defined in more than one spec file")
         names_seen.add(bp.name)
     cm = None if isinstance(source, Scene) else source
-
-    def on_batch(model: GrowingModel) -> None:  # --engine enumerate builds the scene's model
-        stop_if_spent(budget, model, "building the model for --engine enumerate")
-
     err = Console(stderr=True)
     results: list[CheckResult] = []
     with Progress(
@@ -179,7 +178,6 @@ def check_cmd(
                         left,
                         model,
                         max_memory,
-                        on_batch,
                     )
                 )
             else:
@@ -197,10 +195,15 @@ def check_cmd(
 
 
 def _built(
-    scene: Scene, parsed: list[SpecFile], bound: list[BoundProperty], only: tuple[str, ...]
+    scene: Scene,
+    parsed: list[SpecFile],
+    bound: list[BoundProperty],
+    only: tuple[str, ...],
+    budget: Budget,
 ) -> tuple[list[BoundProperty], ArrayModel]:
     """For --report: the scene's whole model over the properties' windows, built once, and
-    the properties bound to it; the check then runs on it (one check, one model)."""
+    the properties bound to it; the check then runs on it (one check, one model). Past a
+    budget while building, exit 3 with nothing written (lesmc/cli/budgets.py)."""
     from rich.console import Console
 
     from lesmc.engines.check import bind_all
@@ -209,7 +212,11 @@ def _built(
 
     wanted = [bp for bp in bound if not only or bp.name in only] or bound
     with Console(stderr=True).status("building the model for the report"):
-        cm = build_model(scene, window_of(wanted))
+        cm = build_model(
+            scene,
+            window_of(wanted),
+            on_batch=lambda m: stop_if_spent(budget, m, "building the model for --report"),
+        )
     return bind_all(cm, parsed), cm
 
 

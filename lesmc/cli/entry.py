@@ -18,6 +18,30 @@ EXIT_INTERRUPTED = 130
 def main(argv: list[str] | None = None) -> None:
     """Install the handlers (lesmc/cli/signals.py), import the command line and run it."""
     try:
+        _run(argv)
+    except SystemExit as exc:
+        _leave(exc.code)
+        raise
+    _leave(0)
+
+
+def _leave(code: int | str | None) -> None:
+    """With a ``--timeout`` (lesmc.cli.signals.exit_fast): exit now, skipping the
+    interpreter's teardown; the outputs are written and every ``finally`` has run."""
+    signals = sys.modules.get("lesmc.cli.signals")
+    if signals is None or not signals.exit_fast_requested() or not isinstance(code, int | None):
+        return
+    import contextlib
+    import os
+
+    for stream in (sys.stdout, sys.stderr):
+        with contextlib.suppress(OSError, ValueError):  # a closed stdout: status decided
+            stream.flush()
+    os._exit(code or 0)
+
+
+def _run(argv: list[str] | None) -> None:
+    try:
         from lesmc.cli import signals
 
         try:

@@ -26,7 +26,13 @@ from lesmc.cli.check import check_cmd
 from lesmc.cli.perceive import perceive_cmd
 from lesmc.cli.reduce import reduce_group
 from lesmc.cli.report import report_cmd
-from lesmc.cli.signals import DeadlinePassed, Terminated, handlers, stdout_closed
+from lesmc.cli.signals import (
+    DEADLINE_MESSAGE,
+    DeadlinePassed,
+    Terminated,
+    handlers,
+    stdout_closed,
+)
 from lesmc.cli.train import train_cmd
 from lesmc.cli.verify import verify_cmd
 from lesmc.cli.video import synth_cmd
@@ -82,6 +88,9 @@ def cli() -> None:
       lesmc report RESULTS.json --out DIR [--frames VIDEO/]
                                              redraw the report from a results file alone
       lesmc reduce knapsack ITEMS.csv ...    build a knapsack instance as a model
+    \b
+    Every verb takes --json: one versioned document on stdout, described by a
+    schema in lesmc/schemas/ (docs/cli.md). Options that would be ignored are errors.
     \b
     Exit status: 0 all hold, 1 some violated, 2 bad input, 3 some unknown,
     4 internal error (a bug: please report it), 130 interrupted (SIGINT),
@@ -148,9 +157,7 @@ def _main(argv: list[str] | None) -> None:
         sys.stderr.write("terminated\n")
         sys.exit(exc.exit_status)
     except DeadlinePassed:
-        sys.stderr.write(
-            "error: --timeout ran out in work that could not stop sooner; nothing was written\n"
-        )
+        sys.stderr.write(DEADLINE_MESSAGE)
         sys.exit(EXIT_UNKNOWN)
     except click.ClickException as exc:
         exc.show()

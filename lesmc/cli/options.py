@@ -165,23 +165,49 @@ def budget_options(max_states_default: int | None, what: str) -> Callable[[F], F
     return decorate
 
 
-def budget_from(timeout: float | None, max_states: int | None, max_memory: int | None) -> Budget:
+def budget_from(
+    timeout: float | None,
+    max_states: int | None,
+    max_memory: int | None,
+    preload: tuple[str, ...] = (),
+) -> Budget:
     """The command's :class:`~lesmc.engines.budget.Budget`; its clock starts now (call it
     first thing in the command, so that loading counts).
 
     With a timeout, an alarm also stops the command :data:`~lesmc.cli.signals.HARD_GRACE`
     seconds past it, should it be in work that checks no clock; it is disarmed when
-    the command ends.
+    the command ends, and the process then exits without the interpreter's teardown
+    (:func:`~lesmc.cli.signals.exit_fast`). ``preload``: modules whose first import
+    holds the interpreter in one long C call (torch): imported here, under a watchdog
+    that stops the command (exit 3) even inside that call
+    (:func:`~lesmc.cli.signals.native_deadline`), then the deadline is looked at again.
     """
-    from lesmc.cli.signals import arm_deadline
+    from lesmc.cli.signals import (
+        HARD_GRACE,
+        WATCHDOG_LAG,
+        arm_deadline,
+        exit_fast,
+        native_deadline,
+    )
     from lesmc.engines.budget import Budget
 
     budget = Budget(timeout, max_states, max_memory)
     if timeout is not None:
+        exit_fast()
         disarm = arm_deadline(timeout)
         ctx = click.get_current_context(silent=True)
         if ctx is not None:
             ctx.call_on_close(disarm)
+    if preload:
+        import importlib
+
+        from lesmc.cli.budgets import stop_if_spent
+
+        hard = None if timeout is None else budget.started + timeout + HARD_GRACE + WATCHDOG_LAG
+        with native_deadline(hard):
+            for name in preload:
+                importlib.import_module(name)
+        stop_if_spent(budget, None, f"importing {', '.join(preload)}")
     return budget
 
 

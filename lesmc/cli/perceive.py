@@ -2,13 +2,14 @@
 
 from __future__ import annotations
 
-import json
+import time
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 import click
 
-from lesmc.errors import InputError, Location, UsageError
+from lesmc.cli.documents import emit, file_facts, refuse_given, run_provenance, say
+from lesmc.errors import InputError, Location, UsageError, escape_control
 from lesmc.video import FPS
 
 if TYPE_CHECKING:
@@ -106,7 +107,13 @@ if TYPE_CHECKING:
     show_default=True,
     help="Slower vehicles (m/s) are don't care for --truth.",
 )
-@click.option("--json", "as_json", is_flag=True, help="Print the per-frame figures as JSON.")
+@click.option(
+    "--json",
+    "as_json",
+    is_flag=True,
+    help="Print the per-frame figures (and the scene written) as JSON on stdout (format "
+    "lesmc-perceive, schema lesmc/schemas/perceive.json).",
+)
 def perceive_cmd(
     frames_dir: str,
     output: str | None,
@@ -133,8 +140,12 @@ def perceive_cmd(
     detection's payoff (the smallest perturbation that hides it from N_dr) is
     computed and a scene is written for `lesmc build` / `lesmc check`. Without
     --target the scene has no target: give one to check, build or verify with
-    --target X,Y@STEP (lesmc campaign finds them itself).
+    --target X,Y@STEP (lesmc campaign finds them itself). Options that only
+    shape the scene (--attack, --payoff-norm, --overshoot, --max-iter, --dt,
+    --certify, --target) need -o; --radius and --min-speed need --truth.
+    Exit status: 0 done, 2 bad input, 4 internal error, 130 interrupted.
     """
+    started = time.monotonic()
     # Imported here, not at module level: torch, cv2 and scipy cost seconds to import.
     from lesmc.perception.attacks import AttackConfig
     from lesmc.perception.certify import CertifyConfig
@@ -153,8 +164,19 @@ def perceive_cmd(
 
     if target_text is not None and output is None:
         raise UsageError("--target needs -o/--output: it is the target of the scene written")
+    if certify and output is None:
+        raise UsageError("--certify needs -o/--output: the bounds go into the scene")
     if output is not None and no_cnn:
         raise UsageError("--no-cnn cannot write a scene: payoffs need the CNN")
+    if output is None:
+        refuse_given(
+            ("attack", "payoff_norm", "overshoot", "max_iter", "dt"),
+            "shapes the scene's payoffs or time step: it needs -o/--output",
+        )
+    if truth is None:
+        refuse_given(("radius", "min_speed"), "applies to the comparison with --truth")
+    if no_cnn and nets_dir is not None:
+        raise UsageError("--nets gives the CNNs that --no-cnn leaves out: give one or the other")
     spec = parse_target(target_text) if target_text else None
     frames = open_frames(frames_dir, history + 1)
     if spec is not None:
@@ -172,8 +194,6 @@ def perceive_cmd(
         if output
         else None
     )
-    if certify and output is None:
-        raise UsageError("--certify needs -o/--output: the bounds go into the scene")
     opts = PerceiveOptions(
         history=history,
         delta_bc=delta_bc,
@@ -185,6 +205,7 @@ def perceive_cmd(
     )
     with progress_bar("perceiving", len(frames)) as bar:
         run = perceive(frames, opts, truths, bar.advance)
+    written: dict[str, Any] | None = None  # the scene written, for --json
     if output is not None and nets is not None and att is not None:
         step_dt = dt or (truths.dt if truths else None) or 1 / FPS
         meta = {
@@ -201,6 +222,7 @@ def perceive_cmd(
         }
         if certify:
             meta["certify"] = {"method": "CROWN, L2 ball", "steps": CertifyConfig().steps}
+        target: dict[str, Any] | None = None
         if spec is None:
             scene: Scene | Footage = footage_from_run(run, step_dt, meta)
             where = "no target (give --target to check, build or verify)"
@@ -211,20 +233,38 @@ def perceive_cmd(
                 f"{placed.meta['target_velocity_from']}"
             )
             scene = placed
+            start = placed.target.start
+            target = {"step": placed.target.step, "x": float(start[0]), "y": float(start[1])}
         save_scene(scene, output)
         n = sum(len(f.detections) for f in scene.frames)
-        click.echo(
-            f"wrote {output}: {len(scene.frames)} frames (steps {scene.frames[0].step}.."
-            f"{scene.last_step}), {n} detections, {run.unattackable} unattackable; {where}",
-            err=as_json,
+        say(
+            f"wrote {escape_control(output)}: {len(scene.frames)} frames (steps "
+            f"{scene.frames[0].step}..{scene.last_step}), {n} detections, "
+            f"{run.unattackable} unattackable; {where}",
+            as_json,
         )
+        written = file_facts(output) | {
+            "steps": [scene.frames[0].step, scene.last_step],
+            "detections": n,
+            "unattackable": run.unattackable,
+            "target": target,
+        }
     if as_json:
-        doc: dict[str, Any] = {"format": "lesmc-perceive", "version": 1, "frames": run.rows}
+        doc: dict[str, Any] = {
+            "format": "lesmc-perceive",
+            "version": 1,
+            "provenance": run_provenance(),
+            "frames_dir": frames_dir,
+            "detector": None if nets is None else nets.settings.trained_on,
+            "frames": run.rows,
+            "scene": written,
+            "seconds": time.monotonic() - started,
+        }
         if truths is not None:
             doc["overall"] = {"frontend": run.frontend_total.to_json()}
             if nets is not None:
                 doc["overall"]["detector"] = run.detector_total.to_json()
-        click.echo(json.dumps(doc, indent=1))
+        emit(doc)
         return
     _print(run, truths is not None, nets is not None)
 

@@ -7,8 +7,9 @@ from pathlib import Path
 
 import click
 
+from lesmc.cli.documents import emit, file_facts, run_provenance, say
 from lesmc.cli.options import model_output
-from lesmc.errors import UsageError
+from lesmc.errors import UsageError, escape_control
 from lesmc.fileio import atomic_write_text
 
 
@@ -35,23 +36,68 @@ def reduce_group() -> None:
     default=None,
     help="The property file to write [default: OUTPUT with .spec].",
 )
+@click.option(
+    "--json",
+    "as_json",
+    is_flag=True,
+    help="Print what was written as JSON on stdout (format lesmc-reduce, schema "
+    "lesmc/schemas/reduce.json).",
+)
 def knapsack_cmd(
-    items: str, demand: float, budget: float, output: str, spec_out: str | None
+    items: str, demand: float, budget: float, output: str, spec_out: str | None, as_json: bool
 ) -> None:
     """Build the knapsack reduction of section 4.5 from ITEMS.csv (columns cost, capacity).
 
     The optimum of the written property is the minimum cost of a selection
     whose total capacity exceeds DEMAND (+inf if none does).
+    Exit status: 0 written, 2 bad input, 4 internal error, 130 interrupted.
     """
     from lesmc.model.knapsack import knapsack_lts, knapsack_spec, read_items
     from lesmc.model.lts_format import save_lts
 
     if not (math.isfinite(demand) and math.isfinite(budget)):
         raise UsageError("--demand and --budget must be finite")
-    parsed = read_items(items)
     spec_path = Path(spec_out) if spec_out else Path(output).with_suffix(".spec")
+    _distinct({"ITEMS": items, "-o/--output": output, "--spec": str(spec_path)})
+    parsed = read_items(items)
     model = knapsack_lts(parsed)
     text = knapsack_spec(len(parsed), demand, budget)
     save_lts(model, output)
     atomic_write_text(spec_path, text)
-    click.echo(f"wrote {output} ({len(parsed)} items) and {spec_path}")
+    say(
+        f"wrote {escape_control(output)} ({len(parsed)} items) and "
+        f"{escape_control(str(spec_path))}",
+        as_json,
+    )
+    if as_json:
+        from lesmc.model.lts import to_lts
+        from lesmc.report.results import model_hash
+
+        emit(
+            {
+                "format": "lesmc-reduce",
+                "version": 1,
+                "provenance": run_provenance(),
+                "problem": "knapsack",
+                "input": items,
+                "items": len(parsed),
+                "demand": demand,
+                "budget": budget,
+                "model": file_facts(output),
+                "spec": file_facts(spec_path),
+                "model_sha256": model_hash(to_lts(model)),
+                "states": model.n_states,
+                "transitions": model.n_transitions,
+            }
+        )
+
+
+def _distinct(paths: dict[str, str]) -> None:
+    """Refuse two of the command's files naming the same file (one would overwrite the
+    other): e.g. ``-o K.spec`` writes its property to K.spec as well."""
+    seen: dict[Path, str] = {}
+    for what, p in paths.items():
+        key = Path(p).resolve()
+        if key in seen:
+            raise UsageError(f"{seen[key]} and {what} name the same file ({escape_control(p)})")
+        seen[key] = what

@@ -17,9 +17,11 @@ the handlers before the command line's modules are imported.
 from __future__ import annotations
 
 import os
+import select
 import signal
 import sys
 import threading
+import time
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from types import FrameType
@@ -49,7 +51,7 @@ class DeadlinePassed(BaseException):
 
 
 #: Seconds past ``--timeout`` after which the alarm stops the command whatever it does.
-HARD_GRACE = 0.4
+HARD_GRACE = 0.3
 
 
 def _deadline(_signum: int, _frame: FrameType | None) -> None:
@@ -69,6 +71,96 @@ def arm_deadline(seconds: float) -> Callable[[], None]:
         signal.signal(signal.SIGALRM, previous if previous is not None else signal.SIG_DFL)
 
     return disarm
+
+
+#: What a command stopped by the alarm or the watchdog prints (then exit 3).
+DEADLINE_MESSAGE = (
+    "error: --timeout ran out in work that could not stop sooner; nothing was written\n"
+)
+
+#: Seconds past the alarm of :func:`arm_deadline` at which :func:`native_deadline`'s
+#: watchdog acts (only when the alarm could not: inside one long C call).
+WATCHDOG_LAG = 0.05
+
+
+@contextmanager
+def native_deadline(hard: float | None) -> Iterator[None]:
+    """Stop the command (exit 3) at ``hard`` (``time.monotonic()``) even inside one long C
+    call, where the alarm of :func:`arm_deadline` cannot run its Python handler: the first
+    import of torch loads libtorch in one call that holds the interpreter for 0.5-1 s.
+
+    Only for work that writes nothing (imports): a watchdog process waits for the
+    block to end; at ``hard`` it prints :data:`DEADLINE_MESSAGE` and sends SIGQUIT,
+    whose handler in this process is, for the block's duration, libc's ``_exit``
+    itself (no Python: it runs at once, even in C), and SIGQUIT is signal 3, so the
+    exit status is 3 ("unknown"). Nothing is unwound: hence no temporary file may
+    exist while the block runs. The alarm (SIGALRM) is held back until the block
+    ends. ``hard`` None, another platform or thread: no watchdog.
+    """
+    if hard is None or not _watchable():
+        yield
+        return
+    if time.monotonic() >= hard:
+        raise DeadlinePassed
+    import ctypes
+
+    libc = ctypes.CDLL(None)
+    libc.signal.restype = ctypes.c_void_p
+    libc.signal.argtypes = [ctypes.c_int, ctypes.c_void_p]
+    previous = signal.getsignal(signal.SIGQUIT)
+    read_end, write_end = os.pipe()
+    pid = os.fork()
+    if pid == 0:  # pragma: no cover - the watchdog (coverage does not follow a fork)
+        _watchdog(read_end, write_end, hard)
+    os.close(read_end)
+    libc.signal(signal.SIGQUIT, ctypes.cast(libc._exit, ctypes.c_void_p).value)
+    # the alarm waits for the block's end: raised inside an import, DeadlinePassed can
+    # leave a library half-initialised (an internal error instead of exit 3)
+    mask = signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGALRM})
+    try:
+        yield
+    finally:
+        os.close(write_end)  # the watchdog sees the end of the pipe and exits
+        os.waitpid(pid, 0)  # a SIGQUIT it sent arrives before it is reaped
+        signal.signal(signal.SIGQUIT, previous if previous is not None else signal.SIG_DFL)
+        signal.pthread_sigmask(signal.SIG_SETMASK, mask)  # a pending alarm is raised now
+
+
+def _watchable() -> bool:
+    return (
+        hasattr(os, "fork")
+        and getattr(signal, "SIGQUIT", None) == 3  # the exit status "unknown"
+        and _main_thread()
+    )
+
+
+def _watchdog(read_end: int, write_end: int, hard: float) -> None:  # pragma: no cover
+    """The forked watchdog: wait for the pipe to close or for ``hard``, then stop the parent."""
+    try:
+        os.close(write_end)
+        for name in ("SIGINT", "SIGTERM", "SIGHUP"):  # the parent handles these
+            signal.signal(getattr(signal, name), signal.SIG_IGN)
+        ready, _, _ = select.select([read_end], [], [], max(0.0, hard - time.monotonic()))
+        if not ready:
+            os.write(2, DEADLINE_MESSAGE.encode())
+            os.kill(os.getppid(), signal.SIGQUIT)
+    finally:
+        os._exit(0)
+
+
+_exit_fast = False
+
+
+def exit_fast() -> None:
+    """Once the outcome is decided and written, leave without the interpreter's teardown
+    (:func:`lesmc.cli.entry.main`): with torch loaded it takes over a second, which a
+    ``--timeout`` would otherwise overrun by. Every ``finally`` has run by then."""
+    global _exit_fast
+    _exit_fast = True
+
+
+def exit_fast_requested() -> bool:
+    return _exit_fast
 
 
 def _terminate(signum: int, _frame: FrameType | None) -> None:

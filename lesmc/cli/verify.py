@@ -102,7 +102,7 @@ def verify_cmd(
     and OUT/results.json. Exit status as for lesmc check: 0 all hold,
     1 some violated, 2 bad input, 3 some unknown, 4 internal error, 130 interrupted.
     """
-    budget = budget_from(timeout, max_states, max_memory)
+    budget = budget_from(timeout, max_states, max_memory, preload=("torch", "cv2"))
     # Imported here, not at module level: torch, cv2, matplotlib and scipy cost seconds.
     from rich.console import Console
 
@@ -143,6 +143,8 @@ def verify_cmd(
         frames = truths = None  # images only from a directory named on the command line
         meta["scene"] = scene_path
     else:
+        if frames_dir is None and truth is not None:
+            raise UsageError("--truth is FRAMES_DIR's truth: the default video brings its own")
         if frames_dir is None:
             video = out / "video"
             if default_video_ready(video):

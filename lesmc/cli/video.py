@@ -3,11 +3,13 @@
 from __future__ import annotations
 
 import re
+import time
 from pathlib import Path
 
 import click
 
-from lesmc.errors import UsageError
+from lesmc.cli.documents import emit, file_facts, run_provenance, say
+from lesmc.errors import UsageError, escape_control
 from lesmc.video import DEFAULT_DENSITY
 
 
@@ -35,13 +37,28 @@ def parse_size(text: str) -> tuple[int, int]:
     help="Vehicles per 100 m of road.",
 )
 @click.option("--tiff16", is_flag=True, help="Write 16-bit TIFF frames instead of 8-bit PNG.")
+@click.option(
+    "--json",
+    "as_json",
+    is_flag=True,
+    help="Print what was written as JSON on stdout (format lesmc-synth, schema "
+    "lesmc/schemas/synth.json).",
+)
 def synth_cmd(
-    out_dir: str, frames: int, size_text: str, seed: int, density: float, tiff16: bool
+    out_dir: str,
+    frames: int,
+    size_text: str,
+    seed: int,
+    density: float,
+    tiff16: bool,
+    as_json: bool,
 ) -> None:
     """Generate a synthetic WAMI video: frames plus truth.json (vehicles, camera motion).
 
     Deterministic for a seed. See docs/synthetic.md for what it models and what not.
+    Exit status: 0 written, 2 bad input, 4 internal error, 130 interrupted.
     """
+    started = time.monotonic()
     from lesmc.report.progress import progress_bar
     from lesmc.video.synth import SynthConfig, write_video
 
@@ -51,4 +68,32 @@ def synth_cmd(
     )
     with progress_bar("rendering", frames) as bar:
         paths = write_video(cfg, Path(out_dir), progress=bar.advance)
-    click.echo(f"wrote {len(paths)} frames ({w}x{h}) and truth.json to {out_dir}")
+    say(f"wrote {len(paths)} frames ({w}x{h}) and truth.json to {escape_control(out_dir)}", as_json)
+    if as_json:
+        truth = Path(out_dir) / "truth.json"
+        emit(
+            {
+                "format": "lesmc-synth",
+                "version": 1,
+                "provenance": run_provenance({"video": seed}),
+                "out_dir": out_dir,
+                "frames": [file_facts(p) for p in paths],
+                "truth": file_facts(truth),
+                "vehicles": _vehicles(truth),
+                "width": w,
+                "height": h,
+                "seed": seed,
+                "density": density,
+                "bit_depth": cfg.depth,
+                "bytes": sum(p.stat().st_size for p in paths) + truth.stat().st_size,
+                "seconds": time.monotonic() - started,
+            }
+        )
+
+
+def _vehicles(truth: Path) -> int:
+    """Distinct vehicle ids in a truth.json this run wrote."""
+    import json
+
+    doc = json.loads(truth.read_text(encoding="utf-8"))
+    return len({v["id"] for f in doc["frames"] for v in f["vehicles"]})

@@ -176,9 +176,7 @@ def check_lazy(
     max_memory: int | None = None,
 ) -> CheckResult:
     """One bound property on a model unfolded on demand (the engine expands what it visits;
-    ``enumerate`` needs the whole model: lesmc.unfold.check_scene_bound builds it first)."""
-    if engine == "enumerate":
-        raise ValueError("enumerate runs on a built model, not on one unfolded on demand")
+    ``enumerate`` every state its paths reach)."""
     space = LazySpace(model, bp)
     out = ENGINES[engine](space, max_states, timeout, max_memory=max_memory)
     out.stats.extra["states_built"] = space.states_built

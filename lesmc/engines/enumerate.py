@@ -5,7 +5,9 @@ of states between paths: a tree, as in Figure 3) and runs each to the end;
 Algorithm 2 splits the paths into P+ (constraint holds: the system fails) and
 P−, takes the optimum over P+ and the representative path ρ* over P−. The
 tree is expanded level by level with numpy, one array entry per tree node, so
-the reference engine is also a fast baseline.
+the reference engine is also a fast baseline. On a scene the model is unfolded
+on demand as the levels are reached (lesmc/engines/lazy.py), so a budget stops
+it with the paths finished so far (``unknown`` with bounds), as the other engines.
 """
 
 from __future__ import annotations
@@ -52,6 +54,10 @@ def enumerate_paths(
             done_con.append(aggregate_arrays(space.con_max, con[idx], t_con))
             done_ref.append((level, idx))
         live = np.nonzero(~leaf)[0]
+        why = _unfold(space, node[live], budget)
+        if why is not None:
+            stopped = why
+            break
         # children: for each live node, each allowed transition in rank order
         owner, trans = space.successors_batch(node[live])
         total = int(trans.size)
@@ -75,6 +81,26 @@ def enumerate_paths(
     outcome = _algorithm2(space, all_obj, all_con, done_ref, levels, stats)
     stats.seconds = time.perf_counter() - t0
     return outcome
+
+
+def _unfold(space: Space, q: np.ndarray, budget: SearchBudget) -> str | None:
+    """On a model unfolded on demand (lesmc/engines/lazy.py): unfold the distinct states
+    of ``q`` in slices of about ``slice_size()`` states, looking at the budget between
+    slices, so that a deadline holds while a large level unfolds; why it stopped, or None.
+    An explicit model has nothing to unfold."""
+    size = getattr(space, "slice_size", None)
+    if size is None:
+        return None
+    todo = np.unique(q)
+    lo = 0
+    while lo < todo.size:
+        why = budget.over()
+        if why is not None:
+            return why
+        n = max(1, int(size()))
+        space.successors_batch(todo[lo : lo + n])
+        lo += n
+    return None
 
 
 def _algorithm2(

@@ -35,6 +35,7 @@ from lesmc.perception.cnn import (
 from lesmc.perception.detector import DetectorConfig, crowded_blobs
 from lesmc.perception.frontend import FrontEnd, FrontEndConfig
 from lesmc.perception.quality import care_mask, match, truth_frame
+from lesmc.perception.registration import RegistrationError
 from lesmc.perception.windows import M_PREVIOUS, cut, origins, stack
 from lesmc.video.synth import SynthConfig, frames
 
@@ -106,7 +107,15 @@ def collect(
     video = SynthConfig(frames=cfg.frames, width=cfg.width, height=cfg.height, seed=seed)
     fe = FrontEnd(cfg.frontend)
     for k, (img, ft) in enumerate(frames(video)):
-        out = fe.push(img)
+        try:
+            out = fe.push(img)
+        except RegistrationError as exc:
+            from lesmc.errors import UsageError
+
+            raise UsageError(
+                f"training video {seed} ({cfg.width}x{cfg.height}): frame {k} cannot be "
+                f"registered ({exc}); use a larger --size"
+            ) from None
         if progress:
             progress(f"video {seed}", k + 1, cfg.frames)
         if out is None:
@@ -280,6 +289,14 @@ def train(cfg: TrainConfig, progress: Progress | None = None) -> tuple[Nets, Val
     for seed in cfg.train_seeds:
         collect(cfg, seed, tr, rng, progress)
     x, y, lx, ly = tr.arrays()
+    if not (0 < int(y.sum()) < len(y)) or not len(lx):
+        from lesmc.errors import UsageError
+
+        raise UsageError(
+            f"the training videos ({cfg.frames} frames of {cfg.width}x{cfg.height}) gave "
+            f"{int(y.sum())} vehicle and {len(y) - int(y.sum())} background windows: both "
+            "networks need some of each; use a larger --size or more --frames or --videos"
+        )
     dr = train_dr(x, y, cfg, progress)
     lp = train_lp(lx, ly, cfg, progress)
     settings = NetSettings(

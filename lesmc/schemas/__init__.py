@@ -4,14 +4,15 @@ Every document lesmc writes (``--json`` of each verb, results files) has a
 ``format`` and a ``version`` and is described by one schema here; the tests
 validate every output against its schema with the ``jsonschema`` package.
 :func:`validate` checks a document at run time with a small validator of the
-subset these schemas use (type, enum, const, minimum, properties, required,
-additionalProperties, items, anyOf, $ref to #/$defs), so that reading a
-results file needs no extra dependency.
+subset these schemas use (type, enum, const, minimum, pattern, minItems,
+maxItems, properties, required, additionalProperties, items, anyOf, $ref to
+#/$defs), so that reading a results file needs no extra dependency.
 """
 
 from __future__ import annotations
 
 import json
+import re
 from functools import cache
 from importlib import resources
 from typing import Any
@@ -24,6 +25,13 @@ SCHEMAS = {
     "lesmc-check": "check",
     "lesmc-track": "track",
     "lesmc-report": "report",
+    "lesmc-build": "build",
+    "lesmc-synth": "synth",
+    "lesmc-train": "train",
+    "lesmc-reduce": "reduce",
+    "lesmc-perceive": "perceive",
+    "lesmc-campaign-summary": "campaign-summary",
+    "lesmc-campaign-row": "campaign-row",
 }
 
 
@@ -73,6 +81,13 @@ def errors(value: Any, sch: dict[str, Any], root: dict[str, Any], where: str = "
         out.append(f"{at}: must be one of {', '.join(map(repr, sch['enum']))}")
     if "minimum" in sch and _is(value, "number") and value < sch["minimum"]:
         out.append(f"{at}: must be >= {sch['minimum']}")
+    if "pattern" in sch and isinstance(value, str) and not re.search(sch["pattern"], value):
+        out.append(f"{at}: must match {sch['pattern']}")
+    if isinstance(value, list):
+        if len(value) < sch.get("minItems", 0):
+            out.append(f"{at}: must have at least {sch['minItems']} items")
+        if "maxItems" in sch and len(value) > sch["maxItems"]:
+            out.append(f"{at}: must have at most {sch['maxItems']} items")
     if isinstance(value, dict):
         for key in sch.get("required", []):
             if key not in value:

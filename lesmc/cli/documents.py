@@ -1,0 +1,83 @@
+"""What every verb's ``--json`` shares: one versioned document on stdout, and option checks.
+
+With ``--json`` a verb prints exactly one JSON document on stdout (its
+``format`` names the schema ``lesmc/schemas/*.json`` that describes it, see
+:data:`lesmc.schemas.SCHEMAS`); everything meant for a human goes to stderr.
+
+Options that would be silently ignored in some combination are errors (exit 2):
+:func:`given` tells an option the user typed from one left at its default, so a
+default never counts as a conflict.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+from collections.abc import Iterable
+from pathlib import Path
+from typing import Any
+
+import click
+from click.core import ParameterSource
+
+from lesmc.errors import UsageError
+
+
+def emit(doc: dict[str, Any]) -> None:
+    """Print ``doc`` as the command's one JSON document on stdout (NaN and inf refused)."""
+    click.echo(json.dumps(doc, indent=1, allow_nan=False))
+
+
+def say(text: str, as_json: bool) -> None:
+    """A line for a human: on stdout, or on stderr when stdout carries the JSON document."""
+    click.echo(text, err=as_json)
+
+
+def file_facts(path: str | Path) -> dict[str, Any]:
+    """``{"path": ..., "bytes": ...}`` of a file this run wrote."""
+    return {"path": str(path), "bytes": os.stat(path).st_size}
+
+
+def file_sha256(path: str | Path) -> str:
+    """sha256 of a file's bytes (of a written weights file, say)."""
+    import hashlib
+
+    h = hashlib.sha256()
+    with open(path, "rb") as fh:
+        for block in iter(lambda: fh.read(1 << 20), b""):
+            h.update(block)
+    return h.hexdigest()
+
+
+def run_provenance(seeds: dict[str, Any] | None = None) -> dict[str, Any]:
+    """Tool version, Python, command line, date and seeds (as in results files)."""
+    from lesmc.report.results import provenance
+
+    doc = provenance([], seeds=seeds)
+    del doc["specs"]
+    return doc
+
+
+def given(name: str) -> bool:
+    """True when the current command's option ``name`` (its Python name) was given by the
+    user (command line or environment), not left at its default."""
+    ctx = click.get_current_context()
+    source = ctx.get_parameter_source(name)
+    return source in (ParameterSource.COMMANDLINE, ParameterSource.ENVIRONMENT)
+
+
+def flag(name: str) -> str:
+    """The option's spelling on the command line (``--max-iter`` for ``max_iter``)."""
+    ctx = click.get_current_context()
+    for p in ctx.command.params:
+        if p.name == name and isinstance(p, click.Option):
+            longs = [o for o in p.opts if o.startswith("--")]
+            return (longs or p.opts)[0]
+    return "--" + name.replace("_", "-")
+
+
+def refuse_given(names: Iterable[str], why: str) -> None:
+    """Exit 2 naming the first of ``names`` the user gave: ``--X <why>``."""
+    for n in names:
+        if given(n):
+            raise UsageError(f"{flag(n)} {why}")
