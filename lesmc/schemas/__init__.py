@@ -24,6 +24,7 @@ SCHEMAS = {
     "lesmc-check": "check",
     "lesmc-track": "track",
     "lesmc-report": "report",
+    "lesmc-replay": "replay",
 }
 
 
