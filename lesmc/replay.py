@@ -135,6 +135,8 @@ def cases(doc: dict[str, Any], prop: str | None = None) -> list[Case]:
                 continue
             if res["verdict"] != "violated" and not res.get("replay"):
                 continue
+            if res.get("payoffs") == "certified":
+                continue  # violated with lower payoffs proves nothing (docs/semantics.md)
             cex_no = run["roles"]["counterexample"][j]
             if cex_no is None:
                 continue
@@ -255,7 +257,9 @@ def _redetect(
         bg[sl] += alpha * (now - was)
     diff = np.abs(frame - bg).astype(np.float32)
     cfg = det.frontend.cfg.blobs
-    mask = np.where((diff > cfg.delta_bc) & (out.aligned.valid > 0), 255, 0).astype(np.uint8)
+    mask: np.ndarray = np.where((diff > cfg.delta_bc) & (out.aligned.valid > 0), 255, 0).astype(
+        np.uint8
+    )
     if cfg.close_px > 1:
         kernel = cv2.getStructuringElement(cv2.MORPH_CROSS, (cfg.close_px, cfg.close_px))
         mask = cv2.morphologyEx(mask, cv2.MORPH_CLOSE, kernel)
@@ -288,7 +292,7 @@ def attack_frame(
     """Recompute the hidden detections' perturbations, apply them together, detect again."""
     from lesmc.perception.attacks import payoffs
     from lesmc.perception.cnn import DR_SIZE
-    from lesmc.perception.windows import cut, stack
+    from lesmc.perception.windows import stack
 
     m = nets.settings.m
     idx = [int(h.obs.split(":")[1]) for h in hidden]
@@ -432,7 +436,7 @@ def _footage(dets: dict[int, FrameDetections], case: Case, attacked: dict[int, F
     tc = dict(case.tracker)
     tc["P0_sd"] = tuple(tc["P0_sd"])
     t = case.target
-    target = Target(int(t["step"]), tuple(t["start"]), tuple(t["velocity"]))  # type: ignore[arg-type]
+    target = Target(int(t["step"]), tuple(t["start"]), tuple(t["velocity"]))
     return Scene(case.dt, tuple(frames), target, TrackerConfig(**tc), {})
 
 
@@ -471,9 +475,10 @@ def _compare(
             if want is not None and wp is None:
                 same = got is not None and e <= TRACK_TOL_PX  # position unknown: judge by track
             if not same:
+                theirs = "none" if want is None else want + (" " + _at(wp) if wp else "")
                 what = (
                     f"the tracker takes {'no detection' if gp is None else _at(gp)} where the "
-                    f"model takes {'none' if want is None else want + (' ' + _at(wp) if wp else '')}"
+                    f"model takes {theirs}"
                 )
                 return _diverged(k, max(err, e), what, attacks.get(first + k))
         if e > TRACK_TOL_PX:
@@ -518,6 +523,14 @@ def frame_story(fa: FrameAttack) -> str:
             f"detection{'s' if len(fa.lost) > 1 else ''} {', '.join(fa.lost)} lost as well "
             "(overlapping windows interact)"
         )
+    moved = [(d, e) for d, e in fa.moved if e > 0.05]
+    if moved:
+        parts.append(
+            "detection"
+            + ("s " if len(moved) > 1 else " ")
+            + ", ".join(f"{d} moved {e:.2f} px" for d, e in moved[:4])
+            + (f" and {len(moved) - 4} more" if len(moved) > 4 else "")
+        )
     if fa.extra:
         parts.append(
             "extra detection"
@@ -548,6 +561,7 @@ def replay(
     history: int = 4,
     delta_bc: int = 12,
     on_frame: Callable[[], None] | None = None,
+    repair: bool = True,
 ) -> Outcome:
     """Replay every violated property's counterexample of ``doc`` (or ``prop``'s) on ``frames``."""
     import time
@@ -585,7 +599,7 @@ def replay(
         out, fd = got
         clean[fd.index] = _light(fd)
         for ci, group in _groups(by_frame.get(fd.index, [])):
-            attacked[ci][fd.index] = attack_frame(nets, det, out, fd, group, attack_cfg)
+            attacked[ci][fd.index] = attack_frame(nets, det, out, fd, group, attack_cfg, repair)
     if last not in clean:
         raise InputError(
             f"the frames stop before frame {last}, the last step of a counterexample",
@@ -649,9 +663,10 @@ def _check_known(c: Case, clean: dict[int, FrameDetections]) -> None:
         fd = clean.get(int(f))
         if fd is None:
             continue
-        ok = int(j) < len(fd.positions) and math.hypot(
-            fd.positions[int(j), 0] - x, fd.positions[int(j), 1] - y
-        ) <= 1e-3
+        ok = (
+            int(j) < len(fd.positions)
+            and math.hypot(fd.positions[int(j), 0] - x, fd.positions[int(j), 1] - y) <= 1e-3
+        )
         if not ok:
             raise InputError(
                 f"the detector does not reproduce detection {did} at ({x:.2f}, {y:.2f}) on "

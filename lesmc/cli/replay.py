@@ -1,4 +1,4 @@
-"""``lesmc replay RESULTS.json --frames DIR``: counterexamples through the real detector and tracker."""
+"""``lesmc replay RESULTS.json --frames DIR``: counterexamples through the real detector."""
 
 from __future__ import annotations
 
@@ -55,9 +55,7 @@ def replay_cmd(
     from lesmc.video.reader import open_frames
 
     if frames_dir is None:
-        raise UsageError(
-            "replay runs the detector on the video: give its frames with --frames DIR"
-        )
+        raise UsageError("replay runs the detector on the video: give its frames with --frames DIR")
     doc = load_results(results)
     todo = cases(doc, prop)
     history = int(doc.get("perception", {}).get("history", 4))
@@ -89,7 +87,8 @@ def replay_cmd(
         res["verdict"]
         for run in doc["runs"]
         for res in run["results"]
-        if (prop is None or res["property"] == prop) and not res.get("replay")
+        if (prop is None or res["property"] == prop)
+        and not res.get("replay")
         and res["verdict"] != "violated"
     ]
     verdicts |= set(others)
@@ -127,7 +126,8 @@ def _table(rows: list[dict[str, Any]]) -> None:
         table.add_row(
             escape_text(r["design"]),
             escape_text(r["property"]),
-            f"[{colour}]{rp['status']}[/]" + (" (repaired)" if rp.get("attack") == "repaired" else ""),
+            f"[{colour}]{rp['status']}[/]"
+            + (" (repaired)" if rp.get("attack") == "repaired" else ""),
             "-" if rp["step"] is None else str(rp["step"]),
             "-" if rp["max_error_px"] is None else f"{rp['max_error_px']:.3g}",
             r["verdict"],

@@ -302,7 +302,8 @@ def _publish(
     from lesmc.report.results import provenance, results_document
     from lesmc.verify import DEFAULT_VIDEO, frame_reader
 
-    truth, extra = None, {}
+    truth: Any = None
+    extra: dict[str, Any] = {}
     if frames is not None and truths is not None:
         from lesmc.false_alarms import false_alarm_report, truth_track
 
