@@ -112,6 +112,7 @@ class FrameAttack:
     moved: list[tuple[str, float]] = field(default_factory=list)
     extra: list[tuple[float, float]] = field(default_factory=list)
     overlaps: list[tuple[str, str]] = field(default_factory=list)
+    shared: list[str] = field(default_factory=list)  # lost ids from a hidden one's N_dr window
     repaired_rounds: int = 0
     extra_cost: float = 0.0
 
@@ -400,6 +401,8 @@ def _diagnose(
     hid = set(hidden_idx)
     fa.still = [f"{fd.index}:{j}" for j in sorted(hid) if fwd[j] >= 0]
     fa.lost = [f"{fd.index}:{j}" for j in range(len(clean)) if j not in hid and fwd[j] < 0]
+    shared = {int(fd.source[j]) for j in hid}
+    fa.shared = [d for d in fa.lost if int(fd.source[int(d.split(":")[1])]) in shared]
     fa.moved = [
         (f"{fd.index}:{j}", float(np.linalg.norm(clean[j] - now[fwd[j]])))
         for j in range(len(clean))
@@ -518,9 +521,16 @@ def frame_story(fa: FrameAttack) -> str:
             "detected with all perturbations of the frame applied"
             + (f" (21x21 windows overlap {', '.join(ov)})" if ov else "")
         )
-    if fa.lost:
+    if fa.shared:
         parts.append(
-            f"detection{'s' if len(fa.lost) > 1 else ''} {', '.join(fa.lost)} lost as well "
+            f"detection{'s' if len(fa.shared) > 1 else ''} {', '.join(fa.shared)} lost as well: "
+            "N_lp found it in the same Q_dr blob as a hidden detection, and hiding that blob's "
+            "N_dr window hides both (the model prices them as separate attacks)"
+        )
+    other = [d for d in fa.lost if d not in fa.shared]
+    if other:
+        parts.append(
+            f"detection{'s' if len(other) > 1 else ''} {', '.join(other)} lost as well "
             "(overlapping windows interact)"
         )
     moved = [(d, e) for d, e in fa.moved if e > 0.05]
