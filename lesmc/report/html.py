@@ -566,9 +566,9 @@ def _patches(run: _Run, figs: dict[str, bytes], image_for: ImageFor | None) -> s
             name,
             "For each detection a counterexample hides: the original 21×21 patch of the "
             "frame (its N_dr window, current frame), the perturbation the attack adds to that "
-            "channel (grey levels; red brighter, blue darker; the colour scale spans the largest "
-            "change of the figure"
-            + (f", amplified ×{gain:.0f} for visibility" if gain > 1 else ", not amplified")
+            "channel (red brighter, blue darker; each on its own colour scale spanning its "
+            "largest change, given under its title in grey levels"
+            + (", amplified ×k for visibility where the title says so" if gain > 1 else "")
             + "), and the attacked patch (original + perturbation, not amplified). The attack "
             "also perturbs the window's "
             "three aligned previous frames, not drawn; the payoff is the norm over all four."
@@ -597,7 +597,7 @@ def _replay_lines(run: _Run) -> str:
         if rp["status"] == "confirmed":
             text = (
                 f"<b>confirmed</b>{how}: the real detector and tracker take the same "
-                f"detections; positions within {rp['max_error_px']:.3g} px"
+                f"detections; largest position error {rp['max_error_px']:.3g} px"
             )
         else:
             text = (
