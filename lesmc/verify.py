@@ -19,9 +19,11 @@ import numpy as np
 
 from lesmc.engines.budget import Budget
 from lesmc.engines.check import DEFAULT_MAX_STATES, bind_all, check_bound
+from lesmc.engines.result import CheckResult
 from lesmc.errors import LesmcError, UsageError
 from lesmc.language.parser import load_spec
 from lesmc.language.properties import SpecFile
+from lesmc.language.semantics import BoundProperty
 from lesmc.model.arrays import ArrayModel
 from lesmc.model.growing import GrowingModel
 from lesmc.model.lts import LTS, to_lts
@@ -163,6 +165,7 @@ def check_designs(
     only: Callable[[str], bool] | None = None,
     budget: Budget | None = None,
     on_batch: Callable[[GrowingModel], None] | None = None,
+    payoffs: str = "attack",
 ) -> list[DesignRun]:
     """Build the model of each design over the properties' window and check them on it.
 
@@ -171,6 +174,9 @@ def check_designs(
     property: the paper's Table 5). ``only`` filters properties by name.
     ``budget`` limits each check (what is left of its time, its states and memory;
     past it the verdict may be unknown); ``on_batch`` is :func:`lesmc.unfold.build_model`'s.
+    ``payoffs`` (docs/semantics.md, "Payoff intervals"): ``certified`` checks the model of the
+    certified lower payoffs, ``interval`` both models, combined by lesmc/engines/interval.py;
+    the run's model (what the report draws) is always the attack payoffs' model.
     """
     b = Budget() if budget is None else budget
     from lesmc.unfold import bind_scene, build_model
@@ -190,14 +196,51 @@ def check_designs(
             models[(tracker, win)] = (built, to_lts(built))
         model, view = models[(tracker, win)]
         bound = [bp for bp in bind_all(model, sp) if only is None or only(bp.name)]
+        low_bound: list[BoundProperty] = []
+        if payoffs != "attack":
+            key = (tracker + "/certified", win)
+            if key not in models:
+                if on_stage:
+                    on_stage(f"building the {tracker} model with certified payoffs")
+                built = build_model(sc.priced("certified"), win, on_batch=on_batch)
+                models[key] = (built, to_lts(built))
+            low_bound = [bp for bp in bind_all(models[key][0], sp) if only is None or only(bp.name)]
         results = []
-        for bp in bound:
+        for i, bp in enumerate(bound):
             if on_stage:
                 on_stage(f"checking {bp.name} ({RUN_NAMES[d]})")
-            limits = (b.max_states or DEFAULT_MAX_STATES, b.seconds_left(), b.max_memory)
-            results.append(check_bound(model, bp, engine, *limits))  # type: ignore[arg-type]
+            results.append(_check(models, tracker, win, bp, low_bound, i, payoffs, engine, b))
         runs.append(DesignRun(RUN_NAMES[d], view, bound, results, sc))
     return runs
+
+
+def _check(
+    models: dict[tuple[str, tuple[int, int]], tuple[ArrayModel, LTS]],
+    tracker: str,
+    win: tuple[int, int],
+    bp: BoundProperty,
+    low_bound: list[BoundProperty],
+    i: int,
+    payoffs: str,
+    engine: str,
+    b: Budget,
+) -> CheckResult:
+    """One property in payoff mode ``payoffs`` (the certified model checked first)."""
+    from dataclasses import replace
+
+    from lesmc.engines.interval import combine
+    from lesmc.unfold import payoff_monotone
+
+    def run(m: ArrayModel, p: BoundProperty) -> CheckResult:
+        limits = (b.max_states or DEFAULT_MAX_STATES, b.seconds_left(), b.max_memory)
+        return check_bound(m, p, engine, *limits)  # type: ignore[arg-type]
+
+    if payoffs == "attack":
+        return run(models[(tracker, win)][0], bp)
+    cert = run(models[(tracker + "/certified", win)][0], low_bound[i])
+    if payoffs == "certified":
+        return replace(cert, payoffs="certified")
+    return combine(cert, run(models[(tracker, win)][0], bp), payoff_monotone(bp))
 
 
 def scene_frames(scene: Scene) -> FrameSet | None:

@@ -25,6 +25,7 @@ from lesmc.cli.campaign import campaign_cmd
 from lesmc.cli.check import check_cmd
 from lesmc.cli.perceive import perceive_cmd
 from lesmc.cli.reduce import reduce_group
+from lesmc.cli.replay import replay_cmd
 from lesmc.cli.report import report_cmd
 from lesmc.cli.signals import (
     DEADLINE_MESSAGE,
@@ -87,6 +88,8 @@ def cli() -> None:
       lesmc check ... --report DIR           ... and write results.json and the HTML report
       lesmc report RESULTS.json --out DIR [--frames VIDEO/]
                                              redraw the report from a results file alone
+      lesmc replay RESULTS.json --frames VIDEO/
+                                             counterexamples through the real detector
       lesmc reduce knapsack ITEMS.csv ...    build a knapsack instance as a model
     \b
     Every verb takes --json: one versioned document on stdout, described by a
@@ -108,6 +111,7 @@ cli.add_command(perceive_cmd)
 cli.add_command(train_cmd)
 cli.add_command(verify_cmd)
 cli.add_command(report_cmd)
+cli.add_command(replay_cmd)
 cli.add_command(campaign_cmd)
 
 

@@ -5,6 +5,7 @@ from __future__ import annotations
 import json
 import sys
 import time
+from dataclasses import asdict
 from pathlib import Path
 from typing import Any
 
@@ -71,6 +72,23 @@ HISTORY = 4
     help="Directory for scene.json, report.html, figures/, results.json.",
 )
 @nets_option
+@click.option(
+    "--frames",
+    "frames_opt",
+    type=click.Path(file_okay=False, exists=True),
+    default=None,
+    help="With --scene: the video's frames, for the replay of counterexamples and the "
+    "report's images (read from nowhere else).",
+)
+@click.option(
+    "--payoffs",
+    type=click.Choice(["attack", "certified", "interval"]),
+    default="attack",
+    show_default=True,
+    help="The attack's payoffs (the paper), the certified lower bounds, or both (holds only "
+    "if proven with the lower bounds, violated only with the attack's counterexample; "
+    "docs/semantics.md). On a video, certified|interval run perceive's --certify (slow).",
+)
 @click.option("--json", "as_json", is_flag=True, help="Print results.json on stdout.")
 @budget_options(
     DEFAULT_MAX_STATES,
@@ -87,6 +105,8 @@ def verify_cmd(
     design: str,
     out_dir: str,
     nets_dir: str | None,
+    frames_opt: str | None,
+    payoffs: str,
     as_json: bool,
     max_states: int,
     timeout: float | None,
@@ -137,14 +157,21 @@ def verify_cmd(
     if scene_path is not None:
         if frames_dir is not None:
             raise UsageError("give FRAMES_DIR or --scene, not both")
-        if truth is not None or nets_dir is not None:
-            raise UsageError("--truth and --nets apply to a video, not to --scene")
+        if truth is not None:
+            raise UsageError("--truth applies to a video, not to --scene")
         scene = load_scene_file(scene_path, None, target_text)
-        frames = truths = None  # images only from a directory named on the command line
+        truths = None
+        # images only from a directory named on the command line
+        frames = open_frames(frames_opt, HISTORY + 1) if frames_opt else None
+        nets = load_nets(nets_dir) if frames is not None else None
+        if nets_dir is not None and frames is None:
+            raise UsageError("--nets with --scene applies only to the replay: give --frames too")
         meta["scene"] = scene_path
     else:
         if frames_dir is None and truth is not None:
             raise UsageError("--truth is FRAMES_DIR's truth: the default video brings its own")
+        if frames_opt is not None:
+            raise UsageError("--frames goes with --scene; a video is given as FRAMES_DIR")
         if frames_dir is None:
             video = out / "video"
             if default_video_ready(video):
@@ -173,7 +200,12 @@ def verify_cmd(
         truths = load_truth(truth) if truth else None
         dt = (truths.dt if truths else None) or 1 / FPS
         nets = load_nets(nets_dir)
-        opts = PerceiveOptions(history=HISTORY, nets=nets, attack=AttackConfig())
+        cert = None
+        if payoffs != "attack":
+            from lesmc.perception.certify import CertifyConfig
+
+            cert = CertifyConfig()
+        opts = PerceiveOptions(history=HISTORY, nets=nets, attack=AttackConfig(), certify=cert)
         with progress_bar("perceiving", len(frames)) as bar:
 
             def advance() -> None:
@@ -212,11 +244,20 @@ def verify_cmd(
             on_stage=lambda s: status.update(s),
             budget=budget,
             on_batch=lambda m: stop_if_spent(budget, m, "building a model"),
+            payoffs=payoffs,
         )
     timings = {"video, perception and scene": checked - started}
     timings["models and checks"] = time.monotonic() - checked
-    with err.status("writing the report"):
-        report, doc = _publish(runs, out, meta, spec_files, frames, truths, scene, timings)
+    perception = {
+        "history": HISTORY,
+        "delta_bc": 12,
+        "nets": nets.settings.trained_on if nets is not None else "",
+        "attack": asdict(_attack_of(scene) if scene_path is not None else AttackConfig()),
+        "payoffs": payoffs,
+    }
+    report, doc = _publish(
+        runs, out, meta, spec_files, frames, truths, scene, timings, nets, perception, budget
+    )
     if new_scene is not None:
         save_scene(new_scene, out / "scene.json")
     results = [r for run in runs for r in run.results]
@@ -228,6 +269,18 @@ def verify_cmd(
     sys.exit(exit_status(results))
 
 
+def _attack_of(scene: Any) -> Any:
+    """The attack settings a scene's meta records (lesmc perceive -o), defaults otherwise."""
+    from lesmc.perception.attacks import AttackConfig
+
+    a = scene.meta.get("attack")
+    if not isinstance(a, dict):
+        return AttackConfig()
+    keys = {"method": str, "overshoot": float, "max_iter": int, "norm": str}
+    got = {k: t(a[k]) for k, t in keys.items() if k in a and isinstance(a[k], (str, int, float))}
+    return AttackConfig(**got)
+
+
 def _publish(
     runs: list[Any],
     out: Path,
@@ -237,14 +290,22 @@ def _publish(
     truths: Any,
     scene: Any,
     timings: dict[str, float],
+    nets: Any = None,
+    perception: dict[str, Any] | None = None,
+    budget: Any = None,
 ) -> tuple[Path, dict[str, Any]]:
     """results.json and the report from it; with the truth, the target's true track and the
-    monitor's false alarms on every truth track (lesmc/false_alarms.py)."""
-    from lesmc.report.publish import publish
-    from lesmc.report.results import provenance
+    monitor's false alarms on every truth track (lesmc/false_alarms.py); with the frames,
+    every violated property's counterexample replayed (lesmc/replay.py), which may turn its
+    verdict into unknown (``runs``' results are updated to match)."""
+    from rich.console import Console
+
+    from lesmc.report.html import write_report
+    from lesmc.report.results import provenance, results_document
     from lesmc.verify import DEFAULT_VIDEO, frame_reader
 
-    truth, extra = None, {}
+    truth: Any = None
+    extra: dict[str, Any] = {}
     if frames is not None and truths is not None:
         from lesmc.false_alarms import false_alarm_report, truth_track
 
@@ -259,16 +320,57 @@ def _publish(
             )
             timings["monitor false alarms"] = time.monotonic() - t0
     seeds = {"video": DEFAULT_VIDEO["seed"]} if "embedded default" in meta.get("video", "") else {}
-    return publish(
-        runs,
-        out,
-        meta,
-        provenance(specs, seeds=seeds),
-        frame_reader(frames),
-        timings,
-        truth,
-        extra,
-    )
+    if perception is not None:
+        extra["perception"] = perception
+    doc = results_document(runs, meta, provenance(specs, seeds=seeds), timings, truth, extra)
+    _replay(runs, doc, frames, nets, timings, budget)
+    doc["timings"] = {k: round(float(v), 3) for k, v in timings.items()}
+    with Console(stderr=True).status("writing the report"):
+        return write_report(doc, out, frame_reader(frames)), doc
+
+
+def _replay(
+    runs: list[Any],
+    doc: dict[str, Any],
+    frames: Any,
+    nets: Any,
+    timings: dict[str, float],
+    budget: Any,
+) -> None:
+    """Replay every violated property on the frames (lesmc/replay.py) and record it in ``doc``
+    and in ``runs``' results; without frames, each violated result says it was not replayed."""
+    from lesmc.cli.budgets import stop_if_spent
+    from lesmc.replay import apply_to_doc, apply_to_results, cases, replay
+
+    if not cases(doc):
+        return
+    if frames is None or nets is None:
+        for run, rd in zip(runs, doc["runs"], strict=True):
+            for r, res in zip(run.results, rd["results"], strict=True):
+                if r.verdict == "violated":
+                    note = (
+                        "not replayed through the detector and tracker (no frames: give "
+                        "--frames with --scene)"
+                    )
+                    r.notes.append(note)
+                    res["notes"].append(note)
+        return
+    from lesmc.report.progress import progress_bar
+
+    t0 = time.monotonic()
+    with progress_bar("replaying", len(frames)) as bar:
+
+        def advance() -> None:
+            bar.advance()
+            stop_if_spent(budget, None, "replaying the counterexamples")
+
+        outcome = replay(doc, frames, nets, on_frame=advance)
+    apply_to_doc(doc, outcome)
+    doc["replay"] = {"replayed": len(outcome.replays), "seconds": round(outcome.seconds, 3)}
+    for i, run in enumerate(runs):
+        objs = [outcome.replays.get((i, j)) for j in range(len(run.results))]
+        run.results[:] = apply_to_results(run.results, objs)
+    timings["replay"] = time.monotonic() - t0
 
 
 def _summary(runs: list[Any]) -> None:

@@ -359,3 +359,31 @@ def patches(rows: Sequence[tuple[str, np.ndarray]]) -> bytes:
         ax.set_xticks([])
         ax.set_yticks([])
     return _png(fig)
+
+
+def perturbations(rows: Sequence[tuple[str, np.ndarray, np.ndarray]]) -> tuple[bytes, float]:
+    """Per hidden detection: original patch (grey levels), perturbation (pixel scale [0, 1]) and
+    attacked patch. Each perturbation has its own diverging colour scale spanning its largest
+    change, amplified (×k in its title) when that change is under 64 grey levels, so that small
+    ones stay visible. Returns the PNG and the largest amplification (1: none)."""
+    n = len(rows)
+    fig, axes = plt.subplots(n, 3, figsize=(5.4, 1.9 * n + 0.3), squeeze=False)
+    top = 1.0
+    for (title, orig, delta), ax in zip(rows, axes, strict=True):
+        grey = delta * 255.0
+        peak = float(np.abs(grey).max())
+        gain = float(max(1, round(64.0 / peak))) if peak > 0 else 1.0
+        top = max(top, gain)
+        span = max(peak * gain, 1.0)
+        attacked = np.clip(orig + grey, 0, 255)
+        ax[0].imshow(orig, cmap="gray", vmin=0, vmax=255, interpolation="nearest")
+        ax[1].imshow(grey * gain, cmap="RdBu_r", vmin=-span, vmax=span, interpolation="nearest")
+        ax[2].imshow(attacked, cmap="gray", vmin=0, vmax=255, interpolation="nearest")
+        ax[0].set_ylabel(title.replace(", ", "\n", 1), fontsize=7)
+        middle = f"perturbation ×{gain:.0f}" if gain > 1 else "perturbation"
+        middle += f"\n(±{peak:.1f} grey levels)"
+        for a, t in zip(ax, ("original", middle, "attacked"), strict=True):
+            a.set_title(t, fontsize=7)
+            a.set_xticks([])
+            a.set_yticks([])
+    return _png(fig), top

@@ -505,38 +505,112 @@ def _patches(run: _Run, figs: dict[str, bytes], image_for: ImageFor | None) -> s
     hidden = run.d.get("hidden") or {}
     if not any(hidden.values()):
         return ""
+    replays = {r["property"]: r.get("replay") for r in run.results}
     rows = []
     for prop, items in hidden.items():
+        rp = replays.get(prop)
+        recomputed = {p["obs"]: p for p in (rp or {}).get("perturbations", [])}
         for h in items:
             where = f"({h['x']:.1f}, {h['y']:.1f})" if "x" in h else "-"
+            lo, up = h.get("payoff_lower"), h["payoff"]
+            interval = "-" if lo is None else f"[{_fmt(lo)}, {_fmt(up)}]"
+            tight = "-"
+            if lo is not None and math.isfinite(_f(up)) and _f(up) > 0:
+                tight = f"{_f(lo) / _f(up):.2f}"
+            again = recomputed.get(h["obs"])
+            rec = "-" if again is None else _fmt(again["payoff_recomputed"])
             rows.append(
                 f"<tr><th>{_e(prop)}</th><td>{h['step']}</td><td>{h['frame']}</td>"
-                f"<td>{_e(h['obs'])}</td><td>{_e(where)}</td><td>{_e(_fmt(h['payoff']))}</td></tr>"
+                f"<td>{_e(h['obs'])}</td><td>{_e(where)}</td><td>{_e(_fmt(up))}</td>"
+                f"<td>{_e(interval)}</td><td>{tight}</td><td>{_e(rec)}</td></tr>"
             )
     out = (
         "<h3>What the counterexamples' attacks hide</h3><p>At each attacked step the tracker "
         "takes a detection of lower priority because the attacker hid those ranked before it "
-        "(Eq. 5). Payoff: the size of the perturbation that makes N_dr miss that detection "
-        "(see the payoff unit above). The perturbations themselves are not in the results file "
-        "(the scene keeps only their sizes) and are not recomputed here; with --frames, the "
-        "original patches are shown.</p><table><tr><th>property</th><th>step</th><th>frame</th>"
-        "<th>detection</th><th>position</th><th>payoff</th></tr>" + "".join(rows) + "</table>"
+        "(Eq. 5). Payoff: the size of the perturbation the attack found that makes N_dr miss "
+        "that detection (an upper bound on the cheapest one; see the payoff unit above). "
+        "Interval: [certified lower bound, attack payoff] when the scene carries certified "
+        "bounds (<code>perceive --certify</code>); tightness = lower / upper (1: exact). "
+        "Replayed: the payoff of the same attack recomputed on the frames by the replay.</p>"
+        "<table><tr><th>property</th><th>step</th><th>frame</th><th>detection</th>"
+        "<th>position</th><th>payoff</th><th>interval</th><th>tightness</th>"
+        "<th>replayed</th></tr>" + "".join(rows) + "</table>"
     )
+    out += _replay_lines(run)
     if image_for is None:
-        return out
-    crops = []
+        return out + (
+            "<p>No frames were given (<code>--frames</code>): the patches are not drawn.</p>"
+        )
+    triples, singles = [], []
     for prop, items in hidden.items():
+        rp = replays.get(prop) or {}
+        perts = {p["obs"]: p for p in rp.get("perturbations", [])}
         for h in items:
             img = image_for(int(h["frame"])) if "x" in h else None
-            if img is not None:
-                crops.append(
+            if img is None:
+                continue
+            pert = perts.get(h["obs"])
+            if pert is None:
+                singles.append(
                     (f"{prop} step {h['step']}\n{h['obs']}", figures.patch(img, (h["x"], h["y"])))
                 )
-    if crops:
+                continue
+            x0, y0 = pert["window_origin"]
+            orig = figures.patch(img, (x0 + 10, y0 + 10))
+            delta = np.asarray(pert["delta"], float)[-1]  # the current frame's channel
+            triples.append((f"{prop}, step {h['step']}, {h['obs']}", orig, delta))
+    if triples:
+        name = f"{run.tag}-perturbations.png"
+        figs[name], gain = figures.perturbations(triples[:8])
+        out += _img(
+            name,
+            "For each detection a counterexample hides: the original 21×21 patch of the "
+            "frame (its N_dr window, current frame), the perturbation the attack adds to that "
+            "channel (red brighter, blue darker; each on its own colour scale spanning its "
+            "largest change, given under its title in grey levels"
+            + (", amplified ×k for visibility where the title says so" if gain > 1 else "")
+            + "), and the attacked patch (original + perturbation, not amplified). The attack "
+            "also perturbs the window's "
+            "three aligned previous frames, not drawn; the payoff is the norm over all four."
+            + (f" The first 8 of {len(triples)} are drawn." if len(triples) > 8 else ""),
+        )
+    elif singles:
         name = f"{run.tag}-hidden.png"
-        figs[name] = figures.patches(crops[:12])
-        out += _img(name, "The original 21×21 patches of the hidden detections (frame pixels).")
+        figs[name] = figures.patches(singles[:12])
+        out += _img(
+            name,
+            "The original 21×21 patches of the hidden detections (frame pixels); the "
+            "perturbations are drawn once the counterexample is replayed (lesmc verify, "
+            "lesmc replay).",
+        )
     return out
+
+
+def _replay_lines(run: _Run) -> str:
+    """One line per replayed counterexample: confirmed, or where and why it diverged."""
+    items = []
+    for r in run.results:
+        rp = r.get("replay")
+        if not rp:
+            continue
+        how = " (repaired joint attack)" if rp.get("attack") == "repaired" else ""
+        if rp["status"] == "confirmed":
+            text = (
+                f"<b>confirmed</b>{how}: the real detector and tracker take the same "
+                f"detections; largest position error {rp['max_error_px']:.3g} px"
+            )
+        else:
+            text = (
+                f"<b>diverged</b>{how} at step {rp['step']}: {_e(rp['reason'])}; the "
+                "counterexample is no proof of violation and the verdict is unknown"
+            )
+        items.append(f"<li>{_e(r['property'])}: {text}</li>")
+    if not items:
+        return ""
+    return (
+        "<p>Replay of the counterexamples through the real detector and tracker "
+        "(docs/semantics.md, “Replay”):</p><ul>" + "".join(items) + "</ul>"
+    )
 
 
 def _table3(run: _Run) -> str:

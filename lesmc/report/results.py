@@ -190,6 +190,8 @@ def _hidden(
                 for d in scene.frame(first + k).detections:
                     if d.id == o.obs:
                         item["x"], item["y"] = d.x, d.y
+                        if d.payoff_lower is not None:
+                            item["payoff_lower"] = num(d.payoff_lower)
             out.append(item)
     return out
 
@@ -334,6 +336,17 @@ def run_json(
         "hidden": hidden,
         "scene": scene,
         "truth": truth,
+        "replay_inputs": None if run.scene is None else replay_inputs(run.scene),
+    }
+
+
+def replay_inputs(scene: Scene) -> dict[str, Any]:
+    """What ``lesmc replay`` needs of a run's scene besides the frames (lesmc/replay.py)."""
+    t = scene.target
+    return {
+        "tracker": scene.tracker.to_json(),
+        "dt": scene.dt,
+        "target": {"step": t.step, "start": list(t.start), "velocity": list(t.velocity)},
     }
 
 

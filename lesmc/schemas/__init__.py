@@ -32,6 +32,7 @@ SCHEMAS = {
     "lesmc-perceive": "perceive",
     "lesmc-campaign-summary": "campaign-summary",
     "lesmc-campaign-row": "campaign-row",
+    "lesmc-replay": "replay",
 }
 
 

@@ -1,0 +1,136 @@
+"""``lesmc replay RESULTS.json --frames DIR``: counterexamples through the real detector."""
+
+from __future__ import annotations
+
+from typing import Any
+
+import click
+
+from lesmc.cli.options import nets_option
+from lesmc.errors import UsageError
+
+
+@click.command("replay")
+@click.argument("results", type=click.Path(dir_okay=False, exists=True))
+@click.option(
+    "--frames",
+    "frames_dir",
+    type=click.Path(file_okay=False, exists=True),
+    default=None,
+    help="The video's frames (the results' run was made from them; read from nowhere else).",
+)
+@click.option(
+    "--property",
+    "prop",
+    default=None,
+    metavar="NAME",
+    help="Replay only this property's counterexamples [default: every violated property].",
+)
+@nets_option
+@click.option("--json", "as_json", is_flag=True, help="Print the replays as JSON (lesmc-replay).")
+def replay_cmd(
+    results: str, frames_dir: str | None, prop: str | None, nets_dir: str | None, as_json: bool
+) -> None:
+    """Replay the counterexamples of RESULTS (results.json of lesmc verify) on the real frames.
+
+    \b
+    Each violated property's counterexample: the attack that priced every hidden
+    detection is run again, all perturbations of a frame are applied together to
+    the detector's inputs of that frame, the real detector (front end, N_dr, N_lp)
+    runs on them and the tracker runs over the video. The track is confirmed when
+    it takes the same detections as the model's counterexample (within 1 px) and
+    stays within 0.5 px of its positions; otherwise the first diverging step and
+    the reason are printed (docs/semantics.md, "Replay").
+    Exit status (the verdicts after the replay, as lesmc check): 0 nothing violated,
+    1 some violation confirmed, 2 bad input, 3 some replay diverged (unknown) and
+    none confirmed, 4 internal error, 130 interrupted.
+    """
+    import json
+    import sys
+
+    from lesmc.perception.cnn import load_nets
+    from lesmc.replay import cases, replay
+    from lesmc.report.progress import progress_bar
+    from lesmc.report.publish import load_results
+    from lesmc.video.reader import open_frames
+
+    if frames_dir is None:
+        raise UsageError("replay runs the detector on the video: give its frames with --frames DIR")
+    doc = load_results(results)
+    todo = cases(doc, prop)
+    history = int(doc.get("perception", {}).get("history", 4))
+    frames = open_frames(frames_dir, history + 1)
+    nets = load_nets(nets_dir)
+    want = doc.get("perception", {}).get("nets")
+    if want and want != nets.settings.trained_on:
+        raise UsageError(
+            f"the results were made with the networks trained on '{want}', these were "
+            f"trained on '{nets.settings.trained_on}': give the same --nets"
+        )
+    with progress_bar("replaying", len(frames)) as bar:
+        outcome = replay(doc, frames, nets, prop, on_frame=bar.advance)
+    rows: list[dict[str, Any]] = []
+    for c in todo:
+        obj = outcome.replays[(c.run, c.result)]
+        verdict = "violated" if obj["status"] == "confirmed" else "unknown"
+        rows.append(
+            {
+                "design": c.design,
+                "property": c.prop,
+                "verdict_model": "violated",
+                "verdict": verdict,
+                "replay": obj,
+            }
+        )
+    verdicts = {r["verdict"] for r in rows}
+    others = [
+        res["verdict"]
+        for run in doc["runs"]
+        for res in run["results"]
+        if (prop is None or res["property"] == prop)
+        and not res.get("replay")
+        and res["verdict"] != "violated"
+    ]
+    verdicts |= set(others)
+    if as_json:
+        out = {
+            "format": "lesmc-replay",
+            "version": 1,
+            "results": results,
+            "frames": frames_dir,
+            "seconds": round(outcome.seconds, 3),
+            "replays": rows,
+        }
+        click.echo(json.dumps(out, indent=1, allow_nan=False))
+    else:
+        _table(rows)
+    sys.exit(1 if "violated" in verdicts else 3 if "unknown" in verdicts else 0)
+
+
+def _table(rows: list[dict[str, Any]]) -> None:
+    from rich.table import Table
+
+    from lesmc.errors import escape_text
+    from lesmc.report.text import make_console
+
+    console = make_console()
+    if not rows:
+        console.print("no violated property: nothing to replay")
+        return
+    table = Table(title="lesmc replay", title_justify="left")
+    for c in ("design", "property", "replay", "step", "max error px", "verdict", "reason"):
+        table.add_column(c, overflow="fold")
+    for r in rows:
+        rp = r["replay"]
+        colour = "green" if rp["status"] == "confirmed" else "yellow"
+        table.add_row(
+            escape_text(r["design"]),
+            escape_text(r["property"]),
+            f"[{colour}]{rp['status']}[/]"
+            + (" (repaired)" if rp.get("attack") == "repaired" else ""),
+            "-" if rp["step"] is None else str(rp["step"]),
+            "-" if rp["max_error_px"] is None else f"{rp['max_error_px']:.3g}",
+            r["verdict"],
+            escape_text(rp["reason"] or "-"),
+        )
+    console.print(table)

@@ -1,0 +1,717 @@
+"""Replaying counterexamples through the real detector and tracker (issue 14; docs/semantics.md).
+
+A counterexample of the model says: hide these detections at these steps (each
+at the payoff an attack found) and the tracker takes this path. The model
+assumes each perturbation works alone, that perturbations of one frame do not
+interact, and that the tracker then does what the model's transitions say.
+:func:`replay` checks all three on the real frames:
+
+1. the video is run through the real detector (front end + N_dr + N_lp) again;
+   every detection the results name must come out at the same position (else
+   the frames are not the ones the results were made from: an input error);
+2. at each attacked frame, the attack that priced each hidden detection is run
+   again on the same window with the same settings (DeepFool is deterministic;
+   the recomputed norm is compared with the recorded payoff), and the
+   perturbations of all the frame's hidden detections are added *together* to
+   the detector's inputs of that frame: the current frame and its aligned
+   copies of the m previous frames, the images N_dr and N_lp see (real-valued,
+   not rounded to 8 bits; a pixel two windows share gets both changes);
+3. the detector's step for that frame is run again on the perturbed inputs:
+   background median, subtraction, blobs, N_dr on every candidate, N_lp on the
+   crowded blobs; registration is kept from the clean frames;
+4. the tracker (the run's design and configuration) runs over the video with
+   the replayed detections, unattacked, and its track is compared with the
+   counterexample's: the same associated detection at every step (within
+   :data:`DET_TOL_PX`) and positions within :data:`TRACK_TOL_PX`.
+
+The first step where they differ, and why (a hidden detection still detected,
+a neighbour's detection lost or moved by an overlapping window, an extra
+detection), is reported. When a hidden detection survives because windows
+interact, the attack is *repaired*: the still-detected windows are attacked
+again on the perturbed inputs (jointly with the rest of the frame's
+perturbation) for up to :data:`REPAIR_ROUNDS` rounds, the cost of the extra
+perturbations is added to the payoff, and the track is replayed again.
+"""
+
+from __future__ import annotations
+
+import math
+import re
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+
+from lesmc.errors import InputError, Location, UsageError
+
+if TYPE_CHECKING:
+    from lesmc.perception.attacks import AttackConfig
+    from lesmc.perception.cnn import Nets
+    from lesmc.perception.detector import Detector, FrameDetections
+    from lesmc.perception.frontend import FrontEndOutput
+    from lesmc.video.reader import FrameSet
+
+#: A replayed detection is "the same" as the model's when within this many pixels.
+DET_TOL_PX = 1.0
+#: The replayed track confirms the counterexample when every position is within this.
+TRACK_TOL_PX = 0.5
+#: Rounds of the repaired (joint) attack on a frame whose hidden detections survive.
+REPAIR_ROUNDS = 4
+#: A recorded payoff and its recomputation agree within this relative error.
+PAYOFF_RTOL = 1e-3
+#: Digits kept of each perturbation value written into the results (the report draws them).
+PERTURBATION_DIGITS = 6
+
+
+@dataclass
+class Hidden:
+    """A detection the counterexample hides: model step, frame, id, position, payoff."""
+
+    step: int
+    frame: int
+    obs: str
+    x: float
+    y: float
+    payoff: float
+
+
+@dataclass
+class Case:
+    """One violated property's counterexample of one design run, as the results file holds it."""
+
+    run: int  # index into doc["runs"]
+    result: int  # index into the run's results
+    design: str
+    prop: str
+    first_frame: int
+    obs: list[str | None]  # the detection taken entering step k (k = 1..), None: no update
+    positions: np.ndarray  # (n, 2) estimated position at steps 0..n-1
+    halted: bool
+    hidden: list[Hidden]
+    known: dict[str, tuple[float, float]]  # detection id -> position, as the results list them
+    tracker: dict[str, Any]
+    dt: float
+    target: dict[str, Any]
+    objective_is_payoff: bool
+    threshold: float
+    holds_op: str
+    optimum: float
+
+
+@dataclass
+class FrameAttack:
+    """What the replay did to one attacked frame of one case."""
+
+    frame: int
+    step: int
+    detections: FrameDetections
+    perturbations: list[dict[str, Any]] = field(default_factory=list)
+    still: list[str] = field(default_factory=list)  # hidden ids still detected
+    lost: list[str] = field(default_factory=list)  # other ids no longer detected
+    moved: list[tuple[str, float]] = field(default_factory=list)
+    extra: list[tuple[float, float]] = field(default_factory=list)
+    overlaps: list[tuple[str, str]] = field(default_factory=list)
+    shared: list[str] = field(default_factory=list)  # lost ids from a hidden one's N_dr window
+    repaired_rounds: int = 0
+    extra_cost: float = 0.0
+
+
+def _num(x: Any) -> float:
+    if x == "inf":
+        return math.inf
+    if x == "-inf":
+        return -math.inf
+    return float(x)
+
+
+def cases(doc: dict[str, Any], prop: str | None = None) -> list[Case]:
+    """The counterexamples to replay: every violated result (or property ``prop``'s)."""
+    out = []
+    names = set()
+    for i, run in enumerate(doc["runs"]):
+        for j, res in enumerate(run["results"]):
+            names.add(res["property"])
+            if prop is not None and res["property"] != prop:
+                continue
+            if res["verdict"] != "violated" and not res.get("replay"):
+                continue
+            if res.get("payoffs") == "certified":
+                continue  # violated with lower payoffs proves nothing (docs/semantics.md)
+            cex_no = run["roles"]["counterexample"][j]
+            if cex_no is None:
+                continue
+            out.append(_case(doc, i, j, cex_no))
+    if prop is not None and prop not in names:
+        raise UsageError(
+            f"no property named {prop}; the results hold {', '.join(sorted(names)) or 'none'}"
+        )
+    return out
+
+
+def _case(doc: dict[str, Any], i: int, j: int, cex_no: int) -> Case:
+    run = doc["runs"][i]
+    res = run["results"][j]
+    rp = run.get("replay_inputs")
+    if rp is None or run.get("scene") is None:
+        raise UsageError(
+            f"design run '{run['design']}' was checked on a model without its scene: there is "
+            "nothing to replay through the detector (write the results with lesmc verify)"
+        )
+    path = run["paths"][cex_no - 1]
+    pos = np.array([run["states"][q]["s"][:2] for q in path["states"]], float)
+    known: dict[str, tuple[float, float]] = {}
+    for step in run["scene"]["detections"]:
+        for x, y, did, _ in step:
+            known[did] = (float(x), float(y))
+    hidden = [
+        Hidden(
+            int(h["step"]),
+            int(h["frame"]),
+            h["obs"],
+            float(h.get("x", math.nan)),
+            float(h.get("y", math.nan)),
+            _num(h["payoff"]),
+        )
+        for h in run["hidden"].get(res["property"], [])
+    ]
+    m = re.match(r"optimum\s*(>=|>|<=|<)", res["holds_if"])
+    opt = res["optimum"]
+    return Case(
+        run=i,
+        result=j,
+        design=run["design"],
+        prop=res["property"],
+        first_frame=int(run["model"]["first_frame"]),
+        obs=list(path["obs"]),
+        positions=pos,
+        halted=bool(path["halted"]),
+        hidden=hidden,
+        known=known,
+        tracker=rp["tracker"],
+        dt=float(rp["dt"]),
+        target=rp["target"],
+        objective_is_payoff=res["objective"].startswith("payoff"),
+        threshold=float(res["threshold"]),
+        holds_op=m.group(1) if m else ">",
+        optimum=_num(opt) if isinstance(opt, (int, float, str)) and opt != "unknown" else math.nan,
+    )
+
+
+# ---------------------------------------------------------------- the detector, perturbed
+
+
+def _apply(
+    stack: list[np.ndarray], centres: np.ndarray, deltas: np.ndarray, size: int
+) -> list[np.ndarray]:
+    """The detector inputs (0..255 floats) with window perturbations (pixel scale [0, 1]) added
+    at the pixels :func:`lesmc.perception.windows.cut` took them from; clipped to [0, 255]."""
+    from lesmc.perception.windows import origins
+
+    out = [s.astype(np.float64, copy=True) for s in stack]
+    h, w = out[0].shape
+    org = origins(centres, size)
+    offs = np.arange(size)
+    for (x0, y0), d in zip(org, deltas, strict=True):
+        xs = np.clip(x0 + offs, 0, w - 1)
+        ys = np.clip(y0 + offs, 0, h - 1)
+        yy, xx = np.meshgrid(ys, xs, indexing="ij")
+        for c in range(len(out)):
+            np.add.at(out[c], (yy, xx), 255.0 * d[c].astype(np.float64))
+    return [np.clip(s, 0.0, 255.0) for s in out]
+
+
+def _redetect(
+    det: Detector, out: FrontEndOutput, stack: list[np.ndarray], m: int
+) -> tuple[FrameDetections, np.ndarray]:
+    """The detector's step on perturbed inputs: background, subtraction, blobs, N_dr, N_lp.
+
+    ``stack`` is the m aligned previous frames and the current frame, perturbed;
+    the older aligned frames that only enter the background stay as they were.
+    The background's median moves by exactly the perturbation's effect on it
+    (with no perturbation everything equals the clean run, bit for bit).
+    Returns the detections and the centres of the candidates N_dr accepted (the
+    rows of their ``windows``).
+    """
+    import cv2
+
+    from lesmc.perception.background import Aligned, median
+    from lesmc.perception.blobs import blobs
+    from lesmc.perception.frontend import FrontEndOutput
+
+    clean = out.aligned.frames
+    pert_aligned = [*clean[: len(clean) - m], *stack[:-1]]
+    frame = stack[-1]
+    bgm = median(clean)
+    m_bg = cv2.mean(bgm, mask=out.aligned.valid)[0]
+    m_fr = cv2.mean(out.frame, mask=out.aligned.valid)[0]
+    alpha = m_fr / m_bg if m_bg > 1.0 else 1.0
+    changed = np.zeros(frame.shape, bool)
+    for a, b in zip(pert_aligned, clean, strict=True):
+        changed |= a != b
+    bg = out.background.astype(np.float64)
+    if changed.any():
+        ys, xs = np.nonzero(changed)
+        sl = (slice(ys.min(), ys.max() + 1), slice(xs.min(), xs.max() + 1))
+        now = np.median(np.stack([a[sl] for a in pert_aligned]), axis=0)
+        was = np.median(np.stack([b[sl].astype(np.float64) for b in clean]), axis=0)
+        bg[sl] += alpha * (now - was)
+    diff = np.abs(frame - bg).astype(np.float32)
+    cfg = det.frontend.cfg.blobs
+    mask: np.ndarray = np.where((diff > cfg.delta_bc) & (out.aligned.valid > 0), 255, 0).astype(
+        np.uint8
+    )
+    if cfg.close_px > 1:
+        kernel = cv2.getStructuringElement(cv2.MORPH_CROSS, (cfg.close_px, cfg.close_px))
+        mask = cv2.morphologyEx(mask, cv2.MORPH_CLOSE, kernel)
+    cands = blobs(mask, diff, cfg)
+    pert_out = FrontEndOutput(
+        out.index, frame, cands, Aligned(pert_aligned, out.aligned.valid), bg, out.registration
+    )
+    fd = det.detect(pert_out)
+    return fd, cands.centroid[_accepted(det, pert_out)]
+
+
+def _match(a: np.ndarray, b: np.ndarray, tol: float) -> np.ndarray:
+    """For each row of ``a``, the nearest row of ``b`` within ``tol`` (−1: none)."""
+    if not len(a) or not len(b):
+        return np.full(len(a), -1)
+    d = np.linalg.norm(a[:, None, :] - b[None, :, :], axis=-1)
+    j = d.argmin(axis=1)
+    return np.where(d[np.arange(len(a)), j] <= tol, j, -1)
+
+
+def attack_frame(
+    nets: Nets,
+    det: Detector,
+    out: FrontEndOutput,
+    fd: FrameDetections,
+    hidden: list[Hidden],
+    cfg: AttackConfig,
+    repair: bool = True,
+) -> FrameAttack:
+    """Recompute the hidden detections' perturbations, apply them together, detect again."""
+    from lesmc.perception.attacks import payoffs
+    from lesmc.perception.cnn import DR_SIZE
+    from lesmc.perception.windows import stack
+
+    m = nets.settings.m
+    idx = [int(h.obs.split(":")[1]) for h in hidden]
+    for h, j in zip(hidden, idx, strict=True):
+        if not 0 <= j < len(fd.positions):
+            raise InputError(
+                f"frame {fd.index} has {len(fd.positions)} detections, not {h.obs}: the frames "
+                "are not those the results were made from",
+                Location("--frames"),
+            )
+    blobs_used = sorted({int(fd.source[j]) for j in idx})
+    res = payoffs(nets.dr, fd.windows[blobs_used], nets.settings.delta_dr, cfg)
+    by_blob = dict(zip(blobs_used, range(len(blobs_used)), strict=True))
+    # the clean candidate centres of the blobs, where cut() took the windows
+    accepted = _accepted(det, out)  # candidate rows of Q_dr, in order
+    assert len(accepted) == len(fd.windows)
+    centres = out.candidates.centroid[accepted[blobs_used]]
+    fa = FrameAttack(fd.index, hidden[0].step if hidden else 0, fd)
+    for h, j in zip(hidden, idx, strict=True):
+        r = by_blob[int(fd.source[j])]
+        rec = float(res.payoff[r])
+        fa.perturbations.append(
+            {
+                "step": h.step,
+                "frame": fd.index,
+                "obs": h.obs,
+                "x": float(fd.positions[j, 0]),
+                "y": float(fd.positions[j, 1]),
+                "window_origin": [int(v) for v in np.rint(centres[r]).astype(int) - DR_SIZE // 2],
+                "payoff": h.payoff,
+                "payoff_recomputed": rec if math.isfinite(rec) else "inf",
+                "flipped_alone": bool(res.flipped[r]),
+                "delta": np.round(res.perturbation[r], PERTURBATION_DIGITS).tolist(),
+            }
+        )
+        if math.isfinite(h.payoff) and not (
+            math.isfinite(rec) and abs(rec - h.payoff) <= PAYOFF_RTOL * max(h.payoff, 1e-9)
+        ):
+            raise InputError(
+                f"the attack on detection {h.obs} now costs {rec:g}, the results say "
+                f"{h.payoff:g}: the frames, networks or attack settings differ from the run "
+                "that wrote the results",
+                Location("--frames"),
+            )
+    base = stack(out.frame, out.aligned.frames, m)
+    deltas = res.perturbation.astype(np.float64)
+    inputs = _apply(base, centres, deltas, DR_SIZE)
+    after, kept = _redetect(det, out, inputs, m)
+    _diagnose(fa, fd, after, idx)
+    rounds = 0
+    while repair and (fa.still or fa.extra) and rounds < REPAIR_ROUNDS:
+        # the repaired attack: hide, jointly with the frame's perturbation, every detection
+        # the model does not have (hidden ones that survive, extra ones)
+        rounds += 1
+        unwanted = _unwanted(fd, after, idx)
+        rows = sorted({int(after.source[j]) for j in unwanted})
+        more = payoffs(nets.dr, after.windows[rows], nets.settings.delta_dr, cfg)
+        if not more.flipped.any():
+            break
+        ok = more.flipped
+        fa.extra_cost += float(more.payoff[ok].sum())
+        cs = kept[rows][ok]
+        inputs = _apply(inputs, cs, more.perturbation[ok].astype(np.float64), DR_SIZE)
+        after, kept = _redetect(det, out, inputs, m)
+        _diagnose(fa, fd, after, idx)
+    fa.repaired_rounds = rounds
+    fa.detections = after
+    return fa
+
+
+def _unwanted(fd: FrameDetections, after: FrameDetections, hidden_idx: list[int]) -> list[int]:
+    """Rows of ``after`` that match no clean detection the attack keeps."""
+    keep = np.array([j for j in range(len(fd.positions)) if j not in set(hidden_idx)], int)
+    back = _match(after.positions, fd.positions[keep], DET_TOL_PX)
+    return [int(j) for j in np.flatnonzero(back < 0)]
+
+
+def _accepted(det: Detector, out: FrontEndOutput) -> np.ndarray:
+    """Rows of Q_bc that N_dr accepts (in the order of ``FrameDetections.windows``)."""
+    from lesmc.perception.cnn import DR_SIZE
+    from lesmc.perception.detector import dr_probability
+    from lesmc.perception.windows import cut, stack
+
+    nets = det.nets
+    frames = stack(out.frame, out.aligned.frames, nets.settings.m)
+    win = cut(frames, out.candidates.centroid, DR_SIZE)
+    keep: np.ndarray = np.flatnonzero(
+        dr_probability(nets, win, det.cfg.batch) > nets.settings.delta_dr
+    )
+    return keep
+
+
+def _diagnose(
+    fa: FrameAttack,
+    fd: FrameDetections,
+    after: FrameDetections,
+    hidden_idx: list[int],
+) -> None:
+    """What the perturbed frame's detections are compared with the clean ones."""
+    from lesmc.perception.cnn import DR_SIZE
+
+    clean, now = fd.positions, after.positions
+    fwd = _match(clean, now, DET_TOL_PX)
+    back = _match(now, clean, DET_TOL_PX)
+    hid = set(hidden_idx)
+    fa.still = [f"{fd.index}:{j}" for j in sorted(hid) if fwd[j] >= 0]
+    fa.lost = [f"{fd.index}:{j}" for j in range(len(clean)) if j not in hid and fwd[j] < 0]
+    shared = {int(fd.source[j]) for j in hid}
+    fa.shared = [d for d in fa.lost if int(fd.source[int(d.split(":")[1])]) in shared]
+    fa.moved = [
+        (f"{fd.index}:{j}", float(np.linalg.norm(clean[j] - now[fwd[j]])))
+        for j in range(len(clean))
+        if j not in hid and fwd[j] >= 0 and np.linalg.norm(clean[j] - now[fwd[j]]) > 1e-6
+    ]
+    fa.extra = [(float(p[0]), float(p[1])) for p, b in zip(now, back, strict=True) if b < 0]
+    half = DR_SIZE // 2
+    near = []
+    for j in sorted(hid):
+        for k in range(len(clean)):
+            if k == j:
+                continue
+            if np.all(np.abs(clean[k] - clean[j]) <= 2 * half):
+                near.append((f"{fd.index}:{j}", f"{fd.index}:{k}"))
+    fa.overlaps = near
+
+
+# ---------------------------------------------------------------- the tracker
+
+
+def _footage(dets: dict[int, FrameDetections], case: Case, attacked: dict[int, FrameDetections]):  # type: ignore[no-untyped-def]
+    """The scene of the replayed detections (attacked frames replaced), the case's tracker."""
+    from lesmc.tracking.scene import Detection, Frame, Scene, Target, TrackerConfig
+
+    steps = sorted(dets)
+    frames = []
+    for k in steps:
+        fd = attacked.get(k, dets[k])
+        to_next = dets[k + 1].from_prev if k + 1 in dets else None
+        ds = tuple(
+            Detection(f"{k}:{j}", float(x), float(y), 1.0) for j, (x, y) in enumerate(fd.positions)
+        )
+        frames.append(Frame(k, ds, to_next))
+    tc = dict(case.tracker)
+    tc["P0_sd"] = tuple(tc["P0_sd"])
+    t = case.target
+    target = Target(int(t["step"]), tuple(t["start"]), tuple(t["velocity"]))
+    return Scene(case.dt, tuple(frames), target, TrackerConfig(**tc), {})
+
+
+def _compare(
+    case: Case,
+    points: list[Any],
+    scene: Any,
+    attacks: dict[int, FrameAttack],
+) -> dict[str, Any]:
+    """The replay object: confirmed, or the first step where the track diverges and why."""
+    n_model = len(case.positions)
+    err = 0.0
+    first = case.first_frame
+    for k in range(max(n_model, len(points))):
+        if k >= n_model or k >= len(points):
+            why = (
+                "the replayed track halts earlier"
+                if k >= len(points)
+                else "the model's track halts here; the replayed one goes on"
+            )
+            return _diverged(k, err, why, attacks.get(first + k))
+        e = float(np.linalg.norm(points[k].x[:2] - case.positions[k]))
+        if k >= 1:
+            want = case.obs[k - 1]
+            got = points[k].obs
+            wp = None if want is None else case.known.get(want)
+            gp = None
+            if got is not None:
+                d = scene.frame(first + k).detections[int(got.split(":")[1])]
+                gp = (d.x, d.y)
+            same = (wp is None and gp is None) or (
+                wp is not None
+                and gp is not None
+                and math.hypot(wp[0] - gp[0], wp[1] - gp[1]) <= DET_TOL_PX
+            )
+            if want is not None and wp is None:
+                same = got is not None and e <= TRACK_TOL_PX  # position unknown: judge by track
+            if not same:
+                theirs = "none" if want is None else want + (" " + _at(wp) if wp else "")
+                what = (
+                    f"the tracker takes {'no detection' if gp is None else _at(gp)} where the "
+                    f"model takes {theirs}"
+                )
+                return _diverged(k, max(err, e), what, attacks.get(first + k))
+        if e > TRACK_TOL_PX:
+            return _diverged(
+                k,
+                max(err, e),
+                f"the position is {e:.3g} px from the model's (tolerance {TRACK_TOL_PX} px)",
+                attacks.get(first + k),
+            )
+        err = max(err, e)
+    return {"status": "confirmed", "step": None, "max_error_px": round(err, 6), "reason": None}
+
+
+def _at(p: tuple[float, float]) -> str:
+    return f"the detection at ({p[0]:.1f}, {p[1]:.1f})"
+
+
+def _diverged(k: int, err: float, what: str, fa: FrameAttack | None) -> dict[str, Any]:
+    why = [what]
+    if fa is not None:
+        why.append(frame_story(fa))
+    return {
+        "status": "diverged",
+        "step": k,
+        "max_error_px": round(err, 6) if math.isfinite(err) else None,
+        "reason": "; ".join(w for w in why if w),
+    }
+
+
+def frame_story(fa: FrameAttack) -> str:
+    """What the perturbations did to one frame's detections, in words."""
+    parts = []
+    if fa.still:
+        ov = sorted({b for a, b in fa.overlaps if a in fa.still})
+        parts.append(
+            f"hidden detection{'s' if len(fa.still) > 1 else ''} {', '.join(fa.still)} still "
+            "detected with all perturbations of the frame applied"
+            + (f" (21x21 windows overlap {', '.join(ov)})" if ov else "")
+        )
+    if fa.shared:
+        parts.append(
+            f"detection{'s' if len(fa.shared) > 1 else ''} {', '.join(fa.shared)} lost as well: "
+            "N_lp found it in the same Q_dr blob as a hidden detection, and hiding that blob's "
+            "N_dr window hides both (the model prices them as separate attacks)"
+        )
+    other = [d for d in fa.lost if d not in fa.shared]
+    if other:
+        parts.append(
+            f"detection{'s' if len(other) > 1 else ''} {', '.join(other)} lost as well "
+            "(overlapping windows interact)"
+        )
+    moved = [(d, e) for d, e in fa.moved if e > 0.05]
+    if moved:
+        parts.append(
+            "detection"
+            + ("s " if len(moved) > 1 else " ")
+            + ", ".join(f"{d} moved {e:.2f} px" for d, e in moved[:4])
+            + (f" and {len(moved) - 4} more" if len(moved) > 4 else "")
+        )
+    if fa.extra:
+        parts.append(
+            "extra detection"
+            + ("s " if len(fa.extra) > 1 else " ")
+            + ", ".join(f"({x:.1f}, {y:.1f})" for x, y in fa.extra)
+        )
+    if fa.repaired_rounds:
+        parts.append(f"after {fa.repaired_rounds} round(s) of the repaired joint attack")
+    return "; ".join(parts)
+
+
+# ---------------------------------------------------------------- the whole replay
+
+
+@dataclass
+class Outcome:
+    """Replay objects per (run, result), and each frame's perturbations for the report."""
+
+    replays: dict[tuple[int, int], dict[str, Any]]
+    seconds: float
+
+
+def replay(
+    doc: dict[str, Any],
+    frames: FrameSet,
+    nets: Nets,
+    prop: str | None = None,
+    history: int = 4,
+    delta_bc: int = 12,
+    on_frame: Callable[[], None] | None = None,
+    repair: bool = True,
+) -> Outcome:
+    """Replay every violated property's counterexample of ``doc`` (or ``prop``'s) on ``frames``."""
+    import time
+
+    from lesmc.perception.attacks import AttackConfig
+    from lesmc.perception.blobs import BlobConfig
+    from lesmc.perception.detector import Detector, DetectorConfig
+    from lesmc.perception.frontend import FrontEndConfig
+    from lesmc.tracking.design import make_design
+    from lesmc.tracking.monitor import track
+
+    t0 = time.monotonic()
+    todo = cases(doc, prop)
+    if not todo:
+        return Outcome({}, 0.0)
+    perception = doc.get("perception", {})
+    attack_cfg = AttackConfig(**perception.get("attack", {}))
+    history = int(perception.get("history", history))
+    delta_bc = int(perception.get("delta_bc", delta_bc))
+    fe = FrontEndConfig(history=history, blobs=BlobConfig(delta_bc=delta_bc))
+    det = Detector(nets, DetectorConfig(frontend=fe))
+    last = max(c.first_frame + len(c.positions) - 1 for c in todo)
+    by_frame: dict[int, list[tuple[int, Hidden]]] = {}
+    for ci, c in enumerate(todo):
+        for h in c.hidden:
+            by_frame.setdefault(h.frame, []).append((ci, h))
+    clean: dict[int, FrameDetections] = {}
+    attacked: list[dict[int, FrameAttack]] = [{} for _ in todo]
+    for i in range(min(len(frames), last + 1)):
+        got = det.push(frames.read(i))
+        if on_frame:
+            on_frame()
+        if got is None:
+            continue
+        out, fd = got
+        clean[fd.index] = _light(fd)
+        for ci, group in _groups(by_frame.get(fd.index, [])):
+            attacked[ci][fd.index] = attack_frame(nets, det, out, fd, group, attack_cfg, repair)
+    if last not in clean:
+        raise InputError(
+            f"the frames stop before frame {last}, the last step of a counterexample",
+            Location("--frames"),
+        )
+    for c in todo:
+        _check_known(c, clean)
+    replays = {}
+    for ci, c in enumerate(todo):
+        first = c.first_frame
+        dets = {k: v for k, v in clean.items() if first <= k <= first + len(c.positions) - 1}
+        scene = _footage(dets, c, {k: fa.detections for k, fa in attacked[ci].items()})
+        points = track(make_design(scene), len(c.positions) - 1)
+        obj = _compare(c, points, scene, attacked[ci])
+        fas = list(attacked[ci].values())
+        repaired = sum(fa.repaired_rounds for fa in fas)
+        obj["attack"] = "repaired" if repaired else "as modelled"
+        extra = sum(fa.extra_cost for fa in fas)
+        obj["repair_cost"] = round(extra, 6)
+        if repaired and obj["status"] == "confirmed" and c.objective_is_payoff:
+            cost = c.optimum + extra
+            if _holds(cost, c.holds_op, c.threshold):
+                obj["status"] = "diverged"
+                obj["step"] = min(attacked[ci]) - first
+                obj["reason"] = (
+                    f"the repaired joint attack replays, but costs {cost:.4g}: the property "
+                    f"holds for it (optimum {c.holds_op} {c.threshold:g})"
+                )
+        notes = [f"frame {fa.frame}: {frame_story(fa)}" for fa in fas if frame_story(fa)]
+        obj["frames"] = notes
+        obj["tolerance_px"] = {"detection": DET_TOL_PX, "track": TRACK_TOL_PX}
+        obj["perturbations"] = [p for fa in fas for p in fa.perturbations]
+        replays[(c.run, c.result)] = obj
+    return Outcome(replays, time.monotonic() - t0)
+
+
+def _holds(x: float, op: str, t: float) -> bool:
+    return {">": x > t, ">=": x >= t, "<": x < t, "<=": x <= t}[op]
+
+
+def _groups(items: list[tuple[int, Hidden]]) -> list[tuple[int, list[Hidden]]]:
+    out: dict[int, list[Hidden]] = {}
+    for ci, h in items:
+        out.setdefault(ci, []).append(h)
+    return sorted(out.items())
+
+
+def _light(fd: FrameDetections) -> FrameDetections:
+    """The detections without their windows (the tracker needs positions only)."""
+    from dataclasses import replace
+
+    return replace(fd, windows=fd.windows[:0])
+
+
+def _check_known(c: Case, clean: dict[int, FrameDetections]) -> None:
+    """Every detection the results list must come out of the detector where they say."""
+    for did, (x, y) in c.known.items():
+        f, _, j = did.partition(":")
+        if not (f.isdigit() and j.isdigit()):
+            continue
+        fd = clean.get(int(f))
+        if fd is None:
+            continue
+        ok = (
+            int(j) < len(fd.positions)
+            and math.hypot(fd.positions[int(j), 0] - x, fd.positions[int(j), 1] - y) <= 1e-3
+        )
+        if not ok:
+            raise InputError(
+                f"the detector does not reproduce detection {did} at ({x:.2f}, {y:.2f}) on "
+                "these frames: they are not the frames (or networks) the results were made from",
+                Location("--frames"),
+            )
+
+
+def apply_to_doc(doc: dict[str, Any], outcome: Outcome) -> None:
+    """Record each replay in its result; a diverged counterexample is no proof: the verdict
+    becomes ``unknown`` with the model's optimum kept in ``bounds`` and a note."""
+    for (i, j), obj in outcome.replays.items():
+        res = doc["runs"][i]["results"][j]
+        res["replay"] = obj
+        if obj["status"] == "diverged" and res["verdict"] == "violated":
+            res["verdict"] = "unknown"
+            res["notes"].append(diverged_note(res["optimum"], obj))
+
+
+def diverged_note(optimum: Any, obj: dict[str, Any]) -> str:
+    """The note of a result whose counterexample did not replay."""
+    return (
+        f"unknown: the model's counterexample (optimum {optimum}) did not replay through the "
+        f"detector and tracker; it diverges at step {obj['step']} ({obj['reason']}); "
+        "not a proof of violation"
+    )
+
+
+def apply_to_results(results: list[Any], replays: list[dict[str, Any] | None]) -> list[Any]:
+    """The CheckResults with the replay's verdicts (a diverged 'violated' becomes 'unknown')."""
+    from dataclasses import replace
+
+    out = []
+    for r, obj in zip(results, replays, strict=True):
+        if obj is not None and obj["status"] == "diverged" and r.verdict == "violated":
+            r = replace(r, verdict="unknown", notes=[*r.notes, diverged_note(r.optimum, obj)])
+        out.append(r)
+    return out

@@ -1,0 +1,179 @@
+"""Replaying counterexamples through the real detector and tracker (lesmc/replay.py, issue 14).
+
+One small synthetic video (768x768, 16 frames, seed 4) is verified once (plain
+tracker, window 3..5); the tests replay its counterexamples, break one on
+purpose, and check the results file, the replay JSON and the report.
+"""
+
+from __future__ import annotations
+
+import copy
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def lesmc(*args: str) -> subprocess.CompletedProcess[str]:
+    return subprocess.run(
+        [sys.executable, "-m", "lesmc", *args],
+        capture_output=True,
+        text=True,
+        cwd=ROOT,
+        timeout=1200,
+    )
+
+
+@pytest.fixture(scope="module")
+def verified(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, Path, dict]:
+    tmp = tmp_path_factory.mktemp("replay")
+    video = tmp / "video"
+    r = lesmc(
+        "synth", str(video), "--frames", "16", "--size", "768x768", "--seed", "4",
+        "--density", "2.5",
+    )  # fmt: skip
+    assert r.returncode == 0, r.stderr
+    out = tmp / "v"
+    r = lesmc(
+        "verify", str(video), "--truth", str(video / "truth.json"), "--window", "3..5",
+        "--design", "single", "--out", str(out), "--json",
+    )  # fmt: skip
+    assert r.returncode in (0, 1, 3), r.stderr
+    assert "Traceback" not in r.stderr
+    return video, out, json.loads((out / "results.json").read_text())
+
+
+def test_verify_records_a_replay_for_every_violated_property(verified: tuple) -> None:
+    import jsonschema
+
+    from lesmc.schemas import schema
+
+    _, _, doc = verified
+    jsonschema.validate(doc, schema("results"))
+    assert doc["perception"]["payoffs"] == "attack"
+    replayed = [r for run in doc["runs"] for r in run["results"] if "replay" in r]
+    assert replayed, "the plain tracker is violated on this video: something to replay"
+    for r in replayed:
+        rp = r["replay"]
+        # a diverged counterexample is no proof: never "violated"
+        assert (rp["status"] == "confirmed") == (r["verdict"] == "violated")
+        if rp["status"] == "diverged":
+            assert rp["step"] is not None and rp["reason"]
+            assert any("not a proof of violation" in n for n in r["notes"])
+        else:
+            assert rp["step"] is None and rp["max_error_px"] <= rp["tolerance_px"]["track"]
+        for p in rp["perturbations"]:
+            # the same attack recomputed: the payoff the model used
+            assert abs(p["payoff_recomputed"] - p["payoff"]) <= 1e-3 * p["payoff"]
+            assert np.asarray(p["delta"]).shape == (4, 21, 21)
+            # the recorded perturbation's norm is the payoff (independent recomputation)
+            assert np.linalg.norm(np.asarray(p["delta"])) == pytest.approx(p["payoff"], rel=1e-3)
+    assert any(r["replay"]["status"] == "confirmed" for r in replayed)
+
+
+def test_replay_verb_agrees_with_verify_and_validates(verified: tuple) -> None:
+    import jsonschema
+
+    from lesmc.schemas import schema
+
+    video, out, doc = verified
+    r = lesmc("replay", str(out / "results.json"), "--frames", str(video), "--json")
+    assert "Traceback" not in r.stderr
+    rep = json.loads(r.stdout)
+    jsonschema.validate(rep, schema("replay"))
+    got = {(x["design"], x["property"]): x["replay"]["status"] for x in rep["replays"]}
+    want = {
+        (run["design"], res["property"]): res["replay"]["status"]
+        for run in doc["runs"]
+        for res in run["results"]
+        if "replay" in res
+    }
+    assert got == want
+    confirmed = any(s == "confirmed" for s in got.values())
+    assert r.returncode == (1 if confirmed else 3)
+
+
+def test_a_counterexample_that_the_tracker_does_not_follow_is_diverged(verified: tuple) -> None:
+    """Constructed: the counterexample's recorded track is moved by 5 px from step 2 on; the
+    replay must stop at step 2 and say the position differs."""
+    from lesmc.perception.cnn import load_nets
+    from lesmc.replay import apply_to_doc, replay
+    from lesmc.video.reader import open_frames
+
+    video, _, doc = verified
+    bad = copy.deepcopy(doc)
+    run = bad["runs"][0]
+    j = next(
+        i for i, r in enumerate(run["results"]) if r.get("replay", {}).get("status") == "confirmed"
+    )
+    prop = run["results"][j]["property"]
+    path = run["paths"][run["roles"]["counterexample"][j] - 1]
+    for q in path["states"][2:]:
+        run["states"][q]["s"][0] += 5.0
+    run["results"][j]["verdict"] = "violated"
+    out = replay(bad, open_frames(str(video), 5), load_nets(), prop)
+    obj = out.replays[(0, j)]
+    assert obj["status"] == "diverged" and obj["step"] == 2
+    assert "px from the model's" in obj["reason"]
+    apply_to_doc(bad, out)
+    assert run["results"][j]["verdict"] == "unknown"
+
+
+def test_without_repair_interacting_perturbations_diverge_where_they_act(verified: tuple) -> None:
+    """On this video hiding a detection changes its neighbours (a blob no longer crowded is
+    output at its own centroid, an overlapping window loses or gains detections): without
+    the repaired joint attack some counterexample diverges at an attacked step, and the
+    reason names the frame's detections."""
+    from lesmc.perception.cnn import load_nets
+    from lesmc.replay import replay
+    from lesmc.video.reader import open_frames
+
+    video, _, doc = verified
+    out = replay(doc, open_frames(str(video), 5), load_nets(), repair=False)
+    diverged = [o for o in out.replays.values() if o["status"] == "diverged"]
+    assert diverged
+    for o in diverged:
+        steps = {p["step"] for p in o["perturbations"]}
+        assert o["step"] >= min(steps)
+        assert "detection" in o["reason"]
+
+
+def test_perturbations_of_one_frame_add_up_where_windows_overlap() -> None:
+    from lesmc.replay import _apply
+
+    frame = np.full((40, 40), 100.0)
+    stack = [frame.copy() for _ in range(4)]
+    d = np.zeros((2, 4, 21, 21))
+    d[:, -1] = 0.1  # +25.5 grey levels over each window of the current frame
+    out = _apply(stack, np.array([[15.0, 15.0], [20.0, 15.0]]), d, 21)
+    cur = out[-1]
+    assert cur[15, 7] == pytest.approx(125.5)  # first window only
+    assert cur[15, 15] == pytest.approx(151.0)  # both windows
+    assert cur[15, 29] == pytest.approx(125.5)  # second window only
+    assert cur[0, 39] == 100.0 and np.array_equal(out[0], frame)
+    big = _apply(stack, np.array([[15.0, 15.0]]), np.ones((1, 4, 21, 21)), 21)
+    assert big[-1].max() == 255.0  # clipped to the pixel range
+
+
+def test_report_shows_the_patches_and_the_replay(verified: tuple, tmp_path: Path) -> None:
+    video, out, _ = verified
+    r = lesmc("report", str(out / "results.json"), "--out", str(tmp_path / "r"), "--frames",
+              str(video))  # fmt: skip
+    assert r.returncode == 0, r.stderr
+    html = (tmp_path / "r/report.html").read_text()
+    assert "perturbation" in html and "Replay of the counterexamples" in html
+    assert (tmp_path / "r/figures/single-perturbations.png").is_file()
+    assert "tightness" in html
+
+
+def test_replay_needs_frames_and_a_results_file(verified: tuple, tmp_path: Path) -> None:
+    _, out, _ = verified
+    r = lesmc("replay", str(out / "results.json"))
+    assert r.returncode == 2 and "--frames" in r.stderr and "Traceback" not in r.stderr
+    r = lesmc("replay", str(out / "results.json"), "--frames", str(tmp_path), "--property", "nope")
+    assert r.returncode == 2 and "nope" in r.stderr
