@@ -8,43 +8,19 @@ tracker does.
 Speed: P̂, S, K, the gate and the updated P depend only on the parent's P,
 which is shared by every state with the same history of updates and skips. So
 covariances live in a table, what derives from each is computed once
-(:class:`Gain`), and a batch is processed per distinct P with array arithmetic
+(tracking/design.py's :class:`Gains`), and a batch is processed per distinct P with array arithmetic
 only: predict, the candidate detections from a k-d tree, gate, the attacker's
 options (association.attack_option_rows) and one mean update per outcome.
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass
-
 import numpy as np
 
-from lesmc.model.growing import GrowArray
-from lesmc.tracking.association import attack_option_rows, gate_radius, gate_test
-from lesmc.tracking.design import Batch, CovarianceTable, Successors
-from lesmc.tracking.kalman import (
-    Innovation,
-    Matrices,
-    innovation,
-    matrices,
-    predict_means,
-    update_means,
-    warp,
-)
+from lesmc.tracking.association import attack_option_rows, gate_test
+from lesmc.tracking.design import Batch, CovarianceTable, GainRows, Gains, Successors
+from lesmc.tracking.kalman import Matrices, matrices, predict_means, update_means, warp
 from lesmc.tracking.scene import Frame, Scene
-
-
-@dataclass(frozen=True)
-class Gain:
-    """Everything that depends on a parent's covariance only (Eq. 2-3, the gate, the halt)."""
-
-    P_pred: np.ndarray
-    inn: Innovation
-    radius: float
-    pred: int  # table index of P̂ (the state after a skipped update)
-    post: int  # table index of the updated P
-    halt_pred: bool
-    halt_post: bool
 
 
 class SingleDesign:
@@ -57,8 +33,7 @@ class SingleDesign:
         self.cfg = scene.tracker
         self.m: Matrices = matrices(self.cfg, scene.dt)
         self.covariances = CovarianceTable()
-        self._gains: dict[int, Gain] = {}
-        self._table = _GainTable()
+        self.gains = Gains(self.m, self.cfg, self.covariances)
 
     def initial(self) -> Batch:
         """At the target's frame: (start, velocity) with P0; that frame's detections unused."""
@@ -73,34 +48,6 @@ class SingleDesign:
             [np.ascontiguousarray(batch.X).view(np.uint64), batch.cov.astype(np.uint64)]
         )
         return out
-
-    def gain(self, c: int) -> Gain:
-        """Predict and gain for the covariance with table index ``c`` (computed once)."""
-        g = self._gains.get(c)
-        if g is None:
-            m, cfg = self.m, self.cfg
-            P = self.covariances[c]
-            P_pred = m.F @ P @ m.F.T + m.Q
-            inn = innovation(m, P_pred)
-            g = Gain(
-                P_pred,
-                inn,
-                gate_radius(inn, P_pred, cfg.gate, cfg.gate_type),
-                self.covariances.add(P_pred),
-                self.covariances.add(inn.P_post),
-                float(np.trace(P_pred)) > cfg.max_trace,
-                float(np.trace(inn.P_post)) > cfg.max_trace,
-            )
-            self._gains[c] = g
-        return g
-
-    def _gain_rows(self, cov: np.ndarray) -> _GainRows:
-        """The gains of covariances ``cov`` as row arrays, from per-covariance tables."""
-        t = self._table
-        for c in np.unique(cov).tolist():
-            if c >= t.known.n or not t.known.data[c]:
-                t.put(c, self.gain(c))
-        return t.rows(cov)
 
     def predict(self, X: np.ndarray, step: int) -> np.ndarray:
         """Carry positions into frame ``step`` (homography of the previous frame), then predict."""
@@ -119,7 +66,7 @@ class SingleDesign:
         """
         frame = self.scene.frame(step)
         Xp = self.predict(batch.X, step)
-        rows = self._gain_rows(batch.cov)
+        rows = self.gains.rows(batch.cov)
         src, rank, payoff, det, X, cov, halted = self._rows(frame, Xp, rows, attacked)
         order = np.lexsort((rank, src))
         return Successors(
@@ -131,7 +78,7 @@ class SingleDesign:
         )
 
     def _rows(
-        self, frame: Frame, Xp: np.ndarray, g: _GainRows, attacked: bool
+        self, frame: Frame, Xp: np.ndarray, g: GainRows, attacked: bool
     ) -> tuple[np.ndarray, ...]:
         """Successors of predictions ``Xp``, row i with the gain rows ``g`` of its P."""
         cfg = self.cfg
@@ -158,62 +105,6 @@ class SingleDesign:
         cov = np.where(upd, g.post[row], g.pred[row]).astype(np.int64)
         halted = np.where(upd, g.halt_post[row], g.halt_pred[row])
         return row, rank, payoff, det, X, cov, halted
-
-
-@dataclass(frozen=True)
-class _GainRows:
-    """The :class:`Gain` of each row's covariance, as arrays over the rows."""
-
-    radius: np.ndarray
-    S_inv: np.ndarray  # (n, 2, 2)
-    P_pred: np.ndarray  # (n, 4, 4)
-    K: np.ndarray  # (n, 4, 2)
-    pred: np.ndarray
-    post: np.ndarray
-    halt_pred: np.ndarray
-    halt_post: np.ndarray
-
-
-class _GainTable:
-    """:class:`_GainRows`' fields for the covariances whose gain is known, by table index."""
-
-    FIELDS = ("radius", "S_inv", "P_pred", "K", "pred", "post", "halt_pred", "halt_post")
-
-    def __init__(self) -> None:
-        self.known = GrowArray(np.bool_)
-        self.cols = {
-            "radius": GrowArray(np.float64),
-            "S_inv": GrowArray(np.float64, (2, 2)),
-            "P_pred": GrowArray(np.float64, (4, 4)),
-            "K": GrowArray(np.float64, (4, 2)),
-            "pred": GrowArray(np.int64),
-            "post": GrowArray(np.int64),
-            "halt_pred": GrowArray(np.bool_),
-            "halt_post": GrowArray(np.bool_),
-        }
-
-    def put(self, c: int, g: Gain) -> None:
-        if c >= self.known.n:  # make room up to c (unknown rows stay marked so)
-            grow = c + 1 - self.known.n
-            self.known.extend(np.zeros(grow, dtype=bool))
-            for col in self.cols.values():
-                col.extend(np.zeros((grow, *col.data.shape[1:]), dtype=col.data.dtype))
-        values = (
-            g.radius,
-            g.inn.S_inv,
-            g.P_pred,
-            g.inn.K,
-            g.pred,
-            g.post,
-            g.halt_pred,
-            g.halt_post,
-        )
-        for name, v in zip(self.FIELDS, values, strict=True):
-            self.cols[name].data[c] = v
-        self.known.data[c] = True
-
-    def rows(self, cov: np.ndarray) -> _GainRows:
-        return _GainRows(*(self.cols[name].data[cov] for name in self.FIELDS))
 
 
 #: Candidates asked of the k-d tree at first; rows that fill them all ask again for twice as many.
