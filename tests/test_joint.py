@@ -67,27 +67,36 @@ def test_dense_scene_equals_reference(monkeypatch: pytest.MonkeyPatch) -> None:
 
 @st.composite
 def scenes(draw: st.DrawFn) -> Scene:
-    """A target among a few vehicles with clutter; coarse positions make ties common."""
-    frames = draw(st.integers(4, 7))
+    """A target among a few vehicles with clutter (some appearing late, some twins, some
+    detections repeated): coarse positions make likelihood ties common, and states of one
+    batch start and drop tracks at different steps."""
+    frames = draw(st.integers(4, 8))
     grid = draw(st.sampled_from([1.0, 5.0, 20.0]))
     coord = st.integers(-12, 12).map(lambda v: 500 + v * grid)
     speed = st.integers(-3, 3).map(float)
     payoff = st.one_of(st.integers(1, 4).map(float), st.just(float("inf")))
-    nveh = draw(st.integers(0, 6))
+    nveh = draw(st.integers(0, 8))
+    seen = st.tuples(st.integers(0, frames), st.integers(0, frames)).map(sorted)
     vehicles = [
-        (draw(coord), draw(coord), draw(speed), draw(speed), draw(payoff)) for _ in range(nveh)
+        (draw(coord), draw(coord), draw(speed), draw(speed), draw(payoff), *draw(seen))
+        for _ in range(nveh)
     ]
+    if vehicles and draw(st.booleans()):  # twins: identical tracks, so likelihoods tie
+        vehicles.append(vehicles[draw(st.integers(0, len(vehicles) - 1))])
     tx, ty, tvx = draw(coord), draw(coord), draw(speed)
     out = []
     for k in range(frames):
         dets = []
         if draw(st.integers(0, 4)):  # the target, mostly seen
             dets.append((tx + tvx * k, ty, draw(payoff)))
-        for x, y, vx, vy, p in vehicles:
-            if draw(st.integers(0, 5)):
+        for x, y, vx, vy, p, first, last in vehicles:  # appearing and leaving: tracks start late
+            if first <= k <= last and draw(st.integers(0, 5)):
                 dets.append((x + vx * k, y + vy * k, p))
         for _ in range(draw(st.integers(0, 3))):  # clutter
             dets.append((draw(coord), draw(coord), draw(payoff)))
+        if dets and draw(st.booleans()):  # a detection repeated at the same position
+            x, y, _ = dets[draw(st.integers(0, len(dets) - 1))]
+            dets.append((x, y, draw(payoff)))
         detections = tuple(Detection(f"{k}:{i}", x, y, p) for i, (x, y, p) in enumerate(dets))
         Hm = None
         if draw(st.integers(0, 3)) == 0:
@@ -164,3 +173,35 @@ def test_store_round_trip_and_digest_ignores_padding() -> None:
 def test_make_design_names_the_batched_design() -> None:
     scene = load_scene(SCENES / "rq4_merge.json").with_tracker(design="joint")
     assert isinstance(make_design(scene), JointDesign)
+
+
+def test_track_started_in_a_state_narrower_than_its_batch(monkeypatch: pytest.MonkeyPatch) -> None:
+    """Found by hypothesis: a state with fewer tracks than its batch's widest starts one (it
+    must get P0, not what the padding slot would have held)."""
+    inf = float("inf")
+    Hm = np.array([[1.0, 0.001, 2.0], [0.0, 1.0, -1.5], [0.0, 0.0, 1.0]])
+    rows = [
+        [],
+        [(501, 492, 1.0), (500, 500, inf)],
+        [(502, 492, inf), (500, 500, inf)],
+        [(503, 492, inf), (500, 503, inf)],
+        [],
+        [(505, 492, inf)],
+        [(500, 500, inf)],
+    ]
+    frames = tuple(
+        Frame(k, tuple(Detection(f"{k}:{i}", x, y, p) for i, (x, y, p) in enumerate(r)), Hm)
+        for k, r in enumerate(rows)
+    )
+    tracker = TrackerConfig(
+        design="joint",
+        sigma_q=1.0,
+        gate=1.0,
+        init_radius=30.0,
+        init_distance=10.0,
+        prune_radius=20.0,
+    )
+    scene = Scene(1.0, frames, Target(0, (500.0, 492.0), (1.0, 0.0)), tracker)
+    ours = unfold.build_model(scene, (1, 1))
+    assert_same_models(ours, reference_model(scene, (1, 1), None, monkeypatch))
+    assert ours.obs[-1] == 7  # the primary takes detection 6:0 on the attacked branch

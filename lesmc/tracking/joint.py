@@ -496,13 +496,14 @@ class JointDesign:
         W = T + int(nnew.max(initial=0))
         Xa = np.zeros((R, W, 4))
         Xa[:, :T] = X
-        ca = np.full((R, W), self._p0, dtype=np.int64)
+        ca = np.zeros((R, W), dtype=np.int64)
         ca[:, :T] = cov
         keep = np.zeros((R, W), dtype=bool)
         keep[:, :T] = live & ~halt
         slot = live.sum(axis=1)[mr] + _within(nnew)
         Xa[mr, slot, :2] = mz
         Xa[mr, slot, 2:] = v
+        ca[mr, slot] = self._p0
         keep[mr, slot] = self._p0_kept
         dp = np.hypot(Xa[..., 0] - prim[:, 0, None], Xa[..., 1] - prim[:, 1, None])
         keep &= dp <= cfg.prune_radius
