@@ -243,6 +243,24 @@ class _Expanded:
     states: JointStates
 
 
+@dataclass
+class _Prepared:
+    """What the options of a chunk of states share (see :meth:`JointDesign._prepare`)."""
+
+    Z: np.ndarray  # (z, 2) the frame's detections
+    X: np.ndarray  # (n, T, 4) predicted tracks
+    g: GainRows  # (n, T) their gains
+    live: np.ndarray  # (n, T) real tracks
+    pend: np.ndarray  # (n, K, 2) pending detections, in this frame's coordinates
+    npend: np.ndarray
+    n_opt: np.ndarray  # (n,) the attacker's options
+    cost: np.ndarray  # (n, z + 1) cost of option j: hiding the j nearest
+    rank_of: np.ndarray  # (n, z) each detection's position among the primary's nearest
+    ps: np.ndarray  # gated pairs (state, track, detection), by state then likelihood
+    pt: np.ndarray
+    pz: np.ndarray
+
+
 class JointDesign:
     """Primary plus refining tracks with likelihood-sorted one-to-one association."""
 
@@ -325,6 +343,56 @@ class JointDesign:
     # -------------------------------------------------------------- one chunk
     def _expand(self, js: JointStates, step: int, attacked: bool) -> _Expanded:
         """The outcomes of the states ``js`` at frame ``step`` (see the module docstring)."""
+        p = self._prepare(js, step)
+        n = len(js)
+        if attacked:
+            s, opt, assign, halt, states = self._rows(p, np.zeros(n, dtype=np.int64), p.n_opt)
+            rows = np.nonzero(self._merge(states, s))[0]
+            rank, payoff = _ranks_and_payoffs(s[rows], p.cost[s[rows], opt[rows]])
+            return _Expanded(
+                s[rows].astype(np.int64),
+                rank,
+                payoff,
+                assign[rows, 0].astype(np.int64),
+                halt[rows, 0],
+                states.take(rows),
+            )
+        # unattacked: option 0, and its own payoff, the cost of the first option that differs
+        s, opt, assign, halt, states = self._rows(
+            p, np.zeros(n, dtype=np.int64), np.minimum(p.n_opt, 1)
+        )
+        states.key = key0 = digest(states)
+        payoff = np.zeros(n)
+        todo = np.arange(n)
+        j = 1
+        while True:
+            todo = todo[p.n_opt[todo] > j]
+            if not todo.size:
+                break
+            lo = np.zeros(n, dtype=np.int64)
+            lo[todo] = j
+            hi = lo.copy()
+            hi[todo] = j + 1
+            sj, _, _, _, nxt = self._rows(p, lo, hi)
+            differs = (digest(nxt) != key0[sj]).any(axis=1)
+            same = nxt.take(np.nonzero(~differs)[0])
+            if not _same_as(same, states, sj[~differs]):
+                raise AssertionError("joint state digest collision")
+            payoff[sj[differs]] = p.cost[sj[differs], j]
+            todo = sj[~differs]
+            j += 1
+        return _Expanded(
+            s.astype(np.int64),
+            np.zeros(n, dtype=np.int64),
+            payoff,
+            assign[:, 0].astype(np.int64),
+            halt[:, 0],
+            states,
+        )
+
+    def _prepare(self, js: JointStates, step: int) -> _Prepared:
+        """What every option of a state shares: predictions, gains, the primary's nearest
+        detections and what hiding them costs, and the gated pairs in likelihood order."""
         cfg = self.cfg
         frame = self.scene.frame(step)
         Z = frame.positions()
@@ -358,15 +426,38 @@ class JointDesign:
         rank_of = np.empty((n, nz), dtype=np.int64)  # position of each detection in `order`
         np.put_along_axis(rank_of, order, np.broadcast_to(cols, (n, nz)), axis=1)
 
-        # option rows: row r is option opt[r] of state s[r]
-        R = int(n_opt.sum())
-        s = np.repeat(np.arange(n), n_opt)
-        start = _starts(n_opt)
-        opt = _within(n_opt)
-        visible = rank_of[s] >= opt[:, None]  # (R, nz)
+        # gated (track, detection) pairs: candidates within each track's gate radius
+        # (a little wider: the gate decides), scored by N(z; Hx̂, S)
+        dx = Z[:, 0] - X[:, :, 0, None]
+        dy = Z[:, 1] - X[:, :, 1, None]
+        r = g.radius * (1 + 1e-9)
+        ps, pt, pz = np.nonzero((dx * dx + dy * dy <= (r * r)[..., None]) & live[..., None])
+        y = np.stack([dx[ps, pt, pz], dy[ps, pt, pz]], axis=-1)
+        S_inv = g.S_inv[ps, pt]
+        ok = gate_test(y, S_inv, g.P_pred[ps, pt], cfg.gate, cfg.gate_type)
+        ps, pt, pz, y, S_inv = ps[ok], pt[ok], pz[ok], y[ok], S_inv[ok]
+        d2 = mahalanobis2(y, S_inv)
+        # with math.exp, pair by pair: numpy's exp may differ in the last bit
+        like = np.fromiter(map(math.exp, (-0.5 * d2).tolist()), float, len(d2)) / g.norm[ps, pt]
+        o = np.lexsort((pz, pt, -like, ps))
+        return _Prepared(
+            Z, X, g, live, pend, js.npend, n_opt, cost, rank_of, ps[o], pt[o], pz[o]
+        )
 
-        # association: gated pairs of each state by likelihood, then greedy rounds per row
-        assign = self._associate(X, g, live, Z, rank_of, n_opt, start, R)
+    def _rows(
+        self, p: _Prepared, lo: np.ndarray, hi: np.ndarray
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, JointStates]:
+        """The next states of options lo[i] .. hi[i] − 1 of every state i, as rows (by state,
+        then option): source, option, association (rows, tracks), halted flags (rows, tracks)."""
+        Z, X, g = p.Z, p.X, p.g
+        nz = len(Z)
+        count = hi - lo
+        R = int(count.sum())
+        s = np.repeat(np.arange(len(count)), count)
+        start = _starts(count)
+        opt = np.repeat(lo, count) + _within(count)
+        visible = p.rank_of[s] >= opt[:, None]  # option j hides the j nearest to the primary
+        assign = self._associate(p, lo, hi, start, R)
         a = assign >= 0
         Xr = X[s]
         ra, ta = np.nonzero(a)
@@ -375,33 +466,13 @@ class JointDesign:
         halt = np.where(a, g.halt_post[s], g.halt_pred[s])
         used = np.zeros((R, nz), dtype=bool)
         used[ra, assign[ra, ta]] = True
-
         states = self._initiate_and_prune(
-            Xr, cov, halt, live[s], Z, visible & ~used, pend[s], js.npend[s]
+            Xr, cov, halt, p.live[s], Z, visible & ~used, p.pend[s], p.npend[s]
         )
-        rows = np.nonzero(self._merge(states, s))[0]
-        rank, payoff = _ranks_and_payoffs(s[rows], cost[s[rows], opt[rows]])
-        if not attacked:  # the unattacked outcome alone; its own payoff is kept (no sum uses it)
-            rows, rank, payoff = rows[rank == 0], rank[rank == 0], payoff[rank == 0]
-        return _Expanded(
-            s[rows].astype(np.int64),
-            rank,
-            payoff,
-            assign[rows, 0].astype(np.int64),
-            halt[rows, 0],
-            states.take(rows),
-        )
+        return s, opt, assign, halt, states
 
     def _associate(
-        self,
-        X: np.ndarray,
-        g: GainRows,
-        live: np.ndarray,
-        Z: np.ndarray,
-        rank_of: np.ndarray,
-        n_opt: np.ndarray,
-        start: np.ndarray,
-        R: int,
+        self, p: _Prepared, lo: np.ndarray, hi: np.ndarray, start: np.ndarray, R: int
     ) -> np.ndarray:
         """The greedy one-to-one association of every option row: (R, T) detection per track, −1.
 
@@ -410,34 +481,28 @@ class JointDesign:
         pair in (−likelihood, track, detection) order, then that track and that
         detection are spent: the same choices as scanning the sorted pairs.
         """
-        cfg = self.cfg
-        T = X.shape[1]
-        y = Z[None, None] - X[:, :, None, :2]
-        ok = live[..., None] & gate_test(y, g.S_inv, g.P_pred, cfg.gate, cfg.gate_type)
-        ps, pt, pz = np.nonzero(ok)
-        d2 = mahalanobis2(y[ps, pt, pz], g.S_inv[ps, pt])
-        # N(z; Hx̂, S) with math.exp, pair by pair: numpy's exp may differ in the last bit
-        like = np.fromiter(map(math.exp, (-0.5 * d2).tolist()), float, len(d2)) / g.norm[ps, pt]
-        o = np.lexsort((pz, pt, -like, ps))
-        ps, pt, pz = ps[o], pt[o], pz[o]
-        # each pair serves options 0 .. (its detection's position among the primary's nearest)
-        reps = np.minimum(n_opt[ps], rank_of[ps, pz] + 1)
+        T, nz = p.X.shape[1], len(p.Z)
+        ps, pt, pz = p.ps, p.pt, p.pz
+        # a pair serves the options up to its detection's position among the primary's nearest
+        reps = np.maximum(np.minimum(hi[ps], p.rank_of[ps, pz] + 1) - lo[ps], 0)
         pair = np.repeat(np.arange(ps.size), reps)
         row = start[ps[pair]] + _within(reps)
         o = np.argsort(row, kind="stable")
-        pr, pt, pz = row[o], pt[pair[o]], pz[pair[o]]
-        assign = np.full((R, T), -1, dtype=np.int64)
-        used_t = np.zeros((R, T), dtype=bool)
-        used_z = np.zeros((R, len(Z)), dtype=bool)
+        pr, pair = row[o], pair[o]
+        pz = pz[pair]
+        kt = pr * T + pt[pair]  # flat (row, track) and (row, detection) positions
+        kz = pr * nz + pz
+        assign = np.full(R * T, -1, dtype=np.int64)
+        used_t = np.zeros(R * T, dtype=bool)
+        used_z = np.zeros(R * nz, dtype=bool)
         while pr.size:
-            head = np.r_[True, pr[1:] != pr[:-1]]
-            hr, ht, hz = pr[head], pt[head], pz[head]
-            assign[hr, ht] = hz
-            used_t[hr, ht] = True
-            used_z[hr, hz] = True
-            left = ~(used_t[pr, pt] | used_z[pr, pz])
-            pr, pt, pz = pr[left], pt[left], pz[left]
-        return assign
+            head = np.flatnonzero(np.r_[True, pr[1:] != pr[:-1]])
+            assign[kt[head]] = pz[head]
+            used_t[kt[head]] = True
+            used_z[kz[head]] = True
+            left = np.flatnonzero(~(used_t[kt] | used_z[kz]))
+            pr, kt, kz, pz = pr[left], kt[left], kz[left], pz[left]
+        return assign.reshape(R, T)
 
     def _initiate_and_prune(
         self,
@@ -549,6 +614,22 @@ def _within(counts: np.ndarray) -> np.ndarray:
     """Each element's position within its group, for consecutive groups of sizes ``counts``."""
     out: np.ndarray = np.arange(int(counts.sum())) - np.repeat(_starts(counts), counts)
     return out
+
+
+def _same_as(a: JointStates, b: JointStates, idx: np.ndarray) -> bool:
+    """State i of ``a`` equals state idx[i] of ``b`` bit for bit."""
+    if not len(a):
+        return True
+    bb = b.take(idx)
+    T, K = max(a.tcov.shape[1], bb.tcov.shape[1]), max(a.pending.shape[1], bb.pending.shape[1])
+    a, bb = (concat([x, _empty(T, K)]) for x in (a, bb))
+    return _same(concat([a, bb]), np.r_[np.arange(len(a), 2 * len(a)), np.arange(len(a))])
+
+
+def _empty(T: int, K: int) -> JointStates:
+    """No states, arrays T tracks and K pending detections wide (for padding with concat)."""
+    z = np.zeros(0, dtype=np.int64)
+    return JointStates(np.zeros((0, T, 4)), np.zeros((0, T), np.int64), z, np.zeros((0, K, 2)), z)
 
 
 def _same(js: JointStates, rep: np.ndarray) -> bool:
