@@ -43,7 +43,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from lesmc.model.growing import GrowArray
-from lesmc.tracking.association import gate_test
+from lesmc.tracking.association import gate_test, mahalanobis_gate
 from lesmc.tracking.design import Batch, CovarianceTable, GainRows, Gains, Successors
 from lesmc.tracking.kalman import (
     Matrices,
@@ -412,8 +412,12 @@ class JointDesign:
         dist = np.sqrt(y0[..., 0] ** 2 + y0[..., 1] ** 2)
         order = np.argsort(dist, axis=1, kind="stable")
         near = np.take_along_axis(dist, order, axis=1) <= g.radius[:, 0, None]
-        y0s = np.take_along_axis(y0, order[..., None], axis=1)
-        gated = near & gate_test(y0s, g.S_inv[:, 0], g.P_pred[:, 0], cfg.gate, cfg.gate_type)
+        w = int(near.sum(axis=1).max(initial=0))  # near is a prefix of each row
+        y0s = np.take_along_axis(y0, order[:, :w, None], axis=1)
+        gated = np.zeros((n, nz), dtype=bool)
+        gated[:, :w] = near[:, :w] & gate_test(
+            y0s, g.S_inv[:, 0], g.P_pred[:, 0], cfg.gate, cfg.gate_type
+        )
         cols = np.arange(nz)
         last = np.where(gated, cols + 1, 0).max(axis=1, initial=0)
         pays = frame.payoffs()[order] if nz else np.zeros((n, 0))
@@ -431,15 +435,20 @@ class JointDesign:
         dx = Z[:, 0] - X[:, :, 0, None]
         dy = Z[:, 1] - X[:, :, 1, None]
         r = g.radius * (1 + 1e-9)
-        ps, pt, pz = np.nonzero((dx * dx + dy * dy <= (r * r)[..., None]) & live[..., None])
+        ps, pt, pz = np.nonzero(dx * dx + dy * dy <= (r * r)[..., None])
+        keep = live[ps, pt]
+        ps, pt, pz = ps[keep], pt[keep], pz[keep]
         y = np.stack([dx[ps, pt, pz], dy[ps, pt, pz]], axis=-1)
         S_inv = g.S_inv[ps, pt]
-        ok = gate_test(y, S_inv, g.P_pred[ps, pt], cfg.gate, cfg.gate_type)
-        ps, pt, pz, y, S_inv = ps[ok], pt[ok], pz[ok], y[ok], S_inv[ok]
         d2 = mahalanobis2(y, S_inv)
+        if cfg.gate_type == "mahalanobis":
+            ok = mahalanobis_gate(d2, cfg.gate)
+        else:
+            ok = gate_test(y, S_inv, g.P_pred[ps, pt], cfg.gate, cfg.gate_type)
+        ps, pt, pz, d2 = ps[ok], pt[ok], pz[ok], d2[ok]
         # with math.exp, pair by pair: numpy's exp may differ in the last bit
         like = np.fromiter(map(math.exp, (-0.5 * d2).tolist()), float, len(d2)) / g.norm[ps, pt]
-        o = np.lexsort((pz, pt, -like, ps))
+        o = np.lexsort((-like, ps))  # stable: ties stay in (track, detection) order
         return _Prepared(
             Z, X, g, live, pend, js.npend, n_opt, cost, rank_of, ps[o], pt[o], pz[o]
         )
