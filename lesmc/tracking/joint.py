@@ -486,9 +486,11 @@ class JointDesign:
         """The greedy one-to-one association of every option row: (R, T) detection per track, −1.
 
         Pairs are scored once per state; a row sees those whose detection its
-        option leaves visible. Each round every row takes its first remaining
-        pair in (−likelihood, track, detection) order, then that track and that
-        detection are spent: the same choices as scanning the sorted pairs.
+        option leaves visible. Scanning a row's pairs in (−likelihood, track,
+        detection) order takes a pair when its track and detection are both
+        unspent. In rounds: every pair that comes first among the remaining pairs
+        of its track and among those of its detection is taken (nothing before it
+        can spend either), then the pairs of spent tracks and detections go.
         """
         T, nz = p.X.shape[1], len(p.Z)
         ps, pt, pz = p.ps, p.pt, p.pz
@@ -504,11 +506,19 @@ class JointDesign:
         assign = np.full(R * T, -1, dtype=np.int64)
         used_t = np.zeros(R * T, dtype=bool)
         used_z = np.zeros(R * nz, dtype=bool)
+        big = np.iinfo(np.int64).max
         while pr.size:
-            head = np.flatnonzero(np.r_[True, pr[1:] != pr[:-1]])
-            assign[kt[head]] = pz[head]
-            used_t[kt[head]] = True
-            used_z[kz[head]] = True
+            # a pair first (best) among the remaining pairs of both its track and its
+            # detection is the one the scan takes for them: take all such pairs at once
+            at = np.arange(pr.size)
+            first_t = np.full(R * T, big)
+            first_z = np.full(R * nz, big)
+            np.minimum.at(first_t, kt, at)
+            np.minimum.at(first_z, kz, at)
+            take = np.flatnonzero((first_t[kt] == at) & (first_z[kz] == at))
+            assign[kt[take]] = pz[take]
+            used_t[kt[take]] = True
+            used_z[kz[take]] = True
             left = np.flatnonzero(~(used_t[kt] | used_z[kz]))
             pr, kt, kz, pz = pr[left], kt[left], kz[left], pz[left]
         return assign.reshape(R, T)
