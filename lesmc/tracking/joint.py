@@ -430,15 +430,24 @@ class JointDesign:
         rank_of = np.empty((n, nz), dtype=np.int64)  # position of each detection in `order`
         np.put_along_axis(rank_of, order, np.broadcast_to(cols, (n, nz)), axis=1)
 
-        # gated (track, detection) pairs: candidates within each track's gate radius
-        # (a little wider: the gate decides), scored by N(z; Hx̂, S)
-        dx = Z[:, 0] - X[:, :, 0, None]
-        dy = Z[:, 1] - X[:, :, 1, None]
+        # gated (track, detection) pairs: candidates within each track's gate radius (a
+        # little wider: the gate decides), found in the strip of detections sorted by x,
+        # then scored by N(z; Hx̂, S)
         r = g.radius * (1 + 1e-9)
-        ps, pt, pz = np.nonzero(dx * dx + dy * dy <= (r * r)[..., None])
-        keep = live[ps, pt]
-        ps, pt, pz = ps[keep], pt[keep], pz[keep]
-        y = np.stack([dx[ps, pt, pz], dy[ps, pt, pz]], axis=-1)
+        by_x = np.argsort(Z[:, 0], kind="stable")
+        zx = Z[by_x, 0]
+        lo = np.searchsorted(zx, X[..., 0] - r, "left")
+        cnt = np.where(live, np.searchsorted(zx, X[..., 0] + r, "right") - lo, 0).ravel()
+        track = np.repeat(np.arange(n * T), cnt)
+        pz = by_x[np.repeat(lo.ravel(), cnt) + _within(cnt)]
+        o = np.argsort(track * max(nz, 1) + pz, kind="stable")  # by state, track, detection
+        track, pz = track[o], pz[o]
+        ps, pt = track // T, track % T
+        dx = Z[pz, 0] - X[ps, pt, 0]
+        dy = Z[pz, 1] - X[ps, pt, 1]
+        keep = dx * dx + dy * dy <= r[ps, pt] ** 2
+        ps, pt, pz, dx, dy = ps[keep], pt[keep], pz[keep], dx[keep], dy[keep]
+        y = np.stack([dx, dy], axis=-1)
         S_inv = g.S_inv[ps, pt]
         d2 = mahalanobis2(y, S_inv)
         if cfg.gate_type == "mahalanobis":
