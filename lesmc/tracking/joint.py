@@ -414,21 +414,16 @@ class JointDesign:
         near = np.take_along_axis(dist, order, axis=1) <= g.radius[:, 0, None]
         w = int(near.sum(axis=1).max(initial=0))  # near is a prefix of each row
         y0s = np.take_along_axis(y0, order[:, :w, None], axis=1)
-        gated = np.zeros((n, nz), dtype=bool)
-        gated[:, :w] = near[:, :w] & gate_test(
-            y0s, g.S_inv[:, 0], g.P_pred[:, 0], cfg.gate, cfg.gate_type
-        )
-        cols = np.arange(nz)
+        cols = np.arange(w)
+        gated = near[:, :w] & gate_test(y0s, g.S_inv[:, 0], g.P_pred[:, 0], cfg.gate, cfg.gate_type)
         last = np.where(gated, cols + 1, 0).max(axis=1, initial=0)
-        pays = frame.payoffs()[order] if nz else np.zeros((n, 0))
+        pays = frame.payoffs()[order[:, :w]]
         bad = ~np.isfinite(pays) & (cols < last[:, None])
-        broke = np.where(bad, cols, nz).min(axis=1, initial=nz)
-        n_opt = np.minimum(last, broke) + 1
-        cost = np.zeros((n, nz + 1))
-        if nz:
-            cost[:, 1:] = np.cumsum(np.where(cols < n_opt[:, None] - 1, pays, 0.0), axis=1)
-        rank_of = np.empty((n, nz), dtype=np.int64)  # position of each detection in `order`
-        np.put_along_axis(rank_of, order, np.broadcast_to(cols, (n, nz)), axis=1)
+        n_opt = np.minimum(last, np.where(bad, cols, w).min(axis=1, initial=w)) + 1
+        cost = np.zeros((n, w + 1))  # cost[i, j]: hiding the j nearest, summed nearest first
+        cost[:, 1:] = np.cumsum(np.where(cols < n_opt[:, None] - 1, pays, 0.0), axis=1)
+        rank_of = np.full((n, nz), nz, dtype=np.int64)  # position among the nearest (nz: far)
+        np.put_along_axis(rank_of, order[:, :w], np.broadcast_to(cols, (n, w)), axis=1)
 
         # gated (track, detection) pairs: candidates within each track's gate radius (a
         # little wider: the gate decides), found in the strip of detections sorted by x,
@@ -442,22 +437,21 @@ class JointDesign:
         pz = by_x[np.repeat(lo.ravel(), cnt) + _within(cnt)]
         o = np.argsort(track * max(nz, 1) + pz, kind="stable")  # by state, track, detection
         track, pz = track[o], pz[o]
-        ps, pt = track // T, track % T
-        dx = Z[pz, 0] - X[ps, pt, 0]
-        dy = Z[pz, 1] - X[ps, pt, 1]
-        keep = dx * dx + dy * dy <= r[ps, pt] ** 2
-        ps, pt, pz, dx, dy = ps[keep], pt[keep], pz[keep], dx[keep], dy[keep]
+        Xf = X.reshape(n * T, 4)
+        dx = Z[pz, 0] - Xf[track, 0]
+        dy = Z[pz, 1] - Xf[track, 1]
+        keep = dx * dx + dy * dy <= r.reshape(-1)[track] ** 2
+        track, pz, dx, dy = track[keep], pz[keep], dx[keep], dy[keep]
         y = np.stack([dx, dy], axis=-1)
-        S_inv = g.S_inv[ps, pt]
+        S_inv = g.S_inv.reshape(n * T, 2, 2)[track]
         d2 = mahalanobis2(y, S_inv)
         if cfg.gate_type == "mahalanobis":
             ok = mahalanobis_gate(d2, cfg.gate)
         else:
-            ok = gate_test(y, S_inv, g.P_pred[ps, pt], cfg.gate, cfg.gate_type)
-        ps, pt, pz, d2 = ps[ok], pt[ok], pz[ok], d2[ok]
-        # with math.exp, pair by pair: numpy's exp may differ in the last bit
-        like = np.fromiter(map(math.exp, (-0.5 * d2).tolist()), float, len(d2)) / g.norm[ps, pt]
-        o = np.lexsort((-like, ps))  # stable: ties stay in (track, detection) order
+            ok = gate_test(y, S_inv, g.P_pred.reshape(n * T, 4, 4)[track], cfg.gate, cfg.gate_type)
+        track, pz, d2 = track[ok], pz[ok], d2[ok]
+        ps, pt = track // T, track % T
+        o = _by_likelihood(d2, g.norm.reshape(-1)[track], ps, n)
         return _Prepared(
             Z, X, g, live, pend, js.npend, n_opt, cost, rank_of, ps[o], pt[o], pz[o]
         )
@@ -630,6 +624,44 @@ class JointDesign:
         kept = np.zeros(len(s), dtype=bool)
         kept[o[head]] = True
         return kept
+
+
+#: Likelihoods closer than this (relative) are recomputed exactly before they are compared.
+_NEAR_TIE = 1e-12
+
+
+def _by_likelihood(d2: np.ndarray, norm: np.ndarray, group: np.ndarray, n: int) -> np.ndarray:
+    """The order of pairs (grouped by state, ``group`` sorted) by state, then likelihood
+    N(z; Hx̂, S) = exp(−d²/2) / norm from the largest; ties keep the given order.
+
+    The likelihoods are those of ``math.exp`` (the per-state loop's). numpy's exp
+    may differ from it in the last bit, which could swap two pairs that (nearly)
+    tie; only the order matters, so numpy's values are used where they are far
+    apart and values within :data:`_NEAR_TIE` of a neighbour are recomputed with
+    ``math.exp``, then their state's pairs sorted again.
+    """
+    per = np.bincount(group, minlength=n)
+    start = _starts(per)
+    at = np.arange(group.size) - start[group]
+    M = np.full((n, int(per.max(initial=0))), np.inf)  # −likelihood, by state
+    M[group, at] = -np.exp(-0.5 * d2) / norm
+    rank = np.argsort(M, axis=1, kind="stable")
+    Ms = np.take_along_axis(M, rank, axis=1)
+    a, b = Ms[:, :-1], Ms[:, 1:]
+    with np.errstate(invalid="ignore"):  # inf − inf past each state's last pair
+        close = np.isfinite(b) & (b - a <= _NEAR_TIE * np.maximum(-a, -b) + 1e-300)
+    if close.any():
+        redo = np.zeros(M.shape, dtype=bool)
+        redo[:, :-1] |= close
+        redo[:, 1:] |= close
+        rr, cc = np.nonzero(redo)
+        idx = start[rr] + rank[rr, cc]
+        exact = np.fromiter(map(math.exp, (-0.5 * d2[idx]).tolist()), float, idx.size)
+        M[rr, rank[rr, cc]] = -(exact / norm[idx])
+        rows = np.unique(rr)
+        rank[rows] = np.argsort(M[rows], axis=1, kind="stable")
+    out: np.ndarray = (start[:, None] + rank)[rank < per[:, None]]
+    return out
 
 
 def _starts(counts: np.ndarray) -> np.ndarray:
