@@ -501,29 +501,27 @@ class JointDesign:
         reps = np.maximum(np.minimum(hi[ps], p.rank_of[ps, pz] + 1) - lo[ps], 0)
         pair = np.repeat(np.arange(ps.size), reps)
         row = start[ps[pair]] + _within(reps)
-        o = np.argsort(row, kind="stable")
-        pr, pair = row[o], pair[o]
         pz = pz[pair]
-        kt = pr * T + pt[pair]  # flat (row, track) and (row, detection) positions
-        kz = pr * nz + pz
+        kt = row * T + pt[pair]  # flat (row, track) and (row, detection) positions
+        kz = row * nz + pz
         assign = np.full(R * T, -1, dtype=np.int64)
         used_t = np.zeros(R * T, dtype=bool)
         used_z = np.zeros(R * nz, dtype=bool)
         big = np.iinfo(np.int64).max
-        while pr.size:
-            # a pair first (best) among the remaining pairs of both its track and its
-            # detection is the one the scan takes for them: take all such pairs at once
-            at = np.arange(pr.size)
+        while pair.size:
+            # a pair first (best: pairs are numbered in order) among the remaining pairs of
+            # both its track and its detection is the one the scan takes for them: take
+            # all such pairs at once
             first_t = np.full(R * T, big)
             first_z = np.full(R * nz, big)
-            np.minimum.at(first_t, kt, at)
-            np.minimum.at(first_z, kz, at)
-            take = np.flatnonzero((first_t[kt] == at) & (first_z[kz] == at))
+            np.minimum.at(first_t, kt, pair)
+            np.minimum.at(first_z, kz, pair)
+            take = np.flatnonzero((first_t[kt] == pair) & (first_z[kz] == pair))
             assign[kt[take]] = pz[take]
             used_t[kt[take]] = True
             used_z[kz[take]] = True
             left = np.flatnonzero(~(used_t[kt] | used_z[kz]))
-            pr, kt, kz, pz = pr[left], kt[left], kz[left], pz[left]
+            pair, kt, kz, pz = pair[left], kt[left], kz[left], pz[left]
         return assign.reshape(R, T)
 
     def _initiate_and_prune(
@@ -547,12 +545,12 @@ class JointDesign:
         cfg = self.cfg
         R, T = cov.shape
         prim = X[:, 0, :2]
-        if Z.size:
-            dz = np.hypot(Z[None, :, 0] - prim[:, 0, None], Z[None, :, 1] - prim[:, 1, None])
-            cand = free & (dz <= cfg.init_radius)
-        else:
-            cand = free
-        cr, cz = np.nonzero(cand)  # by row, then detection index
+        ddx = Z[None, :, 0] - prim[:, 0, None]
+        ddy = Z[None, :, 1] - prim[:, 1, None]
+        box = cfg.init_radius * (1 + 1e-9)
+        cr, cz = np.nonzero(free & (np.abs(ddx) <= box) & (np.abs(ddy) <= box))
+        inside = np.hypot(ddx[cr, cz], ddy[cr, cz]) <= cfg.init_radius
+        cr, cz = cr[inside], cz[inside]  # by row, then detection index
         nc = np.bincount(cr, minlength=R)
         k = _within(nc)
         pool = np.arange(pend.shape[1]) < npend[:, None]
