@@ -407,27 +407,8 @@ class JointDesign:
         g = self.gains.rows(js.tcov)
         live = np.arange(T) < js.ntrack[:, None]
 
-        # the attacker's options: hide the j detections nearest the primary's prediction
-        y0 = Z[None] - X[:, 0, None, :2]
-        dist = np.sqrt(y0[..., 0] ** 2 + y0[..., 1] ** 2)
-        order = np.argsort(dist, axis=1, kind="stable")
-        near = np.take_along_axis(dist, order, axis=1) <= g.radius[:, 0, None]
-        w = int(near.sum(axis=1).max(initial=0))  # near is a prefix of each row
-        y0s = np.take_along_axis(y0, order[:, :w, None], axis=1)
-        cols = np.arange(w)
-        gated = near[:, :w] & gate_test(y0s, g.S_inv[:, 0], g.P_pred[:, 0], cfg.gate, cfg.gate_type)
-        last = np.where(gated, cols + 1, 0).max(axis=1, initial=0)
-        pays = frame.payoffs()[order[:, :w]]
-        bad = ~np.isfinite(pays) & (cols < last[:, None])
-        n_opt = np.minimum(last, np.where(bad, cols, w).min(axis=1, initial=w)) + 1
-        cost = np.zeros((n, w + 1))  # cost[i, j]: hiding the j nearest, summed nearest first
-        cost[:, 1:] = np.cumsum(np.where(cols < n_opt[:, None] - 1, pays, 0.0), axis=1)
-        rank_of = np.full((n, nz), nz, dtype=np.int64)  # position among the nearest (nz: far)
-        np.put_along_axis(rank_of, order[:, :w], np.broadcast_to(cols, (n, w)), axis=1)
-
-        # gated (track, detection) pairs: candidates within each track's gate radius (a
-        # little wider: the gate decides), found in the strip of detections sorted by x,
-        # then scored by N(z; Hx̂, S)
+        # candidate (track, detection) pairs: within each track's gate radius (a little
+        # wider: the gate decides), found in the strip of detections sorted by x
         r = g.radius * (1 + 1e-9)
         by_x = np.argsort(Z[:, 0], kind="stable")
         zx = Z[by_x, 0]
@@ -449,6 +430,38 @@ class JointDesign:
             ok = mahalanobis_gate(d2, cfg.gate)
         else:
             ok = gate_test(y, S_inv, g.P_pred.reshape(n * T, 4, 4)[track], cfg.gate, cfg.gate_type)
+
+        # the attacker's options: hide the j detections nearest the primary's prediction
+        # (the primary's candidates within its radius, by distance, then index)
+        c0 = np.flatnonzero(track % T == 0)
+        dist = np.sqrt(dx[c0] ** 2 + dy[c0] ** 2)
+        inside = dist <= g.radius[track[c0] // T, 0]
+        c0, dist = c0[inside], dist[inside]
+        s0 = track[c0] // T
+        per = np.bincount(s0, minlength=n)
+        w = int(per.max(initial=0))
+        at = _within(per)
+        D = np.full((n, w), np.inf)
+        D[s0, at] = dist
+        by_d = np.argsort(D, axis=1, kind="stable")
+        inv = np.empty((n, w), dtype=np.int64)
+        np.put_along_axis(inv, by_d, np.broadcast_to(np.arange(w), (n, w)), axis=1)
+        col = inv[s0, at]  # each near candidate's position among its state's nearest
+        near_z = np.zeros((n, w), dtype=np.int64)
+        near_z[s0, col] = pz[c0]
+        gated = np.zeros((n, w), dtype=bool)
+        gated[s0, col] = ok[c0]
+        cols = np.arange(w)
+        last = np.where(gated, cols + 1, 0).max(axis=1, initial=0)
+        pays = frame.payoffs()[near_z] if nz else np.zeros((n, w))
+        bad = ~np.isfinite(pays) & (cols < last[:, None])
+        n_opt = np.minimum(last, np.where(bad, cols, w).min(axis=1, initial=w)) + 1
+        cost = np.zeros((n, w + 1))  # cost[i, j]: hiding the j nearest, summed nearest first
+        cost[:, 1:] = np.cumsum(np.where(cols < n_opt[:, None] - 1, pays, 0.0), axis=1)
+        rank_of = np.full((n, nz), nz, dtype=np.int64)  # position among the nearest (nz: far)
+        rank_of[s0, pz[c0]] = col
+
+        # gated pairs, scored by N(z; Hx̂, S)
         track, pz, d2 = track[ok], pz[ok], d2[ok]
         ps, pt = track // T, track % T
         o = _by_likelihood(d2, g.norm.reshape(-1)[track], ps, n)
