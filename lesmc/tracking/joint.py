@@ -465,9 +465,7 @@ class JointDesign:
         track, pz, d2 = track[ok], pz[ok], d2[ok]
         ps, pt = track // T, track % T
         o = _by_likelihood(d2, g.norm.reshape(-1)[track], ps, n)
-        return _Prepared(
-            Z, X, g, live, pend, js.npend, n_opt, cost, rank_of, ps[o], pt[o], pz[o]
-        )
+        return _Prepared(Z, X, g, live, pend, js.npend, n_opt, cost, rank_of, ps[o], pt[o], pz[o])
 
     def _rows(
         self, p: _Prepared, lo: np.ndarray, hi: np.ndarray
