@@ -259,6 +259,8 @@ class _Prepared:
     ps: np.ndarray  # gated pairs (state, track, detection), by state then likelihood
     pt: np.ndarray
     pz: np.ndarray
+    near_z: np.ndarray  # (n, w) the primary's nearest detections (valid up to n_near)
+    n_near: np.ndarray
 
 
 class JointDesign:
@@ -363,7 +365,10 @@ class JointDesign:
         )
         states.key = key0 = digest(states)
         payoff = np.zeros(n)
-        todo = np.arange(n)
+        sure = _option_one_differs(p, assign[:, 0])
+        if sure.any():
+            payoff[sure] = p.cost[sure, 1]
+        todo = np.flatnonzero(~sure)
         j = 1
         while True:
             todo = todo[p.n_opt[todo] > j]
@@ -465,7 +470,9 @@ class JointDesign:
         track, pz, d2 = track[ok], pz[ok], d2[ok]
         ps, pt = track // T, track % T
         o = _by_likelihood(d2, g.norm.reshape(-1)[track], ps, n)
-        return _Prepared(Z, X, g, live, pend, js.npend, n_opt, cost, rank_of, ps[o], pt[o], pz[o])
+        return _Prepared(
+            Z, X, g, live, pend, js.npend, n_opt, cost, rank_of, ps[o], pt[o], pz[o], near_z, per
+        )
 
     def _rows(
         self, p: _Prepared, lo: np.ndarray, hi: np.ndarray
@@ -633,6 +640,30 @@ class JointDesign:
         kept = np.zeros(len(s), dtype=bool)
         kept[o[head]] = True
         return kept
+
+
+def _option_one_differs(p: _Prepared, primary: np.ndarray) -> np.ndarray:
+    """States whose option 1 surely leads elsewhere than option 0, without building it.
+
+    When option 0's primary updates with the nearest detection, hiding it
+    leaves the primary either skipping (its P differs) or updating with another
+    detection within its gate; if every such detection lies at least δ away
+    and K's position block (nonsingular) moves the estimate by at least
+    σ_min(K)·δ, far above rounding, the primary's estimate differs.
+    """
+    n, w = p.near_z.shape
+    ok = (p.n_opt > 1) & (p.n_near > 0) & (primary == p.near_z[:, 0]) if w else np.zeros(n, bool)
+    if not ok.any():
+        return ok
+    z0 = p.Z[p.near_z[:, 0]]
+    dz = p.Z[p.near_z] - z0[:, None]
+    gap = np.where(np.arange(w) < p.n_near[:, None], np.hypot(dz[..., 0], dz[..., 1]), np.inf)
+    delta = gap[:, 1:].min(axis=1, initial=np.inf)
+    K = p.g.K[:, 0, :2, :]  # (n, 2, 2): how the position moves with the innovation
+    sigma_min = np.sqrt(np.maximum(np.linalg.eigvalsh(np.swapaxes(K, 1, 2) @ K)[:, 0], 0.0))
+    scale = 1.0 + np.abs(p.X[:, 0, :2]).max(axis=1) + np.abs(dz).max(axis=(1, 2), initial=0.0)
+    out: np.ndarray = ok & (sigma_min * delta > 1e-6 * scale)
+    return out
 
 
 #: Likelihoods closer than this (relative) are recomputed exactly before they are compared.
