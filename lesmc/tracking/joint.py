@@ -28,11 +28,14 @@ and a whole batch is expanded with array operations, in chunks that bound the
 (rows × tracks × detections) temporaries. What derives from a track's
 covariance is computed once per distinct P (tracking/design.py's
 :class:`~lesmc.tracking.design.Gains` over the design's table of track
-covariances). Every state's options become rows; the greedy association runs
-on all rows at once, in rounds (each row takes its best remaining pair, then
-that track and detection are spent), and so do track initiation (one round per
-candidate detection) and pruning (a mask). tests/joint_reference.py keeps the
-per-state loop this replaced, as the oracle (tests/test_joint.py).
+covariances). Each state's gated pairs are found and sorted once; its options
+become rows; the greedy association runs on all rows at once, in rounds (every
+pair that is first among the remaining pairs of both its track and its
+detection is taken, then the spent tracks' and detections' pairs go), and so do
+track initiation (one round per candidate detection) and pruning (a mask).
+Outside the window only option 0 is built, plus as many further options as its
+own payoff needs. tests/joint_reference.py keeps the per-state loop this
+replaced, as the oracle (tests/test_joint.py).
 """
 
 from __future__ import annotations
