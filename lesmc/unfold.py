@@ -32,7 +32,7 @@ from lesmc.language.properties import SpecFile
 from lesmc.language.semantics import BoundProperty, bind
 from lesmc.model.arrays import ArrayModel
 from lesmc.model.growing import Expansion, GrowingModel
-from lesmc.tracking.design import Batch, Design, make_design
+from lesmc.tracking.design import Batch, Design, PayloadStore, make_design
 from lesmc.tracking.scene import Scene
 
 COMPONENTS = ("x", "y", "vx", "vy")
@@ -104,7 +104,7 @@ class SceneExpander:
         self.window = window
         self.model = GrowingModel(COMPONENTS, 4)
         self.model.expander = self
-        self.objects: list[object] | None = None  # whole tracker states, for designs that have them
+        self.objects: PayloadStore | None = None  # whole tracker states, for designs that have them
         self._seen: dict[int, HashIndex] = {}  # per step: state hash -> index
         # detection index -> observation code: frames' detections numbered in order
         self._obs_offset = np.cumsum([0] + [len(f.detections) for f in scene.frames])
@@ -116,7 +116,7 @@ class SceneExpander:
     def batch(self, idx: np.ndarray) -> Batch:
         """The tracker states with model indices ``idx`` (read from the model's arrays)."""
         m = self.model
-        objs = None if self.objects is None else [self.objects[int(i)] for i in idx]
+        objs = None if self.objects is None else self.objects.take(idx)
         return Batch(m.S[idx], m.cov[idx].astype(np.int64), m.halted[idx], objs)
 
     def _append(self, step: int, fresh: Batch) -> int:
@@ -126,7 +126,7 @@ class SceneExpander:
         first = model.add_states(step, fresh.X, fresh.cov.astype(np.int32), fresh.halted)
         if fresh.objects is not None:
             if self.objects is None:
-                self.objects = []
+                self.objects = fresh.objects.store()
             self.objects.extend(fresh.objects)
         return first
 

@@ -40,7 +40,11 @@ def gate_test(
         radius = np.reshape(radius, np.shape(radius) + (1,) * (y.ndim - 1 - np.ndim(radius)))
         out: np.ndarray = y[..., 0] ** 2 + y[..., 1] ** 2 <= radius * radius
         return out
-    d2 = mahalanobis2(y, S_inv)
+    return mahalanobis_gate(mahalanobis2(y, S_inv), gate)
+
+
+def mahalanobis_gate(d2: np.ndarray, gate: float) -> np.ndarray:
+    """Eq. 19 from the squared Mahalanobis distances d² = yᵀ S⁻¹ y: sqrt(d²) ≤ g."""
     res: np.ndarray = np.sqrt(np.maximum(d2, 0.0)) <= gate
     return res
 

@@ -5,18 +5,26 @@ updater; association.py: gate and the attacker's options; the deleter is the
 trace(P) > max_trace halt), as Stone Soup composes its trackers. Its states
 travel in batches of arrays: the estimate X (n, d), an index into the design's
 table of distinct covariances, and the halted flag; a design whose state is
-more than one filter (joint) also keeps the whole states as objects.
+more than one filter (joint) also carries the whole states as a :class:`Payload`
+(arrays, gathered and stored by the unfolder without looking inside).
+
+What derives from a filter's covariance P alone (P̂, S, S⁻¹, det S, K, the
+updated P, the gate radius, the trace halts) is computed once per distinct P
+(:class:`Gains`) and spread to the rows that share it.
 """
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
-from typing import Any, Protocol
+from typing import Protocol
 
 import numpy as np
 
 from lesmc.model.growing import GrowArray
-from lesmc.tracking.scene import Scene
+from lesmc.tracking.association import gate_radii
+from lesmc.tracking.kalman import Matrices, innovations, predict_covariances
+from lesmc.tracking.scene import Scene, TrackerConfig
 
 
 class CovarianceTable:
@@ -81,6 +89,30 @@ class CovarianceTable:
         return view
 
 
+class Payload(Protocol):
+    """The whole states of a batch, for designs whose state is more than (x, P)."""
+
+    def __len__(self) -> int: ...
+
+    def take(self, idx: np.ndarray) -> Payload:
+        """The states at positions ``idx``."""
+        ...
+
+    def store(self) -> PayloadStore:
+        """An empty store for payloads of this kind."""
+        ...
+
+
+class PayloadStore(Protocol):
+    """Where the unfolder keeps the payloads of the states it has added, in order."""
+
+    def extend(self, payload: Payload, /) -> None: ...
+
+    def take(self, idx: np.ndarray) -> Payload:
+        """The stored states with positions ``idx``."""
+        ...
+
+
 @dataclass
 class Batch:
     """n tracker states: estimates X (n, d), covariance indices, halted flags, and for
@@ -89,14 +121,94 @@ class Batch:
     X: np.ndarray
     cov: np.ndarray
     halted: np.ndarray
-    objects: list[Any] | None = None
+    objects: Payload | None = None
 
     def __len__(self) -> int:
         return int(self.X.shape[0])
 
     def take(self, idx: np.ndarray) -> Batch:
-        objs = None if self.objects is None else [self.objects[int(i)] for i in idx]
+        objs = None if self.objects is None else self.objects.take(idx)
         return Batch(self.X[idx], self.cov[idx], self.halted[idx], objs)
+
+
+@dataclass(frozen=True)
+class GainRows:
+    """What derives from each row's covariance P (Eq. 2-3, the gate, the halt), over the
+    rows (any shape)."""
+
+    radius: np.ndarray  # no detection farther than this can pass the gate
+    norm: np.ndarray  # 2π sqrt(det S): the likelihood N(z; Hx̂, S) is exp(−d²/2) / norm
+    S_inv: np.ndarray  # (..., 2, 2)
+    P_pred: np.ndarray  # (..., 4, 4)
+    K: np.ndarray  # (..., 4, 2)
+    pred: np.ndarray  # table index of P̂ (the state after a skipped update)
+    post: np.ndarray  # table index of the updated P
+    halt_pred: np.ndarray  # trace(P̂) > max_trace
+    halt_post: np.ndarray  # trace(P⁺) > max_trace
+
+
+class Gains:
+    """The gain rows of every covariance of ``table``, computed once per distinct P.
+
+    P̂ and P⁺ are added to ``table``, so the gains of a design's next states
+    are found by index. :meth:`rows` computes what is new among the indices it
+    is asked for in one batch (kalman.innovations) and spreads the rows.
+    """
+
+    FIELDS = ("radius", "norm", "S_inv", "P_pred", "K", "pred", "post", "halt_pred", "halt_post")
+
+    def __init__(self, m: Matrices, cfg: TrackerConfig, table: CovarianceTable) -> None:
+        self.m = m
+        self.cfg = cfg
+        self.table = table
+        self.known = GrowArray(np.bool_)
+        self.cols = {
+            "radius": GrowArray(np.float64),
+            "norm": GrowArray(np.float64),
+            "S_inv": GrowArray(np.float64, (2, 2)),
+            "P_pred": GrowArray(np.float64, (4, 4)),
+            "K": GrowArray(np.float64, (4, 2)),
+            "pred": GrowArray(np.int64),
+            "post": GrowArray(np.int64),
+            "halt_pred": GrowArray(np.bool_),
+            "halt_post": GrowArray(np.bool_),
+        }
+
+    def rows(self, cov: np.ndarray) -> GainRows:
+        """The gains of covariance indices ``cov`` (any shape) as arrays of that shape."""
+        cs = np.unique(cov)
+        old = cs[cs < self.known.n]
+        new = np.concatenate([old[~self.known.data[old]], cs[cs >= self.known.n]])
+        if new.size:
+            self._fill(new.astype(np.int64))
+        return GainRows(*(self.cols[name].data[cov] for name in self.FIELDS))
+
+    def _fill(self, cs: np.ndarray) -> None:
+        """Predict and gain (Eq. 2-3), gate radius, likelihood norm and halts of the
+        covariances ``cs``, all together; P̂ and P⁺ join the table."""
+        m, cfg = self.m, self.cfg
+        P_pred = predict_covariances(m, self.table.stack()[cs])
+        inn = innovations(m, P_pred)
+        values = {
+            "radius": gate_radii(inn.S, P_pred, cfg.gate, cfg.gate_type),
+            "norm": 2 * math.pi * np.sqrt(np.linalg.det(inn.S)),
+            "S_inv": inn.S_inv,
+            "P_pred": P_pred,
+            "K": inn.K,
+            "pred": self.table.add_many(P_pred),
+            "post": self.table.add_many(inn.P_post),
+            "halt_pred": np.trace(P_pred, axis1=1, axis2=2) > cfg.max_trace,
+            "halt_post": np.trace(inn.P_post, axis1=1, axis2=2) > cfg.max_trace,
+        }
+        top = int(cs.max()) + 1
+        if top > self.known.n:  # make room up to the largest (unknown rows stay marked so)
+            grow = top - self.known.n
+            self.known.extend(np.zeros(grow, dtype=bool))
+            for col in self.cols.values():
+                col.extend(np.zeros((grow, *col.data.shape[1:]), dtype=col.data.dtype))
+        for name in self.FIELDS:
+            self.cols[name].data[cs] = values[name]
+        self.known.data[cs] = True
 
 
 @dataclass

@@ -6,11 +6,13 @@ tracks). One step:
 
 1. carry every position into the new frame (homography) and predict every track;
 2. score every gated (track, detection) pair by the likelihood N(z; Hx̂, S), sort
-   from the largest, and associate greedily one-to-one;
+   from the largest (ties: lower track, then lower detection), and associate
+   greedily one-to-one;
 3. update the associated tracks (the others skip the update);
 4. an unassociated detection within ``init_radius`` of the primary starts a
    refining track if a previous unassociated detection lies within
-   ``init_distance`` (their difference over dt is its velocity); otherwise it is
+   ``init_distance`` (their difference over dt is its velocity; detections in
+   index order, each with the nearest remaining previous one); otherwise it is
    kept for the next step;
 5. refining tracks farther than ``prune_radius`` from the primary, or whose
    trace(P) exceeds ``max_trace``, are dropped.
@@ -20,53 +22,248 @@ nearest to the primary's prediction, as for the single design: option j hides
 the j nearest (up to the last one the primary's gate accepts) and costs their
 payoffs. The hidden detections are gone for every track. Outcomes that leave
 the whole joint state identical are merged (the cheapest kept).
+
+Speed: a batch of joint states travels as padded arrays (:class:`JointStates`),
+and a whole batch is expanded with array operations, in chunks that bound the
+(rows × tracks × detections) temporaries. What derives from a track's
+covariance is computed once per distinct P (tracking/design.py's
+:class:`~lesmc.tracking.design.Gains` over the design's table of track
+covariances). Each state's gated pairs are found and sorted once; its options
+become rows; the greedy association runs on all rows at once, in rounds (every
+pair that is first among the remaining pairs of both its track and its
+detection is taken, then the spent tracks' and detections' pairs go), and so do
+track initiation (one round per candidate detection) and pruning (a mask).
+Outside the window only option 0 is built, plus as many further options as its
+own payoff needs. tests/joint_reference.py keeps the per-state loop this
+replaced, as the oracle (tests/test_joint.py).
 """
 
 from __future__ import annotations
 
-import hashlib
 import math
 from dataclasses import dataclass
 
 import numpy as np
 
-from lesmc.tracking.association import gate_mask, gate_radius
-from lesmc.tracking.design import Batch, CovarianceTable, Successors
+from lesmc.model.growing import GrowArray
+from lesmc.tracking.association import gate_test, mahalanobis_gate
+from lesmc.tracking.design import Batch, CovarianceTable, GainRows, Gains, Successors
 from lesmc.tracking.kalman import (
-    Innovation,
     Matrices,
-    innovation,
     mahalanobis2,
     matrices,
-    predict,
+    predict_means,
     update_means,
     warp,
 )
 from lesmc.tracking.scene import Scene
 
+#: (states × tracks × detections) cells of one chunk: bounds the temporaries of an expansion.
+CHUNK_CELLS = 1 << 19
 
-@dataclass(frozen=True, eq=False)
-class JointState:
-    """The whole joint tracker: primary and refining (x, P), and pending detections."""
 
-    tracks: tuple[tuple[np.ndarray, np.ndarray], ...]  # tracks[0] is the primary
-    pending: np.ndarray  # (n, 2) unassociated detections of the previous frame
-    halted: bool = False
+@dataclass
+class JointStates:
+    """n joint states as padded arrays: the :class:`~lesmc.tracking.design.Payload` of the design.
 
-    @property
-    def x(self) -> np.ndarray:
-        return self.tracks[0][0]
+    Track 0 is the primary; tracks beyond ``ntrack[i]`` and pending detections
+    beyond ``npend[i]`` are padding (zeros). ``tcov`` indexes the design's
+    table of track covariances. ``key`` caches :func:`digest` once computed.
+    """
 
-    @property
-    def P(self) -> np.ndarray:
-        return self.tracks[0][1]
+    tracks: np.ndarray  # (n, T, 4) means
+    tcov: np.ndarray  # (n, T) int64
+    ntrack: np.ndarray  # (n,) int64, >= 1
+    pending: np.ndarray  # (n, K, 2) unassociated detections of the previous frame
+    npend: np.ndarray  # (n,) int64
+    key: np.ndarray | None = None  # (n, 2) uint64
 
-    def estimate(self) -> tuple[np.ndarray, np.ndarray]:
-        return self.tracks[0]
+    def __len__(self) -> int:
+        return int(self.ntrack.shape[0])
 
-    def key(self) -> bytes:
-        parts = [a.tobytes() for x, P in self.tracks for a in (x, P)]
-        return b"|".join([*parts, self.pending.tobytes()])
+    def take(self, idx: np.ndarray) -> JointStates:
+        nt, npd = self.ntrack[idx], self.npend[idx]
+        T = int(nt.max(initial=1))
+        K = int(npd.max(initial=0))
+        key = None if self.key is None else self.key[idx]
+        return JointStates(
+            self.tracks[idx, :T], self.tcov[idx, :T], nt, self.pending[idx, :K], npd, key
+        )
+
+    def store(self) -> JointStore:
+        return JointStore()
+
+    def words(self) -> tuple[np.ndarray, np.ndarray]:
+        """The state as 64-bit words: per track (x bits, covariance index) and per pending
+        detection (position bits); (n, T, 5) and (n, K, 2)."""
+        n, T = self.tcov.shape
+        t = np.empty((n, T, 5), dtype=np.uint64)
+        t[..., :4] = np.ascontiguousarray(self.tracks).view(np.uint64)
+        t[..., 4] = self.tcov.astype(np.uint64)
+        p = np.ascontiguousarray(self.pending).view(np.uint64).reshape(n, -1, 2)
+        return t, p
+
+
+def concat(parts: list[JointStates]) -> JointStates:
+    """The states of ``parts`` in order, padded to the widest."""
+    if len(parts) == 1:
+        return parts[0]
+    n = sum(len(p) for p in parts)
+    T = max(p.tracks.shape[1] for p in parts)
+    K = max(p.pending.shape[1] for p in parts)
+    out = JointStates(
+        np.zeros((n, T, 4)),
+        np.zeros((n, T), dtype=np.int64),
+        np.concatenate([p.ntrack for p in parts]),
+        np.zeros((n, K, 2)),
+        np.concatenate([p.npend for p in parts]),
+    )
+    if all(p.key is not None for p in parts):
+        out.key = np.concatenate([p.key for p in parts if p.key is not None])
+    lo = 0
+    for p in parts:
+        hi = lo + len(p)
+        out.tracks[lo:hi, : p.tracks.shape[1]] = p.tracks
+        out.tcov[lo:hi, : p.tcov.shape[1]] = p.tcov
+        out.pending[lo:hi, : p.pending.shape[1]] = p.pending
+        lo = hi
+    return out
+
+
+class JointStore:
+    """Joint states kept by the unfolder: tracks and pending detections stored ragged."""
+
+    def __init__(self) -> None:
+        self._x = GrowArray(np.float64, (4,))
+        self._c = GrowArray(np.int64)
+        self._p = GrowArray(np.float64, (2,))
+        self._toff = GrowArray(np.int64)
+        self._nt = GrowArray(np.int64)
+        self._poff = GrowArray(np.int64)
+        self._np = GrowArray(np.int64)
+        self._key = GrowArray(np.uint64, (2,))
+
+    def extend(self, payload: object, /) -> None:
+        assert isinstance(payload, JointStates)
+        js = payload
+        nt, npd = js.ntrack, js.npend
+        tmask = np.arange(js.tcov.shape[1]) < nt[:, None]
+        pmask = np.arange(js.pending.shape[1]) < npd[:, None]
+        self._toff.extend(self._x.n + _starts(nt))
+        self._poff.extend(self._p.n + _starts(npd))
+        self._nt.extend(nt)
+        self._np.extend(npd)
+        self._x.extend(js.tracks[tmask])
+        self._c.extend(js.tcov[tmask])
+        self._p.extend(js.pending[pmask])
+        self._key.extend(digest(js))
+
+    def take(self, idx: np.ndarray) -> JointStates:
+        nt, npd = self._nt.data[idx], self._np.data[idx]
+        T, K = int(nt.max(initial=1)), int(npd.max(initial=0))
+        tm = np.arange(T) < nt[:, None]
+        pm = np.arange(K) < npd[:, None]
+        tpos = np.where(tm, self._toff.data[idx][:, None] + np.arange(T), 0)
+        ppos = np.where(pm, self._poff.data[idx][:, None] + np.arange(K), 0)
+        tracks = np.where(tm[..., None], self._x.data[tpos], 0.0)
+        tcov = np.where(tm, self._c.data[tpos], 0)
+        pending = np.where(pm[..., None], self._p.data[ppos], 0.0)
+        return JointStates(tracks, tcov, nt, pending, npd, self._key.data[idx])
+
+
+# ------------------------------------------------------------------ digests
+
+_M64 = (1 << 64) - 1
+#: Two 64-bit mixers (splitmix64's and murmur3's finalisers): one per half of the digest.
+_MIXERS = (
+    (30, 0xBF58476D1CE4E5B9, 27, 0x94D049BB133111EB, 31),
+    (33, 0xFF51AFD7ED558CCD, 33, 0xC4CEB9FE1A85EC53, 33),
+)
+
+
+def _mix(x: np.ndarray, lane: int) -> np.ndarray:
+    s1, m1, s2, m2, s3 = _MIXERS[lane]
+    with np.errstate(over="ignore"):
+        x = x ^ (x >> np.uint64(s1))
+        x = x * np.uint64(m1)
+        x ^= x >> np.uint64(s2)
+        x *= np.uint64(m2)
+        x ^= x >> np.uint64(s3)
+    return x
+
+
+def _positions(count: int, section: int, lane: int) -> np.ndarray:
+    """Per-position constants of a digest section (independent of any padding)."""
+    base = np.uint64((0x9E3779B97F4A7C15 * (4 * section + lane + 1)) & _M64)
+    with np.errstate(over="ignore"):
+        return _mix(
+            np.arange(1, count + 1, dtype=np.uint64) * np.uint64(0x9E3779B97F4A7C15) + base, lane
+        )
+
+
+def digest(js: JointStates) -> np.ndarray:
+    """A 128-bit digest (n, 2) of each whole joint state: its track and pending counts,
+    each track's mean bits and covariance index, each pending detection's position bits.
+
+    Every word is mixed with a constant of its position and the mixed words are
+    summed (mod 2⁶⁴), padding left out: the digest does not depend on how wide
+    the arrays of a batch are.
+    """
+    if js.key is not None:
+        return js.key
+    t, p = js.words()
+    n, T = js.tcov.shape
+    K = p.shape[1]
+    tm = (np.arange(T) < js.ntrack[:, None])[..., None]
+    pm = (np.arange(K) < js.npend[:, None])[..., None]
+    zero = np.uint64(0)
+    out = np.empty((n, 2), dtype=np.uint64)
+    with np.errstate(over="ignore"):
+        for lane in (0, 1):
+            h = _mix(js.ntrack.astype(np.uint64) ^ _positions(1, 0, lane), lane)
+            h += _mix(js.npend.astype(np.uint64) ^ _positions(1, 1, lane), lane)
+            ct = _positions(T * 5, 2, lane).reshape(T, 5)
+            h += np.where(tm, _mix(t ^ ct, lane), zero).sum(axis=(1, 2), dtype=np.uint64)
+            if K:
+                cp = _positions(K * 2, 3, lane).reshape(K, 2)
+                h += np.where(pm, _mix(p ^ cp, lane), zero).sum(axis=(1, 2), dtype=np.uint64)
+            out[:, lane] = h
+    return out
+
+
+# ------------------------------------------------------------------ the design
+
+
+@dataclass
+class _Expanded:
+    """Successors of one chunk of states (see :meth:`JointDesign._expand`)."""
+
+    src: np.ndarray
+    rank: np.ndarray
+    payoff: np.ndarray
+    det: np.ndarray
+    halted: np.ndarray
+    states: JointStates
+
+
+@dataclass
+class _Prepared:
+    """What the options of a chunk of states share (see :meth:`JointDesign._prepare`)."""
+
+    Z: np.ndarray  # (z, 2) the frame's detections
+    X: np.ndarray  # (n, T, 4) predicted tracks
+    g: GainRows  # (n, T) their gains
+    live: np.ndarray  # (n, T) real tracks
+    pend: np.ndarray  # (n, K, 2) pending detections, in this frame's coordinates
+    npend: np.ndarray
+    n_opt: np.ndarray  # (n,) the attacker's options
+    cost: np.ndarray  # (n, z + 1) cost of option j: hiding the j nearest
+    rank_of: np.ndarray  # (n, z) each detection's position among the primary's nearest
+    ps: np.ndarray  # gated pairs (state, track, detection), by state then likelihood
+    pt: np.ndarray
+    pz: np.ndarray
+    near_z: np.ndarray  # (n, w) the primary's nearest detections (valid up to n_near)
+    n_near: np.ndarray
 
 
 class JointDesign:
@@ -78,161 +275,483 @@ class JointDesign:
         self.scene = scene
         self.cfg = scene.tracker
         self.m: Matrices = matrices(self.cfg, scene.dt)
-        self.covariances = CovarianceTable()
+        self.covariances = CovarianceTable()  # the primaries' (the model's table)
+        self.track_covariances = CovarianceTable()  # every track's
+        self.gains = Gains(self.m, self.cfg, self.track_covariances)
+        self._model_cov = np.full(0, -1, dtype=np.int64)  # track table -> model table
+        self._p0 = self.track_covariances.add(self.m.P0.copy())
+        self._p0_kept = float(np.trace(self.m.P0)) <= self.cfg.max_trace
 
     def initial(self) -> Batch:
         t = self.scene.target
         x0 = np.array([*t.start, *t.velocity], dtype=float)
         Z = self.scene.frame(t.step).positions()
         near = Z[np.hypot(*(Z - x0[:2]).T) <= self.cfg.init_radius] if len(Z) else Z
-        return self._batch([JointState(((x0, self.m.P0.copy()),), near.reshape(-1, 2))])
+        near = near.reshape(-1, 2)
+        js = JointStates(
+            x0.reshape(1, 1, 4),
+            np.array([[self._p0]], dtype=np.int64),
+            np.ones(1, dtype=np.int64),
+            near[None].copy(),
+            np.array([len(near)], dtype=np.int64),
+        )
+        return self._batch(js, np.zeros(1, dtype=bool))
 
-    def _batch(self, states: list[JointState]) -> Batch:
+    def _batch(self, js: JointStates, halted: np.ndarray) -> Batch:
         """Joint states as a batch: the primary's estimate and covariance are the model's."""
-        X = np.array([st.x for st in states], dtype=float).reshape(-1, 4)
-        cov = np.array([self.covariances.add(st.P) for st in states], dtype=np.int64)
-        halted = np.array([st.halted for st in states], dtype=bool)
-        return Batch(X, cov, halted, list(states))
+        return Batch(js.tracks[:, 0].copy(), self._to_model(js.tcov[:, 0]), halted, js)
+
+    def _to_model(self, c: np.ndarray) -> np.ndarray:
+        """Model-table indices of track-table covariances (new ones added in order of first use)."""
+        if len(self.track_covariances) > len(self._model_cov):
+            grow = len(self.track_covariances) - len(self._model_cov)
+            self._model_cov = np.r_[self._model_cov, np.full(grow, -1, dtype=np.int64)]
+        u, first = np.unique(c, return_index=True)
+        new = u[self._model_cov[u] < 0]
+        if new.size:
+            order = np.argsort(first[self._model_cov[u] < 0], kind="stable")
+            for ci in new[order].tolist():
+                self._model_cov[ci] = self.covariances.add(self.track_covariances[ci])
+        out: np.ndarray = self._model_cov[c]
+        return out
 
     def keys(self, batch: Batch) -> np.ndarray:
         """A 128-bit digest of each whole joint state (tracks and pending detections)."""
-        assert batch.objects is not None
-        digests = b"".join(
-            hashlib.blake2b(st.key(), digest_size=16).digest() for st in batch.objects
-        )
-        return np.frombuffer(digests, dtype=np.uint64).reshape(-1, 2)
+        assert isinstance(batch.objects, JointStates)
+        return digest(batch.objects)
 
     def successors(self, batch: Batch, step: int, attacked: bool) -> Successors:
-        """Every state's outcomes, one state at a time (association is greedy and per state)."""
-        assert batch.objects is not None
-        src: list[int] = []
-        rank: list[int] = []
-        pay: list[float] = []
-        det: list[int] = []
-        states: list[JointState] = []
-        for i, st in enumerate(batch.objects):
-            opts = self.options(st, step)
-            if not attacked:
-                opts = opts[:1]  # its own payoff is kept: it is part of no combined payoff
-            for r, (nxt, d, p) in enumerate(opts):
-                src.append(i)
-                rank.append(r)
-                pay.append(p)
-                det.append(d)
-                states.append(nxt)
+        """Every state's outcomes, chunk by chunk of states, each chunk with array operations."""
+        js = batch.objects
+        assert isinstance(js, JointStates)
+        Z = self.scene.frame(step).positions()
+        T = js.tracks.shape[1]
+        size = max(1, CHUNK_CELLS // (T * max(len(Z), 1)))
+        parts = []
+        for lo in range(0, len(js), size):
+            part = js.take(np.arange(lo, min(lo + size, len(js))))
+            e = self._expand(part, step, attacked)
+            e.src += lo
+            parts.append(e)
+        if not parts:
+            parts.append(self._expand(js, step, attacked))
+        states = concat([e.states for e in parts])
+        succ = self._batch(states, np.concatenate([e.halted for e in parts]))
         return Successors(
-            np.array(src, dtype=np.int64),
-            np.array(rank, dtype=np.int64),
-            np.array(pay, dtype=float),
-            np.array(det, dtype=np.int64),
-            self._batch(states),
+            np.concatenate([e.src for e in parts]),
+            np.concatenate([e.rank for e in parts]),
+            np.concatenate([e.payoff for e in parts]),
+            np.concatenate([e.det for e in parts]),
+            succ,
         )
 
-    def options(self, st: JointState, step: int) -> list[tuple[JointState, int, float]]:
-        """Outcomes of hiding the j detections nearest to the primary's prediction, j = 0, 1, ..."""
-        scene, cfg = self.scene, self.cfg
-        Hm = scene.frame(step - 1).to_next
-        preds = []
-        for x, P in st.tracks:
-            x = x.copy()
-            x[:2] = warp(Hm, x[:2])
-            xp, Pp = predict(self.m, x, P)
-            preds.append((xp, Pp, innovation(self.m, Pp)))
-        pending = warp(Hm, st.pending) if len(st.pending) else st.pending
-        frame = scene.frame(step)
+    # -------------------------------------------------------------- one chunk
+    def _expand(self, js: JointStates, step: int, attacked: bool) -> _Expanded:
+        """The outcomes of the states ``js`` at frame ``step`` (see the module docstring)."""
+        p = self._prepare(js, step)
+        n = len(js)
+        if attacked:
+            s, opt, assign, halt, states = self._rows(p, np.zeros(n, dtype=np.int64), p.n_opt)
+            rows = np.nonzero(self._merge(states, s))[0]
+            rank, payoff = _ranks_and_payoffs(s[rows], p.cost[s[rows], opt[rows]])
+            return _Expanded(
+                s[rows].astype(np.int64),
+                rank,
+                payoff,
+                assign[rows, 0].astype(np.int64),
+                halt[rows, 0],
+                states.take(rows),
+            )
+        # unattacked: option 0, and its own payoff, the cost of the first option that differs
+        s, opt, assign, halt, states = self._rows(
+            p, np.zeros(n, dtype=np.int64), np.minimum(p.n_opt, 1)
+        )
+        states.key = key0 = digest(states)
+        payoff = np.zeros(n)
+        sure = _option_one_differs(p, assign[:, 0])
+        if sure.any():
+            payoff[sure] = p.cost[sure, 1]
+        todo = np.flatnonzero(~sure)
+        j = 1
+        while True:
+            todo = todo[p.n_opt[todo] > j]
+            if not todo.size:
+                break
+            lo = np.zeros(n, dtype=np.int64)
+            lo[todo] = j
+            hi = lo.copy()
+            hi[todo] = j + 1
+            sj, _, _, _, nxt = self._rows(p, lo, hi)
+            differs = (digest(nxt) != key0[sj]).any(axis=1)
+            same = nxt.take(np.nonzero(~differs)[0])
+            if not _same_as(same, states, sj[~differs]):
+                raise AssertionError("joint state digest collision")
+            payoff[sj[differs]] = p.cost[sj[differs], j]
+            todo = sj[~differs]
+            j += 1
+        return _Expanded(
+            s.astype(np.int64),
+            np.zeros(n, dtype=np.int64),
+            payoff,
+            assign[:, 0].astype(np.int64),
+            halt[:, 0],
+            states,
+        )
+
+    def _prepare(self, js: JointStates, step: int) -> _Prepared:
+        """What every option of a state shares: predictions, gains, the primary's nearest
+        detections and what hiding them costs, and the gated pairs in likelihood order."""
+        cfg = self.cfg
+        frame = self.scene.frame(step)
         Z = frame.positions()
-        xp0, Pp0, inn0 = preds[0]
-        y0 = Z - xp0[:2]
-        dist = np.sqrt(y0[:, 0] ** 2 + y0[:, 1] ** 2)
-        order = np.argsort(dist, kind="stable")
-        radius = gate_radius(inn0, Pp0, cfg.gate, cfg.gate_type)
-        near = order[dist[order] <= radius]
-        gated = gate_mask(y0[near], inn0, Pp0, cfg.gate, cfg.gate_type)
-        last = int(np.nonzero(gated)[0].max()) + 1 if gated.any() else 0
-        payoffs = frame.payoffs()
-        kept: list[tuple[float, JointState, int]] = []  # (cost of hiding, state, detection)
-        seen: set[bytes] = set()
-        cost = 0.0
-        for j in range(last + 1):  # option j hides the j nearest detections
-            if j > 0:
-                p = float(payoffs[near[j - 1]])
-                if not math.isfinite(p):
-                    break  # an unattackable detection cannot be hidden
-                cost += p
-            visible = np.ones(len(Z), dtype=bool)
-            visible[near[:j]] = False
-            nxt, obs = self._associate(preds, pending, Z, visible, frame)
-            if nxt.key() not in seen:  # identical joint states: keep the cheapest
-                seen.add(nxt.key())
-                kept.append((cost, nxt, obs))
-        # own payoffs so that Eq. 5 (sum over lower ranks) gives each option's cost
-        return [
-            (st_, obs, (kept[r + 1][0] - c) if r + 1 < len(kept) else 0.0)
-            for r, (c, st_, obs) in enumerate(kept)
-        ]
+        nz = len(Z)
+        n, T = js.tcov.shape
+        Hm = self.scene.frame(step - 1).to_next
+        X = js.tracks.copy()
+        if Hm is not None:
+            X[..., :2] = warp(Hm, X[..., :2])
+        X = predict_means(X, float(self.m.F[0, 2]))
+        pend = warp(Hm, js.pending) if Hm is not None else js.pending
+        g = self.gains.rows(js.tcov)
+        live = np.arange(T) < js.ntrack[:, None]
+
+        # candidate (track, detection) pairs: within each track's gate radius (a little
+        # wider: the gate decides), found in the strip of detections sorted by x
+        r = g.radius * (1 + 1e-9)
+        by_x = np.argsort(Z[:, 0], kind="stable")
+        zx = Z[by_x, 0]
+        lo = np.searchsorted(zx, X[..., 0] - r, "left")
+        cnt = np.where(live, np.searchsorted(zx, X[..., 0] + r, "right") - lo, 0).ravel()
+        track = np.repeat(np.arange(n * T), cnt)
+        pz = by_x[np.repeat(lo.ravel(), cnt) + _within(cnt)]
+        o = np.argsort(track * max(nz, 1) + pz, kind="stable")  # by state, track, detection
+        track, pz = track[o], pz[o]
+        Xf = X.reshape(n * T, 4)
+        dx = Z[pz, 0] - Xf[track, 0]
+        dy = Z[pz, 1] - Xf[track, 1]
+        keep = dx * dx + dy * dy <= r.reshape(-1)[track] ** 2
+        track, pz, dx, dy = track[keep], pz[keep], dx[keep], dy[keep]
+        y = np.stack([dx, dy], axis=-1)
+        S_inv = g.S_inv.reshape(n * T, 2, 2)[track]
+        d2 = mahalanobis2(y, S_inv)
+        if cfg.gate_type == "mahalanobis":
+            ok = mahalanobis_gate(d2, cfg.gate)
+        else:
+            ok = gate_test(y, S_inv, g.P_pred.reshape(n * T, 4, 4)[track], cfg.gate, cfg.gate_type)
+
+        # the attacker's options: hide the j detections nearest the primary's prediction
+        # (the primary's candidates within its radius, by distance, then index)
+        c0 = np.flatnonzero(track % T == 0)
+        dist = np.sqrt(dx[c0] ** 2 + dy[c0] ** 2)
+        inside = dist <= g.radius[track[c0] // T, 0]
+        c0, dist = c0[inside], dist[inside]
+        s0 = track[c0] // T
+        per = np.bincount(s0, minlength=n)
+        w = int(per.max(initial=0))
+        at = _within(per)
+        D = np.full((n, w), np.inf)
+        D[s0, at] = dist
+        by_d = np.argsort(D, axis=1, kind="stable")
+        inv = np.empty((n, w), dtype=np.int64)
+        np.put_along_axis(inv, by_d, np.broadcast_to(np.arange(w), (n, w)), axis=1)
+        col = inv[s0, at]  # each near candidate's position among its state's nearest
+        near_z = np.zeros((n, w), dtype=np.int64)
+        near_z[s0, col] = pz[c0]
+        gated = np.zeros((n, w), dtype=bool)
+        gated[s0, col] = ok[c0]
+        cols = np.arange(w)
+        last = np.where(gated, cols + 1, 0).max(axis=1, initial=0)
+        pays = frame.payoffs()[near_z] if nz else np.zeros((n, w))
+        bad = ~np.isfinite(pays) & (cols < last[:, None])
+        n_opt = np.minimum(last, np.where(bad, cols, w).min(axis=1, initial=w)) + 1
+        cost = np.zeros((n, w + 1))  # cost[i, j]: hiding the j nearest, summed nearest first
+        cost[:, 1:] = np.cumsum(np.where(cols < n_opt[:, None] - 1, pays, 0.0), axis=1)
+        rank_of = np.full((n, nz), nz, dtype=np.int64)  # position among the nearest (nz: far)
+        rank_of[s0, pz[c0]] = col
+
+        # gated pairs, scored by N(z; Hx̂, S)
+        track, pz, d2 = track[ok], pz[ok], d2[ok]
+        ps, pt = track // T, track % T
+        o = _by_likelihood(d2, g.norm.reshape(-1)[track], ps, n)
+        return _Prepared(
+            Z, X, g, live, pend, js.npend, n_opt, cost, rank_of, ps[o], pt[o], pz[o], near_z, per
+        )
+
+    def _rows(
+        self, p: _Prepared, lo: np.ndarray, hi: np.ndarray
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, JointStates]:
+        """The next states of options lo[i] .. hi[i] − 1 of every state i, as rows (by state,
+        then option): source, option, association (rows, tracks), halted flags (rows, tracks)."""
+        Z, X, g = p.Z, p.X, p.g
+        nz = len(Z)
+        count = hi - lo
+        R = int(count.sum())
+        s = np.repeat(np.arange(len(count)), count)
+        start = _starts(count)
+        opt = np.repeat(lo, count) + _within(count)
+        visible = p.rank_of[s] >= opt[:, None]  # option j hides the j nearest to the primary
+        assign = self._associate(p, lo, hi, start, R)
+        a = assign >= 0
+        Xr = X[s]
+        ra, ta = np.nonzero(a)
+        Xr[ra, ta] = update_means(Xr[ra, ta], g.K[s[ra], ta], Z[assign[ra, ta]])
+        cov = np.where(a, g.post[s], g.pred[s])
+        halt = np.where(a, g.halt_post[s], g.halt_pred[s])
+        used = np.zeros((R, nz), dtype=bool)
+        used[ra, assign[ra, ta]] = True
+        states = self._initiate_and_prune(
+            Xr, cov, halt, p.live[s], Z, visible & ~used, p.pend[s], p.npend[s]
+        )
+        return s, opt, assign, halt, states
 
     def _associate(
+        self, p: _Prepared, lo: np.ndarray, hi: np.ndarray, start: np.ndarray, R: int
+    ) -> np.ndarray:
+        """The greedy one-to-one association of every option row: (R, T) detection per track, −1.
+
+        Pairs are scored once per state; a row sees those whose detection its
+        option leaves visible. Scanning a row's pairs in (−likelihood, track,
+        detection) order takes a pair when its track and detection are both
+        unspent. In rounds: every pair that comes first among the remaining pairs
+        of its track and among those of its detection is taken (nothing before it
+        can spend either), then the pairs of spent tracks and detections go.
+        """
+        T, nz = p.X.shape[1], len(p.Z)
+        ps, pt, pz = p.ps, p.pt, p.pz
+        # a pair serves the options up to its detection's position among the primary's nearest
+        reps = np.maximum(np.minimum(hi[ps], p.rank_of[ps, pz] + 1) - lo[ps], 0)
+        pair = np.repeat(np.arange(ps.size), reps)
+        row = start[ps[pair]] + _within(reps)
+        pz = pz[pair]
+        kt = row * T + pt[pair]  # flat (row, track) and (row, detection) positions
+        kz = row * nz + pz
+        assign = np.full(R * T, -1, dtype=np.int64)
+        used_t = np.zeros(R * T, dtype=bool)
+        used_z = np.zeros(R * nz, dtype=bool)
+        big = np.iinfo(np.int64).max
+        while pair.size:
+            # a pair first (best: pairs are numbered in order) among the remaining pairs of
+            # both its track and its detection is the one the scan takes for them: take
+            # all such pairs at once
+            first_t = np.full(R * T, big)
+            first_z = np.full(R * nz, big)
+            np.minimum.at(first_t, kt, pair)
+            np.minimum.at(first_z, kz, pair)
+            take = np.flatnonzero((first_t[kt] == pair) & (first_z[kz] == pair))
+            assign[kt[take]] = pz[take]
+            used_t[kt[take]] = True
+            used_z[kz[take]] = True
+            left = np.flatnonzero(~(used_t[kt] | used_z[kz]))
+            pair, kt, kz, pz = pair[left], kt[left], kz[left], pz[left]
+        return assign.reshape(R, T)
+
+    def _initiate_and_prune(
         self,
-        preds: list[tuple[np.ndarray, np.ndarray, Innovation]],
-        pending: np.ndarray,
+        X: np.ndarray,
+        cov: np.ndarray,
+        halt: np.ndarray,
+        live: np.ndarray,
         Z: np.ndarray,
-        visible: np.ndarray,
-        frame: object,
-    ) -> tuple[JointState, int]:
+        free: np.ndarray,
+        pend: np.ndarray,
+        npend: np.ndarray,
+    ) -> JointStates:
+        """Rows' next states: new tracks from free detections near the primary, pruning.
+
+        Free detections within ``init_radius`` of the updated primary are taken in
+        index order, one round each: each is matched to the nearest remaining
+        pending detection (first of equals) closer than ``init_distance``, which
+        starts a track, or is kept pending for the next step.
+        """
         cfg = self.cfg
-        idx = np.nonzero(visible)[0]
-        pairs: list[tuple[float, int, int]] = []
-        for ti, (xp, Pp, inn) in enumerate(preds):
-            y = Z[idx] - xp[:2]
-            ok = gate_mask(y, inn, Pp, cfg.gate, cfg.gate_type) if len(idx) else np.zeros(0, bool)
-            d2 = mahalanobis2(y, inn.S_inv) if len(idx) else np.zeros(0)
-            norm = 2 * math.pi * math.sqrt(float(np.linalg.det(inn.S)))
-            for r in np.nonzero(ok)[0]:
-                like = math.exp(-0.5 * float(d2[r])) / norm
-                pairs.append((-like, ti, int(idx[r])))
-        pairs.sort()
-        used_t: set[int] = set()
-        used_z: set[int] = set()
-        assign: dict[int, int] = {}
-        for _, ti, zi in pairs:
-            if ti in used_t or zi in used_z:
+        R, T = cov.shape
+        prim = X[:, 0, :2]
+        ddx = Z[None, :, 0] - prim[:, 0, None]
+        ddy = Z[None, :, 1] - prim[:, 1, None]
+        box = cfg.init_radius * (1 + 1e-9)
+        cr, cz = np.nonzero(free & (np.abs(ddx) <= box) & (np.abs(ddy) <= box))
+        inside = np.hypot(ddx[cr, cz], ddy[cr, cz]) <= cfg.init_radius
+        cr, cz = cr[inside], cz[inside]  # by row, then detection index
+        nc = np.bincount(cr, minlength=R)
+        k = _within(nc)
+        pool = np.arange(pend.shape[1]) < npend[:, None]
+        partner = np.full(cr.size, -1, dtype=np.int64)
+        todo = pool[cr].any(axis=1)
+        by_k = np.argsort(k, kind="stable")
+        bounds = np.searchsorted(k[by_k], np.arange(int(k.max(initial=-1)) + 2))
+        for j in range(len(bounds) - 1):
+            sel = by_k[bounds[j] : bounds[j + 1]]
+            sel = sel[todo[sel]]
+            rows = cr[sel]
+            sel, rows = sel[pool[rows].any(axis=1)], rows[pool[rows].any(axis=1)]
+            if not sel.size:
                 continue
-            used_t.add(ti)
-            used_z.add(zi)
-            assign[ti] = zi
-        tracks = []
-        for ti, (xp, Pp, inn) in enumerate(preds):
-            if ti in assign:
-                z = Z[assign[ti]]
-                tracks.append((update_means(xp, inn.K, z), inn.P_post))
-            else:
-                tracks.append((xp, Pp))
-        primary = tracks[0]
-        halted = float(np.trace(primary[1])) > cfg.max_trace
-        # track initiation from unassociated detections near the primary
-        free = [i for i in idx if i not in used_z]
-        free_z = Z[free].reshape(-1, 2)
-        near_p = (
-            free_z[np.hypot(*(free_z - primary[0][:2]).T) <= cfg.init_radius]
-            if len(free_z)
-            else free_z
-        )
-        pool = [p for p in pending]
-        keep: list[np.ndarray] = []
-        for z in near_p:
-            if pool:
-                dd = [float(np.hypot(*(z - p))) for p in pool]
-                b = int(np.argmin(dd))
-                if dd[b] < cfg.init_distance:
-                    v = (z - pool.pop(b)) / self.scene.dt
-                    tracks.append((np.array([z[0], z[1], v[0], v[1]]), self.m.P0.copy()))
-                    continue
-            keep.append(z)
-        refining = [
-            t
-            for t in tracks[1:]
-            if float(np.hypot(*(t[0][:2] - primary[0][:2]))) <= cfg.prune_radius
-            and float(np.trace(t[1])) <= cfg.max_trace
-        ]
-        pend = np.array(keep, dtype=float).reshape(-1, 2)
-        return JointState((primary, *refining), pend, halted), assign.get(0, -1)
+            z = Z[cz[sel]]
+            dd = np.hypot(z[:, 0, None] - pend[rows, :, 0], z[:, 1, None] - pend[rows, :, 1])
+            dd = np.where(pool[rows], dd, np.inf)
+            b = np.argmin(dd, axis=1)
+            hit = dd[np.arange(sel.size), b] < cfg.init_distance
+            partner[sel[hit]] = b[hit]
+            pool[rows[hit], b[hit]] = False
+        matched = partner >= 0
+        # new tracks after the old ones, in the order they started
+        mr = cr[matched]
+        mz = Z[cz[matched]]
+        v = (mz - pend[mr, partner[matched]]) / self.scene.dt
+        nnew = np.bincount(mr, minlength=R)
+        W = T + int(nnew.max(initial=0))
+        Xa = np.zeros((R, W, 4))
+        Xa[:, :T] = X
+        ca = np.zeros((R, W), dtype=np.int64)
+        ca[:, :T] = cov
+        keep = np.zeros((R, W), dtype=bool)
+        keep[:, :T] = live & ~halt
+        slot = live.sum(axis=1)[mr] + _within(nnew)
+        Xa[mr, slot, :2] = mz
+        Xa[mr, slot, 2:] = v
+        ca[mr, slot] = self._p0
+        keep[mr, slot] = self._p0_kept
+        dp = np.hypot(Xa[..., 0] - prim[:, 0, None], Xa[..., 1] - prim[:, 1, None])
+        keep &= dp <= cfg.prune_radius
+        keep[:, 0] = True  # the primary stays (halted or not)
+        nt = keep.sum(axis=1)
+        dest = np.cumsum(keep, axis=1) - 1
+        kr, kc = np.nonzero(keep)
+        Tn = int(nt.max(initial=1))
+        tracks = np.zeros((R, Tn, 4))
+        tcov = np.zeros((R, Tn), dtype=np.int64)
+        tracks[kr, dest[kr, kc]] = Xa[kr, kc]
+        tcov[kr, dest[kr, kc]] = ca[kr, kc]
+        # pending: the candidates that started no track, in order
+        ur, uz = cr[~matched], cz[~matched]
+        npd = np.bincount(ur, minlength=R)
+        pk = _within(npd)
+        pending = np.zeros((R, int(npd.max(initial=0)), 2))
+        pending[ur, pk] = Z[uz]
+        return JointStates(tracks, tcov, nt.astype(np.int64), pending, npd.astype(np.int64))
+
+    def _merge(self, states: JointStates, s: np.ndarray) -> np.ndarray:
+        """Which rows are the first (cheapest) of their state's identical outcomes."""
+        states.key = key = digest(states)
+        o = np.lexsort((np.arange(len(s)), key[:, 1], key[:, 0], s))
+        ks, k0, k1 = s[o], key[o, 0], key[o, 1]
+        head = np.r_[True, (ks[1:] != ks[:-1]) | (k0[1:] != k0[:-1]) | (k1[1:] != k1[:-1])]
+        rep = np.empty(len(s), dtype=np.int64)
+        rep[o] = o[np.maximum.accumulate(np.where(head, np.arange(len(s)), 0))]
+        if not _same(states, rep):  # two different outcomes share a 128-bit digest
+            raise AssertionError("joint state digest collision")
+        kept = np.zeros(len(s), dtype=bool)
+        kept[o[head]] = True
+        return kept
+
+
+def _option_one_differs(p: _Prepared, primary: np.ndarray) -> np.ndarray:
+    """States whose option 1 surely leads elsewhere than option 0, without building it.
+
+    When option 0's primary updates with the nearest detection, hiding it
+    leaves the primary either skipping (its P differs) or updating with another
+    detection within its gate; if every such detection lies at least δ away
+    and K's position block (nonsingular) moves the estimate by at least
+    σ_min(K)·δ, far above rounding, the primary's estimate differs.
+    """
+    n, w = p.near_z.shape
+    ok = (p.n_opt > 1) & (p.n_near > 0) & (primary == p.near_z[:, 0]) if w else np.zeros(n, bool)
+    if not ok.any():
+        return ok
+    z0 = p.Z[p.near_z[:, 0]]
+    dz = p.Z[p.near_z] - z0[:, None]
+    gap = np.where(np.arange(w) < p.n_near[:, None], np.hypot(dz[..., 0], dz[..., 1]), np.inf)
+    delta = gap[:, 1:].min(axis=1, initial=np.inf)
+    K = p.g.K[:, 0, :2, :]  # (n, 2, 2): how the position moves with the innovation
+    sigma_min = np.sqrt(np.maximum(np.linalg.eigvalsh(np.swapaxes(K, 1, 2) @ K)[:, 0], 0.0))
+    scale = 1.0 + np.abs(p.X[:, 0, :2]).max(axis=1) + np.abs(dz).max(axis=(1, 2), initial=0.0)
+    out: np.ndarray = ok & (sigma_min * delta > 1e-6 * scale)
+    return out
+
+
+#: Likelihoods closer than this (relative) are recomputed exactly before they are compared.
+_NEAR_TIE = 1e-12
+
+
+def _by_likelihood(d2: np.ndarray, norm: np.ndarray, group: np.ndarray, n: int) -> np.ndarray:
+    """The order of pairs (grouped by state, ``group`` sorted) by state, then likelihood
+    N(z; Hx̂, S) = exp(−d²/2) / norm from the largest; ties keep the given order.
+
+    The likelihoods are those of ``math.exp`` (the per-state loop's). numpy's exp
+    may differ from it in the last bit, which could swap two pairs that (nearly)
+    tie; only the order matters, so numpy's values are used where they are far
+    apart and values within :data:`_NEAR_TIE` of a neighbour are recomputed with
+    ``math.exp``, then their state's pairs sorted again.
+    """
+    per = np.bincount(group, minlength=n)
+    start = _starts(per)
+    at = np.arange(group.size) - start[group]
+    M = np.full((n, int(per.max(initial=0))), np.inf)  # −likelihood, by state
+    M[group, at] = -np.exp(-0.5 * d2) / norm
+    rank = np.argsort(M, axis=1, kind="stable")
+    Ms = np.take_along_axis(M, rank, axis=1)
+    a, b = Ms[:, :-1], Ms[:, 1:]
+    with np.errstate(invalid="ignore"):  # inf − inf past each state's last pair
+        close = np.isfinite(b) & (b - a <= _NEAR_TIE * np.maximum(-a, -b) + 1e-300)
+    if close.any():
+        redo = np.zeros(M.shape, dtype=bool)
+        redo[:, :-1] |= close
+        redo[:, 1:] |= close
+        rr, cc = np.nonzero(redo)
+        idx = start[rr] + rank[rr, cc]
+        exact = np.fromiter(map(math.exp, (-0.5 * d2[idx]).tolist()), float, idx.size)
+        M[rr, rank[rr, cc]] = -(exact / norm[idx])
+        rows = np.unique(rr)
+        rank[rows] = np.argsort(M[rows], axis=1, kind="stable")
+    out: np.ndarray = (start[:, None] + rank)[rank < per[:, None]]
+    return out
+
+
+def _starts(counts: np.ndarray) -> np.ndarray:
+    """Where each group of a flattened grouping begins, for group sizes ``counts``."""
+    out: np.ndarray = np.cumsum(counts) - counts
+    return out
+
+
+def _within(counts: np.ndarray) -> np.ndarray:
+    """Each element's position within its group, for consecutive groups of sizes ``counts``."""
+    out: np.ndarray = np.arange(int(counts.sum())) - np.repeat(_starts(counts), counts)
+    return out
+
+
+def _same_as(a: JointStates, b: JointStates, idx: np.ndarray) -> bool:
+    """State i of ``a`` equals state idx[i] of ``b`` bit for bit."""
+    if not len(a):
+        return True
+    bb = b.take(idx)
+    T, K = max(a.tcov.shape[1], bb.tcov.shape[1]), max(a.pending.shape[1], bb.pending.shape[1])
+    a, bb = (concat([x, _empty(T, K)]) for x in (a, bb))
+    return _same(concat([a, bb]), np.r_[np.arange(len(a), 2 * len(a)), np.arange(len(a))])
+
+
+def _empty(T: int, K: int) -> JointStates:
+    """No states, arrays T tracks and K pending detections wide (for padding with concat)."""
+    z = np.zeros(0, dtype=np.int64)
+    return JointStates(np.zeros((0, T, 4)), np.zeros((0, T), np.int64), z, np.zeros((0, K, 2)), z)
+
+
+def _same(js: JointStates, rep: np.ndarray) -> bool:
+    """Every state equals the state ``rep[i]`` bit for bit (padding included: it is zero)."""
+    t, p = js.words()
+    return bool(
+        np.array_equal(js.ntrack, js.ntrack[rep])
+        and np.array_equal(js.npend, js.npend[rep])
+        and np.array_equal(t, t[rep])
+        and np.array_equal(p, p[rep])
+    )
+
+
+def _ranks_and_payoffs(src: np.ndarray, cost: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Ranks of outcomes grouped by source (cheapest first, costs ``cost``) and their own
+    payoffs: the next outcome's cost minus this one's, 0 for the last, so that the
+    combined payoff of Eq. 5 (the sum over lower ranks) is each outcome's cost."""
+    head = np.r_[True, src[1:] != src[:-1]] if src.size else np.zeros(0, dtype=bool)
+    rank = _within(np.diff(np.r_[np.nonzero(head)[0], src.size]))
+    last = np.r_[head[1:], True] if src.size else head
+    payoff = np.where(last, 0.0, np.r_[cost[1:], 0.0] - cost)
+    return rank.astype(np.int64), payoff

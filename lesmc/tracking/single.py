@@ -8,30 +8,19 @@ tracker does.
 Speed: P̂, S, K, the gate and the updated P depend only on the parent's P,
 which is shared by every state with the same history of updates and skips. So
 covariances live in a table, what derives from each is computed once, for
-all new covariances of a batch together (:class:`_GainTable`), and a batch is
-processed with array arithmetic
-only: predict, the candidate detections from a k-d tree, gate, the attacker's
+all new covariances of a batch together (tracking/design.py's :class:`Gains`),
+and a batch is processed with array arithmetic only: predict, the candidate
+detections (an x-sorted band of the frame, or a k-d tree), gate, the attacker's
 options (association.attack_option_rows) and one mean update per outcome.
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass
-
 import numpy as np
 
-from lesmc.model.growing import GrowArray
-from lesmc.tracking.association import attack_option_rows, gate_radii, gate_test
-from lesmc.tracking.design import Batch, CovarianceTable, Successors
-from lesmc.tracking.kalman import (
-    Matrices,
-    innovations,
-    matrices,
-    predict_covariances,
-    predict_means,
-    update_means,
-    warp,
-)
+from lesmc.tracking.association import attack_option_rows, gate_test
+from lesmc.tracking.design import Batch, CovarianceTable, GainRows, Gains, Successors
+from lesmc.tracking.kalman import Matrices, matrices, predict_means, update_means, warp
 from lesmc.tracking.scene import Frame, Scene
 
 
@@ -45,7 +34,7 @@ class SingleDesign:
         self.cfg = scene.tracker
         self.m: Matrices = matrices(self.cfg, scene.dt)
         self.covariances = CovarianceTable()
-        self._table = _GainTable()
+        self.gains = Gains(self.m, self.cfg, self.covariances)
 
     def initial(self) -> Batch:
         """At the target's frame: (start, velocity) with P0; that frame's detections unused."""
@@ -60,42 +49,6 @@ class SingleDesign:
             [np.ascontiguousarray(batch.X).view(np.uint64), batch.cov.astype(np.uint64)]
         )
         return out
-
-    def _gain_rows(self, cov: np.ndarray) -> _GainRows:
-        """The gains of covariances ``cov`` as row arrays; new covariances are done in one batch."""
-        t = self._table
-        cs = np.unique(cov)
-        known = t.known.data[cs[cs < t.known.n]] if t.known.n else np.zeros(0, bool)
-        new = np.r_[cs[cs < t.known.n][~known], cs[cs >= t.known.n]].astype(np.int64)
-        if new.size:
-            self._fill_gains(new)
-        return t.rows(cov)
-
-    def _fill_gains(self, cs: np.ndarray) -> None:
-        """Predict and gain (Eq. 2-3), gate radius and halts for the covariances ``cs``.
-
-        Everything that depends on a parent's covariance only, computed once per
-        distinct P and for all new ones together; P̂ and P⁺ join the table.
-        """
-        m, cfg = self.m, self.cfg
-        P_pred = predict_covariances(m, self.covariances.stack()[cs])
-        inn = innovations(m, P_pred)
-        radius = gate_radii(inn.S, P_pred, cfg.gate, cfg.gate_type)
-        pred = self.covariances.add_many(P_pred)
-        post = self.covariances.add_many(inn.P_post)
-        trace_pred = np.trace(P_pred, axis1=1, axis2=2)
-        trace_post = np.trace(inn.P_post, axis1=1, axis2=2)
-        self._table.put(
-            cs,
-            radius=radius,
-            S_inv=inn.S_inv,
-            P_pred=P_pred,
-            K=inn.K,
-            pred=pred,
-            post=post,
-            halt_pred=trace_pred > cfg.max_trace,
-            halt_post=trace_post > cfg.max_trace,
-        )
 
     def predict(self, X: np.ndarray, step: int) -> np.ndarray:
         """Carry positions into frame ``step`` (homography of the previous frame), then predict."""
@@ -114,7 +67,7 @@ class SingleDesign:
         """
         frame = self.scene.frame(step)
         Xp = self.predict(batch.X, step)
-        rows = self._gain_rows(batch.cov)
+        rows = self.gains.rows(batch.cov)
         src, rank, payoff, det, X, cov, halted = self._rows(frame, Xp, rows, attacked)
         if src.size > 1 and (np.diff(src) < 0).any():  # by source, then rank
             order = np.lexsort((rank, src))
@@ -129,7 +82,7 @@ class SingleDesign:
         )
 
     def _rows(
-        self, frame: Frame, Xp: np.ndarray, g: _GainRows, attacked: bool
+        self, frame: Frame, Xp: np.ndarray, g: GainRows, attacked: bool
     ) -> tuple[np.ndarray, ...]:
         """Successors of predictions ``Xp``, row i with the gain rows ``g`` of its P."""
         cfg = self.cfg
@@ -156,54 +109,6 @@ class SingleDesign:
         cov = np.where(upd, g.post[row], g.pred[row]).astype(np.int64)
         halted = np.where(upd, g.halt_post[row], g.halt_pred[row])
         return row, rank, payoff, det, X, cov, halted
-
-
-@dataclass(frozen=True)
-class _GainRows:
-    """What derives from each row's covariance (Eq. 2-3, the gate, the halt), over the rows."""
-
-    radius: np.ndarray
-    S_inv: np.ndarray  # (n, 2, 2)
-    P_pred: np.ndarray  # (n, 4, 4)
-    K: np.ndarray  # (n, 4, 2)
-    pred: np.ndarray
-    post: np.ndarray
-    halt_pred: np.ndarray
-    halt_post: np.ndarray
-
-
-class _GainTable:
-    """:class:`_GainRows`' fields for the covariances whose gain is known, by table index."""
-
-    FIELDS = ("radius", "S_inv", "P_pred", "K", "pred", "post", "halt_pred", "halt_post")
-
-    def __init__(self) -> None:
-        self.known = GrowArray(np.bool_)
-        self.cols = {
-            "radius": GrowArray(np.float64),
-            "S_inv": GrowArray(np.float64, (2, 2)),
-            "P_pred": GrowArray(np.float64, (4, 4)),
-            "K": GrowArray(np.float64, (4, 2)),
-            "pred": GrowArray(np.int64),
-            "post": GrowArray(np.int64),
-            "halt_pred": GrowArray(np.bool_),
-            "halt_post": GrowArray(np.bool_),
-        }
-
-    def put(self, cs: np.ndarray, **values: np.ndarray) -> None:
-        """Store the fields of covariances ``cs`` (one row each)."""
-        top = int(cs.max()) + 1
-        if top > self.known.n:  # make room up to the largest (unknown rows stay marked so)
-            grow = top - self.known.n
-            self.known.extend(np.zeros(grow, dtype=bool))
-            for col in self.cols.values():
-                col.extend(np.zeros((grow, *col.data.shape[1:]), dtype=col.data.dtype))
-        for name in self.FIELDS:
-            self.cols[name].data[cs] = values[name]
-        self.known.data[cs] = True
-
-    def rows(self, cov: np.ndarray) -> _GainRows:
-        return _GainRows(*(self.cols[name].data[cov] for name in self.FIELDS))
 
 
 #: Candidates asked of the k-d tree at first; rows that fill them all ask again for twice as many.

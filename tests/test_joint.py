@@ -1,0 +1,207 @@
+"""The batched joint design equals the per-state loop it replaced (tests/joint_reference.py).
+
+Models are unfolded twice by the same unfolder, once with each design, and
+compared field by field: states, transitions, ranks, payoffs, observations,
+covariances; positions to 1e-9 (they agree bit for bit in practice).
+"""
+
+from __future__ import annotations
+
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
+from joint_reference import ReferenceJointDesign
+
+import lesmc.unfold as unfold
+from lesmc.model.arrays import ArrayModel
+from lesmc.tracking.design import make_design
+from lesmc.tracking.joint import JointDesign, JointStates, JointStore, digest
+from lesmc.tracking.scene import Detection, Frame, Scene, Target, TrackerConfig, load_scene
+
+ROOT = Path(__file__).resolve().parents[1]
+SCENES = ROOT / "tests" / "scenes"
+NAMES = ["rq1_platoon", "rq1_oncoming", "rq2_parallel", "rq2_stop", "rq4_merge"]
+
+
+def reference_model(
+    scene: Scene, window: tuple[int, int], end: int | None, mp: pytest.MonkeyPatch
+) -> ArrayModel:
+    with mp.context() as m:
+        m.setattr(unfold, "make_design", ReferenceJointDesign)
+        return unfold.build_model(scene, window, end)
+
+
+def assert_same_models(ours: ArrayModel, ref: ArrayModel) -> None:
+    assert ours.n_states == ref.n_states and ours.n_transitions == ref.n_transitions
+    for name in ("step", "halted", "ptr", "dst", "rank", "obs", "original", "cov"):
+        assert np.array_equal(getattr(ours, name), getattr(ref, name)), name
+    assert np.array_equal(ours.payoff, ref.payoff)
+    np.testing.assert_allclose(ours.S, ref.S, rtol=0, atol=1e-9)
+    np.testing.assert_allclose(ours.P_table, ref.P_table, rtol=0, atol=1e-9)
+    assert ours.obs_names == ref.obs_names and ours.meta == ref.meta
+
+
+@pytest.mark.parametrize("name", NAMES)
+def test_scenes_equal_reference(name: str, monkeypatch: pytest.MonkeyPatch) -> None:
+    scene = load_scene(SCENES / f"{name}.json").with_tracker(design="joint")
+    for window in ((4, 6), (8, 9)):
+        ours = unfold.build_model(scene, window)
+        assert_same_models(ours, reference_model(scene, window, None, monkeypatch))
+
+
+def test_dense_scene_equals_reference(monkeypatch: pytest.MonkeyPatch) -> None:
+    sys.path.insert(0, str(ROOT / "benchmarks"))
+    from bench_unfold import dense_scene
+
+    scene = dense_scene(40, 20, seed=1, design="joint")
+    ours = unfold.build_model(scene, (4, 5), 8)
+    assert_same_models(ours, reference_model(scene, (4, 5), 8, monkeypatch))
+
+
+# ------------------------------------------------------------ random small scenes
+
+
+@st.composite
+def scenes(draw: st.DrawFn) -> Scene:
+    """A target among a few vehicles with clutter (some appearing late, some twins, some
+    detections repeated): coarse positions make likelihood ties common, and states of one
+    batch start and drop tracks at different steps."""
+    frames = draw(st.integers(4, 8))
+    grid = draw(st.sampled_from([1.0, 5.0, 20.0]))
+    coord = st.integers(-12, 12).map(lambda v: 500 + v * grid)
+    speed = st.integers(-3, 3).map(float)
+    payoff = st.one_of(st.integers(1, 4).map(float), st.just(float("inf")))
+    nveh = draw(st.integers(0, 8))
+    seen = st.tuples(st.integers(0, frames), st.integers(0, frames)).map(sorted)
+    vehicles = [
+        (draw(coord), draw(coord), draw(speed), draw(speed), draw(payoff), *draw(seen))
+        for _ in range(nveh)
+    ]
+    if vehicles and draw(st.booleans()):  # twins: identical tracks, so likelihoods tie
+        vehicles.append(vehicles[draw(st.integers(0, len(vehicles) - 1))])
+    tx, ty, tvx = draw(coord), draw(coord), draw(speed)
+    out = []
+    for k in range(frames):
+        dets = []
+        if draw(st.integers(0, 4)):  # the target, mostly seen
+            dets.append((tx + tvx * k, ty, draw(payoff)))
+        for x, y, vx, vy, p, first, last in vehicles:  # appearing and leaving: tracks start late
+            if first <= k <= last and draw(st.integers(0, 5)):
+                dets.append((x + vx * k, y + vy * k, p))
+        for _ in range(draw(st.integers(0, 3))):  # clutter
+            dets.append((draw(coord), draw(coord), draw(payoff)))
+        if dets and draw(st.booleans()):  # a detection repeated at the same position
+            x, y, _ = dets[draw(st.integers(0, len(dets) - 1))]
+            dets.append((x, y, draw(payoff)))
+        detections = tuple(Detection(f"{k}:{i}", x, y, p) for i, (x, y, p) in enumerate(dets))
+        Hm = None
+        if draw(st.integers(0, 3)) == 0:
+            Hm = np.array([[1.0, 0.001, 2.0], [0.0, 1.0, -1.5], [0.0, 0.0, 1.0]])
+        out.append(Frame(k, detections, Hm))
+    tracker = TrackerConfig(
+        design="joint",
+        gate=draw(st.sampled_from([1.0, 2.0, 3.0, 6.0])),
+        gate_type=draw(st.sampled_from(["mahalanobis", "euclidean"])),
+        max_trace=draw(st.sampled_from([1e5, 3000.0, 2000.0])),
+        init_radius=draw(st.sampled_from([30.0, 150.0, 400.0])),
+        init_distance=draw(st.sampled_from([10.0, 60.0, 200.0])),
+        prune_radius=draw(st.sampled_from([20.0, 60.0, 200.0])),
+        sigma_q=draw(st.sampled_from([1.0, 3.0])),
+    )
+    return Scene(1.0, tuple(out), Target(0, (tx, ty), (tvx, 0.0)), tracker)
+
+
+@settings(max_examples=150, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(scene=scenes(), data=st.data())
+def test_random_scenes_equal_reference(scene: Scene, data: st.DataObject) -> None:
+    e = unfold.original_end(scene, ReferenceJointDesign(scene))
+    if e < 1:
+        return
+    l = data.draw(st.integers(1, e))
+    u = data.draw(st.integers(l, e))
+    with pytest.MonkeyPatch.context() as mp:
+        ref = reference_model(scene, (l, u), None, mp)
+    assert_same_models(unfold.build_model(scene, (l, u)), ref)
+
+
+def test_chunks_do_not_change_the_model(monkeypatch: pytest.MonkeyPatch) -> None:
+    scene = load_scene(SCENES / "rq4_merge.json").with_tracker(design="joint")
+    whole = unfold.build_model(scene, (4, 7))
+    monkeypatch.setattr("lesmc.tracking.joint.CHUNK_CELLS", 1)
+    assert_same_models(unfold.build_model(scene, (4, 7)), whole)
+
+
+def test_store_round_trip_and_digest_ignores_padding() -> None:
+    rng = np.random.default_rng(3)
+    n, T, K = 9, 4, 3
+    nt = rng.integers(1, T + 1, n)
+    npd = rng.integers(0, K + 1, n)
+    tracks = np.where((np.arange(T) < nt[:, None])[..., None], rng.normal(size=(n, T, 4)), 0.0)
+    tcov = np.where(np.arange(T) < nt[:, None], rng.integers(0, 5, (n, T)), 0)
+    pending = np.where((np.arange(K) < npd[:, None])[..., None], rng.normal(size=(n, K, 2)), 0.0)
+    js = JointStates(tracks, tcov, nt, pending, npd)
+    wider = JointStates(
+        np.concatenate([tracks, np.zeros((n, 2, 4))], axis=1),
+        np.concatenate([tcov, np.zeros((n, 2), dtype=np.int64)], axis=1),
+        nt,
+        np.concatenate([pending, np.zeros((n, 1, 2))], axis=1),
+        npd,
+    )
+    assert np.array_equal(digest(js), digest(wider))
+    assert len({tuple(r) for r in digest(js).tolist()}) == n
+    store = JointStore()
+    store.extend(js.take(np.arange(4)))
+    store.extend(wider.take(np.arange(4, n)))
+    back = store.take(np.arange(n)[::-1])
+    flip = js.take(np.arange(n)[::-1])
+    for a, b in ((back.tracks, flip.tracks), (back.tcov, flip.tcov), (back.pending, flip.pending)):
+        assert np.array_equal(a[:, : b.shape[1]], b)
+    assert np.array_equal(
+        digest(JointStates(back.tracks, back.tcov, back.ntrack, back.pending, back.npend)),
+        digest(flip),
+    )
+    # a changed word (here a pending position, and a covariance index) changes the digest
+    other = JointStates(tracks, tcov.copy(), nt, pending.copy(), npd)
+    other.tcov[0, 0] += 1
+    assert not np.array_equal(digest(other)[0], digest(js)[0])
+
+
+def test_make_design_names_the_batched_design() -> None:
+    scene = load_scene(SCENES / "rq4_merge.json").with_tracker(design="joint")
+    assert isinstance(make_design(scene), JointDesign)
+
+
+def test_track_started_in_a_state_narrower_than_its_batch(monkeypatch: pytest.MonkeyPatch) -> None:
+    """Found by hypothesis: a state with fewer tracks than its batch's widest starts one (it
+    must get P0, not what the padding slot would have held)."""
+    inf = float("inf")
+    Hm = np.array([[1.0, 0.001, 2.0], [0.0, 1.0, -1.5], [0.0, 0.0, 1.0]])
+    rows = [
+        [],
+        [(501, 492, 1.0), (500, 500, inf)],
+        [(502, 492, inf), (500, 500, inf)],
+        [(503, 492, inf), (500, 503, inf)],
+        [],
+        [(505, 492, inf)],
+        [(500, 500, inf)],
+    ]
+    frames = tuple(
+        Frame(k, tuple(Detection(f"{k}:{i}", x, y, p) for i, (x, y, p) in enumerate(r)), Hm)
+        for k, r in enumerate(rows)
+    )
+    tracker = TrackerConfig(
+        design="joint",
+        sigma_q=1.0,
+        gate=1.0,
+        init_radius=30.0,
+        init_distance=10.0,
+        prune_radius=20.0,
+    )
+    scene = Scene(1.0, frames, Target(0, (500.0, 492.0), (1.0, 0.0)), tracker)
+    ours = unfold.build_model(scene, (1, 1))
+    assert_same_models(ours, reference_model(scene, (1, 1), None, monkeypatch))
+    assert ours.obs[-1] == 7  # the primary takes detection 6:0 on the attacked branch
