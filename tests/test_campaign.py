@@ -94,6 +94,7 @@ def test_rows_are_what_verify_computes_window_by_window(base: tuple[Path, Path])
         assert r["verdict"] == want.verdict
         assert r["optimum"] == (want.optimum if want.optimum is not None else "inf")
         assert r["witness_value"] == want.witness_value
+        assert r.get("vacuous") == (want.vacuous if want.original_alarms is not None else None)
 
 
 def test_resume_adds_no_row_and_the_summary_counts_the_rows(base: tuple[Path, Path]) -> None:
@@ -118,6 +119,13 @@ def test_resume_adds_no_row_and_the_summary_counts_the_rows(base: tuple[Path, Pa
         for prop, c in cells.items():
             mine = [x for x in rows if x["design"] == d and x["property"] == prop]
             assert c["violated"] == sum(x["verdict"] == "violated" for x in mine)
+            assert c["vacuous"] == sum(
+                x["verdict"] == "holds" and bool(x.get("vacuous")) for x in mine
+            )
+            for x in mine:  # monitored rows say whether the unattacked track is flagged
+                assert ("vacuous" in x) == (d == "improved")
+                if x.get("vacuous"):
+                    assert x["original_alarms"]
             assert len(c["optima"]) == sum(x["optimum"] is not None for x in mine)
     for prop, imp in doc["improvements"].items():
         bad = {
@@ -132,7 +140,13 @@ def test_resume_adds_no_row_and_the_summary_counts_the_rows(base: tuple[Path, Pa
                 for x in rows
                 if x["property"] == prop and x["design"] == d and x["verdict"] == "holds"
             }
-            assert v["removed"] == len(bad & fixed)
+            vacuous = {
+                (x["target"]["x"], tuple(x["window"]))
+                for x in rows
+                if x["property"] == prop and x["design"] == d and x.get("vacuous")
+            }
+            assert v["removed"] == len(bad & (fixed - vacuous))
+            assert v["vacuous"] == len(bad & fixed & vacuous)
 
 
 def test_the_worst_case_command_reproduces_its_row(base: tuple[Path, Path]) -> None:

@@ -85,7 +85,7 @@ def row(
         "bounds": [_num(r.lower), _num(r.upper)],
         "holds_if": f"optimum {r.holds_op} {r.threshold:g}",
         "stats": r.stats.to_json(),
-    }
+    } | r.monitor_json()  # monitored properties: the original's alarms, and vacuity
 
 
 def _num(x: float | None) -> float | str | None:

@@ -337,7 +337,16 @@ def _print(summary: dict[str, Any]) -> None:
         title=f"lesmc campaign: {summary['targets']} targets x {summary['windows']} windows",
         title_justify="left",
     )
-    for c in ("design", "property", "rows", "holds", "violated", "unknown", "median optimum"):
+    for c in (
+        "design",
+        "property",
+        "rows",
+        "holds",
+        "of which vacuous",
+        "violated",
+        "unknown",
+        "median optimum",
+    ):
         table.add_column(c, justify="left" if c in ("design", "property") else "right")
     for d in summary["designs"]:
         for p in summary["properties"]:
@@ -348,6 +357,7 @@ def _print(summary: dict[str, Any]) -> None:
                 p,
                 str(c["rows"]),
                 str(c["holds"]),
+                str(c.get("vacuous", 0)),
                 str(c["violated"]),
                 str(c["unknown"]),
                 str(q.get("median", "-")),
@@ -358,4 +368,10 @@ def _print(summary: dict[str, Any]) -> None:
             console.print(
                 f"{p}: {DESIGN_NAMES[d]} removes {v['removed']} of the {imp['single_violated']} "
                 f"adversarial cases of the plain tracker (adds {v['added']})"
+                + (
+                    f"; {v['vacuous']} more hold only vacuously (the monitor flags the "
+                    "unattacked track too)"
+                    if v.get("vacuous")
+                    else ""
+                )
             )

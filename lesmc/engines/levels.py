@@ -472,9 +472,10 @@ def _witness_pass(
         if beam is not None and keep.size > beam:
             lo, hi = bounds.range(q2[keep], o2[keep])
             target = min(cap, opt)
-            gap = np.maximum(target - hi, 0.0) + np.maximum(lo - target, 0.0)
-            # a max keeps the largest; a sum aims at the middle of what the rest can add
-            aim = -o2[keep] if space.obj_max else np.abs(target - (lo + hi) / 2)
+            with np.errstate(invalid="ignore"):  # inf − inf (no optimum): NaN sorts last
+                gap = np.maximum(target - hi, 0.0) + np.maximum(lo - target, 0.0)
+                # a max keeps the largest; a sum aims at the middle of what the rest can add
+                aim = -o2[keep] if space.obj_max else np.abs(target - (lo + hi) / 2)
             keep = keep[np.lexsort((aim, gap))[:beam]]
         trail.add(q2[keep], p2[keep], t2[keep])
         q, o = q2[keep], o2[keep]
