@@ -13,7 +13,9 @@ from lesmc.cli.options import (
     budget_from,
     budget_options,
     design_option,
+    frames_option,
     load_model_or_scene,
+    payoffs_option,
     scene_target,
 )
 from lesmc.errors import UsageError
@@ -64,21 +66,13 @@ does not import the engines (tests/test_startup.py checks that the two agree).""
     help="Also write DIR/results.json, DIR/report.html and DIR/figures/ (a scene is then "
     "checked once, on its built model).",
 )
-@click.option(
-    "--frames",
-    "frames_dir",
-    type=click.Path(file_okay=False, exists=True),
-    default=None,
-    help="With --report: the video's frames, for the report's images (read from nowhere else).",
+@frames_option(
+    "With --report: the video's frames, for the report's images (read from nowhere else)."
 )
-@click.option(
-    "--payoffs",
-    type=click.Choice(["attack", "certified", "interval"]),
-    default="attack",
-    show_default=True,
-    help="For a scene: the attack's payoffs (the paper), the certified lower bounds "
+@payoffs_option(
+    "For a scene: the attack's payoffs (the paper), the certified lower bounds "
     "(payoff_lower), or both: holds only if proven with the lower bounds, violated only "
-    "with the attack's counterexample, else unknown (docs/semantics.md).",
+    "with the attack's counterexample, else unknown (docs/semantics.md)."
 )
 @design_option("For a scene: override the tracker design it names.")
 @scene_target

@@ -62,6 +62,28 @@ nets_option = click.option(
 )
 
 
+def frames_option(help_text: str, dest: str = "frames_dir") -> Callable[[F], F]:
+    """``--frames DIR``: a video's frames, the only place images are read from."""
+    return click.option(
+        "--frames",
+        dest,
+        type=click.Path(file_okay=False, exists=True),
+        default=None,
+        help=help_text,
+    )
+
+
+def payoffs_option(help_text: str) -> Callable[[F], F]:
+    """``--payoffs attack|certified|interval`` (docs/semantics.md, "Payoff intervals")."""
+    return click.option(
+        "--payoffs",
+        type=click.Choice(["attack", "certified", "interval"]),
+        default="attack",
+        show_default=True,
+        help=help_text,
+    )
+
+
 def designs_option(help_text: str) -> Callable[[F], F]:
     """``--design single|joint|improved|both|all``: the designs a video is verified with."""
     return click.option(

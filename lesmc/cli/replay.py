@@ -6,19 +6,13 @@ from typing import Any
 
 import click
 
-from lesmc.cli.options import nets_option
+from lesmc.cli.options import frames_option, nets_option
 from lesmc.errors import UsageError
 
 
 @click.command("replay")
 @click.argument("results", type=click.Path(dir_okay=False, exists=True))
-@click.option(
-    "--frames",
-    "frames_dir",
-    type=click.Path(file_okay=False, exists=True),
-    default=None,
-    help="The video's frames (the results' run was made from them; read from nowhere else).",
-)
+@frames_option("The video's frames (the results' run was made from them; read from nowhere else).")
 @click.option(
     "--property",
     "prop",

@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import click
 
+from lesmc.cli.options import frames_option
+
 
 @click.command("report")
 @click.argument("results", type=click.Path(dir_okay=False, exists=True))
@@ -14,13 +16,7 @@ import click
     type=click.Path(file_okay=False),
     help="Directory for report.html, figures/ and a copy of results.json.",
 )
-@click.option(
-    "--frames",
-    "frames_dir",
-    type=click.Path(file_okay=False, exists=True),
-    default=None,
-    help="The video's frames, for the report's images (read from nowhere else).",
-)
+@frames_option("The video's frames, for the report's images (read from nowhere else).")
 @click.option("--json", "as_json", is_flag=True, help="Print what was written as JSON on stdout.")
 def report_cmd(results: str, out_dir: str, frames_dir: str | None, as_json: bool) -> None:
     """Draw the verification report from RESULTS (results.json of lesmc verify or of

@@ -17,9 +17,11 @@ from lesmc.cli.options import (
     budget_from,
     budget_options,
     designs_option,
+    frames_option,
     load_scene_file,
     nets_option,
     parse_window,
+    payoffs_option,
     spec_option,
 )
 from lesmc.errors import UsageError
@@ -72,22 +74,15 @@ HISTORY = 4
     help="Directory for scene.json, report.html, figures/, results.json.",
 )
 @nets_option
-@click.option(
-    "--frames",
-    "frames_opt",
-    type=click.Path(file_okay=False, exists=True),
-    default=None,
-    help="With --scene: the video's frames, for the replay of counterexamples and the "
+@frames_option(
+    "With --scene: the video's frames, for the replay of counterexamples and the "
     "report's images (read from nowhere else).",
+    "frames_opt",
 )
-@click.option(
-    "--payoffs",
-    type=click.Choice(["attack", "certified", "interval"]),
-    default="attack",
-    show_default=True,
-    help="The attack's payoffs (the paper), the certified lower bounds, or both (holds only "
+@payoffs_option(
+    "The attack's payoffs (the paper), the certified lower bounds, or both (holds only "
     "if proven with the lower bounds, violated only with the attack's counterexample; "
-    "docs/semantics.md). On a video, certified|interval run perceive's --certify (slow).",
+    "docs/semantics.md). On a video, certified|interval run perceive's --certify (slow)."
 )
 @click.option("--json", "as_json", is_flag=True, help="Print results.json on stdout.")
 @budget_options(
