@@ -339,9 +339,15 @@ def freeze(
     )
 
 
-def bind_scene(scene: Scene, specs: Iterable[SpecFile]) -> list[BoundProperty]:
-    """Bind properties to a scene's model: steps 0..e of the unattacked track."""
-    e = original_end(scene)
+def bind_scene(
+    scene: Scene, specs: Iterable[SpecFile], end: int | None = None
+) -> list[BoundProperty]:
+    """Bind properties to a scene's model: steps 0..e of the unattacked track.
+
+    ``end``: e when the caller already has it (:func:`original_end` runs the tracker
+    over the whole video; a campaign binds hundreds of windows to one scene).
+    """
+    e = original_end(scene) if end is None else end
     return [bind(spec, prop, e, COMPONENTS, True) for spec in specs for prop in spec.properties]
 
 

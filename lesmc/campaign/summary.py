@@ -257,6 +257,30 @@ def _table(head: list[str], rows: list[list[str]]) -> str:
     return f"<table><tr>{th}</tr>{body}</table>"
 
 
+CELL_HEADER = ("design", "property", "rows", "holds", "of which vacuous", "violated", "unknown")
+QUANTILE_KEYS = ("min", "p25", "median", "p75", "max")
+
+
+def cell_rows(summary: dict[str, Any], quantile_keys: tuple[str, ...]) -> list[list[str]]:
+    """One row per (design, property) cell: the counts of ``CELL_HEADER``, then
+    the optimum's quantiles named by ``quantile_keys`` ("-" when no optimum)."""
+    rows = []
+    for d in summary["designs"]:
+        for p in summary["properties"]:
+            c = summary["cells"][d][p]
+            q = c["optimum_quantiles"] or {}
+            counts = (c["rows"], c["holds"], c["vacuous"], c["violated"], c["unknown"])
+            rows.append(
+                [
+                    DESIGN_NAMES[d],
+                    p,
+                    *map(str, counts),
+                    *(str(q.get(k, "-")) for k in quantile_keys),
+                ]
+            )
+    return rows
+
+
 def write_html(
     summary: dict[str, Any], figs: dict[str, bytes], out: Path, meta: dict[str, str]
 ) -> Path:
@@ -276,42 +300,7 @@ def write_html(
         f"properties {', '.join(s['properties'])}.</p>",
         "<h2>Verdicts and optima (ECDF over targets and windows)</h2>",
     ]
-    rows = []
-    for d in s["designs"]:
-        for p in s["properties"]:
-            c = s["cells"][d][p]
-            q = c["optimum_quantiles"] or {}
-            rows.append(
-                [
-                    DESIGN_NAMES[d],
-                    p,
-                    str(c["rows"]),
-                    str(c["holds"]),
-                    str(c.get("vacuous", 0)),
-                    str(c["violated"]),
-                    str(c["unknown"]),
-                ]
-                + [str(q.get(k, "-")) for k in ("min", "p25", "median", "p75", "max")]
-            )
-    parts.append(
-        _table(
-            [
-                "design",
-                "property",
-                "rows",
-                "holds",
-                "of which vacuous",
-                "violated",
-                "unknown",
-                "min",
-                "p25",
-                "median",
-                "p75",
-                "max",
-            ],
-            rows,
-        )
-    )
+    parts.append(_table(list(CELL_HEADER), cell_rows(s, QUANTILE_KEYS)))
     for p in s["properties"]:
         parts.append(
             _img(figs, f"ecdf_{p}", f"Distribution of the {p} optimum over targets and windows.")
@@ -334,7 +323,7 @@ def write_html(
                     DESIGN_NAMES[d],
                     str(imp["single_violated"]),
                     str(v["removed"]),
-                    str(v.get("vacuous", 0)),
+                    str(v["vacuous"]),
                     str(v["still_violated"]),
                     str(v["added"]),
                 ]

@@ -43,7 +43,7 @@ def run_group(group: Group, doc: dict[str, Any]) -> list[dict[str, Any]]:
     from lesmc.engines.check import check_lazy
     from lesmc.language.parser import parse_spec
     from lesmc.tracking.targets import place_target
-    from lesmc.unfold import bind_scene, lazy_model
+    from lesmc.unfold import bind_scene, lazy_model, original_end
 
     if not group.units:
         return []
@@ -52,10 +52,13 @@ def run_group(group: Group, doc: dict[str, Any]) -> list[dict[str, Any]]:
     specs = [parse_spec(text, path) for path, text in group.specs]
     lo = min(u.window[0] for u in group.units)
     hi = max(u.window[1] for u in group.units)
+    e = original_end(scene)  # the same for every unit of the group
     model = None
     rows = []
     for u in group.units:
-        bound = {bp.name: bp for bp in bind_scene(scene, design_specs(specs, u.window, u.design))}
+        bound = {
+            bp.name: bp for bp in bind_scene(scene, design_specs(specs, u.window, u.design), e)
+        }
         bp = bound[u.prop]
         if model is None:
             model = lazy_model(scene, (lo, hi), bp.end)

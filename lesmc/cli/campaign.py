@@ -329,7 +329,7 @@ def _finish(
 def _print(summary: dict[str, Any]) -> None:
     from rich.table import Table
 
-    from lesmc.campaign.summary import DESIGN_NAMES
+    from lesmc.campaign.summary import CELL_HEADER, DESIGN_NAMES, cell_rows
     from lesmc.report.text import make_console
 
     console = make_console()
@@ -337,31 +337,10 @@ def _print(summary: dict[str, Any]) -> None:
         title=f"lesmc campaign: {summary['targets']} targets x {summary['windows']} windows",
         title_justify="left",
     )
-    for c in (
-        "design",
-        "property",
-        "rows",
-        "holds",
-        "of which vacuous",
-        "violated",
-        "unknown",
-        "median optimum",
-    ):
+    for c in (*CELL_HEADER, "median optimum"):
         table.add_column(c, justify="left" if c in ("design", "property") else "right")
-    for d in summary["designs"]:
-        for p in summary["properties"]:
-            c = summary["cells"][d][p]
-            q = c["optimum_quantiles"] or {}
-            table.add_row(
-                DESIGN_NAMES[d],
-                p,
-                str(c["rows"]),
-                str(c["holds"]),
-                str(c.get("vacuous", 0)),
-                str(c["violated"]),
-                str(c["unknown"]),
-                str(q.get("median", "-")),
-            )
+    for row in cell_rows(summary, ("median",)):
+        table.add_row(*row)
     console.print(table)
     for p, imp in summary["improvements"].items():
         for d, v in imp["designs"].items():
@@ -371,7 +350,7 @@ def _print(summary: dict[str, Any]) -> None:
                 + (
                     f"; {v['vacuous']} more hold only vacuously (the monitor flags the "
                     "unattacked track too)"
-                    if v.get("vacuous")
+                    if v["vacuous"]
                     else ""
                 )
             )

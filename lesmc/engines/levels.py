@@ -255,10 +255,10 @@ def _pareto(q: np.ndarray, o: np.ndarray, c: np.ndarray, up: bool) -> np.ndarray
     # equal constraint values share a rank: a later equal label is dominated
     srt = np.sort(cs)
     rank = np.searchsorted(srt, cs, side="left").astype(np.int64)
-    start = np.r_[True, qs[1:] != qs[:-1]]
+    start = np.concatenate(([True], qs[1:] != qs[:-1]))
     group = np.cumsum(start) - 1
     key = group * (cs.size + 1) + rank
-    best_before = np.maximum.accumulate(np.r_[-1, key[:-1]])
+    best_before = np.maximum.accumulate(np.concatenate(([-1], key[:-1])))
     keep = start | (best_before < key)
     return np.asarray(order[keep])
 
@@ -488,11 +488,11 @@ def _distinct(q: np.ndarray, o: np.ndarray, obj_max: bool) -> np.ndarray:
         return np.arange(0)
     if obj_max:
         order = np.lexsort((-o, q))
-        first = np.r_[True, q[order][1:] != q[order][:-1]]
+        first = np.concatenate(([True], q[order][1:] != q[order][:-1]))
         return np.asarray(order[first])
     order = np.lexsort((o, q))
     qs, os_ = q[order], o[order]
-    first = np.r_[True, (qs[1:] != qs[:-1]) | (os_[1:] != os_[:-1])]
+    first = np.concatenate(([True], (qs[1:] != qs[:-1]) | (os_[1:] != os_[:-1])))
     return np.asarray(order[first])
 
 

@@ -196,7 +196,7 @@ class Space(SpaceOps):
         lo, hi = self.adj_ptr[states], self.adj_ptr[states + 1]
         _, t = ranges(lo, hi, self.adj)
         deg = hi - lo
-        return t, np.r_[0, np.cumsum(deg)], deg > 0
+        return t, np.concatenate(([0], np.cumsum(deg))), deg > 0
 
     def reachable_levels(self) -> list[np.ndarray]:
         """The states reachable from the root under the window, one array per step."""

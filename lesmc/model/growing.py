@@ -159,7 +159,7 @@ class GrowingModel:
         assert self.expander is not None
         exp = self.expander.expand(states, step)
         first = self._dst.n
-        ptr = np.r_[0, np.cumsum(exp.counts)]
+        ptr = np.concatenate(([0], np.cumsum(exp.counts)))
         self._src.extend(np.repeat(states, exp.counts))
         self._dst.extend(exp.dst)
         self._payoff.extend(exp.payoff)
