@@ -3,11 +3,10 @@
 from __future__ import annotations
 
 import json
-import subprocess
-import sys
 from pathlib import Path
 
 import pytest
+from cli_run import lesmc
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
@@ -62,16 +61,6 @@ def test_build_errors() -> None:
         build_model(scene, (6, 30))
     with pytest.raises(UsageError, match="end 40 is beyond the scene"):
         build_model(scene, (6, 8), end=40)
-
-
-def lesmc(*args: str) -> subprocess.CompletedProcess[str]:
-    return subprocess.run(
-        [sys.executable, "-m", "lesmc", *args],
-        capture_output=True,
-        text=True,
-        cwd=ROOT,
-        timeout=300,
-    )
 
 
 def test_cli_build_then_check_equals_check_scene(tmp_path: Path) -> None:

@@ -18,6 +18,7 @@ from pathlib import Path
 from typing import Any
 
 import pytest
+from cli_run import lesmc
 
 from lesmc.campaign.run import Video, execute, make_groups, prepare
 from lesmc.campaign.store import read_rows
@@ -28,17 +29,6 @@ from lesmc.video.synth import SynthConfig, write_video
 ROOT = Path(__file__).resolve().parents[1]
 WINDOWS = "2..3:0..1"  # 4 windows: l in 2..3, u - l in 0..1
 ARGS = ["--windows", WINDOWS, "--targets", "2", "--no-truth"]
-
-
-def lesmc(*args: str) -> subprocess.CompletedProcess[str]:
-    return subprocess.run(
-        [sys.executable, "-m", "lesmc", *args],
-        capture_output=True,
-        text=True,
-        cwd=ROOT,
-        timeout=600,
-        env={**os.environ, "PYTHONPATH": str(ROOT)},
-    )
 
 
 def no_trace(r: subprocess.CompletedProcess[str]) -> None:

@@ -5,12 +5,11 @@ from __future__ import annotations
 
 import json
 import math
-import subprocess
-import sys
 from pathlib import Path
 
 import numpy as np
 import pytest
+from cli_run import lesmc
 from oracle import brute_force
 
 from lesmc.errors import InputError
@@ -21,12 +20,6 @@ from lesmc.unfold import bind_scene, build_model
 
 ROOT = Path(__file__).resolve().parents[1]
 SCENES = ROOT / "tests" / "scenes"
-
-
-def lesmc(*args: str) -> subprocess.CompletedProcess[str]:
-    return subprocess.run(
-        [sys.executable, "-m", "lesmc", *args], capture_output=True, text=True, cwd=ROOT
-    )
 
 
 def with_lower(name: str, seed: int) -> dict:

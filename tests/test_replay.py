@@ -9,24 +9,13 @@ from __future__ import annotations
 
 import copy
 import json
-import subprocess
-import sys
 from pathlib import Path
 
 import numpy as np
 import pytest
+from cli_run import lesmc
 
 ROOT = Path(__file__).resolve().parents[1]
-
-
-def lesmc(*args: str) -> subprocess.CompletedProcess[str]:
-    return subprocess.run(
-        [sys.executable, "-m", "lesmc", *args],
-        capture_output=True,
-        text=True,
-        cwd=ROOT,
-        timeout=1200,
-    )
 
 
 @pytest.fixture(scope="module")
