@@ -1,8 +1,10 @@
 """Benchmark: ``enumerate`` against ``bnb`` on random layered models and knapsack reductions.
 
 Run ``python benchmarks/bench_engines.py`` (add ``--quick`` for a smaller set).
-Prints, per instance, both engines' states expanded and wall time, their
-ratios, and enumerate's transitions per second; every answer is compared
+Prints, per instance, both engines' states expanded and engine seconds (best of
+7 runs when under 0.05 s), their ratios, whether bnb enumerated the tree itself
+(at most 32,768 nodes) or searched, and enumerate's transitions per second; every
+answer is compared
 (the engines must agree, and knapsack optima must equal a dynamic programme).
 Targets and recorded figures: docs/performance.md.
 """
@@ -78,11 +80,26 @@ def _dp(items: list[Item], demand: int) -> float:
     return best[need]
 
 
+#: Engine runs shorter than this are repeated (best of REPEATS): single millisecond
+#: timings are mostly the machine's jitter.
+SHORT = 0.05
+REPEATS = 7
+
+
 def run(engine: str, model: LTS | ArrayModel, spec_text: str) -> list[CheckResult]:
+    """One check per property; ``stats.seconds`` is the best of REPEATS when short."""
     spec = parse_spec(spec_text)
     cm = model if isinstance(model, ArrayModel) else to_arrays(model)
     bps = [bind(spec, p, model.end, model.components, False) for p in spec.properties]
-    return [check_bound(cm, bp, engine, max_states=ENUMERATE_BUDGET) for bp in bps]  # type: ignore[arg-type]
+    out = []
+    for bp in bps:
+        r = check_bound(cm, bp, engine, max_states=ENUMERATE_BUDGET)  # type: ignore[arg-type]
+        best = r.stats.seconds
+        for _ in range(REPEATS - 1 if best < SHORT else 0):
+            best = min(best, check_bound(cm, bp, engine, max_states=ENUMERATE_BUDGET).stats.seconds)  # type: ignore[arg-type]
+        r.stats.seconds = best
+        out.append(r)
+    return out
 
 
 def main() -> int:
@@ -101,6 +118,7 @@ def main() -> int:
         "bnb verdict states",
         "verdict ratio",
         "bnb bound states",
+        "bnb answer",
         "enum s",
         "bnb s",
         "time ratio",
@@ -123,6 +141,7 @@ def main() -> int:
                 ok = False
                 console.print(f"[red]DP MISMATCH[/] {name}: {rb.optimum} vs {truth}")
             es, bs = re_.stats.states_expanded, rb.stats.states_expanded
+            verdict_states = rb.stats.extra.get("optimum_states", bs)
             table.add_row(
                 name,
                 rb.property,
@@ -130,9 +149,10 @@ def main() -> int:
                 f"{es:,}" if done else f"> {ENUMERATE_BUDGET:,}",
                 f"{bs:,}",
                 f"{es / max(bs, 1):,.0f}x" if done else "-",
-                f"{rb.stats.extra['optimum_states']:,}",
-                f"{es / max(rb.stats.extra['optimum_states'], 1):,.0f}x" if done else "-",
+                f"{verdict_states:,}",
+                f"{es / max(verdict_states, 1):,.0f}x" if done else "-",
                 f"{rb.stats.extra.get('bound_states', 0):,}",
+                "enumerated" if "exhaustive" in rb.stats.extra else "searched",
                 f"{re_.stats.seconds:.3f}" if done else "-",
                 f"{rb.stats.seconds:.3f}",
                 f"{re_.stats.seconds / max(rb.stats.seconds, 1e-9):,.1f}x" if done else "-",

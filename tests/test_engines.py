@@ -202,3 +202,57 @@ def test_bnb_expands_far_fewer_states_than_enumerate_on_shared_dags() -> None:
     b = check_bound(cm, bp, "bnb")
     assert e.optimum == b.optimum
     assert b.stats.states_expanded * 100 < e.stats.states_expanded
+
+
+@settings(max_examples=60, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(cases())
+def test_small_trees_are_enumerated_by_bnb_and_levels(case: tuple) -> None:
+    """With the production threshold, bnb and levels answer a small explicit model by
+    enumerating it (marked ``exhaustive``), and the answer is still the brute force's."""
+    from lesmc.engines import enumerate as enumerate_engine
+
+    with pytest.MonkeyPatch.context() as mp:
+        mp.setattr(enumerate_engine, "SMALL_TREE", 1 << 15)
+        _small_tree_case(case)
+
+
+def _small_tree_case(case: tuple) -> None:
+    model, params, quantile = case
+    bp = _bound_property(model, params, quantile)
+    truth = brute_force(model, bp)
+    cm = to_arrays(model)
+    nodes = check_bound(cm, bp, "enumerate").stats.states_expanded
+    for engine in ("bnb", "levels"):
+        r = check_bound(cm, bp, engine)  # type: ignore[arg-type]
+        assert r.stats.engine == engine
+        assert r.stats.extra.get("exhaustive") == (nodes if nodes <= 1 << 15 else None)
+        expect = None if math.isinf(truth.optimum) else truth.optimum
+        assert r.optimum == pytest.approx(expect, rel=1e-12, abs=1e-12)
+        if truth.witness_value is not None:
+            assert r.witness_value == pytest.approx(truth.witness_value, rel=1e-12, abs=1e-12)
+
+
+def test_a_large_tree_is_searched_after_a_bounded_probe(monkeypatch: pytest.MonkeyPatch) -> None:
+    """Past the threshold the probe gives up within it and the search answers; its states
+    count against --max-states."""
+    from lesmc.engines import enumerate as enumerate_engine
+
+    monkeypatch.setattr(enumerate_engine, "SMALL_TREE", 1 << 10)
+    model = random_lts(RandomModelConfig(steps=10, width=6, branching=(3, 4)), seed=11)
+    spec = parse_spec(
+        "property p { attack window 2..9 minimize payoff "
+        "subject to dist.sum(0..end) > 300 holds if optimum > 1 }"
+    )
+    bp = bind(spec, spec.properties[0], model.end, model.components, False)
+    cm = to_arrays(model)
+    e = check_bound(cm, bp, "enumerate")
+    assert e.stats.states_expanded > 1 << 10
+    for engine in ("bnb", "levels"):
+        r = check_bound(cm, bp, engine)  # type: ignore[arg-type]
+        assert "exhaustive" not in r.stats.extra
+        assert r.optimum == e.optimum and r.witness_value == e.witness_value
+        small = check_bound(cm, bp, engine, max_states=1500)  # type: ignore[arg-type]
+        assert small.stats.states_expanded <= 1500  # the probe's states counted
+    monkeypatch.setattr(enumerate_engine, "SMALL_TREE", 1 << 15)  # more than the budget:
+    r = check_bound(cm, bp, "levels", max_states=50)  # no probe, the search has it all
+    assert "exhaustive" not in r.stats.extra and r.stats.states_expanded <= 50

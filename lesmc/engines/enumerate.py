@@ -14,12 +14,14 @@ from __future__ import annotations
 
 import math
 import time
+from dataclasses import dataclass
 
 import numpy as np
 
 from lesmc.engines.budget import SearchBudget
 from lesmc.engines.result import EngineOutcome, Stats
-from lesmc.engines.space import Space
+from lesmc.engines.space import SearchSpace, Space
+from lesmc.language.semantics import BoundProperty
 from lesmc.model.kernel import COMPARE, aggregate_arrays
 
 
@@ -28,8 +30,14 @@ def enumerate_paths(
     max_states: int | None = None,
     timeout: float | None = None,
     max_memory: int | None = None,
+    give_up_past: int | None = None,
 ) -> EngineOutcome:
-    """Run Algorithms 1 and 2 on ``space``; stop early (unknown) past a budget."""
+    """Run Algorithms 1 and 2 on ``space``; stop early (unknown) past a budget.
+
+    ``give_up_past`` (the probe of :func:`exhaustive_probe`): stop as soon as the tree
+    looks larger than that, projecting the last level's branching over the window's
+    remaining steps (a guess: it only decides when to give up, never an answer).
+    """
     t0 = time.perf_counter()
     stats = Stats(engine="enumerate")
     budget = SearchBudget(max_states, timeout, max_memory)
@@ -62,6 +70,10 @@ def enumerate_paths(
         owner, trans = space.successors_batch(node[live])
         total = int(trans.size)
         why = budget.over(total)
+        if why is None and give_up_past is not None:
+            step = int(cm.step[cm.dst[trans[0]]]) if total else 0
+            if budget.used + total + _projected(space.bp, step, total, live.size) > give_up_past:
+                why = "max_states"
         if why is not None:
             stopped = why
             break
@@ -81,6 +93,64 @@ def enumerate_paths(
     outcome = _algorithm2(space, all_obj, all_con, done_ref, levels, stats)
     stats.seconds = time.perf_counter() - t0
     return outcome
+
+
+#: bnb and levels first try to enumerate an explicit model's tree of attacked paths
+#: within this many nodes (:func:`exhaustive_probe`): below it, walking every path in a
+#: few array operations per level costs less than computing bounds (docs/engines.md).
+SMALL_TREE = 1 << 15
+
+
+def exhaustive_probe(
+    space: SearchSpace,
+    engine: str,
+    max_states: int | None,
+    timeout: float | None,
+    max_memory: int | None,
+) -> Probe:
+    """Try :func:`enumerate_paths` on an explicit model with at most :data:`SMALL_TREE`
+    tree nodes (never on a model unfolded on demand, nor under a ``max_states`` below
+    SMALL_TREE: a small budget is left whole to the search and its anytime bounds).
+
+    The outcome when it finished, reported as ``engine``'s with
+    ``stats.extra["exhaustive"]`` = the tree's nodes; otherwise what is left of
+    ``max_states`` and ``timeout`` for the search (a failed probe costs at most
+    SMALL_TREE nodes, a few milliseconds: they count against both budgets, and the
+    search reports them as ``stats.extra["probe_states"]``).
+    """
+    small_budget = max_states is not None and max_states < SMALL_TREE
+    if not isinstance(space, Space) or SMALL_TREE <= 0 or small_budget:
+        return Probe(None, max_states, timeout, 0)
+    t0 = time.perf_counter()
+    out = enumerate_paths(space, SMALL_TREE, timeout, max_memory, give_up_past=SMALL_TREE)
+    used = out.stats.states_expanded
+    if out.stats.stopped == "finished":
+        out.stats.engine = engine
+        out.stats.extra["exhaustive"] = used
+        return Probe(out, max_states, timeout, used)
+    left = None if max_states is None else max(1, max_states - used)
+    rest = None if timeout is None else max(0.0, timeout - (time.perf_counter() - t0))
+    return Probe(None, left, rest, used)
+
+
+@dataclass(frozen=True)
+class Probe:
+    """What :func:`exhaustive_probe` found: the answer, or the budgets left for a search."""
+
+    outcome: EngineOutcome | None
+    max_states: int | None
+    timeout: float | None
+    states: int  #: tree nodes the probe expanded
+
+
+def _projected(bp: BoundProperty, step: int, width: int, parents: int) -> float:
+    """Nodes still to come below a level of ``width`` nodes at ``step``, if every later
+    window step branches as this one did (``width / parents``) and later steps do not."""
+    b = width / max(parents, 1)
+    branching = max(0, bp.u - step)
+    after = max(0, bp.end - max(bp.u, step))
+    grow = branching if b == 1.0 else (b ** (branching + 1) - b) / (b - 1)
+    return width * (grow + b**branching * after)
 
 
 def _unfold(space: Space, q: np.ndarray, budget: SearchBudget) -> str | None:

@@ -10,7 +10,7 @@ path; this is what makes best-first search and dominance pruning exact.
 from __future__ import annotations
 
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Any, Protocol
 
 import numpy as np
@@ -182,6 +182,7 @@ class Space(SpaceOps):
     root_obj: float
     root_con: float
     satisfies: Callable[[float, float], bool]
+    _levels: tuple[np.ndarray, ...] | None = field(default=None, repr=False, compare=False)
 
     def successors(self, q: int) -> np.ndarray:
         return self.adj[self.adj_ptr[q] : self.adj_ptr[q + 1]]
@@ -198,8 +199,14 @@ class Space(SpaceOps):
         deg = hi - lo
         return t, np.concatenate(([0], np.cumsum(deg))), deg > 0
 
-    def reachable_levels(self) -> list[np.ndarray]:
-        """The states reachable from the root under the window, one array per step."""
+    def reachable_levels(self) -> tuple[np.ndarray, ...]:
+        """The states reachable from the root under the window, one array per step
+        (computed once per space; every bound pass starts from it)."""
+        if self._levels is None:
+            self._levels = self._reachable_levels()
+        return self._levels
+
+    def _reachable_levels(self) -> tuple[np.ndarray, ...]:
         leaf = self.leaves()
         seen = np.zeros(self.cm.n_states, dtype=bool)
         level = np.array([self.root], dtype=np.int64)
@@ -210,7 +217,7 @@ class Space(SpaceOps):
             nxt = np.unique(self.cm.dst[t])
             nxt = nxt[~seen[nxt]]
             if not nxt.size:
-                return levels
+                return tuple(levels)
             seen[nxt] = True
             levels.append(nxt)
             level = nxt
