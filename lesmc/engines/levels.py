@@ -58,6 +58,9 @@ SUFFIX_VALUES = 1 << 21
 SUFFIX_STATES = 50_000
 #: λ values of the Lagrangian bound.
 LAMBDAS = 48
+#: :meth:`_Bounds._useful_lambdas` looks at this many states (at most) and constraint values.
+LAMBDA_SAMPLE_STATES = 4096
+LAMBDA_SAMPLE_VALUES = 33
 #: Relative slack on bounds summed in another order than a path's own value.
 _SLACK = 1e-9
 
@@ -195,6 +198,29 @@ class _Bounds:
         fine = np.linspace(lam[max(i - 1, 0)], lam[min(i + 1, lam.size - 1)], k + 2)[1:-1]
         self.lam = np.r_[lam, fine]
         self.h = np.concatenate([h, self._suffix_lagrangian(space, fine)], axis=1)
+        if space.con_up:
+            keep = self._useful_lambdas(space)
+            self.lam, self.h = self.lam[keep], self.h[:, keep]
+
+    def _useful_lambdas(self, space: Space) -> np.ndarray:
+        """The λ that give the best bound for some state and some constraint value in
+        [0, B] (sampled): every λ gives a valid bound, so dropping the others keeps the
+        bound valid; on the knapsack classes a quarter of the grid wins anywhere, and
+        each label's bound then costs a quarter as much."""
+        assert self.h is not None and self.lam is not None
+        h, lam = self.h, self.lam
+        states = np.flatnonzero(np.isfinite(h).any(axis=1))
+        if states.size > LAMBDA_SAMPLE_STATES:
+            states = np.random.default_rng(0).choice(states, LAMBDA_SAMPLE_STATES, replace=False)
+        B = space.bp.bound
+        if not (math.isfinite(B) and B > 0 and states.size):
+            return np.arange(lam.size)
+        c = np.linspace(0.0, B, LAMBDA_SAMPLE_VALUES)
+        with np.errstate(invalid="ignore"):
+            lag = h[states][:, None, :] + lam[None, None, :] * (B - c)[None, :, None]
+        lag = np.where(np.isnan(lag), -math.inf, lag)
+        win = np.unique(np.argmax(lag, axis=2))
+        return np.union1d(win, [0])  # λ = 0: the plain suffix minimum, kept always
 
     @staticmethod
     def _suffix_lagrangian(space: Space, lam: np.ndarray) -> np.ndarray:
