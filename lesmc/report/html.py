@@ -376,7 +376,7 @@ def _table4(run: _Run) -> str:
         "<h3>Verdicts (Table 4)</h3><table><tr><th>property</th><th>verdict</th><th>minimise</th>"
         "<th>subject to</th><th>optimum</th><th>holds if</th><th>θ*</th><th>ρ* (track no.)</th>"
         "<th>counterexample (track no.)</th><th>monitor</th><th>adversarial tracks</th>"
-        "<th>min over them, recomputed from the paths</th><th>check</th></tr>"
+        "<th>min over them, recomputed from the paths</th><th>search</th></tr>"
         + "".join(rows)
         + "</table>"
     )
