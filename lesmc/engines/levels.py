@@ -215,12 +215,14 @@ class _Bounds:
         B = space.bp.bound
         if not (math.isfinite(B) and B > 0 and states.size):
             return np.arange(lam.size)
-        c = np.linspace(0.0, B, LAMBDA_SAMPLE_VALUES)
-        with np.errstate(invalid="ignore"):
-            lag = h[states][:, None, :] + lam[None, None, :] * (B - c)[None, :, None]
-        lag = np.where(np.isnan(lag), -math.inf, lag)
-        win = np.unique(np.argmax(lag, axis=2))
-        return np.union1d(win, [0])  # λ = 0: the plain suffix minimum, kept always
+        hs = h[states]
+        win = np.zeros(lam.size, dtype=bool)
+        win[0] = True  # λ = 0: the plain suffix minimum, kept always
+        for c in np.linspace(0.0, B, LAMBDA_SAMPLE_VALUES):  # (states × λ) at a time
+            with np.errstate(invalid="ignore"):
+                lag = hs + lam[None, :] * (B - c)
+            win[np.argmax(np.where(np.isnan(lag), -math.inf, lag), axis=1)] = True
+        return np.flatnonzero(win)
 
     @staticmethod
     def _suffix_lagrangian(space: Space, lam: np.ndarray) -> np.ndarray:

@@ -182,7 +182,9 @@ class Space(SpaceOps):
     root_obj: float
     root_con: float
     satisfies: Callable[[float, float], bool]
-    _levels: tuple[np.ndarray, ...] | None = field(default=None, repr=False, compare=False)
+    _levels: tuple[np.ndarray, ...] | None = field(
+        default=None, init=False, repr=False, compare=False
+    )
 
     def successors(self, q: int) -> np.ndarray:
         return self.adj[self.adj_ptr[q] : self.adj_ptr[q + 1]]
