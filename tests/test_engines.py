@@ -190,14 +190,19 @@ def test_budgeted_bounds_contain_the_truth(case: tuple, budget: int) -> None:
             assert by_states[r.witness.states][0] == pytest.approx(truth.witness_value)
 
 
-def test_bnb_expands_far_fewer_states_than_enumerate_on_shared_dags() -> None:
+def _shared_dag() -> tuple:
+    """A 10-step random DAG with shared states (47,623 tree nodes) and a robustness property."""
     model = random_lts(RandomModelConfig(steps=10, width=6, branching=(3, 4)), seed=11)
     spec = parse_spec(
         "property p { attack window 2..9 minimize payoff "
         "subject to dist.sum(0..end) > 300 holds if optimum > 1 }"
     )
     bp = bind(spec, spec.properties[0], model.end, model.components, False)
-    cm = to_arrays(model)
+    return to_arrays(model), bp
+
+
+def test_bnb_expands_far_fewer_states_than_enumerate_on_shared_dags() -> None:
+    cm, bp = _shared_dag()
     e = check_bound(cm, bp, "enumerate")
     b = check_bound(cm, bp, "bnb")
     assert e.optimum == b.optimum
@@ -240,13 +245,7 @@ def test_a_large_tree_is_searched_after_a_bounded_probe(monkeypatch: pytest.Monk
     from lesmc.engines import enumerate as enumerate_engine
 
     monkeypatch.setattr(enumerate_engine, "SMALL_TREE", 1 << 10)
-    model = random_lts(RandomModelConfig(steps=10, width=6, branching=(3, 4)), seed=11)
-    spec = parse_spec(
-        "property p { attack window 2..9 minimize payoff "
-        "subject to dist.sum(0..end) > 300 holds if optimum > 1 }"
-    )
-    bp = bind(spec, spec.properties[0], model.end, model.components, False)
-    cm = to_arrays(model)
+    cm, bp = _shared_dag()
     e = check_bound(cm, bp, "enumerate")
     assert e.stats.states_expanded > 1 << 10
     for engine in ("bnb", "levels"):
