@@ -26,7 +26,6 @@ from dataclasses import dataclass
 
 from lesmc.engines.bounds import Bounds, suffix_bounds
 from lesmc.engines.budget import SearchBudget
-from lesmc.engines.enumerate import exhaustive_probe
 from lesmc.engines.result import EngineOutcome, Stats
 from lesmc.engines.space import SearchSpace, Space
 
@@ -71,13 +70,7 @@ def branch_and_bound(
 ) -> EngineOutcome:
     """Optimum, counterexample and representative path, exactly (or bounds if a budget ran out)."""
     t0 = time.perf_counter()
-    probe = exhaustive_probe(space, "bnb", max_states, timeout, max_memory)
-    if probe.outcome is not None:
-        return probe.outcome
-    max_states, timeout = probe.max_states, probe.timeout
     stats = Stats(engine="bnb")
-    if probe.states:
-        stats.extra["probe_states"] = probe.states
     budget = _Budget(
         max_states, timeout, max_memory, getattr(space.cm, "capacity_bytes", None), _MEMORY_EVERY
     )

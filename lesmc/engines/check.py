@@ -7,7 +7,7 @@ from collections.abc import Callable, Iterable
 from typing import Literal
 
 from lesmc.engines.bnb import branch_and_bound
-from lesmc.engines.enumerate import enumerate_paths
+from lesmc.engines.enumerate import enumerate_paths, exhaustive_probe
 from lesmc.engines.lazy import LazySpace
 from lesmc.engines.levels import level_search
 from lesmc.engines.result import CheckResult, EngineOutcome, PathInfo, Verdict, path_info
@@ -64,10 +64,23 @@ def check_bound(
     timeout: float | None = None,
     max_memory: int | None = None,
 ) -> CheckResult:
-    """Check one bound property on a model (``max_memory``: bytes)."""
+    """Check one bound property on a model (``max_memory``: bytes).
+
+    ``bnb`` and ``levels`` first try to enumerate a small tree (enumerate.exhaustive_probe):
+    its answer is theirs when it finishes; otherwise they search with what is left of the
+    budgets, and report the probe's states as ``stats.extra["probe_states"]``.
+    """
     space = build_space(cm, bp)
-    outcome = ENGINES[engine](space, max_states, timeout, max_memory=max_memory)
-    return to_result(space, outcome)
+    if engine == "enumerate":
+        return to_result(space, enumerate_paths(space, max_states, timeout, max_memory))
+    probe = exhaustive_probe(space, engine, max_states, timeout, max_memory)
+    if probe.outcome is not None:
+        return to_result(space, probe.outcome)
+    out = ENGINES[engine](space, probe.max_states, probe.timeout, max_memory=max_memory)
+    if probe.states:
+        out.stats.extra["probe_states"] = probe.states
+        out.stats.seconds += probe.seconds
+    return to_result(space, out)
 
 
 def to_result(space: SearchSpace, out: EngineOutcome) -> CheckResult:

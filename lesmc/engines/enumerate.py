@@ -20,7 +20,7 @@ import numpy as np
 
 from lesmc.engines.budget import SearchBudget
 from lesmc.engines.result import EngineOutcome, Stats
-from lesmc.engines.space import SearchSpace, Space
+from lesmc.engines.space import Space
 from lesmc.language.semantics import BoundProperty
 from lesmc.model.kernel import COMPARE, aggregate_arrays
 
@@ -95,42 +95,11 @@ def enumerate_paths(
     return outcome
 
 
-#: bnb and levels first try to enumerate an explicit model's tree of attacked paths
-#: within this many nodes (:func:`exhaustive_probe`): below it, walking every path in a
-#: few array operations per level costs less than computing bounds (docs/engines.md).
+#: Before bnb or levels searches an explicit model, :func:`exhaustive_probe` tries to
+#: enumerate its tree of attacked paths within this many nodes: below it, walking every
+#: path in a few array operations per level costs less than computing bounds
+#: (lesmc/engines/check.py; docs/engines.md).
 SMALL_TREE = 1 << 15
-
-
-def exhaustive_probe(
-    space: SearchSpace,
-    engine: str,
-    max_states: int | None,
-    timeout: float | None,
-    max_memory: int | None,
-) -> Probe:
-    """Try :func:`enumerate_paths` on an explicit model with at most :data:`SMALL_TREE`
-    tree nodes (never on a model unfolded on demand, nor under a ``max_states`` below
-    SMALL_TREE: a small budget is left whole to the search and its anytime bounds).
-
-    The outcome when it finished, reported as ``engine``'s with
-    ``stats.extra["exhaustive"]`` = the tree's nodes; otherwise what is left of
-    ``max_states`` and ``timeout`` for the search (a failed probe costs at most
-    SMALL_TREE nodes, a few milliseconds: they count against both budgets, and the
-    search reports them as ``stats.extra["probe_states"]``).
-    """
-    small_budget = max_states is not None and max_states < SMALL_TREE
-    if not isinstance(space, Space) or SMALL_TREE <= 0 or small_budget:
-        return Probe(None, max_states, timeout, 0)
-    t0 = time.perf_counter()
-    out = enumerate_paths(space, SMALL_TREE, timeout, max_memory, give_up_past=SMALL_TREE)
-    used = out.stats.states_expanded
-    if out.stats.stopped == "finished":
-        out.stats.engine = engine
-        out.stats.extra["exhaustive"] = used
-        return Probe(out, max_states, timeout, used)
-    left = None if max_states is None else max(1, max_states - used)
-    rest = None if timeout is None else max(0.0, timeout - (time.perf_counter() - t0))
-    return Probe(None, left, rest, used)
 
 
 @dataclass(frozen=True)
@@ -141,6 +110,37 @@ class Probe:
     max_states: int | None
     timeout: float | None
     states: int  #: tree nodes the probe expanded
+    seconds: float
+
+
+def exhaustive_probe(
+    space: Space,
+    engine: str,
+    max_states: int | None,
+    timeout: float | None,
+    max_memory: int | None,
+) -> Probe:
+    """Try :func:`enumerate_paths` on an explicit model within :data:`SMALL_TREE` tree
+    nodes (not under a ``max_states`` below SMALL_TREE: a small budget is left whole to
+    the search and its anytime bounds).
+
+    The outcome when it finished, reported as ``engine``'s with
+    ``stats.extra["exhaustive"]`` = the tree's nodes; otherwise what is left of
+    ``max_states`` and ``timeout`` for the search (a failed probe costs at most
+    SMALL_TREE nodes, a few milliseconds, and they count against both budgets).
+    """
+    if SMALL_TREE <= 0 or (max_states is not None and max_states < SMALL_TREE):
+        return Probe(None, max_states, timeout, 0, 0.0)
+    t0 = time.perf_counter()
+    out = enumerate_paths(space, SMALL_TREE, timeout, max_memory, give_up_past=SMALL_TREE)
+    used, seconds = out.stats.states_expanded, time.perf_counter() - t0
+    if out.stats.stopped == "finished":
+        out.stats.engine = engine
+        out.stats.extra["exhaustive"] = used
+        return Probe(out, max_states, timeout, used, seconds)
+    left = None if max_states is None else max(1, max_states - used)
+    rest = None if timeout is None else max(0.0, timeout - seconds)
+    return Probe(None, left, rest, used, seconds)
 
 
 def _projected(bp: BoundProperty, step: int, width: int, parents: int) -> float:

@@ -40,7 +40,6 @@ import numpy as np
 
 from lesmc.engines.bounds import Bounds, suffix_bounds
 from lesmc.engines.budget import SearchBudget
-from lesmc.engines.enumerate import exhaustive_probe
 from lesmc.engines.result import EngineOutcome, Stats
 from lesmc.engines.space import SearchSpace, Space
 from lesmc.model.kernel import aggregate_arrays
@@ -610,13 +609,7 @@ def level_search(
     """Optimum, counterexample and ρ*, exactly; under a budget (states, seconds, bytes of
     memory), proven bounds on both."""
     t0 = time.perf_counter()
-    probe = exhaustive_probe(space, "levels", max_states, timeout, max_memory)
-    if probe.outcome is not None:
-        return probe.outcome
-    max_states, timeout = probe.max_states, probe.timeout
     stats = Stats(engine="levels")
-    if probe.states:
-        stats.extra["probe_states"] = probe.states
     budget = SearchBudget(
         max_states, timeout, max_memory, getattr(space.cm, "capacity_bytes", None)
     )
