@@ -3,9 +3,9 @@
 Run ``python benchmarks/bench_engines.py`` (add ``--quick`` for a smaller set).
 Prints, per instance, both engines' states expanded and engine seconds (best of
 7 runs when under 0.05 s), their ratios, whether bnb enumerated the tree itself
-(at most 32,768 nodes) or searched, and enumerate's transitions per second; every
-answer is compared
-(the engines must agree, and knapsack optima must equal a dynamic programme).
+(at most 32,768 nodes) or searched, and enumerate's transitions per second. Every
+answer is compared: the engines must agree, and knapsack optima must equal a
+dynamic programme.
 Targets and recorded figures: docs/performance.md.
 """
 

@@ -103,6 +103,18 @@ def lesmc_run(
     return r.optimum, theta, r.stats.seconds, wall, r.stats.states_expanded, stopped
 
 
+def agreement(
+    stopped: str, l_opt: float | None, l_theta: float | None, c_opt: float, c_theta: float
+) -> str:
+    """The table's "agree" cell: lesmc's reason to stop when it did not finish, else
+    whether both answers equal CP-SAT's (only the optimum when CP-SAT left θ* unproven)."""
+    if stopped != "finished":
+        return stopped
+    if math.isnan(c_theta):
+        return "optimum yes, CP-SAT θ* unproven" if l_opt == c_opt else "NO"
+    return "yes" if l_opt == c_opt and l_theta == c_theta else "NO"
+
+
 #: Runs shorter than this (seconds) are repeated: single sub-second timings on a
 #: 2-core machine are mostly jitter and first-call costs.
 SHORT = 1.0
@@ -149,15 +161,7 @@ def main() -> int:
                     if l_wall < SHORT:
                         again = lesmc_run(cost, cap, demand, args.timeout)
                         l_s, l_wall = min(l_s, again[2]), min(l_wall, again[3])
-                agree = (
-                    stopped
-                    if stopped != "finished"
-                    else ("optimum yes, CP-SAT θ* unproven" if l_opt == c_opt else "NO")
-                    if math.isnan(c_theta)
-                    else "yes"
-                    if l_opt == c_opt and l_theta == c_theta
-                    else "NO"
-                )
+                agree = agreement(stopped, l_opt, l_theta, c_opt, c_theta)
                 table.add_row(
                     str(n),
                     f"{r:g}",
