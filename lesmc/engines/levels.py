@@ -142,11 +142,14 @@ class _Bounds:
         if self.omin is None:
             return o.copy()
         assert self.alive is not None and self.cmax is not None and self.cmin is not None
-        lb = _lo(aggregate_arrays(sp.obj_max, o, self.omin[q]))
-        if sp.con_up:
-            reach = _hi(aggregate_arrays(sp.con_max, c, self.cmax[q]))
-        else:
-            reach = _lo(aggregate_arrays(sp.con_max, c, self.cmin[q]))
+        # a dead state's suffix bounds are ±inf: with an infinite label value they give
+        # nan, which the `can` mask below replaces by +inf
+        with np.errstate(invalid="ignore"):
+            lb = _lo(aggregate_arrays(sp.obj_max, o, self.omin[q]))
+            if sp.con_up:
+                reach = _hi(aggregate_arrays(sp.con_max, c, self.cmax[q]))
+            else:
+                reach = _lo(aggregate_arrays(sp.con_max, c, self.cmin[q]))
         can = self.alive[q] & _truth(sp.satisfies(reach, sp.bp.bound))
         if self.h is not None and self.lam is not None:
             s = 1.0 if sp.con_up else -1.0
