@@ -199,8 +199,9 @@ def test_killed_client_then_rerun_ends_complete_without_duplicates(
     assert content(got) == content(read_rows(base[1] / "results.jsonl"))
 
 
-def test_a_killed_worker_has_its_group_retried(base: tuple[Path, Path], tmp_path: Path) -> None:
-    from distributed import Client, LocalCluster
+def groups_of_base(base: tuple[Path, Path], tmp_path: Path) -> tuple[Any, list[Any], Any]:
+    """The prepared scene of ``base``, its four groups and the reference rows."""
+    from lesmc.campaign.plan import DESIGN_SETS, parse_windows
 
     out = seeded(base, tmp_path)
     p = prepare(Video("tiny", base[0], None, "test"), out)
@@ -210,12 +211,17 @@ def test_a_killed_worker_has_its_group_retried(base: tuple[Path, Path], tmp_path
         if spec not in p.targets:
             p.targets.append(spec)
     specs = load_specs(bundled_specs(), None)
-    from lesmc.campaign.plan import DESIGN_SETS, parse_windows
-
     groups, total = make_groups(
         [p], specs, parse_windows(WINDOWS), DESIGN_SETS["all"], set(), 60.0, None
     )
     assert len(groups) == 4 and total == len(ref)
+    return p, groups, ref
+
+
+def test_a_killed_worker_has_its_group_retried(base: tuple[Path, Path], tmp_path: Path) -> None:
+    from distributed import Client, LocalCluster
+
+    p, groups, ref = groups_of_base(base, tmp_path)
     rows: list[dict[str, Any]] = []
     killed: list[int] = []
     with (
@@ -235,4 +241,44 @@ def test_a_killed_worker_has_its_group_retried(base: tuple[Path, Path], tmp_path
 
         execute(groups, {p.key: p.doc}, on_rows, 0, cluster.scheduler_address)
     assert killed  # a worker died with a group in flight
+    assert content(rows) == content(ref)
+
+
+def test_finished_groups_lost_with_their_workers_are_run_again(
+    base: tuple[Path, Path], tmp_path: Path
+) -> None:
+    """Every group done, then every worker killed before the rows are fetched.
+
+    The caller holds a client of its own (as in a notebook), so this also
+    checks that ``execute`` waits on its own client's event loop.
+    """
+    from distributed import Client, LocalCluster
+
+    p, groups, ref = groups_of_base(base, tmp_path)
+    rows: list[dict[str, Any]] = []
+    killed: list[int] = []
+    with (
+        LocalCluster(n_workers=2, threads_per_worker=1, dashboard_address=None) as cluster,
+        Client(cluster) as client,
+    ):
+
+        def done_groups() -> dict[str, int]:
+            held = client.has_what()
+            return {w: sum(str(k).startswith("run_group") for k in ks) for w, ks in held.items()}
+
+        def on_rows(batch: list[dict[str, Any]]) -> None:
+            rows.extend(batch)
+            if killed:
+                return
+            deadline = time.monotonic() + 120
+            while sum(done_groups().values()) < len(groups) and time.monotonic() < deadline:
+                time.sleep(0.05)
+            holders = [w for w, n in done_groups().items() if n]
+            pids = client.run(os.getpid, workers=holders)
+            for pid in pids.values():
+                os.kill(pid, signal.SIGKILL)
+                killed.append(pid)
+
+        execute(groups, {p.key: p.doc}, on_rows, 0, cluster.scheduler_address)
+    assert killed
     assert content(rows) == content(ref)

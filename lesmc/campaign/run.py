@@ -278,7 +278,7 @@ def execute(
             "the campaign's parallel mode needs dask distributed: pip install 'dask[distributed]'"
             " (or run with --workers 0)"
         ) from None
-    from lesmc.campaign.work import run_group
+    from lesmc.campaign.work import run_group, scene_doc
 
     cluster = None
     if scheduler is None:
@@ -296,12 +296,15 @@ def execute(
         except (OSError, TimeoutError) as exc:
             raise UsageError(f"--scheduler {scheduler}: cannot connect ({exc})") from None
     try:
-        shared = {k: client.scatter(doc, broadcast=True, hash=False) for k, doc in docs.items()}
+        shared = {k: client.submit(scene_doc, doc, pure=False) for k, doc in docs.items()}
         futures = [
             client.submit(run_group, g, shared[g.scene_key], retries=RETRIES, pure=False)
             for g in groups
         ]
-        for fut in as_completed(futures):
+        # as_completed must wait on this client's loop: by default it takes the
+        # caller's current client, whose loop differs, and a future reset by a
+        # lost worker then fails with "bound to a different event loop".
+        for fut in as_completed(futures, loop=client.loop):
             on_rows(fut.result())
             fut.release()
     finally:

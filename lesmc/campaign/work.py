@@ -1,6 +1,6 @@
 """One group of units on one unfolded model: what a Dask worker (or the serial mode) runs.
 
-The worker gets the scene as its JSON document (scattered once per video) and
+The worker gets the scene as its JSON document (one task per video) and
 the spec files as text, so it reads no file. Its answer is plain rows (JSON
 objects), written to ``results.jsonl`` by the client alone.
 """
@@ -29,6 +29,13 @@ def footage_of(key: str, doc: dict[str, Any]) -> Footage:
         got = footage_from_dict(doc, "scene")[0]
         _FOOTAGE[key] = got
     return got
+
+
+def scene_doc(doc: dict[str, Any]) -> dict[str, Any]:
+    """The scene document, as a task: the cluster keeps its input, so it can
+    compute it again when every worker that held it has died (scattered data
+    would be lost for good)."""
+    return doc
 
 
 def run_group(group: Group, doc: dict[str, Any]) -> list[dict[str, Any]]:
