@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import codecs
 import contextlib
+import gc
 import json
 import math
 import os
@@ -109,7 +110,8 @@ def parse_json(
     if long_digits or any(x in classes for x in _BIG_EXPONENTS):
         hooks["parse_float"] = _float
     try:
-        value = json.loads(text, object_pairs_hook=_object, parse_constant=_constant, **hooks)
+        with _no_gc():
+            value = json.loads(text, object_pairs_hook=_object, parse_constant=_constant, **hooks)
     except json.JSONDecodeError as exc:
         raise error(f"invalid JSON: {exc.msg}", Location.at(path, text, exc.pos)) from None
     except _Rejected as exc:
@@ -119,6 +121,20 @@ def parse_json(
     if _deeper_than(raw, MAX_JSON_DEPTH):
         raise _located(text, path, error, f"nesting deeper than {MAX_JSON_DEPTH}")
     return value
+
+
+@contextlib.contextmanager
+def _no_gc() -> Iterator[None]:
+    """The cyclic garbage collector paused: a parsed JSON value is a tree (no cycles),
+    and the collector's passes over its growing heap of new containers cost about a
+    fifth of :func:`json.loads` on a large file."""
+    was_on = gc.isenabled()
+    gc.disable()
+    try:
+        yield
+    finally:
+        if was_on:
+            gc.enable()
 
 
 # --- hooks: cheap checks on the happy path ---------------------------------------------

@@ -9,8 +9,10 @@ live in :mod:`.semantics`. Lines are counted at ``\n`` only, as lark does
 
 from __future__ import annotations
 
+import hashlib
 import math
 from collections.abc import Collection
+from contextlib import suppress
 from functools import cache
 from pathlib import Path
 from typing import Any
@@ -23,6 +25,9 @@ from lark import (
     UnexpectedInput,
     UnexpectedToken,
 )
+from lark import __version__ as lark_version
+from lark.grammar import Rule
+from lark.lexer import TerminalDef
 
 from lesmc.errors import Location, SpecError, source_line, split_lines
 from lesmc.fileio import read_text
@@ -80,9 +85,48 @@ def grammar_text() -> str:
     return repo.read_text(encoding="utf-8")
 
 
+_LARK_OPTIONS: dict[str, Any] = {
+    "parser": "lalr",
+    "lexer": "contextual",
+    "propagate_positions": True,
+}
+_TABLES = Path(__file__).with_name("lark_tables.py")
+
+
 @cache
 def _parser() -> Lark:
-    return Lark(grammar_text(), parser="lalr", lexer="contextual", propagate_positions=True)
+    """The LALR parser: loaded from :mod:`.lark_tables` (5 ms) when they were made
+    from this grammar by this lark, else built from the grammar (70 ms)."""
+    text = grammar_text()
+    from lesmc.language import lark_tables
+
+    if _grammar_key(text) == (lark_tables.GRAMMAR_SHA256, lark_tables.LARK_VERSION):
+        with suppress(Exception):  # a private lark API (as its standalone tool uses)
+            return Lark._load_from_dict(lark_tables.DATA, lark_tables.MEMO)  # type: ignore[no-untyped-call,no-any-return]
+    return Lark(text, **_LARK_OPTIONS)
+
+
+def _grammar_key(text: str) -> tuple[str, str]:
+    return hashlib.sha256(text.encode("utf-8")).hexdigest(), lark_version
+
+
+def tables_source() -> str:
+    """The source of :mod:`.lark_tables`, built now from the grammar."""
+    text = grammar_text()
+    built = Lark(text, **_LARK_OPTIONS)
+    data, memo = built.memo_serialize([TerminalDef, Rule])
+    digest, version = _grammar_key(text)
+    return (
+        '"""LALR tables of grammars/lesmc.lark, serialized by lark: generated, do not edit.\n\n'
+        "Made by ``python -m lesmc.language.parser``; loading them saves building the\n"
+        "parser at every start. They are used only while the grammar's hash and lark's\n"
+        'version match (tests/test_parser_tables.py checks that they are current)."""\n\n'
+        "from typing import Any\n\n"
+        f"GRAMMAR_SHA256 = {digest!r}\n"
+        f"LARK_VERSION = {version!r}\n"
+        f"DATA: dict[str, Any] = {data!r}\n"
+        f"MEMO: dict[Any, Any] = {memo!r}\n"
+    )
 
 
 def parse_spec(text: str, path: str = "<spec>") -> SpecFile:
@@ -306,3 +350,8 @@ def _clip(token: str) -> str:
     if len(token) <= _SHOWN_TOKEN:
         return token
     return f"{token[: _SHOWN_TOKEN - 4]}... ({len(token)} characters)"
+
+
+if __name__ == "__main__":  # regenerate lark_tables.py after editing the grammar
+    _TABLES.write_text(tables_source(), encoding="utf-8")
+    print(f"wrote {_TABLES}")
