@@ -181,7 +181,8 @@ class _Bounds:
             k1, k2 = self.best_k[row], self.best_k[row + 1]
             v1 = self.h[q, k1] + self.lam[k1] * x
             v2 = self.h[q, k2] + self.lam[k2] * x
-            return np.maximum(v1, v2)
+            best: np.ndarray = np.maximum(v1, v2)
+            return best
         lag = np.multiply.outer(x, self.lam)  # (labels × λ)
         lag += self.h[q]
         if not finite:  # only then can inf − inf give nan
