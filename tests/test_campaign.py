@@ -14,6 +14,7 @@ import signal
 import subprocess
 import sys
 import time
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
@@ -218,7 +219,12 @@ def groups_of_base(base: tuple[Path, Path], tmp_path: Path) -> tuple[Any, list[A
     return p, groups, ref
 
 
-def test_a_killed_worker_has_its_group_retried(base: tuple[Path, Path], tmp_path: Path) -> None:
+def run_killing(
+    base: tuple[Path, Path], tmp_path: Path, victims: Callable[[Any, int], list[str]]
+) -> None:
+    """Run the four groups of ``base`` on a 2-worker cluster, under a client of the
+    caller's own (as in a notebook); after the first group's rows, SIGKILL the workers
+    that ``victims(client, n_groups)`` names. The rows must still be the reference."""
     from distributed import Client, LocalCluster
 
     p, groups, ref = groups_of_base(base, tmp_path)
@@ -233,15 +239,22 @@ def test_a_killed_worker_has_its_group_retried(base: tuple[Path, Path], tmp_path
             rows.extend(batch)
             if killed:
                 return
-            busy = [w for w, keys in client.processing().items() if keys]
-            if busy:
-                pid = client.run(os.getpid, workers=busy[:1])[busy[0]]
-                os.kill(pid, signal.SIGKILL)
-                killed.append(pid)
+            workers = victims(client, len(groups))
+            if workers:
+                for pid in client.run(os.getpid, workers=workers).values():
+                    os.kill(pid, signal.SIGKILL)
+                    killed.append(pid)
 
         execute(groups, {p.key: p.doc}, on_rows, 0, cluster.scheduler_address)
-    assert killed  # a worker died with a group in flight
+    assert killed  # some worker died with a group in flight or a result in memory
     assert content(rows) == content(ref)
+
+
+def test_a_killed_worker_has_its_group_retried(base: tuple[Path, Path], tmp_path: Path) -> None:
+    def one_busy(client: Any, _: int) -> list[str]:
+        return [w for w, keys in client.processing().items() if keys][:1]
+
+    run_killing(base, tmp_path, one_busy)
 
 
 def test_finished_groups_lost_with_their_workers_are_run_again(
@@ -249,36 +262,18 @@ def test_finished_groups_lost_with_their_workers_are_run_again(
 ) -> None:
     """Every group done, then every worker killed before the rows are fetched.
 
-    The caller holds a client of its own (as in a notebook), so this also
-    checks that ``execute`` waits on its own client's event loop.
+    The caller holds a client of its own, so this also checks that ``execute``
+    waits on its own client's event loop.
     """
-    from distributed import Client, LocalCluster
 
-    p, groups, ref = groups_of_base(base, tmp_path)
-    rows: list[dict[str, Any]] = []
-    killed: list[int] = []
-    with (
-        LocalCluster(n_workers=2, threads_per_worker=1, dashboard_address=None) as cluster,
-        Client(cluster) as client,
-    ):
-
-        def done_groups() -> dict[str, int]:
+    def holders_once_all_done(client: Any, n_groups: int) -> list[str]:
+        def done() -> dict[str, int]:
             held = client.has_what()
             return {w: sum(str(k).startswith("run_group") for k in ks) for w, ks in held.items()}
 
-        def on_rows(batch: list[dict[str, Any]]) -> None:
-            rows.extend(batch)
-            if killed:
-                return
-            deadline = time.monotonic() + 120
-            while sum(done_groups().values()) < len(groups) and time.monotonic() < deadline:
-                time.sleep(0.05)
-            holders = [w for w, n in done_groups().items() if n]
-            pids = client.run(os.getpid, workers=holders)
-            for pid in pids.values():
-                os.kill(pid, signal.SIGKILL)
-                killed.append(pid)
+        deadline = time.monotonic() + 120
+        while sum(done().values()) < n_groups and time.monotonic() < deadline:
+            time.sleep(0.05)
+        return [w for w, n in done().items() if n]
 
-        execute(groups, {p.key: p.doc}, on_rows, 0, cluster.scheduler_address)
-    assert killed
-    assert content(rows) == content(ref)
+    run_killing(base, tmp_path, holders_once_all_done)
