@@ -200,15 +200,7 @@ class _Bounds:
         n, k = self.h.shape
         if not (sp.con_up and math.isfinite(B) and B > 0) or n * k * LAMBDA_GRID > 1 << 26:
             return None
-        xs = np.linspace(0.0, B, LAMBDA_GRID)
-        best = np.empty(n * LAMBDA_GRID, dtype=np.int64)
-        rows = max(1, (1 << 22) // (k * LAMBDA_GRID))
-        for a in range(0, n, rows):  # (states × grid × λ) in chunks
-            h = self.h[a : a + rows]
-            v = h[:, None, :] + self.lam[None, None, :] * xs[None, :, None]
-            v = np.where(np.isnan(v), -math.inf, v)
-            best[a * LAMBDA_GRID : (a + h.shape[0]) * LAMBDA_GRID] = v.argmax(axis=2).ravel()
-        return best
+        return _winning_lambdas(self.h, self.lam, np.linspace(0.0, B, LAMBDA_GRID)).ravel()
 
     def least_lb(self, q: np.ndarray, o: np.ndarray, c: np.ndarray) -> float:
         """The least :meth:`violating_lb` of many labels, in chunks (its λ grid is wide)."""
@@ -267,13 +259,10 @@ class _Bounds:
         B = space.bp.bound
         if not (math.isfinite(B) and B > 0 and states.size):
             return np.arange(lam.size)
-        hs = h[states]
         win = np.zeros(lam.size, dtype=bool)
         win[0] = True  # λ = 0: the plain suffix minimum, kept always
-        for c in np.linspace(0.0, B, LAMBDA_SAMPLE_VALUES):  # (states × λ) at a time
-            with np.errstate(invalid="ignore"):
-                lag = hs + lam[None, :] * (B - c)
-            win[np.argmax(np.where(np.isnan(lag), -math.inf, lag), axis=1)] = True
+        xs = B - np.linspace(0.0, B, LAMBDA_SAMPLE_VALUES)  # x = B − c
+        win[_winning_lambdas(h[states], lam, xs)] = True
         return np.flatnonzero(win)
 
     @staticmethod
@@ -299,6 +288,18 @@ class _Bounds:
             vals = np.where(np.isnan(vals), math.inf, vals)
             h[inner[has]] = np.minimum.reduceat(vals, seg[:-1][has], axis=0)
         return h
+
+
+def _winning_lambdas(h: np.ndarray, lam: np.ndarray, xs: np.ndarray) -> np.ndarray:
+    """(states × x): the index of the λ that maximizes h[q, λ] + λ x at each x (a nan
+    from inf − inf counts as −inf); in chunks of states of 4 M values at most."""
+    out = np.empty((h.shape[0], xs.size), dtype=np.int64)
+    rows = max(1, (1 << 22) // max(1, lam.size * xs.size))
+    for a in range(0, h.shape[0], rows):
+        with np.errstate(invalid="ignore"):
+            v = h[a : a + rows, None, :] + lam[None, None, :] * xs[None, :, None]
+        out[a : a + rows] = np.where(np.isnan(v), -math.inf, v).argmax(axis=2)
+    return out
 
 
 # ----------------------------------------------------------------------------- search
