@@ -58,8 +58,8 @@ from lesmc.tracking.kalman import (
 )
 from lesmc.tracking.scene import Scene
 
-#: (states × tracks × detections) cells of one chunk: bounds the temporaries of an expansion.
-CHUNK_CELLS = 1 << 19
+#: (states × (tracks + detections)) cells of one chunk: bounds the temporaries of an expansion.
+CHUNK_CELLS = 1 << 20
 
 
 @dataclass
@@ -231,6 +231,30 @@ def digest(js: JointStates) -> np.ndarray:
     return out
 
 
+def _distinct_tracks(
+    js: JointStates, live: np.ndarray
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The distinct tracks (mean bits and covariance index) among the live ones of ``js``:
+    each slot's index among them (n, T; padding 0), their means (u, 4) and covariance
+    indices (u,), in order of first appearance (state by state, slot by slot)."""
+    ls, lt = np.nonzero(live)
+    t = np.empty((ls.size, 5), dtype=np.uint64)
+    t[:, :4] = np.ascontiguousarray(js.tracks[ls, lt]).view(np.uint64)
+    t[:, 4] = js.tcov[ls, lt].astype(np.uint64)
+    with np.errstate(over="ignore"):
+        h = _mix(t ^ _positions(5, 4, 0), 0).sum(axis=1, dtype=np.uint64)
+    _, first, inv = np.unique(h, return_index=True, return_inverse=True)
+    if not np.array_equal(t, t[first[inv]]):  # two different tracks share a 64-bit hash
+        _, first, inv = np.unique(t, axis=0, return_index=True, return_inverse=True)
+    order = np.argsort(first, kind="stable")  # first appearance
+    rename = np.empty_like(order)
+    rename[order] = np.arange(order.size)
+    first = first[order]
+    tu = np.zeros(live.shape, dtype=np.int64)
+    tu[ls, lt] = rename[inv.reshape(-1)]
+    return tu, js.tracks[ls[first], lt[first]].copy(), js.tcov[ls[first], lt[first]]
+
+
 # ------------------------------------------------------------------ the design
 
 
@@ -248,22 +272,35 @@ class _Expanded:
 
 @dataclass
 class _Prepared:
-    """What the options of a chunk of states share (see :meth:`JointDesign._prepare`)."""
+    """What the options of a chunk of states share (see :meth:`JointDesign._prepare`).
+
+    Predictions, gains and the primary's nearest detections are kept per distinct
+    track (``tu`` maps each state's track slots to them; padding maps to 0).
+    """
 
     Z: np.ndarray  # (z, 2) the frame's detections
-    X: np.ndarray  # (n, T, 4) predicted tracks
-    g: GainRows  # (n, T) their gains
+    X: np.ndarray  # (u, 4) predicted distinct tracks
+    g: GainRows  # (u,) their gains
+    tu: np.ndarray  # (n, T) each state's tracks among the distinct ones
     live: np.ndarray  # (n, T) real tracks
     pend: np.ndarray  # (n, K, 2) pending detections, in this frame's coordinates
     npend: np.ndarray
     n_opt: np.ndarray  # (n,) the attacker's options
-    cost: np.ndarray  # (n, z + 1) cost of option j: hiding the j nearest
-    rank_of: np.ndarray  # (n, z) each detection's position among the primary's nearest
-    ps: np.ndarray  # gated pairs (state, track, detection), by state then likelihood
+    cost: np.ndarray  # (n, w + 1) cost of option j: hiding the j nearest
+    rank_of: np.ndarray  # (u, z) each detection's position among a primary's nearest
+    ps: np.ndarray  # gated pairs (state, track, detection), grouped by state
     pt: np.ndarray
     pz: np.ndarray
+    prio: np.ndarray  # each pair's place in its state's scan (smaller first), unique per state
+    pu: np.ndarray  # each pair among the distinct (track, detection) pairs
+    X_up: np.ndarray  # (distinct pairs, 4) the track updated with the detection (Eq. 2)
     near_z: np.ndarray  # (n, w) the primary's nearest detections (valid up to n_near)
     n_near: np.ndarray
+
+    def visible_rank(self, s: np.ndarray) -> np.ndarray:
+        """(len(s), z): each detection's position among the nearest of state s's primary."""
+        out: np.ndarray = self.rank_of[self.tu[s, 0]]
+        return out
 
 
 class JointDesign:
@@ -326,7 +363,7 @@ class JointDesign:
         assert isinstance(js, JointStates)
         Z = self.scene.frame(step).positions()
         T = js.tracks.shape[1]
-        size = max(1, CHUNK_CELLS // (T * max(len(Z), 1)))
+        size = max(1, CHUNK_CELLS // (T + len(Z)))
         parts = []
         for lo in range(0, len(js), size):
             part = js.take(np.arange(lo, min(lo + size, len(js))))
@@ -400,81 +437,115 @@ class JointDesign:
 
     def _prepare(self, js: JointStates, step: int) -> _Prepared:
         """What every option of a state shares: predictions, gains, the primary's nearest
-        detections and what hiding them costs, and the gated pairs in likelihood order."""
+        detections and what hiding them costs, and the gated pairs with their priorities.
+
+        A track's prediction, gains, gated detections and likelihoods depend only on
+        the track (its mean and covariance), and the states of a batch share most
+        of their tracks; all of that is computed once per distinct track.
+        """
         cfg = self.cfg
         frame = self.scene.frame(step)
         Z = frame.positions()
         nz = len(Z)
-        n, T = js.tcov.shape
+        T = js.tcov.shape[1]
         Hm = self.scene.frame(step - 1).to_next
-        X = js.tracks.copy()
+        live = np.arange(T) < js.ntrack[:, None]
+        tu, X, cu = _distinct_tracks(js, live)
         if Hm is not None:
-            X[..., :2] = warp(Hm, X[..., :2])
+            X[:, :2] = warp(Hm, X[:, :2])
         X = predict_means(X, float(self.m.F[0, 2]))
         pend = warp(Hm, js.pending) if Hm is not None else js.pending
-        g = self.gains.rows(js.tcov)
-        live = np.arange(T) < js.ntrack[:, None]
+        g = self.gains.rows(cu)
+        U = len(cu)
 
         # candidate (track, detection) pairs: within each track's gate radius (a little
         # wider: the gate decides), found in the strip of detections sorted by x
         r = g.radius * (1 + 1e-9)
         by_x = np.argsort(Z[:, 0], kind="stable")
         zx = Z[by_x, 0]
-        lo = np.searchsorted(zx, X[..., 0] - r, "left")
-        cnt = np.where(live, np.searchsorted(zx, X[..., 0] + r, "right") - lo, 0).ravel()
-        track = np.repeat(np.arange(n * T), cnt)
-        pz = by_x[np.repeat(lo.ravel(), cnt) + _within(cnt)]
-        o = np.argsort(track * max(nz, 1) + pz, kind="stable")  # by state, track, detection
+        lo = np.searchsorted(zx, X[:, 0] - r, "left")
+        cnt = np.searchsorted(zx, X[:, 0] + r, "right") - lo
+        track = np.repeat(np.arange(U), cnt)
+        pz = by_x[np.repeat(lo, cnt) + _within(cnt)]
+        o = np.argsort(track * max(nz, 1) + pz, kind="stable")  # by track, then detection
         track, pz = track[o], pz[o]
-        Xf = X.reshape(n * T, 4)
-        dx = Z[pz, 0] - Xf[track, 0]
-        dy = Z[pz, 1] - Xf[track, 1]
-        keep = dx * dx + dy * dy <= r.reshape(-1)[track] ** 2
+        dx = Z[pz, 0] - X[track, 0]
+        dy = Z[pz, 1] - X[track, 1]
+        keep = dx * dx + dy * dy <= r[track] ** 2
         track, pz, dx, dy = track[keep], pz[keep], dx[keep], dy[keep]
         y = np.stack([dx, dy], axis=-1)
-        S_inv = g.S_inv.reshape(n * T, 2, 2)[track]
+        S_inv = g.S_inv[track]
         d2 = mahalanobis2(y, S_inv)
         if cfg.gate_type == "mahalanobis":
             ok = mahalanobis_gate(d2, cfg.gate)
         else:
-            ok = gate_test(y, S_inv, g.P_pred.reshape(n * T, 4, 4)[track], cfg.gate, cfg.gate_type)
+            ok = gate_test(y, S_inv, g.P_pred[track], cfg.gate, cfg.gate_type)
 
         # the attacker's options: hide the j detections nearest the primary's prediction
         # (the primary's candidates within its radius, by distance, then index)
-        c0 = np.flatnonzero(track % T == 0)
+        u0 = tu[:, 0]
+        primary = np.zeros(U, dtype=bool)
+        primary[u0] = True
+        c0 = np.flatnonzero(primary[track])
         dist = np.sqrt(dx[c0] ** 2 + dy[c0] ** 2)
-        inside = dist <= g.radius[track[c0] // T, 0]
+        inside = dist <= g.radius[track[c0]]
         c0, dist = c0[inside], dist[inside]
-        s0 = track[c0] // T
-        per = np.bincount(s0, minlength=n)
+        s0 = track[c0]
+        per = np.bincount(s0, minlength=U)
         w = int(per.max(initial=0))
         at = _within(per)
-        D = np.full((n, w), np.inf)
+        D = np.full((U, w), np.inf)
         D[s0, at] = dist
         by_d = np.argsort(D, axis=1, kind="stable")
-        inv = np.empty((n, w), dtype=np.int64)
-        np.put_along_axis(inv, by_d, np.broadcast_to(np.arange(w), (n, w)), axis=1)
-        col = inv[s0, at]  # each near candidate's position among its state's nearest
-        near_z = np.zeros((n, w), dtype=np.int64)
+        inv = np.empty((U, w), dtype=np.int64)
+        np.put_along_axis(inv, by_d, np.broadcast_to(np.arange(w), (U, w)), axis=1)
+        col = inv[s0, at]  # each near candidate's position among its track's nearest
+        near_z = np.zeros((U, w), dtype=np.int64)
         near_z[s0, col] = pz[c0]
-        gated = np.zeros((n, w), dtype=bool)
+        gated = np.zeros((U, w), dtype=bool)
         gated[s0, col] = ok[c0]
         cols = np.arange(w)
         last = np.where(gated, cols + 1, 0).max(axis=1, initial=0)
-        pays = frame.payoffs()[near_z] if nz else np.zeros((n, w))
+        pays = frame.payoffs()[near_z] if nz else np.zeros((U, w))
         bad = ~np.isfinite(pays) & (cols < last[:, None])
         n_opt = np.minimum(last, np.where(bad, cols, w).min(axis=1, initial=w)) + 1
-        cost = np.zeros((n, w + 1))  # cost[i, j]: hiding the j nearest, summed nearest first
+        cost = np.zeros((U, w + 1))  # cost[i, j]: hiding the j nearest, summed nearest first
         cost[:, 1:] = np.cumsum(np.where(cols < n_opt[:, None] - 1, pays, 0.0), axis=1)
-        rank_of = np.full((n, nz), nz, dtype=np.int64)  # position among the nearest (nz: far)
+        rank_of = np.full((U, nz), nz, dtype=np.int64)  # position among the nearest (nz: far)
         rank_of[s0, pz[c0]] = col
 
-        # gated pairs, scored by N(z; Hx̂, S)
+        # gated pairs, scored by N(z; Hx̂, S) as the per-state loop does (math.exp), ranked
+        # from the largest; each state's pairs are those of its tracks
         track, pz, d2 = track[ok], pz[ok], d2[ok]
-        ps, pt = track // T, track % T
-        o = _by_likelihood(d2, g.norm.reshape(-1)[track], ps, n)
+        like = np.fromiter(map(math.exp, (-0.5 * d2).tolist()), float, d2.size) / g.norm[track]
+        values, dense = np.unique(like, return_inverse=True)
+        score = len(values) - 1 - dense.reshape(-1)  # 0 for the likeliest
+        gcount = np.bincount(track, minlength=U)
+        ls, lt = np.nonzero(live)
+        c = gcount[tu[ls, lt]]
+        idx = np.repeat(_starts(gcount)[tu[ls, lt]], c) + _within(c)
+        X_up = update_means(X[track], g.K[track], Z[pz])
+        ps, pt, pz = np.repeat(ls, c), np.repeat(lt, c), pz[idx]
+        prio = (score[idx] * T + pt) * max(nz, 1) + pz  # likelihood, then track, then detection
         return _Prepared(
-            Z, X, g, live, pend, js.npend, n_opt, cost, rank_of, ps[o], pt[o], pz[o], near_z, per
+            Z,
+            X,
+            g,
+            tu,
+            live,
+            pend,
+            js.npend,
+            n_opt[u0],
+            cost[u0],
+            rank_of,
+            ps,
+            pt,
+            pz,
+            prio,
+            idx,
+            X_up,
+            near_z[u0],
+            per[u0],
         )
 
     def _rows(
@@ -482,21 +553,22 @@ class JointDesign:
     ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, JointStates]:
         """The next states of options lo[i] .. hi[i] − 1 of every state i, as rows (by state,
         then option): source, option, association (rows, tracks), halted flags (rows, tracks)."""
-        Z, X, g = p.Z, p.X, p.g
+        Z, g = p.Z, p.g
         nz = len(Z)
         count = hi - lo
         R = int(count.sum())
         s = np.repeat(np.arange(len(count)), count)
         start = _starts(count)
         opt = np.repeat(lo, count) + _within(count)
-        visible = p.rank_of[s] >= opt[:, None]  # option j hides the j nearest to the primary
-        assign = self._associate(p, lo, hi, start, R)
+        visible = p.visible_rank(s) >= opt[:, None]  # option j hides the j nearest to the primary
+        assign, pair = self._associate(p, lo, hi, start, R)
         a = assign >= 0
-        Xr = X[s]
+        tus = p.tu[s]
+        Xr = p.X[tus]
         ra, ta = np.nonzero(a)
-        Xr[ra, ta] = update_means(Xr[ra, ta], g.K[s[ra], ta], Z[assign[ra, ta]])
-        cov = np.where(a, g.post[s], g.pred[s])
-        halt = np.where(a, g.halt_post[s], g.halt_pred[s])
+        Xr[ra, ta] = p.X_up[pair[ra, ta]]
+        cov = np.where(a, g.post[tus], g.pred[tus])
+        halt = np.where(a, g.halt_post[tus], g.halt_pred[tus])
         used = np.zeros((R, nz), dtype=bool)
         used[ra, assign[ra, ta]] = True
         states = self._initiate_and_prune(
@@ -506,44 +578,52 @@ class JointDesign:
 
     def _associate(
         self, p: _Prepared, lo: np.ndarray, hi: np.ndarray, start: np.ndarray, R: int
-    ) -> np.ndarray:
-        """The greedy one-to-one association of every option row: (R, T) detection per track, −1.
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """The greedy one-to-one association of every option row: (R, T) detection per track,
+        −1 for none, and (R, T) the distinct pair taken (``p.pu``; −1).
 
         Pairs are scored once per state; a row sees those whose detection its
         option leaves visible. Scanning a row's pairs in (−likelihood, track,
-        detection) order takes a pair when its track and detection are both
-        unspent. In rounds: every pair that comes first among the remaining pairs
-        of its track and among those of its detection is taken (nothing before it
-        can spend either), then the pairs of spent tracks and detections go.
+        detection) order (``p.prio``) takes a pair when its track and detection
+        are both unspent. In rounds: every pair that comes first among the
+        remaining pairs of its track and among those of its detection is taken
+        (nothing before it can spend either), then the pairs of spent tracks and
+        detections go.
         """
-        T, nz = p.X.shape[1], len(p.Z)
+        T, nz = p.tu.shape[1], len(p.Z)
         ps, pt, pz = p.ps, p.pt, p.pz
-        # a pair serves the options up to its detection's position among the primary's nearest
-        reps = np.maximum(np.minimum(hi[ps], p.rank_of[ps, pz] + 1) - lo[ps], 0)
-        pair = np.repeat(np.arange(ps.size), reps)
-        row = start[ps[pair]] + _within(reps)
-        pz = pz[pair]
+        if len(lo) == R and not lo.any():  # option 0 of every state: one row each, all pairs
+            pair, row, prio = np.arange(ps.size), ps, p.prio
+        else:  # a pair serves the options up to its detection's place among the primary's nearest
+            reps = np.maximum(np.minimum(hi[ps], p.rank_of[p.tu[ps, 0], pz] + 1) - lo[ps], 0)
+            pair = np.repeat(np.arange(ps.size), reps)
+            row = start[ps[pair]] + _within(reps)
+            pz = pz[pair]
+            prio = p.prio[pair]
         kt = row * T + pt[pair]  # flat (row, track) and (row, detection) positions
         kz = row * nz + pz
         assign = np.full(R * T, -1, dtype=np.int64)
+        taken = np.full(R * T, -1, dtype=np.int64)
         used_t = np.zeros(R * T, dtype=bool)
         used_z = np.zeros(R * nz, dtype=bool)
         big = np.iinfo(np.int64).max
-        while pair.size:
-            # a pair first (best: pairs are numbered in order) among the remaining pairs of
-            # both its track and its detection is the one the scan takes for them: take
-            # all such pairs at once
+        while prio.size:
+            # a pair first among the remaining pairs of both its track and its detection
+            # is the one the scan takes for them: take all such pairs at once
             first_t = np.full(R * T, big)
             first_z = np.full(R * nz, big)
-            np.minimum.at(first_t, kt, pair)
-            np.minimum.at(first_z, kz, pair)
-            take = np.flatnonzero((first_t[kt] == pair) & (first_z[kz] == pair))
+            np.minimum.at(first_t, kt, prio)
+            np.minimum.at(first_z, kz, prio)
+            take = np.flatnonzero((first_t[kt] == prio) & (first_z[kz] == prio))
             assign[kt[take]] = pz[take]
+            taken[kt[take]] = pair[take]
             used_t[kt[take]] = True
             used_z[kz[take]] = True
             left = np.flatnonzero(~(used_t[kt] | used_z[kz]))
-            pair, kt, kz, pz = pair[left], kt[left], kz[left], pz[left]
-        return assign.reshape(R, T)
+            prio, kt, kz, pz, pair = prio[left], kt[left], kz[left], pz[left], pair[left]
+        got = taken >= 0
+        taken[got] = p.pu[taken[got]]
+        return assign.reshape(R, T), taken.reshape(R, T)
 
     def _initiate_and_prune(
         self,
@@ -615,13 +695,15 @@ class JointDesign:
         keep &= dp <= cfg.prune_radius
         keep[:, 0] = True  # the primary stays (halted or not)
         nt = keep.sum(axis=1)
-        dest = np.cumsum(keep, axis=1) - 1
-        kr, kc = np.nonzero(keep)
         Tn = int(nt.max(initial=1))
-        tracks = np.zeros((R, Tn, 4))
-        tcov = np.zeros((R, Tn), dtype=np.int64)
-        tracks[kr, dest[kr, kc]] = Xa[kr, kc]
-        tcov[kr, dest[kr, kc]] = ca[kr, kc]
+        tracks = np.where(keep[..., None], Xa, 0.0)
+        tcov = np.where(keep, ca, 0)
+        gap = np.flatnonzero((keep[:, 1:] & ~keep[:, :-1]).any(axis=1))  # a kept after a dropped
+        if gap.size:  # the kept tracks of those rows move up, in order
+            order = np.argsort(~keep[gap], axis=1, kind="stable")
+            tracks[gap] = np.take_along_axis(tracks[gap], order[..., None], axis=1)
+            tcov[gap] = np.take_along_axis(tcov[gap], order, axis=1)
+        tracks, tcov = tracks[:, :Tn], tcov[:, :Tn]
         # pending: the candidates that started no track, in order
         ur, uz = cr[~matched], cz[~matched]
         npd = np.bincount(ur, minlength=R)
@@ -662,48 +744,11 @@ def _option_one_differs(p: _Prepared, primary: np.ndarray) -> np.ndarray:
     dz = p.Z[p.near_z] - z0[:, None]
     gap = np.where(np.arange(w) < p.n_near[:, None], np.hypot(dz[..., 0], dz[..., 1]), np.inf)
     delta = gap[:, 1:].min(axis=1, initial=np.inf)
-    K = p.g.K[:, 0, :2, :]  # (n, 2, 2): how the position moves with the innovation
+    u0 = p.tu[:, 0]
+    K = p.g.K[u0, :2, :]  # (n, 2, 2): how the position moves with the innovation
     sigma_min = np.sqrt(np.maximum(np.linalg.eigvalsh(np.swapaxes(K, 1, 2) @ K)[:, 0], 0.0))
-    scale = 1.0 + np.abs(p.X[:, 0, :2]).max(axis=1) + np.abs(dz).max(axis=(1, 2), initial=0.0)
+    scale = 1.0 + np.abs(p.X[u0, :2]).max(axis=1) + np.abs(dz).max(axis=(1, 2), initial=0.0)
     out: np.ndarray = ok & (sigma_min * delta > 1e-6 * scale)
-    return out
-
-
-#: Likelihoods closer than this (relative) are recomputed exactly before they are compared.
-_NEAR_TIE = 1e-12
-
-
-def _by_likelihood(d2: np.ndarray, norm: np.ndarray, group: np.ndarray, n: int) -> np.ndarray:
-    """The order of pairs (grouped by state, ``group`` sorted) by state, then likelihood
-    N(z; Hx̂, S) = exp(−d²/2) / norm from the largest; ties keep the given order.
-
-    The likelihoods are those of ``math.exp`` (the per-state loop's). numpy's exp
-    may differ from it in the last bit, which could swap two pairs that (nearly)
-    tie; only the order matters, so numpy's values are used where they are far
-    apart and values within :data:`_NEAR_TIE` of a neighbour are recomputed with
-    ``math.exp``, then their state's pairs sorted again.
-    """
-    per = np.bincount(group, minlength=n)
-    start = _starts(per)
-    at = np.arange(group.size) - start[group]
-    M = np.full((n, int(per.max(initial=0))), np.inf)  # −likelihood, by state
-    M[group, at] = -np.exp(-0.5 * d2) / norm
-    rank = np.argsort(M, axis=1, kind="stable")
-    Ms = np.take_along_axis(M, rank, axis=1)
-    a, b = Ms[:, :-1], Ms[:, 1:]
-    with np.errstate(invalid="ignore"):  # inf − inf past each state's last pair
-        close = np.isfinite(b) & (b - a <= _NEAR_TIE * np.maximum(-a, -b) + 1e-300)
-    if close.any():
-        redo = np.zeros(M.shape, dtype=bool)
-        redo[:, :-1] |= close
-        redo[:, 1:] |= close
-        rr, cc = np.nonzero(redo)
-        idx = start[rr] + rank[rr, cc]
-        exact = np.fromiter(map(math.exp, (-0.5 * d2[idx]).tolist()), float, idx.size)
-        M[rr, rank[rr, cc]] = -(exact / norm[idx])
-        rows = np.unique(rr)
-        rank[rows] = np.argsort(M[rows], axis=1, kind="stable")
-    out: np.ndarray = (start[:, None] + rank)[rank < per[:, None]]
     return out
 
 
