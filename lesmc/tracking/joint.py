@@ -68,7 +68,8 @@ class JointStates:
 
     Track 0 is the primary; tracks beyond ``ntrack[i]`` and pending detections
     beyond ``npend[i]`` are padding (zeros). ``tcov`` indexes the design's
-    table of track covariances. ``key`` caches :func:`digest` once computed.
+    table of track covariances. ``key`` caches :func:`digest` once computed,
+    ``th`` the tracks' own 128-bit hashes (:func:`track_hashes`).
     """
 
     tracks: np.ndarray  # (n, T, 4) means
@@ -77,6 +78,7 @@ class JointStates:
     pending: np.ndarray  # (n, K, 2) unassociated detections of the previous frame
     npend: np.ndarray  # (n,) int64
     key: np.ndarray | None = None  # (n, 2) uint64
+    th: np.ndarray | None = None  # (n, T, 2) uint64, padding 0
 
     def __len__(self) -> int:
         return int(self.ntrack.shape[0])
@@ -86,8 +88,9 @@ class JointStates:
         T = int(nt.max(initial=1))
         K = int(npd.max(initial=0))
         key = None if self.key is None else self.key[idx]
+        th = None if self.th is None else self.th[idx, :T]
         return JointStates(
-            self.tracks[idx, :T], self.tcov[idx, :T], nt, self.pending[idx, :K], npd, key
+            self.tracks[idx, :T], self.tcov[idx, :T], nt, self.pending[idx, :K], npd, key, th
         )
 
     def store(self) -> JointStore:
@@ -120,12 +123,16 @@ def concat(parts: list[JointStates]) -> JointStates:
     )
     if all(p.key is not None for p in parts):
         out.key = np.concatenate([p.key for p in parts if p.key is not None])
+    if all(p.th is not None for p in parts):
+        out.th = np.zeros((n, T, 2), dtype=np.uint64)
     lo = 0
     for p in parts:
         hi = lo + len(p)
         out.tracks[lo:hi, : p.tracks.shape[1]] = p.tracks
         out.tcov[lo:hi, : p.tcov.shape[1]] = p.tcov
         out.pending[lo:hi, : p.pending.shape[1]] = p.pending
+        if out.th is not None and p.th is not None:
+            out.th[lo:hi, : p.th.shape[1]] = p.th
         lo = hi
     return out
 
@@ -142,6 +149,7 @@ class JointStore:
         self._poff = GrowArray(np.int64)
         self._np = GrowArray(np.int64)
         self._key = GrowArray(np.uint64, (2,))
+        self._th = GrowArray(np.uint64, (2,))
 
     def extend(self, payload: object, /) -> None:
         assert isinstance(payload, JointStates)
@@ -155,6 +163,7 @@ class JointStore:
         self._np.extend(npd)
         self._x.extend(js.tracks[tmask])
         self._c.extend(js.tcov[tmask])
+        self._th.extend(track_hashes(js)[tmask])
         self._p.extend(js.pending[pmask])
         self._key.extend(digest(js))
 
@@ -167,8 +176,9 @@ class JointStore:
         ppos = np.where(pm, self._poff.data[idx][:, None] + np.arange(K), 0)
         tracks = np.where(tm[..., None], self._x.data[tpos], 0.0)
         tcov = np.where(tm, self._c.data[tpos], 0)
+        th = np.where(tm[..., None], self._th.data[tpos], np.uint64(0))
         pending = np.where(pm[..., None], self._p.data[ppos], 0.0)
-        return JointStates(tracks, tcov, nt, pending, npd, self._key.data[idx])
+        return JointStates(tracks, tcov, nt, pending, npd, self._key.data[idx], th)
 
 
 # ------------------------------------------------------------------ digests
@@ -201,9 +211,30 @@ def _positions(count: int, section: int, lane: int) -> np.ndarray:
         )
 
 
+def hash_tracks(means: np.ndarray, cov: np.ndarray) -> np.ndarray:
+    """A 128-bit hash (..., 2) of each track: its mean's bits (..., 4) and covariance index."""
+    w = np.empty((*cov.shape, 5), dtype=np.uint64)
+    w[..., :4] = np.ascontiguousarray(means).view(np.uint64)
+    w[..., 4] = cov.astype(np.uint64)
+    out = np.empty((*cov.shape, 2), dtype=np.uint64)
+    with np.errstate(over="ignore"):
+        for lane in (0, 1):
+            out[..., lane] = _mix(w ^ _positions(5, 4, lane), lane).sum(axis=-1, dtype=np.uint64)
+    return out
+
+
+def track_hashes(js: JointStates) -> np.ndarray:
+    """Each track's :func:`hash_tracks` (n, T, 2), padding 0; cached in ``js.th``."""
+    if js.th is None:
+        live = np.arange(js.tcov.shape[1]) < js.ntrack[:, None]
+        js.th = np.where(live[..., None], hash_tracks(js.tracks, js.tcov), np.uint64(0))
+    return js.th
+
+
 def digest(js: JointStates) -> np.ndarray:
     """A 128-bit digest (n, 2) of each whole joint state: its track and pending counts,
-    each track's mean bits and covariance index, each pending detection's position bits.
+    each track's hash (:func:`hash_tracks`: mean bits and covariance index), each
+    pending detection's position bits.
 
     Every word is mixed with a constant of its position and the mixed words are
     summed (mod 2⁶⁴), padding left out: the digest does not depend on how wide
@@ -211,10 +242,11 @@ def digest(js: JointStates) -> np.ndarray:
     """
     if js.key is not None:
         return js.key
-    t, p = js.words()
+    th = track_hashes(js)
     n, T = js.tcov.shape
+    p = np.ascontiguousarray(js.pending).view(np.uint64).reshape(n, -1, 2)
     K = p.shape[1]
-    tm = (np.arange(T) < js.ntrack[:, None])[..., None]
+    tm = np.arange(T) < js.ntrack[:, None]
     pm = (np.arange(K) < js.npend[:, None])[..., None]
     zero = np.uint64(0)
     out = np.empty((n, 2), dtype=np.uint64)
@@ -222,8 +254,8 @@ def digest(js: JointStates) -> np.ndarray:
         for lane in (0, 1):
             h = _mix(js.ntrack.astype(np.uint64) ^ _positions(1, 0, lane), lane)
             h += _mix(js.npend.astype(np.uint64) ^ _positions(1, 1, lane), lane)
-            ct = _positions(T * 5, 2, lane).reshape(T, 5)
-            h += np.where(tm, _mix(t ^ ct, lane), zero).sum(axis=(1, 2), dtype=np.uint64)
+            ct = _positions(T, 2, lane)
+            h += np.where(tm, _mix(th[..., lane] ^ ct, lane), zero).sum(axis=1, dtype=np.uint64)
             if K:
                 cp = _positions(K * 2, 3, lane).reshape(K, 2)
                 h += np.where(pm, _mix(p ^ cp, lane), zero).sum(axis=(1, 2), dtype=np.uint64)
@@ -238,13 +270,13 @@ def _distinct_tracks(
     each slot's index among them (n, T; padding 0), their means (u, 4) and covariance
     indices (u,), in order of first appearance (state by state, slot by slot)."""
     ls, lt = np.nonzero(live)
-    t = np.empty((ls.size, 5), dtype=np.uint64)
-    t[:, :4] = np.ascontiguousarray(js.tracks[ls, lt]).view(np.uint64)
-    t[:, 4] = js.tcov[ls, lt].astype(np.uint64)
-    with np.errstate(over="ignore"):
-        h = _mix(t ^ _positions(5, 4, 0), 0).sum(axis=1, dtype=np.uint64)
+    h = track_hashes(js)[ls, lt, 0]
     _, first, inv = np.unique(h, return_index=True, return_inverse=True)
-    if not np.array_equal(t, t[first[inv]]):  # two different tracks share a 64-bit hash
+    x = np.ascontiguousarray(js.tracks[ls, lt]).view(np.uint64)
+    c = js.tcov[ls, lt]
+    rep = first[inv.reshape(-1)]
+    if not (np.array_equal(x, x[rep]) and np.array_equal(c, c[rep])):  # a 64-bit collision
+        t = np.concatenate([x, c[:, None].astype(np.uint64)], axis=1)
         _, first, inv = np.unique(t, axis=0, return_index=True, return_inverse=True)
     order = np.argsort(first, kind="stable")  # first appearance
     rename = np.empty_like(order)
@@ -294,8 +326,10 @@ class _Prepared:
     prio: np.ndarray  # each pair's place in its state's scan (smaller first), unique per state
     pu: np.ndarray  # each pair among the distinct (track, detection) pairs
     X_up: np.ndarray  # (distinct pairs, 4) the track updated with the detection (Eq. 2)
-    near_z: np.ndarray  # (n, w) the primary's nearest detections (valid up to n_near)
-    n_near: np.ndarray
+    h_up: np.ndarray  # (distinct pairs, 2) its hash (with the updated covariance)
+    h_pred: np.ndarray  # (u, 2) each distinct track's hash after a skipped update
+    near_z: np.ndarray  # (u, w) a primary's nearest detections (valid up to n_near)
+    n_near: np.ndarray  # (u,)
 
     def visible_rank(self, s: np.ndarray) -> np.ndarray:
         """(len(s), z): each detection's position among the nearest of state s's primary."""
@@ -525,27 +559,30 @@ class JointDesign:
         c = gcount[tu[ls, lt]]
         idx = np.repeat(_starts(gcount)[tu[ls, lt]], c) + _within(c)
         X_up = update_means(X[track], g.K[track], Z[pz])
+        h_up, h_pred = hash_tracks(X_up, g.post[track]), hash_tracks(X, g.pred)
         ps, pt, pz = np.repeat(ls, c), np.repeat(lt, c), pz[idx]
         prio = (score[idx] * T + pt) * max(nz, 1) + pz  # likelihood, then track, then detection
         return _Prepared(
-            Z,
-            X,
-            g,
-            tu,
-            live,
-            pend,
-            js.npend,
-            n_opt[u0],
-            cost[u0],
-            rank_of,
-            ps,
-            pt,
-            pz,
-            prio,
-            idx,
-            X_up,
-            near_z[u0],
-            per[u0],
+            Z=Z,
+            X=X,
+            g=g,
+            tu=tu,
+            live=live,
+            pend=pend,
+            npend=js.npend,
+            n_opt=n_opt[u0],
+            cost=cost[u0],
+            rank_of=rank_of,
+            ps=ps,
+            pt=pt,
+            pz=pz,
+            prio=prio,
+            pu=idx,
+            X_up=X_up,
+            h_up=h_up,
+            h_pred=h_pred,
+            near_z=near_z,
+            n_near=per,
         )
 
     def _rows(
@@ -567,12 +604,14 @@ class JointDesign:
         Xr = p.X[tus]
         ra, ta = np.nonzero(a)
         Xr[ra, ta] = p.X_up[pair[ra, ta]]
+        th = p.h_pred[tus]
+        th[ra, ta] = p.h_up[pair[ra, ta]]
         cov = np.where(a, g.post[tus], g.pred[tus])
         halt = np.where(a, g.halt_post[tus], g.halt_pred[tus])
         used = np.zeros((R, nz), dtype=bool)
         used[ra, assign[ra, ta]] = True
         states = self._initiate_and_prune(
-            Xr, cov, halt, p.live[s], Z, visible & ~used, p.pend[s], p.npend[s]
+            Xr, cov, th, halt, p.live[s], Z, visible & ~used, p.pend[s], p.npend[s]
         )
         return s, opt, assign, halt, states
 
@@ -629,6 +668,7 @@ class JointDesign:
         self,
         X: np.ndarray,
         cov: np.ndarray,
+        th: np.ndarray,
         halt: np.ndarray,
         live: np.ndarray,
         Z: np.ndarray,
@@ -684,12 +724,15 @@ class JointDesign:
         Xa[:, :T] = X
         ca = np.zeros((R, W), dtype=np.int64)
         ca[:, :T] = cov
+        ha = np.zeros((R, W, 2), dtype=np.uint64)
+        ha[:, :T] = th
         keep = np.zeros((R, W), dtype=bool)
         keep[:, :T] = live & ~halt
         slot = live.sum(axis=1)[mr] + _within(nnew)
         Xa[mr, slot, :2] = mz
         Xa[mr, slot, 2:] = v
         ca[mr, slot] = self._p0
+        ha[mr, slot] = hash_tracks(Xa[mr, slot], ca[mr, slot])
         keep[mr, slot] = self._p0_kept
         dp = np.hypot(Xa[..., 0] - prim[:, 0, None], Xa[..., 1] - prim[:, 1, None])
         keep &= dp <= cfg.prune_radius
@@ -698,19 +741,21 @@ class JointDesign:
         Tn = int(nt.max(initial=1))
         tracks = np.where(keep[..., None], Xa, 0.0)
         tcov = np.where(keep, ca, 0)
+        th = np.where(keep[..., None], ha, np.uint64(0))
         gap = np.flatnonzero((keep[:, 1:] & ~keep[:, :-1]).any(axis=1))  # a kept after a dropped
         if gap.size:  # the kept tracks of those rows move up, in order
             order = np.argsort(~keep[gap], axis=1, kind="stable")
             tracks[gap] = np.take_along_axis(tracks[gap], order[..., None], axis=1)
             tcov[gap] = np.take_along_axis(tcov[gap], order, axis=1)
-        tracks, tcov = tracks[:, :Tn], tcov[:, :Tn]
+            th[gap] = np.take_along_axis(th[gap], order[..., None], axis=1)
+        tracks, tcov, th = tracks[:, :Tn], tcov[:, :Tn], th[:, :Tn]
         # pending: the candidates that started no track, in order
         ur, uz = cr[~matched], cz[~matched]
         npd = np.bincount(ur, minlength=R)
         pk = _within(npd)
         pending = np.zeros((R, int(npd.max(initial=0)), 2))
         pending[ur, pk] = Z[uz]
-        return JointStates(tracks, tcov, nt.astype(np.int64), pending, npd.astype(np.int64))
+        return JointStates(tracks, tcov, nt.astype(np.int64), pending, npd.astype(np.int64), th=th)
 
     def _merge(self, states: JointStates, s: np.ndarray) -> np.ndarray:
         """Which rows are the first (cheapest) of their state's identical outcomes."""
@@ -736,19 +781,25 @@ def _option_one_differs(p: _Prepared, primary: np.ndarray) -> np.ndarray:
     and K's position block (nonsingular) moves the estimate by at least
     σ_min(K)·δ, far above rounding, the primary's estimate differs.
     """
-    n, w = p.near_z.shape
-    ok = (p.n_opt > 1) & (p.n_near > 0) & (primary == p.near_z[:, 0]) if w else np.zeros(n, bool)
+    n, w = len(primary), p.near_z.shape[1]
+    u0 = p.tu[:, 0]
+    if not w:
+        return np.zeros(n, dtype=bool)
+    ok = (p.n_opt > 1) & (p.n_near[u0] > 0)
+    ok[ok] = primary[ok] == p.near_z[u0[ok], 0]
     if not ok.any():
         return ok
-    z0 = p.Z[p.near_z[:, 0]]
-    dz = p.Z[p.near_z] - z0[:, None]
-    gap = np.where(np.arange(w) < p.n_near[:, None], np.hypot(dz[..., 0], dz[..., 1]), np.inf)
+    u = np.unique(u0[ok])  # what follows depends on the primary track only
+    z0 = p.Z[p.near_z[u, 0]]
+    dz = p.Z[p.near_z[u]] - z0[:, None]
+    gap = np.where(np.arange(w) < p.n_near[u, None], np.hypot(dz[..., 0], dz[..., 1]), np.inf)
     delta = gap[:, 1:].min(axis=1, initial=np.inf)
-    u0 = p.tu[:, 0]
-    K = p.g.K[u0, :2, :]  # (n, 2, 2): how the position moves with the innovation
+    K = p.g.K[u, :2, :]  # (u, 2, 2): how the position moves with the innovation
     sigma_min = np.sqrt(np.maximum(np.linalg.eigvalsh(np.swapaxes(K, 1, 2) @ K)[:, 0], 0.0))
-    scale = 1.0 + np.abs(p.X[u0, :2]).max(axis=1) + np.abs(dz).max(axis=(1, 2), initial=0.0)
-    out: np.ndarray = ok & (sigma_min * delta > 1e-6 * scale)
+    scale = 1.0 + np.abs(p.X[u, :2]).max(axis=1) + np.abs(dz).max(axis=(1, 2), initial=0.0)
+    moves = np.zeros(len(p.X), dtype=bool)
+    moves[u] = sigma_min * delta > 1e-6 * scale
+    out: np.ndarray = ok & moves[u0]
     return out
 
 
