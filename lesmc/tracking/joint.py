@@ -40,6 +40,7 @@ replaced, as the oracle (tests/test_joint.py).
 
 from __future__ import annotations
 
+import functools
 import math
 from dataclasses import dataclass
 
@@ -138,47 +139,42 @@ def concat(parts: list[JointStates]) -> JointStates:
 
 
 class JointStore:
-    """Joint states kept by the unfolder: tracks and pending detections stored ragged."""
+    """Joint states kept by the unfolder: each batch as it was added (no copy), and where
+    every state is (batch, row).
+
+    Batches keep their digests and track hashes, so states read back need
+    neither again.
+    """
 
     def __init__(self) -> None:
-        self._x = GrowArray(np.float64, (4,))
-        self._c = GrowArray(np.int64)
-        self._p = GrowArray(np.float64, (2,))
-        self._toff = GrowArray(np.int64)
-        self._nt = GrowArray(np.int64)
-        self._poff = GrowArray(np.int64)
-        self._np = GrowArray(np.int64)
-        self._key = GrowArray(np.uint64, (2,))
-        self._th = GrowArray(np.uint64, (2,))
+        self._parts: list[JointStates] = []
+        self._part = GrowArray(np.int64)
+        self._row = GrowArray(np.int64)
 
     def extend(self, payload: object, /) -> None:
         assert isinstance(payload, JointStates)
-        js = payload
-        nt, npd = js.ntrack, js.npend
-        tmask = np.arange(js.tcov.shape[1]) < nt[:, None]
-        pmask = np.arange(js.pending.shape[1]) < npd[:, None]
-        self._toff.extend(self._x.n + _starts(nt))
-        self._poff.extend(self._p.n + _starts(npd))
-        self._nt.extend(nt)
-        self._np.extend(npd)
-        self._x.extend(js.tracks[tmask])
-        self._c.extend(js.tcov[tmask])
-        self._th.extend(track_hashes(js)[tmask])
-        self._p.extend(js.pending[pmask])
-        self._key.extend(digest(js))
+        digest(payload)
+        self._part.extend(np.full(len(payload), len(self._parts), dtype=np.int64))
+        self._row.extend(np.arange(len(payload), dtype=np.int64))
+        self._parts.append(payload)
 
     def take(self, idx: np.ndarray) -> JointStates:
-        nt, npd = self._nt.data[idx], self._np.data[idx]
-        T, K = int(nt.max(initial=1)), int(npd.max(initial=0))
-        tm = np.arange(T) < nt[:, None]
-        pm = np.arange(K) < npd[:, None]
-        tpos = np.where(tm, self._toff.data[idx][:, None] + np.arange(T), 0)
-        ppos = np.where(pm, self._poff.data[idx][:, None] + np.arange(K), 0)
-        tracks = np.where(tm[..., None], self._x.data[tpos], 0.0)
-        tcov = np.where(tm, self._c.data[tpos], 0)
-        th = np.where(tm[..., None], self._th.data[tpos], np.uint64(0))
-        pending = np.where(pm[..., None], self._p.data[ppos], 0.0)
-        return JointStates(tracks, tcov, nt, pending, npd, self._key.data[idx], th)
+        part, row = self._part.data[idx], self._row.data[idx]
+        if not part.size:
+            return _empty(1, 0)
+        if part.min() == part.max():
+            return self._parts[int(part[0])].take(row)
+        order = np.argsort(part, kind="stable")
+        sp = part[order]
+        cut = np.flatnonzero(np.r_[True, sp[1:] != sp[:-1]])
+        ends = np.r_[cut[1:], sp.size]
+        pieces = [
+            self._parts[int(sp[c])].take(row[order[c:e]])
+            for c, e in zip(cut.tolist(), ends.tolist(), strict=True)
+        ]
+        back = np.empty_like(order)
+        back[order] = np.arange(order.size)
+        return concat(pieces).take(back)
 
 
 # ------------------------------------------------------------------ digests
@@ -202,13 +198,16 @@ def _mix(x: np.ndarray, lane: int) -> np.ndarray:
     return x
 
 
+@functools.cache
 def _positions(count: int, section: int, lane: int) -> np.ndarray:
-    """Per-position constants of a digest section (independent of any padding)."""
+    """Per-position constants of a digest section (independent of any padding); read-only."""
     base = np.uint64((0x9E3779B97F4A7C15 * (4 * section + lane + 1)) & _M64)
     with np.errstate(over="ignore"):
-        return _mix(
+        out = _mix(
             np.arange(1, count + 1, dtype=np.uint64) * np.uint64(0x9E3779B97F4A7C15) + base, lane
         )
+    out.flags.writeable = False
+    return out
 
 
 def hash_tracks(means: np.ndarray, cov: np.ndarray) -> np.ndarray:
@@ -325,9 +324,12 @@ class _Prepared:
     pz: np.ndarray
     prio: np.ndarray  # each pair's place in its state's scan (smaller first), unique per state
     pu: np.ndarray  # each pair among the distinct (track, detection) pairs
-    X_up: np.ndarray  # (distinct pairs, 4) the track updated with the detection (Eq. 2)
-    h_up: np.ndarray  # (distinct pairs, 2) its hash (with the updated covariance)
-    h_pred: np.ndarray  # (u, 2) each distinct track's hash after a skipped update
+    # every track a state's track can become: the u predicted ones (a skipped update),
+    # then the distinct pairs' updated ones (Eq. 2); means, covariance indices, hashes, halts
+    child_X: np.ndarray  # (u + distinct pairs, 4)
+    child_cov: np.ndarray
+    child_h: np.ndarray  # (u + distinct pairs, 2)
+    child_halt: np.ndarray
     near_z: np.ndarray  # (u, w) a primary's nearest detections (valid up to n_near)
     n_near: np.ndarray  # (u,)
 
@@ -559,7 +561,8 @@ class JointDesign:
         c = gcount[tu[ls, lt]]
         idx = np.repeat(_starts(gcount)[tu[ls, lt]], c) + _within(c)
         X_up = update_means(X[track], g.K[track], Z[pz])
-        h_up, h_pred = hash_tracks(X_up, g.post[track]), hash_tracks(X, g.pred)
+        child_cov = np.concatenate([g.pred, g.post[track]])
+        child_X = np.concatenate([X, X_up])
         ps, pt, pz = np.repeat(ls, c), np.repeat(lt, c), pz[idx]
         prio = (score[idx] * T + pt) * max(nz, 1) + pz  # likelihood, then track, then detection
         return _Prepared(
@@ -578,9 +581,10 @@ class JointDesign:
             pz=pz,
             prio=prio,
             pu=idx,
-            X_up=X_up,
-            h_up=h_up,
-            h_pred=h_pred,
+            child_X=child_X,
+            child_cov=child_cov,
+            child_h=hash_tracks(child_X, child_cov),
+            child_halt=np.concatenate([g.halt_pred, g.halt_post[track]]),
             near_z=near_z,
             n_near=per,
         )
@@ -590,7 +594,7 @@ class JointDesign:
     ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, JointStates]:
         """The next states of options lo[i] .. hi[i] − 1 of every state i, as rows (by state,
         then option): source, option, association (rows, tracks), halted flags (rows, tracks)."""
-        Z, g = p.Z, p.g
+        Z = p.Z
         nz = len(Z)
         count = hi - lo
         R = int(count.sum())
@@ -600,18 +604,13 @@ class JointDesign:
         visible = p.visible_rank(s) >= opt[:, None]  # option j hides the j nearest to the primary
         assign, pair = self._associate(p, lo, hi, start, R)
         a = assign >= 0
-        tus = p.tu[s]
-        Xr = p.X[tus]
+        child = np.where(a, len(p.X) + pair, p.tu[s])  # rows of the p.child_* tables
+        halt = p.child_halt[child]
         ra, ta = np.nonzero(a)
-        Xr[ra, ta] = p.X_up[pair[ra, ta]]
-        th = p.h_pred[tus]
-        th[ra, ta] = p.h_up[pair[ra, ta]]
-        cov = np.where(a, g.post[tus], g.pred[tus])
-        halt = np.where(a, g.halt_post[tus], g.halt_pred[tus])
         used = np.zeros((R, nz), dtype=bool)
         used[ra, assign[ra, ta]] = True
         states = self._initiate_and_prune(
-            Xr, cov, th, halt, p.live[s], Z, visible & ~used, p.pend[s], p.npend[s]
+            p, child, halt, p.live[s], visible & ~used, p.pend[s], p.npend[s]
         )
         return s, opt, assign, halt, states
 
@@ -666,26 +665,26 @@ class JointDesign:
 
     def _initiate_and_prune(
         self,
-        X: np.ndarray,
-        cov: np.ndarray,
-        th: np.ndarray,
+        p: _Prepared,
+        child: np.ndarray,
         halt: np.ndarray,
         live: np.ndarray,
-        Z: np.ndarray,
         free: np.ndarray,
         pend: np.ndarray,
         npend: np.ndarray,
     ) -> JointStates:
         """Rows' next states: new tracks from free detections near the primary, pruning.
 
-        Free detections within ``init_radius`` of the updated primary are taken in
-        index order, one round each: each is matched to the nearest remaining
-        pending detection (first of equals) closer than ``init_distance``, which
-        starts a track, or is kept pending for the next step.
+        ``child`` (rows, T) gives each track's next value as a row of the
+        ``p.child_*`` tables. Free detections within ``init_radius`` of the
+        updated primary are taken in index order, one round each: each is matched
+        to the nearest remaining pending detection (first of equals) closer than
+        ``init_distance``, which starts a track, or is kept pending for the next step.
         """
         cfg = self.cfg
-        R, T = cov.shape
-        prim = X[:, 0, :2]
+        Z = p.Z
+        R, T = child.shape
+        prim = p.child_X[child[:, 0], :2]
         ddx = Z[None, :, 0] - prim[:, 0, None]
         ddy = Z[None, :, 1] - prim[:, 1, None]
         box = cfg.init_radius * (1 + 1e-9)
@@ -720,35 +719,36 @@ class JointDesign:
         v = (mz - pend[mr, partner[matched]]) / self.scene.dt
         nnew = np.bincount(mr, minlength=R)
         W = T + int(nnew.max(initial=0))
-        Xa = np.zeros((R, W, 4))
-        Xa[:, :T] = X
-        ca = np.zeros((R, W), dtype=np.int64)
-        ca[:, :T] = cov
-        ha = np.zeros((R, W, 2), dtype=np.uint64)
-        ha[:, :T] = th
+        # the tracks of the next states as rows of one table: the children, a row of
+        # zeros (padding), the new tracks
+        M = len(p.child_X)
+        new_X = np.concatenate([mz, v], axis=1)
+        new_cov = np.full(mr.size, self._p0, dtype=np.int64)
+        table_X = np.concatenate([p.child_X, np.zeros((1, 4)), new_X])
+        table_cov = np.concatenate([p.child_cov, np.zeros(1, dtype=np.int64), new_cov])
+        table_h = np.concatenate(
+            [p.child_h, np.zeros((1, 2), dtype=np.uint64), hash_tracks(new_X, new_cov)]
+        )
+        at = np.full((R, W), M, dtype=np.int64)
+        at[:, :T] = child
         keep = np.zeros((R, W), dtype=bool)
         keep[:, :T] = live & ~halt
         slot = live.sum(axis=1)[mr] + _within(nnew)
-        Xa[mr, slot, :2] = mz
-        Xa[mr, slot, 2:] = v
-        ca[mr, slot] = self._p0
-        ha[mr, slot] = hash_tracks(Xa[mr, slot], ca[mr, slot])
+        at[mr, slot] = M + 1 + np.arange(mr.size)
         keep[mr, slot] = self._p0_kept
-        dp = np.hypot(Xa[..., 0] - prim[:, 0, None], Xa[..., 1] - prim[:, 1, None])
+        pos = table_X[at, :2]
+        dp = np.hypot(pos[..., 0] - prim[:, 0, None], pos[..., 1] - prim[:, 1, None])
         keep &= dp <= cfg.prune_radius
         keep[:, 0] = True  # the primary stays (halted or not)
         nt = keep.sum(axis=1)
         Tn = int(nt.max(initial=1))
-        tracks = np.where(keep[..., None], Xa, 0.0)
-        tcov = np.where(keep, ca, 0)
-        th = np.where(keep[..., None], ha, np.uint64(0))
+        at = np.where(keep, at, M)
         gap = np.flatnonzero((keep[:, 1:] & ~keep[:, :-1]).any(axis=1))  # a kept after a dropped
         if gap.size:  # the kept tracks of those rows move up, in order
             order = np.argsort(~keep[gap], axis=1, kind="stable")
-            tracks[gap] = np.take_along_axis(tracks[gap], order[..., None], axis=1)
-            tcov[gap] = np.take_along_axis(tcov[gap], order, axis=1)
-            th[gap] = np.take_along_axis(th[gap], order[..., None], axis=1)
-        tracks, tcov, th = tracks[:, :Tn], tcov[:, :Tn], th[:, :Tn]
+            at[gap] = np.take_along_axis(at[gap], order, axis=1)
+        at = at[:, :Tn]
+        tracks, tcov, th = table_X[at], table_cov[at], table_h[at]
         # pending: the candidates that started no track, in order
         ur, uz = cr[~matched], cz[~matched]
         npd = np.bincount(ur, minlength=R)
@@ -785,7 +785,7 @@ def _option_one_differs(p: _Prepared, primary: np.ndarray) -> np.ndarray:
     u0 = p.tu[:, 0]
     if not w:
         return np.zeros(n, dtype=bool)
-    ok = (p.n_opt > 1) & (p.n_near[u0] > 0)
+    ok: np.ndarray = (p.n_opt > 1) & (p.n_near[u0] > 0)
     ok[ok] = primary[ok] == p.near_z[u0[ok], 0]
     if not ok.any():
         return ok
