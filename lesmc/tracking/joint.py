@@ -63,6 +63,14 @@ from lesmc.tracking.scene import Scene
 CHUNK_CELLS = 1 << 20
 
 
+@dataclass(frozen=True)
+class TrackTable:
+    """Tracks that states of one batch point into (see ``JointStates.tid``)."""
+
+    X: np.ndarray  # (m, 4) means
+    cov: np.ndarray  # (m,) covariance indices
+
+
 @dataclass
 class JointStates:
     """n joint states as padded arrays: the :class:`~lesmc.tracking.design.Payload` of the design.
@@ -70,7 +78,10 @@ class JointStates:
     Track 0 is the primary; tracks beyond ``ntrack[i]`` and pending detections
     beyond ``npend[i]`` are padding (zeros). ``tcov`` indexes the design's
     table of track covariances. ``key`` caches :func:`digest` once computed,
-    ``th`` the tracks' own 128-bit hashes (:func:`track_hashes`).
+    ``th`` the tracks' own 128-bit hashes (:func:`track_hashes`). States made
+    together may also say where their tracks are in a shared :class:`TrackTable`
+    (``tid``; equal ids are equal tracks, equal tracks may have different ids),
+    which spares finding their distinct tracks again.
     """
 
     tracks: np.ndarray  # (n, T, 4) means
@@ -80,6 +91,8 @@ class JointStates:
     npend: np.ndarray  # (n,) int64
     key: np.ndarray | None = None  # (n, 2) uint64
     th: np.ndarray | None = None  # (n, T, 2) uint64, padding 0
+    tid: np.ndarray | None = None  # (n, T) rows of ``table`` (padding: any row)
+    table: TrackTable | None = None
 
     def __len__(self) -> int:
         return int(self.ntrack.shape[0])
@@ -90,8 +103,17 @@ class JointStates:
         K = int(npd.max(initial=0))
         key = None if self.key is None else self.key[idx]
         th = None if self.th is None else self.th[idx, :T]
+        tid = None if self.tid is None else self.tid[idx, :T]
         return JointStates(
-            self.tracks[idx, :T], self.tcov[idx, :T], nt, self.pending[idx, :K], npd, key, th
+            self.tracks[idx, :T],
+            self.tcov[idx, :T],
+            nt,
+            self.pending[idx, :K],
+            npd,
+            key,
+            th,
+            tid,
+            self.table,
         )
 
     def store(self) -> JointStore:
@@ -126,6 +148,8 @@ def concat(parts: list[JointStates]) -> JointStates:
         out.key = np.concatenate([p.key for p in parts if p.key is not None])
     if all(p.th is not None for p in parts):
         out.th = np.zeros((n, T, 2), dtype=np.uint64)
+    if all(p.tid is not None and p.table is parts[0].table for p in parts):
+        out.tid, out.table = np.zeros((n, T), dtype=np.int64), parts[0].table
     lo = 0
     for p in parts:
         hi = lo + len(p)
@@ -134,6 +158,8 @@ def concat(parts: list[JointStates]) -> JointStates:
         out.pending[lo:hi, : p.pending.shape[1]] = p.pending
         if out.th is not None and p.th is not None:
             out.th[lo:hi, : p.th.shape[1]] = p.th
+        if out.tid is not None and p.tid is not None:
+            out.tid[lo:hi, : p.tid.shape[1]] = p.tid
         lo = hi
     return out
 
@@ -267,8 +293,23 @@ def _distinct_tracks(
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """The distinct tracks (mean bits and covariance index) among the live ones of ``js``:
     each slot's index among them (n, T; padding 0), their means (u, 4) and covariance
-    indices (u,), in order of first appearance (state by state, slot by slot)."""
+    indices (u,).
+
+    Only "each slot's track is its row" matters to the caller: every row's
+    results are a function of the track alone, so neither the order of the rows
+    nor a duplicate row (possible when the states carry ids of a shared
+    :class:`TrackTable`) changes them. Without ids, tracks are told apart by
+    their hash, checked bit for bit.
+    """
     ls, lt = np.nonzero(live)
+    if js.tid is not None and js.table is not None:  # ids of a shared table: keep those used
+        ids = js.tid[ls, lt]
+        used = np.zeros(len(js.table.X), dtype=bool)
+        used[ids] = True
+        tu = np.zeros(live.shape, dtype=np.int64)
+        tu[ls, lt] = (np.cumsum(used) - 1)[ids]
+        rows = np.flatnonzero(used)
+        return tu, js.table.X[rows], js.table.cov[rows]
     h = track_hashes(js)[ls, lt, 0]
     _, first, inv = np.unique(h, return_index=True, return_inverse=True)
     x = np.ascontiguousarray(js.tracks[ls, lt]).view(np.uint64)
@@ -749,13 +790,23 @@ class JointDesign:
             at[gap] = np.take_along_axis(at[gap], order, axis=1)
         at = at[:, :Tn]
         tracks, tcov, th = table_X[at], table_cov[at], table_h[at]
+        table = TrackTable(table_X, table_cov)
         # pending: the candidates that started no track, in order
         ur, uz = cr[~matched], cz[~matched]
         npd = np.bincount(ur, minlength=R)
         pk = _within(npd)
         pending = np.zeros((R, int(npd.max(initial=0)), 2))
         pending[ur, pk] = Z[uz]
-        return JointStates(tracks, tcov, nt.astype(np.int64), pending, npd.astype(np.int64), th=th)
+        return JointStates(
+            tracks,
+            tcov,
+            nt.astype(np.int64),
+            pending,
+            npd.astype(np.int64),
+            th=th,
+            tid=at,
+            table=table,
+        )
 
     def _merge(self, states: JointStates, s: np.ndarray) -> np.ndarray:
         """Which rows are the first (cheapest) of their state's identical outcomes."""
