@@ -28,7 +28,7 @@ class GrowArray:
     def extend(self, values: np.ndarray) -> None:
         need = self.n + len(values)
         if need > len(self.data):
-            cap = max(need, 2 * len(self.data))
+            cap = max(need, len(self.data) + len(self.data) // 2)
             bigger = np.empty((cap, *self.data.shape[1:]), dtype=self.data.dtype)
             bigger[: self.n] = self.data[: self.n]
             self.data = bigger

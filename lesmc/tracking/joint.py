@@ -672,28 +672,32 @@ class JointDesign:
         T, nz = p.tu.shape[1], len(p.Z)
         ps, pt, pz = p.ps, p.pt, p.pz
         if len(lo) == R and not lo.any():  # option 0 of every state: one row each, all pairs
-            pair, row, prio = np.arange(ps.size), ps, p.prio
+            pair, prio = np.arange(ps.size), p.prio
+            kt = ps * T + pt  # flat (row, track) and (row, detection) positions
+            kz = ps * nz + pz
         else:  # a pair serves the options up to its detection's place among the primary's nearest
             reps = np.maximum(np.minimum(hi[ps], p.rank_of[p.tu[ps, 0], pz] + 1) - lo[ps], 0)
             pair = np.repeat(np.arange(ps.size), reps)
             row = start[ps[pair]] + _within(reps)
             pz = pz[pair]
             prio = p.prio[pair]
-        kt = row * T + pt[pair]  # flat (row, track) and (row, detection) positions
-        kz = row * nz + pz
+            kt = row * T + pt[pair]
+            kz = row * nz + pz
         assign = np.full(R * T, -1, dtype=np.int64)
         taken = np.full(R * T, -1, dtype=np.int64)
         used_t = np.zeros(R * T, dtype=bool)
         used_z = np.zeros(R * nz, dtype=bool)
         big = np.iinfo(np.int64).max
+        first_t = np.full(R * T, big)
+        first_z = np.full(R * nz, big)
         while prio.size:
             # a pair first among the remaining pairs of both its track and its detection
             # is the one the scan takes for them: take all such pairs at once
-            first_t = np.full(R * T, big)
-            first_z = np.full(R * nz, big)
             np.minimum.at(first_t, kt, prio)
             np.minimum.at(first_z, kz, prio)
             take = np.flatnonzero((first_t[kt] == prio) & (first_z[kz] == prio))
+            first_t[kt] = big  # back to unset for the next round
+            first_z[kz] = big
             assign[kt[take]] = pz[take]
             taken[kt[take]] = pair[take]
             used_t[kt[take]] = True
@@ -726,12 +730,23 @@ class JointDesign:
         Z = p.Z
         R, T = child.shape
         prim = p.child_X[child[:, 0], :2]
-        ddx = Z[None, :, 0] - prim[:, 0, None]
-        ddy = Z[None, :, 1] - prim[:, 1, None]
         box = cfg.init_radius * (1 + 1e-9)
-        cr, cz = np.nonzero(free & (np.abs(ddx) <= box) & (np.abs(ddy) <= box))
-        inside = np.hypot(ddx[cr, cz], ddy[cr, cz]) <= cfg.init_radius
-        cr, cz = cr[inside], cz[inside]  # by row, then detection index
+        # candidates from the strip of detections sorted by x (a little wider), then the
+        # exact box and circle tests
+        by_x = np.argsort(Z[:, 0], kind="stable")
+        zx = Z[by_x, 0]
+        wide = box + 1e-6 * (box + np.abs(prim[:, 0]))
+        first = np.searchsorted(zx, prim[:, 0] - wide, "left")
+        cnt = np.searchsorted(zx, prim[:, 0] + wide, "right") - first
+        cr = np.repeat(np.arange(R), cnt)
+        cz = by_x[np.repeat(first, cnt) + _within(cnt)]
+        ddx = Z[cz, 0] - prim[cr, 0]
+        ddy = Z[cz, 1] - prim[cr, 1]
+        ok = free[cr, cz] & (np.abs(ddx) <= box) & (np.abs(ddy) <= box)
+        ok[ok] = np.hypot(ddx[ok], ddy[ok]) <= cfg.init_radius
+        o = np.flatnonzero(ok)
+        o = o[np.argsort(cr[o] * max(len(Z), 1) + cz[o], kind="stable")]
+        cr, cz = cr[o], cz[o]  # by row, then detection index
         nc = np.bincount(cr, minlength=R)
         k = _within(nc)
         pool = np.arange(pend.shape[1]) < npend[:, None]
