@@ -751,7 +751,7 @@ class JointDesign:
         k = _within(nc)
         pool = np.arange(pend.shape[1]) < npend[:, None]
         partner = np.full(cr.size, -1, dtype=np.int64)
-        todo: np.ndarray = pool[cr].any(axis=1)
+        todo = np.asarray(pool[cr].any(axis=1))
         by_k = np.argsort(k, kind="stable")
         bounds = np.searchsorted(k[by_k], np.arange(int(k.max(initial=-1)) + 2))
         for j in range(len(bounds) - 1):
