@@ -48,17 +48,15 @@ def suffix_bounds(space: Space) -> Bounds:
     omin, omax = np.full(n, inf), np.full(n, -inf)
     cmin, cmax = np.full(n, inf), np.full(n, -inf)
     alive = np.zeros(n, dtype=bool)
-    for level in reversed(levels):
+    for i in reversed(range(len(levels))):
+        level = levels[i]
         leaves = level[leaf[level]]
         if leaves.size:
             to, tc = space.tails(leaves)
             omin[leaves] = omax[leaves] = to
             cmin[leaves] = cmax[leaves] = tc
             alive[leaves] = True
-        inner = level[~leaf[level]]
-        if not inner.size:
-            continue
-        t, seg, has = space.allowed(inner)
+        inner, t, seg, has = space.level_moves(i)
         if not t.size:
             continue
         d = cm.dst[t]

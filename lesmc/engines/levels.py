@@ -271,17 +271,16 @@ class _Bounds:
         s = 1.0 if space.con_up else -1.0
         leaf = space.leaves()
         h = np.full((cm.n_states, lam.size), math.inf)
-        for level in reversed(space.reachable_levels()):
+        levels = space.reachable_levels()
+        for i in reversed(range(len(levels))):
+            level = levels[i]
             ends = level[leaf[level]]
             if ends.size:
                 to, tc = space.tails(ends)
                 with np.errstate(invalid="ignore"):
                     rows = to[:, None] - s * lam[None, :] * tc[:, None]
                 h[ends] = np.where(np.isnan(rows), to[:, None], rows)
-            inner = level[~leaf[level]]
-            if not inner.size:
-                continue
-            t, seg, has = space.allowed(inner)
+            inner, t, seg, has = space.level_moves(i)
             if not t.size:
                 continue
             vals = (space.c_obj[t] - s * np.outer(space.c_con[t], lam).T).T + h[cm.dst[t]]
@@ -590,14 +589,14 @@ class _SuffixValues:
         self.start_step: int | None = None
         self.table: dict[int, tuple[np.ndarray, np.ndarray, np.ndarray]] = {}
         total = 0
-        for level in reversed(levels):
+        for li in reversed(range(len(levels))):
+            level = levels[li]
             entries: dict[int, tuple[np.ndarray, np.ndarray, np.ndarray]] = {}
             for q in level[leaf[level]].tolist():
                 to = space.tail(int(q))[0]
                 entries[q] = (np.array([to]), np.array([-1]), np.array([-1]))
-            inner = level[~leaf[level]]
+            inner, t, seg, _ = space.level_moves(li)
             if inner.size:
-                t, seg, _ = space.allowed(inner)
                 for i, q in enumerate(inner.tolist()):
                     vs: list[np.ndarray] = []
                     ts: list[np.ndarray] = []

@@ -11,7 +11,7 @@ from __future__ import annotations
 
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
-from typing import Any, Protocol
+from typing import Any, NamedTuple, Protocol
 
 import numpy as np
 
@@ -162,6 +162,16 @@ class SpaceOps:
         return to, tc
 
 
+class LevelMoves(NamedTuple):
+    """A level's states that are not leaves and their allowed transitions in order, each
+    state's offset into them (for ``ufunc.reduceat``), and which states have any."""
+
+    inner: np.ndarray
+    t: np.ndarray
+    seg: np.ndarray
+    has: np.ndarray
+
+
 @dataclass
 class Space(SpaceOps):
     """One property's search space on an explicit model: allowed transitions, contributions.
@@ -185,6 +195,7 @@ class Space(SpaceOps):
     _levels: tuple[np.ndarray, ...] | None = field(
         default=None, init=False, repr=False, compare=False
     )
+    _moves: tuple[LevelMoves, ...] = field(default=(), init=False, repr=False, compare=False)
 
     def successors(self, q: int) -> np.ndarray:
         return self.adj[self.adj_ptr[q] : self.adj_ptr[q + 1]]
@@ -205,21 +216,30 @@ class Space(SpaceOps):
         """The states reachable from the root under the window, one array per step
         (computed once per space; every bound pass starts from it)."""
         if self._levels is None:
-            self._levels = self._reachable_levels()
+            self._levels, self._moves = self._reachable_levels()
         return self._levels
 
-    def _reachable_levels(self) -> tuple[np.ndarray, ...]:
+    def level_moves(self, i: int) -> LevelMoves:
+        """Level i of :meth:`reachable_levels`: its states that are not leaves and their
+        allowed transitions, as :meth:`allowed` gives them (found once, in the forward
+        pass; every backward bound pass reads them)."""
+        self.reachable_levels()
+        return self._moves[i]
+
+    def _reachable_levels(self) -> tuple[tuple[np.ndarray, ...], tuple[LevelMoves, ...]]:
         leaf = self.leaves()
         seen = np.zeros(self.cm.n_states, dtype=bool)
         level = np.array([self.root], dtype=np.int64)
         seen[self.root] = True
-        levels = [level]
+        levels, moves = [level], []
         while True:
-            t, _, _ = self.allowed(level[~leaf[level]])
+            inner = level[~leaf[level]]
+            t, seg, has = self.allowed(inner)
+            moves.append(LevelMoves(inner, t, seg, has))
             nxt = np.unique(self.cm.dst[t])
             nxt = nxt[~seen[nxt]]
             if not nxt.size:
-                return tuple(levels)
+                return tuple(levels), tuple(moves)
             seen[nxt] = True
             levels.append(nxt)
             level = nxt
