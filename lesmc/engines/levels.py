@@ -294,10 +294,14 @@ def _winning_lambdas(h: np.ndarray, lam: np.ndarray, xs: np.ndarray) -> np.ndarr
     from inf − inf counts as −inf); in chunks of states of 4 M values at most."""
     out = np.empty((h.shape[0], xs.size), dtype=np.int64)
     rows = max(1, (1 << 22) // max(1, lam.size * xs.size))
+    lx = lam[None, :] * xs[:, None]  # (x, λ)
+    exact = bool(np.isfinite(lx).all())  # then no inf − inf (h holds no nan)
     for a in range(0, h.shape[0], rows):
         with np.errstate(invalid="ignore"):
-            v = h[a : a + rows, None, :] + lam[None, None, :] * xs[None, :, None]
-        out[a : a + rows] = np.where(np.isnan(v), -math.inf, v).argmax(axis=2)
+            v = h[a : a + rows, None, :] + lx[None]
+        if not exact:
+            v[np.isnan(v)] = -math.inf
+        out[a : a + rows] = v.argmax(axis=2)
     return out
 
 
