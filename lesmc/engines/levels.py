@@ -62,6 +62,8 @@ LAMBDA_SAMPLE_STATES = 4096
 LAMBDA_SAMPLE_VALUES = 33
 #: Grid points over [0, B] at which :meth:`_Bounds._best_lambdas` picks each state's λ.
 LAMBDA_GRID = 64
+#: Levels up to this many labels rank constraint values by a searchsorted (see _pareto).
+PARETO_SEARCHSORTED = 1 << 14
 #: Relative slack on bounds summed in another order than a path's own value.
 _SLACK = 1e-9
 
@@ -337,9 +339,13 @@ def _pareto(q: np.ndarray, o: np.ndarray, c: np.ndarray, up: bool) -> np.ndarray
     cc = c if up else -c
     order = np.lexsort((-cc, o, q))
     qs, cs = q[order], cc[order]
-    # equal constraint values share a rank: a later equal label is dominated (dense
-    # ranks by np.unique: a searchsorted of unsorted values is 5x slower on big levels)
-    rank = np.unique(cs, return_inverse=True)[1].astype(np.int64, copy=False)
+    # equal constraint values share a rank: a later equal label is dominated (ranks by
+    # np.unique on big levels, where a searchsorted of unsorted values is 5x slower; on
+    # small ones the searchsorted is cheaper: np.unique's own overhead dominates)
+    if cs.size > PARETO_SEARCHSORTED:
+        rank = np.unique(cs, return_inverse=True)[1].astype(np.int64, copy=False)
+    else:
+        rank = np.searchsorted(np.sort(cs), cs)
     start = np.concatenate(([True], qs[1:] != qs[:-1]))
     group = np.cumsum(start) - 1
     key = group * (cs.size + 1) + rank
@@ -456,7 +462,10 @@ def _beam(
     if not saturated_first:
         proxy = np.where(np.isinf(c[keep]), -math.inf if space.con_up else math.inf, proxy)
     by_con = keep[np.lexsort((lb[keep], -proxy if space.con_up else proxy))[:half]]
-    return np.unique(np.r_[by_bound, by_con])
+    chosen = np.zeros(q.size, dtype=bool)  # the union, in label order
+    chosen[by_bound] = True
+    chosen[by_con] = True
+    return np.flatnonzero(chosen)
 
 
 # ----------------------------------------------------------------------------- witness
