@@ -832,16 +832,15 @@ def _truth(x: object) -> np.ndarray:
 
 
 def _lo(x: np.ndarray | float) -> np.ndarray:
-    """Lower bounds made safe against rounding."""
+    """Lower bounds made safe against rounding: a − slack·max(1, |a|); ±inf and nan as
+    they are (the scale is capped at 1e300, so an infinite a never meets inf − inf)."""
     a = np.asarray(x, dtype=float)
-    with np.errstate(invalid="ignore"):
-        out: np.ndarray = np.where(np.isfinite(a), a - _SLACK * np.maximum(1.0, np.abs(a)), a)
+    out: np.ndarray = a - _SLACK * np.clip(np.abs(a), 1.0, 1e300)
     return out
 
 
 def _hi(x: np.ndarray | float) -> np.ndarray:
-    """Upper bounds made safe against rounding."""
+    """Upper bounds made safe against rounding (see :func:`_lo`)."""
     a = np.asarray(x, dtype=float)
-    with np.errstate(invalid="ignore"):
-        out: np.ndarray = np.where(np.isfinite(a), a + _SLACK * np.maximum(1.0, np.abs(a)), a)
+    out: np.ndarray = a + _SLACK * np.clip(np.abs(a), 1.0, 1e300)
     return out
