@@ -835,12 +835,12 @@ def _lo(x: np.ndarray | float) -> np.ndarray:
     """Lower bounds made safe against rounding: a − slack·max(1, |a|); ±inf and nan as
     they are (the scale is capped at 1e300, so an infinite a never meets inf − inf)."""
     a = np.asarray(x, dtype=float)
-    out: np.ndarray = a - _SLACK * np.clip(np.abs(a), 1.0, 1e300)
+    out: np.ndarray = a - _SLACK * np.minimum(np.maximum(np.abs(a), 1.0), 1e300)
     return out
 
 
 def _hi(x: np.ndarray | float) -> np.ndarray:
     """Upper bounds made safe against rounding (see :func:`_lo`)."""
     a = np.asarray(x, dtype=float)
-    out: np.ndarray = a + _SLACK * np.clip(np.abs(a), 1.0, 1e300)
+    out: np.ndarray = a + _SLACK * np.minimum(np.maximum(np.abs(a), 1.0), 1e300)
     return out
