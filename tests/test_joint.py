@@ -170,6 +170,39 @@ def test_store_round_trip_and_digest_ignores_padding() -> None:
     assert not np.array_equal(digest(other)[0], digest(js)[0])
 
 
+def test_store_gathers_small_batches(monkeypatch: pytest.MonkeyPatch) -> None:
+    """Many tiny batches (a search expanding a few states at a time) and big ones: every
+    state reads back as it was added, in any order, whatever parts the store made."""
+    monkeypatch.setattr("lesmc.tracking.joint.STORE_GATHER", 5)
+    rng = np.random.default_rng(7)
+    n, T, K = 60, 4, 3
+    nt = rng.integers(1, T + 1, n)
+    npd = rng.integers(0, K + 1, n)
+    tracks = np.where((np.arange(T) < nt[:, None])[..., None], rng.normal(size=(n, T, 4)), 0.0)
+    tcov = np.where(np.arange(T) < nt[:, None], rng.integers(0, 5, (n, T)), 0)
+    pending = np.where((np.arange(K) < npd[:, None])[..., None], rng.normal(size=(n, K, 2)), 0.0)
+    js = JointStates(tracks, tcov, nt, pending, npd)
+    store = JointStore()
+    lo = 0
+    for size in [1, 1, 2, 0, 1, 7, 1, 1, 1, 1, 1, 1, 3, 9, 2, 2, 1, 25]:
+        store.extend(js.take(np.arange(lo, lo + size)))
+        lo += size
+    assert lo == n
+    assert len(store._parts) < 18  # some were gathered
+    for idx in (np.arange(n), rng.permutation(n), rng.integers(0, n, 40), np.array([3])):
+        back, want = store.take(idx), js.take(idx)
+        for a, b in (
+            (back.tracks, want.tracks),
+            (back.tcov, want.tcov),
+            (back.pending, want.pending),
+        ):
+            assert np.array_equal(a[:, : b.shape[1]], b)
+            assert not a[:, b.shape[1] :].any()
+        assert np.array_equal(back.ntrack, want.ntrack)
+        assert np.array_equal(back.npend, want.npend)
+        assert np.array_equal(digest(back), digest(want))
+
+
 def test_make_design_names_the_batched_design() -> None:
     scene = load_scene(SCENES / "rq4_merge.json").with_tracker(design="joint")
     assert isinstance(make_design(scene), JointDesign)

@@ -134,7 +134,7 @@ class JointStates:
         t = np.empty((n, T, 5), dtype=np.uint64)
         t[..., :4] = np.ascontiguousarray(self.tracks).view(np.uint64)
         t[..., 4] = self.tcov.astype(np.uint64)
-        p = np.ascontiguousarray(self.pending).view(np.uint64).reshape(n, -1, 2)
+        p = np.ascontiguousarray(self.pending).view(np.uint64).reshape(n, self.pending.shape[1], 2)
         return t, p
 
 
@@ -172,9 +172,14 @@ def concat(parts: list[JointStates]) -> JointStates:
     return out
 
 
+#: Batches smaller than this are gathered into one part once they add up to it: a search
+#: that expands a few states at a time would otherwise keep thousands of tiny parts.
+STORE_GATHER = 4096
+
+
 class JointStore:
-    """Joint states kept by the unfolder: each batch as it was added (no copy), and where
-    every state is (batch, row).
+    """Joint states kept by the unfolder: each batch as it was added (no copy; small ones
+    gathered), and where every state is (part, row).
 
     Batches keep their digests and track hashes, so states read back need
     neither again.
@@ -184,13 +189,36 @@ class JointStore:
         self._parts: list[JointStates] = []
         self._part = GrowArray(np.int64)
         self._row = GrowArray(np.int64)
+        self._small = 0  # trailing parts smaller than STORE_GATHER, not gathered yet
+        self._small_states = 0
 
     def extend(self, payload: object, /) -> None:
         assert isinstance(payload, JointStates)
         digest(payload)
+        small = len(payload) < STORE_GATHER
+        if not small:
+            self._gather()
         self._part.extend(np.full(len(payload), len(self._parts), dtype=np.int64))
         self._row.extend(np.arange(len(payload), dtype=np.int64))
         self._parts.append(payload)
+        if small:
+            self._small += 1
+            self._small_states += len(payload)
+            if self._small_states >= STORE_GATHER:
+                self._gather()
+
+    def _gather(self) -> None:
+        """The trailing small parts as one (their states are the last ones added)."""
+        k, m = self._small, self._small_states
+        self._small = self._small_states = 0
+        if k < 2:
+            return
+        merged = concat(self._parts[-k:])
+        del self._parts[-k:]
+        self._parts.append(merged)
+        n = self._part.n
+        self._part.data[n - m : n] = len(self._parts) - 1
+        self._row.data[n - m : n] = np.arange(m)
 
     def take(self, idx: np.ndarray) -> JointStates:
         part, row = self._part.data[idx], self._row.data[idx]
@@ -277,7 +305,7 @@ def digest(js: JointStates) -> np.ndarray:
         return js.key
     th = track_hashes(js)
     n, T = js.tcov.shape
-    p = np.ascontiguousarray(js.pending).view(np.uint64).reshape(n, -1, 2)
+    p = np.ascontiguousarray(js.pending).view(np.uint64).reshape(n, js.pending.shape[1], 2)
     K = p.shape[1]
     tm = np.arange(T) < js.ntrack[:, None]
     pm = (np.arange(K) < js.npend[:, None])[..., None]
