@@ -67,6 +67,8 @@ from lesmc.tracking.kalman import (
 )
 from lesmc.tracking.scene import Scene
 
+#: The association rounds' "no pair yet" value.
+_UNSET = np.iinfo(np.int64).max
 #: (states × (tracks + detections)) cells of one chunk: bounds the temporaries of an expansion.
 CHUNK_CELLS = 1 << 20
 
@@ -156,8 +158,22 @@ def concat(parts: list[JointStates]) -> JointStates:
         out.key = np.concatenate([p.key for p in parts if p.key is not None])
     if all(p.th is not None for p in parts):
         out.th = np.zeros((n, T, 2), dtype=np.uint64)
-    if all(p.tid is not None and p.table is parts[0].table for p in parts):
-        out.tid, out.table = np.zeros((n, T), dtype=np.int64), parts[0].table
+    offset: dict[int, int] = {}  # each distinct table's first row in the joined one
+    if all(p.tid is not None and p.table is not None for p in parts):
+        tables = {id(p.table): p.table for p in parts if p.table is not None}
+        at = 0
+        for key, table in tables.items():
+            offset[key] = at
+            at += len(table.X)
+        out.tid = np.zeros((n, T), dtype=np.int64)
+        out.table = (
+            parts[0].table
+            if len(tables) == 1
+            else TrackTable(
+                np.concatenate([t.X for t in tables.values()]),
+                np.concatenate([t.cov for t in tables.values()]),
+            )
+        )
     lo = 0
     for p in parts:
         hi = lo + len(p)
@@ -167,7 +183,7 @@ def concat(parts: list[JointStates]) -> JointStates:
         if out.th is not None and p.th is not None:
             out.th[lo:hi, : p.th.shape[1]] = p.th
         if out.tid is not None and p.tid is not None:
-            out.tid[lo:hi, : p.tid.shape[1]] = p.tid
+            out.tid[lo:hi, : p.tid.shape[1]] = p.tid + offset[id(p.table)]
         lo = hi
     return out
 
@@ -431,6 +447,7 @@ class JointDesign:
         self._model_cov = np.full(0, -1, dtype=np.int64)  # track table -> model table
         self._p0 = self.track_covariances.add(self.m.P0.copy())
         self._p0_kept = float(np.trace(self.m.P0)) <= self.cfg.max_trace
+        self._firsts: list[np.ndarray] = [np.empty(0, np.int64)] * 2  # see _unset
 
     def initial(self) -> Batch:
         t = self.scene.target
@@ -723,9 +740,10 @@ class JointDesign:
         taken = np.full(R * T, -1, dtype=np.int64)
         used_t = np.zeros(R * T, dtype=bool)
         used_z = np.zeros(R * nz, dtype=bool)
-        big = np.iinfo(np.int64).max
-        first_t = np.full(R * T, big)
-        first_z = np.full(R * nz, big)
+        big = _UNSET
+        buf_t, buf_z = self._unset(0, R * T), self._unset(1, R * nz)
+        self._firsts = [np.empty(0, np.int64)] * 2  # taken: a failure below leaves them dirty
+        first_t, first_z = buf_t[: R * T], buf_z[: R * nz]
         while prio.size:
             # a pair first among the remaining pairs of both its track and its detection
             # is the one the scan takes for them: take all such pairs at once
@@ -740,9 +758,19 @@ class JointDesign:
             used_z[kz[take]] = True
             left = np.flatnonzero(~(used_t[kt] | used_z[kz]))
             prio, kt, kz, pz, pair = prio[left], kt[left], kz[left], pz[left], pair[left]
+        self._firsts = [buf_t, buf_z]  # every entry unset again: reusable
         got = taken >= 0
         taken[got] = p.pu[taken[got]]
         return assign.reshape(R, T), taken.reshape(R, T)
+
+    def _unset(self, which: int, size: int) -> np.ndarray:
+        """A scratch array of at least ``size`` entries, all :data:`_UNSET` (kept between
+        calls: the association rounds put back every entry they touch, and filling afresh
+        cost more than the rounds on big chunks)."""
+        buf = self._firsts[which]
+        if buf.size < size:
+            buf = np.full(max(size, 2 * buf.size), _UNSET)
+        return buf
 
     def _initiate_and_prune(
         self,
