@@ -79,6 +79,18 @@ class TrackTable:
 
     X: np.ndarray  # (m, 4) means
     cov: np.ndarray  # (m,) covariance indices
+    zero: int  # a row of zeros (mean 0, covariance index 0): where padding points
+
+
+def _joined(tables: list[TrackTable]) -> tuple[TrackTable, list[int]]:
+    """One table holding ``tables`` one after another (and a row of zeros), and where each
+    begins in it."""
+    if len(tables) == 1:
+        return tables[0], [0]
+    starts = np.cumsum([0, *(len(t.X) for t in tables)]).tolist()
+    X = np.concatenate([*(t.X for t in tables), np.zeros((1, 4))])
+    cov = np.concatenate([*(t.cov for t in tables), np.zeros(1, dtype=np.int64)])
+    return TrackTable(X, cov, starts[-1]), starts[:-1]
 
 
 @dataclass
@@ -94,18 +106,47 @@ class JointStates:
     which spares finding their distinct tracks again.
     """
 
-    tracks: np.ndarray  # (n, T, 4) means
-    tcov: np.ndarray  # (n, T) int64
+    _tracks: np.ndarray | None  # (n, T, 4) means (None: read from ``table`` when asked)
+    _tcov: np.ndarray | None  # (n, T) int64 (likewise)
     ntrack: np.ndarray  # (n,) int64, >= 1
     pending: np.ndarray  # (n, K, 2) unassociated detections of the previous frame
     npend: np.ndarray  # (n,) int64
     key: np.ndarray | None = None  # (n, 2) uint64
     th: np.ndarray | None = None  # (n, T, 2) uint64, padding 0
-    tid: np.ndarray | None = None  # (n, T) rows of ``table`` (padding: any row)
+    tid: np.ndarray | None = None  # (n, T) rows of ``table`` (padding: its zero row)
     table: TrackTable | None = None
 
     def __len__(self) -> int:
         return int(self.ntrack.shape[0])
+
+    @property
+    def width(self) -> int:
+        """T: the track slots of each state, padding included."""
+        a = self._tcov if self._tcov is not None else self.tid
+        assert a is not None
+        return int(a.shape[1])
+
+    @property
+    def tracks(self) -> np.ndarray:
+        """(n, T, 4) the tracks' means (padding zeros)."""
+        if self._tracks is None:
+            assert self.table is not None and self.tid is not None
+            self._tracks = self.table.X[self.tid]
+        return self._tracks
+
+    @property
+    def tcov(self) -> np.ndarray:
+        """(n, T) the tracks' covariance indices (padding 0)."""
+        if self._tcov is None:
+            assert self.table is not None and self.tid is not None
+            self._tcov = self.table.cov[self.tid]
+        return self._tcov
+
+    def primary(self) -> tuple[np.ndarray, np.ndarray]:
+        """Track 0 of every state: means (n, 4) and covariance indices (n,)."""
+        if self._tracks is None and self.table is not None and self.tid is not None:
+            return self.table.X[self.tid[:, 0]], self.table.cov[self.tid[:, 0]]
+        return self.tracks[:, 0].copy(), self.tcov[:, 0]
 
     def take(self, idx: np.ndarray) -> JointStates:
         nt, npd = self.ntrack[idx], self.npend[idx]
@@ -115,8 +156,8 @@ class JointStates:
         th = None if self.th is None else self.th[idx, :T]
         tid = None if self.tid is None else self.tid[idx, :T]
         return JointStates(
-            self.tracks[idx, :T],
-            self.tcov[idx, :T],
+            None if self._tracks is None else self._tracks[idx, :T],
+            None if self._tcov is None else self._tcov[idx, :T],
             nt,
             self.pending[idx, :K],
             npd,
@@ -145,11 +186,13 @@ def concat(parts: list[JointStates]) -> JointStates:
     if len(parts) == 1:
         return parts[0]
     n = sum(len(p) for p in parts)
-    T = max(p.tracks.shape[1] for p in parts)
+    T = max(p.width for p in parts)
     K = max(p.pending.shape[1] for p in parts)
+    # states that point into track tables stay so (their tables joined); others are copied
+    by_id = all(p.tid is not None and p.table is not None for p in parts)
     out = JointStates(
-        np.zeros((n, T, 4)),
-        np.zeros((n, T), dtype=np.int64),
+        None if by_id else np.zeros((n, T, 4)),
+        None if by_id else np.zeros((n, T), dtype=np.int64),
         np.concatenate([p.ntrack for p in parts]),
         np.zeros((n, K, 2)),
         np.concatenate([p.npend for p in parts]),
@@ -159,30 +202,21 @@ def concat(parts: list[JointStates]) -> JointStates:
     if all(p.th is not None for p in parts):
         out.th = np.zeros((n, T, 2), dtype=np.uint64)
     offset: dict[int, int] = {}  # each distinct table's first row in the joined one
-    if all(p.tid is not None and p.table is not None for p in parts):
+    if by_id:
         tables = {id(p.table): p.table for p in parts if p.table is not None}
-        at = 0
-        for key, table in tables.items():
-            offset[key] = at
-            at += len(table.X)
-        out.tid = np.zeros((n, T), dtype=np.int64)
-        out.table = (
-            parts[0].table
-            if len(tables) == 1
-            else TrackTable(
-                np.concatenate([t.X for t in tables.values()]),
-                np.concatenate([t.cov for t in tables.values()]),
-            )
-        )
+        out.table, starts = _joined(list(tables.values()))
+        offset = dict(zip(tables, starts, strict=True))
+        out.tid = np.full((n, T), out.table.zero, dtype=np.int64)
     lo = 0
     for p in parts:
         hi = lo + len(p)
-        out.tracks[lo:hi, : p.tracks.shape[1]] = p.tracks
-        out.tcov[lo:hi, : p.tcov.shape[1]] = p.tcov
+        if not by_id:
+            out.tracks[lo:hi, : p.width] = p.tracks
+            out.tcov[lo:hi, : p.width] = p.tcov
         out.pending[lo:hi, : p.pending.shape[1]] = p.pending
         if out.th is not None and p.th is not None:
             out.th[lo:hi, : p.th.shape[1]] = p.th
-        if out.tid is not None and p.tid is not None:
+        if by_id and out.tid is not None and p.tid is not None:
             out.tid[lo:hi, : p.tid.shape[1]] = p.tid + offset[id(p.table)]
         lo = hi
     return out
@@ -303,7 +337,7 @@ def hash_tracks(means: np.ndarray, cov: np.ndarray) -> np.ndarray:
 def track_hashes(js: JointStates) -> np.ndarray:
     """Each track's :func:`hash_tracks` (n, T, 2), padding 0; cached in ``js.th``."""
     if js.th is None:
-        live = np.arange(js.tcov.shape[1]) < js.ntrack[:, None]
+        live = np.arange(js.width) < js.ntrack[:, None]
         js.th = np.where(live[..., None], hash_tracks(js.tracks, js.tcov), np.uint64(0))
     return js.th
 
@@ -320,7 +354,7 @@ def digest(js: JointStates) -> np.ndarray:
     if js.key is not None:
         return js.key
     th = track_hashes(js)
-    n, T = js.tcov.shape
+    n, T = len(js), js.width
     p = np.ascontiguousarray(js.pending).view(np.uint64).reshape(n, js.pending.shape[1], 2)
     K = p.shape[1]
     tm = np.arange(T) < js.ntrack[:, None]
@@ -466,7 +500,8 @@ class JointDesign:
 
     def _batch(self, js: JointStates, halted: np.ndarray) -> Batch:
         """Joint states as a batch: the primary's estimate and covariance are the model's."""
-        return Batch(js.tracks[:, 0].copy(), self._to_model(js.tcov[:, 0]), halted, js)
+        X, cov = js.primary()
+        return Batch(X, self._to_model(cov), halted, js)
 
     def _to_model(self, c: np.ndarray) -> np.ndarray:
         """Model-table indices of track-table covariances (new ones added in order of first use)."""
@@ -492,7 +527,7 @@ class JointDesign:
         js = batch.objects
         assert isinstance(js, JointStates)
         Z = self.scene.frame(step).positions()
-        T = js.tracks.shape[1]
+        T = js.width
         size = max(1, CHUNK_CELLS // (T + len(Z)))
         parts = []
         for lo in range(0, len(js), size):
@@ -577,7 +612,7 @@ class JointDesign:
         frame = self.scene.frame(step)
         Z = frame.positions()
         nz = len(Z)
-        T = js.tcov.shape[1]
+        T = js.width
         Hm = self.scene.frame(step - 1).to_next
         live = np.arange(T) < js.ntrack[:, None]
         tu, X, cu = _distinct_tracks(js, live)
@@ -868,8 +903,7 @@ class JointDesign:
             order = np.argsort(~keep[gap], axis=1, kind="stable")
             at[gap] = np.take_along_axis(at[gap], order, axis=1)
         at = at[:, :Tn]
-        tracks, tcov, th = table_X[at], table_cov[at], table_h[at]
-        table = TrackTable(table_X, table_cov)
+        th = table_h[at]  # the means and covariance indices are read from the table when asked
         # pending: the candidates that started no track, in order
         ur, uz = cr[~matched], cz[~matched]
         npd = np.bincount(ur, minlength=R)
@@ -877,14 +911,14 @@ class JointDesign:
         pending = np.zeros((R, int(npd.max(initial=0)), 2))
         pending[ur, pk] = Z[uz]
         return JointStates(
-            tracks,
-            tcov,
+            None,
+            None,
             nt.astype(np.int64),
             pending,
             npd.astype(np.int64),
             th=th,
             tid=at,
-            table=table,
+            table=TrackTable(table_X, table_cov, M),
         )
 
     def _merge(self, states: JointStates, s: np.ndarray) -> np.ndarray:
