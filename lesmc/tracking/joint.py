@@ -48,6 +48,7 @@ tests/joint_reference.py keeps the per-state loop this replaced, as the oracle
 
 from __future__ import annotations
 
+import dataclasses
 import functools
 import math
 from dataclasses import dataclass
@@ -80,6 +81,22 @@ class TrackTable:
     X: np.ndarray  # (m, 4) means
     cov: np.ndarray  # (m,) covariance indices
     zero: int  # a row of zeros (mean 0, covariance index 0): where padding points
+
+
+def _compact(js: JointStates) -> JointStates:
+    """``js`` with its track table cut to the rows its states use (and the row of zeros):
+    a table holds every track a step could make, a stored batch needs only its own."""
+    if js.tid is None or js.table is None:
+        return js
+    used = np.zeros(len(js.table.X), dtype=bool)
+    used[js.tid] = True
+    used[js.table.zero] = True
+    if used.all():
+        return js
+    rows = np.flatnonzero(used)
+    at = np.cumsum(used) - 1
+    table = TrackTable(js.table.X[rows], js.table.cov[rows], int(at[js.table.zero]))
+    return dataclasses.replace(js, tid=at[js.tid], table=table)
 
 
 def _joined(tables: list[TrackTable]) -> tuple[TrackTable, list[int]]:
@@ -245,6 +262,7 @@ class JointStore:
     def extend(self, payload: object, /) -> None:
         assert isinstance(payload, JointStates)
         digest(payload)
+        payload = _compact(payload)
         small = len(payload) < STORE_GATHER
         if not small:
             self._gather()
