@@ -83,18 +83,23 @@ class TrackTable:
     zero: int  # a row of zeros (mean 0, covariance index 0): where padding points
 
 
+def _used_rows(size: int, *ids: np.ndarray | int) -> tuple[np.ndarray, np.ndarray]:
+    """The rows of a table of ``size`` rows that ``ids`` name, and every row's number
+    among them (valid for those rows)."""
+    used = np.zeros(size, dtype=bool)
+    for i in ids:
+        used[i] = True
+    return np.flatnonzero(used), np.cumsum(used) - 1
+
+
 def _compact(js: JointStates) -> JointStates:
     """``js`` with its track table cut to the rows its states use (and the row of zeros):
     a table holds every track a step could make, a stored batch needs only its own."""
     if js.tid is None or js.table is None:
         return js
-    used = np.zeros(len(js.table.X), dtype=bool)
-    used[js.tid] = True
-    used[js.table.zero] = True
-    if used.all():
+    rows, at = _used_rows(len(js.table.X), js.tid, js.table.zero)
+    if rows.size == len(js.table.X):
         return js
-    rows = np.flatnonzero(used)
-    at = np.cumsum(used) - 1
     table = TrackTable(js.table.X[rows], js.table.cov[rows], int(at[js.table.zero]))
     return dataclasses.replace(js, tid=at[js.tid], table=table)
 
@@ -147,17 +152,21 @@ class JointStates:
     def tracks(self) -> np.ndarray:
         """(n, T, 4) the tracks' means (padding zeros)."""
         if self._tracks is None:
-            assert self.table is not None and self.tid is not None
-            self._tracks = self.table.X[self.tid]
+            self._tracks = self._from_table().X[self.tid]
         return self._tracks
 
     @property
     def tcov(self) -> np.ndarray:
         """(n, T) the tracks' covariance indices (padding 0)."""
         if self._tcov is None:
-            assert self.table is not None and self.tid is not None
-            self._tcov = self.table.cov[self.tid]
+            self._tcov = self._from_table().cov[self.tid]
         return self._tcov
+
+    def _from_table(self) -> TrackTable:
+        """The table the states' ``tid`` point into (states made without one have their
+        arrays)."""
+        assert self.table is not None and self.tid is not None
+        return self.table
 
     def primary(self) -> tuple[np.ndarray, np.ndarray]:
         """Track 0 of every state: means (n, 4) and covariance indices (n,)."""
@@ -245,8 +254,9 @@ STORE_GATHER = 4096
 
 
 class JointStore:
-    """Joint states kept by the unfolder: each batch as it was added (no copy; small ones
-    gathered), and where every state is (part, row).
+    """Joint states kept by the unfolder: each batch as it was added (its arrays not
+    copied, its track table cut to the rows it uses, small batches gathered into one
+    part), and where every state is (part, row).
 
     Batches keep their digests and track hashes, so states read back need
     neither again.
@@ -392,6 +402,17 @@ def digest(js: JointStates) -> np.ndarray:
     return out
 
 
+def _in_strip(Z: np.ndarray, x: np.ndarray, half: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The detections Z whose x lies within ``half`` of each ``x`` (a superset of any
+    circle or box of that radius around it): (owner, detection) pairs, by owner, each
+    owner's in x order."""
+    by_x = np.argsort(Z[:, 0], kind="stable")
+    zx = Z[by_x, 0]
+    first = np.searchsorted(zx, x - half, "left")
+    cnt = np.searchsorted(zx, x + half, "right") - first
+    return np.repeat(np.arange(x.size), cnt), by_x[np.repeat(first, cnt) + _within(cnt)]
+
+
 def _distinct_tracks(
     js: JointStates, live: np.ndarray
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -408,11 +429,9 @@ def _distinct_tracks(
     ls, lt = np.nonzero(live)
     if js.tid is not None and js.table is not None:  # ids of a shared table: keep those used
         ids = js.tid[ls, lt]
-        used = np.zeros(len(js.table.X), dtype=bool)
-        used[ids] = True
+        rows, at = _used_rows(len(js.table.X), ids)
         tu = np.zeros(live.shape, dtype=np.int64)
-        tu[ls, lt] = (np.cumsum(used) - 1)[ids]
-        rows = np.flatnonzero(used)
+        tu[ls, lt] = at[ids]
         return tu, js.table.X[rows], js.table.cov[rows]
     h = track_hashes(js)[ls, lt, 0]
     _, first, inv = np.unique(h, return_index=True, return_inverse=True)
@@ -644,12 +663,7 @@ class JointDesign:
         # candidate (track, detection) pairs: within each track's gate radius (a little
         # wider: the gate decides), found in the strip of detections sorted by x
         r = g.radius * (1 + 1e-9)
-        by_x = np.argsort(Z[:, 0], kind="stable")
-        zx = Z[by_x, 0]
-        lo = np.searchsorted(zx, X[:, 0] - r, "left")
-        cnt = np.searchsorted(zx, X[:, 0] + r, "right") - lo
-        track = np.repeat(np.arange(U), cnt)
-        pz = by_x[np.repeat(lo, cnt) + _within(cnt)]
+        track, pz = _in_strip(Z, X[:, 0], r)
         o = np.argsort(track * max(nz, 1) + pz, kind="stable")  # by track, then detection
         track, pz = track[o], pz[o]
         dx = Z[pz, 0] - X[track, 0]
@@ -793,7 +807,6 @@ class JointDesign:
         taken = np.full(R * T, -1, dtype=np.int64)
         used_t = np.zeros(R * T, dtype=bool)
         used_z = np.zeros(R * nz, dtype=bool)
-        big = _UNSET
         buf_t, buf_z = self._unset(0, R * T), self._unset(1, R * nz)
         self._firsts = [np.empty(0, np.int64)] * 2  # taken: a failure below leaves them dirty
         first_t, first_z = buf_t[: R * T], buf_z[: R * nz]
@@ -803,8 +816,8 @@ class JointDesign:
             np.minimum.at(first_t, kt, prio)
             np.minimum.at(first_z, kz, prio)
             take = np.flatnonzero((first_t[kt] == prio) & (first_z[kz] == prio))
-            first_t[kt] = big  # back to unset for the next round
-            first_z[kz] = big
+            first_t[kt] = _UNSET  # back to unset for the next round
+            first_z[kz] = _UNSET
             assign[kt[take]] = pz[take]
             taken[kt[take]] = pair[take]
             used_t[kt[take]] = True
@@ -850,13 +863,7 @@ class JointDesign:
         box = cfg.init_radius * (1 + 1e-9)
         # candidates from the strip of detections sorted by x (a little wider), then the
         # exact box and circle tests
-        by_x = np.argsort(Z[:, 0], kind="stable")
-        zx = Z[by_x, 0]
-        wide = box + 1e-6 * (box + np.abs(prim[:, 0]))
-        first = np.searchsorted(zx, prim[:, 0] - wide, "left")
-        cnt = np.searchsorted(zx, prim[:, 0] + wide, "right") - first
-        cr = np.repeat(np.arange(R), cnt)
-        cz = by_x[np.repeat(first, cnt) + _within(cnt)]
+        cr, cz = _in_strip(Z, prim[:, 0], box + 1e-6 * (box + np.abs(prim[:, 0])))
         ddx = Z[cz, 0] - prim[cr, 0]
         ddy = Z[cz, 1] - prim[cr, 1]
         ok = free[cr, cz] & (np.abs(ddx) <= box) & (np.abs(ddy) <= box)
