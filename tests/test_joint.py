@@ -19,7 +19,7 @@ from joint_reference import ReferenceJointDesign
 import lesmc.unfold as unfold
 from lesmc.model.arrays import ArrayModel
 from lesmc.tracking.design import make_design
-from lesmc.tracking.joint import JointDesign, JointStates, JointStore, digest
+from lesmc.tracking.joint import JointDesign, JointStates, JointStore, TrackTable, digest
 from lesmc.tracking.scene import Detection, Frame, Scene, Target, TrackerConfig, load_scene
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -135,15 +135,34 @@ def test_chunks_do_not_change_the_model(monkeypatch: pytest.MonkeyPatch) -> None
     assert_same_models(unfold.build_model(scene, (4, 7)), whole)
 
 
-def test_store_round_trip_and_digest_ignores_padding() -> None:
-    rng = np.random.default_rng(3)
-    n, T, K = 9, 4, 3
+def _random_states(rng: np.random.Generator, n: int, T: int, K: int) -> JointStates:
+    """n random joint states of up to T tracks and K pending detections (padding zeros)."""
     nt = rng.integers(1, T + 1, n)
     npd = rng.integers(0, K + 1, n)
     tracks = np.where((np.arange(T) < nt[:, None])[..., None], rng.normal(size=(n, T, 4)), 0.0)
     tcov = np.where(np.arange(T) < nt[:, None], rng.integers(0, 5, (n, T)), 0)
     pending = np.where((np.arange(K) < npd[:, None])[..., None], rng.normal(size=(n, K, 2)), 0.0)
-    js = JointStates(tracks, tcov, nt, pending, npd)
+    return JointStates(tracks, tcov, nt, pending, npd)
+
+
+def _table_backed(js: JointStates) -> JointStates:
+    """The same states with their tracks as ids into a table (one row per slot, an unused
+    row, a row of zeros for padding), as the design makes them."""
+    n, T = js.tcov.shape
+    live = np.arange(T) < js.ntrack[:, None]
+    X = np.concatenate([js.tracks.reshape(-1, 4), np.ones((1, 4)), np.zeros((1, 4))])
+    cov = np.concatenate([js.tcov.reshape(-1), [7, 0]])
+    tid = np.where(live, np.arange(n * T).reshape(n, T), n * T + 1)
+    return JointStates(
+        None, None, js.ntrack, js.pending, js.npend, tid=tid, table=TrackTable(X, cov, n * T + 1)
+    )
+
+
+def test_store_round_trip_and_digest_ignores_padding() -> None:
+    rng = np.random.default_rng(3)
+    n = 9
+    js = _random_states(rng, n, 4, 3)
+    tracks, tcov, nt, pending, npd = js.tracks, js.tcov, js.ntrack, js.pending, js.npend
     wider = JointStates(
         np.concatenate([tracks, np.zeros((n, 2, 4))], axis=1),
         np.concatenate([tcov, np.zeros((n, 2), dtype=np.int64)], axis=1),
@@ -170,22 +189,20 @@ def test_store_round_trip_and_digest_ignores_padding() -> None:
     assert not np.array_equal(digest(other)[0], digest(js)[0])
 
 
-def test_store_gathers_small_batches(monkeypatch: pytest.MonkeyPatch) -> None:
+@pytest.mark.parametrize("by_table", [False, True])
+def test_store_gathers_small_batches(monkeypatch: pytest.MonkeyPatch, by_table: bool) -> None:
     """Many tiny batches (a search expanding a few states at a time) and big ones: every
-    state reads back as it was added, in any order, whatever parts the store made."""
+    state reads back as it was added, in any order, whatever parts the store made (also
+    for states whose tracks are ids into a table, which the store cuts and joins)."""
     monkeypatch.setattr("lesmc.tracking.joint.STORE_GATHER", 5)
     rng = np.random.default_rng(7)
-    n, T, K = 60, 4, 3
-    nt = rng.integers(1, T + 1, n)
-    npd = rng.integers(0, K + 1, n)
-    tracks = np.where((np.arange(T) < nt[:, None])[..., None], rng.normal(size=(n, T, 4)), 0.0)
-    tcov = np.where(np.arange(T) < nt[:, None], rng.integers(0, 5, (n, T)), 0)
-    pending = np.where((np.arange(K) < npd[:, None])[..., None], rng.normal(size=(n, K, 2)), 0.0)
-    js = JointStates(tracks, tcov, nt, pending, npd)
+    n = 60
+    js = _random_states(rng, n, 4, 3)
+    stored = _table_backed(js) if by_table else js
     store = JointStore()
     lo = 0
     for size in [1, 1, 2, 0, 1, 7, 1, 1, 1, 1, 1, 1, 3, 9, 2, 2, 1, 25]:
-        store.extend(js.take(np.arange(lo, lo + size)))
+        store.extend(stored.take(np.arange(lo, lo + size)))
         lo += size
     assert lo == n
     assert len(store._parts) < 18  # some were gathered
