@@ -21,6 +21,8 @@ from __future__ import annotations
 
 import time
 from collections.abc import Callable, Iterable
+from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
 
@@ -33,7 +35,7 @@ from lesmc.language.semantics import BoundProperty, bind
 from lesmc.model.arrays import ArrayModel
 from lesmc.model.growing import Expansion, GrowingModel
 from lesmc.tracking.design import Batch, Design, PayloadStore, make_design
-from lesmc.tracking.scene import Scene
+from lesmc.tracking.scene import Frame, Scene
 
 COMPONENTS = ("x", "y", "vx", "vy")
 
@@ -337,6 +339,67 @@ def freeze(
             "end": end,
         },
     )
+
+
+def priced_detections(
+    scene: Scene,
+    window: tuple[int, int],
+    end: int | None = None,
+    on_batch: Callable[[GrowingModel], None] | None = None,
+) -> dict[int, np.ndarray]:
+    """Per frame step, the detections whose payoffs the model of ``scene`` attacked in
+    ``window`` reads: a superset of those one of its attacks can hide.
+
+    Only the window's frames count: an attack at step k hides detections of
+    frame ``target.step + k``, and outside the window no transition has a
+    cheaper sibling whose payoff could enter a combined payoff (Eq. 5). The
+    model is built once over a copy of the scene in which those frames' payoffs
+    are all finite (an attack could hide every candidate) and each notes the
+    entries of its payoff column the design reads (:class:`_ProbeFrame`). Any
+    other use of the column counts as reading all of it. ``verify --payoffs
+    certified|interval`` certifies only these (a detection without a bound gets
+    the trivial 0 anyway, so a missed one costs tightness, never soundness).
+    """
+    from dataclasses import replace
+
+    first, last = scene.target.step + window[0], scene.target.step + window[1]
+    reads: dict[int, set[int]] = {f.step: set() for f in scene.frames if first <= f.step <= last}
+    frames = tuple(
+        _ProbeFrame(f.step, f.detections, f.to_next, reads[f.step]) if f.step in reads else f
+        for f in scene.frames
+    )
+    build_model(replace(scene, frames=frames), window, end, on_batch=on_batch)
+    return {k: np.array(sorted(v), dtype=np.int64) for k, v in reads.items() if v}
+
+
+class _PayoffReads:
+    """A frame's payoff column (all 1: finite) that notes which entries are read."""
+
+    def __init__(self, n: int, reads: set[int]) -> None:
+        self._values = np.ones(n)
+        self._reads = reads
+
+    def __getitem__(self, key: Any) -> np.ndarray:
+        out: np.ndarray = self._values[key]
+        self._reads.update(np.unique(np.arange(len(self._values))[key]).tolist())
+        return out
+
+    def __len__(self) -> int:
+        return len(self._values)
+
+    def __array__(self, dtype: object = None, copy: object = None) -> np.ndarray:
+        self._reads.update(range(len(self._values)))
+        return self._values
+
+
+@dataclass(frozen=True)
+class _ProbeFrame(Frame):
+    """A frame whose :meth:`payoffs` note the entries read (:func:`priced_detections`)."""
+
+    reads: set[int] = field(default_factory=set, compare=False)
+
+    def payoffs(self) -> np.ndarray:
+        return _PayoffReads(len(self.detections), self.reads)  # type: ignore[return-value]
 
 
 def bind_scene(

@@ -179,16 +179,11 @@ def check_designs(
     the run's model (what the report draws) is always the attack payoffs' model.
     """
     b = Budget() if budget is None else budget
-    from lesmc.unfold import bind_scene, build_model
+    from lesmc.unfold import build_model
 
     runs = []
     models: dict[tuple[str, tuple[int, int]], tuple[ArrayModel, LTS]] = {}
-    for d in designs:
-        tracker = "single" if d == "single" else "joint"
-        sc = scene.with_tracker(design=tracker)
-        sp = [with_monitor(s) for s in specs] if d == "improved" else specs
-        bound0 = [bp for bp in bind_scene(sc, sp) if only is None or only(bp.name)]
-        win = window_of(bound0)
+    for d, tracker, sc, sp, win in design_windows(scene, specs, designs, only):
         if (tracker, win) not in models:  # joint and improved share one model
             if on_stage:
                 on_stage(f"building the {tracker} model")
@@ -212,6 +207,47 @@ def check_designs(
             results.append(_check(models, tracker, win, bp, low_bound, i, payoffs, engine, b))
         runs.append(DesignRun(RUN_NAMES[d], view, bound, results, sc))
     return runs
+
+
+def design_windows(
+    scene: Scene,
+    specs: list[SpecFile],
+    designs: list[str],
+    only: Callable[[str], bool] | None = None,
+) -> list[tuple[str, str, Scene, list[SpecFile], tuple[int, int]]]:
+    """Per design: its tracker, scene, properties (the monitor's for ``improved``) and the
+    window of the model they need (:func:`check_designs`)."""
+    from lesmc.unfold import bind_scene
+
+    out = []
+    for d in designs:
+        tracker = "single" if d == "single" else "joint"
+        sc = scene.with_tracker(design=tracker)
+        sp = [with_monitor(s) for s in specs] if d == "improved" else specs
+        bound = [bp for bp in bind_scene(sc, sp) if only is None or only(bp.name)]
+        out.append((d, tracker, sc, sp, window_of(bound)))
+    return out
+
+
+def hideable(
+    scene: Scene,
+    specs: list[SpecFile],
+    designs: list[str],
+    on_batch: Callable[[GrowingModel], None] | None = None,
+) -> dict[int, np.ndarray]:
+    """Per frame, the detections the models of ``designs`` can hide (a superset): the only
+    ones whose certified lower payoffs a check reads (:func:`lesmc.unfold.priced_detections`)."""
+    from lesmc.unfold import priced_detections
+
+    wanted: dict[int, set[int]] = {}
+    done = set()
+    for _, tracker, sc, _, win in design_windows(scene, specs, designs):
+        if (tracker, win) in done:
+            continue
+        done.add((tracker, win))
+        for k, dets in priced_detections(sc, win, on_batch=on_batch).items():
+            wanted.setdefault(k, set()).update(dets.tolist())
+    return {k: np.array(sorted(v), dtype=np.int64) for k, v in sorted(wanted.items())}
 
 
 def _check(

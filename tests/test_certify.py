@@ -272,3 +272,40 @@ def test_shipped_detector_bound_is_below_the_attack_and_no_attack_beats_it(shipp
             d = d / d.flatten(1).norm(dim=1).view(-1, 1, 1, 1) * eps
             lowest = torch.minimum(lowest, margin(net, (x0 + d).clamp(0, 1), t))
     assert (lowest > 0).all()
+
+
+def test_certify_detections_bounds_exactly_the_wanted_blobs() -> None:
+    """verify's on-demand certification: each wanted detection gets its own blob's bound,
+    computed here window by window; detections of other blobs get none."""
+    from lesmc.perception.attacks import AttackConfig, threshold_logit
+    from lesmc.perception.cnn import load_nets
+    from lesmc.perception.detector import Detector
+    from lesmc.perception.run import PerceiveRun, _payoffs, certify_detections
+    from lesmc.video.synth import SynthConfig, frames
+
+    nets = load_nets()
+    det = Detector(nets)
+    run = PerceiveRun()
+    for img, _ in frames(SynthConfig(frames=7, width=512, height=512, seed=33)):
+        res = det.push(img)
+        if res is not None:
+            run.detections.append(res[1])
+            run.payoffs.append(_payoffs(nets, res[1], AttackConfig(), None)[0])
+    assert len(run.detections) >= 2
+    a, b = run.detections[0], run.detections[-1]
+    wanted = {a.index: np.array([0, 2]), b.index: np.array([len(b.positions) - 1])}
+    cfg = CertifyConfig()
+    got = certify_detections(nets, run, wanted, AttackConfig(), cfg)
+    assert set(got) == set(wanted)
+    chain = detect_chain(nets.dr, threshold_logit(nets.settings.delta_dr))
+    for fd, pay in zip(run.detections, run.payoffs, strict=True):
+        if fd.index not in wanted:
+            continue
+        blobs = set(fd.source[wanted[fd.index]].tolist())
+        for i in range(len(fd.positions)):
+            if fd.source[i] not in blobs:
+                assert math.isnan(got[fd.index][i])
+                continue
+            alone = certified_radius(chain, fd.windows[fd.source[i]][None], pay[i : i + 1], cfg)
+            assert got[fd.index][i] == pytest.approx(min(alone[0], pay[i]), rel=1e-4)
+            assert 0 < got[fd.index][i] <= pay[i]

@@ -163,3 +163,81 @@ def test_payoffs_refused_without_lower_bounds_or_on_a_model(tmp_path: Path) -> N
         "check", str(tiny / "model.lts"), str(tiny / "properties.spec"), "--payoffs", "certified"
     )
     assert r.returncode == 2 and "needs a scene" in r.stderr
+
+
+def _payoffs_changed(scene, step: int, i: int):
+    """``scene`` with detection i of frame ``step`` priced differently (finite either way)."""
+    from dataclasses import replace
+
+    frames = list(scene.frames)
+    f = scene.frame(step)
+    d = f.detections[i]
+    new = 0.37 if not math.isfinite(d.payoff) else d.payoff * 2.5 + 0.11
+    dets = list(f.detections)
+    dets[i] = replace(d, payoff=new)
+    frames[step - scene.frames[0].step] = replace(f, detections=tuple(dets))
+    return replace(scene, frames=tuple(frames))
+
+
+@pytest.mark.parametrize("design", ["single", "joint"])
+@pytest.mark.parametrize("name", ["rq1_platoon", "rq2_parallel", "rq4_merge", "rq1_oncoming"])
+def test_priced_detections_are_all_a_model_prices(name: str, design: str) -> None:
+    """The oracle is a sensitivity sweep: every detection outside the probe's set is priced
+    differently in turn, and the model's combined payoffs (Eq. 5) and graph must not move."""
+    from lesmc.unfold import priced_detections
+
+    scene = load_scene(SCENES / f"{name}.json").with_tracker(design=design)
+    # every payoff finite, as in a certified scene: the most detections a model can price
+    finite = scene.with_lower(
+        {f.step: np.where(f.payoffs() < np.inf, f.payoffs(), 5.0) for f in scene.frames}
+    ).priced("certified")
+    end = finite.last_step - finite.target.step
+    win = (max(1, end - 4), max(1, end - 2))
+    got = priced_detections(finite, win)
+    base = build_model(finite, win)
+    frames = range(finite.target.step + win[0], finite.target.step + win[1] + 1)
+    assert set(got) <= set(frames)
+    moved = 0
+    for k in range(finite.frames[0].step, finite.last_step + 1):
+        for i in range(len(finite.frame(k).detections)):
+            other = build_model(_payoffs_changed(finite, k, i), win)
+            same = (
+                other.n_states == base.n_states
+                and np.array_equal(other.dst, base.dst)
+                and np.array_equal(other.combined, base.combined)
+            )
+            if i in got.get(k, ()):
+                moved += not same
+            else:
+                assert same, (k, i)
+    assert moved  # the sweep can see a change: some priced detection does move the model
+
+
+def test_missing_lower_payoffs_count_as_zero() -> None:
+    scene = scene_from_dict(with_lower("rq1_platoon", 1))
+    f = scene.frames[3]
+    low = np.array([np.nan] * len(f.detections))
+    part = scene.with_lower({})
+    assert part == scene
+    # drop the bounds of one frame: those detections get 0 in the certified model
+    from dataclasses import replace
+
+    stripped = replace(
+        scene,
+        frames=tuple(
+            replace(g, detections=tuple(replace(d, payoff_lower=None) for d in g.detections))
+            if g.step == f.step
+            else g
+            for g in scene.frames
+        ),
+    )
+    assert stripped.any_lower and not stripped.has_lower
+    cert = stripped.priced("certified")
+    assert (cert.frame(f.step).payoffs() == 0).all()
+    assert (cert.frames[0].payoffs() == scene.priced("certified").frames[0].payoffs()).all()
+    # with_lower puts bounds back, capped by the payoff; nan leaves a detection as it is
+    back = stripped.with_lower({f.step: low})
+    assert back == stripped
+    vals = np.array([d.payoff_lower for d in scene.frame(f.step).detections], float)
+    again = stripped.with_lower({f.step: vals})
+    assert again == scene

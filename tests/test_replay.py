@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import copy
 import json
+import math
 from pathlib import Path
 
 import numpy as np
@@ -166,3 +167,66 @@ def test_replay_needs_frames_and_a_results_file(verified: tuple, tmp_path: Path)
     assert r.returncode == 2 and "--frames" in r.stderr and "Traceback" not in r.stderr
     r = lesmc("replay", str(out / "results.json"), "--frames", str(tmp_path), "--property", "nope")
     assert r.returncode == 2 and "nope" in r.stderr
+
+
+def test_verify_in_interval_mode_certifies_what_its_models_can_hide(
+    verified: tuple, tmp_path: Path
+) -> None:
+    """``--payoffs interval`` on a video: only the detections the models can hide are
+    certified, every hidden one among them; verdicts follow both optima (docs/semantics.md);
+    the written scene gives `lesmc check` the same certified optima."""
+    import jsonschema
+
+    from lesmc.schemas import schema
+
+    video, _, att = verified
+    out = tmp_path / "vi"
+    r = lesmc(
+        "verify", str(video), "--truth", str(video / "truth.json"), "--window", "3..5",
+        "--design", "single", "--out", str(out), "--payoffs", "interval", "--json",
+    )  # fmt: skip
+    assert "Traceback" not in r.stderr and r.returncode in (0, 1, 3), r.stderr
+    doc = json.loads((out / "results.json").read_text())
+    jsonschema.validate(doc, schema("results"))
+    cert = doc["perception"]["certified"]
+    scene = json.loads((out / "scene.json").read_text())
+    bounded = {d["id"] for f in scene["frames"] for d in f["detections"] if "payoff_lower" in d}
+    assert 0 < cert["detections"] == len(bounded) < cert["of"]
+    lows = {
+        d["id"]: d["payoff_lower"]
+        for f in scene["frames"]
+        for d in f["detections"]
+        if "payoff_lower" in d
+    }
+    pays = {d["id"]: d["payoff"] for f in scene["frames"] for d in f["detections"]}
+    assert all(0 <= lows[i] <= pays[i] for i in lows)
+    results = doc["runs"][0]["results"]
+    for res, a in zip(results, att["runs"][0]["results"], strict=True):
+        assert res["payoffs"] == "interval"
+        # the attack's optimum is the attack mode's own
+        assert res["optimum_attack"] == a["optimum"] or (
+            res["optimum_attack"] == "inf" and a["optimum"] is None
+        )
+        c, t, o = res["optimum_certified"], res["threshold"], res["optimum_attack"]
+        c = math.inf if c in ("inf", None) else c
+        o = math.inf if o in ("inf", None) else o
+        assert c <= o
+        if res["verdict"] == "holds":
+            assert c > t
+        elif res["verdict"] == "violated":
+            assert o <= t and res["replay"]["status"] == "confirmed"
+    for hid in doc["runs"][0]["hidden"].values():
+        for h in hid:  # every detection a counterexample hides was certified
+            assert h["obs"] in bounded and h["payoff_lower"] == pytest.approx(lows[h["obs"]])
+    # the partially certified scene checks alone, to the same certified optima
+    for res in results:
+        spec = tmp_path / f"{res['property']}.spec"
+        text = (ROOT / "specs" / f"{res['property']}.spec").read_text()
+        spec.write_text(text.replace("6..8", "3..5"))  # as --window 3..5 does
+        r = lesmc("check", str(out / "scene.json"), str(spec), "--payoffs", "interval", "--json")
+        assert "Traceback" not in r.stderr and r.returncode in (0, 1, 3), r.stderr
+        again = json.loads(r.stdout)["results"][0]
+        want = res["optimum_certified"]
+        assert again["optimum_certified"] == (
+            want if isinstance(want, str) else pytest.approx(want)
+        )

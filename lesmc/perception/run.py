@@ -112,8 +112,7 @@ def _payoffs(
 ) -> tuple[np.ndarray, np.ndarray | None]:
     """One attack per Q_dr blob that produced detections; each detection gets its blob's payoff.
 
-    With ``cert``, also the blob's certified lower bound (certify.py), in the
-    attack's norm (``per-pixel`` divides by the window's pixel count too).
+    With ``cert``, also every blob's certified lower bound (:func:`certified_lower`).
     """
     used = np.unique(fd.source)
     res = payoffs(nets.dr, fd.windows[used], nets.settings.delta_dr, cfg)
@@ -122,13 +121,91 @@ def _payoffs(
     out: np.ndarray = per_blob[fd.source]
     if cert is None:
         return out, None
+    lower = np.zeros(len(fd.windows))
+    lower[used] = certified_lower(nets, fd.windows[used], res.payoff, cfg, cert)
+    return out, lower[fd.source]
+
+
+def certified_lower(
+    nets: Nets,
+    windows: np.ndarray,
+    upper: np.ndarray,
+    cfg: AttackConfig,
+    cert: CertifyConfig,
+    on_batch: Callable[[int], None] | None = None,
+) -> np.ndarray:
+    """Certified lower bounds (certify.py) of N_dr ``windows`` whose attack payoffs are ``upper``.
+
+    In the attack's norm (``per-pixel`` divides by the window's pixel count too),
+    and never above the attack's payoff. ``on_batch(done)`` after each batch of
+    ``cert.batch`` windows (progress, budgets).
+    """
     from lesmc.perception.attacks import threshold_logit
     from lesmc.perception.certify import certified_radius, detect_chain
 
     scale = DR_SIZE * DR_SIZE if cfg.norm == "per-pixel" else 1.0
     chain = detect_chain(nets.dr, threshold_logit(nets.settings.delta_dr))
-    low = certified_radius(chain, fd.windows[used], res.payoff * scale, cert) / scale
-    per_blob_low = np.zeros(len(fd.windows))
-    per_blob_low[used] = np.minimum(low, res.payoff)
-    lower: np.ndarray = per_blob_low[fd.source]
-    return out, lower
+    out = np.zeros(len(windows))
+    for a in range(0, len(windows), cert.batch):
+        b = min(a + cert.batch, len(windows))
+        out[a:b] = certified_radius(chain, windows[a:b], upper[a:b] * scale, cert) / scale
+        if on_batch is not None:
+            on_batch(b)
+    bounded: np.ndarray = np.minimum(out, upper)
+    return bounded
+
+
+def certify_detections(
+    nets: Nets,
+    run: PerceiveRun,
+    wanted: dict[int, np.ndarray],
+    cfg: AttackConfig,
+    cert: CertifyConfig,
+    on_batch: Callable[[int, int], None] | None = None,
+) -> dict[int, np.ndarray]:
+    """Certified lower bounds of the ``wanted`` detections of a perceive ``run`` only.
+
+    ``wanted``: per frame index, detection indices (what a model can hide,
+    :func:`lesmc.unfold.priced_detections`). Detections of one Q_dr blob share
+    its window, so each blob is certified once. Returns, per frame index, the
+    bound of every detection of that frame, ``nan`` where not certified.
+    ``on_batch(done, total)`` counts blobs.
+    """
+    by_index = {fd.index: (fd, pay) for fd, pay in zip(run.detections, run.payoffs, strict=True)}
+    jobs: list[tuple[int, np.ndarray]] = []  # (frame index, its wanted blobs)
+    for k, dets in sorted(wanted.items()):
+        if k not in by_index or not len(dets):
+            continue
+        fd, _ = by_index[k]
+        jobs.append((k, np.unique(fd.source[dets])))
+    windows = [by_index[k][0].windows[blobs] for k, blobs in jobs]
+    upper = [_blob_payoffs(*by_index[k])[blobs] for k, blobs in jobs]
+    total = sum(len(b) for _, b in jobs)
+    low = (
+        certified_lower(
+            nets,
+            np.concatenate(windows),
+            np.concatenate(upper),
+            cfg,
+            cert,
+            None if on_batch is None else (lambda done: on_batch(done, total)),
+        )
+        if total
+        else np.zeros(0)
+    )
+    out: dict[int, np.ndarray] = {}
+    at = 0
+    for k, blobs in jobs:
+        fd, _ = by_index[k]
+        per_blob = np.full(len(fd.windows), np.nan)
+        per_blob[blobs] = low[at : at + len(blobs)]
+        at += len(blobs)
+        out[k] = per_blob[fd.source]
+    return out
+
+
+def _blob_payoffs(fd: FrameDetections, pay: np.ndarray) -> np.ndarray:
+    """Each blob's payoff, from its detections' (every detection of a blob carries it)."""
+    per_blob = np.full(len(fd.windows), np.inf)
+    per_blob[fd.source] = pay
+    return per_blob

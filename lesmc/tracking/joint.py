@@ -703,7 +703,9 @@ class JointDesign:
         gated[s0, col] = ok[c0]
         cols = np.arange(w)
         last = np.where(gated, cols + 1, 0).max(axis=1, initial=0)
-        pays = frame.payoffs()[near_z] if nz else np.zeros((U, w))
+        pays = np.zeros((U, w))  # the candidates' payoffs (0 past a track's candidates: unused)
+        if nz:
+            pays[s0, col] = frame.payoffs()[pz[c0]]
         bad = ~np.isfinite(pays) & (cols < last[:, None])
         n_opt = np.minimum(last, np.where(bad, cols, w).min(axis=1, initial=w)) + 1
         cost = np.zeros((U, w + 1))  # cost[i, j]: hiding the j nearest, summed nearest first

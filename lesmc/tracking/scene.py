@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import itertools
 import math
+from collections.abc import Mapping
 from dataclasses import dataclass, field, fields
 from functools import cached_property
 from pathlib import Path
@@ -278,11 +279,19 @@ class Scene(_Frames):
         """Every detection carries ``payoff_lower`` (perceive --certify)."""
         return all(d.payoff_lower is not None for f in self.frames for d in f.detections)
 
+    @property
+    def any_lower(self) -> bool:
+        """Some detection carries ``payoff_lower`` (all of them, or those a model can hide)."""
+        return any(d.payoff_lower is not None for f in self.frames for d in f.detections)
+
     def priced(self, payoffs: str, path: str = "<scene>") -> Scene:
         """The scene whose ``payoff`` column the model uses: ``attack`` or ``certified``.
 
         ``certified`` puts each detection's ``payoff_lower`` in place of its
-        payoff (docs/semantics.md, "Payoff intervals"); every detection must have one.
+        payoff (docs/semantics.md, "Payoff intervals"). A detection without one
+        gets 0, the trivial lower bound (sound: no perturbation is cheaper than
+        nothing); ``verify`` certifies only the detections its models can hide.
+        At least one detection must carry a bound.
         """
         if payoffs == "attack":
             return self
@@ -290,23 +299,47 @@ class Scene(_Frames):
             raise ValueError(f"unknown payoff column {payoffs!r}")
         from dataclasses import replace
 
+        if not self.any_lower:
+            f = next((f for f in self.frames if f.detections), self.frames[0])
+            where = f"frame {f.step}" + (
+                f", detection '{f.detections[0].id}'" if f.detections else ""
+            )
+            raise InputError.many(
+                path,
+                [
+                    (
+                        where,
+                        "payoff_lower is missing (needed by --payoffs certified|"
+                        "interval; write the scene with `lesmc perceive --certify`)",
+                    )
+                ],
+            )
         frames = []
         for f in self.frames:
-            dets = []
-            for d in f.detections:
-                if d.payoff_lower is None:
-                    raise InputError.many(
-                        path,
-                        [
-                            (
-                                f"frame {f.step}, detection '{d.id}'",
-                                "payoff_lower is missing (needed by --payoffs certified|"
-                                "interval; write the scene with `lesmc perceive --certify`)",
-                            )
-                        ],
-                    )
-                dets.append(replace(d, payoff=d.payoff_lower))
-            frames.append(replace(f, detections=tuple(dets)))
+            dets = tuple(
+                replace(d, payoff=0.0 if d.payoff_lower is None else d.payoff_lower)
+                for d in f.detections
+            )
+            frames.append(replace(f, detections=dets))
+        return replace(self, frames=tuple(frames))
+
+    def with_lower(self, lower: Mapping[int, np.ndarray]) -> Scene:
+        """The scene with certified lower payoffs: ``lower[step][i]`` for detection i of
+        frame ``step`` (``nan``: none); detections not given keep theirs."""
+        from dataclasses import replace
+
+        frames = []
+        for f in self.frames:
+            low = lower.get(f.step)
+            if low is not None:
+                f = replace(
+                    f,
+                    detections=tuple(
+                        d if math.isnan(v) else replace(d, payoff_lower=min(v, d.payoff))
+                        for d, v in zip(f.detections, low.tolist(), strict=True)
+                    ),
+                )
+            frames.append(f)
         return replace(self, frames=tuple(frames))
 
     def with_tracker(self, **changes: Any) -> Scene:

@@ -92,7 +92,9 @@ class SingleDesign:
         gated = valid & gate_test(y, g.S_inv, g.P_pred, cfg.gate, cfg.gate_type)
         if attacked:
             same = frame.position_ids()[np.where(valid, idx, 0)] if frame.has_repeats else None
-            opts = attack_option_rows(gated, frame.payoffs()[np.where(valid, idx, 0)], valid, same)
+            pays = np.full(idx.shape, np.inf)
+            pays[valid] = frame.payoffs()[idx[valid]]
+            opts = attack_option_rows(gated, pays, valid, same)
             row, col, payoff = opts.row, opts.col, opts.payoff
             counts = np.bincount(row, minlength=len(Xp))
             rank = np.arange(row.size) - np.repeat(np.r_[0, np.cumsum(counts)[:-1]], counts)
