@@ -133,6 +133,14 @@ def test_interval_verdicts_match_brute_force_over_both_payoff_sets(
                 assert (got == "inf") if math.isinf(v) else math.isclose(got, v, rel_tol=1e-9)
             if expect == "violated":
                 assert res["counterexample"] is not None
+                assert math.isclose(res["optimum"], a, rel_tol=1e-9)  # the counterexample's
+            elif math.isinf(c) and math.isinf(a):
+                assert res["optimum"] is None  # null: no path violates, under either set
+            elif math.isclose(c, a, rel_tol=1e-12):
+                assert math.isclose(res["optimum"], a, rel_tol=1e-9)
+            else:  # the optimum lies in [c, a]: never null, which means "none violates"
+                assert res["optimum"] == "unknown"
+                assert math.isclose(res["bounds"]["lower"], c, rel_tol=1e-9)
             verdicts.append(expect)
             seen.add(expect)
         want = 1 if "violated" in verdicts else 3 if "unknown" in verdicts else 0

@@ -430,7 +430,7 @@ def _summary(runs: list[Any]) -> None:
     from rich.table import Table
 
     from lesmc.errors import escape_text
-    from lesmc.report.text import fmt, make_console
+    from lesmc.report.text import fmt, make_console, optimum_cell
 
     console = make_console()
     table = Table(title="lesmc verify", title_justify="left")
@@ -444,7 +444,8 @@ def _summary(runs: list[Any]) -> None:
     for run in runs:
         n = run.model.graph.number_of_nodes()
         for r in run.results:
-            opt = fmt(r.optimum) if r.optimum is not None else "+inf"
+            known = r.optimum_known and r.stats.stopped == "finished"
+            opt = optimum_cell(r.optimum, known, r.lower, r.upper, r.payoffs == "interval")
             table.add_row(
                 escape_text(run.name),
                 escape_text(r.property),

@@ -41,11 +41,23 @@ def combine(certified: CheckResult, attack: CheckResult, monotone: bool = True) 
             f"the optimum lies between the certified {_fmt(certified.lower)} and the "
             f"attack's {_fmt(attack.upper)}; the threshold {attack.threshold:g} is inside"
         )
+    lower = certified.lower if monotone else -math.inf
+    # ``optimum``: the counterexample's cost when violated; the optimum itself when both
+    # payoff sets agree on it (None: no path violates under either); else unknown, and
+    # the interval [lower, upper] is what is known (``null`` never stands for "unknown")
+    point = lower == attack.upper and certified.optimum_known and attack.optimum_known
+    if verdict == "violated":
+        optimum, known = attack.optimum, attack.optimum_known
+    elif point:
+        optimum, known = attack.optimum, True
+    else:
+        optimum, known = None, False
     return replace(
         attack,
         verdict=verdict,
-        optimum=attack.optimum if verdict == "violated" else None,
-        lower=certified.lower if monotone else -math.inf,
+        optimum=optimum,
+        optimum_known=known,
+        lower=lower,
         upper=attack.upper,
         notes=notes,
         payoffs="interval",

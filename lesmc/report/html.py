@@ -27,7 +27,7 @@ from lesmc.model import kernel
 from lesmc.report import figures
 from lesmc.report.figures import COLOURS, Series, TreePath
 from lesmc.report.staging import staged
-from lesmc.report.text import fmt
+from lesmc.report.text import fmt, optimum_cell
 from lesmc.tracking.kalman import warp
 
 MAX_TABLE_ROWS = 60
@@ -78,9 +78,10 @@ def verdict_of(r: dict[str, Any]) -> str:
 
 
 def _opt(r: dict[str, Any]) -> str:
-    if r["stats"]["stopped"] != "finished":
-        return f"[{_fmt(r['bounds']['lower'])}, {_fmt(r['bounds']['upper'])}]"
-    return "+inf" if r["optimum"] is None else _fmt(r["optimum"])
+    known = r["stats"]["stopped"] == "finished" and r["optimum"] != "unknown"
+    opt = None if r["optimum"] in (None, "unknown") else _f(r["optimum"])
+    b = r["bounds"]
+    return optimum_cell(opt, known, _f(b["lower"]), _f(b["upper"]), r.get("payoffs") == "interval")
 
 
 def _tag(name: str) -> str:

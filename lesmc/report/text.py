@@ -49,6 +49,17 @@ class _StdoutConsole(Console):
         raise BrokenPipeError
 
 
+def optimum_cell(
+    optimum: float | None, known: bool, lower: float, upper: float, interval: bool
+) -> str:
+    """The optimum as tables print it: the value, ``+inf`` when no path violates, or the
+    proven bounds ``[lower, upper]`` when a budget stopped the search or, in interval mode,
+    between the certified and the attack payoffs' optima (docs/semantics.md)."""
+    if not known or (interval and lower != upper):
+        return f"[{fmt(lower)}, {fmt(upper)}]"
+    return fmt(optimum) if optimum is not None else "+inf"
+
+
 def make_console() -> Console:
     """stdout console; at least 110 columns when piped so tables stay on one line."""
     console = _StdoutConsole()
@@ -68,9 +79,8 @@ def print_results(console: Console, results: Sequence[CheckResult], paths: bool 
             overflow="fold",
         )
     for r in results:
-        opt = fmt(r.optimum) if r.optimum is not None else "+inf"
-        if r.stats.stopped != "finished":
-            opt = f"[{fmt(r.lower)}, {fmt(r.upper)}]"
+        known = r.optimum_known and r.stats.stopped == "finished"
+        opt = optimum_cell(r.optimum, known, r.lower, r.upper, r.payoffs == "interval")
         summary.add_row(
             escape_text(r.property),
             f"[{_COLOURS[r.verdict]}]{escape_text(r.verdict_text())}[/]",
