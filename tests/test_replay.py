@@ -230,3 +230,31 @@ def test_verify_in_interval_mode_certifies_what_its_models_can_hide(
         assert again["optimum_certified"] == (
             want if isinstance(want, str) else pytest.approx(want)
         )
+
+
+def test_default_video_violations_are_replayed_in_interval_mode(tmp_path: Path) -> None:
+    """The main job (`lesmc verify` on the embedded default video), in interval mode:
+    every violated verdict is a replay-confirmed attack, every diverged counterexample an
+    unknown with its note, and only the detections the models can hide are certified."""
+    out = tmp_path / "v"
+    r = lesmc("verify", "--out", str(out), "--payoffs", "interval", "--json")
+    assert "Traceback" not in r.stderr and r.returncode in (0, 1, 3), r.stderr
+    doc = json.loads((out / "results.json").read_text())
+    cert = doc["perception"]["certified"]
+    assert 0 < cert["detections"] <= 50 < cert["of"]
+    violated = 0
+    for run in doc["runs"]:
+        for res in run["results"]:
+            c, a = (
+                math.inf if v in ("inf", None) else v
+                for v in (res["optimum_certified"], res["optimum_attack"])
+            )
+            assert c <= a
+            rp = res.get("replay")
+            if res["verdict"] == "violated":
+                violated += 1
+                assert rp is not None and rp["status"] == "confirmed", rp
+            if rp is not None and rp["status"] == "diverged":
+                assert res["verdict"] == "unknown"
+                assert any("not a proof of violation" in n for n in res["notes"])
+    assert violated  # the plain tracker's robustness breaks under a real attack
