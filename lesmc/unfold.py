@@ -21,8 +21,6 @@ from __future__ import annotations
 
 import time
 from collections.abc import Callable, Iterable
-from dataclasses import dataclass, field
-from typing import Any
 
 import numpy as np
 
@@ -35,7 +33,7 @@ from lesmc.language.semantics import BoundProperty, bind
 from lesmc.model.arrays import ArrayModel
 from lesmc.model.growing import Expansion, GrowingModel
 from lesmc.tracking.design import Batch, Design, PayloadStore, make_design
-from lesmc.tracking.scene import Frame, Scene
+from lesmc.tracking.scene import Detection, Scene, WatchedFrame
 
 COMPONENTS = ("x", "y", "vx", "vy")
 
@@ -355,7 +353,7 @@ def priced_detections(
     cheaper sibling whose payoff could enter a combined payoff (Eq. 5). The
     model is built once over a copy of the scene in which those frames' payoffs
     are all finite (an attack could hide every candidate) and each notes the
-    entries of its payoff column the design reads (:class:`_ProbeFrame`). Any
+    entries of its payoff column the design reads (:class:`WatchedFrame`). Any
     other use of the column counts as reading all of it. ``verify --payoffs
     certified|interval`` certifies only these (a detection without a bound gets
     the trivial 0 anyway, so a missed one costs tightness, never soundness).
@@ -365,41 +363,33 @@ def priced_detections(
     first, last = scene.target.step + window[0], scene.target.step + window[1]
     reads: dict[int, set[int]] = {f.step: set() for f in scene.frames if first <= f.step <= last}
     frames = tuple(
-        _ProbeFrame(f.step, f.detections, f.to_next, reads[f.step]) if f.step in reads else f
+        WatchedFrame(f.step, _finite(f.detections), f.to_next, None, reads[f.step])
+        if f.step in reads
+        else f
         for f in scene.frames
     )
     build_model(replace(scene, frames=frames), window, end, on_batch=on_batch)
     return {k: np.array(sorted(v), dtype=np.int64) for k, v in reads.items() if v}
 
 
-class _PayoffReads:
-    """A frame's payoff column (all 1: finite) that notes which entries are read."""
+def _finite(dets: tuple[Detection, ...]) -> tuple[Detection, ...]:
+    """The detections, every one attackable (payoff 1): the probe's frames."""
+    from dataclasses import replace
 
-    def __init__(self, n: int, reads: set[int]) -> None:
-        self._values = np.ones(n)
-        self._reads = reads
-
-    def __getitem__(self, key: Any) -> np.ndarray:
-        out: np.ndarray = self._values[key]
-        self._reads.update(np.unique(np.arange(len(self._values))[key]).tolist())
-        return out
-
-    def __len__(self) -> int:
-        return len(self._values)
-
-    def __array__(self, dtype: object = None, copy: object = None) -> np.ndarray:
-        self._reads.update(range(len(self._values)))
-        return self._values
+    return tuple(replace(d, payoff=1.0) for d in dets)
 
 
-@dataclass(frozen=True)
-class _ProbeFrame(Frame):
-    """A frame whose :meth:`payoffs` note the entries read (:func:`priced_detections`)."""
-
-    reads: set[int] = field(default_factory=set, compare=False)
-
-    def payoffs(self) -> np.ndarray:
-        return _PayoffReads(len(self.detections), self.reads)  # type: ignore[return-value]
+def unbounded_note(scene: Scene) -> list[str]:
+    """The note of a check on a certified scene (:meth:`Scene.priced`) whose model read
+    detections without a certified bound (each counted as 0), if it did."""
+    n = scene.unbounded_reads()
+    if not n:
+        return []
+    return [
+        f"{n} detection(s) the model can hide carry no certified bound (payoff_lower) and "
+        "count as 0, the trivial bound: the certified optimum is sound but may be far "
+        "below the true one"
+    ]
 
 
 def bind_scene(
@@ -471,18 +461,20 @@ def check_scene_payoffs(
     if payoffs == "attack":
         return check_scene_bound(scene, bp, engine, max_states, timeout, max_memory)
     low = scene.priced("certified", path)
+
+    def certified(seconds: float | None) -> CheckResult:
+        r = check_scene_bound(low, bp, engine, max_states, seconds, max_memory)
+        return replace(r, notes=[*r.notes, *unbounded_note(low)])
+
     if payoffs == "certified":
-        return replace(
-            check_scene_bound(low, bp, engine, max_states, timeout, max_memory),
-            payoffs=payoffs,
-        )
+        return replace(certified(timeout), payoffs=payoffs)
     if payoffs != "interval":
         raise UsageError(f"--payoffs must be one of {', '.join(PAYOFF_MODES)}, got {payoffs!r}")
     import time
 
     started = time.monotonic()
     half = None if timeout is None else timeout / 2
-    cert = check_scene_bound(low, bp, engine, max_states, half, max_memory)
+    cert = certified(half)
     left = None if timeout is None else max(0.0, timeout - (time.monotonic() - started))
     att = check_scene_bound(scene, bp, engine, max_states, left, max_memory)
     return combine(cert, att, payoff_monotone(bp))

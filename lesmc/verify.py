@@ -179,10 +179,11 @@ def check_designs(
     the run's model (what the report draws) is always the attack payoffs' model.
     """
     b = Budget() if budget is None else budget
-    from lesmc.unfold import build_model
+    from lesmc.unfold import build_model, unbounded_note
 
     runs = []
     models: dict[tuple[str, tuple[int, int]], tuple[ArrayModel, LTS]] = {}
+    unbounded: dict[tuple[str, tuple[int, int]], list[str]] = {}  # certified models' notes
     for d, tracker, sc, sp, win in design_windows(scene, specs, designs, only):
         if (tracker, win) not in models:  # joint and improved share one model
             if on_stage:
@@ -197,14 +198,19 @@ def check_designs(
             if key not in models:
                 if on_stage:
                     on_stage(f"building the {tracker} model with certified payoffs")
-                built = build_model(sc.priced("certified"), win, on_batch=on_batch)
+                low = sc.priced("certified")
+                built = build_model(low, win, on_batch=on_batch)
                 models[key] = (built, to_lts(built))
+                unbounded[key] = unbounded_note(low)
             low_bound = [bp for bp in bind_all(models[key][0], sp) if only is None or only(bp.name)]
         results = []
         for i, bp in enumerate(bound):
             if on_stage:
                 on_stage(f"checking {bp.name} ({RUN_NAMES[d]})")
-            results.append(_check(models, tracker, win, bp, low_bound, i, payoffs, engine, b))
+            notes = unbounded.get((tracker + "/certified", win), [])
+            results.append(
+                _check(models, tracker, win, bp, low_bound, i, payoffs, engine, b, notes)
+            )
         runs.append(DesignRun(RUN_NAMES[d], view, bound, results, sc))
     return runs
 
@@ -260,8 +266,10 @@ def _check(
     payoffs: str,
     engine: str,
     b: Budget,
+    cert_notes: list[str],
 ) -> CheckResult:
-    """One property in payoff mode ``payoffs`` (the certified model checked first)."""
+    """One property in payoff mode ``payoffs`` (the certified model checked first, then
+    given ``cert_notes``)."""
     from dataclasses import replace
 
     from lesmc.engines.interval import combine
@@ -274,6 +282,7 @@ def _check(
     if payoffs == "attack":
         return run(models[(tracker, win)][0], bp)
     cert = run(models[(tracker + "/certified", win)][0], low_bound[i])
+    cert = replace(cert, notes=[*cert.notes, *cert_notes])
     if payoffs == "certified":
         return replace(cert, payoffs="certified")
     return combine(cert, run(models[(tracker, win)][0], bp), payoff_monotone(bp))

@@ -136,11 +136,12 @@ def test_interval_verdicts_match_brute_force_over_both_payoff_sets(
                 assert math.isclose(res["optimum"], a, rel_tol=1e-9)  # the counterexample's
             elif math.isinf(c) and math.isinf(a):
                 assert res["optimum"] is None  # null: no path violates, under either set
-            elif math.isclose(c, a, rel_tol=1e-12):
-                assert math.isclose(res["optimum"], a, rel_tol=1e-9)
-            else:  # the optimum lies in [c, a]: never null, which means "none violates"
+            elif not math.isclose(c, a, rel_tol=1e-12):
+                # the optimum lies in [c, a]: never null, which means "none violates"
                 assert res["optimum"] == "unknown"
                 assert math.isclose(res["bounds"]["lower"], c, rel_tol=1e-9)
+            elif res["optimum"] != "unknown":  # a point (or c, a one rounding apart)
+                assert math.isclose(res["optimum"], a, rel_tol=1e-9)
             verdicts.append(expect)
             seen.add(expect)
         want = 1 if "violated" in verdicts else 3 if "unknown" in verdicts else 0
@@ -241,11 +242,59 @@ def test_missing_lower_payoffs_count_as_zero() -> None:
     )
     assert stripped.any_lower and not stripped.has_lower
     cert = stripped.priced("certified")
-    assert (cert.frame(f.step).payoffs() == 0).all()
-    assert (cert.frames[0].payoffs() == scene.priced("certified").frames[0].payoffs()).all()
+    assert (np.asarray(cert.frame(f.step).payoffs()) == 0).all()
+    first = scene.priced("certified").frames[0].payoffs()
+    assert (np.asarray(cert.frames[0].payoffs()) == np.asarray(first)).all()
     # with_lower puts bounds back, capped by the payoff; nan leaves a detection as it is
     back = stripped.with_lower({f.step: low})
     assert back == stripped
     vals = np.array([d.payoff_lower for d in scene.frame(f.step).detections], float)
     again = stripped.with_lower({f.step: vals})
     assert again == scene
+
+
+def test_a_check_says_when_it_read_detections_without_a_bound(tmp_path: Path) -> None:
+    """Missing bounds count as 0; a certified check that reads one says so, one that reads
+    none does not (the reads are checked against the probe's set, an independent build)."""
+    from lesmc.unfold import priced_detections
+
+    doc = with_lower("rq1_platoon", 2)
+    scene = scene_from_dict(doc)
+    end = scene.last_step - scene.target.step
+    l, u = max(1, end - 4), max(1, end - 2)
+    spec = tmp_path / "p.spec"
+    spec.write_text(SPEC.format(l=l, u=u, c=40, theta=0, theta2=0))
+    hidden = priced_detections(scene, (l, u))
+    step = max(hidden, key=lambda k: len(hidden[k]))  # a frame whose detections a model prices
+    quiet = min(f.step for f in scene.frames)  # before the target: never priced
+    assert quiet not in hidden
+    for strip, noted in ((step, True), (quiet, False)):
+        bad = json.loads(json.dumps(doc))
+        for f in bad["frames"]:
+            if f["step"] == strip:
+                for d in f["detections"]:
+                    del d["payoff_lower"]
+        path = tmp_path / f"s{strip}.json"
+        path.write_text(json.dumps(bad))
+        r = lesmc("check", str(path), str(spec), "--payoffs", "interval", "--json")
+        assert "Traceback" not in r.stderr and r.returncode in (0, 1, 3), r.stderr
+        notes = [n for res in json.loads(r.stdout)["results"] for n in res["notes"]]
+        said = any("carry no certified bound" in n for n in notes)
+        assert said == noted, notes
+
+
+def test_verify_certified_nothing_still_checks() -> None:
+    """verify found no detection to certify (nothing hideable): the certified model is read
+    as is, not refused for want of bounds."""
+    from dataclasses import replace
+
+    from lesmc.verify import check_designs
+
+    scene = load_scene(SCENES / "rq1_platoon.json")
+    certified = replace(scene, meta={**scene.meta, "certified": {"detections": 0, "of": 1}})
+    spec = parse_spec(SPEC.format(l=1, u=1, c=40, theta=0, theta2=0), "p.spec")
+    runs = check_designs(certified, [spec], ["single"], payoffs="interval")
+    att = check_designs(scene, [spec], ["single"])
+    for r, a in zip(runs[0].results, att[0].results, strict=True):
+        assert r.payoffs == "interval"
+        assert r.lower <= a.upper

@@ -241,7 +241,7 @@ def test_default_video_violations_are_replayed_in_interval_mode(tmp_path: Path) 
     assert "Traceback" not in r.stderr and r.returncode in (0, 1, 3), r.stderr
     doc = json.loads((out / "results.json").read_text())
     cert = doc["perception"]["certified"]
-    assert 0 < cert["detections"] <= 50 < cert["of"]
+    assert 0 < cert["detections"] <= cert["of"] // 20  # a handful near the target
     violated = 0
     for run in doc["runs"]:
         for res in run["results"]:

@@ -220,9 +220,11 @@ def verify_cmd(
         meta["scene"] = str(out / "scene.json")
     if window is not None:
         check_window(scene, window)
+    certified = None
     if run is not None and payoffs != "attack":
         assert nets is not None
         scene = _certify(scene, run, nets, spec_files, DESIGNS[design], budget, err)
+        certified = scene.meta["certified"]
         new_scene = scene
     meta["target"] = (
         f"({scene.target.start[0]:.1f}, {scene.target.start[1]:.1f}) in frame "
@@ -251,8 +253,8 @@ def verify_cmd(
         "attack": asdict(_attack_of(scene) if scene_path is not None else AttackConfig()),
         "payoffs": payoffs,
     }
-    if "certified" in scene.meta:
-        perception["certified"] = scene.meta["certified"]
+    if certified is not None:  # this run's certification (a --scene keeps its own meta)
+        perception["certified"] = certified
     report, doc = _publish(
         runs, out, meta, spec_files, frames, truths, scene, timings, nets, perception, budget
     )
@@ -289,7 +291,7 @@ def _certify(
     from lesmc.perception.certify import CertifyConfig
     from lesmc.perception.run import certify_detections
     from lesmc.report.progress import progress_bar
-    from lesmc.verify import hideable
+    from lesmc.verify import design_windows, hideable
 
     started = time.monotonic()
     with err.status("finding the detections the models can hide"):
@@ -315,6 +317,10 @@ def _certify(
         "detections": n,
         "of": total,
         "scope": "the detections the checked models can hide; the others have no bound",
+        "designs": designs,
+        "windows": [
+            list(w) for w in sorted({w for *_, w in design_windows(scene, spec_files, designs)})
+        ],
         "seconds": round(time.monotonic() - started, 3),
     }
     out = replace(scene.with_lower(lower), meta={**scene.meta, "certified": summary})

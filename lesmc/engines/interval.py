@@ -29,7 +29,7 @@ def combine(certified: CheckResult, attack: CheckResult, monotone: bool = True) 
         verdict = "holds"
     else:
         verdict = "unknown"
-    notes = list(attack.notes)
+    notes = [f"attack payoffs: {n}" for n in attack.notes]
     notes += [f"certified payoffs: {n}" for n in certified.notes]
     if not monotone:
         notes.append(
@@ -40,6 +40,11 @@ def combine(certified: CheckResult, attack: CheckResult, monotone: bool = True) 
         notes.append(
             f"the optimum lies between the certified {_fmt(certified.lower)} and the "
             f"attack's {_fmt(attack.upper)}; the threshold {attack.threshold:g} is inside"
+        )
+    elif certified.lower != attack.upper:
+        notes.append(
+            f"the optimum against every attack lies between the certified "
+            f"{_fmt(certified.lower)} and the attack's {_fmt(attack.upper)}"
         )
     lower = certified.lower if monotone else -math.inf
     # ``optimum``: the counterexample's cost when violated; the optimum itself when both

@@ -223,6 +223,47 @@ class TrackerConfig:
         return d
 
 
+class PayoffReads:
+    """A frame's payoff column that notes which of its ``watched`` entries (None: all) are
+    read; any use other than indexing counts as reading all of them."""
+
+    def __init__(self, values: np.ndarray, reads: set[int], watched: np.ndarray | None) -> None:
+        self._values = values
+        self._reads = reads
+        self._watched = watched
+
+    def __getitem__(self, key: Any) -> np.ndarray:
+        out: np.ndarray = self._values[key]
+        self._note(np.arange(len(self._values))[key])
+        return out
+
+    def __len__(self) -> int:
+        return len(self._values)
+
+    def __array__(self, dtype: object = None, copy: object = None) -> np.ndarray:
+        self._note(np.arange(len(self._values)))
+        return self._values
+
+    def _note(self, idx: np.ndarray) -> None:
+        idx = np.unique(idx)
+        if self._watched is not None:
+            idx = idx[self._watched[idx]]
+        self._reads.update(idx.tolist())
+
+
+@dataclass(frozen=True)
+class WatchedFrame(Frame):
+    """A frame whose :meth:`payoffs` note which ``watched`` detections (None: all) a model
+    reads: the probe of :func:`lesmc.unfold.priced_detections`, and a certified scene's
+    detections without a bound (:meth:`Scene.unbounded_reads`)."""
+
+    watched: np.ndarray | None = field(default=None, compare=False)
+    reads: set[int] = field(default_factory=set, compare=False)
+
+    def payoffs(self) -> np.ndarray:
+        return PayoffReads(self._payoffs, self.reads, self.watched)  # type: ignore[return-value]
+
+
 @dataclass(frozen=True)
 class Target:
     """Where the track starts: frame step, position, and (default zero) velocity."""
@@ -290,8 +331,10 @@ class Scene(_Frames):
         ``certified`` puts each detection's ``payoff_lower`` in place of its
         payoff (docs/semantics.md, "Payoff intervals"). A detection without one
         gets 0, the trivial lower bound (sound: no perturbation is cheaper than
-        nothing); ``verify`` certifies only the detections its models can hide.
-        At least one detection must carry a bound.
+        nothing), and its frame notes whether a model reads it
+        (:meth:`unbounded_reads`); ``verify`` certifies only the detections its
+        models can hide. At least one detection must carry a bound, unless
+        ``meta["certified"]`` says that ``verify`` found none to certify.
         """
         if payoffs == "attack":
             return self
@@ -299,7 +342,7 @@ class Scene(_Frames):
             raise ValueError(f"unknown payoff column {payoffs!r}")
         from dataclasses import replace
 
-        if not self.any_lower:
+        if not self.any_lower and "certified" not in self.meta:
             f = next((f for f in self.frames if f.detections), self.frames[0])
             where = f"frame {f.step}" + (
                 f", detection '{f.detections[0].id}'" if f.detections else ""
@@ -314,14 +357,23 @@ class Scene(_Frames):
                     )
                 ],
             )
-        frames = []
+        frames: list[Frame] = []
         for f in self.frames:
             dets = tuple(
                 replace(d, payoff=0.0 if d.payoff_lower is None else d.payoff_lower)
                 for d in f.detections
             )
-            frames.append(replace(f, detections=dets))
+            missing = np.array([d.payoff_lower is None for d in f.detections], dtype=bool)
+            if missing.any():
+                frames.append(WatchedFrame(f.step, dets, f.to_next, missing))
+            else:
+                frames.append(replace(f, detections=dets))
         return replace(self, frames=tuple(frames))
+
+    def unbounded_reads(self) -> int:
+        """How many detections without ``payoff_lower`` the models of this certified scene
+        (:meth:`priced`) have read so far: each counted as 0, the trivial bound."""
+        return sum(len(f.reads) for f in self.frames if isinstance(f, WatchedFrame))
 
     def with_lower(self, lower: Mapping[int, np.ndarray]) -> Scene:
         """The scene with certified lower payoffs: ``lower[step][i]`` for detection i of
