@@ -379,10 +379,10 @@ def _finite(dets: tuple[Detection, ...]) -> tuple[Detection, ...]:
     return tuple(replace(d, payoff=1.0) for d in dets)
 
 
-def unbounded_note(scene: Scene) -> list[str]:
-    """The note of a check on a certified scene (:meth:`Scene.priced`) whose model read
-    detections without a certified bound (each counted as 0), if it did."""
-    n = scene.unbounded_reads()
+def unbounded_note(scene: Scene, window: tuple[int, int]) -> list[str]:
+    """The note of a check on a certified scene (:meth:`Scene.priced`) whose model, attacked
+    in ``window``, read detections without a certified bound there (each counted as 0)."""
+    n = scene.unbounded_reads(window)
     if not n:
         return []
     return [
@@ -464,7 +464,7 @@ def check_scene_payoffs(
 
     def certified(seconds: float | None) -> CheckResult:
         r = check_scene_bound(low, bp, engine, max_states, seconds, max_memory)
-        return replace(r, notes=[*r.notes, *unbounded_note(low)])
+        return replace(r, notes=[*r.notes, *unbounded_note(low, (bp.l, bp.u))])
 
     if payoffs == "certified":
         return replace(certified(timeout), payoffs=payoffs)

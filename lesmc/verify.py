@@ -201,7 +201,7 @@ def check_designs(
                 low = sc.priced("certified")
                 built = build_model(low, win, on_batch=on_batch)
                 models[key] = (built, to_lts(built))
-                unbounded[key] = unbounded_note(low)
+                unbounded[key] = unbounded_note(low, win)
             low_bound = [bp for bp in bind_all(models[key][0], sp) if only is None or only(bp.name)]
         results = []
         for i, bp in enumerate(bound):

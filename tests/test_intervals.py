@@ -253,12 +253,15 @@ def test_missing_lower_payoffs_count_as_zero() -> None:
     assert again == scene
 
 
-def test_a_check_says_when_it_read_detections_without_a_bound(tmp_path: Path) -> None:
-    """Missing bounds count as 0; a certified check that reads one says so, one that reads
-    none does not (the reads are checked against the probe's set, an independent build)."""
+@pytest.mark.parametrize("design", ["single", "joint"])
+def test_a_check_says_when_it_read_detections_without_a_bound(design: str, tmp_path: Path) -> None:
+    """Missing bounds count as 0; a certified check that prices one says so, one that prices
+    none does not (the frames are chosen by the probe's set, an independent build; the
+    joint design also reads payoffs outside the window, which never count)."""
     from lesmc.unfold import priced_detections
 
     doc = with_lower("rq1_platoon", 2)
+    doc["tracker"]["design"] = design
     scene = scene_from_dict(doc)
     end = scene.last_step - scene.target.step
     l, u = max(1, end - 4), max(1, end - 2)
@@ -266,8 +269,8 @@ def test_a_check_says_when_it_read_detections_without_a_bound(tmp_path: Path) ->
     spec.write_text(SPEC.format(l=l, u=u, c=40, theta=0, theta2=0))
     hidden = priced_detections(scene, (l, u))
     step = max(hidden, key=lambda k: len(hidden[k]))  # a frame whose detections a model prices
-    quiet = min(f.step for f in scene.frames)  # before the target: never priced
-    assert quiet not in hidden
+    quiet = scene.target.step + u + 1  # after the window: read by joint, never priced
+    assert quiet not in hidden and quiet <= scene.last_step
     for strip, noted in ((step, True), (quiet, False)):
         bad = json.loads(json.dumps(doc))
         for f in bad["frames"]:

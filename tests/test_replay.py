@@ -203,6 +203,7 @@ def test_verify_in_interval_mode_certifies_what_its_models_can_hide(
     results = doc["runs"][0]["results"]
     for res, a in zip(results, att["runs"][0]["results"], strict=True):
         assert res["payoffs"] == "interval"
+        assert not any("carry no certified bound" in n for n in res["notes"])
         # the attack's optimum is the attack mode's own
         assert res["optimum_attack"] == a["optimum"] or (
             res["optimum_attack"] == "inf" and a["optimum"] is None
@@ -250,6 +251,8 @@ def test_default_video_violations_are_replayed_in_interval_mode(tmp_path: Path) 
                 for v in (res["optimum_certified"], res["optimum_attack"])
             )
             assert c <= a
+            # verify certified every detection its models price: no bound read as 0
+            assert not any("carry no certified bound" in n for n in res["notes"])
             rp = res.get("replay")
             if res["verdict"] == "violated":
                 violated += 1

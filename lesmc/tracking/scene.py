@@ -370,10 +370,16 @@ class Scene(_Frames):
                 frames.append(replace(f, detections=dets))
         return replace(self, frames=tuple(frames))
 
-    def unbounded_reads(self) -> int:
+    def unbounded_reads(self, window: tuple[int, int]) -> int:
         """How many detections without ``payoff_lower`` the models of this certified scene
-        (:meth:`priced`) have read so far: each counted as 0, the trivial bound."""
-        return sum(len(f.reads) for f in self.frames if isinstance(f, WatchedFrame))
+        (:meth:`priced`) attacked in ``window`` have read so far in its frames (each counted
+        as 0, the trivial bound); reads elsewhere never enter a combined payoff (Eq. 5)."""
+        first, last = self.target.step + window[0], self.target.step + window[1]
+        return sum(
+            len(f.reads)
+            for f in self.frames
+            if isinstance(f, WatchedFrame) and first <= f.step <= last
+        )
 
     def with_lower(self, lower: Mapping[int, np.ndarray]) -> Scene:
         """The scene with certified lower payoffs: ``lower[step][i]`` for detection i of
