@@ -40,6 +40,7 @@ formally verified floating-point bound).
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
@@ -517,12 +518,14 @@ def certified_radius(
     windows: np.ndarray,
     upper: np.ndarray | None = None,
     cfg: CertifyConfig | None = None,
+    on_batch: Callable[[int], None] | None = None,
 ) -> np.ndarray:
     """Per window, an L2 radius within which the margin stays positive (0 when it is not).
 
     ``upper``: a known flipping radius per window (the attack's payoff, ``inf``
     when none): the search stays below it. It only steers the search; every
-    returned radius is certified on its own.
+    returned radius is certified on its own. ``on_batch(done)`` after each batch
+    of ``cfg.batch`` windows (progress, budgets).
     """
     cfg = cfg or CertifyConfig()
     n = len(windows)
@@ -532,6 +535,8 @@ def certified_radius(
             x = torch.from_numpy(np.ascontiguousarray(windows[a : a + cfg.batch], np.float32))
             up = None if upper is None else np.asarray(upper[a : a + cfg.batch], float)
             out[a : a + len(x)] = _search(chain, x, up, cfg)
+            if on_batch is not None:
+                on_batch(a + len(x))
     return out
 
 

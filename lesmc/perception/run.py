@@ -145,13 +145,8 @@ def certified_lower(
 
     scale = DR_SIZE * DR_SIZE if cfg.norm == "per-pixel" else 1.0
     chain = detect_chain(nets.dr, threshold_logit(nets.settings.delta_dr))
-    out = np.zeros(len(windows))
-    for a in range(0, len(windows), cert.batch):
-        b = min(a + cert.batch, len(windows))
-        out[a:b] = certified_radius(chain, windows[a:b], upper[a:b] * scale, cert) / scale
-        if on_batch is not None:
-            on_batch(b)
-    bounded: np.ndarray = np.minimum(out, upper)
+    radius = certified_radius(chain, windows, upper * scale, cert, on_batch) / scale
+    bounded: np.ndarray = np.minimum(radius, upper)
     return bounded
 
 
