@@ -152,6 +152,9 @@ def load_specs(paths: list[Path], window: tuple[int, int] | None) -> list[SpecFi
     return [with_window(load_spec(str(p)), window) for p in paths]
 
 
+#: One design's share of a run: design, tracker, its scene, its properties, the model's window.
+DesignUnit = tuple[str, str, Scene, list[SpecFile], tuple[int, int]]
+
 #: Display name and tracker design of each design run.
 RUN_NAMES = {"single": "single", "joint": "joint KFs", "improved": "joint KFs + monitor"}
 
@@ -191,7 +194,7 @@ def check_designs(
             built = build_model(sc, win, on_batch=on_batch)
             models[(tracker, win)] = (built, to_lts(built))
         model, view = models[(tracker, win)]
-        bound = [bp for bp in bind_all(model, sp) if only is None or only(bp.name)]
+        bound = _selected(bind_all(model, sp), only)
         low_bound: list[BoundProperty] = []
         if payoffs != "attack":
             key = (tracker + "/certified", win)
@@ -202,7 +205,7 @@ def check_designs(
                 built = build_model(low, win, on_batch=on_batch)
                 models[key] = (built, to_lts(built))
                 unbounded[key] = unbounded_note(low, win)
-            low_bound = [bp for bp in bind_all(models[key][0], sp) if only is None or only(bp.name)]
+            low_bound = _selected(bind_all(models[key][0], sp), only)
         results = []
         for i, bp in enumerate(bound):
             if on_stage:
@@ -220,7 +223,7 @@ def design_windows(
     specs: list[SpecFile],
     designs: list[str],
     only: Callable[[str], bool] | None = None,
-) -> list[tuple[str, str, Scene, list[SpecFile], tuple[int, int]]]:
+) -> list[DesignUnit]:
     """Per design: its tracker, scene, properties (the monitor's for ``improved``) and the
     window of the model they need (:func:`check_designs`)."""
     from lesmc.unfold import bind_scene
@@ -230,27 +233,28 @@ def design_windows(
         tracker = "single" if d == "single" else "joint"
         sc = scene.with_tracker(design=tracker)
         sp = [with_monitor(s) for s in specs] if d == "improved" else specs
-        bound = [bp for bp in bind_scene(sc, sp) if only is None or only(bp.name)]
-        out.append((d, tracker, sc, sp, window_of(bound)))
+        out.append((d, tracker, sc, sp, window_of(_selected(bind_scene(sc, sp), only))))
     return out
 
 
+def _selected(
+    bound: list[BoundProperty], only: Callable[[str], bool] | None
+) -> list[BoundProperty]:
+    """The properties ``only`` keeps (all when None)."""
+    return [bp for bp in bound if only is None or only(bp.name)]
+
+
 def hideable(
-    scene: Scene,
-    specs: list[SpecFile],
-    designs: list[str],
+    units: list[DesignUnit],
     on_batch: Callable[[GrowingModel], None] | None = None,
 ) -> dict[int, np.ndarray]:
-    """Per frame, the detections the models of ``designs`` can hide (a superset): the only
-    ones whose certified lower payoffs a check reads (:func:`lesmc.unfold.priced_detections`)."""
+    """Per frame, the detections the models of ``units`` (:func:`design_windows`) can hide
+    (a superset): the only ones whose certified lower payoffs a check reads
+    (:func:`lesmc.unfold.priced_detections`)."""
     from lesmc.unfold import priced_detections
 
     wanted: dict[int, set[int]] = {}
-    done = set()
-    for _, tracker, sc, _, win in design_windows(scene, specs, designs):
-        if (tracker, win) in done:
-            continue
-        done.add((tracker, win))
+    for sc, win in {(tracker, win): (sc, win) for _, tracker, sc, _, win in units}.values():
         for k, dets in priced_detections(sc, win, on_batch=on_batch).items():
             wanted.setdefault(k, set()).update(dets.tolist())
     return {k: np.array(sorted(v), dtype=np.int64) for k, v in sorted(wanted.items())}

@@ -86,7 +86,7 @@ ON_DEMAND_STEPS = 6
     "The attack's payoffs (the paper), the certified lower bounds, or both (holds only "
     "if proven with the lower bounds, violated only with the attack's counterexample; "
     "docs/semantics.md). On a video, certified|interval certify the detections the "
-    "models can hide (about 0.5 s each; `perceive --certify` certifies them all)."
+    "models can hide (about a second each; `perceive --certify` certifies them all)."
 )
 @click.option("--json", "as_json", is_flag=True, help="Print results.json on stdout.")
 @budget_options(
@@ -297,12 +297,10 @@ def _certify(
     from lesmc.verify import design_windows, hideable
 
     started = time.monotonic()
+    units = design_windows(scene, spec_files, designs)
     with err.status("finding the detections the models can hide"):
         wanted = hideable(
-            scene,
-            spec_files,
-            designs,
-            on_batch=lambda m: stop_if_spent(budget, m, "finding the detections to certify"),
+            units, lambda m: stop_if_spent(budget, m, "finding the detections to certify")
         )
     cfg = CertifyConfig(steps=ON_DEMAND_STEPS)
     with progress_bar("certifying", None) as bar:
@@ -321,9 +319,7 @@ def _certify(
         "of": total,
         "scope": "the detections the checked models can hide; the others have no bound",
         "designs": designs,
-        "windows": [
-            list(w) for w in sorted({w for *_, w in design_windows(scene, spec_files, designs)})
-        ],
+        "windows": [list(w) for w in sorted({win for *_, win in units})],
         "seconds": round(time.monotonic() - started, 3),
     }
     out = replace(scene.with_lower(lower), meta={**scene.meta, "certified": summary})
