@@ -298,6 +298,14 @@ def test_verify_certified_nothing_still_checks() -> None:
     spec = parse_spec(SPEC.format(l=1, u=1, c=40, theta=0, theta2=0), "p.spec")
     runs = check_designs(certified, [spec], ["single"], payoffs="interval")
     att = check_designs(scene, [spec], ["single"])
-    for r, a in zip(runs[0].results, att[0].results, strict=True):
+    # independently: the same scene with every payoff written as 0, by brute force
+    doc = json.loads((SCENES / "rq1_platoon.json").read_text())
+    for f in doc["frames"]:
+        for d in f["detections"]:
+            d["payoff"] = 0.0
+    zero = brute(scene_from_dict(doc), SPEC.format(l=1, u=1, c=40, theta=0, theta2=0))
+    for r, a, z in zip(runs[0].results, att[0].results, zero, strict=True):
         assert r.payoffs == "interval"
         assert r.lower <= a.upper
+        c = r.optimum_certified
+        assert (c is None and math.isinf(z)) or math.isclose(c, z, abs_tol=1e-9)
