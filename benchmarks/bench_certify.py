@@ -22,9 +22,25 @@ import torch
 
 from lesmc.perception.attacks import AttackConfig, payoffs, threshold_logit
 from lesmc.perception.certify import CertifyConfig, certified_radius, detect_chain
-from lesmc.perception.cnn import load_nets
+from lesmc.perception.cnn import Nets, load_nets
 from lesmc.perception.detector import Detector
 from lesmc.video.synth import SynthConfig, frames
+
+
+def sample_windows(nets: Nets, n_frames: int, n: int) -> np.ndarray:
+    """``n`` of the N_dr windows the detector attacks on the default video (seed 0)."""
+    det = Detector(nets)
+    windows = []
+    for img, _ in frames(SynthConfig(frames=n_frames)):
+        res = det.push(img)
+        if res is not None:
+            fd = res[1]
+            windows.append(fd.windows[np.unique(fd.source)])
+    pool = np.concatenate(windows)
+    pick = np.random.default_rng(0).choice(len(pool), min(n, len(pool)), replace=False)
+    print(f"{len(pool)} attacked windows on {n_frames} frames; {min(n, len(pool))} sampled")
+    out: np.ndarray = pool[np.sort(pick)]
+    return out
 
 
 def main() -> None:
@@ -36,17 +52,7 @@ def main() -> None:
     args = ap.parse_args()
     print(f"torch threads: {torch.get_num_threads()}; load average {os.getloadavg()[0]:.1f}")
     nets = load_nets()
-    det = Detector(nets)
-    windows = []
-    for img, _ in frames(SynthConfig(frames=args.frames)):
-        res = det.push(img)
-        if res is not None:
-            fd = res[1]
-            windows.append(fd.windows[np.unique(fd.source)])
-    pool = np.concatenate(windows)
-    pick = np.random.default_rng(0).choice(len(pool), min(args.n, len(pool)), replace=False)
-    w = pool[np.sort(pick)]
-    print(f"{len(pool)} attacked windows on {args.frames} frames; {len(w)} sampled")
+    w = sample_windows(nets, args.frames, args.n)
     ref_wall, ref_cpu = [], []
     for _ in range(3):  # the reference is short: best of three against the shared cores' noise
         t0, c0 = time.perf_counter(), time.process_time()

@@ -17,6 +17,7 @@ from lesmc.perception.certify import (
     chain_of,
     detect_chain,
     flip_distances,
+    interval_margin,
     layer_bounds,
     margin_form,
 )
@@ -131,6 +132,38 @@ def test_layer_bounds_contain_every_sampled_activation() -> None:
     # the bounds are not vacuous: the smallest ball keeps most neurons stable
     lo, hi = bounds[0]
     assert float(((lo[0] < 0) & (hi[0] > 0)).float().mean()) < 0.5
+
+
+def test_interval_margin_is_below_every_sampled_margin_and_trains() -> None:
+    """The IBP bound of certified training: sound on sampled points, and differentiable."""
+    torch.manual_seed(4)
+    net = Small((2, 9, 9), [(4, 3, 1, 1), (5, 3, 2, 1), (3, 3, 2, 0)], 6)
+    x0 = torch.rand(3, 2, 9, 9)
+    eps = torch.tensor([0.02, 0.1, 0.4])
+    z0 = x0 - x0.mean(dim=(1, 2, 3), keepdim=True)
+    chain = chain_of(net, 0.3, detach=False)
+    low = interval_margin(chain, Ball(z0, eps, 2 * 81, True))
+    low.sum().backward()
+    grads = [p.grad for p in net.parameters()]
+    assert all(g is not None and bool(g.abs().sum() > 0) for g in grads)
+    assert not any(layer.weight.requires_grad for layer in chain_of(net, 0.3).layers)
+    n = 500
+    d = torch.randn(3, n, 2 * 81)
+    d = d / d.norm(dim=2, keepdim=True) * eps.view(3, 1, 1)
+    d[:, n // 2 :] *= torch.rand(3, n // 2, 1)
+    f = margins(net, (x0[:, None] + d.view(3, n, 2, 9, 9)).view(-1, 2, 9, 9)).view(3, n) - 0.3
+    assert (f >= low.detach()[:, None] - 1e-4).all()
+    # tight at radius 0 (the network's own margin), and looser as the ball grows
+    with torch.no_grad():
+        zero = interval_margin(chain, Ball(z0, torch.zeros(3), 2 * 81, True))
+        gaps = [
+            margins(net, x0)
+            - 0.3
+            - interval_margin(chain, Ball(z0, torch.full((3,), e), 162, True))
+            for e in (0.01, 0.05, 0.2)
+        ]
+    assert torch.allclose(zero, margins(net, x0) - 0.3, atol=1e-4)
+    assert ((gaps[0] <= gaps[1] + 1e-5) & (gaps[1] <= gaps[2] + 1e-5)).all()
 
 
 def strided_case() -> tuple[nn.Module, certify.Chain, np.ndarray]:

@@ -88,12 +88,18 @@ class Chain:
     layers: tuple[Layer, ...]
 
 
-def chain_of(net: nn.Module, t: float, subtract_mean: bool = True) -> Chain:
+def chain_of(net: nn.Module, t: float, subtract_mean: bool = True, detach: bool = True) -> Chain:
     """The Chain of an N_dr-like module (``features``: Conv2d/ReLU; ``head``: Flatten/Linear/ReLU).
 
     The last Linear (two logits) becomes the margin ``logit_1 - logit_0 - t``.
     ``DetectNet`` subtracts each window's mean first (``subtract_mean``).
+    ``detach=False`` keeps the module's parameters, so bounds can be trained on
+    (``interval_margin``).
     """
+
+    def own(p: torch.Tensor) -> torch.Tensor:
+        return (p.detach() if detach else p).float()
+
     channels: int | None = None
     hw: int | None = None
     layers: list[Layer] = []
@@ -126,15 +132,13 @@ def chain_of(net: nn.Module, t: float, subtract_mean: bool = True) -> Chain:
                     raise ValueError("the first convolution needs net.in_shape or a 21x21 input")
                 hw = in_shape[1]
             out = (hw + 2 * p[0] - k[0]) // s[0] + 1
-            layers.append(
-                Conv(mod.weight.detach().float(), mod.bias.detach().float(), s[0], p[0], hw, out)
-            )
+            layers.append(Conv(own(mod.weight), own(mod.bias), s[0], p[0], hw, out))
             hw, channels = out, mod.out_channels
             relu_expected = True
         elif isinstance(mod, nn.Linear):
             if mod.bias is None:
                 raise ValueError("linear layers need a bias")
-            layers.append(Dense(mod.weight.detach().float(), mod.bias.detach().float()))
+            layers.append(Dense(own(mod.weight), own(mod.bias)))
             relu_expected = True
         elif not isinstance(mod, nn.Flatten):
             raise ValueError(f"unsupported layer {mod}")
@@ -149,7 +153,7 @@ def chain_of(net: nn.Module, t: float, subtract_mean: bool = True) -> Chain:
     return Chain(in_shape, subtract_mean, tuple(layers))
 
 
-def detect_chain(net: nn.Module, t: float) -> Chain:
+def detect_chain(net: nn.Module, t: float, detach: bool = True) -> Chain:
     """The Chain of the shipped ``DetectNet`` (21x21 windows, mean subtracted)."""
     from lesmc.perception.cnn import DR_SIZE
 
@@ -158,7 +162,7 @@ def detect_chain(net: nn.Module, t: float) -> Chain:
     c_in = first.in_channels
     net.in_shape = (c_in, DR_SIZE, DR_SIZE)  # type: ignore[assignment]
     try:
-        return chain_of(net, t, subtract_mean=True)
+        return chain_of(net, t, subtract_mean=True, detach=detach)
     finally:
         del net.in_shape
 
@@ -190,6 +194,29 @@ def _affine_abs(layer: Layer, r: torch.Tensor) -> torch.Tensor:
     if isinstance(layer, Conv):
         return F.conv2d(r, layer.weight.abs(), None, layer.stride, layer.padding)
     return F.linear(r.flatten(1), layer.weight.abs())
+
+
+def _interval_step(
+    layer: Layer, lower: torch.Tensor, upper: torch.Tensor
+) -> tuple[torch.Tensor, torch.Tensor]:
+    """Interval bounds of ``layer(ReLU(y))`` from bounds ``lower <= y <= upper`` (IBP)."""
+    hl, hu = lower.clamp(min=0), upper.clamp(min=0)
+    mid = _affine(layer, (hl + hu) / 2)
+    rad = _affine_abs(layer, (hu - hl) / 2)
+    return mid - rad, mid + rad
+
+
+def interval_margin(chain: Chain, ball: Ball) -> torch.Tensor:
+    """A lower bound on the margin over each ball: exact first layer, then interval steps.
+
+    Looser than CROWN (``layer_bounds`` + ``margin_form``) but a few forward
+    passes, and differentiable in the weights of a ``chain_of(..., detach=False)``:
+    the robust loss of certified training (benchmarks/exp_certified_training.py).
+    """
+    lo, hi = _first_layer(chain, ball)
+    for layer in chain.layers[1:]:
+        lo, hi = _interval_step(layer, lo, hi)
+    return lo[:, 0]
 
 
 # ---------------------------------------------------------------- relaxations
@@ -447,12 +474,8 @@ def layer_bounds(
         layer = chain.layers[i]
         if i == 0:
             lo, hi = _first_layer(chain, ball)
-        else:  # one step of interval arithmetic from the previous layer's bounds
-            pl, pu = bounds[-1]
-            hl, hu = pl.clamp(min=0), pu.clamp(min=0)
-            mid = _affine(layer, (hl + hu) / 2)
-            rad = _affine_abs(layer, (hu - hl) / 2)
-            lo, hi = mid - rad, mid + rad
+        else:
+            lo, hi = _interval_step(layer, *bounds[-1])
         if prior is not None:
             lo, hi = torch.maximum(lo, prior[i][0]), torch.minimum(hi, prior[i][1])
         todo = (((lo < 0) & (hi > 0)).flatten(1) & hopeful[:, None]).nonzero()
