@@ -277,3 +277,124 @@ def test_finished_groups_lost_with_their_workers_are_run_again(
         return [w for w, n in done().items() if n]
 
     run_killing(base, tmp_path, holders_once_all_done)
+
+
+def test_interval_rows_match_brute_force_over_both_payoff_sets(
+    base: tuple[Path, Path], tmp_path: Path
+) -> None:
+    """``--payoffs interval`` on a scene perceived by another run (so the video is perceived
+    again for its N_dr windows): the detections the units' models can hide get certified
+    bounds in OUT/scenes, and each row's two optima and verdict are those of an exhaustive
+    search of every attacked path, once with the attack's payoffs and once with the bounds."""
+    import math
+
+    from oracle import brute_force
+
+    from lesmc.campaign.plan import design_specs
+    from lesmc.fileio import read_json
+    from lesmc.language.parser import parse_spec
+    from lesmc.model.lts import to_lts
+    from lesmc.tracking.scene import footage_from_dict
+    from lesmc.unfold import bind_scene, build_model, priced_detections
+
+    def load_scene(path: Path) -> Any:
+        return footage_from_dict(read_json(path), str(path))[0]
+
+    out = seeded(base, tmp_path)
+    args = [str(base[0]), "--out", str(out), "--workers", "0", "--payoffs", "interval", *ARGS]
+    r = lesmc("campaign", *args)
+    no_trace(r)
+    assert r.returncode in (0, 1, 3), r.stderr
+    rows = read_rows(out / "results.jsonl")
+    assert len(rows) == 2 * 4 * 3 * 2
+    attack_keys = {x["key"] for x in read_rows(base[1] / "results.jsonl")}
+    assert not attack_keys & {x["key"] for x in rows}  # interval rows are other units
+    footage = load_scene(out / "scenes" / "tiny.json")
+    assert footage.meta["certified"]["detections"] > 0
+    specs = [parse_spec(p.read_text(), str(p)) for p in bundled_specs()]
+    verdicts = set()
+    hidden: set[tuple[int, int]] = set()
+    for x in rows:
+        t, w = x["target"], (x["window"][0], x["window"][1])
+        scene = place_target(footage, TargetSpec(t["x"], t["y"], t["step"]))
+        scene = scene.with_tracker(design="single" if x["design"] == "single" else "joint")
+        optima = []
+        for sc in (scene, scene.priced("certified")):
+            bp = next(
+                b
+                for b in bind_scene(sc, design_specs(specs, w, x["design"]))
+                if b.name == x["property"]
+            )
+            optima.append(brute_force(to_lts(build_model(sc, (bp.l, bp.u), bp.end)), bp).optimum)
+        a, c = optima
+        op, theta = bp.prop.holds_op, bp.prop.threshold
+        proven = c > theta if op == ">" else c >= theta
+        broken = not (a > theta if op == ">" else a >= theta)
+        expect = "holds" if proven else "violated" if broken else "unknown"
+        assert x["verdict"] == expect, (x, a, c)
+        assert x["payoffs"] == "interval"
+        for key, v in (("optimum_certified", c), ("optimum_attack", a)):
+            assert (x[key] == "inf") if math.isinf(v) else math.isclose(x[key], v, rel_tol=1e-9)
+        assert not any("carry no certified bound" in n for n in x["notes"])
+        verdicts.add(expect)
+        for k, dets in priced_detections(scene, w).items():
+            hidden.update((k, int(i)) for i in dets)
+    assert "violated" in verdicts
+    # the row's command (lesmc verify on the saved scene) gives the row's interval
+    from lesmc.campaign.summary import command
+
+    w = max(rows, key=lambda x: (x["verdict"] != "holds", str(x["optimum_certified"]), x["key"]))
+    cmd = command(w, str(out / "scenes")).split()[1:]
+    assert cmd[-2:] == ["--payoffs", "interval"]
+    rep = lesmc(*cmd, "--out", str(out / "repro"), "--json")
+    no_trace(rep)
+    got = {x["property"]: x for run in json.loads(rep.stdout)["runs"] for x in run["results"]}
+    for key in ("verdict", "optimum_certified", "optimum_attack"):
+        assert got[w["property"]][key] == w[key]
+    # every detection a unit's model can hide has its bound in the saved scene
+    assert all(footage.frame(k).detections[i].payoff_lower is not None for k, i in hidden)
+    # a rerun adds no row and certifies nothing again
+    before = (out / "results.jsonl").read_bytes()
+    again = lesmc("campaign", *args, "--json")
+    no_trace(again)
+    assert (out / "results.jsonl").read_bytes() == before
+    assert load_scene(out / "scenes" / "tiny.json").meta["certified"] == footage.meta["certified"]
+    # the attack's rows on the scene with bounds: the same units (keys) and answers as before
+    plain = lesmc("campaign", str(base[0]), "--out", str(out), "--workers", "0", *ARGS)
+    no_trace(plain)
+    mixed = read_rows(out / "results.jsonl")
+    attack_rows = [x for x in mixed if "payoffs" not in x]
+    assert content(attack_rows) == content(read_rows(base[1] / "results.jsonl"))
+    import jsonschema
+
+    from lesmc.schemas import schema
+
+    for row in rows:
+        jsonschema.validate(row, schema("campaign-row"))
+
+
+def test_interval_refuses_to_certify_a_scene_perceived_with_other_networks(
+    base: tuple[Path, Path], tmp_path: Path
+) -> None:
+    """The video is perceived again for its N_dr windows: with other --nets its detections
+    differ from the scene's, and bounds would belong to other detections. Exit 2, and
+    neither the scene nor results.jsonl is touched."""
+    import torch
+
+    from lesmc.perception.cnn import load_nets, save_nets
+
+    nets = load_nets()
+    with torch.no_grad():
+        nets.dr.head[-1].bias[1] -= 4.0  # N_dr says "vehicle" far less often
+    save_nets(nets, tmp_path / "nets")
+    out = seeded(base, tmp_path)
+    scene = (out / "scenes" / "tiny.json").read_bytes()
+    r = lesmc(
+        "campaign", str(base[0]), "--out", str(out), "--workers", "0", "--payoffs", "interval",
+        "--nets", str(tmp_path / "nets"), *ARGS,
+    )  # fmt: skip
+    no_trace(r)
+    assert r.returncode == 2, r.stderr
+    assert "perceived with other networks" in r.stderr
+    assert (out / "scenes" / "tiny.json").read_bytes() == scene
+    assert not (out / "results.jsonl").exists() or not lines(out / "results.jsonl")

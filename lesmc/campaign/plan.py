@@ -67,11 +67,15 @@ def property_text(p: Property) -> str:
     )
 
 
-def unit_key(scene_key: str, target: TargetSpec, design: str, prop: Property) -> str:
-    """The hash of a unit's inputs: the scene, the target, the design and the property."""
-    text = json.dumps(
-        [KEY_VERSION, scene_key, target.text(), design, property_text(prop)], separators=(",", ":")
-    )
+def unit_key(
+    scene_key: str, target: TargetSpec, design: str, prop: Property, payoffs: str = "attack"
+) -> str:
+    """The hash of a unit's inputs: the scene, the target, the design, the property and the
+    payoff mode (``attack`` adds nothing, so attack keys stay those of earlier versions)."""
+    parts = [KEY_VERSION, scene_key, target.text(), design, property_text(prop)]
+    if payoffs != "attack":
+        parts.append(f"payoffs {payoffs}")
+    text = json.dumps(parts, separators=(",", ":"))
     return hashlib.sha256(text.encode()).hexdigest()[:20]
 
 
@@ -97,6 +101,7 @@ class Group:
     specs: tuple[tuple[str, str], ...]  # (path, text) of each spec file: workers read no files
     timeout: float | None
     max_states: int | None
+    payoffs: str = "attack"  #: attack | certified | interval (docs/semantics.md)
 
     @property
     def name(self) -> str:
@@ -109,6 +114,7 @@ def plan_units(
     specs: list[SpecFile],
     windows: list[tuple[int, int]],
     designs: tuple[str, ...],
+    payoffs: str = "attack",
 ) -> dict[str, list[Unit]]:
     """Every unit of one target, by tracker."""
     out: dict[str, list[Unit]] = {}
@@ -116,13 +122,32 @@ def plan_units(
         for w in windows:
             for spec in design_specs(specs, w, d):
                 for p in spec.properties:
-                    key = unit_key(scene_key, target, d, p)
+                    key = unit_key(scene_key, target, d, p, payoffs)
                     out.setdefault(TRACKER[d], []).append(Unit(key, w, d, p.name))
     return out
 
 
-def scene_key(doc: dict[str, Any]) -> str:
-    """The hash of a scene's content (frames, dt, tracker; not its meta or target)."""
+def scene_key(doc: dict[str, Any], bounds: bool = False) -> str:
+    """The hash of a scene's content (frames, dt, tracker; not its meta or target).
+
+    Without ``bounds`` the detections' certified ``payoff_lower`` are left out: a
+    campaign adds them to its scene as its units need them, and the units' keys
+    stay the same (the bounds follow from the frames). With ``bounds``: the key of
+    the document the workers parse.
+    """
     body = {k: doc[k] for k in ("dt", "frames", "tracker") if k in doc}
+    if not bounds and isinstance(body.get("frames"), list):
+        body["frames"] = [_without_lower(f) for f in body["frames"]]
     text = json.dumps(body, sort_keys=True, separators=(",", ":"), allow_nan=False)
     return hashlib.sha256(text.encode()).hexdigest()[:20]
+
+
+def _without_lower(frame: Any) -> Any:
+    """A scene document's frame without its detections' ``payoff_lower``."""
+    if not (isinstance(frame, dict) and isinstance(frame.get("detections"), list)):
+        return frame
+    dets = [
+        {k: v for k, v in d.items() if k != "payoff_lower"} if isinstance(d, dict) else d
+        for d in frame["detections"]
+    ]
+    return frame | {"detections": dets}

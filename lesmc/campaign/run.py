@@ -12,6 +12,7 @@ row is appended by this process as soon as its group returns.
 from __future__ import annotations
 
 import hashlib
+import time
 from collections.abc import Callable, Iterable
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -42,7 +43,12 @@ class Video:
 
 @dataclass
 class Prepared:
-    """A perceived video: its scene (no target), the scene's JSON and content key."""
+    """A perceived video: its scene (no target), the scene's JSON and content keys.
+
+    ``key`` (units) leaves certified bounds out, ``doc_key`` (the document the workers
+    parse) does not: :func:`certify_scenes` adds bounds without changing the units.
+    ``run``: the perception run, when this process perceived the video.
+    """
 
     video: Video
     footage: Footage
@@ -51,6 +57,11 @@ class Prepared:
     scene_path: Path
     targets: list[TargetSpec] = field(default_factory=list)
     origins: list[str] = field(default_factory=list)
+    run: Any = None
+    doc_key: str = ""
+
+    def __post_init__(self) -> None:
+        self.doc_key = self.doc_key or scene_key(self.doc, bounds=True)
 
 
 def fingerprint(paths: Iterable[Path]) -> str:
@@ -84,18 +95,11 @@ def prepare(video: Video, out: Path, nets_dir: str | None = None) -> Prepared:
             )
         footage, _ = footage_from_dict(doc, str(path))
         return Prepared(video, footage, doc, scene_key(doc), path)
-    from lesmc.perception.attacks import AttackConfig
-    from lesmc.perception.cnn import load_nets
     from lesmc.perception.quality import load_truth
-    from lesmc.perception.run import PerceiveOptions, perceive
-    from lesmc.report.progress import progress_bar
 
     truth = load_truth(str(video.truth)) if video.truth else None
     dt = (truth.dt if truth else None) or 1 / FPS
-    nets = load_nets(nets_dir)
-    opts = PerceiveOptions(history=HISTORY, nets=nets, attack=AttackConfig())
-    with progress_bar(f"perceiving {video.name}", len(frames)) as bar:
-        run = perceive(frames, opts, None, bar.advance)
+    run, nets = perceive_video(video, frames, nets_dir)
     meta = {
         "source": str(video.frames_dir),
         "video": video.origin,
@@ -107,7 +111,142 @@ def prepare(video: Video, out: Path, nets_dir: str | None = None) -> Prepared:
     path.parent.mkdir(parents=True, exist_ok=True)
     save_scene(footage, path)
     doc = scene_to_dict(footage)
-    return Prepared(video, footage, doc, scene_key(doc), path)
+    return Prepared(video, footage, doc, scene_key(doc), path, run=run)
+
+
+def perceive_video(video: Video, frames: Any, nets_dir: str | None) -> tuple[Any, Any]:
+    """The perception run of a video's frames (detections, payoffs, N_dr windows) and the nets."""
+    from lesmc.perception.attacks import AttackConfig
+    from lesmc.perception.cnn import load_nets
+    from lesmc.perception.run import PerceiveOptions, perceive
+    from lesmc.report.progress import progress_bar
+
+    nets = load_nets(nets_dir)
+    opts = PerceiveOptions(history=HISTORY, nets=nets, attack=AttackConfig())
+    with progress_bar(f"perceiving {video.name}", len(frames)) as bar:
+        run = perceive(frames, opts, None, bar.advance)
+    return run, nets
+
+
+# ------------------------------------------------------------------ certified payoffs
+
+
+def same_detections(p: Prepared, run: Any) -> None:
+    """A video perceived again must give its scene's detections (same networks), else the
+    N_dr windows would bound other detections than the scene's."""
+    import numpy as np
+
+    from lesmc.perception.to_scene import footage_from_run
+
+    def where(frame: Any) -> np.ndarray:
+        return np.array([(d.x, d.y) for d in frame.detections], dtype=float).reshape(-1, 2)
+
+    again = footage_from_run(run, p.footage.dt, {})
+    ok = len(again.frames) == len(p.footage.frames) and all(
+        f.step == g.step
+        and len(f.detections) == len(g.detections)
+        and np.allclose(where(f), where(g), rtol=0, atol=1e-3)
+        for f, g in zip(again.frames, p.footage.frames, strict=True)
+    )
+    if not ok:
+        raise UsageError(
+            f"{p.scene_path} was perceived with other networks than this run's "
+            f"(detector: {p.footage.meta.get('detector', 'unknown')}): certifying its "
+            "detections needs the same --nets (or another --out)"
+        )
+
+
+#: Bisection steps of the certified radius search (as lesmc verify's ON_DEMAND_STEPS).
+CERTIFY_STEPS = 6
+
+
+def certify_scenes(
+    prepared: list[Prepared], groups: list[Group], nets_dir: str | None
+) -> list[Group]:
+    """Certified lower payoffs for every detection the groups' models can hide.
+
+    Per video: the union over its groups (target, tracker; the union of their
+    windows) of :func:`lesmc.unfold.priced_detections`, less the detections the
+    scene already bounds (an earlier run), is certified (lesmc.perception.run.
+    certify_detections; the video is perceived again when this process did not
+    perceive it). The scene file gets the bounds; the groups get its new key.
+    A detection no model can hide keeps no bound: the certified model reads it
+    as 0 (docs/semantics.md, "Which detections need a bound").
+    """
+    from dataclasses import replace
+
+    import numpy as np
+
+    from lesmc.perception.attacks import AttackConfig
+    from lesmc.perception.certify import CertifyConfig
+    from lesmc.perception.run import certify_detections
+    from lesmc.report.progress import progress_bar
+    from lesmc.tracking.scene import lower_frames, save_scene, scene_to_dict
+    from lesmc.tracking.targets import place_target
+    from lesmc.unfold import priced_detections
+    from lesmc.video.reader import open_frames
+
+    out: list[Group] = []
+    for p in prepared:
+        mine = [g for g in groups if g.video == p.video.name]
+        if not mine:
+            continue
+        wanted: dict[int, set[int]] = {}
+        for g in mine:
+            scene = place_target(p.footage, g.target).with_tracker(design=g.tracker)
+            window = (min(u.window[0] for u in g.units), max(u.window[1] for u in g.units))
+            for k, dets in priced_detections(scene, window).items():
+                wanted.setdefault(k, set()).update(dets.tolist())
+        todo: dict[int, np.ndarray] = {}
+        for k, found in sorted(wanted.items()):
+            f = p.footage.frame(k)
+            need = [i for i in sorted(found) if f.detections[i].payoff_lower is None]
+            if need:
+                todo[k] = np.array(need, dtype=np.int64)
+        n = sum(len(v) for v in todo.values())
+        if n or "certified" not in p.footage.meta:
+            lower: dict[int, np.ndarray] = {}
+            seconds = 0.0
+            if n:
+                if p.run is None:
+                    frames = open_frames(p.video.frames_dir, HISTORY + 1, check=False)
+                    p.run, nets = perceive_video(p.video, frames, nets_dir)
+                    same_detections(p, p.run)
+                else:
+                    from lesmc.perception.cnn import load_nets
+
+                    nets = load_nets(nets_dir)
+                started = time.monotonic()
+                with progress_bar(f"certifying {p.video.name}", None) as bar:
+                    lower = certify_detections(
+                        nets,
+                        p.run,
+                        todo,
+                        AttackConfig(),
+                        CertifyConfig(steps=CERTIFY_STEPS),
+                        lambda done, total: bar.update(total=total, completed=done),
+                    )
+                seconds = time.monotonic() - started
+            before = p.footage.meta.get("certified", {})
+            done_n = int(before.get("detections", 0)) + n
+            summary = {
+                "method": "CROWN, L2 ball (docs/cnn.md)",
+                "steps": CERTIFY_STEPS,
+                "detections": done_n,
+                "of": sum(len(f.detections) for f in p.footage.frames),
+                "scope": "the detections the campaign's models can hide; the others have no bound",
+                "seconds": round(float(before.get("seconds", 0.0)) + seconds, 3),
+            }
+            p.footage = replace(
+                p.footage,
+                frames=lower_frames(p.footage.frames, lower),
+                meta={**p.footage.meta, "certified": summary},
+            )
+            save_scene(p.footage, p.scene_path)
+            p.doc = scene_to_dict(p.footage)
+            p.doc_key = scene_key(p.doc, bounds=True)
+        out.extend(replace(g, scene_key=p.doc_key) for g in mine)
+    return out
 
 
 # ------------------------------------------------------------------ targets
@@ -227,6 +366,7 @@ def make_groups(
     done: set[str],
     timeout: float | None,
     max_states: int | None,
+    payoffs: str = "attack",
 ) -> tuple[list[Group], int]:
     """The groups still to run (finished units left out) and the number of units in all."""
     texts = tuple((s.path, s.text) for s in specs)
@@ -234,12 +374,22 @@ def make_groups(
     total = 0
     for p in prepared:
         for t in p.targets:
-            for tracker, units in plan_units(p.key, t, specs, windows, designs).items():
+            for tracker, units in plan_units(p.key, t, specs, windows, designs, payoffs).items():
                 total += len(units)
                 todo = tuple(u for u in units if u.key not in done)
                 if todo:
                     groups.append(
-                        Group(p.video.name, p.key, t, tracker, todo, texts, timeout, max_states)  # type: ignore[arg-type]
+                        Group(
+                            p.video.name,
+                            p.doc_key,
+                            t,
+                            tracker,  # type: ignore[arg-type]
+                            todo,
+                            texts,
+                            timeout,
+                            max_states,
+                            payoffs,
+                        )
                     )
     # the joint tracker's groups cost most: start them first (longest first balances workers)
     groups.sort(key=lambda g: (g.tracker != "joint", -len(g.units)))

@@ -48,6 +48,7 @@ def command(row: dict[str, Any], scenes: str) -> str:
     return (
         f"lesmc verify --scene {scenes}/{row['video']}.json --target {_target_text(row['target'])}"
         f" --window {w[0]}..{w[1]} --design {row['design']}"
+        + (f" --payoffs {row['payoffs']}" if "payoffs" in row else "")
     )
 
 
@@ -118,6 +119,7 @@ def summarise(rows: list[dict[str, Any]], scenes: str) -> dict[str, Any]:
         "format": FORMAT,
         "version": VERSION,
         "rows": len(rows),
+        "payoffs": rows[0].get("payoffs", "attack") if rows else "attack",
         "videos": sorted({r["video"] for r in rows}),
         "targets": len({(r["video"], _target_text(r["target"])) for r in rows}),
         "windows": len({tuple(r["window"]) for r in rows}),
@@ -281,6 +283,25 @@ def cell_rows(summary: dict[str, Any], quantile_keys: tuple[str, ...]) -> list[l
     return rows
 
 
+#: What a verdict rests on, per payoff mode other than the attack's (docs/semantics.md).
+PAYOFF_TEXT = {
+    "certified": [
+        "<p>Payoffs: the <b>certified lower bounds</b> (CROWN, docs/cnn.md) of the "
+        "detections the models can hide, 0 for the others. A 'holds' is proven against "
+        "every attack within the threat model; a 'violated' only says that the bounds "
+        "do not prove it (no attack was run).</p>"
+    ],
+    "interval": [
+        "<p>Payoffs: <b>intervals</b>. 'holds' is proven with the certified lower payoffs "
+        "(against every attack within the threat model); 'violated' has the attack's "
+        "counterexample, not replayed here (its row's command with --frames VIDEO_DIR "
+        "replays it through the detector and tracker); 'unknown' lies "
+        "in between, and its optimum, somewhere between the two optima of its row, enters "
+        "no ECDF.</p>"
+    ],
+}
+
+
 def write_html(
     summary: dict[str, Any], figs: dict[str, bytes], out: Path, meta: dict[str, str]
 ) -> Path:
@@ -298,6 +319,7 @@ def write_html(
         f"<p>{s['rows']} results: {len(s['videos'])} video(s), {s['targets']} targets, "
         f"{s['windows']} windows, designs {', '.join(DESIGN_NAMES[d] for d in s['designs'])}, "
         f"properties {', '.join(s['properties'])}.</p>",
+        *PAYOFF_TEXT.get(s["payoffs"], []),
         "<h2>Verdicts and optima (ECDF over targets and windows)</h2>",
     ]
     parts.append(_table(list(CELL_HEADER), cell_rows(s, QUANTILE_KEYS)))

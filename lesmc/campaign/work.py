@@ -10,9 +10,11 @@ from __future__ import annotations
 import math
 from typing import Any
 
-from lesmc.campaign.plan import Group, design_specs
+from lesmc.campaign.plan import Group, Unit, design_specs
 from lesmc.engines.result import CheckResult
-from lesmc.tracking.scene import Footage
+from lesmc.language.properties import SpecFile
+from lesmc.language.semantics import BoundProperty
+from lesmc.tracking.scene import Footage, Scene
 
 #: The scenes this process has parsed, by content key (a worker serves many groups).
 _FOOTAGE: dict[str, Footage] = {}
@@ -43,35 +45,69 @@ def run_group(group: Group, doc: dict[str, Any]) -> list[dict[str, Any]]:
 
     The model is unfolded for the union of the units' windows; each property
     sees only its own window's attacks (a rank-minimal transition elsewhere),
-    so every row is what ``lesmc verify --window L..U`` answers for it. Each
-    check has ``group.timeout`` seconds: past it the row is 'unknown' with the
-    bounds found.
+    so every row is what ``lesmc verify --window L..U --payoffs MODE`` answers
+    for it. Each check has ``group.timeout`` seconds: past it the row is
+    'unknown' with the bounds found. Payoff modes other than ``attack`` check a
+    second model, of the certified lower payoffs (``interval``: both, combined
+    by lesmc/engines/interval.py), with a budget of its own.
     """
-    from lesmc.engines.check import check_lazy
     from lesmc.language.parser import parse_spec
     from lesmc.tracking.targets import place_target
-    from lesmc.unfold import bind_scene, lazy_model, original_end
 
     if not group.units:
         return []
     scene = place_target(footage_of(group.scene_key, doc), group.target)
     scene = scene.with_tracker(design=group.tracker)
     specs = [parse_spec(text, path) for path, text in group.specs]
-    lo = min(u.window[0] for u in group.units)
-    hi = max(u.window[1] for u in group.units)
-    e = original_end(scene)  # the same for every unit of the group
-    model = None
+    window = (min(u.window[0] for u in group.units), max(u.window[1] for u in group.units))
+    attack = _Checker(scene, window, group)
+    low = None if group.payoffs == "attack" else _Checker(scene.priced("certified"), window, group)
     rows = []
     for u in group.units:
-        bound = {
-            bp.name: bp for bp in bind_scene(scene, design_specs(specs, u.window, u.design), e)
-        }
-        bp = bound[u.prop]
-        if model is None:
-            model = lazy_model(scene, (lo, hi), bp.end)
-        r = check_lazy(model, bp, group.max_states, group.timeout)
+        r = attack.check(u, specs)
+        if low is not None:
+            from dataclasses import replace
+
+            from lesmc.engines.interval import combine
+            from lesmc.unfold import payoff_monotone, unbounded_note
+
+            cert = low.check(u, specs)
+            cert = replace(cert, notes=[*cert.notes, *unbounded_note(low.scene, u.window)])
+            if group.payoffs == "certified":
+                r = replace(cert, payoffs="certified")
+            else:
+                r = combine(cert, r, payoff_monotone(attack.bound(u, specs)))
         rows.append(row(group, u.key, u.window, u.design, r))
     return rows
+
+
+class _Checker:
+    """The units' checks on one scene's lazily unfolded model (built at the first check)."""
+
+    def __init__(self, scene: Scene, window: tuple[int, int], group: Group) -> None:
+        from lesmc.unfold import original_end
+
+        self.scene = scene
+        self.window = window
+        self.group = group
+        self.end = original_end(scene)  # the same for every unit of the group
+        self.model: Any = None
+
+    def bound(self, u: Unit, specs: list[SpecFile]) -> BoundProperty:
+        """Unit ``u``'s property bound to this scene."""
+        from lesmc.unfold import bind_scene
+
+        found = bind_scene(self.scene, design_specs(specs, u.window, u.design), self.end)
+        return next(bp for bp in found if bp.name == u.prop)
+
+    def check(self, u: Unit, specs: list[SpecFile]) -> CheckResult:
+        from lesmc.engines.check import check_lazy
+        from lesmc.unfold import lazy_model
+
+        bp = self.bound(u, specs)
+        if self.model is None:
+            self.model = lazy_model(self.scene, self.window, bp.end)
+        return check_lazy(self.model, bp, self.group.max_states, self.group.timeout)
 
 
 def row(
@@ -80,22 +116,36 @@ def row(
     """The ``results.jsonl`` object of one unit (docs/campaign.md)."""
     exact = r.stats.stopped == "finished"
     optimum: float | str | None = r.optimum
-    if r.optimum is None and exact:
+    if not r.optimum_known:
+        optimum = "unknown"  # interval mode: between optimum_certified and optimum_attack
+    elif r.optimum is None and exact:
         optimum = "inf"  # no attacked path violates
-    return {
-        "key": key,
-        "video": group.video,
-        "target": {"step": group.target.step, "x": group.target.x, "y": group.target.y},
-        "window": [window[0], window[1]],
-        "design": design,
-        "property": r.property,
-        "verdict": r.verdict,
-        "optimum": optimum,
-        "witness_value": _num(r.witness_value),
-        "bounds": [_num(r.lower), _num(r.upper)],
-        "holds_if": f"optimum {r.holds_op} {r.threshold:g}",
-        "stats": r.stats.to_json(),
-    } | r.monitor_json()  # monitored properties: the original's alarms, and vacuity
+    extra: dict[str, Any] = {}
+    if r.payoffs != "attack":
+        extra = {"payoffs": r.payoffs, "notes": list(r.notes)}
+    if r.payoffs == "interval":
+        extra |= {
+            "optimum_certified": _num(r.optimum_certified),
+            "optimum_attack": _num(r.optimum_attack),
+        }
+    return (
+        {
+            "key": key,
+            "video": group.video,
+            "target": {"step": group.target.step, "x": group.target.x, "y": group.target.y},
+            "window": [window[0], window[1]],
+            "design": design,
+            "property": r.property,
+            "verdict": r.verdict,
+            "optimum": optimum,
+            "witness_value": _num(r.witness_value),
+            "bounds": [_num(r.lower), _num(r.upper)],
+            "holds_if": f"optimum {r.holds_op} {r.threshold:g}",
+            "stats": r.stats.to_json(),
+        }
+        | r.monitor_json()
+        | extra
+    )  # monitored: the original's alarms, and vacuity
 
 
 def _num(x: float | None) -> float | str | None:

@@ -10,7 +10,13 @@ from typing import Any
 
 import click
 
-from lesmc.cli.options import designs_option, finite_seconds, nets_option, spec_option
+from lesmc.cli.options import (
+    designs_option,
+    finite_seconds,
+    nets_option,
+    payoffs_option,
+    spec_option,
+)
 from lesmc.errors import UsageError
 
 DEFAULT_WINDOWS = "4..12:1..4"
@@ -94,6 +100,12 @@ def _cores() -> int:
     "a truth.json.",
 )
 @nets_option
+@payoffs_option(
+    "As for lesmc verify: the attack's payoffs (the paper), the certified lower bounds, or "
+    "both (holds only if proven with the lower bounds, violated only with the attack's "
+    "counterexample). certified|interval first certify every detection the campaign's "
+    "models can hide (about a second each; kept in OUT/scenes for reruns)."
+)
 @click.option("--json", "as_json", is_flag=True, help="Print the summary's numbers as JSON.")
 def campaign_cmd(
     frames_dirs: tuple[str, ...],
@@ -108,6 +120,7 @@ def campaign_cmd(
     max_states: int,
     no_truth: bool,
     nets_dir: str | None,
+    payoffs: str,
     as_json: bool,
 ) -> None:
     """Verify many targets of each video over the paper's attack windows and designs.
@@ -122,6 +135,7 @@ def campaign_cmd(
     is known; a rerun of the same command skips the lines already there.
     Each line is reproduced by
       lesmc verify --scene OUT/scenes/VIDEO.json --target X,Y@STEP --window L..U --design D
+    (and --payoffs MODE).
     Writes OUT/campaign.html and OUT/figures/campaign_*.png. Exit status:
     0 all hold, 1 some violated, 2 bad input, 3 some unknown, 4 internal error,
     130 interrupted (the lines written are kept).
@@ -155,6 +169,8 @@ def campaign_cmd(
         scheduler,
         timeout,
         max_states,
+        payoffs,
+        nets_dir,
     )
     _finish(rows, out, out_dir, prepared, windows, design, as_json)
 
@@ -251,25 +267,31 @@ def _run(
     scheduler: str | None,
     timeout: float,
     max_states: int,
+    payoffs: str,
+    nets_dir: str | None,
 ) -> list[dict[str, Any]]:
     """Run what is not yet in results.jsonl; return the rows of this campaign."""
     from lesmc.campaign.plan import plan_units
-    from lesmc.campaign.run import execute, make_groups
+    from lesmc.campaign.run import certify_scenes, execute, make_groups
     from lesmc.campaign.store import Appender, read_rows
     from lesmc.report.progress import progress_counter
 
     results = out / "results.jsonl"
     existing = read_rows(results, repair=True)
     done = {str(r["key"]) for r in existing}
-    groups, total = make_groups(prepared, spec_files, windows, designs, done, timeout, max_states)
+    groups, total = make_groups(
+        prepared, spec_files, windows, designs, done, timeout, max_states, payoffs
+    )
+    if payoffs != "attack" and groups:
+        groups = certify_scenes(prepared, groups, nets_dir)
     keys = {
         u.key
         for p in prepared
         for t in p.targets
-        for us in plan_units(p.key, t, spec_files, windows, designs).values()
+        for us in plan_units(p.key, t, spec_files, windows, designs, payoffs).values()
         for u in us
     }
-    docs = {p.key: p.doc for p in prepared}
+    docs = {p.doc_key: p.doc for p in prepared}
     todo = sum(len(g.units) for g in groups)
     with Appender(results, done) as app, progress_counter("campaign", total) as bar:
         bar.advance(total - todo)
@@ -308,6 +330,7 @@ def _finish(
         "windows": f"{len(windows)} ({windows[0][0]}..{windows[0][1]} to "
         f"{windows[-1][0]}..{windows[-1][1]})",
         "design": design,
+        "payoffs": summary["payoffs"],
         "results": str(out / "results.jsonl"),
     }
     report = write_html(summary, figures(summary), out, meta)
@@ -334,7 +357,8 @@ def _print(summary: dict[str, Any]) -> None:
 
     console = make_console()
     table = Table(
-        title=f"lesmc campaign: {summary['targets']} targets x {summary['windows']} windows",
+        title=f"lesmc campaign: {summary['targets']} targets x {summary['windows']} windows"
+        + ("" if summary["payoffs"] == "attack" else f", {summary['payoffs']} payoffs"),
         title_justify="left",
     )
     for c in (*CELL_HEADER, "median optimum"):

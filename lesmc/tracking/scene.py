@@ -264,6 +264,26 @@ class WatchedFrame(Frame):
         return PayoffReads(self._payoffs, self.reads, self.watched)  # type: ignore[return-value]
 
 
+def lower_frames(frames: tuple[Frame, ...], lower: Mapping[int, np.ndarray]) -> tuple[Frame, ...]:
+    """``frames`` with certified lower payoffs ``lower[step][i]`` for detection i of frame
+    ``step`` (``nan``: none; capped by the payoff); detections not given keep theirs."""
+    from dataclasses import replace
+
+    out = []
+    for f in frames:
+        low = lower.get(f.step)
+        if low is not None:
+            f = replace(
+                f,
+                detections=tuple(
+                    d if math.isnan(v) else replace(d, payoff_lower=min(v, d.payoff))
+                    for d, v in zip(f.detections, low.tolist(), strict=True)
+                ),
+            )
+        out.append(f)
+    return tuple(out)
+
+
 @dataclass(frozen=True)
 class Target:
     """Where the track starts: frame step, position, and (default zero) velocity."""
@@ -386,19 +406,7 @@ class Scene(_Frames):
         frame ``step`` (``nan``: none); detections not given keep theirs."""
         from dataclasses import replace
 
-        frames = []
-        for f in self.frames:
-            low = lower.get(f.step)
-            if low is not None:
-                f = replace(
-                    f,
-                    detections=tuple(
-                        d if math.isnan(v) else replace(d, payoff_lower=min(v, d.payoff))
-                        for d, v in zip(f.detections, low.tolist(), strict=True)
-                    ),
-                )
-            frames.append(f)
-        return replace(self, frames=tuple(frames))
+        return replace(self, frames=lower_frames(self.frames, lower))
 
     def with_tracker(self, **changes: Any) -> Scene:
         """The same scene with some tracker parameters replaced (e.g. design)."""
