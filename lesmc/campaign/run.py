@@ -131,6 +131,16 @@ def perceive_video(video: Video, frames: Any, nets_dir: str | None) -> tuple[Any
 # ------------------------------------------------------------------ certified payoffs
 
 
+def widest(windows: set[tuple[int, int]]) -> list[tuple[int, int]]:
+    """The windows not inside another: a window's model holds every path of the windows
+    inside it, so it prices (a superset of) their detections. Probing each unit's window,
+    not their union: a model attacked over the union (13 steps for the paper's windows)
+    can be far larger than any unit's (5 steps), and prices detections no unit reads."""
+    return sorted(
+        w for w in windows if not any(o != w and o[0] <= w[0] and w[1] <= o[1] for o in windows)
+    )
+
+
 def same_detections(p: Prepared, run: Any) -> None:
     """A video perceived again must give its scene's detections (same networks), else the
     N_dr windows would bound other detections than the scene's."""
@@ -165,8 +175,8 @@ def certify_scenes(
 ) -> list[Group]:
     """Certified lower payoffs for every detection the groups' models can hide.
 
-    Per video: the union over its groups (target, tracker; the union of their
-    windows) of :func:`lesmc.unfold.priced_detections`, less the detections the
+    Per video: the union over its groups (target, tracker) and their units' windows
+    of :func:`lesmc.unfold.priced_detections`, less the detections the
     scene already bounds (an earlier run), is certified (lesmc.perception.run.
     certify_detections; the video is perceived again when this process did not
     perceive it). The scene file gets the bounds; the groups get its new key.
@@ -176,6 +186,7 @@ def certify_scenes(
     from dataclasses import replace
 
     import numpy as np
+    from rich.console import Console
 
     from lesmc.perception.attacks import AttackConfig
     from lesmc.perception.certify import CertifyConfig
@@ -186,17 +197,20 @@ def certify_scenes(
     from lesmc.unfold import priced_detections
     from lesmc.video.reader import open_frames
 
+    err = Console(stderr=True)
     out: list[Group] = []
     for p in prepared:
         mine = [g for g in groups if g.video == p.video.name]
         if not mine:
             continue
         wanted: dict[int, set[int]] = {}
-        for g in mine:
-            scene = place_target(p.footage, g.target).with_tracker(design=g.tracker)
-            window = (min(u.window[0] for u in g.units), max(u.window[1] for u in g.units))
-            for k, dets in priced_detections(scene, window).items():
-                wanted.setdefault(k, set()).update(dets.tolist())
+        probes = [(g, w) for g in mine for w in widest({u.window for u in g.units})]
+        with progress_bar(f"what {p.video.name}'s models can hide", len(probes)) as bar:
+            for g, window in probes:
+                scene = place_target(p.footage, g.target).with_tracker(design=g.tracker)
+                for k, dets in priced_detections(scene, window).items():
+                    wanted.setdefault(k, set()).update(dets.tolist())
+                bar.advance()
         todo: dict[int, np.ndarray] = {}
         for k, found in sorted(wanted.items()):
             f = p.footage.frame(k)
@@ -217,6 +231,10 @@ def certify_scenes(
 
                     nets = load_nets(nets_dir)
                 started = time.monotonic()
+                err.print(
+                    f"{p.video.name}: certifying {n} detections (those the models can hide "
+                    "and the scene does not yet bound)"
+                )
                 with progress_bar(f"certifying {p.video.name}", None) as bar:
                     lower = certify_detections(
                         nets,
