@@ -382,7 +382,11 @@ def _finite(dets: tuple[Detection, ...]) -> tuple[Detection, ...]:
 def unbounded_note(scene: Scene, window: tuple[int, int]) -> list[str]:
     """The note of a check on a certified scene (:meth:`Scene.priced`) whose model, attacked
     in ``window``, read detections without a certified bound there (each counted as 0)."""
-    n = scene.unbounded_reads(window)
+    return unbounded_text(scene.unbounded_reads(window))
+
+
+def unbounded_text(n: int) -> list[str]:
+    """The note of a certified check whose model can hide ``n`` detections without a bound."""
     if not n:
         return []
     return [

@@ -371,6 +371,27 @@ def test_interval_rows_match_brute_force_over_both_payoff_sets(
 
     for row in rows:
         jsonschema.validate(row, schema("campaign-row"))
+    # a window whose probe left detections without a bound: its units (only) say so
+    from dataclasses import replace
+
+    from lesmc.campaign.plan import parse_windows
+    from lesmc.campaign.work import run_group
+
+    p = prepare(Video("tiny", base[0], None, "test"), out)
+    for x in rows:
+        spec = TargetSpec(x["target"]["x"], x["target"]["y"], x["target"]["step"])
+        if spec not in p.targets:
+            p.targets.append(spec)
+    groups, _ = make_groups(
+        [p], load_specs(bundled_specs(), None), parse_windows(WINDOWS), ("single",), set(),
+        60.0, None, "interval",
+    )  # fmt: skip
+    g = groups[0]
+    assert {r["key"] for r in run_group(g, p.doc)} <= {x["key"] for x in rows}
+    marked = replace(g, unbounded=(((3, 4), 2),))
+    for r in run_group(marked, p.doc):
+        inside = r["window"][0] >= 3
+        assert any(n.startswith("certified payoffs: 2 detection(s)") for n in r["notes"]) == inside
 
 
 def test_interval_refuses_to_certify_a_scene_perceived_with_other_networks(

@@ -102,6 +102,13 @@ class Group:
     timeout: float | None
     max_states: int | None
     payoffs: str = "attack"  #: attack | certified | interval (docs/semantics.md)
+    #: certified modes: per probed window (lesmc.campaign.run.widest), how many of the
+    #: detections its model can hide carry no certified bound (normally none)
+    unbounded: tuple[tuple[tuple[int, int], int], ...] = ()
+
+    def unbounded_in(self, window: tuple[int, int]) -> int:
+        """``unbounded`` of the first probed window holding ``window`` (0 when none)."""
+        return next((n for (lo, hi), n in self.unbounded if lo <= window[0] and window[1] <= hi), 0)
 
     @property
     def name(self) -> str:

@@ -204,17 +204,21 @@ def certify_scenes(
         if not mine:
             continue
         wanted: dict[int, set[int]] = {}
-        probes = [(g, w) for g in mine for w in widest({u.window for u in g.units})]
+        probes = [(i, w) for i, g in enumerate(mine) for w in widest({u.window for u in g.units})]
+        hideable: dict[tuple[int, tuple[int, int]], list[tuple[int, int]]] = {}
         with progress_bar(f"what {p.video.name}'s models can hide", len(probes)) as bar:
-            for g, window in probes:
+            for i, window in probes:
+                g = mine[i]
                 scene = place_target(p.footage, g.target).with_tracker(design=g.tracker)
-                for k, dets in priced_detections(scene, window).items():
+                found = priced_detections(scene, window)
+                hideable[(i, window)] = [(k, int(d)) for k, dets in found.items() for d in dets]
+                for k, dets in found.items():
                     wanted.setdefault(k, set()).update(dets.tolist())
                 bar.advance()
         todo: dict[int, np.ndarray] = {}
-        for k, found in sorted(wanted.items()):
+        for k, dets_k in sorted(wanted.items()):
             f = p.footage.frame(k)
-            need = [i for i in sorted(found) if f.detections[i].payoff_lower is None]
+            need = [i for i in sorted(dets_k) if f.detections[i].payoff_lower is None]
             if need:
                 todo[k] = np.array(need, dtype=np.int64)
         n = sum(len(v) for v in todo.values())
@@ -263,7 +267,13 @@ def certify_scenes(
             save_scene(p.footage, p.scene_path)
             p.doc = scene_to_dict(p.footage)
             p.doc_key = scene_key(p.doc, bounds=True)
-        out.extend(replace(g, scene_key=p.doc_key) for g in mine)
+        for i, g in enumerate(mine):
+            unbounded = tuple(
+                (w, sum(p.footage.frame(k).detections[d].payoff_lower is None for k, d in dets))
+                for (j, w), dets in hideable.items()
+                if j == i
+            )
+            out.append(replace(g, scene_key=p.doc_key, unbounded=unbounded))
     return out
 
 

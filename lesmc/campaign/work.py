@@ -69,10 +69,13 @@ def run_group(group: Group, doc: dict[str, Any]) -> list[dict[str, Any]]:
             from dataclasses import replace
 
             from lesmc.engines.interval import combine
-            from lesmc.unfold import payoff_monotone, unbounded_note
+            from lesmc.unfold import payoff_monotone, unbounded_text
 
             cert = low.check(u, specs)
-            cert = replace(cert, notes=[*cert.notes, *unbounded_note(low.scene, u.window)])
+            # from the client's probe of the unit's window: the lazy model's own reads also
+            # come from the other units' paths, which the unit's attacks may not reach
+            notes = unbounded_text(group.unbounded_in(u.window))
+            cert = replace(cert, notes=[*cert.notes, *notes])
             if group.payoffs == "certified":
                 r = replace(cert, payoffs="certified")
             else:
