@@ -119,8 +119,8 @@ def row(
     """The ``results.jsonl`` object of one unit (docs/campaign.md)."""
     exact = r.stats.stopped == "finished"
     optimum: float | str | None = r.optimum
-    if not r.optimum_known:
-        optimum = "unknown"  # interval mode: between optimum_certified and optimum_attack
+    if r.payoffs == "interval" and not r.optimum_known and exact:
+        optimum = "unknown"  # strictly between optimum_certified and optimum_attack
     elif r.optimum is None and exact:
         optimum = "inf"  # no attacked path violates
     extra: dict[str, Any] = {}
