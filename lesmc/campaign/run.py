@@ -250,19 +250,19 @@ def certify_scenes(
                     )
                 seconds = time.monotonic() - started
             before = p.footage.meta.get("certified", {})
-            done_n = int(before.get("detections", 0)) + n
+            frames_low = lower_frames(p.footage.frames, lower)
             summary = {
                 "method": "CROWN, L2 ball (docs/cnn.md)",
                 "steps": CERTIFY_STEPS,
-                "detections": done_n,
-                "of": sum(len(f.detections) for f in p.footage.frames),
+                "detections": sum(
+                    d.payoff_lower is not None for f in frames_low for d in f.detections
+                ),
+                "of": sum(len(f.detections) for f in frames_low),
                 "scope": "the detections the campaign's models can hide; the others have no bound",
                 "seconds": round(float(before.get("seconds", 0.0)) + seconds, 3),
             }
             p.footage = replace(
-                p.footage,
-                frames=lower_frames(p.footage.frames, lower),
-                meta={**p.footage.meta, "certified": summary},
+                p.footage, frames=frames_low, meta={**p.footage.meta, "certified": summary}
             )
             save_scene(p.footage, p.scene_path)
             p.doc = scene_to_dict(p.footage)
