@@ -84,7 +84,8 @@ def _cores() -> int:
     callback=finite_seconds,
     default=60.0,
     show_default=True,
-    help="Seconds per result; past it the result is 'unknown' with the bounds found.",
+    help="Seconds per result (per payoff set with --payoffs interval); past it the result "
+    "is 'unknown' with the bounds found.",
 )
 @click.option(
     "--max-states",
