@@ -344,9 +344,13 @@ def priced_detections(
     window: tuple[int, int],
     end: int | None = None,
     on_batch: Callable[[GrowingModel], None] | None = None,
+    reads: dict[int, set[int]] | None = None,
 ) -> dict[int, np.ndarray]:
     """Per frame step, the detections whose payoffs the model of ``scene`` attacked in
     ``window`` reads: a superset of those one of its attacks can hide.
+
+    ``reads`` (empty; filled as the model grows): what was read so far, should
+    ``on_batch`` stop the build by raising.
 
     Only the window's frames count: an attack at step k hides detections of
     frame ``target.step + k``, and outside the window no transition has a
@@ -361,7 +365,8 @@ def priced_detections(
     from dataclasses import replace
 
     first, last = scene.target.step + window[0], scene.target.step + window[1]
-    reads: dict[int, set[int]] = {f.step: set() for f in scene.frames if first <= f.step <= last}
+    reads = {} if reads is None else reads
+    reads.update({f.step: set() for f in scene.frames if first <= f.step <= last})
     frames = tuple(
         WatchedFrame(f.step, _finite(f.detections), f.to_next, None, reads[f.step])
         if f.step in reads

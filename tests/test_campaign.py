@@ -375,7 +375,8 @@ def test_interval_rows_match_brute_force_over_both_payoff_sets(
     from dataclasses import replace
 
     from lesmc.campaign.plan import parse_windows
-    from lesmc.campaign.work import run_group
+    from lesmc.campaign.run import PROBE_STOPPED
+    from lesmc.campaign.work import PROBE_STOPPED_NOTE, run_group
 
     p = prepare(Video("tiny", base[0], None, "test"), out)
     for x in rows:
@@ -388,10 +389,11 @@ def test_interval_rows_match_brute_force_over_both_payoff_sets(
     )  # fmt: skip
     g = groups[0]
     assert {r["key"] for r in run_group(g, p.doc)} <= {x["key"] for x in rows}
-    marked = replace(g, unbounded=(((3, 4), 2),))
+    marked = replace(g, unbounded=(((3, 4), 2), ((2, 3), PROBE_STOPPED)))
     for r in run_group(marked, p.doc):
         inside = r["window"][0] >= 3
         assert any(n.startswith("certified payoffs: 2 detection(s)") for n in r["notes"]) == inside
+        assert (PROBE_STOPPED_NOTE in " ".join(r["notes"])) == (not inside)
 
 
 def test_interval_refuses_to_certify_a_scene_perceived_with_other_networks(

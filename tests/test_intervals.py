@@ -309,3 +309,28 @@ def test_verify_certified_nothing_still_checks() -> None:
         assert r.lower <= a.upper
         c = r.optimum_certified
         assert (c is None and math.isinf(z)) or math.isclose(c, z, abs_tol=1e-9)
+
+
+@pytest.mark.parametrize("design", ["single", "joint"])
+def test_a_probe_stopped_by_a_budget_keeps_what_it_read(design: str) -> None:
+    """lesmc campaign's probe within a unit's budgets: stopped by --max-states it says so and
+    returns part of the full probe's set (what the model read before it stopped)."""
+    from lesmc.campaign.run import probe
+    from lesmc.unfold import priced_detections
+
+    scene = load_scene(SCENES / "rq4_merge.json").with_tracker(design=design)
+    end = scene.last_step - scene.target.step
+    win = (max(1, end - 4), end)
+    full = priced_detections(scene, win)
+    got, complete = probe(scene, win, None, None)
+    assert complete and {k: v.tolist() for k, v in got.items()} == {
+        k: v.tolist() for k, v in full.items()
+    }
+    assert sum(map(len, full.values()))
+    for budget in ((1, None), (None, 0.0)):  # one state; no time
+        part, complete = probe(scene, win, *budget)
+        assert not complete
+        for k, v in part.items():
+            assert set(v.tolist()) <= set(full.get(k, np.array([])).tolist())
+        if design == "single":  # (the joint design reads whole payoff columns up front)
+            assert sum(map(len, part.values())) < sum(map(len, full.values()))

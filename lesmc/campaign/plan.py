@@ -107,8 +107,12 @@ class Group:
     unbounded: tuple[tuple[tuple[int, int], int], ...] = ()
 
     def unbounded_in(self, window: tuple[int, int]) -> int:
-        """``unbounded`` of the first probed window holding ``window`` (0 when none)."""
-        return next((n for (lo, hi), n in self.unbounded if lo <= window[0] and window[1] <= hi), 0)
+        """``unbounded`` for a unit's ``window``: the least over the probed windows holding
+        it whose probe finished (each prices a superset of the unit's detections); else
+        that of a stopped probe (negative); 0 when none holds it."""
+        counts = [n for (lo, hi), n in self.unbounded if lo <= window[0] and window[1] <= hi]
+        known = [n for n in counts if n >= 0]
+        return min(known) if known else (counts[0] if counts else 0)
 
     @property
     def name(self) -> str:

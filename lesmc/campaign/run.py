@@ -141,6 +141,42 @@ def widest(windows: set[tuple[int, int]]) -> list[tuple[int, int]]:
     )
 
 
+#: ``Group.unbounded`` of a window whose probe a budget stopped: the count is unknown.
+PROBE_STOPPED = -1
+
+
+class _ProbeBudget(Exception):
+    """The probe's model outgrew the campaign's --max-states or --timeout."""
+
+
+def probe(
+    scene: Any, window: tuple[int, int], max_states: int | None, seconds: float | None
+) -> tuple[dict[int, Any], bool]:
+    """:func:`lesmc.unfold.priced_detections` within a unit's budgets, and whether it finished.
+
+    A stopped probe keeps what its model read so far: those are certified, and the
+    units of the window say that detections may lack a bound (counted as 0: sound).
+    """
+    import numpy as np
+
+    from lesmc.unfold import priced_detections
+
+    started = time.monotonic()
+
+    def spent(model: Any) -> None:
+        if (max_states is not None and model.n_states > max_states) or (
+            seconds is not None and time.monotonic() - started > seconds
+        ):
+            raise _ProbeBudget
+
+    reads: dict[int, set[int]] = {}
+    try:
+        return priced_detections(scene, window, on_batch=spent, reads=reads), True
+    except _ProbeBudget:
+        read = {k: np.array(sorted(v), dtype=np.int64) for k, v in reads.items() if v}
+        return read, False
+
+
 def same_detections(p: Prepared, run: Any) -> None:
     """A video perceived again must give its scene's detections (same networks), else the
     N_dr windows would bound other detections than the scene's."""
@@ -194,7 +230,6 @@ def certify_scenes(
     from lesmc.report.progress import progress_bar
     from lesmc.tracking.scene import lower_frames, save_scene, scene_to_dict
     from lesmc.tracking.targets import place_target
-    from lesmc.unfold import priced_detections
     from lesmc.video.reader import open_frames
 
     err = Console(stderr=True)
@@ -206,12 +241,15 @@ def certify_scenes(
         wanted: dict[int, set[int]] = {}
         probes = [(i, w) for i, g in enumerate(mine) for w in widest({u.window for u in g.units})]
         hideable: dict[tuple[int, tuple[int, int]], list[tuple[int, int]]] = {}
+        stopped: set[tuple[int, tuple[int, int]]] = set()
         with progress_bar(f"what {p.video.name}'s models can hide", len(probes)) as bar:
             for i, window in probes:
                 g = mine[i]
                 scene = place_target(p.footage, g.target).with_tracker(design=g.tracker)
-                found = priced_detections(scene, window)
+                found, complete = probe(scene, window, g.max_states, g.timeout)
                 hideable[(i, window)] = [(k, int(d)) for k, dets in found.items() for d in dets]
+                if not complete:
+                    stopped.add((i, window))
                 for k, dets in found.items():
                     wanted.setdefault(k, set()).update(dets.tolist())
                 bar.advance()
@@ -269,7 +307,14 @@ def certify_scenes(
             p.doc_key = scene_key(p.doc, bounds=True)
         for i, g in enumerate(mine):
             unbounded = tuple(
-                (w, sum(p.footage.frame(k).detections[d].payoff_lower is None for k, d in dets))
+                (
+                    w,
+                    PROBE_STOPPED
+                    if (j, w) in stopped
+                    else sum(
+                        p.footage.frame(k).detections[d].payoff_lower is None for k, d in dets
+                    ),
+                )
                 for (j, w), dets in hideable.items()
                 if j == i
             )

@@ -16,6 +16,13 @@ from lesmc.language.properties import SpecFile
 from lesmc.language.semantics import BoundProperty
 from lesmc.tracking.scene import Footage, Scene
 
+#: The note of a unit whose window's probe a budget stopped (lesmc.campaign.run.probe).
+PROBE_STOPPED_NOTE = (
+    "finding the detections this window's model can hide stopped at the campaign's "
+    "--max-states or --timeout: some may carry no certified bound and count as 0, the "
+    "trivial bound (the certified optimum is sound but may be far below the true one)"
+)
+
 #: The scenes this process has parsed, by content key (a worker serves many groups).
 _FOOTAGE: dict[str, Footage] = {}
 
@@ -74,7 +81,8 @@ def run_group(group: Group, doc: dict[str, Any]) -> list[dict[str, Any]]:
             cert = low.check(u, specs)
             # from the client's probe of the unit's window: the lazy model's own reads also
             # come from the other units' paths, which the unit's attacks may not reach
-            notes = unbounded_text(group.unbounded_in(u.window))
+            n = group.unbounded_in(u.window)
+            notes = unbounded_text(n) if n >= 0 else [PROBE_STOPPED_NOTE]
             cert = replace(cert, notes=[*cert.notes, *notes])
             if group.payoffs == "certified":
                 r = replace(cert, payoffs="certified")
