@@ -61,7 +61,7 @@ def main() -> None:
     for workers in counts:
         rows: list[dict[str, object]] = []
         t0 = time.perf_counter()
-        execute(groups, {p.key: p.doc}, rows.extend, workers, None)
+        execute(groups, {p.doc_key: p.doc}, rows.extend, workers, None)
         seconds[workers] = time.perf_counter() - t0
         unknown[workers] = sum(r["verdict"] == "unknown" for r in rows)
         assert len(rows) == total

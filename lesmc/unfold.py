@@ -345,12 +345,14 @@ def priced_detections(
     end: int | None = None,
     on_batch: Callable[[GrowingModel], None] | None = None,
     reads: dict[int, set[int]] | None = None,
+    max_states: int | None = None,
 ) -> dict[int, np.ndarray]:
     """Per frame step, the detections whose payoffs the model of ``scene`` attacked in
     ``window`` reads: a superset of those one of its attacks can hide.
 
     ``reads`` (empty; filled as the model grows): what was read so far, should
-    ``on_batch`` stop the build by raising.
+    ``on_batch`` stop the build by raising (``max_states``: the limit it enforces,
+    so that batches shrink near it, as in :func:`build_model`).
 
     Only the window's frames count: an attack at step k hides detections of
     frame ``target.step + k``, and outside the window no transition has a
@@ -373,7 +375,9 @@ def priced_detections(
         else f
         for f in scene.frames
     )
-    build_model(replace(scene, frames=frames), window, end, on_batch=on_batch)
+    build_model(
+        replace(scene, frames=frames), window, end, on_batch=on_batch, max_states=max_states
+    )
     return {k: np.array(sorted(v), dtype=np.int64) for k, v in reads.items() if v}
 
 

@@ -245,7 +245,7 @@ def run_killing(
                     os.kill(pid, signal.SIGKILL)
                     killed.append(pid)
 
-        execute(groups, {p.key: p.doc}, on_rows, 0, cluster.scheduler_address)
+        execute(groups, {p.doc_key: p.doc}, on_rows, 0, cluster.scheduler_address)
     assert killed  # some worker died with a group in flight or a result in memory
     assert content(rows) == content(ref)
 
@@ -313,6 +313,7 @@ def test_interval_rows_match_brute_force_over_both_payoff_sets(
     assert footage.meta["certified"]["detections"] > 0
     specs = [parse_spec(p.read_text(), str(p)) for p in bundled_specs()]
     verdicts = set()
+    truth: dict[Any, tuple[float, str, float]] = {}  # per unit: certified optimum, op, θ
     hidden: set[tuple[int, int]] = set()
     for x in rows:
         t, w = x["target"], (x["window"][0], x["window"][1])
@@ -337,6 +338,8 @@ def test_interval_rows_match_brute_force_over_both_payoff_sets(
             assert (x[key] == "inf") if math.isinf(v) else math.isclose(x[key], v, rel_tol=1e-9)
         assert not any("carry no certified bound" in n for n in x["notes"])
         verdicts.add(expect)
+        assert x["stats"]["certified"]["stopped"] == "finished"
+        truth[(str(t), w, x["design"], x["property"])] = (c, op, theta)
         for k, dets in priced_detections(scene, w).items():
             hidden.update((k, int(i)) for i in dets)
     assert "violated" in verdicts
@@ -359,6 +362,16 @@ def test_interval_rows_match_brute_force_over_both_payoff_sets(
     no_trace(again)
     assert (out / "results.jsonl").read_bytes() == before
     assert load_scene(out / "scenes" / "tiny.json").meta["certified"] == footage.meta["certified"]
+    # --payoffs certified: the certified optimum alone decides (holds, or else violated)
+    cert = lesmc("campaign", *[("certified" if a == "interval" else a) for a in args])
+    no_trace(cert)
+    certified = [x for x in read_rows(out / "results.jsonl") if x.get("payoffs") == "certified"]
+    assert len(certified) == len(rows)
+    for x in certified:
+        c, op, theta = truth[(str(x["target"]), tuple(x["window"]), x["design"], x["property"])]
+        assert x["verdict"] == ("holds" if (c > theta if op == ">" else c >= theta) else "violated")
+        assert x["optimum"] == ("inf" if math.isinf(c) else pytest.approx(c, rel=1e-9))
+        assert "optimum_certified" not in x and "certified" not in x["stats"]
     # the attack's rows on the scene with bounds: the same units (keys) and answers as before
     plain = lesmc("campaign", str(base[0]), "--out", str(out), "--workers", "0", *ARGS)
     no_trace(plain)

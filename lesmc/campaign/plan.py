@@ -34,6 +34,8 @@ TRACKER: dict[str, Literal["single", "joint"]] = {
     "joint": "joint",
     "improved": "joint",
 }
+#: ``Group.unbounded`` of a window whose probe a budget stopped: the count is unknown.
+PROBE_STOPPED = -1
 #: Bumped when a unit's answer could change for the same inputs: old keys are then redone.
 KEY_VERSION = 1
 
@@ -109,10 +111,10 @@ class Group:
     def unbounded_in(self, window: tuple[int, int]) -> int:
         """``unbounded`` for a unit's ``window``: the least over the probed windows holding
         it whose probe finished (each prices a superset of the unit's detections); else
-        that of a stopped probe (negative); 0 when none holds it."""
+        :data:`PROBE_STOPPED` (a stopped probe, or none: nothing is known)."""
         counts = [n for (lo, hi), n in self.unbounded if lo <= window[0] and window[1] <= hi]
         known = [n for n in counts if n >= 0]
-        return min(known) if known else (counts[0] if counts else 0)
+        return min(known) if known else PROBE_STOPPED
 
     @property
     def name(self) -> str:
@@ -144,9 +146,12 @@ def scene_key(doc: dict[str, Any], bounds: bool = False) -> str:
     Without ``bounds`` the detections' certified ``payoff_lower`` are left out: a
     campaign adds them to its scene as its units need them, and the units' keys
     stay the same (the bounds follow from the frames). With ``bounds``: the key of
-    the document the workers parse.
+    the document the workers parse (and cache), ``meta.certified`` included, which a
+    certified scene without any bound needs (:meth:`lesmc.tracking.scene.Scene.priced`).
     """
-    body = {k: doc[k] for k in ("dt", "frames", "tracker") if k in doc}
+    body: dict[str, Any] = {k: doc[k] for k in ("dt", "frames", "tracker") if k in doc}
+    if bounds and isinstance(doc.get("meta"), dict) and "certified" in doc["meta"]:
+        body["certified"] = doc["meta"]["certified"]
     if not bounds and isinstance(body.get("frames"), list):
         body["frames"] = [_without_lower(f) for f in body["frames"]]
     text = json.dumps(body, sort_keys=True, separators=(",", ":"), allow_nan=False)

@@ -18,7 +18,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from lesmc.campaign.plan import Group, plan_units, scene_key
+from lesmc.campaign.plan import PROBE_STOPPED, Group, plan_units, scene_key
 from lesmc.errors import InputError, Location, UsageError
 from lesmc.fileio import read_json
 from lesmc.language.properties import SpecFile
@@ -141,10 +141,6 @@ def widest(windows: set[tuple[int, int]]) -> list[tuple[int, int]]:
     )
 
 
-#: ``Group.unbounded`` of a window whose probe a budget stopped: the count is unknown.
-PROBE_STOPPED = -1
-
-
 class _ProbeBudget(Exception):
     """The probe's model outgrew the campaign's --max-states or --timeout."""
 
@@ -171,15 +167,16 @@ def probe(
 
     reads: dict[int, set[int]] = {}
     try:
-        return priced_detections(scene, window, on_batch=spent, reads=reads), True
+        found = priced_detections(scene, window, on_batch=spent, reads=reads, max_states=max_states)
+        return found, True
     except _ProbeBudget:
         read = {k: np.array(sorted(v), dtype=np.int64) for k, v in reads.items() if v}
         return read, False
 
 
-def same_detections(p: Prepared, run: Any) -> None:
-    """A video perceived again must give its scene's detections (same networks), else the
-    N_dr windows would bound other detections than the scene's."""
+def same_detections(p: Prepared, run: Any, nets: Any) -> None:
+    """A video perceived again must give its scene's detections and payoffs, with the
+    networks its meta names, else the certified bounds would be of another network."""
     import numpy as np
 
     from lesmc.perception.to_scene import footage_from_run
@@ -187,13 +184,19 @@ def same_detections(p: Prepared, run: Any) -> None:
     def where(frame: Any) -> np.ndarray:
         return np.array([(d.x, d.y) for d in frame.detections], dtype=float).reshape(-1, 2)
 
+    def pay(frame: Any) -> np.ndarray:
+        return np.array([d.payoff for d in frame.detections], dtype=float)
+
     again = footage_from_run(run, p.footage.dt, {})
     ok = len(again.frames) == len(p.footage.frames) and all(
         f.step == g.step
         and len(f.detections) == len(g.detections)
         and np.allclose(where(f), where(g), rtol=0, atol=1e-3)
+        and np.allclose(pay(f), pay(g), rtol=1e-4, atol=1e-6, equal_nan=True)
         for f, g in zip(again.frames, p.footage.frames, strict=True)
     )
+    recorded = p.footage.meta.get("detector")
+    ok = ok and (recorded is None or recorded == nets.settings.trained_on)
     if not ok:
         raise UsageError(
             f"{p.scene_path} was perceived with other networks than this run's "
@@ -267,7 +270,7 @@ def certify_scenes(
                 if p.run is None:
                     frames = open_frames(p.video.frames_dir, HISTORY + 1, check=False)
                     p.run, nets = perceive_video(p.video, frames, nets_dir)
-                    same_detections(p, p.run)
+                    same_detections(p, p.run, nets)
                 else:
                     from lesmc.perception.cnn import load_nets
 
@@ -319,6 +322,8 @@ def certify_scenes(
                 if j == i
             )
             out.append(replace(g, scene_key=p.doc_key, unbounded=unbounded))
+        p.run = None  # its windows are no longer needed
+    out.sort(key=group_order)
     return out
 
 
@@ -464,9 +469,14 @@ def make_groups(
                             payoffs,
                         )
                     )
-    # the joint tracker's groups cost most: start them first (longest first balances workers)
-    groups.sort(key=lambda g: (g.tracker != "joint", -len(g.units)))
+    groups.sort(key=group_order)
     return groups, total
+
+
+def group_order(g: Group) -> tuple[bool, int]:
+    """The joint tracker's groups cost most: they start first (longest first balances
+    the workers)."""
+    return (g.tracker != "joint", -len(g.units))
 
 
 RowsHandler = Callable[[list[dict[str, Any]]], None]

@@ -67,28 +67,30 @@ def run_group(group: Group, doc: dict[str, Any]) -> list[dict[str, Any]]:
     scene = scene.with_tracker(design=group.tracker)
     specs = [parse_spec(text, path) for path, text in group.specs]
     window = (min(u.window[0] for u in group.units), max(u.window[1] for u in group.units))
-    attack = _Checker(scene, window, group)
+    attack = None if group.payoffs == "certified" else _Checker(scene, window, group)
     low = None if group.payoffs == "attack" else _Checker(scene.priced("certified"), window, group)
     rows = []
     for u in group.units:
-        r = attack.check(u, specs)
-        if low is not None:
-            from dataclasses import replace
+        if low is None:
+            assert attack is not None
+            rows.append(row(group, u.key, u.window, u.design, attack.check(u, specs)))
+            continue
+        from dataclasses import replace
 
-            from lesmc.engines.interval import combine
-            from lesmc.unfold import payoff_monotone, unbounded_text
+        from lesmc.engines.interval import combine
+        from lesmc.unfold import payoff_monotone, unbounded_text
 
-            cert = low.check(u, specs)
-            # from the client's probe of the unit's window: the lazy model's own reads also
-            # come from the other units' paths, which the unit's attacks may not reach
-            n = group.unbounded_in(u.window)
-            notes = unbounded_text(n) if n >= 0 else [PROBE_STOPPED_NOTE]
-            cert = replace(cert, notes=[*cert.notes, *notes])
-            if group.payoffs == "certified":
-                r = replace(cert, payoffs="certified")
-            else:
-                r = combine(cert, r, payoff_monotone(attack.bound(u, specs)))
-        rows.append(row(group, u.key, u.window, u.design, r))
+        cert = low.check(u, specs)
+        # from the client's probe of the unit's window: the lazy model's own reads also
+        # come from the other units' paths, which the unit's attacks may not reach
+        n = group.unbounded_in(u.window)
+        notes = unbounded_text(n) if n >= 0 else [PROBE_STOPPED_NOTE]
+        cert = replace(cert, notes=[*cert.notes, *notes])
+        if attack is None:
+            r = replace(cert, payoffs="certified")
+        else:
+            r = combine(cert, attack.check(u, specs), payoff_monotone(low.bound(u, specs)))
+        rows.append(row(group, u.key, u.window, u.design, r, cert))
     return rows
 
 
@@ -101,7 +103,7 @@ class _Checker:
         self.scene = scene
         self.window = window
         self.group = group
-        self.end = original_end(scene)  # the same for every unit of the group
+        self.end = original_end(scene)  # the same for every unit (and payoff set) of the group
         self.model: Any = None
 
     def bound(self, u: Unit, specs: list[SpecFile]) -> BoundProperty:
@@ -122,10 +124,20 @@ class _Checker:
 
 
 def row(
-    group: Group, key: str, window: tuple[int, int], design: str, r: CheckResult
+    group: Group,
+    key: str,
+    window: tuple[int, int],
+    design: str,
+    r: CheckResult,
+    certified: CheckResult | None = None,
 ) -> dict[str, Any]:
-    """The ``results.jsonl`` object of one unit (docs/campaign.md)."""
+    """The ``results.jsonl`` object of one unit (docs/campaign.md); ``certified``: the
+    check with certified payoffs behind an interval (or certified) result."""
+    stats = r.stats.to_json()
     exact = r.stats.stopped == "finished"
+    if certified is not None and certified is not r and r.payoffs == "interval":
+        stats["certified"] = certified.stats.to_json()
+        exact = exact and certified.stats.stopped == "finished"
     optimum: float | str | None = r.optimum
     if r.payoffs == "interval" and not r.optimum_known and exact:
         optimum = "unknown"  # strictly between optimum_certified and optimum_attack
@@ -152,7 +164,7 @@ def row(
             "witness_value": _num(r.witness_value),
             "bounds": [_num(r.lower), _num(r.upper)],
             "holds_if": f"optimum {r.holds_op} {r.threshold:g}",
-            "stats": r.stats.to_json(),
+            "stats": stats,
         }
         | r.monitor_json()
         | extra
