@@ -20,7 +20,7 @@ coinciding ones. Following stormpy: ``build_model(scene, ...)``, then
 from __future__ import annotations
 
 import time
-from collections.abc import Callable, Iterable
+from collections.abc import Callable, Iterable, Mapping
 
 import numpy as np
 
@@ -379,6 +379,15 @@ def priced_detections(
         replace(scene, frames=frames), window, end, on_batch=on_batch, max_states=max_states
     )
     return {k: np.array(sorted(v), dtype=np.int64) for k, v in reads.items() if v}
+
+
+def merged_detections(sets: Iterable[Mapping[int, np.ndarray]]) -> dict[int, np.ndarray]:
+    """The union, per frame step, of several :func:`priced_detections` answers (sorted)."""
+    union: dict[int, set[int]] = {}
+    for found in sets:
+        for k, dets in found.items():
+            union.setdefault(k, set()).update(dets.tolist())
+    return {k: np.array(sorted(v), dtype=np.int64) for k, v in sorted(union.items())}
 
 
 def _finite(dets: tuple[Detection, ...]) -> tuple[Detection, ...]:

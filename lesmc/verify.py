@@ -251,13 +251,10 @@ def hideable(
     """Per frame, the detections the models of ``units`` (:func:`design_windows`) can hide
     (a superset): the only ones whose certified lower payoffs a check reads
     (:func:`lesmc.unfold.priced_detections`)."""
-    from lesmc.unfold import priced_detections
+    from lesmc.unfold import merged_detections, priced_detections
 
-    wanted: dict[int, set[int]] = {}
-    for sc, win in {(tracker, win): (sc, win) for _, tracker, sc, _, win in units}.values():
-        for k, dets in priced_detections(sc, win, on_batch=on_batch).items():
-            wanted.setdefault(k, set()).update(dets.tolist())
-    return {k: np.array(sorted(v), dtype=np.int64) for k, v in sorted(wanted.items())}
+    models = {(tracker, win): (sc, win) for _, tracker, sc, _, win in units}.values()
+    return merged_detections(priced_detections(sc, win, on_batch=on_batch) for sc, win in models)
 
 
 def _check(

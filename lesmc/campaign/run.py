@@ -13,7 +13,7 @@ from __future__ import annotations
 
 import hashlib
 import time
-from collections.abc import Callable, Iterable
+from collections.abc import Callable, Iterable, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -62,6 +62,14 @@ class Prepared:
 
     def __post_init__(self) -> None:
         self.doc_key = self.doc_key or scene_key(self.doc, bounds=True)
+
+    def set_footage(self, footage: Footage) -> None:
+        """Replace the scene (with bounds added): its document and document key follow."""
+        from lesmc.tracking.scene import scene_to_dict
+
+        self.footage = footage
+        self.doc = scene_to_dict(footage)
+        self.doc_key = scene_key(self.doc, bounds=True)
 
 
 def fingerprint(paths: Iterable[Path]) -> str:
@@ -174,6 +182,19 @@ def probe(
         return read, False
 
 
+def without_bound(footage: Footage, dets_by_step: Mapping[int, Iterable[int]]) -> dict[int, Any]:
+    """Per frame step, the given detections that carry no ``payoff_lower`` yet (sorted)."""
+    import numpy as np
+
+    out = {}
+    for k, dets in sorted(dets_by_step.items()):
+        frame = footage.frame(k)
+        need = sorted(int(i) for i in dets if frame.detections[int(i)].payoff_lower is None)
+        if need:
+            out[k] = np.array(need, dtype=np.int64)
+    return out
+
+
 def same_detections(p: Prepared, run: Any, nets: Any) -> None:
     """A video perceived again must give its scene's detections and payoffs, with the
     networks its meta names, else the certified bounds would be of another network."""
@@ -227,12 +248,11 @@ def certify_scenes(
     import numpy as np
     from rich.console import Console
 
-    from lesmc.perception.attacks import AttackConfig
-    from lesmc.perception.certify import CertifyConfig
-    from lesmc.perception.run import certify_detections
+    from lesmc.perception.run import certification_meta, certify_on_demand
     from lesmc.report.progress import progress_bar
-    from lesmc.tracking.scene import lower_frames, save_scene, scene_to_dict
+    from lesmc.tracking.scene import lower_frames, save_scene
     from lesmc.tracking.targets import place_target
+    from lesmc.unfold import merged_detections
     from lesmc.video.reader import open_frames
 
     err = Console(stderr=True)
@@ -241,31 +261,18 @@ def certify_scenes(
         mine = [g for g in groups if g.video == p.video.name]
         if not mine:
             continue
-        wanted: dict[int, set[int]] = {}
-        probes = [(i, w) for i, g in enumerate(mine) for w in widest({u.window for u in g.units})]
-        hideable: dict[tuple[int, tuple[int, int]], list[tuple[int, int]]] = {}
-        stopped: set[tuple[int, tuple[int, int]]] = set()
+        probes = [(g, w) for g in mine for w in widest({u.window for u in g.units})]
+        found: list[tuple[dict[int, np.ndarray], bool]] = []  # per probe: its set, finished
         with progress_bar(f"what {p.video.name}'s models can hide", len(probes)) as bar:
-            for i, window in probes:
-                g = mine[i]
+            for g, window in probes:
                 scene = place_target(p.footage, g.target).with_tracker(design=g.tracker)
-                found, complete = probe(scene, window, g.max_states, g.timeout)
-                hideable[(i, window)] = [(k, int(d)) for k, dets in found.items() for d in dets]
-                if not complete:
-                    stopped.add((i, window))
-                for k, dets in found.items():
-                    wanted.setdefault(k, set()).update(dets.tolist())
+                found.append(probe(scene, window, g.max_states, g.timeout))
                 bar.advance()
-        todo: dict[int, np.ndarray] = {}
-        for k, dets_k in sorted(wanted.items()):
-            f = p.footage.frame(k)
-            need = [i for i in sorted(dets_k) if f.detections[i].payoff_lower is None]
-            if need:
-                todo[k] = np.array(need, dtype=np.int64)
+        todo = without_bound(p.footage, merged_detections(dets for dets, _ in found))
         n = sum(len(v) for v in todo.values())
         if n or "certified" not in p.footage.meta:
             lower: dict[int, np.ndarray] = {}
-            seconds = 0.0
+            seconds = float(p.footage.meta.get("certified", {}).get("seconds", 0.0))
             if n:
                 if p.run is None:
                     frames = open_frames(p.video.frames_dir, HISTORY + 1, check=False)
@@ -281,45 +288,28 @@ def certify_scenes(
                     "and the scene does not yet bound)"
                 )
                 with progress_bar(f"certifying {p.video.name}", None) as bar:
-                    lower = certify_detections(
+                    lower = certify_on_demand(
                         nets,
                         p.run,
                         todo,
-                        AttackConfig(),
-                        CertifyConfig(steps=CERTIFY_STEPS),
                         lambda done, total: bar.update(total=total, completed=done),
                     )
-                seconds = time.monotonic() - started
-            before = p.footage.meta.get("certified", {})
+                seconds += time.monotonic() - started
             frames_low = lower_frames(p.footage.frames, lower)
-            summary = {
-                "method": "CROWN, L2 ball (docs/cnn.md)",
-                "steps": CERTIFY_STEPS,
-                "detections": sum(
-                    d.payoff_lower is not None for f in frames_low for d in f.detections
-                ),
-                "of": sum(len(f.detections) for f in frames_low),
-                "scope": "the detections the campaign's models can hide; the others have no bound",
-                "seconds": round(float(before.get("seconds", 0.0)) + seconds, 3),
-            }
-            p.footage = replace(
-                p.footage, frames=frames_low, meta={**p.footage.meta, "certified": summary}
-            )
+            scope = "the detections the campaign's models can hide; the others have no bound"
+            meta = {**p.footage.meta, "certified": certification_meta(frames_low, scope, seconds)}
+            p.set_footage(replace(p.footage, frames=frames_low, meta=meta))
             save_scene(p.footage, p.scene_path)
-            p.doc = scene_to_dict(p.footage)
-            p.doc_key = scene_key(p.doc, bounds=True)
-        for i, g in enumerate(mine):
+        for g in mine:
             unbounded = tuple(
                 (
                     w,
-                    PROBE_STOPPED
-                    if (j, w) in stopped
-                    else sum(
-                        p.footage.frame(k).detections[d].payoff_lower is None for k, d in dets
-                    ),
+                    sum(map(len, without_bound(p.footage, dets).values()))
+                    if done
+                    else PROBE_STOPPED,
                 )
-                for (j, w), dets in hideable.items()
-                if j == i
+                for (h, w), (dets, done) in zip(probes, found, strict=True)
+                if h is g
             )
             out.append(replace(g, scene_key=p.doc_key, unbounded=unbounded))
         p.run = None  # its windows are no longer needed

@@ -285,20 +285,20 @@ def cell_rows(summary: dict[str, Any], quantile_keys: tuple[str, ...]) -> list[l
 
 #: What a verdict rests on, per payoff mode other than the attack's (docs/semantics.md).
 PAYOFF_TEXT = {
-    "certified": [
+    "certified": (
         "<p>Payoffs: the <b>certified lower bounds</b> (CROWN, docs/cnn.md) of the "
         "detections the models can hide, 0 for the others. A 'holds' is proven against "
         "every attack within the threat model; a 'violated' only says that the bounds "
         "do not prove it (no attack was run).</p>"
-    ],
-    "interval": [
+    ),
+    "interval": (
         "<p>Payoffs: <b>intervals</b>. 'holds' is proven with the certified lower payoffs "
         "(against every attack within the threat model); 'violated' has the attack's "
         "counterexample, not replayed here (its row's command with --frames VIDEO_DIR "
         "replays it through the detector and tracker); 'unknown' lies "
         "in between, and its optimum, somewhere between the two optima of its row, enters "
         "no ECDF.</p>"
-    ],
+    ),
 }
 
 
@@ -319,7 +319,7 @@ def write_html(
         f"<p>{s['rows']} results: {len(s['videos'])} video(s), {s['targets']} targets, "
         f"{s['windows']} windows, designs {', '.join(DESIGN_NAMES[d] for d in s['designs'])}, "
         f"properties {', '.join(s['properties'])}.</p>",
-        *PAYOFF_TEXT.get(s["payoffs"], []),
+        PAYOFF_TEXT.get(s["payoffs"], ""),
         "<h2>Verdicts and optima (ECDF over targets and windows)</h2>",
     ]
     parts.append(_table(list(CELL_HEADER), cell_rows(s, QUANTILE_KEYS)))

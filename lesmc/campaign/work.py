@@ -58,8 +58,12 @@ def run_group(group: Group, doc: dict[str, Any]) -> list[dict[str, Any]]:
     second model, of the certified lower payoffs (``interval``: both, combined
     by lesmc/engines/interval.py), with a budget of its own.
     """
+    from dataclasses import replace
+
+    from lesmc.engines.interval import combine
     from lesmc.language.parser import parse_spec
     from lesmc.tracking.targets import place_target
+    from lesmc.unfold import payoff_monotone, unbounded_text
 
     if not group.units:
         return []
@@ -73,24 +77,19 @@ def run_group(group: Group, doc: dict[str, Any]) -> list[dict[str, Any]]:
     for u in group.units:
         if low is None:
             assert attack is not None
-            rows.append(row(group, u.key, u.window, u.design, attack.check(u, specs)))
+            rows.append(row(group, u.key, u.window, u.design, attack.check(u, specs)[0]))
             continue
-        from dataclasses import replace
-
-        from lesmc.engines.interval import combine
-        from lesmc.unfold import payoff_monotone, unbounded_text
-
-        cert = low.check(u, specs)
+        cert, bp = low.check(u, specs)
         # from the client's probe of the unit's window: the lazy model's own reads also
         # come from the other units' paths, which the unit's attacks may not reach
         n = group.unbounded_in(u.window)
         notes = unbounded_text(n) if n >= 0 else [PROBE_STOPPED_NOTE]
         cert = replace(cert, notes=[*cert.notes, *notes])
         if attack is None:
-            r = replace(cert, payoffs="certified")
+            rows.append(row(group, u.key, u.window, u.design, replace(cert, payoffs="certified")))
         else:
-            r = combine(cert, attack.check(u, specs), payoff_monotone(low.bound(u, specs)))
-        rows.append(row(group, u.key, u.window, u.design, r, cert))
+            r = combine(cert, attack.check(u, specs)[0], payoff_monotone(bp))
+            rows.append(row(group, u.key, u.window, u.design, r, cert))
     return rows
 
 
@@ -106,21 +105,16 @@ class _Checker:
         self.end = original_end(scene)  # the same for every unit (and payoff set) of the group
         self.model: Any = None
 
-    def bound(self, u: Unit, specs: list[SpecFile]) -> BoundProperty:
-        """Unit ``u``'s property bound to this scene."""
-        from lesmc.unfold import bind_scene
+    def check(self, u: Unit, specs: list[SpecFile]) -> tuple[CheckResult, BoundProperty]:
+        """Unit ``u``'s property checked on this model, and the property as bound."""
+        from lesmc.engines.check import check_lazy
+        from lesmc.unfold import bind_scene, lazy_model
 
         found = bind_scene(self.scene, design_specs(specs, u.window, u.design), self.end)
-        return next(bp for bp in found if bp.name == u.prop)
-
-    def check(self, u: Unit, specs: list[SpecFile]) -> CheckResult:
-        from lesmc.engines.check import check_lazy
-        from lesmc.unfold import lazy_model
-
-        bp = self.bound(u, specs)
+        bp = next(b for b in found if b.name == u.prop)
         if self.model is None:
             self.model = lazy_model(self.scene, self.window, bp.end)
-        return check_lazy(self.model, bp, self.group.max_states, self.group.timeout)
+        return check_lazy(self.model, bp, self.group.max_states, self.group.timeout), bp
 
 
 def row(
@@ -132,10 +126,10 @@ def row(
     certified: CheckResult | None = None,
 ) -> dict[str, Any]:
     """The ``results.jsonl`` object of one unit (docs/campaign.md); ``certified``: the
-    check with certified payoffs behind an interval (or certified) result."""
+    check with certified payoffs behind an interval result."""
     stats = r.stats.to_json()
     exact = r.stats.stopped == "finished"
-    if certified is not None and certified is not r and r.payoffs == "interval":
+    if certified is not None:
         stats["certified"] = certified.stats.to_json()
         exact = exact and certified.stats.stopped == "finished"
     optimum: float | str | None = r.optimum

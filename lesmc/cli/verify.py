@@ -28,9 +28,6 @@ from lesmc.errors import UsageError
 from lesmc.video import FPS
 
 HISTORY = 4
-#: Bisection steps of verify's certification: it bounds a handful of detections, so it can
-#: afford three times perceive --certify's 2 (docs/cnn.md: median ratio 0.057 -> 0.070).
-ON_DEMAND_STEPS = 6
 
 
 @click.command("verify")
@@ -288,11 +285,7 @@ def _certify(
     """
     from dataclasses import replace
 
-    import numpy as np
-
-    from lesmc.perception.attacks import AttackConfig
-    from lesmc.perception.certify import CertifyConfig
-    from lesmc.perception.run import certify_detections
+    from lesmc.perception.run import certification_meta, certify_on_demand
     from lesmc.report.progress import progress_bar
     from lesmc.verify import design_windows, hideable
 
@@ -302,29 +295,25 @@ def _certify(
         wanted = hideable(
             units, lambda m: stop_if_spent(budget, m, "finding the detections to certify")
         )
-    cfg = CertifyConfig(steps=ON_DEMAND_STEPS)
     with progress_bar("certifying", None) as bar:
 
         def certified(done: int, total: int) -> None:
             bar.update(total=total, completed=done)
             stop_if_spent(budget, None, "certifying payoff lower bounds")
 
-        lower = certify_detections(nets, run, wanted, AttackConfig(), cfg, certified)
-    n = sum(int((~np.isnan(v)).sum()) for v in lower.values())
-    total = sum(len(f.detections) for f in scene.frames)
-    summary = {
-        "method": "CROWN, L2 ball (docs/cnn.md)",
-        "steps": cfg.steps,
-        "detections": n,
-        "of": total,
-        "scope": "the detections the checked models can hide; the others have no bound",
-        "designs": designs,
-        "windows": [list(w) for w in sorted({win for *_, win in units})],
-        "seconds": round(time.monotonic() - started, 3),
-    }
-    out = replace(scene.with_lower(lower), meta={**scene.meta, "certified": summary})
-    err.print(f"certified lower payoffs of {n} of {total} detections (those the models can hide)")
-    return out
+        low = scene.with_lower(certify_on_demand(nets, run, wanted, certified))
+    summary = certification_meta(
+        low.frames,
+        "the detections the checked models can hide; the others have no bound",
+        time.monotonic() - started,
+        designs=designs,
+        windows=[list(w) for w in sorted({win for *_, win in units})],
+    )
+    err.print(
+        f"certified lower payoffs of {summary['detections']} of {summary['of']} detections "
+        "(those the models can hide)"
+    )
+    return replace(low, meta={**scene.meta, "certified": summary})
 
 
 def _attack_of(scene: Any) -> Any:
