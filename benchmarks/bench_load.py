@@ -27,7 +27,7 @@ import numpy as np
 from rich.console import Console
 from rich.table import Table
 
-from lesmc.fileio import read_json
+from lesmc.common.files import read_json
 from lesmc.model.lts_format import lts_from_dict, save_lts
 
 SPEC = (

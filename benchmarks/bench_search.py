@@ -26,9 +26,9 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 from bench_unfold import dense_scene
 
+from lesmc.build.unfold import check_scene
 from lesmc.language.parser import parse_spec
-from lesmc.tracking.scene import load_scene
-from lesmc.unfold import check_scene
+from lesmc.scene import load_scene
 
 
 def spec_text(kind: str, l: int, u: int) -> str:

@@ -22,7 +22,7 @@ ROOT = Path(__file__).resolve().parents[1]
 
 _WRAPPER = """
 import sys
-import lesmc.engines.budget as b
+import lesmc.common.budget as b
 _init = b.Budget.__init__
 def init(self, *a, **k):
     _init(self, *a, **k)

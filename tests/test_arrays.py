@@ -19,7 +19,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as hs
 
-from lesmc.errors import ModelError
+from lesmc.common.errors import ModelError
 from lesmc.model.arrays import ArrayModel
 from lesmc.model.knapsack import Item, knapsack_lts, read_items
 from lesmc.model.lts import LTS, State, Transition, to_arrays, to_lts

@@ -10,12 +10,13 @@ from cli_run import lesmc
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from lesmc.engines.check import check_bound
-from lesmc.errors import UsageError
+from lesmc.build.unfold import build_model, lazy_model
+from lesmc.common.errors import UsageError
+from lesmc.engines.check import check_bound, check_lazy
 from lesmc.language.parser import parse_spec
 from lesmc.model.lts_format import load_lts
-from lesmc.tracking.scene import load_scene
-from lesmc.unfold import bind_scene, build_model, check_scene_bound
+from lesmc.pipeline.check import bind_scene
+from lesmc.scene import load_scene
 
 ROOT = Path(__file__).resolve().parents[1]
 SCENES = ROOT / "tests" / "scenes"
@@ -41,7 +42,7 @@ def test_on_the_fly_equals_explicit_model(name, design, l, span, obj, con, monit
     )
     scene = load_scene(SCENES / f"{name}.json").with_tracker(design=design)
     (bp,) = bind_scene(scene, [parse_spec(text)])
-    lazy = check_scene_bound(scene, bp, "bnb")
+    lazy = check_lazy(lazy_model(scene, (bp.l, bp.u), bp.end), bp, "bnb")
     model = build_model(scene, (l, u))
     cm = model
     for engine in ("bnb", "enumerate"):
@@ -94,7 +95,7 @@ def test_cli_joint_design_and_track(tmp_path: Path) -> None:
         "--json",
     )
     res = {x["property"]: x for x in json.loads(r.stdout)["results"]}
-    assert res["robustness"]["optimum"] is None and res["robustness"]["verdict"] == "holds"
+    assert res["robustness"]["optimum"] == "inf" and res["robustness"]["verdict"] == "holds"
     r = lesmc("track", str(SCENES / "rq2_stop.json"), "--json")
     doc = json.loads(r.stdout)
     assert doc["design"] == "single" and len(doc["track"]) == 20

@@ -20,11 +20,12 @@ from typing import Any
 
 import pytest
 from cli_run import lesmc
+from pipeline_run import design_runs
 
 from lesmc.campaign.run import Video, execute, make_groups, prepare
 from lesmc.campaign.store import read_rows
 from lesmc.tracking.targets import TargetSpec, place_target
-from lesmc.verify import bundled_specs, check_designs, load_specs
+from lesmc.verify.experiment import bundled_specs, load_specs
 from lesmc.video.synth import SynthConfig, write_video
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -79,13 +80,15 @@ def test_rows_are_what_verify_computes_window_by_window(base: tuple[Path, Path])
         case = (t["x"], t["y"], t["step"], w, r["design"])
         if case not in seen:
             scene = place_target(footage, TargetSpec(t["x"], t["y"], t["step"]))
-            run = check_designs(scene, load_specs(bundled_specs(), w), [r["design"]])[0]  # type: ignore[arg-type]
+            run = design_runs(scene, load_specs(bundled_specs(), w), [r["design"]])[0]  # type: ignore[arg-type]
             seen[case] = {x.property: x for x in run.results}
         want = seen[case][r["property"]]
         assert r["verdict"] == want.verdict
         assert r["optimum"] == (want.optimum if want.optimum is not None else "inf")
         assert r["witness_value"] == want.witness_value
-        assert r.get("vacuous") == (want.vacuous if want.original_alarms is not None else None)
+        assert r["vacuous"] == want.vacuous
+        # a counterexample on a perceived scene is the model's until replayed
+        assert r["status"] == {"violated": "violated (not replayed)"}.get(want.status, want.status)
 
 
 def test_resume_adds_no_row_and_the_summary_counts_the_rows(base: tuple[Path, Path]) -> None:
@@ -109,22 +112,24 @@ def test_resume_adds_no_row_and_the_summary_counts_the_rows(base: tuple[Path, Pa
     for d, cells in doc["cells"].items():
         for prop, c in cells.items():
             mine = [x for x in rows if x["design"] == d and x["property"] == prop]
-            assert c["violated"] == sum(x["verdict"] == "violated" for x in mine)
-            assert c["vacuous"] == sum(
-                x["verdict"] == "holds" and bool(x.get("vacuous")) for x in mine
-            )
-            for x in mine:  # monitored rows say whether the unattacked track is flagged
-                assert ("vacuous" in x) == (d == "improved")
-                if x.get("vacuous"):
-                    assert x["original_alarms"]
-            assert len(c["optima"]) == sum(x["optimum"] is not None for x in mine)
+            violated = sum(x["verdict"] == "violated" for x in mine)
+            assert c["violated"] + c["not_replayed"] == violated == c["not_replayed"]
+            vacuous = [x["verdict"] == "holds" and x["vacuous"] for x in mine]
+            assert c["vacuous"] == sum(vacuous)
+            assert c["holds"] == sum(x["verdict"] == "holds" for x in mine) - sum(vacuous)
+            for x in mine:  # only monitored rows can be vacuous: the monitor flags the track
+                assert not x["vacuous"] or (d == "improved" and x["original_alarms"])
+                words = {"violated": "violated (not replayed)"}  # no replay in campaigns
+                want = "holds (vacuous)" if x["vacuous"] else words.get(x["verdict"], x["verdict"])
+                assert x["status"] == want
+            assert len(c["optima"]) == sum(x["optimum"] != "unknown" for x in mine)
     for prop, imp in doc["improvements"].items():
         bad = {
             (x["target"]["x"], tuple(x["window"]))
             for x in rows
             if x["property"] == prop and x["design"] == "single" and x["verdict"] == "violated"
         }
-        assert imp["single_violated"] == len(bad)
+        assert imp["baseline"] == "single" and imp["baseline_violated"] == len(bad)
         for d, v in imp["designs"].items():
             fixed = {
                 (x["target"]["x"], tuple(x["window"]))
@@ -202,7 +207,8 @@ def test_killed_client_then_rerun_ends_complete_without_duplicates(
 
 def groups_of_base(base: tuple[Path, Path], tmp_path: Path) -> tuple[Any, list[Any], Any]:
     """The prepared scene of ``base``, its four groups and the reference rows."""
-    from lesmc.campaign.plan import DESIGN_SETS, parse_windows
+    from lesmc.campaign.plan import parse_windows
+    from lesmc.designs import registry
 
     out = seeded(base, tmp_path)
     p = prepare(Video("tiny", base[0], None, "test"), out)
@@ -213,7 +219,7 @@ def groups_of_base(base: tuple[Path, Path], tmp_path: Path) -> tuple[Any, list[A
             p.targets.append(spec)
     specs = load_specs(bundled_specs(), None)
     groups, total = make_groups(
-        [p], specs, parse_windows(WINDOWS), DESIGN_SETS["all"], set(), 60.0, None
+        [p], specs, parse_windows(WINDOWS), registry.expand("paper"), set(), 60.0, None
     )
     assert len(groups) == 4 and total == len(ref)
     return p, groups, ref
@@ -290,12 +296,14 @@ def test_interval_rows_match_brute_force_over_both_payoff_sets(
 
     from oracle import brute_force
 
+    from lesmc.build.probe import priced_detections
+    from lesmc.build.unfold import build_model
     from lesmc.campaign.plan import design_specs
-    from lesmc.fileio import read_json
+    from lesmc.common.files import read_json
     from lesmc.language.parser import parse_spec
     from lesmc.model.lts import to_lts
-    from lesmc.tracking.scene import footage_from_dict
-    from lesmc.unfold import bind_scene, build_model, priced_detections
+    from lesmc.pipeline.check import bind_scene
+    from lesmc.scene import footage_from_dict
 
     def load_scene(path: Path) -> Any:
         return footage_from_dict(read_json(path), str(path))[0]
@@ -388,8 +396,8 @@ def test_interval_rows_match_brute_force_over_both_payoff_sets(
     from dataclasses import replace
 
     from lesmc.campaign.plan import parse_windows
-    from lesmc.campaign.run import PROBE_STOPPED
-    from lesmc.campaign.work import PROBE_STOPPED_NOTE, run_group
+    from lesmc.campaign.work import run_group
+    from lesmc.pipeline.certify import PROBE_STOPPED, PROBE_STOPPED_NOTE
 
     p = prepare(Video("tiny", base[0], None, "test"), out)
     for x in rows:

@@ -147,9 +147,8 @@ def test_train_on_videos_too_small_is_a_clear_error(size: str, tmp_path: Path) -
 
 
 def test_build_json_counts_what_the_file_holds(tmp_path: Path) -> None:
-    from lesmc.model.lts import to_lts
     from lesmc.model.lts_format import load_lts
-    from lesmc.report.results import model_hash
+    from lesmc.results.document import model_hash
 
     model = tmp_path / "m.lts"
     r = lesmc("build", str(SCENES / "rq4_merge.json"), "--window", "2..6", "-o", str(model))
@@ -162,7 +161,7 @@ def test_build_json_counts_what_the_file_holds(tmp_path: Path) -> None:
     raw = json.loads(again.read_text())
     assert doc["states"] == len(raw["states"]) and doc["transitions"] == len(raw["transitions"])
     assert doc["model"] == {"path": str(again), "bytes": again.stat().st_size}
-    assert doc["model_sha256"] == model_hash(to_lts(load_lts(model)))  # as results files do
+    assert doc["model_sha256"] == model_hash(load_lts(model))  # as results files do
     assert doc["window"] == [2, 6] and doc["design"] == "single"
 
 
@@ -337,3 +336,23 @@ def test_the_watchdog_leaves_a_finished_block_alone() -> None:
         [sys.executable, "-c", code], capture_output=True, text=True, cwd=ROOT, timeout=120
     )
     assert r.returncode == 0 and r.stdout == "finished 499500\n", r.stderr
+
+
+def test_schemas_describe_the_result_record_field_for_field() -> None:
+    """The check and results schemas describe one record (CheckResult.to_json): the same
+    result and path definitions, with every field the record writes and nothing else."""
+    from lesmc.engines.check import check
+    from lesmc.language.parser import load_spec
+    from lesmc.model.lts_format import load_lts
+    from lesmc.schemas import schema
+
+    tiny = ROOT / "tests" / "golden" / "tiny"
+    results = check(load_lts(tiny / "model.lts"), [load_spec(tiny / "properties.spec")])
+    check_defs, results_defs = schema("check")["$defs"], schema("results")["$defs"]
+    assert check_defs["path"] == results_defs["path"]
+    assert set(check_defs["result"]["properties"]) == set(results_defs["result"]["properties"])
+    written = set().union(*(r.to_json() for r in results))
+    required = set(check_defs["result"]["required"])
+    assert required <= written <= set(check_defs["result"]["properties"])
+    paths = [r.counterexample.to_json() for r in results if r.counterexample is not None]
+    assert set(paths[0]) == set(check_defs["path"]["properties"])

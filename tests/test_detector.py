@@ -10,13 +10,13 @@ import pytest
 from click.testing import CliRunner
 
 from lesmc.cli.main import cli
-from lesmc.errors import InputError, UsageError
+from lesmc.common.errors import InputError, UsageError
 from lesmc.perception.cnn import load_nets, save_nets
 from lesmc.perception.detector import Detector, peaks
 from lesmc.perception.quality import care_mask, score, truth_frame
-from lesmc.perception.to_scene import parse_target
 from lesmc.perception.training import TrainConfig, train
-from lesmc.tracking.scene import load_scene
+from lesmc.scene import load_scene
+from lesmc.tracking.targets import parse_target
 from lesmc.video.synth import SynthConfig, frames, write_video
 
 VIDEO = SynthConfig(frames=8, width=640, height=640, seed=21)

@@ -9,6 +9,7 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 from oracle import brute_force
 
+from lesmc.common.budget import Budget
 from lesmc.engines.check import check_bound
 from lesmc.language.parser import parse_spec
 from lesmc.language.semantics import bind
@@ -155,7 +156,7 @@ def test_budget_exhaustion_reports_unknown_with_bounds(kw: dict) -> None:
         "subject to dist.max(0..end) > 60 holds if optimum > 1 }"
     )
     bp = bind(spec, spec.properties[0], model.end, model.components, False)
-    r = check_bound(to_arrays(model), bp, max_states=3, **kw)
+    r = check_bound(to_arrays(model), bp, budget=Budget(max_states=3), **kw)
     assert r.stats.stopped == "max_states"
     assert r.verdict == "unknown" and r.optimum is None
     assert r.lower <= r.upper
@@ -172,7 +173,7 @@ def test_budgeted_bounds_contain_the_truth(case: tuple, budget: int) -> None:
     cm = to_arrays(model)
     by_states = {tuple(p): (o, c) for p, o, c in truth.paths}
     for engine in ("bnb", "levels"):
-        r = check_bound(cm, bp, engine, max_states=budget)  # type: ignore[arg-type]
+        r = check_bound(cm, bp, engine, Budget(max_states=budget))  # type: ignore[arg-type]
         tol = 1e-9 * max(1.0, abs(truth.optimum)) if math.isfinite(truth.optimum) else 0
         assert r.lower - tol <= truth.optimum <= r.upper + tol
         if r.optimum is not None:
@@ -252,9 +253,9 @@ def test_a_large_tree_is_searched_after_a_bounded_probe(monkeypatch: pytest.Monk
         r = check_bound(cm, bp, engine)  # type: ignore[arg-type]
         assert "exhaustive" not in r.stats.extra
         assert r.optimum == e.optimum and r.witness_value == e.witness_value
-        small = check_bound(cm, bp, engine, max_states=1500)  # type: ignore[arg-type]
+        small = check_bound(cm, bp, engine, Budget(max_states=1500))  # type: ignore[arg-type]
         probed = small.stats.extra["probe_states"]
         assert probed > 0 and small.stats.states_expanded + probed <= 1500
     monkeypatch.setattr(enumerate_engine, "SMALL_TREE", 1 << 15)  # more than the budget:
-    r = check_bound(cm, bp, "levels", max_states=50)  # no probe, the search has it all
+    r = check_bound(cm, bp, "levels", Budget(max_states=50))  # no probe, the search has it all
     assert "exhaustive" not in r.stats.extra and r.stats.states_expanded <= 50

@@ -16,7 +16,7 @@ from typing import NoReturn
 import pytest
 
 from lesmc.cli.main import main
-from lesmc.report.exit import EXIT_INTERNAL, EXIT_INTERRUPTED
+from lesmc.results.exit import EXIT_INTERNAL, EXIT_INTERRUPTED
 
 ROOT = Path(__file__).resolve().parents[1]
 TINY = ROOT / "tests" / "golden" / "tiny"
@@ -42,7 +42,7 @@ def _boom(*args: object, **kwargs: object) -> NoReturn:
 
 @pytest.mark.parametrize(
     ("argv", "target"),
-    [(CHECK, "lesmc.language.parser.load_spec"), (KNAPSACK, "lesmc.model.knapsack.read_items")],
+    [(CHECK, "lesmc.api.load_spec"), (KNAPSACK, "lesmc.model.knapsack.read_items")],
     ids=["check", "reduce knapsack"],
 )
 def test_internal_error_exits_4_with_one_line(
@@ -63,7 +63,7 @@ def test_lesmc_debug_adds_the_traceback(
     monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
 ) -> None:
     monkeypatch.setenv("LESMC_DEBUG", "1")
-    monkeypatch.setattr("lesmc.language.parser.load_spec", _boom)
+    monkeypatch.setattr("lesmc.api.load_spec", _boom)
     assert run_main(CHECK) == 4
     err = capsys.readouterr().err
     assert "Traceback (most recent call last)" in err and "_boom" in err
@@ -76,7 +76,7 @@ def test_keyboard_interrupt_exits_130(
     def interrupt(*args: object, **kwargs: object) -> NoReturn:
         raise KeyboardInterrupt
 
-    monkeypatch.setattr("lesmc.language.parser.load_spec", interrupt)
+    monkeypatch.setattr("lesmc.api.load_spec", interrupt)
     assert run_main(CHECK) == EXIT_INTERRUPTED == 130
     out, err = capsys.readouterr()
     assert err.strip() == "interrupted"
@@ -92,7 +92,7 @@ def test_eof_error_is_internal_not_an_interrupt(
         raise EOFError("Ran out of input")
 
     monkeypatch.delenv("LESMC_DEBUG", raising=False)
-    monkeypatch.setattr("lesmc.language.parser.load_spec", eof)
+    monkeypatch.setattr("lesmc.api.load_spec", eof)
     assert run_main(CHECK) == 4
     assert "lesmc: internal error: EOFError: Ran out of input" in capsys.readouterr().err
 

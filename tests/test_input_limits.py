@@ -28,14 +28,14 @@ from hypothesis import strategies as st
 
 from lesmc.cli.main import main
 from lesmc.cli.options import parse_window
-from lesmc.errors import InputError, LesmcError, UsageError
+from lesmc.common.errors import InputError, LesmcError, UsageError
+from lesmc.designs.registry import make_tracker
 from lesmc.model.lts_format import lts_from_dict
 from lesmc.perception.cnn import nets_settings
 from lesmc.perception.quality import load_truth
-from lesmc.perception.to_scene import parse_target
-from lesmc.tracking.design import make_design
+from lesmc.scene import scene_from_dict
 from lesmc.tracking.monitor import track
-from lesmc.tracking.scene import scene_from_dict
+from lesmc.tracking.targets import parse_target
 from lesmc.video.reader import open_frames
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -138,7 +138,7 @@ def test_mutated_scenes_are_refused_or_track_finitely(doc: Any) -> None:
     except InputError as err:
         assert err.render().startswith("s.json")
         return
-    for p in track(make_design(scene), min(4, scene.last_step - scene.target.step)):
+    for p in track(make_tracker(scene), min(4, scene.last_step - scene.target.step)):
         assert np.isfinite(p.x).all()
 
 
@@ -216,7 +216,7 @@ def test_the_largest_allowed_scene_numbers_track_finitely() -> None:
                 det["x"], det["payoff"] = 1e7, 1e12
 
     scene = scene_from_dict(_scene_with(largest), "s.json")
-    for p in track(make_design(scene)):
+    for p in track(make_tracker(scene)):
         assert np.isfinite(p.x).all() and math.isfinite(p.tau)
 
 

@@ -21,7 +21,7 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from lesmc.errors import (
+from lesmc.common.errors import (
     InputError,
     LesmcError,
     Location,
@@ -32,7 +32,7 @@ from lesmc.errors import (
     source_line,
     split_lines,
 )
-from lesmc.fileio import MAX_JSON_DEPTH, _deeper_than, decode_text, parse_json, read_json
+from lesmc.common.files import MAX_JSON_DEPTH, _deeper_than, decode_text, parse_json, read_json
 from lesmc.language.parser import MAX_STEP, load_spec, parse_spec
 from lesmc.model.lts_format import load_lts
 

@@ -11,12 +11,14 @@ import numpy as np
 import pytest
 from cli_run import lesmc
 from oracle import brute_force
+from pipeline_run import design_runs
 
-from lesmc.errors import InputError
+from lesmc.build.unfold import build_model
+from lesmc.common.errors import InputError
 from lesmc.language.parser import parse_spec
 from lesmc.model.lts import to_lts
-from lesmc.tracking.scene import load_scene, scene_from_dict
-from lesmc.unfold import bind_scene, build_model
+from lesmc.pipeline.check import bind_scene
+from lesmc.scene import load_scene, scene_from_dict
 
 ROOT = Path(__file__).resolve().parents[1]
 SCENES = ROOT / "tests" / "scenes"
@@ -56,7 +58,7 @@ def test_scene_loader_checks_payoff_lower() -> None:
     with pytest.raises(InputError, match="payoff_lower is missing"):
         plain.priced("certified")
     # written back, the bounds survive
-    from lesmc.tracking.scene import scene_to_dict
+    from lesmc.scene import scene_to_dict
 
     again = scene_from_dict(json.loads(json.dumps(scene_to_dict(scene))))
     assert again == scene
@@ -135,9 +137,9 @@ def test_interval_verdicts_match_brute_force_over_both_payoff_sets(
                 assert res["counterexample"] is not None
                 assert math.isclose(res["optimum"], a, rel_tol=1e-9)  # the counterexample's
             elif math.isinf(c) and math.isinf(a):
-                assert res["optimum"] is None  # null: no path violates, under either set
+                assert res["optimum"] == "inf"  # no path violates, under either set
             elif not math.isclose(c, a, rel_tol=1e-12):
-                # the optimum lies in [c, a]: never null, which means "none violates"
+                # the optimum lies in [c, a]: never "inf", which means "none violates"
                 assert res["optimum"] == "unknown"
                 assert math.isclose(res["bounds"]["lower"], c, rel_tol=1e-9)
             elif res["optimum"] != "unknown":  # a point (or c, a one rounding apart)
@@ -193,7 +195,7 @@ def _payoffs_changed(scene, step: int, i: int):
 def test_priced_detections_are_all_a_model_prices(name: str, design: str) -> None:
     """The oracle is a sensitivity sweep: every detection outside the probe's set is priced
     differently in turn, and the model's combined payoffs (Eq. 5) and graph must not move."""
-    from lesmc.unfold import priced_detections
+    from lesmc.build.probe import priced_detections
 
     scene = load_scene(SCENES / f"{name}.json").with_tracker(design=design)
     # every payoff finite, as in a certified scene: the most detections a model can price
@@ -258,7 +260,7 @@ def test_a_check_says_when_it_read_detections_without_a_bound(design: str, tmp_p
     """Missing bounds count as 0; a certified check that prices one says so, one that prices
     none does not (the frames are chosen by the probe's set, an independent build; the
     joint design also reads payoffs outside the window, which never count)."""
-    from lesmc.unfold import priced_detections
+    from lesmc.build.probe import priced_detections
 
     doc = with_lower("rq1_platoon", 2)
     doc["tracker"]["design"] = design
@@ -291,13 +293,11 @@ def test_verify_certified_nothing_still_checks() -> None:
     as is, not refused for want of bounds."""
     from dataclasses import replace
 
-    from lesmc.verify import check_designs
-
     scene = load_scene(SCENES / "rq1_platoon.json")
     certified = replace(scene, meta={**scene.meta, "certified": {"detections": 0, "of": 1}})
     spec = parse_spec(SPEC.format(l=1, u=1, c=40, theta=0, theta2=0), "p.spec")
-    runs = check_designs(certified, [spec], ["single"], payoffs="interval")
-    att = check_designs(scene, [spec], ["single"])
+    runs = design_runs(certified, [spec], ["single"], payoffs="interval")
+    att = design_runs(scene, [spec], ["single"])
     # independently: the same scene with every payoff written as 0, by brute force
     doc = json.loads((SCENES / "rq1_platoon.json").read_text())
     for f in doc["frames"]:
@@ -315,20 +315,22 @@ def test_verify_certified_nothing_still_checks() -> None:
 def test_a_probe_stopped_by_a_budget_keeps_what_it_read(design: str) -> None:
     """lesmc campaign's probe within a unit's budgets: stopped by --max-states it says so and
     returns part of the full probe's set (what the model read before it stopped)."""
-    from lesmc.campaign.run import probe
-    from lesmc.unfold import priced_detections
+    from lesmc.build.probe import priced_detections
+    from lesmc.common.budget import Budget
+    from lesmc.pipeline.certify import probe
 
     scene = load_scene(SCENES / "rq4_merge.json").with_tracker(design=design)
     end = scene.last_step - scene.target.step
     win = (max(1, end - 4), end)
     full = priced_detections(scene, win)
-    got, complete = probe(scene, win, None, None)
+    got, complete = probe(scene, win, Budget()).found, probe(scene, win, Budget()).finished
     assert complete and {k: v.tolist() for k, v in got.items()} == {
         k: v.tolist() for k, v in full.items()
     }
     assert sum(map(len, full.values()))
-    for budget in ((1, None), (None, 0.0)):  # one state; no time
-        part, complete = probe(scene, win, *budget)
+    for budget in (Budget(max_states=1), Budget(check_timeout=0.0)):  # one state; no time
+        stopped = probe(scene, win, budget)
+        part, complete = stopped.found, stopped.finished
         assert not complete
         for k, v in part.items():
             assert set(v.tolist()) <= set(full.get(k, np.array([])).tolist())

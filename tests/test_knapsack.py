@@ -79,7 +79,7 @@ def test_forty_items_are_checked_exactly() -> None:
     ],
 )
 def test_bad_items_are_reported_with_position(tmp_path: Path, text: str, message: str) -> None:
-    from lesmc.errors import InputError
+    from lesmc.common.errors import InputError
 
     p = tmp_path / "items.csv"
     p.write_text(text)

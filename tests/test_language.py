@@ -7,7 +7,7 @@ from pathlib import Path
 
 import pytest
 
-from lesmc.errors import SpecError
+from lesmc.common.errors import SpecError
 from lesmc.language.parser import load_spec, parse_spec
 from lesmc.language.properties import Measure
 from lesmc.language.semantics import bind

@@ -13,8 +13,8 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as hs
 
-from lesmc import fileio
-from lesmc.errors import ModelError
+from lesmc.common import files as fileio
+from lesmc.common.errors import ModelError
 from lesmc.model.arrays import ArrayModel
 from lesmc.model.lts import to_arrays
 from lesmc.model.lts_format import load_lts, lts_from_dict, lts_to_dict, save_lts

@@ -92,7 +92,7 @@ def test_a_counterexample_that_the_tracker_does_not_follow_is_diverged(verified:
     """Constructed: the counterexample's recorded track is moved by 5 px from step 2 on; the
     replay must stop at step 2 and say the position differs."""
     from lesmc.perception.cnn import load_nets
-    from lesmc.replay import apply_to_doc, replay
+    from lesmc.replay.run import apply, replay
     from lesmc.video.reader import open_frames
 
     video, _, doc = verified
@@ -110,7 +110,7 @@ def test_a_counterexample_that_the_tracker_does_not_follow_is_diverged(verified:
     obj = out.replays[(0, j)]
     assert obj["status"] == "diverged" and obj["step"] == 2
     assert "px from the model's" in obj["reason"]
-    apply_to_doc(bad, out)
+    apply(bad, out)
     assert run["results"][j]["verdict"] == "unknown"
 
 
@@ -120,7 +120,7 @@ def test_without_repair_interacting_perturbations_diverge_where_they_act(verifie
     the repaired joint attack some counterexample diverges at an attacked step, and the
     reason names the frame's detections."""
     from lesmc.perception.cnn import load_nets
-    from lesmc.replay import replay
+    from lesmc.replay.run import replay
     from lesmc.video.reader import open_frames
 
     video, _, doc = verified
@@ -134,7 +134,7 @@ def test_without_repair_interacting_perturbations_diverge_where_they_act(verifie
 
 
 def test_perturbations_of_one_frame_add_up_where_windows_overlap() -> None:
-    from lesmc.replay import _apply
+    from lesmc.replay.run import _apply
 
     frame = np.full((40, 40), 100.0)
     stack = [frame.copy() for _ in range(4)]
@@ -162,8 +162,13 @@ def test_report_shows_the_patches_and_the_replay(verified: tuple, tmp_path: Path
 
 
 def test_replay_needs_frames_and_a_results_file(verified: tuple, tmp_path: Path) -> None:
-    _, out, _ = verified
-    r = lesmc("replay", str(out / "results.json"))
+    """The frames default to those the results file names; without them, --frames."""
+    _, out, doc = verified
+    assert doc["perception"]["frames"]
+    unnamed = copy.deepcopy(doc)
+    del unnamed["perception"]["frames"]
+    (tmp_path / "results.json").write_text(json.dumps(unnamed))
+    r = lesmc("replay", str(tmp_path / "results.json"))
     assert r.returncode == 2 and "--frames" in r.stderr and "Traceback" not in r.stderr
     r = lesmc("replay", str(out / "results.json"), "--frames", str(tmp_path), "--property", "nope")
     assert r.returncode == 2 and "nope" in r.stderr

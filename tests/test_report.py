@@ -13,50 +13,74 @@ import numpy as np
 import pytest
 from click.testing import CliRunner
 from hypothesis import HealthCheck, assume, given, settings
+from oracle import brute_force
+from pipeline_run import design_runs
 from test_engines import _bound_property, cases
 
 from lesmc.cli.main import cli
 from lesmc.engines.check import check_bound
 from lesmc.language.parser import load_spec
-from lesmc.model.lts import to_arrays
-from lesmc.report.paths import count_paths, enumerate_tracks, judge
+from lesmc.model.lts import to_arrays, to_lts
 from lesmc.report.publish import publish
-from lesmc.report.results import DesignRun, provenance
-from lesmc.tracking.scene import load_scene
-from lesmc.verify import check_designs
+from lesmc.results.document import provenance, run_json
+from lesmc.results.record import DesignRun
+from lesmc.scene import load_scene
 
 SCENES = Path(__file__).parent / "scenes"
 
 
 @settings(max_examples=150, deadline=None, suppress_health_check=[HealthCheck.too_slow])
 @given(cases())
-def test_paths_recomputed_by_the_report_give_the_engines_optimum(case: tuple) -> None:
-    """Table 3's measures are computed from the states, apart from the engines: they must agree."""
+def test_track_measures_in_the_results_equal_an_independent_brute_force(case: tuple) -> None:
+    """Table 3 as the results file holds it: every track the oracle admits (tests/oracle.py,
+    Eq. 4, 5, 8, 9 and the monitor written out again) has the oracle's objective and
+    constraint, and the engines' optimum is the least objective of the tracks that break."""
     model, params, quantile = case
     bp = _bound_property(model, params, quantile)
     # the threshold is one of the values that occur; move it off them, so that two independent
     # float sums cannot round to different sides of it
     if math.isfinite(bp.bound):
         bp = dataclasses.replace(bp, bound=bp.bound * (1 + 1e-7) + 1e-9)
-    ps = enumerate_tracks(model, (bp.l, bp.u), limit=10**6)
-    assert len(ps.paths) == ps.total == count_paths(model)
-    judged = [judge(model, p, bp) for p in ps.paths]
+    oracle = brute_force(model, bp)
+    cm = to_arrays(model)
+    r = check_bound(cm, bp, "bnb")
+    run = run_json(DesignRun("model", [bp], [r], cm))
+    assert run["paths_total"] == len(run["paths"]) == _count(model)
+    want = {tuple(states): (o, c) for states, o, c in oracle.paths}
+    seen = set()
+    for p in run["paths"]:
+        j = p["judged"][0]
+        states = tuple(p["states"][: bp.end + 1])
+        if j["admissible"] and not j["alarms"] and states in want:
+            seen.add(states)
+            o, c = want[states]
+            assert _f(j["objective"]) == pytest.approx(o, rel=1e-12, abs=1e-12)
+            assert _f(j["constraint"]) == pytest.approx(c, rel=1e-12, abs=1e-12)
+    assert seen == {s[: bp.end + 1] for s in want}
     assume(
-        all(not math.isclose(j.constraint, bp.bound, rel_tol=1e-9, abs_tol=1e-12) for j in judged)
+        all(not math.isclose(c, bp.bound, rel_tol=1e-9, abs_tol=1e-12) for _, _, c in oracle.paths)
     )
-    bad = [j.objective for j in judged if j.admissible and j.violates and not j.alarmed]
-    best = min(bad, default=math.inf)
-    r = check_bound(to_arrays(model), bp, "bnb")
-    if r.optimum is None:
-        assert math.isinf(best)
-    else:
-        assert best == pytest.approx(r.optimum, rel=1e-12, abs=1e-12)
+    assert _f(r.optimum_json()) == pytest.approx(oracle.optimum, rel=1e-12, abs=1e-12)
+
+
+def _f(x: float | str) -> float:
+    return float(x)
+
+
+def _count(model: object) -> int:
+    """Root-to-leaf paths of the LTS object, counted by walking them (independent of lesmc)."""
+
+    def walk(q: str) -> int:
+        out = model.out(q)  # type: ignore[attr-defined]
+        return sum(walk(t.dst) for t in out) if out else 1
+
+    return walk(model.initial)  # type: ignore[attr-defined]
 
 
 def _runs(design: str = "single") -> tuple[list[DesignRun], object]:
     scene = load_scene(SCENES / "rq4_merge.json")
     specs = [load_spec(str(SCENES / "rq4_merge.spec"))]
-    return check_designs(scene, specs, [design]), scene
+    return design_runs(scene, specs, [design]), scene
 
 
 def write_report(runs: list[DesignRun], out: Path, meta: dict | None = None) -> Path:
@@ -79,7 +103,7 @@ def test_report_files_and_contents(tmp_path: Path) -> None:
         assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
     doc = json.loads((tmp_path / "rep/results.json").read_text())
     run = doc["runs"][0]
-    assert run["paths_total"] == count_paths(runs[0].model) == len(run["paths"])
+    assert run["paths_total"] == _count(to_lts(runs[0].model)) == len(run["paths"])
     assert [r["verdict"] for r in run["results"]] == [r.verdict for r in runs[0].results]
     assert not [p for p in (tmp_path / "rep").iterdir() if p.name.startswith(".")]
 
@@ -87,8 +111,8 @@ def test_report_files_and_contents(tmp_path: Path) -> None:
 def test_two_designs_are_compared(tmp_path: Path) -> None:
     scene = load_scene(SCENES / "rq4_merge.json")
     specs = [load_spec(str(SCENES / "rq1_platoon.spec"))]
-    runs = check_designs(scene, specs, ["single", "joint", "improved"])
-    assert [r.name for r in runs] == ["single", "joint KFs", "joint KFs + monitor"]
+    runs = design_runs(scene, specs, ["single", "joint", "improved"])
+    assert [r.label for r in runs] == ["single", "joint KFs", "joint KFs + monitor"]
     assert all(bp.monitor_components is None for bp in runs[1].bound)
     assert all(bp.monitor_components is not None for bp in runs[2].bound)
     assert runs[1].model is runs[2].model  # one model for the joint tracker
@@ -155,7 +179,7 @@ def test_a_second_run_into_a_locked_dir_fails_clearly(tmp_path: Path) -> None:
     import fcntl
     import os
 
-    from lesmc.errors import UsageError
+    from lesmc.common.errors import UsageError
     from lesmc.report.staging import staged
 
     out = tmp_path / "rep"
@@ -184,20 +208,20 @@ def test_results_file_validates_against_the_shipped_schema(tmp_path: Path) -> No
 
     from lesmc.schemas import schema
 
-    runs = check_designs(
+    runs = design_runs(
         load_scene(SCENES / "rq4_merge.json"),
         [load_spec(str(SCENES / "rq1_platoon.spec"))],
         ["single", "improved"],
     )
     doc = json.loads((write_report(runs, tmp_path / "r").parent / "results.json").read_text())
     jsonschema.validate(doc, schema("results"))
-    assert doc["format"] == "lesmc-results" and doc["version"] == 1
+    assert doc["format"] == "lesmc-results" and doc["version"] == 2
     prov = doc["provenance"]
     assert prov["command"] == ["test"] and prov["specs"][0]["text"].startswith("#")
-    assert set(prov["model_sha256"]) == {"single", "joint KFs + monitor"}
+    assert set(prov["model_sha256"]) == {"single", "improved"}
     monitored = doc["runs"][1]["results"]
-    assert all("original_alarms" in r and "vacuous" in r for r in monitored)
-    assert all("original_alarms" not in r for r in doc["runs"][0]["results"])
+    assert all(r["original_alarms"] is not None for r in monitored)
+    assert all(r["original_alarms"] is None for r in doc["runs"][0]["results"])
 
 
 def test_check_report_cli_on_a_scene_and_on_a_model(tmp_path: Path) -> None:
@@ -236,7 +260,8 @@ def test_verify_on_a_scene(tmp_path: Path) -> None:
     )
     assert r.exit_code in (0, 1), r.output
     doc = json.loads(r.stdout)
-    assert [run["design"] for run in doc["runs"]] == ["single", "joint KFs", "joint KFs + monitor"]
+    assert [run["design"] for run in doc["runs"]] == ["single", "joint", "improved"]
+    assert [run["label"] for run in doc["runs"]] == ["single", "joint KFs", "joint KFs + monitor"]
     assert (tmp_path / "v/report.html").is_file()
 
 
@@ -285,7 +310,7 @@ def test_verify_end_to_end_on_a_small_video(tmp_path: Path) -> None:
     html = (tmp_path / "v/report.html").read_text()
     assert "detections of step 5" in html
     doc = json.loads((tmp_path / "v/results.json").read_text())
-    assert doc["runs"][0]["truth"]  # the target's ground truth, drawn in the track figures
+    assert doc["runs"][0]["scene"]["truth_ref"]  # the target's ground truth, drawn in figures
     assert "ground truth" in html
     fa = doc["monitor_false_alarms"]["rows"]
     assert fa[0]["tracks"] > 0 and fa[-1]["alarms"] == 0  # the largest-rise tolerance is silent

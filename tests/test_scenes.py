@@ -7,9 +7,9 @@ from pathlib import Path
 
 import pytest
 
+from lesmc.api import check
 from lesmc.language.parser import load_spec
-from lesmc.tracking.scene import load_scene
-from lesmc.unfold import check_scene
+from lesmc.scene import load_scene
 
 SCENES = Path(__file__).parent / "scenes"
 
@@ -18,7 +18,7 @@ def verdicts(
     name: str, design: str = "single", engine: str = "bnb"
 ) -> dict[str, tuple[str, float]]:
     scene = load_scene(SCENES / f"{name}.json").with_tracker(design=design)
-    results = check_scene(scene, [load_spec(SCENES / f"{name}.spec")], engine=engine)  # type: ignore[arg-type]
+    results = check(scene, [load_spec(SCENES / f"{name}.spec")], engine=engine)  # type: ignore[arg-type]
     return {r.property: (r.verdict, math.inf if r.optimum is None else r.optimum) for r in results}
 
 

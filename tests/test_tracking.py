@@ -12,15 +12,15 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from kf_reference import reference_filter
 
-from lesmc.errors import InputError
+from lesmc.build.unfold import build_model
+from lesmc.common.errors import InputError
+from lesmc.designs.registry import make_tracker
 from lesmc.model.lts import to_lts
+from lesmc.scene import Detection, Frame, Scene, load_scene, scene_from_dict, scene_to_dict
+from lesmc.scene.toy import Vehicle, vehicle_scene
 from lesmc.tracking.association import attack_options, gate_radii
-from lesmc.tracking.design import make_design
 from lesmc.tracking.kalman import innovations, matrices, predict_covariances, white_noise_q
 from lesmc.tracking.monitor import track
-from lesmc.tracking.scene import Detection, Frame, Scene, load_scene, scene_from_dict, scene_to_dict
-from lesmc.tracking.toy import Vehicle, vehicle_scene
-from lesmc.unfold import build_model
 
 SCENES = Path(__file__).parent / "scenes"
 
@@ -93,7 +93,7 @@ def test_unattacked_track_equals_textbook_kalman_filter(name: str, camera: bool)
     scene = load_scene(SCENES / f"{name}.json")
     if camera:
         scene = with_camera_motion(scene)
-    ours = [p.x for p in track(make_design(scene))]
+    ours = [p.x for p in track(make_tracker(scene))]
     theirs = textbook_track(scene)
     assert len(ours) == len(theirs)
     np.testing.assert_allclose(np.array(ours), np.array(theirs), rtol=1e-9, atol=1e-9)
@@ -163,7 +163,7 @@ def test_unattackable_detection_ends_the_options() -> None:
 def test_skipping_updates_raises_the_monitor_alarm() -> None:
     t = Vehicle("t", 0, 0, 10, 0, 1.0, last=9)  # vanishes after frame 9
     scene = vehicle_scene([t], 14, t)
-    points = track(make_design(scene))
+    points = track(make_tracker(scene))
     assert [p.alarm for p in points][:10] == [False] * 10
     assert all(p.alarm for p in points[10:])
     assert all(points[k].tau > points[k - 1].tau for k in range(10, 14))
@@ -242,7 +242,7 @@ def test_nan_in_scene_file_is_refused(tmp_path: Path) -> None:
 
 
 def test_scene_round_trip(tmp_path: Path) -> None:
-    from lesmc.tracking.scene import save_scene
+    from lesmc.scene import save_scene
 
     s = with_camera_motion(load_scene(SCENES / "rq4_merge.json"))
     save_scene(s, tmp_path / "s.json")

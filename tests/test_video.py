@@ -11,7 +11,7 @@ import pytest
 from click.testing import CliRunner
 
 from lesmc.cli.main import cli
-from lesmc.errors import InputError
+from lesmc.common.errors import InputError
 from lesmc.video.reader import natural_key, open_frames
 from lesmc.video.synth import SynthConfig, frames, write_video
 
@@ -114,7 +114,7 @@ def test_perceive_reports_quality_on_a_synthetic_video(small_video: Path) -> Non
         cli, ["perceive", str(small_video), "--truth", str(small_video / "truth.json"), "--json"]
     )
     assert res.exit_code == 0, res.output
-    doc = json.loads(res.output)
+    doc = json.loads(res.stdout)  # stderr: the progress log lines
     assert len(doc["frames"]) == 6 - 4
     fe, det = doc["overall"]["frontend"], doc["overall"]["detector"]
     assert fe["tp"] + fe["fn"] > 5
@@ -132,7 +132,7 @@ def test_perceive_reports_quality_on_a_synthetic_video(small_video: Path) -> Non
             "--no-cnn",
         ],
     )
-    assert json.loads(front_only.output)["overall"] == {"frontend": fe}
+    assert json.loads(front_only.stdout)["overall"] == {"frontend": fe}
 
 
 def test_perceive_errors_exit_2_without_traceback(tmp_path: Path) -> None:

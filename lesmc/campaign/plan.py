@@ -13,29 +13,16 @@ import hashlib
 import json
 import re
 from dataclasses import dataclass
-from typing import Any, Literal
+from typing import Any
 
-from lesmc.errors import UsageError
+from lesmc.common.errors import UsageError
+from lesmc.designs import registry
 from lesmc.language.properties import Property, SpecFile
+from lesmc.pipeline.certify import PROBE_STOPPED
 from lesmc.tracking.targets import TargetSpec
 
 #: The paper's windows (section 8.2): l from 4 to 12, u − l from 1 to 4.
 DEFAULT_WINDOWS = "4..12:1..4"
-DESIGN_SETS = {
-    "single": ("single",),
-    "joint": ("joint",),
-    "improved": ("improved",),
-    "both": ("single", "improved"),
-    "all": ("single", "joint", "improved"),
-}
-#: The tracker each design runs (joint and improved share one model).
-TRACKER: dict[str, Literal["single", "joint"]] = {
-    "single": "single",
-    "joint": "joint",
-    "improved": "joint",
-}
-#: ``Group.unbounded`` of a window whose probe a budget stopped: the count is unknown.
-PROBE_STOPPED = -1
 #: Bumped when a unit's answer could change for the same inputs: old keys are then redone.
 KEY_VERSION = 1
 
@@ -55,9 +42,10 @@ def parse_windows(text: str) -> list[tuple[int, int]]:
 
 
 def design_specs(specs: list[SpecFile], window: tuple[int, int], design: str) -> list[SpecFile]:
-    """The properties a design is checked against in a window (improved: with the monitor)."""
+    """The properties a design is checked against in a window (with the monitor when the
+    design has it: lesmc/designs/registry.py)."""
     out = [s.with_window(window) for s in specs]
-    return [s.with_monitor() for s in out] if design == "improved" else out
+    return [s.with_monitor() for s in out] if registry.get(design).monitor else out
 
 
 def property_text(p: Property) -> str:
@@ -98,7 +86,7 @@ class Group:
     video: str
     scene_key: str
     target: TargetSpec
-    tracker: Literal["single", "joint"]
+    tracker: str  #: the registry's tracker every unit's design unfolds with
     units: tuple[Unit, ...]
     specs: tuple[tuple[str, str], ...]  # (path, text) of each spec file: workers read no files
     timeout: float | None
@@ -136,7 +124,7 @@ def plan_units(
             for spec in design_specs(specs, w, d):
                 for p in spec.properties:
                     key = unit_key(scene_key, target, d, p, payoffs)
-                    out.setdefault(TRACKER[d], []).append(Unit(key, w, d, p.name))
+                    out.setdefault(registry.get(d).tracker, []).append(Unit(key, w, d, p.name))
     return out
 
 
@@ -147,7 +135,7 @@ def scene_key(doc: dict[str, Any], bounds: bool = False) -> str:
     campaign adds them to its scene as its units need them, and the units' keys
     stay the same (the bounds follow from the frames). With ``bounds``: the key of
     the document the workers parse (and cache), ``meta.certified`` included, which a
-    certified scene without any bound needs (:meth:`lesmc.tracking.scene.Scene.priced`).
+    certified scene without any bound needs (:meth:`lesmc.scene.Scene.priced`).
     """
     body: dict[str, Any] = {k: doc[k] for k in ("dt", "frames", "tracker") if k in doc}
     if bounds and isinstance(doc.get("meta"), dict) and "certified" in doc["meta"]:

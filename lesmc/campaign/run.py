@@ -12,18 +12,25 @@ row is appended by this process as soon as its group returns.
 from __future__ import annotations
 
 import hashlib
-import time
-from collections.abc import Callable, Iterable, Mapping
-from dataclasses import dataclass, field
+from collections.abc import Callable, Iterable
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
-from lesmc.campaign.plan import PROBE_STOPPED, Group, plan_units, scene_key
-from lesmc.errors import InputError, Location, UsageError
-from lesmc.fileio import read_json
+from rich.console import Console
+
+from lesmc.build.probe import merged_detections
+from lesmc.campaign.plan import Group, plan_units, scene_key
+from lesmc.common.budget import Budget
+from lesmc.common.errors import InputError, Location, UsageError
+from lesmc.common.files import read_json
+from lesmc.common.progress import progress_bar
+from lesmc.designs import registry
 from lesmc.language.properties import SpecFile
-from lesmc.tracking.scene import Footage
-from lesmc.tracking.targets import AutoTarget, TargetSpec
+from lesmc.pipeline import certify
+from lesmc.pipeline.job import Certifier
+from lesmc.scene import Footage, footage_from_dict, save_scene, scene_to_dict
+from lesmc.tracking.targets import AutoTarget, TargetSpec, place_target
 
 #: Frames in the background median (as lesmc verify).
 HISTORY = 4
@@ -65,7 +72,6 @@ class Prepared:
 
     def set_footage(self, footage: Footage) -> None:
         """Replace the scene (with bounds added): its document and document key follow."""
-        from lesmc.tracking.scene import scene_to_dict
 
         self.footage = footage
         self.doc = scene_to_dict(footage)
@@ -86,7 +92,7 @@ def fingerprint(paths: Iterable[Path]) -> str:
 def prepare(video: Video, out: Path, nets_dir: str | None = None) -> Prepared:
     """The video's scene: ``DIR/scenes/<name>.json`` if made from these frames, else perceived."""
     from lesmc.perception.to_scene import footage_from_run
-    from lesmc.tracking.scene import footage_from_dict, save_scene, scene_to_dict
+    from lesmc.scene import save_scene
     from lesmc.video import FPS
     from lesmc.video.reader import open_frames
 
@@ -124,10 +130,10 @@ def prepare(video: Video, out: Path, nets_dir: str | None = None) -> Prepared:
 
 def perceive_video(video: Video, frames: Any, nets_dir: str | None) -> tuple[Any, Any]:
     """The perception run of a video's frames (detections, payoffs, N_dr windows) and the nets."""
+    from lesmc.common.progress import progress_bar
     from lesmc.perception.attacks import AttackConfig
     from lesmc.perception.cnn import load_nets
     from lesmc.perception.run import PerceiveOptions, perceive
-    from lesmc.report.progress import progress_bar
 
     nets = load_nets(nets_dir)
     opts = PerceiveOptions(history=HISTORY, nets=nets, attack=AttackConfig())
@@ -137,62 +143,6 @@ def perceive_video(video: Video, frames: Any, nets_dir: str | None) -> tuple[Any
 
 
 # ------------------------------------------------------------------ certified payoffs
-
-
-def widest(windows: set[tuple[int, int]]) -> list[tuple[int, int]]:
-    """The windows not inside another: a window's model holds every path of the windows
-    inside it, so it prices (a superset of) their detections. Probing each unit's window,
-    not their union: a model attacked over the union (13 steps for the paper's windows)
-    can be far larger than any unit's (5 steps), and prices detections no unit reads."""
-    return sorted(
-        w for w in windows if not any(o != w and o[0] <= w[0] and w[1] <= o[1] for o in windows)
-    )
-
-
-class _ProbeBudget(Exception):
-    """The probe's model outgrew the campaign's --max-states or --timeout."""
-
-
-def probe(
-    scene: Any, window: tuple[int, int], max_states: int | None, seconds: float | None
-) -> tuple[dict[int, Any], bool]:
-    """:func:`lesmc.unfold.priced_detections` within a unit's budgets, and whether it finished.
-
-    A stopped probe keeps what its model read so far: those are certified, and the
-    units of the window say that detections may lack a bound (counted as 0: sound).
-    """
-    import numpy as np
-
-    from lesmc.unfold import priced_detections
-
-    started = time.monotonic()
-
-    def spent(model: Any) -> None:
-        if (max_states is not None and model.n_states > max_states) or (
-            seconds is not None and time.monotonic() - started > seconds
-        ):
-            raise _ProbeBudget
-
-    reads: dict[int, set[int]] = {}
-    try:
-        found = priced_detections(scene, window, on_batch=spent, reads=reads, max_states=max_states)
-        return found, True
-    except _ProbeBudget:
-        read = {k: np.array(sorted(v), dtype=np.int64) for k, v in reads.items() if v}
-        return read, False
-
-
-def without_bound(footage: Footage, dets_by_step: Mapping[int, Iterable[int]]) -> dict[int, Any]:
-    """Per frame step, the given detections that carry no ``payoff_lower`` yet (sorted)."""
-    import numpy as np
-
-    out = {}
-    for k, dets in sorted(dets_by_step.items()):
-        frame = footage.frame(k)
-        need = sorted(int(i) for i in dets if frame.detections[int(i)].payoff_lower is None)
-        if need:
-            out[k] = np.array(need, dtype=np.int64)
-    return out
 
 
 def same_detections(p: Prepared, run: Any, nets: Any) -> None:
@@ -226,95 +176,84 @@ def same_detections(p: Prepared, run: Any, nets: Any) -> None:
         )
 
 
-#: Bisection steps of the certified radius search (as lesmc verify's ON_DEMAND_STEPS).
-CERTIFY_STEPS = 6
-
-
 def certify_scenes(
     prepared: list[Prepared], groups: list[Group], nets_dir: str | None
 ) -> list[Group]:
     """Certified lower payoffs for every detection the groups' models can hide.
 
-    Per video: the union over its groups (target, tracker) and their units' windows
-    of :func:`lesmc.unfold.priced_detections`, less the detections the
-    scene already bounds (an earlier run), is certified (lesmc.perception.run.
-    certify_detections; the video is perceived again when this process did not
-    perceive it). The scene file gets the bounds; the groups get its new key.
-    A detection no model can hide keeps no bound: the certified model reads it
-    as 0 (docs/semantics.md, "Which detections need a bound").
+    Per video: the probes of every group (target, tracker) over its units' widest
+    windows (lesmc/pipeline/certify.py), each within a unit's budget; what they
+    found and the scene does not bound yet is certified (the video is perceived
+    again when this process did not perceive it). The scene file gets the bounds;
+    the groups get its new key and, per probed window, how many of the detections
+    its model can hide still lack a bound (normally none).
     """
-    from dataclasses import replace
-
-    import numpy as np
-    from rich.console import Console
-
-    from lesmc.perception.run import certification_meta, certify_on_demand
-    from lesmc.report.progress import progress_bar
-    from lesmc.tracking.scene import lower_frames, save_scene
-    from lesmc.tracking.targets import place_target
-    from lesmc.unfold import merged_detections
-    from lesmc.video.reader import open_frames
-
-    err = Console(stderr=True)
     out: list[Group] = []
     for p in prepared:
         mine = [g for g in groups if g.video == p.video.name]
         if not mine:
             continue
-        probes = [(g, w) for g in mine for w in widest({u.window for u in g.units})]
-        found: list[tuple[dict[int, np.ndarray], bool]] = []  # per probe: its set, finished
-        with progress_bar(f"what {p.video.name}'s models can hide", len(probes)) as bar:
-            for g, window in probes:
-                scene = place_target(p.footage, g.target).with_tracker(design=g.tracker)
-                found.append(probe(scene, window, g.max_states, g.timeout))
-                bar.advance()
-        todo = without_bound(p.footage, merged_detections(dets for dets, _ in found))
-        n = sum(len(v) for v in todo.values())
-        if n or "certified" not in p.footage.meta:
-            lower: dict[int, np.ndarray] = {}
-            seconds = float(p.footage.meta.get("certified", {}).get("seconds", 0.0))
-            if n:
-                if p.run is None:
-                    frames = open_frames(p.video.frames_dir, HISTORY + 1, check=False)
-                    p.run, nets = perceive_video(p.video, frames, nets_dir)
-                    same_detections(p, p.run, nets)
-                else:
-                    from lesmc.perception.cnn import load_nets
-
-                    nets = load_nets(nets_dir)
-                started = time.monotonic()
-                err.print(
-                    f"{p.video.name}: certifying {n} detections (those the models can hide "
-                    "and the scene does not yet bound)"
-                )
-                with progress_bar(f"certifying {p.video.name}", None) as bar:
-                    lower = certify_on_demand(
-                        nets,
-                        p.run,
-                        todo,
-                        lambda done, total: bar.update(total=total, completed=done),
-                    )
-                seconds += time.monotonic() - started
-            frames_low = lower_frames(p.footage.frames, lower)
-            scope = "the detections the campaign's models can hide; the others have no bound"
-            meta = {**p.footage.meta, "certified": certification_meta(frames_low, scope, seconds)}
-            p.set_footage(replace(p.footage, frames=frames_low, meta=meta))
+        probes = _probes(p, mine)
+        found = [pr for prs in probes.values() for pr in prs]
+        todo = certify.without_bound(p.footage, merged_detections(pr.found for pr in found))
+        if todo or "certified" not in p.footage.meta:
+            low = certify.certify(
+                p.footage,
+                found,
+                _certifier(p, nets_dir, sum(len(v) for v in todo.values())),
+                "the detections the campaign's models can hide; the others have no bound",
+            )
+            p.set_footage(replace(p.footage, frames=low.frames, meta=low.meta))
             save_scene(p.footage, p.scene_path)
         for g in mine:
-            unbounded = tuple(
-                (
-                    w,
-                    sum(map(len, without_bound(p.footage, dets).values()))
-                    if done
-                    else PROBE_STOPPED,
-                )
-                for (h, w), (dets, done) in zip(probes, found, strict=True)
-                if h is g
+            counts = tuple(
+                (pr.window, certify.unbounded(p.footage, [pr], pr.window)) for pr in probes[g]
             )
-            out.append(replace(g, scene_key=p.doc_key, unbounded=unbounded))
+            out.append(replace(g, scene_key=p.doc_key, unbounded=counts))
         p.run = None  # its windows are no longer needed
     out.sort(key=group_order)
     return out
+
+
+def _probes(p: Prepared, groups: list[Group]) -> dict[Group, list[certify.Probed]]:
+    """Per group, the probes of its units' widest windows, each within a unit's budget."""
+    out: dict[Group, list[certify.Probed]] = {}
+    n = sum(len(certify.widest({u.window for u in g.units})) for g in groups)
+    with progress_bar(f"what {p.video.name}'s models can hide", n) as bar:
+        for g in groups:
+            scene = place_target(p.footage, g.target).with_tracker(design=g.tracker)
+            budget = Budget(max_states=g.max_states, check_timeout=g.timeout)
+            out[g] = []
+            for w in certify.widest({u.window for u in g.units}):
+                out[g].append(certify.probe(scene, w, budget))
+                bar.advance()
+    return out
+
+
+def _certifier(p: Prepared, nets_dir: str | None, n: int) -> Certifier:
+    """Perception's certification of the video's detections (perceived again if need be)."""
+
+    def run(wanted: Any) -> dict[int, Any]:
+        from lesmc.perception.cnn import load_nets
+        from lesmc.perception.run import certify_on_demand
+        from lesmc.video.reader import open_frames
+
+        if p.run is None:
+            frames = open_frames(p.video.frames_dir, HISTORY + 1, check=False)
+            p.run, nets = perceive_video(p.video, frames, nets_dir)
+            same_detections(p, p.run, nets)
+        else:
+            nets = load_nets(nets_dir)
+        Console(stderr=True).print(
+            f"{p.video.name}: certifying {n} detections (those the models can hide and the "
+            "scene does not yet bound)"
+        )
+        with progress_bar(f"certifying {p.video.name}", None) as bar:
+            return certify_on_demand(
+                nets, p.run, wanted, lambda done, total: bar.update(total=total, completed=done)
+            )
+
+    return run
 
 
 # ------------------------------------------------------------------ targets
@@ -325,10 +264,10 @@ def truth_targets(p: Prepared, window: tuple[int, int], horizon: int) -> list[Au
     each frame that leaves ``horizon`` steps, each vehicle once (at its earliest start), kept
     when the unattacked plain tracker, started on it from the scene, follows it through
     ``horizon``. Most neighbouring traffic first; ties by frame, then vehicle id."""
+    from lesmc.build.unfold import original_end
     from lesmc.perception.quality import load_truth
     from lesmc.tracking.targets import place_target, rounded
-    from lesmc.unfold import original_end
-    from lesmc.verify import follows, rank_targets
+    from lesmc.verify.targets import follows, rank_targets
     from lesmc.video.reader import open_frames
 
     assert p.video.truth is not None
@@ -406,8 +345,8 @@ def check_file_target(
     p: Prepared, spec: TargetSpec, where: Location, windows: list[tuple[int, int]]
 ) -> None:
     """A file's target must be in the gate of a detection and tracked past every window."""
+    from lesmc.build.unfold import original_end
     from lesmc.tracking.targets import place_target
-    from lesmc.unfold import original_end
 
     try:
         scene = place_target(p.footage, spec)
@@ -451,7 +390,7 @@ def make_groups(
                             p.video.name,
                             p.doc_key,
                             t,
-                            tracker,  # type: ignore[arg-type]
+                            tracker,
                             todo,
                             texts,
                             timeout,
@@ -463,10 +402,10 @@ def make_groups(
     return groups, total
 
 
-def group_order(g: Group) -> tuple[bool, int]:
-    """The joint tracker's groups cost most: they start first (longest first balances
-    the workers)."""
-    return (g.tracker != "joint", -len(g.units))
+def group_order(g: Group) -> tuple[float, int]:
+    """Costly trackers' groups (the registry's ``cost``) and large groups start first:
+    longest first balances the workers."""
+    return (-registry.get(g.tracker).cost, -len(g.units))
 
 
 RowsHandler = Callable[[list[dict[str, Any]]], None]

@@ -13,10 +13,10 @@ import os
 from pathlib import Path
 from typing import Any
 
-from lesmc.errors import InputError, Location
+from lesmc.common.errors import InputError, Location
 
 FORMAT = "lesmc-campaign-row"
-VERSION = 1
+VERSION = 2
 
 
 def read_rows(path: Path, repair: bool = False) -> list[dict[str, Any]]:

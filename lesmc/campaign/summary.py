@@ -22,11 +22,13 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
+from lesmc.designs import registry
+from lesmc.engines.result import status_word
+
 FORMAT = "lesmc-campaign-summary"
-VERSION = 1
+VERSION = 2
 #: Worst cases listed per (design, property).
 WORST = 5
-DESIGN_NAMES = {"single": "single", "joint": "joint KFs", "improved": "joint KFs + monitor"}
 
 
 def _value(x: Any) -> float | None:
@@ -74,47 +76,16 @@ def summarise(rows: list[dict[str, Any]], scenes: str) -> dict[str, Any]:
     by: dict[tuple[str, str], list[dict[str, Any]]] = defaultdict(list)
     for r in rows:
         by[(r["design"], r["property"])].append(r)
-    designs = [d for d in DESIGN_NAMES if any(k[0] == d for k in by)]
+    present = {k[0] for k in by}
+    designs = [d for d in registry.names() if d in present] + sorted(
+        present - set(registry.names())
+    )
     props = sorted({k[1] for k in by})
     cells: dict[str, dict[str, Any]] = {}
     for d in designs:
         cells[d] = {}
         for p in props:
-            rs = by.get((d, p), [])
-            verdicts = Counter(r["verdict"] for r in rs)
-            optima = [v for r in rs if (v := _value(r["optimum"])) is not None]
-            lengths: dict[int, list[int]] = defaultdict(lambda: [0, 0])
-            for r in rs:
-                n = r["window"][1] - r["window"][0] + 1
-                lengths[n][0] += 1
-                lengths[n][1] += r["verdict"] == "violated"
-            worst = sorted(
-                (r for r in rs if r["verdict"] == "violated" and _value(r["optimum"]) is not None),
-                key=lambda r: (_value(r["optimum"]), r["video"], r["key"]),
-            )[:WORST]
-            cells[d][p] = {
-                "rows": len(rs),
-                "holds": verdicts.get("holds", 0),
-                "vacuous": sum(r["verdict"] == "holds" and _vacuous(r) for r in rs),
-                "violated": verdicts.get("violated", 0),
-                "unknown": verdicts.get("unknown", 0),
-                "optimum_quantiles": quantiles(optima) if optima else None,
-                "optima": ["inf" if math.isinf(x) else x for x in sorted(optima)],
-                "violated_by_window_length": {
-                    str(n): {"rows": c[0], "violated": c[1], "fraction": c[1] / c[0]}
-                    for n, c in sorted(lengths.items())
-                },
-                "worst": [
-                    {
-                        "video": r["video"],
-                        "target": r["target"],
-                        "window": r["window"],
-                        "optimum": r["optimum"],
-                        "command": command(r, scenes),
-                    }
-                    for r in worst
-                ],
-            }
+            cells[d][p] = _cell(by.get((d, p), []), scenes)
     return {
         "format": FORMAT,
         "version": VERSION,
@@ -130,9 +101,60 @@ def summarise(rows: list[dict[str, Any]], scenes: str) -> dict[str, Any]:
     }
 
 
-def _vacuous(row: dict[str, Any]) -> bool:
-    """The row's monitor excludes the unattacked track itself (rows before this field: no)."""
-    return bool(row.get("vacuous", False))
+def _cell(rs: list[dict[str, Any]], scenes: str) -> dict[str, Any]:
+    """One design's rows of one property: the counts of each verdict word, the optima, the
+    fraction violated by window length, and the worst cases with their commands."""
+    statuses = Counter(_status(r) for r in rs)
+    optima = [v for r in rs if (v := _value(r["optimum"])) is not None]
+    lengths: dict[int, list[int]] = defaultdict(lambda: [0, 0])
+    for r in rs:
+        n = r["window"][1] - r["window"][0] + 1
+        lengths[n][0] += 1
+        lengths[n][1] += r["verdict"] == "violated"
+    worst = sorted(
+        (r for r in rs if r["verdict"] == "violated" and _value(r["optimum"]) is not None),
+        key=lambda r: (_value(r["optimum"]), r["video"], r["key"]),
+    )[:WORST]
+    return {
+        "rows": len(rs),
+        "holds": statuses.get("holds", 0),  # a vacuous holds is not one
+        "vacuous": statuses.get("holds (vacuous)", 0),
+        "violated": statuses.get("violated", 0),
+        "not_replayed": statuses.get("violated (not replayed)", 0),
+        "unknown": statuses.get("unknown", 0),
+        "optimum_quantiles": quantiles(optima) if optima else None,
+        "optima": ["inf" if math.isinf(x) else x for x in sorted(optima)],
+        "violated_by_window_length": {
+            str(n): {"rows": c[0], "violated": c[1], "fraction": c[1] / c[0]}
+            for n, c in sorted(lengths.items())
+        },
+        "worst": [
+            {
+                "video": r["video"],
+                "target": r["target"],
+                "window": r["window"],
+                "optimum": r["optimum"],
+                "command": command(r, scenes),
+            }
+            for r in worst
+        ],
+    }
+
+
+#: Colours of the designs in the figures, in registry order (the paper's three first).
+PALETTE = ("#d73027", "#4575b4", "#1a9850", "#984ea3", "#ff7f00", "#a65628", "#f781bf")
+
+
+def design_colours(designs: Sequence[str]) -> dict[str, str]:
+    """A colour per design, stable across campaigns (by the registry's order)."""
+    order = [*registry.names(), *sorted(set(designs) - set(registry.names()))]
+    return {d: PALETTE[order.index(d) % len(PALETTE)] for d in designs}
+
+
+def _status(row: dict[str, Any]) -> str:
+    """The row's verdict word (lesmc.engines.result.status_word)."""
+    replay = "not replayed" if row.get("status") == "violated (not replayed)" else None
+    return status_word(row["verdict"], bool(row.get("vacuous", False)), replay)
 
 
 def improvements(rows: list[dict[str, Any]], props: list[str]) -> dict[str, Any]:
@@ -144,29 +166,34 @@ def improvements(rows: list[dict[str, Any]], props: list[str]) -> dict[str, Any]
     verdict: dict[tuple[str, str, str, tuple[int, int], str], str] = {}
     for r in rows:
         case = (r["property"], r["video"], _target_text(r["target"]), tuple(r["window"]))
-        verdict[(*case, r["design"])] = (
-            "vacuous" if r["verdict"] == "holds" and _vacuous(r) else r["verdict"]
-        )
+        word = _status(r)
+        verdict[(*case, r["design"])] = "vacuous" if word == "holds (vacuous)" else r["verdict"]
+    base = registry.BASELINE
+    others = [d for d in dict.fromkeys(k[4] for k in verdict) if d != base]
     out: dict[str, Any] = {}
     for p in props:
-        cases = {k[:4] for k in verdict if k[0] == p and k[4] == "single"}
-        single_bad = {c for c in cases if verdict[(*c, "single")] == "violated"}
+        cases = {k[:4] for k in verdict if k[0] == p and k[4] == base}
+        base_bad = {c for c in cases if verdict[(*c, base)] == "violated"}
         per: dict[str, Any] = {}
-        for d in ("joint", "improved"):
+        for d in others:
             both = {c for c in cases if (*c, d) in verdict}
             if not both:
                 continue
             per[d] = {
                 "compared": len(both),
-                "removed": sum(verdict[(*c, d)] == "holds" for c in both & single_bad),
-                "vacuous": sum(verdict[(*c, d)] == "vacuous" for c in both & single_bad),
-                "still_violated": sum(verdict[(*c, d)] == "violated" for c in both & single_bad),
+                "removed": sum(verdict[(*c, d)] == "holds" for c in both & base_bad),
+                "vacuous": sum(verdict[(*c, d)] == "vacuous" for c in both & base_bad),
+                "still_violated": sum(verdict[(*c, d)] == "violated" for c in both & base_bad),
                 "added": sum(
-                    verdict[(*c, d)] == "violated" and verdict[(*c, "single")] == "holds"
-                    for c in both
+                    verdict[(*c, d)] == "violated" and verdict[(*c, base)] == "holds" for c in both
                 ),
             }
-        out[p] = {"single_violated": len(single_bad), "cases": len(cases), "designs": per}
+        out[p] = {
+            "baseline": base,
+            "baseline_violated": len(base_bad),
+            "cases": len(cases),
+            "designs": per,
+        }
     return out
 
 
@@ -180,7 +207,7 @@ def figures(summary: dict[str, Any]) -> dict[str, bytes]:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    colours = {"single": "#d73027", "joint": "#4575b4", "improved": "#1a9850"}
+    colours = design_colours(summary["designs"])
     out: dict[str, bytes] = {}
     for p in summary["properties"]:
         fig, ax = plt.subplots(figsize=(6, 3.6))
@@ -195,7 +222,7 @@ def figures(summary: dict[str, Any]) -> dict[str, bytes]:
             n = len(opt)
             xs = [x for x in opt if x != "inf"]
             ys = [(i + 1) / n for i in range(len(xs))]
-            ax.step([0.0, *xs], [0.0, *ys], where="post", color=colours[d], label=DESIGN_NAMES[d])
+            ax.step([0.0, *xs], [0.0, *ys], where="post", color=colours[d], label=registry.label(d))
         ax.set_xlabel(f"{p} optimum (curves stop where the rest is +inf)")
         ax.set_ylabel("fraction of (target, window)")
         ax.set_ylim(0, 1.02)
@@ -215,7 +242,7 @@ def figures(summary: dict[str, Any]) -> dict[str, bytes]:
                 [by[str(n)]["fraction"] for n in xs],
                 "o-",
                 color=colours[d],
-                label=DESIGN_NAMES[d],
+                label=registry.label(d),
             )
         ax.set_xlabel("window length u - l + 1")
         ax.set_ylabel("fraction violated")
@@ -259,7 +286,18 @@ def _table(head: list[str], rows: list[list[str]]) -> str:
     return f"<table><tr>{th}</tr>{body}</table>"
 
 
-CELL_HEADER = ("design", "property", "rows", "holds", "of which vacuous", "violated", "unknown")
+#: The columns of a summary table: a vacuous holds and a violation not replayed through the
+#: detector are counted apart from holds and violated (lesmc.engines.result.STATUSES).
+CELL_HEADER = (
+    "design",
+    "property",
+    "rows",
+    "holds",
+    "holds (vacuous)",
+    "violated",
+    "violated (not replayed)",
+    "unknown",
+)
 QUANTILE_KEYS = ("min", "p25", "median", "p75", "max")
 
 
@@ -271,10 +309,17 @@ def cell_rows(summary: dict[str, Any], quantile_keys: tuple[str, ...]) -> list[l
         for p in summary["properties"]:
             c = summary["cells"][d][p]
             q = c["optimum_quantiles"] or {}
-            counts = (c["rows"], c["holds"], c["vacuous"], c["violated"], c["unknown"])
+            counts = (
+                c["rows"],
+                c["holds"],
+                c["vacuous"],
+                c["violated"],
+                c["not_replayed"],
+                c["unknown"],
+            )
             rows.append(
                 [
-                    DESIGN_NAMES[d],
+                    registry.label(d),
                     p,
                     *map(str, counts),
                     *(str(q.get(k, "-")) for k in quantile_keys),
@@ -306,7 +351,7 @@ def write_html(
     summary: dict[str, Any], figs: dict[str, bytes], out: Path, meta: dict[str, str]
 ) -> Path:
     """``DIR/campaign.html`` (self-contained) and ``DIR/figures/campaign_*.png``."""
-    from lesmc.fileio import atomic_write_text
+    from lesmc.common.files import atomic_write_text
 
     fig_dir = out / "figures"
     fig_dir.mkdir(parents=True, exist_ok=True)
@@ -317,7 +362,7 @@ def write_html(
         "<h1>lesmc campaign</h1>",
         _table(["", ""], [[html.escape(k), html.escape(v)] for k, v in meta.items()]),
         f"<p>{s['rows']} results: {len(s['videos'])} video(s), {s['targets']} targets, "
-        f"{s['windows']} windows, designs {', '.join(DESIGN_NAMES[d] for d in s['designs'])}, "
+        f"{s['windows']} windows, designs {', '.join(registry.label(d) for d in s['designs'])}, "
         f"properties {', '.join(s['properties'])}.</p>",
         PAYOFF_TEXT.get(s["payoffs"], ""),
         "<h2>Verdicts and optima (ECDF over targets and windows)</h2>",
@@ -336,48 +381,9 @@ def write_html(
     parts.append(
         "<h2>Adversarial tracks removed by the improvements (Table 5 over many tracks)</h2>"
     )
-    rows = []
-    for p, imp in s["improvements"].items():
-        for d, v in imp["designs"].items():
-            rows.append(
-                [
-                    p,
-                    DESIGN_NAMES[d],
-                    str(imp["single_violated"]),
-                    str(v["removed"]),
-                    str(v["vacuous"]),
-                    str(v["still_violated"]),
-                    str(v["added"]),
-                ]
-            )
-    parts.append(
-        _table(
-            [
-                "property",
-                "design",
-                "violated (single)",
-                "removed",
-                "holds only vacuously",
-                "still violated",
-                "added",
-            ],
-            rows,
-        )
-    )
+    parts.append(_improvements_table(s["improvements"]))
     parts.append("<h2>Worst cases</h2>")
-    rows = []
-    for d in s["designs"]:
-        for p in s["properties"]:
-            for w in s["cells"][d][p]["worst"]:
-                rows.append(
-                    [
-                        DESIGN_NAMES[d],
-                        p,
-                        str(w["optimum"]),
-                        f"<code>{html.escape(w['command'])}</code>",
-                    ]
-                )
-    parts.append(_table(["design", "property", "optimum", "reproduce with"], rows))
+    parts.append(_worst_table(s))
     page = (
         "<!DOCTYPE html><html lang='en'><head><meta charset='utf-8'><title>lesmc campaign</title>"
         f"<style>{_CSS}</style></head><body>{''.join(parts)}</body></html>\n"
@@ -385,6 +391,44 @@ def write_html(
     path = out / "campaign.html"
     atomic_write_text(path, page)
     return path
+
+
+def _improvements_table(improvements: dict[str, Any]) -> str:
+    """Per property and design: what the design removes of the baseline's violations."""
+    rows = [
+        [
+            p,
+            registry.label(d),
+            str(imp["baseline_violated"]),
+            str(v["removed"]),
+            str(v["vacuous"]),
+            str(v["still_violated"]),
+            str(v["added"]),
+        ]
+        for p, imp in improvements.items()
+        for d, v in imp["designs"].items()
+    ]
+    head = [
+        "property",
+        "design",
+        f"violated ({registry.label(registry.BASELINE)})",
+        "removed",
+        "holds only vacuously",
+        "still violated",
+        "added",
+    ]
+    return _table(head, rows)
+
+
+def _worst_table(summary: dict[str, Any]) -> str:
+    """The cheapest violations of each design and property, with the command that redoes one."""
+    rows = [
+        [registry.label(d), p, str(w["optimum"]), f"<code>{html.escape(w['command'])}</code>"]
+        for d in summary["designs"]
+        for p in summary["properties"]
+        for w in summary["cells"][d][p]["worst"]
+    ]
+    return _table(["design", "property", "optimum", "reproduce with"], rows)
 
 
 def _img(figs: dict[str, bytes], name: str, caption: str) -> str:

@@ -1,6 +1,6 @@
 """Budgets of the verbs that unfold models (``build``, ``verify``): when to stop, what to say.
 
-A budget (lesmc/engines/budget.py) is checked before each batch of states while
+A budget (lesmc/common/budget.py) is checked before each batch of states while
 a model unfolds and between chunks while it is written. Memory is checked
 against what the next steps will need, not only what is held: the model's
 arrays may double when they grow, freezing copies them, and writing a .lts
@@ -14,10 +14,10 @@ import time
 from pathlib import Path
 from typing import TYPE_CHECKING
 
-from lesmc.errors import BudgetError, escape_control
+from lesmc.common.errors import BudgetError, escape_control
 
 if TYPE_CHECKING:
-    from lesmc.engines.budget import Budget
+    from lesmc.common.budget import Budget
     from lesmc.model.arrays import ArrayModel
     from lesmc.model.growing import GrowingModel
 
@@ -41,7 +41,7 @@ def stop_if_spent(budget: Budget, model: GrowingModel | ArrayModel | None, stage
     reason = budget.exceeded(states, reserve_bytes(model))
     if reason is None:
         return
-    from lesmc.engines.budget import resident_bytes, show_size
+    from lesmc.common.budget import resident_bytes, show_size
 
     spent = time.monotonic() - budget.started
     held = show_size(resident_bytes())
@@ -53,7 +53,7 @@ def stop_if_spent(budget: Budget, model: GrowingModel | ArrayModel | None, stage
 
 def write_model(model: ArrayModel, output: str, budget: Budget) -> None:
     """Write ``model`` as a .lts (atomically), checking ``budget`` between chunks."""
-    from lesmc.fileio import write_json
+    from lesmc.common.files import write_json
     from lesmc.model.lts_format import lts_to_dict
 
     doc = lts_to_dict(model)

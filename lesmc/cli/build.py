@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 import time
+from typing import TYPE_CHECKING, Any
 
 import click
 
@@ -18,7 +19,11 @@ from lesmc.cli.options import (
     parse_window,
     scene_target,
 )
-from lesmc.errors import escape_control, escape_text
+from lesmc.common.errors import escape_control, escape_text
+
+if TYPE_CHECKING:
+    from lesmc.model.arrays import ArrayModel
+    from lesmc.scene import Scene
 
 _DESIGN = design_option("Override the tracker design the scene names.")
 
@@ -69,33 +74,19 @@ def build_cmd(
     3 a budget ran out (nothing written), 4 internal error, 130 interrupted.
     """
     budget = budget_from(timeout, max_states, max_memory)
-    from rich.console import Console
-    from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
-
-    from lesmc.unfold import build_model, max_end
+    from lesmc.build.unfold import build_model, max_end
+    from lesmc.common.progress import Reporter
 
     window = parse_window(window_text)
     sc = load_scene_file(scene, design, target_text)
     loaded = time.monotonic()
-    last = end if end is not None else max_end(sc)
-    err = Console(stderr=True)
-    with Progress(
-        TextColumn("building"),
-        BarColumn(),
-        TextColumn("step {task.completed}/{task.total}"),
-        TextColumn("{task.fields[states]} states"),
-        TimeElapsedColumn(),
-        console=err,
-        transient=True,
-        disable=not err.is_terminal,
-    ) as progress:
-        task = progress.add_task("build", total=last, states=0)
-        stop_if_spent(budget, None, "loading the scene")
+    stop_if_spent(budget, None, "loading the scene")
+    with Reporter("build") as rep, rep.bar("building", end or max_end(sc)) as bar:
         model = build_model(
             sc,
             window,
             end,
-            on_level=lambda k, n: progress.update(task, completed=k, states=n),
+            on_level=lambda k, n: bar.update(completed=k, description=f"building ({n} states)"),
             on_batch=lambda m: stop_if_spent(budget, m, "unfolding"),
             max_states=max_states,
         )
@@ -110,35 +101,45 @@ def build_cmd(
         as_json,
     )
     if as_json:
-        from lesmc.model.lts import to_lts
-        from lesmc.report.results import model_hash
+        seconds = {
+            "load": loaded - budget.started,
+            "unfold": unfolded - loaded,
+            "write": written - unfolded,
+            "total": time.monotonic() - budget.started,
+        }
+        emit(_build_document(scene, output, model, sc, window, seconds))
 
-        emit(
-            {
-                "format": "lesmc-build",
-                "version": 1,
-                "provenance": run_provenance(),
-                "scene": scene,
-                "model": file_facts(output),
-                "model_sha256": model_hash(to_lts(model)),
-                "states": model.n_states,
-                "transitions": model.n_transitions,
-                "end": model.end,
-                "window": [window[0], window[1]],
-                "design": model.meta["design"],
-                "target": {
-                    "step": sc.target.step,
-                    "x": float(sc.target.start[0]),
-                    "y": float(sc.target.start[1]),
-                },
-                "seconds": {
-                    "load": loaded - budget.started,
-                    "unfold": unfolded - loaded,
-                    "write": written - unfolded,
-                    "total": time.monotonic() - budget.started,
-                },
-            }
-        )
+
+def _build_document(
+    scene: str,
+    output: str,
+    model: ArrayModel,
+    sc: Scene,
+    window: tuple[int, int],
+    seconds: dict[str, float],
+) -> dict[str, Any]:
+    """``lesmc build --json``: what was built (format lesmc-build, schemas/build.json)."""
+    from lesmc.results.document import model_hash
+
+    return {
+        "format": "lesmc-build",
+        "version": 1,
+        "provenance": run_provenance(),
+        "scene": scene,
+        "model": file_facts(output),
+        "model_sha256": model_hash(model),
+        "states": model.n_states,
+        "transitions": model.n_transitions,
+        "end": model.end,
+        "window": [window[0], window[1]],
+        "design": model.meta["design"],
+        "target": {
+            "step": sc.target.step,
+            "x": float(sc.target.start[0]),
+            "y": float(sc.target.start[1]),
+        },
+        "seconds": seconds,
+    }
 
 
 @click.command("track")
@@ -153,12 +154,12 @@ def track_cmd(
     """Run the tracker on SCENE unattacked: estimates, τ (Eq. 12) and monitor alarms (Eq. 13)."""
     from rich.table import Table
 
+    from lesmc.designs.registry import make_tracker
     from lesmc.report.text import fmt, make_console
-    from lesmc.tracking.design import make_design
     from lesmc.tracking.monitor import track
 
     sc = load_scene_file(scene, design, target_text)
-    points = track(make_design(sc), end)
+    points = track(make_tracker(sc), end)
     if as_json:
         doc = {
             "format": "lesmc-track",

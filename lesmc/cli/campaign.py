@@ -17,7 +17,7 @@ from lesmc.cli.options import (
     payoffs_option,
     spec_option,
 )
-from lesmc.errors import UsageError
+from lesmc.common.errors import UsageError
 
 DEFAULT_WINDOWS = "4..12:1..4"
 """``lesmc.campaign.plan.DEFAULT_WINDOWS``, repeated so that the option's declaration
@@ -59,10 +59,7 @@ def _cores() -> int:
     metavar="L1..L2:D1..D2",
     help="Attack windows l..u with l in L1..L2 and u - l in D1..D2 (the paper's: 36).",
 )
-@designs_option(
-    "As for lesmc verify: single, joint KFs, joint KFs + monitor; both = single and "
-    "improved; all = the three."
-)
+@designs_option()
 @spec_option
 @click.option(
     "--workers",
@@ -141,8 +138,9 @@ def campaign_cmd(
     0 all hold, 1 some violated, 2 bad input, 3 some unknown, 4 internal error,
     130 interrupted (the lines written are kept).
     """
-    from lesmc.campaign.plan import DESIGN_SETS, parse_windows
-    from lesmc.verify import bundled_specs, load_specs
+    from lesmc.api import expand_designs
+    from lesmc.campaign.plan import parse_windows
+    from lesmc.verify.experiment import bundled_specs, load_specs
 
     if scheduler is not None and workers is not None:
         raise UsageError("--workers sizes the local cluster: it does not apply with --scheduler")
@@ -164,7 +162,7 @@ def campaign_cmd(
         prepared,
         spec_files,
         windows,
-        DESIGN_SETS[design],
+        expand_designs(design),
         out,
         workers,
         scheduler,
@@ -181,8 +179,12 @@ def _videos(frames_dirs: tuple[str, ...], out: Path, no_truth: bool) -> list[Any
     from lesmc.campaign.run import Video
 
     if not frames_dirs:
-        from lesmc.report.progress import progress_bar
-        from lesmc.verify import DEFAULT_VIDEO, default_video_ready, write_default_video
+        from lesmc.common.progress import progress_bar
+        from lesmc.verify.experiment import (
+            DEFAULT_VIDEO,
+            default_video_ready,
+            write_default_video,
+        )
 
         video = out / "video"
         if not default_video_ready(video):
@@ -275,7 +277,7 @@ def _run(
     from lesmc.campaign.plan import plan_units
     from lesmc.campaign.run import certify_scenes, execute, make_groups
     from lesmc.campaign.store import Appender, read_rows
-    from lesmc.report.progress import progress_counter
+    from lesmc.common.progress import Reporter
 
     results = out / "results.jsonl"
     existing = read_rows(results, repair=True)
@@ -294,7 +296,11 @@ def _run(
     }
     docs = {p.doc_key: p.doc for p in prepared}
     todo = sum(len(g.units) for g in groups)
-    with Appender(results, done) as app, progress_counter("campaign", total) as bar:
+    with (
+        Appender(results, done) as app,
+        Reporter("campaign") as rep,
+        rep.bar("campaign", total) as bar,
+    ):
         bar.advance(total - todo)
 
         def on_rows(rows: list[dict[str, Any]]) -> None:
@@ -322,7 +328,7 @@ def _finish(
     as_json: bool,
 ) -> None:
     from lesmc.campaign.summary import figures, summarise, write_html
-    from lesmc.report.exit import EXIT_HOLDS, EXIT_UNKNOWN, EXIT_VIOLATED
+    from lesmc.results.exit import EXIT_HOLDS, EXIT_UNKNOWN, EXIT_VIOLATED
 
     scenes = f"{out_dir.rstrip('/')}/scenes"
     summary = summarise(rows, scenes)
@@ -353,7 +359,8 @@ def _finish(
 def _print(summary: dict[str, Any]) -> None:
     from rich.table import Table
 
-    from lesmc.campaign.summary import CELL_HEADER, DESIGN_NAMES, cell_rows
+    from lesmc.campaign.summary import CELL_HEADER, cell_rows
+    from lesmc.designs import registry
     from lesmc.report.text import make_console
 
     console = make_console()
@@ -370,8 +377,9 @@ def _print(summary: dict[str, Any]) -> None:
     for p, imp in summary["improvements"].items():
         for d, v in imp["designs"].items():
             console.print(
-                f"{p}: {DESIGN_NAMES[d]} removes {v['removed']} of the {imp['single_violated']} "
-                f"adversarial cases of the plain tracker (adds {v['added']})"
+                f"{p}: {registry.label(d)} removes {v['removed']} of the "
+                f"{imp['baseline_violated']} "
+                f"adversarial cases of {registry.label(imp['baseline'])} (adds {v['added']})"
                 + (
                     f"; {v['vacuous']} more hold only vacuously (the monitor flags the "
                     "unattacked track too)"

@@ -8,29 +8,24 @@ from typing import TYPE_CHECKING
 
 import click
 
-from lesmc.cli.budgets import stop_if_spent
 from lesmc.cli.options import (
+    DEFAULT_MAX_STATES,
     budget_from,
+    RegistryChoice,
     budget_options,
-    design_option,
     frames_option,
-    load_model_or_scene,
     payoffs_option,
     scene_target,
 )
-from lesmc.errors import UsageError
+from lesmc.common.errors import UsageError
+from lesmc.designs import registry
 
 if TYPE_CHECKING:
-    from lesmc.engines.budget import Budget
-    from lesmc.engines.result import CheckResult
     from lesmc.language.properties import SpecFile
-    from lesmc.language.semantics import BoundProperty
-    from lesmc.model.arrays import ArrayModel
-    from lesmc.tracking.scene import Scene
+    from lesmc.results.record import Results
 
-DEFAULT_MAX_STATES = 10_000_000
-"""``lesmc.engines.check.DEFAULT_MAX_STATES``, repeated so that the option's declaration
-does not import the engines (tests/test_startup.py checks that the two agree)."""
+#: The engines ``--engine`` offers (lesmc/engines/check.py: ENGINES).
+ENGINES = ("levels", "bnb", "enumerate")
 
 
 @click.command("check")
@@ -38,7 +33,7 @@ does not import the engines (tests/test_startup.py checks that the two agree).""
 @click.argument("specs", nargs=-1, required=True, type=click.Path(dir_okay=False))
 @click.option(
     "--engine",
-    type=click.Choice(["levels", "bnb", "enumerate"]),
+    type=click.Choice(ENGINES),
     default="levels",
     show_default=True,
     help="levels: exact search in lock step with bounds, dominance and a dive for an incumbent "
@@ -74,7 +69,14 @@ does not import the engines (tests/test_startup.py checks that the two agree).""
     "(payoff_lower), or both: holds only if proven with the lower bounds, violated only "
     "with the attack's counterexample, else unknown (docs/semantics.md)."
 )
-@design_option("For a scene: override the tracker design it names.")
+@click.option(
+    "--design",
+    type=RegistryChoice(registry.names),
+    default=None,
+    help="For a scene: check it with this design (lesmc/designs/registry.py) instead of "
+    "the tracker it names; a monitored design filters every property by the runtime "
+    "monitor (Eq. 12-13).",
+)
 @scene_target
 def check_cmd(
     model: str,
@@ -94,9 +96,9 @@ def check_cmd(
 ) -> None:
     """Check the properties in SPEC files on MODEL (a .lts file) or on a SCENE (.json).
 
-    A scene's model is unfolded on the fly from each property's attack window
-    (levels and bnb unfold only the states they visit, enumerate every state its
-    paths reach); a budget stops every engine with 'unknown' and the bounds found.
+    A scene's model is unfolded on the fly, once for every property (levels and
+    bnb unfold only the states they visit, enumerate every state its paths
+    reach); a budget stops every engine with 'unknown' and the bounds found.
 
     For each property: the verdict (holds iff optimum > threshold), the optimum,
     the counterexample (cheapest path that breaks the system) and the witness
@@ -104,143 +106,67 @@ def check_cmd(
     Exit status: 0 all hold, 1 some violated, 2 bad input, 3 some unknown,
     4 internal error, 130 interrupted.
     """
-    budget = budget_from(timeout, None, max_memory)
-    started = budget.started
-    from rich.console import Console
-    from rich.progress import Progress, SpinnerColumn, TextColumn, TimeElapsedColumn
-
-    from lesmc.engines.check import bind_all, check_bound, window_notes
-    from lesmc.language.parser import load_spec
-    from lesmc.report.exit import exit_status
-    from lesmc.report.text import make_console, print_results, results_json
-    from lesmc.tracking.scene import Scene
-    from lesmc.unfold import bind_scene, check_scene_payoffs
-
+    budget = budget_from(timeout, max_states, max_memory)
     if frames_dir is not None and report_dir is None:
         raise UsageError("--frames gives the report's images: it needs --report DIR")
     if no_paths and as_json:
         raise UsageError("--no-paths shortens the table: --json always carries the paths")
-    parsed = [load_spec(s) for s in specs]
-    source = load_model_or_scene(model, design, target_text)
-    if payoffs != "attack" and not isinstance(source, Scene):
-        raise UsageError(f"--payoffs {payoffs} needs a scene: a model's payoffs are built in")
     if payoffs != "attack" and report_dir is not None:
         raise UsageError("--report draws the attack payoffs' model: use --payoffs attack")
-    bound = bind_scene(source, parsed) if isinstance(source, Scene) else bind_all(source, parsed)
-    scene: Scene | None = None
-    if report_dir is not None and isinstance(source, Scene):
-        scene = source  # the report draws the whole model: build it, check once on it
-        bound, source = _built(source, parsed, bound, only, budget)
-    if only:
-        names = {bp.name for bp in bound}
-        missing = [n for n in only if n not in names]
-        if missing:
-            raise UsageError(
-                f"no property named {', '.join(missing)}; the specs define "
-                f"{', '.join(sorted(names))}"
+    # the pipeline is imported when the verb runs: --help stays light (tests/test_startup.py)
+    from lesmc.api import check_job, load_model_or_scene, load_spec
+    from lesmc.common.progress import Reporter
+    from lesmc.pipeline.job import Job
+    from lesmc.report.text import make_console, print_results, results_json
+    from lesmc.results.exit import exit_status
+    from lesmc.scene import Scene
+
+    parsed = tuple(load_spec(s) for s in specs)
+    source = load_model_or_scene(model, target_text)
+    is_scene = isinstance(source, Scene)
+    if design is not None and not is_scene:
+        raise UsageError("--design applies to scenes, not to .lts models")
+    with Reporter("check") as rep:
+        results = check_job(
+            Job(
+                parsed,
+                scene=source if is_scene else None,  # type: ignore[arg-type]
+                model=None if is_scene else source,  # type: ignore[arg-type]
+                payoffs=payoffs,  # type: ignore[arg-type]
+                engine=engine,  # type: ignore[arg-type]
+                budget=budget,
+                only=only,
+                designs=(design,) if design else (),
+                full_models=report_dir is not None,
+                source=model,
+                on_stage=rep.stage,
             )
-        bound = [bp for bp in bound if bp.name in only]
-    names_seen: set[str] = set()
-    for bp in bound:
-        if bp.name in names_seen:
-            raise UsageError(f"property name '{bp.name}' is defined in more than one spec file")
-        names_seen.add(bp.name)
-    cm = None if isinstance(source, Scene) else source
-    err = Console(stderr=True)
-    results: list[CheckResult] = []
-    with Progress(
-        SpinnerColumn(),
-        TextColumn("{task.description}"),
-        TimeElapsedColumn(),
-        console=err,
-        transient=True,
-        disable=not err.is_terminal,
-    ) as progress:
-        task = progress.add_task("checking", total=len(bound))
-        for bp in bound:
-            progress.update(task, description=f"checking {bp.name} ({engine})")
-            left = None if timeout is None else max(0.0, timeout - (time.monotonic() - started))
-            if cm is None:
-                assert isinstance(source, Scene)
-                results.append(
-                    check_scene_payoffs(
-                        source,
-                        bp,
-                        payoffs,
-                        engine,  # type: ignore[arg-type]
-                        max_states,
-                        left,
-                        model,
-                        max_memory,
-                    )
-                )
-            else:
-                r = check_bound(cm, bp, engine, max_states, left, max_memory)  # type: ignore[arg-type]
-                r.notes.extend(window_notes(source, bp))  # type: ignore[arg-type]
-                results.append(r)
-            progress.advance(task)
-    if report_dir is not None:
-        _report(source, parsed, bound, results, report_dir, model, frames_dir, started, scene)
-    if as_json:
-        click.echo(results_json(results, parsed))
-    else:
-        print_results(make_console(), results, paths=not no_paths)
-    sys.exit(exit_status(results))
-
-
-def _built(
-    scene: Scene,
-    parsed: list[SpecFile],
-    bound: list[BoundProperty],
-    only: tuple[str, ...],
-    budget: Budget,
-) -> tuple[list[BoundProperty], ArrayModel]:
-    """For --report: the scene's whole model over the properties' windows, built once, and
-    the properties bound to it; the check then runs on it (one check, one model). Past a
-    budget while building, exit 3 with nothing written (lesmc/cli/budgets.py)."""
-    from rich.console import Console
-
-    from lesmc.engines.check import bind_all
-    from lesmc.report.results import window_of
-    from lesmc.unfold import build_model
-
-    wanted = [bp for bp in bound if not only or bp.name in only] or bound
-    with Console(stderr=True).status("building the model for the report"):
-        cm = build_model(
-            scene,
-            window_of(wanted),
-            on_batch=lambda m: stop_if_spent(budget, m, "building the model for --report"),
         )
-    return bind_all(cm, parsed), cm
+    if report_dir is not None:
+        _report(results, parsed, report_dir, model, frames_dir, budget.started, is_scene)
+    if as_json:
+        click.echo(results_json(results.results, parsed))
+    else:
+        print_results(make_console(), results.results, paths=not no_paths)
+    sys.exit(exit_status(results.results))
 
 
 def _report(
-    source: ArrayModel | Scene,
-    parsed: list[SpecFile],
-    bound: list[BoundProperty],
-    results: list[CheckResult],
+    results: Results,
+    parsed: tuple[SpecFile, ...],
     report_dir: str,
     path: str,
     frames_dir: str | None,
     started: float,
-    scene: Scene | None,
+    is_scene: bool,
 ) -> None:
     """Write the results file and draw the report from it (lesmc/report/publish.py)."""
-    from rich.console import Console
-
-    from lesmc.model.lts import to_lts
     from lesmc.report.publish import frames_reader, publish
-    from lesmc.report.results import DesignRun, provenance
-    from lesmc.tracking.scene import Scene
+    from lesmc.results.document import provenance
 
-    assert not isinstance(source, Scene)
-    err = Console(stderr=True)
-    design = str(source.meta.get("design", "model"))
-    runs = [DesignRun(design, to_lts(source), bound, results, scene)]
-    meta = {"model" if scene is None else "scene": path}
+    meta = {"scene" if is_scene else "model": path}
     timings = {"load, build and check": time.monotonic() - started}
-    with err.status("writing the report"):
-        out, _ = publish(
-            runs, report_dir, meta, provenance(parsed), frames_reader(frames_dir), timings
-        )
-    err.print(f"report: {out}")
+    out, _ = publish(
+        results.runs, report_dir, meta, provenance(parsed), frames_reader(frames_dir), timings
+    )
+    click.echo(f"report: {out}", err=True)

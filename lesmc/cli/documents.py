@@ -20,7 +20,7 @@ from typing import Any
 import click
 from click.core import ParameterSource
 
-from lesmc.errors import UsageError
+from lesmc.common.errors import UsageError
 
 
 def emit(doc: dict[str, Any]) -> None:
@@ -51,7 +51,7 @@ def file_sha256(path: str | Path) -> str:
 
 def run_provenance(seeds: dict[str, Any] | None = None) -> dict[str, Any]:
     """Tool version, Python, command line, date and seeds (as in results files)."""
-    from lesmc.report.results import provenance
+    from lesmc.results.document import provenance
 
     doc = provenance([], seeds=seeds)
     del doc["specs"]

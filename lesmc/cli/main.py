@@ -37,8 +37,8 @@ from lesmc.cli.signals import (
 from lesmc.cli.train import train_cmd
 from lesmc.cli.verify import verify_cmd
 from lesmc.cli.video import synth_cmd
-from lesmc.errors import BudgetError, LesmcError
-from lesmc.report.exit import EXIT_INTERNAL, EXIT_INTERRUPTED, EXIT_UNKNOWN, EXIT_USAGE
+from lesmc.common.errors import BudgetError, LesmcError
+from lesmc.results.exit import EXIT_INTERNAL, EXIT_INTERRUPTED, EXIT_UNKNOWN, EXIT_USAGE
 
 
 class _Group(click.Group):

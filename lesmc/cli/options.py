@@ -1,7 +1,7 @@
 """Option parsing shared by several verbs.
 
 Every ``lesmc/cli`` module imports at module level only what its option
-declarations need (click, the standard library, lesmc.errors): the rest is
+declarations need (click, the standard library, lesmc.common.errors): the rest is
 imported inside the command, so that ``lesmc --help`` and the light verbs do
 not pay for numpy, torch, cv2, matplotlib or scipy (tests/test_startup.py).
 """
@@ -11,20 +11,40 @@ from __future__ import annotations
 import math
 import re
 from collections.abc import Callable
-from pathlib import Path
 from typing import TYPE_CHECKING, Any, TypeVar
 
 import click
 
-from lesmc.errors import InputError, UsageError, escape_control
-from lesmc.fileio import read_json
+from lesmc.common.errors import UsageError, escape_control
+from lesmc.designs import registry
 
 if TYPE_CHECKING:
-    from lesmc.engines.budget import Budget
-    from lesmc.model.arrays import ArrayModel
-    from lesmc.tracking.scene import Scene
+    from lesmc.common.budget import Budget
+    from lesmc.scene import Scene
 
 F = TypeVar("F", bound=Callable[..., Any])
+
+DEFAULT_MAX_STATES = 10_000_000
+"""``lesmc.engines.check.DEFAULT_MAX_STATES``, repeated so that the options' declarations
+do not import the engines (tests/test_startup.py checks that the two agree)."""
+
+
+class RegistryChoice(click.Choice):  # type: ignore[type-arg]
+    """A choice read from the design registry whenever it is shown or checked, so that a
+    design registered after the command line was declared is offered too."""
+
+    def __init__(self, names: Callable[[], tuple[str, ...]]) -> None:
+        self._names = names
+        super().__init__(names())
+
+    @property
+    def choices(self) -> tuple[str, ...]:
+        return self._names()
+
+    @choices.setter
+    def choices(self, _value: Any) -> None:
+        """click sets the choices once; they are read from the registry instead."""
+
 
 #: ``-o/--output`` of the verbs that write a model.
 model_output = click.option(
@@ -37,9 +57,9 @@ model_output = click.option(
 
 
 def design_option(help_text: str) -> Callable[[F], F]:
-    """``--design single|joint``, overriding the design a scene names."""
+    """``--design TRACKER``: a tracker of the registry, overriding the one a scene names."""
     return click.option(
-        "--design", type=click.Choice(["single", "joint"]), default=None, help=help_text
+        "--design", type=RegistryChoice(registry.tracker_names), default=None, help=help_text
     )
 
 
@@ -84,14 +104,18 @@ def payoffs_option(help_text: str) -> Callable[[F], F]:
     )
 
 
-def designs_option(help_text: str) -> Callable[[F], F]:
-    """``--design single|joint|improved|both|all``: the designs a video is verified with."""
+def designs_option() -> Callable[[F], F]:
+    """``--design NAME|SET``: the designs (lesmc/designs/registry.py) a video is verified with."""
     return click.option(
         "--design",
-        type=click.Choice(["single", "joint", "improved", "both", "all"]),
-        default="all",
+        type=RegistryChoice(registry.choices),
+        default="paper",
         show_default=True,
-        help=help_text,
+        help="A design, or a set of them: "
+        + "; ".join(f"{d.name}: {d.summary}" for d in map(registry.get, registry.names()))
+        + "; "
+        + "; ".join(f"{k} = {', '.join(v)}" for k, v in registry.SETS.items())
+        + "; all = every design.",
     )
 
 
@@ -140,7 +164,7 @@ def finite_seconds(
 
 def _size(_ctx: click.Context, _param: click.Parameter, value: str | None) -> int | None:
     """``--max-memory``: a size such as 512M or 4G (default: derived from the free memory)."""
-    from lesmc.engines.budget import default_max_memory, parse_size
+    from lesmc.common.budget import default_max_memory, parse_size
 
     if value is None:
         return default_max_memory()
@@ -193,7 +217,7 @@ def budget_from(
     max_memory: int | None,
     preload: tuple[str, ...] = (),
 ) -> Budget:
-    """The command's :class:`~lesmc.engines.budget.Budget`; its clock starts now (call it
+    """The command's :class:`~lesmc.common.budget.Budget`; its clock starts now (call it
     first thing in the command, so that loading counts).
 
     With a timeout, an alarm also stops the command :data:`~lesmc.cli.signals.HARD_GRACE`
@@ -211,7 +235,7 @@ def budget_from(
         exit_fast,
         native_deadline,
     )
-    from lesmc.engines.budget import Budget
+    from lesmc.common.budget import Budget
 
     budget = Budget(timeout, max_states, max_memory)
     if timeout is not None:
@@ -233,37 +257,8 @@ def budget_from(
     return budget
 
 
-def load_model_or_scene(
-    path: str, design: str | None = None, target: str | None = None
-) -> ArrayModel | Scene:
-    """A .lts model or a scene, told apart by the file's ``format`` field."""
-    from lesmc.model.lts_format import lts_from_dict
-
-    data = read_json(Path(path), InputError)
-    kind = data.get("format") if isinstance(data, dict) else None
-    if kind == "lesmc-scene":
-        return _scene(data, path, design, target)
-    if design:
-        raise UsageError("--design applies to scenes, not to .lts models")
-    if target:
-        raise UsageError("--target applies to scenes, not to .lts models (built for one target)")
-    return lts_from_dict(data, path)
-
-
 def load_scene_file(path: str, design: str | None = None, target: str | None = None) -> Scene:
     """A scene file; ``target`` (``X,Y@STEP``) overrides or supplies its target."""
-    return _scene(read_json(Path(path), InputError), path, design, target)
+    from lesmc.api import load_scene
 
-
-def _scene(data: Any, path: str, design: str | None, target: str | None) -> Scene:
-    from lesmc.tracking.scene import footage_from_dict
-    from lesmc.tracking.targets import parse_target, place_target
-
-    footage, own = footage_from_dict(data, path)
-    if target is not None:
-        scene = place_target(footage, parse_target(target))
-    elif own is None:
-        raise UsageError(f"{path} has no target: give --target X,Y@STEP")
-    else:
-        scene = footage.with_target(own, footage.meta)
-    return scene.with_tracker(design=design) if design else scene
+    return load_scene(path, target, design)

@@ -9,13 +9,17 @@ from typing import TYPE_CHECKING, Any
 import click
 
 from lesmc.cli.documents import emit, file_facts, refuse_given, run_provenance, say
-from lesmc.errors import InputError, Location, UsageError, escape_control
+from lesmc.common.errors import InputError, Location, UsageError, escape_control
 from lesmc.video import FPS
 
 if TYPE_CHECKING:
-    from lesmc.perception.attacks import Method, Norm
+    from lesmc.perception.attacks import AttackConfig, Method, Norm
+    from lesmc.perception.cnn import Nets
+    from lesmc.perception.quality import Truth
     from lesmc.perception.run import PerceiveRun
-    from lesmc.tracking.scene import Footage, Scene
+    from lesmc.scene import Footage, Scene
+    from lesmc.tracking.targets import TargetSpec
+    from lesmc.video.reader import FrameSet
 
 
 @click.command("perceive")
@@ -146,22 +150,61 @@ def perceive_cmd(
     Exit status: 0 done, 2 bad input, 4 internal error, 130 interrupted.
     """
     started = time.monotonic()
+    _refuse_mismatched(output, target_text, certify, no_cnn, truth, nets_dir)
     # Imported here, not at module level: torch, cv2 and scipy cost seconds to import.
+    from lesmc.common.progress import progress_bar
     from lesmc.perception.attacks import AttackConfig
     from lesmc.perception.certify import CertifyConfig
     from lesmc.perception.cnn import load_nets
     from lesmc.perception.quality import load_truth
     from lesmc.perception.run import PerceiveOptions, perceive
-    from lesmc.perception.to_scene import (
-        check_target,
-        footage_from_run,
-        parse_target,
-        scene_from_run,
-    )
-    from lesmc.report.progress import progress_bar
-    from lesmc.tracking.scene import save_scene
+    from lesmc.tracking.targets import check_target, parse_target
     from lesmc.video.reader import open_frames
 
+    spec = parse_target(target_text) if target_text else None
+    frames = open_frames(frames_dir, history + 1)
+    if spec is not None:
+        check_target(spec, frames.width, frames.height, len(frames))
+    truths = load_truth(truth) if truth else None
+    if truths is not None:
+        missing = [p.name for p in frames.paths if p.name not in truths.frames]
+        if missing:
+            raise InputError(f"no truth for frame {missing[0]}", Location(truth or ""))
+    nets = None if no_cnn else load_nets(nets_dir)
+    method: Method = "pgd" if attack == "pgd" else "deepfool"
+    norm: Norm = "per-pixel" if payoff_norm == "per-pixel" else "l2"
+    att = AttackConfig(method, overshoot, max_iter, norm) if output else None
+    opts = PerceiveOptions(
+        history=history,
+        delta_bc=delta_bc,
+        nets=nets,
+        attack=att,
+        certify=CertifyConfig() if certify else None,
+        radius=radius,
+        min_speed=min_speed,
+    )
+    with progress_bar("perceiving", len(frames)) as bar:
+        run = perceive(frames, opts, truths, bar.advance)
+    written: dict[str, Any] | None = None  # the scene written, for --json
+    if output is not None and nets is not None and att is not None:
+        step_dt = dt or (truths.dt if truths else None) or 1 / FPS
+        meta = _scene_meta(frames_dir, nets.settings.trained_on, att, payoff_norm, certify)
+        written = _write_scene(run, step_dt, meta, spec, frames, truths, output, as_json)
+    if as_json:
+        emit(_document(frames_dir, nets, run, written, truths is not None, started))
+        return
+    _print(run, truths is not None, nets is not None)
+
+
+def _refuse_mismatched(
+    output: str | None,
+    target_text: str | None,
+    certify: bool,
+    no_cnn: bool,
+    truth: str | None,
+    nets_dir: str | None,
+) -> None:
+    """Options that would be ignored are errors."""
     if target_text is not None and output is None:
         raise UsageError("--target needs -o/--output: it is the target of the scene written")
     if certify and output is None:
@@ -177,96 +220,99 @@ def perceive_cmd(
         refuse_given(("radius", "min_speed"), "applies to the comparison with --truth")
     if no_cnn and nets_dir is not None:
         raise UsageError("--nets gives the CNNs that --no-cnn leaves out: give one or the other")
-    spec = parse_target(target_text) if target_text else None
-    frames = open_frames(frames_dir, history + 1)
-    if spec is not None:
-        check_target(spec, frames.width, frames.height, len(frames))
-    truths = load_truth(truth) if truth else None
-    if truths is not None:
-        missing = [p.name for p in frames.paths if p.name not in truths.frames]
-        if missing:
-            raise InputError(f"no truth for frame {missing[0]}", Location(truth or ""))
-    nets = None if no_cnn else load_nets(nets_dir)
-    method: Method = "pgd" if attack == "pgd" else "deepfool"
-    norm: Norm = "per-pixel" if payoff_norm == "per-pixel" else "l2"
-    att = (
-        AttackConfig(method=method, overshoot=overshoot, max_iter=max_iter, norm=norm)
-        if output
-        else None
-    )
-    opts = PerceiveOptions(
-        history=history,
-        delta_bc=delta_bc,
-        nets=nets,
-        attack=att,
-        certify=CertifyConfig() if certify else None,
-        radius=radius,
-        min_speed=min_speed,
-    )
-    with progress_bar("perceiving", len(frames)) as bar:
-        run = perceive(frames, opts, truths, bar.advance)
-    written: dict[str, Any] | None = None  # the scene written, for --json
-    if output is not None and nets is not None and att is not None:
-        step_dt = dt or (truths.dt if truths else None) or 1 / FPS
-        meta = {
-            "source": str(Path(frames_dir)),
-            "detector": nets.settings.trained_on,
-            "attack": {
-                "method": attack,
-                "overshoot": overshoot,
-                "max_iter": max_iter,
-                "norm": payoff_norm,
-                "pixel_scale": "[0, 1]",
-                "input": "N_dr window, 21x21 x (m+1) frames",
-            },
-        }
-        if certify:
-            meta["certify"] = {"method": "CROWN, L2 ball", "steps": CertifyConfig().steps}
-        target: dict[str, Any] | None = None
-        if spec is None:
-            scene: Scene | Footage = footage_from_run(run, step_dt, meta)
-            where = "no target (give --target to check, build or verify)"
-        else:
-            placed = scene_from_run(run, frames, spec, step_dt, truths, meta)
-            where = (
-                f"target at step {placed.target.step}, velocity "
-                f"{placed.meta['target_velocity_from']}"
-            )
-            scene = placed
-            start = placed.target.start
-            target = {"step": placed.target.step, "x": float(start[0]), "y": float(start[1])}
-        save_scene(scene, output)
-        n = sum(len(f.detections) for f in scene.frames)
-        say(
-            f"wrote {escape_control(output)}: {len(scene.frames)} frames (steps "
-            f"{scene.frames[0].step}..{scene.last_step}), {n} detections, "
-            f"{run.unattackable} unattackable; {where}",
-            as_json,
+
+
+def _scene_meta(
+    frames_dir: str, trained_on: str, att: AttackConfig, payoff_norm: str, certify: bool
+) -> dict[str, Any]:
+    """How the scene's detections and payoffs were made (its ``meta``)."""
+    from lesmc.perception.certify import CertifyConfig
+
+    meta: dict[str, Any] = {
+        "source": str(Path(frames_dir)),
+        "detector": trained_on,
+        "attack": {
+            "method": att.method,
+            "overshoot": att.overshoot,
+            "max_iter": att.max_iter,
+            "norm": payoff_norm,
+            "pixel_scale": "[0, 1]",
+            "input": "N_dr window, 21x21 x (m+1) frames",
+        },
+    }
+    if certify:
+        meta["certify"] = {"method": "CROWN, L2 ball", "steps": CertifyConfig().steps}
+    return meta
+
+
+def _write_scene(
+    run: PerceiveRun,
+    dt: float,
+    meta: dict[str, Any],
+    spec: TargetSpec | None,
+    frames: FrameSet,
+    truths: Truth | None,
+    output: str,
+    as_json: bool,
+) -> dict[str, Any]:
+    """The footage of ``run`` (with the target of ``spec`` placed) written to ``output``."""
+    from lesmc.perception.to_scene import footage_from_run
+    from lesmc.scene import save_scene
+    from lesmc.verify.targets import target_scene
+
+    target: dict[str, Any] | None = None
+    footage = footage_from_run(run, dt, meta)
+    if spec is None:
+        scene: Scene | Footage = footage
+        where = "no target (give --target to check, build or verify)"
+    else:
+        placed = target_scene(footage, spec, frames, truths)
+        where = (
+            f"target at step {placed.target.step}, velocity {placed.meta['target_velocity_from']}"
         )
-        written = file_facts(output) | {
-            "steps": [scene.frames[0].step, scene.last_step],
-            "detections": n,
-            "unattackable": run.unattackable,
-            "target": target,
-        }
-    if as_json:
-        doc: dict[str, Any] = {
-            "format": "lesmc-perceive",
-            "version": 1,
-            "provenance": run_provenance(),
-            "frames_dir": frames_dir,
-            "detector": None if nets is None else nets.settings.trained_on,
-            "frames": run.rows,
-            "scene": written,
-            "seconds": time.monotonic() - started,
-        }
-        if truths is not None:
-            doc["overall"] = {"frontend": run.frontend_total.to_json()}
-            if nets is not None:
-                doc["overall"]["detector"] = run.detector_total.to_json()
-        emit(doc)
-        return
-    _print(run, truths is not None, nets is not None)
+        scene = placed
+        start = placed.target.start
+        target = {"step": placed.target.step, "x": float(start[0]), "y": float(start[1])}
+    save_scene(scene, output)
+    n = sum(len(f.detections) for f in scene.frames)
+    say(
+        f"wrote {escape_control(output)}: {len(scene.frames)} frames (steps "
+        f"{scene.frames[0].step}..{scene.last_step}), {n} detections, "
+        f"{run.unattackable} unattackable; {where}",
+        as_json,
+    )
+    return file_facts(output) | {
+        "steps": [scene.frames[0].step, scene.last_step],
+        "detections": n,
+        "unattackable": run.unattackable,
+        "target": target,
+    }
+
+
+def _document(
+    frames_dir: str,
+    nets: Nets | None,
+    run: PerceiveRun,
+    written: dict[str, Any] | None,
+    with_truth: bool,
+    started: float,
+) -> dict[str, Any]:
+    """``lesmc perceive --json`` (format lesmc-perceive, schemas/perceive.json)."""
+    doc: dict[str, Any] = {
+        "format": "lesmc-perceive",
+        "version": 1,
+        "provenance": run_provenance(),
+        "frames_dir": frames_dir,
+        "detector": None if nets is None else nets.settings.trained_on,
+        "frames": run.rows,
+        "scene": written,
+        "seconds": time.monotonic() - started,
+    }
+    if with_truth:
+        doc["overall"] = {"frontend": run.frontend_total.to_json()}
+        if nets is not None:
+            doc["overall"]["detector"] = run.detector_total.to_json()
+    return doc
 
 
 def _print(run: PerceiveRun, with_truth: bool, with_cnn: bool) -> None:

@@ -9,8 +9,8 @@ import click
 
 from lesmc.cli.documents import emit, file_facts, run_provenance, say
 from lesmc.cli.options import model_output
-from lesmc.errors import UsageError, escape_control
-from lesmc.fileio import atomic_write_text
+from lesmc.common.errors import UsageError, escape_control
+from lesmc.common.files import atomic_write_text
 
 
 @click.group("reduce")
@@ -70,8 +70,7 @@ def knapsack_cmd(
         as_json,
     )
     if as_json:
-        from lesmc.model.lts import to_lts
-        from lesmc.report.results import model_hash
+        from lesmc.results.document import model_hash
 
         emit(
             {
@@ -85,7 +84,7 @@ def knapsack_cmd(
                 "budget": budget,
                 "model": file_facts(output),
                 "spec": file_facts(spec_path),
-                "model_sha256": model_hash(to_lts(model)),
+                "model_sha256": model_hash(model),
                 "states": model.n_states,
                 "transitions": model.n_transitions,
             }

@@ -7,12 +7,15 @@ from typing import Any
 import click
 
 from lesmc.cli.options import frames_option, nets_option
-from lesmc.errors import UsageError
+from lesmc.common.errors import UsageError
 
 
 @click.command("replay")
 @click.argument("results", type=click.Path(dir_okay=False, exists=True))
-@frames_option("The video's frames (the results' run was made from them; read from nowhere else).")
+@frames_option(
+    "The video's frames (the results' run was made from them; read from nowhere else) "
+    "[default: the frames results.json names]."
+)
 @click.option(
     "--property",
     "prop",
@@ -42,50 +45,20 @@ def replay_cmd(
     import json
     import sys
 
-    from lesmc.perception.cnn import load_nets
-    from lesmc.replay import cases, replay
-    from lesmc.report.progress import progress_bar
-    from lesmc.report.publish import load_results
-    from lesmc.video.reader import open_frames
+    from lesmc.common.progress import progress_bar
+    from lesmc.replay.run import replay_file, verdict_rows
+    from lesmc.results.load import load_results
 
-    if frames_dir is None:
-        raise UsageError("replay runs the detector on the video: give its frames with --frames DIR")
     doc = load_results(results)
-    todo = cases(doc, prop)
-    history = int(doc.get("perception", {}).get("history", 4))
-    frames = open_frames(frames_dir, history + 1)
-    nets = load_nets(nets_dir)
-    want = doc.get("perception", {}).get("nets")
-    if want and want != nets.settings.trained_on:
+    frames_dir = frames_dir or doc.get("perception", {}).get("frames")
+    if frames_dir is None:
         raise UsageError(
-            f"the results were made with the networks trained on '{want}', these were "
-            f"trained on '{nets.settings.trained_on}': give the same --nets"
+            "replay runs the detector on the video: give its frames with --frames DIR (the "
+            "results file does not name them)"
         )
-    with progress_bar("replaying", len(frames)) as bar:
-        outcome = replay(doc, frames, nets, prop, on_frame=bar.advance)
-    rows: list[dict[str, Any]] = []
-    for c in todo:
-        obj = outcome.replays[(c.run, c.result)]
-        verdict = "violated" if obj["status"] == "confirmed" else "unknown"
-        rows.append(
-            {
-                "design": c.design,
-                "property": c.prop,
-                "verdict_model": "violated",
-                "verdict": verdict,
-                "replay": obj,
-            }
-        )
-    verdicts = {r["verdict"] for r in rows}
-    others = [
-        res["verdict"]
-        for run in doc["runs"]
-        for res in run["results"]
-        if (prop is None or res["property"] == prop)
-        and not res.get("replay")
-        and res["verdict"] != "violated"
-    ]
-    verdicts |= set(others)
+    with progress_bar("replaying", None) as bar:
+        outcome = replay_file(doc, frames_dir, nets_dir, prop, bar)
+    rows, verdicts = verdict_rows(doc, outcome, prop)
     if as_json:
         out = {
             "format": "lesmc-replay",
@@ -104,7 +77,7 @@ def replay_cmd(
 def _table(rows: list[dict[str, Any]]) -> None:
     from rich.table import Table
 
-    from lesmc.errors import escape_text
+    from lesmc.common.errors import escape_text
     from lesmc.report.text import make_console
 
     console = make_console()

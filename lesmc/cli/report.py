@@ -31,7 +31,8 @@ def report_cmd(results: str, out_dir: str, frames_dir: str | None, as_json: bool
     from pathlib import Path
 
     from lesmc.report.html import write_report
-    from lesmc.report.publish import frames_reader, load_results
+    from lesmc.report.publish import frames_reader
+    from lesmc.results.load import load_results
 
     doc = load_results(results)
     out = write_report(doc, out_dir, frames_reader(frames_dir))

@@ -3,7 +3,7 @@
 Python turns SIGINT into :class:`KeyboardInterrupt`; here SIGTERM and SIGHUP
 become :class:`Terminated`, another :class:`BaseException` that no
 ``except Exception`` catches. Both unwind the stack, so every ``finally`` and
-context manager runs: temporary files and staging directories (lesmc/fileio.py)
+context manager runs: temporary files and staging directories (lesmc/common/files.py)
 are removed, nothing half-written is renamed into place. The entry point then
 exits with 128 + the signal's number: 130 (SIGINT), 143 (SIGTERM), 129 (SIGHUP).
 

@@ -4,11 +4,18 @@ from __future__ import annotations
 
 import time
 from pathlib import Path
+from typing import TYPE_CHECKING, Any
 
 import click
 
 from lesmc.cli.documents import emit, file_facts, file_sha256, run_provenance, say
-from lesmc.errors import escape_control
+from lesmc.common.errors import escape_control
+
+if TYPE_CHECKING:
+    from rich.table import Table
+
+    from lesmc.perception.cnn import Nets
+    from lesmc.perception.training import TrainConfig, Validation
 
 
 @click.command("train")
@@ -72,12 +79,11 @@ def train_cmd(
     """
     started = time.monotonic()
     from rich.console import Console
-    from rich.table import Table
 
     from lesmc.cli.video import parse_size
+    from lesmc.common.progress import progress_bar
     from lesmc.perception.cnn import save_nets
     from lesmc.perception.training import TrainConfig, train
-    from lesmc.report.progress import progress_bar
     from lesmc.report.text import make_console
 
     w, h = parse_size(size_text)
@@ -99,6 +105,17 @@ def train_cmd(
         nets, val = train(cfg, progress)
     trained = time.monotonic()
     save_nets(nets, out_dir)
+    (Console(stderr=True) if as_json else make_console()).print(_table(cfg, val))
+    say(f"wrote {escape_control(out_dir)}", as_json)
+    if as_json:
+        seconds = {"training": trained - started, "total": time.monotonic() - started}
+        emit(_document(out_dir, cfg, nets, val, seconds))
+
+
+def _table(cfg: TrainConfig, val: Validation) -> Table:
+    """The held-out metrics of both networks."""
+    from rich.table import Table
+
     table = Table(title=f"held-out validation (video seed {cfg.val_seed})")
     for c in ("network", "samples", "accuracy", "precision", "recall"):
         table.add_column(c, justify="left" if c == "network" else "right")
@@ -116,52 +133,52 @@ def train_cmd(
         f"{val.lp_precision:.3f}",
         f"{val.lp_recall:.3f}",
     )
-    (Console(stderr=True) if as_json else make_console()).print(table)
-    say(f"wrote {escape_control(out_dir)}", as_json)
-    if not as_json:
-        return
+    return table
+
+
+def _document(
+    out_dir: str, cfg: TrainConfig, nets: Nets, val: Validation, seconds: dict[str, float]
+) -> dict[str, Any]:
+    """``lesmc train --json`` (format lesmc-train, schemas/train.json)."""
     files = [Path(out_dir) / n for n in ("dr.safetensors", "lp.safetensors", "nets.json")]
-    emit(
-        {
-            "format": "lesmc-train",
-            "version": 1,
-            "provenance": run_provenance(
-                {
-                    "training": seed,
-                    "train_videos": list(cfg.train_seeds),
-                    "validation": cfg.val_seed,
-                }
-            ),
-            "out_dir": out_dir,
-            "files": [file_facts(p) | {"sha256": file_sha256(p)} for p in files],
-            "settings": {
-                "frames": frames,
-                "width": w,
-                "height": h,
-                "videos": videos,
-                "epochs_dr": cfg.epochs_dr,
-                "epochs_lp": cfg.epochs_lp,
-                "batch": cfg.batch,
-                "learning_rate": cfg.lr,
-                "delta_dr": nets.settings.delta_dr,
-                "delta_lp": nets.settings.delta_lp,
-                "m": nets.settings.m,
-                "trained_on": nets.settings.trained_on,
+    seeds = {
+        "training": cfg.seed,
+        "train_videos": list(cfg.train_seeds),
+        "validation": cfg.val_seed,
+    }
+    return {
+        "format": "lesmc-train",
+        "version": 1,
+        "provenance": run_provenance(seeds),
+        "out_dir": out_dir,
+        "files": [file_facts(p) | {"sha256": file_sha256(p)} for p in files],
+        "settings": {
+            "frames": cfg.frames,
+            "width": cfg.width,
+            "height": cfg.height,
+            "videos": len(cfg.train_seeds),
+            "epochs_dr": cfg.epochs_dr,
+            "epochs_lp": cfg.epochs_lp,
+            "batch": cfg.batch,
+            "learning_rate": cfg.lr,
+            "delta_dr": nets.settings.delta_dr,
+            "delta_lp": nets.settings.delta_lp,
+            "m": nets.settings.m,
+            "trained_on": nets.settings.trained_on,
+        },
+        "validation": {
+            "video_seed": cfg.val_seed,
+            "dr": {
+                "samples": val.samples_dr,
+                "accuracy": val.dr_accuracy,
+                "precision": val.dr_precision,
+                "recall": val.dr_recall,
             },
-            "validation": {
-                "video_seed": cfg.val_seed,
-                "dr": {
-                    "samples": val.samples_dr,
-                    "accuracy": val.dr_accuracy,
-                    "precision": val.dr_precision,
-                    "recall": val.dr_recall,
-                },
-                "lp": {
-                    "samples": val.samples_lp,
-                    "precision": val.lp_precision,
-                    "recall": val.lp_recall,
-                },
+            "lp": {
+                "samples": val.samples_lp,
+                "precision": val.lp_precision,
+                "recall": val.lp_recall,
             },
-            "seconds": {"training": trained - started, "total": time.monotonic() - started},
-        }
-    )
+        },
+        "seconds": seconds,
+    }

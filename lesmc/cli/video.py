@@ -9,7 +9,7 @@ from pathlib import Path
 import click
 
 from lesmc.cli.documents import emit, file_facts, run_provenance, say
-from lesmc.errors import UsageError, escape_control
+from lesmc.common.errors import UsageError, escape_control
 from lesmc.video import DEFAULT_DENSITY
 
 
@@ -59,7 +59,7 @@ def synth_cmd(
     Exit status: 0 written, 2 bad input, 4 internal error, 130 interrupted.
     """
     started = time.monotonic()
-    from lesmc.report.progress import progress_bar
+    from lesmc.common.progress import progress_bar
     from lesmc.video.synth import SynthConfig, write_video
 
     w, h = parse_size(size_text)

@@ -24,8 +24,8 @@ import math
 import time
 from dataclasses import dataclass
 
+from lesmc.common.budget import Budget, SearchBudget
 from lesmc.engines.bounds import Bounds, suffix_bounds
-from lesmc.engines.budget import SearchBudget
 from lesmc.engines.result import EngineOutcome, Stats
 from lesmc.engines.space import SearchSpace, Space
 
@@ -62,36 +62,37 @@ _MEMORY_EVERY = 64
 
 
 def branch_and_bound(
-    space: SearchSpace,
-    max_states: int | None = None,
-    timeout: float | None = None,
-    use_bounds: bool = True,
-    max_memory: int | None = None,
+    space: SearchSpace, budget: Budget | None = None, use_bounds: bool = True
 ) -> EngineOutcome:
     """Optimum, counterexample and representative path, exactly (or bounds if a budget ran out)."""
     t0 = time.perf_counter()
     stats = Stats(engine="bnb")
-    budget = _Budget(
-        max_states, timeout, max_memory, getattr(space.cm, "capacity_bytes", None), _MEMORY_EVERY
+    b = budget or Budget()
+    search = _Budget(
+        b.max_states,
+        b.seconds_left(),
+        b.max_memory,
+        getattr(space.cm, "capacity_bytes", None),
+        _MEMORY_EVERY,
     )
     bounds = suffix_bounds(space) if use_bounds and isinstance(space, Space) else None
     if bounds is not None:
         stats.extra["bound_states"] = bounds.states
-    opt, lower, upper, cex = _optimum(space, bounds, budget, stats)
-    stats.extra["optimum_states"] = budget.used
-    exact = budget.stopped == "finished"
+    opt, lower, upper, cex = _optimum(space, bounds, search, stats)
+    stats.extra["optimum_states"] = search.used
+    exact = search.stopped == "finished"
     witness, w_exact = None, False
     if exact:  # phase 2, ρ*: the same search as levels' (docs/engines.md)
         from lesmc.engines.levels import representative
 
-        witness, w_value, w_upper, why = representative(space, budget, stats, opt, bounds)
+        witness, w_value, w_upper, why = representative(space, search, stats, opt, bounds)
         w_exact = why is None
         if not w_exact:
-            budget.stopped = why or "finished"
+            search.stopped = why or "finished"
             stats.extra["witness_bounds"] = [w_value, w_upper]  # to_result moves them
-        stats.extra["witness_states"] = budget.used - stats.extra["optimum_states"]
-    stats.states_expanded = budget.used
-    stats.stopped = budget.stopped  # type: ignore[assignment]
+        stats.extra["witness_states"] = search.used - stats.extra["optimum_states"]
+    stats.states_expanded = search.used
+    stats.stopped = search.stopped  # type: ignore[assignment]
     stats.seconds = time.perf_counter() - t0
     return EngineOutcome(
         optimum=opt if exact else math.inf,

@@ -6,6 +6,7 @@ import math
 from collections.abc import Callable, Iterable
 from typing import Literal
 
+from lesmc.common.budget import Budget
 from lesmc.engines.bnb import branch_and_bound
 from lesmc.engines.enumerate import enumerate_paths, exhaustive_probe
 from lesmc.engines.lazy import LazySpace
@@ -43,76 +44,48 @@ def check(
     model: ArrayModel,
     specs: Iterable[SpecFile],
     engine: EngineName = "levels",
-    max_states: int | None = DEFAULT_MAX_STATES,
-    timeout: float | None = None,
+    budget: Budget | None = None,
 ) -> list[CheckResult]:
-    """Check every property of ``specs`` on ``model`` with the chosen engine."""
-    bound = bind_all(model, specs)
-    results = []
-    for bp in bound:
-        r = check_bound(model, bp, engine, max_states, timeout)
-        r.notes.extend(window_notes(model, bp))
-        results.append(r)
-    return results
+    """Check every property of ``specs`` on ``model`` with the chosen engine (each check
+    within what is left of ``budget``)."""
+    b = budget or Budget(max_states=DEFAULT_MAX_STATES)
+    return [check_bound(model, bp, engine, b.for_check()) for bp in bind_all(model, specs)]
 
 
 def check_bound(
-    cm: ArrayModel,
-    bp: BoundProperty,
-    engine: EngineName = "levels",
-    max_states: int | None = DEFAULT_MAX_STATES,
-    timeout: float | None = None,
-    max_memory: int | None = None,
+    cm: ArrayModel, bp: BoundProperty, engine: EngineName = "levels", budget: Budget | None = None
 ) -> CheckResult:
-    """Check one bound property on a model (``max_memory``: bytes).
+    """Check one bound property on a model, within ``budget`` (default: no limit).
 
     ``bnb`` and ``levels`` first try to enumerate a small tree (enumerate.exhaustive_probe):
     its answer is theirs when it finishes; otherwise they search with what is left of the
-    budgets, and report the probe's states as ``stats.extra["probe_states"]``.
+    budget, and report the probe's states as ``stats.extra["probe_states"]``. A model built
+    for another attack window than the property's says so in a note.
     """
+    b = budget or Budget()
     space = build_space(cm, bp)
     if engine == "enumerate":
-        return to_result(space, enumerate_paths(space, max_states, timeout, max_memory))
-    probe = exhaustive_probe(space, engine, max_states, timeout, max_memory)
-    if probe.outcome is not None:
-        return to_result(space, probe.outcome)
-    out = ENGINES[engine](space, probe.max_states, probe.timeout, max_memory=max_memory)
-    if probe.states:
-        out.stats.extra["probe_states"] = probe.states
-        out.stats.seconds += probe.seconds
-    return to_result(space, out)
+        out = enumerate_paths(space, b)
+    else:
+        probe = exhaustive_probe(space, engine, b)
+        out = probe.outcome or ENGINES[engine](space, probe.left)
+        if probe.outcome is None and probe.states:
+            out.stats.extra["probe_states"] = probe.states
+            out.stats.seconds += probe.seconds
+    result = to_result(space, out)
+    result.notes.extend(window_notes(cm, bp))
+    return result
 
 
 def to_result(space: SearchSpace, out: EngineOutcome) -> CheckResult:
     """Turn an engine's outcome into a verdict with readable paths (section 4's rule)."""
     bp = space.bp
     prop = bp.prop
-    exact = out.stats.stopped == "finished"
 
     def above(x: float) -> bool:
         return holds(prop.holds_op, x, prop.threshold)
 
-    notes: list[str] = []
-    verdict: Verdict
-    # the optimum is known when the search finished, or when its proven bounds meet
-    known = exact or (out.lower >= out.upper and math.isfinite(out.upper))
-    optimum = out.optimum if exact else out.upper
-    if known:
-        verdict = "holds" if above(optimum) else "violated"
-        lower = upper = optimum
-    else:
-        lower, upper = out.lower, out.upper
-        verdict = "holds" if above(lower) else "violated" if not above(upper) else "unknown"
-    if not exact:
-        notes.append(
-            f"search stopped ({out.stats.stopped}) before it finished: the optimum "
-            + (
-                f"is proven to be {optimum:g}"
-                if known
-                else f"lies in [{lower:g}, {upper:g}]"
-                + ("" if verdict == "unknown" else f", which already decides '{verdict}'")
-            )
-        )
+    known, optimum, lower, upper, verdict, notes = _verdict(out, above)
     cex = None if out.counterexample is None else path_info(space, out.counterexample)
     wit = None if out.witness is None else path_info(space, out.witness)
     if not out.witness_exact and wit is not None:
@@ -150,7 +123,42 @@ def to_result(space: SearchSpace, out: EngineOutcome) -> CheckResult:
         witness_bounds=_witness_bounds(out, wit, known, upper),
         original_alarms=alarms,
         vacuous=vacuous,
+        spec=bp.spec,
+        objective_source=bp.objective.source,
+        constraint_source=bp.constraint.source,
+        constraint_op=bp.op,
+        constraint_bound=bp.bound,
     )
+
+
+def _verdict(
+    out: EngineOutcome, above: Callable[[float], bool]
+) -> tuple[bool, float, float, float, Verdict, list[str]]:
+    """Section 4's rule on the engine's bounds: whether the optimum is known, the optimum
+    (or the best upper bound), the bounds, the verdict, and a note when stopped early."""
+    exact = out.stats.stopped == "finished"
+    notes: list[str] = []
+    verdict: Verdict
+    # the optimum is known when the search finished, or when its proven bounds meet
+    known = exact or (out.lower >= out.upper and math.isfinite(out.upper))
+    optimum = out.optimum if exact else out.upper
+    if known:
+        verdict = "holds" if above(optimum) else "violated"
+        lower = upper = optimum
+    else:
+        lower, upper = out.lower, out.upper
+        verdict = "holds" if above(lower) else "violated" if not above(upper) else "unknown"
+    if not exact:
+        notes.append(
+            f"search stopped ({out.stats.stopped}) before it finished: the optimum "
+            + (
+                f"is proven to be {optimum:g}"
+                if known
+                else f"lies in [{lower:g}, {upper:g}]"
+                + ("" if verdict == "unknown" else f", which already decides '{verdict}'")
+            )
+        )
+    return known, optimum, lower, upper, verdict, notes
 
 
 def _witness_bounds(
@@ -183,15 +191,13 @@ def monitor_facts(space: SearchSpace) -> tuple[list[int] | None, bool]:
 def check_lazy(
     model: GrowingModel,
     bp: BoundProperty,
-    max_states: int | None = DEFAULT_MAX_STATES,
-    timeout: float | None = None,
     engine: EngineName = "levels",
-    max_memory: int | None = None,
+    budget: Budget | None = None,
 ) -> CheckResult:
     """One bound property on a model unfolded on demand (the engine expands what it visits;
     ``enumerate`` every state its paths reach)."""
     space = LazySpace(model, bp)
-    out = ENGINES[engine](space, max_states, timeout, max_memory=max_memory)
+    out = ENGINES[engine](space, budget or Budget())
     out.stats.extra["states_built"] = space.states_built
     return to_result(space, out)
 

@@ -14,11 +14,11 @@ from __future__ import annotations
 
 import math
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
-from lesmc.engines.budget import SearchBudget
+from lesmc.common.budget import Budget, SearchBudget
 from lesmc.engines.result import EngineOutcome, Stats
 from lesmc.engines.space import Space
 from lesmc.language.semantics import BoundProperty
@@ -26,11 +26,7 @@ from lesmc.model.kernel import COMPARE, aggregate_arrays
 
 
 def enumerate_paths(
-    space: Space,
-    max_states: int | None = None,
-    timeout: float | None = None,
-    max_memory: int | None = None,
-    give_up_past: int | None = None,
+    space: Space, budget: Budget | None = None, give_up_past: int | None = None
 ) -> EngineOutcome:
     """Run Algorithms 1 and 2 on ``space``; stop early (unknown) past a budget.
 
@@ -40,8 +36,8 @@ def enumerate_paths(
     """
     t0 = time.perf_counter()
     stats = Stats(engine="enumerate")
-    budget = SearchBudget(max_states, timeout, max_memory)
-    budget.used = 1  # the root
+    search = (budget or Budget()).search()
+    search.used = 1  # the root
     cm = space.cm
     # one level of the tree: state, accumulated objective/constraint, parent, entering transition
     node = np.array([space.root], dtype=np.int64)
@@ -62,17 +58,17 @@ def enumerate_paths(
             done_con.append(aggregate_arrays(space.con_max, con[idx], t_con))
             done_ref.append((level, idx))
         live = np.nonzero(~leaf)[0]
-        why = _unfold(space, node[live], budget)
+        why = _unfold(space, node[live], search)
         if why is not None:
             stopped = why
             break
         # children: for each live node, each allowed transition in rank order
         owner, trans = space.successors_batch(node[live])
         total = int(trans.size)
-        why = budget.over(total)
+        why = search.over(total)
         if why is None and give_up_past is not None:
             step = int(cm.step[cm.dst[trans[0]]]) if total else 0
-            if budget.used + total + _projected(space.bp, step, total, live.size) > give_up_past:
+            if search.used + total + _projected(space.bp, step, total, live.size) > give_up_past:
                 why = "max_states"
         if why is not None:
             stopped = why
@@ -82,10 +78,10 @@ def enumerate_paths(
         obj = aggregate_arrays(space.obj_max, obj[parent], space.c_obj[trans])
         con = aggregate_arrays(space.con_max, con[parent], space.c_con[trans])
         node = cm.dst[trans]
-        budget.used += total
+        search.used += total
         stats.transitions += total
         level += 1
-    stats.states_expanded = budget.used
+    stats.states_expanded = search.used
     stats.stopped = stopped  # type: ignore[assignment]
     all_obj = np.concatenate(done_obj) if done_obj else np.zeros(0)
     all_con = np.concatenate(done_con) if done_con else np.zeros(0)
@@ -107,40 +103,33 @@ class Probe:
     """What :func:`exhaustive_probe` found: the answer, or the budgets left for a search."""
 
     outcome: EngineOutcome | None
-    max_states: int | None
-    timeout: float | None
+    left: Budget  #: what the search still has
     states: int  #: tree nodes the probe expanded
     seconds: float
 
 
-def exhaustive_probe(
-    space: Space,
-    engine: str,
-    max_states: int | None,
-    timeout: float | None,
-    max_memory: int | None,
-) -> Probe:
+def exhaustive_probe(space: Space, engine: str, budget: Budget) -> Probe:
     """Try :func:`enumerate_paths` on an explicit model within :data:`SMALL_TREE` tree
     nodes (not under a ``max_states`` below SMALL_TREE: a small budget is left whole to
     the search and its anytime bounds).
 
     The outcome when it finished, reported as ``engine``'s with
-    ``stats.extra["exhaustive"]`` = the tree's nodes; otherwise what is left of
-    ``max_states`` and ``timeout`` for the search (a failed probe costs at most
-    SMALL_TREE nodes, a few milliseconds, and they count against both budgets).
+    ``stats.extra["exhaustive"]`` = the tree's nodes; otherwise what is left of the
+    budget for the search (a failed probe costs at most SMALL_TREE nodes, a few
+    milliseconds, and they count against its states and its seconds).
     """
-    if SMALL_TREE <= 0 or (max_states is not None and max_states < SMALL_TREE):
-        return Probe(None, max_states, timeout, 0, 0.0)
+    if SMALL_TREE <= 0 or (budget.max_states is not None and budget.max_states < SMALL_TREE):
+        return Probe(None, budget, 0, 0.0)
     t0 = time.perf_counter()
-    out = enumerate_paths(space, SMALL_TREE, timeout, max_memory, give_up_past=SMALL_TREE)
+    small = Budget(budget.seconds_left(), SMALL_TREE, budget.max_memory)
+    out = enumerate_paths(space, small, give_up_past=SMALL_TREE)
     used, seconds = out.stats.states_expanded, time.perf_counter() - t0
     if out.stats.stopped == "finished":
         out.stats.engine = engine
         out.stats.extra["exhaustive"] = used
-        return Probe(out, max_states, timeout, used, seconds)
-    left = None if max_states is None else max(1, max_states - used)
-    rest = None if timeout is None else max(0.0, timeout - seconds)
-    return Probe(None, left, rest, used, seconds)
+        return Probe(out, budget, used, seconds)
+    states = None if budget.max_states is None else max(1, budget.max_states - used)
+    return Probe(None, replace(budget, max_states=states), used, seconds)
 
 
 def _projected(bp: BoundProperty, step: int, width: int, parents: int) -> float:

@@ -68,6 +68,7 @@ def combine(certified: CheckResult, attack: CheckResult, monotone: bool = True) 
         payoffs="interval",
         optimum_certified=certified.lower if certified.lower == certified.upper else None,
         optimum_attack=attack.lower if attack.lower == attack.upper else None,
+        certified_stats=certified.stats,
     )
 
 

@@ -24,14 +24,10 @@ import numpy as np
 from lesmc.engines.space import SpaceOps, excused_steps, ranges
 from lesmc.language.semantics import BoundProperty
 from lesmc.model import kernel
-from lesmc.model.growing import GrowArray, GrowingModel
+from lesmc.model.growing import BATCH_SECONDS, GrowArray, GrowingModel
 
 #: Most states expanded together outside the window (bounds one batch's temporaries).
 BATCH = 65_536
-
-#: Seconds one batch should take at most: the batch shrinks for designs whose states are
-#: expensive (joint), so that a deadline is checked often enough.
-BATCH_SECONDS = 0.05
 
 
 class LazySpace(SpaceOps):

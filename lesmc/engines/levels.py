@@ -38,8 +38,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from lesmc.common.budget import Budget, SearchBudget
 from lesmc.engines.bounds import Bounds, suffix_bounds
-from lesmc.engines.budget import SearchBudget
 from lesmc.engines.result import EngineOutcome, Stats
 from lesmc.engines.space import SearchSpace, Space
 from lesmc.model.kernel import aggregate_arrays
@@ -666,19 +666,12 @@ class _SuffixValues:
 
 
 # ----------------------------------------------------------------------------- engine
-def level_search(
-    space: SearchSpace,
-    max_states: int | None = None,
-    timeout: float | None = None,
-    max_memory: int | None = None,
-) -> EngineOutcome:
+def level_search(space: SearchSpace, limits: Budget | None = None) -> EngineOutcome:
     """Optimum, counterexample and ρ*, exactly; under a budget (states, seconds, bytes of
     memory), proven bounds on both."""
     t0 = time.perf_counter()
     stats = Stats(engine="levels")
-    budget = SearchBudget(
-        max_states, timeout, max_memory, getattr(space.cm, "capacity_bytes", None)
-    )
+    budget = (limits or Budget()).search(getattr(space.cm, "capacity_bytes", None))
     bounds = _Bounds(space)
     if bounds.exact:
         stats.extra["bound_states"] = bounds.reachable

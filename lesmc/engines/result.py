@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import builtins
 import math
 from dataclasses import dataclass, field
 from typing import Any, Literal
@@ -29,19 +30,25 @@ class PathStep:
 
 @dataclass(frozen=True)
 class PathInfo:
-    """A complete path from step 0 to the property's end (or to a halt)."""
+    """A complete path from step 0 to the property's end (or to a halt).
+
+    ``deviation`` is dist.at(k) of the property's components and norm for every step
+    k = 0..end (Eq. 4), +inf after a halt (docs/semantics.md).
+    """
 
     states: tuple[str, ...]
     objective: float
     constraint: float
     steps: tuple[PathStep, ...]
     halted: bool
+    deviation: tuple[float, ...] = ()
 
     def to_json(self, with_constraint: bool = True) -> dict[str, Any]:
         d: dict[str, Any] = {"states": list(self.states), "objective": _num(self.objective)}
         if with_constraint:
             d["constraint"] = _num(self.constraint)
         d["halted"] = self.halted
+        d["deviation"] = [_num(x) for x in self.deviation]
         d["steps"] = [
             {
                 "step": s.step,
@@ -125,10 +132,35 @@ class CheckResult:
     payoffs: str = "attack"  #: attack | certified | interval (docs/semantics.md)
     optimum_certified: float | None = None  #: interval mode: the optimum with lower payoffs
     optimum_attack: float | None = None  #: interval mode: the optimum with attack payoffs
+    certified_stats: Stats | None = None  #: interval mode: how the certified search went
+
+    #: the property's spec file, its measures and its comparisons as data
+    spec: str = ""
+    objective_source: str = ""
+    constraint_source: str = ""
+    constraint_op: str = ""
+    constraint_bound: float = 0.0
+    #: a violated verdict on a scene made by perception: ``not replayed`` until the
+    #: counterexample is replayed through the detector (``confirmed``; ``diverged`` makes
+    #: the verdict unknown); None: nothing to replay (a model, a hand-made scene)
+    replay: str | None = None
+
+    @builtins.property  # ``property`` is a field of this class: the property name
+    def status(self) -> str:
+        """The verdict word (:func:`status_word`)."""
+        return status_word(self.verdict, self.vacuous, self.replay)
 
     def verdict_text(self) -> str:
-        """The verdict as tables and reports print it: a vacuous 'holds' says so."""
-        return verdict_words(self.verdict, self.vacuous, self.original_alarms or [])
+        """The verdict as tables and reports print it: the word and why (:func:`verdict_words`)."""
+        return verdict_words(self.verdict, self.vacuous, self.original_alarms or [], self.replay)
+
+    def optimum_json(self) -> float | str:
+        """The optimum in JSON: a number, ``"inf"`` (no attacked path violates) or
+        ``"unknown"`` (a budget stopped the search, or, in interval mode, the two payoff
+        sets disagree: the bounds say where it lies)."""
+        if not self.optimum_known:
+            return "unknown"
+        return "inf" if self.optimum is None else _num(self.optimum)
 
     def to_json(self) -> dict[str, Any]:
         extra: dict[str, Any] = {"payoffs": self.payoffs}
@@ -136,51 +168,59 @@ class CheckResult:
             for key in ("optimum_certified", "optimum_attack"):
                 v = getattr(self, key)
                 extra[key] = None if v is None else _num(v)
-        optimum: float | str | None
-        if not self.optimum_known:
-            optimum = "unknown"  # null means only: no path violates
-        else:
-            optimum = None if self.optimum is None else _num(self.optimum)
         wb = self.witness_bounds
-        return (
-            {
-                "property": self.property,
-                "verdict": self.verdict,
-                "optimum": optimum,
-                "witness_bounds": None
-                if wb is None
-                else {"lower": _num(wb[0]), "upper": _num(wb[1])},
-                "threshold": self.threshold,
-                "holds_if": f"optimum {self.holds_op} {self.threshold:g}",
-                "objective": self.objective,
-                "constraint": self.constraint,
-                "bounds": {"lower": _num(self.lower), "upper": _num(self.upper)},
-                "counterexample": None
-                if self.counterexample is None
-                else self.counterexample.to_json(),
-                "witness": None if self.witness is None else self.witness.to_json(),
-                "witness_value": None if self.witness_value is None else _num(self.witness_value),
-                "witness_exact": self.witness_exact,
-                "notes": self.notes,
-                "stats": self.stats.to_json(),
-            }
-            | self.monitor_json()
-            | extra
-        )
-
-    def monitor_json(self) -> dict[str, Any]:
-        """``original_alarms`` and ``vacuous``, for a monitored property only."""
-        if self.original_alarms is None:
-            return {}
-        return {"original_alarms": list(self.original_alarms), "vacuous": self.vacuous}
+        return {
+            "property": self.property,
+            "spec": self.spec,
+            "verdict": self.verdict,
+            "status": self.status,
+            "vacuous": self.vacuous,
+            "replay": None if self.replay is None else {"status": self.replay},
+            "optimum": self.optimum_json(),
+            "witness_bounds": None if wb is None else {"lower": _num(wb[0]), "upper": _num(wb[1])},
+            "threshold": self.threshold,
+            "holds_op": self.holds_op,
+            "holds_if": f"optimum {self.holds_op} {self.threshold:g}",
+            "objective": self.objective,
+            "objective_source": self.objective_source,
+            "constraint": self.constraint,
+            "constraint_source": self.constraint_source,
+            "constraint_op": self.constraint_op,
+            "constraint_bound": self.constraint_bound,
+            "bounds": {"lower": _num(self.lower), "upper": _num(self.upper)},
+            "counterexample": None
+            if self.counterexample is None
+            else self.counterexample.to_json(),
+            "witness": None if self.witness is None else self.witness.to_json(),
+            "witness_value": None if self.witness_value is None else _num(self.witness_value),
+            "witness_exact": self.witness_exact,
+            "notes": self.notes,
+            "stats": self.stats.to_json(),
+            "original_alarms": self.original_alarms,
+        } | extra
 
 
-def verdict_words(verdict: str, vacuous: bool, alarms: list[int]) -> str:
-    """A verdict in words; a 'holds' that the monitor makes vacuous says why."""
-    if vacuous and verdict == "holds":
+#: Every verdict word, in the order tables and summaries count them (docs/cli.md).
+STATUSES = ("holds", "holds (vacuous)", "violated", "violated (not replayed)", "unknown")
+
+
+def status_word(verdict: str, vacuous: bool, replay: str | None) -> str:
+    """The one word for a verdict, everywhere (tables, reports, campaigns, JSON ``status``):
+    a vacuous holds is not a holds, a violation not replayed through the detector says so."""
+    if verdict == "holds" and vacuous:
+        return "holds (vacuous)"
+    if verdict == "violated" and replay == "not replayed":
+        return "violated (not replayed)"
+    return verdict
+
+
+def verdict_words(verdict: str, vacuous: bool, alarms: list[int], replay: str | None = None) -> str:
+    """:func:`status_word` and the reason in a few words, for tables and reports."""
+    word = status_word(verdict, vacuous, replay)
+    if word == "holds (vacuous)":
         steps = ", ".join(str(k) for k in alarms)
         return f"holds (vacuous: the unattacked track raises the alarm at steps {steps})"
-    return verdict
+    return word
 
 
 def _num(x: float) -> float | str:
@@ -208,12 +248,14 @@ def path_info(space: SearchSpace, transitions: list[int]) -> PathInfo:
     t_obj, t_con = space.tail(q)
     obj = space.agg(space.obj_max, obj, t_obj)
     con = space.agg(space.con_max, con, t_con)
+    dev = [s.deviation for s in steps] + [math.inf] * (bp.end + 1 - len(steps))
     return PathInfo(
         states=tuple(s.state for s in steps),
         objective=obj,
         constraint=con,
         steps=tuple(steps),
         halted=bool(cm.halted[q]) and int(cm.step[q]) < bp.end,
+        deviation=tuple(dev),
     )
 
 

@@ -192,6 +192,8 @@ class Space(SpaceOps):
     root_obj: float
     root_con: float
     satisfies: Callable[[float, float], bool]
+    #: per transition: the monitor drops it (Eq. 13 entering a step l..end); None: no monitor
+    cut: np.ndarray | None = None
     _levels: tuple[np.ndarray, ...] | None = field(
         default=None, init=False, repr=False, compare=False
     )
@@ -260,12 +262,12 @@ def build_space(cm: ArrayModel, bp: BoundProperty) -> Space:
     first = np.zeros(m, dtype=bool)
     first[cm.ptr[:-1][np.diff(cm.ptr) > 0]] = True  # rank-minimal transition of each state
     allowed = in_window | first
+    cut = None
     if bp.monitor_components is not None:
         tau = location_trace(cm, bp.monitor_components)
         excused = excused_steps(bp, tau[cm.original])
-        allowed &= ~kernel.monitor_cuts(
-            bp.l, k, tau[src], tau[cm.dst], bp.monitor_tolerance, excused
-        )
+        cut = kernel.monitor_cuts(bp.l, k, tau[src], tau[cm.dst], bp.monitor_tolerance, excused)
+        allowed &= ~cut
     adj = np.nonzero(allowed)[0]
     counts = np.bincount(src[adj], minlength=n) if m else np.zeros(n, int)
     adj_ptr = np.concatenate([[0], np.cumsum(counts)]).astype(np.int64)
@@ -293,4 +295,5 @@ def build_space(cm: ArrayModel, bp: BoundProperty) -> Space:
         root_obj=obj,
         root_con=con,
         satisfies=kernel.COMPARE[bp.op],
+        cut=cut,
     )

@@ -4,7 +4,7 @@ Syntax errors and file-local meaning errors (missing or repeated clauses,
 non-finite thresholds, steps beyond :data:`MAX_STEP`, duplicate names) are
 raised as :class:`SpecError` with ``FILE:LINE:COL``; checks that need a model
 live in :mod:`.semantics`. Lines are counted at ``\n`` only, as lark does
-(:func:`lesmc.errors.split_lines`); a leading byte-order mark is skipped.
+(:func:`lesmc.common.errors.split_lines`); a leading byte-order mark is skipped.
 """
 
 from __future__ import annotations
@@ -29,8 +29,8 @@ from lark import __version__ as lark_version
 from lark.grammar import Rule
 from lark.lexer import TerminalDef
 
-from lesmc.errors import Location, SpecError, source_line, split_lines
-from lesmc.fileio import read_text
+from lesmc.common.errors import Location, SpecError, source_line, split_lines
+from lesmc.common.files import read_text
 from lesmc.language.properties import (
     DEFAULT_MONITOR_TOLERANCE,
     Constraint,

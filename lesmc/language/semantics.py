@@ -9,7 +9,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
-from lesmc.errors import Location, SpecError, source_line
+from lesmc.common.errors import Location, SpecError, source_line
 from lesmc.language.properties import Measure, Pos, Property, SpecFile, StepRef
 
 #: Names that ``monitor uncertainty`` takes as the location block (Eq. 12) by default.
@@ -49,6 +49,7 @@ class BoundProperty:
     monitor_components: tuple[int, ...] | None
     monitor_tolerance: float
     monitor_except_original: bool = False  # alarms at the original track's alarm steps excused
+    spec: str = ""  #: the path of the spec file that states it
 
     @property
     def name(self) -> str:
@@ -133,6 +134,7 @@ def bind(
         monitor_components=monitor_idx,
         monitor_tolerance=tol,
         monitor_except_original=prop.monitor is not None and prop.monitor.except_original,
+        spec=spec.path,
     )
 
 

@@ -4,7 +4,7 @@ This is the model interface for models given by a successor function (paper
 Algorithm 1 run lazily): the engines read the state and transition arrays,
 and call :meth:`GrowingModel.expand` with a *batch* of states of one step to
 have all their successors computed at once. Whoever produces the successors
-(lesmc/unfold.py for scenes) implements :class:`Expander`; engines import
+(lesmc/build/unfold.py for scenes) implements :class:`Expander`; engines import
 only this module and never know what a scene is.
 """
 
@@ -16,6 +16,10 @@ from typing import Protocol
 import numpy as np
 
 from lesmc.model.kernel import combined_payoffs
+
+#: Seconds one batch of expansions should take at most: batches shrink for designs whose
+#: states are expensive (joint), so that a deadline is looked at often enough.
+BATCH_SECONDS = 0.05
 
 
 class GrowArray:

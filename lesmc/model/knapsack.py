@@ -24,7 +24,7 @@ from pathlib import Path
 
 import numpy as np
 
-from lesmc.errors import InputError, Location
+from lesmc.common.errors import InputError, Location
 from lesmc.model.arrays import ArrayModel
 from lesmc.model.validate import Parts, build
 

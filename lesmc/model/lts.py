@@ -13,7 +13,6 @@ convert between the two.
 
 from __future__ import annotations
 
-import math
 from collections.abc import Iterable, Sequence
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any
@@ -96,10 +95,6 @@ class LTS:
     def transitions(self) -> Iterable[Transition]:
         for _, _, d in self.graph.edges(data=True):
             yield d["transition"]
-
-    def combined_payoff(self, t: Transition) -> float:
-        """Eq. 5 read strictly: the payoffs of the transitions ≺ t (nearer detections)."""
-        return math.fsum(o.payoff for o in self.out(t.src) if o.rank < t.rank)
 
     @classmethod
     def from_parts(

@@ -23,8 +23,8 @@ from typing import TYPE_CHECKING, Any, TypeGuard
 
 import numpy as np
 
-from lesmc.errors import ModelError, Problems
-from lesmc.fileio import read_json, write_json
+from lesmc.common.errors import ModelError, Problems
+from lesmc.common.files import read_json, write_json
 from lesmc.model.arrays import ArrayModel
 from lesmc.model.validate import HALTED, Parts, build, state_order
 

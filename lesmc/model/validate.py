@@ -23,7 +23,7 @@ from typing import Any
 
 import numpy as np
 
-from lesmc.errors import ModelError
+from lesmc.common.errors import ModelError
 from lesmc.model.arrays import ArrayModel
 
 HALTED = "halted"
@@ -97,20 +97,7 @@ def build(parts: Parts, path: str = "<model>") -> ArrayModel:
     src_f, dst_f = _endpoints(parts, index)
     _check_parts(parts, index, src_f, dst_f, dim, head, path)
 
-    # layout: states in (step, id) order, transitions by (source, rank, target)
-    perm = state_order(parts.step, ids)
-    pos = np.arange(n, dtype=np.int64)
-    if perm is not None:
-        pos[perm] = np.arange(n, dtype=np.int64)
-    src_p, dst_p = pos[src_f], pos[dst_f]
-    torder = np.lexsort((dst_p, parts.rank, src_p))
-    src = src_p[torder]
-    dst = dst_p[torder]
-    rank = parts.rank[torder]
-    step = parts.step if perm is None else parts.step[perm]
-    ptr = np.zeros(n + 1, dtype=np.int64)
-    np.cumsum(np.bincount(src, minlength=n), out=ptr[1:])
-    halted = parts.halted if perm is None else parts.halted[perm]
+    perm, pos, torder, src, dst, rank, step, ptr, halted = _layout(parts, src_f, dst_f)
     sorted_ids = ids if perm is None else [ids[i] for i in perm.tolist()]
 
     rep = _Report()
@@ -144,6 +131,25 @@ def build(parts: Parts, path: str = "<model>") -> ArrayModel:
         labels=dict(sorted(labels.items())),
         meta=parts.meta,
     )
+
+
+def _layout(parts: Parts, src_f: np.ndarray, dst_f: np.ndarray) -> tuple[Any, ...]:
+    """States in (step, id) order, transitions by (source, rank, target): the permutation
+    (None: already in order), each row's position, the transitions' order, their sources,
+    targets and ranks, the states' steps, the CSR offsets and the halted flags."""
+    n = len(parts.ids)
+    perm = state_order(parts.step, parts.ids)
+    pos = np.arange(n, dtype=np.int64)
+    if perm is not None:
+        pos[perm] = np.arange(n, dtype=np.int64)
+    src_p, dst_p = pos[src_f], pos[dst_f]
+    torder = np.lexsort((dst_p, parts.rank, src_p))
+    src = src_p[torder]
+    step = parts.step if perm is None else parts.step[perm]
+    ptr = np.zeros(n + 1, dtype=np.int64)
+    np.cumsum(np.bincount(src, minlength=n), out=ptr[1:])
+    halted = parts.halted if perm is None else parts.halted[perm]
+    return perm, pos, torder, src, dst_p[torder], parts.rank[torder], step, ptr, halted
 
 
 def state_order(step: np.ndarray, ids: Sequence[str]) -> np.ndarray | None:
@@ -293,34 +299,12 @@ def _check_paths(
     missing = np.flatnonzero(rows < 0)
     stop = int(missing[0]) if missing.size else e + 1
     op: np.ndarray = pos[rows[:stop]]
-    m = dst.shape[0]
     deg = np.diff(ptr)
     k = np.arange(stop, dtype=np.int64)
     for kk in np.flatnonzero(step[op] != k).tolist():
         sid = original[kk]
         rep.add((2, kk, 0), f"original[{kk}]", f"state '{sid}' is at step {step[op[kk]]}, not {kk}")
-    if stop > 1 and m:
-        prev, cur = op[:-1], op[1:]
-        pick = np.where(deg[prev] > 0, dst[np.minimum(ptr[prev], m - 1)], -1)
-        off = np.flatnonzero(pick != cur)
-        if off.size:
-            edges = src * len(ids) + dst
-            exists = np.isin(prev[off] * len(ids) + cur[off], edges)
-            for i, ok in zip(off.tolist(), exists.tolist(), strict=True):
-                kk, a, b = i + 1, original[i], original[i + 1]
-                if ok:
-                    p = _id(ids, perm, int(pick[i]))
-                    msg = (
-                        f"'{b}' is not the unattacked (rank-minimal) successor of '{a}', "
-                        f"which is '{p}'"
-                    )
-                else:
-                    msg = f"no transition from '{a}' to '{b}'"
-                rep.add((2, kk, 1), f"original[{kk}]", msg)
-    elif stop > 1:
-        for kk in range(1, stop):
-            msg = f"no transition from '{original[kk - 1]}' to '{original[kk]}'"
-            rep.add((2, kk, 1), f"original[{kk}]", msg)
+    _check_links(rep, original, op, ptr, src, dst, ids, perm)
     if missing.size:
         rep.add((2, stop, 0), f"original[{stop}]", f"unknown state '{original[stop]}'")
         return None
@@ -344,6 +328,42 @@ def _check_paths(
                 )
             rep.add((3, r, kind), f"state '{ids[r]}'", msg)
     return op
+
+
+def _check_links(
+    rep: _Report,
+    original: list[str],
+    op: np.ndarray,
+    ptr: np.ndarray,
+    src: np.ndarray,
+    dst: np.ndarray,
+    ids: list[str],
+    perm: np.ndarray | None,
+) -> None:
+    """Each step of the original path (rows ``op``) is the rank-minimal transition."""
+    stop, m, deg = len(op), dst.shape[0], np.diff(ptr)
+    if stop > 1 and m:
+        prev, cur = op[:-1], op[1:]
+        pick = np.where(deg[prev] > 0, dst[np.minimum(ptr[prev], m - 1)], -1)
+        off = np.flatnonzero(pick != cur)
+        if off.size:
+            edges = src * len(ids) + dst
+            exists = np.isin(prev[off] * len(ids) + cur[off], edges)
+            for i, ok in zip(off.tolist(), exists.tolist(), strict=True):
+                kk, a, b = i + 1, original[i], original[i + 1]
+                if ok:
+                    p = _id(ids, perm, int(pick[i]))
+                    msg = (
+                        f"'{b}' is not the unattacked (rank-minimal) successor of '{a}', "
+                        f"which is '{p}'"
+                    )
+                else:
+                    msg = f"no transition from '{a}' to '{b}'"
+                rep.add((2, kk, 1), f"original[{kk}]", msg)
+    elif stop > 1:
+        for kk in range(1, stop):
+            msg = f"no transition from '{original[kk - 1]}' to '{original[kk]}'"
+            rep.add((2, kk, 1), f"original[{kk}]", msg)
 
 
 def _file_rows(rows: np.ndarray, perm: np.ndarray | None) -> np.ndarray:

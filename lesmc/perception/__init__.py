@@ -5,3 +5,8 @@ Stages, each a separate module: ``registration`` (camera motion, Eq. 15),
 (subtraction, morphology, candidates Q_bc, Eq. 16), and ``frontend``, the object
 that runs them frame by frame; ``quality`` scores candidates against truth.
 """
+
+#: Bisection steps of on-demand certification (``verify``, ``campaign --payoffs``): it
+#: bounds a handful of detections, so it can afford three times ``perceive --certify``'s 2
+#: (docs/cnn.md: median ratio 0.057 -> 0.070).
+ON_DEMAND_STEPS = 6

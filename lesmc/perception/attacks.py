@@ -24,7 +24,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from typing import Literal
+from typing import Any, Literal
 
 import numpy as np
 import torch
@@ -200,3 +200,13 @@ def payoffs(
         flipped[a : a + len(d)] = ok
         iters[a : a + len(d)] = it
     return AttackResult(pay, pert, flipped, iters)
+
+
+def attack_of(meta: dict[str, Any]) -> AttackConfig:
+    """The attack settings a scene's meta records (lesmc perceive -o), defaults otherwise."""
+    a = meta.get("attack")
+    if not isinstance(a, dict):
+        return AttackConfig()
+    keys = {"method": str, "overshoot": float, "max_iter": int, "norm": str}
+    got = {k: t(a[k]) for k, t in keys.items() if k in a and isinstance(a[k], (str, int, float))}
+    return AttackConfig(**got)

@@ -20,8 +20,8 @@ import torch
 from safetensors.torch import load_file, save_file
 from torch import nn
 
-from lesmc.errors import InputError, Location, Problems
-from lesmc.fileio import read_json
+from lesmc.common.errors import InputError, Location, Problems
+from lesmc.common.files import read_json
 from lesmc.perception.windows import M_PREVIOUS
 
 DR_SIZE = 21

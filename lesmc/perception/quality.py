@@ -18,8 +18,8 @@ import numpy as np
 from scipy.optimize import linear_sum_assignment
 from scipy.spatial import cKDTree
 
-from lesmc.errors import InputError, Location, Problems
-from lesmc.fileio import read_json
+from lesmc.common.errors import InputError, Location, Problems
+from lesmc.common.files import read_json
 
 
 @dataclass(frozen=True)

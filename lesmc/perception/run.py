@@ -5,13 +5,14 @@ The Python API behind ``lesmc perceive``; the CLI only parses options and prints
 
 from __future__ import annotations
 
-from collections.abc import Callable, Sequence
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
 
-from lesmc.errors import InputError, Location
+from lesmc.common.errors import InputError, Location
+from lesmc.perception import ON_DEMAND_STEPS
 from lesmc.perception.attacks import AttackConfig, payoffs
 from lesmc.perception.blobs import BlobConfig
 from lesmc.perception.certify import CertifyConfig
@@ -150,12 +151,6 @@ def certified_lower(
     return bounded
 
 
-#: Bisection steps of on-demand certification (``verify``, ``campaign --payoffs``): it
-#: bounds a handful of detections, so it can afford three times ``perceive --certify``'s 2
-#: (docs/cnn.md: median ratio 0.057 -> 0.070).
-ON_DEMAND_STEPS = 6
-
-
 def certify_on_demand(
     nets: Nets,
     run: PerceiveRun,
@@ -166,23 +161,6 @@ def certify_on_demand(
     attack settings and :data:`ON_DEMAND_STEPS` bisection steps."""
     cert = CertifyConfig(steps=ON_DEMAND_STEPS)
     return certify_detections(nets, run, wanted, AttackConfig(), cert, on_batch)
-
-
-def certification_meta(
-    frames: Sequence[Any], scope: str, seconds: float, **extra: Any
-) -> dict[str, Any]:
-    """A scene's ``meta.certified`` after on-demand certification: the method, the
-    detections of ``frames`` that carry a bound, ``scope`` (which ones), ``extra`` fields
-    and the seconds spent."""
-    return {
-        "method": "CROWN, L2 ball (docs/cnn.md)",
-        "steps": ON_DEMAND_STEPS,
-        "detections": sum(d.payoff_lower is not None for f in frames for d in f.detections),
-        "of": sum(len(f.detections) for f in frames),
-        "scope": scope,
-        **extra,
-        "seconds": round(seconds, 3),
-    }
 
 
 def certify_detections(
@@ -196,7 +174,7 @@ def certify_detections(
     """Certified lower bounds of the ``wanted`` detections of a perceive ``run`` only.
 
     ``wanted``: per frame index, detection indices (what a model can hide,
-    :func:`lesmc.unfold.priced_detections`). Detections of one Q_dr blob share
+    :func:`lesmc.build.unfold.priced_detections`). Detections of one Q_dr blob share
     its window, so each blob is certified once. Returns, per frame index, the
     bound of every detection of that frame, ``nan`` where not certified.
     ``on_batch(done, total)`` counts blobs.

@@ -110,7 +110,7 @@ def collect(
         try:
             out = fe.push(img)
         except RegistrationError as exc:
-            from lesmc.errors import UsageError
+            from lesmc.common.errors import UsageError
 
             raise UsageError(
                 f"training video {seed} ({cfg.width}x{cfg.height}): frame {k} cannot be "
@@ -290,7 +290,7 @@ def train(cfg: TrainConfig, progress: Progress | None = None) -> tuple[Nets, Val
         collect(cfg, seed, tr, rng, progress)
     x, y, lx, ly = tr.arrays()
     if not (0 < int(y.sum()) < len(y)) or not len(lx):
-        from lesmc.errors import UsageError
+        from lesmc.common.errors import UsageError
 
         raise UsageError(
             f"the training videos ({cfg.frames} frames of {cfg.width}x{cfg.height}) gave "

@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import io
 import itertools
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 
 import matplotlib
@@ -267,45 +267,17 @@ def tree(
     seen_edges: set[tuple[tuple[str, ...], tuple[str, ...]]] = set()
     labelled: set[tuple[str, ...]] = set()
     legend_roles: dict[str, str] = {}
+    longest = max(len(q.states) for q in paths)
     for p in sorted(paths, key=lambda p: p.role != "other"):  # roles drawn on top
         drawn_cols = [k for k in cols if k < len(p.states)]
-        for a, b in itertools.pairwise(drawn_cols):
-            pa, pb = p.states[: a + 1], p.states[: b + 1]
-            if (pa, pb) in seen_edges and p.role == "other":
-                continue
-            seen_edges.add((pa, pb))
-            gap = b - a > 1
-            ax.plot(
-                [xcol[a], xcol[b]],
-                [y(pa), y(pb)],
-                ":" if gap else STYLES[p.role],
-                color=COLOURS[p.role],
-                lw=1.0 if p.role == "other" else 2.2,
-                zorder=1 if p.role == "other" else 2,
-            )
+        _draw_track(ax, p, drawn_cols, xcol, y, seen_edges, labelled)
         if p.role != "other":
             legend_roles.setdefault(p.role, p.role)
-        for k in drawn_cols:
-            node = p.states[: k + 1]
-            if node in labelled:
-                continue
-            labelled.add(node)
-            ax.text(
-                xcol[k],
-                y(node),
-                p.labels[k].split("-", 1)[1] if "-" in p.labels[k] else p.labels[k],
-                fontsize=8,
-                ha="center",
-                va="center",
-                zorder=5,
-                bbox={"boxstyle": "round,pad=0.2", "fc": "white", "ec": "#888888", "lw": 0.5},
-            )
-        leaf_x = xcol[drawn_cols[-1]]
         tag = f"#{p.number}" + (f"  {'; '.join(p.tags)}" if p.tags else "")
-        if len(p.states) < max(len(q.states) for q in paths):
+        if len(p.states) < longest:
             tag += "  (halted)"
         ax.text(
-            leaf_x + 0.35,
+            xcol[drawn_cols[-1]] + 0.35,
             y_leaf[p.number],
             tag,
             fontsize=8.5,
@@ -333,6 +305,47 @@ def tree(
     for side in ("top", "right", "left"):
         ax.spines[side].set_visible(False)
     return _png(fig)
+
+
+def _draw_track(
+    ax: Axes,
+    p: TreePath,
+    drawn_cols: list[int],
+    xcol: dict[int, int],
+    y: Callable[[tuple[str, ...]], float],
+    seen_edges: set[tuple[tuple[str, ...], tuple[str, ...]]],
+    labelled: set[tuple[str, ...]],
+) -> None:
+    """One track of the tree: its edges (each once, roles on top) and its nodes' labels."""
+    for a, b in itertools.pairwise(drawn_cols):
+        pa, pb = p.states[: a + 1], p.states[: b + 1]
+        if (pa, pb) in seen_edges and p.role == "other":
+            continue
+        seen_edges.add((pa, pb))
+        gap = b - a > 1
+        ax.plot(
+            [xcol[a], xcol[b]],
+            [y(pa), y(pb)],
+            ":" if gap else STYLES[p.role],
+            color=COLOURS[p.role],
+            lw=1.0 if p.role == "other" else 2.2,
+            zorder=1 if p.role == "other" else 2,
+        )
+    for k in drawn_cols:
+        node = p.states[: k + 1]
+        if node in labelled:
+            continue
+        labelled.add(node)
+        ax.text(
+            xcol[k],
+            y(node),
+            p.labels[k].split("-", 1)[1] if "-" in p.labels[k] else p.labels[k],
+            fontsize=8,
+            ha="center",
+            va="center",
+            zorder=5,
+            bbox={"boxstyle": "round,pad=0.2", "fc": "white", "ec": "#888888", "lw": 0.5},
+        )
 
 
 def patch(image: np.ndarray, centre: tuple[float, float], half: int = 10) -> np.ndarray:

@@ -23,12 +23,10 @@ from typing import Any
 import numpy as np
 
 from lesmc.engines.result import verdict_words
-from lesmc.model import kernel
 from lesmc.report import figures
 from lesmc.report.figures import COLOURS, Series, TreePath
 from lesmc.report.staging import staged
 from lesmc.report.text import fmt, optimum_cell
-from lesmc.tracking.kalman import warp
 
 MAX_TABLE_ROWS = 60
 MAX_TREE_LEAVES = 40
@@ -37,16 +35,23 @@ ImageFor = Callable[[int], np.ndarray | None]
 
 
 def write_report(
-    doc: dict[str, Any], out_dir: str | Path, image_for: ImageFor | None = None
+    doc: dict[str, Any],
+    out_dir: str | Path,
+    image_for: ImageFor | None = None,
+    files: dict[str, str] | None = None,
 ) -> Path:
-    """Write report.html, figures/*.png and results.json (``doc``) into ``out_dir``.
+    """Write report.html, figures/*.png, results.json (``doc``) and ``files`` (name -> text,
+    e.g. the scene the results refer to) into ``out_dir``.
 
     Staged and moved in at the end (lesmc/report/staging.py): nothing the run did
-    not create is deleted, and two runs into one directory do not mix.
+    not create is deleted, two runs into one directory do not mix, and an interrupt
+    leaves the old files or the new ones, never a mix.
     ``image_for(frame)`` returns the grey video frame with that index, when known.
     """
     page, figs = render(doc, image_for)
     with staged(out_dir) as tmp:
+        for name, text in (files or {}).items():
+            (tmp / name).write_text(text, encoding="utf-8")
         (tmp / "figures").mkdir()
         for name, png in figs.items():
             (tmp / "figures" / name).write_bytes(png)
@@ -73,8 +78,14 @@ def _fmt(x: Any) -> str:
 
 
 def verdict_of(r: dict[str, Any]) -> str:
-    """A result's verdict as printed: a vacuous 'holds' says so."""
-    return verdict_words(r["verdict"], bool(r.get("vacuous")), r.get("original_alarms") or [])
+    """A result's verdict word and why (lesmc.engines.result.verdict_words)."""
+    replay = (r.get("replay") or {}).get("status")
+    return verdict_words(r["verdict"], bool(r["vacuous"]), r["original_alarms"] or [], replay)
+
+
+def status_class(r: dict[str, Any]) -> str:
+    """The CSS class of a result's verdict word: one colour per word."""
+    return _tag(r["status"])
 
 
 def _opt(r: dict[str, Any]) -> str:
@@ -93,8 +104,8 @@ class _Run:
 
     def __init__(self, run: dict[str, Any]) -> None:
         self.d = run
-        self.name: str = run["design"]
-        self.tag = _tag(self.name)
+        self.name: str = run["label"]
+        self.tag = _tag(run["design"])
         self.paths: list[dict[str, Any]] = run["paths"]
         self.by_no = {p["no"]: p for p in self.paths}
         self.states: dict[str, Any] = run["states"]
@@ -116,16 +127,20 @@ class _Run:
     def end(self) -> int:
         return int(self.d["model"]["end"])
 
-    def deviations(self, no: int, prop: dict[str, Any]) -> np.ndarray:
-        """dist.at(k) of a path against the original, k = 0..end (Eq. 4); inf after a halt."""
-        idx = [self.comps.index(c) for c in prop["components"]]
-        out = np.full(self.end() + 1, np.inf)
-        if self.original is None:
-            return out
-        s, ref = self.s(no), self.s(self.original)
-        n = min(len(s), len(ref))
-        out[:n] = kernel.deviation((s[:n] - ref[:n])[:, idx], _f(prop["norm"]))
-        return out
+    def deviations(self, i: int, role: str) -> np.ndarray:
+        """Property ``i``'s dist.at(k), k = 0..end, of its counterexample or witness as the
+        check computed them (inf after a halt); the original track's are 0 (Eq. 4)."""
+        if role == "original":
+            return np.zeros(self.end() + 1)
+        path = self.results[i]["counterexample" if role == "counterexample" else "witness"]
+        return np.array([_f(x) for x in path["deviation"]])
+
+    def adversarial(self, i: int) -> int:
+        """Listed tracks that break property ``i`` and that its monitor does not flag."""
+        return sum(
+            j["admissible"] and j["violates"] and not j["alarms"]
+            for j in (p["judged"][i] for p in self.paths)
+        )
 
     def roles(self) -> dict[int, list[tuple[str, int | None]]]:
         """Path number -> (role, property index) pairs: original first, then per property."""
@@ -203,7 +218,7 @@ def _verdicts(runs: list[_Run]) -> str:
         for r in run.results:
             items.append(
                 f"<li><b>{_e(run.name)}</b> · {_e(r['property'])}: "
-                f"<span class='{r['verdict']}'>{_e(verdict_of(r))}</span> "
+                f"<span class='{status_class(r)}'>{_e(verdict_of(r))}</span> "
                 f"(optimum {_e(_opt(r))}, holds if {_e(r['holds_if'])})</li>"
             )
     return f"<h2 id='verdicts'>Verdicts</h2><ul>{''.join(items)}</ul>"
@@ -222,9 +237,9 @@ def _table5(runs: list[_Run]) -> str:
                 continue
             r = run.results[i]
             cells.append(
-                f"<td class='{r['verdict']}'>{_e(verdict_of(r))}</td><td>{_e(_opt(r))}</td>"
+                f"<td class='{status_class(r)}'>{_e(verdict_of(r))}</td><td>{_e(_opt(r))}</td>"
                 f"<td>{_e(_fmt(r['witness_value']))}</td>"
-                f"<td>{run.d['adversarial_tracks'][r['property']]}</td>"
+                f"<td>{run.adversarial(i)}</td>"
             )
         rows.append(f"<tr><th>{_e(p)}</th>{''.join(cells)}</tr>")
     return (
@@ -299,7 +314,7 @@ def _section(run: _Run, figs: dict[str, bytes], image_for: ImageFor | None) -> s
         _table4(run),
     ]
     scene = run.d.get("scene")
-    truth = run.d.get("truth")
+    truth = None
     for i, prop in enumerate(run.props):
         drawn = _series_for(run, i)
         if not any(role != "original" for _, role, _ in drawn):
@@ -314,7 +329,7 @@ def _section(run: _Run, figs: dict[str, bytes], image_for: ImageFor | None) -> s
         if scene is not None:
             parts.append(_track_figure(run, i, drawn, scene, truth, figs, image_for))
         series = [
-            Series(_label(run, no, role, p), role, run.deviations(no, prop), p, number=no)
+            Series(_label(run, no, role, p), role, run.deviations(i, role), p, number=no)
             for no, role, p in drawn
         ]
         cumulative = (
@@ -365,31 +380,24 @@ def _table4(run: _Run) -> str:
             + ("unattacked track alarms at " + ", ".join(map(str, alarms)) if alarms else "none")
         )
         rows.append(
-            f"<tr><th>{_e(r['property'])}</th><td class='{r['verdict']}'>{_e(verdict_of(r))}</td>"
+            f"<tr><th>{_e(r['property'])}</th>"
+            f"<td class='{status_class(r)}'>{_e(verdict_of(r))}</td>"
             f"<td>{_e(r['objective'])}</td><td>{_e(r['constraint'])}</td><td>{_e(_opt(r))}</td>"
             f"<td>{_e(r['holds_if'])}</td><td>{_e(_fmt(r['witness_value']))}</td>"
             f"<td>{_no(run.wit[i])}</td><td>{_no(run.cex[i])}</td><td>{_e(monitor)}</td>"
-            f"<td>{run.d['adversarial_tracks'][r['property']]}</td>"
-            f"<td>{_e(_fmt(run.d['recomputed_optimum'][r['property']]))} ({check})</td>"
+            f"<td>{run.adversarial(i)} ({check})</td>"
             f"<td>{r['stats']['seconds']:.3f} s, {r['stats']['states_expanded']} states</td></tr>"
         )
     return (
         "<h3>Verdicts (Table 4)</h3><table><tr><th>property</th><th>verdict</th><th>minimise</th>"
         "<th>subject to</th><th>optimum</th><th>holds if</th><th>θ*</th><th>ρ* (track no.)</th>"
         "<th>counterexample (track no.)</th><th>monitor</th><th>adversarial tracks</th>"
-        "<th>min over them, recomputed from the paths</th><th>search</th></tr>"
-        + "".join(rows)
-        + "</table>"
+        "<th>search</th></tr>" + "".join(rows) + "</table>"
     )
 
 
 def _no(n: int | None) -> str:
     return "-" if n is None else f"#{n}"
-
-
-def _to_ref(scene: dict[str, Any], k: int, pts: np.ndarray) -> np.ndarray:
-    H = np.array(scene["to_ref"][k], float)
-    return np.array(warp(H, pts))
 
 
 def _track_figure(
@@ -406,17 +414,13 @@ def _track_figure(
     frame = int(scene["first_frame"]) + ref
     tracks = []
     for no, role, p in drawn:
-        xy = run.s(no)[:, :2]
-        pts = np.array([_to_ref(scene, k, xy[k]) for k in range(len(xy))])
+        pts = np.array([run.states[q]["ref"] for q in run.by_no[no]["states"]], float)
         tracks.append((Series(_label(run, no, role, p), role, np.zeros(0), p, number=no), pts))
-    dets = np.array([d[:2] for d in scene["detections"][ref]], float).reshape(-1, 2)
+    dets = np.array([d[4:6] for d in scene["detections"][ref]], float).reshape(-1, 2)
     tr = None
-    if truth:
+    if scene.get("truth_ref"):
         tr = np.array(
-            [
-                _to_ref(scene, k, np.array(t, float)) if t is not None else [np.nan, np.nan]
-                for k, t in enumerate(truth[: run.end() + 1])
-            ],
+            [[np.nan, np.nan] if t is None else t for t in scene["truth_ref"]],
             float,
         )
     img = image_for(frame) if image_for is not None else None
@@ -503,14 +507,25 @@ def _tau_figure(run: _Run, figs: dict[str, bytes]) -> str:
 
 
 def _patches(run: _Run, figs: dict[str, bytes], image_for: ImageFor | None) -> str:
+    """What the counterexamples' attacks hide: a table, the replays, and the patches."""
     hidden = run.d.get("hidden") or {}
     if not any(hidden.values()):
         return ""
-    replays = {r["property"]: r.get("replay") for r in run.results}
+    replays = {r["property"]: r.get("replay") or {} for r in run.results}
+    out = _hidden_table(hidden, replays) + _replay_lines(run)
+    if image_for is None:
+        return out + (
+            "<p>No frames were given (<code>--frames</code>): the patches are not drawn.</p>"
+        )
+    return out + _patch_figures(run, hidden, replays, figs, image_for)
+
+
+def _hidden_table(hidden: dict[str, Any], replays: dict[str, Any]) -> str:
+    """One row per hidden detection: where, its payoff, its certified interval, and the
+    payoff the replay recomputed."""
     rows = []
     for prop, items in hidden.items():
-        rp = replays.get(prop)
-        recomputed = {p["obs"]: p for p in (rp or {}).get("perturbations", [])}
+        recomputed = {p["obs"]: p for p in replays.get(prop, {}).get("perturbations", [])}
         for h in items:
             where = f"({h['x']:.1f}, {h['y']:.1f})" if "x" in h else "-"
             lo, up = h.get("payoff_lower"), h["payoff"]
@@ -525,7 +540,7 @@ def _patches(run: _Run, figs: dict[str, bytes], image_for: ImageFor | None) -> s
                 f"<td>{_e(h['obs'])}</td><td>{_e(where)}</td><td>{_e(_fmt(up))}</td>"
                 f"<td>{_e(interval)}</td><td>{tight}</td><td>{_e(rec)}</td></tr>"
             )
-    out = (
+    return (
         "<h3>What the counterexamples' attacks hide</h3><p>At each attacked step the tracker "
         "takes a detection of lower priority because the attacker hid those ranked before it "
         "(Eq. 5). Payoff: the size of the perturbation the attack found that makes N_dr miss "
@@ -538,15 +553,19 @@ def _patches(run: _Run, figs: dict[str, bytes], image_for: ImageFor | None) -> s
         "<th>position</th><th>payoff</th><th>interval</th><th>tightness</th>"
         "<th>replayed</th></tr>" + "".join(rows) + "</table>"
     )
-    out += _replay_lines(run)
-    if image_for is None:
-        return out + (
-            "<p>No frames were given (<code>--frames</code>): the patches are not drawn.</p>"
-        )
+
+
+def _patch_figures(
+    run: _Run,
+    hidden: dict[str, Any],
+    replays: dict[str, Any],
+    figs: dict[str, bytes],
+    image_for: ImageFor,
+) -> str:
+    """The hidden detections' patches: with the replayed perturbation where there is one."""
     triples, singles = [], []
     for prop, items in hidden.items():
-        rp = replays.get(prop) or {}
-        perts = {p["obs"]: p for p in rp.get("perturbations", [])}
+        perts = {p["obs"]: p for p in replays.get(prop, {}).get("perturbations", [])}
         for h in items:
             img = image_for(int(h["frame"])) if "x" in h else None
             if img is None:
@@ -564,7 +583,7 @@ def _patches(run: _Run, figs: dict[str, bytes], image_for: ImageFor | None) -> s
     if triples:
         name = f"{run.tag}-perturbations.png"
         figs[name], gain = figures.perturbations(triples[:8])
-        out += _img(
+        return _img(
             name,
             "For each detection a counterexample hides: the original 21×21 patch of the "
             "frame (its N_dr window, current frame), the perturbation the attack adds to that "
@@ -576,16 +595,16 @@ def _patches(run: _Run, figs: dict[str, bytes], image_for: ImageFor | None) -> s
             "three aligned previous frames, not drawn; the payoff is the norm over all four."
             + (f" The first 8 of {len(triples)} are drawn." if len(triples) > 8 else ""),
         )
-    elif singles:
+    if singles:
         name = f"{run.tag}-hidden.png"
         figs[name] = figures.patches(singles[:12])
-        out += _img(
+        return _img(
             name,
             "The original 21×21 patches of the hidden detections (frame pixels); the "
             "perturbations are drawn once the counterexample is replayed (lesmc verify, "
             "lesmc replay).",
         )
-    return out
+    return ""
 
 
 def _replay_lines(run: _Run) -> str:
@@ -596,7 +615,12 @@ def _replay_lines(run: _Run) -> str:
         if not rp:
             continue
         how = " (repaired joint attack)" if rp.get("attack") == "repaired" else ""
-        if rp["status"] == "confirmed":
+        if rp["status"] == "not replayed":
+            text = (
+                "<b>not replayed</b>: the counterexample is the model's; run it through the "
+                "detector with <code>lesmc replay RESULTS.json --frames VIDEO/</code>"
+            )
+        elif rp["status"] == "confirmed":
             text = (
                 f"<b>confirmed</b>{how}: the real detector and tracker take the same "
                 f"detections; largest position error {rp['max_error_px']:.3g} px"
@@ -719,6 +743,8 @@ table{border-collapse:collapse;margin:.6em 0;font-size:.85em}
 td,th{border:1px solid #ccc;padding:.25em .5em;text-align:right}th{background:#f4f4f4}
 td:nth-child(2){text-align:left}td.obs{white-space:nowrap}
 .holds{color:#1a7f37;font-weight:bold}.violated{color:#c62828;font-weight:bold}
+.holds--vacuous-{color:#00838f;font-weight:bold;font-style:italic}
+.violated--not-replayed-{color:#ad1457;font-weight:bold;font-style:italic}
 .unknown{color:#b26a00;font-weight:bold}tr.original{background:#e8f5e9}tr.marked{background:#fdecea}
 figure{display:inline-block;margin:.8em;vertical-align:top;max-width:100%}
 figure img{max-width:100%;height:auto;border:1px solid #ddd}\n.scroll{overflow-x:auto}

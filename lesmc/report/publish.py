@@ -1,7 +1,7 @@
 """Results, then report: the one path ``check --report``, ``verify`` and ``report`` share.
 
 :func:`publish` turns checked design runs into the results document
-(lesmc/report/results.py) and draws the report from that document alone
+(lesmc/results/document.py) and draws the report from that document alone
 (lesmc/report/html.py), exactly as ``lesmc report RESULTS.json`` does later.
 Video frames come only from a directory named on the command line.
 """
@@ -14,8 +14,8 @@ from typing import Any
 
 import numpy as np
 
-from lesmc.errors import InputError, Location
-from lesmc.report.results import FORMAT, VERSION, DesignRun, results_document
+from lesmc.results.document import results_document
+from lesmc.results.record import DesignRun
 
 
 def frames_reader(frames_dir: str | None) -> Callable[[int], np.ndarray | None] | None:
@@ -47,24 +47,3 @@ def publish(
 
     doc = results_document(runs, meta, prov, timings, truth, extra)
     return write_report(doc, out_dir, image_for), doc
-
-
-def load_results(path: str) -> dict[str, Any]:
-    """Read a results file strictly and check it against the shipped schema."""
-    from lesmc.fileio import read_json
-    from lesmc.schemas import validate
-
-    doc = read_json(Path(path), InputError)
-    if not isinstance(doc, dict) or doc.get("format") != FORMAT:
-        raise InputError(
-            f"not a lesmc results file (format must be '{FORMAT}'; write one with "
-            "lesmc verify or lesmc check ... --report DIR)",
-            Location(path),
-        )
-    if doc.get("version") != VERSION:
-        raise InputError(
-            f"results file version {doc.get('version')!r}; this lesmc reads version {VERSION}",
-            Location(path, item="version"),
-        )
-    validate(doc, "results", path)
-    return doc

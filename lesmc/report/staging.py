@@ -14,11 +14,13 @@ from __future__ import annotations
 import contextlib
 import os
 import shutil
+import signal
 import tempfile
+import threading
 from collections.abc import Iterator
 from pathlib import Path
 
-from lesmc.errors import UsageError
+from lesmc.common.errors import UsageError
 
 
 @contextlib.contextmanager
@@ -68,16 +70,40 @@ def staged(out_dir: str | Path) -> Iterator[Path]:
         try:
             yield tmp
             os.chmod(tmp, 0o777 & ~_umask())
-            if not out.exists():
-                tmp.rename(out)  # the whole directory at once
-                return
-            _merge(tmp, out)
+            with _signals_held():
+                if not out.exists():
+                    tmp.rename(out)  # the whole directory at once
+                    return
+                _merge(tmp, out)
         finally:
             shutil.rmtree(tmp, ignore_errors=True)
 
 
+#: Files moved in last, in this order: a results file never stands beside an older scene.
+LAST = ("report.html", "results.json")
+
+
+@contextlib.contextmanager
+def _signals_held() -> Iterator[None]:
+    """SIGINT and SIGTERM wait while the staged files are moved in (a few renames): an
+    interrupt then finds ``out`` all old or all new, never half of each."""
+    held = {signal.SIGINT, signal.SIGTERM}
+    can = (
+        hasattr(signal, "pthread_sigmask") and threading.current_thread() is threading.main_thread()
+    )
+    old = signal.pthread_sigmask(signal.SIG_BLOCK, held) if can else None
+    try:
+        yield
+    finally:
+        if old is not None:
+            signal.pthread_sigmask(signal.SIG_SETMASK, old)
+
+
 def _merge(src: Path, dst: Path) -> None:
-    for item in sorted(src.iterdir()):
+    for item in sorted(
+        src.iterdir(),
+        key=lambda p: (p.name in LAST, LAST.index(p.name) if p.name in LAST else 0, p.name),
+    ):
         target = dst / item.name
         if item.is_dir():
             if target.exists() and not target.is_dir():

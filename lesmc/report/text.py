@@ -10,21 +10,28 @@ from typing import Any
 from rich.console import Console
 from rich.table import Table
 
+from lesmc.common.errors import escape_text
 from lesmc.engines.result import CheckResult, PathInfo
-from lesmc.errors import escape_text
 from lesmc.language.properties import SpecFile
+from lesmc.results.document import provenance
+from lesmc.results.record import DesignRun
 
-_COLOURS = {"holds": "green", "violated": "red", "unknown": "yellow"}
+#: The colour of each verdict word (lesmc.engines.result.STATUSES), in every table.
+COLOURS = {
+    "holds": "green",
+    "holds (vacuous)": "cyan",
+    "violated": "red",
+    "violated (not replayed)": "magenta",
+    "unknown": "yellow",
+}
 
 
 def results_json(results: Sequence[CheckResult], specs: Sequence[SpecFile] = ()) -> str:
     """The ``--json`` output of ``lesmc check``: format ``lesmc-check`` (docs/cli.md,
     lesmc/schemas/check.json), the results and the provenance."""
-    from lesmc.report.results import provenance
-
     doc: dict[str, Any] = {
         "format": "lesmc-check",
-        "version": 1,
+        "version": 2,
         "provenance": provenance(specs),
         "results": [r.to_json() for r in results],
     }
@@ -32,12 +39,18 @@ def results_json(results: Sequence[CheckResult], specs: Sequence[SpecFile] = ())
 
 
 def fmt(x: float | None, digits: int = 4) -> str:
-    """A number for a table: '-' for None, '+inf' for infinity."""
+    """A number for a table or a report: ``digits`` significant digits (full precision
+    stays in the JSON), '-' for None, '+inf' for infinity (docs/cli.md, "Numbers")."""
     if x is None:
         return "-"
     if math.isinf(x):
         return "+inf" if x > 0 else "-inf"
-    return f"{x:.{digits}g}" if abs(x) >= 1e4 else f"{x:.{digits}f}".rstrip("0").rstrip(".") or "0"
+    return f"{x:.{digits}g}"
+
+
+def verdict_cell(r: CheckResult) -> str:
+    """A result's verdict word and why, in its colour (rich markup)."""
+    return f"[{COLOURS[r.status]}]{escape_text(r.verdict_text())}[/]"
 
 
 class _StdoutConsole(Console):
@@ -58,6 +71,40 @@ def optimum_cell(
     if not known or (interval and lower != upper):
         return f"[{fmt(lower)}, {fmt(upper)}]"
     return fmt(optimum) if optimum is not None else "+inf"
+
+
+def print_runs(console: Console, title: str, runs: Sequence[DesignRun]) -> None:
+    """One row per design and property: the verdict, the optimum, the threshold, θ*."""
+    table = Table(title=title, title_justify="left")
+    for c in ("design", "property", "verdict", "optimum", "holds if", "θ*", "model"):
+        table.add_column(
+            c,
+            justify="left" if c in ("design", "property", "verdict", "holds if") else "right",
+            overflow="fold",
+        )
+    for run in runs:
+        size = "-" if run.model is None else f"{run.model.n_states} states"
+        for r in run.results:
+            known = r.optimum_known and r.stats.stopped == "finished"
+            table.add_row(
+                escape_text(run.label),
+                escape_text(r.property),
+                verdict_cell(r),
+                optimum_cell(r.optimum, known, r.lower, r.upper, r.payoffs == "interval"),
+                f"{r.holds_op} {r.threshold:g}",
+                fmt(r.witness_value),
+                size,
+            )
+    console.print(table)
+    hints = {
+        r.property for r in (x for run in runs for x in run.results) if r.replay == "not replayed"
+    }
+    if hints:
+        console.print(
+            "violated (not replayed): the counterexample was found on the model; replay it "
+            "through the detector with lesmc verify --scene SCENE --frames VIDEO/ "
+            '(docs/semantics.md, "Replay")'
+        )
 
 
 def make_console() -> Console:
@@ -83,7 +130,7 @@ def print_results(console: Console, results: Sequence[CheckResult], paths: bool 
         opt = optimum_cell(r.optimum, known, r.lower, r.upper, r.payoffs == "interval")
         summary.add_row(
             escape_text(r.property),
-            f"[{_COLOURS[r.verdict]}]{escape_text(r.verdict_text())}[/]",
+            verdict_cell(r),
             opt,
             f"optimum {r.holds_op} {r.threshold:g}",
             fmt(r.witness_value),
@@ -101,7 +148,13 @@ def print_results(console: Console, results: Sequence[CheckResult], paths: bool 
         if not paths:
             continue
         if r.counterexample is not None:
-            _print_path(console, "counterexample (cheapest violating path)", r.counterexample)
+            title = (
+                "cheapest path that satisfies the constraint (not a counterexample: its "
+                "objective meets the threshold, so the property holds)"
+                if r.verdict == "holds"
+                else "counterexample (cheapest violating path)"
+            )
+            _print_path(console, title, r.counterexample)
         else:
             console.print("  counterexample: none (no path violates)")
         if r.witness is not None:

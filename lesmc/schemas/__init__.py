@@ -17,7 +17,8 @@ from functools import cache
 from importlib import resources
 from typing import Any
 
-from lesmc.errors import InputError, Location
+from lesmc.common.errors import InputError, Location
+from lesmc.designs import registry
 
 #: format name of each document -> its schema file (without .json)
 SCHEMAS = {
@@ -37,10 +38,22 @@ SCHEMAS = {
 
 
 @cache
+def _text(name: str) -> str:
+    return resources.files("lesmc.schemas").joinpath(f"{name}.json").read_text(encoding="utf-8")
+
+
 def schema(name: str) -> dict[str, Any]:
-    """The schema ``lesmc/schemas/NAME.json``."""
-    text = resources.files("lesmc.schemas").joinpath(f"{name}.json").read_text(encoding="utf-8")
-    out: dict[str, Any] = json.loads(text)
+    """The schema ``lesmc/schemas/NAME.json``, with the registry's designs.
+
+    The enums of design names are not spelled in the files: ``#/$defs/designs``
+    (every registered design) and ``#/$defs/trackers`` (the designs that bring
+    a tracker) are filled from lesmc/designs/registry.py now, so that a design
+    registered at run time is accepted too.
+    """
+    out: dict[str, Any] = json.loads(_text(name))
+    defs = out.setdefault("$defs", {})
+    defs["designs"] = {"enum": list(registry.names())}
+    defs["trackers"] = {"enum": list(registry.tracker_names())}
     return out
 
 

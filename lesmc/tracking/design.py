@@ -22,9 +22,9 @@ from typing import Protocol
 import numpy as np
 
 from lesmc.model.growing import GrowArray
+from lesmc.scene import Scene, TrackerConfig
 from lesmc.tracking.association import gate_radii
 from lesmc.tracking.kalman import Matrices, innovations, predict_covariances
-from lesmc.tracking.scene import Scene, TrackerConfig
 
 
 class CovarianceTable:
@@ -249,13 +249,3 @@ class Design(Protocol):
         """Exact identity of each state as a row of 64-bit words (n, w), so that
         coinciding states are shared."""
         ...
-
-
-def make_design(scene: Scene) -> Design:
-    """The design the scene's tracker configuration names."""
-    from lesmc.tracking.joint import JointDesign
-    from lesmc.tracking.single import SingleDesign
-
-    if scene.tracker.design == "joint":
-        return JointDesign(scene)
-    return SingleDesign(scene)

@@ -42,8 +42,8 @@ of one table of the step's possible tracks; they keep those ids
 (:class:`TrackTable`) and 128-bit hashes, so the next step neither hashes their
 means nor searches for the distinct ones. Outside the window only option 0 is
 built, plus as many further options as its own payoff needs.
-tests/joint_reference.py keeps the per-state loop this replaced, as the oracle
-(tests/test_joint.py).
+tests/joint_oracle.py is an independent oracle written from the paper
+(filterpy filters, one path at a time); tests/test_joint.py compares paths.
 """
 
 from __future__ import annotations
@@ -56,6 +56,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from lesmc.model.growing import GrowArray
+from lesmc.scene import Scene, TrackerConfig
 from lesmc.tracking.association import gate_test, mahalanobis_gate
 from lesmc.tracking.design import Batch, CovarianceTable, GainRows, Gains, Successors
 from lesmc.tracking.kalman import (
@@ -66,7 +67,6 @@ from lesmc.tracking.kalman import (
     update_means,
     warp,
 )
-from lesmc.tracking.scene import Scene
 
 #: The association rounds' "no pair yet" value.
 _UNSET = np.iinfo(np.int64).max
@@ -660,74 +660,14 @@ class JointDesign:
         g = self.gains.rows(cu)
         U = len(cu)
 
-        # candidate (track, detection) pairs: within each track's gate radius (a little
-        # wider: the gate decides), found in the strip of detections sorted by x
-        r = g.radius * (1 + 1e-9)
-        track, pz = _in_strip(Z, X[:, 0], r)
-        o = np.argsort(track * max(nz, 1) + pz, kind="stable")  # by track, then detection
-        track, pz = track[o], pz[o]
-        dx = Z[pz, 0] - X[track, 0]
-        dy = Z[pz, 1] - X[track, 1]
-        keep = dx * dx + dy * dy <= r[track] ** 2
-        track, pz, dx, dy = track[keep], pz[keep], dx[keep], dy[keep]
-        y = np.stack([dx, dy], axis=-1)
-        S_inv = g.S_inv[track]
-        d2 = mahalanobis2(y, S_inv)
-        if cfg.gate_type == "mahalanobis":
-            ok = mahalanobis_gate(d2, cfg.gate)
-        else:
-            ok = gate_test(y, S_inv, g.P_pred[track], cfg.gate, cfg.gate_type)
-
-        # the attacker's options: hide the j detections nearest the primary's prediction
-        # (the primary's candidates within its radius, by distance, then index)
-        u0 = tu[:, 0]
-        primary = np.zeros(U, dtype=bool)
-        primary[u0] = True
-        c0 = np.flatnonzero(primary[track])
-        dist = np.sqrt(dx[c0] ** 2 + dy[c0] ** 2)
-        inside = dist <= g.radius[track[c0]]
-        c0, dist = c0[inside], dist[inside]
-        s0 = track[c0]
-        per = np.bincount(s0, minlength=U)
-        w = int(per.max(initial=0))
-        at = _within(per)
-        D = np.full((U, w), np.inf)
-        D[s0, at] = dist
-        by_d = np.argsort(D, axis=1, kind="stable")
-        inv = np.empty((U, w), dtype=np.int64)
-        np.put_along_axis(inv, by_d, np.broadcast_to(np.arange(w), (U, w)), axis=1)
-        col = inv[s0, at]  # each near candidate's position among its track's nearest
-        near_z = np.zeros((U, w), dtype=np.int64)
-        near_z[s0, col] = pz[c0]
-        gated = np.zeros((U, w), dtype=bool)
-        gated[s0, col] = ok[c0]
-        cols = np.arange(w)
-        last = np.where(gated, cols + 1, 0).max(axis=1, initial=0)
-        pays = np.zeros((U, w))  # the candidates' payoffs (0 past a track's candidates: unused)
-        if nz:
-            pays[s0, col] = frame.payoffs()[pz[c0]]
-        bad = ~np.isfinite(pays) & (cols < last[:, None])
-        n_opt = np.minimum(last, np.where(bad, cols, w).min(axis=1, initial=w)) + 1
-        cost = np.zeros((U, w + 1))  # cost[i, j]: hiding the j nearest, summed nearest first
-        cost[:, 1:] = np.cumsum(np.where(cols < n_opt[:, None] - 1, pays, 0.0), axis=1)
-        rank_of = np.full((U, nz), nz, dtype=np.int64)  # position among the nearest (nz: far)
-        rank_of[s0, pz[c0]] = col
-
-        # gated pairs, scored by N(z; Hx̂, S) as the per-state loop does (math.exp), ranked
-        # from the largest; each state's pairs are those of its tracks
-        track, pz, d2 = track[ok], pz[ok], d2[ok]
-        like = np.fromiter(map(math.exp, (-0.5 * d2).tolist()), float, d2.size) / g.norm[track]
-        values, dense = np.unique(like, return_inverse=True)
-        score = len(values) - 1 - dense.reshape(-1)  # 0 for the likeliest
-        gcount = np.bincount(track, minlength=U)
-        ls, lt = np.nonzero(live)
-        c = gcount[tu[ls, lt]]
-        idx = np.repeat(_starts(gcount)[tu[ls, lt]], c) + _within(c)
+        track, pz, dx, dy, d2, ok = _candidate_pairs(Z, X, g, cfg)
+        hiding = _hiding_options(tu[:, 0], track, pz, dx, dy, ok, g.radius, frame.payoffs(), U, nz)
+        n_opt, cost, rank_of, near_z, per = hiding
+        track, pz = track[ok], pz[ok]
+        ps, pt, pair_z, prio, idx = _ranked_pairs(track, pz, d2[ok], g.norm, tu, live, U, T, nz)
         X_up = update_means(X[track], g.K[track], Z[pz])
         child_cov = np.concatenate([g.pred, g.post[track]])
         child_X = np.concatenate([X, X_up])
-        ps, pt, pz = np.repeat(ls, c), np.repeat(lt, c), pz[idx]
-        prio = (score[idx] * T + pt) * max(nz, 1) + pz  # likelihood, then track, then detection
         return _Prepared(
             Z=Z,
             X=X,
@@ -736,12 +676,12 @@ class JointDesign:
             live=live,
             pend=pend,
             npend=js.npend,
-            n_opt=n_opt[u0],
-            cost=cost[u0],
+            n_opt=n_opt,
+            cost=cost,
             rank_of=rank_of,
             ps=ps,
             pt=pt,
-            pz=pz,
+            pz=pair_z,
             prio=prio,
             pu=idx,
             child_X=child_X,
@@ -862,38 +802,7 @@ class JointDesign:
         Z = p.Z
         R, T = child.shape
         prim = p.child_X[child[:, 0], :2]
-        box = cfg.init_radius * (1 + 1e-9)
-        # candidates from the strip of detections sorted by x (a little wider), then the
-        # exact box and circle tests
-        cr, cz = _in_strip(Z, prim[:, 0], box + 1e-6 * (box + np.abs(prim[:, 0])))
-        ddx = Z[cz, 0] - prim[cr, 0]
-        ddy = Z[cz, 1] - prim[cr, 1]
-        ok = free[cr, cz] & (np.abs(ddx) <= box) & (np.abs(ddy) <= box)
-        ok[ok] = np.hypot(ddx[ok], ddy[ok]) <= cfg.init_radius
-        o = np.flatnonzero(ok)
-        o = o[np.argsort(cr[o] * max(len(Z), 1) + cz[o], kind="stable")]
-        cr, cz = cr[o], cz[o]  # by row, then detection index
-        nc = np.bincount(cr, minlength=R)
-        k = _within(nc)
-        pool = np.arange(pend.shape[1]) < npend[:, None]
-        partner = np.full(cr.size, -1, dtype=np.int64)
-        todo = np.asarray(pool[cr].any(axis=1))
-        by_k = np.argsort(k, kind="stable")
-        bounds = np.searchsorted(k[by_k], np.arange(int(k.max(initial=-1)) + 2))
-        for j in range(len(bounds) - 1):
-            sel = by_k[bounds[j] : bounds[j + 1]]
-            sel = sel[todo[sel]]
-            rows = cr[sel]
-            sel, rows = sel[pool[rows].any(axis=1)], rows[pool[rows].any(axis=1)]
-            if not sel.size:
-                continue
-            z = Z[cz[sel]]
-            dd = np.hypot(z[:, 0, None] - pend[rows, :, 0], z[:, 1, None] - pend[rows, :, 1])
-            dd = np.where(pool[rows], dd, np.inf)
-            b = np.argmin(dd, axis=1)
-            hit = dd[np.arange(sel.size), b] < cfg.init_distance
-            partner[sel[hit]] = b[hit]
-            pool[rows[hit], b[hit]] = False
+        cr, cz, partner = _start_candidates(Z, prim, free, pend, npend, cfg)
         matched = partner >= 0
         # new tracks after the old ones, in the order they started
         mr = cr[matched]
@@ -1042,3 +951,153 @@ def _ranks_and_payoffs(src: np.ndarray, cost: np.ndarray) -> tuple[np.ndarray, n
     last = np.r_[head[1:], True] if src.size else head
     payoff = np.where(last, 0.0, np.r_[cost[1:], 0.0] - cost)
     return rank.astype(np.int64), payoff
+
+
+def _candidate_pairs(
+    Z: np.ndarray, X: np.ndarray, g: GainRows, cfg: TrackerConfig
+) -> tuple[np.ndarray, ...]:
+    """The (track, detection) pairs within each track's gate radius (a little wider: the
+    gate decides), found in the strip of detections sorted by x, by track then detection:
+    track, detection, dx, dy, Mahalanobis d², and whether the gate admits the pair."""
+    nz = len(Z)
+    r = g.radius * (1 + 1e-9)
+    track, pz = _in_strip(Z, X[:, 0], r)
+    o = np.argsort(track * max(nz, 1) + pz, kind="stable")
+    track, pz = track[o], pz[o]
+    dx = Z[pz, 0] - X[track, 0]
+    dy = Z[pz, 1] - X[track, 1]
+    keep = dx * dx + dy * dy <= r[track] ** 2
+    track, pz, dx, dy = track[keep], pz[keep], dx[keep], dy[keep]
+    y = np.stack([dx, dy], axis=-1)
+    S_inv = g.S_inv[track]
+    d2 = mahalanobis2(y, S_inv)
+    if cfg.gate_type == "mahalanobis":
+        ok = mahalanobis_gate(d2, cfg.gate)
+    else:
+        ok = gate_test(y, S_inv, g.P_pred[track], cfg.gate, cfg.gate_type)
+    return track, pz, dx, dy, d2, ok
+
+
+def _hiding_options(
+    u0: np.ndarray,
+    track: np.ndarray,
+    pz: np.ndarray,
+    dx: np.ndarray,
+    dy: np.ndarray,
+    ok: np.ndarray,
+    radius: np.ndarray,
+    payoffs: np.ndarray,
+    U: int,
+    nz: int,
+) -> tuple[np.ndarray, ...]:
+    """The attacker's options: hide the j detections nearest the primary's prediction (the
+    primary tracks' candidates within its radius, by distance, then index). Per primary
+    track: how many options, their costs (cost[j]: hiding the j nearest, Eq. 5 summed
+    nearest first); per distinct track: each detection's position among its nearest
+    (nz: far), the nearest detections and how many there are."""
+    primary = np.zeros(U, dtype=bool)
+    primary[u0] = True
+    c0 = np.flatnonzero(primary[track])
+    dist = np.sqrt(dx[c0] ** 2 + dy[c0] ** 2)
+    inside = dist <= radius[track[c0]]
+    c0, dist = c0[inside], dist[inside]
+    s0 = track[c0]
+    per = np.bincount(s0, minlength=U)
+    w = int(per.max(initial=0))
+    at = _within(per)
+    D = np.full((U, w), np.inf)
+    D[s0, at] = dist
+    by_d = np.argsort(D, axis=1, kind="stable")
+    inv = np.empty((U, w), dtype=np.int64)
+    np.put_along_axis(inv, by_d, np.broadcast_to(np.arange(w), (U, w)), axis=1)
+    col = inv[s0, at]  # each near candidate's position among its track's nearest
+    near_z = np.zeros((U, w), dtype=np.int64)
+    near_z[s0, col] = pz[c0]
+    gated = np.zeros((U, w), dtype=bool)
+    gated[s0, col] = ok[c0]
+    cols = np.arange(w)
+    last = np.where(gated, cols + 1, 0).max(axis=1, initial=0)
+    pays = np.zeros((U, w))  # the candidates' payoffs (0 past a track's candidates: unused)
+    if nz:
+        pays[s0, col] = payoffs[pz[c0]]
+    bad = ~np.isfinite(pays) & (cols < last[:, None])
+    n_opt = np.minimum(last, np.where(bad, cols, w).min(axis=1, initial=w)) + 1
+    cost = np.zeros((U, w + 1))
+    cost[:, 1:] = np.cumsum(np.where(cols < n_opt[:, None] - 1, pays, 0.0), axis=1)
+    rank_of = np.full((U, nz), nz, dtype=np.int64)
+    rank_of[s0, pz[c0]] = col
+    return n_opt[u0], cost[u0], rank_of, near_z, per
+
+
+def _ranked_pairs(
+    track: np.ndarray,
+    pz: np.ndarray,
+    d2: np.ndarray,
+    norm: np.ndarray,
+    tu: np.ndarray,
+    live: np.ndarray,
+    U: int,
+    T: int,
+    nz: int,
+) -> tuple[np.ndarray, ...]:
+    """The gated pairs of every state (those of its tracks), scored by N(z; Hx̂, S) as the
+    per-state loop does (math.exp) and ranked from the likeliest: state, track slot,
+    detection, priority (likelihood, then track, then detection) and the pair's index."""
+    like = np.fromiter(map(math.exp, (-0.5 * d2).tolist()), float, d2.size) / norm[track]
+    values, dense = np.unique(like, return_inverse=True)
+    score = len(values) - 1 - dense.reshape(-1)  # 0 for the likeliest
+    gcount = np.bincount(track, minlength=U)
+    ls, lt = np.nonzero(live)
+    c = gcount[tu[ls, lt]]
+    idx = np.repeat(_starts(gcount)[tu[ls, lt]], c) + _within(c)
+    ps, pt, pz = np.repeat(ls, c), np.repeat(lt, c), pz[idx]
+    prio = (score[idx] * T + pt) * max(nz, 1) + pz
+    return ps, pt, pz, prio, idx
+
+
+def _start_candidates(
+    Z: np.ndarray,
+    prim: np.ndarray,
+    free: np.ndarray,
+    pend: np.ndarray,
+    npend: np.ndarray,
+    cfg: TrackerConfig,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The free detections within ``init_radius`` of each row's updated primary ``prim``
+    (by row, then detection index) and the pending detection each starts a track with
+    (-1: none). One round per candidate, in index order: the nearest remaining pending
+    detection (first of equals) closer than ``init_distance``."""
+    R = len(prim)
+    box = cfg.init_radius * (1 + 1e-9)
+    # candidates from the strip of detections sorted by x (a little wider), then the
+    # exact box and circle tests
+    cr, cz = _in_strip(Z, prim[:, 0], box + 1e-6 * (box + np.abs(prim[:, 0])))
+    ddx = Z[cz, 0] - prim[cr, 0]
+    ddy = Z[cz, 1] - prim[cr, 1]
+    ok = free[cr, cz] & (np.abs(ddx) <= box) & (np.abs(ddy) <= box)
+    ok[ok] = np.hypot(ddx[ok], ddy[ok]) <= cfg.init_radius
+    o = np.flatnonzero(ok)
+    o = o[np.argsort(cr[o] * max(len(Z), 1) + cz[o], kind="stable")]
+    cr, cz = cr[o], cz[o]  # by row, then detection index
+    nc = np.bincount(cr, minlength=R)
+    k = _within(nc)
+    pool = np.arange(pend.shape[1]) < npend[:, None]
+    partner = np.full(cr.size, -1, dtype=np.int64)
+    todo = np.asarray(pool[cr].any(axis=1))
+    by_k = np.argsort(k, kind="stable")
+    bounds = np.searchsorted(k[by_k], np.arange(int(k.max(initial=-1)) + 2))
+    for j in range(len(bounds) - 1):
+        sel = by_k[bounds[j] : bounds[j + 1]]
+        sel = sel[todo[sel]]
+        rows = cr[sel]
+        sel, rows = sel[pool[rows].any(axis=1)], rows[pool[rows].any(axis=1)]
+        if not sel.size:
+            continue
+        z = Z[cz[sel]]
+        dd = np.hypot(z[:, 0, None] - pend[rows, :, 0], z[:, 1, None] - pend[rows, :, 1])
+        dd = np.where(pool[rows], dd, np.inf)
+        b = np.argmin(dd, axis=1)
+        hit = dd[np.arange(sel.size), b] < cfg.init_distance
+        partner[sel[hit]] = b[hit]
+        pool[rows[hit], b[hit]] = False
+    return cr, cz, partner

@@ -17,7 +17,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from lesmc.tracking.scene import TrackerConfig
+from lesmc.scene import TrackerConfig
+from lesmc.scene.frames import warp as warp  # re-exported: the tracker carries states with it
 
 H_POS = np.array([[1.0, 0.0, 0.0, 0.0], [0.0, 1.0, 0.0, 0.0]])
 """Measurement matrix of Eq. 18: the detector observes the position."""
@@ -55,23 +56,6 @@ def white_noise_q(dt: float, spectral_density: float) -> np.ndarray:
     """
     q = np.array([[dt**3 / 3.0, dt**2 / 2.0], [dt**2 / 2.0, dt]], dtype=float)
     out: np.ndarray = np.kron(q, np.eye(2)) * spectral_density
-    return out
-
-
-def warp(Hm: np.ndarray | None, xy: np.ndarray) -> np.ndarray:
-    """Carry positions (…, 2) into the next frame's coordinates with a homography.
-
-    The result of each point does not depend on how many are carried together.
-    """
-    if Hm is None:
-        return xy
-    pts = np.asarray(xy, dtype=float)
-    x, y = pts[..., 0], pts[..., 1]
-    # written out elementwise: a matrix product rounds differently with the batch size
-    w = Hm[2, 0] * x + Hm[2, 1] * y + Hm[2, 2]
-    out = np.empty(pts.shape)
-    out[..., 0] = (Hm[0, 0] * x + Hm[0, 1] * y + Hm[0, 2]) / w
-    out[..., 1] = (Hm[1, 0] * x + Hm[1, 1] * y + Hm[1, 2]) / w
     return out
 
 

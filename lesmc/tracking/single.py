@@ -18,10 +18,10 @@ from __future__ import annotations
 
 import numpy as np
 
+from lesmc.scene import Frame, Scene
 from lesmc.tracking.association import attack_option_rows, gate_test
 from lesmc.tracking.design import Batch, CovarianceTable, GainRows, Gains, Successors
 from lesmc.tracking.kalman import Matrices, matrices, predict_means, update_means, warp
-from lesmc.tracking.scene import Frame, Scene
 
 
 class SingleDesign:

@@ -15,14 +15,17 @@ from __future__ import annotations
 
 import re
 from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
 
 import numpy as np
 
-from lesmc.errors import UsageError, escape_control
+from lesmc.common.errors import InputError, UsageError, escape_control
+from lesmc.common.files import read_json
+from lesmc.scene import Footage, Scene, Target, footage_from_dict
 from lesmc.tracking.association import gate_mask
 from lesmc.tracking.design import Batch
 from lesmc.tracking.kalman import innovation, matrices, warp
-from lesmc.tracking.scene import Footage, Scene, Target
 
 #: A detection this close (px) to the given position is the target's own detection.
 SNAP_PX = 6.0
@@ -127,11 +130,17 @@ def check_gate(footage: Footage, spec: TargetSpec, step: int) -> None:
     )
 
 
-def place_target(footage: Footage, spec: TargetSpec) -> Scene:
-    """The scene tracking the vehicle at ``spec`` (velocity from the previous frame)."""
+def place_target(
+    footage: Footage, spec: TargetSpec, velocity: tuple[float, float] | None = None
+) -> Scene:
+    """The scene tracking the vehicle at ``spec``; its initial velocity is ``velocity``
+    (the truth's, say), else measured from the previous frame."""
     step = target_step(footage, spec)
     check_gate(footage, spec, step)
-    vel, how = previous_velocity(footage, spec.x, spec.y, step)
+    if velocity is not None:
+        vel, how = velocity, "truth"
+    else:
+        vel, how = previous_velocity(footage, spec.x, spec.y, step)
     meta = dict(footage.meta)
     meta["target_velocity_from"] = how
     return footage.with_target(Target(step, (spec.x, spec.y), vel), meta)
@@ -209,3 +218,37 @@ def initiated_targets(
             order.append((-int(traffic[i]), s, sp.x, sp.y, end))
     order.sort()
     return [found[o[-1]] for o in order]
+
+
+def scene_with_target(
+    data: Any, path: str, target: str | None = None, design: str | None = None
+) -> Scene:
+    """A scene document's scene; ``target`` (``X,Y@STEP``) overrides or supplies its target,
+    ``design`` the tracker it names."""
+    footage, own = footage_from_dict(data, path)
+    if target is not None:
+        scene = place_target(footage, parse_target(target))
+    elif own is None:
+        raise UsageError(f"{path} has no target: give --target X,Y@STEP")
+    else:
+        scene = footage.with_target(own, footage.meta)
+    return scene.with_tracker(design=design) if design else scene
+
+
+def load_scene_with_target(
+    path: str, target: str | None = None, design: str | None = None
+) -> Scene:
+    """:func:`scene_with_target` of a scene file."""
+    return scene_with_target(read_json(Path(path), InputError), path, target, design)
+
+
+def check_target(spec: TargetSpec, width: int, height: int, n_frames: int) -> None:
+    """``--target`` inside a ``width`` x ``height`` frame and among the ``n_frames`` frames
+    of a video (before it is perceived)."""
+    if not (0 <= spec.x < width and 0 <= spec.y < height):
+        raise UsageError(
+            f"--target {spec.x:g},{spec.y:g} is outside the frames: x must lie in 0..{width} "
+            f"and y in 0..{height} (pixels)"
+        )
+    if spec.step is not None and spec.step >= n_frames:
+        raise UsageError(f"--target step {spec.step}: the video has frames 0..{n_frames - 1}")

@@ -16,7 +16,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from lesmc.errors import InputError, Location
+from lesmc.common.errors import InputError, Location
 
 EXTENSIONS = {".png", ".tif", ".tiff", ".jpg", ".jpeg"}
 #: Smallest width and height of a frame (pixels): less cannot be registered or windowed.

@@ -10,8 +10,8 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from lesmc.tracking.scene import save_scene
-from lesmc.tracking.toy import Vehicle, vehicle_scene
+from lesmc.scene import save_scene
+from lesmc.scene.toy import Vehicle, vehicle_scene
 
 HERE = Path(__file__).parent
 T = Vehicle("t", 100, 100, 10, 0, 3.0)

@@ -21,7 +21,7 @@ from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import IO, Any
 
-from lesmc.errors import InputError, LesmcError, Location
+from lesmc.common.errors import InputError, LesmcError, Location
 
 #: Deepest nesting of arrays and objects a JSON input may have.
 MAX_JSON_DEPTH = 64
@@ -363,6 +363,12 @@ def write_json(path: str | Path, data: Any, on_chunk: Callable[[], None] | None 
             if on_chunk is not None:
                 on_chunk()
         fh.write("\n")
+
+
+def json_text(data: Any) -> str:
+    """``data`` as JSON text laid out as :func:`write_json` writes it (NaN and infinities
+    refused)."""
+    return "".join(_json_chunks(data, 0)) + "\n"
 
 
 _DUMPS = json.JSONEncoder(allow_nan=False).encode

@@ -82,18 +82,55 @@ def show_size(n: float) -> str:
 
 @dataclass
 class Budget:
-    """Limits of one command; ``None`` means no limit."""
+    """The limits of one job, in one place; ``None`` means no limit.
+
+    * ``timeout``: seconds for the whole job, loading and writing included (its clock
+      starts when the budget is made: ``--timeout`` of check, verify, build);
+    * ``check_timeout``: seconds for each property check on its own (``lesmc campaign
+      --timeout``: every unit gets them, however long the campaign runs);
+    * ``max_states``: states one search may expand, or one build may make;
+    * ``max_memory``: bytes the process may hold.
+
+    A check gets :meth:`check_seconds`; in interval mode its two searches share them
+    (:meth:`share`). An engine turns what a check gets into its running
+    :class:`SearchBudget` (:meth:`search`).
+    """
 
     timeout: float | None = None
     max_states: int | None = None
     max_memory: int | None = None
+    check_timeout: float | None = None
     started: float = field(default_factory=time.monotonic)
 
     def seconds_left(self) -> float | None:
-        """Seconds until the deadline (0 once past it), or None without a timeout."""
+        """Seconds until the job's deadline (0 once past it), or None without a timeout."""
         if self.timeout is None:
             return None
         return max(0.0, self.timeout - (time.monotonic() - self.started))
+
+    def check_seconds(self) -> float | None:
+        """Seconds one property check may take from now: what is left of the job's
+        time, at most ``check_timeout``."""
+        left = [s for s in (self.seconds_left(), self.check_timeout) if s is not None]
+        return min(left) if left else None
+
+    def for_check(self) -> Budget:
+        """The budget of one property check starting now (its own clock)."""
+        return Budget(self.check_seconds(), self.max_states, self.max_memory)
+
+    def share(self, fraction: float) -> Budget:
+        """A budget with ``fraction`` of this one's remaining seconds (the first of two
+        searches that share a check's time)."""
+        left = self.seconds_left()
+        return Budget(None if left is None else left * fraction, self.max_states, self.max_memory)
+
+    def search(
+        self, reserve: Callable[[], int] | None = None, memory_every: int = 1
+    ) -> SearchBudget:
+        """An engine's running budget for the rest of this one."""
+        return SearchBudget(
+            self.max_states, self.seconds_left(), self.max_memory, reserve, memory_every
+        )
 
     def exceeded(self, states: int = 0, reserve: int = 0) -> str | None:
         """Why the work must stop (``timeout``, ``max_states``, ``max_memory``), or None.

@@ -20,20 +20,17 @@ coinciding ones. Following stormpy: ``build_model(scene, ...)``, then
 from __future__ import annotations
 
 import time
-from collections.abc import Callable, Iterable, Mapping
+from collections.abc import Callable
 
 import numpy as np
 
-from lesmc.engines.check import DEFAULT_MAX_STATES, EngineName, check_lazy
-from lesmc.engines.lazy import BATCH_SECONDS
-from lesmc.engines.result import CheckResult
-from lesmc.errors import UsageError
-from lesmc.language.properties import SpecFile
-from lesmc.language.semantics import BoundProperty, bind
+from lesmc.build.hashing import HashIndex, splitmix
+from lesmc.common.errors import UsageError
+from lesmc.designs.registry import make_tracker
 from lesmc.model.arrays import ArrayModel
-from lesmc.model.growing import Expansion, GrowingModel
-from lesmc.tracking.design import Batch, Design, PayloadStore, make_design
-from lesmc.tracking.scene import Detection, Scene, WatchedFrame
+from lesmc.model.growing import BATCH_SECONDS, Expansion, GrowingModel
+from lesmc.scene import Scene
+from lesmc.tracking.design import Batch, Design, PayloadStore
 
 COMPONENTS = ("x", "y", "vx", "vy")
 
@@ -50,57 +47,12 @@ def max_end(scene: Scene) -> int:
     return scene.last_step - scene.target.step
 
 
-def _splitmix(words: np.ndarray) -> np.ndarray:
-    """One 64-bit hash per row of 64-bit words (splitmix64 finaliser, folded over columns)."""
-    h = np.zeros(words.shape[0], dtype=np.uint64)
-    with np.errstate(over="ignore"):
-        for j in range(words.shape[1]):
-            h ^= words[:, j] + np.uint64(0x9E3779B97F4A7C15) + (h << np.uint64(6))
-            h ^= h >> np.uint64(30)
-            h *= np.uint64(0xBF58476D1CE4E5B9)
-            h ^= h >> np.uint64(27)
-            h *= np.uint64(0x94D049BB133111EB)
-            h ^= h >> np.uint64(31)
-    return h
-
-
-class HashIndex:
-    """Model indices by 64-bit state hash, as sorted runs of arrays (no per-state objects).
-
-    New entries come as a run of their own; runs of similar size are merged, so
-    a lookup searches O(log n) sorted arrays and every entry is copied O(log n)
-    times in all (a log-structured merge).
-    """
-
-    def __init__(self) -> None:
-        self._runs: list[tuple[np.ndarray, np.ndarray]] = []  # (sorted hashes, indices)
-
-    def find(self, h: np.ndarray) -> np.ndarray:
-        """The index stored under each hash of ``h``, −1 where there is none."""
-        out = np.full(h.shape, -1, dtype=np.int64)
-        for keys, vals in self._runs:
-            at = np.minimum(np.searchsorted(keys, h), len(keys) - 1)
-            hit = keys[at] == h
-            out[hit] = vals[at[hit]]
-        return out
-
-    def add(self, h: np.ndarray, idx: np.ndarray) -> None:
-        """Store ``idx`` under the (new, distinct) hashes ``h``."""
-        order = np.argsort(h, kind="stable")
-        self._runs.append((h[order], idx[order].astype(np.int64)))
-        while len(self._runs) > 1 and 2 * len(self._runs[-1][0]) >= len(self._runs[-2][0]):
-            (k2, v2), (k1, v1) = self._runs.pop(), self._runs.pop()
-            keys, vals = np.concatenate([k1, k2]), np.concatenate([v1, v2])
-            order = np.argsort(keys, kind="stable")
-            self._runs.append((keys[order], vals[order]))
-
-
 class SceneExpander:
     """The successors of a scene's tracker states, batch by batch, with exact sharing."""
 
     def __init__(self, scene: Scene, window: tuple[int, int]) -> None:
         self.scene = scene
-        self.design: Design = make_design(scene)
+        self.design: Design = make_tracker(scene)
         self.window = window
         self.model = GrowingModel(COMPONENTS, 4)
         self.model.expander = self
@@ -135,7 +87,7 @@ class SceneExpander:
         model = self.model
         design = self.design
         keys = design.keys(batch)
-        h = _splitmix(keys)
+        h = splitmix(keys)
         uniq, first, inverse = np.unique(h, return_index=True, return_inverse=True)
         inverse = inverse.reshape(-1)
         if not np.array_equal(keys, keys[first[inverse]]):  # two states share a hash
@@ -168,7 +120,7 @@ class SceneExpander:
                 q = self._append(step, batch.take(np.array([i])))
                 exact[kb] = q
                 self._seen.setdefault(step, HashIndex()).add(
-                    _splitmix(keys[i : i + 1]), np.array([q])
+                    splitmix(keys[i : i + 1]), np.array([q])
                 )
             out[i] = q
         return out
@@ -189,7 +141,7 @@ class SceneExpander:
 
 def original_end(scene: Scene, design: Design | None = None, end: int | None = None) -> int:
     """e: the last step of the unattacked track (up to ``end``, or until it halts)."""
-    design = make_design(scene) if design is None else design
+    design = make_tracker(scene) if design is None else design
     last = _last_step(scene, end)
     b = design.initial()
     e = 0
@@ -337,172 +289,3 @@ def freeze(
             "end": end,
         },
     )
-
-
-def priced_detections(
-    scene: Scene,
-    window: tuple[int, int],
-    end: int | None = None,
-    on_batch: Callable[[GrowingModel], None] | None = None,
-    reads: dict[int, set[int]] | None = None,
-    max_states: int | None = None,
-) -> dict[int, np.ndarray]:
-    """Per frame step, the detections whose payoffs the model of ``scene`` attacked in
-    ``window`` reads: a superset of those one of its attacks can hide.
-
-    ``reads`` (empty; filled as the model grows): what was read so far, should
-    ``on_batch`` stop the build by raising (``max_states``: the limit it enforces,
-    so that batches shrink near it, as in :func:`build_model`).
-
-    Only the window's frames count: an attack at step k hides detections of
-    frame ``target.step + k``, and outside the window no transition has a
-    cheaper sibling whose payoff could enter a combined payoff (Eq. 5). The
-    model is built once over a copy of the scene in which those frames' payoffs
-    are all finite (an attack could hide every candidate) and each notes the
-    entries of its payoff column the design reads (:class:`WatchedFrame`). Any
-    other use of the column counts as reading all of it. ``verify --payoffs
-    certified|interval`` certifies only these (a detection without a bound gets
-    the trivial 0 anyway, so a missed one costs tightness, never soundness).
-    """
-    from dataclasses import replace
-
-    first, last = scene.target.step + window[0], scene.target.step + window[1]
-    reads = {} if reads is None else reads
-    reads.update({f.step: set() for f in scene.frames if first <= f.step <= last})
-    frames = tuple(
-        WatchedFrame(f.step, _finite(f.detections), f.to_next, None, reads[f.step])
-        if f.step in reads
-        else f
-        for f in scene.frames
-    )
-    build_model(
-        replace(scene, frames=frames), window, end, on_batch=on_batch, max_states=max_states
-    )
-    return {k: np.array(sorted(v), dtype=np.int64) for k, v in reads.items() if v}
-
-
-def merged_detections(sets: Iterable[Mapping[int, np.ndarray]]) -> dict[int, np.ndarray]:
-    """The union, per frame step, of several :func:`priced_detections` answers (sorted)."""
-    union: dict[int, set[int]] = {}
-    for found in sets:
-        for k, dets in found.items():
-            union.setdefault(k, set()).update(dets.tolist())
-    return {k: np.array(sorted(v), dtype=np.int64) for k, v in sorted(union.items())}
-
-
-def _finite(dets: tuple[Detection, ...]) -> tuple[Detection, ...]:
-    """The detections, every one attackable (payoff 1): the probe's frames."""
-    from dataclasses import replace
-
-    return tuple(replace(d, payoff=1.0) for d in dets)
-
-
-def unbounded_note(scene: Scene, window: tuple[int, int]) -> list[str]:
-    """The note of a check on a certified scene (:meth:`Scene.priced`) whose model, attacked
-    in ``window``, read detections without a certified bound there (each counted as 0)."""
-    return unbounded_text(scene.unbounded_reads(window))
-
-
-def unbounded_text(n: int) -> list[str]:
-    """The note of a certified check whose model can hide ``n`` detections without a bound."""
-    if not n:
-        return []
-    return [
-        f"{n} detection(s) the model can hide carry no certified bound (payoff_lower) and "
-        "count as 0, the trivial bound: the certified optimum is sound but may be far "
-        "below the true one"
-    ]
-
-
-def bind_scene(
-    scene: Scene, specs: Iterable[SpecFile], end: int | None = None
-) -> list[BoundProperty]:
-    """Bind properties to a scene's model: steps 0..e of the unattacked track.
-
-    ``end``: e when the caller already has it (:func:`original_end` runs the tracker
-    over the whole video; a campaign binds hundreds of windows to one scene).
-    """
-    e = original_end(scene) if end is None else end
-    return [bind(spec, prop, e, COMPONENTS, True) for spec in specs for prop in spec.properties]
-
-
-def check_scene(
-    scene: Scene,
-    specs: Iterable[SpecFile],
-    engine: EngineName = "levels",
-    max_states: int | None = DEFAULT_MAX_STATES,
-    timeout: float | None = None,
-) -> list[CheckResult]:
-    """Check properties on the model of a scene without writing it out.
-
-    The model is unfolded on demand: ``levels`` and ``bnb`` unfold only the states
-    they expand, ``enumerate`` every state its paths reach (Algorithm 1), level by level.
-    """
-    return [
-        check_scene_bound(scene, bp, engine, max_states, timeout) for bp in bind_scene(scene, specs)
-    ]
-
-
-def check_scene_bound(
-    scene: Scene,
-    bp: BoundProperty,
-    engine: EngineName = "levels",
-    max_states: int | None = DEFAULT_MAX_STATES,
-    timeout: float | None = None,
-    max_memory: int | None = None,
-) -> CheckResult:
-    """One bound property on a scene (see :func:`check_scene`), on its model unfolded on
-    demand (every engine, ``enumerate`` included: a budget then stops it with bounds)."""
-    lazy = lazy_model(scene, (bp.l, bp.u), bp.end)
-    return check_lazy(lazy, bp, max_states, timeout, engine, max_memory)
-
-
-PAYOFF_MODES = ("attack", "certified", "interval")
-"""``--payoffs``: which payoff column of a scene the model uses (docs/semantics.md)."""
-
-
-def check_scene_payoffs(
-    scene: Scene,
-    bp: BoundProperty,
-    payoffs: str = "attack",
-    engine: EngineName = "levels",
-    max_states: int | None = DEFAULT_MAX_STATES,
-    timeout: float | None = None,
-    path: str = "<scene>",
-    max_memory: int | None = None,
-) -> CheckResult:
-    """One property with the attack payoffs, the certified lower ones, or both (interval).
-
-    ``interval`` checks twice and combines the verdicts (lesmc/engines/interval.py);
-    ``timeout`` is then shared between the two checks.
-    """
-    from dataclasses import replace
-
-    from lesmc.engines.interval import combine
-
-    if payoffs == "attack":
-        return check_scene_bound(scene, bp, engine, max_states, timeout, max_memory)
-    low = scene.priced("certified", path)
-
-    def certified(seconds: float | None) -> CheckResult:
-        r = check_scene_bound(low, bp, engine, max_states, seconds, max_memory)
-        return replace(r, notes=[*r.notes, *unbounded_note(low, (bp.l, bp.u))])
-
-    if payoffs == "certified":
-        return replace(certified(timeout), payoffs=payoffs)
-    if payoffs != "interval":
-        raise UsageError(f"--payoffs must be one of {', '.join(PAYOFF_MODES)}, got {payoffs!r}")
-    import time
-
-    started = time.monotonic()
-    half = None if timeout is None else timeout / 2
-    cert = certified(half)
-    left = None if timeout is None else max(0.0, timeout - (time.monotonic() - started))
-    att = check_scene_bound(scene, bp, engine, max_states, left, max_memory)
-    return combine(cert, att, payoff_monotone(bp))
-
-
-def payoff_monotone(bp: BoundProperty) -> bool:
-    """Lowering payoffs can only lower the optimum: true unless the constraint asks for a
-    large payoff (``subject to payoff > c``), which lower payoffs can make false."""
-    return not (bp.constraint.source == "payoff" and bp.op in (">", ">="))

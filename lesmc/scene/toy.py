@@ -10,7 +10,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-from lesmc.tracking.scene import Detection, Frame, Scene, Target, TrackerConfig
+from lesmc.scene import Detection, Frame, Scene, Target, TrackerConfig
 
 
 @dataclass(frozen=True)
@@ -48,7 +48,7 @@ def vehicle_scene(
             if v.first <= k <= v.last
         )
         out.append(Frame(k, dets))
-    meta = {"synthetic": "hand-made straight-line vehicles (lesmc.tracking.toy)"}
+    meta = {"synthetic": "hand-made straight-line vehicles (lesmc.scene.toy)"}
     if comment:
         meta["comment"] = comment
     return Scene(1.0, tuple(out), Target(0, target.at(0)), tracker or TrackerConfig(), meta)

@@ -19,12 +19,12 @@ from typing import Any
 
 import numpy as np
 
+from lesmc.designs.registry import make_tracker
 from lesmc.language.properties import DEFAULT_MONITOR_TOLERANCE
 from lesmc.model.kernel import alarm
 from lesmc.perception.quality import TruthFrame
-from lesmc.tracking.design import make_design
+from lesmc.scene import Scene, Target
 from lesmc.tracking.monitor import track
-from lesmc.tracking.scene import Scene, Target
 
 
 @dataclass(frozen=True)
@@ -89,7 +89,7 @@ def unattacked_taus(
             scene.with_tracker(design=design),
             target=Target(scene.target.step, (s.x, s.y), (s.vx, s.vy)),
         )
-        out.append(np.array([p.tau for p in track(make_design(sc), steps)]))
+        out.append(np.array([p.tau for p in track(make_tracker(sc), steps)]))
     return out
 
 
@@ -126,7 +126,7 @@ def false_alarm_report(
     frames: Sequence[TruthFrame],
     size: tuple[int, int],
     steps: int,
-    designs: Sequence[str] = ("joint",),
+    designs: Sequence[str],
     first: int = 1,
 ) -> dict[str, Any]:
     """The monitor's false alarms on the video's truth tracks, for the results file."""

@@ -36,20 +36,23 @@ perturbations is added to the payoff, and the track is replayed again.
 from __future__ import annotations
 
 import math
-import re
 from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from lesmc.errors import InputError, Location, UsageError
+from lesmc.common.errors import InputError, Location, UsageError
+from lesmc.engines.result import status_word
+from lesmc.model import kernel
 
 if TYPE_CHECKING:
+    from lesmc.common.progress import Bar
     from lesmc.perception.attacks import AttackConfig
     from lesmc.perception.cnn import Nets
     from lesmc.perception.detector import Detector, FrameDetections
     from lesmc.perception.frontend import FrontEndOutput
+    from lesmc.results.record import Results
     from lesmc.video.reader import FrameSet
 
 #: A replayed detection is "the same" as the model's when within this many pixels.
@@ -134,7 +137,8 @@ def cases(doc: dict[str, Any], prop: str | None = None) -> list[Case]:
             names.add(res["property"])
             if prop is not None and res["property"] != prop:
                 continue
-            if res["verdict"] != "violated" and not res.get("replay"):
+            replayed = (res.get("replay") or {}).get("status") in ("confirmed", "diverged")
+            if res["verdict"] != "violated" and not replayed:
                 continue
             if res.get("payoffs") == "certified":
                 continue  # violated with lower payoffs proves nothing (docs/semantics.md)
@@ -160,10 +164,7 @@ def _case(doc: dict[str, Any], i: int, j: int, cex_no: int) -> Case:
         )
     path = run["paths"][cex_no - 1]
     pos = np.array([run["states"][q]["s"][:2] for q in path["states"]], float)
-    known: dict[str, tuple[float, float]] = {}
-    for step in run["scene"]["detections"]:
-        for x, y, did, _ in step:
-            known[did] = (float(x), float(y))
+    known = {d[2]: (float(d[0]), float(d[1])) for step in run["scene"]["detections"] for d in step}
     hidden = [
         Hidden(
             int(h["step"]),
@@ -175,12 +176,11 @@ def _case(doc: dict[str, Any], i: int, j: int, cex_no: int) -> Case:
         )
         for h in run["hidden"].get(res["property"], [])
     ]
-    m = re.match(r"optimum\s*(>=|>|<=|<)", res["holds_if"])
     opt = res["optimum"]
     return Case(
         run=i,
         result=j,
-        design=run["design"],
+        design=run["label"],
         prop=res["property"],
         first_frame=int(run["model"]["first_frame"]),
         obs=list(path["obs"]),
@@ -191,10 +191,10 @@ def _case(doc: dict[str, Any], i: int, j: int, cex_no: int) -> Case:
         tracker=rp["tracker"],
         dt=float(rp["dt"]),
         target=rp["target"],
-        objective_is_payoff=res["objective"].startswith("payoff"),
+        objective_is_payoff=res["objective_source"] == "payoff",
         threshold=float(res["threshold"]),
-        holds_op=m.group(1) if m else ">",
-        optimum=_num(opt) if isinstance(opt, (int, float, str)) and opt != "unknown" else math.nan,
+        holds_op=res["holds_op"],
+        optimum=_num(opt) if opt != "unknown" else math.nan,
     )
 
 
@@ -425,7 +425,7 @@ def _diagnose(
 
 def _footage(dets: dict[int, FrameDetections], case: Case, attacked: dict[int, FrameDetections]):  # type: ignore[no-untyped-def]
     """The scene of the replayed detections (attacked frames replaced), the case's tracker."""
-    from lesmc.tracking.scene import Detection, Frame, Scene, Target, TrackerConfig
+    from lesmc.scene import Detection, Frame, Scene, Target, TrackerConfig
 
     steps = sorted(dets)
     frames = []
@@ -580,8 +580,6 @@ def replay(
     from lesmc.perception.blobs import BlobConfig
     from lesmc.perception.detector import Detector, DetectorConfig
     from lesmc.perception.frontend import FrontEndConfig
-    from lesmc.tracking.design import make_design
-    from lesmc.tracking.monitor import track
 
     t0 = time.monotonic()
     todo = cases(doc, prop)
@@ -617,37 +615,43 @@ def replay(
         )
     for c in todo:
         _check_known(c, clean)
-    replays = {}
-    for ci, c in enumerate(todo):
-        first = c.first_frame
-        dets = {k: v for k, v in clean.items() if first <= k <= first + len(c.positions) - 1}
-        scene = _footage(dets, c, {k: fa.detections for k, fa in attacked[ci].items()})
-        points = track(make_design(scene), len(c.positions) - 1)
-        obj = _compare(c, points, scene, attacked[ci])
-        fas = list(attacked[ci].values())
-        repaired = sum(fa.repaired_rounds for fa in fas)
-        obj["attack"] = "repaired" if repaired else "as modelled"
-        extra = sum(fa.extra_cost for fa in fas)
-        obj["repair_cost"] = round(extra, 6)
-        if repaired and obj["status"] == "confirmed" and c.objective_is_payoff:
-            cost = c.optimum + extra
-            if _holds(cost, c.holds_op, c.threshold):
-                obj["status"] = "diverged"
-                obj["step"] = min(attacked[ci]) - first
-                obj["reason"] = (
-                    f"the repaired joint attack replays, but costs {cost:.4g}: the property "
-                    f"holds for it (optimum {c.holds_op} {c.threshold:g})"
-                )
-        notes = [f"frame {fa.frame}: {frame_story(fa)}" for fa in fas if frame_story(fa)]
-        obj["frames"] = notes
-        obj["tolerance_px"] = {"detection": DET_TOL_PX, "track": TRACK_TOL_PX}
-        obj["perturbations"] = [p for fa in fas for p in fa.perturbations]
-        replays[(c.run, c.result)] = obj
+    replays = {(c.run, c.result): _replay_case(c, clean, attacked[ci]) for ci, c in enumerate(todo)}
     return Outcome(replays, time.monotonic() - t0)
 
 
-def _holds(x: float, op: str, t: float) -> bool:
-    return {">": x > t, ">=": x >= t, "<": x < t, "<=": x <= t}[op]
+def _replay_case(
+    c: Case, clean: dict[int, FrameDetections], attacked: dict[int, FrameAttack]
+) -> dict[str, Any]:
+    """One counterexample: the tracker on the frames' detections with the attacked frames'
+    ones, compared with the model's path; a repaired attack that costs enough for the
+    property to hold (Eq. 5 + the repair) is no counterexample."""
+    from lesmc.designs.registry import make_tracker
+    from lesmc.tracking.monitor import track
+
+    first = c.first_frame
+    dets = {k: v for k, v in clean.items() if first <= k <= first + len(c.positions) - 1}
+    scene = _footage(dets, c, {k: fa.detections for k, fa in attacked.items()})
+    points = track(make_tracker(scene), len(c.positions) - 1)
+    obj = _compare(c, points, scene, attacked)
+    fas = list(attacked.values())
+    repaired = sum(fa.repaired_rounds for fa in fas)
+    obj["attack"] = "repaired" if repaired else "as modelled"
+    extra = sum(fa.extra_cost for fa in fas)
+    obj["repair_cost"] = round(extra, 6)
+    if repaired and obj["status"] == "confirmed" and c.objective_is_payoff:
+        cost = c.optimum + extra
+        if kernel.holds(c.holds_op, cost, c.threshold):
+            obj["status"] = "diverged"
+            obj["step"] = min(attacked) - first
+            obj["reason"] = (
+                f"the repaired joint attack replays, but costs {cost:.4g}: the property "
+                f"holds for it (optimum {c.holds_op} {c.threshold:g})"
+            )
+    notes = [f"frame {fa.frame}: {frame_story(fa)}" for fa in fas if frame_story(fa)]
+    obj["frames"] = notes
+    obj["tolerance_px"] = {"detection": DET_TOL_PX, "track": TRACK_TOL_PX}
+    obj["perturbations"] = [p for fa in fas for p in fa.perturbations]
+    return obj
 
 
 def _groups(items: list[tuple[int, Hidden]]) -> list[tuple[int, list[Hidden]]]:
@@ -659,8 +663,6 @@ def _groups(items: list[tuple[int, Hidden]]) -> list[tuple[int, list[Hidden]]]:
 
 def _light(fd: FrameDetections) -> FrameDetections:
     """The detections without their windows (the tracker needs positions only)."""
-    from dataclasses import replace
-
     return replace(fd, windows=fd.windows[:0])
 
 
@@ -685,15 +687,26 @@ def _check_known(c: Case, clean: dict[int, FrameDetections]) -> None:
             )
 
 
-def apply_to_doc(doc: dict[str, Any], outcome: Outcome) -> None:
-    """Record each replay in its result; a diverged counterexample is no proof: the verdict
-    becomes ``unknown`` with the model's optimum kept in ``bounds`` and a note."""
+def apply(doc: dict[str, Any], outcome: Outcome, results: Results | None = None) -> None:
+    """Record each replay in the document (and in the typed ``results`` it was written
+    from, if given): the status, and for a diverged counterexample (no proof) the verdict
+    ``unknown`` with a note; the model's optimum stays in the bounds."""
     for (i, j), obj in outcome.replays.items():
         res = doc["runs"][i]["results"][j]
         res["replay"] = obj
         if obj["status"] == "diverged" and res["verdict"] == "violated":
             res["verdict"] = "unknown"
             res["notes"].append(diverged_note(res["optimum"], obj))
+        res["status"] = status_word(res["verdict"], res["vacuous"], obj["status"])
+        if results is not None:
+            run = results.runs[i]
+            run.results[j] = replace(
+                run.results[j],
+                verdict=res["verdict"],
+                notes=list(res["notes"]),
+                replay=obj["status"],
+            )
+    doc["replay"] = {"replayed": len(outcome.replays), "seconds": round(outcome.seconds, 3)}
 
 
 def diverged_note(optimum: Any, obj: dict[str, Any]) -> str:
@@ -705,13 +718,52 @@ def diverged_note(optimum: Any, obj: dict[str, Any]) -> str:
     )
 
 
-def apply_to_results(results: list[Any], replays: list[dict[str, Any] | None]) -> list[Any]:
-    """The CheckResults with the replay's verdicts (a diverged 'violated' becomes 'unknown')."""
-    from dataclasses import replace
+def replay_file(
+    doc: dict[str, Any], frames_dir: str, nets_dir: str | None, prop: str | None, bar: Bar
+) -> Outcome:
+    """``lesmc replay``: the frames and networks of a results document, then :func:`replay`
+    (``bar`` counts the frames). The networks must be those the results were made with."""
+    from lesmc.perception.cnn import load_nets
+    from lesmc.video.reader import open_frames
 
-    out = []
-    for r, obj in zip(results, replays, strict=True):
-        if obj is not None and obj["status"] == "diverged" and r.verdict == "violated":
-            r = replace(r, verdict="unknown", notes=[*r.notes, diverged_note(r.optimum, obj)])
-        out.append(r)
-    return out
+    cases(doc, prop)  # an unknown property is an error before the video is read
+    history = int(doc.get("perception", {}).get("history", 4))
+    frames = open_frames(frames_dir, history + 1)
+    nets = load_nets(nets_dir)
+    want = doc.get("perception", {}).get("nets")
+    if want and want != nets.settings.trained_on:
+        raise UsageError(
+            f"the results were made with the networks trained on '{want}', these were "
+            f"trained on '{nets.settings.trained_on}': give the same --nets"
+        )
+    bar.update(total=len(frames))
+    return replay(doc, frames, nets, prop, on_frame=bar.advance)
+
+
+def verdict_rows(
+    doc: dict[str, Any], outcome: Outcome, prop: str | None
+) -> tuple[list[dict[str, Any]], set[str]]:
+    """One row per replayed counterexample (model verdict, verdict after the replay, the
+    replay), and every verdict the results hold after it (for the exit status)."""
+    rows: list[dict[str, Any]] = []
+    for c in cases(doc, prop):
+        obj = outcome.replays[(c.run, c.result)]
+        verdict = "violated" if obj["status"] == "confirmed" else "unknown"
+        rows.append(
+            {
+                "design": c.design,
+                "property": c.prop,
+                "verdict_model": "violated",
+                "verdict": verdict,
+                "replay": obj,
+            }
+        )
+    others: set[str] = {
+        res["verdict"]
+        for run in doc["runs"]
+        for res in run["results"]
+        if (prop is None or res["property"] == prop)
+        and not res.get("replay")
+        and res["verdict"] != "violated"
+    }
+    return rows, {r["verdict"] for r in rows} | others

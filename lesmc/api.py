@@ -1,0 +1,139 @@
+"""The Python API: every verb of the command line as a function (docs/api.md).
+
+Each function validates its inputs and raises :class:`~lesmc.common.errors.InputError`
+(or another :class:`~lesmc.common.errors.LesmcError`) with the file, line and
+column of a bad input; none of them exits the interpreter. The command line
+(lesmc/cli) is a thin layer over these functions.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from pathlib import Path
+
+from lesmc.build.unfold import build_model
+from lesmc.common.budget import Budget
+from lesmc.common.errors import InputError, UsageError
+from lesmc.common.files import read_json
+from lesmc.common.progress import Reporter
+from lesmc.designs import registry
+from lesmc.engines.check import DEFAULT_MAX_STATES, EngineName
+from lesmc.engines.result import CheckResult
+from lesmc.language.parser import load_spec, parse_spec
+from lesmc.language.properties import SpecFile
+from lesmc.model.arrays import ArrayModel
+from lesmc.model.lts_format import load_lts, lts_from_dict
+from lesmc.pipeline.check import run
+from lesmc.pipeline.job import Job, PayoffMode
+from lesmc.results.record import DesignRun, Results
+from lesmc.scene import Scene
+from lesmc.tracking.targets import scene_with_target
+from lesmc.verify.experiment import Outcome as VerifyOutcome
+from lesmc.verify.experiment import Request as VerifyRequest
+from lesmc.verify.experiment import verify as run_verify
+
+__all__ = [
+    "CheckResult",
+    "DesignRun",
+    "Results",
+    "VerifyOutcome",
+    "VerifyRequest",
+    "build",
+    "check",
+    "check_job",
+    "expand_designs",
+    "load_model",
+    "load_model_or_scene",
+    "load_scene",
+    "load_spec",
+    "parse_spec",
+    "verify",
+]
+
+
+def load_model(path: str | Path) -> ArrayModel:
+    """A .lts model file, validated (docs/lts-format.md)."""
+    return load_lts(path)
+
+
+def load_scene(path: str | Path, target: str | None = None, design: str | None = None) -> Scene:
+    """A scene file (docs/scene-format.md); ``target`` (``X,Y@STEP``) places or moves its
+    target, ``design`` names another tracker of the registry."""
+    return scene_with_target(read_json(Path(path), InputError), str(path), target, design)
+
+
+def load_model_or_scene(
+    path: str | Path, target: str | None = None, design: str | None = None
+) -> ArrayModel | Scene:
+    """A .lts model or a scene, told apart by the file's ``format`` field."""
+    data = read_json(Path(path), InputError)
+    if isinstance(data, dict) and data.get("format") == "lesmc-scene":
+        return scene_with_target(data, str(path), target, design)
+    if design:
+        raise UsageError("--design applies to scenes, not to .lts models")
+    if target:
+        raise UsageError("--target applies to scenes, not to .lts models (built for one target)")
+    return lts_from_dict(data, str(path))
+
+
+def expand_designs(choice: str) -> tuple[str, ...]:
+    """The designs a ``--design`` choice names (a design, a set, or ``all``)."""
+    if choice not in registry.choices():
+        raise UsageError(
+            f"unknown design {choice!r}; choose one of {', '.join(registry.choices())}"
+        )
+    return registry.expand(choice)
+
+
+def build(
+    scene: Scene,
+    window: tuple[int, int],
+    end: int | None = None,
+    design: str | None = None,
+    max_states: int | None = None,
+) -> ArrayModel:
+    """The whole model of ``scene`` attacked in ``window`` (Algorithm 1), up to step ``end``,
+    unfolded with tracker ``design`` (default: the scene's own)."""
+    sc = scene if design is None else scene.with_tracker(design=registry.get(design).tracker)
+    return build_model(sc, window, end, max_states=max_states)
+
+
+def check_job(job: Job) -> Results:
+    """Run a :class:`~lesmc.pipeline.job.Job` (the pipeline behind every verb)."""
+    return run(job)
+
+
+def check(
+    source: ArrayModel | Scene,
+    specs: SpecFile | Sequence[SpecFile],
+    engine: EngineName = "levels",
+    payoffs: PayoffMode = "attack",
+    timeout: float | None = None,
+    max_states: int | None = DEFAULT_MAX_STATES,
+    designs: Sequence[str] = (),
+    only: Sequence[str] = (),
+) -> list[CheckResult]:
+    """Check every property of ``specs`` on a model or a scene; one result per property
+    (and per design, for a scene checked with several ``designs``)."""
+    spec_list = (specs,) if isinstance(specs, SpecFile) else tuple(specs)
+    budget = Budget(timeout, max_states)
+    scene, model = (source, None) if isinstance(source, Scene) else (None, source)
+    job = Job(
+        spec_list,
+        model=model,
+        scene=scene,
+        engine=engine,
+        payoffs=payoffs,
+        budget=budget,
+        designs=tuple(designs),
+        only=tuple(only),
+    )
+    return run(job).results
+
+
+def verify(request: VerifyRequest, reporter: Reporter | None = None) -> VerifyOutcome:
+    """The paper's whole experiment (``lesmc verify``): see :class:`VerifyRequest`."""
+    if reporter is not None:
+        return run_verify(request, reporter)
+    with Reporter("verify", live=False) as rep:
+        return run_verify(request, rep)

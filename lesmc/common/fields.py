@@ -1,0 +1,73 @@
+"""The rules every JSON input shares, in one place: what counts as an integer, a number, a
+format header, and how a bad value is shown in a message.
+
+A JSON ``true`` is not the integer 1 here (Python's ``True == 1`` is), so a
+``"version": true`` is refused by scenes, models, truth and results files alike,
+with the same message (docs/cli.md, "Limits").
+"""
+
+from __future__ import annotations
+
+import math
+import reprlib
+from typing import Any, TypeGuard
+
+from lesmc.common.errors import Problems
+
+_REPR = reprlib.Repr()
+_REPR.maxstring = 40
+_REPR.maxother = 40
+_REPR.maxlist = 4
+_REPR.maxdict = 4
+_REPR.maxlevel = 2
+
+
+def is_int(x: Any) -> TypeGuard[int]:
+    """An integer, not a boolean."""
+    return isinstance(x, int) and not isinstance(x, bool)
+
+
+def is_number(x: Any) -> TypeGuard[int | float]:
+    """An integer or a float, not a boolean (may be infinite)."""
+    return isinstance(x, int | float) and not isinstance(x, bool)
+
+
+def is_finite(x: Any) -> TypeGuard[int | float]:
+    """A finite number (an integer beyond the float range is not)."""
+    if not is_number(x):
+        return False
+    try:
+        return math.isfinite(x)
+    except OverflowError:
+        return False
+
+
+def within(x: Any, limit: float) -> bool:
+    """A finite number with ``|x| <= limit``."""
+    return is_finite(x) and -limit <= x <= limit
+
+
+def positive(x: Any, limit: float) -> bool:
+    """A finite number in ``(0, limit]``."""
+    return is_finite(x) and 0 < x <= limit
+
+
+def show(x: Any) -> str:
+    """A short repr of a value from a file (huge integers and deep lists abridged)."""
+    if is_int(x) and x.bit_length() > 64:
+        return f"{'-' if x < 0 else ''}<an integer of {x.bit_length()} bits>"
+    if isinstance(x, bool) or x is None:
+        return "true" if x is True else "false" if x is False else "null"
+    try:
+        return _REPR.repr(x)
+    except (ValueError, RecursionError):
+        return f"<{type(x).__name__}>"
+
+
+def header(data: dict[str, Any], fmt: str, version: int, pr: Problems) -> None:
+    """``format`` must be ``fmt`` and ``version`` the integer ``version``."""
+    if data.get("format") != fmt:
+        pr.add("format", f'must be "{fmt}", got {show(data.get("format"))}')
+    got = data.get("version")
+    if not (is_int(got) and got == version):
+        pr.add("version", f"must be {version}, got {show(got)}")

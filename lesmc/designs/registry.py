@@ -1,0 +1,160 @@
+"""The designs lesmc verifies, in one registry: trackers, and the runtime monitor on top.
+
+A *tracker* unfolds a scene: its class (tracking/single.py, tracking/joint.py)
+computes the successors of batches of states (the :class:`~lesmc.tracking.design.Design`
+protocol). A *design* is what a verification checks: a tracker, with or
+without the runtime monitor of section 7.1 filtering every property (Eq. 13).
+
+Everything that names designs reads this module: the command line's choices,
+the JSON schemas' enums (lesmc/schemas), the display names of tables and
+reports, the campaign's tables. Adding a design is one module and one line
+at the end of this file (or a call of :func:`register` from the user's code);
+docs/architecture.md says how. Importing this module is cheap: a tracker's
+class is imported only when a scene is unfolded with it.
+"""
+
+from __future__ import annotations
+
+import importlib
+from dataclasses import dataclass
+from typing import TYPE_CHECKING
+
+if TYPE_CHECKING:
+    from lesmc.scene import Scene
+    from lesmc.tracking.design import Design as TrackerImpl
+
+
+@dataclass(frozen=True)
+class Design:
+    """One registered design.
+
+    ``tracker`` is the name of the tracker it unfolds with (for a plain design,
+    its own name), ``implementation`` the ``module:Class`` of that tracker
+    (None: the design reuses another design's tracker), ``monitor`` whether
+    every property is filtered by the runtime monitor (Eq. 12-13).
+    """
+
+    name: str
+    label: str  #: how tables and reports name it
+    summary: str  #: one line for --help and docs
+    tracker: str
+    monitor: bool = False
+    implementation: str | None = None
+    cost: float = (
+        1.0  #: relative cost of unfolding with the tracker (campaigns start costly work first)
+    )
+
+    def load(self) -> type[TrackerImpl]:
+        """The tracker's class (imported now)."""
+        impl = _DESIGNS[self.tracker].implementation
+        assert impl is not None
+        module, _, cls = impl.partition(":")
+        out: type[TrackerImpl] = getattr(importlib.import_module(module), cls)
+        return out
+
+    def make(self, scene: Scene) -> TrackerImpl:
+        """The tracker, set up for ``scene``."""
+        made: TrackerImpl = self.load()(scene)  # type: ignore[call-arg]
+        return made
+
+
+_DESIGNS: dict[str, Design] = {}
+
+#: Named sets of designs (``--design paper``); ``all`` is every registered design.
+SETS: dict[str, tuple[str, ...]] = {}
+
+#: The design every other one is compared with (the paper's Table 5: the plain tracker).
+BASELINE = "single"
+
+
+def register(design: Design) -> Design:
+    """Add ``design`` (replacing one of the same name); returns it."""
+    if design.implementation is None and design.tracker not in _DESIGNS:
+        raise ValueError(f"design {design.name!r}: no tracker named {design.tracker!r}")
+    if design.name in SETS or design.name == "all":
+        raise ValueError(f"design {design.name!r}: the name of a set of designs")
+    _DESIGNS[design.name] = design
+    return design
+
+
+def unregister(name: str) -> None:
+    """Remove a design (the tests' toy design)."""
+    _DESIGNS.pop(name, None)
+
+
+def tracker(name: str, impl: str, label: str, summary: str, cost: float = 1.0) -> Design:
+    """Register a tracker and its plain design (no monitor) under ``name``."""
+    return register(Design(name, label, summary, name, False, impl, cost))
+
+
+def monitored(name: str, of: str, label: str, summary: str) -> Design:
+    """Register the design ``of``'s tracker with the runtime monitor on every property."""
+    base = _DESIGNS[of]
+    return register(Design(name, label, summary, base.tracker, True, cost=base.cost))
+
+
+def names() -> tuple[str, ...]:
+    """Every registered design, in registration order."""
+    return tuple(_DESIGNS)
+
+
+def tracker_names() -> tuple[str, ...]:
+    """The designs that bring a tracker of their own (what a scene's ``tracker.design`` names)."""
+    return tuple(n for n, d in _DESIGNS.items() if d.implementation is not None)
+
+
+def get(name: str) -> Design:
+    """The design called ``name`` (KeyError if none)."""
+    return _DESIGNS[name]
+
+
+def choices() -> tuple[str, ...]:
+    """What ``--design`` of verify and campaign accepts: designs and named sets."""
+    return (*names(), *SETS, "all")
+
+
+def expand(choice: str) -> tuple[str, ...]:
+    """The designs a ``--design`` choice names."""
+    if choice == "all":
+        return names()
+    return SETS.get(choice, (choice,))
+
+
+def label(name: str) -> str:
+    """How tables name a design (the name itself when it is not registered)."""
+    d = _DESIGNS.get(name)
+    return name if d is None else d.label
+
+
+def make_tracker(scene: Scene) -> TrackerImpl:
+    """The tracker the scene's configuration names, set up for the scene."""
+    return get(scene.tracker.design).make(scene)
+
+
+tracker(
+    "single",
+    "lesmc.tracking.single:SingleDesign",
+    "single",
+    "one Kalman filter, gated nearest-neighbour association (section 6.7)",
+)
+tracker(
+    "joint",
+    "lesmc.tracking.joint:JointDesign",
+    "joint KFs",
+    "joint Kalman filters: the target and its neighbours (section 7.2)",
+    cost=10.0,
+)
+monitored(
+    "monitor",
+    "single",
+    "single + monitor",
+    "the single tracker, with the runtime monitor on every property (section 7.1)",
+)
+monitored(
+    "improved",
+    "joint",
+    "joint KFs + monitor",
+    "the paper's improved design: joint KFs and the runtime monitor (sections 7.1-7.2)",
+)
+SETS["paper"] = ("single", "joint", "improved")
+SETS["both"] = ("single", "improved")

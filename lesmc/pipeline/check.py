@@ -1,0 +1,289 @@
+"""The one check pipeline: a :class:`~lesmc.pipeline.job.Job` in, typed results out.
+
+``lesmc check``, ``verify``, ``campaign`` and the Python API all call
+:func:`run`; none of them decides on its own how a property is checked.
+For a scene, per design (lesmc/designs/registry.py) and attack window:
+
+1. the properties are moved to the window, filtered by the monitor when the
+   design has it (Eq. 12-13), and bound to the scene's unattacked track;
+2. in a certified payoff mode, the detections the models can hide are found
+   and, with the job's certifier, bounded (lesmc/pipeline/certify.py);
+3. one model per tracker and payoff set serves every design, window and
+   property that use that tracker: unfolded whole (``full_models``) or on demand
+   over the union of the windows (each property sees only its own window's
+   attacks, lesmc/engines/lazy.py);
+4. each property is checked in the payoff mode (lesmc/pipeline/payoffs.py)
+   within the job's one budget.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterable
+from dataclasses import dataclass, field, replace
+
+from lesmc.build.unfold import COMPONENTS, build_model, lazy_model, original_end
+from lesmc.common.budget import Budget
+from lesmc.common.errors import BudgetError, UsageError
+from lesmc.designs import registry
+from lesmc.engines.check import bind_all
+from lesmc.engines.result import CheckResult
+from lesmc.language.properties import SpecFile
+from lesmc.language.semantics import BoundProperty, bind
+from lesmc.model.arrays import ArrayModel
+from lesmc.model.growing import GrowingModel
+from lesmc.pipeline import certify
+from lesmc.pipeline.job import Job, Unit
+from lesmc.pipeline.payoffs import check_payoffs
+from lesmc.results.record import DesignRun, Results
+from lesmc.scene import Scene
+
+
+def run(job: Job) -> Results:
+    """Check every unit of ``job``; one :class:`DesignRun` per design and window."""
+    if (job.model is None) == (job.scene is None):
+        raise UsageError("a job checks a model or a scene: give exactly one")
+    if job.model is not None:
+        return Results([_model_run(job, job.model)])
+    assert job.scene is not None
+    plans = _plans(job, job.scene)
+    scene, certified, probes = _certified_scene(job, job.scene, plans)
+    models = _Models(scene, plans, job)
+    runs = [_design_run(job, p, models, probes) for p in plans]
+    return Results(runs, scene, certified)
+
+
+def bind_scene(
+    scene: Scene, specs: Iterable[SpecFile], end: int | None = None
+) -> list[BoundProperty]:
+    """Bind properties to a scene's model: steps 0..e of the unattacked track.
+
+    ``end``: e when the caller already has it (:func:`original_end` runs the tracker
+    over the whole video; a campaign binds hundreds of windows to one scene).
+    """
+    e = original_end(scene) if end is None else end
+    return [bind(spec, prop, e, COMPONENTS, True) for spec in specs for prop in spec.properties]
+
+
+def window_of(bound: Iterable[BoundProperty]) -> tuple[int, int]:
+    """The union of the properties' attack windows."""
+    bound = list(bound)
+    return min(bp.l for bp in bound), max(bp.u for bp in bound)
+
+
+# ------------------------------------------------------------------ planning
+
+
+@dataclass
+class _Plan:
+    """One design in one window: its tracker's scene and its bound properties."""
+
+    design: str
+    window: tuple[int, int] | None
+    scene: Scene
+    bound: list[BoundProperty]
+
+    @property
+    def tracker(self) -> str:
+        return self.scene.tracker.design
+
+
+def _plans(job: Job, scene: Scene) -> list[_Plan]:
+    """Every (design, window) with the properties the job wants checked there."""
+    designs = job.designs or (scene.tracker.design,)
+    ends: dict[str, int] = {}
+    plans = []
+    for name in designs:
+        d = registry.get(name)
+        sc = scene.with_tracker(design=d.tracker)
+        if d.tracker not in ends:
+            ends[d.tracker] = original_end(sc)
+        for w in job.windows:
+            specs = [s.with_window(w) for s in job.specs]
+            if d.monitor:
+                specs = [s.with_monitor() for s in specs]
+            bound = _selected(job, name, w, bind_scene(sc, specs, ends[d.tracker]))
+            if bound:
+                plans.append(_Plan(name, w, sc, bound))
+    return plans
+
+
+def _selected(
+    job: Job, design: str, window: tuple[int, int] | None, bound: list[BoundProperty]
+) -> list[BoundProperty]:
+    """The properties of ``bound`` that the job's ``only`` and ``wanted`` keep."""
+    _unique_names(bound)
+    if job.only:
+        _known_names(job.only, bound)
+        bound = [bp for bp in bound if bp.name in job.only]
+    if job.wanted is not None:
+        wanted = job.wanted
+        bound = [bp for bp in bound if wanted(Unit(design, window, bp.name))]
+    return bound
+
+
+def _unique_names(bound: list[BoundProperty]) -> None:
+    seen: set[str] = set()
+    for bp in bound:
+        if bp.name in seen:
+            raise UsageError(f"property name '{bp.name}' is defined in more than one spec file")
+        seen.add(bp.name)
+
+
+def _known_names(only: Iterable[str], bound: list[BoundProperty]) -> None:
+    names = {bp.name for bp in bound}
+    missing = [n for n in only if n not in names]
+    if missing:
+        raise UsageError(
+            f"no property named {', '.join(missing)}; the specs define {', '.join(sorted(names))}"
+        )
+
+
+# ------------------------------------------------------------------ a .lts model
+
+
+def _model_run(job: Job, model: ArrayModel) -> DesignRun:
+    """Every property on a model file (its payoffs are built in: attack mode only)."""
+    if job.payoffs != "attack":
+        raise UsageError(f"--payoffs {job.payoffs} needs a scene: a model's payoffs are built in")
+    bound = bind_all(model, job.specs)
+    _unique_names(bound)
+    if job.only:
+        _known_names(job.only, bound)
+        bound = [bp for bp in bound if bp.name in job.only]
+    results = []
+    for bp in bound:
+        job.on_stage(f"checking {bp.name} ({job.engine})")
+        results.append(check_payoffs(lambda _p: model, bp, "attack", job.engine, job.budget, []))
+    design = str(model.meta.get("design", "model"))
+    return DesignRun(design, bound, results, model)
+
+
+# ------------------------------------------------------------------ certified payoffs
+
+
+def _certified_scene(
+    job: Job, scene: Scene, plans: list[_Plan]
+) -> tuple[Scene, dict[str, object] | None, dict[str, list[certify.Probed]]]:
+    """In a certified payoff mode: the probes of each tracker's windows (unless the caller
+    counted what lacks a bound already) and, with a certifier, the scene with bounds for
+    what they found."""
+    if job.payoffs == "attack" or job.unbounded is not None:
+        return scene, None, {}
+    probes: dict[str, list[certify.Probed]] = {}
+    for tracker, sc, windows in _tracker_windows(plans):
+        if job.certify is None and scene.has_lower:
+            continue  # every detection is bounded: nothing to find
+        job.on_stage(f"finding the detections the {registry.label(tracker)} models can hide")
+        probes[tracker] = certify.probe_all(sc, windows, job.budget)
+    if job.certify is None:
+        return scene, None, probes
+    job.on_stage("certifying payoff lower bounds")
+    low = certify.certify(
+        scene,
+        (p for ps in probes.values() for p in ps),
+        job.certify,
+        "the detections the checked models can hide; the others have no bound",
+        designs=sorted({p.design for p in plans}),
+        windows=[list(w) for w in sorted({w for _, _, ws in _tracker_windows(plans) for w in ws})],
+    )
+    return low, low.meta["certified"], probes
+
+
+def _tracker_windows(plans: list[_Plan]) -> list[tuple[str, Scene, set[tuple[int, int]]]]:
+    """Per tracker: its scene and the attack windows of its properties."""
+    out: dict[str, tuple[Scene, set[tuple[int, int]]]] = {}
+    for p in plans:
+        out.setdefault(p.tracker, (p.scene, set()))[1].update((bp.l, bp.u) for bp in p.bound)
+    return [(t, sc, ws) for t, (sc, ws) in out.items()]
+
+
+def _certified_notes(
+    job: Job, scene: Scene, tracker: str, bp: BoundProperty, probes: dict[str, list[certify.Probed]]
+) -> list[str]:
+    """What a certified check of ``bp`` says about detections without a bound."""
+    window = (bp.l, bp.u)
+    if job.unbounded is not None:
+        return certify.unbounded_note(job.unbounded(tracker, window))
+    if tracker not in probes:
+        return []  # the scene bounds every detection
+    return certify.unbounded_note(certify.unbounded(scene, probes[tracker], window))
+
+
+# ------------------------------------------------------------------ models and checks
+
+
+@dataclass
+class _Models:
+    """One model per (tracker, payoff set), made when first needed, over the union of the
+    windows and the last end of every plan that unfolds with that tracker."""
+
+    scene: Scene
+    plans: list[_Plan]
+    job: Job
+    made: dict[tuple[str, str], ArrayModel | GrowingModel] = field(default_factory=dict)
+
+    def get(self, tracker: str, payoffs: str) -> ArrayModel | GrowingModel:
+        key = (tracker, payoffs)
+        if key not in self.made:
+            self.made[key] = self._make(tracker, payoffs)
+        return self.made[key]
+
+    def _make(self, tracker: str, payoffs: str) -> ArrayModel | GrowingModel:
+        bound = [bp for p in self.plans if p.tracker == tracker for bp in p.bound]
+        window, end = window_of(bound), max(bp.end for bp in bound)
+        sc = self.scene.with_tracker(design=tracker).priced(payoffs, self.job.source)
+        if not self.job.full_models:
+            return lazy_model(sc, window, end)
+        what = f"the {registry.label(tracker)} model" + (
+            " with certified payoffs" if payoffs == "certified" else ""
+        )
+        self.job.on_stage(f"building {what}")
+        budget = self.job.budget
+        return build_model(sc, window, on_batch=lambda m: _spent(budget, m, f"building {what}"))
+
+
+def _spent(budget: Budget, model: GrowingModel, stage: str) -> None:
+    """Stop a build past the budget (exit 3: a whole model could not be made)."""
+    reason = budget.exceeded(model.n_states)
+    if reason is not None:
+        raise BudgetError(
+            f"{budget.describe(reason)} ran out while {stage} ({model.n_states} states); "
+            "nothing was written"
+        )
+
+
+def _not_replayed(r: CheckResult) -> CheckResult:
+    """A violation found on the model of a perceived scene: its counterexample is a claim
+    about the model until it is replayed through the detector (docs/semantics.md, "Replay")."""
+    return replace(r, replay="not replayed") if r.verdict == "violated" else r
+
+
+def _design_run(
+    job: Job, plan: _Plan, models: _Models, probes: dict[str, list[certify.Probed]]
+) -> DesignRun:
+    """Every property of one plan, in the job's payoff mode."""
+    tracker = plan.tracker
+    results: list[CheckResult] = []
+    for bp in plan.bound:
+        notes = (
+            []
+            if job.payoffs == "attack"
+            else _certified_notes(job, models.scene, tracker, bp, probes)
+        )
+        job.on_stage(f"checking {bp.name} ({registry.label(plan.design)})")
+        results.append(
+            check_payoffs(
+                lambda payoffs: models.get(tracker, payoffs),
+                bp,
+                job.payoffs,
+                job.engine,
+                job.budget,
+                notes,
+            )
+        )
+    if models.scene.meta.get("detector"):  # perception's scene: replayable on its video
+        results = [_not_replayed(r) for r in results]
+    model = models.get(tracker, "attack") if job.full_models else None
+    assert model is None or isinstance(model, ArrayModel)
+    scene = models.scene.with_tracker(design=tracker)
+    return DesignRun(plan.design, plan.bound, results, model, scene, plan.window)

@@ -1,0 +1,66 @@
+"""One property in one payoff mode: the attack's payoffs, certified lower bounds, or both.
+
+* ``attack`` (the paper): the model of the payoffs the attack achieved;
+* ``certified``: the model of the certified lower payoffs (a violated verdict
+  proves nothing there; a holds is proven against every attack);
+* ``interval``: both, combined by lesmc/engines/interval.py: holds only if
+  proven with the lower payoffs, violated only with the attack's counterexample.
+
+Budget rule (one for every verb): a check gets :meth:`Budget.check_seconds`;
+in interval mode the certified search may take half of it and the attack's
+search the rest.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import replace
+
+from lesmc.common.budget import Budget
+from lesmc.engines.check import EngineName, check_bound, check_lazy
+from lesmc.engines.interval import combine
+from lesmc.engines.result import CheckResult
+from lesmc.language.semantics import BoundProperty
+from lesmc.model.arrays import ArrayModel
+from lesmc.model.growing import GrowingModel
+from lesmc.pipeline.job import PayoffMode
+
+#: The model of one payoff set (``attack`` or ``certified``), made when first asked for.
+ModelOf = Callable[[str], ArrayModel | GrowingModel]
+
+
+def check_model(
+    model: ArrayModel | GrowingModel, bp: BoundProperty, engine: EngineName, budget: Budget
+) -> CheckResult:
+    """One property on a whole model or on one unfolded on demand."""
+    if isinstance(model, ArrayModel):
+        return check_bound(model, bp, engine, budget)
+    return check_lazy(model, bp, engine, budget)
+
+
+def payoff_monotone(bp: BoundProperty) -> bool:
+    """Lowering payoffs can only lower the optimum: true unless the constraint asks for a
+    large payoff (``subject to payoff > c``), which lower payoffs can make false."""
+    return not (bp.constraint.source == "payoff" and bp.op in (">", ">="))
+
+
+def check_payoffs(
+    model_of: ModelOf,
+    bp: BoundProperty,
+    mode: PayoffMode,
+    engine: EngineName,
+    budget: Budget,
+    certified_notes: list[str],
+) -> CheckResult:
+    """``bp`` checked in payoff mode ``mode`` within one check's share of ``budget``;
+    ``certified_notes`` go with the certified result (detections without a bound)."""
+    b = budget.for_check()
+    if mode == "attack":
+        return check_model(model_of("attack"), bp, engine, b)
+    share = b if mode == "certified" else b.share(0.5)
+    cert = check_model(model_of("certified"), bp, engine, share)
+    cert = replace(cert, notes=[*cert.notes, *certified_notes], payoffs="certified")
+    if mode == "certified":
+        return cert
+    attack = check_model(model_of("attack"), bp, engine, b)
+    return combine(cert, attack, payoff_monotone(bp))

@@ -1,0 +1,1 @@
+"""Replaying counterexamples through the real detector and tracker (docs/semantics.md, "Replay")."""

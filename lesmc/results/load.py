@@ -1,0 +1,31 @@
+"""Reading a results file: strictly, and checked against the shipped schema."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+from lesmc.common.errors import InputError, Location
+from lesmc.common.fields import show
+from lesmc.common.files import read_json
+from lesmc.results.document import FORMAT, VERSION
+from lesmc.schemas import validate
+
+
+def load_results(path: str | Path) -> dict[str, Any]:
+    """A results file (``lesmc-results``), validated; an :class:`InputError` otherwise."""
+    doc = read_json(Path(path), InputError)
+    if not isinstance(doc, dict) or doc.get("format") != FORMAT:
+        raise InputError(
+            f"not a lesmc results file (format must be '{FORMAT}'; write one with "
+            "lesmc verify or lesmc check ... --report DIR)",
+            Location(str(path)),
+        )
+    if doc.get("version") != VERSION or isinstance(doc.get("version"), bool):
+        raise InputError(
+            f"must be {VERSION}, got {show(doc.get('version'))} (this lesmc reads results files "
+            f"of version {VERSION}: make it again with this lesmc)",
+            Location(str(path), item="version"),
+        )
+    validate(doc, "results", str(path))
+    return doc

@@ -1,0 +1,36 @@
+"""The scene stage: frames of detections with payoffs, a target, a tracker (docs/scene-format.md).
+
+``frames.py`` holds the detections and their geometry, ``scene.py`` the scene
+objects, ``io.py`` the file format, ``toy.py`` hand-made scenes.
+"""
+
+from lesmc.scene.frames import Detection, Frame, WatchedFrame, lower_frames
+from lesmc.scene.io import (
+    FORMAT,
+    VERSION,
+    footage_from_dict,
+    load_scene,
+    save_scene,
+    scene_from_dict,
+    scene_to_dict,
+)
+from lesmc.scene.scene import UNATTACKABLE, Footage, Scene, Target, TrackerConfig
+
+__all__ = [
+    "FORMAT",
+    "UNATTACKABLE",
+    "VERSION",
+    "Detection",
+    "Footage",
+    "Frame",
+    "Scene",
+    "Target",
+    "TrackerConfig",
+    "WatchedFrame",
+    "footage_from_dict",
+    "load_scene",
+    "lower_frames",
+    "save_scene",
+    "scene_from_dict",
+    "scene_to_dict",
+]

@@ -1,0 +1,262 @@
+"""Frames of a scene: the detections (candidate observations Z_k of Eq. 2) and their payoffs.
+
+A :class:`Frame` answers the tracker's one geometric question, which
+detections lie within a radius of a point, nearest first (an x-sorted scan,
+or a k-d tree for large frames). :class:`WatchedFrame` notes which payoffs a
+model reads: the probe that finds the detections an attack can hide
+(lesmc/build/probe.py).
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping
+from dataclasses import dataclass, field, replace
+from functools import cached_property
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+
+if TYPE_CHECKING:
+    from scipy.spatial import cKDTree
+
+#: Frames with at most this many detections are searched by a numpy scan, larger ones by a
+#: k-d tree (scipy.spatial, imported only then).
+SCAN_LIMIT = 2048
+#: Distances computed at once by the scan (bounds its temporaries).
+SCAN_CELLS = 1 << 20
+
+
+@dataclass(frozen=True)
+class Detection:
+    """A candidate observation z ∈ Z_k and the payoff of hiding it (∞ if unattackable)."""
+
+    id: str
+    x: float
+    y: float
+    payoff: float
+    #: certified lower bound on every hiding perturbation's norm (docs/cnn.md); None: not computed
+    payoff_lower: float | None = None
+
+    @property
+    def attackable(self) -> bool:
+        return math.isfinite(self.payoff)
+
+
+@dataclass(frozen=True)
+class Frame:
+    """One frame: its detections and the homography to the next frame's coordinates."""
+
+    step: int
+    detections: tuple[Detection, ...]
+    to_next: np.ndarray | None = None
+
+    @cached_property
+    def _positions(self) -> np.ndarray:
+        arr = np.array([[d.x, d.y] for d in self.detections], dtype=float).reshape(-1, 2)
+        arr.flags.writeable = False
+        return arr
+
+    @cached_property
+    def _payoffs(self) -> np.ndarray:
+        arr = np.array([d.payoff for d in self.detections], dtype=float)
+        arr.flags.writeable = False
+        return arr
+
+    def positions(self) -> np.ndarray:
+        """(n, 2) detection positions (computed once, read-only)."""
+        return self._positions
+
+    @cached_property
+    def _tree(self) -> cKDTree | None:
+        if not len(self.detections):
+            return None
+        # scipy.spatial costs 0.3-1 s to import: only frames too large to scan pay it.
+        from scipy.spatial import cKDTree
+
+        return cKDTree(self._positions)
+
+    def nearest(self, points: np.ndarray, k: int, radius: float) -> np.ndarray:
+        """For each point (n, 2), the indices of its k nearest detections within ``radius``
+        (nearest first, ties to the lower index), −1 where there are fewer."""
+        return self.nearest_d2(points, k, radius)[0]
+
+    def nearest_d2(
+        self, points: np.ndarray, k: int, radius: float
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """:meth:`nearest`, and the squared distances (inf where −1).
+
+        A frame of at most :data:`SCAN_LIMIT` detections is scanned with numpy:
+        only the detections whose x lies within ``radius`` of the point's (sorted
+        once per frame), in chunks of points; a larger frame is searched with a
+        k-d tree, built once. Ties in distance go to the lower detection index.
+        """
+        n = len(points)
+        res = np.full((n, k), -1, dtype=np.int64)
+        res_d2 = np.full((n, k), np.inf)
+        if not len(self.detections) or not n:
+            return res, res_d2
+        bound = radius * (1 + 1e-12)
+        s = 0
+        for p, idx, inside in self._candidates(points, k, bound):
+            near, dd = self._nearest_of(p, idx, inside, k, bound)
+            kk = near.shape[1]
+            res[s : s + len(p), :kk] = near
+            res_d2[s : s + len(p), :kk] = dd
+            s += len(p)
+        return res, res_d2
+
+    def _candidates(
+        self, points: np.ndarray, k: int, bound: float
+    ) -> list[tuple[np.ndarray, np.ndarray, np.ndarray]]:
+        """Chunks of (points, candidate detection indices, which are real): the k-d tree's
+        k nearest, or the detections of each point's x band."""
+        n, m = len(points), len(self.detections)
+        if m > SCAN_LIMIT:
+            assert self._tree is not None
+            _, found = self._tree.query(points, k=k, distance_upper_bound=bound)
+            found = np.asarray(found, dtype=np.int64).reshape(n, k)
+            return [(points, np.minimum(found, m - 1), found < m)]
+        xs, by_x = self._by_x
+        lo = np.searchsorted(xs, points[:, 0] - bound, side="left")
+        hi = np.searchsorted(xs, points[:, 0] + bound, side="right")
+        width = int((hi - lo).max())
+        if width == 0:
+            return []
+        step = max(1, SCAN_CELLS // width)
+        out = []
+        for s in range(0, n, step):
+            cols = lo[s : s + step, None] + np.arange(width)
+            inside = cols < hi[s : s + step, None]
+            out.append((points[s : s + step], by_x[np.minimum(cols, m - 1)], inside))
+        return out
+
+    def _nearest_of(
+        self, p: np.ndarray, idx: np.ndarray, inside: np.ndarray, k: int, bound: float
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """The k nearest candidates of each point within ``bound`` (−1, inf: none), ties in
+        distance to the lower index."""
+        Z = self._positions
+        d2 = (p[:, 0:1] - Z[idx, 0]) ** 2 + (p[:, 1:2] - Z[idx, 1]) ** 2
+        d2 = np.where(inside & (d2 <= bound * bound), d2, np.inf)
+        kk = min(k, idx.shape[1])
+        order = np.argsort(d2, axis=1, kind="stable")[:, : kk + 1]
+        dd = np.take_along_axis(d2, order, axis=1)
+        near = np.take_along_axis(idx, order, axis=1)
+        # equal distances go to the lower index: rows with a tie among the first kk + 1
+        # (the kept and the first one left out) are sorted again by (distance, index)
+        tied = np.isfinite(dd[:, 1:]) & (dd[:, 1:] == dd[:, :-1])
+        dd, near = dd[:, :kk], near[:, :kk]
+        rows = np.nonzero(tied.any(axis=1))[0]
+        if rows.size:
+            d2r, idxr = d2[rows], idx[rows]
+            m = len(self.detections)
+            full = np.lexsort((np.where(np.isinf(d2r), m, idxr), d2r), axis=1)[:, :kk]
+            dd[rows] = np.take_along_axis(d2r, full, axis=1)
+            near[rows] = np.take_along_axis(idxr, full, axis=1)
+        return np.where(np.isinf(dd), -1, near), dd
+
+    @cached_property
+    def _by_x(self) -> tuple[np.ndarray, np.ndarray]:
+        """Detections sorted by x (values, indices): a point's candidates lie in an x band."""
+        order = np.argsort(self._positions[:, 0], kind="stable")
+        return self._positions[order, 0], order
+
+    def payoffs(self) -> np.ndarray:
+        """(n,) payoffs of hiding each detection (inf: unattackable); read-only."""
+        return self._payoffs
+
+    @cached_property
+    def _position_ids(self) -> np.ndarray:
+        _, first, inverse = np.unique(
+            self._positions, axis=0, return_index=True, return_inverse=True
+        )
+        out: np.ndarray = first[inverse.reshape(-1)]
+        out.flags.writeable = False
+        return out
+
+    def position_ids(self) -> np.ndarray:
+        """(n,) for each detection, the lowest index of a detection at the same position."""
+        return self._position_ids
+
+    @cached_property
+    def has_repeats(self) -> bool:
+        """Two detections of this frame sit at exactly the same position."""
+        return bool(len(self.detections)) and bool(
+            (self._position_ids != np.arange(len(self.detections))).any()
+        )
+
+
+class PayoffReads:
+    """A frame's payoff column that notes which of its ``watched`` entries (None: all) are
+    read; any use other than indexing counts as reading all of them."""
+
+    def __init__(self, values: np.ndarray, reads: set[int], watched: np.ndarray | None) -> None:
+        self._values = values
+        self._reads = reads
+        self._watched = watched
+
+    def __getitem__(self, key: Any) -> np.ndarray:
+        out: np.ndarray = self._values[key]
+        self._note(np.arange(len(self._values))[key])
+        return out
+
+    def __len__(self) -> int:
+        return len(self._values)
+
+    def __array__(self, dtype: object = None, copy: object = None) -> np.ndarray:
+        self._note(np.arange(len(self._values)))
+        return self._values
+
+    def _note(self, idx: np.ndarray) -> None:
+        idx = np.unique(idx)
+        if self._watched is not None:
+            idx = idx[self._watched[idx]]
+        self._reads.update(idx.tolist())
+
+
+@dataclass(frozen=True)
+class WatchedFrame(Frame):
+    """A frame whose :meth:`payoffs` note which ``watched`` detections (None: all) a model
+    reads: the probe of :func:`lesmc.build.probe.priced_detections`."""
+
+    watched: np.ndarray | None = field(default=None, compare=False)
+    reads: set[int] = field(default_factory=set, compare=False)
+
+    def payoffs(self) -> np.ndarray:
+        return PayoffReads(self._payoffs, self.reads, self.watched)  # type: ignore[return-value]
+
+
+def lower_frames(frames: tuple[Frame, ...], lower: Mapping[int, np.ndarray]) -> tuple[Frame, ...]:
+    """``frames`` with certified lower payoffs ``lower[step][i]`` for detection i of frame
+    ``step`` (``nan``: none; capped by the payoff); detections not given keep theirs."""
+    out = []
+    for f in frames:
+        low = lower.get(f.step)
+        if low is not None:
+            f = replace(
+                f,
+                detections=tuple(
+                    d if math.isnan(v) else replace(d, payoff_lower=min(v, d.payoff))
+                    for d, v in zip(f.detections, low.tolist(), strict=True)
+                ),
+            )
+        out.append(f)
+    return tuple(out)
+
+
+def warp(Hm: np.ndarray | None, xy: np.ndarray) -> np.ndarray:
+    """Carry positions (…, 2) into the next frame's coordinates with a homography.
+
+    The result of each point does not depend on how many are carried together.
+    """
+    if Hm is None:
+        return xy
+    pts = np.asarray(xy, dtype=float)
+    x, y = pts[..., 0], pts[..., 1]
+    # written out elementwise: a matrix product rounds differently with the batch size
+    w = Hm[2, 0] * x + Hm[2, 1] * y + Hm[2, 2]
+    out = np.empty(pts.shape)
+    out[..., 0] = (Hm[0, 0] * x + Hm[0, 1] * y + Hm[0, 2]) / w
+    out[..., 1] = (Hm[1, 0] * x + Hm[1, 1] * y + Hm[1, 2]) / w
+    return out

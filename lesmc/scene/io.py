@@ -1,0 +1,342 @@
+"""Scene files (.json): reading, validating and writing them (docs/scene-format.md).
+
+Validation is as strict as the .lts loader's and reports every problem at
+once, each by frame and detection id. The limits below keep the tracker's
+arithmetic finite for any real video.
+"""
+
+from __future__ import annotations
+
+import itertools
+import math
+from dataclasses import fields
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from lesmc.common.errors import InputError, Problems
+from lesmc.common.fields import header, is_finite, is_int, positive, show, within
+from lesmc.common.files import read_json, write_json
+from lesmc.designs import registry
+from lesmc.scene.frames import Detection, Frame
+from lesmc.scene.scene import UNATTACKABLE, Footage, Scene, Target, TrackerConfig
+
+#: Ranges of a scene's numbers (docs/scene-format.md, "Limits"): wide enough for any
+#: real video, narrow enough that the tracker's arithmetic stays finite.
+MAX_DT = 3600.0  #: seconds between frames
+MAX_STEP = 10**6  #: frame steps
+MAX_COORD = 1e7  #: |x|, |y| of detections and of the target's start (pixels)
+MAX_VELOCITY = 1e6  #: |vx|, |vy| of the target's initial velocity (pixels per second)
+MAX_PAYOFF = 1e12  #: a detection's payoff
+MAX_HOMOGRAPHY = 1e6  #: |entry| of a frame-to-frame homography
+#: Upper limits of the tracker's parameters (all must also be > 0).
+TRACKER_LIMITS = {
+    "sigma_q": 1e6,
+    "sigma_r": 1e6,
+    "P0_sd": 1e6,
+    "gate": 1e6,
+    "max_trace": 1e30,
+    "init_radius": 1e7,
+    "init_distance": 1e7,
+    "prune_radius": 1e7,
+}
+FORMAT = "lesmc-scene"
+VERSION = 1
+
+
+def load_scene(path: str | Path) -> Scene:
+    """Read and validate a scene file (every problem reported by frame and detection id)."""
+    return scene_from_dict(read_json(path, InputError), str(path))
+
+
+def scene_from_dict(data: Any, path: str = "<scene>") -> Scene:
+    """A scene with its target (a file without one is an error)."""
+    footage, target = footage_from_dict(data, path, need_target=True)
+    assert target is not None
+    return footage.with_target(target, footage.meta)
+
+
+def footage_from_dict(
+    data: Any, path: str = "<scene>", need_target: bool = False
+) -> tuple[Footage, Target | None]:
+    """A scene file's frames and tracker, and its target if it has one."""
+    pr = Problems()
+    if not isinstance(data, dict):
+        raise InputError.many(path, [("", "the top level must be a JSON object")])
+    allowed = {"format", "version", "dt", "frames", "target", "tracker", "meta", "comment"}
+    for key in sorted(set(data) - allowed):
+        pr.add(f"key '{key}'", "unknown top-level key")
+    header(data, FORMAT, VERSION, pr)
+    dt = data.get("dt", 1.0)
+    if not (is_finite(dt) and 0 < dt <= MAX_DT):
+        pr.add("dt", f"must be a number of seconds in (0, {MAX_DT:g}], got {show(dt)}")
+        dt = 1.0
+    frames = _frames(data.get("frames"), pr)
+    tracker = _tracker(data.get("tracker", {}), pr)
+    target = None
+    if need_target or data.get("target") is not None:
+        target = _target(data.get("target"), pr)
+    if target is not None and frames and not frames[0].step <= target.step <= frames[-1].step:
+        pr.add(
+            "target",
+            f"step {target.step} is not among the frames {frames[0].step}..{frames[-1].step}",
+        )
+    if pr.items:
+        raise InputError.many(path, pr.items)
+    assert tracker is not None
+    raw_meta = data.get("meta")
+    meta: dict[str, Any] = raw_meta if isinstance(raw_meta, dict) else {}
+    return Footage(float(dt), tuple(frames), tracker, meta), target
+
+
+def _frames(raw_frames: Any, pr: Problems) -> list[Frame]:
+    """The frames of a scene file: each valid, consecutive steps, homographies that keep
+    every detection in front of the camera."""
+    if not isinstance(raw_frames, list) or not raw_frames:
+        pr.add("frames", "must be a non-empty list")
+        return []
+    frames = [fr for i, rf in enumerate(raw_frames) if (fr := _frame(rf, i, pr)) is not None]
+    if len(frames) == len(raw_frames):
+        for a, b in itertools.pairwise(frames):
+            if b.step != a.step + 1:
+                pr.add(f"frame {b.step}", f"steps must be consecutive: follows frame {a.step}")
+    for fr in frames:
+        if fr.to_next is None or not fr.detections:
+            continue
+        xy = fr.positions()
+        w = fr.to_next[2, 0] * xy[:, 0] + fr.to_next[2, 1] * xy[:, 1] + fr.to_next[2, 2]
+        if not (w > 0).all():
+            bad = fr.detections[int(np.argmin(w))].id
+            pr.add(
+                f"frame {fr.step}",
+                f"to_next sends detection '{bad}' to infinity or behind the camera "
+                "(its third homogeneous coordinate must be > 0 at every detection)",
+            )
+    return frames
+
+
+def _frame(raw: Any, i: int, pr: Problems) -> Frame | None:
+    if not isinstance(raw, dict):
+        pr.add(f"frames[{i}]", "must be an object")
+        return None
+    step = raw.get("step")
+    item = f"frame {step}" if is_int(step) else f"frames[{i}]"
+    ok = True
+    for key in sorted(set(raw) - {"step", "detections", "to_next", "meta"}):
+        pr.add(item, f"unknown key '{key}'")
+        ok = False
+    if not is_int(step) or not 0 <= step <= MAX_STEP:
+        pr.add(item, f"step must be an integer in 0..{MAX_STEP}, got {show(step)}")
+        ok = False
+    dets_raw = raw.get("detections", [])
+    dets: list[Detection] = []
+    if not isinstance(dets_raw, list):
+        pr.add(item, "detections must be a list")
+        ok = False
+        dets_raw = []
+    seen: set[str] = set()
+    for j, rd in enumerate(dets_raw):
+        d = _detection(rd, f"{item}, detections[{j}]", pr)
+        if d is None:
+            ok = False
+            continue
+        if d.id in seen:
+            pr.add(f"{item}, detection '{d.id}'", "duplicate detection id")
+            ok = False
+        seen.add(d.id)
+        dets.append(d)
+    H = None
+    if raw.get("to_next") is not None:
+        H = _matrix3(raw["to_next"])
+        if H is None:
+            pr.add(
+                item,
+                f"to_next must be an invertible 3x3 matrix of numbers within ±{MAX_HOMOGRAPHY:g}",
+            )
+            ok = False
+    if not ok:
+        return None
+    return Frame(int(step), tuple(dets), H)  # type: ignore[arg-type]
+
+
+def _detection(raw: Any, where: str, pr: Problems) -> Detection | None:
+    if not isinstance(raw, dict):
+        pr.add(where, "must be an object")
+        return None
+    did = raw.get("id")
+    item = where if not isinstance(did, str) else f"{where.split(',')[0]}, detection '{did}'"
+    ok = True
+    for key in sorted(set(raw) - {"id", "x", "y", "payoff", "payoff_lower", "meta"}):
+        pr.add(item, f"unknown key '{key}'")
+        ok = False
+    if not (isinstance(did, str) and did):
+        pr.add(item, "id must be a non-empty string")
+        ok = False
+    for c in ("x", "y"):
+        if not within(raw.get(c), MAX_COORD):
+            pr.add(item, f"{c} must be a number within ±{MAX_COORD:g}, got {show(raw.get(c))}")
+            ok = False
+    payoff = raw.get("payoff", None)
+    if "payoff" not in raw:
+        pr.add(item, 'payoff is missing (a number >= 0, or "unattackable")')
+        ok = False
+    elif payoff == UNATTACKABLE:
+        payoff = math.inf
+    elif not (is_finite(payoff) and 0 <= payoff <= MAX_PAYOFF):
+        pr.add(
+            item,
+            f'payoff must be a number in [0, {MAX_PAYOFF:g}] or "unattackable", got {show(payoff)}',
+        )
+        ok = False
+    lower = raw.get("payoff_lower", None)
+    if "payoff_lower" in raw:
+        if lower == UNATTACKABLE:
+            lower = math.inf
+        elif not is_finite(lower) or lower < 0:
+            pr.add(
+                item,
+                f'payoff_lower must be a finite number >= 0 or "unattackable", got {lower!r}',
+            )
+            ok = False
+            lower = None
+        if ok and lower is not None and lower > payoff:  # type: ignore[operator]
+            shown = UNATTACKABLE if lower == math.inf else lower
+            pr.add(item, f"payoff_lower {shown!r} exceeds payoff {raw.get('payoff')!r}")
+            ok = False
+    if not ok:
+        return None
+    return Detection(
+        str(did),
+        float(raw["x"]),
+        float(raw["y"]),
+        float(payoff),  # type: ignore[arg-type]
+        None if lower is None else float(lower),
+    )
+
+
+def _tracker(raw: Any, pr: Problems) -> TrackerConfig | None:
+    if not isinstance(raw, dict):
+        pr.add("tracker", "must be an object")
+        return None
+    defaults = TrackerConfig()
+    names = {f.name for f in fields(TrackerConfig)}
+    values: dict[str, Any] = {}
+    for key, v in raw.items():
+        if key not in names:
+            pr.add("tracker", f"unknown key '{key}'")
+            continue
+        if key == "design":
+            if v not in registry.tracker_names():
+                known = " or ".join(f'"{n}"' for n in registry.tracker_names())
+                pr.add("tracker", f"design must be {known}, got {show(v)}")
+                continue
+        elif key == "gate_type":
+            if v not in ("mahalanobis", "euclidean"):
+                pr.add("tracker", f'gate_type must be "mahalanobis" or "euclidean", got {v!r}')
+                continue
+        elif key == "P0_sd":
+            hi = TRACKER_LIMITS[key]
+            if not (isinstance(v, list) and len(v) == 4 and all(positive(x, hi) for x in v)):
+                pr.add("tracker", f"P0_sd must be a list of 4 numbers in (0, {hi:g}]")
+                continue
+            v = tuple(float(x) for x in v)
+        elif not positive(v, TRACKER_LIMITS[key]):
+            hi = TRACKER_LIMITS[key]
+            pr.add("tracker", f"{key} must be a number in (0, {hi:g}], got {show(v)}")
+            continue
+        values[key] = v
+    try:
+        return TrackerConfig(**{**defaults.__dict__, **values})
+    except TypeError as exc:  # pragma: no cover - names are checked above
+        pr.add("tracker", str(exc))
+        return None
+
+
+def _target(raw: Any, pr: Problems) -> Target | None:
+    if not isinstance(raw, dict):
+        pr.add("target", "is missing (an object with step and start)")
+        return None
+    ok = True
+    for key in sorted(set(raw) - {"step", "start", "velocity"}):
+        pr.add("target", f"unknown key '{key}'")
+        ok = False
+    step = raw.get("step")
+    if not is_int(step) or not 0 <= step <= MAX_STEP:
+        pr.add("target", f"step must be an integer in 0..{MAX_STEP}, got {show(step)}")
+        ok = False
+    pairs = {}
+    for key, hi in (("start", MAX_COORD), ("velocity", MAX_VELOCITY)):
+        v = raw.get(key, [0.0, 0.0] if key == "velocity" else None)
+        if not (isinstance(v, list) and len(v) == 2 and all(within(x, hi) for x in v)):
+            pr.add("target", f"{key} must be [x, y], numbers within ±{hi:g}, got {show(v)}")
+            ok = False
+            continue
+        pairs[key] = (float(v[0]), float(v[1]))
+    if not ok:
+        return None
+    return Target(int(step), pairs["start"], pairs["velocity"])  # type: ignore[arg-type]
+
+
+def _matrix3(raw: Any) -> np.ndarray | None:
+    if not (isinstance(raw, list) and len(raw) == 3):
+        return None
+    if not all(
+        isinstance(r, list) and len(r) == 3 and all(within(x, MAX_HOMOGRAPHY) for x in r)
+        for r in raw
+    ):
+        return None
+    m = np.array(raw, dtype=float)
+    if abs(np.linalg.det(m)) < 1e-12:
+        return None
+    return m
+
+
+# ---------------------------------------------------------------- writing
+
+
+def scene_to_dict(scene: Scene | Footage) -> dict[str, Any]:
+    """The file form of a scene (a :class:`Footage` is written without ``target``)."""
+    frames = []
+    for fr in scene.frames:
+        d: dict[str, Any] = {
+            "step": fr.step,
+            "detections": [_det_json(det) for det in fr.detections],
+        }
+        if fr.to_next is not None:
+            d["to_next"] = fr.to_next.tolist()
+        frames.append(d)
+    doc: dict[str, Any] = {
+        "format": FORMAT,
+        "version": VERSION,
+        "dt": scene.dt,
+        "frames": frames,
+    }
+    if isinstance(scene, Scene):
+        doc["target"] = {
+            "step": scene.target.step,
+            "start": list(scene.target.start),
+            "velocity": list(scene.target.velocity),
+        }
+    doc["tracker"] = scene.tracker.to_json()
+    if scene.meta:
+        doc["meta"] = scene.meta
+    return doc
+
+
+def _det_json(det: Detection) -> dict[str, Any]:
+    out: dict[str, Any] = {
+        "id": det.id,
+        "x": det.x,
+        "y": det.y,
+        "payoff": det.payoff if det.attackable else UNATTACKABLE,
+    }
+    if det.payoff_lower is not None:
+        low = det.payoff_lower
+        out["payoff_lower"] = low if math.isfinite(low) else UNATTACKABLE
+    return out
+
+
+def save_scene(scene: Scene | Footage, path: str | Path) -> None:
+    """Write a scene (or a scene without a target) atomically."""
+    write_json(path, scene_to_dict(scene))

@@ -1,0 +1,162 @@
+"""A scene: frames of detections, where the target's track starts, and the tracker.
+
+A :class:`Footage` is what perception produces once per video (no target);
+a :class:`Scene` is footage with a :class:`Target`. Both are immutable: the
+variants a verification needs (another tracker design, certified payoffs in
+place of the attack's) are new objects.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from dataclasses import dataclass, field, fields, replace
+from typing import Any, Literal
+
+import numpy as np
+
+from lesmc.common.errors import InputError
+from lesmc.scene.frames import Frame, lower_frames
+
+UNATTACKABLE = "unattackable"
+"""Payoff marker of a detection the attack could not flip within its iteration cap."""
+
+
+@dataclass(frozen=True)
+class TrackerConfig:
+    """The tracker's parameters (paper section 6.7 and 7); defaults are the paper's.
+
+    ``design`` names a tracker of the design registry (lesmc/designs/registry.py).
+    """
+
+    design: str = "single"
+    sigma_q: float = 3.0  # process noise σ_q of Eq. 17 (the paper's code used 5)
+    sigma_r: float = 5.0  # measurement noise σ_r of Eq. 18 (the paper's code used 6)
+    P0_sd: tuple[float, float, float, float] = (30.0, 30.0, 20.0, 20.0)  # P0 = diag(P0_sd)²
+    gate: float = 2.0  # g of Eq. 19 (Mahalanobis) or k of the Euclidean gate
+    gate_type: Literal["mahalanobis", "euclidean"] = "mahalanobis"
+    max_trace: float = 1e5  # halt the track when trace(P) exceeds this
+    # joint design (section 7.2)
+    init_radius: float = 150.0  # unassociated detections this close to the primary may start tracks
+    init_distance: float = 60.0  # max distance to a previous unassociated detection to start one
+    prune_radius: float = 200.0  # refining tracks farther than this from the primary are dropped
+
+    def to_json(self) -> dict[str, Any]:
+        d: dict[str, Any] = {}
+        for f in fields(self):
+            v = getattr(self, f.name)
+            d[f.name] = list(v) if isinstance(v, tuple) else v
+        return d
+
+
+@dataclass(frozen=True)
+class Target:
+    """Where the track starts: frame step, position, and (default zero) velocity."""
+
+    step: int
+    start: tuple[float, float]
+    velocity: tuple[float, float] = (0.0, 0.0)
+
+
+class _Frames:
+    """Frames numbered ``frames[0].step``, ``frames[0].step + 1``, ...: the steps of a video."""
+
+    frames: tuple[Frame, ...]
+
+    def frame(self, step: int) -> Frame:
+        return self.frames[step - self.frames[0].step]
+
+    @property
+    def last_step(self) -> int:
+        return self.frames[-1].step
+
+    def with_lower(self, lower: Mapping[int, np.ndarray]) -> Any:
+        """The same with certified lower payoffs: ``lower[step][i]`` for detection i of
+        frame ``step`` (``nan``: none); detections not given keep theirs."""
+        return replace(self, frames=lower_frames(self.frames, lower))  # type: ignore[type-var]
+
+
+@dataclass(frozen=True)
+class Footage(_Frames):
+    """A scene without a target: what perception produces once per video.
+
+    ``lesmc perceive -o`` without ``--target`` writes one; ``--target X,Y@STEP``
+    (lesmc/tracking/targets.py) turns it into a :class:`Scene` per vehicle.
+    """
+
+    dt: float
+    frames: tuple[Frame, ...]
+    tracker: TrackerConfig = field(default_factory=TrackerConfig)
+    meta: dict[str, Any] = field(default_factory=dict, compare=False)
+
+    def with_target(self, target: Target, meta: dict[str, Any] | None = None) -> Scene:
+        """The scene tracking from ``target`` (its step must be one of the frames)."""
+        info = dict(self.meta) if meta is None else meta
+        return Scene(self.dt, self.frames, target, self.tracker, info)
+
+
+@dataclass(frozen=True)
+class Scene(_Frames):
+    """A validated scene; ``frames[i].step == first_step + i``."""
+
+    dt: float
+    frames: tuple[Frame, ...]
+    target: Target
+    tracker: TrackerConfig = field(default_factory=TrackerConfig)
+    meta: dict[str, Any] = field(default_factory=dict, compare=False)
+
+    @property
+    def has_lower(self) -> bool:
+        """Every detection carries ``payoff_lower`` (perceive --certify)."""
+        return all(d.payoff_lower is not None for f in self.frames for d in f.detections)
+
+    @property
+    def any_lower(self) -> bool:
+        """Some detection carries ``payoff_lower`` (all of them, or those a model can hide)."""
+        return any(d.payoff_lower is not None for f in self.frames for d in f.detections)
+
+    def priced(self, payoffs: str, path: str = "<scene>") -> Scene:
+        """The scene whose ``payoff`` column the model uses: ``attack`` or ``certified``.
+
+        ``certified`` puts each detection's ``payoff_lower`` in place of its
+        payoff (docs/semantics.md, "Payoff intervals"). A detection without one
+        gets 0, the trivial lower bound (sound: no perturbation is cheaper than
+        nothing); the check notes how many a model can hide
+        (lesmc/pipeline/certify.py). At least one detection must carry a bound,
+        unless ``meta["certified"]`` says that a certification found none to certify.
+        """
+        if payoffs == "attack":
+            return self
+        if payoffs != "certified":
+            raise ValueError(f"unknown payoff column {payoffs!r}")
+        if not self.any_lower and "certified" not in self.meta:
+            raise InputError.many(path, [(self._first_detection(), _NO_LOWER)])
+        frames = tuple(
+            replace(
+                f,
+                detections=tuple(
+                    replace(d, payoff=0.0 if d.payoff_lower is None else d.payoff_lower)
+                    for d in f.detections
+                ),
+            )
+            for f in self.frames
+        )
+        return replace(self, frames=frames)
+
+    def _first_detection(self) -> str:
+        f = next((f for f in self.frames if f.detections), self.frames[0])
+        return f"frame {f.step}" + (f", detection '{f.detections[0].id}'" if f.detections else "")
+
+    def with_tracker(self, **changes: Any) -> Scene:
+        """The same scene with some tracker parameters replaced (e.g. design)."""
+        return replace(self, tracker=replace(self.tracker, **changes))
+
+    @property
+    def footage(self) -> Footage:
+        """The scene without its target."""
+        return Footage(self.dt, self.frames, self.tracker, self.meta)
+
+
+_NO_LOWER = (
+    "payoff_lower is missing (needed by --payoffs certified|interval; write the scene with "
+    "`lesmc perceive --certify`, or let `lesmc verify` certify what it needs)"
+)

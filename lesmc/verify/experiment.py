@@ -1,0 +1,430 @@
+"""``lesmc verify``: the paper's whole experiment in one call (section 8).
+
+frames -> scene (perception, payoffs) -> the check pipeline for every design
+(lesmc/pipeline/check.py) -> results document -> replay of the counterexamples
+-> report. Each stage is the code of its own verb; this module chains them and
+picks the defaults: the embedded synthetic video, a target with neighbouring
+traffic, the bundled robustness and resilience specs, the paper's designs.
+"""
+
+from __future__ import annotations
+
+import json
+import time
+from collections.abc import Callable
+from dataclasses import asdict, dataclass, field
+from importlib import resources
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+
+from lesmc.common.budget import Budget
+from lesmc.common.errors import BudgetError, LesmcError, UsageError
+from lesmc.common.files import json_text
+from lesmc.common.progress import Reporter
+from lesmc.designs import registry
+from lesmc.language.parser import load_spec
+from lesmc.language.properties import SpecFile
+from lesmc.pipeline.check import run as run_job
+from lesmc.pipeline.job import Certifier, Job, PayoffMode
+from lesmc.results.document import provenance, results_document
+from lesmc.results.record import Results
+from lesmc.scene import Scene, scene_to_dict
+
+if TYPE_CHECKING:  # reading frames imports cv2: only where a video is read
+    from lesmc.video.reader import FrameSet
+
+#: The embedded default video: `lesmc synth` with these settings.
+DEFAULT_VIDEO = {"frames": 24, "width": 2048, "height": 2048, "seed": 1}
+#: Frames in the background median (section 6).
+HISTORY = 4
+
+
+@dataclass(frozen=True)
+class Request:
+    """What ``lesmc verify`` was asked: a video (``frames_dir``; None: the embedded default)
+    or a scene file, the target, the specs (none: the bundled ones), the designs, the
+    payoff mode, where to write and the budget."""
+
+    frames_dir: str | None = None
+    scene_path: str | None = None
+    target: str | None = None
+    truth: str | None = None
+    specs: tuple[str, ...] = ()
+    window: tuple[int, int] | None = None
+    designs: tuple[str, ...] = registry.SETS["paper"]
+    out: Path = Path("lesmc-verify")
+    nets_dir: str | None = None
+    scene_frames: str | None = None  #: with ``scene_path``: the video's frames (replay, images)
+    payoffs: PayoffMode = "attack"
+    budget: Budget = field(default_factory=Budget)
+
+
+@dataclass
+class Outcome:
+    """What a verification produced: the typed results (after the replay), the results
+    document and the report's path."""
+
+    results: Results
+    doc: dict[str, Any]
+    report: Path
+
+
+@dataclass
+class _Source:
+    """The scene to check and what came with it: the video's frames, truth and networks,
+    the perception run (for certification), the facts for the results' meta."""
+
+    scene: Scene
+    frames: FrameSet | None = None
+    truth: Any = None
+    nets: Any = None
+    run: Any = None
+    meta: dict[str, Any] = field(default_factory=dict)
+    new: bool = False  #: made by this run: written to OUT/scene.json
+
+
+def bundled_specs() -> list[Path]:
+    """The robustness and resilience specs shipped with lesmc (specs/ in the repository)."""
+    names = ("robustness.spec", "resilience.spec")
+    packaged = resources.files("lesmc") / "specs"
+    if all((packaged / n).is_file() for n in names):  # an installed wheel
+        return [Path(str(packaged / n)) for n in names]
+    repo = Path(__file__).resolve().parents[2] / "specs"  # an editable install or a checkout
+    return [repo / n for n in names]
+
+
+def load_specs(paths: list[Path], window: tuple[int, int] | None) -> list[SpecFile]:
+    """The spec files, every property moved to ``window`` (None: their own)."""
+    if not paths:
+        raise UsageError("no property files")
+    return [load_spec(str(p)).with_window(window) for p in paths]
+
+
+def verify(req: Request, rep: Reporter) -> Outcome:
+    """Run the experiment of ``req``; progress goes to ``rep``."""
+    started = time.monotonic()
+    specs = load_specs([Path(s) for s in req.specs] or bundled_specs(), req.window)
+    src = _scene_file(req) if req.scene_path is not None else _perceived(req, specs, rep)
+    if req.window is not None:
+        check_window(src.scene, req.window)
+    src.meta["target"] = _target_text(src.scene)
+    src.meta["properties"] = ", ".join(s.path for s in specs)
+    rep.log(f"target: {src.meta['target']}")
+    checked = time.monotonic()
+    job = Job(
+        tuple(specs),
+        scene=src.scene,
+        designs=req.designs,
+        payoffs=req.payoffs,
+        budget=req.budget,
+        full_models=True,
+        certify=_certifier(src, rep, req.budget) if req.payoffs != "attack" else None,
+        source=req.scene_path or "scene",
+        on_stage=rep.stage,
+    )
+    results = run_job(job)
+    timings = {"video, perception and scene": checked - started}
+    timings["models and checks"] = time.monotonic() - checked
+    doc = _document(req, src, specs, results, timings, rep)
+    report = _write(doc, req.out, src, results, rep)
+    return Outcome(results, doc, report)
+
+
+# ------------------------------------------------------------------ the scene
+
+
+def _scene_file(req: Request) -> _Source:
+    """A scene from ``lesmc perceive -o``; frames only from the directory named."""
+    from lesmc.tracking.targets import load_scene_with_target
+
+    if req.frames_dir is not None:
+        raise UsageError("give FRAMES_DIR or --scene, not both")
+    if req.truth is not None:
+        raise UsageError("--truth applies to a video, not to --scene")
+    if req.nets_dir is not None and req.scene_frames is None:
+        raise UsageError("--nets with --scene applies only to the replay: give --frames too")
+    scene = load_scene_with_target(req.scene_path or "", req.target)
+    from lesmc.video.reader import open_frames
+
+    frames = open_frames(req.scene_frames, HISTORY + 1) if req.scene_frames else None
+    nets = None
+    if frames is not None:
+        from lesmc.perception.cnn import load_nets
+
+        nets = load_nets(req.nets_dir)
+    return _Source(scene, frames, None, nets, meta={"scene": req.scene_path})
+
+
+def _perceived(req: Request, specs: list[SpecFile], rep: Reporter) -> _Source:
+    """The scene of a video: rendered (the default), perceived, its target placed or chosen."""
+    from lesmc.perception.attacks import AttackConfig
+    from lesmc.perception.cnn import load_nets
+    from lesmc.perception.quality import load_truth
+    from lesmc.perception.run import PerceiveOptions, perceive
+    from lesmc.perception.to_scene import footage_from_run
+    from lesmc.tracking.targets import check_target, parse_target
+    from lesmc.verify.targets import auto_target, target_scene
+    from lesmc.video import FPS
+
+    if req.scene_frames is not None:
+        raise UsageError("--frames goes with --scene; a video is given as FRAMES_DIR")
+    frames_dir, truth, meta = _video(req, rep)
+    if not req.target and not truth:
+        raise UsageError("--target is needed (or --truth, to choose one)")
+    from lesmc.video.reader import open_frames
+
+    frames = open_frames(frames_dir, HISTORY + 1)
+    target = parse_target(req.target) if req.target else None
+    if target is not None:
+        check_target(target, frames.width, frames.height, len(frames))
+    truths = load_truth(truth) if truth else None
+    nets = load_nets(req.nets_dir)
+    opts = PerceiveOptions(history=HISTORY, nets=nets, attack=AttackConfig())
+    _spent(req.budget, "loading the video and the networks")
+    with rep.bar("perceiving", len(frames)) as bar:
+
+        def advance() -> None:
+            bar.advance()
+            _spent(req.budget, "perceiving the video")
+
+        run = perceive(frames, opts, None, advance)
+    if not run.detections:
+        raise UsageError("the video produced no detections")
+    dt = (truths.dt if truths else None) or 1 / FPS
+    scene_meta = {"source": str(frames_dir), "detector": nets.settings.trained_on}
+    footage = footage_from_run(run, dt, scene_meta)
+    if target is not None:
+        scene = target_scene(footage, target, frames, truths)
+    else:
+        assert truths is not None
+        scene = auto_target(footage, frames, truths, specs)
+        meta["target choice"] = scene.meta["target_choice"]
+    meta |= {"detector": nets.settings.trained_on, "scene": str(req.out / "scene.json")}
+    return _Source(scene, frames, truths, nets, run, meta, new=True)
+
+
+def _video(req: Request, rep: Reporter) -> tuple[str, str | None, dict[str, Any]]:
+    """The video's frames and truth: FRAMES_DIR, or the embedded default in OUT/video."""
+    if req.frames_dir is not None:
+        return req.frames_dir, req.truth, {"video": req.frames_dir}
+    if req.truth is not None:
+        raise UsageError("--truth is FRAMES_DIR's truth: the default video brings its own")
+    video = req.out / "video"
+    if default_video_ready(video):
+        rep.log(f"reusing the default video in {video}")
+    else:
+        with rep.bar("rendering", DEFAULT_VIDEO["frames"]) as bar:
+
+            def rendered() -> None:
+                bar.advance()
+                _spent(req.budget, "rendering the default video")
+
+            write_default_video(video, rendered)
+    what = (
+        f"embedded default: lesmc synth {video} --seed {DEFAULT_VIDEO['seed']} "
+        f"--frames {DEFAULT_VIDEO['frames']}"
+    )
+    return str(video), str(video / "truth.json"), {"video": what}
+
+
+def _spent(budget: Budget, stage: str) -> None:
+    """Stop before a verdict exists (exit 3, nothing written) once the budget is spent."""
+    reason = budget.exceeded()
+    if reason is not None:
+        raise BudgetError(f"{budget.describe(reason)} ran out while {stage}; nothing was written")
+
+
+def _target_text(scene: Scene) -> str:
+    t = scene.target
+    return (
+        f"({t.start[0]:.1f}, {t.start[1]:.1f}) in frame {t.step}, velocity "
+        f"({t.velocity[0]:.1f}, {t.velocity[1]:.1f}) px/s"
+    )
+
+
+def check_window(scene: Scene, window: tuple[int, int]) -> None:
+    """``--window`` against the unattacked track's length, before any model is built."""
+    from lesmc.build.unfold import original_end
+
+    e = original_end(scene)
+    if not 1 <= window[0] <= window[1] <= e:
+        raise UsageError(
+            f"--window {window[0]}..{window[1]} must satisfy 1 <= L <= U <= {e}, the last step "
+            f"of the unattacked track from frame {scene.target.step}"
+        )
+
+
+def default_video_ready(video: Path) -> bool:
+    """Whether ``video`` already holds exactly the embedded default video."""
+    from lesmc.video.synth import SynthConfig
+
+    truth = video / "truth.json"
+    if not truth.is_file():
+        return False
+    try:
+        same = json.loads(truth.read_text()).get("config") == asdict(SynthConfig(**DEFAULT_VIDEO))
+    except ValueError:
+        return False
+    return same and len(list(video.glob("frame_*.png"))) == DEFAULT_VIDEO["frames"]
+
+
+def write_default_video(video: Path, progress: Callable[[], None] | None = None) -> None:
+    """Generate the embedded default video (``lesmc synth`` with ``DEFAULT_VIDEO``)."""
+    from lesmc.video.synth import SynthConfig, write_video
+
+    write_video(SynthConfig(**DEFAULT_VIDEO), video, progress=progress)
+
+
+def _certifier(src: _Source, rep: Reporter, budget: Budget) -> Certifier | None:
+    """Perception's certification of the video's detections (none for a scene file: its
+    bounds come with it, from ``perceive --certify``)."""
+    if src.run is None:
+        return None
+    from lesmc.perception.run import certify_on_demand
+
+    run, nets = src.run, src.nets
+
+    def certify(wanted: Any) -> dict[int, np.ndarray]:
+        with rep.bar("certifying", None) as bar:
+
+            def batch(done: int, total: int) -> None:
+                bar.update(total=total, completed=done)
+                _spent(budget, "certifying payoff lower bounds")
+
+            return certify_on_demand(nets, run, wanted, batch)
+
+    return certify
+
+
+# ------------------------------------------------------------------ results and report
+
+
+def _document(
+    req: Request,
+    src: _Source,
+    specs: list[SpecFile],
+    results: Results,
+    timings: dict[str, float],
+    rep: Reporter,
+) -> dict[str, Any]:
+    """The results document: the runs, the truth and the monitor's false alarms on it,
+    what perception did; then every violated counterexample replayed."""
+    truth, extra = _truth_facts(src, results, timings)
+    extra["perception"] = _perception_facts(req, src, results)
+    seeds = (
+        {"video": DEFAULT_VIDEO["seed"]}
+        if req.frames_dir is None and req.scene_path is None
+        else {}
+    )
+    rep.stage("writing the results")
+    doc = results_document(
+        results.runs, src.meta, provenance(specs, seeds=seeds), timings, truth, extra
+    )
+    _replay(doc, results, src, timings, rep, req.budget)
+    doc["timings"] = {k: round(float(v), 3) for k, v in timings.items()}
+    return doc
+
+
+def _truth_facts(
+    src: _Source, results: Results, timings: dict[str, float]
+) -> tuple[Any, dict[str, Any]]:
+    """With the video's truth: the target's true track and the monitor's false alarms on
+    every truth track (lesmc/verify/false_alarms.py)."""
+    if src.frames is None or src.truth is None:
+        return None, {}
+    from lesmc.verify.false_alarms import false_alarm_report, truth_track
+
+    scene = src.scene
+    tfs = [src.truth.frames.get(p.name) for p in src.frames.paths[scene.target.step :]]
+    tfs = tfs[: next((i for i, t in enumerate(tfs) if t is None), len(tfs))]
+    if not tfs:
+        return None, {}
+    t0 = time.monotonic()
+    end = max(run.model.end for run in results.runs if run.model is not None)
+    monitored = sorted(
+        {registry.get(r.design).tracker for r in results.runs if registry.get(r.design).monitor}
+    )
+    report = false_alarm_report(
+        scene,
+        tfs,
+        (src.frames.width, src.frames.height),
+        min(end, len(tfs) - 1),
+        monitored or [registry.BASELINE],
+    )
+    timings["monitor false alarms"] = time.monotonic() - t0
+    return truth_track(tfs, scene.target.start) or None, {"monitor_false_alarms": report}
+
+
+def _perception_facts(req: Request, src: _Source, results: Results) -> dict[str, Any]:
+    """How the scene's detections and payoffs were made (for the report and the replay)."""
+    from lesmc.perception.attacks import AttackConfig, attack_of
+
+    attack = attack_of(src.scene.meta) if req.scene_path is not None else AttackConfig()
+    out: dict[str, Any] = {
+        "history": HISTORY,
+        "delta_bc": 12,
+        "nets": src.nets.settings.trained_on if src.nets is not None else "",
+        "attack": asdict(attack),
+        "payoffs": req.payoffs,
+    }
+    if src.frames is not None and src.frames.paths:
+        out["frames"] = str(src.frames.paths[0].parent)
+    if results.certified is not None:  # this run's certification (a --scene keeps its own)
+        out["certified"] = results.certified
+    return out
+
+
+def _replay(
+    doc: dict[str, Any],
+    results: Results,
+    src: _Source,
+    timings: dict[str, float],
+    rep: Reporter,
+    budget: Budget,
+) -> None:
+    """Replay every violated property through the real detector (lesmc/replay); the
+    results and the document record what each replay found."""
+    from lesmc.replay.run import apply, cases, replay
+
+    if not cases(doc) or src.frames is None or src.nets is None:
+        return
+    t0 = time.monotonic()
+    with rep.bar("replaying", len(src.frames)) as bar:
+
+        def advance() -> None:
+            bar.advance()
+            _spent(budget, "replaying the counterexamples")
+
+        outcome = replay(doc, src.frames, src.nets, on_frame=advance)
+    apply(doc, outcome, results)
+    timings["replay"] = time.monotonic() - t0
+
+
+def _write(doc: dict[str, Any], out: Path, src: _Source, results: Results, rep: Reporter) -> Path:
+    """report.html, figures/ and results.json into ``out`` (staged: all or nothing), then
+    the scene this run made or certified."""
+    from lesmc.report.html import write_report
+
+    rep.stage("writing the report")
+    files = {}
+    if src.new or results.certified is not None:  # published with the results that use it
+        scene = results.scene if results.scene is not None else src.scene
+        files["scene.json"] = json_text(scene_to_dict(scene))
+    return write_report(doc, out, _frame_reader(src.frames), files)
+
+
+def _frame_reader(frames: FrameSet | None) -> Callable[[int], np.ndarray | None] | None:
+    """``index -> grey frame`` for the report's images (None past the video's end)."""
+    if frames is None:
+        return None
+    fs = frames
+
+    def read(index: int) -> np.ndarray | None:
+        try:
+            return fs.read(index) if 0 <= index < len(fs) else None
+        except LesmcError:
+            return None
+
+    return read
