@@ -26,9 +26,15 @@ from rich.table import Table
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from lesmc.campaign.plan import DEFAULT_WINDOWS, DESIGN_SETS, parse_windows
+from lesmc.campaign.plan import DEFAULT_WINDOWS, parse_windows
 from lesmc.campaign.run import Video, auto_targets, execute, make_groups, prepare
-from lesmc.verify import bundled_specs, default_video_ready, load_specs, write_default_video
+from lesmc.designs import registry
+from lesmc.verify.experiment import (
+    bundled_specs,
+    default_video_ready,
+    load_specs,
+    write_default_video,
+)
 
 
 def main() -> None:
@@ -54,7 +60,9 @@ def main() -> None:
     t_targets = time.perf_counter() - t0
     p.targets = [a.spec for a in found[: args.targets]]
     specs = load_specs(bundled_specs(), None)
-    groups, total = make_groups([p], specs, windows, DESIGN_SETS["all"], set(), args.timeout, None)
+    groups, total = make_groups(
+        [p], specs, windows, registry.expand("paper"), set(), args.timeout, None
+    )
     seconds: dict[int, float] = {}
     unknown: dict[int, int] = {}
     counts = [int(w) for w in args.workers.split(",")]

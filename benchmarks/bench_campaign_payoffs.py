@@ -28,9 +28,15 @@ from rich.table import Table
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from lesmc.campaign import run as campaign_run
-from lesmc.campaign.plan import DEFAULT_WINDOWS, DESIGN_SETS, parse_windows
+from lesmc.campaign.plan import DEFAULT_WINDOWS, parse_windows
 from lesmc.campaign.run import Video, auto_targets, certify_scenes, execute, make_groups, prepare
-from lesmc.verify import bundled_specs, default_video_ready, load_specs, write_default_video
+from lesmc.designs import registry
+from lesmc.verify.experiment import (
+    bundled_specs,
+    default_video_ready,
+    load_specs,
+    write_default_video,
+)
 
 
 def main() -> None:
@@ -47,7 +53,7 @@ def main() -> None:
     windows = parse_windows(DEFAULT_WINDOWS)
     p.targets = [a.spec for a in auto_targets(p, windows, True)[: args.targets]]
     specs = load_specs(bundled_specs(), None)
-    designs = DESIGN_SETS["all"]
+    designs = registry.expand("paper")
 
     attack_groups, total = make_groups([p], specs, windows, designs, set(), args.timeout, None)
     attack: list[dict[str, Any]] = []

@@ -20,6 +20,7 @@ import time
 from rich.console import Console
 from rich.table import Table
 
+from lesmc.common.budget import Budget
 from lesmc.engines.check import check_bound
 from lesmc.engines.result import CheckResult
 from lesmc.language.parser import parse_spec
@@ -93,10 +94,12 @@ def run(engine: str, model: LTS | ArrayModel, spec_text: str) -> list[CheckResul
     bps = [bind(spec, p, model.end, model.components, False) for p in spec.properties]
     out = []
     for bp in bps:
-        r = check_bound(cm, bp, engine, max_states=ENUMERATE_BUDGET)  # type: ignore[arg-type]
+        r = check_bound(cm, bp, engine, Budget(max_states=ENUMERATE_BUDGET))  # type: ignore[arg-type]
         best = r.stats.seconds
         for _ in range(REPEATS - 1 if best < SHORT else 0):
-            best = min(best, check_bound(cm, bp, engine, max_states=ENUMERATE_BUDGET).stats.seconds)  # type: ignore[arg-type]
+            best = min(
+                best, check_bound(cm, bp, engine, Budget(max_states=ENUMERATE_BUDGET)).stats.seconds
+            )  # type: ignore[arg-type]
         r.stats.seconds = best
         out.append(r)
     return out

@@ -35,6 +35,7 @@ from rich.table import Table
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
+from lesmc.common.budget import Budget
 from lesmc.engines.check import check_bound
 from lesmc.language.parser import parse_spec
 from lesmc.language.semantics import bind
@@ -94,7 +95,7 @@ def lesmc_run(
     spec = parse_spec(knapsack_spec(len(cost), demand, 0.0), "<knapsack>")
     bp = bind(spec, spec.properties[0], model.end, model.components, model.has_covariance)
     # like CP-SAT, only the time limit: no cap on labels (the CLI's default is 10 M)
-    r = check_bound(model, bp, engine="levels", timeout=timeout, max_states=None)
+    r = check_bound(model, bp, "levels", Budget(timeout=timeout))
     wall = time.perf_counter() - t0
     theta = r.witness_value if r.witness_exact else None
     stopped = r.stats.stopped

@@ -26,7 +26,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 from bench_unfold import dense_scene
 
-from lesmc.build.unfold import check_scene
+from lesmc.api import check
 from lesmc.language.parser import parse_spec
 from lesmc.scene import load_scene
 
@@ -46,7 +46,7 @@ def spec_text(kind: str, l: int, u: int) -> str:
 def run(scene, kind: str, l: int, u: int, engine: str, timeout: float):  # type: ignore[no-untyped-def]
     spec = parse_spec(spec_text(kind, l, u), "<bench>")
     t0 = time.perf_counter()
-    r = check_scene(scene, [spec], engine=engine, timeout=timeout)[0]  # type: ignore[arg-type]
+    r = check(scene, [spec], engine=engine, timeout=timeout)[0]  # type: ignore[arg-type]
     return r, time.perf_counter() - t0
 
 

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from pathlib import Path
+from typing import TYPE_CHECKING, Any
 
 from lesmc.build.unfold import build_model
 from lesmc.common.budget import Budget
@@ -28,9 +29,10 @@ from lesmc.pipeline.job import Job, PayoffMode
 from lesmc.results.record import DesignRun, Results
 from lesmc.scene import Scene
 from lesmc.tracking.targets import scene_with_target
-from lesmc.verify.experiment import Outcome as VerifyOutcome
-from lesmc.verify.experiment import Request as VerifyRequest
-from lesmc.verify.experiment import verify as run_verify
+
+if TYPE_CHECKING:
+    from lesmc.verify.experiment import Outcome as VerifyOutcome
+    from lesmc.verify.experiment import Request as VerifyRequest
 
 __all__ = [
     "CheckResult",
@@ -133,7 +135,19 @@ def check(
 
 def verify(request: VerifyRequest, reporter: Reporter | None = None) -> VerifyOutcome:
     """The paper's whole experiment (``lesmc verify``): see :class:`VerifyRequest`."""
+    from lesmc.verify.experiment import verify as run_verify
+
     if reporter is not None:
         return run_verify(request, reporter)
     with Reporter("verify", live=False) as rep:
         return run_verify(request, rep)
+
+
+def __getattr__(name: str) -> Any:
+    """``VerifyRequest`` and ``VerifyOutcome``, imported when first asked for: the verify
+    stage loads the perception's libraries, which checking a model does not need."""
+    if name in ("VerifyRequest", "VerifyOutcome"):
+        from lesmc.verify import experiment
+
+        return experiment.Request if name == "VerifyRequest" else experiment.Outcome
+    raise AttributeError(f"module 'lesmc.api' has no attribute {name!r}")

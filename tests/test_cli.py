@@ -162,3 +162,46 @@ def test_frames_without_report_is_an_error() -> None:
         "check", str(TINY / "model.lts"), str(TINY / "properties.spec"), "--frames", str(TINY)
     )
     assert r.returncode == 2 and "--frames" in r.stderr and "Traceback" not in r.stderr
+
+
+def test_swapped_arguments_get_a_hint() -> None:
+    r = lesmc("check", str(TINY / "properties.spec"), str(TINY / "model.lts"))
+    assert r.returncode == 2 and "Traceback" not in r.stderr
+    assert "the order is lesmc check MODEL|SCENE SPEC" in r.stderr
+
+
+def test_json_errors_are_documents_on_stdout(tmp_path: Path) -> None:
+    """With --json an error is also a lesmc-error document on stdout (exit 2), located."""
+    import jsonschema
+
+    from lesmc.schemas import schema
+
+    bad = tmp_path / "bad.lts"
+    bad.write_text('{"format": "lesmc-lts", "version": 1,\n  "states": [}')
+    r = lesmc("check", str(bad), str(TINY / "properties.spec"), "--json")
+    assert r.returncode == 2 and "Traceback" not in r.stderr
+    doc = json.loads(r.stdout)
+    jsonschema.validate(doc, schema("error"))
+    assert doc["exit"] == 2 and doc["error"]["file"] == str(bad)
+    assert doc["error"]["line"] == 2  # where the JSON breaks
+    r = lesmc("check", str(TINY / "model.lts"), str(TINY / "properties.spec"), "--json", "-x")
+    assert r.returncode == 2 and json.loads(r.stdout)["error"]["file"] is None
+
+
+def test_the_options_reference_is_what_the_command_line_declares() -> None:
+    """docs/cli-options.md lists every verb's options as click declares them (regenerate
+    with `python -m lesmc.cli.reference > docs/cli-options.md`)."""
+    import click
+
+    from lesmc.cli.main import cli
+    from lesmc.cli.reference import options_markdown
+
+    text = (ROOT / "docs" / "cli-options.md").read_text()
+    assert text == options_markdown()
+    ctx = click.Context(cli)
+    for name in cli.list_commands(ctx):  # every option of every verb is in the page
+        cmd = cli.get_command(ctx, name)
+        for p in cmd.params if cmd is not None else ():
+            for opt in getattr(p, "opts", []):
+                if opt.startswith("--") and opt != "--help":
+                    assert f"`{opt}`" in text, (name, opt)

@@ -17,20 +17,32 @@ from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
+import numpy as np
 from rich.console import Console
 
 from lesmc.build.probe import merged_detections
+from lesmc.build.unfold import original_end
 from lesmc.campaign.plan import Group, plan_units, scene_key
+from lesmc.campaign.work import run_group, scene_doc
 from lesmc.common.budget import Budget
 from lesmc.common.errors import InputError, Location, UsageError
 from lesmc.common.files import read_json
 from lesmc.common.progress import progress_bar
 from lesmc.designs import registry
 from lesmc.language.properties import SpecFile
+from lesmc.perception.quality import load_truth
 from lesmc.pipeline import certify
 from lesmc.pipeline.job import Certifier
 from lesmc.scene import Footage, footage_from_dict, save_scene, scene_to_dict
-from lesmc.tracking.targets import AutoTarget, TargetSpec, place_target
+from lesmc.tracking.targets import (
+    AutoTarget,
+    TargetSpec,
+    initiated_targets,
+    parse_target,
+    place_target,
+    rounded,
+)
+from lesmc.video import FPS
 
 #: Frames in the background median (as lesmc verify).
 HISTORY = 4
@@ -92,8 +104,6 @@ def fingerprint(paths: Iterable[Path]) -> str:
 def prepare(video: Video, out: Path, nets_dir: str | None = None) -> Prepared:
     """The video's scene: ``DIR/scenes/<name>.json`` if made from these frames, else perceived."""
     from lesmc.perception.to_scene import footage_from_run
-    from lesmc.scene import save_scene
-    from lesmc.video import FPS
     from lesmc.video.reader import open_frames
 
     path = out / "scenes" / f"{video.name}.json"
@@ -109,7 +119,6 @@ def prepare(video: Video, out: Path, nets_dir: str | None = None) -> Prepared:
             )
         footage, _ = footage_from_dict(doc, str(path))
         return Prepared(video, footage, doc, scene_key(doc), path)
-    from lesmc.perception.quality import load_truth
 
     truth = load_truth(str(video.truth)) if video.truth else None
     dt = (truth.dt if truth else None) or 1 / FPS
@@ -130,14 +139,13 @@ def prepare(video: Video, out: Path, nets_dir: str | None = None) -> Prepared:
 
 def perceive_video(video: Video, frames: Any, nets_dir: str | None) -> tuple[Any, Any]:
     """The perception run of a video's frames (detections, payoffs, N_dr windows) and the nets."""
-    from lesmc.common.progress import progress_bar
     from lesmc.perception.attacks import AttackConfig
     from lesmc.perception.cnn import load_nets
     from lesmc.perception.run import PerceiveOptions, perceive
 
     nets = load_nets(nets_dir)
     opts = PerceiveOptions(history=HISTORY, nets=nets, attack=AttackConfig())
-    with progress_bar(f"perceiving {video.name}", len(frames)) as bar:
+    with progress_bar("campaign", f"perceiving {video.name}", len(frames)) as bar:
         run = perceive(frames, opts, None, bar.advance)
     return run, nets
 
@@ -148,7 +156,6 @@ def perceive_video(video: Video, frames: Any, nets_dir: str | None) -> tuple[Any
 def same_detections(p: Prepared, run: Any, nets: Any) -> None:
     """A video perceived again must give its scene's detections and payoffs, with the
     networks its meta names, else the certified bounds would be of another network."""
-    import numpy as np
 
     from lesmc.perception.to_scene import footage_from_run
 
@@ -219,7 +226,7 @@ def _probes(p: Prepared, groups: list[Group]) -> dict[Group, list[certify.Probed
     """Per group, the probes of its units' widest windows, each within a unit's budget."""
     out: dict[Group, list[certify.Probed]] = {}
     n = sum(len(certify.widest({u.window for u in g.units})) for g in groups)
-    with progress_bar(f"what {p.video.name}'s models can hide", n) as bar:
+    with progress_bar("campaign", f"what {p.video.name}'s models can hide", n) as bar:
         for g in groups:
             scene = place_target(p.footage, g.target).with_tracker(design=g.tracker)
             budget = Budget(max_states=g.max_states, check_timeout=g.timeout)
@@ -248,7 +255,7 @@ def _certifier(p: Prepared, nets_dir: str | None, n: int) -> Certifier:
             f"{p.video.name}: certifying {n} detections (those the models can hide and the "
             "scene does not yet bound)"
         )
-        with progress_bar(f"certifying {p.video.name}", None) as bar:
+        with progress_bar("campaign", f"certifying {p.video.name}", None) as bar:
             return certify_on_demand(
                 nets, p.run, wanted, lambda done, total: bar.update(total=total, completed=done)
             )
@@ -264,9 +271,6 @@ def truth_targets(p: Prepared, window: tuple[int, int], horizon: int) -> list[Au
     each frame that leaves ``horizon`` steps, each vehicle once (at its earliest start), kept
     when the unattacked plain tracker, started on it from the scene, follows it through
     ``horizon``. Most neighbouring traffic first; ties by frame, then vehicle id."""
-    from lesmc.build.unfold import original_end
-    from lesmc.perception.quality import load_truth
-    from lesmc.tracking.targets import place_target, rounded
     from lesmc.verify.targets import follows, rank_targets
     from lesmc.video.reader import open_frames
 
@@ -300,7 +304,6 @@ def truth_targets(p: Prepared, window: tuple[int, int], horizon: int) -> list[Au
 
 def auto_targets(p: Prepared, windows: list[tuple[int, int]], use_truth: bool) -> list[AutoTarget]:
     """Ranked automatic targets: from the truth when there is one, else initiated tracks."""
-    from lesmc.tracking.targets import initiated_targets
 
     lo = min(w[0] for w in windows)
     hi = max(w[1] for w in windows)
@@ -313,7 +316,6 @@ def auto_targets(p: Prepared, windows: list[tuple[int, int]], use_truth: bool) -
 def file_targets(path: Path, videos: list[str]) -> dict[str, list[tuple[TargetSpec, Location]]]:
     """``--targets FILE``: one ``X,Y@STEP`` per line (``VIDEO X,Y@STEP`` with several videos);
     blank lines and ``#`` comments are skipped."""
-    from lesmc.tracking.targets import parse_target
 
     try:
         text = path.read_text(encoding="utf-8")
@@ -345,8 +347,6 @@ def check_file_target(
     p: Prepared, spec: TargetSpec, where: Location, windows: list[tuple[int, int]]
 ) -> None:
     """A file's target must be in the gate of a detection and tracked past every window."""
-    from lesmc.build.unfold import original_end
-    from lesmc.tracking.targets import place_target
 
     try:
         scene = place_target(p.footage, spec)
@@ -428,8 +428,6 @@ def execute(
     if not groups:
         return  # all done: no cluster to start
     if scheduler is None and workers == 0:
-        from lesmc.campaign.work import run_group
-
         for g in groups:
             on_rows(run_group(g, docs[g.scene_key]))
         return
@@ -440,7 +438,6 @@ def execute(
             "the campaign's parallel mode needs dask distributed: pip install 'dask[distributed]'"
             " (or run with --workers 0)"
         ) from None
-    from lesmc.campaign.work import run_group, scene_doc
 
     cluster = None
     if scheduler is None:

@@ -22,6 +22,7 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
+from lesmc.common.files import atomic_write_text
 from lesmc.designs import registry
 from lesmc.engines.result import status_word
 
@@ -351,7 +352,6 @@ def write_html(
     summary: dict[str, Any], figs: dict[str, bytes], out: Path, meta: dict[str, str]
 ) -> Path:
     """``DIR/campaign.html`` (self-contained) and ``DIR/figures/campaign_*.png``."""
-    from lesmc.common.files import atomic_write_text
 
     fig_dir = out / "figures"
     fig_dir.mkdir(parents=True, exist_ok=True)

@@ -81,7 +81,8 @@ def _cores() -> int:
     callback=finite_seconds,
     default=60.0,
     show_default=True,
-    help="Seconds per result (per payoff set with --payoffs interval); past it the result "
+    help="Seconds per result (with --payoffs interval: half for the certified search, the rest "
+    "for the attack's); past it the result "
     "is 'unknown' with the bounds found.",
 )
 @click.option(
@@ -190,7 +191,7 @@ def _videos(frames_dirs: tuple[str, ...], out: Path, no_truth: bool) -> list[Any
         if not default_video_ready(video):
             if video.exists() and any(video.iterdir()):
                 raise UsageError(f"{video} exists and is not the default video: use another --out")
-            with progress_bar("rendering", DEFAULT_VIDEO["frames"]) as bar:
+            with progress_bar("campaign", "rendering", DEFAULT_VIDEO["frames"]) as bar:
                 write_default_video(video, bar.advance)
         origin = (
             f"embedded default: lesmc synth {video} --seed {DEFAULT_VIDEO['seed']} "

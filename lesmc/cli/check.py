@@ -10,8 +10,8 @@ import click
 
 from lesmc.cli.options import (
     DEFAULT_MAX_STATES,
-    budget_from,
     RegistryChoice,
+    budget_from,
     budget_options,
     frames_option,
     payoffs_option,
@@ -96,7 +96,7 @@ def check_cmd(
 ) -> None:
     """Check the properties in SPEC files on MODEL (a .lts file) or on a SCENE (.json).
 
-    A scene's model is unfolded on the fly, once for every property (levels and
+    A scene's model is unfolded on the fly, once per tracker and payoff set (levels and
     bnb unfold only the states they visit, enumerate every state its paths
     reach); a budget stops every engine with 'unknown' and the bounds found.
 
@@ -121,6 +121,7 @@ def check_cmd(
     from lesmc.results.exit import exit_status
     from lesmc.scene import Scene
 
+    _hint_swapped(model, specs)
     parsed = tuple(load_spec(s) for s in specs)
     source = load_model_or_scene(model, target_text)
     is_scene = isinstance(source, Scene)
@@ -170,3 +171,12 @@ def _report(
         results.runs, report_dir, meta, provenance(parsed), frames_reader(frames_dir), timings
     )
     click.echo(f"report: {out}", err=True)
+
+
+def _hint_swapped(model: str, specs: tuple[str, ...]) -> None:
+    """``lesmc check SPEC MODEL``: say so before either file is read."""
+    if model.endswith(".spec") and any(s.endswith((".lts", ".json")) for s in specs):
+        raise UsageError(
+            f"MODEL '{model}' looks like a spec and a SPEC like a model: the order is "
+            "lesmc check MODEL|SCENE SPEC..."
+        )

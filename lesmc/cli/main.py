@@ -13,6 +13,7 @@ torch, cv2, ...) when it runs, inside :func:`main`'s handlers.
 
 from __future__ import annotations
 
+import json
 import os
 import sys
 import traceback
@@ -37,7 +38,7 @@ from lesmc.cli.signals import (
 from lesmc.cli.train import train_cmd
 from lesmc.cli.verify import verify_cmd
 from lesmc.cli.video import synth_cmd
-from lesmc.common.errors import BudgetError, LesmcError
+from lesmc.common.errors import BudgetError, LesmcError, Location
 from lesmc.results.exit import EXIT_INTERNAL, EXIT_INTERRUPTED, EXIT_UNKNOWN, EXIT_USAGE
 
 
@@ -134,6 +135,28 @@ def _internal_error(exc: BaseException) -> NoReturn:
     sys.exit(EXIT_INTERNAL)
 
 
+def _json_error(message: str, where: Location | None, code: int) -> None:
+    """With ``--json``: the error as a document on stdout too (format lesmc-error,
+    lesmc/schemas/error.json), so that a caller reading stdout learns why."""
+    doc = {
+        "format": "lesmc-error",
+        "version": 1,
+        "exit": code,
+        "error": {
+            "message": message,
+            "file": None if where is None else where.path,
+            "line": None if where is None else where.line,
+            "column": None if where is None else where.column,
+            "item": None if where is None else where.item,
+        },
+    }
+    try:
+        sys.stdout.write(json.dumps(doc, indent=1) + "\n")
+        sys.stdout.flush()
+    except BrokenPipeError:
+        pass
+
+
 def main(argv: list[str] | None = None) -> None:
     """Console entry point: every way out of lesmc maps to a documented exit status.
 
@@ -146,6 +169,7 @@ def main(argv: list[str] | None = None) -> None:
 
 
 def _main(argv: list[str] | None) -> None:
+    as_json = "--json" in (sys.argv[1:] if argv is None else argv)
     try:
         cli.main(args=argv, prog_name="lesmc", standalone_mode=False)
     except click.exceptions.Abort as exc:
@@ -162,15 +186,24 @@ def _main(argv: list[str] | None) -> None:
         sys.exit(exc.exit_status)
     except DeadlinePassed:
         sys.stderr.write(DEADLINE_MESSAGE)
+        if as_json:
+            _json_error(DEADLINE_MESSAGE.removeprefix("error: ").strip(), None, EXIT_UNKNOWN)
         sys.exit(EXIT_UNKNOWN)
     except click.ClickException as exc:
         exc.show()
-        sys.exit(EXIT_USAGE if exc.exit_code != 0 else 0)
+        code = EXIT_USAGE if exc.exit_code != 0 else 0
+        if as_json and code:
+            _json_error(exc.format_message(), None, code)
+        sys.exit(code)
     except BudgetError as exc:
         sys.stderr.write(exc.render() + "\n")
+        if as_json:
+            _json_error(exc.message, exc.location, EXIT_UNKNOWN)
         sys.exit(EXIT_UNKNOWN)
     except LesmcError as exc:
         sys.stderr.write(exc.render() + "\n")
+        if as_json:
+            _json_error(exc.message, exc.location, EXIT_USAGE)
         sys.exit(EXIT_USAGE)
     except click.exceptions.Exit as exc:
         sys.exit(exc.exit_code)

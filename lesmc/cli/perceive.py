@@ -183,7 +183,7 @@ def perceive_cmd(
         radius=radius,
         min_speed=min_speed,
     )
-    with progress_bar("perceiving", len(frames)) as bar:
+    with progress_bar("perceive", "perceiving", len(frames)) as bar:
         run = perceive(frames, opts, truths, bar.advance)
     written: dict[str, Any] | None = None  # the scene written, for --json
     if output is not None and nets is not None and att is not None:

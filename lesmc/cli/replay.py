@@ -13,7 +13,7 @@ from lesmc.common.errors import UsageError
 @click.command("replay")
 @click.argument("results", type=click.Path(dir_okay=False, exists=True))
 @frames_option(
-    "The video's frames (the results' run was made from them; read from nowhere else) "
+    "The video's frames (the results' run was made from them) "
     "[default: the frames results.json names]."
 )
 @click.option(
@@ -56,7 +56,7 @@ def replay_cmd(
             "replay runs the detector on the video: give its frames with --frames DIR (the "
             "results file does not name them)"
         )
-    with progress_bar("replaying", None) as bar:
+    with progress_bar("replay", "replaying", None) as bar:
         outcome = replay_file(doc, frames_dir, nets_dir, prop, bar)
     rows, verdicts = verdict_rows(doc, outcome, prop)
     if as_json:

@@ -51,7 +51,7 @@ class DeadlinePassed(BaseException):
 
 
 #: Seconds past ``--timeout`` after which the alarm stops the command whatever it does.
-HARD_GRACE = 0.3
+HARD_GRACE = 0.4
 
 
 def _deadline(_signum: int, _frame: FrameType | None) -> None:

@@ -97,7 +97,7 @@ def train_cmd(
         epochs_dr=epochs or TrainConfig.epochs_dr,
         epochs_lp=epochs or TrainConfig.epochs_lp,
     )
-    with progress_bar("training", None) as bar:
+    with progress_bar("train", "training", None) as bar:
 
         def progress(stage: str, done: int, total: int) -> None:
             bar.update(description=stage, completed=done, total=total)

@@ -66,7 +66,7 @@ def synth_cmd(
     cfg = SynthConfig(
         frames=frames, width=w, height=h, seed=seed, density=density, depth=16 if tiff16 else 8
     )
-    with progress_bar("rendering", frames) as bar:
+    with progress_bar("synth", "rendering", frames) as bar:
         paths = write_video(cfg, Path(out_dir), progress=bar.advance)
     say(f"wrote {len(paths)} frames ({w}x{h}) and truth.json to {escape_control(out_dir)}", as_json)
     if as_json:

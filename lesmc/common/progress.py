@@ -162,7 +162,7 @@ class Reporter:
 
 
 @contextmanager
-def progress_bar(label: str, total: int | None) -> Iterator[Bar]:
-    """A counted stage of its own (a reporter for one bar)."""
-    with Reporter(label) as rep, rep.bar(label, total) as bar:
+def progress_bar(verb: str, label: str, total: int | None) -> Iterator[Bar]:
+    """A counted stage ``label`` of command ``verb`` (a reporter for one bar)."""
+    with Reporter(verb) as rep, rep.bar(label, total) as bar:
         yield bar

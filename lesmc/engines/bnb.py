@@ -119,38 +119,18 @@ def _optimum(
 
     def push(lab: _Label) -> None:
         nonlocal tick, upper, incumbent
-        q = lab.q
-        if lab.complete or space.is_leaf(q):
-            if not lab.complete:
-                to, tc = space.tail(q)
-                lab = _Label(
-                    space.agg(obj_mx, lab.obj, to),
-                    space.agg(con_mx, lab.con, tc),
-                    q,
-                    lab.parent,
-                    lab.t,
-                    True,
-                )
+        if lab.complete or space.is_leaf(lab.q):
+            lab = _completed(space, lab)
             if not space.violates(lab.con):
                 return  # in P−: phase 2's business
             if lab.obj < upper:
                 upper, incumbent = lab.obj, lab
             key = lab.obj
         else:
-            if b is not None:
-                if not b.alive[q]:
-                    return
-                if con_up:
-                    reach = _hi(space.agg(con_mx, lab.con, b.con_max[q]))
-                else:
-                    reach = _lo(space.agg(con_mx, lab.con, b.con_min[q]))
-                if not space.violates(reach):
-                    return  # no completion can violate
-                key = _lo(space.agg(obj_mx, lab.obj, b.obj_min[q]))
-            else:
-                key = lab.obj
-            if key > upper:
+            bound = lab.obj if b is None else _bound_key(space, b, lab)
+            if bound is None or bound > upper:
                 return
+            key = bound
         tick += 1
         heapq.heappush(heap, (key, tick, lab))
 
@@ -184,6 +164,36 @@ def _optimum(
 #: Relative slack on suffix bounds: they are summed in another order than a path's own
 #: value, so rounding may differ in the last bits; a looser bound stays exact.
 _SLACK = 1e-9
+
+
+def _completed(space: SearchSpace, lab: _Label) -> _Label:
+    """A label at a leaf with the rest of its path (the unattacked tail) added."""
+    if lab.complete:
+        return lab
+    to, tc = space.tail(lab.q)
+    return _Label(
+        space.agg(space.obj_max, lab.obj, to),
+        space.agg(space.con_max, lab.con, tc),
+        lab.q,
+        lab.parent,
+        lab.t,
+        True,
+    )
+
+
+def _bound_key(space: SearchSpace, b: Bounds, lab: _Label) -> float | None:
+    """The least objective any completion of ``lab`` can reach (its heap key), or None
+    when no completion can violate the constraint (or the state is dead)."""
+    q = lab.q
+    if not b.alive[q]:
+        return None
+    if space.con_up:
+        reach = _hi(space.agg(space.con_max, lab.con, b.con_max[q]))
+    else:
+        reach = _lo(space.agg(space.con_max, lab.con, b.con_min[q]))
+    if not space.violates(reach):
+        return None
+    return _lo(space.agg(space.obj_max, lab.obj, b.obj_min[q]))
 
 
 def _lo(x: float) -> float:

@@ -60,82 +60,106 @@ def bind(
     spec: SpecFile, prop: Property, e: int, components: tuple[str, ...], has_covariance: bool
 ) -> BoundProperty:
     """Resolve ``prop`` against a model with steps 0..e and the given components."""
-
-    def fail(message: str, pos: Pos) -> SpecError:
-        return SpecError(
-            message, Location(spec.path, pos.line, pos.column, source_line(spec.text, pos.line))
-        )
-
-    cpos = prop.clause_pos
-    end = e if prop.end is None else prop.end
-    if end > e:
-        raise fail(
-            f"end {end} is beyond the model's original path, which ends at step {e}", cpos["end"]
-        )
-    l, u_ref = prop.window
-    u = end if u_ref is None else u_ref
-    if l < 1:
-        raise fail(
-            "the attack window must start at step 1 or later (step 0 has no incoming "
-            "transition to attack)",
-            cpos["window"],
-        )
-    if not l <= u <= end:
-        raise fail(
-            f"attack window {l}..{u} must satisfy 1 <= l <= u <= end = {end}", cpos["window"]
-        )
-
-    def measure(m: Measure) -> BoundMeasure:
-        if m.kind == "payoff":
-            weight = 1.0 / (u - l + 1) if m.aggregate == "mean" else 1.0
-            return BoundMeasure("payoff", "sum", l, u, weight, m.text())
-        lo, hi = _resolve(m.lo, end), _resolve(m.hi, end)
-        if lo > hi:
-            raise fail(f"empty step range {lo}..{hi}", m.pos)
-        if hi > end:
-            raise fail(f"step {hi} is beyond end = {end}", m.pos)
-        agg = "sum" if m.aggregate in ("sum", "at") else "max"
-        return BoundMeasure("dist", agg, lo, hi, 1.0, m.text())
-
-    def indices(names: tuple[str, ...] | None, pos: Pos) -> tuple[int, ...]:
-        if names is None:
-            return tuple(range(len(components)))
-        for n in names:
-            if n not in components:
-                raise fail(f"unknown component '{n}'; the model has {', '.join(components)}", pos)
-        return tuple(components.index(n) for n in names)
-
-    monitor_idx = None
-    tol = 0.0
-    if prop.monitor is not None:
-        if not has_covariance:
-            raise fail(
-                "'monitor uncertainty' needs the covariance P in every model state",
-                prop.monitor.pos,
-            )
-        names = prop.monitor.components
-        if names is None and all(c in components for c in LOCATION_COMPONENTS):
-            names = LOCATION_COMPONENTS
-        monitor_idx = indices(names, prop.monitor.pos)
-        tol = prop.monitor.tolerance
+    l, u, end = _window(spec, prop, e)
+    monitor_idx, tol = _monitor(spec, prop, components, has_covariance)
     if not math.isfinite(prop.threshold) or not math.isfinite(prop.constraint.threshold):
-        raise fail("thresholds must be finite", prop.pos)  # the parser already refuses these
+        raise _fail(spec, "thresholds must be finite", prop.pos)  # the parser refuses these
+    on = prop.clause_pos.get("on", prop.pos)
     return BoundProperty(
         prop=prop,
         l=l,
         u=u,
         end=end,
-        objective=measure(prop.objective),
-        constraint=measure(prop.constraint.measure),
+        objective=_measure(spec, prop.objective, l, u, end),
+        constraint=_measure(spec, prop.constraint.measure, l, u, end),
         op=prop.constraint.op,
         bound=prop.constraint.threshold,
         norm=prop.norm,
-        components=indices(prop.components, cpos.get("on", prop.pos)),
+        components=_indices(spec, prop.components, on, components),
         monitor_components=monitor_idx,
         monitor_tolerance=tol,
         monitor_except_original=prop.monitor is not None and prop.monitor.except_original,
         spec=spec.path,
     )
+
+
+def _fail(spec: SpecFile, message: str, pos: Pos) -> SpecError:
+    """An error at ``pos`` of the spec file, with its line shown."""
+    return SpecError(
+        message, Location(spec.path, pos.line, pos.column, source_line(spec.text, pos.line))
+    )
+
+
+def _window(spec: SpecFile, prop: Property, e: int) -> tuple[int, int, int]:
+    """The attack window l..u and the end: 1 <= l <= u <= end <= e (section 4)."""
+    cpos = prop.clause_pos
+    end = e if prop.end is None else prop.end
+    if end > e:
+        raise _fail(
+            spec,
+            f"end {end} is beyond the model's original path, which ends at step {e}",
+            cpos["end"],
+        )
+    l, u_ref = prop.window
+    u = end if u_ref is None else u_ref
+    if l < 1:
+        raise _fail(
+            spec,
+            "the attack window must start at step 1 or later (step 0 has no incoming "
+            "transition to attack)",
+            cpos["window"],
+        )
+    if not l <= u <= end:
+        raise _fail(
+            spec, f"attack window {l}..{u} must satisfy 1 <= l <= u <= end = {end}", cpos["window"]
+        )
+    return l, u, end
+
+
+def _measure(spec: SpecFile, m: Measure, l: int, u: int, end: int) -> BoundMeasure:
+    """A measure with its steps resolved: payoffs over the window, deviations over lo..hi."""
+    if m.kind == "payoff":
+        weight = 1.0 / (u - l + 1) if m.aggregate == "mean" else 1.0
+        return BoundMeasure("payoff", "sum", l, u, weight, m.text())
+    lo, hi = _resolve(m.lo, end), _resolve(m.hi, end)
+    if lo > hi:
+        raise _fail(spec, f"empty step range {lo}..{hi}", m.pos)
+    if hi > end:
+        raise _fail(spec, f"step {hi} is beyond end = {end}", m.pos)
+    agg = "sum" if m.aggregate in ("sum", "at") else "max"
+    return BoundMeasure("dist", agg, lo, hi, 1.0, m.text())
+
+
+def _indices(
+    spec: SpecFile, names: tuple[str, ...] | None, pos: Pos, components: tuple[str, ...]
+) -> tuple[int, ...]:
+    """The model's indices of the named components (all of them when none are named)."""
+    if names is None:
+        return tuple(range(len(components)))
+    for n in names:
+        if n not in components:
+            raise _fail(
+                spec, f"unknown component '{n}'; the model has {', '.join(components)}", pos
+            )
+    return tuple(components.index(n) for n in names)
+
+
+def _monitor(
+    spec: SpecFile, prop: Property, components: tuple[str, ...], has_covariance: bool
+) -> tuple[tuple[int, ...] | None, float]:
+    """The monitor's components (default: the location x, y) and tolerance (Eq. 12-13)."""
+    if prop.monitor is None:
+        return None, 0.0
+    if not has_covariance:
+        raise _fail(
+            spec,
+            "'monitor uncertainty' needs the covariance P in every model state",
+            prop.monitor.pos,
+        )
+    names = prop.monitor.components
+    if names is None and all(c in components for c in LOCATION_COMPONENTS):
+        names = LOCATION_COMPONENTS
+    return _indices(spec, names, prop.monitor.pos, components), prop.monitor.tolerance
 
 
 def _resolve(ref: StepRef, end: int) -> int:

@@ -594,18 +594,7 @@ def _search(
     nb = len(x)
     z0 = _centre(chain, x)
     f0 = margin_of(chain, x)
-    dist = flip_distances(chain, z0).double()
-    levels = [max(cfg.level - cfg.spread, 0.0), cfg.level, min(cfg.level + cfg.spread, 1.0)]
-    nearer, start, further = torch.quantile(
-        dist, torch.tensor(levels, dtype=torch.float64), dim=1
-    ).clamp(min=1e-6)
-    grow = (further / start).clamp(min=1.05)
-    shrink = (start / nearer).clamp(min=1.5)
-    cap = torch.full((nb,), math.inf, dtype=torch.float64)
-    if upper is not None:
-        u = torch.from_numpy(upper)
-        cap = torch.where(torch.isfinite(u) & (u > 0), u, cap)
-    r = torch.minimum(start, cfg.seed * cap)
+    r, grow, shrink, cap = _start(chain, z0, upper, cfg)
     best = torch.zeros(nb, dtype=torch.float64)
     r_ok = torch.zeros(nb, dtype=torch.float64)
     r_bad = torch.full((nb,), math.inf, dtype=torch.float64)
@@ -653,6 +642,28 @@ def _search(
         live[idx] = ~(ok & (ri >= cap[idx])) & ~(bracketed & (hi - lo <= 0.02 * hi))
     result: np.ndarray = (best * (1 - SAFETY)).numpy()
     return result
+
+
+def _start(
+    chain: Chain, z0: torch.Tensor, upper: np.ndarray | None, cfg: CertifyConfig
+) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor]:
+    """Per window: the first radius (the ``cfg.level``-quantile of the first layer's flip
+    distances, at most ``cfg.seed`` times the attack's payoff), the factors to grow and
+    shrink it by until a bracket is found, and the cap (the attack's payoff)."""
+    nb = len(z0)
+    dist = flip_distances(chain, z0).double()
+    levels = [max(cfg.level - cfg.spread, 0.0), cfg.level, min(cfg.level + cfg.spread, 1.0)]
+    nearer, start, further = torch.quantile(
+        dist, torch.tensor(levels, dtype=torch.float64), dim=1
+    ).clamp(min=1e-6)
+    grow = (further / start).clamp(min=1.05)
+    shrink = (start / nearer).clamp(min=1.5)
+    cap = torch.full((nb,), math.inf, dtype=torch.float64)
+    if upper is not None:
+        u = torch.from_numpy(upper)
+        cap = torch.where(torch.isfinite(u) & (u > 0), u, cap)
+    r = torch.minimum(start, cfg.seed * cap)
+    return r, grow, shrink, cap
 
 
 def _where(keep: torch.Tensor, t: torch.Tensor, other: float) -> torch.Tensor:

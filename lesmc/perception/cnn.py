@@ -22,6 +22,7 @@ from torch import nn
 
 from lesmc.common.errors import InputError, Location, Problems
 from lesmc.common.files import read_json
+from lesmc.perception.threads import fit_torch_threads
 from lesmc.perception.windows import M_PREVIOUS
 
 DR_SIZE = 21
@@ -164,6 +165,7 @@ def load_nets(directory: str | Path | None = None) -> Nets:
     if not meta_path.is_file():
         raise InputError("not a lesmc network directory (no nets.json)", Location(str(d)))
     settings = nets_settings(read_json(meta_path, InputError), str(meta_path))
+    fit_torch_threads()  # threads that fit the free cores (lesmc/perception/threads.py)
     dr, lp = DetectNet(settings.m + 1), LocateNet(settings.m + 1)
     for net, name in ((dr, "dr.safetensors"), (lp, "lp.safetensors")):
         try:

@@ -22,6 +22,7 @@ import torch
 from scipy.spatial import cKDTree
 from torch import nn
 
+from lesmc.common.errors import UsageError
 from lesmc.perception.cnn import (
     DR_SIZE,
     LP_OUT,
@@ -110,8 +111,6 @@ def collect(
         try:
             out = fe.push(img)
         except RegistrationError as exc:
-            from lesmc.common.errors import UsageError
-
             raise UsageError(
                 f"training video {seed} ({cfg.width}x{cfg.height}): frame {k} cannot be "
                 f"registered ({exc}); use a larger --size"
@@ -290,8 +289,6 @@ def train(cfg: TrainConfig, progress: Progress | None = None) -> tuple[Nets, Val
         collect(cfg, seed, tr, rng, progress)
     x, y, lx, ly = tr.arrays()
     if not (0 < int(y.sum()) < len(y)) or not len(lx):
-        from lesmc.common.errors import UsageError
-
         raise UsageError(
             f"the training videos ({cfg.frames} frames of {cfg.width}x{cfg.height}) gave "
             f"{int(y.sum())} vehicle and {len(y) - int(y.sum())} background windows: both "

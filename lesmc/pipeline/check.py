@@ -255,7 +255,17 @@ def _spent(budget: Budget, model: GrowingModel, stage: str) -> None:
 def _not_replayed(r: CheckResult) -> CheckResult:
     """A violation found on the model of a perceived scene: its counterexample is a claim
     about the model until it is replayed through the detector (docs/semantics.md, "Replay")."""
-    return replace(r, replay="not replayed") if r.verdict == "violated" else r
+    if r.verdict != "violated":
+        return r
+    return replace(r, replay="not replayed", notes=[*r.notes, NOT_REPLAYED_NOTE])
+
+
+#: The hint of a counterexample on a perceived scene that no replay has confirmed yet.
+NOT_REPLAYED_NOTE = (
+    "violated (not replayed): the counterexample is the model's; to run it through the "
+    "real detector and tracker use `lesmc verify --scene SCENE --frames VIDEO/` (or "
+    "`lesmc replay RESULTS.json` on verify's results)"
+)
 
 
 def _design_run(

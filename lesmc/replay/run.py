@@ -43,8 +43,12 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from lesmc.common.errors import InputError, Location, UsageError
+from lesmc.designs.registry import make_tracker
 from lesmc.engines.result import status_word
 from lesmc.model import kernel
+from lesmc.perception.windows import cut, origins, stack
+from lesmc.scene import Detection, Frame, Scene, Target, TrackerConfig
+from lesmc.tracking.monitor import track
 
 if TYPE_CHECKING:
     from lesmc.common.progress import Bar
@@ -206,7 +210,6 @@ def _apply(
 ) -> list[np.ndarray]:
     """The detector inputs (0..255 floats) with window perturbations (pixel scale [0, 1]) added
     at the pixels :func:`lesmc.perception.windows.cut` took them from; clipped to [0, 255]."""
-    from lesmc.perception.windows import origins
 
     out = [s.astype(np.float64, copy=True) for s in stack]
     h, w = out[0].shape
@@ -293,7 +296,6 @@ def attack_frame(
     """Recompute the hidden detections' perturbations, apply them together, detect again."""
     from lesmc.perception.attacks import payoffs
     from lesmc.perception.cnn import DR_SIZE
-    from lesmc.perception.windows import stack
 
     m = nets.settings.m
     idx = [int(h.obs.split(":")[1]) for h in hidden]
@@ -343,10 +345,33 @@ def attack_frame(
     inputs = _apply(base, centres, deltas, DR_SIZE)
     after, kept = _redetect(det, out, inputs, m)
     _diagnose(fa, fd, after, idx)
+    if repair:
+        after = _repair(nets, det, out, fd, fa, idx, inputs, after, kept, cfg)
+    fa.detections = after
+    return fa
+
+
+def _repair(
+    nets: Nets,
+    det: Detector,
+    out: FrontEndOutput,
+    fd: FrameDetections,
+    fa: FrameAttack,
+    idx: list[int],
+    inputs: list[np.ndarray],
+    after: FrameDetections,
+    kept: np.ndarray,
+    cfg: AttackConfig,
+) -> FrameDetections:
+    """The repaired attack: hide, jointly with the frame's perturbation, every detection the
+    model does not have (hidden ones that survive, extra ones), up to REPAIR_ROUNDS times;
+    the detections after it (``fa`` records the rounds and the extra cost)."""
+    from lesmc.perception.attacks import payoffs
+    from lesmc.perception.cnn import DR_SIZE
+
+    m = nets.settings.m
     rounds = 0
-    while repair and (fa.still or fa.extra) and rounds < REPAIR_ROUNDS:
-        # the repaired attack: hide, jointly with the frame's perturbation, every detection
-        # the model does not have (hidden ones that survive, extra ones)
+    while (fa.still or fa.extra) and rounds < REPAIR_ROUNDS:
         rounds += 1
         unwanted = _unwanted(fd, after, idx)
         rows = sorted({int(after.source[j]) for j in unwanted})
@@ -360,8 +385,7 @@ def attack_frame(
         after, kept = _redetect(det, out, inputs, m)
         _diagnose(fa, fd, after, idx)
     fa.repaired_rounds = rounds
-    fa.detections = after
-    return fa
+    return after
 
 
 def _unwanted(fd: FrameDetections, after: FrameDetections, hidden_idx: list[int]) -> list[int]:
@@ -375,7 +399,6 @@ def _accepted(det: Detector, out: FrontEndOutput) -> np.ndarray:
     """Rows of Q_bc that N_dr accepts (in the order of ``FrameDetections.windows``)."""
     from lesmc.perception.cnn import DR_SIZE
     from lesmc.perception.detector import dr_probability
-    from lesmc.perception.windows import cut, stack
 
     nets = det.nets
     frames = stack(out.frame, out.aligned.frames, nets.settings.m)
@@ -425,7 +448,6 @@ def _diagnose(
 
 def _footage(dets: dict[int, FrameDetections], case: Case, attacked: dict[int, FrameDetections]):  # type: ignore[no-untyped-def]
     """The scene of the replayed detections (attacked frames replaced), the case's tracker."""
-    from lesmc.scene import Detection, Frame, Scene, Target, TrackerConfig
 
     steps = sorted(dets)
     frames = []
@@ -625,8 +647,6 @@ def _replay_case(
     """One counterexample: the tracker on the frames' detections with the attacked frames'
     ones, compared with the model's path; a repaired attack that costs enough for the
     property to hold (Eq. 5 + the repair) is no counterexample."""
-    from lesmc.designs.registry import make_tracker
-    from lesmc.tracking.monitor import track
 
     first = c.first_frame
     dets = {k: v for k, v in clean.items() if first <= k <= first + len(c.positions) - 1}

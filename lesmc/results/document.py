@@ -21,6 +21,7 @@ import platform
 import sys
 from collections.abc import Sequence
 from datetime import UTC, datetime
+from importlib.metadata import PackageNotFoundError, version
 from typing import Any
 
 import numpy as np
@@ -71,7 +72,6 @@ def provenance(
     seeds: dict[str, Any] | None = None,
 ) -> dict[str, Any]:
     """Who made a results file, how and when: tool version, command line, date, specs."""
-    from importlib.metadata import PackageNotFoundError, version
 
     try:
         tool = version("lesmc")

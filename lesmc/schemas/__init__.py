@@ -34,6 +34,7 @@ SCHEMAS = {
     "lesmc-campaign-summary": "campaign-summary",
     "lesmc-campaign-row": "campaign-row",
     "lesmc-replay": "replay",
+    "lesmc-error": "error",
 }
 
 

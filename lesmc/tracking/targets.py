@@ -26,6 +26,7 @@ from lesmc.scene import Footage, Scene, Target, footage_from_dict
 from lesmc.tracking.association import gate_mask
 from lesmc.tracking.design import Batch
 from lesmc.tracking.kalman import innovation, matrices, warp
+from lesmc.tracking.single import SingleDesign
 
 #: A detection this close (px) to the given position is the target's own detection.
 SNAP_PX = 6.0
@@ -172,7 +173,6 @@ def initiated_targets(
     kept. Ranked by the traffic around them in ``window`` (model steps), most
     first; ties by frame, then position.
     """
-    from lesmc.tracking.single import SingleDesign
 
     found: dict[tuple[int, int], AutoTarget] = {}
     order: list[tuple[int, int, float, float, tuple[int, int]]] = []

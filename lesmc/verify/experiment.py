@@ -19,6 +19,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from lesmc.build.unfold import original_end
 from lesmc.common.budget import Budget
 from lesmc.common.errors import BudgetError, LesmcError, UsageError
 from lesmc.common.files import json_text
@@ -26,11 +27,16 @@ from lesmc.common.progress import Reporter
 from lesmc.designs import registry
 from lesmc.language.parser import load_spec
 from lesmc.language.properties import SpecFile
+from lesmc.perception.quality import load_truth
 from lesmc.pipeline.check import run as run_job
 from lesmc.pipeline.job import Certifier, Job, PayoffMode
+from lesmc.replay.run import apply, cases, replay
 from lesmc.results.document import provenance, results_document
 from lesmc.results.record import Results
 from lesmc.scene import Scene, scene_to_dict
+from lesmc.tracking.targets import check_target, load_scene_with_target, parse_target
+from lesmc.verify.false_alarms import false_alarm_report, truth_track
+from lesmc.video import FPS
 
 if TYPE_CHECKING:  # reading frames imports cv2: only where a video is read
     from lesmc.video.reader import FrameSet
@@ -137,7 +143,6 @@ def verify(req: Request, rep: Reporter) -> Outcome:
 
 def _scene_file(req: Request) -> _Source:
     """A scene from ``lesmc perceive -o``; frames only from the directory named."""
-    from lesmc.tracking.targets import load_scene_with_target
 
     if req.frames_dir is not None:
         raise UsageError("give FRAMES_DIR or --scene, not both")
@@ -161,12 +166,9 @@ def _perceived(req: Request, specs: list[SpecFile], rep: Reporter) -> _Source:
     """The scene of a video: rendered (the default), perceived, its target placed or chosen."""
     from lesmc.perception.attacks import AttackConfig
     from lesmc.perception.cnn import load_nets
-    from lesmc.perception.quality import load_truth
     from lesmc.perception.run import PerceiveOptions, perceive
     from lesmc.perception.to_scene import footage_from_run
-    from lesmc.tracking.targets import check_target, parse_target
     from lesmc.verify.targets import auto_target, target_scene
-    from lesmc.video import FPS
 
     if req.scene_frames is not None:
         raise UsageError("--frames goes with --scene; a video is given as FRAMES_DIR")
@@ -246,7 +248,6 @@ def _target_text(scene: Scene) -> str:
 
 def check_window(scene: Scene, window: tuple[int, int]) -> None:
     """``--window`` against the unattacked track's length, before any model is built."""
-    from lesmc.build.unfold import original_end
 
     e = original_end(scene)
     if not 1 <= window[0] <= window[1] <= e:
@@ -334,7 +335,6 @@ def _truth_facts(
     every truth track (lesmc/verify/false_alarms.py)."""
     if src.frames is None or src.truth is None:
         return None, {}
-    from lesmc.verify.false_alarms import false_alarm_report, truth_track
 
     scene = src.scene
     tfs = [src.truth.frames.get(p.name) for p in src.frames.paths[scene.target.step :]]
@@ -370,7 +370,7 @@ def _perception_facts(req: Request, src: _Source, results: Results) -> dict[str,
         "payoffs": req.payoffs,
     }
     if src.frames is not None and src.frames.paths:
-        out["frames"] = str(src.frames.paths[0].parent)
+        out["frames"] = str(src.frames.paths[0].parent.resolve())
     if results.certified is not None:  # this run's certification (a --scene keeps its own)
         out["certified"] = results.certified
     return out
@@ -386,7 +386,6 @@ def _replay(
 ) -> None:
     """Replay every violated property through the real detector (lesmc/replay); the
     results and the document record what each replay found."""
-    from lesmc.replay.run import apply, cases, replay
 
     if not cases(doc) or src.frames is None or src.nets is None:
         return
