@@ -37,10 +37,22 @@ def document(r: subprocess.CompletedProcess[str], fmt: str) -> dict[str, Any]:
 
 
 def refused(r: subprocess.CompletedProcess[str], *words: str) -> None:
+    """Exit 2 with the reason on stderr; on stdout nothing, or with --json the same reason
+    as a lesmc-error document."""
     assert r.returncode == 2, r.stdout + r.stderr
-    assert "Traceback" not in r.stderr and r.stdout == ""
+    assert "Traceback" not in r.stderr
+    assert no_result_on_stdout(r, "--json" in r.args)
     for w in words:
         assert w in r.stderr, r.stderr
+
+
+def no_result_on_stdout(r: subprocess.CompletedProcess[str], as_json: bool) -> bool:
+    """Nothing on stdout; with --json only the error document (format lesmc-error)."""
+    if not as_json:
+        return r.stdout == ""
+    doc = json.loads(r.stdout)
+    jsonschema.validate(doc, schema("error"))
+    return bool(doc["exit"] == r.returncode and doc["error"]["message"] in r.stderr)
 
 
 def test_every_verb_has_json() -> None:
@@ -285,7 +297,8 @@ def test_build_with_a_spent_deadline_writes_nothing(tmp_path: Path) -> None:
         "build", str(SCENES / "rq4_merge.json"), "--window", "2..6", "-o", str(out),
         "--timeout", "1e-9", "--json",
     )  # fmt: skip
-    assert r.returncode == 3 and r.stdout == "" and "nothing was written" in r.stderr
+    assert r.returncode == 3 and "nothing was written" in r.stderr
+    assert no_result_on_stdout(r, "--json" in r.args)
     assert list(tmp_path.iterdir()) == []
 
 
@@ -294,7 +307,8 @@ def test_verify_with_a_spent_deadline_stops_before_any_work(tmp_path: Path) -> N
     directory created, nothing on stdout."""
     out = tmp_path / "o"
     r = lesmc("verify", "--out", str(out), "--timeout", "1e-9", "--json")
-    assert r.returncode == 3 and r.stdout == "" and "Traceback" not in r.stderr, r.stderr
+    assert r.returncode == 3 and "Traceback" not in r.stderr, r.stderr
+    assert no_result_on_stdout(r, "--json" in r.args)
     assert "--timeout" in r.stderr and "nothing was written" in r.stderr
     assert not out.exists()
 

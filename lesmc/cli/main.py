@@ -29,6 +29,7 @@ from lesmc.cli.reduce import reduce_group
 from lesmc.cli.replay import replay_cmd
 from lesmc.cli.report import report_cmd
 from lesmc.cli.signals import (
+    DEADLINE_DOCUMENT,
     DEADLINE_MESSAGE,
     DeadlinePassed,
     Terminated,
@@ -187,7 +188,7 @@ def _main(argv: list[str] | None) -> None:
     except DeadlinePassed:
         sys.stderr.write(DEADLINE_MESSAGE)
         if as_json:
-            _json_error(DEADLINE_MESSAGE.removeprefix("error: ").strip(), None, EXIT_UNKNOWN)
+            sys.stdout.write(DEADLINE_DOCUMENT)
         sys.exit(EXIT_UNKNOWN)
     except click.ClickException as exc:
         exc.show()

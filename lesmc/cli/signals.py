@@ -16,6 +16,7 @@ the handlers before the command line's modules are imported.
 
 from __future__ import annotations
 
+import json
 import os
 import select
 import signal
@@ -51,7 +52,7 @@ class DeadlinePassed(BaseException):
 
 
 #: Seconds past ``--timeout`` after which the alarm stops the command whatever it does.
-HARD_GRACE = 0.4
+HARD_GRACE = 0.8
 
 
 def _deadline(_signum: int, _frame: FrameType | None) -> None:
@@ -76,6 +77,26 @@ def arm_deadline(seconds: float) -> Callable[[], None]:
 #: What a command stopped by the alarm or the watchdog prints (then exit 3).
 DEADLINE_MESSAGE = (
     "error: --timeout ran out in work that could not stop sooner; nothing was written\n"
+)
+
+#: :data:`DEADLINE_MESSAGE` as the ``--json`` error document (lesmc/schemas/error.json).
+DEADLINE_DOCUMENT = (
+    json.dumps(
+        {
+            "format": "lesmc-error",
+            "version": 1,
+            "exit": 3,
+            "error": {
+                "message": DEADLINE_MESSAGE.removeprefix("error: ").strip(),
+                "file": None,
+                "line": None,
+                "column": None,
+                "item": None,
+            },
+        },
+        indent=1,
+    )
+    + "\n"
 )
 
 #: Seconds past the alarm of :func:`arm_deadline` at which :func:`native_deadline`'s
@@ -143,6 +164,8 @@ def _watchdog(read_end: int, write_end: int, hard: float) -> None:  # pragma: no
         ready, _, _ = select.select([read_end], [], [], max(0.0, hard - time.monotonic()))
         if not ready:
             os.write(2, DEADLINE_MESSAGE.encode())
+            if "--json" in sys.argv[1:]:  # the error document of lesmc/cli/main.py
+                os.write(1, DEADLINE_DOCUMENT.encode())
             os.kill(os.getppid(), signal.SIGQUIT)
     finally:
         os._exit(0)

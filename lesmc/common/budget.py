@@ -175,6 +175,13 @@ class SearchBudget:
         self.used = 0
         self._checks = 0
 
+    def would_pass(self, seconds: float) -> str | None:
+        """``timeout`` when work of ``seconds`` started now would end past the deadline
+        (work that cannot look at the clock while it runs), else None."""
+        if self.deadline is not None and time.perf_counter() + seconds > self.deadline:
+            return "timeout"
+        return None
+
     def over(self, more: int = 0) -> str | None:
         """Why the search must stop with ``more`` expansions counted (``max_states``,
         ``timeout``, ``max_memory``), or None."""

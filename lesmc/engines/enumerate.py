@@ -49,6 +49,7 @@ def enumerate_paths(
     done_ref: list[tuple[int, np.ndarray]] = []  # (level, node index) of finished paths
     stopped = "finished"
     level = 0
+    rate = 0.0  # seconds per expanded node of the last level
     while node.size:
         leaf = space.leaves(node)
         if leaf.any():
@@ -63,6 +64,11 @@ def enumerate_paths(
             stopped = why
             break
         # children: for each live node, each allowed transition in rank order
+        started = time.perf_counter()
+        why = _would_overrun(search, rate, int(live.size))
+        if why is not None:
+            stopped = why
+            break
         owner, trans = space.successors_batch(node[live])
         total = int(trans.size)
         why = search.over(total)
@@ -81,6 +87,7 @@ def enumerate_paths(
         search.used += total
         stats.transitions += total
         level += 1
+        rate = (time.perf_counter() - started) / max(int(live.size), 1)
     stats.states_expanded = search.used
     stats.stopped = stopped  # type: ignore[assignment]
     all_obj = np.concatenate(done_obj) if done_obj else np.zeros(0)
@@ -89,6 +96,15 @@ def enumerate_paths(
     outcome = _algorithm2(space, all_obj, all_con, done_ref, levels, stats)
     stats.seconds = time.perf_counter() - t0
     return outcome
+
+
+def _would_overrun(search: SearchBudget, rate: float, nodes: int) -> str | None:
+    """Expanding ``nodes`` at the last level's ``rate`` seconds a node would end past the
+    deadline: stop before it (a level is one piece of array work, not interruptible), so
+    that a timeout ends in a result and not in the hard alarm."""
+    if search.deadline is None or rate <= 0.0:
+        return None
+    return "timeout" if time.perf_counter() + rate * nodes > search.deadline else None
 
 
 #: Before bnb or levels searches an explicit model, :func:`exhaustive_probe` tries to

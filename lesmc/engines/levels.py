@@ -68,6 +68,10 @@ PARETO_SEARCHSORTED = 1 << 14
 _SLACK = 1e-9
 
 
+#: Labels a level must have for its time to predict the next, larger level's.
+RATE_SAMPLE = 20_000
+
+
 class _Stop(Exception):
     """A budget ran out."""
 
@@ -530,6 +534,7 @@ def _witness_pass(
     q, o = root, np.array([space.root_obj])
     where: tuple[_Trail, int, int, list[int]] | None = None
     cm = space.cm
+    rate = 0.0  # seconds per label of sorting, keeping and the next level's leaves
     while q.size and best < cap:
         level = len(trail.q) - 1
         leaf = space.leaves(q)
@@ -562,6 +567,10 @@ def _witness_pass(
         if not parts:
             break
         q2, o2, p2, t2 = (np.concatenate([x[i] for x in parts]) for i in range(4))
+        why = budget.over(0) or budget.would_pass(rate * q2.size)
+        if why is not None:  # a huge level: stop before sorting it (one piece of work)
+            raise _Stop(why)
+        started = time.perf_counter()
         keep = _distinct(q2, o2, space.obj_max)
         if beam is not None and keep.size > beam:
             lo, hi = bounds.range(q2[keep], o2[keep])
@@ -573,6 +582,8 @@ def _witness_pass(
             keep = keep[np.lexsort((aim, gap))[:beam]]
         trail.add(q2[keep], p2[keep], t2[keep])
         q, o = q2[keep], o2[keep]
+        if q2.size >= RATE_SAMPLE:  # small levels time the overheads, not the sort
+            rate = (time.perf_counter() - started) / q2.size
     return best, where
 
 
@@ -594,8 +605,9 @@ class _SuffixValues:
     """The distinct sums of objective contributions over every completion of the states of
     the last steps (sum objectives on explicit spaces): a meet-in-the-middle table."""
 
-    def __init__(self, space: Space, limit: int = SUFFIX_VALUES) -> None:
+    def __init__(self, space: Space, budget: SearchBudget, limit: int = SUFFIX_VALUES) -> None:
         self.space = space
+        self.budget = budget
         cm = space.cm
         leaf = space.leaves()
         levels = space.reachable_levels()
@@ -603,6 +615,9 @@ class _SuffixValues:
         self.table: dict[int, tuple[np.ndarray, np.ndarray, np.ndarray]] = {}
         total = 0
         for li in reversed(range(len(levels))):
+            why = budget.over(0)  # a level of the table is built in one go
+            if why is not None:
+                raise _Stop(why)
             level = levels[li]
             entries: dict[int, tuple[np.ndarray, np.ndarray, np.ndarray]] = {}
             for q in level[leaf[level]].tolist():
@@ -646,6 +661,8 @@ class _SuffixValues:
         """The largest o + suffix value below ``opt``, over labels (q, o)."""
         val, hit = best, None
         for i, (qq, oo) in enumerate(zip(q.tolist(), o.tolist(), strict=True)):
+            if i % 4096 == 4095 and (why := self.budget.over(0)) is not None:
+                raise _Stop(why)
             v = self.table[qq][0]
             j = int(np.searchsorted(v, _lo(opt - oo), side="left")) - 1
             while j >= 0 and not oo + v[j] < opt:
@@ -788,7 +805,7 @@ def _representative(
             and math.isfinite(opt)
             and bounds.reachable <= SUFFIX_STATES  # the table is built state by state
         ):
-            suffix = _SuffixValues(space)
+            suffix = _SuffixValues(space, budget)
             if suffix.entries:
                 value, got = _witness_pass(
                     space, bounds, budget, stats, opt, best, cap, BEAM, suffix

@@ -663,8 +663,9 @@ class JointDesign:
         track, pz, dx, dy, d2, ok = _candidate_pairs(Z, X, g, cfg)
         hiding = _hiding_options(tu[:, 0], track, pz, dx, dy, ok, g.radius, frame.payoffs(), U, nz)
         n_opt, cost, rank_of, near_z, per = hiding
-        track, pz = track[ok], pz[ok]
-        ps, pt, pair_z, prio, idx = _ranked_pairs(track, pz, d2[ok], g.norm, tu, live, U, T, nz)
+        track, pz, d2 = track[ok], pz[ok], d2[ok]
+        del dx, dy, ok, hiding  # the candidates' arrays: only the gated pairs go on
+        ps, pt, pair_z, prio, idx = _ranked_pairs(track, pz, d2, g.norm, tu, live, U, T, nz)
         X_up = update_means(X[track], g.K[track], Z[pz])
         child_cov = np.concatenate([g.pred, g.post[track]])
         child_X = np.concatenate([X, X_up])
