@@ -89,3 +89,33 @@ def test_a_timeout_writes_bounds_that_contain_the_optimum(instance: tuple, timeo
         assert res["stats"]["stopped"] in ("timeout", "max_states", "max_memory")
         assert r.returncode == 3
     assert wall <= timeout + SLACK
+
+
+@pytest.mark.parametrize("signame", ["SIGINT", "SIGTERM"])
+def test_a_signal_mid_search_writes_the_bounds_found(instance: tuple, signame: str) -> None:
+    """SIGINT or SIGTERM while the search runs: the result is written (stop reason
+    ``interrupted``, bounds around the optimum), then exit 130 or 143, no traceback."""
+    import signal
+
+    integer, model, spec, optimum = instance
+    if integer:
+        pytest.skip("one instance is enough")
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "lesmc", "check", str(model), str(spec), "--json"],
+        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, cwd=ROOT,
+    )  # fmt: skip
+    assert proc.stderr is not None
+    seen = proc.stderr.readline()  # "lesmc check: checking knapsack (levels)": searching
+    assert "checking" in seen, seen
+    time.sleep(0.3)
+    signum = getattr(signal, signame)
+    proc.send_signal(signum)
+    out, err = proc.communicate(timeout=60)
+    assert "Traceback" not in err and "Exception ignored" not in err, err
+    if proc.returncode in (0, 1):
+        pytest.skip("the search finished before the signal")
+    assert proc.returncode == 128 + signum, err
+    (res,) = json.loads(out)["results"]
+    assert res["stats"]["stopped"] == "interrupted"
+    lower, upper = (float(res["bounds"][k]) for k in ("lower", "upper"))
+    assert lower - 1e-6 * optimum <= optimum <= upper + 1e-6 * optimum

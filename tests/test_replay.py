@@ -266,3 +266,12 @@ def test_default_video_violations_are_replayed_in_interval_mode(tmp_path: Path) 
                 assert res["verdict"] == "unknown"
                 assert any("not a proof of violation" in n for n in res["notes"])
     assert violated  # the plain tracker's robustness breaks under a real attack
+    # the improved design's monitor alarms on the unattacked track itself: every holds of
+    # it is vacuous, and says so in the JSON and the report, never as a plain holds
+    monitored = [run for run in doc["runs"] if run["design"] == "improved"]
+    assert monitored
+    for res in monitored[0]["results"]:
+        assert res["original_alarms"] and res["vacuous"]
+        assert res["status"] == "holds (vacuous)" and res["verdict"] == "holds"
+    page = (out / "report.html").read_text()
+    assert "<span class='holds--vacuous-'>holds (vacuous: the unattacked track" in page

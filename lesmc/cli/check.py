@@ -115,6 +115,7 @@ def check_cmd(
         raise UsageError("--report draws the attack payoffs' model: use --payoffs attack")
     # the pipeline is imported when the verb runs: --help stays light (tests/test_startup.py)
     from lesmc.api import check_job, load_model_or_scene, load_spec
+    from lesmc.cli.signals import exit_if_stopped, polite_stop
     from lesmc.common.progress import Reporter
     from lesmc.pipeline.job import Job
     from lesmc.report.text import make_console, print_results, results_json
@@ -127,7 +128,7 @@ def check_cmd(
     is_scene = isinstance(source, Scene)
     if design is not None and not is_scene:
         raise UsageError("--design applies to scenes, not to .lts models")
-    with Reporter("check") as rep:
+    with Reporter("check") as rep, polite_stop():
         results = check_job(
             Job(
                 parsed,
@@ -149,6 +150,7 @@ def check_cmd(
         click.echo(results_json(results.results, parsed))
     else:
         print_results(make_console(), results.results, paths=not no_paths)
+    exit_if_stopped()  # a polite SIGINT/SIGTERM: the partial results are out, 130/143
     sys.exit(exit_status(results.results))
 
 

@@ -234,3 +234,49 @@ def stdout_closed() -> int:
     except (OSError, ValueError, AttributeError):  # pragma: no cover - stdout replaced or gone
         pass
     return EXIT_BROKEN_PIPE
+
+
+@contextmanager
+def polite_stop() -> Iterator[None]:
+    """Inside the block, a first SIGINT or SIGTERM asks the searches to stop
+    (:func:`lesmc.common.budget.request_stop`): each ends with its bounds, reason
+    ``interrupted``, and the command writes what it has before it exits 130/143
+    (:func:`exit_if_stopped`). A second signal interrupts at once, as outside the block."""
+    from lesmc.common.budget import request_stop, stop_requested
+
+    if not _main_thread():
+        yield
+        return
+
+    def polite(signum: int, frame: FrameType | None) -> None:
+        if stop_requested() is not None:
+            if signum == signal.SIGINT:
+                raise KeyboardInterrupt
+            raise Terminated(signum)
+        request_stop(signum)
+        os.write(2, b"lesmc: stopping: writing what was found so far (again to stop now)\n")
+
+    previous: dict[int, Any] = {}
+    for name in ("SIGINT", "SIGTERM"):
+        signum = getattr(signal, name)
+        old = signal.getsignal(signum)
+        if old is signal.SIG_IGN:
+            continue
+        previous[signum] = old
+        signal.signal(signum, polite)
+    try:
+        yield
+    finally:
+        for signum, old in previous.items():
+            signal.signal(signum, old if old is not None else signal.SIG_DFL)
+
+
+def exit_if_stopped() -> None:
+    """After the outputs are written: exit 130 (SIGINT) or 128 + N if a signal asked the
+    searches to stop (:func:`polite_stop`)."""
+    from lesmc.common.budget import stop_requested
+
+    signum = stop_requested()
+    if signum is not None:
+        sys.stderr.write("interrupted\n" if signum == signal.SIGINT else "terminated\n")
+        sys.exit(128 + signum)

@@ -154,6 +154,27 @@ class Budget:
         return f"--max-memory {show_size(self.max_memory or 0)}"
 
 
+_stop_requested: int | None = None
+
+
+def request_stop(signum: int) -> None:
+    """Ask every running and later search to stop as if its budget ran out (reason
+    ``interrupted``): a signal handler's polite first step (lesmc/cli/signals.py)."""
+    global _stop_requested
+    _stop_requested = signum
+
+
+def stop_requested() -> int | None:
+    """The signal that asked the searches to stop, or None."""
+    return _stop_requested
+
+
+def clear_stop() -> None:
+    """Forget a stop request (a new command in the same process)."""
+    global _stop_requested
+    _stop_requested = None
+
+
 class SearchBudget:
     """An engine's running budget: expansions counted against ``max_states``, a deadline
     ``timeout`` seconds from now, and a memory ceiling (the resident set plus ``reserve()``,
@@ -178,13 +199,17 @@ class SearchBudget:
     def would_pass(self, seconds: float) -> str | None:
         """``timeout`` when work of ``seconds`` started now would end past the deadline
         (work that cannot look at the clock while it runs), else None."""
+        if _stop_requested is not None:
+            return "interrupted"
         if self.deadline is not None and time.perf_counter() + seconds > self.deadline:
             return "timeout"
         return None
 
     def over(self, more: int = 0) -> str | None:
-        """Why the search must stop with ``more`` expansions counted (``max_states``,
-        ``timeout``, ``max_memory``), or None."""
+        """Why the search must stop with ``more`` expansions counted (``interrupted``,
+        ``max_states``, ``timeout``, ``max_memory``), or None."""
+        if _stop_requested is not None:
+            return "interrupted"
         if self.max_states is not None and self.used + more > self.max_states:
             return "max_states"
         if self.deadline is not None and time.perf_counter() > self.deadline:

@@ -12,7 +12,7 @@ from lesmc.engines.space import SearchSpace
 Verdict = Literal["holds", "violated", "unknown"]
 
 #: Why a search stopped: it finished, or a budget ran out (then bounds are reported).
-StopReason = Literal["finished", "max_states", "timeout", "max_memory"]
+StopReason = Literal["finished", "max_states", "timeout", "max_memory", "interrupted"]
 
 
 @dataclass(frozen=True)
