@@ -1,0 +1,43 @@
+"""lesmc: model checking robustness and resilience of learning-enabled state estimators.
+
+The Python API is :mod:`lesmc.api` (docs/api.md); its functions are also reachable
+from here (``lesmc.check``, ``lesmc.load_model``, ...), imported when first used so
+that ``import lesmc`` stays light.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+_API = (
+    "CheckResult",
+    "DesignRun",
+    "Results",
+    "VerifyOutcome",
+    "VerifyRequest",
+    "build",
+    "check",
+    "check_job",
+    "expand_designs",
+    "load_model",
+    "load_model_or_scene",
+    "load_scene",
+    "load_spec",
+    "parse_spec",
+    "verify",
+)
+
+__all__ = list(_API)
+
+
+def __getattr__(name: str) -> Any:
+    """The API's names, from :mod:`lesmc.api` on first use."""
+    if name in _API:
+        from lesmc import api
+
+        return getattr(api, name)
+    raise AttributeError(f"module 'lesmc' has no attribute {name!r}")
+
+
+def __dir__() -> list[str]:
+    return sorted([*globals(), *_API])

@@ -1,0 +1,41 @@
+"""`import lesmc` is the Python API (docs/api.md): light to import, the same answers as
+the hand-derived table of tests/golden/README.md ("tiny")."""
+
+from __future__ import annotations
+
+import math
+import subprocess
+import sys
+from pathlib import Path
+
+import lesmc
+
+ROOT = Path(__file__).resolve().parents[1]
+TINY = ROOT / "tests" / "golden" / "tiny"
+
+#: tests/golden/README.md, derived by hand: property -> (verdict, optimum)
+BY_HAND = {
+    "robustness": ("violated", 2.0),
+    "robustness_monitored": ("holds", 3.5),
+    "robustness_mean": ("holds", 1.0),
+    "resilience": ("violated", 5.0),
+    "nothing_breaks": ("holds", math.inf),
+}
+
+
+def test_importing_lesmc_loads_no_pipeline() -> None:
+    code = "import sys, lesmc; print(sorted(m for m in sys.modules if m.startswith('lesmc')))"
+    out = subprocess.run(
+        [sys.executable, "-c", code], capture_output=True, text=True, check=True, cwd=ROOT
+    ).stdout
+    assert out.strip() == "['lesmc']"
+
+
+def test_the_api_answers_as_derived_by_hand() -> None:
+    results = lesmc.check(
+        lesmc.load_model(TINY / "model.lts"), lesmc.load_spec(TINY / "properties.spec")
+    )
+    got = {r.property: (r.verdict, math.inf if r.optimum is None else r.optimum) for r in results}
+    assert got == BY_HAND
+    assert {r.property: r.status for r in results}["robustness"] == "violated"
+    assert set(lesmc.__all__) <= set(dir(lesmc))
