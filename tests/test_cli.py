@@ -205,3 +205,10 @@ def test_the_options_reference_is_what_the_command_line_declares() -> None:
             for opt in getattr(p, "opts", []):
                 if opt.startswith("--") and opt != "--help":
                     assert f"`{opt}`" in text, (name, opt)
+
+
+def test_every_verb_has_a_whole_line_in_the_help() -> None:
+    r = lesmc("--help")
+    lines = r.stdout.split("Commands:")[1].splitlines()
+    verbs = [line.split()[0] for line in lines if line.strip()]
+    assert len(verbs) >= 12 and all(not line.rstrip().endswith("...") for line in lines)

@@ -30,6 +30,7 @@ LAYERS: dict[str, set[str]] = {
     "model": {"language"},
     "scene": {"designs"},
     "engines": {"language", "model"},
+    "export": {"engines", "language", "model"},
     "perception": {"scene", "video"},
     "tracking": {"model", "scene"},
     "build": {"designs", "model", "scene", "tracking"},
@@ -52,7 +53,8 @@ LAYERS: dict[str, set[str]] = {
         "tracking", "verify",
     },
     "cli": {
-        "api", "build", "campaign", "designs", "engines", "language", "model", "perception",
+        "api", "build", "campaign", "designs", "engines", "export", "language", "model",
+        "perception",
         "pipeline", "replay", "report", "results", "scene", "tracking", "verify", "video",
     },
     "__main__": {"cli"},

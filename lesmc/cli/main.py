@@ -24,6 +24,7 @@ import click
 from lesmc.cli.build import build_cmd, track_cmd
 from lesmc.cli.campaign import campaign_cmd
 from lesmc.cli.check import check_cmd
+from lesmc.cli.export import export_cmd
 from lesmc.cli.perceive import perceive_cmd
 from lesmc.cli.reduce import reduce_group
 from lesmc.cli.replay import replay_cmd
@@ -93,6 +94,8 @@ def cli() -> None:
       lesmc replay RESULTS.json --frames VIDEO/
                                              counterexamples through the real detector
       lesmc reduce knapsack ITEMS.csv ...    build a knapsack instance as a model
+      lesmc export MODEL.lts --format drn|dot|graphml|json -o OUT
+                                             the model for Storm, Graphviz, Gephi
     \b
     Every verb takes --json: one versioned document on stdout, described by a
     schema in lesmc/schemas/ (docs/cli.md). Options that would be ignored are errors.
@@ -103,6 +106,22 @@ def cli() -> None:
     Set LESMC_DEBUG=1 to see the traceback of an internal error.
     """
 
+
+#: One line per verb for ``lesmc --help`` (click would cut the first sentence short).
+SHORT_HELP = {
+    "build": "Unfold a scene into a model (.lts) for one attack window.",
+    "campaign": "Verify many targets x windows x designs, on Dask.",
+    "check": "Check properties on a model or a scene: verdict, optimum, paths.",
+    "export": "Write a model for Storm (DRN), Graphviz, GraphML or as JSON.",
+    "perceive": "Detect vehicles in frames; price each detection; write a scene.",
+    "reduce": "Reduce a classic problem (knapsack) to a model and a property.",
+    "replay": "Run counterexamples through the real detector and tracker.",
+    "report": "Draw the HTML report from a results file.",
+    "synth": "Generate a synthetic WAMI video with its truth.",
+    "track": "Run the tracker unattacked: estimates, tau and monitor alarms.",
+    "train": "Train the detection CNNs on synthetic videos.",
+    "verify": "The whole experiment on a video: perceive, check, replay, report.",
+}
 
 cli.add_command(check_cmd)
 cli.add_command(build_cmd)
@@ -115,6 +134,9 @@ cli.add_command(verify_cmd)
 cli.add_command(report_cmd)
 cli.add_command(replay_cmd)
 cli.add_command(campaign_cmd)
+cli.add_command(export_cmd)
+for _name, _cmd in cli.commands.items():
+    _cmd.short_help = SHORT_HELP.get(_name, _cmd.short_help)
 
 
 def _debug() -> bool:

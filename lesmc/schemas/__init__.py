@@ -35,6 +35,7 @@ SCHEMAS = {
     "lesmc-campaign-row": "campaign-row",
     "lesmc-replay": "replay",
     "lesmc-error": "error",
+    "lesmc-export": "export",
 }
 
 

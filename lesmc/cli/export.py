@@ -1,0 +1,202 @@
+"""``lesmc export MODEL|SCENE --format dot|graphml|json|drn -o OUT``: a model for other tools."""
+
+from __future__ import annotations
+
+from typing import TYPE_CHECKING, Any
+
+import click
+
+from lesmc.cli.documents import emit, file_facts, run_provenance, say
+from lesmc.cli.options import RegistryChoice, parse_window, scene_target
+from lesmc.common.errors import InputError, Location, UsageError, escape_control
+from lesmc.designs import registry
+
+if TYPE_CHECKING:
+    from lesmc.model.arrays import ArrayModel
+
+FORMATS = ("dot", "graphml", "json", "drn")
+
+
+@click.command("export")
+@click.argument("model", metavar="MODEL|SCENE", type=click.Path(dir_okay=False))
+@click.option("--format", "fmt", type=click.Choice(FORMATS), required=True, help="The file format.")
+@click.option("-o", "--output", required=True, type=click.Path(dir_okay=False), help="The file.")
+@click.option(
+    "--window",
+    "window_text",
+    default=None,
+    metavar="L..U",
+    help="For a scene: the attack window of the model built from it (as lesmc build).",
+)
+@click.option(
+    "--design",
+    type=RegistryChoice(registry.tracker_names),
+    default=None,
+    help="For a scene: override the tracker design it names.",
+)
+@scene_target
+@click.option(
+    "--spec",
+    "spec_path",
+    type=click.Path(dir_okay=False),
+    default=None,
+    help="drn: the property file whose property is exported as a reward and a label.",
+)
+@click.option("--property", "prop", default=None, metavar="NAME", help="drn: which property.")
+@click.option(
+    "--results",
+    "results_path",
+    type=click.Path(dir_okay=False),
+    default=None,
+    help="dot, graphml: mark the counterexample and witness of this results file (lesmc "
+    "check --json, or results.json) [with --property: that property's].",
+)
+@click.option(
+    "--max-nodes",
+    type=click.IntRange(min=1),
+    default=None,
+    help="dot: refuse models with more states than this [default: 5000]; drn: the most "
+    "path prefixes to unfold [default: 200000].",
+)
+@click.option(
+    "--strict",
+    is_flag=True,
+    help="drn: refuse a property whose objective is not a sum of rewards (dist.max) instead "
+    "of writing the MDP without its reward model.",
+)
+@click.option("--json", "as_json", is_flag=True, help="Print what was written as JSON.")
+def export_cmd(
+    model: str,
+    fmt: str,
+    output: str,
+    window_text: str | None,
+    design: str | None,
+    target_text: str | None,
+    spec_path: str | None,
+    prop: str | None,
+    results_path: str | None,
+    max_nodes: int | None,
+    strict: bool,
+    as_json: bool,
+) -> None:
+    """Write MODEL (a .lts, or a SCENE built with --window) for other tools.
+
+    \b
+    dot      Graphviz (steps as ranks; counterexample red, witness blue)
+    graphml  Gephi, yEd, networkx (streamed: any size; attribute `role`)
+    json     the .lts format itself (lesmc check reads it back)
+    drn      Storm's explicit format: an MDP whose reward `payoff` is the combined
+             payoff (Eq. 5) of each attacker choice and whose label `violated` marks
+             the end of every path that satisfies the property's constraint, so that
+             Storm's Rmin=? [F "violated"] is lesmc's optimum (needs --spec; payoff
+             objectives only: other properties are refused, with the reason)
+    Exit status: 0 written, 2 bad input, 4 internal error, 130 interrupted.
+    """
+    from lesmc.api import load_model_or_scene, load_spec
+    from lesmc.build.unfold import build_model
+    from lesmc.scene import Scene
+
+    if fmt != "drn" and (spec_path or strict or (prop and not results_path)):
+        raise UsageError("--spec, --property and --strict choose what --format drn exports")
+    if fmt == "drn" and spec_path is None:
+        raise UsageError("--format drn exports a property: give --spec (and --property)")
+    if results_path is not None and fmt not in ("dot", "graphml"):
+        raise UsageError("--results marks paths in dot and graphml only")
+    source = load_model_or_scene(model, target_text, design)
+    if isinstance(source, Scene):
+        if window_text is None:
+            raise UsageError("a scene is built for one attack window: give --window L..U")
+        cm: ArrayModel = build_model(source, parse_window(window_text))
+    elif window_text is not None:
+        raise UsageError("--window builds a scene; a .lts model has its window already")
+    else:
+        cm = source
+    facts: dict[str, Any] = {}
+    if fmt == "drn":
+        facts = _write_drn(cm, load_spec(spec_path), prop, output, max_nodes, strict)  # type: ignore[arg-type]
+        if facts["not_exported"]:
+            click.echo(f"note: {facts['not_exported']}", err=True)
+    else:
+        roles = _roles(cm, results_path, prop) if results_path else None
+        _write(cm, fmt, output, roles, max_nodes)
+    say(f"wrote {escape_control(output)} ({fmt}, {cm.n_states} states)", as_json)
+    if as_json:
+        emit(
+            {
+                "format": "lesmc-export",
+                "version": 1,
+                "provenance": run_provenance(),
+                "model": model,
+                "file": file_facts(output),
+                "export_format": fmt,
+                "states": cm.n_states,
+                "transitions": cm.n_transitions,
+            }
+            | facts
+        )
+
+
+def _write(cm: ArrayModel, fmt: str, output: str, roles: Any, max_nodes: int | None) -> None:
+    from lesmc.common.files import atomic_open, write_json
+    from lesmc.export.graphs import DOT_MAX_NODES, graphml_lines, to_dot, write_lines
+    from lesmc.model.lts_format import lts_to_dict
+
+    if fmt == "json":
+        write_json(output, lts_to_dict(cm))
+    elif fmt == "dot":
+        text = to_dot(cm, roles, max_nodes or DOT_MAX_NODES)
+        with atomic_open(output) as fh:
+            fh.write(text)
+    else:
+        with atomic_open(output) as fh:
+            write_lines(graphml_lines(cm, roles), fh)
+
+
+def _write_drn(
+    cm: ArrayModel, spec: Any, prop: str | None, output: str, max_nodes: int | None, strict: bool
+) -> dict[str, Any]:
+    from lesmc.common.files import atomic_open
+    from lesmc.engines.check import bind_all
+    from lesmc.export.drn import DRN_MAX_PREFIXES, to_drn
+
+    bound = bind_all(cm, [spec])
+    if prop is not None:
+        bound = [b for b in bound if b.name == prop]
+        if not bound:
+            raise UsageError(f"no property '{prop}' in {spec.path}")
+    elif len(bound) > 1:
+        names = ", ".join(b.name for b in bound)
+        raise UsageError(f"{spec.path} has several properties ({names}): choose with --property")
+    text, facts = to_drn(cm, bound[0], max_nodes or DRN_MAX_PREFIXES, strict)
+    with atomic_open(output) as fh:
+        fh.write(text)
+    return facts
+
+
+def _roles(cm: ArrayModel, path: str, prop: str | None) -> dict[str, list[int]]:
+    """The counterexample and witness paths of a results file, as model rows."""
+    from lesmc.common.files import read_json
+
+    doc = read_json(path, InputError)
+    results = []
+    if isinstance(doc, dict) and isinstance(doc.get("results"), list):
+        results = doc["results"]  # lesmc check --json
+    elif isinstance(doc, dict) and isinstance(doc.get("runs"), list):
+        results = [r for run in doc["runs"] for r in run.get("results", [])]
+    else:
+        raise InputError("not a results file (lesmc check --json or results.json)", Location(path))
+    chosen = [r for r in results if prop is None or r.get("property") == prop]
+    if not chosen:
+        raise InputError(f"no result for property '{prop}'", Location(path))
+    roles: dict[str, list[int]] = {"original": cm.original.tolist()}
+    for role in ("witness", "counterexample"):
+        states = (chosen[0].get(role) or {}).get("states")
+        if states:
+            try:
+                roles[role] = [cm.index(s) for s in states]
+            except KeyError as exc:
+                raise InputError(
+                    f"{role} state {exc} is not in this model (results of another model?)",
+                    Location(path, item=f"{role}.states"),
+                ) from None
+    return roles

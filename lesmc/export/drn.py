@@ -1,0 +1,126 @@
+"""A property's question as an MDP in Storm's explicit DRN format.
+
+Storm and PRISM minimise expected rewards until a target; lesmc minimises a
+payoff over the paths that satisfy a constraint (section 4). The two meet on a
+tree of path prefixes: a state of the MDP is an LTS state together with the
+constraint's value accumulated so far (prefixes that agree on both have the
+same futures and are one MDP state); each allowed transition (the runtime
+monitor's cuts and the property's window applied, as the engines apply them:
+lesmc/engines/space.py) is an action whose reward is its objective
+contribution (the combined payoff of Eq. 5 inside the window, 0 outside); a
+leaf whose completed path satisfies the constraint moves to the absorbing
+state labelled ``violated`` with the tail's objective as reward, any other
+leaf loops on itself. Then Storm's ``Rmin=? [F "violated"]`` is the optimum
+lesmc computes (+inf when no path violates). Only objectives that add up along
+the path (payoff, payoff.mean) have this form: a dist.max objective is refused.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Any
+
+from lesmc.common.errors import UsageError
+from lesmc.engines.space import build_space
+from lesmc.language.semantics import BoundProperty
+from lesmc.model.arrays import ArrayModel
+
+#: Path prefixes (MDP states) the export may unfold by default.
+DRN_MAX_PREFIXES = 200_000
+
+
+def to_drn(
+    cm: ArrayModel, bp: BoundProperty, max_prefixes: int = DRN_MAX_PREFIXES, strict: bool = False
+) -> tuple[str, dict[str, Any]]:
+    """The DRN text and facts about it (states, choices, the property, what is left out).
+
+    A maximum objective (dist.max) is no sum of rewards: the MDP and its ``violated``
+    label are written without the reward model (``not_exported`` says so), or with
+    ``strict`` the export is refused."""
+    space = build_space(cm, bp)
+    rewards = not space.obj_max
+    not_exported = None
+    if not rewards:
+        not_exported = (
+            f"property '{bp.name}': the objective {bp.objective.text} is a maximum over steps, "
+            "not a sum of rewards: the MDP and its label 'violated' are written, the reward "
+            "model is not (Storm's reward properties cannot state it)"
+        )
+        if strict:
+            raise UsageError(
+                not_exported.replace(
+                    "are written, the reward model is not", "are not exported (--strict)"
+                )
+            )
+    index: dict[tuple[int, float], int] = {}
+    choices: list[list[tuple[float, int]]] = []  # per MDP state: (reward, target)
+    labels: list[str] = []
+
+    def state(q: int, con: float) -> int:
+        key = (q, con)
+        got = index.get(key)
+        if got is None:
+            if len(index) >= max_prefixes:
+                raise UsageError(
+                    f"more than {max_prefixes} path prefixes: raise --max-nodes, or export a "
+                    "model with a narrower attack window"
+                )
+            got = index[key] = len(choices)
+            choices.append([])
+            labels.append("")
+            todo.append((got, q, con))
+        return got
+
+    todo: list[tuple[int, int, float]] = []
+    state(int(space.root), float(space.root_con))
+    goal = len(choices)  # absorbing, labelled violated (unreachable when nothing violates)
+    choices.append([])
+    labels.append("violated")
+    while todo:
+        s, q, con = todo.pop()
+        if space.is_leaf(q):
+            to, tc = space.tail(q)
+            if space.violates(space.agg(space.con_max, con, tc)) and math.isfinite(to):
+                choices[s].append((float(to), goal))
+            continue
+        for t in space.successors(q):
+            reward = float(space.c_obj[t]) if rewards else 0.0
+            if not math.isfinite(reward):
+                continue  # a detection the attack cannot hide: no such choice
+            nxt = state(int(cm.dst[t]), space.agg(space.con_max, con, float(space.c_con[t])))
+            choices[s].append((reward, nxt))
+    for s, acts in enumerate(choices):
+        if s == goal or not acts:
+            choices[s] = [(0.0, s)]  # absorbing
+    text = _drn(choices, labels, rewards)
+    facts = {
+        "property": bp.name,
+        "not_exported": not_exported,
+        "drn": {"states": len(choices), "choices": sum(map(len, choices))},
+        "storm_property": 'Rmin=? [F "violated"]',
+        "prism_property": 'R{"payoff"}min=? [F "violated"]',
+    }
+    return text, facts
+
+
+def _drn(choices: list[list[tuple[float, int]]], labels: list[str], rewards: bool) -> str:
+    lines = [
+        '// lesmc: the attacker\'s choices of a <PO>2-LTS; Rmin=? [F "violated"] is the optimum',
+        "@type: MDP",
+        "@parameters",
+        "",
+        "@reward_models",
+        "payoff" if rewards else "",
+        "@nr_states",
+        str(len(choices)),
+        "@nr_choices",
+        str(sum(map(len, choices))),
+        "@model",
+    ]
+    for s, acts in enumerate(choices):
+        tags = " ".join(t for t in (("init" if s == 0 else ""), labels[s]) if t)
+        lines.append(f"state {s}" + (f" {tags}" if tags else ""))
+        for a, (reward, target) in enumerate(acts):
+            lines.append(f"\taction {a} [{reward!r}]" if rewards else f"\taction {a}")
+            lines.append(f"\t\t{target} : 1")
+    return "\n".join(lines) + "\n"

@@ -1,0 +1,163 @@
+"""Models out (issue 27): Storm checks the DRN export to lesmc's optimum; GraphML, DOT
+and JSON carry the model as it is.
+
+Storm (stormpy) is the independent oracle: it builds the MDP from the DRN text and
+computes ``Rmin=? [F "violated"]`` with its own engine; on random models (every
+additive objective, every constraint, monitors) that must be the brute-force
+optimum of tests/oracle.py.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import shutil
+import subprocess
+import sys
+from pathlib import Path
+
+import jsonschema
+import networkx as nx
+import pytest
+from cli_run import lesmc
+from hypothesis import HealthCheck, given, settings
+from oracle import brute_force
+from test_engines import _bound_property, cases
+
+from lesmc.export.drn import to_drn
+from lesmc.model.lts import to_arrays
+from lesmc.schemas import schema
+
+stormpy = pytest.importorskip("stormpy", reason="stormpy (Storm's bindings) is a test extra")
+
+ROOT = Path(__file__).resolve().parents[1]
+TINY = ROOT / "tests" / "golden" / "tiny"
+
+
+def storm_optimum(drn_text: str, tmp: Path) -> float:
+    path = tmp / "m.drn"
+    path.write_text(drn_text)
+    model = stormpy.build_model_from_drn(str(path))
+    q0 = model.initial_states[0]
+    if drn_text.count("[0.0]") != drn_text.count("\taction"):
+        prop = stormpy.parse_properties('Rmin=? [F "violated"]')[0]
+        return float(stormpy.model_checking(model, prop).get_value(q0))
+    # every reward 0: Storm drops the reward model; the optimum is 0 where "violated"
+    # can be reached, +inf where not (docs/export.md)
+    prop = stormpy.parse_properties('Pmax=? [F "violated"]')[0]
+    return 0.0 if stormpy.model_checking(model, prop).get_value(q0) > 0 else math.inf
+
+
+@settings(max_examples=150, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(cases())
+def test_storm_computes_the_brute_force_optimum(
+    tmp_path_factory: pytest.TempPathFactory, case: tuple
+) -> None:
+    model, params, quantile = case
+    bp = _bound_property(model, params, quantile)
+    cm = to_arrays(model)
+    text, facts = to_drn(cm, bp)
+    if facts["not_exported"]:  # dist.max objective: no reward model to check
+        assert "maximum over steps" in facts["not_exported"]
+        return
+    truth = brute_force(model, bp).optimum
+    got = storm_optimum(text, tmp_path_factory.mktemp("drn"))
+    if math.isinf(truth):
+        assert math.isinf(got)
+    else:
+        assert got == pytest.approx(truth, rel=1e-9, abs=1e-9)
+
+
+def test_the_cli_export_of_the_tiny_model_checks_to_the_hand_derived_optima(
+    tmp_path: Path,
+) -> None:
+    """tests/golden/README.md by hand: robustness 2, robustness_monitored 3.5 (the
+    monitor's cut is exported), robustness_mean 1, nothing_breaks +inf."""
+    by_hand = {
+        "robustness": 2.0,
+        "robustness_monitored": 3.5,
+        "robustness_mean": 1.0,
+        "nothing_breaks": math.inf,
+    }
+    for prop, want in by_hand.items():
+        out = tmp_path / f"{prop}.drn"
+        r = lesmc("export", str(TINY / "model.lts"), "--format", "drn", "--spec",
+                  str(TINY / "properties.spec"), "--property", prop, "-o", str(out),
+                  "--json")  # fmt: skip
+        assert r.returncode == 0 and "Traceback" not in r.stderr, r.stderr
+        doc = json.loads(r.stdout)
+        jsonschema.validate(doc, schema("export"))
+        assert doc["property"] == prop and doc["file"]["bytes"] == out.stat().st_size
+        assert storm_optimum(out.read_text(), tmp_path) == want
+    # dist.max objective: the MDP without rewards, said in one line; --strict refuses
+    args = ["export", str(TINY / "model.lts"), "--format", "drn", "--spec",
+            str(TINY / "properties.spec"), "--property", "resilience",
+            "-o", str(tmp_path / "r.drn")]  # fmt: skip
+    r = lesmc(*args)
+    assert r.returncode == 0 and "reward model is not" in r.stderr
+    r = lesmc(*args, "--strict")
+    assert r.returncode == 2 and "Traceback" not in r.stderr
+
+
+def test_a_scene_model_exports_to_the_optimum_lesmc_checks(tmp_path: Path) -> None:
+    import json
+
+    scene, spec = (
+        ROOT / "tests" / "scenes" / "rq4_merge.json",
+        ROOT / "tests" / "scenes" / "rq4_merge.spec",
+    )
+    out = tmp_path / "m.drn"
+    r = lesmc("export", str(scene), "--window", "6..8", "--format", "drn", "--spec", str(spec),
+              "--property", "robustness", "-o", str(out))  # fmt: skip
+    assert r.returncode == 0, r.stderr
+    built = tmp_path / "m.lts"
+    assert lesmc("build", str(scene), "--window", "6..8", "-o", str(built)).returncode == 0
+    r = lesmc("check", str(built), str(spec), "--json", "--property", "robustness")
+    (res,) = json.loads(r.stdout)["results"]
+    want = math.inf if res["optimum"] == "inf" else res["optimum"]
+    assert storm_optimum(out.read_text(), tmp_path) == pytest.approx(want, rel=1e-9)
+
+
+def test_graphml_and_json_carry_the_model(tmp_path: Path) -> None:
+    """GraphML read back by networkx: every state and transition, and each transition's
+    combined payoff is Eq. 5 recomputed here (own payoffs of the lower-ranked siblings)."""
+    import json
+
+    g_path, j_path = tmp_path / "m.graphml", tmp_path / "m.json"
+    # (the tiny model's states all have distinct ids, so (src, dst) names a transition)
+    for fmt, path in (("graphml", g_path), ("json", j_path)):
+        r = lesmc("export", str(TINY / "model.lts"), "--format", fmt, "-o", str(path))
+        assert r.returncode == 0, r.stderr
+    raw = json.loads((TINY / "model.lts").read_text())
+    g = nx.read_graphml(g_path)
+    assert g.number_of_nodes() == len(raw["states"])
+    assert g.number_of_edges() == len(raw["transitions"])
+    for t in raw["transitions"]:
+        siblings = [s for s in raw["transitions"] if s["src"] == t["src"]]
+        eq5 = sum(s["payoff"] for s in siblings if s["rank"] < t["rank"])
+        assert g.edges[t["src"], t["dst"]]["combined_payoff"] == pytest.approx(eq5)
+    back = json.loads(j_path.read_text())
+    assert len(back["states"]) == len(raw["states"]) and back["initial"] == raw["initial"]
+    r = lesmc("check", str(j_path), str(TINY / "properties.spec"), "--json")
+    assert [x["optimum"] for x in json.loads(r.stdout)["results"]] == [2.0, 3.5, 1.0, 5.0, "inf"]
+
+
+def test_dot_marks_the_counterexample_and_refuses_large_models(tmp_path: Path) -> None:
+    res = tmp_path / "r.json"
+    r = lesmc("check", str(TINY / "model.lts"), str(TINY / "properties.spec"), "--json")
+    res.write_text(r.stdout)
+    dot = tmp_path / "m.dot"
+    r = lesmc("export", str(TINY / "model.lts"), "--format", "dot", "-o", str(dot),
+              "--results", str(res), "--property", "robustness")  # fmt: skip
+    assert r.returncode == 0, r.stderr
+    text = dot.read_text()
+    assert text.count("color=red") == 3 + 4  # the counterexample q0 b b2 b3: 4 states, 3 edges
+    if shutil.which("dot"):
+        subprocess.run(["dot", "-Tsvg", str(dot), "-o", str(tmp_path / "m.svg")], check=True)
+    r = lesmc("export", str(TINY / "model.lts"), "--format", "dot", "-o", str(tmp_path / "x.dot"),
+              "--max-nodes", "5")  # fmt: skip
+    assert r.returncode == 2 and "--max-nodes" in r.stderr and not (tmp_path / "x.dot").exists()
+
+
+def test_stormpy_is_importable_in_the_test_environment() -> None:
+    assert sys.modules.get("stormpy") is stormpy
