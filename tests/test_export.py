@@ -48,7 +48,7 @@ def storm_optimum(drn_text: str, tmp: Path) -> float:
     return 0.0 if stormpy.model_checking(model, prop).get_value(q0) > 0 else math.inf
 
 
-@settings(max_examples=150, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@settings(max_examples=200, deadline=None, suppress_health_check=[HealthCheck.too_slow])
 @given(cases())
 def test_storm_computes_the_brute_force_optimum(
     tmp_path_factory: pytest.TempPathFactory, case: tuple
