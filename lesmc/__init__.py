@@ -9,6 +9,8 @@ from __future__ import annotations
 
 from typing import Any
 
+_ERRORS = ("LesmcError", "InputError", "SpecError", "ModelError", "UsageError", "BudgetError")
+
 _API = (
     "CheckResult",
     "DesignRun",
@@ -19,6 +21,7 @@ _API = (
     "check",
     "check_job",
     "expand_designs",
+    "export",
     "load_model",
     "load_model_or_scene",
     "load_scene",
@@ -27,7 +30,7 @@ _API = (
     "verify",
 )
 
-__all__ = list(_API)
+__all__ = [*_API, *_ERRORS]
 
 
 def __getattr__(name: str) -> Any:
@@ -36,8 +39,12 @@ def __getattr__(name: str) -> Any:
         from lesmc import api
 
         return getattr(api, name)
+    if name in _ERRORS:
+        from lesmc.common import errors
+
+        return getattr(errors, name)
     raise AttributeError(f"module 'lesmc' has no attribute {name!r}")
 
 
 def __dir__() -> list[str]:
-    return sorted([*globals(), *_API])
+    return sorted([*globals(), *_API, *_ERRORS])

@@ -44,6 +44,7 @@ __all__ = [
     "check",
     "check_job",
     "expand_designs",
+    "export",
     "load_model",
     "load_model_or_scene",
     "load_scene",
@@ -131,6 +132,45 @@ def check(
         only=tuple(only),
     )
     return run(job).results
+
+
+def export(
+    model: ArrayModel,
+    path: str | Path,
+    fmt: str,
+    spec: SpecFile | None = None,
+    prop: str | None = None,
+    strict: bool = False,
+) -> dict[str, object]:
+    """Write ``model`` as ``fmt`` (dot, graphml, json, drn) to ``path`` (docs/export.md);
+    ``drn`` exports ``prop`` of ``spec``. Returns facts about what was written."""
+    from lesmc.common.files import atomic_open, write_json
+    from lesmc.engines.check import bind_all
+    from lesmc.export.drn import to_drn
+    from lesmc.export.graphs import graphml_lines, to_dot, write_lines
+    from lesmc.model.lts_format import lts_to_dict
+
+    if fmt == "json":
+        write_json(path, lts_to_dict(model))
+        return {"format": fmt}
+    if fmt in ("dot", "graphml"):
+        with atomic_open(path) as fh:
+            if fmt == "dot":
+                fh.write(to_dot(model))
+            else:
+                write_lines(graphml_lines(model), fh)
+        return {"format": fmt}
+    if fmt != "drn":
+        raise UsageError(f"unknown export format {fmt!r}: dot, graphml, json or drn")
+    if spec is None:
+        raise UsageError("a drn export states a property: give spec (and prop)")
+    bound = [b for b in bind_all(model, [spec]) if prop is None or b.name == prop]
+    if len(bound) != 1:
+        raise UsageError(f"choose one property of {spec.path} with prop (got {prop!r})")
+    text, facts = to_drn(model, bound[0], strict=strict)
+    with atomic_open(path) as fh:
+        fh.write(text)
+    return {"format": fmt} | facts
 
 
 def verify(request: VerifyRequest, reporter: Reporter | None = None) -> VerifyOutcome:

@@ -8,6 +8,8 @@ import subprocess
 import sys
 from pathlib import Path
 
+import pytest
+
 import lesmc
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -39,3 +41,26 @@ def test_the_api_answers_as_derived_by_hand() -> None:
     assert got == BY_HAND
     assert {r.property: r.status for r in results}["robustness"] == "violated"
     assert set(lesmc.__all__) <= set(dir(lesmc))
+
+
+def test_the_api_page_runs_as_written(monkeypatch: pytest.MonkeyPatch) -> None:
+    """docs/api.md's session, as a doctest from the repository's root."""
+    import doctest
+
+    monkeypatch.chdir(ROOT)
+    out = doctest.testfile(
+        str(ROOT / "docs" / "api.md"),
+        module_relative=False,
+        optionflags=doctest.ELLIPSIS | doctest.NORMALIZE_WHITESPACE,
+    )
+    assert out.attempted >= 10 and out.failed == 0
+
+
+@pytest.mark.parametrize("load", ["load_model", "load_scene", "load_spec", "load_model_or_scene"])
+def test_a_bad_file_raises_a_located_input_error(load: str, tmp_path: Path) -> None:
+    bad = tmp_path / "bad.json"
+    bad.write_text('{"format": "lesmc-scene",\n  "version": }')
+    with pytest.raises(lesmc.InputError) as info:
+        getattr(lesmc, load)(bad)
+    assert info.value.location is not None and info.value.location.path == str(bad)
+    assert info.value.location.line in (1, 2)

@@ -49,8 +49,8 @@ LAYERS: dict[str, set[str]] = {
         "scene", "tracking", "verify", "video",
     },
     "api": {
-        "build", "designs", "engines", "language", "model", "pipeline", "results", "scene",
-        "tracking", "verify",
+        "build", "designs", "engines", "export", "language", "model", "pipeline", "results",
+        "scene", "tracking", "verify",
     },
     "cli": {
         "api", "build", "campaign", "designs", "engines", "export", "language", "model",

@@ -136,16 +136,16 @@ class LesmcError(Exception):
         return self.render()
 
 
-class SpecError(LesmcError):
+class InputError(LesmcError):
+    """An input file is malformed (with its file, line and column, or the JSON item)."""
+
+
+class SpecError(InputError):
     """A property file is malformed or means something impossible."""
 
 
-class ModelError(LesmcError):
+class ModelError(InputError):
     """A model (.lts) file is malformed or inconsistent."""
-
-
-class InputError(LesmcError):
-    """Any other input file (CSV items, scenes) is malformed."""
 
 
 class UsageError(LesmcError):
