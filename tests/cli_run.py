@@ -26,3 +26,46 @@ def lesmc(
         timeout=timeout,
         env={**os.environ, "PYTHONPATH": str(ROOT)},
     )
+
+
+def lesmc_logged(
+    *args: str, cwd: Path | None = None, timeout: float = 1200
+) -> tuple[subprocess.CompletedProcess[str], list[float]]:
+    """:func:`lesmc` with stderr read as it comes: also the seconds since the start at
+    which each stderr line arrived (stderr is a pipe: the command writes log lines)."""
+    import threading
+    import time
+
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "lesmc", *args],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+        cwd=cwd or ROOT,
+        env={**os.environ, "PYTHONPATH": str(ROOT)},
+    )
+    t0 = time.monotonic()
+    lines: list[str] = []
+    times: list[float] = []
+
+    def read() -> None:
+        assert proc.stderr is not None
+        for line in proc.stderr:
+            times.append(time.monotonic() - t0)
+            lines.append(line)
+
+    out: list[str] = []
+
+    def read_out() -> None:
+        assert proc.stdout is not None
+        out.append(proc.stdout.read())
+
+    readers = [threading.Thread(target=f, daemon=True) for f in (read, read_out)]
+    for t in readers:
+        t.start()
+    proc.wait(timeout=timeout)
+    for t in readers:
+        t.join(timeout=10)
+    times.append(time.monotonic() - t0)  # the end: the last gap counts too
+    done = subprocess.CompletedProcess(proc.args, proc.returncode, "".join(out), "".join(lines))
+    return done, times

@@ -14,7 +14,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from cli_run import lesmc
+from cli_run import lesmc, lesmc_logged
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -243,8 +243,11 @@ def test_default_video_violations_are_replayed_in_interval_mode(tmp_path: Path) 
     every violated verdict is a replay-confirmed attack, every diverged counterexample an
     unknown with its note, and only the detections the models can hide are certified."""
     out = tmp_path / "v"
-    r = lesmc("verify", "--out", str(out), "--payoffs", "interval", "--json")
+    r, times = lesmc_logged("verify", "--out", str(out), "--payoffs", "interval", "--json")
     assert "Traceback" not in r.stderr and r.returncode in (0, 1, 3), r.stderr
+    # stderr is no terminal: a log line at least every 10 s (the heartbeat; 5 s of slack)
+    gaps = [b - a for a, b in zip([0.0, *times], times, strict=False)]
+    assert max(gaps) <= 15.0, (max(gaps), r.stderr)
     doc = json.loads((out / "results.json").read_text())
     cert = doc["perception"]["certified"]
     assert 0 < cert["detections"] <= cert["of"] // 20  # a handful near the target
