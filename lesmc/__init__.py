@@ -21,7 +21,7 @@ _API = (
     "check",
     "check_job",
     "expand_designs",
-    "export",
+    "export_model",
     "load_model",
     "load_model_or_scene",
     "load_scene",

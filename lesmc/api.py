@@ -44,7 +44,7 @@ __all__ = [
     "check",
     "check_job",
     "expand_designs",
-    "export",
+    "export_model",
     "load_model",
     "load_model_or_scene",
     "load_scene",
@@ -134,7 +134,7 @@ def check(
     return run(job).results
 
 
-def export(
+def export_model(
     model: ArrayModel,
     path: str | Path,
     fmt: str,
