@@ -50,11 +50,9 @@ def _milp_optimum(items: list[tuple[float, float]], integer: bool) -> float:
     return float(res.fun)
 
 
-@pytest.fixture(scope="module", params=[False, True], ids=["real", "integer"])
-def instance(request: pytest.FixtureRequest, tmp_path_factory: pytest.TempPathFactory) -> tuple:
-    integer = request.param
+def _instance(integer: bool, d: Path) -> tuple:
+    """The 200-item knapsack reduced by the real entry point, and its MILP optimum."""
     items = _items(integer)
-    d = tmp_path_factory.mktemp("k200")
     (d / "items.csv").write_text(
         "cost,capacity\n" + "".join(f"{c!r},{g!r}\n" for c, g in items), encoding="utf-8"
     )
@@ -65,6 +63,16 @@ def instance(request: pytest.FixtureRequest, tmp_path_factory: pytest.TempPathFa
     )  # fmt: skip
     assert r.returncode == 0, r.stderr
     return integer, d / "k.lts", d / "k.spec", _milp_optimum(items, integer)
+
+
+@pytest.fixture(scope="module", params=[False, True], ids=["real", "integer"])
+def instance(request: pytest.FixtureRequest, tmp_path_factory: pytest.TempPathFactory) -> tuple:
+    return _instance(request.param, tmp_path_factory.mktemp("k200"))
+
+
+@pytest.fixture(scope="module")
+def real_instance(tmp_path_factory: pytest.TempPathFactory) -> tuple:
+    return _instance(False, tmp_path_factory.mktemp("k200real"))
 
 
 @pytest.mark.parametrize("timeout", [0.7, 1.5, 2.5])
@@ -92,14 +100,12 @@ def test_a_timeout_writes_bounds_that_contain_the_optimum(instance: tuple, timeo
 
 
 @pytest.mark.parametrize("signame", ["SIGINT", "SIGTERM"])
-def test_a_signal_mid_search_writes_the_bounds_found(instance: tuple, signame: str) -> None:
+def test_a_signal_mid_search_writes_the_bounds_found(real_instance: tuple, signame: str) -> None:
     """SIGINT or SIGTERM while the search runs: the result is written (stop reason
     ``interrupted``, bounds around the optimum), then exit 130 or 143, no traceback."""
     import signal
 
-    integer, model, spec, optimum = instance
-    if integer:
-        pytest.skip("one instance is enough")
+    _, model, spec, optimum = real_instance
     proc = subprocess.Popen(
         [sys.executable, "-m", "lesmc", "check", str(model), str(spec), "--json"],
         stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, cwd=ROOT,
