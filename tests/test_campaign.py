@@ -97,6 +97,9 @@ def test_resume_adds_no_row_and_the_summary_counts_the_rows(base: tuple[Path, Pa
     no_trace(r)
     assert (base[1] / "results.jsonl").read_bytes() == before
     html = (base[1] / "campaign.html").read_text()
+    from html_tables import table_problems
+
+    assert table_problems(html) == []  # every table's rows as wide as its header
     assert "ECDF" in html and "reproduce with" in html
     assert (base[1] / "figures" / "campaign_violated_by_length.png").stat().st_size > 1000
     doc = json.loads(r.stdout)

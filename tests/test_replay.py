@@ -277,4 +277,7 @@ def test_default_video_violations_are_replayed_in_interval_mode(tmp_path: Path) 
         assert res["original_alarms"] and res["vacuous"]
         assert res["status"] == "holds (vacuous)" and res["verdict"] == "holds"
     page = (out / "report.html").read_text()
+    from html_tables import table_problems
+
+    assert table_problems(page) == []
     assert "<span class='holds--vacuous-'>holds (vacuous: the unattacked track" in page

@@ -379,6 +379,9 @@ def test_report_on_any_model(case: str, tmp_path: Path) -> None:
     leaves = [q for q in model.graph if model.graph.out_degree(q) == 0]
     n = sum(len(list(nx.all_simple_paths(model.graph, model.initial, leaf))) for leaf in leaves)
     assert doc["runs"][0]["paths_total"] == n
+    from html_tables import table_problems
+
+    assert table_problems((tmp_path / "r" / "report.html").read_text()) == []
 
 
 def test_verify_refuses_a_window_past_the_track(tmp_path: Path) -> None:

@@ -367,7 +367,8 @@ def write_html(
         PAYOFF_TEXT.get(s["payoffs"], ""),
         "<h2>Verdicts and optima (ECDF over targets and windows)</h2>",
     ]
-    parts.append(_table(list(CELL_HEADER), cell_rows(s, QUANTILE_KEYS)))
+    head = [*CELL_HEADER, *(f"optimum {k}" for k in QUANTILE_KEYS)]
+    parts.append(_table(head, cell_rows(s, QUANTILE_KEYS)))
     for p in s["properties"]:
         parts.append(
             _img(figs, f"ecdf_{p}", f"Distribution of the {p} optimum over targets and windows.")
