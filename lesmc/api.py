@@ -141,36 +141,56 @@ def export_model(
     spec: SpecFile | None = None,
     prop: str | None = None,
     strict: bool = False,
+    roles: dict[str, list[int]] | None = None,
+    max_nodes: int | None = None,
 ) -> dict[str, object]:
-    """Write ``model`` as ``fmt`` (dot, graphml, json, drn) to ``path`` (docs/export.md);
-    ``drn`` exports ``prop`` of ``spec``. Returns facts about what was written."""
+    """Write ``model`` as ``fmt`` (dot, graphml, json, drn) to ``path`` (docs/export.md).
+
+    ``drn`` exports ``prop`` of ``spec`` (``strict``: refuse a dist.max objective);
+    ``roles`` marks paths (rows) in dot and graphml; ``max_nodes`` limits dot's states
+    and drn's path prefixes. Returns facts about what was written (``lesmc export --json``).
+    """
     from lesmc.common.files import atomic_open, write_json
-    from lesmc.engines.check import bind_all
-    from lesmc.export.drn import to_drn
-    from lesmc.export.graphs import graphml_lines, to_dot, write_lines
+    from lesmc.export.drn import DRN_MAX_PREFIXES, to_drn
+    from lesmc.export.graphs import DOT_MAX_NODES, graphml_lines, to_dot, write_lines
     from lesmc.model.lts_format import lts_to_dict
 
+    facts: dict[str, object] = {"export_format": fmt}
     if fmt == "json":
         write_json(path, lts_to_dict(model))
-        return {"format": fmt}
-    if fmt in ("dot", "graphml"):
+    elif fmt == "dot":
+        text = to_dot(model, roles, max_nodes or DOT_MAX_NODES)
         with atomic_open(path) as fh:
-            if fmt == "dot":
-                fh.write(to_dot(model))
-            else:
-                write_lines(graphml_lines(model), fh)
-        return {"format": fmt}
-    if fmt != "drn":
+            fh.write(text)
+    elif fmt == "graphml":
+        with atomic_open(path) as fh:
+            write_lines(graphml_lines(model, roles), fh)
+    elif fmt == "drn":
+        bp = _drn_property(model, spec, prop)
+        text, drn = to_drn(model, bp, max_nodes or DRN_MAX_PREFIXES, strict)
+        with atomic_open(path) as fh:
+            fh.write(text)
+        facts |= drn
+    else:
         raise UsageError(f"unknown export format {fmt!r}: dot, graphml, json or drn")
+    return facts
+
+
+def _drn_property(model: ArrayModel, spec: SpecFile | None, prop: str | None) -> Any:
+    """The one property of ``spec`` a DRN export states (``prop``, or the only one)."""
+    from lesmc.engines.check import bind_all
+
     if spec is None:
-        raise UsageError("a drn export states a property: give spec (and prop)")
-    bound = [b for b in bind_all(model, [spec]) if prop is None or b.name == prop]
-    if len(bound) != 1:
-        raise UsageError(f"choose one property of {spec.path} with prop (got {prop!r})")
-    text, facts = to_drn(model, bound[0], strict=strict)
-    with atomic_open(path) as fh:
-        fh.write(text)
-    return {"format": fmt} | facts
+        raise UsageError("--format drn exports a property: give --spec (and --property)")
+    bound = bind_all(model, [spec])
+    if prop is not None:
+        bound = [b for b in bound if b.name == prop]
+        if not bound:
+            raise UsageError(f"no property '{prop}' in {spec.path}")
+    elif len(bound) > 1:
+        names = ", ".join(b.name for b in bound)
+        raise UsageError(f"{spec.path} has several properties ({names}): choose with --property")
+    return bound[0]
 
 
 def verify(request: VerifyRequest, reporter: Reporter | None = None) -> VerifyOutcome:

@@ -141,23 +141,16 @@ def campaign_cmd(
     """
     from lesmc.api import expand_designs
     from lesmc.campaign.plan import parse_windows
-    from lesmc.verify.experiment import bundled_specs, load_specs
 
     if scheduler is not None and workers is not None:
         raise UsageError("--workers sizes the local cluster: it does not apply with --scheduler")
     windows = parse_windows(windows_text)
-    spec_files = load_specs([Path(s) for s in specs] or bundled_specs(), None)
-    names = [p.name for s in spec_files for p in s.properties]
-    dup = sorted({n for n in names if names.count(n) > 1})
-    if dup:
-        raise UsageError(f"property name '{dup[0]}' is defined more than once")
+    spec_files = _spec_files(specs)
     out = Path(out_dir)
     videos = _videos(frames_dirs, out, no_truth)
     count, target_file = _targets_option(targets_text)
-    from lesmc.campaign.run import Prepared, prepare
-
     out.mkdir(parents=True, exist_ok=True)
-    prepared: list[Prepared] = [prepare(v, out, nets_dir) for v in videos]
+    prepared = _prepared(videos, out, nets_dir)
     _choose_targets(prepared, count, target_file, windows, not no_truth)
     rows = _run(
         prepared,
@@ -173,6 +166,25 @@ def campaign_cmd(
         nets_dir,
     )
     _finish(rows, out, out_dir, prepared, windows, design, as_json)
+
+
+def _prepared(videos: list[Any], out: Path, nets_dir: str | None) -> list[Any]:
+    """Each video perceived into OUT/scenes (or read back from there)."""
+    from lesmc.campaign.run import prepare
+
+    return [prepare(v, out, nets_dir) for v in videos]
+
+
+def _spec_files(specs: tuple[str, ...]) -> list[Any]:
+    """The property files (default: the bundled ones), each property named once."""
+    from lesmc.verify.experiment import bundled_specs, load_specs
+
+    spec_files = load_specs([Path(s) for s in specs] or bundled_specs(), None)
+    names = [p.name for s in spec_files for p in s.properties]
+    dup = sorted({n for n in names if names.count(n) > 1})
+    if dup:
+        raise UsageError(f"property name '{dup[0]}' is defined more than once")
+    return spec_files
 
 
 def _videos(frames_dirs: tuple[str, ...], out: Path, no_truth: bool) -> list[Any]:

@@ -4,7 +4,8 @@ from __future__ import annotations
 
 import sys
 import time
-from typing import TYPE_CHECKING
+from dataclasses import replace
+from typing import TYPE_CHECKING, Any
 
 import click
 
@@ -107,51 +108,44 @@ def check_cmd(
     4 internal error, 130 interrupted.
     """
     budget = budget_from(timeout, max_states, max_memory)
-    if frames_dir is not None and report_dir is None:
-        raise UsageError("--frames gives the report's images: it needs --report DIR")
-    if no_paths and as_json:
-        raise UsageError("--no-paths shortens the table: --json always carries the paths")
-    if payoffs != "attack" and report_dir is not None:
-        raise UsageError("--report draws the attack payoffs' model: use --payoffs attack")
+    _refuse_mismatched(frames_dir, report_dir, no_paths, as_json, payoffs)
     # the pipeline is imported when the verb runs: --help stays light (tests/test_startup.py)
-    from lesmc.api import check_job, load_model_or_scene, load_spec
+    from lesmc.api import check_job
     from lesmc.cli.signals import exit_if_stopped, polite_stop
     from lesmc.common.progress import Reporter
     from lesmc.pipeline.job import Job
-    from lesmc.report.text import make_console, print_results, results_json
     from lesmc.results.exit import exit_status
-    from lesmc.scene import Scene
 
-    _hint_swapped(model, specs)
-    parsed = tuple(load_spec(s) for s in specs)
-    source = load_model_or_scene(model, target_text)
-    is_scene = isinstance(source, Scene)
-    if design is not None and not is_scene:
-        raise UsageError("--design applies to scenes, not to .lts models")
+    parsed, source, is_scene = _inputs(model, specs, target_text, design)
+    job = Job(
+        parsed,
+        scene=source if is_scene else None,
+        model=None if is_scene else source,
+        payoffs=payoffs,  # type: ignore[arg-type]
+        engine=engine,  # type: ignore[arg-type]
+        budget=budget,
+        only=only,
+        designs=(design,) if design else (),
+        full_models=report_dir is not None,
+        source=model,
+    )
     with Reporter("check") as rep, polite_stop():
-        results = check_job(
-            Job(
-                parsed,
-                scene=source if is_scene else None,  # type: ignore[arg-type]
-                model=None if is_scene else source,  # type: ignore[arg-type]
-                payoffs=payoffs,  # type: ignore[arg-type]
-                engine=engine,  # type: ignore[arg-type]
-                budget=budget,
-                only=only,
-                designs=(design,) if design else (),
-                full_models=report_dir is not None,
-                source=model,
-                on_stage=rep.stage,
-            )
-        )
+        results = check_job(replace(job, on_stage=rep.stage))
     if report_dir is not None:
         _report(results, parsed, report_dir, model, frames_dir, budget.started, is_scene)
+    _print(results, parsed, as_json, no_paths)
+    exit_if_stopped()  # a polite SIGINT/SIGTERM: the partial results are out, 130/143
+    sys.exit(exit_status(results.results))
+
+
+def _print(results: Results, parsed: tuple[SpecFile, ...], as_json: bool, no_paths: bool) -> None:
+    """The results on stdout: the versioned JSON document, or the tables and paths."""
+    from lesmc.report.text import make_console, print_results, results_json
+
     if as_json:
         click.echo(results_json(results.results, parsed))
     else:
         print_results(make_console(), results.results, paths=not no_paths)
-    exit_if_stopped()  # a polite SIGINT/SIGTERM: the partial results are out, 130/143
-    sys.exit(exit_status(results.results))
 
 
 def _report(
@@ -173,6 +167,34 @@ def _report(
         results.runs, report_dir, meta, provenance(parsed), frames_reader(frames_dir), timings
     )
     click.echo(f"report: {out}", err=True)
+
+
+def _inputs(
+    model: str, specs: tuple[str, ...], target_text: str | None, design: str | None
+) -> tuple[tuple[SpecFile, ...], Any, bool]:
+    """The property files, the model or scene, and whether it is a scene."""
+    from lesmc.api import load_model_or_scene, load_spec
+    from lesmc.scene import Scene
+
+    _hint_swapped(model, specs)
+    parsed = tuple(load_spec(s) for s in specs)
+    source = load_model_or_scene(model, target_text)
+    is_scene = isinstance(source, Scene)
+    if design is not None and not is_scene:
+        raise UsageError("--design applies to scenes, not to .lts models")
+    return parsed, source, is_scene
+
+
+def _refuse_mismatched(
+    frames_dir: str | None, report_dir: str | None, no_paths: bool, as_json: bool, payoffs: str
+) -> None:
+    """Options that would be ignored, or that contradict each other, are errors."""
+    if frames_dir is not None and report_dir is None:
+        raise UsageError("--frames gives the report's images: it needs --report DIR")
+    if no_paths and as_json:
+        raise UsageError("--no-paths shortens the table: --json always carries the paths")
+    if payoffs != "attack" and report_dir is not None:
+        raise UsageError("--report draws the attack payoffs' model: use --payoffs attack")
 
 
 def _hint_swapped(model: str, specs: tuple[str, ...]) -> None:

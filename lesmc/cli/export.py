@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING
 
 import click
 
@@ -92,33 +92,15 @@ def export_cmd(
              objectives only: other properties are refused, with the reason)
     Exit status: 0 written, 2 bad input, 4 internal error, 130 interrupted.
     """
-    from lesmc.api import load_model_or_scene, load_spec
-    from lesmc.build.unfold import build_model
-    from lesmc.scene import Scene
+    from lesmc.api import export_model, load_spec
 
-    if fmt != "drn" and (spec_path or strict or (prop and not results_path)):
-        raise UsageError("--spec, --property and --strict choose what --format drn exports")
-    if fmt == "drn" and spec_path is None:
-        raise UsageError("--format drn exports a property: give --spec (and --property)")
-    if results_path is not None and fmt not in ("dot", "graphml"):
-        raise UsageError("--results marks paths in dot and graphml only")
-    source = load_model_or_scene(model, target_text, design)
-    if isinstance(source, Scene):
-        if window_text is None:
-            raise UsageError("a scene is built for one attack window: give --window L..U")
-        cm: ArrayModel = build_model(source, parse_window(window_text))
-    elif window_text is not None:
-        raise UsageError("--window builds a scene; a .lts model has its window already")
-    else:
-        cm = source
-    facts: dict[str, Any] = {}
-    if fmt == "drn":
-        facts = _write_drn(cm, load_spec(spec_path), prop, output, max_nodes, strict)  # type: ignore[arg-type]
-        if facts["not_exported"]:
-            click.echo(f"note: {facts['not_exported']}", err=True)
-    else:
-        roles = _roles(cm, results_path, prop) if results_path else None
-        _write(cm, fmt, output, roles, max_nodes)
+    _refuse_mismatched(fmt, spec_path, strict, prop, results_path)
+    cm = _model(model, target_text, design, window_text)
+    roles = _roles(cm, results_path, prop) if results_path else None
+    spec = load_spec(spec_path) if spec_path else None
+    facts = export_model(cm, output, fmt, spec, prop, strict, roles, max_nodes)
+    if facts.get("not_exported"):
+        click.echo(f"note: {facts['not_exported']}", err=True)
     say(f"wrote {escape_control(output)} ({fmt}, {cm.n_states} states)", as_json)
     if as_json:
         emit(
@@ -128,7 +110,6 @@ def export_cmd(
                 "provenance": run_provenance(),
                 "model": model,
                 "file": file_facts(output),
-                "export_format": fmt,
                 "states": cm.n_states,
                 "transitions": cm.n_transitions,
             }
@@ -136,41 +117,34 @@ def export_cmd(
         )
 
 
-def _write(cm: ArrayModel, fmt: str, output: str, roles: Any, max_nodes: int | None) -> None:
-    from lesmc.common.files import atomic_open, write_json
-    from lesmc.export.graphs import DOT_MAX_NODES, graphml_lines, to_dot, write_lines
-    from lesmc.model.lts_format import lts_to_dict
-
-    if fmt == "json":
-        write_json(output, lts_to_dict(cm))
-    elif fmt == "dot":
-        text = to_dot(cm, roles, max_nodes or DOT_MAX_NODES)
-        with atomic_open(output) as fh:
-            fh.write(text)
-    else:
-        with atomic_open(output) as fh:
-            write_lines(graphml_lines(cm, roles), fh)
+def _refuse_mismatched(
+    fmt: str, spec_path: str | None, strict: bool, prop: str | None, results_path: str | None
+) -> None:
+    """Options that the format would ignore are errors."""
+    if fmt != "drn" and (spec_path or strict or (prop and not results_path)):
+        raise UsageError("--spec, --property and --strict choose what --format drn exports")
+    if fmt == "drn" and spec_path is None:
+        raise UsageError("--format drn exports a property: give --spec (and --property)")
+    if results_path is not None and fmt not in ("dot", "graphml"):
+        raise UsageError("--results marks paths in dot and graphml only")
 
 
-def _write_drn(
-    cm: ArrayModel, spec: Any, prop: str | None, output: str, max_nodes: int | None, strict: bool
-) -> dict[str, Any]:
-    from lesmc.common.files import atomic_open
-    from lesmc.engines.check import bind_all
-    from lesmc.export.drn import DRN_MAX_PREFIXES, to_drn
+def _model(
+    model: str, target_text: str | None, design: str | None, window_text: str | None
+) -> ArrayModel:
+    """The .lts model, or the scene built for ``--window`` as lesmc build builds it."""
+    from lesmc.api import load_model_or_scene
+    from lesmc.build.unfold import build_model
+    from lesmc.scene import Scene
 
-    bound = bind_all(cm, [spec])
-    if prop is not None:
-        bound = [b for b in bound if b.name == prop]
-        if not bound:
-            raise UsageError(f"no property '{prop}' in {spec.path}")
-    elif len(bound) > 1:
-        names = ", ".join(b.name for b in bound)
-        raise UsageError(f"{spec.path} has several properties ({names}): choose with --property")
-    text, facts = to_drn(cm, bound[0], max_nodes or DRN_MAX_PREFIXES, strict)
-    with atomic_open(output) as fh:
-        fh.write(text)
-    return facts
+    source = load_model_or_scene(model, target_text, design)
+    if isinstance(source, Scene):
+        if window_text is None:
+            raise UsageError("a scene is built for one attack window: give --window L..U")
+        return build_model(source, parse_window(window_text))
+    if window_text is not None:
+        raise UsageError("--window builds a scene; a .lts model has its window already")
+    return source
 
 
 def _roles(cm: ArrayModel, path: str, prop: str | None) -> dict[str, list[int]]:

@@ -153,11 +153,42 @@ def perceive_cmd(
     _refuse_mismatched(output, target_text, certify, no_cnn, truth, nets_dir)
     # Imported here, not at module level: torch, cv2 and scipy cost seconds to import.
     from lesmc.common.progress import progress_bar
-    from lesmc.perception.attacks import AttackConfig
     from lesmc.perception.certify import CertifyConfig
     from lesmc.perception.cnn import load_nets
-    from lesmc.perception.quality import load_truth
     from lesmc.perception.run import PerceiveOptions, perceive
+
+    spec, frames, truths = _inputs(frames_dir, history, target_text, truth)
+    nets = None if no_cnn else load_nets(nets_dir)
+    att = _attack_config(attack, overshoot, max_iter, payoff_norm) if output else None
+    cert = CertifyConfig() if certify else None
+    opts = PerceiveOptions(history, delta_bc, nets, att, cert, radius, min_speed)
+    with progress_bar("perceive", "perceiving", len(frames)) as bar:
+        run = perceive(frames, opts, truths, bar.advance)
+    written: dict[str, Any] | None = None  # the scene written, for --json
+    if output is not None and nets is not None and att is not None:
+        step_dt = dt or (truths.dt if truths else None) or 1 / FPS
+        meta = _scene_meta(frames_dir, nets.settings.trained_on, att, payoff_norm, certify)
+        written = _write_scene(run, step_dt, meta, spec, frames, truths, output, as_json)
+    if as_json:
+        emit(_document(frames_dir, nets, run, written, truths is not None, started))
+        return
+    _print(run, truths is not None, nets is not None)
+
+
+def _attack_config(attack: str, overshoot: float, max_iter: int, payoff_norm: str) -> AttackConfig:
+    """How the scene's payoffs are computed (docs/cnn.md, "Attack settings")."""
+    from lesmc.perception.attacks import AttackConfig
+
+    method: Method = "pgd" if attack == "pgd" else "deepfool"
+    norm: Norm = "per-pixel" if payoff_norm == "per-pixel" else "l2"
+    return AttackConfig(method, overshoot, max_iter, norm)
+
+
+def _inputs(
+    frames_dir: str, history: int, target_text: str | None, truth: str | None
+) -> tuple[TargetSpec | None, FrameSet, Truth | None]:
+    """The target asked for, the frames and their truth, each checked against the others."""
+    from lesmc.perception.quality import load_truth
     from lesmc.tracking.targets import check_target, parse_target
     from lesmc.video.reader import open_frames
 
@@ -170,30 +201,7 @@ def perceive_cmd(
         missing = [p.name for p in frames.paths if p.name not in truths.frames]
         if missing:
             raise InputError(f"no truth for frame {missing[0]}", Location(truth or ""))
-    nets = None if no_cnn else load_nets(nets_dir)
-    method: Method = "pgd" if attack == "pgd" else "deepfool"
-    norm: Norm = "per-pixel" if payoff_norm == "per-pixel" else "l2"
-    att = AttackConfig(method, overshoot, max_iter, norm) if output else None
-    opts = PerceiveOptions(
-        history=history,
-        delta_bc=delta_bc,
-        nets=nets,
-        attack=att,
-        certify=CertifyConfig() if certify else None,
-        radius=radius,
-        min_speed=min_speed,
-    )
-    with progress_bar("perceive", "perceiving", len(frames)) as bar:
-        run = perceive(frames, opts, truths, bar.advance)
-    written: dict[str, Any] | None = None  # the scene written, for --json
-    if output is not None and nets is not None and att is not None:
-        step_dt = dt or (truths.dt if truths else None) or 1 / FPS
-        meta = _scene_meta(frames_dir, nets.settings.trained_on, att, payoff_norm, certify)
-        written = _write_scene(run, step_dt, meta, spec, frames, truths, output, as_json)
-    if as_json:
-        emit(_document(frames_dir, nets, run, written, truths is not None, started))
-        return
-    _print(run, truths is not None, nets is not None)
+    return spec, frames, truths
 
 
 def _refuse_mismatched(

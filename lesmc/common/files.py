@@ -267,26 +267,32 @@ def _first_problem(text: str) -> tuple[int, str] | None:
             expect_key = False
             pos = after
         else:
-            for name in ("NaN", "Infinity", "-Infinity"):
-                if text.startswith(name, pos):
-                    return pos, f"{name} is not allowed (numbers must be finite)"
-            match = _NUMBER_RE.match(text, pos)
-            if match is not None:
-                token = match.group()
-                if match.group(1) or match.group(2):
-                    if not math.isfinite(float(token)):
-                        return pos, _float_problem(token)
-                else:
-                    problem = _int_problem(token) if len(token) > 18 else None
-                    if problem:
-                        return pos, problem
-                pos = match.end()
-            elif text.startswith(("true", "null"), pos):
-                pos += 4
-            elif text.startswith("false", pos):
-                pos += 5
-            else:
-                return None
+            scanned = _scalar(text, pos)
+            if scanned is None or scanned[1] is not None:
+                return None if scanned is None else (pos, str(scanned[1]))
+            pos = scanned[0]
+
+
+def _scalar(text: str, pos: int) -> tuple[int, str | None] | None:
+    """A number, true, false or null at ``pos``: where it ends and its strictness problem
+    (None: it is fine); None when it is none of these (the scan gives up)."""
+    for name in ("NaN", "Infinity", "-Infinity"):
+        if text.startswith(name, pos):
+            return pos, f"{name} is not allowed (numbers must be finite)"
+    match = _NUMBER_RE.match(text, pos)
+    if match is not None:
+        token = match.group()
+        if match.group(1) or match.group(2):
+            if not math.isfinite(float(token)):
+                return pos, _float_problem(token)
+        elif len(token) > 18 and (problem := _int_problem(token)):
+            return pos, problem
+        return match.end(), None
+    if text.startswith(("true", "null"), pos):
+        return pos + 4, None
+    if text.startswith("false", pos):
+        return pos + 5, None
+    return None
 
 
 def _show_key(key: str) -> str:
