@@ -44,9 +44,8 @@ def enumerate_paths(
     obj = np.array([space.root_obj])
     con = np.array([space.root_con])
     levels: list[tuple[np.ndarray, np.ndarray]] = []  # (parent index, transition) per level
-    done_obj: list[np.ndarray] = []
-    done_con: list[np.ndarray] = []
-    done_ref: list[tuple[int, np.ndarray]] = []  # (level, node index) of finished paths
+    done: list[tuple[int, np.ndarray, np.ndarray, np.ndarray]] = []  # finished paths:
+    # (level, node index, objective, constraint)
     stopped = "finished"
     level = 0
     rate = 0.0  # seconds per expanded node of the last level
@@ -54,28 +53,17 @@ def enumerate_paths(
         leaf = space.leaves(node)
         if leaf.any():
             idx = np.nonzero(leaf)[0]
-            t_obj, t_con = space.tails(node[idx])
-            done_obj.append(aggregate_arrays(space.obj_max, obj[idx], t_obj))
-            done_con.append(aggregate_arrays(space.con_max, con[idx], t_con))
-            done_ref.append((level, idx))
+            done.append((level, idx, *_completed(space, node[idx], obj[idx], con[idx])))
         live = np.nonzero(~leaf)[0]
-        why = _unfold(space, node[live], search)
+        started = time.perf_counter()
+        why = _unfold(space, node[live], search) or _would_overrun(search, rate, int(live.size))
         if why is not None:
             stopped = why
             break
         # children: for each live node, each allowed transition in rank order
-        started = time.perf_counter()
-        why = _would_overrun(search, rate, int(live.size))
-        if why is not None:
-            stopped = why
-            break
         owner, trans = space.successors_batch(node[live])
         total = int(trans.size)
-        why = search.over(total)
-        if why is None and give_up_past is not None:
-            step = int(cm.step[cm.dst[trans[0]]]) if total else 0
-            if search.used + total + _projected(space.bp, step, total, live.size) > give_up_past:
-                why = "max_states"
+        why = _over(space, search, trans, int(live.size), give_up_past)
         if why is not None:
             stopped = why
             break
@@ -90,12 +78,44 @@ def enumerate_paths(
         rate = (time.perf_counter() - started) / max(int(live.size), 1)
     stats.states_expanded = search.used
     stats.stopped = stopped  # type: ignore[assignment]
-    all_obj = np.concatenate(done_obj) if done_obj else np.zeros(0)
-    all_con = np.concatenate(done_con) if done_con else np.zeros(0)
+    all_obj, all_con, done_ref = _finished(done)
     stats.paths = int(all_obj.size)
     outcome = _algorithm2(space, all_obj, all_con, done_ref, levels, stats)
     stats.seconds = time.perf_counter() - t0
     return outcome
+
+
+def _finished(
+    done: list[tuple[int, np.ndarray, np.ndarray, np.ndarray]],
+) -> tuple[np.ndarray, np.ndarray, list[tuple[int, np.ndarray]]]:
+    """Every finished path's objective and constraint, and where it ended (level, node)."""
+    if not done:
+        return np.zeros(0), np.zeros(0), []
+    obj = np.concatenate([d[2] for d in done])
+    con = np.concatenate([d[3] for d in done])
+    return obj, con, [(level, idx) for level, idx, _, _ in done]
+
+
+def _completed(
+    space: Space, leaves: np.ndarray, obj: np.ndarray, con: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    """The objective and constraint of the paths ending at ``leaves``, tails included."""
+    t_obj, t_con = space.tails(leaves)
+    return aggregate_arrays(space.obj_max, obj, t_obj), aggregate_arrays(space.con_max, con, t_con)
+
+
+def _over(
+    space: Space, search: SearchBudget, trans: np.ndarray, live: int, give_up_past: int | None
+) -> str | None:
+    """Why the next level (``trans`` out of ``live`` nodes) must not be made: a budget, or
+    (the probe) a tree projected larger than ``give_up_past``."""
+    total = int(trans.size)
+    why = search.over(total)
+    if why is None and give_up_past is not None:
+        step = int(space.cm.step[space.cm.dst[trans[0]]]) if total else 0
+        if search.used + total + _projected(space.bp, step, total, live) > give_up_past:
+            why = "max_states"
+    return why
 
 
 def _would_overrun(search: SearchBudget, rate: float, nodes: int) -> str | None:

@@ -379,18 +379,12 @@ def _optimum_pass(
     trail.add(root, np.array([-1]), np.array([-1]))
     fq, fo, fc = root, np.array([space.root_obj]), np.array([space.root_con])
     best, where = upper, None
-    cm, bp = space.cm, space.bp
+    cm = space.cm
     while fq.size:
         leaf = space.leaves(fq)
-        if leaf.any():
-            li = np.nonzero(leaf)[0]
-            to, tc = space.tails(fq[li])
-            lo_ = aggregate_arrays(space.obj_max, fo[li], to)
-            lc_ = aggregate_arrays(space.con_max, fc[li], tc)
-            bad = _truth(space.satisfies(lc_, bp.bound)) & (lo_ < best)
-            if bad.any():
-                j = int(np.argmin(np.where(bad, lo_, math.inf)))
-                best, where = float(lo_[j]), (trail, len(trail.q) - 1, int(li[j]))
+        found = _cheapest_leaf(space, fq, fo, fc, leaf, best)
+        if found is not None:
+            best, where = found[0], (trail, len(trail.q) - 1, found[1])
         live = np.nonzero(~leaf)[0]
         parts: list[tuple[np.ndarray, ...]] = []
         s0 = 0
@@ -403,11 +397,7 @@ def _optimum_pass(
                 if beam is not None:
                     return best, where, -math.inf, stop.reason
                 rest = live[s0 - sl.size :]  # this slice was not expanded
-                lower = min(
-                    best,
-                    bounds.least_lb(fq[rest], fo[rest], fc[rest]),
-                    *(float(part[5].min()) for part in parts if part[5].size),
-                )
+                lower = min(best, bounds.least_lb(fq[rest], fo[rest], fc[rest]), _least(parts))
                 return best, where, lower, stop.reason
             par = sl[idx]
             dst = cm.dst[t]
@@ -422,10 +412,7 @@ def _optimum_pass(
         why = budget.over(0)
         if why is not None and beam is None:  # a huge level: stop before filtering it
             return best, where, min(best, float(lb.min(initial=math.inf))), why
-        keep = np.nonzero(lb < bounds.cut(best))[0]  # the incumbent may have improved
-        keep = keep[_pareto(q[keep], o[keep], c[keep], space.con_up)]
-        if beam is not None and keep.size > beam:
-            keep = _beam(space, keep, lb, q, c, beam, saturated_first)
+        keep = _kept(space, bounds, q, o, c, lb, best, beam, saturated_first)
         trail.add(q[keep], p[keep], t[keep])
         fq, fo, fc = q[keep], o[keep], c[keep]
     return best, where, (best if beam is None else -math.inf), None
@@ -538,53 +525,142 @@ def _witness_pass(
     while q.size and best < cap:
         level = len(trail.q) - 1
         leaf = space.leaves(q)
-        if leaf.any():
-            li = np.nonzero(leaf)[0]
-            fo = aggregate_arrays(space.obj_max, o[li], space.tails(q[li])[0])
-            ok = (fo < opt) & (fo > best)
-            if ok.any():
-                j = int(np.argmax(np.where(ok, fo, -math.inf)))
-                best, where = float(fo[j]), (trail, level, int(li[j]), [])
+        found = _largest_leaf(space, q, o, leaf, opt, best)
+        if found is not None:
+            best, where = found[0], (trail, level, found[1], [])
         live = np.nonzero(~leaf)[0]
         if suffix is not None and live.size and suffix.covers(int(cm.step[q[live[0]]])):
             val, hit = suffix.meet(q[live], o[live], opt, best)
             if hit is not None:
                 best, where = val, (trail, level, int(live[hit[0]]), hit[1])
             break
-        parts: list[tuple[np.ndarray, ...]] = []
-        s0 = 0
-        while s0 < live.size:
-            sl = live[s0 : s0 + _slice(space)]
-            s0 += sl.size
-            idx, t = _expand(space, q[sl], budget, stats)
-            par = sl[idx]
-            dst = cm.dst[t]
-            o2 = aggregate_arrays(space.obj_max, o[par], space.c_obj[t])
-            lo, hi = bounds.range(dst, o2)
-            # o2 itself is exact and never decreases: o2 >= opt can never end below opt
-            keep = (o2 < opt) & (lo < opt) & (hi > best)
-            parts.append((dst[keep], o2[keep], par[keep], t[keep]))
-        if not parts:
+        if not live.size:
             break
-        q2, o2, p2, t2 = (np.concatenate([x[i] for x in parts]) for i in range(4))
+        q2, o2, p2, t2 = _witness_children(space, bounds, budget, stats, q, o, live, opt, best)
         why = budget.over(0) or budget.would_pass(rate * q2.size)
         if why is not None:  # a huge level: stop before sorting it (one piece of work)
             raise _Stop(why)
         started = time.perf_counter()
         keep = _distinct(q2, o2, space.obj_max)
         if beam is not None and keep.size > beam:
-            lo, hi = bounds.range(q2[keep], o2[keep])
-            target = min(cap, opt)
-            with np.errstate(invalid="ignore"):  # inf − inf (no optimum): NaN sorts last
-                gap = np.maximum(target - hi, 0.0) + np.maximum(lo - target, 0.0)
-                # a max keeps the largest; a sum aims at the middle of what the rest can add
-                aim = -o2[keep] if space.obj_max else np.abs(target - (lo + hi) / 2)
-            keep = keep[np.lexsort((aim, gap))[:beam]]
+            keep = _witness_beam(space, bounds, keep, q2, o2, min(cap, opt), beam)
         trail.add(q2[keep], p2[keep], t2[keep])
         q, o = q2[keep], o2[keep]
         if q2.size >= RATE_SAMPLE:  # small levels time the overheads, not the sort
             rate = (time.perf_counter() - started) / q2.size
     return best, where
+
+
+def _kept(
+    space: SearchSpace,
+    bounds: _Bounds,
+    q: np.ndarray,
+    o: np.ndarray,
+    c: np.ndarray,
+    lb: np.ndarray,
+    best: float,
+    beam: int | None,
+    saturated_first: bool,
+) -> np.ndarray:
+    """The labels of a level worth going on with: under the incumbent (it may have
+    improved), not dominated at their state, and within the beam."""
+    keep = np.nonzero(lb < bounds.cut(best))[0]
+    keep = keep[_pareto(q[keep], o[keep], c[keep], space.con_up)]
+    if beam is not None and keep.size > beam:
+        keep = _beam(space, keep, lb, q, c, beam, saturated_first)
+    return keep
+
+
+def _cheapest_leaf(
+    space: SearchSpace,
+    q: np.ndarray,
+    o: np.ndarray,
+    c: np.ndarray,
+    leaf: np.ndarray,
+    best: float,
+) -> tuple[float, int] | None:
+    """The least completed objective below ``best`` among the leaves whose completed path
+    violates the constraint, and its label; None if no leaf has one."""
+    if not leaf.any():
+        return None
+    li = np.nonzero(leaf)[0]
+    to, tc = space.tails(q[li])
+    lo = aggregate_arrays(space.obj_max, o[li], to)
+    lc = aggregate_arrays(space.con_max, c[li], tc)
+    bad = _truth(space.satisfies(lc, space.bp.bound)) & (lo < best)
+    if not bad.any():
+        return None
+    j = int(np.argmin(np.where(bad, lo, math.inf)))
+    return float(lo[j]), int(li[j])
+
+
+def _least(parts: list[tuple[np.ndarray, ...]]) -> float:
+    """The least lower bound (the 6th array) of the children made so far."""
+    return min((float(part[5].min()) for part in parts if part[5].size), default=math.inf)
+
+
+def _largest_leaf(
+    space: SearchSpace, q: np.ndarray, o: np.ndarray, leaf: np.ndarray, opt: float, best: float
+) -> tuple[float, int] | None:
+    """The largest completed objective among the leaves below ``opt`` and above ``best``,
+    and its label; None if no leaf has one."""
+    if not leaf.any():
+        return None
+    li = np.nonzero(leaf)[0]
+    fo = aggregate_arrays(space.obj_max, o[li], space.tails(q[li])[0])
+    ok = (fo < opt) & (fo > best)
+    if not ok.any():
+        return None
+    j = int(np.argmax(np.where(ok, fo, -math.inf)))
+    return float(fo[j]), int(li[j])
+
+
+def _witness_children(
+    space: SearchSpace,
+    bounds: _Bounds,
+    budget: SearchBudget,
+    stats: Stats,
+    q: np.ndarray,
+    o: np.ndarray,
+    live: np.ndarray,
+    opt: float,
+    best: float,
+) -> tuple[np.ndarray, ...]:
+    """The children of labels ``live`` whose completions can end in (best, opt): state,
+    objective, parent label, entering transition (expanded slice by slice)."""
+    parts: list[tuple[np.ndarray, ...]] = []
+    s0 = 0
+    while s0 < live.size:
+        sl = live[s0 : s0 + _slice(space)]
+        s0 += sl.size
+        idx, t = _expand(space, q[sl], budget, stats)
+        par = sl[idx]
+        dst = space.cm.dst[t]
+        o2 = aggregate_arrays(space.obj_max, o[par], space.c_obj[t])
+        lo, hi = bounds.range(dst, o2)
+        # o2 itself is exact and never decreases: o2 >= opt can never end below opt
+        keep = (o2 < opt) & (lo < opt) & (hi > best)
+        parts.append((dst[keep], o2[keep], par[keep], t[keep]))
+    return tuple(np.concatenate([x[i] for x in parts]) for i in range(4))
+
+
+def _witness_beam(
+    space: SearchSpace,
+    bounds: _Bounds,
+    keep: np.ndarray,
+    q: np.ndarray,
+    o: np.ndarray,
+    target: float,
+    beam: int,
+) -> np.ndarray:
+    """The ``beam`` labels of ``keep`` likeliest to complete near ``target``."""
+    lo, hi = bounds.range(q[keep], o[keep])
+    with np.errstate(invalid="ignore"):  # inf − inf (no optimum): NaN sorts last
+        gap = np.maximum(target - hi, 0.0) + np.maximum(lo - target, 0.0)
+        # a max keeps the largest; a sum aims at the middle of what the rest can add
+        aim = -o[keep] if space.obj_max else np.abs(target - (lo + hi) / 2)
+    out: np.ndarray = keep[np.lexsort((aim, gap))[:beam]]
+    return out
 
 
 def _distinct(q: np.ndarray, o: np.ndarray, obj_max: bool) -> np.ndarray:
