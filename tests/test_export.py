@@ -13,7 +13,6 @@ import json
 import math
 import shutil
 import subprocess
-import sys
 from pathlib import Path
 
 import jsonschema
@@ -157,7 +156,3 @@ def test_dot_marks_the_counterexample_and_refuses_large_models(tmp_path: Path) -
     r = lesmc("export", str(TINY / "model.lts"), "--format", "dot", "-o", str(tmp_path / "x.dot"),
               "--max-nodes", "5")  # fmt: skip
     assert r.returncode == 2 and "--max-nodes" in r.stderr and not (tmp_path / "x.dot").exists()
-
-
-def test_stormpy_is_importable_in_the_test_environment() -> None:
-    assert sys.modules.get("stormpy") is stormpy
