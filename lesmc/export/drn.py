@@ -39,39 +39,54 @@ def to_drn(
     ``strict`` the export is refused."""
     space = build_space(cm, bp)
     rewards = not space.obj_max
-    not_exported = None
-    if not rewards:
-        not_exported = (
-            f"property '{bp.name}': the objective {bp.objective.text} is a maximum over steps, "
-            "not a sum of rewards: the MDP and its label 'violated' are written, the reward "
-            "model is not (Storm's reward properties cannot state it)"
-        )
-        if strict:
-            raise UsageError(
-                not_exported.replace(
-                    "are written, the reward model is not", "are not exported (--strict)"
-                )
-            )
+    not_exported = None if rewards else _not_exported(bp, strict)
+    choices, labels = _prefix_tree(cm, space, rewards, max_prefixes)
+    text = _drn(choices, labels, rewards)
+    facts = {
+        "property": bp.name,
+        "not_exported": not_exported,
+        "drn": {"states": len(choices), "choices": sum(map(len, choices))},
+        "storm_property": 'Rmin=? [F "violated"]',
+        "prism_property": 'R{"payoff"}min=? [F "violated"]',
+    }
+    return text, facts
+
+
+def _not_exported(bp: BoundProperty, strict: bool) -> str:
+    """What a DRN export of a dist.max objective leaves out (refused with ``strict``)."""
+    what = (
+        f"property '{bp.name}': the objective {bp.objective.text} is a maximum over steps, "
+        "not a sum of rewards (Storm's reward properties cannot state it)"
+    )
+    if strict:
+        raise UsageError(f"{what}: not exported (--strict)")
+    return f"{what}: the MDP and its label 'violated' are written, the reward model is not"
+
+
+def _prefix_tree(
+    cm: ArrayModel, space: Any, rewards: bool, max_prefixes: int
+) -> tuple[list[list[tuple[float, int]]], list[str]]:
+    """The MDP: per state its actions (reward, target) and its label; state 0 is the
+    root, state 1 the absorbing ``violated`` state."""
     index: dict[tuple[int, float], int] = {}
     choices: list[list[tuple[float, int]]] = []  # per MDP state: (reward, target)
     labels: list[str] = []
+    todo: list[tuple[int, int, float]] = []
 
     def state(q: int, con: float) -> int:
-        key = (q, con)
-        got = index.get(key)
+        got = index.get((q, con))
         if got is None:
             if len(index) >= max_prefixes:
                 raise UsageError(
                     f"more than {max_prefixes} path prefixes: raise --max-nodes, or export a "
                     "model with a narrower attack window"
                 )
-            got = index[key] = len(choices)
+            got = index[(q, con)] = len(choices)
             choices.append([])
             labels.append("")
             todo.append((got, q, con))
         return got
 
-    todo: list[tuple[int, int, float]] = []
     state(int(space.root), float(space.root_con))
     goal = len(choices)  # absorbing, labelled violated (unreachable when nothing violates)
     choices.append([])
@@ -92,15 +107,7 @@ def to_drn(
     for s, acts in enumerate(choices):
         if s == goal or not acts:
             choices[s] = [(0.0, s)]  # absorbing
-    text = _drn(choices, labels, rewards)
-    facts = {
-        "property": bp.name,
-        "not_exported": not_exported,
-        "drn": {"states": len(choices), "choices": sum(map(len, choices))},
-        "storm_property": 'Rmin=? [F "violated"]',
-        "prism_property": 'R{"payoff"}min=? [F "violated"]',
-    }
-    return text, facts
+    return choices, labels
 
 
 def _drn(choices: list[list[tuple[float, int]]], labels: list[str], rewards: bool) -> str:
