@@ -29,15 +29,18 @@ DEFAULT_MAX_STATES = 10_000_000
 do not import the engines (tests/test_startup.py checks that the two agree)."""
 
 
-class RegistryChoice(click.Choice):  # type: ignore[type-arg]
+class RegistryChoice(click.Choice):  # type: ignore[type-arg, unused-ignore]
     """A choice read from the design registry whenever it is shown or checked, so that a
-    design registered after the command line was declared is offered too."""
+    design registered after the command line was declared is offered too.
+
+    click declares ``choices`` differently from release to release (a plain class in 8.1,
+    ``Sequence`` in 8.4, ``tuple`` in 8.5); the ignores below cover each of them."""
 
     def __init__(self, names: Callable[[], tuple[str, ...]]) -> None:
         self._names = names
         super().__init__(names())
 
-    @property
+    @property  # type: ignore[override, unused-ignore]
     def choices(self) -> tuple[str, ...]:
         return self._names()
 
