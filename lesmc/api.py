@@ -27,7 +27,7 @@ from lesmc.model.lts_format import load_lts, lts_from_dict
 from lesmc.pipeline.check import run
 from lesmc.pipeline.job import Job, PayoffMode
 from lesmc.results.record import DesignRun, Results
-from lesmc.scene import Scene
+from lesmc.scene import Scene, TrackerConfig, load_tracker
 from lesmc.tracking.targets import scene_with_target
 
 if TYPE_CHECKING:
@@ -59,19 +59,37 @@ def load_model(path: str | Path) -> ArrayModel:
     return load_lts(path)
 
 
-def load_scene(path: str | Path, target: str | None = None, design: str | None = None) -> Scene:
+def load_scene(
+    path: str | Path,
+    target: str | None = None,
+    design: str | None = None,
+    tracker: str | Path | TrackerConfig | None = None,
+) -> Scene:
     """A scene file (docs/scene-format.md); ``target`` (``X,Y@STEP``) places or moves its
-    target, ``design`` names another tracker of the registry."""
-    return scene_with_target(read_json(Path(path), InputError), str(path), target, design)
+    target, ``tracker`` (a tracker file or configuration) replaces its tracker, ``design``
+    names another tracker design of the registry."""
+    cfg = _tracker_config(tracker)
+    return scene_with_target(read_json(Path(path), InputError), str(path), target, design, cfg)
+
+
+def _tracker_config(tracker: str | Path | TrackerConfig | None) -> TrackerConfig | None:
+    if tracker is None or isinstance(tracker, TrackerConfig):
+        return tracker
+    return load_tracker(tracker)
 
 
 def load_model_or_scene(
-    path: str | Path, target: str | None = None, design: str | None = None
+    path: str | Path,
+    target: str | None = None,
+    design: str | None = None,
+    tracker: str | Path | TrackerConfig | None = None,
 ) -> ArrayModel | Scene:
     """A .lts model or a scene, told apart by the file's ``format`` field."""
     data = read_json(Path(path), InputError)
     if isinstance(data, dict) and data.get("format") == "lesmc-scene":
-        return scene_with_target(data, str(path), target, design)
+        return scene_with_target(data, str(path), target, design, _tracker_config(tracker))
+    if tracker is not None:
+        raise UsageError("--tracker applies to scenes, not to .lts models (built with one)")
     if design:
         raise UsageError("--design applies to scenes, not to .lts models")
     if target:

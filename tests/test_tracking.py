@@ -284,7 +284,7 @@ def test_batched_gain_equals_the_textbook_and_does_not_depend_on_the_batch(
     P = np.einsum("nij,nkj->nik", A, A) + 0.1 * np.eye(4)
     P_pred = predict_covariances(m, P)
     inn = innovations(m, P_pred)
-    radii = gate_radii(inn.S, P_pred, 3.0, gate_type)
+    radii = gate_radii(inn.S, P_pred[:, 0, 0] + P_pred[:, 1, 1], 3.0, gate_type)
     for i in range(len(P)):
         one = innovations(m, predict_covariances(m, P[i : i + 1]))
         assert one.P_post[0].tobytes() == inn.P_post[i].tobytes()

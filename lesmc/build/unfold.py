@@ -32,8 +32,6 @@ from lesmc.model.growing import BATCH_SECONDS, Expansion, GrowingModel
 from lesmc.scene import Scene
 from lesmc.tracking.design import Batch, Design, PayloadStore
 
-COMPONENTS = ("x", "y", "vx", "vy")
-
 #: States expanded together when building eagerly: bounds the temporaries of one batch.
 EAGER_BATCH = 65_536
 
@@ -54,7 +52,8 @@ class SceneExpander:
         self.scene = scene
         self.design: Design = make_tracker(scene)
         self.window = window
-        self.model = GrowingModel(COMPONENTS, 4)
+        names = scene.tracker.state_names
+        self.model = GrowingModel(names, len(names))
         self.model.expander = self
         self.objects: PayloadStore | None = None  # whole tracker states, for designs that have them
         self._seen: dict[int, HashIndex] = {}  # per step: state hash -> index
@@ -268,7 +267,7 @@ def freeze(
     order = np.argsort(src, kind="stable")  # identity when expanded in index order
     original = model.original
     return ArrayModel(
-        components=COMPONENTS,
+        components=model.components,
         step=model.step.astype(np.int64),
         S=model.S.copy(),
         halted=model.halted.copy(),

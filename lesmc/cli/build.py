@@ -18,6 +18,7 @@ from lesmc.cli.options import (
     model_output,
     parse_window,
     scene_target,
+    tracker_option,
 )
 from lesmc.common.errors import escape_control, escape_text
 
@@ -45,6 +46,7 @@ _DESIGN = design_option("Override the tracker design the scene names.")
 )
 @model_output
 @_DESIGN
+@tracker_option
 @budget_options(None, "the build stops with exit 3 and writes nothing")
 @scene_target
 @click.option(
@@ -62,6 +64,7 @@ def build_cmd(
     design: str | None,
     max_states: int | None,
     timeout: float | None,
+    tracker_file: str | None,
     max_memory: int | None,
     target_text: str | None,
     as_json: bool,
@@ -78,7 +81,7 @@ def build_cmd(
     from lesmc.common.progress import Reporter
 
     window = parse_window(window_text)
-    sc = load_scene_file(scene, design, target_text)
+    sc = load_scene_file(scene, design, target_text, tracker_file)
     loaded = time.monotonic()
     stop_if_spent(budget, None, "loading the scene")
     with Reporter("build") as rep, rep.bar("building", end or max_end(sc)) as bar:
@@ -147,9 +150,15 @@ def _build_document(
 @click.option("--end", type=click.IntRange(min=0), default=None, help="Last step to track.")
 @click.option("--json", "as_json", is_flag=True, help="Print the track as JSON.")
 @_DESIGN
+@tracker_option
 @scene_target
 def track_cmd(
-    scene: str, end: int | None, as_json: bool, design: str | None, target_text: str | None
+    scene: str,
+    end: int | None,
+    as_json: bool,
+    design: str | None,
+    tracker_file: str | None,
+    target_text: str | None,
 ) -> None:
     """Run the tracker on SCENE unattacked: estimates, τ (Eq. 12) and monitor alarms (Eq. 13)."""
     from rich.table import Table
@@ -158,7 +167,7 @@ def track_cmd(
     from lesmc.report.text import fmt, make_console
     from lesmc.tracking.monitor import track
 
-    sc = load_scene_file(scene, design, target_text)
+    sc = load_scene_file(scene, design, target_text, tracker_file)
     points = track(make_tracker(sc), end)
     if as_json:
         doc = {

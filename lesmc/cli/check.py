@@ -17,6 +17,7 @@ from lesmc.cli.options import (
     frames_option,
     payoffs_option,
     scene_target,
+    tracker_option,
 )
 from lesmc.common.errors import UsageError
 from lesmc.designs import registry
@@ -78,6 +79,7 @@ ENGINES = ("levels", "bnb", "enumerate")
     "the tracker it names; a monitored design filters every property by the runtime "
     "monitor (Eq. 12-13).",
 )
+@tracker_option
 @scene_target
 def check_cmd(
     model: str,
@@ -92,6 +94,7 @@ def check_cmd(
     frames_dir: str | None,
     payoffs: str,
     design: str | None,
+    tracker_file: str | None,
     max_memory: int | None,
     target_text: str | None,
 ) -> None:
@@ -116,7 +119,7 @@ def check_cmd(
     from lesmc.pipeline.job import Job
     from lesmc.results.exit import exit_status
 
-    parsed, source, is_scene = _inputs(model, specs, target_text, design)
+    parsed, source, is_scene = _inputs(model, specs, target_text, design, tracker_file)
     job = Job(
         parsed,
         scene=source if is_scene else None,
@@ -170,7 +173,11 @@ def _report(
 
 
 def _inputs(
-    model: str, specs: tuple[str, ...], target_text: str | None, design: str | None
+    model: str,
+    specs: tuple[str, ...],
+    target_text: str | None,
+    design: str | None,
+    tracker_file: str | None,
 ) -> tuple[tuple[SpecFile, ...], Any, bool]:
     """The property files, the model or scene, and whether it is a scene."""
     from lesmc.api import load_model_or_scene, load_spec
@@ -178,7 +185,7 @@ def _inputs(
 
     _hint_swapped(model, specs)
     parsed = tuple(load_spec(s) for s in specs)
-    source = load_model_or_scene(model, target_text)
+    source = load_model_or_scene(model, target_text, tracker=tracker_file)
     is_scene = isinstance(source, Scene)
     if design is not None and not is_scene:
         raise UsageError("--design applies to scenes, not to .lts models")

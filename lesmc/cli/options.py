@@ -260,8 +260,24 @@ def budget_from(
     return budget
 
 
-def load_scene_file(path: str, design: str | None = None, target: str | None = None) -> Scene:
-    """A scene file; ``target`` (``X,Y@STEP``) overrides or supplies its target."""
+def load_scene_file(
+    path: str, design: str | None = None, target: str | None = None, tracker: str | None = None
+) -> Scene:
+    """A scene file; ``target`` (``X,Y@STEP``) overrides or supplies its target, ``tracker``
+    (a tracker file) replaces its tracker."""
     from lesmc.api import load_scene
 
-    return load_scene(path, target, design)
+    return load_scene(path, target, design, tracker)
+
+
+#: ``--tracker FILE``: a tracker file replacing the scene's tracker block.
+tracker_option = click.option(
+    "--tracker",
+    "tracker_file",
+    type=click.Path(dir_okay=False),
+    default=None,
+    metavar="FILE",
+    help="A tracker file (JSON, or TOML unless the name ends in .json) replacing the "
+    "scene's tracker: a preset model (cv2d, ca2d) or the matrices F, H, Q, R, P0 "
+    "(docs/own-system.md).",
+)

@@ -19,6 +19,7 @@ from lesmc.cli.options import (
     payoffs_option,
     spec_option,
     target_option,
+    tracker_option,
 )
 
 
@@ -70,6 +71,7 @@ from lesmc.cli.options import (
     "docs/semantics.md). On a video, certified|interval certify the detections the "
     "models can hide (about a second each; `perceive --certify` certifies them all)."
 )
+@tracker_option
 @click.option("--json", "as_json", is_flag=True, help="Print results.json on stdout.")
 @budget_options(
     DEFAULT_MAX_STATES,
@@ -88,6 +90,7 @@ def verify_cmd(
     nets_dir: str | None,
     frames_opt: str | None,
     payoffs: str,
+    tracker_file: str | None,
     as_json: bool,
     max_states: int,
     timeout: float | None,
@@ -121,6 +124,7 @@ def verify_cmd(
         out=Path(out_dir),
         nets_dir=nets_dir,
         scene_frames=frames_opt,
+        tracker=tracker_file,
         payoffs=payoffs,  # type: ignore[arg-type]
         budget=budget,
     )

@@ -79,6 +79,31 @@ def read_json(path: str | Path, error: type[LesmcError] = InputError) -> Any:
     return parse_json(_read_bytes(path, error), str(path), error)
 
 
+def read_toml(path: str | Path, error: type[LesmcError] = InputError) -> Any:
+    """Parse a TOML file (stdlib ``tomllib``); a syntax error becomes a ``FILE:LINE:COL`` ``error``.
+
+    TOML has no null and its floats may be inf or nan: the loaders that read it
+    check every value as they do for JSON.
+    """
+    import tomllib
+
+    text = read_text(path, error)
+    try:
+        return tomllib.loads(text)
+    except tomllib.TOMLDecodeError as exc:
+        msg = str(exc)
+        at = re.search(r"\s*\(at line (\d+), column (\d+)\)$", msg)
+        if at is None:
+            at = re.search(r"\s*\(at end of document\)$", msg)
+            loc = Location.at(str(path), text, len(text))
+        else:
+            line, col = int(at.group(1)), int(at.group(2))
+            lines = text.split("\n")
+            shown = lines[line - 1].removesuffix("\r") if line <= len(lines) else None
+            loc = Location(str(path), line, col, shown)
+        raise error(msg[: at.start()] if at else msg, loc) from None
+
+
 def _read_bytes(path: str | Path, error: type[LesmcError]) -> bytes:
     try:
         return Path(path).read_bytes()

@@ -21,7 +21,7 @@ from __future__ import annotations
 from collections.abc import Iterable
 from dataclasses import dataclass, field, replace
 
-from lesmc.build.unfold import COMPONENTS, build_model, lazy_model, original_end
+from lesmc.build.unfold import build_model, lazy_model, original_end
 from lesmc.common.budget import Budget
 from lesmc.common.errors import BudgetError, UsageError
 from lesmc.designs import registry
@@ -61,7 +61,8 @@ def bind_scene(
     over the whole video; a campaign binds hundreds of windows to one scene).
     """
     e = original_end(scene) if end is None else end
-    return [bind(spec, prop, e, COMPONENTS, True) for spec in specs for prop in spec.properties]
+    names = scene.tracker.state_names
+    return [bind(spec, prop, e, names, True) for spec in specs for prop in spec.properties]
 
 
 def window_of(bound: Iterable[BoundProperty]) -> tuple[int, int]:

@@ -47,7 +47,7 @@ from lesmc.designs.registry import make_tracker
 from lesmc.engines.result import status_word
 from lesmc.model import kernel
 from lesmc.perception.windows import cut, origins, stack
-from lesmc.scene import Detection, Frame, Scene, Target, TrackerConfig
+from lesmc.scene import Detection, Frame, Scene, Target, tracker_from_dict
 from lesmc.tracking.monitor import track
 
 if TYPE_CHECKING:
@@ -167,7 +167,8 @@ def _case(doc: dict[str, Any], i: int, j: int, cex_no: int) -> Case:
             "nothing to replay through the detector (write the results with lesmc verify)"
         )
     path = run["paths"][cex_no - 1]
-    pos = np.array([run["states"][q]["s"][:2] for q in path["states"]], float)
+    loc = list(tracker_from_dict(rp["tracker"], "results: replay_inputs.tracker").measured)
+    pos = np.array([np.array(run["states"][q]["s"])[loc] for q in path["states"]], float)
     known = {d[2]: (float(d[0]), float(d[1])) for step in run["scene"]["detections"] for d in step}
     hidden = [
         Hidden(
@@ -458,11 +459,10 @@ def _footage(dets: dict[int, FrameDetections], case: Case, attacked: dict[int, F
             Detection(f"{k}:{j}", float(x), float(y), 1.0) for j, (x, y) in enumerate(fd.positions)
         )
         frames.append(Frame(k, ds, to_next))
-    tc = dict(case.tracker)
-    tc["P0_sd"] = tuple(tc["P0_sd"])
     t = case.target
     target = Target(int(t["step"]), tuple(t["start"]), tuple(t["velocity"]))
-    return Scene(case.dt, tuple(frames), target, TrackerConfig(**tc), {})
+    tracker = tracker_from_dict(case.tracker, "results: replay_inputs.tracker")
+    return Scene(case.dt, tuple(frames), target, tracker, {})
 
 
 def _compare(
@@ -475,6 +475,7 @@ def _compare(
     n_model = len(case.positions)
     err = 0.0
     first = case.first_frame
+    loc = list(scene.tracker.measured)
     for k in range(max(n_model, len(points))):
         if k >= n_model or k >= len(points):
             why = (
@@ -483,7 +484,7 @@ def _compare(
                 else "the model's track halts here; the replayed one goes on"
             )
             return _diverged(k, err, why, attacks.get(first + k))
-        e = float(np.linalg.norm(points[k].x[:2] - case.positions[k]))
+        e = float(np.linalg.norm(points[k].x[list(loc)] - case.positions[k]))
         if k >= 1:
             want = case.obs[k - 1]
             got = points[k].obs

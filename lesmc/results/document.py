@@ -217,6 +217,7 @@ def _scene_part(
     listed: list[Track],
     ref: int,
     truth: list[list[float]] | None,
+    loc: tuple[int, int],
 ) -> tuple[dict[str, Any], list[np.ndarray]] | None:
     """Detections near the listed tracks per step (with their position in the pixels of step
     ``ref``), the target's true track there, and each step's homography to step ``ref``."""
@@ -226,7 +227,7 @@ def _scene_part(
     to_ref = _to_ref(scene, first, end, ref)
     dets = []
     for k in range(end + 1):
-        here = np.array([cm.S[t.states[k], :2] for t in listed if k < len(t.states)])
+        here = np.array([cm.S[t.states[k]][list(loc)] for t in listed if k < len(t.states)])
         frame = scene.frame(first + k)
         pos = frame.positions()
         keep: list[int] = []
@@ -262,13 +263,17 @@ def _scene_part(
 
 
 def _states_json(
-    cm: ArrayModel, listed: list[Track], to_ref: list[np.ndarray] | None
+    cm: ArrayModel,
+    listed: list[Track],
+    to_ref: list[np.ndarray] | None,
+    loc: tuple[int, int],
 ) -> dict[str, Any]:
-    """The states on the listed tracks: step, estimate, τ (Eq. 12) and, when the scene says
-    where step k's pixels lie in the figures' frame, the position there."""
+    """The states on the listed tracks: step, estimate, τ (Eq. 12, over the location
+    components ``loc``) and, when the scene says where step k's pixels lie in the figures'
+    frame, the position there."""
     on_paths = sorted({q for t in listed for q in t.states})
     taus = (
-        kernel.tau(cm.P_table, kernel.LOCATION)[cm.cov]
+        kernel.tau(cm.P_table, loc)[cm.cov]
         if cm.cov is not None and cm.P_table is not None and cm.S.shape[1] >= 2
         else np.full(cm.n_states, np.nan)
     )
@@ -281,7 +286,7 @@ def _states_json(
             "tau": num(float(taus[q])),
         }
         if to_ref is not None:
-            item["ref"] = [float(v) for v in warp(to_ref[k], cm.S[q, :2])]
+            item["ref"] = [float(v) for v in warp(to_ref[k], cm.S[q][list(loc)])]
         out[cm.state_id(q)] = item
     return out
 
@@ -304,8 +309,10 @@ def run_json(
     judged = [[tracks.judge(sp, t) for sp in spaces] for t in listed]
     cex = [_path_no(cm, number, r.counterexample) for r in run.results]
     scene_part, to_ref = None, None
-    if run.scene is not None and cm.components[:2] == ("x", "y"):
-        got = _scene_part(cm, run.scene, listed, win[1], truth)
+    loc: tuple[int, int] = kernel.LOCATION
+    if run.scene is not None and cm.components == run.scene.tracker.state_names:
+        loc = run.scene.tracker.measured
+        got = _scene_part(cm, run.scene, listed, win[1], truth, loc)
         if got is not None:
             scene_part, to_ref = got
     return {
@@ -331,7 +338,7 @@ def run_json(
         },
         "paths_total": tracks.count_paths(cm),
         "paths": [_track_json(cm, i + 1, t, win, judged[i]) for i, t in enumerate(listed)],
-        "states": _states_json(cm, listed, to_ref),
+        "states": _states_json(cm, listed, to_ref, loc),
         "hidden": {
             bp.name: _hidden(cm, listed[n - 1], run.scene, (bp.l, bp.u))
             for bp, n in zip(run.bound, cex, strict=True)

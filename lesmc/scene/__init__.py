@@ -1,18 +1,22 @@
 """The scene stage: frames of detections with payoffs, a target, a tracker (docs/scene-format.md).
 
 ``frames.py`` holds the detections and their geometry, ``scene.py`` the scene
-objects, ``io.py`` the file format, ``toy.py`` hand-made scenes.
+objects, ``tracker_model.py`` the tracker's linear-Gaussian model, ``io.py`` the
+file format, ``toy.py`` hand-made scenes.
 """
 
 from lesmc.scene.frames import Detection, Frame, WatchedFrame, lower_frames
 from lesmc.scene.io import (
     FORMAT,
     VERSION,
+    check_fits,
     footage_from_dict,
     load_scene,
+    load_tracker,
     save_scene,
     scene_from_dict,
     scene_to_dict,
+    tracker_from_dict,
 )
 from lesmc.scene.scene import UNATTACKABLE, Footage, Scene, Target, TrackerConfig
 
@@ -27,10 +31,13 @@ __all__ = [
     "Target",
     "TrackerConfig",
     "WatchedFrame",
+    "check_fits",
     "footage_from_dict",
     "load_scene",
+    "load_tracker",
     "lower_frames",
     "save_scene",
     "scene_from_dict",
     "scene_to_dict",
+    "tracker_from_dict",
 ]

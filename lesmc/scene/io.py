@@ -17,10 +17,18 @@ import numpy as np
 
 from lesmc.common.errors import InputError, Problems
 from lesmc.common.fields import header, is_finite, is_int, positive, show, within
-from lesmc.common.files import read_json, write_json
+from lesmc.common.files import read_json, read_toml, write_json
 from lesmc.designs import registry
 from lesmc.scene.frames import Detection, Frame
-from lesmc.scene.scene import UNATTACKABLE, Footage, Scene, Target, TrackerConfig
+from lesmc.scene.scene import PRESET_ONLY, UNATTACKABLE, Footage, Scene, Target, TrackerConfig
+from lesmc.scene.tracker_model import (
+    DEFAULT_MODEL,
+    PRESET_P0_SD,
+    VELOCITY,
+    parse_model,
+    state_names,
+    velocity,
+)
 
 #: Ranges of a scene's numbers (docs/scene-format.md, "Limits"): wide enough for any
 #: real video, narrow enough that the tracker's arithmetic stays finite.
@@ -85,6 +93,7 @@ def footage_from_dict(
     if pr.items:
         raise InputError.many(path, pr.items)
     assert tracker is not None
+    check_fits(tracker, target, path)
     raw_meta = data.get("meta")
     meta: dict[str, Any] = raw_meta if isinstance(raw_meta, dict) else {}
     return Footage(float(dt), tuple(frames), tracker, meta), target
@@ -215,42 +224,86 @@ def _detection(raw: Any, where: str, pr: Problems) -> Detection | None:
     )
 
 
-def _tracker(raw: Any, pr: Problems) -> TrackerConfig | None:
+def _tracker(raw: Any, pr: Problems, item: str = "tracker") -> TrackerConfig | None:
+    """A tracker block: the design, the gate, and the model (a preset's parameters or
+    declared matrices, lesmc/scene/tracker_model.py)."""
     if not isinstance(raw, dict):
-        pr.add("tracker", "must be an object")
+        pr.add(item, "must be an object")
         return None
-    defaults = TrackerConfig()
+    n0 = len(pr.items)
     names = {f.name for f in fields(TrackerConfig)}
     values: dict[str, Any] = {}
     for key, v in raw.items():
         if key not in names:
-            pr.add("tracker", f"unknown key '{key}'")
-            continue
-        if key == "design":
+            pr.add(item, f"unknown key '{key}'")
+        elif key == "model":
+            values[key] = parse_model(v, pr, item)
+        elif key == "design":
             if v not in registry.tracker_names():
                 known = " or ".join(f'"{n}"' for n in registry.tracker_names())
-                pr.add("tracker", f"design must be {known}, got {show(v)}")
-                continue
+                pr.add(item, f"design must be {known}, got {show(v)}")
+            values[key] = v
         elif key == "gate_type":
             if v not in ("mahalanobis", "euclidean"):
-                pr.add("tracker", f'gate_type must be "mahalanobis" or "euclidean", got {v!r}')
-                continue
+                pr.add(item, f'gate_type must be "mahalanobis" or "euclidean", got {v!r}')
+            values[key] = v
         elif key == "P0_sd":
             hi = TRACKER_LIMITS[key]
-            if not (isinstance(v, list) and len(v) == 4 and all(positive(x, hi) for x in v)):
-                pr.add("tracker", f"P0_sd must be a list of 4 numbers in (0, {hi:g}]")
-                continue
-            v = tuple(float(x) for x in v)
+            if not (isinstance(v, list) and v and all(positive(x, hi) for x in v)):
+                pr.add(item, f"P0_sd must be a list of numbers in (0, {hi:g}], got {show(v)}")
+            else:
+                values[key] = tuple(float(x) for x in v)
         elif not positive(v, TRACKER_LIMITS[key]):
             hi = TRACKER_LIMITS[key]
-            pr.add("tracker", f"{key} must be a number in (0, {hi:g}], got {show(v)}")
-            continue
-        values[key] = v
-    try:
-        return TrackerConfig(**{**defaults.__dict__, **values})
-    except TypeError as exc:  # pragma: no cover - names are checked above
-        pr.add("tracker", str(exc))
+            pr.add(item, f"{key} must be a number in (0, {hi:g}], got {show(v)}")
+        else:
+            values[key] = v
+    model = values.get("model", DEFAULT_MODEL)
+    if len(pr.items) > n0 or model is None:
         return None
+    if isinstance(model, str):
+        sd = values.setdefault("P0_sd", PRESET_P0_SD[model])
+        d = len(state_names(model))
+        if len(sd) != d:
+            pr.add(item, f'P0_sd must have {d} entries for model "{model}", got {len(sd)}')
+            return None
+    else:
+        for key in sorted(set(PRESET_ONLY) & set(values)):
+            pr.add(
+                item, f"{key} does not apply to a model declared by its matrices (give Q, R, P0)"
+            )
+        if len(pr.items) > n0:
+            return None
+    return TrackerConfig(**values)
+
+
+def tracker_from_dict(data: Any, path: str = "<tracker>") -> TrackerConfig:
+    """A tracker file's configuration: the keys of a scene's ``tracker`` block, and an
+    optional ``comment``."""
+    pr = Problems()
+    if isinstance(data, dict) and isinstance(data.get("comment"), str):
+        data = {k: v for k, v in data.items() if k != "comment"}
+    cfg = _tracker(data, pr, "tracker" if not isinstance(data, dict) else "")
+    if pr.items or cfg is None:
+        raise InputError.many(path, pr.items or [("", "not a tracker")])
+    return cfg
+
+
+def load_tracker(path: str | Path) -> TrackerConfig:
+    """Read a tracker file: JSON (``.json``) or TOML (any other name), the keys of a scene's
+    ``tracker`` block (``--tracker FILE``; docs/scene-format.md, "Tracker files")."""
+    if str(path).endswith(".json"):
+        return tracker_from_dict(read_json(path, InputError), str(path))
+    return tracker_from_dict(read_toml(path), str(path))
+
+
+def check_fits(tracker: TrackerConfig, target: Target | None, path: str) -> None:
+    """The target's velocity needs components named vx, vy in the tracker's state."""
+    if target is None or target.velocity == (0.0, 0.0) or velocity(tracker.model) is not None:
+        return
+    state = ", ".join(tracker.state_names)
+    why = f"velocity {list(target.velocity)} needs state components named {' and '.join(VELOCITY)}"
+    raise InputError.many(path, [("target", f"{why}; the tracker's state is {state}")])
 
 
 def _target(raw: Any, pr: Problems) -> Target | None:

@@ -16,6 +16,7 @@ import numpy as np
 
 from lesmc.common.errors import InputError
 from lesmc.scene.frames import Frame, lower_frames
+from lesmc.scene.tracker_model import DEFAULT_MODEL, TrackerModel, measured, state_names
 
 UNATTACKABLE = "unattackable"
 """Payoff marker of a detection the attack could not flip within its iteration cap."""
@@ -25,13 +26,16 @@ UNATTACKABLE = "unattackable"
 class TrackerConfig:
     """The tracker's parameters (paper section 6.7 and 7); defaults are the paper's.
 
-    ``design`` names a tracker of the design registry (lesmc/designs/registry.py).
+    ``design`` names a tracker of the design registry (lesmc/designs/registry.py);
+    ``model`` is the linear-Gaussian model (lesmc/scene/tracker_model.py): a preset
+    built from ``sigma_q``, ``sigma_r``, ``P0_sd``, or matrices declared in full
+    (then those three are unused).
     """
 
     design: str = "single"
     sigma_q: float = 3.0  # process noise σ_q of Eq. 17 (the paper's code used 5)
     sigma_r: float = 5.0  # measurement noise σ_r of Eq. 18 (the paper's code used 6)
-    P0_sd: tuple[float, float, float, float] = (30.0, 30.0, 20.0, 20.0)  # P0 = diag(P0_sd)²
+    P0_sd: tuple[float, ...] = (30.0, 30.0, 20.0, 20.0)  # P0 = diag(P0_sd)², one per component
     gate: float = 2.0  # g of Eq. 19 (Mahalanobis) or k of the Euclidean gate
     gate_type: Literal["mahalanobis", "euclidean"] = "mahalanobis"
     max_trace: float = 1e5  # halt the track when trace(P) exceeds this
@@ -39,13 +43,35 @@ class TrackerConfig:
     init_radius: float = 150.0  # unassociated detections this close to the primary may start tracks
     init_distance: float = 60.0  # max distance to a previous unassociated detection to start one
     prune_radius: float = 200.0  # refining tracks farther than this from the primary are dropped
+    model: TrackerModel = DEFAULT_MODEL
+
+    @property
+    def state_names(self) -> tuple[str, ...]:
+        """The state components' names (a spec's ``on x, y`` refers to them)."""
+        return state_names(self.model)
+
+    @property
+    def measured(self) -> tuple[int, int]:
+        """The state components a detection's x and y measure: the track's position."""
+        return measured(self.model)
 
     def to_json(self) -> dict[str, Any]:
+        """The file form; ``model`` is left out when it is the default preset, and a
+        declared model's unused ``sigma_q``, ``sigma_r`` and ``P0_sd`` are left out."""
         d: dict[str, Any] = {}
+        declared = not isinstance(self.model, str)
         for f in fields(self):
             v = getattr(self, f.name)
-            d[f.name] = list(v) if isinstance(v, tuple) else v
+            if f.name == "model":
+                if v != DEFAULT_MODEL:
+                    d["model"] = v if isinstance(v, str) else v.to_json()
+            elif not (declared and f.name in PRESET_ONLY):
+                d[f.name] = list(v) if isinstance(v, tuple) else v
         return d
+
+
+#: The parameters only a preset model reads.
+PRESET_ONLY = ("sigma_q", "sigma_r", "P0_sd")
 
 
 @dataclass(frozen=True)

@@ -20,23 +20,24 @@ from lesmc.tracking.kalman import Innovation, mahalanobis2
 
 
 def gate_mask(
-    y: np.ndarray, inn: Innovation, P_pred: np.ndarray, gate: float, gate_type: str
+    y: np.ndarray, inn: Innovation, spread: float, gate: float, gate_type: str
 ) -> np.ndarray:
     """Which innovations y (n, 2) of one predicted state pass the gate (:func:`gate_test`)."""
-    return gate_test(y, inn.S_inv, P_pred, gate, gate_type)
+    return gate_test(y, inn.S_inv, np.asarray(spread), gate, gate_type)
 
 
 def gate_test(
-    y: np.ndarray, S_inv: np.ndarray, P_pred: np.ndarray, gate: float, gate_type: str
+    y: np.ndarray, S_inv: np.ndarray, spread: np.ndarray, gate: float, gate_type: str
 ) -> np.ndarray:
-    """Which innovations y (..., 2) pass the gate; ``S_inv`` (2, 2) and ``P_pred`` (4, 4)
-    serve every row, or (n, 2, 2) and (n, 4, 4) one leading row of y each.
+    """Which innovations y (..., 2) pass the gate; ``S_inv`` (2, 2) and ``spread`` (a number)
+    serve every row, or (n, 2, 2) and (n,) one leading row of y each.
 
-    ``mahalanobis`` (paper Eq. 19): sqrt(yᵀ S⁻¹ y) ≤ g. ``euclidean`` (the paper's
-    public code): ‖y‖ ≤ k · sqrt(P̂₀₀ + P̂₁₁).
+    ``spread`` is trace(H P̂ Hᵀ) (kalman.position_spread: P̂₀₀ + P̂₁₁ for the paper's
+    model). ``mahalanobis`` (paper Eq. 19): sqrt(yᵀ S⁻¹ y) ≤ g. ``euclidean`` (the
+    paper's public code): ‖y‖ ≤ k · sqrt(spread).
     """
     if gate_type == "euclidean":
-        radius = gate * np.sqrt(P_pred[..., 0, 0] + P_pred[..., 1, 1])
+        radius = gate * np.sqrt(spread)
         radius = np.reshape(radius, np.shape(radius) + (1,) * (y.ndim - 1 - np.ndim(radius)))
         out: np.ndarray = y[..., 0] ** 2 + y[..., 1] ** 2 <= radius * radius
         return out
@@ -49,21 +50,21 @@ def mahalanobis_gate(d2: np.ndarray, gate: float) -> np.ndarray:
     return res
 
 
-def gate_radius(inn: Innovation, P_pred: np.ndarray, gate: float, gate_type: str) -> float:
+def gate_radius(inn: Innovation, spread: float, gate: float, gate_type: str) -> float:
     """No detection farther than this (Euclidean) from the prediction can pass the gate."""
-    return float(gate_radii(inn.S[None], P_pred[None], gate, gate_type)[0])
+    return float(gate_radii(inn.S[None], np.array([spread]), gate, gate_type)[0])
 
 
-def gate_radii(S: np.ndarray, P_pred: np.ndarray, gate: float, gate_type: str) -> np.ndarray:
-    """:func:`gate_radius` for stacks S (k, 2, 2) and P̂ (k, 4, 4).
+def gate_radii(S: np.ndarray, spread: np.ndarray, gate: float, gate_type: str) -> np.ndarray:
+    """:func:`gate_radius` for stacks S (k, 2, 2) and spreads trace(H P̂ Hᵀ) (k,).
 
     ``mahalanobis``: g times the square root of S's largest eigenvalue (closed
-    form for a symmetric 2×2); ``euclidean``: k · sqrt(P̂₀₀ + P̂₁₁). The radius
+    form for a symmetric 2×2); ``euclidean``: k · sqrt(spread). The radius
     only preselects candidates for the exact gate test, so it is widened by a
     relative 1e-12 against rounding.
     """
     if gate_type == "euclidean":
-        out: np.ndarray = gate * np.sqrt(P_pred[:, 0, 0] + P_pred[:, 1, 1]) * (1 + 1e-12)
+        out: np.ndarray = gate * np.sqrt(spread) * (1 + 1e-12)
         return out
     half_trace = 0.5 * (S[:, 0, 0] + S[:, 1, 1])
     half_gap = 0.5 * (S[:, 0, 0] - S[:, 1, 1])

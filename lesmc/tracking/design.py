@@ -24,7 +24,7 @@ import numpy as np
 from lesmc.model.growing import GrowArray
 from lesmc.scene import Scene, TrackerConfig
 from lesmc.tracking.association import gate_radii
-from lesmc.tracking.kalman import Matrices, innovations, predict_covariances
+from lesmc.tracking.kalman import Matrices, innovations, position_spread, predict_covariances
 
 
 class CovarianceTable:
@@ -139,8 +139,8 @@ class GainRows:
     radius: np.ndarray  # no detection farther than this can pass the gate
     norm: np.ndarray  # 2π sqrt(det S): the likelihood N(z; Hx̂, S) is exp(−d²/2) / norm
     S_inv: np.ndarray  # (..., 2, 2)
-    P_pred: np.ndarray  # (..., 4, 4)
-    K: np.ndarray  # (..., 4, 2)
+    spread: np.ndarray  # trace(H P̂ Hᵀ): the Euclidean gate's scale
+    K: np.ndarray  # (..., d, 2)
     pred: np.ndarray  # table index of P̂ (the state after a skipped update)
     post: np.ndarray  # table index of the updated P
     halt_pred: np.ndarray  # trace(P̂) > max_trace
@@ -155,7 +155,7 @@ class Gains:
     is asked for in one batch (kalman.innovations) and spreads the rows.
     """
 
-    FIELDS = ("radius", "norm", "S_inv", "P_pred", "K", "pred", "post", "halt_pred", "halt_post")
+    FIELDS = ("radius", "norm", "S_inv", "spread", "K", "pred", "post", "halt_pred", "halt_post")
 
     def __init__(self, m: Matrices, cfg: TrackerConfig, table: CovarianceTable) -> None:
         self.m = m
@@ -166,8 +166,8 @@ class Gains:
             "radius": GrowArray(np.float64),
             "norm": GrowArray(np.float64),
             "S_inv": GrowArray(np.float64, (2, 2)),
-            "P_pred": GrowArray(np.float64, (4, 4)),
-            "K": GrowArray(np.float64, (4, 2)),
+            "spread": GrowArray(np.float64),
+            "K": GrowArray(np.float64, (m.dim, 2)),
             "pred": GrowArray(np.int64),
             "post": GrowArray(np.int64),
             "halt_pred": GrowArray(np.bool_),
@@ -189,11 +189,12 @@ class Gains:
         m, cfg = self.m, self.cfg
         P_pred = predict_covariances(m, self.table.stack()[cs])
         inn = innovations(m, P_pred)
+        spread = position_spread(m, P_pred)
         values = {
-            "radius": gate_radii(inn.S, P_pred, cfg.gate, cfg.gate_type),
+            "radius": gate_radii(inn.S, spread, cfg.gate, cfg.gate_type),
             "norm": 2 * math.pi * np.sqrt(np.linalg.det(inn.S)),
             "S_inv": inn.S_inv,
-            "P_pred": P_pred,
+            "spread": spread,
             "K": inn.K,
             "pred": self.table.add_many(P_pred),
             "post": self.table.add_many(inn.P_post),

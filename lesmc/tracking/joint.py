@@ -61,8 +61,10 @@ from lesmc.tracking.association import gate_test, mahalanobis_gate
 from lesmc.tracking.design import Batch, CovarianceTable, GainRows, Gains, Successors
 from lesmc.tracking.kalman import (
     Matrices,
+    initial_mean,
     mahalanobis2,
     matrices,
+    positions,
     predict_means,
     update_means,
     warp,
@@ -78,7 +80,7 @@ CHUNK_CELLS = 1 << 20
 class TrackTable:
     """Tracks that states of one batch point into (see ``JointStates.tid``)."""
 
-    X: np.ndarray  # (m, 4) means
+    X: np.ndarray  # (m, d) means
     cov: np.ndarray  # (m,) covariance indices
     zero: int  # a row of zeros (mean 0, covariance index 0): where padding points
 
@@ -110,7 +112,7 @@ def _joined(tables: list[TrackTable]) -> tuple[TrackTable, list[int]]:
     if len(tables) == 1:
         return tables[0], [0]
     starts = np.cumsum([0, *(len(t.X) for t in tables)]).tolist()
-    X = np.concatenate([*(t.X for t in tables), np.zeros((1, 4))])
+    X = np.concatenate([*(t.X for t in tables), np.zeros((1, tables[0].X.shape[1]))])
     cov = np.concatenate([*(t.cov for t in tables), np.zeros(1, dtype=np.int64)])
     return TrackTable(X, cov, starts[-1]), starts[:-1]
 
@@ -128,7 +130,7 @@ class JointStates:
     which spares finding their distinct tracks again.
     """
 
-    _tracks: np.ndarray | None  # (n, T, 4) means (None: read from ``table`` when asked)
+    _tracks: np.ndarray | None  # (n, T, d) means (None: read from ``table`` when asked)
     _tcov: np.ndarray | None  # (n, T) int64 (likewise)
     ntrack: np.ndarray  # (n,) int64, >= 1
     pending: np.ndarray  # (n, K, 2) unassociated detections of the previous frame
@@ -150,7 +152,7 @@ class JointStates:
 
     @property
     def tracks(self) -> np.ndarray:
-        """(n, T, 4) the tracks' means (padding zeros)."""
+        """(n, T, d) the tracks' means (padding zeros)."""
         if self._tracks is None:
             self._tracks = self._from_table().X[self.tid]
         return self._tracks
@@ -169,7 +171,7 @@ class JointStates:
         return self.table
 
     def primary(self) -> tuple[np.ndarray, np.ndarray]:
-        """Track 0 of every state: means (n, 4) and covariance indices (n,)."""
+        """Track 0 of every state: means (n, d) and covariance indices (n,)."""
         if self._tracks is None and self.table is not None and self.tid is not None:
             return self.table.X[self.tid[:, 0]], self.table.cov[self.tid[:, 0]]
         return self.tracks[:, 0].copy(), self.tcov[:, 0]
@@ -200,9 +202,10 @@ class JointStates:
         """The state as 64-bit words: per track (x bits, covariance index) and per pending
         detection (position bits); (n, T, 5) and (n, K, 2)."""
         n, T = self.tcov.shape
-        t = np.empty((n, T, 5), dtype=np.uint64)
-        t[..., :4] = np.ascontiguousarray(self.tracks).view(np.uint64)
-        t[..., 4] = self.tcov.astype(np.uint64)
+        d = self.tracks.shape[-1]
+        t = np.empty((n, T, d + 1), dtype=np.uint64)
+        t[..., :d] = np.ascontiguousarray(self.tracks).view(np.uint64)
+        t[..., d] = self.tcov.astype(np.uint64)
         p = np.ascontiguousarray(self.pending).view(np.uint64).reshape(n, self.pending.shape[1], 2)
         return t, p
 
@@ -217,7 +220,7 @@ def concat(parts: list[JointStates]) -> JointStates:
     # states that point into track tables stay so (their tables joined); others are copied
     by_id = all(p.tid is not None and p.table is not None for p in parts)
     out = JointStates(
-        None if by_id else np.zeros((n, T, 4)),
+        None if by_id else np.zeros((n, T, parts[0].tracks.shape[-1])),
         None if by_id else np.zeros((n, T), dtype=np.int64),
         np.concatenate([p.ntrack for p in parts]),
         np.zeros((n, K, 2)),
@@ -351,14 +354,17 @@ def _positions(count: int, section: int, lane: int) -> np.ndarray:
 
 
 def hash_tracks(means: np.ndarray, cov: np.ndarray) -> np.ndarray:
-    """A 128-bit hash (..., 2) of each track: its mean's bits (..., 4) and covariance index."""
-    w = np.empty((*cov.shape, 5), dtype=np.uint64)
-    w[..., :4] = np.ascontiguousarray(means).view(np.uint64)
-    w[..., 4] = cov.astype(np.uint64)
+    """A 128-bit hash (..., 2) of each track: its mean's bits (..., d) and covariance index."""
+    d = means.shape[-1]
+    w = np.empty((*cov.shape, d + 1), dtype=np.uint64)
+    w[..., :d] = np.ascontiguousarray(means).view(np.uint64)
+    w[..., d] = cov.astype(np.uint64)
     out = np.empty((*cov.shape, 2), dtype=np.uint64)
     with np.errstate(over="ignore"):
         for lane in (0, 1):
-            out[..., lane] = _mix(w ^ _positions(5, 4, lane), lane).sum(axis=-1, dtype=np.uint64)
+            out[..., lane] = _mix(w ^ _positions(d + 1, 4, lane), lane).sum(
+                axis=-1, dtype=np.uint64
+            )
     return out
 
 
@@ -417,7 +423,7 @@ def _distinct_tracks(
     js: JointStates, live: np.ndarray
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """The distinct tracks (mean bits and covariance index) among the live ones of ``js``:
-    each slot's index among them (n, T; padding 0), their means (u, 4) and covariance
+    each slot's index among them (n, T; padding 0), their means (u, d) and covariance
     indices (u,).
 
     Only "each slot's track is its row" matters to the caller: every row's
@@ -474,7 +480,7 @@ class _Prepared:
     """
 
     Z: np.ndarray  # (z, 2) the frame's detections
-    X: np.ndarray  # (u, 4) predicted distinct tracks
+    X: np.ndarray  # (u, d) predicted distinct tracks
     g: GainRows  # (u,) their gains
     tu: np.ndarray  # (n, T) each state's tracks among the distinct ones
     live: np.ndarray  # (n, T) real tracks
@@ -490,12 +496,13 @@ class _Prepared:
     pu: np.ndarray  # each pair among the distinct (track, detection) pairs
     # every track a state's track can become: the u predicted ones (a skipped update),
     # then the distinct pairs' updated ones (Eq. 2); means, covariance indices, hashes, halts
-    child_X: np.ndarray  # (u + distinct pairs, 4)
+    child_X: np.ndarray  # (u + distinct pairs, d)
     child_cov: np.ndarray
     child_h: np.ndarray  # (u + distinct pairs, 2)
     child_halt: np.ndarray
     near_z: np.ndarray  # (u, w) a primary's nearest detections (valid up to n_near)
     n_near: np.ndarray  # (u,)
+    pos: tuple[int, int] = (0, 1)  # the measured components (Matrices.pos)
 
     def visible_rank(self, s: np.ndarray) -> np.ndarray:
         """(len(s), z): each detection's position among the nearest of state s's primary."""
@@ -522,12 +529,12 @@ class JointDesign:
 
     def initial(self) -> Batch:
         t = self.scene.target
-        x0 = np.array([*t.start, *t.velocity], dtype=float)
+        x0 = initial_mean(self.m, t.start, t.velocity)
         Z = self.scene.frame(t.step).positions()
-        near = Z[np.hypot(*(Z - x0[:2]).T) <= self.cfg.init_radius] if len(Z) else Z
+        near = Z[np.hypot(*(Z - np.array(t.start)).T) <= self.cfg.init_radius] if len(Z) else Z
         near = near.reshape(-1, 2)
         js = JointStates(
-            x0.reshape(1, 1, 4),
+            x0.reshape(1, 1, -1),
             np.array([[self._p0]], dtype=np.int64),
             np.ones(1, dtype=np.int64),
             near[None].copy(),
@@ -654,19 +661,19 @@ class JointDesign:
         live = np.arange(T) < js.ntrack[:, None]
         tu, X, cu = _distinct_tracks(js, live)
         if Hm is not None:
-            X[:, :2] = warp(Hm, X[:, :2])
-        X = predict_means(X, float(self.m.F[0, 2]))
+            X[:, list(self.m.pos)] = warp(Hm, positions(self.m, X))
+        X = predict_means(self.m, X)
         pend = warp(Hm, js.pending) if Hm is not None else js.pending
         g = self.gains.rows(cu)
         U = len(cu)
 
-        track, pz, dx, dy, d2, ok = _candidate_pairs(Z, X, g, cfg)
+        track, pz, dx, dy, d2, ok = _candidate_pairs(Z, positions(self.m, X), g, cfg)
         hiding = _hiding_options(tu[:, 0], track, pz, dx, dy, ok, g.radius, frame.payoffs(), U, nz)
         n_opt, cost, rank_of, near_z, per = hiding
         track, pz, d2 = track[ok], pz[ok], d2[ok]
         del dx, dy, ok, hiding  # the candidates' arrays: only the gated pairs go on
         ps, pt, pair_z, prio, idx = _ranked_pairs(track, pz, d2, g.norm, tu, live, U, T, nz)
-        X_up = update_means(X[track], g.K[track], Z[pz])
+        X_up = update_means(self.m, X[track], g.K[track], Z[pz])
         child_cov = np.concatenate([g.pred, g.post[track]])
         child_X = np.concatenate([X, X_up])
         return _Prepared(
@@ -691,6 +698,7 @@ class JointDesign:
             child_halt=np.concatenate([g.halt_pred, g.halt_post[track]]),
             near_z=near_z,
             n_near=per,
+            pos=self.m.pos,
         )
 
     def _rows(
@@ -802,7 +810,7 @@ class JointDesign:
         cfg = self.cfg
         Z = p.Z
         R, T = child.shape
-        prim = p.child_X[child[:, 0], :2]
+        prim = positions(self.m, p.child_X[child[:, 0]])
         cr, cz, partner = _start_candidates(Z, prim, free, pend, npend, cfg)
         matched = partner >= 0
         # new tracks after the old ones, in the order they started
@@ -814,9 +822,12 @@ class JointDesign:
         # the tracks of the next states as rows of one table: the children, a row of
         # zeros (padding), the new tracks
         M = len(p.child_X)
-        new_X = np.concatenate([mz, v], axis=1)
+        new_X = np.zeros((mr.size, self.m.dim))
+        new_X[:, list(self.m.pos)] = mz
+        if self.m.vel is not None:
+            new_X[:, list(self.m.vel)] = v
         new_cov = np.full(mr.size, self._p0, dtype=np.int64)
-        table_X = np.concatenate([p.child_X, np.zeros((1, 4)), new_X])
+        table_X = np.concatenate([p.child_X, np.zeros((1, self.m.dim)), new_X])
         table_cov = np.concatenate([p.child_cov, np.zeros(1, dtype=np.int64), new_cov])
         table_h = np.concatenate(
             [p.child_h, np.zeros((1, 2), dtype=np.uint64), hash_tracks(new_X, new_cov)]
@@ -828,7 +839,7 @@ class JointDesign:
         slot = live.sum(axis=1)[mr] + _within(nnew)
         at[mr, slot] = M + 1 + np.arange(mr.size)
         keep[mr, slot] = self._p0_kept
-        pos = table_X[at, :2]
+        pos = positions(self.m, table_X)[at]
         dp = np.hypot(pos[..., 0] - prim[:, 0, None], pos[..., 1] - prim[:, 1, None])
         keep &= dp <= cfg.prune_radius
         keep[:, 0] = True  # the primary stays (halted or not)
@@ -895,9 +906,10 @@ def _option_one_differs(p: _Prepared, primary: np.ndarray) -> np.ndarray:
     dz = p.Z[p.near_z[u]] - z0[:, None]
     gap = np.where(np.arange(w) < p.n_near[u, None], np.hypot(dz[..., 0], dz[..., 1]), np.inf)
     delta = gap[:, 1:].min(axis=1, initial=np.inf)
-    K = p.g.K[u, :2, :]  # (u, 2, 2): how the position moves with the innovation
+    K = p.g.K[u][:, list(p.pos), :]  # (u, 2, 2): how the position moves with the innovation
     sigma_min = np.sqrt(np.maximum(np.linalg.eigvalsh(np.swapaxes(K, 1, 2) @ K)[:, 0], 0.0))
-    scale = 1.0 + np.abs(p.X[u, :2]).max(axis=1) + np.abs(dz).max(axis=(1, 2), initial=0.0)
+    at = p.X[u][:, list(p.pos)]
+    scale = 1.0 + np.abs(at).max(axis=1) + np.abs(dz).max(axis=(1, 2), initial=0.0)
     moves = np.zeros(len(p.X), dtype=bool)
     moves[u] = sigma_min * delta > 1e-6 * scale
     out: np.ndarray = ok & moves[u0]
@@ -955,18 +967,19 @@ def _ranks_and_payoffs(src: np.ndarray, cost: np.ndarray) -> tuple[np.ndarray, n
 
 
 def _candidate_pairs(
-    Z: np.ndarray, X: np.ndarray, g: GainRows, cfg: TrackerConfig
+    Z: np.ndarray, at: np.ndarray, g: GainRows, cfg: TrackerConfig
 ) -> tuple[np.ndarray, ...]:
-    """The (track, detection) pairs within each track's gate radius (a little wider: the
+    """The (track, detection) pairs within each track's gate radius around its predicted
+    position ``at`` (u, 2) (a little wider: the
     gate decides), found in the strip of detections sorted by x, by track then detection:
     track, detection, dx, dy, Mahalanobis d², and whether the gate admits the pair."""
     nz = len(Z)
     r = g.radius * (1 + 1e-9)
-    track, pz = _in_strip(Z, X[:, 0], r)
+    track, pz = _in_strip(Z, at[:, 0], r)
     o = np.argsort(track * max(nz, 1) + pz, kind="stable")
     track, pz = track[o], pz[o]
-    dx = Z[pz, 0] - X[track, 0]
-    dy = Z[pz, 1] - X[track, 1]
+    dx = Z[pz, 0] - at[track, 0]
+    dy = Z[pz, 1] - at[track, 1]
     keep = dx * dx + dy * dy <= r[track] ** 2
     track, pz, dx, dy = track[keep], pz[keep], dx[keep], dy[keep]
     y = np.stack([dx, dy], axis=-1)
@@ -975,7 +988,7 @@ def _candidate_pairs(
     if cfg.gate_type == "mahalanobis":
         ok = mahalanobis_gate(d2, cfg.gate)
     else:
-        ok = gate_test(y, S_inv, g.P_pred[track], cfg.gate, cfg.gate_type)
+        ok = gate_test(y, S_inv, g.spread[track], cfg.gate, cfg.gate_type)
     return track, pz, dx, dy, d2, ok
 
 

@@ -1,4 +1,5 @@
-"""The near-constant-velocity Kalman filter of section 6.7 (Eq. 16-18).
+"""The tracker's Kalman filter: the paper's near-constant-velocity model (section 6.7,
+Eq. 16-18), a constant-acceleration preset, or the matrices a scene declares.
 
 * The reference is filterpy's ``KalmanFilter`` (a test dependency only:
   ``tests/kf_reference.py`` builds one from :func:`matrices`).
@@ -19,6 +20,7 @@ import numpy as np
 
 from lesmc.scene import TrackerConfig
 from lesmc.scene.frames import warp as warp  # re-exported: the tracker carries states with it
+from lesmc.scene.tracker_model import measured, state_names, velocity
 
 H_POS = np.array([[1.0, 0.0, 0.0, 0.0], [0.0, 1.0, 0.0, 0.0]])
 """Measurement matrix of Eq. 18: the detector observes the position."""
@@ -26,23 +28,61 @@ H_POS = np.array([[1.0, 0.0, 0.0, 0.0], [0.0, 1.0, 0.0, 0.0]])
 
 @dataclass(frozen=True)
 class Matrices:
-    """F, Q, H, R and P0 of one tracker configuration (Eq. 16-18)."""
+    """F, Q, H, R and P0 of one tracker configuration (Eq. 1-3; the paper's are Eq. 16-18).
+
+    ``state`` names the d components; ``pos`` is the pair H measures (the track's
+    position, lesmc/scene/tracker_model.py); ``vel`` the pair named vx, vy, if any.
+    """
 
     F: np.ndarray
     Q: np.ndarray
     H: np.ndarray
     R: np.ndarray
     P0: np.ndarray
+    state: tuple[str, ...] = ("x", "y", "vx", "vy")
+    pos: tuple[int, int] = (0, 1)
+    vel: tuple[int, int] | None = (2, 3)
+
+    @property
+    def dim(self) -> int:
+        return int(self.F.shape[0])
 
 
 def matrices(cfg: TrackerConfig, dt: float) -> Matrices:
-    """Eq. 16 (F), Eq. 17 (Q = σ_q² · continuous white-noise acceleration), Eq. 18 (H, R)."""
+    """The model's matrices: a preset's from its parameters, or the declared ones."""
+    model = cfg.model
+    if isinstance(model, str):
+        F, Q, H = (cv2d if model == "cv2d" else ca2d)(dt, cfg.sigma_q**2)
+        R = np.eye(2) * cfg.sigma_r**2
+        P0 = np.diag(np.square(np.asarray(cfg.P0_sd, dtype=float)))
+    else:
+        F, H, Q, R, P0 = (model.matrix(name) for name in ("F", "H", "Q", "R", "P0"))
+    return Matrices(F, Q, H, R, P0, state_names(model), measured(model), velocity(model))
+
+
+def cv2d(dt: float, q: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Eq. 16 (F), Eq. 17 (Q = σ_q² · continuous white-noise acceleration), Eq. 18 (H)."""
     F = np.eye(4)
     F[0, 2] = F[1, 3] = dt
-    Q = white_noise_q(dt, cfg.sigma_q**2)
-    R = np.eye(2) * cfg.sigma_r**2
-    P0 = np.diag(np.square(np.asarray(cfg.P0_sd, dtype=float)))
-    return Matrices(F, Q, H_POS.copy(), R, P0)
+    return F, white_noise_q(dt, q), H_POS.copy()
+
+
+def ca2d(dt: float, q: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Constant acceleration, state (x, y, vx, vy, ax, ay): per axis F = [[1, dt, dt²/2],
+    [0, 1, dt], [0, 0, 1]] and Q = σ_q² · continuous white-noise jerk (what filterpy's
+    ``Q_continuous_white_noise(dim=3, dt, σ_q², block_size=2, order_by_dim=False)``
+    returns); H measures x, y."""
+    f = np.array([[1.0, dt, dt * dt / 2.0], [0.0, 1.0, dt], [0.0, 0.0, 1.0]])
+    qb = np.array(
+        [
+            [dt**5 / 20.0, dt**4 / 8.0, dt**3 / 6.0],
+            [dt**4 / 8.0, dt**3 / 3.0, dt**2 / 2.0],
+            [dt**3 / 6.0, dt**2 / 2.0, dt],
+        ]
+    )
+    H = np.zeros((2, 6))
+    H[0, 0] = H[1, 1] = 1.0
+    return np.kron(f, np.eye(2)), np.kron(qb, np.eye(2)) * q, H
 
 
 def white_noise_q(dt: float, spectral_density: float) -> np.ndarray:
@@ -59,13 +99,23 @@ def white_noise_q(dt: float, spectral_density: float) -> np.ndarray:
     return out
 
 
+def initial_mean(m: Matrices, start: tuple[float, float], vel: tuple[float, float]) -> np.ndarray:
+    """A track's first mean (d,): the position at the measured components, the velocity at
+    vx, vy (the scene loader refuses a non-zero velocity without them), zeros elsewhere."""
+    x0 = np.zeros(m.dim)
+    x0[list(m.pos)] = start
+    if m.vel is not None:
+        x0[list(m.vel)] = vel
+    return x0
+
+
 def predict(m: Matrices, x: np.ndarray, P: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Eq. 2: x̂ = F x, P̂ = F P Fᵀ + Q."""
-    return predict_means(x, m.F[0, 2]), predict_covariances(m, P[None])[0]
+    return predict_means(m, x), predict_covariances(m, P[None])[0]
 
 
 def predict_covariances(m: Matrices, P: np.ndarray) -> np.ndarray:
-    """Eq. 2 for a stack of covariances (k, 4, 4): P̂ = F P Fᵀ + Q.
+    """Eq. 2 for a stack of covariances (k, d, d): P̂ = F P Fᵀ + Q.
 
     einsum's summation order per entry does not depend on k, so a covariance
     predicted alone or in a batch gives the same bits (states are shared by
@@ -89,13 +139,13 @@ class Innovation:
 
 
 def innovation(m: Matrices, P_pred: np.ndarray) -> Innovation:
-    """Eq. 3 for one predicted covariance (4, 4): :func:`innovations` of a stack of one."""
+    """Eq. 3 for one predicted covariance (d, d): :func:`innovations` of a stack of one."""
     inn = innovations(m, P_pred[None])
     return Innovation(inn.S[0], inn.S_inv[0], inn.K[0], inn.P_post[0])
 
 
 def innovations(m: Matrices, P_pred: np.ndarray) -> Innovation:
-    """Eq. 3 for a stack of predicted covariances (k, 4, 4).
+    """Eq. 3 for a stack of predicted covariances (k, d, d).
 
     S = H P̂ Hᵀ + R, S⁻¹ (closed form of a 2×2 inverse), K = P̂ Hᵀ S⁻¹, and P⁺
     in Joseph form (I−KH)P̂(I−KH)ᵀ + K R Kᵀ. Written with einsum so that each
@@ -117,24 +167,45 @@ def innovations(m: Matrices, P_pred: np.ndarray) -> Innovation:
     return Innovation(S, S_inv, K, P_post)
 
 
-def predict_means(X: np.ndarray, dt: float) -> np.ndarray:
-    """x̂ = F x for one state (4,) or many (n, 4), written out elementwise.
+def predict_means(m: Matrices, X: np.ndarray) -> np.ndarray:
+    """x̂ = F x for one state (d,) or many (n, d), summed column by column.
 
-    Elementwise rather than a matrix product so the result does not depend on
-    how many states are predicted together (BLAS kernels may round differently).
+    Not a matrix product: BLAS kernels round differently with the number of
+    states, and a state must not depend on which others were predicted with it.
+    The columns are summed in order and exact zeros of F are skipped, so for the
+    paper's F each x̂ is x + dt·vx bit for bit.
     """
-    out = np.array(X, dtype=float, copy=True)
-    out[..., :2] = X[..., :2] + dt * X[..., 2:]
+    X = np.asarray(X, dtype=float)
+    out = np.zeros(X.shape)
+    for j in range(m.dim):
+        rows = np.flatnonzero(m.F[:, j])
+        if rows.size == m.dim:
+            out += X[..., j : j + 1] * m.F[:, j]
+        elif rows.size:
+            out[..., rows] += X[..., j : j + 1] * m.F[rows, j]
     return out
 
 
-def update_means(X_pred: np.ndarray, K: np.ndarray, Z: np.ndarray) -> np.ndarray:
+def positions(m: Matrices, X: np.ndarray) -> np.ndarray:
+    """H x for states (..., d): the measured components (..., 2), copied exactly."""
+    return X[..., list(m.pos)]
+
+
+def update_means(m: Matrices, X_pred: np.ndarray, K: np.ndarray, Z: np.ndarray) -> np.ndarray:
     """Eq. 2: x = x̂ + K (z − H x̂), row by row (elementwise, batch-size independent).
 
-    ``K`` is one gain (4, 2) for every row, or one per row (n, 4, 2).
+    ``K`` is one gain (d, 2) for every row, or one per row (n, d, 2).
     """
-    y = Z - X_pred[..., :2]
+    y = Z - positions(m, X_pred)
     out: np.ndarray = X_pred + y[..., 0:1] * K[..., 0] + y[..., 1:2] * K[..., 1]
+    return out
+
+
+def position_spread(m: Matrices, P: np.ndarray) -> np.ndarray:
+    """trace(H P Hᵀ) of covariances (..., d, d): the measured components' variances summed
+    (P₀₀ + P₁₁ for the paper's model); the Euclidean gate's scale."""
+    i, j = m.pos
+    out: np.ndarray = P[..., i, i] + P[..., j, j]
     return out
 
 

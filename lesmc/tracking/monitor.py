@@ -1,6 +1,7 @@
 """The runtime monitor of section 7.1: uncertainty τ (Eq. 12) and its alarm (Eq. 13).
 
-τ is the trace of the location block of the covariance P. During normal
+τ is the trace of the location block of the covariance P (the components the
+detections measure). During normal
 tracking it shrinks towards convergence; it rises when an update is skipped
 (no observation accepted), which is what an attack that hides detections
 causes. The alarm fires when τ rises: Eq. 13's Γ = 0. Both equations live in the
@@ -36,8 +37,9 @@ def track(design: Design, end: int | None = None) -> list[TrackPoint]:
     scene = design.scene
     last = scene.last_step - scene.target.step if end is None else end
     b = design.initial()
+    loc = scene.tracker.measured
     P = design.covariances[int(b.cov[0])]
-    t0 = float(tau(P))
+    t0 = float(tau(P, loc))
     points = [TrackPoint(0, scene.target.step, None, b.X[0], P, t0, False, bool(b.halted[0]))]
     for k in range(1, last + 1):
         if b.halted[0]:
@@ -48,7 +50,7 @@ def track(design: Design, end: int | None = None) -> list[TrackPoint]:
         det = int(succ.det[0])
         obs = None if det < 0 else scene.frame(frame).detections[det].id
         P = design.covariances[int(b.cov[0])]
-        t = float(tau(P))
+        t = float(tau(P, loc))
         points.append(
             TrackPoint(
                 k, frame, obs, b.X[0], P, t, bool(alarm(points[-1].tau, t)), bool(b.halted[0])

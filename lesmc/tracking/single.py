@@ -21,7 +21,15 @@ import numpy as np
 from lesmc.scene import Frame, Scene
 from lesmc.tracking.association import attack_option_rows, gate_test
 from lesmc.tracking.design import Batch, CovarianceTable, GainRows, Gains, Successors
-from lesmc.tracking.kalman import Matrices, matrices, predict_means, update_means, warp
+from lesmc.tracking.kalman import (
+    Matrices,
+    initial_mean,
+    matrices,
+    positions,
+    predict_means,
+    update_means,
+    warp,
+)
 
 
 class SingleDesign:
@@ -39,7 +47,7 @@ class SingleDesign:
     def initial(self) -> Batch:
         """At the target's frame: (start, velocity) with P0; that frame's detections unused."""
         t = self.scene.target
-        x0 = np.array([[*t.start, *t.velocity]], dtype=float)
+        x0 = initial_mean(self.m, t.start, t.velocity)[None]
         c0 = self.covariances.add(self.m.P0.copy())
         return Batch(x0, np.array([c0], dtype=np.int64), np.zeros(1, dtype=bool))
 
@@ -55,8 +63,8 @@ class SingleDesign:
         to_next = self.scene.frame(step - 1).to_next
         if to_next is not None:
             X = X.copy()
-            X[..., :2] = warp(to_next, X[..., :2])
-        return predict_means(X, self.scene.dt)
+            X[..., list(self.m.pos)] = warp(to_next, positions(self.m, X))
+        return predict_means(self.m, X)
 
     def successors(self, batch: Batch, step: int, attacked: bool) -> Successors:
         """Outcomes of moving the states of ``batch`` (none halted) to frame ``step``.
@@ -86,10 +94,11 @@ class SingleDesign:
     ) -> tuple[np.ndarray, ...]:
         """Successors of predictions ``Xp``, row i with the gain rows ``g`` of its P."""
         cfg = self.cfg
-        idx, valid = _candidates(frame, Xp[:, :2], g.radius, wide=attacked)
+        at = positions(self.m, Xp)
+        idx, valid = _candidates(frame, at, g.radius, wide=attacked)
         Z = frame.positions()[np.where(valid, idx, 0)]
-        y = Z - Xp[:, None, :2]
-        gated = valid & gate_test(y, g.S_inv, g.P_pred, cfg.gate, cfg.gate_type)
+        y = Z - at[:, None, :]
+        gated = valid & gate_test(y, g.S_inv, g.spread, cfg.gate, cfg.gate_type)
         if attacked:
             same = frame.position_ids()[np.where(valid, idx, 0)] if frame.has_repeats else None
             pays = np.full(idx.shape, np.inf)
@@ -106,7 +115,7 @@ class SingleDesign:
         upd = col >= 0
         X = Xp[row].copy()
         ru = row[upd]
-        X[upd] = update_means(Xp[ru], g.K[ru], Z[ru, col[upd]])
+        X[upd] = update_means(self.m, Xp[ru], g.K[ru], Z[ru, col[upd]])
         det = np.where(upd, idx[row, np.maximum(col, 0)] if idx.shape[1] else -1, -1)
         cov = np.where(upd, g.post[row], g.pred[row]).astype(np.int64)
         halted = np.where(upd, g.halt_post[row], g.halt_pred[row])

@@ -13,6 +13,7 @@ horizon. Targets from a truth file are chosen in lesmc/campaign/targets.py.
 
 from __future__ import annotations
 
+import dataclasses
 import re
 from dataclasses import dataclass
 from pathlib import Path
@@ -22,10 +23,18 @@ import numpy as np
 
 from lesmc.common.errors import InputError, UsageError, escape_control
 from lesmc.common.files import read_json
-from lesmc.scene import Footage, Scene, Target, footage_from_dict
+from lesmc.scene import Footage, Scene, Target, TrackerConfig, check_fits, footage_from_dict
+from lesmc.scene.tracker_model import velocity as velocity_components
 from lesmc.tracking.association import gate_mask
 from lesmc.tracking.design import Batch
-from lesmc.tracking.kalman import innovation, matrices, warp
+from lesmc.tracking.kalman import (
+    initial_mean,
+    innovation,
+    matrices,
+    position_spread,
+    positions,
+    warp,
+)
 from lesmc.tracking.single import SingleDesign
 
 #: A detection this close (px) to the given position is the target's own detection.
@@ -122,7 +131,8 @@ def check_gate(footage: Footage, spec: TargetSpec, step: int) -> None:
     m = matrices(cfg, footage.dt)
     Z = footage.frame(step).positions()
     y = Z - np.array([spec.x, spec.y])
-    if len(Z) and gate_mask(y, innovation(m, m.P0), m.P0, cfg.gate, cfg.gate_type).any():
+    spread = float(position_spread(m, m.P0))
+    if len(Z) and gate_mask(y, innovation(m, m.P0), spread, cfg.gate, cfg.gate_type).any():
         return
     near = f"; the nearest is {float(np.hypot(*y.T).min()):.1f} px away" if len(Z) else ""
     raise UsageError(
@@ -142,6 +152,8 @@ def place_target(
         vel, how = velocity, "truth"
     else:
         vel, how = previous_velocity(footage, spec.x, spec.y, step)
+    if velocity_components(footage.tracker.model) is None:
+        vel, how = (0.0, 0.0), "none (the tracker's state has no vx, vy)"
     meta = dict(footage.meta)
     meta["target_velocity_from"] = how
     return footage.with_target(Target(step, (spec.x, spec.y), vel), meta)
@@ -191,7 +203,9 @@ def initiated_targets(
         scene = footage.with_target(Target(s, (0.0, 0.0)))
         design = SingleDesign(scene)
         c0 = design.covariances.add(design.m.P0.copy())
-        X0 = np.array([[sp.x, sp.y, v[0], v[1]] for sp, v in zip(specs, vels, strict=True)])
+        X0 = np.array(
+            [initial_mean(design.m, (sp.x, sp.y), v) for sp, v in zip(specs, vels, strict=True)]
+        )
         b = Batch(X0, np.full(len(specs), c0, dtype=np.int64), np.zeros(len(specs), dtype=bool))
         traffic = np.zeros(len(specs), dtype=np.int64)
         last_det = np.full(len(specs), -1, dtype=np.int64)
@@ -200,7 +214,7 @@ def initiated_targets(
             succ = design.successors(b, s + k, False)
             b = succ.states
             if window[0] <= k <= window[1]:
-                near = frame.nearest(b.X[:, :2], 8, NEAR_PX)
+                near = frame.nearest(positions(design.m, b.X), 8, NEAR_PX)
                 traffic += (near >= 0).sum(axis=1) - (succ.det >= 0)
             keep = np.nonzero((succ.det >= 0) & ~b.halted)[0]
             b = b.take(keep)
@@ -221,11 +235,19 @@ def initiated_targets(
 
 
 def scene_with_target(
-    data: Any, path: str, target: str | None = None, design: str | None = None
+    data: Any,
+    path: str,
+    target: str | None = None,
+    design: str | None = None,
+    tracker: TrackerConfig | None = None,
 ) -> Scene:
     """A scene document's scene; ``target`` (``X,Y@STEP``) overrides or supplies its target,
-    ``design`` the tracker it names."""
+    ``tracker`` (a tracker file's, ``--tracker``) replaces its tracker block, ``design``
+    the tracker design it names."""
     footage, own = footage_from_dict(data, path)
+    if tracker is not None:
+        footage = dataclasses.replace(footage, tracker=tracker)
+        check_fits(tracker, own if target is None else None, path)
     if target is not None:
         scene = place_target(footage, parse_target(target))
     elif own is None:
@@ -236,10 +258,13 @@ def scene_with_target(
 
 
 def load_scene_with_target(
-    path: str, target: str | None = None, design: str | None = None
+    path: str,
+    target: str | None = None,
+    design: str | None = None,
+    tracker: TrackerConfig | None = None,
 ) -> Scene:
     """:func:`scene_with_target` of a scene file."""
-    return scene_with_target(read_json(Path(path), InputError), path, target, design)
+    return scene_with_target(read_json(Path(path), InputError), path, target, design, tracker)
 
 
 def check_target(spec: TargetSpec, width: int, height: int, n_frames: int) -> None:

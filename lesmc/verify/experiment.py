@@ -9,6 +9,7 @@ traffic, the bundled robustness and resilience specs, the paper's designs.
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import time
 from collections.abc import Callable
@@ -33,7 +34,7 @@ from lesmc.pipeline.job import Certifier, Job, PayoffMode
 from lesmc.replay.run import apply, cases, replay
 from lesmc.results.document import provenance, results_document
 from lesmc.results.record import Results
-from lesmc.scene import Scene, scene_to_dict
+from lesmc.scene import Scene, TrackerConfig, load_tracker, scene_to_dict
 from lesmc.tracking.targets import check_target, load_scene_with_target, parse_target
 from lesmc.verify.false_alarms import false_alarm_report, truth_track
 from lesmc.video import FPS
@@ -63,6 +64,7 @@ class Request:
     out: Path = Path("lesmc-verify")
     nets_dir: str | None = None
     scene_frames: str | None = None  #: with ``scene_path``: the video's frames (replay, images)
+    tracker: str | None = None  #: a tracker file replacing the scene's (``--tracker``)
     payoffs: PayoffMode = "attack"
     budget: Budget = field(default_factory=Budget)
 
@@ -150,7 +152,7 @@ def _scene_file(req: Request) -> _Source:
         raise UsageError("--truth applies to a video, not to --scene")
     if req.nets_dir is not None and req.scene_frames is None:
         raise UsageError("--nets with --scene applies only to the replay: give --frames too")
-    scene = load_scene_with_target(req.scene_path or "", req.target)
+    scene = load_scene_with_target(req.scene_path or "", req.target, None, _tracker(req))
     from lesmc.video.reader import open_frames
 
     frames = open_frames(req.scene_frames, HISTORY + 1) if req.scene_frames else None
@@ -197,6 +199,9 @@ def _perceived(req: Request, specs: list[SpecFile], rep: Reporter) -> _Source:
     dt = (truths.dt if truths else None) or 1 / FPS
     scene_meta = {"source": str(frames_dir), "detector": nets.settings.trained_on}
     footage = footage_from_run(run, dt, scene_meta)
+    tracker = _tracker(req)
+    if tracker is not None:
+        footage = dataclasses.replace(footage, tracker=tracker)
     if target is not None:
         scene = target_scene(footage, target, frames, truths)
     else:
@@ -205,6 +210,11 @@ def _perceived(req: Request, specs: list[SpecFile], rep: Reporter) -> _Source:
         meta["target choice"] = scene.meta["target_choice"]
     meta |= {"detector": nets.settings.trained_on, "scene": str(req.out / "scene.json")}
     return _Source(scene, frames, truths, nets, run, meta, new=True)
+
+
+def _tracker(req: Request) -> TrackerConfig | None:
+    """The tracker file's configuration, if ``--tracker`` gave one."""
+    return None if req.tracker is None else load_tracker(req.tracker)
 
 
 def _video(req: Request, rep: Reporter) -> tuple[str, str | None, dict[str, Any]]:

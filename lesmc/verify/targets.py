@@ -96,7 +96,7 @@ def follows(scene: Scene, truth_track: np.ndarray, tolerance: float = 6.0) -> bo
     run = track(make_tracker(scene.with_tracker(design=BASELINE)), len(truth_track) - 1)
     if len(run) < len(truth_track):
         return False
-    est = np.array([p.x[:2] for p in run])
+    est = np.array([p.x[list(scene.tracker.measured)] for p in run])
     return bool((np.linalg.norm(est[1:] - truth_track[1:], axis=1) <= tolerance).all())
 
 
