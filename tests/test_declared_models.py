@@ -264,7 +264,8 @@ def test_the_declared_twin_of_a_preset_gives_the_same_verdicts(tmp_path: Path) -
     sigma_r = 4): checking with either gives the same table."""
     preset = tmp_path / "ca.toml"
     preset.write_text(
-        'model = "ca2d"\nsigma_q = 2.0\nsigma_r = 4.0\nP0_sd = [30.0, 30.0, 20.0, 20.0, 10.0, 10.0]\n'
+        'model = "ca2d"\nsigma_q = 2.0\nsigma_r = 4.0\n'
+        "P0_sd = [30.0, 30.0, 20.0, 20.0, 10.0, 10.0]\n"
     )
     runs = []
     for t in (str(preset), "examples/trackers/ca6.json"):
