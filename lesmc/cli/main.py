@@ -25,6 +25,7 @@ from lesmc.cli.build import build_cmd, track_cmd
 from lesmc.cli.campaign import campaign_cmd
 from lesmc.cli.check import check_cmd
 from lesmc.cli.export import export_cmd
+from lesmc.cli.importing import import_group
 from lesmc.cli.perceive import perceive_cmd
 from lesmc.cli.reduce import reduce_group
 from lesmc.cli.replay import replay_cmd
@@ -113,6 +114,7 @@ SHORT_HELP = {
     "campaign": "Verify many targets x windows x designs, on Dask.",
     "check": "Check properties on a model or a scene: verdict, optimum, paths.",
     "export": "Write a model for Storm (DRN), Graphviz, GraphML or as JSON.",
+    "import": "Make a scene from MOTChallenge detection files (det.txt, gt.txt).",
     "perceive": "Detect vehicles in frames; price each detection; write a scene.",
     "reduce": "Reduce a classic problem (knapsack) to a model and a property.",
     "replay": "Run counterexamples through the real detector and tracker.",
@@ -135,6 +137,7 @@ cli.add_command(report_cmd)
 cli.add_command(replay_cmd)
 cli.add_command(campaign_cmd)
 cli.add_command(export_cmd)
+cli.add_command(import_group)
 for _name, _cmd in cli.commands.items():
     _cmd.short_help = SHORT_HELP.get(_name, _cmd.short_help)
 

@@ -36,6 +36,7 @@ SCHEMAS = {
     "lesmc-replay": "replay",
     "lesmc-error": "error",
     "lesmc-export": "export",
+    "lesmc-import": "import",
 }
 
 

@@ -1,0 +1,145 @@
+"""``lesmc import``: scenes from other tools' files (MOTChallenge detections)."""
+
+from __future__ import annotations
+
+import math
+
+import click
+
+from lesmc.cli.documents import emit, file_facts, run_provenance, say
+from lesmc.cli.options import tracker_option
+from lesmc.common.errors import UsageError, escape_control
+
+
+@click.group("import")
+def import_group() -> None:
+    """Make a scene from another tool's files."""
+
+
+@import_group.command("mot")
+@click.argument("det", type=click.Path(dir_okay=False))
+@click.option(
+    "-o", "--output", required=True, type=click.Path(dir_okay=False), help="The scene to write."
+)
+@click.option(
+    "--gt",
+    "gt_path",
+    type=click.Path(dir_okay=False),
+    default=None,
+    help="A gt.txt: with --track, the target starts at that track's first box, with the "
+    "velocity to its next box.",
+)
+@click.option("--track", "track_id", type=int, default=None, help="The gt.txt track to follow.")
+@click.option(
+    "--point",
+    type=click.Choice(["center", "bottom"]),
+    default="center",
+    show_default=True,
+    help="Where a box puts its detection: its centre, or its bottom centre (the ground point).",
+)
+@click.option(
+    "--payoff",
+    "payoff_constant",
+    type=float,
+    default=None,
+    help="Every detection's payoff [default: 1, so the optimum counts the detections an "
+    "attacker must hide].",
+)
+@click.option(
+    "--payoff-column",
+    type=click.IntRange(min=7, max=10),
+    default=None,
+    help="Read each detection's payoff from this column (1-based; 7 is conf; inf: unattackable).",
+)
+@click.option(
+    "--fps",
+    type=float,
+    default=30.0,
+    show_default=True,
+    help="Frames per second of the sequence (seqinfo.ini's frameRate): dt = 1/fps.",
+)
+@tracker_option
+@click.option(
+    "--json",
+    "as_json",
+    is_flag=True,
+    help="Print what was written as JSON on stdout (format lesmc-import, schema "
+    "lesmc/schemas/import.json).",
+)
+def mot_cmd(
+    det: str,
+    output: str,
+    gt_path: str | None,
+    track_id: int | None,
+    point: str,
+    payoff_constant: float | None,
+    payoff_column: int | None,
+    fps: float,
+    tracker_file: str | None,
+    as_json: bool,
+) -> None:
+    """Make a scene from a MOTChallenge DET file (det.txt or gt.txt layout).
+
+    \b
+    One detection per line (frame,id,bb_left,bb_top,bb_width,bb_height,...), at
+    the box's centre (or --point bottom). Steps are the file's frame numbers; a
+    frame without lines has no detections. Without --gt/--track the scene has no
+    target: give --target X,Y@STEP to track, build, check or verify.
+    Exit status: 0 written, 2 bad input, 4 internal error, 130 interrupted.
+    """
+    from lesmc.scene import Scene, load_tracker, save_scene
+    from lesmc.scene.mot import Payoffs, Point, import_mot
+
+    if (gt_path is None) != (track_id is None):
+        raise UsageError("--gt and --track go together: the target is a track of the gt file")
+    if payoff_constant is not None and payoff_column is not None:
+        raise UsageError("give --payoff or --payoff-column, not both")
+    if payoff_constant is not None and not (0 <= payoff_constant <= 1e12):
+        raise UsageError(f"--payoff must be a number in [0, 1e12], got {payoff_constant:g}")
+    if not (math.isfinite(fps) and 0 < fps <= 1e6):
+        raise UsageError(f"--fps must be a number in (0, 1e6], got {fps:g}")
+    payoffs = Payoffs(1.0 if payoff_constant is None else payoff_constant, payoff_column)
+    tracker = load_tracker(tracker_file) if tracker_file else None
+    at: Point = "bottom" if point == "bottom" else "center"
+    scene = import_mot(det, 1.0 / fps, at, payoffs, gt_path, track_id, tracker)
+    save_scene(scene, output)
+    n = sum(len(f.detections) for f in scene.frames)
+    first, last = scene.frames[0].step, scene.last_step
+    target = None
+    if isinstance(scene, Scene):
+        t = scene.target
+        target = {
+            "step": t.step,
+            "start": list(t.start),
+            "velocity": list(t.velocity),
+            "from": f"{gt_path} track {track_id}",
+        }
+    where = (
+        "no target (give --target X,Y@STEP to track it)"
+        if target is None
+        else f"target: track {track_id} from frame {target['step']}"
+    )
+    say(
+        f"wrote {escape_control(output)}: {n} detections in frames {first}..{last}, {where}",
+        as_json,
+    )
+    if as_json:
+        emit(
+            {
+                "format": "lesmc-import",
+                "version": 1,
+                "provenance": run_provenance(),
+                "source": "mot",
+                "input": det,
+                "scene": file_facts(output),
+                "frames": len(scene.frames),
+                "detections": n,
+                "first_frame": first,
+                "last_frame": last,
+                "point": point,
+                "payoffs": f"column {payoff_column}"
+                if payoff_column
+                else f"constant {payoffs.constant:g}",
+                "target": target,
+            }
+        )

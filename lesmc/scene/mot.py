@@ -1,0 +1,300 @@
+"""Detections from MOTChallenge text files (det.txt, gt.txt): the user's own detector output.
+
+A line is ``frame,id,bb_left,bb_top,bb_width,bb_height[,conf[,x,y,z]]`` (the MOT15-MOT20
+layouts; gt.txt's 7th-9th columns are a flag, a class and a visibility), comma-separated,
+spaces allowed around the numbers. One detection per line, at the box's centre or, with
+``point="bottom"``, at its bottom centre (the ground point). docs/own-system.md has
+the rules; in short:
+
+* frames are integers >= 0 (MOTChallenge counts from 1); a frame with no line is a
+  frame without detections, so the scene's steps run from the first frame to the last;
+* det.txt lines must come in non-decreasing frame order (every MOTChallenge det.txt
+  does); gt.txt lines may come in any order (MOT17's are sorted by track);
+* widths and heights are > 0, every number finite, ids integers (-1: none).
+
+Payoffs: one constant for every detection (1 makes the optimum the number of
+detections an attacker must hide), or a column of the file (``inf`` there: unattackable).
+Writing (:func:`write_det`, :func:`write_gt`) is the inverse, used by tests and examples.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Iterable, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Literal
+
+from lesmc.common.errors import InputError, Location, UsageError
+from lesmc.common.files import atomic_write_text, read_text
+from lesmc.scene.frames import Detection, Frame
+from lesmc.scene.io import MAX_COORD, MAX_PAYOFF, MAX_STEP
+from lesmc.scene.scene import Footage, Scene, Target, TrackerConfig
+
+Point = Literal["center", "bottom"]
+#: Columns a line must have, and may have.
+MIN_COLUMNS, MAX_COLUMNS = 6, 10
+
+
+@dataclass(frozen=True)
+class Box:
+    """One line of a MOT file: frame, id, box, the line's number and its extra columns."""
+
+    frame: int
+    id: int
+    left: float
+    top: float
+    width: float
+    height: float
+    line: int
+    extra: tuple[float, ...]  # columns 7.. (conf, x, y, z or flag, class, visibility)
+
+    def point(self, where: Point) -> tuple[float, float]:
+        """The detection's position: the box's centre or its bottom centre."""
+        x = self.left + self.width / 2.0
+        y = self.top + (self.height if where == "bottom" else self.height / 2.0)
+        return (x, y)
+
+
+def read_boxes(path: str | Path, sorted_frames: bool) -> list[Box]:
+    """Every line of a MOT file as a :class:`Box`; a malformed line is an
+    ``InputError`` at ``FILE:LINE:COL``. ``sorted_frames``: frames must not decrease."""
+    text = read_text(path)
+    name = str(path)
+    boxes: list[Box] = []
+    last = -1
+    for n, raw in enumerate(text.split("\n"), start=1):
+        line = raw.removesuffix("\r")
+        if not line.strip():
+            continue
+        box = _box(line, n, name)
+        if sorted_frames and box.frame < last:
+            raise InputError(
+                f"frame {box.frame} comes after frame {last}: det.txt lines must be in "
+                "non-decreasing frame order",
+                Location(name, n, 1, line),
+            )
+        last = max(last, box.frame)
+        boxes.append(box)
+    if not boxes:
+        raise InputError("no detections: the file has no lines", Location(name))
+    return boxes
+
+
+def _box(line: str, n: int, path: str) -> Box:
+    cols = _split(line)
+    if not MIN_COLUMNS <= len(cols) <= MAX_COLUMNS:
+        raise InputError(
+            f"expected {MIN_COLUMNS} to {MAX_COLUMNS} comma-separated columns "
+            f"(frame,id,bb_left,bb_top,bb_width,bb_height[,conf,x,y,z]), got {len(cols)}",
+            Location(path, n, 1, line),
+        )
+    values: list[float] = []
+    for i, (col, text) in enumerate(cols):
+        where = Location(path, n, col + 1 + (len(text) - len(text.lstrip())), line)
+        values.append(_number(text, i, where))
+    frame, ident = values[0], values[1]
+    if not (frame.is_integer() and 0 <= frame <= MAX_STEP):
+        raise InputError(
+            f"frame must be an integer in 0..{MAX_STEP}, got {cols[0][1].strip()}",
+            Location(path, n, 1, line),
+        )
+    if not ident.is_integer():
+        raise InputError(
+            f"id must be an integer (-1: none), got {cols[1][1].strip()}",
+            Location(path, n, cols[1][0] + 1, line),
+        )
+    for i, what in ((4, "bb_width"), (5, "bb_height")):
+        if not values[i] > 0:
+            raise InputError(
+                f"{what} must be > 0, got {cols[i][1].strip()}",
+                Location(path, n, cols[i][0] + 1, line),
+            )
+    left, top, width, height = values[2:6]
+    return Box(int(frame), int(ident), left, top, width, height, n, tuple(values[6:]))
+
+
+def _split(line: str) -> list[tuple[int, str]]:
+    """The comma-separated fields of ``line`` with their offsets."""
+    out, start = [], 0
+    for part in line.split(","):
+        out.append((start, part))
+        start += len(part) + 1
+    return out
+
+
+_NAMES = (
+    "frame",
+    "id",
+    "bb_left",
+    "bb_top",
+    "bb_width",
+    "bb_height",
+    "column 7",
+    "column 8",
+    "column 9",
+    "column 10",
+)
+
+
+def _number(text: str, i: int, where: Location) -> float:
+    s = text.strip()
+    try:
+        v = float(s)
+    except ValueError:
+        raise InputError(f"{_NAMES[i]} must be a number, got '{s[:20]}'", where) from None
+    if i < 6 and not (math.isfinite(v) and abs(v) <= MAX_COORD):
+        raise InputError(
+            f"{_NAMES[i]} must be a finite number within ±{MAX_COORD:g}, got {s}", where
+        )
+    if i >= 6 and math.isnan(v):
+        raise InputError(f"{_NAMES[i]} must be a number, got {s}", where)
+    return v
+
+
+# ---------------------------------------------------------------- to a scene
+
+
+@dataclass(frozen=True)
+class Payoffs:
+    """How detections are priced: one ``constant`` or the 1-based ``column`` of the file."""
+
+    constant: float = 1.0
+    column: int | None = None
+
+
+def footage_from_boxes(
+    boxes: Sequence[Box],
+    path: str,
+    dt: float,
+    point: Point = "center",
+    payoffs: Payoffs = Payoffs(),
+    tracker: TrackerConfig | None = None,
+) -> Footage:
+    """Frames of detections (steps = MOT frame numbers, every frame from the first to the
+    last; detection ids ``FRAME:K``, K its place among the frame's lines)."""
+    by_frame: dict[int, list[Detection]] = {}
+    for b in boxes:
+        x, y = b.point(point)
+        if not (abs(x) <= MAX_COORD and abs(y) <= MAX_COORD):
+            raise InputError(
+                f"the detection's point ({x:g}, {y:g}) lies beyond ±{MAX_COORD:g}",
+                Location(path, b.line, 1),
+            )
+        dets = by_frame.setdefault(b.frame, [])
+        dets.append(Detection(f"{b.frame}:{len(dets)}", x, y, _payoff(b, payoffs, path)))
+    first, last = min(by_frame), max(by_frame)
+    frames = tuple(Frame(k, tuple(by_frame.get(k, ()))) for k in range(first, last + 1))
+    meta = {"source": path, "format": "MOTChallenge", "point": point}
+    return Footage(dt, frames, tracker or TrackerConfig(), meta)
+
+
+def _payoff(b: Box, p: Payoffs, path: str) -> float:
+    if p.column is None:
+        return p.constant
+    k = p.column - 7
+    if not 0 <= k < len(b.extra):
+        raise InputError(
+            f"--payoff-column {p.column}: the line has only {6 + len(b.extra)} columns",
+            Location(path, b.line, 1),
+        )
+    v = b.extra[k]
+    if not (v >= 0 and (math.isinf(v) or v <= MAX_PAYOFF)):
+        raise InputError(
+            f"column {p.column} is the payoff: a number in [0, {MAX_PAYOFF:g}] "
+            f"or inf (unattackable), got {v!r}",
+            Location(path, b.line, 1),
+        )
+    return v
+
+
+def target_from_gt(
+    gt: Sequence[Box], track: int, path: str, dt: float, point: Point = "center"
+) -> Target:
+    """The target of ground-truth track ``track``: its first box's point and frame, and its
+    velocity to its next box (zero if it has none)."""
+    rows = sorted((b for b in gt if b.id == track), key=lambda b: b.frame)
+    if not rows:
+        ids = sorted({b.id for b in gt})
+        shown = ", ".join(str(i) for i in ids[:12]) + (" ..." if len(ids) > 12 else "")
+        raise UsageError(f"--track {track}: {path} has no such track (its tracks: {shown})")
+    first = rows[0]
+    start = first.point(point)
+    vel = (0.0, 0.0)
+    if len(rows) > 1:
+        nxt = rows[1]
+        p = nxt.point(point)
+        gap = (nxt.frame - first.frame) * dt
+        vel = ((p[0] - start[0]) / gap, (p[1] - start[1]) / gap)
+    return Target(first.frame, start, vel)
+
+
+def import_mot(
+    det: str,
+    dt: float,
+    point: Point = "center",
+    payoffs: Payoffs = Payoffs(),
+    gt: str | None = None,
+    track: int | None = None,
+    tracker: TrackerConfig | None = None,
+) -> Footage | Scene:
+    """``lesmc import mot``: the scene of a det.txt, with the target of ground-truth track
+    ``track`` of ``gt`` if given (a :class:`Footage` otherwise)."""
+    footage = footage_from_boxes(read_boxes(det, True), det, dt, point, payoffs, tracker)
+    if gt is None:
+        return footage
+    assert track is not None
+    target = target_from_gt(read_boxes(gt, False), track, gt, dt, point)
+    if not footage.frames[0].step <= target.step <= footage.last_step:
+        raise UsageError(
+            f"--track {track} starts at frame {target.step}, outside the detections' frames "
+            f"{footage.frames[0].step}..{footage.last_step}"
+        )
+    return footage.with_target(target, {**footage.meta, "target_from": f"{gt} track {track}"})
+
+
+# ---------------------------------------------------------------- writing
+
+
+def _num(v: float) -> str:
+    return "inf" if math.isinf(v) else repr(float(v))
+
+
+def write_det(footage: Footage | Scene, path: str | Path, size: tuple[float, float]) -> None:
+    """A det.txt of the scene's detections: boxes of ``size`` (w, h) centred on each
+    detection, the payoff in the conf column (7), x, y, z unset (-1)."""
+    w, h = size
+    lines = [
+        ",".join(
+            [
+                str(f.step),
+                "-1",
+                _num(d.x - w / 2),
+                _num(d.y - h / 2),
+                _num(w),
+                _num(h),
+                _num(d.payoff),
+                "-1",
+                "-1",
+                "-1",
+            ]
+        )
+        for f in footage.frames
+        for d in f.detections
+    ]
+    atomic_write_text(path, "\n".join(lines) + "\n")
+
+
+def write_gt(
+    tracks: Iterable[tuple[int, int, float, float]], path: str | Path, size: tuple[float, float]
+) -> None:
+    """A gt.txt of ``(track id, frame, x, y)`` centres: boxes of ``size``, flag 1, class 1
+    (pedestrian in MOT; lesmc reads neither), visibility 1."""
+    w, h = size
+    lines = [
+        ",".join(
+            [str(fr), str(tid), _num(x - w / 2), _num(y - h / 2), _num(w), _num(h), "1", "1", "1"]
+        )
+        for tid, fr, x, y in tracks
+    ]
+    atomic_write_text(path, "\n".join(lines) + "\n")
