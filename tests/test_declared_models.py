@@ -182,7 +182,11 @@ def _bad(**change: Any) -> dict[str, Any]:
 
 
 BAD = [
-    (_bad(F=[[1, 0, 1, 0], [0, 1, 0, 1], [0, 0, 1, 0]]), "model.F must be 4x4", "got 3 rows"),
+    (
+        _bad(F=[[1, 0, 1, 0], [0, 1, 0, 1], [0, 0, 1, 0]]),
+        "model.F must be a 4x4 matrix (the state has 4 components)",
+        "got 3 rows",
+    ),
     (_bad(H=[[1, 0, 0], [0, 1, 0]]), "model.H row 0 must have 4 entries", "got 3"),
     (_bad(Q=[[1, 2, 0, 0], [0, 1, 0, 0], [0, 0, 1, 0], [0, 0, 0, 1]]), "model.Q", "symmetric"),
     (_bad(R=[[1, 0], [0, -1]]), "model.R must be positive definite", "eigenvalue"),

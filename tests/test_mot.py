@@ -128,7 +128,10 @@ def test_gt_problems_are_usage_errors(tmp_path: Path) -> None:
     r = lesmc("import", "mot", str(det), "--gt", str(gt), "-o", str(out))
     assert r.returncode == 2 and "--gt and --track go together" in r.stderr
     r = lesmc("import", "mot", str(det), "--gt", str(gt), "--track", "4", "-o", str(out))
-    assert r.returncode == 2 and "no such track (its tracks: 3)" in r.stderr
+    assert (
+        r.returncode == 2
+        and "no such track within the detections' frames (its tracks there: 3)" in r.stderr
+    )
     r = lesmc("import", "mot", str(det), "--payoff", "1", "--payoff-column", "7", "-o", str(out))
     assert r.returncode == 2 and "not both" in r.stderr
     assert not out.exists()

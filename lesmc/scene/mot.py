@@ -217,7 +217,10 @@ def target_from_gt(
     if not rows:
         ids = sorted({b.id for b in gt})
         shown = ", ".join(str(i) for i in ids[:12]) + (" ..." if len(ids) > 12 else "")
-        raise UsageError(f"--track {track}: {path} has no such track (its tracks: {shown})")
+        raise UsageError(
+            f"--track {track}: {path} has no such track within the detections' frames "
+            f"(its tracks there: {shown})"
+        )
     first = rows[0]
     start = first.point(point)
     vel = (0.0, 0.0)
@@ -239,17 +242,15 @@ def import_mot(
     tracker: TrackerConfig | None = None,
 ) -> Footage | Scene:
     """``lesmc import mot``: the scene of a det.txt, with the target of ground-truth track
-    ``track`` of ``gt`` if given (a :class:`Footage` otherwise)."""
+    ``track`` of ``gt`` if given (a :class:`Footage` otherwise): its first box among the
+    detections' frames."""
     footage = footage_from_boxes(read_boxes(det, True), det, dt, point, payoffs, tracker)
     if gt is None:
         return footage
     assert track is not None
-    target = target_from_gt(read_boxes(gt, False), track, gt, dt, point)
-    if not footage.frames[0].step <= target.step <= footage.last_step:
-        raise UsageError(
-            f"--track {track} starts at frame {target.step}, outside the detections' frames "
-            f"{footage.frames[0].step}..{footage.last_step}"
-        )
+    first, last = footage.frames[0].step, footage.last_step
+    boxes = read_boxes(gt, False)
+    target = target_from_gt([b for b in boxes if first <= b.frame <= last], track, gt, dt, point)
     return footage.with_target(target, {**footage.meta, "target_from": f"{gt} track {track}"})
 
 

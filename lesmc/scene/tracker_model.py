@@ -165,10 +165,16 @@ def _matrix(
 ) -> np.ndarray | None:
     """A matrix of ``shape`` given as a list of rows of finite numbers."""
     rows, cols = shape
-    why = {"F": "d×d", "H": "2×d: one row per detection coordinate", "Q": "d×d", "R": "2×2"}
-    what = f"{rows}x{cols} ({why.get(name, 'd×d')}; the state has {len(state)} components)"
+    note = (
+        "one row per detection coordinate"
+        if name == "H"
+        else "the detection's x, y"
+        if name == "R"
+        else f"the state has {len(state)} components"
+    )
+    what = f"a {rows}x{cols} matrix ({note})"
     if raw is None:
-        pr.add(item, f"model.{name} is missing: a {what} matrix")
+        pr.add(item, f"model.{name} is missing: {what}")
         return None
     if not isinstance(raw, list) or len(raw) != rows:
         got = f"{len(raw)} rows" if isinstance(raw, list) else show(raw)
@@ -176,8 +182,10 @@ def _matrix(
         return None
     for r, row in enumerate(raw):
         if not isinstance(row, list) or len(row) != cols:
-            got = f"{len(row)} entries" if isinstance(row, list) else show(row)
-            pr.add(item, f"model.{name} row {r} must have {cols} entries ({what}), got {got}")
+            got = f"{len(row)}" if isinstance(row, list) else show(row)
+            pr.add(
+                item, f"model.{name} row {r} must have {cols} entries, got {got}: {name} is {what}"
+            )
             return None
         for c, v in enumerate(row):
             if not (is_finite(v) and abs(v) <= MAX_ENTRY):
