@@ -85,6 +85,29 @@ nets_option = click.option(
 )
 
 
+def network_options(f: F) -> F:
+    """``--detector FILE`` and ``--locator FILE``: the user's N_dr and N_lp (.pt2, .onnx)."""
+    f = click.option(
+        "--locator",
+        "locator_file",
+        type=click.Path(dir_okay=False),
+        default=None,
+        metavar="FILE",
+        help="The user's N_lp (.pt2 or .onnx): (B, m+1, 45, 45) windows -> (B, 15, 15) maps "
+        "(docs/own-system.md).",
+    )(f)
+    return click.option(
+        "--detector",
+        "detector_file",
+        type=click.Path(dir_okay=False),
+        default=None,
+        metavar="FILE",
+        help="The user's N_dr (.pt2 or .onnx): (B, m+1, 21, 21) windows -> (B, 2) logits; "
+        "payoffs by its attack, certified bounds if its operations allow "
+        "(docs/own-system.md).",
+    )(f)
+
+
 def frames_option(help_text: str, dest: str = "frames_dir") -> Callable[[F], F]:
     """``--frames DIR``: a video's frames, the only place images are read from."""
     return click.option(

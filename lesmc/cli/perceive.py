@@ -9,6 +9,7 @@ from typing import TYPE_CHECKING, Any
 import click
 
 from lesmc.cli.documents import emit, file_facts, refuse_given, run_provenance, say
+from lesmc.cli.options import network_options
 from lesmc.common.errors import InputError, Location, UsageError, escape_control
 from lesmc.video import FPS
 
@@ -52,6 +53,7 @@ if TYPE_CHECKING:
     default=None,
     help="Trained networks (lesmc train --out) [default: the shipped ones].",
 )
+@network_options
 @click.option("--no-cnn", is_flag=True, help="Front end only: the candidates Q_bc.")
 @click.option(
     "--attack",
@@ -124,6 +126,8 @@ def perceive_cmd(
     target_text: str | None,
     truth: str | None,
     nets_dir: str | None,
+    detector_file: str | None,
+    locator_file: str | None,
     no_cnn: bool,
     attack: str,
     payoff_norm: str,
@@ -150,7 +154,9 @@ def perceive_cmd(
     Exit status: 0 done, 2 bad input, 4 internal error, 130 interrupted.
     """
     started = time.monotonic()
-    _refuse_mismatched(output, target_text, certify, no_cnn, truth, nets_dir)
+    _refuse_mismatched(
+        output, target_text, certify, no_cnn, truth, nets_dir or detector_file or locator_file
+    )
     # Imported here, not at module level: torch, cv2 and scipy cost seconds to import.
     from lesmc.common.progress import progress_bar
     from lesmc.perception.certify import CertifyConfig
@@ -158,7 +164,7 @@ def perceive_cmd(
     from lesmc.perception.run import PerceiveOptions, perceive
 
     spec, frames, truths = _inputs(frames_dir, history, target_text, truth)
-    nets = None if no_cnn else load_nets(nets_dir)
+    nets = None if no_cnn else load_nets(nets_dir, detector_file, locator_file)
     att = _attack_config(attack, overshoot, max_iter, payoff_norm) if output else None
     cert = CertifyConfig() if certify else None
     opts = PerceiveOptions(history, delta_bc, nets, att, cert, radius, min_speed)
@@ -227,7 +233,10 @@ def _refuse_mismatched(
     if truth is None:
         refuse_given(("radius", "min_speed"), "applies to the comparison with --truth")
     if no_cnn and nets_dir is not None:
-        raise UsageError("--nets gives the CNNs that --no-cnn leaves out: give one or the other")
+        raise UsageError(
+            "--nets, --detector and --locator give the CNNs that --no-cnn leaves out: give one "
+            "or the other"
+        )
 
 
 def _scene_meta(

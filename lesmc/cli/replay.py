@@ -6,7 +6,7 @@ from typing import Any
 
 import click
 
-from lesmc.cli.options import frames_option, nets_option
+from lesmc.cli.options import frames_option, nets_option, network_options
 from lesmc.common.errors import UsageError
 
 
@@ -24,9 +24,16 @@ from lesmc.common.errors import UsageError
     help="Replay only this property's counterexamples [default: every violated property].",
 )
 @nets_option
+@network_options
 @click.option("--json", "as_json", is_flag=True, help="Print the replays as JSON (lesmc-replay).")
 def replay_cmd(
-    results: str, frames_dir: str | None, prop: str | None, nets_dir: str | None, as_json: bool
+    results: str,
+    frames_dir: str | None,
+    prop: str | None,
+    nets_dir: str | None,
+    detector_file: str | None,
+    locator_file: str | None,
+    as_json: bool,
 ) -> None:
     """Replay the counterexamples of RESULTS (results.json of lesmc verify) on the real frames.
 
@@ -57,7 +64,8 @@ def replay_cmd(
             "results file does not name them)"
         )
     with progress_bar("replay", "replaying", None) as bar:
-        outcome = replay_file(doc, frames_dir, nets_dir, prop, bar)
+        nets = (nets_dir, detector_file, locator_file)
+        outcome = replay_file(doc, frames_dir, nets, prop, bar)
     rows, verdicts = verdict_rows(doc, outcome, prop)
     if as_json:
         out = {

@@ -15,6 +15,7 @@ from lesmc.cli.options import (
     designs_option,
     frames_option,
     nets_option,
+    network_options,
     parse_window,
     payoffs_option,
     spec_option,
@@ -60,6 +61,7 @@ from lesmc.cli.options import (
     help="Directory for scene.json, report.html, figures/, results.json.",
 )
 @nets_option
+@network_options
 @frames_option(
     "With --scene: the video's frames, for the replay of counterexamples and the "
     "report's images (read from nowhere else).",
@@ -88,6 +90,8 @@ def verify_cmd(
     design: str,
     out_dir: str,
     nets_dir: str | None,
+    detector_file: str | None,
+    locator_file: str | None,
     frames_opt: str | None,
     payoffs: str,
     tracker_file: str | None,
@@ -123,6 +127,8 @@ def verify_cmd(
         designs=expand_designs(design),
         out=Path(out_dir),
         nets_dir=nets_dir,
+        detector=detector_file,
+        locator=locator_file,
         scene_frames=frames_opt,
         tracker=tracker_file,
         payoffs=payoffs,  # type: ignore[arg-type]

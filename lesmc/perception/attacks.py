@@ -28,8 +28,9 @@ from typing import Any, Literal
 
 import numpy as np
 import torch
+from torch import nn
 
-from lesmc.perception.cnn import DR_SIZE, DetectNet
+from lesmc.perception.cnn import DR_SIZE
 
 Method = Literal["deepfool", "pgd"]
 Norm = Literal["l2", "per-pixel"]
@@ -66,14 +67,14 @@ def threshold_logit(delta_dr: float) -> float:
     return math.log(delta_dr / (1.0 - delta_dr))
 
 
-def margin(net: DetectNet, x: torch.Tensor, t: float) -> torch.Tensor:
+def margin(net: nn.Module, x: torch.Tensor, t: float) -> torch.Tensor:
     """f(x) = logit_vehicle - logit_none - t: positive while N_dr sees a vehicle."""
     logits: torch.Tensor = net(x)
     out: torch.Tensor = logits[:, 1] - logits[:, 0] - t
     return out
 
 
-def _grad(net: DetectNet, x: torch.Tensor, t: float) -> tuple[torch.Tensor, torch.Tensor]:
+def _grad(net: nn.Module, x: torch.Tensor, t: float) -> tuple[torch.Tensor, torch.Tensor]:
     x = x.detach().requires_grad_(True)
     f = margin(net, x, t)
     (g,) = torch.autograd.grad(f.sum(), x)
@@ -81,7 +82,7 @@ def _grad(net: DetectNet, x: torch.Tensor, t: float) -> tuple[torch.Tensor, torc
 
 
 def deepfool(
-    net: DetectNet, x0: torch.Tensor, t: float, cfg: AttackConfig
+    net: nn.Module, x0: torch.Tensor, t: float, cfg: AttackConfig
 ) -> tuple[torch.Tensor, np.ndarray]:
     """Batched two-class DeepFool; returns (x_adv, iterations used)."""
     xi = x0.clone()
@@ -104,7 +105,7 @@ def deepfool(
 
 
 def pgd_min_norm(
-    net: DetectNet, x0: torch.Tensor, t: float, cfg: AttackConfig
+    net: nn.Module, x0: torch.Tensor, t: float, cfg: AttackConfig
 ) -> tuple[torch.Tensor, np.ndarray]:
     """Smallest L2 budget at which PGD flips N_dr; returns (x_adv, PGD runs per sample).
 
@@ -148,7 +149,7 @@ def pgd_min_norm(
 
 
 def _pgd(
-    net: DetectNet, x0: torch.Tensor, t: float, eps: torch.Tensor, cfg: AttackConfig
+    net: nn.Module, x0: torch.Tensor, t: float, eps: torch.Tensor, cfg: AttackConfig
 ) -> tuple[torch.Tensor, torch.Tensor]:
     """L2 PGD within ``eps`` per sample; keeps, per sample, the first flipping iterate."""
     delta = torch.zeros_like(x0)
@@ -176,7 +177,7 @@ def _pgd(
 
 
 def payoffs(
-    net: DetectNet, windows: np.ndarray, delta_dr: float, cfg: AttackConfig
+    net: nn.Module, windows: np.ndarray, delta_dr: float, cfg: AttackConfig
 ) -> AttackResult:
     """Attack every (n, m+1, 21, 21) window; payoff = ||x_adv - x|| (inf when not flipped)."""
     t = threshold_logit(delta_dr)

@@ -11,7 +11,7 @@ loading) with a JSON header of settings; the package ships a trained pair.
 from __future__ import annotations
 
 import json
-from dataclasses import asdict, dataclass, fields
+from dataclasses import asdict, dataclass, fields, replace
 from importlib import resources
 from pathlib import Path
 from typing import Any
@@ -92,11 +92,16 @@ class NetSettings:
 
 @dataclass
 class Nets:
-    """A trained N_dr and N_lp and their settings, in eval mode."""
+    """A trained N_dr and N_lp and their settings, in eval mode.
 
-    dr: DetectNet
-    lp: LocateNet
+    ``dr`` and ``lp`` are the shipped modules, or a user's networks loaded from
+    files (``dr_file``, ``lp_file``: lesmc/perception/graphs.py)."""
+
+    dr: nn.Module
+    lp: nn.Module
     settings: NetSettings
+    dr_file: Any = None  # graphs.UserNet of --detector
+    lp_file: Any = None  # graphs.UserNet of --locator
 
 
 DEFAULT_WEIGHTS = "wami"  #: the pair shipped in lesmc/perception/weights/
@@ -155,8 +160,34 @@ def nets_settings(meta: Any, path: str) -> NetSettings:
     return NetSettings(**raw)
 
 
-def load_nets(directory: str | Path | None = None) -> Nets:
-    """Load a pair written by ``save_nets`` (default: the shipped weights)."""
+def load_nets(
+    directory: str | Path | None = None, detector: str | None = None, locator: str | None = None
+) -> Nets:
+    """Load a pair written by ``save_nets`` (default: the shipped weights); ``detector`` and
+    ``locator`` (``.pt2``/``.onnx`` files) replace N_dr and N_lp, keeping the settings."""
+    nets = _load_pair(directory)
+    if detector is None and locator is None:
+        return nets
+    from lesmc.perception.graphs import check_shape, load_network
+
+    names = [nets.settings.trained_on]
+    channels = nets.settings.m + 1
+    if detector is not None:
+        nets.dr_file = load_network(detector)
+        check_shape(nets.dr_file, "detector", channels, DR_SIZE)
+        nets.dr = nets.dr_file.module
+        names.append(f"detector {detector}")
+    if locator is not None:
+        nets.lp_file = load_network(locator)
+        check_shape(nets.lp_file, "locator", channels, LP_SIZE)
+        nets.lp = nets.lp_file.module
+        names.append(f"locator {locator}")
+    nets.settings = replace(nets.settings, trained_on="; ".join(n for n in names if n))
+    return nets
+
+
+def _load_pair(directory: str | Path | None) -> Nets:
+    """The pair of ``save_nets`` in ``directory`` (default: the shipped weights)."""
     if directory is None:
         d = Path(str(resources.files("lesmc.perception") / "weights" / DEFAULT_WEIGHTS))
     else:

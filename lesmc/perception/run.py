@@ -142,13 +142,32 @@ def certified_lower(
     ``cert.batch`` windows (progress, budgets).
     """
     from lesmc.perception.attacks import threshold_logit
-    from lesmc.perception.certify import certified_radius, detect_chain
+    from lesmc.perception.certify import certified_radius
 
     scale = DR_SIZE * DR_SIZE if cfg.norm == "per-pixel" else 1.0
-    chain = detect_chain(nets.dr, threshold_logit(nets.settings.delta_dr))
+    chain = detector_chain(nets, threshold_logit(nets.settings.delta_dr))
     radius = certified_radius(chain, windows, upper * scale, cert, on_batch) / scale
     bounded: np.ndarray = np.minimum(radius, upper)
     return bounded
+
+
+def detector_chain(nets: Nets, t: float) -> Any:
+    """N_dr as the bound propagation sees it, margin threshold ``t``: the shipped network's,
+    or a detector file's (an unsupported node is an InputError naming it)."""
+    from lesmc.perception.certify import detect_chain
+
+    if nets.dr_file is None:
+        return detect_chain(nets.dr, t)
+    from lesmc.common.errors import InputError, Location
+    from lesmc.perception.graphs import Unsupported, chain_of_ops
+
+    ops = nets.dr_file.certifiable_ops()
+    try:
+        return chain_of_ops(ops, nets.dr_file.in_shape, t)
+    except Unsupported as exc:
+        raise InputError(
+            f"{exc}; payoffs from attacks still work", Location(nets.dr_file.path)
+        ) from None
 
 
 def certify_on_demand(

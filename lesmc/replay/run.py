@@ -740,25 +740,31 @@ def diverged_note(optimum: Any, obj: dict[str, Any]) -> str:
 
 
 def replay_file(
-    doc: dict[str, Any], frames_dir: str, nets_dir: str | None, prop: str | None, bar: Bar
+    doc: dict[str, Any],
+    frames_dir: str,
+    nets: tuple[str | None, str | None, str | None],
+    prop: str | None,
+    bar: Bar,
 ) -> Outcome:
-    """``lesmc replay``: the frames and networks of a results document, then :func:`replay`
-    (``bar`` counts the frames). The networks must be those the results were made with."""
+    """``lesmc replay``: the frames and networks (``--nets``, ``--detector``, ``--locator``) of
+    a results document, then :func:`replay` (``bar`` counts the frames). The networks must
+    be those the results were made with."""
     from lesmc.perception.cnn import load_nets
     from lesmc.video.reader import open_frames
 
     cases(doc, prop)  # an unknown property is an error before the video is read
     history = int(doc.get("perception", {}).get("history", 4))
     frames = open_frames(frames_dir, history + 1)
-    nets = load_nets(nets_dir)
+    loaded = load_nets(*nets)
     want = doc.get("perception", {}).get("nets")
-    if want and want != nets.settings.trained_on:
+    if want and want != loaded.settings.trained_on:
         raise UsageError(
             f"the results were made with the networks trained on '{want}', these were "
-            f"trained on '{nets.settings.trained_on}': give the same --nets"
+            f"trained on '{loaded.settings.trained_on}': give the same --nets, --detector "
+            "and --locator"
         )
     bar.update(total=len(frames))
-    return replay(doc, frames, nets, prop, on_frame=bar.advance)
+    return replay(doc, frames, loaded, prop, on_frame=bar.advance)
 
 
 def verdict_rows(

@@ -63,6 +63,8 @@ class Request:
     designs: tuple[str, ...] = registry.SETS["paper"]
     out: Path = Path("lesmc-verify")
     nets_dir: str | None = None
+    detector: str | None = None  #: the user's N_dr (``--detector``, .pt2/.onnx)
+    locator: str | None = None  #: the user's N_lp (``--locator``)
     scene_frames: str | None = None  #: with ``scene_path``: the video's frames (replay, images)
     tracker: str | None = None  #: a tracker file replacing the scene's (``--tracker``)
     payoffs: PayoffMode = "attack"
@@ -150,8 +152,11 @@ def _scene_file(req: Request) -> _Source:
         raise UsageError("give FRAMES_DIR or --scene, not both")
     if req.truth is not None:
         raise UsageError("--truth applies to a video, not to --scene")
-    if req.nets_dir is not None and req.scene_frames is None:
-        raise UsageError("--nets with --scene applies only to the replay: give --frames too")
+    if (req.nets_dir or req.detector or req.locator) and req.scene_frames is None:
+        raise UsageError(
+            "--nets, --detector and --locator with --scene apply only to the replay: give "
+            "--frames too"
+        )
     scene = load_scene_with_target(req.scene_path or "", req.target, None, _tracker(req))
     from lesmc.video.reader import open_frames
 
@@ -160,7 +165,7 @@ def _scene_file(req: Request) -> _Source:
     if frames is not None:
         from lesmc.perception.cnn import load_nets
 
-        nets = load_nets(req.nets_dir)
+        nets = load_nets(req.nets_dir, req.detector, req.locator)
     return _Source(scene, frames, None, nets, meta={"scene": req.scene_path})
 
 
@@ -184,7 +189,7 @@ def _perceived(req: Request, specs: list[SpecFile], rep: Reporter) -> _Source:
     if target is not None:
         check_target(target, frames.width, frames.height, len(frames))
     truths = load_truth(truth) if truth else None
-    nets = load_nets(req.nets_dir)
+    nets = load_nets(req.nets_dir, req.detector, req.locator)
     opts = PerceiveOptions(history=HISTORY, nets=nets, attack=AttackConfig())
     _spent(req.budget, "loading the video and the networks")
     with rep.bar("perceiving", len(frames)) as bar:

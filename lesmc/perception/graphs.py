@@ -1,0 +1,787 @@
+"""The user's detector networks: ``.pt2`` (torch.export) and ``.onnx`` files.
+
+A network file replaces one of the shipped CNNs (``--detector`` for N_dr,
+``--locator`` for N_lp). lesmc feeds it the windows it feeds its own (docs/cnn.md):
+
+* detector: (B, m+1, 21, 21) in [0, 1] -> (B, 2) logits, index 1 = vehicle;
+* locator: (B, m+1, 45, 45) in [0, 1] -> (B, 15, 15) map of vehicle centres in [0, 1].
+
+Two views of a file are built:
+
+* a torch module for the forward pass and its gradients (DeepFool, PGD): the
+  exported program itself for ``.pt2``; for ``.onnx`` a small interpreter of the
+  graph in torch (:class:`OnnxNet`);
+* for certified bounds (detectors only), the network as a sequence of
+  :class:`Op` s, which :func:`chain_of_ops` turns into the ``Chain`` of the bound
+  propagation (certify.py). A node it cannot express is reported by name.
+
+Why not the libraries: ``torch.export.load`` unpickles parts of the archive
+(its docstring says so), and lesmc never unpickles a file, so :func:`load_pt2`
+reads the archive itself, refusing any pickled payload, and hands the parsed
+graph and raw weights to torch's deserializer. onnx2torch would convert ONNX to
+torch, but it imports torchvision, whose PyPI wheel does not load beside the
+pinned torch; the interpreter here covers the operations of small detection CNNs.
+"""
+
+from __future__ import annotations
+
+import importlib
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import torch
+from torch import nn
+from torch.nn import functional as F
+
+from lesmc.common.errors import InputError, Location, UsageError
+
+#: The ONNX operations :class:`OnnxNet` runs.
+ONNX_OPS = (
+    "Add",
+    "AveragePool",
+    "BatchNormalization",
+    "Constant",
+    "Conv",
+    "Div",
+    "Flatten",
+    "Gather",
+    "Gemm",
+    "Identity",
+    "MatMul",
+    "MaxPool",
+    "Mul",
+    "ReduceMean",
+    "Relu",
+    "Reshape",
+    "Sigmoid",
+    "Slice",
+    "Squeeze",
+    "Sub",
+    "Unsqueeze",
+)
+
+
+@dataclass(frozen=True)
+class Op:
+    """One step of a network as the bound propagation sees it.
+
+    ``kind``: ``center`` (x − mean over C, H, W), ``conv`` (weight, bias, stride,
+    padding), ``relu``, ``flatten``, ``linear`` (weight, bias), ``affine``
+    (y = scale·x + shift, scale and shift broadcast per channel or scalar),
+    ``avgpool`` (kernel, stride). ``node`` and ``op`` name it in the file.
+    """
+
+    kind: str
+    node: str
+    op: str
+    params: dict[str, Any] = field(default_factory=dict)
+
+
+class Unsupported(Exception):
+    """A node the bound propagation cannot express: certification is refused, attacks work."""
+
+    def __init__(self, node: str, op: str, why: str = "") -> None:
+        super().__init__(f"node '{node}': {op} is not supported by certified bounds{why}")
+        self.node, self.op = node, op
+
+
+@dataclass
+class UserNet:
+    """A network loaded from a file: its module, input shape, and its certification view."""
+
+    path: str
+    module: nn.Module
+    in_shape: tuple[int, int, int]
+    ops: list[Op] | Unsupported
+
+    def certifiable_ops(self) -> list[Op]:
+        """The ops, or an :class:`InputError` naming the node that has none."""
+        if isinstance(self.ops, Unsupported):
+            raise InputError(
+                f"{self.ops}; payoffs from attacks still work (drop --certify, or "
+                "--payoffs attack)",
+                Location(self.path),
+            )
+        return self.ops
+
+
+def load_network(path: str | Path) -> UserNet:
+    """A ``.pt2`` or ``.onnx`` network file (by its suffix)."""
+    p = str(path)
+    if not Path(p).is_file():
+        raise InputError("no such network file", Location(p))
+    if p.endswith(".pt2"):
+        return _from_pt2(p)
+    if p.endswith(".onnx"):
+        return _from_onnx(p)
+    raise InputError(
+        "a network file must be a torch.export archive (.pt2) or ONNX (.onnx)", Location(p)
+    )
+
+
+def check_shape(net: UserNet, role: str, channels: int, size: int) -> None:
+    """The network's input must be lesmc's window for its role."""
+    want = (channels, size, size)
+    if net.in_shape != want:
+        c, h, w = net.in_shape
+        raise InputError(
+            f"the {role} takes inputs of {c} channels of {h}x{w}; lesmc's {role} windows "
+            f"are {channels} channels (the frame and m = {channels - 1} previous ones) of "
+            f"{size}x{size} (docs/cnn.md)",
+            Location(net.path),
+        )
+
+
+# ---------------------------------------------------------------- .pt2
+
+
+def load_pt2(path: str) -> Any:
+    """An ExportedProgram read without unpickling: every weight and constant must be a
+    raw tensor payload (torch.export.save writes them so), the sample inputs are skipped."""
+    pkg: Any = importlib.import_module("torch.export.pt2_archive._package")
+    from torch._export.serde import schema
+    from torch._export.serde.serialize import ExportedProgramDeserializer, _bytes_to_dataclass
+
+    try:
+        reader = pkg.PT2ArchiveReader(path)
+        names = reader.get_file_names()
+    except Exception as exc:  # torch raises RuntimeError for a bad zip, OSError, ...
+        raise InputError(f"not a torch.export archive ({exc})", Location(path)) from None
+    models = [
+        n[len(pkg.MODELS_DIR) : -len(".json")]
+        for n in names
+        if n.startswith(pkg.MODELS_DIR) and n.endswith(".json")
+    ]
+    if len(models) != 1:
+        raise InputError(f"expected one exported program, found {len(models)}", Location(path))
+    name = models[0]
+    for legacy in (f"{pkg.WEIGHTS_DIR}{name}.pt", f"{pkg.CONSTANTS_DIR}{name}.pt"):
+        if legacy in names:
+            raise InputError("a legacy (pickled) archive: export it again", Location(path))
+    for fmt in (pkg.WEIGHTS_CONFIG_FILENAME_FORMAT, pkg.CONSTANTS_CONFIG_FILENAME_FORMAT):
+        config = pkg._load_payload_config(reader, fmt.format(name))
+        for fqn, meta in config.config.items():
+            raw = meta.path_name.startswith(
+                (pkg.WEIGHT_FILENAME_PREFIX, pkg.TENSOR_CONSTANT_FILENAME_PREFIX)
+            )
+            if meta.use_pickle or not raw:
+                raise InputError(
+                    f"'{fqn}' is stored pickled; lesmc never unpickles a file (export plain "
+                    "tensors)",
+                    Location(path),
+                )
+    try:
+        program = _bytes_to_dataclass(
+            schema.ExportedProgram, reader.read_bytes(pkg.MODELS_FILENAME_FORMAT.format(name))
+        )
+        state = pkg._load_state_dict(reader, name)
+        constants = pkg._load_constants(reader, name)
+        return ExportedProgramDeserializer().deserialize(program, state, constants, None)
+    except InputError:
+        raise
+    except Exception as exc:
+        raise InputError(f"cannot read the exported program ({exc})", Location(path)) from None
+
+
+def _from_pt2(path: str) -> UserNet:
+    ep = load_pt2(path)
+    sig = ep.graph_signature
+    if len(sig.user_inputs) != 1:
+        raise InputError(
+            f"the network must take one input (the window), it takes {len(sig.user_inputs)}",
+            Location(path),
+        )
+    node = next(n for n in ep.graph.nodes if n.op == "placeholder" and n.name == sig.user_inputs[0])
+    shape = tuple(node.meta["val"].shape)
+    if len(shape) != 4 or not all(isinstance(d, int) for d in shape[1:]):
+        raise InputError(f"the input must be (batch, C, H, W), got {shape}", Location(path))
+    if isinstance(shape[0], int):
+        raise InputError(
+            "the batch dimension is static: export with dynamic_shapes=({0: "
+            "torch.export.Dim('batch')},) (docs/own-system.md)",
+            Location(path),
+        )
+    module = ep.module()
+    try:
+        ops: list[Op] | Unsupported = _fx_ops(ep)
+    except Unsupported as exc:
+        ops = exc
+    return UserNet(path, _Frozen(module), (shape[1], shape[2], shape[3]), ops)
+
+
+class _Frozen(nn.Module):
+    """A loaded module whose weights are constants (no gradients for them)."""
+
+    def __init__(self, inner: nn.Module) -> None:
+        super().__init__()
+        self.inner = inner
+        for p in inner.parameters():
+            p.requires_grad_(False)
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        out: torch.Tensor = self.inner(x)
+        return out
+
+
+def _fx_ops(ep: Any) -> list[Op]:
+    """The ops of an exported program's graph (aten operations, one data path)."""
+    sig = ep.graph_signature
+    tensors: dict[str, torch.Tensor] = {}
+    for ph, fqn in sig.inputs_to_parameters.items():
+        tensors[ph] = ep.state_dict[fqn].detach()
+    for ph, fqn in sig.inputs_to_buffers.items():
+        tensors[ph] = (
+            ep.state_dict.get(fqn) if fqn in ep.state_dict else ep.constants[fqn]
+        ).detach()
+    for ph, fqn in sig.inputs_to_lifted_tensor_constants.items():
+        tensors[ph] = ep.constants[fqn].detach()
+    data = sig.user_inputs[0]
+    ops: list[Op] = []
+    mean_of: str | None = None
+    for n in ep.graph.nodes:
+        if n.op in ("placeholder", "output"):
+            continue
+        name, target = n.name, str(n.target).removeprefix("aten.")
+        args = list(n.args)
+        srcs = [a.name for a in args if hasattr(a, "name") and a.name not in tensors]
+        if target == "mean.dim" and srcs == [data] and list(args[1]) in ([1, 2, 3], [-3, -2, -1]):
+            mean_of = name
+            continue
+        if target == "sub.Tensor" and mean_of is not None and srcs == [data, mean_of] and not ops:
+            ops.append(Op("center", name, target))
+        elif len(srcs) != 1 or srcs[0] != data:
+            raise Unsupported(name, target, " (not on a single data path)")
+        else:
+            ops.append(_fx_op(name, target, args, tensors))
+        data = name
+    return ops
+
+
+def _const(a: Any, tensors: dict[str, torch.Tensor]) -> torch.Tensor | None:
+    if hasattr(a, "name"):
+        return tensors.get(a.name)
+    if isinstance(a, int | float):
+        return torch.tensor(float(a))
+    return None
+
+
+def _fx_op(name: str, target: str, args: list[Any], tensors: dict[str, torch.Tensor]) -> Op:
+    def t(i: int) -> torch.Tensor | None:
+        return _const(args[i], tensors) if len(args) > i and args[i] is not None else None
+
+    def ints(i: int, default: list[int]) -> list[int]:
+        v = args[i] if len(args) > i else default
+        return [v, v] if isinstance(v, int) else list(v)
+
+    if target in ("relu.default", "relu_.default"):
+        return Op("relu", name, target)
+    if target == "conv2d.default":
+        w = t(1)
+        assert w is not None
+        b = t(2)
+        if (len(args) > 5 and ints(5, [1, 1]) != [1, 1]) or (len(args) > 6 and args[6] != 1):
+            raise Unsupported(name, target, " with dilation or groups")
+        return _conv(name, target, w, b, ints(3, [1, 1]), ints(4, [0, 0]))
+    if target == "linear.default":
+        w, b = t(1), t(2)
+        assert w is not None
+        return Op(
+            "linear",
+            name,
+            target,
+            {"weight": w, "bias": b if b is not None else torch.zeros(w.shape[0])},
+        )
+    if target in ("flatten.using_ints", "view.default", "reshape.default"):
+        return Op("flatten", name, target)
+    if target in ("add.Tensor", "sub.Tensor", "mul.Tensor", "div.Tensor"):
+        c = t(1)
+        if c is None:
+            raise Unsupported(name, target, " with a non-constant operand")
+        return _arith(name, target, target.split(".")[0], c)
+    if target in ("_native_batch_norm_legit_no_training.default", "batch_norm.default"):
+        return _batchnorm(name, target, t(1), t(2), t(3), t(4), float(args[-1]))
+    if target == "avg_pool2d.default":
+        return _avgpool(name, target, ints(1, [1, 1]), ints(2, ints(1, [1, 1])), ints(3, [0, 0]))
+    if target == "getitem" or target.endswith("getitem"):
+        return Op("identity", name, target)
+    raise Unsupported(name, target.split(".")[0])
+
+
+def _conv(
+    name: str, op: str, w: torch.Tensor, b: torch.Tensor | None, stride: list[int], pad: list[int]
+) -> Op:
+    if w.shape[2] != w.shape[3] or stride[0] != stride[1] or pad[0] != pad[1]:
+        raise Unsupported(name, op, " with non-square kernels, strides or padding")
+    bias = b if b is not None else torch.zeros(w.shape[0])
+    return Op("conv", name, op, {"weight": w, "bias": bias, "stride": stride[0], "padding": pad[0]})
+
+
+def _arith(name: str, op: str, how: str, c: torch.Tensor) -> Op:
+    """x + c, x − c, x·c or x / c: an affine op (whether c fits is checked when folding)."""
+    c = c.float()
+    one, zero = torch.ones_like(c), torch.zeros_like(c)
+    scale, shift = {
+        "add": (one, c),
+        "sub": (one, -c),
+        "mul": (c, zero),
+        "div": (1.0 / c, zero),
+    }[how]
+    return Op("affine", name, op, {"scale": scale, "shift": shift})
+
+
+def _batchnorm(name: str, op: str, gamma: Any, beta: Any, mean: Any, var: Any, eps: float) -> Op:
+    if mean is None or var is None:
+        raise Unsupported(name, op, " without running statistics")
+    g = gamma if gamma is not None else torch.ones_like(mean)
+    bt = beta if beta is not None else torch.zeros_like(mean)
+    scale = g / torch.sqrt(var + eps)
+    return Op(
+        "affine",
+        name,
+        op,
+        {"scale": scale[:, None, None], "shift": (bt - mean * scale)[:, None, None]},
+    )
+
+
+def _avgpool(name: str, op: str, k: list[int], s: list[int], pad: list[int]) -> Op:
+    if k[0] != k[1] or s[0] != s[1] or pad != [0, 0]:
+        raise Unsupported(name, op, " with non-square kernels or padding")
+    return Op("avgpool", name, op, {"kernel": k[0], "stride": s[0]})
+
+
+# ---------------------------------------------------------------- .onnx
+
+
+def _onnx() -> Any:
+    try:
+        import onnx
+    except ImportError:
+        raise UsageError(
+            "reading .onnx files needs the onnx package: pip install 'lesmc[onnx]'"
+        ) from None
+    return onnx
+
+
+class OnnxNet(nn.Module):
+    """An ONNX graph run node by node with torch operations (so it has gradients)."""
+
+    def __init__(self, model: Any, path: str) -> None:
+        super().__init__()
+        onnx = _onnx()
+        from onnx import numpy_helper
+
+        g = model.graph
+        self.path = path
+        self.consts: dict[str, torch.Tensor] = {
+            i.name: torch.from_numpy(numpy_helper.to_array(i).copy()) for i in g.initializer
+        }
+        self.nodes = list(g.node)
+        for n in self.nodes:
+            if n.op_type == "Constant":
+                a = next(a for a in n.attribute if a.name == "value")
+                self.consts[n.output[0]] = torch.from_numpy(numpy_helper.to_array(a.t).copy())
+            elif n.op_type not in ONNX_OPS:
+                raise InputError(
+                    f"node '{n.name}': the ONNX operation {n.op_type} is not supported by "
+                    f"lesmc's ONNX reader (supported: {', '.join(ONNX_OPS)}); export to .pt2 "
+                    "instead",
+                    Location(path),
+                )
+        self.attrs = [
+            {a.name: onnx.helper.get_attribute_value(a) for a in n.attribute} for n in self.nodes
+        ]
+        inputs = [i.name for i in g.input if i.name not in self.consts]
+        if len(inputs) != 1 or len(g.output) != 1:
+            raise InputError("the network must have one input and one output", Location(path))
+        self.input, self.output = inputs[0], g.output[0].name
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        env: dict[str, torch.Tensor] = dict(self.consts)
+        env[self.input] = x
+        for n, at in zip(self.nodes, self.attrs, strict=True):
+            if n.op_type == "Constant":
+                continue
+            ins = [env[i] if i else None for i in n.input]
+            env[n.output[0]] = _run(n.op_type, ins, at)
+        return env[self.output]
+
+
+def _run(op: str, ins: list[Any], at: dict[str, Any]) -> Any:
+    """One ONNX node on torch tensors."""
+    x = ins[0]
+    if op == "Relu":
+        return F.relu(x)
+    if op == "Sigmoid":
+        return torch.sigmoid(x)
+    if op == "Identity":
+        return x
+    if op in ("Add", "Sub", "Mul", "Div"):
+        a, b = x, ins[1]
+        return {"Add": a + b, "Sub": a - b, "Mul": a * b, "Div": a / b}[op]
+    if op == "Conv":
+        if at.get("group", 1) != 1 or any(d != 1 for d in at.get("dilations", [1, 1])):
+            raise ValueError("Conv with groups or dilations")
+        pads = at.get("pads", [0, 0, 0, 0])
+        h = F.pad(x, (pads[1], pads[3], pads[0], pads[2])) if any(pads) else x
+        return F.conv2d(h, ins[1], ins[2] if len(ins) > 2 else None, at.get("strides", [1, 1]))
+    if op == "Gemm":
+        a = x.t() if at.get("transA", 0) else x
+        w = ins[1].t() if at.get("transB", 0) else ins[1]
+        y = at.get("alpha", 1.0) * (a @ w)
+        return y + at.get("beta", 1.0) * ins[2] if len(ins) > 2 and ins[2] is not None else y
+    if op == "MatMul":
+        return x @ ins[1]
+    if op == "Flatten":
+        return torch.flatten(x, at.get("axis", 1))
+    if op == "Reshape":
+        shape = [int(v) for v in ins[1].tolist()]
+        shape = [
+            x.shape[i] if v == 0 and not at.get("allowzero", 0) else v for i, v in enumerate(shape)
+        ]
+        return x.reshape(shape)
+    if op == "ReduceMean":
+        axes = at.get("axes", ins[1].tolist() if len(ins) > 1 and ins[1] is not None else None)
+        return x.mean(dim=axes, keepdim=bool(at.get("keepdims", 1)))
+    if op == "BatchNormalization":
+        return F.batch_norm(x, ins[3], ins[4], ins[1], ins[2], False, 0.0, at.get("epsilon", 1e-5))
+    if op in ("AveragePool", "MaxPool"):
+        k, s = at["kernel_shape"], at.get("strides", [1, 1])
+        pads = at.get("pads", [0, 0, 0, 0])
+        if op == "MaxPool":
+            return F.max_pool2d(x, k, s, (pads[0], pads[1]))
+        return F.avg_pool2d(
+            x, k, s, (pads[0], pads[1]), count_include_pad=bool(at.get("count_include_pad", 0))
+        )
+    if op == "Gather":
+        axis, idx = at.get("axis", 0), ins[1].long()
+        if idx.dim() == 0:
+            return x.select(axis, int(idx))
+        picked = torch.index_select(x, axis, idx.reshape(-1))
+        return picked.reshape(*x.shape[:axis], *idx.shape, *x.shape[axis + 1 :])
+    if op == "Squeeze":
+        axes = at.get("axes", ins[1].tolist() if len(ins) > 1 and ins[1] is not None else None)
+        return x.squeeze(tuple(axes)) if axes is not None else x.squeeze()
+    if op == "Unsqueeze":
+        axes = at.get("axes", ins[1].tolist() if len(ins) > 1 else [])
+        for a in sorted(axes):
+            x = x.unsqueeze(a)
+        return x
+    if op == "Slice":
+        starts, ends = ins[1].tolist(), ins[2].tolist()
+        axes = ins[3].tolist() if len(ins) > 3 and ins[3] is not None else list(range(len(starts)))
+        steps = ins[4].tolist() if len(ins) > 4 and ins[4] is not None else [1] * len(starts)
+        where: list[Any] = [slice(None)] * x.dim()
+        for a, st, en, sp in zip(axes, starts, ends, steps, strict=True):
+            where[a] = slice(st, min(en, x.shape[a]), sp)
+        return x[tuple(where)]
+    raise ValueError(op)
+
+
+def _from_onnx(path: str) -> UserNet:
+    onnx = _onnx()
+    try:
+        model = onnx.load(path, load_external_data=False)
+    except Exception as exc:
+        raise InputError(f"not an ONNX model ({exc})", Location(path)) from None
+    for init in model.graph.initializer:
+        if init.data_location == onnx.TensorProto.EXTERNAL:
+            raise InputError(
+                f"initializer '{init.name}' is stored in another file; lesmc reads only the "
+                "files it is given: export with external_data=False",
+                Location(path),
+            )
+    try:
+        net = OnnxNet(model, path)
+    except InputError:
+        raise
+    except Exception as exc:  # onnx raises its own errors for malformed tensors
+        raise InputError(f"cannot read the ONNX graph ({exc})", Location(path)) from None
+    dims = next(i for i in model.graph.input if i.name == net.input).type.tensor_type.shape.dim
+    shape = [d.dim_value if d.HasField("dim_value") else None for d in dims]
+    if len(shape) != 4 or any(d is None for d in shape[1:]):
+        raise InputError(f"the input must be (batch, C, H, W), got {shape}", Location(path))
+    try:
+        ops: list[Op] | Unsupported = _onnx_ops(net)
+    except Unsupported as exc:
+        ops = exc
+    return UserNet(path, net, (int(shape[1]), int(shape[2]), int(shape[3])), ops)  # type: ignore[arg-type]
+
+
+def _onnx_ops(net: OnnxNet) -> list[Op]:
+    consts = net.consts
+    data = net.input
+    ops: list[Op] = []
+    mean_of: str | None = None
+    for n, at in zip(net.nodes, net.attrs, strict=True):
+        if n.op_type == "Constant":
+            continue
+        srcs = [i for i in n.input if i and i not in consts]
+        name, op = n.name or n.output[0], n.op_type
+        if op == "ReduceMean" and srcs == [data]:
+            axes = at.get("axes", consts[n.input[1]].tolist() if len(n.input) > 1 else None)
+            if sorted(axes or []) in ([1, 2, 3], [-3, -2, -1]) and at.get("keepdims", 1):
+                mean_of = n.output[0]
+                continue
+        if op == "Sub" and mean_of is not None and srcs == [data, mean_of] and not ops:
+            ops.append(Op("center", name, op))
+        elif srcs != [data]:
+            raise Unsupported(name, op, " (not on a single data path)")
+        else:
+            ops.append(_onnx_op(name, op, [consts.get(i) for i in n.input], at))
+        data = n.output[0]
+    return ops
+
+
+def _onnx_op(name: str, op: str, c: list[torch.Tensor | None], at: dict[str, Any]) -> Op:
+    if op == "Relu":
+        return Op("relu", name, op)
+    if op == "Identity":
+        return Op("identity", name, op)
+    if op == "Conv":
+        w = c[1]
+        assert w is not None
+        pads = at.get("pads", [0, 0, 0, 0])
+        if at.get("group", 1) != 1 or any(d != 1 for d in at.get("dilations", [1, 1])):
+            raise Unsupported(name, op, " with groups or dilations")
+        if len(set(pads)) != 1:
+            raise Unsupported(name, op, " with uneven padding")
+        return _conv(
+            name,
+            op,
+            w,
+            c[2] if len(c) > 2 else None,
+            list(at.get("strides", [1, 1])),
+            [pads[0], pads[0]],
+        )
+    if op == "Gemm":
+        w = c[1]
+        assert w is not None
+        if at.get("transA", 0):
+            raise Unsupported(name, op, " with transA")
+        w = w if at.get("transB", 0) else w.t()
+        alpha, beta = at.get("alpha", 1.0), at.get("beta", 1.0)
+        b = c[2] if len(c) > 2 and c[2] is not None else torch.zeros(w.shape[0])
+        return Op("linear", name, op, {"weight": alpha * w, "bias": beta * b.reshape(-1)})
+    if op == "MatMul":
+        w = c[1]
+        assert w is not None
+        return Op("linear", name, op, {"weight": w.t(), "bias": torch.zeros(w.shape[1])})
+    if op in ("Flatten", "Reshape"):
+        return Op("flatten", name, op)
+    if op in ("Add", "Sub", "Mul", "Div"):
+        k = c[1] if c[1] is not None else c[0]
+        if k is None or (op in ("Sub", "Div") and c[1] is None):
+            raise Unsupported(name, op, " with a non-constant operand")
+        return _arith(name, op, op.lower(), k)
+    if op == "BatchNormalization":
+        return _batchnorm(name, op, c[1], c[2], c[3], c[4], float(at.get("epsilon", 1e-5)))
+    if op == "AveragePool":
+        pads = at.get("pads", [0, 0, 0, 0])
+        return _avgpool(
+            name,
+            op,
+            list(at["kernel_shape"]),
+            list(at.get("strides", [1, 1])),
+            [pads[0], pads[2]] if any(pads) else [0, 0],
+        )
+    raise Unsupported(name, op)
+
+
+# ---------------------------------------------------------------- ops -> Chain
+
+
+def chain_of_ops(ops: list[Op], in_shape: tuple[int, int, int], t: float) -> Any:
+    """The certify.py ``Chain`` of a detector given as ops, with margin ``logit_1 − logit_0 − t``.
+
+    Linear steps between ReLUs are composed exactly: an ``affine`` after a layer
+    scales and shifts that layer's outputs, one at the input or after a ReLU is
+    moved into the next layer (if that is a convolution, only when it has no
+    padding: zero padding does not commute with a shift); an ``avgpool`` is a
+    convolution of its own, composed with the layer before it, or with the next
+    one when it follows a ReLU.
+    """
+    from lesmc.perception.certify import Chain, Conv, Dense
+
+    layers: list[Any] = []
+    relu_after: list[bool] = []
+    hw = in_shape[1]
+    channels = in_shape[0]
+    pending: list[Op] = []  # linear ops waiting for the next layer
+    subtract_mean = False
+    flat = False
+    for i, op in enumerate(ops):
+        if op.kind == "identity":
+            continue
+        if op.kind == "center":
+            if i != 0:
+                raise Unsupported(op.node, op.op, " (mean subtraction only first)")
+            subtract_mean = True
+        elif op.kind == "relu":
+            if not layers or relu_after[-1] or pending:
+                raise Unsupported(
+                    op.node, op.op, " (a ReLU must follow a convolution or a linear layer)"
+                )
+            relu_after[-1] = True
+        elif op.kind == "flatten":
+            flat = True
+        elif op.kind in ("affine", "avgpool"):
+            if layers and not relu_after[-1] and not pending:
+                layers[-1], hw = _fold_after(layers[-1], op, hw)
+            else:
+                pending.append(op)
+        elif op.kind == "conv":
+            if flat:
+                raise Unsupported(op.node, op.op, " after a flatten")
+            w, b, s, p = (op.params[k] for k in ("weight", "bias", "stride", "padding"))
+            w, b, s, p, hw_in = _fold_before_conv(pending, w.float(), b.float(), s, p, hw, op)
+            pending = []
+            out = (hw_in + 2 * p - w.shape[2]) // s + 1
+            layers.append(Conv(w, b, s, p, hw_in, out))
+            relu_after.append(False)
+            hw, channels = out, w.shape[0]
+        elif op.kind == "linear":
+            w, b = op.params["weight"].float(), op.params["bias"].float()
+            w, b = _fold_before_linear(pending, w, b, channels, hw, op)
+            pending = []
+            layers.append(Dense(w, b))
+            relu_after.append(False)
+            flat = True
+        else:
+            raise Unsupported(op.node, op.op)
+    if pending:
+        raise Unsupported(pending[0].node, pending[0].op, " (after the last linear layer)")
+    last = layers[-1] if layers else None
+    if not isinstance(last, Dense) or last.weight.shape[0] != 2 or relu_after[-1]:
+        raise Unsupported(
+            ops[-1].node if ops else "-",
+            ops[-1].op if ops else "-",
+            " (a detector must end in a linear layer with two logits)",
+        )
+    if not all(relu_after[:-1]):
+        bad = ops[-1]
+        raise Unsupported(
+            bad.node, bad.op, " (every layer but the last must be followed by a ReLU)"
+        )
+    w, b = last.weight, last.bias
+    layers[-1] = Dense((w[1] - w[0])[None], (b[1] - b[0] - t)[None])
+    return Chain(in_shape, subtract_mean, tuple(layers))
+
+
+def _pool_as_conv(channels: int, k: int) -> torch.Tensor:
+    w = torch.zeros(channels, channels, k, k)
+    for c in range(channels):
+        w[c, c] = 1.0 / (k * k)
+    return w
+
+
+def _compose(w1: torch.Tensor, s1: int, w2: torch.Tensor, s2: int) -> torch.Tensor:
+    """The kernel of conv2 (no padding, stride s2) after conv1 (stride s1), no biases."""
+    o2, c2, k2, _ = w2.shape
+    _, c1, k1, _ = w1.shape
+    k = k1 + (k2 - 1) * s1
+    out = torch.zeros(o2, c1, k, k, dtype=torch.float64)
+    a, b = w1.double(), w2.double()
+    for u in range(k2):
+        for v in range(k2):
+            # conv2 tap (u, v) reads conv1's output at offset (u, v)·s1
+            out[:, :, u * s1 : u * s1 + k1, v * s1 : v * s1 + k1] += torch.einsum(
+                "om,mi...->oi...", b[:, :, u, v], a
+            )
+    del c2
+    return out.float()
+
+
+def _fold_after(layer: Any, op: Op, hw: int) -> tuple[Any, int]:
+    """``op`` applied to ``layer``'s output, composed into the layer."""
+    from lesmc.perception.certify import Conv, Dense
+
+    if op.kind == "affine":
+        scale, shift = op.params["scale"].float(), op.params["shift"].float()
+        n = layer.weight.shape[0]
+        sc, sh = _per_output(scale, n, op), _per_output(shift, n, op)
+        shape = (-1,) + (1,) * (layer.weight.dim() - 1)
+        w = layer.weight * sc.reshape(shape)
+        b = layer.bias * sc + sh
+        if isinstance(layer, Conv):
+            return Conv(w, b, layer.stride, layer.padding, layer.in_hw, layer.out_hw), hw
+        return Dense(w, b), hw
+    if not isinstance(layer, Conv):
+        raise Unsupported(op.node, op.op, " after a linear layer")
+    k, s = op.params["kernel"], op.params["stride"]
+    w = _compose(layer.weight, layer.stride, _pool_as_conv(layer.weight.shape[0], k), s)
+    out = (layer.out_hw - k) // s + 1
+    return Conv(w, layer.bias.clone(), layer.stride * s, layer.padding, layer.in_hw, out), out
+
+
+def _per_output(v: torch.Tensor, n: int, op: Op) -> torch.Tensor:
+    flat = v.reshape(-1)
+    if flat.numel() == 1:
+        return flat.expand(n).clone()
+    if flat.numel() == n:
+        return flat.clone()
+    raise Unsupported(op.node, op.op, f" (a constant of {flat.numel()} values for {n} channels)")
+
+
+def _fold_before_conv(
+    pending: list[Op], w: torch.Tensor, b: torch.Tensor, s: int, p: int, hw: int, conv: Op
+) -> tuple[torch.Tensor, torch.Tensor, int, int, int]:
+    """Linear ops between a ReLU (or the input) and a convolution, moved into it."""
+    for op in reversed(pending):
+        if p:
+            raise Unsupported(op.node, op.op, f" before the padded convolution '{conv.node}'")
+        if op.kind == "affine":
+            c = w.shape[1]
+            sc, sh = (
+                _per_output(op.params["scale"].float(), c, op),
+                _per_output(op.params["shift"].float(), c, op),
+            )
+            b = b + (w * sh[None, :, None, None]).sum(dim=(1, 2, 3))
+            w = w * sc[None, :, None, None]
+        else:  # avgpool before a convolution without padding
+            k, ps = op.params["kernel"], op.params["stride"]
+            w = _compose(_pool_as_conv(w.shape[1], k), ps, w, s)
+            s = ps * s
+    return w, b, s, p, hw
+
+
+def _fold_before_linear(
+    pending: list[Op], w: torch.Tensor, b: torch.Tensor, channels: int, hw: int, lin: Op
+) -> tuple[torch.Tensor, torch.Tensor]:
+    """Linear ops between a ReLU (or the input) and a linear layer, moved into it."""
+    for op in reversed(pending):
+        if op.kind == "affine":
+            n = w.shape[1]
+            sc = op.params["scale"].float()
+            sh = op.params["shift"].float()
+            per = n // max(channels, 1) if sc.numel() == channels and channels > 1 else 1
+            sc_full = (
+                sc.reshape(-1).repeat_interleave(per)
+                if sc.numel() > 1
+                else sc.reshape(-1).expand(n)
+            )
+            sh_full = (
+                sh.reshape(-1).repeat_interleave(per)
+                if sh.numel() > 1
+                else sh.reshape(-1).expand(n)
+            )
+            if sc_full.numel() != n or sh_full.numel() != n:
+                raise Unsupported(op.node, op.op, f" before the linear layer '{lin.node}'")
+            b = b + w @ sh_full
+            w = w * sc_full[None, :]
+        else:
+            k, s = op.params["kernel"], op.params["stride"]
+            out = (hw - k) // s + 1
+            if w.shape[1] != channels * out * out:
+                raise Unsupported(op.node, op.op, f" before the linear layer '{lin.node}'")
+            pool = torch.zeros(channels * out * out, channels * hw * hw)
+            for c in range(channels):
+                for y in range(out):
+                    for x in range(out):
+                        row = (c * out + y) * out + x
+                        for dy in range(k):
+                            for dx in range(k):
+                                pool[row, (c * hw + y * s + dy) * hw + x * s + dx] = 1.0 / (k * k)
+            w = w @ pool
+            hw = out
+    return w, b
