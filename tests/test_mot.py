@@ -161,3 +161,19 @@ def test_the_loader_never_crashes(lines: list[str], column: int | None) -> None:
             footage_from_boxes(read_boxes(p, True), str(p), 0.1, "center", Payoffs(1.0, column))
         except LesmcError as exc:
             assert str(exc)
+
+
+def test_perceive_writes_the_tracker_file_into_the_scene(
+    perceived: tuple[Path, dict[str, Any], int], tmp_path: Path
+) -> None:
+    d, _, _ = perceived
+    out = tmp_path / "s.json"
+    tracker = "examples/trackers/ca6.json"
+    r = lesmc("perceive", str(d / "v"), "-o", str(out), "--max-iter", "2", "--tracker", tracker)
+    assert r.returncode == 0, r.stderr
+    got = json.loads(out.read_text())["tracker"]
+    want = json.loads(Path(tracker).read_text())
+    assert got["model"]["state"] == want["model"]["state"]
+    assert got["model"]["F"] == want["model"]["F"] and got["gate"] == want["gate"]
+    r = lesmc("perceive", str(d / "v"), "--tracker", tracker)
+    assert r.returncode == 2 and "--tracker is the tracker of the scene written" in r.stderr

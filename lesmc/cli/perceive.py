@@ -3,13 +3,14 @@
 from __future__ import annotations
 
 import time
+from dataclasses import replace
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 import click
 
 from lesmc.cli.documents import emit, file_facts, refuse_given, run_provenance, say
-from lesmc.cli.options import network_options
+from lesmc.cli.options import network_options, tracker_option
 from lesmc.common.errors import InputError, Location, UsageError, escape_control
 from lesmc.video import FPS
 
@@ -18,7 +19,7 @@ if TYPE_CHECKING:
     from lesmc.perception.cnn import Nets
     from lesmc.perception.quality import Truth
     from lesmc.perception.run import PerceiveRun
-    from lesmc.scene import Footage, Scene
+    from lesmc.scene import Footage, Scene, TrackerConfig
     from lesmc.tracking.targets import TargetSpec
     from lesmc.video.reader import FrameSet
 
@@ -54,6 +55,7 @@ if TYPE_CHECKING:
     help="Trained networks (lesmc train --out) [default: the shipped ones].",
 )
 @network_options
+@tracker_option
 @click.option("--no-cnn", is_flag=True, help="Front end only: the candidates Q_bc.")
 @click.option(
     "--attack",
@@ -128,6 +130,7 @@ def perceive_cmd(
     nets_dir: str | None,
     detector_file: str | None,
     locator_file: str | None,
+    tracker_file: str | None,
     no_cnn: bool,
     attack: str,
     payoff_norm: str,
@@ -162,7 +165,9 @@ def perceive_cmd(
     from lesmc.perception.certify import CertifyConfig
     from lesmc.perception.cnn import load_nets
     from lesmc.perception.run import PerceiveOptions, perceive
+    from lesmc.scene import load_tracker
 
+    tracker = load_tracker(tracker_file) if tracker_file else None  # before the long work
     spec, frames, truths = _inputs(frames_dir, history, target_text, truth)
     nets = None if no_cnn else load_nets(nets_dir, detector_file, locator_file)
     att = _attack_config(attack, overshoot, max_iter, payoff_norm) if output else None
@@ -174,7 +179,7 @@ def perceive_cmd(
     if output is not None and nets is not None and att is not None:
         step_dt = dt or (truths.dt if truths else None) or 1 / FPS
         meta = _scene_meta(frames_dir, nets.settings.trained_on, att, payoff_norm, certify)
-        written = _write_scene(run, step_dt, meta, spec, frames, truths, output, as_json)
+        written = _write_scene(run, step_dt, meta, spec, frames, truths, output, tracker, as_json)
     if as_json:
         emit(_document(frames_dir, nets, run, written, truths is not None, started))
         return
@@ -230,6 +235,7 @@ def _refuse_mismatched(
             ("attack", "payoff_norm", "overshoot", "max_iter", "dt"),
             "shapes the scene's payoffs or time step: it needs -o/--output",
         )
+        refuse_given(("tracker_file",), "is the tracker of the scene written: it needs -o/--output")
     if truth is None:
         refuse_given(("radius", "min_speed"), "applies to the comparison with --truth")
     if no_cnn and nets_dir is not None:
@@ -270,15 +276,19 @@ def _write_scene(
     frames: FrameSet,
     truths: Truth | None,
     output: str,
+    tracker: TrackerConfig | None,
     as_json: bool,
 ) -> dict[str, Any]:
-    """The footage of ``run`` (with the target of ``spec`` placed) written to ``output``."""
+    """The footage of ``run`` (with the target of ``spec`` placed, and ``tracker`` as its
+    tracker if given) written to ``output``."""
     from lesmc.perception.to_scene import footage_from_run
     from lesmc.scene import save_scene
     from lesmc.verify.targets import target_scene
 
     target: dict[str, Any] | None = None
     footage = footage_from_run(run, dt, meta)
+    if tracker is not None:
+        footage = replace(footage, tracker=tracker)
     if spec is None:
         scene: Scene | Footage = footage
         where = "no target (give --target to check, build or verify)"
