@@ -74,7 +74,7 @@ def main() -> None:
 
     campaign_run.probe = timed_probe  # type: ignore[assignment]
     t0 = time.perf_counter()
-    groups = certify_scenes([p], groups, None)
+    groups = certify_scenes([p], groups, (None, None, None))
     t_certify = time.perf_counter() - t0
     campaign_run.probe = probing
     interval: list[dict[str, Any]] = []

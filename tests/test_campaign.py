@@ -445,3 +445,30 @@ def test_interval_refuses_to_certify_a_scene_perceived_with_other_networks(
     assert "perceived with other networks" in r.stderr
     assert (out / "scenes" / "tiny.json").read_bytes() == scene
     assert not (out / "results.jsonl").exists() or not lines(out / "results.jsonl")
+
+
+def test_a_tracker_file_becomes_the_campaigns_tracker(
+    base: tuple[Path, Path], tmp_path: Path
+) -> None:
+    """--tracker: the scene in OUT/scenes carries it, the rows are new (their scene differs)
+    and a row is what the single design computes with that tracker, window by window."""
+    out = seeded(base, tmp_path)
+    tracker = "examples/trackers/ca2d.toml"
+    r = lesmc("campaign", str(base[0]), "--out", str(out), "--workers", "0",
+              "--tracker", tracker, "--design", "single", *ARGS)  # fmt: skip
+    no_trace(r)
+    assert r.returncode in (0, 1, 3), r.stderr
+    scene = json.loads((out / "scenes" / "tiny.json").read_text())
+    assert scene["tracker"]["model"] == "ca2d" and len(scene["tracker"]["P0_sd"]) == 6
+    rows = read_rows(out / "results.jsonl")
+    old = {row["key"] for row in read_rows(base[1] / "results.jsonl")}
+    assert rows and not {row["key"] for row in rows} & old
+    footage = prepare(Video("tiny", base[0], None, "test"), out).footage
+    assert footage.tracker.model == "ca2d"
+    r0 = rows[0]
+    t = r0["target"]
+    sc = place_target(footage, TargetSpec(t["x"], t["y"], t["step"]))
+    run = design_runs(sc, load_specs(bundled_specs(), tuple(r0["window"])), ["single"])[0]
+    want = {x.property: x for x in run.results}[r0["property"]]
+    assert r0["verdict"] == want.verdict
+    assert r0["optimum"] == (want.optimum if want.optimum is not None else "inf")

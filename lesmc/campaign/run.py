@@ -33,7 +33,7 @@ from lesmc.language.properties import SpecFile
 from lesmc.perception.quality import load_truth
 from lesmc.pipeline import certify
 from lesmc.pipeline.job import Certifier
-from lesmc.scene import Footage, footage_from_dict, save_scene, scene_to_dict
+from lesmc.scene import Footage, TrackerConfig, footage_from_dict, save_scene, scene_to_dict
 from lesmc.tracking.targets import (
     AutoTarget,
     TargetSpec,
@@ -101,8 +101,27 @@ def fingerprint(paths: Iterable[Path]) -> str:
     return h.hexdigest()[:20]
 
 
-def prepare(video: Video, out: Path, nets_dir: str | None = None) -> Prepared:
-    """The video's scene: ``DIR/scenes/<name>.json`` if made from these frames, else perceived."""
+#: Where the networks come from: ``--nets`` DIR, ``--detector`` FILE, ``--locator`` FILE.
+NetFiles = tuple[str | None, str | None, str | None]
+
+
+def prepare(
+    video: Video,
+    out: Path,
+    nets_dir: NetFiles = (None, None, None),
+    tracker: TrackerConfig | None = None,
+) -> Prepared:
+    """The video's scene: ``DIR/scenes/<name>.json`` if made from these frames, else perceived;
+    with ``tracker`` (``--tracker``) as its tracker (the file is rewritten if it had another)."""
+    p = _prepare(video, out, nets_dir)
+    if tracker is not None and p.footage.tracker != tracker:
+        p.set_footage(replace(p.footage, tracker=tracker))
+        p.key = scene_key(p.doc)
+        save_scene(p.footage, p.scene_path)
+    return p
+
+
+def _prepare(video: Video, out: Path, nets_dir: NetFiles) -> Prepared:
     from lesmc.perception.to_scene import footage_from_run
     from lesmc.video.reader import open_frames
 
@@ -137,13 +156,13 @@ def prepare(video: Video, out: Path, nets_dir: str | None = None) -> Prepared:
     return Prepared(video, footage, doc, scene_key(doc), path, run=run)
 
 
-def perceive_video(video: Video, frames: Any, nets_dir: str | None) -> tuple[Any, Any]:
+def perceive_video(video: Video, frames: Any, nets_dir: NetFiles) -> tuple[Any, Any]:
     """The perception run of a video's frames (detections, payoffs, N_dr windows) and the nets."""
     from lesmc.perception.attacks import AttackConfig
     from lesmc.perception.cnn import load_nets
     from lesmc.perception.run import PerceiveOptions, perceive
 
-    nets = load_nets(nets_dir)
+    nets = load_nets(*nets_dir)
     opts = PerceiveOptions(history=HISTORY, nets=nets, attack=AttackConfig())
     with progress_bar("campaign", f"perceiving {video.name}", len(frames)) as bar:
         run = perceive(frames, opts, None, bar.advance)
@@ -184,7 +203,7 @@ def same_detections(p: Prepared, run: Any, nets: Any) -> None:
 
 
 def certify_scenes(
-    prepared: list[Prepared], groups: list[Group], nets_dir: str | None
+    prepared: list[Prepared], groups: list[Group], nets_dir: NetFiles
 ) -> list[Group]:
     """Certified lower payoffs for every detection the groups' models can hide.
 
@@ -237,7 +256,7 @@ def _probes(p: Prepared, groups: list[Group]) -> dict[Group, list[certify.Probed
     return out
 
 
-def _certifier(p: Prepared, nets_dir: str | None, n: int) -> Certifier:
+def _certifier(p: Prepared, nets_dir: NetFiles, n: int) -> Certifier:
     """Perception's certification of the video's detections (perceived again if need be)."""
 
     def run(wanted: Any) -> dict[int, Any]:
@@ -250,7 +269,7 @@ def _certifier(p: Prepared, nets_dir: str | None, n: int) -> Certifier:
             p.run, nets = perceive_video(p.video, frames, nets_dir)
             same_detections(p, p.run, nets)
         else:
-            nets = load_nets(nets_dir)
+            nets = load_nets(*nets_dir)
         Console(stderr=True).print(
             f"{p.video.name}: certifying {n} detections (those the models can hide and the "
             "scene does not yet bound)"

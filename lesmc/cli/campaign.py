@@ -14,8 +14,10 @@ from lesmc.cli.options import (
     designs_option,
     finite_seconds,
     nets_option,
+    network_options,
     payoffs_option,
     spec_option,
+    tracker_option,
 )
 from lesmc.common.errors import UsageError
 
@@ -99,6 +101,8 @@ def _cores() -> int:
     "a truth.json.",
 )
 @nets_option
+@network_options
+@tracker_option
 @payoffs_option(
     "As for lesmc verify: the attack's payoffs (the paper), the certified lower bounds, or "
     "both (holds only if proven with the lower bounds, violated only with the attack's "
@@ -119,6 +123,9 @@ def campaign_cmd(
     max_states: int,
     no_truth: bool,
     nets_dir: str | None,
+    detector_file: str | None,
+    locator_file: str | None,
+    tracker_file: str | None,
     payoffs: str,
     as_json: bool,
 ) -> None:
@@ -149,8 +156,12 @@ def campaign_cmd(
     out = Path(out_dir)
     videos = _videos(frames_dirs, out, no_truth)
     count, target_file = _targets_option(targets_text)
+    from lesmc.scene import load_tracker
+
+    tracker = load_tracker(tracker_file) if tracker_file else None
+    nets = (nets_dir, detector_file, locator_file)
     out.mkdir(parents=True, exist_ok=True)
-    prepared = _prepared(videos, out, nets_dir)
+    prepared = _prepared(videos, out, nets, tracker)
     _choose_targets(prepared, count, target_file, windows, not no_truth)
     rows = _run(
         prepared,
@@ -163,16 +174,22 @@ def campaign_cmd(
         timeout,
         max_states,
         payoffs,
-        nets_dir,
+        nets,
     )
     _finish(rows, out, out_dir, prepared, windows, design, as_json)
 
 
-def _prepared(videos: list[Any], out: Path, nets_dir: str | None) -> list[Any]:
-    """Each video perceived into OUT/scenes (or read back from there)."""
+def _prepared(
+    videos: list[Any],
+    out: Path,
+    nets: tuple[str | None, str | None, str | None],
+    tracker: Any,
+) -> list[Any]:
+    """Each video perceived into OUT/scenes (or read back from there), with ``tracker``
+    (``--tracker``) as its scene's tracker."""
     from lesmc.campaign.run import prepare
 
-    return [prepare(v, out, nets_dir) for v in videos]
+    return [prepare(v, out, nets, tracker) for v in videos]
 
 
 def _spec_files(specs: tuple[str, ...]) -> list[Any]:
@@ -284,7 +301,7 @@ def _run(
     timeout: float,
     max_states: int,
     payoffs: str,
-    nets_dir: str | None,
+    nets: tuple[str | None, str | None, str | None],
 ) -> list[dict[str, Any]]:
     """Run what is not yet in results.jsonl; return the rows of this campaign."""
     from lesmc.campaign.plan import plan_units
@@ -299,7 +316,7 @@ def _run(
         prepared, spec_files, windows, designs, done, timeout, max_states, payoffs
     )
     if payoffs != "attack" and groups:
-        groups = certify_scenes(prepared, groups, nets_dir)
+        groups = certify_scenes(prepared, groups, nets)
     keys = {
         u.key
         for p in prepared
