@@ -215,3 +215,19 @@ def test_a_pickled_payload_is_refused_without_unpickling(
     r = lesmc("perceive", video, "-o", str(tmp_path / "s.json"), "--detector", str(junk))
     assert r.returncode == 2 and "not a torch.export archive" in r.stderr
     assert "Traceback" not in r.stderr
+
+
+def test_a_chain_that_misreads_the_network_is_refused(shipped: dict[str, Path]) -> None:
+    """The guard behind every certification of a user's detector: a chain computing another
+    margin than the network's forward pass is an error, not a silently wrong bound."""
+    from lesmc.common.errors import InputError
+    from lesmc.perception.certify import detect_chain
+    from lesmc.perception.cnn import DetectNet
+    from lesmc.perception.run import _same_margin, detector_chain
+
+    nets = load_nets(None, str(shipped["dr.pt2"]))
+    detector_chain(nets, 0.0)  # the true reading passes
+    torch.manual_seed(1)
+    other = DetectNet(nets.settings.m + 1).eval()
+    with pytest.raises(InputError, match="does not compute its forward pass"):
+        _same_margin(nets, detect_chain(other, 0.0), 0.0)

@@ -292,8 +292,10 @@ def _fx_op(name: str, target: str, args: list[Any], tensors: dict[str, torch.Ten
             target,
             {"weight": w, "bias": b if b is not None else torch.zeros(w.shape[0])},
         )
-    if target in ("flatten.using_ints", "view.default", "reshape.default"):
+    if target == "flatten.using_ints" and list(args[1:]) in ([1], [1, -1], [1, 3]):
         return Op("flatten", name, target)
+    if target in ("view.default", "reshape.default") and len(args[1]) == 2:
+        return Op("flatten", name, target)  # (batch, features): checked against the forward pass
     if target in ("add.Tensor", "sub.Tensor", "mul.Tensor", "div.Tensor"):
         c = t(1)
         if c is None:
@@ -567,8 +569,10 @@ def _onnx_op(name: str, op: str, c: list[torch.Tensor | None], at: dict[str, Any
         w = c[1]
         assert w is not None
         return Op("linear", name, op, {"weight": w.t(), "bias": torch.zeros(w.shape[1])})
-    if op in ("Flatten", "Reshape"):
+    if op == "Flatten" and at.get("axis", 1) == 1:
         return Op("flatten", name, op)
+    if op == "Reshape" and c[1] is not None and len(c[1].reshape(-1)) == 2:
+        return Op("flatten", name, op)  # (batch, features): checked against the forward pass
     if op in ("Add", "Sub", "Mul", "Div"):
         k = c[1] if c[1] is not None else c[0]
         if k is None or (op in ("Sub", "Div") and c[1] is None):
@@ -677,7 +681,7 @@ def _pool_as_conv(channels: int, k: int) -> torch.Tensor:
 
 def _compose(w1: torch.Tensor, s1: int, w2: torch.Tensor, s2: int) -> torch.Tensor:
     """The kernel of conv2 (no padding, stride s2) after conv1 (stride s1), no biases."""
-    o2, c2, k2, _ = w2.shape
+    o2, _, k2, _ = w2.shape
     _, c1, k1, _ = w1.shape
     k = k1 + (k2 - 1) * s1
     out = torch.zeros(o2, c1, k, k, dtype=torch.float64)
@@ -688,7 +692,6 @@ def _compose(w1: torch.Tensor, s1: int, w2: torch.Tensor, s2: int) -> torch.Tens
             out[:, :, u * s1 : u * s1 + k1, v * s1 : v * s1 + k1] += torch.einsum(
                 "om,mi...->oi...", b[:, :, u, v], a
             )
-    del c2
     return out.float()
 
 
