@@ -74,7 +74,15 @@ def brute_force(model: LTS, bp: BoundProperty) -> BruteResult:
                     per_step[k] = dist(path[k])
                 else:
                     t = edges[k - 1]
-                    comb = math.fsum(o.payoff for o in model.out(t.src) if o.rank < t.rank)
+                    lower = [o for o in model.out(t.src) if o.rank < t.rank]
+                    if m.source == "payoff":  # Eq. 5
+                        comb = math.fsum(o.payoff for o in lower)
+                    elif any(math.isinf(o.payoff) for o in lower):  # out of the attacker's reach
+                        comb = math.inf
+                    elif m.source == "count":  # the outcomes ruled out
+                        comb = float(len(lower))
+                    else:  # frames: was this step attacked?
+                        comb = 1.0 if lower else 0.0
                     per_step[k] = comb * m.weight
             else:  # after a halt
                 per_step[k] = math.inf if m.source == "dist" else 0.0

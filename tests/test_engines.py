@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import itertools
 import math
 
 import pytest
@@ -11,6 +12,7 @@ from oracle import brute_force
 
 from lesmc.common.budget import Budget
 from lesmc.engines.check import check_bound
+from lesmc.engines.space import build_space
 from lesmc.language.parser import parse_spec
 from lesmc.language.semantics import bind
 from lesmc.model.lts import to_arrays
@@ -22,7 +24,15 @@ ENGINES = [
     pytest.param({"engine": "levels"}, id="levels"),
 ]
 
-MEASURES = ["payoff", "payoff.mean", "dist.sum({a}..{b})", "dist.max({a}..{b})", "dist.at({b})"]
+MEASURES = [
+    "payoff",
+    "payoff.mean",
+    "count",
+    "count.frames",
+    "dist.sum({a}..{b})",
+    "dist.max({a}..{b})",
+    "dist.at({b})",
+]
 
 
 @st.composite
@@ -110,6 +120,54 @@ def test_optimum_and_witness_equal_brute_force(case: tuple) -> None:
             )
             assert by_states[r.witness.states][0] == pytest.approx(truth.witness_value)
         _assert_monitor_facts(model, bp, truth, r)
+
+
+@st.composite
+def count_cases(draw: st.DrawFn) -> tuple:
+    """Trees with wide branching (so that outcomes of rank 2 and more occur) and a property
+    minimizing ``count`` or ``count.frames`` over a window of at least two steps."""
+    cfg = RandomModelConfig(
+        steps=draw(st.integers(3, 6)),
+        width=draw(st.integers(2, 5)),
+        branching=(1, draw(st.integers(2, 4))),
+        dim=2,
+        halt_prob=draw(st.sampled_from([0.0, 0.1])),
+        covariance=True,
+        tree=True,
+        integer_values=draw(st.booleans()),
+    )
+    model = random_lts(cfg, draw(st.integers(0, 2**31)))
+    e = model.end
+    l = draw(st.integers(1, max(1, e - 1)))
+    obj = draw(st.sampled_from(["count", "count.frames"]))
+    con = draw(st.sampled_from(["dist.sum(0..end)", "dist.at(end)", "payoff", "count"]))
+    params = (l, e, e, obj, con, ">", draw(st.sampled_from(["1", "2", "inf"])), "")
+    return model, params, draw(st.floats(0, 0.8))
+
+
+@settings(max_examples=200, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(count_cases())
+def test_count_objectives_equal_brute_force(case: tuple) -> None:
+    """``minimize count`` and ``minimize count.frames`` (issue 30): every path's objective as
+    the engines compute it, and every engine's optimum, equal the brute force's, counted
+    from the definitions (tests/oracle.py)."""
+    model, params, quantile = case
+    bp = _bound_property(model, params, quantile)
+    truth = brute_force(model, bp)
+    cm = to_arrays(model)
+    space = build_space(cm, bp)
+    for states, objective, _ in truth.paths:
+        q = [cm.index(s) for s in states]
+        edges = [cm.edge(a, b) for a, b in itertools.pairwise(q)]
+        got = space.root_obj + sum(float(space.c_obj[t]) for t in edges[bp.l - 1 :])
+        assert got == objective, states
+    for engine in ("enumerate", "bnb", "levels"):
+        r = check_bound(cm, bp, engine)  # type: ignore[arg-type]
+        assert r.stats.stopped == "finished"
+        if math.isinf(truth.optimum):
+            assert r.optimum is None
+        else:
+            assert r.optimum == truth.optimum, engine
 
 
 def _assert_monitor_facts(model, bp, truth, r) -> None:  # type: ignore[no-untyped-def]

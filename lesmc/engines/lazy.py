@@ -98,9 +98,9 @@ class LazySpace(SpaceOps):
             return
         dst = cm.dst[t]
         ks = cm.step[dst].astype(np.int64)
-        comb = cm.combined[t]
-        self._c_obj.extend(kernel.contributions(bp.objective, ks, comb, self.dist[dst]))
-        self._c_con.extend(kernel.contributions(bp.constraint, ks, comb, self.dist[dst]))
+        comb, cnt = cm.combined[t], cm.counted[t]
+        self._c_obj.extend(kernel.contributions(bp.objective, ks, comb, self.dist[dst], cnt))
+        self._c_con.extend(kernel.contributions(bp.constraint, ks, comb, self.dist[dst], cnt))
         allowed = ((ks >= bp.l) & (ks <= bp.u)) | (cm.rank[t] == 0)
         if bp.monitor_components is not None:
             tau = self._tau.data

@@ -271,9 +271,9 @@ def build_space(cm: ArrayModel, bp: BoundProperty) -> Space:
     adj = np.nonzero(allowed)[0]
     counts = np.bincount(src[adj], minlength=n) if m else np.zeros(n, int)
     adj_ptr = np.concatenate([[0], np.cumsum(counts)]).astype(np.int64)
-    combined = cm.combined
-    c_obj = kernel.contributions(bp.objective, k, combined, dist[cm.dst])
-    c_con = kernel.contributions(bp.constraint, k, combined, dist[cm.dst])
+    combined, counted = cm.combined, cm.counted
+    c_obj = kernel.contributions(bp.objective, k, combined, dist[cm.dst], counted)
+    c_con = kernel.contributions(bp.constraint, k, combined, dist[cm.dst], counted)
     # the common prefix: steps 0..l−1 follow the original path
     d0 = float(dist[cm.original[0]])
     obj = kernel.initial_value(bp.objective, d0)

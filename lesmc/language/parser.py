@@ -295,9 +295,9 @@ class _Builder:
     def measure(self, node: Tree[Any]) -> Measure:
         pos = _pos(node)
         ch: list[Any] = node.children
-        if node.data == "payoff":
+        if node.data in ("payoff", "count"):
             agg = str(ch[0]) if ch else "sum"
-            return Measure("payoff", agg, pos=pos)  # type: ignore[arg-type]
+            return Measure(node.data, agg, pos=pos)  # type: ignore[arg-type]
         if node.data == "dist_at":
             at = self.step(ch[0])
             return Measure("dist", "at", at, at, pos=pos)

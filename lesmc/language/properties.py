@@ -17,8 +17,8 @@ StepRef = int | None
 #: Relative rise of τ the runtime monitor ignores by default: it only absorbs rounding.
 DEFAULT_MONITOR_TOLERANCE = 1e-9
 
-MeasureKind = Literal["payoff", "dist"]
-Aggregate = Literal["sum", "mean", "max", "at"]
+MeasureKind = Literal["payoff", "count", "dist"]
+Aggregate = Literal["sum", "mean", "max", "at", "frames"]
 Comparison = Literal[">", ">=", "<", "<="]
 
 
@@ -37,7 +37,8 @@ class Measure:
     ``payoff`` (sum, Eq. 8 over the attack window), ``payoff.mean`` (the same
     divided by the number of attacked steps, Algorithm 1), ``dist.sum(a..b)``
     (Eq. 9 on a range), ``dist.max(a..b)`` (dist^max) and ``dist.at(k)``
-    (dist^{k,k}).
+    (dist^{k,k}); ``count`` (Eq. 8 with every payoff 1: the outcomes hidden) and
+    ``count.frames`` (the attacked steps) over the attack window.
     """
 
     kind: MeasureKind
@@ -48,8 +49,8 @@ class Measure:
 
     def text(self) -> str:
         """The measure as it is written in the language."""
-        if self.kind == "payoff":
-            return "payoff" if self.aggregate == "sum" else f"payoff.{self.aggregate}"
+        if self.kind in ("payoff", "count"):
+            return self.kind if self.aggregate == "sum" else f"{self.kind}.{self.aggregate}"
         if self.aggregate == "at":
             return f"dist.at({_step_text(self.lo)})"
         return f"dist.{self.aggregate}({_step_text(self.lo)}..{_step_text(self.hi)})"

@@ -121,6 +121,9 @@ def _measure(spec: SpecFile, m: Measure, l: int, u: int, end: int) -> BoundMeasu
     if m.kind == "payoff":
         weight = 1.0 / (u - l + 1) if m.aggregate == "mean" else 1.0
         return BoundMeasure("payoff", "sum", l, u, weight, m.text())
+    if m.kind == "count":
+        source = "frames" if m.aggregate == "frames" else "count"
+        return BoundMeasure(source, "sum", l, u, 1.0, m.text())
     lo, hi = _resolve(m.lo, end), _resolve(m.hi, end)
     if lo > hi:
         raise _fail(spec, f"empty step range {lo}..{hi}", m.pos)

@@ -18,7 +18,7 @@ from typing import Any
 
 import numpy as np
 
-from lesmc.model.kernel import combined_payoffs
+from lesmc.model.kernel import combined_payoffs, unit_payoffs
 
 
 @dataclass(eq=False)
@@ -68,6 +68,11 @@ class ArrayModel:
     def combined(self) -> np.ndarray:
         """Eq. 5 per transition (the kernel's :func:`~lesmc.model.kernel.combined_payoffs`)."""
         return combined_payoffs(self.ptr, self.payoff, self.rank)
+
+    @cached_property
+    def counted(self) -> np.ndarray:
+        """Eq. 5 over unit payoffs per transition: the outcomes hidden (``count``)."""
+        return combined_payoffs(self.ptr, unit_payoffs(self.payoff), self.rank)
 
     @cached_property
     def src(self) -> np.ndarray:

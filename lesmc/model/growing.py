@@ -15,7 +15,7 @@ from typing import Protocol
 
 import numpy as np
 
-from lesmc.model.kernel import combined_payoffs
+from lesmc.model.kernel import combined_payoffs, unit_payoffs
 
 #: Seconds one batch of expansions should take at most: batches shrink for designs whose
 #: states are expensive (joint), so that a deadline is looked at often enough.
@@ -84,6 +84,7 @@ class GrowingModel:
         self._rank = GrowArray(np.int64)
         self._obs = GrowArray(np.int64)
         self._combined = GrowArray(np.float64)
+        self._counted = GrowArray(np.float64)
         self.original = np.zeros(0, dtype=np.int64)
         self.P_table = np.zeros((0, dim, dim))
         self.obs_names: tuple[str, ...] = ()
@@ -159,6 +160,11 @@ class GrowingModel:
         return self._combined.view
 
     @property
+    def counted(self) -> np.ndarray:
+        """Eq. 5 over unit payoffs (kernel.unit_payoffs) per transition."""
+        return self._counted.view
+
+    @property
     def n_transitions(self) -> int:
         return self._dst.n
 
@@ -175,6 +181,7 @@ class GrowingModel:
         self._rank.extend(exp.rank)
         self._obs.extend(exp.obs)
         self._combined.extend(combined_payoffs(ptr, exp.payoff, exp.rank))
+        self._counted.extend(combined_payoffs(ptr, unit_payoffs(exp.payoff), exp.rank))
         self._lo.data[states] = first + ptr[:-1]
         self._hi.data[states] = first + ptr[1:]
         return np.arange(first, self._dst.n)
@@ -193,7 +200,8 @@ class GrowingModel:
 
     def _grows(self) -> list[GrowArray]:
         grows = [self._step, self._S, self._cov, self._halted, self._lo, self._hi]
-        return [*grows, self._src, self._dst, self._payoff, self._rank, self._obs, self._combined]
+        more = [self._src, self._dst, self._payoff, self._rank, self._obs, self._combined]
+        return [*grows, *more, self._counted]
 
     def nbytes(self) -> int:
         return sum(int(g.view.nbytes) for g in self._grows())

@@ -95,18 +95,39 @@ def combined_payoffs(ptr: np.ndarray, payoff: np.ndarray, rank: np.ndarray) -> n
     return out[first]
 
 
+def unit_payoffs(payoff: np.ndarray) -> np.ndarray:
+    """Every transition's payoff replaced by 1 (∞ stays ∞: an unattackable outcome stays
+    out of reach): Eq. 5 over these counts the outcomes an attacker rules out."""
+    out: np.ndarray = np.where(np.isfinite(payoff), 1.0, np.inf)
+    return out
+
+
 def contributions(
-    m: BoundMeasure, k: np.ndarray, combined: np.ndarray, dist_dst: np.ndarray
+    m: BoundMeasure,
+    k: np.ndarray,
+    combined: np.ndarray,
+    dist_dst: np.ndarray,
+    counted: np.ndarray | None = None,
 ) -> np.ndarray:
     """Each transition's contribution to measure ``m``: it enters step ``k``.
 
     A payoff measure adds the (weighted) combined payoff of transitions entering
     its steps (Eq. 8; ``mean`` is the weight 1/(u−l+1)); a dist measure adds the
     deviation of the entered state (Eq. 9; ``at`` is a sum over one step).
+    ``count`` is the payoff measure with unit payoffs (``counted``: Eq. 5 over
+    :func:`unit_payoffs`), the number of outcomes hidden; ``frames`` adds 1 for each
+    attacked step (a transition of rank > 0: its count is positive), ∞ where the
+    count is.
     """
     inside = (k >= m.lo) & (k <= m.hi)
     if m.source == "payoff":
         return np.where(inside, combined * m.weight, 0.0)
+    if m.source in ("count", "frames"):
+        assert counted is not None
+        per = counted
+        if m.source == "frames":
+            per = np.where(np.isinf(counted), np.inf, (counted > 0).astype(float))
+        return np.where(inside, per * m.weight, 0.0)
     return np.where(inside, dist_dst, 0.0)
 
 
@@ -132,7 +153,7 @@ def tail(m: BoundMeasure, h: int, end: int) -> float:
     A halted track has lost the target, so its deviation at every later step of
     a dist measure is infinite (docs/semantics.md); payoffs add nothing.
     """
-    if h >= end or m.source == "payoff":
+    if h >= end or m.source != "dist":
         return 0.0
     return math.inf if m.hi > h else 0.0
 
