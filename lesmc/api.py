@@ -162,11 +162,13 @@ def export_model(
     roles: dict[str, list[int]] | None = None,
     max_nodes: int | None = None,
 ) -> dict[str, object]:
-    """Write ``model`` as ``fmt`` (dot, graphml, json, drn) to ``path`` (docs/export.md).
+    """Write ``model`` as ``fmt`` (dot, graphml, json, drn, prism) to ``path``
+    (docs/export.md).
 
-    ``drn`` exports ``prop`` of ``spec`` (``strict``: refuse a dist.max objective);
-    ``roles`` marks paths (rows) in dot and graphml; ``max_nodes`` limits dot's states
-    and drn's path prefixes. Returns facts about what was written (``lesmc export --json``).
+    ``drn`` and ``prism`` export ``prop`` of ``spec`` (``strict``: refuse a dist.max
+    objective); ``roles`` marks paths (rows) in dot and graphml; ``max_nodes`` limits
+    dot's states and the MDP's path prefixes. Returns facts about what was written
+    (``lesmc export --json``).
     """
     from lesmc.common.files import atomic_open, write_json
     from lesmc.export.drn import DRN_MAX_PREFIXES, to_drn
@@ -183,23 +185,28 @@ def export_model(
     elif fmt == "graphml":
         with atomic_open(path) as fh:
             write_lines(graphml_lines(model, roles), fh)
-    elif fmt == "drn":
-        bp = _drn_property(model, spec, prop)
-        text, drn = to_drn(model, bp, max_nodes or DRN_MAX_PREFIXES, strict)
+    elif fmt in ("drn", "prism"):
+        from lesmc.export.prism import to_prism
+
+        bp = _drn_property(model, spec, prop, fmt)
+        write = to_drn if fmt == "drn" else to_prism
+        text, mdp = write(model, bp, max_nodes or DRN_MAX_PREFIXES, strict)
         with atomic_open(path) as fh:
             fh.write(text)
-        facts |= drn
+        facts |= mdp
     else:
-        raise UsageError(f"unknown export format {fmt!r}: dot, graphml, json or drn")
+        raise UsageError(f"unknown export format {fmt!r}: dot, graphml, json, drn or prism")
     return facts
 
 
-def _drn_property(model: ArrayModel, spec: SpecFile | None, prop: str | None) -> Any:
-    """The one property of ``spec`` a DRN export states (``prop``, or the only one)."""
+def _drn_property(
+    model: ArrayModel, spec: SpecFile | None, prop: str | None, fmt: str = "drn"
+) -> Any:
+    """The one property of ``spec`` a DRN or PRISM export states (``prop``, or the only one)."""
     from lesmc.engines.check import bind_all
 
     if spec is None:
-        raise UsageError("--format drn exports a property: give --spec (and --property)")
+        raise UsageError(f"--format {fmt} exports a property: give --spec (and --property)")
     bound = bind_all(model, [spec])
     if prop is not None:
         bound = [b for b in bound if b.name == prop]

@@ -24,6 +24,7 @@ from oracle import brute_force
 from test_engines import _bound_property, cases
 
 from lesmc.export.drn import to_drn
+from lesmc.export.prism import to_prism
 from lesmc.model.lts import to_arrays
 from lesmc.schemas import schema
 
@@ -45,6 +46,35 @@ def storm_optimum(drn_text: str, tmp: Path) -> float:
     # can be reached, +inf where not (docs/export.md)
     prop = stormpy.parse_properties('Pmax=? [F "violated"]')[0]
     return 0.0 if stormpy.model_checking(model, prop).get_value(q0) > 0 else math.inf
+
+
+def storm_prism_optimum(program: str, tmp: Path) -> float:
+    """Storm's R{"payoff"}min=? [F "violated"] on a PRISM program (parsed by Storm)."""
+    path = tmp / "m.prism"
+    path.write_text(program)
+    prism = stormpy.parse_prism_program(str(path))
+    props = stormpy.parse_properties('R{"payoff"}min=? [F "violated"]', prism)
+    model = stormpy.build_model(prism, props)
+    return float(stormpy.model_checking(model, props[0]).get_value(model.initial_states[0]))
+
+
+@settings(max_examples=200, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(cases())
+def test_storm_computes_the_brute_force_optimum_of_the_prism_export(
+    tmp_path_factory: pytest.TempPathFactory, case: tuple
+) -> None:
+    """The PRISM program, parsed and built by Storm, to the brute force's optimum."""
+    model, params, quantile = case
+    bp = _bound_property(model, params, quantile)
+    program, facts = to_prism(to_arrays(model), bp)
+    if facts["not_exported"]:
+        return
+    truth = brute_force(model, bp).optimum
+    got = storm_prism_optimum(program, tmp_path_factory.mktemp("prism"))
+    if math.isinf(truth):
+        assert math.isinf(got)
+    else:
+        assert got == pytest.approx(truth, rel=1e-9, abs=1e-9)
 
 
 @settings(max_examples=200, deadline=None, suppress_health_check=[HealthCheck.too_slow])
@@ -88,6 +118,13 @@ def test_the_cli_export_of_the_tiny_model_checks_to_the_hand_derived_optima(
         jsonschema.validate(doc, schema("export"))
         assert doc["property"] == prop and doc["file"]["bytes"] == out.stat().st_size
         assert storm_optimum(out.read_text(), tmp_path) == want
+        prism = tmp_path / f"{prop}.prism"
+        r = lesmc("export", str(TINY / "model.lts"), "--format", "prism", "--spec",
+                  str(TINY / "properties.spec"), "--property", prop, "-o", str(prism),
+                  "--json")  # fmt: skip
+        assert r.returncode == 0, r.stderr
+        jsonschema.validate(json.loads(r.stdout), schema("export"))
+        assert storm_prism_optimum(prism.read_text(), tmp_path) == want
     # dist.max objective: the MDP without rewards, said in one line; --strict refuses
     args = ["export", str(TINY / "model.lts"), "--format", "drn", "--spec",
             str(TINY / "properties.spec"), "--property", "resilience",

@@ -14,7 +14,7 @@ from lesmc.designs import registry
 if TYPE_CHECKING:
     from lesmc.model.arrays import ArrayModel
 
-FORMATS = ("dot", "graphml", "json", "drn")
+FORMATS = ("dot", "graphml", "json", "drn", "prism")
 
 
 @click.command("export")
@@ -40,9 +40,11 @@ FORMATS = ("dot", "graphml", "json", "drn")
     "spec_path",
     type=click.Path(dir_okay=False),
     default=None,
-    help="drn: the property file whose property is exported as a reward and a label.",
+    help="drn, prism: the property file whose property is exported as a reward and a label.",
 )
-@click.option("--property", "prop", default=None, metavar="NAME", help="drn: which property.")
+@click.option(
+    "--property", "prop", default=None, metavar="NAME", help="drn, prism: which property."
+)
 @click.option(
     "--results",
     "results_path",
@@ -55,14 +57,14 @@ FORMATS = ("dot", "graphml", "json", "drn")
     "--max-nodes",
     type=click.IntRange(min=1),
     default=None,
-    help="dot: refuse models with more states than this [default: 5000]; drn: the most "
-    "path prefixes to unfold [default: 200000].",
+    help="dot: refuse models with more states than this [default: 5000]; drn, prism: the "
+    "most path prefixes to unfold [default: 200000].",
 )
 @click.option(
     "--strict",
     is_flag=True,
-    help="drn: refuse a property whose objective is not a sum of rewards (dist.max) instead "
-    "of writing the MDP without its reward model.",
+    help="drn, prism: refuse a property whose objective is not a sum of rewards (dist.max) "
+    "instead of writing the MDP without its reward model.",
 )
 @click.option("--json", "as_json", is_flag=True, help="Print what was written as JSON.")
 def export_cmd(
@@ -90,6 +92,8 @@ def export_cmd(
              the end of every path that satisfies the property's constraint, so that
              Storm's Rmin=? [F "violated"] is lesmc's optimum (needs --spec; payoff
              objectives only: other properties are refused, with the reason)
+    prism    the same MDP in the PRISM language (PRISM, Storm):
+             R{"payoff"}min=? [F "violated"] is lesmc's optimum
     Exit status: 0 written, 2 bad input, 4 internal error, 130 interrupted.
     """
     from lesmc.api import export_model, load_spec
@@ -121,10 +125,13 @@ def _refuse_mismatched(
     fmt: str, spec_path: str | None, strict: bool, prop: str | None, results_path: str | None
 ) -> None:
     """Options that the format would ignore are errors."""
-    if fmt != "drn" and (spec_path or strict or (prop and not results_path)):
-        raise UsageError("--spec, --property and --strict choose what --format drn exports")
-    if fmt == "drn" and spec_path is None:
-        raise UsageError("--format drn exports a property: give --spec (and --property)")
+    mdp = fmt in ("drn", "prism")
+    if not mdp and (spec_path or strict or (prop and not results_path)):
+        raise UsageError(
+            "--spec, --property and --strict choose what --format drn or prism exports"
+        )
+    if mdp and spec_path is None:
+        raise UsageError(f"--format {fmt} exports a property: give --spec (and --property)")
     if results_path is not None and fmt not in ("dot", "graphml"):
         raise UsageError("--results marks paths in dot and graphml only")
 

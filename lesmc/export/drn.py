@@ -39,8 +39,8 @@ def to_drn(
     ``strict`` the export is refused."""
     space = build_space(cm, bp)
     rewards = not space.obj_max
-    not_exported = None if rewards else _not_exported(bp, strict)
-    choices, labels = _prefix_tree(cm, space, rewards, max_prefixes)
+    not_exported = None if rewards else not_exported_line(bp, strict)
+    choices, labels = prefix_tree(cm, space, rewards, max_prefixes)
     text = _drn(choices, labels, rewards)
     facts = {
         "property": bp.name,
@@ -52,7 +52,7 @@ def to_drn(
     return text, facts
 
 
-def _not_exported(bp: BoundProperty, strict: bool) -> str:
+def not_exported_line(bp: BoundProperty, strict: bool) -> str:
     """What a DRN export of a dist.max objective leaves out (refused with ``strict``)."""
     what = (
         f"property '{bp.name}': the objective {bp.objective.text} is a maximum over steps, "
@@ -63,7 +63,7 @@ def _not_exported(bp: BoundProperty, strict: bool) -> str:
     return f"{what}: the MDP and its label 'violated' are written, the reward model is not"
 
 
-def _prefix_tree(
+def prefix_tree(
     cm: ArrayModel, space: Any, rewards: bool, max_prefixes: int
 ) -> tuple[list[list[tuple[float, int]]], list[str]]:
     """The MDP: per state its actions (reward, target) and its label; state 0 is the

@@ -1,0 +1,69 @@
+"""A property's question as an MDP in the PRISM language (PRISM, Storm, Modest).
+
+The same MDP as the DRN export (lesmc/export/drn.py: one state per path prefix
+and constraint value, the attacker's allowed choices as actions, the objective's
+contribution as the action's reward, the label ``violated`` on the absorbing
+state the violating leaves move to), written as one module whose variable ``s``
+numbers the MDP states. Action ``a{k}`` is a state's k-th choice; the reward
+model ``payoff`` rewards each (state, action). Then
+``R{"payoff"}min=? [F "violated"]`` is lesmc's optimum (+inf when no path violates).
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+from lesmc.engines.space import build_space
+from lesmc.export.drn import DRN_MAX_PREFIXES, not_exported_line, prefix_tree
+from lesmc.language.semantics import BoundProperty
+from lesmc.model.arrays import ArrayModel
+
+PRISM_PROPERTY = 'R{"payoff"}min=? [F "violated"]'
+
+
+def to_prism(
+    cm: ArrayModel, bp: BoundProperty, max_prefixes: int = DRN_MAX_PREFIXES, strict: bool = False
+) -> tuple[str, dict[str, Any]]:
+    """The PRISM program and facts about it (as :func:`~lesmc.export.drn.to_drn`)."""
+    space = build_space(cm, bp)
+    rewards = not space.obj_max
+    not_exported = None if rewards else not_exported_line(bp, strict)
+    choices, labels = prefix_tree(cm, space, rewards, max_prefixes)
+    facts = {
+        "property": bp.name,
+        "not_exported": not_exported,
+        "prism": {"states": len(choices), "choices": sum(map(len, choices))},
+        "prism_property": PRISM_PROPERTY,
+    }
+    return _program(choices, labels, rewards, bp.name), facts
+
+
+def _program(
+    choices: list[list[tuple[float, int]]], labels: list[str], rewards: bool, name: str
+) -> str:
+    n = len(choices)
+    lines = [
+        f"// lesmc: the attacker's choices for property '{name}' of a <PO>2-LTS;",
+        f"// {PRISM_PROPERTY} is lesmc's optimum",
+        "mdp",
+        "",
+        "module attack",
+        f"  s : [0..{n - 1}] init 0;",
+    ]
+    for s, acts in enumerate(choices):
+        for a, (_, target) in enumerate(acts):
+            lines.append(f"  [a{a}] s={s} -> (s'={target});")
+    lines += ["endmodule", ""]
+    if rewards:
+        lines.append('rewards "payoff"')
+        entries = [
+            f"  [a{a}] s={s} : {reward!r};"
+            for s, acts in enumerate(choices)
+            for a, (reward, _) in enumerate(acts)
+            if reward != 0.0
+        ]
+        lines += entries or ["  true : 0;"]
+        lines += ["endrewards", ""]
+    violated = [str(s) for s, lab in enumerate(labels) if lab == "violated"]
+    lines.append(f'label "violated" = {" | ".join(f"s={v}" for v in violated)};')
+    return "\n".join(lines) + "\n"
