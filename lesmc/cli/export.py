@@ -1,4 +1,4 @@
-"""``lesmc export MODEL|SCENE --format dot|graphml|json|drn -o OUT``: a model for other tools."""
+"""``lesmc export MODEL|SCENE --format dot|graphml|json|drn|prism -o OUT``: models out."""
 
 from __future__ import annotations
 

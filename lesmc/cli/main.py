@@ -95,8 +95,11 @@ def cli() -> None:
       lesmc replay RESULTS.json --frames VIDEO/
                                              counterexamples through the real detector
       lesmc reduce knapsack ITEMS.csv ...    build a knapsack instance as a model
-      lesmc export MODEL.lts --format drn|dot|graphml|json -o OUT
-                                             the model for Storm, Graphviz, Gephi
+      lesmc export MODEL.lts --format drn|prism|dot|graphml|json -o OUT
+                                             the model for Storm, PRISM, Graphviz, Gephi
+      lesmc import mot DET.txt -o SCENE.json [--gt GT.txt --track ID]
+                                             your detections (MOTChallenge) as a scene
+      ... --tracker FILE, --detector FILE    your tracker, your networks (docs/own-system.md)
     \b
     Every verb takes --json: one versioned document on stdout, described by a
     schema in lesmc/schemas/ (docs/cli.md). Options that would be ignored are errors.
