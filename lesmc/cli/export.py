@@ -7,7 +7,7 @@ from typing import TYPE_CHECKING
 import click
 
 from lesmc.cli.documents import emit, file_facts, run_provenance, say
-from lesmc.cli.options import RegistryChoice, parse_window, scene_target
+from lesmc.cli.options import RegistryChoice, parse_window, scene_target, tracker_option
 from lesmc.common.errors import InputError, Location, UsageError, escape_control
 from lesmc.designs import registry
 
@@ -35,6 +35,7 @@ FORMATS = ("dot", "graphml", "json", "drn", "prism")
     help="For a scene: override the tracker design it names.",
 )
 @scene_target
+@tracker_option
 @click.option(
     "--spec",
     "spec_path",
@@ -74,6 +75,7 @@ def export_cmd(
     window_text: str | None,
     design: str | None,
     target_text: str | None,
+    tracker_file: str | None,
     spec_path: str | None,
     prop: str | None,
     results_path: str | None,
@@ -99,7 +101,7 @@ def export_cmd(
     from lesmc.api import export_model, load_spec
 
     _refuse_mismatched(fmt, spec_path, strict, prop, results_path)
-    cm = _model(model, target_text, design, window_text)
+    cm = _model(model, target_text, design, window_text, tracker_file)
     roles = _roles(cm, results_path, prop) if results_path else None
     spec = load_spec(spec_path) if spec_path else None
     facts = export_model(cm, output, fmt, spec, prop, strict, roles, max_nodes)
@@ -137,14 +139,18 @@ def _refuse_mismatched(
 
 
 def _model(
-    model: str, target_text: str | None, design: str | None, window_text: str | None
+    model: str,
+    target_text: str | None,
+    design: str | None,
+    window_text: str | None,
+    tracker_file: str | None,
 ) -> ArrayModel:
     """The .lts model, or the scene built for ``--window`` as lesmc build builds it."""
     from lesmc.api import load_model_or_scene
     from lesmc.build.unfold import build_model
     from lesmc.scene import Scene
 
-    source = load_model_or_scene(model, target_text, design)
+    source = load_model_or_scene(model, target_text, design, tracker_file)
     if isinstance(source, Scene):
         if window_text is None:
             raise UsageError("a scene is built for one attack window: give --window L..U")
