@@ -54,6 +54,15 @@ ENGINES = ("levels", "bnb", "enumerate")
     metavar="NAME",
     help="Check only the named properties (repeatable).",
 )
+@click.option(
+    "--sweep",
+    "sweep_texts",
+    multiple=True,
+    metavar="PARAM=VALUES",
+    help="Check every property for each value of a parameter, on one model: eps=LO..HI:STEP "
+    "or eps=V1,V2 (the constraint's bound), p=1,2,inf (the norm); repeatable (every "
+    "combination). Variants are named NAME@eps=V.",
+)
 @click.option("--no-paths", is_flag=True, help="Table output: omit the step-by-step paths.")
 @click.option(
     "--report",
@@ -89,6 +98,7 @@ def check_cmd(
     max_states: int,
     timeout: float | None,
     only: tuple[str, ...],
+    sweep_texts: tuple[str, ...],
     no_paths: bool,
     report_dir: str | None,
     frames_dir: str | None,
@@ -120,6 +130,8 @@ def check_cmd(
     from lesmc.results.exit import exit_status
 
     parsed, source, is_scene = _inputs(model, specs, target_text, design, tracker_file)
+    if sweep_texts:
+        parsed, only = _swept(parsed, sweep_texts, only), ()
     job = Job(
         parsed,
         scene=source if is_scene else None,
@@ -139,6 +151,26 @@ def check_cmd(
     _print(results, parsed, as_json, no_paths)
     exit_if_stopped()  # a polite SIGINT/SIGTERM: the partial results are out, 130/143
     sys.exit(exit_status(results.results))
+
+
+def _swept(
+    parsed: tuple[SpecFile, ...], sweep_texts: tuple[str, ...], only: tuple[str, ...]
+) -> tuple[SpecFile, ...]:
+    """The specs with ``--property`` applied, then each property's sweep variants."""
+    from dataclasses import replace as with_
+
+    from lesmc.language.sweep import parse_sweep, swept
+
+    sweeps = tuple(parse_sweep(t) for t in sweep_texts)
+    if only:
+        known = {p.name for s in parsed for p in s.properties}
+        missing = [n for n in only if n not in known]
+        if missing:
+            raise UsageError(f"no property named {', '.join(repr(n) for n in missing)}")
+        parsed = tuple(
+            with_(s, properties=tuple(p for p in s.properties if p.name in only)) for s in parsed
+        )
+    return tuple(swept(s, sweeps) for s in parsed)
 
 
 def _print(results: Results, parsed: tuple[SpecFile, ...], as_json: bool, no_paths: bool) -> None:

@@ -1,0 +1,95 @@
+"""Sensitivity sweeps (section 4.4): one property checked for many values of a parameter.
+
+``--sweep eps=20..400:20`` replaces every property's constraint bound (ε of
+robustness and resilience) by each value in turn; ``--sweep p=1,2,inf`` the norm of
+the deviation (Eq. 4). Several sweeps combine (every combination). Each variant is a
+property of its own, named ``NAME@eps=20`` (``NAME@eps=20,p=1``), so the
+pipeline checks them all on the one model it builds per design: the model is never
+rebuilt per value.
+"""
+
+from __future__ import annotations
+
+import itertools
+import math
+import re
+from dataclasses import dataclass, replace
+
+from lesmc.common.errors import UsageError, escape_control
+from lesmc.language.properties import Property, SpecFile
+
+#: The parameters a sweep may vary.
+PARAMETERS = ("eps", "p")
+#: Most variants a sweep may make (per property).
+MAX_VALUES = 1000
+_NUMBER = r"[+-]?(?:[0-9]+\.?[0-9]*|\.[0-9]+)(?:[eE][+-]?[0-9]+)?"
+
+
+@dataclass(frozen=True)
+class Sweep:
+    """A parameter and its values, in the order given."""
+
+    parameter: str
+    values: tuple[float, ...]
+
+
+def parse_sweep(text: str) -> Sweep:
+    """``eps=LO..HI:STEP``, ``eps=V1,V2,...`` or ``p=1,2,inf``; a UsageError otherwise."""
+    shown = escape_control(text if len(text) <= 60 else text[:57] + "...")
+    m = re.fullmatch(r"\s*([a-z]+)\s*=\s*(.+?)\s*", text)
+    if not m or m.group(1) not in PARAMETERS:
+        raise UsageError(
+            f"--sweep must look like eps=LO..HI:STEP, eps=V1,V2 or p=1,2,inf, got '{shown}'"
+        )
+    name, spec = m.group(1), m.group(2)
+    rng = re.fullmatch(rf"({_NUMBER})\.\.({_NUMBER}):({_NUMBER})", spec)
+    if rng:
+        lo, hi, step = (float(rng.group(i)) for i in (1, 2, 3))
+        if not (math.isfinite(lo) and math.isfinite(hi) and step > 0 and lo <= hi):
+            raise UsageError(f"--sweep {shown}: need LO <= HI and STEP > 0")
+        count = math.floor((hi - lo) / step + 1e-9) + 1
+        if count > MAX_VALUES:
+            raise UsageError(f"--sweep {shown}: {count} values, at most {MAX_VALUES}")
+        values = tuple(lo + i * step for i in range(count))
+    else:
+        parts = [s.strip() for s in spec.split(",")]
+        if not all(re.fullmatch(_NUMBER, s) or s == "inf" for s in parts):
+            raise UsageError(f"--sweep {shown}: values must be numbers separated by commas")
+        values = tuple(float(s) for s in parts)
+        if len(values) > MAX_VALUES:
+            raise UsageError(f"--sweep {shown}: {len(values)} values, at most {MAX_VALUES}")
+    if name == "p" and not all(v in (1.0, 2.0, math.inf) for v in values):
+        raise UsageError(f"--sweep {shown}: the norm p is 1, 2 or inf")
+    if name == "eps" and not all(math.isfinite(v) for v in values):
+        raise UsageError(f"--sweep {shown}: eps values must be finite")
+    return Sweep(name, values)
+
+
+def _text(v: float) -> str:
+    return "inf" if math.isinf(v) else f"{v:g}"
+
+
+def _variant(prop: Property, settings: tuple[tuple[str, float], ...]) -> Property:
+    changed = prop
+    for name, v in settings:
+        if name == "eps":
+            changed = replace(changed, constraint=replace(changed.constraint, threshold=v))
+        else:
+            changed = replace(changed, norm=v)
+    label = ",".join(f"{n}={_text(v)}" for n, v in settings)
+    return replace(changed, name=f"{prop.name}@{label}")
+
+
+def swept(spec: SpecFile, sweeps: tuple[Sweep, ...]) -> SpecFile:
+    """``spec`` with each property replaced by its variants, one per combination of the
+    sweeps' values (in the order given)."""
+    if not sweeps:
+        return spec
+    names = [s.parameter for s in sweeps]
+    if len(set(names)) != len(names):
+        raise UsageError("--sweep: each parameter at most once (give its values in one --sweep)")
+    combos = list(itertools.product(*[[(s.parameter, v) for v in s.values] for s in sweeps]))
+    if len(combos) > MAX_VALUES:
+        raise UsageError(f"--sweep: {len(combos)} combinations, at most {MAX_VALUES}")
+    props = tuple(_variant(p, combo) for p in spec.properties for combo in combos)
+    return replace(spec, properties=props)

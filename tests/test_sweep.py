@@ -1,0 +1,89 @@
+"""Sensitivity sweeps (issue 30, item 2): each variant against the property checked on
+its own (a spec edited as text, through the real CLI), and against the brute force."""
+
+from __future__ import annotations
+
+import json
+import math
+from pathlib import Path
+
+import pytest
+from cli_run import lesmc
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
+from oracle import brute_force
+from test_engines import _spec, cases
+
+from lesmc.engines.check import bind_all, check
+from lesmc.language.parser import parse_spec
+from lesmc.language.sweep import parse_sweep, swept
+from lesmc.model.lts import to_arrays
+
+
+def _rows(stdout: str) -> dict[str, tuple[str, object]]:
+    return {r["property"]: (r["status"], r["optimum"]) for r in json.loads(stdout)["results"]}
+
+
+def test_a_sweep_is_each_value_checked_alone(tmp_path: Path) -> None:
+    """``--sweep eps=...`` and ``--sweep p=...``: every variant's verdict and optimum as
+    the spec rewritten with that value and checked by itself."""
+    r = lesmc("check", "examples/merge.json", "specs/robustness.spec", "specs/resilience.spec",
+              "--sweep", "eps=0.5..160.5:40", "--sweep", "p=1,inf", "--json")  # fmt: skip
+    assert r.returncode in (0, 1), r.stderr
+    got = _rows(r.stdout)
+    assert len(got) == 2 * 5 * 2
+    for name, path in (
+        ("robustness", "specs/robustness.spec"),
+        ("resilience", "specs/resilience.spec"),
+    ):
+        text = Path(path).read_text()
+        for eps in (0.5, 40.5, 80.5, 120.5, 160.5):
+            for p, norm in (("1", "1"), ("inf", "inf")):
+                lines = text.splitlines()
+                lines = [_with_bound(ln, eps) for ln in lines]
+                lines.insert(-1, f"    norm {norm}")
+                edited = tmp_path / f"{name}.spec"
+                edited.write_text("\n".join(lines) + "\n")
+                one = lesmc("check", "examples/merge.json", str(edited), "--json")
+                assert one.returncode in (0, 1), one.stderr
+                assert got[f"{name}@eps={eps:g},p={p}"] == _rows(one.stdout)[name]
+    assert {v[0] for v in got.values()} >= {"holds", "violated"}  # the verdict flips
+
+
+def _with_bound(line: str, eps: float) -> str:
+    if "subject to" not in line:
+        return line
+    head, _, _ = line.rpartition(" ")
+    return f"{head} {eps!r}"
+
+
+@settings(max_examples=200, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(cases(), st.lists(st.floats(-1, 50, allow_nan=False), min_size=1, max_size=4))
+def test_every_variant_equals_the_brute_force(case: tuple, values: list[float]) -> None:
+    model, params, _ = case
+    spec = parse_spec(_spec(params, 0.0))
+    sweep = parse_sweep("eps=" + ",".join(repr(v) for v in values))
+    variants = swept(spec, (sweep,))
+    cm = to_arrays(model)
+    bound = bind_all(cm, [variants])
+    assert [bp.bound for bp in bound] == values
+    for bp, r in zip(bound, check(cm, [variants]), strict=True):
+        truth = brute_force(model, bp).optimum
+        assert (r.optimum is None) if math.isinf(truth) else r.optimum == pytest.approx(truth)
+
+
+@pytest.mark.parametrize(
+    ("sweep", "words"),
+    [
+        ("eps=10..5:1", "LO <= HI"),
+        ("eps=1..2:0", "STEP > 0"),
+        ("p=3", "1, 2 or inf"),
+        ("gamma=1,2", "must look like"),
+        ("eps=1,x", "numbers separated by commas"),
+        ("eps=0..1e9:1", "at most 1000"),
+    ],
+)
+def test_a_bad_sweep_is_refused(sweep: str, words: str) -> None:
+    r = lesmc("check", "examples/merge.json", "specs/robustness.spec", "--sweep", sweep)
+    assert r.returncode == 2 and "Traceback" not in r.stderr
+    assert words in r.stderr, r.stderr
