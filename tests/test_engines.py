@@ -317,3 +317,25 @@ def test_a_large_tree_is_searched_after_a_bounded_probe(monkeypatch: pytest.Monk
     monkeypatch.setattr(enumerate_engine, "SMALL_TREE", 1 << 15)  # more than the budget:
     r = check_bound(cm, bp, "levels", Budget(max_states=50))  # no probe, the search has it all
     assert "exhaustive" not in r.stats.extra and r.stats.states_expanded <= 50
+
+
+@pytest.mark.parametrize("bound", [2.225073858507203e-309, 5e-324, 1e-300])
+def test_a_subnormal_constraint_bound_is_checked_exactly(bound: float) -> None:
+    """A tiny positive bound (a sweep found 2.2e-309) overflowed the λ grid of the levels
+    engine's Lagrangian bound to an out-of-range index; it must give the brute force's
+    optimum like any other bound."""
+    seen = 0
+    for seed in range(40):
+        cfg = RandomModelConfig(steps=3, width=4, branching=(1, 3), dim=1, covariance=True)
+        model = random_lts(cfg, seed)
+        spec = parse_spec(
+            f"property p {{ attack window 1..{model.end} minimize payoff "
+            f"subject to payoff > {bound!r} holds if optimum > 1 }}"
+        )
+        bp = bind(spec, spec.properties[0], model.end, model.components, True)
+        truth = brute_force(model, bp).optimum
+        for engine in ("levels", "bnb", "enumerate"):
+            r = check_bound(to_arrays(model), bp, engine)  # type: ignore[arg-type]
+            assert (r.optimum is None) if math.isinf(truth) else r.optimum == truth
+        seen += math.isfinite(truth)
+    assert seen > 10

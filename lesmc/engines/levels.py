@@ -198,13 +198,16 @@ class _Bounds:
 
     def _best_lambdas(self) -> np.ndarray | None:
         """best_k[q·G + j]: the λ that maximizes h[q, λ] + λ x_j at G grid points x_j
-        spanning [0, B] (``>``/``>=`` constraints with a finite bound B > 0 only; None
-        where the table would be too big to be worth it)."""
+        spanning [0, B] (``>``/``>=`` constraints with a finite bound B > 0 only, and one
+        whose grid step (G − 1)/B is finite: not a subnormal B; None where the table would
+        be too big to be worth it)."""
         assert self.h is not None and self.lam is not None
         sp = self.space
         B = sp.bp.bound
         n, k = self.h.shape
         if not (sp.con_up and math.isfinite(B) and B > 0) or n * k * LAMBDA_GRID > 1 << 26:
+            return None
+        if not math.isfinite((LAMBDA_GRID - 1) / B):  # B subnormal: the exact max instead
             return None
         return _winning_lambdas(self.h, self.lam, np.linspace(0.0, B, LAMBDA_GRID)).ravel()
 
