@@ -30,6 +30,7 @@ from lesmc.common.files import read_json
 from lesmc.common.progress import progress_bar
 from lesmc.designs import registry
 from lesmc.language.properties import SpecFile
+from lesmc.perception import NetFiles
 from lesmc.perception.quality import load_truth
 from lesmc.pipeline import certify
 from lesmc.pipeline.job import Certifier
@@ -101,19 +102,15 @@ def fingerprint(paths: Iterable[Path]) -> str:
     return h.hexdigest()[:20]
 
 
-#: Where the networks come from: ``--nets`` DIR, ``--detector`` FILE, ``--locator`` FILE.
-NetFiles = tuple[str | None, str | None, str | None]
-
-
 def prepare(
     video: Video,
     out: Path,
-    nets_dir: NetFiles = (None, None, None),
+    files: NetFiles = (None, None, None),
     tracker: TrackerConfig | None = None,
 ) -> Prepared:
     """The video's scene: ``DIR/scenes/<name>.json`` if made from these frames, else perceived;
     with ``tracker`` (``--tracker``) as its tracker (the file is rewritten if it had another)."""
-    p = _prepare(video, out, nets_dir)
+    p = _prepare(video, out, files)
     if tracker is not None and p.footage.tracker != tracker:
         p.set_footage(replace(p.footage, tracker=tracker))
         p.key = scene_key(p.doc)
@@ -121,7 +118,7 @@ def prepare(
     return p
 
 
-def _prepare(video: Video, out: Path, nets_dir: NetFiles) -> Prepared:
+def _prepare(video: Video, out: Path, files: NetFiles) -> Prepared:
     from lesmc.perception.to_scene import footage_from_run
     from lesmc.video.reader import open_frames
 
@@ -141,7 +138,7 @@ def _prepare(video: Video, out: Path, nets_dir: NetFiles) -> Prepared:
 
     truth = load_truth(str(video.truth)) if video.truth else None
     dt = (truth.dt if truth else None) or 1 / FPS
-    run, nets = perceive_video(video, frames, nets_dir)
+    run, nets = perceive_video(video, frames, files)
     meta = {
         "source": str(video.frames_dir),
         "video": video.origin,
@@ -156,13 +153,13 @@ def _prepare(video: Video, out: Path, nets_dir: NetFiles) -> Prepared:
     return Prepared(video, footage, doc, scene_key(doc), path, run=run)
 
 
-def perceive_video(video: Video, frames: Any, nets_dir: NetFiles) -> tuple[Any, Any]:
+def perceive_video(video: Video, frames: Any, files: NetFiles) -> tuple[Any, Any]:
     """The perception run of a video's frames (detections, payoffs, N_dr windows) and the nets."""
     from lesmc.perception.attacks import AttackConfig
     from lesmc.perception.cnn import load_nets
     from lesmc.perception.run import PerceiveOptions, perceive
 
-    nets = load_nets(*nets_dir)
+    nets = load_nets(*files)
     opts = PerceiveOptions(history=HISTORY, nets=nets, attack=AttackConfig())
     with progress_bar("campaign", f"perceiving {video.name}", len(frames)) as bar:
         run = perceive(frames, opts, None, bar.advance)
@@ -202,9 +199,7 @@ def same_detections(p: Prepared, run: Any, nets: Any) -> None:
         )
 
 
-def certify_scenes(
-    prepared: list[Prepared], groups: list[Group], nets_dir: NetFiles
-) -> list[Group]:
+def certify_scenes(prepared: list[Prepared], groups: list[Group], files: NetFiles) -> list[Group]:
     """Certified lower payoffs for every detection the groups' models can hide.
 
     Per video: the probes of every group (target, tracker) over its units' widest
@@ -226,7 +221,7 @@ def certify_scenes(
             low = certify.certify(
                 p.footage,
                 found,
-                _certifier(p, nets_dir, sum(len(v) for v in todo.values())),
+                _certifier(p, files, sum(len(v) for v in todo.values())),
                 "the detections the campaign's models can hide; the others have no bound",
             )
             p.set_footage(replace(p.footage, frames=low.frames, meta=low.meta))
@@ -256,7 +251,7 @@ def _probes(p: Prepared, groups: list[Group]) -> dict[Group, list[certify.Probed
     return out
 
 
-def _certifier(p: Prepared, nets_dir: NetFiles, n: int) -> Certifier:
+def _certifier(p: Prepared, files: NetFiles, n: int) -> Certifier:
     """Perception's certification of the video's detections (perceived again if need be)."""
 
     def run(wanted: Any) -> dict[int, Any]:
@@ -266,10 +261,10 @@ def _certifier(p: Prepared, nets_dir: NetFiles, n: int) -> Certifier:
 
         if p.run is None:
             frames = open_frames(p.video.frames_dir, HISTORY + 1, check=False)
-            p.run, nets = perceive_video(p.video, frames, nets_dir)
+            p.run, nets = perceive_video(p.video, frames, files)
             same_detections(p, p.run, nets)
         else:
-            nets = load_nets(*nets_dir)
+            nets = load_nets(*files)
         Console(stderr=True).print(
             f"{p.video.name}: certifying {n} detections (those the models can hide and the "
             "scene does not yet bound)"

@@ -6,7 +6,7 @@ import json
 import os
 import sys
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import click
 
@@ -20,6 +20,9 @@ from lesmc.cli.options import (
     tracker_option,
 )
 from lesmc.common.errors import UsageError
+
+if TYPE_CHECKING:
+    from lesmc.perception import NetFiles
 
 DEFAULT_WINDOWS = "4..12:1..4"
 """``lesmc.campaign.plan.DEFAULT_WINDOWS``, repeated so that the option's declaration
@@ -149,46 +152,44 @@ def campaign_cmd(
     from lesmc.api import expand_designs
     from lesmc.campaign.plan import parse_windows
 
-    if scheduler is not None and workers is not None:
-        raise UsageError("--workers sizes the local cluster: it does not apply with --scheduler")
+    limits = _limits(workers, scheduler, timeout, max_states)
     windows = parse_windows(windows_text)
     spec_files = _spec_files(specs)
     out = Path(out_dir)
     videos = _videos(frames_dirs, out, no_truth)
     count, target_file = _targets_option(targets_text)
-    from lesmc.scene import load_tracker
-
-    tracker = load_tracker(tracker_file) if tracker_file else None
     nets = (nets_dir, detector_file, locator_file)
     out.mkdir(parents=True, exist_ok=True)
-    prepared = _prepared(videos, out, nets, tracker)
+    prepared = _prepared(videos, out, nets, tracker_file)
     _choose_targets(prepared, count, target_file, windows, not no_truth)
-    rows = _run(
-        prepared,
-        spec_files,
-        windows,
-        expand_designs(design),
-        out,
-        workers,
-        scheduler,
-        timeout,
-        max_states,
-        payoffs,
-        nets,
-    )
+    designs = expand_designs(design)
+    rows = _run(prepared, spec_files, windows, designs, out, limits, payoffs, nets)
     _finish(rows, out, out_dir, prepared, windows, design, as_json)
+
+
+#: Where and how long a campaign runs: --workers, --scheduler, --timeout, --max-states.
+Limits = tuple[int | None, str | None, float, int]
+
+
+def _limits(workers: int | None, scheduler: str | None, timeout: float, max_states: int) -> Limits:
+    """The cluster options, checked: --workers sizes a local cluster only."""
+    if scheduler is not None and workers is not None:
+        raise UsageError("--workers sizes the local cluster: it does not apply with --scheduler")
+    return workers, scheduler, timeout, max_states
 
 
 def _prepared(
     videos: list[Any],
     out: Path,
-    nets: tuple[str | None, str | None, str | None],
-    tracker: Any,
+    nets: NetFiles,
+    tracker_file: str | None,
 ) -> list[Any]:
-    """Each video perceived into OUT/scenes (or read back from there), with ``tracker``
-    (``--tracker``) as its scene's tracker."""
+    """Each video perceived into OUT/scenes (or read back from there), with the tracker of
+    ``tracker_file`` (``--tracker``) as its scene's tracker."""
     from lesmc.campaign.run import prepare
+    from lesmc.scene import load_tracker
 
+    tracker = load_tracker(tracker_file) if tracker_file else None
     return [prepare(v, out, nets, tracker) for v in videos]
 
 
@@ -296,14 +297,12 @@ def _run(
     windows: list[tuple[int, int]],
     designs: tuple[str, ...],
     out: Path,
-    workers: int | None,
-    scheduler: str | None,
-    timeout: float,
-    max_states: int,
+    limits: Limits,
     payoffs: str,
-    nets: tuple[str | None, str | None, str | None],
+    nets: NetFiles,
 ) -> list[dict[str, Any]]:
     """Run what is not yet in results.jsonl; return the rows of this campaign."""
+    workers, scheduler, timeout, max_states = limits
     from lesmc.campaign.plan import plan_units
     from lesmc.campaign.run import certify_scenes, execute, make_groups
     from lesmc.campaign.store import Appender, read_rows

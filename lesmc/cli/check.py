@@ -130,8 +130,7 @@ def check_cmd(
     from lesmc.results.exit import exit_status
 
     parsed, source, is_scene = _inputs(model, specs, target_text, design, tracker_file)
-    if sweep_texts:
-        parsed, only = _swept(parsed, sweep_texts, only), ()
+    parsed, only = _swept(parsed, sweep_texts, only)
     job = Job(
         parsed,
         scene=source if is_scene else None,
@@ -155,22 +154,23 @@ def check_cmd(
 
 def _swept(
     parsed: tuple[SpecFile, ...], sweep_texts: tuple[str, ...], only: tuple[str, ...]
-) -> tuple[SpecFile, ...]:
-    """The specs with ``--property`` applied, then each property's sweep variants."""
+) -> tuple[tuple[SpecFile, ...], tuple[str, ...]]:
+    """``--sweep``: the specs with ``--property`` applied, then each property's sweep
+    variants (and nothing left for the pipeline to select); unchanged without a sweep."""
+    if not sweep_texts:
+        return parsed, only
     from dataclasses import replace as with_
 
     from lesmc.language.sweep import parse_sweep, swept
+    from lesmc.pipeline.check import known_names
 
     sweeps = tuple(parse_sweep(t) for t in sweep_texts)
     if only:
-        known = {p.name for s in parsed for p in s.properties}
-        missing = [n for n in only if n not in known]
-        if missing:
-            raise UsageError(f"no property named {', '.join(repr(n) for n in missing)}")
+        known_names(only, {p.name for s in parsed for p in s.properties})
         parsed = tuple(
             with_(s, properties=tuple(p for p in s.properties if p.name in only)) for s in parsed
         )
-    return tuple(swept(s, sweeps) for s in parsed)
+    return tuple(swept(s, sweeps) for s in parsed), ()
 
 
 def _print(results: Results, parsed: tuple[SpecFile, ...], as_json: bool, no_paths: bool) -> None:

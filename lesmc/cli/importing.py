@@ -3,12 +3,17 @@
 from __future__ import annotations
 
 import math
+from typing import TYPE_CHECKING, Any
 
 import click
 
 from lesmc.cli.documents import emit, file_facts, run_provenance, say
 from lesmc.cli.options import tracker_option
 from lesmc.common.errors import UsageError, escape_control
+
+if TYPE_CHECKING:
+    from lesmc.scene import Footage, Scene
+    from lesmc.scene.mot import Payoffs
 
 
 @click.group("import")
@@ -87,24 +92,52 @@ def mot_cmd(
     target: give --target X,Y@STEP to track, build, check or verify.
     Exit status: 0 written, 2 bad input, 4 internal error, 130 interrupted.
     """
-    from lesmc.scene import Scene, load_tracker, save_scene
-    from lesmc.scene.mot import Payoffs, Point, import_mot
+    from lesmc.scene import load_tracker, save_scene
+    from lesmc.scene.mot import Point, import_mot
 
     if (gt_path is None) != (track_id is None):
         raise UsageError("--gt and --track go together: the target is a track of the gt file")
-    if payoff_constant is not None and payoff_column is not None:
-        raise UsageError("give --payoff or --payoff-column, not both")
-    if payoff_constant is not None and not (0 <= payoff_constant <= 1e12):
-        raise UsageError(f"--payoff must be a number in [0, 1e12], got {payoff_constant:g}")
     if not (math.isfinite(fps) and 0 < fps <= 1e6):
         raise UsageError(f"--fps must be a number in (0, 1e6], got {fps:g}")
-    payoffs = Payoffs(1.0 if payoff_constant is None else payoff_constant, payoff_column)
+    payoffs = _payoffs(payoff_constant, payoff_column)
     tracker = load_tracker(tracker_file) if tracker_file else None
     at: Point = "bottom" if point == "bottom" else "center"
     scene = import_mot(det, 1.0 / fps, at, payoffs, gt_path, track_id, tracker)
     save_scene(scene, output)
-    n = sum(len(f.detections) for f in scene.frames)
-    first, last = scene.frames[0].step, scene.last_step
+    doc = _document(scene, det, output, at, payoffs, f"{gt_path} track {track_id}")
+    target = doc["target"]
+    where = (
+        "no target (give --target X,Y@STEP to track it)"
+        if target is None
+        else f"target: track {track_id} from frame {target['step']}"
+    )
+    frames = f"frames {doc['first_frame']}..{doc['last_frame']}"
+    say(
+        f"wrote {escape_control(output)}: {doc['detections']} detections in {frames}, {where}",
+        as_json,
+    )
+    if as_json:
+        emit(doc)
+
+
+def _payoffs(constant: float | None, column: int | None) -> Payoffs:
+    """``--payoff`` or ``--payoff-column`` (default: every detection costs 1)."""
+    from lesmc.scene.io import MAX_PAYOFF
+    from lesmc.scene.mot import Payoffs
+
+    if constant is not None and column is not None:
+        raise UsageError("give --payoff or --payoff-column, not both")
+    if constant is not None and not (0 <= constant <= MAX_PAYOFF):
+        raise UsageError(f"--payoff must be a number in [0, {MAX_PAYOFF:g}], got {constant:g}")
+    return Payoffs(1.0 if constant is None else constant, column)
+
+
+def _document(
+    scene: Footage | Scene, det: str, output: str, point: str, payoffs: Payoffs, origin: str
+) -> dict[str, Any]:
+    """The ``lesmc-import`` document (lesmc/schemas/import.json) of the scene written."""
+    from lesmc.scene import Scene
+
     target = None
     if isinstance(scene, Scene):
         t = scene.target
@@ -112,34 +145,21 @@ def mot_cmd(
             "step": t.step,
             "start": list(t.start),
             "velocity": list(t.velocity),
-            "from": f"{gt_path} track {track_id}",
+            "from": origin,
         }
-    where = (
-        "no target (give --target X,Y@STEP to track it)"
-        if target is None
-        else f"target: track {track_id} from frame {target['step']}"
-    )
-    say(
-        f"wrote {escape_control(output)}: {n} detections in frames {first}..{last}, {where}",
-        as_json,
-    )
-    if as_json:
-        emit(
-            {
-                "format": "lesmc-import",
-                "version": 1,
-                "provenance": run_provenance(),
-                "source": "mot",
-                "input": det,
-                "scene": file_facts(output),
-                "frames": len(scene.frames),
-                "detections": n,
-                "first_frame": first,
-                "last_frame": last,
-                "point": point,
-                "payoffs": f"column {payoff_column}"
-                if payoff_column
-                else f"constant {payoffs.constant:g}",
-                "target": target,
-            }
-        )
+    priced = f"column {payoffs.column}" if payoffs.column else f"constant {payoffs.constant:g}"
+    return {
+        "format": "lesmc-import",
+        "version": 1,
+        "provenance": run_provenance(),
+        "source": "mot",
+        "input": det,
+        "scene": file_facts(output),
+        "frames": len(scene.frames),
+        "detections": sum(len(f.detections) for f in scene.frames),
+        "first_frame": scene.frames[0].step,
+        "last_frame": scene.last_step,
+        "point": point,
+        "payoffs": priced,
+        "target": target,
+    }

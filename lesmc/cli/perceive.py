@@ -165,10 +165,8 @@ def perceive_cmd(
     from lesmc.perception.certify import CertifyConfig
     from lesmc.perception.cnn import load_nets
     from lesmc.perception.run import PerceiveOptions, perceive
-    from lesmc.scene import load_tracker
 
-    tracker = load_tracker(tracker_file) if tracker_file else None  # before the long work
-    spec, frames, truths = _inputs(frames_dir, history, target_text, truth)
+    spec, frames, truths, tracker = _inputs(frames_dir, history, target_text, truth, tracker_file)
     nets = None if no_cnn else load_nets(nets_dir, detector_file, locator_file)
     att = _attack_config(attack, overshoot, max_iter, payoff_norm) if output else None
     cert = CertifyConfig() if certify else None
@@ -196,10 +194,16 @@ def _attack_config(attack: str, overshoot: float, max_iter: int, payoff_norm: st
 
 
 def _inputs(
-    frames_dir: str, history: int, target_text: str | None, truth: str | None
-) -> tuple[TargetSpec | None, FrameSet, Truth | None]:
-    """The target asked for, the frames and their truth, each checked against the others."""
+    frames_dir: str,
+    history: int,
+    target_text: str | None,
+    truth: str | None,
+    tracker_file: str | None,
+) -> tuple[TargetSpec | None, FrameSet, Truth | None, TrackerConfig | None]:
+    """The target asked for, the frames and their truth, each checked against the others,
+    and the tracker file's configuration: all read before the long work."""
     from lesmc.perception.quality import load_truth
+    from lesmc.scene import load_tracker
     from lesmc.tracking.targets import check_target, parse_target
     from lesmc.video.reader import open_frames
 
@@ -212,7 +216,7 @@ def _inputs(
         missing = [p.name for p in frames.paths if p.name not in truths.frames]
         if missing:
             raise InputError(f"no truth for frame {missing[0]}", Location(truth or ""))
-    return spec, frames, truths
+    return spec, frames, truths, load_tracker(tracker_file) if tracker_file else None
 
 
 def _refuse_mismatched(

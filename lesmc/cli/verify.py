@@ -126,9 +126,7 @@ def verify_cmd(
         window=parse_window(window_text) if window_text else None,
         designs=expand_designs(design),
         out=Path(out_dir),
-        nets_dir=nets_dir,
-        detector=detector_file,
-        locator=locator_file,
+        nets=(nets_dir, detector_file, locator_file),
         scene_frames=frames_opt,
         tracker=tracker_file,
         payoffs=payoffs,  # type: ignore[arg-type]

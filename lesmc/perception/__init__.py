@@ -10,3 +10,7 @@ that runs them frame by frame; ``quality`` scores candidates against truth.
 #: bounds a handful of detections, so it can afford three times ``perceive --certify``'s 2
 #: (docs/cnn.md: median ratio 0.057 -> 0.070).
 ON_DEMAND_STEPS = 6
+
+#: Where the networks come from: a ``lesmc train`` directory (``--nets``), the user's N_dr
+#: and N_lp files (``--detector``, ``--locator``); None: the shipped ones. ``load_nets(*files)``.
+NetFiles = tuple[str | None, str | None, str | None]

@@ -26,6 +26,7 @@ pinned torch; the interpreter here covers the operations of small detection CNNs
 from __future__ import annotations
 
 import importlib
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -35,31 +36,6 @@ from torch import nn
 from torch.nn import functional as F
 
 from lesmc.common.errors import InputError, Location, UsageError
-
-#: The ONNX operations :class:`OnnxNet` runs.
-ONNX_OPS = (
-    "Add",
-    "AveragePool",
-    "BatchNormalization",
-    "Constant",
-    "Conv",
-    "Div",
-    "Flatten",
-    "Gather",
-    "Gemm",
-    "Identity",
-    "MatMul",
-    "MaxPool",
-    "Mul",
-    "ReduceMean",
-    "Relu",
-    "Reshape",
-    "Sigmoid",
-    "Slice",
-    "Squeeze",
-    "Sub",
-    "Unsqueeze",
-)
 
 
 @dataclass(frozen=True)
@@ -393,6 +369,15 @@ class OnnxNet(nn.Module):
         self.attrs = [
             {a.name: onnx.helper.get_attribute_value(a) for a in n.attribute} for n in self.nodes
         ]
+        for n, at in zip(self.nodes, self.attrs, strict=True):
+            if n.op_type == "Conv" and (
+                at.get("group", 1) != 1 or any(d != 1 for d in at.get("dilations", [1, 1]))
+            ):
+                raise InputError(
+                    f"node '{n.name}': Conv with groups or dilations is not supported by lesmc's "
+                    "ONNX reader; export to .pt2 instead",
+                    Location(path),
+                )
         inputs = [i.name for i in g.input if i.name not in self.consts]
         if len(inputs) != 1 or len(g.output) != 1:
             raise InputError("the network must have one input and one output", Location(path))
@@ -410,74 +395,103 @@ class OnnxNet(nn.Module):
 
 
 def _run(op: str, ins: list[Any], at: dict[str, Any]) -> Any:
-    """One ONNX node on torch tensors."""
-    x = ins[0]
-    if op == "Relu":
-        return F.relu(x)
-    if op == "Sigmoid":
-        return torch.sigmoid(x)
-    if op == "Identity":
-        return x
-    if op in ("Add", "Sub", "Mul", "Div"):
-        a, b = x, ins[1]
-        return {"Add": a + b, "Sub": a - b, "Mul": a * b, "Div": a / b}[op]
-    if op == "Conv":
-        if at.get("group", 1) != 1 or any(d != 1 for d in at.get("dilations", [1, 1])):
-            raise ValueError("Conv with groups or dilations")
-        pads = at.get("pads", [0, 0, 0, 0])
-        h = F.pad(x, (pads[1], pads[3], pads[0], pads[2])) if any(pads) else x
-        return F.conv2d(h, ins[1], ins[2] if len(ins) > 2 else None, at.get("strides", [1, 1]))
-    if op == "Gemm":
-        a = x.t() if at.get("transA", 0) else x
-        w = ins[1].t() if at.get("transB", 0) else ins[1]
-        y = at.get("alpha", 1.0) * (a @ w)
-        return y + at.get("beta", 1.0) * ins[2] if len(ins) > 2 and ins[2] is not None else y
-    if op == "MatMul":
-        return x @ ins[1]
-    if op == "Flatten":
-        return torch.flatten(x, at.get("axis", 1))
-    if op == "Reshape":
-        shape = [int(v) for v in ins[1].tolist()]
-        shape = [
-            x.shape[i] if v == 0 and not at.get("allowzero", 0) else v for i, v in enumerate(shape)
-        ]
-        return x.reshape(shape)
-    if op == "ReduceMean":
-        axes = at.get("axes", ins[1].tolist() if len(ins) > 1 and ins[1] is not None else None)
-        return x.mean(dim=axes, keepdim=bool(at.get("keepdims", 1)))
-    if op == "BatchNormalization":
-        return F.batch_norm(x, ins[3], ins[4], ins[1], ins[2], False, 0.0, at.get("epsilon", 1e-5))
-    if op in ("AveragePool", "MaxPool"):
-        k, s = at["kernel_shape"], at.get("strides", [1, 1])
-        pads = at.get("pads", [0, 0, 0, 0])
-        if op == "MaxPool":
-            return F.max_pool2d(x, k, s, (pads[0], pads[1]))
-        return F.avg_pool2d(
-            x, k, s, (pads[0], pads[1]), count_include_pad=bool(at.get("count_include_pad", 0))
-        )
-    if op == "Gather":
-        axis, idx = at.get("axis", 0), ins[1].long()
-        if idx.dim() == 0:
-            return x.select(axis, int(idx))
-        picked = torch.index_select(x, axis, idx.reshape(-1))
-        return picked.reshape(*x.shape[:axis], *idx.shape, *x.shape[axis + 1 :])
-    if op == "Squeeze":
-        axes = at.get("axes", ins[1].tolist() if len(ins) > 1 and ins[1] is not None else None)
-        return x.squeeze(tuple(axes)) if axes is not None else x.squeeze()
-    if op == "Unsqueeze":
-        axes = at.get("axes", ins[1].tolist() if len(ins) > 1 else [])
-        for a in sorted(axes):
-            x = x.unsqueeze(a)
-        return x
-    if op == "Slice":
-        starts, ends = ins[1].tolist(), ins[2].tolist()
-        axes = ins[3].tolist() if len(ins) > 3 and ins[3] is not None else list(range(len(starts)))
-        steps = ins[4].tolist() if len(ins) > 4 and ins[4] is not None else [1] * len(starts)
-        where: list[Any] = [slice(None)] * x.dim()
-        for a, st, en, sp in zip(axes, starts, ends, steps, strict=True):
-            where[a] = slice(st, min(en, x.shape[a]), sp)
-        return x[tuple(where)]
-    raise ValueError(op)
+    """One ONNX node on torch tensors (the operation is one of :data:`ONNX_OPS`, checked
+    when the graph was read)."""
+    return _ONNX_RUN[op](ins[0], ins, at)
+
+
+def _axes(ins: list[Any], at: dict[str, Any]) -> list[int] | None:
+    """A node's axes: an attribute (older opsets) or its second input (newer ones)."""
+    if "axes" in at:
+        return list(at["axes"])
+    return ins[1].tolist() if len(ins) > 1 and ins[1] is not None else None
+
+
+def _conv_node(x: Any, ins: list[Any], at: dict[str, Any]) -> Any:
+    pads = at.get("pads", [0, 0, 0, 0])
+    h = F.pad(x, (pads[1], pads[3], pads[0], pads[2])) if any(pads) else x
+    return F.conv2d(h, ins[1], ins[2] if len(ins) > 2 else None, at.get("strides", [1, 1]))
+
+
+def _gemm_node(x: Any, ins: list[Any], at: dict[str, Any]) -> Any:
+    a = x.t() if at.get("transA", 0) else x
+    w = ins[1].t() if at.get("transB", 0) else ins[1]
+    y = at.get("alpha", 1.0) * (a @ w)
+    return y + at.get("beta", 1.0) * ins[2] if len(ins) > 2 and ins[2] is not None else y
+
+
+def _reshape_node(x: Any, ins: list[Any], at: dict[str, Any]) -> Any:
+    shape = [int(v) for v in ins[1].tolist()]
+    keep = not at.get("allowzero", 0)  # 0 means "this dimension as it is"
+    return x.reshape([x.shape[i] if v == 0 and keep else v for i, v in enumerate(shape)])
+
+
+def _pool_node(x: Any, ins: list[Any], at: dict[str, Any], average: bool) -> Any:
+    k, s = at["kernel_shape"], at.get("strides", [1, 1])
+    pads = at.get("pads", [0, 0, 0, 0])
+    if not average:
+        return F.max_pool2d(x, k, s, (pads[0], pads[1]))
+    include = bool(at.get("count_include_pad", 0))
+    return F.avg_pool2d(x, k, s, (pads[0], pads[1]), count_include_pad=include)
+
+
+def _gather_node(x: Any, ins: list[Any], at: dict[str, Any]) -> Any:
+    axis, idx = at.get("axis", 0), ins[1].long()
+    if idx.dim() == 0:
+        return x.select(axis, int(idx))
+    picked = torch.index_select(x, axis, idx.reshape(-1))
+    return picked.reshape(*x.shape[:axis], *idx.shape, *x.shape[axis + 1 :])
+
+
+def _unsqueeze_node(x: Any, ins: list[Any], at: dict[str, Any]) -> Any:
+    for a in sorted(_axes(ins, at) or []):
+        x = x.unsqueeze(a)
+    return x
+
+
+def _slice_node(x: Any, ins: list[Any], at: dict[str, Any]) -> Any:
+    starts, ends = ins[1].tolist(), ins[2].tolist()
+    axes = ins[3].tolist() if len(ins) > 3 and ins[3] is not None else list(range(len(starts)))
+    steps = ins[4].tolist() if len(ins) > 4 and ins[4] is not None else [1] * len(starts)
+    where: list[Any] = [slice(None)] * x.dim()
+    for a, st, en, sp in zip(axes, starts, ends, steps, strict=True):
+        where[a] = slice(st, min(en, x.shape[a]), sp)
+    return x[tuple(where)]
+
+
+def _squeeze_node(x: Any, ins: list[Any], at: dict[str, Any]) -> Any:
+    axes = _axes(ins, at)
+    return x.squeeze(tuple(axes)) if axes is not None else x.squeeze()
+
+
+_ONNX_RUN: dict[str, Callable[[Any, list[Any], dict[str, Any]], Any]] = {
+    "Relu": lambda x, ins, at: F.relu(x),
+    "Sigmoid": lambda x, ins, at: torch.sigmoid(x),
+    "Identity": lambda x, ins, at: x,
+    "Add": lambda x, ins, at: x + ins[1],
+    "Sub": lambda x, ins, at: x - ins[1],
+    "Mul": lambda x, ins, at: x * ins[1],
+    "Div": lambda x, ins, at: x / ins[1],
+    "MatMul": lambda x, ins, at: x @ ins[1],
+    "Flatten": lambda x, ins, at: torch.flatten(x, at.get("axis", 1)),
+    "ReduceMean": lambda x, ins, at: x.mean(
+        dim=_axes(ins, at), keepdim=bool(at.get("keepdims", 1))
+    ),
+    "BatchNormalization": lambda x, ins, at: F.batch_norm(
+        x, ins[3], ins[4], ins[1], ins[2], False, 0.0, at.get("epsilon", 1e-5)
+    ),
+    "Conv": _conv_node,
+    "Gemm": _gemm_node,
+    "Reshape": _reshape_node,
+    "AveragePool": lambda x, ins, at: _pool_node(x, ins, at, average=True),
+    "MaxPool": lambda x, ins, at: _pool_node(x, ins, at, average=False),
+    "Gather": _gather_node,
+    "Squeeze": _squeeze_node,
+    "Unsqueeze": _unsqueeze_node,
+    "Slice": _slice_node,
+}
+#: The ONNX operations :class:`OnnxNet` runs (constants are read when the graph is).
+ONNX_OPS = ("Constant", *sorted(_ONNX_RUN))
 
 
 def _from_onnx(path: str) -> UserNet:
@@ -605,56 +619,18 @@ def chain_of_ops(ops: list[Op], in_shape: tuple[int, int, int], t: float) -> Any
     convolution of its own, composed with the layer before it, or with the next
     one when it follows a ReLU.
     """
-    from lesmc.perception.certify import Chain, Conv, Dense
+    from lesmc.perception.certify import Chain, Dense
 
-    layers: list[Any] = []
-    relu_after: list[bool] = []
-    hw = in_shape[1]
-    channels = in_shape[0]
-    pending: list[Op] = []  # linear ops waiting for the next layer
-    subtract_mean = False
-    flat = False
+    built = _Layers(channels=in_shape[0], hw=in_shape[1])
     for i, op in enumerate(ops):
-        if op.kind == "identity":
-            continue
-        if op.kind == "center":
-            if i != 0:
-                raise Unsupported(op.node, op.op, " (mean subtraction only first)")
-            subtract_mean = True
-        elif op.kind == "relu":
-            if not layers or relu_after[-1] or pending:
-                raise Unsupported(
-                    op.node, op.op, " (a ReLU must follow a convolution or a linear layer)"
-                )
-            relu_after[-1] = True
-        elif op.kind == "flatten":
-            flat = True
-        elif op.kind in ("affine", "avgpool"):
-            if layers and not relu_after[-1] and not pending:
-                layers[-1], hw = _fold_after(layers[-1], op, hw)
-            else:
-                pending.append(op)
-        elif op.kind == "conv":
-            if flat:
-                raise Unsupported(op.node, op.op, " after a flatten")
-            w, b, s, p = (op.params[k] for k in ("weight", "bias", "stride", "padding"))
-            w, b, s, p, hw_in = _fold_before_conv(pending, w.float(), b.float(), s, p, hw, op)
-            pending = []
-            out = (hw_in + 2 * p - w.shape[2]) // s + 1
-            layers.append(Conv(w, b, s, p, hw_in, out))
-            relu_after.append(False)
-            hw, channels = out, w.shape[0]
-        elif op.kind == "linear":
-            w, b = op.params["weight"].float(), op.params["bias"].float()
-            w, b = _fold_before_linear(pending, w, b, channels, hw, op)
-            pending = []
-            layers.append(Dense(w, b))
-            relu_after.append(False)
-            flat = True
-        else:
-            raise Unsupported(op.node, op.op)
-    if pending:
-        raise Unsupported(pending[0].node, pending[0].op, " (after the last linear layer)")
+        if op.kind == "center" and i != 0:
+            raise Unsupported(op.node, op.op, " (mean subtraction only first)")
+        built.add(op)
+    if built.pending:
+        raise Unsupported(
+            built.pending[0].node, built.pending[0].op, " (after the last linear layer)"
+        )
+    layers, relu_after = built.layers, built.relu_after
     last = layers[-1] if layers else None
     if not isinstance(last, Dense) or last.weight.shape[0] != 2 or relu_after[-1]:
         raise Unsupported(
@@ -669,7 +645,70 @@ def chain_of_ops(ops: list[Op], in_shape: tuple[int, int, int], t: float) -> Any
         )
     w, b = last.weight, last.bias
     layers[-1] = Dense((w[1] - w[0])[None], (b[1] - b[0] - t)[None])
-    return Chain(in_shape, subtract_mean, tuple(layers))
+    return Chain(in_shape, built.subtract_mean, tuple(layers))
+
+
+@dataclass
+class _Layers:
+    """The chain's layers as ops arrive: linear ops wait in ``pending`` for the next layer
+    when no layer without its ReLU precedes them (:func:`chain_of_ops`)."""
+
+    channels: int
+    hw: int
+    layers: list[Any] = field(default_factory=list)
+    relu_after: list[bool] = field(default_factory=list)
+    pending: list[Op] = field(default_factory=list)
+    subtract_mean: bool = False
+    flat: bool = False
+
+    def add(self, op: Op) -> None:
+        if op.kind == "identity":
+            return
+        if op.kind == "center":
+            self.subtract_mean = True
+        elif op.kind == "relu":
+            if not self.layers or self.relu_after[-1] or self.pending:
+                raise Unsupported(
+                    op.node, op.op, " (a ReLU must follow a convolution or a linear layer)"
+                )
+            self.relu_after[-1] = True
+        elif op.kind == "flatten":
+            self.flat = True
+        elif op.kind in ("affine", "avgpool"):
+            if self.layers and not self.relu_after[-1] and not self.pending:
+                self.layers[-1], self.hw = _fold_after(self.layers[-1], op, self.hw)
+            else:
+                self.pending.append(op)
+        elif op.kind == "conv":
+            self._conv(op)
+        elif op.kind == "linear":
+            self._linear(op)
+        else:
+            raise Unsupported(op.node, op.op)
+
+    def _conv(self, op: Op) -> None:
+        from lesmc.perception.certify import Conv
+
+        if self.flat:
+            raise Unsupported(op.node, op.op, " after a flatten")
+        w, b, s, p = (op.params[k] for k in ("weight", "bias", "stride", "padding"))
+        w, b, s, p, hw_in = _fold_before_conv(self.pending, w.float(), b.float(), s, p, self.hw, op)
+        out = (hw_in + 2 * p - w.shape[2]) // s + 1
+        self._append(Conv(w, b, s, p, hw_in, out))
+        self.hw, self.channels = out, w.shape[0]
+
+    def _linear(self, op: Op) -> None:
+        from lesmc.perception.certify import Dense
+
+        w, b = op.params["weight"].float(), op.params["bias"].float()
+        w, b = _fold_before_linear(self.pending, w, b, self.channels, self.hw, op)
+        self._append(Dense(w, b))
+        self.flat = True
+
+    def _append(self, layer: Any) -> None:
+        self.layers.append(layer)
+        self.relu_after.append(False)
+        self.pending = []
 
 
 def _pool_as_conv(channels: int, k: int) -> torch.Tensor:

@@ -114,7 +114,7 @@ def _selected(
     """The properties of ``bound`` that the job's ``only`` and ``wanted`` keep."""
     _unique_names(bound)
     if job.only:
-        _known_names(job.only, bound)
+        known_names(job.only, {bp.name for bp in bound})
         bound = [bp for bp in bound if bp.name in job.only]
     if job.wanted is not None:
         wanted = job.wanted
@@ -130,8 +130,8 @@ def _unique_names(bound: list[BoundProperty]) -> None:
         seen.add(bp.name)
 
 
-def _known_names(only: Iterable[str], bound: list[BoundProperty]) -> None:
-    names = {bp.name for bp in bound}
+def known_names(only: Iterable[str], names: set[str]) -> None:
+    """``--property`` must name properties the specs define."""
     missing = [n for n in only if n not in names]
     if missing:
         raise UsageError(
@@ -149,7 +149,7 @@ def _model_run(job: Job, model: ArrayModel) -> DesignRun:
     bound = bind_all(model, job.specs)
     _unique_names(bound)
     if job.only:
-        _known_names(job.only, bound)
+        known_names(job.only, {bp.name for bp in bound})
         bound = [bp for bp in bound if bp.name in job.only]
     results = []
     for bp in bound:

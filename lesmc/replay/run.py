@@ -46,6 +46,7 @@ from lesmc.common.errors import InputError, Location, UsageError
 from lesmc.designs.registry import make_tracker
 from lesmc.engines.result import status_word
 from lesmc.model import kernel
+from lesmc.perception import NetFiles
 from lesmc.perception.windows import cut, origins, stack
 from lesmc.scene import Detection, Frame, Scene, Target, tracker_from_dict
 from lesmc.tracking.monitor import track
@@ -742,7 +743,7 @@ def diverged_note(optimum: Any, obj: dict[str, Any]) -> str:
 def replay_file(
     doc: dict[str, Any],
     frames_dir: str,
-    nets: tuple[str | None, str | None, str | None],
+    nets: NetFiles,
     prop: str | None,
     bar: Bar,
 ) -> Outcome:

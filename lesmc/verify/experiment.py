@@ -28,6 +28,7 @@ from lesmc.common.progress import Reporter
 from lesmc.designs import registry
 from lesmc.language.parser import load_spec
 from lesmc.language.properties import SpecFile
+from lesmc.perception import NetFiles
 from lesmc.perception.quality import load_truth
 from lesmc.pipeline.check import run as run_job
 from lesmc.pipeline.job import Certifier, Job, PayoffMode
@@ -62,9 +63,7 @@ class Request:
     window: tuple[int, int] | None = None
     designs: tuple[str, ...] = registry.SETS["paper"]
     out: Path = Path("lesmc-verify")
-    nets_dir: str | None = None
-    detector: str | None = None  #: the user's N_dr (``--detector``, .pt2/.onnx)
-    locator: str | None = None  #: the user's N_lp (``--locator``)
+    nets: NetFiles = (None, None, None)  #: ``--nets``, ``--detector``, ``--locator``
     scene_frames: str | None = None  #: with ``scene_path``: the video's frames (replay, images)
     tracker: str | None = None  #: a tracker file replacing the scene's (``--tracker``)
     payoffs: PayoffMode = "attack"
@@ -152,7 +151,7 @@ def _scene_file(req: Request) -> _Source:
         raise UsageError("give FRAMES_DIR or --scene, not both")
     if req.truth is not None:
         raise UsageError("--truth applies to a video, not to --scene")
-    if (req.nets_dir or req.detector or req.locator) and req.scene_frames is None:
+    if any(req.nets) and req.scene_frames is None:
         raise UsageError(
             "--nets, --detector and --locator with --scene apply only to the replay: give "
             "--frames too"
@@ -165,7 +164,7 @@ def _scene_file(req: Request) -> _Source:
     if frames is not None:
         from lesmc.perception.cnn import load_nets
 
-        nets = load_nets(req.nets_dir, req.detector, req.locator)
+        nets = load_nets(*req.nets)
     return _Source(scene, frames, None, nets, meta={"scene": req.scene_path})
 
 
@@ -189,7 +188,7 @@ def _perceived(req: Request, specs: list[SpecFile], rep: Reporter) -> _Source:
     if target is not None:
         check_target(target, frames.width, frames.height, len(frames))
     truths = load_truth(truth) if truth else None
-    nets = load_nets(req.nets_dir, req.detector, req.locator)
+    nets = load_nets(*req.nets)
     opts = PerceiveOptions(history=HISTORY, nets=nets, attack=AttackConfig())
     _spent(req.budget, "loading the video and the networks")
     with rep.bar("perceiving", len(frames)) as bar:
