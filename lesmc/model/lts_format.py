@@ -291,9 +291,25 @@ def lts_to_dict(model: ArrayModel | LTS) -> dict[str, Any]:
     order = np.arange(n, dtype=np.int64) if perm is None else perm
     pos = np.empty(n, dtype=np.int64)
     pos[order] = np.arange(n, dtype=np.int64)
-    src, dst = model.src, model.dst
-    torder = np.lexsort((pos[dst], model.rank, pos[src]))
+    doc_states = _states_json(model, ids, order, pos)
+    doc_trans = _transitions_json(model, ids, pos)
+    return {
+        "format": FORMAT,
+        "version": VERSION,
+        "components": list(model.components),
+        "initial": ids[model.initial],
+        "original": [ids[q] for q in model.original.tolist()],
+        "states": doc_states,
+        "transitions": doc_trans,
+        **({"meta": model.meta} if model.meta else {}),
+    }
 
+
+def _states_json(
+    model: ArrayModel, ids: list[str], order: np.ndarray, pos: np.ndarray
+) -> list[dict[str, Any]]:
+    """The states in file order (``order``; ``pos``: each state's place in it), with their
+    covariances and labels (halted states get HALTED)."""
     rows = order.tolist()
     doc_states: list[dict[str, Any]] = [
         {"id": ids[i], "step": k, "s": s}
@@ -311,7 +327,13 @@ def lts_to_dict(model: ArrayModel | LTS) -> dict[str, Any]:
             labs.add(HALTED)
         if labs:
             doc_states[int(pos[i])]["labels"] = sorted(labs)
+    return doc_states
 
+
+def _transitions_json(model: ArrayModel, ids: list[str], pos: np.ndarray) -> list[dict[str, Any]]:
+    """The transitions by source (in file order), rank and target, with their observations."""
+    src, dst = model.src, model.dst
+    torder = np.lexsort((pos[dst], model.rank, pos[src]))
     doc_trans: list[dict[str, Any]] = [
         {"src": ids[a], "dst": ids[b], "payoff": p, "rank": r}
         for a, b, p, r in zip(
@@ -327,16 +349,7 @@ def lts_to_dict(model: ArrayModel | LTS) -> dict[str, Any]:
         for d, c in zip(doc_trans, model.obs[torder].tolist(), strict=True):
             if c >= 0:
                 d["obs"] = names[c]
-    return {
-        "format": FORMAT,
-        "version": VERSION,
-        "components": list(model.components),
-        "initial": ids[model.initial],
-        "original": [ids[q] for q in model.original.tolist()],
-        "states": doc_states,
-        "transitions": doc_trans,
-        **({"meta": model.meta} if model.meta else {}),
-    }
+    return doc_trans
 
 
 def save_lts(model: ArrayModel | LTS, path: str | Path) -> None:

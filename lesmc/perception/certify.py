@@ -100,7 +100,6 @@ def chain_of(net: nn.Module, t: float, subtract_mean: bool = True, detach: bool 
     def own(p: torch.Tensor) -> torch.Tensor:
         return (p.detach() if detach else p).float()
 
-    channels: int | None = None
     hw: int | None = None
     layers: list[Layer] = []
     mods = list(getattr(net, "features", [])) + list(getattr(net, "head", []))
@@ -115,25 +114,13 @@ def chain_of(net: nn.Module, t: float, subtract_mean: bool = True, detach: bool 
         if relu_expected:
             raise ValueError("every layer but the last must be followed by a ReLU")
         if isinstance(mod, nn.Conv2d):
-            k, s, p = mod.kernel_size, mod.stride, mod.padding
-            if (
-                not isinstance(p, tuple)
-                or k[0] != k[1]
-                or s[0] != s[1]
-                or p[0] != p[1]
-                or mod.dilation != (1, 1)
-                or mod.groups != 1
-                or mod.bias is None
-                or mod.padding_mode != "zeros"
-            ):
-                raise ValueError(f"unsupported convolution {mod}")
             if hw is None:
                 if in_shape is None:
                     raise ValueError("the first convolution needs net.in_shape or a 21x21 input")
                 hw = in_shape[1]
-            out = (hw + 2 * p[0] - k[0]) // s[0] + 1
-            layers.append(Conv(own(mod.weight), own(mod.bias), s[0], p[0], hw, out))
-            hw, channels = out, mod.out_channels
+            conv = _conv_layer(mod, hw, own)
+            layers.append(conv)
+            hw = conv.out_hw
             relu_expected = True
         elif isinstance(mod, nn.Linear):
             if mod.bias is None:
@@ -147,10 +134,27 @@ def chain_of(net: nn.Module, t: float, subtract_mean: bool = True, detach: bool 
         raise ValueError("the network must end in a linear layer with two logits")
     w, b = last.weight, last.bias
     layers[-1] = Dense((w[1] - w[0])[None], (b[1] - b[0] - t)[None])
-    del channels
     if in_shape is None:
         raise ValueError("net.in_shape is needed")
     return Chain(in_shape, subtract_mean, tuple(layers))
+
+
+def _conv_layer(mod: nn.Conv2d, hw: int, own: Callable[[torch.Tensor], torch.Tensor]) -> Conv:
+    """A Conv2d of square kernel, stride and zero padding, with a bias, reading hw x hw maps."""
+    k, s, p = mod.kernel_size, mod.stride, mod.padding
+    if (
+        not isinstance(p, tuple)
+        or k[0] != k[1]
+        or s[0] != s[1]
+        or p[0] != p[1]
+        or mod.dilation != (1, 1)
+        or mod.groups != 1
+        or mod.bias is None
+        or mod.padding_mode != "zeros"
+    ):
+        raise ValueError(f"unsupported convolution {mod}")
+    out = (hw + 2 * p[0] - k[0]) // s[0] + 1
+    return Conv(own(mod.weight), own(mod.bias), s[0], p[0], hw, out)
 
 
 def detect_chain(net: nn.Module, t: float, detach: bool = True) -> Chain:
@@ -600,20 +604,14 @@ def _search(
     r_bad = torch.full((nb,), math.inf, dtype=torch.float64)
     live = f0 > 0
     # bounds of the smallest ball that failed so far: valid for every smaller ball
-    prior: list[tuple[torch.Tensor, torch.Tensor]] | None = None
+    prior: Bounds | None = None
     for _ in range(cfg.steps):
         if not bool(live.any()):
             break
         idx = live.nonzero().ravel()
         ri = r[idx]
         ball = Ball(z0[idx], ri.float(), _dim(chain), chain.subtract_mean)
-        pri = None
-        if prior is not None:
-            inside = ri <= r_bad[idx]
-            pri = [
-                (_where(inside, pl[idx], -math.inf), _where(inside, pu[idx], math.inf))
-                for pl, pu in prior
-            ]
+        pri = None if prior is None else _prior_for(prior, idx, ri <= r_bad[idx])
         bounds, relaxes = layer_bounds(chain, ball, pri, cfg.give_up)
         value, norm = margin_form(chain, ball, relaxes)
         value, norm = value.double(), norm.double()
@@ -623,18 +621,8 @@ def _search(
         r_ok[idx] = torch.where(ok, torch.maximum(r_ok[idx], ri), r_ok[idx])
         failed = ~ok
         if bool(failed.any()):
-            if prior is None:
-                prior = [
-                    (
-                        torch.full((nb, *bl.shape[1:]), -math.inf),
-                        torch.full((nb, *bl.shape[1:]), math.inf),
-                    )
-                    for bl, _ in bounds
-                ]
-            fidx = idx[failed]
-            for (pl, pu), (bl, bu) in zip(prior, bounds, strict=True):
-                pl[fidx], pu[fidx] = bl[failed], bu[failed]
-            r_bad[fidx] = ri[failed]
+            prior = _keep_failed(prior, bounds, idx, failed, nb)
+            r_bad[idx[failed]] = ri[failed]
         lo, hi = r_ok[idx], r_bad[idx]
         step = torch.where(ok, ri * grow[idx], ri / shrink[idx])
         bracketed = (lo > 0) & torch.isfinite(hi)
@@ -642,6 +630,33 @@ def _search(
         live[idx] = ~(ok & (ri >= cap[idx])) & ~(bracketed & (hi - lo <= 0.02 * hi))
     result: np.ndarray = (best * (1 - SAFETY)).numpy()
     return result
+
+
+Bounds = list[tuple[torch.Tensor, torch.Tensor]]
+
+
+def _prior_for(prior: Bounds, idx: torch.Tensor, inside: torch.Tensor) -> Bounds:
+    """The kept bounds of windows ``idx``, for those whose ball lies ``inside`` the one that
+    failed (a larger ball's bounds hold in a smaller one); none elsewhere."""
+    return [
+        (_where(inside, pl[idx], -math.inf), _where(inside, pu[idx], math.inf)) for pl, pu in prior
+    ]
+
+
+def _keep_failed(
+    prior: Bounds | None, bounds: Bounds, idx: torch.Tensor, failed: torch.Tensor, nb: int
+) -> Bounds:
+    """Keep the layer bounds of the windows whose ball just failed: the smallest failing
+    ball's bounds are valid for every smaller ball tried later."""
+    if prior is None:
+        prior = [
+            (torch.full((nb, *bl.shape[1:]), -math.inf), torch.full((nb, *bl.shape[1:]), math.inf))
+            for bl, _ in bounds
+        ]
+    fidx = idx[failed]
+    for (pl, pu), (bl, bu) in zip(prior, bounds, strict=True):
+        pl[fidx], pu[fidx] = bl[failed], bu[failed]
+    return prior
 
 
 def _start(
