@@ -15,6 +15,7 @@ Eq. 16-18), a constant-acceleration preset, or the matrices a scene declares.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import cached_property
 
 import numpy as np
 
@@ -46,6 +47,19 @@ class Matrices:
     @property
     def dim(self) -> int:
         return int(self.F.shape[0])
+
+    @cached_property
+    def f_columns(self) -> tuple[tuple[int, np.ndarray | None, np.ndarray], ...]:
+        """Per column j of F with a non-zero: (j, the rows it reaches or None for all of
+        them, those entries), for :func:`predict_means` (computed once, not per batch)."""
+        out: list[tuple[int, np.ndarray | None, np.ndarray]] = []
+        for j in range(self.dim):
+            rows = np.flatnonzero(self.F[:, j])
+            if rows.size == self.dim:
+                out.append((j, None, self.F[:, j].copy()))
+            elif rows.size:
+                out.append((j, rows, self.F[rows, j].copy()))
+        return tuple(out)
 
 
 def matrices(cfg: TrackerConfig, dt: float) -> Matrices:
@@ -177,12 +191,11 @@ def predict_means(m: Matrices, X: np.ndarray) -> np.ndarray:
     """
     X = np.asarray(X, dtype=float)
     out = np.zeros(X.shape)
-    for j in range(m.dim):
-        rows = np.flatnonzero(m.F[:, j])
-        if rows.size == m.dim:
-            out += X[..., j : j + 1] * m.F[:, j]
-        elif rows.size:
-            out[..., rows] += X[..., j : j + 1] * m.F[rows, j]
+    for j, rows, f in m.f_columns:
+        if rows is None:
+            out += X[..., j : j + 1] * f
+        else:
+            out[..., rows] += X[..., j : j + 1] * f
     return out
 
 
