@@ -223,11 +223,12 @@ def test_a_chain_that_misreads_the_network_is_refused(shipped: dict[str, Path]) 
     from lesmc.common.errors import InputError
     from lesmc.perception.certify import detect_chain
     from lesmc.perception.cnn import DetectNet
-    from lesmc.perception.run import _same_margin, detector_chain
+    from lesmc.perception.graphs import same_margin
+    from lesmc.perception.run import detector_chain
 
     nets = load_nets(None, str(shipped["dr.pt2"]))
     detector_chain(nets, 0.0)  # the true reading passes
     torch.manual_seed(1)
     other = DetectNet(nets.settings.m + 1).eval()
     with pytest.raises(InputError, match="does not compute its forward pass"):
-        _same_margin(nets, detect_chain(other, 0.0), 0.0)
+        same_margin(nets.dr_file, detect_chain(other, 0.0), 0.0)

@@ -72,14 +72,43 @@ class UserNet:
     ops: list[Op] | Unsupported
 
     def certifiable_ops(self) -> list[Op]:
-        """The ops, or an :class:`InputError` naming the node that has none."""
+        """The ops, or :class:`Unsupported` naming the node that has none."""
         if isinstance(self.ops, Unsupported):
-            raise InputError(
-                f"{self.ops}; payoffs from attacks still work (drop --certify, or "
-                "--payoffs attack)",
-                Location(self.path),
-            )
+            raise self.ops
         return self.ops
+
+    def chain(self, t: float) -> Any:
+        """The detector as the bound propagation sees it (margin threshold ``t``), checked
+        against its own forward pass; an unsupported node is an InputError naming it."""
+        try:
+            chain = chain_of_ops(self.certifiable_ops(), self.in_shape, t)
+        except Unsupported as exc:
+            raise InputError(
+                f"{exc}; payoffs from attacks still work (drop --certify, or --payoffs attack)",
+                Location(self.path),
+            ) from None
+        same_margin(self, chain, t)
+        return chain
+
+
+def same_margin(net: UserNet, chain: Any, t: float) -> None:
+    """The chain must compute the network's own margin (a guard against a reading of the
+    file's graph that differs from its forward pass): on 64 random windows, to float32
+    rounding."""
+    from lesmc.perception.certify import margin_of
+
+    x = torch.rand(64, *net.in_shape, generator=torch.Generator().manual_seed(0))
+    with torch.no_grad():
+        logits = net.module(x)
+        want = logits[:, 1] - logits[:, 0] - t
+    got = margin_of(chain, x)
+    if not torch.allclose(got, want, rtol=1e-3, atol=1e-3 * float(want.abs().max()) + 1e-4):
+        raise InputError(
+            "certified bounds: lesmc's reading of the network's graph does not compute its "
+            f"forward pass (largest difference {float((got - want).abs().max()):.3g}); "
+            "payoffs from attacks still work",
+            Location(net.path),
+        )
 
 
 def load_network(path: str | Path) -> UserNet:
