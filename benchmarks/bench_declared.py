@@ -15,7 +15,7 @@ in one run). The dense scene of bench_unfold.py (a target in a platoon of 6 amon
 
 each timed ``--repeat`` times in turn, the best of each kept (this VM's speed
 drifts within a minute). Also the wall time a user sees for ``lesmc build`` with
-``--tracker ca6.json`` against the default, from the shell.
+``--tracker`` (a file declaring the 6-state model) against the default, from the shell.
 
 Run ``python benchmarks/bench_declared.py [--window 4..9] [--repeat 5]``.
 """

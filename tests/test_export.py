@@ -58,39 +58,26 @@ def storm_prism_optimum(program: str, tmp: Path) -> float:
     return float(stormpy.model_checking(model, props[0]).get_value(model.initial_states[0]))
 
 
-@settings(max_examples=200, deadline=None, suppress_health_check=[HealthCheck.too_slow])
-@given(cases())
-def test_storm_computes_the_brute_force_optimum_of_the_prism_export(
-    tmp_path_factory: pytest.TempPathFactory, case: tuple
-) -> None:
-    """The PRISM program, parsed and built by Storm, to the brute force's optimum."""
-    model, params, quantile = case
-    bp = _bound_property(model, params, quantile)
-    program, facts = to_prism(to_arrays(model), bp)
-    if facts["not_exported"]:
-        return
-    truth = brute_force(model, bp).optimum
-    got = storm_prism_optimum(program, tmp_path_factory.mktemp("prism"))
-    if math.isinf(truth):
-        assert math.isinf(got)
-    else:
-        assert got == pytest.approx(truth, rel=1e-9, abs=1e-9)
+#: Each MDP export and how Storm reads it: the explicit DRN, the PRISM program (parsed by
+#: Storm's PRISM parser).
+EXPORTS = {"drn": (to_drn, storm_optimum), "prism": (to_prism, storm_prism_optimum)}
 
 
+@pytest.mark.parametrize("fmt", sorted(EXPORTS))
 @settings(max_examples=200, deadline=None, suppress_health_check=[HealthCheck.too_slow])
 @given(cases())
 def test_storm_computes_the_brute_force_optimum(
-    tmp_path_factory: pytest.TempPathFactory, case: tuple
+    tmp_path_factory: pytest.TempPathFactory, fmt: str, case: tuple
 ) -> None:
+    write, storm = EXPORTS[fmt]
     model, params, quantile = case
     bp = _bound_property(model, params, quantile)
-    cm = to_arrays(model)
-    text, facts = to_drn(cm, bp)
+    text, facts = write(to_arrays(model), bp)
     if facts["not_exported"]:  # dist.max objective: no reward model to check
         assert "maximum over steps" in facts["not_exported"]
         return
     truth = brute_force(model, bp).optimum
-    got = storm_optimum(text, tmp_path_factory.mktemp("drn"))
+    got = storm(text, tmp_path_factory.mktemp(fmt))
     if math.isinf(truth):
         assert math.isinf(got)
     else:
