@@ -64,3 +64,11 @@ def test_a_bad_file_raises_a_located_input_error(load: str, tmp_path: Path) -> N
         getattr(lesmc, load)(bad)
     assert info.value.location is not None and info.value.location.path == str(bad)
     assert info.value.location.line in (1, 2)
+
+
+def test_the_lazy_names_are_the_apis() -> None:
+    """lesmc/__init__.py lists the API's names without importing it (start-up stays light);
+    the list must be lesmc.api's own."""
+    import lesmc.api
+
+    assert sorted(lesmc._API) == sorted(lesmc.api.__all__)
