@@ -286,6 +286,54 @@ def _match(a: np.ndarray, b: np.ndarray, tol: float) -> np.ndarray:
     return np.where(d[np.arange(len(a)), j] <= tol, j, -1)
 
 
+def _hidden_indices(fd: FrameDetections, hidden: list[Hidden]) -> list[int]:
+    """The detection index of each hidden observation ``t:j``, refused if the frame lacks it."""
+    idx = [int(h.obs.split(":")[1]) for h in hidden]
+    for h, j in zip(hidden, idx, strict=True):
+        if not 0 <= j < len(fd.positions):
+            raise InputError(
+                f"frame {fd.index} has {len(fd.positions)} detections, not {h.obs}: the frames "
+                "are not those the results were made from",
+                Location("--frames"),
+            )
+    return idx
+
+
+def _perturbation(
+    h: Hidden,
+    j: int,
+    fd: FrameDetections,
+    centre: np.ndarray,
+    rec: float,
+    flipped: bool,
+    delta: np.ndarray,
+) -> dict[str, Any]:
+    """One hidden detection's recomputed attack, refused if its payoff differs from the results."""
+    from lesmc.perception.cnn import DR_SIZE
+
+    if math.isfinite(h.payoff) and not (
+        math.isfinite(rec) and abs(rec - h.payoff) <= PAYOFF_RTOL * max(h.payoff, 1e-9)
+    ):
+        raise InputError(
+            f"the attack on detection {h.obs} now costs {rec:g}, the results say "
+            f"{h.payoff:g}: the frames, networks or attack settings differ from the run "
+            "that wrote the results",
+            Location("--frames"),
+        )
+    return {
+        "step": h.step,
+        "frame": fd.index,
+        "obs": h.obs,
+        "x": float(fd.positions[j, 0]),
+        "y": float(fd.positions[j, 1]),
+        "window_origin": [int(v) for v in np.rint(centre).astype(int) - DR_SIZE // 2],
+        "payoff": h.payoff,
+        "payoff_recomputed": rec if math.isfinite(rec) else "inf",
+        "flipped_alone": flipped,
+        "delta": np.round(delta, PERTURBATION_DIGITS).tolist(),
+    }
+
+
 def attack_frame(
     nets: Nets,
     det: Detector,
@@ -300,14 +348,7 @@ def attack_frame(
     from lesmc.perception.cnn import DR_SIZE
 
     m = nets.settings.m
-    idx = [int(h.obs.split(":")[1]) for h in hidden]
-    for h, j in zip(hidden, idx, strict=True):
-        if not 0 <= j < len(fd.positions):
-            raise InputError(
-                f"frame {fd.index} has {len(fd.positions)} detections, not {h.obs}: the frames "
-                "are not those the results were made from",
-                Location("--frames"),
-            )
+    idx = _hidden_indices(fd, hidden)
     blobs_used = sorted({int(fd.source[j]) for j in idx})
     res = payoffs(nets.dr, fd.windows[blobs_used], nets.settings.delta_dr, cfg)
     by_blob = dict(zip(blobs_used, range(len(blobs_used)), strict=True))
@@ -318,30 +359,10 @@ def attack_frame(
     fa = FrameAttack(fd.index, hidden[0].step if hidden else 0, fd)
     for h, j in zip(hidden, idx, strict=True):
         r = by_blob[int(fd.source[j])]
-        rec = float(res.payoff[r])
+        rec, flipped = float(res.payoff[r]), bool(res.flipped[r])
         fa.perturbations.append(
-            {
-                "step": h.step,
-                "frame": fd.index,
-                "obs": h.obs,
-                "x": float(fd.positions[j, 0]),
-                "y": float(fd.positions[j, 1]),
-                "window_origin": [int(v) for v in np.rint(centres[r]).astype(int) - DR_SIZE // 2],
-                "payoff": h.payoff,
-                "payoff_recomputed": rec if math.isfinite(rec) else "inf",
-                "flipped_alone": bool(res.flipped[r]),
-                "delta": np.round(res.perturbation[r], PERTURBATION_DIGITS).tolist(),
-            }
+            _perturbation(h, j, fd, centres[r], rec, flipped, res.perturbation[r])
         )
-        if math.isfinite(h.payoff) and not (
-            math.isfinite(rec) and abs(rec - h.payoff) <= PAYOFF_RTOL * max(h.payoff, 1e-9)
-        ):
-            raise InputError(
-                f"the attack on detection {h.obs} now costs {rec:g}, the results say "
-                f"{h.payoff:g}: the frames, networks or attack settings differ from the run "
-                "that wrote the results",
-                Location("--frames"),
-            )
     base = stack(out.frame, out.aligned.frames, m)
     deltas = res.perturbation.astype(np.float64)
     inputs = _apply(base, centres, deltas, DR_SIZE)

@@ -88,6 +88,30 @@ def _plot(ax: Axes, s: Series, ks: np.ndarray, ys: np.ndarray) -> None:
     )
 
 
+def _square_view(points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """A square view (at least 160 px) around ``points`` with a 40 px margin: (lo, hi) corners."""
+    lo, hi = points.min(axis=0) - 40, points.max(axis=0) + 40
+    size = max(float((hi - lo).max()), 160.0)
+    centre = (lo + hi) / 2
+    return centre - size / 2, centre + size / 2
+
+
+def _image_crop(ax: Axes, image: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> None:
+    """Draw the part of the grey ``image`` inside the view [lo, hi] in pixel coordinates."""
+    h, w = image.shape[:2]
+    x0, y0 = int(max(lo[0], 0)), int(max(lo[1], 0))
+    x1, y1 = int(min(hi[0], w)), int(min(hi[1], h))
+    if x1 > x0 and y1 > y0:
+        ax.imshow(
+            image[y0:y1, x0:x1],
+            cmap="gray",
+            vmin=0,
+            vmax=255,
+            extent=(x0 - 0.5, x1 - 0.5, y1 - 0.5, y0 - 0.5),
+            interpolation="nearest",
+        )
+
+
 def track_crop(
     tracks: Sequence[tuple[Series, np.ndarray]],
     ref_step: int,
@@ -103,24 +127,9 @@ def track_crop(
     """
     fig, ax = plt.subplots(figsize=(6.0, 6.0))
     pts_all = [p for _, p in tracks] + ([truth] if truth is not None else [])
-    allpts = np.concatenate([p[np.isfinite(p).all(axis=1)] for p in pts_all])
-    lo, hi = allpts.min(axis=0) - 40, allpts.max(axis=0) + 40
-    size = max(float((hi - lo).max()), 160.0)
-    centre = (lo + hi) / 2
-    lo, hi = centre - size / 2, centre + size / 2
+    lo, hi = _square_view(np.concatenate([p[np.isfinite(p).all(axis=1)] for p in pts_all]))
     if image is not None:
-        h, w = image.shape[:2]
-        x0, y0 = int(max(lo[0], 0)), int(max(lo[1], 0))
-        x1, y1 = int(min(hi[0], w)), int(min(hi[1], h))
-        if x1 > x0 and y1 > y0:
-            ax.imshow(
-                image[y0:y1, x0:x1],
-                cmap="gray",
-                vmin=0,
-                vmax=255,
-                extent=(x0 - 0.5, x1 - 0.5, y1 - 0.5, y0 - 0.5),
-                interpolation="nearest",
-            )
+        _image_crop(ax, image, lo, hi)
     if detections is not None and len(detections):
         ax.scatter(
             detections[:, 0],
@@ -273,38 +282,50 @@ def tree(
         _draw_track(ax, p, drawn_cols, xcol, y, seen_edges, labelled)
         if p.role != "other":
             legend_roles.setdefault(p.role, p.role)
-        tag = f"#{p.number}" + (f"  {'; '.join(p.tags)}" if p.tags else "")
-        if len(p.states) < longest:
-            tag += "  (halted)"
-        ax.text(
-            xcol[drawn_cols[-1]] + 0.35,
-            y_leaf[p.number],
-            tag,
-            fontsize=8.5,
-            ha="left",
-            va="center",
-            color=COLOURS[p.role] if p.role != "other" else "#333333",
-            fontweight="bold" if p.role != "other" else "normal",
-        )
+        _leaf_tag(ax, p, xcol[drawn_cols[-1]] + 0.35, y_leaf[p.number], len(p.states) < longest)
     for role in ("original", "counterexample", "witness"):
         if role in legend_roles:
             ax.plot([], [], STYLES[role], color=COLOURS[role], lw=2.2, label=role)
     ax.plot([], [], ":", color="#777777", lw=1, label="steps without branching (compressed)")
+    _tree_axes(ax, cols, xcol, window, len(paths))
+    left = total - len(paths)
+    note = f"{len(paths)} of {total} attacked tracks" + (f", {left} not drawn" if left else "")
+    ax.set_title(f"attacked tracks from step {start} ({note}); #n = row n of Table 3", fontsize=10)
+    ax.legend(loc="upper center", bbox_to_anchor=(0.5, -0.14), fontsize=8, ncol=4)
+    return _png(fig)
+
+
+def _leaf_tag(ax: Axes, p: TreePath, x: float, y: float, halted: bool) -> None:
+    """The label at a leaf of the tree: ``#n``, the path's tags, and whether it halted."""
+    tag = f"#{p.number}" + (f"  {'; '.join(p.tags)}" if p.tags else "")
+    if halted:
+        tag += "  (halted)"
+    ax.text(
+        x,
+        y,
+        tag,
+        fontsize=8.5,
+        ha="left",
+        va="center",
+        color=COLOURS[p.role] if p.role != "other" else "#333333",
+        fontweight="bold" if p.role != "other" else "normal",
+    )
+
+
+def _tree_axes(
+    ax: Axes, cols: list[int], xcol: dict[int, int], window: tuple[int, int], n_paths: int
+) -> None:
+    """The tree's axes: shaded attack window, one tick per drawn step, no y axis."""
     lo = [xcol[k] for k in cols if window[0] <= k <= window[1]]
     if lo:
         ax.axvspan(min(lo) - 0.45, max(lo) + 0.45, color=COLOURS["window"], alpha=0.45, zorder=0)
     ax.set_xticks(range(len(cols)), [str(k) for k in cols])
     ax.set_xlim(-0.6, len(cols) - 0.2 + 1.4)
-    ax.set_ylim(len(paths) - 0.5, -0.5)
+    ax.set_ylim(n_paths - 0.5, -0.5)
     ax.set_yticks([])
     ax.set_xlabel("step k (attack window shaded); node: detection taken (none: no observation)")
-    left = total - len(paths)
-    note = f"{len(paths)} of {total} attacked tracks" + (f", {left} not drawn" if left else "")
-    ax.set_title(f"attacked tracks from step {start} ({note}); #n = row n of Table 3", fontsize=10)
-    ax.legend(loc="upper center", bbox_to_anchor=(0.5, -0.14), fontsize=8, ncol=4)
     for side in ("top", "right", "left"):
         ax.spines[side].set_visible(False)
-    return _png(fig)
 
 
 def _draw_track(

@@ -159,18 +159,41 @@ def attack_option_rows(
     rb = np.nonzero(broke)[0]
     own[rb, last[rb]] = 0.0
     if same is not None:
-        dup = np.zeros_like(update)
-        for c in range(1, k):
-            earlier = update[:, :c] & (same[:, :c] == same[:, c : c + 1])
-            dup[:, c] = update[:, c] & earlier.any(axis=1)
-        if dup.any():
-            for j in np.nonzero(dup.any(axis=0))[0]:
-                keep = produce & ~dup
-                keep[:, j:] = False
-                before = np.where(keep, cols, -1).max(axis=1, initial=-1)
-                r = np.nonzero(dup[:, j])[0]
-                own[r, before[r]] += own[r, j]
-            produce &= ~dup
+        produce = _drop_repeats(update, produce, own, same)
+    return _collect(produce, first_ng, broke, own)
+
+
+def _drop_repeats(
+    update: np.ndarray, produce: np.ndarray, own: np.ndarray, same: np.ndarray
+) -> np.ndarray:
+    """``produce`` without the gated candidates that repeat an earlier outcome's detection.
+
+    Each dropped candidate's own payoff is added (in place, to ``own``) to the
+    outcome before it in its row, so later combined payoffs do not change.
+    """
+    k = int(update.shape[1])
+    cols = np.arange(k)
+    dup = np.zeros_like(update)
+    for c in range(1, k):
+        earlier = update[:, :c] & (same[:, :c] == same[:, c : c + 1])
+        dup[:, c] = update[:, c] & earlier.any(axis=1)
+    if not dup.any():
+        return produce
+    for j in np.nonzero(dup.any(axis=0))[0]:
+        keep = produce & ~dup
+        keep[:, j:] = False
+        before = np.where(keep, cols, -1).max(axis=1, initial=-1)
+        r = np.nonzero(dup[:, j])[0]
+        own[r, before[r]] += own[r, j]
+    kept: np.ndarray = produce & ~dup
+    return kept
+
+
+def _collect(
+    produce: np.ndarray, first_ng: np.ndarray, broke: np.ndarray, own: np.ndarray
+) -> OptionRows:
+    """The outcomes as flat rows, in (row, column) order, each row's skip last (column k)."""
+    k = int(produce.shape[1])
     r_idx, c_idx = np.nonzero(produce)
     trailing = np.nonzero(~broke & ~first_ng.any(axis=1))[0]
     row = np.concatenate([r_idx, trailing])

@@ -822,16 +822,7 @@ class JointDesign:
         # the tracks of the next states as rows of one table: the children, a row of
         # zeros (padding), the new tracks
         M = len(p.child_X)
-        new_X = np.zeros((mr.size, self.m.dim))
-        new_X[:, list(self.m.pos)] = mz
-        if self.m.vel is not None:
-            new_X[:, list(self.m.vel)] = v
-        new_cov = np.full(mr.size, self._p0, dtype=np.int64)
-        table_X = np.concatenate([p.child_X, np.zeros((1, self.m.dim)), new_X])
-        table_cov = np.concatenate([p.child_cov, np.zeros(1, dtype=np.int64), new_cov])
-        table_h = np.concatenate(
-            [p.child_h, np.zeros((1, 2), dtype=np.uint64), hash_tracks(new_X, new_cov)]
-        )
+        table_X, table_cov, table_h = self._track_table(p, mz, v)
         at = np.full((R, W), M, dtype=np.int64)
         at[:, :T] = child
         keep = np.zeros((R, W), dtype=bool)
@@ -839,25 +830,9 @@ class JointDesign:
         slot = live.sum(axis=1)[mr] + _within(nnew)
         at[mr, slot] = M + 1 + np.arange(mr.size)
         keep[mr, slot] = self._p0_kept
-        pos = positions(self.m, table_X)[at]
-        dp = np.hypot(pos[..., 0] - prim[:, 0, None], pos[..., 1] - prim[:, 1, None])
-        keep &= dp <= cfg.prune_radius
-        keep[:, 0] = True  # the primary stays (halted or not)
-        nt = keep.sum(axis=1)
-        Tn = int(nt.max(initial=1))
-        at = np.where(keep, at, M)
-        gap = np.flatnonzero((keep[:, 1:] & ~keep[:, :-1]).any(axis=1))  # a kept after a dropped
-        if gap.size:  # the kept tracks of those rows move up, in order
-            order = np.argsort(~keep[gap], axis=1, kind="stable")
-            at[gap] = np.take_along_axis(at[gap], order, axis=1)
-        at = at[:, :Tn]
+        at, nt = self._pruned(at, keep, positions(self.m, table_X)[at], prim, M)
         th = table_h[at]  # the means and covariance indices are read from the table when asked
-        # pending: the candidates that started no track, in order
-        ur, uz = cr[~matched], cz[~matched]
-        npd = np.bincount(ur, minlength=R)
-        pk = _within(npd)
-        pending = np.zeros((R, int(npd.max(initial=0)), 2))
-        pending[ur, pk] = Z[uz]
+        pending, npd = _still_pending(Z, cr[~matched], cz[~matched], R)
         return JointStates(
             None,
             None,
@@ -868,6 +843,45 @@ class JointDesign:
             tid=at,
             table=TrackTable(table_X, table_cov, M),
         )
+
+    def _track_table(
+        self, p: _Prepared, mz: np.ndarray, v: np.ndarray
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Means, covariance indices and hashes of the children, a padding row, then new tracks.
+
+        A new track starts at position ``mz`` with velocity ``v`` and covariance P0.
+        """
+        new_X = np.zeros((mz.shape[0], self.m.dim))
+        new_X[:, list(self.m.pos)] = mz
+        if self.m.vel is not None:
+            new_X[:, list(self.m.vel)] = v
+        new_cov = np.full(mz.shape[0], self._p0, dtype=np.int64)
+        table_X = np.concatenate([p.child_X, np.zeros((1, self.m.dim)), new_X])
+        table_cov = np.concatenate([p.child_cov, np.zeros(1, dtype=np.int64), new_cov])
+        table_h = np.concatenate(
+            [p.child_h, np.zeros((1, 2), dtype=np.uint64), hash_tracks(new_X, new_cov)]
+        )
+        return table_X, table_cov, table_h
+
+    def _pruned(
+        self, at: np.ndarray, keep: np.ndarray, pos: np.ndarray, prim: np.ndarray, M: int
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """Rows' tracks without those farther than ``prune_radius`` from the primary.
+
+        ``at`` (rows, W) are table rows, ``pos`` their positions, ``M`` the table's
+        padding row. The kept tracks move up in order; returns the trimmed ``at``
+        and each row's track count.
+        """
+        dp = np.hypot(pos[..., 0] - prim[:, 0, None], pos[..., 1] - prim[:, 1, None])
+        keep &= dp <= self.cfg.prune_radius
+        keep[:, 0] = True  # the primary stays (halted or not)
+        nt = keep.sum(axis=1)
+        at = np.where(keep, at, M)
+        gap = np.flatnonzero((keep[:, 1:] & ~keep[:, :-1]).any(axis=1))  # a kept after a dropped
+        if gap.size:  # the kept tracks of those rows move up, in order
+            order = np.argsort(~keep[gap], axis=1, kind="stable")
+            at[gap] = np.take_along_axis(at[gap], order, axis=1)
+        return at[:, : int(nt.max(initial=1))], nt
 
     def _merge(self, states: JointStates, s: np.ndarray) -> np.ndarray:
         """Which rows are the first (cheapest) of their state's identical outcomes."""
@@ -920,6 +934,16 @@ def _starts(counts: np.ndarray) -> np.ndarray:
     """Where each group of a flattened grouping begins, for group sizes ``counts``."""
     out: np.ndarray = np.cumsum(counts) - counts
     return out
+
+
+def _still_pending(
+    Z: np.ndarray, ur: np.ndarray, uz: np.ndarray, R: int
+) -> tuple[np.ndarray, np.ndarray]:
+    """Each row's pending detections: the candidates (ur, uz) that started no track, in order."""
+    npd = np.bincount(ur, minlength=R)
+    pending = np.zeros((R, int(npd.max(initial=0)), 2))
+    pending[ur, _within(npd)] = Z[uz]
+    return pending, npd
 
 
 def _within(counts: np.ndarray) -> np.ndarray:

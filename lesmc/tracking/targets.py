@@ -190,38 +190,10 @@ def initiated_targets(
     order: list[tuple[int, int, float, float, tuple[int, int]]] = []
     first = footage.frames[0].step
     for s in range(first + 1, footage.last_step - horizon + 1):
-        specs = []
-        vels = []
-        for x, y in footage.frame(s).positions():
-            spec = rounded(float(x), float(y), s)
-            vel, how = previous_velocity(footage, spec.x, spec.y, s)
-            if how == "previous frame" and np.hypot(*vel) * footage.dt >= min_move_px:
-                specs.append(spec)
-                vels.append(vel)
+        specs, vels = _moving_starts(footage, s, min_move_px)
         if not specs:
             continue
-        scene = footage.with_target(Target(s, (0.0, 0.0)))
-        design = SingleDesign(scene)
-        c0 = design.covariances.add(design.m.P0.copy())
-        X0 = np.array(
-            [initial_mean(design.m, (sp.x, sp.y), v) for sp, v in zip(specs, vels, strict=True)]
-        )
-        b = Batch(X0, np.full(len(specs), c0, dtype=np.int64), np.zeros(len(specs), dtype=bool))
-        traffic = np.zeros(len(specs), dtype=np.int64)
-        last_det = np.full(len(specs), -1, dtype=np.int64)
-        for k in range(1, horizon + 1):
-            frame = footage.frame(s + k)
-            succ = design.successors(b, s + k, False)
-            b = succ.states
-            if window[0] <= k <= window[1]:
-                near = frame.nearest(positions(design.m, b.X), 8, NEAR_PX)
-                traffic += (near >= 0).sum(axis=1) - (succ.det >= 0)
-            keep = np.nonzero((succ.det >= 0) & ~b.halted)[0]
-            b = b.take(keep)
-            specs = [specs[i] for i in keep.tolist()]
-            traffic, last_det = traffic[keep], succ.det[keep]
-            if not specs:
-                break
+        specs, traffic, last_det = _persisting(footage, s, specs, vels, horizon, window)
         for i, sp in enumerate(specs):
             end = (s + horizon, int(last_det[i]))
             if end in found:
@@ -232,6 +204,56 @@ def initiated_targets(
             order.append((-int(traffic[i]), s, sp.x, sp.y, end))
     order.sort()
     return [found[o[-1]] for o in order]
+
+
+def _moving_starts(
+    footage: Footage, s: int, min_move_px: float
+) -> tuple[list[TargetSpec], list[tuple[float, float]]]:
+    """Step ``s``'s detections that moved at least ``min_move_px`` from the previous frame."""
+    specs, vels = [], []
+    for x, y in footage.frame(s).positions():
+        spec = rounded(float(x), float(y), s)
+        vel, how = previous_velocity(footage, spec.x, spec.y, s)
+        if how == "previous frame" and np.hypot(*vel) * footage.dt >= min_move_px:
+            specs.append(spec)
+            vels.append(vel)
+    return specs, vels
+
+
+def _persisting(
+    footage: Footage,
+    s: int,
+    specs: list[TargetSpec],
+    vels: list[tuple[float, float]],
+    horizon: int,
+    window: tuple[int, int],
+) -> tuple[list[TargetSpec], np.ndarray, np.ndarray]:
+    """The tracks started at step ``s`` that take a detection at every step 1..``horizon``.
+
+    Returns them with the traffic around each in ``window`` and the detection each ends on.
+    """
+    design = SingleDesign(footage.with_target(Target(s, (0.0, 0.0))))
+    c0 = design.covariances.add(design.m.P0.copy())
+    X0 = np.array(
+        [initial_mean(design.m, (sp.x, sp.y), v) for sp, v in zip(specs, vels, strict=True)]
+    )
+    b = Batch(X0, np.full(len(specs), c0, dtype=np.int64), np.zeros(len(specs), dtype=bool))
+    traffic = np.zeros(len(specs), dtype=np.int64)
+    last_det = np.full(len(specs), -1, dtype=np.int64)
+    for k in range(1, horizon + 1):
+        frame = footage.frame(s + k)
+        succ = design.successors(b, s + k, False)
+        b = succ.states
+        if window[0] <= k <= window[1]:
+            near = frame.nearest(positions(design.m, b.X), 8, NEAR_PX)
+            traffic += (near >= 0).sum(axis=1) - (succ.det >= 0)
+        keep = np.nonzero((succ.det >= 0) & ~b.halted)[0]
+        b = b.take(keep)
+        specs = [specs[i] for i in keep.tolist()]
+        traffic, last_det = traffic[keep], succ.det[keep]
+        if not specs:
+            break
+    return specs, traffic, last_det
 
 
 def scene_with_target(
