@@ -121,3 +121,33 @@ def test_importing_the_engines_loads_no_higher_layer() -> None:
     allowed = ("lesmc.engines", "lesmc.language", "lesmc.model", "lesmc.common")
     loaded = [m for m in out if m.startswith("lesmc.") and not m.startswith(allowed)]
     assert not loaded, loaded
+
+
+MAX_FUNCTION_LINES = 60
+
+
+def _long_functions(tree: ast.AST) -> list[tuple[int, str, int]]:
+    """(line, name, length) of every function longer than :data:`MAX_FUNCTION_LINES`."""
+    found = []
+    for node in ast.walk(tree):
+        if isinstance(node, (ast.FunctionDef, ast.AsyncFunctionDef)):
+            length = (node.end_lineno or node.lineno) - node.lineno + 1
+            if length > MAX_FUNCTION_LINES:
+                found.append((node.lineno, node.name, length))
+    return found
+
+
+def test_no_function_is_longer_than_60_lines() -> None:
+    """Issue 28's rule: small functions (click verbs are option tables plus a call)."""
+    long = [
+        f"{p.relative_to(ROOT)}:{line}: {name} has {n} lines"
+        for p in MODULES
+        for line, name, n in _long_functions(ast.parse(p.read_text()))
+    ]
+    assert not long, "\n".join(long)
+
+
+def test_a_long_function_is_caught() -> None:
+    body = "\n".join(f"    x{i} = {i}" for i in range(MAX_FUNCTION_LINES))
+    assert _long_functions(ast.parse(f"def f():\n{body}\n")) == [(1, "f", 61)]
+    assert _long_functions(ast.parse("def g():\n    return 1\n")) == []
