@@ -11,8 +11,10 @@ from __future__ import annotations
 
 import json
 import math
+import re
 import shutil
 import subprocess
+from fractions import Fraction
 from pathlib import Path
 
 import jsonschema
@@ -34,33 +36,67 @@ ROOT = Path(__file__).resolve().parents[1]
 TINY = ROOT / "tests" / "golden" / "tiny"
 
 
-def storm_optimum(drn_text: str, tmp: Path) -> float:
+Exact = Fraction | float  # Storm's exact answer: a rational, or +inf (a float)
+
+
+def _exact(value: object) -> Exact:
+    """Storm's exact-mode value as a Fraction (+inf stays a float)."""
+    return value if isinstance(value, float) else Fraction(str(value))
+
+
+def storm_optimum(drn_text: str, tmp: Path) -> Exact:
+    """Storm's Rmin=? [F "violated"] on the DRN text, in exact rational arithmetic."""
     path = tmp / "m.drn"
     path.write_text(drn_text)
-    model = stormpy.build_model_from_drn(str(path))
+    model = stormpy.build_model_from_drn[stormpy.Rational](str(path))
     q0 = model.initial_states[0]
-    if drn_text.count("[0.0]") != drn_text.count("\taction"):
+    if drn_text.count("[0]") != drn_text.count("\taction"):
         prop = stormpy.parse_properties('Rmin=? [F "violated"]')[0]
-        return float(stormpy.model_checking(model, prop).get_value(q0))
+        return _exact(stormpy.model_checking(model, prop).get_value(q0))
     # every reward 0: Storm drops the reward model; the optimum is 0 where "violated"
     # can be reached, +inf where not (docs/export.md)
     prop = stormpy.parse_properties('Pmax=? [F "violated"]')[0]
-    return 0.0 if stormpy.model_checking(model, prop).get_value(q0) > 0 else math.inf
+    reach = _exact(stormpy.model_checking(model, prop).get_value(q0))
+    return Fraction(0) if reach > 0 else math.inf
 
 
-def storm_prism_optimum(program: str, tmp: Path) -> float:
-    """Storm's R{"payoff"}min=? [F "violated"] on a PRISM program (parsed by Storm)."""
+def storm_prism_optimum(program: str, tmp: Path) -> Exact:
+    """Storm's R{"payoff"}min=? [F "violated"] on a PRISM program (parsed by Storm),
+    in exact rational arithmetic."""
     path = tmp / "m.prism"
     path.write_text(program)
     prism = stormpy.parse_prism_program(str(path))
     props = stormpy.parse_properties('R{"payoff"}min=? [F "violated"]', prism)
-    model = stormpy.build_model(prism, props)
-    return float(stormpy.model_checking(model, props[0]).get_value(model.initial_states[0]))
+    model = stormpy.build_model[stormpy.Rational](prism, props)
+    return _exact(stormpy.model_checking(model, props[0]).get_value(model.initial_states[0]))
 
 
 #: Each MDP export and how Storm reads it: the explicit DRN, the PRISM program (parsed by
 #: Storm's PRISM parser).
 EXPORTS = {"drn": (to_drn, storm_optimum), "prism": (to_prism, storm_prism_optimum)}
+
+#: The reward literals of both exports: DRN ``action k [r]``, PRISM ``[ak] s=i : r;``.
+REWARD = re.compile(r"action \d+ \[([^\]]*)\]|\[a\d+\] s=\d+ : ([^;]*);")
+
+
+def assert_equal_exactly(storm: Exact, lesmc: float, text: str, steps: int) -> None:
+    """Storm's exact optimum against lesmc's floating-point one.
+
+    The exports write each reward as its double's exact value, so Storm sums the
+    numbers lesmc sums, without rounding. Where every reward is an integer lesmc's
+    sums are exact too and the two must be equal; otherwise lesmc's path sums carry
+    at most (steps) roundings of its nonnegative terms (|error| <= steps * u * sum,
+    u = 2^-53) and the two may differ by no more than that.
+    """
+    if math.isinf(lesmc) or isinstance(storm, float):
+        assert math.isinf(lesmc) and isinstance(storm, float) and math.isinf(storm)
+        return
+    rewards = [a or b for a, b in REWARD.findall(text)]
+    if all(r.lstrip("-").isdigit() for r in rewards):
+        assert storm == Fraction(lesmc)
+    else:
+        slack = Fraction(steps + 1, 2**53) * max(storm, Fraction(lesmc))
+        assert abs(storm - Fraction(lesmc)) <= slack
 
 
 @pytest.mark.parametrize("fmt", sorted(EXPORTS))
@@ -78,10 +114,20 @@ def test_storm_computes_the_brute_force_optimum(
         return
     truth = brute_force(model, bp).optimum
     got = storm(text, tmp_path_factory.mktemp(fmt))
-    if math.isinf(truth):
-        assert math.isinf(got)
-    else:
-        assert got == pytest.approx(truth, rel=1e-9, abs=1e-9)
+    assert_equal_exactly(got, truth, text, model.end + 1)
+
+
+def test_integer_rewards_are_compared_without_slack() -> None:
+    """The exact comparison can fail: one unit off on integer rewards is caught, and a
+    non-integer difference larger than the rounding bound is too."""
+    text = "\taction 0 [2]\n\taction 1 [3]\n"
+    assert_equal_exactly(Fraction(2), 2.0, text, 3)
+    with pytest.raises(AssertionError):
+        assert_equal_exactly(Fraction(3), 2.0, text, 3)
+    with pytest.raises(AssertionError):
+        assert_equal_exactly(Fraction(1, 10), 0.1000001, "\taction 0 [1/10]\n", 3)
+    with pytest.raises(AssertionError):
+        assert_equal_exactly(math.inf, 2.0, text, 3)
 
 
 def test_the_cli_export_of_the_tiny_model_checks_to_the_hand_derived_optima(
@@ -104,7 +150,7 @@ def test_the_cli_export_of_the_tiny_model_checks_to_the_hand_derived_optima(
         doc = json.loads(r.stdout)
         jsonschema.validate(doc, schema("export"))
         assert doc["property"] == prop and doc["file"]["bytes"] == out.stat().st_size
-        assert storm_optimum(out.read_text(), tmp_path) == want
+        assert storm_optimum(out.read_text(), tmp_path) == want  # Fraction == float exactly
         prism = tmp_path / f"{prop}.prism"
         r = lesmc("export", str(TINY / "model.lts"), "--format", "prism", "--spec",
                   str(TINY / "properties.spec"), "--property", prop, "-o", str(prism),
@@ -138,7 +184,8 @@ def test_a_scene_model_exports_to_the_optimum_lesmc_checks(tmp_path: Path) -> No
     r = lesmc("check", str(built), str(spec), "--json", "--property", "robustness")
     (res,) = json.loads(r.stdout)["results"]
     want = math.inf if res["optimum"] == "inf" else res["optimum"]
-    assert storm_optimum(out.read_text(), tmp_path) == pytest.approx(want, rel=1e-9)
+    text = out.read_text()
+    assert_equal_exactly(storm_optimum(text, tmp_path), want, text, steps=9)
 
 
 def test_graphml_and_json_carry_the_model(tmp_path: Path) -> None:

@@ -8,6 +8,7 @@ the signal always lands in that stage, whatever the machine's speed.
 
 from __future__ import annotations
 
+import json
 import os
 import signal
 import subprocess
@@ -59,6 +60,20 @@ def write_report(doc, out_dir, image_for=None, files=None):
         ready()
     return _write(doc, out_dir, image, files)
 h.write_report = write_report
+""",
+    # while the staged report is moved into --out (signals are held there for a moment)
+    "publishing": """
+import contextlib
+import lesmc.report.staging as s
+_held = s._signals_held
+@contextlib.contextmanager
+def _signals_held():
+    with _held():
+        sys.stderr.write("READY\\n")
+        sys.stderr.flush()
+        time.sleep(1.0)
+        yield
+s._signals_held = _signals_held
 """,
     # while numpy is being imported (before any lesmc work)
     "import": """
@@ -166,6 +181,31 @@ def test_verify_stops_cleanly_and_leaves_the_old_report(
     assert code == STATUS[signum][0], err
     assert err.strip().endswith(STATUS[signum][1]) and "Traceback" not in err
     assert files(out) == old
+
+
+@pytest.mark.parametrize(
+    ("signum", "fresh"), [(signal.SIGINT, True), (signal.SIGTERM, False)], ids=["INT", "TERM"]
+)
+def test_a_signal_while_publishing_leaves_all_new_outputs(
+    tmp_path: Path, signum: int, fresh: bool
+) -> None:
+    """Issue 33: the signal waits for the renames; --out is then all new (results.json
+    naming a scene that exists), the exit code is the signal's, no traceback. Other
+    threads run meanwhile (the progress logger's), so a thread signal mask would not do."""
+    out = tmp_path / "out"
+    if not fresh:
+        (out / "figures").mkdir(parents=True)
+        for name in ("report.html", "results.json", "scene.json", "figures/a.png"):
+            (out / name).write_text("old")
+    args = ["verify", "--scene", str(SCENES / "rq1_platoon.json"), "--out", "out"]
+    code, err = interrupt(start("publishing", [*args, "--design", "single"], tmp_path), signum)
+    assert code == STATUS[signum][0], err
+    assert "Traceback" not in err and "Exception ignored" not in err, err
+    results = json.loads((out / "results.json").read_text())
+    assert results["format"] == "lesmc-results" and Path(results["meta"]["scene"]).is_file()
+    assert (out / "report.html").read_text().startswith("<!DOCTYPE html>")
+    assert sorted(p.name for p in (out / "figures").iterdir() if p.name != "a.png")
+    assert not [p for p in tmp_path.iterdir() if p.name.startswith(".out.")]  # no staging left
 
 
 @pytest.mark.parametrize("signum", [signal.SIGINT, signal.SIGTERM], ids=["INT", "TERM"])

@@ -18,6 +18,7 @@ the path (payoff, payoff.mean) have this form: a dist.max objective is refused.
 from __future__ import annotations
 
 import math
+from fractions import Fraction
 from typing import Any
 
 from lesmc.common.errors import UsageError
@@ -27,6 +28,20 @@ from lesmc.model.arrays import ArrayModel
 
 #: Path prefixes (MDP states) the export may unfold by default.
 DRN_MAX_PREFIXES = 200_000
+
+
+def exact_number(x: float) -> str:
+    """``x`` as a literal Storm and PRISM read as exactly this double's value.
+
+    Its shortest decimal (``repr``) when that decimal is the double's exact value
+    (integers, 0.5, 2.375), else the rational ``p/q`` with q a power of two: Storm's
+    exact mode then computes with the numbers lesmc computed with, not with their
+    nearest decimals (``0.1`` read exactly is 1/10, which no double is).
+    """
+    if x == int(x) and abs(x) < 2.0**53:
+        return str(int(x))
+    q = Fraction(x)
+    return repr(x) if Fraction(repr(x)) == q else f"{q.numerator}/{q.denominator}"
 
 
 def to_drn(
@@ -128,6 +143,6 @@ def _drn(choices: list[list[tuple[float, int]]], labels: list[str], rewards: boo
         tags = " ".join(t for t in (("init" if s == 0 else ""), labels[s]) if t)
         lines.append(f"state {s}" + (f" {tags}" if tags else ""))
         for a, (reward, target) in enumerate(acts):
-            lines.append(f"\taction {a} [{reward!r}]" if rewards else f"\taction {a}")
+            lines.append(f"\taction {a} [{exact_number(reward)}]" if rewards else f"\taction {a}")
             lines.append(f"\t\t{target} : 1")
     return "\n".join(lines) + "\n"

@@ -14,7 +14,7 @@ from __future__ import annotations
 from typing import Any
 
 from lesmc.engines.space import build_space
-from lesmc.export.drn import DRN_MAX_PREFIXES, not_exported_line, prefix_tree
+from lesmc.export.drn import DRN_MAX_PREFIXES, exact_number, not_exported_line, prefix_tree
 from lesmc.language.semantics import BoundProperty
 from lesmc.model.arrays import ArrayModel
 
@@ -57,7 +57,7 @@ def _program(
     if rewards:
         lines.append('rewards "payoff"')
         entries = [
-            f"  [a{a}] s={s} : {reward!r};"
+            f"  [a{a}] s={s} : {exact_number(reward)};"
             for s, acts in enumerate(choices)
             for a, (reward, _) in enumerate(acts)
             if reward != 0.0

@@ -86,17 +86,29 @@ LAST = ("report.html", "results.json")
 @contextlib.contextmanager
 def _signals_held() -> Iterator[None]:
     """SIGINT and SIGTERM wait while the staged files are moved in (a few renames): an
-    interrupt then finds ``out`` all old or all new, never half of each."""
-    held = {signal.SIGINT, signal.SIGTERM}
-    can = (
-        hasattr(signal, "pthread_sigmask") and threading.current_thread() is threading.main_thread()
-    )
-    old = signal.pthread_sigmask(signal.SIG_BLOCK, held) if can else None
+    interrupt then finds ``out`` all old or all new, never half of each.
+
+    The signals are recorded by a Python handler and raised again once the renames are
+    done. Not a thread signal mask: the kernel hands a process's signal to any thread
+    that does not block it (the progress logger's, torch's), and CPython then runs the
+    handler in the main thread at once, mask or not.
+    """
+    if threading.current_thread() is not threading.main_thread():
+        yield  # signal handlers can only be set from the main thread
+        return
+    got: list[int] = []
+
+    def hold(signum: int, _frame: object) -> None:
+        got.append(signum)
+
+    old = {s: signal.signal(s, hold) for s in (signal.SIGINT, signal.SIGTERM)}
     try:
         yield
     finally:
-        if old is not None:
-            signal.pthread_sigmask(signal.SIG_SETMASK, old)
+        for s, handler in old.items():
+            signal.signal(s, handler if handler is not None else signal.SIG_DFL)
+        if got:
+            signal.raise_signal(got[0])  # handled now, by the handler put back
 
 
 def _merge(src: Path, dst: Path) -> None:
