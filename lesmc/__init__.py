@@ -14,6 +14,8 @@ _ERRORS = ("LesmcError", "InputError", "SpecError", "ModelError", "UsageError", 
 _API = (
     "CheckResult",
     "DesignRun",
+    "PerceiveRequest",
+    "Perceived",
     "Results",
     "VerifyOutcome",
     "VerifyRequest",
@@ -27,6 +29,8 @@ _API = (
     "load_scene",
     "load_spec",
     "parse_spec",
+    "perceive",
+    "save_scene",
     "verify",
 )
 

@@ -8,7 +8,7 @@ column of a bad input; none of them exits the interpreter. The command line
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -27,8 +27,15 @@ from lesmc.model.lts_format import load_lts, lts_from_dict
 from lesmc.pipeline.check import run
 from lesmc.pipeline.job import Job, PayoffMode
 from lesmc.results.record import DesignRun, Results
-from lesmc.scene import Scene, TrackerConfig, load_tracker
+from lesmc.scene import Scene, TrackerConfig, load_tracker, save_scene
 from lesmc.tracking.targets import scene_with_target
+from lesmc.verify.perceive import (
+    Perceived,
+    PerceiveRequest,
+    open_inputs,
+    perceive_frames,
+    refuse_mismatched,
+)
 
 if TYPE_CHECKING:
     from lesmc.verify.experiment import Outcome as VerifyOutcome
@@ -37,6 +44,8 @@ if TYPE_CHECKING:
 __all__ = [
     "CheckResult",
     "DesignRun",
+    "PerceiveRequest",
+    "Perceived",
     "Results",
     "VerifyOutcome",
     "VerifyRequest",
@@ -50,6 +59,8 @@ __all__ = [
     "load_scene",
     "load_spec",
     "parse_spec",
+    "perceive",
+    "save_scene",
     "verify",
 ]
 
@@ -216,6 +227,23 @@ def _drn_property(
         names = ", ".join(b.name for b in bound)
         raise UsageError(f"{spec.path} has several properties ({names}): choose with --property")
     return bound[0]
+
+
+def perceive(
+    request: PerceiveRequest | str | Path,
+    on_frame: Callable[[], None] | None = None,
+) -> Perceived:
+    """Frames -> detections, payoffs and a scene (``lesmc perceive``).
+
+    ``request`` is a :class:`PerceiveRequest`, or a frames directory for the
+    defaults (the shipped CNNs, DeepFool payoffs, a scene without a target).
+    Returns the per-frame figures (``run``) and the scene (``scene``: a ``Scene``
+    when ``target`` was given, a ``Footage`` without); write it with
+    :func:`save_scene`. ``on_frame`` is called after each frame (progress).
+    """
+    req = request if isinstance(request, PerceiveRequest) else PerceiveRequest(str(request))
+    refuse_mismatched(req)
+    return perceive_frames(req, open_inputs(req), on_frame)
 
 
 def verify(request: VerifyRequest, reporter: Reporter | None = None) -> VerifyOutcome:

@@ -72,3 +72,25 @@ def test_the_lazy_names_are_the_apis() -> None:
     import lesmc.api
 
     assert sorted(lesmc._API) == sorted(lesmc.api.__all__)
+
+
+def test_perceive_raises_located_errors_for_bad_inputs(tmp_path: Path) -> None:
+    """lesmc.perceive: a missing frames directory and a broken truth file are InputErrors
+    naming the file, never SystemExit; a scene without the CNN is a UsageError."""
+    with pytest.raises(lesmc.InputError) as info:
+        lesmc.perceive(tmp_path / "no-such-frames")
+    assert info.value.location is not None and "no-such-frames" in info.value.location.path
+    frames = tmp_path / "frames"
+    frames.mkdir()
+    import cv2
+    import numpy as np
+
+    for i in range(6):
+        cv2.imwrite(str(frames / f"f{i}.png"), np.full((64, 64), 100 + i, dtype=np.uint8))
+    truth = tmp_path / "truth.json"
+    truth.write_text('{"format": "lesmc-truth",\n "version": }')
+    with pytest.raises(lesmc.InputError) as info:
+        lesmc.perceive(lesmc.PerceiveRequest(str(frames), truth=str(truth)))
+    assert info.value.location is not None and info.value.location.path == str(truth)
+    with pytest.raises(lesmc.UsageError):
+        lesmc.perceive(lesmc.PerceiveRequest(str(frames), cnn=False))

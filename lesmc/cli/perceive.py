@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import time
-from dataclasses import replace
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -11,17 +10,19 @@ import click
 
 from lesmc.cli.documents import emit, file_facts, refuse_given, run_provenance, say
 from lesmc.cli.options import network_options, tracker_option
-from lesmc.common.errors import InputError, Location, UsageError, escape_control
+from lesmc.common.errors import escape_control
+from lesmc.verify.perceive import (
+    Perceived,
+    PerceiveRequest,
+    open_inputs,
+    perceive_frames,
+    refuse_mismatched,
+)
 from lesmc.video import FPS
 
 if TYPE_CHECKING:
-    from lesmc.perception.attacks import AttackConfig, Method, Norm
     from lesmc.perception.cnn import Nets
-    from lesmc.perception.quality import Truth
     from lesmc.perception.run import PerceiveRun
-    from lesmc.scene import Footage, Scene, TrackerConfig
-    from lesmc.tracking.targets import TargetSpec
-    from lesmc.video.reader import FrameSet
 
 
 @click.command("perceive")
@@ -157,83 +158,28 @@ def perceive_cmd(
     Exit status: 0 done, 2 bad input, 4 internal error, 130 interrupted.
     """
     started = time.monotonic()
-    _refuse_mismatched(
-        output, target_text, certify, no_cnn, truth, nets_dir or detector_file or locator_file
-    )
-    # Imported here, not at module level: torch, cv2 and scipy cost seconds to import.
-    from lesmc.common.progress import progress_bar
-    from lesmc.perception.certify import CertifyConfig
-    from lesmc.perception.cnn import load_nets
-    from lesmc.perception.run import PerceiveOptions, perceive
+    req = PerceiveRequest(
+        frames_dir, (nets_dir, detector_file, locator_file), not no_cnn, output is not None,
+        target_text, truth, tracker_file, "pgd" if attack == "pgd" else "deepfool",
+        "per-pixel" if payoff_norm == "per-pixel" else "l2", overshoot, max_iter,
+        certify, history, delta_bc, dt, radius, min_speed,
+    )  # fmt: skip
+    refuse_mismatched(req)
+    _refuse_ignored(output, truth)
+    from lesmc.common.progress import progress_bar  # rich: imported when a verb runs
 
-    spec, frames, truths, tracker = _inputs(frames_dir, history, target_text, truth, tracker_file)
-    nets = None if no_cnn else load_nets(nets_dir, detector_file, locator_file)
-    att = _attack_config(attack, overshoot, max_iter, payoff_norm) if output else None
-    cert = CertifyConfig() if certify else None
-    opts = PerceiveOptions(history, delta_bc, nets, att, cert, radius, min_speed)
-    with progress_bar("perceive", "perceiving", len(frames)) as bar:
-        run = perceive(frames, opts, truths, bar.advance)
-    written: dict[str, Any] | None = None  # the scene written, for --json
-    if output is not None and nets is not None and att is not None:
-        step_dt = dt or (truths.dt if truths else None) or 1 / FPS
-        meta = _scene_meta(frames_dir, nets.settings.trained_on, att, payoff_norm, certify)
-        written = _write_scene(run, step_dt, meta, spec, frames, truths, output, tracker, as_json)
+    inputs = open_inputs(req)
+    with progress_bar("perceive", "perceiving", len(inputs.frames)) as bar:
+        got = perceive_frames(req, inputs, bar.advance)
+    written = None if got.scene is None or output is None else _write(got, output, as_json)
     if as_json:
-        emit(_document(frames_dir, nets, run, written, truths is not None, started))
+        emit(_document(frames_dir, got.nets, got.run, written, truth is not None, started))
         return
-    _print(run, truths is not None, nets is not None)
+    _print(got.run, truth is not None, got.nets is not None)
 
 
-def _attack_config(attack: str, overshoot: float, max_iter: int, payoff_norm: str) -> AttackConfig:
-    """How the scene's payoffs are computed (docs/cnn.md, "Attack settings")."""
-    from lesmc.perception.attacks import AttackConfig
-
-    method: Method = "pgd" if attack == "pgd" else "deepfool"
-    norm: Norm = "per-pixel" if payoff_norm == "per-pixel" else "l2"
-    return AttackConfig(method, overshoot, max_iter, norm)
-
-
-def _inputs(
-    frames_dir: str,
-    history: int,
-    target_text: str | None,
-    truth: str | None,
-    tracker_file: str | None,
-) -> tuple[TargetSpec | None, FrameSet, Truth | None, TrackerConfig | None]:
-    """The target asked for, the frames and their truth, each checked against the others,
-    and the tracker file's configuration: all read before the long work."""
-    from lesmc.perception.quality import load_truth
-    from lesmc.scene import load_tracker
-    from lesmc.tracking.targets import check_target, parse_target
-    from lesmc.video.reader import open_frames
-
-    spec = parse_target(target_text) if target_text else None
-    frames = open_frames(frames_dir, history + 1)
-    if spec is not None:
-        check_target(spec, frames.width, frames.height, len(frames))
-    truths = load_truth(truth) if truth else None
-    if truths is not None:
-        missing = [p.name for p in frames.paths if p.name not in truths.frames]
-        if missing:
-            raise InputError(f"no truth for frame {missing[0]}", Location(truth or ""))
-    return spec, frames, truths, load_tracker(tracker_file) if tracker_file else None
-
-
-def _refuse_mismatched(
-    output: str | None,
-    target_text: str | None,
-    certify: bool,
-    no_cnn: bool,
-    truth: str | None,
-    nets_dir: str | None,
-) -> None:
-    """Options that would be ignored are errors."""
-    if target_text is not None and output is None:
-        raise UsageError("--target needs -o/--output: it is the target of the scene written")
-    if certify and output is None:
-        raise UsageError("--certify needs -o/--output: the bounds go into the scene")
-    if output is not None and no_cnn:
-        raise UsageError("--no-cnn cannot write a scene: payoffs need the CNN")
+def _refuse_ignored(output: str | None, truth: str | None) -> None:
+    """Options that only apply with -o or --truth are errors without them."""
     if output is None:
         refuse_given(
             ("attack", "payoff_norm", "overshoot", "max_iter", "dt"),
@@ -242,80 +188,30 @@ def _refuse_mismatched(
         refuse_given(("tracker_file",), "is the tracker of the scene written: it needs -o/--output")
     if truth is None:
         refuse_given(("radius", "min_speed"), "applies to the comparison with --truth")
-    if no_cnn and nets_dir is not None:
-        raise UsageError(
-            "--nets, --detector and --locator give the CNNs that --no-cnn leaves out: give one "
-            "or the other"
-        )
 
 
-def _scene_meta(
-    frames_dir: str, trained_on: str, att: AttackConfig, payoff_norm: str, certify: bool
-) -> dict[str, Any]:
-    """How the scene's detections and payoffs were made (its ``meta``)."""
-    from lesmc.perception.certify import CertifyConfig
+def _write(got: Perceived, output: str, as_json: bool) -> dict[str, Any]:
+    """The scene of ``got`` written to ``output``; its facts for --json."""
+    from lesmc.scene import Scene, save_scene
 
-    meta: dict[str, Any] = {
-        "source": str(Path(frames_dir)),
-        "detector": trained_on,
-        "attack": {
-            "method": att.method,
-            "overshoot": att.overshoot,
-            "max_iter": att.max_iter,
-            "norm": payoff_norm,
-            "pixel_scale": "[0, 1]",
-            "input": "N_dr window, 21x21 x (m+1) frames",
-        },
-    }
-    if certify:
-        meta["certify"] = {"method": "CROWN, L2 ball", "steps": CertifyConfig().steps}
-    return meta
-
-
-def _write_scene(
-    run: PerceiveRun,
-    dt: float,
-    meta: dict[str, Any],
-    spec: TargetSpec | None,
-    frames: FrameSet,
-    truths: Truth | None,
-    output: str,
-    tracker: TrackerConfig | None,
-    as_json: bool,
-) -> dict[str, Any]:
-    """The footage of ``run`` (with the target of ``spec`` placed, and ``tracker`` as its
-    tracker if given) written to ``output``."""
-    from lesmc.perception.to_scene import footage_from_run
-    from lesmc.scene import save_scene
-    from lesmc.verify.targets import target_scene
-
-    target: dict[str, Any] | None = None
-    footage = footage_from_run(run, dt, meta)
-    if tracker is not None:
-        footage = replace(footage, tracker=tracker)
-    if spec is None:
-        scene: Scene | Footage = footage
-        where = "no target (give --target to check, build or verify)"
-    else:
-        placed = target_scene(footage, spec, frames, truths)
-        where = (
-            f"target at step {placed.target.step}, velocity {placed.meta['target_velocity_from']}"
-        )
-        scene = placed
-        start = placed.target.start
-        target = {"step": placed.target.step, "x": float(start[0]), "y": float(start[1])}
+    scene = got.scene
+    assert scene is not None
     save_scene(scene, output)
     n = sum(len(f.detections) for f in scene.frames)
     say(
         f"wrote {escape_control(output)}: {len(scene.frames)} frames (steps "
         f"{scene.frames[0].step}..{scene.last_step}), {n} detections, "
-        f"{run.unattackable} unattackable; {where}",
+        f"{got.run.unattackable} unattackable; {got.target_note}",
         as_json,
     )
+    target = None
+    if isinstance(scene, Scene):
+        start = scene.target.start
+        target = {"step": scene.target.step, "x": float(start[0]), "y": float(start[1])}
     return file_facts(output) | {
         "steps": [scene.frames[0].step, scene.last_step],
         "detections": n,
-        "unattackable": run.unattackable,
+        "unattackable": got.run.unattackable,
         "target": target,
     }
 

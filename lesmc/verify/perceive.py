@@ -1,0 +1,174 @@
+"""The perceive stage as a whole: a directory of frames -> detections, payoffs -> a scene.
+
+``lesmc perceive`` and :func:`lesmc.api.perceive` both run it: the inputs are read
+and checked against each other first (:func:`open_inputs`), then the detector runs
+frame by frame (lesmc/perception/run.py) and the footage gets its target
+(:func:`perceive_frames`). Writing the scene is the caller's.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, replace
+from pathlib import Path
+from typing import TYPE_CHECKING, Any, Literal
+
+from lesmc.common.errors import InputError, Location, UsageError
+from lesmc.perception import NetFiles
+from lesmc.video import FPS
+
+if TYPE_CHECKING:
+    from collections.abc import Callable
+
+    from lesmc.perception.attacks import AttackConfig
+    from lesmc.perception.cnn import Nets
+    from lesmc.perception.quality import Truth
+    from lesmc.perception.run import PerceiveRun
+    from lesmc.scene import Footage, Scene, TrackerConfig
+    from lesmc.tracking.targets import TargetSpec
+    from lesmc.video.reader import FrameSet
+
+
+@dataclass(frozen=True)
+class PerceiveRequest:
+    """What to perceive and how (the options of ``lesmc perceive``, docs/cli.md)."""
+
+    frames_dir: str
+    nets: NetFiles = (None, None, None)  #: (--nets, --detector, --locator); None: shipped
+    cnn: bool = True  #: False: the front end only (candidates Q_bc), no scene
+    scene: bool = True  #: compute payoffs and make the scene (needs the CNN)
+    target: str | None = None  #: X,Y[@STEP]: the scene's target (none: a scene without)
+    truth: str | None = None  #: truth.json: precision, recall, F1, and target velocities
+    tracker: str | None = None  #: a tracker file (JSON/TOML) for the scene
+    attack: Literal["deepfool", "pgd"] = "deepfool"
+    payoff_norm: Literal["l2", "per-pixel"] = "l2"
+    overshoot: float = 0.02
+    max_iter: int = 50
+    certify: bool = False  #: also certified lower bounds on the payoffs (slow)
+    history: int = 4  #: L, previous frames in the background median
+    delta_bc: int = 12  #: background subtraction threshold (grey levels)
+    dt: float | None = None  #: seconds between frames [from the truth, else 1/FPS]
+    radius: float = 4.0  #: match distance to the truth (pixels)
+    min_speed: float = 1.5  #: slower true vehicles (m/s) are don't care
+
+
+@dataclass(frozen=True)
+class Inputs:
+    """The request's files, read and checked before the long work."""
+
+    frames: FrameSet
+    spec: TargetSpec | None
+    truth: Truth | None
+    tracker: TrackerConfig | None
+
+
+@dataclass
+class Perceived:
+    """A perceive run: its per-frame figures and, when asked, the scene it made."""
+
+    run: PerceiveRun
+    nets: Nets | None
+    scene: Scene | Footage | None  #: a Scene with the target, a Footage without one
+    target_note: str  #: where the target was placed, in words
+
+
+def refuse_mismatched(req: PerceiveRequest) -> None:
+    """Settings that would be ignored are errors (the CLI says which option)."""
+    if req.scene and not req.cnn:
+        raise UsageError("--no-cnn cannot write a scene: payoffs need the CNN")
+    if req.target is not None and not req.scene:
+        raise UsageError("--target needs -o/--output: it is the target of the scene written")
+    if req.certify and not req.scene:
+        raise UsageError("--certify needs -o/--output: the bounds go into the scene")
+    if not req.cnn and any(req.nets):
+        raise UsageError(
+            "--nets, --detector and --locator give the CNNs that --no-cnn leaves out: give one "
+            "or the other"
+        )
+
+
+def open_inputs(req: PerceiveRequest) -> Inputs:
+    """The frames, the target asked for and the truth, each checked against the others,
+    and the tracker file's configuration."""
+    from lesmc.perception.quality import load_truth
+    from lesmc.scene import load_tracker
+    from lesmc.tracking.targets import check_target, parse_target
+    from lesmc.video.reader import open_frames
+
+    spec = parse_target(req.target) if req.target else None
+    frames = open_frames(req.frames_dir, req.history + 1)
+    if spec is not None:
+        check_target(spec, frames.width, frames.height, len(frames))
+    truths = load_truth(req.truth) if req.truth else None
+    if truths is not None:
+        missing = [p.name for p in frames.paths if p.name not in truths.frames]
+        if missing:
+            raise InputError(f"no truth for frame {missing[0]}", Location(req.truth or ""))
+    tracker = load_tracker(req.tracker) if req.tracker else None
+    return Inputs(frames, spec, truths, tracker)
+
+
+def attack_config(req: PerceiveRequest) -> AttackConfig:
+    """How the scene's payoffs are computed (docs/cnn.md, "Attack settings")."""
+    from lesmc.perception.attacks import AttackConfig
+
+    norm: Literal["l2", "per-pixel"] = req.payoff_norm
+    return AttackConfig(req.attack, req.overshoot, req.max_iter, norm)
+
+
+def perceive_frames(
+    req: PerceiveRequest, inputs: Inputs, on_frame: Callable[[], None] | None = None
+) -> Perceived:
+    """Run the detector over the frames; with ``req.scene``, the payoffs and the scene."""
+    from lesmc.perception.certify import CertifyConfig
+    from lesmc.perception.cnn import load_nets
+    from lesmc.perception.run import PerceiveOptions, perceive
+
+    nets = load_nets(*req.nets) if req.cnn else None
+    att = attack_config(req) if req.scene else None
+    cert = CertifyConfig() if req.certify else None
+    opts = PerceiveOptions(req.history, req.delta_bc, nets, att, cert, req.radius, req.min_speed)
+    run = perceive(inputs.frames, opts, inputs.truth, on_frame)
+    if nets is None or att is None:
+        return Perceived(run, nets, None, "")
+    dt = req.dt or (inputs.truth.dt if inputs.truth else None) or 1 / FPS
+    scene, note = _scene(run, dt, scene_meta(req, nets.settings.trained_on), inputs)
+    return Perceived(run, nets, scene, note)
+
+
+def scene_meta(req: PerceiveRequest, trained_on: str) -> dict[str, Any]:
+    """How the scene's detections and payoffs were made (its ``meta``)."""
+    from lesmc.perception.certify import CertifyConfig
+
+    meta: dict[str, Any] = {
+        "source": str(Path(req.frames_dir)),
+        "detector": trained_on,
+        "attack": {
+            "method": req.attack,
+            "overshoot": req.overshoot,
+            "max_iter": req.max_iter,
+            "norm": req.payoff_norm,
+            "pixel_scale": "[0, 1]",
+            "input": "N_dr window, 21x21 x (m+1) frames",
+        },
+    }
+    if req.certify:
+        meta["certify"] = {"method": "CROWN, L2 ball", "steps": CertifyConfig().steps}
+    return meta
+
+
+def _scene(
+    run: PerceiveRun, dt: float, meta: dict[str, Any], inputs: Inputs
+) -> tuple[Scene | Footage, str]:
+    """The footage of ``run``, its tracker replaced by the tracker file's, with the
+    target placed when one was asked for; and where the target is, in words."""
+    from lesmc.perception.to_scene import footage_from_run
+    from lesmc.verify.targets import target_scene
+
+    footage = footage_from_run(run, dt, meta)
+    if inputs.tracker is not None:
+        footage = replace(footage, tracker=inputs.tracker)
+    if inputs.spec is None:
+        return footage, "no target (give --target to check, build or verify)"
+    placed = target_scene(footage, inputs.spec, inputs.frames, inputs.truth)
+    note = f"target at step {placed.target.step}, velocity {placed.meta['target_velocity_from']}"
+    return placed, note
