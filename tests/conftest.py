@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import subprocess
 import sys
 from pathlib import Path
 
@@ -25,3 +26,17 @@ def search_small_trees(monkeypatch: pytest.MonkeyPatch) -> None:
     from lesmc.engines import enumerate as enumerate_engine
 
     monkeypatch.setattr(enumerate_engine, "SMALL_TREE", 0)
+
+
+@pytest.fixture(scope="session")
+def default_verify(
+    tmp_path_factory: pytest.TempPathFactory,
+) -> tuple[Path, subprocess.CompletedProcess[str], list[float]]:
+    """The main job, run once for the session: ``lesmc verify --payoffs interval --json``
+    on the embedded default video. Its output directory (with the perceived scene.json),
+    the finished process and the seconds at which each stderr line came."""
+    from cli_run import lesmc_logged
+
+    out = tmp_path_factory.mktemp("default-video") / "v"
+    r, times = lesmc_logged("verify", "--out", str(out), "--payoffs", "interval", "--json")
+    return out, r, times

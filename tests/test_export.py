@@ -212,6 +212,28 @@ def test_graphml_and_json_carry_the_model(tmp_path: Path) -> None:
     assert [x["optimum"] for x in json.loads(r.stdout)["results"]] == [2.0, 3.5, 1.0, 5.0, "inf"]
 
 
+def test_the_graphml_of_a_large_default_video_model_reads_back(
+    default_verify: tuple[Path, subprocess.CompletedProcess[str], list[float]], tmp_path: Path
+) -> None:
+    """Issue 27: a model of over 300,000 states built from the default video (the scene
+    `lesmc verify` perceived), exported as GraphML through the CLI and read by
+    networkx.read_graphml, has the node and edge counts of the model lesmc builds."""
+    from lesmc import api
+
+    out, verified, _ = default_verify
+    scene = out / "scene.json"
+    assert scene.is_file(), verified.stderr
+    path = tmp_path / "m.graphml"
+    r = lesmc("export", str(scene), "--window", "4..16", "--format", "graphml", "-o", str(path))
+    assert r.returncode == 0 and "Traceback" not in r.stderr, r.stderr
+    model = api.build(api.load_scene(scene), (4, 16))
+    assert model.n_states >= 300_000
+    g = nx.read_graphml(path)
+    assert (g.number_of_nodes(), g.number_of_edges()) == (model.n_states, model.n_transitions)
+    first = g.nodes[model.state_id(int(model.original[0]))]
+    assert first["role"] == "original" and first["step"] == int(model.step[model.original[0]])
+
+
 def test_dot_marks_the_counterexample_and_refuses_large_models(tmp_path: Path) -> None:
     res = tmp_path / "r.json"
     r = lesmc("check", str(TINY / "model.lts"), str(TINY / "properties.spec"), "--json")

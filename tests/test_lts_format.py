@@ -431,3 +431,43 @@ def test_mutations_raise_only_model_errors(data: hs.DataObject) -> None:
         return
     again = lts_to_dict(m)
     assert lts_to_dict(lts_from_dict(json.loads(json.dumps(again)))) == again
+
+
+@settings(max_examples=60, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(
+    seed=hs.integers(0, 2**31),
+    covariance=hs.booleans(),
+    halt=hs.sampled_from([0.0, 0.3]),
+    odd_ids=hs.booleans(),
+)
+def test_the_column_writer_writes_what_json_reads_as_the_document(
+    tmp_path_factory: pytest.TempPathFactory,
+    seed: int,
+    covariance: bool,
+    halt: float,
+    odd_ids: bool,
+) -> None:
+    """save_lts formats rows column by column; json's own parser must read the file as
+    lts_to_dict's document, and the generic writer must lay that document out in the
+    same bytes (ids needing escapes, labels, halting, no covariance, observations)."""
+    from dataclasses import replace
+
+    cfg = RandomModelConfig(steps=4, width=3, covariance=covariance, halt_prob=halt)
+    m = to_arrays(random_lts(cfg, seed=seed))
+    if odd_ids:
+        ids = m.ids or [m.state_id(i) for i in range(m.n_states)]
+        m = replace(m, ids=[f'{s}"\\é\t{i}' for i, s in enumerate(ids)], labels={0: ("x<y",)})
+    path = tmp_path_factory.mktemp("lts") / "m.lts"
+    save_lts(m, path)
+    text = path.read_text()
+    assert json.loads(text) == lts_to_dict(m)
+    assert text == fileio.json_text(lts_to_dict(m))
+    assert lts_to_dict(load_lts(path)) == lts_to_dict(m)
+
+
+def test_a_model_with_a_non_finite_number_is_refused_by_the_writer(tmp_path: Path) -> None:
+    m = to_arrays(random_lts(RandomModelConfig(steps=3, covariance=True), seed=2))
+    m.S[1, 0] = np.inf
+    with pytest.raises(ValueError):
+        save_lts(m, tmp_path / "m.lts")
+    assert not list(tmp_path.iterdir())  # nothing half-written

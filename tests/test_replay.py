@@ -10,11 +10,12 @@ from __future__ import annotations
 import copy
 import json
 import math
+import subprocess
 from pathlib import Path
 
 import numpy as np
 import pytest
-from cli_run import lesmc, lesmc_logged
+from cli_run import lesmc
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -238,12 +239,13 @@ def test_verify_in_interval_mode_certifies_what_its_models_can_hide(
         )
 
 
-def test_default_video_violations_are_replayed_in_interval_mode(tmp_path: Path) -> None:
+def test_default_video_violations_are_replayed_in_interval_mode(
+    default_verify: tuple[Path, subprocess.CompletedProcess[str], list[float]],
+) -> None:
     """The main job (`lesmc verify` on the embedded default video), in interval mode:
     every violated verdict is a replay-confirmed attack, every diverged counterexample an
     unknown with its note, and only the detections the models can hide are certified."""
-    out = tmp_path / "v"
-    r, times = lesmc_logged("verify", "--out", str(out), "--payoffs", "interval", "--json")
+    out, r, times = default_verify
     assert "Traceback" not in r.stderr and r.returncode in (0, 1, 3), r.stderr
     # stderr is no terminal: a log line at least every 10 s (the heartbeat; 5 s of slack)
     gaps = [b - a for a, b in zip([0.0, *times], times, strict=False)]

@@ -406,6 +406,15 @@ _DUMPS = json.JSONEncoder(allow_nan=False).encode
 _CHUNK_ITEMS = 4096
 
 
+class EncodedItems(list[str]):
+    """A JSON array whose items are already JSON texts (objects, one a line).
+
+    :func:`write_json` lays it out as it would the list of those objects: a writer
+    that formats many rows column by column (a model's states) passes the texts
+    instead of building a dict per row for the encoder to walk.
+    """
+
+
 def _spread(value: Any) -> bool:
     """Whether ``value`` is written over several lines: a list holding objects, or an
     object holding such a list or another object."""
@@ -415,6 +424,8 @@ def _spread(value: Any) -> bool:
 
 
 def _has_objects(value: Any) -> bool:
+    if isinstance(value, EncodedItems):
+        return bool(value)
     return isinstance(value, list) and any(isinstance(x, dict) for x in value)
 
 
@@ -435,6 +446,11 @@ def _json_chunks(value: Any, depth: int) -> Iterator[str]:
         return
     yield "["
     sep = "," + pad
+    if isinstance(value, EncodedItems):
+        for i in range(0, len(value), _CHUNK_ITEMS):
+            yield ("," if i else "") + pad + sep.join(value[i : i + _CHUNK_ITEMS])
+        yield "\n" + " " * depth + "]"
+        return
     simple: list[str] = []
     first = True
     for item in value:

@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import itertools
 import math
+import re
 from collections.abc import Iterable, Iterator, Mapping, Sequence
 from typing import IO, Any
 from xml.sax.saxutils import escape, quoteattr
@@ -55,12 +56,6 @@ def _state_roles(roles: Roles) -> dict[int, str]:
         for q in roles.get(role, ()):
             out[int(q)] = role
     return out
-
-
-def _trace(cm: ArrayModel, q: int) -> float | None:
-    if not cm.has_covariance:
-        return None
-    return float(np.trace(cm.P(q)))
 
 
 def to_dot(cm: ArrayModel, roles: Roles | None = None, max_nodes: int = DOT_MAX_NODES) -> str:
@@ -123,54 +118,114 @@ _EDGE_KEYS = (
 )
 
 
+#: Lines per chunk of the GraphML stream.
+CHUNK_LINES = 65536
+
+#: Characters an XML attribute or text must not hold as they are.
+_XML_SPECIAL = re.compile(r"[<>&\"'\n\r\t]")
+
+
 def graphml_lines(cm: ArrayModel, roles: Roles | None = None) -> Iterator[str]:
-    """The model as GraphML, one line at a time (write them as they come)."""
+    """The model as GraphML, in chunks of whole lines (write them as they come).
+
+    Column by column: each attribute is formatted for all states (transitions) at
+    once and the lines are assembled from the columns, CHUNK_LINES at a time.
+    Numbers are ``repr`` of the double (the shortest text that reads back to it;
+    ``inf`` for infinity).
+    """
     roles = roles or {"original": cm.original.tolist()}
-    edge_role, state_role = _edge_roles(cm, roles), _state_roles(roles)
-    yield '<?xml version="1.0" encoding="UTF-8"?>'
-    yield '<graphml xmlns="http://graphml.graphdrawing.org/xmlns">'
+    head = ['<?xml version="1.0" encoding="UTF-8"?>']
+    head.append('<graphml xmlns="http://graphml.graphdrawing.org/xmlns">')
     for name, kind in _NODE_KEYS:
-        yield f'  <key id="n_{name}" for="node" attr.name="{name}" attr.type="{kind}"/>'
+        head.append(f'  <key id="n_{name}" for="node" attr.name="{name}" attr.type="{kind}"/>')
     for name, kind in _EDGE_KEYS:
-        yield f'  <key id="e_{name}" for="edge" attr.name="{name}" attr.type="{kind}"/>'
-    yield '  <graph id="lesmc" edgedefault="directed">'
-    combined = cm.combined
-    two = cm.S.shape[1] >= 2
-    for q in range(cm.n_states):
-        data = {
-            "step": str(int(cm.step[q])),
-            "x": _fmt(float(cm.S[q, 0])),
-            "y": _fmt(float(cm.S[q, 1])) if two else "0.0",
-            "halted": "true" if cm.halted[q] else "false",
-            "role": state_role.get(q, "other"),
-        }
-        trace = _trace(cm, q)
-        if trace is not None:
-            data["trace_P"] = _fmt(trace)
-        yield f"    <node id={quoteattr(cm.state_id(q))}>" + _data("n", data) + "</node>"
-    for t in range(cm.n_transitions):
-        data = {
-            "rank": str(int(cm.rank[t])),
-            "payoff": _fmt(float(cm.payoff[t])),
-            "combined_payoff": _fmt(float(combined[t])),
-            "obs": cm.obs_of(t) or "",
-            "role": edge_role.get(t, "other"),
-        }
-        src, dst = cm.state_id(int(cm.src[t])), cm.state_id(int(cm.dst[t]))
+        head.append(f'  <key id="e_{name}" for="edge" attr.name="{name}" attr.type="{kind}"/>')
+    head.append('  <graph id="lesmc" edgedefault="directed">')
+    yield "\n".join(head) + "\n"
+    ids = _quoted_ids(cm)
+    yield from _chunks(_node_lines(cm, ids, _state_roles(roles)))
+    yield from _chunks(_edge_lines(cm, ids, _edge_roles(cm, roles)))
+    yield "  </graph>\n</graphml>\n"
+
+
+def _quoted_ids(cm: ArrayModel) -> list[str]:
+    """Every state's id as a quoted XML attribute value."""
+    if cm.ids is None:
+        return [f'"k{k}.{i}"' for i, k in enumerate(cm.step.tolist())]
+    if _XML_SPECIAL.search("".join(cm.ids)) is None:
+        return [f'"{i}"' for i in cm.ids]
+    return [quoteattr(i) for i in cm.ids]
+
+
+def _column(n: int, marks: Mapping[int, str], default: str) -> list[str]:
+    """``default`` for each of ``n`` rows, ``marks[row]`` where given."""
+    out = [default] * n
+    for i, v in marks.items():
+        out[i] = v
+    return out
+
+
+def _node_lines(cm: ArrayModel, ids: list[str], state_role: Mapping[int, str]) -> Iterator[str]:
+    n = cm.n_states
+    xs = cm.S[:, 0].tolist()
+    ys = cm.S[:, 1].tolist() if cm.S.shape[1] >= 2 else [0.0] * n
+    halted = np.where(cm.halted, "true", "false").tolist()
+    role = _column(n, state_role, "other")
+    rows = zip(ids, cm.step.tolist(), xs, ys, halted, role, strict=True)
+    if not cm.has_covariance:
+        for i, k, x, y, h, r in rows:
+            yield (
+                f'    <node id={i}><data key="n_step">{k}</data><data key="n_x">{x!r}</data>'
+                f'<data key="n_y">{y!r}</data><data key="n_halted">{h}</data>'
+                f'<data key="n_role">{r}</data></node>'
+            )
+        return
+    assert cm.P_table is not None and cm.cov is not None
+    traces = np.trace(cm.P_table, axis1=1, axis2=2)[cm.cov].tolist()
+    for (i, k, x, y, h, r), tr in zip(rows, traces, strict=True):
         yield (
-            f'    <edge id="t{t}" source={quoteattr(src)} target={quoteattr(dst)}>'
-            + _data("e", data)
-            + "</edge>"
+            f'    <node id={i}><data key="n_step">{k}</data><data key="n_x">{x!r}</data>'
+            f'<data key="n_y">{y!r}</data><data key="n_halted">{h}</data>'
+            f'<data key="n_role">{r}</data><data key="n_trace_P">{tr!r}</data></node>'
         )
-    yield "  </graph>"
-    yield "</graphml>"
 
 
-def _data(prefix: str, values: Mapping[str, str]) -> str:
-    return "".join(f'<data key="{prefix}_{k}">{escape(v)}</data>' for k, v in values.items())
+def _edge_lines(cm: ArrayModel, ids: list[str], edge_role: Mapping[int, str]) -> Iterator[str]:
+    m = cm.n_transitions
+    if cm.obs is None:
+        obs = [""] * m
+    else:
+        names = np.array([escape(o) for o in cm.obs_names] + [""], dtype=object)
+        obs = names[np.where(cm.obs >= 0, cm.obs, len(names) - 1)].tolist()
+    role = _column(m, edge_role, "other")
+    rows = zip(
+        cm.src.tolist(),
+        cm.dst.tolist(),
+        cm.rank.tolist(),
+        cm.payoff.tolist(),
+        cm.combined.tolist(),
+        obs,
+        role,
+        strict=True,
+    )
+    for t, (a, b, k, p, c, o, r) in enumerate(rows):
+        yield (
+            f'    <edge id="t{t}" source={ids[a]} target={ids[b]}><data key="e_rank">{k}</data>'
+            f'<data key="e_payoff">{p!r}</data><data key="e_combined_payoff">{c!r}</data>'
+            f'<data key="e_obs">{o}</data><data key="e_role">{r}</data></edge>'
+        )
 
 
-def write_lines(lines: Iterable[str], fh: IO[Any]) -> None:
-    """Each line and a newline to ``fh`` (GraphML as a stream)."""
-    for line in lines:
-        fh.write(line + "\n")
+def _chunks(lines: Iterator[str]) -> Iterator[str]:
+    """The lines, CHUNK_LINES at a time, each chunk ending with a newline."""
+    while True:
+        chunk = list(itertools.islice(lines, CHUNK_LINES))
+        if not chunk:
+            return
+        yield "\n".join(chunk) + "\n"
+
+
+def write_lines(chunks: Iterable[str], fh: IO[Any]) -> None:
+    """Each chunk of whole lines to ``fh`` (GraphML as a stream)."""
+    for chunk in chunks:
+        fh.write(chunk)

@@ -13,7 +13,9 @@ it walked item by item, to name the offending ids.
 
 from __future__ import annotations
 
+import json
 import math
+import re
 import reprlib
 from collections.abc import Callable, Iterable, Sequence
 from itertools import chain
@@ -24,7 +26,7 @@ from typing import TYPE_CHECKING, Any, TypeGuard
 import numpy as np
 
 from lesmc.common.errors import ModelError, Problems
-from lesmc.common.files import read_json, write_json
+from lesmc.common.files import EncodedItems, read_json, write_json
 from lesmc.model.arrays import ArrayModel
 from lesmc.model.validate import HALTED, Parts, build, state_order
 
@@ -281,26 +283,40 @@ def lts_to_dict(model: ArrayModel | LTS) -> dict[str, Any]:
     States with the same covariance share one list for ``P`` (copy it before
     mutating one). An :class:`~lesmc.model.lts.LTS` is converted first.
     """
+    model, ids, order, pos = _rows(model)
+    return _document(
+        model, ids, _states_json(model, ids, order, pos), _transitions_json(model, ids, pos)
+    )
+
+
+def _rows(model: ArrayModel | LTS) -> tuple[ArrayModel, list[str], np.ndarray, np.ndarray]:
+    """The model as arrays, its ids, its rows in file order and each row's place in it."""
     if not isinstance(model, ArrayModel):
         from lesmc.model.lts import to_arrays
 
         model = to_arrays(model)
     n = model.n_states
-    ids = model.ids if model.ids is not None else [model.state_id(i) for i in range(n)]
+    ids = model.ids
+    if ids is None:  # model.state_id's names, made at once
+        ids = [f"k{k}.{i}" for i, k in enumerate(model.step.tolist())]
     perm = state_order(model.step, ids)
     order = np.arange(n, dtype=np.int64) if perm is None else perm
     pos = np.empty(n, dtype=np.int64)
     pos[order] = np.arange(n, dtype=np.int64)
-    doc_states = _states_json(model, ids, order, pos)
-    doc_trans = _transitions_json(model, ids, pos)
+    return model, ids, order, pos
+
+
+def _document(
+    model: ArrayModel, ids: list[str], states: list[Any], trans: list[Any]
+) -> dict[str, Any]:
     return {
         "format": FORMAT,
         "version": VERSION,
         "components": list(model.components),
         "initial": ids[model.initial],
         "original": [ids[q] for q in model.original.tolist()],
-        "states": doc_states,
-        "transitions": doc_trans,
+        "states": states,
+        "transitions": trans,
         **({"meta": model.meta} if model.meta else {}),
     }
 
@@ -354,7 +370,80 @@ def _transitions_json(model: ArrayModel, ids: list[str], pos: np.ndarray) -> lis
 
 def save_lts(model: ArrayModel | LTS, path: str | Path) -> None:
     """Write a model atomically."""
-    write_json(path, lts_to_dict(model))
+    write_json(path, lts_document(model))
+
+
+def lts_document(model: ArrayModel | LTS) -> dict[str, Any]:
+    """:func:`lts_to_dict`'s document for :func:`~lesmc.common.files.write_json`, its
+    states and transitions formatted column by column as JSON texts (the same file,
+    about four times sooner: no dict per row for the encoder to walk).
+
+    A model with a non-finite number gets the plain document, which ``write_json``
+    refuses as it always has.
+    """
+    model, ids, order, pos = _rows(model)
+    finite = np.isfinite(model.S).all() and np.isfinite(model.payoff).all()
+    if not finite or (model.P_table is not None and not np.isfinite(model.P_table).all()):
+        return _document(
+            model, ids, _states_json(model, ids, order, pos), _transitions_json(model, ids, pos)
+        )
+    quoted = _quoted(ids)
+    states = _state_texts(model, quoted, order, pos)
+    return _document(model, ids, states, _transition_texts(model, quoted, pos))
+
+
+#: Ids that are JSON strings as they are: printable ASCII without '"' and '\'.
+_PLAIN = re.compile(r"[ !#-\[\]-~]*")
+
+
+def _quoted(ids: list[str]) -> list[str]:
+    """Every id as a JSON string."""
+    if _PLAIN.fullmatch("".join(ids)):
+        return [f'"{i}"' for i in ids]
+    return [json.dumps(i) for i in ids]
+
+
+def _state_texts(
+    model: ArrayModel, quoted: list[str], order: np.ndarray, pos: np.ndarray
+) -> EncodedItems:
+    """The states' JSON objects in file order, as :func:`_states_json` has them."""
+    n = model.n_states
+    tables = [""]  # "" for -1: no covariance
+    cov = [-1] * n
+    if model.cov is not None and model.P_table is not None:
+        # a list's str is its JSON when it holds finite floats only (repr, ", ")
+        tables = [f', "P": {p}' for p in map(str, model.P_table.tolist())] + [""]
+        cov = model.cov[order].tolist()
+    labels = [""] * n
+    for i in set(model.labels) | set(np.flatnonzero(model.halted).tolist()):
+        labs = set(model.labels.get(i, ())) | ({HALTED} if model.halted[i] else set())
+        if labs:
+            labels[int(pos[i])] = f', "labels": {json.dumps(sorted(labs))}'
+    steps, S = model.step[order].tolist(), model.S[order].tolist()
+    rows = zip(order.tolist(), steps, S, cov, labels, strict=True)
+    return EncodedItems(
+        f'{{"id": {quoted[i]}, "step": {k}, "s": {s}{tables[c]}{lab}}}' for i, k, s, c, lab in rows
+    )
+
+
+def _transition_texts(model: ArrayModel, quoted: list[str], pos: np.ndarray) -> EncodedItems:
+    """The transitions' JSON objects in file order, as :func:`_transitions_json` has them."""
+    src, dst = model.src, model.dst
+    torder = np.lexsort((pos[dst], model.rank, pos[src]))
+    obs = [-1] * len(torder) if model.obs is None else model.obs[torder].tolist()
+    names = [f', "obs": {json.dumps(o)}' for o in model.obs_names] + [""]
+    rows = zip(
+        src[torder].tolist(),
+        dst[torder].tolist(),
+        model.payoff[torder].tolist(),
+        model.rank[torder].tolist(),
+        obs,
+        strict=True,
+    )
+    return EncodedItems(
+        f'{{"src": {quoted[a]}, "dst": {quoted[b]}, "payoff": {p!r}, "rank": {r}{names[o]}}}'
+        for a, b, p, r, o in rows
+    )
 
 
 # --- columns ---------------------------------------------------------------
