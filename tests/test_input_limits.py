@@ -23,6 +23,7 @@ from typing import Any
 import cv2
 import numpy as np
 import pytest
+from cli_run import lesmc
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
@@ -358,3 +359,52 @@ def test_no_mutated_scene_makes_the_cli_crash(doc: Any, verb: str) -> None:
         if code == 2:
             assert not (Path(d) / "m.lts").exists()
         assert sorted(os.listdir(d)) in (["scene.json"], ["m.lts", "scene.json"])
+
+
+def _with_version_true(src: Path, dst: Path) -> Path:
+    doc = json.loads(src.read_text())
+    doc["version"] = True
+    dst.write_text(json.dumps(doc))
+    return dst
+
+
+@pytest.mark.parametrize("kind", ["truth", "nets", "results", "lts", "scene"])
+def test_a_boolean_version_is_refused_in_every_input(tmp_path: Path, kind: str) -> None:
+    """Issue 33: JSON's ``true`` is not the version 1 (Python's True == 1 is no excuse):
+    every input file says so with the same located message, exit 2."""
+    import shutil
+
+    from lesmc.perception.cnn import DEFAULT_WEIGHTS
+
+    frames = tmp_path / "frames"
+    frames.mkdir()
+    for i in range(6):
+        cv2.imwrite(str(frames / f"f{i}.png"), np.full((64, 64), 100 + i, dtype=np.uint8))
+    tiny = ROOT / "tests" / "golden" / "tiny"
+    if kind == "truth":
+        truth = tmp_path / "truth.json"
+        truth.write_text(json.dumps({"format": "lesmc-truth", "version": True, "frames": [
+            {"file": f"f{i}.png", "vehicles": []} for i in range(6)]}))  # fmt: skip
+        args, bad, want = ["perceive", str(frames), "--truth", str(truth), "--no-cnn"], truth, 1
+    elif kind == "nets":
+        nets = tmp_path / "nets"
+        shutil.copytree(ROOT / "lesmc" / "perception" / "weights" / DEFAULT_WEIGHTS, nets)
+        bad = _with_version_true(nets / "nets.json", nets / "nets.json")
+        args, want = ["perceive", str(frames), "--nets", str(nets)], 1
+    elif kind == "results":
+        res = tmp_path / "res"
+        r = lesmc("check", str(tiny / "model.lts"), str(tiny / "properties.spec"),
+                  "--report", str(res))  # fmt: skip
+        assert r.returncode in (0, 1), r.stderr
+        bad = _with_version_true(res / "results.json", tmp_path / "results.json")
+        args, want = ["report", str(bad), "--out", str(tmp_path / "out")], 2
+    elif kind == "lts":
+        bad = _with_version_true(tiny / "model.lts", tmp_path / "m.lts")
+        args, want = ["check", str(bad), str(tiny / "properties.spec")], 1
+    else:
+        bad = _with_version_true(ROOT / "examples" / "merge.json", tmp_path / "s.json")
+        args, want = ["track", str(bad)], 1
+    r = lesmc(*args)
+    assert r.returncode == 2 and "Traceback" not in r.stderr, r.stderr
+    assert f"version: must be {want}, got true" in r.stderr, r.stderr
+    assert str(bad) in r.stderr

@@ -185,7 +185,7 @@ BIG = 2**63  # one beyond int64
 @pytest.mark.parametrize(
     ("path", "value", "message"),
     [
-        ("version", True, "version: must be 1, got True"),
+        ("version", True, "version: must be 1, got true"),
         ("version", 1.0, "version: must be 1, got 1.0"),
         ("states/1/step", True, "state 'a': step must be an integer >= 0, got True"),
         ("states/1/step", BIG, "state 'a': step must be an integer >= 0 that fits in 64 bits"),

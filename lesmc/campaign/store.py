@@ -14,6 +14,7 @@ from pathlib import Path
 from typing import Any
 
 from lesmc.common.errors import InputError, Location
+from lesmc.common.fields import is_version
 
 FORMAT = "lesmc-campaign-row"
 VERSION = 2
@@ -43,7 +44,7 @@ def read_rows(path: Path, repair: bool = False) -> list[dict[str, Any]]:
             raise InputError(f"not a JSON line ({exc})", Location(str(path), n)) from None
         if not (isinstance(obj, dict) and obj.get("format") == FORMAT and "key" in obj):
             raise InputError(f"not a {FORMAT} object", Location(str(path), n))
-        if obj.get("version") != VERSION:
+        if not is_version(obj.get("version"), VERSION):
             raise InputError(
                 f"row version {obj.get('version')!r}, expected {VERSION}", Location(str(path), n)
             )

@@ -68,6 +68,10 @@ def header(data: dict[str, Any], fmt: str, version: int, pr: Problems) -> None:
     """``format`` must be ``fmt`` and ``version`` the integer ``version``."""
     if data.get("format") != fmt:
         pr.add("format", f'must be "{fmt}", got {show(data.get("format"))}')
-    got = data.get("version")
-    if not (is_int(got) and got == version):
-        pr.add("version", f"must be {version}, got {show(got)}")
+    if not is_version(data.get("version"), version):
+        pr.add("version", f"must be {version}, got {show(data.get('version'))}")
+
+
+def is_version(got: Any, version: int) -> bool:
+    """``got`` is the integer ``version`` (JSON's ``true`` is not 1)."""
+    return is_int(got) and got == version

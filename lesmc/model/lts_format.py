@@ -26,6 +26,7 @@ from typing import TYPE_CHECKING, Any, TypeGuard
 import numpy as np
 
 from lesmc.common.errors import ModelError, Problems
+from lesmc.common.fields import header
 from lesmc.common.files import EncodedItems, read_json, write_json
 from lesmc.model.arrays import ArrayModel
 from lesmc.model.validate import HALTED, Parts, build, state_order
@@ -69,11 +70,7 @@ def lts_from_dict(data: Any, path: str = "<model>") -> ArrayModel:
         raise ModelError.many(path, [("", "the top level must be a JSON object")])
     for key in sorted(set(data) - _TOP_KEYS, key=str):
         pr.add(f"key '{key}'", "unknown top-level key")
-    if data.get("format") != FORMAT:
-        pr.add("format", f'must be "{FORMAT}", got {_show(data.get("format"))}')
-    version = data.get("version")
-    if not (_is_int(version) and version == VERSION):
-        pr.add("version", f"must be {VERSION}, got {_show(version)}")
+    header(data, FORMAT, VERSION, pr)
     components = data.get("components")
     if components is not None and not (
         isinstance(components, list) and components and all(_is_name(c) for c in components)

@@ -21,6 +21,7 @@ from safetensors.torch import load_file, save_file
 from torch import nn
 
 from lesmc.common.errors import InputError, Location, Problems
+from lesmc.common.fields import header
 from lesmc.common.files import read_json
 from lesmc.perception.threads import fit_torch_threads
 from lesmc.perception.windows import M_PREVIOUS
@@ -135,11 +136,7 @@ def nets_settings(meta: Any, path: str) -> NetSettings:
     pr = Problems()
     if not isinstance(meta, dict):
         raise InputError.many(path, [("", "the top level must be a JSON object")])
-    if meta.get("format") != "lesmc-nets":
-        pr.add("format", f'must be "lesmc-nets" (safetensors weights), got {meta.get("format")!r}')
-    version = meta.get("version")
-    if not (type(version) is int and version == 1):
-        pr.add("version", f"must be 1, got {version!r}")
+    header(meta, "lesmc-nets", 1, pr)
     raw = meta.get("settings")
     if not isinstance(raw, dict):
         pr.add("settings", "must be an object")

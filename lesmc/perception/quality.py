@@ -19,6 +19,7 @@ from scipy.optimize import linear_sum_assignment
 from scipy.spatial import cKDTree
 
 from lesmc.common.errors import InputError, Location, Problems
+from lesmc.common.fields import header
 from lesmc.common.files import read_json
 
 
@@ -135,6 +136,8 @@ class Truth:
 TRUTH_MAX_COORD = 1e6
 #: Largest truth speed (m/s) and frame interval (s).
 TRUTH_MAX_SPEED, TRUTH_MAX_DT = 1e4, 3600.0
+#: The truth.json version this lesmc reads and ``lesmc synth`` writes.
+TRUTH_VERSION = 1
 
 
 def load_truth(path: str) -> Truth:
@@ -147,6 +150,7 @@ def load_truth(path: str) -> Truth:
     if not isinstance(data, dict) or data.get("format") != "lesmc-truth":
         raise InputError("not a lesmc truth file (format must be 'lesmc-truth')", Location(path))
     pr = Problems()
+    header(data, "lesmc-truth", TRUTH_VERSION, pr)
     dt = data.get("dt")
     if dt is not None and not (_number(dt) and 0 < dt <= TRUTH_MAX_DT):
         pr.add("dt", f"must be a number of seconds in (0, {TRUTH_MAX_DT:g}], got {_show(dt)}")

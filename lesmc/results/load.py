@@ -6,7 +6,7 @@ from pathlib import Path
 from typing import Any
 
 from lesmc.common.errors import InputError, Location
-from lesmc.common.fields import show
+from lesmc.common.fields import is_version, show
 from lesmc.common.files import read_json
 from lesmc.results.document import FORMAT, VERSION
 from lesmc.schemas import validate
@@ -21,7 +21,7 @@ def load_results(path: str | Path) -> dict[str, Any]:
             "lesmc verify or lesmc check ... --report DIR)",
             Location(str(path)),
         )
-    if doc.get("version") != VERSION or isinstance(doc.get("version"), bool):
+    if not is_version(doc.get("version"), VERSION):
         raise InputError(
             f"must be {VERSION}, got {show(doc.get('version'))} (this lesmc reads results files "
             f"of version {VERSION}: make it again with this lesmc)",
