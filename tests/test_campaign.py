@@ -472,3 +472,52 @@ def test_a_tracker_file_becomes_the_campaigns_tracker(
     want = {x.property: x for x in run.results}[r0["property"]]
     assert r0["verdict"] == want.verdict
     assert r0["optimum"] == (want.optimum if want.optimum is not None else "inf")
+
+
+def test_ctrl_c_on_a_two_worker_campaign_prints_the_command_that_resumes_it(
+    base: tuple[Path, Path], tmp_path: Path
+) -> None:
+    """Issue 29: Ctrl-C (SIGINT to the whole process group, workers included) mid-run:
+    no traceback from any process, exit 130, one line with what was kept and the exact
+    command that resumes; that command completes the run and does not perceive again."""
+    import shlex
+
+    out = tmp_path / "out"  # from scratch: the first run perceives the video
+    windows = ["--windows", WINDOWS, "--targets", "all", "--no-truth"]
+    cmd = ["lesmc", "campaign", str(base[0]), "--out", str(out), "--workers", "2", *windows]
+    env = {**os.environ, "PYTHONPATH": str(ROOT)}
+    env.pop("LESMC_DEBUG", None)
+    proc = subprocess.Popen(
+        [sys.executable, "-m", *cmd],
+        cwd=ROOT,
+        env=env,
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.PIPE,
+        text=True,
+        start_new_session=True,  # its own process group, as a terminal's job
+    )
+    results = out / "results.jsonl"
+    deadline = time.monotonic() + 300
+    while time.monotonic() < deadline and proc.poll() is None:
+        if results.exists() and results.stat().st_size > 0:
+            break
+        time.sleep(0.02)
+    os.killpg(proc.pid, signal.SIGINT)  # what Ctrl-C does
+    _, err = proc.communicate(timeout=300)
+    assert "perceiving" in err  # the first run perceived the video
+    assert proc.returncode == 130, err
+    assert "Traceback" not in err and "Exception ignored" not in err, err
+    last = err.strip().splitlines()[-1]
+    assert last.startswith("interrupted: ") and " results kept in " in last, err
+    kept = len(lines(results))
+    assert f"interrupted: {kept} results kept in {results}" in last
+    resume = shlex.split(last.split("resume with: ", 1)[1])
+    assert resume == cmd
+    r = subprocess.run(
+        [sys.executable, "-m", *resume], cwd=ROOT, env=env, capture_output=True, text=True
+    )
+    no_trace(r)
+    assert r.returncode in (0, 1, 3), r.stderr
+    assert "perceiving" not in r.stderr  # the scene of the first run is reused
+    got = [json.loads(x) for x in lines(results)]
+    assert 0 < kept < len(got) == len({x["key"] for x in got})

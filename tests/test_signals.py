@@ -179,7 +179,11 @@ def test_verify_stops_cleanly_and_leaves_the_old_report(
     args = ["verify", "--scene", str(SCENES / "rq1_platoon.json"), "--out", "out"]
     code, err = interrupt(start(stage, [*args, "--design", "single"], tmp_path), signum)
     assert code == STATUS[signum][0], err
-    assert err.strip().endswith(STATUS[signum][1]) and "Traceback" not in err
+    assert "Traceback" not in err
+    # one line: what was kept, and the command that resumes (this one)
+    last = err.strip().splitlines()[-1]
+    assert last.startswith(f"{STATUS[signum][1]}: out holds the previous report"), err
+    assert last.endswith(f"resume with: lesmc {' '.join(args)} --design single"), err
     assert files(out) == old
 
 

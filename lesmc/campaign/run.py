@@ -12,7 +12,10 @@ row is appended by this process as soon as its group returns.
 from __future__ import annotations
 
 import hashlib
-from collections.abc import Callable, Iterable
+import signal
+import threading
+from collections.abc import Callable, Iterable, Iterator
+from contextlib import contextmanager
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
@@ -425,6 +428,48 @@ def group_order(g: Group) -> tuple[float, int]:
 RowsHandler = Callable[[list[dict[str, Any]]], None]
 
 
+def _client(workers: int, scheduler: str | None) -> tuple[Any, Any]:
+    """A Dask client of a new local cluster of ``workers`` single-threaded processes (and
+    that cluster), or of the cluster at ``scheduler`` (and None)."""
+    try:
+        from distributed import Client, LocalCluster
+    except ImportError:  # pragma: no cover - a runtime dependency
+        raise UsageError(
+            "the campaign's parallel mode needs dask distributed: pip install 'dask[distributed]'"
+            " (or run with --workers 0)"
+        ) from None
+    if scheduler is not None:
+        try:
+            return Client(scheduler, timeout="20s"), None
+        except (OSError, TimeoutError) as exc:
+            raise UsageError(f"--scheduler {scheduler}: cannot connect ({exc})") from None
+    with _sigint_ignored():  # the worker processes start with Ctrl-C ignored
+        cluster = LocalCluster(
+            n_workers=workers,
+            threads_per_worker=1,
+            processes=True,
+            dashboard_address=None,
+            silence_logs=40,
+            preload=["lesmc.campaign.quiet_worker"],  # and restarted ones too
+        )
+    return Client(cluster), cluster
+
+
+@contextmanager
+def _sigint_ignored() -> Iterator[None]:
+    """SIGINT ignored while the local cluster spawns its workers: they inherit it, so
+    a Ctrl-C (sent by the terminal to every process of the job) reaches only this
+    process, which stops the cluster; no worker prints a traceback."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    previous = signal.signal(signal.SIGINT, signal.SIG_IGN)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGINT, previous)
+
+
 def execute(
     groups: list[Group],
     docs: dict[str, dict[str, Any]],
@@ -445,29 +490,9 @@ def execute(
         for g in groups:
             on_rows(run_group(g, docs[g.scene_key]))
         return
-    try:
-        from distributed import Client, LocalCluster, as_completed
-    except ImportError:  # pragma: no cover - a runtime dependency
-        raise UsageError(
-            "the campaign's parallel mode needs dask distributed: pip install 'dask[distributed]'"
-            " (or run with --workers 0)"
-        ) from None
+    from distributed import as_completed
 
-    cluster = None
-    if scheduler is None:
-        cluster = LocalCluster(
-            n_workers=workers,
-            threads_per_worker=1,
-            processes=True,
-            dashboard_address=None,
-            silence_logs=40,
-        )
-        client = Client(cluster)
-    else:
-        try:
-            client = Client(scheduler, timeout="20s")
-        except (OSError, TimeoutError) as exc:
-            raise UsageError(f"--scheduler {scheduler}: cannot connect ({exc})") from None
+    client, cluster = _client(workers, scheduler)
     try:
         shared = {k: client.submit(scene_doc, doc, pure=False) for k, doc in docs.items()}
         futures = [

@@ -19,6 +19,7 @@ from lesmc.cli.options import (
     spec_option,
     tracker_option,
 )
+from lesmc.cli.signals import resumable
 from lesmc.common.errors import UsageError
 
 if TYPE_CHECKING:
@@ -163,8 +164,18 @@ def campaign_cmd(
     prepared = _prepared(videos, out, nets, tracker_file)
     _choose_targets(prepared, count, target_file, windows, not no_truth)
     designs = expand_designs(design)
-    rows = _run(prepared, spec_files, windows, designs, out, limits, payoffs, nets)
+    with resumable(lambda: _kept(out)):
+        rows = _run(prepared, spec_files, windows, designs, out, limits, payoffs, nets)
     _finish(rows, out, out_dir, prepared, windows, design, as_json)
+
+
+def _kept(out: Path) -> str:
+    """What an interrupted campaign leaves for its rerun."""
+    from lesmc.campaign.store import read_rows
+
+    results = out / "results.jsonl"
+    kept = len(read_rows(results, repair=True)) if results.exists() else 0
+    return f"{kept} results kept in {results} and the scenes in {out / 'scenes'}"
 
 
 #: Where and how long a campaign runs: --workers, --scheduler, --timeout, --max-states.

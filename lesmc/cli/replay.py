@@ -7,6 +7,7 @@ from typing import Any
 import click
 
 from lesmc.cli.options import frames_option, nets_option, network_options
+from lesmc.cli.signals import resumable
 from lesmc.common.errors import UsageError
 
 
@@ -63,7 +64,10 @@ def replay_cmd(
             "replay runs the detector on the video: give its frames with --frames DIR (the "
             "results file does not name them)"
         )
-    with progress_bar("replay", "replaying", None) as bar:
+    with (
+        resumable(lambda: f"nothing: replay writes no file ({results} is unchanged)"),
+        progress_bar("replay", "replaying", None) as bar,
+    ):
         nets = (nets_dir, detector_file, locator_file)
         outcome = replay_file(doc, frames_dir, nets, prop, bar)
     rows, verdicts = verdict_rows(doc, outcome, prop)

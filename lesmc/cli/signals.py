@@ -280,3 +280,19 @@ def exit_if_stopped() -> None:
     if signum is not None:
         sys.stderr.write("interrupted\n" if signum == signal.SIGINT else "terminated\n")
         sys.exit(128 + signum)
+
+
+@contextmanager
+def resumable(kept: Callable[[], str]) -> Iterator[None]:
+    """On Ctrl-C or SIGTERM inside the block: one line on stderr with what the run kept
+    (``kept()``) and the command that resumes it (this very command line), then the
+    signal's exit status (130, 143) and nothing more."""
+    try:
+        yield
+    except (KeyboardInterrupt, Terminated) as exc:
+        import shlex
+
+        what = "terminated" if isinstance(exc, Terminated) else "interrupted"
+        command = shlex.join(["lesmc", *sys.argv[1:]])
+        sys.stderr.write(f"{what}: {kept()}; resume with: {command}\n")
+        sys.exit(exc.exit_status if isinstance(exc, Terminated) else 128 + signal.SIGINT)

@@ -22,6 +22,7 @@ from lesmc.cli.options import (
     target_option,
     tracker_option,
 )
+from lesmc.cli.signals import resumable
 
 
 @click.command("verify")
@@ -132,7 +133,7 @@ def verify_cmd(
         payoffs=payoffs,  # type: ignore[arg-type]
         budget=budget,
     )
-    with Reporter("verify") as rep:
+    with resumable(lambda: _kept(request.out)), Reporter("verify") as rep:
         outcome = verify(request, rep)
     if as_json:
         click.echo(json.dumps(outcome.doc, indent=1, allow_nan=False))
@@ -140,3 +141,15 @@ def verify_cmd(
         print_runs(make_console(), "lesmc verify", outcome.results.runs)
         click.echo(f"report: {outcome.report}")
     sys.exit(exit_status(outcome.results.results))
+
+
+def _kept(out: Path) -> str:
+    """What an interrupted verify leaves for its rerun: the rendered default video; the
+    report in OUT is the previous run's or none (it is moved in whole, at the end)."""
+    from lesmc.verify.experiment import default_video_ready
+
+    video = out / "video"
+    report = "the previous report" if (out / "results.json").exists() else "no report"
+    if default_video_ready(video):
+        return f"the rendered default video in {video}; {out} holds {report}"
+    return f"{out} holds {report}"
