@@ -405,3 +405,19 @@ def test_verify_refuses_a_window_past_the_track(tmp_path: Path) -> None:
     )
     assert r.returncode == 2 and "--window 30..40" in r.stderr and "Traceback" not in r.stderr
     assert not (tmp_path / "v" / "report.html").exists()
+
+
+def test_the_table_checker_finds_what_a_browser_would_show_broken() -> None:
+    """tests/html_tables.py itself (the browserless half of tests/test_browser.py)."""
+    from html_tables import table_problems
+
+    head = "<tr><th>a</th><th>b</th></tr>"
+    assert table_problems(f"<table>{head}<tr><td>1</td><td>2</td></tr></table>") == []
+    assert table_problems(f"<table>{head}<tr><td>1</td></tr></table>") == [
+        "table 0: rows of [1, 2] columns"
+    ]
+    assert table_problems(
+        "<table><tr><th></th><th> </th></tr><tr><td>1</td><td>2</td></tr></table>"
+    ) == ["table 0: an empty header row"]
+    spanned = "<table><tr><th colspan='2'>ab</th></tr><tr><td>1</td><td>2</td></tr></table>"
+    assert table_problems(spanned) == []

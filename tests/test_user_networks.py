@@ -67,7 +67,9 @@ def _perceive(video: Path, out: Path, *extra: str) -> dict[str, Any]:
 def test_exported_shipped_networks_give_the_same_scene(
     shipped: dict[str, Path], tmp_path: Path, suffix: str
 ) -> None:
-    """Same detections, DeepFool payoffs (1e-5 relative) and certified lower bounds."""
+    """Same detections (ids; positions to 1e-6 px: the locator's sums may run in another
+    order when torch's thread count differs, e.g. on a busy machine), DeepFool payoffs
+    (1e-5 relative) and certified lower bounds."""
     want = json.loads(shipped["scene"].read_text())
     got = _perceive(
         shipped["video"], tmp_path / "b.json",
@@ -75,9 +77,9 @@ def test_exported_shipped_networks_give_the_same_scene(
     )  # fmt: skip
     n = 0
     for fw, fg in zip(want["frames"], got["frames"], strict=True):
-        assert [(d["id"], d["x"], d["y"]) for d in fg["detections"]] == [
-            (d["id"], d["x"], d["y"]) for d in fw["detections"]
-        ]
+        assert [d["id"] for d in fg["detections"]] == [d["id"] for d in fw["detections"]]
+        for dw, dg in zip(fw["detections"], fg["detections"], strict=True):
+            assert (dg["x"], dg["y"]) == pytest.approx((dw["x"], dw["y"]), abs=1e-6)
         for dw, dg in zip(fw["detections"], fg["detections"], strict=True):
             for key in ("payoff", "payoff_lower"):
                 a, b = dg[key], dw[key]

@@ -23,6 +23,7 @@ from pathlib import Path
 from typing import Any
 
 from lesmc.common.files import atomic_write_text
+from lesmc.common.numbers import fmt
 from lesmc.designs import registry
 from lesmc.engines.result import status_word
 
@@ -323,7 +324,7 @@ def cell_rows(summary: dict[str, Any], quantile_keys: tuple[str, ...]) -> list[l
                     registry.label(d),
                     p,
                     *map(str, counts),
-                    *(str(q.get(k, "-")) for k in quantile_keys),
+                    *(fmt(q[k]) if k in q else "-" for k in quantile_keys),
                 ]
             )
     return rows
@@ -360,7 +361,7 @@ def write_html(
     s = summary
     parts = [
         "<h1>lesmc campaign</h1>",
-        _table(["", ""], [[html.escape(k), html.escape(v)] for k, v in meta.items()]),
+        _table(["run", "value"], [[html.escape(k), html.escape(v)] for k, v in meta.items()]),
         f"<p>{s['rows']} results: {len(s['videos'])} video(s), {s['targets']} targets, "
         f"{s['windows']} windows, designs {', '.join(registry.label(d) for d in s['designs'])}, "
         f"properties {', '.join(s['properties'])}.</p>",
@@ -424,7 +425,7 @@ def _improvements_table(improvements: dict[str, Any]) -> str:
 def _worst_table(summary: dict[str, Any]) -> str:
     """The cheapest violations of each design and property, with the command that redoes one."""
     rows = [
-        [registry.label(d), p, str(w["optimum"]), f"<code>{html.escape(w['command'])}</code>"]
+        [registry.label(d), p, fmt(w["optimum"]), f"<code>{html.escape(w['command'])}</code>"]
         for d in summary["designs"]
         for p in summary["properties"]
         for w in summary["cells"][d][p]["worst"]

@@ -163,8 +163,9 @@ def track_cmd(
     """Run the tracker on SCENE unattacked: estimates, τ (Eq. 12) and monitor alarms (Eq. 13)."""
     from rich.table import Table
 
+    from lesmc.common.numbers import fmt
     from lesmc.designs.registry import make_tracker
-    from lesmc.report.text import fmt, make_console
+    from lesmc.report.text import make_console
     from lesmc.tracking.monitor import track
 
     sc = load_scene_file(scene, design, target_text, tracker_file)

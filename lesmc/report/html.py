@@ -22,11 +22,12 @@ from typing import Any
 
 import numpy as np
 
+from lesmc.common.numbers import fmt
 from lesmc.engines.result import verdict_words
 from lesmc.report import figures
 from lesmc.report.figures import COLOURS, Series, TreePath
 from lesmc.report.staging import staged
-from lesmc.report.text import fmt, optimum_cell
+from lesmc.report.text import optimum_cell
 
 MAX_TABLE_ROWS = 60
 MAX_TREE_LEAVES = 40
@@ -71,10 +72,6 @@ def _f(x: Any) -> float:
     if isinstance(x, str):
         return float(x)  # "inf", "-inf"
     return float(x)
-
-
-def _fmt(x: Any) -> str:
-    return "-" if x is None else fmt(_f(x))
 
 
 def verdict_of(r: dict[str, Any]) -> str:
@@ -238,7 +235,7 @@ def _table5(runs: list[_Run]) -> str:
             r = run.results[i]
             cells.append(
                 f"<td class='{status_class(r)}'>{_e(verdict_of(r))}</td><td>{_e(_opt(r))}</td>"
-                f"<td>{_e(_fmt(r['witness_value']))}</td>"
+                f"<td>{_e(fmt(r['witness_value']))}</td>"
                 f"<td>{run.adversarial(i)}</td>"
             )
         rows.append(f"<tr><th>{_e(p)}</th>{''.join(cells)}</tr>")
@@ -383,7 +380,7 @@ def _table4(run: _Run) -> str:
             f"<tr><th>{_e(r['property'])}</th>"
             f"<td class='{status_class(r)}'>{_e(verdict_of(r))}</td>"
             f"<td>{_e(r['objective'])}</td><td>{_e(r['constraint'])}</td><td>{_e(_opt(r))}</td>"
-            f"<td>{_e(r['holds_if'])}</td><td>{_e(_fmt(r['witness_value']))}</td>"
+            f"<td>{_e(r['holds_if'])}</td><td>{_e(fmt(r['witness_value']))}</td>"
             f"<td>{_no(run.wit[i])}</td><td>{_no(run.cex[i])}</td><td>{_e(monitor)}</td>"
             f"<td>{run.adversarial(i)} ({check})</td>"
             f"<td>{r['stats']['seconds']:.3f} s, {r['stats']['states_expanded']} states</td></tr>"
@@ -529,15 +526,15 @@ def _hidden_table(hidden: dict[str, Any], replays: dict[str, Any]) -> str:
         for h in items:
             where = f"({h['x']:.1f}, {h['y']:.1f})" if "x" in h else "-"
             lo, up = h.get("payoff_lower"), h["payoff"]
-            interval = "-" if lo is None else f"[{_fmt(lo)}, {_fmt(up)}]"
+            interval = "-" if lo is None else f"[{fmt(lo)}, {fmt(up)}]"
             tight = "-"
             if lo is not None and math.isfinite(_f(up)) and _f(up) > 0:
                 tight = f"{_f(lo) / _f(up):.2f}"
             again = recomputed.get(h["obs"])
-            rec = "-" if again is None else _fmt(again["payoff_recomputed"])
+            rec = "-" if again is None else fmt(again["payoff_recomputed"])
             rows.append(
                 f"<tr><th>{_e(prop)}</th><td>{h['step']}</td><td>{h['frame']}</td>"
-                f"<td>{_e(h['obs'])}</td><td>{_e(where)}</td><td>{_e(_fmt(up))}</td>"
+                f"<td>{_e(h['obs'])}</td><td>{_e(where)}</td><td>{_e(fmt(up))}</td>"
                 f"<td>{_e(interval)}</td><td>{tight}</td><td>{_e(rec)}</td></tr>"
             )
     return (
@@ -649,7 +646,7 @@ def _table3(run: _Run) -> str:
     rows = []
     for p in shown:
         rl = roles.get(p["no"], [])
-        cls = "original" if any(r == "original" for r, _ in rl) else ("marked" if rl else "")
+        cls = _row_class({r for r, _ in rl})
         breaks = "".join(f"<td>{'yes' if j['violates'] else 'no'}</td>" for j in p["judged"])
         alarms = "".join(
             f"<td>{_e(', '.join(map(str, p['judged'][i]['alarms'])) or '-')}</td>"
@@ -658,8 +655,8 @@ def _table3(run: _Run) -> str:
         rows.append(
             f"<tr class='{cls}'><td>{p['no']}</td>"
             f"<td class='obs'>{_e(' → '.join(p['labels'][l : u + 1]))}</td>"
-            f"<td>{_fmt(p['payoff'])}</td><td>{_fmt(p['dist_sum'])}</td><td>{_fmt(p['dist_max'])}</td>"
-            f"<td>{_fmt(p['dist_end'])}</td>{breaks}{alarms}"
+            f"<td>{fmt(p['payoff'])}</td><td>{fmt(p['dist_sum'])}</td><td>{fmt(p['dist_max'])}</td>"
+            f"<td>{fmt(p['dist_end'])}</td>{breaks}{alarms}"
             f"<td>{_e(', '.join(run.role_text(p['no'])))}</td></tr>"
         )
     left = run.d["paths_total"] - len(shown)
@@ -684,6 +681,15 @@ def _table3(run: _Run) -> str:
         + "".join(rows)
         + "</table>"
     )
+
+
+def _row_class(roles: set[str]) -> str:
+    """A Table 3 row's shading: a counterexample (red) before a witness ρ* (blue) before
+    the original track (green); the witness is never shaded as a counterexample."""
+    for role in ("counterexample", "witness", "original"):
+        if role in roles:
+            return role
+    return ""
 
 
 def _specs(doc: dict[str, Any]) -> str:
@@ -745,7 +751,8 @@ td:nth-child(2){text-align:left}td.obs{white-space:nowrap}
 .holds{color:#1a7f37;font-weight:bold}.violated{color:#c62828;font-weight:bold}
 .holds--vacuous-{color:#00838f;font-weight:bold;font-style:italic}
 .violated--not-replayed-{color:#ad1457;font-weight:bold;font-style:italic}
-.unknown{color:#b26a00;font-weight:bold}tr.original{background:#e8f5e9}tr.marked{background:#fdecea}
+.unknown{color:#b26a00;font-weight:bold}tr.original{background:#e8f5e9}tr.counterexample{background:#fdecea}
+tr.witness{background:#e3ecf9}
 figure{display:inline-block;margin:.8em;vertical-align:top;max-width:100%}
 figure img{max-width:100%;height:auto;border:1px solid #ddd}\n.scroll{overflow-x:auto}
 figcaption{font-size:.85em;color:#555;max-width:640px}

@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import json
-import math
 from collections.abc import Sequence
 from typing import Any
 
@@ -11,6 +10,7 @@ from rich.console import Console
 from rich.table import Table
 
 from lesmc.common.errors import escape_text
+from lesmc.common.numbers import fmt
 from lesmc.engines.result import CheckResult, PathInfo
 from lesmc.language.properties import SpecFile
 from lesmc.results.document import provenance
@@ -36,16 +36,6 @@ def results_json(results: Sequence[CheckResult], specs: Sequence[SpecFile] = ())
         "results": [r.to_json() for r in results],
     }
     return json.dumps(doc, indent=1, allow_nan=False)
-
-
-def fmt(x: float | None, digits: int = 4) -> str:
-    """A number for a table or a report: ``digits`` significant digits (full precision
-    stays in the JSON), '-' for None, '+inf' for infinity (docs/cli.md, "Numbers")."""
-    if x is None:
-        return "-"
-    if math.isinf(x):
-        return "+inf" if x > 0 else "-inf"
-    return f"{x:.{digits}g}"
 
 
 def verdict_cell(r: CheckResult) -> str:
