@@ -45,8 +45,8 @@ LAYERS: dict[str, set[str]] = {
         "report", "results", "scene", "tracking", "video",
     },
     "campaign": {
-        "build", "designs", "engines", "language", "perception", "pipeline", "results",
-        "scene", "tracking", "verify", "video",
+        "build", "designs", "engines", "language", "perception", "pipeline", "report",
+        "results", "scene", "tracking", "verify", "video",
     },
     "api": {
         "build", "designs", "engines", "export", "language", "model", "pipeline", "results",

@@ -421,3 +421,29 @@ def test_the_table_checker_finds_what_a_browser_would_show_broken() -> None:
     ) == ["table 0: an empty header row"]
     spanned = "<table><tr><th colspan='2'>ab</th></tr><tr><td>1</td><td>2</td></tr></table>"
     assert table_problems(spanned) == []
+
+
+def test_the_templates_escape_what_the_results_file_says(tmp_path: Path) -> None:
+    """report.html comes from Jinja2 templates with autoescaping: text from the results
+    file (here its meta) cannot inject markup; the page's own markup is intact."""
+    runs, _ = _runs()
+    page = write_report(runs, tmp_path / "r", {"video": "<script>alert(1)</script> & more"})
+    html = page.read_text()
+    assert "<script>" not in html
+    assert "&lt;script&gt;alert(1)&lt;/script&gt; &amp; more" in html
+    assert "<h2 id='verdicts'>Verdicts</h2>" in html and "<figure><img src='data:image/png" in html
+
+
+def test_a_table_refuses_rows_narrower_or_wider_than_its_header() -> None:
+    """lesmc/report/pages.py: every table of both pages is built through Table, which
+    counts colspans and the cells rows above span into a row."""
+    from lesmc.report.pages import Cell, Row, Table, table
+
+    assert table(["a", "b"], [[1, 2], [3, Cell(4)]]).width == 2
+    with pytest.raises(ValueError, match="not 2 columns wide"):
+        table(["a", "b"], [[1]])
+    two_rows = [[Cell("p", head=True, rows=2), Cell("d", head=True, span=2)],
+                [Cell("x", head=True), Cell("y", head=True)]]  # fmt: skip
+    assert Table(two_rows, [Row([Cell(1), Cell(2), Cell(3)])]).width == 3
+    with pytest.raises(ValueError):
+        Table(two_rows, [Row([Cell(1), Cell(2)])])

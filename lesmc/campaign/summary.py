@@ -13,8 +13,6 @@
 
 from __future__ import annotations
 
-import base64
-import html
 import io
 import math
 from collections import Counter, defaultdict
@@ -26,6 +24,7 @@ from lesmc.common.files import atomic_write_text
 from lesmc.common.numbers import fmt
 from lesmc.designs import registry
 from lesmc.engines.result import status_word
+from lesmc.report.pages import Figure, Markup, Table, images, render_page, table
 
 FORMAT = "lesmc-campaign-summary"
 VERSION = 2
@@ -264,30 +263,6 @@ def _png(fig: Any, plt: Any) -> bytes:
 
 # ------------------------------------------------------------------ html
 
-_CSS = """
-body{font-family:system-ui,Segoe UI,Helvetica,Arial,sans-serif;margin:2em auto;max-width:1100px;
-color:#222;line-height:1.4}h2{border-bottom:2px solid #ddd;padding-bottom:.2em;margin-top:1.6em}
-table{border-collapse:collapse;margin:.6em 0;font-size:.85em}
-td,th{border:1px solid #ccc;padding:.25em .5em;text-align:right}th{background:#f4f4f4}
-td.l,th.l{text-align:left}code{font-size:.85em}figure{display:inline-block;margin:.6em}
-figure img{max-width:100%;border:1px solid #ddd}
-"""
-
-
-def _table(head: list[str], rows: list[list[str]]) -> str:
-    th = "".join(
-        f"<th class='l'>{html.escape(h)}</th>" if i == 0 else f"<th>{html.escape(h)}</th>"
-        for i, h in enumerate(head)
-    )
-    body = "".join(
-        "<tr>"
-        + "".join(f"<td class='l'>{c}</td>" if i == 0 else f"<td>{c}</td>" for i, c in enumerate(r))
-        + "</tr>"
-        for r in rows
-    )
-    return f"<table><tr>{th}</tr>{body}</table>"
-
-
 #: The columns of a summary table: a vacuous holds and a violation not replayed through the
 #: detector are counted apart from holds and violated (lesmc.engines.result.STATUSES).
 CELL_HEADER = (
@@ -352,60 +327,53 @@ PAYOFF_TEXT = {
 def write_html(
     summary: dict[str, Any], figs: dict[str, bytes], out: Path, meta: dict[str, str]
 ) -> Path:
-    """``DIR/campaign.html`` (self-contained) and ``DIR/figures/campaign_*.png``."""
-
+    """``DIR/campaign.html`` (self-contained; templates/campaign.html.j2) and
+    ``DIR/figures/campaign_*.png``."""
     fig_dir = out / "figures"
     fig_dir.mkdir(parents=True, exist_ok=True)
     for name, png in figs.items():
         (fig_dir / f"campaign_{name}.png").write_bytes(png)
     s = summary
-    parts = [
-        "<h1>lesmc campaign</h1>",
-        _table(["run", "value"], [[html.escape(k), html.escape(v)] for k, v in meta.items()]),
-        f"<p>{s['rows']} results: {len(s['videos'])} video(s), {s['targets']} targets, "
-        f"{s['windows']} windows, designs {', '.join(registry.label(d) for d in s['designs'])}, "
-        f"properties {', '.join(s['properties'])}.</p>",
-        PAYOFF_TEXT.get(s["payoffs"], ""),
-        "<h2>Verdicts and optima (ECDF over targets and windows)</h2>",
-    ]
     head = [*CELL_HEADER, *(f"optimum {k}" for k in QUANTILE_KEYS)]
-    parts.append(_table(head, cell_rows(s, QUANTILE_KEYS)))
-    for p in s["properties"]:
-        parts.append(
-            _img(figs, f"ecdf_{p}", f"Distribution of the {p} optimum over targets and windows.")
-        )
-    parts.append("<h2>Fraction violated per window length</h2>")
-    parts.append(
-        _img(
-            figs, "violated_by_length", "Fraction of (target, window) pairs violated, by u - l + 1."
-        )
-    )
-    parts.append(
-        "<h2>Adversarial tracks removed by the improvements (Table 5 over many tracks)</h2>"
-    )
-    parts.append(_improvements_table(s["improvements"]))
-    parts.append("<h2>Worst cases</h2>")
-    parts.append(_worst_table(s))
-    page = (
-        "<!DOCTYPE html><html lang='en'><head><meta charset='utf-8'><title>lesmc campaign</title>"
-        f"<style>{_CSS}</style></head><body>{''.join(parts)}</body></html>\n"
+    page = render_page(
+        "campaign.html.j2",
+        s=s,
+        run_table=table(["run", "value"], list(meta.items())),
+        design_labels=[registry.label(d) for d in s["designs"]],
+        payoff_text=Markup(PAYOFF_TEXT.get(s["payoffs"], "")),
+        cells=table(head, cell_rows(s, QUANTILE_KEYS)),
+        ecdfs=[
+            Figure(f"ecdf_{p}", f"Distribution of the {p} optimum over targets and windows.")
+            for p in s["properties"]
+            if f"ecdf_{p}" in figs
+        ],
+        by_length=[
+            Figure(
+                "violated_by_length", "Fraction of (target, window) pairs violated, by u - l + 1."
+            )
+        ]
+        if "violated_by_length" in figs
+        else [],
+        improvements=_improvements_table(s["improvements"]),
+        worst=_worst_table(s),
+        images=images(figs),
     )
     path = out / "campaign.html"
     atomic_write_text(path, page)
     return path
 
 
-def _improvements_table(improvements: dict[str, Any]) -> str:
+def _improvements_table(improvements: dict[str, Any]) -> Table:
     """Per property and design: what the design removes of the baseline's violations."""
     rows = [
         [
             p,
             registry.label(d),
-            str(imp["baseline_violated"]),
-            str(v["removed"]),
-            str(v["vacuous"]),
-            str(v["still_violated"]),
-            str(v["added"]),
+            imp["baseline_violated"],
+            v["removed"],
+            v["vacuous"],
+            v["still_violated"],
+            v["added"],
         ]
         for p, imp in improvements.items()
         for d, v in imp["designs"].items()
@@ -419,25 +387,15 @@ def _improvements_table(improvements: dict[str, Any]) -> str:
         "still violated",
         "added",
     ]
-    return _table(head, rows)
+    return table(head, rows)
 
 
-def _worst_table(summary: dict[str, Any]) -> str:
+def _worst_table(summary: dict[str, Any]) -> Table:
     """The cheapest violations of each design and property, with the command that redoes one."""
     rows = [
-        [registry.label(d), p, fmt(w["optimum"]), f"<code>{html.escape(w['command'])}</code>"]
+        [registry.label(d), p, fmt(w["optimum"]), Markup("<code>{}</code>").format(w["command"])]
         for d in summary["designs"]
         for p in summary["properties"]
         for w in summary["cells"][d][p]["worst"]
     ]
-    return _table(["design", "property", "optimum", "reproduce with"], rows)
-
-
-def _img(figs: dict[str, bytes], name: str, caption: str) -> str:
-    if name not in figs:
-        return ""
-    data = base64.b64encode(figs[name]).decode()
-    return (
-        f"<figure><img src='data:image/png;base64,{data}' alt='{name}'>"
-        f"<figcaption>{html.escape(caption)}</figcaption></figure>"
-    )
+    return table(["design", "property", "optimum", "reproduce with"], rows)

@@ -12,8 +12,6 @@ directory the user names (``--frames``); without one the figures have no image.
 
 from __future__ import annotations
 
-import base64
-import html
 import json
 import math
 from collections.abc import Callable
@@ -26,6 +24,19 @@ from lesmc.common.numbers import fmt
 from lesmc.engines.result import verdict_words
 from lesmc.report import figures
 from lesmc.report.figures import COLOURS, Series, TreePath
+from lesmc.report.pages import (
+    Cell,
+    Figure,
+    Markup,
+    Row,
+    Table,
+    Text,
+    images,
+    key_values,
+    para,
+    render_page,
+    table,
+)
 from lesmc.report.staging import staged
 from lesmc.report.text import optimum_cell
 
@@ -59,10 +70,6 @@ def write_report(
         (tmp / "results.json").write_text(json.dumps(doc, indent=1, allow_nan=False) + "\n")
         (tmp / "report.html").write_text(page, encoding="utf-8")
     return Path(out_dir) / "report.html"
-
-
-def _e(x: object) -> str:
-    return html.escape(str(x))
 
 
 def _f(x: Any) -> float:
@@ -159,119 +166,111 @@ class _Run:
 
 
 def render(doc: dict[str, Any], image_for: ImageFor | None = None) -> tuple[str, dict[str, bytes]]:
-    """The report page (figures referenced as data URIs) and its figures by file name."""
+    """The report page (templates/report.html.j2; figures as data URIs) and its figures by
+    file name."""
     runs = [_Run(r) for r in doc["runs"]]
     figs: dict[str, bytes] = {}
     toc: list[tuple[str, str]] = [("verdicts", "Verdicts")]
-    body = [_verdicts(runs)]
     if len(runs) > 1:
         toc.append(("designs", "Designs compared (Table 5)"))
-        body.append(_table5(runs))
     if doc.get("monitor_false_alarms"):
         toc.append(("false-alarms", "The monitor on unattacked tracks"))
-        body.append(_false_alarms(doc["monitor_false_alarms"]))
+    sections = []
     for run in runs:
         toc.append((f"design-{run.tag}", f"Design: {run.name}"))
-        body.append(_section(run, figs, image_for))
-    toc.append(("specs", "Properties (spec text)"))
-    body.append(_specs(doc))
-    toc.append(("provenance", "Provenance and timings"))
-    body.append(_provenance(doc))
-    head = (
-        "<h1>lesmc verification report</h1>"
-        "<p>Robustness and resilience of a learning-enabled state estimator, checked exactly on "
-        "its &lt;PO&gt;²-LTS (every attacked track of the attack window). Colours, in every "
-        f"figure: {_swatch('original', 'original (unattacked) track')}, "
-        f"{_swatch('counterexample', 'counterexample (dashed, hollow markers)')}, "
-        f"{_swatch('witness', 'witness ρ*')}, {_swatch('truth', 'ground truth (dotted)')}, "
-        f"{_swatch('other', 'other attacked tracks')}; the attack window is shaded "
-        f"{_swatch('window', 'yellow')}. Each property has its own marker "
-        "(● first, ■ second, ▲ third).</p>"
-        + _meta(doc)
-        + "<nav><h2>Contents</h2><ol>"
-        + "".join(f"<li><a href='#{a}'>{_e(t)}</a></li>" for a, t in toc)
-        + "</ol></nav>"
+        sections.append({"tag": run.tag, "name": run.name, "parts": _section(run, figs, image_for)})
+    toc += [("specs", "Properties (spec text)"), ("provenance", "Provenance and timings")]
+    fa = doc.get("monitor_false_alarms")
+    page = render_page(
+        "report.html.j2",
+        legend=[
+            (COLOURS[role], text)
+            for role, text in (
+                ("original", "original (unattacked) track"),
+                ("counterexample", "counterexample (dashed, hollow markers)"),
+                ("witness", "witness ρ*"),
+                ("truth", "ground truth (dotted)"),
+                ("other", "other attacked tracks"),
+            )
+        ],
+        window_colour=COLOURS["window"],
+        meta=_meta(doc),
+        toc=toc,
+        verdicts=_verdicts(runs),
+        table5=_table5(runs) if len(runs) > 1 else None,
+        false_alarms=None if not fa else {"what": fa["what"], "table": _false_alarms(fa)},
+        sections=sections,
+        specs=doc.get("provenance", {}).get("specs", []),
+        monitored=_monitored(doc),
+        provenance=_provenance(doc),
+        timings=_timings(doc),
+        images=images(figs, scale=2),  # drawn at 2x: shown at half the natural size, sharp
     )
-    return _page([head, *body], figs), figs
+    return page, figs
 
 
-def _swatch(role: str, text: str) -> str:
-    return f"<span style='color:{COLOURS[role]};font-weight:bold'>{_e(text)}</span>"
-
-
-def _meta(doc: dict[str, Any]) -> str:
+def _meta(doc: dict[str, Any]) -> Table:
     prov = doc.get("provenance", {})
     rows = dict(doc.get("meta", {}))
     rows["lesmc"] = f"{prov.get('tool_version', '?')} (Python {prov.get('python', '?')})"
     rows["date"] = prov.get("date", "?")
     rows["command"] = " ".join(prov.get("command", []))
-    body = "".join(f"<tr><th>{_e(k)}</th><td>{_e(v)}</td></tr>" for k, v in rows.items())
-    return f"<table class='meta'>{body}</table>"
+    return key_values(list(rows.items()))
 
 
-def _verdicts(runs: list[_Run]) -> str:
-    items = []
-    for run in runs:
-        for r in run.results:
-            items.append(
-                f"<li><b>{_e(run.name)}</b> · {_e(r['property'])}: "
-                f"<span class='{status_class(r)}'>{_e(verdict_of(r))}</span> "
-                f"(optimum {_e(_opt(r))}, holds if {_e(r['holds_if'])})</li>"
-            )
-    return f"<h2 id='verdicts'>Verdicts</h2><ul>{''.join(items)}</ul>"
+def _verdicts(runs: list[_Run]) -> list[Markup]:
+    return [
+        Markup("<b>{}</b> · {}: <span class='{}'>{}</span> (optimum {}, holds if {})").format(
+            run.name, r["property"], status_class(r), verdict_of(r), _opt(r), r["holds_if"]
+        )
+        for run in runs
+        for r in run.results
+    ]
 
 
-def _table5(runs: list[_Run]) -> str:
-    head = "".join(f"<th colspan=4>{_e(r.name)}</th>" for r in runs)
-    sub = "<th>verdict</th><th>optimum</th><th>θ*</th><th>adversarial tracks</th>" * len(runs)
-    props = [p["name"] for p in runs[0].props]
+def _table5(runs: list[_Run]) -> Table:
+    sub = ("verdict", "optimum", "θ*", "adversarial tracks")
+    head = [
+        [Cell("property", head=True, rows=2), *(Cell(r.name, head=True, span=4) for r in runs)],
+        [Cell(h, head=True) for _ in runs for h in sub],
+    ]
     rows = []
-    for i, p in enumerate(props):
-        cells = []
+    for i, p in enumerate(p["name"] for p in runs[0].props):
+        cells = [Cell(p, head=True)]
         for run in runs:
             if i >= len(run.results):
-                cells.append("<td colspan=4>-</td>")
+                cells.append(Cell("-", span=4))
                 continue
             r = run.results[i]
-            cells.append(
-                f"<td class='{status_class(r)}'>{_e(verdict_of(r))}</td><td>{_e(_opt(r))}</td>"
-                f"<td>{_e(fmt(r['witness_value']))}</td>"
-                f"<td>{run.adversarial(i)}</td>"
-            )
-        rows.append(f"<tr><th>{_e(p)}</th>{''.join(cells)}</tr>")
-    return (
-        "<h2 id='designs'>Designs compared (Table 5)</h2><p>Adversarial tracks: attacked paths "
-        "that break the system (the constraint holds) and that the runtime monitor, where the "
-        "design has one, does not flag. A monitor that flags the unattacked track itself makes "
-        "'holds' vacuous: it then excludes every path, the harmless ones too.</p>"
-        f"<table><tr><th rowspan=2>property</th>{head}</tr><tr>{sub}</tr>{''.join(rows)}</table>"
-    )
+            cells += [
+                Cell(verdict_of(r), status_class(r)),
+                Cell(_opt(r)),
+                Cell(fmt(r["witness_value"])),
+                Cell(run.adversarial(i)),
+            ]
+        rows.append(Row(cells))
+    return Table(head, rows)
 
 
-def _false_alarms(fa: dict[str, Any]) -> str:
-    rows = "".join(
-        f"<tr><th>{_e(r['monitor'])}</th><td>{r['tracks']}</td><td>{r['steps']}</td>"
-        f"<td>{r['alarms']}</td><td>{_e(_pct(r['alarms'], r['steps']))}</td>"
-        f"<td>{r['tracks_alarmed']}</td><td>{_e(_pct(r['tracks_alarmed'], r['tracks']))}</td></tr>"
+def _false_alarms(fa: dict[str, Any]) -> Table:
+    head = ["monitor", "tracks", "steps", "alarms", "per step", "tracks with an alarm"]
+    rows = [
+        [
+            Cell(r["monitor"], head=True),
+            r["tracks"],
+            r["steps"],
+            r["alarms"],
+            _pct(r["alarms"], r["steps"]),
+            r["tracks_alarmed"],
+            _pct(r["tracks_alarmed"], r["tracks"]),
+        ]
         for r in fa["rows"]
-    )
-    return (
-        "<h2 id='false-alarms'>The monitor on unattacked tracks</h2>"
-        f"<p>{_e(fa['what'])}</p><table><tr><th>monitor</th><th>tracks</th><th>steps</th>"
-        "<th>alarms</th><th>per step</th><th>tracks with an alarm</th><th>per track</th></tr>"
-        f"{rows}</table>"
-    )
+    ]
+    return table([*head, "per track"], rows)
 
 
 def _pct(a: int, b: int) -> str:
     return "-" if b == 0 else f"{100.0 * a / b:.1f} %"
-
-
-def _img(name: str, caption: str) -> str:
-    return (
-        f"<figure><img src='@@{name}@@' alt='{_e(caption)}'>"
-        f"<figcaption>{_e(caption)}</figcaption></figure>"
-    )
 
 
 def _series_for(run: _Run, i: int) -> list[tuple[int, str, int | None]]:
@@ -300,67 +299,86 @@ def _drawn_words(drawn: list[tuple[int, str, int | None]]) -> str:
     return ", ".join(words[r] for _, r, _ in drawn)
 
 
-def _section(run: _Run, figs: dict[str, bytes], image_for: ImageFor | None) -> str:
-    m = run.d["model"]
-    parts = [
-        f"<section><h2 id='design-{run.tag}'>Design: {_e(run.name)}</h2>",
-        f"<p>{m['states']} states, {m['transitions']} transitions, steps 0..{m['end']} "
-        f"(frames {m['first_frame']}..{m['first_frame'] + m['end']}), attack window "
-        f"{run.window[0]}..{run.window[1]}, {run.d['paths_total']} attacked tracks. "
-        f"Model sha256 <code>{_e(m['sha256'][:16])}…</code>.</p>",
-        _table4(run),
-    ]
-    scene = run.d.get("scene")
-    truth = None
-    for i, prop in enumerate(run.props):
-        drawn = _series_for(run, i)
-        if not any(role != "original" for _, role, _ in drawn):
-            parts.append(
-                f"<p>{_e(prop['name'])}: no attacked track to draw (no counterexample, no "
-                "witness: the monitor excludes every path"
-                + (", the unattacked track included" if run.results[i].get("vacuous") else "")
-                + ").</p>"
-            )
-            continue
-        r = run.results[i]
-        if scene is not None:
-            parts.append(_track_figure(run, i, drawn, scene, truth, figs, image_for))
-        series = [
-            Series(_label(run, no, role, p), role, run.deviations(i, role), p, number=no)
-            for no, role, p in drawn
-        ]
-        cumulative = (
-            prop["constraint_source"] == "dist"
-            and prop["constraint_aggregate"] == "sum"
-            and prop["constraint_range"][1] > prop["constraint_range"][0]
-        )
-        bound = float(prop["bound"]) if prop["constraint_source"] == "dist" else None
-        name = f"{run.tag}-{_tag(prop['name'])}-deviation.png"
-        figs[name] = figures.deviation(
-            series, bound, cumulative, run.window, f"{prop['name']}: {r['constraint']}"
-        )
-        parts.append(
-            _img(
-                name,
-                f"{prop['name']} ({run.name}): deviation from the original track per step"
-                + (" and accumulated" if cumulative else "")
-                + f" of {_drawn_words(drawn[1:]) or 'no attacked track'}"
-                + (f", against the constraint's threshold {bound:g}" if bound is not None else "")
-                + ". "
-                + ("" if run.cex[i] is not None else "No path violates: no counterexample drawn."),
-            )
-        )
+def _section(run: _Run, figs: dict[str, bytes], image_for: ImageFor | None) -> list[Any]:
+    """One design's part of the report: model, Table 4, figures, Table 3, notes."""
+    parts: list[Any] = [_model_line(run), Text("h3", "Verdicts (Table 4)"), _table4(run)]
+    for i in range(len(run.props)):
+        parts += _property_figures(run, i, figs, image_for)
     parts.append(_tree_figure(run, figs))
     parts.append(_tau_figure(run, figs))
-    parts.append(_patches(run, figs, image_for))
-    parts.append(_table3(run))
+    parts += _patches(run, figs, image_for)
+    parts += _table3(run)
     for r in run.results:
         for n in r["notes"]:
-            parts.append(f"<p class='note'>{_e(r['property'])}: {_e(n)}</p>")
-    return "".join(parts) + "</section>"
+            parts.append(para(f"{r['property']}: {n}", "note"))
+    return parts
 
 
-def _table4(run: _Run) -> str:
+def _model_line(run: _Run) -> Text:
+    m = run.d["model"]
+    return para(
+        Markup(
+            "{} states, {} transitions, steps 0..{} (frames {}..{}), attack window {}..{}, "
+            "{} attacked tracks. Model sha256 <code>{}…</code>."
+        ).format(
+            m["states"],
+            m["transitions"],
+            m["end"],
+            m["first_frame"],
+            m["first_frame"] + m["end"],
+            run.window[0],
+            run.window[1],
+            run.d["paths_total"],
+            m["sha256"][:16],
+        )
+    )
+
+
+def _property_figures(
+    run: _Run, i: int, figs: dict[str, bytes], image_for: ImageFor | None
+) -> list[Any]:
+    """Property ``i``'s tracks in the frame (Figures 6-8) and deviations (Figure 7c-d)."""
+    prop, r = run.props[i], run.results[i]
+    drawn = _series_for(run, i)
+    if not any(role != "original" for _, role, _ in drawn):
+        return [
+            para(
+                f"{prop['name']}: no attacked track to draw (no counterexample, no "
+                "witness: the monitor excludes every path"
+                + (", the unattacked track included" if r.get("vacuous") else "")
+                + ")."
+            )
+        ]
+    scene = run.d.get("scene")
+    parts: list[Any] = []
+    if scene is not None:
+        parts.append(_track_figure(run, i, drawn, scene, None, figs, image_for))
+    series = [
+        Series(_label(run, no, role, p), role, run.deviations(i, role), p, number=no)
+        for no, role, p in drawn
+    ]
+    cumulative = (
+        prop["constraint_source"] == "dist"
+        and prop["constraint_aggregate"] == "sum"
+        and prop["constraint_range"][1] > prop["constraint_range"][0]
+    )
+    bound = float(prop["bound"]) if prop["constraint_source"] == "dist" else None
+    name = f"{run.tag}-{_tag(prop['name'])}-deviation.png"
+    figs[name] = figures.deviation(
+        series, bound, cumulative, run.window, f"{prop['name']}: {r['constraint']}"
+    )
+    caption = (
+        f"{prop['name']} ({run.name}): deviation from the original track per step"
+        + (" and accumulated" if cumulative else "")
+        + f" of {_drawn_words(drawn[1:]) or 'no attacked track'}"
+        + (f", against the constraint's threshold {bound:g}" if bound is not None else "")
+        + ". "
+        + ("" if run.cex[i] is not None else "No path violates: no counterexample drawn.")
+    )
+    return [*parts, Figure(name, caption)]
+
+
+def _table4(run: _Run) -> Table:
     rows = []
     for i, r in enumerate(run.results):
         check = (
@@ -377,20 +395,24 @@ def _table4(run: _Run) -> str:
             + ("unattacked track alarms at " + ", ".join(map(str, alarms)) if alarms else "none")
         )
         rows.append(
-            f"<tr><th>{_e(r['property'])}</th>"
-            f"<td class='{status_class(r)}'>{_e(verdict_of(r))}</td>"
-            f"<td>{_e(r['objective'])}</td><td>{_e(r['constraint'])}</td><td>{_e(_opt(r))}</td>"
-            f"<td>{_e(r['holds_if'])}</td><td>{_e(fmt(r['witness_value']))}</td>"
-            f"<td>{_no(run.wit[i])}</td><td>{_no(run.cex[i])}</td><td>{_e(monitor)}</td>"
-            f"<td>{run.adversarial(i)} ({check})</td>"
-            f"<td>{r['stats']['seconds']:.3f} s, {r['stats']['states_expanded']} states</td></tr>"
+            [
+                Cell(r["property"], head=True),
+                Cell(verdict_of(r), status_class(r)),
+                r["objective"],
+                r["constraint"],
+                _opt(r),
+                r["holds_if"],
+                fmt(r["witness_value"]),
+                _no(run.wit[i]),
+                _no(run.cex[i]),
+                monitor,
+                f"{run.adversarial(i)} ({check})",
+                f"{r['stats']['seconds']:.3f} s, {r['stats']['states_expanded']} states",
+            ]
         )
-    return (
-        "<h3>Verdicts (Table 4)</h3><table><tr><th>property</th><th>verdict</th><th>minimise</th>"
-        "<th>subject to</th><th>optimum</th><th>holds if</th><th>θ*</th><th>ρ* (track no.)</th>"
-        "<th>counterexample (track no.)</th><th>monitor</th><th>adversarial tracks</th>"
-        "<th>search</th></tr>" + "".join(rows) + "</table>"
-    )
+    head = ["property", "verdict", "minimise", "subject to", "optimum", "holds if", "θ*"]
+    head += ["ρ* (track no.)", "counterexample (track no.)", "monitor", "adversarial tracks"]
+    return table([*head, "search"], rows)
 
 
 def _no(n: int | None) -> str:
@@ -405,7 +427,7 @@ def _track_figure(
     truth: list[list[float]] | None,
     figs: dict[str, bytes],
     image_for: ImageFor | None,
-) -> str:
+) -> Figure:
     prop = run.props[i]
     ref = int(scene["ref_step"])
     frame = int(scene["first_frame"]) + ref
@@ -425,7 +447,7 @@ def _track_figure(
     figs[name] = figures.track_crop(
         tracks, ref, frame, dets, tr, img, f"{prop['name']}: tracks in the frame of step {ref}"
     )
-    return _img(
+    return Figure(
         name,
         f"{prop['name']} ({run.name}): {_drawn_words(drawn)}"
         + (", the target's ground truth (black, dotted)" if tr is not None else "")
@@ -436,7 +458,7 @@ def _track_figure(
     )
 
 
-def _tree_figure(run: _Run, figs: dict[str, bytes]) -> str:
+def _tree_figure(run: _Run, figs: dict[str, bytes]) -> Figure:
     roles = run.roles()
     chosen = [p for p in run.paths if p["no"] in roles]
     for p in run.paths:
@@ -459,7 +481,7 @@ def _tree_figure(run: _Run, figs: dict[str, bytes]) -> str:
     name = f"{run.tag}-tree.png"
     figs[name] = figures.tree(tps, run.d["paths_total"], run.window)
     left = run.d["paths_total"] - len(tps)
-    return _img(
+    return Figure(
         name,
         f"Attacked tracks ({run.name}), {len(tps)} of {run.d['paths_total']} drawn"
         + (f" ({left} not drawn; all are in Table 3 and results.json)" if left else "")
@@ -469,7 +491,7 @@ def _tree_figure(run: _Run, figs: dict[str, bytes]) -> str:
     )
 
 
-def _tau_figure(run: _Run, figs: dict[str, bytes]) -> str:
+def _tau_figure(run: _Run, figs: dict[str, bytes]) -> Figure | Text:
     series = []
     seen: set[int] = set()
     for i in range(len(run.props)):
@@ -487,11 +509,11 @@ def _tau_figure(run: _Run, figs: dict[str, bytes]) -> str:
                 Series(_label(run, no, role, p), role, run.tau(no), p, tuple(sorted(alarms)), no)
             )
     if not series or all(not np.isfinite(s.values).any() for s in series):
-        return "<p>No covariances in this model: no uncertainty figure.</p>"
+        return para("No covariances in this model: no uncertainty figure.")
     monitored = [p["name"] for p in run.props if p["monitor"] is not None]
     name = f"{run.tag}-uncertainty.png"
     figs[name] = figures.uncertainty(series, run.window)
-    return _img(
+    return Figure(
         name,
         f"Covariance trace τ ({run.name}) along "
         f"{_drawn_words([(0, s.role, None) for s in series])}; "
@@ -503,21 +525,24 @@ def _tau_figure(run: _Run, figs: dict[str, bytes]) -> str:
     )
 
 
-def _patches(run: _Run, figs: dict[str, bytes], image_for: ImageFor | None) -> str:
+def _patches(run: _Run, figs: dict[str, bytes], image_for: ImageFor | None) -> list[Any]:
     """What the counterexamples' attacks hide: a table, the replays, and the patches."""
     hidden = run.d.get("hidden") or {}
     if not any(hidden.values()):
-        return ""
+        return []
     replays = {r["property"]: r.get("replay") or {} for r in run.results}
-    out = _hidden_table(hidden, replays) + _replay_lines(run)
+    out = [*_hidden_table(hidden, replays), *_replay_lines(run)]
     if image_for is None:
-        return out + (
-            "<p>No frames were given (<code>--frames</code>): the patches are not drawn.</p>"
-        )
-    return out + _patch_figures(run, hidden, replays, figs, image_for)
+        return [
+            *out,
+            para(
+                Markup("No frames were given (<code>--frames</code>): the patches are not drawn.")
+            ),
+        ]
+    return [*out, *_patch_figures(run, hidden, replays, figs, image_for)]
 
 
-def _hidden_table(hidden: dict[str, Any], replays: dict[str, Any]) -> str:
+def _hidden_table(hidden: dict[str, Any], replays: dict[str, Any]) -> list[Any]:
     """One row per hidden detection: where, its payoff, its certified interval, and the
     payoff the replay recomputed."""
     rows = []
@@ -533,23 +558,36 @@ def _hidden_table(hidden: dict[str, Any], replays: dict[str, Any]) -> str:
             again = recomputed.get(h["obs"])
             rec = "-" if again is None else fmt(again["payoff_recomputed"])
             rows.append(
-                f"<tr><th>{_e(prop)}</th><td>{h['step']}</td><td>{h['frame']}</td>"
-                f"<td>{_e(h['obs'])}</td><td>{_e(where)}</td><td>{_e(fmt(up))}</td>"
-                f"<td>{_e(interval)}</td><td>{tight}</td><td>{_e(rec)}</td></tr>"
+                [
+                    Cell(prop, head=True),
+                    h["step"],
+                    h["frame"],
+                    h["obs"],
+                    where,
+                    fmt(up),
+                    interval,
+                    tight,
+                    rec,
+                ]
             )
-    return (
-        "<h3>What the counterexamples' attacks hide</h3><p>At each attacked step the tracker "
-        "takes a detection of lower priority because the attacker hid those ranked before it "
-        "(Eq. 5). Payoff: the size of the perturbation the attack found that makes N_dr miss "
-        "that detection (an upper bound on the cheapest one; see the payoff unit above). "
-        "Interval: [certified lower bound, attack payoff] when the scene carries certified "
-        "bounds (<code>verify --payoffs interval</code> certifies every detection a model can "
-        "hide, <code>perceive --certify</code> all); tightness = lower / upper (1: exact). "
-        "Replayed: the payoff of the same attack recomputed on the frames by the replay.</p>"
-        "<table><tr><th>property</th><th>step</th><th>frame</th><th>detection</th>"
-        "<th>position</th><th>payoff</th><th>interval</th><th>tightness</th>"
-        "<th>replayed</th></tr>" + "".join(rows) + "</table>"
-    )
+    head = ["property", "step", "frame", "detection", "position", "payoff", "interval"]
+    return [
+        Text("h3", "What the counterexamples' attacks hide"),
+        para(
+            Markup(
+                "At each attacked step the tracker "
+                "takes a detection of lower priority because the attacker hid those ranked before "
+                "it (Eq. 5). Payoff: the size of the perturbation the attack found that makes N_dr "
+                "miss that detection (an upper bound on the cheapest one; see the payoff unit "
+                "above). Interval: [certified lower bound, attack payoff] when the scene carries "
+                "certified bounds (<code>verify --payoffs interval</code> certifies every "
+                "detection a model can hide, <code>perceive --certify</code> all); tightness = "
+                "lower / upper (1: exact). Replayed: the payoff of the same attack recomputed on "
+                "the frames by the replay."
+            )
+        ),
+        table([*head, "tightness", "replayed"], rows),
+    ]
 
 
 def _patch_figures(
@@ -558,7 +596,7 @@ def _patch_figures(
     replays: dict[str, Any],
     figs: dict[str, bytes],
     image_for: ImageFor,
-) -> str:
+) -> list[Figure]:
     """The hidden detections' patches: with the replayed perturbation where there is one."""
     triples, singles = [], []
     for prop, items in hidden.items():
@@ -580,31 +618,35 @@ def _patch_figures(
     if triples:
         name = f"{run.tag}-perturbations.png"
         figs[name], gain = figures.perturbations(triples[:8])
-        return _img(
-            name,
-            "For each detection a counterexample hides: the original 21×21 patch of the "
-            "frame (its N_dr window, current frame), the perturbation the attack adds to that "
-            "channel (red brighter, blue darker; each on its own colour scale spanning its "
-            "largest change, given under its title in grey levels"
-            + (", amplified ×k for visibility where the title says so" if gain > 1 else "")
-            + "), and the attacked patch (original + perturbation, not amplified). The attack "
-            "also perturbs the window's "
-            "three aligned previous frames, not drawn; the payoff is the norm over all four."
-            + (f" The first 8 of {len(triples)} are drawn." if len(triples) > 8 else ""),
-        )
+        return [
+            Figure(
+                name,
+                "For each detection a counterexample hides: the original 21×21 patch of the "
+                "frame (its N_dr window, current frame), the perturbation the attack adds to that "
+                "channel (red brighter, blue darker; each on its own colour scale spanning its "
+                "largest change, given under its title in grey levels"
+                + (", amplified ×k for visibility where the title says so" if gain > 1 else "")
+                + "), and the attacked patch (original + perturbation, not amplified). The attack "
+                "also perturbs the window's "
+                "three aligned previous frames, not drawn; the payoff is the norm over all four."
+                + (f" The first 8 of {len(triples)} are drawn." if len(triples) > 8 else ""),
+            )
+        ]
     if singles:
         name = f"{run.tag}-hidden.png"
         figs[name] = figures.patches(singles[:12])
-        return _img(
-            name,
-            "The original 21×21 patches of the hidden detections (frame pixels); the "
-            "perturbations are drawn once the counterexample is replayed (lesmc verify, "
-            "lesmc replay).",
-        )
-    return ""
+        return [
+            Figure(
+                name,
+                "The original 21×21 patches of the hidden detections (frame pixels); the "
+                "perturbations are drawn once the counterexample is replayed (lesmc verify, "
+                "lesmc replay).",
+            )
+        ]
+    return []
 
 
-def _replay_lines(run: _Run) -> str:
+def _replay_lines(run: _Run) -> list[Text]:
     """One line per replayed counterexample: confirmed, or where and why it diverged."""
     items = []
     for r in run.results:
@@ -613,30 +655,33 @@ def _replay_lines(run: _Run) -> str:
             continue
         how = " (repaired joint attack)" if rp.get("attack") == "repaired" else ""
         if rp["status"] == "not replayed":
-            text = (
+            text = Markup(
                 "<b>not replayed</b>: the counterexample is the model's; run it through the "
                 "detector with <code>lesmc replay RESULTS.json --frames VIDEO/</code>"
             )
         elif rp["status"] == "confirmed":
-            text = (
-                f"<b>confirmed</b>{how}: the real detector and tracker take the same "
-                f"detections; largest position error {rp['max_error_px']:.3g} px"
-            )
+            text = Markup(
+                "<b>confirmed</b>{}: the real detector and tracker take the same "
+                "detections; largest position error {} px"
+            ).format(how, f"{rp['max_error_px']:.3g}")
         else:
-            text = (
-                f"<b>diverged</b>{how} at step {rp['step']}: {_e(rp['reason'])}; the "
+            text = Markup(
+                "<b>diverged</b>{} at step {}: {}; the "
                 "counterexample is no proof of violation and the verdict is unknown"
-            )
-        items.append(f"<li>{_e(r['property'])}: {text}</li>")
+            ).format(how, rp["step"], rp["reason"])
+        items.append(Markup("{}: {}").format(r["property"], text))
     if not items:
-        return ""
-    return (
-        "<p>Replay of the counterexamples through the real detector and tracker "
-        "(docs/semantics.md, “Replay”):</p><ul>" + "".join(items) + "</ul>"
-    )
+        return []
+    return [
+        para(
+            "Replay of the counterexamples through the real detector and tracker "
+            "(docs/semantics.md, “Replay”):"
+        ),
+        Text("ul", items=items),
+    ]
 
 
-def _table3(run: _Run) -> str:
+def _table3(run: _Run) -> list[Any]:
     roles = run.roles()
     l, u = run.window
     shown = [p for p in run.paths if p["no"] in roles]
@@ -645,42 +690,37 @@ def _table3(run: _Run) -> str:
     monitored = [i for i, p in enumerate(run.props) if p["monitor"] is not None]
     rows = []
     for p in shown:
-        rl = roles.get(p["no"], [])
-        cls = _row_class({r for r, _ in rl})
-        breaks = "".join(f"<td>{'yes' if j['violates'] else 'no'}</td>" for j in p["judged"])
-        alarms = "".join(
-            f"<td>{_e(', '.join(map(str, p['judged'][i]['alarms'])) or '-')}</td>"
-            for i in monitored
-        )
-        rows.append(
-            f"<tr class='{cls}'><td>{p['no']}</td>"
-            f"<td class='obs'>{_e(' → '.join(p['labels'][l : u + 1]))}</td>"
-            f"<td>{fmt(p['payoff'])}</td><td>{fmt(p['dist_sum'])}</td><td>{fmt(p['dist_max'])}</td>"
-            f"<td>{fmt(p['dist_end'])}</td>{breaks}{alarms}"
-            f"<td>{_e(', '.join(run.role_text(p['no'])))}</td></tr>"
-        )
+        cells = [
+            Cell(p["no"]),
+            Cell(" → ".join(p["labels"][l : u + 1]), "obs"),
+            *(Cell(fmt(p[k])) for k in ("payoff", "dist_sum", "dist_max", "dist_end")),
+            *(Cell("yes" if j["violates"] else "no") for j in p["judged"]),
+            *(Cell(", ".join(map(str, p["judged"][i]["alarms"])) or "-") for i in monitored),
+            Cell(", ".join(run.role_text(p["no"]))),
+        ]
+        rows.append(Row(cells, _row_class({r for r, _ in roles.get(p["no"], [])})))
     left = run.d["paths_total"] - len(shown)
-    note = (
-        f"<p>{len(shown)} of {run.d['paths_total']} tracks listed"
-        + (f"; {left} left out (results.json lists up to {len(run.paths)})." if left else ".")
-        + "</p>"
+    note = f"{len(shown)} of {run.d['paths_total']} tracks listed" + (
+        f"; {left} left out (results.json lists up to {len(run.paths)})." if left else "."
     )
-    heads = "".join(f"<th>breaks {_e(p['name'])}</th>" for p in run.props)
-    heads += "".join(f"<th>alarms ({_e(run.props[i]['name'])})</th>" for i in monitored)
-    return (
-        "<h3>Measures of the attacked tracks (Table 3)</h3>"
-        "<p>φ: combined payoff over the window (Eq. 5, 8), in payoff units; deviations of the "
-        "position (x, y) from the original track in pixels: accumulated dist<sup>0,e</sup>, "
-        "maximum, and at the end. 'breaks P': the path satisfies P's constraint (it is in P+). "
-        "Alarms: the steps at which P's monitor counts an alarm on the path (Eq. 13). "
-        f"Observations along the window {l}..{u} as step-detection; row numbers are the tree's "
-        "leaf numbers.</p>"
-        + note
-        + "<table><tr><th>no.</th><th>observations in the window</th><th>φ</th><th>dist.sum</th>"
-        f"<th>dist.max</th><th>dist.at(end)</th>{heads}<th>role</th></tr>"
-        + "".join(rows)
-        + "</table>"
-    )
+    head = ["no.", "observations in the window", "φ", "dist.sum", "dist.max", "dist.at(end)"]
+    head += [f"breaks {p['name']}" for p in run.props]
+    head += [f"alarms ({run.props[i]['name']})" for i in monitored]
+    return [
+        Text("h3", "Measures of the attacked tracks (Table 3)"),
+        para(
+            Markup(
+                "φ: combined payoff over the window (Eq. 5, 8), in payoff units; deviations of "
+                "the position (x, y) from the original track in pixels: accumulated "
+                "dist<sup>0,e</sup>, maximum, and at the end. 'breaks P': the path satisfies "
+                "P's constraint (it is in P+). Alarms: the steps at which P's monitor counts an "
+                "alarm on the path (Eq. 13). Observations along the window {}..{} as "
+                "step-detection; row numbers are the tree's leaf numbers."
+            ).format(l, u)
+        ),
+        para(note),
+        Table([[Cell(h, head=True) for h in [*head, "role"]]], rows),
+    ]
 
 
 def _row_class(roles: set[str]) -> str:
@@ -692,29 +732,28 @@ def _row_class(roles: set[str]) -> str:
     return ""
 
 
-def _specs(doc: dict[str, Any]) -> str:
-    specs = doc.get("provenance", {}).get("specs", [])
-    blocks = "".join(f"<h3>{_e(s['path'])}</h3><pre>{_e(s['text'])}</pre>" for s in specs)
-    extra = ""
+def _monitored(doc: dict[str, Any]) -> list[str]:
+    """Per design with monitored properties: which, on what, with which tolerance."""
+    out = []
     for run in doc["runs"]:
         mon = [p for p in run["properties"] if p["monitor"] is not None]
         if mon:
-            extra += (
-                f"<p>Design {_e(run['design'])}: "
+            out.append(
+                f"Design {run['design']}: "
                 + "; ".join(
-                    f"{_e(p['name'])} monitored (monitor uncertainty on "
-                    f"{_e(', '.join(p['monitor']['components']))}, tolerance "
+                    f"{p['name']} monitored (monitor uncertainty on "
+                    f"{', '.join(p['monitor']['components'])}, tolerance "
                     f"{p['monitor']['tolerance']:g}"
                     + (", except original" if p["monitor"]["except_original"] else "")
                     + ")"
                     for p in mon
                 )
-                + ".</p>"
+                + "."
             )
-    return f"<h2 id='specs'>Properties (spec text)</h2>{blocks}{extra}"
+    return out
 
 
-def _provenance(doc: dict[str, Any]) -> str:
+def _provenance(doc: dict[str, Any]) -> Table:
     prov = doc.get("provenance", {})
     rows = [
         ("format", f"{doc['format']} version {doc['version']}"),
@@ -725,55 +764,18 @@ def _provenance(doc: dict[str, Any]) -> str:
     ]
     for design, h in prov.get("model_sha256", {}).items():
         rows.append((f"model sha256 ({design})", h))
-    t = "".join(f"<tr><th>{_e(k)}</th><td>{_e(v)}</td></tr>" for k, v in rows)
-    timings = doc.get("timings", {})
-    tt = "".join(f"<tr><th>{_e(k)}</th><td>{v:.3f} s</td></tr>" for k, v in timings.items())
-    per = "".join(
-        f"<tr><th>{_e(run['design'])} · {_e(r['property'])}</th>"
-        f"<td>{r['stats']['seconds']:.3f} s ({_e(r['stats']['engine'])}, "
-        f"{r['stats']['states_expanded']} states expanded)</td></tr>"
+    return key_values(rows)
+
+
+def _timings(doc: dict[str, Any]) -> Table:
+    rows = [(k, f"{v:.3f} s") for k, v in doc.get("timings", {}).items()]
+    rows += [
+        (
+            f"{run['design']} · {r['property']}",
+            f"{r['stats']['seconds']:.3f} s ({r['stats']['engine']}, "
+            f"{r['stats']['states_expanded']} states expanded)",
+        )
         for run in doc["runs"]
         for r in run["results"]
-    )
-    return (
-        "<h2 id='provenance'>Provenance and timings</h2>"
-        f"<table class='meta'>{t}</table><h3>Timings</h3><table class='meta'>{tt}{per}</table>"
-    )
-
-
-_CSS = """
-body{font-family:system-ui,Segoe UI,Helvetica,Arial,sans-serif;margin:2em auto;max-width:1150px;
-color:#222;line-height:1.4;padding:0 1em}
-h1{font-size:1.6em}h2{border-bottom:2px solid #ddd;padding-bottom:.2em;margin-top:1.6em}
-table{border-collapse:collapse;margin:.6em 0;font-size:.85em}
-td,th{border:1px solid #ccc;padding:.25em .5em;text-align:right}th{background:#f4f4f4}
-td:nth-child(2){text-align:left}td.obs{white-space:nowrap}
-.holds{color:#1a7f37;font-weight:bold}.violated{color:#c62828;font-weight:bold}
-.holds--vacuous-{color:#00838f;font-weight:bold;font-style:italic}
-.violated--not-replayed-{color:#ad1457;font-weight:bold;font-style:italic}
-.unknown{color:#b26a00;font-weight:bold}tr.original{background:#e8f5e9}tr.counterexample{background:#fdecea}
-tr.witness{background:#e3ecf9}
-figure{display:inline-block;margin:.8em;vertical-align:top;max-width:100%}
-figure img{max-width:100%;height:auto;border:1px solid #ddd}\n.scroll{overflow-x:auto}
-figcaption{font-size:.85em;color:#555;max-width:640px}
-.note{color:#8a6d3b;font-size:.9em}table.meta th,table.meta td{text-align:left}
-pre{background:#f7f7f7;border:1px solid #ddd;padding:.6em;font-size:.85em;overflow-x:auto}
-nav ol{columns:2}
-"""
-
-
-def _page(body: list[str], figs: dict[str, bytes]) -> str:
-    text = "".join(body).replace("<table", "<div class='scroll'><table")
-    text = text.replace("</table>", "</table></div>")
-    for name, png in figs.items():  # drawn at 2x: shown at half the natural size, sharp
-        w, h = int.from_bytes(png[16:20], "big"), int.from_bytes(png[20:24], "big")
-        text = text.replace(
-            f"'@@{name}@@'",
-            f"'data:image/png;base64,{base64.b64encode(png).decode()}' "
-            f"width='{w // 2}' height='{h // 2}'",
-        )
-    return (
-        "<!DOCTYPE html><html lang='en'><head><meta charset='utf-8'>"
-        "<title>lesmc verification report</title>"
-        f"<style>{_CSS}</style></head><body>{text}</body></html>\n"
-    )
+    ]
+    return key_values(rows)
