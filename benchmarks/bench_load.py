@@ -7,6 +7,11 @@ alternated N times in one run after one warm-up run of each (bytecode caches
 written, as pip leaves them); also the in-process stages. BIG is a layered
 68,890-state model (steps 0..20, fan-out 1-4), made here with a fixed seed.
 
+The binary form (issue 31, lesmc/model/lts_binary.py) of the same model side by
+side: ``lesmc check BIG.npz SPEC`` against a bare process that ``numpy.load``s the
+same arrays, and in process ``load_lts_npz`` (read + every rule checked) against
+``numpy.load`` of its arrays.
+
 Run ``python benchmarks/bench_load.py [-n 7] [--keep DIR]``.
 """
 
@@ -28,6 +33,7 @@ from rich.console import Console
 from rich.table import Table
 
 from lesmc.common.files import read_json
+from lesmc.model.lts_binary import load_lts_npz
 from lesmc.model.lts_format import lts_from_dict, save_lts
 
 SPEC = (
@@ -116,18 +122,38 @@ def main() -> int:
     args = ap.parse_args()
     d = args.keep or Path(tempfile.mkdtemp(prefix="lesmc-bench-"))
     d.mkdir(parents=True, exist_ok=True)
-    big, spec = d / "big.lts", d / "p.spec"
-    save_lts(lts_from_dict(make()), big)
+    big, npz, spec = d / "big.lts", d / "big.npz", d / "p.spec"
+    model = lts_from_dict(make())
+    save_lts(model, big)
+    save_lts(model, npz)
     spec.write_text(SPEC)
     lesmc = shutil.which("lesmc") or "lesmc"
     bare = [sys.executable, "-c", f"import json; json.load(open({str(big)!r}))"]
+    bare_np = [
+        sys.executable,
+        "-c",
+        f"import numpy as np; z = np.load({str(npz)!r}); [z[k] for k in z.files]",
+    ]
     check = [lesmc, "check", str(big), str(spec)]
-    runs: dict[str, list[float]] = {"json.load": [], "lesmc check": []}
-    stages: dict[str, list[float]] = {"json.load": [], "read_json": [], "lts_from_dict": []}
-    timed(bare), timed(check)  # warm-up: bytecode caches written, files in the page cache
+    check_np = [lesmc, "check", str(npz), str(spec)]
+    runs: dict[str, list[float]] = {
+        "json.load": [],
+        "lesmc check": [],
+        "numpy.load": [],
+        "lesmc check .npz": [],
+    }
+    stages: dict[str, list[float]] = {
+        "json.load": [],
+        "read_json": [],
+        "lts_from_dict": [],
+        "numpy.load": [],
+        "load_lts_npz": [],
+    }
+    for argv in (bare, check, bare_np, check_np):  # warm-up: bytecode, page cache
+        timed(argv)
     for _ in range(args.n):
-        runs["json.load"].append(timed(bare))
-        runs["lesmc check"].append(timed(check))
+        for name, argv in zip(runs, (bare, check, bare_np, check_np), strict=True):
+            runs[name].append(timed(argv))
         t0 = time.perf_counter()
         with open(big) as fh:
             json.load(fh)
@@ -136,20 +162,28 @@ def main() -> int:
         t2 = time.perf_counter()
         lts_from_dict(data)
         t3 = time.perf_counter()
-        for k, v in zip(stages, (t1 - t0, t2 - t1, t3 - t2), strict=True):
+        with np.load(npz) as z:
+            [z[k] for k in z.files]
+        t4 = time.perf_counter()
+        load_lts_npz(npz)
+        t5 = time.perf_counter()
+        for k, v in zip(stages, (t1 - t0, t2 - t1, t3 - t2, t4 - t3, t5 - t4), strict=True):
             stages[k].append(v)
     table = Table(
         title=f"{big.stat().st_size / 1e6:.1f} MB .lts, 68,890 states (min / median of {args.n})"
     )
     for c in ("what", "min s", "median s", "min / json.load"):
         table.add_column(c, justify="right")
+    table.add_column("min / numpy.load", justify="right")
     base_p, base_s = min(runs["json.load"]), min(stages["json.load"])
+    base_np, base_nps = min(runs["numpy.load"]), min(stages["numpy.load"])
     for name, vals in runs.items():
         table.add_row(
             f"process: {name}",
             f"{min(vals):.3f}",
             f"{statistics.median(vals):.3f}",
             f"{min(vals) / base_p:.2f}x",
+            f"{min(vals) / base_np:.2f}x",
         )
     for name, vals in stages.items():
         table.add_row(
@@ -157,6 +191,7 @@ def main() -> int:
             f"{min(vals):.3f}",
             f"{statistics.median(vals):.3f}",
             f"{min(vals) / base_s:.2f}x",
+            f"{min(vals) / base_nps:.2f}x",
         )
     Console(width=120).print(table)
     if args.keep is None:

@@ -23,6 +23,7 @@ from lesmc.engines.result import CheckResult
 from lesmc.language.parser import load_spec, parse_spec
 from lesmc.language.properties import SpecFile
 from lesmc.model.arrays import ArrayModel
+from lesmc.model.lts_binary import is_binary, load_lts_npz
 from lesmc.model.lts_format import load_lts, lts_from_dict
 from lesmc.pipeline.check import run
 from lesmc.pipeline.job import Job, PayoffMode
@@ -95,8 +96,10 @@ def load_model_or_scene(
     design: str | None = None,
     tracker: str | Path | TrackerConfig | None = None,
 ) -> ArrayModel | Scene:
-    """A .lts model or a scene, told apart by the file's ``format`` field."""
-    data = read_json(Path(path), InputError)
+    """A model (.lts, or its binary .npz form) or a scene, told apart by the file's
+    ``format`` field."""
+    binary = is_binary(path)
+    data = None if binary else read_json(Path(path), InputError)
     if isinstance(data, dict) and data.get("format") == "lesmc-scene":
         return scene_with_target(data, str(path), target, design, _tracker_config(tracker))
     if tracker is not None:
@@ -105,7 +108,7 @@ def load_model_or_scene(
         raise UsageError("--design applies to scenes, not to .lts models")
     if target:
         raise UsageError("--target applies to scenes, not to .lts models (built for one target)")
-    return lts_from_dict(data, str(path))
+    return load_lts_npz(path) if binary else lts_from_dict(data, str(path))
 
 
 def expand_designs(choice: str) -> tuple[str, ...]:

@@ -54,8 +54,13 @@ def stop_if_spent(budget: Budget, model: GrowingModel | ArrayModel | None, stage
 def write_model(model: ArrayModel, output: str, budget: Budget) -> None:
     """Write ``model`` as a .lts (atomically), checking ``budget`` between chunks."""
     from lesmc.common.files import write_json
+    from lesmc.model.lts_binary import is_binary, save_lts_npz
     from lesmc.model.lts_format import lts_document
 
+    if is_binary(output):  # arrays as they are: one write, nothing to chunk
+        stop_if_spent(budget, None, f"writing {escape_control(str(Path(output)))}")
+        save_lts_npz(model, output)
+        return
     doc = lts_document(model)
     stop_if_spent(budget, None, f"writing {escape_control(str(Path(output)))}")
     write_json(output, doc, on_chunk=lambda: stop_if_spent(budget, None, f"writing {output}"))

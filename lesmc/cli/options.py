@@ -55,7 +55,8 @@ model_output = click.option(
     "--output",
     required=True,
     type=click.Path(dir_okay=False),
-    help="The model file to write (.lts).",
+    help="The model file to write: JSON (.lts), or the binary form when it ends in .npz "
+    "(docs/lts-format.md; loads at disk speed).",
 )
 
 

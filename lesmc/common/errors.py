@@ -112,7 +112,8 @@ class LesmcError(Exception):
         lines = [f"{path}: {item}: {msg}" if item else f"{path}: {msg}" for item, msg in problems]
         if len(lines) > limit:
             lines = [*lines[:limit], f"{path}: ... and {len(problems) - limit} more problems"]
-        err = cls("\n".join(lines))
+        first = problems[0][0] if problems else ""
+        err = cls("\n".join(lines), Location(path, item=first or None))
         err.preformatted = True
         return err
 

@@ -59,7 +59,12 @@ _REPR.maxother = 60
 
 
 def load_lts(path: str | Path) -> ArrayModel:
-    """Read and validate a .lts file."""
+    """Read and validate a model: a .lts JSON file, or its binary form (``.npz``,
+    lesmc/model/lts_binary.py)."""
+    from lesmc.model.lts_binary import is_binary, load_lts_npz
+
+    if is_binary(path):
+        return load_lts_npz(path)
     return lts_from_dict(read_json(path, ModelError), str(path))
 
 
@@ -366,7 +371,16 @@ def _transitions_json(model: ArrayModel, ids: list[str], pos: np.ndarray) -> lis
 
 
 def save_lts(model: ArrayModel | LTS, path: str | Path) -> None:
-    """Write a model atomically."""
+    """Write a model atomically: JSON, or the binary form when ``path`` ends in .npz."""
+    from lesmc.model.lts_binary import is_binary, save_lts_npz
+
+    if is_binary(path):
+        if not isinstance(model, ArrayModel):
+            from lesmc.model.lts import to_arrays
+
+            model = to_arrays(model)
+        save_lts_npz(model, path)
+        return
     write_json(path, lts_document(model))
 
 

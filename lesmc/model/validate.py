@@ -16,7 +16,7 @@ path rules (unique lowest rank, initial, original, reachability, halting).
 from __future__ import annotations
 
 import operator
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from itertools import islice, pairwise, repeat
 from typing import Any
@@ -65,7 +65,7 @@ class Parts:
     meta: dict[str, Any] = field(default_factory=dict)
 
 
-class _Report:
+class Report:
     """Problems keyed by (section, row, field) so that they come out in file order."""
 
     def __init__(self) -> None:
@@ -100,7 +100,7 @@ def build(parts: Parts, path: str = "<model>") -> ArrayModel:
     perm, pos, torder, src, dst, rank, step, ptr, halted = _layout(parts, src_f, dst_f)
     sorted_ids = ids if perm is None else [ids[i] for i in perm.tolist()]
 
-    rep = _Report()
+    rep = Report()
     _check_order(rep, ptr, src, rank, perm, ids)
     original = _check_paths(rep, parts, index, pos, step, halted, ptr, src, dst, perm, ids)
     rep.raise_if_any(path)
@@ -131,6 +131,109 @@ def build(parts: Parts, path: str = "<model>") -> ArrayModel:
         labels=dict(sorted(labels.items())),
         meta=parts.meta,
     )
+
+
+def check_arrays(cm: ArrayModel, path: str = "<model>") -> None:
+    """The rules of :func:`build` on a model given as arrays (the binary .npz form, laid
+    out already): the layout itself first (shapes, CSR offsets, index ranges, finite
+    numbers, states in step order, each state's transitions in (rank, target) order),
+    then the same transition, order, path and state rules, with the same messages."""
+    _check_layout(cm, path)
+    n = cm.n_states
+    ids: Sequence[str] = cm.ids if cm.ids is not None else _DefaultIds(cm.step)
+    rep = Report()
+    src = np.repeat(np.arange(n, dtype=np.int64), np.diff(cm.ptr))
+
+    def item(j: int) -> str:
+        return f"transition {j} ({ids[src[j]]} -> {ids[cm.dst[j]]})"
+
+    known = np.arange(cm.dst.shape[0], dtype=np.int64)
+    check_transitions(rep, known, src, cm.dst, cm.step, cm.payoff, item)
+    rep.raise_if_any(path)
+    _check_order(rep, cm.ptr, src, cm.rank, None, ids)
+    original = [ids[q] for q in cm.original.tolist()]
+    if cm.step[cm.initial] != 0:
+        rep.add((1, 0, 1), "initial", f"state '{original[0]}' must be at step 0")
+    _check_original(rep, original, cm.original, cm.step, cm.ptr, src, cm.dst, ids, None)
+    check_states(rep, cm.initial, cm.end, cm.step, cm.halted, cm.ptr, src, cm.dst, None, ids)
+    rep.raise_if_any(path)
+
+
+def _check_layout(cm: ArrayModel, path: str) -> None:
+    """Shapes, offsets, index ranges, finite numbers and the order of rows: what the
+    arrays must be before the model's own rules can be checked."""
+    n, m = cm.step.shape[0], cm.dst.shape[0]
+    d = cm.S.shape[1] if cm.S.ndim == 2 else -1
+    bad: list[tuple[str, str]] = []
+
+    def need(ok: bool, item: str, message: str) -> None:
+        if not ok:
+            bad.append((item, message))
+
+    need(n > 0, "step", "the model has no states")
+    need(cm.S.shape == (n, d) and d >= 1, "S", f"must be {n} x d (d >= 1), got {cm.S.shape}")
+    need(cm.halted.shape == (n,), "halted", f"must have {n} entries, got {cm.halted.shape}")
+    need(cm.ptr.shape == (n + 1,), "ptr", f"must have {n + 1} entries, got {cm.ptr.shape}")
+    for name in ("payoff", "rank") + (("obs",) if cm.obs is not None else ()):
+        got = getattr(cm, name).shape
+        need(got == (m,), name, f"must have {m} entries (one per transition), got {got}")
+    need(cm.original.ndim == 1 and cm.original.size > 0, "original", "must be a non-empty path")
+    need(len(cm.components) == d, "components", f"must name the {d} components of S")
+    need(len(set(cm.components)) == len(cm.components), "components", "names must be unique")
+    if cm.ids is not None:
+        need(len(cm.ids) == n, "ids", f"must have {n} entries, got {len(cm.ids)}")
+        need(len(set(cm.ids)) == len(cm.ids), "ids", "state ids must be unique")
+    if bad:
+        raise ModelError.many(path, bad)
+    ptr = cm.ptr
+    need(ptr[0] == 0 and ptr[-1] == m, "ptr", f"must run from 0 to {m} (the transitions)")
+    need(bool((np.diff(ptr) >= 0).all()), "ptr", "must not decrease")
+    need(bool(((cm.dst >= 0) & (cm.dst < n)).all()), "dst", f"must be states 0..{n - 1}")
+    need(bool(((cm.original >= 0) & (cm.original < n)).all()), "original", "unknown state")
+    need(bool(np.isfinite(cm.S).all()), "S", "must be finite numbers")
+    need(bool((np.diff(cm.step) >= 0).all()), "step", "states must be in step order")
+    _check_tables(cm, need, d)
+    if bad:
+        raise ModelError.many(path, bad)
+    src = np.repeat(np.arange(n, dtype=np.int64), np.diff(ptr))
+    r, t = cm.rank, cm.dst
+    up = (r[1:] > r[:-1]) | ((r[1:] == r[:-1]) & (t[1:] >= t[:-1]))
+    ordered = bool((up | (src[1:] != src[:-1])).all())
+    need(ordered, "rank", "each state's transitions must be in (rank, target) order")
+    if bad:
+        raise ModelError.many(path, bad)
+
+
+class _DefaultIds(Sequence[str]):
+    """The default ids ``k{step}.{row}`` of a model without ids, made when a message
+    names one (a list of them all would cost more than the checks)."""
+
+    def __init__(self, step: np.ndarray) -> None:
+        self._step = step
+
+    def __len__(self) -> int:
+        return int(self._step.shape[0])
+
+    def __getitem__(self, i: Any) -> Any:
+        if isinstance(i, slice):
+            return [self[j] for j in range(*i.indices(len(self)))]
+        return f"k{int(self._step[i])}.{int(i)}"
+
+
+def _check_tables(cm: ArrayModel, need: Callable[[bool, str, str], None], d: int) -> None:
+    """Covariances and observations: their tables, and indices into them (−1: none)."""
+    if (cm.cov is None) != (cm.P_table is None):
+        need(False, "cov", "cov and P_table come together")
+        return
+    if cm.cov is not None and cm.P_table is not None:
+        c = cm.P_table.shape[0]
+        need(cm.cov.shape == cm.step.shape, "cov", "must have one entry per state")
+        need(cm.P_table.shape == (c, d, d), "P_table", f"must be c x {d} x {d}")
+        need(bool(np.isfinite(cm.P_table).all()), "P_table", "must be finite numbers")
+        need(bool(((cm.cov >= -1) & (cm.cov < c)).all()), "cov", f"must be -1..{c - 1}")
+    if cm.obs is not None:
+        k = len(cm.obs_names)
+        need(bool(((cm.obs >= -1) & (cm.obs < k)).all()), "obs", f"must be -1..{k - 1}")
 
 
 def _layout(parts: Parts, src_f: np.ndarray, dst_f: np.ndarray) -> tuple[Any, ...]:
@@ -201,7 +304,7 @@ def _check_parts(
     """Duplicate ids, sizes of s and P, endpoints, steps, payoffs, duplicate pairs."""
     ids = parts.ids
     n = len(ids)
-    rep = _Report()
+    rep = Report()
     rows = np.arange(n, dtype=np.int64)
     dup = np.zeros(n, dtype=bool)
     if len(index) < n:
@@ -224,14 +327,28 @@ def _check_parts(
     for j in np.flatnonzero(unknown).tolist():
         missing = parts.src[j] if src[j] < 0 else parts.dst[j]
         rep.add((1, j, 0), item(j), f"unknown state '{missing}'")
-    known = np.flatnonzero(~unknown)
-    ks, kd = parts.step[src[known]], parts.step[dst[known]]
+    check_transitions(rep, np.flatnonzero(~unknown), src, dst, parts.step, parts.payoff, item)
+    rep.raise_if_any(path, head)
+
+
+def check_transitions(
+    rep: Report,
+    known: np.ndarray,
+    src: np.ndarray,
+    dst: np.ndarray,
+    step: np.ndarray,
+    payoff: np.ndarray,
+    item: Callable[[int], str],
+) -> None:
+    """The transitions ``known`` (with known endpoints): one step up, payoff finite and
+    >= 0, no second transition between the same states."""
+    n = step.shape[0]
+    ks, kd = step[src[known]], step[dst[known]]
     jump = kd != ks + 1
     for j, a, b in zip(known[jump].tolist(), ks[jump].tolist(), kd[jump].tolist(), strict=True):
         rep.add((1, j, 1), item(j), f"goes from step {a} to step {b}; must go to step {a + 1}")
-    payoff = parts.payoff
-    bad_pay = ~unknown & ~(np.isfinite(payoff) & (payoff >= 0))
-    for j in np.flatnonzero(bad_pay).tolist():
+    pay = payoff[known]
+    for j in known[~(np.isfinite(pay) & (pay >= 0))].tolist():
         rep.add((1, j, 2), item(j), f"payoff must be finite and >= 0, got {payoff[j]}")
     if known.size > 1:
         key = src[known] * n + dst[known]
@@ -240,16 +357,15 @@ def _check_parts(
         again[o[1:]] = key[o[1:]] == key[o[:-1]]
         for j in known[again].tolist():
             rep.add((1, j, 3), item(j), "a second transition between the same states")
-    rep.raise_if_any(path, head)
 
 
 def _check_order(
-    rep: _Report,
+    rep: Report,
     ptr: np.ndarray,
     src: np.ndarray,
     rank: np.ndarray,
     perm: np.ndarray | None,
-    ids: list[str],
+    ids: Sequence[str],
 ) -> None:
     """≺ must have a unique minimum per state: the transition taken when not attacked."""
     m = rank.shape[0]
@@ -269,7 +385,7 @@ def _check_order(
 
 
 def _check_paths(
-    rep: _Report,
+    rep: Report,
     parts: Parts,
     index: dict[str, int],
     pos: np.ndarray,
@@ -279,7 +395,7 @@ def _check_paths(
     src: np.ndarray,
     dst: np.ndarray,
     perm: np.ndarray | None,
-    ids: list[str],
+    ids: Sequence[str],
 ) -> np.ndarray | None:
     """Initial, original path, reachability, steps beyond e, halting; the original's rows."""
     initial, original = parts.initial, parts.original
@@ -294,21 +410,52 @@ def _check_paths(
         return None
     if original[0] != initial:
         rep.add((1, 0, 2), "original", f"must start at the initial state '{initial}'")
-    e = len(original) - 1
     rows = _lookup(index, original)
     missing = np.flatnonzero(rows < 0)
-    stop = int(missing[0]) if missing.size else e + 1
+    stop = int(missing[0]) if missing.size else len(original)
     op: np.ndarray = pos[rows[:stop]]
-    deg = np.diff(ptr)
-    k = np.arange(stop, dtype=np.int64)
+    _check_original(rep, original, op, step, ptr, src, dst, ids, perm)
+    if missing.size:
+        rep.add((2, stop, 0), f"original[{stop}]", f"unknown state '{original[stop]}'")
+        return None
+    check_states(rep, q0, len(original) - 1, step, halted, ptr, src, dst, perm, ids)
+    return op
+
+
+def _check_original(
+    rep: Report,
+    original: list[str],
+    op: np.ndarray,
+    step: np.ndarray,
+    ptr: np.ndarray,
+    src: np.ndarray,
+    dst: np.ndarray,
+    ids: Sequence[str],
+    perm: np.ndarray | None,
+) -> None:
+    """The original path (rows ``op``): state k at step k, each link rank-minimal."""
+    k = np.arange(op.shape[0], dtype=np.int64)
     for kk in np.flatnonzero(step[op] != k).tolist():
         sid = original[kk]
         rep.add((2, kk, 0), f"original[{kk}]", f"state '{sid}' is at step {step[op[kk]]}, not {kk}")
     _check_links(rep, original, op, ptr, src, dst, ids, perm)
-    if missing.size:
-        rep.add((2, stop, 0), f"original[{stop}]", f"unknown state '{original[stop]}'")
-        return None
 
+
+def check_states(
+    rep: Report,
+    q0: int,
+    e: int,
+    step: np.ndarray,
+    halted: np.ndarray,
+    ptr: np.ndarray,
+    src: np.ndarray,
+    dst: np.ndarray,
+    perm: np.ndarray | None,
+    ids: Sequence[str],
+) -> None:
+    """Every state reachable from ``q0``, at a step <= e, halted exactly where it has no
+    successor before e (rows in (step, id) order; ``perm`` maps them to file rows)."""
+    deg = np.diff(ptr)
     reach = _reachable(q0, step, ptr, src, dst)
     succ = deg > 0
     masks = (~reach, step > e, (halted & succ) | (~succ & (step < e) & ~halted))
@@ -327,17 +474,16 @@ def _check_paths(
                     "tracker stopped there"
                 )
             rep.add((3, r, kind), f"state '{ids[r]}'", msg)
-    return op
 
 
 def _check_links(
-    rep: _Report,
+    rep: Report,
     original: list[str],
     op: np.ndarray,
     ptr: np.ndarray,
     src: np.ndarray,
     dst: np.ndarray,
-    ids: list[str],
+    ids: Sequence[str],
     perm: np.ndarray | None,
 ) -> None:
     """Each step of the original path (rows ``op``) is the rank-minimal transition."""
@@ -371,7 +517,7 @@ def _file_rows(rows: np.ndarray, perm: np.ndarray | None) -> np.ndarray:
     return rows if perm is None else perm[rows]
 
 
-def _id(ids: list[str], perm: np.ndarray | None, row: int) -> str:
+def _id(ids: Sequence[str], perm: np.ndarray | None, row: int) -> str:
     return ids[row] if perm is None else ids[int(perm[row])]
 
 

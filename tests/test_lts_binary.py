@@ -1,0 +1,185 @@
+"""The binary model form (.npz, lesmc/model/lts_binary.py): the same model as the JSON
+.lts, the same answers, the same rules, and a located error for any bad file."""
+
+from __future__ import annotations
+
+import io
+import json
+import zipfile
+from dataclasses import replace
+from pathlib import Path
+
+import numpy as np
+import pytest
+from cli_run import lesmc
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
+
+from lesmc.common.errors import ModelError
+from lesmc.model.arrays import ArrayModel
+from lesmc.model.lts import to_arrays
+from lesmc.model.lts_binary import load_lts_npz, save_lts_npz
+from lesmc.model.lts_format import load_lts, lts_from_dict, lts_to_dict, save_lts
+from lesmc.model.random_models import RandomModelConfig, random_lts
+
+ROOT = Path(__file__).resolve().parents[1]
+TINY = ROOT / "tests" / "golden" / "tiny"
+SETTINGS = settings(max_examples=60, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+
+
+def model(seed: int, covariance: bool = True, halt: float = 0.2) -> ArrayModel:
+    cfg = RandomModelConfig(steps=4, width=3, branching=(1, 3), covariance=covariance,
+                            halt_prob=halt)  # fmt: skip
+    return to_arrays(random_lts(cfg, seed=seed))
+
+
+@SETTINGS
+@given(seed=st.integers(0, 2**31), covariance=st.booleans(), halt=st.sampled_from([0.0, 0.3]))
+def test_the_binary_form_holds_the_model_the_json_holds(
+    tmp_path_factory: pytest.TempPathFactory, seed: int, covariance: bool, halt: float
+) -> None:
+    m = model(seed, covariance, halt)
+    d = tmp_path_factory.mktemp("npz")
+    save_lts(m, d / "m.lts")
+    save_lts(m, d / "m.npz")  # the suffix chooses the form
+    assert zipfile.is_zipfile(d / "m.npz")
+    from_json, from_npz = load_lts(d / "m.lts"), load_lts(d / "m.npz")
+    assert lts_to_dict(from_npz) == lts_to_dict(from_json) == lts_to_dict(m)
+
+
+def test_check_answers_the_same_from_both_forms(tmp_path: Path) -> None:
+    scene, spec = ROOT / "examples" / "merge.json", ROOT / "examples" / "merge.spec"
+    answers = []
+    for name in ("m.lts", "m.npz"):
+        out = tmp_path / name
+        r = lesmc("build", str(scene), "--window", "6..8", "-o", str(out))
+        assert r.returncode == 0, r.stderr
+        r = lesmc("check", str(out), str(spec), "--json")
+        assert r.returncode in (0, 1) and "Traceback" not in r.stderr, r.stderr
+        answers.append([{k: v for k, v in x.items() if k != "stats"}
+                        for x in json.loads(r.stdout)["results"]])  # fmt: skip
+    assert answers[0] == answers[1] and answers[0]
+
+
+def _arrays(path: Path) -> dict[str, np.ndarray]:
+    with np.load(path, allow_pickle=False) as z:
+        return {k: z[k] for k in z.files}
+
+
+def _write(path: Path, arrays: dict[str, np.ndarray]) -> None:
+    buf = io.BytesIO()
+    np.savez(buf, **arrays)
+    path.write_bytes(buf.getvalue())
+
+
+MUTATIONS = st.sampled_from(
+    ["drop", "extra", "dtype", "int", "float", "header", "version", "truncate", "object"]
+)
+
+
+@SETTINGS
+@given(seed=st.integers(0, 2**31), how=MUTATIONS, pick=st.integers(0, 10**6))
+def test_a_mutated_file_loads_or_is_a_located_model_error(
+    tmp_path_factory: pytest.TempPathFactory, seed: int, how: str, pick: int
+) -> None:
+    """Never another exception, whatever is changed; and what loads is a valid model
+    (the JSON form's rules accept it too)."""
+    d = tmp_path_factory.mktemp("mut")
+    good = d / "m.npz"
+    save_lts_npz(model(seed), good)
+    arrays = _arrays(good)
+    names = sorted(k for k in arrays if k != "header")
+    name = names[pick % len(names)]
+    a = arrays[name]
+    if how == "drop":
+        del arrays[name]
+    elif how == "extra":
+        arrays["surprise"] = np.zeros(3)
+    elif how == "dtype":
+        arrays[name] = a.astype(np.int32 if a.dtype != np.int32 else np.float64)
+    elif how == "int" and a.size and a.dtype == np.int64:
+        a = a.copy()
+        a.flat[pick % a.size] = (pick % 7) - 3 + int(a.flat[pick % a.size])
+        arrays[name] = a
+    elif how == "float" and a.size and a.dtype == np.float64:
+        a = a.copy()
+        a.flat[pick % a.size] = [np.nan, np.inf, -1.0, 0.0][pick % 4]
+        arrays[name] = a
+    elif how == "header":
+        text = arrays["header"].tobytes()[: pick % 40]
+        arrays["header"] = np.frombuffer(text + b"}", dtype=np.uint8)
+    elif how == "version":
+        head = json.loads(arrays["header"].tobytes())
+        head["version"] = True
+        arrays["header"] = np.frombuffer(json.dumps(head).encode(), dtype=np.uint8)
+    bad = d / "bad.npz"
+    if how == "truncate":
+        raw = good.read_bytes()
+        bad.write_bytes(raw[: pick % len(raw)])
+    elif how == "object":
+        buf = io.BytesIO()
+        np.save(buf, np.array([{"x": 1}], dtype=object), allow_pickle=True)
+        with zipfile.ZipFile(bad, "w") as z:
+            z.writestr("header.npy", buf.getvalue())
+    else:
+        _write(bad, arrays)
+    try:
+        got = load_lts_npz(bad)
+    except ModelError as exc:
+        assert exc.location is not None and exc.location.path == str(bad)
+        return
+    assert lts_to_dict(lts_from_dict(lts_to_dict(got))) == lts_to_dict(got)
+
+
+@SETTINGS
+@given(seed=st.integers(0, 2**31), which=st.integers(0, 10**6), kind=st.integers(0, 3))
+def test_the_binary_form_refuses_what_the_json_form_refuses(
+    tmp_path_factory: pytest.TempPathFactory, seed: int, which: int, kind: int
+) -> None:
+    """One set of rules: a model broken in its values (halting, payoffs, the original
+    path, the ranks' unique minimum) is refused by both readers, or by neither."""
+    m = model(seed)
+    if kind == 0:
+        halted = m.halted.copy()
+        halted[which % m.n_states] ^= True
+        m = replace(m, halted=halted)
+    elif kind == 1 and m.payoff.size:
+        payoff = m.payoff.copy()
+        payoff[which % payoff.size] = [-1.0, np.nan, np.inf][which % 3]
+        m = replace(m, payoff=payoff)
+    elif kind == 2:
+        original = m.original.copy()
+        original[which % original.size] = which % m.n_states
+        m = replace(m, original=original)
+    elif kind == 3 and m.rank.size:
+        rank = m.rank.copy()
+        q = int(np.searchsorted(m.ptr, which % m.rank.size, side="right") - 1)
+        rank[m.ptr[q] : m.ptr[q + 1]] = 0  # every successor of q at the lowest rank
+        m = replace(m, rank=rank)
+    path = tmp_path_factory.mktemp("rules") / "m.npz"
+    save_lts_npz(m, path)
+    try:
+        load_lts_npz(path)
+        binary_ok = True
+    except ModelError:
+        binary_ok = False
+    try:
+        lts_from_dict(json.loads(json.dumps(lts_to_dict(m))))
+        json_ok = True
+    except (ModelError, ValueError):  # ValueError: a non-finite number has no JSON
+        json_ok = False
+    assert binary_ok == json_ok
+
+
+def test_a_bad_binary_model_is_a_located_error_through_the_cli(tmp_path: Path) -> None:
+    good = tmp_path / "m.npz"
+    save_lts_npz(load_lts(TINY / "model.lts"), good)
+    arrays = _arrays(good)
+    arrays["dst"] = arrays["dst"].astype(np.float64)
+    _write(tmp_path / "bad.npz", arrays)
+    r = lesmc("check", str(tmp_path / "bad.npz"), str(TINY / "properties.spec"))
+    assert r.returncode == 2 and "Traceback" not in r.stderr, r.stderr
+    assert f"{tmp_path / 'bad.npz'}: array 'dst': must be int64" in r.stderr
+    (tmp_path / "text.npz").write_text("not a zip")
+    r = lesmc("check", str(tmp_path / "text.npz"), str(TINY / "properties.spec"))
+    assert r.returncode == 2 and "not a lesmc binary model" in r.stderr, r.stderr
