@@ -184,14 +184,14 @@ def export_model(
     dot's states and the MDP's path prefixes. Returns facts about what was written
     (``lesmc export --json``).
     """
-    from lesmc.common.files import atomic_open
+    from lesmc.common.files import atomic_open, write_json
     from lesmc.export.drn import DRN_MAX_PREFIXES, to_drn
     from lesmc.export.graphs import DOT_MAX_NODES, graphml_lines, to_dot, write_lines
-    from lesmc.model.lts_format import save_lts
+    from lesmc.model.lts_format import lts_document
 
     facts: dict[str, object] = {"export_format": fmt}
-    if fmt == "json":
-        save_lts(model, path)
+    if fmt == "json":  # JSON whatever the name (save_lts would choose .npz's binary form)
+        write_json(path, lts_document(model))
     elif fmt == "dot":
         text = to_dot(model, roles, max_nodes or DOT_MAX_NODES)
         with atomic_open(path) as fh:

@@ -3,6 +3,7 @@ the hand-derived table of tests/golden/README.md ("tiny")."""
 
 from __future__ import annotations
 
+import json
 import math
 import subprocess
 import sys
@@ -94,3 +95,16 @@ def test_perceive_raises_located_errors_for_bad_inputs(tmp_path: Path) -> None:
     assert info.value.location is not None and info.value.location.path == str(truth)
     with pytest.raises(lesmc.UsageError):
         lesmc.perceive(lesmc.PerceiveRequest(str(frames), cnn=False))
+
+
+def test_perceive_refuses_settings_the_command_line_would(tmp_path: Path) -> None:
+    """The API checks the ranges and choices click checks for `lesmc perceive`."""
+    for bad in ({"attack": "fgsm"}, {"history": 2}, {"dt": 0.0}, {"overshoot": 2.0}):
+        with pytest.raises(lesmc.UsageError):
+            lesmc.perceive(lesmc.PerceiveRequest(str(tmp_path), **bad))
+
+
+def test_export_json_writes_json_whatever_the_name(tmp_path: Path) -> None:
+    model = lesmc.load_model(ROOT / "tests" / "golden" / "tiny" / "model.lts")
+    lesmc.export_model(model, tmp_path / "m.npz", "json")
+    assert json.loads((tmp_path / "m.npz").read_text())["format"] == "lesmc-lts"

@@ -183,3 +183,70 @@ def test_a_bad_binary_model_is_a_located_error_through_the_cli(tmp_path: Path) -
     (tmp_path / "text.npz").write_text("not a zip")
     r = lesmc("check", str(tmp_path / "text.npz"), str(TINY / "properties.spec"))
     assert r.returncode == 2 and "not a lesmc binary model" in r.stderr, r.stderr
+
+
+def _crafted(kind: str, good: Path, bad: Path) -> None:
+    """A file made to break the reader in one way (issue 31's review)."""
+    arrays = _arrays(good)
+    head = json.loads(arrays["header"].tobytes())
+    if kind == "huge shape":  # a .npy header claiming 8 TiB in a small member
+        buf = io.BytesIO()
+        np.lib.format.write_array_header_1_0(
+            buf, {"descr": "<i8", "fortran_order": False, "shape": (2**40,)}
+        )
+        with zipfile.ZipFile(bad, "w") as z:
+            z.writestr("dst.npy", buf.getvalue() + b"\0" * 64)
+        return
+    if kind == "raw member":  # not an .npy at all
+        with zipfile.ZipFile(bad, "w") as z:
+            z.writestr("rank", b"hello")
+        return
+    if kind == "bare npy":
+        np.save(bad.with_suffix(".npy"), np.arange(3))
+        bad.with_suffix(".npy").rename(bad)
+        return
+    if kind == "compressed":
+        np.savez_compressed(bad, **arrays)
+        return
+    if kind == "deep header":
+        arrays["header"] = np.frombuffer(b"[" * 200_000, dtype=np.uint8)
+    elif kind == "label key":
+        head["labels"] = {"²": ["x"]}
+    elif kind == "component name":
+        head["components"] = ["not a name"] * len(head["components"])
+    elif kind == "empty id":
+        head["ids"] = [""] + [f"q{i}" for i in range(1, len(arrays["step"]))]
+    elif kind == "id order":  # ids given, rows not in (step, id) order
+        n = len(arrays["step"])
+        head["ids"] = [f"q{n - i:06d}" for i in range(n)]
+    elif kind == "nan meta":
+        arrays["header"] = np.frombuffer(
+            json.dumps(head).replace('"meta": {', '"meta": {"x": NaN, ').encode(), np.uint8
+        )
+    if kind not in ("deep header", "nan meta"):
+        arrays["header"] = np.frombuffer(json.dumps(head).encode(), dtype=np.uint8)
+    _write(bad, arrays)
+
+
+@pytest.mark.parametrize(
+    "kind",
+    [
+        "huge shape",
+        "raw member",
+        "bare npy",
+        "compressed",
+        "deep header",
+        "label key",
+        "component name",
+        "empty id",
+        "id order",
+        "nan meta",
+    ],
+)
+def test_a_crafted_file_is_a_located_model_error(tmp_path: Path, kind: str) -> None:
+    good, bad = tmp_path / "good.npz", tmp_path / "bad.npz"
+    save_lts_npz(model(3), good)
+    _crafted(kind, good, bad)
+    with pytest.raises(ModelError) as info:
+        load_lts_npz(bad)
+    assert info.value.location is not None and info.value.location.path.startswith(str(bad))

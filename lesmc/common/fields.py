@@ -27,6 +27,11 @@ def is_int(x: Any) -> TypeGuard[int]:
     return isinstance(x, int) and not isinstance(x, bool)
 
 
+def is_name(x: Any) -> TypeGuard[str]:
+    """A component name of a model file: a Python identifier (docs/lts-format.md)."""
+    return isinstance(x, str) and x.isidentifier()
+
+
 def is_number(x: Any) -> TypeGuard[int | float]:
     """An integer or a float, not a boolean (may be infinite)."""
     return isinstance(x, int | float) and not isinstance(x, bool)

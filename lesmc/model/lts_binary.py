@@ -18,14 +18,15 @@ from __future__ import annotations
 
 import json
 import zipfile
+import zlib
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
 from lesmc.common.errors import Location, ModelError, Problems
-from lesmc.common.fields import header, show
-from lesmc.common.files import atomic_open
+from lesmc.common.fields import header, is_name, show
+from lesmc.common.files import atomic_open, parse_json
 from lesmc.model.arrays import ArrayModel
 from lesmc.model.validate import HALTED, check_arrays
 
@@ -78,16 +79,28 @@ def _default_ids(model: ArrayModel) -> bool:
     return ids is None or ids == [f"k{k}.{i}" for i, k in enumerate(model.step.tolist())]
 
 
+#: What reading a broken archive can raise (zip, zlib, numpy's header parser).
+_READ_ERRORS = (
+    OSError,
+    ValueError,
+    EOFError,
+    zipfile.BadZipFile,
+    NotImplementedError,
+    RuntimeError,
+    zlib.error,
+)
+
+
 def load_lts_npz(path: str | Path) -> ArrayModel:
     """Read and validate a binary model."""
     where = str(path)
     try:
-        with np.load(where, allow_pickle=False) as z:
-            names = set(z.files)
-            arrays = {name: z[name] for name in names}
+        arrays = _read_arrays(where)
     except FileNotFoundError:
         raise ModelError("no such file", Location(where)) from None
-    except (OSError, ValueError, EOFError, zipfile.BadZipFile) as exc:
+    except ModelError:
+        raise
+    except _READ_ERRORS as exc:
         raise ModelError(f"not a lesmc binary model (.npz): {exc}", Location(where)) from None
     head = _header(arrays.pop("header", None), where)
     _check_arrays_present(arrays, where)
@@ -95,7 +108,7 @@ def load_lts_npz(path: str | Path) -> ArrayModel:
         components=tuple(head["components"]),
         obs_names=tuple(head["obs_names"]),
         ids=head["ids"],
-        labels={int(k): tuple(v) for k, v in head["labels"].items()},
+        labels={int(k): tuple(sorted(set(v))) for k, v in head["labels"].items()},
         meta=head["meta"],
         **arrays,
     )
@@ -104,33 +117,64 @@ def load_lts_npz(path: str | Path) -> ArrayModel:
     return cm
 
 
+def _read_arrays(path: str) -> dict[str, np.ndarray]:
+    """The archive's arrays, each member's ``.npy`` header read first: only stored
+    (uncompressed) members, no object dtype, and no array larger than the bytes its
+    member holds, so a small file cannot make numpy allocate a huge one."""
+    arrays = {}
+    with zipfile.ZipFile(path) as z:
+        for info in z.infolist():
+            name = info.filename.removesuffix(".npy")
+            if info.compress_type != zipfile.ZIP_STORED:
+                raise ModelError.many(path, [(f"array '{name}'", "compressed: write it with save")])
+            with z.open(info) as fh:
+                version = np.lib.format.read_magic(fh)
+                if version == (1, 0):
+                    shape, fortran, dtype = np.lib.format.read_array_header_1_0(fh)
+                else:
+                    shape, fortran, dtype = np.lib.format.read_array_header_2_0(fh)
+                size = int(np.prod(shape, dtype=object)) * dtype.itemsize
+            if dtype.hasobject or fortran or size > info.file_size:
+                raise ModelError.many(
+                    path, [(f"array '{name}'", "not a plain array of the size it holds")]
+                )
+            with z.open(info) as fh:  # read_array reads the header again
+                arrays[name] = np.lib.format.read_array(fh, allow_pickle=False)
+    return arrays
+
+
 def _header(blob: np.ndarray | None, path: str) -> dict[str, Any]:
     """The header's JSON, each field checked."""
     if blob is None or blob.dtype != np.uint8 or blob.ndim != 1:
         raise ModelError.many(path, [("header", "missing: not a lesmc binary model")])
     try:
-        data = json.loads(blob.tobytes().decode())
-    except (UnicodeDecodeError, ValueError) as exc:
-        raise ModelError.many(path, [("header", f"not JSON ({exc})")]) from None
+        data = parse_json(blob.tobytes(), path, ModelError)
+    except ModelError as exc:  # located in the header's text, not in the file
+        where = exc.location
+        at = f" (line {where.line}, column {where.column})" if where and where.line else ""
+        raise ModelError.many(path, [("header", f"{exc.message}{at}")]) from None
     if not isinstance(data, dict):
         raise ModelError.many(path, [("header", "must be a JSON object")])
     pr = Problems()
     header(data, FORMAT, VERSION, pr)
     for key in sorted(set(data) ^ _HEADER_KEYS):
         pr.add(f"header.{key}", "unknown key" if key in data else "missing")
-    strings = ("components", "obs_names")
-    for key in strings:
-        v = data.get(key)
-        if not (isinstance(v, list) and all(isinstance(x, str) for x in v)):
-            pr.add(f"header.{key}", f"must be a list of strings, got {show(v)}")
+    comps = data.get("components")
+    if not (isinstance(comps, list) and comps and all(is_name(c) for c in comps)):
+        pr.add("header.components", f"must be a non-empty list of names, got {show(comps)}")
+    names = data.get("obs_names")
+    if not (isinstance(names, list) and all(isinstance(x, str) for x in names)):
+        pr.add("header.obs_names", f"must be a list of strings, got {show(names)}")
     ids = data.get("ids")
-    if ids is not None and not (isinstance(ids, list) and set(map(type, ids)) <= {str}):
-        pr.add("header.ids", "must be null or a list of strings")
+    if ids is not None and not (
+        isinstance(ids, list) and set(map(type, ids)) <= {str} and "" not in ids
+    ):
+        pr.add("header.ids", "must be null or a list of non-empty strings")
     labels = data.get("labels")
     if not (
         isinstance(labels, dict)
         and all(
-            k.isdigit() and isinstance(v, list) and all(isinstance(x, str) for x in v)
+            k.isascii() and k.isdecimal() and len(k) <= 18 and _string_list(v)
             for k, v in labels.items()
         )
     ):
@@ -140,6 +184,10 @@ def _header(blob: np.ndarray | None, path: str) -> dict[str, Any]:
     if pr.items:
         raise ModelError.many(path, pr.items)
     return data
+
+
+def _string_list(v: Any) -> bool:
+    return isinstance(v, list) and all(isinstance(x, str) for x in v)
 
 
 def _check_arrays_present(arrays: dict[str, np.ndarray], path: str) -> None:

@@ -26,7 +26,7 @@ from typing import TYPE_CHECKING, Any, TypeGuard
 import numpy as np
 
 from lesmc.common.errors import ModelError, Problems
-from lesmc.common.fields import header
+from lesmc.common.fields import header, is_name
 from lesmc.common.files import EncodedItems, read_json, write_json
 from lesmc.model.arrays import ArrayModel
 from lesmc.model.validate import HALTED, Parts, build, state_order
@@ -78,7 +78,7 @@ def lts_from_dict(data: Any, path: str = "<model>") -> ArrayModel:
     header(data, FORMAT, VERSION, pr)
     components = data.get("components")
     if components is not None and not (
-        isinstance(components, list) and components and all(_is_name(c) for c in components)
+        isinstance(components, list) and components and all(is_name(c) for c in components)
     ):
         pr.add("components", "must be a non-empty list of names")
         components = None
@@ -597,10 +597,6 @@ def _is_number(x: Any) -> TypeGuard[int | float]:
 
 def _is_str(x: Any) -> bool:
     return isinstance(x, str)
-
-
-def _is_name(x: Any) -> bool:
-    return isinstance(x, str) and x.isidentifier()
 
 
 def _finite(x: int | float) -> bool:

@@ -192,6 +192,8 @@ def _check_layout(cm: ArrayModel, path: str) -> None:
     need(bool(((cm.original >= 0) & (cm.original < n)).all()), "original", "unknown state")
     need(bool(np.isfinite(cm.S).all()), "S", "must be finite numbers")
     need(bool((np.diff(cm.step) >= 0).all()), "step", "states must be in step order")
+    if cm.ids is not None and state_order(cm.step, cm.ids) is not None:
+        need(False, "ids", "states must be in (step, id) order, as the JSON form lays them out")
     _check_tables(cm, need, d)
     if bad:
         raise ModelError.many(path, bad)

@@ -8,6 +8,7 @@ frame by frame (lesmc/perception/run.py) and the footage gets its target
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, Literal
@@ -71,8 +72,30 @@ class Perceived:
     target_note: str  #: where the target was placed, in words
 
 
+#: Each setting's allowed values, as the command line's options have them.
+_RANGES: dict[str, tuple[float, float]] = {
+    "history": (3, 16),
+    "delta_bc": (1, 255),
+    "overshoot": (0.0, 1.0),
+    "max_iter": (1, 10000),
+    "radius": (0.1, math.inf),
+    "min_speed": (0.0, math.inf),
+}
+
+
 def refuse_mismatched(req: PerceiveRequest) -> None:
-    """Settings that would be ignored are errors (the CLI says which option)."""
+    """Settings out of range, and settings that would be ignored, are errors (the
+    command line's options have the same ranges)."""
+    for name, (lo, hi) in _RANGES.items():
+        v = getattr(req, name)
+        if isinstance(v, bool) or not isinstance(v, (int, float)) or not lo <= v <= hi:
+            raise UsageError(f"{name} must be in {lo:g}..{hi:g}, got {v!r}")
+    if req.dt is not None and not (isinstance(req.dt, (int, float)) and 0 < req.dt < math.inf):
+        raise UsageError(f"dt must be a positive number of seconds, got {req.dt!r}")
+    if req.attack not in ("deepfool", "pgd"):
+        raise UsageError(f"attack must be 'deepfool' or 'pgd', got {req.attack!r}")
+    if req.payoff_norm not in ("l2", "per-pixel"):
+        raise UsageError(f"payoff_norm must be 'l2' or 'per-pixel', got {req.payoff_norm!r}")
     if req.scene and not req.cnn:
         raise UsageError("--no-cnn cannot write a scene: payoffs need the CNN")
     if req.target is not None and not req.scene:
