@@ -65,6 +65,29 @@ class Parts:
     meta: dict[str, Any] = field(default_factory=dict)
 
 
+@dataclass(frozen=True)
+class Rows:
+    """A model laid out: states in (step, id) order, transitions grouped by source (CSR)
+    in (rank, target) order. ``perm`` maps a row to its file row (None: the same) and
+    ``ids`` names states by file row, for messages."""
+
+    step: np.ndarray
+    halted: np.ndarray
+    ptr: np.ndarray
+    src: np.ndarray  # each transition's source row
+    dst: np.ndarray
+    rank: np.ndarray
+    perm: np.ndarray | None
+    ids: Sequence[str]
+
+    def file_rows(self, rows: np.ndarray) -> np.ndarray:
+        """The file rows of sorted rows, so that problems are listed in file order."""
+        return rows if self.perm is None else self.perm[rows]
+
+    def id_of(self, row: int) -> str:
+        return self.ids[row] if self.perm is None else self.ids[int(self.perm[row])]
+
+
 class Report:
     """Problems keyed by (section, row, field) so that they come out in file order."""
 
@@ -100,9 +123,10 @@ def build(parts: Parts, path: str = "<model>") -> ArrayModel:
     perm, pos, torder, src, dst, rank, step, ptr, halted = _layout(parts, src_f, dst_f)
     sorted_ids = ids if perm is None else [ids[i] for i in perm.tolist()]
 
+    rows = Rows(step, halted, ptr, src, dst, rank, perm, ids)
     rep = Report()
-    _check_order(rep, ptr, src, rank, perm, ids)
-    original = _check_paths(rep, parts, index, pos, step, halted, ptr, src, dst, perm, ids)
+    _check_order(rep, rows)
+    original = _check_paths(rep, parts, index, pos, rows)
     rep.raise_if_any(path)
     assert original is not None
 
@@ -138,11 +162,9 @@ def check_arrays(cm: ArrayModel, path: str = "<model>") -> None:
     out already): the layout itself first (shapes, CSR offsets, index ranges, finite
     numbers, states in step order, each state's transitions in (rank, target) order),
     then the same transition, order, path and state rules, with the same messages."""
-    _check_layout(cm, path)
-    n = cm.n_states
+    src = _check_layout(cm, path)
     ids: Sequence[str] = cm.ids if cm.ids is not None else _DefaultIds(cm.step)
     rep = Report()
-    src = np.repeat(np.arange(n, dtype=np.int64), np.diff(cm.ptr))
 
     def item(j: int) -> str:
         return f"transition {j} ({ids[src[j]]} -> {ids[cm.dst[j]]})"
@@ -150,18 +172,20 @@ def check_arrays(cm: ArrayModel, path: str = "<model>") -> None:
     known = np.arange(cm.dst.shape[0], dtype=np.int64)
     check_transitions(rep, known, src, cm.dst, cm.step, cm.payoff, item)
     rep.raise_if_any(path)
-    _check_order(rep, cm.ptr, src, cm.rank, None, ids)
+    rows = Rows(cm.step, cm.halted, cm.ptr, src, cm.dst, cm.rank, None, ids)
+    _check_order(rep, rows)
     original = [ids[q] for q in cm.original.tolist()]
     if cm.step[cm.initial] != 0:
         rep.add((1, 0, 1), "initial", f"state '{original[0]}' must be at step 0")
-    _check_original(rep, original, cm.original, cm.step, cm.ptr, src, cm.dst, ids, None)
-    check_states(rep, cm.initial, cm.end, cm.step, cm.halted, cm.ptr, src, cm.dst, None, ids)
+    _check_original(rep, original, cm.original, rows)
+    check_states(rep, cm.initial, cm.end, rows)
     rep.raise_if_any(path)
 
 
-def _check_layout(cm: ArrayModel, path: str) -> None:
+def _check_layout(cm: ArrayModel, path: str) -> np.ndarray:
     """Shapes, offsets, index ranges, finite numbers and the order of rows: what the
-    arrays must be before the model's own rules can be checked."""
+    arrays must be before the model's own rules can be checked. Returns each
+    transition's source row."""
     n, m = cm.step.shape[0], cm.dst.shape[0]
     d = cm.S.shape[1] if cm.S.ndim == 2 else -1
     bad: list[tuple[str, str]] = []
@@ -204,6 +228,7 @@ def _check_layout(cm: ArrayModel, path: str) -> None:
     need(ordered, "rank", "each state's transitions must be in (rank, target) order")
     if bad:
         raise ModelError.many(path, bad)
+    return src
 
 
 class _DefaultIds(Sequence[str]):
@@ -361,15 +386,9 @@ def check_transitions(
             rep.add((1, j, 3), item(j), "a second transition between the same states")
 
 
-def _check_order(
-    rep: Report,
-    ptr: np.ndarray,
-    src: np.ndarray,
-    rank: np.ndarray,
-    perm: np.ndarray | None,
-    ids: Sequence[str],
-) -> None:
+def _check_order(rep: Report, rows: Rows) -> None:
     """≺ must have a unique minimum per state: the transition taken when not attacked."""
+    ptr, src, rank, ids = rows.ptr, rows.src, rows.rank, rows.ids
     m = rank.shape[0]
     if m < 2:
         return
@@ -377,8 +396,8 @@ def _check_order(
     at_min = rank == lowest[src]
     count = np.bincount(src[at_min], minlength=ptr.shape[0] - 1)
     bad = np.flatnonzero(count > 1)
-    rows = _file_rows(bad, perm).tolist()
-    for r, c, lo in zip(rows, count[bad].tolist(), lowest[bad].tolist(), strict=True):
+    file_rows = rows.file_rows(bad).tolist()
+    for r, c, lo in zip(file_rows, count[bad].tolist(), lowest[bad].tolist(), strict=True):
         rep.add(
             (0, r, 0),
             f"state '{ids[r]}'",
@@ -391,13 +410,7 @@ def _check_paths(
     parts: Parts,
     index: dict[str, int],
     pos: np.ndarray,
-    step: np.ndarray,
-    halted: np.ndarray,
-    ptr: np.ndarray,
-    src: np.ndarray,
-    dst: np.ndarray,
-    perm: np.ndarray | None,
-    ids: Sequence[str],
+    rows: Rows,
 ) -> np.ndarray | None:
     """Initial, original path, reachability, steps beyond e, halting; the original's rows."""
     initial, original = parts.initial, parts.original
@@ -405,65 +418,46 @@ def _check_paths(
         rep.add((1, 0, 0), "initial", f"unknown state '{initial}'")
         return None
     q0 = int(pos[index[initial]])
-    if step[q0] != 0:
+    if rows.step[q0] != 0:
         rep.add((1, 0, 1), "initial", f"state '{initial}' must be at step 0")
     if not original:
         rep.add((1, 0, 2), "original", "the original path is empty")
         return None
     if original[0] != initial:
         rep.add((1, 0, 2), "original", f"must start at the initial state '{initial}'")
-    rows = _lookup(index, original)
-    missing = np.flatnonzero(rows < 0)
+    found = _lookup(index, original)
+    missing = np.flatnonzero(found < 0)
     stop = int(missing[0]) if missing.size else len(original)
-    op: np.ndarray = pos[rows[:stop]]
-    _check_original(rep, original, op, step, ptr, src, dst, ids, perm)
+    op: np.ndarray = pos[found[:stop]]
+    _check_original(rep, original, op, rows)
     if missing.size:
         rep.add((2, stop, 0), f"original[{stop}]", f"unknown state '{original[stop]}'")
         return None
-    check_states(rep, q0, len(original) - 1, step, halted, ptr, src, dst, perm, ids)
+    check_states(rep, q0, len(original) - 1, rows)
     return op
 
 
-def _check_original(
-    rep: Report,
-    original: list[str],
-    op: np.ndarray,
-    step: np.ndarray,
-    ptr: np.ndarray,
-    src: np.ndarray,
-    dst: np.ndarray,
-    ids: Sequence[str],
-    perm: np.ndarray | None,
-) -> None:
+def _check_original(rep: Report, original: list[str], op: np.ndarray, rows: Rows) -> None:
     """The original path (rows ``op``): state k at step k, each link rank-minimal."""
+    step = rows.step
     k = np.arange(op.shape[0], dtype=np.int64)
     for kk in np.flatnonzero(step[op] != k).tolist():
         sid = original[kk]
         rep.add((2, kk, 0), f"original[{kk}]", f"state '{sid}' is at step {step[op[kk]]}, not {kk}")
-    _check_links(rep, original, op, ptr, src, dst, ids, perm)
+    _check_links(rep, original, op, rows)
 
 
-def check_states(
-    rep: Report,
-    q0: int,
-    e: int,
-    step: np.ndarray,
-    halted: np.ndarray,
-    ptr: np.ndarray,
-    src: np.ndarray,
-    dst: np.ndarray,
-    perm: np.ndarray | None,
-    ids: Sequence[str],
-) -> None:
+def check_states(rep: Report, q0: int, e: int, rows: Rows) -> None:
     """Every state reachable from ``q0``, at a step <= e, halted exactly where it has no
-    successor before e (rows in (step, id) order; ``perm`` maps them to file rows)."""
-    deg = np.diff(ptr)
-    reach = _reachable(q0, step, ptr, src, dst)
+    successor before e."""
+    step, halted = rows.step, rows.halted
+    deg = np.diff(rows.ptr)
+    reach = _reachable(q0, step, rows.ptr, rows.src, rows.dst)
     succ = deg > 0
     masks = (~reach, step > e, (halted & succ) | (~succ & (step < e) & ~halted))
     for kind, mask in enumerate(masks):
         qs = np.flatnonzero(mask)
-        for r, q in zip(_file_rows(qs, perm).tolist(), qs.tolist(), strict=True):
+        for r, q in zip(rows.file_rows(qs).tolist(), qs.tolist(), strict=True):
             if kind == 0:
                 msg = "not reachable from the initial state"
             elif kind == 1:
@@ -475,32 +469,24 @@ def check_states(
                     f"has no successor before step {e}; label it 'halted' if the "
                     "tracker stopped there"
                 )
-            rep.add((3, r, kind), f"state '{ids[r]}'", msg)
+            rep.add((3, r, kind), f"state '{rows.ids[r]}'", msg)
 
 
-def _check_links(
-    rep: Report,
-    original: list[str],
-    op: np.ndarray,
-    ptr: np.ndarray,
-    src: np.ndarray,
-    dst: np.ndarray,
-    ids: Sequence[str],
-    perm: np.ndarray | None,
-) -> None:
+def _check_links(rep: Report, original: list[str], op: np.ndarray, rows: Rows) -> None:
     """Each step of the original path (rows ``op``) is the rank-minimal transition."""
+    ptr, src, dst, n = rows.ptr, rows.src, rows.dst, len(rows.ids)
     stop, m, deg = len(op), dst.shape[0], np.diff(ptr)
     if stop > 1 and m:
         prev, cur = op[:-1], op[1:]
         pick = np.where(deg[prev] > 0, dst[np.minimum(ptr[prev], m - 1)], -1)
         off = np.flatnonzero(pick != cur)
         if off.size:
-            edges = src * len(ids) + dst
-            exists = np.isin(prev[off] * len(ids) + cur[off], edges)
+            edges = src * n + dst
+            exists = np.isin(prev[off] * n + cur[off], edges)
             for i, ok in zip(off.tolist(), exists.tolist(), strict=True):
                 kk, a, b = i + 1, original[i], original[i + 1]
                 if ok:
-                    p = _id(ids, perm, int(pick[i]))
+                    p = rows.id_of(int(pick[i]))
                     msg = (
                         f"'{b}' is not the unattacked (rank-minimal) successor of '{a}', "
                         f"which is '{p}'"
@@ -512,15 +498,6 @@ def _check_links(
         for kk in range(1, stop):
             msg = f"no transition from '{original[kk - 1]}' to '{original[kk]}'"
             rep.add((2, kk, 1), f"original[{kk}]", msg)
-
-
-def _file_rows(rows: np.ndarray, perm: np.ndarray | None) -> np.ndarray:
-    """The file rows of sorted rows, so that problems are listed in file order."""
-    return rows if perm is None else perm[rows]
-
-
-def _id(ids: Sequence[str], perm: np.ndarray | None, row: int) -> str:
-    return ids[row] if perm is None else ids[int(perm[row])]
 
 
 def _reachable(
