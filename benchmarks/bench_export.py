@@ -68,13 +68,16 @@ def _engine(scene_file: Path, window: tuple[int, int], d: Path) -> float:
 def _wall(scene_file: Path, window: str, d: Path) -> None:
     """`lesmc build` and `lesmc export` from the scene file, as a user runs them."""
 
-    def run(*args: str) -> float:
+    def run(*args: str) -> tuple[float, str]:
+        """Wall seconds, and why the command refused (its last stderr line), if it did."""
         t0 = time.perf_counter()
         r = subprocess.run([sys.executable, "-m", "lesmc", *args], capture_output=True, text=True)
         secs = time.perf_counter() - t0
-        return secs if r.returncode == 0 else -1.0
+        return secs, "" if r.returncode == 0 else (r.stderr.strip().splitlines() or ["?"])[-1]
 
-    build = run("build", str(scene_file), "--window", window, "-o", str(d / "w.lts"))
+    build, why = run("build", str(scene_file), "--window", window, "-o", str(d / "w.lts"))
+    if why:
+        raise SystemExit(f"lesmc build failed: {why}")
     print(f"wall    lesmc build     {build:6.2f} s   1.0x")
     lo, hi = window.split("..")
     spec = d / "r.spec"
@@ -85,8 +88,8 @@ def _wall(scene_file: Path, window: str, d: Path) -> None:
     for fmt in FORMATS:
         extra = ["--spec", str(spec)] if fmt in ("drn", "prism") else []
         args = ["export", str(scene_file), "--window", window, "--format", fmt, *extra]
-        secs = run(*args, "-o", str(d / f"w.{fmt}"))
-        shown = "refused (size limit)" if secs < 0 else f"{secs:6.2f} s {secs / build:5.1f}x"
+        secs, why = run(*args, "-o", str(d / f"w.{fmt}"))
+        shown = f"refused: {why}" if why else f"{secs:6.2f} s {secs / build:5.1f}x"
         print(f"wall    lesmc export {fmt:8s} {shown}")
 
 

@@ -338,20 +338,30 @@ def _states_json(
         for d, c in zip(doc_states, model.cov[order].tolist(), strict=True):
             if c >= 0:
                 d["P"] = table[c]
-    halted = np.flatnonzero(model.halted).tolist()
-    for i in set(model.labels) | set(halted):
-        labs = set(model.labels.get(i, ()))
-        if model.halted[i]:
-            labs.add(HALTED)
-        if labs:
-            doc_states[int(pos[i])]["labels"] = sorted(labs)
+    for i, labs in _state_labels(model).items():
+        doc_states[int(pos[i])]["labels"] = labs
     return doc_states
+
+
+def _state_labels(model: ArrayModel) -> dict[int, list[str]]:
+    """Each labelled state's labels, sorted, ``halted`` among them where it halted."""
+    out = {}
+    for i in set(model.labels) | set(np.flatnonzero(model.halted).tolist()):
+        labs = set(model.labels.get(i, ())) | ({HALTED} if model.halted[i] else set())
+        if labs:
+            out[i] = sorted(labs)
+    return out
+
+
+def _transition_order(model: ArrayModel, pos: np.ndarray) -> np.ndarray:
+    """The transitions in file order: by source (in file order), rank and target."""
+    return np.lexsort((pos[model.dst], model.rank, pos[model.src]))
 
 
 def _transitions_json(model: ArrayModel, ids: list[str], pos: np.ndarray) -> list[dict[str, Any]]:
     """The transitions by source (in file order), rank and target, with their observations."""
     src, dst = model.src, model.dst
-    torder = np.lexsort((pos[dst], model.rank, pos[src]))
+    torder = _transition_order(model, pos)
     doc_trans: list[dict[str, Any]] = [
         {"src": ids[a], "dst": ids[b], "payoff": p, "rank": r}
         for a, b, p, r in zip(
@@ -426,10 +436,8 @@ def _state_texts(
         tables = [f', "P": {p}' for p in map(str, model.P_table.tolist())] + [""]
         cov = model.cov[order].tolist()
     labels = [""] * n
-    for i in set(model.labels) | set(np.flatnonzero(model.halted).tolist()):
-        labs = set(model.labels.get(i, ())) | ({HALTED} if model.halted[i] else set())
-        if labs:
-            labels[int(pos[i])] = f', "labels": {json.dumps(sorted(labs))}'
+    for i, labs in _state_labels(model).items():
+        labels[int(pos[i])] = f', "labels": {json.dumps(labs)}'
     steps, S = model.step[order].tolist(), model.S[order].tolist()
     rows = zip(order.tolist(), steps, S, cov, labels, strict=True)
     return EncodedItems(
@@ -440,7 +448,7 @@ def _state_texts(
 def _transition_texts(model: ArrayModel, quoted: list[str], pos: np.ndarray) -> EncodedItems:
     """The transitions' JSON objects in file order, as :func:`_transitions_json` has them."""
     src, dst = model.src, model.dst
-    torder = np.lexsort((pos[dst], model.rank, pos[src]))
+    torder = _transition_order(model, pos)
     obs = [-1] * len(torder) if model.obs is None else model.obs[torder].tolist()
     names = [f', "obs": {json.dumps(o)}' for o in model.obs_names] + [""]
     rows = zip(

@@ -17,7 +17,7 @@ from functools import cache
 from typing import Any, ClassVar
 
 import jinja2
-from markupsafe import Markup, escape
+from markupsafe import Markup
 
 __all__ = [
     "Cell",
@@ -26,7 +26,6 @@ __all__ = [
     "Row",
     "Table",
     "Text",
-    "escape",
     "images",
     "key_values",
     "para",
@@ -108,8 +107,7 @@ class Figure:
 
 @dataclass(frozen=True)
 class Text:
-    """A paragraph (``p``, Markup or text), a list (``ul``: ``items``), a heading (``h3``)
-    or preformatted text (``pre``)."""
+    """A paragraph (``p``, Markup or text), a list (``ul``: ``items``) or a heading (``h3``)."""
 
     kind: str
     text: Any = ""
