@@ -150,11 +150,10 @@ def graphml_lines(cm: ArrayModel, roles: Roles | None = None) -> Iterator[str]:
 
 def _quoted_ids(cm: ArrayModel) -> list[str]:
     """Every state's id as a quoted XML attribute value."""
-    if cm.ids is None:
-        return [f'"k{k}.{i}"' for i, k in enumerate(cm.step.tolist())]
-    if _XML_SPECIAL.search("".join(cm.ids)) is None:
-        return [f'"{i}"' for i in cm.ids]
-    return [quoteattr(i) for i in cm.ids]
+    ids = cm.state_ids()
+    if cm.ids is None or _XML_SPECIAL.search("".join(ids)) is None:
+        return [f'"{i}"' for i in ids]
+    return [quoteattr(i) for i in ids]
 
 
 def _column(n: int, marks: Mapping[int, str], default: str) -> list[str]:

@@ -92,6 +92,14 @@ class ArrayModel:
             return self.ids[i]
         return f"k{int(self.step[i])}.{i}"
 
+    def state_ids(self) -> list[str]:
+        """Every state's id (:meth:`state_id`), made at once."""
+        return self.ids if self.ids is not None else self.default_ids()
+
+    def default_ids(self) -> list[str]:
+        """The ids ``k{step}.{i}`` a model without ids has."""
+        return [f"k{k}.{i}" for i, k in enumerate(self.step.tolist())]
+
     @cached_property
     def _index(self) -> dict[str, int]:
         return {self.state_id(i): i for i in range(self.n_states)}

@@ -132,7 +132,7 @@ def to_arrays(lts: LTS) -> ArrayModel:
 def to_lts(model: ArrayModel) -> LTS:
     """The object view of an array model (not re-validated: the model is)."""
     n = model.n_states
-    ids = [model.state_id(i) for i in range(n)]
+    ids = model.state_ids()
     step = model.step.tolist()
     labels: list[frozenset[str]] = [frozenset()] * n
     for i, labs in model.labels.items():

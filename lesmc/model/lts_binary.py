@@ -75,8 +75,7 @@ def save_lts_npz(model: ArrayModel, path: str | Path) -> None:
 
 def _default_ids(model: ArrayModel) -> bool:
     """Whether the model's ids are the default ``k{step}.{row}`` (or it has none)."""
-    ids = model.ids
-    return ids is None or ids == [f"k{k}.{i}" for i, k in enumerate(model.step.tolist())]
+    return model.ids is None or model.ids == model.default_ids()
 
 
 #: What reading a broken archive can raise (zip, zlib, numpy's header parser).

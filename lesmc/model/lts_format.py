@@ -298,9 +298,7 @@ def _rows(model: ArrayModel | LTS) -> tuple[ArrayModel, list[str], np.ndarray, n
 
         model = to_arrays(model)
     n = model.n_states
-    ids = model.ids
-    if ids is None:  # model.state_id's names, made at once
-        ids = [f"k{k}.{i}" for i, k in enumerate(model.step.tolist())]
+    ids = model.state_ids()
     perm = state_order(model.step, ids)
     order = np.arange(n, dtype=np.int64) if perm is None else perm
     pos = np.empty(n, dtype=np.int64)

@@ -163,7 +163,7 @@ def check_arrays(cm: ArrayModel, path: str = "<model>") -> None:
     numbers, states in step order, each state's transitions in (rank, target) order),
     then the same transition, order, path and state rules, with the same messages."""
     src = _check_layout(cm, path)
-    ids: Sequence[str] = cm.ids if cm.ids is not None else _DefaultIds(cm.step)
+    ids: Sequence[str] = cm.ids if cm.ids is not None else _DefaultIds(cm)
     rep = Report()
 
     def item(j: int) -> str:
@@ -235,16 +235,16 @@ class _DefaultIds(Sequence[str]):
     """The default ids ``k{step}.{row}`` of a model without ids, made when a message
     names one (a list of them all would cost more than the checks)."""
 
-    def __init__(self, step: np.ndarray) -> None:
-        self._step = step
+    def __init__(self, cm: ArrayModel) -> None:
+        self._cm = cm
 
     def __len__(self) -> int:
-        return int(self._step.shape[0])
+        return self._cm.n_states
 
     def __getitem__(self, i: Any) -> Any:
         if isinstance(i, slice):
             return [self[j] for j in range(*i.indices(len(self)))]
-        return f"k{int(self._step[i])}.{int(i)}"
+        return self._cm.state_id(int(i))
 
 
 def _check_tables(cm: ArrayModel, need: Callable[[bool, str, str], None], d: int) -> None:
