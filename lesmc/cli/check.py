@@ -108,7 +108,7 @@ def check_cmd(
     max_memory: int | None,
     target_text: str | None,
 ) -> None:
-    """Check the properties in SPEC files on MODEL (a .lts file) or on a SCENE (.json).
+    """Check the properties in SPEC files on MODEL (.lts, or .npz) or on a SCENE (.json).
 
     A scene's model is unfolded on the fly, once per tracker and payoff set (levels and
     bnb unfold only the states they visit, enumerate every state its paths
@@ -238,7 +238,7 @@ def _refuse_mismatched(
 
 def _hint_swapped(model: str, specs: tuple[str, ...]) -> None:
     """``lesmc check SPEC MODEL``: say so before either file is read."""
-    if model.endswith(".spec") and any(s.endswith((".lts", ".json")) for s in specs):
+    if model.endswith(".spec") and any(s.endswith((".lts", ".npz", ".json")) for s in specs):
         raise UsageError(
             f"MODEL '{model}' looks like a spec and a SPEC like a model: the order is "
             "lesmc check MODEL|SCENE SPEC..."

@@ -83,7 +83,7 @@ def export_cmd(
     strict: bool,
     as_json: bool,
 ) -> None:
-    """Write MODEL (a .lts, or a SCENE built with --window) for other tools.
+    """Write MODEL (a .lts or .npz, or a SCENE built with --window) for other tools.
 
     \b
     dot      Graphviz (steps as ranks; counterexample red, witness blue)
