@@ -22,13 +22,18 @@ class BruteResult:
     paths: list[tuple[list[str], float, float]]  # (states, objective, constraint)
 
 
-def brute_force(model: LTS, bp: BoundProperty) -> BruteResult:
+def brute_force(
+    model: LTS, bp: BoundProperty, reference: list[np.ndarray] | None = None
+) -> BruteResult:
+    """``reference``: the states deviations are measured against, one per step (default:
+    the model's original path's)."""
     orig = [model.state(q) for q in model.original]
+    ref = [o.s for o in orig] if reference is None else reference
     comps = list(bp.components)
 
     def dist(sid: str) -> float:
         st = model.state(sid)
-        d = st.s[comps] - orig[st.step].s[comps]
+        d = st.s[comps] - ref[st.step][comps]
         if bp.norm == 1:
             return float(np.sum(np.abs(d)))
         if math.isinf(bp.norm):
@@ -66,12 +71,18 @@ def brute_force(model: LTS, bp: BoundProperty) -> BruteResult:
 
     walk([model.initial], [])
 
+    def trace(sid: str) -> float:  # τ of Eq. 12 on tau.rise's components
+        P = model.state(sid).P
+        return float(sum(P[i, i] for i in bp.tau_components or ()))
+
     def value(m: BoundMeasure, path: list[str], edges: list) -> float:
         per_step = {}
         for k in range(m.lo, m.hi + 1):
             if k < len(path):
                 if m.source == "dist":
                     per_step[k] = dist(path[k])
+                elif m.source == "tau":  # how much τ rose entering step k (never below 0)
+                    per_step[k] = max(0.0, trace(path[k]) - trace(path[k - 1]))
                 else:
                     t = edges[k - 1]
                     lower = [o for o in model.out(t.src) if o.rank < t.rank]
@@ -85,8 +96,10 @@ def brute_force(model: LTS, bp: BoundProperty) -> BruteResult:
                         comb = 1.0 if lower else 0.0
                     per_step[k] = comb * m.weight
             else:  # after a halt
-                per_step[k] = math.inf if m.source == "dist" else 0.0
+                per_step[k] = math.inf if m.source in ("dist", "tau") else 0.0
         vals = [per_step[k] for k in sorted(per_step)]
+        if m.source == "tau":
+            return max([0.0, *vals])
         if m.aggregate == "max":
             return max(vals)
         acc = 0.0

@@ -170,6 +170,56 @@ def test_count_objectives_equal_brute_force(case: tuple) -> None:
             assert r.optimum == truth.optimum, engine
 
 
+@st.composite
+def trend_cases(draw: st.DrawFn) -> tuple:
+    """Random models with covariances and a property whose objective or constraint is
+    ``tau.rise(a..b)`` (issue 30: the trend of section 9.1), with or without the monitor."""
+    cfg = RandomModelConfig(
+        steps=draw(st.integers(2, 6)),
+        width=draw(st.integers(1, 4)),
+        branching=(1, draw(st.integers(1, 3))),
+        dim=draw(st.integers(1, 3)),
+        halt_prob=draw(st.sampled_from([0.0, 0.2])),
+        covariance=True,
+        tree=draw(st.booleans()),
+        integer_values=draw(st.booleans()),
+    )
+    model = random_lts(cfg, draw(st.integers(0, 2**31)))
+    e = model.end
+    l = draw(st.integers(1, e))
+    u = draw(st.integers(l, e))
+    end = draw(st.integers(u, e))
+    a = draw(st.integers(1, end))
+    b = draw(st.integers(a, end))
+    trend = f"tau.rise({a}..{b})"
+    other = draw(st.sampled_from(["payoff", "count", f"dist.max(0..{b})", trend]))
+    obj, con = (trend, other) if draw(st.booleans()) else (other, trend)
+    op = draw(st.sampled_from([">", ">=", "<", "<="]))
+    monitor = draw(st.sampled_from(["", "monitor uncertainty tolerance 0.2"]))
+    params = (l, u, end, obj, con, op, draw(st.sampled_from(["1", "2", "inf"])), monitor)
+    return model, params, draw(st.floats(0, 1))
+
+
+@settings(max_examples=200, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(trend_cases())
+def test_trend_measure_equals_brute_force(case: tuple) -> None:
+    """``tau.rise(a..b)`` as objective or constraint: every engine's optimum equals the brute
+    force's, which takes τ from each state's P (tests/oracle.py), and so does every path's
+    constraint value as the engines compute it."""
+    model, params, quantile = case
+    bp = _bound_property(model, params, quantile)
+    assert bp.tau_components is not None
+    truth = brute_force(model, bp)
+    cm = to_arrays(model)
+    for engine in ("enumerate", "bnb", "levels"):
+        r = check_bound(cm, bp, engine)  # type: ignore[arg-type]
+        assert r.stats.stopped == "finished"
+        if math.isinf(truth.optimum):
+            assert r.optimum is None, engine
+        else:
+            assert r.optimum == pytest.approx(truth.optimum, rel=1e-12, abs=1e-12), engine
+
+
 def _assert_monitor_facts(model, bp, truth, r) -> None:  # type: ignore[no-untyped-def]
     """``vacuous`` iff the brute force never reaches the unattacked track's end; alarms from P."""
     if bp.monitor_components is None:

@@ -174,11 +174,19 @@ def _check_end(e: int, end: int | None, window: tuple[int, int] | None) -> None:
         raise UsageError(f"window {window[0]}..{window[1]} must satisfy 1 <= l <= u <= end = {e}")
 
 
-def lazy_model(scene: Scene, window: tuple[int, int], end: int | None = None) -> GrowingModel:
+def lazy_model(
+    scene: Scene,
+    window: tuple[int, int],
+    end: int | None = None,
+    reference: np.ndarray | None = None,
+) -> GrowingModel:
     """The model of ``scene`` for attacks in ``window``, unfolded as an engine asks.
 
     The original path is unfolded at once, in the model itself (the engines
     need it); everything else when :meth:`GrowingModel.expand` is called.
+    With ``reference`` (a fault variant's: the fault-free track's states,
+    lesmc/pipeline/faults.py) deviations are measured against it, and the unattacked
+    track may halt anywhere after the window opens: the fault alone lost the target.
     """
     model = SceneExpander(scene, window).model
     last = _last_step(scene, end)
@@ -187,8 +195,12 @@ def lazy_model(scene: Scene, window: tuple[int, int], end: int | None = None) ->
         q = original[-1]
         model.expand(np.array([q]), len(original) - 1)
         original.append(int(model.dst[model.out_lo[q]]))
-    _check_end(len(original) - 1, end, window)
+    if reference is None:
+        _check_end(len(original) - 1, end, window)
+    elif len(original) < window[0]:
+        raise UsageError(f"the unattacked track halts before the attack window {window}")
     model.original = np.array(original, dtype=np.int64)
+    model.reference = reference
     return model
 
 

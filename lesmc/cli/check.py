@@ -23,7 +23,7 @@ from lesmc.common.errors import UsageError
 from lesmc.designs import registry
 
 if TYPE_CHECKING:
-    from lesmc.language.properties import SpecFile
+    from lesmc.language.properties import FaultSet, SpecFile
     from lesmc.results.record import Results
 
 #: The engines ``--engine`` offers (lesmc/engines/check.py: ENGINES).
@@ -63,6 +63,17 @@ ENGINES = ("levels", "bnb", "enumerate")
     "or eps=V1,V2 (the constraint's bound), p=1,2,inf (the norm); repeatable (every "
     "combination). Variants are named NAME@eps=V.",
 )
+@click.option(
+    "--faults",
+    "faults_file",
+    type=click.Path(dir_okay=False),
+    default=None,
+    metavar="FILE",
+    help="For a scene: also check every property under the component failures of FILE's "
+    "faults block (Kalman matrix entries, sensor outages; docs/language.md, 'Faults'): one "
+    "result per combination of at most 'budget' faults, named NAME+FAULT, the activation "
+    "steps chosen by the adversary.",
+)
 @click.option("--no-paths", is_flag=True, help="Table output: omit the step-by-step paths.")
 @click.option(
     "--report",
@@ -99,6 +110,7 @@ def check_cmd(
     timeout: float | None,
     only: tuple[str, ...],
     sweep_texts: tuple[str, ...],
+    faults_file: str | None,
     no_paths: bool,
     report_dir: str | None,
     frames_dir: str | None,
@@ -131,6 +143,7 @@ def check_cmd(
 
     parsed, source, is_scene = _inputs(model, specs, target_text, design, tracker_file)
     parsed, only = _swept(parsed, sweep_texts, only)
+    faults = _faults(faults_file, parsed, is_scene)
     job = Job(
         parsed,
         scene=source if is_scene else None,
@@ -141,6 +154,7 @@ def check_cmd(
         only=only,
         designs=(design,) if design else (),
         full_models=report_dir is not None,
+        faults=faults,
         source=model,
     )
     with Reporter("check") as rep, polite_stop():
@@ -171,6 +185,22 @@ def _swept(
             with_(s, properties=tuple(p for p in s.properties if p.name in only)) for s in parsed
         )
     return tuple(swept(s, sweeps) for s in parsed), ()
+
+
+def _faults(path: str | None, parsed: tuple[SpecFile, ...], is_scene: bool) -> FaultSet | None:
+    """The faults block of ``--faults FILE``, or of a spec file (at most one in all)."""
+    from lesmc.language.parser import load_faults
+
+    blocks = [(s.path, s.faults) for s in parsed if s.faults is not None]
+    if path is not None:
+        blocks.insert(0, (path, load_faults(path)))
+    if len(blocks) > 1:
+        raise UsageError(
+            f"faults are declared in {blocks[0][0]} and in {blocks[1][0]}: give one faults block"
+        )
+    if blocks and not is_scene:
+        raise UsageError("faults change the tracker: they need a scene, not a model file")
+    return blocks[0][1] if blocks else None
 
 
 def _print(results: Results, parsed: tuple[SpecFile, ...], as_json: bool, no_paths: bool) -> None:

@@ -75,6 +75,16 @@ from lesmc.cli.signals import resumable
     "models can hide (about a second each; `perceive --certify` certifies them all)."
 )
 @tracker_option
+@click.option(
+    "--faults",
+    "faults_file",
+    type=click.Path(dir_okay=False),
+    default=None,
+    metavar="FILE",
+    help="Also check every property under the component failures of FILE's faults block "
+    "(docs/language.md, 'Faults'), for every design; the report shows which faults break "
+    "which design.",
+)
 @click.option("--json", "as_json", is_flag=True, help="Print results.json on stdout.")
 @budget_options(
     DEFAULT_MAX_STATES,
@@ -96,6 +106,7 @@ def verify_cmd(
     frames_opt: str | None,
     payoffs: str,
     tracker_file: str | None,
+    faults_file: str | None,
     as_json: bool,
     max_states: int,
     timeout: float | None,
@@ -132,6 +143,7 @@ def verify_cmd(
         tracker=tracker_file,
         payoffs=payoffs,  # type: ignore[arg-type]
         budget=budget,
+        faults=faults_file,
     )
     with resumable(lambda: _kept(request.out)), Reporter("verify") as rep:
         outcome = verify(request, rep)

@@ -24,6 +24,7 @@ import numpy as np
 from lesmc.engines.space import SpaceOps, excused_steps, ranges
 from lesmc.language.semantics import BoundProperty
 from lesmc.model import kernel
+from lesmc.model.arrays import reference_states
 from lesmc.model.growing import BATCH_SECONDS, GrowArray, GrowingModel
 
 #: Most states expanded together outside the window (bounds one batch's temporaries).
@@ -42,6 +43,7 @@ class LazySpace(SpaceOps):
         self._dist = GrowArray(np.float64)
         self._tau = GrowArray(np.float64)
         self._tau_table = GrowArray(np.float64)  # τ per entry of the model's covariance table
+        self._trend_tau = GrowArray(np.float64)  # the same on tau.rise's components
         self._c_obj = GrowArray(np.float64)
         self._c_con = GrowArray(np.float64)
         self._allowed: dict[int, np.ndarray] = {}  # per expanded state: its allowed transitions
@@ -51,7 +53,7 @@ class LazySpace(SpaceOps):
         self._waiting: dict[int, list[int]] = {}  # per step outside the window: unexpanded states
         self._queued: set[int] = set()  # every state ever put in _waiting
         self._known = 0  # states whose deviation and τ are computed
-        self._ref = model.S[model.original]
+        self._ref = reference_states(model)
         self._excused: np.ndarray | None = None
         self._sync()
         obj = kernel.initial_value(bp.objective, self.dist[model.original[0]])
@@ -99,8 +101,17 @@ class LazySpace(SpaceOps):
         dst = cm.dst[t]
         ks = cm.step[dst].astype(np.int64)
         comb, cnt = cm.combined[t], cm.counted[t]
-        self._c_obj.extend(kernel.contributions(bp.objective, ks, comb, self.dist[dst], cnt))
-        self._c_con.extend(kernel.contributions(bp.constraint, ks, comb, self.dist[dst], cnt))
+        rise = None
+        if bp.tau_components is not None:  # tau.rise: section 9.1's trend of τ (Eq. 12)
+            table = cm.P_table
+            if len(table) > self._trend_tau.n:  # τ of each new covariance, once
+                new_p = table[self._trend_tau.n :]
+                self._trend_tau.extend(kernel.tau(new_p, bp.tau_components))
+            tau_r = self._trend_tau.data
+            rise = kernel.tau_rise(tau_r[cm.cov[cm.src[t]]], tau_r[cm.cov[dst]])
+        dist = self.dist[dst]
+        self._c_obj.extend(kernel.contributions(bp.objective, ks, comb, dist, cnt, rise))
+        self._c_con.extend(kernel.contributions(bp.constraint, ks, comb, dist, cnt, rise))
         allowed = ((ks >= bp.l) & (ks <= bp.u)) | (cm.rank[t] == 0)
         if bp.monitor_components is not None:
             tau = self._tau.data

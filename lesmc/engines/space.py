@@ -17,12 +17,14 @@ import numpy as np
 
 from lesmc.language.semantics import BoundProperty
 from lesmc.model import kernel
-from lesmc.model.arrays import ArrayModel
+from lesmc.model.arrays import ArrayModel, reference_states
 
 
 def deviations(cm: ArrayModel, norm: float, components: tuple[int, ...]) -> np.ndarray:
-    """dist(ρ_k, ρ̃_k) of every state against the original path's state of its step (Eq. 4)."""
-    ref = cm.S[cm.original[np.minimum(cm.step, cm.end)]]
+    """dist(ρ_k, ρ̃_k) of every state against the reference state of its step (Eq. 4): the
+    original path's (:func:`~lesmc.model.arrays.reference_states`)."""
+    ref_states = reference_states(cm)
+    ref = ref_states[np.minimum(cm.step, len(ref_states) - 1)]
     return kernel.deviation((cm.S - ref)[:, list(components)], norm)
 
 
@@ -272,8 +274,12 @@ def build_space(cm: ArrayModel, bp: BoundProperty) -> Space:
     counts = np.bincount(src[adj], minlength=n) if m else np.zeros(n, int)
     adj_ptr = np.concatenate([[0], np.cumsum(counts)]).astype(np.int64)
     combined, counted = cm.combined, cm.counted
-    c_obj = kernel.contributions(bp.objective, k, combined, dist[cm.dst], counted)
-    c_con = kernel.contributions(bp.constraint, k, combined, dist[cm.dst], counted)
+    rise = None
+    if bp.tau_components is not None:  # tau.rise: section 9.1's trend of τ (Eq. 12)
+        tau_r = location_trace(cm, bp.tau_components)
+        rise = kernel.tau_rise(tau_r[src], tau_r[cm.dst])
+    c_obj = kernel.contributions(bp.objective, k, combined, dist[cm.dst], counted, rise)
+    c_con = kernel.contributions(bp.constraint, k, combined, dist[cm.dst], counted, rise)
     # the common prefix: steps 0..l−1 follow the original path
     d0 = float(dist[cm.original[0]])
     obj = kernel.initial_value(bp.objective, d0)

@@ -34,6 +34,8 @@ from lesmc.common.files import read_text
 from lesmc.language.properties import (
     DEFAULT_MONITOR_TOLERANCE,
     Constraint,
+    Fault,
+    FaultSet,
     Measure,
     Monitor,
     Pos,
@@ -45,6 +47,9 @@ from lesmc.language.properties import (
 #: Largest step number a property may name (window bounds, ``end N``, measure ranges).
 MAX_STEP = 10**6
 
+#: Most faults that may strike at once (``budget``): every combination is a check of its own.
+MAX_FAULT_BUDGET = 4
+
 #: Longest token text quoted in a message; longer tokens are clipped.
 _SHOWN_TOKEN = 24
 
@@ -54,11 +59,14 @@ _TERMINAL_NAMES = {
     "INT": "a whole number",
     "NUMBER": "a number",
     "CMP": "a comparison (>, >=, <, <=)",
+    "MATRIX": "a matrix (F, H, Q or R)",
+    "FAULT_OP": "'*' (scale) or '=' (set)",
     "HOLDS_CMP": "'>' or '>='",
     "NORM": "1, 2 or inf",
     "END": "'end'",
     "PAYOFF_AGG": "'sum' or 'mean'",
     "RANGE_AGG": "'sum' or 'max'",
+    "TAU_AGG": "'rise'",
     "LBRACE": "'{'",
     "RBRACE": "'}'",
     "LPAR": "'('",
@@ -129,8 +137,11 @@ def tables_source() -> str:
     )
 
 
-def parse_spec(text: str, path: str = "<spec>") -> SpecFile:
-    """Parse the text of a property file; raise :class:`SpecError` on any problem."""
+def parse_spec(text: str, path: str = "<spec>", need_properties: bool = True) -> SpecFile:
+    """Parse the text of a property file; raise :class:`SpecError` on any problem.
+
+    The file may also hold one ``faults { ... }`` block (docs/language.md, "Faults");
+    ``need_properties=False`` admits a file of faults alone (``--faults FILE``)."""
     text = text.removeprefix("\ufeff")
     try:
         tree = _parser().parse(text)
@@ -138,7 +149,14 @@ def parse_spec(text: str, path: str = "<spec>") -> SpecFile:
         raise _syntax_error(exc, text, path) from None
     builder = _Builder(text, path)
     nodes: list[Any] = tree.children
-    props = tuple(builder.property(node) for node in nodes)
+    props = tuple(builder.property(node) for node in nodes if node.data == "property")
+    blocks = [node for node in nodes if node.data == "faults_block"]
+    if len(blocks) > 1:
+        raise builder.error(
+            f"a file holds at most one faults block (the first is at line {blocks[0].meta.line})",
+            _pos(blocks[1]),
+        )
+    faults = builder.faults(blocks[0]) if blocks else None
     seen: dict[str, Property] = {}
     for prop in props:
         if prop.name in seen:
@@ -147,14 +165,27 @@ def parse_spec(text: str, path: str = "<spec>") -> SpecFile:
                 f"duplicate property name '{prop.name}' (first at line {first})", prop.pos
             )
         seen[prop.name] = prop
-    if not props:
-        raise SpecError("the file defines no property", Location(path, 1, 1, source_line(text, 1)))
-    return SpecFile(path=path, text=text, properties=props)
+    if not props and (need_properties or faults is None):
+        what = "no property" if need_properties else "neither a property nor a faults block"
+        raise SpecError(f"the file defines {what}", Location(path, 1, 1, source_line(text, 1)))
+    return SpecFile(path=path, text=text, properties=props, faults=faults)
 
 
 def load_spec(path: str | Path) -> SpecFile:
     """Read and parse a property file."""
     return parse_spec(read_text(path, SpecError), str(path))
+
+
+def load_faults(path: str | Path) -> FaultSet:
+    """Read the ``faults { ... }`` block of a file (``--faults FILE``): the file's only
+    content besides comments, or one block of a spec file."""
+    spec = parse_spec(read_text(path, SpecError), str(path), need_properties=False)
+    if spec.faults is None:
+        raise SpecError(
+            "the file has no faults block (faults { budget N  fault NAME: ... })",
+            Location(str(path), 1, 1, source_line(spec.text, 1)),
+        )
+    return spec.faults
 
 
 def _syntax_error(exc: UnexpectedInput, text: str, path: str) -> SpecError:
@@ -283,6 +314,72 @@ class _Builder:
             return "monitor", Monitor(names, tol, _pos(node), except_original=excuse)
         raise AssertionError(f"unhandled clause {kind}")  # pragma: no cover
 
+    def faults(self, node: Tree[Any]) -> FaultSet:
+        """A ``faults { ... }`` block: its budget (default 1) and its named faults."""
+        budget: int | None = None
+        faults: list[Fault] = []
+        for item in node.children:
+            if item.data == "budget_clause":
+                if budget is not None:
+                    raise self.error("the faults block repeats its budget", _pos(item))
+                value = self.number(item.children[0], "fault budget")
+                if value < 0 or value != int(value) or value > MAX_FAULT_BUDGET:
+                    raise self.error(
+                        f"the fault budget must be a whole number in 0..{MAX_FAULT_BUDGET}, "
+                        f"got {_clip(str(item.children[0].children[0]))}",
+                        _pos(item.children[0]),
+                    )
+                budget = int(value)
+                continue
+            fault = self.fault(item)
+            if any(f.name == fault.name for f in faults):
+                raise self.error(f"fault '{fault.name}' is declared twice", fault.pos)
+            faults.append(fault)
+        if not faults:
+            raise self.error("the faults block declares no fault", _pos(node))
+        return FaultSet(
+            1 if budget is None else budget, tuple(faults), self.path, self.text, _pos(node)
+        )
+
+    def fault(self, node: Tree[Any]) -> Fault:
+        """``fault NAME: F[i, j] * c`` (or ``= c``), or ``fault NAME: outage K``, then
+        optionally ``from A..B``: the activation steps."""
+        name_tok, kind = node.children[0], node.children[1]
+        pos = _tok_pos(name_tok)
+        steps = None
+        if len(node.children) > 2:
+            ch = node.children[2].children
+            lo, hi = self.whole(ch[0]), self.step(ch[1])
+            if lo < 1 or (hi is not None and hi < lo):
+                raise self.error(
+                    f"activation steps {lo}..{_clip(str(ch[1].children[0]))} must satisfy "
+                    "1 <= from <= to",
+                    _pos(node.children[2]),
+                )
+            steps = (lo, hi)
+        if kind.data == "outage_fault":
+            length = self.whole(kind.children[0])
+            if length < 1:
+                raise self.error("an outage lasts at least 1 step", _pos(kind))
+            return Fault(str(name_tok), "outage", length=length, steps=steps, pos=pos)
+        matrix, row, col, op, value = kind.children
+        return Fault(
+            str(name_tok),
+            "matrix",
+            matrix=str(matrix),
+            row=self.index(row),
+            col=self.index(col),
+            op=str(op),  # type: ignore[arg-type]
+            value=self.number(value, "fault value"),
+            steps=steps,
+            pos=pos,
+        )
+
+    def index(self, node: Tree[Any]) -> int | str:
+        """A matrix index: a number, or a component name (resolved against the tracker)."""
+        tok: Any = node.children[0]
+        return self.whole(tok) if tok.type == "INT" else str(tok)
+
     def names(self, node: Tree[Any]) -> tuple[str, ...]:
         names: list[str] = []
         toks: list[Any] = node.children
@@ -304,7 +401,13 @@ class _Builder:
         lo, hi = self.step(ch[1]), self.step(ch[2])
         if lo is not None and hi is not None and lo > hi:
             raise self.error(f"empty step range {lo}..{hi}", pos)
-        return Measure("dist", str(ch[0]), lo, hi, pos=pos)  # type: ignore[arg-type]
+        kind = "tau" if node.data == "tau_range" else "dist"
+        if kind == "tau" and lo == 0:
+            raise self.error(
+                "tau.rise starts at step 1 or later (a rise enters a step from the one before)",
+                pos,
+            )
+        return Measure(kind, str(ch[0]), lo, hi, pos=pos)  # type: ignore[arg-type]
 
     def step(self, node: Tree[Any]) -> StepRef:
         tok: Any = node.children[0]

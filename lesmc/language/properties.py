@@ -17,8 +17,8 @@ StepRef = int | None
 #: Relative rise of τ the runtime monitor ignores by default: it only absorbs rounding.
 DEFAULT_MONITOR_TOLERANCE = 1e-9
 
-MeasureKind = Literal["payoff", "count", "dist"]
-Aggregate = Literal["sum", "mean", "max", "at", "frames"]
+MeasureKind = Literal["payoff", "count", "dist", "tau"]
+Aggregate = Literal["sum", "mean", "max", "at", "frames", "rise"]
 Comparison = Literal[">", ">=", "<", "<="]
 
 
@@ -38,7 +38,9 @@ class Measure:
     divided by the number of attacked steps, Algorithm 1), ``dist.sum(a..b)``
     (Eq. 9 on a range), ``dist.max(a..b)`` (dist^max) and ``dist.at(k)``
     (dist^{k,k}); ``count`` (Eq. 8 with every payoff 1: the outcomes hidden) and
-    ``count.frames`` (the attacked steps) over the attack window.
+    ``count.frames`` (the attacked steps) over the attack window; ``tau.rise(a..b)``
+    (the largest one-step rise of the uncertainty τ of Eq. 12 entering steps a..b, 0
+    when τ never rises: section 9.1's trend).
     """
 
     kind: MeasureKind
@@ -53,7 +55,7 @@ class Measure:
             return self.kind if self.aggregate == "sum" else f"{self.kind}.{self.aggregate}"
         if self.aggregate == "at":
             return f"dist.at({_step_text(self.lo)})"
-        return f"dist.{self.aggregate}({_step_text(self.lo)}..{_step_text(self.hi)})"
+        return f"{self.kind}.{self.aggregate}({_step_text(self.lo)}..{_step_text(self.hi)})"
 
 
 @dataclass(frozen=True)
@@ -113,7 +115,7 @@ class Property:
         own = self.window
 
         def move(m: Measure) -> Measure:
-            if m.kind == "dist" and m.aggregate != "at" and (m.lo, m.hi) == own:
+            if m.kind in ("dist", "tau") and m.aggregate != "at" and (m.lo, m.hi) == own:
                 return replace(m, lo=window[0], hi=window[1])
             return m
 
@@ -125,6 +127,52 @@ class Property:
         )
 
 
+#: What a matrix fault does to its entry: ``*`` scales it, ``=`` sets it.
+FaultOp = Literal["*", "="]
+
+
+@dataclass(frozen=True)
+class Fault:
+    """``fault NAME: ...``: one component failure (section 9.2) the system may suffer.
+
+    ``matrix``: an entry of the Kalman filter's F, H, Q or R scaled (``*``) or set
+    (``=``; ``= 0`` drops it) from the activation step on; ``row``/``col`` are indices
+    or component names, checked against the tracker when bound. ``outage``: no
+    measurement reaches the tracker for ``length`` consecutive steps from the
+    activation step (a sensor outage; a detector that answers nothing for a frame is
+    ``outage 1``). ``steps``: the activation steps the adversary chooses from (None:
+    the attack window of the property checked).
+    """
+
+    name: str
+    kind: Literal["matrix", "outage"]
+    matrix: str = ""
+    row: int | str = 0
+    col: int | str = 0
+    op: FaultOp = "*"
+    value: float = 1.0
+    length: int = 0
+    steps: tuple[int, StepRef] | None = None
+    pos: Pos = field(default=Pos(0, 0), compare=False)
+
+    def text(self) -> str:
+        """The fault as it is written in the language (without its name and steps)."""
+        if self.kind == "outage":
+            return f"outage {self.length}"
+        return f"{self.matrix}[{self.row},{self.col}] {self.op} {_num(self.value)}"
+
+
+@dataclass(frozen=True)
+class FaultSet:
+    """A ``faults { ... }`` block: the faults and how many may strike at once (``budget``)."""
+
+    budget: int
+    faults: tuple[Fault, ...]
+    path: str = ""
+    text: str = field(default="", compare=False, repr=False)
+    pos: Pos = field(default=Pos(0, 0), compare=False)
+
+
 @dataclass(frozen=True)
 class SpecFile:
     """A parsed property file; ``text`` is kept for error messages."""
@@ -132,6 +180,7 @@ class SpecFile:
     path: str
     text: str
     properties: tuple[Property, ...]
+    faults: FaultSet | None = None
 
     def with_window(self, window: tuple[int, int] | None) -> SpecFile:
         """Every property attacked in ``window`` (:meth:`Property.with_window`); None keeps it."""

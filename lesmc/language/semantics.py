@@ -50,6 +50,13 @@ class BoundProperty:
     monitor_tolerance: float
     monitor_except_original: bool = False  # alarms at the original track's alarm steps excused
     spec: str = ""  #: the path of the spec file that states it
+    #: components of τ (Eq. 12) for a ``tau.rise`` measure: the monitor's, else x, y
+    tau_components: tuple[int, ...] | None = None
+
+    @property
+    def uses_tau(self) -> bool:
+        """A measure reads the uncertainty τ (``tau.rise``)."""
+        return "tau" in (self.objective.source, self.constraint.source)
 
     @property
     def name(self) -> str:
@@ -62,6 +69,7 @@ def bind(
     """Resolve ``prop`` against a model with steps 0..e and the given components."""
     l, u, end = _window(spec, prop, e)
     monitor_idx, tol = _monitor(spec, prop, components, has_covariance)
+    tau_idx = _tau(spec, prop, components, has_covariance, monitor_idx)
     if not math.isfinite(prop.threshold) or not math.isfinite(prop.constraint.threshold):
         raise _fail(spec, "thresholds must be finite", prop.pos)  # the parser refuses these
     on = prop.clause_pos.get("on", prop.pos)
@@ -80,6 +88,7 @@ def bind(
         monitor_tolerance=tol,
         monitor_except_original=prop.monitor is not None and prop.monitor.except_original,
         spec=spec.path,
+        tau_components=tau_idx,
     )
 
 
@@ -129,6 +138,10 @@ def _measure(spec: SpecFile, m: Measure, l: int, u: int, end: int) -> BoundMeasu
         raise _fail(spec, f"empty step range {lo}..{hi}", m.pos)
     if hi > end:
         raise _fail(spec, f"step {hi} is beyond end = {end}", m.pos)
+    if m.kind == "tau":
+        if lo < 1:
+            raise _fail(spec, "tau.rise starts at step 1 or later", m.pos)
+        return BoundMeasure("tau", "max", lo, hi, 1.0, m.text())
     agg = "sum" if m.aggregate in ("sum", "at") else "max"
     return BoundMeasure("dist", agg, lo, hi, 1.0, m.text())
 
@@ -163,6 +176,28 @@ def _monitor(
     if names is None and all(c in components for c in LOCATION_COMPONENTS):
         names = LOCATION_COMPONENTS
     return _indices(spec, names, prop.monitor.pos, components), prop.monitor.tolerance
+
+
+def _tau(
+    spec: SpecFile,
+    prop: Property,
+    components: tuple[str, ...],
+    has_covariance: bool,
+    monitor_idx: tuple[int, ...] | None,
+) -> tuple[int, ...] | None:
+    """The components of τ for a ``tau.rise`` measure: the monitor's when the property has
+    one, else the location x, y (Eq. 12's Σ_ll), else every component."""
+    tau_measures = [m for m in (prop.objective, prop.constraint.measure) if m.kind == "tau"]
+    if not tau_measures:
+        return None
+    if not has_covariance:
+        raise _fail(
+            spec, "'tau.rise' needs the covariance P in every model state", tau_measures[0].pos
+        )
+    if monitor_idx is not None:
+        return monitor_idx
+    names = LOCATION_COMPONENTS if all(c in components for c in LOCATION_COMPONENTS) else None
+    return _indices(spec, names, tau_measures[0].pos, components)
 
 
 def _resolve(ref: StepRef, end: int) -> int:

@@ -21,6 +21,14 @@ import numpy as np
 from lesmc.model.kernel import combined_payoffs, unit_payoffs
 
 
+def reference_states(model: Any) -> np.ndarray:
+    """ρ̃ of Eq. 4, one state per step: the model's unattacked path, or the reference it
+    carries (a fault variant's: the fault-free system's unattacked track,
+    lesmc/pipeline/faults.py). Works for an ArrayModel and a GrowingModel alike."""
+    ref: np.ndarray | None = model.reference
+    return model.S[model.original] if ref is None else ref
+
+
 @dataclass(eq=False)
 class ArrayModel:
     """A validated <PO>²-LTS; ``original`` is the unattacked path, one state per step 0..e."""
@@ -41,6 +49,8 @@ class ArrayModel:
     ids: list[str] | None = None
     labels: dict[int, tuple[str, ...]] = field(default_factory=dict)  # other than "halted"
     meta: dict[str, Any] = field(default_factory=dict)
+    #: (steps, d) the states deviations are measured against (Eq. 4's ρ̃); None: S[original]
+    reference: np.ndarray | None = None
 
     @property
     def n_states(self) -> int:

@@ -86,6 +86,8 @@ class GrowingModel:
         self._combined = GrowArray(np.float64)
         self._counted = GrowArray(np.float64)
         self.original = np.zeros(0, dtype=np.int64)
+        #: the states deviations are measured against (lesmc.model.arrays.reference_states)
+        self.reference: np.ndarray | None = None
         self.P_table = np.zeros((0, dim, dim))
         self.obs_names: tuple[str, ...] = ()
         self.expander: Expander | None = None

@@ -108,6 +108,7 @@ def contributions(
     combined: np.ndarray,
     dist_dst: np.ndarray,
     counted: np.ndarray | None = None,
+    rise: np.ndarray | None = None,
 ) -> np.ndarray:
     """Each transition's contribution to measure ``m``: it enters step ``k``.
 
@@ -117,9 +118,13 @@ def contributions(
     ``count`` is the payoff measure with unit payoffs (``counted``: Eq. 5 over
     :func:`unit_payoffs`), the number of outcomes hidden; ``frames`` adds 1 for each
     attacked step (a transition of rank > 0: its count is positive), ∞ where the
-    count is.
+    count is. ``tau`` (``tau.rise``, aggregated by max) adds each transition's
+    :func:`tau_rise` (``rise``).
     """
     inside = (k >= m.lo) & (k <= m.hi)
+    if m.source == "tau":
+        assert rise is not None
+        return np.where(inside, rise, 0.0)
     if m.source == "payoff":
         return np.where(inside, combined * m.weight, 0.0)
     if m.source in ("count", "frames"):
@@ -151,9 +156,10 @@ def tail(m: BoundMeasure, h: int, end: int) -> float:
     """What the steps after a path's last state h add: nothing, or +∞ after a halt.
 
     A halted track has lost the target, so its deviation at every later step of
-    a dist measure is infinite (docs/semantics.md); payoffs add nothing.
+    a dist measure is infinite (docs/semantics.md), and so is the rise of its
+    uncertainty (``tau.rise``: trace(P) passed ``max_trace``); payoffs add nothing.
     """
-    if h >= end or m.source != "dist":
+    if h >= end or m.source not in ("dist", "tau"):
         return 0.0
     return math.inf if m.hi > h else 0.0
 
@@ -163,6 +169,14 @@ def tau(P: np.ndarray, components: Sequence[int] = LOCATION) -> np.ndarray:
     idx = list(components)
     sub = P[..., idx, :][..., :, idx]
     out: np.ndarray = np.trace(sub, axis1=-2, axis2=-1)
+    return out
+
+
+def tau_rise(tau_src: ArrayLike, tau_dst: ArrayLike) -> np.ndarray:
+    """Section 9.1's trend, per transition: how much τ (Eq. 12) rose on it, 0 when it fell
+    or stayed (``tau.rise``; a non-increasing τ is "evidence that the system is managing
+    the failure")."""
+    out: np.ndarray = np.maximum(np.asarray(tau_dst) - np.asarray(tau_src), 0.0)
     return out
 
 

@@ -29,7 +29,7 @@ from lesmc.engines.check import bind_all
 from lesmc.engines.result import CheckResult
 from lesmc.language.properties import SpecFile
 from lesmc.language.semantics import BoundProperty, bind
-from lesmc.model.arrays import ArrayModel
+from lesmc.model.arrays import ArrayModel, reference_states
 from lesmc.model.growing import GrowingModel
 from lesmc.pipeline import certify
 from lesmc.pipeline.job import Job, Unit
@@ -43,9 +43,16 @@ def run(job: Job) -> Results:
     if (job.model is None) == (job.scene is None):
         raise UsageError("a job checks a model or a scene: give exactly one")
     if job.model is not None:
+        if job.faults is not None:
+            raise UsageError("faults change the tracker: they need a scene, not a model file")
         return Results([_model_run(job, job.model)])
     assert job.scene is not None
     plans = _plans(job, job.scene)
+    if job.faults is not None:
+        from lesmc.pipeline.faults import validate
+
+        for p in plans:
+            validate(job.faults, p.scene, p.bound)
     scene, certified, probes = _certified_scene(job, job.scene, plans)
     models = _Models(scene, plans, job)
     runs = [_design_run(job, p, models, probes) for p in plans]
@@ -294,7 +301,51 @@ def _design_run(
         )
     if models.scene.meta.get("detector"):  # perception's scene: replayable on its video
         results = [_not_replayed(r) for r in results]
+    run = DesignRun(plan.design, plan.bound, results, window=plan.window)
+    if job.faults is not None:
+        for bp in plan.bound:
+            job.on_stage(f"checking {bp.name} under faults ({registry.label(plan.design)})")
+            for fbp, r in _fault_results(job, tracker, bp, models):
+                run.fault_bound.append(fbp)
+                run.fault_results.append(r)
     model = models.get(tracker, "attack") if job.full_models else None
     assert model is None or isinstance(model, ArrayModel)
+    run.model, run.scene = model, models.scene.with_tracker(design=tracker)
+    return run
+
+
+def _fault_results(
+    job: Job, tracker: str, bp: BoundProperty, models: _Models
+) -> list[tuple[BoundProperty, CheckResult]]:
+    """``bp`` under every combination of the job's faults (lesmc/pipeline/faults.py): each
+    activation's variant scene unfolded on demand, deviations measured against the
+    fault-free unattacked track."""
+    from lesmc.pipeline.faults import check_faults
+
+    assert job.faults is not None
+    nominal = models.get(tracker, "certified" if job.payoffs == "certified" else "attack")
+    reference = reference_states(nominal)[: bp.end + 1].copy()
     scene = models.scene.with_tracker(design=tracker)
-    return DesignRun(plan.design, plan.bound, results, model, scene, plan.window)
+
+    def check_variant(variant: Scene, vbp: BoundProperty) -> CheckResult:
+        made: dict[str, GrowingModel] = {}
+
+        def model_of(payoffs: str) -> GrowingModel:
+            if payoffs not in made:
+                sc = variant.priced(payoffs, job.source)
+                made[payoffs] = lazy_model(sc, (vbp.l, vbp.u), vbp.end, reference)
+            return made[payoffs]
+
+        r = check_payoffs(model_of, vbp, job.payoffs, job.engine, job.budget, [])
+        if r.verdict == "violated" and scene.meta.get("detector"):
+            r = replace(r, replay="not replayed", notes=[*r.notes, FAULT_NOT_REPLAYED_NOTE])
+        return r
+
+    return check_faults(job.faults, scene, bp, check_variant)
+
+
+#: Why a counterexample under a fault is not replayed through the detector.
+FAULT_NOT_REPLAYED_NOTE = (
+    "violated (not replayed): a counterexample under a fault is the model's; replay runs "
+    "the fault-free system, so it cannot confirm it"
+)

@@ -16,7 +16,7 @@ import numpy as np
 
 from lesmc.common.budget import Budget
 from lesmc.engines.check import DEFAULT_MAX_STATES, EngineName
-from lesmc.language.properties import SpecFile
+from lesmc.language.properties import FaultSet, SpecFile
 from lesmc.model.arrays import ArrayModel
 from lesmc.scene import Scene
 
@@ -60,7 +60,9 @@ class Job:
     what they visit. ``certify`` (perception's certifier) bounds the detections the
     models can hide when ``payoffs`` is not ``attack``; ``unbounded`` says how many
     of them lack a bound when the caller already probed (a campaign's client).
-    ``source`` names the input in messages.
+    ``faults`` (a ``faults`` block, lesmc/pipeline/faults.py) adds, per property, a result
+    for every combination of faults the block allows. ``source`` names the input in
+    messages.
     """
 
     specs: tuple[SpecFile, ...]
@@ -76,5 +78,6 @@ class Job:
     full_models: bool = False
     certify: Certifier | None = None
     unbounded: Unbounded | None = None
+    faults: FaultSet | None = None
     source: str = "<scene>"
     on_stage: Callable[[str], None] = no_stage

@@ -175,6 +175,9 @@ def render(doc: dict[str, Any], image_for: ImageFor | None = None) -> tuple[str,
         toc.append(("designs", "Designs compared (Table 5)"))
     if doc.get("monitor_false_alarms"):
         toc.append(("false-alarms", "The monitor on unattacked tracks"))
+    faults = _faults_table(doc["runs"])
+    if faults is not None:
+        toc.append(("faults", "Component failures"))
     sections = []
     for run in runs:
         toc.append((f"design-{run.tag}", f"Design: {run.name}"))
@@ -199,6 +202,7 @@ def render(doc: dict[str, Any], image_for: ImageFor | None = None) -> tuple[str,
         verdicts=_verdicts(runs),
         table5=_table5(runs) if len(runs) > 1 else None,
         false_alarms=None if not fa else {"what": fa["what"], "table": _false_alarms(fa)},
+        faults=faults,
         sections=sections,
         specs=doc.get("provenance", {}).get("specs", []),
         monitored=_monitored(doc),
@@ -247,6 +251,40 @@ def _table5(runs: list[_Run]) -> Table:
                 Cell(_opt(r)),
                 Cell(fmt(r["witness_value"])),
                 Cell(run.adversarial(i)),
+            ]
+        rows.append(Row(cells))
+    return Table(head, rows)
+
+
+def _faults_table(runs: list[dict[str, Any]]) -> Table | None:
+    """Which faults break which design: per property under each combination of faults
+    (``NAME+FAULT``), each design's verdict, optimum and the worst activation."""
+    names: list[str] = []
+    for run in runs:
+        names += [f["result"]["property"] for f in run.get("faults", [])]
+    if not names:
+        return None
+    names = list(dict.fromkeys(names))
+    sub = ("verdict", "optimum", "worst activation")
+    head = [
+        [Cell("property + faults", head=True, rows=2)]
+        + [Cell(run["label"], head=True, span=3) for run in runs],
+        [Cell(h, head=True) for _ in runs for h in sub],
+    ]
+    rows = []
+    for name in names:
+        cells = [Cell(name, head=True)]
+        for run in runs:
+            got = {f["result"]["property"]: f["result"] for f in run.get("faults", [])}
+            r = got.get(name)
+            if r is None:
+                cells.append(Cell("-", span=3))
+                continue
+            worst = next((n for n in r["notes"] if n.startswith("worst activation: ")), "")
+            cells += [
+                Cell(verdict_of(r), status_class(r)),
+                Cell(_opt(r)),
+                Cell(worst.removeprefix("worst activation: ")),
             ]
         rows.append(Row(cells))
     return Table(head, rows)

@@ -73,8 +73,9 @@ def print_runs(console: Console, title: str, runs: Sequence[DesignRun]) -> None:
             overflow="fold",
         )
     for run in runs:
-        size = "-" if run.model is None else f"{run.model.n_states} states"
-        for r in run.results:
+        own = "-" if run.model is None else f"{run.model.n_states} states"
+        sizes = [own] * len(run.results) + ["under faults"] * len(run.fault_results)
+        for r, size in zip(run.all_results, sizes, strict=True):
             known = r.optimum_known and r.stats.stopped == "finished"
             table.add_row(
                 escape_text(run.label),
@@ -87,7 +88,9 @@ def print_runs(console: Console, title: str, runs: Sequence[DesignRun]) -> None:
             )
     console.print(table)
     hints = {
-        r.property for r in (x for run in runs for x in run.results) if r.replay == "not replayed"
+        r.property
+        for r in (x for run in runs for x in run.results)  # under faults: nothing to replay
+        if r.replay == "not replayed"
     }
     if hints:
         console.print(

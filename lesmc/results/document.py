@@ -331,6 +331,10 @@ def run_json(
         "window": list(win),
         "properties": [property_json(bp, cm.components) for bp in run.bound],
         "results": [r.to_json() for r in run.results],
+        "faults": [
+            {"property": property_json(bp, cm.components), "result": r.to_json()}
+            for bp, r in zip(run.fault_bound, run.fault_results, strict=True)
+        ],
         "roles": {
             "original": number.get(wanted[0]),
             "counterexample": cex,

@@ -25,6 +25,9 @@ class DesignRun:
     window every property was moved to (None: the properties' own); ``model`` the
     whole model of the attack payoffs when it was built (the report draws it);
     ``scene`` the scene it was unfolded from, with the design's tracker.
+    ``fault_bound`` and ``fault_results``: the properties under component failures
+    (``NAME+FAULT``, lesmc/pipeline/faults.py), checked on models of their own: their
+    paths are not paths of ``model``.
     """
 
     design: str
@@ -33,6 +36,13 @@ class DesignRun:
     model: ArrayModel | None = None
     scene: Scene | None = None
     window: tuple[int, int] | None = None
+    fault_bound: list[BoundProperty] = field(default_factory=list)
+    fault_results: list[CheckResult] = field(default_factory=list)
+
+    @property
+    def all_results(self) -> list[CheckResult]:
+        """The results, then those under faults."""
+        return [*self.results, *self.fault_results]
 
     @property
     def label(self) -> str:
@@ -52,5 +62,5 @@ class Results:
 
     @property
     def results(self) -> list[CheckResult]:
-        """Every property result, run by run."""
-        return [r for run in self.runs for r in run.results]
+        """Every property result, run by run (those under faults after each run's own)."""
+        return [r for run in self.runs for r in run.all_results]

@@ -18,7 +18,7 @@ import numpy as np
 
 from lesmc.engines.space import Space
 from lesmc.model import kernel
-from lesmc.model.arrays import ArrayModel
+from lesmc.model.arrays import ArrayModel, reference_states
 
 #: Components and norm of the track table's deviations: the position (Eq. 4 with p = 2).
 POSITION = (0, 1)
@@ -116,7 +116,7 @@ def deviations(
         components = POSITION[: len(cm.components)]
     out = np.full(cm.end + 1, np.inf)
     states = np.array(track.states[: cm.end + 1], dtype=np.int64)
-    ref = cm.S[cm.original[: len(states)]]
+    ref = reference_states(cm)[: len(states)]
     out[: len(states)] = kernel.deviation((cm.S[states] - ref)[:, list(components)], norm)
     return out
 

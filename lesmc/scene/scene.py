@@ -16,7 +16,13 @@ import numpy as np
 
 from lesmc.common.errors import InputError
 from lesmc.scene.frames import Frame, lower_frames
-from lesmc.scene.tracker_model import DEFAULT_MODEL, TrackerModel, measured, state_names
+from lesmc.scene.tracker_model import (
+    DEFAULT_MODEL,
+    EntryFault,
+    TrackerModel,
+    measured,
+    state_names,
+)
 
 UNATTACKABLE = "unattackable"
 """Payoff marker of a detection the attack could not flip within its iteration cap."""
@@ -44,6 +50,9 @@ class TrackerConfig:
     init_distance: float = 60.0  # max distance to a previous unassociated detection to start one
     prune_radius: float = 200.0  # refining tracks farther than this from the primary are dropped
     model: TrackerModel = DEFAULT_MODEL
+    #: matrix faults in force from their frames on (fault variants of lesmc/pipeline/faults.py;
+    #: never in a scene file)
+    faults: tuple[EntryFault, ...] = ()
 
     @property
     def state_names(self) -> tuple[str, ...]:
@@ -62,6 +71,8 @@ class TrackerConfig:
         declared = not isinstance(self.model, str)
         for f in fields(self):
             v = getattr(self, f.name)
+            if f.name == "faults":
+                continue
             if f.name == "model":
                 if v != DEFAULT_MODEL:
                     d["model"] = v if isinstance(v, str) else v.to_json()

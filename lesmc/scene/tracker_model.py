@@ -54,6 +54,30 @@ _NAME = re.compile(r"[A-Za-z_][A-Za-z0-9_\-]*\Z")  # the spec language's NAME
 
 
 @dataclass(frozen=True)
+class EntryFault:
+    """A failed entry of the filter's F, H, Q or R (section 9.2), bound to indices: from
+    frame ``frame`` on, the entry (row, col) is multiplied by ``value`` (``op`` ``*``) or
+    replaced by it (``=``). A covariance (Q, R) is symmetric, so its (col, row) entry
+    fails with it. The language's ``fault NAME: Q[vx, vx] * 0`` (lesmc/pipeline/faults.py
+    binds it); scenes never store one."""
+
+    matrix: str
+    row: int
+    col: int
+    op: str
+    value: float
+    frame: int
+
+    def apply(self, M: np.ndarray) -> None:
+        """Change ``M`` (this fault's matrix) in place."""
+        cells = {(self.row, self.col)}
+        if self.matrix in ("Q", "R"):
+            cells.add((self.col, self.row))
+        for i, j in cells:
+            M[i, j] = M[i, j] * self.value if self.op == "*" else self.value
+
+
+@dataclass(frozen=True)
 class DeclaredModel:
     """A model given by its matrices: state names and F, H, Q, R, P0 as rows of numbers."""
 

@@ -24,7 +24,13 @@ import numpy as np
 from lesmc.model.growing import GrowArray
 from lesmc.scene import Scene, TrackerConfig
 from lesmc.tracking.association import gate_radii
-from lesmc.tracking.kalman import Matrices, innovations, position_spread, predict_covariances
+from lesmc.tracking.kalman import (
+    Matrices,
+    innovations,
+    position_spread,
+    predict_covariances,
+    with_faults,
+)
 
 
 class CovarianceTable:
@@ -210,6 +216,29 @@ class Gains:
         for name in self.FIELDS:
             self.cols[name].data[cs] = values[name]
         self.known.data[cs] = True
+
+
+class Schedule:
+    """The matrices and gains in force at each frame: the model's own, and from a fault's
+    frame on those with the fault (section 9.2; lesmc/pipeline/faults.py). Every
+    combination of active faults has its own :class:`Gains` over the one covariance table,
+    so states of any phase share covariances."""
+
+    def __init__(self, m: Matrices, cfg: TrackerConfig, table: CovarianceTable) -> None:
+        self.faults = cfg.faults
+        self._by: dict[tuple[int, ...], tuple[Matrices, Gains]] = {(): (m, Gains(m, cfg, table))}
+        self._cfg = cfg
+        self._table = table
+
+    def at(self, frame: int) -> tuple[Matrices, Gains]:
+        """The matrices and gains of the transition that enters ``frame``."""
+        if not self.faults:
+            return self._by[()]
+        active = tuple(i for i, f in enumerate(self.faults) if f.frame <= frame)
+        if active not in self._by:
+            m = with_faults(self._by[()][0], (self.faults[i] for i in active))
+            self._by[active] = (m, Gains(m, self._cfg, self._table))
+        return self._by[active]
 
 
 @dataclass

@@ -58,12 +58,13 @@ import numpy as np
 from lesmc.model.growing import GrowArray
 from lesmc.scene import Scene, TrackerConfig
 from lesmc.tracking.association import gate_test, mahalanobis_gate
-from lesmc.tracking.design import Batch, CovarianceTable, GainRows, Gains, Successors
+from lesmc.tracking.design import Batch, CovarianceTable, GainRows, Schedule, Successors
 from lesmc.tracking.kalman import (
     Matrices,
     initial_mean,
     mahalanobis2,
     matrices,
+    measure,
     positions,
     predict_means,
     update_means,
@@ -521,7 +522,7 @@ class JointDesign:
         self.m: Matrices = matrices(self.cfg, scene.dt)
         self.covariances = CovarianceTable()  # the primaries' (the model's table)
         self.track_covariances = CovarianceTable()  # every track's
-        self.gains = Gains(self.m, self.cfg, self.track_covariances)
+        self.schedule = Schedule(self.m, self.cfg, self.track_covariances)
         self._model_cov = np.full(0, -1, dtype=np.int64)  # track table -> model table
         self._p0 = self.track_covariances.add(self.m.P0.copy())
         self._p0_kept = float(np.trace(self.m.P0)) <= self.cfg.max_trace
@@ -660,20 +661,21 @@ class JointDesign:
         Hm = self.scene.frame(step - 1).to_next
         live = np.arange(T) < js.ntrack[:, None]
         tu, X, cu = _distinct_tracks(js, live)
+        m, gains = self.schedule.at(step)
         if Hm is not None:
-            X[:, list(self.m.pos)] = warp(Hm, positions(self.m, X))
-        X = predict_means(self.m, X)
+            X[:, list(m.pos)] = warp(Hm, positions(m, X))
+        X = predict_means(m, X)
         pend = warp(Hm, js.pending) if Hm is not None else js.pending
-        g = self.gains.rows(cu)
+        g = gains.rows(cu)
         U = len(cu)
 
-        track, pz, dx, dy, d2, ok = _candidate_pairs(Z, positions(self.m, X), g, cfg)
+        track, pz, dx, dy, d2, ok = _candidate_pairs(Z, measure(m, X), g, cfg)
         hiding = _hiding_options(tu[:, 0], track, pz, dx, dy, ok, g.radius, frame.payoffs(), U, nz)
         n_opt, cost, rank_of, near_z, per = hiding
         track, pz, d2 = track[ok], pz[ok], d2[ok]
         del dx, dy, ok, hiding  # the candidates' arrays: only the gated pairs go on
         ps, pt, pair_z, prio, idx = _ranked_pairs(track, pz, d2, g.norm, tu, live, U, T, nz)
-        X_up = update_means(self.m, X[track], g.K[track], Z[pz])
+        X_up = update_means(m, X[track], g.K[track], Z[pz])
         child_cov = np.concatenate([g.pred, g.post[track]])
         child_X = np.concatenate([X, X_up])
         return _Prepared(

@@ -14,14 +14,15 @@ Eq. 16-18), a constant-acceleration preset, or the matrices a scene declares.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from collections.abc import Iterable
+from dataclasses import dataclass, replace
 from functools import cached_property
 
 import numpy as np
 
 from lesmc.scene import TrackerConfig
 from lesmc.scene.frames import warp as warp  # re-exported: the tracker carries states with it
-from lesmc.scene.tracker_model import measured, state_names, velocity
+from lesmc.scene.tracker_model import EntryFault, measured, state_names, velocity
 
 H_POS = np.array([[1.0, 0.0, 0.0, 0.0], [0.0, 1.0, 0.0, 0.0]])
 """Measurement matrix of Eq. 18: the detector observes the position."""
@@ -49,6 +50,14 @@ class Matrices:
         return int(self.F.shape[0])
 
     @cached_property
+    def selects(self) -> bool:
+        """H's rows are the unit rows of ``pos``: H x is a copy of the position (every
+        model but one whose H a fault changed, lesmc/scene/tracker_model.py)."""
+        unit = np.zeros_like(self.H)
+        unit[0, self.pos[0]] = unit[1, self.pos[1]] = 1.0
+        return bool(np.array_equal(self.H, unit))
+
+    @cached_property
     def f_columns(self) -> tuple[tuple[int, np.ndarray | None, np.ndarray], ...]:
         """Per column j of F with a non-zero: (j, the rows it reaches or None for all of
         them, those entries), for :func:`predict_means` (computed once, not per batch)."""
@@ -72,6 +81,15 @@ def matrices(cfg: TrackerConfig, dt: float) -> Matrices:
     else:
         F, H, Q, R, P0 = (model.matrix(name) for name in ("F", "H", "Q", "R", "P0"))
     return Matrices(F, Q, H, R, P0, state_names(model), measured(model), velocity(model))
+
+
+def with_faults(m: Matrices, faults: Iterable[EntryFault]) -> Matrices:
+    """``m`` with the entries of ``faults`` failed (section 9.2: "missing or perturbed
+    values in the matrices F, H, Q and R")."""
+    mats = {"F": m.F.copy(), "H": m.H.copy(), "Q": m.Q.copy(), "R": m.R.copy()}
+    for f in faults:
+        f.apply(mats[f.matrix])
+    return replace(m, F=mats["F"], H=mats["H"], Q=mats["Q"], R=mats["R"])
 
 
 def cv2d(dt: float, q: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -204,12 +222,24 @@ def positions(m: Matrices, X: np.ndarray) -> np.ndarray:
     return X[..., list(m.pos)]
 
 
+def measure(m: Matrices, X: np.ndarray) -> np.ndarray:
+    """H x for states (..., d): the predicted measurement (..., 2). A copy of the position
+    when H selects it (:attr:`Matrices.selects`), else summed term by term in column
+    order (elementwise: a state's value does not depend on the batch)."""
+    if m.selects:
+        return positions(m, X)
+    out = np.zeros((*X.shape[:-1], 2))
+    for j in range(m.dim):
+        out += X[..., j : j + 1] * m.H[:, j]
+    return out
+
+
 def update_means(m: Matrices, X_pred: np.ndarray, K: np.ndarray, Z: np.ndarray) -> np.ndarray:
     """Eq. 2: x = x̂ + K (z − H x̂), row by row (elementwise, batch-size independent).
 
     ``K`` is one gain (d, 2) for every row, or one per row (n, d, 2).
     """
-    y = Z - positions(m, X_pred)
+    y = Z - measure(m, X_pred)
     out: np.ndarray = X_pred + y[..., 0:1] * K[..., 0] + y[..., 1:2] * K[..., 1]
     return out
 
@@ -217,6 +247,9 @@ def update_means(m: Matrices, X_pred: np.ndarray, K: np.ndarray, Z: np.ndarray) 
 def position_spread(m: Matrices, P: np.ndarray) -> np.ndarray:
     """trace(H P Hᵀ) of covariances (..., d, d): the measured components' variances summed
     (P₀₀ + P₁₁ for the paper's model); the Euclidean gate's scale."""
+    if not m.selects:
+        out_h: np.ndarray = np.trace(m.H @ P @ m.H.T, axis1=-2, axis2=-1)
+        return out_h
     i, j = m.pos
     out: np.ndarray = P[..., i, i] + P[..., j, j]
     return out

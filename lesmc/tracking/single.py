@@ -20,11 +20,12 @@ import numpy as np
 
 from lesmc.scene import Frame, Scene
 from lesmc.tracking.association import attack_option_rows, gate_test
-from lesmc.tracking.design import Batch, CovarianceTable, GainRows, Gains, Successors
+from lesmc.tracking.design import Batch, CovarianceTable, GainRows, Schedule, Successors
 from lesmc.tracking.kalman import (
     Matrices,
     initial_mean,
     matrices,
+    measure,
     positions,
     predict_means,
     update_means,
@@ -42,7 +43,7 @@ class SingleDesign:
         self.cfg = scene.tracker
         self.m: Matrices = matrices(self.cfg, scene.dt)
         self.covariances = CovarianceTable()
-        self.gains = Gains(self.m, self.cfg, self.covariances)
+        self.schedule = Schedule(self.m, self.cfg, self.covariances)
 
     def initial(self) -> Batch:
         """At the target's frame: (start, velocity) with P0; that frame's detections unused."""
@@ -58,13 +59,13 @@ class SingleDesign:
         )
         return out
 
-    def predict(self, X: np.ndarray, step: int) -> np.ndarray:
+    def predict(self, X: np.ndarray, step: int, m: Matrices) -> np.ndarray:
         """Carry positions into frame ``step`` (homography of the previous frame), then predict."""
         to_next = self.scene.frame(step - 1).to_next
         if to_next is not None:
             X = X.copy()
-            X[..., list(self.m.pos)] = warp(to_next, positions(self.m, X))
-        return predict_means(self.m, X)
+            X[..., list(m.pos)] = warp(to_next, positions(m, X))
+        return predict_means(m, X)
 
     def successors(self, batch: Batch, step: int, attacked: bool) -> Successors:
         """Outcomes of moving the states of ``batch`` (none halted) to frame ``step``.
@@ -74,9 +75,10 @@ class SingleDesign:
         spread to the rows, so states with different histories share the arrays.
         """
         frame = self.scene.frame(step)
-        Xp = self.predict(batch.X, step)
-        rows = self.gains.rows(batch.cov)
-        src, rank, payoff, det, X, cov, halted = self._rows(frame, Xp, rows, attacked)
+        m, gains = self.schedule.at(step)
+        Xp = self.predict(batch.X, step, m)
+        rows = gains.rows(batch.cov)
+        src, rank, payoff, det, X, cov, halted = self._rows(frame, Xp, rows, attacked, m)
         if src.size > 1 and (np.diff(src) < 0).any():  # by source, then rank
             order = np.lexsort((rank, src))
             src, rank, payoff, det = src[order], rank[order], payoff[order], det[order]
@@ -90,11 +92,11 @@ class SingleDesign:
         )
 
     def _rows(
-        self, frame: Frame, Xp: np.ndarray, g: GainRows, attacked: bool
+        self, frame: Frame, Xp: np.ndarray, g: GainRows, attacked: bool, m: Matrices
     ) -> tuple[np.ndarray, ...]:
         """Successors of predictions ``Xp``, row i with the gain rows ``g`` of its P."""
         cfg = self.cfg
-        at = positions(self.m, Xp)
+        at = measure(m, Xp)
         idx, valid = _candidates(frame, at, g.radius, wide=attacked)
         Z = frame.positions()[np.where(valid, idx, 0)]
         y = Z - at[:, None, :]
@@ -115,7 +117,7 @@ class SingleDesign:
         upd = col >= 0
         X = Xp[row].copy()
         ru = row[upd]
-        X[upd] = update_means(self.m, Xp[ru], g.K[ru], Z[ru, col[upd]])
+        X[upd] = update_means(m, Xp[ru], g.K[ru], Z[ru, col[upd]])
         det = np.where(upd, idx[row, np.maximum(col, 0)] if idx.shape[1] else -1, -1)
         cov = np.where(upd, g.post[row], g.pred[row]).astype(np.int64)
         halted = np.where(upd, g.halt_post[row], g.halt_pred[row])

@@ -26,7 +26,7 @@ from lesmc.common.errors import BudgetError, LesmcError, UsageError
 from lesmc.common.files import json_text
 from lesmc.common.progress import Reporter
 from lesmc.designs import registry
-from lesmc.language.parser import load_spec
+from lesmc.language.parser import load_faults, load_spec
 from lesmc.language.properties import SpecFile
 from lesmc.perception import NetFiles
 from lesmc.perception.quality import load_truth
@@ -68,6 +68,7 @@ class Request:
     tracker: str | None = None  #: a tracker file replacing the scene's (``--tracker``)
     payoffs: PayoffMode = "attack"
     budget: Budget = field(default_factory=Budget)
+    faults: str | None = None  #: a file with a ``faults`` block (``--faults``)
 
 
 @dataclass
@@ -115,6 +116,7 @@ def verify(req: Request, rep: Reporter) -> Outcome:
     """Run the experiment of ``req``; progress goes to ``rep``."""
     started = time.monotonic()
     specs = load_specs([Path(s) for s in req.specs] or bundled_specs(), req.window)
+    faults = load_faults(req.faults) if req.faults is not None else None
     src = _scene_file(req) if req.scene_path is not None else _perceived(req, specs, rep)
     if req.window is not None:
         check_window(src.scene, req.window)
@@ -130,6 +132,7 @@ def verify(req: Request, rep: Reporter) -> Outcome:
         budget=req.budget,
         full_models=True,
         certify=_certifier(src, rep, req.budget) if req.payoffs != "attack" else None,
+        faults=faults,
         source=req.scene_path or "scene",
         on_stage=rep.stage,
     )

@@ -1,0 +1,278 @@
+"""Component failures as part of the threat model (paper section 9.2, "Future Work").
+
+A ``faults { ... }`` block (docs/language.md, "Faults") declares what may fail
+inside the system: an entry of the Kalman filter's F, H, Q or R scaled or set
+("missing or perturbed values in the matrices F, H, Q and R"), or a sensor
+outage of k steps (no measurement reaches the tracker; a detector that answers
+nothing for a frame is ``outage 1``). At most ``budget`` faults strike at once.
+
+The adversary chooses, besides the attack, which faults strike and when each
+becomes active (its activation step, within the attack window unless the fault
+says ``from A..B``). Faults cost nothing, so the optimum of a property under a
+combination of faults is the least optimum over every choice of activation
+steps, each checked exactly on its own model: that is the constrained minimum
+over the union of their paths (Eq. 6-7), so the verdict is exact. Each
+combination is reported as a property of its own, ``NAME+FAULT`` (``NAME+A+B``
+for a pair), with the worst activation in its notes: "resilient to every single
+fault" is every ``NAME+F`` holding, "to every pair" every ``NAME+A+B``.
+
+Deviations (Eq. 4) are measured against the fault-free system's unattacked
+track: a fault that moves the track on its own has broken it (the reference a
+variant model carries, lesmc.model.arrays.reference_states).
+"""
+
+from __future__ import annotations
+
+import itertools
+import math
+from collections.abc import Callable, Iterator
+from dataclasses import dataclass, replace
+from typing import TYPE_CHECKING
+
+import numpy as np
+
+from lesmc.common.errors import Location, SpecError, UsageError, source_line
+from lesmc.engines.result import CheckResult, Stats, StopReason, Verdict
+from lesmc.language.properties import Fault, FaultSet
+from lesmc.language.semantics import BoundProperty
+from lesmc.scene import Scene
+from lesmc.scene.tracker_model import EntryFault
+
+if TYPE_CHECKING:
+    from lesmc.tracking.kalman import Matrices
+
+#: Most checks one property's fault variants may need (combinations × activation steps).
+MAX_FAULT_CHECKS = 5000
+
+#: The measurement space's coordinates: the rows of H, the rows and columns of R.
+MEASUREMENT = ("x", "y")
+
+
+@dataclass(frozen=True)
+class BoundFault:
+    """A fault resolved against a scene's tracker: a matrix entry by indices, or an outage."""
+
+    fault: Fault
+    entry: tuple[int, int] | None = None
+
+    @property
+    def name(self) -> str:
+        return self.fault.name
+
+
+@dataclass(frozen=True)
+class Strike:
+    """One fault of a combination, active from model step ``step``."""
+
+    fault: BoundFault
+    step: int
+
+    def text(self) -> str:
+        f = self.fault.fault
+        if f.kind == "outage":
+            last = self.step + f.length - 1
+            span = f"step {self.step}" if f.length == 1 else f"steps {self.step}..{last}"
+            return f"{f.name} (no measurement at {span})"
+        return f"{f.name} ({f.text()} from step {self.step})"
+
+
+def _error(fs: FaultSet, f: Fault, message: str) -> SpecError:
+    return SpecError(
+        message, Location(fs.path, f.pos.line, f.pos.column, source_line(fs.text, f.pos.line))
+    )
+
+
+def bind_faults(fs: FaultSet, scene: Scene) -> list[BoundFault]:
+    """Each fault of ``fs`` with its entry resolved against the scene's tracker; a located
+    error for an unknown matrix entry or one that overflows."""
+    from lesmc.tracking.kalman import matrices, with_faults
+
+    state = scene.tracker.state_names
+    m = matrices(scene.tracker, scene.dt)
+    out = []
+    for f in fs.faults:
+        if f.kind == "outage":
+            out.append(BoundFault(f))
+            continue
+        rows = MEASUREMENT if f.matrix in ("H", "R") else state
+        cols = MEASUREMENT if f.matrix == "R" else state
+        entry = (_index(fs, f, f.row, rows, "row"), _index(fs, f, f.col, cols, "column"))
+        faulty = with_faults(m, [EntryFault(f.matrix, *entry, f.op, f.value, 0)])
+        _check_finite(fs, f, faulty)
+        out.append(BoundFault(f, entry))
+    return out
+
+
+def _index(fs: FaultSet, f: Fault, ref: int | str, names: tuple[str, ...], what: str) -> int:
+    """A row or column of ``f.matrix``: a number below its size or one of ``names``."""
+    size = len(names)
+    if isinstance(ref, int):
+        if ref >= size:
+            raise _error(
+                fs,
+                f,
+                f"{f.matrix} has {size} {what}s (0..{size - 1}): {what} {ref} is out of range",
+            )
+        return ref
+    if ref not in names:
+        raise _error(fs, f, f"{f.matrix} has no {what} '{ref}'; its {what}s are {', '.join(names)}")
+    return names.index(ref)
+
+
+def _check_finite(fs: FaultSet, f: Fault, faulty: Matrices) -> None:
+    """A failed entry may leave Q or R indefinite (the faulty filter computes with it, as
+    a real one would), but not infinite: a scale that overflows is refused."""
+    for name in ("F", "H", "Q", "R"):
+        if not np.isfinite(getattr(faulty, name)).all():
+            raise _error(fs, f, f"the fault makes {name} non-finite")
+
+
+def validate(fs: FaultSet, scene: Scene, bound: list[BoundProperty]) -> None:
+    """Every fault binds to the scene's tracker and every activation range fits every
+    property: checked before any check runs, so a bad declaration costs no search."""
+    bind_faults(fs, scene)
+    for bp in bound:
+        for f in fs.faults:
+            activation_steps(fs, f, bp)
+
+
+def activation_steps(fs: FaultSet, f: Fault, bp: BoundProperty) -> range:
+    """The steps at which ``f`` may become active for property ``bp``: its ``from A..B``
+    (B may be ``end``), else the attack window; within the property's steps l..end."""
+    if f.steps is None:
+        return range(bp.l, bp.u + 1)
+    lo, hi = f.steps[0], bp.end if f.steps[1] is None else f.steps[1]
+    if not bp.l <= lo <= hi <= bp.end:
+        raise _error(
+            fs,
+            f,
+            f"activation steps {lo}..{hi} must lie within steps {bp.l}..{bp.end} of property "
+            f"'{bp.name}' (before its attack window the system runs fault-free)",
+        )
+    return range(lo, hi + 1)
+
+
+def combinations(
+    fs: FaultSet, faults: list[BoundFault], bp: BoundProperty
+) -> Iterator[tuple[str, list[list[Strike]]]]:
+    """Every combination of 1..budget faults, named ``NAME+A+B``, with every choice of their
+    activation steps."""
+    steps = {f.name: activation_steps(fs, f.fault, bp) for f in faults}
+    total = 0
+    for size in range(1, min(fs.budget, len(faults)) + 1):
+        for combo in itertools.combinations(faults, size):
+            choices = [
+                [Strike(f, s) for f, s in zip(combo, when, strict=True)]
+                for when in itertools.product(*(steps[f.name] for f in combo))
+            ]
+            total += len(choices)
+            if total > MAX_FAULT_CHECKS:
+                raise UsageError(
+                    f"the faults of {fs.path} need more than {MAX_FAULT_CHECKS} checks of "
+                    f"property '{bp.name}': lower the budget or narrow the activation steps"
+                )
+            yield "+".join([bp.name, *(f.name for f in combo)]), choices
+
+
+def variant_scene(scene: Scene, strikes: list[Strike]) -> Scene:
+    """The scene as the faulty system sees it: failed matrix entries from their frames on,
+    and no detections in the frames of an outage."""
+    first = scene.target.step
+    entries = tuple(
+        EntryFault(
+            s.fault.fault.matrix,
+            *s.fault.entry,
+            s.fault.fault.op,
+            s.fault.fault.value,
+            first + s.step,
+        )
+        for s in strikes
+        if s.fault.entry is not None
+    )
+    dark: set[int] = set()
+    for s in strikes:
+        if s.fault.fault.kind == "outage":
+            dark.update(range(first + s.step, first + s.step + s.fault.fault.length))
+    frames = tuple(replace(fr, detections=()) if fr.step in dark else fr for fr in scene.frames)
+    return replace(
+        scene,
+        frames=frames,
+        tracker=replace(scene.tracker, faults=scene.tracker.faults + entries),
+    )
+
+
+def worst(name: str, checks: list[tuple[list[Strike], CheckResult]]) -> CheckResult:
+    """The property under one combination of faults: the least optimum over every choice of
+    activation steps (the adversary's), with that choice's counterexample and witness.
+
+    Bounds: the minimum of a set of numbers lies between the minimum of their lower
+    bounds and the minimum of their upper bounds. Verdict: violated if some choice
+    violates, holds if every choice holds (a vacuous one makes it vacuous), else unknown.
+    """
+    results = [r for _, r in checks]
+    lower = min(r.lower for r in results)
+    upper = min(r.upper for r in results)
+    at = min(range(len(results)), key=lambda i: (results[i].upper, results[i].lower))
+    strikes, chosen = checks[at]
+    verdicts = [r.verdict for r in results]
+    verdict: Verdict
+    if "violated" in verdicts:
+        verdict = "violated"
+        at = min(
+            (i for i, r in enumerate(results) if r.verdict == "violated"),
+            key=lambda i: results[i].upper,
+        )
+        strikes, chosen = checks[at]
+    elif all(v == "holds" for v in verdicts):
+        verdict = "holds"
+    else:
+        verdict = "unknown"
+    known = lower == upper and all(r.optimum_known for r in results)
+    optimum = chosen.optimum if known or verdict == "violated" else None
+    notes = [f"worst activation: {', '.join(s.text() for s in strikes)}", *chosen.notes]
+    if len(results) > 1:
+        notes.append(f"{len(results)} activations checked, the least optimum kept")
+    return replace(
+        chosen,
+        property=name,
+        verdict=verdict,
+        optimum=None if optimum is None or math.isinf(optimum) else optimum,
+        optimum_known=known or (verdict == "violated" and chosen.optimum_known),
+        lower=lower,
+        upper=upper,
+        vacuous=verdict == "holds" and any(r.vacuous for r in results),
+        notes=notes,
+        stats=_summed([r.stats for r in results]),
+    )
+
+
+def _summed(stats: list[Stats]) -> Stats:
+    """Every activation's search in one record: counts and seconds added."""
+    first = stats[0]
+    stopped: StopReason = next((s.stopped for s in stats if s.stopped != "finished"), "finished")
+    return Stats(
+        engine=first.engine,
+        states_expanded=sum(s.states_expanded for s in stats),
+        transitions=sum(s.transitions for s in stats),
+        seconds=sum(s.seconds for s in stats),
+        stopped=stopped,
+        extra={"fault_activations": len(stats)},
+    )
+
+
+#: Check one property on one variant scene (the pipeline's model and payoff handling).
+CheckVariant = Callable[[Scene, BoundProperty], CheckResult]
+
+
+def check_faults(
+    fs: FaultSet, scene: Scene, bp: BoundProperty, check: CheckVariant
+) -> list[tuple[BoundProperty, CheckResult]]:
+    """``bp`` under every combination of the faults of ``fs``: one result per combination,
+    named ``NAME+FAULT...`` (:func:`worst` of its activations)."""
+    bound = bind_faults(fs, scene)
+    out = []
+    for name, choices in combinations(fs, bound, bp):
+        checks = [(strikes, check(variant_scene(scene, strikes), bp)) for strikes in choices]
+        renamed = replace(bp, prop=replace(bp.prop, name=name))
+        out.append((renamed, worst(name, checks)))
+    return out

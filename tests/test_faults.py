@@ -1,0 +1,325 @@
+"""Component failures (issue 30, paper section 9.2): the faulty tracker against filterpy,
+the optimum under faults against an independent brute force over every activation, and
+bad fault declarations through the real CLI."""
+
+from __future__ import annotations
+
+import itertools
+import math
+from dataclasses import replace
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pytest
+
+pytest.importorskip("stonesoup")
+
+from cli_run import lesmc
+from kf_reference import reference_filter
+from oracle import brute_force
+from stonesoup_oracle import random_model, simulated_scene
+
+from lesmc.build.unfold import build_model
+from lesmc.language.parser import parse_spec
+from lesmc.model.lts import to_lts
+from lesmc.pipeline.check import run
+from lesmc.pipeline.job import Job
+from lesmc.scene import Frame, Scene, load_scene, scene_from_dict
+from lesmc.scene.tracker_model import EntryFault
+from lesmc.tracking.kalman import matrices
+
+SCENES = Path(__file__).parent / "scenes"
+
+
+def oracle_variant(scene: Scene, strikes: list[tuple[dict[str, Any], int]]) -> Scene:
+    """The faulty system, built here from the fault's definition: failed entries from their
+    frame on, no detections in an outage's frames."""
+    entries, dark = [], set()
+    for f, s in strikes:
+        frame = scene.target.step + s
+        if f["kind"] == "outage":
+            dark.update(range(frame, frame + f["length"]))
+        else:
+            entries.append(EntryFault(f["matrix"], f["i"], f["j"], f["op"], f["value"], frame))
+    frames = tuple(
+        Frame(fr.step, () if fr.step in dark else fr.detections, fr.to_next) for fr in scene.frames
+    )
+    return replace(scene, frames=frames, tracker=replace(scene.tracker, faults=tuple(entries)))
+
+
+def test_every_path_under_faults_equals_filterpy_switching_its_matrices() -> None:
+    """A Q, an H and an F fault from steps 6, 7, 8 and an outage at step 9: each path of the
+    variant's model replayed by filterpy, whose matrices change at those steps."""
+    scene = load_scene(SCENES / "rq1_platoon.json")
+    faults = [
+        ({"kind": "matrix", "matrix": "Q", "i": 2, "j": 2, "op": "*", "value": 4.0}, 6),
+        ({"kind": "matrix", "matrix": "H", "i": 0, "j": 0, "op": "*", "value": 0.9}, 7),
+        ({"kind": "matrix", "matrix": "F", "i": 0, "j": 2, "op": "=", "value": 0.5}, 8),
+        ({"kind": "outage", "length": 1}, 9),
+    ]
+    variant = oracle_variant(scene, faults)
+    model = to_lts(build_model(variant, (6, 9), 11))
+    m = matrices(scene.tracker, scene.dt)
+    ids = {d.id: (d.x, d.y) for fr in scene.frames for d in fr.detections}
+
+    def mats_at(k: int) -> dict[str, np.ndarray]:
+        out = {"F": m.F.copy(), "H": m.H.copy(), "Q": m.Q.copy(), "R": m.R.copy()}
+        for f, s in faults:
+            if f["kind"] == "matrix" and k >= s:
+                M = out[f["matrix"]]
+                for i, j in (
+                    {(f["i"], f["j"]), (f["j"], f["i"])}
+                    if f["matrix"] in "QR"
+                    else {(f["i"], f["j"])}
+                ):
+                    M[i, j] = M[i, j] * f["value"] if f["op"] == "*" else f["value"]
+        return out
+
+    def paths(q, acc):  # type: ignore[no-untyped-def]
+        out = model.out(q)
+        if not out:
+            yield acc
+        for t in out:
+            yield from paths(t.dst, [*acc, t])
+
+    count = updates_after_h = 0
+    for path in paths(model.initial, []):
+        kf = reference_filter(m, np.array([*scene.target.start, 0, 0]))
+        for k, t in enumerate(path, start=1):
+            mk = mats_at(k)
+            kf.F, kf.Q, kf.H, kf.R = mk["F"], mk["Q"], mk["H"], mk["R"]
+            kf.predict()
+            if t.obs is not None:
+                kf.update(np.array(ids[t.obs]))
+                updates_after_h += k >= 7
+            st = model.state(t.dst)
+            np.testing.assert_allclose(kf.x.ravel(), st.s, rtol=1e-9, atol=1e-9)
+            np.testing.assert_allclose(kf.P, st.P, rtol=1e-9, atol=1e-9)
+            if k == 9:
+                assert t.obs is None  # the outage: nothing to update with
+        count += 1
+    assert count > 10 and updates_after_h > 10
+
+
+SPEC = """
+property p {
+    attack window 1..3
+    end 4
+    minimize %(objective)s
+    subject to %(constraint)s
+    holds if optimum > %(threshold)s
+    on x, y
+}
+"""
+
+OBJECTIVES = [
+    ("payoff", "dist.sum(0..end) > %(eps)s", "1.5"),
+    ("dist.max(1..3)", "dist.at(end) > %(eps)s", "5"),
+    ("count", "dist.max(2..end) > %(eps)s", "1"),
+]
+
+
+def _random_faults(rng: np.random.Generator, names: tuple[str, ...]) -> list[dict[str, Any]]:
+    """1-3 faults: F or H entries scaled or set, Q or R diagonals scaled up (a covariance
+    stays one), outages of 1-2 steps; some with their own activation steps."""
+    d = len(names)
+    out: list[dict[str, Any]] = []
+    for n in range(int(rng.integers(1, 4))):
+        kind = str(rng.choice(["F", "H", "Q", "R", "outage"]))
+        f: dict[str, Any] = {"name": f"f{n}"}
+        if kind == "outage":
+            f.update(kind="outage", length=int(rng.integers(1, 3)))
+            text = f"outage {f['length']}"
+        else:
+            if kind in ("Q", "R"):
+                size = d if kind == "Q" else 2
+                i = j = int(rng.integers(0, size))
+                op, value = "*", float(rng.choice([1.5, 4.0, 25.0]))
+            else:
+                i = int(rng.integers(0, 2 if kind == "H" else d))
+                j = int(rng.integers(0, d))
+                op = str(rng.choice(["*", "="]))
+                value = float(rng.choice([0.0, 0.5, 1.3])) if op == "*" else float(rng.normal())
+            f.update(kind="matrix", matrix=kind, i=i, j=j, op=op, value=value)
+            cols = names if kind != "R" else ("x", "y")
+            col = cols[j] if rng.random() < 0.5 else str(j)  # by name or by index
+            text = f"{kind}[{i}, {col}] {op} {value!r}"
+        if rng.random() < 0.3:
+            f["steps"] = (2, 5)  # steps 2..4 = 2..end
+            text += " from 2..end"
+        f["text"] = f"fault {f['name']}: {text}"
+        out.append(f)
+    return out
+
+
+def _oracle_optimum(
+    scene: Scene, faults: list[dict[str, Any]], combo: list[str], spec_text: str
+) -> float:
+    """The least brute-force optimum over every activation of the faults named ``combo``,
+    deviations against the fault-free unattacked track."""
+    from lesmc.engines.check import bind_all
+
+    nominal = build_model(scene, (1, 3), 4)
+    reference = [nominal.S[q] for q in nominal.original]
+    chosen = [f for f in faults if f["name"] in combo]
+    best = math.inf
+    steps = [range(*f["steps"]) if "steps" in f else range(1, 4) for f in chosen]
+    for when in itertools.product(*steps):
+        variant = oracle_variant(scene, list(zip(chosen, when, strict=True)))
+        model = build_model(variant, (1, 3), 4)
+        bp = bind_all(model, [parse_spec(spec_text)])[0]
+        best = min(best, brute_force(to_lts(model), bp, reference).optimum)
+    return best
+
+
+def test_optima_under_faults_equal_brute_force() -> None:
+    """200 random scenes, trackers (cv2d, ca2d, random models; single and joint designs),
+    faults and budgets (1 or 2): every NAME+FAULT optimum and verdict equals the least
+    brute-force optimum over every activation of those faults."""
+    cases = compared = violated = 0
+    engines = ("levels", "bnb", "enumerate")
+    for seed in range(260):
+        if cases >= 200:
+            break
+        rng = np.random.default_rng(7300 + seed)
+        tracker = random_model(rng, ("cv2d", "ca2d", "random")[seed % 3])
+        tracker["design"] = "joint" if seed % 5 == 4 else "single"
+        tracker["max_trace"] = 1e30  # no halts: every variant's unattacked track reaches end
+        doc = simulated_scene(rng, tracker)
+        if len(doc["frames"]) < 5:
+            continue
+        doc["frames"] = doc["frames"][:6]
+        scene = scene_from_dict(doc)
+        faults = _random_faults(rng, scene.tracker.state_names)
+        budget = int(rng.integers(1, 3))
+        objective, constraint, threshold = OBJECTIVES[seed % len(OBJECTIVES)]
+        eps = float(rng.uniform(0.5, 30.0))
+        spec_text = SPEC % {
+            "objective": objective,
+            "constraint": constraint % {"eps": eps},
+            "threshold": threshold,
+        }
+        lines = "\n  ".join(f["text"] for f in faults)
+        block = f"faults {{\n  budget {budget}\n  {lines}\n}}\n"
+        spec = parse_spec(spec_text + block)
+        results = run(Job((spec,), scene=scene, faults=spec.faults, engine=engines[seed % 3]))
+        got = {
+            bp.name: r
+            for run_ in results.runs
+            for bp, r in zip(run_.bound, run_.results, strict=True)
+        }
+        want_names = {
+            "+".join(["p", *(f["name"] for f in combo)])
+            for size in range(1, min(budget, len(faults)) + 1)
+            for combo in itertools.combinations(faults, size)
+        }
+        assert set(got) == {"p"} | want_names
+        for name in sorted(want_names):
+            want = _oracle_optimum(scene, faults, name.split("+")[1:], spec_text)
+            r = got[name]
+            if math.isinf(want):
+                assert r.optimum is None and r.verdict == "holds", (seed, name)
+            else:
+                assert r.optimum is not None, (seed, name, want)
+                assert math.isclose(r.optimum, want, rel_tol=1e-12, abs_tol=1e-12), (seed, name)
+                assert r.verdict == ("holds" if want > float(threshold) else "violated")
+                violated += r.verdict == "violated"
+            compared += 1
+        cases += 1
+    assert cases == 200 and compared >= 300 and violated >= 50, (cases, compared, violated)
+
+
+BAD_FAULTS = [
+    ("fault a: Q[vz, x] * 2", "3:9", "Q has no row 'vz'; its rows are x, y, vx, vy"),
+    ("fault a: H[2, x] * 2", "3:9", "H has 2 rows (0..1): row 2 is out of range"),
+    ("fault a: R[x, 5] = 1", "3:9", "R has 2 columns (0..1): column 5 is out of range"),
+    ("fault a: G[1, x] * 2", "3:12", "unexpected 'G'; expected 'outage' or a matrix"),
+    ("fault a: outage 0", "3:12", "an outage lasts at least 1 step"),
+    ("fault a: outage 1 from 2..4", "3:9", "activation steps 2..4 must lie within steps 6..19"),
+]
+
+
+@pytest.mark.parametrize(("line", "where", "message"), BAD_FAULTS)
+def test_bad_fault_declarations_are_located_errors(
+    tmp_path: Path, line: str, where: str, message: str
+) -> None:
+    path = tmp_path / "faults.spec"
+    path.write_text(f"faults {{\n  budget 1\n  {line}\n}}\n")
+    res = lesmc(
+        "check", str(SCENES / "rq1_platoon.json"), "specs/resilience.spec", "--faults", str(path)
+    )
+    assert res.returncode == 2, res.stderr
+    assert f"{path}:{where}: {message}" in res.stderr, res.stderr
+    assert "Traceback" not in res.stderr
+
+
+@pytest.mark.parametrize(
+    ("budget", "message"),
+    [
+        ("-1", "the fault budget must be a whole number in 0..4, got -1"),
+        ("1.5", "got 1.5"),
+        ("9", "got 9"),
+    ],
+)
+def test_a_budget_below_0_or_not_whole_is_a_located_error(
+    tmp_path: Path, budget: str, message: str
+) -> None:
+    path = tmp_path / "faults.spec"
+    path.write_text(f"faults {{\n  budget {budget}\n  fault a: outage 1\n}}\n")
+    res = lesmc(
+        "check", str(SCENES / "rq1_platoon.json"), "specs/resilience.spec", "--faults", str(path)
+    )
+    assert res.returncode == 2 and f"{path}:2:10: the fault budget" in res.stderr, res.stderr
+    assert message in res.stderr and "Traceback" not in res.stderr
+
+
+def test_faults_need_a_scene_and_one_block(tmp_path: Path) -> None:
+    faults = tmp_path / "f.spec"
+    faults.write_text("faults {\n  fault a: outage 1\n}\n")
+    model = tmp_path / "m.npz"
+    assert (
+        lesmc(
+            "build", str(SCENES / "rq1_platoon.json"), "--window", "6..8", "-o", str(model)
+        ).returncode
+        == 0
+    )
+    res = lesmc("check", str(model), "specs/resilience.spec", "--faults", str(faults))
+    assert res.returncode == 2 and "faults change the tracker: they need a scene" in res.stderr
+    spec = tmp_path / "both.spec"
+    spec.write_text(Path("specs/resilience.spec").read_text() + faults.read_text())
+    res = lesmc("check", str(SCENES / "rq1_platoon.json"), str(spec), "--faults", str(faults))
+    assert res.returncode == 2 and "give one faults block" in res.stderr
+    empty = tmp_path / "none.spec"
+    empty.write_text("# nothing\n")
+    res = lesmc(
+        "check", str(SCENES / "rq1_platoon.json"), "specs/resilience.spec", "--faults", str(empty)
+    )
+    assert (
+        res.returncode == 2
+        and f"{empty}:1:1: the file defines neither a property nor a faults block" in res.stderr
+    )
+
+
+def test_a_fault_that_moves_the_track_alone_is_a_free_violation(tmp_path: Path) -> None:
+    """F[x, vx] = 0 stops the position following the velocity: without any attack the track
+    leaves the fault-free one, so robustness is violated at payoff 0 (deviations are measured
+    against the fault-free track), and the result names the activation."""
+    faults = tmp_path / "f.spec"
+    faults.write_text("faults {\n  fault frozen: F[x, vx] = 0\n}\n")
+    res = lesmc(
+        "check",
+        str(SCENES / "rq1_platoon.json"),
+        "specs/robustness.spec",
+        "--faults",
+        str(faults),
+        "--json",
+    )
+    assert res.returncode == 1, res.stderr
+    import json
+
+    doc = {r["property"]: r for r in json.loads(res.stdout)["results"]}
+    assert doc["robustness"]["verdict"] == "holds"
+    r = doc["robustness+frozen"]
+    assert r["verdict"] == "violated" and r["optimum"] == 0.0
+    assert any(n.startswith("worst activation: frozen (F[x,vx] = 0 from step ") for n in r["notes"])
