@@ -23,10 +23,14 @@ class BruteResult:
 
 
 def brute_force(
-    model: LTS, bp: BoundProperty, reference: list[np.ndarray] | None = None
+    model: LTS,
+    bp: BoundProperty,
+    reference: list[np.ndarray] | None = None,
+    tracks: np.ndarray | None = None,
 ) -> BruteResult:
     """``reference``: the states deviations are measured against, one per step (default:
-    the model's original path's)."""
+    the model's original path's). ``tracks``: ground-truth tracks (r, steps, c) over the
+    components ``bp.near_components``, NaN where absent (``dist.nearest``)."""
     orig = [model.state(q) for q in model.original]
     ref = [o.s for o in orig] if reference is None else reference
     comps = list(bp.components)
@@ -71,6 +75,16 @@ def brute_force(
 
     walk([model.initial], [])
 
+    def nearest(sid: str) -> float:  # the least deviation from the reference or any track
+        st = model.state(sid)
+        comps_n = list(bp.near_components or ())
+        best = _norm(st.s[comps_n] - ref[st.step][comps_n], bp.norm)
+        for tr in [] if tracks is None else tracks:
+            g = tr[min(st.step, len(tr) - 1)]
+            if not np.isnan(g).any():
+                best = min(best, _norm(st.s[comps_n] - g, bp.norm))
+        return best
+
     def trace(sid: str) -> float:  # τ of Eq. 12 on tau.rise's components
         P = model.state(sid).P
         return float(sum(P[i, i] for i in bp.tau_components or ()))
@@ -81,6 +95,8 @@ def brute_force(
             if k < len(path):
                 if m.source == "dist":
                     per_step[k] = dist(path[k])
+                elif m.source == "near":
+                    per_step[k] = nearest(path[k])
                 elif m.source == "tau":  # how much τ rose entering step k (never below 0)
                     per_step[k] = max(0.0, trace(path[k]) - trace(path[k - 1]))
                 else:
@@ -96,7 +112,7 @@ def brute_force(
                         comb = 1.0 if lower else 0.0
                     per_step[k] = comb * m.weight
             else:  # after a halt
-                per_step[k] = math.inf if m.source in ("dist", "tau") else 0.0
+                per_step[k] = math.inf if m.source in ("dist", "near", "tau") else 0.0
         vals = [per_step[k] for k in sorted(per_step)]
         if m.source == "tau":
             return max([0.0, *vals])
@@ -118,3 +134,11 @@ def brute_force(
     opt = min((r[1] for r in plus), default=math.inf)
     below = [r[1] for r in rows if not ops[bp.op](r[2], bp.bound) and r[1] < opt]
     return BruteResult(opt, max(below) if below else None, rows)
+
+
+def _norm(d: np.ndarray, p: float) -> float:
+    if p == 1:
+        return float(np.sum(np.abs(d)))
+    if math.isinf(p):
+        return float(np.max(np.abs(d)))
+    return float(np.sqrt(np.sum(d * d)))

@@ -5,6 +5,7 @@ from __future__ import annotations
 import itertools
 import math
 
+import numpy as np
 import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
@@ -211,6 +212,71 @@ def test_trend_measure_equals_brute_force(case: tuple) -> None:
     assert bp.tau_components is not None
     truth = brute_force(model, bp)
     cm = to_arrays(model)
+    for engine in ("enumerate", "bnb", "levels"):
+        r = check_bound(cm, bp, engine)  # type: ignore[arg-type]
+        assert r.stats.stopped == "finished"
+        if math.isinf(truth.optimum):
+            assert r.optimum is None, engine
+        else:
+            assert r.optimum == pytest.approx(truth.optimum, rel=1e-12, abs=1e-12), engine
+
+
+@st.composite
+def nearest_cases(draw: st.DrawFn) -> tuple:
+    """Random models with ground-truth tracks (random positions near the states, absent at
+    random steps) and a property with ``dist.nearest(k)`` as objective or constraint."""
+    cfg = RandomModelConfig(
+        steps=draw(st.integers(2, 6)),
+        width=draw(st.integers(1, 4)),
+        branching=(1, draw(st.integers(1, 3))),
+        dim=draw(st.integers(1, 3)),
+        halt_prob=draw(st.sampled_from([0.0, 0.2])),
+        covariance=False,
+        tree=draw(st.booleans()),
+        integer_values=draw(st.booleans()),
+    )
+    model = random_lts(cfg, draw(st.integers(0, 2**31)))
+    e = model.end
+    l = draw(st.integers(1, e))
+    u = draw(st.integers(l, e))
+    end = draw(st.integers(u, e))
+    k = draw(st.integers(0, end))
+    near = f"dist.nearest({k})"
+    other = draw(st.sampled_from(["payoff", "count", f"dist.max(0..{end})", near]))
+    obj, con = (near, other) if draw(st.booleans()) else (other, near)
+    op = draw(st.sampled_from([">", ">=", "<", "<="]))
+    dim = len(model.components)
+    used = draw(st.integers(1, dim))
+    seed = draw(st.integers(0, 2**31))
+    rng = np.random.default_rng(seed)
+    n_tracks = draw(st.integers(0, 3))
+    at = rng.normal(scale=3.0, size=(n_tracks, e + 1, used))
+    at[rng.random((n_tracks, e + 1)) < 0.3] = np.nan
+    at[:, 0] = rng.normal(size=(n_tracks, used))  # present at least once
+    names = model.components[:used]
+    on = ", ".join(names)
+    params = (l, u, end, obj, con, op, draw(st.sampled_from(["1", "2", "inf"])), f"on {on}")
+    return model, params, draw(st.floats(0, 1)), names, at
+
+
+@settings(max_examples=200, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(nearest_cases())
+def test_nearest_track_measure_equals_brute_force(case: tuple) -> None:
+    """``dist.nearest(k)``: the deviation from the nearest of the original path and the
+    ground-truth tracks present at step k; every engine's optimum equals the brute force's."""
+    from lesmc.model.arrays import Tracks
+
+    model, params, quantile, names, at = case
+    ids = tuple(f"g{i}" for i in range(len(at)))
+    spec = parse_spec(_spec(params, 0.0))
+    bp = bind(spec, spec.properties[0], model.end, model.components, True, names)
+    values = sorted(v for _, _, v in brute_force(model, bp, tracks=at).paths if math.isfinite(v))
+    values = values or [0.0]
+    spec = parse_spec(_spec(params, values[min(int(quantile * len(values)), len(values) - 1)]))
+    bp = bind(spec, spec.properties[0], model.end, model.components, True, names)
+    truth = brute_force(model, bp, tracks=at)
+    cm = to_arrays(model)
+    cm.tracks = Tracks(names, ids, at)
     for engine in ("enumerate", "bnb", "levels"):
         r = check_bound(cm, bp, engine)  # type: ignore[arg-type]
         assert r.stats.stopped == "finished"

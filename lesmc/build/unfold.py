@@ -27,7 +27,7 @@ import numpy as np
 from lesmc.build.hashing import HashIndex, splitmix
 from lesmc.common.errors import UsageError
 from lesmc.designs.registry import make_tracker
-from lesmc.model.arrays import ArrayModel
+from lesmc.model.arrays import ArrayModel, Tracks
 from lesmc.model.growing import BATCH_SECONDS, Expansion, GrowingModel
 from lesmc.scene import Scene
 from lesmc.tracking.design import Batch, Design, PayloadStore
@@ -138,6 +138,23 @@ class SceneExpander:
         return Expansion(counts, dst, succ.payoff, succ.rank, obs)
 
 
+def scene_tracks(scene: Scene, steps: int) -> Tracks | None:
+    """The scene's ground-truth tracks as model arrays: step k is frame target.step + k,
+    positions at the tracker's measured components; None when the scene has none."""
+    if not scene.truth:
+        return None
+    names = scene.tracker.state_names
+    pos = scene.tracker.measured
+    at = np.full((len(scene.truth), steps, 2), np.nan)
+    first = scene.target.step
+    for r, tr in enumerate(scene.truth):
+        for frame, x, y in tr.positions:
+            if 0 <= frame - first < steps:
+                at[r, frame - first] = (x, y)
+    ids = tuple(t.id for t in scene.truth)
+    return Tracks((names[pos[0]], names[pos[1]]), ids, at)
+
+
 def original_end(scene: Scene, design: Design | None = None, end: int | None = None) -> int:
     """e: the last step of the unattacked track (up to ``end``, or until it halts)."""
     design = make_tracker(scene) if design is None else design
@@ -201,6 +218,7 @@ def lazy_model(
         raise UsageError(f"the unattacked track halts before the attack window {window}")
     model.original = np.array(original, dtype=np.int64)
     model.reference = reference
+    model.tracks = scene_tracks(scene, last + 1)
     return model
 
 
@@ -279,6 +297,7 @@ def freeze(
     order = np.argsort(src, kind="stable")  # identity when expanded in index order
     original = model.original
     return ArrayModel(
+        tracks=scene_tracks(scene, end + 1),
         components=model.components,
         step=model.step.astype(np.int64),
         S=model.S.copy(),

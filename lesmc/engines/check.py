@@ -34,7 +34,14 @@ DEFAULT_MAX_STATES = 10_000_000
 def bind_all(model: ArrayModel, specs: Iterable[SpecFile]) -> list[BoundProperty]:
     """Bind every property of every spec file to the model (semantic errors raise)."""
     return [
-        bind(spec, prop, model.end, model.components, model.has_covariance)
+        bind(
+            spec,
+            prop,
+            model.end,
+            model.components,
+            model.has_covariance,
+            None if model.tracks is None else model.tracks.components,
+        )
         for spec in specs
         for prop in spec.properties
     ]

@@ -21,7 +21,7 @@ import time
 
 import numpy as np
 
-from lesmc.engines.space import SpaceOps, excused_steps, ranges
+from lesmc.engines.space import SpaceOps, excused_steps, nearest_deviations, ranges
 from lesmc.language.semantics import BoundProperty
 from lesmc.model import kernel
 from lesmc.model.arrays import reference_states
@@ -55,9 +55,13 @@ class LazySpace(SpaceOps):
         self._known = 0  # states whose deviation and τ are computed
         self._ref = reference_states(model)
         self._excused: np.ndarray | None = None
+        self._near = GrowArray(np.float64)  # dist.nearest per state, when the property asks
         self._sync()
-        obj = kernel.initial_value(bp.objective, self.dist[model.original[0]])
-        con = kernel.initial_value(bp.constraint, self.dist[model.original[0]])
+        q0 = int(model.original[0])
+        d0 = float(self.dist[q0])
+        n0 = float(self._near.data[q0]) if bp.near_components is not None else 0.0
+        obj = kernel.initial_value(bp.objective, d0, n0)
+        con = kernel.initial_value(bp.constraint, d0, n0)
         for k in range(1, bp.l):  # the common prefix follows the original path
             t = self.entering(int(model.original[k - 1]), int(model.original[k]))
             obj = self.agg(self.obj_max, obj, float(self.c_obj[t]))
@@ -90,6 +94,9 @@ class LazySpace(SpaceOps):
             steps = cm.step[new]
             diff = (cm.S[new] - self._ref[steps])[:, list(bp.components)]
             self._dist.extend(kernel.deviation(diff, bp.norm))
+            if bp.near_components is not None:
+                assert cm.tracks is not None
+                self._near.extend(nearest_deviations(cm.S[new], steps, self._ref, cm.tracks, bp))
             if bp.monitor_components is not None:
                 self._tau.extend(self._tau_of_table()[cm.cov[new]])
                 if self._excused is None:  # the original path is unfolded before the search
@@ -110,8 +117,9 @@ class LazySpace(SpaceOps):
             tau_r = self._trend_tau.data
             rise = kernel.tau_rise(tau_r[cm.cov[cm.src[t]]], tau_r[cm.cov[dst]])
         dist = self.dist[dst]
-        self._c_obj.extend(kernel.contributions(bp.objective, ks, comb, dist, cnt, rise))
-        self._c_con.extend(kernel.contributions(bp.constraint, ks, comb, dist, cnt, rise))
+        near = self._near.data[dst] if bp.near_components is not None else None
+        self._c_obj.extend(kernel.contributions(bp.objective, ks, comb, dist, cnt, rise, near))
+        self._c_con.extend(kernel.contributions(bp.constraint, ks, comb, dist, cnt, rise, near))
         allowed = ((ks >= bp.l) & (ks <= bp.u)) | (cm.rank[t] == 0)
         if bp.monitor_components is not None:
             tau = self._tau.data

@@ -17,7 +17,7 @@ import numpy as np
 
 from lesmc.language.semantics import BoundProperty
 from lesmc.model import kernel
-from lesmc.model.arrays import ArrayModel, reference_states
+from lesmc.model.arrays import ArrayModel, Tracks, reference_states
 
 
 def deviations(cm: ArrayModel, norm: float, components: tuple[int, ...]) -> np.ndarray:
@@ -26,6 +26,19 @@ def deviations(cm: ArrayModel, norm: float, components: tuple[int, ...]) -> np.n
     ref_states = reference_states(cm)
     ref = ref_states[np.minimum(cm.step, len(ref_states) - 1)]
     return kernel.deviation((cm.S - ref)[:, list(components)], norm)
+
+
+def nearest_deviations(
+    S: np.ndarray, steps: np.ndarray, ref_states: np.ndarray, tracks: Tracks, bp: BoundProperty
+) -> np.ndarray:
+    """``dist.nearest`` of states (rows of S at ``steps``): the least deviation from the
+    reference path or a ground-truth track at the state's step (kernel.nearest)."""
+    assert bp.near_components is not None
+    comps = list(bp.near_components)
+    ref = ref_states[np.minimum(steps, len(ref_states) - 1)]
+    d0 = kernel.deviation((S - ref)[:, comps], bp.norm)
+    k = np.minimum(steps, tracks.at.shape[1] - 1)
+    return kernel.nearest(d0, (S[:, comps] - at[k] for at in tracks.at), bp.norm)
 
 
 def location_trace(cm: ArrayModel, components: tuple[int, ...]) -> np.ndarray:
@@ -196,6 +209,8 @@ class Space(SpaceOps):
     satisfies: Callable[[float, float], bool]
     #: per transition: the monitor drops it (Eq. 13 entering a step l..end); None: no monitor
     cut: np.ndarray | None = None
+    #: per state: ``dist.nearest`` (kernel.nearest); None: the property has no such measure
+    near: np.ndarray | None = None
     _levels: tuple[np.ndarray, ...] | None = field(
         default=None, init=False, repr=False, compare=False
     )
@@ -278,12 +293,19 @@ def build_space(cm: ArrayModel, bp: BoundProperty) -> Space:
     if bp.tau_components is not None:  # tau.rise: section 9.1's trend of τ (Eq. 12)
         tau_r = location_trace(cm, bp.tau_components)
         rise = kernel.tau_rise(tau_r[src], tau_r[cm.dst])
-    c_obj = kernel.contributions(bp.objective, k, combined, dist[cm.dst], counted, rise)
-    c_con = kernel.contributions(bp.constraint, k, combined, dist[cm.dst], counted, rise)
+    near = None
+    if bp.near_components is not None:  # dist.nearest: any acceptable track (section 4.2)
+        assert cm.tracks is not None
+        near = nearest_deviations(cm.S, cm.step, reference_states(cm), cm.tracks, bp)
+    near_dst = None if near is None else near[cm.dst]
+    dst_dist = dist[cm.dst]
+    c_obj = kernel.contributions(bp.objective, k, combined, dst_dist, counted, rise, near_dst)
+    c_con = kernel.contributions(bp.constraint, k, combined, dst_dist, counted, rise, near_dst)
     # the common prefix: steps 0..l−1 follow the original path
-    d0 = float(dist[cm.original[0]])
-    obj = kernel.initial_value(bp.objective, d0)
-    con = kernel.initial_value(bp.constraint, d0)
+    q0 = int(cm.original[0])
+    d0, n0 = float(dist[q0]), 0.0 if near is None else float(near[q0])
+    obj = kernel.initial_value(bp.objective, d0, n0)
+    con = kernel.initial_value(bp.constraint, d0, n0)
     obj_max, con_max = bp.objective.aggregate == "max", bp.constraint.aggregate == "max"
     for kk in range(1, bp.l):
         t = cm.edge(int(cm.original[kk - 1]), int(cm.original[kk]))
@@ -302,4 +324,5 @@ def build_space(cm: ArrayModel, bp: BoundProperty) -> Space:
         root_con=con,
         satisfies=kernel.COMPARE[bp.op],
         cut=cut,
+        near=near,
     )

@@ -395,9 +395,10 @@ class _Builder:
         if node.data in ("payoff", "count"):
             agg = str(ch[0]) if ch else "sum"
             return Measure(node.data, agg, pos=pos)  # type: ignore[arg-type]
-        if node.data == "dist_at":
+        if node.data in ("dist_at", "dist_nearest"):
             at = self.step(ch[0])
-            return Measure("dist", "at", at, at, pos=pos)
+            agg = "at" if node.data == "dist_at" else "nearest"
+            return Measure("dist", agg, at, at, pos=pos)  # type: ignore[arg-type]
         lo, hi = self.step(ch[1]), self.step(ch[2])
         if lo is not None and hi is not None and lo > hi:
             raise self.error(f"empty step range {lo}..{hi}", pos)

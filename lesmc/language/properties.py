@@ -18,7 +18,7 @@ StepRef = int | None
 DEFAULT_MONITOR_TOLERANCE = 1e-9
 
 MeasureKind = Literal["payoff", "count", "dist", "tau"]
-Aggregate = Literal["sum", "mean", "max", "at", "frames", "rise"]
+Aggregate = Literal["sum", "mean", "max", "at", "frames", "rise", "nearest"]
 Comparison = Literal[">", ">=", "<", "<="]
 
 
@@ -37,7 +37,9 @@ class Measure:
     ``payoff`` (sum, Eq. 8 over the attack window), ``payoff.mean`` (the same
     divided by the number of attacked steps, Algorithm 1), ``dist.sum(a..b)``
     (Eq. 9 on a range), ``dist.max(a..b)`` (dist^max) and ``dist.at(k)``
-    (dist^{k,k}); ``count`` (Eq. 8 with every payoff 1: the outcomes hidden) and
+    (dist^{k,k}), ``dist.nearest(k)`` (the same against the nearest acceptable track:
+    the original path or a ground-truth track, section 4.2); ``count`` (Eq. 8 with
+    every payoff 1: the outcomes hidden) and
     ``count.frames`` (the attacked steps) over the attack window; ``tau.rise(a..b)``
     (the largest one-step rise of the uncertainty τ of Eq. 12 entering steps a..b, 0
     when τ never rises: section 9.1's trend).
@@ -53,8 +55,8 @@ class Measure:
         """The measure as it is written in the language."""
         if self.kind in ("payoff", "count"):
             return self.kind if self.aggregate == "sum" else f"{self.kind}.{self.aggregate}"
-        if self.aggregate == "at":
-            return f"dist.at({_step_text(self.lo)})"
+        if self.aggregate in ("at", "nearest"):
+            return f"dist.{self.aggregate}({_step_text(self.lo)})"
         return f"{self.kind}.{self.aggregate}({_step_text(self.lo)}..{_step_text(self.hi)})"
 
 
@@ -115,7 +117,8 @@ class Property:
         own = self.window
 
         def move(m: Measure) -> Measure:
-            if m.kind in ("dist", "tau") and m.aggregate != "at" and (m.lo, m.hi) == own:
+            moves = m.kind in ("dist", "tau") and m.aggregate not in ("at", "nearest")
+            if moves and (m.lo, m.hi) == own:
                 return replace(m, lo=window[0], hi=window[1])
             return m
 

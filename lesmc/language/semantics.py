@@ -52,6 +52,9 @@ class BoundProperty:
     spec: str = ""  #: the path of the spec file that states it
     #: components of τ (Eq. 12) for a ``tau.rise`` measure: the monitor's, else x, y
     tau_components: tuple[int, ...] | None = None
+    #: for a ``dist.nearest`` measure: the model components of its ground-truth tracks,
+    #: in the tracks' order (the property's ``on`` components)
+    near_components: tuple[int, ...] | None = None
 
     @property
     def uses_tau(self) -> bool:
@@ -64,15 +67,23 @@ class BoundProperty:
 
 
 def bind(
-    spec: SpecFile, prop: Property, e: int, components: tuple[str, ...], has_covariance: bool
+    spec: SpecFile,
+    prop: Property,
+    e: int,
+    components: tuple[str, ...],
+    has_covariance: bool,
+    tracks: tuple[str, ...] | None = None,
 ) -> BoundProperty:
-    """Resolve ``prop`` against a model with steps 0..e and the given components."""
+    """Resolve ``prop`` against a model with steps 0..e and the given components;
+    ``tracks``: the components of the model's ground-truth tracks (None: it has none)."""
     l, u, end = _window(spec, prop, e)
     monitor_idx, tol = _monitor(spec, prop, components, has_covariance)
     tau_idx = _tau(spec, prop, components, has_covariance, monitor_idx)
+    on = prop.clause_pos.get("on", prop.pos)
+    comps = _indices(spec, prop.components, on, components)
+    near_idx = _nearest(spec, prop, components, comps, tracks)
     if not math.isfinite(prop.threshold) or not math.isfinite(prop.constraint.threshold):
         raise _fail(spec, "thresholds must be finite", prop.pos)  # the parser refuses these
-    on = prop.clause_pos.get("on", prop.pos)
     return BoundProperty(
         prop=prop,
         l=l,
@@ -83,12 +94,13 @@ def bind(
         op=prop.constraint.op,
         bound=prop.constraint.threshold,
         norm=prop.norm,
-        components=_indices(spec, prop.components, on, components),
+        components=comps,
         monitor_components=monitor_idx,
         monitor_tolerance=tol,
         monitor_except_original=prop.monitor is not None and prop.monitor.except_original,
         spec=spec.path,
         tau_components=tau_idx,
+        near_components=near_idx,
     )
 
 
@@ -142,6 +154,8 @@ def _measure(spec: SpecFile, m: Measure, l: int, u: int, end: int) -> BoundMeasu
         if lo < 1:
             raise _fail(spec, "tau.rise starts at step 1 or later", m.pos)
         return BoundMeasure("tau", "max", lo, hi, 1.0, m.text())
+    if m.aggregate == "nearest":
+        return BoundMeasure("near", "sum", lo, hi, 1.0, m.text())
     agg = "sum" if m.aggregate in ("sum", "at") else "max"
     return BoundMeasure("dist", agg, lo, hi, 1.0, m.text())
 
@@ -198,6 +212,36 @@ def _tau(
         return monitor_idx
     names = LOCATION_COMPONENTS if all(c in components for c in LOCATION_COMPONENTS) else None
     return _indices(spec, names, tau_measures[0].pos, components)
+
+
+def _nearest(
+    spec: SpecFile,
+    prop: Property,
+    components: tuple[str, ...],
+    comps: tuple[int, ...],
+    tracks: tuple[str, ...] | None,
+) -> tuple[int, ...] | None:
+    """For ``dist.nearest``: the model has ground-truth tracks, over exactly the components
+    the property measures (its ``on``); their indices in the tracks' order."""
+    near = [m for m in (prop.objective, prop.constraint.measure) if m.aggregate == "nearest"]
+    if not near:
+        return None
+    if tracks is None:
+        raise _fail(
+            spec,
+            "dist.nearest needs ground-truth tracks (a scene's 'truth', a model's 'tracks'); "
+            "without them it is dist.at",
+            near[0].pos,
+        )
+    names = {components[i] for i in comps}
+    if names != set(tracks):
+        raise _fail(
+            spec,
+            f"dist.nearest compares with the ground-truth tracks, which give "
+            f"{', '.join(tracks)}: write 'on {', '.join(tracks)}'",
+            near[0].pos,
+        )
+    return tuple(components.index(c) for c in tracks)
 
 
 def _resolve(ref: StepRef, end: int) -> int:

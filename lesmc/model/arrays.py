@@ -21,6 +21,24 @@ import numpy as np
 from lesmc.model.kernel import combined_payoffs, unit_payoffs
 
 
+@dataclass(eq=False)
+class Tracks:
+    """Acceptable tracks besides the original path (section 4.2): ground-truth tracks of
+    the scene, one row of positions per model step; NaN where a track is absent.
+
+    ``components`` names the model components the positions give (the track's
+    position, e.g. x, y); ``at`` is (tracks, steps, len(components)).
+    """
+
+    components: tuple[str, ...]
+    ids: tuple[str, ...]
+    at: np.ndarray
+
+    def take(self, steps: int) -> Tracks:
+        """The first ``steps`` steps."""
+        return Tracks(self.components, self.ids, self.at[:, :steps])
+
+
 def reference_states(model: Any) -> np.ndarray:
     """ρ̃ of Eq. 4, one state per step: the model's unattacked path, or the reference it
     carries (a fault variant's: the fault-free system's unattacked track,
@@ -51,6 +69,8 @@ class ArrayModel:
     meta: dict[str, Any] = field(default_factory=dict)
     #: (steps, d) the states deviations are measured against (Eq. 4's ρ̃); None: S[original]
     reference: np.ndarray | None = None
+    #: ground-truth tracks ``dist.nearest`` also accepts (section 4.2); None: none
+    tracks: Tracks | None = None
 
     @property
     def n_states(self) -> int:

@@ -11,11 +11,14 @@ only this module and never know what a scene is.
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Protocol
+from typing import TYPE_CHECKING, Protocol
 
 import numpy as np
 
 from lesmc.model.kernel import combined_payoffs, unit_payoffs
+
+if TYPE_CHECKING:
+    from lesmc.model.arrays import Tracks
 
 #: Seconds one batch of expansions should take at most: batches shrink for designs whose
 #: states are expensive (joint), so that a deadline is looked at often enough.
@@ -88,6 +91,8 @@ class GrowingModel:
         self.original = np.zeros(0, dtype=np.int64)
         #: the states deviations are measured against (lesmc.model.arrays.reference_states)
         self.reference: np.ndarray | None = None
+        #: ground-truth tracks (lesmc.model.arrays.Tracks) ``dist.nearest`` accepts
+        self.tracks: Tracks | None = None
         self.P_table = np.zeros((0, dim, dim))
         self.obs_names: tuple[str, ...] = ()
         self.expander: Expander | None = None

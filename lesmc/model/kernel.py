@@ -21,7 +21,7 @@ The independent oracle in tests/oracle.py does not use this module.
 from __future__ import annotations
 
 import math
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Iterable, Sequence
 from typing import Any
 
 import numpy as np
@@ -58,6 +58,18 @@ def holds(holds_op: str, optimum: float, threshold: float) -> bool:
 def deviation(diff: np.ndarray, norm: float) -> np.ndarray:
     """Eq. 4: ‖s − s̃‖_p of each row of ``diff`` = s − s̃ (last axis: the chosen components)."""
     out: np.ndarray = np.linalg.norm(diff, ord=norm, axis=-1)
+    return out
+
+
+def nearest(d_original: np.ndarray, track_diffs: Iterable[np.ndarray], norm: float) -> np.ndarray:
+    """``dist.nearest``: Eq. 4 against the nearest acceptable track (section 4.2: recovery
+    "to some path that does not necessarily have to be the original one, so long as it
+    is acceptable"): the least of the deviation from the original path (``d_original``)
+    and from each ground-truth track present at the step (``track_diffs``: s − g per
+    track, NaN where the track is absent, which never counts)."""
+    out = np.asarray(d_original, dtype=float)
+    for diff in track_diffs:
+        out = np.fmin(out, deviation(diff, norm))
     return out
 
 
@@ -109,6 +121,7 @@ def contributions(
     dist_dst: np.ndarray,
     counted: np.ndarray | None = None,
     rise: np.ndarray | None = None,
+    near_dst: np.ndarray | None = None,
 ) -> np.ndarray:
     """Each transition's contribution to measure ``m``: it enters step ``k``.
 
@@ -119,9 +132,13 @@ def contributions(
     :func:`unit_payoffs`), the number of outcomes hidden; ``frames`` adds 1 for each
     attacked step (a transition of rank > 0: its count is positive), ∞ where the
     count is. ``tau`` (``tau.rise``, aggregated by max) adds each transition's
-    :func:`tau_rise` (``rise``).
+    :func:`tau_rise` (``rise``); ``near`` (``dist.nearest``) the entered state's
+    :func:`nearest` deviation (``near_dst``).
     """
     inside = (k >= m.lo) & (k <= m.hi)
+    if m.source == "near":
+        assert near_dst is not None
+        return np.where(inside, near_dst, 0.0)
     if m.source == "tau":
         assert rise is not None
         return np.where(inside, rise, 0.0)
@@ -136,9 +153,12 @@ def contributions(
     return np.where(inside, dist_dst, 0.0)
 
 
-def initial_value(m: BoundMeasure, dist0: float) -> float:
-    """A measure's value on the path prefix of step 0 alone (only dist counts step 0)."""
-    return dist0 if m.source == "dist" and m.lo == 0 else 0.0
+def initial_value(m: BoundMeasure, dist0: float, near0: float = 0.0) -> float:
+    """A measure's value on the path prefix of step 0 alone (only deviations count step 0:
+    ``dist0`` of Eq. 4, ``near0`` of :func:`nearest`)."""
+    if m.lo != 0:
+        return 0.0
+    return dist0 if m.source == "dist" else near0 if m.source == "near" else 0.0
 
 
 def aggregate(is_max: bool, acc: float, c: float) -> float:
@@ -159,7 +179,7 @@ def tail(m: BoundMeasure, h: int, end: int) -> float:
     a dist measure is infinite (docs/semantics.md), and so is the rise of its
     uncertainty (``tau.rise``: trace(P) passed ``max_trace``); payoffs add nothing.
     """
-    if h >= end or m.source not in ("dist", "tau"):
+    if h >= end or m.source not in ("dist", "near", "tau"):
         return 0.0
     return math.inf if m.hi > h else 0.0
 

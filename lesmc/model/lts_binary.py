@@ -28,7 +28,7 @@ from lesmc.common.errors import Location, ModelError, Problems
 from lesmc.common.fields import header, is_name, show
 from lesmc.common.files import atomic_open, parse_json
 from lesmc.model.arrays import ArrayModel
-from lesmc.model.validate import HALTED, check_arrays
+from lesmc.model.validate import HALTED, check_arrays, check_tracks
 
 FORMAT = "lesmc-lts-npz"
 VERSION = 1
@@ -47,6 +47,8 @@ REQUIRED = {
 }
 #: The arrays a file may have: covariances (both or neither) and observations.
 OPTIONAL = {"cov": (np.int64, 1), "P_table": (np.float64, 3), "obs": (np.int64, 1)}
+#: The positions of the ground-truth tracks (with the header's ``tracks``), if any.
+TRACKS = "tracks_at"
 _HEADER_KEYS = {"format", "version", "components", "obs_names", "ids", "labels", "meta"}
 
 
@@ -68,6 +70,12 @@ def save_lts_npz(model: ArrayModel, path: str | Path) -> None:
     }
     arrays = {name: getattr(model, name) for name in REQUIRED}
     arrays |= {n: getattr(model, n) for n in OPTIONAL if getattr(model, n) is not None}
+    if model.tracks is not None:
+        head["tracks"] = {
+            "components": list(model.tracks.components),
+            "ids": list(model.tracks.ids),
+        }
+        arrays[TRACKS] = model.tracks.at
     blob = np.frombuffer(json.dumps(head, allow_nan=False).encode(), dtype=np.uint8)
     with atomic_open(path, binary=True) as fh:
         np.savez(fh, header=blob, **arrays)
@@ -102,6 +110,7 @@ def load_lts_npz(path: str | Path) -> ArrayModel:
     except _READ_ERRORS as exc:
         raise ModelError(f"not a lesmc binary model (.npz): {exc}", Location(where)) from None
     head = _header(arrays.pop("header", None), where)
+    tracks_at = arrays.pop(TRACKS, None)
     _check_arrays_present(arrays, where)
     cm = ArrayModel(
         components=tuple(head["components"]),
@@ -109,10 +118,21 @@ def load_lts_npz(path: str | Path) -> ArrayModel:
         ids=head["ids"],
         labels={int(k): tuple(sorted(set(v))) for k, v in head["labels"].items()},
         meta=head["meta"],
-        **arrays,
+        **arrays,  # type: ignore[arg-type]
     )
     _check_labels(cm, where)
     check_arrays(cm, where)
+    if (tracks_at is None) != ("tracks" not in head):
+        raise ModelError.many(
+            where, [("tracks", f"the header's tracks and array '{TRACKS}' go together")]
+        )
+    if tracks_at is not None:
+        pr = Problems()
+        raw = head["tracks"]
+        raw = {**raw, "at": tracks_at} if isinstance(raw, dict) else raw
+        cm.tracks = check_tracks(raw, cm.components, cm.end + 1, pr)
+        if cm.tracks is None:
+            raise ModelError.many(where, pr.items)
     return cm
 
 
@@ -156,7 +176,7 @@ def _header(blob: np.ndarray | None, path: str) -> dict[str, Any]:
         raise ModelError.many(path, [("header", "must be a JSON object")])
     pr = Problems()
     header(data, FORMAT, VERSION, pr)
-    for key in sorted(set(data) ^ _HEADER_KEYS):
+    for key in sorted((set(data) ^ _HEADER_KEYS) - {"tracks"}):
         pr.add(f"header.{key}", "unknown key" if key in data else "missing")
     comps = data.get("components")
     if not (isinstance(comps, list) and comps and all(is_name(c) for c in comps)):

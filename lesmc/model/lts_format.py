@@ -28,8 +28,8 @@ import numpy as np
 from lesmc.common.errors import ModelError, Problems
 from lesmc.common.fields import header, is_name
 from lesmc.common.files import EncodedItems, read_json, write_json
-from lesmc.model.arrays import ArrayModel
-from lesmc.model.validate import HALTED, Parts, build, state_order
+from lesmc.model.arrays import ArrayModel, Tracks
+from lesmc.model.validate import HALTED, Parts, build, check_tracks, state_order
 
 if TYPE_CHECKING:
     from lesmc.model.lts import LTS
@@ -46,6 +46,7 @@ _TOP_KEYS = {
     "transitions",
     "comment",
     "meta",
+    "tracks",
 }
 _STATE_KEYS = {"id", "step", "s", "P", "labels", "meta"}
 _TRANS_KEYS = {"src", "dst", "payoff", "rank", "obs"}
@@ -123,7 +124,48 @@ def lts_from_dict(data: Any, path: str = "<model>") -> ArrayModel:
         components=components,
         meta=meta if isinstance(meta, dict) else {},
     )
-    return build(parts, path)
+    cm = build(parts, path)
+    if "tracks" in data:
+        cm.tracks = _tracks(data["tracks"], cm, path)
+    return cm
+
+
+def _tracks(raw: Any, cm: ArrayModel, path: str) -> Tracks:
+    """``tracks``: ``{"components": [...], "paths": [{"id", "at": [[x, y] | null, ...]}]}``,
+    one entry of ``at`` per step 0..e (validate.check_tracks)."""
+    pr = Problems()
+    steps = cm.end + 1
+    paths = raw.get("paths") if isinstance(raw, dict) else None
+    if not (isinstance(raw, dict) and set(raw) == {"components", "paths"}) or not isinstance(
+        paths, list
+    ):
+        raise ModelError.many(path, [("tracks", "must be an object with components and paths")])
+    comps = raw["components"]
+    width = len(comps) if isinstance(comps, list) else 0
+    at = np.full((len(paths), steps, width), np.nan)
+    ids: list[Any] = []
+    for i, p in enumerate(paths):
+        rows = p.get("at") if isinstance(p, dict) and set(p) == {"id", "at"} else None
+        ids.append(p.get("id") if isinstance(p, dict) else None)
+        if not isinstance(rows, list) or len(rows) != steps:
+            pr.add(
+                f"tracks.paths[{i}]", f"must be {{id, at}} with one position per step 0..{cm.end}"
+            )
+            continue
+        for k, v in enumerate(rows):
+            if v is None:
+                continue
+            if not (isinstance(v, list) and len(v) == width and all(map(_is_number, v))):
+                pr.add(
+                    f"tracks.paths[{i}].at[{k}]", f"must be null or {width} numbers, got {_show(v)}"
+                )
+                break
+            at[i, k] = v
+    if not pr.items:
+        check = check_tracks({"components": comps, "ids": ids, "at": at}, cm.components, steps, pr)
+        if check is not None:
+            return check
+    raise ModelError.many(path, pr.items)
 
 
 class _Rows:
@@ -318,6 +360,18 @@ def _document(
         "states": states,
         "transitions": trans,
         **({"meta": model.meta} if model.meta else {}),
+        **({"tracks": _tracks_json(model.tracks)} if model.tracks is not None else {}),
+    }
+
+
+def _tracks_json(tracks: Tracks) -> dict[str, Any]:
+    """The JSON form of a model's ground-truth tracks (null where a track is absent)."""
+    return {
+        "components": list(tracks.components),
+        "paths": [
+            {"id": tid, "at": [None if np.isnan(p).any() else p.tolist() for p in at]}
+            for tid, at in zip(tracks.ids, tracks.at, strict=True)
+        ],
     }
 
 

@@ -23,8 +23,8 @@ from typing import Any
 
 import numpy as np
 
-from lesmc.common.errors import ModelError
-from lesmc.model.arrays import ArrayModel
+from lesmc.common.errors import ModelError, Problems
+from lesmc.model.arrays import ArrayModel, Tracks
 
 HALTED = "halted"
 """Label of a state where the tracker stopped (trace(P) too large): no successors."""
@@ -590,3 +590,42 @@ def _observations(
     code[None] = -1
     codes = np.array(list(map(code.__getitem__, obs)), dtype=np.int64).reshape(-1)
     return codes[torder], tuple(names)
+
+
+def check_tracks(raw: Any, components: tuple[str, ...], steps: int, pr: Problems) -> Tracks | None:
+    """A model's ``tracks`` (the JSON form's object, or the binary form's header entry with
+    its array as ``at``): ground-truth tracks over some of the model's components, one row
+    per step 0..e, ``null`` (NaN) where a track is absent. Problems go to ``pr``."""
+    if not isinstance(raw, dict) or set(raw) != {"components", "ids", "at"}:
+        pr.add("tracks", "must be an object with components, ids and the positions")
+        return None
+    comps, ids, at = raw["components"], raw["ids"], raw["at"]
+    if not (
+        isinstance(comps, list)
+        and comps
+        and len(set(comps)) == len(comps)
+        and all(isinstance(c, str) and c in components for c in comps)
+    ):
+        pr.add("tracks.components", f"must be distinct components of the model, got {comps!r:.80}")
+        return None
+    if not (isinstance(ids, list) and all(isinstance(i, str) and i for i in ids)) or len(
+        set(ids)
+    ) != len(ids):
+        pr.add("tracks.ids", "must be distinct non-empty strings")
+        return None
+    want = (len(ids), steps, len(comps))
+    if not isinstance(at, np.ndarray) or at.dtype != np.float64 or at.shape != want:
+        got = at.shape if isinstance(at, np.ndarray) else type(at).__name__
+        pr.add(
+            "tracks", f"positions must be {want[0]} tracks x {steps} steps x {want[2]}, got {got}"
+        )
+        return None
+    absent = np.isnan(at)
+    if np.isinf(at).any() or (absent.any(axis=2) != absent.all(axis=2)).any():
+        pr.add("tracks", "a position is finite numbers, or absent as a whole (null)")
+        return None
+    empty = np.nonzero(absent.all(axis=(1, 2)))[0]
+    if empty.size:
+        pr.add(f"track '{ids[int(empty[0])]}'", "is absent at every step")
+        return None
+    return Tracks(tuple(comps), tuple(ids), at)

@@ -69,7 +69,9 @@ def bind_scene(
     """
     e = original_end(scene) if end is None else end
     names = scene.tracker.state_names
-    return [bind(spec, prop, e, names, True) for spec in specs for prop in spec.properties]
+    pos = scene.tracker.measured
+    tracks = (names[pos[0]], names[pos[1]]) if scene.truth else None
+    return [bind(spec, prop, e, names, True, tracks) for spec in specs for prop in spec.properties]
 
 
 def window_of(bound: Iterable[BoundProperty]) -> tuple[int, int]:

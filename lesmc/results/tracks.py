@@ -126,9 +126,11 @@ def judge(space: Space, track: Track) -> Judged:
     aggregated to the property's end, then the tail after a halt (docs/semantics.md)."""
     bp, cm = space.bp, space.cm
     ts = [t for t in track.transitions if int(cm.step[cm.dst[t]]) <= bp.end]
-    d0 = float(space.dist[track.states[0]])
-    obj = kernel.initial_value(bp.objective, d0)
-    con = kernel.initial_value(bp.constraint, d0)
+    q0 = track.states[0]
+    d0 = float(space.dist[q0])
+    n0 = 0.0 if space.near is None else float(space.near[q0])
+    obj = kernel.initial_value(bp.objective, d0, n0)
+    con = kernel.initial_value(bp.constraint, d0, n0)
     for t in ts:
         obj = kernel.aggregate(space.obj_max, obj, float(space.c_obj[t]))
         con = kernel.aggregate(space.con_max, con, float(space.c_con[t]))

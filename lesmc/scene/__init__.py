@@ -18,7 +18,7 @@ from lesmc.scene.io import (
     scene_to_dict,
     tracker_from_dict,
 )
-from lesmc.scene.scene import UNATTACKABLE, Footage, Scene, Target, TrackerConfig
+from lesmc.scene.scene import UNATTACKABLE, Footage, Scene, Target, TrackerConfig, TruthTrack
 
 __all__ = [
     "FORMAT",
@@ -30,6 +30,7 @@ __all__ = [
     "Scene",
     "Target",
     "TrackerConfig",
+    "TruthTrack",
     "WatchedFrame",
     "check_fits",
     "footage_from_dict",

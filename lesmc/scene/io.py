@@ -20,7 +20,15 @@ from lesmc.common.fields import header, is_finite, is_int, positive, show, withi
 from lesmc.common.files import read_json, read_toml, write_json
 from lesmc.designs import registry
 from lesmc.scene.frames import Detection, Frame
-from lesmc.scene.scene import PRESET_ONLY, UNATTACKABLE, Footage, Scene, Target, TrackerConfig
+from lesmc.scene.scene import (
+    PRESET_ONLY,
+    UNATTACKABLE,
+    Footage,
+    Scene,
+    Target,
+    TrackerConfig,
+    TruthTrack,
+)
 from lesmc.scene.tracker_model import (
     DEFAULT_MODEL,
     PRESET_P0_SD,
@@ -72,7 +80,17 @@ def footage_from_dict(
     pr = Problems()
     if not isinstance(data, dict):
         raise InputError.many(path, [("", "the top level must be a JSON object")])
-    allowed = {"format", "version", "dt", "frames", "target", "tracker", "meta", "comment"}
+    allowed = {
+        "format",
+        "version",
+        "dt",
+        "frames",
+        "target",
+        "tracker",
+        "meta",
+        "comment",
+        "truth",
+    }
     for key in sorted(set(data) - allowed):
         pr.add(f"key '{key}'", "unknown top-level key")
     header(data, FORMAT, VERSION, pr)
@@ -81,6 +99,7 @@ def footage_from_dict(
         pr.add("dt", f"must be a number of seconds in (0, {MAX_DT:g}], got {show(dt)}")
         dt = 1.0
     frames = _frames(data.get("frames"), pr)
+    truth = _truth(data.get("truth", []), frames, pr)
     tracker = _tracker(data.get("tracker", {}), pr)
     target = None
     if need_target or data.get("target") is not None:
@@ -96,7 +115,58 @@ def footage_from_dict(
     check_fits(tracker, target, path)
     raw_meta = data.get("meta")
     meta: dict[str, Any] = raw_meta if isinstance(raw_meta, dict) else {}
-    return Footage(float(dt), tuple(frames), tracker, meta), target
+    return Footage(float(dt), tuple(frames), tracker, meta, truth), target
+
+
+#: Most ground-truth tracks a scene may carry.
+MAX_TRUTH = 10_000
+
+
+def _truth(raw: Any, frames: list[Frame], pr: Problems) -> tuple[TruthTrack, ...]:
+    """``truth``: ground-truth tracks, each ``{"id", "positions": [[frame, x, y], ...]}``
+    with frames among the scene's, increasing."""
+    if not isinstance(raw, list) or len(raw) > MAX_TRUTH:
+        pr.add("truth", f"must be a list of at most {MAX_TRUTH} tracks, got {show(raw)}")
+        return ()
+    steps = {fr.step for fr in frames}
+    out: list[TruthTrack] = []
+    seen: set[str] = set()
+    for i, tr in enumerate(raw):
+        where = f"truth[{i}]"
+        if not (isinstance(tr, dict) and set(tr) <= {"id", "positions"}):
+            pr.add(where, "must be an object with id and positions")
+            continue
+        tid = tr.get("id")
+        if not (isinstance(tid, str) and tid) or tid in seen:
+            pr.add(where, f"id must be a non-empty string used once, got {show(tid)}")
+            continue
+        seen.add(tid)
+        where = f"truth track '{tid}'"
+        got = tr.get("positions")
+        rows: list[tuple[int, float, float]] = []
+        if not isinstance(got, list) or not got:
+            pr.add(where, "positions must be a non-empty list of [frame, x, y]")
+            continue
+        for j, p in enumerate(got):
+            ok = (
+                isinstance(p, list)
+                and len(p) == 3
+                and is_int(p[0])
+                and p[0] in steps
+                and all(within(v, MAX_COORD) for v in p[1:])
+                and (not rows or p[0] > rows[-1][0])
+            )
+            if not ok:
+                pr.add(
+                    where,
+                    f"positions[{j}] must be [frame, x, y] with a frame of the scene after the "
+                    f"previous one and |x|, |y| <= {MAX_COORD:g}, got {show(p)}",
+                )
+                break
+            rows.append((int(p[0]), float(p[1]), float(p[2])))
+        else:
+            out.append(TruthTrack(tid, tuple(rows)))
+    return tuple(out)
 
 
 def _frames(raw_frames: Any, pr: Problems) -> list[Frame]:
@@ -372,6 +442,10 @@ def scene_to_dict(scene: Scene | Footage) -> dict[str, Any]:
             "velocity": list(scene.target.velocity),
         }
     doc["tracker"] = scene.tracker.to_json()
+    if scene.truth:
+        doc["truth"] = [
+            {"id": t.id, "positions": [[k, x, y] for k, x, y in t.positions]} for t in scene.truth
+        ]
     if scene.meta:
         doc["meta"] = scene.meta
     return doc

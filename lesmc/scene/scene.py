@@ -94,6 +94,16 @@ class Target:
     velocity: tuple[float, float] = (0.0, 0.0)
 
 
+@dataclass(frozen=True)
+class TruthTrack:
+    """A ground-truth track of the scene: one vehicle's true position in the frames it is
+    in, in each frame's own coordinates (as its detections). The acceptable paths of
+    section 4.2 that ``dist.nearest`` measures against (docs/semantics.md)."""
+
+    id: str
+    positions: tuple[tuple[int, float, float], ...]  #: (frame step, x, y), by step
+
+
 class _Frames:
     """Frames numbered ``frames[0].step``, ``frames[0].step + 1``, ...: the steps of a video."""
 
@@ -124,11 +134,12 @@ class Footage(_Frames):
     frames: tuple[Frame, ...]
     tracker: TrackerConfig = field(default_factory=TrackerConfig)
     meta: dict[str, Any] = field(default_factory=dict, compare=False)
+    truth: tuple[TruthTrack, ...] = ()  #: ground-truth tracks, if the scene has them
 
     def with_target(self, target: Target, meta: dict[str, Any] | None = None) -> Scene:
         """The scene tracking from ``target`` (its step must be one of the frames)."""
         info = dict(self.meta) if meta is None else meta
-        return Scene(self.dt, self.frames, target, self.tracker, info)
+        return Scene(self.dt, self.frames, target, self.tracker, info, self.truth)
 
 
 @dataclass(frozen=True)
@@ -140,6 +151,7 @@ class Scene(_Frames):
     target: Target
     tracker: TrackerConfig = field(default_factory=TrackerConfig)
     meta: dict[str, Any] = field(default_factory=dict, compare=False)
+    truth: tuple[TruthTrack, ...] = ()  #: ground-truth tracks, if the scene has them
 
     @property
     def has_lower(self) -> bool:
@@ -190,7 +202,7 @@ class Scene(_Frames):
     @property
     def footage(self) -> Footage:
         """The scene without its target."""
-        return Footage(self.dt, self.frames, self.tracker, self.meta)
+        return Footage(self.dt, self.frames, self.tracker, self.meta, self.truth)
 
 
 _NO_LOWER = (

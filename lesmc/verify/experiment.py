@@ -177,7 +177,7 @@ def _perceived(req: Request, specs: list[SpecFile], rep: Reporter) -> _Source:
     from lesmc.perception.cnn import load_nets
     from lesmc.perception.run import PerceiveOptions, perceive
     from lesmc.perception.to_scene import footage_from_run
-    from lesmc.verify.targets import auto_target, target_scene
+    from lesmc.verify.targets import auto_target, target_scene, truth_tracks
 
     if req.scene_frames is not None:
         raise UsageError("--frames goes with --scene; a video is given as FRAMES_DIR")
@@ -209,6 +209,8 @@ def _perceived(req: Request, specs: list[SpecFile], rep: Reporter) -> _Source:
     tracker = _tracker(req)
     if tracker is not None:
         footage = dataclasses.replace(footage, tracker=tracker)
+    if truths is not None:  # the acceptable paths of dist.nearest (section 4.2)
+        footage = dataclasses.replace(footage, truth=truth_tracks(footage, frames, truths))
     if target is not None:
         scene = target_scene(footage, target, frames, truths)
     else:

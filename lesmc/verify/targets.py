@@ -16,7 +16,7 @@ from lesmc.designs.registry import BASELINE, make_tracker
 from lesmc.language.properties import SpecFile
 from lesmc.perception.quality import Truth, TruthFrame
 from lesmc.perception.to_scene import truth_velocity
-from lesmc.scene import Footage, Scene
+from lesmc.scene import Footage, Scene, TruthTrack
 from lesmc.tracking.monitor import track
 from lesmc.tracking.targets import TargetSpec, place_target
 from lesmc.video.reader import FrameSet
@@ -135,3 +135,19 @@ def auto_target(
     raise UsageError(
         "no vehicle with neighbouring traffic is tracked correctly unattacked; give --target"
     )
+
+
+def truth_tracks(footage: Footage, frames: FrameSet, truth: Truth) -> tuple[TruthTrack, ...]:
+    """The video's true vehicles as the scene's ground-truth tracks (``dist.nearest``'s
+    acceptable paths, section 4.2): vehicle ``v{id}`` at its true position in every
+    scene frame whose truth lists it."""
+    rows: dict[int, list[tuple[int, float, float]]] = {}
+    for fr in footage.frames:
+        if not 0 <= fr.step < len(frames):
+            continue
+        tf = truth.frames.get(frames.paths[fr.step].name)
+        if tf is None:
+            continue
+        for vid, (x, y) in zip(tf.ids, tf.positions.tolist(), strict=True):
+            rows.setdefault(int(vid), []).append((fr.step, float(x), float(y)))
+    return tuple(TruthTrack(f"v{vid}", tuple(pos)) for vid, pos in sorted(rows.items()))
