@@ -87,3 +87,26 @@ def test_a_bad_sweep_is_refused(sweep: str, words: str) -> None:
     r = lesmc("check", "examples/merge.json", "specs/robustness.spec", "--sweep", sweep)
     assert r.returncode == 2 and "Traceback" not in r.stderr
     assert words in r.stderr, r.stderr
+
+
+def test_the_report_plots_each_swept_optimum_and_where_the_verdict_flips(tmp_path: Path) -> None:
+    """``--sweep ... --report``: one figure per design whose curve holds each variant's
+    optimum and verdict from results.json, with a flip between the values whose verdicts
+    differ (lesmc.report.html._sweep_curves read against the document itself)."""
+    from lesmc.report.html import _sweep_curves
+
+    out = tmp_path / "rep"
+    r = lesmc("check", "tests/scenes/rq1_platoon.json", "specs/robustness.spec",
+              "--sweep", "eps=20..400:20", "--report", str(out), "--no-paths")  # fmt: skip
+    assert r.returncode in (0, 1), r.stderr
+    assert (out / "figures" / "single-sweep.png").stat().st_size > 1000
+    assert "Sensitivity (single)" in (out / "report.html").read_text()
+    doc = json.loads((out / "results.json").read_text())
+    rows = {x["property"]: x for x in doc["runs"][0]["results"]}
+    (curve,) = _sweep_curves(doc["runs"][0])
+    assert curve.parameter == "eps" and len(curve.values) == 20
+    for eps, opt, verdict in zip(curve.values, curve.optima, curve.verdicts, strict=True):
+        row = rows[f"robustness@eps={eps:g}"]
+        want = math.inf if row["optimum"] == "inf" else float(row["optimum"])
+        assert opt == want and verdict == row["status"]
+    assert {"holds", "violated"} <= set(curve.verdicts)  # this scene's verdict flips

@@ -421,3 +421,64 @@ def perturbations(rows: Sequence[tuple[str, np.ndarray, np.ndarray]]) -> tuple[b
             a.set_xticks([])
             a.set_yticks([])
     return _png(fig), top
+
+
+@dataclass(frozen=True)
+class SweepCurve:
+    """One property's optimum for each value of a swept parameter (``--sweep``), with its
+    threshold and each value's verdict word."""
+
+    label: str
+    parameter: str
+    values: tuple[float, ...]
+    optima: tuple[float, ...]  # +inf: no path violates
+    threshold: float
+    verdicts: tuple[str, ...]
+
+
+#: The colour of each verdict word in the sweep figure.
+VERDICT_COLOURS = {"holds": COLOURS["original"], "violated": COLOURS["counterexample"]}
+
+
+def sweep(curves: Sequence[SweepCurve]) -> bytes:
+    """Section 4.4's sensitivity: the optimum against the swept ε (or the norm p), the
+    threshold dashed, each point coloured by its verdict, a dotted line where it flips.
+    +inf (no violating path) is drawn at the top edge with an upward triangle."""
+    fig, ax = plt.subplots(figsize=(7.0, 3.8))
+    finite = [y for c in curves for y in c.optima if np.isfinite(y)]
+    finite += [c.threshold for c in curves]
+    top = max(finite) * 1.15 + 1e-9 if finite else 1.0
+    categorical = any(c.parameter == "p" for c in curves)
+    for i, c in enumerate(curves):
+        xs = np.arange(len(c.values)) if categorical else np.asarray(c.values, dtype=float)
+        ys = np.array([y if np.isfinite(y) else top for y in c.optima])
+        marker = MARKERS[i % len(MARKERS)]
+        ax.step(xs, ys, where="post", color="#555555", linewidth=1.2, label=c.label)
+        for x, y, v, opt in zip(xs, ys, c.verdicts, c.optima, strict=True):
+            colour = VERDICT_COLOURS.get(v.split(" ")[0], COLOURS["other"])
+            ax.scatter(
+                [x],
+                [y],
+                color=colour,
+                marker="^" if not np.isfinite(opt) else marker,
+                s=36,
+                zorder=5,
+            )
+        for a, b, va, vb in zip(xs[:-1], xs[1:], c.verdicts[:-1], c.verdicts[1:], strict=True):
+            if va.split(" ")[0] != vb.split(" ")[0]:
+                ax.axvline((a + b) / 2, color=COLOURS["counterexample"], linestyle=":", lw=1)
+        ax.axhline(c.threshold, color="#000000", linestyle="--", linewidth=0.8)
+    if categorical:
+        ax.set_xticks(range(len(curves[0].values)))
+        ax.set_xticklabels(["inf" if np.isinf(v) else f"{v:g}" for v in curves[0].values])
+    ax.set_xlabel(curves[0].parameter if curves else "")
+    ax.set_ylabel("optimum")
+    for word, colour in VERDICT_COLOURS.items():
+        ax.scatter([], [], color=colour, label=word)
+    ax.scatter([], [], color=COLOURS["other"], label="unknown")
+    ax.scatter([], [], color="#555555", marker="^", label="+inf (no path breaks it)")
+    ax.plot([], [], color="#000000", linestyle="--", lw=0.8, label="threshold")
+    ax.plot([], [], color=COLOURS["counterexample"], linestyle=":", lw=1, label="verdict flips")
+    ax.set_title("Sensitivity (section 4.4): the optimum against the swept parameter", fontsize=9)
+    ax.legend(fontsize=8, loc="upper left", bbox_to_anchor=(1.01, 1.0))
+    return _png(fig)

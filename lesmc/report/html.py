@@ -256,6 +256,53 @@ def _table5(runs: list[_Run]) -> Table:
     return Table(head, rows)
 
 
+def _sweep_curves(run: dict[str, Any]) -> list[figures.SweepCurve]:
+    """The run's sweep variants (``NAME@eps=V``, ``NAME@eps=V,p=1``) as curves: one per
+    property and setting of the other parameters, over ε (else over p), in the order
+    swept."""
+    groups: dict[tuple[str, str, str], list[tuple[float, dict[str, Any]]]] = {}
+    for r in run["results"]:
+        base, _, label = r["property"].partition("@")
+        settings = dict(kv.split("=", 1) for kv in label.split(",") if "=" in kv)
+        if not settings:
+            continue
+        axis = "eps" if "eps" in settings else next(iter(settings))
+        rest = ",".join(f"{k}={v}" for k, v in settings.items() if k != axis)
+        groups.setdefault((base, axis, rest), []).append((float(settings[axis]), r))
+    curves = []
+    for (base, axis, rest), rows in groups.items():
+        if len(rows) < 2:
+            continue
+        curves.append(
+            figures.SweepCurve(
+                label=base + (f" ({rest})" if rest else ""),
+                parameter=axis,
+                values=tuple(v for v, _ in rows),
+                optima=tuple(
+                    math.nan if r["optimum"] == "unknown" else _f(r["optimum"]) for _, r in rows
+                ),
+                threshold=float(rows[0][1]["threshold"]),
+                verdicts=tuple(verdict_of(r) for _, r in rows),
+            )
+        )
+    return curves
+
+
+def _sweep_figure(run: _Run, figs: dict[str, bytes]) -> Figure | None:
+    curves = _sweep_curves(run.d)
+    if not curves:
+        return None
+    name = f"{run.tag}-sweep.png"
+    figs[name] = figures.sweep(curves)
+    return Figure(
+        name,
+        f"Sensitivity ({run.name}): the optimum of each swept property for each value "
+        "(section 4.4: ε and p 'can be determined empirically'); the dashed line is the "
+        "threshold, a dotted line marks where the verdict flips, a triangle at the top an "
+        "optimum of +inf (no attacked path breaks the system).",
+    )
+
+
 def _faults_table(runs: list[dict[str, Any]]) -> Table | None:
     """Which faults break which design: per property under each combination of faults
     (``NAME+FAULT``), each design's verdict, optimum and the worst activation."""
@@ -340,6 +387,9 @@ def _drawn_words(drawn: list[tuple[int, str, int | None]]) -> str:
 def _section(run: _Run, figs: dict[str, bytes], image_for: ImageFor | None) -> list[Any]:
     """One design's part of the report: model, Table 4, figures, Table 3, notes."""
     parts: list[Any] = [_model_line(run), Text("h3", "Verdicts (Table 4)"), _table4(run)]
+    sweep = _sweep_figure(run, figs)
+    if sweep is not None:
+        parts.append(sweep)
     for i in range(len(run.props)):
         parts += _property_figures(run, i, figs, image_for)
     parts.append(_tree_figure(run, figs))
