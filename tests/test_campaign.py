@@ -521,3 +521,40 @@ def test_ctrl_c_on_a_two_worker_campaign_prints_the_command_that_resumes_it(
     assert "perceiving" not in r.stderr  # the scene of the first run is reused
     got = [json.loads(x) for x in lines(results)]
     assert 0 < kept < len(got) == len({x["key"] for x in got})
+
+
+def test_the_summary_gives_the_fewest_frames_exactly_for_count_frames(
+    base: tuple[Path, Path], tmp_path: Path
+) -> None:
+    """A campaign over the bundled robustness spec and one minimising count.frames: each
+    count.frames row's attacked frames (counted on its counterexample) equal its optimum,
+    the summary's fewest frames is their least (exact) and, for robustness, the least of
+    its counterexamples' attacked frames (marked as a bound)."""
+    spec = tmp_path / "frames.spec"
+    spec.write_text(
+        "property frames {\n attack window 6..8\n minimize count.frames\n"
+        " subject to dist.sum(0..end) > 120\n holds if optimum > 3\n on x, y\n}\n"
+    )
+    out = seeded(base, tmp_path)
+    r = lesmc("campaign", str(base[0]), "--out", str(out), "--workers", "0", "--design",
+              "single", "--spec", str(spec), "--spec", "specs/robustness.spec", "--json",
+              *ARGS)  # fmt: skip
+    no_trace(r)
+    assert r.returncode in (0, 1, 3), r.stderr
+    rows = read_rows(out / "results.jsonl")
+    frames = [x for x in rows if x["property"] == "frames"]
+    robust = [x for x in rows if x["property"] == "robustness"]
+    assert frames and robust
+    for x in frames:
+        assert x["objective_source"] == "frames"
+        if x["verdict"] == "violated":
+            assert x["attacked_frames"] == x["optimum"]
+        else:
+            assert x["attacked_frames"] is None
+    cells = json.loads(r.stdout)["cells"]["single"]
+    got = [x["attacked_frames"] for x in frames if x["attacked_frames"] is not None]
+    assert cells["frames"]["fewest_frames"] == min(got, default=None)
+    assert cells["frames"]["fewest_frames_exact"] == bool(got)
+    got = [x["attacked_frames"] for x in robust if x["attacked_frames"] is not None]
+    assert cells["robustness"]["fewest_frames"] == min(got, default=None)
+    assert not cells["robustness"]["fewest_frames_exact"]

@@ -112,6 +112,8 @@ def _cell(rs: list[dict[str, Any]], scenes: str) -> dict[str, Any]:
         n = r["window"][1] - r["window"][0] + 1
         lengths[n][0] += 1
         lengths[n][1] += r["verdict"] == "violated"
+    frames = [r["attacked_frames"] for r in rs if r.get("attacked_frames") is not None]
+    by_count = all(r.get("objective_source") == "frames" for r in rs)
     worst = sorted(
         (r for r in rs if r["verdict"] == "violated" and _value(r["optimum"]) is not None),
         key=lambda r: (_value(r["optimum"]), r["video"], r["key"]),
@@ -124,6 +126,10 @@ def _cell(rs: list[dict[str, Any]], scenes: str) -> dict[str, Any]:
         "not_replayed": statuses.get("violated (not replayed)", 0),
         "unknown": statuses.get("unknown", 0),
         "optimum_quantiles": quantiles(optima) if optima else None,
+        # the fewest frames an attacker must touch: exact when the property minimises
+        # count.frames (its optimum), else the frames of the cheapest attacks found
+        "fewest_frames": min(frames, default=None),
+        "fewest_frames_exact": by_count and bool(frames),
         "optima": ["inf" if math.isinf(x) else x for x in sorted(optima)],
         "violated_by_window_length": {
             str(n): {"rows": c[0], "violated": c[1], "fraction": c[1] / c[0]}
@@ -274,6 +280,7 @@ CELL_HEADER = (
     "violated",
     "violated (not replayed)",
     "unknown",
+    "fewest frames",
 )
 QUANTILE_KEYS = ("min", "p25", "median", "p75", "max")
 
@@ -293,6 +300,7 @@ def cell_rows(summary: dict[str, Any], quantile_keys: tuple[str, ...]) -> list[l
                 c["violated"],
                 c["not_replayed"],
                 c["unknown"],
+                _frames_text(c),
             )
             rows.append(
                 [
@@ -303,6 +311,15 @@ def cell_rows(summary: dict[str, Any], quantile_keys: tuple[str, ...]) -> list[l
                 ]
             )
     return rows
+
+
+def _frames_text(cell: dict[str, Any]) -> str:
+    """The cell's fewest attacked frames: exact (a count.frames objective's optimum) or,
+    marked ≤, those of the cheapest counterexamples (a bound on the fewest)."""
+    n = cell.get("fewest_frames")
+    if n is None:
+        return "-"
+    return str(n) if cell.get("fewest_frames_exact") else f"≤ {n}"
 
 
 #: What a verdict rests on, per payoff mode other than the attack's (docs/semantics.md).

@@ -108,6 +108,7 @@ def row(
         "design": design,
         "property": r.property,
         "spec": r.spec,
+        "objective_source": r.objective_source,
         "verdict": r.verdict,
         "status": r.status,
         "vacuous": r.vacuous,
@@ -119,4 +120,13 @@ def row(
         "holds_if": f"optimum {r.holds_op} {r.threshold:g}",
         "stats": stats,
         "original_alarms": r.original_alarms,
+        "attacked_frames": attacked_frames(r),
     } | extra
+
+
+def attacked_frames(r: CheckResult) -> int | None:
+    """How many frames the counterexample's attacker touches (its steps whose outcome is not
+    the unattacked one, rank > 0); None without a counterexample."""
+    if r.verdict != "violated" or r.counterexample is None:
+        return None
+    return sum(1 for s in r.counterexample.steps if s.attacked and (s.rank or 0) > 0)
