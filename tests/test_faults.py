@@ -207,7 +207,7 @@ def test_optima_under_faults_equal_brute_force() -> None:
         got = {
             bp.name: r
             for run_ in results.runs
-            for bp, r in zip(run_.bound, run_.results, strict=True)
+            for bp, r in zip([*run_.bound, *run_.fault_bound], run_.all_results, strict=True)
         }
         want_names = {
             "+".join(["p", *(f["name"] for f in combo)])
@@ -237,6 +237,7 @@ BAD_FAULTS = [
     ("fault a: G[1, x] * 2", "3:12", "unexpected 'G'; expected 'outage' or a matrix"),
     ("fault a: outage 0", "3:12", "an outage lasts at least 1 step"),
     ("fault a: outage 1 from 2..4", "3:9", "activation steps 2..4 must lie within steps 6..19"),
+    ("fault a: F[x, x] * 1e300", "3:9", "a fault's value must lie within ±1e+12, got 1e+300"),
 ]
 
 

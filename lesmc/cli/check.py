@@ -134,16 +134,13 @@ def check_cmd(
     """
     budget = budget_from(timeout, max_states, max_memory)
     _refuse_mismatched(frames_dir, report_dir, no_paths, as_json, payoffs)
-    # the pipeline is imported when the verb runs: --help stays light (tests/test_startup.py)
-    from lesmc.api import check_job
-    from lesmc.cli.signals import exit_if_stopped, polite_stop
+    from lesmc.api import check_job  # imported when the verb runs: --help stays light
+    from lesmc.cli.signals import polite_stop
     from lesmc.common.progress import Reporter
     from lesmc.pipeline.job import Job
-    from lesmc.results.exit import exit_status
 
     parsed, source, is_scene = _inputs(model, specs, target_text, design, tracker_file)
     parsed, only = _swept(parsed, sweep_texts, only)
-    faults = _faults(faults_file, parsed, is_scene)
     job = Job(
         parsed,
         scene=source if is_scene else None,
@@ -154,15 +151,24 @@ def check_cmd(
         only=only,
         designs=(design,) if design else (),
         full_models=report_dir is not None,
-        faults=faults,
+        faults=_faults(faults_file, parsed, is_scene),
         source=model,
     )
     with Reporter("check") as rep, polite_stop():
         results = check_job(replace(job, on_stage=rep.stage))
     if report_dir is not None:
         _report(results, parsed, report_dir, model, frames_dir, budget.started, is_scene)
+    _finish(results, parsed, as_json, no_paths)
+
+
+def _finish(results: Results, parsed: tuple[SpecFile, ...], as_json: bool, no_paths: bool) -> None:
+    """The results on stdout, then the exit status (130/143 after a polite SIGINT/SIGTERM:
+    the partial results are out)."""
+    from lesmc.cli.signals import exit_if_stopped
+    from lesmc.results.exit import exit_status
+
     _print(results, parsed, as_json, no_paths)
-    exit_if_stopped()  # a polite SIGINT/SIGTERM: the partial results are out, 130/143
+    exit_if_stopped()
     sys.exit(exit_status(results.results))
 
 

@@ -5,6 +5,7 @@ from __future__ import annotations
 import json
 import sys
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import click
 
@@ -23,6 +24,9 @@ from lesmc.cli.options import (
     tracker_option,
 )
 from lesmc.cli.signals import resumable
+
+if TYPE_CHECKING:
+    from lesmc.verify.experiment import Outcome
 
 
 @click.command("verify")
@@ -123,11 +127,8 @@ def verify_cmd(
     1 some violated, 2 bad input, 3 some unknown, 4 internal error, 130 interrupted.
     """
     budget = budget_from(timeout, max_states, max_memory, preload=("torch", "cv2"))
-    # the pipeline is imported when the verb runs: --help stays light (tests/test_startup.py)
-    from lesmc.api import VerifyRequest, expand_designs, verify
+    from lesmc.api import VerifyRequest, expand_designs, verify  # --help stays light
     from lesmc.common.progress import Reporter
-    from lesmc.report.text import make_console, print_runs
-    from lesmc.results.exit import exit_status
 
     request = VerifyRequest(
         frames_dir=frames_dir,
@@ -147,6 +148,15 @@ def verify_cmd(
     )
     with resumable(lambda: _kept(request.out)), Reporter("verify") as rep:
         outcome = verify(request, rep)
+    _finish(outcome, as_json)
+
+
+def _finish(outcome: Outcome, as_json: bool) -> None:
+    """The results on stdout (results.json, or the table and the report's path), then the
+    exit status."""
+    from lesmc.report.text import make_console, print_runs
+    from lesmc.results.exit import exit_status
+
     if as_json:
         click.echo(json.dumps(outcome.doc, indent=1, allow_nan=False))
     else:

@@ -27,19 +27,13 @@ import itertools
 import math
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass, replace
-from typing import TYPE_CHECKING
-
-import numpy as np
 
 from lesmc.common.errors import Location, SpecError, UsageError, source_line
 from lesmc.engines.result import CheckResult, Stats, StopReason, Verdict
 from lesmc.language.properties import Fault, FaultSet
 from lesmc.language.semantics import BoundProperty
 from lesmc.scene import Scene
-from lesmc.scene.tracker_model import EntryFault
-
-if TYPE_CHECKING:
-    from lesmc.tracking.kalman import Matrices
+from lesmc.scene.tracker_model import MAX_ENTRY, EntryFault
 
 #: Most checks one property's fault variants may need (combinations × activation steps).
 MAX_FAULT_CHECKS = 5000
@@ -84,21 +78,19 @@ def _error(fs: FaultSet, f: Fault, message: str) -> SpecError:
 
 def bind_faults(fs: FaultSet, scene: Scene) -> list[BoundFault]:
     """Each fault of ``fs`` with its entry resolved against the scene's tracker; a located
-    error for an unknown matrix entry or one that overflows."""
-    from lesmc.tracking.kalman import matrices, with_faults
-
+    error for an unknown matrix entry or a value beyond ±MAX_ENTRY (a declared matrix's
+    limit, so a failed entry stays finite)."""
     state = scene.tracker.state_names
-    m = matrices(scene.tracker, scene.dt)
     out = []
     for f in fs.faults:
         if f.kind == "outage":
             out.append(BoundFault(f))
             continue
+        if not abs(f.value) <= MAX_ENTRY:
+            raise _error(fs, f, f"a fault's value must lie within ±{MAX_ENTRY:g}, got {f.value:g}")
         rows = MEASUREMENT if f.matrix in ("H", "R") else state
         cols = MEASUREMENT if f.matrix == "R" else state
         entry = (_index(fs, f, f.row, rows, "row"), _index(fs, f, f.col, cols, "column"))
-        faulty = with_faults(m, [EntryFault(f.matrix, *entry, f.op, f.value, 0)])
-        _check_finite(fs, f, faulty)
         out.append(BoundFault(f, entry))
     return out
 
@@ -117,14 +109,6 @@ def _index(fs: FaultSet, f: Fault, ref: int | str, names: tuple[str, ...], what:
     if ref not in names:
         raise _error(fs, f, f"{f.matrix} has no {what} '{ref}'; its {what}s are {', '.join(names)}")
     return names.index(ref)
-
-
-def _check_finite(fs: FaultSet, f: Fault, faulty: Matrices) -> None:
-    """A failed entry may leave Q or R indefinite (the faulty filter computes with it, as
-    a real one would), but not infinite: a scale that overflows is refused."""
-    for name in ("F", "H", "Q", "R"):
-        if not np.isfinite(getattr(faulty, name)).all():
-            raise _error(fs, f, f"the fault makes {name} non-finite")
 
 
 def validate(fs: FaultSet, scene: Scene, bound: list[BoundProperty]) -> None:
