@@ -126,7 +126,8 @@ def verify_cmd(
     and OUT/results.json. Exit status as for lesmc check: 0 all hold,
     1 some violated, 2 bad input, 3 some unknown, 4 internal error, 130 interrupted.
     """
-    budget = budget_from(timeout, max_states, max_memory, preload=("torch", "cv2"))
+    preload = ("torch", "cv2") if timeout is not None else ()  # under the deadline's watchdog
+    budget = budget_from(timeout, max_states, max_memory, preload=preload)
     from lesmc.api import VerifyRequest, expand_designs, verify  # --help stays light
     from lesmc.common.progress import Reporter
 

@@ -35,8 +35,16 @@ from lesmc.pipeline.job import Certifier, Job, PayoffMode
 from lesmc.replay.run import apply, cases, replay
 from lesmc.results.document import provenance, results_document
 from lesmc.results.record import Results
-from lesmc.scene import Scene, TrackerConfig, load_tracker, scene_to_dict
+from lesmc.scene import (
+    Footage,
+    Scene,
+    TrackerConfig,
+    footage_from_dict,
+    load_tracker,
+    scene_to_dict,
+)
 from lesmc.tracking.targets import check_target, load_scene_with_target, parse_target
+from lesmc.verify.cache import StageCache, code_digest, digest, file_digests, net_files
 from lesmc.verify.false_alarms import false_alarm_report, truth_track
 from lesmc.video import FPS
 
@@ -93,6 +101,17 @@ class _Source:
     run: Any = None
     meta: dict[str, Any] = field(default_factory=dict)
     new: bool = False  #: made by this run: written to OUT/scene.json
+    net_files: NetFiles | None = None  #: the networks to load when needed (cached perception)
+    truth_path: str | None = None
+    cache: StageCache | None = None
+
+    def networks(self) -> Any:
+        """The networks: loaded now if perception came from the cache."""
+        if self.nets is None and self.net_files is not None:
+            from lesmc.perception.cnn import load_nets
+
+            self.nets = load_nets(*self.net_files)
+        return self.nets
 
 
 def bundled_specs() -> list[Path]:
@@ -163,20 +182,14 @@ def _scene_file(req: Request) -> _Source:
     from lesmc.video.reader import open_frames
 
     frames = open_frames(req.scene_frames, HISTORY + 1) if req.scene_frames else None
-    nets = None
-    if frames is not None:
-        from lesmc.perception.cnn import load_nets
-
-        nets = load_nets(*req.nets)
-    return _Source(scene, frames, None, nets, meta={"scene": req.scene_path})
+    nets = req.nets if frames is not None else None  # loaded by the replay, if it runs
+    return _Source(
+        scene, frames, meta={"scene": req.scene_path}, net_files=nets, cache=StageCache(req.out)
+    )
 
 
 def _perceived(req: Request, specs: list[SpecFile], rep: Reporter) -> _Source:
     """The scene of a video: rendered (the default), perceived, its target placed or chosen."""
-    from lesmc.perception.attacks import AttackConfig
-    from lesmc.perception.cnn import load_nets
-    from lesmc.perception.run import PerceiveOptions, perceive
-    from lesmc.perception.to_scene import footage_from_run
     from lesmc.verify.targets import auto_target, target_scene, truth_tracks
 
     if req.scene_frames is not None:
@@ -191,6 +204,57 @@ def _perceived(req: Request, specs: list[SpecFile], rep: Reporter) -> _Source:
     if target is not None:
         check_target(target, frames.width, frames.height, len(frames))
     truths = load_truth(truth) if truth else None
+    dt = (truths.dt if truths else None) or 1 / FPS
+    cache = StageCache(req.out)
+    footage, nets, run = _perception(req, frames, frames_dir, dt, cache, rep)
+    tracker = _tracker(req)
+    if tracker is not None:
+        footage = dataclasses.replace(footage, tracker=tracker)
+    if truths is not None:  # the acceptable paths of dist.nearest (section 4.2)
+        footage = dataclasses.replace(footage, truth=truth_tracks(footage, frames, truths))
+    if target is not None:
+        scene = target_scene(footage, target, frames, truths)
+    else:
+        assert truths is not None
+        scene = auto_target(footage, frames, truths, specs)
+        meta["target choice"] = scene.meta["target_choice"]
+    meta |= {"detector": footage.meta.get("detector", ""), "scene": str(req.out / "scene.json")}
+    return _Source(scene, frames, truths, nets, run, meta, True, req.nets, truth, cache)
+
+
+def _perception(
+    req: Request, frames: FrameSet, frames_dir: str, dt: float, cache: StageCache, rep: Reporter
+) -> tuple[Footage, Any, Any]:
+    """The video's detections and attack payoffs, with the networks and the perception run
+    that made them: read from OUT/cache when this video was perceived before with the same
+    networks, settings and code (then no network is loaded; in a certified payoff mode the
+    run is needed, so the video is perceived again), else perceived now and stored."""
+    from lesmc.perception.attacks import AttackConfig
+
+    key = digest(
+        {
+            "code": code_digest("perception", "video", "scene"),
+            "frames": file_digests(frames.paths),
+            "nets": file_digests(net_files(req.nets)),
+            "source": str(frames_dir),
+            "dt": dt,
+            "history": HISTORY,
+            "attack": asdict(AttackConfig()),
+        }
+    )
+    hit = cache.get("perception", key) if req.payoffs == "attack" else None
+    if hit is not None:
+        try:
+            footage, _ = footage_from_dict(hit, str(cache.dir))
+        except LesmcError:
+            footage = None
+        if footage is not None:
+            rep.log(f"reusing the perception of {frames_dir} from {cache.dir}")
+            return footage, None, None
+    from lesmc.perception.cnn import load_nets
+    from lesmc.perception.run import PerceiveOptions, perceive
+    from lesmc.perception.to_scene import footage_from_run
+
     nets = load_nets(*req.nets)
     opts = PerceiveOptions(history=HISTORY, nets=nets, attack=AttackConfig())
     _spent(req.budget, "loading the video and the networks")
@@ -203,22 +267,10 @@ def _perceived(req: Request, specs: list[SpecFile], rep: Reporter) -> _Source:
         run = perceive(frames, opts, None, advance)
     if not run.detections:
         raise UsageError("the video produced no detections")
-    dt = (truths.dt if truths else None) or 1 / FPS
     scene_meta = {"source": str(frames_dir), "detector": nets.settings.trained_on}
     footage = footage_from_run(run, dt, scene_meta)
-    tracker = _tracker(req)
-    if tracker is not None:
-        footage = dataclasses.replace(footage, tracker=tracker)
-    if truths is not None:  # the acceptable paths of dist.nearest (section 4.2)
-        footage = dataclasses.replace(footage, truth=truth_tracks(footage, frames, truths))
-    if target is not None:
-        scene = target_scene(footage, target, frames, truths)
-    else:
-        assert truths is not None
-        scene = auto_target(footage, frames, truths, specs)
-        meta["target choice"] = scene.meta["target_choice"]
-    meta |= {"detector": nets.settings.trained_on, "scene": str(req.out / "scene.json")}
-    return _Source(scene, frames, truths, nets, run, meta, new=True)
+    cache.put("perception", key, scene_to_dict(footage))
+    return footage, nets, run
 
 
 def _tracker(req: Request) -> TrackerConfig | None:
@@ -365,13 +417,26 @@ def _truth_facts(
     monitored = sorted(
         {registry.get(r.design).tracker for r in results.runs if registry.get(r.design).monitor}
     )
-    report = false_alarm_report(
-        scene,
-        tfs,
-        (src.frames.width, src.frames.height),
-        min(end, len(tfs) - 1),
-        monitored or [registry.BASELINE],
-    )
+    size = (src.frames.width, src.frames.height)
+    steps, designs = min(end, len(tfs) - 1), monitored or [registry.BASELINE]
+    key = None
+    if src.cache is not None and src.truth_path is not None:
+        key = digest(
+            {
+                "code": code_digest("verify", "tracking", "scene", "designs", "model"),
+                "scene": scene_to_dict(scene),
+                "truth": file_digests([Path(src.truth_path)]),
+                "frames": [p.name for p in src.frames.paths],
+                "size": size,
+                "steps": steps,
+                "designs": designs,
+            }
+        )
+    report = src.cache.get("false-alarms", key) if src.cache and key else None
+    if not (isinstance(report, dict) and isinstance(report.get("rows"), list)):
+        report = false_alarm_report(scene, tfs, size, steps, designs)
+        if src.cache is not None and key is not None:
+            src.cache.put("false-alarms", key, report)
     timings["monitor false alarms"] = time.monotonic() - t0
     return truth_track(tfs, scene.target.start) or None, {"monitor_false_alarms": report}
 
@@ -384,7 +449,11 @@ def _perception_facts(req: Request, src: _Source, results: Results) -> dict[str,
     out: dict[str, Any] = {
         "history": HISTORY,
         "delta_bc": 12,
-        "nets": src.nets.settings.trained_on if src.nets is not None else "",
+        "nets": (
+            src.nets.settings.trained_on
+            if src.nets is not None
+            else str(src.scene.meta.get("detector", ""))
+        ),
         "attack": asdict(attack),
         "payoffs": req.payoffs,
     }
@@ -404,20 +473,78 @@ def _replay(
     budget: Budget,
 ) -> None:
     """Replay every violated property through the real detector (lesmc/replay); the
-    results and the document record what each replay found."""
+    results and the document record what each replay found. The same counterexamples on
+    the same frames and networks replay from OUT/cache."""
+    from lesmc.replay.run import Outcome
 
-    if not cases(doc) or src.frames is None or src.nets is None:
+    todo = cases(doc)
+    if not todo or src.frames is None or (src.nets is None and src.net_files is None):
         return
     t0 = time.monotonic()
-    with rep.bar("replaying", len(src.frames)) as bar:
+    key = _replay_key(doc, src, todo)
+    hit = None if src.cache is None or key is None else src.cache.get("replay", key)
+    outcome = _cached_replay(hit, doc)
+    if outcome is not None:
+        rep.log(f"reusing the replay of {len(outcome.replays)} counterexamples from the cache")
+    else:
+        frames, nets = src.frames, src.networks()
+        with rep.bar("replaying", len(frames)) as bar:
 
-        def advance() -> None:
-            bar.advance()
-            _spent(budget, "replaying the counterexamples")
+            def advance() -> None:
+                bar.advance()
+                _spent(budget, "replaying the counterexamples")
 
-        outcome = replay(doc, src.frames, src.nets, on_frame=advance)
+            outcome = replay(doc, frames, nets, on_frame=advance)
+        if src.cache is not None and key is not None:
+            rows = [[i, j, obj] for (i, j), obj in outcome.replays.items()]
+            src.cache.put("replay", key, {"replays": rows, "seconds": outcome.seconds})
+    assert isinstance(outcome, Outcome)
     apply(doc, outcome, results)
     timings["replay"] = time.monotonic() - t0
+
+
+def _replay_key(doc: dict[str, Any], src: _Source, todo: list[Any]) -> str | None:
+    """The digest of what the replay reads: each case's run (its scene, paths and results
+    without their timings), the frames, the networks and the code; None: not cacheable
+    (networks given as loaded objects)."""
+    if src.net_files is None or src.frames is None:
+        return None
+    runs = []
+    for i in sorted({c.run for c in todo}):
+        run = dict(doc["runs"][i])
+        run["results"] = [
+            {k: v for k, v in r.items() if k not in ("stats", "certified_stats")}
+            for r in run["results"]
+        ]
+        runs.append([i, run])
+    return digest(
+        {
+            "code": code_digest("replay", "perception", "video", "tracking", "scene", "designs"),
+            "frames": file_digests(src.frames.paths),
+            "nets": file_digests(net_files(src.net_files)),
+            "runs": runs,
+            "cases": [[c.run, c.result] for c in todo],
+        }
+    )
+
+
+def _cached_replay(hit: Any, doc: dict[str, Any]) -> Any:
+    """A cache entry as the replay's Outcome, if it is one for these cases; else None."""
+    from lesmc.replay.run import Outcome
+
+    if not isinstance(hit, dict) or not isinstance(hit.get("replays"), list):
+        return None
+    replays: dict[tuple[int, int], dict[str, Any]] = {}
+    for row in hit["replays"]:
+        if not (isinstance(row, list) and len(row) == 3 and isinstance(row[2], dict)):
+            return None
+        i, j, obj = row
+        ok = isinstance(i, int) and isinstance(j, int) and 0 <= i < len(doc["runs"])
+        if not ok or not 0 <= j < len(doc["runs"][i]["results"]) or "status" not in obj:
+            return None
+        replays[(i, j)] = obj
+    seconds = hit.get("seconds")
+    return Outcome(replays, float(seconds) if isinstance(seconds, (int, float)) else 0.0)
 
 
 def _write(doc: dict[str, Any], out: Path, src: _Source, results: Results, rep: Reporter) -> Path:
