@@ -43,6 +43,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from lesmc.common.errors import InputError, Location, UsageError
+from lesmc.common.memory import release
 from lesmc.designs.registry import make_tracker
 from lesmc.engines.result import status_word
 from lesmc.model import kernel
@@ -653,6 +654,7 @@ def replay(
         clean[fd.index] = _light(fd)
         for ci, group in _groups(by_frame.get(fd.index, [])):
             attacked[ci][fd.index] = attack_frame(nets, det, out, fd, group, attack_cfg, repair)
+        release()  # the frame's temporaries go back to the system (common/memory.py)
     if last not in clean:
         raise InputError(
             f"the frames stop before frame {last}, the last step of a counterexample",

@@ -256,7 +256,9 @@ def _perception(
     from lesmc.perception.to_scene import footage_from_run
 
     nets = load_nets(*req.nets)
-    opts = PerceiveOptions(history=HISTORY, nets=nets, attack=AttackConfig())
+    opts = PerceiveOptions(
+        history=HISTORY, nets=nets, attack=AttackConfig(), keep_windows=req.payoffs != "attack"
+    )
     _spent(req.budget, "loading the video and the networks")
     with rep.bar("perceiving", len(frames)) as bar:
 
