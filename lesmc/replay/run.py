@@ -36,7 +36,7 @@ perturbations is added to the payoff, and the track is replayed again.
 from __future__ import annotations
 
 import math
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field, replace
 from typing import TYPE_CHECKING, Any
 
@@ -618,8 +618,15 @@ def replay(
     delta_bc: int = 12,
     on_frame: Callable[[], None] | None = None,
     repair: bool = True,
+    clean: Mapping[int, FrameDetections] | None = None,
 ) -> Outcome:
-    """Replay every violated property's counterexample of ``doc`` (or ``prop``'s) on ``frames``."""
+    """Replay every violated property's counterexample of ``doc`` (or ``prop``'s) on ``frames``.
+
+    ``clean``: each frame's detections as the perception of these frames with these
+    networks made them (``lesmc verify`` hands over its own): then only the attacked
+    frames, after the ``history`` frames before each that the front end needs, go
+    through the detector (tests/test_replay.py checks both ways agree).
+    """
     import time
 
     from lesmc.perception.attacks import AttackConfig
@@ -636,25 +643,26 @@ def replay(
     history = int(perception.get("history", history))
     delta_bc = int(perception.get("delta_bc", delta_bc))
     fe = FrontEndConfig(history=history, blobs=BlobConfig(delta_bc=delta_bc))
-    det = Detector(nets, DetectorConfig(frontend=fe))
     last = max(c.first_frame + len(c.positions) - 1 for c in todo)
     by_frame: dict[int, list[tuple[int, Hidden]]] = {}
     for ci, c in enumerate(todo):
         for h in c.hidden:
             by_frame.setdefault(h.frame, []).append((ci, h))
-    clean: dict[int, FrameDetections] = {}
     attacked: list[dict[int, FrameAttack]] = [{} for _ in todo]
-    for i in range(min(len(frames), last + 1)):
-        got = det.push(frames.read(i))
-        if on_frame:
-            on_frame()
-        if got is None:
-            continue
-        out, fd = got
-        clean[fd.index] = _light(fd)
+
+    def attack(det: Any, out: FrontEndOutput, fd: FrameDetections) -> None:
         for ci, group in _groups(by_frame.get(fd.index, [])):
             attacked[ci][fd.index] = attack_frame(nets, det, out, fd, group, attack_cfg, repair)
         release()  # the frame's temporaries go back to the system (common/memory.py)
+
+    def detector() -> Any:
+        return Detector(nets, DetectorConfig(frontend=fe))
+
+    if clean is None:  # every frame through the detector
+        clean = _all_frames(frames, detector(), last, attack, on_frame)
+    else:  # the clean frames' detections are given: only the attacked ones are detected
+        clean = dict(clean)
+        _attacked_frames(frames, detector, sorted(by_frame), history, attack, on_frame)
     if last not in clean:
         raise InputError(
             f"the frames stop before frame {last}, the last step of a counterexample",
@@ -664,6 +672,58 @@ def replay(
         _check_known(c, clean)
     replays = {(c.run, c.result): _replay_case(c, clean, attacked[ci]) for ci, c in enumerate(todo)}
     return Outcome(replays, time.monotonic() - t0)
+
+
+def _all_frames(
+    frames: FrameSet,
+    det: Any,
+    last: int,
+    attack: Callable[[Any, FrontEndOutput, FrameDetections], None],
+    on_frame: Callable[[], None] | None,
+) -> dict[int, FrameDetections]:
+    """Frames 0..last through the detector, the attacked ones attacked: the clean
+    detections of every frame."""
+    clean: dict[int, FrameDetections] = {}
+    for i in range(min(len(frames), last + 1)):
+        got = det.push(frames.read(i))
+        if on_frame:
+            on_frame()
+        if got is None:
+            continue
+        out, fd = got
+        clean[fd.index] = _light(fd)
+        attack(det, out, fd)
+    return clean
+
+
+def _attacked_frames(
+    frames: FrameSet,
+    detector: Callable[[], Any],
+    wanted: list[int],
+    history: int,
+    attack: Callable[[Any, FrontEndOutput, FrameDetections], None],
+    on_frame: Callable[[], None] | None,
+) -> None:
+    """Only the frames in ``wanted`` through the detector and attacked: each run of them
+    (gaps of at most ``history`` frames) from a fresh front end fed the ``history`` frames
+    before it, whose state then equals a pass over the whole video (registration and the
+    background read only the last ``history`` frames)."""
+    runs: list[list[int]] = []
+    for k in wanted:
+        if runs and k - runs[-1][-1] <= history:
+            runs[-1].append(k)
+        else:
+            runs.append([k])
+    for run in runs:
+        start = max(0, run[0] - history)
+        det = detector()
+        det.frontend.index = start - 1
+        for i in range(start, min(len(frames), run[-1] + 1)):
+            got = det.push(frames.read(i))
+            if on_frame:
+                on_frame()
+            if got is not None and got[1].index in run:
+                attack(det, *got)
 
 
 def _replay_case(

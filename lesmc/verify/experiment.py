@@ -490,13 +490,15 @@ def _replay(
         rep.log(f"reusing the replay of {len(outcome.replays)} counterexamples from the cache")
     else:
         frames, nets = src.frames, src.networks()
-        with rep.bar("replaying", len(frames)) as bar:
+        # this run's perception made the clean detections: only attacked frames are redone
+        clean = None if src.run is None else {fd.index: fd for fd in src.run.detections}
+        with rep.bar("replaying", len(frames) if clean is None else None) as bar:
 
             def advance() -> None:
                 bar.advance()
                 _spent(budget, "replaying the counterexamples")
 
-            outcome = replay(doc, frames, nets, on_frame=advance)
+            outcome = replay(doc, frames, nets, on_frame=advance, clean=clean)
         if src.cache is not None and key is not None:
             rows = [[i, j, obj] for (i, j), obj in outcome.replays.items()]
             src.cache.put("replay", key, {"replays": rows, "seconds": outcome.seconds})

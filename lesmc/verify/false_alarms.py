@@ -21,10 +21,10 @@ import numpy as np
 
 from lesmc.designs.registry import make_tracker
 from lesmc.language.properties import DEFAULT_MONITOR_TOLERANCE
-from lesmc.model.kernel import alarm
+from lesmc.model.kernel import alarm, tau
 from lesmc.perception.quality import TruthFrame
 from lesmc.scene import Scene, Target
-from lesmc.tracking.monitor import track
+from lesmc.tracking.design import Batch
 
 
 @dataclass(frozen=True)
@@ -82,15 +82,56 @@ def truth_track(
 def unattacked_taus(
     scene: Scene, starts: Sequence[TruthStart], design: str, steps: int
 ) -> list[np.ndarray]:
-    """τ along the unattacked track (Eq. 12) started at each truth vehicle, up to ``steps``."""
-    out = []
-    for s in starts:
-        sc = dataclasses.replace(
-            scene.with_tracker(design=design),
-            target=Target(scene.target.step, (s.x, s.y), (s.vx, s.vy)),
+    """τ along the unattacked track (Eq. 12) started at each truth vehicle, up to ``steps``
+    (until it halts).
+
+    All tracks run in one batch through one tracker (the design computes the successors
+    of a batch at once, tracking/design.py): each starts where ``track`` of a scene with
+    that vehicle as its target would, and takes the same unattacked outcome at every
+    step (tests/test_verify.py compares with ``track`` vehicle by vehicle)."""
+    if not starts:
+        return []
+    base = scene.with_tracker(design=design)
+    tracker = make_tracker(base)
+    firsts = []
+    for s in starts:  # each vehicle's first state: the design starts from its scene's target
+        tracker.scene = dataclasses.replace(
+            base, target=Target(base.target.step, (s.x, s.y), (s.vx, s.vy))
         )
-        out.append(np.array([p.tau for p in track(make_tracker(sc), steps)]))
-    return out
+        firsts.append(tracker.initial())
+    tracker.scene = base
+    batch = _stacked(firsts)
+    loc = base.tracker.measured
+    taus = [[float(tau(tracker.covariances[int(c)], loc))] for c in batch.cov]
+    live = np.flatnonzero(~batch.halted)
+    last = min(steps, base.last_step - base.target.step)
+    for k in range(1, last + 1):
+        if not live.size:
+            break
+        batch = tracker.successors(batch.take(live) if live.size < len(batch) else batch,
+                                   base.target.step + k, False).states  # fmt: skip
+        for i, c in zip(live.tolist(), batch.cov.tolist(), strict=True):
+            taus[i].append(float(tau(tracker.covariances[int(c)], loc)))
+        keep = ~batch.halted
+        live, batch = live[keep], batch.take(np.flatnonzero(keep))
+    return [np.array(t) for t in taus]
+
+
+def _stacked(batches: list[Batch]) -> Batch:
+    """One batch of the states of ``batches`` (of one design), in order."""
+    store = None
+    if batches[0].objects is not None:
+        store = batches[0].objects.store()
+        for b in batches:
+            assert b.objects is not None
+            store.extend(b.objects)
+    n = sum(len(b) for b in batches)
+    return Batch(
+        np.concatenate([b.X for b in batches]),
+        np.concatenate([b.cov for b in batches]),
+        np.concatenate([b.halted for b in batches]),
+        None if store is None else store.take(np.arange(n)),
+    )
 
 
 def rates(taus: Sequence[np.ndarray], tolerance: float, first: int = 1) -> dict[str, int]:
