@@ -61,7 +61,8 @@ class Series:
 
 def _png(fig: Figure) -> bytes:
     buf = io.BytesIO()
-    fig.savefig(buf, format="png", dpi=DPI, bbox_inches="tight")
+    # zlib level 1: a third of the encoding time of the default 6, files within 5%
+    fig.savefig(buf, format="png", dpi=DPI, bbox_inches="tight", pil_kwargs={"compress_level": 1})
     plt.close(fig)
     return buf.getvalue()
 
