@@ -455,3 +455,28 @@ def test_a_subnormal_constraint_bound_is_checked_exactly(bound: float) -> None:
             assert (r.optimum is None) if math.isinf(truth) else r.optimum == truth
         seen += math.isfinite(truth)
     assert seen > 10
+
+
+@settings(max_examples=150, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(cases(), st.sampled_from(MEASURES), st.sampled_from(MEASURES), st.floats(0, 1))
+def test_one_walk_for_several_properties_equals_one_walk_each(
+    case: tuple, obj2: str, con2: str, q2: float
+) -> None:
+    """``enumerate_many`` (issue 31: one tree walk for every property that shares the tree)
+    gives each property exactly what ``enumerate_paths`` gives it alone."""
+    from lesmc.engines.enumerate import enumerate_many, enumerate_paths
+
+    model, params, quantile = case
+    l, u, end, _, _, op, norm, monitor = params
+    b = min(end, 1)
+    second = (l, u, end, obj2.format(a=0, b=b), con2.format(a=0, b=b), op, norm, monitor)
+    bps = [_bound_property(model, params, quantile), _bound_property(model, second, q2)]
+    cm = to_arrays(model)
+    spaces = [build_space(cm, bp) for bp in bps]
+    together = enumerate_many(spaces)
+    for space, got in zip(spaces, together, strict=True):
+        alone = enumerate_paths(build_space(cm, space.bp))
+        assert (got.optimum, got.lower, got.upper) == (alone.optimum, alone.lower, alone.upper)
+        assert got.counterexample == alone.counterexample
+        assert got.witness == alone.witness
+        assert got.stats.paths == alone.stats.paths

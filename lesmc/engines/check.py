@@ -4,11 +4,11 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable, Iterable
-from typing import Literal
+from typing import Any, Literal
 
 from lesmc.common.budget import Budget
 from lesmc.engines.bnb import branch_and_bound
-from lesmc.engines.enumerate import enumerate_paths, exhaustive_probe
+from lesmc.engines.enumerate import enumerate_many, enumerate_paths, exhaustive_probe
 from lesmc.engines.lazy import LazySpace
 from lesmc.engines.levels import level_search
 from lesmc.engines.result import CheckResult, EngineOutcome, PathInfo, Verdict, path_info
@@ -207,6 +207,27 @@ def check_lazy(
     out = ENGINES[engine](space, budget or Budget())
     out.stats.extra["states_built"] = space.states_built
     return to_result(space, out)
+
+
+def check_many(
+    model: ArrayModel | GrowingModel, bps: list[BoundProperty], budget: Budget | None = None
+) -> list[CheckResult]:
+    """Properties whose trees are the same (enumerate.tree_key) by ``enumerate`` with one
+    walk of the tree (enumerate.enumerate_many): the results of checking each alone."""
+    spaces: list[Any] = [
+        LazySpace(model, bp) if isinstance(model, GrowingModel) else build_space(model, bp)
+        for bp in bps
+    ]
+    outs = enumerate_many(spaces, budget or Budget())
+    results = []
+    for space, out in zip(spaces, outs, strict=True):
+        if isinstance(model, GrowingModel):
+            out.stats.extra["states_built"] = space.states_built
+        result = to_result(space, out)
+        if isinstance(model, ArrayModel):
+            result.notes.extend(window_notes(model, space.bp))
+        results.append(result)
+    return results
 
 
 def window_notes(model: ArrayModel, bp: BoundProperty) -> list[str]:

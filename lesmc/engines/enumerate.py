@@ -34,55 +34,91 @@ def enumerate_paths(
     looks larger than that, projecting the last level's branching over the window's
     remaining steps (a guess: it only decides when to give up, never an answer).
     """
+    return enumerate_many([space], budget, give_up_past)[0]
+
+
+def tree_key(bp: BoundProperty) -> tuple[object, ...]:
+    """What fixes the tree of attacked paths: the window, the end and the monitor. Properties
+    with the same key on one model share their tree (:func:`enumerate_many`)."""
+    return (
+        bp.l,
+        bp.u,
+        bp.end,
+        bp.monitor_components,
+        bp.monitor_tolerance,
+        bp.monitor_except_original,
+    )
+
+
+def enumerate_many(
+    spaces: list[Space], budget: Budget | None = None, give_up_past: int | None = None
+) -> list[EngineOutcome]:
+    """Algorithms 1 and 2 for several properties of one model whose trees are the same
+    (:func:`tree_key`): the tree is walked once, each property's measures aggregated
+    along it, then Algorithm 2 per property (one unfolding per scene, issue 31)."""
     t0 = time.perf_counter()
-    stats = Stats(engine="enumerate")
+    first = spaces[0]
+    assert all(tree_key(s.bp) == tree_key(first.bp) and s.cm is first.cm for s in spaces)
     search = (budget or Budget()).search()
     search.used = 1  # the root
-    cm = space.cm
-    # one level of the tree: state, accumulated objective/constraint, parent, entering transition
-    node = np.array([space.root], dtype=np.int64)
-    obj = np.array([space.root_obj])
-    con = np.array([space.root_con])
+    cm = first.cm
+    # one level of the tree: state, accumulated objective/constraint (per property),
+    # parent, entering transition
+    node = np.array([first.root], dtype=np.int64)
+    obj = [np.array([s.root_obj]) for s in spaces]
+    con = [np.array([s.root_con]) for s in spaces]
     levels: list[tuple[np.ndarray, np.ndarray]] = []  # (parent index, transition) per level
-    done: list[tuple[int, np.ndarray, np.ndarray, np.ndarray]] = []  # finished paths:
-    # (level, node index, objective, constraint)
-    stopped = "finished"
+    done: list[list[tuple[int, np.ndarray, np.ndarray, np.ndarray]]] = [[] for _ in spaces]
+    # finished paths per property: (level, node index, objective, constraint)
+    stopped, transitions = "finished", 0
     level = 0
     rate = 0.0  # seconds per expanded node of the last level
     while node.size:
-        leaf = space.leaves(node)
+        leaf = first.leaves(node)
         if leaf.any():
             idx = np.nonzero(leaf)[0]
-            done.append((level, idx, *_completed(space, node[idx], obj[idx], con[idx])))
+            for i, s in enumerate(spaces):
+                done[i].append((level, idx, *_completed(s, node[idx], obj[i][idx], con[i][idx])))
         live = np.nonzero(~leaf)[0]
         started = time.perf_counter()
-        why = _unfold(space, node[live], search) or _would_overrun(search, rate, int(live.size))
+        why = _unfold(first, node[live], search) or _would_overrun(search, rate, int(live.size))
         if why is not None:
             stopped = why
             break
         # children: for each live node, each allowed transition in rank order
-        owner, trans = space.successors_batch(node[live])
+        owner, trans = first.successors_batch(node[live])
         total = int(trans.size)
-        why = _over(space, search, trans, int(live.size), give_up_past)
+        why = _over(first, search, trans, int(live.size), give_up_past)
         if why is not None:
             stopped = why
             break
         parent = live[owner]
         levels.append((parent, trans))
-        obj = aggregate_arrays(space.obj_max, obj[parent], space.c_obj[trans])
-        con = aggregate_arrays(space.con_max, con[parent], space.c_con[trans])
+        for i, s in enumerate(spaces):
+            if i:  # the first space unfolded: the others read the new transitions too
+                getattr(s, "sync", _nothing)()
+            obj[i] = aggregate_arrays(s.obj_max, obj[i][parent], s.c_obj[trans])
+            con[i] = aggregate_arrays(s.con_max, con[i][parent], s.c_con[trans])
         node = cm.dst[trans]
         search.used += total
-        stats.transitions += total
+        transitions += total
         level += 1
         rate = (time.perf_counter() - started) / max(int(live.size), 1)
-    stats.states_expanded = search.used
-    stats.stopped = stopped  # type: ignore[assignment]
-    all_obj, all_con, done_ref = _finished(done)
-    stats.paths = int(all_obj.size)
-    outcome = _algorithm2(space, all_obj, all_con, done_ref, levels, stats)
-    stats.seconds = time.perf_counter() - t0
-    return outcome
+    outcomes = []
+    for i, s in enumerate(spaces):
+        stats = Stats(engine="enumerate", states_expanded=search.used, transitions=transitions)
+        stats.stopped = stopped  # type: ignore[assignment]
+        if len(spaces) > 1:
+            stats.extra["tree_shared_by"] = len(spaces)
+        all_obj, all_con, done_ref = _finished(done[i])
+        stats.paths = int(all_obj.size)
+        outcomes.append(_algorithm2(s, all_obj, all_con, done_ref, levels, stats))
+        stats.seconds = time.perf_counter() - t0
+    return outcomes
+
+
+def _nothing() -> None:
+    """An explicit model's space has nothing to sync."""
 
 
 def _finished(

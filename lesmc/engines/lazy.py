@@ -85,6 +85,11 @@ class LazySpace(SpaceOps):
     def states_built(self) -> int:
         return self.cm.n_states
 
+    def sync(self) -> None:
+        """Compute what this space reads of the states and transitions another space (one
+        sharing the model) has unfolded since the last call."""
+        self._sync()
+
     def _sync(self) -> None:
         """Deviation (Eq. 4) and τ (Eq. 12) of the states added since the last call, then
         the contributions and monitor flags of the transitions added since then."""

@@ -33,7 +33,7 @@ from lesmc.model.arrays import ArrayModel, reference_states
 from lesmc.model.growing import GrowingModel
 from lesmc.pipeline import certify
 from lesmc.pipeline.job import Job, Unit
-from lesmc.pipeline.payoffs import check_payoffs
+from lesmc.pipeline.payoffs import check_all, check_payoffs
 from lesmc.results.record import DesignRun, Results
 from lesmc.scene import Scene
 
@@ -160,10 +160,15 @@ def _model_run(job: Job, model: ArrayModel) -> DesignRun:
     if job.only:
         known_names(job.only, {bp.name for bp in bound})
         bound = [bp for bp in bound if bp.name in job.only]
-    results = []
-    for bp in bound:
-        job.on_stage(f"checking {bp.name} ({job.engine})")
-        results.append(check_payoffs(lambda _p: model, bp, "attack", job.engine, job.budget, []))
+    results = check_all(
+        lambda _p: model,
+        bound,
+        "attack",
+        job.engine,
+        job.budget,
+        lambda _bp: [],
+        lambda bp: job.on_stage(f"checking {bp.name} ({job.engine})"),
+    )
     design = str(model.meta.get("design", "model"))
     return DesignRun(design, bound, results, model)
 
@@ -283,24 +288,19 @@ def _design_run(
 ) -> DesignRun:
     """Every property of one plan, in the job's payoff mode."""
     tracker = plan.tracker
-    results: list[CheckResult] = []
-    for bp in plan.bound:
-        notes = (
+    results = check_all(
+        lambda payoffs: models.get(tracker, payoffs),
+        plan.bound,
+        job.payoffs,
+        job.engine,
+        job.budget,
+        lambda bp: (
             []
             if job.payoffs == "attack"
             else _certified_notes(job, models.scene, tracker, bp, probes)
-        )
-        job.on_stage(f"checking {bp.name} ({registry.label(plan.design)})")
-        results.append(
-            check_payoffs(
-                lambda payoffs: models.get(tracker, payoffs),
-                bp,
-                job.payoffs,
-                job.engine,
-                job.budget,
-                notes,
-            )
-        )
+        ),
+        lambda bp: job.on_stage(f"checking {bp.name} ({registry.label(plan.design)})"),
+    )
     if models.scene.meta.get("detector"):  # perception's scene: replayable on its video
         results = [_not_replayed(r) for r in results]
     run = DesignRun(plan.design, plan.bound, results, window=plan.window)

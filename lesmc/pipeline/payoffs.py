@@ -17,7 +17,8 @@ from collections.abc import Callable
 from dataclasses import replace
 
 from lesmc.common.budget import Budget
-from lesmc.engines.check import EngineName, check_bound, check_lazy
+from lesmc.engines.check import EngineName, check_bound, check_lazy, check_many
+from lesmc.engines.enumerate import tree_key
 from lesmc.engines.interval import combine
 from lesmc.engines.result import CheckResult
 from lesmc.language.semantics import BoundProperty
@@ -42,6 +43,35 @@ def payoff_monotone(bp: BoundProperty) -> bool:
     """Lowering payoffs can only lower the optimum: true unless the constraint asks for a
     large payoff (``subject to payoff > c``), which lower payoffs can make false."""
     return not (bp.constraint.source == "payoff" and bp.op in (">", ">="))
+
+
+def check_all(
+    model_of: ModelOf,
+    bound: list[BoundProperty],
+    mode: PayoffMode,
+    engine: EngineName,
+    budget: Budget,
+    notes_of: Callable[[BoundProperty], list[str]],
+    on_check: Callable[[BoundProperty], None],
+) -> list[CheckResult]:
+    """Every property of ``bound``, in order: :func:`check_payoffs` one by one, except that
+    with ``enumerate`` on attack payoffs the properties whose trees are the same
+    (enumerate.tree_key) are enumerated together, the tree walked once."""
+    results: dict[int, CheckResult] = {}
+    groups: dict[tuple[object, ...], list[int]] = {}
+    for i, bp in enumerate(bound):
+        groups.setdefault(tree_key(bp), []).append(i)
+    for idx in groups.values():
+        if engine == "enumerate" and mode == "attack" and len(idx) > 1:
+            for i in idx:
+                on_check(bound[i])
+            many = check_many(model_of("attack"), [bound[i] for i in idx], budget.for_check())
+            results.update(zip(idx, many, strict=True))
+            continue
+        for i in idx:
+            on_check(bound[i])
+            results[i] = check_payoffs(model_of, bound[i], mode, engine, budget, notes_of(bound[i]))
+    return [results[i] for i in range(len(bound))]
 
 
 def check_payoffs(
