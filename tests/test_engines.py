@@ -414,9 +414,11 @@ def _small_tree_case(case: tuple) -> None:
             assert r.witness_value == pytest.approx(truth.witness_value, rel=1e-12, abs=1e-12)
 
 
-def test_a_large_tree_is_searched_after_a_bounded_probe(monkeypatch: pytest.MonkeyPatch) -> None:
-    """Past the threshold the probe gives up within it and the search answers; its states
-    count against --max-states."""
+def test_a_large_tree_is_counted_not_made_and_then_searched(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    """Past the threshold the tree is only counted (enumerate.tree_size): the search answers
+    with the whole budget, and none of its states went to a probe."""
     from lesmc.engines import enumerate as enumerate_engine
 
     monkeypatch.setattr(enumerate_engine, "SMALL_TREE", 1 << 10)
@@ -425,14 +427,30 @@ def test_a_large_tree_is_searched_after_a_bounded_probe(monkeypatch: pytest.Monk
     assert e.stats.states_expanded > 1 << 10
     for engine in ("bnb", "levels"):
         r = check_bound(cm, bp, engine)  # type: ignore[arg-type]
-        assert "exhaustive" not in r.stats.extra
+        assert "exhaustive" not in r.stats.extra and "probe_states" not in r.stats.extra
         assert r.optimum == e.optimum and r.witness_value == e.witness_value
         small = check_bound(cm, bp, engine, Budget(max_states=1500))  # type: ignore[arg-type]
-        probed = small.stats.extra["probe_states"]
-        assert probed > 0 and small.stats.states_expanded + probed <= 1500
+        assert "probe_states" not in small.stats.extra
+        assert small.stats.states_expanded <= 1500
     monkeypatch.setattr(enumerate_engine, "SMALL_TREE", 1 << 15)  # more than the budget:
     r = check_bound(cm, bp, "levels", Budget(max_states=50))  # no probe, the search has it all
     assert "exhaustive" not in r.stats.extra and r.stats.states_expanded <= 50
+
+
+@settings(max_examples=200, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(cases())
+def test_the_tree_counted_is_the_tree_enumerated(case: tuple) -> None:
+    """enumerate.tree_size, which decides whether bnb and levels enumerate, counts exactly
+    the nodes enumerate makes (paths into each state pushed forward, without the tree)."""
+    from lesmc.engines.enumerate import tree_size
+
+    model, params, quantile = case
+    bp = _bound_property(model, params, quantile)
+    cm = to_arrays(model)
+    space = build_space(cm, bp)
+    nodes = check_bound(cm, bp, "enumerate").stats.states_expanded
+    assert tree_size(space) == nodes
+    assert tree_size(space, past=nodes - 1) >= nodes  # the early stop says "more than"
 
 
 @pytest.mark.parametrize("bound", [2.225073858507203e-309, 5e-324, 1e-300])

@@ -25,16 +25,9 @@ from lesmc.language.semantics import BoundProperty
 from lesmc.model.kernel import COMPARE, aggregate_arrays
 
 
-def enumerate_paths(
-    space: Space, budget: Budget | None = None, give_up_past: int | None = None
-) -> EngineOutcome:
-    """Run Algorithms 1 and 2 on ``space``; stop early (unknown) past a budget.
-
-    ``give_up_past`` (the probe of :func:`exhaustive_probe`): stop as soon as the tree
-    looks larger than that, projecting the last level's branching over the window's
-    remaining steps (a guess: it only decides when to give up, never an answer).
-    """
-    return enumerate_many([space], budget, give_up_past)[0]
+def enumerate_paths(space: Space, budget: Budget | None = None) -> EngineOutcome:
+    """Run Algorithms 1 and 2 on ``space``; stop early (unknown) past a budget."""
+    return enumerate_many([space], budget)[0]
 
 
 def tree_key(bp: BoundProperty) -> tuple[object, ...]:
@@ -50,9 +43,7 @@ def tree_key(bp: BoundProperty) -> tuple[object, ...]:
     )
 
 
-def enumerate_many(
-    spaces: list[Space], budget: Budget | None = None, give_up_past: int | None = None
-) -> list[EngineOutcome]:
+def enumerate_many(spaces: list[Space], budget: Budget | None = None) -> list[EngineOutcome]:
     """Algorithms 1 and 2 for several properties of one model whose trees are the same
     (:func:`tree_key`): the tree is walked once, each property's measures aggregated
     along it, then Algorithm 2 per property (one unfolding per scene, issue 31)."""
@@ -88,7 +79,7 @@ def enumerate_many(
         # children: for each live node, each allowed transition in rank order
         owner, trans = first.successors_batch(node[live])
         total = int(trans.size)
-        why = _over(first, search, trans, int(live.size), give_up_past)
+        why = search.over(total)
         if why is not None:
             stopped = why
             break
@@ -140,20 +131,6 @@ def _completed(
     return aggregate_arrays(space.obj_max, obj, t_obj), aggregate_arrays(space.con_max, con, t_con)
 
 
-def _over(
-    space: Space, search: SearchBudget, trans: np.ndarray, live: int, give_up_past: int | None
-) -> str | None:
-    """Why the next level (``trans`` out of ``live`` nodes) must not be made: a budget, or
-    (the probe) a tree projected larger than ``give_up_past``."""
-    total = int(trans.size)
-    why = search.over(total)
-    if why is None and give_up_past is not None:
-        step = int(space.cm.step[space.cm.dst[trans[0]]]) if total else 0
-        if search.used + total + _projected(space.bp, step, total, live) > give_up_past:
-            why = "max_states"
-    return why
-
-
 def _would_overrun(search: SearchBudget, rate: float, nodes: int) -> str | None:
     """Expanding ``nodes`` at the last level's ``rate`` seconds a node would end past the
     deadline: stop before it (a level is one piece of array work, not interruptible), so
@@ -165,9 +142,10 @@ def _would_overrun(search: SearchBudget, rate: float, nodes: int) -> str | None:
 
 #: Before bnb or levels searches an explicit model, :func:`exhaustive_probe` tries to
 #: enumerate its tree of attacked paths within this many nodes: below it, walking every
-#: path in a few array operations per level costs less than computing bounds
-#: (lesmc/engines/check.py; docs/engines.md).
-SMALL_TREE = 1 << 15
+#: path in a few array operations per level (about 40 M nodes a second) costs less than
+#: computing bounds (0.3-1.4 s of fixed costs on the dense benchmark's models;
+#: lesmc/engines/check.py; docs/engines.md, benchmarks/bench_storm.py).
+SMALL_TREE = 1 << 21
 
 
 @dataclass(frozen=True)
@@ -181,37 +159,53 @@ class Probe:
 
 
 def exhaustive_probe(space: Space, engine: str, budget: Budget) -> Probe:
-    """Try :func:`enumerate_paths` on an explicit model within :data:`SMALL_TREE` tree
-    nodes (not under a ``max_states`` below SMALL_TREE: a small budget is left whole to
-    the search and its anytime bounds).
+    """Enumerate an explicit model's tree of attacked paths when it has at most
+    :data:`SMALL_TREE` nodes (:func:`tree_size`, counted exactly before any is made; not
+    under a ``max_states`` below the tree: a budget that small is left whole to the search
+    and its anytime bounds).
 
     The outcome when it finished, reported as ``engine``'s with
-    ``stats.extra["exhaustive"]`` = the tree's nodes; otherwise what is left of the
-    budget for the search (a failed probe costs at most SMALL_TREE nodes, a few
-    milliseconds, and they count against its states and its seconds).
+    ``stats.extra["exhaustive"]`` = the tree's nodes; otherwise (a larger tree, or the
+    clock ran out) what is left of the budget for the search.
     """
-    if SMALL_TREE <= 0 or (budget.max_states is not None and budget.max_states < SMALL_TREE):
-        return Probe(None, budget, 0, 0.0)
     t0 = time.perf_counter()
-    small = Budget(budget.seconds_left(), SMALL_TREE, budget.max_memory)
-    out = enumerate_paths(space, small, give_up_past=SMALL_TREE)
+    limit = SMALL_TREE if budget.max_states is None else min(SMALL_TREE, budget.max_states)
+    if limit <= 0 or tree_size(space, limit) > limit:
+        return Probe(None, budget, 0, time.perf_counter() - t0)
+    out = enumerate_paths(space, budget)
     used, seconds = out.stats.states_expanded, time.perf_counter() - t0
     if out.stats.stopped == "finished":
         out.stats.engine = engine
         out.stats.extra["exhaustive"] = used
+        out.stats.seconds = seconds  # the count included
         return Probe(out, budget, used, seconds)
     states = None if budget.max_states is None else max(1, budget.max_states - used)
     return Probe(None, replace(budget, max_states=states), used, seconds)
 
 
-def _projected(bp: BoundProperty, step: int, width: int, parents: int) -> float:
-    """Nodes still to come below a level of ``width`` nodes at ``step``, if every later
-    window step branches as this one did (``width / parents``) and later steps do not."""
-    b = width / max(parents, 1)
-    branching = max(0, bp.u - step)
-    after = max(0, bp.end - max(bp.u, step))
-    grow = branching if b == 1.0 else (b ** (branching + 1) - b) / (b - 1)
-    return width * (grow + b**branching * after)
+def tree_size(space: Space, past: float = math.inf) -> float:
+    """The nodes of the tree of attacked paths (Algorithm 1's tree: one per path prefix),
+    counted without making them: the number of paths into each state, pushed forward
+    along the allowed transitions step by step; stops once the count passes ``past``
+    (then it is only a lower bound)."""
+    cm = space.cm
+    src, dst = cm.src[space.adj], cm.dst[space.adj]
+    inner = ~space.leaves()[src]  # a path ends at a leaf: nothing leaves it
+    src, dst = src[inner], dst[inner]
+    step = cm.step[src]
+    order = np.argsort(step, kind="stable")
+    src, dst, step = src[order], dst[order], step[order]
+    cuts = np.flatnonzero(np.diff(step)) + 1
+    count = np.zeros(cm.n_states)
+    count[space.root] = 1.0
+    total = 1.0
+    for s_block, d_block in zip(np.split(src, cuts), np.split(dst, cuts), strict=True):
+        into = count[s_block]
+        total += float(into.sum())
+        if total > past:
+            break
+        np.add.at(count, d_block, into)
+    return total
 
 
 def _unfold(space: Space, q: np.ndarray, budget: SearchBudget) -> str | None:
