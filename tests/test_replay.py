@@ -89,6 +89,26 @@ def test_replay_verb_agrees_with_verify_and_validates(verified: tuple) -> None:
     assert r.returncode == (1 if confirmed else 3)
 
 
+def test_replay_of_the_attacked_frames_alone_equals_a_pass_over_every_frame(
+    verified: tuple,
+) -> None:
+    """``replay(..., clean=...)`` (what verify does with its own perception: only the
+    attacked frames, each run of them after the 4 frames the front end needs, go through
+    the detector) gives the same replay objects as the pass over every frame."""
+    from lesmc.perception.attacks import AttackConfig
+    from lesmc.perception.cnn import load_nets
+    from lesmc.perception.run import PerceiveOptions, perceive
+    from lesmc.replay.run import replay
+    from lesmc.video.reader import open_frames
+
+    video, _, doc = verified
+    frames, nets = open_frames(str(video), 5), load_nets()
+    run = perceive(frames, PerceiveOptions(history=4, nets=nets, attack=AttackConfig()))
+    full = replay(doc, frames, nets)
+    sparse = replay(doc, frames, nets, clean={fd.index: fd for fd in run.detections})
+    assert full.replays and sparse.replays == full.replays
+
+
 def test_a_counterexample_that_the_tracker_does_not_follow_is_diverged(verified: tuple) -> None:
     """Constructed: the counterexample's recorded track is moved by 5 px from step 2 on; the
     replay must stop at step 2 and say the position differs."""

@@ -62,6 +62,7 @@ def enumerate_many(spaces: list[Space], budget: Budget | None = None) -> list[En
     done: list[list[tuple[int, np.ndarray, np.ndarray, np.ndarray]]] = [[] for _ in spaces]
     # finished paths per property: (level, node index, objective, constraint)
     stopped, transitions = "finished", 0
+    shared = {"tree_shared_by": len(spaces)} if len(spaces) > 1 else {}
     level = 0
     rate = 0.0  # seconds per expanded node of the last level
     while node.size:
@@ -95,17 +96,25 @@ def enumerate_many(spaces: list[Space], budget: Budget | None = None) -> list[En
         transitions += total
         level += 1
         rate = (time.perf_counter() - started) / max(int(live.size), 1)
-    outcomes = []
-    for i, s in enumerate(spaces):
-        stats = Stats(engine="enumerate", states_expanded=search.used, transitions=transitions)
-        stats.stopped = stopped  # type: ignore[assignment]
-        if len(spaces) > 1:
-            stats.extra["tree_shared_by"] = len(spaces)
-        all_obj, all_con, done_ref = _finished(done[i])
-        stats.paths = int(all_obj.size)
-        outcomes.append(_algorithm2(s, all_obj, all_con, done_ref, levels, stats))
-        stats.seconds = time.perf_counter() - t0
-    return outcomes
+    stats = [Stats("enumerate", search.used, transitions, extra=dict(shared)) for _ in spaces]
+    return [_outcome(s, done[i], levels, stats[i], stopped, t0) for i, s in enumerate(spaces)]
+
+
+def _outcome(
+    space: Space,
+    done: list[tuple[int, np.ndarray, np.ndarray, np.ndarray]],
+    levels: list[tuple[np.ndarray, np.ndarray]],
+    stats: Stats,
+    stopped: str,
+    t0: float,
+) -> EngineOutcome:
+    """One property's Algorithm 2 over the paths it finished on the shared tree."""
+    stats.stopped = stopped  # type: ignore[assignment]
+    all_obj, all_con, done_ref = _finished(done)
+    stats.paths = int(all_obj.size)
+    out = _algorithm2(space, all_obj, all_con, done_ref, levels, stats)
+    stats.seconds = time.perf_counter() - t0
+    return out
 
 
 def _nothing() -> None:

@@ -644,10 +644,7 @@ def replay(
     delta_bc = int(perception.get("delta_bc", delta_bc))
     fe = FrontEndConfig(history=history, blobs=BlobConfig(delta_bc=delta_bc))
     last = max(c.first_frame + len(c.positions) - 1 for c in todo)
-    by_frame: dict[int, list[tuple[int, Hidden]]] = {}
-    for ci, c in enumerate(todo):
-        for h in c.hidden:
-            by_frame.setdefault(h.frame, []).append((ci, h))
+    by_frame = _hidden_by_frame(todo)
     attacked: list[dict[int, FrameAttack]] = [{} for _ in todo]
 
     def attack(det: Any, out: FrontEndOutput, fd: FrameDetections) -> None:
@@ -672,6 +669,15 @@ def replay(
         _check_known(c, clean)
     replays = {(c.run, c.result): _replay_case(c, clean, attacked[ci]) for ci, c in enumerate(todo)}
     return Outcome(replays, time.monotonic() - t0)
+
+
+def _hidden_by_frame(todo: list[Case]) -> dict[int, list[tuple[int, Hidden]]]:
+    """Per frame, the detections the cases hide there: (case number, detection)."""
+    out: dict[int, list[tuple[int, Hidden]]] = {}
+    for ci, c in enumerate(todo):
+        for h in c.hidden:
+            out.setdefault(h.frame, []).append((ci, h))
+    return out
 
 
 def _all_frames(

@@ -88,7 +88,7 @@ def unattacked_taus(
     All tracks run in one batch through one tracker (the design computes the successors
     of a batch at once, tracking/design.py): each starts where ``track`` of a scene with
     that vehicle as its target would, and takes the same unattacked outcome at every
-    step (tests/test_verify.py compares with ``track`` vehicle by vehicle)."""
+    step (tests/test_false_alarms.py compares with ``track`` vehicle by vehicle)."""
     if not starts:
         return []
     base = scene.with_tracker(design=design)
