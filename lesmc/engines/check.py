@@ -7,8 +7,9 @@ from collections.abc import Callable, Iterable
 from typing import Any, Literal
 
 from lesmc.common.budget import Budget
+from lesmc.engines import enumerate as enum_engine
 from lesmc.engines.bnb import branch_and_bound
-from lesmc.engines.enumerate import enumerate_many, enumerate_paths, exhaustive_probe
+from lesmc.engines.enumerate import enumerate_many, enumerate_paths, exhaustive_probe, tree_size
 from lesmc.engines.lazy import LazySpace
 from lesmc.engines.levels import level_search
 from lesmc.engines.result import CheckResult, EngineOutcome, PathInfo, Verdict, path_info
@@ -228,6 +229,42 @@ def check_many(
             result.notes.extend(window_notes(model, space.bp))
         results.append(result)
     return results
+
+
+#: A shared enumeration tried for ``levels``/``bnb`` on a model unfolded on demand stops
+#: past this many tree nodes (then each property is searched on its own).
+SHARED_LAZY_TREE = 1 << 19
+
+
+def check_shared(
+    model: ArrayModel | GrowingModel,
+    bps: list[BoundProperty],
+    engine: EngineName,
+    budget: Budget,
+) -> list[CheckResult] | None:
+    """Properties that share their tree (a sweep's variants, robustness and resilience of
+    one window) in one walk of it (:func:`check_many`), for any engine: ``enumerate``
+    always; ``levels`` and ``bnb`` when the tree is small (on a whole model: counted,
+    at most enumerate.SMALL_TREE nodes; on one unfolded on demand: the walk finishes
+    within SHARED_LAZY_TREE nodes), the answers then marked ``exhaustive`` as their
+    probe's are. None: search each property on its own."""
+    if engine == "enumerate":
+        return check_many(model, bps, budget)
+    limit = enum_engine.SMALL_TREE if budget.max_states is None else budget.max_states
+    if isinstance(model, ArrayModel):
+        limit = min(limit, enum_engine.SMALL_TREE)
+        if tree_size(build_space(model, bps[0]), limit) > limit:
+            return None
+        tried = check_many(model, bps, budget)
+    else:
+        limit = min(limit, SHARED_LAZY_TREE)
+        tried = check_many(model, bps, Budget(budget.seconds_left(), limit, budget.max_memory))
+    if any(r.stats.stopped != "finished" for r in tried):
+        return None
+    for r in tried:
+        r.stats.engine = engine
+        r.stats.extra["exhaustive"] = r.stats.states_expanded
+    return tried
 
 
 def window_notes(model: ArrayModel, bp: BoundProperty) -> list[str]:

@@ -17,7 +17,7 @@ from collections.abc import Callable
 from dataclasses import replace
 
 from lesmc.common.budget import Budget
-from lesmc.engines.check import EngineName, check_bound, check_lazy, check_many
+from lesmc.engines.check import EngineName, check_bound, check_lazy, check_shared
 from lesmc.engines.enumerate import tree_key
 from lesmc.engines.interval import combine
 from lesmc.engines.result import CheckResult
@@ -55,19 +55,23 @@ def check_all(
     on_check: Callable[[BoundProperty], None],
 ) -> list[CheckResult]:
     """Every property of ``bound``, in order: :func:`check_payoffs` one by one, except that
-    with ``enumerate`` on attack payoffs the properties whose trees are the same
-    (enumerate.tree_key) are enumerated together, the tree walked once."""
+    on attack payoffs the properties whose trees are the same (enumerate.tree_key: a
+    sweep's variants, robustness and resilience of one window) are enumerated together,
+    the tree walked once, when the engine is ``enumerate`` or the tree is small
+    (engines.check.check_shared)."""
     results: dict[int, CheckResult] = {}
     groups: dict[tuple[object, ...], list[int]] = {}
     for i, bp in enumerate(bound):
         groups.setdefault(tree_key(bp), []).append(i)
     for idx in groups.values():
-        if engine == "enumerate" and mode == "attack" and len(idx) > 1:
+        if mode == "attack" and len(idx) > 1:
             for i in idx:
                 on_check(bound[i])
-            many = check_many(model_of("attack"), [bound[i] for i in idx], budget.for_check())
-            results.update(zip(idx, many, strict=True))
-            continue
+            bps = [bound[i] for i in idx]
+            many = check_shared(model_of("attack"), bps, engine, budget.for_check())
+            if many is not None:
+                results.update(zip(idx, many, strict=True))
+                continue
         for i in idx:
             on_check(bound[i])
             results[i] = check_payoffs(model_of, bound[i], mode, engine, budget, notes_of(bound[i]))
