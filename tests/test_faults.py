@@ -324,3 +324,29 @@ def test_a_fault_that_moves_the_track_alone_is_a_free_violation(tmp_path: Path) 
     r = doc["robustness+frozen"]
     assert r["verdict"] == "violated" and r["optimum"] == 0.0
     assert any(n.startswith("worst activation: frozen (F[x,vx] = 0 from step ") for n in r["notes"])
+
+
+def test_the_worst_activation_keeps_what_is_proven() -> None:
+    """Combining activations (pipeline.faults.worst): a violated one with an exact optimum
+    and an unknown one whose bounds reach lower: violated, but the least optimum is only
+    bounded, not known."""
+    from lesmc.engines.result import CheckResult, Stats
+    from lesmc.pipeline.faults import BoundFault, Strike, worst
+
+    def result(verdict: str, lower: float, upper: float, known: bool) -> CheckResult:
+        return CheckResult(
+            "p", verdict, upper if known else None, 3.0, ">", "payoff", "c", lower, upper,  # type: ignore[arg-type]
+            None, None, None, True, Stats("levels"), optimum_known=known,
+        )  # fmt: skip
+
+    from lesmc.language.properties import Fault
+
+    s = [Strike(BoundFault(Fault("a", "outage", length=1)), k) for k in (6, 7)]
+    r = worst("p+a", [([s[0]], result("violated", 2.0, 2.0, True)),
+                      ([s[1]], result("unknown", 1.0, 5.0, False))])  # fmt: skip
+    assert r.verdict == "violated" and (r.lower, r.upper) == (1.0, 2.0)
+    assert not r.optimum_known and r.optimum_json() == "unknown"
+    assert r.notes[0] == "worst activation: a (no measurement at step 6)"
+    both = worst("p+a", [([s[0]], result("holds", 4.0, 4.0, True)),
+                         ([s[1]], result("holds", 3.5, 3.5, True))])  # fmt: skip
+    assert both.verdict == "holds" and both.optimum == 3.5 and both.optimum_known

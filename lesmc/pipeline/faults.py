@@ -221,7 +221,7 @@ def worst(name: str, checks: list[tuple[list[Strike], CheckResult]]) -> CheckRes
         property=name,
         verdict=verdict,
         optimum=None if optimum is None or math.isinf(optimum) else optimum,
-        optimum_known=known or (verdict == "violated" and chosen.optimum_known),
+        optimum_known=known,  # a violation's cost alone is an upper bound of the least
         lower=lower,
         upper=upper,
         vacuous=verdict == "holds" and any(r.vacuous for r in results),

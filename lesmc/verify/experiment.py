@@ -515,17 +515,19 @@ def _replay_key(doc: dict[str, Any], src: _Source, todo: list[Any]) -> str | Non
         return None
     runs = []
     for i in sorted({c.run for c in todo}):
-        run = dict(doc["runs"][i])
+        run = {k: v for k, v in doc["runs"][i].items() if k != "faults"}  # not replayed
         run["results"] = [
             {k: v for k, v in r.items() if k not in ("stats", "certified_stats")}
             for r in run["results"]
         ]
         runs.append([i, run])
+    perception = doc.get("perception", {})
     return digest(
         {
             "code": code_digest("replay", "perception", "video", "tracking", "scene", "designs"),
             "frames": file_digests(src.frames.paths),
             "nets": file_digests(net_files(src.net_files)),
+            "settings": {k: perception.get(k) for k in ("history", "delta_bc", "attack")},
             "runs": runs,
             "cases": [[c.run, c.result] for c in todo],
         }
