@@ -44,6 +44,8 @@ class FrameDetections:
     from_prev: np.ndarray  # homography from the previous frame's pixels to this frame's
     n_candidates: int  # |Q_bc|
     n_accepted: int  # |Q_dr|
+    #: the rows of Q_bc that N_dr accepts, in the order of ``windows`` (None: not kept)
+    accepted: np.ndarray | None = None
 
 
 def dr_probability(nets: Nets, windows: np.ndarray, batch: int = 2048) -> np.ndarray:
@@ -140,6 +142,7 @@ class Detector:
             from_prev=out.registration.homography,
             n_candidates=len(cand),
             n_accepted=len(keep),
+            accepted=keep,
         )
 
     def _locate(

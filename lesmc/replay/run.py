@@ -354,7 +354,8 @@ def attack_frame(
     res = payoffs(nets.dr, fd.windows[blobs_used], nets.settings.delta_dr, cfg)
     by_blob = dict(zip(blobs_used, range(len(blobs_used)), strict=True))
     # the clean candidate centres of the blobs, where cut() took the windows
-    accepted = _accepted(det, out)  # candidate rows of Q_dr, in order
+    # candidate rows of Q_dr, in order: as the detection of this frame found them
+    accepted = fd.accepted if fd.accepted is not None else _accepted(det, out)
     assert len(accepted) == len(fd.windows)
     centres = out.candidates.centroid[accepted[blobs_used]]
     fa = FrameAttack(fd.index, hidden[0].step if hidden else 0, fd)

@@ -10,6 +10,7 @@ traffic, the bundled robustness and resilience specs, the paper's designs.
 from __future__ import annotations
 
 import dataclasses
+import functools
 import json
 import time
 from collections.abc import Callable
@@ -572,10 +573,14 @@ def _frame_reader(frames: FrameSet | None) -> Callable[[int], np.ndarray | None]
         return None
     fs = frames
 
+    @functools.lru_cache(maxsize=8)  # the report's figures read a few frames many times
     def read(index: int) -> np.ndarray | None:
         try:
-            return fs.read(index) if 0 <= index < len(fs) else None
+            img = fs.read(index) if 0 <= index < len(fs) else None
         except LesmcError:
             return None
+        if img is not None:
+            img.flags.writeable = False  # shared by the cache: never drawn on
+        return img
 
     return read
