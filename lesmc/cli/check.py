@@ -14,6 +14,7 @@ from lesmc.cli.options import (
     RegistryChoice,
     budget_from,
     budget_options,
+    faults_option,
     frames_option,
     payoffs_option,
     scene_target,
@@ -63,17 +64,7 @@ ENGINES = ("levels", "bnb", "enumerate")
     "or eps=V1,V2 (the constraint's bound), p=1,2,inf (the norm); repeatable (every "
     "combination). Variants are named NAME@eps=V.",
 )
-@click.option(
-    "--faults",
-    "faults_file",
-    type=click.Path(dir_okay=False),
-    default=None,
-    metavar="FILE",
-    help="For a scene: also check every property under the component failures of FILE's "
-    "faults block (Kalman matrix entries, sensor outages; docs/language.md, 'Faults'): one "
-    "result per combination of at most 'budget' faults, named NAME+FAULT, the activation "
-    "steps chosen by the adversary.",
-)
+@faults_option(" Scenes only.")
 @click.option("--no-paths", is_flag=True, help="Table output: omit the step-by-step paths.")
 @click.option(
     "--report",

@@ -295,6 +295,22 @@ def load_scene_file(
 
 
 #: ``--tracker FILE``: a tracker file replacing the scene's tracker block.
+def faults_option(extra: str = "") -> Callable[[F], F]:
+    """``--faults FILE``: component failures (docs/language.md, "Faults"), for ``check``
+    and ``verify``; ``extra`` ends the help text."""
+    return click.option(
+        "--faults",
+        "faults_file",
+        type=click.Path(dir_okay=False),
+        default=None,
+        metavar="FILE",
+        help="Also check every property under the component failures of FILE's faults "
+        "block (Kalman matrix entries, sensor outages; docs/language.md, 'Faults'): one "
+        "result per combination of at most 'budget' faults, named NAME+FAULT, the "
+        "activation steps chosen by the adversary." + extra,
+    )
+
+
 tracker_option = click.option(
     "--tracker",
     "tracker_file",

@@ -14,6 +14,7 @@ from lesmc.cli.options import (
     budget_from,
     budget_options,
     designs_option,
+    faults_option,
     frames_option,
     nets_option,
     network_options,
@@ -79,16 +80,7 @@ if TYPE_CHECKING:
     "models can hide (about a second each; `perceive --certify` certifies them all)."
 )
 @tracker_option
-@click.option(
-    "--faults",
-    "faults_file",
-    type=click.Path(dir_okay=False),
-    default=None,
-    metavar="FILE",
-    help="Also check every property under the component failures of FILE's faults block "
-    "(docs/language.md, 'Faults'), for every design; the report shows which faults break "
-    "which design.",
-)
+@faults_option(" The report shows which faults break which design.")
 @click.option("--json", "as_json", is_flag=True, help="Print results.json on stdout.")
 @budget_options(
     DEFAULT_MAX_STATES,
