@@ -7,7 +7,9 @@ It reads the LTS object (not lesmc's compiled arrays) and recomputes Eq. 4, 5,
 from __future__ import annotations
 
 import math
+from collections.abc import Iterator
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 
@@ -20,6 +22,19 @@ class BruteResult:
     optimum: float  # +inf when no path violates
     witness_value: float | None
     paths: list[tuple[list[str], float, float]]  # (states, objective, constraint)
+
+
+def every_path(model: LTS) -> Iterator[list[Any]]:
+    """Every complete path of ``model`` from its initial state, as its transitions."""
+
+    def walk(q: str, acc: list[Any]) -> Iterator[list[Any]]:
+        out = model.out(q)
+        if not out:
+            yield acc
+        for t in out:
+            yield from walk(t.dst, [*acc, t])
+
+    return walk(model.initial, [])
 
 
 def brute_force(

@@ -82,14 +82,16 @@ def _spec(params: tuple, bound: float) -> str:
     )
 
 
-def _bound_property(model, params, quantile):  # type: ignore[no-untyped-def]
-    """Pick the constraint threshold among the values that occur, so both P+ and P− are used."""
+def _bound_property(model, params, quantile, names=None, tracks=None):  # type: ignore[no-untyped-def]
+    """Pick the constraint threshold among the values that occur, so both P+ and P− are used
+    (``names``, ``tracks``: ground-truth tracks' components and positions, for dist.nearest)."""
     spec = parse_spec(_spec(params, 0.0))
-    bp = bind(spec, spec.properties[0], model.end, model.components, True)
-    values = sorted(v for _, _, v in brute_force(model, bp).paths if math.isfinite(v)) or [0.0]
+    bp = bind(spec, spec.properties[0], model.end, model.components, True, names)
+    paths = brute_force(model, bp, tracks=tracks).paths
+    values = sorted(v for _, _, v in paths if math.isfinite(v)) or [0.0]
     threshold = values[min(int(quantile * len(values)), len(values) - 1)]
     spec = parse_spec(_spec(params, threshold))
-    return bind(spec, spec.properties[0], model.end, model.components, True)
+    return bind(spec, spec.properties[0], model.end, model.components, True, names)
 
 
 @settings(max_examples=300, deadline=None, suppress_health_check=[HealthCheck.too_slow])
@@ -171,17 +173,15 @@ def test_count_objectives_equal_brute_force(case: tuple) -> None:
             assert r.optimum == truth.optimum, engine
 
 
-@st.composite
-def trend_cases(draw: st.DrawFn) -> tuple:
-    """Random models with covariances and a property whose objective or constraint is
-    ``tau.rise(a..b)`` (issue 30: the trend of section 9.1), with or without the monitor."""
+def _model_and_window(draw: st.DrawFn, covariance: bool) -> tuple:
+    """A small random model (tree or DAG, halting sometimes) and a window l..u, end."""
     cfg = RandomModelConfig(
         steps=draw(st.integers(2, 6)),
         width=draw(st.integers(1, 4)),
         branching=(1, draw(st.integers(1, 3))),
         dim=draw(st.integers(1, 3)),
         halt_prob=draw(st.sampled_from([0.0, 0.2])),
-        covariance=True,
+        covariance=covariance,
         tree=draw(st.booleans()),
         integer_values=draw(st.booleans()),
     )
@@ -189,7 +189,14 @@ def trend_cases(draw: st.DrawFn) -> tuple:
     e = model.end
     l = draw(st.integers(1, e))
     u = draw(st.integers(l, e))
-    end = draw(st.integers(u, e))
+    return model, l, u, draw(st.integers(u, e))
+
+
+@st.composite
+def trend_cases(draw: st.DrawFn) -> tuple:
+    """Random models with covariances and a property whose objective or constraint is
+    ``tau.rise(a..b)`` (issue 30: the trend of section 9.1), with or without the monitor."""
+    model, l, u, end = _model_and_window(draw, covariance=True)
     a = draw(st.integers(1, end))
     b = draw(st.integers(a, end))
     trend = f"tau.rise({a}..{b})"
@@ -205,8 +212,7 @@ def trend_cases(draw: st.DrawFn) -> tuple:
 @given(trend_cases())
 def test_trend_measure_equals_brute_force(case: tuple) -> None:
     """``tau.rise(a..b)`` as objective or constraint: every engine's optimum equals the brute
-    force's, which takes τ from each state's P (tests/oracle.py), and so does every path's
-    constraint value as the engines compute it."""
+    force's, which takes τ from each state's P (tests/oracle.py)."""
     model, params, quantile = case
     bp = _bound_property(model, params, quantile)
     assert bp.tau_components is not None
@@ -225,21 +231,7 @@ def test_trend_measure_equals_brute_force(case: tuple) -> None:
 def nearest_cases(draw: st.DrawFn) -> tuple:
     """Random models with ground-truth tracks (random positions near the states, absent at
     random steps) and a property with ``dist.nearest(k)`` as objective or constraint."""
-    cfg = RandomModelConfig(
-        steps=draw(st.integers(2, 6)),
-        width=draw(st.integers(1, 4)),
-        branching=(1, draw(st.integers(1, 3))),
-        dim=draw(st.integers(1, 3)),
-        halt_prob=draw(st.sampled_from([0.0, 0.2])),
-        covariance=False,
-        tree=draw(st.booleans()),
-        integer_values=draw(st.booleans()),
-    )
-    model = random_lts(cfg, draw(st.integers(0, 2**31)))
-    e = model.end
-    l = draw(st.integers(1, e))
-    u = draw(st.integers(l, e))
-    end = draw(st.integers(u, e))
+    model, l, u, end = _model_and_window(draw, covariance=False)
     k = draw(st.integers(0, end))
     near = f"dist.nearest({k})"
     other = draw(st.sampled_from(["payoff", "count", f"dist.max(0..{end})", near]))
@@ -250,8 +242,8 @@ def nearest_cases(draw: st.DrawFn) -> tuple:
     seed = draw(st.integers(0, 2**31))
     rng = np.random.default_rng(seed)
     n_tracks = draw(st.integers(0, 3))
-    at = rng.normal(scale=3.0, size=(n_tracks, e + 1, used))
-    at[rng.random((n_tracks, e + 1)) < 0.3] = np.nan
+    at = rng.normal(scale=3.0, size=(n_tracks, model.end + 1, used))
+    at[rng.random((n_tracks, model.end + 1)) < 0.3] = np.nan
     at[:, 0] = rng.normal(size=(n_tracks, used))  # present at least once
     names = model.components[:used]
     on = ", ".join(names)
@@ -268,12 +260,7 @@ def test_nearest_track_measure_equals_brute_force(case: tuple) -> None:
 
     model, params, quantile, names, at = case
     ids = tuple(f"g{i}" for i in range(len(at)))
-    spec = parse_spec(_spec(params, 0.0))
-    bp = bind(spec, spec.properties[0], model.end, model.components, True, names)
-    values = sorted(v for _, _, v in brute_force(model, bp, tracks=at).paths if math.isfinite(v))
-    values = values or [0.0]
-    spec = parse_spec(_spec(params, values[min(int(quantile * len(values)), len(values) - 1)]))
-    bp = bind(spec, spec.properties[0], model.end, model.components, True, names)
+    bp = _bound_property(model, params, quantile, names, at)
     truth = brute_force(model, bp, tracks=at)
     cm = to_arrays(model)
     cm.tracks = Tracks(names, ids, at)

@@ -17,7 +17,7 @@ pytest.importorskip("stonesoup")
 
 from cli_run import lesmc
 from kf_reference import reference_filter
-from oracle import brute_force
+from oracle import brute_force, every_path
 from stonesoup_oracle import random_model, simulated_scene
 
 from lesmc.build.unfold import build_model
@@ -76,15 +76,8 @@ def test_every_path_under_faults_equals_filterpy_switching_its_matrices() -> Non
                     M[i, j] = M[i, j] * f["value"] if f["op"] == "*" else f["value"]
         return out
 
-    def paths(q, acc):  # type: ignore[no-untyped-def]
-        out = model.out(q)
-        if not out:
-            yield acc
-        for t in out:
-            yield from paths(t.dst, [*acc, t])
-
     count = updates_after_h = 0
-    for path in paths(model.initial, []):
+    for path in every_path(model):
         kf = reference_filter(m, np.array([*scene.target.start, 0, 0]))
         for k, t in enumerate(path, start=1):
             mk = mats_at(k)

@@ -11,6 +11,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 from kf_reference import reference_filter
+from oracle import every_path
 
 from lesmc.build.unfold import build_model
 from lesmc.common.errors import InputError
@@ -106,15 +107,8 @@ def test_every_attacked_path_equals_filterpy_replaying_its_observations() -> Non
     m = matrices(scene.tracker, scene.dt)
     ids = {d.id: (d.x, d.y) for fr in scene.frames for d in fr.detections}
 
-    def paths(q, acc):  # type: ignore[no-untyped-def]
-        out = model.out(q)
-        if not out:
-            yield acc
-        for t in out:
-            yield from paths(t.dst, [*acc, t])
-
     count = 0
-    for path in paths(model.initial, []):
+    for path in every_path(model):
         kf = reference_filter(m, np.array([*scene.target.start, 0, 0]))
         for t in path:
             kf.predict()

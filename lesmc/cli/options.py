@@ -294,7 +294,6 @@ def load_scene_file(
     return load_scene(path, target, design, tracker)
 
 
-#: ``--tracker FILE``: a tracker file replacing the scene's tracker block.
 def faults_option(extra: str = "") -> Callable[[F], F]:
     """``--faults FILE``: component failures (docs/language.md, "Faults"), for ``check``
     and ``verify``; ``extra`` ends the help text."""
@@ -311,6 +310,7 @@ def faults_option(extra: str = "") -> Callable[[F], F]:
     )
 
 
+#: ``--tracker FILE``: a tracker file replacing the scene's tracker block.
 tracker_option = click.option(
     "--tracker",
     "tracker_file",

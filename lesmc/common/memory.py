@@ -4,7 +4,7 @@ Perception and replay allocate and free large arrays for every frame (tensors of
 the attack, aligned images). glibc's allocator keeps what was freed inside its
 heap, so a process that perceives 24 frames of 2048x2048 grew to 1.3 GB although
 it held under 50 MB of arrays at any time (docs/performance.md). ``malloc_trim``
-returns the free pages; it costs a few milliseconds, once per frame. On a C
+returns the free pages; it costs 25-60 ms a frame on the default video. On a C
 library without it (macOS, musl) :func:`release` does nothing.
 """
 

@@ -215,11 +215,21 @@ def check_many(
 ) -> list[CheckResult]:
     """Properties whose trees are the same (enumerate.tree_key) by ``enumerate`` with one
     walk of the tree (enumerate.enumerate_many): the results of checking each alone."""
-    spaces: list[Any] = [
-        LazySpace(model, bp) if isinstance(model, GrowingModel) else build_space(model, bp)
-        for bp in bps
-    ]
-    outs = enumerate_many(spaces, budget or Budget())
+    return _walk_once(model, _spaces(model, bps), budget or Budget())
+
+
+def _spaces(model: ArrayModel | GrowingModel, bps: list[BoundProperty]) -> list[Any]:
+    """Each property's search space on ``model`` (explicit or unfolded on demand)."""
+    if isinstance(model, GrowingModel):
+        return [LazySpace(model, bp) for bp in bps]
+    return [build_space(model, bp) for bp in bps]
+
+
+def _walk_once(
+    model: ArrayModel | GrowingModel, spaces: list[Any], budget: Budget
+) -> list[CheckResult]:
+    """:func:`check_many` on spaces already built."""
+    outs = enumerate_many(spaces, budget)
     results = []
     for space, out in zip(spaces, outs, strict=True):
         if isinstance(model, GrowingModel):
@@ -253,9 +263,10 @@ def check_shared(
     limit = enum_engine.SMALL_TREE if budget.max_states is None else budget.max_states
     if isinstance(model, ArrayModel):
         limit = min(limit, enum_engine.SMALL_TREE)
-        if tree_size(build_space(model, bps[0]), limit) > limit:
+        spaces = _spaces(model, bps)  # built once: counted, then walked
+        if tree_size(spaces[0], limit) > limit:
             return None
-        tried = check_many(model, bps, budget)
+        tried = _walk_once(model, spaces, budget)
     else:
         limit = min(limit, SHARED_LAZY_TREE)
         tried = check_many(model, bps, Budget(budget.seconds_left(), limit, budget.max_memory))

@@ -17,6 +17,7 @@ empties it.
 
 from __future__ import annotations
 
+import functools
 import hashlib
 import json
 from collections.abc import Iterable
@@ -39,19 +40,29 @@ def digest(value: Any) -> str:
 
 
 def file_digests(paths: Iterable[Path]) -> list[list[str]]:
-    """Each file's name and the SHA-256 of its bytes."""
+    """Each file's name and the SHA-256 of its bytes (read once per run while the file's
+    size and modification time stay the same: perception and replay key on the frames)."""
     out = []
     for p in paths:
-        h = hashlib.sha256()
-        with open(p, "rb") as fh:
-            for block in iter(lambda: fh.read(1 << 20), b""):
-                h.update(block)
-        out.append([p.name, h.hexdigest()])
+        st = p.stat()
+        out.append([p.name, _sha256(str(p), st.st_size, st.st_mtime_ns)])
     return out
 
 
+@functools.lru_cache(maxsize=4096)
+def _sha256(path: str, size: int, mtime_ns: int) -> str:
+    """The SHA-256 of a file's bytes (``size`` and ``mtime_ns`` key the memo)."""
+    h = hashlib.sha256()
+    with open(path, "rb") as fh:
+        for block in iter(lambda: fh.read(1 << 20), b""):
+            h.update(block)
+    return h.hexdigest()
+
+
+@functools.cache
 def code_digest(*packages: str) -> str:
-    """SHA-256 of the Python sources of lesmc's ``packages`` (e.g. ``perception``)."""
+    """SHA-256 of the Python sources of lesmc's ``packages`` (e.g. ``perception``): the
+    code does not change while lesmc runs, so once per process."""
     h = hashlib.sha256()
     for name in packages:
         for p in sorted((PACKAGE / name).rglob("*.py")):
