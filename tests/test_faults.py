@@ -25,27 +25,54 @@ from lesmc.language.parser import parse_spec
 from lesmc.model.lts import to_lts
 from lesmc.pipeline.check import run
 from lesmc.pipeline.job import Job
-from lesmc.scene import Frame, Scene, load_scene, scene_from_dict
+from lesmc.scene import Detection, Frame, Scene, load_scene, scene_from_dict
 from lesmc.scene.tracker_model import EntryFault
 from lesmc.tracking.kalman import matrices
 
 SCENES = Path(__file__).parent / "scenes"
 
 
-def oracle_variant(scene: Scene, strikes: list[tuple[dict[str, Any], int]]) -> Scene:
+def oracle_variant(
+    scene: Scene, strikes: list[tuple[dict[str, Any], int]], perceived: Any = None
+) -> Scene:
     """The faulty system, built here from the fault's definition: failed entries from their
-    frame on, no detections in an outage's frames."""
-    entries, dark = [], set()
+    frame on, no detections in an outage's frames, and a frame's detections those of the
+    run of the neuron faults active at it (``perceived[names][step]``)."""
+    entries, dark, since = [], set(), {}
     for f, s in strikes:
         frame = scene.target.step + s
         if f["kind"] == "outage":
             dark.update(range(frame, frame + f["length"]))
+        elif f["kind"] == "neuron":
+            since[f["name"]] = frame
         else:
             entries.append(EntryFault(f["matrix"], f["i"], f["j"], f["op"], f["value"], frame))
-    frames = tuple(
-        Frame(fr.step, () if fr.step in dark else fr.detections, fr.to_next) for fr in scene.frames
-    )
+
+    def detections(fr: Frame) -> Any:
+        if fr.step in dark:
+            return ()
+        active = frozenset(n for n, k in since.items() if fr.step >= k)
+        return perceived[active][fr.step].detections if active else fr.detections
+
+    frames = tuple(Frame(fr.step, detections(fr), fr.to_next) for fr in scene.frames)
     return replace(scene, frames=frames, tracker=replace(scene.tracker, faults=tuple(entries)))
+
+
+def random_perception(rng: np.random.Generator, scene: Scene) -> dict[int, Frame]:
+    """A faulty detector's frames: each detection kept or missed, moved a little, its
+    payoff scaled; now and then a new detection near one."""
+    out = {}
+    for fr in scene.frames:
+        dets = []
+        for i, d in enumerate(fr.detections):
+            if rng.random() < 0.25:
+                continue
+            x, y = d.x + rng.normal(0, 2), d.y + rng.normal(0, 2)
+            dets.append(Detection(f"{fr.step}:n{i}", x, y, d.payoff * rng.uniform(0.3, 2.0)))
+            if rng.random() < 0.15:
+                dets.append(Detection(f"{fr.step}:m{i}", x + 3, y - 2, rng.uniform(0.1, 3.0)))
+        out[fr.step] = Frame(fr.step, tuple(dets), fr.to_next)
+    return out
 
 
 def test_every_path_under_faults_equals_filterpy_switching_its_matrices() -> None:
@@ -119,9 +146,12 @@ def _random_faults(rng: np.random.Generator, names: tuple[str, ...]) -> list[dic
     d = len(names)
     out: list[dict[str, Any]] = []
     for n in range(int(rng.integers(1, 4))):
-        kind = str(rng.choice(["F", "H", "Q", "R", "outage"]))
+        kind = str(rng.choice(["F", "H", "Q", "R", "outage", "neuron"]))
         f: dict[str, Any] = {"name": f"f{n}"}
-        if kind == "outage":
+        if kind == "neuron":  # its frames: random_perception
+            f.update(kind="neuron")
+            text = f"neuron detector[0, {n}] = max"
+        elif kind == "outage":
             f.update(kind="outage", length=int(rng.integers(1, 3)))
             text = f"outage {f['length']}"
         else:
@@ -147,7 +177,7 @@ def _random_faults(rng: np.random.Generator, names: tuple[str, ...]) -> list[dic
 
 
 def _oracle_optimum(
-    scene: Scene, faults: list[dict[str, Any]], combo: list[str], spec_text: str
+    scene: Scene, faults: list[dict[str, Any]], combo: list[str], spec_text: str, perceived: Any
 ) -> float:
     """The least brute-force optimum over every activation of the faults named ``combo``,
     deviations against the fault-free unattacked track."""
@@ -159,7 +189,7 @@ def _oracle_optimum(
     best = math.inf
     steps = [range(*f["steps"]) if "steps" in f else range(1, 4) for f in chosen]
     for when in itertools.product(*steps):
-        variant = oracle_variant(scene, list(zip(chosen, when, strict=True)))
+        variant = oracle_variant(scene, list(zip(chosen, when, strict=True)), perceived)
         model = build_model(variant, (1, 3), 4)
         bp = bind_all(model, [parse_spec(spec_text)])[0]
         best = min(best, brute_force(to_lts(model), bp, reference).optimum)
@@ -168,7 +198,8 @@ def _oracle_optimum(
 
 def test_optima_under_faults_equal_brute_force() -> None:
     """200 random scenes, trackers (cv2d, ca2d, random models; single and joint designs),
-    faults and budgets (1 or 2): every NAME+FAULT optimum and verdict equals the least
+    faults (matrix entries, outages, stuck neurons with a random faulty perception per set
+    of them) and budgets (1 or 2): every NAME+FAULT optimum and verdict equals the least
     brute-force optimum over every activation of those faults."""
     cases = compared = violated = 0
     engines = ("levels", "bnb", "enumerate")
@@ -196,7 +227,17 @@ def test_optima_under_faults_equal_brute_force() -> None:
         lines = "\n  ".join(f["text"] for f in faults)
         block = f"faults {{\n  budget {budget}\n  {lines}\n}}\n"
         spec = parse_spec(spec_text + block)
-        results = run(Job((spec,), scene=scene, faults=spec.faults, engine=engines[seed % 3]))
+        neurons = [f["name"] for f in faults if f["kind"] == "neuron"]
+        perceived = {
+            frozenset(names): random_perception(rng, scene)
+            for size in range(1, budget + 1)
+            for names in itertools.combinations(neurons, size)
+        }
+        job = Job(
+            (spec,), scene=scene, faults=spec.faults, engine=engines[seed % 3],
+            neuron_frames=perceived,
+        )  # fmt: skip
+        results = run(job)
         got = {
             bp.name: r
             for run_ in results.runs
@@ -209,7 +250,7 @@ def test_optima_under_faults_equal_brute_force() -> None:
         }
         assert set(got) == {"p"} | want_names
         for name in sorted(want_names):
-            want = _oracle_optimum(scene, faults, name.split("+")[1:], spec_text)
+            want = _oracle_optimum(scene, faults, name.split("+")[1:], spec_text, perceived)
             r = got[name]
             if math.isinf(want):
                 assert r.optimum is None and r.verdict == "holds", (seed, name)
@@ -227,7 +268,7 @@ BAD_FAULTS = [
     ("fault a: Q[vz, x] * 2", "3:9", "Q has no row 'vz'; its rows are x, y, vx, vy"),
     ("fault a: H[2, x] * 2", "3:9", "H has 2 rows (0..1): row 2 is out of range"),
     ("fault a: R[x, 5] = 1", "3:9", "R has 2 columns (0..1): column 5 is out of range"),
-    ("fault a: G[1, x] * 2", "3:12", "unexpected 'G'; expected 'outage' or a matrix"),
+    ("fault a: G[1, x] * 2", "3:12", "unexpected 'G'; expected 'neuron', 'outage' or a matrix"),
     ("fault a: outage 0", "3:12", "an outage lasts at least 1 step"),
     ("fault a: outage 1 from 2..4", "3:9", "activation steps 2..4 must lie within steps 6..19"),
     ("fault a: F[x, x] * 1e300", "3:9", "a fault's value must lie within ±1e+12, got 1e+300"),

@@ -163,6 +163,27 @@ def test_store_round_trip_and_digest_ignores_padding() -> None:
     assert not np.array_equal(digest(other)[0], digest(js)[0])
 
 
+def test_comparing_states_pads_tracks_of_any_dimension() -> None:
+    """A constant-acceleration tracker's states (d = 6) compared across batches of different
+    widths: the padding has the states' own dimension (it was fixed at 4, the CV model's;
+    found by the fault tests' joint ca2d cases)."""
+    from lesmc.tracking.joint import _same_as
+
+    rng = np.random.default_rng(5)
+    d = 6
+    tracks = rng.normal(size=(3, 1, d))
+    narrow = JointStates(tracks, np.zeros((3, 1), np.int64), np.ones(3, np.int64),
+                         np.zeros((3, 0, 2)), np.zeros(3, np.int64))  # fmt: skip
+    wide = JointStates(np.concatenate([tracks, np.zeros((3, 2, d))], axis=1),
+                       np.zeros((3, 3), np.int64), np.ones(3, np.int64), np.zeros((3, 1, 2)),
+                       np.zeros(3, np.int64))  # fmt: skip
+    assert _same_as(narrow, wide, np.arange(3))
+    assert not _same_as(narrow, wide, np.array([1, 0, 2]))
+    store = JointStore()
+    store.extend(wide)
+    assert store.take(np.zeros(0, np.int64)).tracks.shape == (0, 1, d)
+
+
 @pytest.mark.parametrize("by_table", [False, True])
 def test_store_gathers_small_batches(monkeypatch: pytest.MonkeyPatch, by_table: bool) -> None:
     """Many tiny batches (a search expanding a few states at a time) and big ones: every

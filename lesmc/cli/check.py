@@ -64,7 +64,7 @@ ENGINES = ("levels", "bnb", "enumerate")
     "or eps=V1,V2 (the constraint's bound), p=1,2,inf (the norm); repeatable (every "
     "combination). Variants are named NAME@eps=V.",
 )
-@faults_option(" Scenes only.")
+@faults_option(" Scenes only; neuron faults need lesmc verify on the video.")
 @click.option("--no-paths", is_flag=True, help="Table output: omit the step-by-step paths.")
 @click.option(
     "--report",

@@ -304,7 +304,8 @@ def faults_option(extra: str = "") -> Callable[[F], F]:
         default=None,
         metavar="FILE",
         help="Also check every property under the component failures of FILE's faults "
-        "block (Kalman matrix entries, sensor outages; docs/language.md, 'Faults'): one "
+        "block (Kalman matrix entries, sensor outages, detector neurons stuck; "
+        "docs/language.md, 'Faults'): one "
         "result per combination of at most 'budget' faults, named NAME+FAULT, the "
         "activation steps chosen by the adversary." + extra,
     )

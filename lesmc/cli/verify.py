@@ -80,7 +80,10 @@ if TYPE_CHECKING:
     "models can hide (about a second each; `perceive --certify` certifies them all)."
 )
 @tracker_option
-@faults_option(" The report shows which faults break which design.")
+@faults_option(
+    " The report shows which faults break which design. A neuron fault perceives the video "
+    "again with the unit stuck (once per set of them, kept in OUT/cache)."
+)
 @click.option("--json", "as_json", is_flag=True, help="Print results.json on stdout.")
 @budget_options(
     DEFAULT_MAX_STATES,

@@ -61,6 +61,7 @@ _TERMINAL_NAMES = {
     "CMP": "a comparison (>, >=, <, <=)",
     "MATRIX": "a matrix (F, H, Q or R)",
     "FAULT_OP": "'*' (scale) or '=' (set)",
+    "NET": "a network (detector or locator)",
     "HOLDS_CMP": "'>' or '>='",
     "NORM": "1, 2 or inf",
     "END": "'end'",
@@ -362,6 +363,8 @@ class _Builder:
             if length < 1:
                 raise self.error("an outage lasts at least 1 step", _pos(kind))
             return Fault(str(name_tok), "outage", length=length, steps=steps, pos=pos)
+        if kind.data == "neuron_fault":
+            return self.neuron(str(name_tok), kind, steps, pos)
         matrix, row, col, op, value = kind.children
         return Fault(
             str(name_tok),
@@ -371,6 +374,32 @@ class _Builder:
             col=self.index(col),
             op=str(op),  # type: ignore[arg-type]
             value=self.number(value, "fault value"),
+            steps=steps,
+            pos=pos,
+        )
+
+    def neuron(
+        self, name: str, node: Tree[Any], steps: tuple[int, StepRef] | None, pos: Pos
+    ) -> Fault:
+        """``neuron detector[L, U] = c`` (or ``= max``): hidden unit U of layer L stuck."""
+        net, layer, unit, value = node.children
+        at_max = isinstance(value, Tree) and value.data == "stuck_max"
+        stuck = 0.0 if at_max else self.number(value, "stuck value")
+        if stuck < 0:
+            raise self.error(
+                f"a stuck unit's value must be at least 0 (its ReLU never outputs less), "
+                f"got {stuck:g}",
+                _pos(value),
+            )
+        return Fault(
+            name,
+            "neuron",
+            net=str(net),
+            row=self.whole(layer),
+            col=self.whole(unit),
+            op="=",
+            value=stuck,
+            at_max=at_max,
             steps=steps,
             pos=pos,
         )

@@ -143,18 +143,23 @@ class Fault:
     or component names, checked against the tracker when bound. ``outage``: no
     measurement reaches the tracker for ``length`` consecutive steps from the
     activation step (a sensor outage; a detector that answers nothing for a frame is
-    ``outage 1``). ``steps``: the activation steps the adversary chooses from (None:
+    ``outage 1``). ``neuron``: hidden unit ``col`` of hidden layer ``row`` of the
+    network ``net`` (``detector``: N_dr, ``locator``: N_lp) outputs ``value``, or the
+    largest value it takes on the video's windows (``at_max``), from the activation
+    step's frame on. ``steps``: the activation steps the adversary chooses from (None:
     the attack window of the property checked).
     """
 
     name: str
-    kind: Literal["matrix", "outage"]
+    kind: Literal["matrix", "outage", "neuron"]
     matrix: str = ""
     row: int | str = 0
     col: int | str = 0
     op: FaultOp = "*"
     value: float = 1.0
     length: int = 0
+    net: str = ""
+    at_max: bool = False
     steps: tuple[int, StepRef] | None = None
     pos: Pos = field(default=Pos(0, 0), compare=False)
 
@@ -162,6 +167,9 @@ class Fault:
         """The fault as it is written in the language (without its name and steps)."""
         if self.kind == "outage":
             return f"outage {self.length}"
+        if self.kind == "neuron":
+            stuck = "max" if self.at_max else _num(self.value)
+            return f"neuron {self.net}[{self.row},{self.col}] = {stuck}"
         return f"{self.matrix}[{self.row},{self.col}] {self.op} {_num(self.value)}"
 
 

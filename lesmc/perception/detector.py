@@ -18,6 +18,7 @@ from scipy.spatial import cKDTree
 
 from lesmc.perception.cnn import DR_SIZE, LP_SIZE, LP_STRIDE, Nets
 from lesmc.perception.frontend import FrontEnd, FrontEndConfig, FrontEndOutput
+from lesmc.perception.neurons import UnitMaxima
 from lesmc.perception.windows import cut, origins, stack
 
 
@@ -108,6 +109,8 @@ class Detector:
         if self.cfg.frontend.history < nets.settings.m:
             raise ValueError(f"history L={self.cfg.frontend.history} < m={nets.settings.m}")
         self.frontend = FrontEnd(self.cfg.frontend)
+        #: each hidden unit's largest value on the windows scored (a stuck-at-max fault's)
+        self.maxima = UnitMaxima(nets)
 
     def push(self, frame: np.ndarray) -> tuple[FrontEndOutput, FrameDetections] | None:
         out = self.frontend.push(frame)
@@ -121,7 +124,9 @@ class Detector:
         frames = stack(out.frame, out.aligned.frames, nets.settings.m)
         cand = out.candidates
         win = cut(frames, cand.centroid, DR_SIZE)
-        keep = np.flatnonzero(dr_probability(nets, win, cfg.batch) > nets.settings.delta_dr)
+        with self.maxima.recording():
+            probability = dr_probability(nets, win, cfg.batch)
+        keep = np.flatnonzero(probability > nets.settings.delta_dr)
         cents, boxes, win = cand.centroid[keep], cand.box[keep], win[keep]
         crowded = crowded_blobs(cents, boxes, cfg.big_px, cfg.close_px)
         pos: list[np.ndarray] = [cents[~crowded]]
@@ -149,7 +154,8 @@ class Detector:
         self, frames: list[np.ndarray], cents: np.ndarray, boxes: np.ndarray, rows: np.ndarray
     ) -> tuple[np.ndarray, np.ndarray]:
         """N_lp peaks inside each crowded blob's box (3 px margin), merged across blobs."""
-        maps = lp_maps(self.nets, cut(frames, cents, LP_SIZE))
+        with self.maxima.recording():
+            maps = lp_maps(self.nets, cut(frames, cents, LP_SIZE))
         org = origins(cents, LP_SIZE)
         found: list[tuple[float, float, float, int]] = []
         for i, pk in enumerate(peaks(maps, self.nets.settings.delta_lp)):

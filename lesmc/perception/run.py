@@ -5,7 +5,7 @@ The Python API behind ``lesmc perceive``; the CLI only parses options and prints
 
 from __future__ import annotations
 
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field, replace
 from typing import Any
 
@@ -19,8 +19,8 @@ from lesmc.perception.blobs import BlobConfig
 from lesmc.perception.certify import CertifyConfig
 from lesmc.perception.cnn import DR_SIZE, Nets
 from lesmc.perception.detector import Detector, DetectorConfig, FrameDetections
-from lesmc.perception.frontend import FrontEnd, FrontEndConfig
-from lesmc.perception.quality import Score, Truth, care_mask, score
+from lesmc.perception.frontend import FrontEnd, FrontEndConfig, FrontEndOutput
+from lesmc.perception.quality import Score, Truth, TruthFrame, care_mask, score
 from lesmc.perception.registration import RegistrationError
 from lesmc.video.reader import FrameSet
 
@@ -54,6 +54,9 @@ class PerceiveRun:
     frontend_total: Score = ZERO
     detector_total: Score = ZERO
     unattackable: int = 0
+    #: per network ("detector", "locator"), per hidden layer, each unit's largest value
+    #: on the windows scored (lesmc/perception/neurons.py; empty without the CNNs)
+    unit_max: dict[str, list[np.ndarray]] = field(default_factory=dict)
 
 
 def perceive(
@@ -63,12 +66,26 @@ def perceive(
     on_frame: Callable[[], None] | None = None,
 ) -> PerceiveRun:
     """Run the detector over every frame; score against ``truth`` when given."""
-    fe_cfg = FrontEndConfig(history=opts.history, blobs=BlobConfig(delta_bc=opts.delta_bc))
-    det = Detector(opts.nets, DetectorConfig(frontend=fe_cfg)) if opts.nets else None
-    fe = det.frontend if det else FrontEnd(fe_cfg)
-    run = PerceiveRun()
+    return perceive_all(frames, [opts], truth, on_frame)[0]
+
+
+def perceive_all(
+    frames: FrameSet,
+    runs: Sequence[PerceiveOptions],
+    truth: Truth | None = None,
+    on_frame: Callable[[], None] | None = None,
+) -> list[PerceiveRun]:
+    """:func:`perceive` with several detectors (say, networks with different stuck units)
+    over one front end: each frame is registered and its candidates found once. Every
+    option set must have the same front-end settings (``history``, ``delta_bc``)."""
+    first = runs[0]
+    if any((o.history, o.delta_bc) != (first.history, first.delta_bc) for o in runs):
+        raise ValueError("perceive_all needs one front end: equal history and delta_bc")
+    fe_cfg = FrontEndConfig(history=first.history, blobs=BlobConfig(delta_bc=first.delta_bc))
+    dets = [Detector(o.nets, DetectorConfig(frontend=fe_cfg)) if o.nets else None for o in runs]
+    fe = FrontEnd(fe_cfg)
+    out_runs = [PerceiveRun() for _ in runs]
     for i, img in enumerate(frames):
-        name = frames.paths[i].name
         try:
             out = fe.push(img)
         except RegistrationError as exc:
@@ -79,40 +96,56 @@ def perceive(
             on_frame()
         if out is None:
             continue
-        row: dict[str, Any] = {
-            "frame": name,
-            "candidates": len(out.candidates),
-            "reg_rms_px": out.registration.rms_px,
-        }
-        fd = det.detect(out) if det else None
-        if fd is not None:
-            row |= {
-                "accepted": fd.n_accepted,
-                "detections": len(fd.positions),
-                "via_lp": int(fd.via_lp.sum()),
-            }
-            if opts.attack is not None and opts.nets is not None:
-                upper, lower = _payoffs(opts.nets, fd, opts.attack, opts.certify)
-                run.payoffs.append(upper)
-                if lower is not None:
-                    run.payoffs_lower.append(lower)
-                run.unattackable += int(np.isinf(run.payoffs[-1]).sum())
-            if not opts.keep_windows:  # a copy: a view would keep the whole array alive
-                fd = replace(fd, windows=np.empty((0, *fd.windows.shape[1:]), np.float32))
-            run.detections.append(fd)
-        if truth is not None:
-            tf = truth.frames[name]
-            care = care_mask(tf, out.aligned.valid, opts.min_speed)
-            s_fe = score(out.candidates.centroid, tf.positions, care, opts.radius)
-            run.frontend_total = run.frontend_total + s_fe
-            row["frontend"] = s_fe.to_json()
-            if fd is not None:
-                s_det = score(fd.positions, tf.positions, care, opts.radius)
-                run.detector_total = run.detector_total + s_det
-                row["detector"] = s_det.to_json()
-        run.rows.append(row)
+        tf = truth.frames[frames.paths[i].name] if truth is not None else None
+        for run, det, opts in zip(out_runs, dets, runs, strict=True):
+            _frame(run, det, opts, out, frames.paths[i].name, tf)
         release()  # what this frame freed goes back to the system (common/memory.py)
-    return run
+    for run, det in zip(out_runs, dets, strict=True):
+        if det is not None:
+            run.unit_max = det.maxima.maxima
+    return out_runs
+
+
+def _frame(
+    run: PerceiveRun,
+    det: Detector | None,
+    opts: PerceiveOptions,
+    out: FrontEndOutput,
+    name: str,
+    tf: TruthFrame | None,
+) -> None:
+    """One frame's candidates through ``det`` into ``run``: detections, payoffs, scores."""
+    row: dict[str, Any] = {
+        "frame": name,
+        "candidates": len(out.candidates),
+        "reg_rms_px": out.registration.rms_px,
+    }
+    fd = det.detect(out) if det else None
+    if fd is not None:
+        row |= {
+            "accepted": fd.n_accepted,
+            "detections": len(fd.positions),
+            "via_lp": int(fd.via_lp.sum()),
+        }
+        if opts.attack is not None and opts.nets is not None:
+            upper, lower = _payoffs(opts.nets, fd, opts.attack, opts.certify)
+            run.payoffs.append(upper)
+            if lower is not None:
+                run.payoffs_lower.append(lower)
+            run.unattackable += int(np.isinf(run.payoffs[-1]).sum())
+        if not opts.keep_windows:  # a copy: a view would keep the whole array alive
+            fd = replace(fd, windows=np.empty((0, *fd.windows.shape[1:]), np.float32))
+        run.detections.append(fd)
+    if tf is not None:
+        care = care_mask(tf, out.aligned.valid, opts.min_speed)
+        s_fe = score(out.candidates.centroid, tf.positions, care, opts.radius)
+        run.frontend_total = run.frontend_total + s_fe
+        row["frontend"] = s_fe.to_json()
+        if fd is not None:
+            s_det = score(fd.positions, tf.positions, care, opts.radius)
+            run.detector_total = run.detector_total + s_det
+            row["detector"] = s_det.to_json()
+    run.rows.append(row)
 
 
 def _payoffs(

@@ -130,6 +130,49 @@ def certify(
     return replace(low, meta={**scene.meta, "certified": meta})
 
 
+class MemoCertifier:
+    """A certifier that certifies each detection once: later requests for it are answered
+    from what it returned (the fault variants of one property ask for the same detections
+    many times)."""
+
+    def __init__(self, certifier: Certifier) -> None:
+        self.certifier = certifier
+        self.known: dict[int, np.ndarray] = {}  #: per frame step, every detection's bound
+
+    def __call__(self, wanted: Mapping[int, np.ndarray]) -> dict[int, np.ndarray]:
+        todo = {}
+        for k, idx in wanted.items():
+            have = self.known.get(k)
+            new = [int(i) for i in idx if have is None or np.isnan(have[int(i)])]
+            if new:
+                todo[k] = np.array(new, dtype=np.int64)
+        for k, got in (self.certifier(todo) if todo else {}).items():
+            have = self.known.get(k)
+            self.known[k] = got if have is None else np.where(np.isnan(got), have, got)
+        return {k: self.known[k] for k in wanted if k in self.known}
+
+
+def split_certifier(
+    by_set: Mapping[frozenset[str] | None, Certifier], perceived: Mapping[int, frozenset[str]]
+) -> Certifier:
+    """One certifier for a fault variant's frames: each frame's detections go to the
+    certifier of the run that perceived them (``perceived[step]``, a set of neuron
+    faults; a step not in it, the fault-free run: key None). A run without a certifier
+    leaves its detections unbounded."""
+
+    def certify(wanted: Mapping[int, np.ndarray]) -> dict[int, np.ndarray]:
+        groups: dict[frozenset[str] | None, dict[int, np.ndarray]] = {}
+        for k, idx in wanted.items():
+            groups.setdefault(perceived.get(k), {})[k] = idx
+        out: dict[int, np.ndarray] = {}
+        for key, part in groups.items():
+            if key in by_set:
+                out.update(by_set[key](part))
+        return out
+
+    return certify
+
+
 #: How certified bounds are computed (lesmc/perception/certify.py; docs/cnn.md).
 CERTIFICATION_METHOD = "CROWN, L2 ball (docs/cnn.md)"
 

@@ -18,7 +18,7 @@ For a scene, per design (lesmc/designs/registry.py) and attack window:
 
 from __future__ import annotations
 
-from collections.abc import Iterable
+from collections.abc import Iterable, Mapping
 from dataclasses import dataclass, field, replace
 
 from lesmc.build.unfold import build_model, lazy_model, original_end
@@ -32,7 +32,7 @@ from lesmc.language.semantics import BoundProperty, bind
 from lesmc.model.arrays import ArrayModel, reference_states
 from lesmc.model.growing import GrowingModel
 from lesmc.pipeline import certify
-from lesmc.pipeline.job import Job, Unit
+from lesmc.pipeline.job import Certifier, Job, Unit
 from lesmc.pipeline.payoffs import check_all, check_payoffs
 from lesmc.results.record import DesignRun, Results
 from lesmc.scene import Scene
@@ -52,7 +52,7 @@ def run(job: Job) -> Results:
         from lesmc.pipeline.faults import validate
 
         for p in plans:
-            validate(job.faults, p.scene, p.bound)
+            validate(job.faults, p.scene, p.bound, job.neuron_frames)
     scene, certified, probes = _certified_scene(job, job.scene, plans)
     models = _Models(scene, plans, job)
     runs = [_design_run(job, p, models, probes) for p in plans]
@@ -236,6 +236,8 @@ class _Models:
     plans: list[_Plan]
     job: Job
     made: dict[tuple[str, str], ArrayModel | GrowingModel] = field(default_factory=dict)
+    #: the fault variants' certifiers (:func:`_variant_certifiers`), made when first needed
+    certifiers: dict[frozenset[str] | None, Certifier] | None = None
 
     def get(self, tracker: str, payoffs: str) -> ArrayModel | GrowingModel:
         key = (tracker, payoffs)
@@ -321,15 +323,24 @@ def _fault_results(
 ) -> list[tuple[BoundProperty, CheckResult]]:
     """``bp`` under every combination of the job's faults (lesmc/pipeline/faults.py): each
     activation's variant scene unfolded on demand, deviations measured against the
-    fault-free unattacked track."""
+    fault-free unattacked track; in a certified payoff mode, the variant's hideable
+    detections certified on the network that perceived them."""
     from lesmc.pipeline.faults import check_faults
 
     assert job.faults is not None
     nominal = models.get(tracker, "certified" if job.payoffs == "certified" else "attack")
     reference = reference_states(nominal)[: bp.end + 1].copy()
     scene = models.scene.with_tracker(design=tracker)
+    if models.certifiers is None:
+        models.certifiers = _variant_certifiers(job)
+    certifiers = models.certifiers
 
-    def check_variant(variant: Scene, vbp: BoundProperty) -> CheckResult:
+    def check_variant(
+        variant: Scene, vbp: BoundProperty, perceived: Mapping[int, frozenset[str]]
+    ) -> CheckResult:
+        notes: list[str] = []
+        if job.payoffs != "attack":
+            variant, notes = _certified_variant(job, variant, vbp, certifiers, perceived)
         made: dict[str, GrowingModel] = {}
 
         def model_of(payoffs: str) -> GrowingModel:
@@ -338,12 +349,44 @@ def _fault_results(
                 made[payoffs] = lazy_model(sc, (vbp.l, vbp.u), vbp.end, reference)
             return made[payoffs]
 
-        r = check_payoffs(model_of, vbp, job.payoffs, job.engine, job.budget, [])
+        r = check_payoffs(model_of, vbp, job.payoffs, job.engine, job.budget, notes)
         if r.verdict == "violated" and scene.meta.get("detector"):
             r = replace(r, replay="not replayed", notes=[*r.notes, FAULT_NOT_REPLAYED_NOTE])
         return r
 
-    return check_faults(job.faults, scene, bp, check_variant)
+    return check_faults(job.faults, scene, bp, check_variant, job.neuron_frames)
+
+
+def _variant_certifiers(job: Job) -> dict[frozenset[str] | None, Certifier]:
+    """The certifiers of the fault variants' frames, each certifying a detection once per
+    job: the fault-free run's (key None) and each set of neuron faults' run's."""
+    out: dict[frozenset[str] | None, Certifier] = {}
+    if job.certify is not None:
+        out[None] = certify.MemoCertifier(job.certify)
+    for key, c in (job.neuron_certify or {}).items():
+        out[key] = certify.MemoCertifier(c)
+    return out
+
+
+def _certified_variant(
+    job: Job,
+    variant: Scene,
+    bp: BoundProperty,
+    certifiers: dict[frozenset[str] | None, Certifier],
+    perceived: Mapping[int, frozenset[str]],
+) -> tuple[Scene, list[str]]:
+    """The variant with bounds for the detections its model can hide (each on the network
+    that perceived it), and the note on those left without one."""
+    window = (bp.l, bp.u)
+    probes = certify.probe_all(variant, [window], job.budget)
+    if certifiers:
+        variant = certify.certify(
+            variant,
+            probes,
+            certify.split_certifier(certifiers, perceived),
+            "the detections the checked models can hide; the others have no bound",
+        )
+    return variant, certify.unbounded_note(certify.unbounded(variant, probes, window))
 
 
 #: Why a counterexample under a fault is not replayed through the detector.

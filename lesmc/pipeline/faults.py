@@ -4,7 +4,14 @@ A ``faults { ... }`` block (docs/language.md, "Faults") declares what may fail
 inside the system: an entry of the Kalman filter's F, H, Q or R scaled or set
 ("missing or perturbed values in the matrices F, H, Q and R"), or a sensor
 outage of k steps (no measurement reaches the tracker; a detector that answers
-nothing for a frame is ``outage 1``). At most ``budget`` faults strike at once.
+nothing for a frame is ``outage 1``), or a detector neuron stuck at a value ("a
+neuron that does not function"). At most ``budget`` faults strike at once.
+
+A stuck neuron changes what the detector sees, so its frames come from running the
+faulty network over the video (``lesmc verify``, lesmc/verify/neuron_faults.py):
+the caller passes them as :data:`NeuronFrames`, and a variant takes, in each frame,
+the detections and payoffs of the neuron faults active there (the detector reads
+only the frames, never its own earlier answers, so this substitution is exact).
 
 The adversary chooses, besides the attack, which faults strike and when each
 becomes active (its activation step, within the attack window unless the fault
@@ -25,14 +32,14 @@ from __future__ import annotations
 
 import itertools
 import math
-from collections.abc import Callable, Iterator
+from collections.abc import Callable, Iterator, Mapping
 from dataclasses import dataclass, replace
 
 from lesmc.common.errors import Location, SpecError, UsageError, source_line
 from lesmc.engines.result import CheckResult, Stats, StopReason, Verdict
 from lesmc.language.properties import Fault, FaultSet
 from lesmc.language.semantics import BoundProperty
-from lesmc.scene import Scene
+from lesmc.scene import Frame, Scene
 from lesmc.scene.tracker_model import MAX_ENTRY, EntryFault
 
 #: Most checks one property's fault variants may need (combinations × activation steps).
@@ -40,6 +47,10 @@ MAX_FAULT_CHECKS = 5000
 
 #: The measurement space's coordinates: the rows of H, the rows and columns of R.
 MEASUREMENT = ("x", "y")
+
+#: Per set of neuron faults (by name), the frames of the video perceived with those
+#: units stuck, by step.
+NeuronFrames = Mapping[frozenset[str], Mapping[int, Frame]]
 
 
 @dataclass(frozen=True)
@@ -63,6 +74,8 @@ class Strike:
 
     def text(self) -> str:
         f = self.fault.fault
+        if f.kind == "neuron":
+            return f"{f.name} ({f.text()} from step {self.step})"
         if f.kind == "outage":
             last = self.step + f.length - 1
             span = f"step {self.step}" if f.length == 1 else f"steps {self.step}..{last}"
@@ -70,24 +83,35 @@ class Strike:
         return f"{f.name} ({f.text()} from step {self.step})"
 
 
-def _error(fs: FaultSet, f: Fault, message: str) -> SpecError:
+def fault_error(fs: FaultSet, f: Fault, message: str) -> SpecError:
+    """``message`` located at the declaration of ``f``."""
     return SpecError(
         message, Location(fs.path, f.pos.line, f.pos.column, source_line(fs.text, f.pos.line))
     )
 
 
-def bind_faults(fs: FaultSet, scene: Scene) -> list[BoundFault]:
+def bind_faults(fs: FaultSet, scene: Scene, neuron: NeuronFrames | None = None) -> list[BoundFault]:
     """Each fault of ``fs`` with its entry resolved against the scene's tracker; a located
-    error for an unknown matrix entry or a value beyond ±MAX_ENTRY (a declared matrix's
-    limit, so a failed entry stays finite)."""
+    error for an unknown matrix entry, a value beyond ±MAX_ENTRY (a declared matrix's
+    limit, so a failed entry stays finite), or a neuron fault without its frames."""
     state = scene.tracker.state_names
     out = []
     for f in fs.faults:
-        if f.kind == "outage":
+        if f.kind == "neuron" and (neuron is None or frozenset([f.name]) not in neuron):
+            raise fault_error(
+                fs,
+                f,
+                f"fault '{f.name}' makes a detector neuron fail: only `lesmc verify` perceiving "
+                "a video (not --scene) runs the faulty network; a scene holds the detections "
+                "of the fault-free one",
+            )
+        if f.kind in ("outage", "neuron"):
             out.append(BoundFault(f))
             continue
         if not abs(f.value) <= MAX_ENTRY:
-            raise _error(fs, f, f"a fault's value must lie within ±{MAX_ENTRY:g}, got {f.value:g}")
+            raise fault_error(
+                fs, f, f"a fault's value must lie within ±{MAX_ENTRY:g}, got {f.value:g}"
+            )
         rows = MEASUREMENT if f.matrix in ("H", "R") else state
         cols = MEASUREMENT if f.matrix == "R" else state
         entry = (_index(fs, f, f.row, rows, "row"), _index(fs, f, f.col, cols, "column"))
@@ -100,21 +124,25 @@ def _index(fs: FaultSet, f: Fault, ref: int | str, names: tuple[str, ...], what:
     size = len(names)
     if isinstance(ref, int):
         if ref >= size:
-            raise _error(
+            raise fault_error(
                 fs,
                 f,
                 f"{f.matrix} has {size} {what}s (0..{size - 1}): {what} {ref} is out of range",
             )
         return ref
     if ref not in names:
-        raise _error(fs, f, f"{f.matrix} has no {what} '{ref}'; its {what}s are {', '.join(names)}")
+        raise fault_error(
+            fs, f, f"{f.matrix} has no {what} '{ref}'; its {what}s are {', '.join(names)}"
+        )
     return names.index(ref)
 
 
-def validate(fs: FaultSet, scene: Scene, bound: list[BoundProperty]) -> None:
+def validate(
+    fs: FaultSet, scene: Scene, bound: list[BoundProperty], neuron: NeuronFrames | None = None
+) -> None:
     """Every fault binds to the scene's tracker and every activation range fits every
     property: checked before any check runs, so a bad declaration costs no search."""
-    bind_faults(fs, scene)
+    bind_faults(fs, scene, neuron)
     for bp in bound:
         for f in fs.faults:
             activation_steps(fs, f, bp)
@@ -127,7 +155,7 @@ def activation_steps(fs: FaultSet, f: Fault, bp: BoundProperty) -> range:
         return range(bp.l, bp.u + 1)
     lo, hi = f.steps[0], bp.end if f.steps[1] is None else f.steps[1]
     if not bp.l <= lo <= hi <= bp.end:
-        raise _error(
+        raise fault_error(
             fs,
             f,
             f"activation steps {lo}..{hi} must lie within steps {bp.l}..{bp.end} of property "
@@ -158,9 +186,10 @@ def combinations(
             yield "+".join([bp.name, *(f.name for f in combo)]), choices
 
 
-def variant_scene(scene: Scene, strikes: list[Strike]) -> Scene:
+def variant_scene(scene: Scene, strikes: list[Strike], neuron: NeuronFrames | None = None) -> Scene:
     """The scene as the faulty system sees it: failed matrix entries from their frames on,
-    and no detections in the frames of an outage."""
+    each frame's detections as the networks with the units stuck by then perceive it
+    (``neuron``), and no detections in the frames of an outage."""
     first = scene.target.step
     entries = tuple(
         EntryFault(
@@ -177,12 +206,35 @@ def variant_scene(scene: Scene, strikes: list[Strike]) -> Scene:
     for s in strikes:
         if s.fault.fault.kind == "outage":
             dark.update(range(first + s.step, first + s.step + s.fault.fault.length))
-    frames = tuple(replace(fr, detections=()) if fr.step in dark else fr for fr in scene.frames)
+    stuck = perceived_by(scene, strikes)
+    if stuck:
+        assert neuron is not None, "bind_faults refuses neuron faults without their frames"
+    frames = tuple(
+        replace(fr, detections=())
+        if fr.step in dark
+        else replace(fr, detections=neuron[stuck[fr.step]][fr.step].detections)
+        if neuron is not None and fr.step in stuck
+        else fr
+        for fr in scene.frames
+    )
     return replace(
         scene,
         frames=frames,
         tracker=replace(scene.tracker, faults=scene.tracker.faults + entries),
     )
+
+
+def perceived_by(scene: Scene, strikes: list[Strike]) -> dict[int, frozenset[str]]:
+    """Per frame step, the neuron faults of ``strikes`` active there (model step 0 is the
+    target's frame): whose run perceives that frame. Frames with none are left out."""
+    first = scene.target.step
+    neurons = [s for s in strikes if s.fault.fault.kind == "neuron"]
+    out = {}
+    for fr in scene.frames:
+        active = frozenset(s.fault.name for s in neurons if first + s.step <= fr.step)
+        if active:
+            out[fr.step] = active
+    return out
 
 
 def worst(name: str, checks: list[tuple[list[Strike], CheckResult]]) -> CheckResult:
@@ -244,19 +296,31 @@ def _summed(stats: list[Stats]) -> Stats:
     )
 
 
-#: Check one property on one variant scene (the pipeline's model and payoff handling).
-CheckVariant = Callable[[Scene, BoundProperty], CheckResult]
+#: Check one property on one variant scene (the pipeline's model and payoff handling),
+#: given which neuron faults perceive each of its frames (:func:`perceived_by`).
+CheckVariant = Callable[[Scene, BoundProperty, Mapping[int, frozenset[str]]], CheckResult]
 
 
 def check_faults(
-    fs: FaultSet, scene: Scene, bp: BoundProperty, check: CheckVariant
+    fs: FaultSet,
+    scene: Scene,
+    bp: BoundProperty,
+    check: CheckVariant,
+    neuron: NeuronFrames | None = None,
 ) -> list[tuple[BoundProperty, CheckResult]]:
     """``bp`` under every combination of the faults of ``fs``: one result per combination,
-    named ``NAME+FAULT...`` (:func:`worst` of its activations)."""
-    bound = bind_faults(fs, scene)
+    named ``NAME+FAULT...`` (:func:`worst` of its activations). ``neuron``: the frames
+    perceived under every set of neuron faults a combination can hold."""
+    bound = bind_faults(fs, scene, neuron)
     out = []
     for name, choices in combinations(fs, bound, bp):
-        checks = [(strikes, check(variant_scene(scene, strikes), bp)) for strikes in choices]
+        checks = [
+            (
+                strikes,
+                check(variant_scene(scene, strikes, neuron), bp, perceived_by(scene, strikes)),
+            )
+            for strikes in choices
+        ]
         renamed = replace(bp, prop=replace(bp.prop, name=name))
         out.append((renamed, worst(name, checks)))
     return out

@@ -18,6 +18,7 @@ from lesmc.common.budget import Budget
 from lesmc.engines.check import DEFAULT_MAX_STATES, EngineName
 from lesmc.language.properties import FaultSet, SpecFile
 from lesmc.model.arrays import ArrayModel
+from lesmc.pipeline.faults import NeuronFrames
 from lesmc.scene import Scene
 
 PayoffMode = Literal["attack", "certified", "interval"]
@@ -61,8 +62,10 @@ class Job:
     models can hide when ``payoffs`` is not ``attack``; ``unbounded`` says how many
     of them lack a bound when the caller already probed (a campaign's client).
     ``faults`` (a ``faults`` block, lesmc/pipeline/faults.py) adds, per property, a result
-    for every combination of faults the block allows. ``source`` names the input in
-    messages.
+    for every combination of faults the block allows; its neuron faults need
+    ``neuron_frames``, the video perceived with their units stuck (``lesmc verify``),
+    and in a certified payoff mode ``neuron_certify``, those runs' certifiers.
+    ``source`` names the input in messages.
     """
 
     specs: tuple[SpecFile, ...]
@@ -79,5 +82,7 @@ class Job:
     certify: Certifier | None = None
     unbounded: Unbounded | None = None
     faults: FaultSet | None = None
+    neuron_frames: NeuronFrames | None = None
+    neuron_certify: Mapping[frozenset[str], Certifier] | None = None
     source: str = "<scene>"
     on_stage: Callable[[str], None] = no_stage

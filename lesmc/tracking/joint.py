@@ -305,7 +305,7 @@ class JointStore:
     def take(self, idx: np.ndarray) -> JointStates:
         part, row = self._part.data[idx], self._row.data[idx]
         if not part.size:
-            return _empty(1, 0)
+            return _empty(1, 0, _dim(self._parts[0]) if self._parts else 4)
         if part.min() == part.max():
             return self._parts[int(part[0])].take(row)
         order = np.argsort(part, kind="stable")
@@ -960,14 +960,20 @@ def _same_as(a: JointStates, b: JointStates, idx: np.ndarray) -> bool:
         return True
     bb = b.take(idx)
     T, K = max(a.tcov.shape[1], bb.tcov.shape[1]), max(a.pending.shape[1], bb.pending.shape[1])
-    a, bb = (concat([x, _empty(T, K)]) for x in (a, bb))
+    a, bb = (concat([x, _empty(T, K, _dim(a))]) for x in (a, bb))
     return _same(concat([a, bb]), np.r_[np.arange(len(a), 2 * len(a)), np.arange(len(a))])
 
 
-def _empty(T: int, K: int) -> JointStates:
-    """No states, arrays T tracks and K pending detections wide (for padding with concat)."""
+def _empty(T: int, K: int, d: int) -> JointStates:
+    """No states, arrays T tracks of dimension d and K pending detections wide (for padding
+    with concat)."""
     z = np.zeros(0, dtype=np.int64)
-    return JointStates(np.zeros((0, T, 4)), np.zeros((0, T), np.int64), z, np.zeros((0, K, 2)), z)
+    return JointStates(np.zeros((0, T, d)), np.zeros((0, T), np.int64), z, np.zeros((0, K, 2)), z)
+
+
+def _dim(js: JointStates) -> int:
+    """d: the dimension of the tracks' state."""
+    return int((js._tracks if js._tracks is not None else js._from_table().X).shape[-1])
 
 
 def _same(js: JointStates, rep: np.ndarray) -> bool:

@@ -28,7 +28,7 @@ from lesmc.common.files import json_text
 from lesmc.common.progress import Reporter
 from lesmc.designs import registry
 from lesmc.language.parser import load_faults, load_spec
-from lesmc.language.properties import SpecFile
+from lesmc.language.properties import FaultSet, SpecFile
 from lesmc.perception import NetFiles
 from lesmc.perception.quality import load_truth
 from lesmc.pipeline.check import run as run_job
@@ -40,13 +40,15 @@ from lesmc.scene import (
     Footage,
     Scene,
     TrackerConfig,
-    footage_from_dict,
     load_tracker,
     scene_to_dict,
 )
 from lesmc.tracking.targets import check_target, load_scene_with_target, parse_target
+from lesmc.verify import video_perception
 from lesmc.verify.cache import StageCache, code_digest, digest, file_digests, net_files
 from lesmc.verify.false_alarms import false_alarm_report, truth_track
+from lesmc.verify.neuron_faults import NeuronRuns, check_units, neuron_faults, neuron_frames
+from lesmc.verify.video_perception import HISTORY, UnitMax
 from lesmc.video import FPS
 
 if TYPE_CHECKING:  # reading frames imports cv2: only where a video is read
@@ -54,8 +56,6 @@ if TYPE_CHECKING:  # reading frames imports cv2: only where a video is read
 
 #: The embedded default video: `lesmc synth` with these settings.
 DEFAULT_VIDEO = {"frames": 24, "width": 2048, "height": 2048, "seed": 1}
-#: Frames in the background median (section 6).
-HISTORY = 4
 
 
 @dataclass(frozen=True)
@@ -105,6 +105,8 @@ class _Source:
     net_files: NetFiles | None = None  #: the networks to load when needed (cached perception)
     truth_path: str | None = None
     cache: StageCache | None = None
+    perception: _Perception | None = None  #: verify's own perception of the video
+    dt: float = 0.0  #: seconds between frames (with ``perception``)
 
     def networks(self) -> Any:
         """The networks: loaded now if perception came from the cache."""
@@ -137,12 +139,14 @@ def verify(req: Request, rep: Reporter) -> Outcome:
     started = time.monotonic()
     specs = load_specs([Path(s) for s in req.specs] or bundled_specs(), req.window)
     faults = load_faults(req.faults) if req.faults is not None else None
+    _check_neuron_faults(req, faults)
     src = _scene_file(req) if req.scene_path is not None else _perceived(req, specs, rep)
     if req.window is not None:
         check_window(src.scene, req.window)
     src.meta["target"] = _target_text(src.scene)
     src.meta["properties"] = ", ".join(s.path for s in specs)
     rep.log(f"target: {src.meta['target']}")
+    neuron = _neuron_runs(req, faults, src, rep)
     checked = time.monotonic()
     job = Job(
         tuple(specs),
@@ -153,6 +157,8 @@ def verify(req: Request, rep: Reporter) -> Outcome:
         full_models=True,
         certify=_certifier(src, rep, req.budget) if req.payoffs != "attack" else None,
         faults=faults,
+        neuron_frames=neuron.frames or None,
+        neuron_certify=neuron.certify or None,
         source=req.scene_path or "scene",
         on_stage=rep.stage,
     )
@@ -162,6 +168,36 @@ def verify(req: Request, rep: Reporter) -> Outcome:
     doc = _document(req, src, specs, results, timings, rep)
     report = _write(doc, req.out, src, results, rep)
     return Outcome(results, doc, report)
+
+
+def _check_neuron_faults(req: Request, faults: FaultSet | None) -> None:
+    """Each neuron fault checked against the networks before any perception runs."""
+    if not neuron_faults(faults):
+        return
+    assert faults is not None
+    if req.scene_path is None:
+        from lesmc.perception.cnn import load_nets
+
+        check_units(faults, load_nets(*req.nets))
+
+
+def _neuron_runs(req: Request, faults: FaultSet | None, src: _Source, rep: Reporter) -> NeuronRuns:
+    """The video perceived under every set of neuron faults (lesmc/verify/neuron_faults.py);
+    none without neuron faults, or on a scene file (the pipeline then says why)."""
+    seen = src.perception
+    if not neuron_faults(faults) or seen is None or src.frames is None or src.cache is None:
+        return NeuronRuns()
+    assert faults is not None
+    return neuron_frames(
+        faults,
+        src.frames,
+        src.networks,
+        (seen.key, seen.unit_max, src.dt),
+        src.cache,
+        rep,
+        lambda stage: _spent(req.budget, stage),
+        req.payoffs != "attack",
+    )
 
 
 # ------------------------------------------------------------------ the scene
@@ -207,7 +243,8 @@ def _perceived(req: Request, specs: list[SpecFile], rep: Reporter) -> _Source:
     truths = load_truth(truth) if truth else None
     dt = (truths.dt if truths else None) or 1 / FPS
     cache = StageCache(req.out)
-    footage, nets, run = _perception(req, frames, frames_dir, dt, cache, rep)
+    seen = _perception(req, frames, frames_dir, dt, cache, rep)
+    footage = seen.footage
     tracker = _tracker(req)
     if tracker is not None:
         footage = dataclasses.replace(footage, tracker=tracker)
@@ -220,16 +257,30 @@ def _perceived(req: Request, specs: list[SpecFile], rep: Reporter) -> _Source:
         scene = auto_target(footage, frames, truths, specs)
         meta["target choice"] = scene.meta["target_choice"]
     meta |= {"detector": footage.meta.get("detector", ""), "scene": str(req.out / "scene.json")}
-    return _Source(scene, frames, truths, nets, run, meta, True, req.nets, truth, cache)
+    return _Source(
+        scene, frames, truths, seen.nets, seen.run, meta, True, req.nets, truth, cache, seen, dt
+    )
+
+
+@dataclass
+class _Perception:
+    """The video's footage, with the networks and run that made it (None when read from
+    OUT/cache), each hidden unit's largest value, and the cache key of the inputs."""
+
+    footage: Footage
+    nets: Any
+    run: Any
+    unit_max: UnitMax
+    key: str
 
 
 def _perception(
     req: Request, frames: FrameSet, frames_dir: str, dt: float, cache: StageCache, rep: Reporter
-) -> tuple[Footage, Any, Any]:
-    """The video's detections and attack payoffs, with the networks and the perception run
-    that made them: read from OUT/cache when this video was perceived before with the same
-    networks, settings and code (then no network is loaded; in a certified payoff mode the
-    run is needed, so the video is perceived again), else perceived now and stored."""
+) -> _Perception:
+    """The video's detections and attack payoffs: read from OUT/cache when this video was
+    perceived before with the same networks, settings and code (then no network is
+    loaded; in a certified payoff mode the run is needed, so the video is perceived
+    again), else perceived now and stored."""
     from lesmc.perception.attacks import AttackConfig
 
     key = digest(
@@ -243,23 +294,13 @@ def _perception(
             "attack": asdict(AttackConfig()),
         }
     )
-    hit = cache.get("perception", key) if req.payoffs == "attack" else None
+    hit = video_perception.read(cache, "perception", key) if req.payoffs == "attack" else None
     if hit is not None:
-        try:
-            footage, _ = footage_from_dict(hit, str(cache.dir))
-        except LesmcError:
-            footage = None
-        if footage is not None:
-            rep.log(f"reusing the perception of {frames_dir} from {cache.dir}")
-            return footage, None, None
+        rep.log(f"reusing the perception of {frames_dir} from {cache.dir}")
+        return _Perception(hit[0], None, None, hit[1], key)
     from lesmc.perception.cnn import load_nets
-    from lesmc.perception.run import PerceiveOptions, perceive
-    from lesmc.perception.to_scene import footage_from_run
 
     nets = load_nets(*req.nets)
-    opts = PerceiveOptions(
-        history=HISTORY, nets=nets, attack=AttackConfig(), keep_windows=req.payoffs != "attack"
-    )
     _spent(req.budget, "loading the video and the networks")
     with rep.bar("perceiving", len(frames)) as bar:
 
@@ -267,13 +308,12 @@ def _perception(
             bar.advance()
             _spent(req.budget, "perceiving the video")
 
-        run = perceive(frames, opts, None, advance)
-    if not run.detections:
-        raise UsageError("the video produced no detections")
-    scene_meta = {"source": str(frames_dir), "detector": nets.settings.trained_on}
-    footage = footage_from_run(run, dt, scene_meta)
-    cache.put("perception", key, scene_to_dict(footage))
-    return footage, nets, run
+        meta = {"source": str(frames_dir), "detector": nets.settings.trained_on}
+        footage, run = video_perception.perceive_video(
+            frames, nets, dt, meta, req.payoffs != "attack", advance
+        )
+    video_perception.store(cache, "perception", key, footage, run.unit_max)
+    return _Perception(footage, nets, run, run.unit_max, key)
 
 
 def _tracker(req: Request) -> TrackerConfig | None:

@@ -1,0 +1,102 @@
+"""``verify``'s perception of its video: the detector over every frame, kept in OUT/cache.
+
+The fault-free networks run once per video (lesmc/verify/experiment.py); with
+neuron faults, the faulty networks run too (lesmc/verify/neuron_faults.py). Both
+go through :func:`perceive_video` and store what they found with :func:`store`:
+the footage (a scene file without a target, validated on reading like any scene)
+and each hidden unit's largest value on the scored windows (a stuck-at-max fault's
+value).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Sequence
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+
+from lesmc.common.errors import LesmcError, UsageError
+from lesmc.scene import Footage, footage_from_dict, scene_to_dict
+from lesmc.verify.cache import StageCache
+
+if TYPE_CHECKING:
+    from lesmc.perception.cnn import Nets
+    from lesmc.perception.run import PerceiveRun
+    from lesmc.video.reader import FrameSet
+
+#: Frames in the background median (section 6).
+HISTORY = 4
+
+#: Per network, per hidden layer, each unit's largest value (PerceiveRun.unit_max).
+UnitMax = dict[str, list[np.ndarray]]
+
+
+def perceive_video(
+    frames: FrameSet,
+    nets: Nets,
+    dt: float,
+    meta: dict[str, Any],
+    keep_windows: bool,
+    advance: Callable[[], None] | None = None,
+) -> tuple[Footage, PerceiveRun]:
+    """Detections and DeepFool payoffs of every frame (the default attack settings), as
+    footage; ``keep_windows`` keeps the N_dr windows (certification reads them)."""
+    return perceive_videos(frames, [nets], dt, [meta], keep_windows, advance)[0]
+
+
+def perceive_videos(
+    frames: FrameSet,
+    nets: Sequence[Nets],
+    dt: float,
+    metas: Sequence[dict[str, Any]],
+    keep_windows: bool,
+    advance: Callable[[], None] | None = None,
+) -> list[tuple[Footage, PerceiveRun]]:
+    """:func:`perceive_video` for several networks over one front end (each frame is
+    registered and its candidates found once)."""
+    from lesmc.perception.attacks import AttackConfig
+    from lesmc.perception.run import PerceiveOptions, perceive_all
+    from lesmc.perception.to_scene import footage_from_run
+
+    opts = [
+        PerceiveOptions(history=HISTORY, nets=n, attack=AttackConfig(), keep_windows=keep_windows)
+        for n in nets
+    ]
+    runs = perceive_all(frames, opts, None, advance)
+    if not runs[0].detections:
+        raise UsageError("the video produced no detections")
+    return [(footage_from_run(r, dt, m), r) for r, m in zip(runs, metas, strict=True)]
+
+
+def store(cache: StageCache, stage: str, key: str, footage: Footage, unit_max: UnitMax) -> None:
+    """Keep a perception under ``key``."""
+    maxima = {
+        net: [[float(v) if np.isfinite(v) else None for v in m] for m in layers]
+        for net, layers in unit_max.items()
+    }
+    cache.put(stage, key, {"footage": scene_to_dict(footage), "unit_max": maxima})
+
+
+def read(cache: StageCache, stage: str, key: str) -> tuple[Footage, UnitMax] | None:
+    """A perception kept under ``key``; None when absent or not a valid entry."""
+    hit = cache.get(stage, key)
+    if not isinstance(hit, dict) or not isinstance(hit.get("unit_max"), dict):
+        return None
+    try:
+        footage, _ = footage_from_dict(hit.get("footage"), str(cache.dir))
+        unit_max = {
+            str(net): [_maxima(layer) for layer in layers]
+            for net, layers in hit["unit_max"].items()
+        }
+    except (LesmcError, TypeError, ValueError):
+        return None
+    return footage, unit_max
+
+
+def _maxima(layer: Any) -> np.ndarray:
+    """One layer's maxima: a list of numbers, null for a unit never scored (``-inf``)."""
+    if not isinstance(layer, list) or not all(
+        v is None or (isinstance(v, (int, float)) and not isinstance(v, bool)) for v in layer
+    ):
+        raise ValueError("unit maxima must be lists of numbers")
+    return np.asarray([-np.inf if v is None else v for v in layer], np.float32)
