@@ -3,7 +3,8 @@
 Side by side in one run, alternately, best of ``--repeat``: the wall time a user sees
 for ``lesmc check SCENE SPEC`` and for the same with ``--sweep eps=LO..HI:STEP``
 (20 values), on the dense scene of bench_unfold.py (a target in a platoon of 6 among
-40 other vehicles) and on examples/merge.json; and the engine seconds the results
+40 other vehicles; attack windows 4..6 and 4..8, whose tree is too large to walk whole)
+and on examples/merge.json; and the engine seconds the results
 report (the sum over the variants against the one check's).
 
 Run ``python benchmarks/bench_sweep.py [--repeat 3]``.
@@ -63,8 +64,11 @@ def main() -> int:
         save_scene(dense_scene(40, 12, seed=1), dense)
         spec = Path(d) / "r.spec"
         spec.write_text(SPEC)
+        wide = Path(d) / "r48.spec"  # the hard instance: a 226k-state tree, too big to walk
+        wide.write_text(SPEC.replace("attack window 4..6", "attack window 4..8"))
         cases = [
             ("dense (40 vehicles)", [str(dense), str(spec)], "eps=10..200:10"),
+            ("dense, window 4..8", [str(dense), str(wide)], "eps=10..200:10"),
             ("examples/merge.json", ["examples/merge.json", "specs/robustness.spec"],
              "eps=10..200:10"),
         ]  # fmt: skip

@@ -14,9 +14,11 @@ from hypothesis import strategies as st
 from oracle import brute_force
 from test_engines import _spec, cases
 
+from lesmc.common.budget import Budget
 from lesmc.engines.check import bind_all, check
 from lesmc.language.parser import parse_spec
 from lesmc.language.sweep import parse_sweep, swept
+from lesmc.model import kernel
 from lesmc.model.lts import to_arrays
 
 
@@ -70,6 +72,56 @@ def test_every_variant_equals_the_brute_force(case: tuple, values: list[float]) 
     for bp, r in zip(bound, check(cm, [variants]), strict=True):
         truth = brute_force(model, bp).optimum
         assert (r.optimum is None) if math.isinf(truth) else r.optimum == pytest.approx(truth)
+
+
+@settings(max_examples=200, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(
+    cases(),
+    st.lists(st.floats(-1, 50, allow_nan=False), min_size=2, max_size=6),
+    st.sampled_from(["levels", "bnb"]),
+)
+def test_a_sweep_too_large_to_walk_reuses_answers_exactly(
+    case: tuple, values: list[float], engine: str
+) -> None:
+    """When the tree is too large to walk once (forced here), a sweep's variants are
+    searched loosest first and a tighter one takes a looser one's answer when its
+    counterexample qualifies (pipeline.payoffs._bound_families): every optimum,
+    counterexample objective and θ* equals the brute force, and answers are reused."""
+    from unittest.mock import patch
+
+    from lesmc.pipeline.payoffs import check_all
+
+    model, params, _ = case
+    spec = parse_spec(_spec(params, 0.0))
+    values = values + values[:1]  # a repeated value is always answered by reuse
+    variants = swept(spec, (parse_sweep("eps=" + ",".join(repr(v) for v in values)),))
+    cm = to_arrays(model)
+    bound = bind_all(cm, [variants])
+    with patch("lesmc.engines.enumerate.SMALL_TREE", 0):
+        got = check_all(
+            lambda _: cm,
+            bound,
+            "attack",
+            engine,
+            Budget(),
+            lambda _: [],
+            lambda _: None,  # type: ignore[arg-type]
+        )
+    for bp, r in zip(bound, got, strict=True):
+        truth = brute_force(model, bp)
+        assert r.stats.stopped == "finished"
+        if math.isinf(truth.optimum):
+            assert r.optimum is None
+        else:
+            assert r.optimum == pytest.approx(truth.optimum, rel=1e-12, abs=1e-12)
+            assert r.counterexample is not None
+            assert r.counterexample.objective == pytest.approx(truth.optimum, rel=1e-12)
+            assert kernel.compare(bp.op, r.counterexample.constraint, bp.bound)
+        if truth.witness_value is None:
+            assert r.witness is None
+        else:
+            assert r.witness_value == pytest.approx(truth.witness_value, rel=1e-12, abs=1e-12)
+    assert any("answered_by" in r.stats.extra for r in got)
 
 
 @pytest.mark.parametrize(

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable, Iterable
+from dataclasses import replace
 from typing import Any, Literal
 
 from lesmc.common.budget import Budget
@@ -276,6 +277,57 @@ def check_shared(
         r.stats.engine = engine
         r.stats.extra["exhaustive"] = r.stats.states_expanded
     return tried
+
+
+def same_but_bound(a: BoundProperty, b: BoundProperty) -> bool:
+    """``a`` and ``b`` differ at most in the constraint's bound (an ε sweep's variants)."""
+    return replace(a, prop=b.prop, bound=b.bound) == b
+
+
+def loosest_first(bps: list[BoundProperty]) -> list[int]:
+    """The order in which each constraint admits a subset of the paths of those before it:
+    bounds ascending for ``>``/``>=``, descending for ``<``/``<=``."""
+    up = bps[0].op in (">", ">=")
+    return sorted(range(len(bps)), key=lambda i: bps[i].bound if up else -bps[i].bound)
+
+
+def carried_over(r: CheckResult, bp: BoundProperty) -> CheckResult | None:
+    """The answer to ``bp`` read off ``r``, the finished answer to the same property with a
+    looser constraint, when ``r``'s counterexample satisfies ``bp``'s constraint too.
+
+    The counterexample is a violating path of least objective (Eq. 6-7). A tighter
+    constraint admits a subset of the paths, so its optimum is at least ``r``'s, and at
+    most that path's objective, which is ``r``'s: the optimum and the counterexample
+    are ``r``'s. So is ρ*: the paths whose objective lies below the optimum are
+    non-violating under either constraint, and ρ* is the best of them. An empty set of
+    violating paths stays empty. None when ``r`` is not finished or its counterexample
+    fails the tighter constraint (then ``bp`` needs its own search).
+    """
+    if r.stats.stopped != "finished" or not r.optimum_known:
+        return None
+    cex = r.counterexample
+    if cex is None:
+        if r.optimum is not None:
+            return None
+    elif not (
+        kernel.compare(bp.op, cex.constraint, bp.bound)
+        and (cex.objective == r.optimum or (r.optimum is None and math.isinf(cex.objective)))
+    ):
+        return None
+    stats = replace(r.stats, states_expanded=0, transitions=0, seconds=0.0, paths=None)
+    stats.extra = {"answered_by": r.property}
+    return replace(
+        r,
+        property=bp.name,
+        constraint=f"{bp.constraint.text} {bp.op} {bp.bound:g}",
+        constraint_bound=bp.bound,
+        stats=stats,
+        notes=[
+            *r.notes,
+            f"answered by the search of {r.property}: its counterexample satisfies this "
+            "tighter constraint, which cannot lower the optimum",
+        ],
+    )
 
 
 def window_notes(model: ArrayModel, bp: BoundProperty) -> list[str]:

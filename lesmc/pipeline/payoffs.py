@@ -17,7 +17,15 @@ from collections.abc import Callable
 from dataclasses import replace
 
 from lesmc.common.budget import Budget
-from lesmc.engines.check import EngineName, check_bound, check_lazy, check_shared
+from lesmc.engines.check import (
+    EngineName,
+    carried_over,
+    check_bound,
+    check_lazy,
+    check_shared,
+    loosest_first,
+    same_but_bound,
+)
 from lesmc.engines.enumerate import tree_key
 from lesmc.engines.interval import combine
 from lesmc.engines.result import CheckResult
@@ -58,7 +66,9 @@ def check_all(
     on attack payoffs the properties whose trees are the same (enumerate.tree_key: a
     sweep's variants, robustness and resilience of one window) are enumerated together,
     the tree walked once, when the engine is ``enumerate`` or the tree is small
-    (engines.check.check_shared)."""
+    (engines.check.check_shared); on a larger tree, the variants of one property that
+    differ only in the constraint's bound are searched loosest first, reusing answers
+    (:func:`_bound_families`)."""
     results: dict[int, CheckResult] = {}
     groups: dict[tuple[object, ...], list[int]] = {}
     for i, bp in enumerate(bound):
@@ -72,10 +82,48 @@ def check_all(
             if many is not None:
                 results.update(zip(idx, many, strict=True))
                 continue
+            idx = _bound_families(bound, idx, model_of, engine, budget, results)
         for i in idx:
             on_check(bound[i])
             results[i] = check_payoffs(model_of, bound[i], mode, engine, budget, notes_of(bound[i]))
     return [results[i] for i in range(len(bound))]
+
+
+def _bound_families(
+    bound: list[BoundProperty],
+    idx: list[int],
+    model_of: ModelOf,
+    engine: EngineName,
+    budget: Budget,
+    results: dict[int, CheckResult],
+) -> list[int]:
+    """Of properties ``idx`` (one tree, too large to walk whole), the variants of one
+    property that differ only in the constraint's bound (an ε sweep) searched loosest
+    first, each answered by a looser one's search when that counterexample satisfies
+    the tighter constraint (engines.check.carried_over): one search per step of the
+    optimum as a function of ε. Into ``results``; returns the properties left."""
+    families: list[list[int]] = []
+    for i in idx:
+        fam = next((f for f in families if same_but_bound(bound[f[0]], bound[i])), None)
+        if fam is None:
+            families.append([i])
+        else:
+            fam.append(i)
+    left = []
+    for fam in families:
+        if len(fam) == 1:
+            left.extend(fam)
+            continue
+        last: CheckResult | None = None
+        for j in loosest_first([bound[i] for i in fam]):
+            i = fam[j]
+            got = None if last is None else carried_over(last, bound[i])
+            if got is None:
+                got = check_model(model_of("attack"), bound[i], engine, budget.for_check())
+            results[i] = got
+            if got.stats.stopped == "finished":
+                last = got
+    return left
 
 
 def check_payoffs(
