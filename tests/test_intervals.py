@@ -336,3 +336,44 @@ def test_a_probe_stopped_by_a_budget_keeps_what_it_read(design: str) -> None:
             assert set(v.tolist()) <= set(full.get(k, np.array([])).tolist())
         if design == "single":  # (the joint design reads whole payoff columns up front)
             assert sum(map(len, part.values())) < sum(map(len, full.values()))
+
+
+def test_a_sweep_over_payoff_sources_is_each_mode_checked_alone(tmp_path: Path) -> None:
+    """``--sweep payoffs=attack,certified,interval`` (with an ε sweep): each variant's
+    verdict and optimum as ``--payoffs MODE`` with that ε gives; an attack named by an
+    algorithm other than the scene's, and certified payoffs of a model file, are refused."""
+    scene = tmp_path / "lower.json"
+    doc = with_lower("rq1_platoon", 4)
+    doc.setdefault("meta", {})["attack"] = {"method": "deepfool"}
+    scene.write_text(json.dumps(doc))
+    spec = ROOT / "specs" / "robustness.spec"
+    swept = lesmc("check", str(scene), str(spec), "--sweep", "payoffs=deepfool,certified,interval",
+                  "--sweep", "eps=60,200", "--json")  # fmt: skip
+    assert swept.returncode in (0, 1), swept.stderr
+    got = {r["property"]: r for r in json.loads(swept.stdout)["results"]}
+    assert len(got) == 6
+    text = spec.read_text()
+    for eps in (60, 200):
+        edited = tmp_path / "r.spec"
+        edited.write_text(text.replace("> 120", f"> {eps}"))
+        assert "> 120" in text
+        for source, mode in (("deepfool", "attack"), ("certified", "certified"),
+                             ("interval", "interval")):  # fmt: skip
+            one = lesmc("check", str(scene), str(edited), "--payoffs", mode, "--json")
+            want = json.loads(one.stdout)["results"][0]
+            r = got[f"robustness@payoffs={source},eps={eps}"]
+            assert (r["status"], r["optimum"], r["payoffs"]) == (
+                want["status"], want["optimum"], want["payoffs"]
+            )  # fmt: skip
+    assert {r["payoffs"] for r in got.values()} == {"attack", "certified", "interval"}
+    rep = lesmc("check", str(scene), str(spec), "--sweep", "payoffs=attack,certified",
+                "--report", str(tmp_path / "rep"))  # fmt: skip
+    assert rep.returncode in (0, 1) and "Traceback" not in rep.stderr  # no ε: no curve
+    assert (tmp_path / "rep" / "report.html").is_file()
+    pgd = lesmc("check", str(scene), str(spec), "--sweep", "payoffs=pgd")
+    assert pgd.returncode == 2 and "made by deepfool (meta.attack.method)" in pgd.stderr
+    model = tmp_path / "m.lts"
+    assert lesmc("build", str(scene), "--window", "6..8", "-o", str(model)).returncode == 0
+    res = lesmc("check", str(model), str(spec), "--sweep", "payoffs=attack,certified")
+    assert res.returncode == 2 and "certified payoffs need a scene" in res.stderr
+    assert "Traceback" not in res.stderr + pgd.stderr

@@ -61,7 +61,9 @@ ENGINES = ("levels", "bnb", "enumerate")
     multiple=True,
     metavar="PARAM=VALUES",
     help="Check every property for each value of a parameter, on one model: eps=LO..HI:STEP "
-    "or eps=V1,V2 (the constraint's bound), p=1,2,inf (the norm); repeatable (every "
+    "or eps=V1,V2 (the constraint's bound), p=1,2,inf (the norm), payoffs=deepfool,certified "
+    "(the payoff source, scenes only: the attack's payoffs, named attack or by the "
+    "algorithm that made them, certified lower bounds, or interval); repeatable (every "
     "combination). Variants are named NAME@eps=V.",
 )
 @faults_option(" Scenes only; neuron faults need lesmc verify on the video.")
@@ -131,7 +133,7 @@ def check_cmd(
     from lesmc.pipeline.job import Job
 
     parsed, source, is_scene = _inputs(model, specs, target_text, design, tracker_file)
-    parsed, only = _swept(parsed, sweep_texts, only)
+    parsed, only = _swept(parsed, sweep_texts, only, source.meta if is_scene else None)
     job = Job(
         parsed,
         scene=source if is_scene else None,
@@ -164,10 +166,15 @@ def _finish(results: Results, parsed: tuple[SpecFile, ...], as_json: bool, no_pa
 
 
 def _swept(
-    parsed: tuple[SpecFile, ...], sweep_texts: tuple[str, ...], only: tuple[str, ...]
+    parsed: tuple[SpecFile, ...],
+    sweep_texts: tuple[str, ...],
+    only: tuple[str, ...],
+    scene_meta: dict[str, Any] | None,
 ) -> tuple[tuple[SpecFile, ...], tuple[str, ...]]:
     """``--sweep``: the specs with ``--property`` applied, then each property's sweep
-    variants (and nothing left for the pipeline to select); unchanged without a sweep."""
+    variants (and nothing left for the pipeline to select); unchanged without a sweep.
+    ``scene_meta``: the scene's (None: a model file), which names the attack that made
+    its payoffs."""
     if not sweep_texts:
         return parsed, only
     from dataclasses import replace as with_
@@ -176,12 +183,37 @@ def _swept(
     from lesmc.pipeline.check import known_names
 
     sweeps = tuple(parse_sweep(t) for t in sweep_texts)
+    for sw in sweeps:
+        if sw.parameter == "payoffs":
+            _check_sources(sw.values, scene_meta)
     if only:
         known_names(only, {p.name for s in parsed for p in s.properties})
         parsed = tuple(
             with_(s, properties=tuple(p for p in s.properties if p.name in only)) for s in parsed
         )
     return tuple(swept(s, sweeps) for s in parsed), ()
+
+
+def _check_sources(sources: tuple[float | str, ...], scene_meta: dict[str, Any] | None) -> None:
+    """A payoff-source sweep names sources the input has: a model file has its attack's
+    payoffs only, and ``deepfool``/``pgd`` must be the algorithm that made the scene's."""
+    if scene_meta is None:
+        if any(s not in ("attack", "deepfool", "pgd") for s in sources):
+            raise UsageError(
+                "--sweep payoffs: a model file has its attack's payoffs only; certified "
+                "payoffs need a scene"
+            )
+        return
+    attack = scene_meta.get("attack")
+    method = attack.get("method") if isinstance(attack, dict) else None
+    for s in sources:
+        if s in ("deepfool", "pgd") and s != method:
+            made = f"by {method}" if method else "by an attack the scene does not name"
+            raise UsageError(
+                f"--sweep payoffs={s}: the scene's attack payoffs were made {made} "
+                f"(meta.attack.method); `lesmc perceive --attack {s}` makes a scene of {s} "
+                "payoffs, or sweep payoffs=attack"
+            )
 
 
 def _faults(path: str | None, parsed: tuple[SpecFile, ...], is_scene: bool) -> FaultSet | None:

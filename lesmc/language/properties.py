@@ -104,6 +104,9 @@ class Property:
     norm: float = 2.0
     components: tuple[str, ...] | None = None
     monitor: Monitor | None = None
+    #: the payoff mode of this property (attack, certified, interval), set by a sweep
+    #: over payoff sources; None: the job's (``--payoffs``)
+    payoffs: str | None = None
     pos: Pos = field(default=Pos(0, 0), compare=False)
     clause_pos: dict[str, Pos] = field(default_factory=dict, compare=False, hash=False)
 

@@ -2,7 +2,10 @@
 
 ``--sweep eps=20..400:20`` replaces every property's constraint bound (ε of
 robustness and resilience) by each value in turn; ``--sweep p=1,2,inf`` the norm of
-the deviation (Eq. 4). Several sweeps combine (every combination). Each variant is a
+the deviation (Eq. 4); ``--sweep payoffs=attack,certified`` the payoff source (the
+attack's payoffs, named by its algorithm, ``deepfool`` or ``pgd``, as well;
+certified lower bounds; or both, ``interval``). Several sweeps combine (every
+combination). Each variant is a
 property of its own, named ``NAME@eps=20`` (``NAME@eps=20,p=1``), so the
 pipeline checks them all on the one model it builds per design: the model is never
 rebuilt per value.
@@ -19,7 +22,10 @@ from lesmc.common.errors import UsageError, escape_control
 from lesmc.language.properties import Property, SpecFile
 
 #: The parameters a sweep may vary.
-PARAMETERS = ("eps", "p")
+PARAMETERS = ("eps", "p", "payoffs")
+#: The payoff sources of ``payoffs=``: the attack's (also by its algorithm's name),
+#: the certified lower bounds, or both (docs/semantics.md, "Payoff intervals").
+PAYOFF_SOURCES = ("attack", "deepfool", "pgd", "certified", "interval")
 #: Most variants a sweep may make (per property).
 MAX_VALUES = 1000
 _NUMBER = r"[+-]?(?:[0-9]+\.?[0-9]*|\.[0-9]+)(?:[eE][+-]?[0-9]+)?"
@@ -30,7 +36,7 @@ class Sweep:
     """A parameter and its values, in the order given."""
 
     parameter: str
-    values: tuple[float, ...]
+    values: tuple[float | str, ...]  #: numbers; payoff source names for ``payoffs``
 
 
 def parse_sweep(text: str) -> Sweep:
@@ -42,6 +48,15 @@ def parse_sweep(text: str) -> Sweep:
             f"--sweep must look like eps=LO..HI:STEP, eps=V1,V2 or p=1,2,inf, got '{shown}'"
         )
     name, spec = m.group(1), m.group(2)
+    if name == "payoffs":
+        sources = tuple(s.strip() for s in spec.split(","))
+        bad = [s for s in sources if s not in PAYOFF_SOURCES]
+        if bad or len(set(sources)) != len(sources):
+            raise UsageError(
+                f"--sweep {shown}: payoff sources are distinct names among "
+                + ", ".join(PAYOFF_SOURCES)
+            )
+        return Sweep(name, sources)
     rng = re.fullmatch(rf"({_NUMBER})\.\.({_NUMBER}):({_NUMBER})", spec)
     if rng:
         lo, hi, step = (float(rng.group(i)) for i in (1, 2, 3))
@@ -65,17 +80,26 @@ def parse_sweep(text: str) -> Sweep:
     return Sweep(name, values)
 
 
-def _text(v: float) -> str:
+def _text(v: float | str) -> str:
+    if isinstance(v, str):
+        return v
     return "inf" if math.isinf(v) else f"{v:g}"
 
 
-def _variant(prop: Property, settings: tuple[tuple[str, float], ...]) -> Property:
+def payoff_mode(source: str) -> str:
+    """The payoff mode of a source: an attack's name is the ``attack`` mode."""
+    return "attack" if source in ("deepfool", "pgd") else source
+
+
+def _variant(prop: Property, settings: tuple[tuple[str, float | str], ...]) -> Property:
     changed = prop
     for name, v in settings:
-        if name == "eps":
-            changed = replace(changed, constraint=replace(changed.constraint, threshold=v))
+        if name == "payoffs":
+            changed = replace(changed, payoffs=payoff_mode(str(v)))
+        elif name == "eps":
+            changed = replace(changed, constraint=replace(changed.constraint, threshold=float(v)))
         else:
-            changed = replace(changed, norm=v)
+            changed = replace(changed, norm=float(v))
     label = ",".join(f"{n}={_text(v)}" for n, v in settings)
     return replace(changed, name=f"{prop.name}@{label}")
 

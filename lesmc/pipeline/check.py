@@ -33,7 +33,7 @@ from lesmc.model.arrays import ArrayModel, reference_states
 from lesmc.model.growing import GrowingModel
 from lesmc.pipeline import certify
 from lesmc.pipeline.job import Certifier, Job, Unit
-from lesmc.pipeline.payoffs import check_all, check_payoffs
+from lesmc.pipeline.payoffs import check_all, check_payoffs, mode_of
 from lesmc.results.record import DesignRun, Results
 from lesmc.scene import Scene
 
@@ -153,10 +153,12 @@ def known_names(only: Iterable[str], names: set[str]) -> None:
 
 def _model_run(job: Job, model: ArrayModel) -> DesignRun:
     """Every property on a model file (its payoffs are built in: attack mode only)."""
-    if job.payoffs != "attack":
-        raise UsageError(f"--payoffs {job.payoffs} needs a scene: a model's payoffs are built in")
     bound = bind_all(model, job.specs)
     _unique_names(bound)
+    modes = {mode_of(bp, job.payoffs) for bp in bound}
+    if modes != {"attack"}:
+        mode = sorted(modes - {"attack"})[0]
+        raise UsageError(f"--payoffs {mode} needs a scene: a model's payoffs are built in")
     if job.only:
         known_names(job.only, {bp.name for bp in bound})
         bound = [bp for bp in bound if bp.name in job.only]
@@ -182,7 +184,8 @@ def _certified_scene(
     """In a certified payoff mode: the probes of each tracker's windows (unless the caller
     counted what lacks a bound already) and, with a certifier, the scene with bounds for
     what they found."""
-    if job.payoffs == "attack" or job.unbounded is not None:
+    certified = [bp for p in plans for bp in p.bound if mode_of(bp, job.payoffs) != "attack"]
+    if not certified or job.unbounded is not None:
         return scene, None, {}
     probes: dict[str, list[certify.Probed]] = {}
     for tracker, sc, windows in _tracker_windows(plans):
@@ -298,7 +301,7 @@ def _design_run(
         job.budget,
         lambda bp: (
             []
-            if job.payoffs == "attack"
+            if mode_of(bp, job.payoffs) == "attack"
             else _certified_notes(job, models.scene, tracker, bp, probes)
         ),
         lambda bp: job.on_stage(f"checking {bp.name} ({registry.label(plan.design)})"),
@@ -328,7 +331,8 @@ def _fault_results(
     from lesmc.pipeline.faults import check_faults
 
     assert job.faults is not None
-    nominal = models.get(tracker, "certified" if job.payoffs == "certified" else "attack")
+    mode = mode_of(bp, job.payoffs)
+    nominal = models.get(tracker, "certified" if mode == "certified" else "attack")
     reference = reference_states(nominal)[: bp.end + 1].copy()
     scene = models.scene.with_tracker(design=tracker)
     if models.certifiers is None:
@@ -339,7 +343,7 @@ def _fault_results(
         variant: Scene, vbp: BoundProperty, perceived: Mapping[int, frozenset[str]]
     ) -> CheckResult:
         notes: list[str] = []
-        if job.payoffs != "attack":
+        if mode != "attack":
             variant, notes = _certified_variant(job, variant, vbp, certifiers, perceived)
         made: dict[str, GrowingModel] = {}
 
@@ -349,7 +353,7 @@ def _fault_results(
                 made[payoffs] = lazy_model(sc, (vbp.l, vbp.u), vbp.end, reference)
             return made[payoffs]
 
-        r = check_payoffs(model_of, vbp, job.payoffs, job.engine, job.budget, notes)
+        r = check_payoffs(model_of, vbp, mode, job.engine, job.budget, notes)
         if r.verdict == "violated" and scene.meta.get("detector"):
             r = replace(r, replay="not replayed", notes=[*r.notes, FAULT_NOT_REPLAYED_NOTE])
         return r

@@ -53,6 +53,12 @@ def payoff_monotone(bp: BoundProperty) -> bool:
     return not (bp.constraint.source == "payoff" and bp.op in (">", ">="))
 
 
+def mode_of(bp: BoundProperty, default: PayoffMode) -> PayoffMode:
+    """The payoff mode of ``bp``: its own (a payoff-source sweep's variant), else the job's."""
+    own = bp.prop.payoffs
+    return default if own is None else own  # type: ignore[return-value]
+
+
 def check_all(
     model_of: ModelOf,
     bound: list[BoundProperty],
@@ -62,7 +68,8 @@ def check_all(
     notes_of: Callable[[BoundProperty], list[str]],
     on_check: Callable[[BoundProperty], None],
 ) -> list[CheckResult]:
-    """Every property of ``bound``, in order: :func:`check_payoffs` one by one, except that
+    """Every property of ``bound``, in order, each in its payoff mode (:func:`mode_of`,
+    ``mode`` by default): :func:`check_payoffs` one by one, except that
     on attack payoffs the properties whose trees are the same (enumerate.tree_key: a
     sweep's variants, robustness and resilience of one window) are enumerated together,
     the tree walked once, when the engine is ``enumerate`` or the tree is small
@@ -72,9 +79,9 @@ def check_all(
     results: dict[int, CheckResult] = {}
     groups: dict[tuple[object, ...], list[int]] = {}
     for i, bp in enumerate(bound):
-        groups.setdefault(tree_key(bp), []).append(i)
-    for idx in groups.values():
-        if mode == "attack" and len(idx) > 1:
+        groups.setdefault((mode_of(bp, mode), *tree_key(bp)), []).append(i)
+    for key, idx in groups.items():
+        if key[0] == "attack" and len(idx) > 1:
             for i in idx:
                 on_check(bound[i])
             bps = [bound[i] for i in idx]
@@ -85,7 +92,8 @@ def check_all(
             idx = _bound_families(bound, idx, model_of, engine, budget, results)
         for i in idx:
             on_check(bound[i])
-            results[i] = check_payoffs(model_of, bound[i], mode, engine, budget, notes_of(bound[i]))
+            own = mode_of(bound[i], mode)
+            results[i] = check_payoffs(model_of, bound[i], own, engine, budget, notes_of(bound[i]))
     return [results[i] for i in range(len(bound))]
 
 

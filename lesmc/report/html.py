@@ -259,14 +259,16 @@ def _table5(runs: list[_Run]) -> Table:
 def _sweep_curves(run: dict[str, Any]) -> list[figures.SweepCurve]:
     """The run's sweep variants (``NAME@eps=V``, ``NAME@eps=V,p=1``) as curves: one per
     property and setting of the other parameters, over ε (else over p), in the order
-    swept."""
+    swept. A sweep of payoff sources alone has no numeric axis: no curve."""
     groups: dict[tuple[str, str, str], list[tuple[float, dict[str, Any]]]] = {}
     for r in run["results"]:
         base, _, label = r["property"].partition("@")
         settings = dict(kv.split("=", 1) for kv in label.split(",") if "=" in kv)
         if not settings:
             continue
-        axis = "eps" if "eps" in settings else next(iter(settings))
+        axis = "eps" if "eps" in settings else "p" if "p" in settings else None
+        if axis is None:
+            continue
         rest = ",".join(f"{k}={v}" for k, v in settings.items() if k != axis)
         groups.setdefault((base, axis, rest), []).append((float(settings[axis]), r))
     curves = []
