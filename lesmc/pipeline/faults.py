@@ -74,8 +74,6 @@ class Strike:
 
     def text(self) -> str:
         f = self.fault.fault
-        if f.kind == "neuron":
-            return f"{f.name} ({f.text()} from step {self.step})"
         if f.kind == "outage":
             last = self.step + f.length - 1
             span = f"step {self.step}" if f.length == 1 else f"steps {self.step}..{last}"
