@@ -218,3 +218,18 @@ def test_verify_checks_each_design_with_the_unit_stuck(video: Path, tmp_path: Pa
     assert [f["result"]["optimum"] for f in doc2["runs"][0]["faults"]] == [
         f["result"]["optimum"] for f in doc["runs"][0]["faults"]
     ]
+
+
+def test_certified_verify_certifies_on_the_faulty_network(video: Path, tmp_path: Path) -> None:
+    """``--payoffs certified``: the fault variants' hideable detections are certified on
+    the faulty N_dr, and every result under the fault is a certified one."""
+    path = _faults(tmp_path, "fault dead: neuron detector[3, 5] = 0")
+    out = tmp_path / "out"
+    res = lesmc("verify", str(video), "--truth", str(video / "truth.json"), "--out", str(out),
+                "--design", "single", "--window", "3..4", "--faults", str(path),
+                "--payoffs", "certified")  # fmt: skip
+    assert res.returncode in (0, 1, 3), res.stderr
+    assert "Traceback" not in res.stderr and "certifying with dead" in res.stderr
+    doc = json.loads((out / "results.json").read_text())
+    faults = [f["result"] for f in doc["runs"][0]["faults"]]
+    assert len(faults) == 2 and all(r["payoffs"] == "certified" for r in faults)

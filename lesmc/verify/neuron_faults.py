@@ -16,15 +16,18 @@ needs the windows, which the cache does not keep).
 from __future__ import annotations
 
 import itertools
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 from dataclasses import asdict, dataclass, field
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING
+
+import numpy as np
 
 from lesmc.common.errors import UsageError
 from lesmc.common.progress import Reporter
 from lesmc.language.properties import Fault, FaultSet
 from lesmc.pipeline.faults import fault_error
 from lesmc.pipeline.job import Certifier
+from lesmc.scene import Footage, Frame
 from lesmc.verify import video_perception
 from lesmc.verify.cache import StageCache, digest
 from lesmc.verify.video_perception import UnitMax
@@ -32,6 +35,7 @@ from lesmc.verify.video_perception import UnitMax
 if TYPE_CHECKING:
     from lesmc.perception.cnn import Nets
     from lesmc.perception.neurons import StuckUnit
+    from lesmc.perception.run import PerceiveRun
     from lesmc.video.reader import FrameSet
 
 
@@ -96,7 +100,7 @@ class NeuronRuns:
     """The video under every set of neuron faults: its frames, and in a certified payoff
     mode each run's certifier."""
 
-    frames: dict[frozenset[str], dict[int, Any]] = field(default_factory=dict)
+    frames: dict[frozenset[str], dict[int, Frame]] = field(default_factory=dict)
     certify: dict[frozenset[str], Certifier] = field(default_factory=dict)
 
 
@@ -139,7 +143,7 @@ def _names(combo: tuple[Fault, ...]) -> str:
     return ", ".join(f"{f.name} ({f.text()})" for f in combo)
 
 
-def _by_step(footage: Any) -> dict[int, Any]:
+def _by_step(footage: Footage) -> dict[int, Frame]:
     return {fr.step: fr for fr in footage.frames}
 
 
@@ -179,18 +183,18 @@ def _perceive_group(
 
 
 def _certifier(
-    nets: Nets, run: Any, names: str, rep: Reporter, spent: Callable[[str], None]
+    nets: Nets, run: PerceiveRun, names: str, rep: Reporter, spent: Callable[[str], None]
 ) -> Certifier:
     """Certification on demand of the detections of a faulty run, on its faulty N_dr."""
     from lesmc.perception.run import certify_on_demand
 
-    def certify(wanted: Any) -> Any:
+    def certify(wanted: Mapping[int, np.ndarray]) -> dict[int, np.ndarray]:
         with rep.bar(f"certifying with {names}", None) as bar:
 
             def batch(done: int, total: int) -> None:
                 bar.update(total=total, completed=done)
                 spent("certifying payoff lower bounds with neurons stuck")
 
-            return certify_on_demand(nets, run, wanted, batch)
+            return certify_on_demand(nets, run, dict(wanted), batch)
 
     return certify
