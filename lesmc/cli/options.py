@@ -60,6 +60,13 @@ model_output = click.option(
 )
 
 
+def file_option(flag: str, dest: str, help_text: str) -> Callable[[F], F]:
+    """An optional ``FLAG FILE`` option (a path to a file, not a directory)."""
+    return click.option(
+        flag, dest, type=click.Path(dir_okay=False), default=None, metavar="FILE", help=help_text
+    )
+
+
 def design_option(help_text: str) -> Callable[[F], F]:
     """``--design TRACKER``: a tracker of the registry, overriding the one a scene names."""
     return click.option(
@@ -88,22 +95,16 @@ nets_option = click.option(
 
 def network_options(f: F) -> F:
     """``--detector FILE`` and ``--locator FILE``: the user's N_dr and N_lp (.pt2, .onnx)."""
-    f = click.option(
+    f = file_option(
         "--locator",
         "locator_file",
-        type=click.Path(dir_okay=False),
-        default=None,
-        metavar="FILE",
-        help="The user's N_lp (.pt2 or .onnx): (B, m+1, 45, 45) windows -> (B, 15, 15) maps "
+        "The user's N_lp (.pt2 or .onnx): (B, m+1, 45, 45) windows -> (B, 15, 15) maps "
         "(docs/own-system.md).",
     )(f)
-    return click.option(
+    return file_option(
         "--detector",
         "detector_file",
-        type=click.Path(dir_okay=False),
-        default=None,
-        metavar="FILE",
-        help="The user's N_dr (.pt2 or .onnx): (B, m+1, 21, 21) windows -> (B, 2) logits; "
+        "The user's N_dr (.pt2 or .onnx): (B, m+1, 21, 21) windows -> (B, 2) logits; "
         "payoffs by its attack, certified bounds if its operations allow "
         "(docs/own-system.md).",
     )(f)
@@ -297,13 +298,10 @@ def load_scene_file(
 def faults_option(extra: str = "") -> Callable[[F], F]:
     """``--faults FILE``: component failures (docs/language.md, "Faults"), for ``check``
     and ``verify``; ``extra`` ends the help text."""
-    return click.option(
+    return file_option(
         "--faults",
         "faults_file",
-        type=click.Path(dir_okay=False),
-        default=None,
-        metavar="FILE",
-        help="Also check every property under the component failures of FILE's faults "
+        "Also check every property under the component failures of FILE's faults "
         "block (Kalman matrix entries, sensor outages, detector neurons stuck; "
         "docs/language.md, 'Faults'): one "
         "result per combination of at most 'budget' faults, named NAME+FAULT, the "
@@ -312,13 +310,10 @@ def faults_option(extra: str = "") -> Callable[[F], F]:
 
 
 #: ``--tracker FILE``: a tracker file replacing the scene's tracker block.
-tracker_option = click.option(
+tracker_option = file_option(
     "--tracker",
     "tracker_file",
-    type=click.Path(dir_okay=False),
-    default=None,
-    metavar="FILE",
-    help="A tracker file (JSON, or TOML unless the name ends in .json) replacing the "
+    "A tracker file (JSON, or TOML unless the name ends in .json) replacing the "
     "scene's tracker: a preset model (cv2d, ca2d) or the matrices F, H, Q, R, P0 "
     "(docs/own-system.md).",
 )

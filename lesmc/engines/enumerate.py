@@ -88,7 +88,7 @@ def enumerate_many(spaces: list[Space], budget: Budget | None = None) -> list[En
         levels.append((parent, trans))
         for i, s in enumerate(spaces):
             if i:  # the first space unfolded: the others read the new transitions too
-                getattr(s, "sync", _nothing)()
+                s.sync()
             obj[i] = aggregate_arrays(s.obj_max, obj[i][parent], s.c_obj[trans])
             con[i] = aggregate_arrays(s.con_max, con[i][parent], s.c_con[trans])
         node = cm.dst[trans]
@@ -115,10 +115,6 @@ def _outcome(
     out = _algorithm2(space, all_obj, all_con, done_ref, levels, stats)
     stats.seconds = time.perf_counter() - t0
     return out
-
-
-def _nothing() -> None:
-    """An explicit model's space has nothing to sync."""
 
 
 def _finished(

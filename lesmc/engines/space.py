@@ -146,6 +146,10 @@ class SpaceOps:
 
     agg = staticmethod(kernel.aggregate)
 
+    def sync(self) -> None:
+        """Read what another space sharing the model unfolded since the last call (a
+        whole model has nothing to read: every state is there)."""
+
     def is_leaf(self, q: int) -> bool:
         """A path ends here: the property's last step, or the track halted."""
         return bool(self.cm.step[q] >= self.bp.end or self.cm.halted[q])

@@ -184,7 +184,7 @@ def _certified_scene(
     """In a certified payoff mode: the probes of each tracker's windows (unless the caller
     counted what lacks a bound already) and, with a certifier, the scene with bounds for
     what they found."""
-    certified = [bp for p in plans for bp in p.bound if mode_of(bp, job.payoffs) != "attack"]
+    certified = any(mode_of(bp, job.payoffs) != "attack" for p in plans for bp in p.bound)
     if not certified or job.unbounded is not None:
         return scene, None, {}
     probes: dict[str, list[certify.Probed]] = {}

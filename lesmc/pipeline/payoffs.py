@@ -81,7 +81,8 @@ def check_all(
     for i, bp in enumerate(bound):
         groups.setdefault((mode_of(bp, mode), *tree_key(bp)), []).append(i)
     for key, idx in groups.items():
-        if key[0] == "attack" and len(idx) > 1:
+        shared = key[0] == "attack" and len(idx) > 1
+        if shared:
             for i in idx:
                 on_check(bound[i])
             bps = [bound[i] for i in idx]
@@ -91,7 +92,8 @@ def check_all(
                 continue
             idx = _bound_families(bound, idx, model_of, engine, budget, results)
         for i in idx:
-            on_check(bound[i])
+            if not shared:  # announced above
+                on_check(bound[i])
             own = mode_of(bound[i], mode)
             results[i] = check_payoffs(model_of, bound[i], own, engine, budget, notes_of(bound[i]))
     return [results[i] for i in range(len(bound))]
