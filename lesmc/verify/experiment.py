@@ -105,8 +105,9 @@ class _Source:
     net_files: NetFiles | None = None  #: the networks to load when needed (cached perception)
     truth_path: str | None = None
     cache: StageCache | None = None
-    perception: _Perception | None = None  #: verify's own perception of the video
-    dt: float = 0.0  #: seconds between frames (with ``perception``)
+    #: verify's own perception of the video: its cache key, each hidden unit's largest
+    #: value, the seconds between frames (neuron faults perceive it again)
+    perceived: tuple[str, UnitMax, float] | None = None
 
     def networks(self) -> Any:
         """The networks: loaded now if perception came from the cache."""
@@ -184,7 +185,7 @@ def _check_neuron_faults(req: Request, faults: FaultSet | None) -> None:
 def _neuron_runs(req: Request, faults: FaultSet | None, src: _Source, rep: Reporter) -> NeuronRuns:
     """The video perceived under every set of neuron faults (lesmc/verify/neuron_faults.py);
     none without neuron faults, or on a scene file (the pipeline then says why)."""
-    seen = src.perception
+    seen = src.perceived
     if not neuron_faults(faults) or seen is None or src.frames is None or src.cache is None:
         return NeuronRuns()
     assert faults is not None
@@ -192,7 +193,7 @@ def _neuron_runs(req: Request, faults: FaultSet | None, src: _Source, rep: Repor
         faults,
         src.frames,
         src.networks,
-        (seen.key, seen.unit_max, src.dt),
+        seen,
         src.cache,
         rep,
         lambda stage: _spent(req.budget, stage),
@@ -258,8 +259,9 @@ def _perceived(req: Request, specs: list[SpecFile], rep: Reporter) -> _Source:
         meta["target choice"] = scene.meta["target_choice"]
     meta |= {"detector": footage.meta.get("detector", ""), "scene": str(req.out / "scene.json")}
     return _Source(
-        scene, frames, truths, seen.nets, seen.run, meta, True, req.nets, truth, cache, seen, dt
-    )
+        scene, frames, truths, seen.nets, seen.run, meta, True, req.nets, truth, cache,
+        (seen.key, seen.unit_max, dt),
+    )  # fmt: skip
 
 
 @dataclass
@@ -397,20 +399,13 @@ def _certifier(src: _Source, rep: Reporter, budget: Budget) -> Certifier | None:
     bounds come with it, from ``perceive --certify``)."""
     if src.run is None:
         return None
-    from lesmc.perception.run import certify_on_demand
-
-    run, nets = src.run, src.nets
-
-    def certify(wanted: Any) -> dict[int, np.ndarray]:
-        with rep.bar("certifying", None) as bar:
-
-            def batch(done: int, total: int) -> None:
-                bar.update(total=total, completed=done)
-                _spent(budget, "certifying payoff lower bounds")
-
-            return certify_on_demand(nets, run, wanted, batch)
-
-    return certify
+    return video_perception.certifier(
+        src.nets,
+        src.run,
+        "certifying",
+        rep,
+        lambda _: _spent(budget, "certifying payoff lower bounds"),
+    )
 
 
 # ------------------------------------------------------------------ results and report

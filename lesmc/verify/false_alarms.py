@@ -103,13 +103,13 @@ def unattacked_taus(
     batch = _stacked(firsts)
     loc = base.tracker.measured
     taus = [[float(tau(tracker.covariances[int(c)], loc))] for c in batch.cov]
-    live = np.flatnonzero(~batch.halted)
+    live = np.flatnonzero(~batch.halted)  # the starts still tracked; ``batch`` holds them
+    batch = batch.take(live)
     last = min(steps, base.last_step - base.target.step)
     for k in range(1, last + 1):
         if not live.size:
             break
-        batch = tracker.successors(batch.take(live) if live.size < len(batch) else batch,
-                                   base.target.step + k, False).states  # fmt: skip
+        batch = tracker.successors(batch, base.target.step + k, False).states
         for i, c in zip(live.tolist(), batch.cov.tolist(), strict=True):
             taus[i].append(float(tau(tracker.covariances[int(c)], loc)))
         keep = ~batch.halted

@@ -16,13 +16,10 @@ needs the windows, which the cache does not keep).
 from __future__ import annotations
 
 import itertools
-from collections.abc import Callable, Mapping
+from collections.abc import Callable
 from dataclasses import asdict, dataclass, field
 from typing import TYPE_CHECKING
 
-import numpy as np
-
-from lesmc.common.errors import UsageError
 from lesmc.common.progress import Reporter
 from lesmc.language.properties import Fault, FaultSet
 from lesmc.pipeline.faults import fault_error
@@ -35,7 +32,6 @@ from lesmc.verify.video_perception import UnitMax
 if TYPE_CHECKING:
     from lesmc.perception.cnn import Nets
     from lesmc.perception.neurons import StuckUnit
-    from lesmc.perception.run import PerceiveRun
     from lesmc.video.reader import FrameSet
 
 
@@ -170,31 +166,11 @@ def _perceive_group(
             spent("perceiving the video with neurons stuck")
 
         metas = [{"neuron faults": _names(combo)} for combo, _, _ in todo]
-        try:
-            seen = video_perception.perceive_videos(frames, faulty, dt, metas, certified, advance)
-        except UsageError:
-            raise UsageError(f"the detector with {label} produced no frame of detections") from None
+        seen = video_perception.perceive_videos(frames, faulty, dt, metas, certified, advance)
     for (combo, _, combo_key), net, (footage, run) in zip(todo, faulty, seen, strict=True):
         video_perception.store(cache, "neuron-fault", combo_key, footage, run.unit_max)
         name = frozenset(f.name for f in combo)
         out.frames[name] = _by_step(footage)
         if certified:
-            out.certify[name] = _certifier(net, run, _names(combo), rep, spent)
-
-
-def _certifier(
-    nets: Nets, run: PerceiveRun, names: str, rep: Reporter, spent: Callable[[str], None]
-) -> Certifier:
-    """Certification on demand of the detections of a faulty run, on its faulty N_dr."""
-    from lesmc.perception.run import certify_on_demand
-
-    def certify(wanted: Mapping[int, np.ndarray]) -> dict[int, np.ndarray]:
-        with rep.bar(f"certifying with {names}", None) as bar:
-
-            def batch(done: int, total: int) -> None:
-                bar.update(total=total, completed=done)
-                spent("certifying payoff lower bounds with neurons stuck")
-
-            return certify_on_demand(nets, run, dict(wanted), batch)
-
-    return certify
+            label = f"certifying with {_names(combo)}"
+            out.certify[name] = video_perception.certifier(net, run, label, rep, spent)

@@ -10,12 +10,14 @@ value).
 
 from __future__ import annotations
 
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 from lesmc.common.errors import LesmcError, UsageError
+from lesmc.common.progress import Reporter
+from lesmc.pipeline.job import Certifier
 from lesmc.scene import Footage, footage_from_dict, scene_to_dict
 from lesmc.verify.cache import StageCache
 
@@ -66,6 +68,25 @@ def perceive_videos(
     if not runs[0].detections:
         raise UsageError("the video produced no detections")
     return [(footage_from_run(r, dt, m), r) for r, m in zip(runs, metas, strict=True)]
+
+
+def certifier(
+    nets: Nets, run: PerceiveRun, label: str, rep: Reporter, spent: Callable[[str], None]
+) -> Certifier:
+    """Certification on demand of a perception run's detections, on its N_dr, with a
+    progress bar named ``label``; ``spent(stage)`` stops the run once the budget is spent."""
+    from lesmc.perception.run import certify_on_demand
+
+    def certify(wanted: Mapping[int, np.ndarray]) -> dict[int, np.ndarray]:
+        with rep.bar(label, None) as bar:
+
+            def batch(done: int, total: int) -> None:
+                bar.update(total=total, completed=done)
+                spent(label)
+
+            return certify_on_demand(nets, run, dict(wanted), batch)
+
+    return certify
 
 
 def store(cache: StageCache, stage: str, key: str, footage: Footage, unit_max: UnitMax) -> None:
