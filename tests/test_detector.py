@@ -176,3 +176,21 @@ def test_payoffs_of_real_detections_flip_the_shipped_detector() -> None:
     assert (p_after[ok] <= nets.settings.delta_dr).all()
     norms = np.linalg.norm(res.perturbation.reshape(len(ok), -1).astype(np.float64), axis=1)
     assert np.allclose(res.payoff[ok], norms[ok], rtol=1e-6)
+
+
+def test_the_networks_answer_the_same_bits_in_the_batches_the_detector_uses() -> None:
+    """DR_BATCH and LP_BATCH were chosen for speed: a window's N_dr probability and N_lp
+    map do not depend on the batch it went through beyond float32 rounding (a kernel
+    chosen per batch shape), against the old batches and one window at a time."""
+    from lesmc.perception.detector import DR_BATCH, LP_BATCH, dr_probability, lp_maps
+
+    nets = load_nets()
+    rng = np.random.default_rng(4)
+    dr = rng.random((1000, 4, 21, 21), dtype=np.float32)
+    lp = rng.random((150, 4, 45, 45), dtype=np.float32)
+    p = dr_probability(nets, dr, DR_BATCH)
+    np.testing.assert_allclose(p, dr_probability(nets, dr, 2048), rtol=1e-5, atol=1e-6)
+    np.testing.assert_allclose(p[:20], dr_probability(nets, dr[:20], 1), rtol=1e-5, atol=1e-6)
+    maps = lp_maps(nets, lp, LP_BATCH)
+    np.testing.assert_allclose(maps, lp_maps(nets, lp, 512), rtol=1e-5, atol=1e-6)
+    np.testing.assert_allclose(maps[:5], lp_maps(nets, lp[:5], 1), rtol=1e-5, atol=1e-6)

@@ -181,3 +181,44 @@ def test_score_counts_dont_care_vehicles_as_neither_hit_nor_false_alarm() -> Non
     assert (s.tp, s.fp, s.fn, s.ignored) == (1, 1, 1, 1)
     assert s.precision == 0.5 and s.recall == 0.5
     assert s.error == pytest.approx(0.5)
+
+
+def test_known_registrations_give_the_front_end_of_a_full_pass() -> None:
+    """A front end given an earlier pass's registrations (what the replay of lesmc verify
+    does) neither describes nor matches those frames, and its outputs are the same bits."""
+    from dataclasses import fields
+
+    import lesmc.perception.frontend as fe_module
+
+    base = texture(384, 11)
+    video = []
+    for k in range(7):  # the camera moves a few pixels a frame; a blob moves across
+        shift = np.array([[1, 0, 2.5 * k], [0, 1, -1.5 * k]], np.float32)
+        img = cv2.warpAffine(base, shift, (384, 384), borderMode=cv2.BORDER_REFLECT)
+        cv2.circle(img, (60 + 25 * k, 200), 4, 255, -1)
+        video.append(img)
+    cfg = FrontEndConfig(history=3)
+    full = FrontEnd(cfg)
+    want = [full.push(f) for f in video]
+    described = []
+    real = fe_module.describe
+
+    def counting(img: np.ndarray, c: RegistrationConfig) -> object:
+        described.append(1)
+        return real(img, c)
+
+    fe_module.describe = counting  # type: ignore[assignment]
+    try:
+        again = FrontEnd(cfg, known={k: full.registrations[k] for k in range(1, 5)})
+        got = [again.push(f) for f in video]
+    finally:
+        fe_module.describe = real
+    assert len(described) == 3  # frames 4 (its previous one) and 5, 6: the unknown ones
+    for a, b in zip(got, want, strict=True):
+        assert (a is None) == (b is None)
+        if a is None or b is None:
+            continue
+        assert np.array_equal(a.background, b.background)
+        for f in fields(a.candidates):
+            assert np.array_equal(getattr(a.candidates, f.name), getattr(b.candidates, f.name))
+        assert np.array_equal(a.registration.homography, b.registration.homography)

@@ -105,8 +105,12 @@ def test_replay_of_the_attacked_frames_alone_equals_a_pass_over_every_frame(
     frames, nets = open_frames(str(video), 5), load_nets()
     run = perceive(frames, PerceiveOptions(history=4, nets=nets, attack=AttackConfig()))
     full = replay(doc, frames, nets)
-    sparse = replay(doc, frames, nets, clean={fd.index: fd for fd in run.detections})
+    clean = {fd.index: fd for fd in run.detections}
+    sparse = replay(doc, frames, nets, clean=clean)
     assert full.replays and sparse.replays == full.replays
+    # and with the perception's registrations (no frame described or matched again)
+    known = replay(doc, frames, nets, clean=clean, registrations=run.registrations)
+    assert known.replays == full.replays
 
 
 def test_a_counterexample_that_the_tracker_does_not_follow_is_diverged(verified: tuple) -> None:

@@ -159,3 +159,44 @@ def test_synth_cli_writes_frames_and_truth(tmp_path: Path) -> None:
     ]
     bad = CliRunner().invoke(cli, ["synth", str(tmp_path / "w"), "--size", "96by64"])
     assert bad.exit_code != 0 and not (tmp_path / "w").exists()
+
+
+def test_pipelined_rendering_equals_rendering_one_frame_after_the_other() -> None:
+    """frames() draws frame k+1 while a second thread runs frame k's sensor: the frames and
+    truth are those of the world rendered and quantised frame by frame (an oracle written
+    from World's public steps), for 8- and 16-bit videos."""
+    from lesmc.video import FPS
+    from lesmc.video.synth import World
+
+    for cfg in (SMALL, SynthConfig(frames=4, width=256, height=192, seed=3, depth=16)):
+        world = World(cfg)
+        want = []
+        for k in range(cfg.frames):
+            img, _, vehicles = world.render(k)
+            if cfg.depth == 16:
+                img = np.clip(img * 257.0, 0, 65535).astype(np.uint16)
+            else:
+                img = np.clip(np.rint(img), 0, 255).astype(np.uint8)
+            want.append((img, vehicles))
+            world.traffic.step(1.0 / FPS)
+        got = list(frames(cfg))
+        assert len(got) == len(want)
+        for (img, truth), (w_img, w_vehicles) in zip(got, want, strict=True):
+            assert img.dtype == w_img.dtype and np.array_equal(img, w_img)
+            assert truth.vehicles == w_vehicles
+
+
+def test_an_interrupted_video_leaves_nothing_behind(tmp_path: Path) -> None:
+    """progress() raising (a budget spent, Ctrl-C) stops the writer thread and removes the
+    staging directory: the output directory holds nothing the run wrote."""
+    out = tmp_path / "v"
+    calls = []
+
+    def stop() -> None:
+        calls.append(1)
+        if len(calls) == 3:
+            raise KeyboardInterrupt
+
+    with pytest.raises(KeyboardInterrupt):
+        write_video(SMALL, out, progress=stop)
+    assert list(out.iterdir()) == []

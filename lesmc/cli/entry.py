@@ -43,7 +43,9 @@ def _leave(code: int | str | None) -> None:
 def _run(argv: list[str] | None) -> None:
     try:
         from lesmc.cli import signals
+        from lesmc.common.memory import one_arena
 
+        one_arena()  # threads' freed memory can go back to the system (common/memory.py)
         try:
             with signals.handlers():
                 from lesmc.cli.main import main as run

@@ -6,6 +6,15 @@ Stages, each a separate module: ``registration`` (camera motion, Eq. 15),
 that runs them frame by frame; ``quality`` scores candidates against truth.
 """
 
+import os
+
+#: oneDNN (torch's CPU convolutions) keeps a compiled kernel for every batch shape it has
+#: seen, 1,024 by default; DeepFool's shrinking batches bring a new shape at nearly every
+#: step, and the cache grew verify's peak by 60 MB. 64 keeps the peak that much lower in
+#: the same time (docs/performance.md, "The main job"). Set before torch's first
+#: convolution, so any module of lesmc.perception sets it; a value the user set wins.
+os.environ.setdefault("ONEDNN_PRIMITIVE_CACHE_CAPACITY", "64")
+
 #: Bisection steps of on-demand certification (``verify``, ``campaign --payoffs``): it
 #: bounds a handful of detections, so it can afford three times ``perceive --certify``'s 2
 #: (docs/cnn.md: median ratio 0.057 -> 0.070).

@@ -49,7 +49,11 @@ class AttackConfig:
     bisections: int = 12
     eps_start: float = 0.25  #: first L2 budget of the PGD search (doubled until it flips)
     eps_max: float = 32.0  #: largest L2 budget the PGD search tries
-    batch: int = 512
+    #: windows per attack batch: autograd keeps each batch's activations (about 130 kB a
+    #: window), so 128 peaks 110 MB lower than 512 in the same time. Every window's
+    #: iterations are its own; only oneDNN's kernel for a batch shape may round
+    #: differently (payoffs then differ in the 8th digit; docs/performance.md, "The main job")
+    batch: int = 128
 
 
 @dataclass

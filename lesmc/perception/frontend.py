@@ -8,6 +8,7 @@ previous frame. Frames before that only fill the history.
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -45,26 +46,42 @@ class FrontEndOutput:
 
 
 class FrontEnd:
-    """Stateful frame-by-frame runner of the front end."""
+    """Stateful frame-by-frame runner of the front end.
 
-    def __init__(self, cfg: FrontEndConfig | None = None) -> None:
+    ``known``: registrations an earlier pass over the same frames made (frame index ->
+    its registration from the previous frame, :attr:`registrations` of that pass). Such a
+    frame is not described or matched again: registration is deterministic, so the
+    result is the same (the replay of lesmc verify uses this for its attacked frames).
+    """
+
+    def __init__(
+        self, cfg: FrontEndConfig | None = None, known: Mapping[int, Registration] | None = None
+    ) -> None:
         self.cfg = cfg or FrontEndConfig()
         if self.cfg.history < 1:
             raise ValueError("history (L) must be at least 1")
         self.history = FrameHistory(self.cfg.history)
-        self.features: Features | None = None
+        self.features: Features | None = None  # of the newest frame, when it was described
         self.index = -1
-        self.homographies: list[np.ndarray] = []  # h_k^{k-1} for k = 1, 2, ...
+        self.known: Mapping[int, Registration] = known or {}
+        #: frame index -> its registration from the previous frame (h_k^{k-1}, Eq. 15)
+        self.registrations: dict[int, Registration] = {}
 
     def push(self, frame: np.ndarray) -> FrontEndOutput | None:
         """Feed the next uint8 grey frame; candidates once L previous frames are known."""
         self.index += 1
-        feats = describe(frame, self.cfg.registration)
         out = None
-        if self.features is not None:
-            prev = self.history.frames[-1]
-            reg = register(self.features, feats, self.cfg.registration, prev, frame)
-            self.homographies.append(reg.homography)
+        feats = None
+        if self.history.frames:
+            reg = self.known.get(self.index)
+            if reg is None:
+                prev = self.history.frames[-1]
+                before = self.features
+                if before is None:  # the first frame, or one whose registration was known
+                    before = describe(prev, self.cfg.registration)
+                feats = describe(frame, self.cfg.registration)
+                reg = register(before, feats, self.cfg.registration, prev, frame)
+            self.registrations[self.index] = reg
             self.history.advance(reg.homography)
             if self.history.full():
                 out = self._detect(frame, reg)

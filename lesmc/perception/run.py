@@ -21,7 +21,7 @@ from lesmc.perception.cnn import DR_SIZE, Nets
 from lesmc.perception.detector import Detector, DetectorConfig, FrameDetections
 from lesmc.perception.frontend import FrontEnd, FrontEndConfig, FrontEndOutput
 from lesmc.perception.quality import Score, Truth, TruthFrame, care_mask, score
-from lesmc.perception.registration import RegistrationError
+from lesmc.perception.registration import Registration, RegistrationError
 from lesmc.video.reader import FrameSet
 
 ZERO = Score(0, 0, 0, 0, 0.0)
@@ -57,6 +57,8 @@ class PerceiveRun:
     #: per network ("detector", "locator"), per hidden layer, each unit's largest value
     #: on the windows scored (lesmc/perception/neurons.py; empty without the CNNs)
     unit_max: dict[str, list[np.ndarray]] = field(default_factory=dict)
+    #: frame index -> its registration from the previous frame (a replay reuses them)
+    registrations: dict[int, Registration] = field(default_factory=dict)
 
 
 def perceive(
@@ -101,6 +103,7 @@ def perceive_all(
             _frame(run, det, opts, out, frames.paths[i].name, tf)
         release()  # what this frame freed goes back to the system (common/memory.py)
     for run, det in zip(out_runs, dets, strict=True):
+        run.registrations = fe.registrations
         if det is not None:
             run.unit_max = det.maxima.maxima
     return out_runs

@@ -58,6 +58,7 @@ if TYPE_CHECKING:
     from lesmc.perception.cnn import Nets
     from lesmc.perception.detector import Detector, FrameDetections
     from lesmc.perception.frontend import FrontEndOutput
+    from lesmc.perception.registration import Registration
     from lesmc.results.record import Results
     from lesmc.video.reader import FrameSet
 
@@ -212,19 +213,29 @@ def _apply(
     stack: list[np.ndarray], centres: np.ndarray, deltas: np.ndarray, size: int
 ) -> list[np.ndarray]:
     """The detector inputs (0..255 floats) with window perturbations (pixel scale [0, 1]) added
-    at the pixels :func:`lesmc.perception.windows.cut` took them from; clipped to [0, 255]."""
+    at the pixels :func:`lesmc.perception.windows.cut` took them from; clipped to [0, 255].
 
-    out = [s.astype(np.float64, copy=True) for s in stack]
-    h, w = out[0].shape
-    org = origins(centres, size)
+    The windows' box is perturbed in float64 and every frame kept in float32 (16 MB at
+    2048x2048 instead of 32), the precision :func:`~lesmc.perception.windows.cut` gives
+    N_dr's and N_lp's windows anyway: the windows are the same bits as from float64 frames.
+    """
+    out = [s.astype(np.float32) for s in stack]
+    if not len(centres):
+        return out
+    h, w = stack[0].shape
     offs = np.arange(size)
-    for (x0, y0), d in zip(org, deltas, strict=True):
-        xs = np.clip(x0 + offs, 0, w - 1)
-        ys = np.clip(y0 + offs, 0, h - 1)
-        yy, xx = np.meshgrid(ys, xs, indexing="ij")
-        for c in range(len(out)):
-            np.add.at(out[c], (yy, xx), 255.0 * d[c].astype(np.float64))
-    return [np.clip(s, 0.0, 255.0) for s in out]
+    org = origins(centres, size)
+    ys = np.clip(org[:, 1, None] + offs, 0, h - 1)  # (windows, size) rows, as cut() takes them
+    xs = np.clip(org[:, 0, None] + offs, 0, w - 1)
+    box = (slice(ys.min(), ys.max() + 1), slice(xs.min(), xs.max() + 1))
+    ys, xs = ys - ys.min(), xs - xs.min()
+    for c, s in enumerate(stack):
+        f = s[box].astype(np.float64)
+        for y, x, d in zip(ys, xs, deltas, strict=True):
+            np.add.at(f, np.ix_(y, x), 255.0 * d[c].astype(np.float64))
+        np.clip(f, 0.0, 255.0, out=f)
+        out[c][box] = f
+    return out
 
 
 def _redetect(
@@ -255,27 +266,34 @@ def _redetect(
     changed = np.zeros(frame.shape, bool)
     for a, b in zip(pert_aligned, clean, strict=True):
         changed |= a != b
-    bg = out.background.astype(np.float64)
+    bg = out.background.astype(np.float32)
     if changed.any():
         ys, xs = np.nonzero(changed)
         sl = (slice(ys.min(), ys.max() + 1), slice(xs.min(), xs.max() + 1))
-        now = np.median(np.stack([a[sl] for a in pert_aligned]), axis=0)
+        now = np.median(np.stack([a[sl].astype(np.float64) for a in pert_aligned]), axis=0)
         was = np.median(np.stack([b[sl].astype(np.float64) for b in clean]), axis=0)
         bg[sl] += alpha * (now - was)
-    diff = np.abs(frame - bg).astype(np.float32)
+    diff = np.subtract(frame, bg, dtype=np.float32)
+    np.abs(diff, out=diff)
     cfg = det.frontend.cfg.blobs
-    mask: np.ndarray = np.where((diff > cfg.delta_bc) & (out.aligned.valid > 0), 255, 0).astype(
-        np.uint8
-    )
+    mask = ((diff > cfg.delta_bc) & (out.aligned.valid > 0)).astype(np.uint8)
+    mask *= 255
     if cfg.close_px > 1:
         kernel = cv2.getStructuringElement(cv2.MORPH_CROSS, (cfg.close_px, cfg.close_px))
         mask = cv2.morphologyEx(mask, cv2.MORPH_CLOSE, kernel)
     cands = blobs(mask, diff, cfg)
+    del changed, bg, diff, mask  # 40 MB at 2048x2048 that the CNNs do not read
     pert_out = FrontEndOutput(
-        out.index, frame, cands, Aligned(pert_aligned, out.aligned.valid), bg, out.registration
+        out.index,
+        frame,
+        cands,
+        Aligned(pert_aligned, out.aligned.valid),
+        out.background,  # not read by detect(): the clean one stands in for the perturbed
+        out.registration,
     )
     fd = det.detect(pert_out)
-    return fd, cands.centroid[_accepted(det, pert_out)]
+    assert fd.accepted is not None  # detect() records the rows N_dr accepted
+    return fd, cands.centroid[fd.accepted]
 
 
 def _match(a: np.ndarray, b: np.ndarray, tol: float) -> np.ndarray:
@@ -352,6 +370,7 @@ def attack_frame(
     idx = _hidden_indices(fd, hidden)
     blobs_used = sorted({int(fd.source[j]) for j in idx})
     res = payoffs(nets.dr, fd.windows[blobs_used], nets.settings.delta_dr, cfg)
+    release()  # what the attack freed goes back before the frames are copied
     by_blob = dict(zip(blobs_used, range(len(blobs_used)), strict=True))
     # the clean candidate centres of the blobs, where cut() took the windows
     # candidate rows of Q_dr, in order: as the detection of this frame found them
@@ -366,8 +385,7 @@ def attack_frame(
             _perturbation(h, j, fd, centres[r], rec, flipped, res.perturbation[r])
         )
     base = stack(out.frame, out.aligned.frames, m)
-    deltas = res.perturbation.astype(np.float64)
-    inputs = _apply(base, centres, deltas, DR_SIZE)
+    inputs = _apply(base, centres, res.perturbation, DR_SIZE)
     after, kept = _redetect(det, out, inputs, m)
     _diagnose(fa, fd, after, idx)
     if repair:
@@ -406,7 +424,7 @@ def _repair(
         ok = more.flipped
         fa.extra_cost += float(more.payoff[ok].sum())
         cs = kept[rows][ok]
-        inputs = _apply(inputs, cs, more.perturbation[ok].astype(np.float64), DR_SIZE)
+        inputs = _apply(inputs, cs, more.perturbation[ok], DR_SIZE)
         after, kept = _redetect(det, out, inputs, m)
         _diagnose(fa, fd, after, idx)
     fa.repaired_rounds = rounds
@@ -620,30 +638,27 @@ def replay(
     on_frame: Callable[[], None] | None = None,
     repair: bool = True,
     clean: Mapping[int, FrameDetections] | None = None,
+    registrations: Mapping[int, Registration] | None = None,
 ) -> Outcome:
     """Replay every violated property's counterexample of ``doc`` (or ``prop``'s) on ``frames``.
 
     ``clean``: each frame's detections as the perception of these frames with these
     networks made them (``lesmc verify`` hands over its own): then only the attacked
     frames, after the ``history`` frames before each that the front end needs, go
-    through the detector (tests/test_replay.py checks both ways agree).
+    through the detector; ``registrations``, that perception's (``PerceiveRun``), spare
+    the front end describing and matching those frames again (tests/test_replay.py
+    checks that every way agrees).
     """
     import time
 
-    from lesmc.perception.attacks import AttackConfig
-    from lesmc.perception.blobs import BlobConfig
     from lesmc.perception.detector import Detector, DetectorConfig
-    from lesmc.perception.frontend import FrontEndConfig
 
     t0 = time.monotonic()
     todo = cases(doc, prop)
     if not todo:
         return Outcome({}, 0.0)
-    perception = doc.get("perception", {})
-    attack_cfg = AttackConfig(**perception.get("attack", {}))
-    history = int(perception.get("history", history))
-    delta_bc = int(perception.get("delta_bc", delta_bc))
-    fe = FrontEndConfig(history=history, blobs=BlobConfig(delta_bc=delta_bc))
+    fe, attack_cfg = _settings(doc, history, delta_bc)
+    history = fe.history
     last = max(c.first_frame + len(c.positions) - 1 for c in todo)
     by_frame = _hidden_by_frame(todo)
     attacked: list[dict[int, FrameAttack]] = [{} for _ in todo]
@@ -654,7 +669,9 @@ def replay(
         release()  # the frame's temporaries go back to the system (common/memory.py)
 
     def detector() -> Any:
-        return Detector(nets, DetectorConfig(frontend=fe))
+        det = Detector(nets, DetectorConfig(frontend=fe))
+        det.frontend.known = registrations or {}
+        return det
 
     if clean is None:  # every frame through the detector
         clean = _all_frames(frames, detector(), last, attack, on_frame)
@@ -670,6 +687,20 @@ def replay(
         _check_known(c, clean)
     replays = {(c.run, c.result): _replay_case(c, clean, attacked[ci]) for ci, c in enumerate(todo)}
     return Outcome(replays, time.monotonic() - t0)
+
+
+def _settings(doc: dict[str, Any], history: int, delta_bc: int) -> tuple[Any, AttackConfig]:
+    """The front end's and the attack's settings, as the results' perception recorded them
+    (``history`` and ``delta_bc`` where it did not)."""
+    from lesmc.perception.attacks import AttackConfig
+    from lesmc.perception.blobs import BlobConfig
+    from lesmc.perception.frontend import FrontEndConfig
+
+    perception = doc.get("perception", {})
+    history = int(perception.get("history", history))
+    delta_bc = int(perception.get("delta_bc", delta_bc))
+    fe = FrontEndConfig(history=history, blobs=BlobConfig(delta_bc=delta_bc))
+    return fe, AttackConfig(**perception.get("attack", {}))
 
 
 def _hidden_by_frame(todo: list[Case]) -> dict[int, list[tuple[int, Hidden]]]:

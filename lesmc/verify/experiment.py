@@ -25,6 +25,7 @@ from lesmc.build.unfold import original_end
 from lesmc.common.budget import Budget
 from lesmc.common.errors import BudgetError, LesmcError, UsageError
 from lesmc.common.files import json_text
+from lesmc.common.memory import release
 from lesmc.common.progress import Reporter
 from lesmc.designs import registry
 from lesmc.language.parser import load_faults, load_spec
@@ -232,12 +233,13 @@ def _perceived(req: Request, specs: list[SpecFile], rep: Reporter) -> _Source:
 
     if req.scene_frames is not None:
         raise UsageError("--frames goes with --scene; a video is given as FRAMES_DIR")
-    frames_dir, truth, meta = _video(req, rep)
+    frames_dir, truth, meta, fresh = _video(req, rep)
     if not req.target and not truth:
         raise UsageError("--target is needed (or --truth, to choose one)")
     from lesmc.video.reader import open_frames
 
-    frames = open_frames(frames_dir, HISTORY + 1)
+    # frames this run rendered need no decoding up front to be checked (0.7 s)
+    frames = open_frames(frames_dir, HISTORY + 1, check=not fresh)
     target = parse_target(req.target) if req.target else None
     if target is not None:
         check_target(target, frames.width, frames.height, len(frames))
@@ -323,14 +325,16 @@ def _tracker(req: Request) -> TrackerConfig | None:
     return None if req.tracker is None else load_tracker(req.tracker)
 
 
-def _video(req: Request, rep: Reporter) -> tuple[str, str | None, dict[str, Any]]:
-    """The video's frames and truth: FRAMES_DIR, or the embedded default in OUT/video."""
+def _video(req: Request, rep: Reporter) -> tuple[str, str | None, dict[str, Any], bool]:
+    """The video's frames and truth: FRAMES_DIR, or the embedded default in OUT/video; and
+    whether this run rendered them."""
     if req.frames_dir is not None:
-        return req.frames_dir, req.truth, {"video": req.frames_dir}
+        return req.frames_dir, req.truth, {"video": req.frames_dir}, False
     if req.truth is not None:
         raise UsageError("--truth is FRAMES_DIR's truth: the default video brings its own")
     video = req.out / "video"
-    if default_video_ready(video):
+    fresh = not default_video_ready(video)
+    if not fresh:
         rep.log(f"reusing the default video in {video}")
     else:
         with rep.bar("rendering", DEFAULT_VIDEO["frames"]) as bar:
@@ -340,11 +344,12 @@ def _video(req: Request, rep: Reporter) -> tuple[str, str | None, dict[str, Any]
                 _spent(req.budget, "rendering the default video")
 
             write_default_video(video, rendered)
+        release()  # rendering's frames go back to the system before perception's
     what = (
         f"embedded default: lesmc synth {video} --seed {DEFAULT_VIDEO['seed']} "
         f"--frames {DEFAULT_VIDEO['frames']}"
     )
-    return str(video), str(video / "truth.json"), {"video": what}
+    return str(video), str(video / "truth.json"), {"video": what}, fresh
 
 
 def _spent(budget: Budget, stage: str) -> None:
@@ -528,13 +533,14 @@ def _replay(
         frames, nets = src.frames, src.networks()
         # this run's perception made the clean detections: only attacked frames are redone
         clean = None if src.run is None else {fd.index: fd for fd in src.run.detections}
+        known = None if src.run is None else src.run.registrations
         with rep.bar("replaying", len(frames) if clean is None else None) as bar:
 
             def advance() -> None:
                 bar.advance()
                 _spent(budget, "replaying the counterexamples")
 
-            outcome = replay(doc, frames, nets, on_frame=advance, clean=clean)
+            outcome = replay(doc, frames, nets, on_frame=advance, clean=clean, registrations=known)
         if src.cache is not None and key is not None:
             rows = [[i, j, obj] for (i, j), obj in outcome.replays.items()]
             src.cache.put("replay", key, {"replays": rows, "seconds": outcome.seconds})
