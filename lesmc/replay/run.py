@@ -283,6 +283,7 @@ def _redetect(
         mask = cv2.morphologyEx(mask, cv2.MORPH_CLOSE, kernel)
     cands = blobs(mask, diff, cfg)
     del changed, bg, diff, mask  # 40 MB at 2048x2048 that the CNNs do not read
+    release()  # and what the subtraction freed goes back before the CNNs run
     pert_out = FrontEndOutput(
         out.index,
         frame,
