@@ -31,7 +31,8 @@ def sample_windows(nets: Nets, n_frames: int, n: int) -> np.ndarray:
     """``n`` of the N_dr windows the detector attacks on the default video (seed 0)."""
     det = Detector(nets)
     windows = []
-    for img, _ in frames(SynthConfig(frames=n_frames)):
+    # rendered first: frames() renders on a second thread, which would run beside the timing
+    for img, _ in list(frames(SynthConfig(frames=n_frames))):
         res = det.push(img)
         if res is not None:
             fd = res[1]

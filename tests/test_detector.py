@@ -178,7 +178,7 @@ def test_payoffs_of_real_detections_flip_the_shipped_detector() -> None:
     assert np.allclose(res.payoff[ok], norms[ok], rtol=1e-6)
 
 
-def test_the_networks_answer_the_same_bits_in_the_batches_the_detector_uses() -> None:
+def test_the_networks_answer_the_same_in_the_batches_the_detector_uses() -> None:
     """DR_BATCH and LP_BATCH were chosen for speed: a window's N_dr probability and N_lp
     map do not depend on the batch it went through beyond float32 rounding (a kernel
     chosen per batch shape), against the old batches and one window at a time."""

@@ -16,6 +16,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 from cli_run import lesmc
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -108,9 +110,23 @@ def test_replay_of_the_attacked_frames_alone_equals_a_pass_over_every_frame(
     clean = {fd.index: fd for fd in run.detections}
     sparse = replay(doc, frames, nets, clean=clean)
     assert full.replays and sparse.replays == full.replays
-    # and with the perception's registrations (no frame described or matched again)
-    known = replay(doc, frames, nets, clean=clean, registrations=run.registrations)
+    # and with the perception's registrations: no frame described again, the same replays
+    import lesmc.perception.frontend as fe_module
+
+    described: list[int] = []
+    real = fe_module.describe
+
+    def counting(*args: object) -> object:
+        described.append(1)
+        return real(*args)  # type: ignore[arg-type]
+
+    fe_module.describe = counting  # type: ignore[assignment]
+    try:
+        known = replay(doc, frames, nets, clean=clean, registrations=run.registrations)
+    finally:
+        fe_module.describe = real
     assert known.replays == full.replays
+    assert not described
 
 
 def test_a_counterexample_that_the_tracker_does_not_follow_is_diverged(verified: tuple) -> None:
@@ -165,13 +181,13 @@ def test_perturbations_of_one_frame_add_up_where_windows_overlap() -> None:
     stack = [frame.copy() for _ in range(4)]
     d = np.zeros((2, 4, 21, 21))
     d[:, -1] = 0.1  # +25.5 grey levels over each window of the current frame
-    out = _apply(stack, np.array([[15.0, 15.0], [20.0, 15.0]]), d, 21)
+    out = _apply(stack, [(np.array([[15.0, 15.0], [20.0, 15.0]]), d)], 21).frames
     cur = out[-1]
     assert cur[15, 7] == pytest.approx(125.5)  # first window only
     assert cur[15, 15] == pytest.approx(151.0)  # both windows
     assert cur[15, 29] == pytest.approx(125.5)  # second window only
     assert cur[0, 39] == 100.0 and np.array_equal(out[0], frame)
-    big = _apply(stack, np.array([[15.0, 15.0]]), np.ones((1, 4, 21, 21)), 21)
+    big = _apply(stack, [(np.array([[15.0, 15.0]]), np.ones((1, 4, 21, 21)))], 21).frames
     assert big[-1].max() == 255.0  # clipped to the pixel range
 
 
@@ -307,3 +323,62 @@ def test_default_video_violations_are_replayed_in_interval_mode(
 
     assert table_problems(page) == []
     assert "<span class='holds--vacuous-'>holds (vacuous: the unattacked track" in page
+
+
+@settings(max_examples=60, deadline=None)
+@given(st.data())
+def test_perturbed_inputs_and_difference_equal_whole_float64_frames(data: st.DataObject) -> None:
+    """The replay perturbs in float64 only inside the windows' box and keeps float32 frames:
+    the CNNs' windows and the difference image equal those of the arithmetic on whole
+    float64 frames (the oracle below, written out), over repair rounds too, with windows
+    that overlap and that reach past the frame's edge."""
+    import cv2
+
+    from lesmc.perception.background import Aligned, median
+    from lesmc.perception.frontend import FrontEndOutput
+    from lesmc.perception.windows import cut
+    from lesmc.replay.run import _apply, _difference
+
+    seed = data.draw(st.integers(0, 2**31))
+    rng = np.random.default_rng(seed)
+    h, w, size, m = 40, 48, 21, 3
+    clean = [rng.integers(0, 256, (h, w), dtype=np.uint8) for _ in range(4)]
+    frame = rng.integers(0, 256, (h, w), dtype=np.uint8)
+    valid = np.where(rng.random((h, w)) < 0.9, 255, 0).astype(np.uint8)
+    bg = cv2.convertScaleAbs(median(clean), alpha=1.05)
+    out = FrontEndOutput(0, frame, None, Aligned(clean, valid), bg, None)  # type: ignore[arg-type]
+    rounds = []
+    for _ in range(data.draw(st.integers(1, 3))):
+        k = data.draw(st.integers(1, 3))
+        centres = rng.uniform(-5, [w + 5, h + 5], (k, 2))
+        deltas = rng.normal(0, data.draw(st.sampled_from([1e-9, 0.05, 0.5])), (k, 4, size, size))
+        rounds.append((centres, deltas.astype(np.float32)))
+    base = [*clean[1:], frame]
+    # the oracle: whole frames in float64, each round added at cut()'s pixels, then clipped
+    whole = [s.astype(np.float64) for s in base]
+    for centres, deltas in rounds:
+        for (cx, cy), d in zip(np.rint(centres).astype(int), deltas, strict=True):
+            ys = np.clip(cy - size // 2 + np.arange(size), 0, h - 1)
+            xs = np.clip(cx - size // 2 + np.arange(size), 0, w - 1)
+            yy, xx = np.meshgrid(ys, xs, indexing="ij")
+            for c in range(4):
+                np.add.at(whole[c], (yy, xx), 255.0 * d[c].astype(np.float64))
+        whole = [np.clip(s, 0.0, 255.0) for s in whole]
+    pert_aligned = [clean[0], *whole[:-1]]
+    alpha = cv2.mean(frame, mask=valid)[0] / cv2.mean(median(clean), mask=valid)[0]
+    changed = np.zeros((h, w), bool)
+    for a, b in zip(pert_aligned, clean, strict=True):
+        changed |= a != b
+    bg64 = bg.astype(np.float64)
+    if changed.any():
+        ys, xs = np.nonzero(changed)
+        sl = (slice(ys.min(), ys.max() + 1), slice(xs.min(), xs.max() + 1))
+        now = np.median(np.stack([a[sl] for a in pert_aligned]), axis=0)
+        was = np.median(np.stack([b[sl].astype(np.float64) for b in clean]), axis=0)
+        bg64[sl] += alpha * (now - was)
+    want_diff = np.abs(whole[-1] - bg64).astype(np.float32)
+
+    p = _apply(base, rounds, size)
+    centres = rng.uniform(0, [w, h], (30, 2))
+    assert np.array_equal(cut(p.frames, centres, size), cut(whole, centres, size))
+    assert np.array_equal(_difference(out, p, m), want_diff)

@@ -103,7 +103,7 @@ def perceive_all(
             _frame(run, det, opts, out, frames.paths[i].name, tf)
         release()  # what this frame freed goes back to the system (common/memory.py)
     for run, det in zip(out_runs, dets, strict=True):
-        run.registrations = fe.registrations
+        run.registrations = dict(fe.registrations)  # one front end served every run
         if det is not None:
             run.unit_max = det.maxima.maxima
     return out_runs

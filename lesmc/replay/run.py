@@ -57,7 +57,7 @@ if TYPE_CHECKING:
     from lesmc.perception.attacks import AttackConfig
     from lesmc.perception.cnn import Nets
     from lesmc.perception.detector import Detector, FrameDetections
-    from lesmc.perception.frontend import FrontEndOutput
+    from lesmc.perception.frontend import FrontEndConfig, FrontEndOutput
     from lesmc.perception.registration import Registration
     from lesmc.results.record import Results
     from lesmc.video.reader import FrameSet
@@ -209,92 +209,133 @@ def _case(doc: dict[str, Any], i: int, j: int, cex_no: int) -> Case:
 # ---------------------------------------------------------------- the detector, perturbed
 
 
-def _apply(
-    stack: list[np.ndarray], centres: np.ndarray, deltas: np.ndarray, size: int
-) -> list[np.ndarray]:
-    """The detector inputs (0..255 floats) with window perturbations (pixel scale [0, 1]) added
-    at the pixels :func:`lesmc.perception.windows.cut` took them from; clipped to [0, 255].
+#: One round of an attack on a frame: the centres of the windows and their perturbations.
+Round = tuple[np.ndarray, np.ndarray]
 
-    The windows' box is perturbed in float64 and every frame kept in float32 (16 MB at
-    2048x2048 instead of 32), the precision :func:`~lesmc.perception.windows.cut` gives
-    N_dr's and N_lp's windows anyway: the windows are the same bits as from float64 frames.
+
+@dataclass
+class _Perturbed:
+    """A frame's detector inputs with the attack's perturbations (0..255 grey levels).
+
+    ``frames``: the m aligned previous frames and the current frame in float32 (16 MB
+    at 2048x2048 instead of 32), the precision :func:`~lesmc.perception.windows.cut`
+    gives the CNNs' windows anyway. ``exact``: each of them in float64 inside ``box``
+    (the windows' bounding box; None: nothing perturbed), where the front end's
+    arithmetic reads them: the same numbers as whole float64 frames would give.
     """
-    out = [s.astype(np.float32) for s in stack]
-    if not len(centres):
-        return out
-    h, w = stack[0].shape
+
+    frames: list[np.ndarray]
+    box: tuple[slice, slice] | None
+    exact: list[np.ndarray]
+
+
+def _apply(base: list[np.ndarray], rounds: list[Round], size: int) -> _Perturbed:
+    """The clean detector inputs ``base`` with each round's window perturbations (pixel
+    scale [0, 1]) added at the pixels :func:`lesmc.perception.windows.cut` took them from
+    and clipped to [0, 255], round after round (a repair adds rounds)."""
+    frames = [s.astype(np.float32) for s in base]
+    h, w = base[0].shape
     offs = np.arange(size)
-    org = origins(centres, size)
-    ys = np.clip(org[:, 1, None] + offs, 0, h - 1)  # (windows, size) rows, as cut() takes them
-    xs = np.clip(org[:, 0, None] + offs, 0, w - 1)
-    box = (slice(ys.min(), ys.max() + 1), slice(xs.min(), xs.max() + 1))
-    ys, xs = ys - ys.min(), xs - xs.min()
-    for c, s in enumerate(stack):
+    places = []
+    for centres, deltas in rounds:
+        org = origins(centres, size)
+        ys = np.clip(org[:, 1, None] + offs, 0, h - 1)  # (windows, size): as cut() takes them
+        xs = np.clip(org[:, 0, None] + offs, 0, w - 1)
+        places.append((ys, xs, deltas))
+    if not any(len(ys) for ys, _, _ in places):
+        return _Perturbed(frames, None, [])
+    y0 = min(int(ys.min()) for ys, _, _ in places if len(ys))
+    y1 = max(int(ys.max()) for ys, _, _ in places if len(ys))
+    x0 = min(int(xs.min()) for _, xs, _ in places if len(xs))
+    x1 = max(int(xs.max()) for _, xs, _ in places if len(xs))
+    box = (slice(y0, y1 + 1), slice(x0, x1 + 1))
+    exact = []
+    for c, s in enumerate(base):
         f = s[box].astype(np.float64)
-        for y, x, d in zip(ys, xs, deltas, strict=True):
-            np.add.at(f, np.ix_(y, x), 255.0 * d[c].astype(np.float64))
-        np.clip(f, 0.0, 255.0, out=f)
-        out[c][box] = f
-    return out
+        for ys, xs, deltas in places:
+            for y, x, d in zip(ys - y0, xs - x0, deltas, strict=True):
+                np.add.at(f, np.ix_(y, x), 255.0 * d[c].astype(np.float64))
+            np.clip(f, 0.0, 255.0, out=f)
+        frames[c][box] = f
+        exact.append(f)
+    return _Perturbed(frames, box, exact)
 
 
 def _redetect(
-    det: Detector, out: FrontEndOutput, stack: list[np.ndarray], m: int
+    det: Detector, out: FrontEndOutput, p: _Perturbed, m: int
 ) -> tuple[FrameDetections, np.ndarray]:
     """The detector's step on perturbed inputs: background, subtraction, blobs, N_dr, N_lp.
 
-    ``stack`` is the m aligned previous frames and the current frame, perturbed;
+    ``p`` holds the m aligned previous frames and the current frame, perturbed;
     the older aligned frames that only enter the background stay as they were.
     The background's median moves by exactly the perturbation's effect on it
-    (with no perturbation everything equals the clean run, bit for bit).
+    (with no perturbation everything equals the clean run, bit for bit). Outside
+    ``p.box`` nothing moved, so the difference image there is the clean one; inside,
+    it is computed from the float64 values.
     Returns the detections and the centres of the candidates N_dr accepted (the
     rows of their ``windows``).
     """
     import cv2
 
-    from lesmc.perception.background import Aligned, median
+    from lesmc.perception.background import Aligned
     from lesmc.perception.blobs import blobs
     from lesmc.perception.frontend import FrontEndOutput
 
     clean = out.aligned.frames
-    pert_aligned = [*clean[: len(clean) - m], *stack[:-1]]
-    frame = stack[-1]
-    bgm = median(clean)
-    m_bg = cv2.mean(bgm, mask=out.aligned.valid)[0]
-    m_fr = cv2.mean(out.frame, mask=out.aligned.valid)[0]
-    alpha = m_fr / m_bg if m_bg > 1.0 else 1.0
-    changed = np.zeros(frame.shape, bool)
-    for a, b in zip(pert_aligned, clean, strict=True):
-        changed |= a != b
-    bg = out.background.astype(np.float32)
-    if changed.any():
-        ys, xs = np.nonzero(changed)
-        sl = (slice(ys.min(), ys.max() + 1), slice(xs.min(), xs.max() + 1))
-        now = np.median(np.stack([a[sl].astype(np.float64) for a in pert_aligned]), axis=0)
-        was = np.median(np.stack([b[sl].astype(np.float64) for b in clean]), axis=0)
-        bg[sl] += alpha * (now - was)
-    diff = np.subtract(frame, bg, dtype=np.float32)
-    np.abs(diff, out=diff)
+    old = len(clean) - m  # the aligned frames only the background reads
+    diff = _difference(out, p, m)
     cfg = det.frontend.cfg.blobs
-    mask = ((diff > cfg.delta_bc) & (out.aligned.valid > 0)).astype(np.uint8)
+    mask: np.ndarray = ((diff > cfg.delta_bc) & (out.aligned.valid > 0)).astype(np.uint8)
     mask *= 255
     if cfg.close_px > 1:
         kernel = cv2.getStructuringElement(cv2.MORPH_CROSS, (cfg.close_px, cfg.close_px))
         mask = cv2.morphologyEx(mask, cv2.MORPH_CLOSE, kernel)
     cands = blobs(mask, diff, cfg)
-    del changed, bg, diff, mask  # 40 MB at 2048x2048 that the CNNs do not read
+    del diff, mask  # 20 MB at 2048x2048 that the CNNs do not read
     release()  # and what the subtraction freed goes back before the CNNs run
     pert_out = FrontEndOutput(
         out.index,
-        frame,
+        p.frames[-1],
         cands,
-        Aligned(pert_aligned, out.aligned.valid),
+        Aligned([*clean[:old], *p.frames[:-1]], out.aligned.valid),
         out.background,  # not read by detect(): the clean one stands in for the perturbed
         out.registration,
     )
     fd = det.detect(pert_out)
     assert fd.accepted is not None  # detect() records the rows N_dr accepted
     return fd, cands.centroid[fd.accepted]
+
+
+def _difference(out: FrontEndOutput, p: _Perturbed, m: int) -> np.ndarray:
+    """|I_k - I_bg| (Eq. 16) of the perturbed frame, float32, against the median background
+    moved by the perturbed aligned frames (the clean run's gain kept)."""
+    import cv2
+
+    from lesmc.perception.background import median
+
+    clean = out.aligned.frames
+    old = len(clean) - m
+    diff = cv2.absdiff(out.frame, out.background).astype(np.float32)
+    if p.box is None:
+        return diff
+    bgm = median(clean)
+    m_bg = cv2.mean(bgm, mask=out.aligned.valid)[0]
+    m_fr = cv2.mean(out.frame, mask=out.aligned.valid)[0]
+    alpha = m_fr / m_bg if m_bg > 1.0 else 1.0
+    was_box = [c[p.box] for c in clean]
+    now_box = [*was_box[:old], *p.exact[:-1]]
+    changed = np.zeros(was_box[0].shape, bool)
+    for a, b in zip(now_box, was_box, strict=True):
+        changed |= a != b
+    bg = out.background[p.box].astype(np.float64)
+    if changed.any():
+        ys, xs = np.nonzero(changed)
+        sl = (slice(ys.min(), ys.max() + 1), slice(xs.min(), xs.max() + 1))
+        now = np.median(np.stack([a[sl] for a in now_box]), axis=0)
+        was = np.median(np.stack([b[sl].astype(np.float64) for b in was_box]), axis=0)
+        bg[sl] += alpha * (now - was)
+    diff[p.box] = np.abs(p.exact[-1] - bg)
+    return diff
 
 
 def _match(a: np.ndarray, b: np.ndarray, tol: float) -> np.ndarray:
@@ -385,12 +426,13 @@ def attack_frame(
         fa.perturbations.append(
             _perturbation(h, j, fd, centres[r], rec, flipped, res.perturbation[r])
         )
-    base = stack(out.frame, out.aligned.frames, m)
-    inputs = _apply(base, centres, res.perturbation, DR_SIZE)
-    after, kept = _redetect(det, out, inputs, m)
+    rounds = [(centres, res.perturbation)]
+    after, kept = _redetect(
+        det, out, _apply(stack(out.frame, out.aligned.frames, m), rounds, DR_SIZE), m
+    )
     _diagnose(fa, fd, after, idx)
     if repair:
-        after = _repair(nets, det, out, fd, fa, idx, inputs, after, kept, cfg)
+        after = _repair(nets, det, out, fd, fa, idx, rounds, after, kept, cfg)
     fa.detections = after
     return fa
 
@@ -402,14 +444,15 @@ def _repair(
     fd: FrameDetections,
     fa: FrameAttack,
     idx: list[int],
-    inputs: list[np.ndarray],
+    applied: list[Round],
     after: FrameDetections,
     kept: np.ndarray,
     cfg: AttackConfig,
 ) -> FrameDetections:
-    """The repaired attack: hide, jointly with the frame's perturbation, every detection the
-    model does not have (hidden ones that survive, extra ones), up to REPAIR_ROUNDS times;
-    the detections after it (``fa`` records the rounds and the extra cost)."""
+    """The repaired attack: hide, jointly with the frame's perturbation (``applied``), every
+    detection the model does not have (hidden ones that survive, extra ones), up to
+    REPAIR_ROUNDS times; the detections after it (``fa`` records the rounds and the
+    extra cost)."""
     from lesmc.perception.attacks import payoffs
     from lesmc.perception.cnn import DR_SIZE
 
@@ -425,8 +468,9 @@ def _repair(
         ok = more.flipped
         fa.extra_cost += float(more.payoff[ok].sum())
         cs = kept[rows][ok]
-        inputs = _apply(inputs, cs, more.perturbation[ok], DR_SIZE)
-        after, kept = _redetect(det, out, inputs, m)
+        applied.append((cs, more.perturbation[ok]))
+        base = stack(out.frame, out.aligned.frames, m)
+        after, kept = _redetect(det, out, _apply(base, applied, DR_SIZE), m)
         _diagnose(fa, fd, after, idx)
     fa.repaired_rounds = rounds
     return after
@@ -690,7 +734,9 @@ def replay(
     return Outcome(replays, time.monotonic() - t0)
 
 
-def _settings(doc: dict[str, Any], history: int, delta_bc: int) -> tuple[Any, AttackConfig]:
+def _settings(
+    doc: dict[str, Any], history: int, delta_bc: int
+) -> tuple[FrontEndConfig, AttackConfig]:
     """The front end's and the attack's settings, as the results' perception recorded them
     (``history`` and ``delta_bc`` where it did not)."""
     from lesmc.perception.attacks import AttackConfig

@@ -238,8 +238,11 @@ def _perceived(req: Request, specs: list[SpecFile], rep: Reporter) -> _Source:
         raise UsageError("--target is needed (or --truth, to choose one)")
     from lesmc.video.reader import open_frames
 
-    # frames this run rendered need no decoding up front to be checked (0.7 s)
-    frames = open_frames(frames_dir, HISTORY + 1, check=not fresh)
+    # frames this run rendered need no decoding up front to be checked (0.7 s); any
+    # other file beside them (an older video's) makes every frame checked
+    frames = open_frames(frames_dir, HISTORY + 1, check=fresh is None)
+    if fresh is not None and frames.paths != fresh:
+        frames = open_frames(frames_dir, HISTORY + 1)
     target = parse_target(req.target) if req.target else None
     if target is not None:
         check_target(target, frames.width, frames.height, len(frames))
@@ -325,16 +328,18 @@ def _tracker(req: Request) -> TrackerConfig | None:
     return None if req.tracker is None else load_tracker(req.tracker)
 
 
-def _video(req: Request, rep: Reporter) -> tuple[str, str | None, dict[str, Any], bool]:
+def _video(
+    req: Request, rep: Reporter
+) -> tuple[str, str | None, dict[str, Any], list[Path] | None]:
     """The video's frames and truth: FRAMES_DIR, or the embedded default in OUT/video; and
-    whether this run rendered them."""
+    the frames this run rendered (None: it rendered none)."""
     if req.frames_dir is not None:
-        return req.frames_dir, req.truth, {"video": req.frames_dir}, False
+        return req.frames_dir, req.truth, {"video": req.frames_dir}, None
     if req.truth is not None:
         raise UsageError("--truth is FRAMES_DIR's truth: the default video brings its own")
     video = req.out / "video"
-    fresh = not default_video_ready(video)
-    if not fresh:
+    fresh = None
+    if default_video_ready(video):
         rep.log(f"reusing the default video in {video}")
     else:
         with rep.bar("rendering", DEFAULT_VIDEO["frames"]) as bar:
@@ -343,7 +348,7 @@ def _video(req: Request, rep: Reporter) -> tuple[str, str | None, dict[str, Any]
                 bar.advance()
                 _spent(req.budget, "rendering the default video")
 
-            write_default_video(video, rendered)
+            fresh = write_default_video(video, rendered)
         release()  # rendering's frames go back to the system before perception's
     what = (
         f"embedded default: lesmc synth {video} --seed {DEFAULT_VIDEO['seed']} "
@@ -392,11 +397,12 @@ def default_video_ready(video: Path) -> bool:
     return same and len(list(video.glob("frame_*.png"))) == DEFAULT_VIDEO["frames"]
 
 
-def write_default_video(video: Path, progress: Callable[[], None] | None = None) -> None:
-    """Generate the embedded default video (``lesmc synth`` with ``DEFAULT_VIDEO``)."""
+def write_default_video(video: Path, progress: Callable[[], None] | None = None) -> list[Path]:
+    """Generate the embedded default video (``lesmc synth`` with ``DEFAULT_VIDEO``); the
+    frames written."""
     from lesmc.video.synth import SynthConfig, write_video
 
-    write_video(SynthConfig(**DEFAULT_VIDEO), video, progress=progress)
+    return write_video(SynthConfig(**DEFAULT_VIDEO), video, progress=progress)
 
 
 def _certifier(src: _Source, rep: Reporter, budget: Budget) -> Certifier | None:

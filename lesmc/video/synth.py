@@ -5,7 +5,8 @@ raised buildings and trees, filmed by a camera circling high above it (paper
 section 6.1: greyscale, 1.25 Hz, vehicles under 10x10 pixels). Each frame is the
 ground warped by the frame's homography, then vehicles, then raised objects
 whose roofs shift with the camera (parallax), then illumination drift, blur and
-sensor noise. Frames are rendered and written one at a time, so the memory used
+sensor noise. Frames are rendered and written as they come, two or three in flight
+at a time (one drawn, one through the sensor, one being encoded), so the memory used
 is a few frames' worth whatever the length of the video. See docs/synthetic.md.
 """
 
@@ -379,9 +380,10 @@ def write_video(cfg: SynthConfig, out_dir: Path, progress: Any = None) -> list[P
     """Write frames and truth.json into ``out_dir``; returns the frame paths.
 
     Files go to a temporary directory first and are moved in at the end, so an
-    interrupted run leaves nothing half-written behind. Each frame is encoded on a
-    thread of its own while the next one is drawn (:func:`frames`); ``progress()``
-    after each frame written.
+    interrupted run leaves nothing half-written behind. One writer thread encodes
+    each frame while the next one is drawn (:func:`frames`): a frame of W x H pixels
+    holds 4WH bytes as float32 and two are in flight, as is one encoded frame.
+    ``progress()`` after each frame written.
     """
     out_dir.mkdir(parents=True, exist_ok=True)
     tmp = Path(tempfile.mkdtemp(prefix=".synth.", dir=out_dir))
