@@ -222,3 +222,25 @@ def test_known_registrations_give_the_front_end_of_a_full_pass() -> None:
         for f in fields(a.candidates):
             assert np.array_equal(getattr(a.candidates, f.name), getattr(b.candidates, f.name))
         assert np.array_equal(a.registration.homography, b.registration.homography)
+
+
+@settings(max_examples=40, deadline=None)
+@given(st.integers(0, 2**31), st.sampled_from([np.uint8, np.float32, np.float64]))
+def test_windows_are_the_frames_pixels_with_the_edge_repeated(seed: int, dtype: type) -> None:
+    """cut(): each window, inside the frame or past its edge, pixel by pixel (an oracle
+    that reads one pixel at a time, clamping the coordinates)."""
+    from lesmc.perception.windows import cut
+
+    rng = np.random.default_rng(seed)
+    h, w, size = int(rng.integers(5, 40)), int(rng.integers(5, 40)), int(rng.choice([3, 5, 21]))
+    frames = [(rng.random((h, w)) * 255).astype(dtype) for _ in range(2)]
+    centres = rng.uniform(-size, [w + size, h + size], (int(rng.integers(0, 12)), 2))
+    got = cut(frames, centres, size)
+    assert got.shape == (len(centres), 2, size, size) and got.dtype == np.float32
+    for i, (x, y) in enumerate(np.rint(centres).astype(int)):
+        for c, f in enumerate(frames):
+            for r in range(size):
+                for q in range(size):
+                    yy = min(max(y - size // 2 + r, 0), h - 1)
+                    xx = min(max(x - size // 2 + q, 0), w - 1)
+                    assert got[i, c, r, q] == np.float32(f[yy, xx]) * np.float32(1 / 255)
