@@ -33,7 +33,7 @@ from lesmc.common.files import read_json
 from lesmc.common.progress import progress_bar
 from lesmc.designs import registry
 from lesmc.language.properties import SpecFile
-from lesmc.perception import NetFiles
+from lesmc.perception import HISTORY, NetFiles
 from lesmc.perception.quality import load_truth
 from lesmc.pipeline import certify
 from lesmc.pipeline.job import Certifier
@@ -48,8 +48,6 @@ from lesmc.tracking.targets import (
 )
 from lesmc.video import FPS
 
-#: Frames in the background median (as lesmc verify).
-HISTORY = 4
 #: Retries of a group whose worker died (Dask's ``retries``).
 RETRIES = 3
 

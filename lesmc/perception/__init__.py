@@ -15,6 +15,10 @@ import os
 #: convolution, so any module of lesmc.perception sets it; a value the user set wins.
 os.environ.setdefault("ONEDNN_PRIMITIVE_CACHE_CAPACITY", "64")
 
+#: L, the previous frames in the background median (paper section 6.2: "4 or 5"): the
+#: front end's default, and what verify, campaign and replay perceive with.
+HISTORY = 4
+
 #: Bisection steps of on-demand certification (``verify``, ``campaign --payoffs``): it
 #: bounds a handful of detections, so it can afford three times ``perceive --certify``'s 2
 #: (docs/cnn.md: median ratio 0.057 -> 0.070).

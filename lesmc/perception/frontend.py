@@ -13,6 +13,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from lesmc.perception import HISTORY
 from lesmc.perception.background import Aligned, FrameHistory, background
 from lesmc.perception.blobs import BlobConfig, Blobs, blobs, foreground
 from lesmc.perception.registration import (
@@ -28,7 +29,7 @@ from lesmc.perception.registration import (
 class FrontEndConfig:
     """All front-end settings; ``history`` is the paper's L (4 or 5)."""
 
-    history: int = 4
+    history: int = HISTORY
     registration: RegistrationConfig = field(default_factory=RegistrationConfig)
     blobs: BlobConfig = field(default_factory=BlobConfig)
 

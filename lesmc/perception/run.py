@@ -13,7 +13,7 @@ import numpy as np
 
 from lesmc.common.errors import InputError, Location
 from lesmc.common.memory import release
-from lesmc.perception import ON_DEMAND_STEPS
+from lesmc.perception import HISTORY, ON_DEMAND_STEPS
 from lesmc.perception.attacks import AttackConfig, payoffs
 from lesmc.perception.blobs import BlobConfig
 from lesmc.perception.certify import CertifyConfig
@@ -31,7 +31,7 @@ ZERO = Score(0, 0, 0, 0, 0.0)
 class PerceiveOptions:
     """What to run: front end only (``nets`` None) or the whole detector, attack or not."""
 
-    history: int = 4
+    history: int = HISTORY
     delta_bc: int = 12
     nets: Nets | None = None
     attack: AttackConfig | None = None

@@ -47,7 +47,7 @@ from lesmc.common.memory import release
 from lesmc.designs.registry import make_tracker
 from lesmc.engines.result import status_word
 from lesmc.model import kernel
-from lesmc.perception import NetFiles
+from lesmc.perception import HISTORY, NetFiles
 from lesmc.perception.windows import cut, origins, stack
 from lesmc.scene import Detection, Frame, Scene, Target, tracker_from_dict
 from lesmc.tracking.monitor import track
@@ -678,7 +678,7 @@ def replay(
     frames: FrameSet,
     nets: Nets,
     prop: str | None = None,
-    history: int = 4,
+    history: int = HISTORY,
     delta_bc: int = 12,
     on_frame: Callable[[], None] | None = None,
     repair: bool = True,

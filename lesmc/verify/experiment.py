@@ -30,7 +30,7 @@ from lesmc.common.progress import Reporter
 from lesmc.designs import registry
 from lesmc.language.parser import load_faults, load_spec
 from lesmc.language.properties import FaultSet, SpecFile
-from lesmc.perception import NetFiles
+from lesmc.perception import HISTORY, NetFiles
 from lesmc.perception.quality import load_truth
 from lesmc.pipeline.check import run as run_job
 from lesmc.pipeline.job import Certifier, Job, PayoffMode
@@ -49,7 +49,7 @@ from lesmc.verify import video_perception
 from lesmc.verify.cache import StageCache, code_digest, digest, file_digests, net_files
 from lesmc.verify.false_alarms import false_alarm_report, truth_track
 from lesmc.verify.neuron_faults import NeuronRuns, check_units, neuron_faults, neuron_frames
-from lesmc.verify.video_perception import HISTORY, UnitMax
+from lesmc.verify.video_perception import UnitMax
 from lesmc.video import FPS
 
 if TYPE_CHECKING:  # reading frames imports cv2: only where a video is read

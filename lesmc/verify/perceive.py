@@ -14,7 +14,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any, Literal
 
 from lesmc.common.errors import InputError, Location, UsageError
-from lesmc.perception import NetFiles
+from lesmc.perception import HISTORY, NetFiles
 from lesmc.video import FPS
 
 if TYPE_CHECKING:
@@ -45,7 +45,7 @@ class PerceiveRequest:
     overshoot: float = 0.02
     max_iter: int = 50
     certify: bool = False  #: also certified lower bounds on the payoffs (slow)
-    history: int = 4  #: L, previous frames in the background median
+    history: int = HISTORY  #: L, previous frames in the background median
     delta_bc: int = 12  #: background subtraction threshold (grey levels)
     dt: float | None = None  #: seconds between frames [from the truth, else 1/FPS]
     radius: float = 4.0  #: match distance to the truth (pixels)

@@ -17,6 +17,7 @@ import numpy as np
 
 from lesmc.common.errors import LesmcError, UsageError
 from lesmc.common.progress import Reporter
+from lesmc.perception import HISTORY
 from lesmc.pipeline.job import Certifier
 from lesmc.scene import Footage, footage_from_dict, scene_to_dict
 from lesmc.verify.cache import StageCache
@@ -26,8 +27,6 @@ if TYPE_CHECKING:
     from lesmc.perception.run import PerceiveRun
     from lesmc.video.reader import FrameSet
 
-#: Frames in the background median (section 6).
-HISTORY = 4
 
 #: Per network, per hidden layer, each unit's largest value (PerceiveRun.unit_max).
 UnitMax = dict[str, list[np.ndarray]]
