@@ -197,8 +197,10 @@ def _swept(
 def _check_sources(sources: tuple[float | str, ...], scene_meta: dict[str, Any] | None) -> None:
     """A payoff-source sweep names sources the input has: a model file has its attack's
     payoffs only, and ``deepfool``/``pgd`` must be the algorithm that made the scene's."""
+    from lesmc.language.sweep import payoff_mode
+
     if scene_meta is None:
-        if any(s not in ("attack", "deepfool", "pgd") for s in sources):
+        if any(payoff_mode(str(s)) != "attack" for s in sources):
             raise UsageError(
                 "--sweep payoffs: a model file has its attack's payoffs only; certified "
                 "payoffs need a scene"
