@@ -194,3 +194,44 @@ def test_the_networks_answer_the_same_in_the_batches_the_detector_uses() -> None
     maps = lp_maps(nets, lp, LP_BATCH)
     np.testing.assert_allclose(maps, lp_maps(nets, lp, 512), rtol=1e-5, atol=1e-6)
     np.testing.assert_allclose(maps[:5], lp_maps(nets, lp[:5], 1), rtol=1e-5, atol=1e-6)
+
+
+def test_deepfool_stops_at_the_noise_floor_with_the_payoffs_of_the_full_iteration() -> None:
+    """AttackConfig.converged stops a window whose margin is within float32 rounding of the
+    boundary. Against DeepFool written out here and run to the iteration cap (the rule
+    before it): every window flips or not alike, payoffs agree to 1e-5 relative, and
+    the stop saves iterations on real windows (many hover at f ~ 1e-7 until the cap)."""
+    import torch
+
+    from lesmc.perception.attacks import AttackConfig, margin, payoffs, threshold_logit
+
+    nets = load_nets()
+    det = Detector(nets)
+    fd = None
+    for img, _ in frames(VIDEO):
+        res = det.push(img)
+        if res is not None:
+            fd = res[1]
+            break
+    assert fd is not None and len(fd.windows) > 10
+    cfg = AttackConfig()
+    ours = payoffs(nets.dr, fd.windows, nets.settings.delta_dr, cfg)
+    t = threshold_logit(nets.settings.delta_dr)
+    x0 = torch.from_numpy(fd.windows.astype(np.float32))
+    xi, steps = x0.clone(), 0
+    for _ in range(cfg.max_iter):
+        x = xi.detach().requires_grad_(True)
+        f = margin(nets.dr, x, t)
+        (g,) = torch.autograd.grad(f.sum(), x)
+        live = f.detach() > 0
+        steps += int(live.sum())
+        r = -(f.detach() / (g.flatten(1).pow(2).sum(1) + 1e-8)).view(-1, 1, 1, 1) * g
+        xi = torch.where(live.view(-1, 1, 1, 1), (xi + r).clamp(0, 1), xi)
+    adv = (x0 + (1 + cfg.overshoot) * (xi - x0)).clamp(0, 1)
+    with torch.no_grad():
+        flipped = (margin(nets.dr, adv, t) <= 0).numpy()
+    d = (adv - x0).numpy().astype(np.float64).reshape(len(adv), -1)
+    full = np.where(flipped, np.sqrt((d**2).sum(1)), np.inf)
+    assert np.array_equal(ours.flipped, flipped)
+    np.testing.assert_allclose(ours.payoff[flipped], full[flipped], rtol=1e-5)
+    assert ours.iterations.sum() < steps

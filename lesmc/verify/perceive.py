@@ -135,7 +135,7 @@ def attack_config(req: PerceiveRequest) -> AttackConfig:
     from lesmc.perception.attacks import AttackConfig
 
     norm: Literal["l2", "per-pixel"] = req.payoff_norm
-    return AttackConfig(req.attack, req.overshoot, req.max_iter, norm)
+    return AttackConfig(req.attack, overshoot=req.overshoot, max_iter=req.max_iter, norm=norm)
 
 
 def perceive_frames(
@@ -160,6 +160,7 @@ def perceive_frames(
 
 def scene_meta(req: PerceiveRequest, trained_on: str) -> dict[str, Any]:
     """How the scene's detections and payoffs were made (its ``meta``)."""
+    from lesmc.perception.attacks import AttackConfig
     from lesmc.perception.certify import CertifyConfig
 
     meta: dict[str, Any] = {
@@ -169,6 +170,7 @@ def scene_meta(req: PerceiveRequest, trained_on: str) -> dict[str, Any]:
             "method": req.attack,
             "overshoot": req.overshoot,
             "max_iter": req.max_iter,
+            "converged": AttackConfig().converged,
             "norm": req.payoff_norm,
             "pixel_scale": "[0, 1]",
             "input": "N_dr window, 21x21 x (m+1) frames",
