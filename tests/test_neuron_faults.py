@@ -218,6 +218,17 @@ def test_verify_checks_each_design_with_the_unit_stuck(video: Path, tmp_path: Pa
     assert [f["result"]["optimum"] for f in doc2["runs"][0]["faults"]] == [
         f["result"]["optimum"] for f in doc["runs"][0]["faults"]
     ]
+    # a perception entry whose unit maxima were cut short by hand: a located error, exit 2
+    (entry,) = (out / "cache").glob("perception-*.json")
+    kept = json.loads(entry.read_text())
+    kept["value"]["unit_max"]["detector"][4] = kept["value"]["unit_max"]["detector"][4][:3]
+    entry.write_text(json.dumps(kept))
+    for p in (out / "cache").glob("neuron-fault-*.json"):
+        p.unlink()
+    broken = lesmc(*args)
+    assert broken.returncode == 2, broken.stderr
+    assert "Traceback" not in broken.stderr and "internal error" not in broken.stderr
+    assert f"{entry}: unit_max.detector:" in broken.stderr
 
 
 def test_certified_verify_certifies_on_the_faulty_network(video: Path, tmp_path: Path) -> None:

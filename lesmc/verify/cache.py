@@ -87,12 +87,13 @@ class StageCache:
     def __init__(self, out: Path) -> None:
         self.dir = out / "cache"
 
-    def _path(self, stage: str, key: str) -> Path:
+    def path(self, stage: str, key: str) -> Path:
+        """Where the entry of ``stage`` under ``key`` is (or would be) kept."""
         return self.dir / f"{stage}-{key}.json"
 
     def get(self, stage: str, key: str) -> Any | None:
         """The stored value, or None (absent, unreadable, or not this stage's entry)."""
-        path = self._path(stage, key)
+        path = self.path(stage, key)
         if not path.is_file():
             return None
         try:
@@ -114,6 +115,6 @@ class StageCache:
         doc = {"format": FORMAT, "version": VERSION, "stage": stage, "key": key, "value": value}
         try:
             self.dir.mkdir(parents=True, exist_ok=True)
-            write_json(self._path(stage, key), doc)
+            write_json(self.path(stage, key), doc)
         except (OSError, LesmcError, ValueError):
             pass

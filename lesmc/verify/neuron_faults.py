@@ -18,8 +18,10 @@ from __future__ import annotations
 import itertools
 from collections.abc import Callable
 from dataclasses import asdict, dataclass, field
+from pathlib import Path
 from typing import TYPE_CHECKING
 
+from lesmc.common.errors import InputError, Location
 from lesmc.common.progress import Reporter
 from lesmc.language.properties import Fault, FaultSet
 from lesmc.pipeline.faults import fault_error
@@ -81,6 +83,22 @@ def stuck_unit(f: Fault, unit_max: UnitMax) -> StuckUnit:
     return StuckUnit(f.net, f.row, f.col, max(value, 0.0))  # type: ignore[arg-type]
 
 
+def _check_maxima(unit_max: UnitMax, nets: Nets, entry: Path) -> None:
+    """The fault-free perception's unit maxima (read from ``entry`` on a rerun) have one
+    value per unit of each hidden layer; an entry changed by hand is a located error."""
+    from lesmc.perception.neurons import layer_sizes, network
+
+    for name in ("detector", "locator"):
+        sizes = layer_sizes(network(nets, name))  # type: ignore[arg-type]
+        got = [len(m) for m in unit_max.get(name, [])]
+        if sizes and got != sizes:
+            raise InputError(
+                f"unit_max.{name}: {got} values per layer where the networks have {sizes} "
+                "units; delete this entry to perceive the video again",
+                Location(str(entry)),
+            )
+
+
 def fault_sets(fs: FaultSet) -> list[tuple[Fault, ...]]:
     """Every set of 1..budget neuron faults: the networks a combination's frames need."""
     faults = neuron_faults(fs)
@@ -116,6 +134,7 @@ def neuron_frames(
     maxima and seconds between frames; ``nets()`` loads the fault-free networks;
     ``spent(stage)`` stops the run once the budget is spent."""
     key, unit_max, dt = seen
+    _check_maxima(unit_max, nets(), cache.path("perception", key))
     out = NeuronRuns()
     todo = []
     for combo in fault_sets(fs):
