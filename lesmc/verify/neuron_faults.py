@@ -89,7 +89,7 @@ def _check_maxima(unit_max: UnitMax, nets: Nets, entry: Path) -> None:
     from lesmc.perception.neurons import layer_sizes, network
 
     for name in ("detector", "locator"):
-        sizes = layer_sizes(network(nets, name))  # type: ignore[arg-type]
+        sizes = layer_sizes(network(nets, name))
         got = [len(m) for m in unit_max.get(name, [])]
         if sizes and got != sizes:
             raise InputError(
