@@ -197,6 +197,18 @@ def _crafted(kind: str, good: Path, bad: Path) -> None:
         with zipfile.ZipFile(bad, "w") as z:
             z.writestr("dst.npy", buf.getvalue() + b"\0" * 64)
         return
+    if kind in ("trailing bytes", "short member"):  # data longer / shorter than announced
+        members = {}
+        for name, a in arrays.items():
+            buf = io.BytesIO()
+            np.save(buf, a)
+            members[name] = buf.getvalue()
+        dst = members["dst"]
+        members["dst"] = dst + b"\0" * 8 if kind == "trailing bytes" else dst[:-8]
+        with zipfile.ZipFile(bad, "w") as z:
+            for name, data in members.items():
+                z.writestr(f"{name}.npy", data)
+        return
     if kind == "raw member":  # not an .npy at all
         with zipfile.ZipFile(bad, "w") as z:
             z.writestr("rank", b"hello")
@@ -232,6 +244,8 @@ def _crafted(kind: str, good: Path, bad: Path) -> None:
     "kind",
     [
         "huge shape",
+        "trailing bytes",
+        "short member",
         "raw member",
         "bare npy",
         "compressed",

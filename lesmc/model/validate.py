@@ -169,8 +169,7 @@ def check_arrays(cm: ArrayModel, path: str = "<model>") -> None:
     def item(j: int) -> str:
         return f"transition {j} ({ids[src[j]]} -> {ids[cm.dst[j]]})"
 
-    known = np.arange(cm.dst.shape[0], dtype=np.int64)
-    check_transitions(rep, known, src, cm.dst, cm.step, cm.payoff, item)
+    check_transitions(rep, None, src, cm.dst, cm.step, cm.payoff, item)
     rep.raise_if_any(path)
     rows = Rows(cm.step, cm.halted, cm.ptr, src, cm.dst, cm.rank, None, ids)
     _check_order(rep, rows)
@@ -360,29 +359,38 @@ def _check_parts(
 
 def check_transitions(
     rep: Report,
-    known: np.ndarray,
+    known: np.ndarray | None,
     src: np.ndarray,
     dst: np.ndarray,
     step: np.ndarray,
     payoff: np.ndarray,
     item: Callable[[int], str],
 ) -> None:
-    """The transitions ``known`` (with known endpoints): one step up, payoff finite and
-    >= 0, no second transition between the same states."""
+    """The transitions ``known`` (with known endpoints; None: all of them): one step up,
+    payoff finite and >= 0, no second transition between the same states."""
     n = step.shape[0]
-    ks, kd = step[src[known]], step[dst[known]]
-    jump = kd != ks + 1
-    for j, a, b in zip(known[jump].tolist(), ks[jump].tolist(), kd[jump].tolist(), strict=True):
+    if known is not None:
+        src, dst, payoff = src[known], dst[known], payoff[known]
+
+    def index(at: np.ndarray) -> list[int]:  # positions among the checked -> transitions
+        out: list[int] = (at if known is None else known[at]).tolist()
+        return out
+
+    ks, kd = step[src], step[dst]
+    jump = np.flatnonzero(kd != ks + 1)
+    for j, a, b in zip(index(jump), ks[jump].tolist(), kd[jump].tolist(), strict=True):
         rep.add((1, j, 1), item(j), f"goes from step {a} to step {b}; must go to step {a + 1}")
-    pay = payoff[known]
-    for j in known[~(np.isfinite(pay) & (pay >= 0))].tolist():
-        rep.add((1, j, 2), item(j), f"payoff must be finite and >= 0, got {payoff[j]}")
-    if known.size > 1:
-        key = src[known] * n + dst[known]
+    bad = np.flatnonzero(~(np.isfinite(payoff) & (payoff >= 0)))
+    for j, v in zip(index(bad), payoff[bad].tolist(), strict=True):
+        rep.add((1, j, 2), item(j), f"payoff must be finite and >= 0, got {v}")
+    if src.size > 1:
+        key = src * n + dst
+        if bool((key[1:] > key[:-1]).all()):  # increasing (as lesmc lays models out): distinct
+            return
         o = np.argsort(key, kind="stable")
-        again = np.zeros(known.size, dtype=bool)
+        again = np.zeros(src.size, dtype=bool)
         again[o[1:]] = key[o[1:]] == key[o[:-1]]
-        for j in known[again].tolist():
+        for j in index(np.flatnonzero(again)):
             rep.add((1, j, 3), item(j), "a second transition between the same states")
 
 
