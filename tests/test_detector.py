@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pytest
@@ -150,6 +151,17 @@ def test_training_smoke_run_produces_loadable_networks(tmp_path: Path) -> None:
         assert np.array_equal(a.numpy(), b.numpy())
 
 
+def _first_detections(nets: Any) -> Any:
+    """The detections of the first frame the detector scores on VIDEO."""
+    det = Detector(nets)
+    for img, _ in frames(VIDEO):
+        res = det.push(img)
+        if res is not None:
+            assert len(res[1].windows) > 10
+            return res[1]
+    raise AssertionError("the detector scored no frame")
+
+
 def test_payoffs_of_real_detections_flip_the_shipped_detector() -> None:
     """DeepFool on the shipped N_dr and real windows: the perturbation hides the vehicle."""
     import torch
@@ -157,14 +169,7 @@ def test_payoffs_of_real_detections_flip_the_shipped_detector() -> None:
     from lesmc.perception.attacks import AttackConfig, payoffs
 
     nets = load_nets()
-    det = Detector(nets)
-    fd = None
-    for img, _ in frames(VIDEO):
-        res = det.push(img)
-        if res is not None:
-            fd = res[1]
-            break
-    assert fd is not None and len(fd.windows) > 10
+    fd = _first_detections(nets)
     res = payoffs(nets.dr, fd.windows, nets.settings.delta_dr, AttackConfig())
     ok = res.flipped
     assert ok.mean() > 0.9
@@ -206,14 +211,7 @@ def test_deepfool_stops_at_the_noise_floor_with_the_payoffs_of_the_full_iteratio
     from lesmc.perception.attacks import AttackConfig, margin, payoffs, threshold_logit
 
     nets = load_nets()
-    det = Detector(nets)
-    fd = None
-    for img, _ in frames(VIDEO):
-        res = det.push(img)
-        if res is not None:
-            fd = res[1]
-            break
-    assert fd is not None and len(fd.windows) > 10
+    fd = _first_detections(nets)
     cfg = AttackConfig()
     ours = payoffs(nets.dr, fd.windows, nets.settings.delta_dr, cfg)
     t = threshold_logit(nets.settings.delta_dr)
