@@ -37,7 +37,7 @@ from lesmc.perception import HISTORY, NetFiles
 from lesmc.perception.quality import load_truth
 from lesmc.pipeline import certify
 from lesmc.pipeline.job import Certifier
-from lesmc.scene import Footage, TrackerConfig, footage_from_dict, save_scene, scene_to_dict
+from lesmc.scene import Footage, Scene, TrackerConfig, footage_from_dict, save_scene, scene_to_dict
 from lesmc.tracking.targets import (
     AutoTarget,
     TargetSpec,
@@ -309,12 +309,21 @@ def truth_targets(p: Prepared, window: tuple[int, int], horizon: int) -> list[Au
                 scene = place_target(p.footage, spec)
             except UsageError:
                 continue  # no detection of it in the gate: the detector missed it
-            if original_end(scene) >= horizon and follows(scene, c.truth_track[: horizon + 1]):
+            if _lasts(scene, horizon) and follows(scene, c.truth_track[: horizon + 1]):
                 seen.add(c.vid)
                 origin = f"vehicle {c.vid} of the truth, from frame {s}"
                 found.append((-c.crowd, s, c.vid, AutoTarget(spec, c.crowd, origin)))
     found.sort(key=lambda f: f[:3])
     return [f[3] for f in found]
+
+
+def _lasts(scene: Scene, horizon: int) -> bool:
+    """Whether the unattacked track runs through step ``horizon``, unfolded that far only
+    (not to the end of the scene's frames)."""
+    try:
+        return original_end(scene, end=horizon) >= horizon
+    except UsageError:  # it halts before, or the scene's frames end before
+        return False
 
 
 def auto_targets(p: Prepared, windows: list[tuple[int, int]], use_truth: bool) -> list[AutoTarget]:
