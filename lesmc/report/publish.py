@@ -9,6 +9,7 @@ Video frames come only from a directory named on the command line.
 from __future__ import annotations
 
 from collections.abc import Callable
+from functools import lru_cache
 from pathlib import Path
 from typing import Any
 
@@ -26,8 +27,16 @@ def frames_reader(frames_dir: str | None) -> Callable[[int], np.ndarray | None] 
 
     fs = open_frames(frames_dir, 1, check=False)
 
+    # the figures of one counterexample draw the same few frames again and again (the
+    # default report: 12 reads of 3 frames, 30 ms of PNG decoding each); read-only, as
+    # every figure shares the array
+    @lru_cache(maxsize=4)
     def read(index: int) -> np.ndarray | None:
-        return fs.read(index) if 0 <= index < len(fs) else None
+        if not 0 <= index < len(fs):
+            return None
+        img = fs.read(index)
+        img.setflags(write=False)
+        return img
 
     return read
 
