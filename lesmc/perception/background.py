@@ -94,14 +94,18 @@ def median(frames: list[np.ndarray]) -> np.ndarray:
     return mid
 
 
-def background(aligned: Aligned, frame: np.ndarray) -> np.ndarray:
-    """The median background, rescaled to the current frame's mean brightness.
+def gain(median_bg: np.ndarray, frame: np.ndarray, valid: np.ndarray) -> float:
+    """The factor that brings the median ``median_bg`` to ``frame``'s mean brightness over
+    ``valid`` (1 where the median is black): it removes slow illumination drift between
+    the L frames and now."""
+    m_bg = cv2.mean(median_bg, mask=valid)[0]
+    m_fr = cv2.mean(frame, mask=valid)[0]
+    return float(m_fr / m_bg) if m_bg > 1.0 else 1.0
 
-    The gain match removes slow illumination drift between the L frames and now.
-    """
+
+def background(aligned: Aligned, frame: np.ndarray) -> np.ndarray:
+    """The median background, rescaled to the current frame's mean brightness (:func:`gain`;
+    a gain of 1 leaves the uint8 median as it is)."""
     bg = median(aligned.frames)
-    m_bg = cv2.mean(bg, mask=aligned.valid)[0]
-    m_fr = cv2.mean(frame, mask=aligned.valid)[0]
-    if m_bg > 1.0:
-        bg = cv2.convertScaleAbs(bg, alpha=m_fr / m_bg)
-    return bg
+    out: np.ndarray = cv2.convertScaleAbs(bg, alpha=gain(bg, frame, aligned.valid))
+    return out

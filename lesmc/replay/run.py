@@ -311,17 +311,14 @@ def _difference(out: FrontEndOutput, p: _Perturbed, m: int) -> np.ndarray:
     moved by the perturbed aligned frames (the clean run's gain kept)."""
     import cv2
 
-    from lesmc.perception.background import median
+    from lesmc.perception.background import gain, median
 
     clean = out.aligned.frames
     old = len(clean) - m
     diff = cv2.absdiff(out.frame, out.background).astype(np.float32)
     if p.box is None:
         return diff
-    bgm = median(clean)
-    m_bg = cv2.mean(bgm, mask=out.aligned.valid)[0]
-    m_fr = cv2.mean(out.frame, mask=out.aligned.valid)[0]
-    alpha = m_fr / m_bg if m_bg > 1.0 else 1.0
+    alpha = gain(median(clean), out.frame, out.aligned.valid)
     was_box = [c[p.box] for c in clean]
     now_box = [*was_box[:old], *p.exact[:-1]]
     changed = np.zeros(was_box[0].shape, bool)
