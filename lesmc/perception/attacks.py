@@ -109,8 +109,9 @@ def deepfool(
         a = active.nonzero().ravel()
         gn = g[a].flatten(1).pow(2).sum(1) + TOL
         r = -(f[a] / gn).view(-1, 1, 1, 1) * g[a]
-        step = (xi[a] + r).clamp(0.0, 1.0)
-        moved = (step != xi[a]).flatten(1).any(1)
+        now = xi[a]
+        step = (now + r).clamp(0.0, 1.0)
+        moved = (step != now).flatten(1).any(1)
         xi[a] = step
         iters[a.numpy()] += 1
         f_a, g_a = _grad(net, xi[a], t)

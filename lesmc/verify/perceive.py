@@ -160,18 +160,18 @@ def perceive_frames(
 
 def scene_meta(req: PerceiveRequest, trained_on: str) -> dict[str, Any]:
     """How the scene's detections and payoffs were made (its ``meta``)."""
-    from lesmc.perception.attacks import AttackConfig
     from lesmc.perception.certify import CertifyConfig
 
+    att = attack_config(req)
     meta: dict[str, Any] = {
         "source": str(Path(req.frames_dir)),
         "detector": trained_on,
         "attack": {
-            "method": req.attack,
-            "overshoot": req.overshoot,
-            "max_iter": req.max_iter,
-            "converged": AttackConfig().converged,
-            "norm": req.payoff_norm,
+            "method": att.method,
+            "overshoot": att.overshoot,
+            "max_iter": att.max_iter,
+            "converged": att.converged,
+            "norm": att.norm,
             "pixel_scale": "[0, 1]",
             "input": "N_dr window, 21x21 x (m+1) frames",
         },
