@@ -203,10 +203,11 @@ def test_local_patches_equal_whole_level_propagation() -> None:
                 output_padding=below[1] - size,
             ).repeat(len(x), 1, 1, 1)
             bias = layer.bias.repeat_interleave(layer.out_hw**2).repeat(len(x))
-            v1, n1 = certify._crown_full(chain, i, relaxes, ball, win, rows, bias)
-            v2, n2 = certify._crown_full(chain, i, relaxes, ball, win, -rows, -bias)
-            assert torch.allclose(low, v1 - 0.3 * n1, atol=1e-4)
-            assert torch.allclose(up, -(v2 - 0.3 * n2), atol=1e-4)
+            value, norm = certify._crown_full(
+                chain, i, relaxes, ball, win, torch.stack([rows, -rows]), torch.stack([bias, -bias])
+            )
+            assert torch.allclose(low, value[0] - 0.3 * norm[0], atol=1e-4)
+            assert torch.allclose(up, -(value[1] - 0.3 * norm[1]), atol=1e-4)
 
 
 def test_batched_and_chunked_runs_equal_one_window_at_a_time(monkeypatch) -> None:
