@@ -11,8 +11,8 @@ The binary form (issue 31, lesmc/model/lts_binary.py) of the same model side by
 side: ``lesmc check BIG.npz SPEC`` against a bare process that ``numpy.load``s the
 same arrays, and in process ``load_lts_npz`` (read + every rule checked) against
 ``numpy.load`` of its arrays; also for the same model with the ids ``lesmc build -o
-MODEL.npz`` gives (``k{step}.{row}``, not stored), the others being 68,890 strings of
-the header's JSON.
+MODEL.npz`` gives (``k{step}.{row}``, not stored), the others being 68,890 custom ids
+(the binary form's ``ids`` array, which ``numpy.load`` reads too).
 
 Run ``python benchmarks/bench_load.py [-n 7] [--keep DIR]``.
 """

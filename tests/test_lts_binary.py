@@ -21,6 +21,7 @@ from lesmc.model.lts import to_arrays
 from lesmc.model.lts_binary import load_lts_npz, save_lts_npz
 from lesmc.model.lts_format import load_lts, lts_from_dict, lts_to_dict, save_lts
 from lesmc.model.random_models import RandomModelConfig, random_lts
+from lesmc.model.validate import id_array_problems
 
 ROOT = Path(__file__).resolve().parents[1]
 TINY = ROOT / "tests" / "golden" / "tiny"
@@ -73,7 +74,7 @@ def _write(path: Path, arrays: dict[str, np.ndarray]) -> None:
 
 
 MUTATIONS = st.sampled_from(
-    ["drop", "extra", "dtype", "int", "float", "header", "version", "truncate", "object"]
+    ["drop", "extra", "dtype", "int", "float", "header", "version", "truncate", "object", "id"]
 )
 
 
@@ -95,8 +96,15 @@ def test_a_mutated_file_loads_or_is_a_located_model_error(
         del arrays[name]
     elif how == "extra":
         arrays["surprise"] = np.zeros(3)
+    elif how == "dtype" and a.dtype.kind == "S":
+        arrays[name] = a.astype(str)
     elif how == "dtype":
         arrays[name] = a.astype(np.int32 if a.dtype != np.int32 else np.float64)
+    elif how == "id" and "ids" in arrays:  # one byte of one id: order, duplicates, UTF-8
+        raw = arrays["ids"].copy()
+        cells = raw.view(np.uint8)
+        cells[pick % cells.size] = [0, 0x80, 0xE2, ord("q"), ord("0")][pick % 5]
+        arrays["ids"] = raw
     elif how == "int" and a.size and a.dtype == np.int64:
         a = a.copy()
         a.flat[pick % a.size] = (pick % 7) - 3 + int(a.flat[pick % a.size])
@@ -185,6 +193,54 @@ def test_a_bad_binary_model_is_a_located_error_through_the_cli(tmp_path: Path) -
     assert r.returncode == 2 and "not a lesmc binary model" in r.stderr, r.stderr
 
 
+def _swap_first_pair(ids: np.ndarray, step: np.ndarray) -> np.ndarray:
+    """Two rows of one step in the wrong order."""
+    ids = ids.copy()
+    k = int(np.flatnonzero(step[1:] == step[:-1])[0])
+    ids[[k, k + 1]] = ids[[k + 1, k]]
+    return ids
+
+
+def _split_character(ids: np.ndarray, step: np.ndarray) -> np.ndarray:
+    """A 3-byte character begun at the end of a full row, ended in the next one."""
+    n = len(ids)
+    out = np.array([b"q%06d" % i for i in range(n)], dtype="S8")
+    cells = out.view(np.uint8).reshape(n, 8)
+    cells[0, 6:] = [0xE2, 0x82]
+    cells[1, 0] = 0xAC
+    return out
+
+
+def _first_and_last_alike(ids: np.ndarray, step: np.ndarray) -> np.ndarray:
+    """The first state (step 0, alone there) and the last (the last step) share an id."""
+    assert step[1] > step[0] < step[-1]
+    out = np.array([b"q%06d" % i for i in range(len(ids))], dtype="S8")
+    out[0] = out[-1]
+    return out
+
+
+#: Broken id arrays (version 2) and what the error must say.
+CRAFTED_IDS = {
+    "empty id": (
+        lambda ids, step: np.concatenate([np.array([b""], ids.dtype), ids[1:]]),
+        "row 0: state ids must be non-empty strings",
+    ),
+    "id order": (_swap_first_pair, "states must be in (step, id) order"),
+    "same id in two steps": (_first_and_last_alike, "state ids must be unique"),
+    "same id in one step": (
+        lambda ids, step: np.full(len(ids), b"q", ids.dtype),
+        "state ids must be unique",
+    ),
+    "not UTF-8": (
+        lambda ids, step: np.where(np.arange(len(ids)) == 1, b"\xff", ids),
+        "row 1: not UTF-8",
+    ),
+    "split character": (_split_character, "row 1: not UTF-8"),
+    "ids of numbers": (lambda ids, step: np.arange(len(ids)), "array 'ids': must be fixed-width"),
+    "ids of two dimensions": (lambda ids, step: ids[:, None], "array 'ids': must be fixed-width"),
+}
+
+
 def _crafted(kind: str, good: Path, bad: Path) -> None:
     """A file made to break the reader in one way (issue 31's review)."""
     arrays = _arrays(good)
@@ -226,11 +282,19 @@ def _crafted(kind: str, good: Path, bad: Path) -> None:
         head["labels"] = {"²": ["x"]}
     elif kind == "component name":
         head["components"] = ["not a name"] * len(head["components"])
-    elif kind == "empty id":
-        head["ids"] = [""] + [f"q{i}" for i in range(1, len(arrays["step"]))]
-    elif kind == "id order":  # ids given, rows not in (step, id) order
+    elif kind.startswith("v1 "):  # version 1: the ids in the header
+        del arrays["ids"]
         n = len(arrays["step"])
-        head["ids"] = [f"q{n - i:06d}" for i in range(n)]
+        head["version"] = 1
+        head["ids"] = (
+            [""] + [f"q{i}" for i in range(1, n)]
+            if kind == "v1 empty id"
+            else [f"q{n - i:06d}" for i in range(n)]
+        )
+    elif kind == "v1 ids array":  # version 1 has no ids array
+        head["version"], head["ids"] = 1, None
+    elif kind in CRAFTED_IDS:
+        arrays["ids"] = CRAFTED_IDS[kind][0](arrays["ids"], arrays["step"])
     elif kind == "nan meta":
         arrays["header"] = np.frombuffer(
             json.dumps(head).replace('"meta": {', '"meta": {"x": NaN, ').encode(), np.uint8
@@ -252,8 +316,10 @@ def _crafted(kind: str, good: Path, bad: Path) -> None:
         "deep header",
         "label key",
         "component name",
-        "empty id",
-        "id order",
+        "v1 empty id",
+        "v1 id order",
+        "v1 ids array",
+        *CRAFTED_IDS,
         "nan meta",
     ],
 )
@@ -264,3 +330,52 @@ def test_a_crafted_file_is_a_located_model_error(tmp_path: Path, kind: str) -> N
     with pytest.raises(ModelError) as info:
         load_lts_npz(bad)
     assert info.value.location is not None and info.value.location.path.startswith(str(bad))
+    if kind in CRAFTED_IDS:
+        assert CRAFTED_IDS[kind][1] in str(info.value), str(info.value)
+
+
+IDS = st.text(st.characters(codec="utf-8", exclude_characters="\0"), min_size=1, max_size=4)
+
+
+@SETTINGS
+@given(
+    ids=st.lists(st.one_of(IDS, IDS.map(lambda t: t + "\0x")), min_size=1, max_size=30),
+    steps=st.lists(st.integers(0, 3), min_size=30, max_size=30),
+    width=st.integers(0, 9),
+)
+def test_id_rules_on_the_byte_array_agree_with_python_strings(
+    ids: list[str], steps: list[int], width: int
+) -> None:
+    """The vectorised id rules (binary form) against the same rules on Python strings:
+    unique, and in (step, id) order within each step (ids with NULs inside included;
+    ``width`` extra bytes of padding)."""
+    step = np.array(sorted(steps[: len(ids)]), dtype=np.int64)
+    coded = [i.encode() for i in ids]
+    raw = np.array(coded, dtype=f"S{max(map(len, coded)) + width}")
+    got = id_array_problems(raw, step)
+    unique = len(set(ids)) == len(ids)
+    pairs = zip(ids[:-1], ids[1:], step[:-1], step[1:], strict=True)
+    ordered = all(a < b for a, b, s, t in pairs if s == t)
+    assert (got == []) == (unique and ordered), got
+    if not unique and ordered:
+        assert "unique" in got[0][1]
+
+
+@pytest.mark.parametrize(
+    "ids",
+    [["é", "q\0r", "ß", "z"], ["k0.0", "a\u20ac", "a\u20acb", "b"], ["end\0", "x", "y", "z"]],
+)
+def test_custom_ids_round_trip_through_the_binary_form(tmp_path: Path, ids: list[str]) -> None:
+    """Non-ASCII ids and NULs inside an id come back as they were (version 2, the ids as
+    bytes); an id ending in NUL, which the padding would eat, is written as version 1."""
+    m = model(7)
+    n = m.n_states
+    names = [f"{ids[i % len(ids)]}{i:03d}" if i else ids[0] for i in range(n)]
+    m = replace(m, ids=[names[i] for i in range(n)])
+    m = lts_from_dict(lts_to_dict(m))  # the JSON form lays the rows out
+    save_lts_npz(m, tmp_path / "m.npz")
+    head = json.loads(_arrays(tmp_path / "m.npz")["header"].tobytes())
+    assert head["version"] == (1 if any(i.endswith("\0") for i in m.state_ids()) else 2)
+    got = load_lts_npz(tmp_path / "m.npz")
+    assert list(got.state_ids()) == m.state_ids()
+    assert lts_to_dict(got) == lts_to_dict(m)

@@ -12,13 +12,38 @@ unfolder builds names state i ``k{step}.{i}``.
 
 from __future__ import annotations
 
+from collections.abc import Iterator, Sequence
 from dataclasses import dataclass, field
 from functools import cached_property
-from typing import Any
+from typing import Any, overload
 
 import numpy as np
 
 from lesmc.model.kernel import combined_payoffs, unit_payoffs
+
+
+class IdArray(Sequence[str]):
+    """State ids held as one array of fixed-width UTF-8 bytes (numpy ``S``), as the
+    binary form stores them: an id is decoded when it is read, so loading a model
+    makes no Python string per state. Trailing NUL bytes pad an id to the width."""
+
+    def __init__(self, raw: np.ndarray) -> None:
+        self.raw = raw
+
+    def __len__(self) -> int:
+        return int(self.raw.shape[0])
+
+    @overload
+    def __getitem__(self, i: int) -> str: ...
+    @overload
+    def __getitem__(self, i: slice) -> list[str]: ...
+    def __getitem__(self, i: int | slice) -> str | list[str]:
+        if isinstance(i, slice):
+            return [b.decode() for b in self.raw[i].tolist()]
+        return bytes(self.raw[i]).decode()
+
+    def __iter__(self) -> Iterator[str]:
+        return (b.decode() for b in self.raw.tolist())
 
 
 @dataclass(eq=False)
@@ -64,7 +89,7 @@ class ArrayModel:
     P_table: np.ndarray | None = None  # (c, d, d)
     obs: np.ndarray | None = None  # (m,) int64 index into obs_names, −1 = no observation
     obs_names: tuple[str, ...] = ()
-    ids: list[str] | None = None
+    ids: Sequence[str] | None = None  # a list, or an IdArray read from the binary form
     labels: dict[int, tuple[str, ...]] = field(default_factory=dict)  # other than "halted"
     meta: dict[str, Any] = field(default_factory=dict)
     #: (steps, d) the states deviations are measured against (Eq. 4's ρ̃); None: S[original]
@@ -124,7 +149,9 @@ class ArrayModel:
 
     def state_ids(self) -> list[str]:
         """Every state's id (:meth:`state_id`), made at once."""
-        return self.ids if self.ids is not None else self.default_ids()
+        if isinstance(self.ids, list):
+            return self.ids
+        return list(self.ids) if self.ids is not None else self.default_ids()
 
     def default_ids(self) -> list[str]:
         """The ids ``k{step}.{i}`` a model without ids has."""

@@ -4,9 +4,12 @@
 (docs/lts-format.md, "Binary form"): the JSON ``.lts`` stays the interchange
 format; this one loads at the speed of the disk. The archive holds one array per
 column of :class:`~lesmc.model.arrays.ArrayModel`, already laid out (states in
-step order, transitions grouped by source in (rank, target) order), and a
-``header``: UTF-8 JSON with the format, version, component and observation
-names, the ids (null: the default ``k{step}.{row}``), labels and meta.
+step order, transitions grouped by source in (rank, target) order), the state
+ids when they are not the default ``k{step}.{row}`` (``ids``: fixed-width UTF-8
+bytes, numpy ``S``, checked without a string per state), and a ``header``:
+UTF-8 JSON with the format, version, component and observation names, labels
+and meta. Version 1 kept the ids in the header's JSON; it is still read, and
+written for the rare ids a fixed width cannot hold (ending in a NUL character).
 
 Read with ``allow_pickle=False`` (an object array is refused, never unpickled),
 each array's dtype and shape checked, then every rule of the JSON form
@@ -20,19 +23,22 @@ import io
 import json
 import zipfile
 import zlib
+from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
 from lesmc.common.errors import Location, ModelError, Problems
-from lesmc.common.fields import header, is_name, show
+from lesmc.common.fields import header, is_name, is_version, show
 from lesmc.common.files import atomic_open, parse_json
-from lesmc.model.arrays import ArrayModel
+from lesmc.model.arrays import ArrayModel, IdArray
 from lesmc.model.validate import HALTED, check_arrays, check_tracks
 
 FORMAT = "lesmc-lts-npz"
-VERSION = 1
+VERSION = 2
+#: The version that kept the ids in the header's JSON.
+HEADER_IDS = 1
 SUFFIX = ".npz"
 
 #: The arrays every file has, with their dtypes and dimensions.
@@ -50,7 +56,9 @@ REQUIRED = {
 OPTIONAL = {"cov": (np.int64, 1), "P_table": (np.float64, 3), "obs": (np.int64, 1)}
 #: The positions of the ground-truth tracks (with the header's ``tracks``), if any.
 TRACKS = "tracks_at"
-_HEADER_KEYS = {"format", "version", "components", "obs_names", "ids", "labels", "meta"}
+#: The state ids (fixed-width UTF-8), when they are not the default ones.
+IDS = "ids"
+_HEADER_KEYS = {"format", "version", "components", "obs_names", "labels", "meta"}
 
 
 def is_binary(path: str | Path) -> bool:
@@ -60,17 +68,22 @@ def is_binary(path: str | Path) -> bool:
 
 def save_lts_npz(model: ArrayModel, path: str | Path) -> None:
     """Write ``model`` in the binary form, atomically."""
-    head = {
+    head: dict[str, Any] = {
         "format": FORMAT,
         "version": VERSION,
         "components": list(model.components),
         "obs_names": list(model.obs_names),
-        "ids": None if _default_ids(model) else model.ids,
         "labels": {str(k): list(v) for k, v in model.labels.items()},
         "meta": model.meta,
     }
     arrays = {name: getattr(model, name) for name in REQUIRED}
     arrays |= {n: getattr(model, n) for n in OPTIONAL if getattr(model, n) is not None}
+    if model.ids is not None and not _default_ids(model):
+        raw = _id_bytes(model.ids)
+        if raw is not None:
+            arrays[IDS] = raw
+        else:
+            head |= {"version": HEADER_IDS, "ids": list(model.ids)}
     if model.tracks is not None:
         head["tracks"] = {
             "components": list(model.tracks.components),
@@ -84,7 +97,19 @@ def save_lts_npz(model: ArrayModel, path: str | Path) -> None:
 
 def _default_ids(model: ArrayModel) -> bool:
     """Whether the model's ids are the default ``k{step}.{row}`` (or it has none)."""
-    return model.ids is None or model.ids == model.default_ids()
+    return model.ids is None or list(model.ids) == model.default_ids()
+
+
+def _id_bytes(ids: Sequence[str]) -> np.ndarray | None:
+    """The ids as UTF-8 in one fixed width (a multiple of 8 bytes, so the reader hashes
+    them a word at a time); None when an id ends in NUL, which the padding would eat."""
+    if isinstance(ids, IdArray):
+        return ids.raw
+    coded = [i.encode() for i in ids]
+    if any(c.endswith(b"\0") for c in coded):
+        return None
+    width = -(-max(map(len, coded)) // 8) * 8
+    return np.array(coded, dtype=f"S{width}")
 
 
 #: What reading a broken archive can raise (zip, zlib, numpy's header parser).
@@ -112,11 +137,12 @@ def load_lts_npz(path: str | Path) -> ArrayModel:
         raise ModelError(f"not a lesmc binary model (.npz): {exc}", Location(where)) from None
     head = _header(arrays.pop("header", None), where)
     tracks_at = arrays.pop(TRACKS, None)
+    ids = _ids(head, arrays.pop(IDS, None), where)
     _check_arrays_present(arrays, where)
     cm = ArrayModel(
         components=tuple(head["components"]),
         obs_names=tuple(head["obs_names"]),
-        ids=head["ids"],
+        ids=ids,
         labels={int(k): tuple(sorted(set(v))) for k, v in head["labels"].items()},
         meta=head["meta"],
         **arrays,  # type: ignore[arg-type]
@@ -172,6 +198,23 @@ def _read_arrays(path: str) -> dict[str, np.ndarray]:
     return arrays
 
 
+def _ids(head: dict[str, Any], raw: np.ndarray | None, path: str) -> Sequence[str] | None:
+    """The state ids: the header's list (version 1) or the array (version 2), if any."""
+    if head["version"] == HEADER_IDS:
+        if raw is not None:
+            raise ModelError.many(path, [(f"array '{IDS}'", "unknown in version 1")])
+        ids: list[str] | None = head["ids"]
+        return ids
+    if raw is None:
+        return None
+    if raw.dtype.kind != "S" or raw.ndim != 1:
+        want = "fixed-width bytes (numpy S) with 1 dimension(s)"
+        raise ModelError.many(
+            path, [(f"array '{IDS}'", f"must be {want}, got {raw.dtype.name} {raw.shape}")]
+        )
+    return IdArray(raw)
+
+
 def _header(blob: np.ndarray | None, path: str) -> dict[str, Any]:
     """The header's JSON, each field checked."""
     if blob is None or blob.dtype != np.uint8 or blob.ndim != 1:
@@ -185,8 +228,10 @@ def _header(blob: np.ndarray | None, path: str) -> dict[str, Any]:
     if not isinstance(data, dict):
         raise ModelError.many(path, [("header", "must be a JSON object")])
     pr = Problems()
-    header(data, FORMAT, VERSION, pr)
-    for key in sorted((set(data) ^ _HEADER_KEYS) - {"tracks"}):
+    old = is_version(data.get("version"), HEADER_IDS)
+    header(data, FORMAT, HEADER_IDS if old else VERSION, pr)
+    keys = _HEADER_KEYS | ({"ids"} if old else set())
+    for key in sorted((set(data) ^ keys) - {"tracks"}):
         pr.add(f"header.{key}", "unknown key" if key in data else "missing")
     comps = data.get("components")
     if not (isinstance(comps, list) and comps and all(is_name(c) for c in comps)):

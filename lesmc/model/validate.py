@@ -24,7 +24,8 @@ from typing import Any
 import numpy as np
 
 from lesmc.common.errors import ModelError, Problems
-from lesmc.model.arrays import ArrayModel, Tracks
+from lesmc.common.fields import show
+from lesmc.model.arrays import ArrayModel, IdArray, Tracks
 
 HALTED = "halted"
 """Label of a state where the tracker stopped (trace(P) too large): no successors."""
@@ -205,7 +206,12 @@ def _check_layout(cm: ArrayModel, path: str) -> np.ndarray:
     need(len(set(cm.components)) == len(cm.components), "components", "names must be unique")
     if cm.ids is not None:
         need(len(cm.ids) == n, "ids", f"must have {n} entries, got {len(cm.ids)}")
-        need(len(set(cm.ids)) == len(cm.ids), "ids", "state ids must be unique")
+        if isinstance(cm.ids, IdArray):
+            if len(cm.ids) == n:
+                for item, msg in id_array_problems(cm.ids.raw, cm.step):
+                    need(False, item, msg)
+        else:
+            need(len(set(cm.ids)) == len(cm.ids), "ids", "state ids must be unique")
     if bad:
         raise ModelError.many(path, bad)
     ptr = cm.ptr
@@ -215,7 +221,7 @@ def _check_layout(cm: ArrayModel, path: str) -> np.ndarray:
     need(bool(((cm.original >= 0) & (cm.original < n)).all()), "original", "unknown state")
     need(bool(np.isfinite(cm.S).all()), "S", "must be finite numbers")
     need(bool((np.diff(cm.step) >= 0).all()), "step", "states must be in step order")
-    if cm.ids is not None and state_order(cm.step, cm.ids) is not None:
+    if isinstance(cm.ids, list) and state_order(cm.step, cm.ids) is not None:
         need(False, "ids", "states must be in (step, id) order, as the JSON form lays them out")
     _check_tables(cm, need, d)
     if bad:
@@ -295,6 +301,82 @@ def state_order(step: np.ndarray, ids: Sequence[str]) -> np.ndarray | None:
         return np.lexsort((np.array(ids), step))
     key = list(zip(step.tolist(), ids, strict=True))
     return np.array(sorted(range(n), key=key.__getitem__), dtype=np.int64)
+
+
+#: The multiplier of the ids' hash (2^64 / golden ratio, odd).
+_MIX = np.uint64(0x9E3779B97F4A7C15)
+
+
+def id_array_problems(raw: np.ndarray, step: np.ndarray) -> list[tuple[str, str]]:
+    """The rules of state ids (non-empty, UTF-8, unique, rows in (step, id) order) checked
+    on the binary form's fixed-width bytes (``raw``: numpy ``S``, trailing NULs pad) with
+    array operations, no string per state. UTF-8's byte order is code point order, the
+    order of Python's strings; uniqueness across steps goes by a 64-bit hash of each id,
+    ids whose hashes meet compared exactly."""
+    n, width = len(raw), raw.dtype.itemsize
+    if n == 0:
+        return []
+    if width == 0:
+        return [("ids", "state ids must be non-empty strings")]
+    raw = np.ascontiguousarray(raw)
+    cells = raw.view(np.uint8).reshape(n, width)
+    if width % 8:
+        cells = np.concatenate([cells, np.zeros((n, -width % 8), np.uint8)], axis=1)
+    words = cells.view(np.uint64)
+    h = words[:, 0].copy()
+    empty = h == 0
+    for j in range(1, words.shape[1]):
+        empty &= words[:, j] == 0
+        h *= _MIX
+        h ^= words[:, j]
+    if empty.any():
+        return [("ids", f"row {int(np.argmax(empty))}: state ids must be non-empty strings")]
+    try:
+        raw.tobytes().decode("utf-8")
+    except UnicodeDecodeError as exc:
+        return [("ids", f"row {exc.start // width}: not UTF-8")]
+    split = (cells[:, 0] & 0xC0) == 0x80  # a character begun at the end of the row before
+    if split.any():
+        return [("ids", f"row {int(np.argmax(split))}: not UTF-8")]
+    same = step[1:] == step[:-1]
+    less, equal = _compare_rows(cells)
+    if not bool((same <= less).all()):
+        twice = np.flatnonzero(same & equal)
+        if len(twice):
+            return [("ids", _twice(raw, int(twice[0]), int(twice[0]) + 1))]
+        return [("ids", "states must be in (step, id) order, as the JSON form lays them out")]
+    h ^= h >> np.uint64(29)
+    h *= _MIX
+    h ^= h >> np.uint64(32)
+    bits = (4 * n - 1).bit_length()
+    slot = (h >> np.uint64(64 - bits)).astype(np.intp)
+    crowded = np.flatnonzero(np.bincount(slot, minlength=1 << bits)[slot] > 1)
+    hs = np.sort(h[crowded])
+    tied = np.unique(hs[1:][hs[1:] == hs[:-1]])
+    if len(tied):  # equal hashes (all but certain for equal ids): compare the ids
+        first: dict[bytes, int] = {}
+        for r in np.flatnonzero(np.isin(h, tied)).tolist():
+            seen = first.setdefault(bytes(raw[r]), r)
+            if seen != r:
+                return [("ids", _twice(raw, seen, r))]
+    return []
+
+
+def _compare_rows(cells: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Each row of bytes (n, 8w) against the next, in byte order: (less, equal), n - 1 each;
+    eight bytes at a time, as big-endian words."""
+    words = cells.view(">u8").astype(np.uint64)
+    less = np.zeros(len(cells) - 1, dtype=bool)
+    equal = np.ones(len(cells) - 1, dtype=bool)
+    for j in range(words.shape[1]):
+        a, b = words[:-1, j], words[1:, j]
+        less |= equal & (a < b)
+        equal &= a == b
+    return less, equal
+
+
+def _twice(raw: np.ndarray, a: int, b: int) -> str:
+    return f"state ids must be unique: {show(bytes(raw[b]).decode())} at rows {a} and {b}"
 
 
 def _first_index(ids: list[str]) -> dict[str, int]:
