@@ -379,3 +379,26 @@ def test_custom_ids_round_trip_through_the_binary_form(tmp_path: Path, ids: list
     got = load_lts_npz(tmp_path / "m.npz")
     assert list(got.state_ids()) == m.state_ids()
     assert lts_to_dict(got) == lts_to_dict(m)
+
+
+def test_arrays_are_read_in_place_when_aligned_and_copied_when_not(tmp_path: Path) -> None:
+    """lesmc's writer puts every array's data at a multiple of 64 bytes in the file (the
+    reader then uses the file's bytes in place); an archive numpy.savez wrote (as
+    version 1 files were) loads the same, its unaligned arrays copied."""
+    m = model(11)
+    ours, plain = tmp_path / "ours.npz", tmp_path / "plain.npz"
+    save_lts_npz(m, ours)
+    _write(plain, _arrays(ours))
+    data = ours.read_bytes()
+    with zipfile.ZipFile(ours) as z:
+        for info in z.infolist():
+            name_len, extra_len = np.frombuffer(data, "<u2", 2, info.header_offset + 26)
+            start = info.header_offset + 30 + int(name_len) + int(extra_len)
+            member = io.BytesIO(data[start : start + info.file_size])
+            np.lib.format.read_magic(member)
+            np.lib.format.read_array_header_1_0(member)
+            assert (start + member.tell()) % 64 == 0, info.filename
+    a, b = load_lts_npz(ours), load_lts_npz(plain)
+    assert lts_to_dict(a) == lts_to_dict(b) == lts_to_dict(m)
+    assert all(x.flags.aligned for x in (a.S, a.dst, a.ptr, b.S, b.dst, b.ptr))
+    assert not a.S.flags.owndata  # a view of the file's bytes

@@ -21,11 +21,13 @@ from __future__ import annotations
 
 import io
 import json
+import os
+import struct
 import zipfile
 import zlib
 from collections.abc import Sequence
 from pathlib import Path
-from typing import Any
+from typing import IO, Any
 
 import numpy as np
 
@@ -92,7 +94,35 @@ def save_lts_npz(model: ArrayModel, path: str | Path) -> None:
         arrays[TRACKS] = model.tracks.at
     blob = np.frombuffer(json.dumps(head, allow_nan=False).encode(), dtype=np.uint8)
     with atomic_open(path, binary=True) as fh:
-        np.savez(fh, header=blob, **arrays)
+        _write_npz(fh, {"header": blob, **arrays})
+
+
+#: Where each array's data starts in the file: a multiple of this many bytes.
+ALIGN = 64
+#: The zip extra field that pads a member's local header (zipalign's: the alignment, then zeros).
+_PAD_FIELD = 0xD935
+
+
+def _write_npz(fh: IO[bytes], arrays: dict[str, np.ndarray]) -> None:
+    """The arrays as ``NAME.npy`` members of a stored (uncompressed) zip, what
+    ``numpy.savez`` writes, with each member's local header padded by an extra field
+    so that its data start at a multiple of ``ALIGN`` in the file (the ``.npy`` header
+    pads itself to a multiple of 64): the reader then uses the file's bytes in place."""
+    with zipfile.ZipFile(fh, "w", zipfile.ZIP_STORED, allowZip64=True) as z:
+        for name, array in arrays.items():
+            a = np.ascontiguousarray(array)
+            head = io.BytesIO()
+            np.lib.format.write_array_header_1_0(head, np.lib.format.header_data_from_array_1_0(a))
+            info = zipfile.ZipInfo(f"{name}.npy", date_time=(1980, 1, 1, 0, 0, 0))
+            info.compress_type = zipfile.ZIP_STORED
+            info.file_size = head.tell() + a.nbytes
+            zip64 = info.file_size * 1.05 > zipfile.ZIP64_LIMIT  # zipfile's own rule
+            fixed = fh.tell() + 30 + len(info.filename.encode()) + 6 + (20 if zip64 else 0)
+            pad = -fixed % ALIGN
+            info.extra = struct.pack("<HHH", _PAD_FIELD, 2 + pad, ALIGN) + bytes(pad)
+            with z.open(info, "w", force_zip64=zip64) as member:
+                member.write(head.getvalue())
+                member.write(a.reshape(-1).view(np.uint8).data if a.size else b"")
 
 
 def _default_ids(model: ArrayModel) -> bool:
@@ -115,6 +145,7 @@ def _id_bytes(ids: Sequence[str]) -> np.ndarray | None:
 #: What reading a broken archive can raise (zip, zlib, numpy's header parser).
 _READ_ERRORS = (
     OSError,
+    struct.error,
     ValueError,
     EOFError,
     zipfile.BadZipFile,
@@ -164,38 +195,58 @@ def load_lts_npz(path: str | Path) -> ArrayModel:
 
 
 def _read_arrays(path: str) -> dict[str, np.ndarray]:
-    """The archive's arrays, each member's ``.npy`` header read first: only stored
-    (uncompressed) members, no object dtype, and no array larger than the bytes its
-    member holds, so a small file cannot make numpy allocate a huge one; then its data,
-    exactly the bytes the header announces (what ``numpy.lib.format.read_array`` does
-    for such arrays, without opening the member a second time)."""
-    arrays = {}
+    """The archive's arrays, from one read of the whole file: each member located by the
+    zip's directory and its local header, only stored (uncompressed) members, its CRC
+    checked, its ``.npy`` header read (no object dtype), and exactly the bytes that
+    header announces after it (a small file cannot claim a huge array). An array whose
+    data start at an aligned offset (lesmc's writer puts them there) is a view of the
+    file's bytes; any other is copied."""
     with zipfile.ZipFile(path) as z:
-        for info in z.infolist():
-            name = info.filename.removesuffix(".npy")
-            if info.compress_type != zipfile.ZIP_STORED:
-                raise ModelError.many(path, [(f"array '{name}'", "compressed: write it with save")])
-            with z.open(info) as fh:
-                version = np.lib.format.read_magic(fh)
-                if version == (1, 0):
-                    shape, fortran, dtype = np.lib.format.read_array_header_1_0(fh)
-                else:
-                    shape, fortran, dtype = np.lib.format.read_array_header_2_0(fh)
-                count = int(np.prod(shape, dtype=object))
-                size = count * dtype.itemsize
-                if dtype.hasobject or fortran or size > info.file_size:
-                    raise ModelError.many(
-                        path, [(f"array '{name}'", "not a plain array of the size it holds")]
-                    )
-                flat = np.empty(count, dtype)
-                assert isinstance(fh, io.BufferedIOBase)  # zipfile.ZipExtFile
-                got = fh.readinto(flat.data.cast("B")) if size else 0
-                if got != size or fh.read(1):  # at the end the zip checks the member's CRC
-                    raise ModelError.many(
-                        path, [(f"array '{name}'", f"does not hold the {size} bytes it announces")]
-                    )
-            arrays[name] = flat.reshape(shape)
+        infos = z.infolist()
+    with open(path, "rb") as fh:
+        buf = bytearray(os.fstat(fh.fileno()).st_size)
+        if fh.readinto(buf) != len(buf):
+            raise ModelError("the file changed while it was read", Location(path))
+    view = memoryview(buf)
+    arrays = {}
+    for info in infos:
+        name = info.filename.removesuffix(".npy")
+        if info.compress_type != zipfile.ZIP_STORED:
+            raise ModelError.many(path, [(f"array '{name}'", "compressed: write it with save")])
+        start = _member_start(view, info)
+        data = view[start : start + info.compress_size]
+        if len(data) != info.compress_size or zlib.crc32(data) != info.CRC:
+            raise zipfile.BadZipFile(f"member {info.filename!r} is damaged (size or CRC)")
+        head = io.BytesIO(data[:_NPY_HEAD])
+        version = np.lib.format.read_magic(head)
+        if version == (1, 0):
+            shape, fortran, dtype = np.lib.format.read_array_header_1_0(head)
+        else:
+            shape, fortran, dtype = np.lib.format.read_array_header_2_0(head)
+        if dtype.hasobject or fortran:
+            raise ModelError.many(path, [(f"array '{name}'", "not a plain array")])
+        count = int(np.prod(shape, dtype=object))
+        size = count * dtype.itemsize
+        if head.tell() + size != len(data):
+            raise ModelError.many(
+                path, [(f"array '{name}'", f"does not hold the {size} bytes it announces")]
+            )
+        flat = np.frombuffer(buf, dtype, count, offset=start + head.tell())
+        arrays[name] = (flat if flat.flags.aligned else flat.copy()).reshape(shape)
     return arrays
+
+
+#: Bytes of a member that hold its .npy header, at most (numpy's own limit is 10,000).
+_NPY_HEAD = 1 << 16
+
+
+def _member_start(view: memoryview, info: zipfile.ZipInfo) -> int:
+    """Where a member's data start: after its local header (30 bytes, then its name
+    and extra field, whose lengths the local header gives)."""
+    sig, *_, name_len, extra_len = struct.unpack_from("<4s5H3L2H", view, info.header_offset)
+    if sig != b"PK\x03\x04":
+        raise zipfile.BadZipFile(f"member {info.filename!r}: no local header")
+    return int(info.header_offset) + 30 + int(name_len) + int(extra_len)
 
 
 def _ids(head: dict[str, Any], raw: np.ndarray | None, path: str) -> Sequence[str] | None:

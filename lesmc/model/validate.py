@@ -215,18 +215,19 @@ def _check_layout(cm: ArrayModel, path: str) -> np.ndarray:
     if bad:
         raise ModelError.many(path, bad)
     ptr = cm.ptr
+    deg = np.diff(ptr)
     need(ptr[0] == 0 and ptr[-1] == m, "ptr", f"must run from 0 to {m} (the transitions)")
-    need(bool((np.diff(ptr) >= 0).all()), "ptr", "must not decrease")
-    need(bool(((cm.dst >= 0) & (cm.dst < n)).all()), "dst", f"must be states 0..{n - 1}")
-    need(bool(((cm.original >= 0) & (cm.original < n)).all()), "original", "unknown state")
+    need(bool((deg >= 0).all()), "ptr", "must not decrease")
+    need(_within(cm.dst, n), "dst", f"must be states 0..{n - 1}")
+    need(_within(cm.original, n), "original", "unknown state")
     need(bool(np.isfinite(cm.S).all()), "S", "must be finite numbers")
-    need(bool((np.diff(cm.step) >= 0).all()), "step", "states must be in step order")
+    need(bool((cm.step[1:] >= cm.step[:-1]).all()), "step", "states must be in step order")
     if isinstance(cm.ids, list) and state_order(cm.step, cm.ids) is not None:
         need(False, "ids", "states must be in (step, id) order, as the JSON form lays them out")
     _check_tables(cm, need, d)
     if bad:
         raise ModelError.many(path, bad)
-    src = np.repeat(np.arange(n, dtype=np.int64), np.diff(ptr))
+    src = np.repeat(np.arange(n, dtype=np.int64), deg)
     r, t = cm.rank, cm.dst
     up = (r[1:] > r[:-1]) | ((r[1:] == r[:-1]) & (t[1:] >= t[:-1]))
     ordered = bool((up | (src[1:] != src[:-1])).all())
@@ -234,6 +235,11 @@ def _check_layout(cm: ArrayModel, path: str) -> np.ndarray:
     if bad:
         raise ModelError.many(path, bad)
     return src
+
+
+def _within(rows: np.ndarray, n: int) -> bool:
+    """Every entry a row 0..n-1 (two reductions, no mask)."""
+    return rows.size == 0 or (int(rows.min()) >= 0 and int(rows.max()) < n)
 
 
 class _DefaultIds(Sequence[str]):
@@ -462,9 +468,10 @@ def check_transitions(
     jump = np.flatnonzero(kd != ks + 1)
     for j, a, b in zip(index(jump), ks[jump].tolist(), kd[jump].tolist(), strict=True):
         rep.add((1, j, 1), item(j), f"goes from step {a} to step {b}; must go to step {a + 1}")
-    bad = np.flatnonzero(~(np.isfinite(payoff) & (payoff >= 0)))
-    for j, v in zip(index(bad), payoff[bad].tolist(), strict=True):
-        rep.add((1, j, 2), item(j), f"payoff must be finite and >= 0, got {v}")
+    if payoff.size and not (payoff.min() >= 0 and payoff.max() < np.inf):  # NaN: not >= 0
+        bad = np.flatnonzero(~(np.isfinite(payoff) & (payoff >= 0)))
+        for j, v in zip(index(bad), payoff[bad].tolist(), strict=True):
+            rep.add((1, j, 2), item(j), f"payoff must be finite and >= 0, got {v}")
     if src.size > 1:
         key = src * n + dst
         if bool((key[1:] > key[:-1]).all()):  # increasing (as lesmc lays models out): distinct
@@ -477,10 +484,17 @@ def check_transitions(
 
 
 def _check_order(rep: Report, rows: Rows) -> None:
-    """≺ must have a unique minimum per state: the transition taken when not attacked."""
+    """≺ must have a unique minimum per state: the transition taken when not attacked.
+
+    Each state's transitions are in rank order (both readers lay them out so), so the
+    minimum is unique where a state's first two ranks differ; the ties are counted
+    only when there are some."""
     ptr, src, rank, ids = rows.ptr, rows.src, rows.rank, rows.ids
     m = rank.shape[0]
     if m < 2:
+        return
+    first = ptr[:-1][np.diff(ptr) >= 2]
+    if not bool((rank[first] == rank[first + 1]).any()):
         return
     lowest = rank[np.minimum(ptr[:-1], m - 1)]  # each state's first (lowest) rank
     at_min = rank == lowest[src]
