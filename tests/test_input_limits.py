@@ -199,6 +199,22 @@ def _scene_with(change: Any) -> dict[str, Any]:
         (lambda d: d["target"].update(velocity=[1e7, 0]), "target: velocity must be"),
         (lambda d: d["frames"][2]["detections"][0].update(payoff=1e13), "payoff must be"),
         (lambda d: d["target"].update(step=10**7), "target: step must be an integer in"),
+        (
+            lambda d: d.update(meta={"attack": {"max_iter": 10**12}}),
+            "meta.attack.max_iter: must be an integer in 1..10000, got 1000000000000",
+        ),
+        (
+            lambda d: d.update(meta={"attack": {"overshoot": -0.5, "method": "fgsm"}}),
+            "meta.attack.overshoot: must be a number in [0, 1], got -0.5",
+        ),
+        (
+            lambda d: d.update(meta={"attack": {"method": "fgsm"}}),
+            'meta.attack.method: must be "deepfool" or "pgd", got \'fgsm\'',
+        ),
+        (
+            lambda d: d.update(meta={"attack": {"converged": 1.0}}),
+            "meta.attack.converged: must be a number in [0, 1), got 1.0",
+        ),
     ],
 )
 def test_extreme_scene_numbers_are_located_errors(change: Any, message: str) -> None:

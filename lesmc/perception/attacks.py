@@ -33,7 +33,9 @@ import numpy as np
 import torch
 from torch import nn
 
+from lesmc.common.errors import InputError, Problems
 from lesmc.perception.cnn import DR_SIZE
+from lesmc.scene.io import recorded_attack
 
 Method = Literal["deepfool", "pgd"]
 Norm = Literal["l2", "per-pixel"]
@@ -220,11 +222,12 @@ def payoffs(
     return AttackResult(pay, pert, flipped, iters)
 
 
-def attack_of(meta: dict[str, Any]) -> AttackConfig:
-    """The attack settings a scene's meta records (lesmc perceive -o), defaults otherwise."""
-    a = meta.get("attack")
-    if not isinstance(a, dict):
-        return AttackConfig()
-    keys = {"method": str, "overshoot": float, "max_iter": int, "norm": str, "converged": float}
-    got = {k: t(a[k]) for k, t in keys.items() if k in a and isinstance(a[k], (str, int, float))}
+def attack_of(meta: dict[str, Any], where: str = "<scene>") -> AttackConfig:
+    """The attack settings a scene's meta records (lesmc perceive -o), defaults for those
+    it does not; a recorded value out of range (``lesmc.scene.io.ATTACK_SETTINGS``) is an
+    InputError naming its field in ``where`` (the scene file)."""
+    pr = Problems()
+    got = recorded_attack(meta, pr)
+    if pr.items:
+        raise InputError.many(where, pr.items)
     return AttackConfig(**got)

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import itertools
 import math
+from collections.abc import Callable
 from dataclasses import fields
 from pathlib import Path
 from typing import Any
@@ -115,7 +116,38 @@ def footage_from_dict(
     check_fits(tracker, target, path)
     raw_meta = data.get("meta")
     meta: dict[str, Any] = raw_meta if isinstance(raw_meta, dict) else {}
+    recorded_attack(meta, pr)
+    if pr.items:
+        raise InputError.many(path, pr.items)
     return Footage(float(dt), tuple(frames), tracker, meta, truth), target
+
+
+#: The attack settings a scene's ``meta.attack`` records that lesmc reads back (the
+#: replay attacks with them), and the values each may take: what ``lesmc perceive``
+#: accepts (--attack, --payoff-norm, --overshoot, --max-iter; converged: < 1).
+ATTACK_SETTINGS: dict[str, tuple[Callable[[Any], bool], str]] = {
+    "method": (lambda v: v in ("deepfool", "pgd"), '"deepfool" or "pgd"'),
+    "norm": (lambda v: v in ("l2", "per-pixel"), '"l2" or "per-pixel"'),
+    "overshoot": (lambda v: is_finite(v) and 0 <= v <= 1, "a number in [0, 1]"),
+    "max_iter": (lambda v: is_int(v) and 1 <= v <= 10_000, "an integer in 1..10000"),
+    "converged": (lambda v: is_finite(v) and 0 <= v < 1, "a number in [0, 1)"),
+}
+
+
+def recorded_attack(meta: dict[str, Any], pr: Problems) -> dict[str, Any]:
+    """The settings of :data:`ATTACK_SETTINGS` that ``meta.attack`` records, each checked
+    (a bad one is a problem in ``pr`` and left out)."""
+    attack = meta.get("attack")
+    got: dict[str, Any] = {}
+    if not isinstance(attack, dict):
+        return got
+    for key, (ok, what) in ATTACK_SETTINGS.items():
+        if key in attack:
+            if ok(attack[key]):
+                got[key] = attack[key]
+            else:
+                pr.add(f"meta.attack.{key}", f"must be {what}, got {show(attack[key])}")
+    return got
 
 
 #: Most ground-truth tracks a scene may carry.

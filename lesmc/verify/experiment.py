@@ -494,7 +494,11 @@ def _perception_facts(req: Request, src: _Source, results: Results) -> dict[str,
     """How the scene's detections and payoffs were made (for the report and the replay)."""
     from lesmc.perception.attacks import AttackConfig, attack_of
 
-    attack = attack_of(src.scene.meta) if req.scene_path is not None else AttackConfig()
+    attack = (
+        attack_of(src.scene.meta, str(req.scene_path))
+        if req.scene_path is not None
+        else AttackConfig()
+    )
     out: dict[str, Any] = {
         "history": HISTORY,
         "delta_bc": 12,
