@@ -8,6 +8,7 @@ import json
 import zipfile
 from dataclasses import replace
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pytest
@@ -16,12 +17,12 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from lesmc.common.errors import ModelError
-from lesmc.model.arrays import ArrayModel
+from lesmc.model.arrays import ArrayModel, IdArray
 from lesmc.model.lts import to_arrays
 from lesmc.model.lts_binary import load_lts_npz, save_lts_npz
 from lesmc.model.lts_format import load_lts, lts_from_dict, lts_to_dict, save_lts
 from lesmc.model.random_models import RandomModelConfig, random_lts
-from lesmc.model.validate import id_array_problems
+from lesmc.model.validate import check_arrays, id_array_problems
 
 ROOT = Path(__file__).resolve().parents[1]
 TINY = ROOT / "tests" / "golden" / "tiny"
@@ -402,3 +403,22 @@ def test_arrays_are_read_in_place_when_aligned_and_copied_when_not(tmp_path: Pat
     assert lts_to_dict(a) == lts_to_dict(b) == lts_to_dict(m)
     assert all(x.flags.aligned for x in (a.S, a.dst, a.ptr, b.S, b.dst, b.ptr))
     assert not a.S.flags.owndata  # a view of the file's bytes
+
+
+def _as_bytes(ids: list[str]) -> IdArray:
+    return IdArray(np.array([i.encode() for i in ids], dtype="S8"))
+
+
+@pytest.mark.parametrize("held", [list, tuple, _as_bytes])
+def test_ids_out_of_order_are_refused_whatever_sequence_holds_them(held: Any) -> None:
+    """The (step, id) order rule holds for ids given as a list, a tuple or the binary
+    form's bytes alike."""
+    m = ArrayModel(
+        components=("x",), step=np.array([0, 1, 1]), S=np.zeros((3, 1)),
+        halted=np.zeros(3, dtype=bool), ptr=np.array([0, 2, 2, 2]), dst=np.array([1, 2]),
+        payoff=np.zeros(2), rank=np.array([0, 1]), original=np.array([0, 1]),
+        ids=held(["a", "z", "b"]),
+    )  # fmt: skip
+    with pytest.raises(ModelError, match=r"in \(step, id\) order"):
+        check_arrays(m)
+    check_arrays(replace(m, ids=held(["a", "b", "z"])))

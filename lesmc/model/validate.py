@@ -222,7 +222,8 @@ def _check_layout(cm: ArrayModel, path: str) -> np.ndarray:
     need(_within(cm.original, n), "original", "unknown state")
     need(bool(np.isfinite(cm.S).all()), "S", "must be finite numbers")
     need(bool((cm.step[1:] >= cm.step[:-1]).all()), "step", "states must be in step order")
-    if isinstance(cm.ids, list) and state_order(cm.step, cm.ids) is not None:
+    ids = cm.ids
+    if ids is not None and not isinstance(ids, IdArray) and state_order(cm.step, ids) is not None:
         need(False, "ids", "states must be in (step, id) order, as the JSON form lays them out")
     _check_tables(cm, need, d)
     if bad:
