@@ -33,7 +33,7 @@ linear layers:
   at smaller ones and are reused.
 
 Everything runs batched over windows in float32 without autograd, with the
-channels last (oneDNN's transposed convolutions run 2x faster so on these small
+channels last (oneDNN's transposed convolutions run 2x faster that way on these small
 patches), a neuron's lower and upper rows side by side so its relaxation is read
 once; the final radius is reduced by ``SAFETY`` (relative) to absorb float32
 rounding (not a formally verified floating-point bound).
