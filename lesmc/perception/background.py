@@ -105,7 +105,10 @@ def gain(median_bg: np.ndarray, frame: np.ndarray, valid: np.ndarray) -> float:
 
 def background(aligned: Aligned, frame: np.ndarray) -> np.ndarray:
     """The median background, rescaled to the current frame's mean brightness (:func:`gain`;
-    a gain of 1 leaves the uint8 median as it is)."""
+    a gain of 1 leaves the uint8 median as it is, uncopied)."""
     bg = median(aligned.frames)
-    out: np.ndarray = cv2.convertScaleAbs(bg, alpha=gain(bg, frame, aligned.valid))
+    alpha = gain(bg, frame, aligned.valid)
+    if alpha == 1.0:
+        return bg
+    out: np.ndarray = cv2.convertScaleAbs(bg, alpha=alpha)
     return out
