@@ -424,3 +424,25 @@ def test_a_boolean_version_is_refused_in_every_input(tmp_path: Path, kind: str) 
     assert r.returncode == 2 and "Traceback" not in r.stderr, r.stderr
     assert f"version: must be {want}, got true" in r.stderr, r.stderr
     assert str(bad) in r.stderr
+
+
+def test_the_attack_settings_a_scene_may_record_are_what_perceive_accepts() -> None:
+    """The scene loader's table (scene.io.ATTACK_SETTINGS) and ``lesmc perceive``'s options
+    allow the same values: each range's ends and the choices, nothing just outside."""
+    import click
+
+    from lesmc.cli.perceive import perceive_cmd as perceive
+    from lesmc.scene.io import ATTACK_SETTINGS
+
+    opts = {p.name: p.type for p in perceive.params}
+    for key, option in (("method", "attack"), ("norm", "payoff_norm")):
+        choice = opts[option]
+        assert isinstance(choice, click.Choice)
+        ok = ATTACK_SETTINGS[key][0]
+        assert all(ok(c) for c in choice.choices) and not ok("other")
+    for key, option, step in (("overshoot", "overshoot", 1e-9), ("max_iter", "max_iter", 1)):
+        rng = opts[option]
+        assert isinstance(rng, click.FloatRange | click.IntRange)
+        ok = ATTACK_SETTINGS[key][0]
+        assert ok(rng.min) and ok(rng.max)
+        assert not ok(rng.min - step) and not ok(rng.max + step)

@@ -110,21 +110,21 @@ def footage_from_dict(
             "target",
             f"step {target.step} is not among the frames {frames[0].step}..{frames[-1].step}",
         )
-    if pr.items:
-        raise InputError.many(path, pr.items)
-    assert tracker is not None
-    check_fits(tracker, target, path)
     raw_meta = data.get("meta")
     meta: dict[str, Any] = raw_meta if isinstance(raw_meta, dict) else {}
     recorded_attack(meta, pr)
     if pr.items:
         raise InputError.many(path, pr.items)
+    assert tracker is not None
+    check_fits(tracker, target, path)
     return Footage(float(dt), tuple(frames), tracker, meta, truth), target
 
 
 #: The attack settings a scene's ``meta.attack`` records that lesmc reads back (the
 #: replay attacks with them), and the values each may take: what ``lesmc perceive``
-#: accepts (--attack, --payoff-norm, --overshoot, --max-iter; converged: < 1).
+#: accepts (--attack, --payoff-norm, --overshoot, --max-iter; converged: < 1). The
+#: command line keeps its own copy of the ranges (importing this module would cost
+#: ``perceive --help`` numpy); tests/test_input_limits.py checks that the two agree.
 ATTACK_SETTINGS: dict[str, tuple[Callable[[Any], bool], str]] = {
     "method": (lambda v: v in ("deepfool", "pgd"), '"deepfool" or "pgd"'),
     "norm": (lambda v: v in ("l2", "per-pixel"), '"l2" or "per-pixel"'),
