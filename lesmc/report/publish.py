@@ -11,12 +11,16 @@ from __future__ import annotations
 from collections.abc import Callable
 from functools import lru_cache
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from lesmc.common.errors import LesmcError
 from lesmc.results.document import results_document
 from lesmc.results.record import DesignRun
+
+if TYPE_CHECKING:
+    from lesmc.video.reader import FrameSet
 
 
 def frames_reader(frames_dir: str | None) -> Callable[[int], np.ndarray | None] | None:
@@ -25,16 +29,26 @@ def frames_reader(frames_dir: str | None) -> Callable[[int], np.ndarray | None] 
         return None
     from lesmc.video.reader import open_frames
 
-    fs = open_frames(frames_dir, 1, check=False)
+    return frame_reader(open_frames(frames_dir, 1, check=False))
 
-    # the figures of one counterexample draw the same few frames again and again (the
-    # default report: 12 reads of 3 frames, 30 ms of PNG decoding each); read-only, as
-    # every figure shares the array
-    @lru_cache(maxsize=4)
+
+def frame_reader(fs: FrameSet, skip_unreadable: bool = False) -> Callable[[int], np.ndarray | None]:
+    """``frame index -> grey image`` of ``fs``: None past its end and, with
+    ``skip_unreadable``, for a frame that cannot be read (else its error). The figures of
+    one counterexample draw the same few frames again and again (the default report: 12
+    reads of 3 frames, 30 ms of PNG decoding each): each is decoded once and kept
+    read-only, as every figure shares the array."""
+
+    @lru_cache(maxsize=8)
     def read(index: int) -> np.ndarray | None:
         if not 0 <= index < len(fs):
             return None
-        img = fs.read(index)
+        try:
+            img = fs.read(index)
+        except LesmcError:
+            if skip_unreadable:
+                return None
+            raise
         img.setflags(write=False)
         return img
 

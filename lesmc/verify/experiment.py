@@ -10,7 +10,6 @@ traffic, the bundled robustness and resilience specs, the paper's designs.
 from __future__ import annotations
 
 import dataclasses
-import functools
 import json
 import time
 from collections.abc import Callable
@@ -23,7 +22,7 @@ import numpy as np
 
 from lesmc.build.unfold import original_end
 from lesmc.common.budget import Budget
-from lesmc.common.errors import BudgetError, LesmcError, UsageError
+from lesmc.common.errors import BudgetError, UsageError
 from lesmc.common.files import json_text
 from lesmc.common.memory import release
 from lesmc.common.progress import Reporter
@@ -619,19 +618,8 @@ def _write(doc: dict[str, Any], out: Path, src: _Source, results: Results, rep: 
 
 
 def _frame_reader(frames: FrameSet | None) -> Callable[[int], np.ndarray | None] | None:
-    """``index -> grey frame`` for the report's images (None past the video's end)."""
-    if frames is None:
-        return None
-    fs = frames
+    """``index -> grey frame`` for the report's images (None past the video's end, or for
+    a frame that cannot be read)."""
+    from lesmc.report.publish import frame_reader
 
-    @functools.lru_cache(maxsize=8)  # the report's figures read a few frames many times
-    def read(index: int) -> np.ndarray | None:
-        try:
-            img = fs.read(index) if 0 <= index < len(fs) else None
-        except LesmcError:
-            return None
-        if img is not None:
-            img.flags.writeable = False  # shared by the cache: never drawn on
-        return img
-
-    return read
+    return None if frames is None else frame_reader(frames, skip_unreadable=True)
