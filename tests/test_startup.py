@@ -80,11 +80,14 @@ def test_help_imports_nothing_heavy(tmp_path: Path, args: list[str]) -> None:
 
 
 def test_check_default_budget_matches_the_engines() -> None:
-    """lesmc/cli/check.py repeats the default so that its option does not import the engines."""
-    from lesmc.cli.check import DEFAULT_MAX_STATES as CLI_DEFAULT
+    """lesmc/cli/options.py repeats the default so that the options do not import the
+    engines; check, verify and campaign all take that one."""
+    from lesmc.cli import campaign, check, options, verify
     from lesmc.engines.check import DEFAULT_MAX_STATES
 
-    assert CLI_DEFAULT == DEFAULT_MAX_STATES
+    assert options.DEFAULT_MAX_STATES == DEFAULT_MAX_STATES
+    for cli in (check, verify, campaign):
+        assert cli.DEFAULT_MAX_STATES is options.DEFAULT_MAX_STATES
 
 
 def test_video_constants_match_the_generator() -> None:

@@ -11,6 +11,7 @@ from typing import TYPE_CHECKING, Any
 import click
 
 from lesmc.cli.options import (
+    DEFAULT_MAX_STATES,
     designs_option,
     finite_seconds,
     nets_option,
@@ -28,8 +29,6 @@ if TYPE_CHECKING:
 DEFAULT_WINDOWS = "4..12:1..4"
 """``lesmc.campaign.plan.DEFAULT_WINDOWS``, repeated so that the option's declaration
 imports nothing heavy."""
-DEFAULT_MAX_STATES = 10_000_000
-"""``lesmc.engines.check.DEFAULT_MAX_STATES`` (as in lesmc check)."""
 
 
 def _cores() -> int:
