@@ -274,13 +274,20 @@ def test_batched_gain_equals_the_textbook_and_does_not_depend_on_the_batch(
     (bit for bit) and the textbook Eq. 3 with numpy's inverse and eigvalsh (to 1e-9)."""
     rng = np.random.default_rng(seed)
     m = matrices(load_scene(SCENES / "rq4_merge.json").tracker, 1.0)
-    A = rng.normal(size=(6, 4, 4))
+    A = rng.normal(size=(int(rng.integers(6, 300)), 4, 4))
     P = np.einsum("nij,nkj->nik", A, A) + 0.1 * np.eye(4)
     P_pred = predict_covariances(m, P)
     inn = innovations(m, P_pred)
     radii = gate_radii(inn.S, P_pred[:, 0, 0] + P_pred[:, 1, 1], 3.0, gate_type)
-    for i in range(len(P)):
-        one = innovations(m, predict_covariances(m, P[i : i + 1]))
+    cut = np.sort(rng.choice(np.arange(1, len(P)), size=3, replace=False))
+    chunks = [innovations(m, predict_covariances(m, c)) for c in np.split(P, cut)]
+    for field in ("S", "S_inv", "K", "P_post"):  # the same bits in any chunks
+        got = np.concatenate([getattr(c, field) for c in chunks])
+        assert got.tobytes() == getattr(inn, field).tobytes()
+    for i in range(6):
+        Pp_one = predict_covariances(m, P[i : i + 1])
+        assert Pp_one[0].tobytes() == P_pred[i].tobytes()
+        one = innovations(m, Pp_one)
         assert one.P_post[0].tobytes() == inn.P_post[i].tobytes()
         assert one.K[0].tobytes() == inn.K[i].tobytes()
         Pp = m.F @ P[i] @ m.F.T + m.Q
