@@ -21,6 +21,7 @@ from hypothesis import strategies as hs
 
 from lesmc.common.errors import ModelError
 from lesmc.model.arrays import ArrayModel
+from lesmc.model.kernel import combined_payoffs
 from lesmc.model.knapsack import Item, knapsack_lts, read_items
 from lesmc.model.lts import LTS, State, Transition, to_arrays, to_lts
 from lesmc.model.lts_format import load_lts, lts_from_dict, lts_to_dict
@@ -255,3 +256,29 @@ def test_knapsack_layout() -> None:
     assert m.combined.tolist() == [0.0, 3.0, 0.0, 1.0, 0.0, 1.0]
     assert m.S[:, 0].tolist() == [0.0, 0.0, 2.0, 0.0, 5.0]
     assert [m.obs_of(t) for t in m.out(0)] == ["skip1", "take1"]
+
+
+payoff_values = hs.one_of(
+    hs.integers(0, 10**6).map(float),  # unit payoffs, integer weights
+    hs.just(math.inf),  # unattackable outcomes
+    hs.floats(0, 1e6, allow_nan=False, allow_infinity=False),  # real payoffs
+    hs.just(2.0**53 - 1),  # integers whose sums round
+)
+
+
+@settings(max_examples=200, deadline=None)
+@given(hs.lists(hs.lists(hs.tuples(hs.integers(0, 4), payoff_values), max_size=9), max_size=12))
+def test_combined_payoffs_are_fsums_of_the_lower_ranks(rows: list[list[tuple[int, float]]]) -> None:
+    """Eq. 5 over a CSR of rank-sorted rows (ties share a rank), exactly against
+    math.fsum of each transition's strictly lower-ranked siblings (the kernel's one- and
+    two-term sums are vectorised, longer ones summed exactly)."""
+    ptr, payoff, rank, want = [0], [], [], []
+    for row in rows:
+        row = sorted(row, key=lambda x: x[0])
+        for r, p in row:
+            rank.append(r)
+            payoff.append(p)
+            want.append(math.fsum(q for s, q in row if s < r))
+        ptr.append(len(payoff))
+    got = combined_payoffs(np.array(ptr), np.array(payoff, dtype=float), np.array(rank))
+    assert np.array_equal(np.array(want, dtype=float), got)  # exact (0.0 == -0.0)
