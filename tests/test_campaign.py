@@ -558,3 +558,39 @@ def test_the_summary_gives_the_fewest_frames_exactly_for_count_frames(
     got = [x["attacked_frames"] for x in robust if x["attacked_frames"] is not None]
     assert cells["robustness"]["fewest_frames"] == min(got, default=None)
     assert not cells["robustness"]["fewest_frames_exact"]
+
+
+def test_one_unattacked_track_decides_lasts_and_follows(base: tuple[Path, Path]) -> None:
+    """Automatic targets from the truth: with the plain tracker, one unattacked track
+    decides both whether it runs through the horizon and whether it stays on the vehicle;
+    the answer equals the two separate checks, for the plain tracker and another."""
+    from collections import Counter
+
+    from lesmc.campaign.run import _lasts, _lasts_and_follows
+    from lesmc.common.errors import UsageError
+    from lesmc.perception.quality import load_truth
+    from lesmc.tracking.targets import rounded
+    from lesmc.verify.targets import follows, rank_targets
+    from lesmc.video.reader import open_frames
+
+    video = base[0]
+    footage = prepare(Video("tiny", video, video / "truth.json", "test"), base[1]).footage
+    truth = load_truth(str(video / "truth.json"))
+    frames = open_frames(video, 5, check=False)
+    first = footage.frames[0].step
+    tfs = [truth.frames[f.name] for f in frames.paths[first:]]
+    seen: Counter[bool] = Counter()
+    for horizon in (2, 4, len(tfs)):  # the last is past the frames: never lasts
+        ranked = rank_targets(tfs, (frames.width, frames.height), (1, min(horizon, 5) - 1))
+        for c in ranked:
+            try:
+                scene = place_target(footage, rounded(c.spec.x, c.spec.y, first))
+            except UsageError:
+                continue
+            track = c.truth_track[: horizon + 1]
+            for design in ("single", "joint"):
+                s = scene.with_tracker(design=design)
+                want = _lasts(s, horizon) and follows(s, track)
+                assert _lasts_and_follows(s, horizon, track) == want, (c.vid, horizon, design)
+                seen[want] += 1
+    assert seen[True] and seen[False]

@@ -24,7 +24,7 @@ import numpy as np
 from rich.console import Console
 
 from lesmc.build.probe import merged_detections
-from lesmc.build.unfold import original_end
+from lesmc.build.unfold import max_end, original_end
 from lesmc.campaign.plan import Group, plan_units, scene_key
 from lesmc.campaign.work import run_group, scene_doc
 from lesmc.common.budget import Budget
@@ -32,6 +32,7 @@ from lesmc.common.errors import InputError, Location, UsageError
 from lesmc.common.files import read_json
 from lesmc.common.progress import progress_bar
 from lesmc.designs import registry
+from lesmc.designs.registry import BASELINE
 from lesmc.language.properties import SpecFile
 from lesmc.perception import HISTORY, NetFiles
 from lesmc.perception.quality import load_truth
@@ -286,7 +287,7 @@ def truth_targets(p: Prepared, window: tuple[int, int], horizon: int) -> list[Au
     each frame that leaves ``horizon`` steps, each vehicle once (at its earliest start), kept
     when the unattacked plain tracker, started on it from the scene, follows it through
     ``horizon``. Most neighbouring traffic first; ties by frame, then vehicle id."""
-    from lesmc.verify.targets import follows, rank_targets
+    from lesmc.verify.targets import rank_targets
     from lesmc.video.reader import open_frames
 
     assert p.video.truth is not None
@@ -309,12 +310,26 @@ def truth_targets(p: Prepared, window: tuple[int, int], horizon: int) -> list[Au
                 scene = place_target(p.footage, spec)
             except UsageError:
                 continue  # no detection of it in the gate: the detector missed it
-            if _lasts(scene, horizon) and follows(scene, c.truth_track[: horizon + 1]):
+            if _lasts_and_follows(scene, horizon, c.truth_track[: horizon + 1]):
                 seen.add(c.vid)
                 origin = f"vehicle {c.vid} of the truth, from frame {s}"
                 found.append((-c.crowd, s, c.vid, AutoTarget(spec, c.crowd, origin)))
     found.sort(key=lambda f: f[:3])
     return [f[3] for f in found]
+
+
+def _lasts_and_follows(scene: Scene, horizon: int, truth_track: np.ndarray) -> bool:
+    """:func:`_lasts` and ``follows`` (lesmc/verify/targets.py): the scene's unattacked track
+    runs through ``horizon`` and the plain tracker's stays on the vehicle of ``truth_track``.
+    With the plain tracker as the scene's, both read one unattacked track."""
+    from lesmc.verify.targets import baseline_track, follows, on_vehicle
+
+    if scene.tracker.design != BASELINE:
+        return _lasts(scene, horizon) and follows(scene, truth_track)
+    if horizon > max_end(scene):  # the frames end before
+        return False
+    run = baseline_track(scene, horizon)  # truth_track has at most horizon + 1 steps
+    return len(run) > horizon and on_vehicle(scene, run, truth_track)
 
 
 def _lasts(scene: Scene, horizon: int) -> bool:

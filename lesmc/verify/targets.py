@@ -17,7 +17,7 @@ from lesmc.language.properties import SpecFile
 from lesmc.perception.quality import Truth, TruthFrame
 from lesmc.perception.to_scene import truth_velocity
 from lesmc.scene import Footage, Scene, TruthTrack
-from lesmc.tracking.monitor import track
+from lesmc.tracking.monitor import TrackPoint, track
 from lesmc.tracking.targets import TargetSpec, place_target
 from lesmc.video.reader import FrameSet
 
@@ -91,12 +91,29 @@ def rank_targets(
     return out
 
 
-def follows(scene: Scene, truth_track: np.ndarray, tolerance: float = 6.0) -> bool:
+#: How far (px) the unattacked track may be from the true vehicle and still follow it.
+TOLERANCE_PX = 6.0
+
+
+def follows(scene: Scene, truth_track: np.ndarray, tolerance: float = TOLERANCE_PX) -> bool:
     """Whether the unattacked single-KF track stays on the vehicle for ``truth_track``'s steps."""
-    run = track(make_tracker(scene.with_tracker(design=BASELINE)), len(truth_track) - 1)
+    return on_vehicle(scene, baseline_track(scene, len(truth_track) - 1), truth_track, tolerance)
+
+
+def baseline_track(scene: Scene, end: int) -> list[TrackPoint]:
+    """The unattacked track of the plain tracker (``BASELINE``) through step ``end``, or
+    until it halts."""
+    return track(make_tracker(scene.with_tracker(design=BASELINE)), end)
+
+
+def on_vehicle(
+    scene: Scene, run: list[TrackPoint], truth_track: np.ndarray, tolerance: float = TOLERANCE_PX
+) -> bool:
+    """Whether the unattacked track ``run`` lasts ``truth_track``'s steps and stays within
+    ``tolerance`` of the vehicle at each after the first."""
     if len(run) < len(truth_track):
         return False
-    est = np.array([p.x[list(scene.tracker.measured)] for p in run])
+    est = np.array([p.x[list(scene.tracker.measured)] for p in run[: len(truth_track)]])
     return bool((np.linalg.norm(est[1:] - truth_track[1:], axis=1) <= tolerance).all())
 
 
