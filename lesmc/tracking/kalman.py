@@ -152,8 +152,7 @@ def predict_covariances(m: Matrices, P: np.ndarray) -> np.ndarray:
     A stacked matrix product multiplies each covariance on its own (one small
     product per matrix of the stack), so a covariance predicted alone or in a batch
     gives the same bits (states are shared by their covariance's exact value;
-    tests/test_tracking.py). 2-4x faster than the einsum it replaced on the
-    stacks the unfolder asks for (docs/performance.md).
+    tests/test_tracking.py).
     """
     out: np.ndarray = m.F @ P @ m.F.T + m.Q
     return out
