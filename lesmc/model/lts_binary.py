@@ -195,12 +195,12 @@ def load_lts_npz(path: str | Path) -> ArrayModel:
 
 
 def _read_arrays(path: str) -> dict[str, np.ndarray]:
-    """The archive's arrays, from one read of the whole file: each member located by the
-    zip's directory and its local header, only stored (uncompressed) members, its CRC
-    checked, its ``.npy`` header read (no object dtype), and exactly the bytes that
-    header announces after it (a small file cannot claim a huge array). An array whose
-    data start at an aligned offset (lesmc's writer puts them there) is a view of the
-    file's bytes; any other is copied."""
+    """The archive's arrays: the zip's directory read by ``zipfile``, then the whole file
+    in one read. Each member is located by the directory and its local header; only
+    stored (uncompressed) members, each CRC checked, each ``.npy`` header read (no object
+    dtype), and exactly the bytes that header announces after it (a small file cannot
+    claim a huge array). An array whose data start at an aligned offset (lesmc's writer
+    puts them there) is a view of the file's bytes; any other is copied."""
     with zipfile.ZipFile(path) as z:
         infos = z.infolist()
     with open(path, "rb") as fh:
