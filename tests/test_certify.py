@@ -221,6 +221,19 @@ def test_batched_and_chunked_runs_equal_one_window_at_a_time(monkeypatch) -> Non
     np.testing.assert_allclose(together, alone, rtol=1e-4, atol=1e-7)
 
 
+def test_a_ball_without_slack_is_not_grown() -> None:
+    """``grow_slack``: a window whose first ball certified with r*(R) < grow_slack * R keeps
+    R; with the rule off, the same windows grow past it (the rule, not the bound, stops them)."""
+    _, chain, x = strided_case()
+    xt = torch.from_numpy(x)
+    first = certify._start(chain, certify._centre(chain, xt), None, CertifyConfig())[0].numpy()
+    kept = certified_radius(chain, x, cfg=CertifyConfig(steps=4, grow_slack=math.inf))
+    grown = certified_radius(chain, x, cfg=CertifyConfig(steps=4, grow_slack=0.0))
+    assert (kept <= first * (1 - certify.SAFETY) * (1 + 1e-6)).all()
+    assert (grown > first * (1 + 1e-3)).any()
+    assert (kept > 0).any()
+
+
 def test_flip_distances_set_the_first_layers_unstable_fraction() -> None:
     """A ball of radius d (a flip distance) leaves unstable exactly the neurons nearer than d."""
     _, chain, x = strided_case()

@@ -177,7 +177,12 @@ def scene_meta(req: PerceiveRequest, trained_on: str) -> dict[str, Any]:
         },
     }
     if req.certify:
-        meta["certify"] = {"method": "CROWN, L2 ball", "steps": CertifyConfig().steps}
+        cfg = CertifyConfig()
+        meta["certify"] = {
+            "method": "CROWN, L2 ball",
+            "steps": cfg.steps,
+            "grow_slack": cfg.grow_slack,
+        }
     return meta
 
 
