@@ -824,23 +824,30 @@ def _tighten(
     A dive below threshold T keeps only labels that can still end below T; when it
     finds a violating path the incumbent improves, otherwise T only guides the next try
     (a beam proves nothing). Cheap next to an exact pass that a poor incumbent would widen.
+    After two misses in a row the next dive looks just below the incumbent (by the gap
+    the dives aim at) instead of halfway down; when it misses too, the dives end.
     """
     root = np.array([space.root], dtype=np.int64)
     low = float(
         bounds.violating_lb(root, np.array([space.root_obj]), np.array([space.root_con]))[0]
     )
     low = max(low, space.root_obj) if math.isfinite(low) else space.root_obj
+    misses = 0  # dives in a row that found nothing
     for _ in range(TIGHTEN):
-        if not upper - low > TIGHT_GAP * max(abs(upper), 1e-12):
+        gap = TIGHT_GAP * max(abs(upper), 1e-12)
+        if not upper - low > gap:
             break
-        mid = low + (upper - low) / 2
+        probe = misses == 2  # stuck far below: look just below the incumbent instead
+        mid = upper - gap if probe else low + (upper - low) / 2
         best, got, _, why = _optimum_pass(space, bounds, budget, stats, mid, BEAM)
         if got is not None and best < upper:
-            upper, at = best, got
-        elif why is None:
-            low = mid
+            upper, at, misses = best, got, 0
         if why is not None:
             return upper, at, why
+        if got is None:
+            if probe:
+                break  # nothing better by the gap the dives aim at: the exact pass decides
+            low, misses = mid, misses + 1
     return upper, at, None
 
 
