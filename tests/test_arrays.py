@@ -21,7 +21,7 @@ from hypothesis import strategies as hs
 
 from lesmc.common.errors import ModelError
 from lesmc.model.arrays import ArrayModel
-from lesmc.model.kernel import combined_payoffs
+from lesmc.model.kernel import combined_counts, combined_payoffs
 from lesmc.model.knapsack import Item, knapsack_lts, read_items
 from lesmc.model.lts import LTS, State, Transition, to_arrays, to_lts
 from lesmc.model.lts_format import load_lts, lts_from_dict, lts_to_dict
@@ -271,7 +271,8 @@ payoff_values = hs.one_of(
 def test_combined_payoffs_are_fsums_of_the_lower_ranks(rows: list[list[tuple[int, float]]]) -> None:
     """Eq. 5 over a CSR of rank-sorted rows (ties share a rank), exactly against
     math.fsum of each transition's strictly lower-ranked siblings (the kernel's one- and
-    two-term sums are vectorised, longer ones summed exactly)."""
+    two-term sums are vectorised, longer ones summed exactly); and over unit payoffs,
+    against a count of those siblings."""
     ptr, payoff, rank, want = [0], [], [], []
     for row in rows:
         row = sorted(row, key=lambda x: x[0])
@@ -282,3 +283,11 @@ def test_combined_payoffs_are_fsums_of_the_lower_ranks(rows: list[list[tuple[int
         ptr.append(len(payoff))
     got = combined_payoffs(np.array(ptr), np.array(payoff, dtype=float), np.array(rank))
     assert np.array_equal(np.array(want, dtype=float), got)  # exact (0.0 == -0.0)
+    # over unit payoffs (each 1, ∞ staying ∞): the outcomes ruled out, ∞ past an unattackable one
+    counts = []
+    for row in rows:
+        for r, _ in sorted(row, key=lambda x: x[0]):
+            lower = [q for s, q in row if s < r]
+            counts.append(math.inf if math.inf in lower else float(len(lower)))
+    got = combined_counts(np.array(ptr), np.array(payoff, dtype=float), np.array(rank))
+    assert np.array_equal(np.array(counts, dtype=float), got)

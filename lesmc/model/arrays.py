@@ -19,7 +19,7 @@ from typing import Any, overload
 
 import numpy as np
 
-from lesmc.model.kernel import combined_payoffs, unit_payoffs
+from lesmc.model.kernel import combined_counts, combined_payoffs
 
 
 class IdArray(Sequence[str]):
@@ -127,7 +127,7 @@ class ArrayModel:
     @cached_property
     def counted(self) -> np.ndarray:
         """Eq. 5 over unit payoffs per transition: the outcomes hidden (``count``)."""
-        return combined_payoffs(self.ptr, unit_payoffs(self.payoff), self.rank)
+        return combined_counts(self.ptr, self.payoff, self.rank)
 
     @cached_property
     def src(self) -> np.ndarray:

@@ -15,7 +15,7 @@ from typing import TYPE_CHECKING, Protocol
 
 import numpy as np
 
-from lesmc.model.kernel import combined_payoffs, unit_payoffs
+from lesmc.model.kernel import combined_counts, combined_payoffs
 
 if TYPE_CHECKING:
     from lesmc.model.arrays import Tracks
@@ -168,7 +168,7 @@ class GrowingModel:
 
     @property
     def counted(self) -> np.ndarray:
-        """Eq. 5 over unit payoffs (kernel.unit_payoffs) per transition."""
+        """Eq. 5 over unit payoffs (kernel.combined_counts) per transition."""
         return self._counted.view
 
     @property
@@ -188,7 +188,7 @@ class GrowingModel:
         self._rank.extend(exp.rank)
         self._obs.extend(exp.obs)
         self._combined.extend(combined_payoffs(ptr, exp.payoff, exp.rank))
-        self._counted.extend(combined_payoffs(ptr, unit_payoffs(exp.payoff), exp.rank))
+        self._counted.extend(combined_counts(ptr, exp.payoff, exp.rank))
         self._lo.data[states] = first + ptr[:-1]
         self._hi.data[states] = first + ptr[1:]
         return np.arange(first, self._dst.n)

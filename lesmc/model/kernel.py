@@ -73,6 +73,21 @@ def nearest(d_original: np.ndarray, track_diffs: Iterable[np.ndarray], norm: flo
     return out
 
 
+def _lower_ranks(ptr: np.ndarray, rank: np.ndarray) -> tuple[np.ndarray, ...]:
+    """Eq. 5's sums for a CSR model whose rows are sorted by rank: each transition's
+    rank group (``first``: the group's first transition; ``new_group``: where groups
+    start), and per group (``lead``: its first transition) the row's start and the
+    number of transitions of strictly lower rank before it (ties share a sum)."""
+    m = len(rank)
+    deg = np.diff(ptr)
+    start = np.repeat(ptr[:-1], deg)
+    pos = np.arange(m) - start
+    new_group = (pos == 0) | np.r_[True, rank[1:] != rank[:-1]]
+    first = np.maximum.accumulate(np.where(new_group, np.arange(m), 0))
+    lead = first[new_group]
+    return first, new_group, lead, start[lead], lead - start[lead]
+
+
 def combined_payoffs(ptr: np.ndarray, payoff: np.ndarray, rank: np.ndarray) -> np.ndarray:
     """Eq. 5 for every transition of a CSR model whose rows are sorted by rank.
 
@@ -81,18 +96,10 @@ def combined_payoffs(ptr: np.ndarray, payoff: np.ndarray, rank: np.ndarray) -> n
     of the same state. A sum of one or two terms is exactly rounded already, so
     those are vectorised and only longer prefixes are summed with fsum.
     """
-    m = len(payoff)
-    out = np.zeros(m)
-    if m == 0:
+    out = np.zeros(len(payoff))
+    if not len(payoff):
         return out
-    deg = np.diff(ptr)
-    start = np.repeat(ptr[:-1], deg)
-    pos = np.arange(m) - start
-    # the first position of each transition's rank group: ties share a combined payoff
-    new_group = (pos == 0) | np.r_[True, rank[1:] != rank[:-1]]
-    first = np.maximum.accumulate(np.where(new_group, np.arange(m), 0))
-    lead = first[new_group]  # group starts, each summing the payoffs before it in its row
-    n_terms = lead - start[lead]
+    first, new_group, lead, row, n_terms = _lower_ranks(ptr, rank)
     sums = np.zeros(lead.size)
     one = n_terms == 1
     sums[one] = payoff[lead[one] - 1]
@@ -101,17 +108,25 @@ def combined_payoffs(ptr: np.ndarray, payoff: np.ndarray, rank: np.ndarray) -> n
     many = np.nonzero(n_terms >= 3)[0]
     if many.size:
         vals = payoff.tolist()
-        rows = zip(start[lead[many]].tolist(), lead[many].tolist(), strict=True)
+        rows = zip(row[many].tolist(), lead[many].tolist(), strict=True)
         sums[many] = [math.fsum(vals[a:b]) for a, b in rows]
     out[new_group] = sums
     return out[first]
 
 
-def unit_payoffs(payoff: np.ndarray) -> np.ndarray:
-    """Every transition's payoff replaced by 1 (∞ stays ∞: an unattackable outcome stays
-    out of reach): Eq. 5 over these counts the outcomes an attacker rules out."""
-    out: np.ndarray = np.where(np.isfinite(payoff), 1.0, np.inf)
-    return out
+def combined_counts(ptr: np.ndarray, payoff: np.ndarray, rank: np.ndarray) -> np.ndarray:
+    """Eq. 5 over unit payoffs: every transition's payoff replaced by 1, ∞ staying ∞ (an
+    unattackable outcome stays out of reach), so that it counts the outcomes an attacker
+    rules out. Without fsum: a sum of n ones is n, exactly; an infinite payoff among the
+    lower ranks makes it ∞."""
+    out = np.zeros(len(payoff))
+    if not len(payoff):
+        return out
+    first, new_group, lead, row, n_terms = _lower_ranks(ptr, rank)
+    infs = np.concatenate(([0], np.cumsum(~np.isfinite(payoff))))
+    blocked = infs[lead] > infs[row]  # an unattackable outcome among the lower ranks
+    out[new_group] = np.where(blocked, math.inf, n_terms)
+    return out[first]
 
 
 def contributions(
@@ -128,8 +143,8 @@ def contributions(
     A payoff measure adds the (weighted) combined payoff of transitions entering
     its steps (Eq. 8; ``mean`` is the weight 1/(u−l+1)); a dist measure adds the
     deviation of the entered state (Eq. 9; ``at`` is a sum over one step).
-    ``count`` is the payoff measure with unit payoffs (``counted``: Eq. 5 over
-    :func:`unit_payoffs`), the number of outcomes hidden; ``frames`` adds 1 for each
+    ``count`` is the payoff measure with unit payoffs (``counted``:
+    :func:`combined_counts`), the number of outcomes hidden; ``frames`` adds 1 for each
     attacked step (a transition of rank > 0: its count is positive), ∞ where the
     count is. ``tau`` (``tau.rise``, aggregated by max) adds each transition's
     :func:`tau_rise` (``rise``); ``near`` (``dist.nearest``) the entered state's
