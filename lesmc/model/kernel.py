@@ -73,7 +73,9 @@ def nearest(d_original: np.ndarray, track_diffs: Iterable[np.ndarray], norm: flo
     return out
 
 
-def _lower_ranks(ptr: np.ndarray, rank: np.ndarray) -> tuple[np.ndarray, ...]:
+def _lower_ranks(
+    ptr: np.ndarray, rank: np.ndarray
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Eq. 5's sums for a CSR model whose rows are sorted by rank: each transition's
     rank group (``first``: the group's first transition; ``new_group``: where groups
     start), and per group (``lead``: its first transition) the row's start and the
@@ -83,7 +85,7 @@ def _lower_ranks(ptr: np.ndarray, rank: np.ndarray) -> tuple[np.ndarray, ...]:
     start = np.repeat(ptr[:-1], deg)
     pos = np.arange(m) - start
     new_group = (pos == 0) | np.r_[True, rank[1:] != rank[:-1]]
-    first = np.maximum.accumulate(np.where(new_group, np.arange(m), 0))
+    first: np.ndarray = np.maximum.accumulate(np.where(new_group, np.arange(m), 0))
     lead = first[new_group]
     return first, new_group, lead, start[lead], lead - start[lead]
 
