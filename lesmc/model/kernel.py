@@ -113,7 +113,8 @@ def combined_payoffs(ptr: np.ndarray, payoff: np.ndarray, rank: np.ndarray) -> n
         rows = zip(row[many].tolist(), lead[many].tolist(), strict=True)
         sums[many] = [math.fsum(vals[a:b]) for a, b in rows]
     out[new_group] = sums
-    return out[first]
+    combined: np.ndarray = out[first]
+    return combined
 
 
 def combined_counts(ptr: np.ndarray, payoff: np.ndarray, rank: np.ndarray) -> np.ndarray:
@@ -128,7 +129,8 @@ def combined_counts(ptr: np.ndarray, payoff: np.ndarray, rank: np.ndarray) -> np
     infs = np.concatenate(([0], np.cumsum(~np.isfinite(payoff))))
     blocked = infs[lead] > infs[row]  # an unattackable outcome among the lower ranks
     out[new_group] = np.where(blocked, math.inf, n_terms)
-    return out[first]
+    counts: np.ndarray = out[first]
+    return counts
 
 
 def contributions(
