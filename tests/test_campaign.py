@@ -563,7 +563,8 @@ def test_the_summary_gives_the_fewest_frames_exactly_for_count_frames(
 def test_one_unattacked_track_decides_lasts_and_follows(base: tuple[Path, Path]) -> None:
     """Automatic targets from the truth: with the plain tracker, one unattacked track
     decides both whether it runs through the horizon and whether it stays on the vehicle;
-    the answer equals the two separate checks, for the plain tracker and another."""
+    the answer equals the two separate checks, for the plain tracker and another, and for
+    a track that halts before the horizon while its truth track ends earlier still."""
     from collections import Counter
 
     from lesmc.campaign.run import _lasts, _lasts_and_follows
@@ -580,6 +581,7 @@ def test_one_unattacked_track_decides_lasts_and_follows(base: tuple[Path, Path])
     first = footage.frames[0].step
     tfs = [truth.frames[f.name] for f in frames.paths[first:]]
     seen: Counter[bool] = Counter()
+    halted = 0
     for horizon in (2, 4, len(tfs)):  # the last is past the frames: never lasts
         ranked = rank_targets(tfs, (frames.width, frames.height), (1, min(horizon, 5) - 1))
         for c in ranked:
@@ -587,10 +589,16 @@ def test_one_unattacked_track_decides_lasts_and_follows(base: tuple[Path, Path])
                 scene = place_target(footage, rounded(c.spec.x, c.spec.y, first))
             except UsageError:
                 continue
-            track = c.truth_track[: horizon + 1]
-            for design in ("single", "joint"):
-                s = scene.with_tracker(design=design)
-                want = _lasts(s, horizon) and follows(s, track)
-                assert _lasts_and_follows(s, horizon, track) == want, (c.vid, horizon, design)
-                seen[want] += 1
+            # the truth track, and one cut short (a vehicle that leaves the frames early)
+            for track in (c.truth_track[: horizon + 1], c.truth_track[:2]):
+                for design, max_trace in (("single", None), ("joint", None), ("single", 100.0)):
+                    s = scene.with_tracker(design=design)
+                    if max_trace is not None:  # the track halts after two steps on this video
+                        s = s.with_tracker(max_trace=max_trace)
+                    want = _lasts(s, horizon) and follows(s, track)
+                    got = _lasts_and_follows(s, horizon, track)
+                    assert got == want, (c.vid, horizon, len(track), design, max_trace)
+                    seen[want] += 1
+                    halted += not _lasts(s, horizon) and follows(s, track)
     assert seen[True] and seen[False]
+    assert halted  # a track that halts short of the horizon, on the vehicle while it runs
