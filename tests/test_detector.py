@@ -36,6 +36,37 @@ def test_shipped_networks_load_from_safetensors() -> None:
     assert not nets.dr.training and not nets.lp.training
 
 
+def test_the_networks_compute_their_layers_whatever_the_layout() -> None:
+    """The forward passes hand oneDNN channels-last activations (cnn.py); the oracle runs
+    the same layers one by one on plain channels-first tensors, as torch does by default."""
+    import torch
+    from torch.nn import functional as F
+
+    nets = load_nets()
+    rng = np.random.default_rng(3)
+
+    def by_hand(layers: list[torch.nn.Module], x: torch.Tensor) -> torch.Tensor:
+        h = x - x.mean(dim=(1, 2, 3), keepdim=True)
+        for mod in layers:
+            if isinstance(mod, torch.nn.Conv2d):
+                h = F.conv2d(h, mod.weight, mod.bias, mod.stride, mod.padding)
+            elif isinstance(mod, torch.nn.Linear):
+                h = F.linear(h.flatten(1), mod.weight, mod.bias)
+            elif isinstance(mod, torch.nn.ReLU):
+                h = torch.relu(h)
+        return h
+
+    with torch.inference_mode():
+        x = torch.from_numpy(rng.random((37, 4, 21, 21), dtype=np.float32))
+        want = by_hand([*nets.dr.features, *nets.dr.head], x)
+        got = nets.dr(x)
+        assert got.shape == want.shape and x.is_contiguous()
+        assert torch.allclose(got, want, rtol=1e-5, atol=1e-4)
+        y = torch.from_numpy(rng.random((5, 4, 45, 45), dtype=np.float32))
+        want_lp = torch.sigmoid(by_hand(list(nets.lp.body), y)[:, 0])
+        assert torch.allclose(nets.lp(y), want_lp, rtol=1e-5, atol=1e-6)
+
+
 def test_a_broken_network_directory_is_a_user_error(tmp_path: Path) -> None:
     save_nets(load_nets(), tmp_path)
     (tmp_path / "dr.safetensors").write_bytes(b"\x80\x04 pickle? no")

@@ -312,6 +312,8 @@ def _fx_op(name: str, target: str, args: list[Any], tensors: dict[str, torch.Ten
         return _avgpool(name, target, ints(1, [1, 1]), ints(2, ints(1, [1, 1])), ints(3, [0, 0]))
     if target == "getitem" or target.endswith("getitem"):
         return Op("identity", name, target)
+    if target in ("contiguous.default", "clone.default"):  # a copy, perhaps in another layout
+        return Op("identity", name, target)
     raise Unsupported(name, target.split(".")[0])
 
 
@@ -439,6 +441,7 @@ def _axes(ins: list[Any], at: dict[str, Any]) -> list[int] | None:
 def _conv_node(x: Any, ins: list[Any], at: dict[str, Any]) -> Any:
     pads = at.get("pads", [0, 0, 0, 0])
     h = F.pad(x, (pads[1], pads[3], pads[0], pads[2])) if any(pads) else x
+    h = h.contiguous(memory_format=torch.channels_last)  # oneDNN's fast layout (cnn.py)
     return F.conv2d(h, ins[1], ins[2] if len(ins) > 2 else None, at.get("strides", [1, 1]))
 
 
