@@ -54,9 +54,9 @@ class DetectNet(nn.Module):
     def forward(self, x: torch.Tensor) -> torch.Tensor:
         # brightness invariance: remove each window's mean grey level
         x = x - x.mean(dim=(1, 2, 3), keepdim=True)
-        # channels last: oneDNN's convolutions on these 21x21 windows run 1.5-1.9x faster
-        # forward, 1.3-1.5x with DeepFool's gradients (docs/performance.md); the weights
-        # keep their layout (saved files, exports and certify.py read them as they are)
+        # channels last: oneDNN's convolutions on these 21x21 windows run 1.3-1.4x faster
+        # forward, 1.2-1.25x with DeepFool's gradients (benchmarks/bench_layout.py); the
+        # weights keep their layout (saved files, exports and certify.py read them as is)
         x = x.contiguous(memory_format=torch.channels_last)
         out: torch.Tensor = self.head(self.features(x))
         return out
