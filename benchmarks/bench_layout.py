@@ -17,13 +17,14 @@ from __future__ import annotations
 
 import argparse
 import time
+from dataclasses import replace
 
 import numpy as np
 import torch
 from torch import nn
 
 from lesmc.perception.attacks import AttackConfig, payoffs
-from lesmc.perception.cnn import DR_SIZE, load_nets
+from lesmc.perception.cnn import DR_SIZE, Nets, load_nets
 from lesmc.perception.detector import Detector, cut, dr_probability, stack
 from lesmc.video.synth import SynthConfig, frames
 
@@ -41,9 +42,8 @@ class ChannelsFirst(nn.Module):
         return out
 
 
-def windows(n_frames: int) -> tuple[np.ndarray, np.ndarray]:
+def windows(nets: Nets, n_frames: int) -> tuple[np.ndarray, np.ndarray]:
     """Every candidate's N_dr window, and the attacked blobs' windows, of the first frames."""
-    nets = load_nets()
     det = Detector(nets)
     cands, attacked = [], []
     for img, _ in list(frames(SynthConfig(frames=n_frames))):
@@ -64,7 +64,7 @@ def main() -> None:
     args = ap.parse_args()
     print(f"torch threads: {torch.get_num_threads()}")
     nets = load_nets()
-    cand, att = windows(args.frames)
+    cand, att = windows(nets, args.frames)
     print(f"{len(cand)} candidate windows, {len(att)} attacked blobs")
     first = ChannelsFirst(nets.dr).eval()
     dr = nets.settings.delta_dr
@@ -73,7 +73,7 @@ def main() -> None:
     outs: dict[str, tuple[np.ndarray, np.ndarray]] = {}
     for _ in range(args.repeat):
         for name, net in (("first", first), ("last", nets.dr)):
-            probe = type(nets)(net, nets.lp, nets.settings)
+            probe = replace(nets, dr=net)
             t0 = time.perf_counter()
             p = dr_probability(probe, cand)
             t1 = time.perf_counter()

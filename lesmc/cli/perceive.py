@@ -80,7 +80,7 @@ if TYPE_CHECKING:
     "--certify",
     is_flag=True,
     help="Also certify a lower bound on each payoff (payoff_lower; docs/cnn.md). "
-    "Slow: about 0.15 s per detection on 2 idle cores (docs/performance.md).",
+    "Slow: about 0.15-0.25 s per detection on 2 idle cores (docs/performance.md).",
 )
 @click.option(
     "--history",

@@ -21,6 +21,7 @@ if TYPE_CHECKING:
     from collections.abc import Callable
 
     from lesmc.perception.attacks import AttackConfig
+    from lesmc.perception.certify import CertifyConfig
     from lesmc.perception.cnn import Nets
     from lesmc.perception.quality import Truth
     from lesmc.perception.run import PerceiveRun
@@ -154,14 +155,15 @@ def perceive_frames(
     if nets is None or att is None:
         return Perceived(run, nets, None, "")
     dt = req.dt or (inputs.truth.dt if inputs.truth else None) or 1 / FPS
-    scene, note = _scene(run, dt, scene_meta(req, nets.settings.trained_on), inputs)
+    scene, note = _scene(run, dt, scene_meta(req, nets.settings.trained_on, cert), inputs)
     return Perceived(run, nets, scene, note)
 
 
-def scene_meta(req: PerceiveRequest, trained_on: str) -> dict[str, Any]:
-    """How the scene's detections and payoffs were made (its ``meta``)."""
-    from lesmc.perception.certify import CertifyConfig
-
+def scene_meta(
+    req: PerceiveRequest, trained_on: str, cert: CertifyConfig | None = None
+) -> dict[str, Any]:
+    """How the scene's detections and payoffs were made (its ``meta``); ``cert``: the
+    settings the certified lower bounds were computed with, if any."""
     att = attack_config(req)
     meta: dict[str, Any] = {
         "source": str(Path(req.frames_dir)),
@@ -176,12 +178,11 @@ def scene_meta(req: PerceiveRequest, trained_on: str) -> dict[str, Any]:
             "input": "N_dr window, 21x21 x (m+1) frames",
         },
     }
-    if req.certify:
-        cfg = CertifyConfig()
+    if cert is not None:
         meta["certify"] = {
             "method": "CROWN, L2 ball",
-            "steps": cfg.steps,
-            "grow_slack": cfg.grow_slack,
+            "steps": cert.steps,
+            "grow_slack": cert.grow_slack,
         }
     return meta
 
