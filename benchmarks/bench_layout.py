@@ -54,6 +54,8 @@ def windows(nets: Nets, n_frames: int) -> tuple[np.ndarray, np.ndarray]:
         attacked.append(fd.windows[np.unique(fd.source)])
         m = nets.settings.m
         cands.append(cut(stack(out.frame, out.aligned.frames, m), out.candidates.centroid, DR_SIZE))
+    if not cands:
+        raise SystemExit(f"no frame past the front end's history in {n_frames}: ask for more")
     return np.concatenate(cands), np.concatenate(attacked)
 
 
