@@ -1,7 +1,7 @@
 """``lesmc verify`` reuses what it computed when its inputs are unchanged (issue 31):
-perception, the monitor's false alarms and the replay come from OUT/cache, the results
-are the same, and any change of the inputs (a frame's bytes) or a broken entry makes it
-compute again."""
+perception, the monitor's false alarms, the replay and the report's figures come from
+OUT/cache, the results and figures are the same, and any change of the inputs (a
+frame's bytes) or a broken entry makes it compute again."""
 
 from __future__ import annotations
 
@@ -46,8 +46,11 @@ def test_a_rerun_reads_the_cache_and_gives_the_same_results(video: Path, tmp_pat
     log1, doc1 = _verify(video, out)
     assert "reusing the perception" not in log1
     entries = sorted(p.name.split("-")[0] for p in (out / "cache").iterdir())
-    assert "perception" in entries and "false" in entries
+    assert "perception" in entries and "false" in entries and "figure" in entries
+    figures = {p.name: p.read_bytes() for p in (out / "figures").iterdir()}
     log2, doc2 = _verify(video, out)
+    assert f"reused {len(figures)} of {len(figures)} figures" in log2
+    assert {p.name: p.read_bytes() for p in (out / "figures").iterdir()} == figures
     assert "reusing the perception" in log2
     assert "perceiving" not in log2
     if doc1.get("replay", {}).get("replayed"):
@@ -62,6 +65,7 @@ def test_a_changed_frame_or_a_broken_entry_is_computed_again(video: Path, tmp_pa
         entry.write_text('{"format": "lesmc-cache", "version": 1, "stage": "x"')  # cut short
     log, doc = _verify(video, out)
     assert "reusing" not in log.replace("reusing the default video", "")
+    assert "reused" not in log
     assert _content(doc) == _content(doc1)
     changed = tmp_path / "changed"
     shutil.copytree(video, changed)

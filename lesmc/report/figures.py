@@ -396,19 +396,23 @@ def patches(rows: Sequence[tuple[str, np.ndarray]]) -> bytes:
     return _png(fig)
 
 
-def perturbations(rows: Sequence[tuple[str, np.ndarray, np.ndarray]]) -> tuple[bytes, float]:
+def amplification(delta: np.ndarray) -> tuple[float, float]:
+    """A perturbation's (pixel scale [0, 1]) largest change in grey levels, and the factor
+    :func:`perturbations` draws it amplified by (1: none): so that it spans about 64 levels."""
+    peak = float(np.abs(delta * 255.0).max())
+    return peak, (float(max(1, round(64.0 / peak))) if peak > 0 else 1.0)
+
+
+def perturbations(rows: Sequence[tuple[str, np.ndarray, np.ndarray]]) -> bytes:
     """Per hidden detection: original patch (grey levels), perturbation (pixel scale [0, 1]) and
     attacked patch. Each perturbation has its own diverging colour scale spanning its largest
-    change, amplified (×k in its title) when that change is under 64 grey levels, so that small
-    ones stay visible. Returns the PNG and the largest amplification (1: none)."""
+    change, amplified (×k in its title, :func:`amplification`) when that change is under 64
+    grey levels, so that small ones stay visible."""
     n = len(rows)
     fig, axes = plt.subplots(n, 3, figsize=(5.4, 1.9 * n + 0.3), squeeze=False)
-    top = 1.0
     for (title, orig, delta), ax in zip(rows, axes, strict=True):
         grey = delta * 255.0
-        peak = float(np.abs(grey).max())
-        gain = float(max(1, round(64.0 / peak))) if peak > 0 else 1.0
-        top = max(top, gain)
+        peak, gain = amplification(delta)
         span = max(peak * gain, 1.0)
         attacked = np.clip(orig + grey, 0, 255)
         ax[0].imshow(orig, cmap="gray", vmin=0, vmax=255, interpolation="nearest")
@@ -421,7 +425,7 @@ def perturbations(rows: Sequence[tuple[str, np.ndarray, np.ndarray]]) -> tuple[b
             a.set_title(t, fontsize=7)
             a.set_xticks([])
             a.set_yticks([])
-    return _png(fig), top
+    return _png(fig)
 
 
 @dataclass(frozen=True)

@@ -23,6 +23,7 @@ import numpy as np
 from lesmc.common.numbers import fmt
 from lesmc.engines.result import verdict_words
 from lesmc.report import figures
+from lesmc.report.figure_cache import FigureSet, PngStore
 from lesmc.report.figures import COLOURS, Series, TreePath
 from lesmc.report.pages import (
     Cell,
@@ -51,6 +52,7 @@ def write_report(
     out_dir: str | Path,
     image_for: ImageFor | None = None,
     files: dict[str, str] | None = None,
+    store: PngStore | None = None,
 ) -> Path:
     """Write report.html, figures/*.png, results.json (``doc``) and ``files`` (name -> text,
     e.g. the scene the results refer to) into ``out_dir``.
@@ -59,8 +61,10 @@ def write_report(
     not create is deleted, two runs into one directory do not mix, and an interrupt
     leaves the old files or the new ones, never a mix.
     ``image_for(frame)`` returns the grey video frame with that index, when known.
+    ``store``: figures drawn before, reused when drawn from the same values
+    (lesmc/report/figure_cache.py).
     """
-    page, figs = render(doc, image_for)
+    page, figs = render(doc, image_for, store)
     with staged(out_dir) as tmp:
         for name, text in (files or {}).items():
             (tmp / name).write_text(text, encoding="utf-8")
@@ -165,11 +169,13 @@ class _Run:
         ]
 
 
-def render(doc: dict[str, Any], image_for: ImageFor | None = None) -> tuple[str, dict[str, bytes]]:
+def render(
+    doc: dict[str, Any], image_for: ImageFor | None = None, store: PngStore | None = None
+) -> tuple[str, dict[str, bytes]]:
     """The report page (templates/report.html.j2; figures as data URIs) and its figures by
-    file name."""
+    file name (read from ``store`` where drawn before from the same values)."""
     runs = [_Run(r) for r in doc["runs"]]
-    figs: dict[str, bytes] = {}
+    figs = FigureSet(store)
     toc: list[tuple[str, str]] = [("verdicts", "Verdicts")]
     if len(runs) > 1:
         toc.append(("designs", "Designs compared (Table 5)"))
@@ -208,9 +214,9 @@ def render(doc: dict[str, Any], image_for: ImageFor | None = None) -> tuple[str,
         monitored=_monitored(doc),
         provenance=_provenance(doc),
         timings=_timings(doc),
-        images=images(figs, scale=2),  # drawn at 2x: shown at half the natural size, sharp
+        images=images(figs.pngs, scale=2),  # drawn at 2x: shown at half the natural size, sharp
     )
-    return page, figs
+    return page, figs.pngs
 
 
 def _meta(doc: dict[str, Any]) -> Table:
@@ -290,12 +296,12 @@ def _sweep_curves(run: dict[str, Any]) -> list[figures.SweepCurve]:
     return curves
 
 
-def _sweep_figure(run: _Run, figs: dict[str, bytes]) -> Figure | None:
+def _sweep_figure(run: _Run, figs: FigureSet) -> Figure | None:
     curves = _sweep_curves(run.d)
     if not curves:
         return None
     name = f"{run.tag}-sweep.png"
-    figs[name] = figures.sweep(curves)
+    figs.draw(name, figures.sweep, curves)
     return Figure(
         name,
         f"Sensitivity ({run.name}): the optimum of each swept property for each value "
@@ -386,7 +392,7 @@ def _drawn_words(drawn: list[tuple[int, str, int | None]]) -> str:
     return ", ".join(words[r] for _, r, _ in drawn)
 
 
-def _section(run: _Run, figs: dict[str, bytes], image_for: ImageFor | None) -> list[Any]:
+def _section(run: _Run, figs: FigureSet, image_for: ImageFor | None) -> list[Any]:
     """One design's part of the report: model, Table 4, figures, Table 3, notes."""
     parts: list[Any] = [_model_line(run), Text("h3", "Verdicts (Table 4)"), _table4(run)]
     sweep = _sweep_figure(run, figs)
@@ -424,9 +430,7 @@ def _model_line(run: _Run) -> Text:
     )
 
 
-def _property_figures(
-    run: _Run, i: int, figs: dict[str, bytes], image_for: ImageFor | None
-) -> list[Any]:
+def _property_figures(run: _Run, i: int, figs: FigureSet, image_for: ImageFor | None) -> list[Any]:
     """Property ``i``'s tracks in the frame (Figures 6-8) and deviations (Figure 7c-d)."""
     prop, r = run.props[i], run.results[i]
     drawn = _series_for(run, i)
@@ -454,8 +458,14 @@ def _property_figures(
     )
     bound = float(prop["bound"]) if prop["constraint_source"] == "dist" else None
     name = f"{run.tag}-{_tag(prop['name'])}-deviation.png"
-    figs[name] = figures.deviation(
-        series, bound, cumulative, run.window, f"{prop['name']}: {r['constraint']}"
+    figs.draw(
+        name,
+        figures.deviation,
+        series,
+        bound,
+        cumulative,
+        run.window,
+        f"{prop['name']}: {r['constraint']}",
     )
     caption = (
         f"{prop['name']} ({run.name}): deviation from the original track per step"
@@ -515,7 +525,7 @@ def _track_figure(
     drawn: list[tuple[int, str, int | None]],
     scene: dict[str, Any],
     truth: list[list[float]] | None,
-    figs: dict[str, bytes],
+    figs: FigureSet,
     image_for: ImageFor | None,
 ) -> Figure:
     prop = run.props[i]
@@ -534,8 +544,16 @@ def _track_figure(
         )
     img = image_for(frame) if image_for is not None else None
     name = f"{run.tag}-{_tag(prop['name'])}-tracks.png"
-    figs[name] = figures.track_crop(
-        tracks, ref, frame, dets, tr, img, f"{prop['name']}: tracks in the frame of step {ref}"
+    figs.draw(
+        name,
+        figures.track_crop,
+        tracks,
+        ref,
+        frame,
+        dets,
+        tr,
+        img,
+        f"{prop['name']}: tracks in the frame of step {ref}",
     )
     return Figure(
         name,
@@ -548,7 +566,7 @@ def _track_figure(
     )
 
 
-def _tree_figure(run: _Run, figs: dict[str, bytes]) -> Figure:
+def _tree_figure(run: _Run, figs: FigureSet) -> Figure:
     roles = run.roles()
     chosen = [p for p in run.paths if p["no"] in roles]
     for p in run.paths:
@@ -569,7 +587,7 @@ def _tree_figure(run: _Run, figs: dict[str, bytes]) -> Figure:
             TreePath(p["no"], tuple(p["states"]), tuple(p["labels"]), role, run.role_text(p["no"]))
         )
     name = f"{run.tag}-tree.png"
-    figs[name] = figures.tree(tps, run.d["paths_total"], run.window)
+    figs.draw(name, figures.tree, tps, run.d["paths_total"], run.window)
     left = run.d["paths_total"] - len(tps)
     return Figure(
         name,
@@ -581,7 +599,7 @@ def _tree_figure(run: _Run, figs: dict[str, bytes]) -> Figure:
     )
 
 
-def _tau_figure(run: _Run, figs: dict[str, bytes]) -> Figure | Text:
+def _tau_figure(run: _Run, figs: FigureSet) -> Figure | Text:
     series = []
     seen: set[int] = set()
     for i in range(len(run.props)):
@@ -602,7 +620,7 @@ def _tau_figure(run: _Run, figs: dict[str, bytes]) -> Figure | Text:
         return para("No covariances in this model: no uncertainty figure.")
     monitored = [p["name"] for p in run.props if p["monitor"] is not None]
     name = f"{run.tag}-uncertainty.png"
-    figs[name] = figures.uncertainty(series, run.window)
+    figs.draw(name, figures.uncertainty, series, run.window)
     return Figure(
         name,
         f"Covariance trace τ ({run.name}) along "
@@ -615,7 +633,7 @@ def _tau_figure(run: _Run, figs: dict[str, bytes]) -> Figure | Text:
     )
 
 
-def _patches(run: _Run, figs: dict[str, bytes], image_for: ImageFor | None) -> list[Any]:
+def _patches(run: _Run, figs: FigureSet, image_for: ImageFor | None) -> list[Any]:
     """What the counterexamples' attacks hide: a table, the replays, and the patches."""
     hidden = run.d.get("hidden") or {}
     if not any(hidden.values()):
@@ -684,7 +702,7 @@ def _patch_figures(
     run: _Run,
     hidden: dict[str, Any],
     replays: dict[str, Any],
-    figs: dict[str, bytes],
+    figs: FigureSet,
     image_for: ImageFor,
 ) -> list[Figure]:
     """The hidden detections' patches: with the replayed perturbation where there is one."""
@@ -707,7 +725,8 @@ def _patch_figures(
             triples.append((f"{prop}, step {h['step']}, {h['obs']}", orig, delta))
     if triples:
         name = f"{run.tag}-perturbations.png"
-        figs[name], gain = figures.perturbations(triples[:8])
+        figs.draw(name, figures.perturbations, triples[:8])
+        gain = max(figures.amplification(delta)[1] for _, _, delta in triples[:8])
         return [
             Figure(
                 name,
@@ -724,7 +743,7 @@ def _patch_figures(
         ]
     if singles:
         name = f"{run.tag}-hidden.png"
-        figs[name] = figures.patches(singles[:12])
+        figs.draw(name, figures.patches, singles[:12])
         return [
             Figure(
                 name,

@@ -1,8 +1,8 @@
 """What ``lesmc verify`` computed before, kept under OUT/cache by the content of its inputs.
 
 Perception (detections and attack payoffs), the monitor's false alarms on the
-truth and the replay of the counterexamples are the slow stages of a verify
-(docs/performance.md). Each is stored as a JSON file named by a SHA-256 digest of
+truth, the replay of the counterexamples and the report's figures are the slow
+stages of a verify (docs/performance.md). Each is stored as a JSON file named by a SHA-256 digest of
 everything it depends on: the bytes of the frames, of the networks' files, of the
 truth, the settings, and the source code of the packages that compute it (so an
 edited lesmc never reads a stale entry). A rerun with unchanged inputs reads the
@@ -17,6 +17,8 @@ empties it.
 
 from __future__ import annotations
 
+import base64
+import binascii
 import functools
 import hashlib
 import json
@@ -118,3 +120,40 @@ class StageCache:
             write_json(self.path(stage, key), doc)
         except (OSError, LesmcError, ValueError):
             pass
+
+
+#: The first bytes of every PNG file.
+PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
+
+
+class FigureStore:
+    """The report's figures as stage ``figure`` of a :class:`StageCache`, keyed by the digest
+    of what each is drawn from (lesmc/report/figure_cache.py): the PNG in base64 with its
+    SHA-256, which a read checks (a damaged entry is drawn again)."""
+
+    def __init__(self, cache: StageCache) -> None:
+        self.cache = cache
+        self.asked = 0
+        self.found = 0
+
+    def get(self, key: str) -> bytes | None:
+        """The PNG kept under ``key``, or None."""
+        self.asked += 1
+        value = self.cache.get("figure", key)
+        if not (isinstance(value, dict) and isinstance(value.get("png"), str)):
+            return None
+        try:
+            png = base64.b64decode(value["png"], validate=True)
+        except (binascii.Error, ValueError):
+            return None
+        if not png.startswith(PNG_SIGNATURE) or hashlib.sha256(png).hexdigest() != value.get(
+            "sha256"
+        ):
+            return None
+        self.found += 1
+        return png
+
+    def put(self, key: str, png: bytes) -> None:
+        """Keep ``png`` under ``key`` (no error if the cache cannot be written)."""
+        value = {"png": base64.b64encode(png).decode(), "sha256": hashlib.sha256(png).hexdigest()}
+        self.cache.put("figure", key, value)

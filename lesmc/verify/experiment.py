@@ -45,7 +45,14 @@ from lesmc.scene import (
 )
 from lesmc.tracking.targets import check_target, load_scene_with_target, parse_target
 from lesmc.verify import video_perception
-from lesmc.verify.cache import StageCache, code_digest, digest, file_digests, net_files
+from lesmc.verify.cache import (
+    FigureStore,
+    StageCache,
+    code_digest,
+    digest,
+    file_digests,
+    net_files,
+)
 from lesmc.verify.false_alarms import false_alarm_report, truth_track
 from lesmc.verify.neuron_faults import NeuronRuns, check_units, neuron_faults, neuron_frames
 from lesmc.verify.video_perception import UnitMax
@@ -614,7 +621,11 @@ def _write(doc: dict[str, Any], out: Path, src: _Source, results: Results, rep: 
     if src.new or results.certified is not None:  # published with the results that use it
         scene = results.scene if results.scene is not None else src.scene
         files["scene.json"] = json_text(scene_to_dict(scene))
-    return write_report(doc, out, _frame_reader(src.frames), files)
+    store = None if src.cache is None else FigureStore(src.cache)
+    page = write_report(doc, out, _frame_reader(src.frames), files, store)
+    if store is not None and store.found:
+        rep.log(f"reused {store.found} of {store.asked} figures from {store.cache.dir}")
+    return page
 
 
 def _frame_reader(frames: FrameSet | None) -> Callable[[int], np.ndarray | None] | None:
