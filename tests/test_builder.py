@@ -149,3 +149,49 @@ def test_enumerate_walks_one_tree_for_every_property_and_answers_as_alone(
         (want,) = json.loads(alone.stdout)["results"]
         for key in ("verdict", "optimum", "witness_value", "counterexample", "witness", "bounds"):
             assert row[key] == want[key], (name, key)
+
+
+@pytest.mark.parametrize("design", ["single", "joint"])
+@pytest.mark.parametrize("name", ["rq1_platoon", "rq4_merge"])
+def test_hash_collisions_share_states_as_the_hash_does(
+    name: str, design: str, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """States are shared by their exact words, not by their hash: with a hash that makes
+    nearly every state collide (the exact fallback on every batch), the same model."""
+    import numpy as np
+
+    from lesmc.build import unfold
+    from lesmc.build.hashing import row_hash
+
+    scene = load_scene(SCENES / f"{name}.json").with_tracker(design=design)
+    want = build_model(scene, (5, 8))
+    monkeypatch.setattr(unfold, "row_hash", lambda w: row_hash(w) & np.uint64(3))
+    got = build_model(scene, (5, 8))
+    assert got.n_states == want.n_states
+    for f in ("step", "S", "halted", "ptr", "dst", "payoff", "rank", "original", "obs"):
+        assert np.array_equal(getattr(got, f), getattr(want, f)), f
+    # the covariance table is numbered in the order batches meet it: compare the matrices
+    if want.cov is not None:
+        assert got.cov is not None and got.P_table is not None and want.P_table is not None
+        assert np.array_equal(got.cov < 0, want.cov < 0)
+        assert np.array_equal(got.P_table[got.cov], want.P_table[want.cov])
+
+
+def test_equal_rows_hash_equally_and_distinct_rows_rarely_collide() -> None:
+    import numpy as np
+
+    from lesmc.build.hashing import row_hash
+
+    rng = np.random.default_rng(3)
+    for width in (1, 5, 64, 70):
+        words = rng.integers(0, 2**63, size=(4000, width), dtype=np.int64).view(np.uint64)
+        words[2000:] = words[:2000]
+        h = row_hash(words)
+        assert np.array_equal(h[2000:], h[:2000])
+        assert len(np.unique(h[:2000])) == 2000
+        # rows that differ in one bit of one word
+        flipped = words[:2000].copy()
+        flipped[np.arange(2000), rng.integers(0, width, 2000)] ^= np.uint64(1) << np.uint64(
+            rng.integers(0, 64)
+        )
+        assert not np.any(row_hash(flipped) == h[:2000])

@@ -24,7 +24,7 @@ from collections.abc import Callable
 
 import numpy as np
 
-from lesmc.build.hashing import HashIndex, splitmix
+from lesmc.build.hashing import HashIndex, row_hash
 from lesmc.common.errors import UsageError
 from lesmc.designs.registry import make_tracker
 from lesmc.model.arrays import ArrayModel, Tracks
@@ -86,7 +86,7 @@ class SceneExpander:
         model = self.model
         design = self.design
         keys = design.keys(batch)
-        h = splitmix(keys)
+        h = row_hash(keys)
         uniq, first, inverse = np.unique(h, return_index=True, return_inverse=True)
         inverse = inverse.reshape(-1)
         if not np.array_equal(keys, keys[first[inverse]]):  # two states share a hash
@@ -119,7 +119,7 @@ class SceneExpander:
                 q = self._append(step, batch.take(np.array([i])))
                 exact[kb] = q
                 self._seen.setdefault(step, HashIndex()).add(
-                    splitmix(keys[i : i + 1]), np.array([q])
+                    row_hash(keys[i : i + 1]), np.array([q])
                 )
             out[i] = q
         return out
