@@ -21,7 +21,8 @@ import time
 import numpy as np
 import torch
 
-from lesmc.perception.attacks import AttackConfig, payoffs, threshold_logit
+from lesmc.perception.attack_settings import AttackConfig, threshold_logit
+from lesmc.perception.attacks import payoffs
 from lesmc.perception.certify import CertifyConfig, certified_radius, detect_chain
 from lesmc.perception.cnn import Nets, load_nets
 from lesmc.perception.detector import Detector

@@ -14,7 +14,8 @@ import time
 import numpy as np
 import torch
 
-from lesmc.perception.attacks import AttackConfig, payoffs
+from lesmc.perception.attack_settings import AttackConfig
+from lesmc.perception.attacks import payoffs
 from lesmc.perception.cnn import load_nets
 from lesmc.perception.detector import Detector
 from lesmc.video.synth import SynthConfig, frames

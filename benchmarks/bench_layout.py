@@ -23,7 +23,8 @@ import numpy as np
 import torch
 from torch import nn
 
-from lesmc.perception.attacks import AttackConfig, payoffs
+from lesmc.perception.attack_settings import AttackConfig
+from lesmc.perception.attacks import payoffs
 from lesmc.perception.cnn import DR_SIZE, Nets, load_nets
 from lesmc.perception.detector import Detector, cut, dr_probability, stack
 from lesmc.video.synth import SynthConfig, frames

@@ -26,7 +26,8 @@ import sys, time
 sys.path.insert(0, {bench!r})
 import numpy as np
 from bench_certify import sample_windows
-from lesmc.perception.attacks import AttackConfig, payoffs, threshold_logit
+from lesmc.perception.attack_settings import AttackConfig, threshold_logit
+from lesmc.perception.attacks import payoffs
 from lesmc.perception.certify import CertifyConfig, certified_radius, detect_chain
 from lesmc.perception.cnn import load_nets
 import torch

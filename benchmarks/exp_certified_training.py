@@ -34,7 +34,8 @@ from bench_certify import sample_windows
 from torch import nn
 from torch.nn import functional as F
 
-from lesmc.perception.attacks import AttackConfig, payoffs, threshold_logit
+from lesmc.perception.attack_settings import AttackConfig, threshold_logit
+from lesmc.perception.attacks import payoffs
 from lesmc.perception.certify import Ball, certified_radius, detect_chain, interval_margin
 from lesmc.perception.cnn import DetectNet, load_nets
 from lesmc.perception.training import Samples, TrainConfig, _augment, collect

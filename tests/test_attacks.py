@@ -6,7 +6,8 @@ import numpy as np
 import pytest
 import torch
 
-from lesmc.perception.attacks import AttackConfig, margin, payoffs, threshold_logit
+from lesmc.perception.attack_settings import AttackConfig, threshold_logit
+from lesmc.perception.attacks import margin, payoffs
 from lesmc.perception.cnn import DetectNet
 
 

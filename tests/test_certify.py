@@ -270,7 +270,8 @@ def test_chain_refuses_layers_it_cannot_bound() -> None:
 @pytest.fixture(scope="module")
 def shipped() -> tuple[nn.Module, np.ndarray, np.ndarray]:
     """Real detection windows of an unseen video, their DeepFool payoffs."""
-    from lesmc.perception.attacks import AttackConfig, payoffs
+    from lesmc.perception.attack_settings import AttackConfig
+    from lesmc.perception.attacks import payoffs
     from lesmc.perception.cnn import load_nets
     from lesmc.perception.detector import Detector
     from lesmc.video.synth import SynthConfig, frames
@@ -289,7 +290,8 @@ def shipped() -> tuple[nn.Module, np.ndarray, np.ndarray]:
 
 
 def test_shipped_detector_bound_is_below_the_attack_and_no_attack_beats_it(shipped) -> None:
-    from lesmc.perception.attacks import margin, threshold_logit
+    from lesmc.perception.attack_settings import threshold_logit
+    from lesmc.perception.attacks import margin
 
     net, w, pay = shipped
     t = threshold_logit(0.5)
@@ -324,7 +326,7 @@ def test_shipped_detector_bound_is_below_the_attack_and_no_attack_beats_it(shipp
 def test_certify_detections_bounds_exactly_the_wanted_blobs() -> None:
     """verify's on-demand certification: each wanted detection gets its own blob's bound,
     computed here window by window; detections of other blobs get none."""
-    from lesmc.perception.attacks import AttackConfig, threshold_logit
+    from lesmc.perception.attack_settings import AttackConfig, threshold_logit
     from lesmc.perception.cnn import load_nets
     from lesmc.perception.detector import Detector
     from lesmc.perception.run import PerceiveRun, _payoffs, certify_detections

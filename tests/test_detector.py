@@ -197,7 +197,8 @@ def test_payoffs_of_real_detections_flip_the_shipped_detector() -> None:
     """DeepFool on the shipped N_dr and real windows: the perturbation hides the vehicle."""
     import torch
 
-    from lesmc.perception.attacks import AttackConfig, payoffs
+    from lesmc.perception.attack_settings import AttackConfig
+    from lesmc.perception.attacks import payoffs
 
     nets = load_nets()
     fd = _first_detections(nets)
@@ -239,7 +240,8 @@ def test_deepfool_stops_at_the_noise_floor_with_the_payoffs_of_the_full_iteratio
     the stop saves iterations on real windows (many hover at f ~ 1e-7 until the cap)."""
     import torch
 
-    from lesmc.perception.attacks import AttackConfig, margin, payoffs, threshold_logit
+    from lesmc.perception.attack_settings import AttackConfig, threshold_logit
+    from lesmc.perception.attacks import margin, payoffs
 
     nets = load_nets()
     fd = _first_detections(nets)

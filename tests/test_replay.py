@@ -97,7 +97,7 @@ def test_replay_of_the_attacked_frames_alone_equals_a_pass_over_every_frame(
     """``replay(..., clean=...)`` (what verify does with its own perception: only the
     attacked frames, each run of them after the 4 frames the front end needs, go through
     the detector) gives the same replay objects as the pass over every frame."""
-    from lesmc.perception.attacks import AttackConfig
+    from lesmc.perception.attack_settings import AttackConfig
     from lesmc.perception.cnn import load_nets
     from lesmc.perception.run import PerceiveOptions, perceive
     from lesmc.replay.run import replay

@@ -157,7 +157,7 @@ def _prepare(video: Video, out: Path, files: NetFiles) -> Prepared:
 
 def perceive_video(video: Video, frames: Any, files: NetFiles) -> tuple[Any, Any]:
     """The perception run of a video's frames (detections, payoffs, N_dr windows) and the nets."""
-    from lesmc.perception.attacks import AttackConfig
+    from lesmc.perception.attack_settings import AttackConfig
     from lesmc.perception.cnn import load_nets
     from lesmc.perception.run import PerceiveOptions, perceive
 

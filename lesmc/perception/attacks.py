@@ -25,46 +25,16 @@ attack checks that it flips N_dr.
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass
-from typing import Any, Literal
 
 import numpy as np
 import torch
 from torch import nn
 
-from lesmc.common.errors import InputError, Problems
+from lesmc.perception.attack_settings import AttackConfig, threshold_logit
 from lesmc.perception.cnn import DR_SIZE
-from lesmc.scene.io import recorded_attack
 
-Method = Literal["deepfool", "pgd"]
-Norm = Literal["l2", "per-pixel"]
 TOL = 1e-8
-
-
-@dataclass(frozen=True)
-class AttackConfig:
-    """Attack settings (docs/cnn.md, "Attack settings")."""
-
-    method: Method = "deepfool"
-    overshoot: float = 0.02  #: DeepFool's eta
-    max_iter: int = 50
-    norm: Norm = "l2"  #: "per-pixel": ||delta||_2 / 441, the paper's code's scale
-    #: DeepFool stops a window whose margin f has fallen to this fraction of its start:
-    #: float32 logits of 10-20 carry rounding of about 1e-6 of f(x0), so further steps
-    #: cannot tell the boundary from noise. Without it, 15% of the default video's windows
-    #: hovered within 1e-6 of the boundary until ``max_iter`` (84% of the attack's time);
-    #: with it their payoffs moved by at most 9e-7 relative (docs/performance.md)
-    converged: float = 1e-6
-    pgd_steps: int = 25
-    bisections: int = 12
-    eps_start: float = 0.25  #: first L2 budget of the PGD search (doubled until it flips)
-    eps_max: float = 32.0  #: largest L2 budget the PGD search tries
-    #: windows per attack batch: autograd keeps each batch's activations (about 130 kB a
-    #: window), so 128 peaks 110 MB lower than 512 in the same time. Every window's
-    #: iterations are its own; only oneDNN's kernel for a batch shape may round
-    #: differently (payoffs then differ in the 8th digit; docs/performance.md, "The main job")
-    batch: int = 128
 
 
 @dataclass
@@ -75,11 +45,6 @@ class AttackResult:
     perturbation: np.ndarray
     flipped: np.ndarray
     iterations: np.ndarray
-
-
-def threshold_logit(delta_dr: float) -> float:
-    """N_dr says "vehicle" iff softmax P(vehicle) > delta_dr iff margin > logit(delta_dr)."""
-    return math.log(delta_dr / (1.0 - delta_dr))
 
 
 def margin(net: nn.Module, x: torch.Tensor, t: float) -> torch.Tensor:
@@ -220,14 +185,3 @@ def payoffs(
         flipped[a : a + len(d)] = ok
         iters[a : a + len(d)] = it
     return AttackResult(pay, pert, flipped, iters)
-
-
-def attack_of(meta: dict[str, Any], where: str = "<scene>") -> AttackConfig:
-    """The attack settings a scene's meta records (lesmc perceive -o), defaults for those
-    it does not; a recorded value out of range (``lesmc.scene.io.ATTACK_SETTINGS``) is an
-    InputError naming its field in ``where`` (the scene file)."""
-    pr = Problems()
-    got = recorded_attack(meta, pr)
-    if pr.items:
-        raise InputError.many(where, pr.items)
-    return AttackConfig(**got)

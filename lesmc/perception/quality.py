@@ -15,7 +15,6 @@ from dataclasses import dataclass, field
 from typing import Any, TypeGuard
 
 import numpy as np
-from scipy.optimize import linear_sum_assignment
 from scipy.spatial import cKDTree
 
 from lesmc.common.errors import InputError, Location, Problems
@@ -85,6 +84,8 @@ def match(det: np.ndarray, truth: np.ndarray, radius: float) -> list[tuple[int, 
     big = 1e6
     d = np.linalg.norm(det[rows][:, None, :] - truth[cols][None, :, :], axis=2)
     cost = np.where(d <= radius, d, big)
+    from scipy.optimize import linear_sum_assignment  # 0.5 s of imports: only when matching
+
     r, c = linear_sum_assignment(cost)
     return [
         (rows[a], cols[b], float(d[a, b])) for a, b in zip(r, c, strict=True) if d[a, b] <= radius

@@ -14,7 +14,8 @@ import numpy as np
 from lesmc.common.errors import InputError, Location
 from lesmc.common.memory import release
 from lesmc.perception import HISTORY, ON_DEMAND_STEPS
-from lesmc.perception.attacks import AttackConfig, payoffs
+from lesmc.perception.attack_settings import AttackConfig
+from lesmc.perception.attacks import payoffs
 from lesmc.perception.blobs import BlobConfig
 from lesmc.perception.certify import CertifyConfig
 from lesmc.perception.cnn import DR_SIZE, Nets
@@ -184,7 +185,7 @@ def certified_lower(
     and never above the attack's payoff. ``on_batch(done)`` after each batch of
     ``cert.batch`` windows (progress, budgets).
     """
-    from lesmc.perception.attacks import threshold_logit
+    from lesmc.perception.attack_settings import threshold_logit
     from lesmc.perception.certify import certified_radius
 
     scale = DR_SIZE * DR_SIZE if cfg.norm == "per-pixel" else 1.0

@@ -8,16 +8,18 @@ an attack at step k hides detections of frame k only.
 
 from __future__ import annotations
 
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 from scipy.spatial import cKDTree
 
 from lesmc.common.errors import UsageError
-from lesmc.perception.detector import FrameDetections
 from lesmc.perception.quality import TruthFrame
-from lesmc.perception.run import PerceiveRun
 from lesmc.scene import Detection, Footage, Frame, TrackerConfig
+
+if TYPE_CHECKING:  # torch and cv2 only where frames are perceived: not for a cached run
+    from lesmc.perception.detector import FrameDetections
+    from lesmc.perception.run import PerceiveRun
 
 
 def frames_of(

@@ -54,7 +54,7 @@ from lesmc.tracking.monitor import track
 
 if TYPE_CHECKING:
     from lesmc.common.progress import Bar
-    from lesmc.perception.attacks import AttackConfig
+    from lesmc.perception.attack_settings import AttackConfig
     from lesmc.perception.cnn import Nets
     from lesmc.perception.detector import Detector, FrameDetections
     from lesmc.perception.frontend import FrontEndConfig, FrontEndOutput
@@ -736,7 +736,7 @@ def _settings(
 ) -> tuple[FrontEndConfig, AttackConfig]:
     """The front end's and the attack's settings, as the results' perception recorded them
     (``history`` and ``delta_bc`` where it did not)."""
-    from lesmc.perception.attacks import AttackConfig
+    from lesmc.perception.attack_settings import AttackConfig
     from lesmc.perception.blobs import BlobConfig
     from lesmc.perception.frontend import FrontEndConfig
 

@@ -79,14 +79,15 @@ def _feed(h: Any, x: Any) -> None:
 
 @functools.cache
 def _code() -> bytes:
-    """What draws the figures: figures.py's source and matplotlib's version."""
-    import matplotlib
+    """What draws the figures: figures.py's source and matplotlib's version (read from its
+    installed metadata: a report whose figures are all cached never imports matplotlib)."""
+    from importlib.metadata import version
 
     from lesmc.report import figures
 
     h = hashlib.sha256(KEY_VERSION)
     h.update(Path(figures.__file__).read_bytes())
-    h.update(matplotlib.__version__.encode())
+    h.update(version("matplotlib").encode())
     return h.digest()
 
 

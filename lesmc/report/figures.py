@@ -12,15 +12,13 @@ import io
 import itertools
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
+from typing import TYPE_CHECKING, Any
 
-import matplotlib
-
-matplotlib.use("Agg")
-import matplotlib.pyplot as plt
 import numpy as np
-from matplotlib.axes import Axes
-from matplotlib.figure import Figure
-from matplotlib.ticker import MaxNLocator
+
+if TYPE_CHECKING:
+    from matplotlib.axes import Axes
+    from matplotlib.figure import Figure
 
 #: One colour per role, in every figure and in the report's text.
 COLOURS = {
@@ -59,15 +57,28 @@ class Series:
         return "o" if self.prop is None else MARKERS[self.prop % len(MARKERS)]
 
 
+def _pyplot() -> Any:
+    """matplotlib's pyplot on the Agg backend (no display), imported with the first figure
+    drawn: a report whose figures all come from a cache does not pay its 0.6 s of imports."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    return plt
+
+
 def _png(fig: Figure) -> bytes:
     buf = io.BytesIO()
     # zlib level 1: a third of the encoding time of the default 6, files within 5%
     fig.savefig(buf, format="png", dpi=DPI, bbox_inches="tight", pil_kwargs={"compress_level": 1})
-    plt.close(fig)
+    _pyplot().close(fig)
     return buf.getvalue()
 
 
 def _steps_axis(ax: Axes, window: tuple[int, int]) -> None:
+    from matplotlib.ticker import MaxNLocator
+
     ax.xaxis.set_major_locator(MaxNLocator(integer=True, nbins=12, min_n_ticks=2))
     ax.axvspan(window[0] - 0.5, window[1] + 0.5, color=COLOURS["window"], alpha=0.45, zorder=0)
     ax.set_xlabel("step k")
@@ -126,7 +137,7 @@ def track_crop(
 
     ``tracks`` pairs each series with its (n, 2) positions, already in that frame's pixels.
     """
-    fig, ax = plt.subplots(figsize=(6.0, 6.0))
+    fig, ax = _pyplot().subplots(figsize=(6.0, 6.0))
     pts_all = [p for _, p in tracks] + ([truth] if truth is not None else [])
     lo, hi = _square_view(np.concatenate([p[np.isfinite(p).all(axis=1)] for p in pts_all]))
     if image is not None:
@@ -176,7 +187,7 @@ def deviation(
 ) -> bytes:
     """dist.at(k) per step (and the running sum) against the threshold (Figure 7c-d)."""
     n = 2 if cumulative else 1
-    fig, axes = plt.subplots(1, n, figsize=(5.4 * n, 3.6), squeeze=False)
+    fig, axes = _pyplot().subplots(1, n, figsize=(5.4 * n, 3.6), squeeze=False)
     ax = axes[0][0]
     for s in series:
         ks = np.arange(len(s.values))
@@ -205,7 +216,7 @@ def deviation(
 
 def uncertainty(series: Sequence[Series], window: tuple[int, int]) -> bytes:
     """τ = tr(P_ll) per step with the monitor's alarms, Eq. 12-13 (Figure 10)."""
-    fig, ax = plt.subplots(figsize=(7.0, 3.8))
+    fig, ax = _pyplot().subplots(figsize=(7.0, 3.8))
     for s in series:
         ks = np.arange(len(s.values))
         ok = np.isfinite(s.values)
@@ -273,7 +284,7 @@ def tree(
         return float(np.mean(acc[prefix]))
 
     fig_h = max(3.2, 0.36 * len(paths) + 1.4)
-    fig, ax = plt.subplots(figsize=(2.0 + 1.5 * len(cols), fig_h))
+    fig, ax = _pyplot().subplots(figsize=(2.0 + 1.5 * len(cols), fig_h))
     seen_edges: set[tuple[tuple[str, ...], tuple[str, ...]]] = set()
     labelled: set[tuple[str, ...]] = set()
     legend_roles: dict[str, str] = {}
@@ -387,7 +398,7 @@ def patch(image: np.ndarray, centre: tuple[float, float], half: int = 10) -> np.
 def patches(rows: Sequence[tuple[str, np.ndarray]]) -> bytes:
     """The original patches of the detections an attack hides, one per column, with titles."""
     n = len(rows)
-    fig, axes = plt.subplots(1, n, figsize=(1.6 * n + 0.4, 2.0), squeeze=False)
+    fig, axes = _pyplot().subplots(1, n, figsize=(1.6 * n + 0.4, 2.0), squeeze=False)
     for ax, (title, img) in zip(axes[0], rows, strict=True):
         ax.imshow(img, cmap="gray", vmin=0, vmax=255, interpolation="nearest")
         ax.set_title(title, fontsize=7)
@@ -409,7 +420,7 @@ def perturbations(rows: Sequence[tuple[str, np.ndarray, np.ndarray]]) -> bytes:
     change, amplified (×k in its title, :func:`amplification`) when that change is under 64
     grey levels, so that small ones stay visible."""
     n = len(rows)
-    fig, axes = plt.subplots(n, 3, figsize=(5.4, 1.9 * n + 0.3), squeeze=False)
+    fig, axes = _pyplot().subplots(n, 3, figsize=(5.4, 1.9 * n + 0.3), squeeze=False)
     for (title, orig, delta), ax in zip(rows, axes, strict=True):
         grey = delta * 255.0
         peak, gain = amplification(delta)
@@ -449,7 +460,7 @@ def sweep(curves: Sequence[SweepCurve]) -> bytes:
     """Section 4.4's sensitivity: the optimum against the swept ε (or the norm p), the
     threshold dashed, each point coloured by its verdict, a dotted line where it flips.
     +inf (no violating path) is drawn at the top edge with an upward triangle."""
-    fig, ax = plt.subplots(figsize=(7.0, 3.8))
+    fig, ax = _pyplot().subplots(figsize=(7.0, 3.8))
     finite = [y for c in curves for y in c.optima if np.isfinite(y)]
     finite += [c.threshold for c in curves]
     top = max(finite) * 1.15 + 1e-9 if finite else 1.0

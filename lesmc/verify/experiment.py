@@ -294,7 +294,7 @@ def _perception(
     perceived before with the same networks, settings and code (then no network is
     loaded; in a certified payoff mode the run is needed, so the video is perceived
     again), else perceived now and stored."""
-    from lesmc.perception.attacks import AttackConfig
+    from lesmc.perception.attack_settings import AttackConfig
 
     key = digest(
         {
@@ -498,7 +498,7 @@ def _truth_facts(
 
 def _perception_facts(req: Request, src: _Source, results: Results) -> dict[str, Any]:
     """How the scene's detections and payoffs were made (for the report and the replay)."""
-    from lesmc.perception.attacks import AttackConfig, attack_of
+    from lesmc.perception.attack_settings import AttackConfig, attack_of
 
     attack = (
         attack_of(src.scene.meta, str(req.scene_path))

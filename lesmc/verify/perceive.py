@@ -20,7 +20,7 @@ from lesmc.video import FPS
 if TYPE_CHECKING:
     from collections.abc import Callable
 
-    from lesmc.perception.attacks import AttackConfig
+    from lesmc.perception.attack_settings import AttackConfig
     from lesmc.perception.certify import CertifyConfig
     from lesmc.perception.cnn import Nets
     from lesmc.perception.quality import Truth
@@ -133,7 +133,7 @@ def open_inputs(req: PerceiveRequest) -> Inputs:
 
 def attack_config(req: PerceiveRequest) -> AttackConfig:
     """How the scene's payoffs are computed (docs/cnn.md, "Attack settings")."""
-    from lesmc.perception.attacks import AttackConfig
+    from lesmc.perception.attack_settings import AttackConfig
 
     norm: Literal["l2", "per-pixel"] = req.payoff_norm
     return AttackConfig(req.attack, overshoot=req.overshoot, max_iter=req.max_iter, norm=norm)

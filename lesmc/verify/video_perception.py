@@ -55,7 +55,7 @@ def perceive_videos(
 ) -> list[tuple[Footage, PerceiveRun]]:
     """:func:`perceive_video` for several networks over one front end (each frame is
     registered and its candidates found once)."""
-    from lesmc.perception.attacks import AttackConfig
+    from lesmc.perception.attack_settings import AttackConfig
     from lesmc.perception.run import PerceiveOptions, perceive_all
     from lesmc.perception.to_scene import footage_from_run
 

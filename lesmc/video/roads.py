@@ -10,9 +10,12 @@ from __future__ import annotations
 
 import itertools
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
-import networkx as nx
 import numpy as np
+
+if TYPE_CHECKING:
+    import networkx as nx
 
 
 @dataclass(frozen=True)
@@ -98,6 +101,8 @@ def road_graph(roads: list[Road], size: tuple[int, int], step: float = 4.0) -> n
     Nodes have attribute ``pos`` (world x, y) and ``border`` (True at the world's edge).
     """
     width, height = size
+    import networkx as nx  # a quarter second of imports: only when a video is rendered
+
     graph = nx.Graph()
     hs = [i for i, r in enumerate(roads) if r.horizontal]
     vs = [i for i, r in enumerate(roads) if not r.horizontal]

@@ -9,9 +9,12 @@ pixels, speeds in metres per second.
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from typing import TYPE_CHECKING
 
-import networkx as nx
 import numpy as np
+
+if TYPE_CHECKING:
+    import networkx as nx
 
 from lesmc.video.roads import Edge
 
