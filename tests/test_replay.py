@@ -129,6 +129,41 @@ def test_replay_of_the_attacked_frames_alone_equals_a_pass_over_every_frame(
     assert not described
 
 
+def test_cases_that_hide_the_same_detections_share_one_attack(verified: tuple) -> None:
+    """Two design runs with the same counterexamples (as single and joint often have):
+    each frame's attack runs once per distinct group of hidden detections, and each
+    case's replay is the one it gets alone."""
+    import copy
+
+    import lesmc.replay.run as replay_module
+    from lesmc.perception.cnn import load_nets
+    from lesmc.video.reader import open_frames
+
+    video, _, doc = verified
+    frames, nets = open_frames(str(video), 5), load_nets()
+    calls: list[int] = []
+    real = replay_module.attack_frame
+
+    def counting(*args: object, **kwargs: object) -> object:
+        calls.append(1)
+        return real(*args, **kwargs)  # type: ignore[arg-type]
+
+    replay_module.attack_frame = counting  # type: ignore[assignment]
+    try:
+        alone = replay_module.replay(doc, frames, nets)
+        once = len(calls)
+        twice = copy.deepcopy(doc)
+        twice["runs"].append(copy.deepcopy(doc["runs"][0]))
+        both = replay_module.replay(twice, frames, nets)
+    finally:
+        replay_module.attack_frame = real
+    assert once and len(calls) == 2 * once  # not 3x: the copy's attacks were shared
+    assert alone.replays
+    for (i, j), obj in alone.replays.items():
+        assert both.replays[(i, j)] == obj
+        assert both.replays[(len(doc["runs"]), j)] == obj
+
+
 def test_a_counterexample_that_the_tracker_does_not_follow_is_diverged(verified: tuple) -> None:
     """Constructed: the counterexample's recorded track is moved by 5 px from step 2 on; the
     replay must stop at step 2 and say the position differs."""

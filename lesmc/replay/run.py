@@ -37,7 +37,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable, Mapping
-from dataclasses import dataclass, field, replace
+from dataclasses import astuple, dataclass, field, replace
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
@@ -706,8 +706,15 @@ def replay(
     attacked: list[dict[int, FrameAttack]] = [{} for _ in todo]
 
     def attack(det: Any, out: FrontEndOutput, fd: FrameDetections) -> None:
+        # cases that hide the same detections of this frame (two designs' counterexamples
+        # often do) share one attack: attack_frame depends on the frame and the group only,
+        # and its FrameAttack is only read afterwards
+        done: dict[tuple[tuple[Any, ...], ...], FrameAttack] = {}
         for ci, group in _groups(by_frame.get(fd.index, [])):
-            attacked[ci][fd.index] = attack_frame(nets, det, out, fd, group, attack_cfg, repair)
+            key = tuple(astuple(h) for h in group)
+            if key not in done:
+                done[key] = attack_frame(nets, det, out, fd, group, attack_cfg, repair)
+            attacked[ci][fd.index] = done[key]
         release()  # the frame's temporaries go back to the system (common/memory.py)
 
     def detector() -> Any:
