@@ -10,6 +10,7 @@ blob's N_dr window is what an attacker perturbs to hide it (see attacks.py).
 
 from __future__ import annotations
 
+from contextlib import AbstractContextManager, nullcontext
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -112,14 +113,20 @@ def crowded_blobs(cents: np.ndarray, boxes: np.ndarray, big_px: int, close_px: f
 class Detector:
     """Runs front end and CNNs on a video, one ``push`` per frame."""
 
-    def __init__(self, nets: Nets, cfg: DetectorConfig | None = None) -> None:
+    def __init__(
+        self, nets: Nets, cfg: DetectorConfig | None = None, record_maxima: bool = True
+    ) -> None:
         self.nets = nets
         self.cfg = cfg or DetectorConfig()
         if self.cfg.frontend.history < nets.settings.m:
             raise ValueError(f"history L={self.cfg.frontend.history} < m={nets.settings.m}")
         self.frontend = FrontEnd(self.cfg.frontend)
-        #: each hidden unit's largest value on the windows scored (a stuck-at-max fault's)
-        self.maxima = UnitMaxima(nets)
+        #: each hidden unit's largest value on the windows scored (a stuck-at-max fault's);
+        #: None when not recorded (the replay's detector: its maxima are not used)
+        self.maxima = UnitMaxima(nets) if record_maxima else None
+
+    def _recording(self) -> AbstractContextManager[None]:
+        return self.maxima.recording() if self.maxima is not None else nullcontext()
 
     def push(self, frame: np.ndarray) -> tuple[FrontEndOutput, FrameDetections] | None:
         out = self.frontend.push(frame)
@@ -133,7 +140,7 @@ class Detector:
         frames = stack(out.frame, out.aligned.frames, nets.settings.m)
         cand = out.candidates
         win = cut(frames, cand.centroid, DR_SIZE)
-        with self.maxima.recording():
+        with self._recording():
             probability = dr_probability(nets, win, cfg.batch)
         keep = np.flatnonzero(probability > nets.settings.delta_dr)
         cents, boxes, win = cand.centroid[keep], cand.box[keep], win[keep]
@@ -163,7 +170,7 @@ class Detector:
         self, frames: list[np.ndarray], cents: np.ndarray, boxes: np.ndarray, rows: np.ndarray
     ) -> tuple[np.ndarray, np.ndarray]:
         """N_lp peaks inside each crowded blob's box (3 px margin), merged across blobs."""
-        with self.maxima.recording():
+        with self._recording():
             maps = lp_maps(self.nets, cut(frames, cents, LP_SIZE))
         org = origins(cents, LP_SIZE)
         found: list[tuple[float, float, float, int]] = []

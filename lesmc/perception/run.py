@@ -106,6 +106,7 @@ def perceive_all(
     for run, det in zip(out_runs, dets, strict=True):
         run.registrations = dict(fe.registrations)  # one front end served every run
         if det is not None:
+            assert det.maxima is not None
             run.unit_max = det.maxima.maxima
     return out_runs
 
