@@ -35,7 +35,8 @@ def row_hash(words: np.ndarray) -> np.ndarray:
 
 
 def _wide(width: int) -> np.ndarray:
-    """Multipliers for rows wider than the table: the table repeated, each copy rotated."""
+    """Multipliers for rows wider than the table: the table repeated, copy i shifted left by
+    i bits and kept odd."""
     reps = -(-width // len(_MULTIPLIERS))
     parts = [(_MULTIPLIERS << np.uint64(i)) | np.uint64(1) for i in range(reps)]
     return np.concatenate(parts)[:width]

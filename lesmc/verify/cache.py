@@ -2,10 +2,11 @@
 
 Perception (detections and attack payoffs), the monitor's false alarms on the
 truth, the replay of the counterexamples and the report's figures are the slow
-stages of a verify (docs/performance.md). Each is stored as a JSON file named by a SHA-256 digest of
-everything it depends on: the bytes of the frames, of the networks' files, of the
-truth, the settings, and the source code of the packages that compute it (so an
-edited lesmc never reads a stale entry). A rerun with unchanged inputs reads the
+stages of a verify (docs/performance.md). Each is stored as a JSON file named by
+a SHA-256 digest of everything it depends on: the bytes of the frames, of the
+networks' files, of the truth, the settings, and the source code of the packages
+that compute it (so an edited lesmc never reads a stale entry; a figure's digest:
+lesmc/report/figure_cache.py). A rerun with unchanged inputs reads the
 entry instead of computing it; anything else computes it again and writes a new
 entry. Nothing is ever unpickled: an entry is JSON, read by the strict reader and
 checked like any input (a perception entry is a scene file, validated as one);
