@@ -49,7 +49,7 @@ def test_a_rerun_reads_the_cache_and_gives_the_same_results(video: Path, tmp_pat
     assert "perception" in entries and "false" in entries and "figure" in entries
     figures = {p.name: p.read_bytes() for p in (out / "figures").iterdir()}
     log2, doc2 = _verify(video, out)
-    assert f"reused {len(figures)} of {len(figures)} figures" in log2
+    assert f"reused {len(figures)} of {len(figures)} distinct figures" in log2
     assert {p.name: p.read_bytes() for p in (out / "figures").iterdir()} == figures
     assert "reusing the perception" in log2
     assert "perceiving" not in log2

@@ -624,7 +624,7 @@ def _write(doc: dict[str, Any], out: Path, src: _Source, results: Results, rep: 
     store = None if src.cache is None else FigureStore(src.cache)
     page = write_report(doc, out, _frame_reader(src.frames), files, store)
     if store is not None and store.found:
-        rep.log(f"reused {store.found} of {store.asked} figures from {store.cache.dir}")
+        rep.log(f"reused {store.found} of {store.asked} distinct figures from {store.cache.dir}")
     return page
 
 
