@@ -142,11 +142,14 @@ def test_folded_operations_keep_the_margin_and_the_bounds_hold(tmp_path: Path, s
     for suffix in ("pt2", "onnx") if seed < 2 else ("pt2",):
         user = load_network(export(net, (4, 21, 21), tmp_path / f"n.{suffix}"))
         chain = chain_of_ops(user.certifiable_ops(), user.in_shape, 0.0)
-        x = torch.rand(64, 4, 21, 21)
+        x = torch.rand(64, 4, 21, 21, generator=torch.Generator().manual_seed(seed))
         with torch.no_grad():
             logits = net(x)
         want = logits[:, 1] - logits[:, 0]
-        assert torch.allclose(margin_of(chain, x), want, rtol=1e-4, atol=1e-4)
+        # float32 rounding grows with the logits' size (up to 8e-6 of the largest was seen,
+        # 2.6e-4 at 34): a margin near zero is judged on that scale
+        scale = float(want.abs().max())
+        assert torch.allclose(margin_of(chain, x), want, rtol=1e-4, atol=2e-5 * scale + 1e-6)
     rng = np.random.default_rng(seed)
     x0 = rng.random((16, 4, 21, 21), dtype=np.float32)
     radius = certified_radius(chain, x0, np.full(16, 50.0, np.float32), CertifyConfig())

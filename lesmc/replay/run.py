@@ -36,6 +36,7 @@ perturbations is added to the payoff, and the track is replayed again.
 from __future__ import annotations
 
 import math
+import time
 from collections.abc import Callable, Mapping
 from dataclasses import astuple, dataclass, field, replace
 from typing import TYPE_CHECKING, Any
@@ -691,8 +692,6 @@ def replay(
     the front end describing and matching those frames again (tests/test_replay.py
     checks that every way agrees).
     """
-    import time
-
     from lesmc.perception.detector import Detector, DetectorConfig
 
     t0 = time.monotonic()
@@ -706,15 +705,11 @@ def replay(
     attacked: list[dict[int, FrameAttack]] = [{} for _ in todo]
 
     def attack(det: Any, out: FrontEndOutput, fd: FrameDetections) -> None:
-        # cases that hide the same detections of this frame (two designs' counterexamples
-        # often do) share one attack: attack_frame depends on the frame and the group only,
-        # and its FrameAttack is only read afterwards
-        done: dict[tuple[tuple[Any, ...], ...], FrameAttack] = {}
-        for ci, group in _groups(by_frame.get(fd.index, [])):
-            key = tuple(astuple(h) for h in group)
-            if key not in done:
-                done[key] = attack_frame(nets, det, out, fd, group, attack_cfg, repair)
-            attacked[ci][fd.index] = done[key]
+        def one(group: list[Hidden]) -> FrameAttack:
+            return attack_frame(nets, det, out, fd, group, attack_cfg, repair)
+
+        for ci, fa in _shared(_groups(by_frame.get(fd.index, [])), one).items():
+            attacked[ci][fd.index] = fa
         release()  # the frame's temporaries go back to the system (common/memory.py)
 
     def detector() -> Any:
@@ -846,6 +841,22 @@ def _replay_case(
     obj["tolerance_px"] = {"detection": DET_TOL_PX, "track": TRACK_TOL_PX}
     obj["perturbations"] = [p for fa in fas for p in fa.perturbations]
     return obj
+
+
+def _shared(
+    groups: list[tuple[int, list[Hidden]]], attack: Callable[[list[Hidden]], FrameAttack]
+) -> dict[int, FrameAttack]:
+    """Each case's attack of one frame. Cases that hide the same detections there (two
+    designs' counterexamples often do) share one: an attack depends on the frame and the
+    group only, and its FrameAttack is only read afterwards."""
+    done: dict[tuple[tuple[Any, ...], ...], FrameAttack] = {}
+    out = {}
+    for ci, group in groups:
+        key = tuple(astuple(h) for h in group)
+        if key not in done:
+            done[key] = attack(group)
+        out[ci] = done[key]
+    return out
 
 
 def _groups(items: list[tuple[int, Hidden]]) -> list[tuple[int, list[Hidden]]]:
