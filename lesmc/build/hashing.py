@@ -7,39 +7,31 @@ falls back to comparing the words themselves (lesmc/build/unfold.py).
 
 from __future__ import annotations
 
+import functools
+
 import numpy as np
 
-#: One odd 64-bit multiplier per word (a fixed seed: the same hashes in every run).
-_MULTIPLIERS = np.random.default_rng(0x5EED).integers(0, 2**63, size=64, dtype=np.int64).view(
-    np.uint64
-) * np.uint64(2) + np.uint64(1)
-_C1, _C2 = np.uint64(0xBF58476D1CE4E5B9), np.uint64(0x94D049BB133111EB)
-_S1, _S2, _S3 = np.uint64(30), np.uint64(27), np.uint64(31)
+from lesmc.common.mixing import mix
+
+
+@functools.cache
+def _multipliers(width: int) -> np.ndarray:
+    """One odd 64-bit multiplier per word position (the same in every run); read-only."""
+    with np.errstate(over="ignore"):
+        out = mix(np.arange(1, width + 1, dtype=np.uint64) * np.uint64(0x9E3779B97F4A7C15))
+    out |= np.uint64(1)
+    out.flags.writeable = False
+    return out
 
 
 def row_hash(words: np.ndarray) -> np.ndarray:
     """One 64-bit hash per row of 64-bit words: the words times odd multipliers, summed
-    modulo 2^64, then splitmix64's finaliser. Eight array operations whatever the width
-    (small batches pay numpy's per-call cost, not the words); equal rows hash equally,
-    and a collision only costs the exact comparison that follows it."""
+    modulo 2^64, then splitmix64's finaliser (lesmc/common/mixing.py). A handful of array
+    operations whatever the width (small batches pay numpy's per-call cost, not the
+    words); equal rows hash equally, and a collision only costs the exact comparison
+    that follows it."""
     words = words.view(np.uint64)  # int64 or float64 words: the same bits
-    width = words.shape[1]
-    mult = _MULTIPLIERS[:width] if width <= len(_MULTIPLIERS) else _wide(width)
-    h: np.ndarray = (words * mult).sum(axis=1, dtype=np.uint64)
-    h ^= h >> _S1
-    h *= _C1
-    h ^= h >> _S2
-    h *= _C2
-    h ^= h >> _S3
-    return h
-
-
-def _wide(width: int) -> np.ndarray:
-    """Multipliers for rows wider than the table: the table repeated, copy i shifted left by
-    i bits and kept odd."""
-    reps = -(-width // len(_MULTIPLIERS))
-    parts = [(_MULTIPLIERS << np.uint64(i)) | np.uint64(1) for i in range(reps)]
-    return np.concatenate(parts)[:width]
+    return mix((words * _multipliers(words.shape[1])).sum(axis=1, dtype=np.uint64))
 
 
 class HashIndex:

@@ -55,6 +55,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from lesmc.common.mixing import mix
 from lesmc.model.growing import GrowArray
 from lesmc.scene import Scene, TrackerConfig
 from lesmc.tracking.association import gate_test, mahalanobis_gate
@@ -324,22 +325,6 @@ class JointStore:
 # ------------------------------------------------------------------ digests
 
 _M64 = (1 << 64) - 1
-#: Two 64-bit mixers (splitmix64's and murmur3's finalisers): one per half of the digest.
-_MIXERS = (
-    (30, 0xBF58476D1CE4E5B9, 27, 0x94D049BB133111EB, 31),
-    (33, 0xFF51AFD7ED558CCD, 33, 0xC4CEB9FE1A85EC53, 33),
-)
-
-
-def _mix(x: np.ndarray, lane: int) -> np.ndarray:
-    s1, m1, s2, m2, s3 = _MIXERS[lane]
-    with np.errstate(over="ignore"):
-        x = x ^ (x >> np.uint64(s1))
-        x = x * np.uint64(m1)
-        x ^= x >> np.uint64(s2)
-        x *= np.uint64(m2)
-        x ^= x >> np.uint64(s3)
-    return x
 
 
 @functools.cache
@@ -347,7 +332,7 @@ def _positions(count: int, section: int, lane: int) -> np.ndarray:
     """Per-position constants of a digest section (independent of any padding); read-only."""
     base = np.uint64((0x9E3779B97F4A7C15 * (4 * section + lane + 1)) & _M64)
     with np.errstate(over="ignore"):
-        out = _mix(
+        out = mix(
             np.arange(1, count + 1, dtype=np.uint64) * np.uint64(0x9E3779B97F4A7C15) + base, lane
         )
     out.flags.writeable = False
@@ -363,9 +348,7 @@ def hash_tracks(means: np.ndarray, cov: np.ndarray) -> np.ndarray:
     out = np.empty((*cov.shape, 2), dtype=np.uint64)
     with np.errstate(over="ignore"):
         for lane in (0, 1):
-            out[..., lane] = _mix(w ^ _positions(d + 1, 4, lane), lane).sum(
-                axis=-1, dtype=np.uint64
-            )
+            out[..., lane] = mix(w ^ _positions(d + 1, 4, lane), lane).sum(axis=-1, dtype=np.uint64)
     return out
 
 
@@ -398,13 +381,13 @@ def digest(js: JointStates) -> np.ndarray:
     out = np.empty((n, 2), dtype=np.uint64)
     with np.errstate(over="ignore"):
         for lane in (0, 1):
-            h = _mix(js.ntrack.astype(np.uint64) ^ _positions(1, 0, lane), lane)
-            h += _mix(js.npend.astype(np.uint64) ^ _positions(1, 1, lane), lane)
+            h = mix(js.ntrack.astype(np.uint64) ^ _positions(1, 0, lane), lane)
+            h += mix(js.npend.astype(np.uint64) ^ _positions(1, 1, lane), lane)
             ct = _positions(T, 2, lane)
-            h += np.where(tm, _mix(th[..., lane] ^ ct, lane), zero).sum(axis=1, dtype=np.uint64)
+            h += np.where(tm, mix(th[..., lane] ^ ct, lane), zero).sum(axis=1, dtype=np.uint64)
             if K:
                 cp = _positions(K * 2, 3, lane).reshape(K, 2)
-                h += np.where(pm, _mix(p ^ cp, lane), zero).sum(axis=(1, 2), dtype=np.uint64)
+                h += np.where(pm, mix(p ^ cp, lane), zero).sum(axis=(1, 2), dtype=np.uint64)
             out[:, lane] = h
     return out
 
