@@ -7,8 +7,9 @@ named by the SHA-256 of those arguments, bit for bit (every array's dtype, shape
 and bytes, every float's exact value), of the drawing function's name, of the
 source of ``figures.py`` and of matplotlib's version. A :class:`PngStore` (``lesmc
 verify`` keeps one under OUT/cache) returns the PNG drawn before under the same
-digest; anything else is drawn again, once per report. An argument the digest cannot read exactly
-(an object of an unknown type) makes that figure uncached: never a wrong hit.
+digest; anything else is drawn again, once per report. An argument the digest
+cannot read exactly (an object of an unknown type) makes that figure uncached:
+never a wrong hit.
 """
 
 from __future__ import annotations
@@ -111,7 +112,6 @@ class FigureSet:
         self.pngs: dict[str, bytes] = {}
         self.store = store
         self.by_key: dict[str, bytes] = {}
-        self.drawn = 0
 
     def draw(self, name: str, draw: Callable[..., bytes], *args: Any) -> None:
         """``pngs[name] = draw(*args)``, unless the same figure is at hand."""
@@ -121,7 +121,6 @@ class FigureSet:
             png = self.store.get(key)
         if png is None:
             png = draw(*args)
-            self.drawn += 1
             if key is not None and self.store is not None:
                 self.store.put(key, png)
         if key is not None:
