@@ -114,15 +114,15 @@ class Detector:
     """Runs front end and CNNs on a video, one ``push`` per frame."""
 
     def __init__(
-        self, nets: Nets, cfg: DetectorConfig | None = None, record_maxima: bool = True
+        self, nets: Nets, cfg: DetectorConfig | None = None, record_maxima: bool = False
     ) -> None:
         self.nets = nets
         self.cfg = cfg or DetectorConfig()
         if self.cfg.frontend.history < nets.settings.m:
             raise ValueError(f"history L={self.cfg.frontend.history} < m={nets.settings.m}")
         self.frontend = FrontEnd(self.cfg.frontend)
-        #: each hidden unit's largest value on the windows scored (a stuck-at-max fault's);
-        #: None when not recorded (the replay's detector: its maxima are not used)
+        #: with ``record_maxima``, each hidden unit's largest value on the windows scored
+        #: (a stuck-at-max fault's: perception's run keeps them); else None
         self.maxima = UnitMaxima(nets) if record_maxima else None
 
     def _recording(self) -> AbstractContextManager[None]:

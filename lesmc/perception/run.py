@@ -85,7 +85,10 @@ def perceive_all(
     if any((o.history, o.delta_bc) != (first.history, first.delta_bc) for o in runs):
         raise ValueError("perceive_all needs one front end: equal history and delta_bc")
     fe_cfg = FrontEndConfig(history=first.history, blobs=BlobConfig(delta_bc=first.delta_bc))
-    dets = [Detector(o.nets, DetectorConfig(frontend=fe_cfg)) if o.nets else None for o in runs]
+    dets = [
+        Detector(o.nets, DetectorConfig(frontend=fe_cfg), record_maxima=True) if o.nets else None
+        for o in runs
+    ]
     fe = FrontEnd(fe_cfg)
     out_runs = [PerceiveRun() for _ in runs]
     for i, img in enumerate(frames):

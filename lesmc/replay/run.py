@@ -713,7 +713,7 @@ def replay(
         release()  # the frame's temporaries go back to the system (common/memory.py)
 
     def detector() -> Any:
-        det = Detector(nets, DetectorConfig(frontend=fe), record_maxima=False)
+        det = Detector(nets, DetectorConfig(frontend=fe))
         det.frontend.known = registrations or {}
         return det
 
