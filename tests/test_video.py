@@ -9,6 +9,8 @@ import cv2
 import numpy as np
 import pytest
 from click.testing import CliRunner
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from lesmc.cli.main import cli
 from lesmc.common.errors import InputError
@@ -200,3 +202,48 @@ def test_an_interrupted_video_leaves_nothing_behind(tmp_path: Path) -> None:
     with pytest.raises(KeyboardInterrupt):
         write_video(SMALL, out, progress=stop)
     assert list(out.iterdir()) == []
+
+
+@settings(max_examples=200, deadline=None)
+@given(
+    steps=st.lists(st.floats(0.0, 50.0), min_size=1, max_size=8),
+    ys=st.lists(st.floats(-100.0, 100.0), min_size=9, max_size=9),
+    pick=st.floats(-0.2, 1.2),
+    on_knot=st.integers(0, 8),
+    knot=st.booleans(),
+)
+def test_edge_at_one_arc_length_equals_the_array_path_bit_for_bit(
+    steps: list[float], ys: list[float], pick: float, on_knot: int, knot: bool
+) -> None:
+    """Edge.at(float) takes a scalar path (what every vehicle asks each frame); it must
+    give the bits of the array path, knots, repeated knots and clamping included."""
+    from lesmc.video.roads import Edge
+
+    xs = np.concatenate([[0.0], np.cumsum(steps)])
+    points = np.stack([xs, np.array(ys[: len(xs)])], axis=1)
+    arclen = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(points, axis=0), axis=1))])
+    edge = Edge(points, arclen)
+    s = float(arclen[min(on_knot, len(arclen) - 1)]) if knot else pick * edge.length
+    pos, tan = edge.at(s)
+    want_pos, want_tan = edge.at(np.array([s]))
+    assert pos.tobytes() == want_pos[0].tobytes() and tan.tobytes() == want_tan[0].tobytes()
+
+
+def test_a_frame_shows_exactly_the_vehicles_projected_inside_it() -> None:
+    """The scene skips vehicles far outside the frame by one projection of them all; the
+    truth still lists exactly the vehicles whose own projection lands in the frame."""
+    from lesmc.video.synth import World, _apply
+
+    cfg = SynthConfig(frames=3, width=320, height=240, seed=5, density=3.0)
+    world = World(cfg)
+    for k in range(cfg.frames):
+        H, _ = world.camera(k)
+        want = []
+        for v in world.traffic.vehicles:
+            pos, _ = world.traffic.pose(v)
+            p = _apply(H, pos[None])[0]
+            if 0 <= p[0] < cfg.width and 0 <= p[1] < cfg.height:
+                want.append(v.vid)
+        _, _, vehicles = world.scene(k)
+        assert [v["id"] for v in vehicles] == want and want
+        world.traffic.step(0.5)

@@ -8,8 +8,9 @@ is what vehicles drive along (in world pixels).
 
 from __future__ import annotations
 
+import bisect
 import itertools
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import TYPE_CHECKING
 
 import numpy as np
@@ -47,13 +48,22 @@ class Edge:
 
     points: np.ndarray
     arclen: np.ndarray
+    length: float = field(init=False)  #: the total arc length, ``arclen[-1]``
+    _knots: list[float] = field(init=False, repr=False)  #: ``arclen`` as Python floats
 
-    @property
-    def length(self) -> float:
-        return float(self.arclen[-1])
+    def __post_init__(self) -> None:
+        self.length = float(self.arclen[-1])
+        self._knots = self.arclen.tolist()
 
     def at(self, s: np.ndarray | float) -> tuple[np.ndarray, np.ndarray]:
-        """Position and unit tangent at arc length ``s`` (clamped to the edge)."""
+        """Position and unit tangent at arc length ``s`` (clamped to the edge).
+
+        A single ``s`` (what every vehicle asks for, every frame) takes a scalar path:
+        the same IEEE operations as the array path, without numpy's per-call overhead,
+        so both give the same bits.
+        """
+        if isinstance(s, float | int):
+            return self._at_scalar(float(s))
         s_arr = np.clip(np.asarray(s, dtype=float), 0.0, self.length)
         i = np.clip(np.searchsorted(self.arclen, s_arr, side="right") - 1, 0, len(self.arclen) - 2)
         seg = self.points[i + 1] - self.points[i]
@@ -61,6 +71,15 @@ class Edge:
         frac = (s_arr - self.arclen[i]) / seg_len
         pos = self.points[i] + seg * frac[..., None]
         return pos, seg / seg_len[..., None]
+
+    def _at_scalar(self, s: float) -> tuple[np.ndarray, np.ndarray]:
+        """:meth:`at` for one arc length: clamp, bisect, interpolate."""
+        knots = self._knots
+        s = min(max(s, 0.0), self.length)
+        i = min(max(bisect.bisect_right(knots, s) - 1, 0), len(knots) - 2)
+        seg = self.points[i + 1] - self.points[i]
+        seg_len = max(knots[i + 1] - knots[i], 1e-9)
+        return self.points[i] + seg * ((s - knots[i]) / seg_len), seg / seg_len
 
 
 def make_roads(rng: np.random.Generator, size: tuple[int, int], spacing: float) -> list[Road]:

@@ -152,7 +152,7 @@ class Traffic:
                 v.stop_left -= h
                 target = 0.0
             rate = ACCEL if target > v.speed else BRAKE
-            v.speed = float(np.clip(target, v.speed - rate * h, v.speed + rate * h))
+            v.speed = min(max(float(target), v.speed - rate * h), v.speed + rate * h)  # clip
             v.s += v.speed * h / self.gsd
             if v.s >= e.length:
                 self._arrive(v, v.s - e.length)
