@@ -231,6 +231,33 @@ def test_verify_checks_each_design_with_the_unit_stuck(video: Path, tmp_path: Pa
     assert f"{entry}: unit_max.detector:" in broken.stderr
 
 
+def test_unit_maxima_are_recorded_only_when_a_fault_needs_them(video: Path, tmp_path: Path) -> None:
+    """A verify without neuron faults does not record the unit maxima (they cost about a
+    third of the networks' scoring); a later verify with a stuck-at-max fault in the same
+    OUT perceives the video again, recording them, and finds what a fresh run finds."""
+    path = _faults(tmp_path, "fault hot: neuron detector[4, 10] = max")
+    out = tmp_path / "out"
+    common = (str(video), "--truth", str(video / "truth.json"), "--design", "single",
+              "--window", "3..4")  # fmt: skip
+    plain = lesmc("verify", *common, "--out", str(out))
+    assert plain.returncode in (0, 1), plain.stderr
+    (entry,) = (out / "cache").glob("perception-*.json")
+    assert json.loads(entry.read_text())["value"]["unit_max"] == {}
+    later = lesmc("verify", *common, "--out", str(out), "--faults", str(path))
+    assert later.returncode in (0, 1), later.stderr
+    assert "perceiving the video again: its cached perception has no unit maxima" in later.stderr
+    assert json.loads(entry.read_text())["value"]["unit_max"]["detector"]
+    fresh = lesmc("verify", *common, "--out", str(tmp_path / "fresh"), "--faults", str(path))
+    assert fresh.returncode == later.returncode, fresh.stderr
+
+    def faults(d: Path) -> list[Any]:
+        doc = json.loads((d / "results.json").read_text())
+        return [(f["property"]["name"], f["result"]["optimum"], f["result"]["notes"])
+                for f in doc["runs"][0]["faults"]]  # fmt: skip
+
+    assert faults(out) == faults(tmp_path / "fresh") and faults(out)
+
+
 def test_certified_verify_certifies_on_the_faulty_network(video: Path, tmp_path: Path) -> None:
     """``--payoffs certified``: the fault variants' hideable detections are certified on
     the faulty N_dr, and every result under the fault is a certified one."""

@@ -42,6 +42,10 @@ class PerceiveOptions:
     #: keep each frame's N_dr windows after its payoffs (certification on demand reads
     #: them); False frees them frame by frame (an attack-payoff verify: 0.7 GB less)
     keep_windows: bool = True
+    #: record every hidden unit's largest value on the windows scored (``unit_max``:
+    #: what a stuck-at-max neuron fault needs); reading each activation once more makes
+    #: the networks' scoring about 1.3x as long
+    record_maxima: bool = False
 
 
 @dataclass
@@ -56,7 +60,8 @@ class PerceiveRun:
     detector_total: Score = ZERO
     unattackable: int = 0
     #: per network ("detector", "locator"), per hidden layer, each unit's largest value
-    #: on the windows scored (lesmc/perception/neurons.py; empty without the CNNs)
+    #: on the windows scored (lesmc/perception/neurons.py; empty without the CNNs or
+    #: without ``record_maxima``)
     unit_max: dict[str, list[np.ndarray]] = field(default_factory=dict)
     #: frame index -> its registration from the previous frame (a replay reuses them)
     registrations: dict[int, Registration] = field(default_factory=dict)
@@ -86,7 +91,9 @@ def perceive_all(
         raise ValueError("perceive_all needs one front end: equal history and delta_bc")
     fe_cfg = FrontEndConfig(history=first.history, blobs=BlobConfig(delta_bc=first.delta_bc))
     dets = [
-        Detector(o.nets, DetectorConfig(frontend=fe_cfg), record_maxima=True) if o.nets else None
+        Detector(o.nets, DetectorConfig(frontend=fe_cfg), record_maxima=o.record_maxima)
+        if o.nets
+        else None
         for o in runs
     ]
     fe = FrontEnd(fe_cfg)
@@ -108,8 +115,7 @@ def perceive_all(
         release()  # what this frame freed goes back to the system (common/memory.py)
     for run, det in zip(out_runs, dets, strict=True):
         run.registrations = dict(fe.registrations)  # one front end served every run
-        if det is not None:
-            assert det.maxima is not None
+        if det is not None and det.maxima is not None:
             run.unit_max = det.maxima.maxima
     return out_runs
 

@@ -148,7 +148,10 @@ def verify(req: Request, rep: Reporter) -> Outcome:
     specs = load_specs([Path(s) for s in req.specs] or bundled_specs(), req.window)
     faults = load_faults(req.faults) if req.faults is not None else None
     _check_neuron_faults(req, faults)
-    src = _scene_file(req) if req.scene_path is not None else _perceived(req, specs, rep)
+    if req.scene_path is not None:
+        src = _scene_file(req)
+    else:
+        src = _perceived(req, specs, rep, maxima=bool(neuron_faults(faults)))
     if req.window is not None:
         check_window(src.scene, req.window)
     src.meta["target"] = _target_text(src.scene)
@@ -233,8 +236,9 @@ def _scene_file(req: Request) -> _Source:
     )
 
 
-def _perceived(req: Request, specs: list[SpecFile], rep: Reporter) -> _Source:
-    """The scene of a video: rendered (the default), perceived, its target placed or chosen."""
+def _perceived(req: Request, specs: list[SpecFile], rep: Reporter, maxima: bool) -> _Source:
+    """The scene of a video: rendered (the default), perceived, its target placed or chosen;
+    with ``maxima`` the networks' unit maxima too (neuron faults read them)."""
     from lesmc.verify.targets import auto_target, target_scene, truth_tracks
 
     if req.scene_frames is not None:
@@ -255,7 +259,7 @@ def _perceived(req: Request, specs: list[SpecFile], rep: Reporter) -> _Source:
     truths = load_truth(truth) if truth else None
     dt = (truths.dt if truths else None) or 1 / FPS
     cache = StageCache(req.out)
-    seen = _perception(req, frames, frames_dir, dt, cache, rep)
+    seen = _perception(req, frames, frames_dir, dt, cache, rep, maxima)
     footage = seen.footage
     tracker = _tracker(req)
     if tracker is not None:
@@ -288,12 +292,20 @@ class _Perception:
 
 
 def _perception(
-    req: Request, frames: FrameSet, frames_dir: str, dt: float, cache: StageCache, rep: Reporter
+    req: Request,
+    frames: FrameSet,
+    frames_dir: str,
+    dt: float,
+    cache: StageCache,
+    rep: Reporter,
+    maxima: bool,
 ) -> _Perception:
     """The video's detections and attack payoffs: read from OUT/cache when this video was
     perceived before with the same networks, settings and code (then no network is
     loaded; in a certified payoff mode the run is needed, so the video is perceived
-    again), else perceived now and stored."""
+    again), else perceived now and stored. ``maxima``: the networks' unit maxima are
+    needed too; an entry stored without them (by a run without neuron faults) is then
+    perceived again, recording them."""
     from lesmc.perception.attack_settings import AttackConfig
 
     key = digest(
@@ -308,6 +320,9 @@ def _perception(
         }
     )
     hit = video_perception.read(cache, "perception", key) if req.payoffs == "attack" else None
+    if hit is not None and maxima and not hit[1]:
+        rep.log("perceiving the video again: its cached perception has no unit maxima")
+        hit = None
     if hit is not None:
         rep.log(f"reusing the perception of {frames_dir} from {cache.dir}")
         return _Perception(hit[0], None, None, hit[1], key)
@@ -323,7 +338,7 @@ def _perception(
 
         meta = {"source": str(frames_dir), "detector": nets.settings.trained_on}
         footage, run = video_perception.perceive_video(
-            frames, nets, dt, meta, req.payoffs != "attack", advance
+            frames, nets, dt, meta, req.payoffs != "attack", advance, maxima
         )
     video_perception.store(cache, "perception", key, footage, run.unit_max)
     return _Perception(footage, nets, run, run.unit_max, key)

@@ -39,10 +39,12 @@ def perceive_video(
     meta: dict[str, Any],
     keep_windows: bool,
     advance: Callable[[], None] | None = None,
+    record_maxima: bool = False,
 ) -> tuple[Footage, PerceiveRun]:
     """Detections and DeepFool payoffs of every frame (the default attack settings), as
-    footage; ``keep_windows`` keeps the N_dr windows (certification reads them)."""
-    return perceive_videos(frames, [nets], dt, [meta], keep_windows, advance)[0]
+    footage; ``keep_windows`` keeps the N_dr windows (certification reads them),
+    ``record_maxima`` the hidden units' largest values (stuck-at-max faults read them)."""
+    return perceive_videos(frames, [nets], dt, [meta], keep_windows, advance, record_maxima)[0]
 
 
 def perceive_videos(
@@ -52,6 +54,7 @@ def perceive_videos(
     metas: Sequence[dict[str, Any]],
     keep_windows: bool,
     advance: Callable[[], None] | None = None,
+    record_maxima: bool = False,
 ) -> list[tuple[Footage, PerceiveRun]]:
     """:func:`perceive_video` for several networks over one front end (each frame is
     registered and its candidates found once)."""
@@ -60,7 +63,13 @@ def perceive_videos(
     from lesmc.perception.to_scene import footage_from_run
 
     opts = [
-        PerceiveOptions(history=HISTORY, nets=n, attack=AttackConfig(), keep_windows=keep_windows)
+        PerceiveOptions(
+            history=HISTORY,
+            nets=n,
+            attack=AttackConfig(),
+            keep_windows=keep_windows,
+            record_maxima=record_maxima,
+        )
         for n in nets
     ]
     runs = perceive_all(frames, opts, None, advance)
