@@ -111,6 +111,22 @@ def test_bad_frame_directories_name_the_file(tmp_path: Path) -> None:
         open_frames(tmp_path, 2)
 
 
+@pytest.mark.parametrize("bad", [1, 7, 18])
+def test_the_first_bad_frame_in_sort_order_is_the_one_reported(tmp_path: Path, bad: int) -> None:
+    """Frames are decoded on threads to be checked, yet the error names the first bad
+    file in natural sort order, whichever decode finishes first; 16-bit videos keep the
+    first frame's scale."""
+    img = (np.arange(64 * 64, dtype=np.uint16).reshape(64, 64) * 7) % 60000
+    for i in range(20):
+        cv2.imwrite(str(tmp_path / f"frame{i}.png"), img)
+    want = 255.0 / float(np.percentile(img, 99.9))
+    assert open_frames(tmp_path, 2).scale == want
+    (tmp_path / f"frame{bad}.png").write_bytes(b"not an image")
+    cv2.imwrite(str(tmp_path / "frame19.png"), np.zeros((9, 8), np.uint16))
+    with pytest.raises(InputError, match=rf"frame{bad}\.png: cannot decode"):
+        open_frames(tmp_path, 2)
+
+
 def test_perceive_reports_quality_on_a_synthetic_video(small_video: Path) -> None:
     res = CliRunner().invoke(
         cli, ["perceive", str(small_video), "--truth", str(small_video / "truth.json"), "--json"]

@@ -8,8 +8,10 @@ fails at once with the file named and nothing written.
 
 from __future__ import annotations
 
+import os
 import re
 from collections.abc import Iterator
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -122,27 +124,42 @@ def open_frames(directory: str | Path, minimum: int, check: bool = True) -> Fram
         )
     size: tuple[int, int] | None = None
     scale = 1.0
-    for p in paths if check else paths[:1]:
-        # a header-only check would be faster, but decoding is the only sure test
-        img = _imread(p)
-        shape = (img.shape[1], img.shape[0])
-        if min(shape) < MIN_SIDE:
-            raise InputError(
-                f"frame is {shape[0]}x{shape[1]} pixels; frames must be at least "
-                f"{MIN_SIDE}x{MIN_SIDE}",
-                Location(str(p)),
-            )
-        if size is None:
-            size = shape
-            if img.dtype == np.uint16:
-                top = float(np.percentile(img, 99.9)) or 1.0
-                scale = 255.0 / top
-        elif shape != size:
-            raise InputError(
-                f"frame is {shape[0]}x{shape[1]} but {paths[0].name} is {size[0]}x{size[1]}: "
-                "all frames must have one size",
-                Location(str(p)),
-            )
-        del img
+    todo = paths if check else paths[:1]
+    # a header-only check would be faster, but decoding is the only sure test; frames
+    # are decoded on two threads (OpenCV's decoders release the GIL; two frames held at
+    # once, less than perception's history holds) and looked at in order, so the first
+    # bad file in sort order is the one reported
+    workers = max(1, min(2, len(os.sched_getaffinity(0)), len(todo)))
+    pool = ThreadPoolExecutor(workers, thread_name_prefix="lesmc-frames")
+    try:
+        facts = pool.map(_facts, todo, [i == 0 for i in range(len(todo))])
+        for p, (shape, first_scale) in zip(todo, facts, strict=True):
+            if min(shape) < MIN_SIDE:
+                raise InputError(
+                    f"frame is {shape[0]}x{shape[1]} pixels; frames must be at least "
+                    f"{MIN_SIDE}x{MIN_SIDE}",
+                    Location(str(p)),
+                )
+            if size is None:
+                size, scale = shape, first_scale
+            elif shape != size:
+                raise InputError(
+                    f"frame is {shape[0]}x{shape[1]} but {paths[0].name} is "
+                    f"{size[0]}x{size[1]}: all frames must have one size",
+                    Location(str(p)),
+                )
+    finally:  # a bad frame (or Ctrl-C) leaves the frames after it undecoded
+        pool.shutdown(wait=True, cancel_futures=True)
     assert size is not None
     return FrameSet(paths, size[0], size[1], scale)
+
+
+def _facts(path: Path, first: bool) -> tuple[tuple[int, int], float]:
+    """A frame decoded: its (width, height), and for the first frame of a 16-bit video the
+    scale to 8 bit (from its 99.9th percentile), else 1."""
+    img = _imread(path)
+    scale = 1.0
+    if first and img.dtype == np.uint16:
+        top = float(np.percentile(img, 99.9)) or 1.0
+        scale = 255.0 / top
+    return (img.shape[1], img.shape[0]), scale
