@@ -55,27 +55,12 @@ class Edge:
         self.length = float(self.arclen[-1])
         self._knots = self.arclen.tolist()
 
-    def at(self, s: np.ndarray | float) -> tuple[np.ndarray, np.ndarray]:
-        """Position and unit tangent at arc length ``s`` (clamped to the edge).
-
-        A single ``s`` (what every vehicle asks for, every frame) takes a scalar path:
-        the same IEEE operations as the array path, without numpy's per-call overhead,
-        so both give the same bits.
-        """
-        if isinstance(s, float | int):
-            return self._at_scalar(float(s))
-        s_arr = np.clip(np.asarray(s, dtype=float), 0.0, self.length)
-        i = np.clip(np.searchsorted(self.arclen, s_arr, side="right") - 1, 0, len(self.arclen) - 2)
-        seg = self.points[i + 1] - self.points[i]
-        seg_len = np.maximum(self.arclen[i + 1] - self.arclen[i], 1e-9)
-        frac = (s_arr - self.arclen[i]) / seg_len
-        pos = self.points[i] + seg * frac[..., None]
-        return pos, seg / seg_len[..., None]
-
-    def _at_scalar(self, s: float) -> tuple[np.ndarray, np.ndarray]:
-        """:meth:`at` for one arc length: clamp, bisect, interpolate."""
+    def at(self, s: float) -> tuple[np.ndarray, np.ndarray]:
+        """Position and unit tangent at arc length ``s`` (clamped to the edge): clamp,
+        bisect the knots, interpolate, on Python floats (every vehicle asks once a frame
+        and once a traffic substep; numpy's per-call cost dominated a single lookup)."""
         knots = self._knots
-        s = min(max(s, 0.0), self.length)
+        s = min(max(float(s), 0.0), self.length)
         i = min(max(bisect.bisect_right(knots, s) - 1, 0), len(knots) - 2)
         seg = self.points[i + 1] - self.points[i]
         seg_len = max(knots[i + 1] - knots[i], 1e-9)
