@@ -2,9 +2,9 @@
 
     python benchmarks/bench_maxima.py [--frames 8] [--repeat 5]
 
-Renders the first frames of the default video, runs the front end once, then scores
-every frame's candidate windows with N_dr (and N_lp on the crowded ones' windows, as
-the detector does) twice, alternately, best of ``--repeat``: plainly, and while
+Renders the first frames of the default video and runs the detector once, keeping the
+windows it hands to N_dr (every candidate) and to N_lp (the crowded blobs), then
+scores them all twice, alternately, best of ``--repeat``: plainly, and while
 ``UnitMaxima.recording()`` folds every hidden ReLU's output into the maxima (what
 neuron faults need, and what perception did on every run before it became opt-in).
 Both give the same probabilities (checked). Figures: docs/performance.md.
@@ -14,13 +14,14 @@ from __future__ import annotations
 
 import argparse
 import time
+from typing import Any
 
 import numpy as np
 
-from lesmc.perception.cnn import DR_SIZE, LP_SIZE, load_nets
+from lesmc.perception import detector
+from lesmc.perception.cnn import load_nets
 from lesmc.perception.detector import Detector, dr_probability, lp_maps
 from lesmc.perception.neurons import UnitMaxima
-from lesmc.perception.windows import cut, stack
 from lesmc.video.synth import SynthConfig, frames
 
 
@@ -30,21 +31,28 @@ def main() -> None:
     ap.add_argument("--repeat", type=int, default=5)
     args = ap.parse_args()
     nets = load_nets()
+    dr_calls: list[tuple[np.ndarray, tuple[Any, ...]]] = []
+    lp_calls: list[tuple[np.ndarray, tuple[Any, ...]]] = []
+
+    def keep_dr(n: Any, windows: np.ndarray, *rest: Any) -> np.ndarray:
+        dr_calls.append((windows, rest))
+        return dr_probability(n, windows, *rest)
+
+    def keep_lp(n: Any, windows: np.ndarray, *rest: Any) -> np.ndarray:
+        lp_calls.append((windows, rest))
+        return lp_maps(n, windows, *rest)
+
+    # the detector's own calls, recorded: the windows a real run scores
+    detector.dr_probability, detector.lp_maps = keep_dr, keep_lp  # type: ignore[assignment]
     det = Detector(nets)
-    dr_windows, lp_windows = [], []
     for img, _ in list(frames(SynthConfig(frames=args.frames))):
-        out = det.frontend.push(img)
-        if out is None:
-            continue
-        stacked = stack(out.frame, out.aligned.frames, nets.settings.m)
-        dr_windows.append(cut(stacked, out.candidates.centroid, DR_SIZE))
-        # N_lp's windows: a tenth of the candidates, about the share the detector sends
-        lp_windows.append(cut(stacked, out.candidates.centroid[::10], LP_SIZE))
+        det.push(img)
+    detector.dr_probability, detector.lp_maps = dr_probability, lp_maps
     maxima = UnitMaxima(nets)
 
-    def score() -> list[np.ndarray]:
-        return [dr_probability(nets, w) for w in dr_windows] + [
-            lp_maps(nets, w) for w in lp_windows
+    def score() -> list[np.ndarray]:  # the calls as the detector made them
+        return [dr_probability(nets, w, *r) for w, r in dr_calls] + [
+            lp_maps(nets, w, *r) for w, r in lp_calls
         ]
 
     plain = recorded = float("inf")
@@ -57,8 +65,8 @@ def main() -> None:
             got = score()
         recorded = min(recorded, time.perf_counter() - t0)
         assert all(np.array_equal(a, b) for a, b in zip(want, got, strict=True))
-    n = sum(len(w) for w in dr_windows)
-    print(f"{len(dr_windows)} frames, {n} N_dr windows, {sum(map(len, lp_windows))} N_lp")
+    n_dr, n_lp = (sum(len(w) for w, _ in calls) for calls in (dr_calls, lp_calls))
+    print(f"{n_dr} N_dr windows, {n_lp} N_lp windows")
     print(f"plain     {plain:.3f} s")
     print(f"recording {recorded:.3f} s ({recorded / plain:.2f}x)")
 

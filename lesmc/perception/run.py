@@ -44,7 +44,7 @@ class PerceiveOptions:
     keep_windows: bool = True
     #: record every hidden unit's largest value on the windows scored (``unit_max``:
     #: what a stuck-at-max neuron fault needs); reading each activation once more makes
-    #: the networks' scoring 1.6x as long (benchmarks/bench_maxima.py)
+    #: the networks' scoring 1.3-1.9x as long (benchmarks/bench_maxima.py)
     record_maxima: bool = False
 
 
