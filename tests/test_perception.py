@@ -3,6 +3,8 @@
 from __future__ import annotations
 
 import itertools
+from collections.abc import Iterator
+from pathlib import Path
 
 import cv2
 import numpy as np
@@ -12,7 +14,7 @@ from hypothesis import strategies as st
 from hypothesis.extra.numpy import arrays
 
 from lesmc.perception.background import median
-from lesmc.perception.frontend import FrontEnd, FrontEndConfig
+from lesmc.perception.frontend import FrontEnd, FrontEndConfig, FrontEndOutput
 from lesmc.perception.quality import match, score
 from lesmc.perception.registration import RegistrationConfig, describe, register
 
@@ -64,6 +66,54 @@ def test_registration_recovers_a_known_homography_to_subpixel_accuracy() -> None
     reg = register(describe(a, cfg), describe(b, cfg), cfg, a, b)
     assert mapping_error(reg.homography, h, size) < 0.1
     assert reg.inliers > 100
+
+
+def _opencv_ratio_matches(a: np.ndarray, b: np.ndarray, ratio: float) -> set[tuple[int, int]]:
+    """The oracle: OpenCV's brute-force 2-NN and Lowe's ratio test (what registration
+    used before faiss)."""
+    pairs = cv2.BFMatcher(cv2.NORM_HAMMING).knnMatch(a, b, k=2)
+    return {
+        (p[0].queryIdx, p[0].trainIdx)
+        for p in pairs
+        if len(p) == 2 and p[0].distance < ratio * p[1].distance
+    }
+
+
+@settings(max_examples=60, deadline=None)
+@given(
+    st.integers(0, 2**31),
+    st.integers(0, 60),
+    st.integers(0, 60),
+    st.sampled_from([0.5, 0.8, 1.0]),
+)
+def test_ratio_matches_are_opencvs(seed: int, n_a: int, n_b: int, ratio: float) -> None:
+    """Exact 2-NN by faiss: the same matches as OpenCV's, ties and repeated rows included
+    (descriptors drawn from a few patterns so that equal distances are common)."""
+    from lesmc.perception.registration import _ratio_bf
+
+    rng = np.random.default_rng(seed)
+    patterns = rng.integers(0, 256, (5, 32), dtype=np.uint8)
+    flips = rng.random((n_a + n_b, 32)) < 0.05
+    noise = rng.integers(0, 256, (n_a + n_b, 32), dtype=np.uint8)
+    rows = np.where(flips, noise, patterns[rng.integers(0, 5, n_a + n_b)])
+    a, b = rows[:n_a], rows[n_a:]
+    q, t = _ratio_bf(a, b, ratio)
+    assert set(zip(q.tolist(), t.tolist(), strict=True)) == (
+        _opencv_ratio_matches(a, b, ratio) if n_a and n_b else set()
+    )
+    assert list(q) == sorted(q)  # in query order, as OpenCV's
+
+
+def test_ratio_matches_of_real_orb_features_are_opencvs() -> None:
+    from lesmc.perception.registration import _ratio_bf
+
+    a, b, _ = warped_pair(768, 5)
+    cfg = RegistrationConfig()
+    fa, fb = describe(a, cfg), describe(b, cfg)
+    q, t = _ratio_bf(fa.descriptors, fb.descriptors, cfg.ratio)
+    want = _opencv_ratio_matches(fa.descriptors, fb.descriptors, cfg.ratio)
+    assert len(want) > 500
+    assert set(zip(q.tolist(), t.tolist(), strict=True)) == want
 
 
 def test_guided_matching_agrees_with_brute_force() -> None:
@@ -183,20 +233,38 @@ def test_score_counts_dont_care_vehicles_as_neither_hit_nor_false_alarm() -> Non
     assert s.error == pytest.approx(0.5)
 
 
-def test_known_registrations_give_the_front_end_of_a_full_pass() -> None:
-    """A front end given an earlier pass's registrations (what the replay of lesmc verify
-    does) neither describes nor matches those frames, and its outputs are the same bits."""
-    from dataclasses import fields
-
-    import lesmc.perception.frontend as fe_module
-
+def _moving_video(n: int) -> list[np.ndarray]:
     base = texture(384, 11)
     video = []
-    for k in range(7):  # the camera moves a few pixels a frame; a blob moves across
+    for k in range(n):  # the camera moves a few pixels a frame; a blob moves across
         shift = np.array([[1, 0, 2.5 * k], [0, 1, -1.5 * k]], np.float32)
         img = cv2.warpAffine(base, shift, (384, 384), borderMode=cv2.BORDER_REFLECT)
         cv2.circle(img, (60 + 25 * k, 200), 4, 255, -1)
         video.append(img)
+    return video
+
+
+def _same_outputs(got: list[FrontEndOutput | None], want: list[FrontEndOutput | None]) -> None:
+    """Two front ends' outputs, frame by frame: the same bits."""
+    from dataclasses import fields
+
+    for a, b in zip(got, want, strict=True):
+        assert (a is None) == (b is None)
+        if a is None or b is None:
+            continue
+        assert np.array_equal(a.background, b.background)
+        for f in fields(a.candidates):
+            assert np.array_equal(getattr(a.candidates, f.name), getattr(b.candidates, f.name))
+        assert np.array_equal(a.registration.homography, b.registration.homography)
+
+
+def test_known_registrations_give_the_front_end_of_a_full_pass() -> None:
+    """A front end given an earlier pass's registrations (what the replay of lesmc verify
+    does) neither describes nor matches those frames, and its outputs are the same bits."""
+
+    import lesmc.perception.frontend as fe_module
+
+    video = _moving_video(7)
     cfg = FrontEndConfig(history=3)
     full = FrontEnd(cfg)
     want = [full.push(f) for f in video]
@@ -214,14 +282,70 @@ def test_known_registrations_give_the_front_end_of_a_full_pass() -> None:
     finally:
         fe_module.describe = real
     assert len(described) == 3  # frames 4 (its previous one) and 5, 6: the unknown ones
-    for a, b in zip(got, want, strict=True):
-        assert (a is None) == (b is None)
-        if a is None or b is None:
-            continue
-        assert np.array_equal(a.background, b.background)
-        for f in fields(a.candidates):
-            assert np.array_equal(getattr(a.candidates, f.name), getattr(b.candidates, f.name))
-        assert np.array_equal(a.registration.homography, b.registration.homography)
+    _same_outputs(got, want)
+
+
+def test_frames_registered_ahead_give_the_front_end_of_a_plain_pass() -> None:
+    """Registration one frame ahead on a second thread (perception's loop) hands the
+    front end the registrations it would have made itself: the same bits."""
+
+    from lesmc.perception.frontend import registered_ahead
+
+    video = _moving_video(7)
+    cfg = FrontEndConfig(history=3)
+    plain = FrontEnd(cfg)
+    want = [plain.push(f) for f in video]
+    ahead = FrontEnd(cfg)
+    pairs = list(registered_ahead(video, cfg.registration))
+    assert [img is f for (img, _), f in zip(pairs, video, strict=True)] == [True] * 7
+    assert pairs[0][1] is None
+    got = [ahead.push(img, reg) for img, reg in pairs]
+    for k in range(1, 7):
+        a, b = ahead.registrations[k], plain.registrations[k]
+        assert np.array_equal(a.homography, b.homography) and a.inliers == b.inliers
+    _same_outputs(got, want)
+
+
+def test_a_frame_that_cannot_be_registered_fails_in_its_turn_and_closing_stops_reading() -> None:
+    from lesmc.perception.frontend import registered_ahead
+    from lesmc.perception.registration import RegistrationError
+
+    video = _moving_video(6)
+    video[3] = np.full_like(video[3], 128)  # no features: frame 3 cannot be registered
+    read: list[int] = []
+
+    def frames() -> Iterator[np.ndarray]:
+        for k, img in enumerate(video):
+            read.append(k)
+            yield img
+
+    ahead = registered_ahead(frames(), RegistrationConfig())
+    got = [next(ahead) for _ in range(3)]  # frames 0-2 arrive before frame 3's error
+    assert [img is video[k] for k, (img, _) in enumerate(got)] == [True] * 3
+    with pytest.raises(RegistrationError):
+        next(ahead)
+    assert read == [0, 1, 2, 3]
+
+    read.clear()
+    ahead = registered_ahead(frames(), RegistrationConfig())
+    next(ahead)
+    ahead.close()  # the caller stops (an error, Ctrl-C): at most one frame read ahead
+    assert read in ([0], [0, 1])
+
+
+def test_perceive_names_the_frame_that_cannot_be_registered(tmp_path: Path) -> None:
+    """Through the real entry point: the frame registered ahead on the second thread
+    fails as FILE: what is wrong, exit 2, no traceback, nothing written."""
+    from cli_run import lesmc
+
+    video = _moving_video(7)
+    video[5] = np.full_like(video[5], 128)
+    for k, img in enumerate(video):
+        assert cv2.imwrite(str(tmp_path / f"frame_{k:05d}.png"), img)
+    r = lesmc("perceive", str(tmp_path), "-o", str(tmp_path / "scene.json"), timeout=300)
+    assert r.returncode == 2 and "Traceback" not in r.stderr, r.stderr
+    assert f"{tmp_path / 'frame_00005.png'}: cannot register with the previous frame" in r.stderr
+    assert not (tmp_path / "scene.json").exists()
 
 
 @settings(max_examples=40, deadline=None)

@@ -33,6 +33,7 @@ from torch import nn
 
 from lesmc.perception.attack_settings import AttackConfig, threshold_logit
 from lesmc.perception.cnn import DR_SIZE
+from lesmc.perception.threads import in_lanes
 
 TOL = 1e-8
 
@@ -163,15 +164,16 @@ def _pgd(
 def payoffs(
     net: nn.Module, windows: np.ndarray, delta_dr: float, cfg: AttackConfig
 ) -> AttackResult:
-    """Attack every (n, m+1, 21, 21) window; payoff = ||x_adv - x|| (inf when not flipped)."""
+    """Attack every (n, m+1, 21, 21) window; payoff = ||x_adv - x|| (inf when not flipped).
+
+    Batches of ``cfg.batch`` windows are independent: they run side by side, one per
+    free core (:func:`~lesmc.perception.threads.in_lanes`), each exactly as it would
+    alone.
+    """
     t = threshold_logit(delta_dr)
-    n = len(windows)
-    pay = np.full(n, np.inf)
-    pert = np.zeros_like(windows, dtype=np.float32)
-    flipped = np.zeros(n, bool)
-    iters = np.zeros(n, np.int64)
     attack = deepfool if cfg.method == "deepfool" else pgd_min_norm
-    for a in range(0, n, cfg.batch):
+
+    def batch(a: int) -> AttackResult:
         x0 = torch.from_numpy(np.ascontiguousarray(windows[a : a + cfg.batch], np.float32))
         x_adv, it = attack(net, x0, t, cfg)
         with torch.no_grad():
@@ -180,8 +182,17 @@ def payoffs(
         norms = np.sqrt((d.astype(np.float64) ** 2).reshape(len(d), -1).sum(axis=1))
         if cfg.norm == "per-pixel":
             norms /= DR_SIZE * DR_SIZE
-        pay[a : a + len(d)] = np.where(ok, norms, np.inf)
-        pert[a : a + len(d)] = d
-        flipped[a : a + len(d)] = ok
-        iters[a : a + len(d)] = it
-    return AttackResult(pay, pert, flipped, iters)
+        return AttackResult(np.where(ok, norms, np.inf), d, ok, it)
+
+    parts = in_lanes(batch, range(0, len(windows), cfg.batch))
+    if not parts:
+        return AttackResult(
+            np.full(0, np.inf), np.zeros_like(windows, dtype=np.float32), np.zeros(0, bool),
+            np.zeros(0, np.int64),
+        )  # fmt: skip
+    return AttackResult(
+        np.concatenate([p.payoff for p in parts]),
+        np.concatenate([p.perturbation for p in parts]),
+        np.concatenate([p.flipped for p in parts]),
+        np.concatenate([p.iterations for p in parts]),
+    )

@@ -20,6 +20,7 @@ from scipy.spatial import cKDTree
 from lesmc.perception.cnn import DR_SIZE, LP_SIZE, LP_STRIDE, Nets
 from lesmc.perception.frontend import FrontEnd, FrontEndConfig, FrontEndOutput
 from lesmc.perception.neurons import UnitMaxima
+from lesmc.perception.threads import in_lanes
 from lesmc.perception.windows import cut, origins, stack
 
 #: Windows per forward pass. Small batches keep each layer's activations in the
@@ -59,23 +60,35 @@ class FrameDetections:
     accepted: np.ndarray | None = None
 
 
-def dr_probability(nets: Nets, windows: np.ndarray, batch: int = DR_BATCH) -> np.ndarray:
-    """P(vehicle) of N_dr for (n, m+1, 21, 21) windows."""
-    out = np.empty(len(windows), np.float32)
-    with torch.inference_mode():
-        for a in range(0, len(windows), batch):
+def dr_probability(
+    nets: Nets, windows: np.ndarray, batch: int = DR_BATCH, side_by_side: bool = True
+) -> np.ndarray:
+    """P(vehicle) of N_dr for (n, m+1, 21, 21) windows; batches side by side, each on one
+    torch thread (:func:`~lesmc.perception.threads.in_lanes`; not ``side_by_side`` while
+    forward hooks that are not thread-safe record the units' maxima)."""
+
+    def one(a: int) -> np.ndarray:
+        with torch.inference_mode():
             logits = nets.dr(torch.from_numpy(windows[a : a + batch]))
-            out[a : a + batch] = torch.softmax(logits, dim=1)[:, 1].numpy()
-    return out
+            out: np.ndarray = torch.softmax(logits, dim=1)[:, 1].numpy()
+            return out
+
+    parts = in_lanes(one, range(0, len(windows), batch), side_by_side)
+    return np.concatenate(parts) if parts else np.empty(0, np.float32)
 
 
-def lp_maps(nets: Nets, windows: np.ndarray, batch: int = LP_BATCH) -> np.ndarray:
-    """N_lp maps (n, 15, 15) for (n, m+1, 45, 45) windows."""
-    out = np.empty((len(windows), 15, 15), np.float32)
-    with torch.inference_mode():
-        for a in range(0, len(windows), batch):
-            out[a : a + batch] = nets.lp(torch.from_numpy(windows[a : a + batch])).numpy()
-    return out
+def lp_maps(
+    nets: Nets, windows: np.ndarray, batch: int = LP_BATCH, side_by_side: bool = True
+) -> np.ndarray:
+    """N_lp maps (n, 15, 15) for (n, m+1, 45, 45) windows (batches as :func:`dr_probability`)."""
+
+    def one(a: int) -> np.ndarray:
+        with torch.inference_mode():
+            out: np.ndarray = nets.lp(torch.from_numpy(windows[a : a + batch])).numpy()
+            return out
+
+    parts = in_lanes(one, range(0, len(windows), batch), side_by_side)
+    return np.concatenate(parts) if parts else np.empty((0, 15, 15), np.float32)
 
 
 def peaks(maps: np.ndarray, threshold: float) -> list[np.ndarray]:
@@ -141,7 +154,7 @@ class Detector:
         cand = out.candidates
         win = cut(frames, cand.centroid, DR_SIZE)
         with self._recording():
-            probability = dr_probability(nets, win, cfg.batch)
+            probability = dr_probability(nets, win, cfg.batch, self.maxima is None)
         keep = np.flatnonzero(probability > nets.settings.delta_dr)
         cents, boxes, win = cand.centroid[keep], cand.box[keep], win[keep]
         crowded = crowded_blobs(cents, boxes, cfg.big_px, cfg.close_px)
@@ -171,7 +184,7 @@ class Detector:
     ) -> tuple[np.ndarray, np.ndarray]:
         """N_lp peaks inside each crowded blob's box (3 px margin), merged across blobs."""
         with self._recording():
-            maps = lp_maps(self.nets, cut(frames, cents, LP_SIZE))
+            maps = lp_maps(self.nets, cut(frames, cents, LP_SIZE), LP_BATCH, self.maxima is None)
         org = origins(cents, LP_SIZE)
         found: list[tuple[float, float, float, int]] = []
         for i, pk in enumerate(peaks(maps, self.nets.settings.delta_lp)):

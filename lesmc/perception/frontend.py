@@ -4,11 +4,15 @@
 returns the candidates Q_bc of the new frame together with what later stages
 (the CNNs) need: the aligned previous frames and the homography to the
 previous frame. Frames before that only fill the history.
+
+:func:`registered_ahead` reads and registers the next frame on a second thread while
+the caller works on the current one (the CNNs, the attack).
 """
 
 from __future__ import annotations
 
-from collections.abc import Mapping
+from collections.abc import Generator, Iterable, Mapping
+from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -68,13 +72,19 @@ class FrontEnd:
         #: frame index -> its registration from the previous frame (h_k^{k-1}, Eq. 15)
         self.registrations: dict[int, Registration] = {}
 
-    def push(self, frame: np.ndarray) -> FrontEndOutput | None:
-        """Feed the next uint8 grey frame; candidates once L previous frames are known."""
+    def push(
+        self, frame: np.ndarray, registration: Registration | None = None
+    ) -> FrontEndOutput | None:
+        """Feed the next uint8 grey frame; candidates once L previous frames are known.
+
+        ``registration``: this frame's from the previous one, when the caller made it
+        (:func:`registered_ahead`); otherwise it is made here.
+        """
         self.index += 1
         out = None
         feats = None
         if self.history.frames:
-            reg = self.known.get(self.index)
+            reg = self.known.get(self.index, registration)
             if reg is None:
                 prev = self.history.frames[-1]
                 before = self.features
@@ -97,3 +107,36 @@ class FrontEnd:
         diff, mask = foreground(frame, bg, aligned.valid, self.cfg.blobs)
         cands = blobs(mask, diff, self.cfg.blobs)
         return FrontEndOutput(self.index, frame, cands, aligned, bg, reg)
+
+
+def registered_ahead(
+    images: Iterable[np.ndarray], cfg: RegistrationConfig
+) -> Generator[tuple[np.ndarray, Registration | None], None, None]:
+    """Each frame with its registration from the previous one (None for the first).
+
+    The next frame is read (decoded) and registered on a second thread while the
+    caller works on this one: registration is OpenCV's work (ORB, brute-force
+    matching, RANSAC, Lucas-Kanade), which releases the GIL, and depends on nothing
+    the caller computes, so the result is the same as :meth:`FrontEnd.push` makes.
+    An error reading or registering frame k is raised when frame k is asked for.
+    """
+    frames = iter(images)
+    last: list[tuple[np.ndarray, Features]] = []
+
+    def step() -> tuple[np.ndarray, Registration | None] | None:
+        img = next(frames, None)
+        if img is None:
+            return None
+        feats = describe(img, cfg)
+        reg = register(last[0][1], feats, cfg, last[0][0], img) if last else None
+        last[:] = [(img, feats)]
+        return img, reg
+
+    pool = ThreadPoolExecutor(1, thread_name_prefix="lesmc-register")
+    try:
+        pending: Future[tuple[np.ndarray, Registration | None] | None] = pool.submit(step)
+        while (got := pending.result()) is not None:
+            pending = pool.submit(step)
+            yield got
+    finally:
+        pool.shutdown(wait=True, cancel_futures=True)

@@ -100,10 +100,25 @@ def register(
 
 
 def _ratio_bf(a: np.ndarray, b: np.ndarray, ratio: float) -> tuple[np.ndarray, np.ndarray]:
-    """Brute-force Hamming 2-NN with Lowe's ratio test: (query rows, train rows)."""
-    pairs = cv2.BFMatcher(cv2.NORM_HAMMING).knnMatch(a, b, k=2)
-    good = [p[0] for p in pairs if len(p) == 2 and p[0].distance < ratio * p[1].distance]
-    return (np.array([m.queryIdx for m in good], int), np.array([m.trainIdx for m in good], int))
+    """Brute-force Hamming 2-NN with Lowe's ratio test: (query rows, train rows).
+
+    faiss's exact binary index (one thread: registration runs beside the CNNs) finds
+    each query's two smallest distances. A query passes when d1 < ratio * d2, so its
+    nearest train row is then unique and the matches do not depend on how ties are
+    broken: they are those of OpenCV's ``BFMatcher.knnMatch`` (tests/test_perception.py),
+    in 0.15-0.2x its CPU time (docs/performance.md, "Issue 31, ninth round").
+    """
+    import faiss
+
+    if len(a) == 0 or len(b) < 2:
+        empty = np.zeros(0, int)
+        return empty, empty
+    faiss.omp_set_num_threads(1)
+    index = faiss.IndexBinaryFlat(8 * a.shape[1])
+    index.add(np.ascontiguousarray(b, np.uint8))
+    dist, nearest = index.search(np.ascontiguousarray(a, np.uint8), 2)
+    keep = dist[:, 0] < ratio * dist[:, 1]
+    return np.flatnonzero(keep).astype(int), nearest[keep, 0].astype(int)
 
 
 def _matches(

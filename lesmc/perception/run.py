@@ -6,6 +6,7 @@ The Python API behind ``lesmc perceive``; the CLI only parses options and prints
 from __future__ import annotations
 
 from collections.abc import Callable, Sequence
+from contextlib import closing
 from dataclasses import dataclass, field, replace
 from typing import Any
 
@@ -20,7 +21,12 @@ from lesmc.perception.blobs import BlobConfig
 from lesmc.perception.certify import CertifyConfig
 from lesmc.perception.cnn import DR_SIZE, Nets
 from lesmc.perception.detector import Detector, DetectorConfig, FrameDetections
-from lesmc.perception.frontend import FrontEnd, FrontEndConfig, FrontEndOutput
+from lesmc.perception.frontend import (
+    FrontEnd,
+    FrontEndConfig,
+    FrontEndOutput,
+    registered_ahead,
+)
 from lesmc.perception.quality import Score, Truth, TruthFrame, care_mask, score
 from lesmc.perception.registration import Registration, RegistrationError
 from lesmc.video.reader import FrameSet
@@ -98,21 +104,25 @@ def perceive_all(
     ]
     fe = FrontEnd(fe_cfg)
     out_runs = [PerceiveRun() for _ in runs]
-    for i, img in enumerate(frames):
-        try:
-            out = fe.push(img)
-        except RegistrationError as exc:
-            raise InputError(
-                f"cannot register with the previous frame: {exc}", Location(str(frames.paths[i]))
-            ) from None
-        if on_frame:
-            on_frame()
-        if out is None:
-            continue
-        tf = truth.frames[frames.paths[i].name] if truth is not None else None
-        for run, det, opts in zip(out_runs, dets, runs, strict=True):
-            _frame(run, det, opts, out, frames.paths[i].name, tf)
-        release()  # what this frame freed goes back to the system (common/memory.py)
+    # the next frame is read and registered on a second thread while this one's CNNs run
+    with closing(registered_ahead(frames, fe_cfg.registration)) as ahead:
+        for i in range(len(frames)):
+            try:
+                img, reg = next(ahead)
+            except RegistrationError as exc:
+                raise InputError(
+                    f"cannot register with the previous frame: {exc}",
+                    Location(str(frames.paths[i])),
+                ) from None
+            out = fe.push(img, reg)
+            if on_frame:
+                on_frame()
+            if out is None:
+                continue
+            tf = truth.frames[frames.paths[i].name] if truth is not None else None
+            for run, det, opts in zip(out_runs, dets, runs, strict=True):
+                _frame(run, det, opts, out, frames.paths[i].name, tf)
+            release()  # what this frame freed goes back to the system (common/memory.py)
     for run, det in zip(out_runs, dets, strict=True):
         run.registrations = dict(fe.registrations)  # one front end served every run
         if det is not None and det.maxima is not None:
