@@ -19,7 +19,7 @@ from lesmc.perception.attack_settings import AttackConfig, threshold_logit
 from lesmc.perception.attacks import deepfool, margin, payoffs
 from lesmc.perception.cnn import load_nets
 from lesmc.perception.detector import dr_probability, lp_maps
-from lesmc.perception.threads import in_lanes
+from lesmc.perception.threads import in_lanes, torch_lanes
 from lesmc.video.synth import SynthConfig
 
 
@@ -53,12 +53,47 @@ def test_lanes_one_after_the_other_still_on_one_torch_thread(two_threads: None) 
     def item(x: int) -> int:
         names.add(threading.current_thread().name)
         assert torch.get_num_threads() == 1
-        return in_lanes(lambda y: y + x, [1, 2])[-1]  # a nested call runs in place
+        return x + 2
 
     assert in_lanes(item, [10, 20, 30], side_by_side=False) == [12, 22, 32]
     assert names == {threading.current_thread().name}
     assert torch.get_num_threads() == 2
     assert in_lanes(item, []) == []
+
+
+def test_a_call_from_a_lane_runs_in_that_lane(two_threads: None) -> None:
+    inner: dict[int, set[str]] = {}
+
+    def item(x: int) -> int:
+        here = threading.current_thread().name
+
+        def sub(y: int) -> int:
+            inner.setdefault(x, set()).add(threading.current_thread().name)
+            return y
+
+        assert in_lanes(sub, range(4)) == [0, 1, 2, 3]
+        assert inner[x] == {here}  # no lanes within lanes: the cores are taken
+        return x
+
+    assert in_lanes(item, range(4)) == [0, 1, 2, 3]
+
+
+def test_a_block_holds_one_torch_thread_and_its_calls_keep_their_lanes(two_threads: None) -> None:
+    """perceive_all holds the setting over its frames: calls inside do not switch
+    torch's thread count, and still run side by side on the cores it had."""
+    names: set[str] = set()
+
+    def item(x: int) -> int:
+        names.add(threading.current_thread().name)
+        time.sleep(0.01)
+        return x
+
+    with torch_lanes() as lanes:
+        assert lanes == 2 and torch.get_num_threads() == 1
+        assert in_lanes(item, range(6)) == list(range(6))
+        assert torch.get_num_threads() == 1
+    assert len(names) == 2
+    assert torch.get_num_threads() == 2
 
 
 def test_an_item_that_fails_cancels_those_not_started(two_threads: None) -> None:

@@ -115,7 +115,7 @@ def registered_ahead(
     """Each frame with its registration from the previous one (None for the first).
 
     The next frame is read (decoded) and registered on a second thread while the
-    caller works on this one: registration is OpenCV's work (ORB, brute-force
+    caller works on this one: registration is OpenCV's and faiss's work (ORB, exact
     matching, RANSAC, Lucas-Kanade), which releases the GIL, and depends on nothing
     the caller computes, so the result is the same as :meth:`FrontEnd.push` makes.
     An error reading or registering frame k is raised when frame k is asked for.

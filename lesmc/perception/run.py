@@ -6,7 +6,7 @@ The Python API behind ``lesmc perceive``; the CLI only parses options and prints
 from __future__ import annotations
 
 from collections.abc import Callable, Sequence
-from contextlib import closing
+from contextlib import closing, nullcontext
 from dataclasses import dataclass, field, replace
 from typing import Any
 
@@ -29,6 +29,7 @@ from lesmc.perception.frontend import (
 )
 from lesmc.perception.quality import Score, Truth, TruthFrame, care_mask, score
 from lesmc.perception.registration import Registration, RegistrationError
+from lesmc.perception.threads import torch_lanes
 from lesmc.video.reader import FrameSet
 
 ZERO = Score(0, 0, 0, 0, 0.0)
@@ -104,8 +105,10 @@ def perceive_all(
     ]
     fe = FrontEnd(fe_cfg)
     out_runs = [PerceiveRun() for _ in runs]
-    # the next frame is read and registered on a second thread while this one's CNNs run
-    with closing(registered_ahead(frames, fe_cfg.registration)) as ahead:
+    # the next frame is read and registered on a second thread while this one's CNNs run;
+    # the CNNs' batches run side by side, torch on one thread each (perception/threads.py)
+    lanes = torch_lanes() if any(d is not None for d in dets) else nullcontext()
+    with lanes, closing(registered_ahead(frames, fe_cfg.registration)) as ahead:
         for i in range(len(frames)):
             try:
                 img, reg = next(ahead)

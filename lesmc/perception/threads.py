@@ -14,7 +14,10 @@ passes on 128 windows of 21x21 run only 1.2-1.4x faster on two threads than on
 one. :func:`in_lanes` runs independent batches side by side instead, one Python
 thread per torch thread, each batch on one torch thread (torch releases the GIL in
 its kernels): 1.3-1.45x the speed of the batches one after the other on two
-threads, with the same bits (docs/performance.md, "Issue 31, ninth round").
+threads, and a batch's bits are those of one thread whatever the load
+(docs/performance.md, "Issue 31, ninth round"). :func:`torch_lanes` holds that
+setting over a whole loop (perception's frames), so that torch's thread count is
+not switched back and forth at every call (about 3 ms a switch).
 """
 
 from __future__ import annotations
@@ -22,8 +25,9 @@ from __future__ import annotations
 import os
 import threading
 import time
-from collections.abc import Callable, Iterable
+from collections.abc import Callable, Iterable, Iterator
 from concurrent.futures import ThreadPoolExecutor
+from contextlib import contextmanager
 from typing import TypeVar
 
 T = TypeVar("T")
@@ -88,8 +92,9 @@ def fit_torch_threads() -> int:
 
 
 _lanes_lock = threading.Lock()
-_lanes_open = 0  #: callers inside :func:`in_lanes` (torch's thread count is process-wide)
-_lanes_restore = 1  #: torch's thread count to restore when the last one leaves
+_lanes_open = 0  #: blocks inside :func:`torch_lanes` (torch's thread count is process-wide)
+_lanes_width = 1  #: torch's thread count before the first of them: the lanes, and restored
+_in_lane = threading.local()  #: ``inside`` is set on the threads that run a lane
 
 
 def in_lanes(fn: Callable[[T], R], items: Iterable[T], side_by_side: bool = True) -> list[R]:
@@ -97,47 +102,48 @@ def in_lanes(fn: Callable[[T], R], items: Iterable[T], side_by_side: bool = True
 
     Side by side, the items run on up to one Python thread per torch thread (the
     free cores, :func:`fit_torch_threads`); otherwise, or with one torch thread (a
-    busy machine, a Dask worker's share), one after the other on the calling thread,
-    still on one torch thread. So an item's numbers never depend on the machine's
-    load: oneDNN may round a batch otherwise on two threads than on one. ``fn`` must
-    not depend on the other items, and must set any thread-local torch mode
-    (``inference_mode``, ``no_grad``) itself. An exception (Ctrl-C included) cancels
-    the items not yet started.
+    busy machine, a Dask worker's share), or called from a lane, one after the other
+    on the calling thread, still on one torch thread. So an item's numbers never
+    depend on the machine's load: oneDNN may round a batch otherwise on two threads
+    than on one. ``fn`` must not depend on the other items, and must set any
+    thread-local torch mode (``inference_mode``, ``no_grad``) itself. An exception
+    (Ctrl-C included) cancels the items not yet started.
     """
-    import torch
-
     todo = list(items)
-    width = min(torch.get_num_threads(), len(todo)) if side_by_side else 1
-    _enter_lanes()
-    try:
+    with torch_lanes() as lanes:
+        nested = getattr(_in_lane, "inside", False)
+        width = min(lanes, len(todo)) if side_by_side and not nested else 1
         if width <= 1:
             return [fn(x) for x in todo]
+
+        def lane(x: T) -> R:
+            _in_lane.inside = True
+            return fn(x)
+
         pool = ThreadPoolExecutor(width, thread_name_prefix="lesmc-lane")
         try:
-            return list(pool.map(fn, todo))
+            return list(pool.map(lane, todo))
         finally:
             pool.shutdown(wait=True, cancel_futures=True)
-    finally:
-        _leave_lanes()
 
 
-def _enter_lanes() -> None:
-    """One torch thread per lane while any caller is in :func:`in_lanes`."""
-    global _lanes_open, _lanes_restore
+@contextmanager
+def torch_lanes() -> Iterator[int]:
+    """torch on one thread (per lane) for the block; yields the lanes: torch's thread
+    count before the outermost such block, which it restores on leaving."""
+    global _lanes_open, _lanes_width
     import torch
 
     with _lanes_lock:
         if _lanes_open == 0:
-            _lanes_restore = torch.get_num_threads()
+            _lanes_width = torch.get_num_threads()
             torch.set_num_threads(1)
         _lanes_open += 1
-
-
-def _leave_lanes() -> None:
-    global _lanes_open
-    import torch
-
-    with _lanes_lock:
-        _lanes_open -= 1
-        if _lanes_open == 0:
-            torch.set_num_threads(_lanes_restore)
+        width = _lanes_width
+    try:
+        yield width
+    finally:
+        with _lanes_lock:
+            _lanes_open -= 1
+            if _lanes_open == 0:
+                torch.set_num_threads(_lanes_width)
