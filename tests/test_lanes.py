@@ -19,7 +19,7 @@ from lesmc.perception.attack_settings import AttackConfig, threshold_logit
 from lesmc.perception.attacks import deepfool, margin, payoffs
 from lesmc.perception.cnn import load_nets
 from lesmc.perception.detector import dr_probability, lp_maps
-from lesmc.perception.threads import in_lanes, torch_lanes
+from lesmc.perception.threads import all_torch_threads, in_lanes, torch_lanes
 from lesmc.video.synth import SynthConfig
 
 
@@ -169,3 +169,22 @@ def test_network_scores_do_not_depend_on_the_free_cores(two_threads: None) -> No
     assert np.array_equal(lp_maps(nets, lp), np.concatenate(m1))
     assert dr_probability(nets, dr[:0]).shape == (0,)
     assert lp_maps(nets, lp[:0]).shape == (0, 15, 15)
+
+
+def test_certification_inside_perceptions_block_gets_the_cores_back(two_threads: None) -> None:
+    """perceive --certify certifies inside perception's one-thread block: its large
+    propagations run on the block's lanes again, then the block's setting returns."""
+    seen: list[int] = []
+    with torch_lanes():
+        with all_torch_threads():
+            seen.append(torch.get_num_threads())
+        seen.append(torch.get_num_threads())
+
+        def item(_: int) -> int:
+            with all_torch_threads():  # on a lane: stays at one thread
+                return torch.get_num_threads()
+
+        seen += in_lanes(item, range(2))
+    with all_torch_threads():  # outside any block: unchanged
+        seen.append(torch.get_num_threads())
+    assert seen == [2, 1, 1, 1, 2]

@@ -50,6 +50,8 @@ import torch
 from torch import nn
 from torch.nn import functional as F
 
+from lesmc.perception.threads import all_torch_threads
+
 SAFETY = 1e-3  #: relative reduction of every certified radius (float32 rounding)
 CHUNK_FLOATS = 1 << 23  #: coefficients in flight per propagation chunk (32 MiB of float32)
 
@@ -586,7 +588,7 @@ def certified_radius(
     cfg = cfg or CertifyConfig()
     n = len(windows)
     out = np.zeros(n)
-    with torch.inference_mode():
+    with torch.inference_mode(), all_torch_threads():
         for a in range(0, n, cfg.batch):
             x = torch.from_numpy(np.ascontiguousarray(windows[a : a + cfg.batch], np.float32))
             up = None if upper is None else np.asarray(upper[a : a + cfg.batch], float)
