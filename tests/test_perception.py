@@ -110,7 +110,17 @@ def test_ratio_matches_of_real_orb_features_are_opencvs() -> None:
     a, b, _ = warped_pair(768, 5)
     cfg = RegistrationConfig()
     fa, fb = describe(a, cfg), describe(b, cfg)
-    q, t = _ratio_bf(fa.descriptors, fb.descriptors, cfg.ratio)
+    import torch
+
+    threads = torch.get_num_threads()
+    torch.set_num_threads(2)
+    try:
+        q, t = _ratio_bf(fa.descriptors, fb.descriptors, cfg.ratio)
+        # faiss runs on one thread of the OpenMP runtime it shares with torch, and
+        # leaves torch's count as it was (certification after it needs both cores)
+        assert torch.get_num_threads() == 2
+    finally:
+        torch.set_num_threads(threads)
     want = _opencv_ratio_matches(fa.descriptors, fb.descriptors, cfg.ratio)
     assert len(want) > 500
     assert set(zip(q.tolist(), t.tolist(), strict=True)) == want

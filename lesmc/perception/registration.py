@@ -113,10 +113,15 @@ def _ratio_bf(a: np.ndarray, b: np.ndarray, ratio: float) -> tuple[np.ndarray, n
     if len(a) == 0 or len(b) < 2:
         empty = np.zeros(0, int)
         return empty, empty
+    # faiss and torch share the OpenMP runtime: the calling thread's count is restored
+    before = faiss.omp_get_max_threads()
     faiss.omp_set_num_threads(1)
-    index = faiss.IndexBinaryFlat(8 * a.shape[1])
-    index.add(np.ascontiguousarray(b, np.uint8))
-    dist, nearest = index.search(np.ascontiguousarray(a, np.uint8), 2)
+    try:
+        index = faiss.IndexBinaryFlat(8 * a.shape[1])
+        index.add(np.ascontiguousarray(b, np.uint8))
+        dist, nearest = index.search(np.ascontiguousarray(a, np.uint8), 2)
+    finally:
+        faiss.omp_set_num_threads(before)
     keep = dist[:, 0] < ratio * dist[:, 1]
     return np.flatnonzero(keep).astype(int), nearest[keep, 0].astype(int)
 
