@@ -105,13 +105,13 @@ def test_ratio_matches_are_opencvs(seed: int, n_a: int, n_b: int, ratio: float) 
 
 
 def test_ratio_matches_of_real_orb_features_are_opencvs() -> None:
+    import torch
+
     from lesmc.perception.registration import _ratio_bf
 
     a, b, _ = warped_pair(768, 5)
     cfg = RegistrationConfig()
     fa, fb = describe(a, cfg), describe(b, cfg)
-    import torch
-
     threads = torch.get_num_threads()
     torch.set_num_threads(2)
     try:
@@ -271,7 +271,6 @@ def _same_outputs(got: list[FrontEndOutput | None], want: list[FrontEndOutput | 
 def test_known_registrations_give_the_front_end_of_a_full_pass() -> None:
     """A front end given an earlier pass's registrations (what the replay of lesmc verify
     does) neither describes nor matches those frames, and its outputs are the same bits."""
-
     import lesmc.perception.frontend as fe_module
 
     video = _moving_video(7)
@@ -298,7 +297,6 @@ def test_known_registrations_give_the_front_end_of_a_full_pass() -> None:
 def test_frames_registered_ahead_give_the_front_end_of_a_plain_pass() -> None:
     """Registration one frame ahead on a second thread (perception's loop) hands the
     front end the registrations it would have made itself: the same bits."""
-
     from lesmc.perception.frontend import registered_ahead
 
     video = _moving_video(7)

@@ -184,12 +184,11 @@ def payoffs(
             norms /= DR_SIZE * DR_SIZE
         return AttackResult(np.where(ok, norms, np.inf), d, ok, it)
 
-    parts = in_lanes(batch, range(0, len(windows), cfg.batch))
-    if not parts:
-        return AttackResult(
-            np.full(0, np.inf), np.zeros_like(windows, dtype=np.float32), np.zeros(0, bool),
-            np.zeros(0, np.int64),
-        )  # fmt: skip
+    none = AttackResult(
+        np.zeros(0), np.zeros((0, *windows.shape[1:]), np.float32), np.zeros(0, bool),
+        np.zeros(0, np.int64),
+    )  # fmt: skip
+    parts = [none, *in_lanes(batch, range(0, len(windows), cfg.batch))]
     return AttackResult(
         np.concatenate([p.payoff for p in parts]),
         np.concatenate([p.perturbation for p in parts]),

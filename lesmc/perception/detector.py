@@ -74,7 +74,7 @@ def dr_probability(
             return out
 
     parts = in_lanes(one, range(0, len(windows), batch), side_by_side)
-    return np.concatenate(parts) if parts else np.empty(0, np.float32)
+    return np.concatenate([np.empty(0, np.float32), *parts])
 
 
 def lp_maps(
@@ -88,7 +88,7 @@ def lp_maps(
             return out
 
     parts = in_lanes(one, range(0, len(windows), batch), side_by_side)
-    return np.concatenate(parts) if parts else np.empty((0, 15, 15), np.float32)
+    return np.concatenate([np.empty((0, 15, 15), np.float32), *parts])
 
 
 def peaks(maps: np.ndarray, threshold: float) -> list[np.ndarray]:

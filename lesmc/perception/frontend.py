@@ -121,15 +121,16 @@ def registered_ahead(
     An error reading or registering frame k is raised when frame k is asked for.
     """
     frames = iter(images)
-    last: list[tuple[np.ndarray, Features]] = []
+    prev: tuple[np.ndarray, Features] | None = None  # the last frame read, described
 
     def step() -> tuple[np.ndarray, Registration | None] | None:
+        nonlocal prev
         img = next(frames, None)
         if img is None:
             return None
         feats = describe(img, cfg)
-        reg = register(last[0][1], feats, cfg, last[0][0], img) if last else None
-        last[:] = [(img, feats)]
+        reg = None if prev is None else register(prev[1], feats, cfg, prev[0], img)
+        prev = (img, feats)
         return img, reg
 
     pool = ThreadPoolExecutor(1, thread_name_prefix="lesmc-register")
