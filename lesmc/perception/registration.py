@@ -106,7 +106,7 @@ def _ratio_bf(a: np.ndarray, b: np.ndarray, ratio: float) -> tuple[np.ndarray, n
     each query's two smallest distances. A query passes when d1 < ratio * d2, so its
     nearest train row is then unique and the matches do not depend on how ties are
     broken: they are those of OpenCV's ``BFMatcher.knnMatch`` (tests/test_perception.py),
-    in 0.15-0.2x its CPU time (docs/performance.md, "Issue 31, ninth round").
+    in about a fifth of its CPU time (docs/performance.md, "Issue 31, ninth round").
     """
     import faiss
 

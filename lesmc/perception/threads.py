@@ -10,10 +10,10 @@ process, when the networks are loaded (lesmc/perception/cnn.py). Set
 ``LESMC_THREADS=N`` to choose the count yourself.
 
 Small batches parallelise badly inside torch: DeepFool's forward and backward
-passes on 128 windows of 21x21 run only 1.2-1.4x faster on two threads than on
+passes on 128 windows of 21x21 run only 1.2-1.35x faster on two threads than on
 one. :func:`in_lanes` runs independent batches side by side instead, one Python
 thread per torch thread, each batch on one torch thread (torch releases the GIL in
-its kernels): 1.3-1.45x the speed of the batches one after the other on two
+its kernels): 1.3-1.5x the speed of the batches one after the other on two
 threads, and a batch's bits are those of one thread whatever the load
 (docs/performance.md, "Issue 31, ninth round"). :func:`torch_lanes` holds that
 setting over a whole loop (perception's frames), so that torch's thread count is
@@ -102,7 +102,7 @@ def in_lanes(fn: Callable[[T], R], items: Iterable[T], side_by_side: bool = True
 
     Side by side, the items run on up to one Python thread per torch thread (the
     free cores, :func:`fit_torch_threads`); otherwise, or with one torch thread (a
-    busy machine, a Dask worker's share), or called from a lane, one after the other
+    busy machine, ``LESMC_THREADS=1``), or called from a lane, one after the other
     on the calling thread, still on one torch thread. So an item's numbers never
     depend on the machine's load: oneDNN may round a batch otherwise on two threads
     than on one. ``fn`` must not depend on the other items, and must set any
