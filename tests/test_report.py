@@ -447,3 +447,43 @@ def test_a_table_refuses_rows_narrower_or_wider_than_its_header() -> None:
     assert Table(two_rows, [Row([Cell(1), Cell(2), Cell(3)])]).width == 3
     with pytest.raises(ValueError):
         Table(two_rows, [Row([Cell(1), Cell(2)])])
+
+
+def test_figures_are_the_bytes_of_savefigs_tight_box(
+    monkeypatch: pytest.MonkeyPatch, tmp_path: Path
+) -> None:
+    """figures._png finds the tight box without savefig's extra drawing pass: each figure of
+    a report (three designs), of frame crops and of attack patches must be the very PNG
+    that ``savefig(bbox_inches="tight")`` writes."""
+    import io
+
+    from lesmc.report import figures
+
+    own = figures._png
+    compared = []
+
+    def both(fig: object) -> bytes:
+        buf = io.BytesIO()
+        fig.savefig(  # type: ignore[attr-defined]
+            buf, format="png", dpi=figures.DPI, bbox_inches="tight",
+            pil_kwargs={"compress_level": 1},
+        )  # fmt: skip
+        png = own(fig)  # type: ignore[arg-type]
+        assert png == buf.getvalue()
+        compared.append(1)
+        return png
+
+    monkeypatch.setattr(figures, "_png", both)
+    scene = load_scene(SCENES / "rq4_merge.json")
+    specs = [load_spec(str(SCENES / "rq4_merge.spec"))]
+    write_report(design_runs(scene, specs, ["single", "joint", "improved"]), tmp_path / "r")
+    rng = np.random.default_rng(3)
+    image = rng.integers(0, 255, size=(96, 128)).astype(np.uint8)
+    xy = np.array([[20.0, 30.0], [40.0, 35.0], [60.0, 52.0]])
+    track = figures.Series("original", "original", np.array([0.0, 1.0, 2.0]))
+    figures.track_crop([(track, xy)], 0, 0, xy + 3, xy - 2, image, "a crop")
+    patch = rng.uniform(0, 255, size=(21, 21))
+    figures.patches([("d1", patch), ("d2", patch[::-1])])
+    delta = rng.normal(0, 0.01, size=(21, 21))
+    figures.perturbations([("d1", patch, delta), ("d2", patch, -delta)])
+    assert len(compared) >= 10

@@ -83,6 +83,13 @@ class Hold:
             ready()
 sys.meta_path.insert(0, Hold())
 """,
+    # while the default video renders in its child process (verify imports torch then)
+    "rendering": """
+import lesmc.verify.experiment as e
+def _import_networks():
+    ready()
+e._import_networks = _import_networks
+""",
     # every batch of the unfolding takes 0.2 s (for the budget tests)
     "slow": """
 import lesmc.build.unfold as u
@@ -185,6 +192,33 @@ def test_verify_stops_cleanly_and_leaves_the_old_report(
     assert last.startswith(f"{STATUS[signum][1]}: out holds the previous report"), err
     assert last.endswith(f"resume with: lesmc {' '.join(args)} --design single"), err
     assert files(out) == old
+
+
+@pytest.mark.parametrize("signum", [signal.SIGINT, signal.SIGTERM], ids=["INT", "TERM"])
+def test_a_signal_while_the_video_renders_aside_stops_the_child_and_leaves_no_frame(
+    tmp_path: Path, signum: int
+) -> None:
+    """verify renders the default video in a child process while it imports torch: a signal
+    then stops the child, waits for it and removes its staging directory."""
+    code, err = interrupt(start("rendering", ["verify", "--out", "out"], tmp_path), signum)
+    assert code == STATUS[signum][0], err
+    assert "Traceback" not in err
+    assert [p for p in (tmp_path / "out").rglob("*") if not p.is_dir()] == []
+    assert [p for p in (tmp_path / "out").rglob(".synth.*")] == []
+    assert rendering_children(tmp_path) == []
+
+
+def rendering_children(under: Path) -> list[int]:
+    """Processes rendering a video (``lesmc.video.aside``) into a directory under ``under``."""
+    found = []
+    for pid in Path("/proc").iterdir():
+        try:
+            cmd = (pid / "cmdline").read_bytes().decode(errors="replace").split("\0")
+        except OSError:
+            continue
+        if "lesmc.video.aside" in cmd and any(a.startswith(str(under)) for a in cmd):
+            found.append(int(pid.name))
+    return found
 
 
 @pytest.mark.parametrize(

@@ -11,6 +11,7 @@ import pytest
 from click.testing import CliRunner
 from hypothesis import given, settings
 from hypothesis import strategies as st
+from test_signals import rendering_children
 
 from lesmc.cli.main import cli
 from lesmc.common.errors import InputError
@@ -269,3 +270,50 @@ def test_a_frame_shows_exactly_the_vehicles_projected_inside_it() -> None:
         _, _, vehicles = world.scene(k)
         assert [v["id"] for v in vehicles] == want and want
         world.traffic.step(0.5)
+
+
+def test_a_video_rendered_aside_is_the_same_bytes(tmp_path: Path) -> None:
+    """write_video(meanwhile=...) renders in a child process while meanwhile() runs here:
+    the same files, byte for byte, as rendering in this process, and progress() once a
+    frame."""
+    here, aside = tmp_path / "here", tmp_path / "aside"
+    want = write_video(SMALL, here)
+    ran, counted = [], []
+    got = write_video(SMALL, aside, lambda: counted.append(1), lambda: ran.append(1))
+    assert ran == [1] and len(counted) == SMALL.frames
+    assert [p.name for p in got] == [p.name for p in want]
+    for name in [p.name for p in want] + ["truth.json"]:
+        assert (aside / name).read_bytes() == (here / name).read_bytes(), name
+    assert sorted(p.name for p in aside.iterdir()) == sorted(p.name for p in here.iterdir())
+
+
+@pytest.mark.parametrize("where", ["meanwhile", "progress"])
+def test_an_interrupted_video_aside_leaves_nothing_and_no_process(
+    tmp_path: Path, where: str
+) -> None:
+    """Ctrl-C while the caller runs meanwhile() or counts the child's frames: the child is
+    stopped and waited for, the staging directory removed, nothing written."""
+    out = tmp_path / "v"
+    calls = []
+
+    def stop() -> None:
+        calls.append(1)
+        if where == "meanwhile" or len(calls) == 2:
+            raise KeyboardInterrupt
+
+    job = (lambda: None, stop) if where == "meanwhile" else (stop, lambda: None)
+    with pytest.raises(KeyboardInterrupt):
+        write_video(SMALL, out, *job)
+    assert list(out.iterdir()) == []
+    assert rendering_children(tmp_path) == []
+
+
+def test_a_frame_the_child_cannot_write_is_an_os_error_with_its_name(tmp_path: Path) -> None:
+    """The child's OSError (here: its staging directory is gone) comes back as an OSError
+    that names the file, as rendering in this process would raise."""
+    from lesmc.video.aside import render_aside
+
+    gone = tmp_path / "gone"
+    with pytest.raises(OSError, match=r"cannot write .*frame_00000\.png"):
+        render_aside(SMALL, gone, tmp_path / "shown", None, lambda: None)
+    assert rendering_children(tmp_path) == []

@@ -69,9 +69,20 @@ def _pyplot() -> Any:
 
 
 def _png(fig: Figure) -> bytes:
+    """The figure as PNG at :data:`DPI`, cropped to what is drawn (``bbox_inches="tight"``).
+
+    savefig's "tight" first draws the whole figure, drawing disabled, to lay it out;
+    none of these figures has a layout engine, so the box is found here without that
+    pass, at the output's resolution as savefig would: the same bytes in 0.8x the time
+    (tests/test_report.py)."""
+    from matplotlib import rcParams
+
     buf = io.BytesIO()
+    fig.set_dpi(DPI)
+    renderer = fig.canvas.get_renderer()  # type: ignore[attr-defined]  # Agg's canvas
+    box = fig.get_tightbbox(renderer).padded(rcParams["savefig.pad_inches"])
     # zlib level 1: a third of the encoding time of the default 6, files within 5%
-    fig.savefig(buf, format="png", dpi=DPI, bbox_inches="tight", pil_kwargs={"compress_level": 1})
+    fig.savefig(buf, format="png", dpi=DPI, bbox_inches=box, pil_kwargs={"compress_level": 1})
     _pyplot().close(fig)
     return buf.getvalue()
 

@@ -369,7 +369,7 @@ def _video(
                 bar.advance()
                 _spent(req.budget, "rendering the default video")
 
-            fresh = write_default_video(video, rendered)
+            fresh = write_default_video(video, rendered, meanwhile=_import_networks)
         release()  # rendering's frames go back to the system before perception's
     what = (
         f"embedded default: lesmc synth {video} --seed {DEFAULT_VIDEO['seed']} "
@@ -418,12 +418,23 @@ def default_video_ready(video: Path) -> bool:
     return same and len(list(video.glob("frame_*.png"))) == DEFAULT_VIDEO["frames"]
 
 
-def write_default_video(video: Path, progress: Callable[[], None] | None = None) -> list[Path]:
+def write_default_video(
+    video: Path,
+    progress: Callable[[], None] | None = None,
+    meanwhile: Callable[[], None] | None = None,
+) -> list[Path]:
     """Generate the embedded default video (``lesmc synth`` with ``DEFAULT_VIDEO``); the
-    frames written."""
+    frames written. With ``meanwhile``, a child process renders while it runs here
+    (:func:`lesmc.video.synth.write_video`)."""
     from lesmc.video.synth import SynthConfig, write_video
 
-    return write_video(SynthConfig(**DEFAULT_VIDEO), video, progress=progress)
+    return write_video(SynthConfig(**DEFAULT_VIDEO), video, progress, meanwhile)
+
+
+def _import_networks() -> None:
+    """Import torch and the networks' code while the default video renders aside: a video
+    just rendered is perceived next (1.5-2 s of imports off the critical path)."""
+    import lesmc.perception.cnn  # noqa: F401
 
 
 def _certifier(src: _Source, rep: Reporter, budget: Budget) -> Certifier | None:

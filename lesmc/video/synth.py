@@ -16,8 +16,9 @@ import json
 import math
 import os
 import shutil
+import sys
 import tempfile
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import asdict, dataclass
 from pathlib import Path
@@ -395,7 +396,12 @@ def truth_header(cfg: SynthConfig) -> dict[str, Any]:
     }
 
 
-def write_video(cfg: SynthConfig, out_dir: Path, progress: Any = None) -> list[Path]:
+def write_video(
+    cfg: SynthConfig,
+    out_dir: Path,
+    progress: Callable[[], None] | None = None,
+    meanwhile: Callable[[], None] | None = None,
+) -> list[Path]:
     """Write frames and truth.json into ``out_dir``; returns the frame paths.
 
     Files go to a temporary directory first and are moved in at the end, so an
@@ -403,26 +409,23 @@ def write_video(cfg: SynthConfig, out_dir: Path, progress: Any = None) -> list[P
     each frame while the next one is drawn (:func:`frames`): a frame of W x H pixels
     holds 4WH bytes as float32 and two are in flight, as is one encoded frame.
     ``progress()`` after each frame written.
+
+    With ``meanwhile``, a child process renders the frames (:mod:`lesmc.video.aside`)
+    while ``meanwhile()`` runs here: ``lesmc verify`` imports torch then, which on the
+    same interpreter would wait for the GIL that rendering's Python holds. The files
+    are the same bytes either way.
     """
     out_dir.mkdir(parents=True, exist_ok=True)
     tmp = Path(tempfile.mkdtemp(prefix=".synth.", dir=out_dir))
     try:
-        truth: list[dict[str, Any]] = []
-        with ThreadPoolExecutor(1, thread_name_prefix="lesmc-png") as writer:
-            last: Future[None] | None = None
-            for img, ft in frames(cfg):
-                name = frame_name(ft.step, cfg.depth)
-                written = writer.submit(_write_frame, tmp / name, img, out_dir / name)
-                truth.append(
-                    {"step": ft.step, "file": name, "to_prev": ft.to_prev, "vehicles": ft.vehicles}
-                )
-                if last is not None:
-                    _done(last, progress)
-                last = written
-            if last is not None:
-                _done(last, progress)
-        doc = truth_header(cfg) | {"frames": truth}
-        (tmp / "truth.json").write_text(json.dumps(doc, separators=(",", ":")) + "\n")
+        if meanwhile is not None and sys.executable:
+            from lesmc.video.aside import render_aside
+
+            render_aside(cfg, tmp, out_dir, progress, meanwhile)
+        else:  # no interpreter to start (an embedded Python): one after the other
+            if meanwhile is not None:
+                meanwhile()
+            render_into(cfg, tmp, out_dir, progress)
         paths = []
         for p in sorted(tmp.iterdir()):
             os.replace(p, out_dir / p.name)
@@ -432,13 +435,36 @@ def write_video(cfg: SynthConfig, out_dir: Path, progress: Any = None) -> list[P
         shutil.rmtree(tmp, ignore_errors=True)
 
 
+def render_into(
+    cfg: SynthConfig, tmp: Path, out_dir: Path, progress: Callable[[], None] | None = None
+) -> None:
+    """The frames and truth.json of :func:`write_video`, written into the staging
+    directory ``tmp`` (``out_dir``: where they will be moved, the name errors give)."""
+    truth: list[dict[str, Any]] = []
+    with ThreadPoolExecutor(1, thread_name_prefix="lesmc-png") as writer:
+        last: Future[None] | None = None
+        for img, ft in frames(cfg):
+            name = frame_name(ft.step, cfg.depth)
+            written = writer.submit(_write_frame, tmp / name, img, out_dir / name)
+            truth.append(
+                {"step": ft.step, "file": name, "to_prev": ft.to_prev, "vehicles": ft.vehicles}
+            )
+            if last is not None:
+                _done(last, progress)
+            last = written
+        if last is not None:
+            _done(last, progress)
+    doc = truth_header(cfg) | {"frames": truth}
+    (tmp / "truth.json").write_text(json.dumps(doc, separators=(",", ":")) + "\n")
+
+
 def _write_frame(path: Path, img: np.ndarray, shown: Path) -> None:
     """One frame's file (``shown``: its name in errors, where it will be moved)."""
     if not cv2.imwrite(str(path), img):
         raise OSError(f"cannot write {shown}")
 
 
-def _done(written: Future[None], progress: Any) -> None:
+def _done(written: Future[None], progress: Callable[[], None] | None) -> None:
     """Wait for a frame's file (its error is raised here), then count it."""
     written.result()
     if progress is not None:

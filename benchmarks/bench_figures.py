@@ -1,0 +1,80 @@
+"""Benchmark: the report's figures, savefig's tight box against the one found once (issue 31).
+
+    python benchmarks/bench_figures.py [RESULTS] [--frames DIR] [--rounds 3]
+
+Draws every figure of a report (default: ``lesmc-verify/results.json`` with the frames
+of ``lesmc-verify/video``, what the README's ``lesmc verify`` wrote) alternately two
+ways, in one process, nothing cached:
+
+- the reference: ``savefig(bbox_inches="tight")``, which lays the figure out in a
+  drawing pass of its own before drawing it;
+- lesmc: ``figures._png``, which finds the same box without that pass.
+
+Prints the seconds each way took for all the figures, per round, and whether every
+PNG is the same bytes. Figures: docs/performance.md.
+"""
+
+from __future__ import annotations
+
+import argparse
+import io
+import json
+import time
+from pathlib import Path
+from typing import Any
+
+from rich.console import Console
+from rich.table import Table
+
+from lesmc.report import figures
+from lesmc.report.html import render
+from lesmc.report.publish import frames_reader
+
+
+def reference(fig: Any) -> bytes:
+    """What figures._png did before: savefig's own tight box."""
+    buf = io.BytesIO()
+    fig.savefig(
+        buf, format="png", dpi=figures.DPI, bbox_inches="tight", pil_kwargs={"compress_level": 1}
+    )
+    figures._pyplot().close(fig)
+    return buf.getvalue()
+
+
+def draw_all(doc: dict[str, Any], frames_dir: Path | None) -> tuple[float, dict[str, bytes]]:
+    """Seconds to draw the report's figures (the page and every figure), and the figures."""
+    image_for = frames_reader(None if frames_dir is None else str(frames_dir))
+    t0 = time.perf_counter()
+    _, pngs = render(doc, image_for)
+    return time.perf_counter() - t0, pngs
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("results", nargs="?", default="lesmc-verify/results.json")
+    ap.add_argument("--frames", default="lesmc-verify/video")
+    ap.add_argument("--rounds", type=int, default=3)
+    args = ap.parse_args()
+    doc = json.loads(Path(args.results).read_text())
+    frames_dir = Path(args.frames) if Path(args.frames).is_dir() else None
+    own = figures._png
+    figures._pyplot()  # imported once, outside the timings
+    table = Table(title=f"the report's figures of {args.results}")
+    for col in ("round", "figures", "savefig tight s", "lesmc s", "lesmc / tight"):
+        table.add_column(col, justify="right")
+    same = True
+    for i in range(args.rounds):
+        figures._png = reference
+        tight, want = draw_all(doc, frames_dir)
+        figures._png = own
+        mine, got = draw_all(doc, frames_dir)
+        same &= got == want
+        table.add_row(
+            str(i + 1), str(len(got)), f"{tight:.2f}", f"{mine:.2f}", f"{mine / tight:.2f}"
+        )
+    Console().print(table)
+    print("the same bytes" if same else "THE FIGURES DIFFER")
+
+
+if __name__ == "__main__":
+    main()
