@@ -45,11 +45,6 @@ def render_aside(
 ) -> None:
     """:func:`~lesmc.video.synth.render_into` in a child process; ``meanwhile()`` runs
     here in the meantime, then ``progress()`` once per frame the child wrote."""
-    import lesmc
-
-    root = str(Path(lesmc.__file__).resolve().parent.parent)  # the child runs this lesmc
-    paths = [root, *filter(None, os.environ.get("PYTHONPATH", "").split(os.pathsep))]
-    env = dict(os.environ, PYTHONPATH=os.pathsep.join(paths))
     cmd = [sys.executable, "-m", "lesmc.video.aside", json.dumps(asdict(cfg)), str(tmp)]
     with tempfile.TemporaryFile() as errors:
         child = subprocess.Popen(
@@ -57,7 +52,7 @@ def render_aside(
             stdin=subprocess.DEVNULL,
             stdout=subprocess.PIPE,
             stderr=errors,
-            env=env,
+            env=_child_environment(),
             start_new_session=True,
         )
         assert child.stdout is not None
@@ -78,6 +73,24 @@ def render_aside(
     if status != 0:
         last = message.splitlines()[-1] if message else f"exit status {status}"
         raise RuntimeError(f"rendering the video in a child process failed: {last}")
+
+
+def _child_environment() -> dict[str, str]:
+    """This environment, with this lesmc's directory first on PYTHONPATH when the child
+    would not find it by itself (a checkout put on ``sys.path`` at run time): the child
+    then renders with this code. An installed lesmc is left where the interpreter finds
+    it, so that site-packages never comes before the standard library."""
+    import site
+
+    import lesmc
+
+    root = str(Path(lesmc.__file__).resolve().parent.parent)
+    found = {str(Path(p).resolve()) for p in [*site.getsitepackages(), site.getusersitepackages()]}
+    env = dict(os.environ)
+    if root not in found:
+        paths = [root, *filter(None, env.get("PYTHONPATH", "").split(os.pathsep))]
+        env["PYTHONPATH"] = os.pathsep.join(paths)
+    return env
 
 
 def _stop(child: subprocess.Popen[bytes]) -> None:
