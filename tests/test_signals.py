@@ -346,3 +346,16 @@ def test_written_files_get_the_umask_or_keep_their_mode(tmp_path: Path) -> None:
     atomic_write_text(tmp_path / "a.txt", "y")
     assert (tmp_path / "a.txt").stat().st_mode & 0o777 == 0o604
     assert sorted(p.name for p in tmp_path.iterdir()) == ["a.txt", "b.json"]
+
+
+def test_a_budget_spent_while_the_video_renders_aside_stops_the_child(tmp_path: Path) -> None:
+    """--max-memory below what torch's import takes: the budget runs out at the first frame
+    the child reports; verify stops the child and exits 3 with nothing written."""
+    from cli_run import lesmc
+
+    r = lesmc("verify", "--out", "out", "--max-memory", "150M", cwd=tmp_path, timeout=600)
+    assert r.returncode == 3, r.stderr
+    assert "Traceback" not in r.stderr
+    assert "ran out while rendering the default video; nothing was written" in r.stderr
+    assert [p for p in (tmp_path / "out").rglob("*") if not p.is_dir()] == []
+    assert rendering_children(tmp_path) == []
