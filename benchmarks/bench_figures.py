@@ -1,17 +1,20 @@
-"""Benchmark: the report's figures, savefig's tight box against the one found once (issue 31).
+"""Benchmark: the report's figures: savefig's tight box, the box found once, two processes.
 
     python benchmarks/bench_figures.py [RESULTS] [--frames DIR] [--rounds 3]
 
 Draws every figure of a report (default: ``lesmc-verify/results.json`` with the frames
-of ``lesmc-verify/video``, what the README's ``lesmc verify`` wrote) alternately two
-ways, in one process, nothing cached:
+of ``lesmc-verify/video``, what the README's ``lesmc verify`` wrote) alternately three
+ways, nothing cached (issue 31):
 
 - the reference: ``savefig(bbox_inches="tight")``, which lays the figure out in a
-  drawing pass of its own before drawing it;
-- lesmc: ``figures._png``, which finds the same box without that pass.
+  drawing pass of its own before drawing it, in one process;
+- lesmc in one process: ``figures._png``, which finds the same box without that pass
+  (what ``lesmc verify`` does);
+- lesmc in two processes: every second figure drawn by a forked copy
+  (lesmc/report/drawing.py; ``lesmc report``, ``lesmc check --report``).
 
-Prints the seconds each way took for all the figures, per round, and whether every
-PNG is the same bytes. Figures: docs/performance.md.
+Prints the seconds each way took for the page and all its figures, per round, and
+whether every PNG is the same bytes. Figures: docs/performance.md.
 """
 
 from __future__ import annotations
@@ -41,11 +44,13 @@ def reference(fig: Any) -> bytes:
     return buf.getvalue()
 
 
-def draw_all(doc: dict[str, Any], frames_dir: Path | None) -> tuple[float, dict[str, bytes]]:
-    """Seconds to draw the report's figures (the page and every figure), and the figures."""
+def draw_all(
+    doc: dict[str, Any], frames_dir: Path | None, processes: int
+) -> tuple[float, dict[str, bytes]]:
+    """Seconds to render the report (the page and every figure), and the figures."""
     image_for = frames_reader(None if frames_dir is None else str(frames_dir))
     t0 = time.perf_counter()
-    _, pngs = render(doc, image_for)
+    _, pngs = render(doc, image_for, None, processes)
     return time.perf_counter() - t0, pngs
 
 
@@ -60,17 +65,23 @@ def main() -> None:
     own = figures._png
     figures._pyplot()  # imported once, outside the timings
     table = Table(title=f"the report's figures of {args.results}")
-    for col in ("round", "figures", "savefig tight s", "lesmc s", "lesmc / tight"):
+    for col in ("round", "figures", "tight, 1 process s", "lesmc, 1 s", "lesmc, 2 s", "2 / tight"):
         table.add_column(col, justify="right")
     same = True
     for i in range(args.rounds):
         figures._png = reference
-        tight, want = draw_all(doc, frames_dir)
+        tight, want = draw_all(doc, frames_dir, 1)
         figures._png = own
-        mine, got = draw_all(doc, frames_dir)
-        same &= got == want
+        one, got = draw_all(doc, frames_dir, 1)
+        two, got2 = draw_all(doc, frames_dir, 2)
+        same &= got == want == got2
         table.add_row(
-            str(i + 1), str(len(got)), f"{tight:.2f}", f"{mine:.2f}", f"{mine / tight:.2f}"
+            str(i + 1),
+            str(len(got)),
+            f"{tight:.2f}",
+            f"{one:.2f}",
+            f"{two:.2f}",
+            f"{two / tight:.2f}",
         )
     Console().print(table)
     print("the same bytes" if same else "THE FIGURES DIFFER")

@@ -474,6 +474,7 @@ def test_figures_are_the_bytes_of_savefigs_tight_box(
         return png
 
     monkeypatch.setattr(figures, "_png", both)
+    monkeypatch.setenv("LESMC_DRAW_PROCESSES", "1")  # every figure compared here
     scene = load_scene(SCENES / "rq4_merge.json")
     specs = [load_spec(str(SCENES / "rq4_merge.spec"))]
     write_report(design_runs(scene, specs, ["single", "joint", "improved"]), tmp_path / "r")

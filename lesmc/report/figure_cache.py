@@ -17,6 +17,7 @@ from __future__ import annotations
 import dataclasses
 import functools
 import hashlib
+import itertools
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any, Protocol
@@ -106,23 +107,56 @@ def figure_key(draw: Callable[..., bytes], args: tuple[Any, ...]) -> str | None:
 class FigureSet:
     """The report's figures by file name. A figure drawn from the same values as one drawn
     before is not drawn again: it is taken from this report (two designs often draw the
-    same tracks) or from ``store``."""
+    same tracks) or from ``store``. The others are drawn when :attr:`pngs` is read, all
+    together, by up to ``processes`` processes (:func:`lesmc.report.drawing.draw_all`)."""
 
-    def __init__(self, store: PngStore | None = None) -> None:
-        self.pngs: dict[str, bytes] = {}
+    def __init__(self, store: PngStore | None = None, processes: int = 2) -> None:
         self.store = store
+        self.processes = processes
         self.by_key: dict[str, bytes] = {}
+        #: file name -> its figure's key, or the number of a figure that has none
+        self._names: dict[str, str | int] = {}
+        self._queue: list[tuple[str | int, Callable[..., bytes], tuple[Any, ...]]] = []
+        self._queued: set[str] = set()
+        self._keyless: dict[int, bytes] = {}
+        self._numbers = itertools.count()
 
     def draw(self, name: str, draw: Callable[..., bytes], *args: Any) -> None:
-        """``pngs[name] = draw(*args)``, unless the same figure is at hand."""
+        """``pngs[name]`` is to be ``draw(*args)``: queued, unless the same figure is at hand."""
         key = figure_key(draw, args)
-        png = None if key is None else self.by_key.get(key)
-        if png is None and key is not None and self.store is not None:
-            png = self.store.get(key)
-        if png is None:
-            png = draw(*args)
-            if key is not None and self.store is not None:
-                self.store.put(key, png)
-        if key is not None:
-            self.by_key[key] = png
-        self.pngs[name] = png
+        ref: str | int
+        if key is None:
+            ref = next(self._numbers)
+            self._queue.append((ref, draw, args))
+        else:
+            ref = key
+            if key not in self.by_key and key not in self._queued:
+                png = None if self.store is None else self.store.get(key)
+                if png is None:
+                    self._queue.append((key, draw, args))
+                    self._queued.add(key)
+                else:
+                    self.by_key[key] = png
+        self._names[name] = ref
+
+    @property
+    def pngs(self) -> dict[str, bytes]:
+        """Every figure by file name, in the order they were asked for; the queued ones are
+        drawn now and kept (here, and in ``store``)."""
+        if self._queue:
+            from lesmc.report.drawing import draw_all
+
+            queue, self._queue = self._queue, []
+            pngs = draw_all([(draw, args) for _, draw, args in queue], self.processes)
+            for (ref, _, _), png in zip(queue, pngs, strict=True):
+                if isinstance(ref, int):
+                    self._keyless[ref] = png
+                    continue
+                self.by_key[ref] = png
+                if self.store is not None:
+                    self.store.put(ref, png)
+            self._queued.clear()
+        return {
+            name: self._keyless[ref] if isinstance(ref, int) else self.by_key[ref]
+            for name, ref in self._names.items()
+        }
