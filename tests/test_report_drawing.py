@@ -17,7 +17,9 @@ PARENT = os.getpid()
 
 
 def _children() -> set[int]:
-    """This process's child processes (every thread's), zombies included."""
+    """This process's child processes (every thread's), zombies included. Earlier tests
+    may have left their own (a Dask cluster's, multiprocessing's resource tracker): each
+    test compares with the children it started with."""
     out: set[int] = set()
     for task in Path(f"/proc/{os.getpid()}/task").iterdir():
         try:
@@ -49,21 +51,23 @@ def _copy_dies(text: str) -> bytes:
 def test_two_processes_draw_the_bytes_of_one(monkeypatch: pytest.MonkeyPatch) -> None:
     if not drawing.may_fork():
         pytest.skip("this machine gives the process one core")
+    before = _children()
     jobs = [(figures.patches, _patches(seed)) for seed in range(5)]
     monkeypatch.setenv("LESMC_DRAW_PROCESSES", "1")
     want = drawing.draw_all(jobs)
     monkeypatch.delenv("LESMC_DRAW_PROCESSES")
     assert drawing.draw_all(jobs) == want
-    assert len(set(want)) == 5 and _children() == set()
+    assert len(set(want)) == 5 and _children() <= before
 
 
 @pytest.mark.parametrize("draw", [_parents_only, _copy_dies])
 def test_what_the_copy_cannot_draw_is_drawn_here(draw: object) -> None:
     if not drawing.may_fork():
         pytest.skip("this machine gives the process one core")
+    before = _children()
     jobs = [(draw, (f"figure {i}",)) for i in range(4)]
     assert drawing.draw_all(jobs) == [f"figure {i}".encode() for i in range(4)]  # type: ignore[arg-type]
-    assert _children() == set()
+    assert _children() <= before
 
 
 def _sleeps_in_the_copy(text: str) -> bytes:
@@ -75,10 +79,11 @@ def _sleeps_in_the_copy(text: str) -> bytes:
 def test_an_interrupt_here_kills_and_reaps_the_copy() -> None:
     if not drawing.may_fork():
         pytest.skip("this machine gives the process one core")
+    before = _children()
     t0 = time.monotonic()
     with pytest.raises(KeyboardInterrupt):
         drawing.draw_all([(_sleeps_in_the_copy, ("a",)), (_sleeps_in_the_copy, ("b",))])
-    assert time.monotonic() - t0 < 30 and _children() == set()
+    assert time.monotonic() - t0 < 30 and _children() <= before
 
 
 def test_one_process_when_asked(monkeypatch: pytest.MonkeyPatch) -> None:

@@ -55,10 +55,10 @@ f._json_chunks = _json_chunks
     "report": """
 import lesmc.report.html as h
 _write = h.write_report
-def write_report(doc, out_dir, image_for=None, files=None, store=None):
+def write_report(doc, out_dir, image_for=None, files=None, store=None, processes=2):
     def image(i):
         ready()
-    return _write(doc, out_dir, image, files, store)
+    return _write(doc, out_dir, image, files, store, processes)
 h.write_report = write_report
 """,
     # while the staged report is moved into --out (signals are held there for a moment)

@@ -653,7 +653,7 @@ def _write(doc: dict[str, Any], out: Path, src: _Source, results: Results, rep: 
     # figures (70-130 MB of its own) pass the 600 MB a default verify is held to
     # (docs/performance.md): then one process draws them all
     processes = 1 if "torch" in sys.modules else 2
-    page = write_report(doc, out, _frame_reader(src.frames), files, store, processes)
+    page = write_report(doc, out, _frame_reader(src.frames), files, store, processes=processes)
     if store is not None and store.found:
         rep.log(f"reused {store.found} of {store.asked} distinct figures from {store.cache.dir}")
     return page
