@@ -100,3 +100,18 @@ def test_one_process_when_asked(monkeypatch: pytest.MonkeyPatch) -> None:
     worker.start()
     worker.join()
     assert seen == [False]
+
+
+def _whose(text: str) -> bytes:
+    """A drawing that says which process drew it."""
+    return f"{text} by {os.getpid()}".encode()
+
+
+def test_the_copy_draws_every_second_figure() -> None:
+    """The copy is really used: jobs 1, 3, ... come back drawn by another process."""
+    if not drawing.may_fork():
+        pytest.skip("this machine gives the process one core")
+    got = [png.decode() for png in drawing.draw_all([(_whose, (f"f{i}",)) for i in range(5)])]
+    here = [g.split(" by ")[1] == str(PARENT) for g in got]
+    assert here == [True, False, True, False, True]
+    assert [g.split(" by ")[0] for g in got] == [f"f{i}" for i in range(5)]

@@ -116,27 +116,23 @@ class FigureSet:
         self.by_key: dict[str, bytes] = {}
         #: file name -> its figure's key, or the number of a figure that has none
         self._names: dict[str, str | int] = {}
-        self._queue: list[tuple[str | int, Callable[..., bytes], tuple[Any, ...]]] = []
-        self._queued: set[str] = set()
+        #: the figures to draw, by key or number, in the order asked for
+        self._queue: dict[str | int, tuple[Callable[..., bytes], tuple[Any, ...]]] = {}
         self._keyless: dict[int, bytes] = {}
         self._numbers = itertools.count()
 
     def draw(self, name: str, draw: Callable[..., bytes], *args: Any) -> None:
         """``pngs[name]`` is to be ``draw(*args)``: queued, unless the same figure is at hand."""
         key = figure_key(draw, args)
-        ref: str | int
-        if key is None:
-            ref = next(self._numbers)
-            self._queue.append((ref, draw, args))
-        else:
-            ref = key
-            if key not in self.by_key and key not in self._queued:
-                png = None if self.store is None else self.store.get(key)
-                if png is None:
-                    self._queue.append((key, draw, args))
-                    self._queued.add(key)
-                else:
-                    self.by_key[key] = png
+        ref: str | int = next(self._numbers) if key is None else key
+        at_hand = key is not None and (key in self.by_key or key in self._queue)
+        if key is not None and not at_hand and self.store is not None:
+            png = self.store.get(key)
+            if png is not None:
+                self.by_key[key] = png
+                at_hand = True
+        if not at_hand:
+            self._queue[ref] = (draw, args)
         self._names[name] = ref
 
     @property
@@ -146,16 +142,15 @@ class FigureSet:
         if self._queue:
             from lesmc.report.drawing import draw_all
 
-            queue, self._queue = self._queue, []
-            pngs = draw_all([(draw, args) for _, draw, args in queue], self.processes)
-            for (ref, _, _), png in zip(queue, pngs, strict=True):
+            queue, self._queue = self._queue, {}
+            pngs = draw_all(list(queue.values()), self.processes)
+            for ref, png in zip(queue, pngs, strict=True):
                 if isinstance(ref, int):
                     self._keyless[ref] = png
                     continue
                 self.by_key[ref] = png
                 if self.store is not None:
                     self.store.put(ref, png)
-            self._queued.clear()
         return {
             name: self._keyless[ref] if isinstance(ref, int) else self.by_key[ref]
             for name, ref in self._names.items()

@@ -371,7 +371,7 @@ def _video(
                 _spent(req.budget, "rendering the default video")
 
             fresh = write_default_video(video, rendered, meanwhile=_import_networks)
-        release()  # rendering's frames go back to the system before perception's
+        release()  # what rendering or the imports freed goes back before perception
     what = (
         f"embedded default: lesmc synth {video} --seed {DEFAULT_VIDEO['seed']} "
         f"--frames {DEFAULT_VIDEO['frames']}"

@@ -45,10 +45,10 @@ def render_aside(
 ) -> None:
     """:func:`~lesmc.video.synth.render_into` in a child process; ``meanwhile()`` runs
     here in the meantime, then ``progress()`` once per frame the child wrote."""
-    cmd = [sys.executable, "-m", "lesmc.video.aside", json.dumps(asdict(cfg)), str(tmp)]
+    config = json.dumps(asdict(cfg))
     with tempfile.TemporaryFile() as errors:
         child = subprocess.Popen(
-            [*cmd, str(out_dir)],
+            [sys.executable, "-m", "lesmc.video.aside", config, str(tmp), str(out_dir)],
             stdin=subprocess.DEVNULL,
             stdout=subprocess.PIPE,
             stderr=errors,
