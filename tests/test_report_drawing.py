@@ -115,3 +115,26 @@ def test_the_copy_draws_every_second_figure() -> None:
     here = [g.split(" by ")[1] == str(PARENT) for g in got]
     assert here == [True, False, True, False, True]
     assert [g.split(" by ")[0] for g in got] == [f"f{i}" for i in range(5)]
+
+
+def test_each_figure_is_freed_before_the_next() -> None:
+    """A closed figure is a web of reference cycles; left to the collector's schedule,
+    a report's figures pile up (about 100 MB for the default report). With automatic
+    collection off, none of the figures drawn may be alive afterwards."""
+    import gc
+
+    from matplotlib.figure import Figure
+
+    def alive() -> int:
+        return sum(isinstance(o, Figure) for o in gc.get_objects())
+
+    gc.collect()
+    before = alive()
+    gc.disable()
+    try:
+        pngs = drawing.draw_each([(figures.patches, _patches(seed)) for seed in range(3)])
+        left = alive()
+    finally:
+        gc.enable()
+    assert len(pngs) == 3 and all(p.startswith(b"\x89PNG") for p in pngs)
+    assert left == before

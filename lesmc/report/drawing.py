@@ -15,9 +15,11 @@ prints nothing and leaves with ``os._exit``, so that none of this process's clea
 runs twice. If this process is interrupted or fails while the copy draws, the copy
 is killed and waited for; if the copy fails, this process draws its figures itself.
 Forking is only done from the main thread of a Linux process (a Dask worker's
-tasks run on other threads), and ``LESMC_DRAW_PROCESSES=1`` turns it off. ``lesmc
-verify`` draws in one process once it holds torch: the copy's own pages would take
-it past the 600 MB a default run is held to.
+tasks run on other threads), and ``LESMC_DRAW_PROCESSES=1`` turns it off.
+
+Each process frees a figure's memory before it draws the next (:func:`draw_each`):
+that keeps a default ``lesmc verify``, which holds torch, and its copy within the
+600 MB it is held to (docs/performance.md).
 """
 
 from __future__ import annotations
@@ -44,7 +46,7 @@ def draw_all(jobs: Sequence[Job], processes: int = 2) -> list[bytes]:
     """``draw(*args)`` of every job, in order; with ``processes`` 2, every second one by a
     forked copy when this process may use two cores (:func:`may_fork`)."""
     if len(jobs) < 2 or processes < 2 or not may_fork():
-        return [draw(*args) for draw, args in jobs]
+        return draw_each(jobs)
     from lesmc.report.figures import _pyplot
 
     _pyplot()  # imported before the fork: the copy shares matplotlib's modules and fonts
@@ -53,16 +55,36 @@ def draw_all(jobs: Sequence[Job], processes: int = 2) -> list[bytes]:
         try:
             pid = _fork(theirs, out)
         except OSError:  # no process to be had (EAGAIN, ENOMEM): one after the other
-            return [draw(*args) for draw, args in jobs]
+            return draw_each(jobs)
         try:
-            mine = [draw(*args) for draw, args in ours]
+            mine = draw_each(ours)
             drawn = _collect(pid, out, len(theirs))
         except BaseException:
             _kill(pid)
             raise
     if drawn is None:  # the copy failed: its figures are drawn here
-        drawn = [draw(*args) for draw, args in theirs]
+        drawn = draw_each(theirs)
     return [mine[i // 2] if i % 2 == 0 else drawn[i // 2] for i in range(len(jobs))]
+
+
+def draw_each(jobs: Sequence[Job]) -> list[bytes]:
+    """``draw(*args)`` of every job, one after the other, each figure's memory freed before
+    the next: a closed figure is a web of reference cycles (its renderer's buffers, its
+    images) that waits for the collector's next full pass, so 16 figures drawn in turn
+    kept about 100 MB more than one did (docs/performance.md). The objects that exist
+    before are frozen meanwhile, so each collection looks only at the figure's own."""
+    from lesmc.common.memory import release
+
+    pngs = []
+    gc.freeze()
+    try:
+        for draw, args in jobs:
+            pngs.append(draw(*args))
+            gc.collect()
+            release()
+    finally:
+        gc.unfreeze()
+    return pngs
 
 
 def may_fork() -> bool:
@@ -100,8 +122,8 @@ def _draw_and_leave(jobs: list[Job], fd: int) -> None:
             if hasattr(signal, name):
                 signal.signal(getattr(signal, name), signal.SIG_DFL)
         warnings.simplefilter("ignore")
-        for i, (draw, args) in enumerate(jobs):
-            png = draw(*args)
+        for i, job in enumerate(jobs):
+            png = draw_each([job])[0]
             _write_all(fd, _HEADER.pack(i, len(png)) + png)
         status = 0
     except BaseException:  # the parent draws what the copy could not

@@ -11,7 +11,6 @@ from __future__ import annotations
 
 import dataclasses
 import json
-import sys
 import time
 from collections.abc import Callable
 from dataclasses import asdict, dataclass, field
@@ -649,11 +648,7 @@ def _write(doc: dict[str, Any], out: Path, src: _Source, results: Results, rep: 
         scene = results.scene if results.scene is not None else src.scene
         files["scene.json"] = json_text(scene_to_dict(scene))
     store = None if src.cache is None else FigureStore(src.cache)
-    # a process holding torch (300 MB of imports) and a forked copy drawing half the
-    # figures (70-130 MB of its own) pass the 600 MB a default verify is held to
-    # (docs/performance.md): then one process draws them all
-    processes = 1 if "torch" in sys.modules else 2
-    page = write_report(doc, out, _frame_reader(src.frames), files, store, processes=processes)
+    page = write_report(doc, out, _frame_reader(src.frames), files, store)
     if store is not None and store.found:
         rep.log(f"reused {store.found} of {store.asked} distinct figures from {store.cache.dir}")
     return page
