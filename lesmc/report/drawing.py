@@ -33,7 +33,7 @@ import sys
 import tempfile
 import threading
 import warnings
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Iterator, Sequence
 from typing import Any, BinaryIO
 
 Job = tuple[Callable[..., bytes], tuple[Any, ...]]
@@ -68,23 +68,28 @@ def draw_all(jobs: Sequence[Job], processes: int = 2) -> list[bytes]:
 
 
 def draw_each(jobs: Sequence[Job]) -> list[bytes]:
-    """``draw(*args)`` of every job, one after the other, each figure's memory freed before
-    the next: a closed figure is a web of reference cycles (its renderer's buffers, its
-    images) that waits for the collector's next full pass, so 16 figures drawn in turn
-    kept about 100 MB more than one did (docs/performance.md). The objects that exist
-    before are frozen meanwhile, so each collection looks only at the figure's own."""
+    """``draw(*args)`` of every job, one after the other (:func:`_drawn`)."""
+    return list(_drawn(jobs))
+
+
+def _drawn(jobs: Sequence[Job]) -> Iterator[bytes]:
+    """Each job's PNG as it is drawn, each figure's memory freed before the next: a closed
+    figure is a web of reference cycles (its renderer's buffers, its images) that waits
+    for the collector's next full pass, so 16 figures drawn in turn kept about 100 MB
+    more than one did (docs/performance.md). The objects that exist before are frozen
+    meanwhile, so each collection looks only at the figure's own (and in the forked
+    copy, leaves this process's pages alone)."""
     from lesmc.common.memory import release
 
-    pngs = []
     gc.freeze()
     try:
         for draw, args in jobs:
-            pngs.append(draw(*args))
+            png = draw(*args)
             gc.collect()
             release()
+            yield png
     finally:
         gc.unfreeze()
-    return pngs
 
 
 def may_fork() -> bool:
@@ -122,8 +127,7 @@ def _draw_and_leave(jobs: list[Job], fd: int) -> None:
             if hasattr(signal, name):
                 signal.signal(getattr(signal, name), signal.SIG_DFL)
         warnings.simplefilter("ignore")
-        for i, job in enumerate(jobs):
-            png = draw_each([job])[0]
+        for i, png in enumerate(_drawn(jobs)):
             _write_all(fd, _HEADER.pack(i, len(png)) + png)
         status = 0
     except BaseException:  # the parent draws what the copy could not
