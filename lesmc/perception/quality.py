@@ -15,7 +15,6 @@ from dataclasses import dataclass, field
 from typing import Any, TypeGuard
 
 import numpy as np
-from scipy.spatial import cKDTree
 
 from lesmc.common.errors import InputError, Location, Problems
 from lesmc.common.fields import header
@@ -76,6 +75,10 @@ def match(det: np.ndarray, truth: np.ndarray, radius: float) -> list[tuple[int, 
     """Optimal one-to-one pairs ``(i_det, j_truth, distance)`` with distance <= radius."""
     if len(det) == 0 or len(truth) == 0:
         return []
+    # imported here: scipy.spatial is 0.45 s of imports, on the path of lesmc verify
+    # before it starts rendering the default video
+    from scipy.spatial import cKDTree
+
     pairs = cKDTree(det).query_ball_tree(cKDTree(truth), radius)
     rows = sorted({i for i, js in enumerate(pairs) if js})
     cols = sorted({j for js in pairs for j in js})

@@ -239,11 +239,12 @@ def _scene_file(req: Request) -> _Source:
 def _perceived(req: Request, specs: list[SpecFile], rep: Reporter, maxima: bool) -> _Source:
     """The scene of a video: rendered (the default), perceived, its target placed or chosen;
     with ``maxima`` the networks' unit maxima too (neuron faults read them)."""
-    from lesmc.verify.targets import auto_target, target_scene, truth_tracks
-
     if req.scene_frames is not None:
         raise UsageError("--frames goes with --scene; a video is given as FRAMES_DIR")
     frames_dir, truth, meta, fresh = _video(req, rep)
+    # after the video: these imports (scipy.spatial, 0.45 s) would delay its rendering
+    from lesmc.verify.targets import auto_target, target_scene, truth_tracks
+
     if not req.target and not truth:
         raise UsageError("--target is needed (or --truth, to choose one)")
     from lesmc.video.reader import open_frames
@@ -432,9 +433,12 @@ def write_default_video(
 
 
 def _import_networks() -> None:
-    """Import torch and the networks' code while the default video renders aside: a video
-    just rendered is perceived next (1.5-2 s of imports off the critical path)."""
-    import lesmc.perception.cnn  # noqa: F401
+    """Import torch, the networks' and perception's code while the default video renders
+    aside: a video just rendered is perceived next (2-2.5 s of imports off the critical
+    path)."""
+    import lesmc.perception.cnn
+    import lesmc.perception.run
+    import lesmc.verify.targets  # noqa: F401
 
 
 def _certifier(src: _Source, rep: Reporter, budget: Budget) -> Certifier | None:
