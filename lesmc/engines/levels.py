@@ -411,7 +411,10 @@ def _optimum_pass(
             parts.append((dst[fine], o2[fine], c2[fine], par[fine], t[fine], lb2[fine]))
         if not parts:
             break
-        q, o, c, p, t, lb = (np.concatenate([x[i] for x in parts]) for i in range(6))
+        if len(parts) == 1:  # a level within one slice, the usual case: no copies
+            q, o, c, p, t, lb = parts[0]
+        else:
+            q, o, c, p, t, lb = (np.concatenate([x[i] for x in parts]) for i in range(6))
         why = budget.over(0)
         if why is not None and beam is None:  # a huge level: stop before filtering it
             return best, where, min(best, float(lb.min(initial=math.inf))), why
@@ -644,6 +647,8 @@ def _witness_children(
         # o2 itself is exact and never decreases: o2 >= opt can never end below opt
         keep = (o2 < opt) & (lo < opt) & (hi > best)
         parts.append((dst[keep], o2[keep], par[keep], t[keep]))
+    if len(parts) == 1:  # within one slice: no copies
+        return parts[0]
     return tuple(np.concatenate([x[i] for x in parts]) for i in range(4))
 
 
