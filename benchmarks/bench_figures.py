@@ -22,6 +22,7 @@ from __future__ import annotations
 import argparse
 import io
 import json
+import os
 import time
 from pathlib import Path
 from typing import Any
@@ -47,11 +48,20 @@ def reference(fig: Any) -> bytes:
 def draw_all(
     doc: dict[str, Any], frames_dir: Path | None, processes: int
 ) -> tuple[float, dict[str, bytes]]:
-    """Seconds to render the report (the page and every figure), and the figures."""
+    """Seconds to render the report (the page and every figure), and the figures, by one
+    process or two (``LESMC_DRAW_PROCESSES``, lesmc/report/drawing.py)."""
     image_for = frames_reader(None if frames_dir is None else str(frames_dir))
-    t0 = time.perf_counter()
-    _, pngs = render(doc, image_for, None, processes)
-    return time.perf_counter() - t0, pngs
+    before = os.environ.get("LESMC_DRAW_PROCESSES")
+    os.environ["LESMC_DRAW_PROCESSES"] = str(processes)
+    try:
+        t0 = time.perf_counter()
+        _, pngs = render(doc, image_for, None)
+        return time.perf_counter() - t0, pngs
+    finally:
+        if before is None:
+            del os.environ["LESMC_DRAW_PROCESSES"]
+        else:
+            os.environ["LESMC_DRAW_PROCESSES"] = before
 
 
 def main() -> None:

@@ -55,10 +55,10 @@ f._json_chunks = _json_chunks
     "report": """
 import lesmc.report.html as h
 _write = h.write_report
-def write_report(doc, out_dir, image_for=None, files=None, store=None, processes=2):
+def write_report(doc, out_dir, image_for=None, files=None, store=None):
     def image(i):
         ready()
-    return _write(doc, out_dir, image, files, store, processes)
+    return _write(doc, out_dir, image, files, store)
 h.write_report = write_report
 """,
     # while the staged report is moved into --out (signals are held there for a moment)
@@ -86,9 +86,9 @@ sys.meta_path.insert(0, Hold())
     # while the default video renders in its child process (verify imports torch then)
     "rendering": """
 import lesmc.verify.experiment as e
-def _import_networks():
+def _import_perception():
     ready()
-e._import_networks = _import_networks
+e._import_perception = _import_perception
 """,
     # every batch of the unfolding takes 0.2 s (for the budget tests)
     "slow": """

@@ -423,7 +423,7 @@ def _optimum_pass(
 
 def _joined(parts: list[tuple[np.ndarray, ...]]) -> tuple[np.ndarray, ...]:
     """The slices' arrays, each kind concatenated; one slice (a level's usual case) as it
-    is: its arrays are fresh, and copying six of them a level cost a small search 5-15%."""
+    is: its arrays are fresh, and copying six of them a level cost a small search up to 15%."""
     if len(parts) == 1:
         return parts[0]
     return tuple(np.concatenate(kind) for kind in zip(*parts, strict=True))

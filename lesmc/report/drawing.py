@@ -42,10 +42,10 @@ Job = tuple[Callable[..., bytes], tuple[Any, ...]]
 _HEADER = struct.Struct("<II")
 
 
-def draw_all(jobs: Sequence[Job], processes: int = 2) -> list[bytes]:
-    """``draw(*args)`` of every job, in order; with ``processes`` 2, every second one by a
-    forked copy when this process may use two cores (:func:`may_fork`)."""
-    if len(jobs) < 2 or processes < 2 or not may_fork():
+def draw_all(jobs: Sequence[Job]) -> list[bytes]:
+    """``draw(*args)`` of every job, in order; every second one by a forked copy when this
+    process may use two cores (:func:`may_fork`)."""
+    if len(jobs) < 2 or not may_fork():
         return draw_each(jobs)
     from lesmc.report.figures import _pyplot
 

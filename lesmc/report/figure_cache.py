@@ -108,11 +108,10 @@ class FigureSet:
     """The report's figures by file name. A figure drawn from the same values as one drawn
     before is not drawn again: it is taken from this report (two designs often draw the
     same tracks) or from ``store``. The others are drawn when :attr:`pngs` is read, all
-    together, by up to ``processes`` processes (:func:`lesmc.report.drawing.draw_all`)."""
+    together (:func:`lesmc.report.drawing.draw_all`)."""
 
-    def __init__(self, store: PngStore | None = None, processes: int = 2) -> None:
+    def __init__(self, store: PngStore | None = None) -> None:
         self.store = store
-        self.processes = processes
         self.by_key: dict[str, bytes] = {}
         #: file name -> its figure's key, or the number of a figure that has none
         self._names: dict[str, str | int] = {}
@@ -125,15 +124,18 @@ class FigureSet:
         """``pngs[name]`` is to be ``draw(*args)``: queued, unless the same figure is at hand."""
         key = figure_key(draw, args)
         ref: str | int = next(self._numbers) if key is None else key
-        at_hand = key is not None and (key in self.by_key or key in self._queue)
-        if key is not None and not at_hand and self.store is not None:
-            png = self.store.get(key)
-            if png is not None:
-                self.by_key[key] = png
-                at_hand = True
-        if not at_hand:
+        if key is None or not self._at_hand(key):
             self._queue[ref] = (draw, args)
         self._names[name] = ref
+
+    def _at_hand(self, key: str) -> bool:
+        """Whether the figure of ``key`` is drawn, queued, or in the store (then taken)."""
+        if key in self.by_key or key in self._queue:
+            return True
+        png = None if self.store is None else self.store.get(key)
+        if png is not None:
+            self.by_key[key] = png
+        return png is not None
 
     @property
     def pngs(self) -> dict[str, bytes]:
@@ -143,7 +145,7 @@ class FigureSet:
             from lesmc.report.drawing import draw_all
 
             queue, self._queue = self._queue, {}
-            pngs = draw_all(list(queue.values()), self.processes)
+            pngs = draw_all(list(queue.values()))
             for ref, png in zip(queue, pngs, strict=True):
                 if isinstance(ref, int):
                     self._keyless[ref] = png

@@ -53,7 +53,6 @@ def write_report(
     image_for: ImageFor | None = None,
     files: dict[str, str] | None = None,
     store: PngStore | None = None,
-    processes: int = 2,
 ) -> Path:
     """Write report.html, figures/*.png, results.json (``doc``) and ``files`` (name -> text,
     e.g. the scene the results refer to) into ``out_dir``.
@@ -63,10 +62,10 @@ def write_report(
     leaves the old files or the new ones, never a mix.
     ``image_for(frame)`` returns the grey video frame with that index, when known.
     ``store``: figures drawn before, reused when drawn from the same values
-    (lesmc/report/figure_cache.py). ``processes``: how many may draw the figures
+    (lesmc/report/figure_cache.py). The figures may be drawn by two processes
     (lesmc/report/drawing.py).
     """
-    page, figs = render(doc, image_for, store, processes)
+    page, figs = render(doc, image_for, store)
     with staged(out_dir) as tmp:
         for name, text in (files or {}).items():
             (tmp / name).write_text(text, encoding="utf-8")
@@ -175,13 +174,12 @@ def render(
     doc: dict[str, Any],
     image_for: ImageFor | None = None,
     store: PngStore | None = None,
-    processes: int = 2,
 ) -> tuple[str, dict[str, bytes]]:
     """The report page (templates/report.html.j2; figures as data URIs) and its figures by
-    file name (read from ``store`` where drawn before from the same values; drawn by up
-    to ``processes`` processes otherwise)."""
+    file name (read from ``store`` where drawn before from the same values; drawn
+    otherwise, by two processes where :func:`lesmc.report.drawing.may_fork`)."""
     runs = [_Run(r) for r in doc["runs"]]
-    figs = FigureSet(store, processes)
+    figs = FigureSet(store)
     toc: list[tuple[str, str]] = [("verdicts", "Verdicts")]
     if len(runs) > 1:
         toc.append(("designs", "Designs compared (Table 5)"))

@@ -370,7 +370,7 @@ def _video(
                 bar.advance()
                 _spent(req.budget, "rendering the default video")
 
-            fresh = write_default_video(video, rendered, meanwhile=_import_networks)
+            fresh = write_default_video(video, rendered, meanwhile=_import_perception)
         release()  # what rendering or the imports freed goes back before perception
     what = (
         f"embedded default: lesmc synth {video} --seed {DEFAULT_VIDEO['seed']} "
@@ -432,11 +432,10 @@ def write_default_video(
     return write_video(SynthConfig(**DEFAULT_VIDEO), video, progress, meanwhile)
 
 
-def _import_networks() -> None:
-    """Import torch, the networks' and perception's code while the default video renders
-    aside: a video just rendered is perceived next (2-2.5 s of imports off the critical
-    path)."""
-    import lesmc.perception.cnn
+def _import_perception() -> None:
+    """Import perception's code (torch and the networks', scipy.spatial, faiss) and the
+    targets' while the default video renders aside: a video just rendered is perceived
+    next (2-2.5 s of imports off the critical path)."""
     import lesmc.perception.run
     import lesmc.verify.targets  # noqa: F401
 
