@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 from pathlib import Path
+from typing import Any
 
 import cv2
 import numpy as np
@@ -317,3 +318,51 @@ def test_a_frame_the_child_cannot_write_is_an_os_error_with_its_name(tmp_path: P
     with pytest.raises(OSError, match=r"cannot write .*frame_00000\.png"):
         render_aside(SMALL, gone, tmp_path / "shown", None, lambda: None)
     assert rendering_children(tmp_path) == []
+
+
+def test_the_noise_band_changes_no_bit(monkeypatch: pytest.MonkeyPatch) -> None:
+    """Noise is drawn NOISE_BAND rows at a time to bound the memory in flight: the ground
+    and the frames are the same bits whatever the band (one row, a band that does not
+    divide the height, a band larger than the image)."""
+    from lesmc.video import synth
+
+    cfg = SynthConfig(frames=2, width=256, height=192, seed=4)
+    got = {}
+    for band in (1, 50, 4096):
+        monkeypatch.setattr(synth, "NOISE_BAND", band)
+        got[band] = (synth.World(cfg).ground, [img for img, _ in frames(cfg)])
+    for band in (50, 4096):
+        assert np.array_equal(got[band][0], got[1][0])
+        for a, b in zip(got[band][1], got[1][1], strict=True):
+            assert np.array_equal(a, b)
+
+
+def test_a_frames_front_end_output_is_freed_before_the_next_is_made(
+    small_video: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """perceive holds one frame's aligned history and background at a time: when the front
+    end makes frame k+1's output, nothing refers to frame k's any more."""
+    import gc
+    import weakref
+
+    from lesmc.perception.frontend import FrontEnd
+    from lesmc.perception.run import PerceiveOptions, perceive
+    from lesmc.video.reader import open_frames
+
+    made: list[weakref.ref[Any]] = []
+    alive_at_push: list[bool] = []
+    push = FrontEnd.push
+
+    def watched(self: FrontEnd, *args: Any, **kwargs: Any) -> Any:
+        gc.collect()
+        alive_at_push.append(any(r() is not None for r in made))
+        out = push(self, *args, **kwargs)
+        if out is not None:
+            made.append(weakref.ref(out))
+        return out
+
+    monkeypatch.setattr(FrontEnd, "push", watched)
+    frames = open_frames(small_video, 5)
+    perceive(frames, PerceiveOptions())
+    assert len(made) == len(frames) - 4
+    assert alive_at_push == [False] * len(frames)

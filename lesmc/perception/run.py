@@ -125,6 +125,9 @@ def perceive_all(
             tf = truth.frames[frames.paths[i].name] if truth is not None else None
             for run, det, opts in zip(out_runs, dets, runs, strict=True):
                 _frame(run, det, opts, out, frames.paths[i].name, tf)
+            # not held while the next frame is made: its aligned history and background
+            # are six frame-sized arrays (25 MB at 2048 x 2048)
+            del out
             release()  # what this frame freed goes back to the system (common/memory.py)
     for run, det in zip(out_runs, dets, strict=True):
         run.registrations = dict(fe.registrations)  # one front end served every run
