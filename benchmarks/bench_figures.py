@@ -26,6 +26,7 @@ import os
 import time
 from pathlib import Path
 from typing import Any
+from unittest import mock
 
 from rich.console import Console
 from rich.table import Table
@@ -51,17 +52,10 @@ def draw_all(
     """Seconds to render the report (the page and every figure), and the figures, by one
     process or two (``LESMC_DRAW_PROCESSES``, lesmc/report/drawing.py)."""
     image_for = frames_reader(None if frames_dir is None else str(frames_dir))
-    before = os.environ.get("LESMC_DRAW_PROCESSES")
-    os.environ["LESMC_DRAW_PROCESSES"] = str(processes)
-    try:
+    with mock.patch.dict(os.environ, {"LESMC_DRAW_PROCESSES": str(processes)}):
         t0 = time.perf_counter()
         _, pngs = render(doc, image_for, None)
         return time.perf_counter() - t0, pngs
-    finally:
-        if before is None:
-            del os.environ["LESMC_DRAW_PROCESSES"]
-        else:
-            os.environ["LESMC_DRAW_PROCESSES"] = before
 
 
 def main() -> None:
