@@ -156,8 +156,12 @@ def scene_tracks(scene: Scene, steps: int) -> Tracks | None:
 
 
 def original_end(scene: Scene, design: Design | None = None, end: int | None = None) -> int:
-    """e: the last step of the unattacked track (up to ``end``, or until it halts)."""
-    design = make_tracker(scene) if design is None else design
+    """e: the last step of the unattacked track (up to ``end``, or until it halts).
+
+    The unattacked track's states never depend on a payoff: a scene with unpriced
+    payoffs is tracked with every payoff 1 (:meth:`~lesmc.scene.Scene.payoff_free`)."""
+    if design is None:
+        design = make_tracker(scene.payoff_free() if scene.has_unpriced else scene)
     last = _last_step(scene, end)
     b = design.initial()
     e = 0

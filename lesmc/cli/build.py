@@ -79,20 +79,24 @@ def build_cmd(
     budget = budget_from(timeout, max_states, max_memory)
     from lesmc.build.unfold import build_model, max_end
     from lesmc.common.progress import Reporter
+    from lesmc.scene import UnpricedPayoff
 
     window = parse_window(window_text)
     sc = load_scene_file(scene, design, target_text, tracker_file)
     loaded = time.monotonic()
     stop_if_spent(budget, None, "loading the scene")
     with Reporter("build") as rep, rep.bar("building", end or max_end(sc)) as bar:
-        model = build_model(
-            sc,
-            window,
-            end,
-            on_level=lambda k, n: bar.update(completed=k, description=f"building ({n} states)"),
-            on_batch=lambda m: stop_if_spent(budget, m, "unfolding"),
-            max_states=max_states,
-        )
+        try:
+            model = build_model(
+                sc,
+                window,
+                end,
+                on_level=lambda k, n: bar.update(completed=k, description=f"building ({n} states)"),
+                on_batch=lambda m: stop_if_spent(budget, m, "unfolding"),
+                max_states=max_states,
+            )
+        except UnpricedPayoff as exc:  # a verify scene's payoff that nobody priced
+            raise exc.at(scene) from None
     stop_if_spent(budget, model, "unfolding")
     unfolded = time.monotonic()
     write_model(model, output, budget)
@@ -169,6 +173,8 @@ def track_cmd(
     from lesmc.tracking.monitor import track
 
     sc = load_scene_file(scene, design, target_text, tracker_file)
+    if sc.has_unpriced:  # the unattacked states never depend on a payoff
+        sc = sc.payoff_free()
     points = track(make_tracker(sc), end)
     if as_json:
         doc = {

@@ -148,13 +148,16 @@ def _model(
     """The .lts model, or the scene built for ``--window`` as lesmc build builds it."""
     from lesmc.api import load_model_or_scene
     from lesmc.build.unfold import build_model
-    from lesmc.scene import Scene
+    from lesmc.scene import Scene, UnpricedPayoff
 
     source = load_model_or_scene(model, target_text, design, tracker_file)
     if isinstance(source, Scene):
         if window_text is None:
             raise UsageError("a scene is built for one attack window: give --window L..U")
-        return build_model(source, parse_window(window_text))
+        try:
+            return build_model(source, parse_window(window_text))
+        except UnpricedPayoff as exc:  # a verify scene's payoff that nobody priced
+            raise exc.at(model) from None
     if window_text is not None:
         raise UsageError("--window builds a scene; a .lts model has its window already")
     return source

@@ -79,6 +79,14 @@ if TYPE_CHECKING:
     "docs/semantics.md). On a video, certified|interval certify the detections the "
     "models can hide (about a second each; `perceive --certify` certifies them all)."
 )
+@click.option(
+    "--price-all",
+    is_flag=True,
+    help="Attack every detection of the video up front. By default verify attacks only "
+    'the detections whose payoffs its models read (the others are "unpriced" in '
+    "OUT/scene.json; a later check that reads one stops with exit 2). Certified payoffs "
+    "and --faults price every detection anyway.",
+)
 @tracker_option
 @faults_option(
     " The report shows which faults break which design. A neuron fault perceives the video "
@@ -104,6 +112,7 @@ def verify_cmd(
     locator_file: str | None,
     frames_opt: str | None,
     payoffs: str,
+    price_all: bool,
     tracker_file: str | None,
     faults_file: str | None,
     as_json: bool,
@@ -143,6 +152,7 @@ def verify_cmd(
         payoffs=payoffs,  # type: ignore[arg-type]
         budget=budget,
         faults=faults_file,
+        price_all=price_all,
     )
     with resumable(lambda: _kept(request.out)), Reporter("verify") as rep:
         outcome = verify(request, rep)

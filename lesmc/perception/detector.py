@@ -52,7 +52,9 @@ class FrameDetections:
     positions: np.ndarray  # (n, 2) x, y
     source: np.ndarray  # (n,) row of ``windows`` (the Q_dr blob) each detection came from
     via_lp: np.ndarray  # (n,) True when N_lp located it
-    windows: np.ndarray  # (b, m+1, 21, 21) N_dr inputs of the source blobs
+    #: (b, m+1, 21, 21) N_dr inputs of the source blobs: float32, or uint8 grey levels
+    #: when kept compact (windows.compact; windows.expand gives the float32 back)
+    windows: np.ndarray
     from_prev: np.ndarray  # homography from the previous frame's pixels to this frame's
     n_candidates: int  # |Q_bc|
     n_accepted: int  # |Q_dr|

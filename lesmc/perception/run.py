@@ -5,7 +5,7 @@ The Python API behind ``lesmc perceive``; the CLI only parses options and prints
 
 from __future__ import annotations
 
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from contextlib import closing, nullcontext
 from dataclasses import dataclass, field, replace
 from typing import Any
@@ -30,6 +30,7 @@ from lesmc.perception.frontend import (
 from lesmc.perception.quality import Score, Truth, TruthFrame, care_mask, score
 from lesmc.perception.registration import Registration, RegistrationError
 from lesmc.perception.threads import torch_lanes
+from lesmc.perception.windows import compact, expand
 from lesmc.video.reader import FrameSet
 
 ZERO = Score(0, 0, 0, 0, 0.0)
@@ -47,7 +48,8 @@ class PerceiveOptions:
     radius: float = 4.0
     min_speed: float = 1.5
     #: keep each frame's N_dr windows after its payoffs (certification on demand reads
-    #: them); False frees them frame by frame (an attack-payoff verify: 0.7 GB less)
+    #: them; without ``attack``, pricing on demand, and they are kept compact, as uint8:
+    #: windows.expand); False frees them frame by frame
     keep_windows: bool = True
     #: record every hidden unit's largest value on the windows scored (``unit_max``:
     #: what a stuck-at-max neuron fault needs); reading each activation once more makes
@@ -163,8 +165,12 @@ def _frame(
             if lower is not None:
                 run.payoffs_lower.append(lower)
             run.unattackable += int(np.isinf(run.payoffs[-1]).sum())
+        elif opts.nets is not None:  # no attack: every payoff unpriced (price_detections)
+            run.payoffs.append(np.full(len(fd.positions), np.nan))
         if not opts.keep_windows:  # a copy: a view would keep the whole array alive
             fd = replace(fd, windows=np.empty((0, *fd.windows.shape[1:]), np.float32))
+        elif opts.attack is None and opts.nets is not None:  # kept for price_detections
+            fd = replace(fd, windows=compact(fd.windows))
         run.detections.append(fd)
     if tf is not None:
         care = care_mask(tf, out.aligned.valid, opts.min_speed)
@@ -290,6 +296,39 @@ def certify_detections(
         per_blob[blobs] = low[at : at + len(blobs)]
         at += len(blobs)
         out[k] = per_blob[fd.source]
+    return out
+
+
+def price_detections(
+    nets: Nets, run: PerceiveRun, wanted: Mapping[int, np.ndarray], cfg: AttackConfig
+) -> dict[int, np.ndarray]:
+    """Attack payoffs of the ``wanted`` detections of a perceive ``run`` made without an
+    attack (its payoffs unpriced, ``nan``): per frame index, detection indices.
+
+    Detections of one Q_dr blob share its window, so each blob is attacked once, all
+    frames' blobs in one batched attack; every detection of an attacked blob gets its
+    payoff, in the returned arrays (per frame index, one value per detection of the
+    frame, ``nan`` where not priced) and in ``run.payoffs``.
+    """
+    by_index = {fd.index: i for i, fd in enumerate(run.detections)}
+    jobs = [
+        (by_index[k], np.unique(run.detections[by_index[k]].source[dets]))
+        for k, dets in sorted(wanted.items())
+        if len(dets)
+    ]
+    windows = [expand(run.detections[i].windows[blobs]) for i, blobs in jobs]
+    res = payoffs(nets.dr, np.concatenate(windows), nets.settings.delta_dr, cfg) if jobs else None
+    out: dict[int, np.ndarray] = {}
+    at = 0
+    for i, blobs in jobs:
+        fd = run.detections[i]
+        assert res is not None
+        per_blob = np.full(len(fd.windows), np.nan)
+        per_blob[blobs] = res.payoff[at : at + len(blobs)]
+        at += len(blobs)
+        got = per_blob[fd.source]
+        run.payoffs[i] = np.where(np.isnan(got), run.payoffs[i], got)
+        out[fd.index] = got
     return out
 
 

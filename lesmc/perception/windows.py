@@ -12,6 +12,9 @@ import numpy as np
 
 M_PREVIOUS = 3  #: m, the previous frames a CNN sees (paper: the time a vehicle needs to cross)
 
+#: Grey level -> the [0, 1] pixel scale of the CNNs' inputs (and of the payoffs).
+SCALE = np.float32(1.0 / 255.0)
+
 
 def stack(frame: np.ndarray, aligned: list[np.ndarray], m: int = M_PREVIOUS) -> list[np.ndarray]:
     """The m most recent aligned previous frames and the current one, oldest first."""
@@ -44,7 +47,23 @@ def cut(frames: list[np.ndarray], centres: np.ndarray, size: int) -> np.ndarray:
             out[ii, c] = np.lib.stride_tricks.sliding_window_view(f, (size, size))[y0[ii], x0[ii]]
         if len(edge):
             out[edge, c] = f[ys[:, :, None], xs[:, None, :]]
-    out *= 1.0 / 255.0
+    out *= SCALE
+    return out
+
+
+def compact(windows: np.ndarray) -> np.ndarray:
+    """Windows of :func:`cut` as their uint8 grey levels (a quarter of the memory): the
+    frames they were cut from are uint8, so :func:`expand` gives them back bit for bit."""
+    out: np.ndarray = np.rint(windows * np.float32(255.0)).astype(np.uint8)
+    return out
+
+
+def expand(windows: np.ndarray) -> np.ndarray:
+    """Windows as :func:`cut` gives them: float32 in [0, 1] (from :func:`compact`'s uint8)."""
+    if windows.dtype != np.uint8:
+        return windows
+    out: np.ndarray = windows.astype(np.float32)
+    out *= SCALE
     return out
 
 

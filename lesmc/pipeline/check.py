@@ -35,11 +35,22 @@ from lesmc.pipeline import certify
 from lesmc.pipeline.job import Certifier, Job, Unit
 from lesmc.pipeline.payoffs import check_all, check_payoffs, mode_of
 from lesmc.results.record import DesignRun, Results
-from lesmc.scene import Scene
+from lesmc.scene import Scene, UnpricedPayoff
 
 
 def run(job: Job) -> Results:
-    """Check every unit of ``job``; one :class:`DesignRun` per design and window."""
+    """Check every unit of ``job``; one :class:`DesignRun` per design and window.
+
+    A model that reads a payoff the scene leaves unpriced stops the job with
+    :class:`~lesmc.scene.UnpricedPayoff` naming ``job.source`` (exit 2).
+    """
+    try:
+        return _run(job)
+    except UnpricedPayoff as exc:
+        raise exc.at(job.source) from None
+
+
+def _run(job: Job) -> Results:
     if (job.model is None) == (job.scene is None):
         raise UsageError("a job checks a model or a scene: give exactly one")
     if job.model is not None:

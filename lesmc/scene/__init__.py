@@ -5,7 +5,16 @@ objects, ``tracker_model.py`` the tracker's linear-Gaussian model, ``io.py`` the
 file format, ``toy.py`` hand-made scenes.
 """
 
-from lesmc.scene.frames import Detection, Frame, WatchedFrame, lower_frames
+from lesmc.scene.frames import (
+    Detection,
+    Frame,
+    OnDemandPayoffs,
+    PricedFrame,
+    Pricer,
+    UnpricedPayoff,
+    WatchedFrame,
+    lower_frames,
+)
 from lesmc.scene.io import (
     FORMAT,
     VERSION,
@@ -18,19 +27,32 @@ from lesmc.scene.io import (
     scene_to_dict,
     tracker_from_dict,
 )
-from lesmc.scene.scene import UNATTACKABLE, Footage, Scene, Target, TrackerConfig, TruthTrack
+from lesmc.scene.scene import (
+    UNATTACKABLE,
+    UNPRICED,
+    Footage,
+    Scene,
+    Target,
+    TrackerConfig,
+    TruthTrack,
+)
 
 __all__ = [
     "FORMAT",
     "UNATTACKABLE",
+    "UNPRICED",
     "VERSION",
     "Detection",
     "Footage",
     "Frame",
+    "OnDemandPayoffs",
+    "PricedFrame",
+    "Pricer",
     "Scene",
     "Target",
     "TrackerConfig",
     "TruthTrack",
+    "UnpricedPayoff",
     "WatchedFrame",
     "check_fits",
     "footage_from_dict",

@@ -5,17 +5,25 @@ detections lie within a radius of a point, nearest first (an x-sorted scan,
 or a k-d tree for large frames). :class:`WatchedFrame` notes which payoffs a
 model reads: the probe that finds the detections an attack can hide
 (lesmc/build/probe.py).
+
+A payoff may be *unpriced* (``nan``; ``"unpriced"`` in scene files): nobody
+attacked that detection yet. ``lesmc verify`` prices a detection the first
+time a model reads its payoff (:class:`PricedFrame`, :class:`OnDemandPayoffs`);
+a model that reads an unpriced payoff with nobody to price it stops with
+:class:`UnpricedPayoff`, never with a made-up number.
 """
 
 from __future__ import annotations
 
 import math
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field, replace
 from functools import cached_property
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
+
+from lesmc.common.errors import InputError, Location
 
 if TYPE_CHECKING:
     from scipy.spatial import cKDTree
@@ -29,7 +37,8 @@ SCAN_CELLS = 1 << 20
 
 @dataclass(frozen=True)
 class Detection:
-    """A candidate observation z ∈ Z_k and the payoff of hiding it (∞ if unattackable)."""
+    """A candidate observation z ∈ Z_k and the payoff of hiding it (∞ if unattackable,
+    ``nan`` if not priced yet)."""
 
     id: str
     x: float
@@ -41,6 +50,11 @@ class Detection:
     @property
     def attackable(self) -> bool:
         return math.isfinite(self.payoff)
+
+    @property
+    def priced(self) -> bool:
+        """Its payoff is known (a number or unattackable), not ``"unpriced"``."""
+        return not math.isnan(self.payoff)
 
 
 @dataclass(frozen=True)
@@ -163,8 +177,21 @@ class Frame:
         return self._positions[order, 0], order
 
     def payoffs(self) -> np.ndarray:
-        """(n,) payoffs of hiding each detection (inf: unattackable); read-only."""
+        """(n,) payoffs of hiding each detection (inf: unattackable); read-only. Reading an
+        unpriced one raises :class:`UnpricedPayoff`."""
+        if self.has_unpriced:
+            return _GuardedPayoffs(self)  # type: ignore[return-value]
         return self._payoffs
+
+    def payoff_values(self) -> np.ndarray:
+        """(n,) the payoffs as the detections hold them, ``nan`` where unpriced: to copy,
+        not for a model (:meth:`payoffs` guards what a model reads)."""
+        return self._payoffs
+
+    @cached_property
+    def has_unpriced(self) -> bool:
+        """Some detection's payoff is unpriced (``nan``)."""
+        return bool(np.isnan(self._payoffs).any())
 
     @cached_property
     def _position_ids(self) -> np.ndarray:
@@ -225,6 +252,129 @@ class WatchedFrame(Frame):
 
     def payoffs(self) -> np.ndarray:
         return PayoffReads(self._payoffs, self.reads, self.watched)  # type: ignore[return-value]
+
+
+class UnpricedPayoff(InputError):
+    """A model read the payoff of a detection that nobody priced (``"unpriced"``)."""
+
+    def __init__(self, frame: Frame, index: int, path: str = "scene") -> None:
+        self.frame, self.index = frame, index
+        det = frame.detections[index]
+        super().__init__(
+            'payoff is "unpriced" and this check reads it (lesmc verify prices only the '
+            "detections its own checks read): price every detection with `lesmc verify "
+            "--price-all` or `lesmc perceive -o`",
+            Location(path, item=f"frame {frame.step}, detection '{det.id}'"),
+        )
+
+    def at(self, path: str) -> UnpricedPayoff:
+        """The same error, naming the scene file ``path``."""
+        return UnpricedPayoff(self.frame, self.index, path)
+
+
+class _GuardedPayoffs:
+    """A payoff column with unpriced entries: indexing that reads one raises
+    :class:`UnpricedPayoff`; any other use of the column reads all of it."""
+
+    def __init__(self, frame: Frame) -> None:
+        self._frame = frame
+        self._values = frame._payoffs
+
+    def __getitem__(self, key: Any) -> np.ndarray:
+        idx = np.atleast_1d(np.arange(len(self._values))[key])
+        bad = idx[np.isnan(self._values[idx])]
+        if bad.size:
+            raise UnpricedPayoff(self._frame, int(bad[0]))
+        out: np.ndarray = self._values[key]
+        return out
+
+    def __len__(self) -> int:
+        return len(self._values)
+
+    def __array__(self, dtype: object = None, copy: object = None) -> np.ndarray:
+        return self[:]
+
+
+#: Detections to price (frame step -> detection indices) -> their payoffs (frame step ->
+#: one value per detection of the frame, ``nan`` where none was computed).
+Pricer = Callable[[Mapping[int, np.ndarray]], dict[int, np.ndarray]]
+
+
+class OnDemandPayoffs:
+    """The payoffs of a video's frames, each priced the first time a model reads it.
+
+    ``values[step]``: one payoff per detection of that frame, ``nan`` until priced;
+    ``price`` prices the detections asked for (perception's attack,
+    lesmc/verify/pricing.py). Shared by every :class:`PricedFrame` of a scene and
+    by the variants made from it (another tracker design), so each detection is
+    priced once. ``asked`` counts the detections priced so far.
+    """
+
+    def __init__(self, values: Mapping[int, np.ndarray], price: Pricer) -> None:
+        self.values = {k: np.array(v, dtype=float) for k, v in values.items()}
+        self.price = price
+        self.asked = 0
+
+    def read(self, step: int, idx: np.ndarray) -> np.ndarray:
+        """The payoffs ``values[step][idx]``, pricing the unpriced ones first."""
+        col = self.values[step]
+        flat = np.atleast_1d(idx)
+        need = np.unique(flat[np.isnan(col[flat])])
+        if need.size:
+            priced = self.price({step: need})[step]
+            got = priced[need]
+            if len(priced) != len(col) or np.isnan(got).any():
+                raise RuntimeError(f"the pricer did not price what frame {step} asked for")
+            col[need] = got
+            self.asked += int(need.size)
+        out: np.ndarray = col[idx]
+        return out
+
+    def frame(self, f: Frame) -> Frame:
+        """``f`` with the payoffs priced so far (still ``nan`` where none was read)."""
+        col = self.values.get(f.step)
+        if col is None:
+            return f
+        return Frame(
+            f.step,
+            tuple(
+                d if d.priced else replace(d, payoff=v)
+                for d, v in zip(f.detections, col.tolist(), strict=True)
+            ),
+            f.to_next,
+        )
+
+
+@dataclass(frozen=True)
+class PricedFrame(Frame):
+    """A frame whose unpriced payoffs are priced when a model reads them
+    (:class:`OnDemandPayoffs`)."""
+
+    prices: OnDemandPayoffs | None = field(default=None, compare=False)
+
+    def payoffs(self) -> np.ndarray:
+        if self.prices is None or self.step not in self.prices.values:
+            return super().payoffs()
+        return _OnDemandColumn(self.prices, self.step)  # type: ignore[return-value]
+
+
+class _OnDemandColumn:
+    """One frame's payoff column of :class:`OnDemandPayoffs`: indexing prices what it
+    reads; any other use of the column prices all of it."""
+
+    def __init__(self, prices: OnDemandPayoffs, step: int) -> None:
+        self._prices = prices
+        self._step = step
+
+    def __getitem__(self, key: Any) -> np.ndarray:
+        n = len(self._prices.values[self._step])
+        return self._prices.read(self._step, np.arange(n)[key])
+
+    def __len__(self) -> int:
+        return len(self._prices.values[self._step])
+
+    def __array__(self, dtype: object = None, copy: object = None) -> np.ndarray:
+        return self[:]
 
 
 def lower_frames(frames: tuple[Frame, ...], lower: Mapping[int, np.ndarray]) -> tuple[Frame, ...]:

@@ -24,6 +24,7 @@ from lesmc.scene.frames import Detection, Frame
 from lesmc.scene.scene import (
     PRESET_ONLY,
     UNATTACKABLE,
+    UNPRICED,
     Footage,
     Scene,
     Target,
@@ -290,18 +291,24 @@ def _detection(raw: Any, where: str, pr: Problems) -> Detection | None:
             ok = False
     payoff = raw.get("payoff", None)
     if "payoff" not in raw:
-        pr.add(item, 'payoff is missing (a number >= 0, or "unattackable")')
+        pr.add(item, 'payoff is missing (a number >= 0, "unattackable" or "unpriced")')
         ok = False
     elif payoff == UNATTACKABLE:
         payoff = math.inf
+    elif payoff == UNPRICED:
+        payoff = math.nan
     elif not (is_finite(payoff) and 0 <= payoff <= MAX_PAYOFF):
         pr.add(
             item,
-            f'payoff must be a number in [0, {MAX_PAYOFF:g}] or "unattackable", got {show(payoff)}',
+            f'payoff must be a number in [0, {MAX_PAYOFF:g}], "unattackable" or "unpriced", '
+            f"got {show(payoff)}",
         )
         ok = False
     lower = raw.get("payoff_lower", None)
-    if "payoff_lower" in raw:
+    if "payoff_lower" in raw and raw.get("payoff") == UNPRICED:
+        pr.add(item, 'payoff_lower needs a priced payoff, not "unpriced"')
+        ok = False
+    elif "payoff_lower" in raw:
         if lower == UNATTACKABLE:
             lower = math.inf
         elif not is_finite(lower) or lower < 0:
@@ -488,7 +495,7 @@ def _det_json(det: Detection) -> dict[str, Any]:
         "id": det.id,
         "x": det.x,
         "y": det.y,
-        "payoff": det.payoff if det.attackable else UNATTACKABLE,
+        "payoff": det.payoff if det.attackable else UNATTACKABLE if det.priced else UNPRICED,
     }
     if det.payoff_lower is not None:
         low = det.payoff_lower

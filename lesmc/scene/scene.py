@@ -15,7 +15,7 @@ from typing import Any, Literal
 import numpy as np
 
 from lesmc.common.errors import InputError
-from lesmc.scene.frames import Frame, lower_frames
+from lesmc.scene.frames import Frame, PricedFrame, lower_frames
 from lesmc.scene.tracker_model import (
     DEFAULT_MODEL,
     EntryFault,
@@ -26,6 +26,10 @@ from lesmc.scene.tracker_model import (
 
 UNATTACKABLE = "unattackable"
 """Payoff marker of a detection the attack could not flip within its iteration cap."""
+
+UNPRICED = "unpriced"
+"""Payoff marker of a detection nobody attacked (``lesmc verify`` prices only what its
+checks read): ``nan`` in memory; a model that reads it stops (frames.UnpricedPayoff)."""
 
 
 @dataclass(frozen=True)
@@ -116,6 +120,34 @@ class _Frames:
     def last_step(self) -> int:
         return self.frames[-1].step
 
+    @property
+    def has_unpriced(self) -> bool:
+        """Some detection is unpriced."""
+        return any(f.has_unpriced for f in self.frames)
+
+    @property
+    def unpriced(self) -> int:
+        """How many detections are unpriced (``"unpriced"``: no attack was run on them)."""
+        return sum(not d.priced for f in self.frames for d in f.detections)
+
+    def settled(self) -> Any:
+        """The same with every payoff priced on demand so far written into its detections
+        (plain frames: reading a payoff still unpriced raises UnpricedPayoff)."""
+        frames = tuple(
+            f.prices.frame(f) if isinstance(f, PricedFrame) and f.prices is not None else f
+            for f in self.frames
+        )
+        return replace(self, frames=frames)  # type: ignore[type-var]
+
+    def payoff_free(self) -> Any:
+        """The same with every payoff 1: for what follows only the unattacked outcome (the
+        monitor's false alarms, a track's end), whose states never depend on a payoff."""
+        frames = tuple(
+            Frame(f.step, tuple(replace(d, payoff=1.0) for d in f.detections), f.to_next)
+            for f in self.frames
+        )
+        return replace(self, frames=frames)  # type: ignore[type-var]
+
     def with_lower(self, lower: Mapping[int, np.ndarray]) -> Any:
         """The same with certified lower payoffs: ``lower[step][i]`` for detection i of
         frame ``step`` (``nan``: none); detections not given keep theirs."""
@@ -179,13 +211,14 @@ class Scene(_Frames):
             raise ValueError(f"unknown payoff column {payoffs!r}")
         if not self.any_lower and "certified" not in self.meta:
             raise InputError.many(path, [(self._first_detection(), _NO_LOWER)])
-        frames = tuple(
-            replace(
-                f,
-                detections=tuple(
+        frames = tuple(  # plain frames: a PricedFrame would read the attack's payoffs
+            Frame(
+                f.step,
+                tuple(
                     replace(d, payoff=0.0 if d.payoff_lower is None else d.payoff_lower)
                     for d in f.detections
                 ),
+                f.to_next,
             )
             for f in self.frames
         )

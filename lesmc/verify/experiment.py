@@ -38,6 +38,7 @@ from lesmc.results.document import provenance, results_document
 from lesmc.results.record import Results
 from lesmc.scene import (
     Footage,
+    OnDemandPayoffs,
     Scene,
     TrackerConfig,
     load_tracker,
@@ -55,6 +56,8 @@ from lesmc.verify.cache import (
 )
 from lesmc.verify.false_alarms import false_alarm_report, truth_track
 from lesmc.verify.neuron_faults import NeuronRuns, check_units, neuron_faults, neuron_frames
+from lesmc.verify.pricing import VideoPricer, priced_meta
+from lesmc.verify.pricing import on_demand as on_demand_footage
 from lesmc.verify.video_perception import UnitMax
 from lesmc.video import FPS
 
@@ -85,6 +88,9 @@ class Request:
     payoffs: PayoffMode = "attack"
     budget: Budget = field(default_factory=Budget)
     faults: str | None = None  #: a file with a ``faults`` block (``--faults``)
+    #: attack every detection of the video up front (``--price-all``), not only those
+    #: the checked models read (lesmc/verify/pricing.py)
+    price_all: bool = False
 
 
 @dataclass
@@ -115,6 +121,9 @@ class _Source:
     #: verify's own perception of the video: its cache key, each hidden unit's largest
     #: value, the seconds between frames (neuron faults perceive it again)
     perceived: tuple[str, UnitMax, float] | None = None
+    #: payoffs priced on demand (lesmc/verify/pricing.py): the shared prices, the pricer
+    #: and the footage they price (stored again in OUT/cache with what was priced)
+    pricing: tuple[OnDemandPayoffs, VideoPricer, Footage] | None = None
 
     def networks(self) -> Any:
         """The networks: loaded now if perception came from the cache."""
@@ -151,7 +160,8 @@ def verify(req: Request, rep: Reporter) -> Outcome:
     if req.scene_path is not None:
         src = _scene_file(req)
     else:
-        src = _perceived(req, specs, rep, maxima=bool(neuron_faults(faults)))
+        on_demand = req.payoffs == "attack" and faults is None and not req.price_all
+        src = _perceived(req, specs, rep, bool(neuron_faults(faults)), on_demand)
     if req.window is not None:
         check_window(src.scene, req.window)
     src.meta["target"] = _target_text(src.scene)
@@ -159,7 +169,27 @@ def verify(req: Request, rep: Reporter) -> Outcome:
     rep.log(f"target: {src.meta['target']}")
     neuron = _neuron_runs(req, faults, src, rep)
     checked = time.monotonic()
-    job = Job(
+    # the job is not kept: the scene it checked gives way to the settled one (_settled)
+    results = _settled(run_job(_job(req, specs, faults, neuron, src, rep)), src, rep)
+    timings = {"video, perception and scene": checked - started}
+    timings["models and checks"] = time.monotonic() - checked
+    if src.pricing is not None:  # within the models and checks
+        timings["payoffs on demand"] = src.pricing[1].seconds
+    doc = _document(req, src, specs, results, timings, rep)
+    report = _write(doc, req.out, src, results, rep)
+    return Outcome(results, doc, report)
+
+
+def _job(
+    req: Request,
+    specs: list[SpecFile],
+    faults: FaultSet | None,
+    neuron: NeuronRuns,
+    src: _Source,
+    rep: Reporter,
+) -> Job:
+    """The check pipeline's job: every design's model built whole (the report draws it)."""
+    return Job(
         tuple(specs),
         scene=src.scene,
         designs=req.designs,
@@ -173,12 +203,6 @@ def verify(req: Request, rep: Reporter) -> Outcome:
         source=req.scene_path or "scene",
         on_stage=rep.stage,
     )
-    results = run_job(job)
-    timings = {"video, perception and scene": checked - started}
-    timings["models and checks"] = time.monotonic() - checked
-    doc = _document(req, src, specs, results, timings, rep)
-    report = _write(doc, req.out, src, results, rep)
-    return Outcome(results, doc, report)
 
 
 def _check_neuron_faults(req: Request, faults: FaultSet | None) -> None:
@@ -236,9 +260,12 @@ def _scene_file(req: Request) -> _Source:
     )
 
 
-def _perceived(req: Request, specs: list[SpecFile], rep: Reporter, maxima: bool) -> _Source:
+def _perceived(
+    req: Request, specs: list[SpecFile], rep: Reporter, maxima: bool, on_demand: bool
+) -> _Source:
     """The scene of a video: rendered (the default), perceived, its target placed or chosen;
-    with ``maxima`` the networks' unit maxima too (neuron faults read them)."""
+    with ``maxima`` the networks' unit maxima too (neuron faults read them); ``on_demand``:
+    payoffs priced when a model reads them (lesmc/verify/pricing.py)."""
     if req.scene_frames is not None:
         raise UsageError("--frames goes with --scene; a video is given as FRAMES_DIR")
     frames_dir, truth, meta, fresh = _video(req, rep)
@@ -260,7 +287,7 @@ def _perceived(req: Request, specs: list[SpecFile], rep: Reporter, maxima: bool)
     truths = load_truth(truth) if truth else None
     dt = (truths.dt if truths else None) or 1 / FPS
     cache = StageCache(req.out)
-    seen = _perception(req, frames, frames_dir, dt, cache, rep, maxima)
+    seen = _perception(req, frames, frames_dir, dt, cache, rep, maxima, on_demand)
     footage = seen.footage
     tracker = _tracker(req)
     if tracker is not None:
@@ -276,7 +303,7 @@ def _perceived(req: Request, specs: list[SpecFile], rep: Reporter, maxima: bool)
     meta |= {"detector": footage.meta.get("detector", ""), "scene": str(req.out / "scene.json")}
     return _Source(
         scene, frames, truths, seen.nets, seen.run, meta, True, req.nets, truth, cache,
-        (seen.key, seen.unit_max, dt),
+        (seen.key, seen.unit_max, dt), seen.pricing,
     )  # fmt: skip
 
 
@@ -290,6 +317,7 @@ class _Perception:
     run: Any
     unit_max: UnitMax
     key: str
+    pricing: tuple[OnDemandPayoffs, VideoPricer, Footage] | None = None
 
 
 def _perception(
@@ -300,13 +328,16 @@ def _perception(
     cache: StageCache,
     rep: Reporter,
     maxima: bool,
+    on_demand: bool,
 ) -> _Perception:
     """The video's detections and attack payoffs: read from OUT/cache when this video was
     perceived before with the same networks, settings and code (then no network is
     loaded; in a certified payoff mode the run is needed, so the video is perceived
     again), else perceived now and stored. ``maxima``: the networks' unit maxima are
     needed too; an entry stored without them (by a run without neuron faults) is then
-    perceived again, recording them."""
+    perceived again, recording them. ``on_demand``: a payoff is priced when a model
+    first reads it (lesmc/verify/pricing.py); otherwise every detection is priced now,
+    and an entry with unpriced payoffs is perceived again."""
     from lesmc.perception.attack_settings import AttackConfig
 
     key = digest(
@@ -324,9 +355,44 @@ def _perception(
     if hit is not None and maxima and not hit[1]:
         rep.log("perceiving the video again: its cached perception has no unit maxima")
         hit = None
+    if hit is not None and not on_demand and hit[0].unpriced:
+        rep.log("perceiving the video again: its cached perception has unpriced payoffs")
+        hit = None
+
+    def perceive() -> tuple[Footage, Any, Any]:
+        return _perceive_now(req, frames, frames_dir, dt, rep, maxima, on_demand)
+
     if hit is not None:
         rep.log(f"reusing the perception of {frames_dir} from {cache.dir}")
-        return _Perception(hit[0], None, None, hit[1], key)
+        if not on_demand or not hit[0].unpriced:
+            return _Perception(hit[0], None, None, hit[1], key)
+
+        def again() -> tuple[Any, Any]:  # a payoff the cached entry lacks: its windows
+            rep.log("perceiving the video again: a check reads payoffs its cache lacks")
+            _, nets, run = perceive()
+            return nets, run
+
+        return _on_demand(
+            _Perception(hit[0], None, None, hit[1], key), VideoPricer(None, None, again)
+        )
+    footage, nets, run = perceive()
+    video_perception.store(cache, "perception", key, footage, run.unit_max)
+    seen = _Perception(footage, nets, run, run.unit_max, key)
+    return _on_demand(seen, VideoPricer(nets, run, lambda: (nets, run))) if on_demand else seen
+
+
+def _perceive_now(
+    req: Request,
+    frames: FrameSet,
+    frames_dir: str,
+    dt: float,
+    rep: Reporter,
+    maxima: bool,
+    on_demand: bool,
+) -> tuple[Footage, Any, Any]:
+    """The video perceived now: its footage, the networks and the perception run (without
+    an attack when ``on_demand``; keeping the N_dr windows that certification or pricing
+    read)."""
     from lesmc.perception.cnn import load_nets
 
     nets = load_nets(*req.nets)
@@ -338,11 +404,48 @@ def _perception(
             _spent(req.budget, "perceiving the video")
 
         meta = {"source": str(frames_dir), "detector": nets.settings.trained_on}
+        keep = req.payoffs != "attack" or on_demand
         footage, run = video_perception.perceive_video(
-            frames, nets, dt, meta, req.payoffs != "attack", advance, maxima
+            frames, nets, dt, meta, keep, advance, maxima, attack=not on_demand
         )
-    video_perception.store(cache, "perception", key, footage, run.unit_max)
-    return _Perception(footage, nets, run, run.unit_max, key)
+    return footage, nets, run
+
+
+def _on_demand(seen: _Perception, pricer: VideoPricer) -> _Perception:
+    """``seen`` with its unpriced payoffs priced by ``pricer`` when a model reads them."""
+    footage, prices = on_demand_footage(seen.footage, pricer)
+    return dataclasses.replace(seen, footage=footage, pricing=(prices, pricer, footage))
+
+
+def _settled(results: Results, src: _Source, rep: Reporter) -> Results:
+    """``results`` and ``src`` with the payoffs priced on demand written into their scenes'
+    detections, ``meta.priced`` saying which, and OUT/cache's perception updated with
+    them (a rerun with the same checks prices nothing). Unchanged without pricing."""
+    if src.pricing is None:
+        return results
+    prices, pricer, footage = src.pricing
+    pricer.release()  # the replay reads only the detections' positions
+    settled = src.scene.settled()  # one copy of the frames, shared by every run's scene
+    meta = priced_meta(settled)
+    src.scene = dataclasses.replace(settled, meta={**settled.meta, "priced": meta})
+    rep.log(
+        f"priced {prices.asked} detections on demand ({pricer.seconds:.1f} s); "
+        f"{meta['detections']} of {meta['of']} carry a payoff"
+    )
+    src.meta["payoffs"] = (
+        f"{meta['detections']} of {meta['of']} detections attacked, on demand: the ones the "
+        "checked models read (the others are unpriced in scene.json)"
+    )
+    for run in results.runs:
+        if run.scene is not None:
+            run.scene = dataclasses.replace(run.scene, frames=settled.frames)
+    footage = dataclasses.replace(footage, frames=settled.frames)  # as perception made it
+    src.pricing = (prices, pricer, footage)  # the frames priced on demand are let go
+    if prices.asked and src.cache is not None and src.perceived is not None:
+        key, unit_max, _ = src.perceived
+        video_perception.store(src.cache, "perception", key, footage, unit_max)
+    release()  # the windows' and the frames' pages go back to the system before the replay
+    return dataclasses.replace(results, scene=src.scene)
 
 
 def _tracker(req: Request) -> TrackerConfig | None:
@@ -491,7 +594,7 @@ def _truth_facts(
     if src.frames is None or src.truth is None:
         return None, {}
 
-    scene = src.scene
+    scene = src.scene.payoff_free()  # the monitor reads only the unattacked states
     tfs = [src.truth.frames.get(p.name) for p in src.frames.paths[scene.target.step :]]
     tfs = tfs[: next((i for i, t in enumerate(tfs) if t is None), len(tfs))]
     if not tfs:
@@ -549,6 +652,8 @@ def _perception_facts(req: Request, src: _Source, results: Results) -> dict[str,
         out["frames"] = str(src.frames.paths[0].parent.resolve())
     if results.certified is not None:  # this run's certification (a --scene keeps its own)
         out["certified"] = results.certified
+    if src.pricing is not None:  # this run priced on demand (lesmc/verify/pricing.py)
+        out["priced"] = src.scene.meta["priced"]
     return out
 
 

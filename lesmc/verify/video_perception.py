@@ -40,11 +40,15 @@ def perceive_video(
     keep_windows: bool,
     advance: Callable[[], None] | None = None,
     record_maxima: bool = False,
+    attack: bool = True,
 ) -> tuple[Footage, PerceiveRun]:
     """Detections and DeepFool payoffs of every frame (the default attack settings), as
-    footage; ``keep_windows`` keeps the N_dr windows (certification reads them),
-    ``record_maxima`` the hidden units' largest values (stuck-at-max faults read them)."""
-    return perceive_videos(frames, [nets], dt, [meta], keep_windows, advance, record_maxima)[0]
+    footage; ``keep_windows`` keeps the N_dr windows (certification and pricing on
+    demand read them), ``record_maxima`` the hidden units' largest values (stuck-at-max
+    faults read them); without ``attack`` every payoff is unpriced (lesmc/verify/pricing.py)."""
+    return perceive_videos(
+        frames, [nets], dt, [meta], keep_windows, advance, record_maxima, attack
+    )[0]
 
 
 def perceive_videos(
@@ -55,6 +59,7 @@ def perceive_videos(
     keep_windows: bool,
     advance: Callable[[], None] | None = None,
     record_maxima: bool = False,
+    attack: bool = True,
 ) -> list[tuple[Footage, PerceiveRun]]:
     """:func:`perceive_video` for several networks over one front end (each frame is
     registered and its candidates found once)."""
@@ -66,7 +71,7 @@ def perceive_videos(
         PerceiveOptions(
             history=HISTORY,
             nets=n,
-            attack=AttackConfig(),
+            attack=AttackConfig() if attack else None,
             keep_windows=keep_windows,
             record_maxima=record_maxima,
         )

@@ -1,0 +1,273 @@
+"""Payoffs priced on demand (lesmc/verify/pricing.py, scene/frames.py; issue 31).
+
+A model built over frames whose payoffs are priced when it reads them is the model of
+the same scene priced up front (the oracle: the scene file's own payoffs), and it asks
+for fewer payoffs than the scene has; a model that reads an unpriced payoff with
+nobody to price it stops with exit 2 and names the detection; windows kept compact
+come back bit for bit; ``lesmc verify`` gives the results of ``--price-all``.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from collections.abc import Mapping
+from dataclasses import replace
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pytest
+from cli_run import lesmc
+
+from lesmc.build.unfold import build_model
+from lesmc.perception.windows import compact, cut, expand
+from lesmc.scene import (
+    Detection,
+    Frame,
+    OnDemandPayoffs,
+    PricedFrame,
+    Scene,
+    UnpricedPayoff,
+    load_scene,
+    save_scene,
+    scene_to_dict,
+)
+from lesmc.video.synth import SynthConfig, write_video
+
+SCENES = Path(__file__).parent / "scenes"
+FIELDS = ("step", "S", "halted", "ptr", "dst", "payoff", "rank", "original", "obs")
+
+
+def _with_far_traffic(scene: Scene) -> Scene:
+    """``scene`` with, in every frame, detections far from every track (never read)."""
+    rng = np.random.default_rng(5)
+    frames = tuple(
+        replace(
+            f,
+            detections=f.detections
+            + tuple(
+                Detection(f"{f.step}:far{i}", 5000.0 + 40 * i, 5000.0, float(rng.uniform(0.5, 4)))
+                for i in range(6)
+            ),
+        )
+        for f in scene.frames
+    )
+    return replace(scene, frames=frames)
+
+
+def _unpriced(scene: Scene) -> Scene:
+    """``scene`` with every payoff unpriced (plain frames)."""
+    frames = tuple(
+        Frame(f.step, tuple(replace(d, payoff=math.nan) for d in f.detections), f.to_next)
+        for f in scene.frames
+    )
+    return replace(scene, frames=frames)
+
+
+class _Oracle:
+    """Prices from the fully priced scene, counting what it is asked."""
+
+    def __init__(self, scene: Scene) -> None:
+        self.scene = scene
+        self.asked: list[tuple[int, int]] = []
+
+    def __call__(self, wanted: Mapping[int, np.ndarray]) -> dict[int, np.ndarray]:
+        out = {}
+        for k, idx in wanted.items():
+            self.asked += [(k, int(i)) for i in idx]
+            col = np.full(len(self.scene.frame(k).detections), np.nan)
+            col[idx] = [self.scene.frame(k).detections[int(i)].payoff for i in idx]
+            out[k] = col
+        return out
+
+
+def _on_demand(scene: Scene, oracle: _Oracle) -> tuple[Scene, OnDemandPayoffs]:
+    bare = _unpriced(scene)
+    prices = OnDemandPayoffs({f.step: f.payoff_values() for f in bare.frames}, oracle)
+    frames = tuple(PricedFrame(f.step, f.detections, f.to_next, prices) for f in bare.frames)
+    return replace(bare, frames=frames), prices
+
+
+@pytest.mark.parametrize("design", ["single", "joint"])
+@pytest.mark.parametrize("name", ["rq1_platoon", "rq2_parallel", "rq4_merge"])
+def test_a_model_priced_on_demand_is_the_model_priced_up_front(name: str, design: str) -> None:
+    scene = _with_far_traffic(load_scene(SCENES / f"{name}.json").with_tracker(design=design))
+    want = build_model(scene, (5, 8))
+    oracle = _Oracle(scene)
+    lazy, prices = _on_demand(scene, oracle)
+    got = build_model(lazy, (5, 8))
+    for f in FIELDS:
+        assert np.array_equal(getattr(got, f), getattr(want, f)), f
+    # each detection priced once, none of the far ones, fewer than all of them
+    assert len(oracle.asked) == len(set(oracle.asked)) == prices.asked
+    assert not any("far" in scene.frame(k).detections[i].id for k, i in oracle.asked)
+    assert 0 < len(oracle.asked) < sum(len(f.detections) for f in scene.frames)
+    # what was priced is written into the detections; the rest stays unpriced
+    settled = lazy.settled()
+    for f, g in zip(settled.frames, scene.frames, strict=True):
+        for i, (d, e) in enumerate(zip(f.detections, g.detections, strict=True)):
+            assert d.payoff == e.payoff if (f.step, i) in oracle.asked else math.isnan(d.payoff)
+
+
+def test_a_model_that_reads_an_unpriced_payoff_stops() -> None:
+    scene = load_scene(SCENES / "rq1_platoon.json")
+    with pytest.raises(UnpricedPayoff) as err:
+        build_model(_unpriced(scene), (6, 8))
+    assert "unpriced" in err.value.render() and "--price-all" in err.value.render()
+
+
+def _write(scene: Scene, path: Path) -> Path:
+    save_scene(scene, path)
+    return path
+
+
+@pytest.mark.parametrize("verb", ["check", "build", "export"])
+def test_reading_an_unpriced_payoff_exits_2_naming_it(verb: str, tmp_path: Path) -> None:
+    scene = load_scene(SCENES / "rq1_platoon.json")
+    path = _write(_unpriced(scene), tmp_path / "scene.json")
+    assert '"unpriced"' in path.read_text()
+    out = tmp_path / "out.lts"
+    args = {
+        "check": [str(SCENES / "rq1_platoon.spec")],
+        "build": ["--window", "6..8", "-o", str(out)],
+        "export": ["--window", "6..8", "--format", "dot", "-o", str(out)],
+    }[verb]
+    r = lesmc(verb, str(path), *args)
+    assert r.returncode == 2, r.stderr
+    assert "Traceback" not in r.stderr and not out.exists()
+    said = [line for line in r.stderr.splitlines() if "unpriced" in line]
+    assert len(said) == 1 and said[0].startswith(f"{path}: frame "), r.stderr
+    assert "detection '" in said[0] and "--price-all" in said[0]
+
+
+def test_unpriced_payoffs_no_model_reads_change_nothing(tmp_path: Path) -> None:
+    """Only the far detections unpriced: the same results as the fully priced scene."""
+    scene = _with_far_traffic(load_scene(SCENES / "rq1_platoon.json"))
+    part = replace(
+        scene,
+        frames=tuple(
+            replace(
+                f,
+                detections=tuple(
+                    replace(d, payoff=math.nan) if "far" in d.id else d for d in f.detections
+                ),
+            )
+            for f in scene.frames
+        ),
+    )
+    spec = str(SCENES / "rq1_platoon.spec")
+    docs = []
+    for s, name in ((scene, "full.json"), (part, "part.json")):
+        r = lesmc("check", str(_write(s, tmp_path / name)), spec, "--json")
+        assert r.returncode in (0, 1), r.stderr
+        docs.append(json.loads(r.stdout))
+    opt = [[(x["verdict"], x["optimum"]) for x in d["results"]] for d in docs]
+    assert opt[0] == opt[1]
+
+
+@pytest.mark.parametrize("design", ["single", "joint"])
+def test_the_unattacked_track_reads_no_payoff(design: str, tmp_path: Path) -> None:
+    """``lesmc track`` on a scene with every payoff unpriced: the fully priced scene's track."""
+    scene = load_scene(SCENES / "rq4_merge.json")
+    outs = []
+    for s, name in ((scene, "full.json"), (_unpriced(scene), "bare.json")):
+        r = lesmc("track", str(_write(s, tmp_path / name)), "--design", design, "--json")
+        assert r.returncode == 0, r.stderr
+        outs.append(json.loads(r.stdout)["track"])
+    assert outs[0] == outs[1]
+
+
+def test_unpriced_round_trips_through_the_scene_file(tmp_path: Path) -> None:
+    scene = _unpriced(load_scene(SCENES / "rq1_platoon.json"))
+    doc = scene_to_dict(scene)
+    assert {d["payoff"] for f in doc["frames"] for d in f["detections"]} == {"unpriced"}
+    again = load_scene(_write(scene, tmp_path / "s.json"))
+    assert again.unpriced == scene.unpriced == sum(len(f.detections) for f in scene.frames)
+
+
+def test_a_lower_bound_needs_a_priced_payoff(tmp_path: Path) -> None:
+    doc = scene_to_dict(load_scene(SCENES / "rq1_platoon.json"))
+    det = doc["frames"][2]["detections"][1]
+    det["payoff"], det["payoff_lower"] = "unpriced", 0.5
+    path = tmp_path / "s.json"
+    path.write_text(json.dumps(doc, indent=1))
+    r = lesmc("check", str(path), str(SCENES / "rq1_platoon.spec"))
+    assert r.returncode == 2 and "Traceback" not in r.stderr
+    assert f"detection '{det['id']}'" in r.stderr or det["id"] in r.stderr
+    assert "payoff_lower needs a priced payoff" in r.stderr
+
+
+def test_compact_windows_come_back_bit_for_bit() -> None:
+    rng = np.random.default_rng(2)
+    frames = [rng.integers(0, 256, (64, 80), dtype=np.uint8) for _ in range(4)]
+    centres = rng.uniform(-5, 85, (50, 2))  # some past the edges
+    win = cut(frames, centres, 21)
+    small = compact(win)
+    assert small.dtype == np.uint8 and small.nbytes * 4 == win.nbytes
+    assert np.array_equal(expand(small), win)
+    assert np.array_equal(expand(small).view(np.uint32), win.view(np.uint32))
+
+
+# ------------------------------------------------------------------ lesmc verify
+
+
+@pytest.fixture(scope="module")
+def video(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    out = tmp_path_factory.mktemp("pricing") / "tiny"
+    write_video(SynthConfig(frames=12, width=448, height=448, seed=4, density=3.0), out)
+    return out
+
+
+def _verify(video: Path, out: Path, *extra: str) -> tuple[str, dict[str, Any]]:
+    r = lesmc("verify", str(video), "--truth", str(video / "truth.json"), "--out", str(out),
+              "--window", "3..4", *extra)  # fmt: skip
+    assert r.returncode in (0, 1, 3), r.stderr
+    assert "Traceback" not in r.stderr
+    return r.stderr, json.loads((out / "results.json").read_text())
+
+
+def _outcomes(doc: dict[str, Any]) -> list[tuple[str, str, str, Any]]:
+    return [
+        (run["design"], r["property"], r["verdict"], r["optimum"])
+        for run in doc["runs"]
+        for r in run["results"]
+    ]
+
+
+def _payoffs(out: Path) -> dict[str, Any]:
+    doc = json.loads((out / "scene.json").read_text())
+    return {d["id"]: d["payoff"] for f in doc["frames"] for d in f["detections"]}
+
+
+def test_verify_prices_on_demand_what_price_all_gives(video: Path, tmp_path: Path) -> None:
+    log, lazy = _verify(video, tmp_path / "lazy", "--design", "single")
+    _, full = _verify(video, tmp_path / "full", "--design", "single", "--price-all")
+    assert "detections on demand" in log
+    a, b = _outcomes(lazy), _outcomes(full)
+    assert [x[:3] for x in a] == [x[:3] for x in b]
+    for x, y in zip(a, b, strict=True):  # float32 attacks batched differently
+        assert x[3] == y[3] or x[3] == pytest.approx(y[3], rel=1e-5)
+    got, want = _payoffs(tmp_path / "lazy"), _payoffs(tmp_path / "full")
+    assert got.keys() == want.keys() and "unpriced" not in want.values()
+    priced = {k: v for k, v in got.items() if v != "unpriced"}
+    assert 0 < len(priced) < len(got)
+    for k, v in priced.items():
+        assert v == want[k] or v == pytest.approx(want[k], rel=1e-5), k
+    meta = json.loads((tmp_path / "lazy" / "scene.json").read_text())["meta"]["priced"]
+    assert meta["detections"] == len(priced) and meta["of"] == len(got)
+
+
+def test_a_rerun_that_reads_more_payoffs_perceives_again(video: Path, tmp_path: Path) -> None:
+    """The cached perception has no windows: a rerun whose models read payoffs it lacks
+    perceives the video again and prices them; then its cache has them too."""
+    out = tmp_path / "out"
+    _verify(video, out, "--design", "single")
+    log, doc = _verify(video, out, "--design", "joint")
+    assert "reusing the perception" in log
+    assert "perceiving the video again: a check reads payoffs its cache lacks" in log
+    _, full = _verify(video, tmp_path / "full", "--design", "joint", "--price-all")
+    assert [x[:3] for x in _outcomes(doc)] == [x[:3] for x in _outcomes(full)]
+    log, again = _verify(video, out, "--design", "joint")
+    assert "perceiving" not in log
+    assert _outcomes(again) == _outcomes(doc)
