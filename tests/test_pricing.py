@@ -110,6 +110,126 @@ def test_a_model_priced_on_demand_is_the_model_priced_up_front(name: str, design
             assert d.payoff == e.payoff if (f.step, i) in oracle.asked else math.isnan(d.payoff)
 
 
+class _BlobOracle(_Oracle):
+    """Prices as perception does: detections 2j and 2j+1 share a blob, whose attack
+    prices both; counts the blobs attacked."""
+
+    def __init__(self, scene: Scene) -> None:
+        super().__init__(scene)
+        self.blobs: list[tuple[int, int]] = []
+
+    def __call__(self, wanted: Mapping[int, np.ndarray]) -> dict[int, np.ndarray]:
+        out = {}
+        for k, idx in wanted.items():
+            dets = self.scene.frame(k).detections
+            blobs = sorted({int(i) // 2 for i in idx})
+            self.blobs += [(k, b) for b in blobs]
+            col = np.full(len(dets), np.nan)
+            for b in blobs:
+                for i in (2 * b, 2 * b + 1):
+                    if i < len(dets):
+                        col[i] = dets[2 * b].payoff  # a blob's detections share its payoff
+            out[k] = col
+        return out
+
+
+def _blob_payoffs(scene: Scene) -> Scene:
+    """``scene`` whose detections 2j and 2j+1 carry detection 2j's payoff."""
+    frames = tuple(
+        replace(
+            f,
+            detections=tuple(
+                replace(d, payoff=f.detections[i - i % 2].payoff)
+                for i, d in enumerate(f.detections)
+            ),
+        )
+        for f in scene.frames
+    )
+    return replace(scene, frames=frames)
+
+
+@pytest.mark.parametrize("design", ["single", "joint"])
+def test_each_blob_is_attacked_once(design: str) -> None:
+    """A blob's attack prices all its detections: a model that reads one, then the
+    other, never attacks the blob twice; the model is the up-front one."""
+    scene = _blob_payoffs(
+        _with_far_traffic(load_scene(SCENES / "rq4_merge.json").with_tracker(design=design))
+    )
+    want = build_model(scene, (4, 9))
+    oracle = _BlobOracle(scene)
+    lazy, prices = _on_demand(scene, oracle)
+    got = build_model(lazy, (4, 9))
+    for f in FIELDS:
+        assert np.array_equal(getattr(got, f), getattr(want, f)), f
+    assert oracle.blobs and len(oracle.blobs) == len(set(oracle.blobs))
+    assert prices.asked >= len(oracle.blobs)
+
+
+def test_a_blobs_other_detection_is_not_attacked_again() -> None:
+    """Reading one detection of a blob prices the blob: its sibling, read later, costs
+    no second attack and has the same payoff."""
+    attacked: list[list[int]] = []
+
+    def price(wanted: Mapping[int, np.ndarray]) -> dict[int, np.ndarray]:
+        blobs = sorted({int(i) // 2 for i in wanted[0]})
+        attacked.append(blobs)
+        col = np.full(6, np.nan)
+        for b in blobs:
+            col[2 * b : 2 * b + 2] = 1.0 + b + 0.1 * len(attacked)  # another batch: other bits
+        return {0: col}
+
+    prices = OnDemandPayoffs({0: np.full(6, np.nan)}, price)
+    first = prices.read(0, np.array([0]))
+    second = prices.read(0, np.array([1]))
+    assert attacked == [[0]] and first[0] == second[0]
+    assert prices.read(0, np.array([1, 4]))[1] == prices.read(0, np.array([5]))[0]
+    assert attacked == [[0], [2]] and prices.asked == 4
+
+
+KEYS: list[Any] = [
+    3, -1, slice(None), slice(1, 5), np.array([0, 2, 2, 5]), np.array([-1, 0]),
+    np.array([True, False] * 4), np.array([[1, 2], [3, 4]]), (np.array([1, 3]),),
+]  # fmt: skip
+
+
+@pytest.mark.parametrize("key", KEYS, ids=[repr(k)[:20] for k in KEYS])
+def test_the_payoff_columns_index_as_arrays_do(key: Any) -> None:
+    values = np.array([0.5, np.nan, 2.0, np.inf, 1.5, np.nan, 0.25, 3.0])
+    truth = np.where(np.isnan(values), 9.0, values)  # what the pricer would say
+    dets = tuple(Detection(f"0:{i}", float(i), 0.0, float(v)) for i, v in enumerate(values))
+    plain = Frame(0, dets)
+    wants_unpriced = np.isnan(np.atleast_1d(values[key])).any()
+    if wants_unpriced:
+        with pytest.raises(UnpricedPayoff):
+            plain.payoffs()[key]
+    else:
+        assert np.array_equal(plain.payoffs()[key], values[key])
+
+    def price(wanted: Mapping[int, np.ndarray]) -> dict[int, np.ndarray]:
+        col = np.full(len(values), np.nan)
+        col[wanted[0]] = truth[wanted[0]]
+        return {0: col}
+
+    prices = OnDemandPayoffs({0: values}, price)
+    lazy = PricedFrame(0, dets, None, prices)
+    assert np.array_equal(lazy.payoffs()[key], truth[key])
+    assert len(lazy.payoffs()) == len(values)
+    assert np.array_equal(np.asarray(lazy.payoffs()), truth)
+
+
+def test_a_priced_frame_refuses_other_detections() -> None:
+    scene = load_scene(SCENES / "rq1_platoon.json")
+    lazy, _ = _on_demand(scene, _Oracle(scene))
+    with pytest.raises(ValueError, match="detections"):
+        replace(lazy.frames[0], detections=())
+
+
+def test_a_lower_bound_for_an_unpriced_payoff_is_refused() -> None:
+    bare = _unpriced(load_scene(SCENES / "rq1_platoon.json"))
+    with pytest.raises(ValueError, match="unpriced"):
+        bare.with_lower({bare.frames[0].step: np.full(len(bare.frames[0].detections), 0.1)})
+
+
 def test_a_model_that_reads_an_unpriced_payoff_stops() -> None:
     scene = load_scene(SCENES / "rq1_platoon.json")
     with pytest.raises(UnpricedPayoff) as err:
@@ -268,6 +388,41 @@ def test_a_rerun_that_reads_more_payoffs_perceives_again(video: Path, tmp_path: 
     assert "perceiving the video again: a check reads payoffs its cache lacks" in log
     _, full = _verify(video, tmp_path / "full", "--design", "joint", "--price-all")
     assert [x[:3] for x in _outcomes(doc)] == [x[:3] for x in _outcomes(full)]
+    for x, y in zip(_outcomes(doc), _outcomes(full), strict=True):
+        assert x[3] == y[3] or x[3] == pytest.approx(y[3], rel=1e-5)
     log, again = _verify(video, out, "--design", "joint")
     assert "perceiving" not in log
     assert _outcomes(again) == _outcomes(doc)
+
+
+def test_price_all_perceives_an_entry_with_unpriced_payoffs_again(
+    video: Path, tmp_path: Path
+) -> None:
+    out = tmp_path / "out"
+    _verify(video, out, "--design", "single")
+    assert "unpriced" in _payoffs(out).values()
+    log, _ = _verify(video, out, "--design", "single", "--price-all")
+    assert "perceiving the video again: its cached perception has unpriced payoffs" in log
+    assert "unpriced" not in _payoffs(out).values()
+
+
+def test_a_cache_that_does_not_match_the_video_is_refused(tmp_path: Path) -> None:
+    from lesmc.common.errors import UsageError
+    from lesmc.verify.cache import StageCache
+    from lesmc.verify.experiment import _same_detections
+
+    footage = load_scene(SCENES / "rq1_platoon.json").footage
+    moved = replace(
+        footage,
+        frames=(
+            replace(
+                footage.frames[0],
+                detections=tuple(replace(d, x=d.x + 1) for d in footage.frames[0].detections),
+            ),
+            *footage.frames[1:],
+        ),
+    )
+    cache = StageCache(tmp_path)
+    _same_detections(footage, footage, cache)
+    with pytest.raises(UsageError, match="differ"):
+        _same_detections(footage, moved, cache)

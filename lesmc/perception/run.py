@@ -273,7 +273,7 @@ def certify_detections(
             continue
         fd, _ = by_index[k]
         jobs.append((k, np.unique(fd.source[dets])))
-    windows = [by_index[k][0].windows[blobs] for k, blobs in jobs]
+    windows = [expand(by_index[k][0].windows[blobs]) for k, blobs in jobs]
     upper = [_blob_payoffs(*by_index[k])[blobs] for k, blobs in jobs]
     total = sum(len(b) for _, b in jobs)
     low = (

@@ -322,11 +322,12 @@ class OnDemandPayoffs:
         need = np.unique(flat[np.isnan(col[flat])])
         if need.size:
             priced = self.price({step: need})[step]
-            got = priced[need]
-            if len(priced) != len(col) or np.isnan(got).any():
+            if len(priced) != len(col) or np.isnan(priced[need]).any():
                 raise RuntimeError(f"the pricer did not price what frame {step} asked for")
-            col[need] = got
-            self.asked += int(need.size)
+            # all it priced (a blob's other detections too): none is ever attacked twice
+            new = np.isnan(col) & ~np.isnan(priced)
+            col[new] = priced[new]
+            self.asked += int(new.sum())
         out: np.ndarray = col[idx]
         return out
 
@@ -351,6 +352,14 @@ class PricedFrame(Frame):
     (:class:`OnDemandPayoffs`)."""
 
     prices: OnDemandPayoffs | None = field(default=None, compare=False)
+
+    def __post_init__(self) -> None:
+        col = None if self.prices is None else self.prices.values.get(self.step)
+        if col is not None and len(col) != len(self.detections):
+            raise ValueError(
+                f"frame {self.step}: {len(self.detections)} detections, but prices for "
+                f"{len(col)} (a PricedFrame keeps the detections its prices were made for)"
+            )
 
     def payoffs(self) -> np.ndarray:
         if self.prices is None or self.step not in self.prices.values:
@@ -384,6 +393,9 @@ def lower_frames(frames: tuple[Frame, ...], lower: Mapping[int, np.ndarray]) -> 
     for f in frames:
         low = lower.get(f.step)
         if low is not None:
+            bounded = ~np.isnan(low)
+            if bounded.any() and np.isnan(f.payoff_values()[bounded]).any():
+                raise ValueError(f"frame {f.step}: a lower bound for an unpriced payoff")
             f = replace(
                 f,
                 detections=tuple(

@@ -169,8 +169,11 @@ def verify(req: Request, rep: Reporter) -> Outcome:
     rep.log(f"target: {src.meta['target']}")
     neuron = _neuron_runs(req, faults, src, rep)
     checked = time.monotonic()
-    # the job is not kept: the scene it checked gives way to the settled one (_settled)
-    results = _settled(run_job(_job(req, specs, faults, neuron, src, rep)), src, rep)
+    try:  # the job is not kept: the scene it checked gives way to the settled one
+        results = run_job(_job(req, specs, faults, neuron, src, rep))
+    finally:  # what was priced is kept, even when a budget or an interrupt stops the checks
+        _keep_priced(src)
+    results = _settled(results, src, rep)
     timings = {"video, perception and scene": checked - started}
     timings["models and checks"] = time.monotonic() - checked
     if src.pricing is not None:  # within the models and checks
@@ -338,19 +341,7 @@ def _perception(
     perceived again, recording them. ``on_demand``: a payoff is priced when a model
     first reads it (lesmc/verify/pricing.py); otherwise every detection is priced now,
     and an entry with unpriced payoffs is perceived again."""
-    from lesmc.perception.attack_settings import AttackConfig
-
-    key = digest(
-        {
-            "code": code_digest("perception", "video", "scene"),
-            "frames": file_digests(frames.paths),
-            "nets": file_digests(net_files(req.nets)),
-            "source": str(frames_dir),
-            "dt": dt,
-            "history": HISTORY,
-            "attack": asdict(AttackConfig()),
-        }
-    )
+    key = _perception_key(req, frames, frames_dir, dt)
     hit = video_perception.read(cache, "perception", key) if req.payoffs == "attack" else None
     if hit is not None and maxima and not hit[1]:
         rep.log("perceiving the video again: its cached perception has no unit maxima")
@@ -364,21 +355,55 @@ def _perception(
 
     if hit is not None:
         rep.log(f"reusing the perception of {frames_dir} from {cache.dir}")
+        seen = _Perception(hit[0], None, None, hit[1], key)
         if not on_demand or not hit[0].unpriced:
-            return _Perception(hit[0], None, None, hit[1], key)
+            return seen
 
         def again() -> tuple[Any, Any]:  # a payoff the cached entry lacks: its windows
             rep.log("perceiving the video again: a check reads payoffs its cache lacks")
-            _, nets, run = perceive()
+            footage, nets, run = perceive()
+            _same_detections(hit[0], footage, cache)
             return nets, run
 
-        return _on_demand(
-            _Perception(hit[0], None, None, hit[1], key), VideoPricer(None, None, again)
-        )
+        return _on_demand(seen, VideoPricer(None, None, again), req.budget)
     footage, nets, run = perceive()
     video_perception.store(cache, "perception", key, footage, run.unit_max)
     seen = _Perception(footage, nets, run, run.unit_max, key)
-    return _on_demand(seen, VideoPricer(nets, run, lambda: (nets, run))) if on_demand else seen
+    if not on_demand:
+        return seen
+    return _on_demand(seen, VideoPricer(nets, run, lambda: (nets, run)), req.budget)
+
+
+def _perception_key(req: Request, frames: FrameSet, frames_dir: str, dt: float) -> str:
+    """The cache key of a video's perception: its frames' bytes, the networks' files, the
+    settings and the code that perceives."""
+    from lesmc.perception.attack_settings import AttackConfig
+
+    return digest(
+        {
+            "code": code_digest("perception", "video", "scene"),
+            "frames": file_digests(frames.paths),
+            "nets": file_digests(net_files(req.nets)),
+            "source": str(frames_dir),
+            "dt": dt,
+            "history": HISTORY,
+            "attack": asdict(AttackConfig()),
+        }
+    )
+
+
+def _same_detections(cached: Footage, again: Footage, cache: StageCache) -> None:
+    """The video perceived again must give the cached perception's detections, else its
+    payoffs would be priced for other detections than the cached ones."""
+    same = len(cached.frames) == len(again.frames) and all(
+        f.step == g.step and np.array_equal(f.positions(), g.positions())
+        for f, g in zip(cached.frames, again.frames, strict=True)
+    )
+    if not same:
+        raise UsageError(
+            f"{cache.dir}: the cached perception's detections differ from the video's "
+            f"perceived again; remove {cache.dir} and run again"
+        )
 
 
 def _perceive_now(
@@ -411,16 +436,18 @@ def _perceive_now(
     return footage, nets, run
 
 
-def _on_demand(seen: _Perception, pricer: VideoPricer) -> _Perception:
-    """``seen`` with its unpriced payoffs priced by ``pricer`` when a model reads them."""
+def _on_demand(seen: _Perception, pricer: VideoPricer, budget: Budget) -> _Perception:
+    """``seen`` with its unpriced payoffs priced by ``pricer`` when a model reads them
+    (within ``budget``: past it, verify stops as while building a model)."""
+    pricer.on_price = lambda _n: _spent(budget, "pricing payoffs")
     footage, prices = on_demand_footage(seen.footage, pricer)
     return dataclasses.replace(seen, footage=footage, pricing=(prices, pricer, footage))
 
 
 def _settled(results: Results, src: _Source, rep: Reporter) -> Results:
     """``results`` and ``src`` with the payoffs priced on demand written into their scenes'
-    detections, ``meta.priced`` saying which, and OUT/cache's perception updated with
-    them (a rerun with the same checks prices nothing). Unchanged without pricing."""
+    detections (one copy of the frames) and ``meta.priced`` saying which; the pricer's
+    windows let go. Unchanged without pricing."""
     if src.pricing is None:
         return results
     prices, pricer, footage = src.pricing
@@ -441,11 +468,19 @@ def _settled(results: Results, src: _Source, rep: Reporter) -> Results:
             run.scene = dataclasses.replace(run.scene, frames=settled.frames)
     footage = dataclasses.replace(footage, frames=settled.frames)  # as perception made it
     src.pricing = (prices, pricer, footage)  # the frames priced on demand are let go
-    if prices.asked and src.cache is not None and src.perceived is not None:
-        key, unit_max, _ = src.perceived
-        video_perception.store(src.cache, "perception", key, footage, unit_max)
     release()  # the windows' and the frames' pages go back to the system before the replay
     return dataclasses.replace(results, scene=src.scene)
+
+
+def _keep_priced(src: _Source) -> None:
+    """OUT/cache's perception stored again with the payoffs this run priced on demand (a
+    rerun of the same checks prices nothing)."""
+    if src.pricing is None or src.cache is None or src.perceived is None:
+        return
+    prices, _, footage = src.pricing
+    if prices.asked:
+        key, unit_max, _ = src.perceived
+        video_perception.store(src.cache, "perception", key, footage.settled(), unit_max)
 
 
 def _tracker(req: Request) -> TrackerConfig | None:

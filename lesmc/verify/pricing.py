@@ -7,8 +7,9 @@ So ``verify`` (``--payoffs attack``, no ``--faults``, no ``--price-all``) percei
 without attacking, keeps each blob's N_dr window, and gives the scene
 :class:`~lesmc.scene.PricedFrame` frames: a payoff read by a model is priced then,
 by the same attack with the same settings, each blob once
-(:func:`lesmc.perception.run.price_detections`). A model therefore sees exactly the
-payoffs it would see had every detection been priced up front; OUT/scene.json
+(:func:`lesmc.perception.run.price_detections`). A model therefore sees the payoffs
+it would see had every detection been priced up front, up to float32 rounding (a
+window attacked in another batch can end about 1e-7 apart: docs/cnn.md); OUT/scene.json
 marks the others ``"unpriced"`` (docs/scene-format.md).
 
 A perception read back from OUT/cache has no windows: the first payoff it lacks
