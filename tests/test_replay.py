@@ -285,10 +285,13 @@ def test_verify_in_interval_mode_certifies_what_its_models_can_hide(
     for res, a in zip(results, att["runs"][0]["results"], strict=True):
         assert res["payoffs"] == "interval"
         assert not any("carry no certified bound" in n for n in res["notes"])
-        # the attack's optimum is the attack mode's own
-        assert res["optimum_attack"] == a["optimum"] or (
-            res["optimum_attack"] == "inf" and a["optimum"] is None
-        )
+        # the attack's optimum is the attack mode's own: that mode attacked only what its
+        # models read, in other batches, so to float32 rounding (docs/cnn.md)
+        o_attack, o_own = res["optimum_attack"], a["optimum"]
+        if isinstance(o_attack, float) and isinstance(o_own, float):
+            assert o_attack == pytest.approx(o_own, rel=1e-5)
+        else:
+            assert o_attack == o_own or (o_attack == "inf" and o_own is None)
         c, t, o = res["optimum_certified"], res["threshold"], res["optimum_attack"]
         c = math.inf if c in ("inf", None) else c
         o = math.inf if o in ("inf", None) else o
