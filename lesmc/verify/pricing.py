@@ -41,7 +41,7 @@ class VideoPricer:
 
     ``again()`` returns (networks, run) for a perception read from the cache, which
     has no windows: called once, on the first request. ``on_price(n)`` before each
-    attack of ``n`` blobs' detections (progress, budget).
+    attack, ``n`` the detections asked for (the budget).
     """
 
     def __init__(
