@@ -89,16 +89,25 @@ def _on_demand(scene: Scene, oracle: _Oracle) -> tuple[Scene, OnDemandPayoffs]:
     return replace(bare, frames=frames), prices
 
 
+def _same_model_on_demand(
+    scene: Scene, oracle: _Oracle, window: tuple[int, int]
+) -> tuple[Scene, OnDemandPayoffs]:
+    """Builds ``scene`` priced up front and priced on demand by ``oracle``: the same
+    model, field by field; the on-demand scene and its prices."""
+    want = build_model(scene, window)
+    lazy, prices = _on_demand(scene, oracle)
+    got = build_model(lazy, window)
+    for f in FIELDS:
+        assert np.array_equal(getattr(got, f), getattr(want, f)), f
+    return lazy, prices
+
+
 @pytest.mark.parametrize("design", ["single", "joint"])
 @pytest.mark.parametrize("name", ["rq1_platoon", "rq2_parallel", "rq4_merge"])
 def test_a_model_priced_on_demand_is_the_model_priced_up_front(name: str, design: str) -> None:
     scene = _with_far_traffic(load_scene(SCENES / f"{name}.json").with_tracker(design=design))
-    want = build_model(scene, (5, 8))
     oracle = _Oracle(scene)
-    lazy, prices = _on_demand(scene, oracle)
-    got = build_model(lazy, (5, 8))
-    for f in FIELDS:
-        assert np.array_equal(getattr(got, f), getattr(want, f)), f
+    lazy, prices = _same_model_on_demand(scene, oracle, (5, 8))
     # each detection priced once, none of the far ones, fewer than all of them
     assert len(oracle.asked) == len(set(oracle.asked)) == prices.asked
     assert not any("far" in scene.frame(k).detections[i].id for k, i in oracle.asked)
@@ -149,18 +158,15 @@ def _blob_payoffs(scene: Scene) -> Scene:
 
 
 @pytest.mark.parametrize("design", ["single", "joint"])
-def test_each_blob_is_attacked_once(design: str) -> None:
-    """A blob's attack prices all its detections: a model that reads one, then the
-    other, never attacks the blob twice; the model is the up-front one."""
+def test_a_model_priced_by_blobs_is_the_model_priced_up_front(design: str) -> None:
+    """Priced as perception prices, a blob's detections together: the up-front model,
+    no blob attacked twice (on this scene no model reads a blob's detections in two
+    batches; test_a_blobs_other_detection_is_not_attacked_again makes one)."""
     scene = _blob_payoffs(
         _with_far_traffic(load_scene(SCENES / "rq4_merge.json").with_tracker(design=design))
     )
-    want = build_model(scene, (4, 9))
     oracle = _BlobOracle(scene)
-    lazy, prices = _on_demand(scene, oracle)
-    got = build_model(lazy, (4, 9))
-    for f in FIELDS:
-        assert np.array_equal(getattr(got, f), getattr(want, f)), f
+    _, prices = _same_model_on_demand(scene, oracle, (4, 9))
     assert oracle.blobs and len(oracle.blobs) == len(set(oracle.blobs))
     assert prices.asked >= len(oracle.blobs)
 

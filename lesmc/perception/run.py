@@ -266,21 +266,13 @@ def certify_detections(
     bound of every detection of that frame, ``nan`` where not certified.
     ``on_batch(done, total)`` counts blobs.
     """
-    by_index = {fd.index: (fd, pay) for fd, pay in zip(run.detections, run.payoffs, strict=True)}
-    jobs: list[tuple[int, np.ndarray]] = []  # (frame index, its wanted blobs)
-    for k, dets in sorted(wanted.items()):
-        if k not in by_index or not len(dets):
-            continue
-        fd, _ = by_index[k]
-        jobs.append((k, np.unique(fd.source[dets])))
-    windows = [expand(by_index[k][0].windows[blobs]) for k, blobs in jobs]
-    upper = [_blob_payoffs(*by_index[k])[blobs] for k, blobs in jobs]
+    jobs = _wanted_blobs(run, wanted)
     total = sum(len(b) for _, b in jobs)
     low = (
         certified_lower(
             nets,
-            np.concatenate(windows),
-            np.concatenate(upper),
+            _blob_windows(run, jobs),
+            np.concatenate([_blob_payoffs(run.detections[i], run.payoffs[i])[b] for i, b in jobs]),
             cfg,
             cert,
             None if on_batch is None else (lambda done: on_batch(done, total)),
@@ -288,15 +280,7 @@ def certify_detections(
         if total
         else np.zeros(0)
     )
-    out: dict[int, np.ndarray] = {}
-    at = 0
-    for k, blobs in jobs:
-        fd, _ = by_index[k]
-        per_blob = np.full(len(fd.windows), np.nan)
-        per_blob[blobs] = low[at : at + len(blobs)]
-        at += len(blobs)
-        out[k] = per_blob[fd.source]
-    return out
+    return _per_detection(run, jobs, low)
 
 
 def price_detections(
@@ -310,25 +294,48 @@ def price_detections(
     payoff, in the returned arrays (per frame index, one value per detection of the
     frame, ``nan`` where not priced) and in ``run.payoffs``.
     """
-    by_index = {fd.index: i for i, fd in enumerate(run.detections)}
-    jobs = [
-        (by_index[k], np.unique(run.detections[by_index[k]].source[dets]))
+    jobs = _wanted_blobs(run, wanted)
+    if not jobs:
+        return {}
+    res = payoffs(nets.dr, _blob_windows(run, jobs), nets.settings.delta_dr, cfg)
+    out = _per_detection(run, jobs, res.payoff)
+    for i, _ in jobs:
+        got = out[run.detections[i].index]
+        run.payoffs[i] = np.where(np.isnan(got), run.payoffs[i], got)
+    return out
+
+
+def _wanted_blobs(
+    run: PerceiveRun, wanted: Mapping[int, np.ndarray]
+) -> list[tuple[int, np.ndarray]]:
+    """Per frame index of ``wanted`` (in order) that ``run`` perceived: the row of
+    ``run.detections`` and the Q_dr blobs its wanted detections came from, each once."""
+    row_of = {fd.index: i for i, fd in enumerate(run.detections)}
+    return [
+        (row_of[k], np.unique(run.detections[row_of[k]].source[dets]))
         for k, dets in sorted(wanted.items())
-        if len(dets)
+        if k in row_of and len(dets)
     ]
-    windows = [expand(run.detections[i].windows[blobs]) for i, blobs in jobs]
-    res = payoffs(nets.dr, np.concatenate(windows), nets.settings.delta_dr, cfg) if jobs else None
+
+
+def _blob_windows(run: PerceiveRun, jobs: list[tuple[int, np.ndarray]]) -> np.ndarray:
+    """The N_dr windows of the blobs of ``jobs`` (:func:`_wanted_blobs`), in order, float32."""
+    return np.concatenate([expand(run.detections[i].windows[blobs]) for i, blobs in jobs])
+
+
+def _per_detection(
+    run: PerceiveRun, jobs: list[tuple[int, np.ndarray]], values: np.ndarray
+) -> dict[int, np.ndarray]:
+    """One value per blob of ``jobs`` (in order) given to each of the blob's detections:
+    per frame index, one value per detection of the frame, ``nan`` for the others."""
     out: dict[int, np.ndarray] = {}
     at = 0
     for i, blobs in jobs:
         fd = run.detections[i]
-        assert res is not None
         per_blob = np.full(len(fd.windows), np.nan)
-        per_blob[blobs] = res.payoff[at : at + len(blobs)]
+        per_blob[blobs] = values[at : at + len(blobs)]
         at += len(blobs)
-        got = per_blob[fd.source]
-        run.payoffs[i] = np.where(np.isnan(got), run.payoffs[i], got)
-        out[fd.index] = got
+        out[fd.index] = per_blob[fd.source]
     return out
 
 

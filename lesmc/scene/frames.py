@@ -386,6 +386,15 @@ class _OnDemandColumn:
         return self[:]
 
 
+def repriced(frames: tuple[Frame, ...], payoff: Callable[[Detection], float]) -> tuple[Frame, ...]:
+    """Plain frames with each detection's payoff replaced by ``payoff(detection)`` (a
+    :class:`PricedFrame` becomes a plain one: its prices are not the new payoffs)."""
+    return tuple(
+        Frame(f.step, tuple(replace(d, payoff=payoff(d)) for d in f.detections), f.to_next)
+        for f in frames
+    )
+
+
 def lower_frames(frames: tuple[Frame, ...], lower: Mapping[int, np.ndarray]) -> tuple[Frame, ...]:
     """``frames`` with certified lower payoffs ``lower[step][i]`` for detection i of frame
     ``step`` (``nan``: none; capped by the payoff); detections not given keep theirs."""

@@ -15,7 +15,7 @@ from typing import Any, Literal
 import numpy as np
 
 from lesmc.common.errors import InputError
-from lesmc.scene.frames import Frame, PricedFrame, lower_frames
+from lesmc.scene.frames import Frame, PricedFrame, lower_frames, repriced
 from lesmc.scene.tracker_model import (
     DEFAULT_MODEL,
     EntryFault,
@@ -142,11 +142,7 @@ class _Frames:
     def payoff_free(self) -> Any:
         """The same with every payoff 1: for what follows only the unattacked outcome (the
         monitor's false alarms, a track's end), whose states never depend on a payoff."""
-        frames = tuple(
-            Frame(f.step, tuple(replace(d, payoff=1.0) for d in f.detections), f.to_next)
-            for f in self.frames
-        )
-        return replace(self, frames=frames)  # type: ignore[type-var]
+        return replace(self, frames=repriced(self.frames, lambda _d: 1.0))  # type: ignore[type-var]
 
     def with_lower(self, lower: Mapping[int, np.ndarray]) -> Any:
         """The same with certified lower payoffs: ``lower[step][i]`` for detection i of
@@ -211,17 +207,7 @@ class Scene(_Frames):
             raise ValueError(f"unknown payoff column {payoffs!r}")
         if not self.any_lower and "certified" not in self.meta:
             raise InputError.many(path, [(self._first_detection(), _NO_LOWER)])
-        frames = tuple(  # plain frames: a PricedFrame would read the attack's payoffs
-            Frame(
-                f.step,
-                tuple(
-                    replace(d, payoff=0.0 if d.payoff_lower is None else d.payoff_lower)
-                    for d in f.detections
-                ),
-                f.to_next,
-            )
-            for f in self.frames
-        )
+        frames = repriced(self.frames, lambda d: 0.0 if d.payoff_lower is None else d.payoff_lower)
         return replace(self, frames=frames)
 
     def _first_detection(self) -> str:

@@ -346,7 +346,7 @@ def _perception(
     if hit is not None and maxima and not hit[1]:
         rep.log("perceiving the video again: its cached perception has no unit maxima")
         hit = None
-    if hit is not None and not on_demand and hit[0].unpriced:
+    if hit is not None and not on_demand and hit[0].has_unpriced:
         rep.log("perceiving the video again: its cached perception has unpriced payoffs")
         hit = None
 
@@ -356,7 +356,7 @@ def _perception(
     if hit is not None:
         rep.log(f"reusing the perception of {frames_dir} from {cache.dir}")
         seen = _Perception(hit[0], None, None, hit[1], key)
-        if not on_demand or not hit[0].unpriced:
+        if not on_demand or not hit[0].has_unpriced:
             return seen
 
         def again() -> tuple[Any, Any]:  # a payoff the cached entry lacks: its windows
