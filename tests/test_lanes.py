@@ -188,3 +188,47 @@ def test_certification_inside_perceptions_block_gets_the_cores_back(two_threads:
     with all_torch_threads():  # outside any block: unchanged
         seen.append(torch.get_num_threads())
     assert seen == [2, 1, 1, 1, 2]
+
+
+# ---------------------------------------------------------------- free cores
+
+
+def _readings(busy: list[int], total: int = 10) -> tuple[dict, dict]:
+    """Two /proc/stat readings (per core: idle ticks, all ticks) with ``busy`` ticks per
+    core out of ``total`` between them."""
+    before = {c: (1000, 5000) for c in range(len(busy))}
+    after = {c: (1000 + total - b, 5000 + total) for c, b in enumerate(busy)}
+    return before, after
+
+
+@pytest.mark.parametrize(
+    ("busy", "own", "free"),
+    [
+        ([0, 0], 0.0, 2),  # idle
+        ([9, 0], 0.0, 1),  # another process on one core
+        ([9, 9], 0.0, 1),  # every core busy: still one
+        ([9, 0], 9.0, 2),  # the busy core was this process's own thread (OpenCV's at import)
+        ([9, 0], 3.0, 1),  # ours a third of it: the rest is another process
+        ([9, 8], 9.0, 1),  # ours only on one of the two busy cores
+        ([9, 0], 50.0, 2),  # ours above the busy ticks (rounding): never below zero
+        ([4, 4], 0.0, 2),  # under half busy counts as free
+    ],
+)
+def test_free_cores_leave_out_this_processs_own_work(
+    busy: list[int], own: float, free: int
+) -> None:
+    """free_cores' arithmetic (threads._free) on given readings: a core is free when it
+    was idle half the sample once this process's own CPU time is taken off the busiest."""
+    from lesmc.perception.threads import _free
+
+    before, after = _readings(busy)
+    assert _free(before, after, list(range(len(busy))), own) == free
+
+
+def test_free_cores_skip_cores_outside_the_affinity_or_the_readings() -> None:
+    from lesmc.perception.threads import _free
+
+    before, after = _readings([9, 0, 0])
+    assert _free(before, after, [0, 1], 0.0) == 1  # core 2 is not ours to use
+    del after[1]
+    assert _free(before, after, [0, 1, 2], 0.0) == 1  # core 1 unreadable: not counted

@@ -4,7 +4,10 @@ torch's OpenMP threads spin-wait for each other: with more threads than idle
 cores (a campaign's other workers, any CPU-bound process beside lesmc) every
 parallel region waits for a thread that is not running, and a certificate
 takes 3-10x as long. :func:`free_cores` counts the cores this process may run
-on (its affinity) that were mostly idle over a short sample of /proc/stat;
+on (its affinity) that were mostly idle over a short sample of /proc/stat, this
+process's own CPU time not counted as load (OpenCV keeps a thread busy for about
+0.1 s after its import, which made a process that loaded the networks right after
+importing cv2 fit one thread on an idle machine);
 :func:`fit_torch_threads` sets torch's intra-op threads to that, once per
 process, when the networks are loaded (lesmc/perception/cnn.py). Set
 ``LESMC_THREADS=N`` to choose the count yourself.
@@ -58,22 +61,42 @@ def _cpu_times() -> dict[int, tuple[int, int]]:
 
 def free_cores(sample: float = SAMPLE_SECONDS) -> int:
     """Cores of this process's affinity that were at least :data:`IDLE_FRACTION` idle over
-    ``sample`` seconds; at least 1. Where /proc/stat cannot be read: the affinity's size."""
+    ``sample`` seconds, this process's own work not counted (:func:`_free`); at least 1.
+    Where /proc/stat cannot be read: the affinity's size."""
     allowed = sorted(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else []
     if not allowed:
         return max(1, os.cpu_count() or 1)
-    before = _cpu_times()
+    before, own = _cpu_times(), time.process_time()
     time.sleep(sample)
-    after = _cpu_times()
+    after, own = _cpu_times(), time.process_time() - own
     if not before or not after:
         return len(allowed)
-    free = 0
+    return _free(before, after, allowed, own * os.sysconf("SC_CLK_TCK"))
+
+
+def _free(
+    before: dict[int, tuple[int, int]],
+    after: dict[int, tuple[int, int]],
+    allowed: list[int],
+    own: float,
+) -> int:
+    """The cores of ``allowed`` at least :data:`IDLE_FRACTION` idle between two readings of
+    :func:`_cpu_times`, once ``own`` ticks (this process's CPU time meanwhile) are taken
+    off the busiest cores: a thread of ours that is busy while the caller waits (OpenCV
+    starts one for about 0.1 s after its import) is not another process competing for
+    the cores, and torch's threads would not wait for it once it is done. At least 1."""
+    cores = []
     for cpu in allowed:
-        if cpu not in before or cpu not in after:
-            continue
-        idle = after[cpu][0] - before[cpu][0]
-        total = after[cpu][1] - before[cpu][1]
-        free += total > 0 and idle / total >= IDLE_FRACTION
+        if cpu in before and cpu in after:
+            total = after[cpu][1] - before[cpu][1]
+            if total > 0:
+                cores.append((total - (after[cpu][0] - before[cpu][0]), total))
+    cores.sort(key=lambda c: c[0] / c[1], reverse=True)
+    free = 0
+    for busy, total in cores:
+        mine = min(own, busy)
+        own -= mine
+        free += (total - busy + mine) / total >= IDLE_FRACTION
     return max(1, free)
 
 
