@@ -15,15 +15,16 @@ before certifying). This script times, side by side in one run on the default vi
 On demand pays when the probes and their pricing take less than the reference.
 
 Run ``python benchmarks/bench_probes.py [--targets 2,10] [--windows 4..12:1..4]``
-(a fresh ``--out``: the video is perceived in this process, for its N_dr windows).
+(the video is perceived in this process, for its N_dr windows, into a new directory
+under ``--out``; a scene already there is left alone).
 Figures: docs/performance.md.
 """
 
 from __future__ import annotations
 
 import argparse
-import shutil
 import sys
+import tempfile
 import time
 from pathlib import Path
 
@@ -54,8 +55,9 @@ def main() -> None:
     video = args.video or args.out / "video"
     if not default_video_ready(video):
         write_default_video(video)
-    shutil.rmtree(args.out / "scenes", ignore_errors=True)  # perceive here: N_dr windows
-    p = prepare(Video("default", video, video / "truth.json", "embedded default"), args.out)
+    args.out.mkdir(parents=True, exist_ok=True)
+    fresh = Path(tempfile.mkdtemp(prefix="perceived-", dir=args.out))  # no scene to reuse
+    p = prepare(Video("default", video, video / "truth.json", "embedded default"), fresh)
     assert p.run is not None
     nets = load_nets()
     run = p.run

@@ -49,7 +49,9 @@ def influence(chain: C.Chain, relaxes: list[C.Relax], layer: int, nb: int) -> to
 
 
 def deeper(chain: C.Chain, ball: C.Ball, bounds: C.Bounds, relaxes: list[C.Relax]) -> torch.Tensor:
-    """r*(R) of the margin when the layers after ``bounds`` get CROWN bounds again."""
+    """r*(R) of the margin when the layers after ``bounds`` get CROWN bounds again: the
+    steps of ``certify.layer_bounds`` from a given layer on (which layer_bounds cannot
+    do without recomputing, and so tightening, the layers before)."""
     bounds, relaxes = list(bounds), list(relaxes)
     for i in range(len(bounds), len(chain.layers) - 1):
         lo, hi = (t.contiguous() for t in C._interval_step(chain.layers[i], *bounds[-1]))
