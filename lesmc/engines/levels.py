@@ -46,8 +46,10 @@ from lesmc.model.kernel import aggregate_arrays
 
 #: Labels expanded per slice: the clock and the budgets are checked between slices.
 SLICE = 16_384
-#: Labels kept per level by the beam dives.
+#: Labels kept per level by the beam dives; on a model unfolded on demand, by the dives
+#: for the optimum (see :func:`_dive_beam`).
 BEAM = 256
+LAZY_BEAM = 32
 #: Most extra dives that bisect a threshold, and the relative gap at which they stop.
 TIGHTEN = 8
 TIGHT_GAP = 0.02
@@ -780,9 +782,10 @@ def level_search(space: SearchSpace, limits: Budget | None = None) -> EngineOutc
     if bounds.exact:
         stats.extra["bound_states"] = bounds.reachable
     # phase 1: a dive for an incumbent, then the exact pass below it
-    upper, at, _, stopped = _optimum_pass(space, bounds, budget, stats, math.inf, BEAM)
+    beam = _dive_beam(space)
+    upper, at, _, stopped = _optimum_pass(space, bounds, budget, stats, math.inf, beam)
     if stopped is None and space.con_up:
-        best, got, _, stopped = _optimum_pass(space, bounds, budget, stats, upper, BEAM, False)
+        best, got, _, stopped = _optimum_pass(space, bounds, budget, stats, upper, beam, False)
         if got is not None and best < upper:
             upper, at = best, got
     if stopped is None and math.isfinite(upper):
@@ -819,6 +822,20 @@ def level_search(space: SearchSpace, limits: Budget | None = None) -> EngineOutc
     )
 
 
+def _dive_beam(space: SearchSpace) -> int:
+    """How many labels a dive for the optimum keeps per level.
+
+    On an explicit model a label costs a lookup, and a wide beam buys a better
+    incumbent for the exact pass. On a model unfolded on demand each label the dive
+    keeps is a state to unfold (the tracker's step and its attacker's options), and
+    the states a dive unfolds above the optimum are the ones the exact pass never
+    needs: a narrow beam reaches an incumbent as good in fewer of them
+    (docs/performance.md, fifteenth round: dense resilience 4..12 builds 12,960 states
+    instead of 29,634, the same optimum).
+    """
+    return BEAM if isinstance(space, Space) else LAZY_BEAM
+
+
 def _tighten(
     space: SearchSpace,
     bounds: _Bounds,
@@ -847,7 +864,7 @@ def _tighten(
             break
         probe = misses == 2  # stuck far below: look just below the incumbent instead
         mid = upper - gap if probe else low + (upper - low) / 2
-        best, got, _, why = _optimum_pass(space, bounds, budget, stats, mid, BEAM)
+        best, got, _, why = _optimum_pass(space, bounds, budget, stats, mid, _dive_beam(space))
         if got is not None and best < upper:
             upper, at, misses = best, got, 0
         if why is not None:
