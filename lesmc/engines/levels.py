@@ -35,6 +35,7 @@ from __future__ import annotations
 import math
 import time
 from dataclasses import dataclass, field
+from typing import NamedTuple
 
 import numpy as np
 
@@ -50,6 +51,8 @@ SLICE = 16_384
 #: for the optimum (see :func:`_dive_beam`).
 BEAM = 256
 LAZY_BEAM = 32
+#: Dives side by side per pass of :func:`_tighten` on a model unfolded on demand.
+LAZY_LANES = 4
 #: Most extra dives that bisect a threshold, and the relative gap at which they stop.
 TIGHTEN = 8
 TIGHT_GAP = 0.02
@@ -363,31 +366,42 @@ def _pareto(q: np.ndarray, o: np.ndarray, c: np.ndarray, up: bool) -> np.ndarray
     return np.asarray(order[keep])
 
 
+class _Pass(NamedTuple):
+    """What :func:`_optimum_pass` found: the best objective, where its label is (trail,
+    level, index), a proven lower bound on the optimum (−inf for a beam), why it stopped
+    early (None: it finished), and per lane whether it found a path below its threshold."""
+
+    best: float
+    where: tuple[_Trail, int, int] | None
+    lower: float
+    why: str | None
+    hits: np.ndarray
+
+
 def _optimum_pass(
     space: SearchSpace,
     bounds: _Bounds,
     budget: SearchBudget,
     stats: Stats,
-    upper: float,
+    upper: float | np.ndarray,
     beam: int | None,
     saturated_first: bool = True,
-) -> tuple[float, tuple[_Trail, int, int] | None, float, str | None]:
+) -> _Pass:
     """The cheapest violating path with objective below ``upper`` (exact unless ``beam``;
     ``saturated_first``: how the beam ranks labels that already violate, see :func:`_beam`).
 
-    Returns the best objective found, where its label is (trail, level, index), a proven
-    lower bound on the optimum (−inf for a beam), and why it stopped early (None: it
-    finished). Stopped early, the lower bound is the least bound of the labels left.
+    Several thresholds (beam only) are dives side by side, one *lane* each, unfolded in
+    one batch a level: a label keeps its lane, whose threshold (and the incumbent) cuts
+    it and whose beam it shares. Stopped early, the lower bound is the least label bound.
     """
-    trail = _Trail()
-    root = np.array([space.root], dtype=np.int64)
-    trail.add(root, np.array([-1]), np.array([-1]))
-    fq, fo, fc = root, np.array([space.root_obj]), np.array([space.root_con])
-    best, where = upper, None
-    cm = space.cm
+    thresholds = np.atleast_1d(np.asarray(upper, dtype=float))
+    lane_cut = np.array([bounds.cut(float(x)) for x in thresholds])
+    hits = np.zeros(thresholds.size, dtype=bool)
+    trail, fq, fo, fc, fg = _roots(space, thresholds.size)
+    best, where, cm = float(thresholds.max()), None, space.cm
     while fq.size:
         leaf = space.leaves(fq)
-        found = _cheapest_leaf(space, fq, fo, fc, leaf, best)
+        found = _cheapest_leaf(space, fq, fo, fc, leaf, best, thresholds[fg], hits, fg)
         if found is not None:
             best, where = found[0], (trail, len(trail.q) - 1, found[1])
         live = np.nonzero(~leaf)[0]
@@ -400,27 +414,41 @@ def _optimum_pass(
                 idx, t = _expand(space, fq[sl], budget, stats)
             except _Stop as stop:
                 if beam is not None:
-                    return best, where, -math.inf, stop.reason
+                    return _Pass(best, where, -math.inf, stop.reason, hits)
                 rest = live[s0 - sl.size :]  # this slice was not expanded
                 lower = min(best, bounds.least_lb(fq[rest], fo[rest], fc[rest]), _least(parts))
-                return best, where, lower, stop.reason
+                return _Pass(best, where, lower, stop.reason, hits)
             par = sl[idx]
             dst = cm.dst[t]
             o2 = aggregate_arrays(space.obj_max, fo[par], space.c_obj[t])
             c2 = _saturate(space, aggregate_arrays(space.con_max, fc[par], space.c_con[t]))
             lb2 = bounds.violating_lb(dst, o2, c2)
-            fine = lb2 < bounds.cut(best)
+            fine = lb2 < np.minimum(bounds.cut(best), lane_cut[fg[par]])
             parts.append((dst[fine], o2[fine], c2[fine], par[fine], t[fine], lb2[fine]))
         if not parts:
             break
         q, o, c, p, t, lb = _joined(parts)
         why = budget.over(0)
         if why is not None and beam is None:  # a huge level: stop before filtering it
-            return best, where, min(best, float(lb.min(initial=math.inf))), why
-        keep = _kept(space, bounds, q, o, c, lb, best, beam, saturated_first)
+            return _Pass(best, where, min(best, float(lb.min(initial=math.inf))), why, hits)
+        g = fg[p]
+        cut = np.minimum(bounds.cut(best), lane_cut[g])
+        keep = _kept(space, q, o, c, lb, cut, g, beam, saturated_first)
         trail.add(q[keep], p[keep], t[keep])
-        fq, fo, fc = q[keep], o[keep], c[keep]
-    return best, where, (best if beam is None else -math.inf), None
+        fq, fo, fc, fg = q[keep], o[keep], c[keep], g[keep]
+    return _Pass(best, where, (best if beam is None else -math.inf), None, hits)
+
+
+def _roots(
+    space: SearchSpace, lanes: int
+) -> tuple[_Trail, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """A trail whose first level is the root once per lane, and that level's states,
+    objectives, constraint values and lanes."""
+    trail = _Trail()
+    lane = np.arange(lanes)
+    q = np.full(lanes, space.root, dtype=np.int64)
+    trail.add(q, np.full(lanes, -1), np.full(lanes, -1))
+    return trail, q, np.full(lanes, space.root_obj), np.full(lanes, space.root_con), lane
 
 
 def _joined(parts: list[tuple[np.ndarray, ...]]) -> tuple[np.ndarray, ...]:
@@ -566,22 +594,30 @@ def _witness_pass(
 
 def _kept(
     space: SearchSpace,
-    bounds: _Bounds,
     q: np.ndarray,
     o: np.ndarray,
     c: np.ndarray,
     lb: np.ndarray,
-    best: float,
+    cut: np.ndarray,
+    lane: np.ndarray,
     beam: int | None,
     saturated_first: bool,
 ) -> np.ndarray:
-    """The labels of a level worth going on with: under the incumbent (it may have
-    improved), not dominated at their state, and within the beam."""
-    keep = np.nonzero(lb < bounds.cut(best))[0]
-    keep = keep[_pareto(q[keep], o[keep], c[keep], space.con_up)]
-    if beam is not None and keep.size > beam:
-        keep = _beam(space, keep, lb, q, c, beam, saturated_first)
-    return keep
+    """The labels of a level worth going on with: under their cut (the incumbent, which
+    may have improved, and their lane's threshold), not dominated at their state within
+    their lane, and within their lane's beam."""
+    keep: np.ndarray = np.nonzero(lb < cut)[0]
+    lanes = int(lane.max(initial=0)) + 1
+    at = q[keep] if lanes == 1 else q[keep] * lanes + lane[keep]  # a state of one lane
+    keep = keep[_pareto(at, o[keep], c[keep], space.con_up)]
+    if beam is None or keep.size <= beam:
+        return keep
+    if lanes == 1:
+        return _beam(space, keep, lb, q, c, beam, saturated_first)
+    parts = [keep[lane[keep] == g] for g in range(lanes)]
+    kept = [_beam(space, x, lb, q, c, beam, saturated_first) if x.size > beam else x for x in parts]
+    out: np.ndarray = np.sort(np.concatenate(kept))
+    return out
 
 
 def _cheapest_leaf(
@@ -591,16 +627,22 @@ def _cheapest_leaf(
     c: np.ndarray,
     leaf: np.ndarray,
     best: float,
+    threshold: np.ndarray,
+    hits: np.ndarray,
+    lane: np.ndarray,
 ) -> tuple[float, int] | None:
     """The least completed objective below ``best`` among the leaves whose completed path
-    violates the constraint, and its label; None if no leaf has one."""
-    if not leaf.any():
-        return None
+    violates the constraint, and its label; None if no leaf has one. Marks in ``hits`` the
+    lanes with such a leaf below the label's ``threshold``."""
     li = np.nonzero(leaf)[0]
+    if not li.size:
+        return None
     to, tc = space.tails(q[li])
     lo = aggregate_arrays(space.obj_max, o[li], to)
     lc = aggregate_arrays(space.con_max, c[li], tc)
-    bad = _truth(space.satisfies(lc, space.bp.bound)) & (lo < best)
+    bad = _truth(space.satisfies(lc, space.bp.bound))
+    hits[lane[li[bad & (lo < threshold[li])]]] = True
+    bad &= lo < best
     if not bad.any():
         return None
     j = int(np.argmin(np.where(bad, lo, math.inf)))
@@ -783,9 +825,9 @@ def level_search(space: SearchSpace, limits: Budget | None = None) -> EngineOutc
         stats.extra["bound_states"] = bounds.reachable
     # phase 1: a dive for an incumbent, then the exact pass below it
     beam = _dive_beam(space)
-    upper, at, _, stopped = _optimum_pass(space, bounds, budget, stats, math.inf, beam)
+    upper, at, _, stopped, _ = _optimum_pass(space, bounds, budget, stats, math.inf, beam)
     if stopped is None and space.con_up:
-        best, got, _, stopped = _optimum_pass(space, bounds, budget, stats, upper, beam, False)
+        best, got, _, stopped, _ = _optimum_pass(space, bounds, budget, stats, upper, beam, False)
         if got is not None and best < upper:
             upper, at = best, got
     if stopped is None and math.isfinite(upper):
@@ -794,7 +836,7 @@ def level_search(space: SearchSpace, limits: Budget | None = None) -> EngineOutc
     stats.extra["dive_upper"] = upper if math.isfinite(upper) else None
     lower = -math.inf
     if stopped is None:
-        best, at2, lower, stopped = _optimum_pass(space, bounds, budget, stats, upper, None)
+        best, at2, lower, stopped, _ = _optimum_pass(space, bounds, budget, stats, upper, None)
         if at2 is not None:
             upper, at = best, at2
     cex = _path_of(at)
@@ -849,31 +891,46 @@ def _tighten(
     A dive below threshold T keeps only labels that can still end below T; when it
     finds a violating path the incumbent improves, otherwise T only guides the next try
     (a beam proves nothing). Cheap next to an exact pass that a poor incumbent would widen.
-    After two misses in a row the next dive looks just below the incumbent (by the gap
-    the dives aim at) instead of halfway down; when it misses too, the dives end.
+    One dive at a time (an explicit model): after two misses in a row the next dive looks
+    just below the incumbent (by the gap the dives aim at) instead of halfway down; when
+    it misses too, the dives end. Several side by side (:func:`_dive_lanes`): each round
+    looks just below the incumbent and at 1/2, 1/4, ... of the way down, and the dives
+    end when none of them finds anything.
     """
     root = np.array([space.root], dtype=np.int64)
     low = float(
         bounds.violating_lb(root, np.array([space.root_obj]), np.array([space.root_con]))[0]
     )
     low = max(low, space.root_obj) if math.isfinite(low) else space.root_obj
-    misses = 0  # dives in a row that found nothing
+    lanes = _dive_lanes(space)
+    misses = 0  # dives in a row that found nothing (one lane)
     for _ in range(TIGHTEN):
         gap = TIGHT_GAP * max(abs(upper), 1e-12)
         if not upper - low > gap:
             break
-        probe = misses == 2  # stuck far below: look just below the incumbent instead
-        mid = upper - gap if probe else low + (upper - low) / 2
-        best, got, _, why = _optimum_pass(space, bounds, budget, stats, mid, _dive_beam(space))
+        probe = misses == 2 or lanes > 1  # look just below the incumbent
+        tries = [upper - gap] if probe else []
+        tries += [low + (upper - low) / 2**i for i in range(1, lanes + (not probe))]
+        best, got, _, why, hits = _optimum_pass(
+            space, bounds, budget, stats, np.array(tries), _dive_beam(space)
+        )
         if got is not None and best < upper:
             upper, at, misses = best, got, 0
         if why is not None:
             return upper, at, why
-        if got is None:
-            if probe:
-                break  # nothing better by the gap the dives aim at: the exact pass decides
-            low, misses = mid, misses + 1
+        if got is None and probe:
+            break  # nothing better by the gap the dives aim at: the exact pass decides
+        missed = [t for t, hit in zip(tries, hits, strict=True) if not hit and t <= upper]
+        if missed:
+            low, misses = max(low, *missed), misses + 1
     return upper, at, None
+
+
+def _dive_lanes(space: SearchSpace) -> int:
+    """How many dives :func:`_tighten` runs side by side in one pass: one on an explicit
+    model; on a model unfolded on demand, where each level's unfolding has a fixed cost
+    (about 0.5 ms a batch on a dense scene) that lanes share, :data:`LAZY_LANES`."""
+    return 1 if isinstance(space, Space) else LAZY_LANES
 
 
 def representative(
