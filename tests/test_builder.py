@@ -42,18 +42,18 @@ def test_on_the_fly_equals_explicit_model(name, design, l, span, obj, con, monit
     )
     scene = load_scene(SCENES / f"{name}.json").with_tracker(design=design)
     (bp,) = bind_scene(scene, [parse_spec(text)])
-    lazy = check_lazy(lazy_model(scene, (bp.l, bp.u), bp.end), bp, "bnb")
     model = build_model(scene, (l, u))
-    cm = model
-    for engine in ("bnb", "enumerate"):
-        explicit = check_bound(cm, bp, engine)  # type: ignore[arg-type]
-        assert (lazy.verdict, lazy.optimum, lazy.witness_value) == (
-            explicit.verdict,
-            explicit.optimum,
-            explicit.witness_value,
-        )
-    # the lazy engine builds no more than the model holds
-    assert lazy.stats.extra["states_built"] <= model.n_states
+    explicit = [check_bound(model, bp, engine) for engine in ("bnb", "enumerate")]  # type: ignore[arg-type]
+    for lazy_engine in ("bnb", "levels"):  # levels: narrow dives, side by side (lanes)
+        lazy = check_lazy(lazy_model(scene, (bp.l, bp.u), bp.end), bp, lazy_engine)  # type: ignore[arg-type]
+        for r in explicit:
+            assert (lazy.verdict, lazy.optimum, lazy.witness_value) == (
+                r.verdict,
+                r.optimum,
+                r.witness_value,
+            )
+        # the lazy engine builds no more than the model holds
+        assert lazy.stats.extra["states_built"] <= model.n_states
 
 
 def test_build_errors() -> None:

@@ -125,6 +125,60 @@ def test_optimum_and_witness_equal_brute_force(case: tuple) -> None:
         _assert_monitor_facts(model, bp, truth, r)
 
 
+@settings(max_examples=200, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(cases(), st.lists(st.floats(0.0, 1.5), min_size=1, max_size=4))
+def test_exact_lanes_each_find_a_path_below_their_threshold_iff_one_exists(
+    case: tuple, fractions: list[float]
+) -> None:
+    """Lanes side by side in one exact pass (levels._optimum_pass): the incumbent is the
+    brute-force optimum when it lies below some lane's cut, and a lane hits exactly when
+    the optimum lies below its own (the cut is the threshold, less the grain g when every
+    objective is a multiple of g: the pass then looks for objectives of T − g or less)."""
+    from lesmc.common.budget import Budget as B
+    from lesmc.engines import levels
+    from lesmc.engines.result import Stats
+
+    model, params, quantile = case
+    bp = _bound_property(model, params, quantile)
+    opt = brute_force(model, bp).optimum
+    scale = opt if math.isfinite(opt) and opt > 0 else 1.0
+    tries = np.array(sorted({f * scale for f in fractions}, reverse=True))
+    space = build_space(to_arrays(model), bp)
+    bounds = levels._Bounds(space)
+    got = levels._optimum_pass(space, bounds, B().search(None), Stats(engine="levels"), tries, None)
+    cuts = [bounds.cut(float(t)) for t in tries]
+    assert got.why is None
+    if opt < max(cuts):
+        assert got.best == pytest.approx(opt, rel=1e-12, abs=1e-12)
+        assert got.where is not None
+    else:
+        assert got.where is None
+    assert list(got.hits) == [bool(opt < cut) for cut in cuts]
+
+
+@settings(max_examples=150, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(cases(), st.integers(1, 5))
+def test_dives_side_by_side_change_no_answer(case: tuple, lanes: int) -> None:
+    """levels with its bisecting dives run as lanes (as on models unfolded on demand) on
+    explicit models: the optimum and θ* of the brute force."""
+    from unittest import mock
+
+    from lesmc.engines import levels
+
+    model, params, quantile = case
+    bp = _bound_property(model, params, quantile)
+    truth = brute_force(model, bp)
+    with mock.patch.object(levels, "_dive_lanes", lambda space: lanes):
+        r = check_bound(to_arrays(model), bp, "levels")
+    assert r.stats.stopped == "finished"
+    if math.isinf(truth.optimum):
+        assert r.optimum is None
+    else:
+        assert r.optimum == pytest.approx(truth.optimum, rel=1e-12, abs=1e-12)
+    if truth.witness_value is not None:
+        assert r.witness_value == pytest.approx(truth.witness_value, rel=1e-12, abs=1e-12)
+
+
 @st.composite
 def count_cases(draw: st.DrawFn) -> tuple:
     """Trees with wide branching (so that outcomes of rank 2 and more occur) and a property
