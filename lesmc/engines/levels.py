@@ -872,8 +872,7 @@ def _dive_beam(space: SearchSpace) -> int:
     keeps is a state to unfold (the tracker's step and its attacker's options), and
     the states a dive unfolds above the optimum are the ones the exact pass never
     needs: a narrow beam reaches an incumbent as good in fewer of them
-    (docs/performance.md, fifteenth round: dense resilience 4..12 builds 12,960 states
-    instead of 29,634, the same optimum).
+    (docs/performance.md, fifteenth round).
     """
     return BEAM if isinstance(space, Space) else LAZY_BEAM
 
@@ -894,8 +893,8 @@ def _tighten(
     One dive at a time (an explicit model): after two misses in a row the next dive looks
     just below the incumbent (by the gap the dives aim at) instead of halfway down; when
     it misses too, the dives end. Several side by side (:func:`_dive_lanes`): each round
-    looks just below the incumbent and at 1/2, 1/4, ... of the way down, and the dives
-    end when none of them finds anything.
+    looks just below the incumbent U and at L + (U − L)/2, /4, ... (L: the highest
+    threshold that missed so far), and the dives end when none of them finds anything.
     """
     root = np.array([space.root], dtype=np.int64)
     low = float(
