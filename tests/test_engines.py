@@ -94,6 +94,16 @@ def _bound_property(model, params, quantile, names=None, tracks=None):  # type: 
     return bind(spec, spec.properties[0], model.end, model.components, True, names)
 
 
+def _assert_optimum_and_theta(r, truth) -> None:  # type: ignore[no-untyped-def]
+    """A result's optimum and θ* are the brute force's (None for an infinite optimum)."""
+    if math.isinf(truth.optimum):
+        assert r.optimum is None
+    else:
+        assert r.optimum == pytest.approx(truth.optimum, rel=1e-12, abs=1e-12)
+    if truth.witness_value is not None:
+        assert r.witness_value == pytest.approx(truth.witness_value, rel=1e-12, abs=1e-12)
+
+
 @settings(max_examples=300, deadline=None, suppress_health_check=[HealthCheck.too_slow])
 @given(cases())
 def test_optimum_and_witness_equal_brute_force(case: tuple) -> None:
@@ -171,12 +181,7 @@ def test_dives_side_by_side_change_no_answer(case: tuple, lanes: int) -> None:
     with mock.patch.object(levels, "_dive_lanes", lambda space: lanes):
         r = check_bound(to_arrays(model), bp, "levels")
     assert r.stats.stopped == "finished"
-    if math.isinf(truth.optimum):
-        assert r.optimum is None
-    else:
-        assert r.optimum == pytest.approx(truth.optimum, rel=1e-12, abs=1e-12)
-    if truth.witness_value is not None:
-        assert r.witness_value == pytest.approx(truth.witness_value, rel=1e-12, abs=1e-12)
+    _assert_optimum_and_theta(r, truth)
 
 
 @st.composite
@@ -447,12 +452,7 @@ def _small_tree_case(case: tuple) -> None:
         r = check_bound(cm, bp, engine)  # type: ignore[arg-type]
         assert r.stats.engine == engine
         assert r.stats.extra.get("exhaustive") == (nodes if nodes <= 1 << 15 else None)
-        if math.isinf(truth.optimum):
-            assert r.optimum is None
-        else:
-            assert r.optimum == pytest.approx(truth.optimum, rel=1e-12, abs=1e-12)
-        if truth.witness_value is not None:
-            assert r.witness_value == pytest.approx(truth.witness_value, rel=1e-12, abs=1e-12)
+        _assert_optimum_and_theta(r, truth)
 
 
 def test_a_large_tree_is_counted_not_made_and_then_searched(
