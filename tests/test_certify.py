@@ -208,6 +208,21 @@ def test_local_patches_equal_whole_level_propagation() -> None:
             )
             assert torch.allclose(low, value[0] - 0.3 * norm[0], atol=1e-4)
             assert torch.allclose(up, -(value[1] - 0.3 * norm[1]), atol=1e-4)
+            # by position, every channel at once: the same bounds
+            cells, c_out = layer.out_hw**2, layer.weight.shape[0]
+            g_low, g_up = certify._crown_conv_at(
+                chain,
+                i,
+                views,
+                ball,
+                torch.arange(len(x)).repeat_interleave(cells),
+                torch.arange(cells).repeat(len(x)),
+            )
+            by_neuron = (len(x), c_out, cells)
+            assert torch.allclose(g_low.view(c_out, len(x), cells).transpose(0, 1),
+                                  low.view(by_neuron), atol=1e-5)  # fmt: skip
+            assert torch.allclose(g_up.view(c_out, len(x), cells).transpose(0, 1),
+                                  up.view(by_neuron), atol=1e-5)  # fmt: skip
 
 
 def test_batched_and_chunked_runs_equal_one_window_at_a_time(monkeypatch) -> None:

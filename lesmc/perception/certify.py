@@ -35,7 +35,8 @@ linear layers:
 Everything runs batched over windows in float32 without autograd, with the
 channels last (oneDNN's transposed convolutions run 2x faster that way on these small
 patches), a neuron's lower and upper rows side by side so its relaxation is read
-once; the final radius is reduced by ``SAFETY`` (relative) to absorb float32
+once (from the third convolution on, every channel of a position side by side:
+:func:`_crown_layer`); the final radius is reduced by ``SAFETY`` (relative) to absorb float32
 rounding (not a formally verified floating-point bound).
 """
 
@@ -54,6 +55,8 @@ from lesmc.perception.threads import all_torch_threads
 
 SAFETY = 1e-3  #: relative reduction of every certified radius (float32 rounding)
 CHUNK_FLOATS = 1 << 23  #: coefficients in flight per propagation chunk (32 MiB of float32)
+#: Conv layers from this index on get CROWN by position, every channel at once (_crown_layer).
+GROUPED_FROM = 2
 
 
 @dataclass(frozen=True)
@@ -437,10 +440,50 @@ def _crown_conv(
     assert isinstance(layer, Conv)
     cells = layer.out_hw
     ch, pos = neuron // (cells * cells), neuron % (cells * cells)
-    at = win * cells * cells + pos  # row of the patch tables
     w = layer.weight.permute(0, 2, 3, 1)[ch]  # (n, k, k, C): channels last
     a = torch.stack([w, -w])
     const = torch.stack([layer.bias[ch], -layer.bias[ch]])
+    bound = _conv_rows_back(chain, i, views, ball, win, pos, a, const)
+    return bound[0], -bound[1]
+
+
+def _crown_conv_at(
+    chain: Chain,
+    i: int,
+    views: tuple[list[torch.Tensor], torch.Tensor],
+    ball: Ball,
+    win: torch.Tensor,
+    pos: torch.Tensor,
+) -> tuple[torch.Tensor, torch.Tensor]:
+    """Lower and upper CROWN bounds, each (C_out, n), of every channel of conv layer ``i``
+    at positions ``(win, pos)``: the 2 C_out rows of a position share each gather of its
+    relaxation lines (:func:`_crown_conv`'s rows, stable channels included)."""
+    layer = chain.layers[i]
+    assert isinstance(layer, Conv)
+    w = layer.weight.permute(0, 2, 3, 1)  # (C_out, k, k, C): channels last
+    a = torch.cat([w, -w]).unsqueeze(1).expand(-1, len(pos), *w.shape[1:])
+    const = torch.cat([layer.bias, -layer.bias]).unsqueeze(1).expand(-1, len(pos))
+    bound = _conv_rows_back(chain, i, views, ball, win, pos, a, const)
+    c_out = w.shape[0]
+    return bound[:c_out], -bound[c_out:]
+
+
+def _conv_rows_back(
+    chain: Chain,
+    i: int,
+    views: tuple[list[torch.Tensor], torch.Tensor],
+    ball: Ball,
+    win: torch.Tensor,
+    pos: torch.Tensor,
+    a: torch.Tensor,
+    const: torch.Tensor,
+) -> torch.Tensor:
+    """Lower bounds (T, n) of rows ``a`` (T, n, k, k, C) + ``const`` (T, n) on layer ``i``'s
+    pre-activations: row set t of column n lies on window ``win[n]``, position ``pos[n]``,
+    passed back through each ReLU's lines and transposed convolution to the input."""
+    layer = chain.layers[i]
+    assert isinstance(layer, Conv)
+    at = win * layer.out_hw**2 + pos  # row of the patch tables
     for j, view in zip(range(i - 1, -1, -1), views[0], strict=True):
         patch = view.index_select(0, at)
         a, const = _relu_back(a, const, _lines(patch.reshape(*patch.shape[:-1], 3, -1)))
@@ -449,8 +492,8 @@ def _crown_conv(
         a, const = _conv_back_local(a, const, below)
     zm = views[1].index_select(0, at)
     value, norm = _concretise(a * zm[..., -1:], const, zm[..., :-1], ball)
-    bound = value - ball.eps[win] * norm
-    return bound[0], -bound[1]
+    out: torch.Tensor = value - ball.eps[win] * norm
+    return out
 
 
 def _crown_full(
@@ -517,26 +560,58 @@ def layer_bounds(
             lo, hi = torch.maximum(lo, prior[i][0]), torch.minimum(hi, prior[i][1])
         todo = (((lo < 0) & (hi > 0)).flatten(1) & hopeful[:, None]).nonzero()
         if i > 0 and len(todo):
-            step = max(1, CHUNK_FLOATS // (2 * _row_floats(chain, i)))
-            flat_lo, flat_hi = lo.flatten(1), hi.flatten(1)
-            views = _conv_views(chain, i, relaxes, ball) if isinstance(layer, Conv) else None
-            for s in range(0, len(todo), step):
-                win, neuron = todo[s : s + step, 0], todo[s : s + step, 1]
-                if views is not None:
-                    low, up = _crown_conv(chain, i, views, ball, win, neuron)
-                else:
-                    w, b = layer.weight[neuron], layer.bias[neuron]
-                    value, norm = _crown_full(
-                        chain, i, relaxes, ball, win, torch.stack([w, -w]), torch.stack([b, -b])
-                    )
-                    bound = value - ball.eps[win] * norm
-                    low, up = bound[0], -bound[1]
-                flat_lo[win, neuron] = torch.maximum(flat_lo[win, neuron], low)
-                flat_hi[win, neuron] = torch.minimum(flat_hi[win, neuron], up)
+            _crown_layer(chain, i, relaxes, ball, todo, lo, hi)
         bounds.append((lo, hi))
         relaxes.append(Relax.of(lo, hi))
         hopeful &= ((lo < 0) & (hi > 0)).flatten(1).float().mean(1) <= give_up
     return bounds, relaxes
+
+
+def _crown_layer(
+    chain: Chain,
+    i: int,
+    relaxes: list[Relax],
+    ball: Ball,
+    todo: torch.Tensor,
+    lo: torch.Tensor,
+    hi: torch.Tensor,
+) -> None:
+    """Tighten ``lo``, ``hi`` (layer ``i``'s bounds, in place) by CROWN for the neurons
+    ``todo`` ((window, neuron) rows), in chunks of about CHUNK_FLOATS coefficients.
+
+    Conv layers from :data:`GROUPED_FROM` on are propagated by position (every channel of
+    a position with a neuron to do, :func:`_crown_conv_at`): there nearly every neuron is
+    unstable and the relaxation patches a row reads are several times its own size.
+    """
+    layer = chain.layers[i]
+    flat_lo, flat_hi = lo.flatten(1), hi.flatten(1)
+    if isinstance(layer, Conv) and i >= GROUPED_FROM:
+        views = _conv_views(chain, i, relaxes, ball)
+        c_out, cells = layer.weight.shape[0], layer.out_hw**2
+        places = torch.unique(todo[:, 0] * cells + todo[:, 1] % cells)
+        step = max(1, CHUNK_FLOATS // (2 * c_out * _row_floats(chain, i)))
+        map_lo, map_hi = lo.view(len(lo), c_out, cells), hi.view(len(hi), c_out, cells)
+        for s in range(0, len(places), step):
+            win, pos = places[s : s + step] // cells, places[s : s + step] % cells
+            low, up = _crown_conv_at(chain, i, views, ball, win, pos)
+            map_lo[win, :, pos] = torch.maximum(map_lo[win, :, pos], low.T)
+            map_hi[win, :, pos] = torch.minimum(map_hi[win, :, pos], up.T)
+        return
+    step = max(1, CHUNK_FLOATS // (2 * _row_floats(chain, i)))
+    tables = _conv_views(chain, i, relaxes, ball) if isinstance(layer, Conv) else None
+    for s in range(0, len(todo), step):
+        win, neuron = todo[s : s + step, 0], todo[s : s + step, 1]
+        if tables is not None:
+            low, up = _crown_conv(chain, i, tables, ball, win, neuron)
+        else:
+            w, b = layer.weight[neuron], layer.bias[neuron]
+            value, norm = _crown_full(
+                chain, i, relaxes, ball, win, torch.stack([w, -w]), torch.stack([b, -b])
+            )
+            bound = value - ball.eps[win] * norm
+            low, up = bound[0], -bound[1]
+        flat_lo[win, neuron] = torch.maximum(flat_lo[win, neuron], low)
+        flat_hi[win, neuron] = torch.minimum(flat_hi[win, neuron], up)
 
 
 def margin_form(
