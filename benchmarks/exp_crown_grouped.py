@@ -2,11 +2,12 @@
 
     python benchmarks/exp_crown_grouped.py [--n 32] [--frames 30]
 
-lesmc/perception/certify.py propagates, per unstable conv neuron, its lower and upper
-rows (+W and -W) side by side, gathering the neuron's patch of relaxation lines for
-them. Grouped by position instead, every channel of a (window, position) that has an
-unstable neuron is propagated at once (2 x C_out rows sharing one gather of the
-lines), stable channels included. This times both on the same balls (bench_certify's
+lesmc/perception/certify.py can propagate, per unstable conv neuron, its lower and
+upper rows (+W and -W) side by side, gathering the neuron's patch of relaxation lines
+for them (``_crown_conv``, what conv2 gets), or by position: every channel of a
+(window, position) that has an unstable neuron at once, 2 x C_out rows sharing one
+gather of the lines, stable channels included (``_crown_conv_at``, what
+``layer_bounds`` does from ``GROUPED_FROM`` on). This times both on the same balls (bench_certify's
 sample of attacked N_dr windows at their first radius), layer by layer, alternately,
 with chunks of 1/8 to 1 times ``CHUNK_FLOATS``, and checks that the bounds agree.
 Figures: docs/performance.md, fifteenth round.
@@ -30,31 +31,6 @@ import lesmc.perception.certify as C
 from lesmc.perception.attack_settings import AttackConfig, threshold_logit
 from lesmc.perception.attacks import payoffs
 from lesmc.perception.cnn import load_nets
-
-
-def grouped(
-    chain: C.Chain, i: int, views: tuple[list[torch.Tensor], torch.Tensor], ball: C.Ball,
-    win: torch.Tensor, pos: torch.Tensor,
-) -> tuple[torch.Tensor, torch.Tensor]:  # fmt: skip
-    """Lower and upper bounds (C_out, n) of every channel of conv layer ``i`` at positions
-    ``(win, pos)``: ``_crown_conv``'s steps with the 2 x C_out rows sharing each gather."""
-    layer = chain.layers[i]
-    assert isinstance(layer, C.Conv)
-    at = win * layer.out_hw**2 + pos
-    cout = layer.weight.shape[0]
-    w = layer.weight.permute(0, 2, 3, 1)
-    a = torch.cat([w, -w]).unsqueeze(1).expand(-1, len(at), *w.shape[1:])
-    const = torch.cat([layer.bias, -layer.bias]).unsqueeze(1).expand(-1, len(at))
-    for j, view in zip(range(i - 1, -1, -1), views[0], strict=True):
-        patch = view.index_select(0, at)
-        a, const = C._relu_back(a, const, C._lines(patch.reshape(*patch.shape[:-1], 3, -1)))
-        below = chain.layers[j]
-        assert isinstance(below, C.Conv)
-        a, const = C._conv_back_local(a, const, below)
-    zm = views[1].index_select(0, at)
-    value, norm = C._concretise(a * zm[..., -1:], const, zm[..., :-1], ball)
-    bound = value - ball.eps[win] * norm
-    return bound[:cout], -bound[cout:]
 
 
 def main() -> int:
@@ -93,7 +69,7 @@ def main() -> int:
             up = torch.full_like(low, math.inf)
             for s in range(0, len(places), gstep):
                 win, pos = places[s : s + gstep, 0], places[s : s + gstep, 1]
-                gl, gu = grouped(chain, i, views, ball, win, pos)
+                gl, gu = C._crown_conv_at(chain, i, views, ball, win, pos)
                 low[win, :, pos], up[win, :, pos] = gl.T, gu.T
             t2 = time.perf_counter()
             ch, p = todo[:, 1] // cells**2, todo[:, 1] % cells**2
