@@ -401,7 +401,7 @@ def _optimum_pass(
     best, where, cm = float(thresholds.max()), None, space.cm
     while fq.size:
         leaf = space.leaves(fq)
-        found = _cheapest_leaf(space, fq, fo, fc, leaf, best, thresholds[fg], hits, fg)
+        found = _cheapest_leaf(space, fq, fo, fc, leaf, best, thresholds, fg, hits)
         if found is not None:
             best, where = found[0], (trail, len(trail.q) - 1, found[1])
         live = np.nonzero(~leaf)[0]
@@ -627,13 +627,14 @@ def _cheapest_leaf(
     c: np.ndarray,
     leaf: np.ndarray,
     best: float,
-    threshold: np.ndarray,
-    hits: np.ndarray,
+    thresholds: np.ndarray,
     lane: np.ndarray,
+    hits: np.ndarray,
 ) -> tuple[float, int] | None:
     """The least completed objective below ``best`` among the leaves whose completed path
     violates the constraint, and its label; None if no leaf has one. Marks in ``hits`` the
-    lanes with such a leaf below the label's ``threshold``."""
+    lanes with such a leaf below their threshold (``thresholds``: per lane; ``lane``: each
+    label's)."""
     li = np.nonzero(leaf)[0]
     if not li.size:
         return None
@@ -641,7 +642,7 @@ def _cheapest_leaf(
     lo = aggregate_arrays(space.obj_max, o[li], to)
     lc = aggregate_arrays(space.con_max, c[li], tc)
     bad = _truth(space.satisfies(lc, space.bp.bound))
-    hits[lane[li[bad & (lo < threshold[li])]]] = True
+    hits[lane[li[bad & (lo < thresholds[lane[li]])]]] = True
     bad &= lo < best
     if not bad.any():
         return None

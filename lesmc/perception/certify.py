@@ -580,11 +580,11 @@ def _crown_layer(
     ``todo`` ((window, neuron) rows), in chunks of about CHUNK_FLOATS coefficients.
 
     Conv layers from :data:`GROUPED_FROM` on are propagated by position (every channel of
-    a position with a neuron to do, :func:`_crown_conv_at`): there nearly every neuron is
-    unstable and the relaxation patches a row reads are several times its own size.
+    a position with a neuron to do, :func:`_crown_conv_at`): on the shipped N_dr about 90%
+    of their neurons are unstable, and the relaxation patches a row reads are several
+    times its own size (docs/performance.md, fifteenth round).
     """
     layer = chain.layers[i]
-    flat_lo, flat_hi = lo.flatten(1), hi.flatten(1)
     if isinstance(layer, Conv) and i >= GROUPED_FROM:
         views = _conv_views(chain, i, relaxes, ball)
         c_out, cells = layer.weight.shape[0], layer.out_hw**2
@@ -597,6 +597,7 @@ def _crown_layer(
             map_lo[win, :, pos] = torch.maximum(map_lo[win, :, pos], low.T)
             map_hi[win, :, pos] = torch.minimum(map_hi[win, :, pos], up.T)
         return
+    flat_lo, flat_hi = lo.flatten(1), hi.flatten(1)
     step = max(1, CHUNK_FLOATS // (2 * _row_floats(chain, i)))
     tables = _conv_views(chain, i, relaxes, ball) if isinstance(layer, Conv) else None
     for s in range(0, len(todo), step):
