@@ -30,8 +30,8 @@ from lesmc.perception.detector import Detector
 from lesmc.video.synth import SynthConfig, frames
 
 
-def sample_windows(nets: Nets, n_frames: int, n: int) -> np.ndarray:
-    """``n`` of the N_dr windows the detector attacks on the default video (seed 0)."""
+def window_pool(nets: Nets, n_frames: int) -> np.ndarray:
+    """Every N_dr window the detector attacks on the first ``n_frames`` of the default video."""
     det = Detector(nets)
     windows = []
     # rendered first: frames() renders on a second thread, which would run beside the timing
@@ -40,7 +40,12 @@ def sample_windows(nets: Nets, n_frames: int, n: int) -> np.ndarray:
         if res is not None:
             fd = res[1]
             windows.append(fd.windows[np.unique(fd.source)])
-    pool = np.concatenate(windows)
+    return np.concatenate(windows)
+
+
+def sample_windows(nets: Nets, n_frames: int, n: int) -> np.ndarray:
+    """``n`` of the N_dr windows the detector attacks on the default video (seed 0)."""
+    pool = window_pool(nets, n_frames)
     pick = np.random.default_rng(0).choice(len(pool), min(n, len(pool)), replace=False)
     print(f"{len(pool)} attacked windows on {n_frames} frames; {min(n, len(pool))} sampled")
     out: np.ndarray = pool[np.sort(pick)]

@@ -225,6 +225,21 @@ def test_local_patches_equal_whole_level_propagation() -> None:
                                   up.view(by_neuron), atol=1e-5)  # fmt: skip
 
 
+@pytest.mark.parametrize("n", [1, 3, 4, 9, 16])
+@pytest.mark.parametrize("c_out", [2, 4, 9])
+@pytest.mark.parametrize("stride", [1, 2])
+def test_stacked_transposed_convolution_equals_torchs(n: int, c_out: int, stride: int) -> None:
+    """Patches stacked on the channel axis through a block-diagonal weight (few output
+    channels) give torch's own transposed convolution, whatever the count of patches."""
+    gen = torch.Generator().manual_seed(n * 100 + c_out * 10 + stride)
+    x = torch.randn(n, 5, 5, 6, generator=gen)
+    weight = torch.randn(6, c_out, 3, 3, generator=gen)
+    want = torch.nn.functional.conv_transpose2d(x.permute(0, 3, 1, 2), weight, stride=stride)
+    got = certify._transpose_conv(x, weight, stride)
+    assert got.shape == (n, *want.shape[2:], c_out)
+    torch.testing.assert_close(got, want.permute(0, 2, 3, 1), rtol=1e-5, atol=1e-5)
+
+
 def test_batched_and_chunked_runs_equal_one_window_at_a_time(monkeypatch) -> None:
     _, chain, x = strided_case()
     together = certified_radius(chain, x, cfg=CertifyConfig(steps=3, batch=5))
@@ -247,6 +262,66 @@ def test_a_ball_without_slack_is_not_grown() -> None:
     assert (kept <= first * (1 - certify.SAFETY) * (1 + 1e-6)).all()
     assert (grown > first * (1 + 1e-3)).any()
     assert (kept > 0).any()
+
+
+def test_payoff_model_places_the_first_ball_of_windows_with_a_payoff() -> None:
+    """``start_model``: a window with a payoff starts at r0 exp(c . features), at most
+    ``seed`` x payoff, stepped by ``model_step``; one without keeps the quantile rule
+    (recomputed here with numpy from the flip distances)."""
+    _, chain, x = strided_case()
+    xt = torch.from_numpy(x)
+    z0 = certify._centre(chain, xt)
+    dist = flip_distances(chain, z0).double().numpy()
+    pay = np.array([0.5, np.inf, 3.0, 0.02, 1.0])
+    coef = (-0.3, -0.25, 0.3, 0.1)
+    cfg = CertifyConfig(start_model=coef, model_step=1.3)
+    r, grow, shrink, _ = (t.numpy() for t in certify._start(chain, z0, pay, cfg))
+    near, mid, far = np.maximum(np.quantile(dist, [0.17, 0.25, 0.33], axis=1), 1e-6)
+    r0 = np.minimum(mid, cfg.seed * pay)
+    with np.errstate(divide="ignore"):  # no payoff: log 0, a value the test does not read
+        feats = [np.log(r0 / pay), np.log(near / r0), np.log(far / r0)]
+    guess = r0 * np.exp(coef[0] + sum(c * f for c, f in zip(coef[1:], feats, strict=True)))
+    paid = np.isfinite(pay)
+    np.testing.assert_allclose(r[paid], np.minimum(guess, cfg.seed * pay)[paid], rtol=1e-9)
+    np.testing.assert_allclose(r[~paid], mid[~paid], rtol=1e-9)
+    assert (grow[paid] == 1.3).all() and (shrink[paid] == 1.3).all()
+    np.testing.assert_allclose(grow[~paid], np.maximum(far / mid, 1.05)[~paid], rtol=1e-9)
+    np.testing.assert_allclose(shrink[~paid], np.maximum(mid / near, 1.5)[~paid], rtol=1e-9)
+    assert r[3] == pytest.approx(cfg.seed * 0.02)  # the cap binds
+    quantile = certify._start(chain, z0, pay, CertifyConfig(start_model=None))[0].numpy()
+    np.testing.assert_allclose(quantile, r0, rtol=1e-9)
+
+
+def test_the_payoff_model_starts_only_the_network_it_was_fitted_on(monkeypatch) -> None:
+    """START_MODEL was fitted on the shipped N_dr, recognised by its weights whatever the
+    threshold: other weights start from the quantile rule; coefficients of one's own
+    apply to any network."""
+    from dataclasses import replace
+
+    from lesmc.perception.cnn import load_nets
+
+    chain = detect_chain(load_nets().dr, 0.0)
+    assert certify.weights_digest(chain) == certify.START_MODEL_NET
+    assert certify.weights_digest(detect_chain(load_nets().dr, 1.5)) == certify.START_MODEL_NET
+    first = chain.layers[0]
+    other = certify.Chain(
+        chain.in_shape,
+        chain.subtract_mean,
+        (replace(first, weight=first.weight * 1.001), *chain.layers[1:]),
+    )
+    assert certify.weights_digest(other) != certify.START_MODEL_NET
+    seen: list[object] = []
+
+    def spy(chain, x, upper, cfg):  # type: ignore[no-untyped-def]
+        seen.append(cfg.start_model)
+        return np.zeros(len(x))
+
+    monkeypatch.setattr(certify, "_search", spy)
+    w, up = np.zeros((1, *chain.in_shape), np.float32), np.ones(1)
+    certified_radius(chain, w, up)
+    certified_radius(other, w, up)
+    certified_radius(other, w, up, CertifyConfig(start_model=(0.0, 0.0, 0.0, 0.0)))
+    assert seen == [certify.START_MODEL, None, (0.0, 0.0, 0.0, 0.0)]
 
 
 def test_flip_distances_set_the_first_layers_unstable_fraction() -> None:

@@ -42,21 +42,25 @@ rounding (not a formally verified floating-point bound).
 
 from __future__ import annotations
 
+import hashlib
 import math
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 import torch
 from torch import nn
 from torch.nn import functional as F
 
+from lesmc.perception.heap import kept_heap
 from lesmc.perception.threads import all_torch_threads
 
 SAFETY = 1e-3  #: relative reduction of every certified radius (float32 rounding)
 CHUNK_FLOATS = 1 << 23  #: coefficients in flight per propagation chunk (32 MiB of float32)
 #: Conv layers from this index on get CROWN by position, every channel at once (_crown_layer).
 GROUPED_FROM = 2
+#: Local transposed convolutions to fewer channels than this stack STACK patches a sample.
+STACK_BELOW, STACK = 8, 4
 
 
 @dataclass(frozen=True)
@@ -297,9 +301,35 @@ def _conv_back_local(
     """
     t, n = a.shape[:2]
     const = const + a.sum(dim=(2, 3)) @ layer.bias
-    x = a.flatten(0, 1).permute(0, 3, 1, 2)  # a channels-last view, no copy
-    out = F.conv_transpose2d(x, layer.weight, stride=layer.stride).permute(0, 2, 3, 1)
+    out = _transpose_conv(a.flatten(0, 1), layer.weight, layer.stride)
     return out.reshape(t, n, *out.shape[1:]), const
+
+
+def _transpose_conv(x: torch.Tensor, weight: torch.Tensor, stride: int) -> torch.Tensor:
+    """The transposed convolution of patches ``x`` (N, r, r, C), channels last, no padding.
+
+    oneDNN's cost on such small maps is mostly per sample when the output has few
+    channels (the first layer's: the input's 4): there, every :data:`STACK` patches
+    go as one sample, side by side on the channel axis, through a block-diagonal
+    weight. 4x the multiplications, by zeros, in 0.6-0.8x the time (docs/performance.md,
+    sixteenth round); the same sums, so the same bits.
+    """
+    n, r, _, c = x.shape
+    c_out = weight.shape[1]
+    if c_out >= STACK_BELOW or n < STACK:
+        out = F.conv_transpose2d(x.permute(0, 3, 1, 2), weight, stride=stride)
+        return out.permute(0, 2, 3, 1)  # a channels-last view, no copy
+    if n % STACK:
+        x = torch.cat([x, x.new_zeros(-n % STACK, r, r, c)])
+    m = len(x) // STACK
+    side = x.reshape(m, STACK, r, r, c).permute(0, 2, 3, 1, 4).reshape(m, r, r, STACK * c)
+    wide = torch.zeros(STACK * c, STACK * c_out, *weight.shape[2:])
+    for k in range(STACK):
+        wide[k * c : (k + 1) * c, k * c_out : (k + 1) * c_out] = weight
+    out = F.conv_transpose2d(side.permute(0, 3, 1, 2), wide, stride=stride).permute(0, 2, 3, 1)
+    size = out.shape[1]
+    out = out.reshape(m, size, size, STACK, c_out).permute(0, 3, 1, 2, 4)
+    return out.reshape(m * STACK, size, size, c_out)[:n]
 
 
 def _back_full(
@@ -631,6 +661,18 @@ def margin_form(
 
 # ---------------------------------------------------------------- radius search
 
+#: The first ball of a window with an attack payoff, on the shipped N_dr: log(R / r0) =
+#: c0 + c1 log(r0 / payoff) + c2 log(r_near / r0) + c3 log(r_far / r0), where r0, r_near
+#: and r_far are the ``level``, ``level - spread`` and ``level + spread`` quantiles of the
+#: flip distances (r0 at most ``seed`` x payoff). Least squares on the largest radius CROWN
+#: certified for 300 windows of the default video disjoint from bench_certify's (residual
+#: 0.077 in log, 0.085 on bench_certify's own), c0 lowered by log(0.88) so that about 19
+#: balls in 20 certify at once (docs/performance.md, "Issue 31, sixteenth round").
+START_MODEL = (-0.6849, -0.2705, 0.2526, 0.0784)
+#: The network START_MODEL was fitted on, the shipped N_dr (:func:`weights_digest`): any
+#: other network, or other weights, starts from the quantile rule.
+START_MODEL_NET = "9890da1b2b7167c407dfd0cbf29049cf4e6f6dec252e1539128a95b91b38ab46"
+
 
 @dataclass(frozen=True)
 class CertifyConfig:
@@ -643,8 +685,28 @@ class CertifyConfig:
     batch: int = 32  #: windows propagated together
     give_up: float = 0.7  #: unstable fraction of a layer beyond which a ball is abandoned
     #: a ball that certified is grown only when its margin bound's slack r*(R) / R is at
-    #: least this: on N_dr the next ball's bound collapsed whenever it was below about 15
-    grow_slack: float = 16.0
+    #: least this: on N_dr the next ball's bound collapsed whenever it was below about 15,
+    #: and from the payoff model's first ball (below 24) it nearly always did
+    grow_slack: float = 24.0
+    #: the first ball from the attack payoff (:data:`START_MODEL`'s coefficients) for windows
+    #: that have one; None: from the quantile alone (a network the model was not fitted on)
+    start_model: tuple[float, float, float, float] | None = START_MODEL
+    #: the factor that first ball is then grown or shrunk by (its error is about 8%)
+    model_step: float = 1.2
+
+
+def weights_digest(chain: Chain) -> str:
+    """sha256 of a chain's shape and float32 weights, the margin's offset (which holds the
+    decision threshold) left out: the same network whatever file it came from."""
+    h = hashlib.sha256(repr((chain.in_shape, chain.subtract_mean)).encode())
+    for i, layer in enumerate(chain.layers):
+        if isinstance(layer, Conv):
+            h.update(repr(("conv", layer.stride, layer.padding, layer.in_hw)).encode())
+        tensors = [layer.weight] if i + 1 == len(chain.layers) else [layer.weight, layer.bias]
+        for t in tensors:
+            h.update(repr(tuple(t.shape)).encode())
+            h.update(t.detach().float().contiguous().numpy().tobytes())
+    return h.hexdigest()
 
 
 def certified_radius(
@@ -662,9 +724,11 @@ def certified_radius(
     of ``cfg.batch`` windows (progress, budgets).
     """
     cfg = cfg or CertifyConfig()
+    if cfg.start_model == START_MODEL and weights_digest(chain) != START_MODEL_NET:
+        cfg = replace(cfg, start_model=None)  # fitted on another network
     n = len(windows)
     out = np.zeros(n)
-    with torch.inference_mode(), all_torch_threads():
+    with torch.inference_mode(), all_torch_threads(), kept_heap():
         for a in range(0, n, cfg.batch):
             x = torch.from_numpy(np.ascontiguousarray(windows[a : a + cfg.batch], np.float32))
             up = None if upper is None else np.asarray(upper[a : a + cfg.batch], float)
@@ -695,12 +759,14 @@ def _search(
 ) -> np.ndarray:
     """Geometric bisection on R from a per-window start; keeps the best min(R, r*(R)).
 
-    The start is the ``cfg.level``-quantile of the first layer's flip distances
-    (the radius making that fraction of its ReLUs unstable), and the steps until
-    a bracket is found are the ratios to the ``level -+ spread`` quantiles (at
-    least 1.5x down): a window's CROWN bound
-    collapses once too many of its ReLUs are unstable, at about the same
-    fraction for every window (docs/cnn.md), while the radius varies 20x.
+    The start (:func:`_start`) is the ``cfg.level``-quantile of the first layer's flip
+    distances (the radius making that fraction of its ReLUs unstable), and the steps
+    until a bracket is found are the ratios to the ``level -+ spread`` quantiles (at
+    least 1.5x down): a window's CROWN bound collapses once too many of its ReLUs are
+    unstable, at about the same fraction for every window (docs/cnn.md), while the
+    radius varies 20x. A window with an attack payoff starts where the payoff model
+    puts it instead (``cfg.start_model``), stepped by ``cfg.model_step``: on the shipped
+    N_dr about 19 first balls in 20 then certify, so most windows need one propagation.
     A ball that certified is grown only when the margin's bound has slack,
     ``r*(R) >= cfg.grow_slack * R``: on 128 of the default video's windows no grown
     ball certified from a slack below 14.6, and 63 of the 79 that failed had less
@@ -774,9 +840,13 @@ def _keep_failed(
 def _start(
     chain: Chain, z0: torch.Tensor, upper: np.ndarray | None, cfg: CertifyConfig
 ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor]:
-    """Per window: the first radius (the ``cfg.level``-quantile of the first layer's flip
-    distances, at most ``cfg.seed`` times the attack's payoff), the factors to grow and
-    shrink it by until a bracket is found, and the cap (the attack's payoff)."""
+    """Per window: the first radius, the factors to grow and shrink it by until a bracket
+    is found, and the cap (the attack's payoff).
+
+    The quantile rule: the ``cfg.level``-quantile r0 of the first layer's flip distances,
+    at most ``cfg.seed`` times the payoff, stepped by the ratios to the ``level -+
+    spread`` quantiles. A window with a payoff and ``cfg.start_model`` starts where that
+    model puts it (:data:`START_MODEL`), stepped by ``cfg.model_step``."""
     nb = len(z0)
     dist = flip_distances(chain, z0).double()
     levels = [max(cfg.level - cfg.spread, 0.0), cfg.level, min(cfg.level + cfg.spread, 1.0)]
@@ -790,7 +860,20 @@ def _start(
         u = torch.from_numpy(upper)
         cap = torch.where(torch.isfinite(u) & (u > 0), u, cap)
     r = torch.minimum(start, cfg.seed * cap)
-    return r, grow, shrink, cap
+    if cfg.start_model is None or not bool(torch.isfinite(cap).any()):
+        return r, grow, shrink, cap
+    c0, c_pay, c_near, c_far = cfg.start_model
+    paid = torch.isfinite(cap)
+    log_r = torch.log(r)
+    fit = c0 + c_pay * (log_r - cap.log()) + c_near * (nearer.log() - log_r)
+    guess = torch.minimum(r * torch.exp(fit + c_far * (further.log() - log_r)), cfg.seed * cap)
+    step = torch.full_like(r, cfg.model_step)
+    return (
+        torch.where(paid, guess, r),
+        torch.where(paid, step, grow),
+        torch.where(paid, step, shrink),
+        cap,
+    )
 
 
 def _where(keep: torch.Tensor, t: torch.Tensor, other: float) -> torch.Tensor:
