@@ -1,7 +1,7 @@
 """Certified payoff lower bounds on the default synthetic video (docs/cnn.md, docs/performance.md).
 
     python benchmarks/bench_certify.py [--frames 30] [--n 300] [--steps 2] [--level 0.25]
-                                       [--grow-slack 16]
+                                       [--grow-slack 16] [--start auto|quantile]
 
 Runs the detector over the default video (``lesmc synth`` defaults), samples
 ``--n`` attacked N_dr windows (seed 0), and times side by side on them:
@@ -59,6 +59,7 @@ def main() -> None:
     ap.add_argument("--steps", type=int, default=CertifyConfig.steps)
     ap.add_argument("--level", type=float, default=CertifyConfig.level)
     ap.add_argument("--grow-slack", type=float, default=CertifyConfig.grow_slack)
+    ap.add_argument("--start", choices=["auto", "quantile"], default=CertifyConfig.start)
     args = ap.parse_args()
     print(f"torch threads: {torch.get_num_threads()}; load average {os.getloadavg()[0]:.1f}")
     nets = load_nets()
@@ -72,7 +73,10 @@ def main() -> None:
     t1, c1 = time.perf_counter(), time.process_time()
     chain = detect_chain(nets.dr, threshold_logit(nets.settings.delta_dr))
     cert = certified_radius(
-        chain, w, pay, CertifyConfig(args.steps, args.level, grow_slack=args.grow_slack)
+        chain,
+        w,
+        pay,
+        CertifyConfig(args.steps, args.level, grow_slack=args.grow_slack, start=args.start),
     )
     t2, c2 = time.perf_counter(), time.process_time()
     ok = np.isfinite(pay)

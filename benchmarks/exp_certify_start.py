@@ -5,7 +5,7 @@
 Takes bench_certify.py's 300 windows of the default video and 300 others of the same
 pool (disjoint), their DeepFool payoffs, and for every window the bound's r*(R) at
 radii R = s x r0 on a grid of s, where r0 is the quantile rule's first radius
-(``CertifyConfig(start_model=None)``). A window's *frontier* is the geometric middle
+(``CertifyConfig(start="quantile")``). A window's *frontier* is the geometric middle
 of the largest s that certified (r*(R) >= R) and the next. Least squares of
 log(frontier) on (1, log(r0/payoff), log(r_near/r0), log(r_far/r0)), fitted on the other
 300 and checked on bench_certify's, gives START_MODEL once c0 is lowered by
@@ -44,11 +44,11 @@ SCALES = (0.4, 0.5, 0.6, 0.7, 0.8, 0.9, 1.0, 1.15, 1.3, 1.5, 1.7, 2.0, 2.5)
 
 def features(chain: Chain, w: np.ndarray, pay: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Per window: r0 (the quantile rule's first radius) and the fit's four features."""
-    cfg = CertifyConfig(start_model=None)
+    cfg = CertifyConfig(start="quantile")
     levels = torch.tensor([cfg.level - cfg.spread, cfg.level + cfg.spread], dtype=torch.float64)
     with torch.inference_mode():
         z0 = _centre(chain, torch.from_numpy(w.astype(np.float32)))
-        r0 = _start(chain, z0, pay, cfg)[0].numpy()
+        r0 = _start(chain, z0, pay, cfg)[0].numpy()  # the quantile rule's
         dist = flip_distances(chain, z0).double()
         near, far = torch.quantile(dist, levels, dim=1).clamp(min=1e-6).numpy()
     x = np.column_stack([np.ones(len(r0)), np.log(r0 / pay), np.log(near / r0), np.log(far / r0)])

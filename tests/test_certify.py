@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -274,8 +275,8 @@ def test_payoff_model_places_the_first_ball_of_windows_with_a_payoff() -> None:
     dist = flip_distances(chain, z0).double().numpy()
     pay = np.array([0.5, np.inf, 3.0, 0.02, 1.0])
     coef = (-0.3, -0.25, 0.3, 0.1)
-    cfg = CertifyConfig(start_model=coef, model_step=1.3)
-    r, grow, shrink, _ = (t.numpy() for t in certify._start(chain, z0, pay, cfg))
+    cfg = CertifyConfig(start_model=coef, model_step=1.3, model_slack=30.0)
+    r, grow, shrink, _, slack = (t.numpy() for t in certify._start(chain, z0, pay, cfg))
     near, mid, far = np.maximum(np.quantile(dist, [0.17, 0.25, 0.33], axis=1), 1e-6)
     r0 = np.minimum(mid, cfg.seed * pay)
     with np.errstate(divide="ignore"):  # no payoff: log 0, a value the test does not read
@@ -285,10 +286,11 @@ def test_payoff_model_places_the_first_ball_of_windows_with_a_payoff() -> None:
     np.testing.assert_allclose(r[paid], np.minimum(guess, cfg.seed * pay)[paid], rtol=1e-9)
     np.testing.assert_allclose(r[~paid], mid[~paid], rtol=1e-9)
     assert (grow[paid] == 1.3).all() and (shrink[paid] == 1.3).all()
+    assert (slack[paid] == 30.0).all() and (slack[~paid] == cfg.grow_slack).all()
     np.testing.assert_allclose(grow[~paid], np.maximum(far / mid, 1.05)[~paid], rtol=1e-9)
     np.testing.assert_allclose(shrink[~paid], np.maximum(mid / near, 1.5)[~paid], rtol=1e-9)
     assert r[3] == pytest.approx(cfg.seed * 0.02)  # the cap binds
-    quantile = certify._start(chain, z0, pay, CertifyConfig(start_model=None))[0].numpy()
+    quantile = certify._start(chain, z0, pay, CertifyConfig())[0].numpy()
     np.testing.assert_allclose(quantile, r0, rtol=1e-9)
 
 
@@ -296,12 +298,11 @@ def test_the_payoff_model_starts_only_the_network_it_was_fitted_on(monkeypatch) 
     """START_MODEL was fitted on the shipped N_dr, recognised by its weights whatever the
     threshold: other weights start from the quantile rule; coefficients of one's own
     apply to any network."""
-    from dataclasses import replace
-
     from lesmc.perception.cnn import load_nets
 
     chain = detect_chain(load_nets().dr, 0.0)
-    assert certify.weights_digest(chain) == certify.START_MODEL_NET
+    refit = "the shipped N_dr changed: refit START_MODEL with benchmarks/exp_certify_start.py"
+    assert certify.weights_digest(chain) == certify.START_MODEL_NET, refit
     assert certify.weights_digest(detect_chain(load_nets().dr, 1.5)) == certify.START_MODEL_NET
     first = chain.layers[0]
     other = certify.Chain(
@@ -321,7 +322,26 @@ def test_the_payoff_model_starts_only_the_network_it_was_fitted_on(monkeypatch) 
     certified_radius(chain, w, up)
     certified_radius(other, w, up)
     certified_radius(other, w, up, CertifyConfig(start_model=(0.0, 0.0, 0.0, 0.0)))
-    assert seen == [certify.START_MODEL, None, (0.0, 0.0, 0.0, 0.0)]
+    certified_radius(chain, w, up, CertifyConfig(start="quantile"))
+    certified_radius(chain, w, up, CertifyConfig(level=0.3))  # not the features it was fitted on
+    assert seen == [certify.START_MODEL, None, (0.0, 0.0, 0.0, 0.0), None, None]
+
+
+def test_a_network_with_dead_filters_certifies_nothing_rather_than_nan() -> None:
+    """Filters of zeros make their flip distances infinite; with most of them so, the
+    quantiles are not finite. The radius is then 0 (or a real certificate), never NaN."""
+    _, chain, x = strided_case()
+    first = chain.layers[0]
+    assert isinstance(first, certify.Conv)
+    weight = first.weight.clone()
+    weight[1:] = 0
+    dead = certify.Chain(
+        chain.in_shape, chain.subtract_mean, (replace(first, weight=weight), *chain.layers[1:])
+    )
+    pay = np.full(len(x), 0.5)
+    for cfg in (CertifyConfig(), CertifyConfig(start_model=(0.0, 1.0, 0.0, 0.0))):
+        radius = certified_radius(dead, x, pay, cfg)
+        assert np.isfinite(radius).all() and (radius >= 0).all()
 
 
 def test_flip_distances_set_the_first_layers_unstable_fraction() -> None:

@@ -312,7 +312,8 @@ def _transpose_conv(x: torch.Tensor, weight: torch.Tensor, stride: int) -> torch
     channels (the first layer's: the input's 4): there, every :data:`STACK` patches
     go as one sample, side by side on the channel axis, through a block-diagonal
     weight. 4x the multiplications, by zeros, in 0.6-0.8x the time (docs/performance.md,
-    sixteenth round); the same sums, so the same bits.
+    sixteenth round; a grouped convolution, ``groups=STACK``, was no faster). The same
+    sums, plus exact zeros: on the shipped N_dr the radii came out bit for bit equal.
     """
     n, r, _, c = x.shape
     c_out = weight.shape[1]
@@ -323,7 +324,7 @@ def _transpose_conv(x: torch.Tensor, weight: torch.Tensor, stride: int) -> torch
         x = torch.cat([x, x.new_zeros(-n % STACK, r, r, c)])
     m = len(x) // STACK
     side = x.reshape(m, STACK, r, r, c).permute(0, 2, 3, 1, 4).reshape(m, r, r, STACK * c)
-    wide = torch.zeros(STACK * c, STACK * c_out, *weight.shape[2:])
+    wide = weight.new_zeros(STACK * c, STACK * c_out, *weight.shape[2:])
     for k in range(STACK):
         wide[k * c : (k + 1) * c, k * c_out : (k + 1) * c_out] = weight
     out = F.conv_transpose2d(side.permute(0, 3, 1, 2), wide, stride=stride).permute(0, 2, 3, 1)
@@ -663,15 +664,18 @@ def margin_form(
 
 #: The first ball of a window with an attack payoff, on the shipped N_dr: log(R / r0) =
 #: c0 + c1 log(r0 / payoff) + c2 log(r_near / r0) + c3 log(r_far / r0), where r0, r_near
-#: and r_far are the ``level``, ``level - spread`` and ``level + spread`` quantiles of the
-#: flip distances (r0 at most ``seed`` x payoff). Least squares on the largest radius CROWN
-#: certified for 300 windows of the default video disjoint from bench_certify's (residual
-#: 0.077 in log, 0.085 on bench_certify's own), c0 lowered by log(0.88) so that about 19
-#: balls in 20 certify at once (docs/performance.md, "Issue 31, sixteenth round").
+#: and r_far are the 0.25, 0.17 and 0.33 quantiles of the flip distances (r0 at most
+#: ``seed`` x payoff). Least squares on where CROWN stops certifying (the geometric middle
+#: of the largest radius on a grid of 13 that certified and the next), for 300 windows of
+#: the default video disjoint from bench_certify's (residual 0.077 in log, 0.085 on
+#: bench_certify's own); c0 lowered by log(0.88) so that about 19 balls in 20 certify at
+#: once (benchmarks/exp_certify_start.py; docs/performance.md, "Issue 31, sixteenth round").
 START_MODEL = (-0.6849, -0.2705, 0.2526, 0.0784)
-#: The network START_MODEL was fitted on, the shipped N_dr (:func:`weights_digest`): any
-#: other network, or other weights, starts from the quantile rule.
+#: The network START_MODEL was fitted on, the shipped N_dr (:func:`weights_digest`), and
+#: the quantile settings (level, spread) of its features: anything else starts from the
+#: quantile rule.
 START_MODEL_NET = "9890da1b2b7167c407dfd0cbf29049cf4e6f6dec252e1539128a95b91b38ab46"
+START_MODEL_LEVELS = (0.25, 0.08)
 
 
 @dataclass(frozen=True)
@@ -685,14 +689,18 @@ class CertifyConfig:
     batch: int = 32  #: windows propagated together
     give_up: float = 0.7  #: unstable fraction of a layer beyond which a ball is abandoned
     #: a ball that certified is grown only when its margin bound's slack r*(R) / R is at
-    #: least this: on N_dr the next ball's bound collapsed whenever it was below about 15,
-    #: and from the payoff model's first ball (below 24) it nearly always did
-    grow_slack: float = 24.0
-    #: the first ball from the attack payoff (:data:`START_MODEL`'s coefficients) for windows
-    #: that have one; None: from the quantile alone (a network the model was not fitted on)
-    start_model: tuple[float, float, float, float] | None = START_MODEL
-    #: the factor that first ball is then grown or shrunk by (its error is about 8%)
+    #: least this: on N_dr the next ball's bound collapsed whenever it was below about 15
+    grow_slack: float = 16.0
+    #: where the first ball of a window with a payoff goes: "auto", the payoff model
+    #: (:data:`START_MODEL`) for the network it was fitted on and the quantile rule for any
+    #: other; "quantile", the quantile rule always
+    start: str = "auto"
+    #: coefficients of a payoff model of one's own (any network; overrides ``start``)
+    start_model: tuple[float, float, float, float] | None = None
+    #: the factor a payoff model's first ball is grown or shrunk by (its error is about 8%)
     model_step: float = 1.2
+    #: ``grow_slack`` for those balls: grown from a slack of 16-24 they nearly always failed
+    model_slack: float = 24.0
 
 
 def weights_digest(chain: Chain) -> str:
@@ -705,8 +713,20 @@ def weights_digest(chain: Chain) -> str:
         tensors = [layer.weight] if i + 1 == len(chain.layers) else [layer.weight, layer.bias]
         for t in tensors:
             h.update(repr(tuple(t.shape)).encode())
-            h.update(t.detach().float().contiguous().numpy().tobytes())
+            h.update(t.detach().float().cpu().contiguous().numpy().tobytes())
     return h.hexdigest()
+
+
+def start_model(chain: Chain, cfg: CertifyConfig) -> tuple[float, float, float, float] | None:
+    """The payoff model that places ``chain``'s first balls under ``cfg``: one's own, else
+    :data:`START_MODEL` where ``cfg.start`` is "auto" and the network and quantile settings
+    are the ones it was fitted on, else none (the quantile rule)."""
+    if cfg.start_model is not None:
+        return cfg.start_model
+    fitted = (cfg.level, cfg.spread) == START_MODEL_LEVELS
+    if cfg.start == "auto" and fitted and weights_digest(chain) == START_MODEL_NET:
+        return START_MODEL
+    return None
 
 
 def certified_radius(
@@ -724,8 +744,7 @@ def certified_radius(
     of ``cfg.batch`` windows (progress, budgets).
     """
     cfg = cfg or CertifyConfig()
-    if cfg.start_model == START_MODEL and weights_digest(chain) != START_MODEL_NET:
-        cfg = replace(cfg, start_model=None)  # fitted on another network
+    cfg = replace(cfg, start_model=start_model(chain, cfg))
     n = len(windows)
     out = np.zeros(n)
     with torch.inference_mode(), all_torch_threads(), kept_heap():
@@ -764,18 +783,20 @@ def _search(
     until a bracket is found are the ratios to the ``level -+ spread`` quantiles (at
     least 1.5x down): a window's CROWN bound collapses once too many of its ReLUs are
     unstable, at about the same fraction for every window (docs/cnn.md), while the
-    radius varies 20x. A window with an attack payoff starts where the payoff model
-    puts it instead (``cfg.start_model``), stepped by ``cfg.model_step``: on the shipped
+    radius varies 20x. A window with an attack payoff starts where a payoff model
+    puts it instead (:func:`start_model`), stepped by ``cfg.model_step``: on the shipped
     N_dr about 19 first balls in 20 then certify, so most windows need one propagation.
     A ball that certified is grown only when the margin's bound has slack,
-    ``r*(R) >= cfg.grow_slack * R``: on 128 of the default video's windows no grown
-    ball certified from a slack below 14.6, and 63 of the 79 that failed had less
-    than 16, so that propagation is not spent.
+    ``r*(R) >= cfg.grow_slack * R`` (``cfg.model_slack`` from a payoff model's ball): from
+    the quantile rule's, on 128 of the default video's windows no grown ball certified
+    from a slack below 14.6, and 63 of the 79 that failed had less than 16; from the
+    payoff model's, balls grown from 16-24 nearly always failed. That propagation is not
+    spent.
     """
     nb = len(x)
     z0 = _centre(chain, x)
     f0 = margin_of(chain, x)
-    r, grow, shrink, cap = _start(chain, z0, upper, cfg)
+    r, grow, shrink, cap, slack_at = _start(chain, z0, upper, cfg)
     best = torch.zeros(nb, dtype=torch.float64)
     r_ok = torch.zeros(nb, dtype=torch.float64)
     r_bad = torch.full((nb,), math.inf, dtype=torch.float64)
@@ -793,7 +814,8 @@ def _search(
         value, norm = margin_form(chain, ball, relaxes)
         value, norm = value.double(), norm.double()
         rstar = torch.where(value > 0, value / norm.clamp(min=1e-30), torch.zeros_like(value))
-        best[idx] = torch.maximum(best[idx], torch.minimum(ri, rstar))
+        # a NaN (flip distances all infinite: zero filters) certifies nothing
+        best[idx] = torch.maximum(best[idx], torch.nan_to_num(torch.minimum(ri, rstar), nan=0.0))
         ok = rstar >= ri
         r_ok[idx] = torch.where(ok, torch.maximum(r_ok[idx], ri), r_ok[idx])
         failed = ~ok
@@ -804,7 +826,7 @@ def _search(
         step = torch.where(ok, ri * grow[idx], ri / shrink[idx])
         bracketed = (lo > 0) & torch.isfinite(hi)
         r[idx] = torch.minimum(torch.where(bracketed, torch.sqrt(lo * hi), step), cap[idx])
-        slack = ok & (rstar < cfg.grow_slack * ri)  # grown, it would collapse (docstring)
+        slack = ok & (rstar < slack_at[idx] * ri)  # grown, it would collapse (docstring)
         live[idx] = ~(ok & (ri >= cap[idx])) & ~(bracketed & (hi - lo <= 0.02 * hi)) & ~slack
     result: np.ndarray = (best * (1 - SAFETY)).numpy()
     return result
@@ -839,14 +861,14 @@ def _keep_failed(
 
 def _start(
     chain: Chain, z0: torch.Tensor, upper: np.ndarray | None, cfg: CertifyConfig
-) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor]:
+) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor]:
     """Per window: the first radius, the factors to grow and shrink it by until a bracket
-    is found, and the cap (the attack's payoff).
+    is found, the cap (the attack's payoff) and the slack a certified ball needs to grow.
 
     The quantile rule: the ``cfg.level``-quantile r0 of the first layer's flip distances,
     at most ``cfg.seed`` times the payoff, stepped by the ratios to the ``level -+
-    spread`` quantiles. A window with a payoff and ``cfg.start_model`` starts where that
-    model puts it (:data:`START_MODEL`), stepped by ``cfg.model_step``."""
+    spread`` quantiles. A window with a payoff, given ``cfg.start_model``, starts where
+    that model puts it (:func:`_model_start`), stepped by ``cfg.model_step``."""
     nb = len(z0)
     dist = flip_distances(chain, z0).double()
     levels = [max(cfg.level - cfg.spread, 0.0), cfg.level, min(cfg.level + cfg.spread, 1.0)]
@@ -860,20 +882,36 @@ def _start(
         u = torch.from_numpy(upper)
         cap = torch.where(torch.isfinite(u) & (u > 0), u, cap)
     r = torch.minimum(start, cfg.seed * cap)
-    if cfg.start_model is None or not bool(torch.isfinite(cap).any()):
-        return r, grow, shrink, cap
-    c0, c_pay, c_near, c_far = cfg.start_model
-    paid = torch.isfinite(cap)
-    log_r = torch.log(r)
-    fit = c0 + c_pay * (log_r - cap.log()) + c_near * (nearer.log() - log_r)
-    guess = torch.minimum(r * torch.exp(fit + c_far * (further.log() - log_r)), cfg.seed * cap)
+    slack = torch.full_like(r, cfg.grow_slack)
+    if cfg.start_model is None:
+        return r, grow, shrink, cap, slack
+    guess = _model_start(cfg.start_model, r, nearer, further, cap)
+    paid = torch.isfinite(cap) & torch.isfinite(guess) & (guess > 0)
+    guess = torch.minimum(guess, cfg.seed * cap)
     step = torch.full_like(r, cfg.model_step)
     return (
         torch.where(paid, guess, r),
         torch.where(paid, step, grow),
         torch.where(paid, step, shrink),
         cap,
+        torch.where(paid, torch.full_like(r, cfg.model_slack), slack),
     )
+
+
+def _model_start(
+    coef: tuple[float, float, float, float],
+    r0: torch.Tensor,
+    nearer: torch.Tensor,
+    further: torch.Tensor,
+    payoff: torch.Tensor,
+) -> torch.Tensor:
+    """A payoff model's first radius: r0 exp(c . (1, log r0/payoff, log near/r0, log far/r0))
+    (:data:`START_MODEL`); not finite where a feature is not."""
+    log_r0 = r0.log()
+    features = torch.stack(
+        [torch.ones_like(r0), log_r0 - payoff.log(), nearer.log() - log_r0, further.log() - log_r0]
+    )
+    return r0 * torch.exp(torch.tensordot(torch.tensor(coef, dtype=r0.dtype), features, dims=1))
 
 
 def _where(keep: torch.Tensor, t: torch.Tensor, other: float) -> torch.Tensor:

@@ -246,7 +246,7 @@ def certify_on_demand(
     """:func:`certify_detections` as ``verify`` and ``campaign`` run it: the default
     attack settings and :data:`ON_DEMAND_STEPS` bisection steps, each window grown
     whatever its slack."""
-    cert = CertifyConfig(steps=ON_DEMAND_STEPS, grow_slack=0.0)  # few windows: every step
+    cert = CertifyConfig(steps=ON_DEMAND_STEPS, grow_slack=0.0, model_slack=0.0)  # every step
     return certify_detections(nets, run, wanted, AttackConfig(), cert, on_batch)
 
 

@@ -183,6 +183,8 @@ def scene_meta(
             "method": "CROWN, L2 ball",
             "steps": cert.steps,
             "grow_slack": cert.grow_slack,
+            "start": cert.start if cert.start_model is None else list(cert.start_model),
+            "model_slack": cert.model_slack,
         }
     return meta
 
