@@ -46,6 +46,7 @@ import hashlib
 import math
 from collections.abc import Callable
 from dataclasses import dataclass, replace
+from typing import Literal
 
 import numpy as np
 import torch
@@ -694,7 +695,7 @@ class CertifyConfig:
     #: where the first ball of a window with a payoff goes: "auto", the payoff model
     #: (:data:`START_MODEL`) for the network it was fitted on and the quantile rule for any
     #: other; "quantile", the quantile rule always
-    start: str = "auto"
+    start: Literal["auto", "quantile"] = "auto"
     #: coefficients of a payoff model of one's own (any network; overrides ``start``)
     start_model: tuple[float, float, float, float] | None = None
     #: the factor a payoff model's first ball is grown or shrunk by (its error is about 8%)
