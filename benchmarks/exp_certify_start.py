@@ -10,7 +10,7 @@ of the largest s that certified (r*(R) >= R) and the next. Least squares of
 log(frontier) on (1, log(r0/payoff), log(r_near/r0), log(r_far/r0)), fitted on the other
 300 and checked on bench_certify's, gives START_MODEL once c0 is lowered by
 log(``--keep``). Prints the coefficients, the residuals on both sets, and what share
-of first balls certify at each ``keep``. About 12 minutes on 2 idle cores.
+of first balls certify at each ``keep``. It took 20 minutes here beside the test suite.
 """
 
 from __future__ import annotations
@@ -31,10 +31,10 @@ from lesmc.perception.certify import (
     _centre,
     _dim,
     _start,
+    ball_radius,
     detect_chain,
-    flip_distances,
-    layer_bounds,
-    margin_form,
+    model_features,
+    quantile_radii,
 )
 from lesmc.perception.cnn import load_nets
 from lesmc.video.synth import SynthConfig
@@ -45,14 +45,12 @@ SCALES = (0.4, 0.5, 0.6, 0.7, 0.8, 0.9, 1.0, 1.15, 1.3, 1.5, 1.7, 2.0, 2.5)
 def features(chain: Chain, w: np.ndarray, pay: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Per window: r0 (the quantile rule's first radius) and the fit's four features."""
     cfg = CertifyConfig(start="quantile")
-    levels = torch.tensor([cfg.level - cfg.spread, cfg.level + cfg.spread], dtype=torch.float64)
     with torch.inference_mode():
         z0 = _centre(chain, torch.from_numpy(w.astype(np.float32)))
-        r0 = _start(chain, z0, pay, cfg)[0].numpy()  # the quantile rule's
-        dist = flip_distances(chain, z0).double()
-        near, far = torch.quantile(dist, levels, dim=1).clamp(min=1e-6).numpy()
-    x = np.column_stack([np.ones(len(r0)), np.log(r0 / pay), np.log(near / r0), np.log(far / r0)])
-    return r0, x
+        r0 = _start(chain, z0, pay, cfg)[0]  # the quantile rule's, at most seed x payoff
+        near, _, far = quantile_radii(chain, z0, cfg)
+        x = model_features(r0, near, far, torch.from_numpy(pay)).T.numpy()
+    return r0.numpy(), x
 
 
 def frontier(chain: Chain, w: np.ndarray, r0: np.ndarray) -> np.ndarray:
@@ -64,9 +62,7 @@ def frontier(chain: Chain, w: np.ndarray, r0: np.ndarray) -> np.ndarray:
             for j, s in enumerate(SCALES):
                 r = torch.from_numpy(r0[a : a + 32] * s).float()
                 ball = Ball(z0, r, _dim(chain), chain.subtract_mean)
-                _, relaxes = layer_bounds(chain, ball, None, CertifyConfig().give_up)
-                value, norm = margin_form(chain, ball, relaxes)
-                rstar = value.double() / norm.double().clamp(min=1e-30)
+                rstar, _ = ball_radius(chain, ball, None, CertifyConfig().give_up)
                 ok[a : a + 32, j] = (rstar >= r.double()).numpy()
     sc = np.array(SCALES)
     last = np.array([np.nonzero(o)[0].max() if o.any() else 0 for o in ok])

@@ -312,7 +312,7 @@ def _transpose_conv(x: torch.Tensor, weight: torch.Tensor, stride: int) -> torch
     oneDNN's cost on such small maps is mostly per sample when the output has few
     channels (the first layer's: the input's 4): there, every :data:`STACK` patches
     go as one sample, side by side on the channel axis, through a block-diagonal
-    weight. 4x the multiplications, by zeros, in 0.6-0.8x the time (docs/performance.md,
+    weight. 4x the multiplications, by zeros, in 0.6-0.93x the time (docs/performance.md,
     sixteenth round; a grouped convolution, ``groups=STACK``, was no faster). The same
     sums, plus exact zeros: on the shipped N_dr the radii came out bit for bit equal.
     """
@@ -811,10 +811,7 @@ def _search(
         ri = r[idx]
         ball = Ball(z0[idx], ri.float(), _dim(chain), chain.subtract_mean)
         pri = None if prior is None else _prior_for(prior, idx, ri <= r_bad[idx])
-        bounds, relaxes = layer_bounds(chain, ball, pri, cfg.give_up)
-        value, norm = margin_form(chain, ball, relaxes)
-        value, norm = value.double(), norm.double()
-        rstar = torch.where(value > 0, value / norm.clamp(min=1e-30), torch.zeros_like(value))
+        rstar, bounds = ball_radius(chain, ball, pri, cfg.give_up)
         # a NaN (flip distances all infinite: zero filters) certifies nothing
         best[idx] = torch.maximum(best[idx], torch.nan_to_num(torch.minimum(ri, rstar), nan=0.0))
         ok = rstar >= ri
@@ -834,6 +831,19 @@ def _search(
 
 
 Bounds = list[tuple[torch.Tensor, torch.Tensor]]
+
+
+def ball_radius(
+    chain: Chain, ball: Ball, prior: Bounds | None = None, give_up: float = 1.0
+) -> tuple[torch.Tensor, Bounds]:
+    """One propagation over the balls: r*(R) per window (float64), the radius up to which
+    the margin's linear bound stays positive (0 where it is not positive at the centre;
+    ``min(R, r*(R))`` is certified), and the layer bounds (:func:`layer_bounds`)."""
+    bounds, relaxes = layer_bounds(chain, ball, prior, give_up)
+    value, norm = margin_form(chain, ball, relaxes)
+    value, norm = value.double(), norm.double()
+    rstar = torch.where(value > 0, value / norm.clamp(min=1e-30), torch.zeros_like(value))
+    return rstar, bounds
 
 
 def _prior_for(prior: Bounds, idx: torch.Tensor, inside: torch.Tensor) -> Bounds:
@@ -871,11 +881,7 @@ def _start(
     spread`` quantiles. A window with a payoff, given ``cfg.start_model``, starts where
     that model puts it (:func:`_model_start`), stepped by ``cfg.model_step``."""
     nb = len(z0)
-    dist = flip_distances(chain, z0).double()
-    levels = [max(cfg.level - cfg.spread, 0.0), cfg.level, min(cfg.level + cfg.spread, 1.0)]
-    nearer, start, further = torch.quantile(
-        dist, torch.tensor(levels, dtype=torch.float64), dim=1
-    ).clamp(min=1e-6)
+    nearer, start, further = quantile_radii(chain, z0, cfg)
     grow = (further / start).clamp(min=1.05)
     shrink = (start / nearer).clamp(min=1.5)
     cap = torch.full((nb,), math.inf, dtype=torch.float64)
@@ -899,6 +905,30 @@ def _start(
     )
 
 
+def quantile_radii(
+    chain: Chain, z0: torch.Tensor, cfg: CertifyConfig
+) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    """Per window, the ``level - spread``, ``level`` and ``level + spread`` quantiles of the
+    first layer's flip distances (float64, at least 1e-6): the quantile rule's radii."""
+    dist = flip_distances(chain, z0).double()
+    levels = [max(cfg.level - cfg.spread, 0.0), cfg.level, min(cfg.level + cfg.spread, 1.0)]
+    nearer, start, further = torch.quantile(
+        dist, torch.tensor(levels, dtype=torch.float64), dim=1
+    ).clamp(min=1e-6)
+    return nearer, start, further
+
+
+def model_features(
+    r0: torch.Tensor, nearer: torch.Tensor, further: torch.Tensor, payoff: torch.Tensor
+) -> torch.Tensor:
+    """(4, B): a payoff model's features (1, log r0/payoff, log near/r0, log far/r0), r0 the
+    quantile rule's first radius (:data:`START_MODEL`); not finite where an input is not."""
+    log_r0 = r0.log()
+    return torch.stack(
+        [torch.ones_like(r0), log_r0 - payoff.log(), nearer.log() - log_r0, further.log() - log_r0]
+    )
+
+
 def _model_start(
     coef: tuple[float, float, float, float],
     r0: torch.Tensor,
@@ -906,12 +936,8 @@ def _model_start(
     further: torch.Tensor,
     payoff: torch.Tensor,
 ) -> torch.Tensor:
-    """A payoff model's first radius: r0 exp(c . (1, log r0/payoff, log near/r0, log far/r0))
-    (:data:`START_MODEL`); not finite where a feature is not."""
-    log_r0 = r0.log()
-    features = torch.stack(
-        [torch.ones_like(r0), log_r0 - payoff.log(), nearer.log() - log_r0, further.log() - log_r0]
-    )
+    """A payoff model's first radius: r0 exp(c . :func:`model_features`)."""
+    features = model_features(r0, nearer, further, payoff)
     return r0 * torch.exp(torch.tensordot(torch.tensor(coef, dtype=r0.dtype), features, dims=1))
 
 
