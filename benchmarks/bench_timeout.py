@@ -6,12 +6,15 @@ video, in a fresh process, with the budget's start (``Budget.started``, on the
 system-wide monotonic clock) recorded by a wrapper; the overrun is the time from
 that start to the process's end, minus T. Small T falls in the import of torch
 (the watchdog's case), larger ones in rendering and perception (the alarm's).
-The default video is rendered once first, so that every T after that reuses it.
+The default video is rendered once first, so that every T after that reuses it;
+everything else the previous run left in DIR (its cache, scene and report) is
+removed before each run, or a rerun would finish from the cache before T.
 """
 
 from __future__ import annotations
 
 import argparse
+import shutil
 import subprocess
 import sys
 import tempfile
@@ -37,6 +40,9 @@ main()
 
 def overrun(t: str, out: str, start: Path) -> tuple[int, float]:
     start.unlink(missing_ok=True)
+    for old in Path(out).glob("*"):  # all but the rendered video
+        if old.name != "video":
+            shutil.rmtree(old) if old.is_dir() else old.unlink()
     code = _WRAPPER.format(start=str(start), out=out, t=t)
     r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, cwd=ROOT)
     end = time.monotonic()

@@ -107,7 +107,7 @@ BAD = [
     ("3,-1,10,20,4,6\n2,-1,10,20,4,6\n", "det.txt:2:1: frame 2 comes after frame 3", ""),
     ("1,0.5,10,20,4,6\n", "det.txt:1:3: id must be an integer", ""),
     ("\n\n", "no detections", ""),
-    ("1,-1,10,20,4,6,-3\n", "det.txt:1:1: column 7 is the payoff", "got -3.0"),
+    ("1,-1,10,20,4,6,-3\n", "det.txt:1:16: column 7 is the payoff", "got -3\n"),
 ]
 
 

@@ -15,7 +15,7 @@ import re
 from dataclasses import dataclass
 from typing import Any
 
-from lesmc.common.errors import UsageError
+from lesmc.common.errors import UsageError, escape_control
 from lesmc.designs import registry
 from lesmc.language.properties import Property, SpecFile
 from lesmc.pipeline.certify import PROBE_STOPPED
@@ -23,21 +23,31 @@ from lesmc.tracking.targets import TargetSpec
 
 #: The paper's windows (section 8.2): l from 4 to 12, u − l from 1 to 4.
 DEFAULT_WINDOWS = "4..12:1..4"
+#: The last step a window may reach (lesmc.scene.io.MAX_STEP, a scene's last frame step).
+MAX_STEP = 10**6
+#: Windows a campaign may have: a campaign's units grow with them (the paper has 36).
+MAX_WINDOWS = 10_000
 #: Bumped when a unit's answer could change for the same inputs: old keys are then redone.
 KEY_VERSION = 1
 
 
 def parse_windows(text: str) -> list[tuple[int, int]]:
-    """``L1..L2:D1..D2`` -> every (l, l + d) with l in L1..L2 and d in D1..D2, l-major."""
-    r = r"\s*(\d+)\s*\.\.\s*(\d+)\s*"
-    m = re.fullmatch(r + ":" + r, text)
+    """``L1..L2:D1..D2`` -> every (l, l + d) with l in L1..L2 and d in D1..D2, l-major:
+    ASCII digits, windows ending by step :data:`MAX_STEP`, at most :data:`MAX_WINDOWS`."""
+    r = r"\s*([0-9]{1,9})\s*\.\.\s*([0-9]{1,9})\s*"
+    m = re.fullmatch(r + ":" + r, text, re.ASCII)
+    shown = escape_control(text if len(text) <= 40 else text[:37] + "...")
     if not m:
         raise UsageError(
-            f"--windows must look like L1..L2:D1..D2 (e.g. {DEFAULT_WINDOWS}), got '{text}'"
+            f"--windows must look like L1..L2:D1..D2 (e.g. {DEFAULT_WINDOWS}), got '{shown}'"
         )
     l1, l2, d1, d2 = (int(g) for g in m.groups())
     if l1 < 1 or l1 > l2 or d1 > d2:
-        raise UsageError(f"--windows {text}: need 1 <= L1 <= L2 and D1 <= D2")
+        raise UsageError(f"--windows {shown}: need 1 <= L1 <= L2 and D1 <= D2")
+    if l2 + d2 > MAX_STEP:
+        raise UsageError(f"--windows {shown}: windows must end by step {MAX_STEP}")
+    if (l2 - l1 + 1) * (d2 - d1 + 1) > MAX_WINDOWS:
+        raise UsageError(f"--windows {shown}: at most {MAX_WINDOWS} windows")
     return [(lo, lo + d) for lo in range(l1, l2 + 1) for d in range(d1, d2 + 1)]
 
 

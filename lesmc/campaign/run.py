@@ -29,7 +29,7 @@ from lesmc.campaign.plan import Group, plan_units, scene_key
 from lesmc.campaign.work import run_group, scene_doc
 from lesmc.common.budget import Budget
 from lesmc.common.errors import InputError, Location, UsageError
-from lesmc.common.files import read_json
+from lesmc.common.files import read_json, read_text
 from lesmc.common.progress import progress_bar
 from lesmc.designs import registry
 from lesmc.designs.registry import BASELINE
@@ -269,9 +269,9 @@ def _certifier(p: Prepared, files: NetFiles, n: int) -> Certifier:
             nets = load_nets(*files)
         Console(stderr=True).print(
             f"{p.video.name}: certifying {n} detections (those the models can hide and the "
-            "scene does not yet bound)"
+            "scene does not yet bound), counted by window: the detections of a blob share one"
         )
-        with progress_bar("campaign", f"certifying {p.video.name}", None) as bar:
+        with progress_bar("campaign", f"certifying {p.video.name}'s windows", None) as bar:
             return certify_on_demand(
                 nets, p.run, wanted, lambda done, total: bar.update(total=total, completed=done)
             )
@@ -356,12 +356,9 @@ def file_targets(path: Path, videos: list[str]) -> dict[str, list[tuple[TargetSp
     """``--targets FILE``: one ``X,Y@STEP`` per line (``VIDEO X,Y@STEP`` with several videos);
     blank lines and ``#`` comments are skipped."""
 
-    try:
-        text = path.read_text(encoding="utf-8")
-    except (OSError, UnicodeDecodeError) as exc:
-        raise InputError(f"cannot read the targets file: {exc}", Location(str(path))) from None
+    text = read_text(path)
     out: dict[str, list[tuple[TargetSpec, Location]]] = {v: [] for v in videos}
-    for n, raw in enumerate(text.splitlines(), start=1):
+    for n, raw in enumerate(text.split("\n"), start=1):  # lines end at \n only
         line = raw.split("#", 1)[0].strip()
         if not line:
             continue
@@ -370,7 +367,10 @@ def file_targets(path: Path, videos: list[str]) -> dict[str, list[tuple[TargetSp
         if len(videos) > 1 and len(parts) != 2:
             raise InputError("with several videos a line is 'VIDEO X,Y@STEP'", where)
         name, text_t = (parts[0], parts[1]) if len(parts) == 2 else (videos[0], parts[0])
-        if len(parts) > 2 or name not in out:
+        if len(parts) > 2:
+            form = "VIDEO X,Y@STEP" if len(videos) > 1 else "X,Y@STEP (or VIDEO X,Y@STEP)"
+            raise InputError(f"a line is '{form}', got {len(parts)} fields", where)
+        if name not in out:
             raise InputError(f"unknown video '{name}' (videos: {', '.join(videos)})", where)
         try:
             spec = parse_target(text_t)
@@ -379,6 +379,8 @@ def file_targets(path: Path, videos: list[str]) -> dict[str, list[tuple[TargetSp
         if spec.step is None:
             raise InputError("give the target's frame: X,Y@STEP", where)
         out[name].append((spec, where))
+    if not any(out.values()):
+        raise InputError("no targets: every line is blank or a comment", Location(str(path)))
     return out
 
 

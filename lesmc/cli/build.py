@@ -14,6 +14,7 @@ from lesmc.cli.options import (
     budget_from,
     budget_options,
     design_option,
+    distinct_files,
     load_scene_file,
     model_output,
     parse_window,
@@ -77,6 +78,7 @@ def build_cmd(
     3 a budget ran out (nothing written), 4 internal error, 130 interrupted.
     """
     budget = budget_from(timeout, max_states, max_memory)
+    distinct_files({"SCENE": scene, "--tracker": tracker_file}, {"-o/--output": output})
     from lesmc.build.unfold import build_model, max_end
     from lesmc.common.progress import Reporter
     from lesmc.scene import UnpricedPayoff

@@ -5,6 +5,8 @@ from __future__ import annotations
 import json
 import os
 import sys
+from collections.abc import Iterator
+from contextlib import contextmanager, suppress
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -12,6 +14,7 @@ import click
 
 from lesmc.cli.options import (
     DEFAULT_MAX_STATES,
+    FiniteRange,
     designs_option,
     finite_seconds,
     nets_option,
@@ -82,7 +85,7 @@ def _cores() -> int:
 )
 @click.option(
     "--timeout",
-    type=click.FloatRange(min=0, min_open=True),
+    type=FiniteRange(min=0, min_open=True),
     callback=finite_seconds,
     default=60.0,
     show_default=True,
@@ -156,16 +159,33 @@ def campaign_cmd(
     windows = parse_windows(windows_text)
     spec_files = _spec_files(specs)
     out = Path(out_dir)
-    videos = _videos(frames_dirs, out, no_truth)
     count, target_file = _targets_option(targets_text)
     nets = (nets_dir, detector_file, locator_file)
-    out.mkdir(parents=True, exist_ok=True)
-    prepared = _prepared(videos, out, nets, tracker_file)
-    _choose_targets(prepared, count, target_file, windows, not no_truth)
-    designs = expand_designs(design)
-    with resumable(lambda: _kept(out)):
-        rows = _run(prepared, spec_files, windows, designs, out, limits, payoffs, nets)
+    with _removed_if_empty(out):
+        videos = _videos(frames_dirs, out, no_truth)
+        listed = _file_targets(target_file, videos)
+        out.mkdir(parents=True, exist_ok=True)
+        prepared = _prepared(videos, out, nets, tracker_file)
+        _choose_targets(prepared, count, listed, windows, not no_truth)
+        designs = expand_designs(design)
+        with resumable(lambda: _kept(out)):
+            rows = _run(prepared, spec_files, windows, designs, out, limits, payoffs, nets)
     _finish(rows, out, out_dir, prepared, windows, design, as_json)
+
+
+@contextmanager
+def _removed_if_empty(out: Path) -> Iterator[None]:
+    """OUT as the run leaves it when it fails: a directory this run created is removed
+    again if nothing was written in it (only empty directories are ever removed)."""
+    created = not out.exists()
+    try:
+        yield
+    except BaseException:
+        if created and out.is_dir():
+            for d, _, _ in os.walk(out, topdown=False):  # children first
+                with suppress(OSError):
+                    os.rmdir(d)  # fails on a directory that holds anything
+        raise
 
 
 def _kept(out: Path) -> str:
@@ -267,20 +287,27 @@ def _targets_option(text: str) -> tuple[int | None, Path | None]:
     return None, path
 
 
+def _file_targets(target_file: Path | None, videos: list[Any]) -> dict[str, list[Any]] | None:
+    """The targets of ``--targets FILE`` by video (None without a file), read before any
+    video is perceived, so that a mistake in the file costs nothing."""
+    from lesmc.campaign.run import file_targets
+
+    return None if target_file is None else file_targets(target_file, [v.name for v in videos])
+
+
 def _choose_targets(
     prepared: list[Any],
     count: int | None,
-    target_file: Path | None,
+    by_video: dict[str, list[Any]] | None,
     windows: list[tuple[int, int]],
     use_truth: bool,
 ) -> None:
     from rich.console import Console
 
-    from lesmc.campaign.run import auto_targets, check_file_target, file_targets
+    from lesmc.campaign.run import auto_targets, check_file_target
 
     err = Console(stderr=True)
-    if target_file is not None:
-        by_video = file_targets(target_file, [p.video.name for p in prepared])
+    if by_video is not None:
         for p in prepared:
             for spec, where in by_video[p.video.name]:
                 check_file_target(p, spec, where, windows)

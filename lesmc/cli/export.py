@@ -7,7 +7,13 @@ from typing import TYPE_CHECKING
 import click
 
 from lesmc.cli.documents import emit, file_facts, run_provenance, say
-from lesmc.cli.options import RegistryChoice, parse_window, scene_target, tracker_option
+from lesmc.cli.options import (
+    RegistryChoice,
+    distinct_files,
+    parse_window,
+    scene_target,
+    tracker_option,
+)
 from lesmc.common.errors import InputError, Location, UsageError, escape_control
 from lesmc.designs import registry
 
@@ -101,6 +107,8 @@ def export_cmd(
     from lesmc.api import export_model, load_spec
 
     _refuse_mismatched(fmt, spec_path, strict, prop, results_path)
+    inputs = {"MODEL": model, "--spec": spec_path, "--results": results_path}
+    distinct_files(inputs | {"--tracker": tracker_file}, {"-o/--output": output})
     cm = _model(model, target_text, design, window_text, tracker_file)
     roles = _roles(cm, results_path, prop) if results_path else None
     spec = load_spec(spec_path) if spec_path else None
@@ -175,12 +183,20 @@ def _roles(cm: ArrayModel, path: str, prop: str | None) -> dict[str, list[int]]:
         results = [r for run in doc["runs"] for r in run.get("results", [])]
     else:
         raise InputError("not a results file (lesmc check --json or results.json)", Location(path))
-    chosen = [r for r in results if prop is None or r.get("property") == prop]
+    chosen = [
+        r for r in results if isinstance(r, dict) and (prop is None or r.get("property") == prop)
+    ]
     if not chosen:
-        raise InputError(f"no result for property '{prop}'", Location(path))
+        what = "no result" if prop is None else f"no result for property '{prop}'"
+        raise InputError(what, Location(path))
     roles: dict[str, list[int]] = {"original": cm.original.tolist()}
     for role in ("witness", "counterexample"):
-        states = (chosen[0].get(role) or {}).get("states")
+        got = chosen[0].get(role)
+        states = got.get("states") if isinstance(got, dict) else None
+        if states is not None and not (
+            isinstance(states, list) and all(isinstance(s, str) for s in states)
+        ):
+            raise InputError("must be a list of state ids", Location(path, item=f"{role}.states"))
         if states:
             try:
                 roles[role] = [cm.index(s) for s in states]

@@ -8,7 +8,7 @@ from typing import TYPE_CHECKING, Any
 import click
 
 from lesmc.cli.documents import emit, file_facts, run_provenance, say
-from lesmc.cli.options import tracker_option
+from lesmc.cli.options import distinct_files, tracker_option
 from lesmc.common.errors import UsageError, escape_control
 
 if TYPE_CHECKING:
@@ -97,8 +97,14 @@ def mot_cmd(
 
     if (gt_path is None) != (track_id is None):
         raise UsageError("--gt and --track go together: the target is a track of the gt file")
-    if not (math.isfinite(fps) and 0 < fps <= 1e6):
-        raise UsageError(f"--fps must be a number in (0, 1e6], got {fps:g}")
+    distinct_files(
+        {"DET": det, "--gt": gt_path, "--tracker": tracker_file}, {"-o/--output": output}
+    )
+    from lesmc.scene.io import MAX_DT
+
+    if not (math.isfinite(fps) and 0 < fps <= 1e6 and 1.0 / fps <= MAX_DT):
+        shown = f"[1/{MAX_DT:g}, 1e6] (dt = 1/fps at most {MAX_DT:g} s)"
+        raise UsageError(f"--fps must be a number in {shown}, got {fps:g}")
     payoffs = _payoffs(payoff_constant, payoff_column)
     tracker = load_tracker(tracker_file) if tracker_file else None
     at: Point = "bottom" if point == "bottom" else "center"

@@ -11,6 +11,7 @@ from __future__ import annotations
 import math
 import re
 from collections.abc import Callable
+from pathlib import Path
 from typing import TYPE_CHECKING, Any, TypeVar
 
 import click
@@ -47,6 +48,16 @@ class RegistryChoice(click.Choice):  # type: ignore[type-arg, unused-ignore]
     @choices.setter
     def choices(self, _value: Any) -> None:
         """click sets the choices once; they are read from the registry instead."""
+
+
+class FiniteRange(click.FloatRange):
+    """``click.FloatRange`` without nan and the infinities (nan passes its comparisons)."""
+
+    def convert(self, value: Any, param: click.Parameter | None, ctx: click.Context | None) -> Any:
+        got = super().convert(value, param, ctx)
+        if not math.isfinite(got):
+            self.fail(f"{got} is not a finite number", param, ctx)
+        return got
 
 
 #: ``-o/--output`` of the verbs that write a model.
@@ -223,7 +234,7 @@ def budget_options(max_states_default: int | None, what: str) -> Callable[[F], F
         f = memory_option(what)(f)
         f = click.option(
             "--timeout",
-            type=click.FloatRange(min=0, min_open=True),
+            type=FiniteRange(min=0, min_open=True),
             default=None,
             callback=finite_seconds,
             help=f"Seconds for the whole command, loading included; past it {what}.",
@@ -317,3 +328,23 @@ tracker_option = file_option(
     "scene's tracker: a preset model (cv2d, ca2d) or the matrices F, H, Q, R, P0 "
     "(docs/own-system.md).",
 )
+
+
+def distinct_files(inputs: dict[str, str | None], outputs: dict[str, str]) -> None:
+    """Refuse, before any work, an output that names one of the command's inputs or
+    another output (writing it would destroy the other), or that exists and is not a
+    regular file (``files.output_target``). Keys: the option names shown; None: not
+    given. Paths are compared with symlinks and ``..`` resolved."""
+    from lesmc.common.files import output_target
+
+    for out in outputs.values():
+        output_target(out)
+    seen: dict[Path, str] = {}
+    named: dict[str, str | None] = {**inputs, **outputs}
+    for what, p in named.items():
+        if p is None:
+            continue
+        key = Path(p).resolve()
+        if key in seen:
+            raise UsageError(f"{seen[key]} and {what} name the same file ({escape_control(p)})")
+        seen[key] = what

@@ -9,7 +9,7 @@ from typing import TYPE_CHECKING, Any
 import click
 
 from lesmc.cli.documents import emit, file_facts, refuse_given, run_provenance, say
-from lesmc.cli.options import network_options, tracker_option
+from lesmc.cli.options import FiniteRange, distinct_files, network_options, tracker_option
 from lesmc.common.errors import escape_control
 from lesmc.verify.perceive import (
     Perceived,
@@ -72,9 +72,7 @@ if TYPE_CHECKING:
     show_default=True,
     help="l2: ||delta||_2 on [0,1] pixels; per-pixel: divided by 441 (the paper's code).",
 )
-@click.option(
-    "--overshoot", type=click.FloatRange(min=0.0, max=1.0), default=0.02, show_default=True
-)
+@click.option("--overshoot", type=FiniteRange(min=0.0, max=1.0), default=0.02, show_default=True)
 @click.option("--max-iter", type=click.IntRange(min=1, max=10000), default=50, show_default=True)
 @click.option(
     "--certify",
@@ -98,20 +96,20 @@ if TYPE_CHECKING:
 )
 @click.option(
     "--dt",
-    type=click.FloatRange(min=0.0, min_open=True),
+    type=FiniteRange(min=0.0, min_open=True),
     default=None,
     help=f"Seconds between frames [default: from --truth, else {1 / FPS:g} (1.25 Hz)].",
 )
 @click.option(
     "--radius",
-    type=click.FloatRange(min=0.1),
+    type=FiniteRange(min=0.1),
     default=4.0,
     show_default=True,
     help="Match distance for --truth, pixels.",
 )
 @click.option(
     "--min-speed",
-    type=click.FloatRange(min=0.0),
+    type=FiniteRange(min=0.0),
     default=1.5,
     show_default=True,
     help="Slower vehicles (m/s) are don't care for --truth.",
@@ -169,6 +167,10 @@ def perceive_cmd(
     from lesmc.common.progress import progress_bar  # rich: imported when a verb runs
 
     inputs = open_inputs(req)
+    if output is not None:
+        named: dict[str, str | None] = {p.name: str(p) for p in inputs.frames.paths}
+        named |= {"--truth": truth, "--tracker": tracker_file, "--detector": detector_file}
+        distinct_files(named | {"--locator": locator_file}, {"-o/--output": output})
     with progress_bar("perceive", "perceiving", len(inputs.frames)) as bar:
         got = perceive_frames(req, inputs, bar.advance)
     written = None if got.scene is None or output is None else _write(got, output, as_json)

@@ -8,7 +8,7 @@ from pathlib import Path
 import click
 
 from lesmc.cli.documents import emit, file_facts, run_provenance, say
-from lesmc.cli.options import model_output
+from lesmc.cli.options import distinct_files, model_output
 from lesmc.common.errors import UsageError, escape_control
 from lesmc.common.files import atomic_write_text
 
@@ -58,7 +58,7 @@ def knapsack_cmd(
     if not (math.isfinite(demand) and math.isfinite(budget)):
         raise UsageError("--demand and --budget must be finite")
     spec_path = Path(spec_out) if spec_out else Path(output).with_suffix(".spec")
-    _distinct({"ITEMS": items, "-o/--output": output, "--spec": str(spec_path)})
+    distinct_files({"ITEMS": items}, {"-o/--output": output, "--spec": str(spec_path)})
     parsed = read_items(items)
     model = knapsack_lts(parsed)
     text = knapsack_spec(len(parsed), demand, budget)
@@ -89,14 +89,3 @@ def knapsack_cmd(
                 "transitions": model.n_transitions,
             }
         )
-
-
-def _distinct(paths: dict[str, str]) -> None:
-    """Refuse two of the command's files naming the same file (one would overwrite the
-    other): e.g. ``-o K.spec`` writes its property to K.spec as well."""
-    seen: dict[Path, str] = {}
-    for what, p in paths.items():
-        key = Path(p).resolve()
-        if key in seen:
-            raise UsageError(f"{seen[key]} and {what} name the same file ({escape_control(p)})")
-        seen[key] = what

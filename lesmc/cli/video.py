@@ -9,6 +9,7 @@ from pathlib import Path
 import click
 
 from lesmc.cli.documents import emit, file_facts, run_provenance, say
+from lesmc.cli.options import FiniteRange
 from lesmc.common.errors import UsageError, escape_control
 from lesmc.video import DEFAULT_DENSITY
 
@@ -31,7 +32,7 @@ def parse_size(text: str) -> tuple[int, int]:
 @click.option("--seed", type=int, default=1, show_default=True)
 @click.option(
     "--density",
-    type=click.FloatRange(min=0.0, max=20.0),
+    type=FiniteRange(min=0.0, max=20.0),
     default=DEFAULT_DENSITY,
     show_default=True,
     help="Vehicles per 100 m of road.",

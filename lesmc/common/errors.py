@@ -172,11 +172,12 @@ def _quote(line: str, column: int) -> str:
     """The quoted source line and a caret under ``column``, escaped and clipped."""
     line = line.rstrip("\r\n")
     cut = min(max(column - 1, 0), len(line))
-    before = escape_control(line[:cut])
-    after = escape_control(line[cut:])
-    if len(before) > _SHOWN_HALF:
+    # clipped before escaping too, so that a long line costs no more than a short one
+    before = escape_control(line[max(cut - _SHOWN_HALF, 0) : cut])
+    after = escape_control(line[cut : cut + _SHOWN_HALF])
+    if len(before) > _SHOWN_HALF or cut > _SHOWN_HALF:
         before = "…" + before[-_SHOWN_HALF:]
-    if len(after) > _SHOWN_HALF:
+    if len(after) > _SHOWN_HALF or len(line) - cut > _SHOWN_HALF:
         after = after[:_SHOWN_HALF] + "…"
     # keep tabs so the caret lines up with what the terminal shows
     pad = "".join("\t" if ch == "\t" else " " for ch in before)

@@ -21,7 +21,7 @@ from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import IO, Any
 
-from lesmc.common.errors import InputError, LesmcError, Location
+from lesmc.common.errors import InputError, LesmcError, Location, UsageError, escape_control
 
 #: Deepest nesting of arrays and objects a JSON input may have.
 MAX_JSON_DEPTH = 64
@@ -341,6 +341,16 @@ def new_file_mode(target: str | Path) -> int:
         return 0o666 & ~_umask()
 
 
+def output_target(path: str | Path) -> Path:
+    """The file an output named ``path`` replaces: ``path`` with its symlinks resolved.
+    :class:`UsageError` if that exists and is not a regular file."""
+    target = Path(os.path.realpath(path))
+    if target.exists() and not target.is_file():
+        shown = escape_control(str(path))
+        raise UsageError(f"{shown}: not a regular file: lesmc writes its outputs to files only")
+    return target
+
+
 @contextlib.contextmanager
 def atomic_open(path: str | Path, binary: bool = False) -> Iterator[IO[Any]]:
     """A file to write ``path`` through, so that readers never see it half-written.
@@ -349,8 +359,11 @@ def atomic_open(path: str | Path, binary: bool = False) -> Iterator[IO[Any]]:
     over ``path`` when the ``with`` block ends normally, with the permissions of
     :func:`new_file_mode`. On any exception, Ctrl-C and SIGTERM included
     (lesmc/cli/signals.py), the temporary file is removed and ``path`` is untouched.
+    A symlink is written through (its target is replaced, the link kept); a ``path``
+    that exists and is not a regular file (a device, a FIFO, a directory) is refused
+    with :class:`UsageError`, since renaming over it would replace it.
     """
-    target = Path(path)
+    target = output_target(path)
     target.parent.mkdir(parents=True, exist_ok=True)
     tmp: str | None = None
     try:

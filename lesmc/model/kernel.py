@@ -90,6 +90,15 @@ def _lower_ranks(
     return first, new_group, lead, start[lead], lead - start[lead]
 
 
+def exact_sum(values: Iterable[float]) -> float:
+    """The exactly rounded sum (``math.fsum``) of non-negative ``values``; +inf where it
+    exceeds the largest float (fsum raises on that instead)."""
+    try:
+        return math.fsum(values)
+    except OverflowError:
+        return math.inf
+
+
 def combined_payoffs(ptr: np.ndarray, payoff: np.ndarray, rank: np.ndarray) -> np.ndarray:
     """Eq. 5 for every transition of a CSR model whose rows are sorted by rank.
 
@@ -111,7 +120,7 @@ def combined_payoffs(ptr: np.ndarray, payoff: np.ndarray, rank: np.ndarray) -> n
     if many.size:
         vals = payoff.tolist()
         rows = zip(row[many].tolist(), lead[many].tolist(), strict=True)
-        sums[many] = [math.fsum(vals[a:b]) for a, b in rows]
+        sums[many] = [exact_sum(vals[a:b]) for a, b in rows]
     out[new_group] = sums
     combined: np.ndarray = out[first]
     return combined

@@ -138,7 +138,7 @@ def _track_json(
         "labels": ["0-start", *(f"{k}-{_short(o)}" for k, o in enumerate(obs, start=1))],
         "obs": obs,
         "payoff": num(tracks.payoff(cm, tr, window)),
-        "dist_sum": num(math.fsum(dist.tolist())),
+        "dist_sum": num(kernel.exact_sum(dist.tolist())),
         "dist_max": num(float(dist.max())),
         "dist_end": num(float(dist[-1])),
         "halted": len(tr.states) < cm.end + 1,

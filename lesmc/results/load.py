@@ -9,6 +9,7 @@ from lesmc.common.errors import InputError, Location
 from lesmc.common.fields import is_version, show
 from lesmc.common.files import read_json
 from lesmc.results.document import FORMAT, VERSION
+from lesmc.results.references import check_references
 from lesmc.schemas import validate
 
 
@@ -28,4 +29,5 @@ def load_results(path: str | Path) -> dict[str, Any]:
             Location(str(path), item="version"),
         )
     validate(doc, "results", str(path))
+    check_references(doc, str(path))
     return doc

@@ -11,7 +11,6 @@ cuts (Eq. 13). Nothing here is a second copy of an equation.
 from __future__ import annotations
 
 import itertools
-import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -99,7 +98,7 @@ def complete(cm: ArrayModel, states: tuple[int, ...]) -> tuple[int, ...]:
 
 def payoff(cm: ArrayModel, track: Track, window: tuple[int, int]) -> float:
     """The track's combined payoff (Eq. 5) summed over ``window`` (Eq. 8)."""
-    return math.fsum(
+    return kernel.exact_sum(
         float(cm.combined[t])
         for k, t in enumerate(track.transitions, start=1)
         if window[0] <= k <= window[1]

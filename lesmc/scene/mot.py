@@ -19,6 +19,7 @@ Writing (:func:`write_det`, :func:`write_gt`) is the inverse, used by tests and 
 
 from __future__ import annotations
 
+import itertools
 import math
 from collections.abc import Iterable, Sequence
 from dataclasses import dataclass
@@ -138,8 +139,12 @@ _NAMES = (
 
 
 def _number(text: str, i: int, where: Location) -> float:
+    """Column ``i``'s number: ASCII digits only (Python's ``float`` also takes other
+    scripts' digits and ``1_000``, which no MOT reader does)."""
     s = text.strip()
     try:
+        if not s.isascii() or "_" in s:
+            raise ValueError(s)
         v = float(s)
     except ValueError:
         raise InputError(f"{_NAMES[i]} must be a number, got '{s[:20]}'", where) from None
@@ -202,10 +207,18 @@ def _payoff(b: Box, p: Payoffs, path: str) -> float:
     if not (v >= 0 and (math.isinf(v) or v <= MAX_PAYOFF)):
         raise InputError(
             f"column {p.column} is the payoff: a number in [0, {MAX_PAYOFF:g}] "
-            f"or inf (unattackable), got {v!r}",
-            Location(path, b.line, 1),
+            f"or inf (unattackable), got {v:g}",
+            _column_at(path, b.line, p.column - 1),
         )
     return v
+
+
+def _column_at(path: str, n: int, i: int) -> Location:
+    """Where column ``i`` (0-based) of line ``n`` starts, the line quoted: read again, as
+    only an error needs it."""
+    line = read_text(path).split("\n")[n - 1].removesuffix("\r")
+    col, text = _split(line)[i]
+    return Location(path, n, col + 1 + (len(text) - len(text.lstrip())), line)
 
 
 def target_from_gt(
@@ -213,7 +226,14 @@ def target_from_gt(
 ) -> Target:
     """The target of ground-truth track ``track``: its first box's point and frame, and its
     velocity to its next box (zero if it has none)."""
-    rows = sorted((b for b in gt if b.id == track), key=lambda b: b.frame)
+    rows = sorted((b for b in gt if b.id == track), key=lambda b: (b.frame, b.line))
+    for a, b in itertools.pairwise(rows):
+        if a.frame == b.frame:
+            raise InputError(
+                f"track {track} has two boxes in frame {b.frame} (lines {a.line} and "
+                f"{b.line}): a ground-truth track has one box a frame",
+                _column_at(path, b.line, 0),
+            )
     if not rows:
         ids = sorted({b.id for b in gt})
         shown = ", ".join(str(i) for i in ids[:12]) + (" ..." if len(ids) > 12 else "")

@@ -252,8 +252,8 @@ def _covariance(m: np.ndarray, name: str, definite: bool, pr: Problems, item: st
         r, c = np.unravel_index(int(np.argmax(np.abs(m - m.T))), m.shape)
         pr.add(
             item,
-            f"model.{name} must be symmetric: [{r}][{c}] = {m[r, c]!r} "
-            f"but [{c}][{r}] = {m[c, r]!r}",
+            f"model.{name} must be symmetric: [{r}][{c}] = {float(m[r, c])!r} "
+            f"but [{c}][{r}] = {float(m[c, r])!r}",
         )
         return m
     sym: np.ndarray = 0.5 * (m + m.T)

@@ -1,0 +1,108 @@
+"""What the results schema cannot say: that a results file's ids refer to each other.
+
+The schema (lesmc/schemas/results.json) checks each value on its own; the report and
+the replay also follow references between them: a path's state ids into the run's
+``states``, ``roles`` into the numbered ``paths``, a result's property into the run's
+``properties``, the hidden detections into the scene's. A file edited or cut by hand
+could break one of them; :func:`check_references` reports every broken reference as
+``FILE: item: message``, so that nothing downstream meets a missing key.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Any
+
+from lesmc.common.errors import InputError, Problems
+from lesmc.scene.io import MAX_DT
+
+
+def check_references(doc: dict[str, Any], path: str) -> None:
+    """Raise one :class:`InputError` listing every broken reference of ``doc``."""
+    pr = Problems()
+    seen: dict[str, int] = {}
+    for i, run in enumerate(doc["runs"]):
+        at = f"runs[{i}]"
+        if run["design"] in seen:
+            pr.add(f"{at}.design", f"'{run['design']}' is also runs[{seen[run['design']]}]")
+        seen.setdefault(run["design"], i)
+        _run(run, at, pr)
+    if pr.items:
+        raise InputError.many(path, pr.items)
+
+
+def _run(run: dict[str, Any], at: str, pr: Problems) -> None:
+    states, names = run["states"], [p["name"] for p in run["properties"]]
+    if len(run["results"]) != len(names):
+        pr.add(f"{at}.results", f"{len(run['results'])} results for {len(names)} properties")
+    for j, res in enumerate(run["results"]):
+        if res["property"] not in names:
+            pr.add(f"{at}.results[{j}].property", f"'{res['property']}' is not a property")
+        for kind in ("counterexample", "witness"):
+            if res.get(kind) is not None:
+                _path(res[kind], f"{at}.results[{j}].{kind}", states, pr)
+    for k, p in enumerate(run["paths"]):
+        if p["no"] != k + 1:
+            pr.add(f"{at}.paths[{k}].no", f"must be {k + 1} (paths are numbered in order)")
+        _ids(p["states"], f"{at}.paths[{k}].states", states, pr)
+    _roles(run["roles"], f"{at}.roles", len(run["paths"]), len(run["results"]), pr)
+    for name in run.get("hidden") or {}:
+        if name not in names:
+            pr.add(f"{at}.hidden.{name}", "is not a property of the run")
+    _replay_inputs(run, at, pr)
+
+
+def _path(info: dict[str, Any], at: str, states: dict[str, Any], pr: Problems) -> None:
+    """A counterexample or witness: its states known, one deviation and step per state."""
+    _ids(info["states"], f"{at}.states", states, pr)
+    n = len(info["states"])
+    for key in ("deviation", "steps"):
+        if key in info and len(info[key]) != n:
+            pr.add(f"{at}.{key}", f"has {len(info[key])} entries for {n} states")
+
+
+def _ids(ids: list[str], at: str, states: dict[str, Any], pr: Problems) -> None:
+    unknown = [q for q in ids if q not in states]
+    if unknown:
+        pr.add(at, f"state '{unknown[0]}' is not in the run's states")
+
+
+def _roles(roles: dict[str, Any], at: str, n_paths: int, n_results: int, pr: Problems) -> None:
+    """Path numbers in 1..n_paths; one counterexample and one witness per result."""
+    numbers = [("original", roles["original"])]
+    for kind in ("counterexample", "witness"):
+        if len(roles[kind]) != n_results:
+            pr.add(f"{at}.{kind}", f"has {len(roles[kind])} entries for {n_results} results")
+        numbers += [(f"{kind}[{j}]", no) for j, no in enumerate(roles[kind])]
+    for item, no in numbers:
+        if no is not None and not 1 <= no <= n_paths:
+            pr.add(f"{at}.{item}", f"path {no} is not one of the run's {n_paths} paths")
+
+
+def _replay_inputs(run: dict[str, Any], at: str, pr: Problems) -> None:
+    """The replay's time step as a scene's (0 < dt <= MAX_DT); its hidden detections
+    among the scene's."""
+    rp, scene = run.get("replay_inputs"), run.get("scene")
+    if rp is not None and not (_number(rp["dt"]) and 0 < rp["dt"] <= MAX_DT):
+        pr.add(f"{at}.replay_inputs.dt", f"must be a number in (0, {MAX_DT:g}]")
+    if scene is None:
+        return
+    known = set()
+    for k, step in enumerate(scene["detections"]):
+        for m, d in enumerate(step):
+            if not (isinstance(d[2], str) and all(_number(d[c]) for c in (0, 1, 4, 5))):
+                pr.add(
+                    f"{at}.scene.detections[{k}][{m}]", "must be [x, y, id, payoff, x_ref, y_ref]"
+                )
+            elif not (d[3] is None or _number(d[3]) or isinstance(d[3], str)):
+                pr.add(f"{at}.scene.detections[{k}][{m}]", "its payoff must be a number or null")
+            else:
+                known.add(d[2])
+    for name, hidden in (run.get("hidden") or {}).items():
+        for k, h in enumerate(hidden):
+            if h["obs"] not in known:
+                pr.add(f"{at}.hidden.{name}[{k}].obs", f"'{h['obs']}' is not a scene detection")
+
+
+def _number(v: Any) -> bool:
+    return isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v)
