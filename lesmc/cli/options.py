@@ -264,11 +264,12 @@ def budget_from(
     the command ends, and the process then exits without the interpreter's teardown
     (:func:`~lesmc.cli.signals.exit_fast`). ``preload``: modules whose first import
     holds the interpreter in one long C call (torch): imported here, under a watchdog
-    that stops the command (exit 3) even inside that call
+    that stops the command (exit 3) even inside that call,
+    :data:`~lesmc.cli.signals.IMPORT_GRACE` past the timeout
     (:func:`~lesmc.cli.signals.native_deadline`), then the deadline is looked at again.
     """
     from lesmc.cli.signals import (
-        HARD_GRACE,
+        IMPORT_GRACE,
         WATCHDOG_LAG,
         arm_deadline,
         exit_fast,
@@ -288,7 +289,7 @@ def budget_from(
 
         from lesmc.cli.budgets import stop_if_spent
 
-        hard = None if timeout is None else budget.started + timeout + HARD_GRACE + WATCHDOG_LAG
+        hard = None if timeout is None else budget.started + timeout + IMPORT_GRACE + WATCHDOG_LAG
         with native_deadline(hard):
             for name in preload:
                 importlib.import_module(name)

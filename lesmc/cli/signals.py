@@ -51,8 +51,14 @@ class DeadlinePassed(BaseException):
     (imports, loading, a long numpy call): the command stops, exit 3, nothing written."""
 
 
-#: Seconds past ``--timeout`` after which the alarm stops the command whatever it does.
+#: Seconds past ``--timeout`` after which the alarm stops the command whatever it does
+#: (a last resort: the engines look at the clock and end with a result before it).
 HARD_GRACE = 0.8
+
+#: Seconds past ``--timeout`` at which :func:`native_deadline`'s watchdog stops the first
+#: imports of ``verify`` (torch, cv2): no result can be lost there, so it need not wait
+#: for :data:`HARD_GRACE`.
+IMPORT_GRACE = 0.3
 
 
 def _deadline(_signum: int, _frame: FrameType | None) -> None:
@@ -99,8 +105,8 @@ DEADLINE_DOCUMENT = (
     + "\n"
 )
 
-#: Seconds past the alarm of :func:`arm_deadline` at which :func:`native_deadline`'s
-#: watchdog acts (only when the alarm could not: inside one long C call).
+#: Seconds added to :data:`IMPORT_GRACE` for :func:`native_deadline`'s watchdog, so that
+#: a deadline the budget's own check can catch right after the import is caught there.
 WATCHDOG_LAG = 0.05
 
 
