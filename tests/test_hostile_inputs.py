@@ -345,3 +345,36 @@ def test_export_refuses_results_whose_paths_are_not_state_ids(tmp_path: Path) ->
               cwd=tmp_path)  # fmt: skip
     _failed(r, "r.json: no result")
     assert not (tmp_path / "m.dot").exists()
+
+
+@pytest.mark.parametrize(
+    ("meta", "wanted"),
+    [
+        ({"first_frame": "abc"}, "meta.first_frame: must be an integer in 0..1000000"),
+        ({"first_frame": 10**18}, "meta.first_frame: must be an integer"),
+        ({"window": ["a", "b"]}, "meta.window: must be [L, U]"),
+        ({"window": [8, 6]}, "meta.window: must be [L, U]"),
+        ({"design": 7}, "meta.design: must be a string"),
+    ],
+)
+def test_a_models_meta_is_checked_where_lesmc_reads_it(
+    tmp_path: Path, meta: dict, wanted: str
+) -> None:
+    """A check reads meta.window (its notes), a report meta.first_frame and meta.design:
+    a string there was a TypeError (exit 4). JSON and binary forms alike."""
+    from lesmc.model.lts_format import load_lts, save_lts
+
+    shutil.copy(MERGE, tmp_path / "scene.json")
+    r = lesmc("build", "scene.json", "--window", "6..8", "-o", "m.lts", cwd=tmp_path)
+    assert r.returncode == 0, r.stderr
+    doc = json.loads((tmp_path / "m.lts").read_text())
+    doc["meta"] = {**doc["meta"], **meta}
+    (tmp_path / "bad.lts").write_text(json.dumps(doc))
+    r = lesmc("check", "bad.lts", str(ROOT / "specs" / "robustness.spec"), cwd=tmp_path)
+    _failed(r, f"bad.lts: {wanted}")
+    model = load_lts(tmp_path / "m.lts")
+    model.meta = {**model.meta, **meta}
+    save_lts(model, tmp_path / "bad.npz")
+    with pytest.raises(InputError) as err:
+        load_lts(tmp_path / "bad.npz")
+    assert f"header.{wanted}" in str(err.value)

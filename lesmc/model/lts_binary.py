@@ -35,7 +35,7 @@ from lesmc.common.errors import Location, ModelError, Problems
 from lesmc.common.fields import header, is_name, is_version, show
 from lesmc.common.files import atomic_open, parse_json
 from lesmc.model.arrays import ArrayModel, IdArray
-from lesmc.model.validate import HALTED, check_arrays, check_tracks
+from lesmc.model.validate import HALTED, check_arrays, check_tracks, meta_problems
 
 FORMAT = "lesmc-lts-npz"
 VERSION = 2
@@ -306,6 +306,7 @@ def _header(blob: np.ndarray | None, path: str) -> dict[str, Any]:
         pr.add("header.labels", "must map state rows to lists of labels")
     if not isinstance(data.get("meta"), dict):
         pr.add("header.meta", "must be an object")
+    pr.items.extend(meta_problems(data.get("meta"), "header.meta"))
     if pr.items:
         raise ModelError.many(path, pr.items)
     return data

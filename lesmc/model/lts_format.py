@@ -29,7 +29,7 @@ from lesmc.common.errors import ModelError, Problems
 from lesmc.common.fields import header, is_name
 from lesmc.common.files import EncodedItems, read_json, write_json
 from lesmc.model.arrays import ArrayModel, Tracks
-from lesmc.model.validate import HALTED, Parts, build, check_tracks, state_order
+from lesmc.model.validate import HALTED, Parts, build, check_tracks, meta_problems, state_order
 
 if TYPE_CHECKING:
     from lesmc.model.lts import LTS
@@ -90,6 +90,7 @@ def lts_from_dict(data: Any, path: str = "<model>") -> ArrayModel:
     if not (isinstance(original, list) and all(isinstance(x, str) for x in original)):
         pr.add("original", "must be a list of state ids, one per step 0..e")
         original = []
+    pr.items.extend(meta_problems(data.get("meta")))
     raw_states = data.get("states")
     raw_trans = data.get("transitions")
     if not isinstance(raw_states, list) or not raw_states:

@@ -734,3 +734,32 @@ def check_tracks(raw: Any, components: tuple[str, ...], steps: int, pr: Problems
         pr.add(f"track '{ids[int(empty[0])]}'", "is absent at every step")
         return None
     return Tracks(tuple(comps), tuple(ids), at)
+
+
+#: The largest step a model's ``meta`` may name (a scene's frame steps: lesmc.scene.io).
+META_MAX_STEP = 10**6
+
+
+def meta_problems(meta: Any, item: str = "meta") -> list[tuple[str, str]]:
+    """What is wrong with the keys of a model's ``meta`` that lesmc reads (docs/lts-format.md):
+    ``first_frame`` and ``end`` integers in 0..10^6, ``window`` two such integers in order,
+    ``design`` a string; every other key is the writer's and ignored (as is a ``meta``
+    that is not an object, in the JSON form)."""
+    if not isinstance(meta, dict):
+        return []
+
+    def step(v: Any) -> bool:
+        return isinstance(v, int) and not isinstance(v, bool) and 0 <= v <= META_MAX_STEP
+
+    out = []
+    for key in ("first_frame", "end"):
+        if key in meta and not step(meta[key]):
+            out.append((f"{item}.{key}", f"must be an integer in 0..{META_MAX_STEP}"))
+    w = meta.get("window")
+    if "window" in meta and not (
+        isinstance(w, list) and len(w) == 2 and all(map(step, w)) and w[0] <= w[1]
+    ):
+        out.append((f"{item}.window", "must be [L, U], integers with L <= U"))
+    if "design" in meta and not isinstance(meta["design"], str):
+        out.append((f"{item}.design", "must be a string"))
+    return out
