@@ -8,9 +8,10 @@ column of a bad input; none of them exits the interpreter. The command line
 
 from __future__ import annotations
 
+import math
 from collections.abc import Callable, Sequence
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, get_args
 
 from lesmc.build.unfold import build_model
 from lesmc.common.budget import Budget
@@ -80,6 +81,7 @@ def load_scene(
     """A scene file (docs/scene-format.md); ``target`` (``X,Y@STEP``) places or moves its
     target, ``tracker`` (a tracker file or configuration) replaces its tracker, ``design``
     names another tracker design of the registry."""
+    _check_designs((design,) if design is not None else ())
     cfg = _tracker_config(tracker)
     return scene_with_target(read_json(Path(path), InputError), str(path), target, design, cfg)
 
@@ -129,6 +131,13 @@ def build(
 ) -> ArrayModel:
     """The whole model of ``scene`` attacked in ``window`` (Algorithm 1), up to step ``end``,
     unfolded with tracker ``design`` (default: the scene's own)."""
+    _need(isinstance(scene, Scene), "scene must be a Scene (lesmc.load_scene)", scene)
+    _need(
+        _steps(window, 2) and window[0] <= window[1], "window must be (l, u), 0 <= l <= u", window
+    )
+    _need(end is None or _steps((end,), 1), "end must be None or a step >= 0", end)
+    _check_limits(None, max_states)
+    _check_designs((design,) if design is not None else ())
     sc = scene if design is None else scene.with_tracker(design=registry.get(design).tracker)
     return build_model(sc, window, end, max_states=max_states)
 
@@ -150,7 +159,17 @@ def check(
 ) -> list[CheckResult]:
     """Check every property of ``specs`` on a model or a scene; one result per property
     (and per design, for a scene checked with several ``designs``)."""
-    spec_list = (specs,) if isinstance(specs, SpecFile) else tuple(specs)
+    spec_list = (specs,) if isinstance(specs, SpecFile) else _items(specs, "specs")
+    _need(isinstance(source, (ArrayModel, Scene)), "source must be a model or a Scene", source)
+    ok = bool(spec_list) and all(isinstance(x, SpecFile) for x in spec_list)
+    _need(ok, "specs must be one or more SpecFile (lesmc.load_spec)", specs)
+    _need(engine in get_args(EngineName), f"engine must be one of {get_args(EngineName)}", engine)
+    _need(
+        payoffs in get_args(PayoffMode), f"payoffs must be one of {get_args(PayoffMode)}", payoffs
+    )
+    _check_limits(timeout, max_states)
+    _check_designs(_items(designs, "designs"))
+    _need(all(isinstance(n, str) for n in _items(only, "only")), "only holds names", only)
     budget = Budget(timeout, max_states)
     scene, model = (source, None) if isinstance(source, Scene) else (None, source)
     job = Job(
@@ -189,6 +208,17 @@ def export_model(
     from lesmc.export.graphs import DOT_MAX_NODES, graphml_lines, to_dot, write_lines
     from lesmc.model.lts_format import lts_document
 
+    _need(isinstance(model, ArrayModel), "model must be a model (lesmc.load_model)", model)
+    _need(
+        fmt in ("dot", "graphml", "json", "drn", "prism"),
+        "fmt: dot, graphml, json, drn or prism",
+        fmt,
+    )
+    _need(spec is None or isinstance(spec, SpecFile), "spec must be a SpecFile or None", spec)
+    ok = roles is None or (
+        isinstance(roles, dict) and all(isinstance(v, list) for v in roles.values())
+    )
+    _need(ok, "roles must map role names to lists of model rows", roles)
     facts: dict[str, object] = {"export_format": fmt}
     if fmt == "json":  # JSON whatever the name (save_lts would choose .npz's binary form)
         write_json(path, lts_document(model))
@@ -267,3 +297,49 @@ def __getattr__(name: str) -> Any:
 
         return experiment.Request if name == "VerifyRequest" else experiment.Outcome
     raise AttributeError(f"module 'lesmc.api' has no attribute {name!r}")
+
+
+# ------------------------------------------------------------------ arguments
+
+
+def _need(ok: bool, what: str, got: Any) -> None:
+    """A UsageError naming the argument's rule and the value given, unless ``ok``."""
+    if not ok:
+        shown = repr(got)
+        raise UsageError(f"{what}; got {shown if len(shown) <= 60 else shown[:57] + '...'}")
+
+
+def _items(values: Any, name: str) -> tuple[Any, ...]:
+    """A sequence argument as a tuple; one string is refused (it would iterate by letter)."""
+    ok = not isinstance(values, (str, bytes)) and isinstance(values, Sequence | set | frozenset)
+    _need(ok, f"{name} must be a list or tuple (not one string)", values)
+    return tuple(values)
+
+
+def _steps(values: Any, n: int) -> bool:
+    """``values`` is ``n`` integer steps in 0..10^6 (booleans are not integers here)."""
+    return (
+        isinstance(values, Sequence)
+        and len(values) == n
+        and all(type(v) is int and 0 <= v <= 10**6 for v in values)
+    )
+
+
+def _check_limits(timeout: float | None, max_states: int | None) -> None:
+    good_t = timeout is None or (
+        isinstance(timeout, int | float) and math.isfinite(timeout) and timeout > 0
+    )
+    _need(good_t, "timeout must be None or a finite number of seconds > 0", timeout)
+    good_n = max_states is None or (type(max_states) is int and max_states > 0)
+    _need(good_n, "max_states must be None or an integer > 0", max_states)
+
+
+def _check_designs(designs: tuple[Any, ...]) -> None:
+    known = registry.names()
+    bad = [d for d in designs if not (isinstance(d, str) and d in known)]
+    _need(
+        not bad,
+        f"designs are names among {', '.join(known)} (expand_designs turns "
+        "'paper', 'both' and 'all' into them)",
+        bad[0] if bad else None,
+    )

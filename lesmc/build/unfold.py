@@ -162,7 +162,7 @@ def original_end(scene: Scene, design: Design | None = None, end: int | None = N
     payoffs is tracked with every payoff 1 (:meth:`~lesmc.scene.Scene.payoff_free`)."""
     if design is None:
         design = make_tracker(scene.payoff_free() if scene.has_unpriced else scene)
-    last = _last_step(scene, end)
+    last = last_step(scene, end)
     b = design.initial()
     e = 0
     for k in range(1, last + 1):
@@ -174,7 +174,7 @@ def original_end(scene: Scene, design: Design | None = None, end: int | None = N
     return e
 
 
-def _last_step(scene: Scene, end: int | None) -> int:
+def last_step(scene: Scene, end: int | None) -> int:
     """The last step to unfold: ``end``, or the last the scene's frames allow."""
     limit = max_end(scene)
     if end is not None and end > limit:
@@ -210,7 +210,7 @@ def lazy_model(
     track may halt anywhere after the window opens: the fault alone lost the target.
     """
     model = SceneExpander(scene, window).model
-    last = _last_step(scene, end)
+    last = last_step(scene, end)
     original = [0]
     while len(original) <= last and not model.halted[original[-1]]:
         q = original[-1]

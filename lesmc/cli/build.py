@@ -169,6 +169,7 @@ def track_cmd(
     """Run the tracker on SCENE unattacked: estimates, τ (Eq. 12) and monitor alarms (Eq. 13)."""
     from rich.table import Table
 
+    from lesmc.build.unfold import last_step
     from lesmc.common.numbers import fmt
     from lesmc.designs.registry import make_tracker
     from lesmc.report.text import make_console
@@ -177,6 +178,8 @@ def track_cmd(
     sc = load_scene_file(scene, design, target_text, tracker_file)
     if sc.has_unpriced:  # the unattacked states never depend on a payoff
         sc = sc.payoff_free()
+    if end is not None:
+        last_step(sc, end)  # refuses steps past the scene's last frame
     points = track(make_tracker(sc), end)
     if as_json:
         doc = {

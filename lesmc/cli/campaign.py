@@ -175,16 +175,25 @@ def campaign_cmd(
 
 @contextmanager
 def _removed_if_empty(out: Path) -> Iterator[None]:
-    """OUT as the run leaves it when it fails: a directory this run created is removed
-    again if nothing was written in it (only empty directories are ever removed)."""
-    created = not out.exists()
+    """OUT as the run leaves it when it fails: the directories this run created (OUT, its
+    subdirectories, the parents ``mkdir`` made for it) are removed again if nothing was
+    written in them (only empty directories are ever removed)."""
+    top = out.absolute()
+    if top.exists():
+        yield
+        return
+    while not top.parent.exists():  # the highest directory this run will create
+        top = top.parent
     try:
         yield
     except BaseException:
-        if created and out.is_dir():
-            for d, _, _ in os.walk(out, topdown=False):  # children first
-                with suppress(OSError):
-                    os.rmdir(d)  # fails on a directory that holds anything
+        with suppress(OSError):  # rmdir fails on a directory that holds anything
+            for below, _, _ in os.walk(out, topdown=False):  # children first
+                os.rmdir(below)
+            up = out.absolute().parent
+            while up != top.parent:
+                os.rmdir(up)
+                up = up.parent
         raise
 
 

@@ -179,10 +179,12 @@ def _swept(
         return parsed, only
     from dataclasses import replace as with_
 
-    from lesmc.language.sweep import parse_sweep, swept
+    from lesmc.language.sweep import distinct_variants, parse_sweep, swept
     from lesmc.pipeline.check import known_names
 
     sweeps = tuple(parse_sweep(t) for t in sweep_texts)
+    for sw, text in zip(sweeps, sweep_texts, strict=True):
+        distinct_variants(sw, text)
     for sw in sweeps:
         if sw.parameter == "payoffs":
             _check_sources(sw.values, scene_meta)

@@ -195,10 +195,17 @@ def parse_window(text: str) -> tuple[int, int]:
 def finite_seconds(
     _ctx: click.Context, _param: click.Parameter, value: float | None
 ) -> float | None:
-    """``--timeout``: a finite number of seconds (nan and inf are refused)."""
+    """``--timeout``: a finite number of seconds, at most :data:`MAX_TIMEOUT` (nan, inf and
+    longer times are refused: the alarm's clock cannot be set that far)."""
     if value is not None and not math.isfinite(value):
         raise click.BadParameter(f"{value} is not a finite number of seconds")
+    if value is not None and value > MAX_TIMEOUT:
+        raise click.BadParameter(f"{value:g} s is more than {MAX_TIMEOUT:g} s (about 3 years)")
     return value
+
+
+#: The longest ``--timeout`` (seconds): setitimer overflows past about 9e9.
+MAX_TIMEOUT = 1e8
 
 
 def _size(_ctx: click.Context, _param: click.Parameter, value: str | None) -> int | None:
@@ -334,18 +341,15 @@ tracker_option = file_option(
 def distinct_files(inputs: dict[str, str | None], outputs: dict[str, str]) -> None:
     """Refuse, before any work, an output that names one of the command's inputs or
     another output (writing it would destroy the other), or that exists and is not a
-    regular file (``files.output_target``). Keys: the option names shown; None: not
-    given. Paths are compared with symlinks and ``..`` resolved."""
+    regular file (``files.output_target``). Inputs may name the same file (``import mot
+    gt.txt --gt gt.txt``). Keys: the option names shown; None: not given. Paths are
+    compared with symlinks and ``..`` resolved."""
     from lesmc.common.files import output_target
 
-    for out in outputs.values():
+    named = {Path(p).resolve(): what for what, p in inputs.items() if p is not None}
+    for what, out in outputs.items():
         output_target(out)
-    seen: dict[Path, str] = {}
-    named: dict[str, str | None] = {**inputs, **outputs}
-    for what, p in named.items():
-        if p is None:
-            continue
-        key = Path(p).resolve()
-        if key in seen:
-            raise UsageError(f"{seen[key]} and {what} name the same file ({escape_control(p)})")
-        seen[key] = what
+        key = Path(out).resolve()
+        if key in named:
+            raise UsageError(f"{named[key]} and {what} name the same file ({escape_control(out)})")
+        named[key] = what

@@ -7,8 +7,6 @@ from collections.abc import Callable, Iterable
 from dataclasses import replace
 from typing import Any, Literal
 
-import numpy as np
-
 from lesmc.common.budget import Budget
 from lesmc.engines import enumerate as enum_engine
 from lesmc.engines.bnb import branch_and_bound
@@ -63,7 +61,6 @@ def check(
     return [check_bound(model, bp, engine, b.for_check()) for bp in bind_all(model, specs)]
 
 
-@np.errstate(over="ignore")  # sums of huge payoffs reach +inf: IEEE, and right
 def check_bound(
     cm: ArrayModel, bp: BoundProperty, engine: EngineName = "levels", budget: Budget | None = None
 ) -> CheckResult:
@@ -200,7 +197,6 @@ def monitor_facts(space: SearchSpace) -> tuple[list[int] | None, bool]:
     return steps, bool(steps) and not bp.monitor_except_original
 
 
-@np.errstate(over="ignore")  # sums of huge payoffs reach +inf: IEEE, and right
 def check_lazy(
     model: GrowingModel,
     bp: BoundProperty,
@@ -215,7 +211,6 @@ def check_lazy(
     return to_result(space, out)
 
 
-@np.errstate(over="ignore")  # sums of huge payoffs reach +inf: IEEE, and right
 def check_many(
     model: ArrayModel | GrowingModel, bps: list[BoundProperty], budget: Budget | None = None
 ) -> list[CheckResult]:

@@ -80,6 +80,20 @@ def parse_sweep(text: str) -> Sweep:
     return Sweep(name, values)
 
 
+def distinct_variants(sweep: Sweep, text: str) -> None:
+    """``--sweep TEXT``'s values each make their own variant: its property name holds the
+    value's text, so two values alike there would define one property twice. (A sweep
+    built in Python may repeat a value: the repeat is answered by reuse.)"""
+    texts = [_text(v) for v in sweep.values]
+    twice = next((t for i, t in enumerate(texts) if t in texts[:i]), None)
+    if twice is not None:
+        shown = escape_control(text if len(text) <= 60 else text[:57] + "...")
+        raise UsageError(
+            f"--sweep {shown}: two values make the same variant {sweep.parameter}={twice} "
+            "(a value given twice, or two that agree to 6 significant digits)"
+        )
+
+
 def _text(v: float | str) -> str:
     if isinstance(v, str):
         return v

@@ -115,7 +115,8 @@ def combined_payoffs(ptr: np.ndarray, payoff: np.ndarray, rank: np.ndarray) -> n
     one = n_terms == 1
     sums[one] = payoff[lead[one] - 1]
     two = n_terms == 2
-    sums[two] = payoff[lead[two] - 2] + payoff[lead[two] - 1]
+    with np.errstate(over="ignore"):  # past the largest float: +inf, as exact_sum gives
+        sums[two] = payoff[lead[two] - 2] + payoff[lead[two] - 1]
     many = np.nonzero(n_terms >= 3)[0]
     if many.size:
         vals = payoff.tolist()
@@ -195,8 +196,12 @@ def aggregate(is_max: bool, acc: float, c: float) -> float:
 
 
 def aggregate_arrays(is_max: bool, acc: np.ndarray, c: np.ndarray) -> np.ndarray:
-    """:func:`aggregate` elementwise."""
-    out: np.ndarray = np.maximum(acc, c) if is_max else acc + c
+    """:func:`aggregate` elementwise (a sum past the largest float is +inf)."""
+    if is_max:
+        top: np.ndarray = np.maximum(acc, c)
+        return top
+    with np.errstate(over="ignore"):
+        out: np.ndarray = acc + c
     return out
 
 

@@ -742,7 +742,7 @@ META_MAX_STEP = 10**6
 
 def meta_problems(meta: Any, item: str = "meta") -> list[tuple[str, str]]:
     """What is wrong with the keys of a model's ``meta`` that lesmc reads (docs/lts-format.md):
-    ``first_frame`` and ``end`` integers in 0..10^6, ``window`` two such integers in order,
+    ``first_frame`` an integer in 0..10^6, ``window`` two such integers in order,
     ``design`` a string; every other key is the writer's and ignored (as is a ``meta``
     that is not an object, in the JSON form)."""
     if not isinstance(meta, dict):
@@ -752,9 +752,8 @@ def meta_problems(meta: Any, item: str = "meta") -> list[tuple[str, str]]:
         return isinstance(v, int) and not isinstance(v, bool) and 0 <= v <= META_MAX_STEP
 
     out = []
-    for key in ("first_frame", "end"):
-        if key in meta and not step(meta[key]):
-            out.append((f"{item}.{key}", f"must be an integer in 0..{META_MAX_STEP}"))
+    if "first_frame" in meta and not step(meta["first_frame"]):
+        out.append((f"{item}.first_frame", f"must be an integer in 0..{META_MAX_STEP}"))
     w = meta.get("window")
     if "window" in meta and not (
         isinstance(w, list) and len(w) == 2 and all(map(step, w)) and w[0] <= w[1]

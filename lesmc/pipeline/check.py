@@ -18,12 +18,13 @@ For a scene, per design (lesmc/designs/registry.py) and attack window:
 
 from __future__ import annotations
 
+import os
 from collections.abc import Iterable, Mapping
 from dataclasses import dataclass, field, replace
 
 from lesmc.build.unfold import build_model, lazy_model, original_end
 from lesmc.common.budget import Budget
-from lesmc.common.errors import BudgetError, UsageError
+from lesmc.common.errors import BudgetError, Location, SpecError, UsageError
 from lesmc.designs import registry
 from lesmc.engines.check import bind_all
 from lesmc.engines.result import CheckResult
@@ -143,11 +144,21 @@ def _selected(
 
 
 def _unique_names(bound: list[BoundProperty]) -> None:
-    seen: set[str] = set()
+    """A property name once across the spec files: the second definition is located."""
+    seen: dict[str, BoundProperty] = {}
     for bp in bound:
-        if bp.name in seen:
-            raise UsageError(f"property name '{bp.name}' is defined in more than one spec file")
-        seen.add(bp.name)
+        first = seen.setdefault(bp.name, bp)
+        if first is bp:
+            continue
+        at, was = bp.prop.pos, first.prop.pos
+        where = Location(bp.spec, at.line, at.column) if at.line else None
+        same = os.path.realpath(first.spec) == os.path.realpath(bp.spec)
+        again = "again (the same file given twice?)" if same else "also"
+        raise SpecError(
+            f"property name '{bp.name}' is {again} defined at "
+            f"{first.spec}:{was.line}:{was.column}: names must be unique across the spec files",
+            where,
+        )
 
 
 def known_names(only: Iterable[str], names: set[str]) -> None:

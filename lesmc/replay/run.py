@@ -36,6 +36,7 @@ perturbations is added to the payoff, and the track is replayed again.
 from __future__ import annotations
 
 import math
+import re
 import time
 from collections.abc import Callable, Mapping
 from dataclasses import astuple, dataclass, field, replace
@@ -347,6 +348,13 @@ def _match(a: np.ndarray, b: np.ndarray, tol: float) -> np.ndarray:
 
 def _hidden_indices(fd: FrameDetections, hidden: list[Hidden]) -> list[int]:
     """The detection index of each hidden observation ``t:j``, refused if the frame lacks it."""
+    for h in hidden:
+        if re.fullmatch(r"[0-9]+:[0-9]+", h.obs, re.ASCII) is None:
+            raise InputError(
+                f"hidden detection '{h.obs}' is not FRAME:INDEX: these results were not made "
+                "from perceived frames (lesmc verify), so there is nothing to replay",
+                Location("--frames"),
+            )
     idx = [int(h.obs.split(":")[1]) for h in hidden]
     for h, j in zip(hidden, idx, strict=True):
         if not 0 <= j < len(fd.positions):

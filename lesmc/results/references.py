@@ -53,12 +53,14 @@ def _run(run: dict[str, Any], at: str, pr: Problems) -> None:
 
 
 def _path(info: dict[str, Any], at: str, states: dict[str, Any], pr: Problems) -> None:
-    """A counterexample or witness: its states known, one deviation and step per state."""
+    """A counterexample or witness: its states known, one step per state, a deviation for
+    each state (and +inf for each later step, after a halt: engines/result.py)."""
     _ids(info["states"], f"{at}.states", states, pr)
     n = len(info["states"])
-    for key in ("deviation", "steps"):
-        if key in info and len(info[key]) != n:
-            pr.add(f"{at}.{key}", f"has {len(info[key])} entries for {n} states")
+    if "steps" in info and len(info["steps"]) != n:
+        pr.add(f"{at}.steps", f"has {len(info['steps'])} entries for {n} states")
+    if "deviation" in info and len(info["deviation"]) < n:
+        pr.add(f"{at}.deviation", f"has {len(info['deviation'])} entries for {n} states")
 
 
 def _ids(ids: list[str], at: str, states: dict[str, Any], pr: Problems) -> None:
@@ -80,14 +82,14 @@ def _roles(roles: dict[str, Any], at: str, n_paths: int, n_results: int, pr: Pro
 
 
 def _replay_inputs(run: dict[str, Any], at: str, pr: Problems) -> None:
-    """The replay's time step as a scene's (0 < dt <= MAX_DT); its hidden detections
-    among the scene's."""
+    """The replay's time step as a scene's (0 < dt <= MAX_DT); the scene part's detections
+    as [x, y, id, payoff, x_ref, y_ref]. (A hidden detection may lie outside the scene
+    part, which keeps only the detections near a listed track.)"""
     rp, scene = run.get("replay_inputs"), run.get("scene")
     if rp is not None and not (_number(rp["dt"]) and 0 < rp["dt"] <= MAX_DT):
         pr.add(f"{at}.replay_inputs.dt", f"must be a number in (0, {MAX_DT:g}]")
     if scene is None:
         return
-    known = set()
     for k, step in enumerate(scene["detections"]):
         for m, d in enumerate(step):
             if not (isinstance(d[2], str) and all(_number(d[c]) for c in (0, 1, 4, 5))):
@@ -96,12 +98,6 @@ def _replay_inputs(run: dict[str, Any], at: str, pr: Problems) -> None:
                 )
             elif not (d[3] is None or _number(d[3]) or isinstance(d[3], str)):
                 pr.add(f"{at}.scene.detections[{k}][{m}]", "its payoff must be a number or null")
-            else:
-                known.add(d[2])
-    for name, hidden in (run.get("hidden") or {}).items():
-        for k, h in enumerate(hidden):
-            if h["obs"] not in known:
-                pr.add(f"{at}.hidden.{name}[{k}].obs", f"'{h['obs']}' is not a scene detection")
 
 
 def _number(v: Any) -> bool:

@@ -248,6 +248,8 @@ def _scene_file(req: Request) -> _Source:
         raise UsageError("give FRAMES_DIR or --scene, not both")
     if req.truth is not None:
         raise UsageError("--truth applies to a video, not to --scene")
+    if req.price_all:
+        raise UsageError("--price-all prices a video's detections: a scene has its payoffs")
     if any(req.nets) and req.scene_frames is None:
         raise UsageError(
             "--nets, --detector and --locator with --scene apply only to the replay: give "
