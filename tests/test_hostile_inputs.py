@@ -517,3 +517,18 @@ def test_a_failed_campaign_removes_the_parents_it_made_and_nothing_else(tmp_path
     r = lesmc("campaign", "nowhere", "--out", "a/b/c/d", "--workers", "0", cwd=tmp_path)
     _failed(r, "nowhere")
     assert sorted(p.name for p in (tmp_path / "a").iterdir()) == ["keep.txt"]
+
+
+def test_a_search_stopped_by_a_budget_does_not_claim_that_no_path_violates(
+    tmp_path: Path,
+) -> None:
+    """The merge scene has a violating path (its robustness is violated unbudgeted); a
+    check stopped at once by --max-memory must not print that none exists."""
+    shutil.copy(MERGE, tmp_path / "scene.json")
+    spec = str(ROOT / "specs" / "robustness.spec")
+    r = lesmc("check", "scene.json", spec, cwd=tmp_path)
+    assert r.returncode == 1 and "counterexample (cheapest violating path)" in r.stdout
+    r = lesmc("check", "scene.json", spec, "--max-memory", "1K", cwd=tmp_path)
+    assert r.returncode == 3, r.stderr
+    assert "no path violates" not in r.stdout
+    assert "counterexample: none found before the search stopped" in r.stdout

@@ -148,6 +148,8 @@ def print_results(console: Console, results: Sequence[CheckResult], paths: bool 
                 else "counterexample (cheapest violating path)"
             )
             _print_path(console, title, r.counterexample)
+        elif r.stats.stopped != "finished":
+            console.print("  counterexample: none found before the search stopped")
         else:
             console.print("  counterexample: none (no path violates)")
         if r.witness is not None:
