@@ -15,7 +15,8 @@ import re
 from dataclasses import dataclass
 from typing import Any
 
-from lesmc.common.errors import UsageError, escape_control
+from lesmc.common.errors import UsageError, clipped
+from lesmc.common.fields import MAX_STEP
 from lesmc.designs import registry
 from lesmc.language.properties import Property, SpecFile
 from lesmc.pipeline.certify import PROBE_STOPPED
@@ -23,8 +24,6 @@ from lesmc.tracking.targets import TargetSpec
 
 #: The paper's windows (section 8.2): l from 4 to 12, u − l from 1 to 4.
 DEFAULT_WINDOWS = "4..12:1..4"
-#: The last step a window may reach (lesmc.scene.io.MAX_STEP, a scene's last frame step).
-MAX_STEP = 10**6
 #: Windows a campaign may have: a campaign's units grow with them (the paper has 36).
 MAX_WINDOWS = 10_000
 #: Bumped when a unit's answer could change for the same inputs: old keys are then redone.
@@ -36,7 +35,7 @@ def parse_windows(text: str) -> list[tuple[int, int]]:
     ASCII digits, windows ending by step :data:`MAX_STEP`, at most :data:`MAX_WINDOWS`."""
     r = r"\s*([0-9]{1,9})\s*\.\.\s*([0-9]{1,9})\s*"
     m = re.fullmatch(r + ":" + r, text, re.ASCII)
-    shown = escape_control(text if len(text) <= 40 else text[:37] + "...")
+    shown = clipped(text)
     if not m:
         raise UsageError(
             f"--windows must look like L1..L2:D1..D2 (e.g. {DEFAULT_WINDOWS}), got '{shown}'"

@@ -16,7 +16,8 @@ from typing import TYPE_CHECKING, Any, TypeVar
 
 import click
 
-from lesmc.common.errors import UsageError, escape_control
+from lesmc.common.errors import UsageError, clipped, escape_control
+from lesmc.common.fields import MAX_STEP
 from lesmc.designs import registry
 
 if TYPE_CHECKING:
@@ -158,10 +159,6 @@ def designs_option() -> Callable[[F], F]:
     )
 
 
-#: Largest step a ``--window`` bound may name (as in the spec grammar's step numbers).
-MAX_STEP = 10**6
-
-
 def target_option(help_text: str) -> Callable[[F], F]:
     """``--target X,Y@STEP``: where the tracked vehicle starts, overriding a scene's own."""
     return click.option(
@@ -179,7 +176,7 @@ scene_target = target_option(
 def parse_window(text: str) -> tuple[int, int]:
     """``L..U`` -> (L, U): ASCII digits only, each at most :data:`MAX_STEP`."""
     m = re.fullmatch(r"\s*([0-9]+)\s*\.\.\s*([0-9]+)\s*", text, re.ASCII)
-    shown = escape_control(text if len(text) <= 40 else text[:37] + "...")
+    shown = clipped(text)
     if not m:
         raise UsageError(f"--window must look like L..U (e.g. 6..8), got '{shown}'")
     if any(len(g.lstrip("0")) > len(str(MAX_STEP)) for g in m.groups()):

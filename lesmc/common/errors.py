@@ -44,6 +44,12 @@ def escape_control(text: str) -> str:
     return _CONTROL_RE.sub(_escape_char, text)
 
 
+def clipped(text: str, limit: int = 40) -> str:
+    """``text`` from the user as a message quotes it: escaped (:func:`escape_control`),
+    cut to ``limit`` characters with ``...``."""
+    return escape_control(text if len(text) <= limit else text[: limit - 3] + "...")
+
+
 def escape_text(text: str) -> str:
     """``text`` made safe to print through rich: no markup, no control characters.
 

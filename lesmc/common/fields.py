@@ -14,6 +14,10 @@ from typing import Any, TypeGuard
 
 from lesmc.common.errors import Problems
 
+#: The largest step (frame number) anything may name: a scene's frames, a property's
+#: window bounds and ranges, ``--window``, a campaign's windows, a model's meta.
+MAX_STEP = 10**6
+
 _REPR = reprlib.Repr()
 _REPR.maxstring = 40
 _REPR.maxother = 40

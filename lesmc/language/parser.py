@@ -30,6 +30,7 @@ from lark.grammar import Rule
 from lark.lexer import TerminalDef
 
 from lesmc.common.errors import Location, SpecError, source_line, split_lines
+from lesmc.common.fields import MAX_STEP
 from lesmc.common.files import read_text
 from lesmc.language.properties import (
     DEFAULT_MONITOR_TOLERANCE,
@@ -43,9 +44,6 @@ from lesmc.language.properties import (
     SpecFile,
     StepRef,
 )
-
-#: Largest step number a property may name (window bounds, ``end N``, measure ranges).
-MAX_STEP = 10**6
 
 #: Most faults that may strike at once (``budget``): every combination is a check of its own.
 MAX_FAULT_BUDGET = 4

@@ -18,7 +18,7 @@ import math
 import re
 from dataclasses import dataclass, replace
 
-from lesmc.common.errors import UsageError, escape_control
+from lesmc.common.errors import UsageError, clipped
 from lesmc.language.properties import Property, SpecFile
 
 #: The parameters a sweep may vary.
@@ -41,7 +41,7 @@ class Sweep:
 
 def parse_sweep(text: str) -> Sweep:
     """``eps=LO..HI:STEP``, ``eps=V1,V2,...`` or ``p=1,2,inf``; a UsageError otherwise."""
-    shown = escape_control(text if len(text) <= 60 else text[:57] + "...")
+    shown = clipped(text, 60)
     m = re.fullmatch(r"\s*([a-z]+)\s*=\s*(.+?)\s*", text)
     if not m or m.group(1) not in PARAMETERS:
         raise UsageError(
@@ -87,7 +87,7 @@ def distinct_variants(sweep: Sweep, text: str) -> None:
     texts = [_text(v) for v in sweep.values]
     twice = next((t for i, t in enumerate(texts) if t in texts[:i]), None)
     if twice is not None:
-        shown = escape_control(text if len(text) <= 60 else text[:57] + "...")
+        shown = clipped(text, 60)
         raise UsageError(
             f"--sweep {shown}: two values make the same variant {sweep.parameter}={twice} "
             "(a value given twice, or two that agree to 6 significant digits)"

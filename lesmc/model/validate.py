@@ -24,7 +24,7 @@ from typing import Any
 import numpy as np
 
 from lesmc.common.errors import ModelError, Problems
-from lesmc.common.fields import show
+from lesmc.common.fields import MAX_STEP, show
 from lesmc.model.arrays import ArrayModel, IdArray, Tracks
 
 HALTED = "halted"
@@ -736,10 +736,6 @@ def check_tracks(raw: Any, components: tuple[str, ...], steps: int, pr: Problems
     return Tracks(tuple(comps), tuple(ids), at)
 
 
-#: The largest step a model's ``meta`` may name (a scene's frame steps: lesmc.scene.io).
-META_MAX_STEP = 10**6
-
-
 def meta_problems(meta: Any, item: str = "meta") -> list[tuple[str, str]]:
     """What is wrong with the keys of a model's ``meta`` that lesmc reads (docs/lts-format.md):
     ``first_frame`` an integer in 0..10^6, ``window`` two such integers in order,
@@ -749,11 +745,11 @@ def meta_problems(meta: Any, item: str = "meta") -> list[tuple[str, str]]:
         return []
 
     def step(v: Any) -> bool:
-        return isinstance(v, int) and not isinstance(v, bool) and 0 <= v <= META_MAX_STEP
+        return isinstance(v, int) and not isinstance(v, bool) and 0 <= v <= MAX_STEP
 
     out = []
     if "first_frame" in meta and not step(meta["first_frame"]):
-        out.append((f"{item}.first_frame", f"must be an integer in 0..{META_MAX_STEP}"))
+        out.append((f"{item}.first_frame", f"must be an integer in 0..{MAX_STEP}"))
     w = meta.get("window")
     if "window" in meta and not (
         isinstance(w, list) and len(w) == 2 and all(map(step, w)) and w[0] <= w[1]

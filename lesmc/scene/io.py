@@ -17,7 +17,7 @@ from typing import Any
 import numpy as np
 
 from lesmc.common.errors import InputError, Problems
-from lesmc.common.fields import header, is_finite, is_int, positive, show, within
+from lesmc.common.fields import MAX_STEP, header, is_finite, is_int, positive, show, within
 from lesmc.common.files import read_json, read_toml, write_json
 from lesmc.designs import registry
 from lesmc.scene.frames import Detection, Frame
@@ -43,7 +43,6 @@ from lesmc.scene.tracker_model import (
 #: Ranges of a scene's numbers (docs/scene-format.md, "Limits"): wide enough for any
 #: real video, narrow enough that the tracker's arithmetic stays finite.
 MAX_DT = 3600.0  #: seconds between frames
-MAX_STEP = 10**6  #: frame steps
 MAX_COORD = 1e7  #: |x|, |y| of detections and of the target's start (pixels)
 MAX_VELOCITY = 1e6  #: |vx|, |vy| of the target's initial velocity (pixels per second)
 MAX_PAYOFF = 1e12  #: a detection's payoff

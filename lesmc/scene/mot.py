@@ -27,9 +27,10 @@ from pathlib import Path
 from typing import Literal
 
 from lesmc.common.errors import InputError, Location, UsageError
+from lesmc.common.fields import MAX_STEP
 from lesmc.common.files import atomic_write_text, read_text
 from lesmc.scene.frames import Detection, Frame
-from lesmc.scene.io import MAX_COORD, MAX_PAYOFF, MAX_STEP
+from lesmc.scene.io import MAX_COORD, MAX_PAYOFF
 from lesmc.scene.scene import Footage, Scene, Target, TrackerConfig
 
 Point = Literal["center", "bottom"]
@@ -92,8 +93,7 @@ def _box(line: str, n: int, path: str) -> Box:
         )
     values: list[float] = []
     for i, (col, text) in enumerate(cols):
-        where = Location(path, n, col + 1 + (len(text) - len(text.lstrip())), line)
-        values.append(_number(text, i, where))
+        values.append(_number(text, i, _at_column(path, n, line, col, text)))
     frame, ident = values[0], values[1]
     if not (frame.is_integer() and 0 <= frame <= MAX_STEP):
         raise InputError(
@@ -217,7 +217,11 @@ def _column_at(path: str, n: int, i: int) -> Location:
     """Where column ``i`` (0-based) of line ``n`` starts, the line quoted: read again, as
     only an error needs it."""
     line = read_text(path).split("\n")[n - 1].removesuffix("\r")
-    col, text = _split(line)[i]
+    return _at_column(path, n, line, *_split(line)[i])
+
+
+def _at_column(path: str, n: int, line: str, col: int, text: str) -> Location:
+    """Line ``n``'s field ``text``, starting at offset ``col``: where its number begins."""
     return Location(path, n, col + 1 + (len(text) - len(text.lstrip())), line)
 
 

@@ -21,7 +21,7 @@ from typing import Any
 
 import numpy as np
 
-from lesmc.common.errors import InputError, UsageError, escape_control
+from lesmc.common.errors import InputError, UsageError, clipped
 from lesmc.common.files import read_json
 from lesmc.scene import Footage, Scene, Target, TrackerConfig, check_fits, footage_from_dict
 from lesmc.scene.tracker_model import velocity as velocity_components
@@ -73,7 +73,7 @@ def parse_target(text: str) -> TargetSpec:
     num = r"\s*(-?[0-9]{1,9}(?:\.[0-9]{0,20})?)\s*"
     m = re.fullmatch(num + "," + num + r"(?:@\s*([0-9]{1,7})\s*)?", text, re.ASCII)
     if not m or (m.group(3) and int(m.group(3)) > 10**6):
-        shown = escape_control(text if len(text) <= 40 else text[:37] + "...")
+        shown = clipped(text)
         raise UsageError(
             f"--target must look like X,Y or X,Y@STEP (e.g. 812.5,96@4), got '{shown}'"
         )
