@@ -192,10 +192,8 @@ def parse_window(text: str) -> tuple[int, int]:
 def finite_seconds(
     _ctx: click.Context, _param: click.Parameter, value: float | None
 ) -> float | None:
-    """``--timeout``: a finite number of seconds, at most :data:`MAX_TIMEOUT` (nan, inf and
-    longer times are refused: the alarm's clock cannot be set that far)."""
-    if value is not None and not math.isfinite(value):
-        raise click.BadParameter(f"{value} is not a finite number of seconds")
+    """``--timeout`` (a :class:`FiniteRange`, so finite already): at most :data:`MAX_TIMEOUT`
+    seconds, as the alarm's clock cannot be set further."""
     if value is not None and value > MAX_TIMEOUT:
         raise click.BadParameter(f"{value:g} s is more than {MAX_TIMEOUT:g} s (about 3 years)")
     return value
