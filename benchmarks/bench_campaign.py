@@ -29,7 +29,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from lesmc.campaign.plan import DEFAULT_WINDOWS, parse_windows
 from lesmc.campaign.run import Video, auto_targets, execute, make_groups, prepare
 from lesmc.designs import registry
-from lesmc.verify.experiment import (
+from lesmc.experiment.experiment import (
     bundled_specs,
     default_video_ready,
     load_specs,

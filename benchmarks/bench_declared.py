@@ -39,9 +39,9 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 from bench_unfold import dense_scene, window
 
-from lesmc.build.unfold import build_model
 from lesmc.scene import TrackerConfig, save_scene, tracker_from_dict
 from lesmc.tracking.kalman import matrices
+from lesmc.unfold.unfold import build_model
 
 
 def declared(cfg: TrackerConfig, dt: float) -> TrackerConfig:

@@ -32,9 +32,9 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from bench_unfold import dense_scene
 
 from lesmc.api import check
-from lesmc.build.unfold import lazy_model
 from lesmc.language.parser import parse_spec
 from lesmc.scene import Scene
+from lesmc.unfold.unfold import lazy_model
 
 EPS = 1.0  #: resilience's constraint: dist.at(end) > EPS
 

@@ -30,10 +30,10 @@ import networkx as nx
 from bench_unfold import dense_scene
 
 from lesmc.api import export_model, load_scene
-from lesmc.build.unfold import build_model
 from lesmc.common.errors import LesmcError
 from lesmc.language.parser import parse_spec
 from lesmc.scene import save_scene
+from lesmc.unfold.unfold import build_model
 
 FORMATS = ("json", "graphml", "dot", "drn", "prism")
 

@@ -5,7 +5,7 @@ priced up front (issue 31).
 
 The reference is ``lesmc verify --price-all`` (what verify did before: DeepFool on
 every Q_dr blob while perceiving); lesmc's default attacks a detection when a model
-first reads its payoff (lesmc/verify/pricing.py). Both run alternately, each a fresh
+first reads its payoff (lesmc/experiment/pricing.py). Both run alternately, each a fresh
 process in a fresh output directory, on the default video (rendered once into a
 temporary directory and copied into each output directory, so neither renders) or
 on ``--video``'s frames with their truth.json. Prints per round the wall and CPU
@@ -107,7 +107,7 @@ def main() -> None:
             subprocess.run(
                 [sys.executable, "-c",
                  "import sys; from pathlib import Path; "
-                 "from lesmc.verify.experiment import write_default_video as w; "
+                 "from lesmc.experiment.experiment import write_default_video as w; "
                  "w(Path(sys.argv[1]))", str(seed)],
                 check=True,
             )  # fmt: skip

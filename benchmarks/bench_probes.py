@@ -4,7 +4,7 @@
 demand"). A campaign's checks run in Dask workers without the networks, so on demand
 there would mean a probe in the client first: per group (target, tracker) and widest
 window, the model built once with every payoff finite, noting which payoffs it reads
-(``lesmc.build.probe.priced_detections``, what ``--payoffs interval`` campaigns do
+(``lesmc.unfold.probe.priced_detections``, what ``--payoffs interval`` campaigns do
 before certifying). This script times, side by side in one run on the default video:
 
 - the reference: DeepFool on every Q_dr blob, what a campaign does today;
@@ -34,15 +34,15 @@ from rich.table import Table
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from lesmc.build.probe import merged_detections, priced_detections
 from lesmc.campaign.plan import DEFAULT_WINDOWS, parse_windows
 from lesmc.campaign.run import Video, auto_targets, place_target, prepare
 from lesmc.designs import registry
+from lesmc.experiment.experiment import default_video_ready, write_default_video
 from lesmc.perception.attack_settings import AttackConfig
 from lesmc.perception.cnn import load_nets
 from lesmc.perception.run import price_detections
 from lesmc.pipeline.certify import widest
-from lesmc.verify.experiment import default_video_ready, write_default_video
+from lesmc.unfold.probe import merged_detections, priced_detections
 
 
 def main() -> None:

@@ -32,7 +32,8 @@ from rich.table import Table
 SCRIPT = """
 import sys
 from pathlib import Path
-from lesmc.video.synth import SynthConfig, write_video
+from lesmc.video.synth import SynthConfig
+from lesmc.video.write import write_video
 def networks():
     import lesmc.perception.cnn
 cfg = SynthConfig(frames={frames}, width=2048, height=2048, seed=1)

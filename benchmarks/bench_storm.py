@@ -29,10 +29,10 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from bench_unfold import dense_scene
 
-from lesmc.build.unfold import build_model
 from lesmc.engines.check import bind_all, check_bound
 from lesmc.language.parser import parse_spec
 from lesmc.model.lts_binary import save_lts_npz
+from lesmc.unfold.unfold import build_model
 
 SPEC = """property robust {{
     attack window {l}..{u}

@@ -27,9 +27,9 @@ from rich.table import Table
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from lesmc.build.unfold import build_model
 from lesmc.scene.toy import Vehicle, vehicle_scene
 from lesmc.tracking.kalman import matrices
+from lesmc.unfold.unfold import build_model
 
 
 def dense_scene(n: int, frames: int, seed: int, design: str = "single"):  # type: ignore[no-untyped-def]

@@ -13,7 +13,6 @@ from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, get_args
 
-from lesmc.build.unfold import build_model
 from lesmc.common.budget import Budget
 from lesmc.common.errors import InputError, UsageError
 from lesmc.common.files import read_json
@@ -21,6 +20,13 @@ from lesmc.common.progress import Reporter
 from lesmc.designs import registry
 from lesmc.engines.check import DEFAULT_MAX_STATES, EngineName
 from lesmc.engines.result import CheckResult
+from lesmc.experiment.perceive import (
+    Perceived,
+    PerceiveRequest,
+    open_inputs,
+    perceive_frames,
+    refuse_mismatched,
+)
 from lesmc.language.parser import load_spec, parse_spec
 from lesmc.language.properties import SpecFile
 from lesmc.model.arrays import ArrayModel
@@ -31,17 +37,11 @@ from lesmc.pipeline.job import Job, PayoffMode
 from lesmc.results.record import DesignRun, Results
 from lesmc.scene import Scene, TrackerConfig, load_tracker, save_scene
 from lesmc.tracking.targets import scene_with_target
-from lesmc.verify.perceive import (
-    Perceived,
-    PerceiveRequest,
-    open_inputs,
-    perceive_frames,
-    refuse_mismatched,
-)
+from lesmc.unfold.unfold import build_model
 
 if TYPE_CHECKING:
-    from lesmc.verify.experiment import Outcome as VerifyOutcome
-    from lesmc.verify.experiment import Request as VerifyRequest
+    from lesmc.experiment.experiment import Outcome as VerifyOutcome
+    from lesmc.experiment.experiment import Request as VerifyRequest
 
 __all__ = [
     "CheckResult",
@@ -204,8 +204,8 @@ def export_model(
     (``lesmc export --json``).
     """
     from lesmc.common.files import atomic_open, write_json
-    from lesmc.export.drn import DRN_MAX_PREFIXES, to_drn
-    from lesmc.export.graphs import DOT_MAX_NODES, graphml_lines, to_dot, write_lines
+    from lesmc.exporters.drn import DRN_MAX_PREFIXES, to_drn
+    from lesmc.exporters.graphs import DOT_MAX_NODES, graphml_lines, to_dot, write_lines
     from lesmc.model.lts_format import lts_document
 
     _need(isinstance(model, ArrayModel), "model must be a model (lesmc.load_model)", model)
@@ -230,7 +230,7 @@ def export_model(
         with atomic_open(path) as fh:
             write_lines(graphml_lines(model, roles), fh)
     elif fmt in ("drn", "prism"):
-        from lesmc.export.prism import to_prism
+        from lesmc.exporters.prism import to_prism
 
         bp = _drn_property(model, spec, prop, fmt)
         write = to_drn if fmt == "drn" else to_prism
@@ -281,7 +281,7 @@ def perceive(
 
 def verify(request: VerifyRequest, reporter: Reporter | None = None) -> VerifyOutcome:
     """The paper's whole experiment (``lesmc verify``): see :class:`VerifyRequest`."""
-    from lesmc.verify.experiment import verify as run_verify
+    from lesmc.experiment.experiment import verify as run_verify
 
     if reporter is not None:
         return run_verify(request, reporter)
@@ -293,7 +293,7 @@ def __getattr__(name: str) -> Any:
     """``VerifyRequest`` and ``VerifyOutcome``, imported when first asked for: the verify
     stage loads the perception's libraries, which checking a model does not need."""
     if name in ("VerifyRequest", "VerifyOutcome"):
-        from lesmc.verify import experiment
+        from lesmc.experiment import experiment
 
         return experiment.Request if name == "VerifyRequest" else experiment.Outcome
     raise AttributeError(f"module 'lesmc.api' has no attribute {name!r}")

@@ -22,7 +22,8 @@ from pathlib import Path
 import pytest
 from cli_run import lesmc
 
-from lesmc.video.synth import SynthConfig, write_video
+from lesmc.video.synth import SynthConfig
+from lesmc.video.write import write_video
 
 webdriver = pytest.importorskip("selenium.webdriver", reason="selenium is a test extra")
 

@@ -10,13 +10,13 @@ from cli_run import lesmc
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from lesmc.build.unfold import build_model, lazy_model
 from lesmc.common.errors import UsageError
 from lesmc.engines.check import check_bound, check_lazy
 from lesmc.language.parser import parse_spec
 from lesmc.model.lts_format import load_lts
 from lesmc.pipeline.check import bind_scene
 from lesmc.scene import load_scene
+from lesmc.unfold.unfold import build_model, lazy_model
 
 ROOT = Path(__file__).resolve().parents[1]
 SCENES = ROOT / "tests" / "scenes"
@@ -160,8 +160,8 @@ def test_hash_collisions_share_states_as_the_hash_does(
     nearly every state collide (the exact fallback on every batch), the same model."""
     import numpy as np
 
-    from lesmc.build import unfold
-    from lesmc.build.hashing import row_hash
+    from lesmc.unfold import unfold
+    from lesmc.unfold.hashing import row_hash
 
     scene = load_scene(SCENES / f"{name}.json").with_tracker(design=design)
     want = build_model(scene, (5, 8))
@@ -180,7 +180,7 @@ def test_hash_collisions_share_states_as_the_hash_does(
 def test_equal_rows_hash_equally_and_distinct_rows_rarely_collide() -> None:
     import numpy as np
 
-    from lesmc.build.hashing import row_hash
+    from lesmc.unfold.hashing import row_hash
 
     rng = np.random.default_rng(3)
     for width in (1, 5, 64, 70):

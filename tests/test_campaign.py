@@ -24,9 +24,10 @@ from pipeline_run import design_runs
 
 from lesmc.campaign.run import Video, execute, make_groups, prepare
 from lesmc.campaign.store import read_rows
+from lesmc.experiment.experiment import bundled_specs, load_specs
 from lesmc.tracking.targets import TargetSpec, place_target
-from lesmc.verify.experiment import bundled_specs, load_specs
-from lesmc.video.synth import SynthConfig, write_video
+from lesmc.video.synth import SynthConfig
+from lesmc.video.write import write_video
 
 ROOT = Path(__file__).resolve().parents[1]
 WINDOWS = "2..3:0..1"  # 4 windows: l in 2..3, u - l in 0..1
@@ -299,14 +300,14 @@ def test_interval_rows_match_brute_force_over_both_payoff_sets(
 
     from oracle import brute_force
 
-    from lesmc.build.probe import priced_detections
-    from lesmc.build.unfold import build_model
     from lesmc.campaign.plan import design_specs
     from lesmc.common.files import read_json
     from lesmc.language.parser import parse_spec
     from lesmc.model.lts import to_lts
     from lesmc.pipeline.check import bind_scene
     from lesmc.scene import footage_from_dict
+    from lesmc.unfold.probe import priced_detections
+    from lesmc.unfold.unfold import build_model
 
     def load_scene(path: Path) -> Any:
         return footage_from_dict(read_json(path), str(path))[0]
@@ -569,9 +570,9 @@ def test_one_unattacked_track_decides_lasts_and_follows(base: tuple[Path, Path])
 
     from lesmc.campaign.run import _lasts, _lasts_and_follows
     from lesmc.common.errors import UsageError
+    from lesmc.experiment.targets import follows, rank_targets
     from lesmc.perception.quality import load_truth
     from lesmc.tracking.targets import rounded
-    from lesmc.verify.targets import follows, rank_targets
     from lesmc.video.reader import open_frames
 
     video = base[0]

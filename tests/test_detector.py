@@ -18,7 +18,8 @@ from lesmc.perception.quality import care_mask, score, truth_frame
 from lesmc.perception.training import TrainConfig, train
 from lesmc.scene import load_scene
 from lesmc.tracking.targets import parse_target
-from lesmc.video.synth import SynthConfig, frames, write_video
+from lesmc.video.synth import SynthConfig, frames
+from lesmc.video.write import write_video
 
 VIDEO = SynthConfig(frames=8, width=640, height=640, seed=21)
 

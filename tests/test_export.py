@@ -25,8 +25,8 @@ from hypothesis import HealthCheck, given, settings
 from oracle import brute_force
 from test_engines import _bound_property, cases
 
-from lesmc.export.drn import to_drn
-from lesmc.export.prism import to_prism
+from lesmc.exporters.drn import to_drn
+from lesmc.exporters.prism import to_prism
 from lesmc.model.lts import to_arrays
 from lesmc.schemas import schema
 

@@ -1,4 +1,4 @@
-"""The monitor's false alarms on truth tracks (lesmc/verify/false_alarms.py): the batched
+"""The monitor's false alarms on truth tracks (lesmc/experiment/false_alarms.py): the batched
 run of every vehicle's unattacked track against ``track`` of a scene with that vehicle as
 its target, one by one (issue 31: 22x faster, the same bits)."""
 
@@ -11,9 +11,9 @@ import numpy as np
 import pytest
 
 from lesmc.designs.registry import make_tracker
+from lesmc.experiment.false_alarms import TruthStart, unattacked_taus
 from lesmc.scene import Target, load_scene
 from lesmc.tracking.monitor import track
-from lesmc.verify.false_alarms import TruthStart, unattacked_taus
 
 SCENES = Path(__file__).parent / "scenes"
 

@@ -20,7 +20,6 @@ from kf_reference import reference_filter
 from oracle import brute_force, every_path
 from stonesoup_oracle import random_model, simulated_scene
 
-from lesmc.build.unfold import build_model
 from lesmc.language.parser import parse_spec
 from lesmc.model.lts import to_lts
 from lesmc.pipeline.check import run
@@ -28,6 +27,7 @@ from lesmc.pipeline.job import Job
 from lesmc.scene import Detection, Frame, Scene, load_scene, scene_from_dict
 from lesmc.scene.tracker_model import EntryFault
 from lesmc.tracking.kalman import matrices
+from lesmc.unfold.unfold import build_model
 
 SCENES = Path(__file__).parent / "scenes"
 

@@ -17,13 +17,13 @@ from hypothesis import strategies as st
 from hypothesis.extra import numpy as hnp
 from pipeline_run import design_runs
 
+from lesmc.experiment.cache import FigureStore, StageCache
 from lesmc.language.parser import load_spec
 from lesmc.report.figure_cache import figure_key
 from lesmc.report.html import render
 from lesmc.report.publish import publish
 from lesmc.results.document import provenance
 from lesmc.scene import load_scene
-from lesmc.verify.cache import FigureStore, StageCache
 
 SCENES = Path(__file__).parent / "scenes"
 

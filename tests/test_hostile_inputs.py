@@ -384,15 +384,18 @@ def test_a_models_meta_is_checked_where_lesmc_reads_it(
 
 
 def test_lesmc_build_stays_callable_once_its_subpackage_is_imported() -> None:
-    """``lesmc.build`` and ``lesmc.verify`` name both API functions and subpackages: the
-    import of ``lesmc.build`` (which any API call makes) rebound the name to the package,
-    so ``lesmc.build(scene, window)`` raised "'module' object is not callable"."""
+    """``lesmc.build`` and ``lesmc.verify`` once named both API functions and subpackages:
+    the import of the subpackage rebound the name, so ``lesmc.build(scene, window)`` raised
+    "'module' object is not callable". The subpackages are now ``lesmc.unfold`` and
+    ``lesmc.experiment``: no package is named like an API function."""
     code = (
         "import lesmc\n"
         "s = lesmc.load_scene('examples/merge.json')\n"
         "m = lesmc.build(s, (6, 8))\n"
-        "import lesmc.build.unfold as u\n"
-        "assert lesmc.build.unfold is u and callable(lesmc.verify)\n"
+        "import lesmc.unfold.unfold as u\n"
+        "import lesmc.experiment.experiment\n"
+        "assert lesmc.unfold.unfold is u and callable(lesmc.verify)\n"
+        "assert type(lesmc.build).__name__ == 'function'\n"
         "print(m.n_states)\n"
     )
     import subprocess

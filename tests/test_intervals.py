@@ -13,12 +13,12 @@ from cli_run import lesmc
 from oracle import brute_force
 from pipeline_run import design_runs
 
-from lesmc.build.unfold import build_model
 from lesmc.common.errors import InputError
 from lesmc.language.parser import parse_spec
 from lesmc.model.lts import to_lts
 from lesmc.pipeline.check import bind_scene
 from lesmc.scene import load_scene, scene_from_dict
+from lesmc.unfold.unfold import build_model
 
 ROOT = Path(__file__).resolve().parents[1]
 SCENES = ROOT / "tests" / "scenes"
@@ -195,7 +195,7 @@ def _payoffs_changed(scene, step: int, i: int):
 def test_priced_detections_are_all_a_model_prices(name: str, design: str) -> None:
     """The oracle is a sensitivity sweep: every detection outside the probe's set is priced
     differently in turn, and the model's combined payoffs (Eq. 5) and graph must not move."""
-    from lesmc.build.probe import priced_detections
+    from lesmc.unfold.probe import priced_detections
 
     scene = load_scene(SCENES / f"{name}.json").with_tracker(design=design)
     # every payoff finite, as in a certified scene: the most detections a model can price
@@ -260,7 +260,7 @@ def test_a_check_says_when_it_read_detections_without_a_bound(design: str, tmp_p
     """Missing bounds count as 0; a certified check that prices one says so, one that prices
     none does not (the frames are chosen by the probe's set, an independent build; the
     joint design also reads payoffs outside the window, which never count)."""
-    from lesmc.build.probe import priced_detections
+    from lesmc.unfold.probe import priced_detections
 
     doc = with_lower("rq1_platoon", 2)
     doc["tracker"]["design"] = design
@@ -315,9 +315,9 @@ def test_verify_certified_nothing_still_checks() -> None:
 def test_a_probe_stopped_by_a_budget_keeps_what_it_read(design: str) -> None:
     """lesmc campaign's probe within a unit's budgets: stopped by --max-states it says so and
     returns part of the full probe's set (what the model read before it stopped)."""
-    from lesmc.build.probe import priced_detections
     from lesmc.common.budget import Budget
     from lesmc.pipeline.certify import probe
+    from lesmc.unfold.probe import priced_detections
 
     scene = load_scene(SCENES / "rq4_merge.json").with_tracker(design=design)
     end = scene.last_step - scene.target.step

@@ -19,7 +19,7 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 from joint_oracle import oracle_paths
 
-import lesmc.build.unfold as unfold
+import lesmc.unfold.unfold as unfold
 from lesmc.designs.registry import make_tracker
 from lesmc.model.arrays import ArrayModel
 from lesmc.scene import Detection, Frame, Scene, Target, TrackerConfig, load_scene

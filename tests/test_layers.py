@@ -30,32 +30,32 @@ LAYERS: dict[str, set[str]] = {
     "model": {"language"},
     "scene": {"designs"},
     "engines": {"language", "model"},
-    "export": {"engines", "language", "model"},
+    "exporters": {"engines", "language", "model"},
     "perception": {"scene", "video"},
     "tracking": {"model", "scene"},
-    "build": {"designs", "model", "scene", "tracking"},
+    "unfold": {"designs", "model", "scene", "tracking"},
     "results": {"designs", "engines", "language", "model", "scene", "schemas"},
-    "pipeline": {"build", "designs", "engines", "language", "model", "results", "scene"},
+    "pipeline": {"unfold", "designs", "engines", "language", "model", "results", "scene"},
     "report": {"engines", "language", "results", "video"},
     "replay": {
         "designs", "engines", "model", "perception", "results", "scene", "tracking", "video",
     },
-    "verify": {
-        "build", "designs", "language", "model", "perception", "pipeline", "replay",
+    "experiment": {
+        "unfold", "designs", "language", "model", "perception", "pipeline", "replay",
         "report", "results", "scene", "tracking", "video",
     },
     "campaign": {
-        "build", "designs", "engines", "language", "perception", "pipeline", "report",
-        "results", "scene", "tracking", "verify", "video",
+        "unfold", "designs", "engines", "language", "perception", "pipeline", "report",
+        "results", "scene", "tracking", "experiment", "video",
     },
     "api": {
-        "build", "designs", "engines", "export", "language", "model", "pipeline", "results",
-        "scene", "tracking", "verify",
+        "unfold", "designs", "engines", "exporters", "language", "model", "pipeline", "results",
+        "scene", "tracking", "experiment",
     },
     "cli": {
-        "api", "build", "campaign", "designs", "engines", "export", "language", "model",
+        "api", "unfold", "campaign", "designs", "engines", "exporters", "language", "model",
         "perception",
-        "pipeline", "replay", "report", "results", "scene", "tracking", "verify", "video",
+        "pipeline", "replay", "report", "results", "scene", "tracking", "experiment", "video",
     },
     "__main__": {"cli"},
 }  # fmt: skip

@@ -28,7 +28,8 @@ from lesmc.perception.neurons import (
     stick,
     with_stuck_units,
 )
-from lesmc.video.synth import SynthConfig, write_video
+from lesmc.video.synth import SynthConfig
+from lesmc.video.write import write_video
 
 SCENES = Path(__file__).parent / "scenes"
 

@@ -1,4 +1,4 @@
-"""Payoffs priced on demand (lesmc/verify/pricing.py, scene/frames.py; issue 31).
+"""Payoffs priced on demand (lesmc/experiment/pricing.py, scene/frames.py; issue 31).
 
 A model built over frames whose payoffs are priced when it reads them is the model of
 the same scene priced up front (the oracle: the scene file's own payoffs), and it asks
@@ -20,7 +20,6 @@ import numpy as np
 import pytest
 from cli_run import lesmc
 
-from lesmc.build.unfold import build_model
 from lesmc.perception.windows import compact, cut, expand
 from lesmc.scene import (
     Detection,
@@ -33,7 +32,9 @@ from lesmc.scene import (
     save_scene,
     scene_to_dict,
 )
-from lesmc.video.synth import SynthConfig, write_video
+from lesmc.unfold.unfold import build_model
+from lesmc.video.synth import SynthConfig
+from lesmc.video.write import write_video
 
 SCENES = Path(__file__).parent / "scenes"
 FIELDS = ("step", "S", "halted", "ptr", "dst", "payoff", "rank", "original", "obs")
@@ -414,8 +415,8 @@ def test_price_all_perceives_an_entry_with_unpriced_payoffs_again(
 
 def test_a_cache_that_does_not_match_the_video_is_refused(tmp_path: Path) -> None:
     from lesmc.common.errors import UsageError
-    from lesmc.verify.cache import StageCache
-    from lesmc.verify.experiment import _same_detections
+    from lesmc.experiment.cache import StageCache
+    from lesmc.experiment.experiment import _same_detections
 
     footage = load_scene(SCENES / "rq1_platoon.json").footage
     moved = replace(

@@ -27,7 +27,7 @@ TINY = ROOT / "tests" / "golden" / "tiny"
 HOOKS = {
     # inside build_model, before a batch once some states exist
     "unfolding": """
-import lesmc.build.unfold as u
+import lesmc.unfold.unfold as u
 _orig = u.build_model
 def build_model(*a, **k):
     outer = k.get("on_batch")
@@ -85,14 +85,14 @@ sys.meta_path.insert(0, Hold())
 """,
     # while the default video renders in its child process (verify imports torch then)
     "rendering": """
-import lesmc.verify.experiment as e
+import lesmc.experiment.experiment as e
 def _import_perception():
     ready()
 e._import_perception = _import_perception
 """,
     # every batch of the unfolding takes 0.2 s (for the budget tests)
     "slow": """
-import lesmc.build.unfold as u
+import lesmc.unfold.unfold as u
 _orig = u.build_model
 def build_model(*a, **k):
     outer = k.get("on_batch")

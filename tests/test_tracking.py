@@ -13,7 +13,6 @@ from hypothesis import strategies as st
 from kf_reference import reference_filter
 from oracle import every_path
 
-from lesmc.build.unfold import build_model
 from lesmc.common.errors import InputError
 from lesmc.designs.registry import make_tracker
 from lesmc.model.lts import to_lts
@@ -22,6 +21,7 @@ from lesmc.scene.toy import Vehicle, vehicle_scene
 from lesmc.tracking.association import attack_options, gate_radii
 from lesmc.tracking.kalman import innovations, matrices, predict_covariances, white_noise_q
 from lesmc.tracking.monitor import track
+from lesmc.unfold.unfold import build_model
 
 SCENES = Path(__file__).parent / "scenes"
 

@@ -13,7 +13,8 @@ from typing import Any
 import pytest
 from cli_run import lesmc
 
-from lesmc.video.synth import SynthConfig, write_video
+from lesmc.video.synth import SynthConfig
+from lesmc.video.write import write_video
 
 
 def _content(doc: dict[str, Any]) -> dict[str, Any]:

@@ -17,7 +17,8 @@ from test_signals import rendering_children
 from lesmc.cli.main import cli
 from lesmc.common.errors import InputError
 from lesmc.video.reader import natural_key, open_frames
-from lesmc.video.synth import SynthConfig, frames, write_video
+from lesmc.video.synth import SynthConfig, frames
+from lesmc.video.write import write_video
 
 SMALL = SynthConfig(frames=6, width=384, height=320, seed=5, density=3.0)
 

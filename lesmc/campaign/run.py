@@ -23,8 +23,6 @@ from typing import Any
 import numpy as np
 from rich.console import Console
 
-from lesmc.build.probe import merged_detections
-from lesmc.build.unfold import max_end, original_end
 from lesmc.campaign.plan import Group, plan_units, scene_key
 from lesmc.campaign.work import run_group, scene_doc
 from lesmc.common.budget import Budget
@@ -47,6 +45,8 @@ from lesmc.tracking.targets import (
     place_target,
     rounded,
 )
+from lesmc.unfold.probe import merged_detections
+from lesmc.unfold.unfold import max_end, original_end
 from lesmc.video import FPS
 
 #: Retries of a group whose worker died (Dask's ``retries``).
@@ -287,7 +287,7 @@ def truth_targets(p: Prepared, window: tuple[int, int], horizon: int) -> list[Au
     each frame that leaves ``horizon`` steps, each vehicle once (at its earliest start), kept
     when the unattacked plain tracker, started on it from the scene, follows it through
     ``horizon``. Most neighbouring traffic first; ties by frame, then vehicle id."""
-    from lesmc.verify.targets import rank_targets
+    from lesmc.experiment.targets import rank_targets
     from lesmc.video.reader import open_frames
 
     assert p.video.truth is not None
@@ -319,10 +319,10 @@ def truth_targets(p: Prepared, window: tuple[int, int], horizon: int) -> list[Au
 
 
 def _lasts_and_follows(scene: Scene, horizon: int, truth_track: np.ndarray) -> bool:
-    """:func:`_lasts` and ``follows`` (lesmc/verify/targets.py): the scene's unattacked track
+    """:func:`_lasts` and ``follows`` (lesmc/experiment/targets.py): the scene's unattacked track
     runs through ``horizon`` and the plain tracker's stays on the vehicle of ``truth_track``.
     With the plain tracker as the scene's, both read one unattacked track."""
-    from lesmc.verify.targets import baseline_track, follows, on_vehicle
+    from lesmc.experiment.targets import baseline_track, follows, on_vehicle
 
     if scene.tracker.design != BASELINE:
         return _lasts(scene, horizon) and follows(scene, truth_track)

@@ -79,9 +79,9 @@ def build_cmd(
     """
     budget = budget_from(timeout, max_states, max_memory)
     distinct_files({"SCENE": scene, "--tracker": tracker_file}, {"-o/--output": output})
-    from lesmc.build.unfold import build_model, max_end
     from lesmc.common.progress import Reporter
     from lesmc.scene import UnpricedPayoff
+    from lesmc.unfold.unfold import build_model, max_end
 
     window = parse_window(window_text)
     sc = load_scene_file(scene, design, target_text, tracker_file)
@@ -169,11 +169,11 @@ def track_cmd(
     """Run the tracker on SCENE unattacked: estimates, τ (Eq. 12) and monitor alarms (Eq. 13)."""
     from rich.table import Table
 
-    from lesmc.build.unfold import last_step
     from lesmc.common.numbers import fmt
     from lesmc.designs.registry import make_tracker
     from lesmc.report.text import make_console
     from lesmc.tracking.monitor import track
+    from lesmc.unfold.unfold import last_step
 
     sc = load_scene_file(scene, design, target_text, tracker_file)
     if sc.has_unpriced:  # the unattacked states never depend on a payoff

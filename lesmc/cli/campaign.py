@@ -234,7 +234,7 @@ def _prepared(
 
 def _spec_files(specs: tuple[str, ...]) -> list[Any]:
     """The property files (default: the bundled ones), each property named once."""
-    from lesmc.verify.experiment import bundled_specs, load_specs
+    from lesmc.experiment.experiment import bundled_specs, load_specs
 
     spec_files = load_specs([Path(s) for s in specs] or bundled_specs(), None)
     names = [p.name for s in spec_files for p in s.properties]
@@ -250,7 +250,7 @@ def _videos(frames_dirs: tuple[str, ...], out: Path, no_truth: bool) -> list[Any
 
     if not frames_dirs:
         from lesmc.common.progress import progress_bar
-        from lesmc.verify.experiment import (
+        from lesmc.experiment.experiment import (
             DEFAULT_VIDEO,
             default_video_ready,
             write_default_video,

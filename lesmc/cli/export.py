@@ -155,8 +155,8 @@ def _model(
 ) -> ArrayModel:
     """The .lts model, or the scene built for ``--window`` as lesmc build builds it."""
     from lesmc.api import load_model_or_scene
-    from lesmc.build.unfold import build_model
     from lesmc.scene import Scene, UnpricedPayoff
+    from lesmc.unfold.unfold import build_model
 
     source = load_model_or_scene(model, target_text, design, tracker_file)
     if isinstance(source, Scene):

@@ -11,7 +11,7 @@ import click
 from lesmc.cli.documents import emit, file_facts, refuse_given, run_provenance, say
 from lesmc.cli.options import FiniteRange, distinct_files, network_options, tracker_option
 from lesmc.common.errors import escape_control
-from lesmc.verify.perceive import (
+from lesmc.experiment.perceive import (
     Perceived,
     PerceiveRequest,
     open_inputs,

@@ -27,7 +27,7 @@ from lesmc.cli.options import (
 from lesmc.cli.signals import resumable
 
 if TYPE_CHECKING:
-    from lesmc.verify.experiment import Outcome
+    from lesmc.experiment.experiment import Outcome
 
 
 @click.command("verify")
@@ -176,7 +176,7 @@ def _finish(outcome: Outcome, as_json: bool) -> None:
 def _kept(out: Path) -> str:
     """What an interrupted verify leaves for its rerun: the rendered default video; the
     report in OUT is the previous run's or none (it is moved in whole, at the end)."""
-    from lesmc.verify.experiment import default_video_ready
+    from lesmc.experiment.experiment import default_video_ready
 
     video = out / "video"
     report = "the previous report" if (out / "results.json").exists() else "no report"

@@ -61,7 +61,8 @@ def synth_cmd(
     """
     started = time.monotonic()
     from lesmc.common.progress import progress_bar
-    from lesmc.video.synth import SynthConfig, write_video
+    from lesmc.video.synth import SynthConfig
+    from lesmc.video.write import write_video
 
     w, h = parse_size(size_text)
     cfg = SynthConfig(

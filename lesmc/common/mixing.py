@@ -1,7 +1,7 @@
 """64-bit mixers for hashing arrays of words: splitmix64's and murmur3's finalisers.
 
 A mixer is a bijection of 64-bit words that spreads every input bit over the
-output. The unfolder's state hashes (lesmc/build/hashing.py) use lane 0, the joint
+output. The unfolder's state hashes (lesmc/unfold/hashing.py) use lane 0, the joint
 tracker's 128-bit digests (lesmc/tracking/joint.py) one lane per half.
 """
 

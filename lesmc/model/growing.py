@@ -4,7 +4,7 @@ This is the model interface for models given by a successor function (paper
 Algorithm 1 run lazily): the engines read the state and transition arrays,
 and call :meth:`GrowingModel.expand` with a *batch* of states of one step to
 have all their successors computed at once. Whoever produces the successors
-(lesmc/build/unfold.py for scenes) implements :class:`Expander`; engines import
+(lesmc/unfold/unfold.py for scenes) implements :class:`Expander`; engines import
 only this module and never know what a scene is.
 """
 

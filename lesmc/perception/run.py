@@ -261,7 +261,7 @@ def certify_detections(
     """Certified lower bounds of the ``wanted`` detections of a perceive ``run`` only.
 
     ``wanted``: per frame index, detection indices (what a model can hide,
-    :func:`lesmc.build.unfold.priced_detections`). Detections of one Q_dr blob share
+    :func:`lesmc.unfold.unfold.priced_detections`). Detections of one Q_dr blob share
     its window, so each blob is certified once. Returns, per frame index, the
     bound of every detection of that frame, ``nan`` where not certified.
     ``on_batch(done, total)`` counts blobs.

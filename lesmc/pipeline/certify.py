@@ -3,7 +3,7 @@
 A certified check (docs/semantics.md, "Payoff intervals") reads a certified
 lower payoff only for the detections whose payoffs enter a combined payoff
 (Eq. 5) of its model: those an attack in the window can hide. The probe
-(lesmc/build/probe.py) finds them per (tracker, window); the caller's
+(lesmc/unfold/probe.py) finds them per (tracker, window); the caller's
 certifier (perception's CROWN bounds, lesmc/perception/run.py) bounds those
 that have no bound yet; a detection left without one counts as 0, the
 trivial bound, and the check says how many its model can hide.
@@ -18,10 +18,10 @@ from typing import Any, TypeVar
 
 import numpy as np
 
-from lesmc.build.probe import merged_detections, priced_detections
 from lesmc.common.budget import Budget
 from lesmc.pipeline.job import Certifier
 from lesmc.scene import Footage, Frame, Scene
+from lesmc.unfold.probe import merged_detections, priced_detections
 
 S = TypeVar("S", Scene, Footage)
 
@@ -51,7 +51,7 @@ class Probed:
 
 
 def probe(scene: Scene, window: tuple[int, int], budget: Budget) -> Probed:
-    """:func:`~lesmc.build.probe.priced_detections` within one check's share of ``budget``."""
+    """:func:`~lesmc.unfold.probe.priced_detections` within one check's share of ``budget``."""
     b = budget.for_check()
 
     def spent(model: Any) -> None:

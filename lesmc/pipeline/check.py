@@ -22,7 +22,6 @@ import os
 from collections.abc import Iterable, Mapping
 from dataclasses import dataclass, field, replace
 
-from lesmc.build.unfold import build_model, lazy_model, original_end
 from lesmc.common.budget import Budget
 from lesmc.common.errors import BudgetError, Location, SpecError, UsageError
 from lesmc.designs import registry
@@ -37,6 +36,7 @@ from lesmc.pipeline.job import Certifier, Job, Unit
 from lesmc.pipeline.payoffs import check_all, check_payoffs, mode_of
 from lesmc.results.record import DesignRun, Results
 from lesmc.scene import Scene, UnpricedPayoff
+from lesmc.unfold.unfold import build_model, lazy_model, original_end
 
 
 def run(job: Job) -> Results:

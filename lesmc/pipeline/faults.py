@@ -8,7 +8,7 @@ nothing for a frame is ``outage 1``), or a detector neuron stuck at a value ("a
 neuron that does not function"). At most ``budget`` faults strike at once.
 
 A stuck neuron changes what the detector sees, so its frames come from running the
-faulty network over the video (``lesmc verify``, lesmc/verify/neuron_faults.py):
+faulty network over the video (``lesmc verify``, lesmc/experiment/neuron_faults.py):
 the caller passes them as :data:`NeuronFrames`, and a variant takes, in each frame,
 the detections and payoffs of the neuron faults active there (the detector reads
 only the frames, never its own earlier answers, so this substitution is exact).

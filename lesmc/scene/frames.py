@@ -4,7 +4,7 @@ A :class:`Frame` answers the tracker's one geometric question, which
 detections lie within a radius of a point, nearest first (an x-sorted scan,
 or a k-d tree for large frames). :class:`WatchedFrame` notes which payoffs a
 model reads: the probe that finds the detections an attack can hide
-(lesmc/build/probe.py).
+(lesmc/unfold/probe.py).
 
 A payoff may be *unpriced* (``nan``; ``"unpriced"`` in scene files): nobody
 attacked that detection yet. ``lesmc verify`` prices a detection the first
@@ -245,7 +245,7 @@ class PayoffReads:
 @dataclass(frozen=True)
 class WatchedFrame(Frame):
     """A frame whose :meth:`payoffs` note which ``watched`` detections (None: all) a model
-    reads: the probe of :func:`lesmc.build.probe.priced_detections`."""
+    reads: the probe of :func:`lesmc.unfold.probe.priced_detections`."""
 
     watched: np.ndarray | None = field(default=None, compare=False)
     reads: set[int] = field(default_factory=set, compare=False)
@@ -305,7 +305,7 @@ class OnDemandPayoffs:
 
     ``values[step]``: one payoff per detection of that frame, ``nan`` until priced;
     ``price`` prices the detections asked for (perception's attack,
-    lesmc/verify/pricing.py). Shared by every :class:`PricedFrame` of a scene and
+    lesmc/experiment/pricing.py). Shared by every :class:`PricedFrame` of a scene and
     by the variants made from it (another tracker design), so each detection is
     priced once. ``asked`` counts the detections priced so far.
     """

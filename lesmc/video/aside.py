@@ -12,7 +12,7 @@ and truth.json are in place; an ``OSError`` (a file it cannot write) is its mess
 on stderr and exit 2; anything else is an internal error. It runs in a session of
 its own, so a terminal's Ctrl-C reaches only the caller: on an interrupt, a signal,
 a spent budget or an error the caller stops it (SIGTERM), waits for it to end and
-then removes the staging directory itself (:func:`lesmc.video.synth.write_video`):
+then removes the staging directory itself (:func:`lesmc.video.write.write_video`):
 nothing is left behind whatever the child was doing. A child whose caller died
 stops at its next line (a closed pipe).
 """
@@ -27,10 +27,8 @@ import tempfile
 from collections.abc import Callable
 from dataclasses import asdict
 from pathlib import Path
-from typing import TYPE_CHECKING
 
-if TYPE_CHECKING:
-    from lesmc.video.synth import SynthConfig
+from lesmc.video.synth import SynthConfig, render_into
 
 #: Seconds a stopped child may take to end before it is killed.
 STOP_GRACE = 10.0
@@ -82,9 +80,7 @@ def _child_environment() -> dict[str, str]:
     it, so that site-packages never comes before the standard library."""
     import site
 
-    import lesmc
-
-    root = str(Path(lesmc.__file__).resolve().parent.parent)
+    root = str(Path(__file__).resolve().parents[2])  # the directory that holds lesmc/
     found = {str(Path(p).resolve()) for p in [*site.getsitepackages(), site.getusersitepackages()]}
     env = dict(os.environ)
     if root not in found:
@@ -108,7 +104,6 @@ def _stop(child: subprocess.Popen[bytes]) -> None:
 def main(argv: list[str]) -> int:
     """The child: ``CONFIG_JSON TMP OUT_DIR`` (see the module's docstring)."""
     from lesmc.common.memory import one_arena
-    from lesmc.video.synth import SynthConfig, render_into
 
     one_arena()  # as the command line does (lesmc/common/memory.py)
     cfg = SynthConfig(**json.loads(argv[0]))

@@ -20,13 +20,26 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from lesmc.build.unfold import original_end
 from lesmc.common.budget import Budget
 from lesmc.common.errors import BudgetError, UsageError
 from lesmc.common.files import json_text
 from lesmc.common.memory import release
 from lesmc.common.progress import Reporter
 from lesmc.designs import registry
+from lesmc.experiment import video_perception
+from lesmc.experiment.cache import (
+    FigureStore,
+    StageCache,
+    code_digest,
+    digest,
+    file_digests,
+    net_files,
+)
+from lesmc.experiment.false_alarms import false_alarm_report, truth_track
+from lesmc.experiment.neuron_faults import NeuronRuns, check_units, neuron_faults, neuron_frames
+from lesmc.experiment.pricing import VideoPricer, priced_meta
+from lesmc.experiment.pricing import on_demand as on_demand_footage
+from lesmc.experiment.video_perception import UnitMax
 from lesmc.language.parser import load_faults, load_spec
 from lesmc.language.properties import FaultSet, SpecFile
 from lesmc.perception import HISTORY, NetFiles
@@ -45,20 +58,7 @@ from lesmc.scene import (
     scene_to_dict,
 )
 from lesmc.tracking.targets import check_target, load_scene_with_target, parse_target
-from lesmc.verify import video_perception
-from lesmc.verify.cache import (
-    FigureStore,
-    StageCache,
-    code_digest,
-    digest,
-    file_digests,
-    net_files,
-)
-from lesmc.verify.false_alarms import false_alarm_report, truth_track
-from lesmc.verify.neuron_faults import NeuronRuns, check_units, neuron_faults, neuron_frames
-from lesmc.verify.pricing import VideoPricer, priced_meta
-from lesmc.verify.pricing import on_demand as on_demand_footage
-from lesmc.verify.video_perception import UnitMax
+from lesmc.unfold.unfold import original_end
 from lesmc.video import FPS
 
 if TYPE_CHECKING:  # reading frames imports cv2: only where a video is read
@@ -89,7 +89,7 @@ class Request:
     budget: Budget = field(default_factory=Budget)
     faults: str | None = None  #: a file with a ``faults`` block (``--faults``)
     #: attack every detection of the video up front (``--price-all``), not only those
-    #: the checked models read (lesmc/verify/pricing.py)
+    #: the checked models read (lesmc/experiment/pricing.py)
     price_all: bool = False
 
 
@@ -121,7 +121,7 @@ class _Source:
     #: verify's own perception of the video: its cache key, each hidden unit's largest
     #: value, the seconds between frames (neuron faults perceive it again)
     perceived: tuple[str, UnitMax, float] | None = None
-    #: payoffs priced on demand (lesmc/verify/pricing.py): the shared prices, the pricer
+    #: payoffs priced on demand (lesmc/experiment/pricing.py): the shared prices, the pricer
     #: and the footage they price (stored again in OUT/cache with what was priced)
     pricing: tuple[OnDemandPayoffs, VideoPricer, Footage] | None = None
 
@@ -220,7 +220,7 @@ def _check_neuron_faults(req: Request, faults: FaultSet | None) -> None:
 
 
 def _neuron_runs(req: Request, faults: FaultSet | None, src: _Source, rep: Reporter) -> NeuronRuns:
-    """The video perceived under every set of neuron faults (lesmc/verify/neuron_faults.py);
+    """The video perceived under every set of neuron faults (lesmc/experiment/neuron_faults.py);
     none without neuron faults, or on a scene file (the pipeline then says why)."""
     seen = src.perceived
     if not neuron_faults(faults) or seen is None or src.frames is None or src.cache is None:
@@ -270,12 +270,12 @@ def _perceived(
 ) -> _Source:
     """The scene of a video: rendered (the default), perceived, its target placed or chosen;
     with ``maxima`` the networks' unit maxima too (neuron faults read them); ``on_demand``:
-    payoffs priced when a model reads them (lesmc/verify/pricing.py)."""
+    payoffs priced when a model reads them (lesmc/experiment/pricing.py)."""
     if req.scene_frames is not None:
         raise UsageError("--frames goes with --scene; a video is given as FRAMES_DIR")
     frames_dir, truth, meta, fresh = _video(req, rep)
     # after the video: these imports (scipy.spatial, 0.45 s) would delay its rendering
-    from lesmc.verify.targets import auto_target, target_scene, truth_tracks
+    from lesmc.experiment.targets import auto_target, target_scene, truth_tracks
 
     if not req.target and not truth:
         raise UsageError("--target is needed (or --truth, to choose one)")
@@ -341,7 +341,7 @@ def _perception(
     again), else perceived now and stored. ``maxima``: the networks' unit maxima are
     needed too; an entry stored without them (by a run without neuron faults) is then
     perceived again, recording them. ``on_demand``: a payoff is priced when a model
-    first reads it (lesmc/verify/pricing.py); otherwise every detection is priced now,
+    first reads it (lesmc/experiment/pricing.py); otherwise every detection is priced now,
     and an entry with unpriced payoffs is perceived again."""
     key = _perception_key(req, frames, frames_dir, dt)
     hit = video_perception.read(cache, "perception", key) if req.payoffs == "attack" else None
@@ -566,8 +566,9 @@ def write_default_video(
 ) -> list[Path]:
     """Generate the embedded default video (``lesmc synth`` with ``DEFAULT_VIDEO``); the
     frames written. With ``meanwhile``, a child process renders while it runs here
-    (:func:`lesmc.video.synth.write_video`)."""
-    from lesmc.video.synth import SynthConfig, write_video
+    (:func:`lesmc.video.write.write_video`)."""
+    from lesmc.video.synth import SynthConfig
+    from lesmc.video.write import write_video
 
     return write_video(SynthConfig(**DEFAULT_VIDEO), video, progress, meanwhile)
 
@@ -576,8 +577,6 @@ def _import_perception() -> None:
     """Import perception's code (torch and the networks', scipy.spatial, faiss) and the
     targets' while the default video renders aside: a video just rendered is perceived
     next (2-2.5 s of imports off the critical path)."""
-    import lesmc.perception.run
-    import lesmc.verify.targets  # noqa: F401
 
 
 def _certifier(src: _Source, rep: Reporter, budget: Budget) -> Certifier | None:
@@ -627,7 +626,7 @@ def _truth_facts(
     src: _Source, results: Results, timings: dict[str, float]
 ) -> tuple[Any, dict[str, Any]]:
     """With the video's truth: the target's true track and the monitor's false alarms on
-    every truth track (lesmc/verify/false_alarms.py)."""
+    every truth track (lesmc/experiment/false_alarms.py)."""
     if src.frames is None or src.truth is None:
         return None, {}
 
@@ -689,7 +688,7 @@ def _perception_facts(req: Request, src: _Source, results: Results) -> dict[str,
         out["frames"] = str(src.frames.paths[0].parent.resolve())
     if results.certified is not None:  # this run's certification (a --scene keeps its own)
         out["certified"] = results.certified
-    if src.pricing is not None:  # this run priced on demand (lesmc/verify/pricing.py)
+    if src.pricing is not None:  # this run priced on demand (lesmc/experiment/pricing.py)
         out["priced"] = src.scene.meta["priced"]
     return out
 

@@ -1,6 +1,6 @@
 """A property's question as an MDP in the PRISM language (PRISM, Storm, Modest).
 
-The same MDP as the DRN export (lesmc/export/drn.py: one state per path prefix
+The same MDP as the DRN export (lesmc/exporters/drn.py: one state per path prefix
 and constraint value, the attacker's allowed choices as actions, the objective's
 contribution as the action's reward, the label ``violated`` on the absorbing
 state the violating leaves move to), written as one module whose variable ``s``
@@ -14,7 +14,7 @@ from __future__ import annotations
 from typing import Any
 
 from lesmc.engines.space import build_space
-from lesmc.export.drn import DRN_MAX_PREFIXES, exact_number, not_exported_line, prefix_tree
+from lesmc.exporters.drn import DRN_MAX_PREFIXES, exact_number, not_exported_line, prefix_tree
 from lesmc.language.semantics import BoundProperty
 from lesmc.model.arrays import ArrayModel
 
@@ -24,7 +24,7 @@ PRISM_PROPERTY = 'R{"payoff"}min=? [F "violated"]'
 def to_prism(
     cm: ArrayModel, bp: BoundProperty, max_prefixes: int = DRN_MAX_PREFIXES, strict: bool = False
 ) -> tuple[str, dict[str, Any]]:
-    """The PRISM program and facts about it (as :func:`~lesmc.export.drn.to_drn`)."""
+    """The PRISM program and facts about it (as :func:`~lesmc.exporters.drn.to_drn`)."""
     space = build_space(cm, bp)
     rewards = not space.obj_max
     not_exported = None if rewards else not_exported_line(bp, strict)

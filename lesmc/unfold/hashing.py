@@ -2,7 +2,7 @@
 
 States are identified by rows of 64-bit words (a design's ``keys``); their hash
 (:func:`row_hash`) finds equal rows among those already made, and a collision
-falls back to comparing the words themselves (lesmc/build/unfold.py).
+falls back to comparing the words themselves (lesmc/unfold/unfold.py).
 """
 
 from __future__ import annotations

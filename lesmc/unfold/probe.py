@@ -14,9 +14,9 @@ from dataclasses import replace
 
 import numpy as np
 
-from lesmc.build.unfold import build_model
 from lesmc.model.growing import GrowingModel
 from lesmc.scene import Detection, Scene, WatchedFrame
+from lesmc.unfold.unfold import build_model
 
 
 def priced_detections(

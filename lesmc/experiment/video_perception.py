@@ -1,7 +1,7 @@
 """``verify``'s perception of its video: the detector over every frame, kept in OUT/cache.
 
-The fault-free networks run once per video (lesmc/verify/experiment.py); with
-neuron faults, the faulty networks run too (lesmc/verify/neuron_faults.py). Both
+The fault-free networks run once per video (lesmc/experiment/experiment.py); with
+neuron faults, the faulty networks run too (lesmc/experiment/neuron_faults.py). Both
 go through :func:`perceive_video` and store what they found with :func:`store`:
 the footage (a scene file without a target, validated on reading like any scene)
 and each hidden unit's largest value on the scored windows (a stuck-at-max fault's
@@ -17,10 +17,10 @@ import numpy as np
 
 from lesmc.common.errors import LesmcError, UsageError
 from lesmc.common.progress import Reporter
+from lesmc.experiment.cache import StageCache
 from lesmc.perception import HISTORY
 from lesmc.pipeline.job import Certifier
 from lesmc.scene import Footage, footage_from_dict, scene_to_dict
-from lesmc.verify.cache import StageCache
 
 if TYPE_CHECKING:
     from lesmc.perception.cnn import Nets
@@ -45,7 +45,7 @@ def perceive_video(
     """Detections and DeepFool payoffs of every frame (the default attack settings), as
     footage; ``keep_windows`` keeps the N_dr windows (certification and pricing on
     demand read them), ``record_maxima`` the hidden units' largest values (stuck-at-max
-    faults read them); without ``attack`` every payoff is unpriced (lesmc/verify/pricing.py)."""
+    faults read them); without ``attack`` every payoff is unpriced (lesmc/experiment/pricing.py)."""
     return perceive_videos(
         frames, [nets], dt, [meta], keep_windows, advance, record_maxima, attack
     )[0]

@@ -23,13 +23,13 @@ from typing import TYPE_CHECKING
 
 from lesmc.common.errors import InputError, Location
 from lesmc.common.progress import Reporter
+from lesmc.experiment import video_perception
+from lesmc.experiment.cache import StageCache, digest
+from lesmc.experiment.video_perception import UnitMax
 from lesmc.language.properties import Fault, FaultSet
 from lesmc.pipeline.faults import fault_error
 from lesmc.pipeline.job import Certifier
 from lesmc.scene import Footage, Frame
-from lesmc.verify import video_perception
-from lesmc.verify.cache import StageCache, digest
-from lesmc.verify.video_perception import UnitMax
 
 if TYPE_CHECKING:
     from lesmc.perception.cnn import Nets

@@ -194,8 +194,8 @@ def _scene(
 ) -> tuple[Scene | Footage, str]:
     """The footage of ``run``, its tracker replaced by the tracker file's, with the
     target placed when one was asked for; and where the target is, in words."""
+    from lesmc.experiment.targets import target_scene
     from lesmc.perception.to_scene import footage_from_run
-    from lesmc.verify.targets import target_scene
 
     footage = footage_from_run(run, dt, meta)
     if inputs.tracker is not None:
