@@ -28,10 +28,10 @@ from lesmc.perception.certify import (
     Ball,
     CertifyConfig,
     Chain,
-    _centre,
     _dim,
     _start,
     ball_radius,
+    centred,
     detect_chain,
     model_features,
     quantile_radii,
@@ -46,7 +46,7 @@ def features(chain: Chain, w: np.ndarray, pay: np.ndarray) -> tuple[np.ndarray, 
     """Per window: r0 (the quantile rule's first radius) and the fit's four features."""
     cfg = CertifyConfig(start="quantile")
     with torch.inference_mode():
-        z0 = _centre(chain, torch.from_numpy(w.astype(np.float32)))
+        z0 = centred(chain, torch.from_numpy(w.astype(np.float32)))
         r0 = _start(chain, z0, pay, cfg)[0]  # the quantile rule's, at most seed x payoff
         near, _, far = quantile_radii(chain, z0, cfg)
         x = model_features(r0, near, far, torch.from_numpy(pay)).T.numpy()
@@ -58,7 +58,7 @@ def frontier(chain: Chain, w: np.ndarray, r0: np.ndarray) -> np.ndarray:
     ok = np.zeros((len(w), len(SCALES)), bool)
     with torch.inference_mode():
         for a in range(0, len(w), 32):
-            z0 = _centre(chain, torch.from_numpy(w[a : a + 32].astype(np.float32)))
+            z0 = centred(chain, torch.from_numpy(w[a : a + 32].astype(np.float32)))
             for j, s in enumerate(SCALES):
                 r = torch.from_numpy(r0[a : a + 32] * s).float()
                 ball = Ball(z0, r, _dim(chain), chain.subtract_mean)

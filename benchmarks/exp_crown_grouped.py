@@ -42,7 +42,7 @@ def main() -> int:
     w = sample_windows(nets, args.frames, args.n)
     pay = payoffs(nets.dr, w, nets.settings.delta_dr, AttackConfig()).payoff
     chain = C.detect_chain(nets.dr, threshold_logit(nets.settings.delta_dr))
-    z0 = C._centre(chain, torch.from_numpy(w).float())
+    z0 = C.centred(chain, torch.from_numpy(w).float())
     r = C._start(chain, z0, pay, C.CertifyConfig())[0]
     ball = C.Ball(z0, r.float(), C._dim(chain), chain.subtract_mean)
     bounds, relaxes = C.layer_bounds(chain, ball)

@@ -88,7 +88,7 @@ def main() -> None:
     chain = C.detect_chain(nets.dr, threshold_logit(nets.settings.delta_dr))
     with torch.inference_mode():
         x = torch.from_numpy(np.ascontiguousarray(w, np.float32))
-        z0 = C._centre(chain, x)
+        z0 = C.centred(chain, x)
         r = C._start(chain, z0, pay, C.CertifyConfig())[0]
         ball = C.Ball(z0, r.float(), C._dim(chain), chain.subtract_mean)
         bounds, relaxes = C.layer_bounds(chain, ball, None, C.CertifyConfig.give_up)

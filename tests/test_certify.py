@@ -22,6 +22,7 @@ from lesmc.perception.certify import (
     layer_bounds,
     margin_form,
 )
+from lesmc.perception.chain import Chain, Conv
 
 
 class Small(nn.Module):
@@ -167,7 +168,7 @@ def test_interval_margin_is_below_every_sampled_margin_and_trains() -> None:
     assert ((gaps[0] <= gaps[1] + 1e-5) & (gaps[1] <= gaps[2] + 1e-5)).all()
 
 
-def strided_case() -> tuple[nn.Module, certify.Chain, np.ndarray]:
+def strided_case() -> tuple[nn.Module, Chain, np.ndarray]:
     torch.manual_seed(5)
     net = Small((2, 9, 9), [(4, 3, 1, 1), (5, 3, 2, 1), (3, 3, 2, 0)], 6)
     x = torch.rand(5, 2, 9, 9).numpy()
@@ -186,7 +187,7 @@ def test_local_patches_equal_whole_level_propagation() -> None:
         _, relaxes = layer_bounds(chain, ball)
         for i in (1, 2):
             layer = chain.layers[i]
-            assert isinstance(layer, certify.Conv)
+            assert isinstance(layer, Conv)
             n = layer.weight.shape[0] * layer.out_hw**2
             win = torch.arange(len(x)).repeat_interleave(n)
             neuron = torch.arange(n).repeat(len(x))
@@ -257,7 +258,7 @@ def test_a_ball_without_slack_is_not_grown() -> None:
     R; with the rule off, the same windows grow past it (the rule, not the bound, stops them)."""
     _, chain, x = strided_case()
     xt = torch.from_numpy(x)
-    first = certify._start(chain, certify._centre(chain, xt), None, CertifyConfig())[0].numpy()
+    first = certify._start(chain, certify.centred(chain, xt), None, CertifyConfig())[0].numpy()
     kept = certified_radius(chain, x, cfg=CertifyConfig(steps=4, grow_slack=math.inf))
     grown = certified_radius(chain, x, cfg=CertifyConfig(steps=4, grow_slack=0.0))
     assert (kept <= first * (1 - certify.SAFETY) * (1 + 1e-6)).all()
@@ -271,7 +272,7 @@ def test_payoff_model_places_the_first_ball_of_windows_with_a_payoff() -> None:
     (recomputed here with numpy from the flip distances)."""
     _, chain, x = strided_case()
     xt = torch.from_numpy(x)
-    z0 = certify._centre(chain, xt)
+    z0 = certify.centred(chain, xt)
     dist = flip_distances(chain, z0).double().numpy()
     pay = np.array([0.5, np.inf, 3.0, 0.02, 1.0])
     coef = (-0.3, -0.25, 0.3, 0.1)
@@ -305,7 +306,7 @@ def test_the_payoff_model_starts_only_the_network_it_was_fitted_on(monkeypatch) 
     assert certify.weights_digest(chain) == certify.START_MODEL_NET, refit
     assert certify.weights_digest(detect_chain(load_nets().dr, 1.5)) == certify.START_MODEL_NET
     first = chain.layers[0]
-    other = certify.Chain(
+    other = Chain(
         chain.in_shape,
         chain.subtract_mean,
         (replace(first, weight=first.weight * 1.001), *chain.layers[1:]),
@@ -332,10 +333,10 @@ def test_a_network_with_dead_filters_certifies_nothing_rather_than_nan() -> None
     quantiles are not finite. The radius is then 0 (or a real certificate), never NaN."""
     _, chain, x = strided_case()
     first = chain.layers[0]
-    assert isinstance(first, certify.Conv)
+    assert isinstance(first, Conv)
     weight = first.weight.clone()
     weight[1:] = 0
-    dead = certify.Chain(
+    dead = Chain(
         chain.in_shape, chain.subtract_mean, (replace(first, weight=weight), *chain.layers[1:])
     )
     pay = np.full(len(x), 0.5)
@@ -357,7 +358,7 @@ def test_flip_distances_set_the_first_layers_unstable_fraction() -> None:
     assert torch.equal(unstable, dist < r[:, None] * 1.0001)
     # the distance is the true one: 1.001 d along the projected weights flips the neuron
     layer = chain.layers[0]
-    assert isinstance(layer, certify.Conv)
+    assert isinstance(layer, Conv)
     k = int(dist[0].argmin())
     onehot = torch.zeros(1, *certify._shape(chain, 0))
     onehot.view(-1)[k] = 1

@@ -16,7 +16,8 @@ import torch
 from cli_run import lesmc
 from torch import nn
 
-from lesmc.perception.certify import CertifyConfig, certified_radius, margin_of
+from lesmc.perception.certify import CertifyConfig, certified_radius
+from lesmc.perception.chain import margin_of
 from lesmc.perception.cnn import LP_SIZE, load_nets
 from lesmc.perception.graphs import chain_of_ops, load_network
 

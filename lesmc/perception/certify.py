@@ -53,6 +53,7 @@ import torch
 from torch import nn
 from torch.nn import functional as F
 
+from lesmc.perception.chain import Chain, Conv, Dense, Layer, affine, centred, margin_of
 from lesmc.perception.heap import kept_heap
 from lesmc.perception.threads import all_torch_threads
 
@@ -62,42 +63,6 @@ CHUNK_FLOATS = 1 << 23  #: coefficients in flight per propagation chunk (32 MiB 
 GROUPED_FROM = 2
 #: Local transposed convolutions to fewer channels than this stack STACK patches a sample.
 STACK_BELOW, STACK = 8, 4
-
-
-@dataclass(frozen=True)
-class Conv:
-    """A convolution ``y = conv(h) + b`` (square kernel), followed by a ReLU."""
-
-    weight: torch.Tensor  # (out, in, k, k)
-    bias: torch.Tensor  # (out,)
-    stride: int
-    padding: int
-    in_hw: int
-    out_hw: int
-
-
-@dataclass(frozen=True)
-class Dense:
-    """A linear layer ``y = W h + b``; hidden ones are followed by a ReLU."""
-
-    weight: torch.Tensor  # (out, in)
-    bias: torch.Tensor  # (out,)
-
-
-Layer = Conv | Dense
-
-
-@dataclass(frozen=True)
-class Chain:
-    """A network as our bound propagation sees it.
-
-    ``x -> [x - mean(x)] -> conv, ReLU, ... -> flatten -> dense, ReLU, ... -> margin``;
-    the last Dense has one output, the decision margin (> 0: "vehicle").
-    """
-
-    in_shape: tuple[int, int, int]
-    subtract_mean: bool
-    layers: tuple[Layer, ...]
 
 
 def chain_of(net: nn.Module, t: float, subtract_mean: bool = True, detach: bool = True) -> Chain:
@@ -183,29 +148,6 @@ def detect_chain(net: nn.Module, t: float, detach: bool = True) -> Chain:
         del net.in_shape
 
 
-# ---------------------------------------------------------------- forward pass
-
-
-def margin_of(chain: Chain, x: torch.Tensor) -> torch.Tensor:
-    """The margin of ``chain`` on a batch (B, C, H, W): the network's own forward pass."""
-    h = _centre(chain, x)
-    for i, layer in enumerate(chain.layers):
-        h = _affine(layer, h)
-        if i + 1 < len(chain.layers):
-            h = torch.relu(h)
-    return h[:, 0]
-
-
-def _centre(chain: Chain, x: torch.Tensor) -> torch.Tensor:
-    return x - x.mean(dim=(1, 2, 3), keepdim=True) if chain.subtract_mean else x
-
-
-def _affine(layer: Layer, h: torch.Tensor) -> torch.Tensor:
-    if isinstance(layer, Conv):
-        return F.conv2d(h, layer.weight, layer.bias, layer.stride, layer.padding)
-    return F.linear(h.flatten(1), layer.weight, layer.bias)
-
-
 def _affine_abs(layer: Layer, r: torch.Tensor) -> torch.Tensor:
     if isinstance(layer, Conv):
         return F.conv2d(r, layer.weight.abs(), None, layer.stride, layer.padding)
@@ -217,7 +159,7 @@ def _interval_step(
 ) -> tuple[torch.Tensor, torch.Tensor]:
     """Interval bounds of ``layer(ReLU(y))`` from bounds ``lower <= y <= upper`` (IBP)."""
     hl, hu = lower.clamp(min=0), upper.clamp(min=0)
-    mid = _affine(layer, (hl + hu) / 2)
+    mid = affine(layer, (hl + hu) / 2)
     rad = _affine_abs(layer, (hu - hl) / 2)
     return mid - rad, mid + rad
 
@@ -430,7 +372,7 @@ def _first_layer(chain: Chain, ball: Ball) -> tuple[torch.Tensor, torch.Tensor]:
     if ball.subtract_mean:
         sq = sq - total.square() / ball.d
     norm = sq.clamp(min=0).sqrt()
-    mid = _affine(layer, ball.z0)
+    mid = affine(layer, ball.z0)
     rad = ball.eps.view(-1, *[1] * (mid.dim() - 1)) * norm
     return mid - rad, mid + rad
 
@@ -795,7 +737,7 @@ def _search(
     spent.
     """
     nb = len(x)
-    z0 = _centre(chain, x)
+    z0 = centred(chain, x)
     f0 = margin_of(chain, x)
     r, grow, shrink, cap, slack_at = _start(chain, z0, upper, cfg)
     best = torch.zeros(nb, dtype=torch.float64)

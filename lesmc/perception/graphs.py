@@ -36,6 +36,7 @@ from torch import nn
 from torch.nn import functional as F
 
 from lesmc.common.errors import InputError, Location, UsageError
+from lesmc.perception.chain import Chain, Conv, Dense, margin_of
 
 
 @dataclass(frozen=True)
@@ -95,8 +96,6 @@ def same_margin(net: UserNet, chain: Any, t: float) -> None:
     """The chain must compute the network's own margin (a guard against a reading of the
     file's graph that differs from its forward pass): on 64 random windows, to float32
     rounding."""
-    from lesmc.perception.certify import margin_of
-
     x = torch.rand(64, *net.in_shape, generator=torch.Generator().manual_seed(0))
     with torch.no_grad():
         logits = net.module(x)
@@ -651,8 +650,6 @@ def chain_of_ops(ops: list[Op], in_shape: tuple[int, int, int], t: float) -> Any
     convolution of its own, composed with the layer before it, or with the next
     one when it follows a ReLU.
     """
-    from lesmc.perception.certify import Chain, Dense
-
     built = _Layers(channels=in_shape[0], hw=in_shape[1])
     for i, op in enumerate(ops):
         if op.kind == "center" and i != 0:
@@ -719,8 +716,6 @@ class _Layers:
             raise Unsupported(op.node, op.op)
 
     def _conv(self, op: Op) -> None:
-        from lesmc.perception.certify import Conv
-
         if self.flat:
             raise Unsupported(op.node, op.op, " after a flatten")
         w, b, s, p = (op.params[k] for k in ("weight", "bias", "stride", "padding"))
@@ -730,8 +725,6 @@ class _Layers:
         self.hw, self.channels = out, w.shape[0]
 
     def _linear(self, op: Op) -> None:
-        from lesmc.perception.certify import Dense
-
         w, b = op.params["weight"].float(), op.params["bias"].float()
         w, b = _fold_before_linear(self.pending, w, b, self.channels, self.hw, op)
         self._append(Dense(w, b))
@@ -768,8 +761,6 @@ def _compose(w1: torch.Tensor, s1: int, w2: torch.Tensor, s2: int) -> torch.Tens
 
 def _fold_after(layer: Any, op: Op, hw: int) -> tuple[Any, int]:
     """``op`` applied to ``layer``'s output, composed into the layer."""
-    from lesmc.perception.certify import Conv, Dense
-
     if op.kind == "affine":
         scale, shift = op.params["scale"].float(), op.params["shift"].float()
         n = layer.weight.shape[0]
