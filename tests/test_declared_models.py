@@ -19,13 +19,13 @@ from oracle import brute_force
 from stonesoup_oracle import oracle_track, random_model, simulated_scene
 
 from lesmc.api import build
-from lesmc.designs.registry import make_tracker
 from lesmc.engines.check import bind_all, check
 from lesmc.language.parser import parse_spec
 from lesmc.model.lts import to_lts
 from lesmc.scene import TrackerConfig, scene_from_dict
 from lesmc.tracking.kalman import matrices
 from lesmc.tracking.monitor import track
+from lesmc.tracking.trackers import make_tracker
 
 KINDS = ("cv2d", "ca2d", "random")
 

@@ -10,10 +10,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from lesmc.designs.registry import make_tracker
 from lesmc.experiment.false_alarms import TruthStart, unattacked_taus
 from lesmc.scene import Target, load_scene
 from lesmc.tracking.monitor import track
+from lesmc.tracking.trackers import make_tracker
 
 SCENES = Path(__file__).parent / "scenes"
 

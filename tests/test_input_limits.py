@@ -30,13 +30,13 @@ from hypothesis import strategies as st
 from lesmc.cli.main import main
 from lesmc.cli.options import parse_window
 from lesmc.common.errors import InputError, LesmcError, UsageError
-from lesmc.designs.registry import make_tracker
 from lesmc.model.lts_format import lts_from_dict
 from lesmc.perception.cnn import nets_settings
 from lesmc.perception.quality import load_truth
 from lesmc.scene import scene_from_dict
 from lesmc.tracking.monitor import track
 from lesmc.tracking.targets import parse_target
+from lesmc.tracking.trackers import make_tracker
 from lesmc.video.reader import open_frames
 
 ROOT = Path(__file__).resolve().parents[1]

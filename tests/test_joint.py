@@ -20,10 +20,10 @@ from hypothesis import strategies as st
 from joint_oracle import oracle_paths
 
 import lesmc.unfold.unfold as unfold
-from lesmc.designs.registry import make_tracker
 from lesmc.model.arrays import ArrayModel
 from lesmc.scene import Detection, Frame, Scene, Target, TrackerConfig, load_scene
 from lesmc.tracking.joint import JointDesign, JointStates, JointStore, TrackTable, digest
+from lesmc.tracking.trackers import make_tracker
 
 ROOT = Path(__file__).resolve().parents[1]
 SCENES = ROOT / "tests" / "scenes"

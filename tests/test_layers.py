@@ -1,11 +1,14 @@
 """The layering holds: each package imports only the packages below it.
 
 ``LAYERS`` is the table of docs/architecture.md: a package may import the
-packages it lists (and ``common``), nothing else. Imports under
-``if TYPE_CHECKING:`` are annotations only and do not count. The table itself
-must have no cycle, and the engines are checked once more in a fresh
-interpreter, so that a module reaching a higher layer through another one is
-caught too.
+packages it lists (and ``common``), nothing else. Every import counts: at the
+top of a module, inside a function (a lazy import is still a dependency) and
+under ``if TYPE_CHECKING:`` (an annotation names a type of that layer), and so do
+the trackers the design registry declares as ``module:Class`` strings. The table
+must have no cycle, the modules' own import graph must have none either (a cycle
+hidden by a function-local import is still a cycle), and the engines are checked
+once more in a fresh interpreter, so that a module reaching a higher layer through
+another one is caught too.
 """
 
 from __future__ import annotations
@@ -32,7 +35,7 @@ LAYERS: dict[str, set[str]] = {
     "engines": {"language", "model"},
     "exporters": {"engines", "language", "model"},
     "perception": {"scene", "video"},
-    "tracking": {"model", "scene"},
+    "tracking": {"designs", "model", "scene"},
     "unfold": {"designs", "model", "scene", "tracking"},
     "results": {"designs", "engines", "language", "model", "scene", "schemas"},
     "pipeline": {"unfold", "designs", "engines", "language", "model", "results", "scene"},
@@ -66,24 +69,50 @@ def _package_of(path: Path) -> str:
     return parts[0][:-3] if len(parts) == 1 else parts[0]
 
 
-def _runtime_imports(tree: ast.Module) -> list[tuple[int, str]]:
-    """(line, module) of every absolute ``lesmc.`` import outside ``if TYPE_CHECKING:``."""
-    skipped: set[int] = set()
+def _module_name(path: Path) -> str:
+    name = ".".join(path.relative_to(ROOT).with_suffix("").parts)
+    return name.removesuffix(".__init__")
+
+
+MODULES = sorted(p for p in PACKAGE.rglob("*.py") if _package_of(p) != "__init__")
+MODULE_NAMES = {_module_name(p) for p in PACKAGE.rglob("*.py")}
+
+
+def _imports(tree: ast.Module) -> list[tuple[int, str]]:
+    """(line, module) of every absolute ``lesmc.`` import, wherever it stands (top level,
+    inside a function, under ``if TYPE_CHECKING:``). ``from lesmc.pkg import mod`` names
+    the module ``lesmc.pkg.mod`` where that is a module of the package."""
+    found: list[tuple[int, str]] = []
     for node in ast.walk(tree):
-        if isinstance(node, ast.If) and "TYPE_CHECKING" in ast.unparse(node.test):
-            skipped.update(id(n) for stmt in node.body for n in ast.walk(stmt))
-    found = []
-    for node in ast.walk(tree):
-        if id(node) in skipped:
-            continue
         if isinstance(node, ast.ImportFrom) and node.module and node.level == 0:
-            found.append((node.lineno, node.module))
+            subs = [f"{node.module}.{a.name}" for a in node.names]
+            if all(m in MODULE_NAMES for m in subs):
+                found.extend((node.lineno, m) for m in subs)
+            else:
+                found.append((node.lineno, node.module))
         elif isinstance(node, ast.Import):
             found.extend((node.lineno, a.name) for a in node.names)
     return [(line, name) for line, name in found if name.startswith("lesmc.")]
 
 
-MODULES = sorted(p for p in PACKAGE.rglob("*.py") if _package_of(p) != "__init__")
+def _declared_trackers() -> list[tuple[Path, int, str]]:
+    """The tracker modules the design registry names as ``module:Class`` strings: imported by
+    lesmc/tracking/trackers.py when a scene is unfolded, so they are its imports."""
+    from lesmc.designs import registry
+
+    where = PACKAGE / "tracking" / "trackers.py"
+    return [(where, 0, impl.partition(":")[0]) for impl in registry.implementations()]
+
+
+def _import_graph() -> nx.DiGraph:
+    """Module -> module, every edge with the line of its import."""
+    graph = nx.DiGraph()
+    edges = [(p, line, m) for p in MODULES for line, m in _imports(ast.parse(p.read_text()))]
+    for path, line, target in [*edges, *_declared_trackers()]:
+        source = _module_name(path)
+        if target in MODULE_NAMES and target != source:
+            graph.add_edge(source, target, line=line)
+    return graph
 
 
 def test_every_package_has_a_row() -> None:
@@ -99,15 +128,46 @@ def test_the_layers_have_no_cycle() -> None:
 def test_module_imports_only_lower_layers(path: Path) -> None:
     package = _package_of(path)
     allowed = LAYERS[package] | {package, "common"}
-    for line, name in _runtime_imports(ast.parse(path.read_text())):
+    for line, name in _imports(ast.parse(path.read_text())):
         target = name.split(".")[1]
         assert target in allowed, f"{path.relative_to(ROOT)}:{line}: {package} imports {name}"
 
 
 def test_a_layering_violation_is_caught() -> None:
-    """The checker itself: an engine importing the tracker fails it."""
-    tree = ast.parse("import lesmc.tracking.kalman\nif TYPE_CHECKING:\n    import lesmc.cli\n")
-    assert _runtime_imports(tree) == [(1, "lesmc.tracking.kalman")]
+    """The checker itself: an engine importing the tracker fails it, lazily or not."""
+    tree = ast.parse(
+        "import lesmc.tracking.kalman\nif TYPE_CHECKING:\n    import lesmc.cli\n"
+        "def f():\n    from lesmc.scene import io\n"
+    )
+    assert _imports(tree) == [
+        (1, "lesmc.tracking.kalman"),
+        (3, "lesmc.cli"),
+        (5, "lesmc.scene.io"),
+    ]
+
+
+def _cycles(graph: nx.DiGraph) -> list[str]:
+    """Each cycle of the module graph as ``a:LINE -> b:LINE -> ...``."""
+    return [
+        " -> ".join(f"{a}:{graph.edges[a, b]['line']}" for a, b in zip(c, [*c[1:], c[0]]))
+        for c in nx.simple_cycles(graph)
+    ]
+
+
+def test_the_modules_import_no_cycle() -> None:
+    """Issue 57: no cycle between modules, even one closed by a function-local import or a
+    ``TYPE_CHECKING`` one (the shared types move down instead: perception/chain.py)."""
+    assert not _cycles(_import_graph()), "\n".join(_cycles(_import_graph())[:10])
+
+
+def test_a_hidden_cycle_is_caught() -> None:
+    """The cycle check itself: two modules that import each other, one of them inside a
+    function, are a cycle; the real graph with that edge added has one."""
+    graph = _import_graph()
+    graph.add_edge("lesmc.perception.chain", "lesmc.perception.graphs", line=99)
+    assert any("lesmc.perception.chain:99" in c for c in _cycles(graph))
+    tree = ast.parse("def f():\n    from lesmc.perception import graphs\n")
+    assert _imports(tree) == [(2, "lesmc.perception.graphs")]
 
 
 def test_importing_the_engines_loads_no_higher_layer() -> None:

@@ -170,9 +170,9 @@ def track_cmd(
     from rich.table import Table
 
     from lesmc.common.numbers import fmt
-    from lesmc.designs.registry import make_tracker
     from lesmc.report.text import make_console
     from lesmc.tracking.monitor import track
+    from lesmc.tracking.trackers import make_tracker
     from lesmc.unfold.unfold import last_step
 
     sc = load_scene_file(scene, design, target_text, tracker_file)

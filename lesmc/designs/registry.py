@@ -10,18 +10,13 @@ the JSON schemas' enums (lesmc/schemas), the display names of tables and
 reports, the campaign's tables. Adding a design is one module and one line
 at the end of this file (or a call of :func:`register` from the user's code);
 docs/architecture.md says how. Importing this module is cheap: a tracker's
-class is imported only when a scene is unfolded with it.
+class is imported only when a scene is unfolded with it (lesmc/tracking/trackers.py),
+and this module imports nothing of lesmc: it sits below every layer that names designs.
 """
 
 from __future__ import annotations
 
-import importlib
 from dataclasses import dataclass
-from typing import TYPE_CHECKING
-
-if TYPE_CHECKING:
-    from lesmc.scene import Scene
-    from lesmc.tracking.design import Design as TrackerImpl
 
 
 @dataclass(frozen=True)
@@ -43,19 +38,6 @@ class Design:
     cost: float = (
         1.0  #: relative cost of unfolding with the tracker (campaigns start costly work first)
     )
-
-    def load(self) -> type[TrackerImpl]:
-        """The tracker's class (imported now)."""
-        impl = _DESIGNS[self.tracker].implementation
-        assert impl is not None
-        module, _, cls = impl.partition(":")
-        out: type[TrackerImpl] = getattr(importlib.import_module(module), cls)
-        return out
-
-    def make(self, scene: Scene) -> TrackerImpl:
-        """The tracker, set up for ``scene``."""
-        made: TrackerImpl = self.load()(scene)  # type: ignore[call-arg]
-        return made
 
 
 _DESIGNS: dict[str, Design] = {}
@@ -126,9 +108,17 @@ def label(name: str) -> str:
     return name if d is None else d.label
 
 
-def make_tracker(scene: Scene) -> TrackerImpl:
-    """The tracker the scene's configuration names, set up for the scene."""
-    return get(scene.tracker.design).make(scene)
+def implementation(name: str) -> str:
+    """The ``module:Class`` of the tracker design ``name`` unfolds with (declared here,
+    imported by :func:`lesmc.tracking.trackers.tracker_class` when a scene is unfolded)."""
+    impl = _DESIGNS[_DESIGNS[name].tracker].implementation
+    assert impl is not None
+    return impl
+
+
+def implementations() -> tuple[str, ...]:
+    """Every tracker's ``module:Class`` (tests/test_layers.py reads them as imports)."""
+    return tuple(d.implementation for d in _DESIGNS.values() if d.implementation is not None)
 
 
 tracker(

@@ -19,12 +19,12 @@ from typing import Any
 
 import numpy as np
 
-from lesmc.designs.registry import make_tracker
 from lesmc.language.properties import DEFAULT_MONITOR_TOLERANCE
 from lesmc.model.kernel import alarm, tau
 from lesmc.perception.quality import TruthFrame
 from lesmc.scene import Scene, Target
 from lesmc.tracking.design import Batch
+from lesmc.tracking.trackers import make_tracker
 
 
 @dataclass(frozen=True)

@@ -12,13 +12,14 @@ from dataclasses import dataclass
 import numpy as np
 
 from lesmc.common.errors import UsageError
-from lesmc.designs.registry import BASELINE, make_tracker
+from lesmc.designs.registry import BASELINE
 from lesmc.language.properties import SpecFile
 from lesmc.perception.quality import Truth, TruthFrame
 from lesmc.perception.to_scene import truth_velocity
 from lesmc.scene import Footage, Scene, TruthTrack
 from lesmc.tracking.monitor import TrackPoint, track
 from lesmc.tracking.targets import TargetSpec, place_target
+from lesmc.tracking.trackers import make_tracker
 from lesmc.video.reader import FrameSet
 
 

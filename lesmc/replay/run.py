@@ -46,13 +46,13 @@ import numpy as np
 
 from lesmc.common.errors import InputError, Location, UsageError
 from lesmc.common.memory import release
-from lesmc.designs.registry import make_tracker
 from lesmc.engines.result import status_word
 from lesmc.model import kernel
 from lesmc.perception import HISTORY, NetFiles
 from lesmc.perception.windows import cut, origins, stack
 from lesmc.scene import Detection, Frame, Scene, Target, tracker_from_dict
 from lesmc.tracking.monitor import track
+from lesmc.tracking.trackers import make_tracker
 
 if TYPE_CHECKING:
     from lesmc.common.progress import Bar

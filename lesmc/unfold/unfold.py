@@ -25,11 +25,11 @@ from collections.abc import Callable
 import numpy as np
 
 from lesmc.common.errors import UsageError
-from lesmc.designs.registry import make_tracker
 from lesmc.model.arrays import ArrayModel, Tracks
 from lesmc.model.growing import BATCH_SECONDS, Expansion, GrowingModel
 from lesmc.scene import Scene
 from lesmc.tracking.design import Batch, Design, PayloadStore
+from lesmc.tracking.trackers import make_tracker
 from lesmc.unfold.hashing import HashIndex, row_hash
 
 #: States expanded together when building eagerly: bounds the temporaries of one batch.
