@@ -1,0 +1,191 @@
+"""Issue 56 items 16, 17, 19, 20 and issue 57's export-format registry, through the real
+entry point (tests/cli_run.py) where a user meets them.
+
+Storm (stormpy) is the independent oracle for the PRISM export, as in tests/test_export.py;
+the brute force of tests/oracle.py is the independent optimum.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import random
+from fractions import Fraction
+from pathlib import Path
+
+import pytest
+from cli_run import lesmc
+from oracle import brute_force
+from test_engines import MEASURES, _bound_property, _spec
+
+from lesmc.engines.check import check_bound
+from lesmc.model.lts import LTS, to_arrays
+from lesmc.model.lts_format import save_lts
+from lesmc.model.random_models import RandomModelConfig, random_lts
+
+ROOT = Path(__file__).resolve().parents[1]
+TINY = ROOT / "tests" / "golden" / "tiny"
+
+#: The smallest normal double.
+SMALLEST_NORMAL = 2.0**-1022
+
+
+def _no_traceback(r: object) -> None:
+    assert "Traceback" not in getattr(r, "stderr", ""), getattr(r, "stderr", "")
+
+
+# ----------------------------------------------------------- item 16: PRISM rewards
+
+
+def _shrunk(payoff: float, rng: random.Random, shift: int | None) -> float:
+    """``payoff`` times a power of two, never below the smallest normal double: ``shift``
+    for every transition, or (None) one drawn per transition among 1, 2^-64, 2^-300 and
+    the smallest power that keeps the payoff normal."""
+    if payoff == 0.0:
+        return 0.0
+    deepest = math.frexp(payoff)[1] - 1 + 1022  # payoff * 2^-deepest in [2^-1022, 2^-1021)
+    e = min(shift, deepest) if shift is not None else rng.choice([0, 64, 300, deepest])
+    out = math.ldexp(payoff, -e)
+    assert out >= SMALLEST_NORMAL
+    return out
+
+
+def _tiny_model(seed: int) -> tuple[LTS, tuple]:
+    """A random model whose payoffs reach down to the smallest normal double, and a
+    property (objective payoff or payoff.mean, any constraint) bound on it."""
+    rng = random.Random(seed)
+    cfg = RandomModelConfig(
+        steps=rng.randint(3, 6),
+        width=rng.randint(2, 4),
+        branching=(1, rng.randint(2, 4)),
+        dim=rng.randint(1, 2),
+        halt_prob=rng.choice([0.0, 0.1]),
+        covariance=True,
+        tree=rng.random() < 0.5,
+        integer_values=rng.random() < 0.3,
+    )
+    lts = random_lts(cfg, seed)
+    low = min((t.payoff for t in lts.transitions() if t.payoff > 0), default=1.0)
+    shift = rng.choice([None, math.frexp(low)[1] - 1 + 1022, 63, 1000])
+    trans = [
+        dataclasses.replace(t, payoff=_shrunk(t.payoff, rng, shift)) for t in lts.transitions()
+    ]
+    model = LTS.from_parts(list(lts.states()), trans, lts.initial, lts.original, lts.components)
+    e = model.end
+    lo = rng.randint(1, 2)
+    hi = rng.randint(lo, e)
+    end = rng.randint(hi, e)
+    b = rng.randint(0, end)
+    obj = rng.choice(["payoff", "payoff", "payoff.mean"])
+    con = rng.choice(MEASURES).format(a=rng.randint(0, b), b=b)
+    op = rng.choice([">", ">=", "<", "<="])
+    norm = rng.choice(["1", "2", "inf"])
+    monitor = rng.choice(["", "", "monitor uncertainty tolerance 0.2"])
+    return model, (lo, hi, end, obj, con, op, norm, monitor)
+
+
+def _storm_prism(program: Path) -> Fraction | float:
+    """Storm's R{"payoff"}min=? [F "violated"] on the PRISM file, exact rational mode."""
+    stormpy = pytest.importorskip("stormpy", reason="stormpy (Storm's bindings) is a test extra")
+    prism = stormpy.parse_prism_program(str(program))
+    props = stormpy.parse_properties('R{"payoff"}min=? [F "violated"]', prism)
+    model = stormpy.build_model[stormpy.Rational](prism, props)
+    value = stormpy.model_checking(model, props[0]).get_value(model.initial_states[0])
+    return value if isinstance(value, float) else Fraction(str(value))
+
+
+def _assert_storm_is(storm: Fraction | float, want: float, steps: int) -> None:
+    """Storm's exact optimum against a float one: equal up to the rounding of the float's
+    path sums (at most ``steps`` roundings, each within 2^-53 of the sum, or 2^-1074
+    absolute where the sums are subnormal)."""
+    if math.isinf(want) or isinstance(storm, float):
+        assert isinstance(storm, float) and math.isinf(storm) and math.isinf(want)
+        return
+    slack = Fraction(steps + 1, 2**53) * max(storm, Fraction(want)) + Fraction(steps + 1, 2**1074)
+    assert abs(storm - Fraction(want)) <= slack, (storm, want)
+
+
+def _export_and_read(tmp: Path, seed: int) -> tuple[str, Fraction | float, float, float]:
+    """The random model ``seed`` saved as .lts, exported with `lesmc export --format prism`
+    through the CLI, read by Storm; also the brute force's and lesmc check's optima."""
+    model, params = _tiny_model(seed)
+    bp = _bound_property(model, params, random.Random(seed).random())
+    truth = brute_force(model, bp).optimum
+    got = check_bound(to_arrays(model), bp).optimum
+    mine = math.inf if got is None else got
+    lts, spec, out = tmp / f"m{seed}.lts", tmp / f"p{seed}.spec", tmp / f"m{seed}.prism"
+    save_lts(model, lts)
+    spec.write_text(_spec(params, bp.bound) + "\n")
+    r = lesmc("export", str(lts), "--format", "prism", "--spec", str(spec), "-o", str(out))
+    _no_traceback(r)
+    assert r.returncode == 0, r.stderr
+    return out.read_text(), _storm_prism(out), truth, mine
+
+
+def test_prism_rewards_down_to_the_smallest_normal_double_read_by_storm(tmp_path: Path) -> None:
+    """Item 16 through the CLI: a reward whose exact fraction needs a denominator of 2^63 or
+    more (Storm: "expecting <no 64-bit integer overflow>" on the old export) is read by
+    Storm's PRISM parser, in exact mode, to the brute force's optimum and lesmc check's."""
+    smallest, wide = math.inf, 0
+    for seed in (1002, 1003, 1005, 1007):  # optima 0.87, 0, 5e-302, 2e-307
+        text, storm, truth, mine = _export_and_read(tmp_path, seed)
+        assert mine == pytest.approx(truth, rel=1e-12) or mine == truth
+        _assert_storm_is(storm, truth, 8)
+        rewards = [r for r in _rewards(text) if r != 0]
+        smallest = min([smallest, *rewards])
+        wide += sum(q.denominator >= 2**63 for q in rewards)
+    assert wide > 0 and smallest < 2 * Fraction(SMALLEST_NORMAL)  # the cases are exercised
+
+
+def _rewards(program: str) -> list[Fraction]:
+    """Each reward of a PRISM program, evaluated exactly here (p/q, m*pow(2.0,e), decimals)."""
+    import re
+
+    out = []
+    for lit in re.findall(r"\[a\d+\] s=\d+ : ([^;]*);", program):
+        m = re.fullmatch(r"(-?\d+)\*pow\(2\.0,(-?\d+)\)", lit)
+        if m:
+            out.append(Fraction(int(m[1])) * Fraction(2) ** int(m[2]))
+        else:
+            num, _, den = lit.partition("/")
+            out.append(Fraction(num) / Fraction(den or "1"))
+    return out
+
+
+def test_sixty_random_prism_exports_with_tiny_rewards_are_storms_optimum(
+    tmp_path: Path,
+) -> None:
+    """Item 16's done-when: 60 random models whose rewards reach down to 2^-1022, exported
+    to PRISM (the export's own function: the CLI's startup sixty times would dominate; the
+    test above runs the CLI), all read by Storm in exact mode to the brute force's optimum
+    and to lesmc check's."""
+    from lesmc.export.prism import to_prism
+
+    smallest, wide, finite = math.inf, 0, 0
+    for seed in range(1000, 1060):
+        model, params = _tiny_model(seed)
+        bp = _bound_property(model, params, random.Random(seed).random())
+        truth = brute_force(model, bp).optimum
+        got = check_bound(to_arrays(model), bp).optimum
+        assert (math.isinf(truth) and got is None) or got == pytest.approx(truth, rel=1e-12)
+        text, _ = to_prism(to_arrays(model), bp)
+        path = tmp_path / f"m{seed}.prism"
+        path.write_text(text)
+        _assert_storm_is(_storm_prism(path), truth, model.end + 1)
+        rewards = [r for r in _rewards(text) if r != 0]
+        smallest = min([smallest, *rewards])
+        wide += sum(q.denominator >= 2**63 for q in rewards)
+        finite += 0 < truth < math.inf
+    assert smallest < 2 * Fraction(SMALLEST_NORMAL) and wide > 100 and finite >= 10
+
+
+def test_prism_number_writes_what_storm_reads_exactly() -> None:
+    """The literal's value is the double's, and no integer in it exceeds 64 bits."""
+    import re
+
+    from lesmc.export.prism import prism_number
+
+    for x in (2.0, 0.5, 0.1, 3401241647976839 / 2**63, SMALLEST_NORMAL, 5e-324, 1e300, 2.0**70):
+        lit = prism_number(x)
+        assert _rewards(f"[a0] s=0 : {lit};") == [Fraction(x)]
+        assert all(int(n) < 2**63 for n in re.findall(r"\d+", lit))
