@@ -189,3 +189,34 @@ def test_prism_number_writes_what_storm_reads_exactly() -> None:
         lit = prism_number(x)
         assert _rewards(f"[a0] s=0 : {lit};") == [Fraction(x)]
         assert all(int(n) < 2**63 for n in re.findall(r"\d+", lit))
+
+
+# ----------------------------------------------------------- item 19: fault checks counted
+
+
+def test_too_many_fault_checks_are_refused_before_any_check(tmp_path: Path) -> None:
+    """Item 19: 40 faults with budget 2 on a window of 3 steps (specs/resilience.spec: 6..8)
+    need 40*3 + C(40,2)*3*3 = 7140 checks, more than 5000: refused at once with the count,
+    located at the faults block (the old code ran for two minutes before saying so)."""
+    import time
+
+    faults = tmp_path / "f40.spec"
+    lines = [f"  fault f{i}: outage {1 + i % 3}" for i in range(40)]
+    faults.write_text("faults {\n  budget 2\n" + "\n".join(lines) + "\n}\n")
+    want = 40 * 3 + math.comb(40, 2) * 3 * 3
+    t0 = time.monotonic()
+    r = lesmc("check", "tests/scenes/rq1_platoon.json", "specs/resilience.spec",
+              "--faults", str(faults), timeout=60)  # fmt: skip
+    _no_traceback(r)
+    assert r.returncode == 2 and time.monotonic() - t0 < 30, r.stderr
+    assert f"{faults}:1:1: these 40 faults with budget 2 need {want} checks" in r.stderr
+    # a from A..B range narrows the count: 40 single faults at 1 step each are 40 checks
+    one = [f"  fault f{i}: outage 1 from 6..6" for i in range(40)]
+    faults.write_text("faults {\n  budget 1\n" + "\n".join(one) + "\n}\n")
+    from lesmc.language.parser import parse_spec
+    from lesmc.language.semantics import bind
+    from lesmc.pipeline.faults import count_checks
+
+    both = parse_spec((ROOT / "specs" / "resilience.spec").read_text() + faults.read_text())
+    bp = bind(both, both.properties[0], 10, ("x", "y", "vx", "vy"), True)
+    assert both.faults is not None and count_checks(both.faults, bp) == 40
