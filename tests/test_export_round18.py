@@ -220,3 +220,84 @@ def test_too_many_fault_checks_are_refused_before_any_check(tmp_path: Path) -> N
     both = parse_spec((ROOT / "specs" / "resilience.spec").read_text() + faults.read_text())
     bp = bind(both, both.properties[0], 10, ("x", "y", "vx", "vy"), True)
     assert both.faults is not None and count_checks(both.faults, bp) == 40
+
+
+# ----------------------------------------------------------- item 20: .npz details
+
+
+def _npz_members(tmp: Path) -> list[tuple[str, bytes]]:
+    """The tiny model's binary form, as (member name, .npy bytes) in archive order."""
+    import zipfile
+
+    from lesmc.model.lts_binary import save_lts_npz
+    from lesmc.model.lts_format import load_lts
+
+    good = tmp / "good.npz"
+    save_lts_npz(load_lts(TINY / "model.lts"), good)
+    with zipfile.ZipFile(good) as z:
+        return [(i.filename, z.read(i)) for i in z.infolist()]
+
+
+def _zip(path: Path, members: list[tuple[str, bytes]]) -> Path:
+    import warnings
+    import zipfile
+
+    with warnings.catch_warnings():  # zipfile warns about a duplicate name; it is the point
+        warnings.simplefilter("ignore")
+        with zipfile.ZipFile(path, "w", zipfile.ZIP_STORED) as z:
+            for name, data in members:
+                z.writestr(name, data)
+    return path
+
+
+def _npy(array: object) -> bytes:
+    import io
+
+    import numpy as np
+
+    buf = io.BytesIO()
+    np.save(buf, array)
+    return buf.getvalue()
+
+
+def _check_npz(path: Path) -> object:
+    return lesmc("check", str(path), str(TINY / "properties.spec"))
+
+
+def test_npz_duplicate_members_big_endian_and_crafted_shapes_are_named(tmp_path: Path) -> None:
+    """Item 20 through the CLI: an archive holding payoff.npy twice (all NaN, then valid:
+    the last used to win) is refused; a big-endian payoff is named as such (not "must be
+    float64, got float64"); a crafted shape names the member, not numpy's parser."""
+    import io
+
+    import numpy as np
+
+    members = _npz_members(tmp_path)
+    payoff = dict(members)["payoff.npy"]
+    n = len(np.load(io.BytesIO(payoff)))
+    nan = _npy(np.full(n, np.nan))
+    at = [m for m, _ in members].index("payoff.npy")
+    dup = _zip(tmp_path / "dup.npz", [*members[:at], ("payoff.npy", nan), *members[at:]])
+    r = _check_npz(dup)
+    _no_traceback(r)
+    assert r.returncode == 2, (r.returncode, r.stdout, r.stderr)
+    assert f"{dup}: array 'payoff': the archive holds it twice" in r.stderr
+    # the same archive without the duplicate checks (the fault was the duplicate)
+    assert _check_npz(_zip(tmp_path / "ok.npz", members)).returncode in (0, 1)
+
+    big = np.load(io.BytesIO(payoff)).astype(">f8")
+    swapped = [(m, _npy(big) if m == "payoff.npy" else d) for m, d in members]
+    r = _check_npz(_zip(tmp_path / "big.npz", swapped))
+    _no_traceback(r)
+    assert r.returncode == 2 and "got float64 big-endian (" in r.stderr, r.stderr
+    assert "must be float64 little-endian" in r.stderr or "must be float64 big" in r.stderr
+
+    for shape in ("(f(),)", "(2**70,)", "(-1,)"):
+        h = "{'descr': '<f8', 'fortran_order': False, 'shape': " + shape + ", }"
+        h += " " * (-(10 + len(h) + 1) % 64) + "\n"
+        npy = b"\x93NUMPY\x01\x00" + len(h).to_bytes(2, "little") + h.encode() + bytes(8)
+        crafted = [(m, npy if m == "payoff.npy" else d) for m, d in members]
+        r = _check_npz(_zip(tmp_path / "shape.npz", crafted))
+        _no_traceback(r)
+        assert r.returncode == 2 and "array 'payoff': its .npy header is not numpy's" in r.stderr
+        assert "ast." not in r.stderr and "0x" not in r.stderr, r.stderr
