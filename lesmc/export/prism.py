@@ -18,10 +18,19 @@ from __future__ import annotations
 
 import math
 from fractions import Fraction
+from pathlib import Path
 from typing import Any
 
 from lesmc.engines.space import build_space
-from lesmc.export.drn import DRN_MAX_PREFIXES, exact_number, not_exported_line, prefix_tree
+from lesmc.export.drn import (
+    DRN_MAX_PREFIXES,
+    REACH_PROPERTY,
+    exact_number,
+    not_exported_line,
+    prefix_tree,
+    write_mdp,
+)
+from lesmc.export.formats import Request
 from lesmc.language.semantics import BoundProperty
 from lesmc.model.arrays import ArrayModel
 
@@ -50,6 +59,11 @@ def prism_number(x: float) -> str:
     return f"{m}*pow(2.0,{e})"
 
 
+def write_prism(model: ArrayModel, path: str | Path, request: Request) -> dict[str, object]:
+    """The PRISM writer of the registry (lesmc/export/formats.py)."""
+    return write_mdp(model, path, request, "prism", to_prism)
+
+
 def to_prism(
     cm: ArrayModel, bp: BoundProperty, max_prefixes: int = DRN_MAX_PREFIXES, strict: bool = False
 ) -> tuple[str, dict[str, Any]]:
@@ -62,7 +76,7 @@ def to_prism(
         "property": bp.name,
         "not_exported": not_exported,
         "prism": {"states": len(choices), "choices": sum(map(len, choices))},
-        "prism_property": PRISM_PROPERTY,
+        "prism_property": PRISM_PROPERTY if rewards else REACH_PROPERTY,
     }
     return _program(choices, labels, rewards, bp.name), facts
 
@@ -73,7 +87,9 @@ def _program(
     n = len(choices)
     lines = [
         f"// lesmc: the attacker's choices for property '{name}' of a <PO>2-LTS;",
-        f"// {PRISM_PROPERTY} is lesmc's optimum",
+        f"// {PRISM_PROPERTY} is lesmc's optimum"
+        if rewards
+        else f"// no reward model (a maximum objective): {REACH_PROPERTY} > 0 iff a path violates",
         "mdp",
         "",
         "module attack",
