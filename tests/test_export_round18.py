@@ -301,3 +301,213 @@ def test_npz_duplicate_members_big_endian_and_crafted_shapes_are_named(tmp_path:
         _no_traceback(r)
         assert r.returncode == 2 and "array 'payoff': its .npy header is not numpy's" in r.stderr
         assert "ast." not in r.stderr and "0x" not in r.stderr, r.stderr
+
+
+# ----------------------------------------------------------- item 17: export's words
+
+
+def _storm_drn(path: Path, query: str) -> Fraction | float:
+    """Storm's answer to ``query`` on a DRN file, exact rational mode."""
+    stormpy = pytest.importorskip("stormpy", reason="stormpy (Storm's bindings) is a test extra")
+    model = stormpy.build_model_from_drn[stormpy.Rational](str(path))
+    value = stormpy.model_checking(model, stormpy.parse_properties(query)[0])
+    got = value.get_value(model.initial_states[0])
+    return got if isinstance(got, float) else Fraction(str(got))
+
+
+def test_help_and_behaviour_agree_on_objectives_that_are_no_sum(tmp_path: Path) -> None:
+    """Item 17: the help no longer says such properties "are refused"; it says what the
+    command does (writes the MDP without the reward model, with a note; --strict
+    refuses), and the query the command then names is one Storm answers on the file: the
+    tiny model's resilience optimum is 5 by hand (tests/golden/README.md), finite, so
+    some path violates: Pmax > 0. (The reward query fails there: no reward model.)"""
+    import json
+
+    help_text = lesmc("export", "--help").stdout
+    assert "are refused" not in help_text
+    flat = " ".join(help_text.split())
+    assert "written without the reward model" in flat and "--strict refuses it" in flat
+    out = tmp_path / "r.drn"
+    r = lesmc("export", str(TINY / "model.lts"), "--format", "drn", "--spec",
+              str(TINY / "properties.spec"), "--property", "resilience", "-o", str(out),
+              "--json")  # fmt: skip
+    _no_traceback(r)
+    assert r.returncode == 0 and "the reward model is not" in r.stderr, r.stderr
+    doc = json.loads(r.stdout)
+    assert doc["storm_property"] == doc["prism_property"] == 'Pmax=? [F "violated"]'
+    assert doc["storm_property"] in r.stderr and doc["storm_property"] in out.read_text()
+    assert _storm_drn(out, doc["storm_property"]) > 0
+    r = lesmc("export", str(TINY / "model.lts"), "--format", "drn", "--spec",
+              str(TINY / "properties.spec"), "--property", "resilience", "-o",
+              str(tmp_path / "s.drn"), "--strict")  # fmt: skip
+    _no_traceback(r)
+    assert r.returncode == 2 and not (tmp_path / "s.drn").exists()
+
+
+def test_a_scene_is_exported_for_its_propertys_window(tmp_path: Path) -> None:
+    """Item 17: with --spec, a scene needs no --window (the property's attack window is
+    used: the same file as with --window 6..8); a --window that contradicts the property
+    is refused, located at its attack-window clause, and nothing is written."""
+    scene = ROOT / "tests" / "scenes" / "rq4_merge.json"
+    spec = ROOT / "tests" / "scenes" / "rq4_merge.spec"
+    line = next(
+        i for i, t in enumerate(spec.read_text().splitlines(), 1) if "attack window 6..8" in t
+    )
+    column = spec.read_text().splitlines()[line - 1].index("attack") + 1
+    args = ["export", str(scene), "--format", "prism", "--spec", str(spec),
+            "--property", "robustness"]  # fmt: skip
+    r = lesmc(*args, "-o", str(tmp_path / "a.prism"))
+    _no_traceback(r)
+    assert r.returncode == 0, r.stderr
+    r = lesmc(*args, "--window", "6..8", "-o", str(tmp_path / "b.prism"))
+    assert r.returncode == 0, r.stderr
+    assert (tmp_path / "a.prism").read_bytes() == (tmp_path / "b.prism").read_bytes()
+    r = lesmc(*args, "--window", "5..8", "-o", str(tmp_path / "c.prism"))
+    _no_traceback(r)
+    assert r.returncode == 2 and not (tmp_path / "c.prism").exists()
+    assert f"{spec}:{line}:{column}: --window 5..8 contradicts the attack window 6..8" in r.stderr
+    # without --spec a scene still needs --window
+    r = lesmc("export", str(scene), "--format", "dot", "-o", str(tmp_path / "d.dot"))
+    assert r.returncode == 2 and "give --window" in r.stderr
+
+
+def test_the_states_printed_are_the_files(tmp_path: Path) -> None:
+    """Item 17: "wrote tiny.drn (drn, N states" with N the file header's @nr_states (the
+    MDP's), and for PRISM the number of values of its variable s."""
+    import re
+
+    for fmt in ("drn", "prism"):
+        out = tmp_path / f"tiny.{fmt}"
+        r = lesmc("export", str(TINY / "model.lts"), "--format", fmt, "--spec",
+                  str(TINY / "properties.spec"), "--property", "robustness",
+                  "-o", str(out))  # fmt: skip
+        _no_traceback(r)
+        assert r.returncode == 0, r.stderr
+        text = out.read_text()
+        if fmt == "drn":
+            n = int(text.split("@nr_states\n")[1].split()[0])
+        else:
+            n = int(re.search(r"s : \[0\.\.(\d+)\]", text)[1]) + 1  # type: ignore[index]
+        assert f"wrote {out} ({fmt}, {n} states" in r.stdout + r.stderr
+        assert n != 13  # the model's states: the test tells the two apart
+
+
+# ----------------------------------------------------------- issue 57: the format registry
+
+
+def test_the_docs_table_is_the_registry() -> None:
+    from lesmc.export import formats
+
+    page = (ROOT / "docs" / "export.md").read_text()
+    marker = "<!-- generated: lesmc.export.formats.docs_table() -->\n"
+    assert marker in page
+    table = page.split(marker, 1)[1].split("\n\n", 1)[0]
+    assert table == formats.docs_table()
+    rows = [r for r in table.splitlines()[2:]]
+    assert [r.split("`")[1] for r in rows] == list(formats.names())
+
+
+#: Where the format names were spelled before the registry (issue 57): the command line,
+#: the API, the package's names, the schemas.
+_SPELLED = [
+    *sorted((ROOT / "lesmc" / "cli").glob("*.py")),
+    ROOT / "lesmc" / "api.py",
+    ROOT / "lesmc" / "__init__.py",
+    *sorted((ROOT / "lesmc" / "schemas").glob("*")),
+]
+
+
+def test_format_names_appear_nowhere_but_the_registry() -> None:
+    """No module of the command line, the API or the schemas spells a format name (the
+    format writers' own modules, lesmc/export/*.py, speak of their format)."""
+    import re
+
+    from lesmc.export import formats
+
+    names = "|".join(map(re.escape, formats.names()))
+    pattern = re.compile(rf"(?<![\w-])['\"]?({names})['\"]?(?![\w-])", re.IGNORECASE)
+    found = []
+    for path in _SPELLED:
+        if path.is_dir() or path.suffix not in (".py", ".json"):
+            continue
+        for i, line in enumerate(path.read_text().splitlines(), 1):
+            for m in pattern.finditer(line):
+                word = m.group(0)
+                if word.strip("'\"").lower() == "json" and not (
+                    word.startswith(("'", '"')) and word.endswith(("'", '"'))
+                ):
+                    continue  # --json, .json, JSON the word: not the format's name
+                found.append(f"{path.relative_to(ROOT)}:{i}: {line.strip()}")
+    assert found == []
+
+
+def test_the_count_can_fail() -> None:
+    """The scan above finds a name where one is spelled."""
+    import re
+
+    from lesmc.export import formats
+
+    names = "|".join(map(re.escape, formats.names()))
+    pattern = re.compile(rf"(?<![\w-])['\"]?({names})['\"]?(?![\w-])", re.IGNORECASE)
+    assert pattern.search('FORMATS = ("dot", "graphml")')
+    assert pattern.search("--format drn|prism")
+    assert not pattern.search("prism_property and lesmc.export.graphs")
+
+
+def test_a_registered_format_reaches_the_cli_schema_and_api(tmp_path: Path) -> None:
+    """Adding a format is one module and one registry line: a toy format registered in a
+    fresh interpreter is a --format choice, takes only what it declares, writes through
+    the real entry point, and is in the schema's enum."""
+    import json
+    import os
+    import subprocess
+    import sys
+
+    module = tmp_path / "toyformat.py"
+    module.write_text(
+        "def write(model, path, request):\n"
+        "    open(path, 'w').write(f'{model.n_states} states\\n')\n"
+        "    return {}\n"
+    )
+    run = (
+        "import sys\n"
+        "from lesmc.export import formats\n"
+        "formats.register(formats.ExportFormat('toy', '.toy', 'a test', 'states counted', "
+        "'toyformat:write'))\n"
+        "from lesmc.cli.entry import main\n"
+        "sys.argv = ['lesmc', *sys.argv[1:]]\n"
+        "main()\n"
+    )
+    env = {**os.environ, "PYTHONPATH": f"{tmp_path}{os.pathsep}{ROOT}"}
+
+    def toy(*args: str) -> subprocess.CompletedProcess[str]:
+        return subprocess.run([sys.executable, "-c", run, *args], capture_output=True,
+                              text=True, env=env, cwd=ROOT, timeout=120)  # fmt: skip
+
+    out = tmp_path / "m.toy"
+    r = toy("export", str(TINY / "model.lts"), "--format", "toy", "-o", str(out), "--json")
+    _no_traceback(r)
+    assert r.returncode == 0, r.stderr
+    assert out.read_text() == "13 states\n"
+    doc = json.loads(r.stdout)
+    assert doc["export_format"] == "toy"
+    check = run.split("from lesmc.cli")[0] + (
+        "import json\n"
+        "from lesmc.schemas import schema, errors\n"
+        "s = schema('export')\n"
+        "print(json.dumps(errors(json.loads(sys.stdin.read()), s, s)))\n"
+    )
+    got = subprocess.run([sys.executable, "-c", check], input=r.stdout, capture_output=True,
+                         text=True, env=env, cwd=ROOT, timeout=120)  # fmt: skip
+    assert got.returncode == 0 and json.loads(got.stdout) == [], got.stderr + got.stdout
+    r = toy("export", "--help")
+    assert "toy" in r.stdout and "a test: states counted" in r.stdout
+    r = toy("export", str(TINY / "model.lts"), "--format", "toy", "-o", str(out),
+            "--max-nodes", "3")  # fmt: skip
+    assert r.returncode == 2 and "--max-nodes limits dot, drn or prism only" in r.stderr
+    from lesmc.schemas import errors, schema
+
+    plain = schema("export")  # here, without the toy: the same document is refused
+    assert errors(doc, plain, plain) != []
+    enum = plain["$defs"]["export_formats"]["enum"]
+    assert enum == ["dot", "graphml", "json", "drn", "prism"]

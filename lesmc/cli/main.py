@@ -97,7 +97,7 @@ def cli() -> None:
                                              counterexamples through the real detector
       lesmc reduce knapsack ITEMS.csv ...    build a knapsack instance as a model
       lesmc export MODEL.lts --format FORMAT -o OUT
-                                             the model for Storm, PRISM, Graphviz, Gephi
+                                             the model for model checkers and graph tools
       lesmc import mot DET.txt -o SCENE.json [--gt GT.txt --track ID]
                                              your detections (MOTChallenge) as a scene
       ... --tracker FILE, --detector FILE    your tracker, your networks (docs/own-system.md)
