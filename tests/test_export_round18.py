@@ -158,7 +158,10 @@ def test_sixty_random_prism_exports_with_tiny_rewards_are_storms_optimum(
     """Item 16's done-when: 60 random models whose rewards reach down to 2^-1022, exported
     to PRISM (the export's own function: the CLI's startup sixty times would dominate; the
     test above runs the CLI), all read by Storm in exact mode to the brute force's optimum
-    and to lesmc check's."""
+    and to lesmc check's; their DRN too."""
+    from test_export import storm_optimum
+
+    from lesmc.export.drn import to_drn
     from lesmc.export.prism import to_prism
 
     smallest, wide, finite = math.inf, 0, 0
@@ -172,6 +175,8 @@ def test_sixty_random_prism_exports_with_tiny_rewards_are_storms_optimum(
         path = tmp_path / f"m{seed}.prism"
         path.write_text(text)
         _assert_storm_is(_storm_prism(path), truth, model.end + 1)
+        drn, _ = to_drn(to_arrays(model), bp)  # the DRN keeps p/q: Storm reads it exactly
+        _assert_storm_is(storm_optimum(drn, tmp_path), truth, model.end + 1)
         rewards = [r for r in _rewards(text) if r != 0]
         smallest = min([smallest, *rewards])
         wide += sum(q.denominator >= 2**63 for q in rewards)
