@@ -31,11 +31,13 @@ from bench_unfold import dense_scene
 
 from lesmc.api import export_model, load_scene
 from lesmc.common.errors import LesmcError
+from lesmc.exporters import formats
 from lesmc.language.parser import parse_spec
 from lesmc.scene import save_scene
 from lesmc.unfold.unfold import build_model
 
-FORMATS = ("json", "graphml", "dot", "drn", "prism")
+FORMATS = formats.names()  # every registered format
+MDP = formats.where(lambda f: f.states_property)  # the ones that export a property
 
 
 def _engine(scene_file: Path, window: tuple[int, int], d: Path) -> float:
@@ -55,7 +57,7 @@ def _engine(scene_file: Path, window: tuple[int, int], d: Path) -> float:
         out = d / f"m.{fmt}"
         t0 = time.perf_counter()
         try:
-            export_model(model, out, fmt, spec if fmt in ("drn", "prism") else None)
+            export_model(model, out, fmt, spec if fmt in MDP else None)
         except LesmcError as exc:  # a size limit: said, not hidden
             print(f"engine  write {fmt:8s}  refused: {exc.message}")
             continue
@@ -86,7 +88,7 @@ def _wall(scene_file: Path, window: str, d: Path) -> None:
         "subject to dist.sum(0..end) > 120 holds if optimum > 3 on x, y }\n"
     )
     for fmt in FORMATS:
-        extra = ["--spec", str(spec)] if fmt in ("drn", "prism") else []
+        extra = ["--spec", str(spec)] if fmt in MDP else []
         args = ["export", str(scene_file), "--window", window, "--format", fmt, *extra]
         secs, why = run(*args, "-o", str(d / f"w.{fmt}"))
         shown = f"refused: {why}" if why else f"{secs:6.2f} s {secs / build:5.1f}x"

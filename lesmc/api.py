@@ -195,71 +195,26 @@ def export_model(
     roles: dict[str, list[int]] | None = None,
     max_nodes: int | None = None,
 ) -> dict[str, object]:
-    """Write ``model`` as ``fmt`` (dot, graphml, json, drn, prism) to ``path``
+    """Write ``model`` as ``fmt`` (a format of lesmc/exporters/formats.py) to ``path``
     (docs/export.md).
 
-    ``drn`` and ``prism`` export ``prop`` of ``spec`` (``strict``: refuse a dist.max
-    objective); ``roles`` marks paths (rows) in dot and graphml; ``max_nodes`` limits
-    dot's states and the MDP's path prefixes. Returns facts about what was written
-    (``lesmc export --json``).
+    A format that states a property exports ``prop`` of ``spec`` (``strict``: refuse an
+    objective that is no sum of rewards); ``roles`` marks paths (rows) where the format
+    marks paths; ``max_nodes`` bounds what the format limits. Returns facts about what
+    was written (``lesmc export --json``).
     """
-    from lesmc.common.files import atomic_open, write_json
-    from lesmc.exporters.drn import DRN_MAX_PREFIXES, to_drn
-    from lesmc.exporters.graphs import DOT_MAX_NODES, graphml_lines, to_dot, write_lines
-    from lesmc.model.lts_format import lts_document
+    from lesmc.exporters import formats
+    from lesmc.exporters.request import Request
 
     _need(isinstance(model, ArrayModel), "model must be a model (lesmc.load_model)", model)
-    _need(
-        fmt in ("dot", "graphml", "json", "drn", "prism"),
-        "fmt: dot, graphml, json, drn or prism",
-        fmt,
-    )
+    _need(fmt in formats.names(), f"fmt: {formats.spelled()}", fmt)
     _need(spec is None or isinstance(spec, SpecFile), "spec must be a SpecFile or None", spec)
     ok = roles is None or (
         isinstance(roles, dict) and all(isinstance(v, list) for v in roles.values())
     )
     _need(ok, "roles must map role names to lists of model rows", roles)
-    facts: dict[str, object] = {"export_format": fmt}
-    if fmt == "json":  # JSON whatever the name (save_lts would choose .npz's binary form)
-        write_json(path, lts_document(model))
-    elif fmt == "dot":
-        text = to_dot(model, roles, max_nodes or DOT_MAX_NODES)
-        with atomic_open(path) as fh:
-            fh.write(text)
-    elif fmt == "graphml":
-        with atomic_open(path) as fh:
-            write_lines(graphml_lines(model, roles), fh)
-    elif fmt in ("drn", "prism"):
-        from lesmc.exporters.prism import to_prism
-
-        bp = _drn_property(model, spec, prop, fmt)
-        write = to_drn if fmt == "drn" else to_prism
-        text, mdp = write(model, bp, max_nodes or DRN_MAX_PREFIXES, strict)
-        with atomic_open(path) as fh:
-            fh.write(text)
-        facts |= mdp
-    else:
-        raise UsageError(f"unknown export format {fmt!r}: dot, graphml, json, drn or prism")
-    return facts
-
-
-def _drn_property(
-    model: ArrayModel, spec: SpecFile | None, prop: str | None, fmt: str = "drn"
-) -> Any:
-    """The one property of ``spec`` a DRN or PRISM export states (``prop``, or the only one)."""
-    from lesmc.engines.check import bind_all
-
-    if spec is None:
-        raise UsageError(f"--format {fmt} exports a property: give --spec (and --property)")
-    bound = bind_all(model, [spec])
-    if prop is not None:
-        bound = [b for b in bound if b.name == prop]
-        if not bound:
-            raise UsageError(f"no property '{prop}' in {spec.path}")
-    elif len(bound) > 1:
-        names = ", ".join(b.name for b in bound)
-        raise UsageError(f"{spec.path} has several properties ({names}): choose with --property")
-    return bound[0]
+    request = Request(spec, prop, strict, roles, max_nodes)
+    return {"export_format": fmt} | formats.get(fmt).write(model, path, request)
 
 
 def perceive(

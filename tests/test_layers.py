@@ -4,7 +4,8 @@
 packages it lists (and ``common``), nothing else. Every import counts: at the
 top of a module, inside a function (a lazy import is still a dependency) and
 under ``if TYPE_CHECKING:`` (an annotation names a type of that layer), and so do
-the trackers the design registry declares as ``module:Class`` strings. The table
+the modules the registries declare as ``module:name`` strings (trackers, export
+writers). The table
 must have no cycle, the modules' own import graph must have none either (a cycle
 hidden by a function-local import is still a cycle), and the engines are checked
 once more in a fresh interpreter, so that a module reaching a higher layer through
@@ -28,7 +29,7 @@ LAYERS: dict[str, set[str]] = {
     "common": set(),
     "language": set(),
     "video": set(),
-    "schemas": {"designs"},
+    "schemas": {"designs", "exporters"},
     "designs": set(),
     "model": {"language"},
     "scene": {"designs"},
@@ -95,20 +96,27 @@ def _imports(tree: ast.Module) -> list[tuple[int, str]]:
     return [(line, name) for line, name in found if name.startswith("lesmc.")]
 
 
-def _declared_trackers() -> list[tuple[Path, int, str]]:
-    """The tracker modules the design registry names as ``module:Class`` strings: imported by
-    lesmc/tracking/trackers.py when a scene is unfolded, so they are its imports."""
+def _declared_imports() -> list[tuple[Path, int, str]]:
+    """The modules the registries name as ``module:name`` strings, as imports of the module
+    that imports them when they are used: the design registry's trackers (imported by
+    lesmc/tracking/trackers.py when a scene is unfolded) and the export formats' writers
+    (imported by lesmc/exporters/formats.py when a model is written)."""
     from lesmc.designs import registry
+    from lesmc.exporters import formats
 
-    where = PACKAGE / "tracking" / "trackers.py"
-    return [(where, 0, impl.partition(":")[0]) for impl in registry.implementations()]
+    trackers = PACKAGE / "tracking" / "trackers.py"
+    writers = PACKAGE / "exporters" / "formats.py"
+    return [
+        *[(trackers, 0, impl.partition(":")[0]) for impl in registry.implementations()],
+        *[(writers, 0, formats.get(f).writer.partition(":")[0]) for f in formats.names()],
+    ]
 
 
 def _import_graph() -> nx.DiGraph:
     """Module -> module, every edge with the line of its import."""
     graph = nx.DiGraph()
     edges = [(p, line, m) for p in MODULES for line, m in _imports(ast.parse(p.read_text()))]
-    for path, line, target in [*edges, *_declared_trackers()]:
+    for path, line, target in [*edges, *_declared_imports()]:
         source = _module_name(path)
         if target in MODULE_NAMES and target != source:
             graph.add_edge(source, target, line=line)
@@ -149,7 +157,9 @@ def test_a_layering_violation_is_caught() -> None:
 def _cycles(graph: nx.DiGraph) -> list[str]:
     """Each cycle of the module graph as ``a:LINE -> b:LINE -> ...``."""
     return [
-        " -> ".join(f"{a}:{graph.edges[a, b]['line']}" for a, b in zip(c, [*c[1:], c[0]]))
+        " -> ".join(
+            f"{a}:{graph.edges[a, b]['line']}" for a, b in zip(c, [*c[1:], c[0]], strict=True)
+        )
         for c in nx.simple_cycles(graph)
     ]
 

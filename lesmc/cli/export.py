@@ -1,4 +1,8 @@
-"""``lesmc export MODEL|SCENE --format dot|graphml|json|drn|prism -o OUT``: models out."""
+"""``lesmc export MODEL|SCENE --format FORMAT -o OUT``: models out.
+
+The formats, their choices, what each takes and the help's table come from the
+registry, lesmc/exporters/formats.py.
+"""
 
 from __future__ import annotations
 
@@ -14,25 +18,73 @@ from lesmc.cli.options import (
     scene_target,
     tracker_option,
 )
-from lesmc.common.errors import InputError, Location, UsageError, escape_control
+from lesmc.common.errors import InputError, Location, UsageError, escape_control, source_line
 from lesmc.designs import registry
+from lesmc.exporters import formats
+from lesmc.exporters.request import chosen_property
 
 if TYPE_CHECKING:
+    from lesmc.language.properties import SpecFile
     from lesmc.model.arrays import ArrayModel
+    from lesmc.scene import Scene
 
-FORMATS = ("dot", "graphml", "json", "drn", "prism")
+
+def _mdp() -> tuple[str, ...]:
+    """The formats that state a property of --spec."""
+    return formats.where(lambda f: f.states_property)
 
 
-@click.command("export")
+def _marking() -> tuple[str, ...]:
+    """The formats that mark a results file's paths."""
+    return formats.where(lambda f: f.marks_paths)
+
+
+def _limits() -> str:
+    """What --max-nodes bounds, per format."""
+    return "; ".join(
+        f"{f.name}: the most {f.limit[0]} [default: {f.limit[1]}]"
+        for f in map(formats.get, formats.names())
+        if f.limit
+    )
+
+
+_HELP = f"""Write MODEL (a .lts or .npz, or a SCENE) for other tools.
+
+A SCENE is first built as lesmc build builds it, for the attack window of --window
+or, with --spec, of the property exported.
+
+\b
+{formats.help_table()}
+
+{formats.spelled(_mdp(), "and")} write the MDP of one property of --spec (--property NAME when
+it holds several): the reward `payoff` is the property's objective and the label
+`violated` marks the end of every path that satisfies its constraint, so that the
+minimum expected reward until `violated` is lesmc's optimum. An objective that is no
+sum of rewards (dist.max) is written without the reward model, with a note saying
+so (exit 0; the MDP then answers whether a path violates); --strict refuses it
+(exit 2). docs/export.md.
+
+Exit status: 0 written, 2 bad input, 4 internal error, 130 interrupted.
+"""
+
+
+@click.command("export", help=_HELP)
 @click.argument("model", metavar="MODEL|SCENE", type=click.Path(dir_okay=False))
-@click.option("--format", "fmt", type=click.Choice(FORMATS), required=True, help="The file format.")
+@click.option(
+    "--format",
+    "fmt",
+    type=RegistryChoice(formats.names),
+    required=True,
+    help="The file format.",
+)
 @click.option("-o", "--output", required=True, type=click.Path(dir_okay=False), help="The file.")
 @click.option(
     "--window",
     "window_text",
     default=None,
     metavar="L..U",
-    help="For a scene: the attack window of the model built from it (as lesmc build).",
+    help="For a scene: the attack window of the model built from it (as lesmc build) "
+    "[default, with --spec: the property's window; a different one is refused].",
 )
 @click.option(
     "--design",
@@ -47,31 +99,36 @@ FORMATS = ("dot", "graphml", "json", "drn", "prism")
     "spec_path",
     type=click.Path(dir_okay=False),
     default=None,
-    help="drn, prism: the property file whose property is exported as a reward and a label.",
+    help=f"{formats.spelled(_mdp())}: the property file whose property is exported as a "
+    "reward and a label.",
 )
 @click.option(
-    "--property", "prop", default=None, metavar="NAME", help="drn, prism: which property."
+    "--property",
+    "prop",
+    default=None,
+    metavar="NAME",
+    help=f"{formats.spelled(_mdp())}: which property; {formats.spelled(_marking())}: whose "
+    "paths --results marks.",
 )
 @click.option(
     "--results",
     "results_path",
     type=click.Path(dir_okay=False),
     default=None,
-    help="dot, graphml: mark the counterexample and witness of this results file (lesmc "
-    "check --json, or results.json) [with --property: that property's].",
+    help=f"{formats.spelled(_marking())}: mark the counterexample and witness of this results "
+    "file (lesmc check --json, or results.json) [with --property: that property's].",
 )
 @click.option(
     "--max-nodes",
     type=click.IntRange(min=1),
     default=None,
-    help="dot: refuse models with more states than this [default: 5000]; drn, prism: the "
-    "most path prefixes to unfold [default: 200000].",
+    help=f"{_limits()}.",
 )
 @click.option(
     "--strict",
     is_flag=True,
-    help="drn, prism: refuse a property whose objective is not a sum of rewards (dist.max) "
-    "instead of writing the MDP without its reward model.",
+    help=f"{formats.spelled(_mdp())}: refuse a property whose objective is not a sum of "
+    "rewards (dist.max) instead of writing the MDP without its reward model.",
 )
 @click.option("--json", "as_json", is_flag=True, help="Print what was written as JSON.")
 def export_cmd(
@@ -89,33 +146,18 @@ def export_cmd(
     strict: bool,
     as_json: bool,
 ) -> None:
-    """Write MODEL (a .lts or .npz, or a SCENE built with --window) for other tools.
-
-    \b
-    dot      Graphviz (steps as ranks; counterexample red, witness blue)
-    graphml  Gephi, yEd, networkx (streamed: any size; attribute `role`)
-    json     the .lts format itself (lesmc check reads it back)
-    drn      Storm's explicit format: an MDP whose reward `payoff` is the combined
-             payoff (Eq. 5) of each attacker choice and whose label `violated` marks
-             the end of every path that satisfies the property's constraint, so that
-             Storm's Rmin=? [F "violated"] is lesmc's optimum (needs --spec; payoff
-             objectives only: other properties are refused, with the reason)
-    prism    the same MDP in the PRISM language (PRISM, Storm):
-             R{"payoff"}min=? [F "violated"] is lesmc's optimum
-    Exit status: 0 written, 2 bad input, 4 internal error, 130 interrupted.
-    """
     from lesmc.api import export_model, load_spec
 
-    _refuse_mismatched(fmt, spec_path, strict, prop, results_path)
+    _refuse_mismatched(formats.get(fmt), spec_path, strict, prop, results_path, max_nodes)
     inputs = {"MODEL": model, "--spec": spec_path, "--results": results_path}
     distinct_files(inputs | {"--tracker": tracker_file}, {"-o/--output": output})
-    cm = _model(model, target_text, design, window_text, tracker_file)
-    roles = _roles(cm, results_path, prop) if results_path else None
     spec = load_spec(spec_path) if spec_path else None
+    cm = _model(model, target_text, design, window_text, tracker_file, spec, prop)
+    roles = _roles(cm, results_path, prop) if results_path else None
     facts = export_model(cm, output, fmt, spec, prop, strict, roles, max_nodes)
     if facts.get("not_exported"):
         click.echo(f"note: {facts['not_exported']}", err=True)
-    say(f"wrote {escape_control(output)} ({fmt}, {cm.n_states} states)", as_json)
+    say(f"wrote {escape_control(output)} ({fmt}, {_states(facts, fmt, cm)})", as_json)
     if as_json:
         emit(
             {
@@ -131,19 +173,36 @@ def export_cmd(
         )
 
 
+def _states(facts: dict[str, object], fmt: str, cm: ArrayModel) -> str:
+    """The states the file holds: a property's MDP has its own (its header's number)."""
+    mdp = facts.get(fmt)
+    if isinstance(mdp, dict) and "states" in mdp:
+        name = facts.get("property")
+        return f"{mdp['states']} states: the MDP of property '{name}' on {cm.n_states} model states"
+    return f"{cm.n_states} states"
+
+
 def _refuse_mismatched(
-    fmt: str, spec_path: str | None, strict: bool, prop: str | None, results_path: str | None
+    fmt: formats.ExportFormat,
+    spec_path: str | None,
+    strict: bool,
+    prop: str | None,
+    results_path: str | None,
+    max_nodes: int | None,
 ) -> None:
-    """Options that the format would ignore are errors."""
-    mdp = fmt in ("drn", "prism")
-    if not mdp and (spec_path or strict or (prop and not results_path)):
+    """Options that the format would ignore are errors (what each takes: the registry)."""
+    if not fmt.states_property and (spec_path or strict or (prop and not results_path)):
         raise UsageError(
-            "--spec, --property and --strict choose what --format drn or prism exports"
+            f"--spec, --property and --strict choose what --format {formats.spelled(_mdp())} "
+            "exports"
         )
-    if mdp and spec_path is None:
-        raise UsageError(f"--format {fmt} exports a property: give --spec (and --property)")
-    if results_path is not None and fmt not in ("dot", "graphml"):
-        raise UsageError("--results marks paths in dot and graphml only")
+    if fmt.states_property and spec_path is None:
+        raise UsageError(f"--format {fmt.name} exports a property: give --spec (and --property)")
+    if results_path is not None and not fmt.marks_paths:
+        raise UsageError(f"--results marks paths in {formats.spelled(_marking(), 'and')} only")
+    if max_nodes is not None and fmt.limit is None:
+        limited = formats.where(lambda f: f.limit is not None)
+        raise UsageError(f"--max-nodes limits {formats.spelled(limited)} only")
 
 
 def _model(
@@ -152,23 +211,50 @@ def _model(
     design: str | None,
     window_text: str | None,
     tracker_file: str | None,
+    spec: SpecFile | None,
+    prop: str | None,
 ) -> ArrayModel:
-    """The .lts model, or the scene built for ``--window`` as lesmc build builds it."""
+    """The .lts model, or the scene built for its window (``--window``, or the exported
+    property's) as lesmc build builds it."""
     from lesmc.api import load_model_or_scene
     from lesmc.scene import Scene, UnpricedPayoff
     from lesmc.unfold.unfold import build_model
 
     source = load_model_or_scene(model, target_text, design, tracker_file)
     if isinstance(source, Scene):
-        if window_text is None:
-            raise UsageError("a scene is built for one attack window: give --window L..U")
+        window = _scene_window(source, window_text, spec, prop)
         try:
-            return build_model(source, parse_window(window_text))
+            return build_model(source, window)
         except UnpricedPayoff as exc:  # a verify scene's payoff that nobody priced
             raise exc.at(model) from None
     if window_text is not None:
         raise UsageError("--window builds a scene; a .lts model has its window already")
     return source
+
+
+def _scene_window(
+    scene: Scene, window_text: str | None, spec: SpecFile | None, prop: str | None
+) -> tuple[int, int]:
+    """The attack window a scene is built for: ``--window``, else the exported property's;
+    both given, they must agree (refused at the property's window clause)."""
+    window = parse_window(window_text) if window_text is not None else None
+    if spec is None:
+        if window is None:
+            raise UsageError("a scene is built for one attack window: give --window L..U")
+        return window
+    from lesmc.pipeline.check import bind_scene
+
+    bp = chosen_property(bind_scene(scene, [spec]), spec.path, prop)
+    own = (bp.l, bp.u)
+    if window is not None and window != own:
+        pos = bp.prop.clause_pos.get("window", bp.prop.pos)
+        raise UsageError(
+            f"--window {window[0]}..{window[1]} contradicts the attack window {own[0]}..{own[1]} "
+            f"of property '{bp.name}': leave --window out (the property's is used) or give "
+            f"{own[0]}..{own[1]}",
+            Location(spec.path, pos.line, pos.column, source_line(spec.text, pos.line)),
+        )
+    return own
 
 
 def _roles(cm: ArrayModel, path: str, prop: str | None) -> dict[str, list[int]]:

@@ -42,6 +42,7 @@ from lesmc.cli.train import train_cmd
 from lesmc.cli.verify import verify_cmd
 from lesmc.cli.video import synth_cmd
 from lesmc.common.errors import BudgetError, LesmcError, Location
+from lesmc.exporters import formats
 from lesmc.results.exit import EXIT_INTERNAL, EXIT_INTERRUPTED, EXIT_UNKNOWN, EXIT_USAGE
 
 
@@ -95,8 +96,8 @@ def cli() -> None:
       lesmc replay RESULTS.json --frames VIDEO/
                                              counterexamples through the real detector
       lesmc reduce knapsack ITEMS.csv ...    build a knapsack instance as a model
-      lesmc export MODEL.lts --format drn|prism|dot|graphml|json -o OUT
-                                             the model for Storm, PRISM, Graphviz, Gephi
+      lesmc export MODEL.lts --format FORMAT -o OUT
+                                             the model for model checkers and graph tools
       lesmc import mot DET.txt -o SCENE.json [--gt GT.txt --track ID]
                                              your detections (MOTChallenge) as a scene
       ... --tracker FILE, --detector FILE    your tracker, your networks (docs/own-system.md)
@@ -116,7 +117,7 @@ SHORT_HELP = {
     "build": "Unfold a scene into a model (.lts) for one attack window.",
     "campaign": "Verify many targets x windows x designs, on Dask.",
     "check": "Check properties on a model or a scene: verdict, optimum, paths.",
-    "export": "Write a model for Storm (DRN), Graphviz, GraphML or as JSON.",
+    "export": f"Write a model as {formats.spelled()}.",
     "import": "Make a scene from MOTChallenge detection files (det.txt, gt.txt).",
     "perceive": "Detect vehicles in frames; price each detection; write a scene.",
     "reduce": "Reduce a classic problem (knapsack) to a model and a property.",

@@ -18,16 +18,54 @@ the path (payoff, payoff.mean) have this form: a dist.max objective is refused.
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from fractions import Fraction
+from pathlib import Path
 from typing import Any
 
 from lesmc.common.errors import UsageError
+from lesmc.common.files import atomic_open
+from lesmc.engines.check import bind_all
 from lesmc.engines.space import build_space
+from lesmc.exporters.request import MDP_MAX_PREFIXES, Request, chosen_property
+from lesmc.language.properties import SpecFile
 from lesmc.language.semantics import BoundProperty
 from lesmc.model.arrays import ArrayModel
 
 #: Path prefixes (MDP states) the export may unfold by default.
-DRN_MAX_PREFIXES = 200_000
+DRN_MAX_PREFIXES = MDP_MAX_PREFIXES
+
+#: What Storm answers on an MDP without its reward model (a dist.max objective): whether
+#: some path violates, that is whether lesmc's optimum is finite (> 0: it is).
+REACH_PROPERTY = 'Pmax=? [F "violated"]'
+
+#: Writes an MDP's text and facts (:func:`to_drn`, :func:`lesmc.exporters.prism.to_prism`).
+MdpText = Callable[[ArrayModel, BoundProperty, int, bool], tuple[str, dict[str, Any]]]
+
+
+def write_drn(model: ArrayModel, path: str | Path, request: Request) -> dict[str, object]:
+    """The DRN writer of the registry (lesmc/exporters/formats.py)."""
+    return write_mdp(model, path, request, "drn", to_drn)
+
+
+def write_mdp(
+    model: ArrayModel, path: str | Path, request: Request, fmt: str, text: MdpText
+) -> dict[str, object]:
+    """Write the MDP of the request's property as ``text`` makes it; its facts."""
+    bp = mdp_property(model, request.spec, request.prop, fmt)
+    out, facts = text(model, bp, request.max_nodes or MDP_MAX_PREFIXES, request.strict)
+    with atomic_open(path) as fh:
+        fh.write(out)
+    return facts
+
+
+def mdp_property(
+    model: ArrayModel, spec: SpecFile | None, prop: str | None, fmt: str
+) -> BoundProperty:
+    """The one property of ``spec`` an MDP export states (``prop``, or the only one)."""
+    if spec is None:
+        raise UsageError(f"--format {fmt} exports a property: give --spec (and --property)")
+    return chosen_property(bind_all(model, [spec]), spec.path, prop)
 
 
 def exact_number(x: float) -> str:
@@ -61,8 +99,8 @@ def to_drn(
         "property": bp.name,
         "not_exported": not_exported,
         "drn": {"states": len(choices), "choices": sum(map(len, choices))},
-        "storm_property": 'Rmin=? [F "violated"]',
-        "prism_property": 'R{"payoff"}min=? [F "violated"]',
+        "storm_property": 'Rmin=? [F "violated"]' if rewards else REACH_PROPERTY,
+        "prism_property": 'R{"payoff"}min=? [F "violated"]' if rewards else REACH_PROPERTY,
     }
     return text, facts
 
@@ -75,7 +113,10 @@ def not_exported_line(bp: BoundProperty, strict: bool) -> str:
     )
     if strict:
         raise UsageError(f"{what}: not exported (--strict)")
-    return f"{what}: the MDP and its label 'violated' are written, the reward model is not"
+    return (
+        f"{what}: the MDP and its label 'violated' are written, the reward model is not; "
+        f"{REACH_PROPERTY} > 0 says whether a path violates (the optimum is finite)"
+    )
 
 
 def prefix_tree(
@@ -126,8 +167,13 @@ def prefix_tree(
 
 
 def _drn(choices: list[list[tuple[float, int]]], labels: list[str], rewards: bool) -> str:
+    question = (
+        'Rmin=? [F "violated"] is the optimum'
+        if rewards
+        else f"no reward model (a maximum objective): {REACH_PROPERTY} > 0 iff a path violates"
+    )
     lines = [
-        '// lesmc: the attacker\'s choices of a <PO>2-LTS; Rmin=? [F "violated"] is the optimum',
+        f"// lesmc: the attacker's choices of a <PO>2-LTS; {question}",
         "@type: MDP",
         "@parameters",
         "",

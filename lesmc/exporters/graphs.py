@@ -16,16 +16,16 @@ import itertools
 import math
 import re
 from collections.abc import Iterable, Iterator, Mapping, Sequence
+from pathlib import Path
 from typing import IO, Any
 from xml.sax.saxutils import escape, quoteattr
 
 import numpy as np
 
 from lesmc.common.errors import UsageError
+from lesmc.common.files import atomic_open
+from lesmc.exporters.request import DOT_MAX_NODES, Request
 from lesmc.model.arrays import ArrayModel
-
-#: DOT's default size limit (states): Graphviz lays out a few thousand nodes readably.
-DOT_MAX_NODES = 5000
 
 #: How each role is drawn in DOT: colour, pen width.
 ROLE_STYLE = {"original": ("black", 2.0), "counterexample": ("red", 3.0), "witness": ("blue", 3.0)}
@@ -228,3 +228,18 @@ def write_lines(chunks: Iterable[str], fh: IO[Any]) -> None:
     """Each chunk of whole lines to ``fh`` (GraphML as a stream)."""
     for chunk in chunks:
         fh.write(chunk)
+
+
+def write_dot(model: ArrayModel, path: str | Path, request: Request) -> dict[str, object]:
+    """The DOT writer of the registry (lesmc/exporters/formats.py)."""
+    text = to_dot(model, request.roles, request.max_nodes or DOT_MAX_NODES)
+    with atomic_open(path) as fh:
+        fh.write(text)
+    return {}
+
+
+def write_graphml(model: ArrayModel, path: str | Path, request: Request) -> dict[str, object]:
+    """The GraphML writer of the registry (lesmc/exporters/formats.py)."""
+    with atomic_open(path) as fh:
+        write_lines(graphml_lines(model, request.roles), fh)
+    return {}

@@ -7,18 +7,61 @@ state the violating leaves move to), written as one module whose variable ``s``
 numbers the MDP states. Action ``a{k}`` is a state's k-th choice; the reward
 model ``payoff`` rewards each (state, action). Then
 ``R{"payoff"}min=? [F "violated"]`` is lesmc's optimum (+inf when no path violates).
+
+Rewards are written exactly (:func:`prism_number`): Storm's PRISM parser reads an
+integer literal as a 64-bit integer, so a double whose rational form needs a larger
+integer (a denominator of 2^63 or more: any reward below about 1e-3 with all 53 bits
+set, every reward down to the smallest double) is written as ``m*pow(2.0,e)``.
 """
 
 from __future__ import annotations
 
+import math
+from fractions import Fraction
+from pathlib import Path
 from typing import Any
 
 from lesmc.engines.space import build_space
-from lesmc.exporters.drn import DRN_MAX_PREFIXES, exact_number, not_exported_line, prefix_tree
+from lesmc.exporters.drn import (
+    DRN_MAX_PREFIXES,
+    REACH_PROPERTY,
+    exact_number,
+    not_exported_line,
+    prefix_tree,
+    write_mdp,
+)
+from lesmc.exporters.request import Request
 from lesmc.language.semantics import BoundProperty
 from lesmc.model.arrays import ArrayModel
 
 PRISM_PROPERTY = 'R{"payoff"}min=? [F "violated"]'
+
+#: The largest integer literal Storm's PRISM parser reads ("no 64-bit integer overflow").
+PRISM_INT_MAX = 2**63 - 1
+
+
+def prism_number(x: float) -> str:
+    """``x`` as a PRISM literal Storm reads as exactly this double's value.
+
+    :func:`~lesmc.exporters.drn.exact_number`'s literal, unless its rational ``p/q`` has
+    an integer beyond 64 bits; then ``m*pow(2.0,e)`` with m odd (|m| < 2^53), which
+    Storm's exact mode evaluates exactly and double arithmetic (Storm's default mode,
+    PRISM) exactly as well: m and 2^e are doubles and so is their product, ``x``.
+    """
+    text = exact_number(x)
+    q = Fraction(x)
+    if "/" not in text or max(abs(q.numerator), q.denominator) <= PRISM_INT_MAX:
+        return text
+    mantissa, exponent = math.frexp(x)
+    m, e = int(mantissa * 2**53), exponent - 53
+    while m % 2 == 0:
+        m, e = m // 2, e + 1
+    return f"{m}*pow(2.0,{e})"
+
+
+def write_prism(model: ArrayModel, path: str | Path, request: Request) -> dict[str, object]:
+    """The PRISM writer of the registry (lesmc/exporters/formats.py)."""
+    return write_mdp(model, path, request, "prism", to_prism)
 
 
 def to_prism(
@@ -33,7 +76,7 @@ def to_prism(
         "property": bp.name,
         "not_exported": not_exported,
         "prism": {"states": len(choices), "choices": sum(map(len, choices))},
-        "prism_property": PRISM_PROPERTY,
+        "prism_property": PRISM_PROPERTY if rewards else REACH_PROPERTY,
     }
     return _program(choices, labels, rewards, bp.name), facts
 
@@ -44,7 +87,9 @@ def _program(
     n = len(choices)
     lines = [
         f"// lesmc: the attacker's choices for property '{name}' of a <PO>2-LTS;",
-        f"// {PRISM_PROPERTY} is lesmc's optimum",
+        f"// {PRISM_PROPERTY} is lesmc's optimum"
+        if rewards
+        else f"// no reward model (a maximum objective): {REACH_PROPERTY} > 0 iff a path violates",
         "mdp",
         "",
         "module attack",
@@ -57,7 +102,7 @@ def _program(
     if rewards:
         lines.append('rewards "payoff"')
         entries = [
-            f"  [a{a}] s={s} : {exact_number(reward)};"
+            f"  [a{a}] s={s} : {prism_number(reward)};"
             for s, acts in enumerate(choices)
             for a, (reward, _) in enumerate(acts)
             if reward != 0.0

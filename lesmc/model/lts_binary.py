@@ -23,6 +23,7 @@ import io
 import json
 import os
 import struct
+import sys
 import zipfile
 import zlib
 from collections.abc import Sequence
@@ -211,6 +212,10 @@ def _read_arrays(path: str) -> dict[str, np.ndarray]:
     arrays = {}
     for info in infos:
         name = info.filename.removesuffix(".npy")
+        if name in arrays:  # numpy.load and zipfile would take the last silently
+            raise ModelError.many(
+                path, [(f"array '{name}'", "the archive holds it twice: one member per array")]
+            )
         if info.compress_type != zipfile.ZIP_STORED:
             raise ModelError.many(path, [(f"array '{name}'", "compressed: write it with save")])
         start = _member_start(view, info)
@@ -218,11 +223,7 @@ def _read_arrays(path: str) -> dict[str, np.ndarray]:
         if len(data) != info.compress_size or zlib.crc32(data) != info.CRC:
             raise zipfile.BadZipFile(f"member {info.filename!r} is damaged (size or CRC)")
         head = io.BytesIO(data[:_NPY_HEAD])
-        version = np.lib.format.read_magic(head)
-        if version == (1, 0):
-            shape, fortran, dtype = np.lib.format.read_array_header_1_0(head)
-        else:
-            shape, fortran, dtype = np.lib.format.read_array_header_2_0(head)
+        shape, fortran, dtype = _npy_header(head, name, path)
         if dtype.hasobject or fortran:
             raise ModelError.many(path, [(f"array '{name}'", "not a plain array")])
         count = int(np.prod(shape, dtype=object))
@@ -238,6 +239,40 @@ def _read_arrays(path: str) -> dict[str, np.ndarray]:
 
 #: Bytes of a member that hold its .npy header, at most (numpy's own limit is 10,000).
 _NPY_HEAD = 1 << 16
+
+
+def _npy_header(head: IO[bytes], name: str, path: str) -> tuple[tuple[int, ...], bool, np.dtype]:
+    """A member's ``.npy`` header (shape, Fortran order, dtype); one that numpy cannot
+    read, or whose shape has a negative length, is an error naming the member (numpy's
+    own message may show its parser's internals: ``<ast.Call object at 0x...>``)."""
+    try:
+        version = np.lib.format.read_magic(head)
+        if version == (1, 0):
+            shape, fortran, dtype = np.lib.format.read_array_header_1_0(head)
+        else:
+            shape, fortran, dtype = np.lib.format.read_array_header_2_0(head)
+    except _READ_ERRORS:
+        shape = None
+    if shape is None or any(n < 0 for n in shape):
+        raise ModelError.many(
+            path,
+            [
+                (
+                    f"array '{name}'",
+                    "its .npy header is not numpy's: a magic string, then a dict of "
+                    "'descr', 'fortran_order' and 'shape' (a tuple of lengths >= 0)",
+                )
+            ],
+        )
+    return shape, fortran, dtype
+
+
+def _dtype_text(dtype: np.dtype) -> str:
+    """A dtype's name, with its byte order when it is not this machine's
+    (``float64`` and ``>f8`` have one name)."""
+    if dtype.isnative:
+        return dtype.name
+    return f"{dtype.name} {'big' if dtype.byteorder == '>' else 'little'}-endian"
 
 
 def _member_start(view: memoryview, info: zipfile.ZipInfo) -> int:
@@ -261,7 +296,7 @@ def _ids(head: dict[str, Any], raw: np.ndarray | None, path: str) -> Sequence[st
     if raw.dtype.kind != "S" or raw.ndim != 1:
         want = "fixed-width bytes (numpy S) with 1 dimension(s)"
         raise ModelError.many(
-            path, [(f"array '{IDS}'", f"must be {want}, got {raw.dtype.name} {raw.shape}")]
+            path, [(f"array '{IDS}'", f"must be {want}, got {_dtype_text(raw.dtype)} {raw.shape}")]
         )
     return IdArray(raw)
 
@@ -328,8 +363,9 @@ def _check_arrays_present(arrays: dict[str, np.ndarray], path: str) -> None:
         if a is None:
             continue
         if a.dtype != dtype or a.ndim != ndim:
-            want = f"{np.dtype(dtype).name} with {ndim} dimension(s)"
-            pr.add(f"array '{name}'", f"must be {want}, got {a.dtype.name} {a.shape}")
+            order = f" {sys.byteorder}-endian" if not a.dtype.isnative else ""
+            want = f"{np.dtype(dtype).name}{order} with {ndim} dimension(s)"
+            pr.add(f"array '{name}'", f"must be {want}, got {_dtype_text(a.dtype)} {a.shape}")
     if pr.items:
         raise ModelError.many(path, pr.items)
     for name in OPTIONAL:

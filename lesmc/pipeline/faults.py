@@ -35,7 +35,7 @@ import math
 from collections.abc import Callable, Iterator, Mapping
 from dataclasses import dataclass, replace
 
-from lesmc.common.errors import Location, SpecError, UsageError, source_line
+from lesmc.common.errors import Location, SpecError, source_line
 from lesmc.engines.result import CheckResult, Stats, StopReason, Verdict
 from lesmc.language.properties import Fault, FaultSet
 from lesmc.language.semantics import BoundProperty
@@ -142,8 +142,7 @@ def validate(
     property: checked before any check runs, so a bad declaration costs no search."""
     bind_faults(fs, scene, neuron)
     for bp in bound:
-        for f in fs.faults:
-            activation_steps(fs, f, bp)
+        refuse_too_many(fs, bp)
 
 
 def activation_steps(fs: FaultSet, f: Fault, bp: BoundProperty) -> range:
@@ -162,25 +161,45 @@ def activation_steps(fs: FaultSet, f: Fault, bp: BoundProperty) -> range:
     return range(lo, hi + 1)
 
 
+def count_checks(fs: FaultSet, bp: BoundProperty) -> int:
+    """How many checks property ``bp`` needs under ``fs``: over every combination of
+    1..budget faults, the product of their numbers of activation steps. Counted without
+    listing the combinations (the elementary symmetric sums of those numbers, built one
+    fault at a time); also checks every activation range (:func:`activation_steps`)."""
+    sums = [1] + [0] * fs.budget  # sums[k]: the checks of every combination of k faults
+    for f in fs.faults:
+        n = len(activation_steps(fs, f, bp))
+        for k in range(fs.budget, 0, -1):
+            sums[k] += sums[k - 1] * n
+    return sum(sums[1:])
+
+
+def refuse_too_many(fs: FaultSet, bp: BoundProperty) -> None:
+    """A located error, before any check runs, when ``bp`` needs more than
+    :data:`MAX_FAULT_CHECKS` checks under ``fs``."""
+    n = count_checks(fs, bp)
+    if n > MAX_FAULT_CHECKS:
+        raise SpecError(
+            f"these {len(fs.faults)} faults with budget {fs.budget} need {n} checks of "
+            f"property '{bp.name}', more than {MAX_FAULT_CHECKS}: lower the budget, "
+            "remove faults or narrow their activation steps (from A..B)",
+            Location(fs.path, fs.pos.line, fs.pos.column, source_line(fs.text, fs.pos.line)),
+        )
+
+
 def combinations(
     fs: FaultSet, faults: list[BoundFault], bp: BoundProperty
 ) -> Iterator[tuple[str, list[list[Strike]]]]:
     """Every combination of 1..budget faults, named ``NAME+A+B``, with every choice of their
-    activation steps."""
+    activation steps (refused first when they are too many: :func:`refuse_too_many`)."""
+    refuse_too_many(fs, bp)
     steps = {f.name: activation_steps(fs, f.fault, bp) for f in faults}
-    total = 0
     for size in range(1, min(fs.budget, len(faults)) + 1):
         for combo in itertools.combinations(faults, size):
             choices = [
                 [Strike(f, s) for f, s in zip(combo, when, strict=True)]
                 for when in itertools.product(*(steps[f.name] for f in combo))
             ]
-            total += len(choices)
-            if total > MAX_FAULT_CHECKS:
-                raise UsageError(
-                    f"the faults of {fs.path} need more than {MAX_FAULT_CHECKS} checks of "
-                    f"property '{bp.name}': lower the budget or narrow the activation steps"
-                )
             yield "+".join([bp.name, *(f.name for f in combo)]), choices
 
 

@@ -19,6 +19,7 @@ from typing import Any
 
 from lesmc.common.errors import InputError, Location
 from lesmc.designs import registry
+from lesmc.exporters import formats
 
 #: format name of each document -> its schema file (without .json)
 SCHEMAS = {
@@ -46,17 +47,23 @@ def _text(name: str) -> str:
 
 
 def schema(name: str) -> dict[str, Any]:
-    """The schema ``lesmc/schemas/NAME.json``, with the registry's designs.
+    """The schema ``lesmc/schemas/NAME.json``, with the registries' names.
 
     The enums of design names are not spelled in the files: ``#/$defs/designs``
     (every registered design) and ``#/$defs/trackers`` (the designs that bring
     a tracker) are filled from lesmc/designs/registry.py now, so that a design
-    registered at run time is accepted too.
+    registered at run time is accepted too; so are the export formats
+    (``#/$defs/export_formats``, lesmc/exporters/formats.py) and, in the export
+    document, the MDP facts each property-stating format writes under its name.
     """
     out: dict[str, Any] = json.loads(_text(name))
     defs = out.setdefault("$defs", {})
     defs["designs"] = {"enum": list(registry.names())}
     defs["trackers"] = {"enum": list(registry.tracker_names())}
+    defs["export_formats"] = {"enum": list(formats.names())}
+    if name == "export":  # a property's MDP: its size, under the format's name
+        for fmt in formats.where(lambda f: f.states_property):
+            out["properties"][fmt] = {"$ref": "#/$defs/mdp"}
     return out
 
 
