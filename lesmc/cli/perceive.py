@@ -252,7 +252,7 @@ def _unattackable_note(scene: Any) -> str:
         return note + " exists)"
     return (
         f"{note} exists; {len(finite)} have certified lower bounds, {min(finite):.3g} to "
-        f"{max(finite):.3g}: no perturbation of a smaller L2 norm hides them, a bound near 0 "
+        f"{max(finite):.3g}: no perturbation of a smaller norm hides them, a bound near 0 "
         "proves nothing; docs/scene-format.md)"
     )
 
