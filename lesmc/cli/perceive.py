@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import math
 import time
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
@@ -173,11 +174,26 @@ def perceive_cmd(
         distinct_files(named | {"--locator": locator_file}, {"-o/--output": output})
     with progress_bar("perceive", "perceiving", len(inputs.frames)) as bar:
         got = perceive_frames(req, inputs, bar.advance)
+    _log_networks(got)
     written = None if got.scene is None or output is None else _write(got, output, as_json)
     if as_json:
         emit(_document(frames_dir, got.nets, got.run, written, truth is not None, started))
         return
     _print(got.run, truth is not None, got.nets is not None)
+
+
+def _log_networks(got: Perceived) -> None:
+    """On stderr: which networks ran (the scene's ``meta.detector`` records the same), and
+    a warning when the detector accepted none of the front end's candidates."""
+    if got.nets is None:
+        return
+    from lesmc.perception.cnn import describe_nets
+    from lesmc.perception.run import nothing_detected
+
+    click.echo(f"lesmc perceive: networks: {escape_control(describe_nets(got.nets))}", err=True)
+    warning = nothing_detected(got.run)
+    if warning is not None:
+        click.echo(f"lesmc perceive: warning: {warning}", err=True)
 
 
 def _refuse_ignored(output: str | None, truth: str | None) -> None:
@@ -203,7 +219,7 @@ def _write(got: Perceived, output: str, as_json: bool) -> dict[str, Any]:
     say(
         f"wrote {escape_control(output)}: {len(scene.frames)} frames (steps "
         f"{scene.frames[0].step}..{scene.last_step}), {n} detections, "
-        f"{got.run.unattackable} unattackable; {got.target_note}",
+        f"{got.run.unattackable} unattackable{_unattackable_note(scene)}; {got.target_note}",
         as_json,
     )
     target = None
@@ -216,6 +232,29 @@ def _write(got: Perceived, output: str, as_json: bool) -> dict[str, Any]:
         "unattackable": got.run.unattackable,
         "target": target,
     }
+
+
+def _unattackable_note(scene: Any) -> str:
+    """What "unattackable" means for this scene: the attack found no perturbation hiding
+    the detection, which proves nothing; with --certify, the range of those detections'
+    certified lower bounds (a bound near 0: the certificate proves nothing either)."""
+    lows = [
+        d.payoff_lower
+        for f in scene.frames
+        for d in f.detections
+        if d.priced and not d.attackable and d.payoff_lower is not None
+    ]
+    if not any(d.priced and not d.attackable for f in scene.frames for d in f.detections):
+        return ""
+    note = " (the attack found no perturbation that hides them, which is no proof that none"
+    finite = [v for v in lows if math.isfinite(v)]
+    if not finite:
+        return note + " exists)"
+    return (
+        f"{note} exists; {len(finite)} have certified lower bounds, {min(finite):.3g} to "
+        f"{max(finite):.3g}: no perturbation of a smaller norm hides them, a bound near 0 "
+        "proves nothing; docs/scene-format.md)"
+    )
 
 
 def _document(

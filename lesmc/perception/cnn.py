@@ -108,6 +108,8 @@ class Nets:
     settings: NetSettings
     dr_file: Any = None  # graphs.UserNet of --detector
     lp_file: Any = None  # graphs.UserNet of --locator
+    #: where the pair (``dr`` and ``lp`` before any file replaced them) came from, in words
+    origin: str = ""
 
 
 DEFAULT_WEIGHTS = "wami"  #: the pair shipped in lesmc/perception/weights/
@@ -166,26 +168,49 @@ def load_nets(
     directory: str | Path | None = None, detector: str | None = None, locator: str | None = None
 ) -> Nets:
     """Load a pair written by ``save_nets`` (default: the shipped weights); ``detector`` and
-    ``locator`` (``.pt2``/``.onnx`` files) replace N_dr and N_lp, keeping the settings."""
+    ``locator`` (``.pt2``/``.onnx`` files) replace N_dr and N_lp, keeping the settings.
+
+    ``settings.trained_on`` then names where each network came from (:func:`networks_text`):
+    what the scene's ``meta.detector`` and the results' ``perception.nets`` record."""
     nets = _load_pair(directory)
     if detector is None and locator is None:
         return nets
-    from lesmc.perception.graphs import check_shape, load_network
+    from lesmc.perception.graphs import check_network, load_network
 
-    names = [nets.settings.trained_on]
     channels = nets.settings.m + 1
     if detector is not None:
         nets.dr_file = load_network(detector)
-        check_shape(nets.dr_file, "detector", channels, DR_SIZE)
+        check_network(nets.dr_file, "detector", channels, DR_SIZE, (2,))
         nets.dr = nets.dr_file.module
-        names.append(f"detector {detector}")
     if locator is not None:
         nets.lp_file = load_network(locator)
-        check_shape(nets.lp_file, "locator", channels, LP_SIZE)
+        check_network(nets.lp_file, "locator", channels, LP_SIZE, (LP_OUT, LP_OUT))
         nets.lp = nets.lp_file.module
-        names.append(f"locator {locator}")
-    nets.settings = replace(nets.settings, trained_on="; ".join(n for n in names if n))
+    text = networks_text(detector, locator, nets.origin)
+    nets.settings = replace(nets.settings, trained_on=text)
     return nets
+
+
+def _pair_text(directory: str | Path | None, trained_on: str) -> str:
+    """Where the pair of ``save_nets`` came from, in words."""
+    where = f"shipped ({DEFAULT_WEIGHTS})" if directory is None else f"of --nets {directory}"
+    return f"{where}, trained on {trained_on}" if trained_on else where
+
+
+def networks_text(detector: str | None, locator: str | None, pair: str) -> str:
+    """Which N_dr and N_lp ran: each the user's file or the pair's network, never one's
+    history given to the other (``pair``: :func:`_pair_text`)."""
+    dr = f"the user's file {detector}" if detector is not None else pair
+    lp = f"the user's file {locator}" if locator is not None else pair
+    return f"detector (N_dr): {dr}; locator (N_lp): {lp}"
+
+
+def describe_nets(nets: Nets) -> str:
+    """Which networks ran, for a log line: :func:`networks_text` for a user's file, the
+    pair's origin otherwise."""
+    if nets.dr_file is None and nets.lp_file is None:
+        return f"detector (N_dr) and locator (N_lp): {nets.origin}"
+    return nets.settings.trained_on
 
 
 def _load_pair(directory: str | Path | None) -> Nets:
@@ -206,4 +231,4 @@ def _load_pair(directory: str | Path | None) -> Nets:
         except Exception as exc:  # safetensors raises its own error type for bad headers
             raise InputError(f"cannot load weights ({exc})", Location(str(d / name))) from None
         net.eval()
-    return Nets(dr, lp, settings)
+    return Nets(dr, lp, settings, origin=_pair_text(directory, settings.trained_on))

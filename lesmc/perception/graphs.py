@@ -26,7 +26,7 @@ pinned torch; the interpreter here covers the operations of small detection CNNs
 from __future__ import annotations
 
 import importlib
-from collections.abc import Callable
+from collections.abc import Callable, Iterable
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -35,7 +35,7 @@ import torch
 from torch import nn
 from torch.nn import functional as F
 
-from lesmc.common.errors import InputError, Location, UsageError
+from lesmc.common.errors import InputError, Location, UsageError, clipped
 from lesmc.perception.chain import Chain, Conv, Dense, margin_of
 
 
@@ -124,17 +124,85 @@ def load_network(path: str | Path) -> UserNet:
     )
 
 
-def check_shape(net: UserNet, role: str, channels: int, size: int) -> None:
-    """The network's input must be lesmc's window for its role."""
+def check_network(net: UserNet, role: str, channels: int, size: int, out: tuple[int, ...]) -> None:
+    """The network must take lesmc's windows for its role and answer each with ``out``
+    (detector (2,) logits, locator (15, 15) maps), in finite numbers: :func:`probe`."""
     want = (channels, size, size)
     if net.in_shape != want:
         c, h, w = net.in_shape
         raise InputError(
             f"the {role} takes inputs of {c} channels of {h}x{w}; lesmc's {role} windows "
-            f"are {channels} channels (the frame and m = {channels - 1} previous ones) of "
-            f"{size}x{size} (docs/cnn.md)",
+            f"are {channels} channels (the m = {channels - 1} previous frames and the current "
+            f"one) of {size}x{size} (docs/own-system.md)",
             Location(net.path),
         )
+    probe(net, role, out)
+
+
+#: Windows in the probe batch: more than one, so a batch fixed at 1 inside the graph fails.
+PROBE_BATCH = 3
+
+
+def probe(net: UserNet, role: str, out: tuple[int, ...]) -> None:
+    """Run the network once on :data:`PROBE_BATCH` random windows before the video: it
+    must run, give one ``out``-shaped answer per window, and finite numbers (a NaN or
+    infinite answer would silently accept or reject every window)."""
+    x = torch.rand(PROBE_BATCH, *net.in_shape, generator=torch.Generator().manual_seed(0))
+    where = Location(net.path)
+    try:
+        with torch.no_grad():
+            y = net.module(x)
+    except InputError:
+        raise
+    except Exception as exc:  # whatever the graph raises: a reshape to a fixed batch, ...
+        raise InputError(
+            f"the {role} fails on a batch of {PROBE_BATCH} windows: {_first_line(exc)}", where
+        ) from None
+    want = (PROBE_BATCH, *out)
+    if not isinstance(y, torch.Tensor) or tuple(y.shape) != want:
+        got = tuple(y.shape) if isinstance(y, torch.Tensor) else type(y).__name__
+        shape = ", ".join(["B", *map(str, out)])
+        meaning = {
+            "detector": "two logits, index 1 = vehicle",
+            "locator": "a map of vehicle centres",
+        }
+        raise InputError(
+            f"the {role} must answer a batch of B windows with ({shape}): "
+            f"{meaning.get(role, '')}; on {PROBE_BATCH} windows it gave {got} "
+            "(docs/own-system.md)",
+            where,
+        )
+    bad = int((~torch.isfinite(y)).sum())
+    if bad:
+        raise InputError(
+            f"the {role} gives NaN or infinite outputs ({bad} of {y.numel()} on "
+            f"{PROBE_BATCH} random windows)",
+            where,
+        )
+
+
+def _first_line(exc: BaseException) -> str:
+    """An exception's message as one line of a user's error (torch's run to many)."""
+    lines = str(exc).strip().splitlines()
+    return clipped(f"{type(exc).__name__}: {lines[0] if lines else ''}", 300)
+
+
+def refuse_nonfinite(tensors: Iterable[tuple[str, torch.Tensor]], path: str) -> None:
+    """A weight or constant holding NaN or infinity makes every answer NaN or infinite:
+    refused, named."""
+    for name, t in tensors:
+        if isinstance(t, torch.Tensor) and t.is_floating_point():
+            bad = int((~torch.isfinite(t)).sum())
+            if bad:
+                raise InputError(
+                    f"weight '{clipped(name, 80)}' holds {bad} NaN or infinite value"
+                    f"{'s' if bad > 1 else ''} (of {t.numel()})",
+                    Location(path),
+                )
+
+
+#: What lesmc asks of a batch dimension (.pt2 and .onnx alike).
+DYNAMIC_BATCH = "export with dynamic_shapes=({0: torch.export.Dim('batch')},) (docs/own-system.md)"
 
 
 # ---------------------------------------------------------------- .pt2
@@ -202,29 +270,36 @@ def _from_pt2(path: str) -> UserNet:
         raise InputError(f"the input must be (batch, C, H, W), got {shape}", Location(path))
     if isinstance(shape[0], int):
         raise InputError(
-            "the batch dimension is static: export with dynamic_shapes=({0: "
-            "torch.export.Dim('batch')},) (docs/own-system.md)",
-            Location(path),
+            f"the batch dimension is fixed at {shape[0]}: {DYNAMIC_BATCH}", Location(path)
         )
+    refuse_nonfinite([*ep.state_dict.items(), *ep.constants.items()], path)
     module = ep.module()
     try:
         ops: list[Op] | Unsupported = _fx_ops(ep)
     except Unsupported as exc:
         ops = exc
-    return UserNet(path, _Frozen(module), (shape[1], shape[2], shape[3]), ops)
+    return UserNet(path, _Frozen(module, path), (shape[1], shape[2], shape[3]), ops)
 
 
 class _Frozen(nn.Module):
-    """A loaded module whose weights are constants (no gradients for them)."""
+    """A loaded module whose weights are constants (no gradients for them); an error of
+    its forward pass is an InputError naming the file and the batch's shape."""
 
-    def __init__(self, inner: nn.Module) -> None:
+    def __init__(self, inner: nn.Module, path: str) -> None:
         super().__init__()
         self.inner = inner
+        self.path = path
         for p in inner.parameters():
             p.requires_grad_(False)
 
     def forward(self, x: torch.Tensor) -> torch.Tensor:
-        out: torch.Tensor = self.inner(x)
+        try:
+            out: torch.Tensor = self.inner(x)
+        except Exception as exc:  # the exported program's guards and shape errors
+            raise InputError(
+                f"the network fails on inputs of shape {tuple(x.shape)}: {_first_line(exc)}",
+                Location(self.path),
+            ) from None
         return out
 
 
@@ -412,6 +487,7 @@ class OnnxNet(nn.Module):
         if len(inputs) != 1 or len(g.output) != 1:
             raise InputError("the network must have one input and one output", Location(path))
         self.input, self.output = inputs[0], g.output[0].name
+        _refuse_unordered(self.nodes, {*self.consts, self.input}, self.output, path)
 
     def forward(self, x: torch.Tensor) -> torch.Tensor:
         env: dict[str, torch.Tensor] = dict(self.consts)
@@ -420,8 +496,36 @@ class OnnxNet(nn.Module):
             if n.op_type == "Constant":
                 continue
             ins = [env[i] if i else None for i in n.input]
-            env[n.output[0]] = _run(n.op_type, ins, at)
+            try:
+                env[n.output[0]] = _run(n.op_type, ins, at)
+            except Exception as exc:  # a shape the graph was not exported for, ...
+                shapes = ", ".join(str(tuple(i.shape)) for i in ins if i is not None)
+                raise InputError(
+                    f"node '{clipped(n.name or n.output[0], 80)}' ({n.op_type}) fails on "
+                    f"inputs of shapes {shapes}: {_first_line(exc)}",
+                    Location(self.path),
+                ) from None
         return env[self.output]
+
+
+def _refuse_unordered(nodes: list[Any], known: set[str], output: str, path: str) -> None:
+    """Every node's inputs must come before it (ONNX keeps nodes in topological order;
+    a cycle breaks it), and the graph's output must be made by a node."""
+    made = set(known)
+    for n in nodes:
+        for i in n.input:
+            if i and i not in made:
+                raise InputError(
+                    f"node '{clipped(n.name or n.output[0], 80)}' ({n.op_type}): its input "
+                    f"'{clipped(i, 80)}' is made by no node before it (an ONNX graph lists "
+                    "its nodes in order, without cycles)",
+                    Location(path),
+                )
+        made.update(o for o in n.output if o)
+    if output not in made:
+        raise InputError(
+            f"the graph's output '{clipped(output, 80)}' is made by no node", Location(path)
+        )
 
 
 def _run(op: str, ins: list[Any], at: dict[str, Any]) -> Any:
@@ -548,6 +652,11 @@ def _from_onnx(path: str) -> UserNet:
     shape = [d.dim_value if d.HasField("dim_value") else None for d in dims]
     if len(shape) != 4 or any(d is None for d in shape[1:]):
         raise InputError(f"the input must be (batch, C, H, W), got {shape}", Location(path))
+    if shape[0] is not None:
+        raise InputError(
+            f"the batch dimension is fixed at {shape[0]}: {DYNAMIC_BATCH}", Location(path)
+        )
+    refuse_nonfinite(net.consts.items(), path)
     try:
         ops: list[Op] | Unsupported = _onnx_ops(net)
     except Unsupported as exc:

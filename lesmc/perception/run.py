@@ -138,6 +138,23 @@ def perceive_all(
     return out_runs
 
 
+def nothing_detected(run: PerceiveRun) -> str | None:
+    """A warning when N_dr accepted none of the candidates the front end found in the whole
+    video (a detector fed windows it was not made for, or answering "vehicle" at another
+    index, finds nothing without failing); None otherwise, or without the CNNs."""
+    if not run.detections:
+        return None
+    found = sum(int(r["candidates"]) for r in run.rows)
+    if found == 0 or any(fd.n_accepted for fd in run.detections):
+        return None
+    return (
+        f"the detector accepted none of the {found} candidates the front end found in "
+        f"{len(run.rows)} frames: the scene has no detections. Check that it takes lesmc's "
+        "windows (docs/own-system.md: channels oldest frame first, grey levels in [0, 1]) "
+        "and that its logit 1 means vehicle"
+    )
+
+
 def _frame(
     run: PerceiveRun,
     det: Detector | None,
