@@ -202,15 +202,19 @@ def track_cmd(
         click.echo(json.dumps(doc, indent=1))
         return
     table = Table(title=f"unattacked track ({sc.tracker.design} design)", title_justify="left")
-    for col in ("step", "frame", "obs", "x", "y", "vx", "vy", "τ", "alarm"):
-        table.add_column(col, justify="left" if col in ("obs", "alarm") else "right")
+    # one column per state component, named as the tracker names them (a ca2d state has
+    # six); values to 1/100 of a pixel, τ (px²) to four significant digits
+    for col in ("step", "frame", "obs", *(escape_text(n) for n in sc.tracker.state_names)):
+        table.add_column(col, justify="left" if col == "obs" else "right")
+    table.add_column("τ", justify="right")
+    table.add_column("alarm", justify="left")
     for p in points:
         table.add_row(
             str(p.step),
             str(p.frame),
             escape_text(p.obs or "-"),
-            *(fmt(v, 2) for v in p.x),
-            fmt(p.tau, 2),
+            *(f"{v:.2f}" for v in p.x),
+            fmt(p.tau, 4),
             "ALARM" if p.alarm else ("halted" if p.halted else ""),
         )
     make_console().print(table)
