@@ -92,7 +92,8 @@ def mot_cmd(
     target: give --target X,Y@STEP to track, build, check or verify.
     Exit status: 0 written, 2 bad input, 4 internal error, 130 interrupted.
     """
-    from lesmc.scene import load_tracker, save_scene
+    from lesmc.scene import Scene, load_tracker, save_scene
+    from lesmc.scene.io import check_fits
     from lesmc.scene.mot import Point, import_mot
 
     if (gt_path is None) != (track_id is None):
@@ -109,13 +110,16 @@ def mot_cmd(
     tracker = load_tracker(tracker_file) if tracker_file else None
     at: Point = "bottom" if point == "bottom" else "center"
     scene = import_mot(det, 1.0 / fps, at, payoffs, gt_path, track_id, tracker)
+    if tracker is not None and isinstance(scene, Scene):  # refused here, where it is named
+        check_fits(tracker, scene.target, tracker_file or "--tracker", "model.state")
     save_scene(scene, output)
     doc = _document(scene, det, output, at, payoffs, f"{gt_path} track {track_id}")
     target = doc["target"]
     where = (
         "no target (give --target X,Y@STEP to track it)"
         if target is None
-        else f"target: track {track_id} from frame {target['step']}"
+        else f"target: track {track_id} from frame {target['step']}, "
+        f"truth: {doc['truth_tracks']} gt tracks"
     )
     frames = f"frames {doc['first_frame']}..{doc['last_frame']}"
     say(
@@ -168,4 +172,5 @@ def _document(
         "point": point,
         "payoffs": priced,
         "target": target,
+        "truth_tracks": len(scene.truth),
     }

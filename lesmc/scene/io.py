@@ -419,13 +419,19 @@ def load_tracker(path: str | Path) -> TrackerConfig:
     return tracker_from_dict(read_toml(path), str(path))
 
 
-def check_fits(tracker: TrackerConfig, target: Target | None, path: str) -> None:
-    """The target's velocity needs components named vx, vy in the tracker's state."""
+def check_fits(
+    tracker: TrackerConfig, target: Target | None, path: str, item: str = "target"
+) -> None:
+    """The target's velocity needs components named vx, vy in the tracker's state (an
+    error of file ``path`` at ``item``: the scene's target, or a tracker file's state)."""
     if target is None or target.velocity == (0.0, 0.0) or velocity(tracker.model) is not None:
         return
     state = ", ".join(tracker.state_names)
-    why = f"velocity {list(target.velocity)} needs state components named {' and '.join(VELOCITY)}"
-    raise InputError.many(path, [("target", f"{why}; the tracker's state is {state}")])
+    # 12 significant digits: 17.975 as the input wrote it, not 17.974999999999994
+    shown = ", ".join(f"{v:.12g}" for v in target.velocity)
+    whose = "velocity" if item == "target" else "the target's velocity"
+    why = f"{whose} [{shown}] needs state components named {' and '.join(VELOCITY)}"
+    raise InputError.many(path, [(item, f"{why}; the tracker's state is {state}")])
 
 
 def _target(raw: Any, pr: Problems) -> Target | None:
