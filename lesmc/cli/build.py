@@ -9,7 +9,7 @@ from typing import TYPE_CHECKING, Any
 import click
 
 from lesmc.cli.budgets import stop_if_spent, write_model
-from lesmc.cli.documents import emit, file_facts, run_provenance, say
+from lesmc.cli.documents import emit, file_facts, print_warnings, run_provenance, say
 from lesmc.cli.options import (
     budget_from,
     budget_options,
@@ -173,19 +173,23 @@ def track_cmd(
     from lesmc.common.numbers import fmt
     from lesmc.designs.registry import make_tracker
     from lesmc.report.text import make_console
-    from lesmc.tracking.monitor import track
+    from lesmc.tracking.monitor import follow_warnings, track
 
     sc = load_scene_file(scene, design, target_text, tracker_file)
     if sc.has_unpriced:  # the unattacked states never depend on a payoff
         sc = sc.payoff_free()
     if end is not None:
         last_step(sc, end)  # refuses steps past the scene's last frame
-    points = track(make_tracker(sc), end)
+    tracker = make_tracker(sc)
+    points = track(tracker, end)
+    warnings = follow_warnings(tracker, points)
     if as_json:
         doc = {
             "format": "lesmc-track",
             "version": 1,
             "design": sc.tracker.design,
+            "state": list(sc.tracker.state_names),
+            "warnings": warnings,
             "track": [
                 {
                     "step": p.step,
@@ -218,3 +222,4 @@ def track_cmd(
             "ALARM" if p.alarm else ("halted" if p.halted else ""),
         )
     make_console().print(table)
+    print_warnings(warnings)
