@@ -7,7 +7,14 @@ from typing import TYPE_CHECKING, Any
 
 import click
 
-from lesmc.cli.documents import emit, file_facts, run_provenance, say
+from lesmc.cli.documents import (
+    emit,
+    file_facts,
+    print_warnings,
+    run_provenance,
+    say,
+    unattacked_warnings,
+)
 from lesmc.cli.options import distinct_files, tracker_option
 from lesmc.common.errors import UsageError, escape_control
 
@@ -113,7 +120,9 @@ def mot_cmd(
     if tracker is not None and isinstance(scene, Scene):  # refused here, where it is named
         check_fits(tracker, scene.target, tracker_file or "--tracker", "model.state")
     save_scene(scene, output)
+    warnings = unattacked_warnings(scene) if isinstance(scene, Scene) else []
     doc = _document(scene, det, output, at, payoffs, f"{gt_path} track {track_id}")
+    doc["warnings"] = warnings
     target = doc["target"]
     where = (
         "no target (give --target X,Y@STEP to track it)"
@@ -126,6 +135,7 @@ def mot_cmd(
         f"wrote {escape_control(output)}: {doc['detections']} detections in {frames}, {where}",
         as_json,
     )
+    print_warnings(warnings, err=as_json)
     if as_json:
         emit(doc)
 
