@@ -166,7 +166,11 @@ def track_cmd(
     tracker_file: str | None,
     target_text: str | None,
 ) -> None:
-    """Run the tracker on SCENE unattacked: estimates, τ (Eq. 12) and monitor alarms (Eq. 13)."""
+    """Run the tracker on SCENE unattacked: estimates, τ (Eq. 12) and monitor alarms (Eq. 13).
+
+    Warns when the track does not follow its target (no detection in its first
+    steps, or an end far from the target's truth; docs/own-system.md).
+    """
     from rich.table import Table
 
     from lesmc.build.unfold import last_step

@@ -39,7 +39,8 @@ def import_group() -> None:
     type=click.Path(dir_okay=False),
     default=None,
     help="A gt.txt: with --track, the target starts at that track's first box, with the "
-    "velocity to its next box.",
+    "velocity to its next box; the file's tracks within the detections' frames become the "
+    "scene's truth (for dist.nearest).",
 )
 @click.option("--track", "track_id", type=int, default=None, help="The gt.txt track to follow.")
 @click.option(
@@ -96,7 +97,8 @@ def mot_cmd(
     One detection per line (frame,id,bb_left,bb_top,bb_width,bb_height,...), at
     the box's centre (or --point bottom). Steps are the file's frame numbers; a
     frame without lines has no detections. Without --gt/--track the scene has no
-    target: give --target X,Y@STEP to track, build, check or verify.
+    target: give --target X,Y@STEP to track, build, check or verify. With a
+    target, warns when its unattacked track does not follow it.
     Exit status: 0 written, 2 bad input, 4 internal error, 130 interrupted.
     """
     from lesmc.scene import Scene, load_tracker, save_scene
