@@ -24,8 +24,11 @@ from lesmc.cli.options import (
 from lesmc.common.errors import escape_control, escape_text
 
 if TYPE_CHECKING:
+    from rich.table import Table
+
     from lesmc.model.arrays import ArrayModel
     from lesmc.scene import Scene
+    from lesmc.tracking.monitor import TrackPoint
 
 _DESIGN = design_option("Override the tracker design the scene names.")
 
@@ -171,10 +174,7 @@ def track_cmd(
     Warns when the track does not follow its target (no detection in its first
     steps, or an end far from the target's truth; docs/own-system.md).
     """
-    from rich.table import Table
-
     from lesmc.build.unfold import last_step
-    from lesmc.common.numbers import fmt
     from lesmc.designs.registry import make_tracker
     from lesmc.report.text import make_console
     from lesmc.tracking.monitor import follow_warnings, track
@@ -209,9 +209,19 @@ def track_cmd(
         }
         click.echo(json.dumps(doc, indent=1))
         return
+    make_console().print(_track_table(sc, points))
+    print_warnings(warnings)
+
+
+def _track_table(sc: Scene, points: list[TrackPoint]) -> Table:
+    """The unattacked track as a table: one column per state component, named as the
+    tracker names them (a ca2d state has six); values to 1/100 of a pixel, τ (px²) to
+    four significant digits."""
+    from rich.table import Table
+
+    from lesmc.common.numbers import fmt
+
     table = Table(title=f"unattacked track ({sc.tracker.design} design)", title_justify="left")
-    # one column per state component, named as the tracker names them (a ca2d state has
-    # six); values to 1/100 of a pixel, τ (px²) to four significant digits
     for col in ("step", "frame", "obs", *(escape_text(n) for n in sc.tracker.state_names)):
         table.add_column(col, justify="left" if col == "obs" else "right")
     table.add_column("τ", justify="right")
@@ -225,5 +235,4 @@ def track_cmd(
             fmt(p.tau, 4),
             "ALARM" if p.alarm else ("halted" if p.halted else ""),
         )
-    make_console().print(table)
-    print_warnings(warnings)
+    return table

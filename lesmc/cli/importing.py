@@ -122,9 +122,7 @@ def mot_cmd(
     if tracker is not None and isinstance(scene, Scene):  # refused here, where it is named
         check_fits(tracker, scene.target, tracker_file or "--tracker", "model.state")
     save_scene(scene, output)
-    warnings = unattacked_warnings(scene) if isinstance(scene, Scene) else []
     doc = _document(scene, det, output, at, payoffs, f"{gt_path} track {track_id}")
-    doc["warnings"] = warnings
     target = doc["target"]
     where = (
         "no target (give --target X,Y@STEP to track it)"
@@ -137,7 +135,7 @@ def mot_cmd(
         f"wrote {escape_control(output)}: {doc['detections']} detections in {frames}, {where}",
         as_json,
     )
-    print_warnings(warnings, err=as_json)
+    print_warnings(doc["warnings"], err=as_json)
     if as_json:
         emit(doc)
 
@@ -185,4 +183,5 @@ def _document(
         "payoffs": priced,
         "target": target,
         "truth_tracks": len(scene.truth),
+        "warnings": unattacked_warnings(scene) if isinstance(scene, Scene) else [],
     }
