@@ -397,7 +397,8 @@ def tracker_from_dict(data: Any, path: str = "<tracker>") -> TrackerConfig:
     pr = Problems()
     if not isinstance(data, dict):
         keys = ", ".join(f.name for f in fields(TrackerConfig) if f.name != "faults")
-        got = f"a JSON {type(data).__name__}" if data is not None else "null"
+        kinds = {list: "a list", str: "a string", bool: "a boolean", int: "a number"}
+        got = "null" if data is None else kinds.get(type(data), "a number")
         raise InputError.many(
             path, [("", f"a tracker file must be an object of the keys {keys}; got {got}")]
         )
