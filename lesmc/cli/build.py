@@ -9,7 +9,7 @@ from typing import TYPE_CHECKING, Any
 import click
 
 from lesmc.cli.budgets import stop_if_spent, write_model
-from lesmc.cli.documents import emit, file_facts, run_provenance, say
+from lesmc.cli.documents import emit, file_facts, print_warnings, run_provenance, say
 from lesmc.cli.options import (
     budget_from,
     budget_options,
@@ -24,8 +24,11 @@ from lesmc.cli.options import (
 from lesmc.common.errors import escape_control, escape_text
 
 if TYPE_CHECKING:
+    from rich.table import Table
+
     from lesmc.model.arrays import ArrayModel
     from lesmc.scene import Scene
+    from lesmc.tracking.monitor import TrackPoint
 
 _DESIGN = design_option("Override the tracker design the scene names.")
 
@@ -166,12 +169,13 @@ def track_cmd(
     tracker_file: str | None,
     target_text: str | None,
 ) -> None:
-    """Run the tracker on SCENE unattacked: estimates, τ (Eq. 12) and monitor alarms (Eq. 13)."""
-    from rich.table import Table
+    """Run the tracker on SCENE unattacked: estimates, τ (Eq. 12) and monitor alarms (Eq. 13).
 
-    from lesmc.common.numbers import fmt
+    Warns when the track does not follow its target (no detection in its first
+    steps, or an end far from the target's truth; docs/own-system.md).
+    """
     from lesmc.report.text import make_console
-    from lesmc.tracking.monitor import track
+    from lesmc.tracking.monitor import follow_warnings, track
     from lesmc.tracking.trackers import make_tracker
     from lesmc.unfold.unfold import last_step
 
@@ -180,12 +184,16 @@ def track_cmd(
         sc = sc.payoff_free()
     if end is not None:
         last_step(sc, end)  # refuses steps past the scene's last frame
-    points = track(make_tracker(sc), end)
+    tracker = make_tracker(sc)
+    points = track(tracker, end)
+    warnings = follow_warnings(tracker, points)
     if as_json:
         doc = {
             "format": "lesmc-track",
             "version": 1,
             "design": sc.tracker.design,
+            "state": list(sc.tracker.state_names),
+            "warnings": warnings,
             "track": [
                 {
                     "step": p.step,
@@ -201,16 +209,30 @@ def track_cmd(
         }
         click.echo(json.dumps(doc, indent=1))
         return
+    make_console().print(_track_table(sc, points))
+    print_warnings(warnings)
+
+
+def _track_table(sc: Scene, points: list[TrackPoint]) -> Table:
+    """The unattacked track as a table: one column per state component, named as the
+    tracker names them (a ca2d state has six); values to 1/100 of a pixel, τ (px²) to
+    four significant digits."""
+    from rich.table import Table
+
+    from lesmc.common.numbers import fmt
+
     table = Table(title=f"unattacked track ({sc.tracker.design} design)", title_justify="left")
-    for col in ("step", "frame", "obs", "x", "y", "vx", "vy", "τ", "alarm"):
-        table.add_column(col, justify="left" if col in ("obs", "alarm") else "right")
+    for col in ("step", "frame", "obs", *(escape_text(n) for n in sc.tracker.state_names)):
+        table.add_column(col, justify="left" if col == "obs" else "right")
+    table.add_column("τ", justify="right")
+    table.add_column("alarm", justify="left")
     for p in points:
         table.add_row(
             str(p.step),
             str(p.frame),
             escape_text(p.obs or "-"),
-            *(fmt(v, 2) for v in p.x),
-            fmt(p.tau, 2),
+            *(f"{v:.2f}" for v in p.x),
+            fmt(p.tau, 4),
             "ALARM" if p.alarm else ("halted" if p.halted else ""),
         )
-    make_console().print(table)
+    return table

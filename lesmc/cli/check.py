@@ -9,6 +9,7 @@ from typing import TYPE_CHECKING, Any
 
 import click
 
+from lesmc.cli.documents import print_warnings, unattacked_warnings
 from lesmc.cli.options import (
     DEFAULT_MAX_STATES,
     RegistryChoice,
@@ -147,20 +148,27 @@ def check_cmd(
         faults=_faults(faults_file, parsed, is_scene),
         source=model,
     )
+    warnings = unattacked_warnings(source, design) if is_scene else []
     with Reporter("check") as rep, polite_stop():
         results = check_job(replace(job, on_stage=rep.stage))
     if report_dir is not None:
-        _report(results, parsed, report_dir, model, frames_dir, budget.started, is_scene)
-    _finish(results, parsed, as_json, no_paths)
+        _report(results, parsed, report_dir, model, frames_dir, budget.started, is_scene, warnings)
+    _finish(results, parsed, as_json, no_paths, warnings)
 
 
-def _finish(results: Results, parsed: tuple[SpecFile, ...], as_json: bool, no_paths: bool) -> None:
+def _finish(
+    results: Results,
+    parsed: tuple[SpecFile, ...],
+    as_json: bool,
+    no_paths: bool,
+    warnings: list[str],
+) -> None:
     """The results on stdout, then the exit status (130/143 after a polite SIGINT/SIGTERM:
     the partial results are out)."""
     from lesmc.cli.signals import exit_if_stopped
     from lesmc.results.exit import exit_status
 
-    _print(results, parsed, as_json, no_paths)
+    _print(results, parsed, as_json, no_paths, warnings)
     exit_if_stopped()
     sys.exit(exit_status(results.results))
 
@@ -236,14 +244,22 @@ def _faults(path: str | None, parsed: tuple[SpecFile, ...], is_scene: bool) -> F
     return blocks[0][1] if blocks else None
 
 
-def _print(results: Results, parsed: tuple[SpecFile, ...], as_json: bool, no_paths: bool) -> None:
-    """The results on stdout: the versioned JSON document, or the tables and paths."""
+def _print(
+    results: Results,
+    parsed: tuple[SpecFile, ...],
+    as_json: bool,
+    no_paths: bool,
+    warnings: list[str],
+) -> None:
+    """The results on stdout: the versioned JSON document, or the tables and paths followed
+    by the warnings."""
     from lesmc.report.text import make_console, print_results, results_json
 
     if as_json:
-        click.echo(results_json(results.results, parsed))
+        click.echo(results_json(results.results, parsed, warnings))
     else:
         print_results(make_console(), results.results, paths=not no_paths)
+        print_warnings(warnings)
 
 
 def _report(
@@ -254,12 +270,16 @@ def _report(
     frames_dir: str | None,
     started: float,
     is_scene: bool,
+    warnings: list[str],
 ) -> None:
-    """Write the results file and draw the report from it (lesmc/report/publish.py)."""
+    """Write the results file and draw the report from it (lesmc/report/publish.py); the
+    warnings are a line of its meta table."""
     from lesmc.report.publish import frames_reader, publish
     from lesmc.results.document import provenance
 
     meta = {"scene" if is_scene else "model": path}
+    if warnings:
+        meta["warning"] = " ".join(f"{w}." for w in warnings)
     timings = {"load, build and check": time.monotonic() - started}
     out, _ = publish(
         results.runs, report_dir, meta, provenance(parsed), frames_reader(frames_dir), timings

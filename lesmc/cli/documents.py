@@ -15,12 +15,15 @@ import json
 import os
 from collections.abc import Iterable
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import click
 from click.core import ParameterSource
 
-from lesmc.common.errors import UsageError
+from lesmc.common.errors import UsageError, escape_control
+
+if TYPE_CHECKING:
+    from lesmc.scene import Scene
 
 
 def emit(doc: dict[str, Any]) -> None:
@@ -81,3 +84,24 @@ def refuse_given(names: Iterable[str], why: str) -> None:
     for n in names:
         if given(n):
             raise UsageError(f"{flag(n)} {why}")
+
+
+def unattacked_warnings(scene: Scene, design: str | None = None) -> list[str]:
+    """Signs that the scene's unattacked track does not follow its target
+    (lesmc/tracking/monitor.py: follow_warnings), run with tracker ``design`` (default:
+    the scene's own)."""
+    from lesmc.designs import registry
+    from lesmc.tracking.monitor import follow_warnings, track
+    from lesmc.tracking.trackers import make_tracker
+
+    sc = scene if design is None else scene.with_tracker(design=registry.get(design).tracker)
+    if sc.has_unpriced:  # the unattacked states never depend on a payoff
+        sc = sc.payoff_free()
+    tracker = make_tracker(sc)
+    return follow_warnings(tracker, track(tracker))
+
+
+def print_warnings(warnings: Iterable[str], err: bool = False) -> None:
+    """Each warning on a line of its own, ``warning: ...`` (on stderr if ``err``)."""
+    for w in warnings:
+        click.echo(f"warning: {escape_control(w)}", err=err)

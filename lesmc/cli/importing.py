@@ -7,7 +7,14 @@ from typing import TYPE_CHECKING, Any
 
 import click
 
-from lesmc.cli.documents import emit, file_facts, run_provenance, say
+from lesmc.cli.documents import (
+    emit,
+    file_facts,
+    print_warnings,
+    run_provenance,
+    say,
+    unattacked_warnings,
+)
 from lesmc.cli.options import distinct_files, tracker_option
 from lesmc.common.errors import UsageError, escape_control
 
@@ -32,7 +39,8 @@ def import_group() -> None:
     type=click.Path(dir_okay=False),
     default=None,
     help="A gt.txt: with --track, the target starts at that track's first box, with the "
-    "velocity to its next box.",
+    "velocity to its next box; the file's tracks within the detections' frames become the "
+    "scene's truth (for dist.nearest).",
 )
 @click.option("--track", "track_id", type=int, default=None, help="The gt.txt track to follow.")
 @click.option(
@@ -89,10 +97,12 @@ def mot_cmd(
     One detection per line (frame,id,bb_left,bb_top,bb_width,bb_height,...), at
     the box's centre (or --point bottom). Steps are the file's frame numbers; a
     frame without lines has no detections. Without --gt/--track the scene has no
-    target: give --target X,Y@STEP to track, build, check or verify.
+    target: give --target X,Y@STEP to track, build, check or verify. With a
+    target, warns when its unattacked track does not follow it.
     Exit status: 0 written, 2 bad input, 4 internal error, 130 interrupted.
     """
-    from lesmc.scene import load_tracker, save_scene
+    from lesmc.scene import Scene, load_tracker, save_scene
+    from lesmc.scene.io import check_fits
     from lesmc.scene.mot import Point, import_mot
 
     if (gt_path is None) != (track_id is None):
@@ -109,19 +119,23 @@ def mot_cmd(
     tracker = load_tracker(tracker_file) if tracker_file else None
     at: Point = "bottom" if point == "bottom" else "center"
     scene = import_mot(det, 1.0 / fps, at, payoffs, gt_path, track_id, tracker)
+    if tracker is not None and isinstance(scene, Scene):  # refused here, where it is named
+        check_fits(tracker, scene.target, tracker_file or "--tracker", "model.state")
     save_scene(scene, output)
     doc = _document(scene, det, output, at, payoffs, f"{gt_path} track {track_id}")
     target = doc["target"]
     where = (
         "no target (give --target X,Y@STEP to track it)"
         if target is None
-        else f"target: track {track_id} from frame {target['step']}"
+        else f"target: track {track_id} from frame {target['step']}, "
+        f"truth: {doc['truth_tracks']} gt tracks"
     )
     frames = f"frames {doc['first_frame']}..{doc['last_frame']}"
     say(
         f"wrote {escape_control(output)}: {doc['detections']} detections in {frames}, {where}",
         as_json,
     )
+    print_warnings(doc["warnings"], err=as_json)
     if as_json:
         emit(doc)
 
@@ -168,4 +182,6 @@ def _document(
         "point": point,
         "payoffs": priced,
         "target": target,
+        "truth_tracks": len(scene.truth),
+        "warnings": unattacked_warnings(scene) if isinstance(scene, Scene) else [],
     }

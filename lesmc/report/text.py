@@ -26,13 +26,17 @@ COLOURS = {
 }
 
 
-def results_json(results: Sequence[CheckResult], specs: Sequence[SpecFile] = ()) -> str:
+def results_json(
+    results: Sequence[CheckResult], specs: Sequence[SpecFile] = (), warnings: Sequence[str] = ()
+) -> str:
     """The ``--json`` output of ``lesmc check``: format ``lesmc-check`` (docs/cli.md,
-    lesmc/schemas/check.json), the results and the provenance."""
+    lesmc/schemas/check.json), the results, the provenance and the input's ``warnings``
+    (a scene's unattacked track that does not follow its target)."""
     doc: dict[str, Any] = {
         "format": "lesmc-check",
         "version": 2,
         "provenance": provenance(specs),
+        "warnings": list(warnings),
         "results": [r.to_json() for r in results],
     }
     return json.dumps(doc, indent=1, allow_nan=False)

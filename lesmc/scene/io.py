@@ -36,6 +36,8 @@ from lesmc.scene.tracker_model import (
     PRESET_P0_SD,
     VELOCITY,
     parse_model,
+    preset_R,
+    singular_innovation,
     state_names,
     velocity,
 )
@@ -375,6 +377,10 @@ def _tracker(raw: Any, pr: Problems, item: str = "tracker") -> TrackerConfig | N
         if len(sd) != d:
             pr.add(item, f'P0_sd must have {d} entries for model "{model}", got {len(sd)}')
             return None
+        sigma_r = values.get("sigma_r", TrackerConfig.sigma_r)
+        if (why := singular_innovation(preset_R(sigma_r))) is not None:
+            pr.add(item, f"sigma_r = {sigma_r!r} makes R = sigma_r² I, which {why}")
+            return None
     else:
         for key in sorted(set(PRESET_ONLY) & set(values)):
             pr.add(
@@ -389,9 +395,18 @@ def tracker_from_dict(data: Any, path: str = "<tracker>") -> TrackerConfig:
     """A tracker file's configuration: the keys of a scene's ``tracker`` block, and an
     optional ``comment``."""
     pr = Problems()
-    if isinstance(data, dict) and isinstance(data.get("comment"), str):
+    if not isinstance(data, dict):
+        keys = ", ".join(f.name for f in fields(TrackerConfig) if f.name != "faults")
+        kinds = {list: "a list", str: "a string", bool: "a boolean", int: "a number"}
+        got = "null" if data is None else kinds.get(type(data), "a number")
+        raise InputError.many(
+            path, [("", f"a tracker file must be an object of the keys {keys}; got {got}")]
+        )
+    if "comment" in data:
+        if not isinstance(data["comment"], str):
+            pr.add("comment", f"must be a string (a note for people), got {show(data['comment'])}")
         data = {k: v for k, v in data.items() if k != "comment"}
-    cfg = _tracker(data, pr, "tracker" if not isinstance(data, dict) else "")
+    cfg = _tracker(data, pr, "")
     if pr.items or cfg is None:
         raise InputError.many(path, pr.items or [("", "not a tracker")])
     return cfg
@@ -405,13 +420,19 @@ def load_tracker(path: str | Path) -> TrackerConfig:
     return tracker_from_dict(read_toml(path), str(path))
 
 
-def check_fits(tracker: TrackerConfig, target: Target | None, path: str) -> None:
-    """The target's velocity needs components named vx, vy in the tracker's state."""
+def check_fits(
+    tracker: TrackerConfig, target: Target | None, path: str, item: str = "target"
+) -> None:
+    """The target's velocity needs components named vx, vy in the tracker's state (an
+    error of file ``path`` at ``item``: the scene's target, or a tracker file's state)."""
     if target is None or target.velocity == (0.0, 0.0) or velocity(tracker.model) is not None:
         return
     state = ", ".join(tracker.state_names)
-    why = f"velocity {list(target.velocity)} needs state components named {' and '.join(VELOCITY)}"
-    raise InputError.many(path, [("target", f"{why}; the tracker's state is {state}")])
+    # 12 significant digits: 17.975 as the input wrote it, not 17.974999999999994
+    shown = ", ".join(f"{v:.12g}" for v in target.velocity)
+    whose = "velocity" if item == "target" else "the target's velocity"
+    why = f"{whose} [{shown}] needs state components named {' and '.join(VELOCITY)}"
+    raise InputError.many(path, [(item, f"{why}; the tracker's state is {state}")])
 
 
 def _target(raw: Any, pr: Problems) -> Target | None:

@@ -19,10 +19,9 @@ Writing (:func:`write_det`, :func:`write_gt`) is the inverse, used by tests and 
 
 from __future__ import annotations
 
-import itertools
 import math
 from collections.abc import Iterable, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Literal
 
@@ -30,8 +29,8 @@ from lesmc.common.errors import InputError, Location, UsageError
 from lesmc.common.fields import MAX_STEP
 from lesmc.common.files import atomic_write_text, read_text
 from lesmc.scene.frames import Detection, Frame
-from lesmc.scene.io import MAX_COORD, MAX_PAYOFF
-from lesmc.scene.scene import Footage, Scene, Target, TrackerConfig
+from lesmc.scene.io import MAX_COORD, MAX_PAYOFF, MAX_TRUTH
+from lesmc.scene.scene import Footage, Scene, Target, TrackerConfig, TruthTrack
 
 Point = Literal["center", "bottom"]
 #: Columns a line must have, and may have.
@@ -225,19 +224,53 @@ def _at_column(path: str, n: int, line: str, col: int, text: str) -> Location:
     return Location(path, n, col + 1 + (len(text) - len(text.lstrip())), line)
 
 
+def one_box_a_frame(gt: Sequence[Box], path: str) -> None:
+    """A ground-truth track has one box a frame, in every frame of the file (not only the
+    detections'): a second box of a track in a frame is an error at the later line.
+    Boxes of id -1 (no track) are exempt."""
+    seen: dict[tuple[int, int], Box] = {}
+    for b in sorted(gt, key=lambda b: b.line):
+        if b.id < 0:
+            continue
+        a = seen.setdefault((b.id, b.frame), b)
+        if a is not b:
+            raise InputError(
+                f"track {b.id} has two boxes in frame {b.frame} (lines {a.line} and "
+                f"{b.line}): a ground-truth track has one box a frame",
+                _column_at(path, b.line, 0),
+            )
+
+
+def truth_from_gt(gt: Sequence[Box], path: str, point: Point = "center") -> tuple[TruthTrack, ...]:
+    """The scene's ``truth``: every track of ``gt`` (ids >= 0; one box a frame, see
+    :func:`one_box_a_frame`) as the point of each of its boxes, by frame; the track's id
+    is the gt id written as a string."""
+    by_track: dict[int, list[tuple[int, float, float]]] = {}
+    for b in sorted(gt, key=lambda b: (b.id, b.frame)):
+        if b.id < 0:
+            continue
+        x, y = b.point(point)
+        if not (abs(x) <= MAX_COORD and abs(y) <= MAX_COORD):
+            raise InputError(
+                f"the box's point ({x:g}, {y:g}) lies beyond ±{MAX_COORD:g}",
+                Location(path, b.line, 1),
+            )
+        by_track.setdefault(b.id, []).append((b.frame, x, y))
+    if len(by_track) > MAX_TRUTH:
+        raise InputError(
+            f"{len(by_track)} ground-truth tracks within the detections' frames: a scene "
+            f"carries at most {MAX_TRUTH}",
+            Location(path),
+        )
+    return tuple(TruthTrack(str(t), tuple(rows)) for t, rows in by_track.items())
+
+
 def target_from_gt(
     gt: Sequence[Box], track: int, path: str, dt: float, point: Point = "center"
 ) -> Target:
     """The target of ground-truth track ``track``: its first box's point and frame, and its
-    velocity to its next box (zero if it has none)."""
+    velocity to its next box (zero if it has none). One box a frame: :func:`one_box_a_frame`."""
     rows = sorted((b for b in gt if b.id == track), key=lambda b: (b.frame, b.line))
-    for a, b in itertools.pairwise(rows):
-        if a.frame == b.frame:
-            raise InputError(
-                f"track {track} has two boxes in frame {b.frame} (lines {a.line} and "
-                f"{b.line}): a ground-truth track has one box a frame",
-                _column_at(path, b.line, 0),
-            )
     if not rows:
         ids = sorted({b.id for b in gt})
         shown = ", ".join(str(i) for i in ids[:12]) + (" ..." if len(ids) > 12 else "")
@@ -267,14 +300,19 @@ def import_mot(
 ) -> Footage | Scene:
     """``lesmc import mot``: the scene of a det.txt, with the target of ground-truth track
     ``track`` of ``gt`` if given (a :class:`Footage` otherwise): its first box among the
-    detections' frames."""
+    detections' frames. The gt file's tracks within those frames become the scene's
+    ``truth`` (what ``dist.nearest`` measures against)."""
     footage = footage_from_boxes(read_boxes(det, True), det, dt, point, payoffs, tracker)
     if gt is None:
         return footage
     assert track is not None
     first, last = footage.frames[0].step, footage.last_step
     boxes = read_boxes(gt, False)
-    target = target_from_gt([b for b in boxes if first <= b.frame <= last], track, gt, dt, point)
+    one_box_a_frame(boxes, gt)
+    inside = [b for b in boxes if first <= b.frame <= last]
+    target = target_from_gt(inside, track, gt, dt, point)
+    truth = truth_from_gt(inside, gt, point)
+    footage = replace(footage, truth=truth)
     return footage.with_target(target, {**footage.meta, "target_from": f"{gt} track {track}"})
 
 

@@ -126,6 +126,28 @@ def velocity(model: TrackerModel) -> tuple[int, int] | None:
     return None
 
 
+def preset_R(sigma_r: float) -> np.ndarray:
+    """A preset's measurement noise covariance R = σ_r² I (Eq. 18)."""
+    return np.eye(2) * sigma_r**2
+
+
+def singular_innovation(R: np.ndarray) -> str | None:
+    """Why the innovation covariance S = H P Hᵀ + R (Eq. 3) could be numerically singular
+    with this R, or None. S ⪰ R, so det S ≥ det R; the filter inverts S in closed form
+    (lesmc/tracking/kalman.py: innovations), which needs det R = ad − bc to be a normal
+    float and R⁻¹ finite. A tiny but positive R (1e-300·I) passes the definiteness test
+    and would make every gate test divide by zero."""
+    det = float(R[0, 0] * R[1, 1] - R[0, 1] * R[1, 0])
+    inv_max = float(np.abs(R).max()) / det if det > 0 else math.inf
+    if det >= np.finfo(float).tiny and math.isfinite(inv_max):
+        return None
+    return (
+        f"is numerically singular: its determinant {det:.6g} is below the smallest normal "
+        f"float {np.finfo(float).tiny:.6g}, so S = H P Hᵀ + R cannot be inverted "
+        "(express positions in larger units, or give a larger measurement noise)"
+    )
+
+
 # ---------------------------------------------------------------- reading
 
 
@@ -158,6 +180,8 @@ def parse_model(raw: Any, pr: Problems, item: str = "tracker") -> TrackerModel |
         _check_h(mats["H"], state, pr, item)
         for name, definite in (("Q", False), ("R", True), ("P0", True)):
             mats[name] = _covariance(mats[name], name, definite, pr, item)
+        if len(pr.items) == n0 and (why := singular_innovation(mats["R"])) is not None:
+            pr.add(item, f"model.R {why}")
     if len(pr.items) > n0:
         return None
     rows = {k: tuple(tuple(float(v) for v in r) for r in m) for k, m in mats.items()}
@@ -165,6 +189,9 @@ def parse_model(raw: Any, pr: Problems, item: str = "tracker") -> TrackerModel |
 
 
 def _state(raw: Any, pr: Problems, item: str) -> tuple[str, ...] | None:
+    if raw is None:
+        pr.add(item, f"model.state is missing: a list of 2 to {MAX_STATE} component names")
+        return None
     ok = (
         isinstance(raw, list)
         and 2 <= len(raw) <= MAX_STATE
@@ -206,7 +233,7 @@ def _matrix(
         return None
     for r, row in enumerate(raw):
         if not isinstance(row, list) or len(row) != cols:
-            got = f"{len(row)}" if isinstance(row, list) else show(row)
+            got = f"{len(row)}" if isinstance(row, list) else f"{show(row)}, not a list"
             pr.add(
                 item, f"model.{name} row {r} must have {cols} entries, got {got}: {name} is {what}"
             )

@@ -22,7 +22,7 @@ import numpy as np
 
 from lesmc.scene import TrackerConfig
 from lesmc.scene.frames import warp as warp  # re-exported: the tracker carries states with it
-from lesmc.scene.tracker_model import EntryFault, measured, state_names, velocity
+from lesmc.scene.tracker_model import EntryFault, measured, preset_R, state_names, velocity
 
 H_POS = np.array([[1.0, 0.0, 0.0, 0.0], [0.0, 1.0, 0.0, 0.0]])
 """Measurement matrix of Eq. 18: the detector observes the position."""
@@ -76,7 +76,7 @@ def matrices(cfg: TrackerConfig, dt: float) -> Matrices:
     model = cfg.model
     if isinstance(model, str):
         F, Q, H = (cv2d if model == "cv2d" else ca2d)(dt, cfg.sigma_q**2)
-        R = np.eye(2) * cfg.sigma_r**2
+        R = preset_R(cfg.sigma_r)
         P0 = np.diag(np.square(np.asarray(cfg.P0_sd, dtype=float)))
     else:
         F, H, Q, R, P0 = (model.matrix(name) for name in ("F", "H", "Q", "R", "P0"))
