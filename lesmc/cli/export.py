@@ -11,6 +11,7 @@ from lesmc.cli.options import (
     RegistryChoice,
     distinct_files,
     parse_window,
+    refuse_multi,
     scene_target,
     tracker_option,
 )
@@ -160,6 +161,7 @@ def _model(
 
     source = load_model_or_scene(model, target_text, design, tracker_file)
     if isinstance(source, Scene):
+        refuse_multi(source, model, design)
         if window_text is None:
             raise UsageError("a scene is built for one attack window: give --window L..U")
         try:

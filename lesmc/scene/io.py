@@ -307,8 +307,6 @@ def _detection(raw: Any, where: str, pr: Problems, version: int) -> Detection | 
     for key in sorted(set(raw) - {"id", "x", "y", "payoff", "payoff_lower", "meta", "w", "h"}):
         pr.add(item, f"unknown key '{key}'")
         ok = False
-    box = _box(raw, item, pr, version)
-    ok = ok and box is not False
     if not (isinstance(did, str) and did):
         pr.add(item, "id must be a non-empty string")
         ok = False
@@ -349,18 +347,12 @@ def _detection(raw: Any, where: str, pr: Problems, version: int) -> Detection | 
             shown = UNATTACKABLE if lower == math.inf else lower
             pr.add(item, f"payoff_lower {shown!r} exceeds payoff {raw.get('payoff')!r}")
             ok = False
-    if not ok:
+    box = _box(raw, item, pr, version)
+    if not ok or box is False:
         return None
-    w, h = box if isinstance(box, tuple) else (None, None)
-    return Detection(
-        str(did),
-        float(raw["x"]),
-        float(raw["y"]),
-        float(payoff),  # type: ignore[arg-type]
-        None if lower is None else float(lower),
-        w,
-        h,
-    )
+    low = None if lower is None else float(lower)
+    wh = box if isinstance(box, tuple) else (None, None)
+    return Detection(str(did), float(raw["x"]), float(raw["y"]), float(payoff), low, *wh)  # type: ignore[arg-type]
 
 
 def _box(
@@ -405,6 +397,15 @@ def _tracker(raw: Any, pr: Problems, item: str = "tracker") -> TrackerConfig | N
         elif key == "gate_type":
             if v not in ("mahalanobis", "euclidean"):
                 pr.add(item, f'gate_type must be "mahalanobis" or "euclidean", got {v!r}')
+            values[key] = v
+        elif key in ("min_hits", "max_age"):
+            lo = 1 if key == "min_hits" else 0
+            if not (is_int(v) and lo <= v <= MAX_STEP):
+                pr.add(item, f"{key} must be an integer in {lo}..{MAX_STEP}, got {show(v)}")
+            values[key] = v
+        elif key == "iou_threshold":
+            if not positive(v, 1.0):
+                pr.add(item, f"iou_threshold must be a number in (0, 1], got {show(v)}")
             values[key] = v
         elif key == "P0_sd":
             hi = TRACKER_LIMITS[key]
