@@ -18,14 +18,16 @@ from lesmc.cli.options import (
     load_scene_file,
     model_output,
     parse_window,
+    refuse_multi,
     scene_target,
     tracker_option,
 )
-from lesmc.common.errors import escape_control, escape_text
+from lesmc.common.errors import UsageError, escape_control, escape_text
 
 if TYPE_CHECKING:
     from lesmc.model.arrays import ArrayModel
-    from lesmc.scene import Scene
+    from lesmc.scene import Footage, Scene
+    from lesmc.tracking.monitor import TrackPoint
 
 _DESIGN = design_option("Override the tracker design the scene names.")
 
@@ -84,7 +86,7 @@ def build_cmd(
     from lesmc.scene import UnpricedPayoff
 
     window = parse_window(window_text)
-    sc = load_scene_file(scene, design, target_text, tracker_file)
+    sc = refuse_multi(load_scene_file(scene, design, target_text, tracker_file), scene, design)
     loaded = time.monotonic()
     stop_if_spent(budget, None, "loading the scene")
     with Reporter("build") as rep, rep.bar("building", end or max_end(sc)) as bar:
@@ -166,21 +168,36 @@ def track_cmd(
     tracker_file: str | None,
     target_text: str | None,
 ) -> None:
-    """Run the tracker on SCENE unattacked: estimates, τ (Eq. 12) and monitor alarms (Eq. 13)."""
-    from rich.table import Table
+    """Run the tracker on SCENE unattacked: estimates, τ (Eq. 12) and monitor alarms (Eq. 13).
 
+    A multi-target design (sort) tracks every object from the scene's first frame and
+    prints every track's id, box and status per step, and the target's track id
+    (--target or the scene's; none without one).
+    """
     from lesmc.build.unfold import last_step
-    from lesmc.common.numbers import fmt
+    from lesmc.designs import registry
     from lesmc.designs.registry import make_tracker
-    from lesmc.report.text import make_console
+    from lesmc.scene import Scene
     from lesmc.tracking.monitor import track
 
-    sc = load_scene_file(scene, design, target_text, tracker_file)
+    loaded = _footage_or_scene(scene, design, target_text, tracker_file)
+    if registry.get(loaded.tracker.design).multi:
+        from lesmc.cli.multi_track import track_multi
+
+        track_multi(loaded, scene, end, as_json)
+        return
+    if not isinstance(loaded, Scene):
+        raise UsageError(f"{scene} has no target: give --target X,Y@STEP")
+    sc = loaded
     if sc.has_unpriced:  # the unattacked states never depend on a payoff
         sc = sc.payoff_free()
     if end is not None:
         last_step(sc, end)  # refuses steps past the scene's last frame
-    points = track(make_tracker(sc), end)
+    _print_track(sc, track(make_tracker(sc), end), as_json)
+
+
+def _print_track(sc: Scene, points: list[TrackPoint], as_json: bool) -> None:
+    """The unattacked track of a single-target design, as JSON or a table."""
     if as_json:
         doc = {
             "format": "lesmc-track",
@@ -201,6 +218,11 @@ def track_cmd(
         }
         click.echo(json.dumps(doc, indent=1))
         return
+    from rich.table import Table
+
+    from lesmc.common.numbers import fmt
+    from lesmc.report.text import make_console
+
     table = Table(title=f"unattacked track ({sc.tracker.design} design)", title_justify="left")
     for col in ("step", "frame", "obs", "x", "y", "vx", "vy", "τ", "alarm"):
         table.add_column(col, justify="left" if col in ("obs", "alarm") else "right")
@@ -214,3 +236,19 @@ def track_cmd(
             "ALARM" if p.alarm else ("halted" if p.halted else ""),
         )
     make_console().print(table)
+
+
+def _footage_or_scene(
+    path: str, design: str | None, target: str | None, tracker: str | None
+) -> Scene | Footage:
+    """The scene file as ``load_scene_file`` reads it, or its footage when it has no target
+    and none is given (a multi-target design needs none)."""
+    from pathlib import Path
+
+    from lesmc.common.errors import InputError
+    from lesmc.common.files import read_json
+    from lesmc.scene import load_tracker
+    from lesmc.tracking.targets import footage_or_scene
+
+    cfg = load_tracker(tracker) if tracker is not None else None
+    return footage_or_scene(read_json(Path(path), InputError), path, target, design, cfg)
