@@ -220,6 +220,7 @@ def test_checking_a_multi_target_design_is_a_clear_error(tmp_path: Path) -> None
             "sort",
         ),
     }
+    runs["verify"] = lesmc("verify", "--design", "sort", "--out", str(tmp_path / "v"))
     for what, r in runs.items():
         assert r.returncode == 2 and "Traceback" not in r.stderr, (what, r.stderr)
         assert "multi-target" in r.stderr and "not supported yet" in r.stderr, (what, r.stderr)
