@@ -238,6 +238,12 @@ def test_a_sort_scene_needs_no_target(tmp_path: Path) -> None:
     assert [[t["status"] for t in e["tracks"]] for e in doc["track"]] == [["confirmed"]] * 2
     r = lesmc("track", str(scene), "--design", "single")
     assert r.returncode == 2 and "has no target" in r.stderr
+    r = lesmc("track", str(scene), "--json", "--end", "0")
+    assert r.returncode == 0 and len(json.loads(r.stdout)["track"]) == 1
+    r = lesmc("track", str(scene), "--end", "2")
+    assert (
+        r.returncode == 2 and "end 2 is beyond the scene: its frames allow steps 0..1" in r.stderr
+    )
 
 
 def test_the_footage_type_is_what_the_loader_gives() -> None:
