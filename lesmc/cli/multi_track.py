@@ -13,9 +13,9 @@ from lesmc.scene import Footage, Scene
 
 def track_multi(sc: Scene | Footage, path: str, end: int | None, as_json: bool) -> None:
     """Run the multi-target design of ``sc`` unattacked and print its tracks."""
-    from lesmc.tracking.multi import SortDesign
+    from lesmc.designs import registry
 
-    steps = SortDesign(sc, path).run(end)
+    steps = registry.get(sc.tracker.design).make_multi(sc, path).run(end)
     if as_json:
         click.echo(json.dumps(multi_document(sc.tracker.design, steps), indent=1))
         return

@@ -17,11 +17,12 @@ from __future__ import annotations
 
 import importlib
 from dataclasses import dataclass
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 if TYPE_CHECKING:
-    from lesmc.scene import Scene
+    from lesmc.scene import Footage, Scene
     from lesmc.tracking.design import Design as TrackerImpl
+    from lesmc.tracking.multi import MultiDesign
 
 
 @dataclass(frozen=True)
@@ -49,11 +50,15 @@ class Design:
 
     def load(self) -> type[TrackerImpl]:
         """The tracker's class (imported now)."""
+        out: type[TrackerImpl] = self._class()
+        return out
+
+    def _class(self) -> Any:
+        """The tracker's class, ``module:Class``, imported now."""
         impl = _DESIGNS[self.tracker].implementation
         assert impl is not None
         module, _, cls = impl.partition(":")
-        out: type[TrackerImpl] = getattr(importlib.import_module(module), cls)
-        return out
+        return getattr(importlib.import_module(module), cls)
 
     def make(self, scene: Scene) -> TrackerImpl:
         """The tracker, set up for ``scene`` (a multi-target design: a UsageError, as no
@@ -63,6 +68,12 @@ class Design:
 
             raise UsageError(not_yet(self.name))
         made: TrackerImpl = self.load()(scene)  # type: ignore[call-arg]
+        return made
+
+    def make_multi(self, scene: Scene | Footage, path: str) -> MultiDesign:
+        """A multi-target tracker, set up for ``scene`` (read from ``path``)."""
+        assert self.multi
+        made: MultiDesign = self._class()(scene, path)
         return made
 
 

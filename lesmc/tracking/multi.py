@@ -15,6 +15,7 @@ multi-target design are not built yet (lesmc/designs/registry.py ``not_yet``).
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from typing import Protocol
 
 import numpy as np
 
@@ -139,6 +140,14 @@ class MultiStep:
     frame: int
     tracks: FrameTracks
     target_id: int | None
+
+
+class MultiDesign(Protocol):
+    """What the registry makes of a multi-target design: its unattacked run."""
+
+    def run(self, end: int | None = None) -> list[MultiStep]:
+        """The steps from the scene's first frame to ``end`` (default: the last)."""
+        ...
 
 
 class SortDesign:
