@@ -119,6 +119,8 @@ def expand_designs(choice: str) -> tuple[str, ...]:
         raise UsageError(
             f"unknown design {choice!r}; choose one of {', '.join(registry.choices())}"
         )
+    if choice in registry.names() and registry.get(choice).multi:
+        raise UsageError(f"--design {choice}: {registry.not_yet(choice)}")
     return registry.expand(choice)
 
 

@@ -18,16 +18,17 @@ from lesmc.cli.options import (
     load_scene_file,
     model_output,
     parse_window,
+    refuse_multi,
     scene_target,
     tracker_option,
 )
-from lesmc.common.errors import escape_control, escape_text
+from lesmc.common.errors import UsageError, escape_control, escape_text
 
 if TYPE_CHECKING:
     from rich.table import Table
 
     from lesmc.model.arrays import ArrayModel
-    from lesmc.scene import Scene
+    from lesmc.scene import Footage, Scene
     from lesmc.tracking.monitor import TrackPoint
 
 _DESIGN = design_option("Override the tracker design the scene names.")
@@ -87,7 +88,7 @@ def build_cmd(
     from lesmc.unfold.unfold import build_model, max_end
 
     window = parse_window(window_text)
-    sc = load_scene_file(scene, design, target_text, tracker_file)
+    sc = refuse_multi(load_scene_file(scene, design, target_text, tracker_file), scene, design)
     loaded = time.monotonic()
     stop_if_spent(budget, None, "loading the scene")
     with Reporter("build") as rep, rep.bar("building", end or max_end(sc)) as bar:
@@ -172,14 +173,33 @@ def track_cmd(
     """Run the tracker on SCENE unattacked: estimates, τ (Eq. 12) and monitor alarms (Eq. 13).
 
     Warns when the track does not follow its target (no detection in its first
-    steps, or an end far from the target's truth; docs/own-system.md).
+    steps, or an end far from the target's truth; docs/own-system.md). A multi-target
+    design (sort) tracks every object from the scene's first frame and prints every
+    track's id, box and status per step, and the target's track id (--target or the
+    scene's; none without one).
     """
+    from lesmc.designs import registry
+    from lesmc.scene import Scene
+
+    loaded = _footage_or_scene(scene, design, target_text, tracker_file)
+    if registry.get(loaded.tracker.design).multi:
+        from lesmc.cli.multi_track import track_multi
+
+        track_multi(loaded, scene, end, as_json)
+        return
+    if not isinstance(loaded, Scene):
+        raise UsageError(f"{scene} has no target: give --target X,Y@STEP")
+    _print_track(loaded, end, as_json)
+
+
+def _print_track(sc: Scene, end: int | None, as_json: bool) -> None:
+    """The unattacked track of a single-target design, as JSON or a table, and the
+    warnings when it does not follow its target."""
     from lesmc.report.text import make_console
     from lesmc.tracking.monitor import follow_warnings, track
     from lesmc.tracking.trackers import make_tracker
     from lesmc.unfold.unfold import last_step
 
-    sc = load_scene_file(scene, design, target_text, tracker_file)
     if sc.has_unpriced:  # the unattacked states never depend on a payoff
         sc = sc.payoff_free()
     if end is not None:
@@ -236,3 +256,19 @@ def _track_table(sc: Scene, points: list[TrackPoint]) -> Table:
             "ALARM" if p.alarm else ("halted" if p.halted else ""),
         )
     return table
+
+
+def _footage_or_scene(
+    path: str, design: str | None, target: str | None, tracker: str | None
+) -> Scene | Footage:
+    """The scene file as ``load_scene_file`` reads it, or its footage when it has no target
+    and none is given (a multi-target design needs none)."""
+    from pathlib import Path
+
+    from lesmc.common.errors import InputError
+    from lesmc.common.files import read_json
+    from lesmc.scene import load_tracker
+    from lesmc.tracking.targets import footage_or_scene
+
+    cfg = load_tracker(tracker) if tracker is not None else None
+    return footage_or_scene(read_json(Path(path), InputError), path, target, design, cfg)

@@ -18,6 +18,7 @@ from lesmc.cli.options import (
     faults_option,
     frames_option,
     payoffs_option,
+    refuse_multi,
     scene_target,
     tracker_option,
 )
@@ -304,6 +305,8 @@ def _inputs(
     is_scene = isinstance(source, Scene)
     if design is not None and not is_scene:
         raise UsageError("--design applies to scenes, not to .lts models")
+    if isinstance(source, Scene):
+        refuse_multi(source, model, design)
     return parsed, source, is_scene
 
 

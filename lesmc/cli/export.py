@@ -15,6 +15,7 @@ from lesmc.cli.options import (
     RegistryChoice,
     distinct_files,
     parse_window,
+    refuse_multi,
     scene_target,
     tracker_option,
 )
@@ -222,6 +223,7 @@ def _model(
 
     source = load_model_or_scene(model, target_text, design, tracker_file)
     if isinstance(source, Scene):
+        refuse_multi(source, model, design)
         window = _scene_window(source, window_text, spec, prop)
         try:
             return build_model(source, window)

@@ -95,7 +95,8 @@ def mot_cmd(
 
     \b
     One detection per line (frame,id,bb_left,bb_top,bb_width,bb_height,...), at
-    the box's centre (or --point bottom). Steps are the file's frame numbers; a
+    the box's centre, keeping the box's width and height (or --point bottom: the
+    bottom centre, no box). Steps are the file's frame numbers; a
     frame without lines has no detections. Without --gt/--track the scene has no
     target: give --target X,Y@STEP to track, build, check or verify. With a
     target, warns when its unattacked track does not follow it.

@@ -46,6 +46,9 @@ class Detection:
     payoff: float
     #: certified lower bound on every hiding perturbation's norm (docs/cnn.md); None: not computed
     payoff_lower: float | None = None
+    #: the box's width and height, centred on (x, y) (scene format 2); None: a point detection
+    w: float | None = None
+    h: float | None = None
 
     @property
     def attackable(self) -> bool:
@@ -80,6 +83,29 @@ class Frame:
     def positions(self) -> np.ndarray:
         """(n, 2) detection positions (computed once, read-only)."""
         return self._positions
+
+    @cached_property
+    def has_boxes(self) -> bool:
+        """Every detection carries a box (a frame without detections has boxes)."""
+        return all(d.w is not None and d.h is not None for d in self.detections)
+
+    @cached_property
+    def _boxes(self) -> np.ndarray:
+        rows = [
+            [d.x - d.w / 2.0, d.y - d.h / 2.0, d.x + d.w / 2.0, d.y + d.h / 2.0]
+            for d in self.detections
+            if d.w is not None and d.h is not None
+        ]
+        arr = np.array(rows, dtype=float).reshape(-1, 4)
+        arr.flags.writeable = False
+        return arr
+
+    def boxes(self) -> np.ndarray:
+        """(n, 4) the detections' boxes [x1, y1, x2, y2] (read-only); only for a frame that
+        :attr:`has_boxes`."""
+        if not self.has_boxes:
+            raise ValueError(f"frame {self.step}: a detection has no box")
+        return self._boxes
 
     @cached_property
     def _tree(self) -> cKDTree | None:

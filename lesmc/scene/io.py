@@ -17,7 +17,15 @@ from typing import Any
 import numpy as np
 
 from lesmc.common.errors import InputError, Problems
-from lesmc.common.fields import MAX_STEP, header, is_finite, is_int, positive, show, within
+from lesmc.common.fields import (
+    MAX_STEP,
+    is_finite,
+    is_int,
+    is_version,
+    positive,
+    show,
+    within,
+)
 from lesmc.common.files import read_json, read_toml, write_json
 from lesmc.designs import registry
 from lesmc.scene.frames import Detection, Frame
@@ -61,7 +69,11 @@ TRACKER_LIMITS = {
     "prune_radius": 1e7,
 }
 FORMAT = "lesmc-scene"
-VERSION = 1
+#: The newest version: 2 added detection boxes (``w``, ``h``). The loader reads every
+#: version in :data:`VERSIONS`; the writer writes the lowest one that holds the scene (1
+#: when no detection has a box), so older lesmc releases still read point scenes.
+VERSION = 2
+VERSIONS = (1, 2)
 
 
 def load_scene(path: str | Path) -> Scene:
@@ -96,12 +108,12 @@ def footage_from_dict(
     }
     for key in sorted(set(data) - allowed):
         pr.add(f"key '{key}'", "unknown top-level key")
-    header(data, FORMAT, VERSION, pr)
+    version = _version(data, pr)
     dt = data.get("dt", 1.0)
     if not (is_finite(dt) and 0 < dt <= MAX_DT):
         pr.add("dt", f"must be a number of seconds in (0, {MAX_DT:g}], got {show(dt)}")
         dt = 1.0
-    frames = _frames(data.get("frames"), pr)
+    frames = _frames(data.get("frames"), pr, version)
     truth = _truth(data.get("truth", []), frames, pr)
     tracker = _tracker(data.get("tracker", {}), pr)
     target = None
@@ -203,13 +215,27 @@ def _truth(raw: Any, frames: list[Frame], pr: Problems) -> tuple[TruthTrack, ...
     return tuple(out)
 
 
-def _frames(raw_frames: Any, pr: Problems) -> list[Frame]:
+def _version(data: dict[str, Any], pr: Problems) -> int:
+    """The file's ``format`` and ``version`` (one of :data:`VERSIONS`; the newest if bad)."""
+    if data.get("format") != FORMAT:
+        pr.add("format", f'must be "{FORMAT}", got {show(data.get("format"))}')
+    got = data.get("version")
+    for v in VERSIONS:
+        if is_version(got, v):
+            return v
+    pr.add("version", f"must be 1 or 2, got {show(got)}")
+    return VERSION
+
+
+def _frames(raw_frames: Any, pr: Problems, version: int = VERSION) -> list[Frame]:
     """The frames of a scene file: each valid, consecutive steps, homographies that keep
     every detection in front of the camera."""
     if not isinstance(raw_frames, list) or not raw_frames:
         pr.add("frames", "must be a non-empty list")
         return []
-    frames = [fr for i, rf in enumerate(raw_frames) if (fr := _frame(rf, i, pr)) is not None]
+    frames = [
+        fr for i, rf in enumerate(raw_frames) if (fr := _frame(rf, i, pr, version)) is not None
+    ]
     if len(frames) == len(raw_frames):
         for a, b in itertools.pairwise(frames):
             if b.step != a.step + 1:
@@ -229,7 +255,7 @@ def _frames(raw_frames: Any, pr: Problems) -> list[Frame]:
     return frames
 
 
-def _frame(raw: Any, i: int, pr: Problems) -> Frame | None:
+def _frame(raw: Any, i: int, pr: Problems, version: int) -> Frame | None:
     if not isinstance(raw, dict):
         pr.add(f"frames[{i}]", "must be an object")
         return None
@@ -250,7 +276,7 @@ def _frame(raw: Any, i: int, pr: Problems) -> Frame | None:
         dets_raw = []
     seen: set[str] = set()
     for j, rd in enumerate(dets_raw):
-        d = _detection(rd, f"{item}, detections[{j}]", pr)
+        d = _detection(rd, f"{item}, detections[{j}]", pr, version)
         if d is None:
             ok = False
             continue
@@ -273,14 +299,14 @@ def _frame(raw: Any, i: int, pr: Problems) -> Frame | None:
     return Frame(int(step), tuple(dets), H)  # type: ignore[arg-type]
 
 
-def _detection(raw: Any, where: str, pr: Problems) -> Detection | None:
+def _detection(raw: Any, where: str, pr: Problems, version: int) -> Detection | None:
     if not isinstance(raw, dict):
         pr.add(where, "must be an object")
         return None
     did = raw.get("id")
     item = where if not isinstance(did, str) else f"{where.split(',')[0]}, detection '{did}'"
     ok = True
-    for key in sorted(set(raw) - {"id", "x", "y", "payoff", "payoff_lower", "meta"}):
+    for key in sorted(set(raw) - {"id", "x", "y", "payoff", "payoff_lower", "meta", "w", "h"}):
         pr.add(item, f"unknown key '{key}'")
         ok = False
     if not (isinstance(did, str) and did):
@@ -323,15 +349,32 @@ def _detection(raw: Any, where: str, pr: Problems) -> Detection | None:
             shown = UNATTACKABLE if lower == math.inf else lower
             pr.add(item, f"payoff_lower {shown!r} exceeds payoff {raw.get('payoff')!r}")
             ok = False
-    if not ok:
+    box = _box(raw, item, pr, version)
+    if not ok or box is False:
         return None
-    return Detection(
-        str(did),
-        float(raw["x"]),
-        float(raw["y"]),
-        float(payoff),  # type: ignore[arg-type]
-        None if lower is None else float(lower),
-    )
+    low = None if lower is None else float(lower)
+    wh = box if isinstance(box, tuple) else (None, None)
+    return Detection(str(did), float(raw["x"]), float(raw["y"]), float(payoff), low, *wh)  # type: ignore[arg-type]
+
+
+def _box(
+    raw: dict[str, Any], item: str, pr: Problems, version: int
+) -> tuple[float, float] | bool | None:
+    """A detection's box ``w``, ``h`` (both or neither, each in (0, MAX_COORD]; scene
+    format 2): the pair, None for a point detection, False after a problem."""
+    given = [k for k in ("w", "h") if k in raw]
+    if not given:
+        return None
+    if version < 2:
+        pr.add(item, f"{given[0]} (a box) needs scene format version 2, the file says {version}")
+        return False
+    if len(given) == 1:
+        pr.add(item, f"{given[0]} needs {'h' if given[0] == 'w' else 'w'} too: a box is w and h")
+        return False
+    bad = [k for k in given if not positive(raw[k], MAX_COORD)]
+    for k in bad:
+        pr.add(item, f"{k} must be a number in (0, {MAX_COORD:g}], got {show(raw[k])}")
+    return False if bad else (float(raw["w"]), float(raw["h"]))
 
 
 def _tracker(raw: Any, pr: Problems, item: str = "tracker") -> TrackerConfig | None:
@@ -356,6 +399,15 @@ def _tracker(raw: Any, pr: Problems, item: str = "tracker") -> TrackerConfig | N
         elif key == "gate_type":
             if v not in ("mahalanobis", "euclidean"):
                 pr.add(item, f'gate_type must be "mahalanobis" or "euclidean", got {v!r}')
+            values[key] = v
+        elif key in ("min_hits", "max_age"):
+            lo = 1 if key == "min_hits" else 0
+            if not (is_int(v) and lo <= v <= MAX_STEP):
+                pr.add(item, f"{key} must be an integer in {lo}..{MAX_STEP}, got {show(v)}")
+            values[key] = v
+        elif key == "iou_threshold":
+            if not positive(v, 1.0):
+                pr.add(item, f"iou_threshold must be a number in (0, 1], got {show(v)}")
             values[key] = v
         elif key == "P0_sd":
             hi = TRACKER_LIMITS[key]
@@ -488,9 +540,10 @@ def scene_to_dict(scene: Scene | Footage) -> dict[str, Any]:
         if fr.to_next is not None:
             d["to_next"] = fr.to_next.tolist()
         frames.append(d)
+    boxed = any(d.w is not None for fr in scene.frames for d in fr.detections)
     doc: dict[str, Any] = {
         "format": FORMAT,
-        "version": VERSION,
+        "version": VERSION if boxed else 1,
         "dt": scene.dt,
         "frames": frames,
     }
@@ -520,6 +573,8 @@ def _det_json(det: Detection) -> dict[str, Any]:
     if det.payoff_lower is not None:
         low = det.payoff_lower
         out["payoff_lower"] = low if math.isfinite(low) else UNATTACKABLE
+    if det.w is not None and det.h is not None:
+        out["w"], out["h"] = det.w, det.h
     return out
 
 

@@ -176,7 +176,8 @@ def footage_from_boxes(
     tracker: TrackerConfig | None = None,
 ) -> Footage:
     """Frames of detections (steps = MOT frame numbers, every frame from the first to the
-    last; detection ids ``FRAME:K``, K its place among the frame's lines)."""
+    last; detection ids ``FRAME:K``, K its place among the frame's lines), each with its
+    box's w, h when ``point`` is the centre."""
     by_frame: dict[int, list[Detection]] = {}
     for b in boxes:
         x, y = b.point(point)
@@ -186,7 +187,11 @@ def footage_from_boxes(
                 Location(path, b.line, 1),
             )
         dets = by_frame.setdefault(b.frame, [])
-        dets.append(Detection(f"{b.frame}:{len(dets)}", x, y, _payoff(b, payoffs, path)))
+        # the box is kept around a centre point only (at the bottom centre it is not around it)
+        w, h = (b.width, b.height) if point == "center" else (None, None)
+        dets.append(
+            Detection(f"{b.frame}:{len(dets)}", x, y, _payoff(b, payoffs, path), None, w, h)
+        )
     first, last = min(by_frame), max(by_frame)
     frames = tuple(Frame(k, tuple(by_frame.get(k, ()))) for k in range(first, last + 1))
     meta = {"source": path, "format": "MOTChallenge", "point": point}

@@ -53,6 +53,10 @@ class TrackerConfig:
     init_radius: float = 150.0  # unassociated detections this close to the primary may start tracks
     init_distance: float = 60.0  # max distance to a previous unassociated detection to start one
     prune_radius: float = 200.0  # refining tracks farther than this from the primary are dropped
+    # multi-target box trackers (sort; lesmc/tracking/multi.py): SORT's defaults
+    min_hits: int = 3  # a track is output once updated this many frames in a row
+    max_age: int = 1  # a track missed more than this many frames in a row ends
+    iou_threshold: float = 0.3  # a (detection, track) pair is admissible at this IoU or more
     model: TrackerModel = DEFAULT_MODEL
     #: matrix faults in force from their frames on (fault variants of lesmc/pipeline/faults.py;
     #: never in a scene file)
@@ -69,13 +73,14 @@ class TrackerConfig:
         return measured(self.model)
 
     def to_json(self) -> dict[str, Any]:
-        """The file form; ``model`` is left out when it is the default preset, and a
-        declared model's unused ``sigma_q``, ``sigma_r`` and ``P0_sd`` are left out."""
+        """The file form; ``model`` is left out when it is the default preset, a
+        declared model's unused ``sigma_q``, ``sigma_r`` and ``P0_sd`` are left out, and so
+        are the multi-target parameters at their defaults."""
         d: dict[str, Any] = {}
         declared = not isinstance(self.model, str)
         for f in fields(self):
             v = getattr(self, f.name)
-            if f.name == "faults":
+            if f.name == "faults" or (f.name in MULTI_ONLY and v == f.default):
                 continue
             if f.name == "model":
                 if v != DEFAULT_MODEL:
@@ -87,6 +92,8 @@ class TrackerConfig:
 
 #: The parameters only a preset model reads.
 PRESET_ONLY = ("sigma_q", "sigma_r", "P0_sd")
+#: The parameters only a multi-target tracker reads (written only when not the default).
+MULTI_ONLY = ("min_hits", "max_age", "iou_threshold")
 
 
 @dataclass(frozen=True)

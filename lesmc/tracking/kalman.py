@@ -180,19 +180,23 @@ def innovation(m: Matrices, P_pred: np.ndarray) -> Innovation:
 def innovations(m: Matrices, P_pred: np.ndarray) -> Innovation:
     """Eq. 3 for a stack of predicted covariances (k, d, d).
 
-    S = H P̂ Hᵀ + R, S⁻¹ (closed form of a 2×2 inverse), K = P̂ Hᵀ S⁻¹, and P⁺
+    S = H P̂ Hᵀ + R, S⁻¹ (closed form of a 2×2 inverse; LAPACK's per matrix for a
+    larger measurement), K = P̂ Hᵀ S⁻¹, and P⁺
     in Joseph form (I−KH)P̂(I−KH)ᵀ + K R Kᵀ. Stacked matrix products (one per
     matrix of the stack), so that each result is the same whether computed alone
     or in a batch.
     """
     S = m.H @ P_pred @ m.H.T + m.R
-    a, b, c, d = S[:, 0, 0], S[:, 0, 1], S[:, 1, 0], S[:, 1, 1]
-    det = a * d - b * c
-    S_inv = np.empty_like(S)
-    S_inv[:, 0, 0] = d / det
-    S_inv[:, 0, 1] = -b / det
-    S_inv[:, 1, 0] = -c / det
-    S_inv[:, 1, 1] = a / det
+    if S.shape[-1] == 2:
+        a, b, c, d = S[:, 0, 0], S[:, 0, 1], S[:, 1, 0], S[:, 1, 1]
+        det = a * d - b * c
+        S_inv = np.empty_like(S)
+        S_inv[:, 0, 0] = d / det
+        S_inv[:, 0, 1] = -b / det
+        S_inv[:, 1, 0] = -c / det
+        S_inv[:, 1, 1] = a / det
+    else:  # a box tracker's measurement (cx, cy, s, r): one LAPACK inverse per matrix
+        S_inv = np.linalg.inv(S)
     K = P_pred @ m.H.T @ S_inv
     I_KH = np.eye(P_pred.shape[-1]) - K @ m.H
     P_post = I_KH @ P_pred @ I_KH.transpose(0, 2, 1) + K @ m.R @ K.transpose(0, 2, 1)
@@ -223,12 +227,12 @@ def positions(m: Matrices, X: np.ndarray) -> np.ndarray:
 
 
 def measure(m: Matrices, X: np.ndarray) -> np.ndarray:
-    """H x for states (..., d): the predicted measurement (..., 2). A copy of the position
-    when H selects it (:attr:`Matrices.selects`), else summed term by term in column
-    order (elementwise: a state's value does not depend on the batch)."""
+    """H x for states (..., d): the predicted measurement (..., 2; a box tracker's (..., 4)).
+    A copy of the position when H selects it (:attr:`Matrices.selects`), else summed term by
+    term in column order (elementwise: a state's value does not depend on the batch)."""
     if m.selects:
         return positions(m, X)
-    out = np.zeros((*X.shape[:-1], 2))
+    out = np.zeros((*X.shape[:-1], m.H.shape[0]))
     for j in range(m.dim):
         out += X[..., j : j + 1] * m.H[:, j]
     return out
@@ -237,10 +241,13 @@ def measure(m: Matrices, X: np.ndarray) -> np.ndarray:
 def update_means(m: Matrices, X_pred: np.ndarray, K: np.ndarray, Z: np.ndarray) -> np.ndarray:
     """Eq. 2: x = x̂ + K (z − H x̂), row by row (elementwise, batch-size independent).
 
-    ``K`` is one gain (d, 2) for every row, or one per row (n, d, 2).
+    ``K`` is one gain (d, m) for every row, or one per row (n, d, m); m = 2 for a point
+    tracker (a box tracker's is 4), the terms summed in order.
     """
     y = Z - measure(m, X_pred)
-    out: np.ndarray = X_pred + y[..., 0:1] * K[..., 0] + y[..., 1:2] * K[..., 1]
+    out: np.ndarray = X_pred + y[..., 0:1] * K[..., 0]
+    for i in range(1, y.shape[-1]):
+        out = out + y[..., i : i + 1] * K[..., i]
     return out
 
 
@@ -265,3 +272,27 @@ def mahalanobis2(y: np.ndarray, S_inv: np.ndarray) -> np.ndarray:
     a, b, d = (np.reshape(v, np.shape(v) + extra) for v in (a, b, d))
     out: np.ndarray = a * y[..., 0] ** 2 + b * y[..., 0] * y[..., 1] + d * y[..., 1] ** 2
     return out
+
+
+#: The state of a box tracker (Bewley et al., SORT, 2016): the box's centre, its area
+#: s = w·h and aspect ratio r = w/h, and the velocities of the centre and of the area.
+BOX_STATE = ("cx", "cy", "s", "r", "vcx", "vcy", "vs")
+
+
+def sort_box() -> Matrices:
+    """SORT's constant-velocity box model, as its ``KalmanBoxTracker`` sets filterpy's
+    defaults (identities) up: F adds each velocity to its component, H measures
+    (cx, cy, s, r), R = diag(1, 1, 10, 10), P0 = diag(10, 10, 10, 10, 10⁴, 10⁴, 10⁴),
+    Q = diag(1, 1, 1, 1, 0.01, 0.01, 10⁻⁴) (the same products of the same numbers)."""
+    F = np.eye(7)
+    F[0, 4] = F[1, 5] = F[2, 6] = 1.0
+    H = np.eye(4, 7)
+    R = np.eye(4)
+    R[2:, 2:] *= 10.0
+    P0 = np.eye(7)
+    P0[4:, 4:] *= 1000.0
+    P0 *= 10.0
+    Q = np.eye(7)
+    Q[-1, -1] *= 0.01
+    Q[4:, 4:] *= 0.01
+    return Matrices(F, Q, H, R, P0, BOX_STATE, (0, 1), (4, 5))

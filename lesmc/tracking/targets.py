@@ -266,17 +266,32 @@ def scene_with_target(
     """A scene document's scene; ``target`` (``X,Y@STEP``) overrides or supplies its target,
     ``tracker`` (a tracker file's, ``--tracker``) replaces its tracker block, ``design``
     the tracker design it names."""
+    scene = footage_or_scene(data, path, target, design, tracker)
+    if not isinstance(scene, Scene):
+        raise UsageError(f"{path} has no target: give --target X,Y@STEP")
+    return scene
+
+
+def footage_or_scene(
+    data: Any,
+    path: str,
+    target: str | None = None,
+    design: str | None = None,
+    tracker: TrackerConfig | None = None,
+) -> Scene | Footage:
+    """:func:`scene_with_target`, or the footage when it has no target and none is given
+    (a multi-target design tracks every object without one)."""
     footage, own = footage_from_dict(data, path)
     if tracker is not None:
         footage = dataclasses.replace(footage, tracker=tracker)
         check_fits(tracker, own if target is None else None, path)
+    if design:
+        footage = dataclasses.replace(
+            footage, tracker=dataclasses.replace(footage.tracker, design=design)
+        )
     if target is not None:
-        scene = place_target(footage, parse_target(target))
-    elif own is None:
-        raise UsageError(f"{path} has no target: give --target X,Y@STEP")
-    else:
-        scene = footage.with_target(own, footage.meta)
-    return scene.with_tracker(design=design) if design else scene
+        return place_target(footage, parse_target(target))
+    return footage if own is None else footage.with_target(own, footage.meta)
 
 
 def load_scene_with_target(

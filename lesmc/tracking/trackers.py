@@ -8,20 +8,35 @@ schemas) imports no tracker; the class is imported here, when a scene is unfolde
 from __future__ import annotations
 
 import importlib
+from typing import Any
 
+from lesmc.common.errors import UsageError
 from lesmc.designs import registry
-from lesmc.scene import Scene
+from lesmc.scene import Footage, Scene
 from lesmc.tracking.design import Design
+from lesmc.tracking.multi import MultiDesign
 
 
-def tracker_class(design: str) -> type[Design]:
+def tracker_class(design: str) -> Any:
     """The class of the tracker that ``design`` unfolds with (imported now)."""
     module, _, cls = registry.implementation(design).partition(":")
-    found: type[Design] = getattr(importlib.import_module(module), cls)
-    return found
+    return getattr(importlib.import_module(module), cls)
 
 
 def make_tracker(scene: Scene) -> Design:
-    """The tracker the scene's configuration names, set up for the scene."""
-    made: Design = tracker_class(scene.tracker.design)(scene)  # type: ignore[call-arg]
+    """The tracker the scene's configuration names, set up for the scene (a multi-target
+    design: a UsageError, as no model of one is built yet)."""
+    design = registry.get(scene.tracker.design)
+    if design.multi:
+        raise UsageError(registry.not_yet(design.name))
+    made: Design = tracker_class(design.name)(scene)
+    return made
+
+
+def make_multi(scene: Scene | Footage, path: str) -> MultiDesign:
+    """The multi-target tracker the scene's configuration names, set up for the scene
+    (read from ``path``, the name its errors give)."""
+    design = registry.get(scene.tracker.design)
+    assert design.multi
+    made: MultiDesign = tracker_class(design.name)(scene, path)
     return made

@@ -1,0 +1,50 @@
+"""Identity measures of multi-target designs, as per-transition contributions (designed,
+not yet in the language: docs/trackers.md, "The multi-target model").
+
+``switches(a..b)``: the number of steps k in a..b at which the target's track exists and
+its id differs from its id at the last earlier step (from step 0) at which it existed.
+A path's count is a sum of per-transition contributions, as the kernel's other sums
+(lesmc/model/kernel.py), once each state carries ``last``: the id of the target's track
+at the last step up to it at which it existed (−1: none yet). The transition entering
+step k from a state with ``last`` to one whose target's track id is ``tid`` (−1: none)
+adds 1 when k is in a..b, ``tid`` ≥ 0, ``last`` ≥ 0 and ``tid`` ≠ ``last``; the entered
+state's ``last`` is ``tid`` if ≥ 0, else ``last``. ``last`` is part of the state (two
+states that differ only in it do not merge), so the sum is exact on a merged model.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+import numpy as np
+
+NONE = -1
+"""A step without the target's track (and a state that never saw it)."""
+
+
+def switch_contributions(
+    k: np.ndarray, lo: int, hi: int, last_src: np.ndarray, tid_dst: np.ndarray
+) -> np.ndarray:
+    """Each transition's contribution to ``switches(lo..hi)``: it enters step ``k`` from a
+    state with ``last_src`` to one whose target's track id is ``tid_dst``."""
+    switched = (tid_dst != NONE) & (last_src != NONE) & (tid_dst != last_src)
+    return np.where((k >= lo) & (k <= hi) & switched, 1.0, 0.0)
+
+
+def last_seen(last_src: np.ndarray, tid_dst: np.ndarray) -> np.ndarray:
+    """The entered state's ``last``: its target's track id, else its source's ``last``."""
+    out: np.ndarray = np.where(tid_dst != NONE, tid_dst, last_src)
+    return out
+
+
+def switches(ids: Sequence[int | None], lo: int, hi: int) -> int:
+    """``switches(lo..hi)`` of one path whose target's track id at step k is ``ids[k]``
+    (None: none), summed transition by transition from step 0's ``last``."""
+    tid = np.array([NONE if i is None else i for i in ids], dtype=np.int64)
+    if not len(tid):
+        return 0
+    last = tid[:-1].copy()
+    for k in range(1, len(last)):
+        last[k] = last_seen(last[k - 1], tid[k])
+    steps = np.arange(1, len(tid))
+    return int(switch_contributions(steps, lo, hi, last, tid[1:]).sum())

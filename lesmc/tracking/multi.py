@@ -1,0 +1,223 @@
+"""Multi-target trackers composed of parts (lesmc/tracking/parts; docs/trackers.md), and
+the ``sort`` preset: Bewley et al.'s SORT (2016).
+
+One frame of :class:`MultiTargetTracker`: the predictor predicts every track; the deleter
+drops tracks whose predicted box is not a box; the hypothesiser scores every (detection,
+track) pair; the associator assigns detections to tracks; the updater updates the matched
+tracks; every unmatched detection starts a track (ids from a counter, 1 first); the
+initiator says which tracks are output (``confirmed``); the deleter ends the tracks
+missed too long. Step 0 is the scene's first frame: every object is tracked from there.
+
+Only the unattacked run exists so far (``lesmc track``); the model and the checks of a
+multi-target design are not built yet (lesmc/designs/registry.py ``not_yet``).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Protocol
+
+import numpy as np
+
+from lesmc.common.errors import InputError, UsageError
+from lesmc.scene import Footage, Frame, Scene
+from lesmc.tracking.parts.associator import GlobalAssociator
+from lesmc.tracking.parts.box_filter import BoxFilter
+from lesmc.tracking.parts.boxes import iou
+from lesmc.tracking.parts.deleter import MaxAgeDeleter
+from lesmc.tracking.parts.hypothesiser import IouHypothesiser
+from lesmc.tracking.parts.initiator import MinHitsInitiator
+from lesmc.tracking.parts.tracks import Tracks
+
+#: The IoU a confirmed track needs with the target's reference box to be the target's track.
+TARGET_IOU = 0.5
+
+
+@dataclass(frozen=True)
+class MultiState:
+    """A multi-target tracker between frames: its tracks, the next id, the frames seen."""
+
+    tracks: Tracks
+    next_id: int = 1
+    frames: int = 0
+
+
+@dataclass(frozen=True)
+class FrameTracks:
+    """The tracks after one frame: boxes (n, 4), ids, whether each is output, the
+    detection each was updated with or started from (−1: none, it coasted)."""
+
+    boxes: np.ndarray
+    ids: np.ndarray
+    confirmed: np.ndarray
+    det: np.ndarray
+    since: np.ndarray
+
+    def status(self, i: int) -> str:
+        """``confirmed`` (output), ``coasting`` (not updated at this frame) or
+        ``tentative`` (updated, not output yet)."""
+        if self.confirmed[i]:
+            return "confirmed"
+        return "coasting" if self.since[i] > 0 else "tentative"
+
+
+@dataclass(frozen=True)
+class MultiTargetTracker:
+    """A tracker composed of a predictor/updater, a hypothesiser, an associator, an
+    initiator and a deleter."""
+
+    filter: BoxFilter = field(default_factory=BoxFilter.sort)
+    hypothesiser: IouHypothesiser = field(default_factory=IouHypothesiser)
+    associator: GlobalAssociator = field(default_factory=GlobalAssociator)
+    initiator: MinHitsInitiator = field(default_factory=MinHitsInitiator)
+    deleter: MaxAgeDeleter = field(default_factory=MaxAgeDeleter)
+
+    def initial(self) -> MultiState:
+        """No tracks before the first frame."""
+        return MultiState(Tracks.empty(self.filter.m.dim))
+
+    def step(self, state: MultiState, boxes: np.ndarray) -> tuple[MultiState, FrameTracks]:
+        """One frame with detections ``boxes`` (k, 4): the next state and its tracks."""
+        frames = state.frames + 1
+        t = self.filter.predict(state.tracks)
+        t = t.take(self.deleter.valid(self.filter.boxes(t)))
+        score = self.hypothesiser.scores(boxes, self.filter.boxes(t))
+        a = self.associator.assign(score, self.hypothesiser.threshold)
+        t = self.filter.update(t, a.pairs[:, 1], boxes[a.pairs[:, 0]])
+        t = t.concat(self.filter.start(boxes[a.new], state.next_id))
+        det = np.full(len(t), -1, dtype=np.int64)
+        det[a.pairs[:, 1]] = a.pairs[:, 0]
+        det[len(t) - len(a.new) :] = a.new
+        out = FrameTracks(
+            self.filter.boxes(t), t.id, self.initiator.confirmed(t, frames), det, t.since
+        )
+        alive = self.deleter.alive(t)
+        nxt = MultiState(t.take(alive), state.next_id + len(a.new), frames)
+        return nxt, _take(out, alive)
+
+
+def _take(f: FrameTracks, keep: np.ndarray) -> FrameTracks:
+    return FrameTracks(f.boxes[keep], f.ids[keep], f.confirmed[keep], f.det[keep], f.since[keep])
+
+
+def sort_tracker(
+    min_hits: int = 3, max_age: int = 1, iou_threshold: float = 0.3
+) -> MultiTargetTracker:
+    """The ``sort`` preset: SORT's box filter, IoU hypothesiser, global assignment,
+    ``min_hits`` initiator and ``max_age`` deleter (defaults: SORT's)."""
+    return MultiTargetTracker(
+        BoxFilter.sort(),
+        IouHypothesiser(iou_threshold),
+        GlobalAssociator(),
+        MinHitsInitiator(min_hits),
+        MaxAgeDeleter(max_age),
+    )
+
+
+def need_boxes(frames: tuple[Frame, ...], design: str, path: str) -> None:
+    """A box tracker needs a box on every detection: a located error at the first without."""
+    for f in frames:
+        if not f.has_boxes:
+            d = next(d for d in f.detections if d.w is None or d.h is None)
+            raise InputError.many(
+                path,
+                [
+                    (
+                        f"frame {f.step}, detection '{d.id}'",
+                        f"has no box (w, h): the {design} design's IoU cost needs a box on "
+                        "every detection (scene format 2; `lesmc import mot` keeps them, "
+                        "with --point center)",
+                    )
+                ],
+            )
+
+
+@dataclass(frozen=True)
+class MultiStep:
+    """One step of a multi-target run: the frame, its tracks and the target's track id."""
+
+    step: int
+    frame: int
+    tracks: FrameTracks
+    target_id: int | None
+
+
+class MultiDesign(Protocol):
+    """What the registry makes of a multi-target design: its unattacked run."""
+
+    def run(self, end: int | None = None) -> list[MultiStep]:
+        """The steps from the scene's first frame to ``end`` (default: the last)."""
+        ...
+
+
+class SortDesign:
+    """The ``sort`` design: SORT on a scene's boxes (the tracker file's ``min_hits``,
+    ``max_age``, ``iou_threshold``). Not a :class:`~lesmc.tracking.design.Design` yet:
+    it runs the unattacked track only."""
+
+    def __init__(self, scene: Scene | Footage, path: str = "<scene>") -> None:
+        cfg = scene.tracker
+        need_boxes(scene.frames, cfg.design, path)
+        self.scene = scene
+        self.tracker = sort_tracker(cfg.min_hits, cfg.max_age, cfg.iou_threshold)
+
+    def run(self, end: int | None = None) -> list[MultiStep]:
+        """The unattacked run from the scene's first frame to step ``end`` (default: its
+        last frame), with the target's track id at each step (:func:`target_ids`)."""
+        frames = self.scene.frames
+        last = len(frames) - 1 if end is None else end
+        if not 0 <= last < len(frames):
+            raise UsageError(
+                f"end {last} is beyond the scene: its frames allow steps 0..{len(frames) - 1} "
+                f"from its first frame {frames[0].step}"
+            )
+        state = self.tracker.initial()
+        out: list[FrameTracks] = []
+        for f in frames[: last + 1]:
+            state, ft = self.tracker.step(state, f.boxes())
+            out.append(ft)
+        ids = target_ids(self.scene, out)
+        return [
+            MultiStep(k, frames[k].step, ft, tid)
+            for k, (ft, tid) in enumerate(zip(out, ids, strict=True))
+        ]
+
+
+def target_ids(scene: Scene | Footage, steps: list[FrameTracks]) -> list[int | None]:
+    """The target's track id at each step (None: none).
+
+    The target's reference is its unattacked track: the track that took, at the target's
+    frame, the detection whose box holds the target's start (the nearest such centre, the
+    first of equals). At each step the target's track is the confirmed track whose box
+    has the largest IoU (at least :data:`TARGET_IOU`) with the reference's box, the lower
+    id of equals; none where the reference does not exist.
+    """
+    none: list[int | None] = [None] * len(steps)
+    if not isinstance(scene, Scene):
+        return none
+    k0 = scene.target.step - scene.frames[0].step
+    if not 0 <= k0 < len(steps):
+        return none
+    boxes = scene.frames[k0].boxes()
+    x, y = scene.target.start
+    inside = (boxes[:, 0] <= x) & (x <= boxes[:, 2]) & (boxes[:, 1] <= y) & (y <= boxes[:, 3])
+    if not inside.any():
+        return none
+    centres = scene.frames[k0].positions()
+    d2 = np.where(inside, (centres[:, 0] - x) ** 2 + (centres[:, 1] - y) ** 2, np.inf)
+    took = np.nonzero(steps[k0].det == int(np.argmin(d2)))[0]
+    if not took.size:
+        return none
+    ref = int(steps[k0].ids[took[0]])
+    out = list(none)
+    for k, ft in enumerate(steps):
+        mine = np.nonzero(ft.ids == ref)[0]
+        if not mine.size or not ft.confirmed.any():
+            continue
+        score = iou(ft.boxes[mine], ft.boxes)[0]
+        score = np.where(ft.confirmed & (score >= TARGET_IOU), score, -1.0)
+        if score.max() < 0:
+            continue
+        best = np.nonzero(score == score.max())[0]
+        out[k] = int(ft.ids[best].min())
+    return out

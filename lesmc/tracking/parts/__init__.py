@@ -1,0 +1,8 @@
+"""Parts a multi-target tracker is composed of (docs/trackers.md), as Stone Soup composes
+its trackers: the tracks (:mod:`.tracks`), boxes and IoU (:mod:`.boxes`), the box Kalman
+predictor and updater (:mod:`.box_filter`, on lesmc/tracking/kalman.py's functions), the
+IoU hypothesiser (:mod:`.hypothesiser`), the global-assignment associator
+(:mod:`.associator`), the ``min_hits`` initiator (:mod:`.initiator`) and the ``max_age``
+deleter (:mod:`.deleter`). lesmc/tracking/multi.py puts them together (the ``sort``
+preset).
+"""
