@@ -377,6 +377,41 @@ def _box(
     return False if bad else (float(raw["w"]), float(raw["h"]))
 
 
+def _tracker_value(key: str, v: Any, pr: Problems, item: str, values: dict[str, Any]) -> None:
+    """One key of a tracker block, checked; kept in ``values`` (a problem goes to ``pr``)."""
+    if key == "model":
+        values[key] = parse_model(v, pr, item)
+    elif key == "design":
+        if v not in registry.tracker_names():
+            known = " or ".join(f'"{n}"' for n in registry.tracker_names())
+            pr.add(item, f"design must be {known}, got {show(v)}")
+        values[key] = v
+    elif key == "gate_type":
+        if v not in ("mahalanobis", "euclidean"):
+            pr.add(item, f'gate_type must be "mahalanobis" or "euclidean", got {v!r}')
+        values[key] = v
+    elif key in ("min_hits", "max_age"):
+        lo = 1 if key == "min_hits" else 0
+        if not (is_int(v) and lo <= v <= MAX_STEP):
+            pr.add(item, f"{key} must be an integer in {lo}..{MAX_STEP}, got {show(v)}")
+        values[key] = v
+    elif key == "iou_threshold":
+        if not positive(v, 1.0):
+            pr.add(item, f"iou_threshold must be a number in (0, 1], got {show(v)}")
+        values[key] = v
+    elif key == "P0_sd":
+        hi = TRACKER_LIMITS[key]
+        if not (isinstance(v, list) and v and all(positive(x, hi) for x in v)):
+            pr.add(item, f"P0_sd must be a list of numbers in (0, {hi:g}], got {show(v)}")
+        else:
+            values[key] = tuple(float(x) for x in v)
+    elif not positive(v, TRACKER_LIMITS[key]):
+        hi = TRACKER_LIMITS[key]
+        pr.add(item, f"{key} must be a number in (0, {hi:g}], got {show(v)}")
+    else:
+        values[key] = v
+
+
 def _tracker(raw: Any, pr: Problems, item: str = "tracker") -> TrackerConfig | None:
     """A tracker block: the design, the gate, and the model (a preset's parameters or
     declared matrices, lesmc/scene/tracker_model.py)."""
@@ -389,37 +424,8 @@ def _tracker(raw: Any, pr: Problems, item: str = "tracker") -> TrackerConfig | N
     for key, v in raw.items():
         if key not in names:
             pr.add(item, f"unknown key '{key}'")
-        elif key == "model":
-            values[key] = parse_model(v, pr, item)
-        elif key == "design":
-            if v not in registry.tracker_names():
-                known = " or ".join(f'"{n}"' for n in registry.tracker_names())
-                pr.add(item, f"design must be {known}, got {show(v)}")
-            values[key] = v
-        elif key == "gate_type":
-            if v not in ("mahalanobis", "euclidean"):
-                pr.add(item, f'gate_type must be "mahalanobis" or "euclidean", got {v!r}')
-            values[key] = v
-        elif key in ("min_hits", "max_age"):
-            lo = 1 if key == "min_hits" else 0
-            if not (is_int(v) and lo <= v <= MAX_STEP):
-                pr.add(item, f"{key} must be an integer in {lo}..{MAX_STEP}, got {show(v)}")
-            values[key] = v
-        elif key == "iou_threshold":
-            if not positive(v, 1.0):
-                pr.add(item, f"iou_threshold must be a number in (0, 1], got {show(v)}")
-            values[key] = v
-        elif key == "P0_sd":
-            hi = TRACKER_LIMITS[key]
-            if not (isinstance(v, list) and v and all(positive(x, hi) for x in v)):
-                pr.add(item, f"P0_sd must be a list of numbers in (0, {hi:g}], got {show(v)}")
-            else:
-                values[key] = tuple(float(x) for x in v)
-        elif not positive(v, TRACKER_LIMITS[key]):
-            hi = TRACKER_LIMITS[key]
-            pr.add(item, f"{key} must be a number in (0, {hi:g}], got {show(v)}")
         else:
-            values[key] = v
+            _tracker_value(key, v, pr, item, values)
     model = values.get("model", DEFAULT_MODEL)
     if len(pr.items) > n0 or model is None:
         return None
