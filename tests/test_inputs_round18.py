@@ -184,7 +184,7 @@ def test_import_mot_keeps_the_ground_truth_and_recovery_checks_against_it(
     _ok(r)
     assert json.loads(r.stdout)["truth_tracks"] > 1
     scene = json.loads((tmp_path / "scene.json").read_text())
-    assert scene["version"] == 1
+    assert scene["version"] == 2  # import mot keeps the boxes (scene format version 2)
     first, last = scene["frames"][0]["step"], scene["frames"][-1]["step"]
     want: dict[str, list[list[float]]] = {}
     for g in sorted(_gt_rows(MOT / "gt.txt"), key=lambda g: (g[1], g[0])):
