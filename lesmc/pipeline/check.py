@@ -304,10 +304,13 @@ def _not_replayed(r: CheckResult, command: str) -> CheckResult:
     return replace(r, replay="not replayed", replay_command=command)
 
 
-def replay_command(scene_path: str, meta: Mapping[str, object]) -> str:
+def replay_command(
+    scene_path: str, meta: Mapping[str, object], specs: Iterable[str] = (), design: str = ""
+) -> str:
     """``lesmc verify --scene SCENE --frames VIDEO/`` for a scene made by perception, with the
     frames (``meta.source``) and the networks (``meta.networks``: ``--nets``, ``--detector``,
-    ``--locator`` as perceive was given them) it was made with."""
+    ``--locator`` as perceive was given them) it was made with, and the ``specs`` and
+    ``design`` that were checked."""
     import shlex
 
     frames = meta.get("source")
@@ -318,6 +321,10 @@ def replay_command(scene_path: str, meta: Mapping[str, object]) -> str:
         for key in ("nets", "detector", "locator"):
             if isinstance(nets.get(key), str):
                 words += [f"--{key}", str(nets[key])]
+    for spec in dict.fromkeys(specs):
+        words += ["--spec", spec]
+    if design:
+        words += ["--design", design]
     return " ".join(shlex.quote(w) if w != "VIDEO/" else w for w in words)
 
 
@@ -340,7 +347,8 @@ def _design_run(
         lambda bp: job.on_stage(f"checking {bp.name} ({registry.label(plan.design)})"),
     )
     if models.scene.meta.get("detector"):  # perception's scene: replayable on its video
-        command = replay_command(job.source, models.scene.meta)
+        specs = [bp.spec for bp in plan.bound]
+        command = replay_command(job.source, models.scene.meta, specs, plan.design)
         results = [_not_replayed(r, command) for r in results]
     run = DesignRun(plan.design, plan.bound, results, window=plan.window)
     if job.faults is not None:
