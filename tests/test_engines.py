@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import itertools
 import math
+import operator
 
 import numpy as np
 import pytest
@@ -18,6 +19,9 @@ from lesmc.language.parser import parse_spec
 from lesmc.language.semantics import bind
 from lesmc.model.lts import to_arrays
 from lesmc.model.random_models import RandomModelConfig, random_lts
+
+#: The comparisons of ``holds if``, written out again (section 4).
+OPS = {">": operator.gt, ">=": operator.ge, "<": operator.lt, "<=": operator.le}
 
 ENGINES = [
     pytest.param({"engine": "enumerate"}, id="enumerate"),
@@ -117,14 +121,17 @@ def test_optimum_and_witness_equal_brute_force(case: tuple) -> None:
         assert r.stats.stopped == "finished"
         if math.isinf(truth.optimum):
             assert r.optimum is None
-            assert r.counterexample is None or math.isinf(r.counterexample.objective)
+            assert r.cheapest is None or math.isinf(r.cheapest.objective)
+            assert r.counterexample is None
         else:
             assert r.optimum == pytest.approx(truth.optimum, rel=1e-12, abs=1e-12)
-            o, c = by_states[r.counterexample.states]
+            assert r.cheapest is not None
+            o, c = by_states[r.cheapest.states]
             assert o == pytest.approx(truth.optimum, rel=1e-12, abs=1e-12)
-            assert (r.counterexample.objective, r.counterexample.constraint) == pytest.approx(
-                (o, c)
-            )
+            assert (r.cheapest.objective, r.cheapest.constraint) == pytest.approx((o, c))
+            # a counterexample exactly when the optimum fails "holds if" (section 4)
+            fails = not OPS[bp.prop.holds_op](o, bp.prop.threshold)
+            assert (r.counterexample is not None) == fails == (r.verdict == "violated")
         if truth.witness_value is None:
             assert r.witness is None
         else:

@@ -47,6 +47,8 @@ def test_tiny_matches_hand_derivation() -> None:
         r = got[name]
         assert (r["verdict"], r["optimum"], r["witness_value"]) == (verdict, opt, theta), name
         assert (r["counterexample"] or {}).get("states") == cex, name
+        # the cheapest breaking path is a counterexample only where the property fails
+        assert r["is_counterexample"] == (None if cex is None else verdict == "violated"), name
     assert got["robustness"]["witness"]["states"] == ["q0", "a", "a2x", "a3x"]
     # the README's deviation table: P3 = q0 b b2 b3 at steps 0..3, P2 = q0 a a2x a3x
     assert got["robustness"]["counterexample"]["deviation"] == [0.0, 4.0, 5.0, 5.0]

@@ -43,8 +43,8 @@ def test_optimum_equals_dynamic_programme(items: list[Item], demand: int) -> Non
         r = check(knapsack_lts(items), [spec], engine=engine)[0]  # type: ignore[arg-type]
         got = math.inf if r.optimum is None else r.optimum
         assert got == expected
-        if r.counterexample is not None:
-            taken = [i for i, s in enumerate(r.counterexample.states[1:]) if s.endswith(":1")]
+        if r.cheapest is not None:
+            taken = [i for i, s in enumerate(r.cheapest.states[1:]) if s.endswith(":1")]
             assert sum(items[i].cost for i in taken) == expected
             assert sum(items[i].capacity for i in taken) > demand
 

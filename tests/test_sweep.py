@@ -114,9 +114,9 @@ def test_a_sweep_too_large_to_walk_reuses_answers_exactly(
             assert r.optimum is None
         else:
             assert r.optimum == pytest.approx(truth.optimum, rel=1e-12, abs=1e-12)
-            assert r.counterexample is not None
-            assert r.counterexample.objective == pytest.approx(truth.optimum, rel=1e-12)
-            assert kernel.compare(bp.op, r.counterexample.constraint, bp.bound)
+            assert r.cheapest is not None
+            assert r.cheapest.objective == pytest.approx(truth.optimum, rel=1e-12)
+            assert kernel.compare(bp.op, r.cheapest.constraint, bp.bound)
         if truth.witness_value is None:
             assert r.witness is None
         else:

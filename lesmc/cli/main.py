@@ -42,6 +42,7 @@ from lesmc.cli.train import train_cmd
 from lesmc.cli.verify import verify_cmd
 from lesmc.cli.video import synth_cmd
 from lesmc.common.errors import BudgetError, LesmcError, Location
+from lesmc.designs import registry
 from lesmc.exporters import formats
 from lesmc.results.exit import EXIT_INTERNAL, EXIT_INTERRUPTED, EXIT_UNKNOWN, EXIT_USAGE
 
@@ -75,7 +76,8 @@ def cli() -> None:
 
     \b
     The whole experiment (paper section 8) in one command:
-      lesmc verify                           embedded synthetic video, both designs, report
+      lesmc verify                           embedded synthetic video, report; designs:
+                                             {paper_designs}
       lesmc verify FRAMES/ --target X,Y      your video
       lesmc campaign --out DIR               many targets x the paper's 36 windows, in parallel
     \b
@@ -111,6 +113,15 @@ def cli() -> None:
     Set LESMC_DEBUG=1 to see the traceback of an internal error.
     """
 
+
+def _with_designs(text: str) -> str:
+    """The help text with verify's default designs (``paper``) named from the registry."""
+    paper = registry.SETS["paper"]
+    named = f"{', '.join(paper)} (the {len(paper)} of --design paper)"
+    return text.replace("{paper_designs}", named)
+
+
+cli.help = _with_designs(cli.help or "")
 
 #: One line per verb for ``lesmc --help`` (click would cut the first sentence short).
 SHORT_HELP = {

@@ -169,7 +169,9 @@ def target_option(help_text: str) -> Callable[[F], F]:
 #: ``--target`` of the verbs that read a scene.
 scene_target = target_option(
     "Track the vehicle at X,Y of frame STEP [default: the first], overriding the scene's "
-    "target (needed when the scene has none)."
+    "target (needed when the scene has none). Its initial velocity comes from the nearest "
+    "detection of frame STEP-1: zero at the scene's first frame (give a later STEP, or "
+    "perceive with --truth); meta.target_velocity_from says which."
 )
 
 

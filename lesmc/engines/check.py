@@ -81,6 +81,7 @@ def check_bound(
         if probe.outcome is None and probe.states:
             out.stats.extra["probe_states"] = probe.states
             out.stats.seconds += probe.seconds
+    out.stats.extra["states_built"] = cm.n_states  # the whole model's
     result = to_result(space, out)
     result.notes.extend(window_notes(cm, bp))
     return result
@@ -122,7 +123,7 @@ def to_result(space: SearchSpace, out: EngineOutcome) -> CheckResult:
         constraint=f"{bp.constraint.text} {bp.op} {bp.bound:g}",
         lower=lower,
         upper=upper,
-        counterexample=cex,
+        cheapest=cex,
         witness=wit,
         witness_value=None if wit is None else wit.objective,
         witness_exact=out.witness_exact,
@@ -233,8 +234,9 @@ def _walk_once(
     outs = enumerate_many(spaces, budget)
     results = []
     for space, out in zip(spaces, outs, strict=True):
-        if isinstance(model, GrowingModel):
-            out.stats.extra["states_built"] = space.states_built
+        out.stats.extra["states_built"] = (
+            space.states_built if isinstance(model, GrowingModel) else model.n_states
+        )
         result = to_result(space, out)
         if isinstance(model, ArrayModel):
             result.notes.extend(window_notes(model, space.bp))
@@ -305,7 +307,7 @@ def carried_over(r: CheckResult, bp: BoundProperty) -> CheckResult | None:
     """
     if r.stats.stopped != "finished" or not r.optimum_known:
         return None
-    cex = r.counterexample
+    cex = r.cheapest
     if cex is None:
         if r.optimum is not None:
             return None
@@ -324,8 +326,8 @@ def carried_over(r: CheckResult, bp: BoundProperty) -> CheckResult | None:
         stats=stats,
         notes=[
             *r.notes,
-            f"answered by the search of {r.property}: its counterexample satisfies this "
-            "tighter constraint, which cannot lower the optimum",
+            f"answered by the search of {r.property}: its cheapest path that breaks the "
+            "system satisfies this tighter constraint, which cannot lower the optimum",
         ],
     )
 

@@ -8,6 +8,7 @@ from dataclasses import dataclass, field
 from typing import Any, Literal
 
 from lesmc.engines.space import SearchSpace
+from lesmc.model.kernel import compare
 
 Verdict = Literal["holds", "violated", "unknown"]
 
@@ -116,7 +117,10 @@ class CheckResult:
     constraint: str
     lower: float
     upper: float
-    counterexample: PathInfo | None
+    #: the cheapest path found that satisfies the constraint (breaks the system, P+): a
+    #: counterexample only when its objective fails ``holds if`` (:attr:`counterexample`);
+    #: on a property that holds it is the cheapest such attack, which costs too much
+    cheapest: PathInfo | None
     witness: PathInfo | None
     witness_value: float | None
     witness_exact: bool
@@ -144,6 +148,17 @@ class CheckResult:
     #: counterexample is replayed through the detector (``confirmed``; ``diverged`` makes
     #: the verdict unknown); None: nothing to replay (a model, a hand-made scene)
     replay: str | None = None
+    #: with ``replay == "not replayed"``: the command that replays it (the scene's meta
+    #: names the frames and networks it was made with)
+    replay_command: str | None = None
+
+    @builtins.property
+    def counterexample(self) -> PathInfo | None:
+        """The counterexample: :attr:`cheapest` when its objective fails ``holds if`` (it
+        proves the property false on the model), else None (a property that holds has
+        none). Up to lesmc 0.1.0 this attribute held :attr:`cheapest` whatever the verdict."""
+        cex = is_counterexample(self.cheapest, self.holds_op, self.threshold)
+        return self.cheapest if cex else None
 
     @builtins.property  # ``property`` is a field of this class: the property name
     def status(self) -> str:
@@ -175,7 +190,7 @@ class CheckResult:
             "verdict": self.verdict,
             "status": self.status,
             "vacuous": self.vacuous,
-            "replay": None if self.replay is None else {"status": self.replay},
+            "replay": self._replay_json(),
             "optimum": self.optimum_json(),
             "witness_bounds": None if wb is None else {"lower": _num(wb[0]), "upper": _num(wb[1])},
             "threshold": self.threshold,
@@ -188,9 +203,10 @@ class CheckResult:
             "constraint_op": self.constraint_op,
             "constraint_bound": self.constraint_bound,
             "bounds": {"lower": _num(self.lower), "upper": _num(self.upper)},
-            "counterexample": None
-            if self.counterexample is None
-            else self.counterexample.to_json(),
+            "counterexample": None if self.cheapest is None else self.cheapest.to_json(),
+            "is_counterexample": None
+            if self.cheapest is None
+            else is_counterexample(self.cheapest, self.holds_op, self.threshold),
             "witness": None if self.witness is None else self.witness.to_json(),
             "witness_value": None if self.witness_value is None else _num(self.witness_value),
             "witness_exact": self.witness_exact,
@@ -198,6 +214,22 @@ class CheckResult:
             "stats": self.stats.to_json(),
             "original_alarms": self.original_alarms,
         } | extra
+
+    def _replay_json(self) -> dict[str, Any] | None:
+        """The ``replay`` object: the status, and how to replay one not replayed yet."""
+        if self.replay is None:
+            return None
+        out: dict[str, Any] = {"status": self.replay}
+        if self.replay == "not replayed" and self.replay_command is not None:
+            out["command"] = self.replay_command
+        return out
+
+
+def is_counterexample(path: PathInfo | None, holds_op: str, threshold: float) -> bool:
+    """Whether the cheapest path that breaks the system is a counterexample: its objective
+    fails section 4's rule ``objective holds_op threshold`` (a halted track's infinite
+    objective fails no rule with a finite threshold)."""
+    return path is not None and not compare(holds_op, path.objective, threshold)
 
 
 #: Every verdict word, in the order tables and summaries count them (docs/cli.md).

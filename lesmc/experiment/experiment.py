@@ -37,6 +37,7 @@ from lesmc.experiment.cache import (
 )
 from lesmc.experiment.false_alarms import false_alarm_report, truth_track
 from lesmc.experiment.neuron_faults import NeuronRuns, check_units, neuron_faults, neuron_frames
+from lesmc.experiment.perceive import networks_meta
 from lesmc.experiment.pricing import VideoPricer, priced_meta
 from lesmc.experiment.pricing import on_demand as on_demand_footage
 from lesmc.experiment.video_perception import UnitMax
@@ -203,7 +204,7 @@ def _job(
         faults=faults,
         neuron_frames=neuron.frames or None,
         neuron_certify=neuron.certify or None,
-        source=req.scene_path or "scene",
+        source=req.scene_path or str(req.out / "scene.json"),
         on_stage=rep.stage,
     )
 
@@ -431,6 +432,7 @@ def _perceive_now(
             _spent(req.budget, "perceiving the video")
 
         meta = {"source": str(frames_dir), "detector": nets.settings.trained_on}
+        meta |= networks_meta(req.nets)
         keep = req.payoffs != "attack" or on_demand
         footage, run = video_perception.perceive_video(
             frames, nets, dt, meta, keep, advance, maxima, attack=not on_demand

@@ -178,6 +178,7 @@ def scene_meta(
             "input": "N_dr window, 21x21 x (m+1) frames",
         },
     }
+    meta |= networks_meta(req.nets)
     if cert is not None:
         meta["certify"] = {
             "method": "CROWN, L2 ball",
@@ -187,6 +188,15 @@ def scene_meta(
             "model_slack": cert.model_slack,
         }
     return meta
+
+
+def networks_meta(nets: NetFiles) -> dict[str, Any]:
+    """The networks' files as perceive was given them (``--nets``, ``--detector``,
+    ``--locator``), for a scene's ``meta.networks``: what a replay must load again
+    (lesmc.pipeline.check.replay_command); none for the shipped networks."""
+    given = dict(zip(("nets", "detector", "locator"), nets, strict=True))
+    named = {k: str(v) for k, v in given.items() if v is not None}
+    return {"networks": named} if named else {}
 
 
 def _scene(

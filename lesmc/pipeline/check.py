@@ -294,20 +294,38 @@ def _spent(budget: Budget, model: GrowingModel, stage: str) -> None:
         )
 
 
-def _not_replayed(r: CheckResult) -> CheckResult:
+def _not_replayed(r: CheckResult, command: str) -> CheckResult:
     """A violation found on the model of a perceived scene: its counterexample is a claim
-    about the model until it is replayed through the detector (docs/semantics.md, "Replay")."""
+    about the model until it is replayed through the detector (docs/semantics.md, "Replay");
+    ``command`` replays it. No note says so: the status and the ``replay`` object do, and
+    a replay (lesmc/replay/run.py) replaces both."""
     if r.verdict != "violated":
         return r
-    return replace(r, replay="not replayed", notes=[*r.notes, NOT_REPLAYED_NOTE])
+    return replace(r, replay="not replayed", replay_command=command)
 
 
-#: The hint of a counterexample on a perceived scene that no replay has confirmed yet.
-NOT_REPLAYED_NOTE = (
-    "violated (not replayed): the counterexample is the model's; to run it through the "
-    "real detector and tracker use `lesmc verify --scene SCENE --frames VIDEO/` (or "
-    "`lesmc replay RESULTS.json` on verify's results)"
-)
+def replay_command(
+    scene_path: str, meta: Mapping[str, object], specs: Iterable[str] = (), design: str = ""
+) -> str:
+    """``lesmc verify --scene SCENE --frames VIDEO/`` for a scene made by perception, with the
+    frames (``meta.source``) and the networks (``meta.networks``: ``--nets``, ``--detector``,
+    ``--locator`` as perceive was given them) it was made with, and the ``specs`` and
+    ``design`` that were checked."""
+    import shlex
+
+    frames = meta.get("source")
+    words = ["lesmc", "verify", "--scene", scene_path, "--frames"]
+    words.append(str(frames) if isinstance(frames, str) and frames else "VIDEO/")
+    nets = meta.get("networks")
+    if isinstance(nets, Mapping):
+        for key in ("nets", "detector", "locator"):
+            if isinstance(nets.get(key), str):
+                words += [f"--{key}", str(nets[key])]
+    for spec in dict.fromkeys(specs):
+        words += ["--spec", spec]
+    if design:
+        words += ["--design", design]
+    return " ".join(shlex.quote(w) if w != "VIDEO/" else w for w in words)
 
 
 def _design_run(
@@ -329,7 +347,9 @@ def _design_run(
         lambda bp: job.on_stage(f"checking {bp.name} ({registry.label(plan.design)})"),
     )
     if models.scene.meta.get("detector"):  # perception's scene: replayable on its video
-        results = [_not_replayed(r) for r in results]
+        specs = [bp.spec for bp in plan.bound]
+        command = replay_command(job.source, models.scene.meta, specs, plan.design)
+        results = [_not_replayed(r, command) for r in results]
     run = DesignRun(plan.design, plan.bound, results, window=plan.window)
     if job.faults is not None:
         for bp in plan.bound:

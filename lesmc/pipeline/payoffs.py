@@ -37,6 +37,14 @@ from lesmc.pipeline.job import PayoffMode
 #: The model of one payoff set (``attack`` or ``certified``), made when first asked for.
 ModelOf = Callable[[str], ArrayModel | GrowingModel]
 
+#: The payoff sets whose models a payoff mode reads, in the order :func:`check_payoffs`
+#: reads them.
+PAYOFF_SETS: dict[str, tuple[str, ...]] = {
+    "attack": ("attack",),
+    "certified": ("certified",),
+    "interval": ("certified", "attack"),
+}
+
 
 def check_model(
     model: ArrayModel | GrowingModel, bp: BoundProperty, engine: EngineName, budget: Budget
@@ -83,18 +91,21 @@ def check_all(
     for key, idx in groups.items():
         shared = key[0] == "attack" and len(idx) > 1
         if shared:
+            model = model_of("attack")  # built (and announced) before its checks are
             for i in idx:
                 on_check(bound[i])
             bps = [bound[i] for i in idx]
-            many = check_shared(model_of("attack"), bps, engine, budget.for_check())
+            many = check_shared(model, bps, engine, budget.for_check())
             if many is not None:
                 results.update(zip(idx, many, strict=True))
                 continue
             idx = _bound_families(bound, idx, model_of, engine, budget, results)
         for i in idx:
-            if not shared:  # announced above
-                on_check(bound[i])
             own = mode_of(bound[i], mode)
+            if not shared:  # announced above
+                for payoffs in PAYOFF_SETS[own]:
+                    model_of(payoffs)  # built (and announced) before the check is
+                on_check(bound[i])
             results[i] = check_payoffs(model_of, bound[i], own, engine, budget, notes_of(bound[i]))
     return [results[i] for i in range(len(bound))]
 

@@ -24,6 +24,7 @@ if TYPE_CHECKING:
 COLOURS = {
     "original": "#1a9850",  # green, as in the paper
     "counterexample": "#d73027",  # red
+    "cheapest": "#984ea3",  # purple: the cheapest path that breaks a property that holds
     "witness": "#4575b4",  # blue
     "truth": "#111111",  # black
     "other": "#b0b0b0",  # grey: the remaining attacked tracks
@@ -32,6 +33,14 @@ COLOURS = {
 }
 #: One line style per role.
 STYLES = {"original": "-", "counterexample": "--", "witness": "-", "truth": ":", "other": "-"}
+STYLES["cheapest"] = "--"
+#: What the tree's legend calls each role.
+ROLE_WORDS = {
+    "original": "original",
+    "counterexample": "counterexample",
+    "cheapest": "cheapest path breaking a property that holds (not a counterexample)",
+    "witness": "witness",
+}
 #: One marker per property (by its index in the run).
 MARKERS = ["o", "s", "^", "D", "v", "P"]
 DPI = 200
@@ -105,9 +114,9 @@ def _plot(ax: Axes, s: Series, ks: np.ndarray, ys: np.ndarray) -> None:
         alpha=0.55 if s.role == "original" else 1.0,
         marker=s.marker,
         ms=4,
-        mfc="white" if s.role == "counterexample" else s.colour,
+        mfc="white" if s.role in ("counterexample", "cheapest") else s.colour,
         label=s.label,
-        zorder=4 if s.role == "counterexample" else 3,
+        zorder=4 if s.role in ("counterexample", "cheapest") else 3,
     )
 
 
@@ -306,9 +315,9 @@ def tree(
         if p.role != "other":
             legend_roles.setdefault(p.role, p.role)
         _leaf_tag(ax, p, xcol[drawn_cols[-1]] + 0.35, y_leaf[p.number], len(p.states) < longest)
-    for role in ("original", "counterexample", "witness"):
+    for role, words in ROLE_WORDS.items():
         if role in legend_roles:
-            ax.plot([], [], STYLES[role], color=COLOURS[role], lw=2.2, label=role)
+            ax.plot([], [], STYLES[role], color=COLOURS[role], lw=2.2, label=words)
     ax.plot([], [], ":", color="#777777", lw=1, label="steps without branching (compressed)")
     _tree_axes(ax, cols, xcol, window, len(paths))
     left = total - len(paths)

@@ -39,7 +39,8 @@ from lesmc.report.pages import (
     table,
 )
 from lesmc.report.staging import staged
-from lesmc.report.text import optimum_cell
+from lesmc.report.text import not_replayed_text, optimum_cell
+from lesmc.results.document import ATTACK_PAYOFF
 
 MAX_TABLE_ROWS = 60
 MAX_TREE_LEAVES = 40
@@ -151,6 +152,16 @@ class _Run:
             for j in (p["judged"][i] for p in self.paths)
         )
 
+    def cex_role(self, i: int) -> str:
+        """The role of property ``i``'s cheapest path that breaks the system (results'
+        ``counterexample``): ``counterexample`` when its objective fails ``holds if``, else
+        ``cheapest`` (the property holds: the cheapest such attack costs too much)."""
+        r = self.results[i]
+        cex = r.get("is_counterexample")
+        if cex is None:  # a results file from before lesmc said which
+            cex = r["verdict"] != "holds"
+        return "counterexample" if cex else "cheapest"
+
     def roles(self) -> dict[int, list[tuple[str, int | None]]]:
         """Path number -> (role, property index) pairs: original first, then per property."""
         out: dict[int, list[tuple[str, int | None]]] = {}
@@ -160,14 +171,18 @@ class _Run:
             if self.wit[i] is not None:
                 out.setdefault(self.wit[i], []).append(("witness", i))  # type: ignore[arg-type]
             if self.cex[i] is not None:
-                out.setdefault(self.cex[i], []).append(("counterexample", i))  # type: ignore[arg-type]
+                out.setdefault(self.cex[i], []).append((self.cex_role(i), i))  # type: ignore[arg-type]
         return out
 
     def role_text(self, no: int) -> list[str]:
         return [
-            r if i is None else f"{self.props[i]['name']} {'ρ*' if r == 'witness' else r}"
+            r if i is None else f"{self.props[i]['name']} {ROLE_WORDS.get(r, r)}"
             for r, i in self.roles().get(no, [])
         ]
+
+
+#: A role as tables and legends name it after the property's name.
+ROLE_WORDS = {"witness": "ρ*", "cheapest": "cheapest path (holds: not a counterexample)"}
 
 
 def render(
@@ -191,9 +206,11 @@ def render(
     sections = []
     for run in runs:
         toc.append((f"design-{run.tag}", f"Design: {run.name}"))
-        sections.append({"tag": run.tag, "name": run.name, "parts": _section(run, figs, image_for)})
+        parts = _section(run, figs, image_for, payoff_words(doc))
+        sections.append({"tag": run.tag, "name": run.name, "parts": parts})
     toc += [("specs", "Properties (spec text)"), ("provenance", "Provenance and timings")]
     fa = doc.get("monitor_false_alarms")
+    cheapest = any(r.cex_role(i) == "cheapest" for r in runs for i in range(len(r.props)))
     page = render_page(
         "report.html.j2",
         legend=[
@@ -201,10 +218,12 @@ def render(
             for role, text in (
                 ("original", "original (unattacked) track"),
                 ("counterexample", "counterexample (dashed, hollow markers)"),
+                ("cheapest", CHEAPEST_LEGEND),
                 ("witness", "witness ρ*"),
                 ("truth", "ground truth (dotted)"),
                 ("other", "other attacked tracks"),
             )
+            if role != "cheapest" or cheapest
         ],
         window_colour=COLOURS["window"],
         meta=_meta(doc),
@@ -379,12 +398,21 @@ def _series_for(run: _Run, i: int) -> list[tuple[int, str, int | None]]:
     if w is not None:
         out.append((w, "witness", i))
     if c is not None:
-        out.append((c, "counterexample", i))
+        out.append((c, run.cex_role(i), i))
     return out
 
 
+#: The legend's words for the cheapest path of a property that holds.
+CHEAPEST_LEGEND = (
+    "cheapest path that breaks the system, of a property that holds: not a counterexample "
+    "(dashed, hollow markers)"
+)
+
+
 def _label(run: _Run, no: int, role: str, prop: int | None) -> str:
-    name = "original track" if role == "original" else ("witness ρ*" if role == "witness" else role)
+    names = {"original": "original track", "witness": "witness ρ*"}
+    names["cheapest"] = "cheapest breaking path (holds)"
+    name = names.get(role, role)
     if prop is not None and len(run.props) > 1:
         name = f"{run.props[prop]['name']}: {name}"
     return f"{name} (#{no})"
@@ -393,10 +421,14 @@ def _label(run: _Run, no: int, role: str, prop: int | None) -> str:
 def _drawn_words(drawn: list[tuple[int, str, int | None]]) -> str:
     words = {"original": "the original track (green)", "witness": "the witness ρ* (blue)"}
     words["counterexample"] = "the counterexample (red, dashed)"
+    words["cheapest"] = (
+        "the cheapest path that breaks the system (purple, dashed; not a counterexample: "
+        "its objective meets the threshold, the property holds)"
+    )
     return ", ".join(words[r] for _, r, _ in drawn)
 
 
-def _section(run: _Run, figs: FigureSet, image_for: ImageFor | None) -> list[Any]:
+def _section(run: _Run, figs: FigureSet, image_for: ImageFor | None, payoffs: str) -> list[Any]:
     """One design's part of the report: model, Table 4, figures, Table 3, notes."""
     parts: list[Any] = [_model_line(run), Text("h3", "Verdicts (Table 4)"), _table4(run)]
     sweep = _sweep_figure(run, figs)
@@ -406,19 +438,30 @@ def _section(run: _Run, figs: FigureSet, image_for: ImageFor | None) -> list[Any
         parts += _property_figures(run, i, figs, image_for)
     parts.append(_tree_figure(run, figs))
     parts.append(_tau_figure(run, figs))
-    parts += _patches(run, figs, image_for)
+    parts += _patches(run, figs, image_for, payoffs)
     parts += _table3(run)
     for r in run.results:
-        for n in r["notes"]:
+        for n in _notes(r):
             parts.append(para(f"{r['property']}: {n}", "note"))
     return parts
+
+
+def _notes(r: dict[str, Any]) -> list[str]:
+    """A result's notes, and what its final status asks of the reader: a violation not
+    replayed says how to replay it (written from the status after any replay, never
+    kept from before it)."""
+    rp = r.get("replay") or {}
+    if rp.get("status") != "not replayed":
+        return list(r["notes"])
+    return [*r["notes"], not_replayed_text(rp.get("command"))]
 
 
 def _model_line(run: _Run) -> Text:
     m = run.d["model"]
     return para(
         Markup(
-            "{} states, {} transitions, steps 0..{} (frames {}..{}), attack window {}..{}, "
+            "{} states built (the whole model), {} transitions, steps 0..{} (frames {}..{}), "
+            "attack window {}..{}, "
             "{} attacked tracks. Model sha256 <code>{}…</code>."
         ).format(
             m["states"],
@@ -476,10 +519,19 @@ def _property_figures(run: _Run, i: int, figs: FigureSet, image_for: ImageFor | 
         + (" and accumulated" if cumulative else "")
         + f" of {_drawn_words(drawn[1:]) or 'no attacked track'}"
         + (f", against the constraint's threshold {bound:g}" if bound is not None else "")
-        + ". "
-        + ("" if run.cex[i] is not None else "No path violates: no counterexample drawn.")
+        + "."
+        + _no_cex_words(run, i)
     )
     return [*parts, Figure(name, caption)]
+
+
+def _no_cex_words(run: _Run, i: int) -> str:
+    """The end of a figure's caption when property ``i`` has no counterexample to draw."""
+    if run.cex[i] is None:
+        return " No path violates: no counterexample drawn."
+    if run.cex_role(i) == "cheapest":
+        return " No counterexample: the cheapest path that breaks the system meets the threshold."
+    return ""
 
 
 def _table4(run: _Run) -> Table:
@@ -508,10 +560,10 @@ def _table4(run: _Run) -> Table:
                 r["holds_if"],
                 fmt(r["witness_value"]),
                 _no(run.wit[i]),
-                _no(run.cex[i]),
+                _cex_cell(run, i),
                 monitor,
                 f"{run.adversarial(i)} ({check})",
-                f"{r['stats']['seconds']:.3f} s, {r['stats']['states_expanded']} states",
+                f"{r['stats']['seconds']:.3f} s, {r['stats']['states_expanded']} states expanded",
             ]
         )
     head = ["property", "verdict", "minimise", "subject to", "optimum", "holds if", "θ*"]
@@ -521,6 +573,15 @@ def _table4(run: _Run) -> Table:
 
 def _no(n: int | None) -> str:
     return "-" if n is None else f"#{n}"
+
+
+def _cex_cell(run: _Run, i: int) -> str:
+    """Table 4's counterexample: its row, or, for a property that holds, none and the row
+    of the cheapest path that breaks the system."""
+    n = run.cex[i]
+    if n is None or run.cex_role(i) == "counterexample":
+        return _no(n)
+    return f"none (#{n}: the cheapest breaking path, not a counterexample)"
 
 
 def _track_figure(
@@ -566,7 +627,7 @@ def _track_figure(
         + f" and the detections of step {ref} (amber rings), in the pixels of frame {frame}"
         + ("" if img is not None else " (no video frames given: lesmc report --frames DIR)")
         + "."
-        + ("" if run.cex[i] is not None else " No path violates: no counterexample drawn."),
+        + _no_cex_words(run, i),
     )
 
 
@@ -583,8 +644,9 @@ def _tree_figure(run: _Run, figs: FigureSet) -> Figure:
     for p in chosen:
         rl = roles.get(p["no"], [])
         role = rl[0][0] if rl else "other"
-        if any(r == "counterexample" for r, _ in rl):
-            role = "counterexample"
+        for strong in ("cheapest", "counterexample"):
+            if any(r == strong for r, _ in rl):
+                role = strong
         if any(r == "original" for r, _ in rl):
             role = "original"
         tps.append(
@@ -637,13 +699,14 @@ def _tau_figure(run: _Run, figs: FigureSet) -> Figure | Text:
     )
 
 
-def _patches(run: _Run, figs: FigureSet, image_for: ImageFor | None) -> list[Any]:
+def _patches(run: _Run, figs: FigureSet, image_for: ImageFor | None, payoffs: str) -> list[Any]:
     """What the counterexamples' attacks hide: a table, the replays, and the patches."""
     hidden = run.d.get("hidden") or {}
     if not any(hidden.values()):
         return []
     replays = {r["property"]: r.get("replay") or {} for r in run.results}
-    out = [*_hidden_table(hidden, replays), *_replay_lines(run)]
+    holding = {run.props[i]["name"] for i in range(len(run.props)) if run.cex_role(i) == "cheapest"}
+    out = [*_hidden_table(hidden, replays, holding, payoffs), *_replay_lines(run)]
     if image_for is None:
         return [
             *out,
@@ -654,12 +717,17 @@ def _patches(run: _Run, figs: FigureSet, image_for: ImageFor | None) -> list[Any
     return [*out, *_patch_figures(run, hidden, replays, figs, image_for)]
 
 
-def _hidden_table(hidden: dict[str, Any], replays: dict[str, Any]) -> list[Any]:
+def _hidden_table(
+    hidden: dict[str, Any], replays: dict[str, Any], holding: set[str], payoffs: str
+) -> list[Any]:
     """One row per hidden detection: where, its payoff, its certified interval, and the
-    payoff the replay recomputed."""
+    payoff the replay recomputed. ``holding``: the properties that hold (their path is the
+    cheapest that breaks the system, not a counterexample); ``payoffs``: where the
+    payoffs came from (:func:`payoff_words`)."""
     rows = []
     for prop, items in hidden.items():
         recomputed = {p["obs"]: p for p in replays.get(prop, {}).get("perturbations", [])}
+        name = f"{prop} (holds: cheapest breaking path)" if prop in holding else prop
         for h in items:
             where = f"({h['x']:.1f}, {h['y']:.1f})" if "x" in h else "-"
             lo, up = h.get("payoff_lower"), h["payoff"]
@@ -671,7 +739,7 @@ def _hidden_table(hidden: dict[str, Any], replays: dict[str, Any]) -> list[Any]:
             rec = "-" if again is None else fmt(again["payoff_recomputed"])
             rows.append(
                 [
-                    Cell(prop, head=True),
+                    Cell(name, head=True),
                     h["step"],
                     h["frame"],
                     h["obs"],
@@ -683,23 +751,38 @@ def _hidden_table(hidden: dict[str, Any], replays: dict[str, Any]) -> list[Any]:
                 ]
             )
     head = ["property", "step", "frame", "detection", "position", "payoff", "interval"]
+    title = "What the counterexamples' attacks hide" + (
+        " (and the cheapest breaking paths of the properties that hold)" if holding else ""
+    )
     return [
-        Text("h3", "What the counterexamples' attacks hide"),
+        Text("h3", title),
         para(
             Markup(
                 "At each attacked step the tracker "
                 "takes a detection of lower priority because the attacker hid those ranked before "
-                "it (Eq. 5). Payoff: the size of the perturbation the attack found that makes N_dr "
-                "miss that detection (an upper bound on the cheapest one; see the payoff unit "
-                "above). Interval: [certified lower bound, attack payoff] when the scene carries "
+                "it (Eq. 5). Payoff: {} (see the payoff unit above). Interval: [certified lower "
+                "bound, attack payoff] when the scene carries "
                 "certified bounds (<code>verify --payoffs interval</code> certifies every "
                 "detection a model can hide, <code>perceive --certify</code> all); tightness = "
                 "lower / upper (1: exact). Replayed: the payoff of the same attack recomputed on "
                 "the frames by the replay."
-            )
+            ).format(payoffs)
         ),
         table([*head, "tightness", "replayed"], rows),
     ]
+
+
+def payoff_words(doc: dict[str, Any]) -> str:
+    """Where the detections' payoffs came from, in words: the results' ``meta`` says
+    (``payoff source``, lesmc/results/document.py); a results file written before it did
+    is read as the attack on N_dr when its payoff unit names N_dr."""
+    meta = doc.get("meta", {})
+    source = meta.get("payoff source")
+    if isinstance(source, str) and source:
+        return source
+    if "N_dr" in str(meta.get("payoff unit", "")):
+        return ATTACK_PAYOFF
+    return "as the scene or model gives them (it does not say where they came from)"
 
 
 def _patch_figures(
@@ -770,8 +853,8 @@ def _replay_lines(run: _Run) -> list[Text]:
         if rp["status"] == "not replayed":
             text = Markup(
                 "<b>not replayed</b>: the counterexample is the model's; run it through the "
-                "detector with <code>lesmc replay RESULTS.json --frames VIDEO/</code>"
-            )
+                "detector with <code>{}</code>"
+            ).format(rp.get("command") or "lesmc replay RESULTS.json --frames VIDEO/")
         elif rp["status"] == "confirmed":
             text = Markup(
                 "<b>confirmed</b>{}: the real detector and tracker take the same "
@@ -837,9 +920,10 @@ def _table3(run: _Run) -> list[Any]:
 
 
 def _row_class(roles: set[str]) -> str:
-    """A Table 3 row's shading: a counterexample (red) before a witness ρ* (blue) before
-    the original track (green); the witness is never shaded as a counterexample."""
-    for role in ("counterexample", "witness", "original"):
+    """A Table 3 row's shading: a counterexample (red) before the cheapest breaking path of
+    a property that holds (purple) before a witness ρ* (blue) before the original track
+    (green); the witness is never shaded as a counterexample."""
+    for role in ("counterexample", "cheapest", "witness", "original"):
         if role in roles:
             return role
     return ""

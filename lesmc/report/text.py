@@ -11,7 +11,7 @@ from rich.table import Table
 
 from lesmc.common.errors import escape_text
 from lesmc.common.numbers import fmt
-from lesmc.engines.result import CheckResult, PathInfo
+from lesmc.engines.result import CheckResult, PathInfo, Stats
 from lesmc.language.properties import SpecFile
 from lesmc.results.document import provenance
 from lesmc.results.record import DesignRun
@@ -40,6 +40,14 @@ def results_json(
         "results": [r.to_json() for r in results],
     }
     return json.dumps(doc, indent=1, allow_nan=False)
+
+
+#: What the summary's two counts of states are (docs/cli.md, "states").
+STATES_WORDS = (
+    "states expanded: what each property's search expanded (a state can be expanded by "
+    "more than one phase); states built: the states of the model it searched (a scene's "
+    "model is unfolded on demand and shared by its properties: the count grows)"
+)
 
 
 def verdict_cell(r: CheckResult) -> str:
@@ -77,7 +85,7 @@ def print_runs(console: Console, title: str, runs: Sequence[DesignRun]) -> None:
             overflow="fold",
         )
     for run in runs:
-        own = "-" if run.model is None else f"{run.model.n_states} states"
+        own = "-" if run.model is None else f"{run.model.n_states} states built"
         sizes = [own] * len(run.results) + ["under faults"] * len(run.fault_results)
         for r, size in zip(run.all_results, sizes, strict=True):
             known = r.optimum_known and r.stats.stopped == "finished"
@@ -91,17 +99,30 @@ def print_runs(console: Console, title: str, runs: Sequence[DesignRun]) -> None:
                 size,
             )
     console.print(table)
-    hints = {
-        r.property
-        for r in (x for run in runs for x in run.results)  # under faults: nothing to replay
-        if r.replay == "not replayed"
+    commands = {  # under faults: nothing to replay
+        r.replay_command: None
+        for run in runs
+        for r in run.results
+        if r.replay == "not replayed" and r.replay_command is not None
     }
-    if hints:
-        console.print(
-            "violated (not replayed): the counterexample was found on the model; replay it "
-            "through the detector with lesmc verify --scene SCENE --frames VIDEO/ "
-            '(docs/semantics.md, "Replay")'
-        )
+    for command in commands:
+        console.print(escape_text(not_replayed_text(command)))
+
+
+def not_replayed_text(command: str | None) -> str:
+    """What a violation not replayed through the detector is, and the command that replays
+    it (None: the generic one), for tables, notes and reports."""
+    how = command or "lesmc verify --scene SCENE --frames VIDEO/"
+    return (
+        "violated (not replayed): the counterexample was found on the model; replay it "
+        f'through the real detector and tracker with {how} (docs/semantics.md, "Replay")'
+    )
+
+
+def states_built(stats: Stats) -> str:
+    """The states of the model a check ran on, as the tables print them ("-": not known)."""
+    n = stats.extra.get("states_built")
+    return str(n) if isinstance(n, int) else "-"
 
 
 def make_console() -> Console:
@@ -116,7 +137,8 @@ def print_results(console: Console, results: Sequence[CheckResult], paths: bool 
     """A summary table, then each property's counterexample and witness, step by step."""
     engines = sorted({r.stats.engine for r in results})
     summary = Table(title=f"lesmc check ({', '.join(engines)})", title_justify="left")
-    for col in ("property", "verdict", "optimum", "holds if", "θ*", "states", "seconds"):
+    cols = ("property", "verdict", "optimum", "holds if", "θ*", "states expanded", "states built")
+    for col in (*cols, "seconds"):
         summary.add_column(
             col,
             justify="left" if col in ("property", "verdict", "holds if") else "right",
@@ -132,9 +154,11 @@ def print_results(console: Console, results: Sequence[CheckResult], paths: bool 
             f"optimum {r.holds_op} {r.threshold:g}",
             fmt(r.witness_value),
             str(r.stats.states_expanded),
+            states_built(r.stats),
             f"{r.stats.seconds:.3f}",
         )
     console.print(summary)
+    console.print(STATES_WORDS)
     for r in results:
         console.print(
             f"[bold]{escape_text(r.property)}[/]: minimize {escape_text(r.objective)} "
@@ -142,16 +166,19 @@ def print_results(console: Console, results: Sequence[CheckResult], paths: bool 
         )
         for note in r.notes:
             console.print(f"  note: {escape_text(note)}")
+        if r.replay == "not replayed":
+            console.print(f"  note: {escape_text(not_replayed_text(r.replay_command))}")
         if not paths:
             continue
-        if r.counterexample is not None:
+        if r.cheapest is not None:
             title = (
-                "cheapest path that satisfies the constraint (not a counterexample: its "
-                "objective meets the threshold, so the property holds)"
-                if r.verdict == "holds"
-                else "counterexample (cheapest violating path)"
+                "counterexample (cheapest violating path)"
+                if r.counterexample is not None
+                else "cheapest path that satisfies the constraint (not a counterexample: its "
+                "objective meets the threshold"
+                + (", so the property holds)" if r.verdict == "holds" else ")")
             )
-            _print_path(console, title, r.counterexample)
+            _print_path(console, title, r.cheapest)
         elif r.stats.stopped != "finished":
             console.print("  counterexample: none found before the search stopped")
         else:

@@ -300,14 +300,14 @@ def run_json(
     win = (min(bp.l for bp in run.bound), max(bp.u for bp in run.bound))
     wanted = [tuple(int(q) for q in cm.original)]
     for r in run.results:
-        for info in (r.counterexample, r.witness):
+        for info in (r.cheapest, r.witness):
             if info is not None:
                 wanted.append(tracks.complete(cm, tuple(cm.index(s) for s in info.states)))
     listed = tracks.enumerate_tracks(cm, limit, wanted)
     number = {t.states: i + 1 for i, t in enumerate(listed)}
     spaces = [build_space(cm, bp) for bp in run.bound]
     judged = [[tracks.judge(sp, t) for sp in spaces] for t in listed]
-    cex = [_path_no(cm, number, r.counterexample) for r in run.results]
+    cex = [_path_no(cm, number, r.cheapest) for r in run.results]
     scene_part, to_ref = None, None
     loc: tuple[int, int] = kernel.LOCATION
     if run.scene is not None and cm.components == run.scene.tracker.state_names:
@@ -363,11 +363,47 @@ def replay_inputs(scene: Scene) -> dict[str, Any]:
     }
 
 
+#: What a payoff made by perception is (docs/cnn.md).
+ATTACK_PAYOFF = (
+    "the size of the perturbation the attack found that makes N_dr miss the detection (an "
+    "upper bound on the cheapest one)"
+)
+
+
+def payoff_source(runs: Sequence[DesignRun]) -> str:
+    """Where the detections' payoffs came from, as the scene's ``meta`` says: an attack on
+    N_dr (a scene made by perception), or what ``lesmc import mot`` read (``meta.payoffs``:
+    a column of the det.txt or a constant)."""
+    scenes = [r.scene for r in runs if r.scene is not None]
+    if not scenes:
+        return "as in the model file (a .lts model does not say where they came from)"
+    meta = scenes[0].meta
+    given = meta.get("payoffs")
+    if isinstance(given, str) and given:
+        where = meta.get("source")
+        return (
+            given
+            + (f", {where}" if isinstance(where, str) and where else "")
+            + (
+                "; not the cost of an attack on a detector"
+                if meta.get("format") == "MOTChallenge"
+                else ""
+            )
+        )
+    attack = meta.get("attack")
+    if isinstance(attack, dict) or meta.get("detector"):
+        method = attack.get("method") if isinstance(attack, dict) else None
+        return ATTACK_PAYOFF + (f", by {method}" if isinstance(method, str) else "")
+    return "as in the scene file (its meta does not say where they came from)"
+
+
 def payoff_unit(runs: Sequence[DesignRun]) -> str:
     """What one unit of payoff is, as far as the scene says (docs/cnn.md)."""
     scenes = [r.scene for r in runs if r.scene is not None]
     if not scenes:
         return "as in the model file (a .lts model does not say)"
+    if isinstance(scenes[0].meta.get("payoffs"), str):  # lesmc import mot's
+        return "as the payoff source gives them (not an attack's perturbation size)"
     attack = scenes[0].meta.get("attack")
     norm = attack.get("norm") if isinstance(attack, dict) else None
     if norm == "per-pixel":
@@ -388,6 +424,7 @@ def results_document(
     """The whole results file (``lesmc-results``; lesmc/schemas/results.json)."""
     meta = dict(meta)
     meta.setdefault("payoff unit", payoff_unit(runs))
+    meta.setdefault("payoff source", payoff_source(runs))
     doc: dict[str, Any] = {
         "format": FORMAT,
         "version": VERSION,

@@ -166,6 +166,13 @@ class Payoffs:
     constant: float = 1.0
     column: int | None = None
 
+    def words(self) -> str:
+        """Where the payoffs come from, for the scene's ``meta.payoffs`` (the report says)."""
+        if self.column is None:
+            return f"the constant {self.constant:g} for every detection (import mot --payoff)"
+        conf = " (conf)" if self.column == 7 else ""
+        return f"column {self.column}{conf} of the det.txt (import mot --payoff-column)"
+
 
 def footage_from_boxes(
     boxes: Sequence[Box],
@@ -194,7 +201,7 @@ def footage_from_boxes(
         )
     first, last = min(by_frame), max(by_frame)
     frames = tuple(Frame(k, tuple(by_frame.get(k, ()))) for k in range(first, last + 1))
-    meta = {"source": path, "format": "MOTChallenge", "point": point}
+    meta = {"source": path, "format": "MOTChallenge", "point": point, "payoffs": payoffs.words()}
     return Footage(dt, frames, tracker or TrackerConfig(), meta)
 
 
