@@ -25,7 +25,7 @@ LAYERS: dict[str, set[str]] = {
     "common": set(),
     "language": set(),
     "video": set(),
-    "schemas": {"designs"},
+    "schemas": {"designs", "engines"},
     "designs": set(),
     "model": {"language"},
     "scene": {"designs"},

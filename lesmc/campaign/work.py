@@ -62,7 +62,7 @@ def group_job(group: Group, doc: dict[str, Any]) -> Job:
         scene=scene,
         designs=tuple(dict.fromkeys(u.design for u in group.units)),
         windows=tuple(sorted({u.window for u in group.units})),
-        payoffs=group.payoffs,  # type: ignore[arg-type]
+        payoffs=group.payoffs,
         budget=Budget(max_states=group.max_states, check_timeout=group.timeout),
         wanted=wanted,
         unbounded=lambda _tracker, window: group.unbounded_in(window),

@@ -5,14 +5,13 @@ from __future__ import annotations
 import math
 from collections.abc import Callable, Iterable
 from dataclasses import replace
-from typing import Any, Literal
+from typing import Any
 
 from lesmc.common.budget import Budget
 from lesmc.engines import enumerate as enum_engine
-from lesmc.engines.bnb import branch_and_bound
-from lesmc.engines.enumerate import enumerate_many, enumerate_paths, exhaustive_probe, tree_size
+from lesmc.engines import registry as engines
+from lesmc.engines.enumerate import enumerate_many, exhaustive_probe, tree_size
 from lesmc.engines.lazy import LazySpace
-from lesmc.engines.levels import level_search
 from lesmc.engines.result import CheckResult, EngineOutcome, PathInfo, Verdict, path_info
 from lesmc.engines.space import SearchSpace, build_space
 from lesmc.language.properties import SpecFile
@@ -22,12 +21,8 @@ from lesmc.model.arrays import ArrayModel
 from lesmc.model.growing import GrowingModel
 from lesmc.model.kernel import holds
 
-EngineName = Literal["enumerate", "bnb", "levels"]
-ENGINES: dict[str, Callable[..., EngineOutcome]] = {
-    "enumerate": enumerate_paths,
-    "bnb": branch_and_bound,
-    "levels": level_search,
-}
+#: An engine's name (lesmc/engines/registry.py).
+EngineName = str
 
 #: Default budget on expanded states: keeps a runaway search inside 2 cores / 24 GiB.
 DEFAULT_MAX_STATES = 10_000_000
@@ -52,7 +47,7 @@ def bind_all(model: ArrayModel, specs: Iterable[SpecFile]) -> list[BoundProperty
 def check(
     model: ArrayModel,
     specs: Iterable[SpecFile],
-    engine: EngineName = "levels",
+    engine: EngineName = engines.DEFAULT,
     budget: Budget | None = None,
 ) -> list[CheckResult]:
     """Check every property of ``specs`` on ``model`` with the chosen engine (each check
@@ -62,7 +57,10 @@ def check(
 
 
 def check_bound(
-    cm: ArrayModel, bp: BoundProperty, engine: EngineName = "levels", budget: Budget | None = None
+    cm: ArrayModel,
+    bp: BoundProperty,
+    engine: EngineName = engines.DEFAULT,
+    budget: Budget | None = None,
 ) -> CheckResult:
     """Check one bound property on a model, within ``budget`` (default: no limit).
 
@@ -73,11 +71,12 @@ def check_bound(
     """
     b = budget or Budget()
     space = build_space(cm, bp)
-    if engine == "enumerate":
-        out = enumerate_paths(space, b)
+    chosen = engines.get(engine)
+    if chosen.exhaustive:
+        out = chosen.load()(space, b)
     else:
         probe = exhaustive_probe(space, engine, b)
-        out = probe.outcome or ENGINES[engine](space, probe.left)
+        out = probe.outcome or chosen.load()(space, probe.left)
         if probe.outcome is None and probe.states:
             out.stats.extra["probe_states"] = probe.states
             out.stats.seconds += probe.seconds
@@ -200,13 +199,13 @@ def monitor_facts(space: SearchSpace) -> tuple[list[int] | None, bool]:
 def check_lazy(
     model: GrowingModel,
     bp: BoundProperty,
-    engine: EngineName = "levels",
+    engine: EngineName = engines.DEFAULT,
     budget: Budget | None = None,
 ) -> CheckResult:
     """One bound property on a model unfolded on demand (the engine expands what it visits;
     ``enumerate`` every state its paths reach)."""
     space = LazySpace(model, bp)
-    out = ENGINES[engine](space, budget or Budget())
+    out = engines.get(engine).load()(space, budget or Budget())
     out.stats.extra["states_built"] = space.states_built
     return to_result(space, out)
 
@@ -259,7 +258,7 @@ def check_shared(
     at most enumerate.SMALL_TREE nodes; on one unfolded on demand: the walk finishes
     within SHARED_LAZY_TREE nodes), the answers then marked ``exhaustive`` as their
     probe's are. None: search each property on its own."""
-    if engine == "enumerate":
+    if engines.get(engine).exhaustive:
         return check_many(model, bps, budget)
     limit = enum_engine.SMALL_TREE if budget.max_states is None else budget.max_states
     if isinstance(model, ArrayModel):

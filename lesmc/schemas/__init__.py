@@ -19,6 +19,8 @@ from typing import Any
 
 from lesmc.common.errors import InputError, Location
 from lesmc.designs import registry
+from lesmc.engines import payoff_modes
+from lesmc.engines import registry as engines
 
 #: format name of each document -> its schema file (without .json)
 SCHEMAS = {
@@ -46,17 +48,21 @@ def _text(name: str) -> str:
 
 
 def schema(name: str) -> dict[str, Any]:
-    """The schema ``lesmc/schemas/NAME.json``, with the registry's designs.
+    """The schema ``lesmc/schemas/NAME.json``, with the registries' names.
 
-    The enums of design names are not spelled in the files: ``#/$defs/designs``
+    The enums of registered names are not spelled in the files: ``#/$defs/designs``
     (every registered design) and ``#/$defs/trackers`` (the designs that bring
-    a tracker) are filled from lesmc/designs/registry.py now, so that a design
-    registered at run time is accepted too.
+    a tracker) are filled from lesmc/designs/registry.py now, ``#/$defs/engines``
+    from lesmc/engines/registry.py and ``#/$defs/payoff_modes`` from
+    lesmc/engines/payoff_modes.py, so that a variant registered at run time is
+    accepted too.
     """
     out: dict[str, Any] = json.loads(_text(name))
     defs = out.setdefault("$defs", {})
     defs["designs"] = {"enum": list(registry.names())}
     defs["trackers"] = {"enum": list(registry.tracker_names())}
+    defs["engines"] = {"enum": list(engines.names())}
+    defs["payoff_modes"] = {"enum": list(payoff_modes.names())}
     return out
 
 
