@@ -95,6 +95,8 @@ def row(
     extra: dict[str, Any] = {}
     if r.payoffs != "attack":
         extra = {"payoffs": r.payoffs, "notes": list(r.notes)}
+    if r.sweep:
+        extra["sweep"] = r.sweep_json()
     if r.payoffs == "interval":
         extra |= {
             "optimum_certified": num(r.optimum_certified),

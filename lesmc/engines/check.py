@@ -53,7 +53,16 @@ def check(
     """Check every property of ``specs`` on ``model`` with the chosen engine (each check
     within what is left of ``budget``)."""
     b = budget or Budget(max_states=DEFAULT_MAX_STATES)
-    return [check_bound(model, bp, engine, b.for_check()) for bp in bind_all(model, specs)]
+    design = model_design(model)
+    return [
+        replace(check_bound(model, bp, engine, b.for_check()), design=design)
+        for bp in bind_all(model, specs)
+    ]
+
+
+def model_design(model: ArrayModel) -> str:
+    """The design a model file's results name: the one its meta names, else ``model``."""
+    return str(model.meta.get("design", "model"))
 
 
 def check_bound(
@@ -114,7 +123,7 @@ def to_result(space: SearchSpace, out: EngineOutcome) -> CheckResult:
     return CheckResult(
         property=prop.name,
         verdict=verdict,
-        optimum=optimum if known and math.isfinite(optimum) else None,
+        optimum=optimum if known else None,
         threshold=prop.threshold,
         holds_op=prop.holds_op,
         objective=bp.objective.text,
@@ -136,6 +145,7 @@ def to_result(space: SearchSpace, out: EngineOutcome) -> CheckResult:
         constraint_source=bp.constraint.source,
         constraint_op=bp.op,
         constraint_bound=bp.bound,
+        sweep=dict(prop.sweep),
     )
 
 
@@ -306,12 +316,9 @@ def carried_over(r: CheckResult, bp: BoundProperty) -> CheckResult | None:
         return None
     cex = r.counterexample
     if cex is None:
-        if r.optimum is not None:
+        if r.optimum != math.inf:
             return None
-    elif not (
-        kernel.compare(bp.op, cex.constraint, bp.bound)
-        and (cex.objective == r.optimum or (r.optimum is None and math.isinf(cex.objective)))
-    ):
+    elif not (kernel.compare(bp.op, cex.constraint, bp.bound) and cex.objective == r.optimum):
         return None
     stats = replace(r.stats, states_expanded=0, transitions=0, seconds=0.0, paths=None)
     stats.extra = {"answered_by": r.property}
@@ -320,6 +327,7 @@ def carried_over(r: CheckResult, bp: BoundProperty) -> CheckResult | None:
         property=bp.name,
         constraint=f"{bp.constraint.text} {bp.op} {bp.bound:g}",
         constraint_bound=bp.bound,
+        sweep=dict(bp.prop.sweep),
         stats=stats,
         notes=[
             *r.notes,

@@ -33,14 +33,14 @@ def results_json(results: Sequence[CheckResult], specs: Sequence[SpecFile] = ())
         "format": "lesmc-check",
         "version": 2,
         "provenance": provenance(specs),
-        "results": [r.to_json() for r in results],
+        "results": [r.to_dict() for r in results],
     }
     return json.dumps(doc, indent=1, allow_nan=False)
 
 
 def verdict_cell(r: CheckResult) -> str:
     """A result's verdict word and why, in its colour (rich markup)."""
-    return f"[{COLOURS[r.status]}]{escape_text(r.verdict_text())}[/]"
+    return f"[{COLOURS[r.status]}]{escape_text(r.verdict_text)}[/]"
 
 
 class _StdoutConsole(Console):
