@@ -7,9 +7,9 @@ that ``import lesmc`` stays light.
 
 from __future__ import annotations
 
-import sys
-import types
-from typing import Any
+import sys as _sys
+import types as _types
+from typing import Any as _Any
 
 _ERRORS = ("LesmcError", "InputError", "SpecError", "ModelError", "UsageError", "BudgetError")
 
@@ -25,6 +25,7 @@ _API = (
     "check",
     "check_job",
     "expand_designs",
+    "export",
     "export_model",
     "load_model",
     "load_model_or_scene",
@@ -39,7 +40,7 @@ _API = (
 __all__ = [*_API, *_ERRORS]
 
 
-def __getattr__(name: str) -> Any:
+def __getattr__(name: str) -> _Any:
     """The API's names, from :mod:`lesmc.api` on first use."""
     if name in _API:
         from lesmc import api
@@ -53,32 +54,35 @@ def __getattr__(name: str) -> Any:
 
 
 def __dir__() -> list[str]:
-    return sorted([*globals(), *_API, *_ERRORS])
+    """Exactly the public names (``__all__``): not the subpackages, nor this module's own
+    imports."""
+    return sorted(__all__)
 
 
-#: API functions that share their name with a subpackage (lesmc/build/, lesmc/verify/).
-_SHADOWED = ("build", "verify")
+#: API functions that share their name with a subpackage (lesmc/build/, lesmc/export/,
+#: lesmc/verify/).
+_SHADOWED = ("build", "export", "verify")
 
 
-class _CallableModule(types.ModuleType):
+class _CallableModule(_types.ModuleType):
     """A subpackage named like an API function: calling it calls the function, so that
     ``lesmc.build(...)`` works once ``lesmc.build`` (the package) has been imported, which
     rebinds the name; its modules stay reachable as attributes (``lesmc.build.unfold``)."""
 
-    def __call__(self, *args: Any, **kwargs: Any) -> Any:
+    def __call__(self, *args: _Any, **kwargs: _Any) -> _Any:
         from lesmc import api
 
         return getattr(api, self.__name__.rpartition(".")[2])(*args, **kwargs)
 
 
-class _Package(types.ModuleType):
+class _Package(_types.ModuleType):
     """``lesmc`` itself: the import system binds each subpackage here as it loads; the
     two named like API functions become callable (:class:`_CallableModule`)."""
 
-    def __setattr__(self, name: str, value: Any) -> None:
-        if name in _SHADOWED and type(value) is types.ModuleType:
+    def __setattr__(self, name: str, value: _Any) -> None:
+        if name in _SHADOWED and type(value) is _types.ModuleType:
             value.__class__ = _CallableModule
         super().__setattr__(name, value)
 
 
-sys.modules[__name__].__class__ = _Package
+_sys.modules[__name__].__class__ = _Package
