@@ -421,9 +421,10 @@ def _path(value: Any, name: str, alternative: str = "") -> str:
 
 def _specs(specs: Any) -> tuple[SpecFile, ...]:
     """``specs``: one spec file or a list of them, each parsed or a path (read now)."""
-    one = isinstance(specs, SpecFile | str | os.PathLike)
-    given = (specs,) if one else _items(specs, "specs")
     rule = "specs must be a spec file (a SpecFile or its path) or a non-empty list of them"
+    one = isinstance(specs, SpecFile | str | os.PathLike)
+    _need(one or (isinstance(specs, Sequence) and not isinstance(specs, bytes)), rule, specs)
+    given = (specs,) if one else tuple(specs)
     _need(bool(given), rule, specs)
     out = []
     for s in given:
