@@ -202,10 +202,7 @@ def build(
             limit = f"max_states={max_states}" if reason == "max_states" else f"{reason}"
             if reason == "timeout":
                 limit = f"timeout={timeout} s"
-            raise BudgetError(
-                f"{limit} ran out while building the model "
-                f"({model.n_states} states)"
-            )
+            raise BudgetError(f"{limit} ran out while building the model ({model.n_states} states)")
 
     model = build_model(sc, steps, end, on_batch=spent, max_states=max_states)
     spent(model)
@@ -373,15 +370,27 @@ def perceive(
     when ``target`` was given, a ``Footage`` without); write it with
     :func:`save_scene`. ``on_frame`` is called after each frame (progress).
     """
-    req = request if isinstance(request, PerceiveRequest) else PerceiveRequest(str(request))
+    req = (
+        request
+        if isinstance(request, PerceiveRequest)
+        else PerceiveRequest(_path(request, "request", "or a PerceiveRequest"))
+    )
+    _need(on_frame is None or callable(on_frame), "on_frame must be None or callable", on_frame)
     refuse_mismatched(req)
     return perceive_frames(req, open_inputs(req), on_frame)
 
 
 def verify(request: VerifyRequest, reporter: Reporter | None = None) -> VerifyOutcome:
     """The paper's whole experiment (``lesmc verify``): see :class:`VerifyRequest`."""
+    from lesmc.verify.experiment import Request
     from lesmc.verify.experiment import verify as run_verify
 
+    _need(isinstance(request, Request), "request must be a lesmc.VerifyRequest", request)
+    _need(
+        reporter is None or isinstance(reporter, Reporter),
+        "reporter must be None or a lesmc.common.progress.Reporter",
+        reporter,
+    )
     if reporter is not None:
         return run_verify(request, reporter)
     with Reporter("verify", live=False) as rep:

@@ -277,6 +277,8 @@ CASES: list[tuple[str, str, type[Exception], Call]] = [
         lesmc.UsageError,
         lambda m, s, sc, out: lesmc.export(m, out, format="dot", roles={"witness": [True]}),
     ),
+    ("perceive-int", "request", lesmc.UsageError, lambda m, s, sc, out: lesmc.perceive(5)),
+    ("verify-path", "request", lesmc.UsageError, lambda m, s, sc, out: lesmc.verify("v/")),
     (
         "export-max_nodes-bool",
         "max_nodes",
