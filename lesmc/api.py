@@ -96,7 +96,9 @@ def parse_spec(text: str, path: str = "<spec>", need_properties: bool = True) ->
     ``need_properties=False`` a file of a faults block alone is accepted."""
     _need(isinstance(text, str), "text must be the text of a spec file (a str)", text)
     _need(isinstance(path, str), "path must be a str (the name used in messages)", path)
-    _need(isinstance(need_properties, bool), "need_properties must be True or False", path)
+    _need(
+        isinstance(need_properties, bool), "need_properties must be True or False", need_properties
+    )
     return parse.parse_spec(text, path, need_properties)
 
 
