@@ -28,6 +28,7 @@ if TYPE_CHECKING:
     from lesmc.language.properties import FaultSet, SpecFile
     from lesmc.results.record import Results
 
+
 @click.command("check")
 @click.argument("model", metavar="MODEL|SCENE", type=click.Path(dir_okay=False))
 @click.argument("specs", nargs=-1, required=True, type=click.Path(dir_okay=False))
