@@ -7,7 +7,7 @@ that ``import lesmc`` stays light.
 
 from __future__ import annotations
 
-from typing import Any
+from typing import Any as _Any
 
 _ERRORS = ("LesmcError", "InputError", "SpecError", "ModelError", "UsageError", "BudgetError")
 
@@ -23,6 +23,7 @@ _API = (
     "check",
     "check_job",
     "expand_designs",
+    "export",
     "export_model",
     "load_model",
     "load_model_or_scene",
@@ -37,7 +38,7 @@ _API = (
 __all__ = [*_API, *_ERRORS]
 
 
-def __getattr__(name: str) -> Any:
+def __getattr__(name: str) -> _Any:
     """The API's names, from :mod:`lesmc.api` on first use."""
     if name in _API:
         from lesmc import api

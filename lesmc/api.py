@@ -8,17 +8,21 @@ column of a bad input; none of them exits the interpreter. The command line
 
 from __future__ import annotations
 
-import math
+import itertools
+import os
 from collections.abc import Callable, Sequence
 from pathlib import Path
-from typing import TYPE_CHECKING, Any, get_args
+from typing import TYPE_CHECKING, Any
 
 from lesmc.common.budget import Budget
-from lesmc.common.errors import InputError, UsageError
+from lesmc.common.errors import BudgetError, InputError, UsageError
+from lesmc.common.fields import MAX_STEP, is_finite, is_int, parse_window
 from lesmc.common.files import read_json
 from lesmc.common.progress import Reporter
 from lesmc.designs import registry
-from lesmc.engines.check import DEFAULT_MAX_STATES, EngineName
+from lesmc.engines import payoff_modes
+from lesmc.engines import registry as engines
+from lesmc.engines.check import DEFAULT_MAX_STATES
 from lesmc.engines.result import CheckResult
 from lesmc.experiment.perceive import (
     Perceived,
@@ -27,15 +31,17 @@ from lesmc.experiment.perceive import (
     perceive_frames,
     refuse_mismatched,
 )
-from lesmc.language.parser import load_spec, parse_spec
+from lesmc.language import parser as parse
 from lesmc.language.properties import SpecFile
 from lesmc.model.arrays import ArrayModel
+from lesmc.model.growing import GrowingModel
 from lesmc.model.lts_binary import is_binary, load_lts_npz
 from lesmc.model.lts_format import load_lts, lts_from_dict
 from lesmc.pipeline.check import run
-from lesmc.pipeline.job import Job, PayoffMode
+from lesmc.pipeline.job import Job
 from lesmc.results.record import DesignRun, Results
-from lesmc.scene import Scene, TrackerConfig, load_tracker, save_scene
+from lesmc.scene import Footage, Scene, TrackerConfig, load_tracker
+from lesmc.scene import save_scene as write_scene
 from lesmc.tracking.targets import scene_with_target
 from lesmc.unfold.unfold import build_model
 
@@ -55,6 +61,7 @@ __all__ = [
     "check",
     "check_job",
     "expand_designs",
+    "export",
     "export_model",
     "load_model",
     "load_model_or_scene",
@@ -66,55 +73,102 @@ __all__ = [
     "verify",
 ]
 
+#: A file argument: a path as a string or a :class:`pathlib.Path` (any ``os.PathLike``).
+PathArg = str | os.PathLike[str]
+#: A spec argument: a parsed spec file, or the path of one.
+SpecArg = SpecFile | PathArg
+#: An attack window: ``"6..8"``, ``(6, 8)`` or ``range(6, 9)`` (steps 6 to 8).
+WindowArg = str | tuple[int, int] | Sequence[int] | range
 
-def load_model(path: str | Path) -> ArrayModel:
-    """A .lts model file, validated (docs/lts-format.md)."""
-    return load_lts(path)
+
+def load_model(path: PathArg) -> ArrayModel:
+    """A model file, validated: a .lts, or its binary .npz form (docs/lts-format.md)."""
+    return load_lts(_path(path, "path"))
+
+
+def load_spec(path: PathArg) -> SpecFile:
+    """A property file, parsed (docs/language.md)."""
+    return parse.load_spec(_path(path, "path"))
+
+
+def parse_spec(text: str, path: str = "<spec>", need_properties: bool = True) -> SpecFile:
+    """The text of a property file, parsed; ``path`` names it in messages. With
+    ``need_properties=False`` a file of a faults block alone is accepted."""
+    _need(isinstance(text, str), "text must be the text of a spec file (a str)", text)
+    _need(isinstance(path, str), "path must be a str (the name used in messages)", path)
+    _need(
+        isinstance(need_properties, bool), "need_properties must be True or False", need_properties
+    )
+    return parse.parse_spec(text, path, need_properties)
 
 
 def load_scene(
-    path: str | Path,
+    path: PathArg,
     target: str | None = None,
     design: str | None = None,
-    tracker: str | Path | TrackerConfig | None = None,
+    tracker: PathArg | TrackerConfig | None = None,
 ) -> Scene:
-    """A scene file (docs/scene-format.md); ``target`` (``X,Y@STEP``) places or moves its
+    """A scene file (docs/scene-format.md); ``target`` (``"X,Y@STEP"``) places or moves its
     target, ``tracker`` (a tracker file or configuration) replaces its tracker, ``design``
-    names another tracker design of the registry."""
-    _check_designs((design,) if design is not None else ())
-    cfg = _tracker_config(tracker)
-    return scene_with_target(read_json(Path(path), InputError), str(path), target, design, cfg)
+    names another tracker of the registry (``single``, ``joint``)."""
+    where = _path(path, "path")
+    cfg = _scene_options(target, design, tracker)
+    return scene_with_target(read_json(Path(where), InputError), where, target, design, cfg)
 
 
-def _tracker_config(tracker: str | Path | TrackerConfig | None) -> TrackerConfig | None:
+def _scene_options(target: Any, design: Any, tracker: Any) -> TrackerConfig | None:
+    """Check a scene's ``target``, ``design`` and ``tracker`` arguments; the tracker's
+    configuration (read from its file) or None."""
+    _need(target is None or isinstance(target, str), 'target must be None or "X,Y@STEP"', target)
+    trackers = registry.tracker_names()
+    _need(
+        design is None or design in trackers,
+        f"design must be None or a tracker among {', '.join(trackers)} (a monitored design "
+        "is a check's: lesmc.check(..., designs=...))",
+        design,
+    )
     if tracker is None or isinstance(tracker, TrackerConfig):
         return tracker
-    return load_tracker(tracker)
+    return load_tracker(_path(tracker, "tracker", "or a TrackerConfig"))
 
 
 def load_model_or_scene(
-    path: str | Path,
+    path: PathArg,
     target: str | None = None,
     design: str | None = None,
-    tracker: str | Path | TrackerConfig | None = None,
+    tracker: PathArg | TrackerConfig | None = None,
 ) -> ArrayModel | Scene:
     """A model (.lts, or its binary .npz form) or a scene, told apart by the file's
     ``format`` field."""
-    binary = is_binary(path)
-    data = None if binary else read_json(Path(path), InputError)
+    where = _path(path, "path")
+    cfg = _scene_options(target, design, tracker)
+    binary = is_binary(where)
+    data = None if binary else read_json(Path(where), InputError)
     if isinstance(data, dict) and data.get("format") == "lesmc-scene":
-        return scene_with_target(data, str(path), target, design, _tracker_config(tracker))
+        return scene_with_target(data, where, target, design, cfg)
     if tracker is not None:
         raise UsageError("--tracker applies to scenes, not to .lts models (built with one)")
     if design:
         raise UsageError("--design applies to scenes, not to .lts models")
     if target:
         raise UsageError("--target applies to scenes, not to .lts models (built for one target)")
-    return load_lts_npz(path) if binary else lts_from_dict(data, str(path))
+    return load_lts_npz(where) if binary else lts_from_dict(data, where)
+
+
+def save_scene(scene: Scene | Footage, path: PathArg) -> None:
+    """Write a scene (or a scene without a target, lesmc.perceive's) atomically
+    (docs/scene-format.md)."""
+    _need(
+        isinstance(scene, Scene | Footage),
+        "scene must be a Scene or a Footage (lesmc.load_scene, lesmc.perceive)",
+        scene,
+    )
+    write_scene(scene, _path(path, "path"))
 
 
 def expand_designs(choice: str) -> tuple[str, ...]:
     """The designs a ``--design`` choice names (a design, a set, or ``all``)."""
+    _need(isinstance(choice, str), "choice must be a design or a set's name", choice)
     if choice not in registry.choices():
         raise UsageError(
             f"unknown design {choice!r}; choose one of {', '.join(registry.choices())}"
@@ -125,89 +179,133 @@ def expand_designs(choice: str) -> tuple[str, ...]:
 
 
 def build(
-    scene: Scene,
-    window: tuple[int, int],
+    scene: Scene | PathArg,
+    window: WindowArg,
     end: int | None = None,
     design: str | None = None,
     max_states: int | None = None,
+    timeout: float | None = None,
 ) -> ArrayModel:
-    """The whole model of ``scene`` attacked in ``window`` (Algorithm 1), up to step ``end``,
-    unfolded with tracker ``design`` (default: the scene's own)."""
-    _need(isinstance(scene, Scene), "scene must be a Scene (lesmc.load_scene)", scene)
-    _need(
-        _steps(window, 2) and window[0] <= window[1], "window must be (l, u), 0 <= l <= u", window
-    )
+    """The whole model of ``scene`` (a Scene or a scene file) attacked in ``window``
+    (``"6..8"``, ``(6, 8)`` or ``range(6, 9)``; Algorithm 1), up to step ``end``, unfolded
+    with tracker ``design`` (default: the scene's own). A
+    :class:`~lesmc.common.errors.BudgetError` names ``max_states`` or ``timeout`` when
+    the model outgrows them (nothing is returned)."""
+    sc = scene if isinstance(scene, Scene) else load_scene(_path(scene, "scene", "or a Scene"))
+    steps = _window(window)
     _need(end is None or _steps((end,), 1), "end must be None or a step >= 0", end)
-    _check_limits(None, max_states)
-    _check_designs((design,) if design is not None else ())
-    sc = scene if design is None else scene.with_tracker(design=registry.get(design).tracker)
-    return build_model(sc, window, end, max_states=max_states)
+    _check_limits(timeout, max_states)
+    _scene_options(None, design, None)
+    if design is not None:
+        sc = sc.with_tracker(design=registry.get(design).tracker)
+    budget = Budget(timeout, max_states)
+
+    def spent(model: GrowingModel | ArrayModel) -> None:
+        reason = budget.exceeded(model.n_states)
+        if reason is not None:
+            limit = f"max_states={max_states}" if reason == "max_states" else f"{reason}"
+            if reason == "timeout":
+                limit = f"timeout={timeout} s"
+            raise BudgetError(f"{limit} ran out while building the model ({model.n_states} states)")
+
+    model = build_model(sc, steps, end, on_batch=spent, max_states=max_states)
+    spent(model)
+    return model
 
 
 def check_job(job: Job) -> Results:
     """Run a :class:`~lesmc.pipeline.job.Job` (the pipeline behind every verb)."""
+    _need(isinstance(job, Job), "job must be a lesmc.pipeline.job.Job", job)
     return run(job)
 
 
 def check(
-    source: ArrayModel | Scene,
-    specs: SpecFile | Sequence[SpecFile],
-    engine: EngineName = "levels",
-    payoffs: PayoffMode = "attack",
+    source: ArrayModel | Scene | PathArg,
+    specs: SpecArg | Sequence[SpecArg],
+    engine: str = engines.DEFAULT,
+    payoffs: str = payoff_modes.DEFAULT,
     timeout: float | None = None,
     max_states: int | None = DEFAULT_MAX_STATES,
-    designs: Sequence[str] = (),
-    only: Sequence[str] = (),
+    designs: str | Sequence[str] = (),
+    only: str | Sequence[str] = (),
 ) -> list[CheckResult]:
-    """Check every property of ``specs`` on a model or a scene; one result per property
-    (and per design, for a scene checked with several ``designs``)."""
-    spec_list = (specs,) if isinstance(specs, SpecFile) else _items(specs, "specs")
-    _need(isinstance(source, (ArrayModel, Scene)), "source must be a model or a Scene", source)
-    ok = bool(spec_list) and all(isinstance(x, SpecFile) for x in spec_list)
-    _need(ok, "specs must be one or more SpecFile (lesmc.load_spec)", specs)
-    _need(engine in get_args(EngineName), f"engine must be one of {get_args(EngineName)}", engine)
-    _need(
-        payoffs in get_args(PayoffMode), f"payoffs must be one of {get_args(PayoffMode)}", payoffs
+    """Check every property of ``specs`` (one spec file or several, parsed or as paths) on
+    a model or a scene (or the file of one); one result per property and design, each
+    naming its design (``result.design``). ``designs``: a design, a set (``"paper"``,
+    ``"all"``) or a list of designs (scenes only); ``only``: a property's name or a list
+    of them."""
+    src = (
+        source
+        if isinstance(source, ArrayModel | Scene)
+        else load_model_or_scene(_path(source, "source", "or a model or a Scene"))
     )
+    spec_list = _specs(specs)
+    _need(engine in engines.names(), f"engine must be one of {', '.join(engines.names())}", engine)
+    modes = payoff_modes.names()
+    _need(payoffs in modes, f"payoffs must be one of {', '.join(modes)}", payoffs)
     _check_limits(timeout, max_states)
-    _check_designs(_items(designs, "designs"))
-    _need(all(isinstance(n, str) for n in _items(only, "only")), "only holds names", only)
-    budget = Budget(timeout, max_states)
-    scene, model = (source, None) if isinstance(source, Scene) else (None, source)
+    chosen = _designs(designs)
+    _need(
+        not chosen or isinstance(src, Scene),
+        "designs apply to scenes: a model was built with one",
+        designs,
+    )
+    names = (only,) if isinstance(only, str) else _items(only, "only")
+    _need(all(isinstance(n, str) for n in names), "only holds property names", only)
+    scene, model = (src, None) if isinstance(src, Scene) else (None, src)
     job = Job(
         spec_list,
         model=model,
         scene=scene,
         engine=engine,
         payoffs=payoffs,
-        budget=budget,
-        designs=tuple(designs),
-        only=tuple(only),
+        budget=Budget(timeout, max_states),
+        designs=chosen,
+        only=names,
     )
     return run(job).results
 
 
-def export_model(
-    model: ArrayModel,
-    path: str | Path,
-    fmt: str,
-    spec: SpecFile | None = None,
-    prop: str | None = None,
+def export(
+    model: ArrayModel | PathArg,
+    path: PathArg,
+    *,
+    format: str,
+    spec: SpecArg | None = None,
+    property: str | None = None,
     strict: bool = False,
-    roles: dict[str, list[int]] | None = None,
+    roles: CheckResult | dict[str, list[int]] | None = None,
     max_nodes: int | None = None,
 ) -> dict[str, object]:
-    """Write ``model`` as ``fmt`` (a format of lesmc/exporters/formats.py) to ``path``
-    (docs/export.md).
+    """Write ``model`` (a model or a model file) to ``path`` as ``format`` (a format of
+    lesmc/exporters/formats.py; docs/export.md).
 
-    A format that states a property exports ``prop`` of ``spec`` (``strict``: refuse an
-    objective that is no sum of rewards); ``roles`` marks paths (rows) where the format
-    marks paths; ``max_nodes`` bounds what the format limits. Returns facts about what
-    was written (``lesmc export --json``).
+    A format that states a property exports ``property`` of ``spec`` (a spec file or its
+    path; the property may be left out when the file has one), ``strict`` refusing an
+    objective that is no sum of rewards; ``roles`` marks paths where the format marks
+    paths: a :class:`CheckResult` (its counterexample and witness) or role names mapped
+    to lists of model rows; ``max_nodes`` bounds what the format limits. Returns facts
+    about what was written (``lesmc export --json``).
     """
+    return export_model(model, path, format, spec, property, strict, roles, max_nodes)
+
+
+def export_model(
+    model: ArrayModel | PathArg,
+    path: PathArg,
+    fmt: str,
+    spec: SpecArg | None = None,
+    prop: str | None = None,
+    strict: bool = False,
+    roles: CheckResult | dict[str, list[int]] | None = None,
+    max_nodes: int | None = None,
+) -> dict[str, object]:
+    """:func:`export` with positional arguments (``fmt`` is ``format``, ``prop``
+    ``property``)."""
     from lesmc.exporters import formats
     from lesmc.exporters.request import Request
 
+    model, path, spec, roles = _export_arguments(model, path, spec, prop, strict, roles, max_nodes)
     _need(isinstance(model, ArrayModel), "model must be a model (lesmc.load_model)", model)
     _need(fmt in formats.names(), f"fmt: {formats.spelled()}", fmt)
     _need(spec is None or isinstance(spec, SpecFile), "spec must be a SpecFile or None", spec)
@@ -231,15 +329,27 @@ def perceive(
     when ``target`` was given, a ``Footage`` without); write it with
     :func:`save_scene`. ``on_frame`` is called after each frame (progress).
     """
-    req = request if isinstance(request, PerceiveRequest) else PerceiveRequest(str(request))
+    req = (
+        request
+        if isinstance(request, PerceiveRequest)
+        else PerceiveRequest(_path(request, "request", "or a PerceiveRequest"))
+    )
+    _need(on_frame is None or callable(on_frame), "on_frame must be None or callable", on_frame)
     refuse_mismatched(req)
     return perceive_frames(req, open_inputs(req), on_frame)
 
 
 def verify(request: VerifyRequest, reporter: Reporter | None = None) -> VerifyOutcome:
     """The paper's whole experiment (``lesmc verify``): see :class:`VerifyRequest`."""
+    from lesmc.experiment.experiment import Request
     from lesmc.experiment.experiment import verify as run_verify
 
+    _need(isinstance(request, Request), "request must be a lesmc.VerifyRequest", request)
+    _need(
+        reporter is None or isinstance(reporter, Reporter),
+        "reporter must be None or a lesmc.common.progress.Reporter",
+        reporter,
+    )
     if reporter is not None:
         return run_verify(request, reporter)
     with Reporter("verify", live=False) as rep:
@@ -266,6 +376,64 @@ def _need(ok: bool, what: str, got: Any) -> None:
         raise UsageError(f"{what}; got {shown if len(shown) <= 60 else shown[:57] + '...'}")
 
 
+def _path(value: Any, name: str, alternative: str = "") -> str:
+    """A file argument as a string: a str or an ``os.PathLike`` (not bytes, not an open
+    file); ``alternative`` says what else the argument may be."""
+    ok = isinstance(value, str) or (
+        isinstance(value, os.PathLike) and isinstance(os.fspath(value), str)
+    )
+    more = f" {alternative}" if alternative else ""
+    _need(ok, f"{name} must be a file path (a str or a pathlib.Path){more}", value)
+    return str(os.fspath(value))
+
+
+def _specs(specs: Any) -> tuple[SpecFile, ...]:
+    """``specs``: one spec file or a list of them, each parsed or a path (read now)."""
+    rule = "specs must be a spec file (a SpecFile or its path) or a non-empty list of them"
+    one = isinstance(specs, SpecFile | str | os.PathLike)
+    _need(one or (isinstance(specs, Sequence) and not isinstance(specs, bytes)), rule, specs)
+    given = (specs,) if one else tuple(specs)
+    _need(bool(given), rule, specs)
+    out = []
+    for s in given:
+        if isinstance(s, SpecFile):
+            out.append(s)
+        else:
+            _need(isinstance(s, str | os.PathLike), rule, s)
+            out.append(load_spec(s))
+    return tuple(out)
+
+
+def _designs(designs: Any) -> tuple[str, ...]:
+    """``designs``: a ``--design`` choice (a design, a set, ``all``) or a list of designs."""
+    if isinstance(designs, str):
+        _need(
+            designs in registry.choices(),
+            f"designs must be one of {', '.join(registry.choices())} or a list of designs",
+            designs,
+        )
+        return registry.expand(designs)
+    chosen = _items(designs, "designs")
+    _check_designs(chosen)
+    return chosen
+
+
+def _window(window: Any) -> tuple[int, int]:
+    """An attack window from ``"L..U"``, ``(L, U)`` or ``range(L, U + 1)``."""
+    if isinstance(window, str):
+        return parse_window(window, "window")
+    if isinstance(window, range):
+        ok = window.step == 1 and len(window) > 0
+        _need(ok, "window must be a non-empty range of step 1 (range(6, 9) is 6..8)", window)
+        window = (window.start, window[-1])
+    _need(
+        _steps(window, 2) and window[0] <= window[1],
+        'window must be "L..U", (L, U) or range(L, U + 1) with 0 <= L <= U',
+        window,
+    )
+    return int(window[0]), int(window[1])
+
+
 def _items(values: Any, name: str) -> tuple[Any, ...]:
     """A sequence argument as a tuple; one string is refused (it would iterate by letter)."""
     ok = not isinstance(values, (str, bytes)) and isinstance(values, Sequence | set | frozenset)
@@ -274,20 +442,18 @@ def _items(values: Any, name: str) -> tuple[Any, ...]:
 
 
 def _steps(values: Any, n: int) -> bool:
-    """``values`` is ``n`` integer steps in 0..10^6 (booleans are not integers here)."""
+    """``values`` is ``n`` integer steps in 0..MAX_STEP (booleans are not integers here)."""
     return (
         isinstance(values, Sequence)
         and len(values) == n
-        and all(type(v) is int and 0 <= v <= 10**6 for v in values)
+        and all(type(v) is int and 0 <= v <= MAX_STEP for v in values)
     )
 
 
-def _check_limits(timeout: float | None, max_states: int | None) -> None:
-    good_t = timeout is None or (
-        isinstance(timeout, int | float) and math.isfinite(timeout) and timeout > 0
-    )
+def _check_limits(timeout: Any, max_states: Any) -> None:
+    good_t = timeout is None or (is_finite(timeout) and timeout > 0)
     _need(good_t, "timeout must be None or a finite number of seconds > 0", timeout)
-    good_n = max_states is None or (type(max_states) is int and max_states > 0)
+    good_n = max_states is None or (is_int(max_states) and max_states > 0)
     _need(good_n, "max_states must be None or an integer > 0", max_states)
 
 
@@ -296,7 +462,61 @@ def _check_designs(designs: tuple[Any, ...]) -> None:
     bad = [d for d in designs if not (isinstance(d, str) and d in known)]
     _need(
         not bad,
-        f"designs are names among {', '.join(known)} (expand_designs turns "
-        "'paper', 'both' and 'all' into them)",
+        f"designs are names among {', '.join(known)} (or one of "
+        f"{', '.join((*registry.SETS, 'all'))})",
         bad[0] if bad else None,
     )
+
+
+def _export_arguments(
+    model: Any, path: Any, spec: Any, prop: Any, strict: Any, roles: Any, max_nodes: Any
+) -> tuple[ArrayModel, str, SpecFile | None, dict[str, list[int]] | None]:
+    """Check :func:`export_model`'s arguments; the model and spec (read when given as
+    paths) and the roles as model rows (a CheckResult's paths looked up)."""
+    if not isinstance(model, ArrayModel):
+        model = load_model(_path(model, "model", "or a model (lesmc.load_model)"))
+    where = _path(path, "path")
+    if spec is not None:
+        spec = _specs(spec)[0] if isinstance(spec, SpecFile | str | os.PathLike) else spec
+    _need(prop is None or isinstance(prop, str), "property must be None or a name", prop)
+    _need(isinstance(strict, bool), "strict must be True or False", strict)
+    good_n = max_nodes is None or (is_int(max_nodes) and max_nodes >= 1)
+    _need(good_n, "max_nodes must be None or an integer >= 1", max_nodes)
+    return model, where, spec, _roles(model, roles)
+
+
+def _roles(model: ArrayModel, roles: Any) -> dict[str, list[int]] | None:
+    """The paths to mark: a CheckResult's counterexample and witness (and the unattacked
+    path), or role names mapped to model rows, each consecutive pair a transition."""
+    from lesmc.exporters.graphs import ROLE_STYLE
+
+    if roles is None:
+        return None
+    if isinstance(roles, CheckResult):
+        out = {"original": [int(q) for q in model.original]}
+        for role in ("witness", "counterexample"):
+            path = getattr(roles, role)
+            if path is None:
+                continue
+            missing = [s for s in path.states if s not in model.state_ids()]
+            _need(
+                not missing,
+                f"roles: the {role}'s states are not this model's (a result of another model?)",
+                missing[:3],
+            )
+            out[role] = [model.index(s) for s in path.states]
+        return out
+    _need(isinstance(roles, dict), "roles must be a CheckResult or map role names to rows", roles)
+    bad = [k for k in roles if k not in ROLE_STYLE]
+    _need(not bad, f"roles are named {', '.join(ROLE_STYLE)}", bad[:3])
+    for name, rows in roles.items():
+        ok = isinstance(rows, list | tuple) and all(
+            is_int(q) and 0 <= q < model.n_states for q in rows
+        )
+        _need(ok, f"roles[{name!r}] must be a list of model rows 0..{model.n_states - 1}", rows)
+        for a, b in itertools.pairwise(rows):
+            try:
+                model.edge(a, b)
+            except KeyError:
+                _need(False, f"roles[{name!r}]: rows {a} -> {b} are not a transition", rows)
+    return {k: list(v) for k, v in roles.items()}

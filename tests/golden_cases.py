@@ -33,7 +33,7 @@ def results(case: str, engine: str) -> list[dict[str, Any]]:
         os.chdir(cwd)
     out = []
     for r in got:
-        doc = r.to_json()
+        doc = r.to_dict()
         doc.pop("stats")
         out.append(doc)
     return out

@@ -8,6 +8,7 @@ reuses its scene (OUT/scenes/), so each test pays only for checking.
 from __future__ import annotations
 
 import json
+import math
 import os
 import shutil
 import signal
@@ -85,7 +86,7 @@ def test_rows_are_what_verify_computes_window_by_window(base: tuple[Path, Path])
             seen[case] = {x.property: x for x in run.results}
         want = seen[case][r["property"]]
         assert r["verdict"] == want.verdict
-        assert r["optimum"] == (want.optimum if want.optimum is not None else "inf")
+        assert r["optimum"] == ("inf" if want.optimum == math.inf else want.optimum)
         assert r["witness_value"] == want.witness_value
         assert r["vacuous"] == want.vacuous
         # a counterexample on a perceived scene is the model's until replayed
@@ -472,7 +473,7 @@ def test_a_tracker_file_becomes_the_campaigns_tracker(
     run = design_runs(sc, load_specs(bundled_specs(), tuple(r0["window"])), ["single"])[0]
     want = {x.property: x for x in run.results}[r0["property"]]
     assert r0["verdict"] == want.verdict
-    assert r0["optimum"] == (want.optimum if want.optimum is not None else "inf")
+    assert r0["optimum"] == ("inf" if want.optimum == math.inf else want.optimum)
 
 
 def test_ctrl_c_on_a_two_worker_campaign_prints_the_command_that_resumes_it(

@@ -365,7 +365,7 @@ def test_schemas_describe_the_result_record_field_for_field() -> None:
     check_defs, results_defs = schema("check")["$defs"], schema("results")["$defs"]
     assert check_defs["path"] == results_defs["path"]
     assert set(check_defs["result"]["properties"]) == set(results_defs["result"]["properties"])
-    written = set().union(*(r.to_json() for r in results))
+    written = set().union(*(r.to_dict() for r in results))
     required = set(check_defs["result"]["required"])
     assert required <= written <= set(check_defs["result"]["properties"])
     paths = [r.counterexample.to_json() for r in results if r.counterexample is not None]

@@ -414,22 +414,22 @@ def lesmc_build_states() -> int:
 
 
 API_MISUSE = [
-    ("check", lambda a, m, s, sp: a.check({}, [sp]), "source must be a model or a Scene"),
-    ("check", lambda a, m, s, sp: a.check(m, "robustness.spec"), "specs must be a list"),
-    ("check", lambda a, m, s, sp: a.check(m, []), "specs must be one or more SpecFile"),
-    ("check", lambda a, m, s, sp: a.check(s, [sp], designs="joint"), "designs must be a list"),
+    ("check", lambda a, m, s, sp: a.check({}, [sp]), "source must be a file path"),
+    ("check", lambda a, m, s, sp: a.check(m, 5), "specs must be a spec file"),
+    ("check", lambda a, m, s, sp: a.check(m, []), "specs must be a spec file"),
+    ("check", lambda a, m, s, sp: a.check(s, [sp], designs="jointt"), "designs must be one of"),
     ("check", lambda a, m, s, sp: a.check(s, [sp], designs=("paper",)), "designs are names"),
     ("check", lambda a, m, s, sp: a.check(m, [sp], engine="z3"), "engine must be one of"),
     ("check", lambda a, m, s, sp: a.check(m, [sp], timeout=-1), "timeout must be"),
     ("check", lambda a, m, s, sp: a.check(m, [sp], max_states=1.5), "max_states must be"),
     ("check", lambda a, m, s, sp: a.check(s, [sp], payoffs="x"), "payoffs must be one of"),
-    ("check", lambda a, m, s, sp: a.check(s, [sp], only="robustness"), "only must be a list"),
-    ("build", lambda a, m, s, sp: a.build(s, (6.5, 8)), "window must be (l, u)"),
+    ("check", lambda a, m, s, sp: a.check(s, [sp], only=5), "only must be a list"),
+    ("build", lambda a, m, s, sp: a.build(s, (6.5, 8)), "window must be"),
     ("build", lambda a, m, s, sp: a.build(s, (6, 8), end=-1), "end must be None or a step"),
-    ("build", lambda a, m, s, sp: a.build(None, (6, 8)), "scene must be a Scene"),
+    ("build", lambda a, m, s, sp: a.build(None, (6, 8)), "scene must be a file path"),
     ("export", lambda a, m, s, sp: a.export_model(m, "x.dot", "dot", roles=[1]), "roles must"),
     ("export", lambda a, m, s, sp: a.export_model(m, "x", "svg"), "fmt: dot, graphml"),
-    ("load", lambda a, m, s, sp: a.load_scene(MERGE, design="bogus"), "designs are names"),
+    ("load", lambda a, m, s, sp: a.load_scene(MERGE, design="bogus"), "design must be"),
 ]
 
 

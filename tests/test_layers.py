@@ -29,7 +29,7 @@ LAYERS: dict[str, set[str]] = {
     "common": set(),
     "language": set(),
     "video": set(),
-    "schemas": {"designs", "exporters"},
+    "schemas": {"designs", "engines", "exporters"},
     "designs": set(),
     "model": {"language"},
     "scene": {"designs"},

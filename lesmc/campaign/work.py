@@ -62,7 +62,7 @@ def group_job(group: Group, doc: dict[str, Any]) -> Job:
         scene=scene,
         designs=tuple(dict.fromkeys(u.design for u in group.units)),
         windows=tuple(sorted({u.window for u in group.units})),
-        payoffs=group.payoffs,  # type: ignore[arg-type]
+        payoffs=group.payoffs,
         budget=Budget(max_states=group.max_states, check_timeout=group.timeout),
         wanted=wanted,
         unbounded=lambda _tracker, window: group.unbounded_in(window),
@@ -95,6 +95,8 @@ def row(
     extra: dict[str, Any] = {}
     if r.payoffs != "attack":
         extra = {"payoffs": r.payoffs, "notes": list(r.notes)}
+    if r.sweep:
+        extra["sweep"] = r.sweep_json()
     if r.payoffs == "interval":
         extra |= {
             "optimum_certified": num(r.optimum_certified),

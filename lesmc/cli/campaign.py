@@ -110,10 +110,9 @@ def _cores() -> int:
 @network_options
 @tracker_option
 @payoffs_option(
-    "As for lesmc verify: the attack's payoffs (the paper), the certified lower bounds, or "
-    "both (holds only if proven with the lower bounds, violated only with the attack's "
-    "counterexample). certified|interval first certify every detection the campaign's "
-    "models can hide (about a second each; kept in OUT/scenes for reruns)."
+    "",
+    " certified|interval first certify every detection the campaign's models can hide "
+    "(about a second each; kept in OUT/scenes for reruns).",
 )
 @click.option("--json", "as_json", is_flag=True, help="Print the summary's numbers as JSON.")
 def campaign_cmd(

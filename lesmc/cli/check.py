@@ -24,13 +24,11 @@ from lesmc.cli.options import (
 )
 from lesmc.common.errors import UsageError
 from lesmc.designs import registry
+from lesmc.engines import registry as engines
 
 if TYPE_CHECKING:
     from lesmc.language.properties import FaultSet, SpecFile
     from lesmc.results.record import Results
-
-#: The engines ``--engine`` offers (lesmc/engines/check.py: ENGINES).
-ENGINES = ("levels", "bnb", "enumerate")
 
 
 @click.command("check")
@@ -38,12 +36,10 @@ ENGINES = ("levels", "bnb", "enumerate")
 @click.argument("specs", nargs=-1, required=True, type=click.Path(dir_okay=False))
 @click.option(
     "--engine",
-    type=click.Choice(ENGINES),
-    default="levels",
+    type=click.Choice(engines.names()),
+    default=engines.DEFAULT,
     show_default=True,
-    help="levels: exact search in lock step with bounds, dominance and a dive for an incumbent "
-    "(anytime); bnb: best-first branch and bound; enumerate: the paper's Algorithms 1-2 "
-    "(all paths).",
+    help=engines.help_text(),
 )
 @click.option("--json", "as_json", is_flag=True, help="Print the results as JSON on stdout.")
 @budget_options(
@@ -81,11 +77,7 @@ ENGINES = ("levels", "bnb", "enumerate")
 @frames_option(
     "With --report: the video's frames, for the report's images (read from nowhere else)."
 )
-@payoffs_option(
-    "For a scene: the attack's payoffs (the paper), the certified lower bounds "
-    "(payoff_lower), or both: holds only if proven with the lower bounds, violated only "
-    "with the attack's counterexample, else unknown (docs/semantics.md)."
-)
+@payoffs_option("For a scene (a model's payoffs are built in): ")
 @click.option(
     "--design",
     type=RegistryChoice(registry.names),
@@ -140,8 +132,8 @@ def check_cmd(
         parsed,
         scene=source if is_scene else None,
         model=None if is_scene else source,
-        payoffs=payoffs,  # type: ignore[arg-type]
-        engine=engine,  # type: ignore[arg-type]
+        payoffs=payoffs,
+        engine=engine,
         budget=budget,
         only=only,
         designs=(design,) if design else (),

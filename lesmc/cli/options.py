@@ -9,16 +9,16 @@ not pay for numpy, torch, cv2, matplotlib or scipy (tests/test_startup.py).
 from __future__ import annotations
 
 import math
-import re
 from collections.abc import Callable
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, TypeVar
 
 import click
 
-from lesmc.common.errors import UsageError, clipped, escape_control
-from lesmc.common.fields import MAX_STEP
+from lesmc.common import fields
+from lesmc.common.errors import UsageError, escape_control
 from lesmc.designs import registry
+from lesmc.engines import payoff_modes
 
 if TYPE_CHECKING:
     from lesmc.common.budget import Budget
@@ -133,14 +133,15 @@ def frames_option(help_text: str, dest: str = "frames_dir") -> Callable[[F], F]:
     )
 
 
-def payoffs_option(help_text: str) -> Callable[[F], F]:
-    """``--payoffs attack|certified|interval`` (docs/semantics.md, "Payoff intervals")."""
+def payoffs_option(before: str, after: str = "") -> Callable[[F], F]:
+    """``--payoffs MODE``: the payoff modes of lesmc/engines/payoff_modes.py, their
+    summaries between the verb's ``before`` and ``after`` (docs/semantics.md)."""
     return click.option(
         "--payoffs",
-        type=click.Choice(["attack", "certified", "interval"]),
-        default="attack",
+        type=click.Choice(payoff_modes.names()),
+        default=payoff_modes.DEFAULT,
         show_default=True,
-        help=help_text,
+        help=before + payoff_modes.help_text() + after,
     )
 
 
@@ -176,19 +177,8 @@ scene_target = target_option(
 
 
 def parse_window(text: str) -> tuple[int, int]:
-    """``L..U`` -> (L, U): ASCII digits only, each at most :data:`MAX_STEP`."""
-    m = re.fullmatch(r"\s*([0-9]+)\s*\.\.\s*([0-9]+)\s*", text, re.ASCII)
-    shown = clipped(text)
-    if not m:
-        raise UsageError(f"--window must look like L..U (e.g. 6..8), got '{shown}'")
-    if any(len(g.lstrip("0")) > len(str(MAX_STEP)) for g in m.groups()):
-        raise UsageError(f"--window {shown}: steps must be at most {MAX_STEP}")
-    lo, hi = int(m.group(1)), int(m.group(2))
-    if hi > MAX_STEP:
-        raise UsageError(f"--window {shown}: steps must be at most {MAX_STEP}")
-    if lo > hi:
-        raise UsageError(f"--window {shown}: L must not exceed U")
-    return lo, hi
+    """``--window L..U`` -> (L, U) (:func:`lesmc.common.fields.parse_window`)."""
+    return fields.parse_window(text, "--window")
 
 
 def finite_seconds(

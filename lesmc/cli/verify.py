@@ -74,10 +74,9 @@ if TYPE_CHECKING:
     "frames_opt",
 )
 @payoffs_option(
-    "The attack's payoffs (the paper), the certified lower bounds, or both (holds only "
-    "if proven with the lower bounds, violated only with the attack's counterexample; "
-    "docs/semantics.md). On a video, certified|interval certify the detections the "
-    "models can hide (about a second each; `perceive --certify` certifies them all)."
+    "",
+    " On a video, certified|interval certify the detections the models can hide (about "
+    "a second each; `perceive --certify` certifies them all).",
 )
 @click.option(
     "--price-all",
@@ -149,7 +148,7 @@ def verify_cmd(
         nets=(nets_dir, detector_file, locator_file),
         scene_frames=frames_opt,
         tracker=tracker_file,
-        payoffs=payoffs,  # type: ignore[arg-type]
+        payoffs=payoffs,
         budget=budget,
         faults=faults_file,
         price_all=price_all,

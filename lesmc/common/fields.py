@@ -9,10 +9,11 @@ with the same message (docs/cli.md, "Limits").
 from __future__ import annotations
 
 import math
+import re
 import reprlib
 from typing import Any, TypeGuard
 
-from lesmc.common.errors import Problems
+from lesmc.common.errors import Problems, UsageError, clipped
 
 #: The largest step (frame number) anything may name: a scene's frames, a property's
 #: window bounds and ranges, ``--window``, a campaign's windows, a model's meta.
@@ -84,3 +85,20 @@ def header(data: dict[str, Any], fmt: str, version: int, pr: Problems) -> None:
 def is_version(got: Any, version: int) -> bool:
     """``got`` is the integer ``version`` (JSON's ``true`` is not 1)."""
     return is_int(got) and got == version
+
+
+def parse_window(text: str, what: str = "window") -> tuple[int, int]:
+    """``L..U`` -> (L, U): ASCII digits only, each at most :data:`MAX_STEP` (``--window``,
+    the API's ``window="6..8"``); ``what`` names the option or argument in messages."""
+    m = re.fullmatch(r"\s*([0-9]+)\s*\.\.\s*([0-9]+)\s*", text, re.ASCII)
+    shown = clipped(text)
+    if not m:
+        raise UsageError(f"{what} must look like L..U (e.g. 6..8), got '{shown}'")
+    if any(len(g.lstrip("0")) > len(str(MAX_STEP)) for g in m.groups()):
+        raise UsageError(f"{what} {shown}: steps must be at most {MAX_STEP}")
+    lo, hi = int(m.group(1)), int(m.group(2))
+    if hi > MAX_STEP:
+        raise UsageError(f"{what} {shown}: steps must be at most {MAX_STEP}")
+    if lo > hi:
+        raise UsageError(f"{what} {shown}: L must not exceed U")
+    return lo, hi

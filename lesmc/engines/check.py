@@ -5,14 +5,13 @@ from __future__ import annotations
 import math
 from collections.abc import Callable, Iterable
 from dataclasses import replace
-from typing import Any, Literal
+from typing import Any
 
 from lesmc.common.budget import Budget
 from lesmc.engines import enumerate as enum_engine
-from lesmc.engines.bnb import branch_and_bound
-from lesmc.engines.enumerate import enumerate_many, enumerate_paths, exhaustive_probe, tree_size
+from lesmc.engines import registry as engines
+from lesmc.engines.enumerate import enumerate_many, exhaustive_probe, tree_size
 from lesmc.engines.lazy import LazySpace
-from lesmc.engines.levels import level_search
 from lesmc.engines.result import CheckResult, EngineOutcome, PathInfo, Verdict, path_info
 from lesmc.engines.space import SearchSpace, build_space
 from lesmc.language.properties import SpecFile
@@ -22,12 +21,8 @@ from lesmc.model.arrays import ArrayModel
 from lesmc.model.growing import GrowingModel
 from lesmc.model.kernel import holds
 
-EngineName = Literal["enumerate", "bnb", "levels"]
-ENGINES: dict[str, Callable[..., EngineOutcome]] = {
-    "enumerate": enumerate_paths,
-    "bnb": branch_and_bound,
-    "levels": level_search,
-}
+#: An engine's name (lesmc/engines/registry.py).
+EngineName = str
 
 #: Default budget on expanded states: keeps a runaway search inside 2 cores / 24 GiB.
 DEFAULT_MAX_STATES = 10_000_000
@@ -52,17 +47,29 @@ def bind_all(model: ArrayModel, specs: Iterable[SpecFile]) -> list[BoundProperty
 def check(
     model: ArrayModel,
     specs: Iterable[SpecFile],
-    engine: EngineName = "levels",
+    engine: EngineName = engines.DEFAULT,
     budget: Budget | None = None,
 ) -> list[CheckResult]:
     """Check every property of ``specs`` on ``model`` with the chosen engine (each check
     within what is left of ``budget``)."""
     b = budget or Budget(max_states=DEFAULT_MAX_STATES)
-    return [check_bound(model, bp, engine, b.for_check()) for bp in bind_all(model, specs)]
+    design = model_design(model)
+    return [
+        replace(check_bound(model, bp, engine, b.for_check()), design=design)
+        for bp in bind_all(model, specs)
+    ]
+
+
+def model_design(model: ArrayModel) -> str:
+    """The design a model file's results name: the one its meta names, else ``model``."""
+    return str(model.meta.get("design", "model"))
 
 
 def check_bound(
-    cm: ArrayModel, bp: BoundProperty, engine: EngineName = "levels", budget: Budget | None = None
+    cm: ArrayModel,
+    bp: BoundProperty,
+    engine: EngineName = engines.DEFAULT,
+    budget: Budget | None = None,
 ) -> CheckResult:
     """Check one bound property on a model, within ``budget`` (default: no limit).
 
@@ -73,11 +80,12 @@ def check_bound(
     """
     b = budget or Budget()
     space = build_space(cm, bp)
-    if engine == "enumerate":
-        out = enumerate_paths(space, b)
+    chosen = engines.get(engine)
+    if chosen.exhaustive:
+        out = chosen.load()(space, b)
     else:
         probe = exhaustive_probe(space, engine, b)
-        out = probe.outcome or ENGINES[engine](space, probe.left)
+        out = probe.outcome or chosen.load()(space, probe.left)
         if probe.outcome is None and probe.states:
             out.stats.extra["probe_states"] = probe.states
             out.stats.seconds += probe.seconds
@@ -116,7 +124,7 @@ def to_result(space: SearchSpace, out: EngineOutcome) -> CheckResult:
     return CheckResult(
         property=prop.name,
         verdict=verdict,
-        optimum=optimum if known and math.isfinite(optimum) else None,
+        optimum=optimum if known else None,
         threshold=prop.threshold,
         holds_op=prop.holds_op,
         objective=bp.objective.text,
@@ -138,6 +146,7 @@ def to_result(space: SearchSpace, out: EngineOutcome) -> CheckResult:
         constraint_source=bp.constraint.source,
         constraint_op=bp.op,
         constraint_bound=bp.bound,
+        sweep=dict(prop.sweep),
     )
 
 
@@ -201,13 +210,13 @@ def monitor_facts(space: SearchSpace) -> tuple[list[int] | None, bool]:
 def check_lazy(
     model: GrowingModel,
     bp: BoundProperty,
-    engine: EngineName = "levels",
+    engine: EngineName = engines.DEFAULT,
     budget: Budget | None = None,
 ) -> CheckResult:
     """One bound property on a model unfolded on demand (the engine expands what it visits;
     ``enumerate`` every state its paths reach)."""
     space = LazySpace(model, bp)
-    out = ENGINES[engine](space, budget or Budget())
+    out = engines.get(engine).load()(space, budget or Budget())
     out.stats.extra["states_built"] = space.states_built
     return to_result(space, out)
 
@@ -261,7 +270,7 @@ def check_shared(
     at most enumerate.SMALL_TREE nodes; on one unfolded on demand: the walk finishes
     within SHARED_LAZY_TREE nodes), the answers then marked ``exhaustive`` as their
     probe's are. None: search each property on its own."""
-    if engine == "enumerate":
+    if engines.get(engine).exhaustive:
         return check_many(model, bps, budget)
     limit = enum_engine.SMALL_TREE if budget.max_states is None else budget.max_states
     if isinstance(model, ArrayModel):
@@ -309,12 +318,9 @@ def carried_over(r: CheckResult, bp: BoundProperty) -> CheckResult | None:
         return None
     cex = r.cheapest
     if cex is None:
-        if r.optimum is not None:
+        if r.optimum != math.inf:
             return None
-    elif not (
-        kernel.compare(bp.op, cex.constraint, bp.bound)
-        and (cex.objective == r.optimum or (r.optimum is None and math.isinf(cex.objective)))
-    ):
+    elif not (kernel.compare(bp.op, cex.constraint, bp.bound) and cex.objective == r.optimum):
         return None
     stats = replace(r.stats, states_expanded=0, transitions=0, seconds=0.0, paths=None)
     stats.extra = {"answered_by": r.property}
@@ -323,6 +329,7 @@ def carried_over(r: CheckResult, bp: BoundProperty) -> CheckResult | None:
         property=bp.name,
         constraint=f"{bp.constraint.text} {bp.op} {bp.bound:g}",
         constraint_bound=bp.bound,
+        sweep=dict(bp.prop.sweep),
         stats=stats,
         notes=[
             *r.notes,

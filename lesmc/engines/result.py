@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import builtins
 import math
+import warnings
 from dataclasses import dataclass, field
 from typing import Any, Literal
 
@@ -106,7 +107,14 @@ class EngineOutcome:
 
 @dataclass
 class CheckResult:
-    """The answer to one property."""
+    """The answer to one property, checked with one design (``design``).
+
+    ``optimum`` is the optimum when it is known (``optimum_known``): a number, ``math.inf``
+    when no attacked path violates; None when it is not known (a budget stopped the
+    search, or in interval mode the two payoff sets disagree: ``lower`` and ``upper``
+    say where it lies). A sweep's variant names the values it was checked with
+    (``sweep``: ``{"eps": 10.782}``).
+    """
 
     property: str
     verdict: Verdict
@@ -148,6 +156,11 @@ class CheckResult:
     #: counterexample is replayed through the detector (``confirmed``; ``diverged`` makes
     #: the verdict unknown); None: nothing to replay (a model, a hand-made scene)
     replay: str | None = None
+    #: the design it was checked with (lesmc/designs/registry.py; for a model file, the
+    #: design its meta names, else ``model``); None: checked outside the pipeline
+    design: str | None = None
+    #: a ``--sweep`` variant's parameters and values (``{"eps": 10.782}``); empty: none
+    sweep: dict[str, float | str] = field(default_factory=dict)
     #: with ``replay == "not replayed"``: the command that replays it (the scene's meta
     #: names the frames and networks it was made with)
     replay_command: str | None = None
@@ -165,6 +178,7 @@ class CheckResult:
         """The verdict word (:func:`status_word`)."""
         return status_word(self.verdict, self.vacuous, self.replay)
 
+    @builtins.property
     def verdict_text(self) -> str:
         """The verdict as tables and reports print it: the word and why (:func:`verdict_words`)."""
         return verdict_words(self.verdict, self.vacuous, self.original_alarms or [], self.replay)
@@ -173,18 +187,36 @@ class CheckResult:
         """The optimum in JSON: a number, ``"inf"`` (no attacked path violates) or
         ``"unknown"`` (a budget stopped the search, or, in interval mode, the two payoff
         sets disagree: the bounds say where it lies)."""
-        if not self.optimum_known:
+        if not self.optimum_known or self.optimum is None:
             return "unknown"
-        return "inf" if self.optimum is None else _num(self.optimum)
+        return _num(self.optimum)
+
+    def sweep_json(self) -> dict[str, float | str]:
+        """``sweep`` in JSON: numbers, ``"inf"`` for an infinite norm, source names."""
+        return {k: _num(v) if isinstance(v, float) else v for k, v in self.sweep.items()}
 
     def to_json(self) -> dict[str, Any]:
+        """Deprecated alias of :meth:`to_dict` (it returns a dict); removed in the next
+        release."""
+        warnings.warn(
+            "CheckResult.to_json() is deprecated: use to_dict()", DeprecationWarning, stacklevel=2
+        )
+        return self.to_dict()
+
+    def to_dict(self) -> dict[str, Any]:
+        """The result as ``lesmc check --json`` prints it (lesmc/schemas/check.json)."""
         extra: dict[str, Any] = {"payoffs": self.payoffs}
+        if self.sweep:
+            extra["sweep"] = {
+                k: v if isinstance(v, str) else _num(v) for k, v in self.sweep.items()
+            }
         if self.payoffs == "interval":
             for key in ("optimum_certified", "optimum_attack"):
                 v = getattr(self, key)
                 extra[key] = None if v is None else _num(v)
         wb = self.witness_bounds
         return {
+            "design": self.design,
             "property": self.property,
             "spec": self.spec,
             "verdict": self.verdict,

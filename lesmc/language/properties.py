@@ -107,6 +107,9 @@ class Property:
     #: the payoff mode of this property (attack, certified, interval), set by a sweep
     #: over payoff sources; None: the job's (``--payoffs``)
     payoffs: str | None = None
+    #: a sweep's variant: each swept parameter and its value (``(("eps", 10.782),)``),
+    #: in the order of the sweeps (lesmc/language/sweep.py); empty: not a variant
+    sweep: tuple[tuple[str, float | str], ...] = ()
     pos: Pos = field(default=Pos(0, 0), compare=False)
     clause_pos: dict[str, Pos] = field(default_factory=dict, compare=False, hash=False)
 

@@ -115,7 +115,7 @@ def _variant(prop: Property, settings: tuple[tuple[str, float | str], ...]) -> P
         else:
             changed = replace(changed, norm=float(v))
     label = ",".join(f"{n}={_text(v)}" for n, v in settings)
-    return replace(changed, name=f"{prop.name}@{label}")
+    return replace(changed, name=f"{prop.name}@{label}", sweep=(*prop.sweep, *settings))
 
 
 def swept(spec: SpecFile, sweeps: tuple[Sweep, ...]) -> SpecFile:

@@ -25,7 +25,7 @@ from dataclasses import dataclass, field, replace
 from lesmc.common.budget import Budget
 from lesmc.common.errors import BudgetError, Location, SpecError, UsageError
 from lesmc.designs import registry
-from lesmc.engines.check import bind_all
+from lesmc.engines.check import bind_all, model_design
 from lesmc.engines.result import CheckResult
 from lesmc.language.properties import SpecFile
 from lesmc.language.semantics import BoundProperty, bind
@@ -193,8 +193,8 @@ def _model_run(job: Job, model: ArrayModel) -> DesignRun:
         lambda _bp: [],
         lambda bp: job.on_stage(f"checking {bp.name} ({job.engine})"),
     )
-    design = str(model.meta.get("design", "model"))
-    return DesignRun(design, bound, results, model)
+    design = model_design(model)
+    return DesignRun(design, bound, [replace(r, design=design) for r in results], model)
 
 
 # ------------------------------------------------------------------ certified payoffs
@@ -350,13 +350,14 @@ def _design_run(
         specs = [bp.spec for bp in plan.bound]
         command = replay_command(job.source, models.scene.meta, specs, plan.design)
         results = [_not_replayed(r, command) for r in results]
+    results = [replace(r, design=plan.design) for r in results]
     run = DesignRun(plan.design, plan.bound, results, window=plan.window)
     if job.faults is not None:
         for bp in plan.bound:
             job.on_stage(f"checking {bp.name} under faults ({registry.label(plan.design)})")
             for fbp, r in _fault_results(job, tracker, bp, models):
                 run.fault_bound.append(fbp)
-                run.fault_results.append(r)
+                run.fault_results.append(replace(r, design=plan.design))
     model = models.get(tracker, "attack") if job.full_models else None
     assert model is None or isinstance(model, ArrayModel)
     run.model, run.scene = model, models.scene.with_tracker(design=tracker)

@@ -31,7 +31,6 @@ variant model carries, lesmc.model.arrays.reference_states).
 from __future__ import annotations
 
 import itertools
-import math
 from collections.abc import Callable, Iterator, Mapping
 from dataclasses import dataclass, replace
 
@@ -289,7 +288,7 @@ def worst(name: str, checks: list[tuple[list[Strike], CheckResult]]) -> CheckRes
         chosen,
         property=name,
         verdict=verdict,
-        optimum=None if optimum is None or math.isinf(optimum) else optimum,
+        optimum=optimum,
         optimum_known=known,  # a violation's cost alone is an upper bound of the least
         lower=lower,
         upper=upper,

@@ -10,20 +10,21 @@ from __future__ import annotations
 
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
-from typing import Literal
 
 import numpy as np
 
 from lesmc.common.budget import Budget
+from lesmc.engines import payoff_modes
+from lesmc.engines import registry as engines
 from lesmc.engines.check import DEFAULT_MAX_STATES, EngineName
 from lesmc.language.properties import FaultSet, SpecFile
 from lesmc.model.arrays import ArrayModel
 from lesmc.pipeline.faults import NeuronFrames
 from lesmc.scene import Scene
 
-PayoffMode = Literal["attack", "certified", "interval"]
-#: ``--payoffs``: which payoffs a scene's model uses (docs/semantics.md, "Payoff intervals").
-PAYOFF_MODES: tuple[PayoffMode, ...] = ("attack", "certified", "interval")
+#: ``--payoffs``: which payoffs a scene's model uses, a name of
+#: lesmc/engines/payoff_modes.py (docs/semantics.md, "Payoff intervals").
+PayoffMode = str
 
 #: Detections to certify (frame step -> detection indices) -> their certified lower payoffs
 #: (frame step -> one value per detection of the frame, ``nan`` where none was computed).
@@ -73,8 +74,8 @@ class Job:
     scene: Scene | None = None
     designs: tuple[str, ...] = ()
     windows: tuple[tuple[int, int] | None, ...] = (None,)
-    payoffs: PayoffMode = "attack"
-    engine: EngineName = "levels"
+    payoffs: PayoffMode = payoff_modes.DEFAULT
+    engine: EngineName = engines.DEFAULT
     budget: Budget = field(default_factory=lambda: Budget(max_states=DEFAULT_MAX_STATES))
     only: tuple[str, ...] = ()
     wanted: Callable[[Unit], bool] | None = None

@@ -1,14 +1,13 @@
 """One property in one payoff mode: the attack's payoffs, certified lower bounds, or both.
 
-* ``attack`` (the paper): the model of the payoffs the attack achieved;
-* ``certified``: the model of the certified lower payoffs (a violated verdict
-  proves nothing there; a holds is proven against every attack);
-* ``interval``: both, combined by lesmc/engines/interval.py: holds only if
-  proven with the lower payoffs, violated only with the attack's counterexample.
+The modes, their payoff sets and how their results merge are declared in
+lesmc/engines/payoff_modes.py (``attack``, the paper's; ``certified``, the
+certified lower payoffs; ``interval``, both, combined by lesmc/engines/interval.py).
 
 Budget rule (one for every verb): a check gets :meth:`Budget.check_seconds`;
-in interval mode the certified search may take half of it and the attack's
-search the rest.
+a mode of several payoff sets shares it evenly, in order, each search taking
+what the ones before left (interval: the certified search half, the attack's the
+rest).
 """
 
 from __future__ import annotations
@@ -17,6 +16,7 @@ from collections.abc import Callable
 from dataclasses import replace
 
 from lesmc.common.budget import Budget
+from lesmc.engines import payoff_modes
 from lesmc.engines.check import (
     EngineName,
     carried_over,
@@ -27,7 +27,6 @@ from lesmc.engines.check import (
     same_but_bound,
 )
 from lesmc.engines.enumerate import tree_key
-from lesmc.engines.interval import combine
 from lesmc.engines.result import CheckResult
 from lesmc.language.semantics import BoundProperty
 from lesmc.model.arrays import ArrayModel
@@ -55,16 +54,10 @@ def check_model(
     return check_lazy(model, bp, engine, budget)
 
 
-def payoff_monotone(bp: BoundProperty) -> bool:
-    """Lowering payoffs can only lower the optimum: true unless the constraint asks for a
-    large payoff (``subject to payoff > c``), which lower payoffs can make false."""
-    return not (bp.constraint.source == "payoff" and bp.op in (">", ">="))
-
-
 def mode_of(bp: BoundProperty, default: PayoffMode) -> PayoffMode:
     """The payoff mode of ``bp``: its own (a payoff-source sweep's variant), else the job's."""
     own = bp.prop.payoffs
-    return default if own is None else own  # type: ignore[return-value]
+    return default if own is None else own
 
 
 def check_all(
@@ -158,12 +151,12 @@ def check_payoffs(
     """``bp`` checked in payoff mode ``mode`` within one check's share of ``budget``;
     ``certified_notes`` go with the certified result (detections without a bound)."""
     b = budget.for_check()
-    if mode == "attack":
-        return check_model(model_of("attack"), bp, engine, b)
-    share = b if mode == "certified" else b.share(0.5)
-    cert = check_model(model_of("certified"), bp, engine, share)
-    cert = replace(cert, notes=[*cert.notes, *certified_notes], payoffs="certified")
-    if mode == "certified":
-        return cert
-    attack = check_model(model_of("attack"), bp, engine, b)
-    return combine(cert, attack, payoff_monotone(bp))
+    chosen = payoff_modes.get(mode)
+    got = []
+    for i, payoffs in enumerate(chosen.sets):
+        left = len(chosen.sets) - i
+        r = check_model(model_of(payoffs), bp, engine, b if left == 1 else b.share(1 / left))
+        if payoffs == "certified":
+            r = replace(r, notes=[*r.notes, *certified_notes], payoffs="certified")
+        got.append(r)
+    return chosen.merge(got, bp)

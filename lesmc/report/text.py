@@ -37,7 +37,7 @@ def results_json(
         "version": 2,
         "provenance": provenance(specs),
         "warnings": list(warnings),
-        "results": [r.to_json() for r in results],
+        "results": [r.to_dict() for r in results],
     }
     return json.dumps(doc, indent=1, allow_nan=False)
 
@@ -52,7 +52,7 @@ STATES_WORDS = (
 
 def verdict_cell(r: CheckResult) -> str:
     """A result's verdict word and why, in its colour (rich markup)."""
-    return f"[{COLOURS[r.status]}]{escape_text(r.verdict_text())}[/]"
+    return f"[{COLOURS[r.status]}]{escape_text(r.verdict_text)}[/]"
 
 
 class _StdoutConsole(Console):

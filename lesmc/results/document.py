@@ -330,9 +330,9 @@ def run_json(
         },
         "window": list(win),
         "properties": [property_json(bp, cm.components) for bp in run.bound],
-        "results": [r.to_json() for r in run.results],
+        "results": [r.to_dict() for r in run.results],
         "faults": [
-            {"property": property_json(bp, cm.components), "result": r.to_json()}
+            {"property": property_json(bp, cm.components), "result": r.to_dict()}
             for bp, r in zip(run.fault_bound, run.fault_results, strict=True)
         ],
         "roles": {

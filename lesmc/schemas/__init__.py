@@ -19,6 +19,8 @@ from typing import Any
 
 from lesmc.common.errors import InputError, Location
 from lesmc.designs import registry
+from lesmc.engines import payoff_modes
+from lesmc.engines import registry as engines
 from lesmc.exporters import formats
 
 #: format name of each document -> its schema file (without .json)
@@ -49,17 +51,23 @@ def _text(name: str) -> str:
 def schema(name: str) -> dict[str, Any]:
     """The schema ``lesmc/schemas/NAME.json``, with the registries' names.
 
-    The enums of design names are not spelled in the files: ``#/$defs/designs``
+    The enums of registered names are not spelled in the files: ``#/$defs/designs``
     (every registered design) and ``#/$defs/trackers`` (the designs that bring
     a tracker) are filled from lesmc/designs/registry.py now, so that a design
     registered at run time is accepted too; so are the export formats
     (``#/$defs/export_formats``, lesmc/exporters/formats.py) and, in the export
     document, the MDP facts each property-stating format writes under its name.
+    a tracker) are filled from lesmc/designs/registry.py now, ``#/$defs/engines``
+    from lesmc/engines/registry.py and ``#/$defs/payoff_modes`` from
+    lesmc/engines/payoff_modes.py, so that a variant registered at run time is
+    accepted too.
     """
     out: dict[str, Any] = json.loads(_text(name))
     defs = out.setdefault("$defs", {})
     defs["designs"] = {"enum": list(registry.names())}
     defs["trackers"] = {"enum": list(registry.tracker_names())}
+    defs["engines"] = {"enum": list(engines.names())}
+    defs["payoff_modes"] = {"enum": list(payoff_modes.names())}
     defs["export_formats"] = {"enum": list(formats.names())}
     if name == "export":  # a property's MDP: its size, under the format's name
         for fmt in formats.where(lambda f: f.states_property):
