@@ -91,16 +91,7 @@ def lts_from_dict(data: Any, path: str = "<model>") -> ArrayModel:
         pr.add("original", "must be a list of state ids, one per step 0..e")
         original = []
     pr.items.extend(meta_problems(data.get("meta")))
-    raw_states = data.get("states")
-    raw_trans = data.get("transitions")
-    if not isinstance(raw_states, list) or not raw_states:
-        pr.add("states", "must be a non-empty list")
-        raw_states = []
-    if not isinstance(raw_trans, list):
-        pr.add("transitions", "must be a list")
-        raw_trans = []
-    states = _States(raw_states)
-    trans = _Transitions(raw_trans)
+    states, trans = _rows_of(data, pr)
     pr.items.extend(states.problems)
     pr.items.extend(trans.problems)
     if pr.items:
@@ -130,6 +121,19 @@ def lts_from_dict(data: Any, path: str = "<model>") -> ArrayModel:
     if "tracks" in data:
         cm.tracks = _tracks(data["tracks"], cm, path)
     return cm
+
+
+def _rows_of(data: dict[str, Any], pr: Problems) -> tuple[_States, _Transitions]:
+    """The document's states and transitions, each column type-checked."""
+    raw_states = data.get("states")
+    raw_trans = data.get("transitions")
+    if not isinstance(raw_states, list) or not raw_states:
+        pr.add("states", "must be a non-empty list")
+        raw_states = []
+    if not isinstance(raw_trans, list):
+        pr.add("transitions", "must be a list")
+        raw_trans = []
+    return _States(raw_states), _Transitions(raw_trans)
 
 
 def _tracks(raw: Any, cm: ArrayModel, path: str) -> Tracks:
