@@ -28,7 +28,7 @@ LAYERS: dict[str, set[str]] = {
     "schemas": {"designs"},
     "designs": set(),
     "model": {"language"},
-    "scene": {"designs"},
+    "scene": {"designs", "language"},
     "engines": {"language", "model"},
     "export": {"engines", "language", "model"},
     "perception": {"scene", "video"},

@@ -444,7 +444,7 @@ def test_cli_alarms_document(tmp_path: Path, design: str, args: tuple[str, ...])
 @pytest.mark.parametrize(
     ("args", "message"),
     [
-        (("--monitor", "nis", "1.5"), "the quantile must be in (0, 1), got 1.5"),
+        (("--monitor", "nis", "1.5"), "quantile must be in (0, 1), got 1.5"),
         (("--monitor", "nis", "abc"), "is not a number"),
         (("--monitor", "spoon", "1"), "unknown monitor 'spoon'"),
         (("--monitor", "misses", "0"), "whole number >= 1"),
@@ -476,3 +476,69 @@ def test_parameters_domains_are_what_the_docs_say() -> None:
         assert all(d.contains(v) for v in good) and not any(d.contains(v) for v in bad)
         assert not d.contains(math.nan)
     assert list(itertools.islice(monitors.names(), 1)) == ["tau_rise"]
+
+
+# ------------------------------------------------------------------ tracker files
+
+
+def _nomon_spec(tmp_path: Path, clause: str = "") -> Path:
+    text = (Path(__file__).parent / "scenes" / "rq4_merge.spec").read_text()
+    out = tmp_path / f"p{len(clause)}.spec"
+    out.write_text(text.replace("monitor uncertainty", clause))
+    return out
+
+
+def _results(r) -> list[tuple]:  # type: ignore[no-untyped-def, type-arg]
+    assert r.returncode in (0, 1) and "Traceback" not in r.stderr, r.stderr
+    doc = json.loads(r.stdout)
+    return [
+        (x["verdict"], x["optimum"], x["vacuous"], x["original_alarms"]) for x in doc["results"]
+    ]
+
+
+def test_a_tracker_files_monitor_is_the_monitored_designs(tmp_path: Path) -> None:
+    scene = str(Path(__file__).parent / "scenes" / "rq4_merge.json")
+    tracker = tmp_path / "t.toml"
+    tracker.write_text('monitor = "trace 1"  # tiny: the unattacked track fires at once\n')
+    got = _results(
+        lesmc("check", scene, str(_nomon_spec(tmp_path)), "--design", "monitor",
+              "--tracker", str(tracker), "--json")
+    )  # fmt: skip
+    want = _results(lesmc("check", scene, str(_nomon_spec(tmp_path, "monitor trace 1")), "--json"))
+    assert got == want and all(v for _, _, v, _ in got)  # vacuous: trace 1 fires everywhere
+    default = _results(
+        lesmc("check", scene, str(_nomon_spec(tmp_path)), "--design", "monitor", "--json")
+    )
+    assert default != got
+
+
+@pytest.mark.parametrize(
+    ("line", "message"),
+    [
+        ('monitor = "nis 1.5"', "monitor: the nis monitor's quantile must be in (0, 1), got 1.5"),
+        ('monitor = "sonar 2"', "monitor: unknown monitor 'sonar'"),
+        ("monitor = 3", 'monitor must be a string such as "nis 0.99"'),
+    ],
+)
+def test_bad_tracker_file_monitor(tmp_path: Path, line: str, message: str) -> None:
+    tracker = tmp_path / "t.toml"
+    tracker.write_text(line + "\n")
+    scene = str(Path(__file__).parent / "scenes" / "rq4_merge.json")
+    r = lesmc(
+        "check", scene, str(_nomon_spec(tmp_path)), "--design", "monitor", "--tracker", str(tracker)
+    )
+    assert r.returncode == 2 and "Traceback" not in r.stderr
+    assert f"{tracker}: {message}" in r.stderr
+
+
+def test_a_windowed_tracker_monitor_is_refused_by_check_but_run_by_alarms(tmp_path: Path) -> None:
+    tracker = tmp_path / "t.toml"
+    tracker.write_text('monitor = "misses 2"\n')
+    scene = str(Path(__file__).parent / "scenes" / "rq4_merge.json")
+    r = lesmc(
+        "check", scene, str(_nomon_spec(tmp_path)), "--design", "monitor", "--tracker", str(tracker)
+    )
+    assert r.returncode == 2 and "reads 2 steps of a path" in r.stderr
+    r = lesmc("alarms", str(_truth_scene(tmp_path / "s.json")), "--tracker", str(tracker), "--json")
+    assert r.returncode == 0, r.stderr
+    assert json.loads(r.stdout)["monitor"] == {"kind": "misses", "parameter": 2.0, "window": 1}

@@ -34,7 +34,8 @@ if TYPE_CHECKING:
     default=None,
     metavar="KIND PARAM",
     help="The monitor: tau_rise TOLERANCE, nis QUANTILE, misses K or trace BOUND "
-    "(lesmc/language/monitors.py) [default: tau_rise 1e-9, the paper's Eq. 13].",
+    "(lesmc/language/monitors.py) [default: the tracker's monitor, else tau_rise 1e-9, "
+    "the paper's Eq. 13].",
 )
 @click.option(
     "--window",
@@ -89,8 +90,11 @@ def alarms_cmd(
     """
     from lesmc.verify.alarms import alarms_document, chosen_monitor
 
-    kind, param = monitor_args if monitor_args is not None else ("tau_rise", None)
-    monitor = chosen_monitor(kind, param, window)
+    monitor = None
+    if monitor_args is not None:
+        monitor = chosen_monitor(monitor_args[0], monitor_args[1], window)
+    elif window != 1:
+        raise UsageError("--window goes with --monitor nis QUANTILE")
     if source is not None and Path(source).is_file():
         if truth is not None:
             raise UsageError("--truth applies to a video, not to a scene")
@@ -107,6 +111,10 @@ def alarms_cmd(
         scene, starts, ids, last = _video(source, truth, out_dir, tracker_file)
     if not starts:
         raise UsageError("no moving truth vehicle at the start frame: nothing to track")
+    if monitor is None:  # the tracker's declared monitor, else Eq. 13's
+        from lesmc.language.monitors import declared
+
+        monitor = declared(scene.tracker.monitor)
     doc = alarms_document(scene, starts, ids, min(last, steps or last), design, monitor)
     if as_json:
         emit(doc)

@@ -25,7 +25,7 @@ from functools import cache
 
 import numpy as np
 
-from lesmc.language.properties import DEFAULT_MONITOR_TOLERANCE
+from lesmc.language.properties import DEFAULT_MONITOR_TOLERANCE, Monitor
 
 #: The dimension of a detection (a position x, y): the χ² degrees of freedom of one NIS.
 MEASUREMENT_DIM = 2
@@ -113,6 +113,80 @@ def names() -> tuple[str, ...]:
 def get(name: str) -> MonitorKind:
     """The monitor kind ``name`` (KeyError if none)."""
     return _KINDS[name]
+
+
+def resolve(kind: str, parameter: float | None, window: int = 1) -> tuple[str, float, int]:
+    """A monitor named outside a spec (``--monitor``, a tracker file's ``monitor``): its
+    kind, its parameter (the kind's default when None) and window, checked against the
+    registry; ValueError with the reason otherwise."""
+    if kind not in _KINDS:
+        raise ValueError(f"unknown monitor {kind!r}; the monitors are {', '.join(_KINDS)}")
+    declared = _KINDS[kind]
+    if parameter is None:
+        if declared.default is None:
+            raise ValueError(f"the {kind} monitor needs its {declared.parameter}")
+        parameter = declared.default
+    if not declared.domain.contains(parameter):
+        raise ValueError(
+            f"the {kind} monitor's {declared.parameter} must be {declared.domain.text()}, "
+            f"got {parameter:g}"
+        )
+    if window != 1 and not declared.windowed:
+        raise ValueError(f"the {kind} monitor takes no window")
+    if window < 1:
+        raise ValueError("the monitor's window must be at least 1 step")
+    return kind, parameter, window
+
+
+def from_text(text: str) -> tuple[str, float, int]:
+    """``KIND [PARAM] [window K]`` (a spec's monitor clause without ``monitor``; ``uncertainty``
+    is ``tau_rise``), checked by :func:`resolve`."""
+    words = text.split()
+    if not words:
+        raise ValueError("empty monitor: write KIND [PARAM] [window K], e.g. 'nis 0.99'")
+    kind = "tau_rise" if words[0] == "uncertainty" else words[0]
+    rest = words[1:]
+    window = 1
+    if len(rest) >= 2 and rest[-2] == "window":
+        if not rest[-1].isdigit():
+            raise ValueError(f"window must be a whole number of steps, got {rest[-1]!r}")
+        window = int(rest[-1])
+        rest = rest[:-2]
+    if len(rest) > 1:
+        raise ValueError(f"{text!r}: write KIND [PARAM] [window K]")
+    parameter = None
+    if rest:
+        try:
+            parameter = float(rest[0])
+        except ValueError:
+            raise ValueError(
+                f"the {kind} monitor's parameter {rest[0]!r} is not a number"
+            ) from None
+        if not math.isfinite(parameter):
+            raise ValueError(f"the {kind} monitor's parameter must be finite")
+    return resolve(kind, parameter, window)
+
+
+def unchecked_reason(mon: Monitor) -> str | None:
+    """Why the checker cannot filter paths with ``mon`` (None: it can): it evaluates a
+    monitor one transition at a time, and a window of k > 1 steps reads the path's last k."""
+    memory = _KINDS[mon.kind].memory(mon.parameter, mon.window)
+    if not memory:
+        return None
+    return (
+        f"'monitor {mon.text()}' reads {memory + 1} steps of a path; the checker "
+        "evaluates a monitor one transition at a time (window 1, misses 1): "
+        "'lesmc alarms' measures the longer ones on unattacked tracks"
+    )
+
+
+def declared(text: str | None) -> Monitor:
+    """The monitor a tracker declares (its ``monitor`` key, :func:`from_text`; checked when
+    the tracker was read), else Eq. 13's: what the monitored designs add to properties."""
+    if text is None:
+        return Monitor()
+    kind, value, window = from_text(text)
+    return Monitor(parameter=value, kind=kind, window=window)
 
 
 def rises(tau_prev: np.ndarray, tau_next: np.ndarray, tolerance: float) -> np.ndarray:

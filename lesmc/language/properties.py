@@ -217,9 +217,11 @@ class SpecFile:
             return self
         return replace(self, properties=tuple(p.with_window(window) for p in self.properties))
 
-    def with_monitor(self) -> SpecFile:
-        """Every property filtered by the runtime monitor (the improved design, section 7.1)."""
-        props = tuple(p if p.monitor else replace(p, monitor=Monitor()) for p in self.properties)
+    def with_monitor(self, monitor: Monitor | None = None) -> SpecFile:
+        """Every property without a monitor filtered by ``monitor`` (default: the runtime
+        monitor of section 7.1, Eq. 13; the improved design)."""
+        mon = monitor or Monitor()
+        props = tuple(p if p.monitor else replace(p, monitor=mon) for p in self.properties)
         return replace(self, properties=props)
 
 

@@ -203,15 +203,9 @@ def _monitor(
     if mon is None:
         return None, 0.0
     kind = monitors.get(mon.kind)
-    memory = kind.memory(mon.parameter, mon.window)
-    if memory:
-        raise _fail(
-            spec,
-            f"'monitor {mon.text()}' reads {memory + 1} steps of a path; the checker "
-            "evaluates a monitor one transition at a time (window 1, misses 1): "
-            "'lesmc alarms' measures the longer ones on unattacked tracks",
-            mon.pos,
-        )
+    reason = monitors.unchecked_reason(mon)
+    if reason is not None:
+        raise _fail(spec, reason, mon.pos)
     if kind.reads == "nis":
         if not has_nis:
             raise _fail(

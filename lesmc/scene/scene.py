@@ -54,6 +54,9 @@ class TrackerConfig:
     init_distance: float = 60.0  # max distance to a previous unassociated detection to start one
     prune_radius: float = 200.0  # refining tracks farther than this from the primary are dropped
     model: TrackerModel = DEFAULT_MODEL
+    #: the runtime monitor the monitored designs add to properties, as a spec writes it
+    #: without ``monitor`` (``"nis 0.99 window 3"``, lesmc/language/monitors.py); None: Eq. 13's
+    monitor: str | None = None
     #: matrix faults in force from their frames on (fault variants of lesmc/pipeline/faults.py;
     #: never in a scene file)
     faults: tuple[EntryFault, ...] = ()
@@ -75,7 +78,7 @@ class TrackerConfig:
         declared = not isinstance(self.model, str)
         for f in fields(self):
             v = getattr(self, f.name)
-            if f.name == "faults":
+            if f.name == "faults" or (f.name == "monitor" and v is None):
                 continue
             if f.name == "model":
                 if v != DEFAULT_MODEL:

@@ -31,29 +31,16 @@ VERSION = 1
 def chosen_monitor(kind: str, parameter: str | None, window: int) -> Monitor:
     """The monitor ``--monitor KIND PARAM [--window K]`` names, checked against the registry
     (a usage error, exit 2, for an unknown kind or a parameter outside its domain)."""
-    if kind not in monitors.names():
-        raise UsageError(
-            f"--monitor: unknown monitor {kind!r}; the monitors are {', '.join(monitors.names())}"
-        )
-    declared = monitors.get(kind)
-    if parameter is None:
-        if declared.default is None:
-            raise UsageError(f"--monitor {kind} needs its {declared.parameter}")
-        value = declared.default
-    else:
+    value = None
+    if parameter is not None:
         try:
             value = float(parameter)
         except ValueError:
             raise UsageError(f"--monitor {kind}: {parameter!r} is not a number") from None
-    if not declared.domain.contains(value):
-        raise UsageError(
-            f"--monitor {kind}: the {declared.parameter} must be {declared.domain.text()}, "
-            f"got {parameter}"
-        )
-    if window != 1 and not declared.windowed:
-        raise UsageError(f"--window: the {kind} monitor takes no window")
-    if window < 1:
-        raise UsageError("--window must be at least 1")
+    try:
+        kind, value, window = monitors.resolve(kind, value, window)
+    except ValueError as exc:
+        raise UsageError(f"--monitor: {exc}") from None
     return Monitor(parameter=value, kind=kind, window=window)
 
 
