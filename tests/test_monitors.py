@@ -542,3 +542,20 @@ def test_a_windowed_tracker_monitor_is_refused_by_check_but_run_by_alarms(tmp_pa
     r = lesmc("alarms", str(_truth_scene(tmp_path / "s.json")), "--tracker", str(tracker), "--json")
     assert r.returncode == 0, r.stderr
     assert json.loads(r.stdout)["monitor"] == {"kind": "misses", "parameter": 2.0, "window": 1}
+
+
+@pytest.mark.parametrize("design", ["single", "joint"])
+@pytest.mark.parametrize("clause", ["monitor nis 0.9", "monitor misses 1", "monitor trace 60"])
+def test_scene_checked_lazily_equals_its_built_model(
+    tmp_path: Path, design: str, clause: str
+) -> None:
+    """The lazy search on a scene reads the NIS as the unfolder reports them; the model file
+    carries the same ones (JSON round trip)."""
+    scene = str(Path(__file__).parent / "scenes" / "rq4_merge.json")
+    spec = _nomon_spec(tmp_path, clause)
+    model = tmp_path / "m.lts"
+    r = lesmc("build", scene, "--window", "6..8", "--design", design, "-o", str(model))
+    assert r.returncode == 0, r.stderr
+    a = _results(lesmc("check", str(model), str(spec), "--json"))
+    b = _results(lesmc("check", scene, str(spec), "--design", design, "--json"))
+    assert a == b
