@@ -559,3 +559,35 @@ def test_scene_checked_lazily_equals_its_built_model(
     a = _results(lesmc("check", str(model), str(spec), "--json"))
     b = _results(lesmc("check", scene, str(spec), "--design", design, "--json"))
     assert a == b
+
+
+def test_a_campaigns_property_key_names_the_monitor() -> None:
+    """Campaign units are keyed by property_text: two monitors that decide differently must
+    not share a key (kind, window, except original), and Eq. 13's keeps its old text."""
+    from lesmc.campaign.plan import property_text
+
+    base = (
+        "property r { attack window 1..2 minimize payoff subject to dist.at(end) > 1 "
+        "holds if optimum > 0.5 "
+    )
+    clauses = [
+        "monitor uncertainty tolerance 0.5",
+        "monitor nis 0.5",
+        "monitor nis 0.5 window 2",
+        "monitor trace 0.5",
+        "monitor uncertainty tolerance 0.5 except original",
+    ]
+    texts = [property_text(parse_spec(base + c + " }").properties[0]) for c in clauses]
+    assert len(set(texts)) == len(texts)
+    assert texts[0].endswith("|monitor None/0.5")
+
+
+def test_campaign_refuses_a_tracker_monitor_it_would_ignore(tmp_path: Path) -> None:
+    video = tmp_path / "v"
+    video.mkdir()
+    tracker = tmp_path / "t.toml"
+    tracker.write_text('monitor = "nis 0.99"\n')
+    r = lesmc("campaign", str(video), "--out", str(tmp_path / "o"), "--tracker", str(tracker))
+    assert r.returncode == 2 and "Traceback" not in r.stderr
+    assert "cannot apply the tracker's monitor (nis 0.99)" in r.stderr
+    assert not (tmp_path / "o").exists()
