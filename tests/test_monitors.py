@@ -591,3 +591,18 @@ def test_campaign_refuses_a_tracker_monitor_it_would_ignore(tmp_path: Path) -> N
     assert r.returncode == 2 and "Traceback" not in r.stderr
     assert "cannot apply the tracker's monitor (nis 0.99)" in r.stderr
     assert not (tmp_path / "o").exists()
+
+
+def test_cli_check_locates_a_quantile_outside_its_domain(tmp_path: Path) -> None:
+    spec = tmp_path / "q.spec"
+    spec.write_text(
+        "property r {\n  attack window 6..8\n  minimize payoff\n  subject to dist.at(end) > 1\n"
+        "  holds if optimum > 0.5\n  monitor nis 1.5\n}\n"
+    )
+    scene = str(Path(__file__).parent / "scenes" / "rq4_merge.json")
+    r = lesmc("check", scene, str(spec))
+    assert r.returncode == 2 and "Traceback" not in r.stderr
+    assert f"{spec}:6:15: the nis monitor's quantile must be in (0, 1), got 1.5" in r.stderr
+    r = lesmc("check", scene, str(spec), "--json")
+    err = json.loads(r.stdout)["error"]
+    assert r.returncode == 2 and (err["line"], err["column"]) == (6, 15)
