@@ -124,7 +124,9 @@ def resolve(kind: str, parameter: float | None, window: int = 1) -> tuple[str, f
     declared = _KINDS[kind]
     if parameter is None:
         if declared.default is None:
-            raise ValueError(f"the {kind} monitor needs its {declared.parameter}")
+            raise ValueError(
+                f"the {kind} monitor needs its {declared.parameter} ({declared.domain.text()})"
+            )
         parameter = declared.default
     if not declared.domain.contains(parameter):
         raise ValueError(

@@ -354,23 +354,12 @@ class _Builder:
     def monitor_parameter(
         self, declared: monitors.MonitorKind, param: float | None, at: Pos, kind_at: Pos
     ) -> float:
-        """The monitor's parameter (its default when none is written) inside its domain."""
-        kind = declared.name
-        if param is None:
-            if declared.default is None:
-                raise self.error(
-                    f"the {kind} monitor needs its {declared.parameter} "
-                    f"({declared.domain.text()}): 'monitor {kind} NUMBER'",
-                    kind_at,
-                )
-            param = declared.default
-        if not declared.domain.contains(param):
-            raise self.error(
-                f"the {kind} monitor's {declared.parameter} must be "
-                f"{declared.domain.text()}, got {param:g}",
-                at,
-            )
-        return param
+        """The monitor's parameter (its default when none is written) inside its domain
+        (:func:`lesmc.language.monitors.resolve`), else an error at the number or the kind."""
+        try:
+            return monitors.resolve(declared.name, param)[1]
+        except ValueError as exc:
+            raise self.error(str(exc), kind_at if param is None else at) from None
 
     def faults(self, node: Tree[Any]) -> FaultSet:
         """A ``faults { ... }`` block: its budget (default 1) and its named faults."""
