@@ -606,3 +606,29 @@ def test_cli_check_locates_a_quantile_outside_its_domain(tmp_path: Path) -> None
     r = lesmc("check", scene, str(spec), "--json")
     err = json.loads(r.stdout)["error"]
     assert r.returncode == 2 and (err["line"], err["column"]) == (6, 15)
+
+
+@pytest.mark.parametrize("name", ["rq2_stop", "rq4_merge", "rq1_platoon"])
+def test_track_reports_the_nis_of_each_update(name: str) -> None:
+    """``lesmc track``'s NIS: νᵀS⁻¹ν recomputed from the previous point's estimate and P."""
+    from lesmc.designs.registry import make_tracker
+    from lesmc.scene import load_scene
+    from lesmc.tracking.kalman import matrices
+    from lesmc.tracking.monitor import track
+
+    scene = load_scene(Path(__file__).parent / "scenes" / f"{name}.json")
+    points = track(make_tracker(scene))
+    m = matrices(scene.tracker, scene.dt)
+    dets = {d.id: (d.x, d.y) for f in scene.frames for d in f.detections}
+    updates = 0
+    for prev, p in itertools.pairwise(points):
+        if p.obs is None:
+            assert p.nis is None
+            continue
+        x_hat, P_hat = m.F @ prev.x, m.F @ prev.P @ m.F.T + m.Q
+        nu = np.array(dets[p.obs]) - m.H @ x_hat
+        assert p.nis == pytest.approx(float(nu @ np.linalg.solve(m.H @ P_hat @ m.H.T + m.R, nu)))
+        updates += 1
+    assert updates > 5
+    r = lesmc("track", str(Path(__file__).parent / "scenes" / f"{name}.json"), "--json")
+    assert [s["nis"] for s in json.loads(r.stdout)["track"]] == [p.nis for p in points]

@@ -193,6 +193,7 @@ def track_cmd(
                     "obs": p.obs,
                     "s": p.x.tolist(),
                     "tau": p.tau,
+                    "nis": p.nis,
                     "alarm": p.alarm,
                     "halted": p.halted,
                 }
@@ -202,7 +203,7 @@ def track_cmd(
         click.echo(json.dumps(doc, indent=1))
         return
     table = Table(title=f"unattacked track ({sc.tracker.design} design)", title_justify="left")
-    for col in ("step", "frame", "obs", "x", "y", "vx", "vy", "τ", "alarm"):
+    for col in ("step", "frame", "obs", "x", "y", "vx", "vy", "τ", "NIS", "alarm"):
         table.add_column(col, justify="left" if col in ("obs", "alarm") else "right")
     for p in points:
         table.add_row(
@@ -211,6 +212,7 @@ def track_cmd(
             escape_text(p.obs or "-"),
             *(fmt(v, 2) for v in p.x),
             fmt(p.tau, 2),
+            "-" if p.nis is None else fmt(p.nis, 3),
             "ALARM" if p.alarm else ("halted" if p.halted else ""),
         )
     make_console().print(table)
