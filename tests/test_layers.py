@@ -32,7 +32,7 @@ LAYERS: dict[str, set[str]] = {
     "schemas": {"designs", "engines", "exporters"},
     "designs": set(),
     "model": {"language"},
-    "scene": {"designs"},
+    "scene": {"designs", "language"},
     "engines": {"language", "model"},
     "exporters": {"engines", "language", "model"},
     "perception": {"scene", "video"},

@@ -59,7 +59,14 @@ def design_specs(specs: list[SpecFile], window: tuple[int, int], design: str) ->
 
 def property_text(p: Property) -> str:
     """Everything that decides a property's answer, as one canonical line."""
-    mon = "none" if p.monitor is None else f"{p.monitor.components}/{p.monitor.tolerance!r}"
+    mon = "none"
+    if p.monitor is not None:  # Eq. 13's monitor keeps the text (and keys) it always had
+        m = p.monitor
+        mon = f"{m.components}/{m.parameter!r}"
+        if m.kind != "tau_rise" or m.window != 1:
+            mon += f"/{m.kind}/window {m.window}"
+        if m.except_original:
+            mon += "/except original"
     return (
         f"{p.name}|window {p.window}|min {p.objective.text()}|s.t. {p.constraint.text()}|"
         f"{p.holds_text()}|end {p.end}|norm {p.norm!r}|on {p.components}|monitor {mon}"

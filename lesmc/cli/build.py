@@ -221,6 +221,7 @@ def _print_track(sc: Scene, end: int | None, as_json: bool) -> None:
                     "obs": p.obs,
                     "s": p.x.tolist(),
                     "tau": p.tau,
+                    "nis": p.nis,
                     "alarm": p.alarm,
                     "halted": p.halted,
                 }
@@ -245,6 +246,7 @@ def _track_table(sc: Scene, points: list[TrackPoint]) -> Table:
     for col in ("step", "frame", "obs", *(escape_text(n) for n in sc.tracker.state_names)):
         table.add_column(col, justify="left" if col == "obs" else "right")
     table.add_column("τ", justify="right")
+    table.add_column("NIS", justify="right")
     table.add_column("alarm", justify="left")
     for p in points:
         table.add_row(
@@ -253,6 +255,7 @@ def _track_table(sc: Scene, points: list[TrackPoint]) -> Table:
             escape_text(p.obs or "-"),
             *(f"{v:.2f}" for v in p.x),
             fmt(p.tau, 4),
+            "-" if p.nis is None else fmt(p.nis, 3),
             "ALARM" if p.alarm else ("halted" if p.halted else ""),
         )
     return table

@@ -228,6 +228,11 @@ def _prepared(
     from lesmc.scene import load_tracker
 
     tracker = load_tracker(tracker_file) if tracker_file else None
+    if tracker is not None and tracker.monitor is not None:  # it would be ignored
+        raise UsageError(
+            f"--tracker {tracker_file}: a campaign's monitored designs use Eq. 13's monitor; "
+            f"it cannot apply the tracker's monitor ({tracker.monitor}) yet"
+        )
     return [prepare(v, out, nets, tracker) for v in videos]
 
 

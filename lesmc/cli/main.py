@@ -21,6 +21,7 @@ from typing import Any, NoReturn
 
 import click
 
+from lesmc.cli.alarms import alarms_cmd
 from lesmc.cli.build import build_cmd, track_cmd
 from lesmc.cli.campaign import campaign_cmd
 from lesmc.cli.check import check_cmd
@@ -93,6 +94,8 @@ def cli() -> None:
       lesmc check MODEL.lts SPEC.spec        check properties on a model
       lesmc check SCENE.json SPEC.spec       ... or on a scene, building on the fly
       lesmc check ... --report DIR           ... and write results.json and the HTML report
+      lesmc alarms VIDEO|SCENE --design D --monitor nis 0.99
+                                             a monitor's false alarms on unattacked tracks
       lesmc report RESULTS.json --out DIR [--frames VIDEO/]
                                              redraw the report from a results file alone
       lesmc replay RESULTS.json --frames VIDEO/
@@ -125,6 +128,7 @@ cli.help = _with_designs(cli.help or "")
 
 #: One line per verb for ``lesmc --help`` (click would cut the first sentence short).
 SHORT_HELP = {
+    "alarms": "A monitor's false alarms on the unattacked tracks of a video or scene.",
     "build": "Unfold a scene into a model (.lts) for one attack window.",
     "campaign": "Verify many targets x windows x designs, on Dask.",
     "check": "Check properties on a model or a scene: verdict, optimum, paths.",
@@ -143,6 +147,7 @@ SHORT_HELP = {
 cli.add_command(check_cmd)
 cli.add_command(build_cmd)
 cli.add_command(track_cmd)
+cli.add_command(alarms_cmd)
 cli.add_command(reduce_group)
 cli.add_command(synth_cmd)
 cli.add_command(perceive_cmd)

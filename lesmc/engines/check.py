@@ -7,13 +7,21 @@ from collections.abc import Callable, Iterable
 from dataclasses import replace
 from typing import Any
 
+import numpy as np
+
 from lesmc.common.budget import Budget
 from lesmc.engines import enumerate as enum_engine
 from lesmc.engines import registry as engines
 from lesmc.engines.enumerate import enumerate_many, exhaustive_probe, tree_size
 from lesmc.engines.lazy import LazySpace
 from lesmc.engines.result import CheckResult, EngineOutcome, PathInfo, Verdict, path_info
-from lesmc.engines.space import SearchSpace, build_space
+from lesmc.engines.space import (
+    SearchSpace,
+    build_space,
+    original_alarms,
+    original_nis,
+    transition_nis,
+)
 from lesmc.language.properties import SpecFile
 from lesmc.language.semantics import BoundProperty, bind
 from lesmc.model import kernel
@@ -38,6 +46,7 @@ def bind_all(model: ArrayModel, specs: Iterable[SpecFile]) -> list[BoundProperty
             model.components,
             model.has_covariance,
             None if model.tracks is None else model.tracks.components,
+            model.nis is not None,
         )
         for spec in specs
         for prop in spec.properties
@@ -201,8 +210,10 @@ def monitor_facts(space: SearchSpace) -> tuple[list[int] | None, bool]:
     bp, cm = space.bp, space.cm
     if bp.monitor_components is None:
         return None, False
-    tau_orig = kernel.tau(cm.P_table, bp.monitor_components)[cm.cov[cm.original]]
-    fired = kernel.original_alarms(tau_orig, bp.monitor_tolerance)
+    tau_orig = np.zeros(len(cm.original))
+    if bp.monitor_components:
+        tau_orig = kernel.tau(cm.P_table, bp.monitor_components)[cm.cov[cm.original]]
+    fired = original_alarms(bp, tau_orig, original_nis(cm, transition_nis(cm, bp)))
     steps = [k for k in range(bp.l, min(bp.end, len(fired) - 1) + 1) if fired[k]]
     return steps, bool(steps) and not bp.monitor_except_original
 

@@ -38,7 +38,9 @@ def tree_key(bp: BoundProperty) -> tuple[object, ...]:
         bp.u,
         bp.end,
         bp.monitor_components,
-        bp.monitor_tolerance,
+        bp.monitor_kind,
+        bp.monitor_parameter,
+        bp.monitor_window,
         bp.monitor_except_original,
     )
 

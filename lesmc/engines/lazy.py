@@ -21,7 +21,14 @@ import time
 
 import numpy as np
 
-from lesmc.engines.space import SpaceOps, excused_steps, nearest_deviations, ranges
+from lesmc.engines.space import (
+    SpaceOps,
+    excused_steps,
+    nearest_deviations,
+    original_nis,
+    ranges,
+    transition_nis,
+)
 from lesmc.language.semantics import BoundProperty
 from lesmc.model import kernel
 from lesmc.model.arrays import reference_states
@@ -105,7 +112,8 @@ class LazySpace(SpaceOps):
             if bp.monitor_components is not None:
                 self._tau.extend(self._tau_of_table()[cm.cov[new]])
                 if self._excused is None:  # the original path is unfolded before the search
-                    self._excused = excused_steps(bp, self._tau.data[cm.original])
+                    nis = original_nis(cm, transition_nis(cm, bp))
+                    self._excused = excused_steps(bp, self._tau.data[cm.original], nis)
             self._known = cm.n_states
         t = np.arange(self._t_known, cm.n_transitions)
         if not t.size:
@@ -129,8 +137,16 @@ class LazySpace(SpaceOps):
         if bp.monitor_components is not None:
             tau = self._tau.data
             src = cm.src[t]
+            nis = transition_nis(cm, bp)
             allowed &= ~kernel.monitor_cuts(
-                bp.l, ks, tau[src], tau[dst], bp.monitor_tolerance, self._excused
+                bp.l,
+                ks,
+                tau[src],
+                tau[dst],
+                bp.monitor_parameter,
+                self._excused,
+                bp.monitor_kind,
+                None if nis is None else nis[t],
             )
         self._mask.extend(allowed)
         self._t_known = cm.n_transitions

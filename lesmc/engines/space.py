@@ -15,6 +15,8 @@ from typing import Any, NamedTuple, Protocol
 
 import numpy as np
 
+from lesmc.common.errors import SpecError
+from lesmc.language import monitors
 from lesmc.language.semantics import BoundProperty
 from lesmc.model import kernel
 from lesmc.model.arrays import ArrayModel, Tracks, reference_states
@@ -41,6 +43,15 @@ def nearest_deviations(
     return kernel.nearest(d0, (S[:, comps] - at[k] for at in tracks.at), bp.norm)
 
 
+def monitor_tau(cm: ArrayModel, bp: BoundProperty) -> np.ndarray:
+    """τ (Eq. 12) of every state over the monitor's components; zeros for a monitor that
+    reads no τ (its components are ())."""
+    assert bp.monitor_components is not None
+    if not bp.monitor_components:
+        return np.zeros(cm.n_states)
+    return location_trace(cm, bp.monitor_components)
+
+
 def location_trace(cm: ArrayModel, components: tuple[int, ...]) -> np.ndarray:
     """τ (Eq. 12) of every state, computed once per distinct covariance."""
     assert cm.cov is not None and cm.P_table is not None
@@ -59,11 +70,51 @@ def ranges(
     return owner, (idx if values is None else values[idx])
 
 
-def excused_steps(bp: BoundProperty, tau_original: np.ndarray) -> np.ndarray | None:
+def excused_steps(
+    bp: BoundProperty, tau_original: np.ndarray, nis_original: np.ndarray | None = None
+) -> np.ndarray | None:
     """The original track's alarm steps when the monitor excuses them (``except original``)."""
     if not bp.monitor_except_original:
         return None
-    return kernel.original_alarms(tau_original, bp.monitor_tolerance)
+    return original_alarms(bp, tau_original, nis_original)
+
+
+def original_alarms(
+    bp: BoundProperty, tau_original: np.ndarray, nis_original: np.ndarray | None
+) -> np.ndarray:
+    """Per step 0..e of the original path: the property's monitor fires entering it."""
+    return kernel.original_alarms(tau_original, bp.monitor_parameter, bp.monitor_kind, nis_original)
+
+
+def monitor_reads_nis(bp: BoundProperty) -> bool:
+    """The property's monitor reads the NIS of the transitions' updates (nis, misses)."""
+    return monitors.get(bp.monitor_kind).reads == "nis"
+
+
+def transition_nis(cm: Any, bp: BoundProperty) -> np.ndarray | None:
+    """The NIS of every transition when the monitor reads it (else None); a model without
+    them cannot be checked under such a monitor (the binding refuses it first when the
+    model is known)."""
+    if not monitor_reads_nis(bp):
+        return None
+    nis: np.ndarray | None = cm.nis
+    if nis is None:
+        raise SpecError(
+            f"property '{bp.name}': the {bp.monitor_kind} monitor needs the NIS of every "
+            "transition's update, which this model does not carry (docs/lts-format.md)"
+        )
+    return nis
+
+
+def original_nis(cm: Any, nis: np.ndarray | None) -> np.ndarray | None:
+    """The NIS of the update entering each step of the original path (NaN at step 0)."""
+    if nis is None:
+        return None
+    orig = cm.original.tolist()
+    out = np.full(len(orig), np.nan)
+    for j in range(1, len(orig)):
+        out[j] = nis[cm.edge(orig[j - 1], orig[j])]
+    return out
 
 
 class SearchSpace(Protocol):
@@ -272,6 +323,17 @@ class Space(SpaceOps):
         return self.cm.edge(q0, q1)
 
 
+def _monitor_cut(cm: ArrayModel, bp: BoundProperty, k: np.ndarray) -> np.ndarray:
+    """The transitions the property's monitor drops (kernel.monitor_cuts), ``k`` the step
+    each enters."""
+    tau = monitor_tau(cm, bp)
+    nis = transition_nis(cm, bp)
+    excused = excused_steps(bp, tau[cm.original], original_nis(cm, nis))
+    return kernel.monitor_cuts(
+        bp.l, k, tau[cm.src], tau[cm.dst], bp.monitor_parameter, excused, bp.monitor_kind, nis
+    )
+
+
 def build_space(cm: ArrayModel, bp: BoundProperty) -> Space:
     """Compile a bound property against a model: allowed transitions and contributions."""
     dist = deviations(cm, bp.norm, bp.components)
@@ -285,9 +347,7 @@ def build_space(cm: ArrayModel, bp: BoundProperty) -> Space:
     allowed = in_window | first
     cut = None
     if bp.monitor_components is not None:
-        tau = location_trace(cm, bp.monitor_components)
-        excused = excused_steps(bp, tau[cm.original])
-        cut = kernel.monitor_cuts(bp.l, k, tau[src], tau[cm.dst], bp.monitor_tolerance, excused)
+        cut = _monitor_cut(cm, bp, k)
         allowed &= ~cut
     adj = np.nonzero(allowed)[0]
     counts = np.bincount(src[adj], minlength=n) if m else np.zeros(n, int)

@@ -44,7 +44,7 @@ from lesmc.experiment.video_perception import UnitMax
 from lesmc.language.parser import load_faults, load_spec
 from lesmc.language.properties import FaultSet, SpecFile
 from lesmc.perception import HISTORY, NetFiles
-from lesmc.perception.quality import load_truth
+from lesmc.perception.quality import TruthFrame, load_truth
 from lesmc.pipeline.check import run as run_job
 from lesmc.pipeline.job import Certifier, Job, PayoffMode
 from lesmc.replay.run import apply, cases, replay
@@ -633,8 +633,7 @@ def _truth_facts(
         return None, {}
 
     scene = src.scene.payoff_free()  # the monitor reads only the unattacked states
-    tfs = [src.truth.frames.get(p.name) for p in src.frames.paths[scene.target.step :]]
-    tfs = tfs[: next((i for i, t in enumerate(tfs) if t is None), len(tfs))]
+    tfs = _truth_frames(src, scene)
     if not tfs:
         return None, {}
     t0 = time.monotonic()
@@ -664,6 +663,27 @@ def _truth_facts(
             src.cache.put("false-alarms", key, report)
     timings["monitor false alarms"] = time.monotonic() - t0
     return truth_track(tfs, scene.target.start) or None, {"monitor_false_alarms": report}
+
+
+def _truth_frames(src: _Source, scene: Scene) -> list[TruthFrame]:
+    """The truth of the frames from the scene's target frame on, up to the first frame
+    the truth file lacks."""
+    assert src.frames is not None and src.truth is not None
+    tfs = [src.truth.frames.get(p.name) for p in src.frames.paths[scene.target.step :]]
+    return [t for t in tfs[: next((i for i, t in enumerate(tfs) if t is None), len(tfs))] if t]
+
+
+def video_truth(req: Request, rep: Reporter) -> tuple[Scene, list[TruthFrame], tuple[int, int]]:
+    """What ``lesmc verify`` measures the monitor's false alarms on (``lesmc alarms`` on a
+    video): the video's scene, perceived (or read from OUT/cache) with its target chosen
+    as verify chooses it, without payoffs; the truth frames from the target's frame on;
+    the frame size."""
+    specs = load_specs([Path(s) for s in req.specs] or bundled_specs(), req.window)
+    src = _perceived(req, specs, rep, False, True)
+    if src.frames is None or src.truth is None:
+        raise UsageError("the video has no truth.json: give --truth (the truth tracks to run)")
+    scene = src.scene.payoff_free()
+    return scene, _truth_frames(src, scene), (src.frames.width, src.frames.height)
 
 
 def _perception_facts(req: Request, src: _Source, results: Results) -> dict[str, Any]:

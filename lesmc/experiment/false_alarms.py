@@ -13,6 +13,7 @@ smallest tolerance that keeps them all silent).
 from __future__ import annotations
 
 import dataclasses
+import math
 from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import Any
@@ -83,7 +84,25 @@ def unattacked_taus(
     scene: Scene, starts: Sequence[TruthStart], design: str, steps: int
 ) -> list[np.ndarray]:
     """τ along the unattacked track (Eq. 12) started at each truth vehicle, up to ``steps``
-    (until it halts).
+    (until it halts): the τ of :func:`unattacked_tracks`."""
+    return [t.tau for t in unattacked_tracks(scene, starts, design, steps)]
+
+
+@dataclass(frozen=True)
+class Series:
+    """One unattacked track as a monitor reads it: τ (Eq. 12) at steps 0..n and the NIS of
+    the update entering each step (NaN: none; at step 0 and for a design that reports
+    none)."""
+
+    tau: np.ndarray
+    nis: np.ndarray
+
+
+def unattacked_tracks(
+    scene: Scene, starts: Sequence[TruthStart], design: str, steps: int
+) -> list[Series]:
+    """τ and the NIS along the unattacked track started at each truth vehicle, up to
+    ``steps`` (until it halts).
 
     All tracks run in one batch through one tracker (the design computes the successors
     of a batch at once, tracking/design.py): each starts where ``track`` of a scene with
@@ -103,18 +122,22 @@ def unattacked_taus(
     batch = _stacked(firsts)
     loc = base.tracker.measured
     taus = [[float(tau(tracker.covariances[int(c)], loc))] for c in batch.cov]
+    nis: list[list[float]] = [[math.nan] for _ in batch.cov]
     live = np.flatnonzero(~batch.halted)  # the starts still tracked; ``batch`` holds them
     batch = batch.take(live)
     last = min(steps, base.last_step - base.target.step)
     for k in range(1, last + 1):
         if not live.size:
             break
-        batch = tracker.successors(batch, base.target.step + k, False).states
-        for i, c in zip(live.tolist(), batch.cov.tolist(), strict=True):
+        succ = tracker.successors(batch, base.target.step + k, False)
+        batch = succ.states
+        got = succ.nis.tolist() if succ.nis is not None else [math.nan] * len(live)
+        for i, c, v in zip(live.tolist(), batch.cov.tolist(), got, strict=True):
             taus[i].append(float(tau(tracker.covariances[int(c)], loc)))
+            nis[i].append(float(v))
         keep = ~batch.halted
         live, batch = live[keep], batch.take(np.flatnonzero(keep))
-    return [np.array(t) for t in taus]
+    return [Series(np.array(t), np.array(n)) for t, n in zip(taus, nis, strict=True)]
 
 
 def _stacked(batches: list[Batch]) -> Batch:

@@ -32,8 +32,8 @@ from lark.lexer import TerminalDef
 from lesmc.common.errors import Location, SpecError, source_line, split_lines
 from lesmc.common.fields import MAX_STEP
 from lesmc.common.files import read_text
+from lesmc.language import monitors
 from lesmc.language.properties import (
-    DEFAULT_MONITOR_TOLERANCE,
     Constraint,
     Fault,
     FaultSet,
@@ -298,20 +298,68 @@ class _Builder:
         if kind == "on_clause":
             return "on", self.names(ch[0])
         if kind == "monitor_clause":
-            names: tuple[str, ...] | None = None
-            tol = DEFAULT_MONITOR_TOLERANCE
-            excuse = False
-            for item in ch:
-                if isinstance(item, Tree) and item.data == "name_list":
-                    names = self.names(item)
-                elif isinstance(item, Tree) and item.data == "number":
-                    tol = self.number(item, "monitor tolerance")
-                    if tol < 0:
-                        raise self.error("the monitor tolerance must be >= 0", _pos(item))
-                elif isinstance(item, Tree) and item.data == "except_original":
-                    excuse = True
-            return "monitor", Monitor(names, tol, _pos(node), except_original=excuse)
+            return "monitor", self.monitor(node)
         raise AssertionError(f"unhandled clause {kind}")  # pragma: no cover
+
+    def monitor(self, node: Tree[Any]) -> Monitor:
+        """A ``monitor`` clause: its kind from the registry (lesmc/language/monitors.py), the
+        kind's parameter inside its domain, the window, components and ``except original``."""
+        what = node.children[0]
+        kind, param, param_pos = "tau_rise", None, _pos(node)
+        if what.data == "monitor_kind":
+            kind = str(what.children[0])
+            if kind not in monitors.names():
+                raise self.error(
+                    f"unknown monitor '{_clip(kind)}'; the monitors are "
+                    f"{', '.join(monitors.names())} (or 'uncertainty', the tau_rise monitor)",
+                    _pos(what),
+                )
+            if len(what.children) > 1 and what.children[1] is not None:
+                param_pos = _pos(what.children[1])
+                param = self.number(what.children[1], f"the {kind} monitor's parameter")
+        declared = monitors.get(kind)
+        names: tuple[str, ...] | None = None
+        window = 1
+        excuse = False
+        for item in node.children[1:]:
+            if not isinstance(item, Tree):
+                continue
+            if item.data == "name_list":
+                if declared.reads != "tau":
+                    raise self.error(
+                        f"the {kind} monitor reads no components of the state; "
+                        "'on' belongs to the tau_rise and trace monitors",
+                        _pos(item),
+                    )
+                names = self.names(item)
+            elif item.data == "number":
+                if what.data != "monitor_uncertainty":
+                    raise self.error(
+                        f"'tolerance' belongs to 'monitor uncertainty'; write the {kind} "
+                        f"monitor's {declared.parameter} after its name",
+                        _pos(item),
+                    )
+                param, param_pos = self.number(item, "monitor tolerance"), _pos(item)
+            elif item.data == "monitor_window":
+                if not declared.windowed:
+                    raise self.error(f"the {kind} monitor takes no window", _pos(item))
+                window = self.whole(item.children[0])
+                if window < 1:
+                    raise self.error("the monitor's window must be at least 1 step", _pos(item))
+            elif item.data == "except_original":
+                excuse = True
+        param = self.monitor_parameter(declared, param, param_pos, _pos(what))
+        return Monitor(names, param, _pos(node), excuse, kind, window)
+
+    def monitor_parameter(
+        self, declared: monitors.MonitorKind, param: float | None, at: Pos, kind_at: Pos
+    ) -> float:
+        """The monitor's parameter (its default when none is written) inside its domain
+        (:func:`lesmc.language.monitors.resolve`), else an error at the number or the kind."""
+        try:
+            return monitors.resolve(declared.name, param)[1]
+        except ValueError as exc:
+            raise self.error(str(exc), kind_at if param is None else at) from None
 
     def faults(self, node: Tree[Any]) -> FaultSet:
         """A ``faults { ... }`` block: its budget (default 1) and its named faults."""

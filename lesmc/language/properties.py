@@ -75,19 +75,34 @@ class Constraint:
 
 @dataclass(frozen=True)
 class Monitor:
-    """``monitor uncertainty``: the runtime monitor Γ of Eq. 13 filters paths.
+    """``monitor KIND [PARAM]``: a runtime monitor filters paths (docs/semantics.md).
 
-    An attacked path counts only if the covariance-trace τ (Eq. 12, over
-    ``components``) never rises by more than ``tolerance`` (relative) on a
-    transition entering steps l..end. With ``except_original`` (``monitor
-    uncertainty ... except original``) an alarm counts only at a step where the
-    original (unattacked) track raises none: the attack, not the scene, caused it.
+    An attacked path counts only if the monitor's alarm (lesmc/language/monitors.py:
+    ``tau_rise``, Eq. 13, the default and what ``monitor uncertainty`` names; ``nis``;
+    ``misses``; ``trace``) never fires on a transition entering steps l..end.
+    ``parameter`` is the kind's number (tau_rise: the relative tolerance of τ's rise;
+    nis: the χ² quantile; misses: k steps; trace: the bound on τ), ``window`` the NIS
+    monitor's sliding window of steps, ``components`` those of τ (Eq. 12). With
+    ``except_original`` (``... except original``) an alarm counts only at a step where
+    the original (unattacked) track raises none: the attack, not the scene, caused it.
     """
 
     components: tuple[str, ...] | None = None
-    tolerance: float = DEFAULT_MONITOR_TOLERANCE
+    parameter: float = DEFAULT_MONITOR_TOLERANCE
     pos: Pos = field(default=Pos(0, 0), compare=False)
     except_original: bool = False
+    kind: str = "tau_rise"
+    window: int = 1
+
+    @property
+    def tolerance(self) -> float:
+        """The parameter under its ``tau_rise`` name (the relative tolerance of Eq. 13)."""
+        return self.parameter
+
+    def text(self) -> str:
+        """The monitor as a spec writes it, e.g. ``nis 0.99 window 3``."""
+        win = f" window {self.window}" if self.window != 1 else ""
+        return f"{self.kind} {_num(self.parameter)}{win}"
 
 
 @dataclass(frozen=True)
@@ -205,9 +220,11 @@ class SpecFile:
             return self
         return replace(self, properties=tuple(p.with_window(window) for p in self.properties))
 
-    def with_monitor(self) -> SpecFile:
-        """Every property filtered by the runtime monitor (the improved design, section 7.1)."""
-        props = tuple(p if p.monitor else replace(p, monitor=Monitor()) for p in self.properties)
+    def with_monitor(self, monitor: Monitor | None = None) -> SpecFile:
+        """Every property without a monitor filtered by ``monitor`` (default: the runtime
+        monitor of section 7.1, Eq. 13; the improved design)."""
+        mon = monitor or Monitor()
+        props = tuple(p if p.monitor else replace(p, monitor=mon) for p in self.properties)
         return replace(self, properties=props)
 
 

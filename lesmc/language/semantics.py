@@ -10,6 +10,7 @@ import math
 from dataclasses import dataclass
 
 from lesmc.common.errors import Location, SpecError, source_line
+from lesmc.language import monitors
 from lesmc.language.properties import Measure, Pos, Property, SpecFile, StepRef
 
 #: Names that ``monitor uncertainty`` takes as the location block (Eq. 12) by default.
@@ -46,8 +47,10 @@ class BoundProperty:
     bound: float
     norm: float
     components: tuple[int, ...]
+    #: τ's components (Eq. 12) for the monitor (() for a monitor that reads no τ); None: the
+    #: property has no monitor
     monitor_components: tuple[int, ...] | None
-    monitor_tolerance: float
+    monitor_parameter: float  #: the monitor kind's number (tau_rise: its tolerance)
     monitor_except_original: bool = False  # alarms at the original track's alarm steps excused
     spec: str = ""  #: the path of the spec file that states it
     #: components of τ (Eq. 12) for a ``tau.rise`` measure: the monitor's, else x, y
@@ -55,6 +58,14 @@ class BoundProperty:
     #: for a ``dist.nearest`` measure: the model components of its ground-truth tracks,
     #: in the tracks' order (the property's ``on`` components)
     near_components: tuple[int, ...] | None = None
+    #: the monitor's kind (lesmc/language/monitors.py) and its NIS window of steps
+    monitor_kind: str = "tau_rise"
+    monitor_window: int = 1
+
+    @property
+    def monitor_tolerance(self) -> float:
+        """The monitor's parameter under its ``tau_rise`` name (Eq. 13's tolerance)."""
+        return self.monitor_parameter
 
     @property
     def uses_tau(self) -> bool:
@@ -73,11 +84,14 @@ def bind(
     components: tuple[str, ...],
     has_covariance: bool,
     tracks: tuple[str, ...] | None = None,
+    has_nis: bool = True,
 ) -> BoundProperty:
     """Resolve ``prop`` against a model with steps 0..e and the given components;
-    ``tracks``: the components of the model's ground-truth tracks (None: it has none)."""
+    ``tracks``: the components of the model's ground-truth tracks (None: it has none);
+    ``has_nis``: the model carries the NIS of its transitions' updates (a monitor that
+    reads them is refused otherwise)."""
     l, u, end = _window(spec, prop, e)
-    monitor_idx, tol = _monitor(spec, prop, components, has_covariance)
+    monitor_idx, tol = _monitor(spec, prop, components, has_covariance, has_nis)
     tau_idx = _tau(spec, prop, components, has_covariance, monitor_idx)
     on = prop.clause_pos.get("on", prop.pos)
     comps = _indices(spec, prop.components, on, components)
@@ -96,11 +110,13 @@ def bind(
         norm=prop.norm,
         components=comps,
         monitor_components=monitor_idx,
-        monitor_tolerance=tol,
+        monitor_parameter=tol,
         monitor_except_original=prop.monitor is not None and prop.monitor.except_original,
         spec=spec.path,
         tau_components=tau_idx,
         near_components=near_idx,
+        monitor_kind="tau_rise" if prop.monitor is None else prop.monitor.kind,
+        monitor_window=1 if prop.monitor is None else prop.monitor.window,
     )
 
 
@@ -175,21 +191,40 @@ def _indices(
 
 
 def _monitor(
-    spec: SpecFile, prop: Property, components: tuple[str, ...], has_covariance: bool
+    spec: SpecFile,
+    prop: Property,
+    components: tuple[str, ...],
+    has_covariance: bool,
+    has_nis: bool,
 ) -> tuple[tuple[int, ...] | None, float]:
-    """The monitor's components (default: the location x, y) and tolerance (Eq. 12-13)."""
-    if prop.monitor is None:
+    """The monitor's components of τ (default: the location x, y; () for a monitor that
+    reads no τ) and its parameter (lesmc/language/monitors.py)."""
+    mon = prop.monitor
+    if mon is None:
         return None, 0.0
+    kind = monitors.get(mon.kind)
+    reason = monitors.unchecked_reason(mon)
+    if reason is not None:
+        raise _fail(spec, reason, mon.pos)
+    if kind.reads == "nis":
+        if not has_nis:
+            raise _fail(
+                spec,
+                f"the {mon.kind} monitor needs the NIS of every transition's update "
+                "(transitions[].nis, docs/lts-format.md); the model has none",
+                mon.pos,
+            )
+        return (), mon.parameter
     if not has_covariance:
         raise _fail(
             spec,
-            "'monitor uncertainty' needs the covariance P in every model state",
-            prop.monitor.pos,
+            f"'monitor {mon.kind}' needs the covariance P in every model state",
+            mon.pos,
         )
-    names = prop.monitor.components
+    names = mon.components
     if names is None and all(c in components for c in LOCATION_COMPONENTS):
         names = LOCATION_COMPONENTS
-    return _indices(spec, names, prop.monitor.pos, components), prop.monitor.tolerance
+    return _indices(spec, names, mon.pos, components), mon.parameter
 
 
 def _tau(
@@ -208,7 +243,7 @@ def _tau(
         raise _fail(
             spec, "'tau.rise' needs the covariance P in every model state", tau_measures[0].pos
         )
-    if monitor_idx is not None:
+    if monitor_idx:
         return monitor_idx
     names = LOCATION_COMPONENTS if all(c in components for c in LOCATION_COMPONENTS) else None
     return _indices(spec, names, tau_measures[0].pos, components)

@@ -96,6 +96,9 @@ class ArrayModel:
     reference: np.ndarray | None = None
     #: ground-truth tracks ``dist.nearest`` also accepts (section 4.2); None: none
     tracks: Tracks | None = None
+    #: (m,) float64: the normalised innovation squared of each transition's update, NaN
+    #: where it takes none (what the ``nis`` and ``misses`` monitors read); None: not known
+    nis: np.ndarray | None = None
 
     @property
     def n_states(self) -> int:

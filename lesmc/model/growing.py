@@ -61,6 +61,8 @@ class Expansion:
     payoff: np.ndarray
     rank: np.ndarray
     obs: np.ndarray  # codes into the expander's observation names, −1 none
+    #: the NIS of each transition's update, NaN where it takes none; None: not reported
+    nis: np.ndarray | None = None
 
 
 class Expander(Protocol):
@@ -88,6 +90,9 @@ class GrowingModel:
         self._obs = GrowArray(np.int64)
         self._combined = GrowArray(np.float64)
         self._counted = GrowArray(np.float64)
+        self._nis = GrowArray(np.float64)
+        #: every expansion so far reported the NIS of its updates (the tracker computes them)
+        self.reports_nis = True
         self.original = np.zeros(0, dtype=np.int64)
         #: the states deviations are measured against (lesmc.model.arrays.reference_states)
         self.reference: np.ndarray | None = None
@@ -167,6 +172,12 @@ class GrowingModel:
         return self._combined.view
 
     @property
+    def nis(self) -> np.ndarray | None:
+        """The NIS of each transition's update (NaN: none); None when the tracker does not
+        report them (docs/lts-format.md, ``transitions[].nis``)."""
+        return self._nis.view if self.reports_nis else None
+
+    @property
     def counted(self) -> np.ndarray:
         """Eq. 5 over unit payoffs (kernel.combined_counts) per transition."""
         return self._counted.view
@@ -187,6 +198,11 @@ class GrowingModel:
         self._payoff.extend(exp.payoff)
         self._rank.extend(exp.rank)
         self._obs.extend(exp.obs)
+        if exp.nis is None:
+            self.reports_nis = False
+            self._nis.extend(np.full(len(exp.dst), np.nan))
+        else:
+            self._nis.extend(exp.nis)
         self._combined.extend(combined_payoffs(ptr, exp.payoff, exp.rank))
         self._counted.extend(combined_counts(ptr, exp.payoff, exp.rank))
         self._lo.data[states] = first + ptr[:-1]
@@ -208,7 +224,7 @@ class GrowingModel:
     def _grows(self) -> list[GrowArray]:
         grows = [self._step, self._S, self._cov, self._halted, self._lo, self._hi]
         more = [self._src, self._dst, self._payoff, self._rank, self._obs, self._combined]
-        return [*grows, *more, self._counted]
+        return [*grows, *more, self._counted, self._nis]
 
     def nbytes(self) -> int:
         return sum(int(g.view.nbytes) for g in self._grows())

@@ -13,7 +13,9 @@ whole array of them (numpy broadcasting), so hot paths call them on batches.
   aggregates of non-negative per-step contributions.
 * :data:`COMPARE` and :func:`holds`: the comparisons of constraints and verdicts.
 * :func:`tau` and :func:`alarm`: the runtime monitor's uncertainty τ (Eq. 12)
-  and its alarm Γ = 0 (Eq. 13).
+  and its alarm Γ = 0 (Eq. 13); :func:`track_alarms`, :func:`transition_alarms` and
+  :func:`monitor_cuts`: any registered monitor's alarms (lesmc/language/monitors.py)
+  on a track, on transitions, and the transitions a monitored property drops.
 
 The independent oracle in tests/oracle.py does not use this module.
 """
@@ -27,6 +29,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike
 
+from lesmc.language import monitors
 from lesmc.language.properties import DEFAULT_MONITOR_TOLERANCE
 from lesmc.language.semantics import BoundMeasure
 
@@ -236,16 +239,49 @@ def tau_rise(tau_src: ArrayLike, tau_dst: ArrayLike) -> np.ndarray:
 def alarm(
     tau_prev: ArrayLike, tau_next: ArrayLike, tolerance: float = DEFAULT_TOLERANCE
 ) -> np.ndarray:
-    """Eq. 13's Γ = 0: τ rose from one step to the next beyond the relative tolerance."""
-    out: np.ndarray = np.asarray(tau_next) > np.asarray(tau_prev) * (1.0 + tolerance) + 1e-300
+    """Eq. 13's Γ = 0: τ rose from one step to the next beyond the relative tolerance
+    (the ``tau_rise`` monitor's test, :func:`lesmc.language.monitors.rises`)."""
+    return monitors.rises(np.asarray(tau_prev), np.asarray(tau_next), tolerance)
+
+
+def track_alarms(
+    kind: str, parameter: float, window: int, tau_track: ArrayLike, nis_track: ArrayLike | None
+) -> np.ndarray:
+    """The alarms of monitor ``kind`` (lesmc/language/monitors.py) at each step 0..n of a
+    track (last axis), from τ (Eq. 12) and the NIS of the update entering each step (NaN:
+    none, and at step 0); ``nis_track`` None: the monitor reads no NIS."""
+    tau_a = np.asarray(tau_track, dtype=float)
+    nis_a = np.full(tau_a.shape, np.nan) if nis_track is None else np.asarray(nis_track, float)
+    return monitors.get(kind).alarm(parameter, window, tau_a, nis_a)
+
+
+def transition_alarms(
+    kind: str,
+    parameter: float,
+    tau_src: ArrayLike,
+    tau_dst: ArrayLike,
+    nis: ArrayLike | None = None,
+) -> np.ndarray:
+    """The alarm of a monitor that reads one transition (window 1) on each transition:
+    :func:`track_alarms` on the two-step track source, target."""
+    src, dst = np.broadcast_arrays(np.asarray(tau_src, float), np.asarray(tau_dst, float))
+    tau2 = np.stack([src, dst], axis=-1)
+    nis2 = None
+    if nis is not None:
+        nis2 = np.stack([np.full(dst.shape, np.nan), np.broadcast_to(nis, dst.shape)], axis=-1)
+    out: np.ndarray = track_alarms(kind, parameter, 1, tau2, nis2)[..., 1]
     return out
 
 
-def original_alarms(tau_original: np.ndarray, tolerance: float) -> np.ndarray:
-    """Per step k = 0..e of the original (unattacked) path: Eq. 13's alarm fires entering k."""
-    tau_original = np.asarray(tau_original, dtype=float)
-    out = np.zeros(tau_original.shape[0], dtype=bool)
-    out[1:] = alarm(tau_original[:-1], tau_original[1:], tolerance)
+def original_alarms(
+    tau_original: np.ndarray,
+    tolerance: float,
+    kind: str = "tau_rise",
+    nis_original: np.ndarray | None = None,
+) -> np.ndarray:
+    """Per step k = 0..e of the original (unattacked) path: the monitor's alarm fires
+    entering k (Eq. 13 for ``tau_rise``; ``tolerance`` is the kind's parameter)."""
+    out: np.ndarray = track_alarms(kind, tolerance, 1, tau_original, nis_original)
     return out
 
 
@@ -256,15 +292,19 @@ def monitor_cuts(
     tau_dst: np.ndarray,
     tolerance: float,
     excused: np.ndarray | None = None,
+    kind: str = "tau_rise",
+    nis: np.ndarray | None = None,
 ) -> np.ndarray:
-    """Transitions the monitored property drops: entering a step k ≥ l, τ rises (Eq. 13).
+    """Transitions the monitored property drops: entering a step k ≥ l, the monitor's alarm
+    fires (Eq. 13 for ``tau_rise``: τ rises; ``tolerance`` is the kind's parameter, ``nis``
+    each transition's NIS for the monitors that read it).
 
     ``excused`` (per step, from :func:`original_alarms`) is the practitioner's
     monitor, ``monitor uncertainty ... except original``: an alarm at a step
     where the unattacked track raises one too is not the attack's doing and
     does not cut.
     """
-    out: np.ndarray = (k >= l) & alarm(tau_src, tau_dst, tolerance)
+    out: np.ndarray = (k >= l) & transition_alarms(kind, tolerance, tau_src, tau_dst, nis)
     if excused is not None and excused.size:
         out &= ~excused[np.minimum(k, excused.size - 1)]
     return out

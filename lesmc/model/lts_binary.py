@@ -56,7 +56,12 @@ REQUIRED = {
     "original": (np.int64, 1),
 }
 #: The arrays a file may have: covariances (both or neither) and observations.
-OPTIONAL = {"cov": (np.int64, 1), "P_table": (np.float64, 3), "obs": (np.int64, 1)}
+OPTIONAL = {
+    "cov": (np.int64, 1),
+    "P_table": (np.float64, 3),
+    "obs": (np.int64, 1),
+    "nis": (np.float64, 1),
+}
 #: The positions of the ground-truth tracks (with the header's ``tracks``), if any.
 TRACKS = "tracks_at"
 #: The state ids (fixed-width UTF-8), when they are not the default ones.

@@ -49,7 +49,7 @@ _TOP_KEYS = {
     "tracks",
 }
 _STATE_KEYS = {"id", "step", "s", "P", "labels", "meta"}
-_TRANS_KEYS = {"src", "dst", "payoff", "rank", "obs"}
+_TRANS_KEYS = {"src", "dst", "payoff", "rank", "obs", "nis"}
 _NUMBER_TYPES = {int, float}
 _I64 = (-(2**63), 2**63 - 1)
 _ABSENT: Any = object()
@@ -91,16 +91,7 @@ def lts_from_dict(data: Any, path: str = "<model>") -> ArrayModel:
         pr.add("original", "must be a list of state ids, one per step 0..e")
         original = []
     pr.items.extend(meta_problems(data.get("meta")))
-    raw_states = data.get("states")
-    raw_trans = data.get("transitions")
-    if not isinstance(raw_states, list) or not raw_states:
-        pr.add("states", "must be a non-empty list")
-        raw_states = []
-    if not isinstance(raw_trans, list):
-        pr.add("transitions", "must be a list")
-        raw_trans = []
-    states = _States(raw_states)
-    trans = _Transitions(raw_trans)
+    states, trans = _rows_of(data, pr)
     pr.items.extend(states.problems)
     pr.items.extend(trans.problems)
     if pr.items:
@@ -120,6 +111,7 @@ def lts_from_dict(data: Any, path: str = "<model>") -> ArrayModel:
         payoff=trans.payoff,
         rank=trans.rank,
         obs=trans.obs,
+        nis=trans.nis,
         initial=str(initial),
         original=original,
         components=components,
@@ -129,6 +121,19 @@ def lts_from_dict(data: Any, path: str = "<model>") -> ArrayModel:
     if "tracks" in data:
         cm.tracks = _tracks(data["tracks"], cm, path)
     return cm
+
+
+def _rows_of(data: dict[str, Any], pr: Problems) -> tuple[_States, _Transitions]:
+    """The document's states and transitions, each column type-checked."""
+    raw_states = data.get("states")
+    raw_trans = data.get("transitions")
+    if not isinstance(raw_states, list) or not raw_states:
+        pr.add("states", "must be a non-empty list")
+        raw_states = []
+    if not isinstance(raw_trans, list):
+        pr.add("transitions", "must be a list")
+        raw_trans = []
+    return _States(raw_states), _Transitions(raw_trans)
 
 
 def _tracks(raw: Any, cm: ArrayModel, path: str) -> Tracks:
@@ -314,6 +319,22 @@ class _Transitions(_Rows):
         elif types - {str, type(None)}:
             wrong = _where(obs, lambda x: x is not None and not isinstance(x, str))
             self.bad(5, wrong, _msg("obs must be a string or absent"))
+        self.nis = self._nis()
+
+    def _nis(self) -> np.ndarray | None:
+        """The NIS of each transition's update (NaN: absent or null, no update); None when
+        no transition has one."""
+        raw = self.column("nis")
+        if all(v is None for v in raw):
+            return None
+        present = [v is not None for v in raw]
+        vals, ok = _floats([0.0 if v is None else v for v in raw])
+        self.bad(
+            6,
+            np.flatnonzero(~ok | ~(vals >= 0)),
+            lambda j: f"nis must be a finite number >= 0 or absent, got {_show(raw[j])}",
+        )
+        return np.where(np.array(present, dtype=bool).reshape(-1), vals, np.nan)
 
     def item(self, j: int) -> str:
         src, dst = self.src[j], self.dst[j]
@@ -430,6 +451,10 @@ def _transitions_json(model: ArrayModel, ids: list[str], pos: np.ndarray) -> lis
         for d, c in zip(doc_trans, model.obs[torder].tolist(), strict=True):
             if c >= 0:
                 d["obs"] = names[c]
+    if model.nis is not None:
+        for d, v in zip(doc_trans, model.nis[torder].tolist(), strict=True):
+            if v == v:  # not NaN: the transition updates
+                d["nis"] = v
     return doc_trans
 
 
@@ -504,17 +529,21 @@ def _transition_texts(model: ArrayModel, quoted: list[str], pos: np.ndarray) -> 
     torder = _transition_order(model, pos)
     obs = [-1] * len(torder) if model.obs is None else model.obs[torder].tolist()
     names = [f', "obs": {json.dumps(o)}' for o in model.obs_names] + [""]
+    nis = [""] * len(torder)
+    if model.nis is not None:
+        nis = [f', "nis": {v!r}' if v == v else "" for v in model.nis[torder].tolist()]
     rows = zip(
         src[torder].tolist(),
         dst[torder].tolist(),
         model.payoff[torder].tolist(),
         model.rank[torder].tolist(),
         obs,
+        nis,
         strict=True,
     )
     return EncodedItems(
-        f'{{"src": {quoted[a]}, "dst": {quoted[b]}, "payoff": {p!r}, "rank": {r}{names[o]}}}'
-        for a, b, p, r, o in rows
+        f'{{"src": {quoted[a]}, "dst": {quoted[b]}, "payoff": {p!r}, "rank": {r}{names[o]}{z}}}'
+        for a, b, p, r, o, z in rows
     )
 
 

@@ -64,6 +64,7 @@ class Parts:
     original: list[str]
     components: Sequence[str] | None = None
     meta: dict[str, Any] = field(default_factory=dict)
+    nis: np.ndarray | None = None  # (m,) float64, NaN: no update; None: no transition has one
 
 
 @dataclass(frozen=True)
@@ -152,6 +153,7 @@ def build(parts: Parts, path: str = "<model>") -> ArrayModel:
         P_table=P_table,
         obs=obs,
         obs_names=obs_names,
+        nis=None if parts.nis is None else np.ascontiguousarray(parts.nis[torder]),
         ids=list(sorted_ids),
         labels=dict(sorted(labels.items())),
         meta=parts.meta,
@@ -273,6 +275,12 @@ def _check_tables(cm: ArrayModel, need: Callable[[bool, str, str], None], d: int
     if cm.obs is not None:
         k = len(cm.obs_names)
         need(bool(((cm.obs >= -1) & (cm.obs < k)).all()), "obs", f"must be -1..{k - 1}")
+    if cm.nis is not None:
+        ok = cm.nis.shape == cm.dst.shape
+        need(ok, "nis", f"must have {cm.dst.shape[0]} entries (one per transition)")
+        if ok:
+            bad = ~(np.isnan(cm.nis) | (np.isfinite(cm.nis) & (cm.nis >= 0)))
+            need(not bad.any(), "nis", "must be finite numbers >= 0, or NaN (no update)")
 
 
 def _layout(parts: Parts, src_f: np.ndarray, dst_f: np.ndarray) -> tuple[Any, ...]:

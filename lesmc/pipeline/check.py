@@ -27,6 +27,7 @@ from lesmc.common.errors import BudgetError, Location, SpecError, UsageError
 from lesmc.designs import registry
 from lesmc.engines.check import bind_all, model_design
 from lesmc.engines.result import CheckResult
+from lesmc.language import monitors
 from lesmc.language.properties import SpecFile
 from lesmc.language.semantics import BoundProperty, bind
 from lesmc.model.arrays import ArrayModel, reference_states
@@ -121,8 +122,14 @@ def _plans(job: Job, scene: Scene) -> list[_Plan]:
             ends[d.tracker] = original_end(sc)
         for w in job.windows:
             specs = [s.with_window(w) for s in job.specs]
-            if d.monitor:
-                specs = [s.with_monitor() for s in specs]
+            if d.monitor:  # the tracker's declared monitor, else Eq. 13's
+                mon = monitors.declared(sc.tracker.monitor)
+                reason = monitors.unchecked_reason(mon)
+                if reason is not None and any(
+                    p.monitor is None for s in specs for p in s.properties
+                ):
+                    raise UsageError(f"the tracker's monitor: {reason}")
+                specs = [s.with_monitor(mon) for s in specs]
             bound = _selected(job, name, w, bind_scene(sc, specs, ends[d.tracker]))
             if bound:
                 plans.append(_Plan(name, w, sc, bound))

@@ -929,8 +929,18 @@ def _row_class(roles: set[str]) -> str:
     return ""
 
 
+def _monitor_text(mon: dict[str, Any]) -> str:
+    """A monitor of a results document as its spec clause reads (older documents: tau_rise)."""
+    kind = mon.get("kind", "tau_rise")
+    param = mon.get("parameter", mon["tolerance"])
+    if kind == "tau_rise":
+        return f"monitor uncertainty on {', '.join(mon['components'])}, tolerance {param:g}"
+    window = mon.get("window", 1)
+    return f"monitor {kind} {param:g}" + (f" window {window}" if window != 1 else "")
+
+
 def _monitored(doc: dict[str, Any]) -> list[str]:
-    """Per design with monitored properties: which, on what, with which tolerance."""
+    """Per design with monitored properties: which, on what, with which parameter."""
     out = []
     for run in doc["runs"]:
         mon = [p for p in run["properties"] if p["monitor"] is not None]
@@ -938,9 +948,7 @@ def _monitored(doc: dict[str, Any]) -> list[str]:
             out.append(
                 f"Design {run['design']}: "
                 + "; ".join(
-                    f"{p['name']} monitored (monitor uncertainty on "
-                    f"{', '.join(p['monitor']['components'])}, tolerance "
-                    f"{p['monitor']['tolerance']:g}"
+                    f"{p['name']} monitored ({_monitor_text(p['monitor'])}"
                     + (", except original" if p["monitor"]["except_original"] else "")
                     + ")"
                     for p in mon

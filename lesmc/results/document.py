@@ -95,8 +95,11 @@ def property_json(bp: BoundProperty, components: tuple[str, ...]) -> dict[str, A
     if bp.monitor_components is not None:
         monitor = {
             "components": [components[i] for i in bp.monitor_components],
-            "tolerance": bp.monitor_tolerance,
+            "tolerance": bp.monitor_parameter,
             "except_original": bp.monitor_except_original,
+            "kind": bp.monitor_kind,
+            "parameter": bp.monitor_parameter,
+            "window": bp.monitor_window,
         }
     return {
         "name": bp.name,

@@ -28,6 +28,7 @@ from lesmc.common.fields import (
 )
 from lesmc.common.files import read_json, read_toml, write_json
 from lesmc.designs import registry
+from lesmc.language import monitors
 from lesmc.scene.frames import Detection, Frame
 from lesmc.scene.scene import (
     PRESET_ONLY,
@@ -386,6 +387,8 @@ def _tracker_value(key: str, v: Any, pr: Problems, item: str, values: dict[str, 
             known = " or ".join(f'"{n}"' for n in registry.tracker_names())
             pr.add(item, f"design must be {known}, got {show(v)}")
         values[key] = v
+    elif key == "monitor":
+        values[key] = _monitor(v, pr, item)
     elif key == "gate_type":
         if v not in ("mahalanobis", "euclidean"):
             pr.add(item, f'gate_type must be "mahalanobis" or "euclidean", got {v!r}')
@@ -447,6 +450,20 @@ def _tracker(raw: Any, pr: Problems, item: str = "tracker") -> TrackerConfig | N
         if len(pr.items) > n0:
             return None
     return TrackerConfig(**values)
+
+
+def _monitor(raw: Any, pr: Problems, item: str) -> str | None:
+    """A tracker's ``monitor``: ``KIND [PARAM] [window K]`` of the monitor registry
+    (lesmc/language/monitors.py), written back in one form."""
+    if not isinstance(raw, str):
+        pr.add(item, f'monitor must be a string such as "nis 0.99", got {show(raw)}')
+        return None
+    try:
+        kind, value, window = monitors.from_text(raw)
+    except ValueError as exc:
+        pr.add(item, f"monitor: {exc}")
+        return None
+    return f"{kind} {value!r}" + (f" window {window}" if window > 1 else "")
 
 
 def tracker_from_dict(data: Any, path: str = "<tracker>") -> TrackerConfig:

@@ -58,6 +58,9 @@ class TrackerConfig:
     max_age: int = 1  # a track missed more than this many frames in a row ends
     iou_threshold: float = 0.3  # a (detection, track) pair is admissible at this IoU or more
     model: TrackerModel = DEFAULT_MODEL
+    #: the runtime monitor the monitored designs add to properties, as a spec writes it
+    #: without ``monitor`` (``"nis 0.99 window 3"``, lesmc/language/monitors.py); None: Eq. 13's
+    monitor: str | None = None
     #: matrix faults in force from their frames on (fault variants of lesmc/pipeline/faults.py;
     #: never in a scene file)
     faults: tuple[EntryFault, ...] = ()
@@ -80,7 +83,11 @@ class TrackerConfig:
         declared = not isinstance(self.model, str)
         for f in fields(self):
             v = getattr(self, f.name)
-            if f.name == "faults" or (f.name in MULTI_ONLY and v == f.default):
+            if (
+                f.name == "faults"
+                or (f.name in MULTI_ONLY and v == f.default)
+                or (f.name == "monitor" and v is None)
+            ):
                 continue
             if f.name == "model":
                 if v != DEFAULT_MODEL:

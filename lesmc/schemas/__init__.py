@@ -40,6 +40,7 @@ SCHEMAS = {
     "lesmc-error": "error",
     "lesmc-export": "export",
     "lesmc-import": "import",
+    "lesmc-alarms": "alarms",
 }
 
 

@@ -256,6 +256,9 @@ class Successors:
     payoff: np.ndarray
     det: np.ndarray
     states: Batch
+    #: the NIS yᵀ S⁻¹ y of each outcome's update (NaN: it skips the update); None: the
+    #: design does not report it (the ``nis`` and ``misses`` monitors need it)
+    nis: np.ndarray | None = None
 
 
 class Design(Protocol):

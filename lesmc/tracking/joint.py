@@ -453,6 +453,7 @@ class _Expanded:
     det: np.ndarray
     halted: np.ndarray
     states: JointStates
+    nis: np.ndarray  # the primary's NIS yᵀ S⁻¹ y where it updates, NaN where it skips
 
 
 @dataclass
@@ -573,6 +574,7 @@ class JointDesign:
             np.concatenate([e.payoff for e in parts]),
             np.concatenate([e.det for e in parts]),
             succ,
+            np.concatenate([e.nis for e in parts]),
         )
 
     # -------------------------------------------------------------- one chunk
@@ -591,6 +593,7 @@ class JointDesign:
                 assign[rows, 0].astype(np.int64),
                 halt[rows, 0],
                 states.take(rows),
+                _primary_nis(p, s[rows], assign[rows, 0]),
             )
         # unattacked: option 0, and its own payoff, the cost of the first option that differs
         s, opt, assign, halt, states = self._rows(
@@ -626,6 +629,7 @@ class JointDesign:
             assign[:, 0].astype(np.int64),
             halt[:, 0],
             states,
+            _primary_nis(p, s, assign[:, 0]),
         )
 
     def _prepare(self, js: JointStates, step: int) -> _Prepared:
@@ -881,6 +885,18 @@ class JointDesign:
         kept = np.zeros(len(s), dtype=bool)
         kept[o[head]] = True
         return kept
+
+
+def _primary_nis(p: _Prepared, s: np.ndarray, det: np.ndarray) -> np.ndarray:
+    """The NIS yᵀ S⁻¹ y of the primary's update in each outcome (state ``s``, detection
+    ``det`` of the frame, −1: it skips the update, NaN)."""
+    out = np.full(len(s), np.nan)
+    upd = det >= 0
+    if upd.any():
+        u = p.tu[s[upd], 0]
+        y = p.Z[det[upd]] - p.X[u][:, list(p.pos)]
+        out[upd] = mahalanobis2(y, p.g.S_inv[u])
+    return out
 
 
 def _option_one_differs(p: _Prepared, primary: np.ndarray) -> np.ndarray:

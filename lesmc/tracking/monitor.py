@@ -34,6 +34,9 @@ class TrackPoint:
     tau: float
     alarm: bool
     halted: bool
+    #: the NIS of the update entering this step (None: no update, step 0, or a design that
+    #: does not report it)
+    nis: float | None = None
 
 
 def track(design: Design, end: int | None = None) -> list[TrackPoint]:
@@ -55,11 +58,9 @@ def track(design: Design, end: int | None = None) -> list[TrackPoint]:
         obs = None if det < 0 else scene.frame(frame).detections[det].id
         P = design.covariances[int(b.cov[0])]
         t = float(tau(P, loc))
-        points.append(
-            TrackPoint(
-                k, frame, obs, b.X[0], P, t, bool(alarm(points[-1].tau, t)), bool(b.halted[0])
-            )
-        )
+        nis = None if succ.nis is None or np.isnan(succ.nis[0]) else float(succ.nis[0])
+        fired = bool(alarm(points[-1].tau, t))
+        points.append(TrackPoint(k, frame, obs, b.X[0], P, t, fired, bool(b.halted[0]), nis))
     return points
 
 

@@ -24,6 +24,7 @@ from lesmc.tracking.design import Batch, CovarianceTable, GainRows, Schedule, Su
 from lesmc.tracking.kalman import (
     Matrices,
     initial_mean,
+    mahalanobis2,
     matrices,
     measure,
     positions,
@@ -78,18 +79,12 @@ class SingleDesign:
         m, gains = self.schedule.at(step)
         Xp = self.predict(batch.X, step, m)
         rows = gains.rows(batch.cov)
-        src, rank, payoff, det, X, cov, halted = self._rows(frame, Xp, rows, attacked, m)
+        src, rank, payoff, det, X, cov, halted, nis = self._rows(frame, Xp, rows, attacked, m)
         if src.size > 1 and (np.diff(src) < 0).any():  # by source, then rank
             order = np.lexsort((rank, src))
             src, rank, payoff, det = src[order], rank[order], payoff[order], det[order]
-            X, cov, halted = X[order], cov[order], halted[order]
-        return Successors(
-            src,
-            rank,
-            payoff,
-            det,
-            Batch(X, cov, halted),
-        )
+            X, cov, halted, nis = X[order], cov[order], halted[order], nis[order]
+        return Successors(src, rank, payoff, det, Batch(X, cov, halted), nis)
 
     def _rows(
         self, frame: Frame, Xp: np.ndarray, g: GainRows, attacked: bool, m: Matrices
@@ -121,7 +116,10 @@ class SingleDesign:
         det = np.where(upd, idx[row, np.maximum(col, 0)] if idx.shape[1] else -1, -1)
         cov = np.where(upd, g.post[row], g.pred[row]).astype(np.int64)
         halted = np.where(upd, g.halt_post[row], g.halt_pred[row])
-        return row, rank, payoff, det, X, cov, halted
+        nis = np.full(row.size, np.nan)  # the innovation's NIS yᵀ S⁻¹ y where it updates
+        if ru.size:
+            nis[upd] = mahalanobis2(y[ru, col[upd]], g.S_inv[ru])
+        return row, rank, payoff, det, X, cov, halted, nis
 
 
 #: Candidates asked of the k-d tree at first; rows that fill them all ask again for twice as many.

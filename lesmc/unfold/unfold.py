@@ -135,7 +135,7 @@ class SceneExpander:
         obs_base = int(self._obs_offset[frame - self._first_frame])
         obs = np.where(succ.det >= 0, succ.det + obs_base, -1)
         counts = np.bincount(succ.src, minlength=len(states))
-        return Expansion(counts, dst, succ.payoff, succ.rank, obs)
+        return Expansion(counts, dst, succ.payoff, succ.rank, obs, succ.nis)
 
 
 def scene_tracks(scene: Scene, steps: int) -> Tracks | None:
@@ -315,6 +315,7 @@ def freeze(
         P_table=model.P_table.copy(),
         obs=model.obs[order],
         obs_names=model.obs_names,
+        nis=None if model.nis is None else model.nis[order],
         meta={
             "source": "lesmc build",
             "design": design,
