@@ -84,7 +84,7 @@ def test_the_track_table_names_every_state_component_and_keeps_pixel_precision(
     lines = r.stdout.splitlines()
     head = next(line for line in lines if "step" in line and "frame" in line)
     cols = [c.strip() for c in re.split(r"[┃│]", head) if c.strip()]
-    assert cols == ["step", "frame", "obs", "x", "y", "vx", "vy", "ax", "ay", "τ", "alarm"]
+    assert cols == ["step", "frame", "obs", "x", "y", "vx", "vy", "ax", "ay", "τ", "NIS", "alarm"]
     rows = [
         [c.strip() for c in line.split("│")[1:-1]]
         for line in lines
