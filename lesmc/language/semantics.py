@@ -10,7 +10,7 @@ import math
 from dataclasses import dataclass
 
 from lesmc.common.errors import Location, SpecError, source_line
-from lesmc.language.properties import Measure, Pos, Property, SpecFile, StepRef
+from lesmc.language.properties import IDENTITY, Measure, Pos, Property, SpecFile, StepRef
 
 #: Names that ``monitor uncertainty`` takes as the location block (Eq. 12) by default.
 LOCATION_COMPONENTS = ("x", "y")
@@ -73,9 +73,13 @@ def bind(
     components: tuple[str, ...],
     has_covariance: bool,
     tracks: tuple[str, ...] | None = None,
+    multi: bool = False,
 ) -> BoundProperty:
     """Resolve ``prop`` against a model with steps 0..e and the given components;
-    ``tracks``: the components of the model's ground-truth tracks (None: it has none)."""
+    ``tracks``: the components of the model's ground-truth tracks (None: it has none);
+    ``multi``: a multi-target design's model (the only one with identity measures)."""
+    if not multi:
+        _single_target(spec, prop)
     l, u, end = _window(spec, prop, e)
     monitor_idx, tol = _monitor(spec, prop, components, has_covariance)
     tau_idx = _tau(spec, prop, components, has_covariance, monitor_idx)
@@ -102,6 +106,18 @@ def bind(
         tau_components=tau_idx,
         near_components=near_idx,
     )
+
+
+def _single_target(spec: SpecFile, prop: Property) -> None:
+    """A single-target design follows one track: it has no identities to switch or lose."""
+    for m in (prop.objective, prop.constraint.measure):
+        if m.kind in IDENTITY:
+            raise _fail(
+                spec,
+                f"'{m.kind}' measures a multi-target design's identities: check the scene "
+                "with --design sort (docs/trackers.md)",
+                m.pos,
+            )
 
 
 def _fail(spec: SpecFile, message: str, pos: Pos) -> SpecError:
@@ -150,6 +166,8 @@ def _measure(spec: SpecFile, m: Measure, l: int, u: int, end: int) -> BoundMeasu
         raise _fail(spec, f"empty step range {lo}..{hi}", m.pos)
     if hi > end:
         raise _fail(spec, f"step {hi} is beyond end = {end}", m.pos)
+    if m.kind in IDENTITY:
+        return BoundMeasure(m.kind, "sum", lo, hi, 1.0, m.text())
     if m.kind == "tau":
         if lo < 1:
             raise _fail(spec, "tau.rise starts at step 1 or later", m.pos)
