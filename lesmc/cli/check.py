@@ -127,6 +127,14 @@ def check_cmd(
     from lesmc.pipeline.job import Job
 
     parsed, source, is_scene = _inputs(model, specs, target_text, design, tracker_file)
+    if is_scene and registry.get(design or source.tracker.design).multi:
+        if sweep_texts or faults_file or report_dir or any(s.faults for s in parsed):
+            raise UsageError(
+                "--sweep, --report and faults with a multi-target design: not supported yet "
+                "(issue 58)"
+            )
+        _check_multi(source.priced(payoffs, model), model, parsed, design, only, as_json)
+        return
     parsed, only = _swept(parsed, sweep_texts, only, source.meta if is_scene else None)
     job = Job(
         parsed,
@@ -297,9 +305,24 @@ def _inputs(
     is_scene = isinstance(source, Scene)
     if design is not None and not is_scene:
         raise UsageError("--design applies to scenes, not to .lts models")
-    if isinstance(source, Scene):
+    if isinstance(source, Scene) and not registry.get(design or source.tracker.design).multi:
         refuse_multi(source, model, design)
     return parsed, source, is_scene
+
+
+def _check_multi(
+    source: Any,
+    path: str,
+    parsed: tuple[SpecFile, ...],
+    design: str | None,
+    only: tuple[str, ...],
+    as_json: bool,
+) -> None:
+    """A multi-target design: lesmc/cli/multi_check.py."""
+    from lesmc.cli.multi_check import check_multi_scene
+
+    sc = source if design is None else source.with_tracker(design=design)
+    check_multi_scene(sc, path, parsed, only, as_json)
 
 
 def _refuse_mismatched(

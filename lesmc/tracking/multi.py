@@ -30,6 +30,7 @@ from lesmc.tracking.parts.hypothesiser import IouHypothesiser
 from lesmc.tracking.parts.initiator import MinHitsInitiator
 from lesmc.tracking.parts.tracks import Tracks
 
+
 @dataclass(frozen=True)
 class MultiState:
     """A multi-target tracker between frames: its tracks, the next id, the frames seen."""
