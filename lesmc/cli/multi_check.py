@@ -46,6 +46,15 @@ def check_multi_scene(
 ) -> None:
     """Check every property (or those named in ``only``) of ``specs`` on the multi-target
     design of ``scene``; print the results; exit 0 (all hold) or 1 (some violated)."""
+    out = multi_results(scene, path, specs, only)
+    _print(out, scene.tracker.design, as_json)
+    sys.exit(0 if all(r["verdict"] == "holds" for r in out) else 1)
+
+
+def multi_results(
+    scene: Scene, path: str, specs: tuple[SpecFile, ...], only: tuple[str, ...] = ()
+) -> list[dict[str, Any]]:
+    """Each property's result (:func:`_entry`) on the multi-target design of ``scene``."""
     from lesmc.engines.multi import check_multi
     from lesmc.language.semantics import bind
     from lesmc.tracking.multi import SortDesign
@@ -70,8 +79,7 @@ def check_multi_scene(
         model = models[key]
         res = check_multi(model, b)
         out.append(_entry(prop, b.objective.source, model, res))
-    _print(out, scene.tracker.design, as_json)
-    sys.exit(0 if all(r["verdict"] == "holds" for r in out) else 1)
+    return out
 
 
 def _priced(scene: Scene, l: int, u: int) -> None:
