@@ -127,14 +127,7 @@ def check_cmd(
     from lesmc.pipeline.job import Job
 
     parsed, source, is_scene = _inputs(model, specs, target_text, design, tracker_file)
-    if is_scene and registry.get(design or source.tracker.design).multi:
-        if sweep_texts or faults_file or report_dir or any(s.faults for s in parsed):
-            raise UsageError(
-                "--sweep, --report and faults with a multi-target design: not supported yet "
-                "(issue 58)"
-            )
-        _check_multi(source.priced(payoffs, model), model, parsed, design, only, as_json)
-        return
+    _check_multi(source, parsed, is_scene)  # a multi-target design: checked there (exits)
     parsed, only = _swept(parsed, sweep_texts, only, source.meta if is_scene else None)
     job = Job(
         parsed,
@@ -310,19 +303,23 @@ def _inputs(
     return parsed, source, is_scene
 
 
-def _check_multi(
-    source: Any,
-    path: str,
-    parsed: tuple[SpecFile, ...],
-    design: str | None,
-    only: tuple[str, ...],
-    as_json: bool,
-) -> None:
-    """A multi-target design: lesmc/cli/multi_check.py."""
+def _check_multi(source: Any, parsed: tuple[SpecFile, ...], is_scene: bool) -> None:
+    """A scene of a multi-target design (``--design`` or the scene's): checked by
+    lesmc/cli/multi_check.py with the command's options, which exits; sweeps, faults and
+    a report are not supported for it yet. Nothing happens otherwise."""
+    p = click.get_current_context().params
+    design = p["design"]
+    if not is_scene or not registry.get(design or source.tracker.design).multi:
+        return
+    if p["sweep_texts"] or p["faults_file"] or p["report_dir"] or any(s.faults for s in parsed):
+        raise UsageError(
+            "--sweep, --report and faults with a multi-target design: not supported yet (issue 58)"
+        )
     from lesmc.cli.multi_check import check_multi_scene
 
     sc = source if design is None else source.with_tracker(design=design)
-    check_multi_scene(sc, path, parsed, only, as_json)
+    path = p["model"]
+    check_multi_scene(sc.priced(p["payoffs"], path), path, parsed, p["only"], p["as_json"])
 
 
 def _refuse_mismatched(
