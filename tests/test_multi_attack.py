@@ -111,22 +111,21 @@ def _score(out: list[dict[int, np.ndarray]], refs: list[Any], lo: int, hi: int) 
     return switches, lost
 
 
-def _brute(
-    frames: list[np.ndarray], pay: list[np.ndarray], l: int, u: int
-) -> list[tuple[float, int, int, int]]:
-    """(payoff, frames attacked, switches(0..end), lost(0..end)) of every way to hide
-    subsets of the detections of steps l..u, the reference SORT run on what is left
-    (prefixes shared by copying its tracker)."""
+Leaf = tuple[float, int, int, list[dict[int, np.ndarray]]]
+
+
+def _brute(frames: list[np.ndarray], pay: list[np.ndarray], l: int, u: int) -> list[Leaf]:
+    """(payoff, frames attacked, detections hidden, the reference SORT's output) of every
+    way to hide subsets of the detections of steps l..u, the reference SORT run on what
+    is left (prefixes shared by copying its tracker)."""
     sort = importlib.import_module("sort_tracker.sort")
-    refs = _reference_boxes(frames)
     end = len(frames) - 1
     sort.KalmanBoxTracker.count = 0
-    results = []
+    results: list[Leaf] = []
 
-    def run(tracker: Any, k: int, hist: list[dict[int, np.ndarray]], cost: float, n: int) -> None:
+    def run(tracker: Any, k: int, hist: list[Any], cost: float, n: int, h: int) -> None:
         if k > end:
-            sw, lo = _score(hist, refs, 0, end)
-            results.append((cost, n, sw, lo))
+            results.append((cost, n, h, hist))
             return
         boxes = frames[k]
         subsets: list[tuple[int, ...]] = [()]
@@ -141,9 +140,9 @@ def _brute(
                 res = t.update(dets)
             got = {int(r[-1]): np.asarray(r[:4], dtype=float) for r in res}
             c = cost + math.fsum(pay[k][list(sub)]) if sub else cost
-            run(t, k + 1, [*hist, got], c, n + bool(sub))
+            run(t, k + 1, [*hist, got], c, n + bool(sub), h + len(sub))
 
-    run(sort.Sort(max_age=1, min_hits=3, iou_threshold=0.3), 0, [], 0.0, 0)
+    run(sort.Sort(max_age=1, min_hits=3, iou_threshold=0.3), 0, [], 0.0, 0, 0)
     return results
 
 
@@ -156,7 +155,20 @@ property lost_payoff {{ attack window {l}..{u} minimize payoff
   subject to lost(0..end) > 0 holds if optimum > 1000 }}
 property lost_frames {{ attack window {l}..{u} minimize count.frames
   subject to lost(0..end) > 0 holds if optimum > 1000 }}
+property sw_count {{ attack window {l}..{u} minimize count
+  subject to switches({a}..end) >= {c} holds if optimum > 1000 }}
+property lost_range {{ attack window {l}..{u} minimize payoff
+  subject to lost({a}..{b}) >= {c} holds if optimum > 1000 }}
 """
+
+#: each property: the cost (0 payoff, 1 frames, 2 detections hidden), the measure (0
+#: switches, 1 lost), its range (None: end) and its least value
+PROPS = {
+    "sw_payoff": (0, 0, 0, None, 1),
+    "sw_frames": (1, 0, 0, None, 1),
+    "lost_payoff": (0, 1, 0, None, 1),
+    "lost_frames": (1, 1, 0, None, 1),
+}
 
 
 def _case(seed: int) -> tuple[list[np.ndarray], list[np.ndarray], int, int]:
@@ -167,6 +179,14 @@ def _case(seed: int) -> tuple[list[np.ndarray], list[np.ndarray], int, int]:
     l = max(1, u - int(rng.integers(0, 3)))
     pay = [rng.integers(1, 10, len(f)).astype(float) for f in frames]
     return frames, pay, l, u
+
+
+def _ranges(seed: int, end: int) -> dict[str, tuple[int, int, int, int | None, int]]:
+    """The case's two properties over random ranges and least values."""
+    rng = np.random.default_rng(seed)
+    a, b = sorted(int(x) for x in rng.integers(0, end + 1, 2))
+    c = int(rng.integers(1, 3))
+    return {"sw_count": (2, 0, a, None, c), "lost_range": (0, 1, a, b, c)}
 
 
 def _hide(frames: list[np.ndarray], steps: list[dict[str, Any]]) -> list[np.ndarray]:
@@ -180,19 +200,20 @@ def _hide(frames: list[np.ndarray], steps: list[dict[str, Any]]) -> list[np.ndar
 @pytest.mark.parametrize("seed", range(SCENES))
 def test_optima_equal_brute_force_on_reference_sort(seed: int) -> None:
     frames, pay, l, u = _case(seed)
+    end = len(frames) - 1
+    props = {**PROPS, **_ranges(seed, end)}
+    a, b, c = props["lost_range"][2], props["lost_range"][3], props["lost_range"][4]
     scene = scene_from_dict(_doc(frames, pay))
-    spec = parse_spec(SPEC.format(l=l, u=u), "p.spec")
+    spec = parse_spec(SPEC.format(l=l, u=u, a=a, b=b, c=c), "p.spec")
     got = {r["property"]: r for r in multi_results(scene, "s.json", (spec,))}
     runs = _brute(frames, pay, l, u)
     refs = _reference_boxes(frames)
-    end = len(frames) - 1
-    for name, cost_of, which in (
-        ("sw_payoff", 0, 2),
-        ("sw_frames", 1, 2),
-        ("lost_payoff", 0, 3),
-        ("lost_frames", 1, 3),
-    ):
-        want = min((r[cost_of] for r in runs if r[which] > 0), default=math.inf)
+    for name, (cost_of, which, lo, hi, least) in props.items():
+        top = end if hi is None else hi
+        want = min(
+            (r[cost_of] for r in runs if _score(r[3], refs, lo, top)[which] >= least),
+            default=math.inf,
+        )
         res = got[name]
         opt = math.inf if res["optimum"] is None else res["optimum"]
         assert opt == want, (seed, name, opt, want)
@@ -200,14 +221,15 @@ def test_optima_equal_brute_force_on_reference_sort(seed: int) -> None:
             continue
         steps = res["counterexample"]
         assert all(l <= s["step"] <= u for s in steps if s["hidden"])
-        cost = (
-            sum(pay[s["step"]][int(h.split(":")[1])] for s in steps for h in s["hidden"])
-            if cost_of == 0
-            else sum(bool(s["hidden"]) for s in steps)
+        hidden = [(s["step"], int(h.split(":")[1])) for s in steps for h in s["hidden"]]
+        costs = (
+            sum(pay[k][j] for k, j in hidden),
+            sum(bool(s["hidden"]) for s in steps),
+            len(hidden),
         )
-        assert cost == want, (seed, name)
+        assert costs[cost_of] == want, (seed, name)
         out = sort_reference.reference_sort(_hide(frames, steps))
-        assert _score(out, refs, 0, end)[which - 2] > 0, (seed, name)
+        assert _score(out, refs, lo, top)[which] >= least, (seed, name)
 
 
 def _scene_file(tmp_path: Path, seed: int = 3) -> tuple[Path, list[np.ndarray], int, int]:
@@ -233,7 +255,8 @@ def test_cli_check_sort_lists_hidden_detections(tmp_path: Path) -> None:
     res = doc["results"][0]
     assert r.returncode == (0 if res["verdict"] == "holds" else 1)
     runs = _brute(frames, pay, 2, 4)
-    want = min((x[1] for x in runs if x[2] > 0), default=math.inf)
+    refs = _reference_boxes(frames)
+    want = min((x[1] for x in runs if _score(x[3], refs, 0, 4)[0] > 0), default=math.inf)
     assert (math.inf if res["optimum"] is None else res["optimum"]) == want
     if res["counterexample"] is not None:
         assert all("hidden" in s for s in res["counterexample"])

@@ -84,7 +84,8 @@ if TYPE_CHECKING:
     default=None,
     help="For a scene: check it with this design (lesmc/designs/registry.py) instead of "
     "the tracker it names; a monitored design filters every property by the runtime "
-    "monitor (Eq. 12-13).",
+    "monitor (Eq. 12-13); a multi-target design (sort) checks switches and lost "
+    "properties (docs/trackers.md).",
 )
 @tracker_option
 @scene_target
@@ -319,7 +320,8 @@ def _check_multi(source: Any, parsed: tuple[SpecFile, ...], is_scene: bool) -> N
 
     sc = source if design is None else source.with_tracker(design=design)
     path = p["model"]
-    check_multi_scene(sc.priced(p["payoffs"], path), path, parsed, p["only"], p["as_json"])
+    sc = sc.priced(p["payoffs"], path)
+    check_multi_scene(sc, path, parsed, p["only"], p["as_json"], p["max_states"])
 
 
 def _refuse_mismatched(

@@ -42,17 +42,26 @@ def _supported(spec: SpecFile, prop: Property) -> None:
 
 
 def check_multi_scene(
-    scene: Scene, path: str, specs: tuple[SpecFile, ...], only: tuple[str, ...], as_json: bool
+    scene: Scene,
+    path: str,
+    specs: tuple[SpecFile, ...],
+    only: tuple[str, ...],
+    as_json: bool,
+    max_states: int | None = None,
 ) -> None:
     """Check every property (or those named in ``only``) of ``specs`` on the multi-target
     design of ``scene``; print the results; exit 0 (all hold) or 1 (some violated)."""
-    out = multi_results(scene, path, specs, only)
+    out = multi_results(scene, path, specs, only, max_states)
     _print(out, scene.tracker.design, as_json)
     sys.exit(0 if all(r["verdict"] == "holds" for r in out) else 1)
 
 
 def multi_results(
-    scene: Scene, path: str, specs: tuple[SpecFile, ...], only: tuple[str, ...] = ()
+    scene: Scene,
+    path: str,
+    specs: tuple[SpecFile, ...],
+    only: tuple[str, ...] = (),
+    max_states: int | None = None,
 ) -> list[dict[str, Any]]:
     """Each property's result (:func:`_entry`) on the multi-target design of ``scene``."""
     from lesmc.engines.multi import check_multi
@@ -75,7 +84,7 @@ def multi_results(
             _priced(scene, b.l, b.u)
         key = (b.l, b.u, b.end)
         if key not in models:
-            models[key] = build_multi(scene, design, (b.l, b.u), b.end)
+            models[key] = build_multi(scene, design, (b.l, b.u), b.end, max_states)
         model = models[key]
         res = check_multi(model, b)
         out.append(_entry(prop, b.objective.source, model, res))

@@ -19,7 +19,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from lesmc.common.errors import UsageError
+from lesmc.common.errors import BudgetError, UsageError
 from lesmc.model.identity import NONE, last_seen
 from lesmc.model.multi import MultiModel
 from lesmc.scene import Frame, Scene
@@ -39,9 +39,16 @@ def hidden_subsets(frame: Frame, attacked: bool) -> Iterator[tuple[int, ...]]:
         yield from itertools.combinations(can, r)
 
 
-def build_multi(scene: Scene, design: SortDesign, window: tuple[int, int], end: int) -> MultiModel:
+def build_multi(
+    scene: Scene,
+    design: SortDesign,
+    window: tuple[int, int],
+    end: int,
+    max_states: int | None = None,
+) -> MultiModel:
     """The model of ``scene`` under ``design`` for attacks at steps ``window`` (l..u),
-    up to step ``end``."""
+    up to step ``end``. ``max_states`` bounds the successors computed (before merging):
+    a BudgetError (exit status 3) before a step that would pass it."""
     frames = scene.frames
     if not 1 <= window[0] <= window[1] <= end <= len(frames) - 1:
         raise UsageError(
@@ -49,6 +56,12 @@ def build_multi(scene: Scene, design: SortDesign, window: tuple[int, int], end: 
             f"<= {len(frames) - 1} (the scene's last step)"
         )
     refs = reference_boxes(scene, [s.tracks for s in design.run(end)])
+    if all(r is None for r in refs):
+        raise UsageError(
+            f"the target ({scene.target.start[0]:g}, {scene.target.start[1]:g} at frame "
+            f"{scene.target.step}) has no reference track: no detection box of its frame "
+            "holds its start, or its track is never output; switches and lost need one"
+        )
     tracker, table = design.tracker, CovarianceTable()
     s0, ft0 = tracker.step(tracker.initial(), frames[0].boxes())
     tid0 = NONE if refs[0] is None else target_of(ft0, refs[0])
@@ -59,6 +72,11 @@ def build_multi(scene: Scene, design: SortDesign, window: tuple[int, int], end: 
         f = frames[k]
         boxes, pay = f.boxes(), np.array([d.payoff for d in f.detections], dtype=float)
         subsets = list(hidden_subsets(f, window[0] <= k <= window[1]))
+        if max_states is not None and st.n + len(level) * len(subsets) > max_states:
+            raise BudgetError(
+                f"--max-states {max_states}: step {k} would compute {len(level) * len(subsets)} "
+                f"successors of {len(level)} states ({st.n} so far); shorten the attack window"
+            )
         base = st.n - len(level)
         made: list[tuple[int, MultiState, int, int, tuple[int, ...]]] = []
         ref = refs[k]
