@@ -299,3 +299,49 @@ def test_build_and_export_still_refuse_sort(tmp_path: Path) -> None:
         r = lesmc(verb, str(path), "--design", "sort", "--window", "1..2", *fmt, "-o", out)
         assert r.returncode == 2 and "not supported yet" in r.stderr, r.stderr
         assert "Traceback" not in r.stderr and not Path(out).exists()
+
+
+def _spec(tmp_path: Path, objective: str, window: str = "1..2") -> Path:
+    spec = tmp_path / "p.spec"
+    spec.write_text(
+        f"property p {{\n  attack window {window} minimize {objective}\n"
+        "  subject to switches(0..end) > 0 holds if optimum > 1 }\n"
+    )
+    return spec
+
+
+def test_unpriced_payoffs_count_frames_but_not_payoff(tmp_path: Path) -> None:
+    path, frames, _, _ = _scene_file(tmp_path, seed=1)
+    doc = json.loads(path.read_text())
+    for f in doc["frames"]:
+        for d in f["detections"]:
+            d["payoff"] = "unpriced"
+    path.write_text(json.dumps(doc))
+    r = lesmc("check", str(path), str(_spec(tmp_path, "payoff")), "--design", "sort")
+    assert r.returncode == 2 and "unpriced" in r.stderr and "Traceback" not in r.stderr
+    r = lesmc("check", str(path), str(_spec(tmp_path, "count.frames")), "--design", "sort")
+    assert r.returncode in (0, 1) and "Traceback" not in r.stderr, r.stderr
+    runs = _brute(frames, [np.ones(len(f)) for f in frames], 1, 2)
+    refs = _reference_boxes(frames)
+    end = len(frames) - 1
+    want = min((x[1] for x in runs if _score(x[3], refs, 0, end)[0] > 0), default=math.inf)
+    assert (f"optimum {want:g}" if want < math.inf else "optimum inf") in r.stdout, r.stdout
+
+
+def test_a_target_without_a_reference_track_is_an_error(tmp_path: Path) -> None:
+    path, *_ = _scene_file(tmp_path)
+    doc = json.loads(path.read_text())
+    doc["target"]["start"] = [-500.0, -500.0]  # in no box of frame 0
+    path.write_text(json.dumps(doc))
+    r = lesmc("check", str(path), str(_spec(tmp_path, "payoff")), "--design", "sort")
+    assert r.returncode == 2 and "no reference track" in r.stderr, r.stderr
+    assert "Traceback" not in r.stderr
+
+
+def test_max_states_stops_the_unfolding_with_exit_3(tmp_path: Path) -> None:
+    frames = _frames(np.random.default_rng(1), 5)
+    path = tmp_path / "scene.json"
+    path.write_text(json.dumps(_doc(frames, [np.ones(len(f)) for f in frames])))
+    spec = _spec(tmp_path, "payoff", "2..4")
+    r = lesmc("check", str(path), str(spec), "--design", "sort", "--max-states", "20")
+    assert r.returncode == 3 and "--max-states 20" in r.stderr and "Traceback" not in r.stderr
