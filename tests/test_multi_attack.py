@@ -336,6 +336,10 @@ def test_a_target_without_a_reference_track_is_an_error(tmp_path: Path) -> None:
     r = lesmc("check", str(path), str(_spec(tmp_path, "payoff")), "--design", "sort")
     assert r.returncode == 2 and "no reference track" in r.stderr, r.stderr
     assert "Traceback" not in r.stderr
+    spec = str(_spec(tmp_path, "payoff"))
+    r = lesmc("check", str(path), spec, "--design", "sort", "--payoffs", "interval")
+    assert r.returncode == 2 and "not supported yet" in r.stderr, r.stderr
+    assert "Traceback" not in r.stderr
 
 
 def test_max_states_stops_the_unfolding_with_exit_3(tmp_path: Path) -> None:

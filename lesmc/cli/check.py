@@ -316,6 +316,8 @@ def _check_multi(source: Any, parsed: tuple[SpecFile, ...], is_scene: bool) -> N
         raise UsageError(
             "--sweep, --report and faults with a multi-target design: not supported yet (issue 58)"
         )
+    if p["payoffs"] == "interval":
+        raise UsageError("--payoffs interval with a multi-target design: not supported yet")
     from lesmc.cli.multi_check import check_multi_scene
 
     sc = source if design is None else source.with_tracker(design=design)
