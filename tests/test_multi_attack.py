@@ -349,3 +349,20 @@ def test_max_states_stops_the_unfolding_with_exit_3(tmp_path: Path) -> None:
     spec = _spec(tmp_path, "payoff", "2..4")
     r = lesmc("check", str(path), str(spec), "--design", "sort", "--max-states", "20")
     assert r.returncode == 3 and "--max-states 20" in r.stderr and "Traceback" not in r.stderr
+
+
+def test_target_track_rule() -> None:
+    """The confirmed track of largest IoU >= 0.5, the lower id of equals; none otherwise."""
+    from lesmc.model.identity import NONE, indicators, target_track
+
+    ids = np.array([7, 3, 9, 4])
+    confirmed = np.array([True, True, True, False])
+    assert target_track(np.array([0.8, 0.8, 0.6, 0.9]), ids, confirmed) == 3
+    assert target_track(np.array([0.5, 0.2, 0.49, 0.9]), ids, confirmed) == 7
+    assert target_track(np.array([0.4, 0.2, 0.49, 0.9]), ids, confirmed) == NONE
+    # switches: a new id after an earlier one; lost: the reference without a track
+    last = np.array([NONE, 3, 3, 3])
+    tid = np.array([3, 3, 5, NONE])
+    ref = np.array([True, True, True, True])
+    assert indicators("switches", last, tid, ref).tolist() == [0, 0, 1, 0]
+    assert indicators("lost", last, tid, ref).tolist() == [0, 0, 0, 1]
