@@ -611,10 +611,10 @@ def test_cli_check_locates_a_quantile_outside_its_domain(tmp_path: Path) -> None
 @pytest.mark.parametrize("name", ["rq2_stop", "rq4_merge", "rq1_platoon"])
 def test_track_reports_the_nis_of_each_update(name: str) -> None:
     """``lesmc track``'s NIS: νᵀS⁻¹ν recomputed from the previous point's estimate and P."""
-    from lesmc.tracking.trackers import make_tracker
     from lesmc.scene import load_scene
     from lesmc.tracking.kalman import matrices
     from lesmc.tracking.monitor import track
+    from lesmc.tracking.trackers import make_tracker
 
     scene = load_scene(Path(__file__).parent / "scenes" / f"{name}.json")
     points = track(make_tracker(scene))

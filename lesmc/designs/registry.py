@@ -38,8 +38,9 @@ class Design:
     cost: float = (
         1.0  #: relative cost of unfolding with the tracker (campaigns start costly work first)
     )
-    #: a multi-target tracker (lesmc/tracking/multi.py): ``lesmc track`` runs it; no model
-    #: of it is built yet, so it is not among the designs ``all`` names
+    #: a multi-target tracker (lesmc/tracking/multi.py): ``lesmc track`` runs it, ``lesmc
+    #: check`` checks identity properties on it (lesmc/cli/multi_check.py); it is not among
+    #: the designs ``all`` names
     multi: bool = False
 
 
@@ -80,9 +81,9 @@ def multi_tracker(name: str, impl: str, label: str, summary: str) -> Design:
 def not_yet(name: str) -> str:
     """What a verb that builds a model says of multi-target design ``name``."""
     return (
-        f"design '{name}' is a multi-target tracker: `lesmc track` runs it, but building, "
-        "checking, exporting and verifying a multi-target design is not supported yet "
-        "(issue 58)"
+        f"design '{name}' is a multi-target tracker: `lesmc track` runs it and `lesmc check` "
+        "checks its switches and lost properties on a scene, but building, exporting and "
+        "verifying a multi-target design is not supported yet (issue 58)"
     )
 
 
@@ -168,7 +169,7 @@ multi_tracker(
     "lesmc.tracking.multi:SortDesign",
     "SORT",
     "SORT (Bewley et al. 2016): box Kalman filters, IoU assignment, min_hits, max_age; "
-    "multi-target, `lesmc track` only so far",
+    "multi-target: `lesmc track`, and `lesmc check` of switches and lost",
 )
 SETS["paper"] = ("single", "joint", "improved")
 SETS["both"] = ("single", "improved")

@@ -477,6 +477,8 @@ class _Builder:
         lo, hi = self.step(ch[1]), self.step(ch[2])
         if lo is not None and hi is not None and lo > hi:
             raise self.error(f"empty step range {lo}..{hi}", pos)
+        if node.data == "identity_range":
+            return Measure(str(ch[0]), "sum", lo, hi, pos=pos)  # type: ignore[arg-type]
         kind = "tau" if node.data == "tau_range" else "dist"
         if kind == "tau" and lo == 0:
             raise self.error(

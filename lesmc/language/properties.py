@@ -17,7 +17,9 @@ StepRef = int | None
 #: Relative rise of τ the runtime monitor ignores by default: it only absorbs rounding.
 DEFAULT_MONITOR_TOLERANCE = 1e-9
 
-MeasureKind = Literal["payoff", "count", "dist", "tau"]
+MeasureKind = Literal["payoff", "count", "dist", "tau", "switches", "lost"]
+#: The identity measures of multi-target designs (docs/trackers.md): sums over a step range.
+IDENTITY = ("switches", "lost")
 Aggregate = Literal["sum", "mean", "max", "at", "frames", "rise", "nearest"]
 Comparison = Literal[">", ">=", "<", "<="]
 
@@ -57,6 +59,8 @@ class Measure:
             return self.kind if self.aggregate == "sum" else f"{self.kind}.{self.aggregate}"
         if self.aggregate in ("at", "nearest"):
             return f"dist.{self.aggregate}({_step_text(self.lo)})"
+        if self.kind in IDENTITY:
+            return f"{self.kind}({_step_text(self.lo)}..{_step_text(self.hi)})"
         return f"{self.kind}.{self.aggregate}({_step_text(self.lo)}..{_step_text(self.hi)})"
 
 

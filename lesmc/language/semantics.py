@@ -11,7 +11,7 @@ from dataclasses import dataclass
 
 from lesmc.common.errors import Location, SpecError, source_line
 from lesmc.language import monitors
-from lesmc.language.properties import Measure, Pos, Property, SpecFile, StepRef
+from lesmc.language.properties import IDENTITY, Measure, Pos, Property, SpecFile, StepRef
 
 #: Names that ``monitor uncertainty`` takes as the location block (Eq. 12) by default.
 LOCATION_COMPONENTS = ("x", "y")
@@ -85,11 +85,15 @@ def bind(
     has_covariance: bool,
     tracks: tuple[str, ...] | None = None,
     has_nis: bool = True,
+    multi: bool = False,
 ) -> BoundProperty:
     """Resolve ``prop`` against a model with steps 0..e and the given components;
     ``tracks``: the components of the model's ground-truth tracks (None: it has none);
     ``has_nis``: the model carries the NIS of its transitions' updates (a monitor that
-    reads them is refused otherwise)."""
+    reads them is refused otherwise); ``multi``: a multi-target design's model (the only
+    one with identity measures)."""
+    if not multi:
+        _single_target(spec, prop)
     l, u, end = _window(spec, prop, e)
     monitor_idx, tol = _monitor(spec, prop, components, has_covariance, has_nis)
     tau_idx = _tau(spec, prop, components, has_covariance, monitor_idx)
@@ -118,6 +122,18 @@ def bind(
         monitor_kind="tau_rise" if prop.monitor is None else prop.monitor.kind,
         monitor_window=1 if prop.monitor is None else prop.monitor.window,
     )
+
+
+def _single_target(spec: SpecFile, prop: Property) -> None:
+    """A single-target design follows one track: it has no identities to switch or lose."""
+    for m in (prop.objective, prop.constraint.measure):
+        if m.kind in IDENTITY:
+            raise _fail(
+                spec,
+                f"'{m.kind}' measures a multi-target design's identities: check the scene "
+                "with --design sort (docs/trackers.md)",
+                m.pos,
+            )
 
 
 def _fail(spec: SpecFile, message: str, pos: Pos) -> SpecError:
@@ -166,6 +182,8 @@ def _measure(spec: SpecFile, m: Measure, l: int, u: int, end: int) -> BoundMeasu
         raise _fail(spec, f"empty step range {lo}..{hi}", m.pos)
     if hi > end:
         raise _fail(spec, f"step {hi} is beyond end = {end}", m.pos)
+    if m.kind in IDENTITY:
+        return BoundMeasure(m.kind, "sum", lo, hi, 1.0, m.text())
     if m.kind == "tau":
         if lo < 1:
             raise _fail(spec, "tau.rise starts at step 1 or later", m.pos)

@@ -1,5 +1,5 @@
-"""Identity measures of multi-target designs, as per-transition contributions (designed,
-not yet in the language: docs/trackers.md, "The multi-target model").
+"""Identity measures of multi-target designs, as per-transition contributions
+(docs/trackers.md, "The multi-target model"; the kernel sums them over a step range).
 
 ``switches(a..b)``: the number of steps k in a..b at which the target's track exists and
 its id differs from its id at the last earlier step (from step 0) at which it existed.
@@ -10,6 +10,13 @@ step k from a state with ``last`` to one whose target's track id is ``tid`` (−
 adds 1 when k is in a..b, ``tid`` ≥ 0, ``last`` ≥ 0 and ``tid`` ≠ ``last``; the entered
 state's ``last`` is ``tid`` if ≥ 0, else ``last``. ``last`` is part of the state (two
 states that differ only in it do not merge), so the sum is exact on a merged model.
+
+``lost(a..b)``: the steps k in a..b at which the target's reference exists and no output
+track matches it: the transition entering k adds 1 when the entered state has the
+reference (``ref``) and no target's track.
+
+The target's track of a state (:func:`target_track`): the output (confirmed) track of
+largest IoU ≥ :data:`TARGET_IOU` with the reference box, the lower id of equals.
 """
 
 from __future__ import annotations
@@ -21,14 +28,41 @@ import numpy as np
 NONE = -1
 """A step without the target's track (and a state that never saw it)."""
 
+#: The IoU an output track needs with the target's reference box to be the target's track.
+TARGET_IOU = 0.5
+
+
+def target_track(score: np.ndarray, ids: np.ndarray, confirmed: np.ndarray) -> int:
+    """The target's track id among tracks ``ids`` (n,) whose IoU with the reference box is
+    ``score`` (n,): the confirmed one of largest IoU ≥ :data:`TARGET_IOU`, the lower id of
+    equals; :data:`NONE` when none qualifies."""
+    ok = confirmed & (score >= TARGET_IOU)
+    if not ok.any():
+        return NONE
+    best = ok & (score == score[ok].max())
+    return int(ids[best].min())
+
+
+def indicators(
+    source: str, last_src: np.ndarray, tid_dst: np.ndarray, ref_dst: np.ndarray
+) -> np.ndarray:
+    """Each transition's 0/1 of identity measure ``source`` (``switches`` or ``lost``) at
+    the step it enters (the kernel keeps those inside the measure's range)."""
+    if source == "switches":
+        hit = (tid_dst != NONE) & (last_src != NONE) & (tid_dst != last_src)
+    else:
+        hit = ref_dst & (tid_dst == NONE)
+    out: np.ndarray = hit.astype(float)
+    return out
+
 
 def switch_contributions(
     k: np.ndarray, lo: int, hi: int, last_src: np.ndarray, tid_dst: np.ndarray
 ) -> np.ndarray:
     """Each transition's contribution to ``switches(lo..hi)``: it enters step ``k`` from a
     state with ``last_src`` to one whose target's track id is ``tid_dst``."""
-    switched = (tid_dst != NONE) & (last_src != NONE) & (tid_dst != last_src)
-    return np.where((k >= lo) & (k <= hi) & switched, 1.0, 0.0)
+    switched = indicators("switches", last_src, tid_dst, np.zeros(len(tid_dst), dtype=bool))
+    return np.where((k >= lo) & (k <= hi), switched, 0.0)
 
 
 def last_seen(last_src: np.ndarray, tid_dst: np.ndarray) -> np.ndarray:

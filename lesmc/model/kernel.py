@@ -30,7 +30,7 @@ import numpy as np
 from numpy.typing import ArrayLike
 
 from lesmc.language import monitors
-from lesmc.language.properties import DEFAULT_MONITOR_TOLERANCE
+from lesmc.language.properties import DEFAULT_MONITOR_TOLERANCE, IDENTITY
 from lesmc.language.semantics import BoundMeasure
 
 #: Comparison operators of the language, on scalars and arrays alike.
@@ -154,6 +154,7 @@ def contributions(
     counted: np.ndarray | None = None,
     rise: np.ndarray | None = None,
     near_dst: np.ndarray | None = None,
+    identity: np.ndarray | None = None,
 ) -> np.ndarray:
     """Each transition's contribution to measure ``m``: it enters step ``k``.
 
@@ -165,9 +166,14 @@ def contributions(
     attacked step (a transition of rank > 0: its count is positive), ∞ where the
     count is. ``tau`` (``tau.rise``, aggregated by max) adds each transition's
     :func:`tau_rise` (``rise``); ``near`` (``dist.nearest``) the entered state's
-    :func:`nearest` deviation (``near_dst``).
+    :func:`nearest` deviation (``near_dst``). ``switches`` and ``lost`` (multi-target
+    designs) add the transition's identity indicator (``identity``:
+    lesmc/model/identity.py ``indicators``).
     """
     inside = (k >= m.lo) & (k <= m.hi)
+    if m.source in IDENTITY:
+        assert identity is not None
+        return np.where(inside, identity, 0.0)
     if m.source == "near":
         assert near_dst is not None
         return np.where(inside, near_dst, 0.0)

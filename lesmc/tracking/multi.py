@@ -20,6 +20,7 @@ from typing import Protocol
 import numpy as np
 
 from lesmc.common.errors import InputError, UsageError
+from lesmc.model.identity import NONE, target_track
 from lesmc.scene import Footage, Frame, Scene
 from lesmc.tracking.parts.associator import GlobalAssociator
 from lesmc.tracking.parts.box_filter import BoxFilter
@@ -28,9 +29,6 @@ from lesmc.tracking.parts.deleter import MaxAgeDeleter
 from lesmc.tracking.parts.hypothesiser import IouHypothesiser
 from lesmc.tracking.parts.initiator import MinHitsInitiator
 from lesmc.tracking.parts.tracks import Tracks
-
-#: The IoU a confirmed track needs with the target's reference box to be the target's track.
-TARGET_IOU = 0.5
 
 
 @dataclass(frozen=True)
@@ -184,15 +182,25 @@ class SortDesign:
 
 
 def target_ids(scene: Scene | Footage, steps: list[FrameTracks]) -> list[int | None]:
-    """The target's track id at each step (None: none).
+    """The target's track id at each step (None: none): :func:`reference_boxes`, then
+    :func:`target_of` at each step where the reference exists."""
+    refs = reference_boxes(scene, steps)
+    out: list[int | None] = []
+    for ft, box in zip(steps, refs, strict=True):
+        tid = NONE if box is None else target_of(ft, box)
+        out.append(None if tid == NONE else tid)
+    return out
 
-    The target's reference is its unattacked track: the track that took, at the target's
+
+def reference_boxes(scene: Scene | Footage, steps: list[FrameTracks]) -> list[np.ndarray | None]:
+    """The target's reference box at each step of the unattacked run ``steps`` (None: it
+    does not exist there).
+
+    The reference is the target's unattacked track: the track that took, at the target's
     frame, the detection whose box holds the target's start (the nearest such centre, the
-    first of equals). At each step the target's track is the confirmed track whose box
-    has the largest IoU (at least :data:`TARGET_IOU`) with the reference's box, the lower
-    id of equals; none where the reference does not exist.
+    first of equals). It exists at the steps where the tracker outputs it (confirmed).
     """
-    none: list[int | None] = [None] * len(steps)
+    none: list[np.ndarray | None] = [None] * len(steps)
     if not isinstance(scene, Scene):
         return none
     k0 = scene.target.step - scene.frames[0].step
@@ -211,13 +219,15 @@ def target_ids(scene: Scene | Footage, steps: list[FrameTracks]) -> list[int | N
     ref = int(steps[k0].ids[took[0]])
     out = list(none)
     for k, ft in enumerate(steps):
-        mine = np.nonzero(ft.ids == ref)[0]
-        if not mine.size or not ft.confirmed.any():
-            continue
-        score = iou(ft.boxes[mine], ft.boxes)[0]
-        score = np.where(ft.confirmed & (score >= TARGET_IOU), score, -1.0)
-        if score.max() < 0:
-            continue
-        best = np.nonzero(score == score.max())[0]
-        out[k] = int(ft.ids[best].min())
+        mine = np.nonzero((ft.ids == ref) & ft.confirmed)[0]
+        if mine.size:
+            out[k] = ft.boxes[mine[0]].copy()
     return out
+
+
+def target_of(ft: FrameTracks, box: np.ndarray) -> int:
+    """The target's track id among ``ft``'s tracks, given the reference box (identity's
+    rule: the confirmed track of largest IoU ≥ 0.5, the lower id of equals; NONE: none)."""
+    if not len(ft.ids):
+        return NONE
+    return target_track(iou(ft.boxes, box[None, :])[:, 0], ft.ids, ft.confirmed)

@@ -1,0 +1,115 @@
+"""The exact engine of multi-target models (lesmc/model/multi.py): the cheapest path whose
+identity measure (``switches``, ``lost``) satisfies the constraint.
+
+The constraint's measure takes few values (whole numbers up to the path's length), so
+a forward pass over the states in index order (a topological order: levels) keeps, per
+state and per value of the constraint's measure so far, the cheapest prefix
+(objective) reaching it. At the last step the values that satisfy the constraint give
+the optimum, and the kept predecessors its counterexample. Every contribution is the
+kernel's (lesmc/model/kernel.py ``contributions``, identity indicators from
+lesmc/model/identity.py).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from lesmc.language.semantics import BoundMeasure, BoundProperty
+from lesmc.model.identity import NONE, indicators
+from lesmc.model.kernel import COMPARE, contributions, holds
+from lesmc.model.multi import MultiModel
+
+#: The objectives the engine minimises, and the constraints it takes.
+OBJECTIVES = ("payoff", "count", "frames")
+CONSTRAINTS = ("switches", "lost")
+
+
+@dataclass(frozen=True)
+class MultiResult:
+    """A property's verdict on a multi-target model: the optimum (∞: no path satisfies the
+    constraint), the constraint's value on the counterexample, and the counterexample as
+    the transitions it takes (None when there is none)."""
+
+    holds: bool
+    optimum: float
+    constraint: float | None
+    path: tuple[int, ...] | None
+    states: int
+    transitions: int
+
+
+def measure_values(model: MultiModel, m: BoundMeasure) -> tuple[float, np.ndarray]:
+    """Measure ``m``'s value on step 0 alone and each transition's contribution."""
+    k = model.step[model.dst]
+    zeros = np.zeros(len(k))
+    ident = None
+    if m.source in CONSTRAINTS:
+        ident = indicators(
+            m.source, model.last[model.src], model.tid[model.dst], model.ref[model.dst]
+        )
+    frames = model.count.astype(float)
+    per = contributions(m, k, model.payoff, zeros, counted=frames, identity=ident)
+    first = 0.0
+    if m.source in CONSTRAINTS:
+        i0 = indicators(m.source, np.array([NONE]), model.tid[:1], model.ref[:1])
+        first = float(
+            contributions(m, np.zeros(1, dtype=np.int64), np.zeros(1), np.zeros(1), identity=i0)[0]
+        )
+    return first, per
+
+
+def check_multi(model: MultiModel, prop: BoundProperty) -> MultiResult:
+    """Minimise ``prop``'s objective over the model's paths from step 0 to the end whose
+    constraint holds (docs/trackers.md)."""
+    c0, cons = measure_values(model, prop.constraint)
+    _, obj = measure_values(model, prop.objective)
+    order = np.argsort(model.src, kind="stable")
+    ptr = np.searchsorted(model.src[order], np.arange(model.n_states + 1))
+    # best[state][constraint value] = (objective, transition taken into it, value before)
+    best: list[dict[float, tuple[float, int, float]]] = [{} for _ in range(model.n_states)]
+    best[0][c0] = (0.0, -1, math.nan)
+    for s in range(model.n_states):
+        if not best[s]:
+            continue
+        for t in order[ptr[s] : ptr[s + 1]].tolist():
+            d = int(model.dst[t])
+            for cv, (ov, _, _) in best[s].items():
+                ncv, nov = cv + float(cons[t]), ov + float(obj[t])
+                cur = best[d].get(ncv)
+                if cur is None or nov < cur[0]:
+                    best[d][ncv] = (nov, t, cv)
+    op, bound = prop.op, prop.bound
+    top: tuple[float, int, float] | None = None
+    for s in np.nonzero(model.step == model.end)[0].tolist():
+        for cv, (ov, _, _) in best[s].items():
+            if COMPARE[op](cv, bound) and (top is None or ov < top[0]):
+                top = (ov, s, cv)
+    verdict = prop.prop
+    if top is None:
+        return MultiResult(
+            holds(verdict.holds_op, math.inf, verdict.threshold),
+            math.inf,
+            None,
+            None,
+            model.n_states,
+            model.n_transitions,
+        )
+    path: list[int] = []
+    s, cv = top[1], top[2]
+    while True:
+        _, t, before = best[s][cv]
+        if t < 0:
+            break
+        path.append(t)
+        s, cv = int(model.src[t]), before
+    return MultiResult(
+        holds(verdict.holds_op, top[0], verdict.threshold),
+        top[0],
+        top[2],
+        tuple(reversed(path)),
+        model.n_states,
+        model.n_transitions,
+    )

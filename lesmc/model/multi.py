@@ -1,0 +1,50 @@
+"""The model of a multi-target design as arrays (built by lesmc/unfold/multi.py; checked by
+lesmc/engines/multi.py): its states, one level per step, and its transitions, each with
+the cheapest way to force it (docs/trackers.md, "The multi-target model").
+
+State i is at step ``step[i]``; it holds the target's track id ``tid[i]`` (identity.NONE:
+none), whether the target's reference exists there (``ref[i]``) and ``last[i]``, the
+target's track id at the last step up to it at which it existed. States are numbered
+level by level, so every transition goes from a lower index to a higher one.
+
+Transition t goes from ``src[t]`` to ``dst[t]``. Of the subsets of the frame's detections
+whose hiding yields it, ``payoff[t]`` is the least sum of payoffs (``by_payoff[t]``:
+the detections of one such subset, as indices into the frame) and ``count[t]`` the fewest
+detections hidden (``by_count[t]``); ``count[t]`` is 0 when the unattacked outcome
+yields it.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+
+@dataclass(frozen=True)
+class MultiModel:
+    """A multi-target design's model (see the module's docstring)."""
+
+    step: np.ndarray
+    tid: np.ndarray
+    ref: np.ndarray
+    last: np.ndarray
+    src: np.ndarray
+    dst: np.ndarray
+    payoff: np.ndarray
+    count: np.ndarray
+    by_payoff: tuple[tuple[int, ...], ...]
+    by_count: tuple[tuple[int, ...], ...]
+    #: per step: its frame's number and its detections' ids (``FRAME:K`` names)
+    frames: tuple[int, ...]
+    names: tuple[tuple[str, ...], ...]
+    end: int
+    window: tuple[int, int]
+
+    @property
+    def n_states(self) -> int:
+        return int(self.step.shape[0])
+
+    @property
+    def n_transitions(self) -> int:
+        return int(self.src.shape[0])

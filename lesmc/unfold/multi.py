@@ -1,0 +1,190 @@
+"""Unfold a multi-target design (lesmc/tracking/multi.py) into its model
+(lesmc/model/multi.py): the scene -> model stage for trackers that follow every object.
+
+Step 0 is the scene's first frame, unattacked. At a step of the attack window the attacker
+hides any subset of the frame's attackable detections (payoff finite), at the sum of
+their payoffs; outside it only the unattacked outcome follows. The successors of one
+level that are the same state (:meth:`~lesmc.tracking.parts.states.MultiBatch.words`:
+every track bit for bit, the counters, and the target's last track id) are one state,
+and the subsets that lead from one state to the same successor one transition, kept at
+its cheapest (docs/trackers.md, "The multi-target model").
+"""
+
+from __future__ import annotations
+
+import itertools
+import math
+from collections.abc import Iterator
+from dataclasses import dataclass
+
+import numpy as np
+
+from lesmc.common.errors import BudgetError, UsageError
+from lesmc.model.identity import NONE, last_seen
+from lesmc.model.multi import MultiModel
+from lesmc.scene import Frame, Scene
+from lesmc.tracking.design import CovarianceTable
+from lesmc.tracking.multi import MultiState, SortDesign, reference_boxes, target_of
+from lesmc.tracking.parts.states import MultiBatch
+
+
+def hidden_subsets(frame: Frame, attacked: bool) -> Iterator[tuple[int, ...]]:
+    """The subsets of the frame's detections the attacker may hide (indices), the empty
+    one (unattacked) first: every subset of the attackable ones when ``attacked``."""
+    if not attacked:
+        yield ()
+        return
+    can = [i for i, d in enumerate(frame.detections) if not math.isinf(d.payoff)]
+    for r in range(len(can) + 1):
+        yield from itertools.combinations(can, r)
+
+
+def build_multi(
+    scene: Scene,
+    design: SortDesign,
+    window: tuple[int, int],
+    end: int,
+    max_states: int | None = None,
+) -> MultiModel:
+    """The model of ``scene`` under ``design`` for attacks at steps ``window`` (l..u),
+    up to step ``end``. ``max_states`` bounds the successors computed (before merging):
+    a BudgetError (exit status 3) before a step that would pass it."""
+    frames = scene.frames
+    if not 1 <= window[0] <= window[1] <= end <= len(frames) - 1:
+        raise UsageError(
+            f"window {window[0]}..{window[1]} must satisfy 1 <= l <= u <= end = {end} "
+            f"<= {len(frames) - 1} (the scene's last step)"
+        )
+    refs = reference_boxes(scene, [s.tracks for s in design.run(end)])
+    if all(r is None for r in refs):
+        raise UsageError(
+            f"the target ({scene.target.start[0]:g}, {scene.target.start[1]:g} at frame "
+            f"{scene.target.step}) has no reference track: no detection box of its frame "
+            "holds its start, or its track is never output; switches and lost need one"
+        )
+    tracker, table = design.tracker, CovarianceTable()
+    s0, ft0 = tracker.step(tracker.initial(), frames[0].boxes())
+    tid0 = NONE if refs[0] is None else target_of(ft0, refs[0])
+    level: list[MultiState] = [s0]
+    st = _Arrays()
+    st.add_state(0, tid0, refs[0] is not None, tid0)
+    for k in range(1, end + 1):
+        f = frames[k]
+        boxes, pay = f.boxes(), np.array([d.payoff for d in f.detections], dtype=float)
+        subsets = list(hidden_subsets(f, window[0] <= k <= window[1]))
+        if max_states is not None and st.n + len(level) * len(subsets) > max_states:
+            raise BudgetError(
+                f"--max-states {max_states}: step {k} would compute {len(level) * len(subsets)} "
+                f"successors of {len(level)} states ({st.n} so far); shorten the attack window"
+            )
+        base = st.n - len(level)
+        made: list[tuple[int, MultiState, int, int, tuple[int, ...]]] = []
+        ref = refs[k]
+        for i, state in enumerate(level):
+            for sub in subsets:
+                keep = np.ones(len(boxes), dtype=bool)
+                keep[list(sub)] = False
+                nxt, ft = tracker.step(state, boxes[keep])
+                tid = NONE if ref is None else target_of(ft, ref)
+                last = int(last_seen(np.array([st.last[base + i]]), np.array([tid]))[0])
+                made.append((base + i, nxt, tid, last, sub))
+        level = st.add_level(k, made, pay, ref is not None, tracker.filter.m.dim, table)
+    names = tuple(tuple(d.id for d in f.detections) for f in frames[: end + 1])
+    return st.model(tuple(f.step for f in frames[: end + 1]), names, end, window)
+
+
+@dataclass
+class _Cheapest:
+    """The cheapest subsets found so far that force one transition: by payoff, by count."""
+
+    payoff: float
+    by_payoff: tuple[int, ...]
+    by_count: tuple[int, ...]
+
+
+class _Arrays:
+    """The model's arrays as they grow, level by level."""
+
+    def __init__(self) -> None:
+        self.step: list[int] = []
+        self.tid: list[int] = []
+        self.ref: list[bool] = []
+        self.last: list[int] = []
+        self.trans: list[tuple[int, int, float, int, tuple[int, ...], tuple[int, ...]]] = []
+
+    @property
+    def n(self) -> int:
+        return len(self.step)
+
+    def add_state(self, k: int, tid: int, ref: bool, last: int) -> None:
+        self.step.append(k)
+        self.tid.append(tid)
+        self.ref.append(ref)
+        self.last.append(last)
+
+    def add_level(
+        self,
+        k: int,
+        made: list[tuple[int, MultiState, int, int, tuple[int, ...]]],
+        pay: np.ndarray,
+        ref: bool,
+        d: int,
+        table: CovarianceTable,
+    ) -> list[MultiState]:
+        """Add step ``k``'s successors ``made`` (source, state, target's track id, last,
+        hidden), merged; returns the level's distinct states in index order."""
+        batch = MultiBatch.pack(
+            [(m[1].tracks, m[1].next_id, m[1].frames, m[3]) for m in made], d, table
+        )
+        words = batch.words(batch.X.shape[1])
+        _, first, inverse = np.unique(words, axis=0, return_index=True, return_inverse=True)
+        inverse = inverse.reshape(-1)
+        order = np.argsort(first, kind="stable")  # distinct states in order of first sight
+        rank = np.empty_like(order)
+        rank[order] = np.arange(len(order))
+        base = self.n
+        level = []
+        for j in first[order]:
+            _, state, tid, last, _ = made[int(j)]
+            self.add_state(k, tid, ref, last)
+            level.append(state)
+        best: dict[tuple[int, int], _Cheapest] = {}
+        for j, (src, _, _, _, sub) in enumerate(made):
+            dst = base + int(rank[inverse[j]])
+            cost = math.fsum(pay[list(sub)]) if sub else 0.0
+            cur = best.get((src, dst))
+            if cur is None:
+                best[(src, dst)] = _Cheapest(cost, sub, sub)
+                continue
+            if cost < cur.payoff:
+                cur.payoff, cur.by_payoff = cost, sub
+            if len(sub) < len(cur.by_count):
+                cur.by_count = sub
+        for (src, dst), c in best.items():
+            self.trans.append((src, dst, c.payoff, len(c.by_count), c.by_payoff, c.by_count))
+        return level
+
+    def model(
+        self,
+        frames: tuple[int, ...],
+        names: tuple[tuple[str, ...], ...],
+        end: int,
+        window: tuple[int, int],
+    ) -> MultiModel:
+        t = self.trans
+        return MultiModel(
+            step=np.array(self.step, dtype=np.int64),
+            tid=np.array(self.tid, dtype=np.int64),
+            ref=np.array(self.ref, dtype=bool),
+            last=np.array(self.last, dtype=np.int64),
+            src=np.array([x[0] for x in t], dtype=np.int64),
+            dst=np.array([x[1] for x in t], dtype=np.int64),
+            payoff=np.array([x[2] for x in t], dtype=float),
+            count=np.array([x[3] for x in t], dtype=np.int64),
+            by_payoff=tuple(x[4] for x in t),
+            by_count=tuple(x[5] for x in t),
+            frames=frames,
+            names=names,
+            end=end,
+            window=window,
+        )
