@@ -15,7 +15,7 @@ from lesmc.results.read import read_row
 ROOT = Path(__file__).resolve().parents[1]
 
 #: The readers migrated to the typed objects.
-READERS = ("lesmc/campaign/summary.py", "lesmc/replay/run.py")
+READERS = ("lesmc/campaign/summary.py", "lesmc/replay/run.py", "lesmc/report/html.py")
 
 
 def string_key_reads(source: str) -> list[int]:
@@ -97,3 +97,41 @@ def test_the_summary_of_hand_made_rows() -> None:
     assert doc["cells"]["single"]["robustness"]["optima"] == [0.25, 0.5, "inf"]
     assert doc["cells"]["single"]["robustness"]["worst"][0]["target"] == rows[2]["target"]
     assert command(read_row(rows[0]), "sc").endswith("--window 2..4 --design single")
+
+
+def test_the_typed_document_holds_what_the_json_holds(tmp_path: Path) -> None:
+    """lesmc.results.read against the JSON module's reading of a results.json with two
+    designs, a monitor and component failures."""
+    import json
+
+    from cli_run import lesmc
+
+    from lesmc.results.read import read_results
+
+    out = tmp_path / "rep"
+    r = lesmc(
+        "check", "tests/scenes/rq1_platoon.json", "tests/scenes/rq1_platoon.spec",
+        "--faults", "examples/faults.spec", "--design", "single", "--design", "monitor",
+        "--report", str(out),
+    )  # fmt: skip
+    assert r.returncode in (0, 1), r.stderr
+    raw = json.loads((out / "results.json").read_text())
+    doc = read_results(out / "results.json")
+    assert [run.design for run in doc.runs] == [run["design"] for run in raw["runs"]]
+    assert doc.provenance.specs[0].text == raw["provenance"]["specs"][0]["text"]
+    for run, want in zip(doc.runs, raw["runs"], strict=True):
+        assert [(x.property, x.verdict, x.optimum) for x in run.results] == [
+            (x["property"], x["verdict"], x["optimum"]) for x in want["results"]
+        ]
+        assert [p.no for p in run.paths] == [p["no"] for p in want["paths"]]
+        assert run.counterexamples == tuple(want["roles"]["counterexample"])
+        assert [m.monitor is not None for m in run.properties] == [
+            p["monitor"] is not None for p in want["properties"]
+        ]
+        assert [x.property for _, x in run.faults] == [
+            f["result"]["property"] for f in want["faults"]
+        ]
+        q, s = next(iter(want["states"].items()))
+        assert run.states[q].s == tuple(s["s"])
+    assert any(run.faults for run in doc.runs)
+    assert any(p.monitor is not None for run in doc.runs for p in run.properties)

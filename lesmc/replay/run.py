@@ -159,15 +159,15 @@ def cases(doc: ResultsDoc, prop: str | None = None) -> list[Case]:
 def _case(run: RunDoc, i: int, j: int, cex_no: int) -> Case:
     res = run.results[j]
     rp = run.replay_inputs
-    if rp is None or run.detections is None:
+    if rp is None or run.scene is None:
         raise UsageError(
             f"design run '{run.design}' was checked on a model without its scene: there is "
             "nothing to replay through the detector (write the results with lesmc verify)"
         )
     path = run.path(cex_no)
     loc = list(tracker_from_dict(rp.tracker, "results: replay_inputs.tracker").measured)
-    pos = np.array([np.array(run.states[q])[loc] for q in path.states], float)
-    known = {d.id: (d.x, d.y) for step in run.detections for d in step}
+    pos = np.array([np.array(run.states[q].s)[loc] for q in path.states], float)
+    known = {d.id: (d.x, d.y) for step in run.scene.detections for d in step}
     opt = res.optimum
     return Case(
         run=i,
@@ -178,7 +178,7 @@ def _case(run: RunDoc, i: int, j: int, cex_no: int) -> Case:
         obs=list(path.obs),
         positions=pos,
         halted=path.halted,
-        hidden=list(run.hidden.get(res.property, ())),
+        hidden=[e.hidden for e in run.hidden.get(res.property, ())],
         known=known,
         tracker=rp.tracker,
         dt=rp.dt,
