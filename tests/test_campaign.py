@@ -152,12 +152,13 @@ def test_resume_adds_no_row_and_the_summary_counts_the_rows(base: tuple[Path, Pa
 
 def test_the_worst_case_command_reproduces_its_row(base: tuple[Path, Path]) -> None:
     from lesmc.campaign.summary import command
+    from lesmc.results.read import read_row
 
     rows = read_rows(base[1] / "results.jsonl")
     bad = [x for x in rows if x["verdict"] == "violated" and x["design"] == "single"]
     assert bad
     w = min(bad, key=lambda x: (x["optimum"], x["key"]))
-    cmd = command(w, str(base[1] / "scenes")).split()[1:]
+    cmd = command(read_row(w), str(base[1] / "scenes")).split()[1:]
     rep = lesmc(*cmd, "--out", str(base[1] / "repro"), "--json")
     no_trace(rep)
     got = {x["property"]: x for run in json.loads(rep.stdout)["runs"] for x in run["results"]}
@@ -358,9 +359,10 @@ def test_interval_rows_match_brute_force_over_both_payoff_sets(
     assert "violated" in verdicts
     # the row's command (lesmc verify on the saved scene) gives the row's interval
     from lesmc.campaign.summary import command
+    from lesmc.results.read import read_row
 
     w = max(rows, key=lambda x: (x["verdict"] != "holds", str(x["optimum_certified"]), x["key"]))
-    cmd = command(w, str(out / "scenes")).split()[1:]
+    cmd = command(read_row(w), str(out / "scenes")).split()[1:]
     assert cmd[-2:] == ["--payoffs", "interval"]
     rep = lesmc(*cmd, "--out", str(out / "repro"), "--json")
     no_trace(rep)

@@ -23,6 +23,7 @@ from lesmc.report.figure_cache import figure_key
 from lesmc.report.html import render
 from lesmc.report.publish import publish
 from lesmc.results.document import provenance
+from lesmc.results.read import results_of
 from lesmc.scene import load_scene
 
 SCENES = Path(__file__).parent / "scenes"
@@ -128,13 +129,13 @@ def _doc(tmp_path: Path) -> dict[str, Any]:
 
 def test_figures_from_the_store_are_the_figures_drawn_afresh(tmp_path: Path) -> None:
     doc = json.loads(json.dumps(_doc(tmp_path)))  # as read from results.json
-    fresh = render(doc)[1]
+    fresh = render(results_of(doc))[1]
     store = _Store()
-    first = render(doc, None, store)[1]
+    first = render(results_of(doc), None, store)[1]
     assert first == fresh and store.found == 0
     drawn = len(store.pngs)
     assert drawn < len(fresh)  # the two designs share figures: each drawn once
-    again = render(doc, None, store)[1]
+    again = render(results_of(doc), None, store)[1]
     assert again == fresh and store.found == drawn and len(store.pngs) == drawn
 
     # one counterexample's deviations changed: only its figure is drawn again
@@ -142,8 +143,8 @@ def test_figures_from_the_store_are_the_figures_drawn_afresh(tmp_path: Path) -> 
     cex = run["results"][0]["counterexample"]["deviation"]
     k = next(k for k, v in enumerate(cex) if isinstance(v, float) and v > 0)
     cex[k] *= 1.5
-    changed = render(doc, None, store)[1]
-    assert changed == render(doc)[1]
+    changed = render(results_of(doc), None, store)[1]
+    assert changed == render(results_of(doc))[1]
     assert len(store.pngs) == drawn + 1
     assert [n for n in fresh if changed[n] != fresh[n]] == ["single-robustness-deviation.png"]
 

@@ -103,7 +103,7 @@ def test_a_campaign_summary_counts_it_under_its_label(toy: None) -> None:
     rows = run_group(group, doc)
     for r in rows:
         validate({"format": FORMAT, "version": VERSION, **r}, "campaign-row")
-    summary = summarise(rows, "scenes")
+    summary = summarise(rows, "scenes").to_dict()
     validate(summary, "campaign-summary")
     assert summary["designs"] == ["toy", "toy_mon"]
     assert sum(summary["cells"]["toy"][p]["rows"] for p in summary["properties"]) == 2

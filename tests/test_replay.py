@@ -19,6 +19,8 @@ from cli_run import lesmc
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
+from lesmc.results.read import results_of
+
 ROOT = Path(__file__).resolve().parents[1]
 
 
@@ -106,9 +108,9 @@ def test_replay_of_the_attacked_frames_alone_equals_a_pass_over_every_frame(
     video, _, doc = verified
     frames, nets = open_frames(str(video), 5), load_nets()
     run = perceive(frames, PerceiveOptions(history=4, nets=nets, attack=AttackConfig()))
-    full = replay(doc, frames, nets)
+    full = replay(results_of(doc), frames, nets)
     clean = {fd.index: fd for fd in run.detections}
-    sparse = replay(doc, frames, nets, clean=clean)
+    sparse = replay(results_of(doc), frames, nets, clean=clean)
     assert full.replays and sparse.replays == full.replays
     # and with the perception's registrations: no frame described again, the same replays
     import lesmc.perception.frontend as fe_module
@@ -122,7 +124,7 @@ def test_replay_of_the_attacked_frames_alone_equals_a_pass_over_every_frame(
 
     fe_module.describe = counting  # type: ignore[assignment]
     try:
-        known = replay(doc, frames, nets, clean=clean, registrations=run.registrations)
+        known = replay(results_of(doc), frames, nets, clean=clean, registrations=run.registrations)
     finally:
         fe_module.describe = real
     assert known.replays == full.replays
@@ -150,11 +152,11 @@ def test_cases_that_hide_the_same_detections_share_one_attack(verified: tuple) -
 
     replay_module.attack_frame = counting  # type: ignore[assignment]
     try:
-        alone = replay_module.replay(doc, frames, nets)
+        alone = replay_module.replay(results_of(doc), frames, nets)
         once = len(calls)
         twice = copy.deepcopy(doc)
         twice["runs"].append(copy.deepcopy(doc["runs"][0]))
-        both = replay_module.replay(twice, frames, nets)
+        both = replay_module.replay(results_of(twice), frames, nets)
     finally:
         replay_module.attack_frame = real
     assert once and len(calls) == 2 * once  # not 3x: the copy's attacks were shared
@@ -182,7 +184,7 @@ def test_a_counterexample_that_the_tracker_does_not_follow_is_diverged(verified:
     for q in path["states"][2:]:
         run["states"][q]["s"][0] += 5.0
     run["results"][j]["verdict"] = "violated"
-    out = replay(bad, open_frames(str(video), 5), load_nets(), prop)
+    out = replay(results_of(bad), open_frames(str(video), 5), load_nets(), prop)
     obj = out.replays[(0, j)]
     assert obj["status"] == "diverged" and obj["step"] == 2
     assert "px from the model's" in obj["reason"]
@@ -200,7 +202,7 @@ def test_without_repair_interacting_perturbations_diverge_where_they_act(verifie
     from lesmc.video.reader import open_frames
 
     video, _, doc = verified
-    out = replay(doc, open_frames(str(video), 5), load_nets(), repair=False)
+    out = replay(results_of(doc), open_frames(str(video), 5), load_nets(), repair=False)
     diverged = [o for o in out.replays.values() if o["status"] == "diverged"]
     assert diverged
     for o in diverged:

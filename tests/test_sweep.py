@@ -146,6 +146,7 @@ def test_the_report_plots_each_swept_optimum_and_where_the_verdict_flips(tmp_pat
     optimum and verdict from results.json, with a flip between the values whose verdicts
     differ (lesmc.report.html._sweep_curves read against the document itself)."""
     from lesmc.report.html import _sweep_curves
+    from lesmc.results.read import results_of
 
     out = tmp_path / "rep"
     r = lesmc("check", "tests/scenes/rq1_platoon.json", "specs/robustness.spec",
@@ -155,7 +156,7 @@ def test_the_report_plots_each_swept_optimum_and_where_the_verdict_flips(tmp_pat
     assert "Sensitivity (single)" in (out / "report.html").read_text()
     doc = json.loads((out / "results.json").read_text())
     rows = {x["property"]: x for x in doc["runs"][0]["results"]}
-    (curve,) = _sweep_curves(doc["runs"][0])
+    (curve,) = _sweep_curves(results_of(doc).runs[0])
     assert curve.parameter == "eps" and len(curve.values) == 20
     for eps, opt, verdict in zip(curve.values, curve.optima, curve.verdicts, strict=True):
         row = rows[f"robustness@eps={eps:g}"]

@@ -27,6 +27,7 @@ from lesmc.cli.signals import resumable
 from lesmc.common.errors import UsageError
 
 if TYPE_CHECKING:
+    from lesmc.campaign.summary import Summary
     from lesmc.perception import NetFiles
 
 DEFAULT_WINDOWS = "4..12:1..4"
@@ -416,12 +417,12 @@ def _finish(
         "windows": f"{len(windows)} ({windows[0][0]}..{windows[0][1]} to "
         f"{windows[-1][0]}..{windows[-1][1]})",
         "design": design,
-        "payoffs": summary["payoffs"],
+        "payoffs": summary.payoffs,
         "results": str(out / "results.jsonl"),
     }
     report = write_html(summary, figures(summary), out, meta)
     if as_json:
-        click.echo(json.dumps(summary, indent=1, allow_nan=False))
+        click.echo(json.dumps(summary.to_dict(), indent=1, allow_nan=False))
     else:
         _print(summary)
         click.echo(f"results: {out / 'results.jsonl'}\nreport: {report}")
@@ -435,7 +436,7 @@ def _finish(
     )
 
 
-def _print(summary: dict[str, Any]) -> None:
+def _print(summary: Summary) -> None:
     from rich.table import Table
 
     from lesmc.campaign.summary import CELL_HEADER, cell_rows
@@ -444,8 +445,8 @@ def _print(summary: dict[str, Any]) -> None:
 
     console = make_console()
     table = Table(
-        title=f"lesmc campaign: {summary['targets']} targets x {summary['windows']} windows"
-        + ("" if summary["payoffs"] == "attack" else f", {summary['payoffs']} payoffs"),
+        title=f"lesmc campaign: {summary.targets} targets x {summary.windows} windows"
+        + ("" if summary.payoffs == "attack" else f", {summary.payoffs} payoffs"),
         title_justify="left",
     )
     for c in (*CELL_HEADER, "median optimum"):
@@ -453,16 +454,16 @@ def _print(summary: dict[str, Any]) -> None:
     for row in cell_rows(summary, ("median",)):
         table.add_row(*row)
     console.print(table)
-    for p, imp in summary["improvements"].items():
-        for d, v in imp["designs"].items():
+    for p, imp in summary.improvements.items():
+        for d, v in imp.designs.items():
             console.print(
-                f"{p}: {registry.label(d)} removes {v['removed']} of the "
-                f"{imp['baseline_violated']} "
-                f"adversarial cases of {registry.label(imp['baseline'])} (adds {v['added']})"
+                f"{p}: {registry.label(d)} removes {v.removed} of the "
+                f"{imp.baseline_violated} "
+                f"adversarial cases of {registry.label(imp.baseline)} (adds {v.added})"
                 + (
-                    f"; {v['vacuous']} more hold only vacuously (the monitor flags the "
+                    f"; {v.vacuous} more hold only vacuously (the monitor flags the "
                     "unattacked track too)"
-                    if v["vacuous"]
+                    if v.vacuous
                     else ""
                 )
             )

@@ -55,10 +55,10 @@ def replay_cmd(
 
     from lesmc.common.progress import progress_bar
     from lesmc.replay.run import replay_file, verdict_rows
-    from lesmc.results.load import load_results
+    from lesmc.results.read import read_results
 
-    doc = load_results(results)
-    frames_dir = frames_dir or doc.get("perception", {}).get("frames")
+    doc = read_results(results)
+    frames_dir = frames_dir or doc.perception.frames
     if frames_dir is None:
         raise UsageError(
             "replay runs the detector on the video: give its frames with --frames DIR (the "

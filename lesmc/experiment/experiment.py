@@ -49,6 +49,7 @@ from lesmc.pipeline.check import run as run_job
 from lesmc.pipeline.job import Certifier, Job, PayoffMode
 from lesmc.replay.run import apply, cases, replay
 from lesmc.results.document import provenance, results_document
+from lesmc.results.read import results_of
 from lesmc.results.record import Results
 from lesmc.scene import (
     Footage,
@@ -728,7 +729,8 @@ def _replay(
     the same frames and networks replay from OUT/cache."""
     from lesmc.replay.run import Outcome
 
-    todo = cases(doc)
+    typed = results_of(doc)
+    todo = cases(typed)
     if not todo or src.frames is None or (src.nets is None and src.net_files is None):
         return
     t0 = time.monotonic()
@@ -748,7 +750,9 @@ def _replay(
                 bar.advance()
                 _spent(budget, "replaying the counterexamples")
 
-            outcome = replay(doc, frames, nets, on_frame=advance, clean=clean, registrations=known)
+            outcome = replay(
+                typed, frames, nets, on_frame=advance, clean=clean, registrations=known
+            )
         if src.cache is not None and key is not None:
             rows = [[i, j, obj] for (i, j), obj in outcome.replays.items()]
             src.cache.put("replay", key, {"replays": rows, "seconds": outcome.seconds})

@@ -46,10 +46,12 @@ import numpy as np
 
 from lesmc.common.errors import InputError, Location, UsageError
 from lesmc.common.memory import release
-from lesmc.engines.result import status_word
 from lesmc.model import kernel
 from lesmc.perception import HISTORY, NetFiles
 from lesmc.perception.windows import cut, origins, stack
+from lesmc.results.document import record_replays
+from lesmc.results.read import HiddenDoc as Hidden
+from lesmc.results.read import ResultsDoc, RunDoc, number, read_replay
 from lesmc.scene import Detection, Frame, Scene, Target, tracker_from_dict
 from lesmc.tracking.monitor import track
 from lesmc.tracking.trackers import make_tracker
@@ -77,22 +79,10 @@ PERTURBATION_DIGITS = 6
 
 
 @dataclass
-class Hidden:
-    """A detection the counterexample hides: model step, frame, id, position, payoff."""
-
-    step: int
-    frame: int
-    obs: str
-    x: float
-    y: float
-    payoff: float
-
-
-@dataclass
 class Case:
     """One violated property's counterexample of one design run, as the results file holds it."""
 
-    run: int  # index into doc["runs"]
+    run: int  # index into the document's runs
     result: int  # index into the run's results
     design: str
     prop: str
@@ -102,13 +92,25 @@ class Case:
     halted: bool
     hidden: list[Hidden]
     known: dict[str, tuple[float, float]]  # detection id -> position, as the results list them
-    tracker: dict[str, Any]
+    tracker: Mapping[str, Any]
     dt: float
-    target: dict[str, Any]
+    target: Target
     objective_is_payoff: bool
     threshold: float
     holds_op: str
     optimum: float
+
+
+@dataclass(frozen=True)
+class Replayed:
+    """How a counterexample's track replayed: confirmed, or the first step where it
+    diverges (``step``) and why; the largest distance from the model's positions (None:
+    infinite)."""
+
+    status: str
+    step: int | None
+    max_error_px: float | None
+    reason: str | None
 
 
 @dataclass
@@ -129,32 +131,24 @@ class FrameAttack:
     extra_cost: float = 0.0
 
 
-def _num(x: Any) -> float:
-    if x == "inf":
-        return math.inf
-    if x == "-inf":
-        return -math.inf
-    return float(x)
-
-
-def cases(doc: dict[str, Any], prop: str | None = None) -> list[Case]:
+def cases(doc: ResultsDoc, prop: str | None = None) -> list[Case]:
     """The counterexamples to replay: every violated result (or property ``prop``'s)."""
     out = []
     names = set()
-    for i, run in enumerate(doc["runs"]):
-        for j, res in enumerate(run["results"]):
-            names.add(res["property"])
-            if prop is not None and res["property"] != prop:
+    for i, run in enumerate(doc.runs):
+        for j, res in enumerate(run.results):
+            names.add(res.property)
+            if prop is not None and res.property != prop:
                 continue
-            replayed = (res.get("replay") or {}).get("status") in ("confirmed", "diverged")
-            if res["verdict"] != "violated" and not replayed:
+            replayed = res.replay is not None and res.replay.status in ("confirmed", "diverged")
+            if res.verdict != "violated" and not replayed:
                 continue
-            if res.get("payoffs") == "certified":
+            if res.payoffs == "certified":
                 continue  # violated with lower payoffs proves nothing (docs/semantics.md)
-            cex_no = run["roles"]["counterexample"][j]
+            cex_no = run.counterexamples[j]
             if cex_no is None:
                 continue
-            out.append(_case(doc, i, j, cex_no))
+            out.append(_case(run, i, j, cex_no))
     if prop is not None and prop not in names:
         raise UsageError(
             f"no property named {prop}; the results hold {', '.join(sorted(names)) or 'none'}"
@@ -162,49 +156,37 @@ def cases(doc: dict[str, Any], prop: str | None = None) -> list[Case]:
     return out
 
 
-def _case(doc: dict[str, Any], i: int, j: int, cex_no: int) -> Case:
-    run = doc["runs"][i]
-    res = run["results"][j]
-    rp = run.get("replay_inputs")
-    if rp is None or run.get("scene") is None:
+def _case(run: RunDoc, i: int, j: int, cex_no: int) -> Case:
+    res = run.results[j]
+    rp = run.replay_inputs
+    if rp is None or run.scene is None:
         raise UsageError(
-            f"design run '{run['design']}' was checked on a model without its scene: there is "
+            f"design run '{run.design}' was checked on a model without its scene: there is "
             "nothing to replay through the detector (write the results with lesmc verify)"
         )
-    path = run["paths"][cex_no - 1]
-    loc = list(tracker_from_dict(rp["tracker"], "results: replay_inputs.tracker").measured)
-    pos = np.array([np.array(run["states"][q]["s"])[loc] for q in path["states"]], float)
-    known = {d[2]: (float(d[0]), float(d[1])) for step in run["scene"]["detections"] for d in step}
-    hidden = [
-        Hidden(
-            int(h["step"]),
-            int(h["frame"]),
-            h["obs"],
-            float(h.get("x", math.nan)),
-            float(h.get("y", math.nan)),
-            _num(h["payoff"]),
-        )
-        for h in run["hidden"].get(res["property"], [])
-    ]
-    opt = res["optimum"]
+    path = run.path(cex_no)
+    loc = list(tracker_from_dict(rp.tracker, "results: replay_inputs.tracker").measured)
+    pos = np.array([np.array(run.states[q].s)[loc] for q in path.states], float)
+    known = {d.id: (d.x, d.y) for step in run.scene.detections for d in step}
+    opt = res.optimum
     return Case(
         run=i,
         result=j,
-        design=run["label"],
-        prop=res["property"],
-        first_frame=int(run["model"]["first_frame"]),
-        obs=list(path["obs"]),
+        design=run.label,
+        prop=res.property,
+        first_frame=run.first_frame,
+        obs=list(path.obs),
         positions=pos,
-        halted=bool(path["halted"]),
-        hidden=hidden,
+        halted=path.halted,
+        hidden=[e.hidden for e in run.hidden.get(res.property, ())],
         known=known,
-        tracker=rp["tracker"],
-        dt=float(rp["dt"]),
-        target=rp["target"],
-        objective_is_payoff=res["objective_source"] == "payoff",
-        threshold=float(res["threshold"]),
-        holds_op=res["holds_op"],
-        optimum=_num(opt) if opt != "unknown" else math.nan,
+        tracker=rp.tracker,
+        dt=rp.dt,
+        target=rp.target,
+        objective_is_payoff=res.objective_source == "payoff",
+        threshold=res.threshold,
+        holds_op=res.holds_op,
+        optimum=number(opt) if opt != "unknown" else math.nan,
     )
 
 
@@ -552,10 +534,8 @@ def _footage(dets: dict[int, FrameDetections], case: Case, attacked: dict[int, F
             Detection(f"{k}:{j}", float(x), float(y), 1.0) for j, (x, y) in enumerate(fd.positions)
         )
         frames.append(Frame(k, ds, to_next))
-    t = case.target
-    target = Target(int(t["step"]), tuple(t["start"]), tuple(t["velocity"]))
     tracker = tracker_from_dict(case.tracker, "results: replay_inputs.tracker")
-    return Scene(case.dt, tuple(frames), target, tracker, {})
+    return Scene(case.dt, tuple(frames), case.target, tracker, {})
 
 
 def _compare(
@@ -563,8 +543,8 @@ def _compare(
     points: list[Any],
     scene: Any,
     attacks: dict[int, FrameAttack],
-) -> dict[str, Any]:
-    """The replay object: confirmed, or the first step where the track diverges and why."""
+) -> Replayed:
+    """The replay: confirmed, or the first step where the track diverges and why."""
     n_model = len(case.positions)
     err = 0.0
     first = case.first_frame
@@ -608,23 +588,20 @@ def _compare(
                 attacks.get(first + k),
             )
         err = max(err, e)
-    return {"status": "confirmed", "step": None, "max_error_px": round(err, 6), "reason": None}
+    return Replayed("confirmed", None, round(err, 6), None)
 
 
 def _at(p: tuple[float, float]) -> str:
     return f"the detection at ({p[0]:.1f}, {p[1]:.1f})"
 
 
-def _diverged(k: int, err: float, what: str, fa: FrameAttack | None) -> dict[str, Any]:
+def _diverged(k: int, err: float, what: str, fa: FrameAttack | None) -> Replayed:
     why = [what]
     if fa is not None:
         why.append(frame_story(fa))
-    return {
-        "status": "diverged",
-        "step": k,
-        "max_error_px": round(err, 6) if math.isfinite(err) else None,
-        "reason": "; ".join(w for w in why if w),
-    }
+    return Replayed(
+        "diverged", k, round(err, 6) if math.isfinite(err) else None, "; ".join(w for w in why if w)
+    )
 
 
 def frame_story(fa: FrameAttack) -> str:
@@ -680,7 +657,7 @@ class Outcome:
 
 
 def replay(
-    doc: dict[str, Any],
+    doc: ResultsDoc,
     frames: FrameSet,
     nets: Nets,
     prop: str | None = None,
@@ -741,20 +718,18 @@ def replay(
     return Outcome(replays, time.monotonic() - t0)
 
 
-def _settings(
-    doc: dict[str, Any], history: int, delta_bc: int
-) -> tuple[FrontEndConfig, AttackConfig]:
+def _settings(doc: ResultsDoc, history: int, delta_bc: int) -> tuple[FrontEndConfig, AttackConfig]:
     """The front end's and the attack's settings, as the results' perception recorded them
     (``history`` and ``delta_bc`` where it did not)."""
     from lesmc.perception.attack_settings import AttackConfig
     from lesmc.perception.blobs import BlobConfig
     from lesmc.perception.frontend import FrontEndConfig
 
-    perception = doc.get("perception", {})
-    history = int(perception.get("history", history))
-    delta_bc = int(perception.get("delta_bc", delta_bc))
+    perception = doc.perception
+    history = int(history if perception.history is None else perception.history)
+    delta_bc = int(delta_bc if perception.delta_bc is None else perception.delta_bc)
     fe = FrontEndConfig(history=history, blobs=BlobConfig(delta_bc=delta_bc))
-    return fe, AttackConfig(**perception.get("attack", {}))
+    return fe, AttackConfig(**perception.attack)
 
 
 def _hidden_by_frame(todo: list[Case]) -> dict[int, list[tuple[int, Hidden]]]:
@@ -829,26 +804,31 @@ def _replay_case(
     dets = {k: v for k, v in clean.items() if first <= k <= first + len(c.positions) - 1}
     scene = _footage(dets, c, {k: fa.detections for k, fa in attacked.items()})
     points = track(make_tracker(scene), len(c.positions) - 1)
-    obj = _compare(c, points, scene, attacked)
+    got = _compare(c, points, scene, attacked)
     fas = list(attacked.values())
     repaired = sum(fa.repaired_rounds for fa in fas)
-    obj["attack"] = "repaired" if repaired else "as modelled"
     extra = sum(fa.extra_cost for fa in fas)
-    obj["repair_cost"] = round(extra, 6)
-    if repaired and obj["status"] == "confirmed" and c.objective_is_payoff:
+    if repaired and got.status == "confirmed" and c.objective_is_payoff:
         cost = c.optimum + extra
         if kernel.holds(c.holds_op, cost, c.threshold):
-            obj["status"] = "diverged"
-            obj["step"] = min(attacked) - first
-            obj["reason"] = (
-                f"the repaired joint attack replays, but costs {cost:.4g}: the property "
-                f"holds for it (optimum {c.holds_op} {c.threshold:g})"
+            got = replace(
+                got,
+                status="diverged",
+                step=min(attacked) - first,
+                reason=f"the repaired joint attack replays, but costs {cost:.4g}: the property "
+                f"holds for it (optimum {c.holds_op} {c.threshold:g})",
             )
-    notes = [f"frame {fa.frame}: {frame_story(fa)}" for fa in fas if frame_story(fa)]
-    obj["frames"] = notes
-    obj["tolerance_px"] = {"detection": DET_TOL_PX, "track": TRACK_TOL_PX}
-    obj["perturbations"] = [p for fa in fas for p in fa.perturbations]
-    return obj
+    return {
+        "status": got.status,
+        "step": got.step,
+        "max_error_px": got.max_error_px,
+        "reason": got.reason,
+        "attack": "repaired" if repaired else "as modelled",
+        "repair_cost": round(extra, 6),
+        "frames": [f"frame {fa.frame}: {frame_story(fa)}" for fa in fas if frame_story(fa)],
+        "tolerance_px": {"detection": DET_TOL_PX, "track": TRACK_TOL_PX},
+        "perturbations": [p for fa in fas for p in fa.perturbations],
+    }
 
 
 def _shared(
@@ -901,38 +881,13 @@ def _check_known(c: Case, clean: dict[int, FrameDetections]) -> None:
 
 
 def apply(doc: dict[str, Any], outcome: Outcome, results: Results | None = None) -> None:
-    """Record each replay in the document (and in the typed ``results`` it was written
-    from, if given): the status, and for a diverged counterexample (no proof) the verdict
-    ``unknown`` with a note; the model's optimum stays in the bounds."""
-    for (i, j), obj in outcome.replays.items():
-        res = doc["runs"][i]["results"][j]
-        res["replay"] = obj
-        if obj["status"] == "diverged" and res["verdict"] == "violated":
-            res["verdict"] = "unknown"
-            res["notes"].append(diverged_note(res["optimum"], obj))
-        res["status"] = status_word(res["verdict"], res["vacuous"], obj["status"])
-        if results is not None:
-            run = results.runs[i]
-            run.results[j] = replace(
-                run.results[j],
-                verdict=res["verdict"],
-                notes=list(res["notes"]),
-                replay=obj["status"],
-            )
-    doc["replay"] = {"replayed": len(outcome.replays), "seconds": round(outcome.seconds, 3)}
-
-
-def diverged_note(optimum: Any, obj: dict[str, Any]) -> str:
-    """The note of a result whose counterexample did not replay."""
-    return (
-        f"unknown: the model's counterexample (optimum {optimum}) did not replay through the "
-        f"detector and tracker; it diverges at step {obj['step']} ({obj['reason']}); "
-        "not a proof of violation"
-    )
+    """Record each replay in the document ``doc`` (and in the typed ``results`` it was
+    written from, if given): lesmc.results.document.record_replays."""
+    record_replays(doc, outcome.replays, outcome.seconds, results)
 
 
 def replay_file(
-    doc: dict[str, Any],
+    doc: ResultsDoc,
     frames_dir: str,
     nets: NetFiles,
     prop: str | None,
@@ -945,10 +900,10 @@ def replay_file(
     from lesmc.video.reader import open_frames
 
     cases(doc, prop)  # an unknown property is an error before the video is read
-    history = int(doc.get("perception", {}).get("history", 4))
+    history = 4 if doc.perception.history is None else doc.perception.history
     frames = open_frames(frames_dir, history + 1)
     loaded = load_nets(*nets)
-    want = doc.get("perception", {}).get("nets")
+    want = doc.perception.nets
     if want and want != loaded.settings.trained_on:
         raise UsageError(
             f"the results were made with the networks trained on '{want}', these were "
@@ -960,14 +915,16 @@ def replay_file(
 
 
 def verdict_rows(
-    doc: dict[str, Any], outcome: Outcome, prop: str | None
+    doc: ResultsDoc, outcome: Outcome, prop: str | None
 ) -> tuple[list[dict[str, Any]], set[str]]:
     """One row per replayed counterexample (model verdict, verdict after the replay, the
     replay), and every verdict the results hold after it (for the exit status)."""
     rows: list[dict[str, Any]] = []
+    verdicts: set[str] = set()
     for c in cases(doc, prop):
         obj = outcome.replays[(c.run, c.result)]
-        verdict = "violated" if obj["status"] == "confirmed" else "unknown"
+        verdict = "violated" if read_replay(obj).status == "confirmed" else "unknown"
+        verdicts.add(verdict)
         rows.append(
             {
                 "design": c.design,
@@ -978,11 +935,11 @@ def verdict_rows(
             }
         )
     others: set[str] = {
-        res["verdict"]
-        for run in doc["runs"]
-        for res in run["results"]
-        if (prop is None or res["property"] == prop)
-        and not res.get("replay")
-        and res["verdict"] != "violated"
+        res.verdict
+        for run in doc.runs
+        for res in run.results
+        if (prop is None or res.property == prop)
+        and res.replay is None
+        and res.verdict != "violated"
     }
-    return rows, {r["verdict"] for r in rows} | others
+    return rows, verdicts | others

@@ -14,7 +14,7 @@ from __future__ import annotations
 
 import json
 import math
-from collections.abc import Callable
+from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -41,6 +41,17 @@ from lesmc.report.pages import (
 from lesmc.report.staging import staged
 from lesmc.report.text import not_replayed_text, optimum_cell
 from lesmc.results.document import ATTACK_PAYOFF
+from lesmc.results.read import (
+    FalseAlarms,
+    HiddenEntry,
+    Num,
+    Perturbation,
+    ResultDoc,
+    ResultsDoc,
+    RunDoc,
+    SceneDoc,
+    results_of,
+)
 
 MAX_TABLE_ROWS = 60
 MAX_TREE_LEAVES = 40
@@ -66,7 +77,7 @@ def write_report(
     (lesmc/report/figure_cache.py). The figures may be drawn by two processes
     (lesmc/report/drawing.py).
     """
-    page, figs = render(doc, image_for, store)
+    page, figs = render(results_of(doc), image_for, store)
     with staged(out_dir) as tmp:
         for name, text in (files or {}).items():
             (tmp / name).write_text(text, encoding="utf-8")
@@ -78,7 +89,7 @@ def write_report(
     return Path(out_dir) / "report.html"
 
 
-def _f(x: Any) -> float:
+def _f(x: Num | None) -> float:
     """A number of the results file ("inf" strings, None) as a float."""
     if x is None:
         return math.nan
@@ -87,22 +98,22 @@ def _f(x: Any) -> float:
     return float(x)
 
 
-def verdict_of(r: dict[str, Any]) -> str:
+def verdict_of(r: ResultDoc) -> str:
     """A result's verdict word and why (lesmc.engines.result.verdict_words)."""
-    replay = (r.get("replay") or {}).get("status")
-    return verdict_words(r["verdict"], bool(r["vacuous"]), r["original_alarms"] or [], replay)
+    replay = None if r.replay is None else r.replay.status
+    return verdict_words(r.verdict, r.vacuous, list(r.original_alarms or []), replay)
 
 
-def status_class(r: dict[str, Any]) -> str:
+def status_class(r: ResultDoc) -> str:
     """The CSS class of a result's verdict word: one colour per word."""
-    return _tag(r["status"])
+    return _tag(r.status)
 
 
-def _opt(r: dict[str, Any]) -> str:
-    known = r["stats"]["stopped"] == "finished" and r["optimum"] != "unknown"
-    opt = None if r["optimum"] in (None, "unknown") else _f(r["optimum"])
-    b = r["bounds"]
-    return optimum_cell(opt, known, _f(b["lower"]), _f(b["upper"]), r.get("payoffs") == "interval")
+def _opt(r: ResultDoc) -> str:
+    known = r.stats.stopped == "finished" and r.optimum != "unknown"
+    opt = None if r.optimum == "unknown" else _f(r.optimum)
+    lower, upper = r.bounds
+    return optimum_cell(opt, known, _f(lower), _f(upper), r.payoffs == "interval")
 
 
 def _tag(name: str) -> str:
@@ -112,44 +123,43 @@ def _tag(name: str) -> str:
 class _Run:
     """Accessors over one run of the results document."""
 
-    def __init__(self, run: dict[str, Any]) -> None:
+    def __init__(self, run: RunDoc) -> None:
         self.d = run
-        self.name: str = run["label"]
-        self.tag = _tag(run["design"])
-        self.paths: list[dict[str, Any]] = run["paths"]
-        self.by_no = {p["no"]: p for p in self.paths}
-        self.states: dict[str, Any] = run["states"]
-        self.props: list[dict[str, Any]] = run["properties"]
-        self.results: list[dict[str, Any]] = run["results"]
-        self.window = (int(run["window"][0]), int(run["window"][1]))
-        self.comps: list[str] = run["model"]["components"]
-        roles = run["roles"]
-        self.original: int | None = roles["original"]
-        self.cex: list[int | None] = roles["counterexample"]
-        self.wit: list[int | None] = roles["witness"]
+        self.name: str = run.label
+        self.tag = _tag(run.design)
+        self.paths = run.paths
+        self.by_no = {p.no: p for p in self.paths}
+        self.states = run.states
+        self.props = run.properties
+        self.results = run.results
+        self.window = run.window
+        self.comps = run.model.components
+        self.original: int | None = run.original
+        self.cex: tuple[int | None, ...] = run.counterexamples
+        self.wit: tuple[int | None, ...] = run.witnesses
 
     def s(self, no: int) -> np.ndarray:
-        return np.array([self.states[q]["s"] for q in self.by_no[no]["states"]], float)
+        return np.array([self.states[q].s for q in self.by_no[no].states], float)
 
     def tau(self, no: int) -> np.ndarray:
-        return np.array([_f(self.states[q]["tau"]) for q in self.by_no[no]["states"]])
+        return np.array([_f(self.states[q].tau) for q in self.by_no[no].states])
 
     def end(self) -> int:
-        return int(self.d["model"]["end"])
+        return self.d.model.end
 
     def deviations(self, i: int, role: str) -> np.ndarray:
         """Property ``i``'s dist.at(k), k = 0..end, of its counterexample or witness as the
         check computed them (inf after a halt); the original track's are 0 (Eq. 4)."""
         if role == "original":
             return np.zeros(self.end() + 1)
-        path = self.results[i]["counterexample" if role == "counterexample" else "witness"]
-        return np.array([_f(x) for x in path["deviation"]])
+        r = self.results[i]
+        path = r.counterexample if role == "counterexample" else r.witness
+        return np.array([_f(x) for x in path or ()])
 
     def adversarial(self, i: int) -> int:
         """Listed tracks that break property ``i`` and that its monitor does not flag."""
         return sum(
-            j["admissible"] and j["violates"] and not j["alarms"]
-            for j in (p["judged"][i] for p in self.paths)
+            j.admissible and j.violates and not j.alarms for j in (p.judged[i] for p in self.paths)
         )
 
     def cex_role(self, i: int) -> str:
@@ -157,9 +167,9 @@ class _Run:
         ``counterexample``): ``counterexample`` when its objective fails ``holds if``, else
         ``cheapest`` (the property holds: the cheapest such attack costs too much)."""
         r = self.results[i]
-        cex = r.get("is_counterexample")
+        cex = r.is_counterexample
         if cex is None:  # a results file from before lesmc said which
-            cex = r["verdict"] != "holds"
+            cex = r.verdict != "holds"
         return "counterexample" if cex else "cheapest"
 
     def roles(self) -> dict[int, list[tuple[str, int | None]]]:
@@ -176,7 +186,7 @@ class _Run:
 
     def role_text(self, no: int) -> list[str]:
         return [
-            r if i is None else f"{self.props[i]['name']} {ROLE_WORDS.get(r, r)}"
+            r if i is None else f"{self.props[i].name} {ROLE_WORDS.get(r, r)}"
             for r, i in self.roles().get(no, [])
         ]
 
@@ -186,21 +196,22 @@ ROLE_WORDS = {"witness": "ρ*", "cheapest": "cheapest path (holds: not a counter
 
 
 def render(
-    doc: dict[str, Any],
+    doc: ResultsDoc,
     image_for: ImageFor | None = None,
     store: PngStore | None = None,
 ) -> tuple[str, dict[str, bytes]]:
     """The report page (templates/report.html.j2; figures as data URIs) and its figures by
     file name (read from ``store`` where drawn before from the same values; drawn
     otherwise, by two processes where :func:`lesmc.report.drawing.may_fork`)."""
-    runs = [_Run(r) for r in doc["runs"]]
+    runs = [_Run(r) for r in doc.runs]
     figs = FigureSet(store)
     toc: list[tuple[str, str]] = [("verdicts", "Verdicts")]
     if len(runs) > 1:
         toc.append(("designs", "Designs compared (Table 5)"))
-    if doc.get("monitor_false_alarms"):
+    fa = doc.monitor_false_alarms
+    if fa is not None:
         toc.append(("false-alarms", "The monitor on unattacked tracks"))
-    faults = _faults_table(doc["runs"])
+    faults = _faults_table(doc.runs)
     if faults is not None:
         toc.append(("faults", "Component failures"))
     sections = []
@@ -209,7 +220,6 @@ def render(
         parts = _section(run, figs, image_for, payoff_words(doc))
         sections.append({"tag": run.tag, "name": run.name, "parts": parts})
     toc += [("specs", "Properties (spec text)"), ("provenance", "Provenance and timings")]
-    fa = doc.get("monitor_false_alarms")
     cheapest = any(r.cex_role(i) == "cheapest" for r in runs for i in range(len(r.props)))
     page = render_page(
         "report.html.j2",
@@ -230,10 +240,10 @@ def render(
         toc=toc,
         verdicts=_verdicts(runs),
         table5=_table5(runs) if len(runs) > 1 else None,
-        false_alarms=None if not fa else {"what": fa["what"], "table": _false_alarms(fa)},
+        false_alarms=None if fa is None else {"what": fa.what, "table": _false_alarms(fa)},
         faults=faults,
         sections=sections,
-        specs=doc.get("provenance", {}).get("specs", []),
+        specs=doc.provenance.specs,
         monitored=_monitored(doc),
         provenance=_provenance(doc),
         timings=_timings(doc),
@@ -242,19 +252,22 @@ def render(
     return page, figs.pngs
 
 
-def _meta(doc: dict[str, Any]) -> Table:
-    prov = doc.get("provenance", {})
-    rows = dict(doc.get("meta", {}))
-    rows["lesmc"] = f"{prov.get('tool_version', '?')} (Python {prov.get('python', '?')})"
-    rows["date"] = prov.get("date", "?")
-    rows["command"] = " ".join(prov.get("command", []))
+def _meta(doc: ResultsDoc) -> Table:
+    prov = doc.provenance
+    python = "?" if prov.python is None else prov.python
+    rows = dict(doc.meta)
+    rows |= {
+        "lesmc": f"{prov.tool_version} (Python {python})",
+        "date": prov.date,
+        "command": " ".join(prov.command),
+    }
     return key_values(list(rows.items()))
 
 
 def _verdicts(runs: list[_Run]) -> list[Markup]:
     return [
         Markup("<b>{}</b> · {}: <span class='{}'>{}</span> (optimum {}, holds if {})").format(
-            run.name, r["property"], status_class(r), verdict_of(r), _opt(r), r["holds_if"]
+            run.name, r.property, status_class(r), verdict_of(r), _opt(r), r.holds_if
         )
         for run in runs
         for r in run.results
@@ -268,7 +281,7 @@ def _table5(runs: list[_Run]) -> Table:
         [Cell(h, head=True) for _ in runs for h in sub],
     ]
     rows = []
-    for i, p in enumerate(p["name"] for p in runs[0].props):
+    for i, p in enumerate(p.name for p in runs[0].props):
         cells = [Cell(p, head=True)]
         for run in runs:
             if i >= len(run.results):
@@ -278,20 +291,20 @@ def _table5(runs: list[_Run]) -> Table:
             cells += [
                 Cell(verdict_of(r), status_class(r)),
                 Cell(_opt(r)),
-                Cell(fmt(r["witness_value"])),
+                Cell(fmt(r.witness_value)),
                 Cell(run.adversarial(i)),
             ]
         rows.append(Row(cells))
     return Table(head, rows)
 
 
-def _sweep_curves(run: dict[str, Any]) -> list[figures.SweepCurve]:
+def _sweep_curves(run: RunDoc) -> list[figures.SweepCurve]:
     """The run's sweep variants (``NAME@eps=V``, ``NAME@eps=V,p=1``) as curves: one per
     property and setting of the other parameters, over ε (else over p), in the order
     swept. A sweep of payoff sources alone has no numeric axis: no curve."""
-    groups: dict[tuple[str, str, str], list[tuple[float, dict[str, Any]]]] = {}
-    for r in run["results"]:
-        base, _, label = r["property"].partition("@")
+    groups: dict[tuple[str, str, str], list[tuple[float, ResultDoc]]] = {}
+    for r in run.results:
+        base, _, label = r.property.partition("@")
         settings = dict(kv.split("=", 1) for kv in label.split(",") if "=" in kv)
         if not settings:
             continue
@@ -310,9 +323,9 @@ def _sweep_curves(run: dict[str, Any]) -> list[figures.SweepCurve]:
                 parameter=axis,
                 values=tuple(v for v, _ in rows),
                 optima=tuple(
-                    math.nan if r["optimum"] == "unknown" else _f(r["optimum"]) for _, r in rows
+                    math.nan if r.optimum == "unknown" else _f(r.optimum) for _, r in rows
                 ),
-                threshold=float(rows[0][1]["threshold"]),
+                threshold=rows[0][1].threshold,
                 verdicts=tuple(verdict_of(r) for _, r in rows),
             )
         )
@@ -334,31 +347,31 @@ def _sweep_figure(run: _Run, figs: FigureSet) -> Figure | None:
     )
 
 
-def _faults_table(runs: list[dict[str, Any]]) -> Table | None:
+def _faults_table(runs: Sequence[RunDoc]) -> Table | None:
     """Which faults break which design: per property under each combination of faults
     (``NAME+FAULT``), each design's verdict, optimum and the worst activation."""
     names: list[str] = []
     for run in runs:
-        names += [f["result"]["property"] for f in run.get("faults", [])]
+        names += [r.property for _, r in run.faults]
     if not names:
         return None
     names = list(dict.fromkeys(names))
     sub = ("verdict", "optimum", "worst activation")
     head = [
         [Cell("property + faults", head=True, rows=2)]
-        + [Cell(run["label"], head=True, span=3) for run in runs],
+        + [Cell(run.label, head=True, span=3) for run in runs],
         [Cell(h, head=True) for _ in runs for h in sub],
     ]
     rows = []
     for name in names:
         cells = [Cell(name, head=True)]
         for run in runs:
-            got = {f["result"]["property"]: f["result"] for f in run.get("faults", [])}
+            got = {r.property: r for _, r in run.faults}
             r = got.get(name)
             if r is None:
                 cells.append(Cell("-", span=3))
                 continue
-            worst = next((n for n in r["notes"] if n.startswith("worst activation: ")), "")
+            worst = next((n for n in r.notes if n.startswith("worst activation: ")), "")
             cells += [
                 Cell(verdict_of(r), status_class(r)),
                 Cell(_opt(r)),
@@ -368,19 +381,19 @@ def _faults_table(runs: list[dict[str, Any]]) -> Table | None:
     return Table(head, rows)
 
 
-def _false_alarms(fa: dict[str, Any]) -> Table:
+def _false_alarms(fa: FalseAlarms) -> Table:
     head = ["monitor", "tracks", "steps", "alarms", "per step", "tracks with an alarm"]
     rows = [
         [
-            Cell(r["monitor"], head=True),
-            r["tracks"],
-            r["steps"],
-            r["alarms"],
-            _pct(r["alarms"], r["steps"]),
-            r["tracks_alarmed"],
-            _pct(r["tracks_alarmed"], r["tracks"]),
+            Cell(r.monitor, head=True),
+            r.tracks,
+            r.steps,
+            r.alarms,
+            _pct(r.alarms, r.steps),
+            r.tracks_alarmed,
+            _pct(r.tracks_alarmed, r.tracks),
         ]
-        for r in fa["rows"]
+        for r in fa.rows
     ]
     return table([*head, "per track"], rows)
 
@@ -414,7 +427,7 @@ def _label(run: _Run, no: int, role: str, prop: int | None) -> str:
     names["cheapest"] = "cheapest breaking path (holds)"
     name = names.get(role, role)
     if prop is not None and len(run.props) > 1:
-        name = f"{run.props[prop]['name']}: {name}"
+        name = f"{run.props[prop].name}: {name}"
     return f"{name} (#{no})"
 
 
@@ -442,37 +455,37 @@ def _section(run: _Run, figs: FigureSet, image_for: ImageFor | None, payoffs: st
     parts += _table3(run)
     for r in run.results:
         for n in _notes(r):
-            parts.append(para(f"{r['property']}: {n}", "note"))
+            parts.append(para(f"{r.property}: {n}", "note"))
     return parts
 
 
-def _notes(r: dict[str, Any]) -> list[str]:
+def _notes(r: ResultDoc) -> list[str]:
     """A result's notes, and what its final status asks of the reader: a violation not
     replayed says how to replay it (written from the status after any replay, never
     kept from before it)."""
-    rp = r.get("replay") or {}
-    if rp.get("status") != "not replayed":
-        return list(r["notes"])
-    return [*r["notes"], not_replayed_text(rp.get("command"))]
+    rp = r.replay
+    if rp is None or rp.status != "not replayed":
+        return list(r.notes)
+    return [*r.notes, not_replayed_text(rp.command)]
 
 
 def _model_line(run: _Run) -> Text:
-    m = run.d["model"]
+    m = run.d.model
     return para(
         Markup(
             "{} states built (the whole model), {} transitions, steps 0..{} (frames {}..{}), "
             "attack window {}..{}, "
             "{} attacked tracks. Model sha256 <code>{}…</code>."
         ).format(
-            m["states"],
-            m["transitions"],
-            m["end"],
-            m["first_frame"],
-            m["first_frame"] + m["end"],
+            m.states,
+            m.transitions,
+            m.end,
+            m.first_frame,
+            m.first_frame + m.end,
             run.window[0],
             run.window[1],
-            run.d["paths_total"],
-            m["sha256"][:16],
+            run.d.paths_total,
+            m.sha256[:16],
         )
     )
 
@@ -484,13 +497,13 @@ def _property_figures(run: _Run, i: int, figs: FigureSet, image_for: ImageFor | 
     if not any(role != "original" for _, role, _ in drawn):
         return [
             para(
-                f"{prop['name']}: no attacked track to draw (no counterexample, no "
+                f"{prop.name}: no attacked track to draw (no counterexample, no "
                 "witness: the monitor excludes every path"
-                + (", the unattacked track included" if r.get("vacuous") else "")
+                + (", the unattacked track included" if r.vacuous else "")
                 + ")."
             )
         ]
-    scene = run.d.get("scene")
+    scene = run.d.scene
     parts: list[Any] = []
     if scene is not None:
         parts.append(_track_figure(run, i, drawn, scene, None, figs, image_for))
@@ -499,12 +512,12 @@ def _property_figures(run: _Run, i: int, figs: FigureSet, image_for: ImageFor | 
         for no, role, p in drawn
     ]
     cumulative = (
-        prop["constraint_source"] == "dist"
-        and prop["constraint_aggregate"] == "sum"
-        and prop["constraint_range"][1] > prop["constraint_range"][0]
+        prop.constraint_source == "dist"
+        and prop.constraint_aggregate == "sum"
+        and prop.constraint_range[1] > prop.constraint_range[0]
     )
-    bound = float(prop["bound"]) if prop["constraint_source"] == "dist" else None
-    name = f"{run.tag}-{_tag(prop['name'])}-deviation.png"
+    bound = prop.bound if prop.constraint_source == "dist" else None
+    name = f"{run.tag}-{_tag(prop.name)}-deviation.png"
     figs.draw(
         name,
         figures.deviation,
@@ -512,10 +525,10 @@ def _property_figures(run: _Run, i: int, figs: FigureSet, image_for: ImageFor | 
         bound,
         cumulative,
         run.window,
-        f"{prop['name']}: {r['constraint']}",
+        f"{prop.name}: {r.constraint}",
     )
     caption = (
-        f"{prop['name']} ({run.name}): deviation from the original track per step"
+        f"{prop.name} ({run.name}): deviation from the original track per step"
         + (" and accumulated" if cumulative else "")
         + f" of {_drawn_words(drawn[1:]) or 'no attacked track'}"
         + (f", against the constraint's threshold {bound:g}" if bound is not None else "")
@@ -539,31 +552,31 @@ def _table4(run: _Run) -> Table:
     for i, r in enumerate(run.results):
         check = (
             "exhaustive"
-            if run.d["paths_total"] == len(run.paths)
-            else f"over {len(run.paths)} of {run.d['paths_total']} paths"
+            if run.d.paths_total == len(run.paths)
+            else f"over {len(run.paths)} of {run.d.paths_total} paths"
         )
-        alarms = r.get("original_alarms")
-        mon = run.props[i]["monitor"]
+        alarms = r.original_alarms
+        mon = run.props[i].monitor
         monitor = (
             "-"
             if mon is None
-            else ("except original; " if mon["except_original"] else "")
+            else ("except original; " if mon.except_original else "")
             + ("unattacked track alarms at " + ", ".join(map(str, alarms)) if alarms else "none")
         )
         rows.append(
             [
-                Cell(r["property"], head=True),
+                Cell(r.property, head=True),
                 Cell(verdict_of(r), status_class(r)),
-                r["objective"],
-                r["constraint"],
+                r.objective,
+                r.constraint,
                 _opt(r),
-                r["holds_if"],
-                fmt(r["witness_value"]),
+                r.holds_if,
+                fmt(r.witness_value),
                 _no(run.wit[i]),
                 _cex_cell(run, i),
                 monitor,
                 f"{run.adversarial(i)} ({check})",
-                f"{r['stats']['seconds']:.3f} s, {r['stats']['states_expanded']} states expanded",
+                f"{r.stats.seconds:.3f} s, {r.stats.states_expanded} states expanded",
             ]
         )
     head = ["property", "verdict", "minimise", "subject to", "optimum", "holds if", "θ*"]
@@ -588,27 +601,27 @@ def _track_figure(
     run: _Run,
     i: int,
     drawn: list[tuple[int, str, int | None]],
-    scene: dict[str, Any],
+    scene: SceneDoc,
     truth: list[list[float]] | None,
     figs: FigureSet,
     image_for: ImageFor | None,
 ) -> Figure:
     prop = run.props[i]
-    ref = int(scene["ref_step"])
-    frame = int(scene["first_frame"]) + ref
+    ref = scene.ref_step
+    frame = scene.first_frame + ref
     tracks = []
     for no, role, p in drawn:
-        pts = np.array([run.states[q]["ref"] for q in run.by_no[no]["states"]], float)
+        pts = np.array([run.states[q].ref for q in run.by_no[no].states], float)
         tracks.append((Series(_label(run, no, role, p), role, np.zeros(0), p, number=no), pts))
-    dets = np.array([d[4:6] for d in scene["detections"][ref]], float).reshape(-1, 2)
+    dets = np.array([(d.x_ref, d.y_ref) for d in scene.detections[ref]], float).reshape(-1, 2)
     tr = None
-    if scene.get("truth_ref"):
+    if scene.truth_ref:
         tr = np.array(
-            [[np.nan, np.nan] if t is None else t for t in scene["truth_ref"]],
+            [[np.nan, np.nan] if t is None else t for t in scene.truth_ref],
             float,
         )
     img = image_for(frame) if image_for is not None else None
-    name = f"{run.tag}-{_tag(prop['name'])}-tracks.png"
+    name = f"{run.tag}-{_tag(prop.name)}-tracks.png"
     figs.draw(
         name,
         figures.track_crop,
@@ -618,11 +631,11 @@ def _track_figure(
         dets,
         tr,
         img,
-        f"{prop['name']}: tracks in the frame of step {ref}",
+        f"{prop.name}: tracks in the frame of step {ref}",
     )
     return Figure(
         name,
-        f"{prop['name']} ({run.name}): {_drawn_words(drawn)}"
+        f"{prop.name} ({run.name}): {_drawn_words(drawn)}"
         + (", the target's ground truth (black, dotted)" if tr is not None else "")
         + f" and the detections of step {ref} (amber rings), in the pixels of frame {frame}"
         + ("" if img is not None else " (no video frames given: lesmc report --frames DIR)")
@@ -633,31 +646,29 @@ def _track_figure(
 
 def _tree_figure(run: _Run, figs: FigureSet) -> Figure:
     roles = run.roles()
-    chosen = [p for p in run.paths if p["no"] in roles]
+    chosen = [p for p in run.paths if p.no in roles]
     for p in run.paths:
         if len(chosen) >= MAX_TREE_LEAVES:
             break
-        if p["no"] not in roles:
+        if p.no not in roles:
             chosen.append(p)
-    chosen.sort(key=lambda p: p["no"])
+    chosen.sort(key=lambda p: p.no)
     tps = []
     for p in chosen:
-        rl = roles.get(p["no"], [])
+        rl = roles.get(p.no, [])
         role = rl[0][0] if rl else "other"
         for strong in ("cheapest", "counterexample"):
             if any(r == strong for r, _ in rl):
                 role = strong
         if any(r == "original" for r, _ in rl):
             role = "original"
-        tps.append(
-            TreePath(p["no"], tuple(p["states"]), tuple(p["labels"]), role, run.role_text(p["no"]))
-        )
+        tps.append(TreePath(p.no, p.states, p.labels, role, run.role_text(p.no)))
     name = f"{run.tag}-tree.png"
-    figs.draw(name, figures.tree, tps, run.d["paths_total"], run.window)
-    left = run.d["paths_total"] - len(tps)
+    figs.draw(name, figures.tree, tps, run.d.paths_total, run.window)
+    left = run.d.paths_total - len(tps)
     return Figure(
         name,
-        f"Attacked tracks ({run.name}), {len(tps)} of {run.d['paths_total']} drawn"
+        f"Attacked tracks ({run.name}), {len(tps)} of {run.d.paths_total} drawn"
         + (f" ({left} not drawn; all are in Table 3 and results.json)" if left else "")
         + ". A node is the detection the tracker takes at that step; each leaf carries its "
         "row number in Table 3 and its roles. Steps at which no track branches are "
@@ -675,16 +686,16 @@ def _tau_figure(run: _Run, figs: FigureSet) -> Figure | Text:
             seen.add(no)
             alarms = set()
             for j in range(len(run.props)):
-                alarms |= set(run.by_no[no]["judged"][j]["alarms"])
+                alarms |= set(run.by_no[no].judged[j].alarms)
             if role == "original":
                 for r in run.results:
-                    alarms |= set(r.get("original_alarms") or [])
+                    alarms |= set(r.original_alarms or ())
             series.append(
                 Series(_label(run, no, role, p), role, run.tau(no), p, tuple(sorted(alarms)), no)
             )
     if not series or all(not np.isfinite(s.values).any() for s in series):
         return para("No covariances in this model: no uncertainty figure.")
-    monitored = [p["name"] for p in run.props if p["monitor"] is not None]
+    monitored = [p.name for p in run.props if p.monitor is not None]
     name = f"{run.tag}-uncertainty.png"
     figs.draw(name, figures.uncertainty, series, run.window)
     return Figure(
@@ -701,11 +712,11 @@ def _tau_figure(run: _Run, figs: FigureSet) -> Figure | Text:
 
 def _patches(run: _Run, figs: FigureSet, image_for: ImageFor | None, payoffs: str) -> list[Any]:
     """What the counterexamples' attacks hide: a table, the replays, and the patches."""
-    hidden = run.d.get("hidden") or {}
+    hidden = run.d.hidden
     if not any(hidden.values()):
         return []
-    replays = {r["property"]: r.get("replay") or {} for r in run.results}
-    holding = {run.props[i]["name"] for i in range(len(run.props)) if run.cex_role(i) == "cheapest"}
+    replays = {r.property: r.replay.perturbations for r in run.results if r.replay is not None}
+    holding = {run.props[i].name for i in range(len(run.props)) if run.cex_role(i) == "cheapest"}
     out = [*_hidden_table(hidden, replays, holding, payoffs), *_replay_lines(run)]
     if image_for is None:
         return [
@@ -718,7 +729,10 @@ def _patches(run: _Run, figs: FigureSet, image_for: ImageFor | None, payoffs: st
 
 
 def _hidden_table(
-    hidden: dict[str, Any], replays: dict[str, Any], holding: set[str], payoffs: str
+    hidden: Mapping[str, tuple[HiddenEntry, ...]],
+    replays: Mapping[str, tuple[Perturbation, ...]],
+    holding: set[str],
+    payoffs: str,
 ) -> list[Any]:
     """One row per hidden detection: where, its payoff, its certified interval, and the
     payoff the replay recomputed. ``holding``: the properties that hold (their path is the
@@ -726,23 +740,24 @@ def _hidden_table(
     payoffs came from (:func:`payoff_words`)."""
     rows = []
     for prop, items in hidden.items():
-        recomputed = {p["obs"]: p for p in replays.get(prop, {}).get("perturbations", [])}
+        recomputed = {p.obs: p for p in replays.get(prop, ())}
         name = f"{prop} (holds: cheapest breaking path)" if prop in holding else prop
-        for h in items:
-            where = f"({h['x']:.1f}, {h['y']:.1f})" if "x" in h else "-"
-            lo, up = h.get("payoff_lower"), h["payoff"]
+        for e in items:
+            h = e.hidden
+            where = f"({h.x:.1f}, {h.y:.1f})" if h.placed else "-"
+            lo, up = e.payoff_lower, e.payoff
             interval = "-" if lo is None else f"[{fmt(lo)}, {fmt(up)}]"
             tight = "-"
             if lo is not None and math.isfinite(_f(up)) and _f(up) > 0:
                 tight = f"{_f(lo) / _f(up):.2f}"
-            again = recomputed.get(h["obs"])
-            rec = "-" if again is None else fmt(again["payoff_recomputed"])
+            again = recomputed.get(h.obs)
+            rec = "-" if again is None else fmt(again.payoff_recomputed)
             rows.append(
                 [
                     Cell(name, head=True),
-                    h["step"],
-                    h["frame"],
-                    h["obs"],
+                    h.step,
+                    h.frame,
+                    h.obs,
                     where,
                     fmt(up),
                     interval,
@@ -772,11 +787,11 @@ def _hidden_table(
     ]
 
 
-def payoff_words(doc: dict[str, Any]) -> str:
+def payoff_words(doc: ResultsDoc) -> str:
     """Where the detections' payoffs came from, in words: the results' ``meta`` says
     (``payoff source``, lesmc/results/document.py); a results file written before it did
     is read as the attack on N_dr when its payoff unit names N_dr."""
-    meta = doc.get("meta", {})
+    meta = doc.meta
     source = meta.get("payoff source")
     if isinstance(source, str) and source:
         return source
@@ -787,29 +802,28 @@ def payoff_words(doc: dict[str, Any]) -> str:
 
 def _patch_figures(
     run: _Run,
-    hidden: dict[str, Any],
-    replays: dict[str, Any],
+    hidden: Mapping[str, tuple[HiddenEntry, ...]],
+    replays: Mapping[str, tuple[Perturbation, ...]],
     figs: FigureSet,
     image_for: ImageFor,
 ) -> list[Figure]:
     """The hidden detections' patches: with the replayed perturbation where there is one."""
     triples, singles = [], []
     for prop, items in hidden.items():
-        perts = {p["obs"]: p for p in replays.get(prop, {}).get("perturbations", [])}
-        for h in items:
-            img = image_for(int(h["frame"])) if "x" in h else None
+        perts = {p.obs: p for p in replays.get(prop, ())}
+        for e in items:
+            h = e.hidden
+            img = image_for(h.frame) if h.placed else None
             if img is None:
                 continue
-            pert = perts.get(h["obs"])
+            pert = perts.get(h.obs)
             if pert is None:
-                singles.append(
-                    (f"{prop} step {h['step']}\n{h['obs']}", figures.patch(img, (h["x"], h["y"])))
-                )
+                singles.append((f"{prop} step {h.step}\n{h.obs}", figures.patch(img, (h.x, h.y))))
                 continue
-            x0, y0 = pert["window_origin"]
+            x0, y0 = pert.window_origin
             orig = figures.patch(img, (x0 + 10, y0 + 10))
-            delta = np.asarray(pert["delta"], float)[-1]  # the current frame's channel
-            triples.append((f"{prop}, step {h['step']}, {h['obs']}", orig, delta))
+            delta = np.asarray(pert.delta, float)[-1]  # the current frame's channel
+            triples.append((f"{prop}, step {h.step}, {h.obs}", orig, delta))
     if triples:
         name = f"{run.tag}-perturbations.png"
         figs.draw(name, figures.perturbations, triples[:8])
@@ -846,26 +860,26 @@ def _replay_lines(run: _Run) -> list[Text]:
     """One line per replayed counterexample: confirmed, or where and why it diverged."""
     items = []
     for r in run.results:
-        rp = r.get("replay")
-        if not rp:
+        rp = r.replay
+        if rp is None:
             continue
-        how = " (repaired joint attack)" if rp.get("attack") == "repaired" else ""
-        if rp["status"] == "not replayed":
+        how = " (repaired joint attack)" if rp.attack == "repaired" else ""
+        if rp.status == "not replayed":
             text = Markup(
                 "<b>not replayed</b>: the counterexample is the model's; run it through the "
                 "detector with <code>{}</code>"
-            ).format(rp.get("command") or "lesmc replay RESULTS.json --frames VIDEO/")
-        elif rp["status"] == "confirmed":
+            ).format(rp.command or "lesmc replay RESULTS.json --frames VIDEO/")
+        elif rp.status == "confirmed":
             text = Markup(
                 "<b>confirmed</b>{}: the real detector and tracker take the same "
                 "detections; largest position error {} px"
-            ).format(how, f"{rp['max_error_px']:.3g}")
+            ).format(how, f"{rp.max_error_px:.3g}")
         else:
             text = Markup(
                 "<b>diverged</b>{} at step {}: {}; the "
                 "counterexample is no proof of violation and the verdict is unknown"
-            ).format(how, rp["step"], rp["reason"])
-        items.append(Markup("{}: {}").format(r["property"], text))
+            ).format(how, rp.step, rp.reason)
+        items.append(Markup("{}: {}").format(r.property, text))
     if not items:
         return []
     return [
@@ -880,28 +894,28 @@ def _replay_lines(run: _Run) -> list[Text]:
 def _table3(run: _Run) -> list[Any]:
     roles = run.roles()
     l, u = run.window
-    shown = [p for p in run.paths if p["no"] in roles]
-    shown += [p for p in run.paths if p["no"] not in roles][: max(MAX_TABLE_ROWS - len(shown), 0)]
-    shown.sort(key=lambda p: p["no"])
-    monitored = [i for i, p in enumerate(run.props) if p["monitor"] is not None]
+    shown = [p for p in run.paths if p.no in roles]
+    shown += [p for p in run.paths if p.no not in roles][: max(MAX_TABLE_ROWS - len(shown), 0)]
+    shown.sort(key=lambda p: p.no)
+    monitored = [i for i, p in enumerate(run.props) if p.monitor is not None]
     rows = []
     for p in shown:
         cells = [
-            Cell(p["no"]),
-            Cell(" → ".join(p["labels"][l : u + 1]), "obs"),
-            *(Cell(fmt(p[k])) for k in ("payoff", "dist_sum", "dist_max", "dist_end")),
-            *(Cell("yes" if j["violates"] else "no") for j in p["judged"]),
-            *(Cell(", ".join(map(str, p["judged"][i]["alarms"])) or "-") for i in monitored),
-            Cell(", ".join(run.role_text(p["no"]))),
+            Cell(p.no),
+            Cell(" → ".join(p.labels[l : u + 1]), "obs"),
+            *(Cell(fmt(x)) for x in (p.payoff, p.dist_sum, p.dist_max, p.dist_end)),
+            *(Cell("yes" if j.violates else "no") for j in p.judged),
+            *(Cell(", ".join(map(str, p.judged[i].alarms)) or "-") for i in monitored),
+            Cell(", ".join(run.role_text(p.no))),
         ]
-        rows.append(Row(cells, _row_class({r for r, _ in roles.get(p["no"], [])})))
-    left = run.d["paths_total"] - len(shown)
-    note = f"{len(shown)} of {run.d['paths_total']} tracks listed" + (
+        rows.append(Row(cells, _row_class({r for r, _ in roles.get(p.no, [])})))
+    left = run.d.paths_total - len(shown)
+    note = f"{len(shown)} of {run.d.paths_total} tracks listed" + (
         f"; {left} left out (results.json lists up to {len(run.paths)})." if left else "."
     )
     head = ["no.", "observations in the window", "φ", "dist.sum", "dist.max", "dist.at(end)"]
-    head += [f"breaks {p['name']}" for p in run.props]
-    head += [f"alarms ({run.props[i]['name']})" for i in monitored]
+    head += [f"breaks {p.name}" for p in run.props]
+    head += [f"alarms ({run.props[i].name})" for i in monitored]
     return [
         Text("h3", "Measures of the attacked tracks (Table 3)"),
         para(
@@ -929,58 +943,48 @@ def _row_class(roles: set[str]) -> str:
     return ""
 
 
-def _monitor_text(mon: dict[str, Any]) -> str:
-    """A monitor of a results document as its spec clause reads (older documents: tau_rise)."""
-    kind = mon.get("kind", "tau_rise")
-    param = mon.get("parameter", mon["tolerance"])
-    if kind == "tau_rise":
-        return f"monitor uncertainty on {', '.join(mon['components'])}, tolerance {param:g}"
-    window = mon.get("window", 1)
-    return f"monitor {kind} {param:g}" + (f" window {window}" if window != 1 else "")
-
-
-def _monitored(doc: dict[str, Any]) -> list[str]:
+def _monitored(doc: ResultsDoc) -> list[str]:
     """Per design with monitored properties: which, on what, with which parameter."""
     out = []
-    for run in doc["runs"]:
-        mon = [p for p in run["properties"] if p["monitor"] is not None]
+    for run in doc.runs:
+        mon = [(p.name, p.monitor) for p in run.properties if p.monitor is not None]
         if mon:
             out.append(
-                f"Design {run['design']}: "
+                f"Design {run.design}: "
                 + "; ".join(
-                    f"{p['name']} monitored ({_monitor_text(p['monitor'])}"
-                    + (", except original" if p["monitor"]["except_original"] else "")
+                    f"{name} monitored ({m.clause()}"
+                    + (", except original" if m.except_original else "")
                     + ")"
-                    for p in mon
+                    for name, m in mon
                 )
                 + "."
             )
     return out
 
 
-def _provenance(doc: dict[str, Any]) -> Table:
-    prov = doc.get("provenance", {})
+def _provenance(doc: ResultsDoc) -> Table:
+    prov = doc.provenance
     rows = [
-        ("format", f"{doc['format']} version {doc['version']}"),
-        ("tool", f"{prov.get('tool', 'lesmc')} {prov.get('tool_version', '?')}"),
-        ("date", prov.get("date", "?")),
-        ("command", " ".join(prov.get("command", []))),
-        ("seeds", ", ".join(f"{k} {v}" for k, v in prov.get("seeds", {}).items()) or "-"),
+        ("format", f"{doc.format} version {doc.version}"),
+        ("tool", f"{prov.tool} {prov.tool_version}"),
+        ("date", prov.date),
+        ("command", " ".join(prov.command)),
+        ("seeds", ", ".join(f"{k} {v}" for k, v in prov.seeds.items()) or "-"),
     ]
-    for design, h in prov.get("model_sha256", {}).items():
+    for design, h in prov.model_sha256.items():
         rows.append((f"model sha256 ({design})", h))
     return key_values(rows)
 
 
-def _timings(doc: dict[str, Any]) -> Table:
-    rows = [(k, f"{v:.3f} s") for k, v in doc.get("timings", {}).items()]
+def _timings(doc: ResultsDoc) -> Table:
+    rows = [(k, f"{v:.3f} s") for k, v in doc.timings.items()]
     rows += [
         (
-            f"{run['design']} · {r['property']}",
-            f"{r['stats']['seconds']:.3f} s ({r['stats']['engine']}, "
-            f"{r['stats']['states_expanded']} states expanded)",
+            f"{run.design} · {r.property}",
+            f"{r.stats.seconds:.3f} s ({r.stats.engine}, "
+            f"{r.stats.states_expanded} states expanded)",
         )
-        for run in doc["runs"]
-        for r in run["results"]
+        for run in doc.runs
+        for r in run.results
     ]
     return key_values(rows)

@@ -19,7 +19,8 @@ import json
 import math
 import platform
 import sys
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
+from dataclasses import replace
 from datetime import UTC, datetime
 from importlib.metadata import PackageNotFoundError, version
 from typing import Any
@@ -27,7 +28,7 @@ from typing import Any
 import numpy as np
 
 from lesmc.designs import registry
-from lesmc.engines.result import PathInfo
+from lesmc.engines.result import PathInfo, status_word
 from lesmc.engines.space import build_space
 from lesmc.language.properties import SpecFile
 from lesmc.language.semantics import BoundProperty
@@ -35,7 +36,7 @@ from lesmc.model import kernel
 from lesmc.model.arrays import ArrayModel
 from lesmc.model.lts_format import lts_to_dict
 from lesmc.results import tracks
-from lesmc.results.record import DesignRun
+from lesmc.results.record import DesignRun, Results
 from lesmc.results.tracks import Track
 from lesmc.scene import Scene
 from lesmc.scene.frames import warp
@@ -440,3 +441,40 @@ def results_document(
     doc["provenance"]["model_sha256"] = {r["design"]: r["model"]["sha256"] for r in doc["runs"]}
     doc.update(extra or {})
     return doc
+
+
+def record_replays(
+    doc: dict[str, Any],
+    replays: Mapping[tuple[int, int], dict[str, Any]],
+    seconds: float,
+    results: Results | None = None,
+) -> None:
+    """Record each replay object (lesmc/replay/run.py) of result ``(run, result)`` in the
+    document (and in the typed ``results`` it was written from, if given): the status, and
+    for a diverged counterexample (no proof) the verdict ``unknown`` with a note; the
+    model's optimum stays in the bounds."""
+    for (i, j), obj in replays.items():
+        res = doc["runs"][i]["results"][j]
+        res["replay"] = obj
+        if obj["status"] == "diverged" and res["verdict"] == "violated":
+            res["verdict"] = "unknown"
+            res["notes"].append(diverged_note(res["optimum"], obj))
+        res["status"] = status_word(res["verdict"], res["vacuous"], obj["status"])
+        if results is not None:
+            run = results.runs[i]
+            run.results[j] = replace(
+                run.results[j],
+                verdict=res["verdict"],
+                notes=list(res["notes"]),
+                replay=obj["status"],
+            )
+    doc["replay"] = {"replayed": len(replays), "seconds": round(seconds, 3)}
+
+
+def diverged_note(optimum: Any, obj: Mapping[str, Any]) -> str:
+    """The note of a result whose counterexample did not replay."""
+    return (
+        f"unknown: the model's counterexample (optimum {optimum}) did not replay through the "
+        f"detector and tracker; it diverges at step {obj['step']} ({obj['reason']}); "
+        "not a proof of violation"
+    )
