@@ -384,7 +384,10 @@ def _path(value: Any, name: str, alternative: str = "") -> str:
     )
     more = f" {alternative}" if alternative else ""
     _need(ok, f"{name} must be a file path (a str or a pathlib.Path){more}", value)
-    return str(os.fspath(value))
+    text = str(os.fspath(value))
+    _need(text != "", f"{name} must be a file path, not an empty string", value)
+    _need("\0" not in text, f"{name} must be a file path without a NUL character", value)
+    return text
 
 
 def _specs(specs: Any) -> tuple[SpecFile, ...]:
