@@ -119,7 +119,13 @@ def footage_from_dict(
     target = None
     if need_target or data.get("target") is not None:
         target = _target(data.get("target"), pr)
-    if target is not None and frames and not frames[0].step <= target.step <= frames[-1].step:
+    whole = len(frames) == len(data.get("frames") or ())  # else the steps are not all known
+    if (
+        target is not None
+        and frames
+        and whole
+        and not frames[0].step <= target.step <= frames[-1].step
+    ):
         pr.add(
             "target",
             f"step {target.step} is not among the frames {frames[0].step}..{frames[-1].step}",
