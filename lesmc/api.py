@@ -380,8 +380,8 @@ def _need(ok: bool, what: str, got: Any) -> None:
 
 def _path(value: Any, name: str, alternative: str = "", read: bool = True) -> str:
     """A file argument as a string: a str or an ``os.PathLike`` (not bytes, not an open
-    file); ``alternative`` says what else the argument may be. A file to ``read`` must
-    exist and not be a directory (a file to write is checked by the writer)."""
+    file), neither empty nor holding a NUL; ``alternative`` says what else the argument
+    may be. A file to write (not ``read``) must not be a directory."""
     ok = isinstance(value, str) or (
         isinstance(value, os.PathLike) and isinstance(os.fspath(value), str)
     )
@@ -390,9 +390,8 @@ def _path(value: Any, name: str, alternative: str = "", read: bool = True) -> st
     text = str(os.fspath(value))
     _need(text != "", f"{name} must be a file path, not an empty string", value)
     _need("\0" not in text, f"{name} must be a file path without a NUL character", value)
-    _need(not os.path.isdir(text), f"{name} must be a file, not a directory", value)
-    if read:
-        _need(os.path.exists(text), f"{name} must be an existing file: there is none", value)
+    if not read:  # a file to read that is missing or a directory: InputError at the file
+        _need(not os.path.isdir(text), f"{name} must be a file to write, not a directory", value)
     return text
 
 
