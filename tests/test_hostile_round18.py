@@ -275,3 +275,62 @@ def test_export_still_writes_what_each_format_takes(tmp_path: Path, model: Any) 
                        roles={"original": [int(q) for q in model.original]})  # fmt: skip
     assert facts["export_format"] == "dot"
     assert os.path.getsize(tmp_path / "m.dot") > 0
+
+
+# ------------------------------------------------------------ the rest of the run, kept
+
+
+def _set(path: list[Any], value: Any) -> Any:
+    """A change to :func:`_boxed`'s scene: ``value`` at ``path`` (None: delete the key)."""
+
+    def change(doc: dict[str, Any]) -> None:
+        *where, last = path
+        node: Any = doc
+        for key in where:
+            node = node[key]
+        if value is None:
+            del node[last]
+        else:
+            node[last] = value
+
+    return change
+
+
+DET0 = ["frames", 1, "detections", 0]
+#: (label, change to the sort scene, extra arguments, exit status, text on stderr): the
+#: cases of the hostile run that lesmc already handled, kept so that they stay handled.
+SORT_CASES = [
+    ("min_hits 0", _set(["tracker", "min_hits"], 0), (), 2, "min_hits must be an integer"),
+    ("max_age -1", _set(["tracker", "max_age"], -1), (), 2, "max_age must be an integer"),
+    ("iou_threshold 1.5", _set(["tracker", "iou_threshold"], 1.5), (), 2, "iou_threshold"),
+    ("iou_threshold 0", _set(["tracker", "iou_threshold"], 0), (), 2, "iou_threshold"),
+    ("w negative", _set([*DET0, "w"], -5.0), (), 2, "w must be a number in (0, 1e+07]"),
+    ("h zero", _set([*DET0, "h"], 0.0), (), 2, "h must be a number in (0, 1e+07]"),
+    ("w without h", _set([*DET0, "h"], None), (), 2, "w needs h too"),
+    ("version 1 with boxes", _set(["version"], 1), (), 2, "needs scene format version 2"),
+    ("duplicate id", _set([*DET0, "id"], "1:1"), (), 2, "duplicate detection id"),
+    ("end beyond", lambda d: None, ("--end", "5"), 2, "beyond the scene"),
+    ("an empty frame", _set(["frames", 2, "detections"], []), (), 0, ""),
+    ("one frame", lambda d: d.update(frames=d["frames"][:1]), (), 0, ""),
+    ("no target", _set(["target"], None), (), 0, ""),
+]
+
+
+@pytest.mark.parametrize(
+    ("label", "change", "extra", "status", "wanted"), SORT_CASES, ids=[c[0] for c in SORT_CASES]
+)
+def test_sort_scene_cases_of_the_hostile_run(
+    tmp_path: Path, label: str, change: Any, extra: tuple[str, ...], status: int, wanted: str
+) -> None:
+    doc = _boxed()
+    change(doc)
+    scene = tmp_path / "scene.json"
+    scene.write_text(json.dumps(doc))
+    r = lesmc("track", str(scene), "--json", *extra)
+    _clean(r)
+    assert r.returncode == status, (label, r.stderr)
+    assert wanted in r.stderr
+    if status == 0:  # one step per frame, every box finite
+        steps = json.loads(r.stdout)["track"]
+        assert len(steps) == len(doc["frames"])
+        assert all(math.isfinite(v) for s in steps for t in s["tracks"] for v in t["box"])
