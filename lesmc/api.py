@@ -507,7 +507,8 @@ def _format_takes(
     from lesmc.exporters import formats
 
     mdp = formats.spelled(formats.where(lambda f: f.states_property))
-    given = {"spec": spec, "property": prop, "strict": strict or None}
+    # a property also names whose paths ``roles`` came from (lesmc export --results --property)
+    given = {"spec": spec, "property": None if roles else prop, "strict": strict or None}
     extra = [k for k, v in given.items() if v is not None]
     _need(
         fmt.states_property or not extra,
