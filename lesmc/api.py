@@ -48,6 +48,7 @@ from lesmc.unfold.unfold import build_model
 if TYPE_CHECKING:
     from lesmc.experiment.experiment import Outcome as VerifyOutcome
     from lesmc.experiment.experiment import Request as VerifyRequest
+    from lesmc.exporters.formats import ExportFormat
 
 __all__ = [
     "CheckResult",
@@ -163,7 +164,7 @@ def save_scene(scene: Scene | Footage, path: PathArg) -> None:
         "scene must be a Scene or a Footage (lesmc.load_scene, lesmc.perceive)",
         scene,
     )
-    write_scene(scene, _path(path, "path"))
+    write_scene(scene, _path(path, "path", read=False))
 
 
 def expand_designs(choice: str) -> tuple[str, ...]:
@@ -308,6 +309,7 @@ def export_model(
     model, path, spec, roles = _export_arguments(model, path, spec, prop, strict, roles, max_nodes)
     _need(isinstance(model, ArrayModel), "model must be a model (lesmc.load_model)", model)
     _need(fmt in formats.names(), f"fmt: {formats.spelled()}", fmt)
+    _format_takes(formats.get(fmt), spec, prop, strict, roles, max_nodes)
     _need(spec is None or isinstance(spec, SpecFile), "spec must be a SpecFile or None", spec)
     ok = roles is None or (
         isinstance(roles, dict) and all(isinstance(v, list) for v in roles.values())
@@ -332,7 +334,7 @@ def perceive(
     req = (
         request
         if isinstance(request, PerceiveRequest)
-        else PerceiveRequest(_path(request, "request", "or a PerceiveRequest"))
+        else PerceiveRequest(_path(request, "request", "or a PerceiveRequest", read=False))
     )
     _need(on_frame is None or callable(on_frame), "on_frame must be None or callable", on_frame)
     refuse_mismatched(req)
@@ -376,20 +378,27 @@ def _need(ok: bool, what: str, got: Any) -> None:
         raise UsageError(f"{what}; got {shown if len(shown) <= 60 else shown[:57] + '...'}")
 
 
-def _path(value: Any, name: str, alternative: str = "") -> str:
+def _path(value: Any, name: str, alternative: str = "", read: bool = True) -> str:
     """A file argument as a string: a str or an ``os.PathLike`` (not bytes, not an open
-    file); ``alternative`` says what else the argument may be."""
+    file), neither empty nor holding a NUL; ``alternative`` says what else the argument
+    may be. A file to write (not ``read``) must not be a directory."""
     ok = isinstance(value, str) or (
         isinstance(value, os.PathLike) and isinstance(os.fspath(value), str)
     )
     more = f" {alternative}" if alternative else ""
     _need(ok, f"{name} must be a file path (a str or a pathlib.Path){more}", value)
-    return str(os.fspath(value))
+    text = str(os.fspath(value))
+    _need(text != "", f"{name} must be a file path, not an empty string", value)
+    _need("\0" not in text, f"{name} must be a file path without a NUL character", value)
+    if not read:  # a file to read that is missing or a directory: InputError at the file
+        _need(not os.path.isdir(text), f"{name} must be a file to write, not a directory", value)
+    return text
 
 
-def _specs(specs: Any) -> tuple[SpecFile, ...]:
-    """``specs``: one spec file or a list of them, each parsed or a path (read now)."""
-    rule = "specs must be a spec file (a SpecFile or its path) or a non-empty list of them"
+def _specs(specs: Any, name: str = "specs") -> tuple[SpecFile, ...]:
+    """``specs``: one spec file or a list of them, each parsed or a path (read now);
+    ``name``: the argument's, for messages."""
+    rule = f"{name} must be a spec file (a SpecFile or its path) or a non-empty list of them"
     one = isinstance(specs, SpecFile | str | os.PathLike)
     _need(one or (isinstance(specs, Sequence) and not isinstance(specs, bytes)), rule, specs)
     given = (specs,) if one else tuple(specs)
@@ -400,7 +409,7 @@ def _specs(specs: Any) -> tuple[SpecFile, ...]:
             out.append(s)
         else:
             _need(isinstance(s, str | os.PathLike), rule, s)
-            out.append(load_spec(s))
+            out.append(load_spec(_path(s, name)))
     return tuple(out)
 
 
@@ -473,16 +482,44 @@ def _export_arguments(
 ) -> tuple[ArrayModel, str, SpecFile | None, dict[str, list[int]] | None]:
     """Check :func:`export_model`'s arguments; the model and spec (read when given as
     paths) and the roles as model rows (a CheckResult's paths looked up)."""
+    where = _path(path, "path", read=False)
+    inputs = {"model": model, "spec": spec}
+    for name, given in inputs.items():
+        if isinstance(given, str | os.PathLike) and Path(given).resolve() == Path(where).resolve():
+            _need(False, f"path and {name} name the same file (writing would destroy it)", path)
     if not isinstance(model, ArrayModel):
         model = load_model(_path(model, "model", "or a model (lesmc.load_model)"))
-    where = _path(path, "path")
     if spec is not None:
-        spec = _specs(spec)[0] if isinstance(spec, SpecFile | str | os.PathLike) else spec
+        one = isinstance(spec, SpecFile | str | os.PathLike)
+        spec = _specs(spec, "spec")[0] if one else spec
     _need(prop is None or isinstance(prop, str), "property must be None or a name", prop)
     _need(isinstance(strict, bool), "strict must be True or False", strict)
     good_n = max_nodes is None or (is_int(max_nodes) and max_nodes >= 1)
     _need(good_n, "max_nodes must be None or an integer >= 1", max_nodes)
     return model, where, spec, _roles(model, roles)
+
+
+def _format_takes(
+    fmt: ExportFormat, spec: Any, prop: Any, strict: Any, roles: Any, max_nodes: Any
+) -> None:
+    """Arguments that format ``fmt`` would ignore are errors, as ``lesmc export`` refuses
+    the options (what each format takes: its entry in lesmc/exporters/formats.py)."""
+    from lesmc.exporters import formats
+
+    mdp = formats.spelled(formats.where(lambda f: f.states_property))
+    # a property also names whose paths ``roles`` came from (lesmc export --results --property)
+    given = {"spec": spec, "property": None if roles else prop, "strict": strict or None}
+    extra = [k for k, v in given.items() if v is not None]
+    _need(
+        fmt.states_property or not extra,
+        f"{', '.join(extra)}: spec, property and strict choose what format {mdp} exports, "
+        f"not {fmt.name}",
+        given[extra[0]] if extra else None,
+    )
+    marking = formats.spelled(formats.where(lambda f: f.marks_paths), "and")
+    _need(roles is None or fmt.marks_paths, f"roles mark paths in {marking} only", roles)
+    limited = formats.spelled(formats.where(lambda f: f.limit is not None))
+    _need(max_nodes is None or fmt.limit is not None, f"max_nodes limits {limited} only", max_nodes)
 
 
 def _roles(model: ArrayModel, roles: Any) -> dict[str, list[int]] | None:

@@ -95,6 +95,8 @@ def unattacked_warnings(scene: Scene, design: str | None = None) -> list[str]:
     from lesmc.tracking.trackers import make_tracker
 
     sc = scene if design is None else scene.with_tracker(design=registry.get(design).tracker)
+    if registry.get(sc.tracker.design).multi:  # tracks every object: no one track to follow
+        return []
     if sc.has_unpriced:  # the unattacked states never depend on a payoff
         sc = sc.payoff_free()
     tracker = make_tracker(sc)

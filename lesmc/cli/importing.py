@@ -99,7 +99,8 @@ def mot_cmd(
     bottom centre, no box). Steps are the file's frame numbers; a
     frame without lines has no detections. Without --gt/--track the scene has no
     target: give --target X,Y@STEP to track, build, check or verify. With a
-    target, warns when its unattacked track does not follow it.
+    target, warns when its unattacked track does not follow it (a single-target
+    design's; a multi-target design such as sort tracks every object).
     Exit status: 0 written, 2 bad input, 4 internal error, 130 interrupted.
     """
     from lesmc.scene import Scene, load_tracker, save_scene

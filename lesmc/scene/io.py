@@ -120,7 +120,13 @@ def footage_from_dict(
     target = None
     if need_target or data.get("target") is not None:
         target = _target(data.get("target"), pr)
-    if target is not None and frames and not frames[0].step <= target.step <= frames[-1].step:
+    whole = len(frames) == len(data.get("frames") or ())  # else the steps are not all known
+    if (
+        target is not None
+        and frames
+        and whole
+        and not frames[0].step <= target.step <= frames[-1].step
+    ):
         pr.add(
             "target",
             f"step {target.step} is not among the frames {frames[0].step}..{frames[-1].step}",
@@ -375,7 +381,31 @@ def _box(
     bad = [k for k in given if not positive(raw[k], MAX_COORD)]
     for k in bad:
         pr.add(item, f"{k} must be a number in (0, {MAX_COORD:g}], got {show(raw[k])}")
-    return False if bad else (float(raw["w"]), float(raw["h"]))
+    if bad or not (within(raw.get("x"), MAX_COORD) and within(raw.get("y"), MAX_COORD)):
+        return False
+    if (why := box_problem(raw["x"], raw["y"], raw["w"], raw["h"])) is not None:
+        pr.add(item, why)
+        return False
+    return (float(raw["w"]), float(raw["h"]))
+
+
+def box_problem(x: float, y: float, w: float, h: float) -> str | None:
+    """Why the box ``w``, ``h`` around (``x``, ``y``) is no box in floating point, or None.
+
+    Its corners are x ± w/2, y ± h/2 (lesmc/scene/frames.py ``Frame.boxes``), and a box
+    tracker reads back the width and height between them, their product (the area) and
+    their ratio (lesmc/tracking/parts/boxes.py ``to_z``): each must be positive and
+    finite, which a box narrower than the spacing of floats at its position is not (a
+    width of 1e-300 at x = 100 has both corners at 100)."""
+    cw = (x + w / 2.0) - (x - w / 2.0)
+    ch = (y + h / 2.0) - (y - h / 2.0)
+    if cw > 0 and ch > 0 and cw * ch > 0 and math.isfinite(cw / ch) and math.isfinite(ch / cw):
+        return None
+    return (
+        f"the box w = {w!r}, h = {h!r} at ({x!r}, {y!r}) has corners x ± w/2, y ± h/2 "
+        f"{cw!r} wide and {ch!r} high: too small for its position (a box needs a "
+        "positive width, height and area between its corners)"
+    )
 
 
 def _tracker_value(key: str, v: Any, pr: Problems, item: str, values: dict[str, Any]) -> None:

@@ -29,7 +29,7 @@ from lesmc.common.errors import InputError, Location, UsageError
 from lesmc.common.fields import MAX_STEP
 from lesmc.common.files import atomic_write_text, read_text
 from lesmc.scene.frames import Detection, Frame
-from lesmc.scene.io import MAX_COORD, MAX_PAYOFF, MAX_TRUTH
+from lesmc.scene.io import MAX_COORD, MAX_PAYOFF, MAX_TRUTH, box_problem
 from lesmc.scene.scene import Footage, Scene, Target, TrackerConfig, TruthTrack
 
 Point = Literal["center", "bottom"]
@@ -153,6 +153,8 @@ def _number(text: str, i: int, where: Location) -> float:
         )
     if i >= 6 and math.isnan(v):
         raise InputError(f"{_NAMES[i]} must be a number, got {s}", where)
+    if math.isinf(v) and s.lstrip("+-").lower() not in ("inf", "infinity"):
+        raise InputError(f"{_NAMES[i]} {s} is beyond the range of a float (write inf)", where)
     return v
 
 
@@ -196,6 +198,8 @@ def footage_from_boxes(
         dets = by_frame.setdefault(b.frame, [])
         # the box is kept around a centre point only (at the bottom centre it is not around it)
         w, h = (b.width, b.height) if point == "center" else (None, None)
+        if point == "center" and (why := box_problem(x, y, b.width, b.height)) is not None:
+            raise InputError(why, Location(path, b.line, 1))
         dets.append(
             Detection(f"{b.frame}:{len(dets)}", x, y, _payoff(b, payoffs, path), None, w, h)
         )
