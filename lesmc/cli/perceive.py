@@ -24,6 +24,7 @@ from lesmc.video import FPS
 if TYPE_CHECKING:
     from lesmc.perception.cnn import Nets
     from lesmc.perception.run import PerceiveRun
+    from lesmc.scene import Footage, Scene
 
 
 @click.command("perceive")
@@ -165,6 +166,11 @@ def perceive_cmd(
     )  # fmt: skip
     refuse_mismatched(req)
     _refuse_ignored(output, truth)
+    from lesmc.perception.detector_file import is_detector_file
+
+    if detector_file is not None and is_detector_file(detector_file):
+        _with_detector_file(req, detector_file, output, tracker_file)
+        return
     from lesmc.common.progress import progress_bar  # rich: imported when a verb runs
 
     inputs = open_inputs(req)
@@ -175,11 +181,50 @@ def perceive_cmd(
     with progress_bar("perceive", "perceiving", len(inputs.frames)) as bar:
         got = perceive_frames(req, inputs, bar.advance)
     _log_networks(got)
-    written = None if got.scene is None or output is None else _write(got, output, as_json)
+    written = (
+        None
+        if got.scene is None or output is None
+        else _write_scene(got.scene, got.run.unattackable, got.target_note, output, as_json)
+    )
     if as_json:
         emit(_document(frames_dir, got.nets, got.run, written, truth is not None, started))
         return
     _print(got.run, truth is not None, got.nets is not None)
+
+
+#: Options of the window pipeline (front end, N_dr and N_lp) that a detector file replaces.
+_WINDOW_ONLY = (
+    "nets_dir", "locator_file", "no_cnn", "certify", "history", "delta_bc", "truth", "attack",
+    "payoff_norm", "overshoot", "max_iter", "as_json",
+)  # fmt: skip
+
+
+def _with_detector_file(
+    req: PerceiveRequest, path: str, output: str | None, tracker_file: str | None
+) -> None:
+    """``--detector FILE.toml|.json``: the user's whole-frame detector on every frame
+    (docs/detectors.md); the scene's payoffs are unpriced."""
+    from lesmc.common.progress import progress_bar
+    from lesmc.experiment.perceive import perceive_with_file
+
+    refuse_given(_WINDOW_ONLY, "does not apply to a detector file (docs/detectors.md)")
+    if output is not None:
+        named = {"--detector": path, "--tracker": tracker_file}
+        distinct_files(named, {"-o/--output": output})
+    with progress_bar("perceive", "perceiving", None) as bar:
+
+        def start(n: int) -> Any:
+            bar.update(total=n)
+            return bar.advance
+
+        got = perceive_with_file(req, path, start)
+    click.echo(
+        f"lesmc perceive: detector: {escape_control(got.detector.spec.describe())}", err=True
+    )
+    if got.scene is not None and output is not None:
+        _write_scene(got.scene, 0, got.target_note, output, False)
+    n = sum(len(d.positions) for d in got.detections)
+    say(f"{len(got.detections)} frames, {n} detections", False)
 
 
 def _log_networks(got: Perceived) -> None:
@@ -208,18 +253,18 @@ def _refuse_ignored(output: str | None, truth: str | None) -> None:
         refuse_given(("radius", "min_speed"), "applies to the comparison with --truth")
 
 
-def _write(got: Perceived, output: str, as_json: bool) -> dict[str, Any]:
-    """The scene of ``got`` written to ``output``; its facts for --json."""
+def _write_scene(
+    scene: Scene | Footage, unattackable: int, target_note: str, output: str, as_json: bool
+) -> dict[str, Any]:
+    """``scene`` written to ``output``; its facts for --json."""
     from lesmc.scene import Scene, save_scene
 
-    scene = got.scene
-    assert scene is not None
     save_scene(scene, output)
     n = sum(len(f.detections) for f in scene.frames)
     say(
         f"wrote {escape_control(output)}: {len(scene.frames)} frames (steps "
         f"{scene.frames[0].step}..{scene.last_step}), {n} detections, "
-        f"{got.run.unattackable} unattackable{_unattackable_note(scene)}; {got.target_note}",
+        f"{unattackable} unattackable{_unattackable_note(scene)}; {target_note}",
         as_json,
     )
     target = None
@@ -229,7 +274,7 @@ def _write(got: Perceived, output: str, as_json: bool) -> dict[str, Any]:
     return file_facts(output) | {
         "steps": [scene.frames[0].step, scene.last_step],
         "detections": n,
-        "unattackable": got.run.unattackable,
+        "unattackable": unattackable,
         "target": target,
     }
 

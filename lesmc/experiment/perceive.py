@@ -23,6 +23,8 @@ if TYPE_CHECKING:
     from lesmc.perception.attack_settings import AttackConfig
     from lesmc.perception.certify import CertifyConfig
     from lesmc.perception.cnn import Nets
+    from lesmc.perception.detector_file import LoadedDetector
+    from lesmc.perception.heatmap import HeatmapDetections
     from lesmc.perception.quality import Truth
     from lesmc.perception.run import PerceiveRun
     from lesmc.scene import Footage, Scene, TrackerConfig
@@ -110,16 +112,16 @@ def refuse_mismatched(req: PerceiveRequest) -> None:
         )
 
 
-def open_inputs(req: PerceiveRequest) -> Inputs:
-    """The frames, the target asked for and the truth, each checked against the others,
-    and the tracker file's configuration."""
+def open_inputs(req: PerceiveRequest, minimum: int | None = None) -> Inputs:
+    """The frames (at least ``minimum``, default L + 1), the target asked for and the truth,
+    each checked against the others, and the tracker file's configuration."""
     from lesmc.perception.quality import load_truth
     from lesmc.scene import load_tracker
     from lesmc.tracking.targets import check_target, parse_target
     from lesmc.video.reader import open_frames
 
     spec = parse_target(req.target) if req.target else None
-    frames = open_frames(req.frames_dir, req.history + 1)
+    frames = open_frames(req.frames_dir, req.history + 1 if minimum is None else minimum)
     if spec is not None:
         check_target(spec, frames.width, frames.height, len(frames))
     truths = load_truth(req.truth) if req.truth else None
@@ -157,6 +159,38 @@ def perceive_frames(
     dt = req.dt or (inputs.truth.dt if inputs.truth else None) or 1 / FPS
     scene, note = _scene(run, dt, scene_meta(req, nets.settings.trained_on, cert), inputs)
     return Perceived(run, nets, scene, note)
+
+
+@dataclass
+class PerceivedWithFile:
+    """A run of a detector file (docs/detectors.md) over the frames: its detections and,
+    with ``req.scene``, the scene."""
+
+    detector: LoadedDetector
+    detections: list[HeatmapDetections]
+    scene: Scene | Footage | None
+    target_note: str
+
+
+def perceive_with_file(
+    req: PerceiveRequest, path: str, on_start: Callable[[int], Any] | None = None
+) -> PerceivedWithFile:
+    """The detector file ``path`` on every frame (no front end: lesmc/perception/heatmap.py);
+    with ``req.scene`` the footage (payoffs unpriced), its target placed when asked for.
+    ``on_start(n_frames)`` gives the per-frame callback (a progress bar's)."""
+    from lesmc.perception.detector_file import load_detector
+    from lesmc.perception.heatmap import check_frames, footage_of, run_detector
+
+    det = load_detector(path)
+    inputs = open_inputs(req, minimum=1)
+    check_frames(inputs.frames, det, req.frames_dir)
+    dets = run_detector(inputs.frames, det, on_start(len(inputs.frames)) if on_start else None)
+    if not req.scene:
+        return PerceivedWithFile(det, dets, None, "")
+    dt = req.dt or (inputs.truth.dt if inputs.truth else None) or 1 / FPS
+    footage = footage_of(dets, det, dt, str(Path(req.frames_dir)))
+    scene, note = _placed(footage, inputs)
+    return PerceivedWithFile(det, dets, scene, note)
 
 
 def scene_meta(
@@ -204,10 +238,16 @@ def _scene(
 ) -> tuple[Scene | Footage, str]:
     """The footage of ``run``, its tracker replaced by the tracker file's, with the
     target placed when one was asked for; and where the target is, in words."""
-    from lesmc.experiment.targets import target_scene
     from lesmc.perception.to_scene import footage_from_run
 
-    footage = footage_from_run(run, dt, meta)
+    return _placed(footage_from_run(run, dt, meta), inputs)
+
+
+def _placed(footage: Footage, inputs: Inputs) -> tuple[Scene | Footage, str]:
+    """``footage`` with the tracker file's tracker, and the target placed when one was asked
+    for; and where the target is, in words."""
+    from lesmc.experiment.targets import target_scene
+
     if inputs.tracker is not None:
         footage = replace(footage, tracker=inputs.tracker)
     if inputs.spec is None:
