@@ -155,6 +155,9 @@ def perceive_cmd(
     --target X,Y@STEP (lesmc campaign finds them itself). Options that only
     shape the scene (--attack, --payoff-norm, --overshoot, --max-iter, --dt,
     --certify, --target) need -o; --radius and --min-speed need --truth.
+    With --detector FILE.toml (or .json), a detector file (docs/detectors.md),
+    the user's whole-frame heatmap network runs on every frame instead, without
+    the front end; its detections' payoffs are unpriced.
     Exit status: 0 done, 2 bad input, 4 internal error, 130 interrupted.
     """
     started = time.monotonic()
@@ -264,7 +267,7 @@ def _write_scene(
     say(
         f"wrote {escape_control(output)}: {len(scene.frames)} frames (steps "
         f"{scene.frames[0].step}..{scene.last_step}), {n} detections, "
-        f"{unattackable} unattackable{_unattackable_note(scene)}; {target_note}",
+        f"{_priced(scene, unattackable)}; {target_note}",
         as_json,
     )
     target = None
@@ -277,6 +280,13 @@ def _write_scene(
         "unattackable": unattackable,
         "target": target,
     }
+
+
+def _priced(scene: Scene | Footage, unattackable: int) -> str:
+    """How many detections are unattackable (or unpriced, and then nothing more)."""
+    if scene.unpriced:
+        return f"{scene.unpriced} unpriced"
+    return f"{unattackable} unattackable{_unattackable_note(scene)}"
 
 
 def _unattackable_note(scene: Any) -> str:

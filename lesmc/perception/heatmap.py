@@ -90,7 +90,10 @@ def _rgb8(path: Path, scale: float) -> np.ndarray:
     the video's factor, as ``FrameSet.read`` scales grey)."""
     import cv2
 
-    img = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
+    read = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
+    if read is None:  # checked when the frames were opened; gone since
+        raise InputError("cannot decode the image", Location(str(path)))
+    img: np.ndarray = read
     if img.ndim == 2:
         img = np.repeat(img[:, :, None], 3, axis=2)
     elif img.shape[2] == 1:
