@@ -174,13 +174,18 @@ def perceive_cmd(
     if detector_file is not None and is_detector_file(detector_file):
         _with_detector_file(req, detector_file, output, tracker_file)
         return
+    _with_windows(req, output, as_json, started)
+
+
+def _with_windows(req: PerceiveRequest, output: str | None, as_json: bool, started: float) -> None:
+    """The paper's pipeline (front end, N_dr, N_lp) on the frames; the scene with -o."""
     from lesmc.common.progress import progress_bar  # rich: imported when a verb runs
 
     inputs = open_inputs(req)
     if output is not None:
         named: dict[str, str | None] = {p.name: str(p) for p in inputs.frames.paths}
-        named |= {"--truth": truth, "--tracker": tracker_file, "--detector": detector_file}
-        distinct_files(named | {"--locator": locator_file}, {"-o/--output": output})
+        named |= {"--truth": req.truth, "--tracker": req.tracker, "--detector": req.nets[1]}
+        distinct_files(named | {"--locator": req.nets[2]}, {"-o/--output": output})
     with progress_bar("perceive", "perceiving", len(inputs.frames)) as bar:
         got = perceive_frames(req, inputs, bar.advance)
     _log_networks(got)
@@ -189,10 +194,11 @@ def perceive_cmd(
         if got.scene is None or output is None
         else _write_scene(got.scene, got.run.unattackable, got.target_note, output, as_json)
     )
+    with_truth = req.truth is not None
     if as_json:
-        emit(_document(frames_dir, got.nets, got.run, written, truth is not None, started))
+        emit(_document(req.frames_dir, got.nets, got.run, written, with_truth, started))
         return
-    _print(got.run, truth is not None, got.nets is not None)
+    _print(got.run, with_truth, got.nets is not None)
 
 
 #: Options of the window pipeline (front end, N_dr and N_lp) that a detector file replaces.
