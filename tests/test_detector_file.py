@@ -155,12 +155,12 @@ def ort_scores(path: Path, x: np.ndarray, how: str) -> np.ndarray:
     return 1.0 / (1.0 + np.exp(-y)) if how == "sigmoid" else y
 
 
-def threshold_between(scores: np.ndarray) -> float:
-    """A threshold keeping about the top third of the cells, far (1e-4) from every score,
+def threshold_between(scores: np.ndarray, keep: float = 1 / 3) -> float:
+    """A threshold keeping about the top ``keep`` of the cells, far (1e-4) from every score,
     so that float rounding between runtimes cannot move a cell across it."""
     v = np.sort(scores.ravel())
     gaps = np.diff(v)
-    start = int(len(v) * 2 / 3)
+    start = int(len(v) * (1 - keep))
     k = start + int(np.argmax(gaps[start:] > 2e-4))
     return float((v[k] + v[k + 1]) / 2)
 
@@ -168,7 +168,7 @@ def threshold_between(scores: np.ndarray) -> float:
 @pytest.mark.parametrize("which", [0, 1, 2])
 @pytest.mark.parametrize("fmt", ["onnx", "pt2"])
 def test_detections_equal_onnxruntime_decode(setup: dict[str, Any], which: int, fmt: str) -> None:
-    name, keys, onnx_path, pt2_path = setup["nets"][which]
+    name, keys, onnx_path, _ = setup["nets"][which]
     frames, imgs = setup[keys["channels"]]
     lo, hi = keys["scale"]
     scores = [ort_scores(onnx_path, onnx_input(img, lo, hi), keys["score"]) for img in imgs]
@@ -179,7 +179,8 @@ def test_detections_equal_onnxruntime_decode(setup: dict[str, Any], which: int, 
         {"kind": "heatmap", "network": f"{name}.{fmt}", **keys, "threshold": thr},
     )
     out = d / f"{name}_{fmt}.json"
-    r = lesmc("perceive", str(frames), "--detector", str(det), "-o", str(out))
+    # one DeepFool step a detection: the payoffs are test_saved_attacks_hide_their_detections'
+    r = lesmc("perceive", str(frames), "--detector", str(det), "-o", str(out), "--max-iter", "1")
     assert r.returncode == 0, r.stderr
     assert "Traceback" not in r.stderr
     scene = json.loads(out.read_text())
@@ -187,17 +188,60 @@ def test_detections_equal_onnxruntime_decode(setup: dict[str, Any], which: int, 
     total = 0
     for k, (fr, s) in enumerate(zip(scene["frames"], scores, strict=True)):
         want = reference_peaks(s, thr, keys["nms_radius"])
-        got = [(dd["id"], dd["x"], dd["y"], dd["payoff"]) for dd in fr["detections"]]
+        got = [(dd["id"], dd["x"], dd["y"]) for dd in fr["detections"]]
         stride = keys["stride"]
         assert got == [
-            (f"{k}:{n}", (j + 0.5) * stride, (i + 0.5) * stride, "unpriced")
-            for n, (i, j) in enumerate(want)
+            (f"{k}:{n}", (j + 0.5) * stride, (i + 0.5) * stride) for n, (i, j) in enumerate(want)
         ]
+        assert all(dd["payoff"] == "unattackable" or dd["payoff"] > 0 for dd in fr["detections"])
         total += len(want)
     assert total > 0
     meta = scene["meta"]
     assert meta["detector_file"]["path"] == str(det)
     assert meta["detector_file"]["network"] == str(d / f"{name}.{fmt}")
+
+
+@pytest.mark.parametrize("attack", ["pgd", "deepfool"])
+def test_saved_attacks_hide_their_detections(setup: dict[str, Any], attack: str) -> None:
+    """Each saved perturbation, added to the frame and decoded from onnxruntime's outputs,
+    leaves no detection in its detection's square, and its norm is the payoff."""
+    name, keys, onnx_path, _ = setup["nets"][1]
+    imgs = setup["gray"][1]
+    lo, hi = keys["scale"]
+    xs = [onnx_input(img, lo, hi) for img in imgs[:3]]
+    thr = threshold_between(ort_scores(onnx_path, xs[0], keys["score"]), keep=0.08)
+    d: Path = setup["dir"]
+    sub = d / f"three_{attack}"
+    sub.mkdir()
+    for k in range(3):
+        cv2.imwrite(str(sub / f"g{k}.png"), imgs[k])
+    det = write_toml(
+        d / f"att_{attack}.toml",
+        {"kind": "heatmap", "network": f"{name}.onnx", **keys, "threshold": thr},
+    )
+    out, saved = d / f"att_{attack}.json", d / f"saved_{attack}"
+    r = lesmc("perceive", str(sub), "--detector", str(det), "-o", str(out), "--attack", attack,
+              "--save-attacks", str(saved))  # fmt: skip
+    assert r.returncode == 0, r.stderr
+    scene = json.loads(out.read_text())
+    r_, stride = keys["nms_radius"], keys["stride"]
+    priced = 0
+    for k, fr in enumerate(scene["frames"]):
+        for n, dd in enumerate(fr["detections"]):
+            f = saved / f"{k}_{n}.npy"
+            if dd["payoff"] == "unattackable":
+                assert not f.exists()
+                continue
+            delta = np.load(f)
+            assert delta.dtype == np.float32 and delta.shape == (1, 1, H, W)
+            assert abs(float(np.sqrt((delta.astype(np.float64) ** 2).sum())) - dd["payoff"]) < 1e-5
+            s = ort_scores(onnx_path, xs[k] + delta, keys["score"])
+            i, j = int(dd["y"] // stride), int(dd["x"] // stride)
+            left = [(u, v) for u, v in reference_peaks(s, thr, r_)
+                    if abs(u - i) <= r_ and abs(v - j) <= r_]  # fmt: skip
+            assert left == [], (dd["id"], left)
+            priced += 1
+    assert priced >= 3
 
 
 def test_plateau_first_cell_wins() -> None:
@@ -301,10 +345,18 @@ def test_json_detector_file_errors_name_the_line(setup: dict[str, Any]) -> None:
 
 def test_window_options_are_refused_with_a_detector_file(setup: dict[str, Any]) -> None:
     d: Path = setup["dir"]
-    name, keys, _, _ = setup["nets"][0]
+    keys = setup["nets"][0][1]
     det = write_toml(d / "ok.toml", {"kind": "heatmap", "network": "a.onnx", **keys,
                                      "threshold": 0.0})  # fmt: skip
     out = d / "refused.json"
-    r = lesmc("perceive", str(setup["gray"][0]), "--detector", str(det), "--certify", "-o", str(out))
+    frames = str(setup["gray"][0])
+    r = lesmc("perceive", frames, "--detector", str(det), "--certify", "-o", str(out))
     assert r.returncode == 2, r.stderr
     assert "--certify does not apply to a detector file" in r.stderr
+    r = lesmc("perceive", frames, "--detector", str(det), "--save-attacks", str(d / "sa"))
+    assert r.returncode == 2, r.stderr
+    assert "--save-attacks saves the attacks that price a scene: it needs -o" in r.stderr
+    r = lesmc("perceive", frames, "-o", str(out), "--save-attacks", str(d / "sa"))
+    assert r.returncode == 2, r.stderr
+    assert "--save-attacks applies to a detector file's payoffs" in r.stderr
+    assert not out.exists()

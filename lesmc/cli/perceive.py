@@ -83,6 +83,14 @@ if TYPE_CHECKING:
     "Slow: about 0.15-0.25 s per detection on 2 idle cores (docs/performance.md).",
 )
 @click.option(
+    "--save-attacks",
+    type=click.Path(file_okay=False),
+    default=None,
+    metavar="DIR",
+    help="With a detector file and -o: write each hiding perturbation to DIR/FRAME_K.npy "
+    "(docs/detectors.md).",
+)
+@click.option(
     "--history",
     type=click.IntRange(min=3, max=16),
     default=4,
@@ -138,6 +146,7 @@ def perceive_cmd(
     overshoot: float,
     max_iter: int,
     certify: bool,
+    save_attacks: str | None,
     history: int,
     delta_bc: int,
     dt: float | None,
@@ -157,7 +166,8 @@ def perceive_cmd(
     --certify, --target) need -o; --radius and --min-speed need --truth.
     With --detector FILE.toml (or .json), a detector file (docs/detectors.md),
     the user's whole-frame heatmap network runs on every frame instead, without
-    the front end; its detections' payoffs are unpriced.
+    the front end; with -o, each payoff is the smallest perturbation found of
+    the detection's receptive-field crop that hides it (--save-attacks DIR).
     Exit status: 0 done, 2 bad input, 4 internal error, 130 interrupted.
     """
     started = time.monotonic()
@@ -172,8 +182,9 @@ def perceive_cmd(
     from lesmc.perception.detector_file import is_detector_file
 
     if detector_file is not None and is_detector_file(detector_file):
-        _with_detector_file(req, detector_file, output, tracker_file)
+        _with_detector_file(req, detector_file, output, save_attacks)
         return
+    refuse_given(("save_attacks",), "applies to a detector file's payoffs (docs/detectors.md)")
     _with_windows(req, output, as_json, started)
 
 
@@ -203,35 +214,38 @@ def _with_windows(req: PerceiveRequest, output: str | None, as_json: bool, start
 
 #: Options of the window pipeline (front end, N_dr and N_lp) that a detector file replaces.
 _WINDOW_ONLY = (
-    "nets_dir", "locator_file", "no_cnn", "certify", "history", "delta_bc", "truth", "attack",
-    "payoff_norm", "overshoot", "max_iter", "as_json",
+    "nets_dir", "locator_file", "no_cnn", "certify", "history", "delta_bc", "truth",
+    "payoff_norm", "as_json",
 )  # fmt: skip
 
 
 def _with_detector_file(
-    req: PerceiveRequest, path: str, output: str | None, tracker_file: str | None
+    req: PerceiveRequest, path: str, output: str | None, save_attacks: str | None
 ) -> None:
     """``--detector FILE.toml|.json``: the user's whole-frame detector on every frame
-    (docs/detectors.md); the scene's payoffs are unpriced."""
+    (docs/detectors.md); with -o, each detection's payoff and the scene."""
     from lesmc.common.progress import progress_bar
     from lesmc.experiment.perceive import perceive_with_file
 
     refuse_given(_WINDOW_ONLY, "does not apply to a detector file (docs/detectors.md)")
-    if output is not None:
-        named = {"--detector": path, "--tracker": tracker_file}
-        distinct_files(named, {"-o/--output": output})
+    if output is None:
+        refuse_given(("save_attacks",), "saves the attacks that price a scene: it needs -o")
+    else:
+        distinct_files({"--detector": path, "--tracker": req.tracker}, {"-o/--output": output})
     with progress_bar("perceive", "perceiving", None) as bar:
 
         def start(n: int) -> Any:
             bar.update(total=n)
             return bar.advance
 
-        got = perceive_with_file(req, path, start)
+        got = perceive_with_file(req, path, start, save_attacks)
     click.echo(
         f"lesmc perceive: detector: {escape_control(got.detector.spec.describe())}", err=True
     )
     if got.scene is not None and output is not None:
-        _write_scene(got.scene, 0, got.target_note, output, False)
+        pays = [float(p) for d in got.detections if d.payoffs is not None for p in d.payoffs]
+        hard = sum(1 for p in pays if math.isinf(p))
+        _write_scene(got.scene, hard, got.target_note, output, False)
     n = sum(len(d.positions) for d in got.detections)
     say(f"{len(got.detections)} frames, {n} detections", False)
 

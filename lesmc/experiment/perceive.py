@@ -173,24 +173,51 @@ class PerceivedWithFile:
 
 
 def perceive_with_file(
-    req: PerceiveRequest, path: str, on_start: Callable[[int], Any] | None = None
+    req: PerceiveRequest,
+    path: str,
+    on_start: Callable[[int], Any] | None = None,
+    save_attacks: str | None = None,
 ) -> PerceivedWithFile:
     """The detector file ``path`` on every frame (no front end: lesmc/perception/heatmap.py);
-    with ``req.scene`` the footage (payoffs unpriced), its target placed when asked for.
-    ``on_start(n_frames)`` gives the per-frame callback (a progress bar's)."""
+    with ``req.scene`` each detection's payoff (lesmc/perception/heatmap_attack.py; each
+    hiding perturbation saved to ``save_attacks`` as FRAME_K.npy) and the footage, its
+    target placed when asked for. ``on_start(n_frames)`` gives the per-frame callback."""
     from lesmc.perception.detector_file import load_detector
     from lesmc.perception.heatmap import check_frames, footage_of, run_detector
 
     det = load_detector(path)
     inputs = open_inputs(req, minimum=1)
     check_frames(inputs.frames, det, req.frames_dir)
-    dets = run_detector(inputs.frames, det, on_start(len(inputs.frames)) if on_start else None)
+    price = _pricer(req, det, save_attacks) if req.scene else None
+    on_frame = on_start(len(inputs.frames)) if on_start else None
+    dets = run_detector(inputs.frames, det, on_frame, price)
     if not req.scene:
         return PerceivedWithFile(det, dets, None, "")
     dt = req.dt or (inputs.truth.dt if inputs.truth else None) or 1 / FPS
-    footage = footage_of(dets, det, dt, str(Path(req.frames_dir)))
+    att = attack_config(req)
+    recorded = {
+        "method": att.method, "overshoot": att.overshoot, "max_iter": att.max_iter,
+        "converged": att.converged, "norm": "l2",
+        "input": f"the detector file's network input (1, C, H, W), units {list(det.spec.scale)}",
+        "where": "the crop covered by the receptive fields of the detection's nms square",
+    }  # fmt: skip
+    footage = footage_of(dets, det, dt, str(Path(req.frames_dir)), recorded)
     scene, note = _placed(footage, inputs)
     return PerceivedWithFile(det, dets, scene, note)
+
+
+def _pricer(req: PerceiveRequest, det: LoadedDetector, save_attacks: str | None) -> Any:
+    """``price(frame input, detections)`` with the request's attack settings."""
+    from lesmc.perception.heatmap_attack import price_frame, receptive_field, saver
+
+    att = attack_config(req)
+    field = receptive_field(det)
+
+    def price(frame: Any, fd: HeatmapDetections) -> Any:
+        save = None if save_attacks is None else saver(save_attacks, fd.index)
+        return price_frame(det, frame, fd, att, save, field)
+
+    return price
 
 
 def scene_meta(

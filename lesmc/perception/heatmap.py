@@ -12,7 +12,7 @@ step k, and detection K of it is ``k:K``.
 from __future__ import annotations
 
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -29,12 +29,13 @@ if TYPE_CHECKING:
 @dataclass(frozen=True)
 class HeatmapDetections:
     """One frame's detections: frame index, (n, 2) positions, (n,) scores, (n, 2) cells
-    (row, col), in row-major order of the cells."""
+    (row, col), in row-major order of the cells; their payoffs once priced."""
 
     index: int
     positions: np.ndarray
     scores: np.ndarray
     cells: np.ndarray
+    payoffs: np.ndarray | None = None  #: (n,) inf: unattackable; None: unpriced
 
 
 def peaks(scores: np.ndarray, threshold: float, radius: int) -> np.ndarray:
@@ -117,36 +118,53 @@ def check_frames(frames: FrameSet, det: LoadedDetector, frames_dir: str) -> None
         )
 
 
+#: ``price(frame input, detections)``: each detection's payoff (heatmap_attack.price_frame).
+Pricer = Callable[[np.ndarray, HeatmapDetections], np.ndarray]
+
+
 def run_detector(
-    frames: FrameSet, det: LoadedDetector, on_frame: Callable[[], None] | None = None
+    frames: FrameSet,
+    det: LoadedDetector,
+    on_frame: Callable[[], None] | None = None,
+    price: Pricer | None = None,
 ) -> list[HeatmapDetections]:
-    """The detector on every frame, one frame a batch."""
+    """The detector on every frame, one frame a batch; with ``price``, the payoffs."""
     import torch
 
     out = []
     for i in range(len(frames)):
-        x = torch.from_numpy(frame_input(frames, i, det))
+        arr = frame_input(frames, i, det)
         with torch.no_grad():
-            y = det.net.module(x)
-        out.append(decode(y.reshape(det.cells).double().numpy(), det, i))
+            y = det.net.module(torch.from_numpy(arr))
+        fd = decode(y.reshape(det.cells).double().numpy(), det, i)
+        out.append(fd if price is None else replace(fd, payoffs=price(arr, fd)))
         if on_frame is not None:
             on_frame()
     return out
 
 
 def footage_of(
-    dets: list[HeatmapDetections], det: LoadedDetector, dt: float, source: str
+    dets: list[HeatmapDetections],
+    det: LoadedDetector,
+    dt: float,
+    source: str,
+    attack: dict[str, Any] | None = None,
 ) -> Footage:
-    """A scene without a target: step k holds frame k's detections ``k:K``, payoffs
-    ``"unpriced"`` (no attack on this path yet), no homographies (a still camera);
-    ``meta`` records the detector file and its network."""
+    """A scene without a target: step k holds frame k's detections ``k:K``, their payoffs
+    (``"unpriced"`` where not priced), no homographies (a still camera); ``meta`` records
+    the detector file and its network, and ``attack``, the settings of the payoffs."""
     from lesmc.scene import Detection, Footage, Frame, TrackerConfig
 
     frames = tuple(
         Frame(
             fd.index,
             tuple(
-                Detection(f"{fd.index}:{k}", float(x), float(y), float("nan"))
+                Detection(
+                    f"{fd.index}:{k}",
+                    float(x),
+                    float(y),
+                    float("nan") if fd.payoffs is None else float(fd.payoffs[k]),
+                )
                 for k, (x, y) in enumerate(fd.positions)
             ),
         )
@@ -156,6 +174,9 @@ def footage_of(
         "source": source,
         "detector": det.spec.describe(),
         "detector_file": det.spec.to_meta(),
-        "payoffs": "unpriced (a detector file's detections are not attacked yet)",
     }
+    if attack is None:
+        meta["payoffs"] = "unpriced (give -o to price a detector file's detections)"
+    else:
+        meta["attack"] = attack
     return Footage(dt, frames, TrackerConfig(), meta)
