@@ -40,7 +40,7 @@ FIELD_PROBES = 4
 
 
 @dataclass(frozen=True)
-class Field:
+class ReceptiveField:
     """A cell's receptive field, relative to the cell's top-left input pixel
     (row · stride, col · stride): rows y0..y1, columns x0..x1 (inclusive)."""
 
@@ -50,7 +50,7 @@ class Field:
     x1: int
 
 
-def receptive_field(det: LoadedDetector) -> Field:
+def receptive_field(det: LoadedDetector) -> ReceptiveField:
     """The input pixels the centre cell's output depends on: where its gradient is not 0
     on any of :data:`FIELD_PROBES` random inputs in the network's units. A fully
     convolutional network's field is the same for every cell away from the edges."""
@@ -65,8 +65,8 @@ def receptive_field(det: LoadedDetector) -> Field:
     ys, xs = np.nonzero(grad.abs().sum(dim=(0, 1)).numpy())
     s = det.spec.stride
     if not len(ys):  # a constant output: the cell's own pixels
-        return Field(0, s - 1, 0, s - 1)
-    return Field(
+        return ReceptiveField(0, s - 1, 0, s - 1)
+    return ReceptiveField(
         int(ys.min()) - ci * s,
         int(ys.max()) - ci * s,
         int(xs.min()) - cj * s,
@@ -121,7 +121,7 @@ def price_frame(
     fd: HeatmapDetections,
     cfg: AttackConfig,
     save: Callable[[int, np.ndarray], None] | None = None,
-    field: Field | None = None,
+    field: ReceptiveField | None = None,
 ) -> np.ndarray:
     """Each detection of ``fd`` (frame input ``frame``, (1, C, H, W)): its payoff, ``inf``
     when the attack finds no perturbation that hides it. ``save(K, delta)`` gets each
@@ -152,7 +152,7 @@ def price_frame(
 
 
 def _square_and_box(
-    det: LoadedDetector, i: int, j: int, f: Field
+    det: LoadedDetector, i: int, j: int, f: ReceptiveField
 ) -> tuple[tuple[int, int, int, int], tuple[int, int, int, int]]:
     """The cells of detection (i, j)'s square (row and column ranges, end exclusive) and
     the input crop its receptive fields cover, cut at the frame's edges."""
