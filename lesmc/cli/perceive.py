@@ -24,6 +24,7 @@ from lesmc.video import FPS
 if TYPE_CHECKING:
     from lesmc.perception.cnn import Nets
     from lesmc.perception.run import PerceiveRun
+    from lesmc.scene import Footage, Scene
 
 
 @click.command("perceive")
@@ -82,6 +83,14 @@ if TYPE_CHECKING:
     "Slow: about 0.15-0.25 s per detection on 2 idle cores (docs/performance.md).",
 )
 @click.option(
+    "--save-attacks",
+    type=click.Path(file_okay=False),
+    default=None,
+    metavar="DIR",
+    help="With a detector file and -o: write each hiding perturbation to DIR/FRAME_K.npy "
+    "(docs/detectors.md).",
+)
+@click.option(
     "--history",
     type=click.IntRange(min=3, max=16),
     default=4,
@@ -137,6 +146,7 @@ def perceive_cmd(
     overshoot: float,
     max_iter: int,
     certify: bool,
+    save_attacks: str | None,
     history: int,
     delta_bc: int,
     dt: float | None,
@@ -154,6 +164,10 @@ def perceive_cmd(
     --target X,Y@STEP (lesmc campaign finds them itself). Options that only
     shape the scene (--attack, --payoff-norm, --overshoot, --max-iter, --dt,
     --certify, --target) need -o; --radius and --min-speed need --truth.
+    With --detector FILE.toml (or .json), a detector file (docs/detectors.md),
+    the user's whole-frame heatmap network runs on every frame instead, without
+    the front end; with -o, each payoff is the smallest perturbation found of
+    the detection's receptive-field crop that hides it (--save-attacks DIR).
     Exit status: 0 done, 2 bad input, 4 internal error, 130 interrupted.
     """
     started = time.monotonic()
@@ -165,21 +179,75 @@ def perceive_cmd(
     )  # fmt: skip
     refuse_mismatched(req)
     _refuse_ignored(output, truth)
+    from lesmc.perception.detector_file import is_detector_file
+
+    if detector_file is not None and is_detector_file(detector_file):
+        _with_detector_file(req, detector_file, output, save_attacks)
+        return
+    refuse_given(("save_attacks",), "applies to a detector file's payoffs (docs/detectors.md)")
+    _with_windows(req, output, as_json, started)
+
+
+def _with_windows(req: PerceiveRequest, output: str | None, as_json: bool, started: float) -> None:
+    """The paper's pipeline (front end, N_dr, N_lp) on the frames; the scene with -o."""
     from lesmc.common.progress import progress_bar  # rich: imported when a verb runs
 
     inputs = open_inputs(req)
     if output is not None:
         named: dict[str, str | None] = {p.name: str(p) for p in inputs.frames.paths}
-        named |= {"--truth": truth, "--tracker": tracker_file, "--detector": detector_file}
-        distinct_files(named | {"--locator": locator_file}, {"-o/--output": output})
+        named |= {"--truth": req.truth, "--tracker": req.tracker, "--detector": req.nets[1]}
+        distinct_files(named | {"--locator": req.nets[2]}, {"-o/--output": output})
     with progress_bar("perceive", "perceiving", len(inputs.frames)) as bar:
         got = perceive_frames(req, inputs, bar.advance)
     _log_networks(got)
-    written = None if got.scene is None or output is None else _write(got, output, as_json)
+    written = (
+        None
+        if got.scene is None or output is None
+        else _write_scene(got.scene, got.run.unattackable, got.target_note, output, as_json)
+    )
+    with_truth = req.truth is not None
     if as_json:
-        emit(_document(frames_dir, got.nets, got.run, written, truth is not None, started))
+        emit(_document(req.frames_dir, got.nets, got.run, written, with_truth, started))
         return
-    _print(got.run, truth is not None, got.nets is not None)
+    _print(got.run, with_truth, got.nets is not None)
+
+
+#: Options of the window pipeline (front end, N_dr and N_lp) that a detector file replaces.
+_WINDOW_ONLY = (
+    "nets_dir", "locator_file", "no_cnn", "certify", "history", "delta_bc", "truth",
+    "payoff_norm", "as_json",
+)  # fmt: skip
+
+
+def _with_detector_file(
+    req: PerceiveRequest, path: str, output: str | None, save_attacks: str | None
+) -> None:
+    """``--detector FILE.toml|.json``: the user's whole-frame detector on every frame
+    (docs/detectors.md); with -o, each detection's payoff and the scene."""
+    from lesmc.common.progress import progress_bar
+    from lesmc.experiment.perceive import perceive_with_file
+
+    refuse_given(_WINDOW_ONLY, "does not apply to a detector file (docs/detectors.md)")
+    if output is None:
+        refuse_given(("save_attacks",), "saves the attacks that price a scene: it needs -o")
+    else:
+        distinct_files({"--detector": path, "--tracker": req.tracker}, {"-o/--output": output})
+    with progress_bar("perceive", "perceiving", None) as bar:
+
+        def start(n: int) -> Any:
+            bar.update(total=n)
+            return bar.advance
+
+        got = perceive_with_file(req, path, start, save_attacks)
+    click.echo(
+        f"lesmc perceive: detector: {escape_control(got.detector.spec.describe())}", err=True
+    )
+    if got.scene is not None and output is not None:
+        pays = [float(p) for d in got.detections if d.payoffs is not None for p in d.payoffs]
+        hard = sum(1 for p in pays if math.isinf(p))
+        _write_scene(got.scene, hard, got.target_note, output, False)
+    n = sum(len(d.positions) for d in got.detections)
+    say(f"{len(got.detections)} frames, {n} detections", False)
 
 
 def _log_networks(got: Perceived) -> None:
@@ -208,18 +276,18 @@ def _refuse_ignored(output: str | None, truth: str | None) -> None:
         refuse_given(("radius", "min_speed"), "applies to the comparison with --truth")
 
 
-def _write(got: Perceived, output: str, as_json: bool) -> dict[str, Any]:
-    """The scene of ``got`` written to ``output``; its facts for --json."""
+def _write_scene(
+    scene: Scene | Footage, unattackable: int, target_note: str, output: str, as_json: bool
+) -> dict[str, Any]:
+    """``scene`` written to ``output``; its facts for --json."""
     from lesmc.scene import Scene, save_scene
 
-    scene = got.scene
-    assert scene is not None
     save_scene(scene, output)
     n = sum(len(f.detections) for f in scene.frames)
     say(
         f"wrote {escape_control(output)}: {len(scene.frames)} frames (steps "
         f"{scene.frames[0].step}..{scene.last_step}), {n} detections, "
-        f"{got.run.unattackable} unattackable{_unattackable_note(scene)}; {got.target_note}",
+        f"{_priced(scene, unattackable)}; {target_note}",
         as_json,
     )
     target = None
@@ -229,9 +297,16 @@ def _write(got: Perceived, output: str, as_json: bool) -> dict[str, Any]:
     return file_facts(output) | {
         "steps": [scene.frames[0].step, scene.last_step],
         "detections": n,
-        "unattackable": got.run.unattackable,
+        "unattackable": unattackable,
         "target": target,
     }
+
+
+def _priced(scene: Scene | Footage, unattackable: int) -> str:
+    """How many detections are unattackable (or unpriced, and then nothing more)."""
+    if scene.unpriced:
+        return f"{scene.unpriced} unpriced"
+    return f"{unattackable} unattackable{_unattackable_note(scene)}"
 
 
 def _unattackable_note(scene: Any) -> str:

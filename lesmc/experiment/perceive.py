@@ -23,6 +23,8 @@ if TYPE_CHECKING:
     from lesmc.perception.attack_settings import AttackConfig
     from lesmc.perception.certify import CertifyConfig
     from lesmc.perception.cnn import Nets
+    from lesmc.perception.detector_file import LoadedDetector
+    from lesmc.perception.heatmap import HeatmapDetections
     from lesmc.perception.quality import Truth
     from lesmc.perception.run import PerceiveRun
     from lesmc.scene import Footage, Scene, TrackerConfig
@@ -110,16 +112,16 @@ def refuse_mismatched(req: PerceiveRequest) -> None:
         )
 
 
-def open_inputs(req: PerceiveRequest) -> Inputs:
-    """The frames, the target asked for and the truth, each checked against the others,
-    and the tracker file's configuration."""
+def open_inputs(req: PerceiveRequest, minimum: int | None = None) -> Inputs:
+    """The frames (at least ``minimum``, default L + 1), the target asked for and the truth,
+    each checked against the others, and the tracker file's configuration."""
     from lesmc.perception.quality import load_truth
     from lesmc.scene import load_tracker
     from lesmc.tracking.targets import check_target, parse_target
     from lesmc.video.reader import open_frames
 
     spec = parse_target(req.target) if req.target else None
-    frames = open_frames(req.frames_dir, req.history + 1)
+    frames = open_frames(req.frames_dir, req.history + 1 if minimum is None else minimum)
     if spec is not None:
         check_target(spec, frames.width, frames.height, len(frames))
     truths = load_truth(req.truth) if req.truth else None
@@ -157,6 +159,65 @@ def perceive_frames(
     dt = req.dt or (inputs.truth.dt if inputs.truth else None) or 1 / FPS
     scene, note = _scene(run, dt, scene_meta(req, nets.settings.trained_on, cert), inputs)
     return Perceived(run, nets, scene, note)
+
+
+@dataclass
+class PerceivedWithFile:
+    """A run of a detector file (docs/detectors.md) over the frames: its detections and,
+    with ``req.scene``, the scene."""
+
+    detector: LoadedDetector
+    detections: list[HeatmapDetections]
+    scene: Scene | Footage | None
+    target_note: str
+
+
+def perceive_with_file(
+    req: PerceiveRequest,
+    path: str,
+    on_start: Callable[[int], Any] | None = None,
+    save_attacks: str | None = None,
+) -> PerceivedWithFile:
+    """The detector file ``path`` on every frame (no front end: lesmc/perception/heatmap.py);
+    with ``req.scene`` each detection's payoff (lesmc/perception/heatmap_attack.py; each
+    hiding perturbation saved to ``save_attacks`` as FRAME_K.npy) and the footage, its
+    target placed when asked for. ``on_start(n_frames)`` gives the per-frame callback."""
+    from lesmc.perception.detector_file import load_detector
+    from lesmc.perception.heatmap import check_frames, footage_of, run_detector
+
+    det = load_detector(path)
+    inputs = open_inputs(req, minimum=1)
+    check_frames(inputs.frames, det, req.frames_dir)
+    price = _pricer(req, det, save_attacks) if req.scene else None
+    on_frame = on_start(len(inputs.frames)) if on_start else None
+    dets = run_detector(inputs.frames, det, on_frame, price)
+    if not req.scene:
+        return PerceivedWithFile(det, dets, None, "")
+    dt = req.dt or (inputs.truth.dt if inputs.truth else None) or 1 / FPS
+    att = attack_config(req)
+    recorded = {
+        "method": att.method, "overshoot": att.overshoot, "max_iter": att.max_iter,
+        "converged": att.converged, "norm": "l2",
+        "input": f"the detector file's network input (1, C, H, W), units {list(det.spec.scale)}",
+        "where": "the crop covered by the receptive fields of the detection's nms square",
+    }  # fmt: skip
+    footage = footage_of(dets, det, dt, str(Path(req.frames_dir)), recorded)
+    scene, note = _placed(footage, inputs)
+    return PerceivedWithFile(det, dets, scene, note)
+
+
+def _pricer(req: PerceiveRequest, det: LoadedDetector, save_attacks: str | None) -> Any:
+    """``price(frame input, detections)`` with the request's attack settings."""
+    from lesmc.perception.heatmap_attack import price_frame, receptive_field, saver
+
+    att = attack_config(req)
+    field = receptive_field(det)
+
+    def price(frame: Any, fd: HeatmapDetections) -> Any:
+        save = None if save_attacks is None else saver(save_attacks, fd.index)
+        return price_frame(det, frame, fd, att, save, field)
+
+    return price
 
 
 def scene_meta(
@@ -204,10 +265,16 @@ def _scene(
 ) -> tuple[Scene | Footage, str]:
     """The footage of ``run``, its tracker replaced by the tracker file's, with the
     target placed when one was asked for; and where the target is, in words."""
-    from lesmc.experiment.targets import target_scene
     from lesmc.perception.to_scene import footage_from_run
 
-    footage = footage_from_run(run, dt, meta)
+    return _placed(footage_from_run(run, dt, meta), inputs)
+
+
+def _placed(footage: Footage, inputs: Inputs) -> tuple[Scene | Footage, str]:
+    """``footage`` with the tracker file's tracker, and the target placed when one was asked
+    for; and where the target is, in words."""
+    from lesmc.experiment.targets import target_scene
+
     if inputs.tracker is not None:
         footage = replace(footage, tracker=inputs.tracker)
     if inputs.spec is None:

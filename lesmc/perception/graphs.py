@@ -71,6 +71,8 @@ class UserNet:
     module: nn.Module
     in_shape: tuple[int, int, int]
     ops: list[Op] | Unsupported
+    #: the name of its output in the file (ONNX: the graph's; .pt2: the exported program's)
+    output: str = ""
 
     def certifiable_ops(self) -> list[Op]:
         """The ops, or :class:`Unsupported` naming the node that has none."""
@@ -149,15 +151,7 @@ def probe(net: UserNet, role: str, out: tuple[int, ...]) -> None:
     infinite answer would silently accept or reject every window)."""
     x = torch.rand(PROBE_BATCH, *net.in_shape, generator=torch.Generator().manual_seed(0))
     where = Location(net.path)
-    try:
-        with torch.no_grad():
-            y = net.module(x)
-    except InputError:
-        raise
-    except Exception as exc:  # whatever the graph raises: a reshape to a fixed batch, ...
-        raise InputError(
-            f"the {role} fails on a batch of {PROBE_BATCH} windows: {_first_line(exc)}", where
-        ) from None
+    y = answer(net, x, role)
     want = (PROBE_BATCH, *out)
     if not isinstance(y, torch.Tensor) or tuple(y.shape) != want:
         got = tuple(y.shape) if isinstance(y, torch.Tensor) else type(y).__name__
@@ -172,12 +166,32 @@ def probe(net: UserNet, role: str, out: tuple[int, ...]) -> None:
             "(docs/own-system.md)",
             where,
         )
+    refuse_nonfinite_answer(net, y, role)
+
+
+def answer(net: UserNet, x: torch.Tensor, role: str) -> Any:
+    """The network's answer to the probe batch ``x``; whatever the graph raises (a reshape
+    to a fixed batch, ...) is an InputError naming the file."""
+    try:
+        with torch.no_grad():
+            return net.module(x)
+    except InputError:
+        raise
+    except Exception as exc:
+        raise InputError(
+            f"the {role} fails on a batch of {len(x)} inputs: {_first_line(exc)}",
+            Location(net.path),
+        ) from None
+
+
+def refuse_nonfinite_answer(net: UserNet, y: torch.Tensor, role: str) -> None:
+    """A NaN or infinite answer to the probe batch is an InputError naming the file."""
     bad = int((~torch.isfinite(y)).sum())
     if bad:
         raise InputError(
             f"the {role} gives NaN or infinite outputs ({bad} of {y.numel()} on "
-            f"{PROBE_BATCH} random windows)",
-            where,
+            f"{PROBE_BATCH} random inputs)",
+            Location(net.path),
         )
 
 
@@ -278,7 +292,8 @@ def _from_pt2(path: str) -> UserNet:
         ops: list[Op] | Unsupported = _fx_ops(ep)
     except Unsupported as exc:
         ops = exc
-    return UserNet(path, _Frozen(module, path), (shape[1], shape[2], shape[3]), ops)
+    out = sig.user_outputs[0] if len(sig.user_outputs) == 1 else ""
+    return UserNet(path, _Frozen(module, path), (shape[1], shape[2], shape[3]), ops, out)
 
 
 class _Frozen(nn.Module):
@@ -661,7 +676,8 @@ def _from_onnx(path: str) -> UserNet:
         ops: list[Op] | Unsupported = _onnx_ops(net)
     except Unsupported as exc:
         ops = exc
-    return UserNet(path, net, (int(shape[1]), int(shape[2]), int(shape[3])), ops)  # type: ignore[arg-type]
+    c, h, w = (int(d) for d in shape[1:])  # type: ignore[arg-type]  # None refused above
+    return UserNet(path, net, (c, h, w), ops, net.output)
 
 
 def _onnx_ops(net: OnnxNet) -> list[Op]:

@@ -1,0 +1,382 @@
+"""Detector files: how the user's whole-frame network's outputs become detections.
+
+A detector file (TOML, or JSON by its ``.json`` suffix) names a network file
+(``.onnx`` or ``.pt2``, read by lesmc/perception/graphs.py) and declares how
+its output is decoded (docs/detectors.md). :data:`FIELDS` declares every key
+once: :func:`read_detector_file` validates by it, and docs/detectors.md's table
+is :func:`fields_table`'s text.
+
+Every mistake is an :class:`InputError` at the key's line of the detector file
+(``det.toml:4:1: stride: ...``), or naming the network file for what is wrong
+inside the network; the CLI exits 2.
+"""
+
+from __future__ import annotations
+
+import re
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+from lesmc.common.errors import InputError, Location, clipped
+from lesmc.common.fields import is_finite, is_int, show
+from lesmc.common.files import read_json, read_text, read_toml
+
+if TYPE_CHECKING:
+    from lesmc.perception.graphs import UserNet
+
+#: The kinds of detector this version decodes (the issue's ``boxes`` and ``windows`` are
+#: not on this path yet; the window pair is given with --detector/--locator network files).
+KINDS = ("heatmap",)
+#: Largest stride and NMS radius a file may declare (cells; pixels for the stride).
+MAX_STRIDE = 1024
+MAX_RADIUS = 64
+#: Largest magnitude of a scale bound or threshold.
+MAX_VALUE = 1e6
+
+
+@dataclass(frozen=True)
+class Field:
+    """One key of a detector file: whether it must be given, its default, what it may
+    hold (``values``, in words for the table and messages) and what it means."""
+
+    name: str
+    required: bool
+    default: Any
+    values: str
+    meaning: str
+    ok: Callable[[Any], bool]
+
+
+def _one_of(*names: str) -> Callable[[Any], bool]:
+    return lambda v: v in names
+
+
+def _scale_ok(v: Any) -> bool:
+    return (
+        isinstance(v, list)
+        and len(v) == 2
+        and all(is_finite(x) and abs(x) <= MAX_VALUE for x in v)
+        and v[0] != v[1]
+    )
+
+
+def _network_ok(v: Any) -> bool:
+    return isinstance(v, str) and v.endswith((".onnx", ".pt2"))
+
+
+FIELDS: tuple[Field, ...] = (
+    Field(
+        "kind", True, None, '"heatmap"',
+        "How the network's output becomes detections (docs/detectors.md, \"Decoding\").",
+        _one_of(*KINDS),
+    ),
+    Field(
+        "network", True, None, "a path ending in .onnx or .pt2",
+        "The network file, relative to the detector file's directory: input (B, C, H, W) "
+        "floats, dynamic batch B; output (B, 1, H/stride, W/stride) or (B, H/stride, W/stride).",
+        _network_ok,
+    ),
+    Field(
+        "channels", False, "gray", '"gray" or "rgb"',
+        "What a frame becomes: C = 1 (grey levels, OpenCV's luma weights) or C = 3 "
+        "(red, green, blue in that order).",
+        _one_of("gray", "rgb"),
+    ),
+    Field(
+        "scale", False, [0.0, 1.0], f"[lo, hi], finite, lo ≠ hi, each within ±{MAX_VALUE:g}",
+        "Pixel value v in 0..255 becomes lo + (hi − lo) · v / 255: the network's input units.",
+        _scale_ok,
+    ),
+    Field(
+        "stride", True, None, f"an integer in 1..{MAX_STRIDE} dividing H and W",
+        "One output cell covers stride × stride input pixels.",
+        lambda v: is_int(v) and 1 <= v <= MAX_STRIDE,
+    ),
+    Field(
+        "threshold", True, None, f"a finite number within ±{MAX_VALUE:g}",
+        "A detection's score must be ≥ threshold.",
+        lambda v: is_finite(v) and abs(v) <= MAX_VALUE,
+    ),
+    Field(
+        "score", False, "raw", '"raw" or "sigmoid"',
+        "How an output cell becomes a score: itself, or 1 / (1 + e^−cell).",
+        _one_of("raw", "sigmoid"),
+    ),
+    Field(
+        "nms_radius", False, 1, f"an integer in 0..{MAX_RADIUS}",
+        "r: a detection is a cell ≥ every cell of the (2r+1) × (2r+1) square around it.",
+        lambda v: is_int(v) and 0 <= v <= MAX_RADIUS,
+    ),
+    Field(
+        "output", False, None, "a string",
+        "The name of the network's output, checked against the file (ONNX: the graph's "
+        "output; .pt2: the exported program's); not given: not checked.",
+        lambda v: isinstance(v, str) and 0 < len(v) <= 200,
+    ),
+    Field(
+        "comment", False, None, "a string", "A note for people; not read.",
+        lambda v: isinstance(v, str),
+    ),
+)  # fmt: skip
+
+_BY_NAME = {f.name: f for f in FIELDS}
+
+
+@dataclass(frozen=True)
+class DetectorFile:
+    """A validated detector file; ``network`` resolved against the file's directory."""
+
+    path: str
+    kind: str
+    network: str
+    channels: str
+    scale: tuple[float, float]
+    stride: int
+    threshold: float
+    score: str
+    nms_radius: int
+    output: str | None
+    #: where each key is in the file (for errors found once the network is read)
+    where: dict[str, Location]
+
+    @property
+    def n_channels(self) -> int:
+        """C, the network input's channels."""
+        return 3 if self.channels == "rgb" else 1
+
+    def at(self, key: str) -> Location:
+        """The location of ``key`` in the file (the file itself when not given)."""
+        return self.where.get(key, Location(self.path))
+
+    def describe(self) -> str:
+        """The detector in words, for logs and a scene's ``meta.detector``."""
+        return (
+            f"the user's {self.kind} detector file {self.path} (network {self.network}, "
+            f"{self.channels}, stride {self.stride}, {self.score} score >= {self.threshold:g}, "
+            f"nms_radius {self.nms_radius})"
+        )
+
+    def to_meta(self) -> dict[str, Any]:
+        """What a scene's ``meta.detector_file`` records."""
+        return {
+            "path": self.path,
+            "kind": self.kind,
+            "network": self.network,
+            "channels": self.channels,
+            "scale": list(self.scale),
+            "stride": self.stride,
+            "threshold": self.threshold,
+            "score": self.score,
+            "nms_radius": self.nms_radius,
+        }
+
+
+def fields_table() -> str:
+    """docs/detectors.md's table of keys, made from :data:`FIELDS`."""
+    rows = ["| key | required | default | values | meaning |", "| --- | --- | --- | --- | --- |"]
+    for f in FIELDS:
+        default = "" if f.default is None else _toml(f.default)
+        rows.append(
+            f"| `{f.name}` | {'yes' if f.required else 'no'} | {default} | {f.values} | "
+            f"{f.meaning} |"
+        )
+    return "\n".join(rows) + "\n"
+
+
+def _toml(v: Any) -> str:
+    if isinstance(v, str):
+        return f'`"{v}"`'
+    if isinstance(v, list):
+        return "`[" + ", ".join(str(x) for x in v) + "]`"
+    return f"`{v}`"
+
+
+def is_detector_file(path: str) -> bool:
+    """Whether ``--detector PATH`` names a detector file (TOML or JSON), not a network."""
+    return path.endswith((".toml", ".json"))
+
+
+def read_detector_file(path: str | Path) -> DetectorFile:
+    """A detector file read and validated (the network is not read: :func:`load_detector`)."""
+    p = str(path)
+    is_json = p.endswith(".json")
+    data = read_json(p) if is_json else read_toml(p)
+    where = _key_locations(p, read_text(p), is_json)
+    if not isinstance(data, dict):
+        raise InputError(
+            "a detector file must be an object of keys (docs/detectors.md)", Location(p)
+        )
+    problems: list[tuple[str, str]] = []
+    for key in data:
+        if key not in _BY_NAME:
+            known = ", ".join(f.name for f in FIELDS)
+            problems.append((key, f"unknown key (the keys: {known})"))
+    for f in FIELDS:
+        if f.name not in data:
+            if f.required:
+                problems.append((f.name, f"is missing: {f.values}"))
+        elif not f.ok(data[f.name]):
+            problems.append((f.name, _bad(f, data[f.name])))
+    if problems:
+        raise _located(p, where, problems)
+    v = {f.name: data.get(f.name, f.default) for f in FIELDS}
+    network = _resolve(p, v["network"], where)
+    lo, hi = (float(x) for x in v["scale"])
+    return DetectorFile(
+        p, v["kind"], network, v["channels"], (lo, hi), int(v["stride"]),
+        float(v["threshold"]), v["score"], int(v["nms_radius"]), v["output"], where,
+    )  # fmt: skip
+
+
+def _bad(f: Field, got: Any) -> str:
+    if f.name == "kind" and got in ("boxes", "windows"):
+        also = (
+            "give the window classifier's network files to --detector and --locator"
+            if got == "windows"
+            else "box-list detectors are not decoded yet"
+        )
+        return f'must be "heatmap" in this version, got "{got}" ({also})'
+    return f"must be {f.values}, got {show(got)}"
+
+
+def _resolve(path: str, network: str, where: dict[str, Location]) -> str:
+    """The network's path, relative to the detector file's directory; it must be a file."""
+    p = Path(network)
+    full = p if p.is_absolute() else Path(path).parent / p
+    if full.is_dir():
+        raise _located(
+            path,
+            where,
+            [("network", f"{clipped(str(full), 200)} is a directory, not a network file")],
+        )
+    if not full.is_file():
+        raise _located(path, where, [("network", f"no such file: {clipped(str(full), 200)}")])
+    return str(full)
+
+
+def _key_locations(path: str, text: str, is_json: bool) -> dict[str, Location]:
+    """Where each key's first mention is: ``key =`` (TOML, a bare or quoted key, or a
+    table ``[key]``) or ``"key":`` (JSON)."""
+    pattern = _JSON_KEY if is_json else _TOML_KEY
+    out: dict[str, Location] = {}
+    for m in pattern.finditer(text):
+        key = next(g for g in m.groups() if g is not None)
+        if key not in out:
+            lead = len(m.group(0)) - len(m.group(0).lstrip(" \t"))
+            out[key] = Location.at(path, text, m.start(0) + lead)
+    return out
+
+
+_JSON_KEY = re.compile(r'"((?:[^"\\]|\\.)*)"\s*:')
+_TOML_KEY = re.compile(
+    r'^[ \t]*\[?[ \t]*(?:"([^"]*)"|\'([^\']*)\'|([A-Za-z0-9_-]+))[ \t]*[=\]]', re.M
+)
+
+
+def _located(path: str, where: dict[str, Location], problems: list[tuple[str, str]]) -> InputError:
+    """One error listing each ``(key, message)`` at the key's line (the file's name when the
+    key is not in it, as for a missing key)."""
+    lines = []
+    for key, msg in problems:
+        loc = where.get(key, Location(path))
+        lines.append(f"{loc.prefix()}: {clipped(key, 60)}: {msg}")
+    first = where.get(problems[0][0], Location(path))
+    err = InputError("\n".join(lines), first)
+    err.preformatted = True
+    return err
+
+
+def located(spec: DetectorFile, key: str, message: str) -> InputError:
+    """An error at ``key``'s line of the detector file ``spec``."""
+    return _located(spec.path, spec.where, [(key, message)])
+
+
+# ---------------------------------------------------------------- the network
+
+
+@dataclass
+class LoadedDetector:
+    """A detector file with its network, checked against each other."""
+
+    spec: DetectorFile
+    net: UserNet
+
+    @property
+    def height(self) -> int:
+        return self.net.in_shape[1]
+
+    @property
+    def width(self) -> int:
+        return self.net.in_shape[2]
+
+    @property
+    def cells(self) -> tuple[int, int]:
+        """(rows, cols) of the heatmap."""
+        return self.height // self.spec.stride, self.width // self.spec.stride
+
+
+def load_detector(path: str | Path) -> LoadedDetector:
+    """A detector file and its network, each checked against the other before any frame:
+    the channels, the stride dividing the input, the output's name and shape (a batch of
+    :data:`~lesmc.perception.graphs.PROBE_BATCH` random inputs must give one finite
+    heatmap each)."""
+    from lesmc.perception.graphs import load_network
+
+    spec = read_detector_file(path)
+    net = load_network(spec.network)
+    c, h, w = net.in_shape
+    if c != spec.n_channels:
+        raise located(
+            spec, "channels",
+            f'"{spec.channels}" makes {spec.n_channels}-channel inputs; the network '
+            f"{spec.network} takes {c} channels",
+        )  # fmt: skip
+    if h % spec.stride or w % spec.stride:
+        raise located(
+            spec, "stride",
+            f"{spec.stride} does not divide the network's input, {w}x{h} (width x height)",
+        )  # fmt: skip
+    if spec.output is not None and spec.output != net.output:
+        raise located(
+            spec, "output",
+            f"the network {spec.network} has no output '{clipped(spec.output, 80)}'; its "
+            f"output is '{clipped(net.output, 80)}'",
+        )  # fmt: skip
+    det = LoadedDetector(spec, net)
+    _probe(det)
+    return det
+
+
+def _probe(det: LoadedDetector) -> None:
+    """The network on :data:`PROBE_BATCH` random inputs in its units: one finite heatmap
+    of (H/stride, W/stride) cells each."""
+    import torch
+
+    from lesmc.perception.graphs import PROBE_BATCH, answer
+
+    lo, hi = det.spec.scale
+    g = torch.Generator().manual_seed(0)
+    x = lo + (hi - lo) * torch.rand(PROBE_BATCH, *det.net.in_shape, generator=g)
+    y = answer(det.net, x, "heatmap detector")
+    rows, cols = det.cells
+    shape = tuple(y.shape)
+    if shape not in ((PROBE_BATCH, 1, rows, cols), (PROBE_BATCH, rows, cols)):
+        raise InputError(
+            f"the heatmap detector must answer a batch of B inputs of {det.width}x{det.height} "
+            f"with (B, 1, {rows}, {cols}) or (B, {rows}, {cols}) cells (stride "
+            f"{det.spec.stride}, {det.spec.path}); on {PROBE_BATCH} inputs it gave {shape}",
+            Location(det.net.path),
+        )
+
+
+def score_of(raw: Any, how: str) -> Any:
+    """An output cell's score (``score`` of the detector file), in float64."""
+    import numpy as np
+
+    x = np.asarray(raw, dtype=np.float64)
+    if how == "sigmoid":
+        with np.errstate(over="ignore"):
+            return 1.0 / (1.0 + np.exp(-x))
+    return x

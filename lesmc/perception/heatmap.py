@@ -1,0 +1,182 @@
+"""Heatmap detectors on whole frames: decoding a score map, and running a detector file.
+
+Decoding (docs/detectors.md, "Decoding"): a detection is a cell whose score is
+``>= threshold`` and ``>=`` every cell of the (2r+1) x (2r+1) square around it
+(r = ``nms_radius``; the square is cut at the map's edges); of equal cells in one
+square, the first in row-major order wins. It sits at its cell's centre,
+((col + 0.5) · stride, (row + 0.5) · stride) in input pixels. Detections come in
+row-major order of their cells; frame k of the directory (natural sort order) is
+step k, and detection K of it is ``k:K``.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass, replace
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+
+from lesmc.common.errors import InputError, Location
+
+if TYPE_CHECKING:
+    from lesmc.perception.detector_file import LoadedDetector
+    from lesmc.scene import Footage
+    from lesmc.video.reader import FrameSet
+
+
+@dataclass(frozen=True)
+class HeatmapDetections:
+    """One frame's detections: frame index, (n, 2) positions, (n,) scores, (n, 2) cells
+    (row, col), in row-major order of the cells; their payoffs once priced."""
+
+    index: int
+    positions: np.ndarray
+    scores: np.ndarray
+    cells: np.ndarray
+    payoffs: np.ndarray | None = None  #: (n,) inf: unattackable; None: unpriced
+
+
+def peaks(scores: np.ndarray, threshold: float, radius: int) -> np.ndarray:
+    """(n, 2) the (row, col) of the detections of the (rows, cols) ``scores``, row-major.
+
+    A cell is kept when its score is ``>= threshold``, ``>=`` every cell within
+    ``radius`` (Chebyshev distance) and ``>`` every such cell that comes before it in
+    row-major order (of equal cells, the first wins).
+    """
+    s = np.asarray(scores, dtype=np.float64)
+    rows, cols = s.shape
+    r = int(radius)
+    padded = np.full((rows + 2 * r, cols + 2 * r), -np.inf)
+    padded[r : r + rows, r : r + cols] = s
+    keep = s >= threshold
+    for dy in range(-r, r + 1):
+        for dx in range(-r, r + 1):
+            if dy == 0 and dx == 0:
+                continue
+            other = padded[r + dy : r + dy + rows, r + dx : r + dx + cols]
+            earlier = dy < 0 or (dy == 0 and dx < 0)
+            keep &= (s > other) if earlier else (s >= other)
+    return np.argwhere(keep)
+
+
+def decode(raw: np.ndarray, det: LoadedDetector, index: int) -> HeatmapDetections:
+    """Frame ``index``'s detections from the network's raw (rows, cols) output."""
+    from lesmc.perception.detector_file import score_of
+
+    spec = det.spec
+    sc = score_of(raw, spec.score)
+    cells = peaks(sc, spec.threshold, spec.nms_radius)
+    pos = (cells[:, ::-1].astype(np.float64) + 0.5) * spec.stride
+    return HeatmapDetections(index, pos.reshape(-1, 2), sc[cells[:, 0], cells[:, 1]], cells)
+
+
+def frame_input(frames: FrameSet, i: int, det: LoadedDetector) -> np.ndarray:
+    """Frame ``i`` as the network's input (1, C, H, W), float32 in the detector file's
+    ``scale``: grey as every verb reads frames (``FrameSet.read``), or red, green, blue."""
+    spec = det.spec
+    if spec.channels == "rgb":
+        img = _rgb8(frames.paths[i], frames.scale)
+        chw = img.transpose(2, 0, 1)
+    else:
+        chw = frames.read(i)[None]
+    lo, hi = spec.scale
+    x = lo + (hi - lo) * (chw.astype(np.float32) / np.float32(255.0))
+    return np.ascontiguousarray(x[None], dtype=np.float32)
+
+
+def _rgb8(path: Path, scale: float) -> np.ndarray:
+    """A frame as (H, W, 3) uint8 red, green, blue (grey frames repeated; 16-bit scaled by
+    the video's factor, as ``FrameSet.read`` scales grey)."""
+    import cv2
+
+    read = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
+    if read is None:  # checked when the frames were opened; gone since
+        raise InputError("cannot decode the image", Location(str(path)))
+    img: np.ndarray = read
+    if img.ndim == 2:
+        img = np.repeat(img[:, :, None], 3, axis=2)
+    elif img.shape[2] == 1:
+        img = np.repeat(img, 3, axis=2)
+    else:
+        code = cv2.COLOR_BGRA2RGB if img.shape[2] == 4 else cv2.COLOR_BGR2RGB
+        img = cv2.cvtColor(img, code)
+    if img.dtype == np.uint8 and scale == 1.0:
+        return np.asarray(img)
+    return np.asarray(cv2.convertScaleAbs(img, alpha=scale))
+
+
+def check_frames(frames: FrameSet, det: LoadedDetector, frames_dir: str) -> None:
+    """The frames must be the network's input size (a fully convolutional network read
+    from a file has one fixed H x W)."""
+    if (frames.width, frames.height) != (det.width, det.height):
+        raise InputError(
+            f"the frames are {frames.width}x{frames.height}; the detector's network "
+            f"{det.spec.network} takes {det.width}x{det.height} inputs (width x height)",
+            Location(frames_dir),
+        )
+
+
+#: ``price(frame input, detections)``: each detection's payoff (heatmap_attack.price_frame).
+Pricer = Callable[[np.ndarray, HeatmapDetections], np.ndarray]
+
+
+def run_detector(
+    frames: FrameSet,
+    det: LoadedDetector,
+    on_frame: Callable[[], None] | None = None,
+    price: Pricer | None = None,
+) -> list[HeatmapDetections]:
+    """The detector on every frame, one frame a batch; with ``price``, the payoffs."""
+    import torch
+
+    out = []
+    for i in range(len(frames)):
+        arr = frame_input(frames, i, det)
+        with torch.no_grad():
+            y = det.net.module(torch.from_numpy(arr))
+        fd = decode(y.reshape(det.cells).double().numpy(), det, i)
+        out.append(fd if price is None else replace(fd, payoffs=price(arr, fd)))
+        if on_frame is not None:
+            on_frame()
+    return out
+
+
+def footage_of(
+    dets: list[HeatmapDetections],
+    det: LoadedDetector,
+    dt: float,
+    source: str,
+    attack: dict[str, Any] | None = None,
+) -> Footage:
+    """A scene without a target: step k holds frame k's detections ``k:K``, their payoffs
+    (``"unpriced"`` where not priced), no homographies (a still camera); ``meta`` records
+    the detector file and its network, and ``attack``, the settings of the payoffs."""
+    from lesmc.scene import Detection, Footage, Frame, TrackerConfig
+
+    frames = tuple(
+        Frame(
+            fd.index,
+            tuple(
+                Detection(
+                    f"{fd.index}:{k}",
+                    float(x),
+                    float(y),
+                    float("nan") if fd.payoffs is None else float(fd.payoffs[k]),
+                )
+                for k, (x, y) in enumerate(fd.positions)
+            ),
+        )
+        for fd in dets
+    )
+    meta: dict[str, Any] = {
+        "source": source,
+        "detector": det.spec.describe(),
+        "detector_file": det.spec.to_meta(),
+    }
+    if attack is None:
+        meta["payoffs"] = "unpriced (give -o to price a detector file's detections)"
+    else:
+        meta["attack"] = attack
+    return Footage(dt, frames, TrackerConfig(), meta)
