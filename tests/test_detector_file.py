@@ -360,3 +360,24 @@ def test_window_options_are_refused_with_a_detector_file(setup: dict[str, Any]) 
     assert r.returncode == 2, r.stderr
     assert "--save-attacks applies to a detector file's payoffs" in r.stderr
     assert not out.exists()
+
+
+def test_a_detector_files_payoffs_are_not_described_as_n_dr_windows() -> None:
+    """The report's payoff unit and source for a scene perceived with a detector file name
+    that file's network, not N_dr's 21x21 window (the window pipeline's words)."""
+    from types import SimpleNamespace
+
+    from lesmc.results.document import payoff_source, payoff_unit
+
+    meta = {
+        "detector": "heatmap detector det.toml",
+        "detector_file": {"path": "det.toml"},
+        "attack": {"method": "deepfool", "norm": "l2"},
+    }
+    run = SimpleNamespace(scene=SimpleNamespace(meta=meta))
+    unit = payoff_unit([run])  # type: ignore[list-item]
+    assert "detector file" in unit and "N_dr" not in unit
+    source = payoff_source([run])  # type: ignore[list-item]
+    assert "detector file" in source and "N_dr" not in source and "deepfool" in source
+    del meta["detector_file"]  # the window pipeline's scene keeps its words
+    assert "N_dr" in payoff_unit([run])  # type: ignore[list-item]

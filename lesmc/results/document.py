@@ -368,6 +368,11 @@ def replay_inputs(scene: Scene) -> dict[str, Any]:
 
 
 #: What a payoff made by perception is (docs/cnn.md).
+#: A full-frame detector's payoffs (a detector file: lesmc/perception/heatmap_attack.py).
+FRAME_ATTACK_PAYOFF = (
+    "the size of the perturbation the attack found that makes the detector file's network "
+    "lose the detection in the decoded frame (an upper bound on the cheapest one)"
+)
 ATTACK_PAYOFF = (
     "the size of the perturbation the attack found that makes N_dr miss the detection (an "
     "upper bound on the cheapest one)"
@@ -395,6 +400,9 @@ def payoff_source(runs: Sequence[DesignRun]) -> str:
             )
         )
     attack = meta.get("attack")
+    if isinstance(attack, dict) and isinstance(meta.get("detector_file"), dict):
+        method = attack.get("method")
+        return FRAME_ATTACK_PAYOFF + (f", by {method}" if isinstance(method, str) else "")
     if isinstance(attack, dict) or meta.get("detector"):
         method = attack.get("method") if isinstance(attack, dict) else None
         return ATTACK_PAYOFF + (f", by {method}" if isinstance(method, str) else "")
@@ -409,6 +417,8 @@ def payoff_unit(runs: Sequence[DesignRun]) -> str:
     if isinstance(scenes[0].meta.get("payoffs"), str):  # lesmc import mot's
         return "as the payoff source gives them (not an attack's perturbation size)"
     attack = scenes[0].meta.get("attack")
+    if isinstance(scenes[0].meta.get("detector_file"), dict):
+        return "L2 norm of the perturbation of the detector file's network input, in its units"
     norm = attack.get("norm") if isinstance(attack, dict) else None
     if norm == "per-pixel":
         return "L2 norm of the perturbation of N_dr's input, pixels in [0, 1], divided by 441"
