@@ -14,13 +14,17 @@ structure without a browser.
 from __future__ import annotations
 
 import base64
+import json
 import os
+import re
 import shutil
 import subprocess
 from pathlib import Path
+from typing import Any
 
 import pytest
 from cli_run import lesmc
+from note_verdicts import contradictions
 
 from lesmc.video.synth import SynthConfig
 from lesmc.video.write import write_video
@@ -70,6 +74,47 @@ return out;
 """
 
 
+#: Each design section as the browser shows it: its notes and, per property, the verdict
+#: cell of the first row whose header is the property (Table 4).
+NOTES_JS = """
+const out = [];
+document.querySelectorAll('section').forEach(sec => {
+  const h = sec.querySelector("h2[id^='design-']");
+  if (!h) return;
+  const notes = Array.from(sec.querySelectorAll('p.note')).map(p => p.innerText.trim());
+  const verdicts = {};
+  sec.querySelectorAll('tr').forEach(tr => {
+    const th = tr.querySelector('th');
+    const td = th && th.nextElementSibling;
+    const name = th && th.innerText.trim();
+    if (td && td.tagName === 'TD' && !(name in verdicts)) verdicts[name] = td.innerText.trim();
+  });
+  out.push({design: h.id.slice('design-'.length), notes: notes, verdicts: verdicts});
+});
+return out;
+"""
+
+
+def _notes_against_verdicts(browser: object, doc: dict[str, Any]) -> list[str]:
+    """Issue 56, item 1, read as a person reads the page: every note beside its property's
+    verdict in the same design section, and that verdict the results file's final one."""
+    shown = {s["design"]: s for s in browser.execute_script(NOTES_JS)}  # type: ignore[attr-defined]
+    problems = []
+    for run in doc["runs"]:
+        section = shown[run["design"]]
+        for r in run["results"]:
+            name = r["property"]
+            mine = [n.removeprefix(name + ": ") for n in section["notes"]
+                    if n.startswith(name + ": ")]  # fmt: skip
+            problems += [f"{run['design']}: {p}" for p in contradictions(r["status"], mine)]
+            cell = re.sub(r"^holds \(vacuous: .*\)$", "holds (vacuous)",
+                          section["verdicts"].get(name, ""), flags=re.S)  # fmt: skip
+            if cell != r["status"]:
+                problems.append(f"{run['design']}: {name} shows {cell!r}, results say "
+                                f"{r['status']!r}")  # fmt: skip
+    return problems
+
+
 @pytest.fixture(scope="module")
 def browser() -> object:
     from selenium.webdriver.chrome.options import Options
@@ -115,6 +160,12 @@ def test_the_default_videos_report_is_sound_in_a_browser(
     html = page.read_text()
     assert "ρ*" in html and "counterexample" in html  # the checks below have rows to look at
     assert _look(browser, page, _artifacts(tmp_path), "report") == []
+    doc = json.loads((out / "results.json").read_text())
+    assert _notes_against_verdicts(browser, doc) == []
+    # the check can fail: a results file whose first verdict differs from the page's
+    first = doc["runs"][0]["results"][0]
+    first["status"] = "holds" if first["status"] != "holds" else "unknown"
+    assert _notes_against_verdicts(browser, doc) != []
 
 
 def test_a_campaign_summary_is_sound_in_a_browser(browser: object, tmp_path: Path) -> None:

@@ -16,9 +16,8 @@ from typing import Any
 
 import pytest
 from cli_run import ROOT, lesmc, lesmc_logged
+from note_verdicts import contradictions
 
-#: The verdict words (docs/cli.md, "Verdicts"), written out again.
-WORDS = ("holds (vacuous)", "holds", "violated (not replayed)", "violated", "unknown")
 MOT = ROOT / "examples" / "mot"
 
 
@@ -32,24 +31,6 @@ def verified(
     r, _ = lesmc_logged("verify", "--out", str(out))
     assert r.returncode in (0, 1, 3) and "Traceback" not in r.stderr, r.stderr
     return out, r, json.loads((out / "results.json").read_text())
-
-
-def _word(note: str) -> str | None:
-    """The verdict word a note starts with ("unknown: ..."), if any."""
-    return next((w for w in WORDS if note.startswith(w + ":")), None)
-
-
-def _contradictions(status: str, notes: list[str]) -> list[str]:
-    """Notes that say another verdict than ``status``, or ask for a replay of a result whose
-    status is not "violated (not replayed)"."""
-    out = []
-    for n in notes:
-        w = _word(n)
-        wrong_word = w is not None and w != status
-        wrong_replay = "not replayed" in n and status != "violated (not replayed)"
-        if wrong_word or wrong_replay:
-            out.append(f"{status!r} beside the note {n!r}")
-    return out
 
 
 def _sections(page: str) -> dict[str, str]:
@@ -74,7 +55,7 @@ def test_no_note_or_label_of_the_default_report_contradicts_its_verdict(
         for r in run["results"]:
             replayed += (r.get("replay") or {}).get("status") in ("confirmed", "diverged")
             problems += [f"results.json {run['design']}: {p}" for p in
-                         _contradictions(r["status"], r["notes"])]  # fmt: skip
+                         contradictions(r["status"], r["notes"])]  # fmt: skip
     assert replayed, "the default video's counterexamples are replayed: notes to look at"
     sections = _sections((out / "report.html").read_text())
     for run in doc["runs"]:
@@ -84,7 +65,7 @@ def test_no_note_or_label_of_the_default_report_contradicts_its_verdict(
             mine = [n.removeprefix(r["property"] + ": ") for n in notes
                     if n.startswith(r["property"] + ": ")]  # fmt: skip
             problems += [f"report {run['design']}: {p}" for p in
-                         _contradictions(r["status"], mine)]  # fmt: skip
+                         contradictions(r["status"], mine)]  # fmt: skip
             # the verdict the section's Table 4 shows is the results' final one
             row = re.search(r"<th>" + re.escape(r["property"]) + r"</th>\s*<td[^>]*>(.*?)</td>",
                             section, re.S)  # fmt: skip
@@ -307,5 +288,5 @@ def test_the_replay_command_names_the_networks_the_scene_was_made_with(tmp_path:
     (again,) = json.loads(r.stdout)["runs"][0]["results"]
     assert again["replay"]["status"] in ("confirmed", "diverged")
     assert (
-        "command" not in again["replay"] and _contradictions(again["status"], again["notes"]) == []
+        "command" not in again["replay"] and contradictions(again["status"], again["notes"]) == []
     )
