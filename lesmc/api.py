@@ -334,7 +334,7 @@ def perceive(
     req = (
         request
         if isinstance(request, PerceiveRequest)
-        else PerceiveRequest(_path(request, "request", "or a PerceiveRequest", read=False))
+        else PerceiveRequest(_path(request, "request", "or a PerceiveRequest"))
     )
     _need(on_frame is None or callable(on_frame), "on_frame must be None or callable", on_frame)
     refuse_mismatched(req)

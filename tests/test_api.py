@@ -141,6 +141,11 @@ def test_perceive_raises_located_errors_for_bad_inputs(tmp_path: Path) -> None:
     assert info.value.location is not None and info.value.location.path == str(truth)
     with pytest.raises(lesmc.UsageError):
         lesmc.perceive(lesmc.PerceiveRequest(str(frames), cnn=False))
+    # a frames directory itself is the documented short form (it was refused as "a file to
+    # write"): the blank frames are read, and their registration is what fails, located
+    with pytest.raises(lesmc.InputError) as info:
+        lesmc.perceive(frames)
+    assert info.value.location is not None and info.value.location.path.endswith("f1.png")
 
 
 def test_perceive_refuses_settings_the_command_line_would(tmp_path: Path) -> None:

@@ -381,3 +381,25 @@ def test_a_detector_files_payoffs_are_not_described_as_n_dr_windows() -> None:
     assert "detector file" in source and "N_dr" not in source and "deepfool" in source
     del meta["detector_file"]  # the window pipeline's scene keeps its words
     assert "N_dr" in payoff_unit([run])  # type: ignore[list-item]
+
+
+def test_a_detector_files_violations_offer_no_replay_through_other_networks(
+    tmp_path: Path,
+) -> None:
+    """A violation on a scene perceived with a detector file is not replayed, and no command
+    is offered that would replay it through the window pipeline's networks (which
+    ``lesmc verify --scene`` uses); verify refuses such a scene, exit 2."""
+    from lesmc.pipeline.check import NO_REPLAY_YET, replay_command
+    from lesmc.report.text import not_replayed_text
+
+    meta = {"detector": "heatmap", "detector_file": {"path": "det.toml"}, "source": "frames"}
+    assert replay_command("s.json", meta) == NO_REPLAY_YET
+    text = not_replayed_text(NO_REPLAY_YET)
+    assert text.startswith("violated (not replayed)") and "lesmc verify" not in text
+    assert "lesmc verify --scene" in replay_command("s.json", {"detector": "N_dr"})
+    doc = json.loads((ROOT / "examples" / "merge.json").read_text())
+    doc.setdefault("meta", {})["detector_file"] = {"path": "det.toml"}
+    scene = tmp_path / "scene.json"
+    scene.write_text(json.dumps(doc))
+    r = lesmc("verify", "--scene", str(scene), "--out", str(tmp_path / "out"))
+    assert r.returncode == 2 and "detector file" in r.stderr and "Traceback" not in r.stderr

@@ -335,7 +335,7 @@ def test_a_model_without_nis_is_refused_under_a_nis_monitor() -> None:
         ("monitor nis", "the nis monitor needs its quantile"),
         ("monitor bogus 3", "unknown monitor 'bogus'"),
         ("monitor misses 2.5", "must be a whole number >= 1"),
-        ("monitor trace 0", "the trace monitor's bound must be > 0"),
+        ("monitor trace 0", "the trace monitor's bound must be a finite number > 0"),
         ("monitor trace 5 window 2", "the trace monitor takes no window"),
         ("monitor nis 0.9 on x", "'on' belongs to the tau_rise and trace monitors"),
         ("monitor nis 0.9 window 0", "window must be at least 1"),
@@ -632,3 +632,17 @@ def test_track_reports_the_nis_of_each_update(name: str) -> None:
     assert updates > 5
     r = lesmc("track", str(Path(__file__).parent / "scenes" / f"{name}.json"), "--json")
     assert [s["nis"] for s in json.loads(r.stdout)["track"]] == [p.nis for p in points]
+
+
+@pytest.mark.parametrize("monitor", ["trace inf", "misses 1e300", "nis nan", "trace -inf"])
+def test_alarms_refuses_a_parameter_outside_its_finite_domain(monitor: str) -> None:
+    """``--monitor trace inf`` wrote a JSON document Python cannot encode (exit 4); every
+    parameter is finite and a ``misses`` run at most a scene's length."""
+    r = lesmc(
+        "alarms",
+        str(Path(__file__).parent / "scenes" / "rq4_merge.json"),
+        "--monitor",
+        *monitor.split(),
+        "--json",
+    )
+    assert r.returncode == 2 and "--monitor" in r.stderr and "Traceback" not in r.stderr

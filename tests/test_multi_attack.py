@@ -366,3 +366,20 @@ def test_target_track_rule() -> None:
     ref = np.array([True, True, True, True])
     assert indicators("switches", last, tid, ref).tolist() == [0, 0, 1, 0]
     assert indicators("lost", last, tid, ref).tolist() == [0, 0, 0, 1]
+
+
+def test_a_crowded_frame_is_refused_before_its_subsets_are_listed(tmp_path: Path) -> None:
+    """A frame of 40 attackable detections has 2^40 subsets: --max-states (and, without
+    it, the per-step limit) refuses the step from the count alone, with exit 3, instead of
+    listing the subsets until memory runs out (a review found 23 GB on examples/mot)."""
+    frames = _frames(np.random.default_rng(2), 4)
+    grid = [[x, y, x + 8.0, y + 8.0] for x in range(200, 400, 20) for y in range(200, 280, 20)]
+    frames = [np.vstack([f, np.array(grid)]) for f in frames]  # 40 far-away extra boxes
+    path = tmp_path / "scene.json"
+    path.write_text(json.dumps(_doc(frames, [np.ones(len(f)) for f in frames])))
+    spec = _spec(tmp_path, "payoff", "1..2")
+    r = lesmc("check", str(path), str(spec), "--design", "sort", "--max-states", "20000")
+    assert r.returncode == 3 and "--max-states 20000" in r.stderr, r.stderr
+    assert "Traceback" not in r.stderr
+    r = lesmc("check", str(path), str(spec), "--design", "sort")
+    assert r.returncode == 3 and "successors" in r.stderr and "Traceback" not in r.stderr

@@ -258,6 +258,12 @@ def _scene_file(req: Request) -> _Source:
             "--frames too"
         )
     scene = load_scene_with_target(req.scene_path or "", req.target, None, _tracker(req))
+    if isinstance(scene.meta.get("detector_file"), dict):
+        raise UsageError(
+            f"{req.scene_path} was perceived with a detector file (meta.detector_file): verify "
+            "replays through the window pipeline's networks, and a replay through a detector "
+            "file is not built yet (docs/detectors.md); check the scene with lesmc check"
+        )
     from lesmc.video.reader import open_frames
 
     frames = open_frames(req.scene_frames, HISTORY + 1) if req.scene_frames else None

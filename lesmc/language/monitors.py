@@ -43,8 +43,8 @@ class Domain:
     integer: bool = False
 
     def contains(self, v: float) -> bool:
-        """``v`` lies in the domain (NaN never does)."""
-        if math.isnan(v) or (self.integer and v != int(v)):
+        """``v`` lies in the domain (NaN and the infinities never do)."""
+        if not math.isfinite(v) or (self.integer and v != int(v)):
             return False
         above = v > self.lo if self.lo_open else v >= self.lo
         below = v < self.hi if self.hi_open else v <= self.hi
@@ -57,7 +57,7 @@ class Domain:
                 "" if math.isinf(self.hi) else f" and <= {self.hi:g}"
             )
         if math.isinf(self.hi):
-            return f"{'>' if self.lo_open else '>='} {self.lo:g}"
+            return f"a finite number {'>' if self.lo_open else '>='} {self.lo:g}"
         left, right = "(" if self.lo_open else "[", ")" if self.hi_open else "]"
         return f"in {left}{self.lo:g}, {self.hi:g}{right}"
 
@@ -115,6 +115,10 @@ def get(name: str) -> MonitorKind:
     return _KINDS[name]
 
 
+#: The longest window (and ``misses`` run) a monitor may read: a scene's last step.
+MAX_WINDOW = 10**6
+
+
 def resolve(kind: str, parameter: float | None, window: int = 1) -> tuple[str, float, int]:
     """A monitor named outside a spec (``--monitor``, a tracker file's ``monitor``): its
     kind, its parameter (the kind's default when None) and window, checked against the
@@ -137,6 +141,8 @@ def resolve(kind: str, parameter: float | None, window: int = 1) -> tuple[str, f
         raise ValueError(f"the {kind} monitor takes no window")
     if window < 1:
         raise ValueError("the monitor's window must be at least 1 step")
+    if window > MAX_WINDOW:
+        raise ValueError(f"the monitor's window must be at most {MAX_WINDOW} steps")
     return kind, parameter, window
 
 
@@ -290,7 +296,7 @@ register(
         "misses",
         "k consecutive steps without an update",
         "steps",
-        Domain(1.0, math.inf, integer=True),
+        Domain(1.0, MAX_WINDOW, integer=True),
         None,
         False,
         "nis",

@@ -39,6 +39,16 @@ def hidden_subsets(frame: Frame, attacked: bool) -> Iterator[tuple[int, ...]]:
         yield from itertools.combinations(can, r)
 
 
+def subset_count(frame: Frame, attacked: bool) -> int:
+    """How many subsets :func:`hidden_subsets` yields, counted without listing them."""
+    return 2 ** sum(not math.isinf(d.payoff) for d in frame.detections) if attacked else 1
+
+
+#: Successors one step may compute when no --max-states is given: a frame with 30
+#: attackable detections has 2^30 subsets, which no search can list.
+MAX_STEP_SUCCESSORS = 10_000_000
+
+
 def build_multi(
     scene: Scene,
     design: SortDesign,
@@ -71,12 +81,20 @@ def build_multi(
     for k in range(1, end + 1):
         f = frames[k]
         boxes, pay = f.boxes(), np.array([d.payoff for d in f.detections], dtype=float)
-        subsets = list(hidden_subsets(f, window[0] <= k <= window[1]))
-        if max_states is not None and st.n + len(level) * len(subsets) > max_states:
+        attacked = window[0] <= k <= window[1]
+        count = len(level) * subset_count(f, attacked)  # checked before any is listed
+        if max_states is not None and st.n + count > max_states:
             raise BudgetError(
-                f"--max-states {max_states}: step {k} would compute {len(level) * len(subsets)} "
+                f"--max-states {max_states}: step {k} would compute {count} "
                 f"successors of {len(level)} states ({st.n} so far); shorten the attack window"
             )
+        if count > MAX_STEP_SUCCESSORS:
+            raise BudgetError(
+                f"step {k} would compute {count} successors of {len(level)} states (every "
+                f"subset of {len(f.detections)} detections): more than {MAX_STEP_SUCCESSORS:,}; "
+                "shorten the attack window"
+            )
+        subsets = list(hidden_subsets(f, attacked))
         base = st.n - len(level)
         made: list[tuple[int, MultiState, int, int, tuple[int, ...]]] = []
         ref = refs[k]
