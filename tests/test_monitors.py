@@ -339,7 +339,7 @@ def test_a_model_without_nis_is_refused_under_a_nis_monitor() -> None:
         ("monitor trace 5 window 2", "the trace monitor takes no window"),
         ("monitor nis 0.9 on x", "'on' belongs to the tau_rise and trace monitors"),
         ("monitor nis 0.9 window 0", "window must be at least 1"),
-        ("monitor uncertainty tolerance -1", "tolerance must be >= 0"),
+        ("monitor uncertainty tolerance -1", "tolerance must be a finite number >= 0"),
     ],
 )
 def test_bad_monitor_clauses_are_located_errors(clause: str, message: str) -> None:
