@@ -383,3 +383,16 @@ def test_a_crowded_frame_is_refused_before_its_subsets_are_listed(tmp_path: Path
     assert "Traceback" not in r.stderr
     r = lesmc("check", str(path), str(spec), "--design", "sort")
     assert r.returncode == 3 and "successors" in r.stderr and "Traceback" not in r.stderr
+
+
+@pytest.mark.parametrize(
+    "option", [["--engine", "bnb"], ["--timeout", "5"], ["--no-paths"], ["--max-memory", "1G"]]
+)
+def test_options_the_multi_target_search_does_not_read_are_refused(
+    tmp_path: Path, option: list[str]
+) -> None:
+    """Options that would be ignored are errors (docs/cli.md), on this path too."""
+    path, *_ = _scene_file(tmp_path)
+    r = lesmc("check", str(path), str(_spec(tmp_path, "payoff")), "--design", "sort", *option)
+    assert r.returncode == 2 and option[0] in r.stderr and "not supported yet" in r.stderr
+    assert "Traceback" not in r.stderr

@@ -9,7 +9,7 @@ from typing import TYPE_CHECKING, Any
 
 import click
 
-from lesmc.cli.documents import print_warnings, unattacked_warnings
+from lesmc.cli.documents import given, print_warnings, unattacked_warnings
 from lesmc.cli.options import (
     DEFAULT_MAX_STATES,
     RegistryChoice,
@@ -18,7 +18,6 @@ from lesmc.cli.options import (
     faults_option,
     frames_option,
     payoffs_option,
-    refuse_multi,
     scene_target,
     tracker_option,
 )
@@ -299,9 +298,11 @@ def _inputs(
     is_scene = isinstance(source, Scene)
     if design is not None and not is_scene:
         raise UsageError("--design applies to scenes, not to .lts models")
-    if isinstance(source, Scene) and not registry.get(design or source.tracker.design).multi:
-        refuse_multi(source, model, design)
     return parsed, source, is_scene
+
+
+#: ``check``'s options the multi-target search does not read (lesmc/cli/multi_check.py).
+_MULTI_IGNORED = ("engine", "timeout", "no_paths", "max_memory")
 
 
 def _check_multi(source: Any, parsed: tuple[SpecFile, ...], is_scene: bool) -> None:
@@ -318,6 +319,12 @@ def _check_multi(source: Any, parsed: tuple[SpecFile, ...], is_scene: bool) -> N
         )
     if p["payoffs"] == "interval":
         raise UsageError("--payoffs interval with a multi-target design: not supported yet")
+    ignored = [f"--{n.replace('_', '-')}" for n in _MULTI_IGNORED if given(n)]
+    if ignored:  # options that would be ignored are errors
+        raise UsageError(
+            f"{', '.join(ignored)} with a multi-target design: not supported yet (its exact "
+            "search has one engine and is bounded by --max-states)"
+        )
     from lesmc.cli.multi_check import check_multi_scene
 
     sc = source if design is None else source.with_tracker(design=design)

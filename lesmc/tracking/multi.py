@@ -8,8 +8,9 @@ tracks; every unmatched detection starts a track (ids from a counter, 1 first); 
 initiator says which tracks are output (``confirmed``); the deleter ends the tracks
 missed too long. Step 0 is the scene's first frame: every object is tracked from there.
 
-Only the unattacked run exists so far (``lesmc track``); the model and the checks of a
-multi-target design are not built yet (lesmc/designs/registry.py ``not_yet``).
+``lesmc track`` runs it unattacked; ``lesmc check`` unfolds its attacked runs
+(lesmc/unfold/multi.py) for the identity measures. ``build``, ``export``, ``verify``
+and the API refuse a multi-target design so far (lesmc/designs/registry.py ``not_yet``).
 """
 
 from __future__ import annotations
@@ -150,8 +151,8 @@ class MultiDesign(Protocol):
 
 class SortDesign:
     """The ``sort`` design: SORT on a scene's boxes (the tracker file's ``min_hits``,
-    ``max_age``, ``iou_threshold``). Not a :class:`~lesmc.tracking.design.Design` yet:
-    it runs the unattacked track only."""
+    ``max_age``, ``iou_threshold``). Not a :class:`~lesmc.tracking.design.Design`: its
+    attacked runs are unfolded by lesmc/unfold/multi.py, not by the batched unfolder."""
 
     def __init__(self, scene: Scene | Footage, path: str = "<scene>") -> None:
         cfg = scene.tracker
