@@ -8,7 +8,7 @@ lets the tracker start tracks from the detections, as the joint design's
 initiation does (section 7.2: a detection with a previous detection close
 enough starts a track whose velocity is their difference over dt), and keeps
 those the unattacked tracker follows, one update per frame, through the
-horizon. Targets from a truth file are chosen in lesmc/campaign/targets.py.
+horizon. Targets from a truth file are chosen in lesmc/experiment/targets.py.
 """
 
 from __future__ import annotations
