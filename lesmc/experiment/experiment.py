@@ -586,6 +586,8 @@ def _import_perception() -> None:
     """Import perception's code (torch and the networks', scipy.spatial, faiss) and the
     targets' while the default video renders aside: a video just rendered is perceived
     next (2-2.5 s of imports off the critical path)."""
+    import lesmc.experiment.targets
+    import lesmc.perception.run  # noqa: F401
 
 
 def _certifier(src: _Source, rep: Reporter, budget: Budget) -> Certifier | None:
