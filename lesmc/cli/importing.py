@@ -94,10 +94,9 @@ def mot_cmd(
     """Make a scene from a MOTChallenge DET file (det.txt or gt.txt layout).
 
     \b
-    One detection per line (frame,id,bb_left,bb_top,bb_width,bb_height,...), at
-    the box's centre, keeping the box's width and height (or --point bottom: the
-    bottom centre, no box). Steps are the file's frame numbers; a
-    frame without lines has no detections. Without --gt/--track the scene has no
+    One detection per line (frame,id,bb_left,bb_top,bb_width,bb_height,...), at the box's
+    centre, keeping its width and height (or --point bottom: the bottom centre, no box).
+    Steps are the file's frame numbers; a frame without lines has no detections. Without --gt/--track the scene has no
     target: give --target X,Y@STEP to track, build, check or verify. With a
     target, warns when its unattacked track does not follow it (a single-target
     design's; a multi-target design such as sort tracks every object).
