@@ -96,10 +96,10 @@ def mot_cmd(
     \b
     One detection per line (frame,id,bb_left,bb_top,bb_width,bb_height,...), at the box's
     centre, keeping its width and height (or --point bottom: the bottom centre, no box).
-    Steps are the file's frame numbers; a frame without lines has no detections. Without --gt/--track the scene has no
-    target: give --target X,Y@STEP to track, build, check or verify. With a
-    target, warns when its unattacked track does not follow it (a single-target
-    design's; a multi-target design such as sort tracks every object).
+    Steps are the file's frame numbers; a frame without lines has no detections. Without
+    --gt/--track the scene has no target: give --target X,Y@STEP to track, build, check
+    or verify. With a target, warns when its unattacked track does not follow it (a
+    single-target design's; a multi-target design such as sort tracks every object).
     Exit status: 0 written, 2 bad input, 4 internal error, 130 interrupted.
     """
     from lesmc.scene import Scene, load_tracker, save_scene
