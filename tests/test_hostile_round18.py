@@ -334,3 +334,15 @@ def test_sort_scene_cases_of_the_hostile_run(
         steps = json.loads(r.stdout)["track"]
         assert len(steps) == len(doc["frames"])
         assert all(math.isfinite(v) for s in steps for t in s["tracks"] for v in t["box"])
+
+
+@pytest.mark.parametrize("frames", [True, 3, "frames", {"0": []}])
+def test_frames_that_are_not_a_list_are_a_located_error(tmp_path: Path, frames: object) -> None:
+    """Hypothesis found ``"frames": true`` reaching ``len()`` in the scene reader (TypeError,
+    exit 4) once the target's step was checked against every frame read."""
+    doc = json.loads((ROOT / "examples" / "merge.json").read_text())
+    doc["frames"] = frames
+    path = tmp_path / "scene.json"
+    path.write_text(json.dumps(doc))
+    r = lesmc("track", str(path))
+    assert r.returncode == 2 and "frames" in r.stderr and "Traceback" not in r.stderr

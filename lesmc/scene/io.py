@@ -120,7 +120,8 @@ def footage_from_dict(
     target = None
     if need_target or data.get("target") is not None:
         target = _target(data.get("target"), pr)
-    whole = len(frames) == len(data.get("frames") or ())  # else the steps are not all known
+    raw = data.get("frames")  # every frame read, else the steps are not all known
+    whole = isinstance(raw, list) and len(frames) == len(raw)
     if (
         target is not None
         and frames
