@@ -503,23 +503,16 @@ def _format_takes(
     fmt: ExportFormat, spec: Any, prop: Any, strict: Any, roles: Any, max_nodes: Any
 ) -> None:
     """Arguments that format ``fmt`` would ignore are errors, as ``lesmc export`` refuses
-    the options (what each format takes: its entry in lesmc/exporters/formats.py)."""
+    the options (the one rule: :func:`lesmc.exporters.formats.refused`)."""
     from lesmc.exporters import formats
 
-    mdp = formats.spelled(formats.where(lambda f: f.states_property))
-    # a property also names whose paths ``roles`` came from (lesmc export --results --property)
-    given = {"spec": spec, "property": None if roles else prop, "strict": strict or None}
-    extra = [k for k, v in given.items() if v is not None]
-    _need(
-        fmt.states_property or not extra,
-        f"{', '.join(extra)}: spec, property and strict choose what format {mdp} exports, "
-        f"not {fmt.name}",
-        given[extra[0]] if extra else None,
-    )
-    marking = formats.spelled(formats.where(lambda f: f.marks_paths), "and")
-    _need(roles is None or fmt.marks_paths, f"roles mark paths in {marking} only", roles)
-    limited = formats.spelled(formats.where(lambda f: f.limit is not None))
-    _need(max_nodes is None or fmt.limit is not None, f"max_nodes limits {limited} only", max_nodes)
+    values = {"spec": spec, "property": prop, "strict": strict or None, "paths": roles}
+    values["max_nodes"] = max_nodes
+    given = {k: v is not None for k, v in values.items()}
+    spelling = {k: k for k in values} | {"paths": "roles", "format": "format"}
+    why = formats.refused(fmt, given, spelling)
+    if why is not None:
+        _need(False, why[1], values[why[0]])
 
 
 def _roles(model: ArrayModel, roles: Any) -> dict[str, list[int]] | None:

@@ -191,19 +191,26 @@ def _refuse_mismatched(
     results_path: str | None,
     max_nodes: int | None,
 ) -> None:
-    """Options that the format would ignore are errors (what each takes: the registry)."""
-    if not fmt.states_property and (spec_path or strict or (prop and not results_path)):
-        raise UsageError(
-            f"--spec, --property and --strict choose what --format {formats.spelled(_mdp())} "
-            "exports"
-        )
-    if fmt.states_property and spec_path is None:
-        raise UsageError(f"--format {fmt.name} exports a property: give --spec (and --property)")
-    if results_path is not None and not fmt.marks_paths:
-        raise UsageError(f"--results marks paths in {formats.spelled(_marking(), 'and')} only")
-    if max_nodes is not None and fmt.limit is None:
-        limited = formats.where(lambda f: f.limit is not None)
-        raise UsageError(f"--max-nodes limits {formats.spelled(limited)} only")
+    """Options that the format would ignore are errors (the one rule:
+    :func:`lesmc.exporters.formats.refused`)."""
+    given = {
+        "spec": spec_path is not None,
+        "property": prop is not None,
+        "strict": strict,
+        "paths": results_path is not None,
+        "max_nodes": max_nodes is not None,
+    }
+    spelling = {
+        "spec": "--spec",
+        "property": "--property",
+        "strict": "--strict",
+        "paths": "--results",
+        "max_nodes": "--max-nodes",
+        "format": "--format",
+    }
+    why = formats.refused(fmt, given, spelling)
+    if why is not None:
+        raise UsageError(why[1])
 
 
 def _model(

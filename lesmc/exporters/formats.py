@@ -101,6 +101,43 @@ def spelled(chosen: Sequence[str] | None = None, last: str = "or") -> str:
     return items[0] if len(items) == 1 else f"{', '.join(items[:-1])} {last} {items[-1]}"
 
 
+OPTIONS = ("spec", "property", "strict", "paths", "max_nodes")  #: what refused() judges
+
+
+def refused(
+    fmt: ExportFormat, given: dict[str, bool], spelling: dict[str, str]
+) -> tuple[str, str] | None:
+    """The first option that ``fmt`` would ignore or lacks, and why; None if they fit.
+
+    ``given`` says which of :data:`OPTIONS` were given; ``spelling`` names them (and
+    ``format``) as the caller's user writes them: ``--spec`` on the command line, ``spec``
+    in :func:`lesmc.api.export`. A property beside ``paths`` names whose paths to mark.
+    This is the one rule of what each format takes; both callers word errors with it.
+    """
+    n = spelling
+    prop_alone = given["property"] and not given["paths"]
+    extra = [
+        k for k in ("spec", "property", "strict") if given[k] and (k != "property" or prop_alone)
+    ]
+    mdp = spelled(where(lambda f: f.states_property))
+    if extra and not fmt.states_property:
+        listed = ", ".join(n[k] for k in extra)
+        why = (
+            f"{listed}: {n['spec']}, {n['property']} and {n['strict']} choose what "
+            f"{n['format']} {mdp} exports, not {fmt.name}"
+        )
+        return extra[0], why
+    if fmt.states_property and not given["spec"]:
+        return "spec", f"{n['format']} {fmt.name} exports a property: give {n['spec']}"
+    if given["paths"] and not fmt.marks_paths:
+        marking = spelled(where(lambda f: f.marks_paths), "and")
+        return "paths", f"{n['paths']}: paths are marked in {marking} only"
+    if given["max_nodes"] and fmt.limit is None:
+        limited = spelled(where(lambda f: f.limit is not None))
+        return "max_nodes", f"{n['max_nodes']} limits {limited} only"
+    return None
+
+
 def help_table(columns: int = 78) -> str:
     """Each format for ``lesmc export --help``: its name, then the tools that read it and
     its summary, wrapped to ``columns`` (click keeps the lines as they are)."""
