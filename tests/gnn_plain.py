@@ -105,7 +105,7 @@ class Plain:
             elif t.states >= self.p.confirm_window:
                 gone.add(i)
         self.tracks = [t for i, t in enumerate(self.tracks) if i not in gone]
-        sx, sy, svx, svy = self.p.P0_sd
+        _, _, svx, svy = self.p.P0_sd  # x, y: R at birth
         for j in free:
             P = np.diag([0.0, svx**2, 0.0, svy**2])
             P[np.ix_([0, 2], [0, 2])] = R

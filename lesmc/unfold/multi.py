@@ -69,9 +69,8 @@ def build_multi(
     if all(r is None for r in refs):
         raise UsageError(
             f"the target ({scene.target.start[0]:g}, {scene.target.start[1]:g} at frame "
-            f"{scene.target.step}) has no reference track: no detection of its frame "
-            "holds its start (a box; a point: within the gate), or its track is never "
-            "output; switches and lost need one"
+            f"{scene.target.step}) has no reference track: no detection of its frame is at "
+            "its start, or its track is never output; switches and lost need one"
         )
     tracker, table = design.tracker, CovarianceTable()
     s0, ft0 = tracker.step(tracker.initial(), design.measurements(frames[0]))
@@ -81,8 +80,7 @@ def build_multi(
     st.add_state(0, tid0, refs[0] is not None, tid0)
     for k in range(1, end + 1):
         f = frames[k]
-        boxes = design.measurements(f)
-        pay = np.array([d.payoff for d in f.detections], dtype=float)
+        boxes, pay = design.measurements(f), np.array([d.payoff for d in f.detections], float)
         attacked = window[0] <= k <= window[1]
         count = len(level) * subset_count(f, attacked)  # checked before any is listed
         if max_states is not None and st.n + count > max_states:
