@@ -219,3 +219,33 @@ def test_cli_check_gnn_lists_hidden_detections(tmp_path: Path) -> None:
     refs = _refs(frames)
     want = min((x[1] for x in runs if _score(x[3], refs, 0, 5)[0] > 0), default=math.inf)
     assert (math.inf if res["optimum"] is None else res["optimum"]) == want
+
+
+def test_a_gnn_target_far_from_every_detection_is_an_error(tmp_path: Path) -> None:
+    """A point target's reference is the track of a detection within the gate of its start
+    (under R): none there is exit status 2, no traceback."""
+    frames = _frames(np.random.default_rng(1), 6)
+    doc = scene_doc(frames, PARAMS)
+    doc["target"]["start"] = [frames[0][0][0], frames[0][0][1] + 200.0]  # 40 σ_r away
+    path = tmp_path / "scene.json"
+    path.write_text(json.dumps(doc))
+    spec = tmp_path / "p.spec"
+    spec.write_text(
+        "property p { attack window 1..2 minimize payoff\n"
+        "  subject to switches(0..end) > 0 holds if optimum > 1 }\n"
+    )
+    r = lesmc("check", str(path), str(spec))
+    assert r.returncode == 2 and "no reference track" in r.stderr, r.stderr
+    assert "Traceback" not in r.stderr
+
+
+def test_gnn_m_above_n_through_design_override_is_an_error(tmp_path: Path) -> None:
+    """min_hits > confirm_window in a scene made for another design, then --design gnn."""
+    frames = _frames(np.random.default_rng(1), 4)
+    doc = scene_doc(frames, PARAMS)
+    doc["tracker"].update(design="single", min_hits=4, confirm_window=3)
+    path = tmp_path / "scene.json"
+    path.write_text(json.dumps(doc))
+    r = lesmc("track", str(path), "--design", "gnn")
+    assert r.returncode == 2 and "Traceback" not in r.stderr, r.stderr
+    assert "min_hits must be at most confirm_window" in r.stderr and str(path) in r.stderr
