@@ -34,7 +34,8 @@ class MahalanobisHypothesiser:
         return math.sqrt(self.gate2)
 
     def scores(self, d2: np.ndarray) -> np.ndarray:
-        """Distances d (detections, tracks) from squared distances; ∞ outside the gate."""
-        d = np.sqrt(d2)
+        """Distances d (detections, tracks) from squared distances; ∞ outside the gate (a
+        d² rounded below 0 is 0)."""
+        d = np.sqrt(np.maximum(d2, 0.0))
         out: np.ndarray = np.where(d < self.gate, d, np.inf)
         return out
