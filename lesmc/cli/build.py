@@ -174,9 +174,9 @@ def track_cmd(
 
     Warns when the track does not follow its target (no detection in its first
     steps, or an end far from the target's truth; docs/own-system.md). A multi-target
-    design (sort) tracks every object from the scene's first frame and prints every
-    track's id, box and status per step, and the target's track id (--target or the
-    scene's; none without one).
+    design (sort, gnn) tracks every object from the scene's first frame and prints every
+    track's id, box (gnn: position) and status per step, and the target's track id
+    (--target or the scene's; none without one).
     """
     from lesmc.designs import registry
     from lesmc.scene import Scene

@@ -1,4 +1,4 @@
-"""``lesmc check SCENE SPEC --design sort``: the exact cheapest identity attack on a
+"""``lesmc check SCENE SPEC --design sort`` (or ``gnn``): the exact cheapest identity attack on a
 multi-target design (docs/trackers.md, "Checking a multi-target design").
 
 The scene is unfolded once per attack window and end (lesmc/unfold/multi.py) and each
@@ -66,10 +66,12 @@ def multi_results(
     """Each property's result (:func:`_entry`) on the multi-target design of ``scene``."""
     from lesmc.engines.multi import check_multi
     from lesmc.language.semantics import bind
-    from lesmc.tracking.multi import SortDesign
+    from lesmc.tracking.multi import ComposedDesign
+    from lesmc.tracking.trackers import make_multi
     from lesmc.unfold.multi import build_multi
 
-    design = SortDesign(scene, path)
+    design = make_multi(scene, path)
+    assert isinstance(design, ComposedDesign)
     e = len(scene.frames) - 1
     props = [(s, p) for s in specs for p in s.properties if not only or p.name in only]
     missing = set(only) - {p.name for _, p in props}

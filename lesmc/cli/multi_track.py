@@ -1,5 +1,5 @@
-"""``lesmc track`` of a multi-target design (sort): every track's id, box and status per
-step, and the target's track id (schema lesmc/schemas/track.json)."""
+"""``lesmc track`` of a multi-target design (sort, gnn): every track's id, box (gnn: its
+position) and status per step, and the target's track id (schema lesmc/schemas/track.json)."""
 
 from __future__ import annotations
 
@@ -25,7 +25,9 @@ def track_multi(sc: Scene | Footage, path: str, end: int | None, as_json: bool) 
 
     title = f"unattacked tracks ({sc.tracker.design} design)"
     table = Table(title=title, title_justify="left")
-    for col in ("step", "frame", "id", "x1", "y1", "x2", "y2", "status", "target"):
+    point = bool(steps) and steps[0].tracks.boxes.shape[1] == 2
+    place = ("x", "y") if point else ("x1", "y1", "x2", "y2")
+    for col in ("step", "frame", "id", *place, "status", "target"):
         table.add_column(col, justify="left" if col in ("status", "target") else "right")
     for s in steps:
         t = s.tracks
@@ -42,6 +44,11 @@ def track_multi(sc: Scene | Footage, path: str, end: int | None, as_json: bool) 
     make_console().print(table)
 
 
+def _place(row: Any) -> str:
+    """A track's place: ``box`` [x1, y1, x2, y2], or a point tracker's ``position`` [x, y]."""
+    return "box" if len(row) == 4 else "position"
+
+
 def multi_document(design: str, steps: list[Any]) -> dict[str, Any]:
     """The ``lesmc-track`` document of a multi-target run (``steps``: tracking.multi's
     ``MultiStep`` list)."""
@@ -56,7 +63,7 @@ def multi_document(design: str, steps: list[Any]) -> dict[str, Any]:
                 "tracks": [
                     {
                         "id": int(s.tracks.ids[i]),
-                        "box": [float(v) for v in s.tracks.boxes[i]],
+                        _place(s.tracks.boxes[i]): [float(v) for v in s.tracks.boxes[i]],
                         "status": s.tracks.status(i),
                     }
                     for i in range(len(s.tracks.ids))

@@ -171,5 +171,12 @@ multi_tracker(
     "SORT (Bewley et al. 2016): box Kalman filters, IoU assignment, min_hits, max_age; "
     "multi-target: `lesmc track`, and `lesmc check` of switches and lost",
 )
+multi_tracker(
+    "gnn",
+    "lesmc.tracking.gnn:GnnDesign",
+    "GNN",
+    "point Kalman filters, Mahalanobis chi-square gate, global nearest neighbour, M-of-N "
+    "birth, max_age death; multi-target: `lesmc track`, and `lesmc check` of switches and lost",
+)
 SETS["paper"] = ("single", "joint", "improved")
 SETS["both"] = ("single", "improved")

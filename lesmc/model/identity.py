@@ -32,11 +32,14 @@ NONE = -1
 TARGET_IOU = 0.5
 
 
-def target_track(score: np.ndarray, ids: np.ndarray, confirmed: np.ndarray) -> int:
+def target_track(
+    score: np.ndarray, ids: np.ndarray, confirmed: np.ndarray, floor: float = TARGET_IOU
+) -> int:
     """The target's track id among tracks ``ids`` (n,) whose IoU with the reference box is
-    ``score`` (n,): the confirmed one of largest IoU ≥ :data:`TARGET_IOU`, the lower id of
-    equals; :data:`NONE` when none qualifies."""
-    ok = confirmed & (score >= TARGET_IOU)
+    ``score`` (n,): the confirmed one of largest IoU ≥ ``floor`` (:data:`TARGET_IOU`), the
+    lower id of equals; :data:`NONE` when none qualifies. (A point tracker's score is the
+    negated squared distance, its gate applied to ``confirmed``, lesmc/tracking/gnn.py.)"""
+    ok = confirmed & (score >= floor)
     if not ok.any():
         return NONE
     best = ok & (score == score[ok].max())

@@ -424,14 +424,18 @@ def _tracker_value(key: str, v: Any, pr: Problems, item: str, values: dict[str, 
         if v not in ("mahalanobis", "euclidean"):
             pr.add(item, f'gate_type must be "mahalanobis" or "euclidean", got {v!r}')
         values[key] = v
-    elif key in ("min_hits", "max_age"):
-        lo = 1 if key == "min_hits" else 0
+    elif key in ("min_hits", "max_age", "confirm_window"):
+        lo = 0 if key == "max_age" else 1
         if not (is_int(v) and lo <= v <= MAX_STEP):
             pr.add(item, f"{key} must be an integer in {lo}..{MAX_STEP}, got {show(v)}")
         values[key] = v
     elif key == "iou_threshold":
         if not positive(v, 1.0):
             pr.add(item, f"iou_threshold must be a number in (0, 1], got {show(v)}")
+        values[key] = v
+    elif key == "gate_probability":
+        if not (is_finite(v) and 0 < v < 1):
+            pr.add(item, f"gate_probability must be a number in (0, 1), got {show(v)}")
         values[key] = v
     elif key == "P0_sd":
         hi = TRACKER_LIMITS[key]
@@ -461,6 +465,7 @@ def _tracker(raw: Any, pr: Problems, item: str = "tracker") -> TrackerConfig | N
         else:
             _tracker_value(key, v, pr, item, values)
     model = values.get("model", DEFAULT_MODEL)
+    _m_of_n(values, pr, item)
     if len(pr.items) > n0 or model is None:
         return None
     if isinstance(model, str):
@@ -481,6 +486,16 @@ def _tracker(raw: Any, pr: Problems, item: str = "tracker") -> TrackerConfig | N
         if len(pr.items) > n0:
             return None
     return TrackerConfig(**values)
+
+
+def _m_of_n(values: dict[str, Any], pr: Problems, item: str) -> None:
+    """The gnn design's M-of-N (``min_hits`` of ``confirm_window``) needs M ≤ N."""
+    if values.get("design") != "gnn":
+        return
+    m = values.get("min_hits", TrackerConfig.min_hits)
+    n = values.get("confirm_window", TrackerConfig.confirm_window)
+    if is_int(m) and is_int(n) and m > n:
+        pr.add(item, f"min_hits {m} must be at most confirm_window {n} (M of N: M ≤ N)")
 
 
 def _monitor(raw: Any, pr: Problems, item: str) -> str | None:

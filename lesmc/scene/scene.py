@@ -57,6 +57,9 @@ class TrackerConfig:
     min_hits: int = 3  # a track is output once updated this many frames in a row
     max_age: int = 1  # a track missed more than this many frames in a row ends
     iou_threshold: float = 0.3  # a (detection, track) pair is admissible at this IoU or more
+    # multi-target point trackers (gnn; lesmc/tracking/gnn.py)
+    confirm_window: int = 5  # N of M-of-N: min_hits updates within a track's first N frames
+    gate_probability: float = 0.99  # the chi-square gate's probability (2 degrees of freedom)
     model: TrackerModel = DEFAULT_MODEL
     #: the runtime monitor the monitored designs add to properties, as a spec writes it
     #: without ``monitor`` (``"nis 0.99 window 3"``, lesmc/language/monitors.py); None: Eq. 13's
@@ -100,7 +103,7 @@ class TrackerConfig:
 #: The parameters only a preset model reads.
 PRESET_ONLY = ("sigma_q", "sigma_r", "P0_sd")
 #: The parameters only a multi-target tracker reads (written only when not the default).
-MULTI_ONLY = ("min_hits", "max_age", "iou_threshold")
+MULTI_ONLY = ("min_hits", "max_age", "iou_threshold", "confirm_window", "gate_probability")
 
 
 @dataclass(frozen=True)

@@ -16,7 +16,7 @@ and the API refuse a multi-target design so far (lesmc/designs/registry.py ``not
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import Protocol
+from typing import Any, Protocol
 
 import numpy as np
 
@@ -43,8 +43,9 @@ class MultiState:
 
 @dataclass(frozen=True)
 class FrameTracks:
-    """The tracks after one frame: boxes (n, 4), ids, whether each is output, the
-    detection each was updated with or started from (−1: none, it coasted)."""
+    """The tracks after one frame: boxes (n, 4) (a point tracker's: positions (n, 2)),
+    ids, whether each is output, the detection each was updated with or started from
+    (−1: none, it coasted)."""
 
     boxes: np.ndarray
     ids: np.ndarray
@@ -149,20 +150,31 @@ class MultiDesign(Protocol):
         ...
 
 
-class SortDesign:
-    """The ``sort`` design: SORT on a scene's boxes (the tracker file's ``min_hits``,
-    ``max_age``, ``iou_threshold``). Not a :class:`~lesmc.tracking.design.Design`: its
-    attacked runs are unfolded by lesmc/unfold/multi.py, not by the batched unfolder."""
+class ComposedDesign:
+    """A multi-target design: a composed tracker run on a scene's frames. Subclasses say
+    what a frame's detections are to the tracker (:meth:`measurements`), where the
+    target's reference is (:meth:`references`) and which track is the target's
+    (:meth:`target_of`). Not a :class:`~lesmc.tracking.design.Design`: its attacked runs
+    are unfolded by lesmc/unfold/multi.py, not by the batched unfolder."""
 
-    def __init__(self, scene: Scene | Footage, path: str = "<scene>") -> None:
-        cfg = scene.tracker
-        need_boxes(scene.frames, cfg.design, path)
-        self.scene = scene
-        self.tracker = sort_tracker(cfg.min_hits, cfg.max_age, cfg.iou_threshold)
+    scene: Scene | Footage
+    tracker: Any
+
+    def measurements(self, frame: Frame) -> np.ndarray:
+        """The frame's detections as the tracker reads them."""
+        raise NotImplementedError
+
+    def references(self, steps: list[FrameTracks]) -> list[np.ndarray | None]:
+        """The target's reference at each step of the unattacked run ``steps``."""
+        raise NotImplementedError
+
+    def target_of(self, ft: FrameTracks, ref: np.ndarray) -> int:
+        """The target's track id among ``ft``'s tracks (NONE: none)."""
+        raise NotImplementedError
 
     def run(self, end: int | None = None) -> list[MultiStep]:
         """The unattacked run from the scene's first frame to step ``end`` (default: its
-        last frame), with the target's track id at each step (:func:`target_ids`)."""
+        last frame), with the target's track id at each step."""
         frames = self.scene.frames
         last = len(frames) - 1 if end is None else end
         if not 0 <= last < len(frames):
@@ -173,24 +185,39 @@ class SortDesign:
         state = self.tracker.initial()
         out: list[FrameTracks] = []
         for f in frames[: last + 1]:
-            state, ft = self.tracker.step(state, f.boxes())
+            state, ft = self.tracker.step(state, self.measurements(f))
             out.append(ft)
-        ids = target_ids(self.scene, out)
+        refs = self.references(out)
+        ids = [
+            NONE if r is None else self.target_of(ft, r) for ft, r in zip(out, refs, strict=True)
+        ]
         return [
-            MultiStep(k, frames[k].step, ft, tid)
+            MultiStep(k, frames[k].step, ft, None if tid == NONE else tid)
             for k, (ft, tid) in enumerate(zip(out, ids, strict=True))
         ]
 
 
-def target_ids(scene: Scene | Footage, steps: list[FrameTracks]) -> list[int | None]:
-    """The target's track id at each step (None: none): :func:`reference_boxes`, then
-    :func:`target_of` at each step where the reference exists."""
-    refs = reference_boxes(scene, steps)
-    out: list[int | None] = []
-    for ft, box in zip(steps, refs, strict=True):
-        tid = NONE if box is None else target_of(ft, box)
-        out.append(None if tid == NONE else tid)
-    return out
+class SortDesign(ComposedDesign):
+    """The ``sort`` design: SORT on a scene's boxes (the tracker file's ``min_hits``,
+    ``max_age``, ``iou_threshold``)."""
+
+    def __init__(self, scene: Scene | Footage, path: str = "<scene>") -> None:
+        cfg = scene.tracker
+        need_boxes(scene.frames, cfg.design, path)
+        self.scene = scene
+        self.tracker = sort_tracker(cfg.min_hits, cfg.max_age, cfg.iou_threshold)
+
+    def measurements(self, frame: Frame) -> np.ndarray:
+        """The detections' boxes (k, 4)."""
+        return frame.boxes()
+
+    def references(self, steps: list[FrameTracks]) -> list[np.ndarray | None]:
+        """:func:`reference_boxes`."""
+        return reference_boxes(self.scene, steps)
+
+    def target_of(self, ft: FrameTracks, ref: np.ndarray) -> int:
+        """:func:`target_of` (module-level)."""
+        return target_of(ft, ref)
 
 
 def reference_boxes(scene: Scene | Footage, steps: list[FrameTracks]) -> list[np.ndarray | None]:
@@ -214,11 +241,17 @@ def reference_boxes(scene: Scene | Footage, steps: list[FrameTracks]) -> list[np
         return none
     centres = scene.frames[k0].positions()
     d2 = np.where(inside, (centres[:, 0] - x) ** 2 + (centres[:, 1] - y) ** 2, np.inf)
-    took = np.nonzero(steps[k0].det == int(np.argmin(d2)))[0]
+    return follow(steps, k0, int(np.argmin(d2)))
+
+
+def follow(steps: list[FrameTracks], k0: int, det: int) -> list[np.ndarray | None]:
+    """The box (or position) of the track that took detection ``det`` at step ``k0``, at
+    each step where the tracker outputs it (confirmed); None elsewhere."""
+    out: list[np.ndarray | None] = [None] * len(steps)
+    took = np.nonzero(steps[k0].det == det)[0]
     if not took.size:
-        return none
+        return out
     ref = int(steps[k0].ids[took[0]])
-    out = list(none)
     for k, ft in enumerate(steps):
         mine = np.nonzero((ft.ids == ref) & ft.confirmed)[0]
         if mine.size:

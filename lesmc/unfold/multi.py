@@ -24,7 +24,7 @@ from lesmc.model.identity import NONE, last_seen
 from lesmc.model.multi import MultiModel
 from lesmc.scene import Frame, Scene
 from lesmc.tracking.design import CovarianceTable
-from lesmc.tracking.multi import MultiState, SortDesign, reference_boxes, target_of
+from lesmc.tracking.multi import ComposedDesign, MultiState
 from lesmc.tracking.parts.states import MultiBatch
 
 
@@ -51,7 +51,7 @@ MAX_STEP_SUCCESSORS = 10_000_000
 
 def build_multi(
     scene: Scene,
-    design: SortDesign,
+    design: ComposedDesign,
     window: tuple[int, int],
     end: int,
     max_states: int | None = None,
@@ -65,22 +65,22 @@ def build_multi(
             f"window {window[0]}..{window[1]} must satisfy 1 <= l <= u <= end = {end} "
             f"<= {len(frames) - 1} (the scene's last step)"
         )
-    refs = reference_boxes(scene, [s.tracks for s in design.run(end)])
+    refs = design.references([s.tracks for s in design.run(end)])
     if all(r is None for r in refs):
         raise UsageError(
             f"the target ({scene.target.start[0]:g}, {scene.target.start[1]:g} at frame "
-            f"{scene.target.step}) has no reference track: no detection box of its frame "
-            "holds its start, or its track is never output; switches and lost need one"
+            f"{scene.target.step}) has no reference track: no detection of its frame is at "
+            "its start, or its track is never output; switches and lost need one"
         )
     tracker, table = design.tracker, CovarianceTable()
-    s0, ft0 = tracker.step(tracker.initial(), frames[0].boxes())
-    tid0 = NONE if refs[0] is None else target_of(ft0, refs[0])
+    s0, ft0 = tracker.step(tracker.initial(), design.measurements(frames[0]))
+    tid0 = NONE if refs[0] is None else design.target_of(ft0, refs[0])
     level: list[MultiState] = [s0]
     st = _Arrays()
     st.add_state(0, tid0, refs[0] is not None, tid0)
     for k in range(1, end + 1):
         f = frames[k]
-        boxes, pay = f.boxes(), np.array([d.payoff for d in f.detections], dtype=float)
+        boxes, pay = design.measurements(f), np.array([d.payoff for d in f.detections], float)
         attacked = window[0] <= k <= window[1]
         count = len(level) * subset_count(f, attacked)  # checked before any is listed
         if max_states is not None and st.n + count > max_states:
@@ -103,7 +103,7 @@ def build_multi(
                 keep = np.ones(len(boxes), dtype=bool)
                 keep[list(sub)] = False
                 nxt, ft = tracker.step(state, boxes[keep])
-                tid = NONE if ref is None else target_of(ft, ref)
+                tid = NONE if ref is None else design.target_of(ft, ref)
                 last = int(last_seen(np.array([st.last[base + i]]), np.array([tid]))[0])
                 made.append((base + i, nxt, tid, last, sub))
         level = st.add_level(k, made, pay, ref is not None, tracker.filter.m.dim, table)
