@@ -71,6 +71,7 @@ from lesmc.tracking.kalman import (
     update_means,
     warp,
 )
+from lesmc.tracking.parts.attacker import hiding_options, ranks_and_payoffs, visible
 
 #: The association rounds' "no pair yet" value.
 _UNSET = np.iinfo(np.int64).max
@@ -585,7 +586,7 @@ class JointDesign:
         if attacked:
             s, opt, assign, halt, states = self._rows(p, np.zeros(n, dtype=np.int64), p.n_opt)
             rows = np.nonzero(self._merge(states, s))[0]
-            rank, payoff = _ranks_and_payoffs(s[rows], p.cost[s[rows], opt[rows]])
+            rank, payoff = ranks_and_payoffs(s[rows], p.cost[s[rows], opt[rows]])
             return _Expanded(
                 s[rows].astype(np.int64),
                 rank,
@@ -657,7 +658,7 @@ class JointDesign:
         U = len(cu)
 
         track, pz, dx, dy, d2, ok = _candidate_pairs(Z, measure(m, X), g, cfg)
-        hiding = _hiding_options(tu[:, 0], track, pz, dx, dy, ok, g.radius, frame.payoffs(), U, nz)
+        hiding = hiding_options(tu[:, 0], track, pz, dx, dy, ok, g.radius, frame.payoffs(), U, nz)
         n_opt, cost, rank_of, near_z, per = hiding
         track, pz, d2 = track[ok], pz[ok], d2[ok]
         del dx, dy, ok, hiding  # the candidates' arrays: only the gated pairs go on
@@ -702,7 +703,7 @@ class JointDesign:
         s = np.repeat(np.arange(len(count)), count)
         start = _starts(count)
         opt = np.repeat(lo, count) + _within(count)
-        visible = p.visible_rank(s) >= opt[:, None]  # option j hides the j nearest to the primary
+        visible_ = visible(p.visible_rank(s), opt)  # option j hides the j nearest to the primary
         assign, pair = self._associate(p, lo, hi, start, R)
         a = assign >= 0
         child = np.where(a, len(p.X) + pair, p.tu[s])  # rows of the p.child_* tables
@@ -711,7 +712,7 @@ class JointDesign:
         used = np.zeros((R, nz), dtype=bool)
         used[ra, assign[ra, ta]] = True
         states = self._initiate_and_prune(
-            p, child, halt, p.live[s], visible & ~used, p.pend[s], p.npend[s]
+            p, child, halt, p.live[s], visible_ & ~used, p.pend[s], p.npend[s]
         )
         return s, opt, assign, halt, states
 
@@ -986,17 +987,6 @@ def _same(js: JointStates, rep: np.ndarray) -> bool:
     )
 
 
-def _ranks_and_payoffs(src: np.ndarray, cost: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Ranks of outcomes grouped by source (cheapest first, costs ``cost``) and their own
-    payoffs: the next outcome's cost minus this one's, 0 for the last, so that the
-    combined payoff of Eq. 5 (the sum over lower ranks) is each outcome's cost."""
-    head = np.r_[True, src[1:] != src[:-1]] if src.size else np.zeros(0, dtype=bool)
-    rank = _within(np.diff(np.r_[np.nonzero(head)[0], src.size]))
-    last = np.r_[head[1:], True] if src.size else head
-    payoff = np.where(last, 0.0, np.r_[cost[1:], 0.0] - cost)
-    return rank.astype(np.int64), payoff
-
-
 def _candidate_pairs(
     Z: np.ndarray, at: np.ndarray, g: GainRows, cfg: TrackerConfig
 ) -> tuple[np.ndarray, ...]:
@@ -1021,57 +1011,6 @@ def _candidate_pairs(
     else:
         ok = gate_test(y, S_inv, g.spread[track], cfg.gate, cfg.gate_type)
     return track, pz, dx, dy, d2, ok
-
-
-def _hiding_options(
-    u0: np.ndarray,
-    track: np.ndarray,
-    pz: np.ndarray,
-    dx: np.ndarray,
-    dy: np.ndarray,
-    ok: np.ndarray,
-    radius: np.ndarray,
-    payoffs: np.ndarray,
-    U: int,
-    nz: int,
-) -> tuple[np.ndarray, ...]:
-    """The attacker's options: hide the j detections nearest the primary's prediction (the
-    primary tracks' candidates within its radius, by distance, then index). Per primary
-    track: how many options, their costs (cost[j]: hiding the j nearest, Eq. 5 summed
-    nearest first); per distinct track: each detection's position among its nearest
-    (nz: far), the nearest detections and how many there are."""
-    primary = np.zeros(U, dtype=bool)
-    primary[u0] = True
-    c0 = np.flatnonzero(primary[track])
-    dist = np.sqrt(dx[c0] ** 2 + dy[c0] ** 2)
-    inside = dist <= radius[track[c0]]
-    c0, dist = c0[inside], dist[inside]
-    s0 = track[c0]
-    per = np.bincount(s0, minlength=U)
-    w = int(per.max(initial=0))
-    at = _within(per)
-    D = np.full((U, w), np.inf)
-    D[s0, at] = dist
-    by_d = np.argsort(D, axis=1, kind="stable")
-    inv = np.empty((U, w), dtype=np.int64)
-    np.put_along_axis(inv, by_d, np.broadcast_to(np.arange(w), (U, w)), axis=1)
-    col = inv[s0, at]  # each near candidate's position among its track's nearest
-    near_z = np.zeros((U, w), dtype=np.int64)
-    near_z[s0, col] = pz[c0]
-    gated = np.zeros((U, w), dtype=bool)
-    gated[s0, col] = ok[c0]
-    cols = np.arange(w)
-    last = np.where(gated, cols + 1, 0).max(axis=1, initial=0)
-    pays = np.zeros((U, w))  # the candidates' payoffs (0 past a track's candidates: unused)
-    if nz:
-        pays[s0, col] = payoffs[pz[c0]]
-    bad = ~np.isfinite(pays) & (cols < last[:, None])
-    n_opt = np.minimum(last, np.where(bad, cols, w).min(axis=1, initial=w)) + 1
-    cost = np.zeros((U, w + 1))
-    cost[:, 1:] = np.cumsum(np.where(cols < n_opt[:, None] - 1, pays, 0.0), axis=1)
-    rank_of = np.full((U, nz), nz, dtype=np.int64)
-    rank_of[s0, pz[c0]] = col
-    return n_opt[u0], cost[u0], rank_of, near_z, per
 
 
 def _ranked_pairs(

@@ -11,7 +11,7 @@ covariances live in a table, what derives from each is computed once, for
 all new covariances of a batch together (tracking/design.py's :class:`Gains`),
 and a batch is processed with array arithmetic only: predict, the candidate
 detections (an x-sorted band of the frame, or a k-d tree), gate, the attacker's
-options (association.attack_option_rows) and one mean update per outcome.
+options (parts/attacker.py: attack_option_rows) and one mean update per outcome.
 """
 
 from __future__ import annotations
@@ -19,7 +19,7 @@ from __future__ import annotations
 import numpy as np
 
 from lesmc.scene import Frame, Scene
-from lesmc.tracking.association import attack_option_rows, gate_test
+from lesmc.tracking.association import gate_test
 from lesmc.tracking.design import Batch, CovarianceTable, GainRows, Schedule, Successors
 from lesmc.tracking.kalman import (
     Matrices,
@@ -32,6 +32,7 @@ from lesmc.tracking.kalman import (
     update_means,
     warp,
 )
+from lesmc.tracking.parts.attacker import attack_option_rows
 
 
 class SingleDesign:
