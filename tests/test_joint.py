@@ -22,7 +22,8 @@ from joint_oracle import oracle_paths
 import lesmc.unfold.unfold as unfold
 from lesmc.model.arrays import ArrayModel
 from lesmc.scene import Detection, Frame, Scene, Target, TrackerConfig, load_scene
-from lesmc.tracking.joint import JointDesign, JointStates, JointStore, TrackTable, digest
+from lesmc.tracking.joint import JointDesign
+from lesmc.tracking.parts.joint_states import JointStates, JointStore, TrackTable, digest
 from lesmc.tracking.trackers import make_tracker
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -167,7 +168,7 @@ def test_comparing_states_pads_tracks_of_any_dimension() -> None:
     """A constant-acceleration tracker's states (d = 6) compared across batches of different
     widths: the padding has the states' own dimension (it was fixed at 4, the CV model's;
     found by the fault tests' joint ca2d cases)."""
-    from lesmc.tracking.joint import _same_as
+    from lesmc.tracking.parts.joint_states import same_as
 
     rng = np.random.default_rng(5)
     d = 6
@@ -177,8 +178,8 @@ def test_comparing_states_pads_tracks_of_any_dimension() -> None:
     wide = JointStates(np.concatenate([tracks, np.zeros((3, 2, d))], axis=1),
                        np.zeros((3, 3), np.int64), np.ones(3, np.int64), np.zeros((3, 1, 2)),
                        np.zeros(3, np.int64))  # fmt: skip
-    assert _same_as(narrow, wide, np.arange(3))
-    assert not _same_as(narrow, wide, np.array([1, 0, 2]))
+    assert same_as(narrow, wide, np.arange(3))
+    assert not same_as(narrow, wide, np.array([1, 0, 2]))
     store = JointStore()
     store.extend(wide)
     assert store.take(np.zeros(0, np.int64)).tracks.shape == (0, 1, d)
@@ -189,7 +190,7 @@ def test_store_gathers_small_batches(monkeypatch: pytest.MonkeyPatch, by_table: 
     """Many tiny batches (a search expanding a few states at a time) and big ones: every
     state reads back as it was added, in any order, whatever parts the store made (also
     for states whose tracks are ids into a table, which the store cuts and joins)."""
-    monkeypatch.setattr("lesmc.tracking.joint.STORE_GATHER", 5)
+    monkeypatch.setattr("lesmc.tracking.parts.joint_states.STORE_GATHER", 5)
     rng = np.random.default_rng(7)
     n = 60
     js = _random_states(rng, n, 4, 3)
