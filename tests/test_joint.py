@@ -21,7 +21,7 @@ from joint_oracle import oracle_paths
 
 import lesmc.unfold.unfold as unfold
 from lesmc.model.arrays import ArrayModel
-from lesmc.scene import Detection, Frame, Scene, Target, TrackerConfig, load_scene
+from lesmc.scene import Detection, Frame, JointConfig, Scene, Target, TrackerConfig, load_scene
 from lesmc.tracking.joint import JointDesign
 from lesmc.tracking.parts.joint_states import JointStates, JointStore, TrackTable, digest
 from lesmc.tracking.trackers import make_tracker
@@ -95,9 +95,11 @@ def scenes(draw: st.DrawFn) -> Scene:
         gate=draw(st.sampled_from([1.0, 2.0, 3.0, 6.0])),
         gate_type=draw(st.sampled_from(["mahalanobis", "euclidean"])),
         max_trace=draw(st.sampled_from([1e5, 3000.0, 2000.0])),
-        init_radius=draw(st.sampled_from([30.0, 150.0, 400.0])),
-        init_distance=draw(st.sampled_from([10.0, 60.0, 200.0])),
-        prune_radius=draw(st.sampled_from([20.0, 60.0, 200.0])),
+        joint=JointConfig(
+            init_radius=draw(st.sampled_from([30.0, 150.0, 400.0])),
+            init_distance=draw(st.sampled_from([10.0, 60.0, 200.0])),
+            prune_radius=draw(st.sampled_from([20.0, 60.0, 200.0])),
+        ),
         sigma_q=draw(st.sampled_from([1.0, 3.0])),
     )
     return Scene(1.0, tuple(out), Target(0, (tx, ty), (tvx, 0.0)), tracker)
@@ -243,9 +245,7 @@ def test_track_started_in_a_state_narrower_than_its_batch(monkeypatch: pytest.Mo
         design="joint",
         sigma_q=1.0,
         gate=1.0,
-        init_radius=30.0,
-        init_distance=10.0,
-        prune_radius=20.0,
+        joint=JointConfig(init_radius=30.0, init_distance=10.0, prune_radius=20.0),
     )
     scene = Scene(1.0, frames, Target(0, (500.0, 492.0), (1.0, 0.0)), tracker)
     ours = unfold.build_model(scene, (1, 1))

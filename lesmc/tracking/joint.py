@@ -109,9 +109,9 @@ class JointDesign:
         self.parts = JointParts(  # the predictor and updater: kalman.py, in the Schedule
             GateHypothesiser(self.cfg.gate, self.cfg.gate_type),
             GreedyAssociator(),
-            NearTargetInitiator(self.cfg.init_radius, self.cfg.init_distance),
+            NearTargetInitiator(self.cfg.joint.init_radius, self.cfg.joint.init_distance),
             TraceDeleter(self.cfg.max_trace),
-            DistanceDeleter(self.cfg.prune_radius),
+            DistanceDeleter(self.cfg.joint.prune_radius),
         )
         self.schedule = Schedule(
             self.m, self.cfg, self.track_covariances, self.parts.hypothesiser, self.parts.deleter
