@@ -1,8 +1,9 @@
 """What the unfolder needs from a tracker design: batches of states and their successors.
 
-A design is assembled from the parts in tracking/ (kalman.py: predictor and
-updater; association.py: gate and the attacker's options; the deleter is the
-trace(P) > max_trace halt), as Stone Soup composes its trackers. Its states
+A design is composed of parts, as Stone Soup composes its trackers (docs/trackers.md,
+"Parts"): kalman.py's predictor and updater, and from tracking/parts/ a hypothesiser
+(the gate), a data associator, an initiator, deleters (the trace(P) > max_trace halt)
+and the attacker's options (parts/attacker.py, every tracker's). Its states
 travel in batches of arrays: the estimate X (n, d), an index into the design's
 table of distinct covariances, and the halted flag; a design whose state is
 more than one filter (joint) also carries the whole states as a :class:`Payload`
@@ -155,7 +156,8 @@ class GainRows:
 
 
 class Gains:
-    """The gain rows of every covariance of ``table``, computed once per distinct P.
+    """The gain rows of every covariance of ``table``, computed once per distinct P; the
+    gate radius from the design's ``hypothesiser``, the halts from its ``deleter``.
 
     P̂ and P⁺ are added to ``table``, so the gains of a design's next states
     are found by index. :meth:`rows` computes what is new among the indices it

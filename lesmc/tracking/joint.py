@@ -2,28 +2,35 @@
 
 A joint state holds the primary track, the refining tracks of nearby vehicles
 and the unassociated detections of the previous frame (candidates to start
-tracks). One step:
+tracks). The design is a composition of parts (:class:`JointParts`,
+docs/trackers.md "Parts"); one step:
 
-1. carry every position into the new frame (homography) and predict every track;
+1. carry every position into the new frame (homography) and predict every track
+   (the predictor: lesmc/tracking/kalman.py);
 2. score every gated (track, detection) pair by the likelihood N(z; Hx̂, S), sort
    from the largest (ties: lower track, then lower detection), and associate
-   greedily one-to-one;
+   greedily one-to-one (the hypothesiser ``GateHypothesiser``, the data associator
+   ``GreedyAssociator``);
 3. update the associated tracks (the others skip the update);
 4. an unassociated detection within ``init_radius`` of the primary starts a
    refining track if a previous unassociated detection lies within
    ``init_distance`` (their difference over dt is its velocity; detections in
    index order, each with the nearest remaining previous one); otherwise it is
-   kept for the next step;
+   kept for the next step (the initiator ``NearTargetInitiator``);
 5. refining tracks farther than ``prune_radius`` from the primary, or whose
-   trace(P) exceeds ``max_trace``, are dropped.
+   trace(P) exceeds ``max_trace``, are dropped (the deleters ``DistanceDeleter``,
+   ``TraceDeleter``).
 
 Attacks (docs/scene-format.md#joint-design): the attacker hides the detections
 nearest to the primary's prediction, as for the single design: option j hides
 the j nearest (up to the last one the primary's gate accepts) and costs their
-payoffs. The hidden detections are gone for every track. Outcomes that leave
-the whole joint state identical are merged (the cheapest kept).
+payoffs (the attacker's options part, lesmc/tracking/parts/attacker.py:
+``hiding_options``, ``visible``, ``ranks_and_payoffs``). The hidden detections are
+gone for every track. Outcomes that leave the whole joint state identical are
+merged (the cheapest kept).
 
-Speed: a batch of joint states travels as padded arrays (:class:`JointStates`),
+Speed: a batch of joint states travels as padded arrays (:class:`JointStates`,
+lesmc/tracking/parts/joint_states.py),
 and a whole batch is expanded with array operations, in chunks that bound the
 (rows × (tracks + detections)) temporaries. What derives from a track's
 covariance is computed once per distinct P (tracking/design.py's

@@ -5,6 +5,11 @@ For a batch, :meth:`SingleDesign.successors` returns every outcome an attacker
 can force at the next frame, in rank order; rank 0 is what the unattacked
 tracker does.
 
+The design is a composition of parts (:class:`SingleParts`, docs/trackers.md
+"Parts"): the Kalman predictor and updater (tracking/kalman.py), the gate
+hypothesiser, the nearest-neighbour associator, the trace deleter, and the
+attacker's options of lesmc/tracking/parts/attacker.py (``attack_option_rows``).
+
 Speed: P̂, S, K, the gate and the updated P depend only on the parent's P,
 which is shared by every state with the same history of updates and skips. So
 covariances live in a table, what derives from each is computed once, for
