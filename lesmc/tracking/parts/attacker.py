@@ -213,7 +213,14 @@ def hiding_options(
     primary tracks' candidates within its radius, by distance, then index). Per primary
     track: how many options, their costs (cost[j]: hiding the j nearest, Eq. 5 summed
     nearest first); per distinct track: each detection's position among its nearest
-    (nz: far), the nearest detections and how many there are."""
+    (nz: far), the nearest detections and how many there are.
+
+    ``u0`` (n,): each state's primary among the U distinct tracks; the candidate pairs
+    (hypothesiser ``pairs``): ``track``, detection ``pz``, offsets ``dx``, ``dy`` from the
+    track's predicted position, ``ok`` whether the gate admits the pair; ``radius`` (U,)
+    the tracks' gate radii; ``payoffs`` (nz,) the frame's detections' payoffs. Returns
+    ``n_opt`` (n,), ``cost`` (n, w + 1), ``rank_of`` (U, nz), ``near_z`` (U, w) and
+    ``per`` (U,)."""
     primary = np.zeros(U, dtype=bool)
     primary[u0] = True
     c0 = np.flatnonzero(primary[track])
