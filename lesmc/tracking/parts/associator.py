@@ -1,5 +1,8 @@
-"""The data associator: global assignment of detections to tracks (GNN / Hungarian,
-``scipy.optimize.linear_sum_assignment``), SORT's way.
+"""The data associator: which detection updates which track. Nearest neighbour (the
+paper's single, :class:`NearestNeighbourAssociator`); ordered greedy by likelihood (the
+paper's joint KFs, :class:`GreedyAssociator`); global assignment of detections to tracks
+(GNN / Hungarian, ``scipy.optimize.linear_sum_assignment``), SORT's way
+(:class:`GlobalAssociator`).
 
 SORT (``associate_detections_to_trackers``): when every detection and every track has at
 most one pair scoring above the threshold, those pairs are the assignment; otherwise the

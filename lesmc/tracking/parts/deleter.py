@@ -1,7 +1,9 @@
-"""The deleter: which tracks end. ``max_age``: a track not updated for more than
-``max_age`` frames ends (SORT: 1); a track whose predicted box is not a box (``nan``,
+"""The deleter: which tracks end. ``max_age`` (``sort``): a track not updated for more
+than ``max_age`` frames ends (SORT: 1); a track whose predicted box is not a box (``nan``,
 where its area and aspect ratio have opposite signs) ends before association, as SORT
-drops it."""
+drops it. The covariance-trace limit (``single``, ``joint``, :class:`TraceDeleter`): a
+track halts when trace(P) exceeds ``max_trace``. Pruning (``joint``,
+:class:`DistanceDeleter`): refining tracks far from the primary end."""
 
 from __future__ import annotations
 

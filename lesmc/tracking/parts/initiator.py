@@ -1,7 +1,11 @@
-"""The initiator: which tracks the tracker outputs (confirms). ``min_hits`` (M of N with
-M = N): SORT outputs a track at a frame when it was updated at that frame and its streak
-of updates is at least ``min_hits``, or the frame is among the first ``min_hits``
-(every detection starts a track; the detector's unmatched ones start new tracks)."""
+"""The initiator: which tracks start, and which the tracker outputs (confirms).
+
+``min_hits`` (M of N with M = N; ``sort``): SORT outputs a track at a frame when it was
+updated at that frame and its streak of updates is at least ``min_hits``, or the frame is
+among the first ``min_hits`` (every detection starts a track; the detector's unmatched
+ones start new tracks). Births near the target (``joint``, :class:`NearTargetInitiator`):
+a free detection near the primary starts a refining track when a pending detection of the
+previous frame lies close enough."""
 
 from __future__ import annotations
 
