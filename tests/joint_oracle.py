@@ -67,7 +67,7 @@ class Oracle:
         t = self.scene.target
         x0 = np.array([*t.start, *t.velocity], dtype=float)
         Z = self.scene.frame(t.step).positions().reshape(-1, 2)
-        near = [z for z in Z if math.dist(z, x0[:2]) <= self.cfg.init_radius]
+        near = [z for z in Z if math.dist(z, x0[:2]) <= self.cfg.joint.init_radius]
         return Joint(((x0, self.P0.copy()),), np.array(near, dtype=float).reshape(-1, 2), False)
 
     def options(self, st: Joint, frame_step: int, attacked: bool) -> list[tuple[float, Joint]]:
@@ -139,11 +139,11 @@ class Oracle:
         keep = []
         for i in visible:  # new tracks: free detections near the primary, in index order
             z = Z[i]
-            if i in assign.values() or math.dist(z, primary[0][:2]) > cfg.init_radius:
+            if i in assign.values() or math.dist(z, primary[0][:2]) > cfg.joint.init_radius:
                 continue
             d = [math.dist(z, p) for p in pool]
             b = min(range(len(d)), key=lambda k: (d[k], k)) if d else -1
-            if b >= 0 and d[b] < cfg.init_distance:
+            if b >= 0 and d[b] < cfg.joint.init_distance:
                 v = (z - pool.pop(b)) / self.scene.dt
                 tracks.append((np.array([z[0], z[1], v[0], v[1]]), self.P0.copy()))
             else:
@@ -151,7 +151,7 @@ class Oracle:
         refining = tuple(
             t
             for t in tracks[1:]
-            if math.dist(t[0][:2], primary[0][:2]) <= cfg.prune_radius
+            if math.dist(t[0][:2], primary[0][:2]) <= cfg.joint.prune_radius
             and np.trace(t[1]) <= cfg.max_trace
         )
         halted = bool(np.trace(primary[1]) > cfg.max_trace)

@@ -8,7 +8,7 @@ import numpy as np
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from lesmc.tracking.association import attack_option_rows
+from lesmc.tracking.parts.attacker import attack_option_rows
 
 
 def scan(gated: list[bool], pay: list[float], same: list[int]) -> list[tuple[int, float]]:

@@ -21,8 +21,9 @@ from joint_oracle import oracle_paths
 
 import lesmc.unfold.unfold as unfold
 from lesmc.model.arrays import ArrayModel
-from lesmc.scene import Detection, Frame, Scene, Target, TrackerConfig, load_scene
-from lesmc.tracking.joint import JointDesign, JointStates, JointStore, TrackTable, digest
+from lesmc.scene import Detection, Frame, JointConfig, Scene, Target, TrackerConfig, load_scene
+from lesmc.tracking.joint import JointDesign
+from lesmc.tracking.parts.joint_states import JointStates, JointStore, TrackTable, digest
 from lesmc.tracking.trackers import make_tracker
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -94,9 +95,11 @@ def scenes(draw: st.DrawFn) -> Scene:
         gate=draw(st.sampled_from([1.0, 2.0, 3.0, 6.0])),
         gate_type=draw(st.sampled_from(["mahalanobis", "euclidean"])),
         max_trace=draw(st.sampled_from([1e5, 3000.0, 2000.0])),
-        init_radius=draw(st.sampled_from([30.0, 150.0, 400.0])),
-        init_distance=draw(st.sampled_from([10.0, 60.0, 200.0])),
-        prune_radius=draw(st.sampled_from([20.0, 60.0, 200.0])),
+        joint=JointConfig(
+            init_radius=draw(st.sampled_from([30.0, 150.0, 400.0])),
+            init_distance=draw(st.sampled_from([10.0, 60.0, 200.0])),
+            prune_radius=draw(st.sampled_from([20.0, 60.0, 200.0])),
+        ),
         sigma_q=draw(st.sampled_from([1.0, 3.0])),
     )
     return Scene(1.0, tuple(out), Target(0, (tx, ty), (tvx, 0.0)), tracker)
@@ -167,7 +170,7 @@ def test_comparing_states_pads_tracks_of_any_dimension() -> None:
     """A constant-acceleration tracker's states (d = 6) compared across batches of different
     widths: the padding has the states' own dimension (it was fixed at 4, the CV model's;
     found by the fault tests' joint ca2d cases)."""
-    from lesmc.tracking.joint import _same_as
+    from lesmc.tracking.parts.joint_states import same_as
 
     rng = np.random.default_rng(5)
     d = 6
@@ -177,8 +180,8 @@ def test_comparing_states_pads_tracks_of_any_dimension() -> None:
     wide = JointStates(np.concatenate([tracks, np.zeros((3, 2, d))], axis=1),
                        np.zeros((3, 3), np.int64), np.ones(3, np.int64), np.zeros((3, 1, 2)),
                        np.zeros(3, np.int64))  # fmt: skip
-    assert _same_as(narrow, wide, np.arange(3))
-    assert not _same_as(narrow, wide, np.array([1, 0, 2]))
+    assert same_as(narrow, wide, np.arange(3))
+    assert not same_as(narrow, wide, np.array([1, 0, 2]))
     store = JointStore()
     store.extend(wide)
     assert store.take(np.zeros(0, np.int64)).tracks.shape == (0, 1, d)
@@ -189,7 +192,7 @@ def test_store_gathers_small_batches(monkeypatch: pytest.MonkeyPatch, by_table: 
     """Many tiny batches (a search expanding a few states at a time) and big ones: every
     state reads back as it was added, in any order, whatever parts the store made (also
     for states whose tracks are ids into a table, which the store cuts and joins)."""
-    monkeypatch.setattr("lesmc.tracking.joint.STORE_GATHER", 5)
+    monkeypatch.setattr("lesmc.tracking.parts.joint_states.STORE_GATHER", 5)
     rng = np.random.default_rng(7)
     n = 60
     js = _random_states(rng, n, 4, 3)
@@ -242,9 +245,7 @@ def test_track_started_in_a_state_narrower_than_its_batch(monkeypatch: pytest.Mo
         design="joint",
         sigma_q=1.0,
         gate=1.0,
-        init_radius=30.0,
-        init_distance=10.0,
-        prune_radius=20.0,
+        joint=JointConfig(init_radius=30.0, init_distance=10.0, prune_radius=20.0),
     )
     scene = Scene(1.0, frames, Target(0, (500.0, 492.0), (1.0, 0.0)), tracker)
     ours = unfold.build_model(scene, (1, 1))

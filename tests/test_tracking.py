@@ -17,9 +17,10 @@ from lesmc.common.errors import InputError
 from lesmc.model.lts import to_lts
 from lesmc.scene import Detection, Frame, Scene, load_scene, scene_from_dict, scene_to_dict
 from lesmc.scene.toy import Vehicle, vehicle_scene
-from lesmc.tracking.association import attack_options, gate_radii
+from lesmc.tracking.association import gate_radii
 from lesmc.tracking.kalman import innovations, matrices, predict_covariances, white_noise_q
 from lesmc.tracking.monitor import track
+from lesmc.tracking.parts.attacker import attack_options
 from lesmc.tracking.trackers import make_tracker
 from lesmc.unfold.unfold import build_model
 

@@ -10,7 +10,6 @@ from __future__ import annotations
 import itertools
 import math
 from collections.abc import Callable
-from dataclasses import fields
 from pathlib import Path
 from typing import Any
 
@@ -31,14 +30,17 @@ from lesmc.designs import registry
 from lesmc.language import monitors
 from lesmc.scene.frames import Detection, Frame
 from lesmc.scene.scene import (
+    JOINT_KEYS,
     PRESET_ONLY,
     UNATTACKABLE,
     UNPRICED,
     Footage,
+    JointConfig,
     Scene,
     Target,
     TrackerConfig,
     TruthTrack,
+    tracker_keys,
 )
 from lesmc.scene.tracker_model import (
     DEFAULT_MODEL,
@@ -457,7 +459,7 @@ def _tracker(raw: Any, pr: Problems, item: str = "tracker") -> TrackerConfig | N
         pr.add(item, "must be an object")
         return None
     n0 = len(pr.items)
-    names = {f.name for f in fields(TrackerConfig)}
+    names = set(tracker_keys())
     values: dict[str, Any] = {}
     for key, v in raw.items():
         if key not in names:
@@ -485,7 +487,8 @@ def _tracker(raw: Any, pr: Problems, item: str = "tracker") -> TrackerConfig | N
             )
         if len(pr.items) > n0:
             return None
-    return TrackerConfig(**values)
+    joint = JointConfig(**{k: values.pop(k) for k in JOINT_KEYS if k in values})
+    return TrackerConfig(**values, joint=joint)
 
 
 def _m_of_n(values: dict[str, Any], pr: Problems, item: str) -> None:
@@ -517,7 +520,7 @@ def tracker_from_dict(data: Any, path: str = "<tracker>") -> TrackerConfig:
     optional ``comment``."""
     pr = Problems()
     if not isinstance(data, dict):
-        keys = ", ".join(f.name for f in fields(TrackerConfig) if f.name != "faults")
+        keys = ", ".join(k for k in tracker_keys() if k != "faults")
         kinds = {list: "a list", str: "a string", bool: "a boolean", int: "a number"}
         got = "null" if data is None else kinds.get(type(data), "a number")
         raise InputError.many(

@@ -33,6 +33,21 @@ checks read): ``nan`` in memory; a model that reads it stops (frames.UnpricedPay
 
 
 @dataclass(frozen=True)
+class JointConfig:
+    """The joint design's own parameters (paper section 7.2; lesmc/tracking/joint.py), apart
+    from the parameters every tracker shares. A scene's tracker block and a tracker file
+    write them at their top level, under these names."""
+
+    init_radius: float = 150.0  # unassociated detections this close to the primary may start tracks
+    init_distance: float = 60.0  # max distance to a previous unassociated detection to start one
+    prune_radius: float = 200.0  # refining tracks farther than this from the primary are dropped
+
+    def to_json(self) -> dict[str, Any]:
+        """The file form: its keys, in order."""
+        return {f.name: getattr(self, f.name) for f in fields(self)}
+
+
+@dataclass(frozen=True)
 class TrackerConfig:
     """The tracker's parameters (paper section 6.7 and 7); defaults are the paper's.
 
@@ -49,10 +64,8 @@ class TrackerConfig:
     gate: float = 2.0  # g of Eq. 19 (Mahalanobis) or k of the Euclidean gate
     gate_type: Literal["mahalanobis", "euclidean"] = "mahalanobis"
     max_trace: float = 1e5  # halt the track when trace(P) exceeds this
-    # joint design (section 7.2)
-    init_radius: float = 150.0  # unassociated detections this close to the primary may start tracks
-    init_distance: float = 60.0  # max distance to a previous unassociated detection to start one
-    prune_radius: float = 200.0  # refining tracks farther than this from the primary are dropped
+    #: the joint design's own parameters (its file keys sit at the top level, here)
+    joint: JointConfig = JointConfig()
     # multi-target box trackers (sort; lesmc/tracking/multi.py): SORT's defaults
     min_hits: int = 3  # a track is output once updated this many frames in a row
     max_age: int = 1  # a track missed more than this many frames in a row ends
@@ -92,12 +105,27 @@ class TrackerConfig:
                 or (f.name == "monitor" and v is None)
             ):
                 continue
-            if f.name == "model":
+            if f.name == "joint":
+                d.update(v.to_json())
+            elif f.name == "model":
                 if v != DEFAULT_MODEL:
                     d["model"] = v if isinstance(v, str) else v.to_json()
             elif not (declared and f.name in PRESET_ONLY):
                 d[f.name] = list(v) if isinstance(v, tuple) else v
         return d
+
+
+#: The keys of the joint design's parameters in a tracker block (:class:`JointConfig`).
+JOINT_KEYS = tuple(f.name for f in fields(JointConfig))
+
+
+def tracker_keys() -> tuple[str, ...]:
+    """The keys of a tracker block, in the order a file writes them: :class:`TrackerConfig`'s
+    fields, the joint design's in place of ``joint`` (``faults`` included: never in a file)."""
+    out: list[str] = []
+    for f in fields(TrackerConfig):
+        out.extend(JOINT_KEYS if f.name == "joint" else (f.name,))
+    return tuple(out)
 
 
 #: The parameters only a preset model reads.

@@ -1,8 +1,9 @@
 """What the unfolder needs from a tracker design: batches of states and their successors.
 
-A design is assembled from the parts in tracking/ (kalman.py: predictor and
-updater; association.py: gate and the attacker's options; the deleter is the
-trace(P) > max_trace halt), as Stone Soup composes its trackers. Its states
+A design is composed of parts, as Stone Soup composes its trackers (docs/trackers.md,
+"Parts"): kalman.py's predictor and updater, and from tracking/parts/ a hypothesiser
+(the gate), a data associator, an initiator, deleters (the trace(P) > max_trace halt)
+and the attacker's options (parts/attacker.py, every tracker's). Its states
 travel in batches of arrays: the estimate X (n, d), an index into the design's
 table of distinct covariances, and the halted flag; a design whose state is
 more than one filter (joint) also carries the whole states as a :class:`Payload`
@@ -23,7 +24,6 @@ import numpy as np
 
 from lesmc.model.growing import GrowArray
 from lesmc.scene import Scene, TrackerConfig
-from lesmc.tracking.association import gate_radii
 from lesmc.tracking.kalman import (
     Matrices,
     innovations,
@@ -31,6 +31,8 @@ from lesmc.tracking.kalman import (
     predict_covariances,
     with_faults,
 )
+from lesmc.tracking.parts.deleter import TraceDeleter
+from lesmc.tracking.parts.hypothesiser import GateHypothesiser
 
 
 class CovarianceTable:
@@ -154,7 +156,8 @@ class GainRows:
 
 
 class Gains:
-    """The gain rows of every covariance of ``table``, computed once per distinct P.
+    """The gain rows of every covariance of ``table``, computed once per distinct P; the
+    gate radius from the design's ``hypothesiser``, the halts from its ``deleter``.
 
     P̂ and P⁺ are added to ``table``, so the gains of a design's next states
     are found by index. :meth:`rows` computes what is new among the indices it
@@ -163,10 +166,17 @@ class Gains:
 
     FIELDS = ("radius", "norm", "S_inv", "spread", "K", "pred", "post", "halt_pred", "halt_post")
 
-    def __init__(self, m: Matrices, cfg: TrackerConfig, table: CovarianceTable) -> None:
+    def __init__(
+        self,
+        m: Matrices,
+        table: CovarianceTable,
+        hypothesiser: GateHypothesiser,
+        deleter: TraceDeleter,
+    ) -> None:
         self.m = m
-        self.cfg = cfg
         self.table = table
+        self.hypothesiser = hypothesiser
+        self.deleter = deleter
         self.known = GrowArray(np.bool_)
         self.cols = {
             "radius": GrowArray(np.float64),
@@ -192,20 +202,20 @@ class Gains:
     def _fill(self, cs: np.ndarray) -> None:
         """Predict and gain (Eq. 2-3), gate radius, likelihood norm and halts of the
         covariances ``cs``, all together; P̂ and P⁺ join the table."""
-        m, cfg = self.m, self.cfg
+        m = self.m
         P_pred = predict_covariances(m, self.table.stack()[cs])
         inn = innovations(m, P_pred)
         spread = position_spread(m, P_pred)
         values = {
-            "radius": gate_radii(inn.S, spread, cfg.gate, cfg.gate_type),
+            "radius": self.hypothesiser.radii(inn.S, spread),
             "norm": 2 * math.pi * np.sqrt(np.linalg.det(inn.S)),
             "S_inv": inn.S_inv,
             "spread": spread,
             "K": inn.K,
             "pred": self.table.add_many(P_pred),
             "post": self.table.add_many(inn.P_post),
-            "halt_pred": np.trace(P_pred, axis1=1, axis2=2) > cfg.max_trace,
-            "halt_post": np.trace(inn.P_post, axis1=1, axis2=2) > cfg.max_trace,
+            "halt_pred": self.deleter.halts(P_pred),
+            "halt_post": self.deleter.halts(inn.P_post),
         }
         top = int(cs.max()) + 1
         if top > self.known.n:  # make room up to the largest (unknown rows stay marked so)
@@ -224,10 +234,19 @@ class Schedule:
     combination of active faults has its own :class:`Gains` over the one covariance table,
     so states of any phase share covariances."""
 
-    def __init__(self, m: Matrices, cfg: TrackerConfig, table: CovarianceTable) -> None:
+    def __init__(
+        self,
+        m: Matrices,
+        cfg: TrackerConfig,
+        table: CovarianceTable,
+        hypothesiser: GateHypothesiser,
+        deleter: TraceDeleter,
+    ) -> None:
         self.faults = cfg.faults
-        self._by: dict[tuple[int, ...], tuple[Matrices, Gains]] = {(): (m, Gains(m, cfg, table))}
-        self._cfg = cfg
+        self._parts = (hypothesiser, deleter)
+        self._by: dict[tuple[int, ...], tuple[Matrices, Gains]] = {
+            (): (m, Gains(m, table, hypothesiser, deleter))
+        }
         self._table = table
 
     def at(self, frame: int) -> tuple[Matrices, Gains]:
@@ -237,7 +256,7 @@ class Schedule:
         active = tuple(i for i, f in enumerate(self.faults) if f.frame <= frame)
         if active not in self._by:
             m = with_faults(self._by[()][0], (self.faults[i] for i in active))
-            self._by[active] = (m, Gains(m, self._cfg, self._table))
+            self._by[active] = (m, Gains(m, self._table, *self._parts))
         return self._by[active]
 
 

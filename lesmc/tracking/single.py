@@ -5,21 +5,27 @@ For a batch, :meth:`SingleDesign.successors` returns every outcome an attacker
 can force at the next frame, in rank order; rank 0 is what the unattacked
 tracker does.
 
+The design is a composition of parts (:class:`SingleParts`, docs/trackers.md
+"Parts"): the Kalman predictor and updater (tracking/kalman.py), the gate
+hypothesiser, the nearest-neighbour associator, the trace deleter, and the
+attacker's options of lesmc/tracking/parts/attacker.py (``attack_option_rows``).
+
 Speed: P̂, S, K, the gate and the updated P depend only on the parent's P,
 which is shared by every state with the same history of updates and skips. So
 covariances live in a table, what derives from each is computed once, for
 all new covariances of a batch together (tracking/design.py's :class:`Gains`),
 and a batch is processed with array arithmetic only: predict, the candidate
 detections (an x-sorted band of the frame, or a k-d tree), gate, the attacker's
-options (association.attack_option_rows) and one mean update per outcome.
+options (parts/attacker.py: attack_option_rows) and one mean update per outcome.
 """
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import numpy as np
 
 from lesmc.scene import Frame, Scene
-from lesmc.tracking.association import attack_option_rows, gate_test
 from lesmc.tracking.design import Batch, CovarianceTable, GainRows, Schedule, Successors
 from lesmc.tracking.kalman import (
     Matrices,
@@ -32,6 +38,22 @@ from lesmc.tracking.kalman import (
     update_means,
     warp,
 )
+from lesmc.tracking.parts.associator import NearestNeighbourAssociator
+from lesmc.tracking.parts.attacker import attack_option_rows
+from lesmc.tracking.parts.deleter import TraceDeleter
+from lesmc.tracking.parts.hypothesiser import GateHypothesiser
+
+
+@dataclass(frozen=True)
+class SingleParts:
+    """The parts the single design is composed of (docs/trackers.md, "Parts"); its
+    predictor and updater are lesmc/tracking/kalman.py's functions (through the
+    Schedule's gains), its attacker's options lesmc/tracking/parts/attacker.py's
+    ``attack_option_rows``."""
+
+    hypothesiser: GateHypothesiser  # the detections within the gate, nearest first
+    associator: NearestNeighbourAssociator  # the nearest visible detection, if gated
+    deleter: TraceDeleter  # trace(P) > max_trace halts the track
 
 
 class SingleDesign:
@@ -44,7 +66,14 @@ class SingleDesign:
         self.cfg = scene.tracker
         self.m: Matrices = matrices(self.cfg, scene.dt)
         self.covariances = CovarianceTable()
-        self.schedule = Schedule(self.m, self.cfg, self.covariances)
+        self.parts = SingleParts(
+            GateHypothesiser(self.cfg.gate, self.cfg.gate_type),
+            NearestNeighbourAssociator(),
+            TraceDeleter(self.cfg.max_trace),
+        )
+        self.schedule = Schedule(
+            self.m, self.cfg, self.covariances, self.parts.hypothesiser, self.parts.deleter
+        )
 
     def initial(self) -> Batch:
         """At the target's frame: (start, velocity) with P0; that frame's detections unused."""
@@ -90,12 +119,11 @@ class SingleDesign:
         self, frame: Frame, Xp: np.ndarray, g: GainRows, attacked: bool, m: Matrices
     ) -> tuple[np.ndarray, ...]:
         """Successors of predictions ``Xp``, row i with the gain rows ``g`` of its P."""
-        cfg = self.cfg
         at = measure(m, Xp)
-        idx, valid = _candidates(frame, at, g.radius, wide=attacked)
+        idx, valid = self.parts.hypothesiser.nearest(frame, at, g.radius, wide=attacked)
         Z = frame.positions()[np.where(valid, idx, 0)]
         y = Z - at[:, None, :]
-        gated = valid & gate_test(y, g.S_inv, g.spread, cfg.gate, cfg.gate_type)
+        gated = valid & self.parts.hypothesiser.test(y, g.S_inv, g.spread)
         if attacked:
             same = frame.position_ids()[np.where(valid, idx, 0)] if frame.has_repeats else None
             pays = np.full(idx.shape, np.inf)
@@ -106,7 +134,7 @@ class SingleDesign:
             rank = np.arange(row.size) - np.repeat(np.r_[0, np.cumsum(counts)[:-1]], counts)
         else:  # the unattacked tracker: the nearest visible detection, if it passes the gate
             row = np.arange(len(Xp))
-            col = np.where(valid[:, 0] & gated[:, 0], 0, -1) if idx.shape[1] else -np.ones_like(row)
+            col = self.parts.associator.assign(valid, gated)
             payoff = np.zeros(row.size)
             rank = np.zeros(row.size, dtype=np.int64)
         upd = col >= 0
@@ -120,35 +148,3 @@ class SingleDesign:
         if ru.size:
             nis[upd] = mahalanobis2(y[ru, col[upd]], g.S_inv[ru])
         return row, rank, payoff, det, X, cov, halted, nis
-
-
-#: Candidates asked of the k-d tree at first; rows that fill them all ask again for twice as many.
-_FIRST_K = 8
-
-
-def _candidates(
-    frame: Frame, points: np.ndarray, radius: np.ndarray, wide: bool
-) -> tuple[np.ndarray, np.ndarray]:
-    """The detections within ``radius[i]`` of each point i, nearest first (ties: lower index).
-
-    Returns indices (n, k) and a validity mask; ``wide=False`` asks only for the
-    nearest few (the unattacked tracker needs the nearest alone; three resolve ties).
-    """
-    n, m = len(points), len(frame.detections)
-    if not m:
-        return np.zeros((n, 0), dtype=np.int64), np.zeros((n, 0), dtype=bool)
-    reach = float(radius.max()) if n else 0.0
-    k = min(_FIRST_K if wide else 3, m)
-    idx, d2 = frame.nearest_d2(points, k, reach)
-    while wide and k < m:  # rows that filled every slot ask again for twice as many
-        full = np.nonzero(idx[:, -1] >= 0)[0]
-        if not full.size:
-            break
-        k2 = min(2 * k, m)
-        more_idx, more_d2 = frame.nearest_d2(points[full], k2, reach)
-        idx = np.c_[idx, np.full((n, k2 - k), -1, dtype=np.int64)]
-        d2 = np.c_[d2, np.full((n, k2 - k), np.inf)]
-        idx[full], d2[full], k = more_idx, more_d2, k2
-    # sorted by (distance, index), so each row's own radius keeps a prefix
-    valid = (idx >= 0) & (np.sqrt(d2) <= radius[:, None])
-    return idx, valid

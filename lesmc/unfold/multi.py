@@ -12,9 +12,6 @@ its cheapest (docs/trackers.md, "The multi-target model").
 
 from __future__ import annotations
 
-import itertools
-import math
-from collections.abc import Iterator
 from dataclasses import dataclass
 
 import numpy as np
@@ -22,27 +19,11 @@ import numpy as np
 from lesmc.common.errors import BudgetError, UsageError
 from lesmc.model.identity import NONE, last_seen
 from lesmc.model.multi import MultiModel
-from lesmc.scene import Frame, Scene
+from lesmc.scene import Scene
 from lesmc.tracking.design import CovarianceTable
 from lesmc.tracking.multi import ComposedDesign, MultiState
+from lesmc.tracking.parts.attacker import hidden_subsets, subset_cost, subset_count
 from lesmc.tracking.parts.states import MultiBatch
-
-
-def hidden_subsets(frame: Frame, attacked: bool) -> Iterator[tuple[int, ...]]:
-    """The subsets of the frame's detections the attacker may hide (indices), the empty
-    one (unattacked) first: every subset of the attackable ones when ``attacked``."""
-    if not attacked:
-        yield ()
-        return
-    can = [i for i, d in enumerate(frame.detections) if not math.isinf(d.payoff)]
-    for r in range(len(can) + 1):
-        yield from itertools.combinations(can, r)
-
-
-def subset_count(frame: Frame, attacked: bool) -> int:
-    """How many subsets :func:`hidden_subsets` yields, counted without listing them."""
-    return 2 ** sum(not math.isinf(d.payoff) for d in frame.detections) if attacked else 1
-
 
 #: Successors one step may compute when no --max-states is given: a frame with 30
 #: attackable detections has 2^30 subsets, which no search can list.
@@ -169,7 +150,7 @@ class _Arrays:
         best: dict[tuple[int, int], _Cheapest] = {}
         for j, (src, _, _, _, sub) in enumerate(made):
             dst = base + int(rank[inverse[j]])
-            cost = math.fsum(pay[list(sub)]) if sub else 0.0
+            cost = subset_cost(pay, sub)
             cur = best.get((src, dst))
             if cur is None:
                 best[(src, dst)] = _Cheapest(cost, sub, sub)
