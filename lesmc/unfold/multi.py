@@ -2,8 +2,11 @@
 (lesmc/model/multi.py): the scene -> model stage for trackers that follow every object.
 
 Step 0 is the scene's first frame, unattacked. At a step of the attack window the attacker
-hides any subset of the frame's attackable detections (payoff finite), at the sum of
-their payoffs; outside it only the unattacked outcome follows. The successors of one
+hides any subset of the frame's attackable detections (payoff finite) and, when the
+property allows ``inject`` (lesmc/language/actions.py), adds any subset of the frame's
+injection candidates, at the sum of the payoffs of both; the tracker sees the
+detections left, in the frame's order, then the candidates injected, in theirs.
+Outside the window only the unattacked outcome follows. The successors of one
 level that are the same state (:meth:`~lesmc.tracking.parts.states.MultiBatch.words`:
 every track bit for bit, the counters, and the target's last track id) are one state,
 and the subsets that lead from one state to the same successor one transition, kept at
@@ -15,7 +18,7 @@ from __future__ import annotations
 import itertools
 import math
 from collections.abc import Iterator
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -44,6 +47,32 @@ def subset_count(frame: Frame, attacked: bool) -> int:
     return 2 ** sum(not math.isinf(d.payoff) for d in frame.detections) if attacked else 1
 
 
+def injected_subsets(frame: Frame, attacked: bool, inject: bool) -> Iterator[tuple[int, ...]]:
+    """The subsets of the frame's injection candidates the attacker may inject (indices
+    into its candidates), the empty one first: every subset when ``attacked`` and the
+    property allows ``inject``."""
+    if not (attacked and inject):
+        yield ()
+        return
+    for r in range(len(frame.candidates) + 1):
+        yield from itertools.combinations(range(len(frame.candidates)), r)
+
+
+def attack_options(frame: Frame, attacked: bool, inject: bool) -> list[tuple[int, ...]]:
+    """Every option of the attacker at the frame, the unattacked one first: the detections
+    hidden (indices i < n, n the frame's detections), then the candidates injected (n + j
+    for candidate j)."""
+    n = len(frame.detections)
+    added = [tuple(n + j for j in s) for s in injected_subsets(frame, attacked, inject)]
+    return [h + a for h in hidden_subsets(frame, attacked) for a in added]
+
+
+def option_count(frame: Frame, attacked: bool, inject: bool) -> int:
+    """How many options :func:`attack_options` lists, counted without listing them."""
+    adds = 2 ** len(frame.candidates) if attacked and inject else 1
+    return subset_count(frame, attacked) * adds
+
+
 #: Successors one step may compute when no --max-states is given: a frame with 30
 #: attackable detections has 2^30 subsets, which no search can list.
 MAX_STEP_SUCCESSORS = 10_000_000
@@ -55,10 +84,12 @@ def build_multi(
     window: tuple[int, int],
     end: int,
     max_states: int | None = None,
+    inject: bool = False,
 ) -> MultiModel:
     """The model of ``scene`` under ``design`` for attacks at steps ``window`` (l..u),
-    up to step ``end``. ``max_states`` bounds the successors computed (before merging):
-    a BudgetError (exit status 3) before a step that would pass it."""
+    up to step ``end``; ``inject``: the attacker may also inject the frames' candidates.
+    ``max_states`` bounds the successors computed (before merging): a BudgetError (exit
+    status 3) before a step that would pass it."""
     frames = scene.frames
     if not 1 <= window[0] <= window[1] <= end <= len(frames) - 1:
         raise UsageError(
@@ -80,9 +111,11 @@ def build_multi(
     st.add_state(0, tid0, refs[0] is not None, tid0)
     for k in range(1, end + 1):
         f = frames[k]
-        boxes, pay = f.boxes(), np.array([d.payoff for d in f.detections], dtype=float)
+        boxes = np.vstack([f.boxes(), f.candidate_boxes()])
+        pay = np.array([d.payoff for d in (*f.detections, *f.candidates)], dtype=float)
+        n = len(f.detections)
         attacked = window[0] <= k <= window[1]
-        count = len(level) * subset_count(f, attacked)  # checked before any is listed
+        count = len(level) * option_count(f, attacked, inject)  # checked before listing
         if max_states is not None and st.n + count > max_states:
             raise BudgetError(
                 f"--max-states {max_states}: step {k} would compute {count} "
@@ -91,24 +124,27 @@ def build_multi(
         if count > MAX_STEP_SUCCESSORS:
             raise BudgetError(
                 f"step {k} would compute {count} successors of {len(level)} states (every "
-                f"subset of {len(f.detections)} detections): more than {MAX_STEP_SUCCESSORS:,}; "
-                "shorten the attack window"
+                f"subset of {len(f.detections)} detections"
+                + (f" and {len(f.candidates)} candidates" if inject and f.candidates else "")
+                + f"): more than {MAX_STEP_SUCCESSORS:,}; shorten the attack window"
             )
-        subsets = list(hidden_subsets(f, attacked))
+        subsets = attack_options(f, attacked, inject)
         base = st.n - len(level)
         made: list[tuple[int, MultiState, int, int, tuple[int, ...]]] = []
         ref = refs[k]
         for i, state in enumerate(level):
             for sub in subsets:
-                keep = np.ones(len(boxes), dtype=bool)
-                keep[list(sub)] = False
+                keep = np.arange(len(boxes)) < n
+                keep[list(sub)] ^= True  # hidden detections off, injected candidates on
                 nxt, ft = tracker.step(state, boxes[keep])
                 tid = NONE if ref is None else target_of(ft, ref)
                 last = int(last_seen(np.array([st.last[base + i]]), np.array([tid]))[0])
                 made.append((base + i, nxt, tid, last, sub))
         level = st.add_level(k, made, pay, ref is not None, tracker.filter.m.dim, table)
-    names = tuple(tuple(d.id for d in f.detections) for f in frames[: end + 1])
-    return st.model(tuple(f.step for f in frames[: end + 1]), names, end, window)
+    shown = frames[: end + 1]
+    names = tuple(tuple(d.id for d in (*f.detections, *f.candidates)) for f in shown)
+    model = st.model(tuple(f.step for f in shown), names, end, window)
+    return replace(model, detections=tuple(len(f.detections) for f in shown))
 
 
 @dataclass
