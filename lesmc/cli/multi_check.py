@@ -148,6 +148,5 @@ def _print(out: list[dict[str, Any]], design: str, as_json: bool) -> None:
             hid = ", ".join(s["hidden"]) or "-"
             inj = f"; injected {', '.join(s['injected'])}" if s["injected"] else ""
             click.echo(
-                f"  step {s['step']} frame {s['frame']}: hidden {hid}{inj}; "
-                f"target {s['target_id']}"
+                f"  step {s['step']} frame {s['frame']}: hidden {hid}{inj}; target {s['target_id']}"
             )
