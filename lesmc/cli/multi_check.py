@@ -75,17 +75,18 @@ def multi_results(
     missing = set(only) - {p.name for _, p in props}
     if missing:
         raise UsageError(f"--property {sorted(missing)[0]}: no property of that name")
-    models: dict[tuple[int, int, int, bool], Any] = {}
+    models: dict[tuple[int, int, int, tuple[str, ...]], Any] = {}
     out: list[dict[str, Any]] = []
     for spec, prop in props:
         _supported(spec, prop)
         b = bind(spec, prop, e, (), False, multi=True)
         if b.objective.source == "payoff":
             _priced(scene, b.l, b.u)
-        inject = "inject" in prop.actions
-        key = (b.l, b.u, b.end, inject)
+        key = (b.l, b.u, b.end, prop.actions)
         if key not in models:
-            models[key] = build_multi(scene, design, (b.l, b.u), b.end, max_states, inject)
+            models[key] = build_multi(
+                scene, design, (b.l, b.u), b.end, max_states, actions=prop.actions
+            )
         model = models[key]
         res = check_multi(model, b)
         out.append(_entry(prop, b.objective.source, model, res))

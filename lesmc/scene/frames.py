@@ -70,7 +70,8 @@ class Frame:
     step: int
     detections: tuple[Detection, ...]
     to_next: np.ndarray | None = None
-    candidates: tuple[Detection, ...] = ()
+    #: keyword-only: the subclasses' fields keep their places after ``to_next``
+    candidates: tuple[Detection, ...] = field(default=(), kw_only=True)
 
     @cached_property
     def _positions(self) -> np.ndarray:
@@ -394,7 +395,7 @@ class OnDemandPayoffs:
                 for d, v in zip(f.detections, col.tolist(), strict=True)
             ),
             f.to_next,
-            f.candidates,
+            candidates=f.candidates,
         )
 
 
@@ -446,7 +447,7 @@ def repriced(frames: tuple[Frame, ...], payoff: Callable[[Detection], float]) ->
             f.step,
             tuple(replace(d, payoff=payoff(d)) for d in f.detections),
             f.to_next,
-            f.candidates,
+            candidates=f.candidates,
         )
         for f in frames
     )

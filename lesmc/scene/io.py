@@ -310,7 +310,7 @@ def _frame(raw: Any, i: int, pr: Problems, version: int) -> Frame | None:
             ok = False
     if not ok or cands is None:
         return None
-    return Frame(int(step), tuple(dets), H, cands)  # type: ignore[arg-type]
+    return Frame(int(step), tuple(dets), H, candidates=cands)  # type: ignore[arg-type]
 
 
 def _candidates(
@@ -372,33 +372,14 @@ def _detection(
         if not within(raw.get(c), MAX_COORD):
             pr.add(item, f"{c} must be a number within ±{MAX_COORD:g}, got {show(raw.get(c))}")
             ok = False
-    payoff = raw.get("payoff", None)
-    if kind == "candidate" and not (is_finite(payoff) and 0 <= payoff <= MAX_PAYOFF):
-        pr.add(
-            item,
-            f"payoff (the price of injecting it) must be a number in [0, {MAX_PAYOFF:g}], "
-            f"got {show(payoff) if 'payoff' in raw else 'nothing'}",
-        )
-        ok = False
-    elif "payoff" not in raw:
-        pr.add(item, 'payoff is missing (a number >= 0, "unattackable" or "unpriced")')
-        ok = False
-    elif payoff == UNATTACKABLE:
-        payoff = math.inf
-    elif payoff == UNPRICED:
-        payoff = math.nan
-    elif not (is_finite(payoff) and 0 <= payoff <= MAX_PAYOFF):
-        pr.add(
-            item,
-            f'payoff must be a number in [0, {MAX_PAYOFF:g}], "unattackable" or "unpriced", '
-            f"got {show(payoff)}",
-        )
-        ok = False
-    lower = raw.get("payoff_lower", None)
-    if "payoff_lower" in raw and raw.get("payoff") == UNPRICED:
+    payoff = _payoff(raw, item, pr, kind)
+    ok = ok and payoff is not None
+    has_lower = "payoff_lower" in raw and kind == "detection"  # a candidate's is unknown
+    lower = raw.get("payoff_lower", None) if has_lower else None
+    if has_lower and raw.get("payoff") == UNPRICED:
         pr.add(item, 'payoff_lower needs a priced payoff, not "unpriced"')
         ok = False
-    elif "payoff_lower" in raw:
+    elif has_lower:
         if lower == UNATTACKABLE:
             lower = math.inf
         elif not is_finite(lower) or lower < 0:
@@ -413,11 +394,41 @@ def _detection(
             pr.add(item, f"payoff_lower {shown!r} exceeds payoff {raw.get('payoff')!r}")
             ok = False
     box = _box(raw, item, pr, version)
-    if not ok or box is False:
+    if not ok or box is False or payoff is None:
         return None
     low = None if lower is None else float(lower)
     wh = box if isinstance(box, tuple) else (None, None)
-    return Detection(str(did), float(raw["x"]), float(raw["y"]), float(payoff), low, *wh)  # type: ignore[arg-type]
+    return Detection(str(did), float(raw["x"]), float(raw["y"]), payoff, low, *wh)
+
+
+def _payoff(raw: dict[str, Any], item: str, pr: Problems, kind: str) -> float | None:
+    """A detection's payoff (a number >= 0, "unattackable": inf, "unpriced": nan) or a
+    candidate's (a number >= 0: the price of injecting it); None after a problem."""
+    payoff = raw.get("payoff")
+    if kind == "candidate":
+        if is_finite(payoff) and 0 <= payoff <= MAX_PAYOFF:
+            return float(payoff)
+        pr.add(
+            item,
+            f"payoff (the price of injecting it) must be a number in [0, {MAX_PAYOFF:g}], "
+            f"got {show(payoff) if 'payoff' in raw else 'nothing'}",
+        )
+        return None
+    if "payoff" not in raw:
+        pr.add(item, 'payoff is missing (a number >= 0, "unattackable" or "unpriced")')
+        return None
+    if payoff == UNATTACKABLE:
+        return math.inf
+    if payoff == UNPRICED:
+        return math.nan
+    if is_finite(payoff) and 0 <= payoff <= MAX_PAYOFF:
+        return float(payoff)
+    pr.add(
+        item,
+        f'payoff must be a number in [0, {MAX_PAYOFF:g}], "unattackable" or "unpriced", '
+        f"got {show(payoff)}",
+    )
+    return None
 
 
 def _box(

@@ -47,30 +47,30 @@ def subset_count(frame: Frame, attacked: bool) -> int:
     return 2 ** sum(not math.isinf(d.payoff) for d in frame.detections) if attacked else 1
 
 
-def injected_subsets(frame: Frame, attacked: bool, inject: bool) -> Iterator[tuple[int, ...]]:
+def injected_subsets(frame: Frame, attacked: bool) -> Iterator[tuple[int, ...]]:
     """The subsets of the frame's injection candidates the attacker may inject (indices
-    into its candidates), the empty one first: every subset when ``attacked`` and the
-    property allows ``inject``."""
-    if not (attacked and inject):
+    into its candidates), the empty one first: every subset when ``attacked``."""
+    if not attacked:
         yield ()
         return
     for r in range(len(frame.candidates) + 1):
         yield from itertools.combinations(range(len(frame.candidates)), r)
 
 
-def attack_options(frame: Frame, attacked: bool, inject: bool) -> list[tuple[int, ...]]:
-    """Every option of the attacker at the frame, the unattacked one first: the detections
-    hidden (indices i < n, n the frame's detections), then the candidates injected (n + j
-    for candidate j)."""
+def attack_options(frame: Frame, attacked: bool, actions: tuple[str, ...]) -> list[tuple[int, ...]]:
+    """Every option of the attacker taking ``actions`` (lesmc/language/actions.py) at the
+    frame, the unattacked one first: the detections hidden (indices i < n, n the frame's
+    detections), then the candidates injected (n + j for candidate j)."""
     n = len(frame.detections)
-    added = [tuple(n + j for j in s) for s in injected_subsets(frame, attacked, inject)]
-    return [h + a for h in hidden_subsets(frame, attacked) for a in added]
+    inject = attacked and "inject" in actions
+    added = [tuple(n + j for j in s) for s in injected_subsets(frame, inject)]
+    return [h + a for h in hidden_subsets(frame, attacked and "hide" in actions) for a in added]
 
 
-def option_count(frame: Frame, attacked: bool, inject: bool) -> int:
+def option_count(frame: Frame, attacked: bool, actions: tuple[str, ...]) -> int:
     """How many options :func:`attack_options` lists, counted without listing them."""
-    adds = 2 ** len(frame.candidates) if attacked and inject else 1
-    return subset_count(frame, attacked) * adds
+    adds = 2 ** len(frame.candidates) if attacked and "inject" in actions else 1
+    return subset_count(frame, attacked and "hide" in actions) * adds
 
 
 #: Successors one step may compute when no --max-states is given: a frame with 30
@@ -84,10 +84,11 @@ def build_multi(
     window: tuple[int, int],
     end: int,
     max_states: int | None = None,
-    inject: bool = False,
+    *,
+    actions: tuple[str, ...],
 ) -> MultiModel:
     """The model of ``scene`` under ``design`` for attacks at steps ``window`` (l..u),
-    up to step ``end``; ``inject``: the attacker may also inject the frames' candidates.
+    up to step ``end``, by an attacker taking ``actions`` (hide, inject).
     ``max_states`` bounds the successors computed (before merging): a BudgetError (exit
     status 3) before a step that would pass it."""
     frames = scene.frames
@@ -115,20 +116,8 @@ def build_multi(
         pay = np.array([d.payoff for d in (*f.detections, *f.candidates)], dtype=float)
         n = len(f.detections)
         attacked = window[0] <= k <= window[1]
-        count = len(level) * option_count(f, attacked, inject)  # checked before listing
-        if max_states is not None and st.n + count > max_states:
-            raise BudgetError(
-                f"--max-states {max_states}: step {k} would compute {count} "
-                f"successors of {len(level)} states ({st.n} so far); shorten the attack window"
-            )
-        if count > MAX_STEP_SUCCESSORS:
-            raise BudgetError(
-                f"step {k} would compute {count} successors of {len(level)} states (every "
-                f"subset of {len(f.detections)} detections"
-                + (f" and {len(f.candidates)} candidates" if inject and f.candidates else "")
-                + f"): more than {MAX_STEP_SUCCESSORS:,}; shorten the attack window"
-            )
-        subsets = attack_options(f, attacked, inject)
+        _within_budget(f, k, len(level), option_count(f, attacked, actions), st.n, max_states)
+        subsets = attack_options(f, attacked, actions)
         base = st.n - len(level)
         made: list[tuple[int, MultiState, int, int, tuple[int, ...]]] = []
         ref = refs[k]
@@ -145,6 +134,26 @@ def build_multi(
     names = tuple(tuple(d.id for d in (*f.detections, *f.candidates)) for f in shown)
     model = st.model(tuple(f.step for f in shown), names, end, window)
     return replace(model, detections=tuple(len(f.detections) for f in shown))
+
+
+def _within_budget(
+    f: Frame, k: int, states: int, options: int, so_far: int, max_states: int | None
+) -> None:
+    """A BudgetError unless step ``k`` may compute the successors of its ``states`` states
+    under ``options`` options each (checked before any is listed)."""
+    count = states * options
+    if max_states is not None and so_far + count > max_states:
+        raise BudgetError(
+            f"--max-states {max_states}: step {k} would compute {count} "
+            f"successors of {states} states ({so_far} so far); shorten the attack window"
+        )
+    if count > MAX_STEP_SUCCESSORS:
+        cands = f" and {len(f.candidates)} candidates" if f.candidates else ""
+        raise BudgetError(
+            f"step {k} would compute {count} successors of {states} states (every "
+            f"subset of {len(f.detections)} detections{cands}): more than "
+            f"{MAX_STEP_SUCCESSORS:,}; shorten the attack window"
+        )
 
 
 @dataclass
