@@ -359,3 +359,69 @@ def test_a_bad_candidate_is_located(change: Any, want: str) -> None:
     with pytest.raises(InputError) as info:
         scene_from_dict(doc, "s.json")
     assert want in str(info.value) and "s.json: frame 1" in str(info.value), str(info.value)
+
+
+#: frame 1: a detection (conf 0.9), a low-score line (conf 0.2, price 3 in column 8) and a
+#: detection; frame 2: one of each
+MOT = """1,-1,10,20,30,40,0.9,-1,-1,-1
+1,-1,50,20,30,40,0.2,3,-1,-1
+1,-1,90,20,30,40,0.8,-1,-1,-1
+2,-1,12,20,30,40,0.1,1.5,-1,-1
+2,-1,52,20,30,40,0.7,-1,-1,-1
+"""
+
+
+def test_import_mot_turns_low_score_lines_into_candidates(tmp_path: Path) -> None:
+    det = tmp_path / "det.txt"
+    det.write_text(MOT)
+    out = tmp_path / "s.json"
+    args = ["--inject-column", "8", "--threshold", "0.5", "--json"]
+    r = lesmc("import", "mot", str(det), "-o", str(out), *args)
+    assert r.returncode == 0 and "Traceback" not in r.stderr, r.stderr
+    assert json.loads(r.stdout)["candidates"] == 2
+    doc = json.loads(out.read_text())
+    assert doc["version"] == 3
+    f1, f2 = doc["frames"]
+    assert [d["id"] for d in f1["detections"]] == ["1:0", "1:2"]
+    assert [(c["id"], c["payoff"], c["x"], c["w"]) for c in f1["candidates"]] == [
+        ("1:1", 3.0, 65.0, 30.0)
+    ]
+    assert [d["id"] for d in f2["detections"]] == ["2:1"]
+    assert [(c["id"], c["payoff"]) for c in f2["candidates"]] == [("2:0", 1.5)]
+    # without the options, the same file is a format-2 scene of five detections
+    r = lesmc("import", "mot", str(det), "-o", str(out))
+    assert r.returncode == 0 and json.loads(out.read_text())["version"] == 2
+
+
+@pytest.mark.parametrize(
+    ("text", "args", "want"),
+    [
+        (MOT, ["--inject-column", "8"], "--inject-column and --threshold go together"),
+        (MOT, ["--inject-column", "11", "--threshold", "0.5"], "--inject-column"),
+        (
+            MOT.replace(",3,-1,-1\n", "\n"),
+            ["--inject-column", "8", "--threshold", "0.5"],
+            "{det}:2:21: --inject-column 8: the line has only 7 columns",
+        ),
+        (
+            MOT.replace(",1.5,", ",-2,"),
+            ["--inject-column", "8", "--threshold", "0.5"],
+            "{det}:4:22: column 8 is the price of injecting this line",
+        ),
+        (
+            MOT.replace("2,-1,52,20,30,40,0.7,-1,-1,-1", "2,-1,52,20,30,40"),
+            ["--inject-column", "8", "--threshold", "0.5"],
+            "{det}:5:17: --threshold compares conf (column 7)",
+        ),
+    ],
+)
+def test_import_mot_inject_errors_are_located(
+    tmp_path: Path, text: str, args: list[str], want: str
+) -> None:
+    det = tmp_path / "det.txt"
+    det.write_text(text)
+    out = tmp_path / "s.json"
+    r = lesmc("import", "mot", str(det), "-o", str(out), *args)
+    assert r.returncode == 2 and "Traceback" not in r.stderr, r.stderr
+    assert want.format(det=det) in r.stderr, r.stderr
+    assert not out.exists()
