@@ -425,3 +425,10 @@ def test_import_mot_inject_errors_are_located(
     assert r.returncode == 2 and "Traceback" not in r.stderr, r.stderr
     assert want.format(det=det) in r.stderr, r.stderr
     assert not out.exists()
+
+
+def test_the_language_page_has_the_registry_table() -> None:
+    from lesmc.language import actions
+
+    page = (Path(__file__).resolve().parents[1] / "docs" / "language.md").read_text()
+    assert actions.docs_table() in page
