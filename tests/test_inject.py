@@ -432,3 +432,18 @@ def test_the_language_page_has_the_registry_table() -> None:
 
     page = (Path(__file__).resolve().parents[1] / "docs" / "language.md").read_text()
     assert actions.docs_table() in page
+
+
+def test_allow_parses_into_the_property_and_hide_alone_is_the_default() -> None:
+    from lesmc.language.semantics import bind
+
+    text = (
+        "property a {{ attack window 1..2{} minimize payoff\n"
+        "  subject to dist.max(0..end) > 5 holds if optimum > 1 }}\n"
+    )
+    default = parse_spec(text.format(""), "p.spec").properties[0]
+    hide = parse_spec(text.format(" allow hide"), "p.spec").properties[0]
+    both = parse_spec(text.format(" allow inject, hide"), "p.spec").properties[0]
+    assert default.actions == hide.actions == ("hide",) and both.actions == ("inject", "hide")
+    spec = parse_spec(text.format(" allow hide"), "p.spec")
+    assert bind(spec, spec.properties[0], 5, ("x", "y"), False).l == 1  # single: hide is fine
