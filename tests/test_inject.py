@@ -447,3 +447,22 @@ def test_allow_parses_into_the_property_and_hide_alone_is_the_default() -> None:
     assert default.actions == hide.actions == ("hide",) and both.actions == ("inject", "hide")
     spec = parse_spec(text.format(" allow hide"), "p.spec")
     assert bind(spec, spec.properties[0], 5, ("x", "y"), False).l == 1  # single: hide is fine
+
+
+@pytest.mark.parametrize("seed", range(0, SCENES, 5))
+def test_inject_alone_equals_brute_force(seed: int) -> None:
+    """``allow inject`` without hide: the brute force injects, never hides."""
+    case = _case(seed)
+    frames, pay, cands, cpay, l, u = case
+    end = len(frames) - 1
+    runs = _brute(frames, pay, cands, cpay, l, u, hide=False)
+    refs = multi_attack._reference_boxes(frames)
+    got = _optima(case, "inject")
+    for name, (cost_of, which) in PROPS.items():
+        want = min(
+            (r[cost_of] for r in runs if multi_attack._score(r[3], refs, 0, end)[which] >= 1),
+            default=math.inf,
+        )
+        assert _opt(got[name]) == want, (seed, name)
+        for s in got[name]["counterexample"] or []:
+            assert s["hidden"] == []
