@@ -466,3 +466,16 @@ def test_inject_alone_equals_brute_force(seed: int) -> None:
         assert _opt(got[name]) == want, (seed, name)
         for s in got[name]["counterexample"] or []:
             assert s["hidden"] == []
+
+
+def test_max_states_counts_the_injection_options(tmp_path: Path) -> None:
+    """Step 1 of the constructed case has 2 options hiding only and 4 hiding and injecting:
+    --max-states 4 (1 state so far) lets the first through and stops the second, exit 3."""
+    frames, pay, cands, cpay, _, _ = _hijack_case()
+    scene, spec = _write(tmp_path, _doc(frames, pay, cands, cpay), HIJACK_SPEC)
+    r = lesmc("check", str(scene), str(spec), "--max-states", "4")
+    assert r.returncode == 3 and "--max-states 4: step 1 would compute 4" in r.stderr, r.stderr
+    assert "Traceback" not in r.stderr
+    spec.write_text(HIJACK_SPEC.replace(" allow hide, inject", ""))
+    r = lesmc("check", str(scene), str(spec), "--max-states", "4")
+    assert r.returncode == 0 and "optimum inf" in r.stdout, r.stderr

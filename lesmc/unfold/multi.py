@@ -116,7 +116,7 @@ def build_multi(
         pay = np.array([d.payoff for d in (*f.detections, *f.candidates)], dtype=float)
         n = len(f.detections)
         attacked = window[0] <= k <= window[1]
-        _within_budget(f, k, len(level), option_count(f, attacked, actions), st.n, max_states)
+        _within_budget(f, k, len(level), (attacked, actions), st.n, max_states)
         subsets = attack_options(f, attacked, actions)
         base = st.n - len(level)
         made: list[tuple[int, MultiState, int, int, tuple[int, ...]]] = []
@@ -137,18 +137,24 @@ def build_multi(
 
 
 def _within_budget(
-    f: Frame, k: int, states: int, options: int, so_far: int, max_states: int | None
+    f: Frame,
+    k: int,
+    states: int,
+    attack: tuple[bool, tuple[str, ...]],
+    so_far: int,
+    max_states: int | None,
 ) -> None:
     """A BudgetError unless step ``k`` may compute the successors of its ``states`` states
-    under ``options`` options each (checked before any is listed)."""
-    count = states * options
+    under the attacker's options (``attack``: attacked, actions), checked before any is
+    listed."""
+    count = states * option_count(f, *attack)
     if max_states is not None and so_far + count > max_states:
         raise BudgetError(
             f"--max-states {max_states}: step {k} would compute {count} "
             f"successors of {states} states ({so_far} so far); shorten the attack window"
         )
     if count > MAX_STEP_SUCCESSORS:
-        cands = f" and {len(f.candidates)} candidates" if f.candidates else ""
+        cands = f" and {len(f.candidates)} candidates" if "inject" in attack[1] else ""
         raise BudgetError(
             f"step {k} would compute {count} successors of {states} states (every "
             f"subset of {len(f.detections)} detections{cands}): more than "
