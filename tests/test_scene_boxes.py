@@ -54,7 +54,7 @@ def test_a_point_scene_is_written_as_version_1_and_has_no_boxes() -> None:
         (2, {"h": 4.0}, "h needs w too"),
         (2, {"w": 0, "h": 2.0}, "w must be a number in (0, 1e+07], got 0"),
         (2, {"w": 4.0, "h": "x"}, "h must be a number in (0, 1e+07]"),
-        (3, {}, "version: must be 1 or 2, got 3"),
+        (4, {}, "version: must be 1, 2 or 3, got 4"),
     ],
 )
 def test_a_bad_box_is_located(version: int, det: dict[str, Any], want: str) -> None:

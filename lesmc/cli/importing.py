@@ -20,7 +20,7 @@ from lesmc.common.errors import UsageError, escape_control
 
 if TYPE_CHECKING:
     from lesmc.scene import Footage, Scene
-    from lesmc.scene.mot import Payoffs
+    from lesmc.scene.mot import Inject, Payoffs
 
 
 @click.group("import")
@@ -65,6 +65,22 @@ def import_group() -> None:
     help="Read each detection's payoff from this column (1-based; 7 is conf; inf: unattackable).",
 )
 @click.option(
+    "--inject-column",
+    type=click.IntRange(min=7, max=10),
+    default=None,
+    help="With --threshold: the lines whose conf (column 7) is below the threshold become "
+    "injection candidates (not detections), priced by this column (1-based; a number >= 0): "
+    "what `allow inject` in a spec lets the attacker add (multi-target designs).",
+)
+@click.option(
+    "--threshold",
+    "inject_threshold",
+    type=float,
+    default=None,
+    help="With --inject-column: the detector's score threshold; lines of lower conf are "
+    "injection candidates.",
+)
+@click.option(
     "--fps",
     type=float,
     default=30.0,
@@ -87,6 +103,8 @@ def mot_cmd(
     point: str,
     payoff_constant: float | None,
     payoff_column: int | None,
+    inject_column: int | None,
+    inject_threshold: float | None,
     fps: float,
     tracker_file: str | None,
     as_json: bool,
@@ -117,13 +135,22 @@ def mot_cmd(
         shown = f"[1/{MAX_DT:g}, 1e6] (dt = 1/fps at most {MAX_DT:g} s)"
         raise UsageError(f"--fps must be a number in {shown}, got {fps:g}")
     payoffs = _payoffs(payoff_constant, payoff_column)
+    inject = _inject(inject_column, inject_threshold)
     tracker = load_tracker(tracker_file) if tracker_file else None
     at: Point = "bottom" if point == "bottom" else "center"
-    scene = import_mot(det, 1.0 / fps, at, payoffs, gt_path, track_id, tracker)
+    scene = import_mot(det, 1.0 / fps, at, payoffs, gt_path, track_id, tracker, inject)
     if tracker is not None and isinstance(scene, Scene):  # refused here, where it is named
         check_fits(tracker, scene.target, tracker_file or "--tracker", "model.state")
     save_scene(scene, output)
     doc = _document(scene, det, output, at, payoffs, f"{gt_path} track {track_id}")
+    _summary(doc, output, track_id, as_json)
+    print_warnings(doc["warnings"], err=as_json)
+    if as_json:
+        emit(doc)
+
+
+def _summary(doc: dict[str, Any], output: str, track_id: int | None, as_json: bool) -> None:
+    """The line saying what was written (on stderr with --json)."""
     target = doc["target"]
     where = (
         "no target (give --target X,Y@STEP to track it)"
@@ -131,14 +158,29 @@ def mot_cmd(
         else f"target: track {track_id} from frame {target['step']}, "
         f"truth: {doc['truth_tracks']} gt tracks"
     )
-    frames = f"frames {doc['first_frame']}..{doc['last_frame']}"
+    frames = f"frames {doc['first_frame']}..{doc['last_frame']}" + (
+        f" (and {doc['candidates']} injection candidates)" if "candidates" in doc else ""
+    )
     say(
         f"wrote {escape_control(output)}: {doc['detections']} detections in {frames}, {where}",
         as_json,
     )
-    print_warnings(doc["warnings"], err=as_json)
-    if as_json:
-        emit(doc)
+
+
+def _inject(column: int | None, threshold: float | None) -> Inject | None:
+    """``--inject-column`` and ``--threshold``, both or neither."""
+    from lesmc.scene.mot import Inject
+
+    if (column is None) != (threshold is None):
+        raise UsageError(
+            "--inject-column and --threshold go together: lines of conf below the "
+            "threshold are candidates, priced by the column"
+        )
+    if column is None or threshold is None:
+        return None
+    if not math.isfinite(threshold):
+        raise UsageError(f"--threshold must be a finite number, got {threshold:g}")
+    return Inject(column, threshold)
 
 
 def _payoffs(constant: float | None, column: int | None) -> Payoffs:
@@ -185,4 +227,9 @@ def _document(
         "target": target,
         "truth_tracks": len(scene.truth),
         "warnings": unattacked_warnings(scene) if isinstance(scene, Scene) else [],
+        **(
+            {"candidates": sum(len(f.candidates) for f in scene.frames)}
+            if "candidates" in scene.meta
+            else {}
+        ),
     }

@@ -77,16 +77,18 @@ def multi_results(
     missing = set(only) - {p.name for _, p in props}
     if missing:
         raise UsageError(f"--property {sorted(missing)[0]}: no property of that name")
-    models: dict[tuple[int, int, int], Any] = {}
+    models: dict[tuple[int, int, int, tuple[str, ...]], Any] = {}
     out: list[dict[str, Any]] = []
     for spec, prop in props:
         _supported(spec, prop)
         b = bind(spec, prop, e, (), False, multi=True)
         if b.objective.source == "payoff":
             _priced(scene, b.l, b.u)
-        key = (b.l, b.u, b.end)
+        key = (b.l, b.u, b.end, prop.actions)
         if key not in models:
-            models[key] = build_multi(scene, design, (b.l, b.u), b.end, max_states)
+            models[key] = build_multi(
+                scene, design, (b.l, b.u), b.end, max_states, actions=prop.actions
+            )
         model = models[key]
         res = check_multi(model, b)
         out.append(_entry(prop, b.objective.source, model, res))
@@ -106,7 +108,8 @@ def _priced(scene: Scene, l: int, u: int) -> None:
 
 def _entry(prop: Property, objective: str, model: Any, res: Any) -> dict[str, Any]:
     """One property's result as JSON: verdict, optimum and the counterexample's steps, each
-    with the detections hidden at it (``FRAME:K`` ids) and the target's track id."""
+    with the detections hidden and the candidates injected at it (``FRAME:K`` ids) and
+    the target's track id."""
     steps = None
     if res.path is not None:
         hidden = model.by_payoff if objective == "payoff" else model.by_count
@@ -116,7 +119,8 @@ def _entry(prop: Property, objective: str, model: Any, res: Any) -> dict[str, An
             {
                 "step": k,
                 "frame": model.frames[k],
-                "hidden": [model.names[k][j] for j in sub],
+                "hidden": [model.names[k][j] for j in sub if j < model.detections[k]],
+                "injected": [model.names[k][j] for j in sub if j >= model.detections[k]],
                 "target_id": None if model.tid[s] < 0 else int(model.tid[s]),
             }
             for k, (s, sub) in enumerate(zip(states, subs, strict=True))
@@ -145,6 +149,7 @@ def _print(out: list[dict[str, Any]], design: str, as_json: bool) -> None:
         )
         for s in r["counterexample"] or []:
             hid = ", ".join(s["hidden"]) or "-"
+            inj = f"; injected {', '.join(s['injected'])}" if s["injected"] else ""
             click.echo(
-                f"  step {s['step']} frame {s['frame']}: hidden {hid}; target {s['target_id']}"
+                f"  step {s['step']} frame {s['frame']}: hidden {hid}{inj}; target {s['target_id']}"
             )

@@ -32,7 +32,7 @@ from lark.lexer import TerminalDef
 from lesmc.common.errors import Location, SpecError, source_line, split_lines
 from lesmc.common.fields import MAX_STEP
 from lesmc.common.files import read_text
-from lesmc.language import monitors
+from lesmc.language import actions, monitors
 from lesmc.language.properties import (
     Constraint,
     Fault,
@@ -259,6 +259,10 @@ class _Builder:
                 )
             fields[key] = value
             clause_pos[key] = pos
+            if key == "window" and len(clause.children) > 2:
+                allow = clause.children[2]
+                fields["actions"] = self.allowed(allow.children[0])
+                clause_pos["allow"] = _pos(allow)
         for key, shown in _REQUIRED.items():
             if key not in fields:
                 raise self.error(f"property '{name_tok}' lacks {shown}", prop_pos)
@@ -276,6 +280,7 @@ class _Builder:
             monitor=fields.get("monitor"),
             pos=prop_pos,
             clause_pos=clause_pos,
+            actions=fields.get("actions", actions.DEFAULT),
         )
 
     def clause(self, node: Tree[Any]) -> tuple[str, Any]:
@@ -454,6 +459,23 @@ class _Builder:
         """A matrix index: a number, or a component name (resolved against the tracker)."""
         tok: Any = node.children[0]
         return self.whole(tok) if tok.type == "INT" else str(tok)
+
+    def allowed(self, node: Tree[Any]) -> tuple[str, ...]:
+        """``allow A, B``: the attacker's actions, each registered
+        (lesmc/language/actions.py) and named once."""
+        got: list[str] = []
+        toks: list[Any] = node.children
+        for tok in toks:
+            name = str(tok)
+            if name not in actions.names():
+                raise self.error(
+                    f"unknown attack action '{_clip(name)}': allow takes {actions.spelled()}",
+                    _tok_pos(tok),
+                )
+            if name in got:
+                raise self.error(f"attack action '{name}' is allowed twice", _tok_pos(tok))
+            got.append(name)
+        return tuple(got)
 
     def names(self, node: Tree[Any]) -> tuple[str, ...]:
         names: list[str] = []

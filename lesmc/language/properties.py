@@ -131,6 +131,9 @@ class Property:
     sweep: tuple[tuple[str, float | str], ...] = ()
     pos: Pos = field(default=Pos(0, 0), compare=False)
     clause_pos: dict[str, Pos] = field(default_factory=dict, compare=False, hash=False)
+    #: the attacker's actions (``attack window L..U allow hide, inject``;
+    #: lesmc/language/actions.py): hide only by default
+    actions: tuple[str, ...] = ("hide",)
 
     def holds_text(self) -> str:
         return f"optimum {self.holds_op} {_num(self.threshold)}"

@@ -10,7 +10,7 @@ import math
 from dataclasses import dataclass
 
 from lesmc.common.errors import Location, SpecError, source_line
-from lesmc.language import monitors
+from lesmc.language import actions, monitors
 from lesmc.language.properties import IDENTITY, Measure, Pos, Property, SpecFile, StepRef
 
 #: Names that ``monitor uncertainty`` takes as the location block (Eq. 12) by default.
@@ -94,6 +94,7 @@ def bind(
     one with identity measures)."""
     if not multi:
         _single_target(spec, prop)
+        _single_target_actions(spec, prop)
     l, u, end = _window(spec, prop, e)
     monitor_idx, tol = _monitor(spec, prop, components, has_covariance, has_nis)
     tau_idx = _tau(spec, prop, components, has_covariance, monitor_idx)
@@ -133,6 +134,20 @@ def _single_target(spec: SpecFile, prop: Property) -> None:
                 f"'{m.kind}' measures a multi-target design's identities: check the scene "
                 "with --design sort (docs/trackers.md)",
                 m.pos,
+            )
+
+
+def _single_target_actions(spec: SpecFile, prop: Property) -> None:
+    """A single-target design's attacker takes only the actions every design takes
+    (lesmc/language/actions.py): injection is not yet supported for it."""
+    for name in prop.actions:
+        if actions.get(name).multi_only:
+            raise _fail(
+                spec,
+                f"attack action '{name}' is not yet supported for this design: only "
+                "multi-target designs (--design sort) take it so far; a single-target "
+                "design's attacker hides only (issue 61)",
+                prop.clause_pos.get("allow", prop.pos),
             )
 
 

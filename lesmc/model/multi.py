@@ -7,11 +7,12 @@ none), whether the target's reference exists there (``ref[i]``) and ``last[i]``,
 target's track id at the last step up to it at which it existed. States are numbered
 level by level, so every transition goes from a lower index to a higher one.
 
-Transition t goes from ``src[t]`` to ``dst[t]``. Of the subsets of the frame's detections
-whose hiding yields it, ``payoff[t]`` is the least sum of payoffs (``by_payoff[t]``:
-the detections of one such subset, as indices into the frame) and ``count[t]`` the fewest
-detections hidden (``by_count[t]``); ``count[t]`` is 0 when the unattacked outcome
-yields it.
+Transition t goes from ``src[t]`` to ``dst[t]``. Of the attacker's options that yield it
+(detections hidden and, under ``allow inject``, candidates injected), ``payoff[t]`` is
+the least sum of payoffs (``by_payoff[t]``: the indices of one such option into the
+step's ``names``, detections first, then candidates) and ``count[t]`` the fewest
+detections hidden and candidates injected (``by_count[t]``); ``count[t]`` is 0 when the
+unattacked outcome yields it.
 """
 
 from __future__ import annotations
@@ -40,6 +41,9 @@ class MultiModel:
     names: tuple[tuple[str, ...], ...]
     end: int
     window: tuple[int, int]
+    #: per step: how many of its ``names`` are detections; the rest are its injection
+    #: candidates (an index j >= detections[k] in ``by_payoff``/``by_count`` is injected)
+    detections: tuple[int, ...] = ()
 
     @property
     def n_states(self) -> int:

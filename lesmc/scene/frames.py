@@ -62,11 +62,16 @@ class Detection:
 
 @dataclass(frozen=True)
 class Frame:
-    """One frame: its detections and the homography to the next frame's coordinates."""
+    """One frame: its detections, the homography to the next frame's coordinates, and its
+    injection candidates (scene format 3): places where an attacker may make a detection
+    appear, each a :class:`Detection` whose ``payoff`` is the price of injecting it
+    (issue 61; only multi-target designs read them, lesmc/unfold/multi.py)."""
 
     step: int
     detections: tuple[Detection, ...]
     to_next: np.ndarray | None = None
+    #: keyword-only: the subclasses' fields keep their places after ``to_next``
+    candidates: tuple[Detection, ...] = field(default=(), kw_only=True)
 
     @cached_property
     def _positions(self) -> np.ndarray:
@@ -91,14 +96,7 @@ class Frame:
 
     @cached_property
     def _boxes(self) -> np.ndarray:
-        rows = [
-            [d.x - d.w / 2.0, d.y - d.h / 2.0, d.x + d.w / 2.0, d.y + d.h / 2.0]
-            for d in self.detections
-            if d.w is not None and d.h is not None
-        ]
-        arr = np.array(rows, dtype=float).reshape(-1, 4)
-        arr.flags.writeable = False
-        return arr
+        return _box_rows(self.detections)
 
     def boxes(self) -> np.ndarray:
         """(n, 4) the detections' boxes [x1, y1, x2, y2] (read-only); only for a frame that
@@ -106,6 +104,22 @@ class Frame:
         if not self.has_boxes:
             raise ValueError(f"frame {self.step}: a detection has no box")
         return self._boxes
+
+    @cached_property
+    def candidates_have_boxes(self) -> bool:
+        """Every injection candidate carries a box (true when there are none)."""
+        return all(c.w is not None and c.h is not None for c in self.candidates)
+
+    @cached_property
+    def _candidate_boxes(self) -> np.ndarray:
+        return _box_rows(self.candidates)
+
+    def candidate_boxes(self) -> np.ndarray:
+        """(m, 4) the injection candidates' boxes (read-only); only for a frame whose
+        candidates all have one (:attr:`candidates_have_boxes`)."""
+        if not self.candidates_have_boxes:
+            raise ValueError(f"frame {self.step}: an injection candidate has no box")
+        return self._candidate_boxes
 
     @cached_property
     def _tree(self) -> cKDTree | None:
@@ -240,6 +254,18 @@ class Frame:
         )
 
 
+def _box_rows(dets: tuple[Detection, ...]) -> np.ndarray:
+    """(n, 4) the boxes [x1, y1, x2, y2] of the detections that carry one (read-only)."""
+    rows = [
+        [d.x - d.w / 2.0, d.y - d.h / 2.0, d.x + d.w / 2.0, d.y + d.h / 2.0]
+        for d in dets
+        if d.w is not None and d.h is not None
+    ]
+    arr = np.array(rows, dtype=float).reshape(-1, 4)
+    arr.flags.writeable = False
+    return arr
+
+
 class PayoffReads:
     """A frame's payoff column that notes which of its ``watched`` entries (None: all) are
     read; any use other than indexing counts as reading all of them."""
@@ -369,6 +395,7 @@ class OnDemandPayoffs:
                 for d, v in zip(f.detections, col.tolist(), strict=True)
             ),
             f.to_next,
+            candidates=f.candidates,
         )
 
 
@@ -416,7 +443,12 @@ def repriced(frames: tuple[Frame, ...], payoff: Callable[[Detection], float]) ->
     """Plain frames with each detection's payoff replaced by ``payoff(detection)`` (a
     :class:`PricedFrame` becomes a plain one: its prices are not the new payoffs)."""
     return tuple(
-        Frame(f.step, tuple(replace(d, payoff=payoff(d)) for d in f.detections), f.to_next)
+        Frame(
+            f.step,
+            tuple(replace(d, payoff=payoff(d)) for d in f.detections),
+            f.to_next,
+            candidates=f.candidates,
+        )
         for f in frames
     )
 

@@ -72,11 +72,14 @@ TRACKER_LIMITS = {
     "prune_radius": 1e7,
 }
 FORMAT = "lesmc-scene"
-#: The newest version: 2 added detection boxes (``w``, ``h``). The loader reads every
-#: version in :data:`VERSIONS`; the writer writes the lowest one that holds the scene (1
-#: when no detection has a box), so older lesmc releases still read point scenes.
-VERSION = 2
-VERSIONS = (1, 2)
+#: The newest version: 2 added detection boxes (``w``, ``h``), 3 injection candidates
+#: (a frame's ``candidates``). The loader reads every version in :data:`VERSIONS`; the
+#: writer writes the lowest one that holds the scene (1 when no detection has a box and
+#: no frame a candidate), so older lesmc releases still read the scenes they could.
+VERSION = 3
+VERSIONS = (1, 2, 3)
+#: The version that added each feature a scene may use.
+BOXES_VERSION, CANDIDATES_VERSION = 2, 3
 
 
 def load_scene(path: str | Path) -> Scene:
@@ -233,7 +236,8 @@ def _version(data: dict[str, Any], pr: Problems) -> int:
     for v in VERSIONS:
         if is_version(got, v):
             return v
-    pr.add("version", f"must be 1 or 2, got {show(got)}")
+    shown = ", ".join(str(v) for v in VERSIONS[:-1]) + f" or {VERSIONS[-1]}"
+    pr.add("version", f"must be {shown}, got {show(got)}")
     return VERSION
 
 
@@ -272,7 +276,7 @@ def _frame(raw: Any, i: int, pr: Problems, version: int) -> Frame | None:
     step = raw.get("step")
     item = f"frame {step}" if is_int(step) else f"frames[{i}]"
     ok = True
-    for key in sorted(set(raw) - {"step", "detections", "to_next", "meta"}):
+    for key in sorted(set(raw) - {"step", "detections", "to_next", "meta", "candidates"}):
         pr.add(item, f"unknown key '{key}'")
         ok = False
     if not is_int(step) or not 0 <= step <= MAX_STEP:
@@ -295,6 +299,8 @@ def _frame(raw: Any, i: int, pr: Problems, version: int) -> Frame | None:
             ok = False
         seen.add(d.id)
         dets.append(d)
+    cands = _candidates(raw, item, pr, version, seen)
+    ok = ok and cands is not None
     H = None
     if raw.get("to_next") is not None:
         H = _matrix3(raw["to_next"])
@@ -304,19 +310,61 @@ def _frame(raw: Any, i: int, pr: Problems, version: int) -> Frame | None:
                 f"to_next must be an invertible 3x3 matrix of numbers within ±{MAX_HOMOGRAPHY:g}",
             )
             ok = False
-    if not ok:
+    if not ok or cands is None:
         return None
-    return Frame(int(step), tuple(dets), H)  # type: ignore[arg-type]
+    return Frame(int(step), tuple(dets), H, candidates=cands)  # type: ignore[arg-type]
 
 
-def _detection(raw: Any, where: str, pr: Problems, version: int) -> Detection | None:
+def _candidates(
+    raw: dict[str, Any], item: str, pr: Problems, version: int, seen: set[str]
+) -> tuple[Detection, ...] | None:
+    """A frame's ``candidates`` (scene format 3): injection candidates, each an object
+    ``{"id", "x", "y", "payoff"[, "w", "h"]}`` whose payoff (a number >= 0) is the price
+    of injecting it; ids unique among the frame's detections and candidates. None after
+    a problem."""
+    if "candidates" not in raw:
+        return ()
+    got = raw["candidates"]
+    if version < CANDIDATES_VERSION:
+        pr.add(
+            item,
+            f"candidates (injection candidates) need scene format version "
+            f"{CANDIDATES_VERSION}, the file says {version}",
+        )
+        return None
+    if not isinstance(got, list):
+        pr.add(item, f"candidates must be a list, got {show(got)}")
+        return None
+    out: list[Detection] = []
+    ok = True
+    for j, rc in enumerate(got):
+        c = _detection(rc, f"{item}, candidates[{j}]", pr, version, "candidate")
+        if c is None:
+            ok = False
+            continue
+        if c.id in seen:
+            pr.add(f"{item}, candidate '{c.id}'", "duplicate id (detections and candidates)")
+            ok = False
+        seen.add(c.id)
+        out.append(c)
+    return tuple(out) if ok else None
+
+
+def _detection(
+    raw: Any, where: str, pr: Problems, version: int, kind: str = "detection"
+) -> Detection | None:
+    """A detection (or, ``kind`` "candidate", an injection candidate: its payoff a number
+    >= 0, the price of injecting it; no payoff_lower)."""
     if not isinstance(raw, dict):
         pr.add(where, "must be an object")
         return None
     did = raw.get("id")
-    item = where if not isinstance(did, str) else f"{where.split(',')[0]}, detection '{did}'"
+    item = where if not isinstance(did, str) else f"{where.split(',')[0]}, {kind} '{did}'"
     ok = True
-    for key in sorted(set(raw) - {"id", "x", "y", "payoff", "payoff_lower", "meta", "w", "h"}):
+    keys = {"id", "x", "y", "payoff", "meta", "w", "h"}
+    if kind == "detection":
+        keys.add("payoff_lower")
+    for key in sorted(set(raw) - keys):
         pr.add(item, f"unknown key '{key}'")
         ok = False
     if not (isinstance(did, str) and did):
@@ -326,26 +374,14 @@ def _detection(raw: Any, where: str, pr: Problems, version: int) -> Detection | 
         if not within(raw.get(c), MAX_COORD):
             pr.add(item, f"{c} must be a number within ±{MAX_COORD:g}, got {show(raw.get(c))}")
             ok = False
-    payoff = raw.get("payoff", None)
-    if "payoff" not in raw:
-        pr.add(item, 'payoff is missing (a number >= 0, "unattackable" or "unpriced")')
-        ok = False
-    elif payoff == UNATTACKABLE:
-        payoff = math.inf
-    elif payoff == UNPRICED:
-        payoff = math.nan
-    elif not (is_finite(payoff) and 0 <= payoff <= MAX_PAYOFF):
-        pr.add(
-            item,
-            f'payoff must be a number in [0, {MAX_PAYOFF:g}], "unattackable" or "unpriced", '
-            f"got {show(payoff)}",
-        )
-        ok = False
-    lower = raw.get("payoff_lower", None)
-    if "payoff_lower" in raw and raw.get("payoff") == UNPRICED:
+    payoff = _payoff(raw, item, pr, kind)
+    ok = ok and payoff is not None
+    has_lower = "payoff_lower" in raw and kind == "detection"  # a candidate's is unknown
+    lower = raw.get("payoff_lower", None) if has_lower else None
+    if has_lower and raw.get("payoff") == UNPRICED:
         pr.add(item, 'payoff_lower needs a priced payoff, not "unpriced"')
         ok = False
-    elif "payoff_lower" in raw:
+    elif has_lower:
         if lower == UNATTACKABLE:
             lower = math.inf
         elif not is_finite(lower) or lower < 0:
@@ -360,11 +396,41 @@ def _detection(raw: Any, where: str, pr: Problems, version: int) -> Detection | 
             pr.add(item, f"payoff_lower {shown!r} exceeds payoff {raw.get('payoff')!r}")
             ok = False
     box = _box(raw, item, pr, version)
-    if not ok or box is False:
+    if not ok or box is False or payoff is None:
         return None
     low = None if lower is None else float(lower)
     wh = box if isinstance(box, tuple) else (None, None)
-    return Detection(str(did), float(raw["x"]), float(raw["y"]), float(payoff), low, *wh)  # type: ignore[arg-type]
+    return Detection(str(did), float(raw["x"]), float(raw["y"]), payoff, low, *wh)
+
+
+def _payoff(raw: dict[str, Any], item: str, pr: Problems, kind: str) -> float | None:
+    """A detection's payoff (a number >= 0, "unattackable": inf, "unpriced": nan) or a
+    candidate's (a number >= 0: the price of injecting it); None after a problem."""
+    payoff = raw.get("payoff")
+    if kind == "candidate":
+        if is_finite(payoff) and 0 <= payoff <= MAX_PAYOFF:
+            return float(payoff)
+        pr.add(
+            item,
+            f"payoff (the price of injecting it) must be a number in [0, {MAX_PAYOFF:g}], "
+            f"got {show(payoff) if 'payoff' in raw else 'nothing'}",
+        )
+        return None
+    if "payoff" not in raw:
+        pr.add(item, 'payoff is missing (a number >= 0, "unattackable" or "unpriced")')
+        return None
+    if payoff == UNATTACKABLE:
+        return math.inf
+    if payoff == UNPRICED:
+        return math.nan
+    if is_finite(payoff) and 0 <= payoff <= MAX_PAYOFF:
+        return float(payoff)
+    pr.add(
+        item,
+        f'payoff must be a number in [0, {MAX_PAYOFF:g}], "unattackable" or "unpriced", '
+        f"got {show(payoff)}",
+    )
+    return None
 
 
 def _box(
@@ -375,8 +441,12 @@ def _box(
     given = [k for k in ("w", "h") if k in raw]
     if not given:
         return None
-    if version < 2:
-        pr.add(item, f"{given[0]} (a box) needs scene format version 2, the file says {version}")
+    if version < BOXES_VERSION:
+        pr.add(
+            item,
+            f"{given[0]} (a box) needs scene format version {BOXES_VERSION}, "
+            f"the file says {version}",
+        )
         return False
     if len(given) == 1:
         pr.add(item, f"{given[0]} needs {'h' if given[0] == 'w' else 'w'} too: a box is w and h")
@@ -611,11 +681,12 @@ def scene_to_dict(scene: Scene | Footage) -> dict[str, Any]:
         }
         if fr.to_next is not None:
             d["to_next"] = fr.to_next.tolist()
+        if fr.candidates:
+            d["candidates"] = [_det_json(c) for c in fr.candidates]
         frames.append(d)
-    boxed = any(d.w is not None for fr in scene.frames for d in fr.detections)
     doc: dict[str, Any] = {
         "format": FORMAT,
-        "version": VERSION if boxed else 1,
+        "version": written_version(scene),
         "dt": scene.dt,
         "frames": frames,
     }
@@ -633,6 +704,16 @@ def scene_to_dict(scene: Scene | Footage) -> dict[str, Any]:
     if scene.meta:
         doc["meta"] = scene.meta
     return doc
+
+
+def written_version(scene: Scene | Footage) -> int:
+    """The lowest format version that holds the scene: 3 with injection candidates, 2
+    with boxes, else 1."""
+    if any(fr.candidates for fr in scene.frames):
+        return CANDIDATES_VERSION
+    if any(d.w is not None for fr in scene.frames for d in fr.detections):
+        return BOXES_VERSION
+    return 1
 
 
 def _det_json(det: Detection) -> dict[str, Any]:

@@ -14,6 +14,10 @@ the rules; in short:
 
 Payoffs: one constant for every detection (1 makes the optimum the number of
 detections an attacker must hide), or a column of the file (``inf`` there: unattackable).
+With :class:`Inject` (``--inject-column K --threshold T``), the lines whose conf (column
+7) is below T are injection candidates, not detections (scene format 3; issue 61): the
+low-score detections a two-stage tracker such as ByteTrack keeps, which an attacker may
+raise above the threshold at the price in column K.
 Writing (:func:`write_det`, :func:`write_gt`) is the inverse, used by tests and examples.
 """
 
@@ -176,6 +180,22 @@ class Payoffs:
         return f"column {self.column}{conf} of the det.txt (import mot --payoff-column)"
 
 
+@dataclass(frozen=True)
+class Inject:
+    """Which lines are injection candidates: those whose conf (column 7) is below
+    ``threshold``; each costs the number in the 1-based ``column`` to inject."""
+
+    column: int
+    threshold: float
+
+    def words(self) -> str:
+        """Where the candidates come from, for the scene's ``meta.candidates``."""
+        return (
+            f"the lines of conf (column 7) < {self.threshold:g}, priced by column "
+            f"{self.column} (import mot --inject-column --threshold)"
+        )
+
+
 def footage_from_boxes(
     boxes: Sequence[Box],
     path: str,
@@ -183,11 +203,15 @@ def footage_from_boxes(
     point: Point = "center",
     payoffs: Payoffs = Payoffs(),
     tracker: TrackerConfig | None = None,
+    inject: Inject | None = None,
 ) -> Footage:
     """Frames of detections (steps = MOT frame numbers, every frame from the first to the
-    last; detection ids ``FRAME:K``, K its place among the frame's lines), each with its
-    box's w, h when ``point`` is the centre."""
+    last; ids ``FRAME:K``, K the line's place among the frame's lines), each with its
+    box's w, h when ``point`` is the centre; with ``inject``, the lines it selects are
+    the frames' injection candidates instead."""
     by_frame: dict[int, list[Detection]] = {}
+    cands: dict[int, list[Detection]] = {}
+    lines: dict[int, int] = {}
     for b in boxes:
         x, y = b.point(point)
         if not (abs(x) <= MAX_COORD and abs(y) <= MAX_COORD):
@@ -195,18 +219,62 @@ def footage_from_boxes(
                 f"the detection's point ({x:g}, {y:g}) lies beyond ±{MAX_COORD:g}",
                 Location(path, b.line, 1),
             )
-        dets = by_frame.setdefault(b.frame, [])
+        by_frame.setdefault(b.frame, [])
         # the box is kept around a centre point only (at the bottom centre it is not around it)
         w, h = (b.width, b.height) if point == "center" else (None, None)
         if point == "center" and (why := box_problem(x, y, b.width, b.height)) is not None:
             raise InputError(why, Location(path, b.line, 1))
-        dets.append(
-            Detection(f"{b.frame}:{len(dets)}", x, y, _payoff(b, payoffs, path), None, w, h)
-        )
+        k = lines[b.frame] = lines.get(b.frame, -1) + 1
+        if inject is not None and _is_candidate(b, inject, path):
+            pay = _inject_payoff(b, inject, path)
+            cands.setdefault(b.frame, []).append(Detection(f"{b.frame}:{k}", x, y, pay, None, w, h))
+            continue
+        pay = _payoff(b, payoffs, path)
+        by_frame[b.frame].append(Detection(f"{b.frame}:{k}", x, y, pay, None, w, h))
     first, last = min(by_frame), max(by_frame)
-    frames = tuple(Frame(k, tuple(by_frame.get(k, ()))) for k in range(first, last + 1))
+    frames = tuple(
+        Frame(k, tuple(by_frame.get(k, ())), candidates=tuple(cands.get(k, ())))
+        for k in range(first, last + 1)
+    )
     meta = {"source": path, "format": "MOTChallenge", "point": point, "payoffs": payoffs.words()}
+    if inject is not None:
+        meta["candidates"] = inject.words()
     return Footage(dt, frames, tracker or TrackerConfig(), meta)
+
+
+def _is_candidate(b: Box, inject: Inject, path: str) -> bool:
+    """The line's conf (column 7) is below the threshold (a line without one: an error)."""
+    if not b.extra:
+        raise InputError(
+            f"--threshold compares conf (column 7) with {inject.threshold:g}, but the line "
+            "has only 6 columns",
+            _end_of_line(path, b.line),
+        )
+    return b.extra[0] < inject.threshold
+
+
+def _inject_payoff(b: Box, inject: Inject, path: str) -> float:
+    """A candidate's price: column ``inject.column``, a number in [0, MAX_PAYOFF]."""
+    k = inject.column - 7
+    if not 0 <= k < len(b.extra):
+        raise InputError(
+            f"--inject-column {inject.column}: the line has only {6 + len(b.extra)} columns",
+            _end_of_line(path, b.line),
+        )
+    v = b.extra[k]
+    if not 0 <= v <= MAX_PAYOFF:
+        raise InputError(
+            f"column {inject.column} is the price of injecting this line (its conf is below "
+            f"--threshold {inject.threshold:g}): a number in [0, {MAX_PAYOFF:g}], got {v:g}",
+            _column_at(path, b.line, inject.column - 1),
+        )
+    return v
+
+
+def _end_of_line(path: str, n: int) -> Location:
+    """Just past the end of line ``n``, the line quoted: where a missing column would be."""
+    line = read_text(path).split("\n")[n - 1].removesuffix("\r")
+    return Location(path, n, len(line) + 1, line)
 
 
 def _payoff(b: Box, p: Payoffs, path: str) -> float:
@@ -313,12 +381,15 @@ def import_mot(
     gt: str | None = None,
     track: int | None = None,
     tracker: TrackerConfig | None = None,
+    inject: Inject | None = None,
 ) -> Footage | Scene:
     """``lesmc import mot``: the scene of a det.txt, with the target of ground-truth track
     ``track`` of ``gt`` if given (a :class:`Footage` otherwise): its first box among the
     detections' frames. The gt file's tracks within those frames become the scene's
-    ``truth`` (what ``dist.nearest`` measures against)."""
-    footage = footage_from_boxes(read_boxes(det, True), det, dt, point, payoffs, tracker)
+    ``truth`` (what ``dist.nearest`` measures against). ``inject``: which lines are
+    injection candidates (:class:`Inject`)."""
+    boxes = read_boxes(det, True)
+    footage = footage_from_boxes(boxes, det, dt, point, payoffs, tracker, inject)
     if gt is None:
         return footage
     assert track is not None

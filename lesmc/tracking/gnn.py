@@ -125,6 +125,10 @@ class GnnDesign(ComposedDesign):
         """The detections' positions (k, 2)."""
         return frame.positions()
 
+    def candidate_measurements(self, frame: Frame) -> np.ndarray:
+        """The injection candidates' positions (m, 2)."""
+        return np.array([[c.x, c.y] for c in frame.candidates], dtype=float).reshape(-1, 2)
+
     def references(self, steps: list[FrameTracks]) -> list[np.ndarray | None]:
         """The target's reference: the unattacked track that took, at the target's frame,
         the detection nearest its start among those within the gate of it under R alone

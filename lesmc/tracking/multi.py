@@ -115,17 +115,23 @@ def sort_tracker(
 
 
 def need_boxes(frames: tuple[Frame, ...], design: str, path: str) -> None:
-    """A box tracker needs a box on every detection: a located error at the first without."""
+    """A box tracker needs a box on every detection and injection candidate: a located
+    error at the first without."""
     for f in frames:
-        if not f.has_boxes:
-            d = next(d for d in f.detections if d.w is None or d.h is None)
+        if not (f.has_boxes and f.candidates_have_boxes):
+            d, kind = next(
+                (d, kind)
+                for kind, ds in (("detection", f.detections), ("candidate", f.candidates))
+                for d in ds
+                if d.w is None or d.h is None
+            )
             raise InputError.many(
                 path,
                 [
                     (
-                        f"frame {f.step}, detection '{d.id}'",
+                        f"frame {f.step}, {kind} '{d.id}'",
                         f"has no box (w, h): the {design} design's IoU cost needs a box on "
-                        "every detection (scene format 2; `lesmc import mot` keeps them, "
+                        f"every {kind} (scene format 2; `lesmc import mot` keeps them, "
                         "with --point center)",
                     )
                 ],
@@ -162,6 +168,11 @@ class ComposedDesign:
 
     def measurements(self, frame: Frame) -> np.ndarray:
         """The frame's detections as the tracker reads them."""
+        raise NotImplementedError
+
+    def candidate_measurements(self, frame: Frame) -> np.ndarray:
+        """The frame's injection candidates as the tracker would read them, were they
+        injected (scene format 3; issue 61)."""
         raise NotImplementedError
 
     def references(self, steps: list[FrameTracks]) -> list[np.ndarray | None]:
@@ -210,6 +221,10 @@ class SortDesign(ComposedDesign):
     def measurements(self, frame: Frame) -> np.ndarray:
         """The detections' boxes (k, 4)."""
         return frame.boxes()
+
+    def candidate_measurements(self, frame: Frame) -> np.ndarray:
+        """The injection candidates' boxes (m, 4)."""
+        return frame.candidate_boxes()
 
     def references(self, steps: list[FrameTracks]) -> list[np.ndarray | None]:
         """:func:`reference_boxes`."""

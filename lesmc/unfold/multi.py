@@ -2,8 +2,11 @@
 (lesmc/model/multi.py): the scene -> model stage for trackers that follow every object.
 
 Step 0 is the scene's first frame, unattacked. At a step of the attack window the attacker
-hides any subset of the frame's attackable detections (payoff finite), at the sum of
-their payoffs; outside it only the unattacked outcome follows. The successors of one
+hides any subset of the frame's attackable detections (payoff finite) and, when the
+property allows ``inject`` (lesmc/language/actions.py), adds any subset of the frame's
+injection candidates, at the sum of the payoffs of both; the tracker sees the
+detections left, in the frame's order, then the candidates injected, in theirs.
+Outside the window only the unattacked outcome follows. The successors of one
 level that are the same state (:meth:`~lesmc.tracking.parts.states.MultiBatch.words`:
 every track bit for bit, the counters, and the target's last track id) are one state,
 and the subsets that lead from one state to the same successor one transition, kept at
@@ -12,17 +15,17 @@ its cheapest (docs/trackers.md, "The multi-target model").
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
 from lesmc.common.errors import BudgetError, UsageError
 from lesmc.model.identity import NONE, last_seen
 from lesmc.model.multi import MultiModel
-from lesmc.scene import Scene
+from lesmc.scene import Frame, Scene
 from lesmc.tracking.design import CovarianceTable
 from lesmc.tracking.multi import ComposedDesign, MultiState
-from lesmc.tracking.parts.attacker import hidden_subsets, subset_cost, subset_count
+from lesmc.tracking.parts.attacker import option_count, subset_cost, subset_options
 from lesmc.tracking.parts.states import MultiBatch
 
 #: Successors one step may compute when no --max-states is given: a frame with 30
@@ -36,10 +39,13 @@ def build_multi(
     window: tuple[int, int],
     end: int,
     max_states: int | None = None,
+    *,
+    actions: tuple[str, ...],
 ) -> MultiModel:
     """The model of ``scene`` under ``design`` for attacks at steps ``window`` (l..u),
-    up to step ``end``. ``max_states`` bounds the successors computed (before merging):
-    a BudgetError (exit status 3) before a step that would pass it."""
+    up to step ``end``, by an attacker taking ``actions`` (hide, inject).
+    ``max_states`` bounds the successors computed (before merging): a BudgetError (exit
+    status 3) before a step that would pass it."""
     frames = scene.frames
     if not 1 <= window[0] <= window[1] <= end <= len(frames) - 1:
         raise UsageError(
@@ -61,35 +67,54 @@ def build_multi(
     st.add_state(0, tid0, refs[0] is not None, tid0)
     for k in range(1, end + 1):
         f = frames[k]
-        boxes, pay = design.measurements(f), np.array([d.payoff for d in f.detections], float)
+        boxes = np.vstack([design.measurements(f), design.candidate_measurements(f)])
+        pay = np.array([d.payoff for d in (*f.detections, *f.candidates)], dtype=float)
+        n = len(f.detections)
         attacked = window[0] <= k <= window[1]
-        count = len(level) * subset_count(f, attacked)  # checked before any is listed
-        if max_states is not None and st.n + count > max_states:
-            raise BudgetError(
-                f"--max-states {max_states}: step {k} would compute {count} "
-                f"successors of {len(level)} states ({st.n} so far); shorten the attack window"
-            )
-        if count > MAX_STEP_SUCCESSORS:
-            raise BudgetError(
-                f"step {k} would compute {count} successors of {len(level)} states (every "
-                f"subset of {len(f.detections)} detections): more than {MAX_STEP_SUCCESSORS:,}; "
-                "shorten the attack window"
-            )
-        subsets = list(hidden_subsets(f, attacked))
+        _within_budget(f, k, len(level), (attacked, actions), st.n, max_states)
+        subsets = subset_options(f, attacked, actions)
         base = st.n - len(level)
         made: list[tuple[int, MultiState, int, int, tuple[int, ...]]] = []
         ref = refs[k]
         for i, state in enumerate(level):
             for sub in subsets:
-                keep = np.ones(len(boxes), dtype=bool)
-                keep[list(sub)] = False
+                keep = np.arange(len(boxes)) < n
+                keep[list(sub)] ^= True  # hidden detections off, injected candidates on
                 nxt, ft = tracker.step(state, boxes[keep])
                 tid = NONE if ref is None else design.target_of(ft, ref)
                 last = int(last_seen(np.array([st.last[base + i]]), np.array([tid]))[0])
                 made.append((base + i, nxt, tid, last, sub))
         level = st.add_level(k, made, pay, ref is not None, tracker.filter.m.dim, table)
-    names = tuple(tuple(d.id for d in f.detections) for f in frames[: end + 1])
-    return st.model(tuple(f.step for f in frames[: end + 1]), names, end, window)
+    shown = frames[: end + 1]
+    names = tuple(tuple(d.id for d in (*f.detections, *f.candidates)) for f in shown)
+    model = st.model(tuple(f.step for f in shown), names, end, window)
+    return replace(model, detections=tuple(len(f.detections) for f in shown))
+
+
+def _within_budget(
+    f: Frame,
+    k: int,
+    states: int,
+    attack: tuple[bool, tuple[str, ...]],
+    so_far: int,
+    max_states: int | None,
+) -> None:
+    """A BudgetError unless step ``k`` may compute the successors of its ``states`` states
+    under the attacker's options (``attack``: attacked, actions), checked before any is
+    listed."""
+    count = states * option_count(f, *attack)
+    if max_states is not None and so_far + count > max_states:
+        raise BudgetError(
+            f"--max-states {max_states}: step {k} would compute {count} "
+            f"successors of {states} states ({so_far} so far); shorten the attack window"
+        )
+    if count > MAX_STEP_SUCCESSORS:
+        cands = f" and {len(f.candidates)} candidates" if "inject" in attack[1] else ""
+        raise BudgetError(
+            f"step {k} would compute {count} successors of {states} states (every "
+            f"subset of {len(f.detections)} detections{cands}): more than "
+            f"{MAX_STEP_SUCCESSORS:,}; shorten the attack window"
+        )
 
 
 @dataclass

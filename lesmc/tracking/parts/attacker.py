@@ -28,11 +28,14 @@ last candidate the gate admits (hiding more changes nothing). Two views of these
   ``visible(rank (R, z), opt (R,)) -> (R, z) bool``;
   ``ranks_and_payoffs(src (n,), cost (n,)) -> (rank, own payoff)``.
 
-Multi-target trackers (``sort``): the attacker hides any subset of the frame's attackable
-detections, at the sum of their payoffs: :func:`hidden_subsets` (``(frame, attacked) ->
-iterator of index tuples``, the empty one first), :func:`subset_count` (``(frame,
-attacked) -> int``) and :func:`subset_cost` (``(payoffs (z,), subset) -> float``).
-lesmc/unfold/multi.py merges the subsets that lead to the same successor.
+Multi-target trackers (``sort``, ``gnn``): the attacker hides any subset of the frame's
+attackable detections, at the sum of their payoffs: :func:`hidden_subsets` (``(frame,
+attacked) -> iterator of index tuples``, the empty one first), :func:`subset_count`
+(``(frame, attacked) -> int``) and :func:`subset_cost` (``(payoffs (z,), subset) ->
+float``). With ``allow hide, inject`` (issue 61) it also adds any subset of the frame's
+injection candidates (scene format 3) at their payoffs: :func:`injected_subsets`, and
+:func:`subset_options` / :func:`option_count` (``(frame, attacked, actions)``) combine
+both. lesmc/unfold/multi.py merges the options that lead to the same successor.
 """
 
 from __future__ import annotations
@@ -304,3 +307,30 @@ def subset_count(frame: Frame, attacked: bool) -> int:
 def subset_cost(payoffs: np.ndarray, subset: tuple[int, ...]) -> float:
     """What hiding the detections ``subset`` costs: the sum of their ``payoffs``."""
     return math.fsum(payoffs[list(subset)]) if subset else 0.0
+
+
+def injected_subsets(frame: Frame, attacked: bool) -> Iterator[tuple[int, ...]]:
+    """The subsets of the frame's injection candidates the attacker may inject (indices
+    into its candidates), the empty one first: every subset when ``attacked``."""
+    if not attacked:
+        yield ()
+        return
+    for r in range(len(frame.candidates) + 1):
+        yield from itertools.combinations(range(len(frame.candidates)), r)
+
+
+def subset_options(frame: Frame, attacked: bool, actions: tuple[str, ...]) -> list[tuple[int, ...]]:
+    """Every option of a multi-target tracker's attacker taking ``actions``
+    (lesmc/language/actions.py) at the frame, the unattacked one first: the detections
+    hidden (indices i < n, n the frame's detections), then the candidates injected (n + j
+    for candidate j)."""
+    n = len(frame.detections)
+    inject = attacked and "inject" in actions
+    added = [tuple(n + j for j in s) for s in injected_subsets(frame, inject)]
+    return [h + a for h in hidden_subsets(frame, attacked and "hide" in actions) for a in added]
+
+
+def option_count(frame: Frame, attacked: bool, actions: tuple[str, ...]) -> int:
+    """How many options :func:`subset_options` lists, counted without listing them."""
+    adds = 2 ** len(frame.candidates) if attacked and "inject" in actions else 1
+    return subset_count(frame, attacked and "hide" in actions) * adds
