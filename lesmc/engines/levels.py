@@ -58,6 +58,8 @@ TIGHTEN = 8
 TIGHT_GAP = 0.02
 #: Largest table of suffix values the witness dive builds (entries).
 SUFFIX_VALUES = 1 << 17
+#: ... and the exact pass for θ*, which meets it halfway (see :func:`_representative`).
+EXACT_SUFFIX_VALUES = 1 << 20
 #: Most reachable states for which the witness dive builds its suffix table.
 SUFFIX_STATES = 50_000
 #: λ values of the Lagrangian bound.
@@ -740,49 +742,64 @@ class _SuffixValues:
     def __init__(self, space: Space, budget: SearchBudget, limit: int = SUFFIX_VALUES) -> None:
         self.space = space
         self.budget = budget
-        cm = space.cm
-        leaf = space.leaves()
-        levels = space.reachable_levels()
         self.start_step: int | None = None
         self.table: dict[int, tuple[np.ndarray, np.ndarray, np.ndarray]] = {}
-        total = 0
-        for li in reversed(range(len(levels))):
-            why = budget.over(0)  # a level of the table is built in one go
+        self.entries = 0
+        self._next = len(space.reachable_levels()) - 1  # the next level to add
+        self._pending: dict[int, tuple[np.ndarray, np.ndarray, np.ndarray]] | None = None
+        self.grow(limit)
+
+    def grow(self, limit: int) -> None:
+        """Add levels, the last steps first, while the table stays within ``limit`` entries
+        (a level built that did not fit is kept for a later, larger limit)."""
+        levels = self.space.reachable_levels()
+        while self._next >= 0:
+            why = self.budget.over(0)  # a level of the table is built in one go
             if why is not None:
                 raise _Stop(why)
-            level = levels[li]
-            entries: dict[int, tuple[np.ndarray, np.ndarray, np.ndarray]] = {}
-            for q in level[leaf[level]].tolist():
-                to = space.tail(int(q))[0]
-                entries[q] = (np.array([to]), np.array([-1]), np.array([-1]))
-            inner, t, seg, _ = space.level_moves(li)
-            if inner.size:
-                for i, q in enumerate(inner.tolist()):
-                    vs: list[np.ndarray] = []
-                    ts: list[np.ndarray] = []
-                    js: list[np.ndarray] = []
-                    for tt in t[seg[i] : seg[i + 1]].tolist():
-                        d = int(cm.dst[tt])
-                        if d not in self.table:
-                            vs = []
-                            break
-                        sub = self.table[d][0]
-                        vs.append(sub + space.c_obj[tt])
-                        ts.append(np.full(sub.size, tt))
-                        js.append(np.arange(sub.size))
-                    if not vs:
-                        entries = {}
-                        break
-                    v, tt_, jj = np.concatenate(vs), np.concatenate(ts), np.concatenate(js)
-                    v, first = np.unique(v, return_index=True)
-                    entries[q] = (v, tt_[first], jj[first])
-            size = sum(e[0].size for e in entries.values())
-            if not entries or total + size > limit:
+            entries = self._pending if self._pending is not None else self._level(self._next)
+            self._pending = None
+            if not entries:  # a state with a completion the table lacks: it ends here
+                self._next = -1
                 break
-            total += size
+            size = sum(e[0].size for e in entries.values())
+            if self.entries + size > limit:
+                self._pending = entries
+                break
+            self.entries += size
             self.table.update(entries)
-            self.start_step = int(cm.step[level[0]])
-        self.entries = total
+            self.start_step = int(self.space.cm.step[levels[self._next][0]])
+            self._next -= 1
+
+    def _level(self, li: int) -> dict[int, tuple[np.ndarray, np.ndarray, np.ndarray]]:
+        """The entries of the states of reachable level ``li`` (empty: some completion
+        leaves the table)."""
+        space, cm = self.space, self.space.cm
+        level = space.reachable_levels()[li]
+        leaf = space.leaves(level)
+        entries: dict[int, tuple[np.ndarray, np.ndarray, np.ndarray]] = {}
+        for q in level[leaf].tolist():
+            to = space.tail(int(q))[0]
+            entries[q] = (np.array([to]), np.array([-1]), np.array([-1]))
+        inner, t, seg, _ = space.level_moves(li)
+        for i, q in enumerate(inner.tolist()):
+            vs: list[np.ndarray] = []
+            ts: list[np.ndarray] = []
+            js: list[np.ndarray] = []
+            for tt in t[seg[i] : seg[i + 1]].tolist():
+                d = int(cm.dst[tt])
+                if d not in self.table:
+                    return {}
+                sub = self.table[d][0]
+                vs.append(sub + space.c_obj[tt])
+                ts.append(np.full(sub.size, tt))
+                js.append(np.arange(sub.size))
+            if not vs:
+                return {}
+            v, tt_, jj = np.concatenate(vs), np.concatenate(ts), np.concatenate(js)
+            v, first = np.unique(v, return_index=True)
+            entries[q] = (v, tt_[first], jj[first])
+        return entries
 
     def covers(self, step: int) -> bool:
         return self.start_step is not None and step >= self.start_step
@@ -790,17 +807,33 @@ class _SuffixValues:
     def meet(
         self, q: np.ndarray, o: np.ndarray, opt: float, best: float
     ) -> tuple[float, tuple[int, list[int]] | None]:
-        """The largest o + suffix value below ``opt``, over labels (q, o)."""
+        """The largest o + suffix value below ``opt`` and above ``best``, over labels (q, o):
+        exact, as each state's table holds every completion's sum. One ``searchsorted`` per
+        distinct state (the labels of a state at once)."""
         val, hit = best, None
-        for i, (qq, oo) in enumerate(zip(q.tolist(), o.tolist(), strict=True)):
-            if i % 4096 == 4095 and (why := self.budget.over(0)) is not None:
+        states, inverse = np.unique(q, return_inverse=True)
+        order = np.argsort(inverse, kind="stable")
+        bounds = np.searchsorted(inverse[order], np.arange(states.size + 1))
+        for k, qq in enumerate(states.tolist()):
+            if (why := self.budget.over(0)) is not None:
                 raise _Stop(why)
-            v = self.table[qq][0]
-            j = int(np.searchsorted(v, _lo(opt - oo), side="left")) - 1
-            while j >= 0 and not oo + v[j] < opt:
-                j -= 1
-            if j >= 0 and oo + v[j] > val:
-                val, hit = oo + float(v[j]), (i, self._path(qq, j))
+            idx = order[bounds[k] : bounds[k + 1]]
+            v, oo = self.table[qq][0], o[idx]
+            with np.errstate(invalid="ignore"):
+                j = np.searchsorted(v, _lo(opt - oo), side="left") - 1
+            # rounding: o + v[j] may still reach opt; step down until it is below
+            while True:
+                bad = (j >= 0) & ~(oo + v[np.maximum(j, 0)] < opt)
+                if not bad.any():
+                    break
+                j = np.where(bad, j - 1, j)
+            ok = j >= 0
+            if not ok.any():
+                continue
+            total = np.where(ok, oo + v[np.maximum(j, 0)], -math.inf)
+            i = int(np.argmax(total))
+            if total[i] > val:
+                val, hit = float(total[i]), (int(idx[i]), self._path(qq, int(j[i])))
         return val, hit
 
     def _path(self, q: int, j: int) -> list[int]:
@@ -966,13 +999,15 @@ def _representative(
         value, got = _witness_pass(space, bounds, budget, stats, opt, best, cap, BEAM)
         if got is not None:
             best, at = value, got
-        if (
-            best < cap
-            and isinstance(space, Space)
+        tables = (
+            isinstance(space, Space)
             and not space.obj_max
             and math.isfinite(opt)
             and bounds.reachable <= SUFFIX_STATES  # the table is built state by state
-        ):
+        )
+        suffix = None
+        if best < cap and tables:
+            assert isinstance(space, Space)
             suffix = _SuffixValues(space, budget)
             if suffix.entries:
                 value, got = _witness_pass(
@@ -981,7 +1016,17 @@ def _representative(
                 if got is not None:
                     best, at = value, got
         if best < cap:
-            value, got = _witness_pass(space, bounds, budget, stats, opt, best, cap, None)
+            # the exact pass meets a larger table halfway (built only now: the dives above
+            # end most searches, docs/performance.md, issue 62)
+            exact = None
+            if tables:
+                assert isinstance(space, Space)
+                if suffix is None:
+                    suffix = _SuffixValues(space, budget, EXACT_SUFFIX_VALUES)
+                else:
+                    suffix.grow(EXACT_SUFFIX_VALUES)
+                exact = suffix if suffix.entries else None
+            value, got = _witness_pass(space, bounds, budget, stats, opt, best, cap, None, exact)
             if got is not None:
                 best, at = value, got
         return _witness_path(at), best, best, None
