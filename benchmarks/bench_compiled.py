@@ -39,9 +39,10 @@ from bench_knapsack import instance
 from lesmc.common.budget import Budget
 from lesmc.engines import levels
 from lesmc.engines.check import check_bound
-from lesmc.engines.space import build_space
+from lesmc.engines.space import Space, build_space
 from lesmc.language.parser import parse_spec
-from lesmc.language.semantics import bind
+from lesmc.language.semantics import BoundProperty, bind
+from lesmc.model.arrays import ArrayModel
 from lesmc.model.knapsack import Item, knapsack_lts, knapsack_spec
 
 KERNEL = '''
@@ -93,7 +94,7 @@ def dfs(adj_ptr, adj, dst, c_obj, c_con, leaf, omin, cmax, alive, h, lam, best_k
 '''
 
 
-def arrays(n: int, r: int, costs: str, seed: int) -> tuple[object, object, object, float]:
+def arrays(n: int, r: int, costs: str, seed: int) -> tuple[BoundProperty, ArrayModel, Space, float]:
     """(the bound property, the model, the space, the demand) of one instance."""
     cost, cap, demand = instance(n, r, costs, seed)
     model = knapsack_lts([Item(float(c), float(g)) for c, g in zip(cost, cap, strict=True)])
@@ -143,7 +144,7 @@ def main() -> int:
         from kernel_mod import dfs  # type: ignore[import-not-found]
 
         bp, model, space, demand = arrays(args.n, args.range, args.costs, args.seed)
-        r = check_bound(model, bp, "levels", Budget(timeout=args.timeout))  # type: ignore[arg-type]
+        r = check_bound(model, bp, "levels", Budget(timeout=args.timeout))
         st = r.stats
         rate = st.transitions / st.seconds
         print(
@@ -151,17 +152,17 @@ def main() -> int:
             f"{st.transitions:,} transitions in {st.seconds:.2f} s: {rate / 1e6:.2f} M/s",
             flush=True,
         )
-        b = levels._Bounds(space)  # type: ignore[arg-type]
+        b = levels._Bounds(space)
         assert b.h is not None and b.lam is not None and b.best_k is not None
         assert b.grain is not None and r.optimum is not None and math.isfinite(r.optimum)
         sp = space
         args_ = (
-            sp.adj_ptr,  # type: ignore[attr-defined]
-            sp.adj,  # type: ignore[attr-defined]
-            sp.cm.dst,  # type: ignore[attr-defined]
-            np.asarray(sp.c_obj, dtype=float),  # type: ignore[attr-defined]
-            np.asarray(sp.c_con, dtype=float),  # type: ignore[attr-defined]
-            sp.leaves(),  # type: ignore[attr-defined]
+            sp.adj_ptr,
+            sp.adj,
+            sp.cm.dst,
+            np.asarray(sp.c_obj, dtype=float),
+            np.asarray(sp.c_con, dtype=float),
+            sp.leaves(),
             b.omin,
             b.cmax,
             b.alive,
@@ -170,9 +171,9 @@ def main() -> int:
             b.best_k,
             demand,
             levels.LAMBDA_GRID,
-            sp.root,  # type: ignore[attr-defined]
-            sp.root_obj,  # type: ignore[attr-defined]
-            sp.root_con,  # type: ignore[attr-defined]
+            sp.root,
+            sp.root_obj,
+            sp.root_con,
         )
         dfs(*args_, r.optimum + b.grain, b.grain, 10)  # compiled already: loads the cache
         dive = st.extra.get("dive_upper")
