@@ -6,7 +6,10 @@ arrays (issue 62: is a compiled inner loop worth it?).
 ``pip install -c constraints.txt numba``). On one knapsack reduction (bench_knapsack.py's
 ``instance``), side by side in one process:
 
-1. ``levels`` (``check_bound``, the default engine): its optimum, transitions and seconds;
+1. ``levels`` (``check_bound``, the default engine) with its numpy passes only
+   (``levels.COMPILED_AFTER`` out of reach): its optimum, transitions and seconds; then
+   ``levels`` as shipped, which hands the optimum to lesmc/engines/compiled.py after
+   ``COMPILED_AFTER`` labels (numba imported in this process by then: see below);
 2. a depth-first branch and bound compiled by numba over the same arrays: the explicit
    space's CSR successors, contributions and leaves, and the same bounds the engine built
    (``levels._Bounds``: suffix minima/maxima, the Lagrangian table ``h`` and each state's
@@ -144,12 +147,26 @@ def main() -> int:
         from kernel_mod import dfs  # type: ignore[import-not-found]
 
         bp, model, space, demand = arrays(args.n, args.range, args.costs, args.seed)
+        default = levels.COMPILED_AFTER
+        levels.COMPILED_AFTER = sys.maxsize  # numpy passes only
         r = check_bound(model, bp, "levels", Budget(timeout=args.timeout))
+        levels.COMPILED_AFTER = default
         st = r.stats
         rate = st.transitions / st.seconds
         print(
-            f"levels: optimum {r.optimum}, {st.stopped}, {st.states_expanded:,} labels, "
-            f"{st.transitions:,} transitions in {st.seconds:.2f} s: {rate / 1e6:.2f} M/s",
+            f"levels, numpy passes only: optimum {r.optimum}, θ* {r.witness_value}, "
+            f"{st.stopped}, {st.states_expanded:,} labels, {st.transitions:,} transitions "
+            f"in {st.seconds:.2f} s: {rate / 1e6:.2f} M/s",
+            flush=True,
+        )
+        r2 = check_bound(model, bp, "levels", Budget(timeout=args.timeout))
+        s2 = r2.stats
+        print(
+            f"levels as shipped (compiled pass after {default:,} labels, numba imported then):"
+            f" optimum {r2.optimum}, θ* {r2.witness_value}, {s2.stopped}, "
+            f"{s2.states_expanded:,} labels ({s2.extra.get('compiled_states', 0):,} of them"
+            f" compiled), {s2.transitions:,} transitions in {s2.seconds:.2f} s; "
+            f"{st.seconds / s2.seconds:.1f}x less time",
             flush=True,
         )
         b = levels._Bounds(space)

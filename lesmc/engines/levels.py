@@ -34,12 +34,14 @@ from __future__ import annotations
 
 import math
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, field
-from typing import NamedTuple
+from typing import Any, NamedTuple
 
 import numpy as np
 
 from lesmc.common.budget import Budget, SearchBudget
+from lesmc.engines import compiled
 from lesmc.engines.bounds import Bounds, suffix_bounds
 from lesmc.engines.result import EngineOutcome, Stats
 from lesmc.engines.space import SearchSpace, Space
@@ -74,6 +76,10 @@ PARETO_SEARCHSORTED = 1 << 14
 #: Relative slack on bounds summed in another order than a path's own value.
 _SLACK = 1e-9
 
+
+#: Labels the exact pass for the optimum expands before the compiled depth-first pass
+#: takes over, where it applies (:func:`_compiled_applies`) and numba is installed.
+COMPILED_AFTER = 1_000_000
 
 #: Labels a level must have for its time to predict the next, larger level's.
 RATE_SAMPLE = 20_000
@@ -869,11 +875,10 @@ def level_search(space: SearchSpace, limits: Budget | None = None) -> EngineOutc
     stats.extra["dive_states"] = budget.used
     stats.extra["dive_upper"] = upper if math.isfinite(upper) else None
     lower = -math.inf
+    cex = None
     if stopped is None:
-        best, at2, lower, stopped, _ = _optimum_pass(space, bounds, budget, stats, upper, None)
-        if at2 is not None:
-            upper, at = best, at2
-    cex = _path_of(at)
+        upper, at, cex, lower, stopped = _exact_optimum(space, bounds, budget, stats, upper, at)
+    cex = cex if cex is not None else _path_of(at)
     stats.extra["optimum_states"] = budget.used
     exact = stopped is None
     # phase 2: ρ*, the largest objective below the optimum
@@ -896,6 +901,133 @@ def level_search(space: SearchSpace, limits: Budget | None = None) -> EngineOutc
         witness_exact=w_exact,
         stats=stats,
     )
+
+
+def _exact_optimum(
+    space: SearchSpace,
+    bounds: _Bounds,
+    budget: SearchBudget,
+    stats: Stats,
+    upper: float,
+    at: tuple[_Trail, int, int] | None,
+) -> tuple[float, tuple[_Trail, int, int] | None, list[int] | None, float, str | None]:
+    """The exact pass below the dives' incumbent ``upper`` (found at ``at``); where the
+    compiled pass applies, up to :data:`COMPILED_AFTER` labels, and then that pass.
+
+    Returns the optimum (or incumbent), where the exact pass found it, the compiled pass's
+    path when that pass improved on it (else None), a proven lower bound and why it
+    stopped early (None: it finished).
+    """
+    switch = _compiled_applies(space, bounds)
+    allowed = budget.max_states
+    if switch:  # the exact pass first, up to COMPILED_AFTER labels
+        cap = budget.used + COMPILED_AFTER
+        budget.max_states = cap if allowed is None else min(allowed, cap)
+    try:
+        best, at2, lower, stopped, _ = _optimum_pass(space, bounds, budget, stats, upper, None)
+    finally:
+        budget.max_states = allowed
+    if at2 is not None:
+        upper, at = best, at2
+    if not (switch and stopped == "max_states" and (allowed is None or budget.used < allowed)):
+        return upper, at, None, lower, stopped
+    run = compiled.kernel()
+    if run is None:  # no numba: the exact pass again, without the cap
+        best, at2, lower, stopped, _ = _optimum_pass(space, bounds, budget, stats, upper, None)
+        return (
+            (best, at2, None, lower, stopped)
+            if at2 is not None
+            else (upper, at, None, lower, stopped)
+        )
+    stats.extra["compiled"] = True
+    upper, path, lower, stopped = _compiled_optimum(
+        space, bounds, budget, stats, upper, _path_of(at), run
+    )
+    return upper, at, path, lower, stopped
+
+
+def _compiled_applies(space: SearchSpace, bounds: _Bounds) -> bool:
+    """The compiled pass (compiled.py) searches this space: explicit, objective and
+    constraint both sums, a constraint that must rise past a finite bound B > 0 (the
+    Lagrangian table with each state's λ per grid point is built)."""
+    return (
+        isinstance(space, Space)
+        and not space.obj_max
+        and not space.con_max
+        and space.con_up
+        and bounds.h is not None
+        and bounds.best_k is not None
+    )
+
+
+def _compiled_optimum(
+    space: SearchSpace,
+    bounds: _Bounds,
+    budget: SearchBudget,
+    stats: Stats,
+    upper: float,
+    path: list[int] | None,
+    run: Callable[..., Any],
+) -> tuple[float, list[int] | None, float, str | None]:
+    """The exact optimum below ``upper`` (whose path is ``path``) by the compiled
+    depth-first pass, in chunks between which the budgets are looked at.
+
+    Returns the optimum or incumbent, its path, a proven lower bound (the least bound of
+    the labels left when it stopped early) and why it stopped (None: it finished).
+    """
+    model, bound_arrays, scalars = _compiled_arrays(space, bounds)
+    depth = int(space.cm.step.max(initial=0)) + 2
+    deg = int(np.diff(model[0]).max(initial=1))
+    stack = np.zeros(((depth + 1) * max(deg, 1) + 1, 3), dtype=np.int64)
+    stack_f = np.zeros(stack.shape)
+    stack[0] = (space.root, 0, -1)
+    stack_f[0] = (space.root_obj, space.root_con, -math.inf)
+    trail = np.zeros(depth, dtype=np.int64)
+    best_path = np.zeros(depth, dtype=np.int64)
+    state = np.array([1.0, upper, 0.0, 0.0, 0.0])
+    arrays = (model, bound_arrays, scalars, stack, stack_f, trail, best_path, state)
+    found, expanded = False, 0
+    while True:
+        why = budget.over(0)
+        if why is not None:
+            top = int(state[0])
+            lower = min(float(state[1]), float(stack_f[:top, 2].min(initial=math.inf)))
+            break
+        before = state[1]
+        left = run(*arrays, compiled.CHUNK)
+        found = found or state[1] < before
+        expanded += int(state[3])  # the chunk's labels and transitions, counted as they go
+        budget.used += int(state[3])
+        stats.transitions += int(state[4])
+        state[3] = state[4] = 0.0
+        if left == 0:
+            lower, why = float(state[1]), None
+            break
+    stats.extra["compiled_states"] = expanded
+    out = best_path[: int(state[2])].tolist() if found else path
+    return float(state[1]), out, lower, why
+
+
+def _compiled_arrays(
+    space: SearchSpace, bounds: _Bounds
+) -> tuple[tuple[np.ndarray, ...], tuple[np.ndarray, ...], tuple[int, float, bool, float]]:
+    """compiled.dfs_chunk's ``model``, ``bounds`` and ``scalars`` for this space."""
+    assert isinstance(space, Space)
+    assert bounds.h is not None and bounds.lam is not None and bounds.best_k is not None
+    assert bounds.omin is not None and bounds.cmax is not None and bounds.alive is not None
+    cm = space.cm
+    leaf = space.leaves()
+    tail_obj = np.zeros(cm.n_states)
+    tail_con = np.zeros(cm.n_states)
+    ends = np.flatnonzero(leaf)
+    if ends.size:
+        tail_obj[ends], tail_con[ends] = space.tails(ends)
+    c_obj = np.asarray(space.c_obj, dtype=float)
+    c_con = np.asarray(space.c_con, dtype=float)
+    model = (space.adj_ptr, space.adj, cm.dst, c_obj, c_con, leaf, tail_obj, tail_con)
+    b = (bounds.omin, bounds.cmax, bounds.alive, bounds.h, bounds.lam, bounds.best_k)
+    scalars = (LAMBDA_GRID, float(space.bp.bound), space.bp.op == ">", bounds.grain or 0.0)
+    return model, b, scalars
 
 
 def _dive_beam(space: SearchSpace) -> int:
