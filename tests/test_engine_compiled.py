@@ -175,17 +175,34 @@ def test_numba_kernel_equals_the_python_one() -> None:
         assert got[1].get("compiled") is True
 
 
-def test_without_numba_the_exact_pass_decides() -> None:
-    """No kernel (numba missing): the exact pass runs again without the cap, same optimum."""
+def test_without_numba_the_exact_pass_has_no_cap() -> None:
+    """No kernel (numba missing): the exact pass is not capped (no label of it is spent
+    twice), and the optimum is the brute force's."""
     items, demand = knapsack(5, 16, real=False)
     saved = (levels.COMPILED_AFTER, compiled._kernel, compiled._tried)
-    levels.COMPILED_AFTER, compiled._kernel, compiled._tried = 0, None, True
     try:
+        levels.COMPILED_AFTER, compiled._kernel, compiled._tried = 3, None, True
         opt, extra, _ = solve(items, demand)
+        levels.COMPILED_AFTER = 10**12  # never reached: the same search, uncapped
+        _, plain, _ = solve(items, demand)
     finally:
         levels.COMPILED_AFTER, compiled._kernel, compiled._tried = saved
     assert "compiled" not in extra
+    assert extra["optimum_states"] == plain["optimum_states"]
     assert opt == brute_knapsack(items, demand)
+
+
+def test_a_kernel_that_will_not_load_leaves_the_exact_pass_to_decide(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    """numba found but not importable: the capped exact pass runs again without the cap."""
+    items, demand = knapsack(6, 16, real=True)
+    monkeypatch.setattr(levels, "COMPILED_AFTER", 0)
+    monkeypatch.setattr(compiled, "available", lambda: True)
+    monkeypatch.setattr(compiled, "kernel", lambda: None)
+    opt, extra, _ = solve(items, demand)
+    assert "compiled" not in extra
+    assert opt == pytest.approx(brute_knapsack(items, demand), rel=1e-12)
 
 
 def test_shared_dag_sum_property_is_decided_by_the_compiled_pass() -> None:

@@ -24,6 +24,7 @@ two counted afresh by each call.
 from __future__ import annotations
 
 import importlib
+import importlib.util
 from collections.abc import Callable
 from typing import Any
 
@@ -36,6 +37,13 @@ SLACK = 1e-9
 
 _kernel: Callable[..., Any] | None = None
 _tried = False
+
+
+def available() -> bool:
+    """A kernel can be had: numba is installed (looked up, not imported), or one is set."""
+    if _tried:
+        return _kernel is not None
+    return importlib.util.find_spec("numba") is not None
 
 
 def kernel() -> Callable[..., Any] | None:

@@ -918,7 +918,7 @@ def _exact_optimum(
     path when that pass improved on it (else None), a proven lower bound and why it
     stopped early (None: it finished).
     """
-    switch = _compiled_applies(space, bounds)
+    switch = _compiled_applies(space, bounds) and compiled.available()
     allowed = budget.max_states
     if switch:  # the exact pass first, up to COMPILED_AFTER labels
         cap = budget.used + COMPILED_AFTER
@@ -932,7 +932,7 @@ def _exact_optimum(
     if not (switch and stopped == "max_states" and (allowed is None or budget.used < allowed)):
         return upper, at, None, lower, stopped
     run = compiled.kernel()
-    if run is None:  # no numba: the exact pass again, without the cap
+    if run is None:  # numba would not import: the exact pass again, without the cap
         best, at2, lower, stopped, _ = _optimum_pass(space, bounds, budget, stats, upper, None)
         return (
             (best, at2, None, lower, stopped)
