@@ -37,13 +37,18 @@ SLACK = 1e-9
 
 _kernel: Callable[..., Any] | None = None
 _tried = False
+_found: bool | None = None
 
 
 def available() -> bool:
-    """A kernel can be had: numba is installed (looked up, not imported), or one is set."""
+    """A kernel can be had: numba is installed (looked up once, not imported), or one is
+    set."""
+    global _found
     if _tried:
         return _kernel is not None
-    return importlib.util.find_spec("numba") is not None
+    if _found is None:
+        _found = importlib.util.find_spec("numba") is not None
+    return _found
 
 
 def kernel() -> Callable[..., Any] | None:
