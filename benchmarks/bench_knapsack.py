@@ -106,6 +106,8 @@ def lesmc_run(
     stopped = r.stats.stopped
     if stopped != "finished" and math.isfinite(r.upper) and r.upper > 0:
         stopped += f", gap {100 * (r.upper - max(r.lower, 0.0)) / r.upper:.2g} %"
+    if r.stats.extra.get("compiled"):  # levels' compiled pass decided the optimum
+        stopped += " (compiled pass)"
     return r.optimum, theta, r.stats.seconds, wall, r.stats.states_expanded, stopped
 
 
@@ -113,12 +115,14 @@ def agreement(
     stopped: str, l_opt: float | None, l_theta: float | None, c_opt: float, c_theta: float
 ) -> str:
     """The table's "agree" cell: lesmc's reason to stop when it did not finish, else
-    whether both answers equal CP-SAT's (only the optimum when CP-SAT left θ* unproven)."""
-    if stopped != "finished":
+    whether both answers equal CP-SAT's (only the optimum when CP-SAT left θ* unproven),
+    and "(compiled pass)" when levels' compiled pass decided the optimum."""
+    if not stopped.startswith("finished"):
         return stopped
+    how = stopped.removeprefix("finished")
     if math.isnan(c_theta):
-        return "optimum yes, CP-SAT θ* unproven" if l_opt == c_opt else "NO"
-    return "yes" if l_opt == c_opt and l_theta == c_theta else "NO"
+        return ("optimum yes, CP-SAT θ* unproven" if l_opt == c_opt else "NO") + how
+    return ("yes" if l_opt == c_opt and l_theta == c_theta else "NO") + how
 
 
 #: Runs shorter than this (seconds) are repeated: single sub-second timings on a
