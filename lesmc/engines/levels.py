@@ -34,12 +34,14 @@ from __future__ import annotations
 
 import math
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, field
-from typing import NamedTuple
+from typing import Any, NamedTuple
 
 import numpy as np
 
 from lesmc.common.budget import Budget, SearchBudget
+from lesmc.engines import compiled
 from lesmc.engines.bounds import Bounds, suffix_bounds
 from lesmc.engines.result import EngineOutcome, Stats
 from lesmc.engines.space import SearchSpace, Space
@@ -58,6 +60,8 @@ TIGHTEN = 8
 TIGHT_GAP = 0.02
 #: Largest table of suffix values the witness dive builds (entries).
 SUFFIX_VALUES = 1 << 17
+#: ... and the exact pass for θ*, which meets it halfway (see :func:`_representative`).
+EXACT_SUFFIX_VALUES = 1 << 20
 #: Most reachable states for which the witness dive builds its suffix table.
 SUFFIX_STATES = 50_000
 #: λ values of the Lagrangian bound.
@@ -72,6 +76,10 @@ PARETO_SEARCHSORTED = 1 << 14
 #: Relative slack on bounds summed in another order than a path's own value.
 _SLACK = 1e-9
 
+
+#: Labels the exact pass for the optimum expands before the compiled depth-first pass
+#: takes over, where it applies (:func:`_compiled_applies`) and numba is installed.
+COMPILED_AFTER = 1_000_000
 
 #: Labels a level must have for its time to predict the next, larger level's.
 RATE_SAMPLE = 20_000
@@ -740,49 +748,64 @@ class _SuffixValues:
     def __init__(self, space: Space, budget: SearchBudget, limit: int = SUFFIX_VALUES) -> None:
         self.space = space
         self.budget = budget
-        cm = space.cm
-        leaf = space.leaves()
-        levels = space.reachable_levels()
         self.start_step: int | None = None
         self.table: dict[int, tuple[np.ndarray, np.ndarray, np.ndarray]] = {}
-        total = 0
-        for li in reversed(range(len(levels))):
-            why = budget.over(0)  # a level of the table is built in one go
+        self.entries = 0
+        self._next = len(space.reachable_levels()) - 1  # the next level to add
+        self._pending: dict[int, tuple[np.ndarray, np.ndarray, np.ndarray]] | None = None
+        self.grow(limit)
+
+    def grow(self, limit: int) -> None:
+        """Add levels, the last steps first, while the table stays within ``limit`` entries
+        (a level built that did not fit is kept for a later, larger limit)."""
+        levels = self.space.reachable_levels()
+        while self._next >= 0:
+            why = self.budget.over(0)  # a level of the table is built in one go
             if why is not None:
                 raise _Stop(why)
-            level = levels[li]
-            entries: dict[int, tuple[np.ndarray, np.ndarray, np.ndarray]] = {}
-            for q in level[leaf[level]].tolist():
-                to = space.tail(int(q))[0]
-                entries[q] = (np.array([to]), np.array([-1]), np.array([-1]))
-            inner, t, seg, _ = space.level_moves(li)
-            if inner.size:
-                for i, q in enumerate(inner.tolist()):
-                    vs: list[np.ndarray] = []
-                    ts: list[np.ndarray] = []
-                    js: list[np.ndarray] = []
-                    for tt in t[seg[i] : seg[i + 1]].tolist():
-                        d = int(cm.dst[tt])
-                        if d not in self.table:
-                            vs = []
-                            break
-                        sub = self.table[d][0]
-                        vs.append(sub + space.c_obj[tt])
-                        ts.append(np.full(sub.size, tt))
-                        js.append(np.arange(sub.size))
-                    if not vs:
-                        entries = {}
-                        break
-                    v, tt_, jj = np.concatenate(vs), np.concatenate(ts), np.concatenate(js)
-                    v, first = np.unique(v, return_index=True)
-                    entries[q] = (v, tt_[first], jj[first])
-            size = sum(e[0].size for e in entries.values())
-            if not entries or total + size > limit:
+            entries = self._pending if self._pending is not None else self._level(self._next)
+            self._pending = None
+            if not entries:  # a state with a completion the table lacks: it ends here
+                self._next = -1
                 break
-            total += size
+            size = sum(e[0].size for e in entries.values())
+            if self.entries + size > limit:
+                self._pending = entries
+                break
+            self.entries += size
             self.table.update(entries)
-            self.start_step = int(cm.step[level[0]])
-        self.entries = total
+            self.start_step = int(self.space.cm.step[levels[self._next][0]])
+            self._next -= 1
+
+    def _level(self, li: int) -> dict[int, tuple[np.ndarray, np.ndarray, np.ndarray]]:
+        """The entries of the states of reachable level ``li`` (empty: some completion
+        leaves the table)."""
+        space, cm = self.space, self.space.cm
+        level = space.reachable_levels()[li]
+        leaf = space.leaves(level)
+        entries: dict[int, tuple[np.ndarray, np.ndarray, np.ndarray]] = {}
+        for q in level[leaf].tolist():
+            to = space.tail(int(q))[0]
+            entries[q] = (np.array([to]), np.array([-1]), np.array([-1]))
+        inner, t, seg, _ = space.level_moves(li)
+        for i, q in enumerate(inner.tolist()):
+            vs: list[np.ndarray] = []
+            ts: list[np.ndarray] = []
+            js: list[np.ndarray] = []
+            for tt in t[seg[i] : seg[i + 1]].tolist():
+                d = int(cm.dst[tt])
+                if d not in self.table:
+                    return {}
+                sub = self.table[d][0]
+                vs.append(sub + space.c_obj[tt])
+                ts.append(np.full(sub.size, tt))
+                js.append(np.arange(sub.size))
+            if not vs:
+                return {}
+            v, tt_, jj = np.concatenate(vs), np.concatenate(ts), np.concatenate(js)
+            v, first = np.unique(v, return_index=True)
+            entries[q] = (v, tt_[first], jj[first])
+        return entries
 
     def covers(self, step: int) -> bool:
         return self.start_step is not None and step >= self.start_step
@@ -790,17 +813,33 @@ class _SuffixValues:
     def meet(
         self, q: np.ndarray, o: np.ndarray, opt: float, best: float
     ) -> tuple[float, tuple[int, list[int]] | None]:
-        """The largest o + suffix value below ``opt``, over labels (q, o)."""
+        """The largest o + suffix value below ``opt`` and above ``best``, over labels (q, o):
+        exact, as each state's table holds every completion's sum. One ``searchsorted`` per
+        distinct state (the labels of a state at once)."""
         val, hit = best, None
-        for i, (qq, oo) in enumerate(zip(q.tolist(), o.tolist(), strict=True)):
-            if i % 4096 == 4095 and (why := self.budget.over(0)) is not None:
+        states, inverse = np.unique(q, return_inverse=True)
+        order = np.argsort(inverse, kind="stable")
+        bounds = np.searchsorted(inverse[order], np.arange(states.size + 1))
+        for k, qq in enumerate(states.tolist()):
+            if (why := self.budget.over(0)) is not None:
                 raise _Stop(why)
-            v = self.table[qq][0]
-            j = int(np.searchsorted(v, _lo(opt - oo), side="left")) - 1
-            while j >= 0 and not oo + v[j] < opt:
-                j -= 1
-            if j >= 0 and oo + v[j] > val:
-                val, hit = oo + float(v[j]), (i, self._path(qq, j))
+            idx = order[bounds[k] : bounds[k + 1]]
+            v, oo = self.table[qq][0], o[idx]
+            with np.errstate(invalid="ignore"):
+                j = np.searchsorted(v, _lo(opt - oo), side="left") - 1
+            # rounding: o + v[j] may still reach opt; step down until it is below
+            while True:
+                bad = (j >= 0) & ~(oo + v[np.maximum(j, 0)] < opt)
+                if not bad.any():
+                    break
+                j = np.where(bad, j - 1, j)
+            ok = j >= 0
+            if not ok.any():
+                continue
+            total = np.where(ok, oo + v[np.maximum(j, 0)], -math.inf)
+            i = int(np.argmax(total))
+            if total[i] > val:
+                val, hit = float(total[i]), (int(idx[i]), self._path(qq, int(j[i])))
         return val, hit
 
     def _path(self, q: int, j: int) -> list[int]:
@@ -836,11 +875,10 @@ def level_search(space: SearchSpace, limits: Budget | None = None) -> EngineOutc
     stats.extra["dive_states"] = budget.used
     stats.extra["dive_upper"] = upper if math.isfinite(upper) else None
     lower = -math.inf
+    cex = None
     if stopped is None:
-        best, at2, lower, stopped, _ = _optimum_pass(space, bounds, budget, stats, upper, None)
-        if at2 is not None:
-            upper, at = best, at2
-    cex = _path_of(at)
+        upper, at, cex, lower, stopped = _exact_optimum(space, bounds, budget, stats, upper, at)
+    cex = cex if cex is not None else _path_of(at)
     stats.extra["optimum_states"] = budget.used
     exact = stopped is None
     # phase 2: ρ*, the largest objective below the optimum
@@ -863,6 +901,133 @@ def level_search(space: SearchSpace, limits: Budget | None = None) -> EngineOutc
         witness_exact=w_exact,
         stats=stats,
     )
+
+
+def _exact_optimum(
+    space: SearchSpace,
+    bounds: _Bounds,
+    budget: SearchBudget,
+    stats: Stats,
+    upper: float,
+    at: tuple[_Trail, int, int] | None,
+) -> tuple[float, tuple[_Trail, int, int] | None, list[int] | None, float, str | None]:
+    """The exact pass below the dives' incumbent ``upper`` (found at ``at``); where the
+    compiled pass applies, up to :data:`COMPILED_AFTER` labels, and then that pass.
+
+    Returns the optimum (or incumbent), where the exact pass found it, the compiled pass's
+    path when that pass improved on it (else None), a proven lower bound and why it
+    stopped early (None: it finished).
+    """
+    switch = _compiled_applies(space, bounds) and compiled.available()
+    allowed = budget.max_states
+    if switch:  # the exact pass first, up to COMPILED_AFTER labels
+        cap = budget.used + COMPILED_AFTER
+        budget.max_states = cap if allowed is None else min(allowed, cap)
+    try:
+        best, at2, lower, stopped, _ = _optimum_pass(space, bounds, budget, stats, upper, None)
+    finally:
+        budget.max_states = allowed
+    if at2 is not None:
+        upper, at = best, at2
+    if not (switch and stopped == "max_states" and (allowed is None or budget.used < allowed)):
+        return upper, at, None, lower, stopped
+    run = compiled.kernel()
+    if run is None:  # numba would not import: the exact pass again, without the cap
+        best, at2, lower, stopped, _ = _optimum_pass(space, bounds, budget, stats, upper, None)
+        return (
+            (best, at2, None, lower, stopped)
+            if at2 is not None
+            else (upper, at, None, lower, stopped)
+        )
+    stats.extra["compiled"] = True
+    upper, path, lower, stopped = _compiled_optimum(
+        space, bounds, budget, stats, upper, _path_of(at), run
+    )
+    return upper, at, path, lower, stopped
+
+
+def _compiled_applies(space: SearchSpace, bounds: _Bounds) -> bool:
+    """The compiled pass (compiled.py) searches this space: explicit, objective and
+    constraint both sums, a constraint that must rise past a finite bound B > 0 (the
+    Lagrangian table with each state's λ per grid point is built)."""
+    return (
+        isinstance(space, Space)
+        and not space.obj_max
+        and not space.con_max
+        and space.con_up
+        and bounds.h is not None
+        and bounds.best_k is not None
+    )
+
+
+def _compiled_optimum(
+    space: SearchSpace,
+    bounds: _Bounds,
+    budget: SearchBudget,
+    stats: Stats,
+    upper: float,
+    path: list[int] | None,
+    run: Callable[..., Any],
+) -> tuple[float, list[int] | None, float, str | None]:
+    """The exact optimum below ``upper`` (whose path is ``path``) by the compiled
+    depth-first pass, in chunks between which the budgets are looked at.
+
+    Returns the optimum or incumbent, its path, a proven lower bound (the least bound of
+    the labels left when it stopped early) and why it stopped (None: it finished).
+    """
+    model, bound_arrays, scalars = _compiled_arrays(space, bounds)
+    depth = int(space.cm.step.max(initial=0)) + 2
+    deg = int(np.diff(model[0]).max(initial=1))
+    stack = np.zeros(((depth + 1) * max(deg, 1) + 1, 3), dtype=np.int64)
+    stack_f = np.zeros(stack.shape)
+    stack[0] = (space.root, 0, -1)
+    stack_f[0] = (space.root_obj, space.root_con, -math.inf)
+    trail = np.zeros(depth, dtype=np.int64)
+    best_path = np.zeros(depth, dtype=np.int64)
+    state = np.array([1.0, upper, 0.0, 0.0, 0.0])
+    arrays = (model, bound_arrays, scalars, stack, stack_f, trail, best_path, state)
+    found, expanded = False, 0
+    while True:
+        why = budget.over(0)
+        if why is not None:
+            top = int(state[0])
+            lower = min(float(state[1]), float(stack_f[:top, 2].min(initial=math.inf)))
+            break
+        before = state[1]
+        left = run(*arrays, compiled.CHUNK)
+        found = found or state[1] < before
+        expanded += int(state[3])  # the chunk's labels and transitions, counted as they go
+        budget.used += int(state[3])
+        stats.transitions += int(state[4])
+        state[3] = state[4] = 0.0
+        if left == 0:
+            lower, why = float(state[1]), None
+            break
+    stats.extra["compiled_states"] = expanded
+    out = best_path[: int(state[2])].tolist() if found else path
+    return float(state[1]), out, lower, why
+
+
+def _compiled_arrays(
+    space: SearchSpace, bounds: _Bounds
+) -> tuple[tuple[np.ndarray, ...], tuple[np.ndarray, ...], tuple[int, float, bool, float]]:
+    """compiled.dfs_chunk's ``model``, ``bounds`` and ``scalars`` for this space."""
+    assert isinstance(space, Space)
+    assert bounds.h is not None and bounds.lam is not None and bounds.best_k is not None
+    assert bounds.omin is not None and bounds.cmax is not None and bounds.alive is not None
+    cm = space.cm
+    leaf = space.leaves()
+    tail_obj = np.zeros(cm.n_states)
+    tail_con = np.zeros(cm.n_states)
+    ends = np.flatnonzero(leaf)
+    if ends.size:
+        tail_obj[ends], tail_con[ends] = space.tails(ends)
+    c_obj = np.asarray(space.c_obj, dtype=float)
+    c_con = np.asarray(space.c_con, dtype=float)
+    model = (space.adj_ptr, space.adj, cm.dst, c_obj, c_con, leaf, tail_obj, tail_con)
+    b = (bounds.omin, bounds.cmax, bounds.alive, bounds.h, bounds.lam, bounds.best_k)
+    scalars = (LAMBDA_GRID, float(space.bp.bound), space.bp.op == ">", bounds.grain or 0.0)
+    return model, b, scalars
 
 
 def _dive_beam(space: SearchSpace) -> int:
@@ -966,13 +1131,15 @@ def _representative(
         value, got = _witness_pass(space, bounds, budget, stats, opt, best, cap, BEAM)
         if got is not None:
             best, at = value, got
-        if (
-            best < cap
-            and isinstance(space, Space)
+        tables = (
+            isinstance(space, Space)
             and not space.obj_max
             and math.isfinite(opt)
             and bounds.reachable <= SUFFIX_STATES  # the table is built state by state
-        ):
+        )
+        suffix = None
+        if best < cap and tables:
+            assert isinstance(space, Space)
             suffix = _SuffixValues(space, budget)
             if suffix.entries:
                 value, got = _witness_pass(
@@ -981,7 +1148,17 @@ def _representative(
                 if got is not None:
                     best, at = value, got
         if best < cap:
-            value, got = _witness_pass(space, bounds, budget, stats, opt, best, cap, None)
+            # the exact pass meets a larger table halfway (built only now: the dives above
+            # end most searches, docs/performance.md, issue 62)
+            exact = None
+            if tables:
+                assert isinstance(space, Space)
+                if suffix is None:
+                    suffix = _SuffixValues(space, budget, EXACT_SUFFIX_VALUES)
+                else:
+                    suffix.grow(EXACT_SUFFIX_VALUES)
+                exact = suffix if suffix.entries else None
+            value, got = _witness_pass(space, bounds, budget, stats, opt, best, cap, None, exact)
             if got is not None:
                 best, at = value, got
         return _witness_path(at), best, best, None
