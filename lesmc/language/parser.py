@@ -263,9 +263,11 @@ class _Builder:
             if key not in fields:
                 raise self.error(f"property '{name_tok}' lacks {shown}", prop_pos)
         holds_op, threshold = fields["verdict"]
+        lo, hi, radius = fields["window"]
         return Property(
             name=str(name_tok),
-            window=fields["window"],
+            window=(lo, hi),
+            radius=radius,
             objective=fields["objective"],
             constraint=fields["constraint"],
             holds_op=holds_op,
@@ -282,7 +284,7 @@ class _Builder:
         kind = node.data
         ch: list[Any] = node.children
         if kind == "window":
-            return "window", (self.whole(ch[0]), self.step(ch[1]))
+            return "window", (self.whole(ch[0]), self.step(ch[1]), self.radius(ch[2:]))
         if kind == "objective":
             return "objective", self.measure(ch[0])
         if kind == "constraint":
@@ -504,6 +506,20 @@ class _Builder:
                 f"step {_clip(digits)} is too large (steps are at most {MAX_STEP})", _tok_pos(tok)
             )
         return int(significant)
+
+    def radius(self, rest: list[Any]) -> float | None:
+        """``within R`` of the attack window: R px, positive; None without the clause."""
+        if not rest:
+            return None
+        r = self.number(rest[0], "attack radius")
+        if r <= 0:
+            tok = rest[0].children[0]
+            raise self.error(
+                f"the attack radius must be positive (px around the target's reference), "
+                f"got {_clip(str(tok))}",
+                _tok_pos(tok),
+            )
+        return r
 
     def number(self, node: Tree[Any], what: str) -> float:
         tok: Any = node.children[0]

@@ -24,24 +24,51 @@ from lesmc.model.identity import NONE, last_seen
 from lesmc.model.multi import MultiModel
 from lesmc.scene import Frame, Scene
 from lesmc.tracking.design import CovarianceTable
-from lesmc.tracking.multi import MultiState, SortDesign, reference_boxes, target_of
+from lesmc.tracking.multi import (
+    FrameTracks,
+    MultiState,
+    SortDesign,
+    reference_boxes,
+    target_id,
+    target_of,
+)
 from lesmc.tracking.parts.states import MultiBatch
 
 
-def hidden_subsets(frame: Frame, attacked: bool) -> Iterator[tuple[int, ...]]:
+def attackable(frame: Frame, ref: np.ndarray | None, radius: float | None) -> np.ndarray:
+    """Which of the frame's detections the attacker may hide: those of finite payoff and,
+    with ``attack window L..U within R`` (``radius`` R), whose position lies within R px of
+    the centre of the target's reference box ``ref`` (none where the reference does not
+    exist)."""
+    can = np.array([not math.isinf(d.payoff) for d in frame.detections], dtype=bool)
+    if radius is None or not len(can):
+        return can
+    if ref is None:
+        return np.zeros(len(can), dtype=bool)
+    c = np.array([(ref[0] + ref[2]) / 2.0, (ref[1] + ref[3]) / 2.0])
+    near: np.ndarray = can & (np.hypot(*(frame.positions() - c).T) <= radius)
+    return near
+
+
+def hidden_subsets(
+    frame: Frame, attacked: bool, can: np.ndarray | None = None
+) -> Iterator[tuple[int, ...]]:
     """The subsets of the frame's detections the attacker may hide (indices), the empty
-    one (unattacked) first: every subset of the attackable ones when ``attacked``."""
+    one (unattacked) first: every subset of the attackable ones (``can``, default
+    :func:`attackable` without a radius) when ``attacked``."""
     if not attacked:
         yield ()
         return
-    can = [i for i, d in enumerate(frame.detections) if not math.isinf(d.payoff)]
-    for r in range(len(can) + 1):
-        yield from itertools.combinations(can, r)
+    mask = attackable(frame, None, None) if can is None else can
+    idx = np.nonzero(mask)[0].tolist()
+    for r in range(len(idx) + 1):
+        yield from itertools.combinations(idx, r)
 
 
-def subset_count(frame: Frame, attacked: bool) -> int:
+def subset_count(frame: Frame, attacked: bool, can: np.ndarray | None = None) -> int:
     """How many subsets :func:`hidden_subsets` yields, counted without listing them."""
-    return 2 ** sum(not math.isinf(d.payoff) for d in frame.detections) if attacked else 1
+    mask = attackable(frame, None, None) if can is None else can
+    return 2 ** int(mask.sum()) if attacked else 1
 
 
 #: Successors one step may compute when no --max-states is given: a frame with 30
@@ -55,17 +82,22 @@ def build_multi(
     window: tuple[int, int],
     end: int,
     max_states: int | None = None,
+    radius: float | None = None,
 ) -> MultiModel:
     """The model of ``scene`` under ``design`` for attacks at steps ``window`` (l..u),
-    up to step ``end``. ``max_states`` bounds the successors computed (before merging):
-    a BudgetError (exit status 3) before a step that would pass it."""
+    up to step ``end``, on the detections :func:`attackable` (``radius``: ``within R``).
+    ``max_states`` bounds the successors computed (before merging): a BudgetError (exit
+    status 3) before a step that would pass it. Each state records the box of the track
+    with the target's id (:func:`~lesmc.tracking.multi.target_id`) and whether that track
+    was deleted, which the ``dist`` measures read."""
     frames = scene.frames
     if not 1 <= window[0] <= window[1] <= end <= len(frames) - 1:
         raise UsageError(
             f"window {window[0]}..{window[1]} must satisfy 1 <= l <= u <= end = {end} "
             f"<= {len(frames) - 1} (the scene's last step)"
         )
-    refs = reference_boxes(scene, [s.tracks for s in design.run(end)])
+    run = design.run(end)
+    refs = reference_boxes(scene, [s.tracks for s in run])
     if all(r is None for r in refs):
         raise UsageError(
             f"the target ({scene.target.start[0]:g}, {scene.target.start[1]:g} at frame "
@@ -73,16 +105,18 @@ def build_multi(
             "holds its start, or its track is never output; switches and lost need one"
         )
     tracker, table = design.tracker, CovarianceTable()
+    me = target_id([s.target_id for s in run])
     s0, ft0 = tracker.step(tracker.initial(), frames[0].boxes())
     tid0 = NONE if refs[0] is None else target_of(ft0, refs[0])
     level: list[MultiState] = [s0]
     st = _Arrays()
-    st.add_state(0, tid0, refs[0] is not None, tid0)
+    st.add_state(0, tid0, refs[0] is not None, tid0, _look(ft0, s0, me))
     for k in range(1, end + 1):
         f = frames[k]
         boxes, pay = f.boxes(), np.array([d.payoff for d in f.detections], dtype=float)
         attacked = window[0] <= k <= window[1]
-        count = len(level) * subset_count(f, attacked)  # checked before any is listed
+        can = attackable(f, refs[k], radius)
+        count = len(level) * subset_count(f, attacked, can)  # checked before any is listed
         if max_states is not None and st.n + count > max_states:
             raise BudgetError(
                 f"--max-states {max_states}: step {k} would compute {count} "
@@ -94,9 +128,9 @@ def build_multi(
                 f"subset of {len(f.detections)} detections): more than {MAX_STEP_SUCCESSORS:,}; "
                 "shorten the attack window"
             )
-        subsets = list(hidden_subsets(f, attacked))
+        subsets = list(hidden_subsets(f, attacked, can))
         base = st.n - len(level)
-        made: list[tuple[int, MultiState, int, int, tuple[int, ...]]] = []
+        made: list[_Made] = []
         ref = refs[k]
         for i, state in enumerate(level):
             for sub in subsets:
@@ -105,10 +139,28 @@ def build_multi(
                 nxt, ft = tracker.step(state, boxes[keep])
                 tid = NONE if ref is None else target_of(ft, ref)
                 last = int(last_seen(np.array([st.last[base + i]]), np.array([tid]))[0])
-                made.append((base + i, nxt, tid, last, sub))
+                made.append((base + i, nxt, tid, last, sub, _look(ft, nxt, me)))
         level = st.add_level(k, made, pay, ref is not None, tracker.filter.m.dim, table)
     names = tuple(tuple(d.id for d in f.detections) for f in frames[: end + 1])
-    return st.model(tuple(f.step for f in frames[: end + 1]), names, end, window)
+    refbox = np.array([np.full(4, np.nan) if r is None else r for r in refs]).reshape(-1, 4)
+    return st.model(tuple(f.step for f in frames[: end + 1]), names, end, window, refbox, me)
+
+
+#: What a state shows the ``dist`` measures: the box of the track with the target's id
+#: (nan: no such track now) and whether that track was deleted (born, and gone since).
+_Look = tuple[np.ndarray, bool]
+
+#: One successor: source, state, target's track id, last, the subset hidden, its look.
+_Made = tuple[int, MultiState, int, int, tuple[int, ...], _Look]
+
+
+def _look(ft: FrameTracks, state: MultiState, me: int) -> _Look:
+    """The track of id ``me`` after a frame whose tracks are ``ft`` (the state after it:
+    ``state``): its box, and whether it was deleted."""
+    mine = np.nonzero(ft.ids == me)[0]
+    if mine.size:
+        return ft.boxes[mine[0]].copy(), False
+    return np.full(4, np.nan), bool(me != NONE and me < state.next_id)
 
 
 @dataclass
@@ -128,22 +180,26 @@ class _Arrays:
         self.tid: list[int] = []
         self.ref: list[bool] = []
         self.last: list[int] = []
+        self.box: list[np.ndarray] = []
+        self.gone: list[bool] = []
         self.trans: list[tuple[int, int, float, int, tuple[int, ...], tuple[int, ...]]] = []
 
     @property
     def n(self) -> int:
         return len(self.step)
 
-    def add_state(self, k: int, tid: int, ref: bool, last: int) -> None:
+    def add_state(self, k: int, tid: int, ref: bool, last: int, look: _Look) -> None:
         self.step.append(k)
         self.tid.append(tid)
         self.ref.append(ref)
         self.last.append(last)
+        self.box.append(look[0])
+        self.gone.append(look[1])
 
     def add_level(
         self,
         k: int,
-        made: list[tuple[int, MultiState, int, int, tuple[int, ...]]],
+        made: list[_Made],
         pay: np.ndarray,
         ref: bool,
         d: int,
@@ -163,11 +219,11 @@ class _Arrays:
         base = self.n
         level = []
         for j in first[order]:
-            _, state, tid, last, _ = made[int(j)]
-            self.add_state(k, tid, ref, last)
+            _, state, tid, last, _, look = made[int(j)]
+            self.add_state(k, tid, ref, last, look)
             level.append(state)
         best: dict[tuple[int, int], _Cheapest] = {}
-        for j, (src, _, _, _, sub) in enumerate(made):
+        for j, (src, _, _, _, sub, _) in enumerate(made):
             dst = base + int(rank[inverse[j]])
             cost = math.fsum(pay[list(sub)]) if sub else 0.0
             cur = best.get((src, dst))
@@ -188,6 +244,8 @@ class _Arrays:
         names: tuple[tuple[str, ...], ...],
         end: int,
         window: tuple[int, int],
+        refbox: np.ndarray,
+        me: int,
     ) -> MultiModel:
         t = self.trans
         return MultiModel(
@@ -205,4 +263,8 @@ class _Arrays:
             names=names,
             end=end,
             window=window,
+            box=np.array(self.box, dtype=float).reshape(-1, 4),
+            gone=np.array(self.gone, dtype=bool),
+            refbox=refbox,
+            target=me,
         )
