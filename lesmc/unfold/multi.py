@@ -116,18 +116,7 @@ def build_multi(
         boxes, pay = f.boxes(), np.array([d.payoff for d in f.detections], dtype=float)
         attacked = window[0] <= k <= window[1]
         can = attackable(f, refs[k], radius)
-        count = len(level) * subset_count(f, attacked, can)  # checked before any is listed
-        if max_states is not None and st.n + count > max_states:
-            raise BudgetError(
-                f"--max-states {max_states}: step {k} would compute {count} "
-                f"successors of {len(level)} states ({st.n} so far); shorten the attack window"
-            )
-        if count > MAX_STEP_SUCCESSORS:
-            raise BudgetError(
-                f"step {k} would compute {count} successors of {len(level)} states (every "
-                f"subset of {len(f.detections)} detections): more than {MAX_STEP_SUCCESSORS:,}; "
-                "shorten the attack window"
-            )
+        _budget(k, len(level), subset_count(f, attacked, can), st.n, max_states, f)
         subsets = list(hidden_subsets(f, attacked, can))
         base = st.n - len(level)
         made: list[_Made] = []
@@ -144,6 +133,23 @@ def build_multi(
     names = tuple(tuple(d.id for d in f.detections) for f in frames[: end + 1])
     refbox = np.array([np.full(4, np.nan) if r is None else r for r in refs]).reshape(-1, 4)
     return st.model(tuple(f.step for f in frames[: end + 1]), names, end, window, refbox, me)
+
+
+def _budget(k: int, n: int, subsets: int, so_far: int, max_states: int | None, f: Frame) -> None:
+    """A BudgetError before step ``k`` when its successors (``n`` states times ``subsets``
+    each, counted before any is listed) would pass ``max_states`` or the per-step limit."""
+    count = n * subsets
+    if max_states is not None and so_far + count > max_states:
+        raise BudgetError(
+            f"--max-states {max_states}: step {k} would compute {count} "
+            f"successors of {n} states ({so_far} so far); shorten the attack window"
+        )
+    if count > MAX_STEP_SUCCESSORS:
+        raise BudgetError(
+            f"step {k} would compute {count} successors of {n} states (every "
+            f"subset of {len(f.detections)} detections): more than {MAX_STEP_SUCCESSORS:,}; "
+            "shorten the attack window"
+        )
 
 
 #: What a state shows the ``dist`` measures: the box of the track with the target's id
