@@ -7,9 +7,10 @@ the fewest frames. Prints a Markdown table; every number comes from ``lesmc chec
 The scene is motmetrics' bundled TUD-Campus: its ``test.txt`` boxes are the detections
 (every payoff 1, so the cheapest attack counts the detections hidden) and its ``gt.txt``
 the truth, imported with ``lesmc import mot --gt gt.txt --track ID``: the target's reference
-is its ground-truth track. For a pedestrian first seen at step s the attack window is
-steps s+3..s+7 (its track confirmed by SORT's three hits first) and the run ends 4 steps
-later (the time a new track takes to be output), or at the pedestrian's last frame.
+is its ground-truth track. The attack window is the 5 steps after the first step at which
+the unattacked SORT has a track of the pedestrian (IoU >= 0.5 with its gt box), and the
+run ends 4 steps later (the time a new track takes to be output) or at the pedestrian's
+last frame. A pedestrian SORT never tracks has no row of optima.
 """
 
 from __future__ import annotations
@@ -64,29 +65,41 @@ def gt_spans(gt: Path) -> dict[int, tuple[int, int]]:
     return spans
 
 
-def window_of(first: int, last: int, first_frame: int, last_frame: int) -> tuple[int, int, int]:
-    """The attack window l..u and the end for a pedestrian seen in frames first..last."""
-    s = first - first_frame
-    l, u = s + 3, s + 7
-    end = min(u + 4, last - first_frame, last_frame - first_frame)
-    return l, u, max(end, u)
+def window_of(tracked: list[int | None], last: int) -> tuple[int, int, int] | None:
+    """The attack window l..u and the end for a pedestrian whose target's track id on the
+    unattacked run is ``tracked[k]`` at step k and whose last frame is step ``last``: the
+    5 steps after the first step with a track, the end 4 steps later (the time a new
+    track takes to be output) or at its last frame; None: never tracked."""
+    first = next((k for k, i in enumerate(tracked) if i is not None), None)
+    if first is None:
+        return None
+    l = max(1, first + 1)
+    u = min(l + 4, len(tracked) - 1)
+    end = max(u, min(u + 4, last, len(tracked) - 1))
+    return l, u, end
 
 
 def run(track: int, radius: float | None, out: Path) -> dict[str, object]:
-    """One pedestrian's row: the steps 0..end where the unattacked SORT has a target's
-    track (``tracked``), window, end, optima (None: no attack switches it), hidden
-    detections of the cheapest attack, states, seconds."""
+    """One pedestrian's row: its frames, the steps of the unattacked run where the
+    target has a track (``tracked``), window, end, the optima (None: no attack switches
+    it), the cheapest attack's hidden detections and the target's ids on it, states,
+    seconds (of the check, the process included)."""
     d = tud_campus()
     scene = out / f"tud_{track}.json"
     lesmc("import", "mot", str(d / "test.txt"), "--gt", str(d / "gt.txt"),
           "--track", str(track), "-o", str(scene))  # fmt: skip
     first, last = gt_spans(d / "gt.txt")[track]
-    l, u, end = window_of(first, last, 1, 71)
+    tr = lesmc("track", str(scene), "--design", "sort", "--json")
+    tracked = [s["target_id"] for s in json.loads(tr.stdout)["track"]]
+    row: dict[str, object] = {"track": track, "frames": f"{first}..{last}"}
+    row["tracked"] = sum(i is not None for i in tracked)
+    w = window_of(tracked, last - 1)  # step k is frame k + 1
+    if w is None:
+        return row
+    l, u, end = w
     spec = out / f"tud_{track}.spec"
     within = "" if radius is None else f" within {radius:g}"
     spec.write_text(SPEC.format(l=l, u=u, end=end, within=within))
-    tr = lesmc("track", str(scene), "--design", "sort", "--json")
-    unattacked = [s["target_id"] for s in json.loads(tr.stdout)["track"]][: end + 1]
     t0 = time.perf_counter()
     r = lesmc("check", str(scene), str(spec), "--design", "sort", "--json")
     seconds = time.perf_counter() - t0
@@ -94,19 +107,21 @@ def run(track: int, radius: float | None, out: Path) -> dict[str, object]:
     cheap = res["cheapest"]
     hidden = [h for s in cheap["counterexample"] or [] for h in s["hidden"]]
     ids = [s["target_id"] for s in cheap["counterexample"] or []]
-    return {
-        "track": track,
-        "frames": f"{first}..{last}",
-        "window": f"{l}..{u}",
-        "end": end,
-        "tracked": sum(i is not None for i in unattacked),
-        "cheapest": cheap["optimum"],
-        "fewest_frames": res["fewest_frames"]["optimum"],
-        "hidden": hidden,
-        "ids": [i for k, i in enumerate(ids) if i is not None and i not in ids[:k]],
-        "states": cheap["states"],
-        "seconds": seconds,
-    }
+    row.update(
+        window=f"{l}..{u}",
+        end=end,
+        cheapest=cheap["optimum"],
+        fewest_frames=res["fewest_frames"]["optimum"],
+        hidden=", ".join(hidden) or "-",
+        ids=" → ".join(str(i) for k, i in enumerate(ids) if i is not None and i not in ids[:k]),
+        states=f"{cheap['states']:,}",
+        seconds=f"{seconds:.1f}",
+    )
+    return row
+
+
+COLUMNS = ("track", "frames", "tracked", "window", "end", "cheapest", "fewest_frames",
+           "hidden", "ids", "states", "seconds")  # fmt: skip
 
 
 def main() -> None:
@@ -119,22 +134,17 @@ def main() -> None:
     out.mkdir(parents=True, exist_ok=True)
     spans = gt_spans(tud_campus() / "gt.txt")
     tracks = sorted(spans) if a.tracks is None else [int(t) for t in a.tracks.split(",")]
-    print("| gt id | frames | tracked | window (steps) | end | cheapest (detections) "
+    print("| gt id | frames | steps tracked | window (steps) | end | cheapest (detections) "
           "| fewest frames | hidden (cheapest) | target's ids | states | seconds |")  # fmt: skip
     print("|---|---|---|---|---|---|---|---|---|---|---|")
     for t in tracks:
         row = run(t, a.radius, out)
-
-        def show(v: object) -> str:
-            return "none" if v is None else f"{v:g}" if isinstance(v, float) else str(v)
-
-        print(
-            f"| {t} | {row['frames']} | {row['tracked']} | {row['window']} | {row['end']} | "
-            f"{show(row['cheapest'])} | {show(row['fewest_frames'])} | "
-            f"{', '.join(row['hidden']) or '-'} | {' → '.join(map(str, row['ids']))} | "  # type: ignore[call-overload]
-            f"{row['states']:,} | {row['seconds']:.1f} |",
-            flush=True,
-        )
+        cells = [row.get(c, "") for c in COLUMNS]
+        shown = ["none" if v is None else f"{v:g}" if isinstance(v, float) else str(v)
+                 for v in cells]  # fmt: skip
+        if "window" not in row:
+            shown[3] = "never tracked"
+        print("| " + " | ".join(shown) + " |", flush=True)
 
 
 if __name__ == "__main__":
