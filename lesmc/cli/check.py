@@ -83,7 +83,7 @@ if TYPE_CHECKING:
     default=None,
     help="For a scene: check it with this design (lesmc/designs/registry.py) instead of "
     "the tracker it names; a monitored design filters every property by the runtime "
-    "monitor (Eq. 12-13); a multi-target design (sort) checks switches and lost "
+    "monitor (Eq. 12-13); a multi-target design (sort) checks switches, lost and dist "
     "properties (docs/trackers.md).",
 )
 @tracker_option
