@@ -441,3 +441,29 @@ def test_two_frames_of_3000_boxes_stay_within_memory() -> None:
         tracemalloc.stop()
     assert len(ft.ids) == 3000 and ft.det.min() == 0  # every box kept its track
     assert peak < 200e6, peak / 1e6
+
+
+def test_truth_boxes_are_read_and_checked(tmp_path: Path) -> None:
+    """Truth rows [frame, x, y, w, h] need scene format 2 and a box; a bad one is located
+    at its track; a target in no truth box has no reference (exit 2, no traceback)."""
+    path, frames = _scene(tmp_path)
+    doc = json.loads(path.read_text())
+    b = frames[0][0]
+    box = [(b[0] + b[2]) / 2, (b[1] + b[3]) / 2, b[2] - b[0], b[3] - b[1]]
+    spec = _spec(tmp_path)
+    cases = {
+        "negative w": (2, [[0, box[0], box[1], -3.0, box[3]]], "truth track 'a'"),
+        "version 1": (1, [[0, *box]], "truth track 'a'"),
+        "elsewhere": (2, [[0, box[0] + 500, box[1], box[2], box[3]]], "no reference track"),
+    }
+    for name, (version, rows, want) in cases.items():
+        bad = json.loads(json.dumps(doc))  # a deep copy
+        bad.update(version=version, truth=[{"id": "a", "positions": rows}])
+        if version == 1:
+            for f in bad["frames"]:
+                for d in f["detections"]:
+                    d.pop("w"), d.pop("h")
+        path.write_text(json.dumps(bad))
+        r = lesmc("check", str(path), str(spec), "--design", "sort")
+        assert r.returncode == 2 and "Traceback" not in r.stderr, (name, r.stderr)
+        assert want in r.stderr, (name, r.stderr)

@@ -29,6 +29,7 @@ from lesmc.tracking.multi import (
     MultiState,
     SortDesign,
     reference_boxes,
+    reference_kind,
     target_id,
     target_of,
 )
@@ -99,10 +100,14 @@ def build_multi(
     run = design.run(end)
     refs = reference_boxes(scene, [s.tracks for s in run])
     if all(r is None for r in refs):
+        why = (
+            "no ground-truth box of its frame holds its start"
+            if reference_kind(scene) == "truth"
+            else "no detection box of its frame holds its start, or its track is never output"
+        )
         raise UsageError(
             f"the target ({scene.target.start[0]:g}, {scene.target.start[1]:g} at frame "
-            f"{scene.target.step}) has no reference track: no detection box of its frame "
-            "holds its start, or its track is never output; switches and lost need one"
+            f"{scene.target.step}) has no reference track: {why}; switches and lost need one"
         )
     tracker, table = design.tracker, CovarianceTable()
     me = target_id([s.target_id for s in run])
