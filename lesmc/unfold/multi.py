@@ -99,16 +99,7 @@ def build_multi(
         )
     run = design.run(end)
     refs = reference_boxes(scene, [s.tracks for s in run])
-    if all(r is None for r in refs):
-        why = (
-            "no ground-truth box of its frame holds its start"
-            if reference_kind(scene) == "truth"
-            else "no detection box of its frame holds its start, or its track is never output"
-        )
-        raise UsageError(
-            f"the target ({scene.target.start[0]:g}, {scene.target.start[1]:g} at frame "
-            f"{scene.target.step}) has no reference track: {why}; switches and lost need one"
-        )
+    _need_reference(scene, refs)
     tracker, table = design.tracker, CovarianceTable()
     me = target_id([s.target_id for s in run])
     s0, ft0 = tracker.step(tracker.initial(), frames[0].boxes())
@@ -138,6 +129,21 @@ def build_multi(
     names = tuple(tuple(d.id for d in f.detections) for f in frames[: end + 1])
     refbox = np.array([np.full(4, np.nan) if r is None else r for r in refs]).reshape(-1, 4)
     return st.model(tuple(f.step for f in frames[: end + 1]), names, end, window, refbox, me)
+
+
+def _need_reference(scene: Scene, refs: list[np.ndarray | None]) -> None:
+    """A UsageError when the target has no reference at any step."""
+    if any(r is not None for r in refs):
+        return
+    why = (
+        "no ground-truth box of its frame holds its start"
+        if reference_kind(scene) == "truth"
+        else "no detection box of its frame holds its start, or its track is never output"
+    )
+    raise UsageError(
+        f"the target ({scene.target.start[0]:g}, {scene.target.start[1]:g} at frame "
+        f"{scene.target.step}) has no reference track: {why}; switches and lost need one"
+    )
 
 
 def _budget(k: int, n: int, subsets: int, so_far: int, max_states: int | None, f: Frame) -> None:
