@@ -189,13 +189,15 @@ def test_import_mot_keeps_the_ground_truth_and_recovery_checks_against_it(
     want: dict[str, list[list[float]]] = {}
     for g in sorted(_gt_rows(MOT / "gt.txt"), key=lambda g: (g[1], g[0])):
         if first <= g[0] <= last:
-            want.setdefault(str(int(g[1])), []).append([int(g[0]), *_centre(g)])
+            want.setdefault(str(int(g[1])), []).append([int(g[0]), *_centre(g), g[4], g[5]])
     got = {t["id"]: t["positions"] for t in scene["truth"]}
     assert got.keys() == want.keys()
     for tid, rows in want.items():
         assert len(got[tid]) == len(rows)
-        for (k, x, y), (gk, gx, gy) in zip(rows, got[tid], strict=True):
+        # at the box centres each position keeps its box: [frame, x, y, w, h] (issue 58)
+        for (k, x, y, w, h), (gk, gx, gy, gw, gh) in zip(rows, got[tid], strict=True):
             assert gk == k and abs(gx - x) < 1e-9 and abs(gy - y) < 1e-9
+            assert (gw, gh) == (w, h)
     spec = str(ROOT / "examples" / "recovery.spec")
     r = lesmc("check", str(tmp_path / "scene.json"), spec, "--json")
     assert r.returncode in (0, 1), r.stderr

@@ -284,7 +284,7 @@ def test_unsupported_multi_target_property_is_located_error(tmp_path: Path) -> N
     spec = tmp_path / "p.spec"
     spec.write_text(
         "property p {\n  attack window 1..2 minimize payoff\n"
-        "  subject to dist.max(0..end) > 5 holds if optimum > 1 }\n"
+        "  subject to tau.rise(1..end) > 5 holds if optimum > 1 }\n"
     )
     r = lesmc("check", str(path), str(spec), "--design", "sort")
     assert r.returncode == 2 and "Traceback" not in r.stderr, r.stderr

@@ -201,7 +201,7 @@ def test_building_a_multi_target_design_is_a_clear_error(tmp_path: Path) -> None
     scene = _write(tmp_path, doc)
     spec = tmp_path / "p.spec"
     spec.write_text(
-        "property p {\n attack window 1..1\n minimize payoff\n subject to dist.sum(0..end) > 5\n"
+        "property p {\n attack window 1..1\n minimize payoff\n subject to tau.rise(1..end) > 5\n"
         " holds if optimum > 1\n}\n"
     )
     point = dict(doc, tracker={"design": "single"})
@@ -225,7 +225,7 @@ def test_building_a_multi_target_design_is_a_clear_error(tmp_path: Path) -> None
     for what, r in runs.items():
         assert r.returncode == 2 and "Traceback" not in r.stderr, (what, r.stderr)
         assert "multi-target" in r.stderr and "not supported yet" in r.stderr, (what, r.stderr)
-    # check takes a multi-target design, but not a property on deviations (yet)
+    # check takes a multi-target design, but not a property on the uncertainty (yet)
     for what in ("check --design", "check file"):
         assert f"{spec}:4:" in runs[what].stderr, (what, runs[what].stderr)
     assert not (tmp_path / "m.lts").exists()

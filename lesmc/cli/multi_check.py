@@ -3,8 +3,10 @@ multi-target design (docs/trackers.md, "Checking a multi-target design").
 
 The scene is unfolded once per attack window and end (lesmc/unfold/multi.py) and each
 property minimised on it (lesmc/engines/multi.py). Objectives: ``payoff``, ``count``,
-``count.frames``; constraints: ``switches(a..b)``, ``lost(a..b)``; anything else is an
-error (exit status 2), as are the options a multi-target check does not take yet.
+``count.frames`` or a ``dist`` measure; constraints: ``switches(a..b)``, ``lost(a..b)`` or
+a ``dist`` measure (the track of the target's id against its reference, on the box's
+x, y, w, h); anything else is an error (exit status 2), as are the options a
+multi-target check does not take yet.
 """
 
 from __future__ import annotations
@@ -31,11 +33,15 @@ def _supported(spec: SpecFile, prop: Property) -> None:
     from lesmc.engines.multi import CONSTRAINTS
 
     obj, con = prop.objective, prop.constraint.measure
-    if obj.kind not in ("payoff", "count"):
-        raise _unsupported(spec, f"objective '{obj.text()}': minimize payoff or count", obj)
-    if con.kind not in CONSTRAINTS:
+    if obj.kind not in ("payoff", "count", "dist") or obj.aggregate == "nearest":
         raise _unsupported(
-            spec, f"constraint '{con.text()}': the constraint must be switches or lost", con
+            spec, f"objective '{obj.text()}': minimize payoff, count or a dist measure", obj
+        )
+    if con.kind not in (*CONSTRAINTS, "dist") or con.aggregate == "nearest":
+        raise _unsupported(
+            spec,
+            f"constraint '{con.text()}': the constraint must be switches, lost or a dist measure",
+            con,
         )
     if prop.monitor is not None:
         raise _unsupported(spec, "'monitor uncertainty'", obj)
@@ -51,8 +57,11 @@ def check_multi_scene(
 ) -> None:
     """Check every property (or those named in ``only``) of ``specs`` on the multi-target
     design of ``scene``; print the results; exit 0 (all hold) or 1 (some violated)."""
+    from lesmc.tracking.trackers import make_multi
+
     out = multi_results(scene, path, specs, only, max_states)
-    _print(out, scene.tracker.design, as_json)
+    kind = make_multi(scene, path).reference_kind()
+    _print(out, scene.tracker.design, kind, as_json)
     sys.exit(0 if all(r["verdict"] == "holds" for r in out) else 1)
 
 
@@ -66,6 +75,7 @@ def multi_results(
     """Each property's result (:func:`_entry`) on the multi-target design of ``scene``."""
     from lesmc.engines.multi import check_multi
     from lesmc.language.semantics import bind
+    from lesmc.model.multi import COMPONENTS
     from lesmc.tracking.multi import ComposedDesign
     from lesmc.tracking.trackers import make_multi
     from lesmc.unfold.multi import build_multi
@@ -77,17 +87,17 @@ def multi_results(
     missing = set(only) - {p.name for _, p in props}
     if missing:
         raise UsageError(f"--property {sorted(missing)[0]}: no property of that name")
-    models: dict[tuple[int, int, int, tuple[str, ...]], Any] = {}
+    models: dict[tuple[int, int, int, float | None, tuple[str, ...]], Any] = {}
     out: list[dict[str, Any]] = []
     for spec, prop in props:
         _supported(spec, prop)
-        b = bind(spec, prop, e, (), False, multi=True)
+        b = bind(spec, prop, e, COMPONENTS, False, multi=True)
         if b.objective.source == "payoff":
             _priced(scene, b.l, b.u)
-        key = (b.l, b.u, b.end, prop.actions)
+        key = (b.l, b.u, b.end, b.radius, prop.actions)
         if key not in models:
             models[key] = build_multi(
-                scene, design, (b.l, b.u), b.end, max_states, actions=prop.actions
+                scene, design, (b.l, b.u), b.end, max_states, b.radius, actions=prop.actions
             )
         model = models[key]
         res = check_multi(model, b)
@@ -129,16 +139,22 @@ def _entry(prop: Property, objective: str, model: Any, res: Any) -> dict[str, An
         "property": prop.name,
         "verdict": "holds" if res.holds else "violated",
         "optimum": None if math.isinf(res.optimum) else res.optimum,
-        "constraint_value": res.constraint,
+        "constraint_value": "inf" if res.constraint == math.inf else res.constraint,
         "states": res.states,
         "transitions": res.transitions,
         "counterexample": steps,
     }
 
 
-def _print(out: list[dict[str, Any]], design: str, as_json: bool) -> None:
+def _print(out: list[dict[str, Any]], design: str, reference: str, as_json: bool) -> None:
     if as_json:
-        doc = {"format": "lesmc-multi-check", "version": 1, "design": design, "results": out}
+        doc = {
+            "format": "lesmc-multi-check",
+            "version": 1,
+            "design": design,
+            "reference": reference,
+            "results": out,
+        }
         click.echo(json.dumps(doc, indent=1))
         return
     for r in out:

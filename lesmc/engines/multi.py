@@ -13,16 +13,19 @@ lesmc/model/identity.py).
 from __future__ import annotations
 
 import math
+import operator
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
 
 from lesmc.language.semantics import BoundMeasure, BoundProperty
 from lesmc.model.identity import NONE, indicators
-from lesmc.model.kernel import COMPARE, contributions, holds
+from lesmc.model.kernel import COMPARE, contributions, holds, initial_value
 from lesmc.model.multi import MultiModel
 
-#: The objectives the engine minimises, and the constraints it takes.
+#: The objectives the engine minimises (besides ``dist`` measures), and the identity
+#: constraints it takes (``dist`` measures too: the track of the target's id).
 OBJECTIVES = ("payoff", "count", "frames")
 CONSTRAINTS = ("switches", "lost")
 
@@ -41,18 +44,21 @@ class MultiResult:
     transitions: int
 
 
-def measure_values(model: MultiModel, m: BoundMeasure) -> tuple[float, np.ndarray]:
-    """Measure ``m``'s value on step 0 alone and each transition's contribution."""
+def measure_values(
+    model: MultiModel, m: BoundMeasure, components: tuple[int, ...] = (), norm: float = 2.0
+) -> tuple[float, np.ndarray]:
+    """Measure ``m``'s value on step 0 alone and each transition's contribution; a ``dist``
+    measure over ``components`` in the ``norm`` (:meth:`MultiModel.deviations`)."""
     k = model.step[model.dst]
-    zeros = np.zeros(len(k))
     ident = None
     if m.source in CONSTRAINTS:
         ident = indicators(
             m.source, model.last[model.src], model.tid[model.dst], model.ref[model.dst]
         )
+    dist = model.deviations(components, norm) if m.source == "dist" else np.zeros(model.n_states)
     frames = model.count.astype(float)
-    per = contributions(m, k, model.payoff, zeros, counted=frames, identity=ident)
-    first = 0.0
+    per = contributions(m, k, model.payoff, dist[model.dst], counted=frames, identity=ident)
+    first = initial_value(m, float(dist[0]))
     if m.source in CONSTRAINTS:
         i0 = indicators(m.source, np.array([NONE]), model.tid[:1], model.ref[:1])
         first = float(
@@ -61,23 +67,29 @@ def measure_values(model: MultiModel, m: BoundMeasure) -> tuple[float, np.ndarra
     return first, per
 
 
+def _combine(m: BoundMeasure) -> Callable[[float, float], float]:
+    """How a path's value of ``m`` grows by a transition's contribution: max or sum."""
+    return max if m.aggregate == "max" else operator.add
+
+
 def check_multi(model: MultiModel, prop: BoundProperty) -> MultiResult:
     """Minimise ``prop``'s objective over the model's paths from step 0 to the end whose
     constraint holds (docs/trackers.md)."""
-    c0, cons = measure_values(model, prop.constraint)
-    _, obj = measure_values(model, prop.objective)
+    c0, cons = measure_values(model, prop.constraint, prop.components, prop.norm)
+    o0, obj = measure_values(model, prop.objective, prop.components, prop.norm)
+    add_c, add_o = _combine(prop.constraint), _combine(prop.objective)
     order = np.argsort(model.src, kind="stable")
     ptr = np.searchsorted(model.src[order], np.arange(model.n_states + 1))
     # best[state][constraint value] = (objective, transition taken into it, value before)
     best: list[dict[float, tuple[float, int, float]]] = [{} for _ in range(model.n_states)]
-    best[0][c0] = (0.0, -1, math.nan)
+    best[0][c0] = (o0, -1, math.nan)
     for s in range(model.n_states):
         if not best[s]:
             continue
         for t in order[ptr[s] : ptr[s + 1]].tolist():
             d = int(model.dst[t])
             for cv, (ov, _, _) in best[s].items():
-                ncv, nov = cv + float(cons[t]), ov + float(obj[t])
+                ncv, nov = add_c(cv, float(cons[t])), add_o(ov, float(obj[t]))
                 cur = best[d].get(ncv)
                 if cur is None or nov < cur[0]:
                     best[d][ncv] = (nov, t, cv)

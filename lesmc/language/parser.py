@@ -259,17 +259,18 @@ class _Builder:
                 )
             fields[key] = value
             clause_pos[key] = pos
-            if key == "window" and len(clause.children) > 2:
-                allow = clause.children[2]
+            for allow in _allow_of(clause):
                 fields["actions"] = self.allowed(allow.children[0])
                 clause_pos["allow"] = _pos(allow)
         for key, shown in _REQUIRED.items():
             if key not in fields:
                 raise self.error(f"property '{name_tok}' lacks {shown}", prop_pos)
         holds_op, threshold = fields["verdict"]
+        lo, hi, radius = fields["window"]
         return Property(
             name=str(name_tok),
-            window=fields["window"],
+            window=(lo, hi),
+            radius=radius,
             objective=fields["objective"],
             constraint=fields["constraint"],
             holds_op=holds_op,
@@ -287,7 +288,8 @@ class _Builder:
         kind = node.data
         ch: list[Any] = node.children
         if kind == "window":
-            return "window", (self.whole(ch[0]), self.step(ch[1]))
+            within = [c for c in ch[2:] if not _is_allow(c)]
+            return "window", (self.whole(ch[0]), self.step(ch[1]), self.radius(within))
         if kind == "objective":
             return "objective", self.measure(ch[0])
         if kind == "constraint":
@@ -527,6 +529,20 @@ class _Builder:
             )
         return int(significant)
 
+    def radius(self, rest: list[Any]) -> float | None:
+        """``within R`` of the attack window: R px, positive; None without the clause."""
+        if not rest:
+            return None
+        r = self.number(rest[0], "attack radius")
+        if r <= 0:
+            tok = rest[0].children[0]
+            raise self.error(
+                f"the attack radius must be positive (px around the target's reference), "
+                f"got {_clip(str(tok))}",
+                _tok_pos(tok),
+            )
+        return r
+
     def number(self, node: Tree[Any], what: str) -> float:
         tok: Any = node.children[0]
         shown = _clip(str(tok))
@@ -558,3 +574,15 @@ def _clip(token: str) -> str:
 if __name__ == "__main__":  # regenerate lark_tables.py after editing the grammar
     _TABLES.write_text(tables_source(), encoding="utf-8")
     print(f"wrote {_TABLES}")
+
+
+def _is_allow(node: Any) -> bool:
+    """The window's ``allow A, B`` clause (beside its ``within R``)."""
+    return isinstance(node, Tree) and node.data == "allow"
+
+
+def _allow_of(clause: Tree[Any]) -> list[Tree[Any]]:
+    """The ``allow`` clause of an attack window (none for other clauses)."""
+    if clause.data != "window":
+        return []
+    return [c for c in clause.children[2:] if _is_allow(c)]

@@ -119,6 +119,9 @@ class Property:
     constraint: Constraint
     holds_op: Literal[">", ">="]
     threshold: float
+    #: ``attack window L..U within R``: multi-target designs attack only the detections
+    #: within R px of the target's reference (None: every detection)
+    radius: float | None = None
     end: int | None = None
     norm: float = 2.0
     components: tuple[str, ...] | None = None

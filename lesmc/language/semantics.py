@@ -61,6 +61,8 @@ class BoundProperty:
     #: the monitor's kind (lesmc/language/monitors.py) and its NIS window of steps
     monitor_kind: str = "tau_rise"
     monitor_window: int = 1
+    #: ``attack window L..U within R``: the attack radius in px (multi-target designs)
+    radius: float | None = None
 
     @property
     def monitor_tolerance(self) -> float:
@@ -122,11 +124,20 @@ def bind(
         near_components=near_idx,
         monitor_kind="tau_rise" if prop.monitor is None else prop.monitor.kind,
         monitor_window=1 if prop.monitor is None else prop.monitor.window,
+        radius=prop.radius,
     )
 
 
 def _single_target(spec: SpecFile, prop: Property) -> None:
-    """A single-target design follows one track: it has no identities to switch or lose."""
+    """A single-target design follows one track: it has no identities to switch or lose,
+    and its attacker's options are ranked detections, not detections near a reference."""
+    if prop.radius is not None:
+        raise _fail(
+            spec,
+            "'attack window ... within R' limits a multi-target design's attack to the "
+            "detections near the target: check the scene with --design sort (docs/trackers.md)",
+            prop.clause_pos.get("window", prop.pos),
+        )
     for m in (prop.objective, prop.constraint.measure):
         if m.kind in IDENTITY:
             raise _fail(

@@ -120,7 +120,7 @@ def footage_from_dict(
         pr.add("dt", f"must be a number of seconds in (0, {MAX_DT:g}], got {show(dt)}")
         dt = 1.0
     frames = _frames(data.get("frames"), pr, version)
-    truth = _truth(data.get("truth", []), frames, pr)
+    truth = _truth(data.get("truth", []), frames, pr, version)
     tracker = _tracker(data.get("tracker", {}), pr)
     target = None
     if need_target or data.get("target") is not None:
@@ -181,9 +181,12 @@ def recorded_attack(meta: dict[str, Any], pr: Problems) -> dict[str, Any]:
 MAX_TRUTH = 10_000
 
 
-def _truth(raw: Any, frames: list[Frame], pr: Problems) -> tuple[TruthTrack, ...]:
+def _truth(
+    raw: Any, frames: list[Frame], pr: Problems, version: int = VERSION
+) -> tuple[TruthTrack, ...]:
     """``truth``: ground-truth tracks, each ``{"id", "positions": [[frame, x, y], ...]}``
-    with frames among the scene's, increasing."""
+    with frames among the scene's, increasing; from version 2 a track's positions may all
+    be ``[frame, x, y, w, h]``, its boxes (w, h around x, y)."""
     if not isinstance(raw, list) or len(raw) > MAX_TRUTH:
         pr.add("truth", f"must be a list of at most {MAX_TRUTH} tracks, got {show(raw)}")
         return ()
@@ -202,30 +205,47 @@ def _truth(raw: Any, frames: list[Frame], pr: Problems) -> tuple[TruthTrack, ...
         seen.add(tid)
         where = f"truth track '{tid}'"
         got = tr.get("positions")
-        rows: list[tuple[int, float, float]] = []
         if not isinstance(got, list) or not got:
             pr.add(where, "positions must be a non-empty list of [frame, x, y]")
             continue
-        for j, p in enumerate(got):
-            ok = (
-                isinstance(p, list)
-                and len(p) == 3
-                and is_int(p[0])
-                and p[0] in steps
-                and all(within(v, MAX_COORD) for v in p[1:])
-                and (not rows or p[0] > rows[-1][0])
-            )
-            if not ok:
-                pr.add(
-                    where,
-                    f"positions[{j}] must be [frame, x, y] with a frame of the scene after the "
-                    f"previous one and |x|, |y| <= {MAX_COORD:g}, got {show(p)}",
-                )
-                break
-            rows.append((int(p[0]), float(p[1]), float(p[2])))
-        else:
-            out.append(TruthTrack(tid, tuple(rows)))
+        track = _truth_rows(got, steps, version, where, pr)
+        if track is not None:
+            out.append(TruthTrack(tid, *track))
     return tuple(out)
+
+
+def _truth_rows(
+    got: list[Any], steps: set[int], version: int, where: str, pr: Problems
+) -> tuple[tuple[tuple[int, float, float], ...], tuple[tuple[float, float], ...] | None] | None:
+    """A truth track's positions and, when every row is ``[frame, x, y, w, h]`` (version
+    2), its box sizes; None (and a problem added) at the first bad row."""
+    size = 5 if version >= 2 and isinstance(got[0], list) and len(got[0]) == 5 else 3
+    form = "[frame, x, y, w, h]" if size == 5 else "[frame, x, y]"
+    rows: list[tuple[int, float, float]] = []
+    sizes: list[tuple[float, float]] = []
+    for j, p in enumerate(got):
+        ok = (
+            isinstance(p, list)
+            and len(p) == size
+            and is_int(p[0])
+            and p[0] in steps
+            and all(within(v, MAX_COORD) for v in p[1:])
+            and (not rows or p[0] > rows[-1][0])
+        )
+        why = None if not ok or size == 3 else box_problem(p[1], p[2], p[3], p[4])
+        if not ok or why is not None:
+            pr.add(
+                where,
+                f"positions[{j}] must be {form} with a frame of the scene after the "
+                f"previous one and |x|, |y| <= {MAX_COORD:g}"
+                + (f" ({why})" if why else "")
+                + f", got {show(p)}",
+            )
+            return None
+        rows.append((int(p[0]), float(p[1]), float(p[2])))
+        if size == 5:
+            sizes.append((float(p[3]), float(p[4])))
+    return tuple(rows), (tuple(sizes) if size == 5 else None)
 
 
 def _version(data: dict[str, Any], pr: Problems) -> int:
@@ -698,9 +718,7 @@ def scene_to_dict(scene: Scene | Footage) -> dict[str, Any]:
         }
     doc["tracker"] = scene.tracker.to_json()
     if scene.truth:
-        doc["truth"] = [
-            {"id": t.id, "positions": [[k, x, y] for k, x, y in t.positions]} for t in scene.truth
-        ]
+        doc["truth"] = [{"id": t.id, "positions": _truth_json(t)} for t in scene.truth]
     if scene.meta:
         doc["meta"] = scene.meta
     return doc
@@ -708,12 +726,20 @@ def scene_to_dict(scene: Scene | Footage) -> dict[str, Any]:
 
 def written_version(scene: Scene | Footage) -> int:
     """The lowest format version that holds the scene: 3 with injection candidates, 2
-    with boxes, else 1."""
+    with boxes (on detections or truth rows), else 1."""
     if any(fr.candidates for fr in scene.frames):
         return CANDIDATES_VERSION
-    if any(d.w is not None for fr in scene.frames for d in fr.detections):
+    boxed = any(d.w is not None for fr in scene.frames for d in fr.detections)
+    if boxed or any(t.sizes is not None for t in scene.truth):
         return BOXES_VERSION
     return 1
+
+
+def _truth_json(t: TruthTrack) -> list[list[float]]:
+    """A truth track's positions, with their boxes (w, h) when it has them."""
+    if t.sizes is None:
+        return [[k, x, y] for k, x, y in t.positions]
+    return [[k, x, y, w, h] for (k, x, y), (w, h) in zip(t.positions, t.sizes, strict=True)]
 
 
 def _det_json(det: Detection) -> dict[str, Any]:

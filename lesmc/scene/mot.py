@@ -328,8 +328,11 @@ def one_box_a_frame(gt: Sequence[Box], path: str) -> None:
 def truth_from_gt(gt: Sequence[Box], path: str, point: Point = "center") -> tuple[TruthTrack, ...]:
     """The scene's ``truth``: every track of ``gt`` (ids >= 0; one box a frame, see
     :func:`one_box_a_frame`) as the point of each of its boxes, by frame; the track's id
-    is the gt id written as a string."""
+    is the gt id written as a string. At the box centres (``point`` "center") the tracks
+    keep their boxes' sizes (scene format 2), and are a box tracker's reference
+    (lesmc/tracking/multi.py ``reference_boxes``)."""
     by_track: dict[int, list[tuple[int, float, float]]] = {}
+    sizes: dict[int, list[tuple[float, float]]] = {}
     for b in sorted(gt, key=lambda b: (b.id, b.frame)):
         if b.id < 0:
             continue
@@ -340,13 +343,18 @@ def truth_from_gt(gt: Sequence[Box], path: str, point: Point = "center") -> tupl
                 Location(path, b.line, 1),
             )
         by_track.setdefault(b.id, []).append((b.frame, x, y))
+        sizes.setdefault(b.id, []).append((b.width, b.height))
     if len(by_track) > MAX_TRUTH:
         raise InputError(
             f"{len(by_track)} ground-truth tracks within the detections' frames: a scene "
             f"carries at most {MAX_TRUTH}",
             Location(path),
         )
-    return tuple(TruthTrack(str(t), tuple(rows)) for t, rows in by_track.items())
+    boxed = point == "center" and all(w > 0 and h > 0 for s in sizes.values() for w, h in s)
+    return tuple(
+        TruthTrack(str(t), tuple(rows), tuple(sizes[t]) if boxed else None)
+        for t, rows in by_track.items()
+    )
 
 
 def target_from_gt(

@@ -151,6 +151,18 @@ class TruthTrack:
 
     id: str
     positions: tuple[tuple[int, float, float], ...]  #: (frame step, x, y), by step
+    #: each position's box size (w, h) around it (scene format 2; ``import mot --gt`` with
+    #: ``--point center``); None: the track has points only
+    sizes: tuple[tuple[float, float], ...] | None = None
+
+    def boxes(self) -> dict[int, tuple[float, float, float, float]]:
+        """Its boxes [x1, y1, x2, y2] by frame step (empty for a track of points)."""
+        if self.sizes is None:
+            return {}
+        return {
+            k: (x - w / 2.0, y - h / 2.0, x + w / 2.0, y + h / 2.0)
+            for (k, x, y), (w, h) in zip(self.positions, self.sizes, strict=True)
+        }
 
 
 class _Frames:

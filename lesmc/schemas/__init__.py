@@ -27,6 +27,7 @@ from lesmc.exporters import formats
 SCHEMAS = {
     "lesmc-results": "results",
     "lesmc-check": "check",
+    "lesmc-multi-check": "multi-check",
     "lesmc-track": "track",
     "lesmc-report": "report",
     "lesmc-build": "build",

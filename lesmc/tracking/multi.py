@@ -155,6 +155,10 @@ class MultiDesign(Protocol):
         """The steps from the scene's first frame to ``end`` (default: the last)."""
         ...
 
+    def reference_kind(self) -> str:
+        """What the target's reference is: ``truth`` or ``unattacked``."""
+        ...
+
 
 class ComposedDesign:
     """A multi-target design: a composed tracker run on a scene's frames. Subclasses say
@@ -182,6 +186,11 @@ class ComposedDesign:
     def target_of(self, ft: FrameTracks, ref: np.ndarray) -> int:
         """The target's track id among ``ft``'s tracks (NONE: none)."""
         raise NotImplementedError
+
+    def reference_kind(self) -> str:
+        """What :meth:`references` follows: ``truth`` or ``unattacked`` (the target's
+        unattacked track)."""
+        return "unattacked"
 
     def run(self, end: int | None = None) -> list[MultiStep]:
         """The unattacked run from the scene's first frame to step ``end`` (default: its
@@ -234,14 +243,28 @@ class SortDesign(ComposedDesign):
         """:func:`target_of` (module-level)."""
         return target_of(ft, ref)
 
+    def reference_kind(self) -> str:
+        """:func:`reference_kind` (module-level)."""
+        return reference_kind(self.scene)
+
+
+def reference_kind(scene: Scene | Footage) -> str:
+    """What the target's reference is: ``truth`` (its ground-truth track) when the scene's
+    truth has boxes (``lesmc import mot --gt`` with ``--point center``), else
+    ``unattacked`` (its unattacked track)."""
+    return "truth" if any(t.sizes is not None for t in scene.truth) else "unattacked"
+
 
 def reference_boxes(scene: Scene | Footage, steps: list[FrameTracks]) -> list[np.ndarray | None]:
     """The target's reference box at each step of the unattacked run ``steps`` (None: it
     does not exist there).
 
-    The reference is the target's unattacked track: the track that took, at the target's
-    frame, the detection whose box holds the target's start (the nearest such centre, the
-    first of equals). It exists at the steps where the tracker outputs it (confirmed).
+    When the scene's truth has boxes (:func:`reference_kind`), the reference is the target's
+    ground-truth track: the truth track whose box, at the target's frame, holds the target's
+    start (the nearest such centre, the first of equals); it exists at the frames where that
+    track has a box. Else it is the target's unattacked track: the track that took, at the
+    target's frame, the detection whose box holds the target's start (the same rule); it
+    exists at the steps where the tracker outputs it (confirmed).
     """
     none: list[np.ndarray | None] = [None] * len(steps)
     if not isinstance(scene, Scene):
@@ -249,14 +272,11 @@ def reference_boxes(scene: Scene | Footage, steps: list[FrameTracks]) -> list[np
     k0 = scene.target.step - scene.frames[0].step
     if not 0 <= k0 < len(steps):
         return none
+    if reference_kind(scene) == "truth":
+        return _truth_reference(scene, len(steps))
     boxes = scene.frames[k0].boxes()
-    x, y = scene.target.start
-    inside = (boxes[:, 0] <= x) & (x <= boxes[:, 2]) & (boxes[:, 1] <= y) & (y <= boxes[:, 3])
-    if not inside.any():
-        return none
-    centres = scene.frames[k0].positions()
-    d2 = np.where(inside, (centres[:, 0] - x) ** 2 + (centres[:, 1] - y) ** 2, np.inf)
-    return follow(steps, k0, int(np.argmin(d2)))
+    j = _holding(boxes, scene.frames[k0].positions(), scene.target.start)
+    return none if j is None else follow(steps, k0, j)
 
 
 def follow(steps: list[FrameTracks], k0: int, det: int) -> list[np.ndarray | None]:
@@ -272,6 +292,44 @@ def follow(steps: list[FrameTracks], k0: int, det: int) -> list[np.ndarray | Non
         if mine.size:
             out[k] = ft.boxes[mine[0]].copy()
     return out
+
+
+def _holding(boxes: np.ndarray, centres: np.ndarray, start: tuple[float, float]) -> int | None:
+    """Of ``boxes`` (n, 4) around ``centres`` (n, 2), the one that holds ``start`` with
+    the nearest centre (the first of equals); None when none holds it."""
+    if not len(boxes):
+        return None
+    x, y = start
+    inside = (boxes[:, 0] <= x) & (x <= boxes[:, 2]) & (boxes[:, 1] <= y) & (y <= boxes[:, 3])
+    if not inside.any():
+        return None
+    d2 = np.where(inside, (centres[:, 0] - x) ** 2 + (centres[:, 1] - y) ** 2, np.inf)
+    return int(np.argmin(d2))
+
+
+def _truth_reference(scene: Scene, n: int) -> list[np.ndarray | None]:
+    """The boxes of the truth track holding the target's start at its frame, per step."""
+    out: list[np.ndarray | None] = [None] * n
+    tracks = [t.boxes() for t in scene.truth]
+    k = scene.target.step
+    at = [i for i, b in enumerate(tracks) if k in b]
+    boxes = np.array([tracks[i][k] for i in at], dtype=float).reshape(-1, 4)
+    centres = np.array([dict((s, (x, y)) for s, x, y in scene.truth[i].positions)[k] for i in at])
+    j = _holding(boxes, centres.reshape(-1, 2), scene.target.start)
+    if j is None:
+        return out
+    first = scene.frames[0].step
+    for step, box in tracks[at[j]].items():
+        if 0 <= step - first < n:
+            out[step - first] = np.array(box, dtype=float)
+    return out
+
+
+def target_id(ids: list[int | None]) -> int:
+    """The target's id: its track's id at the first step where it has one on the unattacked
+    run (:func:`target_ids`); NONE when it never has one. The ``dist`` measures read the
+    track of this id on every attacked path."""
+    return next((i for i in ids if i is not None), NONE)
 
 
 def target_of(ft: FrameTracks, box: np.ndarray) -> int:

@@ -2,11 +2,10 @@
 (lesmc/model/multi.py): the scene -> model stage for trackers that follow every object.
 
 Step 0 is the scene's first frame, unattacked. At a step of the attack window the attacker
-hides any subset of the frame's attackable detections (payoff finite) and, when the
-property allows ``inject`` (lesmc/language/actions.py), adds any subset of the frame's
-injection candidates, at the sum of the payoffs of both; the tracker sees the
-detections left, in the frame's order, then the candidates injected, in theirs.
-Outside the window only the unattacked outcome follows. The successors of one
+hides any subset of the frame's attackable detections (payoff finite) and, under ``allow
+hide, inject``, injects any subset of its injection candidates, at the sum of their
+payoffs (the options: lesmc/tracking/parts/attacker.py); outside it only the unattacked
+outcome follows. The successors of one
 level that are the same state (:meth:`~lesmc.tracking.parts.states.MultiBatch.words`:
 every track bit for bit, the counters, and the target's last track id) are one state,
 and the subsets that lead from one state to the same successor one transition, kept at
@@ -24,8 +23,8 @@ from lesmc.model.identity import NONE, last_seen
 from lesmc.model.multi import MultiModel
 from lesmc.scene import Frame, Scene
 from lesmc.tracking.design import CovarianceTable
-from lesmc.tracking.multi import ComposedDesign, MultiState
-from lesmc.tracking.parts.attacker import option_count, subset_cost, subset_options
+from lesmc.tracking.multi import ComposedDesign, FrameTracks, MultiState, target_id
+from lesmc.tracking.parts.attacker import attackable, option_count, subset_cost, subset_options
 from lesmc.tracking.parts.states import MultiBatch
 
 #: Successors one step may compute when no --max-states is given: a frame with 30
@@ -39,42 +38,44 @@ def build_multi(
     window: tuple[int, int],
     end: int,
     max_states: int | None = None,
+    radius: float | None = None,
     *,
     actions: tuple[str, ...],
 ) -> MultiModel:
     """The model of ``scene`` under ``design`` for attacks at steps ``window`` (l..u),
-    up to step ``end``, by an attacker taking ``actions`` (hide, inject).
+    up to step ``end``, by an attacker taking ``actions`` (hide, inject) on the detections
+    :func:`~lesmc.tracking.parts.attacker.attackable` (``radius``: ``within R``).
     ``max_states`` bounds the successors computed (before merging): a BudgetError (exit
-    status 3) before a step that would pass it."""
+    status 3) before a step that would pass it. Each state records the box of the track
+    with the target's id (:func:`~lesmc.tracking.multi.target_id`) and whether that track
+    was deleted, which the ``dist`` measures read."""
     frames = scene.frames
     if not 1 <= window[0] <= window[1] <= end <= len(frames) - 1:
         raise UsageError(
             f"window {window[0]}..{window[1]} must satisfy 1 <= l <= u <= end = {end} "
             f"<= {len(frames) - 1} (the scene's last step)"
         )
-    refs = design.references([s.tracks for s in design.run(end)])
-    if all(r is None for r in refs):
-        raise UsageError(
-            f"the target ({scene.target.start[0]:g}, {scene.target.start[1]:g} at frame "
-            f"{scene.target.step}) has no reference track: no detection of its frame is at "
-            "its start, or its track is never output; switches and lost need one"
-        )
+    run = design.run(end)
+    refs = design.references([s.tracks for s in run])
+    _need_reference(scene, design, refs)
+    refbox = [None if r is None else as_box(r) for r in refs]
     tracker, table = design.tracker, CovarianceTable()
+    me = target_id([s.target_id for s in run])
     s0, ft0 = tracker.step(tracker.initial(), design.measurements(frames[0]))
     tid0 = NONE if refs[0] is None else design.target_of(ft0, refs[0])
     level: list[MultiState] = [s0]
     st = _Arrays()
-    st.add_state(0, tid0, refs[0] is not None, tid0)
+    st.add_state(0, tid0, refs[0] is not None, tid0, _look(ft0, s0, me))
     for k in range(1, end + 1):
         f = frames[k]
         boxes = np.vstack([design.measurements(f), design.candidate_measurements(f)])
         pay = np.array([d.payoff for d in (*f.detections, *f.candidates)], dtype=float)
         n = len(f.detections)
-        attacked = window[0] <= k <= window[1]
-        _within_budget(f, k, len(level), (attacked, actions), st.n, max_states)
-        subsets = subset_options(f, attacked, actions)
+        attack = (window[0] <= k <= window[1], actions, attackable(f, refbox[k], radius))
+        _within_budget(f, k, len(level), attack, st.n, max_states)
+        subsets = subset_options(f, *attack)
         base = st.n - len(level)
-        made: list[tuple[int, MultiState, int, int, tuple[int, ...]]] = []
+        made: list[_Made] = []
         ref = refs[k]
         for i, state in enumerate(level):
             for sub in subsets:
@@ -83,25 +84,48 @@ def build_multi(
                 nxt, ft = tracker.step(state, boxes[keep])
                 tid = NONE if ref is None else design.target_of(ft, ref)
                 last = int(last_seen(np.array([st.last[base + i]]), np.array([tid]))[0])
-                made.append((base + i, nxt, tid, last, sub))
+                made.append((base + i, nxt, tid, last, sub, _look(ft, nxt, me)))
         level = st.add_level(k, made, pay, ref is not None, tracker.filter.m.dim, table)
     shown = frames[: end + 1]
     names = tuple(tuple(d.id for d in (*f.detections, *f.candidates)) for f in shown)
-    model = st.model(tuple(f.step for f in shown), names, end, window)
+    rows = np.array([np.full(4, np.nan) if r is None else r for r in refbox]).reshape(-1, 4)
+    model = st.model(tuple(f.step for f in shown), names, end, window, rows, me)
     return replace(model, detections=tuple(len(f.detections) for f in shown))
+
+
+def as_box(v: np.ndarray) -> np.ndarray:
+    """A box [x1, y1, x2, y2]; a point tracker's position (x, y) is the box of size 0 at
+    it, so the ``dist`` measures read a point design's w and h as 0."""
+    v = np.asarray(v, dtype=float)
+    return np.concatenate([v, v]) if v.shape[-1] == 2 else v
+
+
+def _need_reference(scene: Scene, design: ComposedDesign, refs: list[np.ndarray | None]) -> None:
+    """A UsageError when the target has no reference at any step."""
+    if any(r is not None for r in refs):
+        return
+    why = (
+        "no ground-truth box of its frame holds its start"
+        if design.reference_kind() == "truth"
+        else "no detection of its frame is at its start, or its track is never output"
+    )
+    raise UsageError(
+        f"the target ({scene.target.start[0]:g}, {scene.target.start[1]:g} at frame "
+        f"{scene.target.step}) has no reference track: {why}; switches and lost need one"
+    )
 
 
 def _within_budget(
     f: Frame,
     k: int,
     states: int,
-    attack: tuple[bool, tuple[str, ...]],
+    attack: tuple[bool, tuple[str, ...], np.ndarray],
     so_far: int,
     max_states: int | None,
 ) -> None:
     """A BudgetError unless step ``k`` may compute the successors of its ``states`` states
-    under the attacker's options (``attack``: attacked, actions), checked before any is
-    listed."""
+    under the attacker's options (``attack``: attacked, actions, attackable detections),
+    checked before any is listed."""
     count = states * option_count(f, *attack)
     if max_states is not None and so_far + count > max_states:
         raise BudgetError(
@@ -112,9 +136,26 @@ def _within_budget(
         cands = f" and {len(f.candidates)} candidates" if "inject" in attack[1] else ""
         raise BudgetError(
             f"step {k} would compute {count} successors of {states} states (every "
-            f"subset of {len(f.detections)} detections{cands}): more than "
+            f"subset of {int(attack[2].sum())} detections{cands}): more than "
             f"{MAX_STEP_SUCCESSORS:,}; shorten the attack window"
         )
+
+
+#: What a state shows the ``dist`` measures: the box of the track with the target's id
+#: (nan: no such track now) and whether that track was deleted (born, and gone since).
+_Look = tuple[np.ndarray, bool]
+
+#: One successor: source, state, target's track id, last, the subset hidden, its look.
+_Made = tuple[int, MultiState, int, int, tuple[int, ...], _Look]
+
+
+def _look(ft: FrameTracks, state: MultiState, me: int) -> _Look:
+    """The track of id ``me`` after a frame whose tracks are ``ft`` (the state after it:
+    ``state``): its box, and whether it was deleted."""
+    mine = np.nonzero(ft.ids == me)[0]
+    if mine.size:
+        return as_box(ft.boxes[mine[0]]).copy(), False
+    return np.full(4, np.nan), bool(me != NONE and me < state.next_id)
 
 
 @dataclass
@@ -134,22 +175,26 @@ class _Arrays:
         self.tid: list[int] = []
         self.ref: list[bool] = []
         self.last: list[int] = []
+        self.box: list[np.ndarray] = []
+        self.gone: list[bool] = []
         self.trans: list[tuple[int, int, float, int, tuple[int, ...], tuple[int, ...]]] = []
 
     @property
     def n(self) -> int:
         return len(self.step)
 
-    def add_state(self, k: int, tid: int, ref: bool, last: int) -> None:
+    def add_state(self, k: int, tid: int, ref: bool, last: int, look: _Look) -> None:
         self.step.append(k)
         self.tid.append(tid)
         self.ref.append(ref)
         self.last.append(last)
+        self.box.append(look[0])
+        self.gone.append(look[1])
 
     def add_level(
         self,
         k: int,
-        made: list[tuple[int, MultiState, int, int, tuple[int, ...]]],
+        made: list[_Made],
         pay: np.ndarray,
         ref: bool,
         d: int,
@@ -169,11 +214,11 @@ class _Arrays:
         base = self.n
         level = []
         for j in first[order]:
-            _, state, tid, last, _ = made[int(j)]
-            self.add_state(k, tid, ref, last)
+            _, state, tid, last, _, look = made[int(j)]
+            self.add_state(k, tid, ref, last, look)
             level.append(state)
         best: dict[tuple[int, int], _Cheapest] = {}
-        for j, (src, _, _, _, sub) in enumerate(made):
+        for j, (src, _, _, _, sub, _) in enumerate(made):
             dst = base + int(rank[inverse[j]])
             cost = subset_cost(pay, sub)
             cur = best.get((src, dst))
@@ -194,6 +239,8 @@ class _Arrays:
         names: tuple[tuple[str, ...], ...],
         end: int,
         window: tuple[int, int],
+        refbox: np.ndarray,
+        me: int,
     ) -> MultiModel:
         t = self.trans
         return MultiModel(
@@ -211,4 +258,8 @@ class _Arrays:
             names=names,
             end=end,
             window=window,
+            box=np.array(self.box, dtype=float).reshape(-1, 4),
+            gone=np.array(self.gone, dtype=bool),
+            refbox=refbox,
+            target=me,
         )

@@ -288,20 +288,41 @@ def ranks_and_payoffs(src: np.ndarray, cost: np.ndarray) -> tuple[np.ndarray, np
 # ---------------------------------------- multi-target trackers: any subset
 
 
-def hidden_subsets(frame: Frame, attacked: bool) -> Iterator[tuple[int, ...]]:
+def attackable(frame: Frame, ref: np.ndarray | None, radius: float | None) -> np.ndarray:
+    """Which of the frame's detections a multi-target tracker's attacker may hide: those
+    of finite payoff and, with ``attack window L..U within R`` (``radius`` R), whose
+    position lies within R px of the centre of the target's reference box ``ref``
+    [x1, y1, x2, y2] (none where the reference does not exist). Injection candidates are
+    not limited by R: the scene places them."""
+    can = np.array([not math.isinf(d.payoff) for d in frame.detections], dtype=bool)
+    if radius is None or not len(can):
+        return can
+    if ref is None:
+        return np.zeros(len(can), dtype=bool)
+    c = np.array([(ref[0] + ref[2]) / 2.0, (ref[1] + ref[3]) / 2.0])
+    near: np.ndarray = can & (np.hypot(*(frame.positions() - c).T) <= radius)
+    return near
+
+
+def hidden_subsets(
+    frame: Frame, attacked: bool, can: np.ndarray | None = None
+) -> Iterator[tuple[int, ...]]:
     """The subsets of the frame's detections the attacker may hide (indices), the empty
-    one (unattacked) first: every subset of the attackable ones when ``attacked``."""
+    one (unattacked) first: every subset of the attackable ones (``can``, default
+    :func:`attackable` without a radius) when ``attacked``."""
     if not attacked:
         yield ()
         return
-    can = [i for i, d in enumerate(frame.detections) if not math.isinf(d.payoff)]
-    for r in range(len(can) + 1):
-        yield from itertools.combinations(can, r)
+    mask = attackable(frame, None, None) if can is None else can
+    idx = np.nonzero(mask)[0].tolist()
+    for r in range(len(idx) + 1):
+        yield from itertools.combinations(idx, r)
 
 
-def subset_count(frame: Frame, attacked: bool) -> int:
+def subset_count(frame: Frame, attacked: bool, can: np.ndarray | None = None) -> int:
     """How many subsets :func:`hidden_subsets` yields, counted without listing them."""
-    return 2 ** sum(not math.isinf(d.payoff) for d in frame.detections) if attacked else 1
+    mask = attackable(frame, None, None) if can is None else can
+    return 2 ** int(mask.sum()) if attacked else 1
 
 
 def subset_cost(payoffs: np.ndarray, subset: tuple[int, ...]) -> float:
@@ -319,18 +340,23 @@ def injected_subsets(frame: Frame, attacked: bool) -> Iterator[tuple[int, ...]]:
         yield from itertools.combinations(range(len(frame.candidates)), r)
 
 
-def subset_options(frame: Frame, attacked: bool, actions: tuple[str, ...]) -> list[tuple[int, ...]]:
+def subset_options(
+    frame: Frame, attacked: bool, actions: tuple[str, ...], can: np.ndarray | None = None
+) -> list[tuple[int, ...]]:
     """Every option of a multi-target tracker's attacker taking ``actions``
     (lesmc/language/actions.py) at the frame, the unattacked one first: the detections
-    hidden (indices i < n, n the frame's detections), then the candidates injected (n + j
-    for candidate j)."""
+    hidden (indices i < n into ``can``, the attackable ones, n the frame's detections),
+    then the candidates injected (n + j for candidate j)."""
     n = len(frame.detections)
     inject = attacked and "inject" in actions
     added = [tuple(n + j for j in s) for s in injected_subsets(frame, inject)]
-    return [h + a for h in hidden_subsets(frame, attacked and "hide" in actions) for a in added]
+    hidden = hidden_subsets(frame, attacked and "hide" in actions, can)
+    return [h + a for h in hidden for a in added]
 
 
-def option_count(frame: Frame, attacked: bool, actions: tuple[str, ...]) -> int:
+def option_count(
+    frame: Frame, attacked: bool, actions: tuple[str, ...], can: np.ndarray | None = None
+) -> int:
     """How many options :func:`subset_options` lists, counted without listing them."""
     adds = 2 ** len(frame.candidates) if attacked and "inject" in actions else 1
-    return subset_count(frame, attacked and "hide" in actions) * adds
+    return subset_count(frame, attacked and "hide" in actions, can) * adds
