@@ -682,16 +682,19 @@ def _truth_frames(src: _Source, scene: Scene) -> list[TruthFrame]:
     return [t for t in tfs[: next((i for i, t in enumerate(tfs) if t is None), len(tfs))] if t]
 
 
-def video_truth(req: Request, rep: Reporter) -> tuple[Scene, list[TruthFrame], tuple[int, int]]:
+def video_truth(
+    req: Request, rep: Reporter, priced: bool = False
+) -> tuple[Scene, list[TruthFrame], tuple[int, int]]:
     """What ``lesmc verify`` measures the monitor's false alarms on (``lesmc alarms`` on a
     video): the video's scene, perceived (or read from OUT/cache) with its target chosen
-    as verify chooses it, without payoffs; the truth frames from the target's frame on;
-    the frame size."""
+    as verify chooses it, without payoffs (``priced``: with the payoffs priced when a
+    model reads them, as verify checks it; ``lesmc tune``); the truth frames from the
+    target's frame on; the frame size."""
     specs = load_specs([Path(s) for s in req.specs] or bundled_specs(), req.window)
     src = _perceived(req, specs, rep, False, True)
     if src.frames is None or src.truth is None:
         raise UsageError("the video has no truth.json: give --truth (the truth tracks to run)")
-    scene = src.scene.payoff_free()
+    scene = src.scene if priced else src.scene.payoff_free()
     return scene, _truth_frames(src, scene), (src.frames.width, src.frames.height)
 
 

@@ -38,6 +38,7 @@ from lesmc.language import monitors
 from lesmc.language.monitors import Domain
 from lesmc.language.properties import Monitor, SpecFile
 from lesmc.model.kernel import track_alarms
+from lesmc.perception.quality import TruthFrame
 from lesmc.pipeline.check import run
 from lesmc.pipeline.job import Job
 from lesmc.scene import Scene
@@ -709,3 +710,19 @@ def write_tracker(path: str, cfg: TrackerConfig, comment: str) -> None:
         write_json(path, {"comment": comment, **cfg.to_json()})
     else:
         atomic_write_text(path, tracker_file_text(cfg, comment))
+
+
+def video_truth_tracks(
+    frames: Sequence[TruthFrame], starts: Iterable[TruthStart]
+) -> list[dict[int, tuple[float, float]]]:
+    """Per start of a video (``vid``: its vehicle's id), its true positions by step after
+    the target's frame (``frames[0]``)."""
+    out = []
+    for s in starts:
+        at: dict[int, tuple[float, float]] = {}
+        for j, tf in enumerate(frames):
+            if s.vid in tf.ids:
+                x, y = tf.positions[tf.ids.index(s.vid)]
+                at[j] = (float(x), float(y))
+        out.append(at)
+    return out
