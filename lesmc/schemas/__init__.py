@@ -41,6 +41,7 @@ SCHEMAS = {
     "lesmc-export": "export",
     "lesmc-import": "import",
     "lesmc-alarms": "alarms",
+    "lesmc-tune": "tune",
 }
 
 
