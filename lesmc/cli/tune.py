@@ -20,10 +20,13 @@ from lesmc.engines.check import DEFAULT_MAX_STATES
 if TYPE_CHECKING:
     from lesmc.experiment.tune import Group, Outcome, Tuned
 
+#: SOURCE naming the embedded default video (rendered in OUT/video, as lesmc verify).
+DEFAULT_VIDEO = "default"
+
 
 @click.command("tune")
 @click.argument("source", required=True, type=click.Path())
-@click.argument("specs", nargs=-1, required=True, type=click.Path(dir_okay=False))
+@click.argument("specs", nargs=-1, required=False, type=click.Path(dir_okay=False))
 @click.option(
     "--space",
     "space_file",
@@ -123,12 +126,14 @@ def tune_cmd(
     \b
     SOURCE is a scene file with truth tracks, or a video (a directory of frames with
     truth.json, perceived as lesmc verify does; payoffs priced when a model reads
-    them). A design is a tracker with parameter values and a runtime monitor (or
-    none), as the space file declares them. Each is checked exactly on every property
-    of SPECS (as lesmc check --design D --tracker T checks it), its monitor run on
-    the unattacked tracks started at every moving truth vehicle (as lesmc alarms),
-    and its tracking error measured there against the truth. Designs that differ
-    only in the monitor share one model. Prints the table, the Pareto front (each
+    them; "default": the embedded default video in OUT/video, as lesmc verify).
+    SPECS default to the paper's robustness and resilience (specs/, as verify).
+    A design is a tracker with parameter values and a runtime monitor (or none), as
+    the space file declares them. Each is checked exactly on every property of
+    SPECS (as lesmc check --design D --tracker T checks it), its monitor run on the
+    unattacked tracks started at every moving truth vehicle (as lesmc alarms), and
+    its tracking error measured there against the truth. Designs that differ only
+    in the monitor share one model. Prints the table, the Pareto front (each
     property's optimum up, false alarms and tracking error down) and the best design
     whose false-alarm rate is within --budget.
     """
@@ -137,6 +142,10 @@ def tune_cmd(
 
     if workers and scheduler:
         raise UsageError("--workers and --scheduler exclude each other")
+    if not specs:
+        from lesmc.experiment.experiment import bundled_specs
+
+        specs = tuple(str(p) for p in bundled_specs())
     parsed = tuple(load_spec(s) for s in specs)
     if Path(source).is_file():
         if truth is not None:
@@ -158,10 +167,11 @@ def tune_cmd(
             )
         from lesmc.cli.alarms import video_source
 
-        if not Path(source).is_dir():
+        default = source == DEFAULT_VIDEO and not Path(source).exists()
+        if not default and not Path(source).is_dir():
             raise UsageError(f"{source}: no such video directory or scene file")
         scene, starts, _ids, tfs = video_source(
-            source, truth, out_dir, tracker_file, priced=True, verb="tune"
+            None if default else source, truth, out_dir, tracker_file, priced=True, verb="tune"
         )
         truths = tune.video_truth_tracks(tfs, starts)
         last = len(tfs) - 1

@@ -160,11 +160,13 @@ def docs_table() -> str:
     )
     for name in monitors.names():
         kind = monitors.get(name)
-        if kind.memory(1.0, 1) == 0:  # the checker reads one transition at a time
-            rows.append(
-                f"| `[{MONITOR_KEY}]` `{name}` | {kind.summary}: its {kind.parameter} | "
-                f"{kind.domain.text()} | every tracker |"
-            )
+        values = kind.domain.text()
+        if kind.memory(kind.domain.lo + 1, 1) > 0:  # the checker reads one transition
+            values = f"{kind.domain.lo:g} (the checker reads one transition at a time)"
+        rows.append(
+            f"| `[{MONITOR_KEY}]` `{name}` | {kind.summary}: its {kind.parameter} | "
+            f"{values} | every tracker |"
+        )
     return "\n".join(rows)
 
 
