@@ -186,7 +186,15 @@ def tune_cmd(
     if workers or scheduler:
         tuned = _on_dask(all_groups, budget, workers, scheduler)
     else:
-        tuned = tune.tune(all_groups, budget)
+        from lesmc.common.progress import Reporter
+
+        with Reporter("tune") as rep:
+
+            def told(i: int, g: Group) -> None:
+                label = g.designs[0].label().rsplit(" + ", 1)[0]
+                rep.stage(f"checking {label} ({i + 1}/{len(all_groups)})")
+
+            tuned = tune.tune(all_groups, budget, on_group=told)
     if best_out is not None:
         _write_best(tuned, best_out, scene, source, specs)
     if plot is not None:

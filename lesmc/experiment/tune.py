@@ -667,10 +667,19 @@ def tune(
     budget: float,
     mapper: Callable[[Callable[[Group], list[Outcome]], Sequence[Group]], Iterable[list[Outcome]]]
     | None = None,
+    on_group: Callable[[int, Group], None] | None = None,
 ) -> Tuned:
-    """Evaluate every group (``mapper``: how, e.g. on Dask; default here, one by one), mark
-    the Pareto front and choose the best design under ``budget``."""
-    mapped = (mapper or (lambda f, gs: map(f, gs)))(evaluate, all_groups)
+    """Evaluate every group (``mapper``: how, e.g. on Dask; default here, one by one, and
+    ``on_group`` told of each before it starts), mark the Pareto front and choose the best
+    design under ``budget``."""
+    if mapper is None:
+        mapped = []
+        for i, g in enumerate(all_groups):
+            if on_group is not None:
+                on_group(i, g)
+            mapped.append(evaluate(g))
+    else:
+        mapped = list(mapper(evaluate, all_groups))
     outcomes = pareto([o for outs in mapped for o in outs])
     return Tuned(outcomes, best(outcomes, budget), budget, len(all_groups))
 
