@@ -257,8 +257,9 @@ def _check_command(o: Outcome, source: str, specs: Sequence[str], tracker: str) 
     design = o.design.check_design()
     if Path(source).is_file():
         words = ["lesmc", "check", source, *specs]
-    else:
-        words = ["lesmc", "verify", source, *(w for s in specs for w in ("--spec", s))]
+    else:  # the embedded default video is verify's without FRAMES_DIR
+        video = [] if source == DEFAULT_VIDEO and not Path(source).exists() else [source]
+        words = ["lesmc", "verify", *video, *(w for s in specs for w in ("--spec", s))]
     words += ["--design", design, "--tracker", tracker]
     return " ".join(shlex.quote(w) for w in words)
 
