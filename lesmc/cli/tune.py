@@ -195,8 +195,9 @@ def tune_cmd(
                 rep.stage(f"checking {label} ({i + 1}/{len(all_groups)})")
 
             tuned = tune.tune(all_groups, budget, on_group=told)
+    checker = _checker(source, specs, truth, out_dir)
     if best_out is not None:
-        _write_best(tuned, best_out, scene, source, specs)
+        _write_best(tuned, best_out, scene, checker)
     if plot is not None:
         from lesmc.cli.tune_plot import draw
 
@@ -205,7 +206,7 @@ def tune_cmd(
     if as_json:
         emit(doc)
         return
-    _print(tuned, source, specs, best_out)
+    _print(tuned, source, checker, best_out)
 
 
 def _on_dask(
@@ -230,7 +231,7 @@ def _on_dask(
             cluster.close()
 
 
-def _write_best(tuned: Tuned, path: str, scene: Any, source: str, specs: Sequence[str]) -> None:
+def _write_best(tuned: Tuned, path: str, scene: Any, checker: list[str]) -> None:
     """The best design under the budget as a tracker file (none: an error, exit 2)."""
     from lesmc.experiment import tune
 
@@ -244,23 +245,28 @@ def _write_best(tuned: Tuned, path: str, scene: Any, source: str, specs: Sequenc
         f"lesmc tune: the best design under a false-alarm budget of {tuned.budget:g}\n"
         f"{b.design.label()}: {b.holding} of {len(b.results)} properties hold; "
         f"{b.alarms} false alarms in {b.steps} steps\n"
-        f"check it: {_check_command(b, source, specs, path)}"
+        f"check it: {_check_command(b, checker, path)}"
     )
     tune.write_tracker(path, b.design.config(scene.tracker), comment)
 
 
-def _check_command(o: Outcome, source: str, specs: Sequence[str], tracker: str) -> str:
-    """The command that checks the design alone: ``lesmc check`` (a scene), ``lesmc verify``
-    (a video)."""
+def _checker(source: str, specs: Sequence[str], truth: str | None, out_dir: str) -> list[str]:
+    """The command that checks one design of SOURCE, up to its ``--design`` and
+    ``--tracker``: ``lesmc check`` (a scene), ``lesmc verify`` (a video)."""
+    if Path(source).is_file():
+        return ["lesmc", "check", source, *specs]
+    words = ["lesmc", "verify"]
+    if not (source == DEFAULT_VIDEO and not Path(source).exists()):  # else verify's default
+        words += [source, "--truth", truth or str(Path(source) / "truth.json")]
+    words += [w for s in specs for w in ("--spec", s)]
+    return [*words, "--out", out_dir]
+
+
+def _check_command(o: Outcome, checker: list[str], tracker: str) -> str:
+    """``checker`` for design ``o`` with its tracker file ``tracker``, quoted for a shell."""
     import shlex
 
-    design = o.design.check_design()
-    if Path(source).is_file():
-        words = ["lesmc", "check", source, *specs]
-    else:  # the embedded default video is verify's without FRAMES_DIR
-        video = [] if source == DEFAULT_VIDEO and not Path(source).exists() else [source]
-        words = ["lesmc", "verify", *video, *(w for s in specs for w in ("--spec", s))]
-    words += ["--design", design, "--tracker", tracker]
+    words = [*checker, "--design", o.design.check_design(), "--tracker", tracker]
     return " ".join(shlex.quote(w) for w in words)
 
 
@@ -270,7 +276,7 @@ def _optimum(r: Any) -> str:
     return "inf" if math.isinf(r.optimum) else f"{r.optimum:.4g}"
 
 
-def _print(tuned: Tuned, source: str, specs: Sequence[str], best_out: str | None) -> None:
+def _print(tuned: Tuned, source: str, checker: list[str], best_out: str | None) -> None:
     """The table (front marked *), then the best design under the budget."""
     outs = tuned.outcomes
     if not outs:
@@ -308,6 +314,4 @@ def _print(tuned: Tuned, source: str, specs: Sequence[str], best_out: str | None
     )  # fmt: skip
     click.echo(f"best under {tuned.budget:.1%} false alarms: {b.design.label()} ({holds})")
     if best_out is not None:
-        click.echo(
-            f"  written to {best_out}; check it: {_check_command(b, source, specs, best_out)}"
-        )
+        click.echo(f"  written to {best_out}; check it: {_check_command(b, checker, best_out)}")
