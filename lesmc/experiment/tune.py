@@ -19,11 +19,12 @@ every monitor, and whose unattacked tracks are run once.
 
 from __future__ import annotations
 
+import builtins
 import itertools
 import math
 from collections.abc import Callable, Iterable, Mapping, Sequence
 from dataclasses import dataclass, field, replace
-from typing import Any
+from typing import Any, Protocol
 
 import numpy as np
 
@@ -32,7 +33,6 @@ from lesmc.common.errors import InputError, Location, UsageError, clipped
 from lesmc.common.fields import MAX_STEP
 from lesmc.common.files import key_locations, read_text, read_toml
 from lesmc.designs import registry
-from lesmc.engines.result import CheckResult
 from lesmc.experiment.false_alarms import Series, TruthStart, unattacked_tracks
 from lesmc.language import monitors
 from lesmc.language.monitors import Domain
@@ -53,6 +53,27 @@ VERSION = 1
 DEFAULT_BUDGET = 0.01
 #: The space file's key of the trackers, and of the monitor table (and its "no monitor").
 DESIGN_KEY, MONITOR_KEY, NO_MONITOR = "design", "monitor", "none"
+
+
+class CheckResult(Protocol):
+    """What a design search reads of a check's result (lesmc/engines/result.py's
+    ``CheckResult``, which the experiment layer sees through the pipeline)."""
+
+    @builtins.property
+    def property(self) -> str: ...
+    @builtins.property
+    def verdict(self) -> str: ...
+    @builtins.property
+    def optimum(self) -> float | None: ...
+    @builtins.property
+    def optimum_known(self) -> bool: ...
+    @builtins.property
+    def vacuous(self) -> bool: ...
+    @builtins.property
+    def threshold(self) -> float: ...
+    @builtins.property
+    def status(self) -> str: ...
+    def optimum_json(self) -> float | str: ...
 
 
 # ------------------------------------------------------------------ the parameters
