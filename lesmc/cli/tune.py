@@ -18,7 +18,10 @@ from lesmc.engines import registry as engines
 from lesmc.engines.check import DEFAULT_MAX_STATES
 
 if TYPE_CHECKING:
-    from lesmc.experiment.tune import Group, Outcome, Tuned
+    from lesmc.experiment.false_alarms import TruthStart
+    from lesmc.experiment.tune import Group, Outcome, Space, Tuned
+    from lesmc.language.properties import SpecFile
+    from lesmc.scene import Scene
 
 #: SOURCE naming the embedded default video (rendered in OUT/video, as lesmc verify).
 DEFAULT_VIDEO = "default"
@@ -137,64 +140,19 @@ def tune_cmd(
     property's optimum up, false alarms and tracking error down) and the best design
     whose false-alarm rate is within --budget.
     """
-    from lesmc.api import load_spec
     from lesmc.experiment import tune
 
     if workers and scheduler:
         raise UsageError("--workers and --scheduler exclude each other")
-    if not specs:
-        from lesmc.experiment.experiment import bundled_specs
-
-        specs = tuple(str(p) for p in bundled_specs())
-    parsed = tuple(load_spec(s) for s in specs)
-    if Path(source).is_file():
-        if truth is not None:
-            raise UsageError("--truth applies to a video, not to a scene")
-        from lesmc.experiment.alarms import scene_starts
-
-        scene = load_scene_file(source, None, None, tracker_file)
-        if not scene.truth:
-            raise UsageError(f"{source}: the scene has no truth tracks to run unattacked")
-        starts, _ids = scene_starts(scene)
-        truths = tune.scene_truth(scene, starts)
-        last = scene.last_step - scene.target.step
-        where = source
-    else:
-        if workers or scheduler:
-            raise UsageError(
-                "a video's payoffs are priced in this process when a model reads them: "
-                "--workers and --scheduler need a scene file"
-            )
-        from lesmc.cli.alarms import video_source
-
-        default = source == DEFAULT_VIDEO and not Path(source).exists()
-        if not default and not Path(source).is_dir():
-            raise UsageError(f"{source}: no such video directory or scene file")
-        scene, starts, _ids, tfs = video_source(
-            None if default else source, truth, out_dir, tracker_file, priced=True, verb="tune"
-        )
-        truths = tune.video_truth_tracks(tfs, starts)
-        last = len(tfs) - 1
-        where = str(Path(out_dir) / "scene.json")
-    if scene.tracker.monitor is not None:
-        raise UsageError("the scene's tracker declares a monitor: the space's [monitor] chooses")
-    space = tune.read_space(space_file, scene.tracker)
+    specs, parsed = _specs(specs)
+    scene, starts, truths, last, space, where = _source(
+        source, space_file, truth, out_dir, tracker_file, bool(workers or scheduler)
+    )
     all_groups = tune.groups(
         scene, parsed, space, starts, truths, min(last, steps or last), engines.DEFAULT,
         payoff_modes.DEFAULT, max_states, timeout, where,
     )  # fmt: skip
-    if workers or scheduler:
-        tuned = _on_dask(all_groups, budget, workers, scheduler)
-    else:
-        from lesmc.common.progress import Reporter
-
-        with Reporter("tune") as rep:
-
-            def told(i: int, g: Group) -> None:
-                label = g.designs[0].label().rsplit(" + ", 1)[0]
-                rep.stage(f"checking {label} ({i + 1}/{len(all_groups)})")
-
-            tuned = tune.tune(all_groups, budget, on_group=told)
+    tuned = _evaluate(all_groups, budget, workers, scheduler)
     checker = _checker(source, specs, truth, out_dir)
     if best_out is not None:
         _write_best(tuned, best_out, scene, checker)
@@ -207,6 +165,107 @@ def tune_cmd(
         emit(doc)
         return
     _print(tuned, source, checker, best_out)
+
+
+def _specs(specs: tuple[str, ...]) -> tuple[tuple[str, ...], tuple[SpecFile, ...]]:
+    """The spec files (none: the paper's robustness and resilience, as verify) and parsed."""
+    from lesmc.api import load_spec
+
+    if not specs:
+        from lesmc.experiment.experiment import bundled_specs
+
+        specs = tuple(str(p) for p in bundled_specs())
+    return specs, tuple(load_spec(s) for s in specs)
+
+
+def _source(
+    source: str,
+    space_file: str,
+    truth: str | None,
+    out_dir: str,
+    tracker_file: str | None,
+    on_dask: bool,
+) -> tuple[Scene, list[TruthStart], list[dict[int, tuple[float, float]]], int, Space, str]:
+    """SOURCE's scene, starts, their truth, the last step, the space read for its tracker,
+    and the name checks give the scene in messages."""
+    from lesmc.experiment import tune
+
+    if Path(source).is_file():
+        scene, starts, truths, last = _scene_source(source, truth, tracker_file)
+        space = tune.read_space(space_file, scene.tracker)
+        where = source
+    else:
+        if on_dask:
+            raise UsageError(
+                "a video's payoffs are priced in this process when a model reads them: "
+                "--workers and --scheduler need a scene file"
+            )
+        from lesmc.scene.io import load_tracker
+        from lesmc.scene.scene import TrackerConfig
+
+        base = load_tracker(tracker_file) if tracker_file else TrackerConfig()
+        tune.read_space(space_file, base)  # its mistakes before the video's perception
+        scene, starts, truths, last = _video_source(source, truth, out_dir, tracker_file)
+        space = tune.read_space(space_file, scene.tracker)
+        where = str(Path(out_dir) / "scene.json")
+    return scene, starts, truths, last, space, where
+
+
+def _scene_source(
+    source: str, truth: str | None, tracker_file: str | None
+) -> tuple[Scene, list[TruthStart], list[dict[int, tuple[float, float]]], int]:
+    """A scene file's scene, the starts of its truth tracks, their truth and the last step."""
+    from lesmc.experiment import tune
+    from lesmc.experiment.alarms import scene_starts
+
+    if truth is not None:
+        raise UsageError("--truth applies to a video, not to a scene")
+    scene = _no_monitor(load_scene_file(source, None, None, tracker_file))
+    if not scene.truth:
+        raise UsageError(f"{source}: the scene has no truth tracks to run unattacked")
+    starts, _ids = scene_starts(scene)
+    return scene, starts, tune.scene_truth(scene, starts), scene.last_step - scene.target.step
+
+
+def _video_source(
+    source: str, truth: str | None, out_dir: str, tracker_file: str | None
+) -> tuple[Scene, list[TruthStart], list[dict[int, tuple[float, float]]], int]:
+    """A video's scene (payoffs priced on demand), starts, their truth and the last step."""
+    from lesmc.cli.alarms import video_source
+    from lesmc.experiment import tune
+
+    default = source == DEFAULT_VIDEO and not Path(source).exists()
+    if not default and not Path(source).is_dir():
+        raise UsageError(f"{source}: no such video directory or scene file")
+    scene, starts, _ids, tfs = video_source(
+        None if default else source, truth, out_dir, tracker_file, priced=True, verb="tune"
+    )
+    return _no_monitor(scene), starts, tune.video_truth_tracks(tfs, starts), len(tfs) - 1
+
+
+def _no_monitor(scene: Scene) -> Scene:
+    """A scene whose tracker declares no monitor: the space's ``[monitor]`` chooses them."""
+    if scene.tracker.monitor is not None:
+        raise UsageError("the tracker declares a monitor: the space's [monitor] table chooses")
+    return scene
+
+
+def _evaluate(
+    all_groups: Sequence[Group], budget: float, workers: int, scheduler: str | None
+) -> Tuned:
+    """Every group, here (with progress) or on Dask."""
+    if workers or scheduler:
+        return _on_dask(all_groups, budget, workers, scheduler)
+    from lesmc.common.progress import Reporter
+    from lesmc.experiment import tune
+
+    with Reporter("tune") as rep:
+
+        def told(i: int, g: Group) -> None:
+            label = g.designs[0].label().rsplit(" + ", 1)[0]
+            rep.stage(f"checking {label} ({i + 1}/{len(all_groups)})")
+
+        return tune.tune(all_groups, budget, on_group=told)
 
 
 def _on_dask(
