@@ -34,8 +34,9 @@ def draw(outcomes: Sequence[Outcome], budget: float, path: str) -> None:
             and o.results[k].optimum_known
             and not o.results[k].vacuous
         ]
-        finite = [y for _, y, _ in shown if y is not None and math.isfinite(y)]
-        top = (max(finite) * 1.15 if finite and max(finite) > 0 else 1.0) or 1.0
+        thr = outcomes[0].results[k].threshold
+        finite = [y for _, y, _ in shown if y is not None and math.isfinite(y)] + [thr]
+        top = max(finite) * 1.15 if max(finite) > 0 else 1.0  # where +inf is drawn
         pts = [(x, top if y is None or math.isinf(y) else y, f) for x, y, f in shown]
         rest = [(x, y) for x, y, f in pts if not f]
         front = sorted((x, y) for x, y, f in pts if f)
@@ -43,7 +44,6 @@ def draw(outcomes: Sequence[Outcome], budget: float, path: str) -> None:
             ax.scatter(*zip(*rest, strict=True), c="0.65", s=18, label="designs")
         if front:
             ax.plot(*zip(*front, strict=True), "o-", c="tab:red", ms=6, label="Pareto front")
-        thr = outcomes[0].results[k].threshold
         ax.axhline(thr, ls="--", c="tab:blue", lw=1, label=f"holds if > {thr:g}")
         ax.axvline(budget, ls=":", c="k", lw=1, label=f"budget {budget:.1%}")
         hidden = len(outcomes) - len(shown)
