@@ -19,8 +19,8 @@ from typing import Any
 
 import numpy as np
 import pytest
-from click.testing import CliRunner
 from cli_run import lesmc
+from click.testing import CliRunner
 
 ROOT = Path(__file__).resolve().parents[1]
 SPECS = [str(ROOT / "specs" / "robustness.spec"), str(ROOT / "specs" / "resilience.spec")]
@@ -29,9 +29,8 @@ SPECS = [str(ROOT / "specs" / "robustness.spec"), str(ROOT / "specs" / "resilien
 def _scene(path: Path, seed: int) -> Path:
     """A random small scene with truth: 2-4 straight-line vehicles near the target, some
     leaving early, detections a little off the truth."""
-    from lesmc.scene.frames import Frame
+    from lesmc.scene.frames import Detection, Frame
     from lesmc.scene.io import save_scene
-    from lesmc.scene.frames import Detection
     from lesmc.scene.scene import TruthTrack
     from lesmc.scene.toy import Vehicle, vehicle_scene
 
@@ -132,8 +131,10 @@ def _front(objs: list[tuple[float, ...]]) -> list[int]:
     for i, a in enumerate(objs):
         beaten = False
         for j, b in enumerate(objs):
-            if j != i and all(x >= y for x, y in zip(b, a)) and any(
-                x > y for x, y in zip(b, a)
+            if (
+                j != i
+                and all(x >= y for x, y in zip(b, a, strict=True))
+                and any(x > y for x, y in zip(b, a, strict=True))
             ):
                 beaten = True
         if not beaten:
@@ -206,9 +207,7 @@ def test_tracking_error_is_the_mean_distance_to_the_truth(tmp_path: Path) -> Non
     sc = load_scene(path)
     sc = dataclasses.replace(
         sc,
-        frames=tuple(
-            dataclasses.replace(f, detections=f.detections[:1]) for f in sc.frames
-        ),
+        frames=tuple(dataclasses.replace(f, detections=f.detections[:1]) for f in sc.frames),
         truth=sc.truth[:1],
     )
     starts, _ = scene_starts(sc)
@@ -306,3 +305,12 @@ def test_the_docs_table_is_the_registrys() -> None:
     from lesmc.experiment.tune import docs_table
 
     assert docs_table() in (ROOT / "docs" / "cli.md").read_text()
+
+
+def test_dask_workers_give_the_same_document(tmp_path: Path) -> None:
+    scene = _scene(tmp_path / "s.json", 2)
+    space = _space(tmp_path / "space.toml", 2)
+    here = _invoke(["tune", str(scene), *SPECS, "--space", str(space)])
+    r = lesmc("tune", str(scene), *SPECS, "--space", str(space), "--workers", "2", "--json")
+    assert r.returncode == 0 and "Traceback" not in r.stderr, r.stderr
+    assert json.loads(r.stdout) == here

@@ -344,14 +344,14 @@ def _print(tuned: Tuned, source: str, checker: list[str], best_out: str | None) 
     width = max(len(o.design.label()) for o in outs)
     head = f"  {'#':>3}  {'design':<{width}}"
     for p in props:
-        head += f"  {p[:22]:>22}"
+        head += f"  {p[:30]:>30}"
     head += f"  {'false alarms':>16}  {'track err':>9}"
     click.echo(f"{len(outs)} designs in {tuned.groups} tracker configurations on {source}")
     click.echo(head)
     for i, o in enumerate(outs):
         line = f"{'*' if o.front else ' '} {i:>3}  {o.design.label():<{width}}"
         for r in o.results:
-            line += f"  {(r.status + ' ' + _optimum(r))[:22]:>22}"
+            line += f"  {(r.status + ' ' + _optimum(r))[:30]:>30}"
         err = "—" if o.tracking_error is None else f"{o.tracking_error:.2f}"
         line += f"  {o.alarms:>5}/{o.steps:<5} {o.rate:>5.1%}  {err:>9}"
         click.echo(line)
