@@ -26,6 +26,7 @@ import time
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
+SPECS = [str(ROOT / "specs" / "robustness.spec"), str(ROOT / "specs" / "resilience.spec")]
 SPACE = """design = ["single", "joint"]
 gate = [1.5, 2.0, 2.5, 3.0, 4.0]
 [monitor]
@@ -65,9 +66,11 @@ def main() -> None:
     space = out / "space.toml"
     space.write_text(SPACE)
 
-    t_tune, r = timed("tune", str(scene), "--space", str(space), "--json")
+    t_tune, r = timed("tune", str(scene), *SPECS, "--space", str(space), "--json")
     doc = json.loads(r.stdout)
-    t_dask, r2 = timed("tune", str(scene), "--space", str(space), "--workers", "2", "--json")
+    t_dask, r2 = timed(
+        "tune", str(scene), *SPECS, "--space", str(space), "--workers", "2", "--json"
+    )
     assert json.loads(r2.stdout)["designs"] == doc["designs"]
 
     t_checks = 0.0
@@ -79,8 +82,9 @@ def main() -> None:
             lines.append(f'monitor = "{d["monitor"]["kind"]} {d["monitor"]["parameter"]!r}"')
         t.write_text("\n".join(lines) + "\n")
         dt, c = timed(
-            "check", str(scene), "--design", d["check_design"], "--tracker", str(t), "--json"
-        )
+            "check", str(scene), *SPECS, "--design", d["check_design"], "--tracker", str(t),
+            "--json",
+        )  # fmt: skip
         t_checks += dt
         got = [(x["verdict"], x["optimum"], x["vacuous"]) for x in json.loads(c.stdout)["results"]]
         want = [(x["verdict"], x["optimum"], x["vacuous"]) for x in d["results"]]
