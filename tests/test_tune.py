@@ -314,3 +314,35 @@ def test_dask_workers_give_the_same_document(tmp_path: Path) -> None:
     r = lesmc("tune", str(scene), *SPECS, "--space", str(space), "--workers", "2", "--json")
     assert r.returncode == 0 and "Traceback" not in r.stderr, r.stderr
     assert json.loads(r.stdout) == here
+
+
+@pytest.mark.parametrize("suffix", [".toml", ".json"])
+def test_a_declared_models_scalings_reach_the_tracker_file(tmp_path: Path, suffix: str) -> None:
+    """q_scale and r_scale multiply a declared model's Q and R; the best design's file
+    (TOML or JSON) holds the scaled matrices and checks as tune checked it."""
+    scene = _scene(tmp_path / "s.json", 4)
+    declared = ROOT / "examples" / "trackers" / "ca6.json"
+    space = tmp_path / "space.toml"
+    space.write_text("q_scale = [0.5, 2.0]\nr_scale = [0.25]\n[monitor]\nnone = true\n")
+    best = tmp_path / f"best{suffix}"
+    r = lesmc(
+        "tune", str(scene), SPECS[0], "--space", str(space), "--tracker", str(declared),
+        "--budget", "1", "--best-out", str(best), "--json",
+    )  # fmt: skip
+    assert r.returncode == 0 and "Traceback" not in r.stderr, r.stderr
+    doc = json.loads(r.stdout)
+    row = doc["designs"][doc["best"]]
+    cfg = json.loads(best.read_text()) if suffix == ".json" else tomllib.loads(best.read_text())
+    model = json.loads(declared.read_text())["model"]
+    q, rr = row["parameters"]["q_scale"], row["parameters"]["r_scale"]
+    assert np.allclose(cfg["model"]["Q"], np.array(model["Q"]) * q)
+    assert np.allclose(cfg["model"]["R"], np.array(model["R"]) * rr)
+    c = lesmc("check", str(scene), SPECS[0], "--tracker", str(best), "--json")
+    assert c.returncode in (0, 1) and "Traceback" not in c.stderr, c.stderr
+    got = [(x["verdict"], x["optimum"]) for x in json.loads(c.stdout)["results"]]
+    assert got == [(x["verdict"], x["optimum"]) for x in row["results"]]
+    for other in doc["designs"]:  # sigma_q names a preset's noise: refused for this model
+        assert "sigma_q" not in other["parameters"]
+    space.write_text("sigma_q = [2.0]\n")
+    bad = lesmc("tune", str(scene), SPECS[0], "--space", str(space), "--tracker", str(declared))
+    assert bad.returncode == 2 and f"{space}:1:1: sigma_q: the design has no sigma_q" in bad.stderr
