@@ -351,3 +351,55 @@ def test_a_declared_models_scalings_reach_the_tracker_file(tmp_path: Path, suffi
     space.write_text("sigma_q = [2.0]\n")
     bad = lesmc("tune", str(scene), SPECS[0], "--space", str(space), "--tracker", str(declared))
     assert bad.returncode == 2 and f"{space}:1:1: sigma_q: the design has no sigma_q" in bad.stderr
+
+
+def test_verify_space_reports_a_design_that_holds(tmp_path: Path) -> None:
+    """``lesmc verify --space``: results.json keeps the search (the front's rows of what
+    ``lesmc tune`` finds on the same video), the report shows it, and ``lesmc report``
+    draws it again from the results file alone."""
+    from lesmc.results.load import load_results
+
+    video = tmp_path / "video"
+    r = lesmc(
+        "synth", str(video), "--frames", "16", "--size", "768x768", "--seed", "4",
+        "--density", "2.5",
+    )  # fmt: skip
+    assert r.returncode == 0, r.stderr
+    space = tmp_path / "space.toml"
+    space.write_text("budget = 0.05\ngate = [2.0, 3.0]\n[monitor]\nnone = true\nnis = [0.8]\n")
+    out = tmp_path / "out"
+    common = ["--truth", str(video / "truth.json"), "--out", str(out)]
+    r = lesmc(
+        "verify", str(video), *common, "--design", "single", "--space", str(space)
+    )  # fmt: skip
+    assert r.returncode in (0, 1, 3) and "Traceback" not in r.stderr, r.stderr
+    doc = load_results(out / "results.json")  # valid against its schema
+    ds = doc["design_search"]
+    assert ds["budget"] == 0.05
+    t = lesmc("tune", str(video), *common, "--space", str(space), "--json")
+    assert t.returncode == 0 and "Traceback" not in t.stderr, t.stderr
+    tuned = json.loads(t.stdout)
+    rows = [tuned["designs"][i] for i in tuned["front"]]
+    kept = [d for d in ds["designs"] if d["front"]]
+    assert [d["label"] for d in kept] == [d["label"] for d in rows]
+    for a, b in zip(kept, rows, strict=True):  # payoffs priced in other batches: float32
+        assert a["false_alarms"] == b["false_alarms"]
+        for x, y in zip(a["results"], b["results"], strict=True):
+            assert x["status"] == y["status"]
+            assert x["optimum"] == y["optimum"] or x["optimum"] == pytest.approx(y["optimum"])
+    chosen = ds["designs"][ds["best"] if ds["best"] is not None else ds["closest"]]
+    page = (out / "report.html").read_text()
+    assert "A design that holds" in page and chosen["label"] in page
+    again = lesmc("report", str(out / "results.json"), "--out", str(tmp_path / "r2"))
+    assert again.returncode == 0, again.stderr
+    assert chosen["label"] in (tmp_path / "r2" / "report.html").read_text()
+
+
+def test_verify_refuses_a_bad_space_before_any_work(tmp_path: Path) -> None:
+    space = tmp_path / "space.toml"
+    space.write_text("gate = [2.0]\nbudget = 2\n")
+    out = tmp_path / "out"
+    r = lesmc("verify", "--space", str(space), "--out", str(out))
+    assert r.returncode == 2 and "Traceback" not in r.stderr, r.stderr
+    assert f"{space}:2:1: budget: must be a false-alarm rate in [0, 1]" in r.stderr
+    assert not (out / "video").exists()

@@ -40,10 +40,9 @@ DEFAULT_VIDEO = "default"
 @click.option(
     "--budget",
     type=click.FloatRange(0.0, 1.0),
-    default=0.01,
-    show_default=True,
+    default=None,
     help="The false-alarm rate (alarms per step of the unattacked tracks) the best design "
-    "may cost.",
+    "may cost [default: the space file's budget, else 0.01].",
 )
 @click.option(
     "--best-out",
@@ -111,7 +110,7 @@ def tune_cmd(
     source: str,
     specs: tuple[str, ...],
     space_file: str,
-    budget: float,
+    budget: float | None,
     best_out: str | None,
     plot: str | None,
     steps: int | None,
@@ -148,6 +147,8 @@ def tune_cmd(
     scene, starts, truths, last, space, where = _source(
         source, space_file, truth, out_dir, tracker_file, bool(workers or scheduler)
     )
+    if budget is None:
+        budget = tune.DEFAULT_BUDGET if space.budget is None else space.budget
     all_groups = tune.groups(
         scene, parsed, space, starts, truths, min(last, steps or last), engines.DEFAULT,
         payoff_modes.DEFAULT, max_states, timeout, where,

@@ -33,7 +33,7 @@ from lesmc.common.errors import InputError, Location, UsageError, clipped
 from lesmc.common.fields import MAX_STEP
 from lesmc.common.files import key_locations, read_text, read_toml
 from lesmc.designs import registry
-from lesmc.experiment.false_alarms import Series, TruthStart, unattacked_tracks
+from lesmc.experiment.false_alarms import Series, TruthStart, truth_starts, unattacked_tracks
 from lesmc.language import monitors
 from lesmc.language.monitors import Domain
 from lesmc.language.properties import Monitor, SpecFile
@@ -53,6 +53,8 @@ VERSION = 1
 DEFAULT_BUDGET = 0.01
 #: The space file's key of the trackers, and of the monitor table (and its "no monitor").
 DESIGN_KEY, MONITOR_KEY, NO_MONITOR = "design", "monitor", "none"
+#: The space file's key of the false-alarm budget (``--budget`` overrides it).
+BUDGET_KEY = "budget"
 
 
 class CheckResult(Protocol):
@@ -176,6 +178,10 @@ def docs_table() -> str:
     for p in PARAMETERS.values():
         rows.append(f"| `{p.name}` | {p.summary} | {p.domain.text()} | {p.has} |")
     rows.append(
+        f"| `{BUDGET_KEY}` | the false-alarm budget of the best design (`--budget` overrides "
+        f"it) | in [0, 1], default {DEFAULT_BUDGET:g} | — |"
+    )
+    rows.append(
         f"| `[{MONITOR_KEY}]` `{NO_MONITOR}` | also each tracker without a monitor | "
         "true or false | every tracker |"
     )
@@ -208,6 +214,8 @@ class Space:
     trackers: tuple[str, ...]
     values: tuple[tuple[str, tuple[float, ...]], ...]
     monitors: tuple[Monitor | None, ...]
+    #: the false-alarm budget the file declares (None: :data:`DEFAULT_BUDGET`)
+    budget: float | None = None
 
     @property
     def size(self) -> int:
@@ -230,10 +238,10 @@ def read_space(path: str, base: TrackerConfig) -> Space:
     trackers = _trackers(raw.get(DESIGN_KEY, base.design), fail)
     values = []
     for key, v in raw.items():
-        if key in (DESIGN_KEY, MONITOR_KEY):
+        if key in (DESIGN_KEY, MONITOR_KEY, BUDGET_KEY):
             continue
         if key not in PARAMETERS:
-            known = ", ".join([DESIGN_KEY, *PARAMETERS, MONITOR_KEY])
+            known = ", ".join([DESIGN_KEY, *PARAMETERS, MONITOR_KEY, BUDGET_KEY])
             raise fail(key, f"unknown parameter; a space declares {known} (docs/cli.md)")
         p = PARAMETERS[key]
         for t in trackers:
@@ -244,7 +252,10 @@ def read_space(path: str, base: TrackerConfig) -> Space:
     order = list(PARAMETERS)
     values.sort(key=lambda kv: order.index(kv[0]))
     mons = _monitors(raw.get(MONITOR_KEY), fail)
-    return Space(path, trackers, tuple(values), mons)
+    budget = raw.get(BUDGET_KEY)
+    if budget is not None and not (_number(budget) and 0.0 <= budget <= 1.0):
+        raise fail(BUDGET_KEY, "must be a false-alarm rate in [0, 1] (alarms per step)")
+    return Space(path, trackers, tuple(values), mons, budget)
 
 
 def _at(fail: Callable[[str, str], InputError], key: str) -> Callable[[str], InputError]:
@@ -416,7 +427,7 @@ class Group:
     #: per start, its true position at each step after the start (None: no truth)
     truth: tuple[Mapping[int, tuple[float, float]], ...] | None
     steps: int
-    engine: str
+    engine: str | None  #: None: the pipeline's default
     payoffs: str
     max_states: int | None
     timeout: float | None
@@ -455,7 +466,7 @@ def groups(
     starts: Sequence[TruthStart],
     truth: Sequence[Mapping[int, tuple[float, float]]] | None,
     steps: int,
-    engine: str,
+    engine: str | None,
     payoffs: str,
     max_states: int | None,
     timeout: float | None,
@@ -496,10 +507,11 @@ def evaluate(group: Group) -> list[Outcome]:
         scene=group.scene,
         designs=(tracker,),
         payoffs=group.payoffs,
-        engine=group.engine,
         budget=Budget(group.timeout, group.max_states),
         source=group.source,
     )
+    if group.engine is not None:
+        job = replace(job, engine=group.engine)
     results = run(job).results
     series = unattacked_tracks(group.scene, group.starts, tracker, group.steps)
     error = tracking_error(series, group.truth)
@@ -758,3 +770,55 @@ def video_truth_tracks(
                 at[j] = (float(x), float(y))
         out.append(at)
     return out
+
+
+#: What ``lesmc verify --space`` writes of a search into results.json, and the report says.
+SEARCH_WHAT = (
+    "lesmc tune's search (docs/cli.md) over the space file {space}: {n} designs, each "
+    "checked on the properties above for this target, its monitor run on the unattacked "
+    "tracks started at the {tracks} moving, visible truth vehicles ({steps} steps in all), "
+    "its tracking error measured there. Listed: the Pareto front and the best design whose "
+    "false-alarm rate is at most {budget:.1%} (the most properties holding non-vacuously, "
+    "then the widest weakest margin); their violations are the model's, not replayed."
+)
+
+
+def design_search(
+    scene: Scene,
+    specs: Sequence[SpecFile],
+    frames: Sequence[TruthFrame],
+    size: tuple[int, int],
+    space_path: str,
+    source: str,
+    max_states: int | None,
+    on_group: Callable[[int, Group], None] | None = None,
+) -> dict[str, Any]:
+    """``lesmc verify --space``: the search on a video's scene (its truth ``frames`` from the
+    target's on), for results.json (``design_search``, lesmc/schemas/results.json): the
+    front's and the best design's rows of the ``lesmc-tune`` document; ``best`` their
+    index there, or, when no design is within the budget, ``closest`` (the fewest false
+    alarms)."""
+    starts = truth_starts(frames[0], size)
+    space = read_space(space_path, scene.tracker)
+    budget = DEFAULT_BUDGET if space.budget is None else space.budget
+    truth = video_truth_tracks(frames, starts)
+    gs = groups(
+        scene, specs, space, starts, truth, len(frames) - 1, None, "attack", max_states, None,
+        source,
+    )  # fmt: skip
+    tuned = tune(gs, budget, on_group=on_group)
+    doc = document(tuned.outcomes, tuned.best, budget, "", space, [s.path for s in specs])
+    closest = min(range(len(tuned.outcomes)), key=lambda i: tuned.outcomes[i].rate)
+    chosen = {closest} if doc["best"] is None else {doc["best"]}
+    keep = sorted(set(doc["front"]) | chosen)
+    steps = tuned.outcomes[0].steps if tuned.outcomes else 0
+    return {
+        "what": SEARCH_WHAT.format(
+            space=space_path, n=len(tuned.outcomes), tracks=len(starts), steps=steps,
+            budget=budget,
+        ),
+        "budget": budget,
+        "designs": [doc["designs"][i] for i in keep],
+        "best": None if doc["best"] is None else keep.index(doc["best"]),
+        "closest": None if doc["best"] is not None else keep.index(closest),
+    }  # fmt: skip
