@@ -23,7 +23,7 @@ import builtins
 import itertools
 import math
 from collections.abc import Callable, Iterable, Mapping, Sequence
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, replace
 from typing import Any, Protocol
 
 import numpy as np
@@ -692,7 +692,6 @@ class Tuned:
     best: Outcome | None
     budget: float
     groups: int = 0
-    notes: list[str] = field(default_factory=list)
 
 
 def tune(
