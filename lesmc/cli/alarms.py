@@ -15,6 +15,7 @@ from lesmc.designs import registry
 
 if TYPE_CHECKING:
     from lesmc.experiment.false_alarms import TruthStart
+    from lesmc.perception.quality import TruthFrame
     from lesmc.scene import Scene
 
 
@@ -108,7 +109,8 @@ def alarms_cmd(
         starts, ids = scene_starts(scene)
         last = scene.last_step - scene.target.step
     else:
-        scene, starts, ids, last = _video(source, truth, out_dir, tracker_file)
+        scene, starts, ids, tfs = video_source(source, truth, out_dir, tracker_file)
+        last = len(tfs) - 1
     if not starts:
         raise UsageError("no moving truth vehicle at the start frame: nothing to track")
     if monitor is None:  # the tracker's declared monitor, else Eq. 13's
@@ -122,10 +124,17 @@ def alarms_cmd(
     _print(doc)
 
 
-def _video(
-    source: str | None, truth: str | None, out_dir: str, tracker_file: str | None
-) -> tuple[Scene, list[TruthStart], list[str], int]:
-    """A video's scene and starts, as lesmc verify measures its false alarms."""
+def video_source(
+    source: str | None,
+    truth: str | None,
+    out_dir: str,
+    tracker_file: str | None,
+    priced: bool = False,
+    verb: str = "alarms",
+) -> tuple[Scene, list[TruthStart], list[str], list[TruthFrame]]:
+    """A video's scene, starts (and their ids) and truth frames from the target's frame on,
+    as lesmc verify measures its false alarms (``priced``: the scene's payoffs priced when
+    a model reads them, for ``lesmc tune``'s checks)."""
     from lesmc.common.progress import Reporter
     from lesmc.experiment.alarms import video_starts
     from lesmc.experiment.experiment import Request, video_truth
@@ -135,10 +144,10 @@ def _video(
     if source is not None and truth is None:
         truth = str(Path(source) / "truth.json")
     req = Request(frames_dir=source, truth=truth, out=Path(out_dir), tracker=tracker_file)
-    with Reporter("alarms") as rep:
-        scene, tfs, size = video_truth(req, rep)
+    with Reporter(verb) as rep:
+        scene, tfs, size = video_truth(req, rep, priced)
     starts, ids = video_starts(tfs[0], size)
-    return scene, list(starts), ids, len(tfs) - 1
+    return scene, list(starts), ids, list(tfs)
 
 
 def _print(doc: dict[str, Any]) -> None:

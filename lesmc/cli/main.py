@@ -40,6 +40,7 @@ from lesmc.cli.signals import (
     stdout_closed,
 )
 from lesmc.cli.train import train_cmd
+from lesmc.cli.tune import tune_cmd
 from lesmc.cli.verify import verify_cmd
 from lesmc.cli.video import synth_cmd
 from lesmc.common.errors import BudgetError, LesmcError, Location
@@ -96,6 +97,8 @@ def cli() -> None:
       lesmc check ... --report DIR           ... and write results.json and the HTML report
       lesmc alarms VIDEO|SCENE --design D --monitor nis 0.99
                                              a monitor's false alarms on unattacked tracks
+      lesmc tune SCENE|VIDEO SPEC... --space SPACE.toml [--best-out T.toml]
+                                             search designs that hold, at a false-alarm cost
       lesmc report RESULTS.json --out DIR [--frames VIDEO/]
                                              redraw the report from a results file alone
       lesmc replay RESULTS.json --frames VIDEO/
@@ -141,6 +144,7 @@ SHORT_HELP = {
     "synth": "Generate a synthetic WAMI video with its truth.",
     "track": "Run the tracker unattacked: estimates, tau and monitor alarms.",
     "train": "Train the detection CNNs on synthetic videos.",
+    "tune": "Search tracker and monitor settings: verdicts against false alarms.",
     "verify": "The whole experiment on a video: perceive, check, replay, report.",
 }
 
@@ -148,6 +152,7 @@ cli.add_command(check_cmd)
 cli.add_command(build_cmd)
 cli.add_command(track_cmd)
 cli.add_command(alarms_cmd)
+cli.add_command(tune_cmd)
 cli.add_command(reduce_group)
 cli.add_command(synth_cmd)
 cli.add_command(perceive_cmd)

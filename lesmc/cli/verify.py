@@ -28,6 +28,7 @@ from lesmc.cli.signals import resumable
 
 if TYPE_CHECKING:
     from lesmc.experiment.experiment import Outcome
+    from lesmc.experiment.experiment import Request as VerifyRequest
 
 
 @click.command("verify")
@@ -87,6 +88,14 @@ if TYPE_CHECKING:
     "and --faults price every detection anyway.",
 )
 @tracker_option
+@click.option(
+    "--space",
+    "space_file",
+    type=click.Path(dir_okay=False),
+    default=None,
+    help="Also search the designs of a space file as lesmc tune does (docs/cli.md); the "
+    "report's 'A design that holds' shows the best under the file's false-alarm budget.",
+)
 @faults_option(
     " The report shows which faults break which design. A neuron fault perceives the video "
     "again with the unit stuck (once per set of them, kept in OUT/cache)."
@@ -113,6 +122,7 @@ def verify_cmd(
     payoffs: str,
     price_all: bool,
     tracker_file: str | None,
+    space_file: str | None,
     faults_file: str | None,
     as_json: bool,
     max_states: int,
@@ -133,8 +143,7 @@ def verify_cmd(
     """
     preload = ("torch", "cv2") if timeout is not None else ()  # under the deadline's watchdog
     budget = budget_from(timeout, max_states, max_memory, preload=preload)
-    from lesmc.api import VerifyRequest, expand_designs, verify  # --help stays light
-    from lesmc.common.progress import Reporter
+    from lesmc.api import VerifyRequest, expand_designs  # --help stays light
 
     request = VerifyRequest(
         frames_dir=frames_dir,
@@ -152,7 +161,27 @@ def verify_cmd(
         budget=budget,
         faults=faults_file,
         price_all=price_all,
+        space=_space(space_file, tracker_file),
     )
+    _run(request, as_json)
+
+
+def _space(space_file: str | None, tracker_file: str | None) -> str | None:
+    """``--space``: read now, so that its mistakes stop verify before any work (exit 2)."""
+    if space_file is not None:
+        from lesmc.experiment.tune import read_space
+        from lesmc.scene.io import load_tracker
+        from lesmc.scene.scene import TrackerConfig
+
+        read_space(space_file, load_tracker(tracker_file) if tracker_file else TrackerConfig())
+    return space_file
+
+
+def _run(request: VerifyRequest, as_json: bool) -> None:
+    """Verify ``request``, then print its results."""
+    from lesmc.api import verify
+    from lesmc.common.progress import Reporter
+
     with resumable(lambda: _kept(request.out)), Reporter("verify") as rep:
         outcome = verify(request, rep)
     _finish(outcome, as_json)

@@ -104,6 +104,25 @@ def read_toml(path: str | Path, error: type[LesmcError] = InputError) -> Any:
         raise error(msg[: at.start()] if at else msg, loc) from None
 
 
+def key_locations(path: str, text: str, is_json: bool) -> dict[str, Location]:
+    """Where each key's first mention is: ``key =`` (TOML, a bare or quoted key, or a
+    table ``[key]``) or ``"key":`` (JSON)."""
+    pattern = _JSON_KEY if is_json else _TOML_KEY
+    out: dict[str, Location] = {}
+    for m in pattern.finditer(text):
+        key = next(g for g in m.groups() if g is not None)
+        if key not in out:
+            lead = len(m.group(0)) - len(m.group(0).lstrip(" \t"))
+            out[key] = Location.at(path, text, m.start(0) + lead)
+    return out
+
+
+_JSON_KEY = re.compile(r'"((?:[^"\\]|\\.)*)"\s*:')
+_TOML_KEY = re.compile(
+    r'^[ \t]*\[?[ \t]*(?:"([^"]*)"|\'([^\']*)\'|([A-Za-z0-9_-]+))[ \t]*[=\]]', re.M
+)
+
+
 def _read_bytes(path: str | Path, error: type[LesmcError]) -> bytes:
     try:
         return Path(path).read_bytes()

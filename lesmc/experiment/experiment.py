@@ -93,6 +93,9 @@ class Request:
     #: attack every detection of the video up front (``--price-all``), not only those
     #: the checked models read (lesmc/experiment/pricing.py)
     price_all: bool = False
+    #: a space file (``--space``): lesmc tune's design search on the video, and the best
+    #: design under the file's false-alarm budget (results' ``design_search``)
+    space: str | None = None
 
 
 @dataclass
@@ -173,14 +176,18 @@ def verify(req: Request, rep: Reporter) -> Outcome:
     checked = time.monotonic()
     try:  # the job is not kept: the scene it checked gives way to the settled one
         results = run_job(_job(req, specs, faults, neuron, src, rep))
+        search = None if req.space is None else _design_search(req, src, specs, rep)
     finally:  # what was priced is kept, even when a budget or an interrupt stops the checks
         _keep_priced(src)
     results = _settled(results, src, rep)
     timings = {"video, perception and scene": checked - started}
-    timings["models and checks"] = time.monotonic() - checked
+    timings["models and checks"] = time.monotonic() - checked - (search[1] if search else 0.0)
     if src.pricing is not None:  # within the models and checks
         timings["payoffs on demand"] = src.pricing[1].seconds
     doc = _document(req, src, specs, results, timings, rep)
+    if search is not None:  # --space: the designs searched, before the payoffs settled
+        doc["design_search"] = search[0]
+        doc["timings"]["design search"] = round(search[1], 3)
     report = _write(doc, req.out, src, results, rep)
     return Outcome(results, doc, report)
 
@@ -633,6 +640,28 @@ def _document(
     return doc
 
 
+def _design_search(
+    req: Request, src: _Source, specs: list[SpecFile], rep: Reporter
+) -> tuple[dict[str, Any], float]:
+    """``--space``: lesmc tune's search on this video's scene (lesmc/experiment/tune.py),
+    while its payoffs are still priced on demand; and the seconds it took."""
+    from lesmc.experiment.tune import design_search
+
+    assert req.space is not None
+    if src.frames is None or src.truth is None:
+        raise UsageError("--space needs the video's truth (--truth): tune runs its vehicles")
+    t0 = time.monotonic()
+    tfs = _truth_frames(src, src.scene)
+    size = (src.frames.width, src.frames.height)
+    where = req.scene_path or str(req.out / "scene.json")
+
+    def told(i: int, g: Any) -> None:
+        rep.stage(f"searching designs: {g.designs[0].label().rsplit(' + ', 1)[0]} ({i + 1})")
+
+    out = design_search(src.scene, specs, tfs, size, req.space, where, req.budget.max_states, told)
+    return out, time.monotonic() - t0
+
+
 def _truth_facts(
     src: _Source, results: Results, timings: dict[str, float]
 ) -> tuple[Any, dict[str, Any]]:
@@ -682,16 +711,19 @@ def _truth_frames(src: _Source, scene: Scene) -> list[TruthFrame]:
     return [t for t in tfs[: next((i for i, t in enumerate(tfs) if t is None), len(tfs))] if t]
 
 
-def video_truth(req: Request, rep: Reporter) -> tuple[Scene, list[TruthFrame], tuple[int, int]]:
+def video_truth(
+    req: Request, rep: Reporter, priced: bool = False
+) -> tuple[Scene, list[TruthFrame], tuple[int, int]]:
     """What ``lesmc verify`` measures the monitor's false alarms on (``lesmc alarms`` on a
     video): the video's scene, perceived (or read from OUT/cache) with its target chosen
-    as verify chooses it, without payoffs; the truth frames from the target's frame on;
-    the frame size."""
+    as verify chooses it, without payoffs (``priced``: with the payoffs priced when a
+    model reads them, as verify checks it; ``lesmc tune``); the truth frames from the
+    target's frame on; the frame size."""
     specs = load_specs([Path(s) for s in req.specs] or bundled_specs(), req.window)
     src = _perceived(req, specs, rep, False, True)
     if src.frames is None or src.truth is None:
         raise UsageError("the video has no truth.json: give --truth (the truth tracks to run)")
-    scene = src.scene.payoff_free()
+    scene = src.scene if priced else src.scene.payoff_free()
     return scene, _truth_frames(src, scene), (src.frames.width, src.frames.height)
 
 

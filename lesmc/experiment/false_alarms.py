@@ -92,10 +92,12 @@ def unattacked_taus(
 class Series:
     """One unattacked track as a monitor reads it: τ (Eq. 12) at steps 0..n and the NIS of
     the update entering each step (NaN: none; at step 0 and for a design that reports
-    none)."""
+    none); and where it was (``lesmc tune``'s tracking error against the truth)."""
 
     tau: np.ndarray
     nis: np.ndarray
+    #: the track's position (the measured components of the state) at steps 0..n, (n+1, 2)
+    xy: np.ndarray
 
 
 def unattacked_tracks(
@@ -122,6 +124,7 @@ def unattacked_tracks(
     batch = _stacked(firsts)
     loc = base.tracker.measured
     taus = [[float(tau(tracker.covariances[int(c)], loc))] for c in batch.cov]
+    xys = [[batch.X[i, list(loc)].tolist()] for i in range(len(batch))]
     nis: list[list[float]] = [[math.nan] for _ in batch.cov]
     live = np.flatnonzero(~batch.halted)  # the starts still tracked; ``batch`` holds them
     batch = batch.take(live)
@@ -132,12 +135,16 @@ def unattacked_tracks(
         succ = tracker.successors(batch, base.target.step + k, False)
         batch = succ.states
         got = succ.nis.tolist() if succ.nis is not None else [math.nan] * len(live)
-        for i, c, v in zip(live.tolist(), batch.cov.tolist(), got, strict=True):
+        for j, (i, c, v) in enumerate(zip(live.tolist(), batch.cov.tolist(), got, strict=True)):
             taus[i].append(float(tau(tracker.covariances[int(c)], loc)))
             nis[i].append(float(v))
+            xys[i].append(batch.X[j, list(loc)].tolist())
         keep = ~batch.halted
         live, batch = live[keep], batch.take(np.flatnonzero(keep))
-    return [Series(np.array(t), np.array(n)) for t, n in zip(taus, nis, strict=True)]
+    return [
+        Series(np.array(t), np.array(n), np.array(p, dtype=float).reshape(-1, 2))
+        for t, n, p in zip(taus, nis, xys, strict=True)
+    ]
 
 
 def _stacked(batches: list[Batch]) -> Batch:

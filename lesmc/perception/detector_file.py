@@ -13,7 +13,6 @@ inside the network; the CLI exits 2.
 
 from __future__ import annotations
 
-import re
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
@@ -21,7 +20,7 @@ from typing import TYPE_CHECKING, Any
 
 from lesmc.common.errors import InputError, Location, clipped
 from lesmc.common.fields import is_finite, is_int, show
-from lesmc.common.files import read_json, read_text, read_toml
+from lesmc.common.files import key_locations, read_json, read_text, read_toml
 
 if TYPE_CHECKING:
     from lesmc.perception.graphs import UserNet
@@ -203,7 +202,7 @@ def read_detector_file(path: str | Path) -> DetectorFile:
     p = str(path)
     is_json = p.endswith(".json")
     data = read_json(p) if is_json else read_toml(p)
-    where = _key_locations(p, read_text(p), is_json)
+    where = key_locations(p, read_text(p), is_json)
     if not isinstance(data, dict):
         raise InputError(
             "a detector file must be an object of keys (docs/detectors.md)", Location(p)
@@ -254,25 +253,6 @@ def _resolve(path: str, network: str, where: dict[str, Location]) -> str:
     if not full.is_file():
         raise _located(path, where, [("network", f"no such file: {clipped(str(full), 200)}")])
     return str(full)
-
-
-def _key_locations(path: str, text: str, is_json: bool) -> dict[str, Location]:
-    """Where each key's first mention is: ``key =`` (TOML, a bare or quoted key, or a
-    table ``[key]``) or ``"key":`` (JSON)."""
-    pattern = _JSON_KEY if is_json else _TOML_KEY
-    out: dict[str, Location] = {}
-    for m in pattern.finditer(text):
-        key = next(g for g in m.groups() if g is not None)
-        if key not in out:
-            lead = len(m.group(0)) - len(m.group(0).lstrip(" \t"))
-            out[key] = Location.at(path, text, m.start(0) + lead)
-    return out
-
-
-_JSON_KEY = re.compile(r'"((?:[^"\\]|\\.)*)"\s*:')
-_TOML_KEY = re.compile(
-    r'^[ \t]*\[?[ \t]*(?:"([^"]*)"|\'([^\']*)\'|([A-Za-z0-9_-]+))[ \t]*[=\]]', re.M
-)
 
 
 def _located(path: str, where: dict[str, Location], problems: list[tuple[str, str]]) -> InputError:

@@ -42,6 +42,7 @@ from lesmc.report.staging import staged
 from lesmc.report.text import not_replayed_text, optimum_cell
 from lesmc.results.document import ATTACK_PAYOFF
 from lesmc.results.read import (
+    DesignSearch,
     FalseAlarms,
     HiddenEntry,
     Num,
@@ -211,6 +212,9 @@ def render(
     fa = doc.monitor_false_alarms
     if fa is not None:
         toc.append(("false-alarms", "The monitor on unattacked tracks"))
+    ds = doc.design_search
+    if ds is not None:
+        toc.append(("design-search", "A design that holds"))
     faults = _faults_table(doc.runs)
     if faults is not None:
         toc.append(("faults", "Component failures"))
@@ -241,6 +245,7 @@ def render(
         verdicts=_verdicts(runs),
         table5=_table5(runs) if len(runs) > 1 else None,
         false_alarms=None if fa is None else {"what": fa.what, "table": _false_alarms(fa)},
+        design_search=None if ds is None else _design_search(ds),
         faults=faults,
         sections=sections,
         specs=doc.provenance.specs,
@@ -396,6 +401,41 @@ def _false_alarms(fa: FalseAlarms) -> Table:
         for r in fa.rows
     ]
     return table([*head, "per track"], rows)
+
+
+def _design_search(ds: DesignSearch) -> dict[str, Any]:
+    """ "A design that holds": what was searched, the verdict in words (the best design
+    under the budget, or that none holds, with the closest), and the table of the front."""
+    chosen = ds.best if ds.best is not None else ds.closest
+    pick = None if chosen is None else ds.designs[chosen]
+    if ds.best is None:
+        answer = f"No design of the space has at most {ds.budget:.1%} false alarms per step"
+        if pick is not None:
+            answer += f"; the closest is {pick.label} ({_pct(pick.alarms, pick.steps)})."
+    else:
+        assert pick is not None
+        held = [r for r in pick.results if r.status == "holds"]
+        answer = f"The best design under {ds.budget:.1%} false alarms per step: {pick.label}. "
+        answer += (
+            "Every property holds (non-vacuously)."
+            if len(held) == len(pick.results)
+            else f"{len(held)} of {len(pick.results)} properties hold: no design of the "
+            "space holds every property within the budget."
+        )
+    props = [r.property for r in ds.designs[0].results] if ds.designs else []
+    rows = [
+        [
+            Cell(d.label + (" (best)" if i == ds.best else ""), head=True),
+            *(f"{r.status}, {fmt(r.optimum) if r.optimum is not None else 'unknown'}"
+              for r in d.results),
+            _pct(d.alarms, d.steps),
+            "-" if d.tracking_error is None else f"{d.tracking_error:.1f} px",
+            "yes" if d.front else "no",
+        ]
+        for i, d in enumerate(ds.designs)
+    ]  # fmt: skip
+    head = ["design", *props, "false alarms", "tracking error", "on the front"]
+    return {"what": ds.what, "answer": answer, "table": table(head, rows)}
 
 
 def _pct(a: int, b: int) -> str:

@@ -356,6 +356,40 @@ class FalseAlarms:
 
 
 @dataclass(frozen=True)
+class SearchResult:
+    """One property of a searched design: its status and optimum (None: unknown)."""
+
+    property: str
+    status: str
+    optimum: float | None
+    threshold: float
+
+
+@dataclass(frozen=True)
+class SearchedDesign:
+    """One design of a design search (``design_search.designs[]``)."""
+
+    label: str
+    results: tuple[SearchResult, ...]
+    alarms: int
+    steps: int
+    tracking_error: float | None
+    front: bool
+
+
+@dataclass(frozen=True)
+class DesignSearch:
+    """``lesmc verify --space``'s design search (``design_search``): the front's designs
+    and the best under the budget (``best``), or the closest to it (``closest``)."""
+
+    what: str
+    budget: float
+    designs: tuple[SearchedDesign, ...]
+    best: int | None
+    closest: int | None
+
+
+@dataclass(frozen=True)
 class SpecText:
     """A spec file the properties came from (``provenance.specs[]``)."""
 
@@ -389,6 +423,7 @@ class ResultsDoc:
     perception: Perception
     runs: tuple[RunDoc, ...]
     monitor_false_alarms: FalseAlarms | None
+    design_search: DesignSearch | None = None
 
 
 def number(x: Num) -> float:
@@ -633,6 +668,37 @@ def results_of(doc: Mapping[str, Any]) -> ResultsDoc:
         ),
         runs=tuple(_run(r) for r in doc["runs"]),
         monitor_false_alarms=_false_alarms(doc.get("monitor_false_alarms")),
+        design_search=_design_search(doc.get("design_search")),
+    )
+
+
+def _design_search(ds: Mapping[str, Any] | None) -> DesignSearch | None:
+    if not ds:
+        return None
+    return DesignSearch(
+        what=ds["what"],
+        budget=ds["budget"],
+        designs=tuple(
+            SearchedDesign(
+                label=d["label"],
+                results=tuple(
+                    SearchResult(
+                        property=r["property"],
+                        status=r["status"],
+                        optimum=None if r["optimum"] == "unknown" else number(r["optimum"]),
+                        threshold=r["threshold"],
+                    )
+                    for r in d["results"]
+                ),
+                alarms=d["false_alarms"]["alarms"],
+                steps=d["false_alarms"]["steps"],
+                tracking_error=d["tracking_error"],
+                front=d["front"],
+            )
+            for d in ds["designs"]
+        ),
+        best=ds["best"],
+        closest=ds["closest"],
     )
 
 

@@ -42,6 +42,7 @@ SCHEMAS = {
     "lesmc-export": "export",
     "lesmc-import": "import",
     "lesmc-alarms": "alarms",
+    "lesmc-tune": "tune",
 }
 
 
