@@ -350,9 +350,9 @@ def test_window_options_are_refused_with_a_detector_file(setup: dict[str, Any]) 
                                      "threshold": 0.0})  # fmt: skip
     out = d / "refused.json"
     frames = str(setup["gray"][0])
-    r = lesmc("perceive", frames, "--detector", str(det), "--certify", "-o", str(out))
+    r = lesmc("perceive", frames, "--detector", str(det), "--history", "3", "-o", str(out))
     assert r.returncode == 2, r.stderr
-    assert "--certify does not apply to a detector file" in r.stderr
+    assert "--history does not apply to a detector file" in r.stderr
     r = lesmc("perceive", frames, "--detector", str(det), "--save-attacks", str(d / "sa"))
     assert r.returncode == 2, r.stderr
     assert "--save-attacks saves the attacks that price a scene: it needs -o" in r.stderr
