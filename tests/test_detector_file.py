@@ -287,8 +287,8 @@ def _bad_cases(d: Path) -> dict[str, tuple[dict[str, Any], str]]:
             r"bad_output\.toml:5:1: output: the network .*a\.onnx has no output 'heatmap'",
         ),
         "kind": (
-            {**base, "kind": "boxes"},
-            r'bad_kind\.toml:1:1: kind: must be "heatmap" in this version, got "boxes"',
+            {**base, "kind": "windows"},
+            r'bad_kind\.toml:1:1: kind: must be "heatmap" or "boxes", got "windows"',
         ),
         "unknown": (
             {**base, "nms": 2},
