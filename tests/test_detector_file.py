@@ -383,18 +383,19 @@ def test_a_detector_files_payoffs_are_not_described_as_n_dr_windows() -> None:
     assert "N_dr" in payoff_unit([run])  # type: ignore[list-item]
 
 
-def test_a_detector_files_violations_offer_no_replay_through_other_networks(
+def test_a_detector_files_violations_are_replayed_through_the_file(
     tmp_path: Path,
 ) -> None:
-    """A violation on a scene perceived with a detector file is not replayed, and no command
-    is offered that would replay it through the window pipeline's networks (which
+    """A violation on a scene perceived with a detector file offers ``lesmc replay`` through
+    that file, never a command replaying it through the window pipeline's networks (which
     ``lesmc verify --scene`` uses); verify refuses such a scene, exit 2."""
-    from lesmc.pipeline.check import NO_REPLAY_YET, replay_command
+    from lesmc.pipeline.check import replay_command
     from lesmc.report.text import not_replayed_text
 
     meta = {"detector": "heatmap", "detector_file": {"path": "det.toml"}, "source": "frames"}
-    assert replay_command("s.json", meta) == NO_REPLAY_YET
-    text = not_replayed_text(NO_REPLAY_YET)
+    command = replay_command("s.json", meta)
+    assert command == "lesmc replay RESULTS.json --frames frames --detector det.toml"
+    text = not_replayed_text(command)
     assert text.startswith("violated (not replayed)") and "lesmc verify" not in text
     assert "lesmc verify --scene" in replay_command("s.json", {"detector": "N_dr"})
     doc = json.loads((ROOT / "examples" / "merge.json").read_text())

@@ -45,7 +45,9 @@ def replay_cmd(
     runs on them and the tracker runs over the video. The track is confirmed when
     it takes the same detections as the model's counterexample (within 1 px) and
     stays within 0.5 px of its positions; otherwise the first diverging step and
-    the reason are printed (docs/semantics.md, "Replay").
+    the reason are printed (docs/semantics.md, "Replay"). With --detector
+    FILE.toml (a detector file, docs/detectors.md) the attacks, the perturbed
+    frames and the detections go through that file's network instead.
     Exit status (the verdicts after the replay, as lesmc check): 0 nothing violated,
     1 some violation confirmed, 2 bad input, 3 some replay diverged (unknown) and
     none confirmed, 4 internal error, 130 interrupted.
