@@ -5,11 +5,13 @@ square around it (r = ``nms_radius``) scores below the threshold: then no
 detection of the decoded frame lies in that square. The attack
 (lesmc/perception/attacks.py: DeepFool or the PGD minimum-norm search, on the
 margin ``max over the square of the raw output − the threshold's raw value``)
-perturbs only the crop of the frame that the square's receptive field covers;
-the network still runs on the whole frame (a network read from a file has one
-input size). Each perturbation is checked by decoding the perturbed frame
-(:func:`~lesmc.perception.heatmap.decode`): one that leaves a detection in the
-square is not a payoff, and the detection is unattackable.
+perturbs only the crop of the frame that the square's receptive fields cover,
+and runs the network on that crop alone when its operations make a
+:class:`~lesmc.perception.heatmap_crop.ConvNet` (detections whose crops have one
+shape in one batch); otherwise the network runs on the whole frame at each step.
+Each perturbation is checked by decoding the whole perturbed frame through the
+network file (:func:`_validate`): one that leaves a detection in the square is
+not a payoff, and the detection is unattackable.
 
 The payoff is the L2 norm of the perturbation in the network's input units
 (``scale`` of the detector file), computed from the float32 array
@@ -133,9 +135,11 @@ class Pricing:
 def pricing(det: LoadedDetector, cfg: AttackConfig) -> Pricing:
     """The pricing of ``det``'s detections with the attack settings ``cfg``."""
     try:
-        return Pricing(det, cfg, conv_net(det), receptive_field(det))
+        conv = conv_net(det)
     except Unsupported as exc:
         return Pricing(det, cfg, None, receptive_field(det), str(exc))
+    lo, hi = conv.reads(0, 0)  # cell 0's pixels: its field relative to its top-left pixel
+    return Pricing(det, cfg, conv, ReceptiveField(lo, hi, lo, hi))
 
 
 def price_frame(
