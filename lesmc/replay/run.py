@@ -895,16 +895,10 @@ def replay_file(
 ) -> Outcome:
     """``lesmc replay``: the frames and networks (``--nets``, ``--detector``, ``--locator``) of
     a results document, then :func:`replay` (``bar`` counts the frames). The networks must
-    be those the results were made with. A detector file (``--detector FILE.toml``) is
-    replayed through its network instead (lesmc/replay/detector_file.py)."""
+    be those the results were made with."""
     from lesmc.perception.cnn import load_nets
-    from lesmc.perception.detector_file import is_detector_file
     from lesmc.video.reader import open_frames
 
-    if nets[1] is not None and is_detector_file(nets[1]):
-        from lesmc.replay.detector_file import replay_with_file
-
-        return replay_with_file(doc, frames_dir, nets[1], prop, bar)
     cases(doc, prop)  # an unknown property is an error before the video is read
     history = 4 if doc.perception.history is None else doc.perception.history
     frames = open_frames(frames_dir, history + 1)
