@@ -122,8 +122,9 @@ def raw_threshold(det: LoadedDetector) -> float:
 @dataclass(frozen=True)
 class Pricing:
     """How one detector's detections are priced: on crops through its :class:`ConvNet`
-    when its operations make one, else on the whole frame within the measured
-    :class:`ReceptiveField` (``why``: the node that made no ConvNet)."""
+    when its operations make one, else on the whole frame; ``field``: a cell's
+    :class:`ReceptiveField`, from the ConvNet's layers or measured (:func:`receptive_field`)
+    (``why``: the node that made no ConvNet)."""
 
     det: LoadedDetector
     cfg: AttackConfig
