@@ -287,8 +287,8 @@ def _bad_cases(d: Path) -> dict[str, tuple[dict[str, Any], str]]:
             r"bad_output\.toml:5:1: output: the network .*a\.onnx has no output 'heatmap'",
         ),
         "kind": (
-            {**base, "kind": "boxes"},
-            r'bad_kind\.toml:1:1: kind: must be "heatmap" in this version, got "boxes"',
+            {**base, "kind": "windows"},
+            r'bad_kind\.toml:1:1: kind: must be "heatmap" or "boxes", got "windows"',
         ),
         "unknown": (
             {**base, "nms": 2},
@@ -350,9 +350,9 @@ def test_window_options_are_refused_with_a_detector_file(setup: dict[str, Any]) 
                                      "threshold": 0.0})  # fmt: skip
     out = d / "refused.json"
     frames = str(setup["gray"][0])
-    r = lesmc("perceive", frames, "--detector", str(det), "--certify", "-o", str(out))
+    r = lesmc("perceive", frames, "--detector", str(det), "--history", "3", "-o", str(out))
     assert r.returncode == 2, r.stderr
-    assert "--certify does not apply to a detector file" in r.stderr
+    assert "--history does not apply to a detector file" in r.stderr
     r = lesmc("perceive", frames, "--detector", str(det), "--save-attacks", str(d / "sa"))
     assert r.returncode == 2, r.stderr
     assert "--save-attacks saves the attacks that price a scene: it needs -o" in r.stderr
@@ -383,18 +383,19 @@ def test_a_detector_files_payoffs_are_not_described_as_n_dr_windows() -> None:
     assert "N_dr" in payoff_unit([run])  # type: ignore[list-item]
 
 
-def test_a_detector_files_violations_offer_no_replay_through_other_networks(
+def test_a_detector_files_violations_are_replayed_through_the_file(
     tmp_path: Path,
 ) -> None:
-    """A violation on a scene perceived with a detector file is not replayed, and no command
-    is offered that would replay it through the window pipeline's networks (which
+    """A violation on a scene perceived with a detector file offers ``lesmc replay`` through
+    that file, never a command replaying it through the window pipeline's networks (which
     ``lesmc verify --scene`` uses); verify refuses such a scene, exit 2."""
-    from lesmc.pipeline.check import NO_REPLAY_YET, replay_command
+    from lesmc.pipeline.check import replay_command
     from lesmc.report.text import not_replayed_text
 
     meta = {"detector": "heatmap", "detector_file": {"path": "det.toml"}, "source": "frames"}
-    assert replay_command("s.json", meta) == NO_REPLAY_YET
-    text = not_replayed_text(NO_REPLAY_YET)
+    command = replay_command("s.json", meta)
+    assert command == "lesmc replay RESULTS.json --frames frames --detector det.toml"
+    text = not_replayed_text(command)
     assert text.startswith("violated (not replayed)") and "lesmc verify" not in text
     assert "lesmc verify --scene" in replay_command("s.json", {"detector": "N_dr"})
     doc = json.loads((ROOT / "examples" / "merge.json").read_text())

@@ -79,8 +79,9 @@ if TYPE_CHECKING:
 @click.option(
     "--certify",
     is_flag=True,
-    help="Also certify a lower bound on each payoff (payoff_lower; docs/cnn.md). "
-    "Slow: about 0.15-0.25 s per detection on 2 idle cores (docs/performance.md).",
+    help="Also certify a lower bound on each payoff (payoff_lower; docs/cnn.md; with a "
+    "detector file, on each peak cell's crop: docs/detectors.md). Slow: about 0.15-0.25 s "
+    "per detection on 2 idle cores (docs/performance.md).",
 )
 @click.option(
     "--save-attacks",
@@ -167,7 +168,8 @@ def perceive_cmd(
     With --detector FILE.toml (or .json), a detector file (docs/detectors.md),
     the user's whole-frame heatmap network runs on every frame instead, without
     the front end; with -o, each payoff is the smallest perturbation found of
-    the detection's receptive-field crop that hides it (--save-attacks DIR).
+    the detection's receptive-field crop that hides it (--save-attacks DIR), and
+    --certify bounds it from below on the peak cell's crop.
     Exit status: 0 done, 2 bad input, 4 internal error, 130 interrupted.
     """
     started = time.monotonic()
@@ -214,7 +216,7 @@ def _with_windows(req: PerceiveRequest, output: str | None, as_json: bool, start
 
 #: Options of the window pipeline (front end, N_dr and N_lp) that a detector file replaces.
 _WINDOW_ONLY = (
-    "nets_dir", "locator_file", "no_cnn", "certify", "history", "delta_bc", "truth",
+    "nets_dir", "locator_file", "no_cnn", "history", "delta_bc", "truth",
     "payoff_norm", "as_json",
 )  # fmt: skip
 

@@ -2,13 +2,19 @@
 
 from __future__ import annotations
 
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import click
 
 from lesmc.cli.options import frames_option, nets_option, network_options
 from lesmc.cli.signals import resumable
 from lesmc.common.errors import UsageError
+
+if TYPE_CHECKING:
+    from lesmc.common.progress import Bar
+    from lesmc.perception import NetFiles
+    from lesmc.replay.run import Outcome
+    from lesmc.results.read import ResultsDoc
 
 
 @click.command("replay")
@@ -45,7 +51,9 @@ def replay_cmd(
     runs on them and the tracker runs over the video. The track is confirmed when
     it takes the same detections as the model's counterexample (within 1 px) and
     stays within 0.5 px of its positions; otherwise the first diverging step and
-    the reason are printed (docs/semantics.md, "Replay").
+    the reason are printed (docs/semantics.md, "Replay"). With --detector
+    FILE.toml (a detector file, docs/detectors.md) the attacks, the perturbed
+    frames and the detections go through that file's network instead.
     Exit status (the verdicts after the replay, as lesmc check): 0 nothing violated,
     1 some violation confirmed, 2 bad input, 3 some replay diverged (unknown) and
     none confirmed, 4 internal error, 130 interrupted.
@@ -54,7 +62,7 @@ def replay_cmd(
     import sys
 
     from lesmc.common.progress import progress_bar
-    from lesmc.replay.run import replay_file, verdict_rows
+    from lesmc.replay.run import verdict_rows
     from lesmc.results.read import read_results
 
     doc = read_results(results)
@@ -69,7 +77,7 @@ def replay_cmd(
         progress_bar("replay", "replaying", None) as bar,
     ):
         nets = (nets_dir, detector_file, locator_file)
-        outcome = replay_file(doc, frames_dir, nets, prop, bar)
+        outcome = _replay(doc, frames_dir, nets, prop, bar)
     rows, verdicts = verdict_rows(doc, outcome, prop)
     if as_json:
         out = {
@@ -84,6 +92,22 @@ def replay_cmd(
     else:
         _table(rows)
     sys.exit(1 if "violated" in verdicts else 3 if "unknown" in verdicts else 0)
+
+
+def _replay(
+    doc: ResultsDoc, frames_dir: str, nets: NetFiles, prop: str | None, bar: Bar
+) -> Outcome:
+    """The replay through the window pipeline's networks (lesmc/replay/run.py), or through a
+    detector file given as --detector FILE.toml (lesmc/replay/detector_file.py)."""
+    from lesmc.perception.detector_file import is_detector_file
+
+    if nets[1] is not None and is_detector_file(nets[1]):
+        from lesmc.replay.detector_file import replay_with_file
+
+        return replay_with_file(doc, frames_dir, nets[1], prop, bar)
+    from lesmc.replay.run import replay_file
+
+    return replay_file(doc, frames_dir, nets, prop, bar)
 
 
 def _table(rows: list[dict[str, Any]]) -> None:

@@ -21,6 +21,7 @@ if TYPE_CHECKING:
     from collections.abc import Callable
 
     from lesmc.perception.attack_settings import AttackConfig
+    from lesmc.perception.boxes import BoxDetections
     from lesmc.perception.certify import CertifyConfig
     from lesmc.perception.cnn import Nets
     from lesmc.perception.detector_file import LoadedDetector
@@ -167,7 +168,7 @@ class PerceivedWithFile:
     with ``req.scene``, the scene."""
 
     detector: LoadedDetector
-    detections: list[HeatmapDetections]
+    detections: list[HeatmapDetections] | list[BoxDetections]
     scene: Scene | Footage | None
     target_note: str
 
@@ -186,6 +187,8 @@ def perceive_with_file(
     from lesmc.perception.heatmap import check_frames, footage_of, run_detector
 
     det = load_detector(path)
+    if det.spec.kind == "boxes":
+        return _with_boxes(req, det, on_start, save_attacks)
     inputs = open_inputs(req, minimum=1)
     check_frames(inputs.frames, det, req.frames_dir)
     price = _pricer(req, det, save_attacks) if req.scene else None
@@ -194,28 +197,85 @@ def perceive_with_file(
     if not req.scene:
         return PerceivedWithFile(det, dets, None, "")
     dt = req.dt or (inputs.truth.dt if inputs.truth else None) or 1 / FPS
+    recorded = _recorded(req, det, "the crop covered by the receptive fields of the "
+                         "detection's nms square")  # fmt: skip
+    from lesmc.perception.certify import CertifyConfig
+
+    cert = certify_meta(CertifyConfig()) if req.certify else None
+    footage = footage_of(dets, det, dt, str(Path(req.frames_dir)), recorded, cert)
+    scene, note = _placed(footage, inputs)
+    return PerceivedWithFile(det, dets, scene, note)
+
+
+def _recorded(req: PerceiveRequest, det: LoadedDetector, where: str) -> dict[str, Any]:
+    """A detector file's attack settings, for the scene's ``meta.attack``."""
     att = attack_config(req)
-    recorded = {
+    return {
         "method": att.method, "overshoot": att.overshoot, "max_iter": att.max_iter,
         "converged": att.converged, "norm": "l2",
         "input": f"the detector file's network input (1, C, H, W), units {list(det.spec.scale)}",
-        "where": "the crop covered by the receptive fields of the detection's nms square",
+        "where": where,
     }  # fmt: skip
-    footage = footage_of(dets, det, dt, str(Path(req.frames_dir)), recorded)
+
+
+def _with_boxes(
+    req: PerceiveRequest,
+    det: LoadedDetector,
+    on_start: Callable[[int], Any] | None,
+    save_attacks: str | None,
+) -> PerceivedWithFile:
+    """:func:`perceive_with_file` for a box-list detector (lesmc/perception/boxes.py):
+    attack-only, certified bounds are refused."""
+    from lesmc.perception.boxes import footage_of_boxes, price_boxes, run_boxes
+    from lesmc.perception.detector_file import located
+    from lesmc.perception.heatmap import check_frames
+    from lesmc.perception.heatmap_attack import saver
+
+    if req.certify:
+        raise located(
+            det.spec, "kind",
+            "box-list detectors are attack-only: certified bounds are built for fully "
+            "convolutional heatmap detectors (drop --certify)",
+        )  # fmt: skip
+    inputs = open_inputs(req, minimum=1)
+    check_frames(inputs.frames, det, req.frames_dir)
+    att = attack_config(req)
+
+    def price(frame: Any, bd: BoxDetections) -> BoxDetections:
+        save = None if save_attacks is None else saver(save_attacks, bd.index)
+        return price_boxes(det, frame, bd, att, save)
+
+    on_frame = on_start(len(inputs.frames)) if on_start else None
+    dets = run_boxes(inputs.frames, det, on_frame, price if req.scene else None)
+    if not req.scene:
+        return PerceivedWithFile(det, dets, None, "")
+    dt = req.dt or (inputs.truth.dt if inputs.truth else None) or 1 / FPS
+    recorded = _recorded(req, det, "the whole frame")
+    footage = footage_of_boxes(dets, det, dt, str(Path(req.frames_dir)), recorded)
     scene, note = _placed(footage, inputs)
     return PerceivedWithFile(det, dets, scene, note)
 
 
 def _pricer(req: PerceiveRequest, det: LoadedDetector, save_attacks: str | None) -> Any:
     """``price(frame input, detections)`` with the request's attack settings."""
-    from lesmc.perception.heatmap_attack import price_frame, receptive_field, saver
+    from lesmc.perception.heatmap_attack import price_frame, pricing, raw_threshold, saver
 
-    att = attack_config(req)
-    field = receptive_field(det)
+    how = pricing(det, attack_config(req))
+    conv = None
+    if req.certify:
+        from lesmc.perception.heatmap_certify import certifiable
 
-    def price(frame: Any, fd: HeatmapDetections) -> Any:
+        conv = certifiable(det)  # refused before the first frame
+
+    def price(frame: Any, fd: HeatmapDetections) -> HeatmapDetections:
         save = None if save_attacks is None else saver(save_attacks, fd.index)
-        return price_frame(det, frame, fd, att, save, field)
+        pays = price_frame(how, frame, fd, save)
+        if conv is None:
+            return replace(fd, payoffs=pays)
+        from lesmc.perception.heatmap_certify import certify_frame
+
+        lower = certify_frame(det, frame, fd, pays, raw_threshold(det), conv=conv)
+        return replace(fd, payoffs=pays, lower=lower)
 
     return price
 
@@ -241,14 +301,20 @@ def scene_meta(
     }
     meta |= networks_meta(req.nets)
     if cert is not None:
-        meta["certify"] = {
-            "method": "CROWN, L2 ball",
-            "steps": cert.steps,
-            "grow_slack": cert.grow_slack,
-            "start": cert.start if cert.start_model is None else list(cert.start_model),
-            "model_slack": cert.model_slack,
-        }
+        meta["certify"] = certify_meta(cert)
     return meta
+
+
+def certify_meta(cert: CertifyConfig) -> dict[str, Any]:
+    """The settings certified lower bounds were computed with, for a scene's
+    ``meta.certify``."""
+    return {
+        "method": "CROWN, L2 ball",
+        "steps": cert.steps,
+        "grow_slack": cert.grow_slack,
+        "start": cert.start if cert.start_model is None else list(cert.start_model),
+        "model_slack": cert.model_slack,
+    }
 
 
 def networks_meta(nets: NetFiles) -> dict[str, Any]:

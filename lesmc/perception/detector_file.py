@@ -25,9 +25,11 @@ from lesmc.common.files import key_locations, read_json, read_text, read_toml
 if TYPE_CHECKING:
     from lesmc.perception.graphs import UserNet
 
-#: The kinds of detector this version decodes (the issue's ``boxes`` and ``windows`` are
-#: not on this path yet; the window pair is given with --detector/--locator network files).
-KINDS = ("heatmap",)
+#: The kinds of detector this version decodes (the issue's ``windows`` is not on this path:
+#: the window pair is given with --detector/--locator network files).
+KINDS = ("heatmap", "boxes")
+#: Keys that only one kind reads.
+ONLY_FOR = {"stride": "heatmap", "nms_radius": "heatmap", "iou_nms": "boxes"}
 #: Largest stride and NMS radius a file may declare (cells; pixels for the stride).
 MAX_STRIDE = 1024
 MAX_RADIUS = 64
@@ -67,14 +69,15 @@ def _network_ok(v: Any) -> bool:
 
 FIELDS: tuple[Field, ...] = (
     Field(
-        "kind", True, None, '"heatmap"',
+        "kind", True, None, '"heatmap" or "boxes"',
         "How the network's output becomes detections (docs/detectors.md, \"Decoding\").",
         _one_of(*KINDS),
     ),
     Field(
         "network", True, None, "a path ending in .onnx or .pt2",
         "The network file, relative to the detector file's directory: input (B, C, H, W) "
-        "floats, dynamic batch B; output (B, 1, H/stride, W/stride) or (B, H/stride, W/stride).",
+        "floats, dynamic batch B; output (B, 1, H/stride, W/stride) or (B, H/stride, "
+        "W/stride) for a heatmap, (B, N, 5) rows [x1, y1, x2, y2, score] for boxes.",
         _network_ok,
     ),
     Field(
@@ -89,8 +92,8 @@ FIELDS: tuple[Field, ...] = (
         _scale_ok,
     ),
     Field(
-        "stride", True, None, f"an integer in 1..{MAX_STRIDE} dividing H and W",
-        "One output cell covers stride × stride input pixels.",
+        "stride", False, None, f"an integer in 1..{MAX_STRIDE} dividing H and W",
+        "heatmap (required there): one output cell covers stride × stride input pixels.",
         lambda v: is_int(v) and 1 <= v <= MAX_STRIDE,
     ),
     Field(
@@ -105,8 +108,15 @@ FIELDS: tuple[Field, ...] = (
     ),
     Field(
         "nms_radius", False, 1, f"an integer in 0..{MAX_RADIUS}",
-        "r: a detection is a cell ≥ every cell of the (2r+1) × (2r+1) square around it.",
+        "heatmap: r, a detection is a cell ≥ every cell of the (2r+1) × (2r+1) square "
+        "around it.",
         lambda v: is_int(v) and 0 <= v <= MAX_RADIUS,
+    ),
+    Field(
+        "iou_nms", False, 0.5, "a number in 0..1",
+        "boxes: a box is dropped when its IoU with a box of higher score (or of equal "
+        "score, earlier) that is kept is > iou_nms.",
+        lambda v: is_finite(v) and 0.0 <= v <= 1.0,
     ),
     Field(
         "output", False, None, "a string",
@@ -132,11 +142,12 @@ class DetectorFile:
     network: str
     channels: str
     scale: tuple[float, float]
-    stride: int
+    stride: int  #: heatmap; 0 for boxes
     threshold: float
     score: str
-    nms_radius: int
+    nms_radius: int  #: heatmap; 0 for boxes
     output: str | None
+    iou_nms: float  #: boxes
     #: where each key is in the file (for errors found once the network is read)
     where: dict[str, Location]
 
@@ -151,6 +162,12 @@ class DetectorFile:
 
     def describe(self) -> str:
         """The detector in words, for logs and a scene's ``meta.detector``."""
+        if self.kind == "boxes":
+            return (
+                f"the user's boxes detector file {self.path} (network {self.network}, "
+                f"{self.channels}, {self.score} score >= {self.threshold:g}, iou_nms "
+                f"{self.iou_nms:g})"
+            )
         return (
             f"the user's {self.kind} detector file {self.path} (network {self.network}, "
             f"{self.channels}, stride {self.stride}, {self.score} score >= {self.threshold:g}, "
@@ -159,17 +176,18 @@ class DetectorFile:
 
     def to_meta(self) -> dict[str, Any]:
         """What a scene's ``meta.detector_file`` records."""
-        return {
+        out: dict[str, Any] = {
             "path": self.path,
             "kind": self.kind,
             "network": self.network,
             "channels": self.channels,
             "scale": list(self.scale),
-            "stride": self.stride,
             "threshold": self.threshold,
             "score": self.score,
-            "nms_radius": self.nms_radius,
         }
+        if self.kind == "boxes":
+            return out | {"iou_nms": self.iou_nms}
+        return out | {"stride": self.stride, "nms_radius": self.nms_radius}
 
 
 def fields_table() -> str:
@@ -218,25 +236,41 @@ def read_detector_file(path: str | Path) -> DetectorFile:
                 problems.append((f.name, f"is missing: {f.values}"))
         elif not f.ok(data[f.name]):
             problems.append((f.name, _bad(f, data[f.name])))
+    problems += _kind_keys(data)
     if problems:
         raise _located(p, where, problems)
     v = {f.name: data.get(f.name, f.default) for f in FIELDS}
     network = _resolve(p, v["network"], where)
     lo, hi = (float(x) for x in v["scale"])
+    heat = v["kind"] == "heatmap"
     return DetectorFile(
-        p, v["kind"], network, v["channels"], (lo, hi), int(v["stride"]),
-        float(v["threshold"]), v["score"], int(v["nms_radius"]), v["output"], where,
+        p, v["kind"], network, v["channels"], (lo, hi), int(v["stride"]) if heat else 0,
+        float(v["threshold"]), v["score"], int(v["nms_radius"]) if heat else 0, v["output"],
+        float(v["iou_nms"]), where,
     )  # fmt: skip
 
 
+def _kind_keys(data: dict[str, Any]) -> list[tuple[str, str]]:
+    """Keys another kind reads, and a heatmap's missing stride (once the kind is valid)."""
+    kind = data.get("kind")
+    if kind not in KINDS:
+        return []
+    out = [
+        (key, f'applies to kind = "{only}", not "{kind}"')
+        for key, only in ONLY_FOR.items()
+        if key in data and only != kind
+    ]
+    if kind == "heatmap" and "stride" not in data:
+        out.append(("stride", f"is missing: {_BY_NAME['stride'].values}"))
+    return out
+
+
 def _bad(f: Field, got: Any) -> str:
-    if f.name == "kind" and got in ("boxes", "windows"):
-        also = (
-            "give the window classifier's network files to --detector and --locator"
-            if got == "windows"
-            else "box-list detectors are not decoded yet"
+    if f.name == "kind" and got == "windows":
+        return (
+            'must be "heatmap" or "boxes", got "windows" (give the window classifier\'s '
+            "network files to --detector and --locator)"
         )
-        return f'must be "heatmap" in this version, got "{got}" ({also})'
     return f"must be {f.values}, got {show(got)}"
 
 
@@ -313,7 +347,7 @@ def load_detector(path: str | Path) -> LoadedDetector:
             f'"{spec.channels}" makes {spec.n_channels}-channel inputs; the network '
             f"{spec.network} takes {c} channels",
         )  # fmt: skip
-    if h % spec.stride or w % spec.stride:
+    if spec.kind == "heatmap" and (h % spec.stride or w % spec.stride):
         raise located(
             spec, "stride",
             f"{spec.stride} does not divide the network's input, {w}x{h} (width x height)",
@@ -331,7 +365,7 @@ def load_detector(path: str | Path) -> LoadedDetector:
 
 def _probe(det: LoadedDetector) -> None:
     """The network on :data:`PROBE_BATCH` random inputs in its units: one finite heatmap
-    of (H/stride, W/stride) cells each."""
+    of (H/stride, W/stride) cells each, or (boxes) one finite (N, 5) list of rows each."""
     import torch
 
     from lesmc.perception.graphs import PROBE_BATCH, answer
@@ -339,9 +373,18 @@ def _probe(det: LoadedDetector) -> None:
     lo, hi = det.spec.scale
     g = torch.Generator().manual_seed(0)
     x = lo + (hi - lo) * torch.rand(PROBE_BATCH, *det.net.in_shape, generator=g)
-    y = answer(det.net, x, "heatmap detector")
-    rows, cols = det.cells
+    y = answer(det.net, x, f"{det.spec.kind} detector")
     shape = tuple(y.shape)
+    if det.spec.kind == "boxes":
+        if len(shape) != 3 or shape[0] != PROBE_BATCH or shape[2] != 5:
+            raise InputError(
+                f"the boxes detector must answer a batch of B inputs of {det.width}x"
+                f"{det.height} with (B, N, 5) rows [x1, y1, x2, y2, score] ({det.spec.path}); "
+                f"on {PROBE_BATCH} inputs it gave {shape}",
+                Location(det.net.path),
+            )
+        return
+    rows, cols = det.cells
     if shape not in ((PROBE_BATCH, 1, rows, cols), (PROBE_BATCH, rows, cols)):
         raise InputError(
             f"the heatmap detector must answer a batch of B inputs of {det.width}x{det.height} "

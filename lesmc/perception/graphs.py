@@ -617,6 +617,9 @@ def _squeeze_node(x: Any, ins: list[Any], at: dict[str, Any]) -> Any:
 _ONNX_RUN: dict[str, Callable[[Any, list[Any], dict[str, Any]], Any]] = {
     "Relu": lambda x, ins, at: F.relu(x),
     "Sigmoid": lambda x, ins, at: torch.sigmoid(x),
+    "Tanh": lambda x, ins, at: torch.tanh(x),
+    "Transpose": lambda x, ins, at: x.permute(*at.get("perm", range(x.dim())[::-1])),
+    "Concat": lambda x, ins, at: torch.cat([i for i in ins if i is not None], dim=at["axis"]),
     "Identity": lambda x, ins, at: x,
     "Add": lambda x, ins, at: x + ins[1],
     "Sub": lambda x, ins, at: x - ins[1],

@@ -12,7 +12,7 @@ step k, and detection K of it is ``k:K``.
 from __future__ import annotations
 
 from collections.abc import Callable
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -36,6 +36,7 @@ class HeatmapDetections:
     scores: np.ndarray
     cells: np.ndarray
     payoffs: np.ndarray | None = None  #: (n,) inf: unattackable; None: unpriced
+    lower: np.ndarray | None = None  #: (n,) certified lower bounds; None: not certified
 
 
 def peaks(scores: np.ndarray, threshold: float, radius: int) -> np.ndarray:
@@ -118,8 +119,9 @@ def check_frames(frames: FrameSet, det: LoadedDetector, frames_dir: str) -> None
         )
 
 
-#: ``price(frame input, detections)``: each detection's payoff (heatmap_attack.price_frame).
-Pricer = Callable[[np.ndarray, HeatmapDetections], np.ndarray]
+#: ``price(frame input, detections)``: the detections with their payoffs (and certified
+#: lower bounds where asked for; lesmc.experiment.perceive).
+Pricer = Callable[[np.ndarray, HeatmapDetections], HeatmapDetections]
 
 
 def run_detector(
@@ -137,7 +139,7 @@ def run_detector(
         with torch.no_grad():
             y = det.net.module(torch.from_numpy(arr))
         fd = decode(y.reshape(det.cells).double().numpy(), det, i)
-        out.append(fd if price is None else replace(fd, payoffs=price(arr, fd)))
+        out.append(fd if price is None else price(arr, fd))
         if on_frame is not None:
             on_frame()
     return out
@@ -149,10 +151,12 @@ def footage_of(
     dt: float,
     source: str,
     attack: dict[str, Any] | None = None,
+    certify: dict[str, Any] | None = None,
 ) -> Footage:
     """A scene without a target: step k holds frame k's detections ``k:K``, their payoffs
     (``"unpriced"`` where not priced), no homographies (a still camera); ``meta`` records
-    the detector file and its network, and ``attack``, the settings of the payoffs."""
+    the detector file and its network, ``attack``, the settings of the payoffs, and
+    ``certify``, those of the certified lower bounds (``payoff_lower``) if computed."""
     from lesmc.scene import Detection, Footage, Frame, TrackerConfig
 
     frames = tuple(
@@ -164,6 +168,7 @@ def footage_of(
                     float(x),
                     float(y),
                     float("nan") if fd.payoffs is None else float(fd.payoffs[k]),
+                    None if fd.lower is None else float(fd.lower[k]),
                 )
                 for k, (x, y) in enumerate(fd.positions)
             ),
@@ -179,4 +184,6 @@ def footage_of(
         meta["payoffs"] = "unpriced (give -o to price a detector file's detections)"
     else:
         meta["attack"] = attack
+    if certify is not None:
+        meta["certify"] = certify
     return Footage(dt, frames, TrackerConfig(), meta)

@@ -311,23 +311,24 @@ def _not_replayed(r: CheckResult, command: str) -> CheckResult:
     return replace(r, replay="not replayed", replay_command=command)
 
 
-#: What a violation on a scene perceived with a detector file says instead of a command:
-#: ``lesmc verify --scene`` replays through the window pipeline's networks, not the file's.
-NO_REPLAY_YET = "no command yet: replaying through a detector file is not built (docs/detectors.md)"
-
-
 def replay_command(
     scene_path: str, meta: Mapping[str, object], specs: Iterable[str] = (), design: str = ""
 ) -> str:
     """``lesmc verify --scene SCENE --frames VIDEO/`` for a scene made by perception, with the
     frames (``meta.source``) and the networks (``meta.networks``: ``--nets``, ``--detector``,
     ``--locator`` as perceive was given them) it was made with, and the ``specs`` and
-    ``design`` that were checked."""
+    ``design`` that were checked; for a scene made with a detector file
+    (``meta.detector_file``), ``lesmc replay RESULTS.json --frames VIDEO/ --detector FILE``
+    (verify refuses such scenes)."""
     import shlex
 
-    if isinstance(meta.get("detector_file"), Mapping):
-        return NO_REPLAY_YET
     frames = meta.get("source")
+    given = meta.get("detector_file")
+    if isinstance(given, Mapping):  # through the detector file (lesmc/replay/detector_file.py)
+        words = ["lesmc", "replay", "RESULTS.json", "--frames"]
+        words.append(str(frames) if isinstance(frames, str) and frames else "VIDEO/")
+        words += ["--detector", str(given.get("path", "DETECTOR.toml"))]
+        return " ".join(w if w in ("VIDEO/", "RESULTS.json") else shlex.quote(w) for w in words)
     words = ["lesmc", "verify", "--scene", scene_path, "--frames"]
     words.append(str(frames) if isinstance(frames, str) and frames else "VIDEO/")
     nets = meta.get("networks")

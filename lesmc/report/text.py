@@ -113,7 +113,7 @@ def not_replayed_text(command: str | None) -> str:
     """What a violation not replayed through the detector is, and the command that replays
     it (None: the generic one), for tables, notes and reports."""
     how = command or "lesmc verify --scene SCENE --frames VIDEO/"
-    if not how.startswith("lesmc "):  # no command replays it (pipeline.check.NO_REPLAY_YET)
+    if not how.startswith("lesmc "):  # no command replays it
         return f"violated (not replayed): the counterexample was found on the model; {how}"
     return (
         "violated (not replayed): the counterexample was found on the model; replay it "
