@@ -40,7 +40,7 @@ from typing import Any, NamedTuple
 
 import numpy as np
 
-from lesmc.common.budget import Budget, SearchBudget
+from lesmc.common.budget import Budget, SearchBudget, resident_bytes
 from lesmc.engines import compiled
 from lesmc.engines.bounds import Bounds, suffix_bounds
 from lesmc.engines.result import EngineOutcome, Stats
@@ -916,16 +916,16 @@ def _by_values(
     space: SearchSpace, budget: SearchBudget, stats: Stats, t0: float
 ) -> EngineOutcome | None:
     """The optimum and θ* by the value table (values.py) where it applies, is at most
-    :data:`VALUE_CELLS` cells and fits the budget; None otherwise (the label passes)."""
+    :data:`VALUE_CELLS` cells and fits the budget (states: one a cell; memory: 16 bytes
+    a cell); None otherwise (the label passes)."""
     if not isinstance(space, Space) or space.obj_max or not space.con_up:
         return None
     grain = _grain(space)
-    layers = plan(space, grain, VALUE_MOVES)
-    if grain is None or layers is None:
+    layers = plan(space, grain, VALUE_MOVES, VALUE_CELLS)
+    if grain is None or layers is None or budget.over(layers.cells):
         return None
-    cells = layers.cells
-    if cells > VALUE_CELLS or budget.over(cells):
-        return None
+    if budget.max_memory is not None and resident_bytes() + 16 * layers.cells > budget.max_memory:
+        return None  # the table (8 bytes a cell) and a row's temporaries past the ceiling
     got = value_search(space, grain, layers)
     budget.used += got.cells
     stats.transitions += got.updates

@@ -56,17 +56,18 @@ class Layers(NamedTuple):
         return sum(int(lv.size) * w for lv, w in zip(self.levels, self.widths, strict=True))
 
 
-def plan(space: Space, grain: float | None, max_moves: int) -> Layers | None:
+def plan(space: Space, grain: float | None, max_moves: int, max_cells: int) -> Layers | None:
     """The table's levels and moves, or None where it does not apply: a max objective
     or constraint, a constraint that must fall, no grain, a contribution that is
-    negative, not finite or past 2^52, a move that skips a level, or more than
-    ``max_moves`` moves (each is a numpy call)."""
+    negative, not finite or past 2^52, a move that skips a level, more than
+    ``max_moves`` moves (each is a numpy call) or more than ``max_cells`` cells (looked
+    at level by level, so that a big table is declined after a few levels)."""
     if space.obj_max or space.con_max or not space.con_up or grain is None:
         return None
-    return _layers(space, grain, max_moves)
+    return _layers(space, grain, max_moves, max_cells)
 
 
-def _layers(space: Space, grain: float, max_moves: int) -> Layers | None:
+def _layers(space: Space, grain: float, max_moves: int, max_cells: int) -> Layers | None:
     """The levels and moves of :func:`plan` (None where it does not apply)."""
     if not (math.isfinite(space.root_obj) and math.isfinite(space.root_con)):
         return None
@@ -80,11 +81,12 @@ def _layers(space: Space, grain: float, max_moves: int) -> Layers | None:
         depth[lv] = i
     moves = []
     widths = [int(space.root_obj / grain) + 1]
-    total = 0
+    total, cells = 0, 0
     for i in range(len(levels)):
         inner, t, seg, _ = space.level_moves(i)
         total += int(t.size)
-        if total > max_moves:
+        cells += int(levels[i].size) * widths[i]
+        if total > max_moves or cells > max_cells:
             return None
         co, cc = space.c_obj[t], space.c_con[t]
         if not (np.isfinite(co).all() and np.isfinite(cc).all() and (co >= 0).all()):
