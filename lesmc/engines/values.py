@@ -121,7 +121,7 @@ def value_search(space: Space, grain: float, layers: Layers) -> ValueAnswer:
         prev, width = tables[i], layers.widths[i]
         nxt = np.full((layers.levels[i + 1].size, layers.widths[i + 1]), -math.inf)
         cc = space.c_con[t]
-        for j in range(t.size):  # rows past a shift: the source row plus the move's value
+        for j in range(t.size):  # the source row shifted by the move's value, plus its c_con
             view = nxt[dst[j], k[j] : k[j] + width]
             np.maximum(view, prev[src[j]] + cc[j], out=view)
         tables.append(nxt)
