@@ -108,6 +108,8 @@ def lesmc_run(
         stopped += f", gap {100 * (r.upper - max(r.lower, 0.0)) / r.upper:.2g} %"
     if r.stats.extra.get("compiled"):  # levels' compiled pass decided the optimum
         stopped += " (compiled pass)"
+    if "value_cells" in r.stats.extra:  # levels' value table decided (states: its cells)
+        stopped += " (value table)"
     return r.optimum, theta, r.stats.seconds, wall, r.stats.states_expanded, stopped
 
 
@@ -116,7 +118,8 @@ def agreement(
 ) -> str:
     """The table's "agree" cell: lesmc's reason to stop when it did not finish, else
     whether both answers equal CP-SAT's (only the optimum when CP-SAT left θ* unproven),
-    and "(compiled pass)" when levels' compiled pass decided the optimum."""
+    and "(compiled pass)" or "(value table)" when levels' compiled pass or its value
+    table (then "states" counts its cells) decided."""
     if not stopped.startswith("finished"):
         return stopped
     how = stopped.removeprefix("finished")

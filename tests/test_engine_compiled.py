@@ -36,13 +36,13 @@ SUMS = ["payoff", "count", "dist.sum({a}..{b})", "dist.at({b})"]
 def forced(kernel: object = None) -> Iterator[None]:
     """levels hands the optimum to the compiled pass at once, run by ``kernel`` (default:
     the plain Python function)."""
-    saved = (levels.COMPILED_AFTER, compiled._kernel, compiled._tried)
-    levels.COMPILED_AFTER = 0
+    saved = (levels.COMPILED_AFTER, compiled._kernel, compiled._tried, levels.VALUE_CELLS)
+    levels.COMPILED_AFTER, levels.VALUE_CELLS = 0, -1  # no value table (values.py) either
     compiled._kernel, compiled._tried = kernel or compiled.dfs_chunk, True
     try:
         yield
     finally:
-        levels.COMPILED_AFTER, compiled._kernel, compiled._tried = saved
+        levels.COMPILED_AFTER, compiled._kernel, compiled._tried, levels.VALUE_CELLS = saved
 
 
 @st.composite

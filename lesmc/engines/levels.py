@@ -40,11 +40,12 @@ from typing import Any, NamedTuple
 
 import numpy as np
 
-from lesmc.common.budget import Budget, SearchBudget
+from lesmc.common.budget import Budget, SearchBudget, resident_bytes
 from lesmc.engines import compiled
 from lesmc.engines.bounds import Bounds, suffix_bounds
 from lesmc.engines.result import EngineOutcome, Stats
 from lesmc.engines.space import SearchSpace, Space
+from lesmc.engines.values import plan, value_search
 from lesmc.model.kernel import aggregate_arrays
 
 #: Labels expanded per slice: the clock and the budgets are checked between slices.
@@ -83,6 +84,11 @@ COMPILED_AFTER = 1_000_000
 
 #: Labels a level must have for its time to predict the next, larger level's.
 RATE_SAMPLE = 20_000
+#: the value table (values.py) runs instead of the label passes where it has at most this
+#: many cells (states × objective values over the levels; 8 bytes each) ...
+VALUE_CELLS = 1 << 23
+#: ... and at most this many moves (one numpy call each)
+VALUE_MOVES = 4096
 
 
 class _Stop(Exception):
@@ -860,6 +866,9 @@ def level_search(space: SearchSpace, limits: Budget | None = None) -> EngineOutc
     t0 = time.perf_counter()
     stats = Stats(engine="levels")
     budget = (limits or Budget()).search(getattr(space.cm, "capacity_bytes", None))
+    by_values = _by_values(space, budget, stats, t0)
+    if by_values is not None:
+        return by_values
     bounds = _Bounds(space)
     if bounds.exact:
         stats.extra["bound_states"] = bounds.reachable
@@ -899,6 +908,40 @@ def level_search(space: SearchSpace, limits: Budget | None = None) -> EngineOutc
         counterexample=cex,
         witness=witness,
         witness_exact=w_exact,
+        stats=stats,
+    )
+
+
+def _by_values(
+    space: SearchSpace, budget: SearchBudget, stats: Stats, t0: float
+) -> EngineOutcome | None:
+    """The optimum and θ* by the value table (values.py) where it applies, is at most
+    :data:`VALUE_CELLS` cells and fits the budget (states: one a cell; memory: 16 bytes
+    a cell); None otherwise (the label passes)."""
+    if not isinstance(space, Space) or space.obj_max or not space.con_up:
+        return None
+    grain = _grain(space)
+    layers = plan(space, grain, VALUE_MOVES, VALUE_CELLS)
+    if grain is None or layers is None or budget.over(layers.cells):
+        return None
+    if budget.max_memory is not None and resident_bytes() + 16 * layers.cells > budget.max_memory:
+        return None  # the table (8 bytes a cell) and a row's temporaries past the ceiling
+    got = value_search(space, grain, layers)
+    budget.used += got.cells
+    stats.transitions += got.updates
+    stats.extra["value_cells"] = got.cells
+    stats.extra["optimum_states"] = budget.used
+    stats.extra["witness_states"] = 0
+    stats.states_expanded = budget.used
+    stats.stopped = "finished"
+    stats.seconds = time.perf_counter() - t0
+    return EngineOutcome(
+        optimum=got.optimum,
+        lower=got.optimum,
+        upper=got.optimum,
+        counterexample=got.counterexample,
+        witness=got.witness,
+        witness_exact=True,
         stats=stats,
     )
 
