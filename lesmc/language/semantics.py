@@ -86,15 +86,18 @@ def bind(
     tracks: tuple[str, ...] | None = None,
     has_nis: bool = True,
     multi: bool = False,
+    tracker: str | None = None,
 ) -> BoundProperty:
     """Resolve ``prop`` against a model with steps 0..e and the given components;
     ``tracks``: the components of the model's ground-truth tracks (None: it has none);
     ``has_nis``: the model carries the NIS of its transitions' updates (a monitor that
     reads them is refused otherwise); ``multi``: a multi-target design's model (the only
-    one with identity measures)."""
+    one with identity measures); ``tracker``: the tracker the model unfolds (``single``,
+    ``joint``; None: a model read from a file, whose attacker its transitions fix), for
+    the actions it takes (lesmc/language/actions.py)."""
     if not multi:
         _single_target(spec, prop)
-        _single_target_actions(spec, prop)
+        _single_target_actions(spec, prop, tracker)
     l, u, end = _window(spec, prop, e)
     monitor_idx, tol = _monitor(spec, prop, components, has_covariance, has_nis)
     tau_idx = _tau(spec, prop, components, has_covariance, monitor_idx)
@@ -137,18 +140,22 @@ def _single_target(spec: SpecFile, prop: Property) -> None:
             )
 
 
-def _single_target_actions(spec: SpecFile, prop: Property) -> None:
-    """A single-target design's attacker takes only the actions every design takes
-    (lesmc/language/actions.py): injection is not yet supported for it."""
+def _single_target_actions(spec: SpecFile, prop: Property, tracker: str | None) -> None:
+    """A single-target design's attacker takes only the actions registered for its tracker
+    (lesmc/language/actions.py: inject on ``single``, not on ``joint``); a model read from
+    a file takes only the default (its transitions are its attacker)."""
     for name in prop.actions:
-        if actions.get(name).multi_only:
-            raise _fail(
-                spec,
-                f"attack action '{name}' is not yet supported for this design: only "
-                "multi-target designs (--design sort) take it so far; a single-target "
-                "design's attacker hides only (issue 61)",
-                prop.clause_pos.get("allow", prop.pos),
-            )
+        action = actions.get(name)
+        if tracker is not None and action.taken_by(tracker):
+            continue
+        where = f"the {tracker} design" if tracker is not None else "a model read from a file"
+        takers = "every design" if action.trackers is None else ", ".join(sorted(action.trackers))
+        raise _fail(
+            spec,
+            f"attack action '{name}' is not supported for {where}: it is taken by "
+            f"{takers} (check the scene with --design single or --design sort; issue 61)",
+            prop.clause_pos.get("allow", prop.pos),
+        )
 
 
 def _fail(spec: SpecFile, message: str, pos: Pos) -> SpecError:

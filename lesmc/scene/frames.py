@@ -106,6 +106,25 @@ class Frame:
         return self._boxes
 
     @cached_property
+    def injectable(self) -> Frame:
+        """The injection candidates as a frame of their own (their positions, payoffs and
+        nearest-neighbour search), for the single design under ``allow inject``."""
+        return Frame(self.step, self.candidates)
+
+    @cached_property
+    def _joint_position_ids(self) -> np.ndarray:
+        both = np.vstack([self.positions(), self.injectable.positions()])
+        _, first, inverse = np.unique(both, axis=0, return_index=True, return_inverse=True)
+        out: np.ndarray = first[inverse.reshape(-1)]
+        out.flags.writeable = False
+        return out
+
+    def joint_position_ids(self) -> np.ndarray:
+        """(n + m,) for each detection, then each injection candidate, the lowest index
+        (in that order) of one at the same position."""
+        return self._joint_position_ids
+
+    @cached_property
     def candidates_have_boxes(self) -> bool:
         """Every injection candidate carries a box (true when there are none)."""
         return all(c.w is not None and c.h is not None for c in self.candidates)

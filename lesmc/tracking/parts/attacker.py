@@ -36,6 +36,10 @@ float``). With ``allow hide, inject`` (issue 61) it also adds any subset of the 
 injection candidates (scene format 3) at their payoffs: :func:`injected_subsets`, and
 :func:`subset_options` / :func:`option_count` (``(frame, attacked, actions)``) combine
 both. lesmc/unfold/multi.py merges the options that lead to the same successor.
+
+``single`` under ``allow hide, inject``: :func:`injection_option_rows` (``(gated, payoffs,
+valid, injected, key)``, each (g, k), detections and candidates merged nearest first ->
+OptionRows``): the distinct outcomes, each at its cheapest cost, ranked by cost.
 """
 
 from __future__ import annotations
@@ -195,6 +199,66 @@ def _collect(
     pay[~is_skip] = own[row[~is_skip], col[~is_skip]]
     out_col = np.where(is_skip | skip_col, -1, col)
     return OptionRows(row, out_col, pay)
+
+
+# ---------------------------------------- the nearest-neighbour tracker under inject (single)
+
+
+def injection_option_rows(
+    gated: np.ndarray,
+    payoffs: np.ndarray,
+    valid: np.ndarray,
+    injected: np.ndarray,
+    key: np.ndarray,
+) -> OptionRows:
+    """The attacker's options under ``allow hide, inject`` for many predictions at once
+    (g rows of k columns): each row lists the frame's detections and injection candidates
+    together, nearest first (``valid`` marks real ones, ``injected`` the candidates;
+    at equal distance a detection comes first), ``payoffs`` the price of hiding a
+    detection or of injecting a candidate, ``gated`` whether the gate admits it, ``key``
+    its position's id (equal ids: the same updated state).
+
+    The tracker updates with the nearest visible column if the gate admits it, else
+    skips. Column c is the nearest visible at the least cost by hiding every detection
+    before it and injecting no candidate before it (and, if c is a candidate, injecting
+    it): cost = the payoffs of the detections before c (+ c's own if injected);
+    unreachable past an unattackable detection. Hiding every detection of the row and
+    injecting nothing skips. Each distinct outcome (update at a position; skip) keeps its
+    cheapest cost. Injected outcomes break the scan order of :func:`attack_option_rows`
+    (a cheap candidate far out may cost less than hiding one near detection), so the
+    outcomes are ranked by cost (ties: the unattacked outcome first, then by column) and
+    their own payoffs are the differences of consecutive costs (:func:`ranks_and_payoffs`):
+    Eq. 5's combined payoff of each rank is then the cheapest cost of forcing its outcome
+    (docs/semantics.md, "Injection on the nearest-neighbour tracker"). Rank 0 is the
+    unattacked outcome (cost 0).
+
+    Returns the options in (row, rank) order; ``col`` −1 is the skip.
+    """
+    g, k = gated.shape
+    det = valid & ~injected
+    prefix = np.zeros((g, k + 1))
+    prefix[:, 1:] = np.cumsum(np.where(det, payoffs, 0.0), axis=1)  # nearest first
+    cost = prefix[:, :k] + np.where(injected & valid, payoffs, 0.0)
+    ok = valid & np.isfinite(cost)
+    first_det = np.where(det.any(axis=1), det.argmax(axis=1), k)  # the unattacked choice
+    r, c = np.nonzero(ok)
+    row = np.concatenate([r, np.arange(g)])
+    col = np.concatenate([c, np.full(g, k)])  # column k: every detection hidden
+    outcome = np.concatenate([np.where(gated[r, c], key[r, c], -1), np.full(g, -1)])
+    price = np.concatenate([cost[r, c], prefix[:, k]])
+    unatt = col == first_det[row]
+    keep = np.isfinite(price)
+    row, col, outcome, price, unatt = row[keep], col[keep], outcome[keep], price[keep], unatt[keep]
+    # the cheapest way to each (row, outcome): the unattacked column first among equal costs
+    order = np.lexsort((col, ~unatt, price, outcome, row))
+    row, col, outcome, price, unatt = (a[order] for a in (row, col, outcome, price, unatt))
+    head = np.r_[True, (row[1:] != row[:-1]) | (outcome[1:] != outcome[:-1])]
+    row, col, outcome, price, unatt = (a[head] for a in (row, col, outcome, price, unatt))
+    # rank order: by cost, the unattacked outcome first, then by column
+    order = np.lexsort((col, ~unatt, price, row))
+    row, col, outcome, price = row[order], col[order], outcome[order], price[order]
+    _, payoff = ranks_and_payoffs(row, price)
+    return OptionRows(row, np.where(outcome < 0, -1, col), payoff)
 
 
 # ---------------------------------------- trackers that build each option (joint)
