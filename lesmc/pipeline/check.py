@@ -28,6 +28,7 @@ from lesmc.designs import registry
 from lesmc.engines.check import bind_all, model_design
 from lesmc.engines.result import CheckResult
 from lesmc.language import monitors
+from lesmc.language.actions import DEFAULT as DEFAULT_ACTIONS
 from lesmc.language.properties import SpecFile
 from lesmc.language.semantics import BoundProperty, bind
 from lesmc.model.arrays import ArrayModel, reference_states
@@ -115,10 +116,10 @@ class _Plan:
         return self.scene.tracker.design
 
     @property
-    def inject(self) -> bool:
-        """Its properties' attacker injects (``allow hide, inject``): every property of a
-        plan has the same actions (:func:`_plans`)."""
-        return "inject" in self.bound[0].prop.actions
+    def actions(self) -> tuple[str, ...]:
+        """Its properties' attacker's actions (``allow hide, inject``): every property of a
+        plan has the same (:func:`_plans`)."""
+        return self.bound[0].prop.actions
 
 
 def _plans(job: Job, scene: Scene) -> list[_Plan]:
@@ -280,32 +281,44 @@ class _Models:
     scene: Scene
     plans: list[_Plan]
     job: Job
-    made: dict[tuple[str, str, bool], ArrayModel | GrowingModel] = field(default_factory=dict)
+    made: dict[tuple[str, str, tuple[str, ...]], ArrayModel | GrowingModel] = field(
+        default_factory=dict
+    )
     #: the fault variants' certifiers (:func:`_variant_certifiers`), made when first needed
     certifiers: dict[frozenset[str] | None, Certifier] | None = None
 
-    def get(self, tracker: str, payoffs: str, inject: bool = False) -> ArrayModel | GrowingModel:
-        """The model of ``tracker`` on ``payoffs``; ``inject``: its attacker also injects."""
-        key = (tracker, payoffs, inject)
+    def get(
+        self, tracker: str, payoffs: str, actions: tuple[str, ...] = DEFAULT_ACTIONS
+    ) -> ArrayModel | GrowingModel:
+        """The model of ``tracker`` on ``payoffs`` for an attacker taking ``actions``."""
+        key = (tracker, payoffs, actions)
         if key not in self.made:
-            self.made[key] = self._make(tracker, payoffs, inject)
+            self.made[key] = self._make(tracker, payoffs, actions)
         return self.made[key]
 
-    def _make(self, tracker: str, payoffs: str, inject: bool) -> ArrayModel | GrowingModel:
+    def _make(
+        self, tracker: str, payoffs: str, actions: tuple[str, ...]
+    ) -> ArrayModel | GrowingModel:
         bound = [
-            bp for p in self.plans if p.tracker == tracker and p.inject == inject for bp in p.bound
+            bp
+            for p in self.plans
+            if p.tracker == tracker and p.actions == actions
+            for bp in p.bound
         ]
+        inject, hide = "inject" in actions, "hide" in actions
         window, end = window_of(bound), max(bp.end for bp in bound)
         sc = self.scene.with_tracker(design=tracker).priced(payoffs, self.job.source)
         if not self.job.full_models:
-            return lazy_model(sc, window, end, inject=inject)
+            return lazy_model(sc, window, end, inject=inject, hide=hide)
         what = f"the {registry.label(tracker)} model" + (
             " with certified payoffs" if payoffs == "certified" else ""
         )
         self.job.on_stage(f"building {what}")
         budget = self.job.budget
         return build_model(
-            sc, window, on_batch=lambda m: _spent(budget, m, f"building {what}"), inject=inject
+            sc, window, on_batch=lambda m: _spent(budget, m, f"building {what}"),
+            inject=inject,
+            hide=hide,
         )
 
 
@@ -366,7 +379,7 @@ def _design_run(
     """Every property of one plan, in the job's payoff mode."""
     tracker = plan.tracker
     results = check_all(
-        lambda payoffs: models.get(tracker, payoffs, plan.inject),
+        lambda payoffs: models.get(tracker, payoffs, plan.actions),
         plan.bound,
         job.payoffs,
         job.engine,
@@ -390,7 +403,7 @@ def _design_run(
             for fbp, r in _fault_results(job, tracker, bp, models):
                 run.fault_bound.append(fbp)
                 run.fault_results.append(replace(r, design=plan.design))
-    model = models.get(tracker, "attack", plan.inject) if job.full_models else None
+    model = models.get(tracker, "attack", plan.actions) if job.full_models else None
     assert model is None or isinstance(model, ArrayModel)
     run.model, run.scene = model, models.scene.with_tracker(design=tracker)
     return run
@@ -407,8 +420,8 @@ def _fault_results(
 
     assert job.faults is not None
     mode = mode_of(bp, job.payoffs)
-    inject = "inject" in bp.prop.actions
-    nominal = models.get(tracker, "certified" if mode == "certified" else "attack", inject)
+    actions = bp.prop.actions
+    nominal = models.get(tracker, "certified" if mode == "certified" else "attack", actions)
     reference = reference_states(nominal)[: bp.end + 1].copy()
     scene = models.scene.with_tracker(design=tracker)
     if models.certifiers is None:
@@ -426,7 +439,14 @@ def _fault_results(
         def model_of(payoffs: str) -> GrowingModel:
             if payoffs not in made:
                 sc = variant.priced(payoffs, job.source)
-                made[payoffs] = lazy_model(sc, (vbp.l, vbp.u), vbp.end, reference, inject)
+                made[payoffs] = lazy_model(
+                    sc,
+                    (vbp.l, vbp.u),
+                    vbp.end,
+                    reference,
+                    inject="inject" in actions,
+                    hide="hide" in actions,
+                )
             return made[payoffs]
 
         r = check_payoffs(model_of, vbp, mode, job.engine, job.budget, notes)

@@ -59,15 +59,17 @@ class SingleParts:
 class SingleDesign:
     """The plain tracker; ``scene`` gives detections, camera motion and the configuration;
     ``inject``: the attacker may also inject the frames' candidates (``allow hide,
-    inject``; parts/attacker.py: injection_option_rows)."""
+    inject``; parts/attacker.py: injection_option_rows); ``hide``: it may hide detections
+    (not under ``allow inject`` alone)."""
 
     name = "single"
     #: it takes attack action ``inject`` (lesmc/tracking/trackers.py: make_tracker)
     injects = True
 
-    def __init__(self, scene: Scene, inject: bool = False) -> None:
+    def __init__(self, scene: Scene, inject: bool = False, hide: bool = True) -> None:
         self.scene = scene
         self.inject = inject
+        self.hide = hide
         self.cfg = scene.tracker
         self.m: Matrices = matrices(self.cfg, scene.dt)
         self.covariances = CovarianceTable()
@@ -125,7 +127,7 @@ class SingleDesign:
     ) -> tuple[np.ndarray, ...]:
         """Successors of predictions ``Xp``, row i with the gain rows ``g`` of its P."""
         at = measure(m, Xp)
-        if attacked and self.inject and frame.candidates:
+        if attacked and self.inject and (frame.candidates or not self.hide):
             return self._inject_rows(frame, Xp, at, g, m)
         idx, valid = self.parts.hypothesiser.nearest(frame, at, g.radius, wide=attacked)
         Z = frame.positions()[np.where(valid, idx, 0)]
@@ -188,7 +190,8 @@ class SingleDesign:
         w = idx_d.shape[1]
         code = np.concatenate([np.where(ok_d, idx_d, -1), np.where(ok_c, idx_c + n, -1)], axis=1)
         Z_all = np.vstack([frame.positions(), frame.injectable.positions(), np.zeros((1, 2))])
-        pay_all = np.r_[frame.payoffs(), frame.injectable.payoffs(), np.inf]
+        hide_pay = frame.payoffs() if self.hide else np.full(n, np.inf)  # inf: cannot hide
+        pay_all = np.r_[hide_pay, frame.injectable.payoffs(), np.inf]
         key_all = np.r_[frame.joint_position_ids(), -1]
         d = np.where(code >= 0, np.sqrt(((Z_all[code] - at[:, None, :]) ** 2).sum(axis=2)), np.inf)
         # each list keeps its own order (made monotone), a detection first at equal distance

@@ -48,9 +48,11 @@ def max_end(scene: Scene) -> int:
 class SceneExpander:
     """The successors of a scene's tracker states, batch by batch, with exact sharing."""
 
-    def __init__(self, scene: Scene, window: tuple[int, int], inject: bool = False) -> None:
+    def __init__(
+        self, scene: Scene, window: tuple[int, int], inject: bool = False, hide: bool = True
+    ) -> None:
         self.scene = scene
-        self.design: Design = make_tracker(scene, inject)
+        self.design: Design = make_tracker(scene, inject, hide)
         self.window = window
         names = scene.tracker.state_names
         self.model = GrowingModel(names, len(names))
@@ -203,6 +205,7 @@ def lazy_model(
     end: int | None = None,
     reference: np.ndarray | None = None,
     inject: bool = False,
+    hide: bool = True,
 ) -> GrowingModel:
     """The model of ``scene`` for attacks in ``window``, unfolded as an engine asks.
 
@@ -212,9 +215,9 @@ def lazy_model(
     lesmc/pipeline/faults.py) deviations are measured against it, and the unattacked
     track may halt anywhere after the window opens: the fault alone lost the target.
     ``inject``: the attacker may also inject the frames' candidates (``allow hide,
-    inject``).
+    inject``); ``hide``: it may hide detections (not under ``allow inject`` alone).
     """
-    model = SceneExpander(scene, window, inject).model
+    model = SceneExpander(scene, window, inject, hide).model
     last = last_step(scene, end)
     original = [0]
     while len(original) <= last and not model.halted[original[-1]]:
@@ -239,6 +242,7 @@ def build_model(
     on_batch: Callable[[GrowingModel], None] | None = None,
     max_states: int | None = None,
     inject: bool = False,
+    hide: bool = True,
 ) -> ArrayModel:
     """The whole LTS of ``scene`` for attacks in ``window`` = (l, u), up to step ``end``.
 
@@ -251,9 +255,10 @@ def build_model(
     shrink near it, by the most states one expanded state has made so far, so
     that the unfolding stops within about one state's successors of the limit
     instead of one whole batch past it. ``inject``: the attacker may also inject the
-    frames' candidates (``allow hide, inject``).
+    frames' candidates (``allow hide, inject``); ``hide``: it may hide detections (not
+    under ``allow inject`` alone).
     """
-    exp = SceneExpander(scene, window, inject)
+    exp = SceneExpander(scene, window, inject, hide)
     e = original_end(scene, exp.design, end)
     _check_end(e, None, window)
     model = exp.model

@@ -240,7 +240,8 @@ def injection_option_rows(
     prefix[:, 1:] = np.cumsum(np.where(det, payoffs, 0.0), axis=1)  # nearest first
     cost = prefix[:, :k] + np.where(injected & valid, payoffs, 0.0)
     ok = valid & np.isfinite(cost)
-    first_det = np.where(det.any(axis=1), det.argmax(axis=1), k)  # the unattacked choice
+    first = det.argmax(axis=1) if k else np.zeros(g, dtype=np.int64)
+    first_det = np.where(det.any(axis=1), first, k)  # the unattacked choice
     r, c = np.nonzero(ok)
     row = np.concatenate([r, np.arange(g)])
     col = np.concatenate([c, np.full(g, k)])  # column k: every detection hidden
