@@ -288,7 +288,10 @@ def build_model(
     while len(original) <= e and model.expanded(original[-1]):
         original.append(int(model.dst[model.out_lo[original[-1]]]))
     model.original = np.array(original, dtype=np.int64)
-    return freeze(model, scene, window, e, exp.design.name)
+    cm = freeze(model, scene, window, e, exp.design.name)
+    if inject or not hide:  # the attacker the model was built for, when not the default
+        cm.meta["actions"] = [a for a, on in (("hide", hide), ("inject", inject)) if on]
+    return cm
 
 
 def _room(room: int, fan: float, cap: int) -> int:
