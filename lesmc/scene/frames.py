@@ -65,7 +65,8 @@ class Frame:
     """One frame: its detections, the homography to the next frame's coordinates, and its
     injection candidates (scene format 3): places where an attacker may make a detection
     appear, each a :class:`Detection` whose ``payoff`` is the price of injecting it
-    (issue 61; only multi-target designs read them, lesmc/unfold/multi.py)."""
+    (issue 61; read by the multi-target designs, lesmc/unfold/multi.py, and by ``single``
+    under ``allow inject``, lesmc/tracking/single.py)."""
 
     step: int
     detections: tuple[Detection, ...]
