@@ -224,15 +224,12 @@ def injection_option_rows(
     it): cost = the payoffs of the detections before c (+ c's own if injected);
     unreachable past an unattackable detection. Hiding every detection of the row and
     injecting nothing skips. Each distinct outcome (update at a position; skip) keeps its
-    cheapest cost. Injected outcomes break the scan order of :func:`attack_option_rows`
-    (a cheap candidate far out may cost less than hiding one near detection), so the
-    outcomes are ranked by cost (ties: the unattacked outcome first, then by column) and
-    their own payoffs are the differences of consecutive costs (:func:`ranks_and_payoffs`):
-    Eq. 5's combined payoff of each rank is then the cheapest cost of forcing its outcome
-    (docs/semantics.md, "Injection on the nearest-neighbour tracker"). Rank 0 is the
-    unattacked outcome (cost 0).
-
-    Returns the options in (row, rank) order; ``col`` −1 is the skip.
+    cheapest cost. A cheap candidate far out may cost less than hiding one near
+    detection, so the outcomes are ranked by cost (ties: the unattacked one, rank 0,
+    first, then by column), their own payoffs the differences of consecutive costs
+    (:func:`ranks_and_payoffs`): Eq. 5's combined payoff of a rank is then the cheapest
+    cost of forcing its outcome (docs/semantics.md, "Injection on the nearest-neighbour
+    tracker"). Returns the options in (row, rank) order; ``col`` −1 is the skip.
     """
     g, k = gated.shape
     det = valid & ~injected
