@@ -347,3 +347,19 @@ def test_cli_export_builds_the_property_attacker_and_a_model_keeps_it(tmp_path: 
     r = lesmc("check", str(lts), str(spec))
     assert r.returncode == 2 and "Traceback" not in r.stderr, r.stderr
     assert f"{spec}:1:" in r.stderr and "meta.actions" in r.stderr
+
+
+def test_one_spec_mixing_hide_only_and_inject_properties_checks_each_on_its_model() -> None:
+    """The pipeline keys its models by the attacker's actions: a hide-only property and an
+    inject one in one spec each get their own brute-force optimum."""
+    rng = np.random.default_rng(41)
+    for case in _cases(5, 43):
+        both, hide = _brute(case, inject=True), _brute(case, inject=False)
+        bound = _bound(both, rng)
+        text = _spec(case, bound, False) + _spec(case, bound, True).replace(
+            "property p", "property q"
+        )
+        res = api.check(scene_from_dict(case["doc"]), api.parse_spec(text))
+        got = {r.property: math.inf if r.optimum is None else float(r.optimum) for r in res}
+        assert got["p"] == pytest.approx(_optimum(hide, bound), abs=1e-9)
+        assert got["q"] == pytest.approx(_optimum(both, bound), abs=1e-9)
