@@ -316,7 +316,9 @@ class _Models:
         self.job.on_stage(f"building {what}")
         budget = self.job.budget
         return build_model(
-            sc, window, on_batch=lambda m: _spent(budget, m, f"building {what}"),
+            sc,
+            window,
+            on_batch=lambda m: _spent(budget, m, f"building {what}"),
             inject=inject,
             hide=hide,
         )
