@@ -5,7 +5,7 @@ and every subset of its candidates injected, the REFERENCE SORT (``sort-tracker-
 run unchanged) tracks what the attacker left (the detections in the frame's order, then
 the injected candidates in theirs), and switches / lost are scored from its output.
 Also: adding ``inject`` never raises an optimum, scene candidates and ``import mot
---inject-column`` are validated, and injection on a single-target design is refused."""
+--inject-column`` are validated, and injection on the joint design is refused."""
 
 from __future__ import annotations
 
@@ -316,7 +316,7 @@ def test_unknown_action_is_a_located_error(tmp_path: Path) -> None:
     assert f"{spec}:2:" in r.stderr and "unknown attack action 'fabricate'" in r.stderr
 
 
-@pytest.mark.parametrize("design", ["single", "joint"])
+@pytest.mark.parametrize("design", ["joint"])  # single takes inject: test_inject_single.py
 def test_inject_on_a_single_target_design_is_a_located_error(tmp_path: Path, design: str) -> None:
     frames, pay, cands, cpay, _, _ = _hijack_case()
     doc = _doc(frames, pay, cands, cpay)
@@ -325,7 +325,7 @@ def test_inject_on_a_single_target_design_is_a_located_error(tmp_path: Path, des
     scene, spec = _write(tmp_path, doc, text)
     r = lesmc("check", str(scene), str(spec))
     assert r.returncode == 2 and "Traceback" not in r.stderr, r.stderr
-    assert f"{spec}:2:" in r.stderr and "not yet supported for this design" in r.stderr
+    assert f"{spec}:2:" in r.stderr and "not supported for the joint design" in r.stderr
 
 
 def test_scene_candidates_round_trip_and_versions() -> None:

@@ -127,14 +127,19 @@ def _defined(path: Path) -> set[str]:
 
 
 def test_the_attackers_options_are_written_once() -> None:
-    """Every tracker takes them from one module, and no other module defines them."""
-    for user in ("tracking/single.py", "tracking/parts/joint_step.py", "tracking/joint.py",
-                 "unfold/multi.py"):  # fmt: skip
+    """Every tracker takes them from one part (attacker.py, and its subset view for the
+    multi-target trackers, attacker_subsets.py), and no other module defines them."""
+    for user in ("tracking/single.py", "tracking/parts/joint_step.py", "tracking/joint.py"):
         assert ATTACKER in _imports(ROOT / "lesmc" / user), user
-    names = {n for n in _defined(TRACKING / "parts" / "attacker.py") if not n.startswith("_")}
+    assert ATTACKER + "_subsets" in _imports(ROOT / "lesmc" / "unfold/multi.py")
+    files = ("attacker.py", "attacker_subsets.py")
+    names = {
+        n for f in files for n in _defined(TRACKING / "parts" / f) if not n.startswith("_")
+    }
     assert {"attack_option_rows", "hiding_options", "ranks_and_payoffs", "hidden_subsets"} <= names
+    assert {"injection_option_rows", "subset_options", "attackable"} <= names
     for path in (ROOT / "lesmc").rglob("*.py"):
-        if path.name != "attacker.py":
+        if path.name not in files:
             assert not names & _defined(path), path
 
 

@@ -84,8 +84,8 @@ if TYPE_CHECKING:
     help="For a scene: check it with this design (lesmc/designs/registry.py) instead of "
     "the tracker it names; a monitored design filters every property by the runtime "
     "monitor (Eq. 12-13); a multi-target design (sort, gnn) checks switches, lost and "
-    "dist properties (docs/trackers.md), also against an attacker who injects "
-    "(attack window L..U allow hide, inject; docs/language.md).",
+    "dist properties (docs/trackers.md); single and the multi-target designs also take "
+    "an attacker who injects (attack window L..U allow hide, inject; docs/language.md).",
 )
 @tracker_option
 @scene_target

@@ -23,6 +23,7 @@ from lesmc.common.errors import InputError, Location, UsageError, escape_control
 from lesmc.designs import registry
 from lesmc.exporters import formats
 from lesmc.exporters.request import chosen_property
+from lesmc.language.actions import DEFAULT as DEFAULT_ACTIONS
 
 if TYPE_CHECKING:
     from lesmc.language.properties import SpecFile
@@ -231,9 +232,9 @@ def _model(
     source = load_model_or_scene(model, target_text, design, tracker_file)
     if isinstance(source, Scene):
         refuse_multi(source, model, design)
-        window = _scene_window(source, window_text, spec, prop)
+        window, actions = _scene_window(source, window_text, spec, prop)
         try:
-            return build_model(source, window)
+            return build_model(source, window, inject="inject" in actions, hide="hide" in actions)
         except UnpricedPayoff as exc:  # a verify scene's payoff that nobody priced
             raise exc.at(model) from None
     if window_text is not None:
@@ -243,14 +244,15 @@ def _model(
 
 def _scene_window(
     scene: Scene, window_text: str | None, spec: SpecFile | None, prop: str | None
-) -> tuple[int, int]:
+) -> tuple[tuple[int, int], tuple[str, ...]]:
     """The attack window a scene is built for: ``--window``, else the exported property's;
-    both given, they must agree (refused at the property's window clause)."""
+    both given, they must agree (refused at the property's window clause). And the
+    attacker's actions: the property's (``allow``), hide only without one."""
     window = parse_window(window_text) if window_text is not None else None
     if spec is None:
         if window is None:
             raise UsageError("a scene is built for one attack window: give --window L..U")
-        return window
+        return window, DEFAULT_ACTIONS
     from lesmc.pipeline.check import bind_scene
 
     bp = chosen_property(bind_scene(scene, [spec]), spec.path, prop)
@@ -263,7 +265,7 @@ def _scene_window(
             f"{own[0]}..{own[1]}",
             Location(spec.path, pos.line, pos.column, source_line(spec.text, pos.line)),
         )
-    return own
+    return own, bp.prop.actions
 
 
 def _roles(cm: ArrayModel, path: str, prop: str | None) -> dict[str, list[int]]:

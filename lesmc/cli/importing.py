@@ -70,7 +70,7 @@ def import_group() -> None:
     default=None,
     help="With --threshold: the lines whose conf (column 7) is below the threshold become "
     "injection candidates (not detections), priced by this column (1-based; a number >= 0): "
-    "what `allow inject` in a spec lets the attacker add (multi-target designs).",
+    "what `allow inject` in a spec lets the attacker add (single, sort, gnn).",
 )
 @click.option(
     "--threshold",

@@ -22,6 +22,7 @@ from lesmc.engines.space import (
     original_nis,
     transition_nis,
 )
+from lesmc.language import actions
 from lesmc.language.properties import SpecFile
 from lesmc.language.semantics import BoundProperty, bind
 from lesmc.model import kernel
@@ -47,6 +48,7 @@ def bind_all(model: ArrayModel, specs: Iterable[SpecFile]) -> list[BoundProperty
             model.has_covariance,
             None if model.tracks is None else model.tracks.components,
             model.nis is not None,
+            model_actions=tuple(model.meta.get("actions", actions.DEFAULT)),
         )
         for spec in specs
         for prop in spec.properties

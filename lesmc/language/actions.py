@@ -19,11 +19,16 @@ from dataclasses import dataclass
 @dataclass(frozen=True)
 class AttackAction:
     """One registered action: its name in ``allow``, a summary for tables and help, and
-    whether only multi-target designs take it so far (``multi_only``)."""
+    the trackers (lesmc/designs/registry.py's ``tracker`` names) that take it so far
+    (``trackers``; None: every design)."""
 
     name: str
     summary: str
-    multi_only: bool = False
+    trackers: frozenset[str] | None = None
+
+    def taken_by(self, tracker: str) -> bool:
+        """The tracker ``tracker`` (``single``, ``joint``, ``sort``, ``gnn``) takes it."""
+        return self.trackers is None or tracker in self.trackers
 
 
 _ACTIONS: dict[str, AttackAction] = {}
@@ -59,7 +64,7 @@ def docs_table() -> str:
     """The Markdown table of docs/language.md, "Attack actions"."""
     rows = ["| action | what the attacker does | designs |", "|---|---|---|"]
     for a in _ACTIONS.values():
-        designs = "multi-target (sort, gnn)" if a.multi_only else "every design"
+        designs = "every design" if a.trackers is None else ", ".join(sorted(a.trackers))
         rows.append(f"| `{a.name}` | {a.summary} | {designs} |")
     return "\n".join(rows) + "\n"
 
@@ -75,7 +80,7 @@ register(
     AttackAction(
         "inject",
         "adds any of the frame's injection candidates (scene format 3), at the sum of "
-        "their payoffs",
-        multi_only=True,
+        "their payoffs (on single only the nearest visible one matters: docs/semantics.md)",
+        trackers=frozenset({"single", "sort", "gnn"}),
     )
 )

@@ -88,15 +88,20 @@ def bind(
     tracks: tuple[str, ...] | None = None,
     has_nis: bool = True,
     multi: bool = False,
+    tracker: str | None = None,
+    model_actions: tuple[str, ...] = actions.DEFAULT,
 ) -> BoundProperty:
     """Resolve ``prop`` against a model with steps 0..e and the given components;
     ``tracks``: the components of the model's ground-truth tracks (None: it has none);
     ``has_nis``: the model carries the NIS of its transitions' updates (a monitor that
     reads them is refused otherwise); ``multi``: a multi-target design's model (the only
-    one with identity measures)."""
+    one with identity measures); ``tracker``: the tracker the model unfolds (``single``,
+    ``joint``), for the actions it takes (lesmc/language/actions.py); None: a model
+    already built, whose attacker took ``model_actions`` (its ``meta.actions``), which the
+    property's must equal."""
     if not multi:
         _single_target(spec, prop)
-        _single_target_actions(spec, prop)
+        _single_target_actions(spec, prop, tracker, model_actions)
     l, u, end = _window(spec, prop, e)
     monitor_idx, tol = _monitor(spec, prop, components, has_covariance, has_nis)
     tau_idx = _tau(spec, prop, components, has_covariance, monitor_idx)
@@ -148,18 +153,34 @@ def _single_target(spec: SpecFile, prop: Property) -> None:
             )
 
 
-def _single_target_actions(spec: SpecFile, prop: Property) -> None:
-    """A single-target design's attacker takes only the actions every design takes
-    (lesmc/language/actions.py): injection is not yet supported for it."""
-    for name in prop.actions:
-        if actions.get(name).multi_only:
+def _single_target_actions(
+    spec: SpecFile, prop: Property, tracker: str | None, model_actions: tuple[str, ...]
+) -> None:
+    """A single-target design's attacker takes only the actions registered for its tracker
+    (lesmc/language/actions.py: inject on ``single``, not on ``joint``); a model already
+    built has its attacker in its transitions: the property's actions must be the ones it
+    was built for."""
+    if tracker is None:
+        if set(prop.actions) != set(model_actions):
             raise _fail(
                 spec,
-                f"attack action '{name}' is not yet supported for this design: only "
-                "multi-target designs (--design sort) take it so far; a single-target "
-                "design's attacker hides only (issue 61)",
+                f"the property's attacker takes {', '.join(prop.actions)} but the model was "
+                f"built for one taking {', '.join(model_actions)} (its meta.actions): build "
+                "the model from the scene with this property's actions, or check the scene",
                 prop.clause_pos.get("allow", prop.pos),
             )
+        return
+    for name in prop.actions:
+        action = actions.get(name)
+        if action.taken_by(tracker):
+            continue
+        takers = "every design" if action.trackers is None else ", ".join(sorted(action.trackers))
+        raise _fail(
+            spec,
+            f"attack action '{name}' is not supported for the {tracker} design: it is taken "
+            f"by {takers} (check the scene with --design single or --design sort; issue 61)",
+            prop.clause_pos.get("allow", prop.pos),
+        )
 
 
 def _fail(spec: SpecFile, message: str, pos: Pos) -> SpecError:

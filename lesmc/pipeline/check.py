@@ -28,6 +28,7 @@ from lesmc.designs import registry
 from lesmc.engines.check import bind_all, model_design
 from lesmc.engines.result import CheckResult
 from lesmc.language import monitors
+from lesmc.language.actions import DEFAULT as DEFAULT_ACTIONS
 from lesmc.language.properties import SpecFile
 from lesmc.language.semantics import BoundProperty, bind
 from lesmc.model.arrays import ArrayModel, reference_states
@@ -84,7 +85,12 @@ def bind_scene(
     names = scene.tracker.state_names
     pos = scene.tracker.measured
     tracks = (names[pos[0]], names[pos[1]]) if scene.truth else None
-    return [bind(spec, prop, e, names, True, tracks) for spec in specs for prop in spec.properties]
+    t = scene.tracker.design
+    return [
+        bind(spec, prop, e, names, True, tracks, tracker=t)
+        for spec in specs
+        for prop in spec.properties
+    ]
 
 
 def window_of(bound: Iterable[BoundProperty]) -> tuple[int, int]:
@@ -109,12 +115,18 @@ class _Plan:
     def tracker(self) -> str:
         return self.scene.tracker.design
 
+    @property
+    def actions(self) -> tuple[str, ...]:
+        """Its properties' attacker's actions (``allow hide, inject``): every property of a
+        plan has the same (:func:`_plans`)."""
+        return self.bound[0].prop.actions
+
 
 def _plans(job: Job, scene: Scene) -> list[_Plan]:
     """Every (design, window) with the properties the job wants checked there."""
     designs = job.designs or (scene.tracker.design,)
     ends: dict[str, int] = {}
-    plans = []
+    plans: list[_Plan] = []
     for name in designs:
         d = registry.get(name)
         sc = scene.with_tracker(design=d.tracker)
@@ -131,8 +143,10 @@ def _plans(job: Job, scene: Scene) -> list[_Plan]:
                     raise UsageError(f"the tracker's monitor: {reason}")
                 specs = [s.with_monitor(mon) for s in specs]
             bound = _selected(job, name, w, bind_scene(sc, specs, ends[d.tracker]))
-            if bound:
-                plans.append(_Plan(name, w, sc, bound))
+            by_actions: dict[tuple[str, ...], list[BoundProperty]] = {}
+            for bp in bound:  # one model per attacker: hide only, or hide and inject
+                by_actions.setdefault(bp.prop.actions, []).append(bp)
+            plans.extend(_Plan(name, w, sc, bps) for bps in by_actions.values())
     return plans
 
 
@@ -267,28 +281,47 @@ class _Models:
     scene: Scene
     plans: list[_Plan]
     job: Job
-    made: dict[tuple[str, str], ArrayModel | GrowingModel] = field(default_factory=dict)
+    made: dict[tuple[str, str, tuple[str, ...]], ArrayModel | GrowingModel] = field(
+        default_factory=dict
+    )
     #: the fault variants' certifiers (:func:`_variant_certifiers`), made when first needed
     certifiers: dict[frozenset[str] | None, Certifier] | None = None
 
-    def get(self, tracker: str, payoffs: str) -> ArrayModel | GrowingModel:
-        key = (tracker, payoffs)
+    def get(
+        self, tracker: str, payoffs: str, actions: tuple[str, ...] = DEFAULT_ACTIONS
+    ) -> ArrayModel | GrowingModel:
+        """The model of ``tracker`` on ``payoffs`` for an attacker taking ``actions``."""
+        key = (tracker, payoffs, actions)
         if key not in self.made:
-            self.made[key] = self._make(tracker, payoffs)
+            self.made[key] = self._make(tracker, payoffs, actions)
         return self.made[key]
 
-    def _make(self, tracker: str, payoffs: str) -> ArrayModel | GrowingModel:
-        bound = [bp for p in self.plans if p.tracker == tracker for bp in p.bound]
+    def _make(
+        self, tracker: str, payoffs: str, actions: tuple[str, ...]
+    ) -> ArrayModel | GrowingModel:
+        bound = [
+            bp
+            for p in self.plans
+            if p.tracker == tracker and p.actions == actions
+            for bp in p.bound
+        ]
+        inject, hide = "inject" in actions, "hide" in actions
         window, end = window_of(bound), max(bp.end for bp in bound)
         sc = self.scene.with_tracker(design=tracker).priced(payoffs, self.job.source)
         if not self.job.full_models:
-            return lazy_model(sc, window, end)
+            return lazy_model(sc, window, end, inject=inject, hide=hide)
         what = f"the {registry.label(tracker)} model" + (
             " with certified payoffs" if payoffs == "certified" else ""
         )
         self.job.on_stage(f"building {what}")
         budget = self.job.budget
-        return build_model(sc, window, on_batch=lambda m: _spent(budget, m, f"building {what}"))
+        return build_model(
+            sc,
+            window,
+            on_batch=lambda m: _spent(budget, m, f"building {what}"),
+            inject=inject,
+            hide=hide,
+        )
 
 
 def _spent(budget: Budget, model: GrowingModel, stage: str) -> None:
@@ -349,7 +382,7 @@ def _design_run(
     """Every property of one plan, in the job's payoff mode."""
     tracker = plan.tracker
     results = check_all(
-        lambda payoffs: models.get(tracker, payoffs),
+        lambda payoffs: models.get(tracker, payoffs, plan.actions),
         plan.bound,
         job.payoffs,
         job.engine,
@@ -373,7 +406,7 @@ def _design_run(
             for fbp, r in _fault_results(job, tracker, bp, models):
                 run.fault_bound.append(fbp)
                 run.fault_results.append(replace(r, design=plan.design))
-    model = models.get(tracker, "attack") if job.full_models else None
+    model = models.get(tracker, "attack", plan.actions) if job.full_models else None
     assert model is None or isinstance(model, ArrayModel)
     run.model, run.scene = model, models.scene.with_tracker(design=tracker)
     return run
@@ -390,7 +423,8 @@ def _fault_results(
 
     assert job.faults is not None
     mode = mode_of(bp, job.payoffs)
-    nominal = models.get(tracker, "certified" if mode == "certified" else "attack")
+    actions = bp.prop.actions
+    nominal = models.get(tracker, "certified" if mode == "certified" else "attack", actions)
     reference = reference_states(nominal)[: bp.end + 1].copy()
     scene = models.scene.with_tracker(design=tracker)
     if models.certifiers is None:
@@ -408,7 +442,14 @@ def _fault_results(
         def model_of(payoffs: str) -> GrowingModel:
             if payoffs not in made:
                 sc = variant.priced(payoffs, job.source)
-                made[payoffs] = lazy_model(sc, (vbp.l, vbp.u), vbp.end, reference)
+                made[payoffs] = lazy_model(
+                    sc,
+                    (vbp.l, vbp.u),
+                    vbp.end,
+                    reference,
+                    inject="inject" in actions,
+                    hide="hide" in actions,
+                )
             return made[payoffs]
 
         r = check_payoffs(model_of, vbp, mode, job.engine, job.budget, notes)

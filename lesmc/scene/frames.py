@@ -65,7 +65,8 @@ class Frame:
     """One frame: its detections, the homography to the next frame's coordinates, and its
     injection candidates (scene format 3): places where an attacker may make a detection
     appear, each a :class:`Detection` whose ``payoff`` is the price of injecting it
-    (issue 61; only multi-target designs read them, lesmc/unfold/multi.py)."""
+    (issue 61; read by the multi-target designs, lesmc/unfold/multi.py, and by ``single``
+    under ``allow inject``, lesmc/tracking/single.py)."""
 
     step: int
     detections: tuple[Detection, ...]
@@ -104,6 +105,25 @@ class Frame:
         if not self.has_boxes:
             raise ValueError(f"frame {self.step}: a detection has no box")
         return self._boxes
+
+    @cached_property
+    def injectable(self) -> Frame:
+        """The injection candidates as a frame of their own (their positions, payoffs and
+        nearest-neighbour search), for the single design under ``allow inject``."""
+        return Frame(self.step, self.candidates)
+
+    @cached_property
+    def _joint_position_ids(self) -> np.ndarray:
+        both = np.vstack([self.positions(), self.injectable.positions()])
+        _, first, inverse = np.unique(both, axis=0, return_index=True, return_inverse=True)
+        out: np.ndarray = first[inverse.reshape(-1)]
+        out.flags.writeable = False
+        return out
+
+    def joint_position_ids(self) -> np.ndarray:
+        """(n + m,) for each detection, then each injection candidate, the lowest index
+        (in that order) of one at the same position."""
+        return self._joint_position_ids
 
     @cached_property
     def candidates_have_boxes(self) -> bool:

@@ -39,7 +39,7 @@ from lesmc.tracking.kalman import (
     warp,
 )
 from lesmc.tracking.parts.associator import NearestNeighbourAssociator
-from lesmc.tracking.parts.attacker import attack_option_rows
+from lesmc.tracking.parts.attacker import attack_option_rows, injection_option_rows
 from lesmc.tracking.parts.deleter import TraceDeleter
 from lesmc.tracking.parts.hypothesiser import GateHypothesiser
 
@@ -57,12 +57,19 @@ class SingleParts:
 
 
 class SingleDesign:
-    """The plain tracker; ``scene`` gives detections, camera motion and the configuration."""
+    """The plain tracker; ``scene`` gives detections, camera motion and the configuration;
+    ``inject``: the attacker may also inject the frames' candidates (``allow hide,
+    inject``; parts/attacker.py: injection_option_rows); ``hide``: it may hide detections
+    (not under ``allow inject`` alone)."""
 
     name = "single"
+    #: it takes attack action ``inject`` (lesmc/tracking/trackers.py: make_tracker)
+    injects = True
 
-    def __init__(self, scene: Scene) -> None:
+    def __init__(self, scene: Scene, inject: bool = False, hide: bool = True) -> None:
         self.scene = scene
+        self.inject = inject
+        self.hide = hide
         self.cfg = scene.tracker
         self.m: Matrices = matrices(self.cfg, scene.dt)
         self.covariances = CovarianceTable()
@@ -120,6 +127,8 @@ class SingleDesign:
     ) -> tuple[np.ndarray, ...]:
         """Successors of predictions ``Xp``, row i with the gain rows ``g`` of its P."""
         at = measure(m, Xp)
+        if attacked and self.inject and (frame.candidates or not self.hide):
+            return self._inject_rows(frame, Xp, at, g, m)
         idx, valid = self.parts.hypothesiser.nearest(frame, at, g.radius, wide=attacked)
         Z = frame.positions()[np.where(valid, idx, 0)]
         y = Z - at[:, None, :]
@@ -137,6 +146,23 @@ class SingleDesign:
             col = self.parts.associator.assign(valid, gated)
             payoff = np.zeros(row.size)
             rank = np.zeros(row.size, dtype=np.int64)
+        return self._outcomes(Xp, g, m, row, rank, payoff, col, idx, Z, y)
+
+    def _outcomes(
+        self,
+        Xp: np.ndarray,
+        g: GainRows,
+        m: Matrices,
+        row: np.ndarray,
+        rank: np.ndarray,
+        payoff: np.ndarray,
+        col: np.ndarray,
+        idx: np.ndarray,
+        Z: np.ndarray,
+        y: np.ndarray,
+    ) -> tuple[np.ndarray, ...]:
+        """The successor of each option (``row``, ``rank``, ``payoff``, column ``col`` of
+        the candidates ``idx`` at ``Z``, innovations ``y``; −1: skip)."""
         upd = col >= 0
         X = Xp[row].copy()
         ru = row[upd]
@@ -148,3 +174,36 @@ class SingleDesign:
         if ru.size:
             nis[upd] = mahalanobis2(y[ru, col[upd]], g.S_inv[ru])
         return row, rank, payoff, det, X, cov, halted, nis
+
+    def _inject_rows(
+        self, frame: Frame, Xp: np.ndarray, at: np.ndarray, g: GainRows, m: Matrices
+    ) -> tuple[np.ndarray, ...]:
+        """Successors at an attacked step under ``allow hide, inject``: the detections and
+        the injection candidates within the gate's radius merged nearest first (a
+        detection before a candidate at equal distance), each outcome at its cheapest
+        cost (parts/attacker.py: injection_option_rows). The observation of an update
+        with candidate j is n + j (n: the frame's detections)."""
+        hyp = self.parts.hypothesiser
+        n = len(frame.detections)
+        idx_d, ok_d = hyp.nearest(frame, at, g.radius, wide=True)
+        idx_c, ok_c = hyp.nearest(frame.injectable, at, g.radius, wide=True)
+        w = idx_d.shape[1]
+        code = np.concatenate([np.where(ok_d, idx_d, -1), np.where(ok_c, idx_c + n, -1)], axis=1)
+        Z_all = np.vstack([frame.positions(), frame.injectable.positions(), np.zeros((1, 2))])
+        hide_pay = frame.payoffs() if self.hide else np.full(n, np.inf)  # inf: cannot hide
+        pay_all = np.r_[hide_pay, frame.injectable.payoffs(), np.inf]
+        key_all = np.r_[frame.joint_position_ids(), -1]
+        d = np.where(code >= 0, np.sqrt(((Z_all[code] - at[:, None, :]) ** 2).sum(axis=2)), np.inf)
+        # each list keeps its own order (made monotone), a detection first at equal distance
+        d[:, :w] = np.maximum.accumulate(d[:, :w], axis=1)
+        d[:, w:] = np.maximum.accumulate(d[:, w:], axis=1)
+        code = np.take_along_axis(code, np.argsort(d, axis=1, kind="stable"), axis=1)
+        valid = code >= 0
+        Z = Z_all[code]  # code −1: the padding row
+        y = Z - at[:, None, :]
+        gated = valid & hyp.test(y, g.S_inv, g.spread)
+        opts = injection_option_rows(gated, pay_all[code], valid, code >= n, key_all[code])
+        row, col, payoff = opts.row, opts.col, opts.payoff
+        counts = np.bincount(row, minlength=len(Xp))
+        rank = np.arange(row.size) - np.repeat(np.r_[0, np.cumsum(counts)[:-1]], counts)
+        return self._outcomes(Xp, g, m, row, rank, payoff, col, code, Z, y)

@@ -23,13 +23,21 @@ def tracker_class(design: str) -> Any:
     return getattr(importlib.import_module(module), cls)
 
 
-def make_tracker(scene: Scene) -> Design:
-    """The tracker the scene's configuration names, set up for the scene (a multi-target
-    design: a UsageError, as no model of one is built yet)."""
+def make_tracker(scene: Scene, inject: bool = False, hide: bool = True) -> Design:
+    """The tracker the scene's configuration names, set up for the scene; ``inject``: the
+    attacker may also inject the frames' candidates (``allow hide, inject``; a tracker
+    whose class does not declare ``injects``, or a multi-target design: a UsageError);
+    ``hide``: it may hide detections (False only with ``inject``: ``allow inject``)."""
     design = registry.get(scene.tracker.design)
     if design.multi:
         raise UsageError(registry.not_yet(design.name))
-    made: Design = tracker_class(design.name)(scene)
+    cls = tracker_class(design.name)
+    if not inject and hide:
+        made: Design = cls(scene)
+        return made
+    if not getattr(cls, "injects", False):
+        raise UsageError(f"the {design.name} design does not take attack action 'inject'")
+    made = cls(scene, inject=True, hide=hide)
     return made
 
 

@@ -24,7 +24,12 @@ from lesmc.model.multi import MultiModel
 from lesmc.scene import Frame, Scene
 from lesmc.tracking.design import CovarianceTable
 from lesmc.tracking.multi import ComposedDesign, FrameTracks, MultiState, target_id
-from lesmc.tracking.parts.attacker import attackable, option_count, subset_cost, subset_options
+from lesmc.tracking.parts.attacker_subsets import (
+    attackable,
+    option_count,
+    subset_cost,
+    subset_options,
+)
 from lesmc.tracking.parts.states import MultiBatch
 
 #: Successors one step may compute when no --max-states is given: a frame with 30

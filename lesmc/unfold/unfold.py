@@ -48,19 +48,23 @@ def max_end(scene: Scene) -> int:
 class SceneExpander:
     """The successors of a scene's tracker states, batch by batch, with exact sharing."""
 
-    def __init__(self, scene: Scene, window: tuple[int, int]) -> None:
+    def __init__(
+        self, scene: Scene, window: tuple[int, int], inject: bool = False, hide: bool = True
+    ) -> None:
         self.scene = scene
-        self.design: Design = make_tracker(scene)
+        self.design: Design = make_tracker(scene, inject, hide)
         self.window = window
         names = scene.tracker.state_names
         self.model = GrowingModel(names, len(names))
         self.model.expander = self
         self.objects: PayloadStore | None = None  # whole tracker states, for designs that have them
         self._seen: dict[int, HashIndex] = {}  # per step: state hash -> index
-        # detection index -> observation code: frames' detections numbered in order
-        self._obs_offset = np.cumsum([0] + [len(f.detections) for f in scene.frames])
+        # detection index -> observation code: frames' detections numbered in order, each
+        # frame's injection candidates after its detections under inject (n + j: candidate j)
+        per = [f.detections + (f.candidates if inject else ()) for f in scene.frames]
+        self._obs_offset = np.cumsum([0] + [len(p) for p in per])
         self._first_frame = scene.frames[0].step
-        self.model.obs_names = tuple(d.id for f in scene.frames for d in f.detections)
+        self.model.obs_names = tuple(d.id for p in per for d in p)
         self.add(0, self.design.initial())
 
     # ---------------------------------------------------------------- states
@@ -200,6 +204,8 @@ def lazy_model(
     window: tuple[int, int],
     end: int | None = None,
     reference: np.ndarray | None = None,
+    inject: bool = False,
+    hide: bool = True,
 ) -> GrowingModel:
     """The model of ``scene`` for attacks in ``window``, unfolded as an engine asks.
 
@@ -208,8 +214,10 @@ def lazy_model(
     With ``reference`` (a fault variant's: the fault-free track's states,
     lesmc/pipeline/faults.py) deviations are measured against it, and the unattacked
     track may halt anywhere after the window opens: the fault alone lost the target.
+    ``inject``: the attacker may also inject the frames' candidates (``allow hide,
+    inject``); ``hide``: it may hide detections (not under ``allow inject`` alone).
     """
-    model = SceneExpander(scene, window).model
+    model = SceneExpander(scene, window, inject, hide).model
     last = last_step(scene, end)
     original = [0]
     while len(original) <= last and not model.halted[original[-1]]:
@@ -233,6 +241,8 @@ def build_model(
     on_level: Callable[[int, int], None] | None = None,
     on_batch: Callable[[GrowingModel], None] | None = None,
     max_states: int | None = None,
+    inject: bool = False,
+    hide: bool = True,
 ) -> ArrayModel:
     """The whole LTS of ``scene`` for attacks in ``window`` = (l, u), up to step ``end``.
 
@@ -244,9 +254,11 @@ def build_model(
     With ``max_states`` (the caller's budget, enforced by ``on_batch``) batches
     shrink near it, by the most states one expanded state has made so far, so
     that the unfolding stops within about one state's successors of the limit
-    instead of one whole batch past it.
+    instead of one whole batch past it. ``inject``: the attacker may also inject the
+    frames' candidates (``allow hide, inject``); ``hide``: it may hide detections (not
+    under ``allow inject`` alone).
     """
-    exp = SceneExpander(scene, window)
+    exp = SceneExpander(scene, window, inject, hide)
     e = original_end(scene, exp.design, end)
     _check_end(e, None, window)
     model = exp.model
@@ -276,7 +288,10 @@ def build_model(
     while len(original) <= e and model.expanded(original[-1]):
         original.append(int(model.dst[model.out_lo[original[-1]]]))
     model.original = np.array(original, dtype=np.int64)
-    return freeze(model, scene, window, e, exp.design.name)
+    cm = freeze(model, scene, window, e, exp.design.name)
+    if inject or not hide:  # the attacker the model was built for, when not the default
+        cm.meta["actions"] = [a for a, on in (("hide", hide), ("inject", inject)) if on]
+    return cm
 
 
 def _room(room: int, fan: float, cap: int) -> int:

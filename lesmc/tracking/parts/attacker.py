@@ -28,26 +28,22 @@ last candidate the gate admits (hiding more changes nothing). Two views of these
   ``visible(rank (R, z), opt (R,)) -> (R, z) bool``;
   ``ranks_and_payoffs(src (n,), cost (n,)) -> (rank, own payoff)``.
 
-Multi-target trackers (``sort``, ``gnn``): the attacker hides any subset of the frame's
-attackable detections, at the sum of their payoffs: :func:`hidden_subsets` (``(frame,
-attacked) -> iterator of index tuples``, the empty one first), :func:`subset_count`
-(``(frame, attacked) -> int``) and :func:`subset_cost` (``(payoffs (z,), subset) ->
-float``). With ``allow hide, inject`` (issue 61) it also adds any subset of the frame's
-injection candidates (scene format 3) at their payoffs: :func:`injected_subsets`, and
-:func:`subset_options` / :func:`option_count` (``(frame, attacked, actions)``) combine
-both. lesmc/unfold/multi.py merges the options that lead to the same successor.
+Multi-target trackers (``sort``, ``gnn``): any subset of the frame's attackable
+detections and, under ``allow hide, inject``, of its injection candidates, at the sum of
+their payoffs. That view of the same threat model lives beside this module, in
+lesmc/tracking/parts/attacker_subsets.py (the two modules are one part).
+
+``single`` under ``allow hide, inject``: :func:`injection_option_rows` (``(gated, payoffs,
+valid, injected, key)``, each (g, k), detections and candidates merged nearest first ->
+OptionRows``): the distinct outcomes, each at its cheapest cost, ranked by cost.
 """
 
 from __future__ import annotations
 
-import itertools
-import math
-from collections.abc import Iterator
 from dataclasses import dataclass
 
 import numpy as np
 
-from lesmc.scene import Frame
 from lesmc.tracking.parts.groups import within
 
 
@@ -197,6 +193,64 @@ def _collect(
     return OptionRows(row, out_col, pay)
 
 
+# ---------------------------------------- the nearest-neighbour tracker under inject (single)
+
+
+def injection_option_rows(
+    gated: np.ndarray,
+    payoffs: np.ndarray,
+    valid: np.ndarray,
+    injected: np.ndarray,
+    key: np.ndarray,
+) -> OptionRows:
+    """The attacker's options under ``allow hide, inject`` for many predictions at once
+    (g rows of k columns): each row lists the frame's detections and injection candidates
+    together, nearest first (``valid`` marks real ones, ``injected`` the candidates;
+    at equal distance a detection comes first), ``payoffs`` the price of hiding a
+    detection or of injecting a candidate, ``gated`` whether the gate admits it, ``key``
+    its position's id (equal ids: the same updated state).
+
+    The tracker updates with the nearest visible column if the gate admits it, else
+    skips. Column c is the nearest visible at the least cost by hiding every detection
+    before it and injecting no candidate before it (and, if c is a candidate, injecting
+    it): cost = the payoffs of the detections before c (+ c's own if injected);
+    unreachable past an unattackable detection. Hiding every detection of the row and
+    injecting nothing skips. Each distinct outcome (update at a position; skip) keeps its
+    cheapest cost. A cheap candidate far out may cost less than hiding one near
+    detection, so the outcomes are ranked by cost (ties: the unattacked one, rank 0,
+    first, then by column), their own payoffs the differences of consecutive costs
+    (:func:`ranks_and_payoffs`): Eq. 5's combined payoff of a rank is then the cheapest
+    cost of forcing its outcome (docs/semantics.md, "Injection on the nearest-neighbour
+    tracker"). Returns the options in (row, rank) order; ``col`` −1 is the skip.
+    """
+    g, k = gated.shape
+    det = valid & ~injected
+    prefix = np.zeros((g, k + 1))
+    prefix[:, 1:] = np.cumsum(np.where(det, payoffs, 0.0), axis=1)  # nearest first
+    cost = prefix[:, :k] + np.where(injected & valid, payoffs, 0.0)
+    ok = valid & np.isfinite(cost)
+    first = det.argmax(axis=1) if k else np.zeros(g, dtype=np.int64)
+    first_det = np.where(det.any(axis=1), first, k)  # the unattacked choice
+    r, c = np.nonzero(ok)
+    row = np.concatenate([r, np.arange(g)])
+    col = np.concatenate([c, np.full(g, k)])  # column k: every detection hidden
+    outcome = np.concatenate([np.where(gated[r, c], key[r, c], -1), np.full(g, -1)])
+    price = np.concatenate([cost[r, c], prefix[:, k]])
+    unatt = col == first_det[row]
+    keep = np.isfinite(price)
+    row, col, outcome, price, unatt = row[keep], col[keep], outcome[keep], price[keep], unatt[keep]
+    # the cheapest way to each (row, outcome): the unattacked column first among equal costs
+    order = np.lexsort((col, ~unatt, price, outcome, row))
+    row, col, outcome, price, unatt = (a[order] for a in (row, col, outcome, price, unatt))
+    head = np.r_[True, (row[1:] != row[:-1]) | (outcome[1:] != outcome[:-1])]
+    row, col, outcome, price, unatt = (a[head] for a in (row, col, outcome, price, unatt))
+    # rank order: by cost, the unattacked outcome first, then by column
+    order = np.lexsort((col, ~unatt, price, row))
+    row, col, outcome, price = row[order], col[order], outcome[order], price[order]
+    _, payoff = ranks_and_payoffs(row, price)
+    return OptionRows(row, np.where(outcome < 0, -1, col), payoff)
+
+
 # ---------------------------------------- trackers that build each option (joint)
 
 
@@ -286,77 +340,3 @@ def ranks_and_payoffs(src: np.ndarray, cost: np.ndarray) -> tuple[np.ndarray, np
 
 
 # ---------------------------------------- multi-target trackers: any subset
-
-
-def attackable(frame: Frame, ref: np.ndarray | None, radius: float | None) -> np.ndarray:
-    """Which of the frame's detections a multi-target tracker's attacker may hide: those
-    of finite payoff and, with ``attack window L..U within R`` (``radius`` R), whose
-    position lies within R px of the centre of the target's reference box ``ref``
-    [x1, y1, x2, y2] (none where the reference does not exist). Injection candidates are
-    not limited by R: the scene places them."""
-    can = np.array([not math.isinf(d.payoff) for d in frame.detections], dtype=bool)
-    if radius is None or not len(can):
-        return can
-    if ref is None:
-        return np.zeros(len(can), dtype=bool)
-    c = np.array([(ref[0] + ref[2]) / 2.0, (ref[1] + ref[3]) / 2.0])
-    near: np.ndarray = can & (np.hypot(*(frame.positions() - c).T) <= radius)
-    return near
-
-
-def hidden_subsets(
-    frame: Frame, attacked: bool, can: np.ndarray | None = None
-) -> Iterator[tuple[int, ...]]:
-    """The subsets of the frame's detections the attacker may hide (indices), the empty
-    one (unattacked) first: every subset of the attackable ones (``can``, default
-    :func:`attackable` without a radius) when ``attacked``."""
-    if not attacked:
-        yield ()
-        return
-    mask = attackable(frame, None, None) if can is None else can
-    idx = np.nonzero(mask)[0].tolist()
-    for r in range(len(idx) + 1):
-        yield from itertools.combinations(idx, r)
-
-
-def subset_count(frame: Frame, attacked: bool, can: np.ndarray | None = None) -> int:
-    """How many subsets :func:`hidden_subsets` yields, counted without listing them."""
-    mask = attackable(frame, None, None) if can is None else can
-    return 2 ** int(mask.sum()) if attacked else 1
-
-
-def subset_cost(payoffs: np.ndarray, subset: tuple[int, ...]) -> float:
-    """What hiding the detections ``subset`` costs: the sum of their ``payoffs``."""
-    return math.fsum(payoffs[list(subset)]) if subset else 0.0
-
-
-def injected_subsets(frame: Frame, attacked: bool) -> Iterator[tuple[int, ...]]:
-    """The subsets of the frame's injection candidates the attacker may inject (indices
-    into its candidates), the empty one first: every subset when ``attacked``."""
-    if not attacked:
-        yield ()
-        return
-    for r in range(len(frame.candidates) + 1):
-        yield from itertools.combinations(range(len(frame.candidates)), r)
-
-
-def subset_options(
-    frame: Frame, attacked: bool, actions: tuple[str, ...], can: np.ndarray | None = None
-) -> list[tuple[int, ...]]:
-    """Every option of a multi-target tracker's attacker taking ``actions``
-    (lesmc/language/actions.py) at the frame, the unattacked one first: the detections
-    hidden (indices i < n into ``can``, the attackable ones, n the frame's detections),
-    then the candidates injected (n + j for candidate j)."""
-    n = len(frame.detections)
-    inject = attacked and "inject" in actions
-    added = [tuple(n + j for j in s) for s in injected_subsets(frame, inject)]
-    hidden = hidden_subsets(frame, attacked and "hide" in actions, can)
-    return [h + a for h in hidden for a in added]
-
-
-def option_count(
-    frame: Frame, attacked: bool, actions: tuple[str, ...], can: np.ndarray | None = None
-) -> int:
-    """How many options :func:`subset_options` lists, counted without listing them."""
-    adds = 2 ** len(frame.candidates) if attacked and "inject" in actions else 1
-    return subset_count(frame, attacked and "hide" in actions, can) * adds
