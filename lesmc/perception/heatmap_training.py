@@ -16,6 +16,7 @@ from __future__ import annotations
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import torch
@@ -82,9 +83,9 @@ def heatmap_net() -> nn.Sequential:
     )
 
 
-def visible(vehicles: list[dict[str, object]]) -> np.ndarray:
+def visible(vehicles: list[dict[str, Any]]) -> np.ndarray:
     """(n, 2) the positions of the frame's vehicles that are not occluded."""
-    tf = truth_frame(vehicles)  # type: ignore[arg-type]
+    tf = truth_frame(vehicles)
     out: np.ndarray = tf.positions[~tf.occluded]
     return out
 
@@ -135,7 +136,8 @@ def fit(cfg: HeatmapTrainConfig, progress: Progress | None = None) -> nn.Sequent
     torch.manual_seed(cfg.seed)
     gen = torch.Generator().manual_seed(cfg.seed)
     rows, cols = cfg.height // STRIDE, cfg.width // STRIDE
-    xs, ys = [], []
+    xs: list[np.ndarray] = []
+    ys: list[np.ndarray] = []
     for i, s in enumerate(cfg.train_seeds):
         if progress:
             progress("rendering", i, len(cfg.train_seeds))
@@ -145,8 +147,10 @@ def fit(cfg: HeatmapTrainConfig, progress: Progress | None = None) -> nn.Sequent
     x = torch.from_numpy(np.concatenate(xs)).float().div_(255.0)[:, None]
     y = torch.from_numpy(np.stack(ys))[:, None]
     net = heatmap_net()
+    last = net[-1]
+    assert isinstance(last, nn.Conv2d) and last.bias is not None
     with torch.no_grad():
-        net[-1].bias.fill_(-2.2)  # start near score 0.1: the map is mostly background
+        last.bias.fill_(-2.2)  # start near score 0.1: the map is mostly background
     opt = torch.optim.Adam(net.parameters(), lr=cfg.lr)
     for epoch in range(cfg.epochs):
         if progress:
