@@ -37,7 +37,7 @@ SPEC = """property hide_cheap {
 
 
 def _decode(img: np.ndarray, sess: Any) -> np.ndarray:
-    """(n, 2) detections: sigmoid cells >= 0.3 that are the maximum of their 5x5 square."""
+    """(n, 2) detections: sigmoid cells >= 0.5 that are the maximum of their 5x5 square."""
     x = (img.astype(np.float32) / np.float32(255.0))[None, None]
     raw = sess.run(None, {sess.get_inputs()[0].name: x})[0][0, 0].astype(np.float64)
     s = 1.0 / (1.0 + np.exp(-raw))
@@ -45,7 +45,7 @@ def _decode(img: np.ndarray, sess: Any) -> np.ndarray:
     for i in range(s.shape[0]):
         for j in range(s.shape[1]):
             sq = s[max(0, i - 2) : i + 3, max(0, j - 2) : j + 3]
-            if s[i, j] >= 0.3 and s[i, j] == sq.max():
+            if s[i, j] >= 0.5 and s[i, j] == sq.max():
                 out.append(((j + 0.5) * 4, (i + 0.5) * 4))
     return np.array(out).reshape(-1, 2)
 
@@ -101,15 +101,20 @@ def _target(video: dict[str, Any]) -> tuple[float, float]:
     pytest.fail("no vehicle detected in every frame")
 
 
-def test_perceive_check_replay_confirmed(video: dict[str, Any]) -> None:
-    d, frames = video["dir"], video["frames"]
+@pytest.fixture(scope="module")
+def scene(video: dict[str, Any]) -> Path:
+    """``lesmc perceive`` with the shipped file, targeting a vehicle seen in every frame."""
     x, y = _target(video)
-    scene = d / "scene.json"
-    r = lesmc("perceive", str(frames), "--detector", str(TOML), "-o", str(scene),
+    out = video["dir"] / "scene.json"
+    r = lesmc("perceive", str(video["frames"]), "--detector", str(TOML), "-o", str(out),
               "--target", f"{x:.1f},{y:.1f}@0")  # fmt: skip
     assert r.returncode == 0, r.stderr
     assert "Traceback" not in r.stderr
-    doc = json.loads(scene.read_text())
+    return out
+
+
+def test_perceive_check_replay_confirmed(video: dict[str, Any], scene: Path) -> None:
+    d, frames = video["dir"], video["frames"]
     (d / "p.spec").write_text(SPEC)
     r = lesmc("check", str(scene), str(d / "p.spec"), "--report", str(d / "rep"))
     assert r.returncode == 1, r.stdout + r.stderr  # hiding the vehicle a few steps moves it
@@ -119,7 +124,16 @@ def test_perceive_check_replay_confirmed(video: dict[str, Any]) -> None:
     assert "Traceback" not in r.stderr
     (row,) = json.loads(r.stdout)["replays"]
     assert row["verdict"] == "violated" and row["replay"]["status"] == "confirmed"
-    assert doc  # the scene was written
+
+
+def test_perceive_reports_the_decoded_detections(video: dict[str, Any], scene: Path) -> None:
+    """The scene's detections are those decoded here from onnxruntime's output."""
+    doc = json.loads(scene.read_text())
+    assert len(doc["frames"]) == FRAMES
+    for fr, dets in zip(doc["frames"], video["dets"], strict=True):
+        got = sorted((d["x"], d["y"]) for d in fr["detections"])
+        want = sorted(map(tuple, dets.tolist()))
+        assert np.allclose(np.array(got).reshape(-1, 2), np.array(want).reshape(-1, 2))
 
 
 def test_train_heatmap_tiny_budget_is_read_by_perceive(tmp_path: Path) -> None:

@@ -46,7 +46,7 @@ class HeatmapTrainConfig:
     batch: int = 8
     lr: float = 3e-3
     seed: int = 0
-    threshold: float = 0.3
+    threshold: float = 0.5
     radius: float = 4.0
 
 
