@@ -148,3 +148,14 @@ def test_train_heatmap_tiny_budget_is_read_by_perceive(tmp_path: Path) -> None:
     r = lesmc("perceive", str(frames), "--detector", str(out / "heatmap.toml"))
     assert r.returncode == 0, r.stderr
     assert "Traceback" not in r.stderr
+
+
+@pytest.mark.parametrize(
+    ("args", "named"),
+    [(["--size", "98x64"], "--size"), (["--json"], "--json")],
+)
+def test_train_heatmap_refusals_are_exit_2(args: list[str], named: str, tmp_path: Path) -> None:
+    r = lesmc("train", "--kind", "heatmap", "--out", str(tmp_path / "n"), "--frames", "6", *args)
+    assert r.returncode == 2, r.stderr
+    assert "Traceback" not in r.stderr and named in r.stderr
+    assert not (tmp_path / "n").exists()
