@@ -106,7 +106,8 @@ def target(xy: np.ndarray, rows: int, cols: int) -> np.ndarray:
 def video(cfg: HeatmapTrainConfig, seed: int) -> tuple[np.ndarray, list[np.ndarray]]:
     """One synthetic video: (n, H, W) uint8 frames and each frame's visible vehicles."""
     imgs, pos = [], []
-    for img, ft in frames(SynthConfig(cfg.frames, cfg.width, cfg.height, seed=seed)):
+    synth = SynthConfig(frames=cfg.frames, width=cfg.width, height=cfg.height, seed=seed)
+    for img, ft in frames(synth):
         imgs.append(np.asarray(img, np.uint8))
         pos.append(visible(ft.vehicles))
     return np.stack(imgs), pos
