@@ -9,7 +9,7 @@ from typing import TYPE_CHECKING, Any
 import click
 
 from lesmc.cli.documents import emit, file_facts, file_sha256, run_provenance, say
-from lesmc.common.errors import escape_control
+from lesmc.common.errors import UsageError, escape_control
 
 if TYPE_CHECKING:
     from rich.table import Table
@@ -20,12 +20,21 @@ if TYPE_CHECKING:
 
 @click.command("train")
 @click.option(
+    "--kind",
+    type=click.Choice(["windows", "heatmap"]),
+    default="windows",
+    show_default=True,
+    help="windows: N_dr and N_lp of lesmc's own pipeline; heatmap: a small fully "
+    "convolutional heatmap detector and its detector file (docs/detectors.md).",
+)
+@click.option(
     "--out",
     "out_dir",
     type=click.Path(file_okay=False),
     default="nets",
     show_default=True,
-    help="Directory for dr.safetensors, lp.safetensors and nets.json.",
+    help="Directory for dr.safetensors, lp.safetensors and nets.json "
+    "(--kind heatmap: heatmap.onnx and heatmap.toml).",
 )
 @click.option(
     "--frames",
@@ -34,7 +43,14 @@ if TYPE_CHECKING:
     show_default=True,
     help="Frames per training video.",
 )
-@click.option("--size", "size_text", default="2048x2048", show_default=True, metavar="WxH")
+@click.option(
+    "--size",
+    "size_text",
+    default=None,
+    metavar="WxH",
+    help="Frame size of the videos [default: 2048x2048; --kind heatmap: 384x384, "
+    "which is also the heatmap network's input size].",
+)
 @click.option(
     "--seed",
     type=int,
@@ -53,7 +69,7 @@ if TYPE_CHECKING:
     "--epochs",
     type=click.IntRange(min=1, max=1000),
     default=None,
-    help="Epochs for both networks [default: 8 for N_dr, 10 for N_lp].",
+    help="Epochs for both networks [default: 8 for N_dr, 10 for N_lp; --kind heatmap: 150].",
 )
 @click.option(
     "--json",
@@ -63,9 +79,10 @@ if TYPE_CHECKING:
     "lesmc/schemas/train.json): settings, seeds, held-out metrics, files and their sha256.",
 )
 def train_cmd(
+    kind: str,
     out_dir: str,
     frames: int,
-    size_text: str,
+    size_text: str | None,
     seed: int,
     videos: int,
     epochs: int | None,
@@ -74,8 +91,10 @@ def train_cmd(
     """Train the detection CNNs on `lesmc synth` videos and print held-out metrics.
 
     The shipped weights were made with the defaults. Point `lesmc perceive
-    --nets DIR` at the output to use your own. Exit status: 0 written, 2 bad
-    input, 4 internal error, 130 interrupted.
+    --nets DIR` at the output to use your own. With `--kind heatmap`, a heatmap
+    detector for `lesmc perceive FRAMES --detector DIR/heatmap.toml` (the shipped
+    examples/detectors/heatmap.toml was made with the defaults). Exit status: 0
+    written, 2 bad input, 4 internal error, 130 interrupted.
     """
     started = time.monotonic()
     from rich.console import Console
@@ -86,7 +105,10 @@ def train_cmd(
     from lesmc.perception.training import TrainConfig, train
     from lesmc.report.text import make_console
 
-    w, h = parse_size(size_text)
+    if kind == "heatmap":
+        _train_heatmap(out_dir, frames, size_text, seed, videos, epochs, as_json)
+        return
+    w, h = parse_size(size_text or "2048x2048")
     cfg = TrainConfig(
         train_seeds=tuple(101 + i for i in range(videos)),
         val_seed=101 + videos,
@@ -110,6 +132,61 @@ def train_cmd(
     if as_json:
         seconds = {"training": trained - started, "total": time.monotonic() - started}
         emit(_document(out_dir, cfg, nets, val, seconds))
+
+
+def _train_heatmap(
+    out_dir: str,
+    frames: int,
+    size_text: str | None,
+    seed: int,
+    videos: int,
+    epochs: int | None,
+    as_json: bool,
+) -> None:
+    """``lesmc train --kind heatmap``: train, validate, write the network and its file."""
+    from rich.table import Table
+
+    from lesmc.cli.video import parse_size
+    from lesmc.common.progress import progress_bar
+    from lesmc.perception.heatmap_training import HeatmapTrainConfig, export, fit, validate
+    from lesmc.perception.threads import fit_torch_threads
+    from lesmc.report.text import make_console
+
+    if as_json:  # schemas/train.json describes the window networks' run
+        raise UsageError("--json: not available with --kind heatmap yet")
+    w, h = parse_size(size_text or "384x384")
+    if w % 4 or h % 4:
+        raise UsageError(f"--size: {w}x{h}: width and height must be multiples of 4 (the stride)")
+    cfg = HeatmapTrainConfig(
+        train_seeds=tuple(101 + i for i in range(videos)),
+        val_seed=101 + videos,
+        frames=frames,
+        width=w,
+        height=h,
+        seed=seed,
+        epochs=epochs or HeatmapTrainConfig.epochs,
+    )
+    fit_torch_threads()
+    with progress_bar("train", "training", None) as bar:
+
+        def progress(stage: str, done: int, total: int) -> None:
+            bar.update(description=stage, completed=done, total=total)
+
+        net = fit(cfg, progress)
+    val = validate(net, cfg)
+    history = (
+        f"lesmc train --kind heatmap --frames {frames} --size {w}x{h} --seed {seed} "
+        f"--videos {videos} --epochs {cfg.epochs}: synth seeds {list(cfg.train_seeds)}; "
+        f"held-out seed {cfg.val_seed}: recall {val.recall:.3f}, precision {val.precision:.3f}"
+    )
+    files = export(net, cfg, Path(out_dir), history)
+    table = Table(title=f"held-out validation (video seed {cfg.val_seed}, {cfg.radius:g} px)")
+    for c in ("network", "frames", "vehicles", "detections", "precision", "recall"):
+        table.add_column(c, justify="left" if c == "network" else "right")
+    table.add_row("heatmap", str(val.frames), str(val.vehicles), str(val.detections),
+                  f"{val.precision:.3f}", f"{val.recall:.3f}")  # fmt: skip
+    make_console().print(table)
+    say(f"wrote {escape_control(str(files[0]))}", False)
 
 
 def _table(cfg: TrainConfig, val: Validation) -> Table:
