@@ -11,11 +11,16 @@ from typing import TYPE_CHECKING, Any
 import click
 
 from lesmc.cli.documents import emit
-from lesmc.cli.options import FiniteRange, finite_seconds, load_scene_file, tracker_option
+from lesmc.cli.options import (
+    DEFAULT_MAX_STATES,
+    FiniteRange,
+    finite_seconds,
+    load_scene_file,
+    tracker_option,
+)
 from lesmc.common.errors import UsageError
 from lesmc.engines import payoff_modes
 from lesmc.engines import registry as engines
-from lesmc.engines.check import DEFAULT_MAX_STATES
 
 if TYPE_CHECKING:
     from lesmc.experiment.false_alarms import TruthStart
