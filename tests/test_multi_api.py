@@ -136,3 +136,30 @@ def test_an_unsupported_property_is_a_located_error_not_an_exit(tmp_path: Path) 
     with pytest.raises(LesmcError) as err:
         api.check(scene, spec)
     assert err.value.location is not None and err.value.location.line == 3
+
+
+def test_the_api_page_example_holds_against_the_reference_sort() -> None:
+    """docs/api.md's multi-target example (run there as a doctest): its scene, re-read as
+    boxes, has the optimum that the brute force over the reference SORT finds."""
+    from cli_run import ROOT
+
+    text = (ROOT / "docs" / "api.md").read_text()
+    assert 'lesmc.check("examples/crossing.json", "examples/hijack.spec")' in text
+    doc = json.loads((ROOT / "examples" / "crossing.json").read_text())
+    frames = [
+        np.array(
+            [
+                [d["x"] - d["w"] / 2, d["y"] - d["h"] / 2, d["x"] + d["w"] / 2, d["y"] + d["h"] / 2]
+                for d in f["detections"]
+            ],
+            dtype=float,
+        ).reshape(-1, 4)
+        for f in doc["frames"]
+    ]
+    pay = [np.ones(len(f)) for f in frames]
+    runs = _brute(frames, pay, 2, 4)
+    refs = _reference_boxes(frames)
+    end = len(frames) - 1
+    want = min((x[1] for x in runs if _score(x[3], refs, 0, end)[0] > 0), default=math.inf)
+    (got,) = api.check(ROOT / "examples" / "crossing.json", ROOT / "examples" / "hijack.spec")
+    assert got.optimum == want
