@@ -114,7 +114,7 @@ def load_scene(
 ) -> Scene:
     """A scene file (docs/scene-format.md); ``target`` (``"X,Y@STEP"``) places or moves its
     target, ``tracker`` (a tracker file or configuration) replaces its tracker, ``design``
-    names another tracker of the registry (``single``, ``joint``)."""
+    names another tracker of the registry (``single``, ``joint``, ``sort``, ``gnn``)."""
     where = _path(path, "path")
     cfg = _scene_options(target, design, tracker)
     return scene_with_target(read_json(Path(where), InputError), where, target, design, cfg)
