@@ -14,6 +14,8 @@ _ERRORS = ("LesmcError", "InputError", "SpecError", "ModelError", "UsageError", 
 _API = (
     "CheckResult",
     "DesignRun",
+    "MultiCheckResult",
+    "MultiStep",
     "PerceiveRequest",
     "Perceived",
     "Results",

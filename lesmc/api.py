@@ -39,6 +39,7 @@ from lesmc.model.lts_binary import is_binary, load_lts_npz
 from lesmc.model.lts_format import load_lts, lts_from_dict
 from lesmc.pipeline.check import run
 from lesmc.pipeline.job import Job
+from lesmc.pipeline.multi import MultiCheckResult, MultiStep
 from lesmc.results.record import DesignRun, Results
 from lesmc.scene import Footage, Scene, TrackerConfig, load_tracker
 from lesmc.scene import save_scene as write_scene
@@ -53,6 +54,8 @@ if TYPE_CHECKING:
 __all__ = [
     "CheckResult",
     "DesignRun",
+    "MultiCheckResult",
+    "MultiStep",
     "PerceiveRequest",
     "Perceived",
     "Results",
@@ -111,7 +114,7 @@ def load_scene(
 ) -> Scene:
     """A scene file (docs/scene-format.md); ``target`` (``"X,Y@STEP"``) places or moves its
     target, ``tracker`` (a tracker file or configuration) replaces its tracker, ``design``
-    names another tracker of the registry (``single``, ``joint``)."""
+    names another tracker of the registry (``single``, ``joint``, ``sort``, ``gnn``)."""
     where = _path(path, "path")
     cfg = _scene_options(target, design, tracker)
     return scene_with_target(read_json(Path(where), InputError), where, target, design, cfg)
@@ -229,12 +232,15 @@ def check(
     max_states: int | None = DEFAULT_MAX_STATES,
     designs: str | Sequence[str] = (),
     only: str | Sequence[str] = (),
-) -> list[CheckResult]:
+) -> list[CheckResult] | list[MultiCheckResult]:
     """Check every property of ``specs`` (one spec file or several, parsed or as paths) on
     a model or a scene (or the file of one); one result per property and design, each
     naming its design (``result.design``). ``designs``: a design, a set (``"paper"``,
     ``"all"``) or a list of designs (scenes only); ``only``: a property's name or a list
-    of them."""
+    of them. On a multi-target design (``designs="sort"`` or ``"gnn"``, or a scene whose
+    tracker is one) the results are :class:`MultiCheckResult` (``lesmc check --design sort
+    --json``'s entries: ``to_dict()``); ``engine``, ``timeout`` and ``payoffs="interval"``
+    are refused there, as the command line refuses them."""
     src = (
         source
         if isinstance(source, ArrayModel | Scene)
@@ -253,6 +259,11 @@ def check(
     )
     names = (only,) if isinstance(only, str) else _items(only, "only")
     _need(all(isinstance(n, str) for n in names), "only holds property names", only)
+    if isinstance(src, Scene) and _multi(src, chosen):
+        where = "<scene>" if isinstance(source, Scene) else _path(source, "source")
+        return _check_multi(
+            src, where, spec_list, chosen, engine, payoffs, timeout, max_states, names
+        )
     scene, model = (src, None) if isinstance(src, Scene) else (None, src)
     job = Job(
         spec_list,
@@ -265,6 +276,51 @@ def check(
         only=names,
     )
     return run(job).results
+
+
+def _multi(scene: Scene, designs: tuple[str, ...]) -> bool:
+    """Whether a check of ``scene`` with ``designs`` (none: the scene's own) is of a
+    multi-target design; a list mixing them with single-target designs is refused."""
+    multi = [registry.get(d).multi for d in designs or (scene.tracker.design,)]
+    _need(
+        all(multi) or not any(multi),
+        "designs: a multi-target design (sort, gnn) is checked alone, not with others",
+        designs,
+    )
+    return multi[0]
+
+
+def _check_multi(
+    scene: Scene,
+    path: str,
+    specs: tuple[SpecFile, ...],
+    designs: tuple[str, ...],
+    engine: str,
+    payoffs: str,
+    timeout: float | None,
+    max_states: int | None,
+    only: tuple[str, ...],
+) -> list[MultiCheckResult]:
+    """:func:`check` on a multi-target design (``lesmc check --design sort``'s check,
+    lesmc/pipeline/multi.py): the arguments its exact search does not read are refused, as
+    the command line refuses its options."""
+    from lesmc.pipeline.multi import check_multi_design
+
+    _need(len(designs) <= 1, "designs: one multi-target design at a time", designs)
+    _need(engine == engines.DEFAULT, "engine: a multi-target design has one search", engine)
+    _need(timeout is None, "timeout: a multi-target design is bounded by max_states", timeout)
+    _need(
+        payoffs != "interval",
+        "payoffs: interval is not supported yet on a multi-target design",
+        payoffs,
+    )
+    _need(
+        not any(s.faults for s in specs),
+        "specs: faults with a multi-target design are not supported yet",
+        [s.path for s in specs if s.faults],
+    )
+    sc = scene if not designs else scene.with_tracker(design=designs[0])
+    return check_multi_design(sc.priced(payoffs, path), path, specs, only, max_states)
 
 
 def export(

@@ -21,7 +21,14 @@ from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import IO, Any
 
-from lesmc.common.errors import InputError, LesmcError, Location, UsageError, escape_control
+from lesmc.common.errors import (
+    InputError,
+    LesmcError,
+    Location,
+    UsageError,
+    clipped,
+    escape_control,
+)
 
 #: Deepest nesting of arrays and objects a JSON input may have.
 MAX_JSON_DEPTH = 64
@@ -115,6 +122,24 @@ def key_locations(path: str, text: str, is_json: bool) -> dict[str, Location]:
             lead = len(m.group(0)) - len(m.group(0).lstrip(" \t"))
             out[key] = Location.at(path, text, m.start(0) + lead)
     return out
+
+
+def error_at_keys(
+    path: str, where: dict[str, Location], problems: list[tuple[str, str]]
+) -> InputError:
+    """One error listing each ``(key, message)`` at the key's line (``where``:
+    :func:`key_locations`; the file's name when the key is not in it, as for a missing
+    key), located at the first problem's key; a message that starts with its key is not
+    prefixed with it again."""
+    lines = []
+    for key, msg in problems:
+        loc = where.get(key, Location(path))
+        shown = f"{clipped(key, 60)}: " if key and not msg.startswith(key) else ""
+        lines.append(f"{loc.prefix()}: {shown}{msg}")
+    first = where.get(problems[0][0], Location(path)) if problems else Location(path)
+    err = InputError("\n".join(lines), first)
+    err.preformatted = True
+    return err
 
 
 _JSON_KEY = re.compile(r'"((?:[^"\\]|\\.)*)"\s*:')

@@ -39,7 +39,7 @@ class Design:
         1.0  #: relative cost of unfolding with the tracker (campaigns start costly work first)
     )
     #: a multi-target tracker (lesmc/tracking/multi.py): ``lesmc track`` runs it, ``lesmc
-    #: check`` checks identity properties on it (lesmc/cli/multi_check.py); it is not among
+    #: check`` checks identity properties on it (lesmc/pipeline/multi.py); it is not among
     #: the designs ``all`` names
     multi: bool = False
 

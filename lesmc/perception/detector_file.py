@@ -20,7 +20,7 @@ from typing import TYPE_CHECKING, Any
 
 from lesmc.common.errors import InputError, Location, clipped
 from lesmc.common.fields import is_finite, is_int, show
-from lesmc.common.files import key_locations, read_json, read_text, read_toml
+from lesmc.common.files import error_at_keys, key_locations, read_json, read_text, read_toml
 
 if TYPE_CHECKING:
     from lesmc.perception.graphs import UserNet
@@ -292,14 +292,7 @@ def _resolve(path: str, network: str, where: dict[str, Location]) -> str:
 def _located(path: str, where: dict[str, Location], problems: list[tuple[str, str]]) -> InputError:
     """One error listing each ``(key, message)`` at the key's line (the file's name when the
     key is not in it, as for a missing key)."""
-    lines = []
-    for key, msg in problems:
-        loc = where.get(key, Location(path))
-        lines.append(f"{loc.prefix()}: {clipped(key, 60)}: {msg}")
-    first = where.get(problems[0][0], Location(path))
-    err = InputError("\n".join(lines), first)
-    err.preformatted = True
-    return err
+    return error_at_keys(path, where, problems)
 
 
 def located(spec: DetectorFile, key: str, message: str) -> InputError:

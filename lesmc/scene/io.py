@@ -15,7 +15,7 @@ from typing import Any
 
 import numpy as np
 
-from lesmc.common.errors import InputError, Problems
+from lesmc.common.errors import InputError, Location, Problems
 from lesmc.common.fields import (
     MAX_STEP,
     is_finite,
@@ -25,7 +25,14 @@ from lesmc.common.fields import (
     show,
     within,
 )
-from lesmc.common.files import read_json, read_toml, write_json
+from lesmc.common.files import (
+    error_at_keys,
+    key_locations,
+    read_json,
+    read_text,
+    read_toml,
+    write_json,
+)
 from lesmc.designs import registry
 from lesmc.language import monitors
 from lesmc.scene.frames import Detection, Frame
@@ -542,9 +549,22 @@ def _tracker_value(key: str, v: Any, pr: Problems, item: str, values: dict[str, 
         values[key] = v
 
 
-def _tracker(raw: Any, pr: Problems, item: str = "tracker") -> TrackerConfig | None:
+#: Keys that would choose a tracker's parts (docs/trackers.md, "Tracker files and
+#: compositions"): a tracker file names a composition by its design instead.
+PART_KEYS = ("parts", "predictor", "updater", "hypothesiser", "associator", "initiator", "deleter")
+NO_PARTS = (
+    "a tracker file does not choose parts; it names a composition by its design "
+    '(design = "sort": IoU, global assignment, min_hits, max_age; design = "gnn": '
+    "Mahalanobis, GNN, M of N, max_age) and sets that design's parameters"
+)
+
+
+def _tracker(
+    raw: Any, pr: Problems, item: str = "tracker", keys: list[str] | None = None
+) -> TrackerConfig | None:
     """A tracker block: the design, the gate, and the model (a preset's parameters or
-    declared matrices, lesmc/scene/tracker_model.py)."""
+    declared matrices, lesmc/scene/tracker_model.py). ``keys``, when given, receives the
+    key each problem is about (a tracker file locates its problems at the key's line)."""
     if not isinstance(raw, dict):
         pr.add(item, "must be an object")
         return None
@@ -552,10 +572,26 @@ def _tracker(raw: Any, pr: Problems, item: str = "tracker") -> TrackerConfig | N
     names = set(tracker_keys())
     values: dict[str, Any] = {}
     for key, v in raw.items():
-        if key not in names:
+        before = len(pr.items)
+        if key in PART_KEYS:
+            pr.add(item, f"{key}: {NO_PARTS}")
+        elif key not in names:
             pr.add(item, f"unknown key '{key}'")
         else:
             _tracker_value(key, v, pr, item, values)
+        if keys is not None:
+            keys.extend([key] * (len(pr.items) - before))
+    cfg = _tracker_checked(values, pr, item, n0)
+    if keys is not None:  # problems of the block as a whole: the key their message names
+        keys.extend(m.split()[0] for _, m in pr.items[len(keys) :])
+    return cfg
+
+
+def _tracker_checked(
+    values: dict[str, Any], pr: Problems, item: str, n0: int
+) -> TrackerConfig | None:
+    """The configuration from a tracker block's checked ``values``, after the checks of
+    keys together (M of N, P0_sd's length, R, keys a declared model does not take)."""
     model = values.get("model", DEFAULT_MODEL)
     _m_of_n(values, pr, item)
     if len(pr.items) > n0 or model is None:
@@ -605,9 +641,12 @@ def _monitor(raw: Any, pr: Problems, item: str) -> str | None:
     return f"{kind} {value!r}" + (f" window {window}" if window > 1 else "")
 
 
-def tracker_from_dict(data: Any, path: str = "<tracker>") -> TrackerConfig:
+def tracker_from_dict(
+    data: Any, path: str = "<tracker>", where: dict[str, Location] | None = None
+) -> TrackerConfig:
     """A tracker file's configuration: the keys of a scene's ``tracker`` block, and an
-    optional ``comment``."""
+    optional ``comment``. ``where`` (:func:`~lesmc.common.files.key_locations` of the
+    file's text) locates each problem at its key's line and column."""
     pr = Problems()
     if not isinstance(data, dict):
         keys = ", ".join(k for k in tracker_keys() if k != "faults")
@@ -620,7 +659,11 @@ def tracker_from_dict(data: Any, path: str = "<tracker>") -> TrackerConfig:
         if not isinstance(data["comment"], str):
             pr.add("comment", f"must be a string (a note for people), got {show(data['comment'])}")
         data = {k: v for k, v in data.items() if k != "comment"}
-    cfg = _tracker(data, pr, "")
+    about: list[str] = [k for k, _ in pr.items]  # the key each problem is about
+    cfg = _tracker(data, pr, "", about)
+    if pr.items and where is not None:
+        found = [(k, m) for k, (_, m) in zip(about, pr.items, strict=True)]
+        raise error_at_keys(path, where, found)
     if pr.items or cfg is None:
         raise InputError.many(path, pr.items or [("", "not a tracker")])
     return cfg
@@ -629,9 +672,10 @@ def tracker_from_dict(data: Any, path: str = "<tracker>") -> TrackerConfig:
 def load_tracker(path: str | Path) -> TrackerConfig:
     """Read a tracker file: JSON (``.json``) or TOML (any other name), the keys of a scene's
     ``tracker`` block (``--tracker FILE``; docs/scene-format.md, "Tracker files")."""
-    if str(path).endswith(".json"):
-        return tracker_from_dict(read_json(path, InputError), str(path))
-    return tracker_from_dict(read_toml(path), str(path))
+    is_json = str(path).endswith(".json")
+    data = read_json(path, InputError) if is_json else read_toml(path)
+    where = key_locations(str(path), read_text(path), is_json)
+    return tracker_from_dict(data, str(path), where)
 
 
 def check_fits(

@@ -268,3 +268,13 @@ class _Arrays:
             refbox=refbox,
             target=me,
         )
+
+
+def composed(scene: Scene, path: str) -> ComposedDesign:
+    """The multi-target design the scene's tracker names, set up for ``scene`` (read from
+    ``path``, the name its errors give): what the layers above unfold build with."""
+    from lesmc.tracking.trackers import make_multi
+
+    design = make_multi(scene, path)
+    assert isinstance(design, ComposedDesign)
+    return design
