@@ -11,7 +11,13 @@ from typing import TYPE_CHECKING, Any
 import click
 
 from lesmc.cli.documents import emit
-from lesmc.cli.options import FiniteRange, finite_seconds, load_scene_file, tracker_option
+from lesmc.cli.options import (
+    FiniteRange,
+    distinct_files,
+    finite_seconds,
+    load_scene_file,
+    tracker_option,
+)
 from lesmc.common.errors import UsageError
 from lesmc.engines import payoff_modes
 from lesmc.engines import registry as engines
@@ -143,6 +149,10 @@ def tune_cmd(
 
     if workers and scheduler:
         raise UsageError("--workers and --scheduler exclude each other")
+    inputs = {"SOURCE": source, "--space": space_file, "--truth": truth, "--tracker": tracker_file}
+    inputs |= {f"SPECS ({i + 1})": s for i, s in enumerate(specs)}
+    outputs = {k: v for k, v in (("--best-out", best_out), ("--plot", plot)) if v is not None}
+    distinct_files(inputs, outputs)
     specs, parsed = _specs(specs)
     scene, starts, truths, last, space, where = _source(
         source, space_file, truth, out_dir, tracker_file, bool(workers or scheduler)

@@ -1,0 +1,83 @@
+"""The hostile-input run on round 19's inputs: ``lesmc tune`` space files and its
+outputs, the gnn design's tracker keys, scene format 3's candidates, the attack window of
+a spec, ``lesmc import mot --inject-column``, and box detector files. Each case was
+mishandled before its fix (an exception other than a LesmcError, exit 4 on bad input, a
+hang, an input file overwritten); the CLI cases run the real entry point."""
+
+from __future__ import annotations
+
+import re
+from pathlib import Path
+from typing import Any
+
+import pytest
+from cli_run import ROOT, lesmc
+from test_tune import _scene
+
+ROBUSTNESS = str(ROOT / "specs" / "robustness.spec")
+
+
+def _refused(r: Any, *wanted: str) -> None:
+    """Exit 2, no traceback, nothing on stdout, every ``wanted`` text on stderr."""
+    assert "Traceback" not in r.stderr and "internal error" not in r.stderr, r.stderr
+    assert r.returncode == 2, (r.returncode, r.stdout, r.stderr)
+    for w in wanted:
+        assert w in r.stderr, r.stderr
+
+
+@pytest.mark.parametrize(
+    ("text", "line", "message"),
+    [
+        # np.linspace was asked for 10**12 values: MemoryError, exit 4
+        ("gate = {from = 1.0, to = 2.0, count = 1000000000000}\n", 1, "gate: count"),
+        # a whole-number range of 10**8 values: minutes of work before any check
+        ("[monitor]\nmisses = {from = 1, to = 100000000}\n", 2, "misses: the range has"),
+        # each list is small, their product is not: 25 million designs to check
+        (
+            "gate = {from = 1.0, to = 2.0, count = 50}\n"
+            "sigma_q = {from = 1.0, to = 2.0, count = 5000}\n",
+            2,
+            "sigma_q: the space makes 250000 designs",
+        ),
+    ],
+)
+def test_a_space_too_big_to_search_is_refused_at_its_key(
+    tmp_path: Path, text: str, line: int, message: str
+) -> None:
+    scene = _scene(tmp_path / "s.json", 0)
+    space = tmp_path / "space.toml"
+    space.write_text(text)
+    r = lesmc("tune", str(scene), ROBUSTNESS, "--space", str(space), timeout=120)
+    _refused(r, message)
+    assert re.search(rf"{re.escape(str(space))}:{line}:\d+: ", r.stderr), r.stderr
+    assert r.stdout == ""
+
+
+@pytest.mark.parametrize("which", ["SOURCE", "SPECS", "--space"])
+def test_best_out_naming_an_input_is_refused_before_any_work(tmp_path: Path, which: str) -> None:
+    """``--best-out SOURCE`` used to check the space and then overwrite the scene with a
+    tracker file (exit 0, the scene lost)."""
+    scene = _scene(tmp_path / "s.json", 0)
+    spec = tmp_path / "r.spec"
+    spec.write_text(Path(ROBUSTNESS).read_text())
+    space = tmp_path / "space.toml"
+    space.write_text("gate = [2.0]\n")
+    target = {"SOURCE": scene, "SPECS": spec, "--space": space}[which]
+    before = {p: p.read_bytes() for p in (scene, spec, space)}
+    r = lesmc("tune", str(scene), str(spec), "--space", str(space), "--best-out", str(target))
+    _refused(r, "--best-out name the same file", which)
+    assert {p: p.read_bytes() for p in before} == before
+    assert "checking" not in r.stderr, r.stderr
+
+
+def test_best_out_and_plot_naming_one_file_is_refused(tmp_path: Path) -> None:
+    scene = _scene(tmp_path / "s.json", 0)
+    space = tmp_path / "space.toml"
+    space.write_text("gate = [2.0]\n")
+    out = tmp_path / "best.toml"
+    r = lesmc(
+        "tune", str(scene), ROBUSTNESS, "--space", str(space), "--best-out", str(out),
+        "--plot", str(out),
+    )  # fmt: skip
+    _refused(r, "--best-out and --plot name the same file")
+    assert not out.exists()
