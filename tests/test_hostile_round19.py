@@ -12,6 +12,8 @@ from typing import Any
 
 import pytest
 from cli_run import ROOT, lesmc
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
 from test_tune import _scene
 
 ROBUSTNESS = str(ROOT / "specs" / "robustness.spec")
@@ -81,3 +83,47 @@ def test_best_out_and_plot_naming_one_file_is_refused(tmp_path: Path) -> None:
     )  # fmt: skip
     _refused(r, "--best-out and --plot name the same file")
     assert not out.exists()
+
+
+_TOKENS = [
+    "nan", "inf", "-1", "0", "1e400", "[]", "{}", "{from = 1, to = 2, count = 3}", "true",
+    '"x"', "1e-320", '["single", "single"]', "\u202e", "=", "[", "]", "\n[monitor]\n", '""',
+    "9999999999999999999999", "{from = 1, to = 2, count = 100000000}",
+]  # fmt: skip
+
+
+@settings(max_examples=300, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(
+    st.lists(
+        st.tuples(st.integers(0, 10**6), st.sampled_from(["insert", "cut", "end"]),
+                  st.sampled_from(_TOKENS), st.integers(1, 12)),
+        min_size=1, max_size=3,
+    )
+)  # fmt: skip
+def test_mutated_space_files_are_read_or_refused_at_a_line(
+    tmp_path_factory: pytest.TempPathFactory, edits: list[tuple[int, str, str, int]]
+) -> None:
+    """The example space file, mutated: read, or an InputError at FILE:LINE:COL; never
+    another exception, never a space of more designs than the limit."""
+    from lesmc.common.errors import InputError
+    from lesmc.experiment.tune import MAX_DESIGNS, read_space
+    from lesmc.scene.scene import TrackerConfig
+
+    text = (ROOT / "examples" / "tune-space.toml").read_text()
+    for at, op, token, n in edits:
+        pos = at % (len(text) + 1)
+        if op == "insert":
+            text = text[:pos] + token + text[pos:]
+        elif op == "cut":
+            text = text[:pos] + text[pos + n :]
+        else:
+            text = text[:pos]
+    path = tmp_path_factory.mktemp("space") / "space.toml"
+    path.write_text(text, encoding="utf-8", errors="surrogatepass")
+    try:
+        space = read_space(str(path), TrackerConfig())
+    except InputError as e:
+        assert e.location is not None and e.location.line is not None, str(e)
+        assert e.location.path == str(path)
+    else:
+        assert 1 <= space.size <= MAX_DESIGNS
