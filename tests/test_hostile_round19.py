@@ -127,3 +127,57 @@ def test_mutated_space_files_are_read_or_refused_at_a_line(
         assert e.location.path == str(path)
     else:
         assert 1 <= space.size <= MAX_DESIGNS
+
+
+def _gnn_scene(path: Path) -> Path:
+    """A format-3 scene of two boxed objects and one injection candidate a frame, gnn."""
+    import json
+
+    frames = []
+    for k in range(4):
+        dets = [
+            {"id": f"{k}:{i}", "x": 100.0 + 60 * i + 3 * k, "y": 50.0 + 2 * k, "payoff": 1.0}
+            | {"w": 20.0, "h": 30.0}
+            for i in range(2)
+        ]
+        cand = {"id": f"c{k}", "x": 300.0, "y": 60.0, "payoff": 0.5, "w": 20.0, "h": 30.0}
+        frames.append({"step": k, "detections": dets, "candidates": [cand]})
+    doc = {
+        "format": "lesmc-scene", "version": 3, "dt": 0.1, "frames": frames,
+        "tracker": {"design": "gnn"},
+        "target": {"step": 0, "start": [100.0, 50.0], "velocity": [0.0, 0.0]},
+    }  # fmt: skip
+    path.write_text(json.dumps(doc))
+    return path
+
+
+@pytest.mark.parametrize(
+    ("name", "text", "located"),
+    [
+        # the gnn keys; before, "t.toml: confirm_window must be ..." with no line
+        ("t.toml", 'design = "gnn"\nconfirm_window = 0\n', [(2, "confirm_window must be")]),
+        ("t.toml", 'design = "gnn"\n\ngate_probability = nan\n', [(3, "gate_probability")]),
+        ("t.toml", 'design = "gnn"\nmin_hits = 7\n', [(2, "min_hits 7 must be at most")]),
+        ("t.toml", 'confirm_window = 2\ndesign = "gnn"\n', [(1, "min_hits 3 must be at most")]),
+        (
+            "t.toml",
+            'comment = 3\ndesign = "gnn"\nmax_age = -1\n"\u00e9" = 1\n',
+            [(1, "comment: must be a string"), (3, "max_age must be"), (4, "unknown key")],
+        ),
+        ("t.toml", 'design = "single"\nsigma_r = 1e-300\n', [(2, "sigma_r = 1e-300 makes R")]),
+        ("t.json", '{"design": "gnn",\n "gate_probability": 2}', [(2, "gate_probability")]),
+    ],
+)
+def test_tracker_file_problems_are_at_their_keys_lines(
+    tmp_path: Path, name: str, text: str, located: list[tuple[int, str]]
+) -> None:
+    scene = _gnn_scene(tmp_path / "s.json")
+    tracker = tmp_path / name
+    tracker.write_text(text, encoding="utf-8")
+    r = lesmc("track", str(scene), "--tracker", str(tracker))
+    _refused(r)
+    assert r.stdout == ""
+    for line, message in located:
+        assert re.search(
+            rf"{re.escape(str(tracker))}:{line}:\d+: {re.escape(message)}", r.stderr
+        ), r.stderr

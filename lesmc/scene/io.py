@@ -15,7 +15,7 @@ from typing import Any
 
 import numpy as np
 
-from lesmc.common.errors import InputError, Problems
+from lesmc.common.errors import InputError, Location, Problems
 from lesmc.common.fields import (
     MAX_STEP,
     is_finite,
@@ -25,7 +25,7 @@ from lesmc.common.fields import (
     show,
     within,
 )
-from lesmc.common.files import read_json, read_toml, write_json
+from lesmc.common.files import key_locations, read_json, read_text, read_toml, write_json
 from lesmc.designs import registry
 from lesmc.language import monitors
 from lesmc.scene.frames import Detection, Frame
@@ -542,9 +542,17 @@ def _tracker_value(key: str, v: Any, pr: Problems, item: str, values: dict[str, 
         values[key] = v
 
 
-def _tracker(raw: Any, pr: Problems, item: str = "tracker") -> TrackerConfig | None:
+def _tracker(
+    raw: Any, pr: Problems, item: str = "tracker", owners: dict[int, str] | None = None
+) -> TrackerConfig | None:
     """A tracker block: the design, the gate, and the model (a preset's parameters or
-    declared matrices, lesmc/scene/tracker_model.py)."""
+    declared matrices, lesmc/scene/tracker_model.py). ``owners``, when given, gets the key
+    each problem is about, by its index in ``pr.items`` (for a tracker file's lines)."""
+    owners = {} if owners is None else owners
+
+    def own(key: str, n: int) -> None:
+        owners.update(dict.fromkeys(range(n, len(pr.items)), key))
+
     if not isinstance(raw, dict):
         pr.add(item, "must be an object")
         return None
@@ -552,12 +560,16 @@ def _tracker(raw: Any, pr: Problems, item: str = "tracker") -> TrackerConfig | N
     names = set(tracker_keys())
     values: dict[str, Any] = {}
     for key, v in raw.items():
+        n = len(pr.items)
         if key not in names:
             pr.add(item, f"unknown key '{key}'")
         else:
             _tracker_value(key, v, pr, item, values)
+        own(key, n)
     model = values.get("model", DEFAULT_MODEL)
+    n = len(pr.items)
     _m_of_n(values, pr, item)
+    own("min_hits" if "min_hits" in raw else "confirm_window", n)
     if len(pr.items) > n0 or model is None:
         return None
     if isinstance(model, str):
@@ -565,16 +577,20 @@ def _tracker(raw: Any, pr: Problems, item: str = "tracker") -> TrackerConfig | N
         d = len(state_names(model))
         if len(sd) != d:
             pr.add(item, f'P0_sd must have {d} entries for model "{model}", got {len(sd)}')
+            own("P0_sd", n0)
             return None
         sigma_r = values.get("sigma_r", TrackerConfig.sigma_r)
         if (why := singular_innovation(preset_R(sigma_r))) is not None:
             pr.add(item, f"sigma_r = {sigma_r!r} makes R = sigma_r² I, which {why}")
+            own("sigma_r", n0)
             return None
     else:
         for key in sorted(set(PRESET_ONLY) & set(values)):
+            n = len(pr.items)
             pr.add(
                 item, f"{key} does not apply to a model declared by its matrices (give Q, R, P0)"
             )
+            own(key, n)
         if len(pr.items) > n0:
             return None
     joint = JointConfig(**{k: values.pop(k) for k in JOINT_KEYS if k in values})
@@ -605,9 +621,12 @@ def _monitor(raw: Any, pr: Problems, item: str) -> str | None:
     return f"{kind} {value!r}" + (f" window {window}" if window > 1 else "")
 
 
-def tracker_from_dict(data: Any, path: str = "<tracker>") -> TrackerConfig:
+def tracker_from_dict(
+    data: Any, path: str = "<tracker>", where: dict[str, Location] | None = None
+) -> TrackerConfig:
     """A tracker file's configuration: the keys of a scene's ``tracker`` block, and an
-    optional ``comment``."""
+    optional ``comment``. ``where`` (each key's place in the file) puts each problem at
+    its key's ``FILE:LINE:COL``."""
     pr = Problems()
     if not isinstance(data, dict):
         keys = ", ".join(k for k in tracker_keys() if k != "faults")
@@ -616,22 +635,43 @@ def tracker_from_dict(data: Any, path: str = "<tracker>") -> TrackerConfig:
         raise InputError.many(
             path, [("", f"a tracker file must be an object of the keys {keys}; got {got}")]
         )
+    owners: dict[int, str] = {}
     if "comment" in data:
         if not isinstance(data["comment"], str):
             pr.add("comment", f"must be a string (a note for people), got {show(data['comment'])}")
+            owners[0] = "comment"
         data = {k: v for k, v in data.items() if k != "comment"}
-    cfg = _tracker(data, pr, "")
+    cfg = _tracker(data, pr, "", owners)
     if pr.items or cfg is None:
-        raise InputError.many(path, pr.items or [("", "not a tracker")])
+        problems = pr.items or [("", "not a tracker")]
+        if where is None:
+            raise InputError.many(path, problems)
+        raise _at_keys(path, problems, owners, where)
     return cfg
+
+
+def _at_keys(
+    path: str, problems: list[tuple[str, str]], owners: dict[int, str], where: dict[str, Location]
+) -> InputError:
+    """One error listing each problem at its key's ``FILE:LINE:COL`` (``FILE`` when the
+    key is not in the file, as for a missing key)."""
+    locs = [where.get(owners.get(i, ""), Location(path)) for i in range(len(problems))]
+    lines = [
+        f"{loc.prefix()}: {item}: {msg}" if item else f"{loc.prefix()}: {msg}"
+        for loc, (item, msg) in zip(locs, problems, strict=True)
+    ]
+    err = InputError("\n".join(lines), locs[0])
+    err.preformatted = True
+    return err
 
 
 def load_tracker(path: str | Path) -> TrackerConfig:
     """Read a tracker file: JSON (``.json``) or TOML (any other name), the keys of a scene's
     ``tracker`` block (``--tracker FILE``; docs/scene-format.md, "Tracker files")."""
-    if str(path).endswith(".json"):
-        return tracker_from_dict(read_json(path, InputError), str(path))
-    return tracker_from_dict(read_toml(path), str(path))
+    p = str(path)
+    is_json = p.endswith(".json")
+    data = read_json(p, InputError) if is_json else read_toml(p)
+    return tracker_from_dict(data, p, key_locations(p, read_text(p), is_json))
 
 
 def check_fits(
