@@ -181,3 +181,15 @@ def test_tracker_file_problems_are_at_their_keys_lines(
         assert re.search(
             rf"{re.escape(str(tracker))}:{line}:\d+: {re.escape(message)}", r.stderr
         ), r.stderr
+
+
+@pytest.mark.parametrize("budget", ["nan", "-nan"])
+def test_a_nan_budget_is_refused(tmp_path: Path, budget: str) -> None:
+    """click's FloatRange(0, 1) let nan through its comparisons: tune ran, exit 0, and
+    --best-out then found no design "within nan"."""
+    scene = _scene(tmp_path / "s.json", 0)
+    space = tmp_path / "space.toml"
+    space.write_text("gate = [2.0]\n")
+    r = lesmc("tune", str(scene), ROBUSTNESS, "--space", str(space), "--budget", budget)
+    _refused(r, "--budget", "not a finite number")
+    assert "checking" not in r.stderr and r.stdout == ""

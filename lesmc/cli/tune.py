@@ -45,7 +45,7 @@ DEFAULT_VIDEO = "default"
 )
 @click.option(
     "--budget",
-    type=click.FloatRange(0.0, 1.0),
+    type=FiniteRange(0.0, 1.0),
     default=None,
     help="The false-alarm rate (alarms per step of the unattacked tracks) the best design "
     "may cost [default: the space file's budget, else 0.01].",
