@@ -193,3 +193,15 @@ def test_a_nan_budget_is_refused(tmp_path: Path, budget: str) -> None:
     r = lesmc("tune", str(scene), ROBUSTNESS, "--space", str(space), "--budget", budget)
     _refused(r, "--budget", "not a finite number")
     assert "checking" not in r.stderr and r.stdout == ""
+
+
+def test_a_quoted_key_with_escapes_is_located(tmp_path: Path) -> None:
+    """A TOML key written with escapes (``"\\u001b[31m"``) was looked up by its raw text:
+    the error named the file but no line."""
+    scene = _scene(tmp_path / "s.json", 0)
+    space = tmp_path / "space.toml"
+    space.write_text('[monitor]\nnis = [0.5]\n"\\u001b[31m" = 1\n')
+    r = lesmc("tune", str(scene), ROBUSTNESS, "--space", str(space))
+    _refused(r, "unknown monitor")
+    assert f"{space}:3:1: \\x1b[31m: unknown monitor" in r.stderr, r.stderr
+    assert "\x1b" not in r.stderr

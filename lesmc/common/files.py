@@ -111,10 +111,23 @@ def key_locations(path: str, text: str, is_json: bool) -> dict[str, Location]:
     out: dict[str, Location] = {}
     for m in pattern.finditer(text):
         key = next(g for g in m.groups() if g is not None)
+        if not is_json and m.group(1) is not None and "\\" in key:
+            key = _toml_basic_key(key)
         if key not in out:
             lead = len(m.group(0)) - len(m.group(0).lstrip(" \t"))
             out[key] = Location.at(path, text, m.start(0) + lead)
     return out
+
+
+def _toml_basic_key(raw: str) -> str:
+    """A TOML basic-string key's text (``"\\u00e9"`` is ``é``), as the parser reads it;
+    ``raw`` itself when it is no valid key."""
+    import tomllib
+
+    try:
+        return next(iter(tomllib.loads(f'"{raw}" = 0')))
+    except tomllib.TOMLDecodeError:
+        return raw
 
 
 _JSON_KEY = re.compile(r'"((?:[^"\\]|\\.)*)"\s*:')
