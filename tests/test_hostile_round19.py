@@ -205,3 +205,50 @@ def test_a_quoted_key_with_escapes_is_located(tmp_path: Path) -> None:
     _refused(r, "unknown monitor")
     assert f"{space}:3:1: \\x1b[31m: unknown monitor" in r.stderr, r.stderr
     assert "\x1b" not in r.stderr
+
+
+_GNN_TRACKER = (
+    'design = "gnn"\nmin_hits = 2\nconfirm_window = 4\nmax_age = 1\n'
+    'gate_probability = 0.95\nsigma_q = 3.0\nsigma_r = 5.0\ncomment = "a gnn"\n'
+)
+
+
+@settings(max_examples=300, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(
+    st.lists(
+        st.tuples(st.integers(0, 10**6), st.sampled_from(["insert", "cut", "end"]),
+                  st.sampled_from(_TOKENS), st.integers(1, 12)),
+        min_size=1, max_size=3,
+    )
+)  # fmt: skip
+def test_mutated_gnn_tracker_files_are_read_or_refused(
+    tmp_path_factory: pytest.TempPathFactory, edits: list[tuple[int, str, str, int]]
+) -> None:
+    """A gnn tracker file, mutated: read (M ≤ N, the probability in (0, 1)), or an
+    InputError of that file, each problem about a key in the file at its line."""
+    from lesmc.common.errors import InputError
+    from lesmc.scene.io import load_tracker
+
+    text = _GNN_TRACKER
+    for at, op, token, n in edits:
+        pos = at % (len(text) + 1)
+        if op == "insert":
+            text = text[:pos] + token + text[pos:]
+        elif op == "cut":
+            text = text[:pos] + text[pos + n :]
+        else:
+            text = text[:pos]
+    path = tmp_path_factory.mktemp("tracker") / "t.toml"
+    path.write_text(text, encoding="utf-8", errors="surrogatepass")
+    try:
+        cfg = load_tracker(path)
+    except InputError as e:
+        assert e.location is not None and e.location.path == str(path), str(e)
+        for line in str(e).splitlines():
+            if line.startswith(" "):
+                continue  # a quoted source line under a caret
+            assert line.startswith(str(path)), str(e)
+    else:
+        if cfg.design == "gnn":
+            assert 1 <= cfg.min_hits <= cfg.confirm_window
+        assert 0 < cfg.gate_probability < 1
