@@ -252,3 +252,20 @@ def test_mutated_gnn_tracker_files_are_read_or_refused(
         if cfg.design == "gnn":
             assert 1 <= cfg.min_hits <= cfg.confirm_window
         assert 0 < cfg.gate_probability < 1
+
+
+@pytest.mark.parametrize("verb", ["track", "check"])
+def test_design_gnn_over_a_tracker_file_blames_the_file(tmp_path: Path, verb: str) -> None:
+    """``--design gnn`` with a sort tracker file of min_hits 7 (the default N is 5) named
+    the scene as the culprit (``error: s.json: the gnn design confirms ...``); the value is
+    the tracker file's, at its line."""
+    scene = _gnn_scene(tmp_path / "s.json")
+    tracker = tmp_path / "t.toml"
+    tracker.write_text('design = "sort"\nmin_hits = 7\n')
+    specs = [ROBUSTNESS] if verb == "check" else []
+    r = lesmc(verb, str(scene), *specs, "--tracker", str(tracker), "--design", "gnn")
+    _refused(r, f"{tracker}:2:1: min_hits 7 must be at most confirm_window 5")
+    assert "s.json" not in r.stderr and r.stdout == ""
+    # the sort design reads no confirm_window: the same file is fine for it
+    ok = lesmc("track", str(scene), "--tracker", str(tracker), "--design", "sort")
+    assert ok.returncode == 0, ok.stderr

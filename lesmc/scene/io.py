@@ -665,12 +665,16 @@ def _at_keys(
     return err
 
 
-def load_tracker(path: str | Path) -> TrackerConfig:
+def load_tracker(path: str | Path, design: str | None = None) -> TrackerConfig:
     """Read a tracker file: JSON (``.json``) or TOML (any other name), the keys of a scene's
-    ``tracker`` block (``--tracker FILE``; docs/scene-format.md, "Tracker files")."""
+    ``tracker`` block (``--tracker FILE``; docs/scene-format.md, "Tracker files").
+    ``design`` (``--design``, a name of the registry) replaces the file's, so that what
+    that design needs of the file's keys (the gnn design's M ≤ N) is checked at them."""
     p = str(path)
     is_json = p.endswith(".json")
     data = read_json(p, InputError) if is_json else read_toml(p)
+    if design is not None and isinstance(data, dict):
+        data = {**data, "design": design}
     return tracker_from_dict(data, p, key_locations(p, read_text(p), is_json))
 
 
