@@ -133,7 +133,7 @@ def _scene_options(target: Any, design: Any, tracker: Any) -> TrackerConfig | No
     )
     if tracker is None or isinstance(tracker, TrackerConfig):
         return tracker
-    return load_tracker(_path(tracker, "tracker", "or a TrackerConfig"))
+    return load_tracker(_path(tracker, "tracker", "or a TrackerConfig"), design)
 
 
 def load_model_or_scene(

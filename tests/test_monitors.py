@@ -528,7 +528,7 @@ def test_bad_tracker_file_monitor(tmp_path: Path, line: str, message: str) -> No
         "check", scene, str(_nomon_spec(tmp_path)), "--design", "monitor", "--tracker", str(tracker)
     )
     assert r.returncode == 2 and "Traceback" not in r.stderr
-    assert f"{tracker}:1:1: {message}" in r.stderr, r.stderr  # at the key's line
+    assert f"{tracker}:1:1: {message}" in r.stderr  # at its key's line (round 19)
 
 
 def test_a_windowed_tracker_monitor_is_refused_by_check_but_run_by_alarms(tmp_path: Path) -> None:

@@ -273,5 +273,5 @@ def _footage_or_scene(
     from lesmc.scene import load_tracker
     from lesmc.tracking.targets import footage_or_scene
 
-    cfg = load_tracker(tracker) if tracker is not None else None
+    cfg = load_tracker(tracker, design) if tracker is not None else None
     return footage_or_scene(read_json(Path(path), InputError), path, target, design, cfg)

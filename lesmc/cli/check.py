@@ -291,11 +291,14 @@ def _inputs(
 ) -> tuple[tuple[SpecFile, ...], Any, bool]:
     """The property files, the model or scene, and whether it is a scene."""
     from lesmc.api import load_model_or_scene, load_spec
-    from lesmc.scene import Scene
+    from lesmc.scene import Scene, load_tracker
 
     _hint_swapped(model, specs)
     parsed = tuple(load_spec(s) for s in specs)
-    source = load_model_or_scene(model, target_text, tracker=tracker_file)
+    # --design's needs of the file's keys (gnn: M <= N) are the tracker file's errors
+    named = design if design in registry.tracker_names() else None
+    cfg = None if tracker_file is None else load_tracker(tracker_file, named)
+    source = load_model_or_scene(model, target_text, tracker=cfg)
     is_scene = isinstance(source, Scene)
     if design is not None and not is_scene:
         raise UsageError("--design applies to scenes, not to .lts models")

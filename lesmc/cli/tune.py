@@ -14,6 +14,7 @@ from lesmc.cli.documents import emit
 from lesmc.cli.options import (
     DEFAULT_MAX_STATES,
     FiniteRange,
+    distinct_files,
     finite_seconds,
     load_scene_file,
     tracker_option,
@@ -44,7 +45,7 @@ DEFAULT_VIDEO = "default"
 )
 @click.option(
     "--budget",
-    type=click.FloatRange(0.0, 1.0),
+    type=FiniteRange(0.0, 1.0),
     default=None,
     help="The false-alarm rate (alarms per step of the unattacked tracks) the best design "
     "may cost [default: the space file's budget, else 0.01].",
@@ -146,8 +147,8 @@ def tune_cmd(
     """
     from lesmc.experiment import tune
 
-    if workers and scheduler:
-        raise UsageError("--workers and --scheduler exclude each other")
+    _refuse_early(bool(workers and scheduler), [source, *specs], space_file, truth,
+                  tracker_file, best_out, plot)  # fmt: skip
     specs, parsed = _specs(specs)
     scene, starts, truths, last, space, where = _source(
         source, space_file, truth, out_dir, tracker_file, bool(workers or scheduler)
@@ -171,6 +172,21 @@ def tune_cmd(
         emit(doc)
         return
     _print(tuned, source, checker, best_out)
+
+
+def _refuse_early(
+    both: bool, sources: list[str], space_file: str, truth: str | None,
+    tracker_file: str | None, best_out: str | None, plot: str | None,
+) -> None:  # fmt: skip
+    """Refuse, before any work, --workers with --scheduler (``both``) and an output that
+    names an input (SOURCE, then SPECS) or the other output (writing it would destroy it)."""
+    if both:
+        raise UsageError("--workers and --scheduler exclude each other")
+    inputs = {"SOURCE": sources[0], "--space": space_file, "--truth": truth}
+    inputs |= {"--tracker": tracker_file}
+    inputs |= {f"SPECS ({i + 1})": s for i, s in enumerate(sources[1:])}
+    outputs = {k: v for k, v in (("--best-out", best_out), ("--plot", plot)) if v is not None}
+    distinct_files(inputs, outputs)
 
 
 def _specs(specs: tuple[str, ...]) -> tuple[tuple[str, ...], tuple[SpecFile, ...]]:

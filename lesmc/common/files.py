@@ -118,6 +118,8 @@ def key_locations(path: str, text: str, is_json: bool) -> dict[str, Location]:
     out: dict[str, Location] = {}
     for m in pattern.finditer(text):
         key = next(g for g in m.groups() if g is not None)
+        if not is_json and m.group(1) is not None and "\\" in key:
+            key = _toml_basic_key(key)
         if key not in out:
             lead = len(m.group(0)) - len(m.group(0).lstrip(" \t"))
             out[key] = Location.at(path, text, m.start(0) + lead)
@@ -125,21 +127,36 @@ def key_locations(path: str, text: str, is_json: bool) -> dict[str, Location]:
 
 
 def error_at_keys(
-    path: str, where: dict[str, Location], problems: list[tuple[str, str]]
+    path: str,
+    where: dict[str, Location],
+    problems: list[tuple[str, str]],
+    name_keys: bool = True,
 ) -> InputError:
     """One error listing each ``(key, message)`` at the key's line (``where``:
     :func:`key_locations`; the file's name when the key is not in it, as for a missing
-    key), located at the first problem's key; a message that starts with its key is not
-    prefixed with it again."""
+    key), located at the first problem's key. With ``name_keys`` a message is prefixed
+    with its key unless it starts with it already."""
     lines = []
     for key, msg in problems:
         loc = where.get(key, Location(path))
-        shown = f"{clipped(key, 60)}: " if key and not msg.startswith(key) else ""
+        named = name_keys and key and not msg.startswith(key)
+        shown = f"{clipped(key, 60)}: " if named else ""
         lines.append(f"{loc.prefix()}: {shown}{msg}")
     first = where.get(problems[0][0], Location(path)) if problems else Location(path)
     err = InputError("\n".join(lines), first)
     err.preformatted = True
     return err
+
+
+def _toml_basic_key(raw: str) -> str:
+    """A TOML basic-string key's text (``"\\u00e9"`` is ``é``), as the parser reads it;
+    ``raw`` itself when it is no valid key."""
+    import tomllib
+
+    try:
+        return next(iter(tomllib.loads(f'"{raw}" = 0')))
+    except tomllib.TOMLDecodeError:
+        return raw
 
 
 _JSON_KEY = re.compile(r'"((?:[^"\\]|\\.)*)"\s*:')

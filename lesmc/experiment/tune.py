@@ -198,6 +198,11 @@ def docs_table() -> str:
     return "\n".join(rows)
 
 
+#: Most designs a space may make (each is checked on every property), and so also most
+#: values of one parameter or monitor.
+MAX_DESIGNS = 10_000
+
+
 def single_trackers() -> tuple[str, ...]:
     """The trackers a space may name: the registry's single-target ones."""
     return tuple(n for n in registry.tracker_names() if not registry.get(n).multi)
@@ -256,7 +261,15 @@ def read_space(path: str, base: TrackerConfig) -> Space:
     budget = raw.get(BUDGET_KEY)
     if budget is not None and not (_number(budget) and 0.0 <= budget <= 1.0):
         raise fail(BUDGET_KEY, "must be a false-alarm rate in [0, 1] (alarms per step)")
-    return Space(path, trackers, tuple(values), mons, budget)
+    space = Space(path, trackers, tuple(values), mons, budget)
+    if space.size > MAX_DESIGNS:
+        counts = [(len(vs), k) for k, vs in values] + [(len(mons), MONITOR_KEY)]
+        raise fail(
+            max(counts)[1],
+            f"the space makes {space.size} designs (the trackers times every parameter's "
+            f"values times the monitors), at most {MAX_DESIGNS}",
+        )
+    return space
 
 
 def _at(fail: Callable[[str, str], InputError], key: str) -> Callable[[str], InputError]:
@@ -320,11 +333,15 @@ def _range(v: dict[str, Any], domain: Domain, fail: Callable[[str], InputError])
             raise fail("a range of real values needs count (how many values, ends included)")
         if lo != int(lo) or hi != int(hi):
             raise fail("a range of whole numbers needs whole from and to")
+        if hi - lo + 1 > MAX_DESIGNS:
+            raise fail(f"the range has {hi - lo + 1:.0f} values, at most {MAX_DESIGNS}")
         return [float(x) for x in range(int(lo), int(hi) + 1)]
     if not (isinstance(count, int) and not isinstance(count, bool)) or count < 0:
         raise fail(f"count must be a whole number of values, got {count!r}")
     if count == 0:
         raise fail("empty range: count is 0")
+    if count > MAX_DESIGNS:
+        raise fail(f"count {count} is more values than a space may try (at most {MAX_DESIGNS})")
     if count == 1 and lo != hi:
         raise fail("count 1 needs from = to (the range's ends are both included)")
     return [float(x) for x in np.linspace(lo, hi, count)]

@@ -560,11 +560,16 @@ NO_PARTS = (
 
 
 def _tracker(
-    raw: Any, pr: Problems, item: str = "tracker", keys: list[str] | None = None
+    raw: Any, pr: Problems, item: str = "tracker", owners: dict[int, str] | None = None
 ) -> TrackerConfig | None:
     """A tracker block: the design, the gate, and the model (a preset's parameters or
-    declared matrices, lesmc/scene/tracker_model.py). ``keys``, when given, receives the
-    key each problem is about (a tracker file locates its problems at the key's line)."""
+    declared matrices, lesmc/scene/tracker_model.py). ``owners``, when given, gets the key
+    each problem is about, by its index in ``pr.items`` (for a tracker file's lines)."""
+    owners = {} if owners is None else owners
+
+    def own(key: str, n: int) -> None:
+        owners.update(dict.fromkeys(range(n, len(pr.items)), key))
+
     if not isinstance(raw, dict):
         pr.add(item, "must be an object")
         return None
@@ -572,28 +577,18 @@ def _tracker(
     names = set(tracker_keys())
     values: dict[str, Any] = {}
     for key, v in raw.items():
-        before = len(pr.items)
+        n = len(pr.items)
         if key in PART_KEYS:
             pr.add(item, f"{key}: {NO_PARTS}")
         elif key not in names:
             pr.add(item, f"unknown key '{key}'")
         else:
             _tracker_value(key, v, pr, item, values)
-        if keys is not None:
-            keys.extend([key] * (len(pr.items) - before))
-    cfg = _tracker_checked(values, pr, item, n0)
-    if keys is not None:  # problems of the block as a whole: the key their message names
-        keys.extend(m.split()[0] for _, m in pr.items[len(keys) :])
-    return cfg
-
-
-def _tracker_checked(
-    values: dict[str, Any], pr: Problems, item: str, n0: int
-) -> TrackerConfig | None:
-    """The configuration from a tracker block's checked ``values``, after the checks of
-    keys together (M of N, P0_sd's length, R, keys a declared model does not take)."""
+        own(key, n)
     model = values.get("model", DEFAULT_MODEL)
+    n = len(pr.items)
     _m_of_n(values, pr, item)
+    own("min_hits" if "min_hits" in raw else "confirm_window", n)
     if len(pr.items) > n0 or model is None:
         return None
     if isinstance(model, str):
@@ -601,16 +596,20 @@ def _tracker_checked(
         d = len(state_names(model))
         if len(sd) != d:
             pr.add(item, f'P0_sd must have {d} entries for model "{model}", got {len(sd)}')
+            own("P0_sd", n0)
             return None
         sigma_r = values.get("sigma_r", TrackerConfig.sigma_r)
         if (why := singular_innovation(preset_R(sigma_r))) is not None:
             pr.add(item, f"sigma_r = {sigma_r!r} makes R = sigma_r² I, which {why}")
+            own("sigma_r", n0)
             return None
     else:
         for key in sorted(set(PRESET_ONLY) & set(values)):
+            n = len(pr.items)
             pr.add(
                 item, f"{key} does not apply to a model declared by its matrices (give Q, R, P0)"
             )
+            own(key, n)
         if len(pr.items) > n0:
             return None
     joint = JointConfig(**{k: values.pop(k) for k in JOINT_KEYS if k in values})
@@ -645,8 +644,8 @@ def tracker_from_dict(
     data: Any, path: str = "<tracker>", where: dict[str, Location] | None = None
 ) -> TrackerConfig:
     """A tracker file's configuration: the keys of a scene's ``tracker`` block, and an
-    optional ``comment``. ``where`` (:func:`~lesmc.common.files.key_locations` of the
-    file's text) locates each problem at its key's line and column."""
+    optional ``comment``. ``where`` (each key's place in the file) puts each problem at
+    its key's ``FILE:LINE:COL``."""
     pr = Problems()
     if not isinstance(data, dict):
         keys = ", ".join(k for k in tracker_keys() if k != "faults")
@@ -655,27 +654,44 @@ def tracker_from_dict(
         raise InputError.many(
             path, [("", f"a tracker file must be an object of the keys {keys}; got {got}")]
         )
+    owners: dict[int, str] = {}
     if "comment" in data:
         if not isinstance(data["comment"], str):
             pr.add("comment", f"must be a string (a note for people), got {show(data['comment'])}")
+            owners[0] = "comment"
         data = {k: v for k, v in data.items() if k != "comment"}
-    about: list[str] = [k for k, _ in pr.items]  # the key each problem is about
-    cfg = _tracker(data, pr, "", about)
-    if pr.items and where is not None:
-        found = [(k, m) for k, (_, m) in zip(about, pr.items, strict=True)]
-        raise error_at_keys(path, where, found)
+    cfg = _tracker(data, pr, "", owners)
     if pr.items or cfg is None:
-        raise InputError.many(path, pr.items or [("", "not a tracker")])
+        problems = pr.items or [("", "not a tracker")]
+        if where is None:
+            raise InputError.many(path, problems)
+        raise _at_keys(path, problems, owners, where)
     return cfg
 
 
-def load_tracker(path: str | Path) -> TrackerConfig:
+def _at_keys(
+    path: str, problems: list[tuple[str, str]], owners: dict[int, str], where: dict[str, Location]
+) -> InputError:
+    """One error listing each problem at its key's ``FILE:LINE:COL`` (``FILE`` when the
+    key is not in the file, as for a missing key)."""
+    found = [
+        (owners.get(i, ""), f"{item}: {msg}" if item else msg)
+        for i, (item, msg) in enumerate(problems)
+    ]
+    return error_at_keys(path, where, found, name_keys=False)
+
+
+def load_tracker(path: str | Path, design: str | None = None) -> TrackerConfig:
     """Read a tracker file: JSON (``.json``) or TOML (any other name), the keys of a scene's
-    ``tracker`` block (``--tracker FILE``; docs/scene-format.md, "Tracker files")."""
-    is_json = str(path).endswith(".json")
-    data = read_json(path, InputError) if is_json else read_toml(path)
-    where = key_locations(str(path), read_text(path), is_json)
-    return tracker_from_dict(data, str(path), where)
+    ``tracker`` block (``--tracker FILE``; docs/scene-format.md, "Tracker files").
+    ``design`` (``--design``, a name of the registry) replaces the file's, so that what
+    that design needs of the file's keys (the gnn design's M ≤ N) is checked at them."""
+    p = str(path)
+    is_json = p.endswith(".json")
+    data = read_json(p, InputError) if is_json else read_toml(p)
+    if design is not None and isinstance(data, dict):
+        data = {**data, "design": design}
+    return tracker_from_dict(data, p, key_locations(p, read_text(p), is_json))
 
 
 def check_fits(
