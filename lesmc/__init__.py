@@ -15,7 +15,7 @@ _API = (
     "CheckResult",
     "DesignRun",
     "MultiCheckResult",
-    "MultiStep",
+    "AttackStep",
     "PerceiveRequest",
     "Perceived",
     "Results",

@@ -39,7 +39,7 @@ from lesmc.model.lts_binary import is_binary, load_lts_npz
 from lesmc.model.lts_format import load_lts, lts_from_dict
 from lesmc.pipeline.check import run
 from lesmc.pipeline.job import Job
-from lesmc.pipeline.multi import MultiCheckResult, MultiStep
+from lesmc.pipeline.multi import AttackStep, MultiCheckResult
 from lesmc.results.record import DesignRun, Results
 from lesmc.scene import Footage, Scene, TrackerConfig, load_tracker
 from lesmc.scene import save_scene as write_scene
@@ -52,10 +52,10 @@ if TYPE_CHECKING:
     from lesmc.exporters.formats import ExportFormat
 
 __all__ = [
+    "AttackStep",
     "CheckResult",
     "DesignRun",
     "MultiCheckResult",
-    "MultiStep",
     "PerceiveRequest",
     "Perceived",
     "Results",

@@ -85,6 +85,17 @@ def test_best_out_and_plot_naming_one_file_is_refused(tmp_path: Path) -> None:
     assert not out.exists()
 
 
+
+def test_a_plot_named_for_no_figure_format_is_refused(tmp_path: Path) -> None:
+    """--plot out.txt wrote a PNG named .txt (the review found it): refused before work."""
+    scene = _scene(tmp_path / "s.json", 0)
+    space = tmp_path / "space.toml"
+    space.write_text("gate = [2.0]\n")
+    out = tmp_path / "out.txt"
+    r = lesmc("tune", str(scene), ROBUSTNESS, "--space", str(space), "--plot", str(out))
+    _refused(r, ".png, .svg or .pdf")
+    assert not out.exists()
+
 _TOKENS = [
     "nan", "inf", "-1", "0", "1e400", "[]", "{}", "{from = 1, to = 2, count = 3}", "true",
     '"x"', "1e-320", '["single", "single"]', "\u202e", "=", "[", "]", "\n[monitor]\n", '""',

@@ -15,7 +15,7 @@ from cli_run import lesmc
 
 import lesmc as api
 from lesmc.common.errors import LesmcError, UsageError
-from lesmc.pipeline.multi import MultiCheckResult, MultiStep
+from lesmc.pipeline.multi import AttackStep, MultiCheckResult
 
 pytest.importorskip("sort_tracker")
 from test_multi_attack import _brute, _doc, _frames, _reference_boxes, _score
@@ -97,7 +97,7 @@ def test_typed_results_agree_with_brute_force_on_reference_sort(tmp_path: Path) 
             continue
         steps = res.counterexample
         assert [s.step for s in steps] == list(range(end + 1))
-        assert all(isinstance(s, MultiStep) and isinstance(s.hidden, tuple) for s in steps)
+        assert all(isinstance(s, AttackStep) and isinstance(s.hidden, tuple) for s in steps)
         hidden = [(s.step, int(h.split(":")[1])) for s in steps for h in s.hidden]
         assert all(2 <= k <= 4 for k, _ in hidden)
         cost = sum(pay[k][j] for k, j in hidden) if cost_of == 0 else len({k for k, _ in hidden})

@@ -187,6 +187,10 @@ def _refuse_early(
     inputs |= {f"SPECS ({i + 1})": s for i, s in enumerate(sources[1:])}
     outputs = {k: v for k, v in (("--best-out", best_out), ("--plot", plot)) if v is not None}
     distinct_files(inputs, outputs)
+    if plot is not None and not plot.lower().endswith((".png", ".svg", ".pdf")):
+        raise UsageError(
+            f"--plot {plot}: the figure's format comes from its name: .png, .svg or .pdf"
+        )
 
 
 def _specs(specs: tuple[str, ...]) -> tuple[tuple[str, ...], tuple[SpecFile, ...]]:

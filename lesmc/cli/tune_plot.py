@@ -52,7 +52,7 @@ def draw(outcomes: Sequence[Outcome], budget: float, path: str) -> None:
         ax.set_ylabel("optimum (inf drawn at the top)")
         ax.legend(fontsize=7)
     fig.tight_layout()
-    fmt = path.rsplit(".", 1)[-1].lower() if "." in path else "png"
+    fmt = path.rsplit(".", 1)[-1].lower()  # png, svg or pdf (lesmc/cli/tune.py checks)
     with atomic_open(path, binary=True) as fh:
-        fig.savefig(fh, format=fmt if fmt in ("png", "svg", "pdf") else "png")
+        fig.savefig(fh, format=fmt)
     plt.close(fig)

@@ -82,8 +82,8 @@ def not_yet(name: str) -> str:
     """What a verb that builds a model says of multi-target design ``name``."""
     return (
         f"design '{name}' is a multi-target tracker: `lesmc track` runs it and `lesmc check` "
-        "checks its switches and lost properties on a scene, but building, exporting and "
-        "verifying a multi-target design is not supported yet (issue 58)"
+        "checks its switches, lost and dist properties on a scene (and lesmc.check), but "
+        "building, exporting and verifying a multi-target design is not supported yet (issue 58)"
     )
 
 
@@ -169,14 +169,14 @@ multi_tracker(
     "lesmc.tracking.multi:SortDesign",
     "SORT",
     "SORT (Bewley et al. 2016): box Kalman filters, IoU assignment, min_hits, max_age; "
-    "multi-target: `lesmc track`, and `lesmc check` of switches and lost",
+    "multi-target: `lesmc track`, and `lesmc check` of switches, lost and dist",
 )
 multi_tracker(
     "gnn",
     "lesmc.tracking.gnn:GnnDesign",
     "GNN",
     "point Kalman filters, Mahalanobis chi-square gate, global nearest neighbour, M-of-N "
-    "birth, max_age death; multi-target: `lesmc track`, and `lesmc check` of switches and lost",
+    "birth, max_age death; multi-target: `lesmc track`, and `lesmc check` of switches, lost, dist",
 )
 SETS["paper"] = ("single", "joint", "improved")
 SETS["both"] = ("single", "improved")

@@ -169,6 +169,8 @@ def verify(req: Request, rep: Reporter) -> Outcome:
         src = _perceived(req, specs, rep, bool(neuron_faults(faults)), on_demand)
     if req.window is not None:
         check_window(src.scene, req.window)
+    if req.space is not None and (src.frames is None or src.truth is None):  # before work
+        raise UsageError("--space needs the video's truth (--truth): tune runs its vehicles")
     src.meta["target"] = _target_text(src.scene)
     src.meta["properties"] = ", ".join(s.path for s in specs)
     rep.log(f"target: {src.meta['target']}")
@@ -647,9 +649,7 @@ def _design_search(
     while its payoffs are still priced on demand; and the seconds it took."""
     from lesmc.experiment.tune import design_search
 
-    assert req.space is not None
-    if src.frames is None or src.truth is None:
-        raise UsageError("--space needs the video's truth (--truth): tune runs its vehicles")
+    assert req.space is not None and src.frames is not None and src.truth is not None
     t0 = time.monotonic()
     tfs = _truth_frames(src, src.scene)
     size = (src.frames.width, src.frames.height)

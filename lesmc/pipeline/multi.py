@@ -22,7 +22,7 @@ from lesmc.scene import Scene
 
 
 @dataclass(frozen=True)
-class MultiStep:
+class AttackStep:
     """One step of a counterexample: the detections hidden and the candidates injected at
     it (``FRAME:K`` ids, as ``lesmc import mot`` numbers them) and the target's track id
     (None: the target has no track at this step)."""
@@ -60,7 +60,7 @@ class MultiCheckResult:
     constraint_value: float | None
     states: int
     transitions: int
-    counterexample: tuple[MultiStep, ...] | None
+    counterexample: tuple[AttackStep, ...] | None
 
     @builtins.property  # the field ``property`` shadows the builtin in the class body
     def status(self) -> str:
@@ -180,7 +180,7 @@ def _priced(scene: Scene, l: int, u: int) -> None:
                 )
 
 
-def _steps(model: Any, objective: str, path: Any) -> tuple[MultiStep, ...] | None:
+def _steps(model: Any, objective: str, path: Any) -> tuple[AttackStep, ...] | None:
     """The counterexample's steps along ``path`` (the engine's transitions; None: no
     path), each with the detections hidden and the candidates injected at it and the
     target's track id."""
@@ -190,7 +190,7 @@ def _steps(model: Any, objective: str, path: Any) -> tuple[MultiStep, ...] | Non
     states = [0, *(int(model.dst[t]) for t in path)]
     subs: list[tuple[int, ...]] = [(), *(hidden[t] for t in path)]
     return tuple(
-        MultiStep(
+        AttackStep(
             k,
             model.frames[k],
             tuple(model.names[k][j] for j in sub if j < model.detections[k]),

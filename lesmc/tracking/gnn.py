@@ -125,6 +125,13 @@ class GnnDesign(ComposedDesign):
         """The detections' positions (k, 2)."""
         return frame.positions()
 
+    def no_reference(self) -> str:
+        """Why :meth:`references` finds none (its rule)."""
+        return (
+            "no detection of its frame is within the gate of its start, or its track is "
+            "never output"
+        )
+
     def candidate_measurements(self, frame: Frame) -> np.ndarray:
         """The injection candidates' positions (m, 2)."""
         return np.array([[c.x, c.y] for c in frame.candidates], dtype=float).reshape(-1, 2)

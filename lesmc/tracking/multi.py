@@ -9,8 +9,9 @@ initiator says which tracks are output (``confirmed``); the deleter ends the tra
 missed too long. Step 0 is the scene's first frame: every object is tracked from there.
 
 ``lesmc track`` runs it unattacked; ``lesmc check`` unfolds its attacked runs
-(lesmc/unfold/multi.py) for the identity measures. ``build``, ``export``, ``verify``
-and the API refuse a multi-target design so far (lesmc/designs/registry.py ``not_yet``).
+(lesmc/unfold/multi.py) for the identity and ``dist`` measures, as does
+``lesmc.check`` (lesmc/pipeline/multi.py). ``build``, ``export`` and ``verify`` refuse a
+multi-target design so far (lesmc/designs/registry.py ``not_yet``).
 """
 
 from __future__ import annotations
@@ -192,6 +193,10 @@ class ComposedDesign:
         unattacked track)."""
         return "unattacked"
 
+    def no_reference(self) -> str:
+        """Why :meth:`references` finds none, for an error message."""
+        return "no detection of its frame is at its start, or its track is never output"
+
     def run(self, end: int | None = None) -> list[MultiStep]:
         """The unattacked run from the scene's first frame to step ``end`` (default: its
         last frame), with the target's track id at each step."""
@@ -246,6 +251,12 @@ class SortDesign(ComposedDesign):
     def reference_kind(self) -> str:
         """:func:`reference_kind` (module-level)."""
         return reference_kind(self.scene)
+
+    def no_reference(self) -> str:
+        """Why :func:`reference_boxes` finds none (its rules)."""
+        if self.reference_kind() == "truth":
+            return "no ground-truth box of its frame holds its start"
+        return "no detection box of its frame holds its start, or its track is never output"
 
 
 def reference_kind(scene: Scene | Footage) -> str:
@@ -327,7 +338,8 @@ def _truth_reference(scene: Scene, n: int) -> list[np.ndarray | None]:
 
 def target_id(ids: list[int | None]) -> int:
     """The target's id: its track's id at the first step where it has one on the unattacked
-    run (:func:`target_ids`); NONE when it never has one. The ``dist`` measures read the
+    run (``ids``: :attr:`MultiStep.target_id` of each step of :meth:`ComposedDesign.run`);
+    NONE when it never has one. The ``dist`` measures read the
     track of this id on every attacked path."""
     return next((i for i in ids if i is not None), NONE)
 

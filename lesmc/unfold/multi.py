@@ -109,14 +109,10 @@ def _need_reference(scene: Scene, design: ComposedDesign, refs: list[np.ndarray 
     """A UsageError when the target has no reference at any step."""
     if any(r is not None for r in refs):
         return
-    why = (
-        "no ground-truth box of its frame holds its start"
-        if design.reference_kind() == "truth"
-        else "no detection of its frame is at its start, or its track is never output"
-    )
     raise UsageError(
         f"the target ({scene.target.start[0]:g}, {scene.target.start[1]:g} at frame "
-        f"{scene.target.step}) has no reference track: {why}; switches and lost need one"
+        f"{scene.target.step}) has no reference track: {design.no_reference()}; the "
+        "identity and dist measures need one"
     )
 
 
@@ -139,9 +135,10 @@ def _within_budget(
         )
     if count > MAX_STEP_SUCCESSORS:
         cands = f" and {len(f.candidates)} candidates" if "inject" in attack[1] else ""
+        hidable = int(attack[2].sum()) if "hide" in attack[1] else 0
         raise BudgetError(
             f"step {k} would compute {count} successors of {states} states (every "
-            f"subset of {int(attack[2].sum())} detections{cands}): more than "
+            f"subset of {hidable} detections{cands}): more than "
             f"{MAX_STEP_SUCCESSORS:,}; shorten the attack window"
         )
 
