@@ -248,4 +248,4 @@ def test_gnn_m_above_n_through_design_override_is_an_error(tmp_path: Path) -> No
     path.write_text(json.dumps(doc))
     r = lesmc("track", str(path), "--design", "gnn")
     assert r.returncode == 2 and "Traceback" not in r.stderr, r.stderr
-    assert "min_hits must be at most confirm_window" in r.stderr and str(path) in r.stderr
+    assert "must be at most confirm_window" in r.stderr and str(path) in r.stderr

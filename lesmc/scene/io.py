@@ -47,6 +47,7 @@ from lesmc.scene.scene import (
     Target,
     TrackerConfig,
     TruthTrack,
+    m_of_n_problem,
     tracker_keys,
 )
 from lesmc.scene.tracker_model import (
@@ -622,8 +623,8 @@ def _m_of_n(values: dict[str, Any], pr: Problems, item: str) -> None:
         return
     m = values.get("min_hits", TrackerConfig.min_hits)
     n = values.get("confirm_window", TrackerConfig.confirm_window)
-    if is_int(m) and is_int(n) and m > n:
-        pr.add(item, f"min_hits {m} must be at most confirm_window {n} (M of N: M ≤ N)")
+    if is_int(m) and is_int(n) and (why := m_of_n_problem(m, n)) is not None:
+        pr.add(item, why)
 
 
 def _monitor(raw: Any, pr: Problems, item: str) -> str | None:

@@ -119,6 +119,14 @@ class TrackerConfig:
 JOINT_KEYS = tuple(f.name for f in fields(JointConfig))
 
 
+def m_of_n_problem(m: int, n: int) -> str | None:
+    """What is wrong with the gnn design's M-of-N confirmation (``min_hits`` M of
+    ``confirm_window`` N), if anything: it needs M ≤ N."""
+    if m > n:
+        return f"min_hits {m} must be at most confirm_window {n} (M of N: M ≤ N)"
+    return None
+
+
 def tracker_keys() -> tuple[str, ...]:
     """The keys of a tracker block, in the order a file writes them: :class:`TrackerConfig`'s
     fields, the joint design's in place of ``joint`` (``faults`` included: never in a file)."""

@@ -20,6 +20,7 @@ import numpy as np
 from lesmc.common.errors import UsageError
 from lesmc.model.identity import NONE, target_track
 from lesmc.scene import Footage, Frame, Scene
+from lesmc.scene.scene import m_of_n_problem
 from lesmc.tracking.kalman import Matrices, mahalanobis2, matrices
 from lesmc.tracking.multi import ComposedDesign, FrameTracks, MultiState, follow
 from lesmc.tracking.parts.deleter import MaxAgeDeleter
@@ -106,12 +107,8 @@ class GnnDesign(ComposedDesign):
 
     def __init__(self, scene: Scene | Footage, path: str = "<scene>") -> None:
         cfg = scene.tracker
-        if cfg.min_hits > cfg.confirm_window:
-            raise UsageError(
-                f"{path}: the gnn design confirms a track after min_hits {cfg.min_hits} hits "
-                f"within confirm_window {cfg.confirm_window} frames: min_hits must be at "
-                "most confirm_window"
-            )
+        if (why := m_of_n_problem(cfg.min_hits, cfg.confirm_window)) is not None:
+            raise UsageError(f"{path}: the gnn design: {why}")
         self.scene = scene
         self.tracker = gnn_tracker(
             matrices(cfg, scene.dt),
