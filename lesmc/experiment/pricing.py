@@ -85,7 +85,9 @@ def on_demand(footage: Footage, pricer: VideoPricer) -> tuple[Footage, OnDemandP
     values = {f.step: f.payoff_values() for f in footage.frames if f.has_unpriced}
     prices = OnDemandPayoffs(values, pricer)
     frames = tuple(
-        PricedFrame(f.step, f.detections, f.to_next, prices) if f.step in values else f
+        PricedFrame(f.step, f.detections, f.to_next, prices, candidates=f.candidates)
+        if f.step in values
+        else f
         for f in footage.frames
     )
     return replace(footage, frames=frames), prices

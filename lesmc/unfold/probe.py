@@ -48,7 +48,9 @@ def priced_detections(
     reads = {} if reads is None else reads
     reads.update({f.step: set() for f in scene.frames if first <= f.step <= last})
     frames = tuple(
-        WatchedFrame(f.step, _finite(f.detections), f.to_next, None, reads[f.step])
+        WatchedFrame(
+            f.step, _finite(f.detections), f.to_next, None, reads[f.step], candidates=f.candidates
+        )
         if f.step in reads
         else f
         for f in scene.frames
