@@ -83,7 +83,7 @@ def heatmap_net() -> nn.Sequential:
     )
 
 
-def visible(vehicles: list[dict[str, Any]]) -> np.ndarray:
+def visible_vehicles(vehicles: list[dict[str, Any]]) -> np.ndarray:
     """(n, 2) the positions of the frame's vehicles that are not occluded."""
     tf = truth_frame(vehicles)
     out: np.ndarray = tf.positions[~tf.occluded]
@@ -109,7 +109,7 @@ def video(cfg: HeatmapTrainConfig, seed: int) -> tuple[np.ndarray, list[np.ndarr
     synth = SynthConfig(frames=cfg.frames, width=cfg.width, height=cfg.height, seed=seed)
     for img, ft in frames(synth):
         imgs.append(np.asarray(img, np.uint8))
-        pos.append(visible(ft.vehicles))
+        pos.append(visible_vehicles(ft.vehicles))
     return np.stack(imgs), pos
 
 
