@@ -242,7 +242,10 @@ def model() -> Any:
         ({"format": "graphml", "property": "moved"}, "property: spec, property and strict"),
         ({"format": "dot", "strict": True}, "strict: spec, property and strict"),
         ({"format": "json", "max_nodes": 3}, "max_nodes limits dot, drn or prism only"),
-        ({"format": "json", "roles": {"witness": [0]}}, "roles: paths are marked in dot and graphml only"),
+        (
+            {"format": "json", "roles": {"witness": [0]}},
+            "roles: paths are marked in dot and graphml only",
+        ),
     ],
     ids=["spec json", "property graphml", "strict dot", "max_nodes json", "roles json"],
 )

@@ -85,7 +85,6 @@ def test_best_out_and_plot_naming_one_file_is_refused(tmp_path: Path) -> None:
     assert not out.exists()
 
 
-
 def test_a_plot_named_for_no_figure_format_is_refused(tmp_path: Path) -> None:
     """--plot out.txt wrote a PNG named .txt (the review found it): refused before work."""
     scene = _scene(tmp_path / "s.json", 0)
@@ -95,6 +94,7 @@ def test_a_plot_named_for_no_figure_format_is_refused(tmp_path: Path) -> None:
     r = lesmc("tune", str(scene), ROBUSTNESS, "--space", str(space), "--plot", str(out))
     _refused(r, ".png, .svg or .pdf")
     assert not out.exists()
+
 
 _TOKENS = [
     "nan", "inf", "-1", "0", "1e400", "[]", "{}", "{from = 1, to = 2, count = 3}", "true",

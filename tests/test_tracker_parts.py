@@ -133,9 +133,7 @@ def test_the_attackers_options_are_written_once() -> None:
         assert ATTACKER in _imports(ROOT / "lesmc" / user), user
     assert ATTACKER + "_subsets" in _imports(ROOT / "lesmc" / "unfold/multi.py")
     files = ("attacker.py", "attacker_subsets.py")
-    names = {
-        n for f in files for n in _defined(TRACKING / "parts" / f) if not n.startswith("_")
-    }
+    names = {n for f in files for n in _defined(TRACKING / "parts" / f) if not n.startswith("_")}
     assert {"attack_option_rows", "hiding_options", "ranks_and_payoffs", "hidden_subsets"} <= names
     assert {"injection_option_rows", "subset_options", "attackable"} <= names
     for path in (ROOT / "lesmc").rglob("*.py"):
