@@ -452,7 +452,7 @@ def group_order(g: Group) -> tuple[float, int]:
 RowsHandler = Callable[[list[dict[str, Any]]], None]
 
 
-def _client(workers: int, scheduler: str | None) -> tuple[Any, Any]:
+def dask_client(workers: int, scheduler: str | None) -> tuple[Any, Any]:
     """A Dask client of a new local cluster of ``workers`` single-threaded processes (and
     that cluster), or of the cluster at ``scheduler`` (and None)."""
     try:
@@ -519,7 +519,7 @@ def execute(
         return
     from distributed import as_completed
 
-    client, cluster = _client(workers, scheduler)
+    client, cluster = dask_client(workers, scheduler)
     try:
         shared = {k: client.submit(scene_doc, doc, pure=False) for k, doc in docs.items()}
         futures = [

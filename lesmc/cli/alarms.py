@@ -9,7 +9,7 @@ from typing import TYPE_CHECKING, Any
 import click
 
 from lesmc.cli.documents import emit
-from lesmc.cli.options import RegistryChoice, load_scene_file, tracker_option
+from lesmc.cli.options import RegistryChoice, load_scene_file, tracker_option, video_truth_option
 from lesmc.common.errors import UsageError
 from lesmc.designs import registry
 
@@ -45,12 +45,7 @@ if TYPE_CHECKING:
     show_default=True,
     help="The nis monitor's sliding window of steps.",
 )
-@click.option(
-    "--truth",
-    type=click.Path(dir_okay=False),
-    default=None,
-    help="truth.json of a video [default: VIDEO/truth.json].",
-)
+@video_truth_option
 @click.option(
     "--steps",
     type=click.IntRange(min=1),

@@ -316,6 +316,11 @@ def faults_option(extra: str = "") -> Callable[[F], F]:
 
 
 #: ``--tracker FILE``: a tracker file replacing the scene's tracker block.
+#: ``--truth FILE`` of the verbs that run a video's truth tracks (alarms, tune).
+video_truth_option = file_option(
+    "--truth", "truth", "truth.json of a video [default: VIDEO/truth.json]."
+)
+
 tracker_option = file_option(
     "--tracker",
     "tracker_file",

@@ -18,6 +18,7 @@ from lesmc.cli.options import (
     finite_seconds,
     load_scene_file,
     tracker_option,
+    video_truth_option,
 )
 from lesmc.common.errors import UsageError
 from lesmc.engines import payoff_modes
@@ -69,12 +70,7 @@ DEFAULT_VIDEO = "default"
     default=None,
     help="Steps to run the unattacked tracks from the start frame [default: to the last].",
 )
-@click.option(
-    "--truth",
-    type=click.Path(dir_okay=False),
-    default=None,
-    help="truth.json of a video [default: VIDEO/truth.json].",
-)
+@video_truth_option
 @click.option(
     "--out",
     "out_dir",
@@ -299,10 +295,10 @@ def _on_dask(
 ) -> Tuned:
     """:func:`lesmc.experiment.tune.tune` with each group on a Dask worker (the campaign's
     cluster, lesmc/campaign/run.py)."""
-    from lesmc.campaign.run import _client
+    from lesmc.campaign.run import dask_client
     from lesmc.experiment import tune
 
-    client, cluster = _client(workers, scheduler)
+    client, cluster = dask_client(workers, scheduler)
 
     def mapper(f: Callable[[Group], list[Outcome]], gs: Sequence[Group]) -> Iterable[list[Outcome]]:
         futures = client.map(f, gs, pure=False)
