@@ -15,6 +15,7 @@ _API = (
     "CheckResult",
     "DesignRun",
     "MultiCheckResult",
+    "MultiModel",
     "AttackStep",
     "PerceiveRequest",
     "Perceived",
@@ -33,6 +34,7 @@ _API = (
     "load_spec",
     "parse_spec",
     "perceive",
+    "save_model",
     "save_scene",
     "verify",
 )

@@ -35,8 +35,10 @@ from lesmc.language import parser as parse
 from lesmc.language.properties import SpecFile
 from lesmc.model.arrays import ArrayModel
 from lesmc.model.growing import GrowingModel
-from lesmc.model.lts_binary import is_binary, load_lts_npz
-from lesmc.model.lts_format import load_lts, lts_from_dict
+from lesmc.model.lts_binary import is_binary
+from lesmc.model.lts_format import lts_from_dict
+from lesmc.model.multi import MultiModel
+from lesmc.model.multi_format import load_model_file
 from lesmc.pipeline.check import run
 from lesmc.pipeline.job import Job
 from lesmc.pipeline.multi import AttackStep, MultiCheckResult
@@ -56,6 +58,7 @@ __all__ = [
     "CheckResult",
     "DesignRun",
     "MultiCheckResult",
+    "MultiModel",
     "PerceiveRequest",
     "Perceived",
     "Results",
@@ -73,6 +76,7 @@ __all__ = [
     "load_spec",
     "parse_spec",
     "perceive",
+    "save_model",
     "save_scene",
     "verify",
 ]
@@ -85,9 +89,27 @@ SpecArg = SpecFile | PathArg
 WindowArg = str | tuple[int, int] | Sequence[int] | range
 
 
-def load_model(path: PathArg) -> ArrayModel:
-    """A model file, validated: a .lts, or its binary .npz form (docs/lts-format.md)."""
-    return load_lts(_path(path, "path"))
+def load_model(path: PathArg) -> ArrayModel | MultiModel:
+    """A model file, validated: a .lts, or its binary .npz form, or a multi-target model
+    (``lesmc build --design sort|gnn``'s .npz; docs/lts-format.md)."""
+    return load_model_file(_path(path, "path"))
+
+
+def save_model(model: ArrayModel | MultiModel, path: PathArg) -> None:
+    """Write a model (:func:`build`'s) atomically, as ``lesmc build -o`` writes it: a
+    single-target model as .lts (JSON) or, for a path ending in .npz, in its binary form;
+    a multi-target model in its binary form only (a path ending in .npz)."""
+    from lesmc.model.lts_binary import save_lts_npz
+    from lesmc.model.lts_format import save_lts
+    from lesmc.model.multi_format import save_multi
+
+    where = _path(path, "path", read=False)
+    if isinstance(model, MultiModel):
+        _need(is_binary(where), "path: a multi-target model is written as .npz only", path)
+        save_multi(model, where)
+        return
+    _need(isinstance(model, ArrayModel), "model must be a model (lesmc.build)", model)
+    (save_lts_npz if is_binary(where) else save_lts)(model, where)
 
 
 def load_spec(path: PathArg) -> SpecFile:
@@ -141,9 +163,9 @@ def load_model_or_scene(
     target: str | None = None,
     design: str | None = None,
     tracker: PathArg | TrackerConfig | None = None,
-) -> ArrayModel | Scene:
-    """A model (.lts, or its binary .npz form) or a scene, told apart by the file's
-    ``format`` field."""
+) -> ArrayModel | MultiModel | Scene:
+    """A model (.lts, or its binary .npz form, or a multi-target model's .npz) or a scene,
+    told apart by the file's ``format`` field."""
     where = _path(path, "path")
     cfg = _scene_options(target, design, tracker)
     binary = is_binary(where)
@@ -156,7 +178,7 @@ def load_model_or_scene(
         raise UsageError("--design applies to scenes, not to .lts models")
     if target:
         raise UsageError("--target applies to scenes, not to .lts models (built for one target)")
-    return load_lts_npz(where) if binary else lts_from_dict(data, where)
+    return load_model_file(where) if binary else lts_from_dict(data, where)
 
 
 def save_scene(scene: Scene | Footage, path: PathArg) -> None:
@@ -178,30 +200,44 @@ def expand_designs(choice: str) -> tuple[str, ...]:
             f"unknown design {choice!r}; choose one of {', '.join(registry.choices())}"
         )
     if choice in registry.names() and registry.get(choice).multi:
-        raise UsageError(f"--design {choice}: {registry.not_yet(choice)}")
+        raise UsageError(f"--design {choice}: {registry.not_yet(choice, 'verifying')}")
     return registry.expand(choice)
 
 
 def build(
     scene: Scene | PathArg,
-    window: WindowArg,
+    window: WindowArg | None,
     end: int | None = None,
     design: str | None = None,
     max_states: int | None = None,
     timeout: float | None = None,
-) -> ArrayModel:
+    *,
+    spec: SpecArg | None = None,
+    property: str | None = None,
+) -> ArrayModel | MultiModel:
     """The whole model of ``scene`` (a Scene or a scene file) attacked in ``window``
     (``"6..8"``, ``(6, 8)`` or ``range(6, 9)``; Algorithm 1), up to step ``end``, unfolded
     with tracker ``design`` (default: the scene's own). A
     :class:`~lesmc.common.errors.BudgetError` names ``max_states`` or ``timeout`` when
-    the model outgrows them (nothing is returned)."""
+    the model outgrows them (nothing is returned).
+
+    A multi-target design (``sort``, ``gnn``) gives a :class:`MultiModel`
+    (``lesmc build --design sort``'s), unfolded for ``window`` and ``end`` with every
+    detection attackable by hiding, or for property ``property`` of ``spec`` (its window,
+    end, ``within R`` and ``allow``; ``window`` None, or the property's); ``timeout`` is
+    refused there (its unfolding is bounded by ``max_states``)."""
     sc = scene if isinstance(scene, Scene) else load_scene(_path(scene, "scene", "or a Scene"))
-    steps = _window(window)
+    steps = None if window is None and spec is not None else _window(window)
     _need(end is None or _steps((end,), 1), "end must be None or a step >= 0", end)
     _check_limits(timeout, max_states)
     _scene_options(None, design, None)
     if design is not None:
         sc = sc.with_tracker(design=registry.get(design).tracker)
+    if registry.get(sc.tracker.design).multi:
+        where = scene if isinstance(scene, Scene) else _path(scene, "scene")
+        return _build_multi(sc, where, steps, end, max_states, timeout, spec, property)
+    _need(spec is None and property is None, "spec, property: for multi-target designs", spec)
+    assert steps is not None
     budget = Budget(timeout, max_states)
 
     def spent(model: GrowingModel | ArrayModel) -> None:
@@ -217,6 +253,40 @@ def build(
     return model
 
 
+def _build_multi(
+    sc: Scene,
+    where: Scene | str,
+    window: tuple[int, int] | None,
+    end: int | None,
+    max_states: int | None,
+    timeout: float | None,
+    spec: Any,
+    prop: Any,
+) -> MultiModel:
+    """:func:`build` of a multi-target design (lesmc/pipeline/multi.py ``build_for``)."""
+    from lesmc.engines.multi import BuildKey
+    from lesmc.language.actions import DEFAULT as DEFAULT_ACTIONS
+    from lesmc.pipeline.multi import build_for, property_key
+
+    _need(timeout is None, "timeout: a multi-target design is bounded by max_states", timeout)
+    _need(prop is None or isinstance(prop, str), "property must be None or a name", prop)
+    path = "<scene>" if isinstance(where, Scene) else where
+    last = len(sc.frames) - 1
+    if spec is None:
+        _need(prop is None, "property names a property of spec: give spec", prop)
+        assert window is not None
+        key: BuildKey = (*window, last if end is None else end, None, DEFAULT_ACTIONS)
+    else:
+        key = property_key(sc, _specs(spec, "spec")[0], prop)
+        _need(
+            window is None or window == key[:2],
+            f"window: the property's is {key[0]}..{key[1]}",
+            window,
+        )
+        _need(end is None or end == key[2], f"end: the property's is {key[2]}", end)
+    return build_for(sc, path, key, max_states)
+
+
 def check_job(job: Job) -> Results:
     """Run a :class:`~lesmc.pipeline.job.Job` (the pipeline behind every verb)."""
     _need(isinstance(job, Job), "job must be a lesmc.pipeline.job.Job", job)
@@ -224,7 +294,7 @@ def check_job(job: Job) -> Results:
 
 
 def check(
-    source: ArrayModel | Scene | PathArg,
+    source: ArrayModel | MultiModel | Scene | PathArg,
     specs: SpecArg | Sequence[SpecArg],
     engine: str = engines.DEFAULT,
     payoffs: str = payoff_modes.DEFAULT,
@@ -243,7 +313,7 @@ def check(
     are refused there, as the command line refuses them."""
     src = (
         source
-        if isinstance(source, ArrayModel | Scene)
+        if isinstance(source, ArrayModel | MultiModel | Scene)
         else load_model_or_scene(_path(source, "source", "or a model or a Scene"))
     )
     spec_list = _specs(specs)
@@ -259,6 +329,19 @@ def check(
     )
     names = (only,) if isinstance(only, str) else _items(only, "only")
     _need(all(isinstance(n, str) for n in names), "only holds property names", only)
+    if isinstance(src, MultiModel):
+        from lesmc.pipeline.multi import check_multi_model
+
+        _need(engine == engines.DEFAULT, "engine: a multi-target model has one search", engine)
+        _need(timeout is None, "timeout: a multi-target model's search has none", timeout)
+        _need(payoffs == payoff_modes.DEFAULT, "payoffs: a model's are built in", payoffs)
+        _need(
+            max_states == DEFAULT_MAX_STATES,
+            "max_states: a built multi-target model is searched whole",
+            max_states,
+        )
+        _need(not any(s.faults for s in spec_list), "specs: faults need a scene", spec_list)
+        return check_multi_model(src, spec_list, names)
     if isinstance(src, Scene) and _multi(src, chosen):
         where = "<scene>" if isinstance(source, Scene) else _path(source, "source")
         return _check_multi(
@@ -324,7 +407,7 @@ def _check_multi(
 
 
 def export(
-    model: ArrayModel | PathArg,
+    model: ArrayModel | MultiModel | PathArg,
     path: PathArg,
     *,
     format: str,
@@ -348,7 +431,7 @@ def export(
 
 
 def export_model(
-    model: ArrayModel | PathArg,
+    model: ArrayModel | MultiModel | PathArg,
     path: PathArg,
     fmt: str,
     spec: SpecArg | None = None,
@@ -363,8 +446,11 @@ def export_model(
     from lesmc.exporters.request import Request
 
     model, path, spec, roles = _export_arguments(model, path, spec, prop, strict, roles, max_nodes)
-    _need(isinstance(model, ArrayModel), "model must be a model (lesmc.load_model)", model)
+    ok = isinstance(model, ArrayModel | MultiModel)
+    _need(ok, "model must be a model (lesmc.load_model, lesmc.build)", model)
     _need(fmt in formats.names(), f"fmt: {formats.spelled()}", fmt)
+    if isinstance(model, MultiModel):
+        formats.refuse_multi(formats.get(fmt))
     _format_takes(formats.get(fmt), spec, prop, strict, roles, max_nodes)
     _need(spec is None or isinstance(spec, SpecFile), "spec must be a SpecFile or None", spec)
     ok = roles is None or (
@@ -535,7 +621,7 @@ def _check_designs(designs: tuple[Any, ...]) -> None:
 
 def _export_arguments(
     model: Any, path: Any, spec: Any, prop: Any, strict: Any, roles: Any, max_nodes: Any
-) -> tuple[ArrayModel, str, SpecFile | None, dict[str, list[int]] | None]:
+) -> tuple[ArrayModel | MultiModel, str, SpecFile | None, dict[str, list[int]] | None]:
     """Check :func:`export_model`'s arguments; the model and spec (read when given as
     paths) and the roles as model rows (a CheckResult's paths looked up)."""
     where = _path(path, "path", read=False)
@@ -543,7 +629,7 @@ def _export_arguments(
     for name, given in inputs.items():
         if isinstance(given, str | os.PathLike) and Path(given).resolve() == Path(where).resolve():
             _need(False, f"path and {name} name the same file (writing would destroy it)", path)
-    if not isinstance(model, ArrayModel):
+    if not isinstance(model, ArrayModel | MultiModel):
         model = load_model(_path(model, "model", "or a model (lesmc.load_model)"))
     if spec is not None:
         one = isinstance(spec, SpecFile | str | os.PathLike)
@@ -552,6 +638,9 @@ def _export_arguments(
     _need(isinstance(strict, bool), "strict must be True or False", strict)
     good_n = max_nodes is None or (is_int(max_nodes) and max_nodes >= 1)
     _need(good_n, "max_nodes must be None or an integer >= 1", max_nodes)
+    if isinstance(model, MultiModel):
+        _need(roles is None, "roles: a multi-target model's paths are not marked", roles)
+        return model, where, spec, None
     return model, where, spec, _roles(model, roles)
 
 

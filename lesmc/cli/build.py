@@ -18,7 +18,6 @@ from lesmc.cli.options import (
     load_scene_file,
     model_output,
     parse_window,
-    refuse_multi,
     scene_target,
     tracker_option,
 )
@@ -39,9 +38,26 @@ _DESIGN = design_option("Override the tracker design the scene names.")
 @click.option(
     "--window",
     "window_text",
-    required=True,
+    default=None,
     metavar="L..U",
-    help="Attack window: steps whose observation the attacker may change.",
+    help="Attack window: steps whose observation the attacker may change (required, "
+    "except for a multi-target design built for --spec's property).",
+)
+@click.option(
+    "--spec",
+    "spec_path",
+    type=click.Path(dir_okay=False),
+    default=None,
+    help="Multi-target designs (sort, gnn): build the model for this file's property (its "
+    "attack window, end, within R and allow; --property NAME when it holds several), "
+    "which lesmc check MODEL then checks.",
+)
+@click.option(
+    "--property",
+    "prop",
+    default=None,
+    metavar="NAME",
+    help="With --spec: the property the model is built for.",
 )
 @click.option(
     "--end",
@@ -63,7 +79,9 @@ _DESIGN = design_option("Override the tracker design the scene names.")
 )
 def build_cmd(
     scene: str,
-    window_text: str,
+    window_text: str | None,
+    spec_path: str | None,
+    prop: str | None,
     end: int | None,
     output: str,
     design: str | None,
@@ -78,17 +96,35 @@ def build_cmd(
 
     Step 0 is the target's frame. Within the window each state gets one
     transition per outcome an attacker can force (nearest detection first);
-    outside it, the unattacked one. Exit status: 0 written, 2 bad input,
+    outside it, the unattacked one. A multi-target design (sort, gnn) starts at
+    the scene's first frame and is written as -o MODEL.npz (format
+    lesmc-multi-npz, docs/lts-format.md), for --window or --spec's property.
+    Exit status: 0 written, 2 bad input,
     3 a budget ran out (nothing written), 4 internal error, 130 interrupted.
     """
     budget = budget_from(timeout, max_states, max_memory)
-    distinct_files({"SCENE": scene, "--tracker": tracker_file}, {"-o/--output": output})
+    inputs = {"SCENE": scene, "--tracker": tracker_file, "--spec": spec_path}
+    distinct_files(inputs, {"-o/--output": output})
     from lesmc.common.progress import Reporter
+    from lesmc.designs import registry
     from lesmc.scene import UnpricedPayoff
     from lesmc.unfold.unfold import build_model, max_end
 
-    window = parse_window(window_text)
-    sc = refuse_multi(load_scene_file(scene, design, target_text, tracker_file), scene, design)
+    window = None if window_text is None else parse_window(window_text)
+    sc = load_scene_file(scene, design, target_text, tracker_file)
+    if registry.get(sc.tracker.design).multi:
+        from lesmc.cli.multi_build import build_multi_model
+
+        args = (window, end, spec_path, prop, output, max_states, as_json, budget.started)
+        build_multi_model(sc, scene, *args)
+        return
+    if spec_path is not None or prop is not None:
+        raise UsageError(
+            "--spec and --property choose what a multi-target design (sort, gnn) is built "
+            f"for; design {sc.tracker.design} is built for --window L..U"
+        )
+    if window is None:
+        raise UsageError("--window L..U is required: the attack window the model is built for")
     loaded = time.monotonic()
     stop_if_spent(budget, None, "loading the scene")
     with Reporter("build") as rep, rep.bar("building", end or max_end(sc)) as bar:

@@ -313,8 +313,12 @@ def _check_multi(source: Any, parsed: tuple[SpecFile, ...], is_scene: bool) -> N
     """A scene of a multi-target design (``--design`` or the scene's): checked by
     lesmc/cli/multi_check.py with the command's options, which exits; sweeps, faults and
     a report are not supported for it yet. Nothing happens otherwise."""
+    from lesmc.model.multi_format import is_multi
+
     p = click.get_current_context().params
     design = p["design"]
+    if is_multi(source):
+        _check_multi_model(source, parsed, p)
     if not is_scene or not registry.get(design or source.tracker.design).multi:
         return
     if p["sweep_texts"] or p["faults_file"] or p["report_dir"] or any(s.faults for s in parsed):
@@ -335,6 +339,27 @@ def _check_multi(source: Any, parsed: tuple[SpecFile, ...], is_scene: bool) -> N
     path = p["model"]
     sc = sc.priced(p["payoffs"], path)
     check_multi_scene(sc, path, parsed, p["only"], p["as_json"], p["max_states"])
+
+
+def _check_multi_model(model: Any, parsed: tuple[SpecFile, ...], p: dict[str, Any]) -> None:
+    """A built multi-target model (lesmc build --design sort|gnn): checked by
+    lesmc/cli/multi_check.py, which exits; the options its check does not read are
+    refused."""
+    if p["sweep_texts"] or p["faults_file"] or p["report_dir"] or any(s.faults for s in parsed):
+        raise UsageError(
+            "--sweep, --report and faults with a multi-target model: not supported yet (issue 58)"
+        )
+    ignored = [f"--{n.replace('_', '-')}" for n in (*_MULTI_IGNORED, "max_states") if given(n)]
+    if given("payoffs"):  # a model's payoffs are built in
+        ignored.append("--payoffs")
+    if ignored:
+        raise UsageError(
+            f"{', '.join(ignored)} with a multi-target model: not supported yet (its exact "
+            "search has one engine, on the model as built, with the payoffs it was built with)"
+        )
+    from lesmc.cli.multi_check import check_multi_file
+
+    check_multi_file(model, parsed, p["only"], p["as_json"])
 
 
 def _refuse_mismatched(

@@ -15,7 +15,6 @@ from lesmc.cli.options import (
     RegistryChoice,
     distinct_files,
     parse_window,
-    refuse_multi,
     scene_target,
     tracker_option,
 )
@@ -28,6 +27,7 @@ from lesmc.language.actions import DEFAULT as DEFAULT_ACTIONS
 if TYPE_CHECKING:
     from lesmc.language.properties import SpecFile
     from lesmc.model.arrays import ArrayModel
+    from lesmc.model.multi import MultiModel
     from lesmc.scene import Scene
 
 
@@ -149,13 +149,17 @@ def export_cmd(
     as_json: bool,
 ) -> None:
     from lesmc.api import export_model, load_spec
+    from lesmc.model.multi import MultiModel
 
     _refuse_mismatched(formats.get(fmt), spec_path, strict, prop, results_path, max_nodes)
     inputs = {"MODEL": model, "--spec": spec_path, "--results": results_path}
     distinct_files(inputs | {"--tracker": tracker_file}, {"-o/--output": output})
     spec = load_spec(spec_path) if spec_path else None
-    cm = _model(model, target_text, design, window_text, tracker_file, spec, prop)
-    roles = _roles(cm, results_path, prop) if results_path else None
+    cm = _model(model, target_text, design, window_text, tracker_file, spec, prop, fmt)
+    roles = None
+    if results_path:  # the formats that mark paths take no multi-target model (refused)
+        assert not isinstance(cm, MultiModel)
+        roles = _roles(cm, results_path, prop)
     facts = export_model(cm, output, fmt, spec, prop, strict, roles, max_nodes)
     if facts.get("not_exported"):
         click.echo(f"note: {facts['not_exported']}", err=True)
@@ -175,7 +179,7 @@ def export_cmd(
         )
 
 
-def _states(facts: dict[str, object], fmt: str, cm: ArrayModel) -> str:
+def _states(facts: dict[str, object], fmt: str, cm: ArrayModel | MultiModel) -> str:
     """The states the file holds: a property's MDP has its own (its header's number)."""
     mdp = facts.get(fmt)
     if isinstance(mdp, dict) and "states" in mdp:
@@ -222,16 +226,25 @@ def _model(
     tracker_file: str | None,
     spec: SpecFile | None,
     prop: str | None,
-) -> ArrayModel:
+    fmt: str,
+) -> ArrayModel | MultiModel:
     """The .lts model, or the scene built for its window (``--window``, or the exported
-    property's) as lesmc build builds it."""
+    property's) as lesmc build builds it; a multi-target model or scene (design sort,
+    gnn) for a format that takes one (``--spec``'s property: its window)."""
     from lesmc.api import load_model_or_scene
+    from lesmc.model.multi import MultiModel
     from lesmc.scene import Scene, UnpricedPayoff
     from lesmc.unfold.unfold import build_model
 
     source = load_model_or_scene(model, target_text, design, tracker_file)
+    multi = isinstance(source, MultiModel)
+    if isinstance(source, Scene) and registry.get(source.tracker.design).multi:
+        multi = True
+    if multi:
+        formats.refuse_multi(formats.get(fmt))
+    if isinstance(source, Scene) and multi:
+        return _multi_scene(source, model, window_text, spec, prop)
     if isinstance(source, Scene):
-        refuse_multi(source, model, design)
         window, actions = _scene_window(source, window_text, spec, prop)
         try:
             return build_model(source, window, inject="inject" in actions, hide="hide" in actions)
@@ -240,6 +253,24 @@ def _model(
     if window_text is not None:
         raise UsageError("--window builds a scene; a .lts model has its window already")
     return source
+
+
+def _multi_scene(
+    scene: Scene, path: str, window_text: str | None, spec: SpecFile | None, prop: str | None
+) -> MultiModel:
+    """A multi-target scene's model for the exported property (as ``lesmc build --spec``
+    builds it); a ``--window`` must be the property's."""
+    from lesmc.pipeline.multi import build_for, property_key
+
+    assert spec is not None  # the formats that take a multi-target model state a property
+    key = property_key(scene, spec, prop)
+    window = parse_window(window_text) if window_text is not None else None
+    if window is not None and window != key[:2]:
+        raise UsageError(
+            f"--window {window[0]}..{window[1]} contradicts the property's attack window "
+            f"{key[0]}..{key[1]}: leave --window out (the property's is used)"
+        )
+    return build_for(scene, path, key)
 
 
 def _scene_window(

@@ -18,10 +18,11 @@ from typing import Any
 import click
 
 from lesmc.language.properties import SpecFile
+from lesmc.model.multi import MultiModel
 from lesmc.pipeline.multi import multi_results
 from lesmc.scene import Scene
 
-__all__ = ["check_multi_scene", "multi_results"]
+__all__ = ["check_multi_file", "check_multi_scene", "multi_results"]
 
 
 def check_multi_scene(
@@ -39,6 +40,19 @@ def check_multi_scene(
     out = multi_results(scene, path, specs, only, max_states)
     kind = composed(scene, path).reference_kind()
     _print(out, scene.tracker.design, kind, as_json)
+    sys.exit(0 if all(r["verdict"] == "holds" for r in out) else 1)
+
+
+def check_multi_file(
+    model: MultiModel, specs: tuple[SpecFile, ...], only: tuple[str, ...], as_json: bool
+) -> None:
+    """Check every property (or those named in ``only``) of ``specs`` on a built
+    multi-target model (``lesmc check MODEL.npz SPEC``); print the results as
+    :func:`check_multi_scene` prints them; exit 0 (all hold) or 1 (some violated)."""
+    from lesmc.pipeline.multi import check_multi_model
+
+    out = [r.to_dict() for r in check_multi_model(model, specs, only)]
+    _print(out, str(model.meta["design"]), str(model.meta["reference"]), as_json)
     sys.exit(0 if all(r["verdict"] == "holds" for r in out) else 1)
 
 

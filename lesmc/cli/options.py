@@ -345,16 +345,3 @@ def distinct_files(inputs: dict[str, str | None], outputs: dict[str, str]) -> No
         if key in named:
             raise UsageError(f"{named[key]} and {what} name the same file ({escape_control(out)})")
         named[key] = what
-
-
-def refuse_multi(sc: Scene, path: str, design: str | None) -> Scene:
-    """``sc``, for a verb that builds a model: it refuses a multi-target design (none is
-    built yet), at ``--design`` when it names one, else at the scene's ``tracker`` block."""
-    name = design if design is not None else sc.tracker.design
-    if not registry.get(name).multi:
-        return sc
-    if design is not None:
-        raise UsageError(f"--design {design}: {registry.not_yet(design)}")
-    from lesmc.common.errors import InputError
-
-    raise InputError.many(path, [("tracker", f"design: {registry.not_yet(name)}")])

@@ -74,16 +74,18 @@ def tracker(name: str, impl: str, label: str, summary: str, cost: float = 1.0) -
 
 
 def multi_tracker(name: str, impl: str, label: str, summary: str) -> Design:
-    """Register a multi-target tracker (its class runs the unattacked track only so far)."""
+    """Register a multi-target tracker (built, checked and exported by its own stages:
+    lesmc/unfold/multi.py, lesmc/engines/multi.py, lesmc/exporters/multi.py)."""
     return register(Design(name, label, summary, name, False, impl, multi=True))
 
 
-def not_yet(name: str) -> str:
-    """What a verb that builds a model says of multi-target design ``name``."""
+def not_yet(name: str, what: str = "verifying it (lesmc verify, campaign)") -> str:
+    """What a verb says of multi-target design ``name`` when it needs ``what``, which the
+    multi-target designs do not support yet."""
     return (
-        f"design '{name}' is a multi-target tracker: `lesmc track` runs it and `lesmc check` "
-        "checks its switches, lost and dist properties on a scene (and lesmc.check), but "
-        "building, exporting and verifying a multi-target design is not supported yet (issue 58)"
+        f"design '{name}' is a multi-target tracker: `lesmc track`, `lesmc build`, `lesmc "
+        "check` (a scene or its built model) and `lesmc export --format drn|prism` take it; "
+        f"{what} is not supported yet (issue 58)"
     )
 
 

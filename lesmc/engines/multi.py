@@ -19,10 +19,12 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from lesmc.language.semantics import BoundMeasure, BoundProperty
+from lesmc.common.errors import Location, SpecError, UsageError, source_line
+from lesmc.language.properties import Measure, Property, SpecFile
+from lesmc.language.semantics import BoundMeasure, BoundProperty, bind
 from lesmc.model.identity import NONE, indicators
 from lesmc.model.kernel import COMPARE, contributions, holds, initial_value
-from lesmc.model.multi import MultiModel
+from lesmc.model.multi import COMPONENTS, MultiModel
 
 #: The objectives the engine minimises (besides ``dist`` measures), and the identity
 #: constraints it takes (``dist`` measures too: the track of the target's id).
@@ -125,3 +127,79 @@ def check_multi(model: MultiModel, prop: BoundProperty) -> MultiResult:
         model.n_states,
         model.n_transitions,
     )
+
+
+# ------------------------------------------------------------ properties and models
+
+#: What one model is unfolded for: attack window l..u, end, radius, the attacker's actions.
+BuildKey = tuple[int, int, int, float | None, tuple[str, ...]]
+
+
+def build_key(b: BoundProperty) -> BuildKey:
+    """What a model must be unfolded for to check the bound property ``b``."""
+    return (b.l, b.u, b.end, b.radius, b.prop.actions)
+
+
+def bind_multi(spec: SpecFile, prop: Property, e: int) -> BoundProperty:
+    """``prop`` (one this engine answers: :func:`supported`) bound to a multi-target model
+    of a scene whose last step is ``e``."""
+    supported(spec, prop)
+    return bind(spec, prop, e, COMPONENTS, False, multi=True)
+
+
+def bind_model(model: MultiModel, spec: SpecFile, prop: Property) -> BoundProperty:
+    """``prop`` bound to a built model (``lesmc check MODEL``, ``lesmc export MODEL``): as
+    on the scene it was built from (its ``meta``), and a located error unless the model
+    was unfolded for what the property needs, or when its objective is the payoff and
+    the window holds an unpriced detection."""
+    b = bind_multi(spec, prop, int(model.meta["last_step"]))
+    meta = model.meta
+    have: BuildKey = (*model.window, model.end, meta["radius"], tuple(meta["actions"]))
+    if have != build_key(b):
+        pos = prop.clause_pos.get("window", prop.pos)
+        raise SpecError(
+            f"property '{prop.name}' needs a model of {_key_text(build_key(b))}; this model was "
+            f"built for {_key_text(have)}: build one for it (lesmc build SCENE --spec "
+            f"{spec.path} --property {prop.name}) or check the scene",
+            Location(spec.path, pos.line, pos.column, source_line(spec.text, pos.line)),
+        )
+    unpriced = meta.get("unpriced")
+    if b.objective.source == "payoff" and unpriced is not None:
+        raise UsageError(unpriced_text(str(unpriced[1]), int(unpriced[0])))
+    return b
+
+
+def _key_text(key: BuildKey) -> str:
+    l, u, end, radius, actions = key
+    within = "" if radius is None else f" within {radius:g}"
+    return f"attack window {l}..{u}{within}, allow {', '.join(actions)}, end {end}"
+
+
+def unpriced_text(detection: str, step: int) -> str:
+    """Why a payoff objective cannot be minimised: the window's detection is unpriced."""
+    return (
+        f"detection '{detection}' of frame {step} has no payoff (unpriced): minimize "
+        "count or count.frames, or price the scene (lesmc perceive)"
+    )
+
+
+def _unsupported(spec: SpecFile, what: str, m: Measure) -> SpecError:
+    loc = Location(spec.path, m.pos.line, m.pos.column, source_line(spec.text, m.pos.line))
+    return SpecError(f"{what} (multi-target designs: not supported yet)", loc)
+
+
+def supported(spec: SpecFile, prop: Property) -> None:
+    """A located error unless the property is one this engine answers."""
+    obj, con = prop.objective, prop.constraint.measure
+    if obj.kind not in ("payoff", "count", "dist") or obj.aggregate == "nearest":
+        raise _unsupported(
+            spec, f"objective '{obj.text()}': minimize payoff, count or a dist measure", obj
+        )
+    if con.kind not in (*CONSTRAINTS, "dist") or con.aggregate == "nearest":
+        raise _unsupported(
+            spec,
+            f"constraint '{con.text()}': the constraint must be switches, lost or a dist measure",
+            con,
+        )
+    if prop.monitor is not None:
+        raise _unsupported(spec, "'monitor uncertainty'", obj)

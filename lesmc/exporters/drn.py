@@ -31,6 +31,7 @@ from lesmc.exporters.request import MDP_MAX_PREFIXES, Request, chosen_property
 from lesmc.language.properties import SpecFile
 from lesmc.language.semantics import BoundProperty
 from lesmc.model.arrays import ArrayModel
+from lesmc.model.multi import MultiModel
 
 #: Path prefixes (MDP states) the export may unfold by default.
 DRN_MAX_PREFIXES = MDP_MAX_PREFIXES
@@ -90,7 +91,14 @@ def to_drn(
     A maximum objective (dist.max) is no sum of rewards: the MDP and its ``violated``
     label are written without the reward model (``not_exported`` says so), or with
     ``strict`` the export is refused."""
-    space = build_space(cm, bp)
+    return drn_text(cm, build_space(cm, bp), bp, max_prefixes, strict)
+
+
+def drn_text(
+    cm: ArrayModel | MultiModel, space: Any, bp: BoundProperty, max_prefixes: int, strict: bool
+) -> tuple[str, dict[str, Any]]:
+    """:func:`to_drn` on the property's ``space`` of ``cm`` (lesmc/engines/space.py's, or
+    a multi-target model's: lesmc/exporters/multi.py)."""
     rewards = not space.obj_max
     not_exported = None if rewards else not_exported_line(bp, strict)
     choices, labels = prefix_tree(cm, space, rewards, max_prefixes)
@@ -120,7 +128,7 @@ def not_exported_line(bp: BoundProperty, strict: bool) -> str:
 
 
 def prefix_tree(
-    cm: ArrayModel, space: Any, rewards: bool, max_prefixes: int
+    cm: ArrayModel | MultiModel, space: Any, rewards: bool, max_prefixes: int
 ) -> tuple[list[list[tuple[float, int]]], list[str]]:
     """The MDP: per state its actions (reward, target) and its label; state 0 is the
     root, state 1 the absorbing ``violated`` state."""

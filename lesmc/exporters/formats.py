@@ -21,12 +21,14 @@ import importlib
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
-from lesmc.exporters.request import DOT_MAX_NODES, MDP_MAX_PREFIXES, Request, Writer
+from lesmc.common.errors import UsageError
+from lesmc.exporters.request import DOT_MAX_NODES, MDP_MAX_PREFIXES, Request
 
 if TYPE_CHECKING:
     from lesmc.model.arrays import ArrayModel
+    from lesmc.model.multi import MultiModel
 
 
 @dataclass(frozen=True)
@@ -36,7 +38,9 @@ class ExportFormat:
     ``writer`` is ``module:function`` (a :data:`Writer`); ``states_property``: it writes
     one property of a spec file (needs ``--spec``; takes ``--property``, ``--strict``);
     ``marks_paths``: it marks a results file's counterexample and witness
-    (``--results``); ``limit``: what ``--max-nodes`` bounds and its default, if anything.
+    (``--results``); ``limit``: what ``--max-nodes`` bounds and its default, if anything;
+    ``multi_writer``: its writer of a multi-target model (``lesmc build --design sort``'s;
+    None: the format does not take one).
     """
 
     name: str
@@ -47,11 +51,23 @@ class ExportFormat:
     states_property: bool = False
     marks_paths: bool = False
     limit: tuple[str, int] | None = None
+    multi_writer: str | None = None
 
-    def write(self, model: ArrayModel, path: str | Path, request: Request) -> dict[str, object]:
+    def write(
+        self, model: ArrayModel | MultiModel, path: str | Path, request: Request
+    ) -> dict[str, object]:
         """Write ``model`` to ``path``; the writer's facts."""
-        module, _, func = self.writer.partition(":")
-        write: Writer = getattr(importlib.import_module(module), func)
+        from lesmc.model.multi import MultiModel
+
+        writer = self.writer
+        if isinstance(model, MultiModel):
+            refuse_multi(self)
+            assert self.multi_writer is not None
+            writer = self.multi_writer
+        module, _, func = writer.partition(":")
+        write: Callable[[Any, str | Path, Request], dict[str, object]] = getattr(
+            importlib.import_module(module), func
+        )
         return write(model, path, request)
 
     def supports(self) -> str:
@@ -138,6 +154,16 @@ def refused(
     return None
 
 
+def refuse_multi(fmt: ExportFormat) -> None:
+    """A UsageError unless ``fmt`` writes multi-target models."""
+    if fmt.multi_writer is None:
+        takes = spelled(where(lambda f: f.multi_writer is not None))
+        raise UsageError(
+            f"--format {fmt.name} of a multi-target model (design sort, gnn): not supported "
+            f"yet; it is exported as {takes}"
+        )
+
+
 def help_table(columns: int = 78) -> str:
     """Each format for ``lesmc export --help``: its name, then the tools that read it and
     its summary, wrapped to ``columns`` (click keeps the lines as they are)."""
@@ -206,6 +232,7 @@ register(
         "lesmc.exporters.drn:write_drn",
         states_property=True,
         limit=("path prefixes", MDP_MAX_PREFIXES),
+        multi_writer="lesmc.exporters.multi:write_drn",
     )
 )
 register(
@@ -217,5 +244,6 @@ register(
         "lesmc.exporters.prism:write_prism",
         states_property=True,
         limit=("path prefixes", MDP_MAX_PREFIXES),
+        multi_writer="lesmc.exporters.multi:write_prism",
     )
 )

@@ -33,6 +33,7 @@ from lesmc.exporters.drn import (
 from lesmc.exporters.request import Request
 from lesmc.language.semantics import BoundProperty
 from lesmc.model.arrays import ArrayModel
+from lesmc.model.multi import MultiModel
 
 PRISM_PROPERTY = 'R{"payoff"}min=? [F "violated"]'
 
@@ -68,7 +69,14 @@ def to_prism(
     cm: ArrayModel, bp: BoundProperty, max_prefixes: int = DRN_MAX_PREFIXES, strict: bool = False
 ) -> tuple[str, dict[str, Any]]:
     """The PRISM program and facts about it (as :func:`~lesmc.exporters.drn.to_drn`)."""
-    space = build_space(cm, bp)
+    return prism_text(cm, build_space(cm, bp), bp, max_prefixes, strict)
+
+
+def prism_text(
+    cm: ArrayModel | MultiModel, space: Any, bp: BoundProperty, max_prefixes: int, strict: bool
+) -> tuple[str, dict[str, Any]]:
+    """:func:`to_prism` on the property's ``space`` of ``cm`` (as
+    :func:`~lesmc.exporters.drn.drn_text`)."""
     rewards = not space.obj_max
     not_exported = None if rewards else not_exported_line(bp, strict)
     choices, labels = prefix_tree(cm, space, rewards, max_prefixes)

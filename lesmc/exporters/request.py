@@ -10,13 +10,12 @@ from __future__ import annotations
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Protocol, TypeVar
 
 from lesmc.common.errors import UsageError
 
 if TYPE_CHECKING:
     from lesmc.language.properties import SpecFile
-    from lesmc.language.semantics import BoundProperty
     from lesmc.model.arrays import ArrayModel
 
 #: The most states a DOT file may have by default: Graphviz lays out a few thousand readably.
@@ -41,9 +40,17 @@ class Request:
 Writer = Callable[["ArrayModel", "str | Path", Request], dict[str, object]]
 
 
-def chosen_property(
-    bound: Sequence[BoundProperty], spec_path: str, prop: str | None
-) -> BoundProperty:
+class Named(Protocol):
+    """A property, bound or not: anything with a name."""
+
+    @property
+    def name(self) -> str: ...
+
+
+P = TypeVar("P", bound=Named)
+
+
+def chosen_property(bound: Sequence[P], spec_path: str, prop: str | None) -> P:
     """The property a property-stating format exports: the one called ``prop`` among
     ``bound`` (the properties of ``spec_path``), or the only one."""
     if prop is not None:

@@ -43,6 +43,8 @@ VERSION = 2
 #: The version that kept the ids in the header's JSON.
 HEADER_IDS = 1
 SUFFIX = ".npz"
+#: The format of a multi-target model's binary file (lesmc/model/multi_format.py).
+MULTI_FORMAT = "lesmc-multi-npz"
 
 #: The arrays every file has, with their dtypes and dimensions.
 REQUIRED = {
@@ -100,7 +102,7 @@ def save_lts_npz(model: ArrayModel, path: str | Path) -> None:
         arrays[TRACKS] = model.tracks.at
     blob = np.frombuffer(json.dumps(head, allow_nan=False).encode(), dtype=np.uint8)
     with atomic_open(path, binary=True) as fh:
-        _write_npz(fh, {"header": blob, **arrays})
+        write_npz(fh, {"header": blob, **arrays})
 
 
 #: Where each array's data starts in the file: a multiple of this many bytes.
@@ -109,7 +111,7 @@ ALIGN = 64
 _PAD_FIELD = 0xD935
 
 
-def _write_npz(fh: IO[bytes], arrays: dict[str, np.ndarray]) -> None:
+def write_npz(fh: IO[bytes], arrays: dict[str, np.ndarray]) -> None:
     """The arrays as ``NAME.npy`` members of a stored (uncompressed) zip, what
     ``numpy.savez`` writes, with each member's local header padded by an extra field
     so that its data start at a multiple of ``ALIGN`` in the file (the ``.npy`` header
@@ -164,18 +166,29 @@ _READ_ERRORS = (
 def load_lts_npz(path: str | Path) -> ArrayModel:
     """Read and validate a binary model."""
     where = str(path)
+    return lts_from_arrays(read_npz(where), where)
+
+
+def read_npz(path: str) -> dict[str, np.ndarray]:
+    """The arrays of a binary model file (:func:`_read_arrays`), its header among them; a
+    file that is no such archive is a located :class:`ModelError`. The multi-target
+    models' form (lesmc/model/multi_format.py) reads its files with this too."""
     try:
-        arrays = _read_arrays(where)
+        return _read_arrays(path)
     except FileNotFoundError:
-        raise ModelError("no such file", Location(where)) from None
+        raise ModelError("no such file", Location(path)) from None
     except ModelError:
         raise
     except _READ_ERRORS as exc:
-        raise ModelError(f"not a lesmc binary model (.npz): {exc}", Location(where)) from None
+        raise ModelError(f"not a lesmc binary model (.npz): {exc}", Location(path)) from None
+
+
+def lts_from_arrays(arrays: dict[str, np.ndarray], where: str) -> ArrayModel:
+    """Validate the arrays :func:`read_npz` read from ``where`` and build the model."""
     head = _header(arrays.pop("header", None), where)
     tracks_at = arrays.pop(TRACKS, None)
     ids = _ids(head, arrays.pop(IDS, None), where)
-    _check_arrays_present(arrays, where)
+    check_present(arrays, where, REQUIRED, OPTIONAL)
     cm = ArrayModel(
         components=tuple(head["components"]),
         obs_names=tuple(head["obs_names"]),
@@ -318,6 +331,18 @@ def _header(blob: np.ndarray | None, path: str) -> dict[str, Any]:
         raise ModelError.many(path, [("header", f"{exc.message}{at}")]) from None
     if not isinstance(data, dict):
         raise ModelError.many(path, [("header", "must be a JSON object")])
+    if data.get("format") == MULTI_FORMAT:
+        raise ModelError.many(
+            path,
+            [
+                (
+                    "header.format",
+                    f"'{MULTI_FORMAT}' is a multi-target model (lesmc build --design sort|gnn): "
+                    "lesmc check and lesmc export --format drn|prism read it, this reads "
+                    "single-target models only",
+                )
+            ],
+        )
     pr = Problems()
     old = is_version(data.get("version"), HEADER_IDS)
     header(data, FORMAT, HEADER_IDS if old else VERSION, pr)
@@ -356,14 +381,21 @@ def _string_list(v: Any) -> bool:
     return isinstance(v, list) and all(isinstance(x, str) for x in v)
 
 
-def _check_arrays_present(arrays: dict[str, np.ndarray], path: str) -> None:
-    """Every required array there, no unknown one, each of its dtype and dimension."""
+#: Arrays by name, each with its dtype and number of dimensions.
+ArraySpec = dict[str, tuple[Any, int]]
+
+
+def check_present(
+    arrays: dict[str, np.ndarray], path: str, required: ArraySpec, optional: ArraySpec
+) -> None:
+    """Every ``required`` array there, none but those and the ``optional`` ones, each of
+    its dtype and dimension; the missing optional ones set to None."""
     pr = Problems()
-    for name in sorted(set(arrays) - set(REQUIRED) - set(OPTIONAL)):
+    for name in sorted(set(arrays) - set(required) - set(optional)):
         pr.add(f"array '{name}'", "unknown")
-    for name in sorted(set(REQUIRED) - set(arrays)):
+    for name in sorted(set(required) - set(arrays)):
         pr.add(f"array '{name}'", "missing")
-    for name, (dtype, ndim) in (REQUIRED | OPTIONAL).items():
+    for name, (dtype, ndim) in (required | optional).items():
         a = arrays.get(name)
         if a is None:
             continue
@@ -373,7 +405,7 @@ def _check_arrays_present(arrays: dict[str, np.ndarray], path: str) -> None:
             pr.add(f"array '{name}'", f"must be {want}, got {_dtype_text(a.dtype)} {a.shape}")
     if pr.items:
         raise ModelError.many(path, pr.items)
-    for name in OPTIONAL:
+    for name in optional:
         arrays.setdefault(name, None)  # type: ignore[arg-type]
 
 

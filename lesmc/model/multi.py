@@ -22,7 +22,8 @@ and ``gone[i]``, whether that track was deleted (a deleted track counts as halte
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
 
@@ -59,6 +60,10 @@ class MultiModel:
     #: per step: how many of its ``names`` are detections; the rest are its injection
     #: candidates (an index j >= detections[k] in ``by_payoff``/``by_count`` is injected)
     detections: tuple[int, ...] = ()
+    #: what it was built for (lesmc/pipeline/multi.py ``build_for``; its file's header,
+    #: docs/lts-format.md "Multi-target models"): design, tracker, reference, radius,
+    #: actions, the scene's last step, the window's first unpriced detection
+    meta: dict[str, Any] = field(default_factory=dict)
 
     @property
     def n_states(self) -> int:

@@ -13,11 +13,14 @@ from __future__ import annotations
 
 import builtins
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Any
 
-from lesmc.common.errors import Location, SpecError, UsageError, source_line
-from lesmc.language.properties import Measure, Property, SpecFile
+from lesmc.common.errors import UsageError
+from lesmc.engines.multi import BuildKey, bind_model, bind_multi, build_key, unpriced_text
+from lesmc.language.properties import Property, SpecFile
+from lesmc.language.semantics import BoundProperty
+from lesmc.model.multi import MultiModel
 from lesmc.scene import Scene
 
 
@@ -91,46 +94,91 @@ def check_multi_design(
 ) -> list[MultiCheckResult]:
     """Each property of ``specs`` (those named in ``only``, or all) checked on the
     multi-target design of ``scene`` (read from ``path``, the name its errors give)."""
-    from lesmc.engines.multi import check_multi
-    from lesmc.language.semantics import bind
-    from lesmc.model.multi import COMPONENTS
+    models: dict[BuildKey, MultiModel] = {}
+    out: list[MultiCheckResult] = []
+    for spec, prop in _chosen(specs, only):
+        b = bind_multi(spec, prop, len(scene.frames) - 1)
+        if b.objective.source == "payoff":
+            _priced(scene, b.l, b.u)
+        key = build_key(b)
+        if key not in models:
+            models[key] = build_for(scene, path, key, max_states)
+        out.append(_result(models[key], b))
+    return out
+
+
+def check_multi_model(
+    model: MultiModel, specs: tuple[SpecFile, ...], only: tuple[str, ...] = ()
+) -> list[MultiCheckResult]:
+    """Each property of ``specs`` (those named in ``only``, or all) checked on a built
+    multi-target model (``lesmc check MODEL SPEC``): the same results as checking the
+    scene it was built from, for the properties whose attack window, end, radius and
+    actions are the model's (any other is a located error)."""
+    out: list[MultiCheckResult] = []
+    for spec, prop in _chosen(specs, only):
+        out.append(_result(model, bind_model(model, spec, prop)))
+    return out
+
+
+def build_for(scene: Scene, path: str, key: BuildKey, max_states: int | None = None) -> MultiModel:
+    """The model of ``scene``'s multi-target design (read from ``path``, the name its
+    errors give) unfolded for ``key`` (:func:`build_key`), with what it was built for in
+    its ``meta`` (the file's header: lesmc/model/multi_format.py)."""
     from lesmc.unfold.multi import build_multi, composed
 
     design = composed(scene, path)
-    e = len(scene.frames) - 1
+    l, u, end, radius, actions = key
+    model = build_multi(scene, design, (l, u), end, max_states, radius, actions=actions)
+    first = next(
+        ((f.step, d.id) for f in scene.frames[l : u + 1] for d in f.detections if not d.priced),
+        None,
+    )
+    meta = {
+        "design": scene.tracker.design,
+        "tracker": scene.tracker.to_json(),
+        "reference": design.reference_kind(),
+        "radius": radius,
+        "actions": list(actions),
+        "last_step": len(scene.frames) - 1,
+        "unpriced": None if first is None else [first[0], first[1]],
+    }
+    return replace(model, meta=meta)
+
+
+def property_key(scene: Scene, spec: SpecFile, name: str | None) -> BuildKey:
+    """What the model of ``scene`` is unfolded for to check property ``name`` of ``spec``
+    (None: its only property): ``lesmc build --spec``."""
+    from lesmc.exporters.request import chosen_property
+
+    bound = [bind_multi(spec, p, len(scene.frames) - 1) for p in spec.properties]
+    return build_key(chosen_property(bound, spec.path, name))
+
+
+def _chosen(specs: tuple[SpecFile, ...], only: tuple[str, ...]) -> list[tuple[SpecFile, Property]]:
+    """The properties of ``specs`` named in ``only`` (all without)."""
     props = [(s, p) for s in specs for p in s.properties if not only or p.name in only]
     missing = set(only) - {p.name for _, p in props}
     if missing:
         raise UsageError(f"--property {sorted(missing)[0]}: no property of that name")
-    models: dict[tuple[int, int, int, float | None, tuple[str, ...]], Any] = {}
-    out: list[MultiCheckResult] = []
-    kind = design.reference_kind()
-    for spec, prop in props:
-        _supported(spec, prop)
-        b = bind(spec, prop, e, COMPONENTS, False, multi=True)
-        if b.objective.source == "payoff":
-            _priced(scene, b.l, b.u)
-        key = (b.l, b.u, b.end, b.radius, prop.actions)
-        if key not in models:
-            models[key] = build_multi(
-                scene, design, (b.l, b.u), b.end, max_states, b.radius, actions=prop.actions
-            )
-        res = check_multi(models[key], b)
-        steps = _steps(models[key], b.objective.source, res.path)
-        out.append(
-            MultiCheckResult(
-                scene.tracker.design,
-                kind,
-                prop.name,
-                "holds" if res.holds else "violated",
-                res.optimum,
-                res.constraint,
-                res.states,
-                res.transitions,
-                steps,
-            )
-        )
-    return out
+    return props
+
+
+def _result(model: MultiModel, b: BoundProperty) -> MultiCheckResult:
+    """Property ``b`` checked on ``model`` (lesmc/engines/multi.py) as a typed result."""
+    from lesmc.engines.multi import check_multi
+
+    res = check_multi(model, b)
+    return MultiCheckResult(
+        str(model.meta["design"]),
+        str(model.meta["reference"]),
+        b.name,
+        "holds" if res.holds else "violated",
+        res.optimum,
+        res.constraint,
+        res.states,
+        res.transitions,
+        _steps(model, b.objective.source, res.path),
+    )
 
 
 def multi_results(
@@ -145,39 +193,12 @@ def multi_results(
     return [r.to_dict() for r in check_multi_design(scene, path, specs, only, max_states)]
 
 
-def _unsupported(spec: SpecFile, what: str, m: Measure) -> SpecError:
-    loc = Location(spec.path, m.pos.line, m.pos.column, source_line(spec.text, m.pos.line))
-    return SpecError(f"{what} (multi-target designs: not supported yet)", loc)
-
-
-def _supported(spec: SpecFile, prop: Property) -> None:
-    """The property is one the multi-target engine answers."""
-    from lesmc.engines.multi import CONSTRAINTS
-
-    obj, con = prop.objective, prop.constraint.measure
-    if obj.kind not in ("payoff", "count", "dist") or obj.aggregate == "nearest":
-        raise _unsupported(
-            spec, f"objective '{obj.text()}': minimize payoff, count or a dist measure", obj
-        )
-    if con.kind not in (*CONSTRAINTS, "dist") or con.aggregate == "nearest":
-        raise _unsupported(
-            spec,
-            f"constraint '{con.text()}': the constraint must be switches, lost or a dist measure",
-            con,
-        )
-    if prop.monitor is not None:
-        raise _unsupported(spec, "'monitor uncertainty'", obj)
-
-
 def _priced(scene: Scene, l: int, u: int) -> None:
     """A payoff objective needs the window's detections priced."""
     for f in scene.frames[l : u + 1]:
         for d in f.detections:
             if math.isnan(d.payoff):
-                raise UsageError(
-                    f"detection '{d.id}' of frame {f.step} has no payoff (unpriced): minimize "
-                    "count or count.frames, or price the scene (lesmc perceive)"
-                )
+                raise UsageError(unpriced_text(d.id, f.step))
 
 
 def _steps(model: Any, objective: str, path: Any) -> tuple[AttackStep, ...] | None:

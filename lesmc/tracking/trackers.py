@@ -30,7 +30,9 @@ def make_tracker(scene: Scene, inject: bool = False, hide: bool = True) -> Desig
     ``hide``: it may hide detections (False only with ``inject``: ``allow inject``)."""
     design = registry.get(scene.tracker.design)
     if design.multi:
-        raise UsageError(registry.not_yet(design.name))
+        raise UsageError(
+            registry.not_yet(design.name, "this single-target step (verify, campaign, replay)")
+        )
     cls = tracker_class(design.name)
     if not inject and hide:
         made: Design = cls(scene)

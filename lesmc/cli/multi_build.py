@@ -1,0 +1,122 @@
+"""``lesmc build SCENE --design sort|gnn -o MODEL.npz``: the model of a multi-target design,
+unfolded for one attack window (``--window``, or ``--spec``'s property: its window, end,
+``within R`` and ``allow``) and written as a ``lesmc-multi-npz`` file
+(lesmc/model/multi_format.py; docs/lts-format.md, "Multi-target models"), which
+``lesmc check MODEL SPEC`` and ``lesmc export MODEL --format drn|prism`` read.
+"""
+
+from __future__ import annotations
+
+import time
+from typing import Any
+
+from lesmc.cli.documents import emit, file_facts, file_sha256, given, run_provenance, say
+from lesmc.common.errors import Location, UsageError, escape_control, source_line
+from lesmc.engines.multi import BuildKey
+from lesmc.language.actions import DEFAULT as DEFAULT_ACTIONS
+from lesmc.model.lts_binary import is_binary
+from lesmc.scene import Scene
+
+
+def build_multi_model(
+    sc: Scene,
+    scene: str,
+    window: tuple[int, int] | None,
+    end: int | None,
+    spec_path: str | None,
+    prop: str | None,
+    output: str,
+    max_states: int | None,
+    as_json: bool,
+    started: float,
+) -> None:
+    """Build and write the model of ``sc``'s multi-target design (``lesmc build``'s
+    arguments); the options its unfolding does not read are refused."""
+    from lesmc.model.multi_format import save_multi
+    from lesmc.pipeline.multi import build_for
+
+    ignored = [f"--{n.replace('_', '-')}" for n in ("timeout", "max_memory") if given(n)]
+    if ignored:
+        raise UsageError(
+            f"{', '.join(ignored)} with a multi-target design: not supported yet (its "
+            "unfolding is bounded by --max-states)"
+        )
+    if not is_binary(output):
+        raise UsageError(
+            f"-o {escape_control(output)}: a multi-target model is written in the binary form "
+            "only (-o NAME.npz); its JSON .lts form is not supported yet"
+        )
+    key = _key(sc, window, end, spec_path, prop)
+    model = build_for(sc, scene, key, max_states)
+    unfolded = time.monotonic()
+    save_multi(model, output)
+    l, u, last = key[0], key[1], key[2]
+    say(
+        f"wrote {escape_control(output)}: {model.n_states} states, {model.n_transitions} "
+        f"transitions, steps 0..{last}, design {model.meta['design']}, window {l}..{u}",
+        as_json,
+    )
+    if as_json:
+        doc: dict[str, Any] = {
+            "format": "lesmc-build",
+            "version": 1,
+            "provenance": run_provenance(),
+            "scene": scene,
+            "model": file_facts(output),
+            "model_sha256": file_sha256(output),
+            "states": model.n_states,
+            "transitions": model.n_transitions,
+            "end": model.end,
+            "window": [l, u],
+            "design": model.meta["design"],
+            "target": {
+                "step": sc.target.step,
+                "x": float(sc.target.start[0]),
+                "y": float(sc.target.start[1]),
+            },
+            "seconds": {
+                "unfold": unfolded - started,
+                "write": time.monotonic() - unfolded,
+                "total": time.monotonic() - started,
+            },
+        }
+        emit(doc)
+
+
+def _key(
+    sc: Scene,
+    window: tuple[int, int] | None,
+    end: int | None,
+    spec_path: str | None,
+    prop: str | None,
+) -> BuildKey:
+    """What the model is unfolded for: ``--spec``'s property (``--window`` and ``--end``,
+    when given too, must agree with it), else ``--window`` and ``--end`` with every
+    detection attackable and the attacker hiding."""
+    from lesmc.api import load_spec
+    from lesmc.pipeline.multi import property_key
+
+    last = len(sc.frames) - 1
+    if spec_path is None:
+        if prop is not None:
+            raise UsageError("--property names a property of --spec: give --spec FILE")
+        if window is None:
+            raise UsageError("give --window L..U, or --spec FILE for its property's window")
+        return (window[0], window[1], last if end is None else end, None, DEFAULT_ACTIONS)
+    spec = load_spec(spec_path)
+    key = property_key(sc, spec, prop)
+    for flag, got, own in (("--window", window, key[:2]), ("--end", end, key[2])):
+        if got is not None and got != own:
+            name = prop or spec.properties[0].name
+            p = next(q for q in spec.properties if q.name == name)
+            pos = p.clause_pos.get("window", p.pos)
+            raise UsageError(
+                f"{flag} {_text(got)} contradicts property '{name}', which needs "
+                f"{_text(own)}: leave {flag} out (the property's is used)",
+                Location(spec.path, pos.line, pos.column, source_line(spec.text, pos.line)),
+            )
+    return key
+
+
+def _text(v: Any) -> str:
+    return f"{v[0]}..{v[1]}" if isinstance(v, tuple) else str(v)
