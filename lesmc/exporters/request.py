@@ -10,13 +10,15 @@ from __future__ import annotations
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import TYPE_CHECKING, Protocol, TypeVar
+from typing import TYPE_CHECKING
 
-from lesmc.common.errors import UsageError
+from lesmc.language.properties import chosen_property
 
 if TYPE_CHECKING:
     from lesmc.language.properties import SpecFile
     from lesmc.model.arrays import ArrayModel
+
+__all__ = ["DOT_MAX_NODES", "MDP_MAX_PREFIXES", "Request", "Writer", "chosen_property"]
 
 #: The most states a DOT file may have by default: Graphviz lays out a few thousand readably.
 DOT_MAX_NODES = 5000
@@ -38,26 +40,3 @@ class Request:
 
 #: A writer: writes the model to the path, returns facts for ``lesmc export --json``.
 Writer = Callable[["ArrayModel", "str | Path", Request], dict[str, object]]
-
-
-class Named(Protocol):
-    """A property, bound or not: anything with a name."""
-
-    @property
-    def name(self) -> str: ...
-
-
-P = TypeVar("P", bound=Named)
-
-
-def chosen_property(bound: Sequence[P], spec_path: str, prop: str | None) -> P:
-    """The property a property-stating format exports: the one called ``prop`` among
-    ``bound`` (the properties of ``spec_path``), or the only one."""
-    if prop is not None:
-        bound = [b for b in bound if b.name == prop]
-        if not bound:
-            raise UsageError(f"no property '{prop}' in {spec_path}")
-    elif len(bound) > 1:
-        names = ", ".join(b.name for b in bound)
-        raise UsageError(f"{spec_path} has several properties ({names}): choose with --property")
-    return bound[0]

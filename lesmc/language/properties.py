@@ -8,8 +8,11 @@ optimum with a threshold (section 4: holds iff optimum > threshold).
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass, field, replace
-from typing import Literal
+from typing import Literal, Protocol, TypeVar
+
+from lesmc.common.errors import UsageError
 
 #: A step reference in a spec: a number, or None for ``end``.
 StepRef = int | None
@@ -244,3 +247,27 @@ def _step_text(ref: StepRef) -> str:
 
 def _num(x: float) -> str:
     return f"{x:g}"
+
+
+class Named(Protocol):
+    """A property, bound or not: anything with a name."""
+
+    @property
+    def name(self) -> str: ...
+
+
+P = TypeVar("P", bound=Named)
+
+
+def chosen_property(bound: Sequence[P], spec_path: str, prop: str | None) -> P:
+    """The property a verb acts on (an export's, ``lesmc build --spec``'s): the one called
+    ``prop`` among ``bound`` (the properties of ``spec_path``, bound or not), or the only
+    one."""
+    if prop is not None:
+        bound = [b for b in bound if b.name == prop]
+        if not bound:
+            raise UsageError(f"no property '{prop}' in {spec_path}")
+    elif len(bound) > 1:
+        names = ", ".join(b.name for b in bound)
+        raise UsageError(f"{spec_path} has several properties ({names}): choose with --property")
+    return bound[0]

@@ -148,7 +148,7 @@ def build_for(scene: Scene, path: str, key: BuildKey, max_states: int | None = N
 def property_key(scene: Scene, spec: SpecFile, name: str | None) -> BuildKey:
     """What the model of ``scene`` is unfolded for to check property ``name`` of ``spec``
     (None: its only property): ``lesmc build --spec``."""
-    from lesmc.exporters.request import chosen_property
+    from lesmc.language.properties import chosen_property
 
     bound = [bind_multi(spec, p, len(scene.frames) - 1) for p in spec.properties]
     return build_key(chosen_property(bound, spec.path, name))

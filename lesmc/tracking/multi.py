@@ -10,8 +10,9 @@ missed too long. Step 0 is the scene's first frame: every object is tracked from
 
 ``lesmc track`` runs it unattacked; ``lesmc check`` unfolds its attacked runs
 (lesmc/unfold/multi.py) for the identity and ``dist`` measures, as does
-``lesmc.check`` (lesmc/pipeline/multi.py). ``build``, ``export`` and ``verify`` refuse a
-multi-target design so far (lesmc/designs/registry.py ``not_yet``).
+``lesmc.check`` (lesmc/pipeline/multi.py); ``lesmc build`` writes that model and
+``lesmc export --format drn|prism`` exports it; ``verify`` refuses a multi-target design
+so far (lesmc/designs/registry.py ``not_yet``).
 """
 
 from __future__ import annotations
