@@ -330,18 +330,7 @@ def check(
     names = (only,) if isinstance(only, str) else _items(only, "only")
     _need(all(isinstance(n, str) for n in names), "only holds property names", only)
     if isinstance(src, MultiModel):
-        from lesmc.pipeline.multi import check_multi_model
-
-        _need(engine == engines.DEFAULT, "engine: a multi-target model has one search", engine)
-        _need(timeout is None, "timeout: a multi-target model's search has none", timeout)
-        _need(payoffs == payoff_modes.DEFAULT, "payoffs: a model's are built in", payoffs)
-        _need(
-            max_states == DEFAULT_MAX_STATES,
-            "max_states: a built multi-target model is searched whole",
-            max_states,
-        )
-        _need(not any(s.faults for s in spec_list), "specs: faults need a scene", spec_list)
-        return check_multi_model(src, spec_list, names)
+        return _check_multi_model(src, spec_list, names, engine, payoffs, timeout, max_states)
     if isinstance(src, Scene) and _multi(src, chosen):
         where = "<scene>" if isinstance(source, Scene) else _path(source, "source")
         return _check_multi(
@@ -359,6 +348,31 @@ def check(
         only=names,
     )
     return run(job).results
+
+
+def _check_multi_model(
+    model: MultiModel,
+    specs: tuple[SpecFile, ...],
+    only: tuple[str, ...],
+    engine: str,
+    payoffs: str,
+    timeout: float | None,
+    max_states: int | None,
+) -> list[MultiCheckResult]:
+    """:func:`check` on a built multi-target model (``lesmc check MODEL.npz``): the
+    arguments its search does not read are refused, as the command line refuses them."""
+    from lesmc.pipeline.multi import check_multi_model
+
+    _need(engine == engines.DEFAULT, "engine: a multi-target model has one search", engine)
+    _need(timeout is None, "timeout: a multi-target model's search has none", timeout)
+    _need(payoffs == payoff_modes.DEFAULT, "payoffs: a model's are built in", payoffs)
+    _need(
+        max_states == DEFAULT_MAX_STATES,
+        "max_states: a built multi-target model is searched whole",
+        max_states,
+    )
+    _need(not any(s.faults for s in specs), "specs: faults need a scene", [s.path for s in specs])
+    return check_multi_model(model, specs, only)
 
 
 def _multi(scene: Scene, designs: tuple[str, ...]) -> bool:

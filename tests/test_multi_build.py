@@ -16,7 +16,7 @@ import pytest
 from cli_run import lesmc
 
 import lesmc as api
-from lesmc.common.errors import ModelError, UsageError
+from lesmc.common.errors import LesmcError, ModelError, UsageError
 from lesmc.exporters import formats
 from lesmc.exporters.request import Request
 from lesmc.language.parser import parse_spec
@@ -244,3 +244,44 @@ def test_window_and_spec_must_agree(tmp_path: Path) -> None:
     _clean(r)
     assert r.returncode == 2 and f"{sp}:8:" in r.stderr, r.stderr
     assert not (tmp_path / "m.npz").exists()
+
+
+INJECT = """property sw {{
+  attack window {l}..{u} allow hide, inject
+  minimize payoff
+  subject to switches(0..end) > 0
+  holds if optimum > 3
+}}
+property near {{
+  attack window {l}..{u} within 40
+  minimize count
+  subject to lost(0..end) > 0
+  holds if optimum > 1
+}}
+"""
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_models_of_injection_and_radius_round_trip(tmp_path: Path, seed: int) -> None:
+    """A model built for ``allow hide, inject`` (injected candidates among its names) and
+    one for ``within 40`` check from their files as their scene does, refuse each other's
+    property, and (inject) export what Storm solves to lesmc's optimum."""
+    test_inject = pytest.importorskip("test_inject")
+    frames, pay, cands, cpay, l, u = test_inject._case(seed)
+    doc = test_inject._doc(frames, pay, cands, cpay)
+    scene, sp = _write(tmp_path, doc, INJECT.format(l=l, u=u))
+    spec = api.load_spec(sp)
+    want = {r.property: r.to_dict() for r in api.check(scene, spec)}
+    for name, other in (("sw", "near"), ("near", "sw")):
+        path = tmp_path / f"{name}.npz"
+        api.save_model(api.build(scene, None, spec=spec, property=name), path)
+        model = api.load_model(path)
+        assert isinstance(model, MultiModel)
+        assert [r.to_dict() for r in api.check(model, spec, only=name)] == [want[name]]
+        with pytest.raises(LesmcError, match="built for"):
+            api.check(model, spec, only=other)
+    pytest.importorskip("stormpy")
+    out = tmp_path / "sw.drn"
+    api.export(tmp_path / "sw.npz", out, format="drn", spec=spec, property="sw")
+    opt = want["sw"]["optimum"]
+    assert _storm(out, "drn") == (math.inf if opt is None else Fraction(opt))

@@ -99,8 +99,8 @@ def build_cmd(
     outside it, the unattacked one. A multi-target design (sort, gnn) starts at
     the scene's first frame and is written as -o MODEL.npz (format
     lesmc-multi-npz, docs/lts-format.md), for --window or --spec's property.
-    Exit status: 0 written, 2 bad input,
-    3 a budget ran out (nothing written), 4 internal error, 130 interrupted.
+    Exit status: 0 written, 2 bad input, 3 a budget ran out (nothing written),
+    4 internal error, 130 interrupted.
     """
     budget = budget_from(timeout, max_states, max_memory)
     inputs = {"SCENE": scene, "--tracker": tracker_file, "--spec": spec_path}
@@ -116,15 +116,8 @@ def build_cmd(
         from lesmc.cli.multi_build import build_multi_model
 
         args = (window, end, spec_path, prop, output, max_states, as_json, budget.started)
-        build_multi_model(sc, scene, *args)
-        return
-    if spec_path is not None or prop is not None:
-        raise UsageError(
-            "--spec and --property choose what a multi-target design (sort, gnn) is built "
-            f"for; design {sc.tracker.design} is built for --window L..U"
-        )
-    if window is None:
-        raise UsageError("--window L..U is required: the attack window the model is built for")
+        return build_multi_model(sc, scene, *args)
+    window = _single_window(sc, window, spec_path, prop)
     loaded = time.monotonic()
     stop_if_spent(budget, None, "loading the scene")
     with Reporter("build") as rep, rep.bar("building", end or max_end(sc)) as bar:
@@ -142,7 +135,37 @@ def build_cmd(
     stop_if_spent(budget, model, "unfolding")
     unfolded = time.monotonic()
     write_model(model, output, budget)
-    written = time.monotonic()
+    times = (budget.started, loaded, unfolded, time.monotonic())
+    _say_built(scene, output, model, sc, window, times, as_json)
+
+
+def _single_window(
+    sc: Scene, window: tuple[int, int] | None, spec_path: str | None, prop: str | None
+) -> tuple[int, int]:
+    """The window a single-target model is built for: ``--window``, required; ``--spec``
+    and ``--property`` are a multi-target design's."""
+    if spec_path is not None or prop is not None:
+        raise UsageError(
+            "--spec and --property choose what a multi-target design (sort, gnn) is built "
+            f"for; design {sc.tracker.design} is built for --window L..U"
+        )
+    if window is None:
+        raise UsageError("--window L..U is required: the attack window the model is built for")
+    return window
+
+
+def _say_built(
+    scene: str,
+    output: str,
+    model: ArrayModel,
+    sc: Scene,
+    window: tuple[int, int],
+    times: tuple[float, float, float, float],
+    as_json: bool,
+) -> None:
+    """What was written, for a human; with ``as_json`` the lesmc-build document too
+    (``times``: started, loaded, unfolded, written)."""
+    started, loaded, unfolded, written = times
     say(
         f"wrote {escape_control(output)}: {model.n_states} states, "
         f"{model.n_transitions} transitions, steps 0..{model.end}, "
@@ -151,10 +174,10 @@ def build_cmd(
     )
     if as_json:
         seconds = {
-            "load": loaded - budget.started,
+            "load": loaded - started,
             "unfold": unfolded - loaded,
             "write": written - unfolded,
-            "total": time.monotonic() - budget.started,
+            "total": time.monotonic() - started,
         }
         emit(_build_document(scene, output, model, sc, window, seconds))
 

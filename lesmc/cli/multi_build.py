@@ -15,6 +15,7 @@ from lesmc.common.errors import Location, UsageError, escape_control, source_lin
 from lesmc.engines.multi import BuildKey
 from lesmc.language.actions import DEFAULT as DEFAULT_ACTIONS
 from lesmc.model.lts_binary import is_binary
+from lesmc.model.multi import MultiModel
 from lesmc.scene import Scene
 
 
@@ -57,30 +58,43 @@ def build_multi_model(
         as_json,
     )
     if as_json:
-        doc: dict[str, Any] = {
-            "format": "lesmc-build",
-            "version": 1,
-            "provenance": run_provenance(),
-            "scene": scene,
-            "model": file_facts(output),
-            "model_sha256": file_sha256(output),
-            "states": model.n_states,
-            "transitions": model.n_transitions,
-            "end": model.end,
-            "window": [l, u],
-            "design": model.meta["design"],
-            "target": {
-                "step": sc.target.step,
-                "x": float(sc.target.start[0]),
-                "y": float(sc.target.start[1]),
-            },
-            "seconds": {
-                "unfold": unfolded - started,
-                "write": time.monotonic() - unfolded,
-                "total": time.monotonic() - started,
-            },
-        }
-        emit(doc)
+        emit(_document(sc, scene, output, model, key, (started, unfolded)))
+
+
+def _document(
+    sc: Scene,
+    scene: str,
+    output: str,
+    model: MultiModel,
+    key: BuildKey,
+    times: tuple[float, float],
+) -> dict[str, Any]:
+    """``lesmc build --json`` of a multi-target model (format lesmc-build; its sha256 is
+    the file's)."""
+    started, unfolded = times
+    return {
+        "format": "lesmc-build",
+        "version": 1,
+        "provenance": run_provenance(),
+        "scene": scene,
+        "model": file_facts(output),
+        "model_sha256": file_sha256(output),
+        "states": model.n_states,
+        "transitions": model.n_transitions,
+        "end": model.end,
+        "window": [key[0], key[1]],
+        "design": model.meta["design"],
+        "target": {
+            "step": sc.target.step,
+            "x": float(sc.target.start[0]),
+            "y": float(sc.target.start[1]),
+        },
+        "seconds": {
+            "unfold": unfolded - started,
+            "write": time.monotonic() - unfolded,
+            "total": time.monotonic() - started,
+        },
+    }
 
 
 def _key(
