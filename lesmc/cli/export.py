@@ -53,7 +53,9 @@ def _limits() -> str:
 _HELP = f"""Write MODEL (a .lts or .npz, or a SCENE) for other tools.
 
 A SCENE is first built as lesmc build builds it, for the attack window of --window
-or, with --spec, of the property exported.
+or, with --spec, of the property exported. A multi-target model or scene (design
+sort, gnn; lesmc build --design sort -o MODEL.npz) is exported in the formats that
+take one: {formats.spelled(formats.where(lambda f: f.multi_writer is not None))}.
 
 \b
 {formats.help_table()}

@@ -2,7 +2,7 @@
 unfolded for one attack window (``--window``, or ``--spec``'s property: its window, end,
 ``within R`` and ``allow``) and written as a ``lesmc-multi-npz`` file
 (lesmc/model/multi_format.py; docs/lts-format.md, "Multi-target models"), which
-``lesmc check MODEL SPEC`` and ``lesmc export MODEL --format drn|prism`` read.
+``lesmc check MODEL SPEC`` and ``lesmc export MODEL`` (its MDP formats) read.
 """
 
 from __future__ import annotations
