@@ -5,12 +5,14 @@ computes (an independent solver) equal to lesmc's, and a damaged file is a locat
 
 from __future__ import annotations
 
+import hashlib
 import json
 import math
 from fractions import Fraction
 from pathlib import Path
 from typing import Any
 
+import jsonschema
 import numpy as np
 import pytest
 from cli_run import lesmc
@@ -22,6 +24,7 @@ from lesmc.exporters.request import Request
 from lesmc.language.parser import parse_spec
 from lesmc.model.lts_format import load_lts
 from lesmc.model.multi import MultiModel
+from lesmc.schemas import schema
 
 pytest.importorskip("sort_tracker")
 from test_multi_attack import _doc, _frames
@@ -85,9 +88,15 @@ def test_check_of_the_built_model_prints_what_the_scene_check_prints(
     doc, spec = _case(seed, design)
     scene, sp = _write(tmp_path, doc, spec)
     model = tmp_path / "m.npz"
-    r = lesmc("build", str(scene), "--spec", str(sp), "--property", "hijack", "-o", str(model))
+    r = lesmc(
+        "build", str(scene), "--spec", str(sp), "--property", "hijack", "-o", str(model), "--json"
+    )
     _clean(r)
     assert r.returncode == 0 and model.exists(), r.stderr
+    built = json.loads(r.stdout)
+    jsonschema.validate(built, schema("build"))
+    assert built["model_sha256"] == hashlib.sha256(model.read_bytes()).hexdigest()
+    assert built["design"] == design and built["window"] == list(api.load_model(model).window)
     on_model = lesmc("check", str(model), str(sp), "--json")
     on_scene = lesmc("check", str(scene), str(sp), "--json")
     _clean(on_model)

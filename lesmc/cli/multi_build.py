@@ -47,6 +47,7 @@ def build_multi_model(
             f"-o {escape_control(output)}: a multi-target model is written in the binary form "
             "only (-o NAME.npz); its JSON .lts form is not supported yet"
         )
+    loaded = time.monotonic()
     key = _key(sc, window, end, spec_path, prop)
     model = build_for(sc, scene, key, max_states)
     unfolded = time.monotonic()
@@ -58,7 +59,7 @@ def build_multi_model(
         as_json,
     )
     if as_json:
-        emit(_document(sc, scene, output, model, key, (started, unfolded)))
+        emit(_document(sc, scene, output, model, key, (started, loaded, unfolded)))
 
 
 def _document(
@@ -67,11 +68,11 @@ def _document(
     output: str,
     model: MultiModel,
     key: BuildKey,
-    times: tuple[float, float],
+    times: tuple[float, float, float],
 ) -> dict[str, Any]:
     """``lesmc build --json`` of a multi-target model (format lesmc-build; its sha256 is
-    the file's)."""
-    started, unfolded = times
+    the file's; ``times``: started, scene loaded, model unfolded)."""
+    started, loaded, unfolded = times
     return {
         "format": "lesmc-build",
         "version": 1,
@@ -90,7 +91,8 @@ def _document(
             "y": float(sc.target.start[1]),
         },
         "seconds": {
-            "unfold": unfolded - started,
+            "load": loaded - started,
+            "unfold": unfolded - loaded,
             "write": time.monotonic() - unfolded,
             "total": time.monotonic() - started,
         },
