@@ -323,14 +323,7 @@ def _header(blob: np.ndarray | None, path: str) -> dict[str, Any]:
     """The header's JSON, each field checked."""
     if blob is None or blob.dtype != np.uint8 or blob.ndim != 1:
         raise ModelError.many(path, [("header", "missing: not a lesmc binary model")])
-    try:
-        data = parse_json(blob.tobytes(), path, ModelError)
-    except ModelError as exc:  # located in the header's text, not in the file
-        where = exc.location
-        at = f" (line {where.line}, column {where.column})" if where and where.line else ""
-        raise ModelError.many(path, [("header", f"{exc.message}{at}")]) from None
-    if not isinstance(data, dict):
-        raise ModelError.many(path, [("header", "must be a JSON object")])
+    data = header_object(blob, path)
     if data.get("format") == MULTI_FORMAT:
         raise ModelError.many(
             path,
@@ -374,6 +367,21 @@ def _header(blob: np.ndarray | None, path: str) -> dict[str, Any]:
     pr.items.extend(meta_problems(data.get("meta"), "header.meta"))
     if pr.items:
         raise ModelError.many(path, pr.items)
+    return data
+
+
+def header_object(blob: np.ndarray, path: str) -> dict[str, Any]:
+    """The ``header`` array's UTF-8 JSON object (a bad one: a ModelError at ``header``,
+    with the line and column in the header's text); the multi-target models' reader
+    (lesmc/model/multi_format.py) reads its header with this too."""
+    try:
+        data = parse_json(blob.tobytes(), path, ModelError)
+    except ModelError as exc:  # located in the header's text, not in the file
+        where = exc.location
+        at = f" (line {where.line}, column {where.column})" if where and where.line else ""
+        raise ModelError.many(path, [("header", f"{exc.message}{at}")]) from None
+    if not isinstance(data, dict):
+        raise ModelError.many(path, [("header", "must be a JSON object")])
     return data
 
 

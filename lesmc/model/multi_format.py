@@ -22,12 +22,13 @@ import numpy as np
 
 from lesmc.common.errors import ModelError, Problems
 from lesmc.common.fields import MAX_STEP, header, is_int, show
-from lesmc.common.files import atomic_open, parse_json
+from lesmc.common.files import atomic_open
 from lesmc.model.arrays import ArrayModel
 from lesmc.model.identity import NONE
 from lesmc.model.lts_binary import (
     MULTI_FORMAT,
     check_present,
+    header_object,
     is_binary,
     lts_from_arrays,
     read_npz,
@@ -184,14 +185,7 @@ def _csr(rows: tuple[tuple[int, ...], ...]) -> tuple[np.ndarray, np.ndarray]:
 
 def _header(blob: np.ndarray, where: str) -> dict[str, Any]:
     """The header's JSON, each field checked (``header.FIELD`` in messages)."""
-    try:
-        data = parse_json(blob.tobytes(), where, ModelError)
-    except ModelError as exc:  # located in the header's text, not in the file
-        loc = exc.location
-        at = f" (line {loc.line}, column {loc.column})" if loc and loc.line else ""
-        raise ModelError.many(where, [("header", f"{exc.message}{at}")]) from None
-    if not isinstance(data, dict):
-        raise ModelError.many(where, [("header", "must be a JSON object")])
+    data = header_object(blob, where)
     pr = Problems()
     header(data, FORMAT, VERSION, pr)
     for key in sorted(set(data) ^ _HEADER_KEYS):
