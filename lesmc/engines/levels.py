@@ -42,6 +42,7 @@ import numpy as np
 
 from lesmc.common.budget import Budget, SearchBudget, resident_bytes
 from lesmc.engines import compiled
+from lesmc.engines.below import greedy_witness
 from lesmc.engines.bounds import Bounds, suffix_bounds
 from lesmc.engines.result import EngineOutcome, Stats
 from lesmc.engines.space import SearchSpace, Space
@@ -89,6 +90,9 @@ RATE_SAMPLE = 20_000
 VALUE_CELLS = 1 << 23
 #: ... and at most this many moves (one numpy call each)
 VALUE_MOVES = 4096
+#: θ* of a max objective by one backward pass over the states built (below.py) before any
+#: witness search; False: the label passes alone (tests compare both).
+STATE_WITNESS = True
 
 
 class _Stop(Exception):
@@ -892,7 +896,12 @@ def level_search(space: SearchSpace, limits: Budget | None = None) -> EngineOutc
     exact = stopped is None
     # phase 2: ρ*, the largest objective below the optimum
     witness, w_exact, w_value, w_upper = None, False, -math.inf, upper
-    if exact:
+    greedy = greedy_witness(space, upper) if exact and STATE_WITNESS else None
+    if greedy is not None:  # θ* of a max objective decided by the states built (below.py)
+        witness, w_value = greedy
+        w_upper, w_exact = w_value, True
+        stats.extra["witness_by_states"] = True
+    elif exact:
         witness, w_value, w_upper, stopped = _representative(space, bounds, budget, stats, upper)
         w_exact = stopped is None
     stats.extra["witness_states"] = budget.used - stats.extra["optimum_states"]
