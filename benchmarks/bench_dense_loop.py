@@ -40,6 +40,7 @@ from lesmc.language.parser import parse_spec
 from lesmc.pipeline.check import bind_scene
 from lesmc.unfold.unfold import lazy_model
 
+
 def _kernel():  # type: ignore[no-untyped-def]
     """The compiled DFS: (lowest violating objective below ``upper``, transitions)."""
     from numba import njit
