@@ -61,7 +61,8 @@ def best_below(space: SearchSpace, opt: float) -> np.ndarray:
     an upper bound on the largest objective contribution of any completion from q that
     stays below ``opt`` (−inf: none does), exact where finite."""
     assert space.obj_max
-    space.sync()
+    if isinstance(space, LazySpace):
+        space.sync()  # what another space sharing the model unfolded
     cm = space.cm
     n = int(cm.n_states)
     m = np.full(n, math.inf)
