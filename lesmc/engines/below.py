@@ -73,9 +73,10 @@ def best_below(space: SearchSpace, opt: float) -> np.ndarray:
         to = space.tails(ends)[0]
         m[ends] = np.where(to < opt, to, -math.inf)
     inner = np.flatnonzero(~leaf & _expanded(space)[:n])
+    inner = inner[np.argsort(steps[inner], kind="stable")]  # by step, then index
+    cuts = np.flatnonzero(np.diff(steps[inner])) + 1
     c_obj = np.asarray(space.c_obj)
-    for k in np.unique(steps[inner])[::-1].tolist():  # successors lie one step later
-        qs = inner[steps[inner] == k]
+    for qs in reversed(np.split(inner, cuts)):  # successors lie one step later
         owner, t = _moves(space, qs)
         best = np.full(qs.size, -math.inf)
         if t.size:  # owner ascends: one reduceat per step
