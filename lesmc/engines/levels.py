@@ -25,7 +25,8 @@ state (the largest below the optimum); a sum keeps distinct values, pruned by
 suffix bounds and the incumbent, and is seeded by a meet-in-the-middle dive
 against the suffix values of the last steps. When every contribution is a
 multiple of g, no objective lies strictly between opt − g and opt, which
-proves a witness at opt − g optimal at once.
+proves a witness at opt − g optimal at once. For a max objective one backward pass
+over the states built (below.py) decides θ* first, wherever those states suffice.
 
 Under a budget both phases stop with proven bounds (docs/engines.md, "anytime").
 """
