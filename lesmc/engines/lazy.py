@@ -160,6 +160,10 @@ class LazySpace(SpaceOps):
             self._tau_table.extend(kernel.tau(table[known:], self.bp.monitor_components))
         return self._tau_table.data
 
+    def allowed_mask(self) -> np.ndarray:
+        """Per transition built so far: the property allows it (window, monitor)."""
+        return self._mask.data
+
     def successors(self, q: int) -> np.ndarray:
         got = self._allowed.get(q)
         if got is None:

@@ -25,7 +25,8 @@ state (the largest below the optimum); a sum keeps distinct values, pruned by
 suffix bounds and the incumbent, and is seeded by a meet-in-the-middle dive
 against the suffix values of the last steps. When every contribution is a
 multiple of g, no objective lies strictly between opt − g and opt, which
-proves a witness at opt − g optimal at once.
+proves a witness at opt − g optimal at once. For a max objective one backward pass
+over the states built (below.py) decides θ* first, wherever those states suffice.
 
 Under a budget both phases stop with proven bounds (docs/engines.md, "anytime").
 """
@@ -42,6 +43,7 @@ import numpy as np
 
 from lesmc.common.budget import Budget, SearchBudget, resident_bytes
 from lesmc.engines import compiled
+from lesmc.engines.below import greedy_witness
 from lesmc.engines.bounds import Bounds, suffix_bounds
 from lesmc.engines.result import EngineOutcome, Stats
 from lesmc.engines.space import SearchSpace, Space
@@ -89,6 +91,9 @@ RATE_SAMPLE = 20_000
 VALUE_CELLS = 1 << 23
 #: ... and at most this many moves (one numpy call each)
 VALUE_MOVES = 4096
+#: θ* of a max objective by one backward pass over the states built (below.py) before any
+#: witness search; False: the label passes alone (tests compare both).
+STATE_WITNESS = True
 
 
 class _Stop(Exception):
@@ -892,7 +897,12 @@ def level_search(space: SearchSpace, limits: Budget | None = None) -> EngineOutc
     exact = stopped is None
     # phase 2: ρ*, the largest objective below the optimum
     witness, w_exact, w_value, w_upper = None, False, -math.inf, upper
-    if exact:
+    greedy = greedy_witness(space, upper) if exact and STATE_WITNESS else None
+    if greedy is not None:  # θ* of a max objective decided by the states built (below.py)
+        witness, w_value = greedy
+        w_upper, w_exact = w_value, True
+        stats.extra["witness_by_states"] = True
+    elif exact:
         witness, w_value, w_upper, stopped = _representative(space, bounds, budget, stats, upper)
         w_exact = stopped is None
     stats.extra["witness_states"] = budget.used - stats.extra["optimum_states"]
