@@ -84,6 +84,16 @@ if TYPE_CHECKING:
     "per detection on 2 idle cores (docs/performance.md).",
 )
 @click.option(
+    "--inject-within",
+    type=FiniteRange(min=0.0),
+    default=None,
+    metavar="PX",
+    help="With -o: injection candidates (scene format 3; issue 61): the candidates N_dr "
+    "rejects within PX of one of the frame's detections (at most 32 a frame, nearest "
+    "first), each priced by the attack towards 'vehicle' (what `allow hide, inject` in a "
+    "spec lets the attacker add; docs/cnn.md, \"Injection candidates\").",
+)
+@click.option(
     "--save-attacks",
     type=click.Path(file_okay=False),
     default=None,
@@ -147,6 +157,7 @@ def perceive_cmd(
     overshoot: float,
     max_iter: int,
     certify: bool,
+    inject_within: float | None,
     save_attacks: str | None,
     history: int,
     delta_bc: int,
@@ -177,7 +188,7 @@ def perceive_cmd(
         frames_dir, (nets_dir, detector_file, locator_file), not no_cnn, output is not None,
         target_text, truth, tracker_file, "pgd" if attack == "pgd" else "deepfool",
         "per-pixel" if payoff_norm == "per-pixel" else "l2", overshoot, max_iter,
-        certify, history, delta_bc, dt, radius, min_speed,
+        certify, history, delta_bc, dt, radius, min_speed, inject_within,
     )  # fmt: skip
     refuse_mismatched(req)
     _refuse_ignored(output, truth)
@@ -217,7 +228,7 @@ def _with_windows(req: PerceiveRequest, output: str | None, as_json: bool, start
 #: Options of the window pipeline (front end, N_dr and N_lp) that a detector file replaces.
 _WINDOW_ONLY = (
     "nets_dir", "locator_file", "no_cnn", "history", "delta_bc", "truth",
-    "payoff_norm", "as_json",
+    "payoff_norm", "as_json", "inject_within",
 )  # fmt: skip
 
 
@@ -289,7 +300,7 @@ def _write_scene(
     say(
         f"wrote {escape_control(output)}: {len(scene.frames)} frames (steps "
         f"{scene.frames[0].step}..{scene.last_step}), {n} detections, "
-        f"{_priced(scene, unattackable)}; {target_note}",
+        f"{_priced(scene, unattackable)}{_candidates(scene)}; {target_note}",
         as_json,
     )
     target = None
@@ -302,6 +313,12 @@ def _write_scene(
         "unattackable": unattackable,
         "target": target,
     }
+
+
+def _candidates(scene: Scene | Footage) -> str:
+    """How many injection candidates the scene has (none: nothing said)."""
+    n = sum(len(f.candidates) for f in scene.frames)
+    return f", {n} injection candidates" if n else ""
 
 
 def _priced(scene: Scene | Footage, unattackable: int) -> str:

@@ -54,6 +54,9 @@ class PerceiveRequest:
     dt: float | None = None  #: seconds between frames [from the truth, else 1/FPS]
     radius: float = 4.0  #: match distance to the truth (pixels)
     min_speed: float = 1.5  #: slower true vehicles (m/s) are don't care
+    #: injection candidates (issue 61): the candidates N_dr rejects within this many px of
+    #: a detection, priced towards "vehicle" (None: none; docs/cnn.md, "Injection candidates")
+    inject_within: float | None = None
 
 
 @dataclass(frozen=True)
@@ -106,6 +109,12 @@ def refuse_mismatched(req: PerceiveRequest) -> None:
         raise UsageError("--target needs -o/--output: it is the target of the scene written")
     if req.certify and not req.scene:
         raise UsageError("--certify needs -o/--output: the bounds go into the scene")
+    if req.inject_within is not None:
+        w = req.inject_within
+        if isinstance(w, bool) or not isinstance(w, (int, float)) or not 0 <= w < math.inf:
+            raise UsageError(f"inject_within must be a number of px >= 0, got {w!r}")
+        if not req.scene:
+            raise UsageError("--inject-within needs -o/--output: the candidates go into the scene")
     if not req.cnn and any(req.nets):
         raise UsageError(
             "--nets, --detector and --locator give the CNNs that --no-cnn leaves out: give one "
@@ -153,7 +162,10 @@ def perceive_frames(
     nets = load_nets(*req.nets) if req.cnn else None
     att = attack_config(req) if req.scene else None
     cert = CertifyConfig() if req.certify else None
-    opts = PerceiveOptions(req.history, req.delta_bc, nets, att, cert, req.radius, req.min_speed)
+    opts = PerceiveOptions(
+        req.history, req.delta_bc, nets, att, cert, req.radius, req.min_speed,
+        inject_within=req.inject_within if req.scene else None,
+    )  # fmt: skip
     run = perceive(inputs.frames, opts, inputs.truth, on_frame)
     if nets is None or att is None:
         return Perceived(run, nets, None, "")
@@ -302,7 +314,21 @@ def scene_meta(
     meta |= networks_meta(req.nets)
     if cert is not None:
         meta["certify"] = certify_meta(cert)
+    if req.inject_within is not None:
+        meta["candidates"] = candidates_meta(req.inject_within)
     return meta
+
+
+def candidates_meta(within: float) -> dict[str, Any]:
+    """Where a perceived scene's injection candidates came from, for its ``meta.candidates``."""
+    from lesmc.perception.detector import DetectorConfig
+
+    return {
+        "source": "candidates of Q_bc that N_dr rejects",
+        "within_px": within,
+        "cap_per_frame": DetectorConfig().inject_cap,
+        "payoff": "the attack towards 'vehicle' on the candidate's N_dr window",
+    }
 
 
 def certify_meta(cert: CertifyConfig) -> dict[str, Any]:
