@@ -91,7 +91,7 @@ if TYPE_CHECKING:
     help="With -o: injection candidates (scene format 3; issue 61): the candidates N_dr "
     "rejects within PX of one of the frame's detections (at most 32 a frame, nearest "
     "first), each priced by the attack towards 'vehicle' (what `allow hide, inject` in a "
-    "spec lets the attacker add; docs/cnn.md, \"Injection candidates\").",
+    'spec lets the attacker add; docs/cnn.md, "Injection candidates").',
 )
 @click.option(
     "--save-attacks",

@@ -9,7 +9,8 @@ blob's N_dr window is what an attacker perturbs to hide it (see attacks.py).
 
 Injection candidates (issue 61): with ``DetectorConfig.inject_within`` R, the
 candidates of Q_bc that N_dr rejects and whose centroid lies within R px of one of
-the frame's detections, nearest first, at most ``inject_cap`` a frame, are kept
+the frame's detections, nearest first, at most ``inject_cap`` a frame, and that
+would be output directly once accepted (not crowded: :func:`near_rejected`), are kept
 with their N_dr windows: where an attacker can make a vehicle appear by perturbing
 that window until N_dr accepts it (priced in run.py, ``towards="inject"``).
 """
@@ -23,6 +24,7 @@ import numpy as np
 import torch
 from scipy.spatial import cKDTree
 
+from lesmc.perception.blobs import Blobs
 from lesmc.perception.cnn import DR_SIZE, LP_SIZE, LP_STRIDE, Nets
 from lesmc.perception.frontend import FrontEnd, FrontEndConfig, FrontEndOutput
 from lesmc.perception.neurons import UnitMaxima
@@ -144,15 +146,28 @@ def crowded_blobs(cents: np.ndarray, boxes: np.ndarray, big_px: int, close_px: f
 
 
 def near_rejected(
-    cents: np.ndarray, rejected: np.ndarray, positions: np.ndarray, within: float, cap: int
+    cand: Blobs,
+    accepted: np.ndarray,
+    rejected: np.ndarray,
+    positions: np.ndarray,
+    cfg: DetectorConfig,
 ) -> np.ndarray:
-    """The ``rejected`` rows (of Q_bc, centroids ``cents``) within ``within`` px of one of
+    """The ``rejected`` rows of Q_bc (``cand``) within ``cfg.inject_within`` px of one of
     ``positions`` (the frame's detections), nearest first (ties: the lower row), at most
-    ``cap``: the injection candidates a frame offers."""
-    if not len(rejected) or not len(positions):
+    ``cfg.inject_cap``: the injection candidates a frame offers. A candidate that, once
+    accepted, would go to N_lp (:func:`crowded_blobs`: larger than ``big_px``, or within
+    ``close_px`` of an accepted blob, which would then go to N_lp too) is left out: where
+    its detection would appear is N_lp's to say, not its centroid."""
+    if not len(rejected) or not len(positions) or cfg.inject_within is None:
         return np.zeros(0, np.int64)
-    d, _ = cKDTree(positions).query(cents[rejected])
-    near = np.flatnonzero(d <= within)
+    big = (cand.box[rejected, 2] > cfg.big_px) | (cand.box[rejected, 3] > cfg.big_px)
+    close = np.zeros(len(rejected), bool)
+    if len(accepted):
+        d_acc, _ = cKDTree(cand.centroid[accepted]).query(cand.centroid[rejected])
+        close = d_acc < cfg.close_px
+    d, _ = cKDTree(positions).query(cand.centroid[rejected])
+    near = np.flatnonzero((d <= cfg.inject_within) & ~big & ~close)
+    cap = cfg.inject_cap
     order = near[np.lexsort((rejected[near], d[near]))][:cap]
     out: np.ndarray = rejected[order].astype(np.int64)
     return out
@@ -207,9 +222,7 @@ class Detector:
         rejected = np.zeros(0, np.int64)
         if cfg.inject_within is not None:
             rows_out = np.flatnonzero(probability <= nets.settings.delta_dr)
-            rejected = near_rejected(
-                cand.centroid, rows_out, positions, cfg.inject_within, cfg.inject_cap
-            )
+            rejected = near_rejected(cand, keep, rows_out, positions, cfg)
         return FrameDetections(
             index=out.index,
             positions=positions,

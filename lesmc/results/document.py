@@ -90,7 +90,8 @@ def provenance(
 
 
 def property_json(bp: BoundProperty, components: tuple[str, ...]) -> dict[str, Any]:
-    """A bound property as data: its window, measures, comparisons and monitor."""
+    """A bound property as data: its window, measures, comparisons and monitor; the
+    attacker's actions when not hide only (``allow hide, inject``: the replay reads them)."""
     c = bp.constraint
     monitor = None
     if bp.monitor_components is not None:
@@ -120,7 +121,7 @@ def property_json(bp: BoundProperty, components: tuple[str, ...]) -> dict[str, A
         "components": [components[i] for i in bp.components],
         "norm": num(bp.norm),
         "monitor": monitor,
-    }
+    } | ({} if bp.prop.actions == ("hide",) else {"actions": list(bp.prop.actions)})
 
 
 def _path_no(cm: ArrayModel, number: dict[tuple[int, ...], int], p: PathInfo | None) -> int | None:
