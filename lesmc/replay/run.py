@@ -198,6 +198,11 @@ def _case(run: RunDoc, i: int, j: int, cex_no: int) -> Case:
     opt = res.optimum
     prop = next((p for p in run.properties if p.name == res.property), None)
     actions = prop.actions if prop is not None else ("hide",)
+    if "inject" in actions and run.design != "single":
+        raise UsageError(
+            f"the counterexample of {res.property} on {run.label} injects detections: its "
+            "replay is built for --design single only"
+        )
     return Case(
         run=i,
         result=j,

@@ -349,7 +349,11 @@ def run_json(
         "paths": [_track_json(cm, i + 1, t, win, judged[i]) for i, t in enumerate(listed)],
         "states": _states_json(cm, listed, to_ref, loc),
         "hidden": {
-            bp.name: _hidden(cm, listed[n - 1], run.scene, (bp.l, bp.u))
+            # under inject the ranks are ordered by cost: the lower ranks are cheaper
+            # outcomes, not the detections hidden (the replay derives those itself)
+            bp.name: []
+            if "inject" in bp.prop.actions
+            else _hidden(cm, listed[n - 1], run.scene, (bp.l, bp.u))
             for bp, n in zip(run.bound, cex, strict=True)
             if n is not None
         },
