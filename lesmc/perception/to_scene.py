@@ -48,7 +48,8 @@ def frames_of(
             )
             for j, (x, y) in enumerate(fd.positions)
         )
-        cands = () if injs[i] is None else candidates_of(fd, injs[i])
+        prices = injs[i]
+        cands = () if prices is None else candidates_of(fd, prices)
         out.append(Frame(fd.index, ds, to_next, candidates=cands))
     return tuple(out)
 

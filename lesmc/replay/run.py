@@ -470,104 +470,145 @@ def inject_frame(
     case: Case,
     step: int,
     cfg: AttackConfig,
+    repair: bool = True,
 ) -> FrameAttack:
     """Step ``step`` of an ``allow hide, inject`` counterexample (``case``) on its clean
     frame: the cheapest attack that makes the tracker take the path's measurement there
     (hide the detections before it; inject it if it is a candidate), each window attacked
-    alone, all perturbations applied together, the frame detected again."""
-    from lesmc.perception.attacks import payoffs
+    alone, all perturbations applied together, the frame detected again (with ``repair``,
+    detections the model does not have hidden too, as :func:`attack_frame` does)."""
     from lesmc.perception.cnn import DR_SIZE
-    from lesmc.perception.to_scene import candidate_row
-    from lesmc.tracking.kalman import matrices, measure
-    from lesmc.tracking.parts.attacker import forcing_update
-    from lesmc.tracking.single import carried_prediction
 
     m_nets = nets.settings.m
     fa = FrameAttack(fd.index, step, fd)
     taken = case.obs[step - 1]
     if taken is None:  # a skip: not derived (the comparison says if the tracker skips too)
-        fa.detections = fd
         return fa
-    cfg_t = tracker_from_dict(case.tracker, "results: replay_inputs.tracker")
-    km = matrices(cfg_t, case.dt)
+    hidden, row = _forced(case, step, fd, out, taken)
+    idx = _hidden_indices(fd, hidden)
+    rounds: list[Round] = []
+    if idx:
+        rounds.append(_hide_round(nets, det, out, fd, fa, hidden, idx, cfg))
+    if row is not None:
+        rounds.append(_inject_round(nets, out, fa, step, taken, row, cfg))
+    release()
+    if not rounds:
+        return fa
+    base = stack(out.frame, out.aligned.frames, m_nets)
+    after, kept = _redetect(det, out, _apply(base, rounds, DR_SIZE), m_nets)
+    _diagnose(fa, fd, after, idx)
+    wanted = None if row is None else out.candidates.centroid[[row]]
+    if repair:
+        after = _repair(nets, det, out, fd, fa, idx, rounds, after, kept, cfg, wanted)
+    if wanted is not None:  # the injected detection is wanted: not an extra one
+        if _match(wanted, after.positions, DET_TOL_PX)[0] < 0:
+            fa.not_injected.append(taken)
+        cx, cy = float(wanted[0, 0]), float(wanted[0, 1])
+        fa.extra = [e for e in fa.extra if math.hypot(e[0] - cx, e[1] - cy) > DET_TOL_PX]
+    fa.detections = after
+    return fa
+
+
+def _forced(
+    case: Case, step: int, fd: FrameDetections, out: FrontEndOutput, taken: str
+) -> tuple[list[Hidden], int | None]:
+    """The detections to hide and the candidate (its row of Q_bc; None: none) to inject
+    so that the tracker takes ``taken`` at ``step``: the cheapest way
+    (tracking/parts/attacker.py ``forcing_update``), measured from the tracker's
+    prediction out of the model's state at the step before."""
+    from lesmc.perception.to_scene import candidate_row
+    from lesmc.tracking.kalman import matrices, measure
+    from lesmc.tracking.parts.attacker import forcing_update
+    from lesmc.tracking.single import carried_prediction
+
+    km = matrices(tracker_from_dict(case.tracker, "results: replay_inputs.tracker"), case.dt)
     at = measure(km, carried_prediction(km, case.states[step - 1][None], fd.from_prev))[0]
     det_dist = np.linalg.norm(fd.positions - at, axis=1)
     row = candidate_row(taken)
     cands = out.candidates.centroid
-    if row is not None:
-        if not row < len(cands):
-            raise InputError(
-                f"frame {fd.index} has {len(cands)} candidates, not {taken}: the frames are "
-                "not those the results were made from",
-                Location("--frames"),
-            )
+    if row is None:
+        hid, _ = forcing_update(det_dist, np.zeros(0), int(taken.split(":")[1]), False)
+    elif row < len(cands):
         case.known[taken] = (float(cands[row, 0]), float(cands[row, 1]))
         hid, _ = forcing_update(det_dist, np.linalg.norm(cands[[row]] - at, axis=1), 0, True)
     else:
-        j = int(taken.split(":")[1])
-        hid, _ = forcing_update(det_dist, np.zeros(0), j, False)
-    hidden = [Hidden(step, fd.index, f"{fd.index}:{int(j)}", math.nan, math.nan, math.nan)
-              for j in hid]  # fmt: skip
-    idx = _hidden_indices(fd, hidden)
-    rounds: list[Round] = []
-    if idx:
-        blobs_used = sorted({int(fd.source[j]) for j in idx})
-        res = payoffs(nets.dr, fd.windows[blobs_used], nets.settings.delta_dr, cfg)
-        accepted = fd.accepted if fd.accepted is not None else _accepted(det, out)
-        centres = cands[accepted[blobs_used]]
-        by_blob = dict(zip(blobs_used, range(len(blobs_used)), strict=True))
-        for h, j in zip(hidden, idx, strict=True):
-            r = by_blob[int(fd.source[j])]
-            rec, ok = float(res.payoff[r]), bool(res.flipped[r])
-            fa.cost += rec
-            one = _perturbation(h, j, fd, centres[r], rec, ok, res.perturbation[r])
-            # the results record no per-detection payoff under inject: the path's cost is
-            # checked as a whole (_replay_case)
-            one["payoff"] = one["payoff_recomputed"]
-            fa.perturbations.append(one)
-        rounds.append((centres, res.perturbation))
-    if row is not None:
-        frames = stack(out.frame, out.aligned.frames, m_nets)
-        centre = cands[[row]]
-        inj = payoffs(nets.dr, cut(frames, centre, DR_SIZE), nets.settings.delta_dr, cfg, "inject")
-        rec, ok = float(inj.payoff[0]), bool(inj.flipped[0])
-        fa.cost += rec
-        fa.injected.append(taken)
-        fa.perturbations.append(
-            {
-                "step": step,
-                "frame": fd.index,
-                "obs": taken,
-                "x": float(centre[0, 0]),
-                "y": float(centre[0, 1]),
-                "window_origin": [int(v) for v in np.rint(centre[0]).astype(int) - DR_SIZE // 2],
-                "payoff": rec if math.isfinite(rec) else "inf",
-                "payoff_recomputed": rec if math.isfinite(rec) else "inf",
-                "flipped_alone": ok,
-                "action": "inject",
-                "delta": np.round(inj.perturbation[0], PERTURBATION_DIGITS).tolist(),
-            }
+        raise InputError(
+            f"frame {fd.index} has {len(cands)} candidates, not {taken}: the frames are "
+            "not those the results were made from",
+            Location("--frames"),
         )
-        rounds.append((centre, inj.perturbation))
-    release()
-    if not rounds:
-        fa.detections = fd
-        return fa
-    after, _ = _redetect(det, out, _apply(stack(out.frame, out.aligned.frames, m_nets), rounds,
-                                          DR_SIZE), m_nets)  # fmt: skip
-    _diagnose(fa, fd, after, idx)
-    if row is not None:
-        got = _match(cands[[row]], after.positions, DET_TOL_PX)
-        if got[0] < 0:
-            fa.not_injected.append(taken)
-        # the injected detection is wanted: not an extra one
-        fa.extra = [
-            e
-            for e in fa.extra
-            if math.hypot(e[0] - cands[row, 0], e[1] - cands[row, 1]) > DET_TOL_PX
-        ]
-    fa.detections = after
-    return fa
+    nan = math.nan
+    return [Hidden(step, fd.index, f"{fd.index}:{int(j)}", nan, nan, nan) for j in hid], row
+
+
+def _hide_round(
+    nets: Nets,
+    det: Detector,
+    out: FrontEndOutput,
+    fd: FrameDetections,
+    fa: FrameAttack,
+    hidden: list[Hidden],
+    idx: list[int],
+    cfg: AttackConfig,
+) -> Round:
+    """The hiding attacks of one frame of an injection counterexample, each blob once; their
+    costs and perturbations into ``fa`` (each detection costs its blob's payoff)."""
+    from lesmc.perception.attacks import payoffs
+
+    blobs_used = sorted({int(fd.source[j]) for j in idx})
+    res = payoffs(nets.dr, fd.windows[blobs_used], nets.settings.delta_dr, cfg)
+    accepted = fd.accepted if fd.accepted is not None else _accepted(det, out)
+    centres = out.candidates.centroid[accepted[blobs_used]]
+    by_blob = dict(zip(blobs_used, range(len(blobs_used)), strict=True))
+    for h, j in zip(hidden, idx, strict=True):
+        r = by_blob[int(fd.source[j])]
+        rec, ok = float(res.payoff[r]), bool(res.flipped[r])
+        fa.cost += rec
+        one = _perturbation(h, j, fd, centres[r], rec, ok, res.perturbation[r])
+        # the results record no per-detection payoff under inject: the path's cost is
+        # checked as a whole (_replay_case)
+        one["payoff"] = one["payoff_recomputed"]
+        fa.perturbations.append(one)
+    return centres, res.perturbation
+
+
+def _inject_round(
+    nets: Nets,
+    out: FrontEndOutput,
+    fa: FrameAttack,
+    step: int,
+    taken: str,
+    row: int,
+    cfg: AttackConfig,
+) -> Round:
+    """The attack towards "vehicle" on candidate ``row``'s N_dr window (the one that priced
+    it); its cost and perturbation into ``fa``."""
+    from lesmc.perception.attacks import payoffs
+    from lesmc.perception.cnn import DR_SIZE
+
+    frames = stack(out.frame, out.aligned.frames, nets.settings.m)
+    centre = out.candidates.centroid[[row]]
+    inj = payoffs(nets.dr, cut(frames, centre, DR_SIZE), nets.settings.delta_dr, cfg, "inject")
+    rec, ok = float(inj.payoff[0]), bool(inj.flipped[0])
+    fa.cost += rec
+    fa.injected.append(taken)
+    shown: float | str = rec if math.isfinite(rec) else "inf"
+    fa.perturbations.append(
+        {
+            "step": step,
+            "frame": fa.frame,
+            "obs": taken,
+            "x": float(centre[0, 0]),
+            "y": float(centre[0, 1]),
+            "window_origin": [int(v) for v in np.rint(centre[0]).astype(int) - DR_SIZE // 2],
+            "payoff": shown,
+            "payoff_recomputed": shown,
+            "flipped_alone": ok,
+            "action": "inject",
+            "delta": np.round(inj.perturbation[0], PERTURBATION_DIGITS).tolist(),
+        }
+    )
+    return centre, inj.perturbation
 
 
 def _repair(
@@ -581,19 +622,22 @@ def _repair(
     after: FrameDetections,
     kept: np.ndarray,
     cfg: AttackConfig,
+    wanted: np.ndarray | None = None,
 ) -> FrameDetections:
     """The repaired attack: hide, jointly with the frame's perturbation (``applied``), every
-    detection the model does not have (hidden ones that survive, extra ones), up to
-    REPAIR_ROUNDS times; the detections after it (``fa`` records the rounds and the
-    extra cost)."""
+    detection the model does not have (hidden ones that survive, extra ones; not those
+    at ``wanted``, the injected ones), up to REPAIR_ROUNDS times; the detections after it
+    (``fa`` records the rounds and the extra cost)."""
     from lesmc.perception.attacks import payoffs
     from lesmc.perception.cnn import DR_SIZE
 
     m = nets.settings.m
     rounds = 0
     while (fa.still or fa.extra) and rounds < REPAIR_ROUNDS:
+        unwanted = _unwanted(fd, after, idx, wanted)
+        if not unwanted:
+            break
         rounds += 1
-        unwanted = _unwanted(fd, after, idx)
         rows = sorted({int(after.source[j]) for j in unwanted})
         more = payoffs(nets.dr, after.windows[rows], nets.settings.delta_dr, cfg)
         if not more.flipped.any():
@@ -609,10 +653,17 @@ def _repair(
     return after
 
 
-def _unwanted(fd: FrameDetections, after: FrameDetections, hidden_idx: list[int]) -> list[int]:
-    """Rows of ``after`` that match no clean detection the attack keeps."""
+def _unwanted(
+    fd: FrameDetections,
+    after: FrameDetections,
+    hidden_idx: list[int],
+    wanted: np.ndarray | None = None,
+) -> list[int]:
+    """Rows of ``after`` that match no clean detection the attack keeps (nor a position of
+    ``wanted``: injected detections)."""
     keep = np.array([j for j in range(len(fd.positions)) if j not in set(hidden_idx)], int)
-    back = _match(after.positions, fd.positions[keep], DET_TOL_PX)
+    ok = fd.positions[keep] if wanted is None else np.vstack([fd.positions[keep], wanted])
+    back = _match(after.positions, ok, DET_TOL_PX)
     return [int(j) for j in np.flatnonzero(back < 0)]
 
 
@@ -847,10 +898,7 @@ def replay(
 
         for ci, fa in _shared(_groups(by_frame.get(fd.index, [])), one).items():
             attacked[ci][fd.index] = fa
-        for ci, step in by_inject.get(fd.index, []):
-            fa = inject_frame(nets, det, out, fd, todo[ci], step, attack_cfg)
-            if fa.perturbations:
-                attacked[ci][fd.index] = fa
+        _inject_cases(nets, det, out, fd, todo, by_inject, attacked, attack_cfg, repair)
         release()  # the frame's temporaries go back to the system (common/memory.py)
 
     def detector() -> Any:
@@ -896,6 +944,25 @@ def _hidden_by_frame(todo: list[Case]) -> dict[int, list[tuple[int, Hidden]]]:
         for h in c.hidden:
             out.setdefault(h.frame, []).append((ci, h))
     return out
+
+
+def _inject_cases(
+    nets: Nets,
+    det: Detector,
+    out: FrontEndOutput,
+    fd: FrameDetections,
+    todo: list[Case],
+    by_inject: dict[int, list[tuple[int, int]]],
+    attacked: list[dict[int, FrameAttack]],
+    cfg: AttackConfig,
+    repair: bool,
+) -> None:
+    """The ``allow hide, inject`` cases' attacks of frame ``fd`` (:func:`inject_frame`) into
+    ``attacked``, where they attack it."""
+    for ci, step in by_inject.get(fd.index, []):
+        fa = inject_frame(nets, det, out, fd, todo[ci], step, cfg, repair)
+        if fa.perturbations:
+            attacked[ci][fd.index] = fa
 
 
 def _inject_by_frame(todo: list[Case]) -> dict[int, list[tuple[int, int]]]:

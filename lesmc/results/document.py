@@ -189,6 +189,22 @@ def _hidden(
     return out
 
 
+def _hidden_of(
+    run: DesignRun, cm: ArrayModel, listed: list[Track], cex: list[int | None]
+) -> dict[str, list[dict[str, Any]]]:
+    """Per property with a counterexample (``cex``: its listed path's number), the
+    detections it hides (:func:`_hidden`). Under ``allow hide, inject`` none are listed:
+    the ranks are ordered by cost there, so the lower ranks are cheaper outcomes, not the
+    detections hidden (the replay derives those itself, lesmc/replay/run.py)."""
+    return {
+        bp.name: []
+        if "inject" in bp.prop.actions
+        else _hidden(cm, listed[n - 1], run.scene, (bp.l, bp.u))
+        for bp, n in zip(run.bound, cex, strict=True)
+        if n is not None
+    }
+
+
 def _detection_facts(scene: Scene | None, frame: int, obs: str) -> dict[str, Any]:
     """Where a detection of the scene is and its certified lower payoff, if known."""
     if scene is None or frame > scene.last_step:
@@ -348,15 +364,7 @@ def run_json(
         "paths_total": tracks.count_paths(cm),
         "paths": [_track_json(cm, i + 1, t, win, judged[i]) for i, t in enumerate(listed)],
         "states": _states_json(cm, listed, to_ref, loc),
-        "hidden": {
-            # under inject the ranks are ordered by cost: the lower ranks are cheaper
-            # outcomes, not the detections hidden (the replay derives those itself)
-            bp.name: []
-            if "inject" in bp.prop.actions
-            else _hidden(cm, listed[n - 1], run.scene, (bp.l, bp.u))
-            for bp, n in zip(run.bound, cex, strict=True)
-            if n is not None
-        },
+        "hidden": _hidden_of(run, cm, listed, cex),
         "scene": scene_part,
         "replay_inputs": None if run.scene is None else replay_inputs(run.scene),
     }
