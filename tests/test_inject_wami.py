@@ -234,7 +234,7 @@ def test_injection_candidates_within_a_smaller_radius_are_fewer(
     got = {c["id"]: c["payoff"] for f in near["frames"] for c in f.get("candidates", [])}
     assert len(got) < len(wide)
     for cid, p in got.items():  # the same candidates, the same prices
-        assert wide[cid] == pytest.approx(p, rel=1e-6)  # batch shapes round apart
+        assert wide[cid] == pytest.approx(p, rel=1e-5)  # batch shapes round apart
 
 
 @pytest.mark.parametrize(
