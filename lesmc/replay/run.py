@@ -912,15 +912,20 @@ def replay(
         clean = dict(clean)
         wanted = sorted(set(by_frame) | set(by_inject))
         _attacked_frames(frames, detector, wanted, history, attack, on_frame)
+    _check_last(clean, last)
+    for c in todo:
+        _check_known(c, clean)
+    replays = {(c.run, c.result): _replay_case(c, clean, attacked[ci]) for ci, c in enumerate(todo)}
+    return Outcome(replays, time.monotonic() - t0)
+
+
+def _check_last(clean: Mapping[int, FrameDetections], last: int) -> None:
+    """The frames must reach ``last``, the last step of a counterexample."""
     if last not in clean:
         raise InputError(
             f"the frames stop before frame {last}, the last step of a counterexample",
             Location("--frames"),
         )
-    for c in todo:
-        _check_known(c, clean)
-    replays = {(c.run, c.result): _replay_case(c, clean, attacked[ci]) for ci, c in enumerate(todo)}
-    return Outcome(replays, time.monotonic() - t0)
 
 
 def _settings(doc: ResultsDoc, history: int, delta_bc: int) -> tuple[FrontEndConfig, AttackConfig]:
