@@ -11,7 +11,7 @@ count.frames`` (the fewest frames to move the track beyond epsilon), once hide o
 once ``allow hide, inject`` (``joint`` and ``improved`` refuse inject: "refused").
 Prints the optima, the states built and the check's wall-clock seconds side by side.
 
-Usage: PYTHONPATH=. python benchmarks/bench_inject_video.py [--seeds 1,2,3] [--within 30]
+Usage: PYTHONPATH=. python benchmarks/bench_inject_video.py [--seeds 1,2,3] [--within 30] [--cap N]
        [--designs single,joint,improved] [--out /tmp/lesmc-inject-video]
 """
 
@@ -41,7 +41,7 @@ def _run(*args: str) -> subprocess.CompletedProcess[str]:
     )
 
 
-def _scene(seed: int, within: float, out: Path) -> tuple[Path, dict[str, float]]:
+def _scene(seed: int, within: float, cap: int, out: Path) -> tuple[Path, dict[str, float]]:
     """The video of ``seed`` perceived with injection candidates, its target placed as
     verify places it; and what perception cost."""
     from lesmc.api import load_spec, save_scene
@@ -54,7 +54,9 @@ def _scene(seed: int, within: float, out: Path) -> tuple[Path, dict[str, float]]
         r = _run("-m", "lesmc", "synth", str(video), "--seed", str(seed), "--frames", "24")
         if r.returncode:
             raise SystemExit(r.stderr)
-    req = PerceiveRequest(str(video), truth=str(video / "truth.json"), inject_within=within)
+    req = PerceiveRequest(
+        str(video), truth=str(video / "truth.json"), inject_within=within, inject_cap=cap
+    )
     inputs = open_inputs(req)
     t0 = time.perf_counter()
     got = perceive_frames(req, inputs)
@@ -101,6 +103,7 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--seeds", default="1,2,3")
     ap.add_argument("--within", type=float, default=30.0)
+    ap.add_argument("--cap", type=int, default=100000, help="candidates a frame at most")
     ap.add_argument("--designs", default="single,joint,improved")
     ap.add_argument("--out", default="/tmp/lesmc-inject-video")
     args = ap.parse_args()
@@ -111,7 +114,7 @@ def main() -> None:
         "| hide + inject: payoff | frames | states | s |"
     )
     for seed in (int(s) for s in args.seeds.split(",")):
-        scene, facts = _scene(seed, args.within, out)
+        scene, facts = _scene(seed, args.within, args.cap, out)
         print(f"seed {seed}: {json.dumps(facts)}", file=sys.stderr)
         for design in args.designs.split(","):
             row = [str(seed), design]

@@ -57,6 +57,7 @@ class PerceiveRequest:
     #: injection candidates (issue 61): the candidates N_dr rejects within this many px of
     #: a detection, priced towards "vehicle" (None: none; docs/cnn.md, "Injection candidates")
     inject_within: float | None = None
+    inject_cap: int = 32  #: with ``inject_within``: at most this many candidates a frame
 
 
 @dataclass(frozen=True)
@@ -115,6 +116,9 @@ def refuse_mismatched(req: PerceiveRequest) -> None:
             raise UsageError(f"inject_within must be a number of px >= 0, got {w!r}")
         if not req.scene:
             raise UsageError("--inject-within needs -o/--output: the candidates go into the scene")
+    cap = req.inject_cap
+    if isinstance(cap, bool) or not isinstance(cap, int) or cap < 1:
+        raise UsageError(f"inject_cap must be a whole number >= 1, got {cap!r}")
     if not req.cnn and any(req.nets):
         raise UsageError(
             "--nets, --detector and --locator give the CNNs that --no-cnn leaves out: give one "
@@ -165,6 +169,7 @@ def perceive_frames(
     opts = PerceiveOptions(
         req.history, req.delta_bc, nets, att, cert, req.radius, req.min_speed,
         inject_within=req.inject_within if req.scene else None,
+        inject_cap=req.inject_cap,
     )  # fmt: skip
     run = perceive(inputs.frames, opts, inputs.truth, on_frame)
     if nets is None or att is None:
@@ -315,18 +320,16 @@ def scene_meta(
     if cert is not None:
         meta["certify"] = certify_meta(cert)
     if req.inject_within is not None:
-        meta["candidates"] = candidates_meta(req.inject_within)
+        meta["candidates"] = candidates_meta(req.inject_within, req.inject_cap)
     return meta
 
 
-def candidates_meta(within: float) -> dict[str, Any]:
+def candidates_meta(within: float, cap: int) -> dict[str, Any]:
     """Where a perceived scene's injection candidates came from, for its ``meta.candidates``."""
-    from lesmc.perception.detector import DetectorConfig
-
     return {
         "source": "candidates of Q_bc that N_dr rejects",
         "within_px": within,
-        "cap_per_frame": DetectorConfig().inject_cap,
+        "cap_per_frame": cap,
         "payoff": "the attack towards 'vehicle' on the candidate's N_dr window",
     }
 

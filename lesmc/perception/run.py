@@ -61,6 +61,7 @@ class PerceiveOptions:
     #: priced by the attack towards "vehicle" (``attack``'s settings, else the defaults);
     #: None: none
     inject_within: float | None = None
+    inject_cap: int = 32  #: at most this many injection candidates a frame
 
 
 @dataclass
@@ -112,7 +113,7 @@ def perceive_all(
     dets = [
         Detector(
             o.nets,
-            DetectorConfig(frontend=fe_cfg, inject_within=o.inject_within),
+            DetectorConfig(frontend=fe_cfg, inject_within=o.inject_within, inject_cap=o.inject_cap),
             record_maxima=o.record_maxima,
         )
         if o.nets
