@@ -219,6 +219,32 @@ def test_injection_counterexample_replays_confirmed(perceived: tuple, tmp_path: 
     assert res["runs"][0]["properties"][0]["actions"] == ["hide", "inject"]
 
 
+def test_inject_cap_keeps_the_candidates_nearest_a_detection(
+    perceived: tuple, tmp_path: Path
+) -> None:
+    video, _, doc = perceived
+    scene = tmp_path / "capped.json"
+    r = lesmc(
+        "perceive", str(video), "-o", str(scene), "--inject-within", "30", "--inject-cap", "3",
+    )  # fmt: skip
+    assert r.returncode == 0, r.stderr
+    capped = json.loads(scene.read_text())
+    assert capped["meta"]["candidates"]["cap_per_frame"] == 3
+    wide = {f["step"]: f for f in doc["frames"]}
+    for f in capped["frames"]:
+        got = f.get("candidates", [])
+        assert len(got) <= 3
+
+        def near(c: dict, fr: dict = f) -> float:  # distance to the frame's nearest detection
+            return min(np.hypot(d["x"] - c["x"], d["y"] - c["y"]) for d in fr["detections"])
+
+        # the 3 kept are no farther from a detection than any left out (independent sort)
+        rest = [c for c in wide[f["step"]].get("candidates", []) if c["id"] not in
+                {g["id"] for g in got}]  # fmt: skip
+        if got and rest and len(got) == 3:
+            assert max(near(c) for c in got) <= min(near(c) for c in rest) + 1e-9
+
+
 def test_injection_candidates_within_a_smaller_radius_are_fewer(
     perceived: tuple, tmp_path: Path
 ) -> None:
@@ -243,6 +269,8 @@ def test_injection_candidates_within_a_smaller_radius_are_fewer(
         (["--inject-within", "-1", "-o", "{out}"], "--inject-within"),
         (["--inject-within", "nan", "-o", "{out}"], "--inject-within"),
         (["--inject-within", "5"], "--inject-within needs -o"),
+        (["--inject-cap", "3", "-o", "{out}"], "--inject-cap"),
+        (["--inject-within", "5", "--inject-cap", "0", "-o", "{out}"], "--inject-cap"),
     ],
 )
 def test_bad_inject_within_is_exit_2(
