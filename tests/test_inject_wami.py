@@ -283,3 +283,47 @@ def test_bad_inject_within_is_exit_2(
     assert needle in r.stderr
     assert "Traceback" not in r.stderr
     assert not out.exists()
+
+
+def test_verify_with_candidates_replays_the_injection(perceived: tuple, tmp_path: Path) -> None:
+    video, scene, _ = perceived
+    spec = tmp_path / "rob.spec"
+    spec.write_text(SPEC.format(allow=" allow hide, inject"))
+    out = tmp_path / "v"
+    r = lesmc(
+        "verify", str(video), "--truth", str(video / "truth.json"), "--spec", str(spec),
+        "--design", "single", "--out", str(out), "--inject-within", "30",
+        "--target", "206.434,202.672@4", "--json",
+    )  # fmt: skip
+    assert "Traceback" not in r.stderr
+    assert r.returncode == 1, r.stderr
+    doc = json.loads((out / "results.json").read_text())
+    res = doc["runs"][0]["results"][0]
+    assert res["verdict"] == "violated"
+    assert res["replay"]["status"] == "confirmed", res["replay"]["reason"]
+    assert any(p.get("action") == "inject" for p in res["replay"]["perturbations"])
+    written = json.loads((out / "scene.json").read_text())
+    assert written["version"] == 3 and written["meta"]["candidates"]["within_px"] == 30
+    # the scene perceive wrote with the same settings has the same candidates
+    same = json.loads(scene.read_text())
+    ids = {c["id"] for f in same["frames"] for c in f.get("candidates", [])}
+    assert ids == {c["id"] for f in written["frames"] for c in f.get("candidates", [])}
+
+
+@pytest.mark.parametrize(
+    ("args", "needle"),
+    [
+        (["--inject-cap", "3"], "--inject-cap"),
+        (["--scene", "{scene}", "--inject-within", "5"], "--inject-within"),
+    ],
+)
+def test_verify_refuses_candidates_it_cannot_perceive(
+    perceived: tuple, tmp_path: Path, args: list, needle: str
+) -> None:
+    _, scene, _ = perceived
+    out = tmp_path / "v"
+    r = lesmc("verify", *[a.format(scene=scene) for a in args], "--out", str(out))
+    assert r.returncode == 2, r.stderr
+    assert needle in r.stderr
+    assert "Traceback" not in r.stderr
+    assert not (out / "results.json").exists()
