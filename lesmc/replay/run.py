@@ -564,11 +564,10 @@ def _hide_round(
         r = by_blob[int(fd.source[j])]
         rec, ok = float(res.payoff[r]), bool(res.flipped[r])
         fa.cost += rec
-        one = _perturbation(h, j, fd, centres[r], rec, ok, res.perturbation[r])
-        # the results record no per-detection payoff under inject: the path's cost is
-        # checked as a whole (_replay_case)
-        one["payoff"] = one["payoff_recomputed"]
-        fa.perturbations.append(one)
+        # the results record no per-detection payoff under inject: the recomputed one
+        # stands in, and the path's cost is checked as a whole (_replay_case)
+        h = replace(h, payoff=rec)
+        fa.perturbations.append(_perturbation(h, j, fd, centres[r], rec, ok, res.perturbation[r]))
     return centres, res.perturbation
 
 
