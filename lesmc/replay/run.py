@@ -172,7 +172,7 @@ def cases(doc: ResultsDoc, prop: str | None = None) -> list[Case]:
             if res.payoffs == "certified":
                 continue  # violated with lower payoffs proves nothing (docs/semantics.md)
             cex_no = run.counterexamples[j]
-            if cex_no is None:
+            if cex_no is None or _injects_off_single(run, res.property):
                 continue
             out.append(_case(run, i, j, cex_no))
     if prop is not None and prop not in names:
@@ -180,6 +180,13 @@ def cases(doc: ResultsDoc, prop: str | None = None) -> list[Case]:
             f"no property named {prop}; the results hold {', '.join(sorted(names)) or 'none'}"
         )
     return out
+
+
+def _injects_off_single(run: RunDoc, prop: str) -> bool:
+    """Whether ``prop`` lets the attacker inject on a design other than ``single``: the
+    replay of such a counterexample is not built (it stays violated, not replayed)."""
+    p = next((p for p in run.properties if p.name == prop), None)
+    return p is not None and "inject" in p.actions and run.design != "single"
 
 
 def _case(run: RunDoc, i: int, j: int, cex_no: int) -> Case:
@@ -198,11 +205,6 @@ def _case(run: RunDoc, i: int, j: int, cex_no: int) -> Case:
     opt = res.optimum
     prop = next((p for p in run.properties if p.name == res.property), None)
     actions = prop.actions if prop is not None else ("hide",)
-    if "inject" in actions and run.design != "single":
-        raise UsageError(
-            f"the counterexample of {res.property} on {run.label} injects detections: its "
-            "replay is built for --design single only"
-        )
     return Case(
         run=i,
         result=j,
