@@ -84,6 +84,25 @@ if TYPE_CHECKING:
     "per detection on 2 idle cores (docs/performance.md).",
 )
 @click.option(
+    "--inject-within",
+    type=FiniteRange(min=0.0),
+    default=None,
+    metavar="PX",
+    help="With -o: injection candidates (scene format 3; issue 61): the candidates N_dr "
+    "rejects within PX of one of the frame's detections (at most --inject-cap a frame, "
+    "nearest first), each priced by the attack towards 'vehicle' (what `allow hide, inject` in a "
+    'spec lets the attacker add; docs/cnn.md, "Injection candidates").',
+)
+@click.option(
+    "--inject-cap",
+    type=click.IntRange(min=1),
+    default=32,
+    show_default=True,
+    metavar="N",
+    help="With --inject-within: at most N injection candidates a frame, nearest a "
+    "detection first (each costs an attack: docs/cnn.md).",
+)
+@click.option(
     "--save-attacks",
     type=click.Path(file_okay=False),
     default=None,
@@ -147,6 +166,8 @@ def perceive_cmd(
     overshoot: float,
     max_iter: int,
     certify: bool,
+    inject_within: float | None,
+    inject_cap: int,
     save_attacks: str | None,
     history: int,
     delta_bc: int,
@@ -177,10 +198,12 @@ def perceive_cmd(
         frames_dir, (nets_dir, detector_file, locator_file), not no_cnn, output is not None,
         target_text, truth, tracker_file, "pgd" if attack == "pgd" else "deepfool",
         "per-pixel" if payoff_norm == "per-pixel" else "l2", overshoot, max_iter,
-        certify, history, delta_bc, dt, radius, min_speed,
+        certify, history, delta_bc, dt, radius, min_speed, inject_within, inject_cap,
     )  # fmt: skip
     refuse_mismatched(req)
     _refuse_ignored(output, truth)
+    if inject_within is None:
+        refuse_given(("inject_cap",), "limits the candidates of --inject-within: give it too")
     from lesmc.perception.detector_file import is_detector_file
 
     if detector_file is not None and is_detector_file(detector_file):
@@ -217,7 +240,7 @@ def _with_windows(req: PerceiveRequest, output: str | None, as_json: bool, start
 #: Options of the window pipeline (front end, N_dr and N_lp) that a detector file replaces.
 _WINDOW_ONLY = (
     "nets_dir", "locator_file", "no_cnn", "history", "delta_bc", "truth",
-    "payoff_norm", "as_json",
+    "payoff_norm", "as_json", "inject_within", "inject_cap",
 )  # fmt: skip
 
 
@@ -289,7 +312,7 @@ def _write_scene(
     say(
         f"wrote {escape_control(output)}: {len(scene.frames)} frames (steps "
         f"{scene.frames[0].step}..{scene.last_step}), {n} detections, "
-        f"{_priced(scene, unattackable)}; {target_note}",
+        f"{_priced(scene, unattackable)}{_candidates(scene)}; {target_note}",
         as_json,
     )
     target = None
@@ -302,6 +325,12 @@ def _write_scene(
         "unattackable": unattackable,
         "target": target,
     }
+
+
+def _candidates(scene: Scene | Footage) -> str:
+    """How many injection candidates the scene has (none: nothing said)."""
+    n = sum(len(f.candidates) for f in scene.frames)
+    return f", {n} injection candidates" if n else ""
 
 
 def _priced(scene: Scene | Footage, unattackable: int) -> str:

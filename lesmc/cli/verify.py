@@ -9,8 +9,10 @@ from typing import TYPE_CHECKING
 
 import click
 
+from lesmc.cli.documents import refuse_given
 from lesmc.cli.options import (
     DEFAULT_MAX_STATES,
+    FiniteRange,
     budget_from,
     budget_options,
     designs_option,
@@ -87,6 +89,23 @@ if TYPE_CHECKING:
     "OUT/scene.json; a later check that reads one stops with exit 2). Certified payoffs "
     "and --faults price every detection anyway.",
 )
+@click.option(
+    "--inject-within",
+    type=FiniteRange(min=0.0),
+    default=None,
+    metavar="PX",
+    help="On a video: also injection candidates, the candidates N_dr rejects within PX of "
+    "a detection, priced up front by the attack towards 'vehicle' (what `allow hide, "
+    'inject` in a spec reads; docs/cnn.md, "Injection candidates").',
+)
+@click.option(
+    "--inject-cap",
+    type=click.IntRange(min=1),
+    default=32,
+    show_default=True,
+    metavar="N",
+    help="With --inject-within: at most N candidates a frame, nearest a detection first.",
+)
 @tracker_option
 @click.option(
     "--space",
@@ -121,6 +140,8 @@ def verify_cmd(
     frames_opt: str | None,
     payoffs: str,
     price_all: bool,
+    inject_within: float | None,
+    inject_cap: int,
     tracker_file: str | None,
     space_file: str | None,
     faults_file: str | None,
@@ -162,8 +183,24 @@ def verify_cmd(
         faults=faults_file,
         price_all=price_all,
         space=_space(space_file, tracker_file),
+        inject=_inject(inject_within, inject_cap, scene_path),
     )
     _run(request, as_json)
+
+
+def _inject(within: float | None, cap: int, scene_path: str | None) -> tuple[float, int] | None:
+    """``--inject-within`` and ``--inject-cap``: injection candidates perceived from the
+    video (refused with --scene, which is perceived already; the cap alone is refused)."""
+    if within is None:
+        refuse_given(("inject_cap",), "limits the candidates of --inject-within: give it too")
+        return None
+    if scene_path is not None:
+        refuse_given(
+            ("inject_within",),
+            "perceives candidates from the video: a --scene brings its own "
+            "(lesmc perceive --inject-within)",
+        )
+    return within, cap
 
 
 def _space(space_file: str | None, tracker_file: str | None) -> str | None:

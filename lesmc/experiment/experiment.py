@@ -96,6 +96,9 @@ class Request:
     #: a space file (``--space``): lesmc tune's design search on the video, and the best
     #: design under the file's false-alarm budget (results' ``design_search``)
     space: str | None = None
+    #: injection candidates (``--inject-within``, ``--inject-cap``; docs/cnn.md): None:
+    #: none; else (px, cap)
+    inject: tuple[float, int] | None = None
 
 
 @dataclass
@@ -408,7 +411,14 @@ def _perception_key(req: Request, frames: FrameSet, frames_dir: str, dt: float) 
             "history": HISTORY,
             "attack": asdict(AttackConfig()),
         }
+        | _inject_key(req)
     )
+
+
+def _inject_key(req: Request) -> dict[str, Any]:
+    """The injection candidates' part of the perception's cache key (none without them:
+    the keys of runs without candidates stay as they were)."""
+    return {} if req.inject is None else {"inject": list(req.inject)}
 
 
 def _same_detections(cached: Footage, again: Footage, cache: StageCache) -> None:
@@ -451,7 +461,7 @@ def _perceive_now(
         meta |= networks_meta(req.nets)
         keep = req.payoffs != "attack" or on_demand
         footage, run = video_perception.perceive_video(
-            frames, nets, dt, meta, keep, advance, maxima, attack=not on_demand
+            frames, nets, dt, meta, keep, advance, maxima, not on_demand, req.inject
         )
     return footage, nets, run
 

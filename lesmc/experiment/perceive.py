@@ -54,6 +54,10 @@ class PerceiveRequest:
     dt: float | None = None  #: seconds between frames [from the truth, else 1/FPS]
     radius: float = 4.0  #: match distance to the truth (pixels)
     min_speed: float = 1.5  #: slower true vehicles (m/s) are don't care
+    #: injection candidates (issue 61): the candidates N_dr rejects within this many px of
+    #: a detection, priced towards "vehicle" (None: none; docs/cnn.md, "Injection candidates")
+    inject_within: float | None = None
+    inject_cap: int = 32  #: with ``inject_within``: at most this many candidates a frame
 
 
 @dataclass(frozen=True)
@@ -106,6 +110,15 @@ def refuse_mismatched(req: PerceiveRequest) -> None:
         raise UsageError("--target needs -o/--output: it is the target of the scene written")
     if req.certify and not req.scene:
         raise UsageError("--certify needs -o/--output: the bounds go into the scene")
+    if req.inject_within is not None:
+        w = req.inject_within
+        if isinstance(w, bool) or not isinstance(w, (int, float)) or not 0 <= w < math.inf:
+            raise UsageError(f"inject_within must be a number of px >= 0, got {w!r}")
+        if not req.scene:
+            raise UsageError("--inject-within needs -o/--output: the candidates go into the scene")
+    cap = req.inject_cap
+    if isinstance(cap, bool) or not isinstance(cap, int) or cap < 1:
+        raise UsageError(f"inject_cap must be a whole number >= 1, got {cap!r}")
     if not req.cnn and any(req.nets):
         raise UsageError(
             "--nets, --detector and --locator give the CNNs that --no-cnn leaves out: give one "
@@ -153,7 +166,11 @@ def perceive_frames(
     nets = load_nets(*req.nets) if req.cnn else None
     att = attack_config(req) if req.scene else None
     cert = CertifyConfig() if req.certify else None
-    opts = PerceiveOptions(req.history, req.delta_bc, nets, att, cert, req.radius, req.min_speed)
+    opts = PerceiveOptions(
+        req.history, req.delta_bc, nets, att, cert, req.radius, req.min_speed,
+        inject_within=req.inject_within if req.scene else None,
+        inject_cap=req.inject_cap,
+    )  # fmt: skip
     run = perceive(inputs.frames, opts, inputs.truth, on_frame)
     if nets is None or att is None:
         return Perceived(run, nets, None, "")
@@ -302,7 +319,19 @@ def scene_meta(
     meta |= networks_meta(req.nets)
     if cert is not None:
         meta["certify"] = certify_meta(cert)
+    if req.inject_within is not None:
+        meta["candidates"] = candidates_meta(req.inject_within, req.inject_cap)
     return meta
+
+
+def candidates_meta(within: float, cap: int) -> dict[str, Any]:
+    """Where a perceived scene's injection candidates came from, for its ``meta.candidates``."""
+    return {
+        "source": "candidates of Q_bc that N_dr rejects",
+        "within_px": within,
+        "cap_per_frame": cap,
+        "payoff": "the attack towards 'vehicle' on the candidate's N_dr window",
+    }
 
 
 def certify_meta(cert: CertifyConfig) -> dict[str, Any]:

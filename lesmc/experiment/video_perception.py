@@ -41,13 +41,15 @@ def perceive_video(
     advance: Callable[[], None] | None = None,
     record_maxima: bool = False,
     attack: bool = True,
+    inject: tuple[float, int] | None = None,
 ) -> tuple[Footage, PerceiveRun]:
     """Detections and DeepFool payoffs of every frame (the default attack settings), as
     footage; ``keep_windows`` keeps the N_dr windows (certification and pricing on
     demand read them), ``record_maxima`` the hidden units' largest values (stuck-at-max
-    faults read them); without ``attack`` every payoff is unpriced (lesmc/experiment/pricing.py)."""
+    faults read them); without ``attack`` every payoff is unpriced (lesmc/experiment/pricing.py);
+    ``inject`` (px, cap): the injection candidates too, priced now (docs/cnn.md)."""
     return perceive_videos(
-        frames, [nets], dt, [meta], keep_windows, advance, record_maxima, attack
+        frames, [nets], dt, [meta], keep_windows, advance, record_maxima, attack, inject
     )[0]
 
 
@@ -60,6 +62,7 @@ def perceive_videos(
     advance: Callable[[], None] | None = None,
     record_maxima: bool = False,
     attack: bool = True,
+    inject: tuple[float, int] | None = None,
 ) -> list[tuple[Footage, PerceiveRun]]:
     """:func:`perceive_video` for several networks over one front end (each frame is
     registered and its candidates found once)."""
@@ -74,12 +77,18 @@ def perceive_videos(
             attack=AttackConfig() if attack else None,
             keep_windows=keep_windows,
             record_maxima=record_maxima,
+            inject_within=None if inject is None else inject[0],
+            inject_cap=32 if inject is None else inject[1],
         )
         for n in nets
     ]
     runs = perceive_all(frames, opts, None, advance)
     if not runs[0].detections:
         raise UsageError("the video produced no detections")
+    if inject is not None:
+        from lesmc.experiment.perceive import candidates_meta
+
+        metas = [{**m, "candidates": candidates_meta(*inject)} for m in metas]
     return [(footage_from_run(r, dt, m), r) for r, m in zip(runs, metas, strict=True)]
 
 

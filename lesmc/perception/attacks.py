@@ -1,8 +1,13 @@
-"""Attack payoffs: the smallest perturbation of a detection's N_dr input that hides it.
+"""Attack payoffs: the smallest perturbation of a detection's N_dr input that hides it,
+or of a rejected candidate's that makes N_dr accept it (injection, issue 61).
 
 The payoff of hiding a detection (paper section 3.1, Eq. 4) is the L2 norm of
 a perturbation ``delta`` of its N_dr input (all m+1 channels, pixel scale
-[0, 1]) such that N_dr no longer answers "vehicle" on ``x + delta``.
+[0, 1]) such that N_dr no longer answers "vehicle" on ``x + delta``. The payoff
+of injecting one (``towards="inject"``) is the same norm for a window N_dr
+rejects, perturbed until N_dr answers "vehicle": the same attacks on the
+margin's negation ``-f`` (:data:`SIGN`), flipped when ``f > 0`` (N_dr accepts
+P(vehicle) > delta_dr strictly).
 
 - ``deepfool``: DeepFool (Moosavi-Dezfooli et al. 2016) for our two-logit
   detector. With ``f(x) = logit_vehicle - logit_none - t`` (``t`` the logit of
@@ -26,6 +31,7 @@ attack checks that it flips N_dr.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Literal
 
 import numpy as np
 import torch
@@ -36,6 +42,17 @@ from lesmc.perception.cnn import DR_SIZE
 from lesmc.perception.threads import in_lanes
 
 TOL = 1e-8
+
+Towards = Literal["hide", "inject"]
+#: The sign each direction gives the margin: the attacks drive ``SIGN * f`` to 0 or below.
+SIGN: dict[str, float] = {"hide": 1.0, "inject": -1.0}
+
+
+def flipped(f: torch.Tensor, sign: float) -> torch.Tensor:
+    """Whether margins ``f`` (:func:`margin`, unsigned) have reached the direction's goal:
+    not a vehicle (``f <= 0``) when hiding, a vehicle (``f > 0``) when injecting."""
+    out: torch.Tensor = f <= 0 if sign > 0 else f > 0
+    return out
 
 
 @dataclass
@@ -48,27 +65,30 @@ class AttackResult:
     iterations: np.ndarray
 
 
-def margin(net: nn.Module, x: torch.Tensor, t: float) -> torch.Tensor:
-    """f(x) = logit_vehicle - logit_none - t: positive while N_dr sees a vehicle."""
+def margin(net: nn.Module, x: torch.Tensor, t: float, sign: float = 1.0) -> torch.Tensor:
+    """f(x) = logit_vehicle - logit_none - t (times ``sign``): positive while N_dr sees a
+    vehicle (with ``sign`` -1: while it does not)."""
     logits: torch.Tensor = net(x)
-    out: torch.Tensor = logits[:, 1] - logits[:, 0] - t
+    out: torch.Tensor = sign * (logits[:, 1] - logits[:, 0] - t)
     return out
 
 
-def _grad(net: nn.Module, x: torch.Tensor, t: float) -> tuple[torch.Tensor, torch.Tensor]:
+def _grad(
+    net: nn.Module, x: torch.Tensor, t: float, sign: float = 1.0
+) -> tuple[torch.Tensor, torch.Tensor]:
     x = x.detach().requires_grad_(True)
-    f = margin(net, x, t)
+    f = margin(net, x, t, sign)
     (g,) = torch.autograd.grad(f.sum(), x)
     return f.detach(), g.detach()
 
 
 def deepfool(
-    net: nn.Module, x0: torch.Tensor, t: float, cfg: AttackConfig
+    net: nn.Module, x0: torch.Tensor, t: float, cfg: AttackConfig, sign: float = 1.0
 ) -> tuple[torch.Tensor, np.ndarray]:
-    """Batched two-class DeepFool; returns (x_adv, iterations used)."""
+    """Batched two-class DeepFool on ``sign`` * margin; returns (x_adv, iterations used)."""
     xi = x0.clone()
     iters = np.zeros(len(x0), np.int64)
-    f, g = _grad(net, xi, t)
+    f, g = _grad(net, xi, t, sign)
     floor = cfg.converged * f  # f at float32's noise floor (AttackConfig.converged)
     active = f > 0
     for _ in range(cfg.max_iter):
@@ -82,7 +102,7 @@ def deepfool(
         moved = (step != now).flatten(1).any(1)
         xi[a] = step
         iters[a.numpy()] += 1
-        f_a, g_a = _grad(net, xi[a], t)
+        f_a, g_a = _grad(net, xi[a], t, sign)
         f[a], g[a] = f_a, g_a
         active[a] = (f_a > floor[a]) & moved
     x_adv = (x0 + (1.0 + cfg.overshoot) * (xi - x0)).clamp(0.0, 1.0)
@@ -90,7 +110,7 @@ def deepfool(
 
 
 def pgd_min_norm(
-    net: nn.Module, x0: torch.Tensor, t: float, cfg: AttackConfig
+    net: nn.Module, x0: torch.Tensor, t: float, cfg: AttackConfig, sign: float = 1.0
 ) -> tuple[torch.Tensor, np.ndarray]:
     """Smallest L2 budget at which PGD flips N_dr; returns (x_adv, PGD runs per sample).
 
@@ -99,7 +119,7 @@ def pgd_min_norm(
     """
     n = len(x0)
     with torch.no_grad():
-        start = margin(net, x0, t) <= 0
+        start = flipped(margin(net, x0, t), sign)
     best = x0.clone()
     found = start.clone()
     lo = torch.zeros(n)
@@ -109,7 +129,7 @@ def pgd_min_norm(
     searching = ~start
     while bool(searching.any()):  # doubling
         idx = searching.nonzero().ravel()
-        x_adv, ok = _pgd(net, x0[idx], t, eps[idx], cfg)
+        x_adv, ok = _pgd(net, x0[idx], t, eps[idx], cfg, sign)
         runs[idx.numpy()] += 1
         best[idx[ok]] = x_adv[ok]
         found[idx[ok]] = True
@@ -125,7 +145,7 @@ def pgd_min_norm(
             break
         idx = todo.nonzero().ravel()
         mid = (lo[idx] + hi[idx]) / 2
-        x_adv, ok = _pgd(net, x0[idx], t, mid, cfg)
+        x_adv, ok = _pgd(net, x0[idx], t, mid, cfg, sign)
         runs[idx.numpy()] += 1
         best[idx[ok]] = x_adv[ok]
         hi[idx[ok]] = mid[ok]
@@ -134,16 +154,22 @@ def pgd_min_norm(
 
 
 def _pgd(
-    net: nn.Module, x0: torch.Tensor, t: float, eps: torch.Tensor, cfg: AttackConfig
+    net: nn.Module,
+    x0: torch.Tensor,
+    t: float,
+    eps: torch.Tensor,
+    cfg: AttackConfig,
+    sign: float = 1.0,
 ) -> tuple[torch.Tensor, torch.Tensor]:
-    """L2 PGD within ``eps`` per sample; keeps, per sample, the first flipping iterate."""
+    """L2 PGD on ``sign`` * margin within ``eps`` per sample; keeps, per sample, the first
+    flipping iterate."""
     delta = torch.zeros_like(x0)
     alpha = (2.5 * eps / cfg.pgd_steps).view(-1, 1, 1, 1)
     done = torch.zeros(len(x0), dtype=torch.bool)
     out = x0.clone()
     for _ in range(cfg.pgd_steps):
-        f, g = _grad(net, (x0 + delta).clamp(0, 1), t)
-        newly = (f <= 0) & ~done
+        f, g = _grad(net, (x0 + delta).clamp(0, 1), t, sign)
+        newly = flipped(sign * f, sign) & ~done
         out[newly] = (x0 + delta).clamp(0, 1)[newly]
         done |= newly
         if bool(done.all()):
@@ -155,16 +181,23 @@ def _pgd(
         delta = (x0 + delta).clamp(0, 1) - x0
     with torch.no_grad():
         last = (x0 + delta).clamp(0, 1)
-        fl = margin(net, last, t) <= 0
+        fl = flipped(margin(net, last, t), sign)
     late = fl & ~done
     out[late] = last[late]
     return out, done | fl
 
 
 def payoffs(
-    net: nn.Module, windows: np.ndarray, delta_dr: float, cfg: AttackConfig
+    net: nn.Module,
+    windows: np.ndarray,
+    delta_dr: float,
+    cfg: AttackConfig,
+    towards: Towards = "hide",
 ) -> AttackResult:
     """Attack every (n, m+1, 21, 21) window; payoff = ||x_adv - x|| (inf when not flipped).
+
+    ``towards``: "hide" flips N_dr's "vehicle" to "not vehicle" (the windows of
+    detections), "inject" the other way (the windows of candidates N_dr rejects).
 
     Batches of ``cfg.batch`` windows are independent: they run side by side, one per
     free core (:func:`~lesmc.perception.threads.in_lanes`), each exactly as it would
@@ -172,12 +205,13 @@ def payoffs(
     """
     t = threshold_logit(delta_dr)
     attack = deepfool if cfg.method == "deepfool" else pgd_min_norm
+    sign = SIGN[towards]
 
     def batch(a: int) -> AttackResult:
         x0 = torch.from_numpy(np.ascontiguousarray(windows[a : a + cfg.batch], np.float32))
-        x_adv, it = attack(net, x0, t, cfg)
+        x_adv, it = attack(net, x0, t, cfg, sign)
         with torch.no_grad():
-            ok = (margin(net, x_adv, t) <= 0).numpy()
+            ok = flipped(margin(net, x_adv, t), sign).numpy()
         d = (x_adv - x0).numpy()
         norms = np.sqrt((d.astype(np.float64) ** 2).reshape(len(d), -1).sum(axis=1))
         if cfg.norm == "per-pixel":

@@ -6,6 +6,13 @@ vehicle (Q_dr) -> a blob of Q_dr that is larger than ``big_px`` or closer than
 with no peak, the blob itself: the paper's "default blob"); every other blob
 is output directly. Each detection remembers the Q_dr blob it came from: that
 blob's N_dr window is what an attacker perturbs to hide it (see attacks.py).
+
+Injection candidates (issue 61): with ``DetectorConfig.inject_within`` R, the
+candidates of Q_bc that N_dr rejects and whose centroid lies within R px of one of
+the frame's detections, nearest first, at most ``inject_cap`` a frame, and that
+would be output directly once accepted (not crowded: :func:`near_rejected`), are kept
+with their N_dr windows: where an attacker can make a vehicle appear by perturbing
+that window until N_dr accepts it (priced in run.py, ``towards="inject"``).
 """
 
 from __future__ import annotations
@@ -17,6 +24,7 @@ import numpy as np
 import torch
 from scipy.spatial import cKDTree
 
+from lesmc.perception.blobs import Blobs
 from lesmc.perception.cnn import DR_SIZE, LP_SIZE, LP_STRIDE, Nets
 from lesmc.perception.frontend import FrontEnd, FrontEndConfig, FrontEndOutput
 from lesmc.perception.neurons import UnitMaxima
@@ -42,6 +50,11 @@ class DetectorConfig:
     close_px: float = 10.0  #: blobs nearer than this may be pieces of one vehicle or a queue
     merge_px: float = 3.0  #: N_lp peaks nearer than this are one vehicle
     batch: int = DR_BATCH  #: N_dr windows per forward pass
+    #: keep the rejected candidates within this many px of a detection as injection
+    #: candidates (None: none kept)
+    inject_within: float | None = None
+    #: at most this many injection candidates a frame, nearest a detection first
+    inject_cap: int = 32
 
 
 @dataclass
@@ -60,6 +73,13 @@ class FrameDetections:
     n_accepted: int  # |Q_dr|
     #: the rows of Q_bc that N_dr accepts, in the order of ``windows`` (None: not kept)
     accepted: np.ndarray | None = None
+    #: injection candidates (``DetectorConfig.inject_within``): rows of Q_bc N_dr rejects
+    rejected: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int64))
+    #: (c, 2) their centroids and (c, m+1, 21, 21) their N_dr windows (emptied once priced)
+    rejected_positions: np.ndarray = field(default_factory=lambda: np.zeros((0, 2)))
+    rejected_windows: np.ndarray = field(
+        default_factory=lambda: np.zeros((0, 0, DR_SIZE, DR_SIZE), np.float32)
+    )
 
 
 def dr_probability(
@@ -125,6 +145,34 @@ def crowded_blobs(cents: np.ndarray, boxes: np.ndarray, big_px: int, close_px: f
     return crowded
 
 
+def near_rejected(
+    cand: Blobs,
+    accepted: np.ndarray,
+    rejected: np.ndarray,
+    positions: np.ndarray,
+    cfg: DetectorConfig,
+) -> np.ndarray:
+    """The ``rejected`` rows of Q_bc (``cand``) within ``cfg.inject_within`` px of one of
+    ``positions`` (the frame's detections), nearest first (ties: the lower row), at most
+    ``cfg.inject_cap``: the injection candidates a frame offers. A candidate that, once
+    accepted, would go to N_lp (:func:`crowded_blobs`: larger than ``big_px``, or within
+    ``close_px`` of an accepted blob, which would then go to N_lp too) is left out: where
+    its detection would appear is N_lp's to say, not its centroid."""
+    if not len(rejected) or not len(positions) or cfg.inject_within is None:
+        return np.zeros(0, np.int64)
+    big = (cand.box[rejected, 2] > cfg.big_px) | (cand.box[rejected, 3] > cfg.big_px)
+    close = np.zeros(len(rejected), bool)
+    if len(accepted):
+        d_acc, _ = cKDTree(cand.centroid[accepted]).query(cand.centroid[rejected])
+        close = d_acc < cfg.close_px
+    d, _ = cKDTree(positions).query(cand.centroid[rejected])
+    near = np.flatnonzero((d <= cfg.inject_within) & ~big & ~close)
+    cap = cfg.inject_cap
+    order = near[np.lexsort((rejected[near], d[near]))][:cap]
+    out: np.ndarray = rejected[order].astype(np.int64)
+    return out
+
+
 class Detector:
     """Runs front end and CNNs on a video, one ``push`` per frame."""
 
@@ -158,6 +206,7 @@ class Detector:
         with self._recording():
             probability = dr_probability(nets, win, cfg.batch, self.maxima is None)
         keep = np.flatnonzero(probability > nets.settings.delta_dr)
+        every = win
         cents, boxes, win = cand.centroid[keep], cand.box[keep], win[keep]
         crowded = crowded_blobs(cents, boxes, cfg.big_px, cfg.close_px)
         pos: list[np.ndarray] = [cents[~crowded]]
@@ -169,9 +218,14 @@ class Detector:
             pos.append(p)
             src.append(s)
             lp.append(np.ones(len(p), bool))
+        positions = np.concatenate(pos).reshape(-1, 2)
+        rejected = np.zeros(0, np.int64)
+        if cfg.inject_within is not None:
+            rows_out = np.flatnonzero(probability <= nets.settings.delta_dr)
+            rejected = near_rejected(cand, keep, rows_out, positions, cfg)
         return FrameDetections(
             index=out.index,
-            positions=np.concatenate(pos).reshape(-1, 2),
+            positions=positions,
             source=np.concatenate(src).astype(int),
             via_lp=np.concatenate(lp),
             windows=win,
@@ -179,6 +233,9 @@ class Detector:
             n_candidates=len(cand),
             n_accepted=len(keep),
             accepted=keep,
+            rejected=rejected,
+            rejected_positions=cand.centroid[rejected].reshape(-1, 2).astype(float),
+            rejected_windows=every[rejected],
         )
 
     def _locate(

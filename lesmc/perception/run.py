@@ -5,6 +5,7 @@ The Python API behind ``lesmc perceive``; the CLI only parses options and prints
 
 from __future__ import annotations
 
+import time
 from collections.abc import Callable, Mapping, Sequence
 from contextlib import closing, nullcontext
 from dataclasses import dataclass, field, replace
@@ -55,6 +56,12 @@ class PerceiveOptions:
     #: what a stuck-at-max neuron fault needs); reading each activation once more makes
     #: the networks' scoring 1.3-1.9x as long (benchmarks/bench_maxima.py)
     record_maxima: bool = False
+    #: injection candidates (issue 61): the candidates N_dr rejects within this many px of
+    #: one of the frame's detections (at most ``DetectorConfig.inject_cap`` a frame), each
+    #: priced by the attack towards "vehicle" (``attack``'s settings, else the defaults);
+    #: None: none
+    inject_within: float | None = None
+    inject_cap: int = 32  #: at most this many injection candidates a frame
 
 
 @dataclass
@@ -74,6 +81,10 @@ class PerceiveRun:
     unit_max: dict[str, list[np.ndarray]] = field(default_factory=dict)
     #: frame index -> its registration from the previous frame (a replay reuses them)
     registrations: dict[int, Registration] = field(default_factory=dict)
+    #: per frame of ``detections``, the price of injecting each of its injection candidates
+    #: (``FrameDetections.rejected``; inf: the attack did not make N_dr accept it)
+    inject_payoffs: list[np.ndarray] = field(default_factory=list)
+    inject_seconds: float = 0.0  #: time spent pricing injection candidates
 
 
 def perceive(
@@ -100,7 +111,11 @@ def perceive_all(
         raise ValueError("perceive_all needs one front end: equal history and delta_bc")
     fe_cfg = FrontEndConfig(history=first.history, blobs=BlobConfig(delta_bc=first.delta_bc))
     dets = [
-        Detector(o.nets, DetectorConfig(frontend=fe_cfg), record_maxima=o.record_maxima)
+        Detector(
+            o.nets,
+            DetectorConfig(frontend=fe_cfg, inject_within=o.inject_within, inject_cap=o.inject_cap),
+            record_maxima=o.record_maxima,
+        )
         if o.nets
         else None
         for o in runs
@@ -184,6 +199,8 @@ def _frame(
             run.unattackable += int(np.isinf(run.payoffs[-1]).sum())
         elif opts.nets is not None:  # no attack: every payoff unpriced (price_detections)
             run.payoffs.append(np.full(len(fd.positions), np.nan))
+        if opts.nets is not None:
+            fd = _price_injections(run, opts.nets, fd, opts.attack or AttackConfig())
         if not opts.keep_windows:  # a copy: a view would keep the whole array alive
             fd = replace(fd, windows=np.empty((0, *fd.windows.shape[1:]), np.float32))
         elif opts.attack is None and opts.nets is not None:  # kept for price_detections
@@ -199,6 +216,21 @@ def _frame(
             run.detector_total = run.detector_total + s_det
             row["detector"] = s_det.to_json()
     run.rows.append(row)
+
+
+def _price_injections(
+    run: PerceiveRun, nets: Nets, fd: FrameDetections, cfg: AttackConfig
+) -> FrameDetections:
+    """The price of each injection candidate of ``fd`` (the attack towards "vehicle" on its
+    N_dr window) into ``run.inject_payoffs``; ``fd`` without the candidates' windows."""
+    t0 = time.perf_counter()
+    if len(fd.rejected):
+        res = payoffs(nets.dr, fd.rejected_windows, nets.settings.delta_dr, cfg, "inject")
+        run.inject_payoffs.append(res.payoff)
+    else:
+        run.inject_payoffs.append(np.zeros(0))
+    run.inject_seconds += time.perf_counter() - t0
+    return replace(fd, rejected_windows=fd.rejected_windows[:0].copy())
 
 
 def _payoffs(

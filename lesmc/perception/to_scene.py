@@ -23,12 +23,17 @@ if TYPE_CHECKING:  # torch and cv2 only where frames are perceived: not for a ca
 
 
 def frames_of(
-    dets: list[FrameDetections], pays: list[np.ndarray], lower: list[np.ndarray] | None = None
+    dets: list[FrameDetections],
+    pays: list[np.ndarray],
+    lower: list[np.ndarray] | None = None,
+    inject: list[np.ndarray] | None = None,
 ) -> tuple[Frame, ...]:
     """Scene frames: detection ids ``"FRAME:I"``, payoffs [and certified lower bounds],
-    homographies to the next frame."""
+    homographies to the next frame; with ``inject`` (each frame's injection prices,
+    ``PerceiveRun.inject_payoffs``), the injection candidates (:func:`candidates_of`)."""
     out = []
     lows: list[np.ndarray | None] = list(lower) if lower else [None] * len(dets)
+    injs: list[np.ndarray | None] = list(inject) if inject else [None] * len(dets)
     for i, (fd, p, lo) in enumerate(zip(dets, pays, lows, strict=True)):
         to_next = None
         if i + 1 < len(dets):
@@ -43,8 +48,33 @@ def frames_of(
             )
             for j, (x, y) in enumerate(fd.positions)
         )
-        out.append(Frame(fd.index, ds, to_next))
+        prices = injs[i]
+        cands = () if prices is None else candidates_of(fd, prices)
+        out.append(Frame(fd.index, ds, to_next, candidates=cands))
     return tuple(out)
+
+
+def candidate_id(frame: int, row: int) -> str:
+    """The scene id of the injection candidate that is row ``row`` of frame ``frame``'s
+    Q_bc: ``"FRAME:cROW"`` (a replay finds its window by the row)."""
+    return f"{frame}:c{row}"
+
+
+def candidate_row(obs: str) -> int | None:
+    """The Q_bc row of an injection candidate's id (:func:`candidate_id`); None for
+    another id."""
+    _, _, rest = obs.partition(":")
+    return int(rest[1:]) if rest[:1] == "c" and rest[1:].isdigit() else None
+
+
+def candidates_of(fd: FrameDetections, prices: np.ndarray) -> tuple[Detection, ...]:
+    """A frame's injection candidates (scene format 3): the rejected candidates whose
+    attack towards "vehicle" succeeded (a finite price), at their centroids."""
+    return tuple(
+        Detection(candidate_id(fd.index, int(r)), float(x), float(y), float(p))
+        for r, (x, y), p in zip(fd.rejected, fd.rejected_positions, prices, strict=True)
+        if np.isfinite(p)
+    )
 
 
 def footage_from_run(run: PerceiveRun, dt: float, meta: dict[str, Any] | None = None) -> Footage:
@@ -53,7 +83,8 @@ def footage_from_run(run: PerceiveRun, dt: float, meta: dict[str, Any] | None = 
     if not run.detections:
         raise UsageError("no frame produced detections: the video is shorter than L+1 frames")
     lower = run.payoffs_lower or None
-    frames = frames_of(run.detections, run.payoffs, lower)
+    inject = run.inject_payoffs if any(len(p) for p in run.inject_payoffs) else None
+    frames = frames_of(run.detections, run.payoffs, lower, inject)
     return Footage(dt, frames, TrackerConfig(), dict(meta or {}))
 
 

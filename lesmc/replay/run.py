@@ -24,6 +24,19 @@ interact, and that the tracker then does what the model's transitions say.
    counterexample's: the same associated detection at every step (within
    :data:`DET_TOL_PX`) and positions within :data:`TRACK_TOL_PX`.
 
+Under ``attack window L..U allow hide, inject`` (issue 61) the results list no
+hidden detections the replay can use (the ranks are ordered by cost), so at each
+window step of ``single``'s counterexample the replay derives the attack from the
+model's path: the tracker's prediction from the model's state at the step before
+(:func:`~lesmc.tracking.single.carried_prediction`) and the measurement the path
+takes give the cheapest way to force it (:func:`~lesmc.tracking.parts.attacker.forcing_update`):
+hide every detection before it, and if it is an injection candidate (``FRAME:cROW``,
+a window of Q_bc that N_dr rejects) perturb that window towards "vehicle" until
+N_dr accepts it. The frame's perturbations are applied together and the frame
+detected again, as for hiding; the recomputed cost of the path's attacks must
+equal its optimum (``minimize payoff``). A skip that only an attack forces is not
+derived: the replay then diverges there.
+
 The first step where they differ, and why (a hidden detection still detected,
 a neighbour's detection lost or moved by an overlapping window, an extra
 detection), is reported. When a hidden detection survives because windows
@@ -99,6 +112,16 @@ class Case:
     threshold: float
     holds_op: str
     optimum: float
+    #: the attacker's actions of the property (``allow hide, inject``: :func:`inject_frame`)
+    actions: tuple[str, ...] = ("hide",)
+    #: (n, dim) the model's whole state at steps 0..n-1 (predictions are made from it)
+    states: np.ndarray = field(default_factory=lambda: np.zeros((0, 0)))
+    window: tuple[int, int] = (0, -1)  #: the run's attack window (steps; the model's)
+
+    @property
+    def injects(self) -> bool:
+        """Whether the attacker may inject (the replay derives the attack itself)."""
+        return "inject" in self.actions
 
 
 @dataclass(frozen=True)
@@ -129,6 +152,9 @@ class FrameAttack:
     shared: list[str] = field(default_factory=list)  # lost ids from a hidden one's N_dr window
     repaired_rounds: int = 0
     extra_cost: float = 0.0
+    injected: list[str] = field(default_factory=list)  # candidate ids injected
+    not_injected: list[str] = field(default_factory=list)  # injected ids not detected after
+    cost: float = 0.0  # the recomputed cost of the frame's attack (allow hide, inject)
 
 
 def cases(doc: ResultsDoc, prop: str | None = None) -> list[Case]:
@@ -146,7 +172,7 @@ def cases(doc: ResultsDoc, prop: str | None = None) -> list[Case]:
             if res.payoffs == "certified":
                 continue  # violated with lower payoffs proves nothing (docs/semantics.md)
             cex_no = run.counterexamples[j]
-            if cex_no is None:
+            if cex_no is None or _injects_off_single(run, res.property):
                 continue
             out.append(_case(run, i, j, cex_no))
     if prop is not None and prop not in names:
@@ -154,6 +180,13 @@ def cases(doc: ResultsDoc, prop: str | None = None) -> list[Case]:
             f"no property named {prop}; the results hold {', '.join(sorted(names)) or 'none'}"
         )
     return out
+
+
+def _injects_off_single(run: RunDoc, prop: str) -> bool:
+    """Whether ``prop`` lets the attacker inject on a design other than ``single``: the
+    replay of such a counterexample is not built (it stays violated, not replayed)."""
+    p = next((p for p in run.properties if p.name == prop), None)
+    return p is not None and "inject" in p.actions and run.design != "single"
 
 
 def _case(run: RunDoc, i: int, j: int, cex_no: int) -> Case:
@@ -166,9 +199,12 @@ def _case(run: RunDoc, i: int, j: int, cex_no: int) -> Case:
         )
     path = run.path(cex_no)
     loc = list(tracker_from_dict(rp.tracker, "results: replay_inputs.tracker").measured)
-    pos = np.array([np.array(run.states[q].s)[loc] for q in path.states], float)
+    full = np.array([np.array(run.states[q].s, float) for q in path.states], float)
+    pos = full[:, loc]
     known = {d.id: (d.x, d.y) for step in run.scene.detections for d in step}
     opt = res.optimum
+    prop = next((p for p in run.properties if p.name == res.property), None)
+    actions = prop.actions if prop is not None else ("hide",)
     return Case(
         run=i,
         result=j,
@@ -178,7 +214,7 @@ def _case(run: RunDoc, i: int, j: int, cex_no: int) -> Case:
         obs=list(path.obs),
         positions=pos,
         halted=path.halted,
-        hidden=[e.hidden for e in run.hidden.get(res.property, ())],
+        hidden=[] if "inject" in actions else [e.hidden for e in run.hidden.get(res.property, ())],
         known=known,
         tracker=rp.tracker,
         dt=rp.dt,
@@ -187,6 +223,9 @@ def _case(run: RunDoc, i: int, j: int, cex_no: int) -> Case:
         threshold=res.threshold,
         holds_op=res.holds_op,
         optimum=number(opt) if opt != "unknown" else math.nan,
+        actions=actions,
+        states=full,
+        window=run.window,
     )
 
 
@@ -425,6 +464,154 @@ def attack_frame(
     return fa
 
 
+def inject_frame(
+    nets: Nets,
+    det: Detector,
+    out: FrontEndOutput,
+    fd: FrameDetections,
+    case: Case,
+    step: int,
+    cfg: AttackConfig,
+    repair: bool = True,
+) -> FrameAttack:
+    """Step ``step`` of an ``allow hide, inject`` counterexample (``case``) on its clean
+    frame: the cheapest attack that makes the tracker take the path's measurement there
+    (hide the detections before it; inject it if it is a candidate), each window attacked
+    alone, all perturbations applied together, the frame detected again (with ``repair``,
+    detections the model does not have hidden too, as :func:`attack_frame` does)."""
+    from lesmc.perception.cnn import DR_SIZE
+
+    m_nets = nets.settings.m
+    fa = FrameAttack(fd.index, step, fd)
+    taken = case.obs[step - 1]
+    if taken is None:  # a skip: not derived (the comparison says if the tracker skips too)
+        return fa
+    hidden, row = _forced(case, step, fd, out, taken)
+    idx = _hidden_indices(fd, hidden)
+    rounds: list[Round] = []
+    if idx:
+        rounds.append(_hide_round(nets, det, out, fd, fa, hidden, idx, cfg))
+    if row is not None:
+        rounds.append(_inject_round(nets, out, fa, step, taken, row, cfg))
+    release()
+    if not rounds:
+        return fa
+    base = stack(out.frame, out.aligned.frames, m_nets)
+    after, kept = _redetect(det, out, _apply(base, rounds, DR_SIZE), m_nets)
+    _diagnose(fa, fd, after, idx)
+    wanted = None if row is None else out.candidates.centroid[[row]]
+    if repair:
+        after = _repair(nets, det, out, fd, fa, idx, rounds, after, kept, cfg, wanted)
+    if wanted is not None:  # the injected detection is wanted: not an extra one
+        if _match(wanted, after.positions, DET_TOL_PX)[0] < 0:
+            fa.not_injected.append(taken)
+        cx, cy = float(wanted[0, 0]), float(wanted[0, 1])
+        fa.extra = [e for e in fa.extra if math.hypot(e[0] - cx, e[1] - cy) > DET_TOL_PX]
+    fa.detections = after
+    return fa
+
+
+def _forced(
+    case: Case, step: int, fd: FrameDetections, out: FrontEndOutput, taken: str
+) -> tuple[list[Hidden], int | None]:
+    """The detections to hide and the candidate (its row of Q_bc; None: none) to inject
+    so that the tracker takes ``taken`` at ``step``: the cheapest way
+    (tracking/parts/attacker.py ``forcing_update``), measured from the tracker's
+    prediction out of the model's state at the step before."""
+    from lesmc.perception.to_scene import candidate_row
+    from lesmc.tracking.kalman import matrices, measure
+    from lesmc.tracking.parts.attacker import forcing_update
+    from lesmc.tracking.single import carried_prediction
+
+    km = matrices(tracker_from_dict(case.tracker, "results: replay_inputs.tracker"), case.dt)
+    at = measure(km, carried_prediction(km, case.states[step - 1][None], fd.from_prev))[0]
+    det_dist = np.linalg.norm(fd.positions - at, axis=1)
+    row = candidate_row(taken)
+    cands = out.candidates.centroid
+    if row is None:
+        hid, _ = forcing_update(det_dist, np.zeros(0), int(taken.split(":")[1]), False)
+    elif row < len(cands):
+        case.known[taken] = (float(cands[row, 0]), float(cands[row, 1]))
+        hid, _ = forcing_update(det_dist, np.linalg.norm(cands[[row]] - at, axis=1), 0, True)
+    else:
+        raise InputError(
+            f"frame {fd.index} has {len(cands)} candidates, not {taken}: the frames are "
+            "not those the results were made from",
+            Location("--frames"),
+        )
+    nan = math.nan
+    return [Hidden(step, fd.index, f"{fd.index}:{int(j)}", nan, nan, nan) for j in hid], row
+
+
+def _hide_round(
+    nets: Nets,
+    det: Detector,
+    out: FrontEndOutput,
+    fd: FrameDetections,
+    fa: FrameAttack,
+    hidden: list[Hidden],
+    idx: list[int],
+    cfg: AttackConfig,
+) -> Round:
+    """The hiding attacks of one frame of an injection counterexample, each blob once; their
+    costs and perturbations into ``fa`` (each detection costs its blob's payoff)."""
+    from lesmc.perception.attacks import payoffs
+
+    blobs_used = sorted({int(fd.source[j]) for j in idx})
+    res = payoffs(nets.dr, fd.windows[blobs_used], nets.settings.delta_dr, cfg)
+    accepted = fd.accepted if fd.accepted is not None else _accepted(det, out)
+    centres = out.candidates.centroid[accepted[blobs_used]]
+    by_blob = dict(zip(blobs_used, range(len(blobs_used)), strict=True))
+    for h, j in zip(hidden, idx, strict=True):
+        r = by_blob[int(fd.source[j])]
+        rec, ok = float(res.payoff[r]), bool(res.flipped[r])
+        fa.cost += rec
+        # the results record no per-detection payoff under inject: the recomputed one
+        # stands in, and the path's cost is checked as a whole (_replay_case)
+        h = replace(h, payoff=rec)
+        fa.perturbations.append(_perturbation(h, j, fd, centres[r], rec, ok, res.perturbation[r]))
+    return centres, res.perturbation
+
+
+def _inject_round(
+    nets: Nets,
+    out: FrontEndOutput,
+    fa: FrameAttack,
+    step: int,
+    taken: str,
+    row: int,
+    cfg: AttackConfig,
+) -> Round:
+    """The attack towards "vehicle" on candidate ``row``'s N_dr window (the one that priced
+    it); its cost and perturbation into ``fa``."""
+    from lesmc.perception.attacks import payoffs
+    from lesmc.perception.cnn import DR_SIZE
+
+    frames = stack(out.frame, out.aligned.frames, nets.settings.m)
+    centre = out.candidates.centroid[[row]]
+    inj = payoffs(nets.dr, cut(frames, centre, DR_SIZE), nets.settings.delta_dr, cfg, "inject")
+    rec, ok = float(inj.payoff[0]), bool(inj.flipped[0])
+    fa.cost += rec
+    fa.injected.append(taken)
+    shown: float | str = rec if math.isfinite(rec) else "inf"
+    fa.perturbations.append(
+        {
+            "step": step,
+            "frame": fa.frame,
+            "obs": taken,
+            "x": float(centre[0, 0]),
+            "y": float(centre[0, 1]),
+            "window_origin": [int(v) for v in np.rint(centre[0]).astype(int) - DR_SIZE // 2],
+            "payoff": shown,
+            "payoff_recomputed": shown,
+            "flipped_alone": ok,
+            "action": "inject",
+            "delta": np.round(inj.perturbation[0], PERTURBATION_DIGITS).tolist(),
+        }
+    )
+    return centre, inj.perturbation
+
+
 def _repair(
     nets: Nets,
     det: Detector,
@@ -436,19 +623,22 @@ def _repair(
     after: FrameDetections,
     kept: np.ndarray,
     cfg: AttackConfig,
+    wanted: np.ndarray | None = None,
 ) -> FrameDetections:
     """The repaired attack: hide, jointly with the frame's perturbation (``applied``), every
-    detection the model does not have (hidden ones that survive, extra ones), up to
-    REPAIR_ROUNDS times; the detections after it (``fa`` records the rounds and the
-    extra cost)."""
+    detection the model does not have (hidden ones that survive, extra ones; not those
+    at ``wanted``, the injected ones), up to REPAIR_ROUNDS times; the detections after it
+    (``fa`` records the rounds and the extra cost)."""
     from lesmc.perception.attacks import payoffs
     from lesmc.perception.cnn import DR_SIZE
 
     m = nets.settings.m
     rounds = 0
     while (fa.still or fa.extra) and rounds < REPAIR_ROUNDS:
+        unwanted = _unwanted(fd, after, idx, wanted)
+        if not unwanted:
+            break
         rounds += 1
-        unwanted = _unwanted(fd, after, idx)
         rows = sorted({int(after.source[j]) for j in unwanted})
         more = payoffs(nets.dr, after.windows[rows], nets.settings.delta_dr, cfg)
         if not more.flipped.any():
@@ -464,10 +654,17 @@ def _repair(
     return after
 
 
-def _unwanted(fd: FrameDetections, after: FrameDetections, hidden_idx: list[int]) -> list[int]:
-    """Rows of ``after`` that match no clean detection the attack keeps."""
+def _unwanted(
+    fd: FrameDetections,
+    after: FrameDetections,
+    hidden_idx: list[int],
+    wanted: np.ndarray | None = None,
+) -> list[int]:
+    """Rows of ``after`` that match no clean detection the attack keeps (nor a position of
+    ``wanted``: injected detections)."""
     keep = np.array([j for j in range(len(fd.positions)) if j not in set(hidden_idx)], int)
-    back = _match(after.positions, fd.positions[keep], DET_TOL_PX)
+    ok = fd.positions[keep] if wanted is None else np.vstack([fd.positions[keep], wanted])
+    back = _match(after.positions, ok, DET_TOL_PX)
     return [int(j) for j in np.flatnonzero(back < 0)]
 
 
@@ -640,6 +837,12 @@ def frame_story(fa: FrameAttack) -> str:
             + ("s " if len(fa.extra) > 1 else " ")
             + ", ".join(f"({x:.1f}, {y:.1f})" for x, y in fa.extra)
         )
+    if fa.injected:
+        parts.append(
+            f"injected {', '.join(fa.injected)} (its N_dr window perturbed until N_dr accepts it)"
+        )
+    if fa.not_injected:
+        parts.append(f"injected {', '.join(fa.not_injected)} not detected after all")
     if fa.repaired_rounds:
         parts.append(f"after {fa.repaired_rounds} round(s) of the repaired joint attack")
     return "; ".join(parts)
@@ -687,6 +890,7 @@ def replay(
     history = fe.history
     last = max(c.first_frame + len(c.positions) - 1 for c in todo)
     by_frame = _hidden_by_frame(todo)
+    by_inject = _inject_by_frame(todo)
     attacked: list[dict[int, FrameAttack]] = [{} for _ in todo]
 
     def attack(det: Any, out: FrontEndOutput, fd: FrameDetections) -> None:
@@ -695,6 +899,7 @@ def replay(
 
         for ci, fa in _shared(_groups(by_frame.get(fd.index, [])), one).items():
             attacked[ci][fd.index] = fa
+        _inject_cases(nets, det, out, fd, todo, by_inject, attacked, attack_cfg, repair)
         release()  # the frame's temporaries go back to the system (common/memory.py)
 
     def detector() -> Any:
@@ -706,16 +911,22 @@ def replay(
         clean = _all_frames(frames, detector(), last, attack, on_frame)
     else:  # the clean frames' detections are given: only the attacked ones are detected
         clean = dict(clean)
-        _attacked_frames(frames, detector, sorted(by_frame), history, attack, on_frame)
+        wanted = sorted(set(by_frame) | set(by_inject))
+        _attacked_frames(frames, detector, wanted, history, attack, on_frame)
+    _check_last(clean, last)
+    for c in todo:
+        _check_known(c, clean)
+    replays = {(c.run, c.result): _replay_case(c, clean, attacked[ci]) for ci, c in enumerate(todo)}
+    return Outcome(replays, time.monotonic() - t0)
+
+
+def _check_last(clean: Mapping[int, FrameDetections], last: int) -> None:
+    """The frames must reach ``last``, the last step of a counterexample."""
     if last not in clean:
         raise InputError(
             f"the frames stop before frame {last}, the last step of a counterexample",
             Location("--frames"),
         )
-    for c in todo:
-        _check_known(c, clean)
-    replays = {(c.run, c.result): _replay_case(c, clean, attacked[ci]) for ci, c in enumerate(todo)}
-    return Outcome(replays, time.monotonic() - t0)
 
 
 def _settings(doc: ResultsDoc, history: int, delta_bc: int) -> tuple[FrontEndConfig, AttackConfig]:
@@ -738,6 +949,37 @@ def _hidden_by_frame(todo: list[Case]) -> dict[int, list[tuple[int, Hidden]]]:
     for ci, c in enumerate(todo):
         for h in c.hidden:
             out.setdefault(h.frame, []).append((ci, h))
+    return out
+
+
+def _inject_cases(
+    nets: Nets,
+    det: Detector,
+    out: FrontEndOutput,
+    fd: FrameDetections,
+    todo: list[Case],
+    by_inject: dict[int, list[tuple[int, int]]],
+    attacked: list[dict[int, FrameAttack]],
+    cfg: AttackConfig,
+    repair: bool,
+) -> None:
+    """The ``allow hide, inject`` cases' attacks of frame ``fd`` (:func:`inject_frame`) into
+    ``attacked``, where they attack it."""
+    for ci, step in by_inject.get(fd.index, []):
+        fa = inject_frame(nets, det, out, fd, todo[ci], step, cfg, repair)
+        if fa.perturbations:
+            attacked[ci][fd.index] = fa
+
+
+def _inject_by_frame(todo: list[Case]) -> dict[int, list[tuple[int, int]]]:
+    """Per frame, the ``allow hide, inject`` cases attacked there: (case number, step), one
+    for every step of the case's window (:func:`inject_frame` derives the attack)."""
+    out: dict[int, list[tuple[int, int]]] = {}
+    for ci, c in enumerate(todo):
+        if not c.injects:
+            continue
+        for k in range(max(c.window[0], 1), min(c.window[1], len(c.positions) - 1) + 1):
+            out.setdefault(c.first_frame + k, []).append((ci, k))
     return out
 
 
@@ -801,6 +1043,15 @@ def _replay_case(
     property to hold (Eq. 5 + the repair) is no counterexample."""
 
     first = c.first_frame
+    if c.injects and c.objective_is_payoff and math.isfinite(c.optimum):
+        cost = sum(fa.cost for fa in attacked.values())
+        if not abs(cost - c.optimum) <= PAYOFF_RTOL * max(c.optimum, 1e-9):
+            raise InputError(
+                f"the attack of {c.design}'s counterexample of {c.prop} now costs {cost:g}, "
+                f"the results say {c.optimum:g}: the frames, networks or attack settings "
+                "differ from the run that wrote the results",
+                Location("--frames"),
+            )
     dets = {k: v for k, v in clean.items() if first <= k <= first + len(c.positions) - 1}
     scene = _footage(dets, c, {k: fa.detections for k, fa in attacked.items()})
     points = track(make_tracker(scene), len(c.positions) - 1)

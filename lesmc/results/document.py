@@ -90,7 +90,8 @@ def provenance(
 
 
 def property_json(bp: BoundProperty, components: tuple[str, ...]) -> dict[str, Any]:
-    """A bound property as data: its window, measures, comparisons and monitor."""
+    """A bound property as data: its window, measures, comparisons and monitor; the
+    attacker's actions when not hide only (``allow hide, inject``: the replay reads them)."""
     c = bp.constraint
     monitor = None
     if bp.monitor_components is not None:
@@ -120,7 +121,7 @@ def property_json(bp: BoundProperty, components: tuple[str, ...]) -> dict[str, A
         "components": [components[i] for i in bp.components],
         "norm": num(bp.norm),
         "monitor": monitor,
-    }
+    } | ({} if bp.prop.actions == ("hide",) else {"actions": list(bp.prop.actions)})
 
 
 def _path_no(cm: ArrayModel, number: dict[tuple[int, ...], int], p: PathInfo | None) -> int | None:
@@ -186,6 +187,22 @@ def _hidden(
             item |= _detection_facts(scene, first + k, str(cm.obs_of(o)))
             out.append(item)
     return out
+
+
+def _hidden_of(
+    run: DesignRun, cm: ArrayModel, listed: list[Track], cex: list[int | None]
+) -> dict[str, list[dict[str, Any]]]:
+    """Per property with a counterexample (``cex``: its listed path's number), the
+    detections it hides (:func:`_hidden`). Under ``allow hide, inject`` none are listed:
+    the ranks are ordered by cost there, so the lower ranks are cheaper outcomes, not the
+    detections hidden (the replay derives those itself, lesmc/replay/run.py)."""
+    return {
+        bp.name: []
+        if "inject" in bp.prop.actions
+        else _hidden(cm, listed[n - 1], run.scene, (bp.l, bp.u))
+        for bp, n in zip(run.bound, cex, strict=True)
+        if n is not None
+    }
 
 
 def _detection_facts(scene: Scene | None, frame: int, obs: str) -> dict[str, Any]:
@@ -347,11 +364,7 @@ def run_json(
         "paths_total": tracks.count_paths(cm),
         "paths": [_track_json(cm, i + 1, t, win, judged[i]) for i, t in enumerate(listed)],
         "states": _states_json(cm, listed, to_ref, loc),
-        "hidden": {
-            bp.name: _hidden(cm, listed[n - 1], run.scene, (bp.l, bp.u))
-            for bp, n in zip(run.bound, cex, strict=True)
-            if n is not None
-        },
+        "hidden": _hidden_of(run, cm, listed, cex),
         "scene": scene_part,
         "replay_inputs": None if run.scene is None else replay_inputs(run.scene),
     }

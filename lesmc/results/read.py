@@ -289,6 +289,8 @@ class PropertyDoc:
     constraint_range: tuple[int, ...]
     bound: float
     monitor: Monitor | None
+    #: the attacker's actions (``allow hide, inject``); hide only when the document omits them
+    actions: tuple[str, ...] = ("hide",)
 
 
 @dataclass(frozen=True)
@@ -569,6 +571,7 @@ def _property(p: Mapping[str, Any]) -> PropertyDoc:
         constraint_aggregate=p["constraint_aggregate"],
         constraint_range=tuple(p["constraint_range"]),
         bound=float(p["bound"]),
+        actions=tuple(p.get("actions", ("hide",))),
         monitor=None
         if mon is None
         else Monitor(

@@ -44,6 +44,16 @@ from lesmc.tracking.parts.deleter import TraceDeleter
 from lesmc.tracking.parts.hypothesiser import GateHypothesiser
 
 
+def carried_prediction(m: Matrices, X: np.ndarray, to_next: np.ndarray | None) -> np.ndarray:
+    """States ``X`` of one frame carried into the next (its positions through the
+    homography ``to_next``, None: the camera did not move), then predicted: what the
+    single tracker's gate and the attacker's options are measured from."""
+    if to_next is not None:
+        X = X.copy()
+        X[..., list(m.pos)] = warp(to_next, positions(m, X))
+    return predict_means(m, X)
+
+
 @dataclass(frozen=True)
 class SingleParts:
     """The parts the single design is composed of (docs/trackers.md, "Parts"); its
@@ -98,11 +108,7 @@ class SingleDesign:
 
     def predict(self, X: np.ndarray, step: int, m: Matrices) -> np.ndarray:
         """Carry positions into frame ``step`` (homography of the previous frame), then predict."""
-        to_next = self.scene.frame(step - 1).to_next
-        if to_next is not None:
-            X = X.copy()
-            X[..., list(m.pos)] = warp(to_next, positions(m, X))
-        return predict_means(m, X)
+        return carried_prediction(m, X, self.scene.frame(step - 1).to_next)
 
     def successors(self, batch: Batch, step: int, attacked: bool) -> Successors:
         """Outcomes of moving the states of ``batch`` (none halted) to frame ``step``.

@@ -36,6 +36,8 @@ lesmc/tracking/parts/attacker_subsets.py (the two modules are one part).
 ``single`` under ``allow hide, inject``: :func:`injection_option_rows` (``(gated, payoffs,
 valid, injected, key)``, each (g, k), detections and candidates merged nearest first ->
 OptionRows``): the distinct outcomes, each at its cheapest cost, ranked by cost.
+:func:`forcing_update` says which detections and candidates that cheapest way hides and
+injects to make the tracker update with a given measurement (a replay applies them).
 """
 
 from __future__ import annotations
@@ -249,6 +251,26 @@ def injection_option_rows(
     row, col, outcome, price = row[order], col[order], outcome[order], price[order]
     _, payoff = ranks_and_payoffs(row, price)
     return OptionRows(row, np.where(outcome < 0, -1, col), payoff)
+
+
+def forcing_update(
+    det_dist: np.ndarray, cand_dist: np.ndarray, taken: int, candidate: bool
+) -> tuple[np.ndarray, np.ndarray]:
+    """The cheapest way (:func:`injection_option_rows`) to make ``single`` update with one
+    measurement: detection ``taken`` (``candidate`` False) or injection candidate ``taken``,
+    at distances ``det_dist`` (the frame's detections) and ``cand_dist`` (its candidates)
+    from the prediction. Every detection before it in the merged order (nearest first;
+    ties: a detection before a candidate, then the lower index) is hidden; no candidate
+    before it is injected; a candidate is itself injected. Returns (detections hidden,
+    candidates injected), as indices."""
+    if candidate:
+        d = cand_dist[taken]
+        hidden = np.flatnonzero(det_dist <= d)  # at equal distance a detection comes first
+        return hidden, np.array([taken], dtype=np.int64)
+    d = det_dist[taken]
+    order = np.arange(len(det_dist))
+    hidden = np.flatnonzero((det_dist < d) | ((det_dist == d) & (order < taken)))
+    return hidden, np.zeros(0, dtype=np.int64)
 
 
 # ---------------------------------------- trackers that build each option (joint)
