@@ -18,7 +18,7 @@ from typing import Any
 import click
 
 from lesmc.language.properties import SpecFile
-from lesmc.pipeline.multi import multi_results
+from lesmc.pipeline.multi import MULTI_CHECK_VERSION, multi_results
 from lesmc.scene import Scene
 
 __all__ = ["check_multi_scene", "multi_results"]
@@ -46,7 +46,7 @@ def _print(out: list[dict[str, Any]], design: str, reference: str, as_json: bool
     if as_json:
         doc = {
             "format": "lesmc-multi-check",
-            "version": 1,
+            "version": MULTI_CHECK_VERSION,
             "design": design,
             "reference": reference,
             "results": out,

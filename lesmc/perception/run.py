@@ -74,6 +74,9 @@ class PerceiveRun:
     unit_max: dict[str, list[np.ndarray]] = field(default_factory=dict)
     #: frame index -> its registration from the previous frame (a replay reuses them)
     registrations: dict[int, Registration] = field(default_factory=dict)
+    #: the side (px) of the window N_dr classifies: each detection's box in the scene is
+    #: this square centred on it (lesmc/perception/to_scene.py)
+    box_px: int = DR_SIZE
 
 
 def perceive(

@@ -23,10 +23,14 @@ if TYPE_CHECKING:  # torch and cv2 only where frames are perceived: not for a ca
 
 
 def frames_of(
-    dets: list[FrameDetections], pays: list[np.ndarray], lower: list[np.ndarray] | None = None
+    dets: list[FrameDetections],
+    pays: list[np.ndarray],
+    lower: list[np.ndarray] | None = None,
+    box: float | None = None,
 ) -> tuple[Frame, ...]:
     """Scene frames: detection ids ``"FRAME:I"``, payoffs [and certified lower bounds],
-    homographies to the next frame."""
+    homographies to the next frame; with ``box``, each detection's box is its window, a
+    ``box`` x ``box`` square centred on it (scene format 2; point trackers ignore it)."""
     out = []
     lows: list[np.ndarray | None] = list(lower) if lower else [None] * len(dets)
     for i, (fd, p, lo) in enumerate(zip(dets, pays, lows, strict=True)):
@@ -40,6 +44,8 @@ def frames_of(
                 float(y),
                 float(p[j]),
                 None if lo is None else float(lo[j]),
+                box,
+                box,
             )
             for j, (x, y) in enumerate(fd.positions)
         )
@@ -49,11 +55,13 @@ def frames_of(
 
 def footage_from_run(run: PerceiveRun, dt: float, meta: dict[str, Any] | None = None) -> Footage:
     """The scene without a target of a ``perceive`` run: detections ``"FRAME:I"``, payoffs,
-    certified lower bounds when the run computed them, homographies."""
+    certified lower bounds when the run computed them, homographies; each detection's box
+    is the run's window around it (``run.box_px``: N_dr's 21 x 21), so that an IoU
+    tracker (``--design sort``) can run on the video."""
     if not run.detections:
         raise UsageError("no frame produced detections: the video is shorter than L+1 frames")
     lower = run.payoffs_lower or None
-    frames = frames_of(run.detections, run.payoffs, lower)
+    frames = frames_of(run.detections, run.payoffs, lower, float(run.box_px))
     return Footage(dt, frames, TrackerConfig(), dict(meta or {}))
 
 

@@ -18,30 +18,46 @@ from typing import Any
 
 from lesmc.common.errors import Location, SpecError, UsageError, source_line
 from lesmc.language.properties import Measure, Property, SpecFile
+from lesmc.pipeline.multi_tracks import StepDrawing, step_drawings
 from lesmc.scene import Scene
+
+#: The version of the ``lesmc-multi-check`` document (2: each counterexample step holds
+#: what the report draws: ``switch``, ``reference``, ``tracks``, ``attacked``).
+MULTI_CHECK_VERSION = 2
 
 
 @dataclass(frozen=True)
 class AttackStep:
     """One step of a counterexample: the detections hidden and the candidates injected at
     it (``FRAME:K`` ids, as ``lesmc import mot`` numbers them) and the target's track id
-    (None: the target has no track at this step)."""
+    (None: the target has no track at this step); for the report (``lesmc-multi-check``
+    version 2): every track after the step, the attacked detections' boxes, the
+    reference box and whether the target's id switched here
+    (lesmc/pipeline/multi_tracks.py)."""
 
     step: int
     frame: int
     hidden: tuple[str, ...]
     injected: tuple[str, ...]
     target_id: int | None
+    drawing: StepDrawing | None = None
 
     def to_dict(self) -> dict[str, Any]:
         """The step as ``lesmc check --json`` prints it."""
-        return {
+        out: dict[str, Any] = {
             "step": self.step,
             "frame": self.frame,
             "hidden": list(self.hidden),
             "injected": list(self.injected),
             "target_id": self.target_id,
         }
+        d = self.drawing
+        if d is not None:
+            out["switch"] = d.switch
+            out["reference"] = None if d.reference is None else list(d.reference)
+            out["tracks"] = list(d.tracks)
+            out["attacked"] = list(d.attacked)
+        return out
 
 
 @dataclass(frozen=True)
@@ -116,7 +132,7 @@ def check_multi_design(
                 scene, design, (b.l, b.u), b.end, max_states, b.radius, actions=prop.actions
             )
         res = check_multi(models[key], b)
-        steps = _steps(models[key], b.objective.source, res.path)
+        steps = _steps(scene, design, models[key], b.objective.source, res.path)
         out.append(
             MultiCheckResult(
                 scene.tracker.design,
@@ -180,22 +196,28 @@ def _priced(scene: Scene, l: int, u: int) -> None:
                 )
 
 
-def _steps(model: Any, objective: str, path: Any) -> tuple[AttackStep, ...] | None:
+def _steps(
+    scene: Scene, design: Any, model: Any, objective: str, path: Any
+) -> tuple[AttackStep, ...] | None:
     """The counterexample's steps along ``path`` (the engine's transitions; None: no
-    path), each with the detections hidden and the candidates injected at it and the
-    target's track id."""
+    path), each with the detections hidden and the candidates injected at it, the
+    target's track id and what the report draws of it."""
     if path is None:
         return None
     hidden = model.by_payoff if objective == "payoff" else model.by_count
     states = [0, *(int(model.dst[t]) for t in path)]
     subs: list[tuple[int, ...]] = [(), *(hidden[t] for t in path)]
+    ids = [None if model.tid[s] < 0 else int(model.tid[s]) for s in states]
+    frames = scene.frames[: len(subs)]
+    drawn = step_drawings(design, frames, subs, model.detections, ids, model.refbox)
     return tuple(
         AttackStep(
             k,
             model.frames[k],
             tuple(model.names[k][j] for j in sub if j < model.detections[k]),
             tuple(model.names[k][j] for j in sub if j >= model.detections[k]),
-            None if model.tid[s] < 0 else int(model.tid[s]),
+            ids[k],
+            drawn[k],
         )
-        for k, (s, sub) in enumerate(zip(states, subs, strict=True))
+        for k, sub in enumerate(subs)
     )
