@@ -18,7 +18,7 @@ from typing import Any
 import click
 
 from lesmc.language.properties import SpecFile
-from lesmc.pipeline.multi import MULTI_CHECK_VERSION, multi_results
+from lesmc.pipeline.multi import check_multi_design, multi_document, multi_results
 from lesmc.scene import Scene
 
 __all__ = ["check_multi_scene", "multi_results"]
@@ -36,24 +36,19 @@ def check_multi_scene(
     design of ``scene``; print the results; exit 0 (all hold) or 1 (some violated)."""
     from lesmc.unfold.multi import composed
 
-    out = multi_results(scene, path, specs, only, max_states)
+    out = check_multi_design(scene, path, specs, only, max_states)
     kind = composed(scene, path).reference_kind()
-    _print(out, scene.tracker.design, kind, as_json)
-    sys.exit(0 if all(r["verdict"] == "holds" for r in out) else 1)
+    print_multi(multi_document(scene.tracker.design, kind, out), as_json)
+    sys.exit(0 if all(r.verdict == "holds" for r in out) else 1)
 
 
-def _print(out: list[dict[str, Any]], design: str, reference: str, as_json: bool) -> None:
+def print_multi(doc: dict[str, Any], as_json: bool) -> None:
+    """A ``lesmc-multi-check`` document on stdout: as JSON, or a line per property and
+    per counterexample step (``lesmc verify --design sort`` prints the same)."""
     if as_json:
-        doc = {
-            "format": "lesmc-multi-check",
-            "version": MULTI_CHECK_VERSION,
-            "design": design,
-            "reference": reference,
-            "results": out,
-        }
         click.echo(json.dumps(doc, indent=1))
         return
-    for r in out:
+    for r in doc["results"]:
         opt = "inf" if r["optimum"] is None else f"{r['optimum']:g}"
         click.echo(
             f"{r['property']}: {r['verdict']}, optimum {opt} "

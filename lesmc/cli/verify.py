@@ -29,6 +29,7 @@ from lesmc.cli.signals import resumable
 if TYPE_CHECKING:
     from lesmc.experiment.experiment import Outcome
     from lesmc.experiment.experiment import Request as VerifyRequest
+    from lesmc.experiment.multi_verify import MultiOutcome
 
 
 @click.command("verify")
@@ -152,7 +153,7 @@ def verify_cmd(
         truth=truth,
         specs=specs,
         window=parse_window(window_text) if window_text else None,
-        designs=expand_designs(design),
+        designs=expand_designs(design, multi=True),
         out=Path(out_dir),
         nets=(nets_dir, detector_file, locator_file),
         scene_frames=frames_opt,
@@ -187,12 +188,20 @@ def _run(request: VerifyRequest, as_json: bool) -> None:
     _finish(outcome, as_json)
 
 
-def _finish(outcome: Outcome, as_json: bool) -> None:
+def _finish(outcome: Outcome | MultiOutcome, as_json: bool) -> None:
     """The results on stdout (results.json, or the table and the report's path), then the
     exit status."""
+    from lesmc.experiment.multi_verify import MultiOutcome
     from lesmc.report.text import make_console, print_runs
     from lesmc.results.exit import exit_status
 
+    if isinstance(outcome, MultiOutcome):  # a multi-target design: lesmc check's lines
+        from lesmc.cli.multi_check import print_multi
+
+        print_multi(outcome.doc, as_json)
+        if not as_json:
+            click.echo(f"report: {outcome.report}")
+        sys.exit(0 if all(r.verdict == "holds" for r in outcome.results) else 1)
     if as_json:
         click.echo(json.dumps(outcome.doc, indent=1, allow_nan=False))
     else:

@@ -161,6 +161,30 @@ def multi_results(
     return [r.to_dict() for r in check_multi_design(scene, path, specs, only, max_states)]
 
 
+def multi_document(
+    design: str,
+    reference: str,
+    results: list[MultiCheckResult],
+    meta: dict[str, Any] | None = None,
+    timings: dict[str, float] | None = None,
+) -> dict[str, Any]:
+    """The ``lesmc-multi-check`` document of ``results`` of ``design`` (``lesmc check
+    --design sort --json`` prints it; ``lesmc verify --design sort`` writes it, with
+    ``meta`` and ``timings``, as its results.json)."""
+    doc: dict[str, Any] = {
+        "format": "lesmc-multi-check",
+        "version": MULTI_CHECK_VERSION,
+        "design": design,
+        "reference": reference,
+        "results": [r.to_dict() for r in results],
+    }
+    if meta is not None:
+        doc["meta"] = meta
+    if timings is not None:
+        doc["timings"] = {k: round(float(v), 3) for k, v in timings.items()}
+    return doc
+
+
 def _unsupported(spec: SpecFile, what: str, m: Measure) -> SpecError:
     loc = Location(spec.path, m.pos.line, m.pos.column, source_line(spec.text, m.pos.line))
     return SpecError(f"{what} (multi-target designs: not supported yet)", loc)
