@@ -81,9 +81,10 @@ def multi_tracker(name: str, impl: str, label: str, summary: str) -> Design:
 def not_yet(name: str) -> str:
     """What a verb that builds a model says of multi-target design ``name``."""
     return (
-        f"design '{name}' is a multi-target tracker: `lesmc track` runs it and `lesmc check` "
-        "checks its switches, lost and dist properties on a scene (and lesmc.check), but "
-        "building, exporting and verifying a multi-target design is not supported yet (issue 58)"
+        f"design '{name}' is a multi-target tracker: `lesmc track` runs it, `lesmc check` "
+        "checks its switches, lost and dist properties on a scene (and lesmc.check) and "
+        f"`lesmc verify --design {name}` on a video, but building and exporting a "
+        "multi-target design, and campaigns over one, are not supported yet (issue 58)"
     )
 
 
@@ -169,14 +170,14 @@ multi_tracker(
     "lesmc.tracking.multi:SortDesign",
     "SORT",
     "SORT (Bewley et al. 2016): box Kalman filters, IoU assignment, min_hits, max_age; "
-    "multi-target: `lesmc track`, and `lesmc check` of switches, lost and dist",
+    "multi-target: `lesmc track`, `lesmc check` and `lesmc verify` of switches, lost, dist",
 )
 multi_tracker(
     "gnn",
     "lesmc.tracking.gnn:GnnDesign",
     "GNN",
     "point Kalman filters, Mahalanobis chi-square gate, global nearest neighbour, M-of-N "
-    "birth, max_age death; multi-target: `lesmc track`, and `lesmc check` of switches, lost, dist",
+    "birth, max_age death; multi-target: `lesmc track`, `lesmc check`, `lesmc verify`",
 )
 SETS["paper"] = ("single", "joint", "improved")
 SETS["both"] = ("single", "improved")

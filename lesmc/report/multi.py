@@ -31,6 +31,8 @@ ImageFor = Callable[[int], np.ndarray | None]
 
 #: At most this many steps get a panel (the attacked steps and those after them first).
 MAX_PANELS = 12
+#: A step's tracks are all listed in its table row up to this many (else those drawn).
+MAX_LISTED = 40
 #: The switch marker on the page and on the panels.
 SWITCH = "SWITCH"
 
@@ -61,16 +63,20 @@ def render_multi(
     """The page and its figures by file name."""
     design = str(doc["design"])
     figs: dict[str, bytes] = {}
+    drawn: dict[str, str] = {}
     sections = []
     for i, r in enumerate(doc["results"]):
         parts: list[Any] = [para(_verdict_line(r))]
         steps = r.get("counterexample") or []
-        if steps and "tracks" in steps[0]:
-            name = f"multi_{i}_{_tag(r['property'])}.png"
-            figs[name] = track_panels(steps, image_for)
-            parts.append(Figure(name, _caption(r)))
+        views = _views(steps) if steps and "tracks" in steps[0] else None
+        if views is not None:
+            key = json.dumps(steps, sort_keys=True)  # one drawing for equal counterexamples
+            if key not in drawn:
+                drawn[key] = f"multi_{i}_{_tag(r['property'])}.png"
+                figs[drawn[key]] = track_panels(steps, image_for)
+            parts.append(Figure(drawn[key], _caption(r)))
         if steps:
-            parts.append(_steps_table(steps))
+            parts.append(_steps_table(steps, views))
         sections.append({"name": r["property"], "tag": _tag(r["property"]), "parts": parts})
     meta = [("design", registry.label(design)), ("target's reference", doc["reference"])]
     meta += [(k, _text(v)) for k, v in (doc.get("meta") or {}).items()]
@@ -134,10 +140,21 @@ def _caption(r: dict[str, Any]) -> str:
     )
 
 
-def _steps_table(steps: Sequence[dict[str, Any]]) -> Any:
+def _steps_table(
+    steps: Sequence[dict[str, Any]], views: list[tuple[np.ndarray, np.ndarray]] | None
+) -> Any:
+    """Each step's target id, switch, hidden and injected detections and tracks: every
+    track when a step has at most :data:`MAX_LISTED`, else those in its panel's view
+    (``views``, one per step) and how many others."""
     rows = []
-    for s in steps:
-        tracks = " ".join(f"{t['id']}:{t['status'][:4]}" for t in s.get("tracks", ()))
+    for k, s in enumerate(steps):
+        listed = list(s.get("tracks", ()))
+        if len(listed) > MAX_LISTED and views is not None:
+            view = views[k]
+            listed = [t for t in listed if _in_view(t.get("box") or t["position"], *view)]
+        tracks = " ".join(f"{t['id']}:{t['status'][:4]}" for t in listed)
+        if len(listed) < len(s.get("tracks", ())):
+            tracks += f" (and {len(s['tracks']) - len(listed)} outside the panels)"
         rows.append(
             [
                 s["step"],
@@ -178,23 +195,33 @@ def _corners(row: Sequence[float]) -> np.ndarray:
     return v.reshape(2, 2) if len(v) == 4 else np.vstack([v, v])
 
 
-def _view(steps: Sequence[dict[str, Any]]) -> tuple[np.ndarray, np.ndarray]:
-    """A square view around the reference boxes, the target's tracks and the attacked
-    detections of ``steps``."""
-    pts = []
+def _in_view(row: Sequence[float], lo: np.ndarray, hi: np.ndarray) -> bool:
+    """A box (or position) meets the view [lo, hi]."""
+    c = _corners(row)
+    return bool((c[1] >= lo).all() and (c[0] <= hi).all())
+
+
+def _views(steps: Sequence[dict[str, Any]]) -> list[tuple[np.ndarray, np.ndarray]]:
+    """Each step's view: a square (at least 160 px, figures' ``_square_view``) around its
+    reference box, the target's track and the attacked detections; a step with none of
+    them keeps the previous step's view (the first such: around all its tracks). Each
+    frame of a video is in its own pixel coordinates, so each step has its own."""
+    out: list[tuple[np.ndarray, np.ndarray]] = []
     for s in steps:
-        if s.get("reference") is not None:
-            pts.append(_corners(s["reference"]))
-        for a in s["attacked"]:
-            pts.append(_corners(a.get("box") or a["position"]))
-        for t in s["tracks"]:
-            if t["id"] == s["target_id"]:
-                pts.append(_corners(t.get("box") or t["position"]))
-    if not pts:
-        pts = [_corners(t.get("box") or t["position"]) for s in steps for t in s["tracks"]]
-    if not pts:
-        return np.zeros(2), np.full(2, 160.0)
-    return _square_view(np.vstack(pts))
+        pts = [_corners(s["reference"])] if s.get("reference") is not None else []
+        pts += [_corners(a.get("box") or a["position"]) for a in s["attacked"]]
+        pts += [
+            _corners(t.get("box") or t["position"])
+            for t in s["tracks"]
+            if t["id"] == s["target_id"]
+        ]
+        if not pts and out:
+            out.append(out[-1])
+            continue
+        if not pts:
+            pts = [_corners(t.get("box") or t["position"]) for t in s["tracks"]]
+        out.append(_square_view(np.vstack(pts)) if pts else (np.zeros(2), np.full(2, 160.0)))
+    return out
 
 
 def track_panels(steps: Sequence[dict[str, Any]], image_for: ImageFor | None = None) -> bytes:
@@ -203,14 +230,15 @@ def track_panels(steps: Sequence[dict[str, Any]], image_for: ImageFor | None = N
     detections crossed, injected ones green, SWITCH in the title of a switch step."""
     plt = _pyplot()
     shown = _shown(steps)
-    lo, hi = _view(shown)
+    views = _views(steps)
+    at = {s["step"]: i for i, s in enumerate(steps)}
     cols = min(4, len(shown))
     rows = (len(shown) + cols - 1) // cols
     fig, axes = plt.subplots(rows, cols, figsize=(2.6 * cols, 2.7 * rows), squeeze=False)
     for ax in axes.flat[len(shown) :]:
         ax.set_axis_off()
     for ax, s in zip(axes.flat, shown, strict=False):
-        _panel(ax, s, lo, hi, image_for)
+        _panel(ax, s, *views[at[s["step"]]], image_for)
     fig.subplots_adjust(wspace=0.08, hspace=0.25)
     return _png(fig)
 
@@ -241,6 +269,8 @@ def _panel(
         outline(s["reference"], color=COLOURS["truth"], ls=":", lw=1.2)
     for t in s["tracks"]:
         place = t.get("box") or t["position"]
+        if not _in_view(place, lo, hi):  # hundreds on a video frame: only those seen
+            continue
         mine = t["id"] == s["target_id"]
         colour = COLOURS["counterexample"] if mine else COLOURS["other"]
         outline(
