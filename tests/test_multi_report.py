@@ -64,14 +64,35 @@ def test_verify_sort_writes_a_multi_check_results_file_and_a_report(
     assert "target" in doc["meta"] and "models and checks" in doc["timings"]
     page = (verified / "report.html").read_text()
     assert "the SORT design (multi-target)" in page
-    again = lesmc("report", str(verified / "results.json"), "--out", str(tmp_path / "r"))
+    video = verified.parent / "video"
+    again = lesmc(
+        "report",
+        str(verified / "results.json"),
+        "--out",
+        str(tmp_path / "r"),
+        "--frames",
+        str(video),
+    )
     assert again.returncode == 0 and "Traceback" not in again.stderr, again.stderr
     redrawn = (tmp_path / "r" / "report.html").read_text()
+    assert redrawn == page  # drawn from the results file alone, as verify drew it
     for r in doc["results"]:
         assert f"Property {r['property']}" in redrawn
-        for s in r["counterexample"] or []:
-            ids = " ".join(f"{t['id']}:{t['status'][:4]}" for t in s["tracks"])
-            assert ids in redrawn  # every track of every step, as the steps table lists it
+        steps = r["counterexample"] or []
+        if not steps:
+            continue
+        for s, row in zip(steps, _rows(redrawn, r["property"]), strict=True):
+            assert row[:3] == [str(s["step"]), str(s["frame"]), str(s["target_id"] or "-")]
+            words = row[6].split(" (and ")
+            listed = [w for w in words[0].split() if w != "-"]
+            have = {f"{t['id']}:{t['status'][:4]}" for t in s["tracks"]}
+            assert set(listed) <= have and len(listed) == len(set(listed))
+            if s["target_id"] is not None:  # the target's track is always in view
+                assert any(w.startswith(f"{s['target_id']}:") for w in listed)
+            # every track is listed, or the row counts those left out
+            rest = int(words[1].split()[0]) if len(words) > 1 else 0
+            assert len(listed) + rest == len(s["tracks"])
+            assert rest == 0 or len(s["tracks"]) > 40
 
 
 def _rows(page: str, prop: str) -> list[list[str]]:
