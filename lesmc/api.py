@@ -414,10 +414,13 @@ def verify(
         "reporter must be None or a lesmc.common.progress.Reporter",
         reporter,
     )
+    from lesmc.experiment.multi_verify import multi_designs, verify_multi
+
+    run = verify_multi if multi_designs(request.designs) else run_verify
     if reporter is not None:
-        return run_verify(request, reporter)
+        return run(request, reporter)
     with Reporter("verify", live=False) as rep:
-        return run_verify(request, rep)
+        return run(request, rep)
 
 
 def __getattr__(name: str) -> Any:

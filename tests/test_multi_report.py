@@ -63,7 +63,7 @@ def test_verify_sort_writes_a_multi_check_results_file_and_a_report(
     assert [r["property"] for r in doc["results"]] == ["robustness", "resilience", "hijack"]
     assert "target" in doc["meta"] and "models and checks" in doc["timings"]
     page = (verified / "report.html").read_text()
-    assert "the SORT design (multi-target)" in page
+    assert "the sort design (multi-target)" in page
     video = verified.parent / "video"
     again = lesmc(
         "report",

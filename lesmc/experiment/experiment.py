@@ -36,7 +36,6 @@ from lesmc.experiment.cache import (
     net_files,
 )
 from lesmc.experiment.false_alarms import false_alarm_report, truth_track
-from lesmc.experiment.multi_verify import MultiOutcome, multi_designs, verify_multi
 from lesmc.experiment.neuron_faults import NeuronRuns, check_units, neuron_faults, neuron_frames
 from lesmc.experiment.perceive import networks_meta
 from lesmc.experiment.pricing import VideoPricer, priced_meta
@@ -157,11 +156,9 @@ def load_specs(paths: list[Path], window: tuple[int, int] | None) -> list[SpecFi
     return [load_spec(str(p)).with_window(window) for p in paths]
 
 
-def verify(req: Request, rep: Reporter) -> Outcome | MultiOutcome:
-    """Run the experiment of ``req``; progress goes to ``rep``. A multi-target design
-    (``sort``, ``gnn``) is verified by lesmc/experiment/multi_verify.py."""
-    if multi_designs(req.designs):
-        return verify_multi(req, rep)
+def verify(req: Request, rep: Reporter) -> Outcome:
+    """Run the experiment of ``req``; progress goes to ``rep`` (a multi-target design:
+    lesmc/experiment/multi_verify.py, which lesmc.api.verify calls instead)."""
     started = time.monotonic()
     specs = load_specs([Path(s) for s in req.specs] or bundled_specs(), req.window)
     faults = load_faults(req.faults) if req.faults is not None else None

@@ -22,7 +22,6 @@ from typing import Any
 import numpy as np
 
 from lesmc.common.numbers import fmt
-from lesmc.designs import registry
 from lesmc.report.figures import COLOURS, _png, _pyplot, _square_view
 from lesmc.report.pages import Figure, Markup, images, key_values, para, render_page, table
 from lesmc.report.staging import staged
@@ -78,12 +77,12 @@ def render_multi(
         if steps:
             parts.append(_steps_table(steps, views))
         sections.append({"name": r["property"], "tag": _tag(r["property"]), "parts": parts})
-    meta = [("design", registry.label(design)), ("target's reference", doc["reference"])]
+    meta = [("design", design), ("target's reference", doc["reference"])]
     meta += [(k, _text(v)) for k, v in (doc.get("meta") or {}).items()]
     meta += [(f"{k} (s)", fmt(v)) for k, v in (doc.get("timings") or {}).items()]
     page = render_page(
         "multi.html.j2",
-        design=registry.label(design),
+        design=design,
         meta=key_values(meta),
         verdicts=_verdicts(doc["results"]),
         sections=sections,
