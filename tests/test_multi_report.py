@@ -161,3 +161,17 @@ def test_the_report_draws_a_switch_that_the_reference_sort_reproduces(tmp_path: 
     assert switch_rows
     before = [c[2] for c in rows[: rows.index(switch_rows[0])] if c[2] != "-"]
     assert before and before[-1] != switch_rows[0][2]  # the id the page shows changed
+
+
+def test_verify_refuses_a_multi_target_design_among_point_designs(tmp_path: Path) -> None:
+    """One results file holds one kind of result: sort with single is a UsageError before
+    any work (nothing written), as is a second multi-target design."""
+    import lesmc as api
+    from lesmc.common.errors import UsageError
+
+    for designs, word in ((("single", "sort"), "single"), (("sort", "gnn"), "one multi-target")):
+        req = api.VerifyRequest(designs=designs, out=tmp_path / "out")
+        with pytest.raises(UsageError) as err:
+            api.verify(req)
+        assert word in err.value.message
+    assert not (tmp_path / "out").exists()
