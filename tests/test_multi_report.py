@@ -175,3 +175,23 @@ def test_verify_refuses_a_multi_target_design_among_point_designs(tmp_path: Path
             api.verify(req)
         assert word in err.value.message
     assert not (tmp_path / "out").exists()
+
+
+def test_verify_gnn_draws_point_tracks(verified: Path, tmp_path: Path) -> None:
+    """``--design gnn`` on the same video (its perception read from the sort run's cache):
+    the tracks are positions, and the report draws them."""
+    import shutil
+
+    out = tmp_path / "gnn"
+    shutil.copytree(verified / "cache", out / "cache")
+    video = verified.parent / "video"
+    r = lesmc("verify", str(video), "--truth", str(video / "truth.json"), "--out", str(out),
+              "--design", "gnn", "--window", "3..4")  # fmt: skip
+    assert r.returncode in (0, 1) and "Traceback" not in r.stderr, r.stderr
+    assert "reusing the perception" in r.stderr
+    doc = json.loads((out / "results.json").read_text())
+    _valid(doc)
+    assert doc["design"] == "gnn"
+    steps = [s for res in doc["results"] for s in res["counterexample"] or []]
+    assert steps and all("position" in t and "box" not in t for s in steps for t in s["tracks"])
+    assert "the gnn design (multi-target)" in (out / "report.html").read_text()
