@@ -107,7 +107,9 @@ def _rows(page: str, prop: str) -> list[list[str]]:
 
 def _switching_scene(tmp_path: Path) -> tuple[Path, list[np.ndarray], dict[str, Any]]:
     """A random box scene (tests/test_multi_attack.py's: three objects crossing) on which
-    the cheapest hijack exists, its frames, and ``lesmc check --design sort --json``."""
+    the cheapest hijack exists, its frames, and ``lesmc check --design sort --json``
+    (with ``--report``: its results file is that document, and its report marks the
+    switch)."""
     spec = tmp_path / "hijack.spec"
     spec.write_text(
         "property hijack {\n  attack window 2..4\n  minimize payoff\n"
@@ -123,9 +125,15 @@ def _switching_scene(tmp_path: Path) -> tuple[Path, list[np.ndarray], dict[str, 
         scene.write_text(json.dumps(_doc(frames, pay)))
         (res,) = api.check(scene, spec, designs="sort")
         if res.counterexample is not None:
-            r = lesmc("check", str(scene), str(spec), "--design", "sort", "--json")
+            chk = tmp_path / "chk"
+            r = lesmc("check", str(scene), str(spec), "--design", "sort", "--json",
+                      "--report", str(chk))  # fmt: skip
             assert r.returncode in (0, 1) and "Traceback" not in r.stderr, r.stderr
-            return scene, frames, json.loads(r.stdout)
+            doc = json.loads(r.stdout)
+            # check --report writes the same document and draws it
+            assert json.loads((chk / "results.json").read_text()) == doc
+            assert "SWITCH" in (chk / "report.html").read_text()
+            return scene, frames, doc
     raise AssertionError("no seed of 40 gives a hijack")
 
 

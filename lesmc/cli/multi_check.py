@@ -6,7 +6,8 @@ The check itself is lesmc/pipeline/multi.py's (the Python API returns the same r
 ``count.frames`` or a ``dist`` measure; constraints: ``switches(a..b)``, ``lost(a..b)`` or
 a ``dist`` measure (the track of the target's id against its reference, on the box's
 x, y, w, h); anything else is an error (exit status 2), as are the options a
-multi-target check does not take yet.
+multi-target check does not take yet. ``--report DIR`` writes the results file and
+its report (lesmc/report/multi.py).
 """
 
 from __future__ import annotations
@@ -31,14 +32,24 @@ def check_multi_scene(
     only: tuple[str, ...],
     as_json: bool,
     max_states: int | None = None,
+    report: tuple[str, str | None] | None = None,
 ) -> None:
     """Check every property (or those named in ``only``) of ``specs`` on the multi-target
-    design of ``scene``; print the results; exit 0 (all hold) or 1 (some violated)."""
+    design of ``scene``; print the results; with ``report`` (``--report DIR``, ``--frames``)
+    write the results file and draw its report there; exit 0 (all hold) or 1 (some
+    violated)."""
     from lesmc.unfold.multi import composed
 
     out = check_multi_design(scene, path, specs, only, max_states)
     kind = composed(scene, path).reference_kind()
-    print_multi(multi_document(scene.tracker.design, kind, out), as_json)
+    doc = multi_document(scene.tracker.design, kind, out)
+    if report is not None:
+        from lesmc.report.multi import write_multi_report
+        from lesmc.report.publish import frames_reader
+
+        page = write_multi_report(doc, report[0], frames_reader(report[1]))
+        click.echo(f"report: {page}", err=True)
+    print_multi(doc, as_json)
     sys.exit(0 if all(r.verdict == "holds" for r in out) else 1)
 
 
