@@ -51,6 +51,7 @@ from lesmc.unfold.unfold import build_model
 if TYPE_CHECKING:
     from lesmc.experiment.experiment import Outcome as VerifyOutcome
     from lesmc.experiment.experiment import Request as VerifyRequest
+    from lesmc.experiment.multi_verify import MultiOutcome
     from lesmc.exporters.formats import ExportFormat
 
 __all__ = [
@@ -192,15 +193,16 @@ def save_scene(scene: Scene | Footage, path: PathArg) -> None:
     write_scene(scene, _path(path, "path", read=False))
 
 
-def expand_designs(choice: str) -> tuple[str, ...]:
-    """The designs a ``--design`` choice names (a design, a set, or ``all``)."""
+def expand_designs(choice: str, multi: bool = False) -> tuple[str, ...]:
+    """The designs a ``--design`` choice names (a design, a set, or ``all``); a
+    multi-target design (``sort``, ``gnn``) only with ``multi`` (``lesmc verify``)."""
     _need(isinstance(choice, str), "choice must be a design or a set's name", choice)
     if choice not in registry.choices():
         raise UsageError(
             f"unknown design {choice!r}; choose one of {', '.join(registry.choices())}"
         )
-    if choice in registry.names() and registry.get(choice).multi:
-        raise UsageError(f"--design {choice}: {registry.not_yet(choice, 'verifying')}")
+    if not multi and choice in registry.names() and registry.get(choice).multi:
+        raise UsageError(f"--design {choice}: {registry.not_yet(choice, 'a campaign')}")
     return registry.expand(choice)
 
 
@@ -497,8 +499,12 @@ def perceive(
     return perceive_frames(req, open_inputs(req), on_frame)
 
 
-def verify(request: VerifyRequest, reporter: Reporter | None = None) -> VerifyOutcome:
-    """The paper's whole experiment (``lesmc verify``): see :class:`VerifyRequest`."""
+def verify(
+    request: VerifyRequest, reporter: Reporter | None = None
+) -> VerifyOutcome | MultiOutcome:
+    """The paper's whole experiment (``lesmc verify``): see :class:`VerifyRequest`. On a
+    multi-target design (``designs=("sort",)``) the outcome is a
+    :class:`~lesmc.experiment.multi_verify.MultiOutcome`."""
     from lesmc.experiment.experiment import Request
     from lesmc.experiment.experiment import verify as run_verify
 
@@ -508,10 +514,13 @@ def verify(request: VerifyRequest, reporter: Reporter | None = None) -> VerifyOu
         "reporter must be None or a lesmc.common.progress.Reporter",
         reporter,
     )
+    from lesmc.experiment.multi_verify import multi_designs, verify_multi
+
+    run = verify_multi if multi_designs(request.designs) else run_verify
     if reporter is not None:
-        return run_verify(request, reporter)
+        return run(request, reporter)
     with Reporter("verify", live=False) as rep:
-        return run_verify(request, rep)
+        return run(request, rep)
 
 
 def __getattr__(name: str) -> Any:

@@ -155,6 +155,7 @@ def campaign_cmd(
     from lesmc.api import expand_designs
     from lesmc.campaign.plan import parse_windows
 
+    designs = expand_designs(design)  # before any work: a multi-target design is refused
     limits = _limits(workers, scheduler, timeout, max_states)
     windows = parse_windows(windows_text)
     spec_files = _spec_files(specs)
@@ -167,7 +168,6 @@ def campaign_cmd(
         out.mkdir(parents=True, exist_ok=True)
         prepared = _prepared(videos, out, nets, tracker_file)
         _choose_targets(prepared, count, listed, windows, not no_truth)
-        designs = expand_designs(design)
         with resumable(lambda: _kept(out)):
             rows = _run(prepared, spec_files, windows, designs, out, limits, payoffs, nets)
     _finish(rows, out, out_dir, prepared, windows, design, as_json)

@@ -311,8 +311,9 @@ _MULTI_IGNORED = ("engine", "timeout", "no_paths", "max_memory")
 
 def _check_multi(source: Any, parsed: tuple[SpecFile, ...], is_scene: bool) -> None:
     """A scene of a multi-target design (``--design`` or the scene's): checked by
-    lesmc/cli/multi_check.py with the command's options, which exits; sweeps, faults and
-    a report are not supported for it yet. Nothing happens otherwise."""
+    lesmc/cli/multi_check.py with the command's options, which exits (``--report DIR``:
+    lesmc/report/multi.py draws its results); sweeps and faults are not supported for it
+    yet. Nothing happens otherwise."""
     from lesmc.model.multi_format import is_multi
 
     p = click.get_current_context().params
@@ -321,9 +322,9 @@ def _check_multi(source: Any, parsed: tuple[SpecFile, ...], is_scene: bool) -> N
         _check_multi_model(source, parsed, p)
     if not is_scene or not registry.get(design or source.tracker.design).multi:
         return
-    if p["sweep_texts"] or p["faults_file"] or p["report_dir"] or any(s.faults for s in parsed):
+    if p["sweep_texts"] or p["faults_file"] or any(s.faults for s in parsed):
         raise UsageError(
-            "--sweep, --report and faults with a multi-target design: not supported yet (issue 58)"
+            "--sweep and faults with a multi-target design: not supported yet (issue 58)"
         )
     if p["payoffs"] == "interval":
         raise UsageError("--payoffs interval with a multi-target design: not supported yet")
@@ -338,7 +339,8 @@ def _check_multi(source: Any, parsed: tuple[SpecFile, ...], is_scene: bool) -> N
     sc = source if design is None else source.with_tracker(design=design)
     path = p["model"]
     sc = sc.priced(p["payoffs"], path)
-    check_multi_scene(sc, path, parsed, p["only"], p["as_json"], p["max_states"])
+    report = None if p["report_dir"] is None else (p["report_dir"], p["frames_dir"])
+    check_multi_scene(sc, path, parsed, p["only"], p["as_json"], p["max_states"], report)
 
 
 def _check_multi_model(model: Any, parsed: tuple[SpecFile, ...], p: dict[str, Any]) -> None:

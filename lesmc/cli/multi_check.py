@@ -6,7 +6,8 @@ The check itself is lesmc/pipeline/multi.py's (the Python API returns the same r
 ``count.frames`` or a ``dist`` measure; constraints: ``switches(a..b)``, ``lost(a..b)`` or
 a ``dist`` measure (the track of the target's id against its reference, on the box's
 x, y, w, h); anything else is an error (exit status 2), as are the options a
-multi-target check does not take yet.
+multi-target check does not take yet. ``--report DIR`` writes the results file and
+its report (lesmc/report/multi.py).
 """
 
 from __future__ import annotations
@@ -19,7 +20,7 @@ import click
 
 from lesmc.language.properties import SpecFile
 from lesmc.model.multi import MultiModel
-from lesmc.pipeline.multi import multi_results
+from lesmc.pipeline.multi import check_multi_design, multi_document, multi_results
 from lesmc.scene import Scene
 
 __all__ = ["check_multi_file", "check_multi_scene", "multi_results"]
@@ -32,15 +33,25 @@ def check_multi_scene(
     only: tuple[str, ...],
     as_json: bool,
     max_states: int | None = None,
+    report: tuple[str, str | None] | None = None,
 ) -> None:
     """Check every property (or those named in ``only``) of ``specs`` on the multi-target
-    design of ``scene``; print the results; exit 0 (all hold) or 1 (some violated)."""
+    design of ``scene``; print the results; with ``report`` (``--report DIR``, ``--frames``)
+    write the results file and draw its report there; exit 0 (all hold) or 1 (some
+    violated)."""
     from lesmc.unfold.multi import composed
 
-    out = multi_results(scene, path, specs, only, max_states)
+    out = check_multi_design(scene, path, specs, only, max_states, draw=report is not None)
     kind = composed(scene, path).reference_kind()
-    _print(out, scene.tracker.design, kind, as_json)
-    sys.exit(0 if all(r["verdict"] == "holds" for r in out) else 1)
+    doc = multi_document(scene.tracker.design, kind, out)
+    if report is not None:
+        from lesmc.report.multi import write_multi_report
+        from lesmc.report.publish import frames_reader
+
+        page = write_multi_report(doc, report[0], frames_reader(report[1]))
+        click.echo(f"report: {page}", err=True)
+    print_multi(doc, as_json)
+    sys.exit(0 if all(r.verdict == "holds" for r in out) else 1)
 
 
 def check_multi_file(
@@ -51,23 +62,19 @@ def check_multi_file(
     :func:`check_multi_scene` prints them; exit 0 (all hold) or 1 (some violated)."""
     from lesmc.pipeline.multi import check_multi_model
 
-    out = [r.to_dict() for r in check_multi_model(model, specs, only)]
-    _print(out, str(model.meta["design"]), str(model.meta["reference"]), as_json)
-    sys.exit(0 if all(r["verdict"] == "holds" for r in out) else 1)
+    out = check_multi_model(model, specs, only)
+    design, reference = str(model.meta["design"]), str(model.meta["reference"])
+    print_multi(multi_document(design, reference, out), as_json)
+    sys.exit(0 if all(r.verdict == "holds" for r in out) else 1)
 
 
-def _print(out: list[dict[str, Any]], design: str, reference: str, as_json: bool) -> None:
+def print_multi(doc: dict[str, Any], as_json: bool) -> None:
+    """A ``lesmc-multi-check`` document on stdout: as JSON, or a line per property and
+    per counterexample step (``lesmc verify --design sort`` prints the same)."""
     if as_json:
-        doc = {
-            "format": "lesmc-multi-check",
-            "version": 1,
-            "design": design,
-            "reference": reference,
-            "results": out,
-        }
         click.echo(json.dumps(doc, indent=1))
         return
-    for r in out:
+    for r in doc["results"]:
         opt = "inf" if r["optimum"] is None else f"{r['optimum']:g}"
         click.echo(
             f"{r['property']}: {r['verdict']}, optimum {opt} "

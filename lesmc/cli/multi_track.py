@@ -44,14 +44,11 @@ def track_multi(sc: Scene | Footage, path: str, end: int | None, as_json: bool) 
     make_console().print(table)
 
 
-def _place(row: Any) -> str:
-    """A track's place: ``box`` [x1, y1, x2, y2], or a point tracker's ``position`` [x, y]."""
-    return "box" if len(row) == 4 else "position"
-
-
 def multi_document(design: str, steps: list[Any]) -> dict[str, Any]:
     """The ``lesmc-track`` document of a multi-target run (``steps``: tracking.multi's
     ``MultiStep`` list)."""
+    from lesmc.pipeline.multi_tracks import track_entries
+
     return {
         "format": "lesmc-track",
         "version": 1,
@@ -60,14 +57,7 @@ def multi_document(design: str, steps: list[Any]) -> dict[str, Any]:
             {
                 "step": s.step,
                 "frame": s.frame,
-                "tracks": [
-                    {
-                        "id": int(s.tracks.ids[i]),
-                        _place(s.tracks.boxes[i]): [float(v) for v in s.tracks.boxes[i]],
-                        "status": s.tracks.status(i),
-                    }
-                    for i in range(len(s.tracks.ids))
-                ],
+                "tracks": track_entries(s.tracks),
                 "target_id": s.target_id,
             }
             for s in steps

@@ -20,7 +20,8 @@ from lesmc.cli.options import frames_option
 @click.option("--json", "as_json", is_flag=True, help="Print what was written as JSON on stdout.")
 def report_cmd(results: str, out_dir: str, frames_dir: str | None, as_json: bool) -> None:
     """Draw the verification report from RESULTS (results.json of lesmc verify or of
-    lesmc check ... --report DIR), without checking anything again.
+    lesmc check ... --report DIR; a multi-target design's: of lesmc verify --design sort,
+    or lesmc check --design sort --json's output), without checking anything again.
 
     \b
     Writes OUT/report.html (self-contained), OUT/figures/*.png and OUT/results.json.
@@ -35,7 +36,12 @@ def report_cmd(results: str, out_dir: str, frames_dir: str | None, as_json: bool
     from lesmc.results.load import load_results
 
     doc = load_results(results)
-    out = write_report(doc, out_dir, frames_reader(frames_dir))
+    if doc["format"] == "lesmc-multi-check":  # a multi-target design (lesmc/report/multi.py)
+        from lesmc.report.multi import write_multi_report
+
+        out = write_multi_report(doc, out_dir, frames_reader(frames_dir))
+    else:
+        out = write_report(doc, out_dir, frames_reader(frames_dir))
     if as_json:
         click.echo(
             json.dumps(
@@ -46,7 +52,9 @@ def report_cmd(results: str, out_dir: str, frames_dir: str | None, as_json: bool
                     "report": str(out),
                     "results_copy": str(Path(out_dir) / "results.json"),
                     "frames": frames_dir,
-                    "runs": [r["design"] for r in doc["runs"]],
+                    "runs": [r["design"] for r in doc["runs"]]
+                    if "runs" in doc
+                    else [doc["design"]],
                 },
                 indent=1,
             )

@@ -31,6 +31,7 @@ from lesmc.cli.signals import resumable
 if TYPE_CHECKING:
     from lesmc.experiment.experiment import Outcome
     from lesmc.experiment.experiment import Request as VerifyRequest
+    from lesmc.experiment.multi_verify import MultiOutcome
 
 
 @click.command("verify")
@@ -157,9 +158,12 @@ def verify_cmd(
     WAMI video (seed 1, 24 frames, 2048x2048) is generated into OUT/video and a
     target with neighbouring traffic is chosen from its truth.
     Writes OUT/scene.json, OUT/report.html (self-contained), OUT/figures/*.png
-    and OUT/results.json. Perception, the replay and the report's figures are
-    kept in OUT/cache by the content of their inputs: a rerun with unchanged
-    inputs reads them. Exit status as for lesmc check: 0 all hold,
+    and OUT/results.json. With --design sort or gnn (a multi-target design),
+    the properties default to specs/identity.spec (within 40 px of the target),
+    there is no replay, and results.json is a lesmc-multi-check document whose
+    report draws every track of each counterexample. Perception, the replay and
+    the report's figures are kept in OUT/cache by the content of their inputs:
+    a rerun with unchanged inputs reads them. Exit status as for lesmc check: 0 all hold,
     1 some violated, 2 bad input, 3 some unknown, 4 internal error, 130 interrupted.
     """
     preload = ("torch", "cv2") if timeout is not None else ()  # under the deadline's watchdog
@@ -173,7 +177,7 @@ def verify_cmd(
         truth=truth,
         specs=specs,
         window=parse_window(window_text) if window_text else None,
-        designs=expand_designs(design),
+        designs=expand_designs(design, multi=True),
         out=Path(out_dir),
         nets=(nets_dir, detector_file, locator_file),
         scene_frames=frames_opt,
@@ -224,12 +228,20 @@ def _run(request: VerifyRequest, as_json: bool) -> None:
     _finish(outcome, as_json)
 
 
-def _finish(outcome: Outcome, as_json: bool) -> None:
+def _finish(outcome: Outcome | MultiOutcome, as_json: bool) -> None:
     """The results on stdout (results.json, or the table and the report's path), then the
     exit status."""
+    from lesmc.experiment.multi_verify import MultiOutcome
     from lesmc.report.text import make_console, print_runs
     from lesmc.results.exit import exit_status
 
+    if isinstance(outcome, MultiOutcome):  # a multi-target design: lesmc check's lines
+        from lesmc.cli.multi_check import print_multi
+
+        print_multi(outcome.doc, as_json)
+        if not as_json:
+            click.echo(f"report: {outcome.report}")
+        sys.exit(0 if all(r.verdict == "holds" for r in outcome.results) else 1)
     if as_json:
         click.echo(json.dumps(outcome.doc, indent=1, allow_nan=False))
     else:

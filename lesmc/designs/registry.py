@@ -79,13 +79,13 @@ def multi_tracker(name: str, impl: str, label: str, summary: str) -> Design:
     return register(Design(name, label, summary, name, False, impl, multi=True))
 
 
-def not_yet(name: str, what: str = "verifying it (lesmc verify, campaign)") -> str:
+def not_yet(name: str, what: str = "a campaign") -> str:
     """What a verb says of multi-target design ``name`` when it needs ``what``, which the
     multi-target designs do not support yet."""
     return (
         f"design '{name}' is a multi-target tracker: `lesmc track`, `lesmc build`, `lesmc "
-        "check` (a scene or its built model) and `lesmc export --format drn|prism` take it; "
-        f"{what} is not supported yet (issue 58)"
+        "check` (a scene or its built model), `lesmc export --format drn|prism` and `lesmc "
+        f"verify` take it; {what} is not supported yet (issue 58)"
     )
 
 
@@ -171,14 +171,14 @@ multi_tracker(
     "lesmc.tracking.multi:SortDesign",
     "SORT",
     "SORT (Bewley et al. 2016): box Kalman filters, IoU assignment, min_hits, max_age; "
-    "multi-target: `lesmc track`, and `lesmc check` of switches, lost and dist",
+    "multi-target: `lesmc track`, `lesmc check` and `lesmc verify` of switches, lost, dist",
 )
 multi_tracker(
     "gnn",
     "lesmc.tracking.gnn:GnnDesign",
     "GNN",
     "point Kalman filters, Mahalanobis chi-square gate, global nearest neighbour, M-of-N "
-    "birth, max_age death; multi-target: `lesmc track`, and `lesmc check` of switches, lost, dist",
+    "birth, max_age death; multi-target: `lesmc track`, `lesmc check`, `lesmc verify`",
 )
 SETS["paper"] = ("single", "joint", "improved")
 SETS["both"] = ("single", "improved")

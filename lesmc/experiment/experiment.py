@@ -160,7 +160,8 @@ def load_specs(paths: list[Path], window: tuple[int, int] | None) -> list[SpecFi
 
 
 def verify(req: Request, rep: Reporter) -> Outcome:
-    """Run the experiment of ``req``; progress goes to ``rep``."""
+    """Run the experiment of ``req``; progress goes to ``rep`` (a multi-target design:
+    lesmc/experiment/multi_verify.py, which lesmc.api.verify calls instead)."""
     started = time.monotonic()
     specs = load_specs([Path(s) for s in req.specs] or bundled_specs(), req.window)
     faults = load_faults(req.faults) if req.faults is not None else None

@@ -85,6 +85,9 @@ class PerceiveRun:
     #: (``FrameDetections.rejected``; inf: the attack did not make N_dr accept it)
     inject_payoffs: list[np.ndarray] = field(default_factory=list)
     inject_seconds: float = 0.0  #: time spent pricing injection candidates
+    #: the side (px) of the window N_dr classifies: each detection's box in the scene is
+    #: this square centred on it (lesmc/perception/to_scene.py)
+    box_px: int = DR_SIZE
 
 
 def perceive(

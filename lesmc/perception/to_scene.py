@@ -27,10 +27,13 @@ def frames_of(
     pays: list[np.ndarray],
     lower: list[np.ndarray] | None = None,
     inject: list[np.ndarray] | None = None,
+    box: float | None = None,
 ) -> tuple[Frame, ...]:
     """Scene frames: detection ids ``"FRAME:I"``, payoffs [and certified lower bounds],
     homographies to the next frame; with ``inject`` (each frame's injection prices,
-    ``PerceiveRun.inject_payoffs``), the injection candidates (:func:`candidates_of`)."""
+    ``PerceiveRun.inject_payoffs``), the injection candidates (:func:`candidates_of`);
+    with ``box``, each detection's (and candidate's) box is its window, a ``box`` x
+    ``box`` square centred on it (scene format 2; point trackers ignore it)."""
     out = []
     lows: list[np.ndarray | None] = list(lower) if lower else [None] * len(dets)
     injs: list[np.ndarray | None] = list(inject) if inject else [None] * len(dets)
@@ -45,11 +48,13 @@ def frames_of(
                 float(y),
                 float(p[j]),
                 None if lo is None else float(lo[j]),
+                box,
+                box,
             )
             for j, (x, y) in enumerate(fd.positions)
         )
         prices = injs[i]
-        cands = () if prices is None else candidates_of(fd, prices)
+        cands = () if prices is None else candidates_of(fd, prices, box)
         out.append(Frame(fd.index, ds, to_next, candidates=cands))
     return tuple(out)
 
@@ -67,11 +72,14 @@ def candidate_row(obs: str) -> int | None:
     return int(rest[1:]) if rest[:1] == "c" and rest[1:].isdigit() else None
 
 
-def candidates_of(fd: FrameDetections, prices: np.ndarray) -> tuple[Detection, ...]:
+def candidates_of(
+    fd: FrameDetections, prices: np.ndarray, box: float | None = None
+) -> tuple[Detection, ...]:
     """A frame's injection candidates (scene format 3): the rejected candidates whose
-    attack towards "vehicle" succeeded (a finite price), at their centroids."""
+    attack towards "vehicle" succeeded (a finite price), at their centroids (with
+    ``box``, a ``box`` x ``box`` window around each)."""
     return tuple(
-        Detection(candidate_id(fd.index, int(r)), float(x), float(y), float(p))
+        Detection(candidate_id(fd.index, int(r)), float(x), float(y), float(p), None, box, box)
         for r, (x, y), p in zip(fd.rejected, fd.rejected_positions, prices, strict=True)
         if np.isfinite(p)
     )
@@ -79,12 +87,14 @@ def candidates_of(fd: FrameDetections, prices: np.ndarray) -> tuple[Detection, .
 
 def footage_from_run(run: PerceiveRun, dt: float, meta: dict[str, Any] | None = None) -> Footage:
     """The scene without a target of a ``perceive`` run: detections ``"FRAME:I"``, payoffs,
-    certified lower bounds when the run computed them, homographies."""
+    certified lower bounds when the run computed them, homographies; each detection's box
+    is the run's window around it (``run.box_px``: N_dr's 21 x 21), so that an IoU
+    tracker (``--design sort``) can run on the video."""
     if not run.detections:
         raise UsageError("no frame produced detections: the video is shorter than L+1 frames")
     lower = run.payoffs_lower or None
     inject = run.inject_payoffs if any(len(p) for p in run.inject_payoffs) else None
-    frames = frames_of(run.detections, run.payoffs, lower, inject)
+    frames = frames_of(run.detections, run.payoffs, lower, inject, float(run.box_px))
     return Footage(dt, frames, TrackerConfig(), dict(meta or {}))
 
 

@@ -21,30 +21,46 @@ from lesmc.engines.multi import BuildKey, bind_model, bind_multi, build_key, unp
 from lesmc.language.properties import Property, SpecFile
 from lesmc.language.semantics import BoundProperty
 from lesmc.model.multi import MultiModel
+from lesmc.pipeline.multi_tracks import StepDrawing, step_drawings
 from lesmc.scene import Scene
+
+#: The version of the ``lesmc-multi-check`` document (2: each counterexample step holds
+#: what the report draws: ``switch``, ``reference``, ``tracks``, ``attacked``).
+MULTI_CHECK_VERSION = 2
 
 
 @dataclass(frozen=True)
 class AttackStep:
     """One step of a counterexample: the detections hidden and the candidates injected at
     it (``FRAME:K`` ids, as ``lesmc import mot`` numbers them) and the target's track id
-    (None: the target has no track at this step)."""
+    (None: the target has no track at this step); for the report (``lesmc-multi-check``
+    version 2): every track after the step, the attacked detections' boxes, the
+    reference box and whether the target's id switched here
+    (lesmc/pipeline/multi_tracks.py)."""
 
     step: int
     frame: int
     hidden: tuple[str, ...]
     injected: tuple[str, ...]
     target_id: int | None
+    drawing: StepDrawing | None = None
 
     def to_dict(self) -> dict[str, Any]:
         """The step as ``lesmc check --json`` prints it."""
-        return {
+        out: dict[str, Any] = {
             "step": self.step,
             "frame": self.frame,
             "hidden": list(self.hidden),
             "injected": list(self.injected),
             "target_id": self.target_id,
         }
+        d = self.drawing
+        if d is not None:
+            out["switch"] = d.switch
+            out["reference"] = None if d.reference is None else list(d.reference)
+            out["tracks"] = list(d.tracks)
+            out["attacked"] = list(d.attacked)
+        return out
 
 
 @dataclass(frozen=True)
@@ -91,9 +107,13 @@ def check_multi_design(
     specs: tuple[SpecFile, ...],
     only: tuple[str, ...] = (),
     max_states: int | None = None,
+    draw: bool = False,
 ) -> list[MultiCheckResult]:
     """Each property of ``specs`` (those named in ``only``, or all) checked on the
-    multi-target design of ``scene`` (read from ``path``, the name its errors give)."""
+    multi-target design of ``scene`` (read from ``path``, the name its errors give); with
+    ``draw``, each counterexample step also holds what the report draws of it (every
+    track: ``lesmc verify`` and ``check --report``), else the steps are those a check of
+    the built model gives."""
     models: dict[BuildKey, MultiModel] = {}
     out: list[MultiCheckResult] = []
     for spec, prop in _chosen(specs, only):
@@ -103,7 +123,7 @@ def check_multi_design(
         key = build_key(b)
         if key not in models:
             models[key] = build_for(scene, path, key, max_states)
-        out.append(_result(models[key], b))
+        out.append(_result(models[key], b, scene if draw else None, path))
     return out
 
 
@@ -163,8 +183,12 @@ def _chosen(specs: tuple[SpecFile, ...], only: tuple[str, ...]) -> list[tuple[Sp
     return props
 
 
-def _result(model: MultiModel, b: BoundProperty) -> MultiCheckResult:
-    """Property ``b`` checked on ``model`` (lesmc/engines/multi.py) as a typed result."""
+def _result(
+    model: MultiModel, b: BoundProperty, scene: Scene | None = None, path: str = ""
+) -> MultiCheckResult:
+    """Property ``b`` checked on ``model`` (lesmc/engines/multi.py) as a typed result; with
+    the ``scene`` it was built from (read from ``path``), each counterexample step holds
+    what the report draws (a built model alone has no frames to re-run)."""
     from lesmc.engines.multi import check_multi
 
     res = check_multi(model, b)
@@ -177,7 +201,7 @@ def _result(model: MultiModel, b: BoundProperty) -> MultiCheckResult:
         res.constraint,
         res.states,
         res.transitions,
-        _steps(model, b.objective.source, res.path),
+        _steps(model, b.objective.source, res.path, scene, path),
     )
 
 
@@ -193,6 +217,30 @@ def multi_results(
     return [r.to_dict() for r in check_multi_design(scene, path, specs, only, max_states)]
 
 
+def multi_document(
+    design: str,
+    reference: str,
+    results: list[MultiCheckResult],
+    meta: dict[str, Any] | None = None,
+    timings: dict[str, float] | None = None,
+) -> dict[str, Any]:
+    """The ``lesmc-multi-check`` document of ``results`` of ``design`` (``lesmc check
+    --design sort --json`` prints it; ``lesmc verify --design sort`` writes it, with
+    ``meta`` and ``timings``, as its results.json)."""
+    doc: dict[str, Any] = {
+        "format": "lesmc-multi-check",
+        "version": MULTI_CHECK_VERSION,
+        "design": design,
+        "reference": reference,
+        "results": [r.to_dict() for r in results],
+    }
+    if meta is not None:
+        doc["meta"] = meta
+    if timings is not None:
+        doc["timings"] = {k: round(float(v), 3) for k, v in timings.items()}
+    return doc
+
+
 def _priced(scene: Scene, l: int, u: int) -> None:
     """A payoff objective needs the window's detections priced."""
     for f in scene.frames[l : u + 1]:
@@ -201,22 +249,34 @@ def _priced(scene: Scene, l: int, u: int) -> None:
                 raise UsageError(unpriced_text(d.id, f.step))
 
 
-def _steps(model: Any, objective: str, path: Any) -> tuple[AttackStep, ...] | None:
-    """The counterexample's steps along ``path`` (the engine's transitions; None: no
-    path), each with the detections hidden and the candidates injected at it and the
-    target's track id."""
-    if path is None:
+def _steps(
+    model: Any, objective: str, trans: Any, scene: Scene | None, path: str
+) -> tuple[AttackStep, ...] | None:
+    """The counterexample's steps along ``trans`` (the engine's transitions; None: no
+    path), each with the detections hidden and the candidates injected at it, the
+    target's track id and, with the ``scene`` (read from ``path``), what the report
+    draws of it."""
+    if trans is None:
         return None
     hidden = model.by_payoff if objective == "payoff" else model.by_count
-    states = [0, *(int(model.dst[t]) for t in path)]
-    subs: list[tuple[int, ...]] = [(), *(hidden[t] for t in path)]
+    states = [0, *(int(model.dst[t]) for t in trans)]
+    subs: list[tuple[int, ...]] = [(), *(hidden[t] for t in trans)]
+    ids = [None if model.tid[s] < 0 else int(model.tid[s]) for s in states]
+    drawn: list[StepDrawing | None] = [None] * len(subs)
+    if scene is not None:
+        from lesmc.unfold.multi import composed
+
+        design = composed(scene, path)
+        frames = scene.frames[: len(subs)]
+        drawn = list(step_drawings(design, frames, subs, model.detections, ids, model.refbox))
     return tuple(
         AttackStep(
             k,
             model.frames[k],
             tuple(model.names[k][j] for j in sub if j < model.detections[k]),
             tuple(model.names[k][j] for j in sub if j >= model.detections[k]),
-            None if model.tid[s] < 0 else int(model.tid[s]),
+            ids[k],
+            drawn[k],
         )
-        for k, (s, sub) in enumerate(zip(states, subs, strict=True))
+        for k, sub in enumerate(subs)
     )

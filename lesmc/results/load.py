@@ -14,8 +14,13 @@ from lesmc.schemas import validate
 
 
 def load_results(path: str | Path) -> dict[str, Any]:
-    """A results file (``lesmc-results``), validated; an :class:`InputError` otherwise."""
+    """A results file (``lesmc-results``, or a multi-target design's ``lesmc-multi-check``:
+    ``lesmc verify --design sort``, ``lesmc check --design sort --json``), validated; an
+    :class:`InputError` otherwise."""
     doc = read_json(Path(path), InputError)
+    if isinstance(doc, dict) and doc.get("format") == "lesmc-multi-check":
+        validate(doc, "multi-check", str(path))
+        return doc
     if not isinstance(doc, dict) or doc.get("format") != FORMAT:
         raise InputError(
             f"not a lesmc results file (format must be '{FORMAT}'; write one with "
