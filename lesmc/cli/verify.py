@@ -157,14 +157,10 @@ def verify_cmd(
     With no FRAMES_DIR and no --scene, runs the embedded default: a synthetic
     WAMI video (seed 1, 24 frames, 2048x2048) is generated into OUT/video and a
     target with neighbouring traffic is chosen from its truth.
-    Writes OUT/scene.json, OUT/report.html (self-contained), OUT/figures/*.png
-    and OUT/results.json. With --design sort or gnn (a multi-target design),
-    the properties default to specs/identity.spec (within 40 px of the target),
-    there is no replay, and results.json is a lesmc-multi-check document whose
-    report draws every track of each counterexample. Perception, the replay and
-    the report's figures are kept in OUT/cache by the content of their inputs:
-    a rerun with unchanged inputs reads them. Exit status as for lesmc check: 0 all hold,
-    1 some violated, 2 bad input, 3 some unknown, 4 internal error, 130 interrupted.
+    Writes OUT/scene.json, OUT/report.html, OUT/figures/*.png and OUT/results.json.
+    --design sort|gnn (multi-target): specs/identity.spec by default, no replay,
+    results.json a lesmc-multi-check document whose report draws every track.
+    OUT/cache keeps perception, replays and figures by content. Exit status as check's.
     """
     preload = ("torch", "cv2") if timeout is not None else ()  # under the deadline's watchdog
     budget = budget_from(timeout, max_states, max_memory, preload=preload)
