@@ -81,14 +81,25 @@ def expand(
     new_ids: list[np.ndarray] = []
     born: list[int] = []
     src = np.repeat(np.arange(n), len(keeps))
+    km = np.zeros((len(keeps), N), dtype=bool)
+    for j, keep in enumerate(keeps):
+        km[j, keep] = True
+    thr = tracker.hypothesiser.threshold
+    quick, partner = tracker.associator.by_shortcut(score > thr, first, km)
     for s in range(n):
         mine = np.arange(first[s], first[s + 1])
         nid = int(level.next_id[s])
-        for keep in keeps:
-            a = tracker.associator.assign(score[keep][:, mine], tracker.hypothesiser.threshold)
+        for j, keep in enumerate(keeps):
             got = mine.copy()
-            got[a.pairs[:, 1]] = L + mine[a.pairs[:, 1]] * N + keep[a.pairs[:, 0]]
-            fresh = keep[a.new]
+            if quick[s, j]:
+                p = partner[s, keep]
+                has = p >= 0
+                got[p[has] - first[s]] = L + p[has] * N + keep[has]
+                fresh = keep[~has]
+            else:
+                a = tracker.associator.assign(score[keep][:, mine], thr)
+                got[a.pairs[:, 1]] = L + mine[a.pairs[:, 1]] * N + keep[a.pairs[:, 0]]
+                fresh = keep[a.new]
             rows.append(np.concatenate([got, L + L * N + fresh]))
             new_ids.append(np.concatenate([pred.id[mine], nid + np.arange(len(fresh))]))
             born.append(len(fresh))
