@@ -185,6 +185,21 @@ def _stepped(
     )
 
 
+def distinct_rows(words: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Each row's class among the distinct rows of ``words`` (n, w), numbered in order of
+    first sight, and each class's first row: exact (the rows' bytes are the keys)."""
+    raw, w = np.ascontiguousarray(words).tobytes(), words.shape[1] * words.itemsize
+    seen: dict[bytes, int] = {}
+    rank = np.fromiter(
+        (seen.setdefault(raw[i * w : (i + 1) * w], len(seen)) for i in range(len(words))),
+        dtype=np.int64,
+        count=len(words),
+    )
+    first = np.full(len(seen), len(words), dtype=np.int64)
+    np.minimum.at(first, rank, np.arange(len(words)))
+    return rank, first
+
+
 def as_box(v: np.ndarray) -> np.ndarray:
     """A box [x1, y1, x2, y2]; a point tracker's position (x, y) is the box of size 0 at
     it, so the ``dist`` measures read a point design's w and h as 0."""
@@ -275,21 +290,15 @@ class _Arrays:
         state then option), merged; returns the level's distinct states in order of first
         sight."""
         batch = made.batch
-        words = batch.words(batch.X.shape[1])
-        _, first, inverse = np.unique(words, axis=0, return_index=True, return_inverse=True)
-        inverse = inverse.reshape(-1)
-        order = np.argsort(first, kind="stable")  # distinct states in order of first sight
-        rank = np.empty_like(order)
-        rank[order] = np.arange(len(order))
+        rank, keep = distinct_rows(batch.words(batch.X.shape[1]))
         base = self.n
-        keep = first[order]
         self.step.extend([k] * len(keep))
         self.tid.extend(made.tid[keep].tolist())
         self.ref.extend([ref] * len(keep))
         self.last.extend(batch.last[keep].tolist())
         self.box.extend(made.box[keep])
         self.gone.extend(made.gone[keep].tolist())
-        dst = base + rank[inverse]
+        dst = base + rank
         option = np.tile(np.arange(len(subsets)), len(made.src) // max(len(subsets), 1))
         cost = np.array([subset_cost(pay, sub) for sub in subsets], dtype=float)[option]
         size = np.array([len(sub) for sub in subsets], dtype=np.int64)[option]
