@@ -38,7 +38,7 @@ from lesmc.tracking.parts.attacker_subsets import (
     subset_options,
 )
 from lesmc.tracking.parts.box_level import expand
-from lesmc.tracking.parts.states import MultiBatch
+from lesmc.tracking.parts.states import MultiBatch, distinct_rows
 
 #: Successors one step may compute when no --max-states is given: a frame with 30
 #: attackable detections has 2^30 subsets, which no search can list.
@@ -183,21 +183,6 @@ def _stepped(
         np.array([x[0] for x in looks], dtype=float).reshape(-1, 4),
         np.array([x[1] for x in looks], dtype=bool),
     )
-
-
-def distinct_rows(words: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Each row's class among the distinct rows of ``words`` (n, w), numbered in order of
-    first sight, and each class's first row: exact (the rows' bytes are the keys)."""
-    raw, w = np.ascontiguousarray(words).tobytes(), words.shape[1] * words.itemsize
-    seen: dict[bytes, int] = {}
-    rank = np.fromiter(
-        (seen.setdefault(raw[i * w : (i + 1) * w], len(seen)) for i in range(len(words))),
-        dtype=np.int64,
-        count=len(words),
-    )
-    first = np.full(len(seen), len(words), dtype=np.int64)
-    np.minimum.at(first, rank, np.arange(len(words)))
-    return rank, first
 
 
 def as_box(v: np.ndarray) -> np.ndarray:

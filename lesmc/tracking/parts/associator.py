@@ -75,16 +75,15 @@ class GlobalAssociator:
         a = above.astype(np.int64)
         G = len(groups) - 1
         width = np.diff(groups)
-        if not a.shape[1]:
-            row_sum = np.zeros((G, a.shape[0]), dtype=np.int64)
-            col_max = np.zeros((G, len(keeps)), dtype=np.int64)
-        else:
-            at = np.minimum(groups[:-1], a.shape[1] - 1)
-            row_sum = np.where(width[:, None] > 0, np.add.reduceat(a, at, axis=1).T, 0)
+        some = np.flatnonzero(width > 0)  # reduceat's segments run from one start to the next
+        row_sum = np.zeros((G, a.shape[0]), dtype=np.int64)
+        col_max = np.zeros((G, len(keeps)), dtype=np.int64)
+        if some.size:
+            row_sum[some] = np.add.reduceat(a, groups[some], axis=1).T
             cols = keeps.astype(np.int64) @ a  # (J, L): kept rows above, per column
-            col_max = np.where(width[:, None] > 0, np.maximum.reduceat(cols, at, axis=1).T, 0)
+            col_max[some] = np.maximum.reduceat(cols, groups[some], axis=1).T
         kept_max = np.where(keeps[None], row_sum[:, None, :], 0).max(axis=2, initial=0)
-        empty = (width[:, None] == 0) | ~keeps.any(axis=1)[None, :]
+        empty = (width[:, None] == 0) | ~np.asarray(keeps.any(axis=1))[None, :]
         ok = empty | ((kept_max == 1) & (col_max == 1))
         owner = np.repeat(np.arange(G), width)
         partner = np.full((G, a.shape[0]), -1, dtype=np.int64)

@@ -27,7 +27,7 @@ import numpy as np
 from lesmc.tracking.design import CovarianceTable
 from lesmc.tracking.kalman import innovations, update_means
 from lesmc.tracking.parts.boxes import to_boxes, to_z
-from lesmc.tracking.parts.states import COUNTS, MultiBatch
+from lesmc.tracking.parts.states import COUNTS, MultiBatch, distinct_rows
 from lesmc.tracking.parts.tracks import Tracks
 
 
@@ -166,9 +166,8 @@ def _distinct(P: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """The distinct matrices of ``P`` (k, d, d) by exact value, and each one's index."""
     if not len(P):
         return P, np.zeros(0, dtype=np.int64)
-    flat = np.ascontiguousarray(P).reshape(len(P), -1).view(np.uint64)
-    _, first, back = np.unique(flat, axis=0, return_index=True, return_inverse=True)
-    return P[first], back.reshape(-1)
+    back, first = distinct_rows(np.ascontiguousarray(P).reshape(len(P), -1))
+    return P[first], back
 
 
 def _assemble(
