@@ -77,33 +77,63 @@ def expand(
     cand = _candidates(tracker, pred, boxes, table)
     score = tracker.hypothesiser.scores(boxes, cand.boxes[:L])  # (N, L)
     first = np.searchsorted(owner, np.arange(n + 1))
-    rows: list[np.ndarray] = []
-    new_ids: list[np.ndarray] = []
-    born: list[int] = []
-    src = np.repeat(np.arange(n), len(keeps))
     km = np.zeros((len(keeps), N), dtype=bool)
     for j, keep in enumerate(keeps):
         km[j, keep] = True
     thr = tracker.hypothesiser.threshold
     quick, partner = tracker.associator.by_shortcut(score > thr, first, km)
-    for s in range(n):
-        mine = np.arange(first[s], first[s + 1])
-        nid = int(level.next_id[s])
-        for j, keep in enumerate(keeps):
-            got = mine.copy()
-            if quick[s, j]:
-                p = partner[s, keep]
-                has = p >= 0
-                got[p[has] - first[s]] = L + p[has] * N + keep[has]
-                fresh = keep[~has]
-            else:
-                a = tracker.associator.assign(score[keep][:, mine], thr)
-                got[a.pairs[:, 1]] = L + mine[a.pairs[:, 1]] * N + keep[a.pairs[:, 0]]
-                fresh = keep[a.new]
-            rows.append(np.concatenate([got, L + L * N + fresh]))
-            new_ids.append(np.concatenate([pred.id[mine], nid + np.arange(len(fresh))]))
-            born.append(len(fresh))
-    return _assemble(tracker, level, src, rows, new_ids, np.array(born, dtype=np.int64), cand)
+    at, ids, born = _by_shortcut(level, pred.id, first, km, quick, partner, L, N)
+    for s, j in zip(*np.nonzero(~quick), strict=True):  # the others: one assignment each
+        mine, keep, q = np.arange(first[s], first[s + 1]), keeps[j], s * len(keeps) + j
+        a = tracker.associator.assign(score[keep][:, mine], thr)
+        at[q, a.pairs[:, 1]] = L + mine[a.pairs[:, 1]] * N + keep[a.pairs[:, 0]]
+        fresh = keep[a.new]
+        at[q, len(mine) : len(mine) + len(fresh)] = L + L * N + fresh
+        ids[q, len(mine) : len(mine) + len(fresh)] = level.next_id[s] + np.arange(len(fresh))
+        born[q] = len(fresh)
+    src = np.repeat(np.arange(n), len(keeps))
+    return _assemble(tracker, level, src, at, ids, born, cand)
+
+
+def _by_shortcut(
+    level: MultiBatch,
+    track_ids: np.ndarray,
+    first: np.ndarray,
+    km: np.ndarray,
+    quick: np.ndarray,
+    partner: np.ndarray,
+    L: int,
+    N: int,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Every successor's candidate rows (S, W) (−1: none), track ids and tracks started,
+    filled for those whose assignment the shortcut decides (``quick`` (n, J), ``partner``
+    (n, N): :meth:`~lesmc.tracking.parts.associator.GlobalAssociator.by_shortcut`); the
+    others hold their state's tracks coasting, for the caller to complete. State s's
+    tracks are rows ``first[s]`` .. ``first[s + 1]`` − 1 of the candidates; rows ``km``
+    (J, N) kept by each option."""
+    n, J = len(level), len(km)
+    width = np.diff(first)
+    S, W = n * J, int(width.max(initial=0)) + N
+    src = np.repeat(np.arange(n), J)
+    col = np.arange(W)
+    coast = col < width[src][:, None]
+    at = np.where(coast, first[src][:, None] + col, -1)
+    ids = np.full((S, W), -1, dtype=np.int64)
+    ids[coast] = track_ids[at[coast]]
+    born = np.zeros(S, dtype=np.int64)
+    qs, qj = np.nonzero(quick)
+    q = qs * J + qj
+    kept, pr = km[qj], partner[qs]
+    i, r = np.nonzero(kept & (pr >= 0))  # matched: the row's one track above the threshold
+    p = pr[i, r]
+    at[q[i], p - first[qs[i]]] = L + p * N + r
+    i, r = np.nonzero(kept & (pr < 0))  # the rest start tracks, in row order
+    rank = np.arange(len(i)) - np.searchsorted(i, i)
+    slot = width[qs[i]] + rank
+    at[q[i], slot] = L + L * N + r
+    ids[q[i], slot] = level.next_id[qs[i]] + rank
+    born[q] = np.bincount(i, minlength=len(q))
+    return at, ids, born
 
 
 def _predict(
@@ -174,25 +204,20 @@ def _assemble(
     tracker: object,
     level: MultiBatch,
     src: np.ndarray,
-    rows: list[np.ndarray],
-    ids: list[np.ndarray],
+    at: np.ndarray,
+    tid: np.ndarray,
     born: np.ndarray,
     cand: _Candidates,
 ) -> LevelSuccessors:
-    """The successors whose tracks are candidate ``rows`` with ``ids``: the initiator's
-    output rule and the deleter applied to all at once, the tracks left alive moved up."""
+    """The successors whose tracks are candidate rows ``at`` (S, W) (−1: none) with ids
+    ``tid``, having started ``born`` tracks each: the initiator's output rule and the
+    deleter applied to all at once, the tracks left alive moved up."""
     from lesmc.tracking.multi import MultiTargetTracker
 
     assert isinstance(tracker, MultiTargetTracker)
-    S = len(rows)
-    size = np.array([len(r) for r in rows], dtype=np.int64)
-    W = int(size.max(initial=0))
-    used = np.arange(W) < size[:, None]
-    at = np.zeros((S, W), dtype=np.int64)
-    tid = np.full((S, W), -1, dtype=np.int64)
-    if S and W:
-        at[used] = np.concatenate(rows)
-        tid[used] = np.concatenate(ids)
+    S, W = at.shape
+    used = at >= 0
+    at = np.where(used, at, 0)
     c = cand.counts[at]
     flat = Tracks(cand.X[at], np.zeros((S, W, 0, 0)), tid, *(np.moveaxis(c, 2, 0)))
     frames = level.frames[src] + 1
