@@ -20,7 +20,7 @@ of ``--sample`` runs), that time the number of explored states (the issue's yard
 the ratio engine / yardstick (issue 62's bar: at most 10). Then the median and the worst.
 
 Run ``PYTHONPATH=. python benchmarks/bench_multi_attack.py [--seed-base N] [--instances
-10] [--window 5] [--radius 150] [--lead 3] [--after 2]``; ``--radius 0`` makes every
+10] [--window 5] [--radius 150] [--lead 3] [--after 4]``; ``--radius 0`` makes every
 detection attackable (``--max-states`` bounds such runs: an instance past it is reported,
 not dropped).
 """
@@ -156,7 +156,7 @@ def main() -> None:
     ap.add_argument("--instances", type=int, default=10)
     ap.add_argument("--window", type=int, default=5, help="attack window length (frames)")
     ap.add_argument("--lead", type=int, default=3, help="frames before the window")
-    ap.add_argument("--after", type=int, default=2, help="frames after the window")
+    ap.add_argument("--after", type=int, default=4, help="frames after the window")
     ap.add_argument("--radius", type=float, default=150.0, help="within R; 0: every detection")
     ap.add_argument("--sample", type=int, default=20, help="timed reference-SORT runs")
     ap.add_argument("--max-states", type=int, default=2_000_000)
