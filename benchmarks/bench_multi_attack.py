@@ -187,13 +187,13 @@ def main() -> None:
         print(
             f"{head} {m['states']:,} | {m['transitions']:,} | {opt} | {m['wall']:.3f} | "
             f"{m['cpu']:.3f} | {m['user']:.2f} | {m['sort']:.5f} | {m['yard']:.3f} | "
-            f"{m['ratio']:.2f} |",
+            f"{m['ratio']:.2g} |",
             flush=True,
         )
     if ratios:
         print(
             f"ratio engine / (one SORT run x states) over {len(ratios)} instances: "
-            f"median {statistics.median(ratios):.2f}, worst {max(ratios):.2f}"
+            f"median {statistics.median(ratios):.2g}, worst {max(ratios):.2g}"
         )
 
 
