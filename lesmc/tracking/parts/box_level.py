@@ -7,10 +7,13 @@ distinct covariance), scored against every box of the frame once (one IoU array)
 updated with every box once (one gain per distinct predicted covariance); the new tracks
 every box would start are the same for every state. A successor is then a list of rows
 of that table of candidate tracks (a track coasting, a track updated with box j, the track
-box j starts), so the assignment (the associator, one call per successor: SORT's threshold
-rule and ``linear_sum_assignment``) is the only work done per successor; everything after
-it (the initiator's output rule, the deleter, the boxes, the padded state arrays) is done
-for the whole level in arrays.
+box j starts). SORT's assignment shortcut (every kept row and every column with at most one
+IoU above the threshold) is decided for every (state, option) pair at once
+(:meth:`~lesmc.tracking.parts.associator.GlobalAssociator.by_shortcut`) and those
+successors are built in arrays; the others call the associator's ``assign``
+(``linear_sum_assignment``) one by one. Everything after the assignment (the initiator's
+output rule, the deleter, the boxes, the padded state arrays) is done for the whole level
+in arrays.
 
 Exact: each candidate is computed by the same functions as ``step`` on the same inputs,
 and those are elementwise or one matrix product per matrix (lesmc/tracking/kalman.py), so
