@@ -9,6 +9,10 @@ time of that many runs estimated from a timed sample of them (the reference SORT
 ``sort-tracker-py`` run unchanged, on frames 0..end with a random subset hidden in the
 window).
 
+benchmarks/bench_multi_attack.py measures instances drawn at run time against one
+reference-SORT run per explored state (issue 62's yardstick); this one, one pedestrian
+against the brute force's count of runs.
+
 Run ``python benchmarks/bench_sort_attack.py [--track 1] [--window 3..7] [--end 11]
 [--radius 150 ...] [--full] [--sample 40]``: ``attack window ... within R`` for each R
 (default 150), and with ``--full`` every detection attackable. The
@@ -94,7 +98,7 @@ def main() -> None:
     l, u = (int(x) for x in a.window.split(".."))
     out = Path(tempfile.mkdtemp(prefix="bench-sort-"))
     path = scene_file(a.track, out)
-    scene = load_scene(str(path))
+    scene = load_scene(str(path)).with_tracker(design="sort")  # as --design sort
     frames = [f.boxes() for f in scene.frames[: a.end + 1]]
     refs = reference_boxes(scene, [s.tracks for s in SortDesign(scene, str(path)).run(a.end)])
     radii: list[float | None] = [*(a.radius or [150.0]), *([None] if a.full else [])]

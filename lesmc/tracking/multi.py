@@ -348,6 +348,17 @@ def target_id(ids: list[int | None]) -> int:
 def target_of(ft: FrameTracks, box: np.ndarray) -> int:
     """The target's track id among ``ft``'s tracks, given the reference box (identity's
     rule: the confirmed track of largest IoU ≥ 0.5, the lower id of equals; NONE: none)."""
-    if not len(ft.ids):
-        return NONE
-    return target_track(iou(ft.boxes, box[None, :])[:, 0], ft.ids, ft.confirmed)
+    return int(targets_of(ft.boxes[None], ft.ids[None], ft.confirmed[None], box)[0])
+
+
+def targets_of(
+    boxes: np.ndarray, ids: np.ndarray, confirmed: np.ndarray, box: np.ndarray
+) -> np.ndarray:
+    """:func:`target_of` for n sets of tracks at once, padded: boxes (n, T, 4), ids (n, T)
+    (−1: padding), confirmed (n, T) (False on padding); the IoU of every box computed in one
+    array (elementwise: the same values as one set at a time)."""
+    n, T = ids.shape
+    score = iou(boxes.reshape(-1, 4), box[None, :]).reshape(n, T)
+    return np.array(
+        [target_track(score[i], ids[i], confirmed[i]) for i in range(n)], dtype=np.int64
+    )

@@ -23,14 +23,22 @@ from lesmc.model.identity import NONE, last_seen
 from lesmc.model.multi import MultiModel
 from lesmc.scene import Frame, Scene
 from lesmc.tracking.design import CovarianceTable
-from lesmc.tracking.multi import ComposedDesign, FrameTracks, MultiState, target_id
+from lesmc.tracking.multi import (
+    ComposedDesign,
+    FrameTracks,
+    MultiState,
+    MultiTargetTracker,
+    target_id,
+    targets_of,
+)
 from lesmc.tracking.parts.attacker_subsets import (
     attackable,
     option_count,
     subset_cost,
     subset_options,
 )
-from lesmc.tracking.parts.states import MultiBatch
+from lesmc.tracking.parts.box_level import expand
+from lesmc.tracking.parts.states import MultiBatch, distinct_rows
 
 #: Successors one step may compute when no --max-states is given: a frame with 30
 #: attackable detections has 2^30 subsets, which no search can list.
@@ -68,34 +76,113 @@ def build_multi(
     me = target_id([s.target_id for s in run])
     s0, ft0 = tracker.step(tracker.initial(), design.measurements(frames[0]))
     tid0 = NONE if refs[0] is None else design.target_of(ft0, refs[0])
-    level: list[MultiState] = [s0]
+    d = tracker.filter.m.dim
+    level = MultiBatch.pack([(s0.tracks, s0.next_id, s0.frames, tid0)], d, table)
     st = _Arrays()
     st.add_state(0, tid0, refs[0] is not None, tid0, _look(ft0, s0, me))
     for k in range(1, end + 1):
         f = frames[k]
         boxes = np.vstack([design.measurements(f), design.candidate_measurements(f)])
         pay = np.array([d.payoff for d in (*f.detections, *f.candidates)], dtype=float)
-        n = len(f.detections)
         attack = (window[0] <= k <= window[1], actions, attackable(f, refbox[k], radius))
         _within_budget(f, k, len(level), attack, st.n, max_states)
         subsets = subset_options(f, *attack)
+        keeps = [_kept(len(f.detections), len(boxes), sub) for sub in subsets]
         base = st.n - len(level)
-        made: list[_Made] = []
-        ref = refs[k]
-        for i, state in enumerate(level):
-            for sub in subsets:
-                keep = np.arange(len(boxes)) < n
-                keep[list(sub)] ^= True  # hidden detections off, injected candidates on
-                nxt, ft = tracker.step(state, boxes[keep])
-                tid = NONE if ref is None else design.target_of(ft, ref)
-                last = int(last_seen(np.array([st.last[base + i]]), np.array([tid]))[0])
-                made.append((base + i, nxt, tid, last, sub, _look(ft, nxt, me)))
-        level = st.add_level(k, made, pay, ref is not None, tracker.filter.m.dim, table)
+        if isinstance(tracker, MultiTargetTracker):
+            made = _expanded(design, level, boxes, keeps, table, refs[k], me, st.last, base)
+        else:
+            made = _stepped(design, level, boxes, keeps, table, refs[k], me, st.last, base)
+        level = st.add_level(k, made, subsets, pay, refs[k] is not None)
     shown = frames[: end + 1]
     names = tuple(tuple(d.id for d in (*f.detections, *f.candidates)) for f in shown)
     rows = np.array([np.full(4, np.nan) if r is None else r for r in refbox]).reshape(-1, 4)
     model = st.model(tuple(f.step for f in shown), names, end, window, rows, me)
     return replace(model, detections=tuple(len(f.detections) for f in shown))
+
+
+def _kept(n: int, size: int, sub: tuple[int, ...]) -> np.ndarray:
+    """The indices of the boxes (``n`` detections, then candidates; ``size`` in all) the
+    tracker sees under option ``sub``: hidden detections off, injected candidates on."""
+    keep = np.arange(size) < n
+    keep[list(sub)] ^= True
+    return np.flatnonzero(keep)
+
+
+@dataclass(frozen=True)
+class _Made:
+    """A level's successors, one per (state, option), by state then option: the source
+    state's index in the model, the successors (``last`` set), the target's track id of
+    each, and what each shows the ``dist`` measures (:func:`_look`)."""
+
+    src: np.ndarray
+    batch: MultiBatch
+    tid: np.ndarray
+    box: np.ndarray
+    gone: np.ndarray
+
+
+def _expanded(
+    design: ComposedDesign,
+    level: MultiBatch,
+    boxes: np.ndarray,
+    keeps: list[np.ndarray],
+    table: CovarianceTable,
+    ref: np.ndarray | None,
+    me: int,
+    last: list[int],
+    base: int,
+) -> _Made:
+    """The successors of a box tracker's level, all at once (parts/box_level.py)."""
+    out = expand(design.tracker, level, boxes, keeps, table)
+    b = out.batch
+    if ref is None:
+        tid = np.full(len(b), NONE, dtype=np.int64)
+    else:
+        tid = targets_of(out.boxes, b.id, out.confirmed, ref)
+    src = base + out.src
+    b = replace(b, last=last_seen(np.asarray(last, dtype=np.int64)[src], tid))
+    mine = b.id == me
+    has = mine.any(axis=1)
+    at = np.argmax(mine, axis=1)
+    box = np.where(has[:, None], out.boxes[np.arange(len(b)), at], np.nan).reshape(-1, 4)
+    gone = ~has & (me != NONE) & (me < b.next_id)
+    return _Made(src, b, tid, box, gone)
+
+
+def _stepped(
+    design: ComposedDesign,
+    level: MultiBatch,
+    boxes: np.ndarray,
+    keeps: list[np.ndarray],
+    table: CovarianceTable,
+    ref: np.ndarray | None,
+    me: int,
+    last: list[int],
+    base: int,
+) -> _Made:
+    """The successors of a level, one tracker step each (any composed tracker)."""
+    src, states, tids, lasts, looks = [], [], [], [], []
+    for i in range(len(level)):
+        tr = level.tracks(i, table)
+        state = MultiState(tr, int(level.next_id[i]), int(level.frames[i]))
+        for keep in keeps:
+            nxt, ft = design.tracker.step(state, boxes[keep])
+            tid = NONE if ref is None else design.target_of(ft, ref)
+            src.append(base + i)
+            states.append(nxt)
+            tids.append(tid)
+            lasts.append(int(last_seen(np.array([last[base + i]]), np.array([tid]))[0]))
+            looks.append(_look(ft, nxt, me))
+    d = design.tracker.filter.m.dim
+    packed = [(s.tracks, s.next_id, s.frames, x) for s, x in zip(states, lasts, strict=True)]
+    return _Made(
+        np.array(src, dtype=np.int64),
+        MultiBatch.pack(packed, d, table),
+        np.array(tids, dtype=np.int64),
+        np.array([x[0] for x in looks], dtype=float).reshape(-1, 4),
+        np.array([x[1] for x in looks], dtype=bool),
+    )
 
 
 def as_box(v: np.ndarray) -> np.ndarray:
@@ -147,9 +234,6 @@ def _within_budget(
 #: (nan: no such track now) and whether that track was deleted (born, and gone since).
 _Look = tuple[np.ndarray, bool]
 
-#: One successor: source, state, target's track id, last, the subset hidden, its look.
-_Made = tuple[int, MultiState, int, int, tuple[int, ...], _Look]
-
 
 def _look(ft: FrameTracks, state: MultiState, me: int) -> _Look:
     """The track of id ``me`` after a frame whose tracks are ``ft`` (the state after it:
@@ -158,15 +242,6 @@ def _look(ft: FrameTracks, state: MultiState, me: int) -> _Look:
     if mine.size:
         return as_box(ft.boxes[mine[0]]).copy(), False
     return np.full(4, np.nan), bool(me != NONE and me < state.next_id)
-
-
-@dataclass
-class _Cheapest:
-    """The cheapest subsets found so far that force one transition: by payoff, by count."""
-
-    payoff: float
-    by_payoff: tuple[int, ...]
-    by_count: tuple[int, ...]
 
 
 class _Arrays:
@@ -194,46 +269,39 @@ class _Arrays:
         self.gone.append(look[1])
 
     def add_level(
-        self,
-        k: int,
-        made: list[_Made],
-        pay: np.ndarray,
-        ref: bool,
-        d: int,
-        table: CovarianceTable,
-    ) -> list[MultiState]:
-        """Add step ``k``'s successors ``made`` (source, state, target's track id, last,
-        hidden), merged; returns the level's distinct states in index order."""
-        batch = MultiBatch.pack(
-            [(m[1].tracks, m[1].next_id, m[1].frames, m[3]) for m in made], d, table
-        )
-        words = batch.words(batch.X.shape[1])
-        _, first, inverse = np.unique(words, axis=0, return_index=True, return_inverse=True)
-        inverse = inverse.reshape(-1)
-        order = np.argsort(first, kind="stable")  # distinct states in order of first sight
-        rank = np.empty_like(order)
-        rank[order] = np.arange(len(order))
+        self, k: int, made: _Made, subsets: list[tuple[int, ...]], pay: np.ndarray, ref: bool
+    ) -> MultiBatch:
+        """Add step ``k``'s successors ``made`` (one per state and option of ``subsets``, by
+        state then option), merged; returns the level's distinct states in order of first
+        sight."""
+        batch = made.batch
+        rank, keep = distinct_rows(batch.words(batch.X.shape[1]))
         base = self.n
-        level = []
-        for j in first[order]:
-            _, state, tid, last, _, look = made[int(j)]
-            self.add_state(k, tid, ref, last, look)
-            level.append(state)
-        best: dict[tuple[int, int], _Cheapest] = {}
-        for j, (src, _, _, _, sub, _) in enumerate(made):
-            dst = base + int(rank[inverse[j]])
-            cost = subset_cost(pay, sub)
-            cur = best.get((src, dst))
-            if cur is None:
-                best[(src, dst)] = _Cheapest(cost, sub, sub)
-                continue
-            if cost < cur.payoff:
-                cur.payoff, cur.by_payoff = cost, sub
-            if len(sub) < len(cur.by_count):
-                cur.by_count = sub
-        for (src, dst), c in best.items():
-            self.trans.append((src, dst, c.payoff, len(c.by_count), c.by_payoff, c.by_count))
-        return level
+        self.step.extend([k] * len(keep))
+        self.tid.extend(made.tid[keep].tolist())
+        self.ref.extend([ref] * len(keep))
+        self.last.extend(batch.last[keep].tolist())
+        self.box.extend(made.box[keep])
+        self.gone.extend(made.gone[keep].tolist())
+        dst = base + rank
+        option = np.tile(np.arange(len(subsets)), len(made.src) // max(len(subsets), 1))
+        cost = np.array([subset_cost(pay, sub) for sub in subsets], dtype=float)[option]
+        size = np.array([len(sub) for sub in subsets], dtype=np.int64)[option]
+        # one transition per (source, successor), in order of first sight, at its cheapest
+        # (the first of equals) by payoff and by count
+        _, at, group = np.unique(made.src * (base + len(keep)) + dst, return_index=True,
+                                 return_inverse=True)  # fmt: skip
+        group = group.reshape(-1)
+        seq = np.arange(len(group))
+        by_pay = np.lexsort((seq, cost, group))
+        by_cnt = np.lexsort((seq, size, group))
+        heads = np.searchsorted(group[by_pay], np.arange(len(at)))
+        pay_pick, cnt_pick = by_pay[heads], by_cnt[heads]
+        for g in np.argsort(at, kind="stable"):
+            p, c = int(pay_pick[g]), int(cnt_pick[g])
+            sp, sc = subsets[option[p]], subsets[option[c]]
+            self.trans.append((int(made.src[p]), int(dst[p]), float(cost[p]), len(sc), sp, sc))
+        return batch.take(keep)
 
     def model(
         self,

@@ -52,9 +52,45 @@ class GlobalAssociator:
                 pairs = np.stack([rows, cols], axis=1).astype(np.int64)
         low = score[pairs[:, 0], pairs[:, 1]] < threshold
         kept, dropped = pairs[~low], pairs[low]
-        new = np.concatenate([np.setdiff1d(np.arange(n), pairs[:, 0]), dropped[:, 0]])
-        missed = np.concatenate([np.setdiff1d(np.arange(m), pairs[:, 1]), dropped[:, 1]])
+        rows, cols = np.ones(n, dtype=bool), np.ones(m, dtype=bool)
+        rows[pairs[:, 0]] = False  # the rows and columns the assignment left out, in order
+        cols[pairs[:, 1]] = False
+        new = np.concatenate([np.flatnonzero(rows), dropped[:, 0]])
+        missed = np.concatenate([np.flatnonzero(cols), dropped[:, 1]])
         return Assignment(kept, new.astype(np.int64), missed.astype(np.int64))
+
+    @staticmethod
+    def by_shortcut(
+        above: np.ndarray, groups: np.ndarray, keeps: np.ndarray
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """Where :meth:`assign`'s shortcut decides, for many (track set, rows kept) pairs at
+        once. ``above`` (N, L): which scores pass the threshold, the columns in groups
+        (``groups``: each group's first column, then L), rows kept ``keeps`` (J, N) bool.
+        Returns (G, J) whether :meth:`assign` on rows ``keeps[j]`` and group g's columns is
+        decided by the shortcut or has no pair to make (no row or no column: no pair; else
+        every kept row and every column has at most one score above the threshold, and one
+        has one), and each (group, row)'s one column above the threshold (−1: none or
+        several). There the assignment is those pairs, and the rows without one start
+        tracks in order."""
+        a = above.astype(np.int64)
+        G = len(groups) - 1
+        width = np.diff(groups)
+        some = np.flatnonzero(width > 0)  # reduceat's segments run from one start to the next
+        row_sum = np.zeros((G, a.shape[0]), dtype=np.int64)
+        col_max = np.zeros((G, len(keeps)), dtype=np.int64)
+        if some.size:
+            row_sum[some] = np.add.reduceat(a, groups[some], axis=1).T
+            cols = keeps.astype(np.int64) @ a  # (J, L): kept rows above, per column
+            col_max[some] = np.maximum.reduceat(cols, groups[some], axis=1).T
+        kept_max = np.where(keeps[None], row_sum[:, None, :], 0).max(axis=2, initial=0)
+        empty = (width[:, None] == 0) | ~np.asarray(keeps.any(axis=1))[None, :]
+        ok = empty | ((kept_max == 1) & (col_max == 1))
+        owner = np.repeat(np.arange(G), width)
+        partner = np.full((G, a.shape[0]), -1, dtype=np.int64)
+        r, c = np.nonzero(above)
+        one = row_sum[owner[c], r] == 1
+        partner[owner[c[one]], r[one]] = c[one]
+        return ok, partner
 
 
 @dataclass(frozen=True)

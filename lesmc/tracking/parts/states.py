@@ -1,6 +1,6 @@
-"""Batches of multi-target tracker states as padded arrays: the state a model of a
-multi-target design will unfold (docs/trackers.md, "The multi-target model"). Not used by
-any verb yet.
+"""Batches of multi-target tracker states as padded arrays: the states the unfolder of a
+multi-target design keeps, level by level (lesmc/unfold/multi.py; docs/trackers.md, "The
+multi-target model").
 
 A state is every track (mean, covariance, id, hits, streak, age, since), the next id,
 the frames seen, and the id of the target's track at the last step it existed (−1: never
@@ -95,3 +95,18 @@ class MultiBatch:
         per = np.pad(per, ((0, 0), (0, pad), (0, 0)), constant_values=-1)
         head = np.stack([self.count, self.next_id, self.frames, self.last], axis=1)
         return np.concatenate([head.view(np.uint64), X, per.reshape(n, -1).view(np.uint64)], 1)
+
+
+def distinct_rows(words: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Each row's class among the distinct rows of ``words`` (n, w), numbered in order of
+    first sight, and each class's first row: exact (the rows' bytes are the keys)."""
+    raw, w = np.ascontiguousarray(words).tobytes(), words.shape[1] * words.itemsize
+    seen: dict[bytes, int] = {}
+    rank = np.fromiter(
+        (seen.setdefault(raw[i * w : (i + 1) * w], len(seen)) for i in range(len(words))),
+        dtype=np.int64,
+        count=len(words),
+    )
+    first = np.full(len(seen), len(words), dtype=np.int64)
+    np.minimum.at(first, rank, np.arange(len(words)))
+    return rank, first
