@@ -78,6 +78,12 @@ def _bnb() -> Search:
     return branch_and_bound
 
 
+def _auto() -> Search:
+    from lesmc.engines.auto import auto_search
+
+    return auto_search
+
+
 def _enumerate() -> Search:
     from lesmc.engines.enumerate import enumerate_paths
 
@@ -93,3 +99,11 @@ register(
 )
 register(Engine("bnb", "best-first branch and bound", _bnb))
 register(Engine("enumerate", "the paper's Algorithms 1-2 (all paths)", _enumerate, True))
+register(
+    Engine(
+        "auto",
+        "levels or bnb, chosen per instance from the model's shape (bnb for an explicit "
+        "model's max objective)",
+        _auto,
+    )
+)
