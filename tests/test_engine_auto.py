@@ -12,8 +12,9 @@ from hypothesis import HealthCheck, given, settings
 from oracle import brute_force
 from test_engines import _assert_optimum_and_theta, _bound_property, cases
 
+from lesmc.engines import enumerate as enumerate_engine
 from lesmc.engines import registry
-from lesmc.engines.auto import choose
+from lesmc.engines.auto import TABLE_TREE, choose
 from lesmc.engines.check import check_bound
 from lesmc.engines.space import build_space
 from lesmc.language.parser import parse_spec
@@ -53,13 +54,8 @@ def test_a_max_objective_goes_to_bnb_and_sums_to_levels(objective: str, want: st
 
 def test_a_knapsack_goes_to_levels_and_matches_its_subsets() -> None:
     """n = 12: the optimum and θ* by listing every subset."""
-    rng = random.Random(3)
-    items = [Item(float(rng.randint(1, 900)), float(rng.randint(1, 900))) for _ in range(12)]
-    demand = sum(i.capacity for i in items) / 2
-    model = knapsack_lts(items)
-    spec = parse_spec(knapsack_spec(len(items), demand, 0.0), "<knapsack>")
-    bp = bind(spec, spec.properties[0], model.end, model.components, model.has_covariance)
-    r = check_bound(model, bp, "auto")
+    items, demand, model, bp = _knapsack(12, 3)
+    r = check_bound(model, bp, "auto")  # type: ignore[arg-type]
     assert r.stats.extra["auto"] == "levels"
     subsets = [(0.0, 0.0)]
     for it in items:
@@ -80,6 +76,35 @@ def test_auto_equals_brute_force(case: tuple) -> None:  # type: ignore[type-arg]
     _assert_optimum_and_theta(r, brute_force(model, bp))
     if "exhaustive" not in r.stats.extra:  # searched, not probed
         assert r.stats.extra["auto"] == ("bnb" if bp.objective.aggregate == "max" else "levels")
+
+
+def _knapsack(n: int, seed: int) -> tuple[list[Item], float, object, object]:
+    rng = random.Random(seed)
+    items = [Item(float(rng.randint(1, 900)), float(rng.randint(1, 900))) for _ in range(n)]
+    demand = sum(i.capacity for i in items) / 2
+    model = knapsack_lts(items)
+    spec = parse_spec(knapsack_spec(n, demand, 0.0), "<knapsack>")
+    bp = bind(spec, spec.properties[0], model.end, model.components, model.has_covariance)
+    return items, demand, model, bp
+
+
+def test_the_value_tables_class_is_not_probed(monkeypatch: pytest.MonkeyPatch) -> None:
+    """With the probe on (its default): levels lists a knapsack's tree of 2^17 nodes,
+    auto leaves it to levels' value table (the same answers); a layered model's small
+    tree auto still lists."""
+    monkeypatch.setattr(enumerate_engine, "SMALL_TREE", 1 << 21)
+    _, _, model, bp = _knapsack(16, 5)
+    space = build_space(model, bp)  # type: ignore[arg-type]
+    assert enumerate_engine.tree_size(space) > TABLE_TREE
+    listed = check_bound(model, bp, "levels")  # type: ignore[arg-type]
+    got = check_bound(model, bp, "auto")  # type: ignore[arg-type]
+    assert "exhaustive" in listed.stats.extra
+    assert "exhaustive" not in got.stats.extra and "value_cells" in got.stats.extra
+    assert (got.optimum, got.witness_value) == (listed.optimum, listed.witness_value)
+    lts, small = _layered("payoff")
+    r = check_bound(to_arrays(lts), small, "auto")  # type: ignore[arg-type]
+    assert "exhaustive" in r.stats.extra and r.stats.extra["auto"] == "enumerate"
+    assert r.stats.engine == "auto"
 
 
 def test_auto_is_registered() -> None:

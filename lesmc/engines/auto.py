@@ -13,32 +13,59 @@ issue 62) looks only at what a space is, never at a trial run:
   bounds, value table and compiled pass decide sums with a constraint to pass
   (5-50x ``bnb`` on knapsacks; about even on robustness).
 
-Small trees are enumerated before either runs, as for every engine that does not walk
-every path (engines/check.py, the probe). The engine chosen is ``stats.extra["auto"]``.
+Small trees are enumerated first (the probe of engines/check.py, as for ``levels`` and
+``bnb``), except on the value table's class (:func:`table_class`) past
+:data:`TABLE_TREE` nodes: there ``levels`` decides in a few numpy calls a level what
+the probe lists node by node (a knapsack of 20 items: 2 M nodes). The engine chosen is
+``stats.extra["auto"]`` (``enumerate`` when the probe answered).
 """
 
 from __future__ import annotations
 
 from lesmc.common.budget import Budget
 from lesmc.engines.bnb import branch_and_bound
+from lesmc.engines.enumerate import probe_then, tree_size
+from lesmc.engines.labels import grain
 from lesmc.engines.levels import level_search
 from lesmc.engines.result import EngineOutcome
 from lesmc.engines.space import SearchSpace, Space
 
+#: On the value table's class, trees past this many nodes are not probed.
+TABLE_TREE = 1 << 14
+
 
 def choose(space: SearchSpace) -> str:
-    """The engine ``auto`` runs on ``space``: ``bnb`` for an explicit model with a max
-    objective, ``levels`` otherwise (the module's docstring says why)."""
+    """The engine ``auto`` searches ``space`` with: ``bnb`` for an explicit model with a
+    max objective, ``levels`` otherwise (the module's docstring says why)."""
     if isinstance(space, Space) and space.obj_max:
         return "bnb"
     return "levels"
 
 
+def table_class(space: Space) -> bool:
+    """``levels``' value table may decide this space (engines/values.py): a sum objective
+    of multiples of a grain and a sum constraint to rise past its bound."""
+    return not space.obj_max and not space.con_max and space.con_up and grain(space) is not None
+
+
+def probes(space: Space) -> bool:
+    """Enumerate a small tree first: everywhere but on the value table's class past
+    :data:`TABLE_TREE` nodes."""
+    return not table_class(space) or tree_size(space, TABLE_TREE) <= TABLE_TREE
+
+
 def auto_search(space: SearchSpace, limits: Budget | None = None) -> EngineOutcome:
-    """The chosen engine's search (:func:`choose`), reported as ``auto``'s."""
+    """The chosen engine's search (:func:`choose`), after the probe where :func:`probes`
+    says so; reported as ``auto``'s."""
+    budget = limits or Budget()
     chosen = choose(space)
     search = branch_and_bound if chosen == "bnb" else level_search
-    out = search(space, limits)
+    if isinstance(space, Space) and probes(space):
+        out = probe_then(space, "auto", budget, search)
+        if "exhaustive" in out.stats.extra:
+            chosen = "enumerate"
+    else:
+        out = search(space, budget)
     out.stats.engine = "auto"
     out.stats.extra["auto"] = chosen
     return out

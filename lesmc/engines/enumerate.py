@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import math
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, replace
 
 import numpy as np
@@ -188,6 +189,21 @@ def exhaustive_probe(space: Space, engine: str, budget: Budget) -> Probe:
         return Probe(out, budget, used, seconds)
     states = None if budget.max_states is None else max(1, budget.max_states - used)
     return Probe(None, replace(budget, max_states=states), used, seconds)
+
+
+def probe_then(
+    space: Space, engine: str, budget: Budget, search: Callable[[Space, Budget], EngineOutcome]
+) -> EngineOutcome:
+    """:func:`exhaustive_probe`'s answer, or ``search`` with what is left of the budget
+    (the probe's states then in ``stats.extra["probe_states"]``, its seconds added)."""
+    probe = exhaustive_probe(space, engine, budget)
+    if probe.outcome is not None:
+        return probe.outcome
+    out = search(space, probe.left)
+    if probe.states:
+        out.stats.extra["probe_states"] = probe.states
+        out.stats.seconds += probe.seconds
+    return out
 
 
 def tree_size(space: Space, past: float = math.inf) -> float:

@@ -17,7 +17,7 @@ from typing import Protocol
 
 import numpy as np
 
-from lesmc.common.budget import SearchBudget
+from lesmc.common.budget import SearchBudget, resident_bytes
 from lesmc.engines import labels
 from lesmc.engines.result import Stats
 from lesmc.engines.space import SearchSpace, Space
@@ -41,6 +41,9 @@ SUFFIX_VALUES = 1 << 17
 #: ... and the exact pass for θ*, which meets it halfway (see :func:`representative_search`).
 EXACT_SUFFIX_VALUES = 1 << 20
 
+#: Most bits (reachable states × objective values below the optimum) of the bit sets
+#: of :func:`_theta_by_bits` (256 MB).
+REACH_BITS = 1 << 31
 #: Most reachable states for which the witness dive builds its suffix table.
 SUFFIX_STATES = 50_000
 
@@ -339,6 +342,13 @@ def representative_search(
                 )
                 if got is not None:
                     best, at = value, got
+        if best < cap and isinstance(space, Space):
+            # the values every state reaches, as bit sets, where they fit (issue 62)
+            bits = _theta_by_bits(space, budget, stats, opt, best)
+            if bits is not None:
+                if bits[1] is not None:
+                    return bits[1], bits[0], bits[0], None
+                return _witness_path(at), best, best, None
         if best < cap:
             # the exact pass meets a larger table halfway (built only now: the dives above
             # end most searches, docs/performance.md, issue 62)
@@ -356,6 +366,95 @@ def representative_search(
         return _witness_path(at), best, best, None
     except labels.Stop as stop:
         return _witness_path(at), best, cap, stop.reason
+
+
+def _theta_by_bits(
+    space: Space, budget: SearchBudget, stats: Stats, opt: float, best: float
+) -> tuple[float, list[int] | None] | None:
+    """θ* exactly from the objective values each reachable state reaches, one bit set
+    (a Python integer, bit v: some path reaches the state with objective v·g) per state:
+    a transition of contribution w·g ors its source's set shifted by w into its target's,
+    cut to the values below the optimum. θ* is the highest bit of a leaf's set (times g);
+    ρ* is read back level by level through sets that hold its prefixes' values. Sums of
+    multiples of a grain g only (integer values, then exactly the label passes' sums), where
+    every reachable leaf's tail adds 0 (or +inf: never below the optimum), and where the
+    sets fit :data:`REACH_BITS` and the memory ceiling.
+
+    Returns (θ*, ρ*) when θ* is above ``best`` (ρ*: its transitions from the root),
+    (best, None) when it proves that nothing lies in (best, opt), and None where it does
+    not apply.
+    """
+    g = labels.grain(space)
+    if g is None or space.obj_max or not math.isfinite(opt) or not g.is_integer():
+        return None
+    top = math.ceil(opt / g)  # values v·g below opt: v < top
+    levels = space.reachable_levels()
+    cells = sum(int(x.size) for x in levels) * top
+    if cells > REACH_BITS or (
+        budget.max_memory is not None and resident_bytes() + cells // 8 > budget.max_memory
+    ):
+        return None
+    leaf = space.leaves()
+    ends = np.concatenate([x[leaf[x]] for x in levels])
+    if ends.size:
+        to = space.tails(ends)[0]
+        if not np.all((to == 0) | (to == math.inf)):
+            return None
+        ends = ends[to == 0]
+    r0 = space.root_obj / g
+    if not r0.is_integer():
+        return None
+    mask = (1 << top) - 1
+    sets: dict[int, int] = {space.root: (1 << int(r0)) & mask}
+    dst = space.cm.dst
+    for i in range(len(levels)):
+        if (why := budget.over(0)) is not None:
+            raise labels.Stop(why)
+        inner, t, seg, _ = space.level_moves(i)
+        src = np.repeat(inner, np.diff(seg))
+        w = space.c_obj[t] / g
+        into: set[int] = set()
+        for p, d, k in zip(src.tolist(), dst[t].tolist(), w.tolist(), strict=True):
+            have = sets.get(p, 0)
+            if have and math.isfinite(k) and k < top:
+                sets[d] = sets.get(d, 0) | (have << int(k))
+                into.add(d)
+        for d in into:  # cut once per state, not per transition
+            sets[d] &= mask
+        budget.used += int(inner.size)
+        stats.transitions += int(t.size)
+    value, end = -1, -1
+    for q in ends.tolist():
+        v = sets.get(q, 0).bit_length() - 1
+        if v > value:
+            value, end = v, q
+    if value < 0 or value * g <= best:
+        return best, None
+    return value * g, _bits_path(space, sets, end, value, g)
+
+
+def _bits_path(space: Space, sets: dict[int, int], end: int, value: int, g: float) -> list[int]:
+    """The transitions of a path from the root to ``end`` with objective ``value``·g, read
+    back through the bit sets of :func:`_theta_by_bits` (the first transition in rank
+    order whose source reaches the value less its contribution)."""
+    levels = space.reachable_levels()
+    step = {q: i for i, x in enumerate(levels) for q in x.tolist()}
+    dst = space.cm.dst
+    out: list[int] = []
+    q, v = end, value
+    for i in range(step[end] - 1, -1, -1):
+        inner, t, seg, _ = space.level_moves(i)
+        src = np.repeat(inner, np.diff(seg))
+        into = np.flatnonzero(dst[t] == q)
+        for j in into.tolist():
+            k = int(space.c_obj[t[j]] / g)
+            p = int(src[j])
+            if v - k >= 0 and (sets.get(p, 0) >> (v - k)) & 1:
+                out.append(int(t[j]))
+                q, v = p, v - k
+                break
+    out.reverse()
+    return out
 
 
 def _witness_path(at: tuple[labels.Trail, int, int, list[int]] | None) -> list[int] | None:
