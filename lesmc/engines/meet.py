@@ -346,6 +346,7 @@ def representative_search(
             # the values every state reaches, as bit sets, where they fit (issue 62)
             bits = _theta_by_bits(space, budget, stats, opt, best)
             if bits is not None:
+                stats.extra["witness_bits"] = True
                 if bits[1] is not None:
                     return bits[1], bits[0], bits[0], None
                 return _witness_path(at), best, best, None
