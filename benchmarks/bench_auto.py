@@ -8,8 +8,8 @@ bench_engines.py's models (random layered models, robustness and resilience, and
 knapsacks). Every engine (``levels``, ``bnb``, ``enumerate``, ``auto``) checks each
 instance through ``check_bound`` (the probe of small trees included, as a user gets it)
 within ``--timeout`` seconds and ENUMERATE_BUDGET labels; a run under SHORT seconds is
-repeated (best of ``--repeat``, under TINY seconds of 3x as many, the engines
-alternating). The table shows each engine's
+repeated (best of ``--repeat``, under TINY seconds of 3x as many, the engines in
+another order each round, garbage collected before each run). The table shows each engine's
 seconds (a run that did not finish: its reason), the engine ``auto`` chose, and
 auto / best, the best being the fastest engine that finished; every finished answer
 must equal the others'. Target: the worst auto / best at most 1.2x. Figures:
@@ -19,6 +19,7 @@ docs/performance.md, "Issue 62, fourth round".
 from __future__ import annotations
 
 import argparse
+import gc
 import math
 import os
 import statistics
@@ -85,6 +86,9 @@ def engines_set(quick: bool) -> list[tuple[str, ArrayModel, BoundProperty]]:
 
 
 def once(cm: ArrayModel, bp: BoundProperty, engine: str, timeout: float) -> CheckResult:
+    """One check; the garbage of the previous one collected first (bnb's labels, for
+    instance, would otherwise be collected in the next engine's seconds)."""
+    gc.collect()
     return check_bound(cm, bp, engine, Budget(timeout=timeout, max_states=ENUMERATE_BUDGET))
 
 
@@ -117,7 +121,8 @@ def main() -> int:
         secs: dict[str, float] = {}
         runs: dict[str, CheckResult] = {}
         for k in range(args.repeat * TINY_TIMES):
-            for e in ENGINES:
+            # each round in another order, so that no engine always follows the same one
+            for e in ENGINES[k % len(ENGINES) :] + ENGINES[: k % len(ENGINES)]:
                 if k and (e not in runs or secs[e] >= SHORT):
                     continue
                 if k >= args.repeat and secs[e] >= TINY:
