@@ -124,3 +124,29 @@ def test_cli_check_with_engine_auto() -> None:
     assert [r["stats"]["engine"] for r in rows] == ["auto"] * len(rows)
     for a, b in zip(rows, ref, strict=True):
         assert (a["optimum"], a["witness_value"]) == (b["optimum"], b["witness_value"])
+
+
+@settings(max_examples=150, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(cases())
+def test_the_cheap_tree_bound_is_above_the_count(case: tuple) -> None:  # type: ignore[type-arg]
+    """enumerate.tree_bound (the probe's shortcut) is never below the exact count."""
+    model, params, quantile = case
+    bp = _bound_property(model, params, quantile)
+    space = build_space(to_arrays(model), bp)
+    assert enumerate_engine.tree_bound(space) >= enumerate_engine.tree_size(space)
+
+
+def test_a_small_tree_is_listed_without_counting(monkeypatch: pytest.MonkeyPatch) -> None:
+    """Under the cheap bound the probe enumerates without counting (the same answer)."""
+    monkeypatch.setattr(enumerate_engine, "SMALL_TREE", 1 << 21)
+    lts, bp = _layered("payoff")
+    space = build_space(to_arrays(lts), bp)  # type: ignore[arg-type]
+    assert enumerate_engine.tree_bound(space) <= enumerate_engine.SMALL_TREE
+
+    def no_count(*_: object) -> float:
+        raise AssertionError("counted")
+
+    monkeypatch.setattr(enumerate_engine, "tree_size", no_count)
+    r = check_bound(to_arrays(lts), bp, "levels")  # type: ignore[arg-type]
+    assert "exhaustive" in r.stats.extra
+    _assert_optimum_and_theta(r, brute_force(lts, bp))  # type: ignore[arg-type]

@@ -24,7 +24,7 @@ from __future__ import annotations
 
 from lesmc.common.budget import Budget
 from lesmc.engines.bnb import branch_and_bound
-from lesmc.engines.enumerate import probe_then, tree_size
+from lesmc.engines.enumerate import probe_then, tree_bound, tree_size
 from lesmc.engines.labels import grain
 from lesmc.engines.levels import level_search
 from lesmc.engines.result import EngineOutcome
@@ -51,7 +51,9 @@ def table_class(space: Space) -> bool:
 def probes(space: Space) -> bool:
     """Enumerate a small tree first: everywhere but on the value table's class past
     :data:`TABLE_TREE` nodes."""
-    return not table_class(space) or tree_size(space, TABLE_TREE) <= TABLE_TREE
+    if not table_class(space):
+        return True
+    return tree_bound(space) <= TABLE_TREE or tree_size(space, TABLE_TREE) <= TABLE_TREE
 
 
 def auto_search(space: SearchSpace, limits: Budget | None = None) -> EngineOutcome:
