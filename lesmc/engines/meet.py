@@ -405,8 +405,25 @@ def _theta_by_bits(
     r0 = space.root_obj / g
     if not r0.is_integer():
         return None
+    sets = _reached_sets(space, budget, stats, g, top, int(r0))
+    value, end = -1, -1
+    for q in ends.tolist():
+        v = sets.get(q, 0).bit_length() - 1
+        if v > value:
+            value, end = v, q
+    if value < 0 or value * g <= best:
+        return best, None
+    return value * g, _bits_path(space, sets, end, value, g)
+
+
+def _reached_sets(
+    space: Space, budget: SearchBudget, stats: Stats, g: float, top: int, r0: int
+) -> dict[int, int]:
+    """:func:`_theta_by_bits`'s sets, level by level from the root's value ``r0``·g (bits
+    ``top`` and up cut)."""
+    levels = space.reachable_levels()
     mask = (1 << top) - 1
-    sets: dict[int, int] = {space.root: (1 << int(r0)) & mask}
+    sets: dict[int, int] = {space.root: (1 << r0) & mask}
     dst = space.cm.dst
     for i in range(len(levels)):
         if (why := budget.over(0)) is not None:
@@ -424,14 +441,7 @@ def _theta_by_bits(
             sets[d] &= mask
         budget.used += int(inner.size)
         stats.transitions += int(t.size)
-    value, end = -1, -1
-    for q in ends.tolist():
-        v = sets.get(q, 0).bit_length() - 1
-        if v > value:
-            value, end = v, q
-    if value < 0 or value * g <= best:
-        return best, None
-    return value * g, _bits_path(space, sets, end, value, g)
+    return sets
 
 
 def _bits_path(space: Space, sets: dict[int, int], end: int, value: int, g: float) -> list[int]:
