@@ -110,6 +110,8 @@ def lesmc_run(
         stopped += " (compiled pass)"
     if "value_cells" in r.stats.extra:  # levels' value table decided (states: its cells)
         stopped += " (value table)"
+    if r.stats.extra.get("witness_bits"):  # θ* by the bit sets of meet._theta_by_bits
+        stopped += " (θ* bits)"
     return r.optimum, theta, r.stats.seconds, wall, r.stats.states_expanded, stopped
 
 

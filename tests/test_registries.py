@@ -35,7 +35,7 @@ def test_the_engines_table_is_the_registry() -> None:
         for e in map(engines.get, engines.names())
     ]
     assert _table("engines.md", "| engine | what it does |") == want
-    assert len(want) == 3
+    assert len(want) == 4
 
 
 def test_the_payoff_modes_table_is_the_registry() -> None:

@@ -12,7 +12,7 @@ import numpy as np
 from lesmc.common.budget import Budget
 from lesmc.engines import enumerate as enum_engine
 from lesmc.engines import registry as engines
-from lesmc.engines.enumerate import enumerate_many, exhaustive_probe, tree_size
+from lesmc.engines.enumerate import enumerate_many, probe_then, tree_size
 from lesmc.engines.lazy import LazySpace
 from lesmc.engines.result import CheckResult, EngineOutcome, PathInfo, Verdict, path_info
 from lesmc.engines.space import (
@@ -86,20 +86,17 @@ def check_bound(
 
     ``bnb`` and ``levels`` first try to enumerate a small tree (enumerate.exhaustive_probe):
     its answer is theirs when it finishes; otherwise they search with what is left of the
-    budget, and report the probe's states as ``stats.extra["probe_states"]``. A model built
+    budget, and report the probe's states as ``stats.extra["probe_states"]`` (an engine
+    with ``own_probe``, ``auto``, decides itself whether to probe). A model built
     for another attack window than the property's says so in a note.
     """
     b = budget or Budget()
     space = build_space(cm, bp)
     chosen = engines.get(engine)
-    if chosen.exhaustive:
+    if chosen.exhaustive or chosen.own_probe:
         out = chosen.load()(space, b)
     else:
-        probe = exhaustive_probe(space, engine, b)
-        out = probe.outcome or chosen.load()(space, probe.left)
-        if probe.outcome is None and probe.states:
-            out.stats.extra["probe_states"] = probe.states
-            out.stats.seconds += probe.seconds
+        out = probe_then(space, engine, b, chosen.load())
     out.stats.extra["states_built"] = cm.n_states  # the whole model's
     result = to_result(space, out)
     result.notes.extend(window_notes(cm, bp))

@@ -19,14 +19,10 @@ pass) and, when objective and constraint are both sums, Lagrangian bounds
 ``o + min_suffix Σ(c_obj − sλ c_con) + sλ(B − c)`` for a grid of λ ≥ 0: the
 relaxation that makes the 0-1 knapsack's fractional bound (docs/engines.md).
 
-The representative path ρ* (phase 2) is an optimisation of its own: the
-largest objective below the optimum. A max objective keeps one label per
-state (the largest below the optimum); a sum keeps distinct values, pruned by
-suffix bounds and the incumbent, and is seeded by a meet-in-the-middle dive
-against the suffix values of the last steps. When every contribution is a
-multiple of g, no objective lies strictly between opt − g and opt, which
-proves a witness at opt − g optimal at once. For a max objective one backward pass
-over the states built (below.py) decides θ* first, wherever those states suffice.
+The representative path ρ* and θ* (phase 2), an optimisation of their own, are in
+meet.py; what both phases share (labels, their trail, the rounding slack) in labels.py.
+For a max objective one backward pass over the states built (below.py) decides θ*
+first, wherever those states suffice.
 
 Under a budget both phases stop with proven bounds (docs/engines.md, "anytime").
 """
@@ -36,7 +32,6 @@ from __future__ import annotations
 import math
 import time
 from collections.abc import Callable
-from dataclasses import dataclass, field
 from typing import Any, NamedTuple
 
 import numpy as np
@@ -45,28 +40,31 @@ from lesmc.common.budget import Budget, SearchBudget, resident_bytes
 from lesmc.engines import compiled
 from lesmc.engines.below import greedy_witness
 from lesmc.engines.bounds import Bounds, suffix_bounds
+from lesmc.engines.labels import BEAM, SLICE
+from lesmc.engines.labels import Stop as _Stop
+from lesmc.engines.labels import Trail as _Trail
+from lesmc.engines.labels import expand as _expand
+from lesmc.engines.labels import grain as _grain
+from lesmc.engines.labels import hi as _hi
+from lesmc.engines.labels import joined as _joined
+from lesmc.engines.labels import lo as _lo
+from lesmc.engines.labels import slice_size as _slice
+from lesmc.engines.labels import truth as _truth
+from lesmc.engines.meet import representative_search as _representative
+from lesmc.engines.meet import witness_cap as _witness_cap
 from lesmc.engines.result import EngineOutcome, Stats
 from lesmc.engines.space import SearchSpace, Space
 from lesmc.engines.values import plan, value_search
 from lesmc.model.kernel import aggregate_arrays
 
-#: Labels expanded per slice: the clock and the budgets are checked between slices.
-SLICE = 16_384
-#: Labels kept per level by the beam dives; on a model unfolded on demand, by the dives
-#: for the optimum (see :func:`_dive_beam`).
-BEAM = 256
+#: Labels kept per level by the dives for the optimum on a model unfolded on demand
+#: (see :func:`_dive_beam`; on an explicit model labels.BEAM).
 LAZY_BEAM = 32
 #: Dives side by side per pass of :func:`_tighten` on a model unfolded on demand.
 LAZY_LANES = 4
 #: Most extra dives that bisect a threshold, and the relative gap at which they stop.
 TIGHTEN = 8
 TIGHT_GAP = 0.02
-#: Largest table of suffix values the witness dive builds (entries).
-SUFFIX_VALUES = 1 << 17
-#: ... and the exact pass for θ*, which meets it halfway (see :func:`_representative`).
-EXACT_SUFFIX_VALUES = 1 << 20
-#: Most reachable states for which the witness dive builds its suffix table.
-SUFFIX_STATES = 50_000
 #: λ values of the Lagrangian bound.
 LAMBDAS = 48
 #: :meth:`_Bounds._useful_lambdas` looks at this many states (at most) and constraint values.
@@ -76,16 +74,12 @@ LAMBDA_SAMPLE_VALUES = 33
 LAMBDA_GRID = 64
 #: Levels up to this many labels rank constraint values by a searchsorted (see _pareto).
 PARETO_SEARCHSORTED = 1 << 14
-#: Relative slack on bounds summed in another order than a path's own value.
-_SLACK = 1e-9
 
 
 #: Labels the exact pass for the optimum expands before the compiled depth-first pass
 #: takes over, where it applies (:func:`_compiled_applies`) and numba is installed.
 COMPILED_AFTER = 1_000_000
 
-#: Labels a level must have for its time to predict the next, larger level's.
-RATE_SAMPLE = 20_000
 #: the value table (values.py) runs instead of the label passes where it has at most this
 #: many cells (states × objective values over the levels; 8 bytes each) ...
 VALUE_CELLS = 1 << 23
@@ -94,39 +88,6 @@ VALUE_MOVES = 4096
 #: θ* of a max objective by one backward pass over the states built (below.py) before any
 #: witness search; False: the label passes alone (tests compare both).
 STATE_WITNESS = True
-
-
-class _Stop(Exception):
-    """A budget ran out."""
-
-    def __init__(self, reason: str) -> None:
-        super().__init__(reason)
-        self.reason = reason
-
-
-@dataclass
-class _Trail:
-    """Every label's state, parent (index in the previous level) and entering transition."""
-
-    q: list[np.ndarray] = field(default_factory=list)
-    parent: list[np.ndarray] = field(default_factory=list)
-    t: list[np.ndarray] = field(default_factory=list)
-
-    def add(self, q: np.ndarray, parent: np.ndarray, t: np.ndarray) -> int:
-        self.q.append(q)
-        self.parent.append(parent)
-        self.t.append(t)
-        return len(self.q) - 1
-
-    def path(self, level: int, i: int) -> list[int]:
-        """Transitions from the root to label i of ``level``."""
-        out = []
-        while level > 0:
-            out.append(int(self.t[level][i]))
-            i = int(self.parent[level][i])
-            level -= 1
-        out.reverse()
-        return out
 
 
 # ----------------------------------------------------------------------------- bounds
@@ -339,25 +300,6 @@ def _winning_lambdas(h: np.ndarray, lam: np.ndarray, xs: np.ndarray) -> np.ndarr
 
 
 # ----------------------------------------------------------------------------- search
-def _expand(
-    space: SearchSpace, q: np.ndarray, budget: SearchBudget, stats: Stats
-) -> tuple[np.ndarray, np.ndarray]:
-    """The allowed transitions out of labels ``q`` (all at one step): label index, transition."""
-    why = budget.over(int(q.size))
-    if why is not None:
-        raise _Stop(why)
-    budget.used += int(q.size)
-    idx, t = space.successors_batch(q)
-    stats.transitions += int(t.size)
-    return idx, t
-
-
-def _slice(space: SearchSpace) -> int:
-    """Labels expanded between two looks at the budgets: fewer where unfolding is slow."""
-    size = getattr(space, "slice_size", None)
-    return SLICE if size is None else min(SLICE, int(size()))
-
-
 def _pareto(q: np.ndarray, o: np.ndarray, c: np.ndarray, up: bool) -> np.ndarray:
     """Indices of the labels no other label at the same state dominates.
 
@@ -470,14 +412,6 @@ def _roots(
     return trail, q, np.full(lanes, space.root_obj), np.full(lanes, space.root_con), lane
 
 
-def _joined(parts: list[tuple[np.ndarray, ...]]) -> tuple[np.ndarray, ...]:
-    """The slices' arrays, each kind concatenated; one slice (a level's usual case) as it
-    is: its arrays are fresh, and copying six of them a level cost a small search up to 15%."""
-    if len(parts) == 1:
-        return parts[0]
-    return tuple(np.concatenate(kind) for kind in zip(*parts, strict=True))
-
-
 def _saturate(space: SearchSpace, c: np.ndarray) -> np.ndarray:
     """Constraint values that already violate, whatever follows, made one value (+inf).
 
@@ -517,98 +451,6 @@ def _beam(
     chosen[by_bound] = True
     chosen[by_con] = True
     return np.flatnonzero(chosen)
-
-
-# ----------------------------------------------------------------------------- witness
-def _grain(space: SearchSpace) -> float | None:
-    """g when every objective contribution (and the root value) is an integer multiple of
-    g; None otherwise. Then no sum objective lies strictly between opt − g and opt."""
-    vals = _known(space)
-    vals = vals[np.isfinite(vals)]
-    vals = np.r_[vals, space.root_obj if math.isfinite(space.root_obj) else 0.0]
-    if vals.size == 0 or np.abs(vals).max() >= 2.0**52:
-        return None
-    if not np.all(vals == np.round(vals)):
-        return None
-    g = int(np.gcd.reduce(np.abs(vals).astype(np.int64)))
-    return float(g) if g > 0 else None
-
-
-def _known(space: SearchSpace) -> np.ndarray:
-    """The objective contributions of the transitions built so far."""
-    return np.asarray(space.c_obj)[: space.cm.n_transitions]
-
-
-def _witness_cap(space: SearchSpace, opt: float) -> float:
-    """An upper bound on θ*: below ``opt`` and, where the values allow, tighter.
-
-    A max objective is one of the contributions (or the root's value), so θ* is at most
-    the largest one below ``opt``. On a model unfolded on demand only the transitions
-    built so far are known; that suffices, because the exact optimum pass has expanded
-    every state a path below ``opt`` passes through (its running value never exceeds
-    its final one), so every transition of such a path is built.
-    """
-    if not math.isfinite(opt):
-        return math.inf
-    if space.obj_max:
-        vals = np.r_[_known(space), space.root_obj]
-        below = vals[vals < opt]
-        return float(below.max()) if below.size else -math.inf
-    g = _grain(space)
-    return opt - g if g is not None else opt
-
-
-def _witness_pass(
-    space: SearchSpace,
-    bounds: _Bounds,
-    budget: SearchBudget,
-    stats: Stats,
-    opt: float,
-    best: float,
-    cap: float,
-    beam: int | None,
-    suffix: _SuffixValues | None = None,
-) -> tuple[float, tuple[_Trail, int, int, list[int]] | None]:
-    """The largest objective below ``opt`` and above ``best``, and where its label is.
-
-    A max objective keeps one label per state (the largest: every completion that
-    stays below ``opt`` keeps it largest), a sum each distinct value. Exact without a
-    beam or a suffix table; with them a dive.
-    """
-    trail = _Trail()
-    root = np.array([space.root], dtype=np.int64)
-    trail.add(root, np.array([-1]), np.array([-1]))
-    q, o = root, np.array([space.root_obj])
-    where: tuple[_Trail, int, int, list[int]] | None = None
-    cm = space.cm
-    rate = 0.0  # seconds per label of sorting, keeping and the next level's leaves
-    while q.size and best < cap:
-        level = len(trail.q) - 1
-        leaf = space.leaves(q)
-        found = _largest_leaf(space, q, o, leaf, opt, best)
-        if found is not None:
-            best, where = found[0], (trail, level, found[1], [])
-        live = np.nonzero(~leaf)[0]
-        if suffix is not None and live.size and suffix.covers(int(cm.step[q[live[0]]])):
-            val, hit = suffix.meet(q[live], o[live], opt, best)
-            if hit is not None:
-                best, where = val, (trail, level, int(live[hit[0]]), hit[1])
-            break
-        if not live.size:
-            break
-        q2, o2, p2, t2 = _witness_children(space, bounds, budget, stats, q, o, live, opt, best)
-        why = budget.over(0) or budget.would_pass(rate * q2.size)
-        if why is not None:  # a huge level: stop before sorting it (one piece of work)
-            raise _Stop(why)
-        started = time.perf_counter()
-        keep = _distinct(q2, o2, space.obj_max)
-        if beam is not None and keep.size > beam:
-            keep = _witness_beam(space, bounds, keep, q2, o2, min(cap, opt), beam)
-        trail.add(q2[keep], p2[keep], t2[keep])
-        q, o = q2[keep], o2[keep]
-        if q2.size >= RATE_SAMPLE:  # small levels time the overheads, not the sort
-            rate = (time.perf_counter() - started) / q2.size
-    return best, where
 
 
 def _kept(
@@ -672,196 +514,6 @@ def _cheapest_leaf(
 def _least(parts: list[tuple[np.ndarray, ...]]) -> float:
     """The least lower bound (the 6th array) of the children made so far."""
     return min((float(part[5].min()) for part in parts if part[5].size), default=math.inf)
-
-
-def _largest_leaf(
-    space: SearchSpace, q: np.ndarray, o: np.ndarray, leaf: np.ndarray, opt: float, best: float
-) -> tuple[float, int] | None:
-    """The largest completed objective among the leaves below ``opt`` and above ``best``,
-    and its label; None if no leaf has one."""
-    if not leaf.any():
-        return None
-    li = np.nonzero(leaf)[0]
-    fo = aggregate_arrays(space.obj_max, o[li], space.tails(q[li])[0])
-    ok = (fo < opt) & (fo > best)
-    if not ok.any():
-        return None
-    j = int(np.argmax(np.where(ok, fo, -math.inf)))
-    return float(fo[j]), int(li[j])
-
-
-def _witness_children(
-    space: SearchSpace,
-    bounds: _Bounds,
-    budget: SearchBudget,
-    stats: Stats,
-    q: np.ndarray,
-    o: np.ndarray,
-    live: np.ndarray,
-    opt: float,
-    best: float,
-) -> tuple[np.ndarray, ...]:
-    """The children of labels ``live`` whose completions can end in (best, opt): state,
-    objective, parent label, entering transition (expanded slice by slice)."""
-    parts: list[tuple[np.ndarray, ...]] = []
-    s0 = 0
-    while s0 < live.size:
-        sl = live[s0 : s0 + _slice(space)]
-        s0 += sl.size
-        idx, t = _expand(space, q[sl], budget, stats)
-        par = sl[idx]
-        dst = space.cm.dst[t]
-        o2 = aggregate_arrays(space.obj_max, o[par], space.c_obj[t])
-        lo, hi = bounds.range(dst, o2)
-        # o2 itself is exact and never decreases: o2 >= opt can never end below opt
-        keep = (o2 < opt) & (lo < opt) & (hi > best)
-        parts.append((dst[keep], o2[keep], par[keep], t[keep]))
-    return _joined(parts)
-
-
-def _witness_beam(
-    space: SearchSpace,
-    bounds: _Bounds,
-    keep: np.ndarray,
-    q: np.ndarray,
-    o: np.ndarray,
-    target: float,
-    beam: int,
-) -> np.ndarray:
-    """The ``beam`` labels of ``keep`` likeliest to complete near ``target``."""
-    lo, hi = bounds.range(q[keep], o[keep])
-    with np.errstate(invalid="ignore"):  # inf − inf (no optimum): NaN sorts last
-        gap = np.maximum(target - hi, 0.0) + np.maximum(lo - target, 0.0)
-        # a max keeps the largest; a sum aims at the middle of what the rest can add
-        aim = -o[keep] if space.obj_max else np.abs(target - (lo + hi) / 2)
-    out: np.ndarray = keep[np.lexsort((aim, gap))[:beam]]
-    return out
-
-
-def _distinct(q: np.ndarray, o: np.ndarray, obj_max: bool) -> np.ndarray:
-    """Labels worth keeping for ρ*: per state the largest (max objective) or each value."""
-    if q.size == 0:
-        return np.arange(0)
-    if obj_max:
-        order = np.lexsort((-o, q))
-        first = np.concatenate(([True], q[order][1:] != q[order][:-1]))
-        return np.asarray(order[first])
-    order = np.lexsort((o, q))
-    qs, os_ = q[order], o[order]
-    first = np.concatenate(([True], (qs[1:] != qs[:-1]) | (os_[1:] != os_[:-1])))
-    return np.asarray(order[first])
-
-
-class _SuffixValues:
-    """The distinct sums of objective contributions over every completion of the states of
-    the last steps (sum objectives on explicit spaces): a meet-in-the-middle table."""
-
-    def __init__(self, space: Space, budget: SearchBudget, limit: int = SUFFIX_VALUES) -> None:
-        self.space = space
-        self.budget = budget
-        self.start_step: int | None = None
-        self.table: dict[int, tuple[np.ndarray, np.ndarray, np.ndarray]] = {}
-        self.entries = 0
-        self._next = len(space.reachable_levels()) - 1  # the next level to add
-        self._pending: dict[int, tuple[np.ndarray, np.ndarray, np.ndarray]] | None = None
-        self.grow(limit)
-
-    def grow(self, limit: int) -> None:
-        """Add levels, the last steps first, while the table stays within ``limit`` entries
-        (a level built that did not fit is kept for a later, larger limit)."""
-        levels = self.space.reachable_levels()
-        while self._next >= 0:
-            why = self.budget.over(0)  # a level of the table is built in one go
-            if why is not None:
-                raise _Stop(why)
-            entries = self._pending if self._pending is not None else self._level(self._next)
-            self._pending = None
-            if not entries:  # a state with a completion the table lacks: it ends here
-                self._next = -1
-                break
-            size = sum(e[0].size for e in entries.values())
-            if self.entries + size > limit:
-                self._pending = entries
-                break
-            self.entries += size
-            self.table.update(entries)
-            self.start_step = int(self.space.cm.step[levels[self._next][0]])
-            self._next -= 1
-
-    def _level(self, li: int) -> dict[int, tuple[np.ndarray, np.ndarray, np.ndarray]]:
-        """The entries of the states of reachable level ``li`` (empty: some completion
-        leaves the table)."""
-        space, cm = self.space, self.space.cm
-        level = space.reachable_levels()[li]
-        leaf = space.leaves(level)
-        entries: dict[int, tuple[np.ndarray, np.ndarray, np.ndarray]] = {}
-        for q in level[leaf].tolist():
-            to = space.tail(int(q))[0]
-            entries[q] = (np.array([to]), np.array([-1]), np.array([-1]))
-        inner, t, seg, _ = space.level_moves(li)
-        for i, q in enumerate(inner.tolist()):
-            vs: list[np.ndarray] = []
-            ts: list[np.ndarray] = []
-            js: list[np.ndarray] = []
-            for tt in t[seg[i] : seg[i + 1]].tolist():
-                d = int(cm.dst[tt])
-                if d not in self.table:
-                    return {}
-                sub = self.table[d][0]
-                vs.append(sub + space.c_obj[tt])
-                ts.append(np.full(sub.size, tt))
-                js.append(np.arange(sub.size))
-            if not vs:
-                return {}
-            v, tt_, jj = np.concatenate(vs), np.concatenate(ts), np.concatenate(js)
-            v, first = np.unique(v, return_index=True)
-            entries[q] = (v, tt_[first], jj[first])
-        return entries
-
-    def covers(self, step: int) -> bool:
-        return self.start_step is not None and step >= self.start_step
-
-    def meet(
-        self, q: np.ndarray, o: np.ndarray, opt: float, best: float
-    ) -> tuple[float, tuple[int, list[int]] | None]:
-        """The largest o + suffix value below ``opt`` and above ``best``, over labels (q, o):
-        exact, as each state's table holds every completion's sum. One ``searchsorted`` per
-        distinct state (the labels of a state at once)."""
-        val, hit = best, None
-        states, inverse = np.unique(q, return_inverse=True)
-        order = np.argsort(inverse, kind="stable")
-        bounds = np.searchsorted(inverse[order], np.arange(states.size + 1))
-        for k, qq in enumerate(states.tolist()):
-            if (why := self.budget.over(0)) is not None:
-                raise _Stop(why)
-            idx = order[bounds[k] : bounds[k + 1]]
-            v, oo = self.table[qq][0], o[idx]
-            with np.errstate(invalid="ignore"):
-                j = np.searchsorted(v, _lo(opt - oo), side="left") - 1
-            # rounding: o + v[j] may still reach opt; step down until it is below
-            while True:
-                bad = (j >= 0) & ~(oo + v[np.maximum(j, 0)] < opt)
-                if not bad.any():
-                    break
-                j = np.where(bad, j - 1, j)
-            ok = j >= 0
-            if not ok.any():
-                continue
-            total = np.where(ok, oo + v[np.maximum(j, 0)], -math.inf)
-            i = int(np.argmax(total))
-            if total[i] > val:
-                val, hit = float(total[i]), (int(idx[i]), self._path(qq, int(j[i])))
-        return val, hit
-
-    def _path(self, q: int, j: int) -> list[int]:
-        out: list[int] = []
-        while True:
-            _, ts, js = self.table[q]
-            t = int(ts[j])
-            if t < 0:
-                return out
-            out.append(t)
-            q, j = int(self.space.cm.dst[t]), int(js[j])
 
 
 # ----------------------------------------------------------------------------- engine
@@ -1171,84 +823,8 @@ def representative(
         return None, -math.inf, _witness_cap(space, opt), stop.reason
 
 
-def _representative(
-    space: SearchSpace, bounds: _Bounds, budget: SearchBudget, stats: Stats, opt: float
-) -> tuple[list[int] | None, float, float, str | None]:
-    """ρ*: dives (beam, then meet-in-the-middle for sums), then the exact pass.
-
-    Returns the path, θ*, a proven upper bound on θ*, and why it stopped early.
-    """
-    cap = _witness_cap(space, opt)
-    best, at = -math.inf, None
-    try:
-        value, got = _witness_pass(space, bounds, budget, stats, opt, best, cap, BEAM)
-        if got is not None:
-            best, at = value, got
-        tables = (
-            isinstance(space, Space)
-            and not space.obj_max
-            and math.isfinite(opt)
-            and bounds.reachable <= SUFFIX_STATES  # the table is built state by state
-        )
-        suffix = None
-        if best < cap and tables:
-            assert isinstance(space, Space)
-            suffix = _SuffixValues(space, budget)
-            if suffix.entries:
-                value, got = _witness_pass(
-                    space, bounds, budget, stats, opt, best, cap, BEAM, suffix
-                )
-                if got is not None:
-                    best, at = value, got
-        if best < cap:
-            # the exact pass meets a larger table halfway (built only now: the dives above
-            # end most searches, docs/performance.md, issue 62)
-            exact = None
-            if tables:
-                assert isinstance(space, Space)
-                if suffix is None:
-                    suffix = _SuffixValues(space, budget, EXACT_SUFFIX_VALUES)
-                else:
-                    suffix.grow(EXACT_SUFFIX_VALUES)
-                exact = suffix if suffix.entries else None
-            value, got = _witness_pass(space, bounds, budget, stats, opt, best, cap, None, exact)
-            if got is not None:
-                best, at = value, got
-        return _witness_path(at), best, best, None
-    except _Stop as stop:
-        return _witness_path(at), best, cap, stop.reason
-
-
 def _path_of(at: tuple[_Trail, int, int] | None) -> list[int] | None:
     if at is None:
         return None
     trail, level, i = at
     return trail.path(level, i)
-
-
-def _witness_path(at: tuple[_Trail, int, int, list[int]] | None) -> list[int] | None:
-    if at is None:
-        return None
-    trail, level, i, tail = at
-    return trail.path(level, i) + tail
-
-
-def _truth(x: object) -> np.ndarray:
-    """A comparison's result as a boolean array."""
-    out: np.ndarray = np.asarray(x).astype(bool)
-    return out
-
-
-def _lo(x: np.ndarray | float) -> np.ndarray:
-    """Lower bounds made safe against rounding: a − slack·max(1, |a|); ±inf and nan as
-    they are (the scale is capped at 1e300, so an infinite a never meets inf − inf)."""
-    a = np.asarray(x, dtype=float)
-    out: np.ndarray = a - _SLACK * np.minimum(np.maximum(np.abs(a), 1.0), 1e300)
-    return out
-
-
-def _hi(x: np.ndarray | float) -> np.ndarray:
-    """Upper bounds made safe against rounding (see :func:`_lo`)."""
-    a = np.asarray(x, dtype=float)
-    out: np.ndarray = a + _SLACK * np.minimum(np.maximum(np.abs(a), 1.0), 1e300)
-    return out

@@ -30,13 +30,16 @@ class Engine:
 
     ``load`` returns its search function (imported then); ``exhaustive``: it walks
     every path of the tree (no probe first, and the properties that share a tree are
-    always answered by one walk of it, lesmc/engines/check.py).
+    always answered by one walk of it, lesmc/engines/check.py); ``own_probe``: the
+    search decides itself whether to enumerate a small tree first (check_bound's probe
+    is left to it).
     """
 
     name: str
     summary: str  #: one line for --help and docs
     load: Callable[[], Search]
     exhaustive: bool = False
+    own_probe: bool = False
 
 
 _ENGINES: dict[str, Engine] = {}
@@ -78,6 +81,12 @@ def _bnb() -> Search:
     return branch_and_bound
 
 
+def _auto() -> Search:
+    from lesmc.engines.auto import auto_search
+
+    return auto_search
+
+
 def _enumerate() -> Search:
     from lesmc.engines.enumerate import enumerate_paths
 
@@ -93,3 +102,12 @@ register(
 )
 register(Engine("bnb", "best-first branch and bound", _bnb))
 register(Engine("enumerate", "the paper's Algorithms 1-2 (all paths)", _enumerate, True))
+register(
+    Engine(
+        "auto",
+        "levels or bnb, chosen per instance from the model's shape (bnb for an explicit "
+        "model's max objective)",
+        _auto,
+        own_probe=True,
+    )
+)
