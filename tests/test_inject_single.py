@@ -279,19 +279,6 @@ def test_cli_counterexample_names_the_injected_candidate(tmp_path: Path) -> None
     assert "1:1" in json.dumps(res["counterexample"])
 
 
-def test_inject_on_joint_is_a_located_error(tmp_path: Path) -> None:
-    case = _cases(1, 3)[0]
-    doc = case["doc"]
-    doc["tracker"]["design"] = "joint"
-    scene, spec = tmp_path / "s.json", tmp_path / "p.spec"
-    scene.write_text(json.dumps(doc))
-    spec.write_text(_spec(case, 5.0, True))
-    r = lesmc("check", str(scene), str(spec))
-    assert r.returncode == 2 and "Traceback" not in r.stderr, r.stderr
-    assert f"{spec}:1:" in r.stderr and "attack action 'inject'" in r.stderr
-    assert "joint" in r.stderr
-
-
 def test_storm_agrees_on_drn_exports_with_injections(tmp_path: Path) -> None:
     """Storm's exact optimum of the exported MDP (rewards: the own payoffs of Eq. 5, the
     ranks ordered by cost) equals the brute force, on 20 built models with injections."""

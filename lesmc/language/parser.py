@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import hashlib
 import math
+import re
 from collections.abc import Collection
 from contextlib import suppress
 from functools import cache
@@ -188,6 +189,9 @@ def load_faults(path: str | Path) -> FaultSet:
 
 
 def _syntax_error(exc: UnexpectedInput, text: str, path: str) -> SpecError:
+    bare = _bare_allow(exc, text, path)
+    if bare is not None:
+        return bare
     line = getattr(exc, "line", None) or 1
     col = getattr(exc, "column", None) or 1
     expected: Collection[str]
@@ -209,6 +213,46 @@ def _syntax_error(exc: UnexpectedInput, text: str, path: str) -> SpecError:
     if names:
         message += "; expected " + _join(names)
     return SpecError(message, Location(path, line, col, source_line(text, line)))
+
+
+#: ``allow`` and what follows it, up to where the parser stopped: a keyword or nothing
+_ALLOW_TAIL = re.compile(r"\ballow(?P<gap>\s+)(?P<word>[A-Za-z_][A-Za-z0-9_\-]*)?\s*$")
+
+
+def _bare_allow(exc: UnexpectedInput, text: str, path: str) -> SpecError | None:
+    """``allow`` followed by a keyword of the language (``allow end 5``, which the lexer
+    reads as an action named ``end``) or by no name at all (``allow }``): "allow needs an
+    action" at the keyword or the token after ``allow``; None for any other error."""
+    if isinstance(exc, UnexpectedToken):
+        stop = len(text) if exc.token.type == "$END" else exc.token.start_pos
+    else:
+        stop = getattr(exc, "pos_in_stream", None)
+    if stop is None:
+        return None
+    m = _ALLOW_TAIL.search(text, 0, stop)
+    if m is None:
+        return None
+    word = m.group("word")
+    if word is not None and word not in _keywords():
+        return None
+    at = m.start("word") if word is not None else stop
+    line = text.count("\n", 0, at) + 1
+    col = at - (text.rfind("\n", 0, at) + 1) + 1
+    what = f"'{word}' is a keyword, not an action" if word else "no action follows"
+    return SpecError(
+        f"allow needs an action ({actions.spelled()}): {what}",
+        Location(path, line, col, source_line(text, line)),
+    )
+
+
+@cache
+def _keywords() -> frozenset[str]:
+    """The grammar's keywords (its string terminals that read as names)."""
+    out = set()
+    for t in _parser().terminals:
+        if t.pattern.type == "str" and str(t.pattern.value).isidentifier():
+            out.add(str(t.pattern.value))
+    return frozenset(out)
 
 
 def _terminal_name(name: str) -> str:

@@ -275,12 +275,14 @@ def hiding_options(
     ``u0`` (n,): each state's primary among the U distinct tracks; the candidate pairs
     (hypothesiser ``pairs``): ``track``, detection ``pz``, offsets ``dx``, ``dy`` from the
     track's predicted position, ``ok`` whether the gate admits the pair; ``radius`` (U,)
-    the tracks' gate radii; ``payoffs`` (nz,) the frame's detections' payoffs. Returns
+    the tracks' gate radii; ``payoffs`` (n,) the frame's detections' payoffs (detections
+    from n on, up to nz, are injected candidates: never hidden, never among the nearest;
+    ``allow hide, inject`` on ``joint``, docs/semantics.md). Returns
     ``n_opt`` (n,), ``cost`` (n, w + 1), ``rank_of`` (U, nz), ``near_z`` (U, w) and
     ``per`` (U,)."""
     primary = np.zeros(U, dtype=bool)
     primary[u0] = True
-    c0 = np.flatnonzero(primary[track])
+    c0 = np.flatnonzero(primary[track] & (pz < len(payoffs)))  # injected ones: not hidden
     dist = np.sqrt(dx[c0] ** 2 + dy[c0] ** 2)
     inside = dist <= radius[track[c0]]
     c0, dist = c0[inside], dist[inside]
