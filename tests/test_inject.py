@@ -20,6 +20,7 @@ from typing import Any
 import numpy as np
 import pytest
 from cli_run import lesmc
+from inject_scale import cases
 
 from lesmc.cli.multi_check import multi_results
 from lesmc.common.errors import InputError
@@ -31,7 +32,7 @@ sort_reference = pytest.importorskip("sort_reference")
 pytest.importorskip("sort_tracker")
 multi_attack = pytest.importorskip("test_multi_attack")  # its scenes and scoring
 
-SCENES = 50
+SCENES = cases(50, 200)  # LESMC_INJECT_FULL=1: the 200 (tests/inject_scale.py)
 
 
 def _candidates(rng: np.random.Generator, boxes: np.ndarray) -> np.ndarray:

@@ -12,12 +12,12 @@ from __future__ import annotations
 
 import itertools
 import math
-import os
 import sys
 import types
 
 import numpy as np
 import pytest
+from inject_scale import cases
 from joint_oracle import Joint, Oracle, _warp, oracle_paths
 from test_joint import _canonical, model_paths
 
@@ -31,7 +31,7 @@ from lesmc.tracking.single import SingleDesign
 from lesmc.tracking.trackers import make_tracker
 
 #: random scenes of the default run; LESMC_INJECT_FULL=1 runs the issue's 200
-SCENES = 200 if os.environ.get("LESMC_INJECT_FULL") else 40
+SCENES = cases(40, 200)
 
 
 class InjectOracle(Oracle):

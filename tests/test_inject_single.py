@@ -22,12 +22,14 @@ from typing import Any
 import numpy as np
 import pytest
 from cli_run import lesmc
+from inject_scale import cases
 
 from lesmc import api
 from lesmc.engines import registry as engines
 from lesmc.scene import scene_from_dict
 
-SCENES = 100
+SCENES = cases(100, 200)  # LESMC_INJECT_FULL=1: the 200 (tests/inject_scale.py)
+STORM = cases(20, 60)
 DT = 1.0
 Q_SD, R_SD, P0_SD = 2.0, 4.0, 10.0
 GATE = 3.0
@@ -290,7 +292,7 @@ def test_storm_agrees_on_drn_exports_with_injections(tmp_path: Path) -> None:
     from lesmc.unfold.unfold import build_model
 
     rng = np.random.default_rng(23)
-    for case in _cases(20, 29):
+    for case in _cases(STORM, 29):
         leaves = _brute(case, inject=True)
         bound = _bound(leaves, rng)
         model = build_model(scene_from_dict(case["doc"]), case["window"], inject=True)

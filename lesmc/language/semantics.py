@@ -102,6 +102,7 @@ def bind(
     if not multi:
         _single_target(spec, prop)
         _single_target_actions(spec, prop, tracker, model_actions)
+    _inject_grid(spec, prop, tracker, multi)
     l, u, end = _window(spec, prop, e)
     monitor_idx, tol = _monitor(spec, prop, components, has_covariance, has_nis)
     tau_idx = _tau(spec, prop, components, has_covariance, monitor_idx)
@@ -180,6 +181,39 @@ def _single_target_actions(
             f"attack action '{name}' is not supported for the {tracker} design: it is taken "
             f"by {takers} (check the scene with --design single or --design sort; issue 61)",
             prop.clause_pos.get("allow", prop.pos),
+        )
+
+
+#: The trackers that take ``inject grid`` (lesmc/tracking/single.py: its candidates lie
+#: around the nearest-neighbour tracker's prediction).
+GRID_TRACKERS = ("single",)
+
+
+def _inject_grid(spec: SpecFile, prop: Property, tracker: str | None, multi: bool) -> None:
+    """``inject grid D within R payoff P`` needs ``allow ..., inject`` and a scene of a
+    tracker that takes it (the grid lies around the tracker's prediction: a model already
+    built, or a multi-target design, cannot take it)."""
+    if prop.grid is None:
+        return
+    at = prop.clause_pos.get("grid", prop.pos)
+    if "inject" not in prop.actions:
+        raise _fail(
+            spec,
+            "'inject grid' offers injection candidates: the attack window must allow "
+            "inject ('attack window L..U allow hide, inject')",
+            at,
+        )
+    if multi or tracker not in GRID_TRACKERS:
+        what = (
+            "a multi-target design"
+            if multi
+            else ("a model file" if tracker is None else f"the {tracker} design")
+        )
+        raise _fail(
+            spec,
+            f"'inject grid' is not supported on {what}: it places candidates around the "
+            f"tracker's prediction, on {', '.join(GRID_TRACKERS)} checked from a scene",
+            at,
         )
 
 

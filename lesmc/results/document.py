@@ -19,7 +19,7 @@ import json
 import math
 import platform
 import sys
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import replace
 from datetime import UTC, datetime
 from importlib.metadata import PackageNotFoundError, version
@@ -164,10 +164,18 @@ def _short(obs: str | None) -> str:
 
 
 def _hidden(
-    cm: ArrayModel, tr: Track, scene: Scene | None, window: tuple[int, int]
+    cm: ArrayModel,
+    tr: Track,
+    scene: Scene | None,
+    window: tuple[int, int],
+    attack_of: Callable[[int, int, int], tuple[list[str], list[str]]] | None = None,
 ) -> list[dict[str, Any]]:
     """The detections the attacker hides on a track: at each attacked step, the observations
-    of the transitions ranked before the one taken (Eq. 5), with positions and payoffs."""
+    of the transitions ranked before the one taken (Eq. 5), with positions and payoffs.
+    Under inject the ranks are ordered by cost, not by distance (docs/semantics.md): the
+    tracker says what the cheapest way hides (``attack_of``), else nothing is listed."""
+    if "inject" in cm.meta.get("actions", ()):
+        return [] if attack_of is None else _hidden_by(cm, tr, scene, window, attack_of)
     out: list[dict[str, Any]] = []
     first = int(cm.meta.get("first_frame", 0))
     for k, t in enumerate(tr.transitions, start=1):
@@ -185,6 +193,29 @@ def _hidden(
             }
             item |= _detection_facts(scene, first + k, str(cm.obs_of(o)))
             out.append(item)
+    return out
+
+
+def _hidden_by(
+    cm: ArrayModel,
+    tr: Track,
+    scene: Scene | None,
+    window: tuple[int, int],
+    attack_of: Callable[[int, int, int], tuple[list[str], list[str]]],
+) -> list[dict[str, Any]]:
+    """:func:`_hidden` under inject: the detections ``attack_of`` says the cheapest way to
+    each attacked step's outcome hides, with their own payoffs from the scene."""
+    out: list[dict[str, Any]] = []
+    first = int(cm.meta.get("first_frame", 0))
+    for k, t in enumerate(tr.transitions, start=1):
+        if not window[0] <= k <= window[1]:
+            continue
+        hidden, _ = attack_of(int(tr.states[k - 1]), k, int(cm.rank[t]))
+        pay = {} if scene is None else {d.id: d.payoff for d in scene.frame(first + k).detections}
+        for obs in hidden:
+            item: dict[str, Any] = {"step": k, "frame": first + k, "obs": obs}
+            item["payoff"] = num(float(pay.get(obs, math.nan)))
+            out.append(item | _detection_facts(scene, first + k, obs))
     return out
 
 
@@ -348,7 +379,7 @@ def run_json(
         "paths": [_track_json(cm, i + 1, t, win, judged[i]) for i, t in enumerate(listed)],
         "states": _states_json(cm, listed, to_ref, loc),
         "hidden": {
-            bp.name: _hidden(cm, listed[n - 1], run.scene, (bp.l, bp.u))
+            bp.name: _hidden(cm, listed[n - 1], run.scene, (bp.l, bp.u), run.attack_of)
             for bp, n in zip(run.bound, cex, strict=True)
             if n is not None
         },

@@ -98,6 +98,10 @@ class OptionRows:
     row: np.ndarray
     col: np.ndarray
     payoff: np.ndarray
+    #: under inject (:func:`injection_option_rows`): the column whose way the outcome is
+    #: forced at its least cost (hide every detection before it, inject it if a
+    #: candidate; the row's width: hide every detection); None otherwise
+    via: np.ndarray | None = None
 
 
 def attack_option_rows(
@@ -248,7 +252,7 @@ def injection_option_rows(
     order = np.lexsort((col, ~unatt, price, row))
     row, col, outcome, price = row[order], col[order], outcome[order], price[order]
     _, payoff = ranks_and_payoffs(row, price)
-    return OptionRows(row, np.where(outcome < 0, -1, col), payoff)
+    return OptionRows(row, np.where(outcome < 0, -1, col), payoff, col)
 
 
 # ---------------------------------------- trackers that build each option (joint)

@@ -102,16 +102,9 @@ def prepare(
 ) -> Prepared:
     """What every option of the states ``js`` at frame ``step`` shares: predictions, gains,
     the primary's nearest detections and what hiding them costs (the attacker's options),
-    and the gated pairs with their priorities; once per distinct track.
-
-    ``inject``: the frame's injection candidates follow its detections in ``Z`` (candidate
-    j is detection n + j: what each option shows of them is the caller's choice; they are
-    never hidden); ``hide`` False: no detection can be hidden (``allow inject`` alone)."""
-    frame = scene.frame(step)
-    Z = frame.positions()
-    pays = frame.payoffs() if hide else np.full(len(Z), np.inf)
-    if inject:
-        Z = np.vstack([Z, frame.injectable.positions()])
+    the gated pairs with their priorities; once per distinct track (``inject``, ``hide``:
+    :func:`measurements`)."""
+    Z, pays = measurements(scene, step, inject, hide)
     nz = len(Z)
     T = js.width
     Hm = scene.frame(step - 1).to_next
@@ -126,8 +119,7 @@ def prepare(
     U, at = len(cu), measure(m, X)
     track, pz, dx, dy, d2, ok = parts.hypothesiser.pairs(Z, at, g.radius, g.S_inv, g.spread)
     hiding = hiding_options(tu[:, 0], track, pz, dx, dy, ok, g.radius, pays, U, nz)
-    n_opt, cost, rank_of, near_z, per = hiding
-    track, pz, d2 = track[ok], pz[ok], d2[ok]
+    (n_opt, cost, rank_of, near_z, per), (track, pz, d2) = hiding, (track[ok], pz[ok], d2[ok])
     del dx, dy, ok, hiding  # the candidates' arrays: only the gated pairs go on
     ranked = parts.associator.ranked_pairs(track, pz, d2, g.norm, tu, live, U, T, nz)
     ps, pt, pair_z, prio, idx = ranked
@@ -158,6 +150,21 @@ def prepare(
         n_near=per,
         pos=pos,
     )
+
+
+def measurements(
+    scene: Scene, step: int, inject: bool, hide: bool
+) -> tuple[np.ndarray, np.ndarray]:
+    """Frame ``step``'s measurements (z, 2) and what hiding each detection costs (n,):
+    under ``inject`` its injection candidates follow its detections (candidate j is
+    measurement n + j; what an option shows of them is the caller's choice, and they are
+    never hidden); ``hide`` False: no detection can be hidden (``allow inject`` alone)."""
+    frame = scene.frame(step)
+    Z = frame.positions()
+    pays = frame.payoffs() if hide else np.full(len(Z), np.inf)
+    if inject:
+        Z = np.vstack([Z, frame.injectable.positions()])
+    return Z, pays
 
 
 def distinct_tracks(js: JointStates, live: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
