@@ -35,7 +35,11 @@ lesmc/tracking/parts/attacker_subsets.py (the two modules are one part).
 
 ``single`` under ``allow hide, inject``: :func:`injection_option_rows` (``(gated, payoffs,
 valid, injected, key)``, each (g, k), detections and candidates merged nearest first ->
-OptionRows``): the distinct outcomes, each at its cheapest cost, ranked by cost.
+OptionRows``): the distinct outcomes, each at its cheapest cost, ranked by cost, and
+(``OptionRows.via``) the column whose way is the cheapest. ``joint`` under inject: each of
+:func:`hiding_options`' options (which never hide the injected measurements, those past
+its ``payoffs``) with every subset of the candidates (attacker_subsets.py), merged and
+ranked by cost with :func:`ranks_and_payoffs` (lesmc/tracking/joint.py).
 """
 
 from __future__ import annotations
