@@ -276,3 +276,15 @@ def test_inject_on_a_design_that_does_not_take_it_is_a_located_error() -> None:
     finally:
         registry.unregister("noinject")
         del sys.modules["lesmc_noinject_design"]
+
+
+def test_improved_takes_inject_and_its_monitor_only_removes_paths() -> None:
+    """``improved`` (joint + the runtime monitor) under hide + inject: the monitor keeps a
+    subset of joint's attacked paths, so its optimum is never below joint's."""
+    for scene, window in _cases(5, 41, max_trace=1e12):
+        end = unfold.original_end(scene, make_tracker(scene))
+        text = _spec(window, end, 0.5, " allow hide, inject")
+        joint = api.check(scene, api.parse_spec(text), designs="joint")[0]
+        improved = api.check(scene, api.parse_spec(text), designs="improved")[0]
+        low = math.inf if joint.optimum is None else float(joint.optimum)
+        assert (math.inf if improved.optimum is None else float(improved.optimum)) >= low
