@@ -14,6 +14,7 @@ import itertools
 import math
 import sys
 import types
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -288,3 +289,35 @@ def test_improved_takes_inject_and_its_monitor_only_removes_paths() -> None:
         improved = api.check(scene, api.parse_spec(text), designs="improved")[0]
         low = math.inf if joint.optimum is None else float(joint.optimum)
         assert (math.inf if improved.optimum is None else float(improved.optimum)) >= low
+
+
+def test_storm_agrees_on_joint_drn_exports_with_injections(tmp_path: Path) -> None:
+    """Storm's exact optimum of the exported MDP of a joint model built with injection
+    (rewards: the own payoffs of Eq. 5, the ranks ordered by cost) equals the brute
+    force's (10 models; LESMC_INJECT_FULL=1: 60)."""
+    pytest.importorskip("stormpy")
+    from test_export import assert_equal_exactly, storm_optimum
+
+    from lesmc.engines.check import bind_all
+    from lesmc.exporters.drn import to_drn
+
+    rng = np.random.default_rng(61)
+    done = 0
+    for scene, window in _cases(cases(10, 60) * 2, 610, max_trace=1e12):
+        if done == cases(10, 60):
+            break
+        end = unfold.original_end(scene, make_tracker(scene))
+        original = oracle_paths(scene, (end + 1, end + 1), end)[0][0]
+        leaves = [(c, _deviation(xs, original)) for xs, _, c in brute_paths(scene, window, end)]
+        devs = sorted({round(d, 6) for _, d in leaves})
+        if len(devs) < 2:
+            continue
+        i = int(rng.integers(0, len(devs) - 1))
+        bound = round((devs[i] + devs[i + 1]) / 2, 6)
+        want = min((c for c, d in leaves if d > bound), default=math.inf)
+        model = unfold.build_model(scene, window, end, inject=True)
+        spec = api.parse_spec(_spec(window, end, bound, " allow hide, inject"))
+        text, _ = to_drn(model, bind_all(model, [spec])[0])
+        assert_equal_exactly(storm_optimum(text, tmp_path), want, text, end + 1)
+        done += 1
+    assert done == cases(10, 60)
