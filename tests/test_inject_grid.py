@@ -236,3 +236,60 @@ def test_allow_inject_followed_by_the_grid_clause_parses() -> None:
     prop = spec.properties[0]
     assert prop.actions == ("inject",)
     assert prop.grid is not None and len(prop.grid.offsets()) == 5
+
+
+def test_a_model_built_with_a_grid_checks_only_that_grid(tmp_path: Path) -> None:
+    """A built model records its grid (``meta.inject_grid``): a property with the same
+    grid checks it to the scene's optimum; one without a grid, or with another, is a
+    located error; ``lesmc export --format drn`` builds the property's grid."""
+    from lesmc.pipeline.check import grid_points
+    from lesmc.unfold.unfold import build_model
+
+    case, grid = _cases(1, 2)[0]
+    grid = (grid[0], grid[0], 1.0)  # five points
+    text = _spec(case, 1.0, grid)
+    scene = scene_from_dict(case["doc"])
+    spec = api.parse_spec(text, "p.spec")
+    model = build_model(
+        scene, case["window"], inject=True, grid=grid_points(spec.properties[0].grid)
+    )
+    assert len(model.meta["inject_grid"]["offsets"]) == 5
+    assert api.check(model, spec)[0].optimum == api.check(scene, spec)[0].optimum
+    for other in (
+        text.replace(f"inject grid {grid[0]} within {grid[1]} payoff 1.0 ", ""),
+        text.replace("payoff 1.0", "payoff 2.0"),
+    ):
+        with pytest.raises(SpecError) as err:
+            api.check(model, api.parse_spec(other, "p.spec"))
+        assert str(err.value).startswith("p.spec:1:") and "inject grid" in str(err.value)
+    import json
+
+    (tmp_path / "s.json").write_text(json.dumps(case["doc"]))
+    (tmp_path / "p.spec").write_text(text)
+    r = lesmc(
+        "export",
+        str(tmp_path / "s.json"),
+        "--format",
+        "drn",
+        "--spec",
+        str(tmp_path / "p.spec"),
+        "-o",
+        str(tmp_path / "m.drn"),
+    )
+    assert r.returncode == 0 and "Traceback" not in r.stderr, r.stderr
+    (tmp_path / "q.spec").write_text(
+        text.replace(f"inject grid {grid[0]} within {grid[1]} payoff 1.0 ", "")
+    )
+    r = lesmc(
+        "export",
+        str(tmp_path / "s.json"),
+        "--format",
+        "drn",
+        "--spec",
+        str(tmp_path / "q.spec"),
+        "-o",
+        str(tmp_path / "q.drn"),
+    )
+    assert r.returncode == 0, r.stderr
+    actions = [(tmp_path / f).read_text().count("\taction") for f in ("m.drn", "q.drn")]
+    assert actions[0] > actions[1]  # the grid's options are in the export

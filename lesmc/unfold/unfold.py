@@ -311,12 +311,12 @@ def _attacker_meta(
     inject: bool, hide: bool, grid: tuple[np.ndarray, float] | None
 ) -> dict[str, object]:
     """What a built model records of its attacker when not the default: ``actions``, and
-    ``inject_grid`` (the modelling device's number of points and payoff)."""
+    ``inject_grid`` (the modelling device's offsets from the prediction and payoff)."""
     out: dict[str, object] = {}
     if inject or not hide:
         out["actions"] = [a for a, on in (("hide", hide), ("inject", inject)) if on]
     if grid is not None:
-        out["inject_grid"] = {"points": len(grid[0]), "payoff": float(grid[1])}
+        out["inject_grid"] = {"offsets": grid[0].tolist(), "payoff": float(grid[1])}
     return out
 
 
