@@ -20,6 +20,7 @@ from typing import Any
 import numpy as np
 import pytest
 from cli_run import lesmc
+from inject_scale import cases
 
 from lesmc.cli.multi_check import multi_results
 from lesmc.common.errors import InputError
@@ -31,7 +32,7 @@ sort_reference = pytest.importorskip("sort_reference")
 pytest.importorskip("sort_tracker")
 multi_attack = pytest.importorskip("test_multi_attack")  # its scenes and scoring
 
-SCENES = 50
+SCENES = cases(50, 200)  # LESMC_INJECT_FULL=1: the 200 (tests/inject_scale.py)
 
 
 def _candidates(rng: np.random.Generator, boxes: np.ndarray) -> np.ndarray:
@@ -314,18 +315,6 @@ def test_unknown_action_is_a_located_error(tmp_path: Path) -> None:
     r = lesmc("check", str(scene), str(spec))
     assert r.returncode == 2 and "Traceback" not in r.stderr, r.stderr
     assert f"{spec}:2:" in r.stderr and "unknown attack action 'fabricate'" in r.stderr
-
-
-@pytest.mark.parametrize("design", ["joint"])  # single takes inject: test_inject_single.py
-def test_inject_on_a_single_target_design_is_a_located_error(tmp_path: Path, design: str) -> None:
-    frames, pay, cands, cpay, _, _ = _hijack_case()
-    doc = _doc(frames, pay, cands, cpay)
-    doc["tracker"] = {"design": design}
-    text = HIJACK_SPEC.replace("switches(0..end) > 0", "dist.max(0..end) > 5")
-    scene, spec = _write(tmp_path, doc, text)
-    r = lesmc("check", str(scene), str(spec))
-    assert r.returncode == 2 and "Traceback" not in r.stderr, r.stderr
-    assert f"{spec}:2:" in r.stderr and "not supported for the joint design" in r.stderr
 
 
 def test_scene_candidates_round_trip_and_versions() -> None:

@@ -22,6 +22,7 @@ from lesmc.scene import scene_from_dict
 pytest.importorskip("gnn_reference")  # test_gnn_attack's oracle needs stonesoup
 import gnn_plain
 import test_gnn_attack as base
+from inject_scale import cases
 from test_gnn import scene_doc
 
 SPEC = """
@@ -84,7 +85,7 @@ def _brute(
     return results
 
 
-@pytest.mark.parametrize("seed", range(10))
+@pytest.mark.parametrize("seed", range(cases(10, 200)))
 def test_gnn_with_candidates_equals_brute_force(seed: int) -> None:
     frames, pay, l, u = base._case(seed)
     u = min(u, l + 1)  # at most two attacked steps: the brute force stays small

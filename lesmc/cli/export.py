@@ -25,6 +25,8 @@ from lesmc.exporters.request import chosen_property
 from lesmc.language.actions import DEFAULT as DEFAULT_ACTIONS
 
 if TYPE_CHECKING:
+    import numpy as np
+
     from lesmc.language.properties import SpecFile
     from lesmc.model.arrays import ArrayModel
     from lesmc.model.multi import MultiModel
@@ -247,9 +249,11 @@ def _model(
     if isinstance(source, Scene) and multi:
         return _multi_scene(source, model, window_text, spec, prop)
     if isinstance(source, Scene):
-        window, actions = _scene_window(source, window_text, spec, prop)
+        window, actions, grid = _scene_window(source, window_text, spec, prop)
         try:
-            return build_model(source, window, inject="inject" in actions, hide="hide" in actions)
+            return build_model(
+                source, window, inject="inject" in actions, hide="hide" in actions, grid=grid
+            )
         except UnpricedPayoff as exc:  # a verify scene's payoff that nobody priced
             raise exc.at(model) from None
     if window_text is not None:
@@ -277,16 +281,17 @@ def _multi_scene(
 
 def _scene_window(
     scene: Scene, window_text: str | None, spec: SpecFile | None, prop: str | None
-) -> tuple[tuple[int, int], tuple[str, ...]]:
+) -> tuple[tuple[int, int], tuple[str, ...], tuple[np.ndarray, float] | None]:
     """The attack window a scene is built for: ``--window``, else the exported property's;
     both given, they must agree (refused at the property's window clause). And the
-    attacker's actions: the property's (``allow``), hide only without one."""
+    attacker's actions: the property's (``allow``), hide only without one, and its
+    ``inject grid`` (the points the tracker takes)."""
     window = parse_window(window_text) if window_text is not None else None
     if spec is None:
         if window is None:
             raise UsageError("a scene is built for one attack window: give --window L..U")
-        return window, DEFAULT_ACTIONS
-    from lesmc.pipeline.check import bind_scene
+        return window, DEFAULT_ACTIONS, None
+    from lesmc.pipeline.check import bind_scene, grid_points
 
     bp = chosen_property(bind_scene(scene, [spec]), spec.path, prop)
     own = (bp.l, bp.u)
@@ -298,7 +303,7 @@ def _scene_window(
             f"{own[0]}..{own[1]}",
             Location(spec.path, pos.line, pos.column, source_line(spec.text, pos.line)),
         )
-    return own, bp.prop.actions
+    return own, bp.prop.actions, grid_points(bp.prop.grid)
 
 
 def _roles(cm: ArrayModel, path: str, prop: str | None) -> dict[str, list[int]]:

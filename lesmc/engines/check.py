@@ -49,6 +49,7 @@ def bind_all(model: ArrayModel, specs: Iterable[SpecFile]) -> list[BoundProperty
             None if model.tracks is None else model.tracks.components,
             model.nis is not None,
             model_actions=tuple(model.meta.get("actions", actions.DEFAULT)),
+            model_grid=model.meta.get("inject_grid"),
         )
         for spec in specs
         for prop in spec.properties

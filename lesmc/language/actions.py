@@ -80,7 +80,8 @@ register(
     AttackAction(
         "inject",
         "adds any of the frame's injection candidates (scene format 3), at the sum of "
-        "their payoffs (on single only the nearest visible one matters: docs/semantics.md)",
-        trackers=frozenset({"single", "sort", "gnn"}),
+        "their payoffs (on single only the nearest visible one matters; on joint every "
+        "injected one is a detection for every track: docs/semantics.md)",
+        trackers=frozenset({"single", "joint", "sort", "gnn"}),
     )
 )

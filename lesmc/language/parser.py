@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import hashlib
 import math
+import re
 from collections.abc import Collection
 from contextlib import suppress
 from functools import cache
@@ -37,6 +38,7 @@ from lesmc.language.properties import (
     Constraint,
     Fault,
     FaultSet,
+    InjectGrid,
     Measure,
     Monitor,
     Pos,
@@ -188,6 +190,9 @@ def load_faults(path: str | Path) -> FaultSet:
 
 
 def _syntax_error(exc: UnexpectedInput, text: str, path: str) -> SpecError:
+    bare = _bare_allow(exc, text, path)
+    if bare is not None:
+        return bare
     line = getattr(exc, "line", None) or 1
     col = getattr(exc, "column", None) or 1
     expected: Collection[str]
@@ -209,6 +214,57 @@ def _syntax_error(exc: UnexpectedInput, text: str, path: str) -> SpecError:
     if names:
         message += "; expected " + _join(names)
     return SpecError(message, Location(path, line, col, source_line(text, line)))
+
+
+#: The most points an ``inject grid`` may have.
+MAX_GRID_POINTS = 1000
+
+
+def _num_text(node: Tree[Any]) -> str:
+    """A number as the spec wrote it (clipped)."""
+    return _clip(str(node.children[0]))
+
+
+#: ``allow`` and what follows it, up to where the parser stopped: a keyword or nothing
+_ALLOW_TAIL = re.compile(r"\ballow(?P<gap>\s+)(?P<word>[A-Za-z_][A-Za-z0-9_\-]*)?\s*$")
+
+
+def _bare_allow(exc: UnexpectedInput, text: str, path: str) -> SpecError | None:
+    """``allow`` followed by a keyword of the language (``allow end 5``, which the lexer
+    reads as an action named ``end``) or by no name at all (``allow }``): "allow needs an
+    action" at the keyword or the token after ``allow``; None for any other error."""
+    if isinstance(exc, UnexpectedToken):
+        stop = len(text) if exc.token.type == "$END" else exc.token.start_pos
+    else:
+        stop = getattr(exc, "pos_in_stream", None)
+    if stop is None:
+        return None
+    m = _ALLOW_TAIL.search(text, 0, stop)
+    if m is None:
+        return None
+    word = m.group("word")
+    if word is not None and (word not in _keywords() or word in actions.names()):
+        return None
+    at = m.start("word") if word is not None else stop
+    line = text.count("\n", 0, at) + 1
+    col = at - (text.rfind("\n", 0, at) + 1) + 1
+    return SpecError(_needs_action(word), Location(path, line, col, source_line(text, line)))
+
+
+def _needs_action(word: str | None) -> str:
+    """The message for ``allow`` followed by the keyword ``word`` (None: by nothing)."""
+    what = f"'{word}' is a keyword, not an action" if word else "no action follows"
+    return f"allow needs an action ({actions.spelled()}): {what}"
+
+
+@cache
+def _keywords() -> frozenset[str]:
+    """The grammar's keywords (its string terminals that read as names)."""
+    out = set()
+    for t in _parser().terminals:
+        if t.pattern.type == "str" and str(t.pattern.value).isidentifier():
+            out.add(str(t.pattern.value))
+    return frozenset(out)
 
 
 def _terminal_name(name: str) -> str:
@@ -282,6 +338,7 @@ class _Builder:
             pos=prop_pos,
             clause_pos=clause_pos,
             actions=fields.get("actions", actions.DEFAULT),
+            grid=fields.get("grid"),
         )
 
     def clause(self, node: Tree[Any]) -> tuple[str, Any]:
@@ -290,6 +347,8 @@ class _Builder:
         if kind == "window":
             within = [c for c in ch[2:] if not _is_allow(c)]
             return "window", (self.whole(ch[0]), self.step(ch[1]), self.radius(within))
+        if kind == "inject_grid":
+            return "grid", self.grid(ch)
         if kind == "objective":
             return "objective", self.measure(ch[0])
         if kind == "constraint":
@@ -469,6 +528,8 @@ class _Builder:
         toks: list[Any] = node.children
         for tok in toks:
             name = str(tok)
+            if name not in actions.names() and name in _keywords():
+                raise self.error(_needs_action(name), _tok_pos(tok))
             if name not in actions.names():
                 raise self.error(
                     f"unknown attack action '{_clip(name)}': allow takes {actions.spelled()}",
@@ -528,6 +589,31 @@ class _Builder:
                 f"step {_clip(digits)} is too large (steps are at most {MAX_STEP})", _tok_pos(tok)
             )
         return int(significant)
+
+    def grid(self, ch: list[Any]) -> InjectGrid:
+        """``inject grid D within R payoff P``: D > 0 px, R >= 0 px, P >= 0, at most
+        :data:`MAX_GRID_POINTS` points."""
+        spacing = self.number(ch[0], "grid spacing")
+        radius = self.number(ch[1], "grid radius")
+        payoff = self.number(ch[2], "grid payoff")
+        checks = (
+            (0, spacing > 0, f"the grid spacing must be positive (px), got {_num_text(ch[0])}"),
+            (1, radius >= 0, f"the grid radius must be at least 0 (px), got {_num_text(ch[1])}"),
+            (2, payoff >= 0, f"an inject payoff must be at least 0, got {_num_text(ch[2])}"),
+        )
+        for i, ok, message in checks:
+            if not ok:
+                raise self.error(message, _tok_pos(ch[i].children[0]))
+        grid = InjectGrid(spacing, radius, payoff)
+        if (2 * radius / spacing + 1) ** 2 > 4 * MAX_GRID_POINTS or len(
+            grid.offsets()
+        ) > MAX_GRID_POINTS:
+            raise self.error(
+                f"the grid has more than {MAX_GRID_POINTS} points: widen its spacing or "
+                "narrow its radius",
+                _tok_pos(ch[0].children[0]),
+            )
+        return grid
 
     def radius(self, rest: list[Any]) -> float | None:
         """``within R`` of the attack window: R px, positive; None without the clause."""

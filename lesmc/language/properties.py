@@ -8,6 +8,7 @@ optimum with a threshold (section 4: holds iff optimum > threshold).
 
 from __future__ import annotations
 
+import math
 from collections.abc import Sequence
 from dataclasses import dataclass, field, replace
 from typing import Literal, Protocol, TypeVar
@@ -113,6 +114,35 @@ class Monitor:
 
 
 @dataclass(frozen=True)
+class InjectGrid:
+    """``inject grid D within R payoff P`` (issue 61): a modelling device, not a
+    perception stage's output. At an attacked step the attacker may also inject a
+    detection at any point of a D-px grid centred on the tracker's predicted position,
+    within R px of it, at payoff P each (docs/language.md, "Injection grid")."""
+
+    spacing: float
+    radius: float
+    payoff: float
+
+    def offsets(self) -> list[tuple[float, float]]:
+        """The grid's points as offsets (dx, dy) from the prediction, nearest first (ties:
+        by dy, then dx)."""
+        n = int(self.radius // self.spacing)
+        pts = [
+            (i * self.spacing, j * self.spacing)
+            for j in range(-n, n + 1)
+            for i in range(-n, n + 1)
+            if math.hypot(i * self.spacing, j * self.spacing) <= self.radius
+        ]
+        return sorted(pts, key=lambda p: (math.hypot(*p), p[1], p[0]))
+
+    def text(self) -> str:
+        """The clause as a spec writes it."""
+        d, r, p = _num(self.spacing), _num(self.radius), _num(self.payoff)
+        return f"inject grid {d} within {r} payoff {p}"
+
+
+@dataclass(frozen=True)
 class Property:
     """One ``property NAME { ... }`` block, before it is bound to a model."""
 
@@ -140,6 +170,8 @@ class Property:
     #: the attacker's actions (``attack window L..U allow hide, inject``;
     #: lesmc/language/actions.py): hide only by default
     actions: tuple[str, ...] = ("hide",)
+    #: ``inject grid D within R payoff P``: grid injection candidates (None: none)
+    grid: InjectGrid | None = None
 
     def holds_text(self) -> str:
         return f"optimum {self.holds_op} {_num(self.threshold)}"

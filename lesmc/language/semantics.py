@@ -7,7 +7,9 @@ indices, which is what the engines need. Errors point into the spec file.
 from __future__ import annotations
 
 import math
+from collections.abc import Mapping
 from dataclasses import dataclass
+from typing import Any
 
 from lesmc.common.errors import Location, SpecError, source_line
 from lesmc.language import actions, monitors
@@ -90,6 +92,7 @@ def bind(
     multi: bool = False,
     tracker: str | None = None,
     model_actions: tuple[str, ...] = actions.DEFAULT,
+    model_grid: Mapping[str, Any] | None = None,
 ) -> BoundProperty:
     """Resolve ``prop`` against a model with steps 0..e and the given components;
     ``tracks``: the components of the model's ground-truth tracks (None: it has none);
@@ -98,10 +101,11 @@ def bind(
     one with identity measures); ``tracker``: the tracker the model unfolds (``single``,
     ``joint``), for the actions it takes (lesmc/language/actions.py); None: a model
     already built, whose attacker took ``model_actions`` (its ``meta.actions``), which the
-    property's must equal."""
+    property's must equal, and ``inject grid`` ``model_grid`` (its ``meta.inject_grid``)."""
     if not multi:
         _single_target(spec, prop)
         _single_target_actions(spec, prop, tracker, model_actions)
+    _inject_grid(spec, prop, tracker, multi, model_grid)
     l, u, end = _window(spec, prop, e)
     monitor_idx, tol = _monitor(spec, prop, components, has_covariance, has_nis)
     tau_idx = _tau(spec, prop, components, has_covariance, monitor_idx)
@@ -180,6 +184,55 @@ def _single_target_actions(
             f"attack action '{name}' is not supported for the {tracker} design: it is taken "
             f"by {takers} (check the scene with --design single or --design sort; issue 61)",
             prop.clause_pos.get("allow", prop.pos),
+        )
+
+
+#: The trackers that take ``inject grid`` (lesmc/tracking/single.py: its candidates lie
+#: around the nearest-neighbour tracker's prediction).
+GRID_TRACKERS = ("single",)
+
+
+def _inject_grid(
+    spec: SpecFile,
+    prop: Property,
+    tracker: str | None,
+    multi: bool,
+    model_grid: Mapping[str, Any] | None,
+) -> None:
+    """``inject grid D within R payoff P`` needs ``allow ..., inject`` and a tracker that
+    takes it (the grid lies around the tracker's prediction; not a multi-target design);
+    a model already built must have been built with the same grid (``model_grid``)."""
+    at = prop.clause_pos.get("grid", prop.clause_pos.get("allow", prop.pos))
+    if tracker is None and not multi:
+        own = None if prop.grid is None else (prop.grid.offsets(), prop.grid.payoff)
+        built = None
+        if model_grid is not None:
+            offs = [(float(x), float(y)) for x, y in model_grid["offsets"]]
+            built = (offs, float(model_grid["payoff"]))
+        if own != built:
+            what = "no inject grid" if built is None else "another inject grid"
+            raise _fail(
+                spec,
+                f"the model was built with {what} than the property's (its meta.inject_grid):"
+                " build the model from the scene with this property, or check the scene",
+                at,
+            )
+    if prop.grid is None:
+        return
+    if "inject" not in prop.actions:
+        raise _fail(
+            spec,
+            "'inject grid' offers injection candidates: the attack window must allow "
+            "inject ('attack window L..U allow hide, inject')",
+            at,
+        )
+    if multi or (tracker is not None and tracker not in GRID_TRACKERS):
+        what = "a multi-target design" if multi else f"the {tracker} design"
+        raise _fail(
+            spec,
+            f"'inject grid' is not supported on {what}: it places candidates around the "
+            f"tracker's prediction, on {', '.join(GRID_TRACKERS)} checked from a scene",
+            at,
         )
 
 

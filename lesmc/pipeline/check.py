@@ -22,6 +22,8 @@ import os
 from collections.abc import Iterable, Mapping
 from dataclasses import dataclass, field, replace
 
+import numpy as np
+
 from lesmc.common.budget import Budget
 from lesmc.common.errors import BudgetError, Location, SpecError, UsageError
 from lesmc.designs import registry
@@ -29,7 +31,7 @@ from lesmc.engines.check import bind_all, model_design
 from lesmc.engines.result import CheckResult
 from lesmc.language import monitors
 from lesmc.language.actions import DEFAULT as DEFAULT_ACTIONS
-from lesmc.language.properties import SpecFile
+from lesmc.language.properties import InjectGrid, SpecFile
 from lesmc.language.semantics import BoundProperty, bind
 from lesmc.model.arrays import ArrayModel, reference_states
 from lesmc.model.growing import GrowingModel
@@ -38,7 +40,7 @@ from lesmc.pipeline.job import Certifier, Job, Unit
 from lesmc.pipeline.payoffs import check_all, check_payoffs, mode_of
 from lesmc.results.record import DesignRun, Results
 from lesmc.scene import Scene, UnpricedPayoff
-from lesmc.unfold.unfold import build_model, lazy_model, original_end
+from lesmc.unfold.unfold import attack_of, build_model, lazy_model, original_end
 
 
 def run(job: Job) -> Results:
@@ -110,6 +112,8 @@ class _Plan:
     window: tuple[int, int] | None
     scene: Scene
     bound: list[BoundProperty]
+    #: each property's place among the design's in this window (the specs' order)
+    order: tuple[int, ...] = ()
 
     @property
     def tracker(self) -> str:
@@ -120,6 +124,35 @@ class _Plan:
         """Its properties' attacker's actions (``allow hide, inject``): every property of a
         plan has the same (:func:`_plans`)."""
         return self.bound[0].prop.actions
+
+    @property
+    def grid(self) -> InjectGrid | None:
+        """Its properties' ``inject grid`` (the same for every property of a plan)."""
+        return self.bound[0].prop.grid
+
+
+#: a model's key: tracker, payoffs, the attacker's actions and ``inject grid``
+_ModelKey = tuple[str, str, tuple[str, ...], InjectGrid | None]
+
+
+def grid_points(grid: InjectGrid | None) -> tuple[np.ndarray, float] | None:
+    """``inject grid``'s offsets (G, 2) from the prediction and its payoff, as the tracker
+    takes them (lesmc/tracking/single.py); None without one."""
+    if grid is None:
+        return None
+    return np.array(grid.offsets(), dtype=float).reshape(-1, 2), grid.payoff
+
+
+def grid_notes(bp: BoundProperty) -> list[str]:
+    """A property's note that names its ``inject grid`` as the modelling device it is."""
+    g = bp.prop.grid
+    if g is None:
+        return []
+    return [
+        f"{g.text()} is a modelling device: the attacker may also inject at "
+        f"{len(g.offsets())} grid points around the tracker's prediction, {g.payoff:g} "
+        'each, places no perception stage proposed (docs/language.md, "Injection grid")'
+    ]
 
 
 def _plans(job: Job, scene: Scene) -> list[_Plan]:
@@ -143,10 +176,13 @@ def _plans(job: Job, scene: Scene) -> list[_Plan]:
                     raise UsageError(f"the tracker's monitor: {reason}")
                 specs = [s.with_monitor(mon) for s in specs]
             bound = _selected(job, name, w, bind_scene(sc, specs, ends[d.tracker]))
-            by_actions: dict[tuple[str, ...], list[BoundProperty]] = {}
-            for bp in bound:  # one model per attacker: hide only, or hide and inject
-                by_actions.setdefault(bp.prop.actions, []).append(bp)
-            plans.extend(_Plan(name, w, sc, bps) for bps in by_actions.values())
+            by_actions: dict[tuple[tuple[str, ...], InjectGrid | None], list[int]] = {}
+            for i, bp in enumerate(bound):  # one model per attacker: hide only, or inject
+                by_actions.setdefault((bp.prop.actions, bp.prop.grid), []).append(i)
+            plans.extend(
+                _Plan(name, w, sc, [bound[i] for i in idx], tuple(idx))
+                for idx in by_actions.values()
+            )
     return plans
 
 
@@ -281,35 +317,38 @@ class _Models:
     scene: Scene
     plans: list[_Plan]
     job: Job
-    made: dict[tuple[str, str, tuple[str, ...]], ArrayModel | GrowingModel] = field(
-        default_factory=dict
-    )
+    made: dict[_ModelKey, ArrayModel | GrowingModel] = field(default_factory=dict)
     #: the fault variants' certifiers (:func:`_variant_certifiers`), made when first needed
     certifiers: dict[frozenset[str] | None, Certifier] | None = None
 
     def get(
-        self, tracker: str, payoffs: str, actions: tuple[str, ...] = DEFAULT_ACTIONS
+        self,
+        tracker: str,
+        payoffs: str,
+        actions: tuple[str, ...] = DEFAULT_ACTIONS,
+        grid: InjectGrid | None = None,
     ) -> ArrayModel | GrowingModel:
-        """The model of ``tracker`` on ``payoffs`` for an attacker taking ``actions``."""
-        key = (tracker, payoffs, actions)
+        """The model of ``tracker`` on ``payoffs`` for an attacker taking ``actions`` (and
+        ``inject grid``)."""
+        key = (tracker, payoffs, actions, grid)
         if key not in self.made:
-            self.made[key] = self._make(tracker, payoffs, actions)
+            self.made[key] = self._make(tracker, payoffs, actions, grid)
         return self.made[key]
 
     def _make(
-        self, tracker: str, payoffs: str, actions: tuple[str, ...]
+        self, tracker: str, payoffs: str, actions: tuple[str, ...], grid: InjectGrid | None
     ) -> ArrayModel | GrowingModel:
         bound = [
             bp
             for p in self.plans
-            if p.tracker == tracker and p.actions == actions
+            if p.tracker == tracker and p.actions == actions and p.grid == grid
             for bp in p.bound
         ]
         inject, hide = "inject" in actions, "hide" in actions
         window, end = window_of(bound), max(bp.end for bp in bound)
         sc = self.scene.with_tracker(design=tracker).priced(payoffs, self.job.source)
         if not self.job.full_models:
-            return lazy_model(sc, window, end, inject=inject, hide=hide)
+            return lazy_model(sc, window, end, inject=inject, hide=hide, grid=grid_points(grid))
         what = f"the {registry.label(tracker)} model" + (
             " with certified payoffs" if payoffs == "certified" else ""
         )
@@ -321,6 +360,7 @@ class _Models:
             on_batch=lambda m: _spent(budget, m, f"building {what}"),
             inject=inject,
             hide=hide,
+            grid=grid_points(grid),
         )
 
 
@@ -382,15 +422,18 @@ def _design_run(
     """Every property of one plan, in the job's payoff mode."""
     tracker = plan.tracker
     results = check_all(
-        lambda payoffs: models.get(tracker, payoffs, plan.actions),
+        lambda payoffs: models.get(tracker, payoffs, plan.actions, plan.grid),
         plan.bound,
         job.payoffs,
         job.engine,
         job.budget,
         lambda bp: (
-            []
-            if mode_of(bp, job.payoffs) == "attack"
-            else _certified_notes(job, models.scene, tracker, bp, probes)
+            grid_notes(bp)
+            + (
+                []
+                if mode_of(bp, job.payoffs) == "attack"
+                else _certified_notes(job, models.scene, tracker, bp, probes)
+            )
         ),
         lambda bp: job.on_stage(f"checking {bp.name} ({registry.label(plan.design)})"),
     )
@@ -398,17 +441,23 @@ def _design_run(
         specs = [bp.spec for bp in plan.bound]
         command = replay_command(job.source, models.scene.meta, specs, plan.design)
         results = [_not_replayed(r, command) for r in results]
-    results = [replace(r, design=plan.design) for r in results]
-    run = DesignRun(plan.design, plan.bound, results, window=plan.window)
+    results = [
+        replace(r, design=plan.design, notes=[*grid_notes(bp), *r.notes])
+        for r, bp in zip(results, plan.bound, strict=True)
+    ]
+    run = DesignRun(plan.design, plan.bound, results, window=plan.window, order=plan.order)
     if job.faults is not None:
         for bp in plan.bound:
             job.on_stage(f"checking {bp.name} under faults ({registry.label(plan.design)})")
             for fbp, r in _fault_results(job, tracker, bp, models):
                 run.fault_bound.append(fbp)
                 run.fault_results.append(replace(r, design=plan.design))
-    model = models.get(tracker, "attack", plan.actions) if job.full_models else None
+    model = models.get(tracker, "attack", plan.actions, plan.grid) if job.full_models else None
     assert model is None or isinstance(model, ArrayModel)
     run.model, run.scene = model, models.scene.with_tracker(design=tracker)
+    if model is not None and "inject" in plan.actions:  # what a counterexample hides
+        sc = run.scene.priced("attack", job.source)
+        run.attack_of = attack_of(sc, model, "hide" in plan.actions, grid_points(plan.grid))
     return run
 
 
@@ -424,7 +473,8 @@ def _fault_results(
     assert job.faults is not None
     mode = mode_of(bp, job.payoffs)
     actions = bp.prop.actions
-    nominal = models.get(tracker, "certified" if mode == "certified" else "attack", actions)
+    payoffs = "certified" if mode == "certified" else "attack"
+    nominal = models.get(tracker, payoffs, actions, bp.prop.grid)
     reference = reference_states(nominal)[: bp.end + 1].copy()
     scene = models.scene.with_tracker(design=tracker)
     if models.certifiers is None:
@@ -449,6 +499,7 @@ def _fault_results(
                     reference,
                     inject="inject" in actions,
                     hide="hide" in actions,
+                    grid=grid_points(bp.prop.grid),
                 )
             return made[payoffs]
 

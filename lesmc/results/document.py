@@ -19,7 +19,7 @@ import json
 import math
 import platform
 import sys
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import replace
 from datetime import UTC, datetime
 from importlib.metadata import PackageNotFoundError, version
@@ -165,10 +165,18 @@ def _short(obs: str | None) -> str:
 
 
 def _hidden(
-    cm: ArrayModel, tr: Track, scene: Scene | None, window: tuple[int, int]
+    cm: ArrayModel,
+    tr: Track,
+    scene: Scene | None,
+    window: tuple[int, int],
+    attack_of: Callable[[int, int, int], tuple[list[str], list[str]]] | None = None,
 ) -> list[dict[str, Any]]:
     """The detections the attacker hides on a track: at each attacked step, the observations
-    of the transitions ranked before the one taken (Eq. 5), with positions and payoffs."""
+    of the transitions ranked before the one taken (Eq. 5), with positions and payoffs.
+    Under inject the ranks are ordered by cost, not by distance (docs/semantics.md): the
+    tracker says what the cheapest way hides (``attack_of``), else nothing is listed."""
+    if "inject" in cm.meta.get("actions", ()):
+        return [] if attack_of is None else _hidden_by(cm, tr, scene, window, attack_of)
     out: list[dict[str, Any]] = []
     first = int(cm.meta.get("first_frame", 0))
     for k, t in enumerate(tr.transitions, start=1):
@@ -189,20 +197,27 @@ def _hidden(
     return out
 
 
-def _hidden_of(
-    run: DesignRun, cm: ArrayModel, listed: list[Track], cex: list[int | None]
-) -> dict[str, list[dict[str, Any]]]:
-    """Per property with a counterexample (``cex``: its listed path's number), the
-    detections it hides (:func:`_hidden`). Under ``allow hide, inject`` none are listed:
-    the ranks are ordered by cost there, so the lower ranks are cheaper outcomes, not the
-    detections hidden (the replay derives those itself, lesmc/replay/run.py)."""
-    return {
-        bp.name: []
-        if "inject" in bp.prop.actions
-        else _hidden(cm, listed[n - 1], run.scene, (bp.l, bp.u))
-        for bp, n in zip(run.bound, cex, strict=True)
-        if n is not None
-    }
+def _hidden_by(
+    cm: ArrayModel,
+    tr: Track,
+    scene: Scene | None,
+    window: tuple[int, int],
+    attack_of: Callable[[int, int, int], tuple[list[str], list[str]]],
+) -> list[dict[str, Any]]:
+    """:func:`_hidden` under inject: the detections ``attack_of`` says the cheapest way to
+    each attacked step's outcome hides, with their own payoffs from the scene."""
+    out: list[dict[str, Any]] = []
+    first = int(cm.meta.get("first_frame", 0))
+    for k, t in enumerate(tr.transitions, start=1):
+        if not window[0] <= k <= window[1]:
+            continue
+        hidden, _ = attack_of(int(tr.states[k - 1]), k, int(cm.rank[t]))
+        pay = {} if scene is None else {d.id: d.payoff for d in scene.frame(first + k).detections}
+        for obs in hidden:
+            item: dict[str, Any] = {"step": k, "frame": first + k, "obs": obs}
+            item["payoff"] = num(float(pay.get(obs, math.nan)))
+            out.append(item | _detection_facts(scene, first + k, obs))
+    return out
 
 
 def _detection_facts(scene: Scene | None, frame: int, obs: str) -> dict[str, Any]:
@@ -364,7 +379,11 @@ def run_json(
         "paths_total": tracks.count_paths(cm),
         "paths": [_track_json(cm, i + 1, t, win, judged[i]) for i, t in enumerate(listed)],
         "states": _states_json(cm, listed, to_ref, loc),
-        "hidden": _hidden_of(run, cm, listed, cex),
+        "hidden": {
+            bp.name: _hidden(cm, listed[n - 1], run.scene, (bp.l, bp.u), run.attack_of)
+            for bp, n in zip(run.bound, cex, strict=True)
+            if n is not None
+        },
         "scene": scene_part,
         "replay_inputs": None if run.scene is None else replay_inputs(run.scene),
     }

@@ -7,6 +7,7 @@ report and the replay read only that document.
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -38,6 +39,17 @@ class DesignRun:
     window: tuple[int, int] | None = None
     fault_bound: list[BoundProperty] = field(default_factory=list)
     fault_results: list[CheckResult] = field(default_factory=list)
+    #: each property's place among those its design checks in its window, in the specs'
+    #: order (the properties of one design and window may be split over runs, one per
+    #: attacker: lesmc/pipeline/check.py); empty: in the order listed
+    order: tuple[int, ...] = ()
+    #: a model built with ``allow ..., inject``: (state, step, rank) -> the ids of the
+    #: detections hidden and of what is injected by the cheapest way to force that
+    #: outcome (the tracker's ``attack_at``); None: not known (its counterexamples list
+    #: no hidden detections rather than guess them from the ranks)
+    attack_of: Callable[[int, int, int], tuple[list[str], list[str]]] | None = field(
+        default=None, compare=False, repr=False
+    )
 
     @property
     def all_results(self) -> list[CheckResult]:
@@ -62,5 +74,19 @@ class Results:
 
     @property
     def results(self) -> list[CheckResult]:
-        """Every property result, run by run (those under faults after each run's own)."""
-        return [r for run in self.runs for r in run.all_results]
+        """Every property result: design by design and window by window, each's in the
+        specs' order (its runs' :attr:`DesignRun.order`), then those under faults."""
+        groups: dict[tuple[str, tuple[int, int] | None], list[DesignRun]] = {}
+        for run in self.runs:
+            groups.setdefault((run.design, run.window), []).append(run)
+        out: list[CheckResult] = []
+        for runs in groups.values():
+            if all(len(run.order) == len(run.results) for run in runs):
+                placed = [
+                    (o, r) for run in runs for o, r in zip(run.order, run.results, strict=True)
+                ]
+                out += [r for _, r in sorted(placed, key=lambda p: p[0])]
+            else:
+                out += [r for run in runs for r in run.results]
+            out += [r for run in runs for r in run.fault_results]
+        return out

@@ -27,7 +27,9 @@ the j nearest (up to the last one the primary's gate accepts) and costs their
 payoffs (the attacker's options part, lesmc/tracking/parts/attacker.py:
 ``hiding_options``, ``visible``, ``ranks_and_payoffs``). The hidden detections are
 gone for every track. Outcomes that leave the whole joint state identical are
-merged (the cheapest kept).
+merged (the cheapest kept). Under ``allow hide, inject`` each hiding option is combined
+with every subset of the frame's injection candidates (docs/semantics.md, "Injection on
+the joint design"; :meth:`JointDesign._expand_injected`).
 
 Speed: a batch of joint states travels as padded arrays (:class:`JointStates`,
 lesmc/tracking/parts/joint_states.py),
@@ -64,6 +66,7 @@ from lesmc.tracking.design import Batch, CovarianceTable, Schedule, Successors
 from lesmc.tracking.kalman import Matrices, initial_mean, matrices, positions
 from lesmc.tracking.parts.associator import GreedyAssociator
 from lesmc.tracking.parts.attacker import ranks_and_payoffs, visible
+from lesmc.tracking.parts.attacker_subsets import injected_subsets, subset_cost
 from lesmc.tracking.parts.deleter import DistanceDeleter, TraceDeleter
 from lesmc.tracking.parts.groups import starts, within
 from lesmc.tracking.parts.hypothesiser import GateHypothesiser
@@ -75,11 +78,11 @@ from lesmc.tracking.parts.joint_states import (
     concat,
     digest,
     same_as,
-    same_states,
 )
 from lesmc.tracking.parts.joint_step import (
     JointParts,
     Prepared,
+    first_of_equals,
     option_one_differs,
     prepare,
     primary_nis,
@@ -106,9 +109,13 @@ class JointDesign:
     """Primary plus refining tracks with likelihood-sorted one-to-one association."""
 
     name = "joint"
+    #: it takes attack action ``inject`` (lesmc/tracking/trackers.py: make_tracker)
+    injects = True
 
-    def __init__(self, scene: Scene) -> None:
+    def __init__(self, scene: Scene, inject: bool = False, hide: bool = True) -> None:
         self.scene = scene
+        self.inject = inject
+        self.hide = hide
         self.cfg = scene.tracker
         self.m: Matrices = matrices(self.cfg, scene.dt)
         self.covariances = CovarianceTable()  # the primaries' (the model's table)
@@ -193,11 +200,14 @@ class JointDesign:
     # -------------------------------------------------------------- one chunk
     def _expand(self, js: JointStates, step: int, attacked: bool) -> _Expanded:
         """The outcomes of the states ``js`` at frame ``step`` (see the module docstring)."""
+        frame = self.scene.frame(step)
+        if attacked and self.inject and (frame.candidates or not self.hide):
+            return self._expand_injected(js, step)
         p = prepare(self.scene, self.schedule, self.parts, self.m.pos, js, step)
         n = len(js)
         if attacked:
             s, opt, assign, halt, states = self._rows(p, np.zeros(n, dtype=np.int64), p.n_opt)
-            rows = np.nonzero(self._merge(states, s))[0]
+            rows = np.nonzero(first_of_equals(states, s))[0]
             rank, payoff = ranks_and_payoffs(s[rows], p.cost[s[rows], opt[rows]])
             return _Expanded(
                 s[rows].astype(np.int64),
@@ -245,11 +255,47 @@ class JointDesign:
             primary_nis(p, s, assign[:, 0]),
         )
 
+    def _expand_injected(self, js: JointStates, step: int) -> _Expanded:
+        """The outcomes of ``js`` at an attacked frame under ``allow hide, inject``: each
+        hiding option × each subset of the frame's candidates (candidate j: detection n + j),
+        equal joint states merged at the cheapest, ranked by cost (docs/semantics.md)."""
+        frame = self.scene.frame(step)
+        p = prepare(self.scene, self.schedule, self.parts, self.m.pos, js, step, True, self.hide)
+        nd, cpay = len(frame.detections), frame.injectable.payoffs()
+        zero = np.zeros(len(js), dtype=np.int64)
+        rows: list[tuple[np.ndarray, ...]] = []
+        parts: list[JointStates] = []
+        for k, sub in enumerate(injected_subsets(frame, True)):
+            shown = np.arange(len(p.Z)) < nd
+            shown[nd + np.array(sub, dtype=np.int64)] = True
+            s, opt, assign, halt, states = self._rows(p, zero, p.n_opt, shown)
+            cost = p.cost[s, opt] + subset_cost(cpay, sub)
+            rows.append((s, opt, np.full(s.size, k), cost, assign[:, 0], halt[:, 0]))
+            parts.append(states)
+        s, opt, sub_k, cost, det, halted = (np.concatenate(a) for a in zip(*rows, strict=True))
+        unattacked = (opt == 0) & (sub_k == 0)
+        order = np.lexsort((opt, sub_k, ~unattacked, cost, s))
+        states = concat(parts).take(order)
+        s, cost, det, halted = s[order], cost[order], det[order], halted[order]
+        kept = np.nonzero(first_of_equals(states, s))[0]  # the first of equals: the cheapest
+        rank, payoff = ranks_and_payoffs(s[kept], cost[kept])
+        return _Expanded(
+            s[kept].astype(np.int64),
+            rank,
+            payoff,
+            det[kept].astype(np.int64),
+            halted[kept],
+            states.take(kept),
+            primary_nis(p, s[kept], det[kept]),
+        )
+
     def _rows(
-        self, p: Prepared, lo: np.ndarray, hi: np.ndarray
+        self, p: Prepared, lo: np.ndarray, hi: np.ndarray, shown: np.ndarray | None = None
     ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, JointStates]:
         """The next states of options lo[i] .. hi[i] − 1 of every state i, as rows (by state,
-        then option): source, option, association (rows, tracks), halted flags (rows, tracks)."""
+        then option): source, option, association (rows, tracks), halted flags (rows, tracks).
+        ``shown`` (z,): the detections of ``p.Z`` the rows may see at all (the injected
+        candidates among them; None: every one)."""
         Z = p.Z
         nz = len(Z)
         count = hi - lo
@@ -258,10 +304,15 @@ class JointDesign:
         start = starts(count)
         opt = np.repeat(lo, count) + within(count)
         visible_ = visible(p.visible_rank(s), opt)  # option j hides the j nearest to the primary
+        ps, pt, pz, prio, pu = p.ps, p.pt, p.pz, p.prio, p.pu
+        if shown is not None:
+            visible_ &= shown
+            keep = shown[pz]
+            ps, pt, pz, prio, pu = ps[keep], pt[keep], pz[keep], prio[keep], pu[keep]
         first = len(lo) == R and not lo.any()  # option 0 of every state
-        pair_rank = None if first else p.rank_of[p.tu[p.ps, 0], p.pz]
+        pair_rank = None if first else p.rank_of[p.tu[ps, 0], pz]
         assign, pair = self.parts.associator.assign(
-            p.ps, p.pt, p.pz, p.prio, p.pu, pair_rank, lo, hi, start, R, p.tu.shape[1], nz
+            ps, pt, pz, prio, pu, pair_rank, lo, hi, start, R, p.tu.shape[1], nz
         )
         a = assign >= 0
         child = np.where(a, len(p.X) + pair, p.tu[s])  # rows of the p.child_* tables
@@ -346,17 +397,3 @@ class JointDesign:
             [p.child_h, np.zeros((1, 2), dtype=np.uint64), hash_tracks(new_X, new_cov)]
         )
         return table_X, table_cov, table_h
-
-    def _merge(self, states: JointStates, s: np.ndarray) -> np.ndarray:
-        """Which rows are the first (cheapest) of their state's identical outcomes."""
-        states.key = key = digest(states)
-        o = np.lexsort((np.arange(len(s)), key[:, 1], key[:, 0], s))
-        ks, k0, k1 = s[o], key[o, 0], key[o, 1]
-        head = np.r_[True, (ks[1:] != ks[:-1]) | (k0[1:] != k0[:-1]) | (k1[1:] != k1[:-1])]
-        rep = np.empty(len(s), dtype=np.int64)
-        rep[o] = o[np.maximum.accumulate(np.where(head, np.arange(len(s)), 0))]
-        if not same_states(states, rep):  # two different outcomes share a 128-bit digest
-            raise AssertionError("joint state digest collision")
-        kept = np.zeros(len(s), dtype=bool)
-        kept[o[head]] = True
-        return kept

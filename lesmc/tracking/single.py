@@ -39,7 +39,11 @@ from lesmc.tracking.kalman import (
     warp,
 )
 from lesmc.tracking.parts.associator import NearestNeighbourAssociator
-from lesmc.tracking.parts.attacker import attack_option_rows, injection_option_rows
+from lesmc.tracking.parts.attacker import (
+    OptionRows,
+    attack_option_rows,
+    injection_option_rows,
+)
 from lesmc.tracking.parts.deleter import TraceDeleter
 from lesmc.tracking.parts.hypothesiser import GateHypothesiser
 
@@ -75,11 +79,22 @@ class SingleDesign:
     name = "single"
     #: it takes attack action ``inject`` (lesmc/tracking/trackers.py: make_tracker)
     injects = True
+    #: and ``inject grid D within R payoff P`` (candidates around its prediction)
+    injects_grid = True
 
-    def __init__(self, scene: Scene, inject: bool = False, hide: bool = True) -> None:
+    def __init__(
+        self,
+        scene: Scene,
+        inject: bool = False,
+        hide: bool = True,
+        grid: tuple[np.ndarray, float] | None = None,
+    ) -> None:
         self.scene = scene
         self.inject = inject
         self.hide = hide
+        #: ``inject grid D within R payoff P``: the grid's offsets (G, 2) from the
+        #: prediction, nearest first, and P (lesmc/language/properties.py: InjectGrid)
+        self.grid = grid
         self.cfg = scene.tracker
         self.m: Matrices = matrices(self.cfg, scene.dt)
         self.covariances = CovarianceTable()
@@ -133,7 +148,7 @@ class SingleDesign:
     ) -> tuple[np.ndarray, ...]:
         """Successors of predictions ``Xp``, row i with the gain rows ``g`` of its P."""
         at = measure(m, Xp)
-        if attacked and self.inject and (frame.candidates or not self.hide):
+        if attacked and self.inject and (frame.candidates or not self.hide or self.grid):
             return self._inject_rows(frame, Xp, at, g, m)
         idx, valid = self.parts.hypothesiser.nearest(frame, at, g.radius, wide=attacked)
         Z = frame.positions()[np.where(valid, idx, 0)]
@@ -188,7 +203,21 @@ class SingleDesign:
         the injection candidates within the gate's radius merged nearest first (a
         detection before a candidate at equal distance), each outcome at its cheapest
         cost (parts/attacker.py: injection_option_rows). The observation of an update
-        with candidate j is n + j (n: the frame's detections)."""
+        with candidate j is n + j (n: the frame's detections); under ``inject grid`` the
+        grid's point i (at the prediction plus its offset, within the gate's radius, a
+        detection and then a candidate first at equal distance) is n + m + i (m: the
+        frame's candidates)."""
+        code, Z, y, opts = self._inject_columns(frame, at, g)
+        row, col, payoff = opts.row, opts.col, opts.payoff
+        counts = np.bincount(row, minlength=len(Xp))
+        rank = np.arange(row.size) - np.repeat(np.r_[0, np.cumsum(counts)[:-1]], counts)
+        return self._outcomes(Xp, g, m, row, rank, payoff, col, code, Z, y)
+
+    def _inject_columns(
+        self, frame: Frame, at: np.ndarray, g: GainRows
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray, OptionRows]:
+        """Under inject, each prediction's columns nearest first (code: detection i, n +
+        candidate j, n + m + grid point; positions; innovations) and the options."""
         hyp = self.parts.hypothesiser
         n = len(frame.detections)
         idx_d, ok_d = hyp.nearest(frame, at, g.radius, wide=True)
@@ -203,13 +232,84 @@ class SingleDesign:
         # each list keeps its own order (made monotone), a detection first at equal distance
         d[:, :w] = np.maximum.accumulate(d[:, :w], axis=1)
         d[:, w:] = np.maximum.accumulate(d[:, w:], axis=1)
-        code = np.take_along_axis(code, np.argsort(d, axis=1, kind="stable"), axis=1)
-        valid = code >= 0
         Z = Z_all[code]  # code −1: the padding row
+        pay, key = pay_all[code], key_all[code]
+        if self.grid is not None:
+            first = n + len(frame.candidates)
+            code, Z, d, pay, key = self._with_grid(code, Z, d, pay, key, at, g.radius, first)
+        order = np.argsort(d, axis=1, kind="stable")
+        code, Z = (
+            np.take_along_axis(code, order, axis=1),
+            np.take_along_axis(Z, order[..., None], 1),
+        )
+        pay, key = np.take_along_axis(pay, order, axis=1), np.take_along_axis(key, order, axis=1)
+        valid = code >= 0
         y = Z - at[:, None, :]
         gated = valid & hyp.test(y, g.S_inv, g.spread)
-        opts = injection_option_rows(gated, pay_all[code], valid, code >= n, key_all[code])
-        row, col, payoff = opts.row, opts.col, opts.payoff
-        counts = np.bincount(row, minlength=len(Xp))
-        rank = np.arange(row.size) - np.repeat(np.r_[0, np.cumsum(counts)[:-1]], counts)
-        return self._outcomes(Xp, g, m, row, rank, payoff, col, code, Z, y)
+        return code, Z, y, injection_option_rows(gated, pay, valid, code >= n, key)
+
+    def attack_at(
+        self, X: np.ndarray, P: np.ndarray, step: int, rank: int
+    ) -> tuple[list[str], list[str]]:
+        """Under inject: the ids of the detections hidden and of what is injected (a
+        candidate's id or a grid point's name) by the cheapest way to force the outcome of
+        rank ``rank`` from the state (``X``, ``P``) at frame ``step`` (lesmc/results/
+        document.py lists them for a counterexample)."""
+        frame = self.scene.frame(step)
+        m, gains = self.schedule.at(step)
+        g = gains.rows(np.array([self.covariances.add(np.asarray(P, dtype=float))]))
+        at = measure(m, self.predict(np.asarray(X, dtype=float)[None], step, m))
+        code, _, _, opts = self._inject_columns(frame, at, g)
+        assert opts.via is not None
+        via, row = int(opts.via[rank]), code[0]
+        n, m_c = len(frame.detections), len(frame.candidates)
+        hidden = [frame.detections[int(c)].id for c in row[:via] if 0 <= c < n]
+        if via >= len(row) or row[via] < n:
+            return hidden, []
+        c = int(row[via])
+        if c < n + m_c:
+            return hidden, [frame.candidates[c - n].id]
+        assert self.grid is not None
+        dx, dy = self.grid[0][c - n - m_c].tolist()
+        return hidden, [grid_point_name(frame.step, dx, dy)]
+
+    def _with_grid(
+        self,
+        code: np.ndarray,
+        Z: np.ndarray,
+        d: np.ndarray,
+        pay: np.ndarray,
+        key: np.ndarray,
+        at: np.ndarray,
+        radius: np.ndarray,
+        first: int,
+    ) -> tuple[np.ndarray, ...]:
+        """The columns (code, position, distance, payoff, position key) of the detections
+        and candidates, then the grid's points around each prediction ``at`` within its
+        gate's ``radius``: code ``first`` + i (n + m), payoff P, a key of its own unless it lies
+        exactly on a detection or candidate of the row (then that one's: the same
+        updated state)."""
+        assert self.grid is not None
+        off, price = self.grid
+        G, rows = len(off), len(at)
+        dist = np.broadcast_to(np.hypot(off[:, 0], off[:, 1]), (rows, G))
+        ok = dist <= radius[:, None]
+        gZ = at[:, None, :] + off[None, :, :]
+        gkey = np.broadcast_to(first + np.arange(G), (rows, G)).copy()  # keys below: n + m
+        if Z.shape[1]:
+            same = ((gZ[:, :, None, :] == Z[:, None, :, :]).all(axis=3)) & (code >= 0)[:, None, :]
+            hit = same.any(axis=2)
+            gkey[hit] = np.take_along_axis(key, same.argmax(axis=2), axis=1)[hit]
+        return (
+            np.concatenate([code, np.where(ok, first + np.arange(G), -1)], axis=1),
+            np.concatenate([Z, np.where(ok[..., None], gZ, 0.0)], axis=1),
+            np.concatenate([d, np.where(ok, dist, np.inf)], axis=1),
+            np.concatenate([pay, np.full((rows, G), float(price))], axis=1),
+            np.concatenate([key, gkey], axis=1),
+        )
+
+
+def grid_point_name(step: int, dx: float, dy: float) -> str:
+    """The observation name of ``inject grid``'s point at offset (dx, dy) px from the
+    prediction at frame ``step``: ``3:grid+0-4``."""
+    return f"{step}:grid{dx:+g}{dy:+g}"

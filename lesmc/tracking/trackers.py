@@ -10,6 +10,8 @@ from __future__ import annotations
 import importlib
 from typing import Any
 
+import numpy as np
+
 from lesmc.common.errors import UsageError
 from lesmc.designs import registry
 from lesmc.scene import Footage, Scene
@@ -23,11 +25,18 @@ def tracker_class(design: str) -> Any:
     return getattr(importlib.import_module(module), cls)
 
 
-def make_tracker(scene: Scene, inject: bool = False, hide: bool = True) -> Design:
+def make_tracker(
+    scene: Scene,
+    inject: bool = False,
+    hide: bool = True,
+    grid: tuple[np.ndarray, float] | None = None,
+) -> Design:
     """The tracker the scene's configuration names, set up for the scene; ``inject``: the
     attacker may also inject the frames' candidates (``allow hide, inject``; a tracker
     whose class does not declare ``injects``, or a multi-target design: a UsageError);
-    ``hide``: it may hide detections (False only with ``inject``: ``allow inject``)."""
+    ``hide``: it may hide detections (False only with ``inject``: ``allow inject``);
+    ``grid``: ``inject grid``'s offsets and payoff (a tracker that does not declare
+    ``injects_grid``: a UsageError)."""
     design = registry.get(scene.tracker.design)
     if design.multi:
         raise UsageError(
@@ -39,7 +48,12 @@ def make_tracker(scene: Scene, inject: bool = False, hide: bool = True) -> Desig
         return made
     if not getattr(cls, "injects", False):
         raise UsageError(f"the {design.name} design does not take attack action 'inject'")
-    made = cls(scene, inject=True, hide=hide)
+    if grid is None:
+        made = cls(scene, inject=True, hide=hide)
+        return made
+    if not getattr(cls, "injects_grid", False):
+        raise UsageError(f"the {design.name} design does not take 'inject grid'")
+    made = cls(scene, inject=True, hide=hide, grid=grid)
     return made
 
 

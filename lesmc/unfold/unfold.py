@@ -29,6 +29,7 @@ from lesmc.model.arrays import ArrayModel, Tracks
 from lesmc.model.growing import BATCH_SECONDS, Expansion, GrowingModel
 from lesmc.scene import Scene
 from lesmc.tracking.design import Batch, Design, PayloadStore
+from lesmc.tracking.single import grid_point_name
 from lesmc.tracking.trackers import make_tracker
 from lesmc.unfold.hashing import HashIndex, row_hash
 
@@ -49,10 +50,15 @@ class SceneExpander:
     """The successors of a scene's tracker states, batch by batch, with exact sharing."""
 
     def __init__(
-        self, scene: Scene, window: tuple[int, int], inject: bool = False, hide: bool = True
+        self,
+        scene: Scene,
+        window: tuple[int, int],
+        inject: bool = False,
+        hide: bool = True,
+        grid: tuple[np.ndarray, float] | None = None,
     ) -> None:
         self.scene = scene
-        self.design: Design = make_tracker(scene, inject, hide)
+        self.design: Design = make_tracker(scene, inject, hide, grid)
         self.window = window
         names = scene.tracker.state_names
         self.model = GrowingModel(names, len(names))
@@ -61,10 +67,15 @@ class SceneExpander:
         self._seen: dict[int, HashIndex] = {}  # per step: state hash -> index
         # detection index -> observation code: frames' detections numbered in order, each
         # frame's injection candidates after its detections under inject (n + j: candidate j)
-        per = [f.detections + (f.candidates if inject else ()) for f in scene.frames]
+        # and then, under ``inject grid``, the grid's points (n + m + i: point i)
+        per = [
+            tuple(d.id for d in f.detections + (f.candidates if inject else ()))
+            + grid_names(f.step, grid)
+            for f in scene.frames
+        ]
         self._obs_offset = np.cumsum([0] + [len(p) for p in per])
         self._first_frame = scene.frames[0].step
-        self.model.obs_names = tuple(d.id for p in per for d in p)
+        self.model.obs_names = tuple(name for p in per for name in p)
         self.add(0, self.design.initial())
 
     # ---------------------------------------------------------------- states
@@ -206,6 +217,7 @@ def lazy_model(
     reference: np.ndarray | None = None,
     inject: bool = False,
     hide: bool = True,
+    grid: tuple[np.ndarray, float] | None = None,
 ) -> GrowingModel:
     """The model of ``scene`` for attacks in ``window``, unfolded as an engine asks.
 
@@ -215,9 +227,10 @@ def lazy_model(
     lesmc/pipeline/faults.py) deviations are measured against it, and the unattacked
     track may halt anywhere after the window opens: the fault alone lost the target.
     ``inject``: the attacker may also inject the frames' candidates (``allow hide,
-    inject``); ``hide``: it may hide detections (not under ``allow inject`` alone).
+    inject``); ``hide``: it may hide detections (not under ``allow inject`` alone);
+    ``grid``: ``inject grid``'s offsets (G, 2) from the prediction and payoff.
     """
-    model = SceneExpander(scene, window, inject, hide).model
+    model = SceneExpander(scene, window, inject, hide, grid).model
     last = last_step(scene, end)
     original = [0]
     while len(original) <= last and not model.halted[original[-1]]:
@@ -243,6 +256,7 @@ def build_model(
     max_states: int | None = None,
     inject: bool = False,
     hide: bool = True,
+    grid: tuple[np.ndarray, float] | None = None,
 ) -> ArrayModel:
     """The whole LTS of ``scene`` for attacks in ``window`` = (l, u), up to step ``end``.
 
@@ -256,9 +270,9 @@ def build_model(
     that the unfolding stops within about one state's successors of the limit
     instead of one whole batch past it. ``inject``: the attacker may also inject the
     frames' candidates (``allow hide, inject``); ``hide``: it may hide detections (not
-    under ``allow inject`` alone).
+    under ``allow inject`` alone); ``grid``: ``inject grid``'s offsets and payoff.
     """
-    exp = SceneExpander(scene, window, inject, hide)
+    exp = SceneExpander(scene, window, inject, hide, grid)
     e = original_end(scene, exp.design, end)
     _check_end(e, None, window)
     model = exp.model
@@ -289,9 +303,51 @@ def build_model(
         original.append(int(model.dst[model.out_lo[original[-1]]]))
     model.original = np.array(original, dtype=np.int64)
     cm = freeze(model, scene, window, e, exp.design.name)
-    if inject or not hide:  # the attacker the model was built for, when not the default
-        cm.meta["actions"] = [a for a, on in (("hide", hide), ("inject", inject)) if on]
+    cm.meta.update(_attacker_meta(inject, hide, grid))
     return cm
+
+
+def _attacker_meta(
+    inject: bool, hide: bool, grid: tuple[np.ndarray, float] | None
+) -> dict[str, object]:
+    """What a built model records of its attacker when not the default: ``actions``, and
+    ``inject_grid`` (the modelling device's offsets from the prediction and payoff)."""
+    out: dict[str, object] = {}
+    if inject or not hide:
+        out["actions"] = [a for a, on in (("hide", hide), ("inject", inject)) if on]
+    if grid is not None:
+        out["inject_grid"] = {"offsets": grid[0].tolist(), "payoff": float(grid[1])}
+    return out
+
+
+def attack_of(
+    scene: Scene,
+    model: ArrayModel,
+    hide: bool = True,
+    grid: tuple[np.ndarray, float] | None = None,
+) -> Callable[[int, int, int], tuple[list[str], list[str]]] | None:
+    """For a model of ``scene`` built with inject: (state, step, rank) -> the ids of the
+    detections hidden and of what is injected by the cheapest way to that outcome, from
+    the tracker's ``attack_at`` (None: its tracker does not say)."""
+    design = make_tracker(scene, True, hide, grid)
+    at = getattr(design, "attack_at", None)
+    if at is None:
+        return None
+    first = int(model.meta.get("first_frame", 0))
+
+    def of(q: int, k: int, rank: int) -> tuple[list[str], list[str]]:
+        got: tuple[list[str], list[str]] = at(model.S[q], model.P(q), first + k, rank)
+        return got
+
+    return of
+
+
+def grid_names(step: int, grid: tuple[np.ndarray, float] | None) -> tuple[str, ...]:
+    """The observation names of ``inject grid``'s points at frame ``step``: ``STEP:grid``
+    and the point's offset from the prediction in px (``3:grid+5-10``); none without one."""
+    if grid is None:
+        return ()
+    return tuple(grid_point_name(step, dx, dy) for dx, dy in grid[0].tolist())
 
 
 def _room(room: int, fan: float, cap: int) -> int:

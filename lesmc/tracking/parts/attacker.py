@@ -35,7 +35,11 @@ lesmc/tracking/parts/attacker_subsets.py (the two modules are one part).
 
 ``single`` under ``allow hide, inject``: :func:`injection_option_rows` (``(gated, payoffs,
 valid, injected, key)``, each (g, k), detections and candidates merged nearest first ->
-OptionRows``): the distinct outcomes, each at its cheapest cost, ranked by cost.
+OptionRows``): the distinct outcomes, each at its cheapest cost, ranked by cost, and
+(``OptionRows.via``) the column whose way is the cheapest. ``joint`` under inject: each of
+:func:`hiding_options`' options (which never hide the injected measurements, those past
+its ``payoffs``) with every subset of the candidates (attacker_subsets.py), merged and
+ranked by cost with :func:`ranks_and_payoffs` (lesmc/tracking/joint.py).
 :func:`forcing_update` says which detections and candidates that cheapest way hides and
 injects to make the tracker update with a given measurement (a replay applies them).
 """
@@ -100,6 +104,10 @@ class OptionRows:
     row: np.ndarray
     col: np.ndarray
     payoff: np.ndarray
+    #: under inject (:func:`injection_option_rows`): the column whose way the outcome is
+    #: forced at its least cost (hide every detection before it, inject it if a
+    #: candidate; the row's width: hide every detection); None otherwise
+    via: np.ndarray | None = None
 
 
 def attack_option_rows(
@@ -250,7 +258,7 @@ def injection_option_rows(
     order = np.lexsort((col, ~unatt, price, row))
     row, col, outcome, price = row[order], col[order], outcome[order], price[order]
     _, payoff = ranks_and_payoffs(row, price)
-    return OptionRows(row, np.where(outcome < 0, -1, col), payoff)
+    return OptionRows(row, np.where(outcome < 0, -1, col), payoff, col)
 
 
 def forcing_update(
@@ -297,12 +305,14 @@ def hiding_options(
     ``u0`` (n,): each state's primary among the U distinct tracks; the candidate pairs
     (hypothesiser ``pairs``): ``track``, detection ``pz``, offsets ``dx``, ``dy`` from the
     track's predicted position, ``ok`` whether the gate admits the pair; ``radius`` (U,)
-    the tracks' gate radii; ``payoffs`` (nz,) the frame's detections' payoffs. Returns
+    the tracks' gate radii; ``payoffs`` (n,) the frame's detections' payoffs (detections
+    from n on, up to nz, are injected candidates: never hidden, never among the nearest;
+    ``allow hide, inject`` on ``joint``, docs/semantics.md). Returns
     ``n_opt`` (n,), ``cost`` (n, w + 1), ``rank_of`` (U, nz), ``near_z`` (U, w) and
     ``per`` (U,)."""
     primary = np.zeros(U, dtype=bool)
     primary[u0] = True
-    c0 = np.flatnonzero(primary[track])
+    c0 = np.flatnonzero(primary[track] & (pz < len(payoffs)))  # injected ones: not hidden
     dist = np.sqrt(dx[c0] ** 2 + dy[c0] ** 2)
     inside = dist <= radius[track[c0]]
     c0, dist = c0[inside], dist[inside]

@@ -29,7 +29,13 @@ from lesmc.tracking.parts.deleter import DistanceDeleter, TraceDeleter
 from lesmc.tracking.parts.hypothesiser import GateHypothesiser
 from lesmc.tracking.parts.initiator import NearTargetInitiator
 from lesmc.tracking.parts.joint_digest import hash_tracks
-from lesmc.tracking.parts.joint_states import JointStates, track_hashes, used_rows
+from lesmc.tracking.parts.joint_states import (
+    JointStates,
+    digest,
+    same_states,
+    track_hashes,
+    used_rows,
+)
 
 
 @dataclass(frozen=True)
@@ -91,12 +97,14 @@ def prepare(
     pos: tuple[int, int],
     js: JointStates,
     step: int,
+    inject: bool = False,
+    hide: bool = True,
 ) -> Prepared:
     """What every option of the states ``js`` at frame ``step`` shares: predictions, gains,
     the primary's nearest detections and what hiding them costs (the attacker's options),
-    and the gated pairs with their priorities; once per distinct track."""
-    frame = scene.frame(step)
-    Z = frame.positions()
+    the gated pairs with their priorities; once per distinct track (``inject``, ``hide``:
+    :func:`measurements`)."""
+    Z, pays = measurements(scene, step, inject, hide)
     nz = len(Z)
     T = js.width
     Hm = scene.frame(step - 1).to_next
@@ -110,9 +118,8 @@ def prepare(
     g = gains.rows(cu)
     U, at = len(cu), measure(m, X)
     track, pz, dx, dy, d2, ok = parts.hypothesiser.pairs(Z, at, g.radius, g.S_inv, g.spread)
-    hiding = hiding_options(tu[:, 0], track, pz, dx, dy, ok, g.radius, frame.payoffs(), U, nz)
-    n_opt, cost, rank_of, near_z, per = hiding
-    track, pz, d2 = track[ok], pz[ok], d2[ok]
+    hiding = hiding_options(tu[:, 0], track, pz, dx, dy, ok, g.radius, pays, U, nz)
+    (n_opt, cost, rank_of, near_z, per), (track, pz, d2) = hiding, (track[ok], pz[ok], d2[ok])
     del dx, dy, ok, hiding  # the candidates' arrays: only the gated pairs go on
     ranked = parts.associator.ranked_pairs(track, pz, d2, g.norm, tu, live, U, T, nz)
     ps, pt, pair_z, prio, idx = ranked
@@ -143,6 +150,21 @@ def prepare(
         n_near=per,
         pos=pos,
     )
+
+
+def measurements(
+    scene: Scene, step: int, inject: bool, hide: bool
+) -> tuple[np.ndarray, np.ndarray]:
+    """Frame ``step``'s measurements (z, 2) and what hiding each detection costs (n,):
+    under ``inject`` its injection candidates follow its detections (candidate j is
+    measurement n + j; what an option shows of them is the caller's choice, and they are
+    never hidden); ``hide`` False: no detection can be hidden (``allow inject`` alone)."""
+    frame = scene.frame(step)
+    Z = frame.positions()
+    pays = frame.payoffs() if hide else np.full(len(Z), np.inf)
+    if inject:
+        Z = np.vstack([Z, frame.injectable.positions()])
+    return Z, pays
 
 
 def distinct_tracks(js: JointStates, live: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -222,3 +244,19 @@ def option_one_differs(p: Prepared, primary: np.ndarray) -> np.ndarray:
     moves[u] = sigma_min * delta > 1e-6 * scale
     out: np.ndarray = ok & moves[u0]
     return out
+
+
+def first_of_equals(states: JointStates, s: np.ndarray) -> np.ndarray:
+    """Which rows (outcomes, from sources ``s``) come first among their source's identical
+    outcomes (the rows in cost order: the cheapest); sets ``states.key``."""
+    states.key = key = digest(states)
+    o = np.lexsort((np.arange(len(s)), key[:, 1], key[:, 0], s))
+    ks, k0, k1 = s[o], key[o, 0], key[o, 1]
+    head = np.r_[True, (ks[1:] != ks[:-1]) | (k0[1:] != k0[:-1]) | (k1[1:] != k1[:-1])]
+    rep = np.empty(len(s), dtype=np.int64)
+    rep[o] = o[np.maximum.accumulate(np.where(head, np.arange(len(s)), 0))]
+    if not same_states(states, rep):  # two different outcomes share a 128-bit digest
+        raise AssertionError("joint state digest collision")
+    kept = np.zeros(len(s), dtype=bool)
+    kept[o[head]] = True
+    return kept
