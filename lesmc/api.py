@@ -174,11 +174,15 @@ def load_model_or_scene(
     if isinstance(data, dict) and data.get("format") == "lesmc-scene":
         return scene_with_target(data, where, target, design, cfg)
     if tracker is not None:
-        raise UsageError("--tracker applies to scenes, not to .lts models (built with one)")
+        raise UsageError(
+            "--tracker applies to scenes, not to built models (.lts, .npz: built with one)"
+        )
     if design:
-        raise UsageError("--design applies to scenes, not to .lts models")
+        raise UsageError("--design applies to scenes, not to built models (.lts, .npz)")
     if target:
-        raise UsageError("--target applies to scenes, not to .lts models (built for one target)")
+        raise UsageError(
+            "--target applies to scenes, not to built models (.lts, .npz: built for one target)"
+        )
     return _checked(load_model_file(where), where) if binary else lts_from_dict(data, where)
 
 

@@ -142,3 +142,27 @@ def test_the_unedited_model_still_checks(built: tuple[Path, Path]) -> None:
     doc = json.loads(r.stdout)
     assert doc["design"] == "sort"
     assert [p["optimum"] for p in doc["results"]] == [1.0]
+
+
+def test_the_table_says_dash_where_the_target_has_no_track(built: tuple[Path, Path]) -> None:
+    """The counterexample's last step has no target's track (the JSON's null): the table
+    printed Python's ``None`` there; it says ``-``, as for no hidden detection."""
+    model, spec = built
+    doc = json.loads(lesmc("check", str(model), str(spec), "--json").stdout)
+    steps = doc["results"][0]["counterexample"]
+    r = lesmc("check", str(model), str(spec))
+    assert r.returncode == 1 and "Traceback" not in r.stderr
+    lines = [ln.strip() for ln in r.stdout.splitlines() if ln.strip().startswith("step ")]
+    assert len(lines) == len(steps)
+    assert any(s["target_id"] is None for s in steps)
+    for line, s in zip(lines, steps, strict=True):
+        want = "-" if s["target_id"] is None else str(s["target_id"])
+        assert line.endswith(f"; target {want}"), line
+    assert "None" not in r.stdout
+
+
+def test_design_on_a_built_model_names_the_npz_form(built: tuple[Path, Path]) -> None:
+    model, spec = built
+    r = lesmc("check", str(model), str(spec), "--design", "sort")
+    assert r.returncode == 2 and "Traceback" not in r.stderr
+    assert "--design applies to scenes, not to built models (.lts, .npz)" in r.stderr

@@ -76,6 +76,5 @@ def _print(out: list[dict[str, Any]], design: str, reference: str, as_json: bool
         for s in r["counterexample"] or []:
             hid = ", ".join(s["hidden"]) or "-"
             inj = f"; injected {', '.join(s['injected'])}" if s["injected"] else ""
-            click.echo(
-                f"  step {s['step']} frame {s['frame']}: hidden {hid}{inj}; target {s['target_id']}"
-            )
+            tid = "-" if s["target_id"] is None else s["target_id"]  # -: no target's track
+            click.echo(f"  step {s['step']} frame {s['frame']}: hidden {hid}{inj}; target {tid}")
