@@ -166,3 +166,19 @@ def test_design_on_a_built_model_names_the_npz_form(built: tuple[Path, Path]) ->
     r = lesmc("check", str(model), str(spec), "--design", "sort")
     assert r.returncode == 2 and "Traceback" not in r.stderr
     assert "--design applies to scenes, not to built models (.lts, .npz)" in r.stderr
+
+
+def test_alarms_of_a_multi_target_design_says_alarms(tmp_path: Path) -> None:
+    """``lesmc alarms --design sort`` (offered by its --help) is refused; the message
+    named verify, campaign and replay as the single-target step, not alarms."""
+    mot = ROOT / "examples/mot"
+    scene = tmp_path / "s.json"
+    r = lesmc(
+        "import", "mot", str(mot / "det.txt"), "--gt", str(mot / "gt.txt"), "--track", "10",
+        "-o", str(scene),
+    )  # fmt: skip
+    assert r.returncode == 0, r.stderr
+    r = lesmc("alarms", str(scene), "--design", "sort")
+    assert r.returncode == 2 and "Traceback" not in r.stderr
+    assert "design 'sort' is a multi-target tracker" in r.stderr
+    assert "alarms" in r.stderr.split("single-target step")[1]

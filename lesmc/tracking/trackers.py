@@ -31,7 +31,9 @@ def make_tracker(scene: Scene, inject: bool = False, hide: bool = True) -> Desig
     design = registry.get(scene.tracker.design)
     if design.multi:
         raise UsageError(
-            registry.not_yet(design.name, "this single-target step (verify, campaign, replay)")
+            registry.not_yet(
+                design.name, "this single-target step (verify, campaign, replay, alarms)"
+            )
         )
     cls = tracker_class(design.name)
     if not inject and hide:
