@@ -41,7 +41,7 @@ from lesmc.model.multi import MultiModel
 from lesmc.model.multi_format import load_model_file
 from lesmc.pipeline.check import run
 from lesmc.pipeline.job import Job
-from lesmc.pipeline.multi import AttackStep, MultiCheckResult
+from lesmc.pipeline.multi import AttackStep, MultiCheckResult, check_meta
 from lesmc.results.record import DesignRun, Results
 from lesmc.scene import Footage, Scene, TrackerConfig, load_tracker
 from lesmc.scene import save_scene as write_scene
@@ -93,7 +93,8 @@ WindowArg = str | tuple[int, int] | Sequence[int] | range
 def load_model(path: PathArg) -> ArrayModel | MultiModel:
     """A model file, validated: a .lts, or its binary .npz form, or a multi-target model
     (``lesmc build --design sort|gnn``'s .npz; docs/lts-format.md)."""
-    return load_model_file(_path(path, "path"))
+    where = _path(path, "path")
+    return _checked(load_model_file(where), where)
 
 
 def save_model(model: ArrayModel | MultiModel, path: PathArg) -> None:
@@ -174,12 +175,22 @@ def load_model_or_scene(
     if isinstance(data, dict) and data.get("format") == "lesmc-scene":
         return scene_with_target(data, where, target, design, cfg)
     if tracker is not None:
-        raise UsageError("--tracker applies to scenes, not to .lts models (built with one)")
+        raise UsageError(
+            "--tracker applies to scenes, not to built models (.lts, .npz: built with one)"
+        )
     if design:
-        raise UsageError("--design applies to scenes, not to .lts models")
+        raise UsageError("--design applies to scenes, not to built models (.lts, .npz)")
     if target:
-        raise UsageError("--target applies to scenes, not to .lts models (built for one target)")
-    return load_model_file(where) if binary else lts_from_dict(data, where)
+        raise UsageError(
+            "--target applies to scenes, not to built models (.lts, .npz: built for one target)"
+        )
+    return _checked(load_model_file(where), where) if binary else lts_from_dict(data, where)
+
+
+def _checked(model: ArrayModel | MultiModel, where: str) -> ArrayModel | MultiModel:
+    """A loaded model, a multi-target one's header checked against the design registry
+    (:func:`lesmc.pipeline.multi.check_meta`)."""
+    return check_meta(model, where) if isinstance(model, MultiModel) else model
 
 
 def save_scene(scene: Scene | Footage, path: PathArg) -> None:

@@ -301,7 +301,7 @@ def _inputs(
     source = load_model_or_scene(model, target_text, tracker=cfg)
     is_scene = isinstance(source, Scene)
     if design is not None and not is_scene:
-        raise UsageError("--design applies to scenes, not to .lts models")
+        raise UsageError("--design applies to scenes, not to built models (.lts, .npz)")
     return parsed, source, is_scene
 
 

@@ -83,6 +83,5 @@ def print_multi(doc: dict[str, Any], as_json: bool) -> None:
         for s in r["counterexample"] or []:
             hid = ", ".join(s["hidden"]) or "-"
             inj = f"; injected {', '.join(s['injected'])}" if s["injected"] else ""
-            click.echo(
-                f"  step {s['step']} frame {s['frame']}: hidden {hid}{inj}; target {s['target_id']}"
-            )
+            tid = "-" if s["target_id"] is None else s["target_id"]  # -: no target's track
+            click.echo(f"  step {s['step']} frame {s['frame']}: hidden {hid}{inj}; target {tid}")

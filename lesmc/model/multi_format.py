@@ -208,7 +208,7 @@ def _header(blob: np.ndarray, where: str) -> dict[str, Any]:
         pr.add("header.target", f"must be a track id (-1: none), got {show(data['target'])}")
     if not pr.items:
         _per_step(data, pr)
-        _meta(data["meta"], end, pr)
+        _meta(data["meta"], end, pr, None if pr.items else data["names"])
     if pr.items:
         raise ModelError.many(where, pr.items)
     return data
@@ -220,10 +220,16 @@ def _per_step(data: dict[str, Any], pr: Problems) -> None:
     frames, names, dets = data["frames"], data["names"], data["detections"]
     if not (isinstance(frames, list) and len(frames) == steps and all(map(is_int, frames))):
         pr.add("header.frames", f"must be {steps} frame numbers (one per step 0..end)")
+    elif any(b <= a for a, b in itertools.pairwise(frames)):
+        pr.add("header.frames", f"must increase from step to step, got {show(frames)}")
     ok = isinstance(names, list) and len(names) == steps
     for k, row in enumerate(names if ok else []):
         if not (isinstance(row, list) and all(isinstance(x, str) for x in row)):
             pr.add(f"header.names[{k}]", "must be a list of detection ids")
+            return
+        if len(set(row)) != len(row):
+            dup = next(x for i, x in enumerate(row) if x in row[:i])
+            pr.add(f"header.names[{k}]", f"must name each detection once, got {show(dup)} twice")
             return
     if not ok:
         pr.add("header.names", f"must be {steps} lists of detection ids (one per step 0..end)")
@@ -240,8 +246,9 @@ def _per_step(data: dict[str, Any], pr: Problems) -> None:
             return
 
 
-def _meta(meta: Any, end: int, pr: Problems) -> None:
-    """``meta``: what the model was built for (:data:`META_KEYS`)."""
+def _meta(meta: Any, end: int, pr: Problems, names: list[list[str]] | None = None) -> None:
+    """``meta``: what the model was built for (:data:`META_KEYS`); ``names``, the steps'
+    names when they are valid, for ``unpriced``'s detection."""
     if not isinstance(meta, dict) or set(meta) != set(META_KEYS):
         pr.add("header.meta", f"must be an object with keys {', '.join(META_KEYS)}")
         return
@@ -279,6 +286,8 @@ def _meta(meta: Any, end: int, pr: Problems) -> None:
         and isinstance(un[1], str)
     ):
         pr.add("header.meta.unpriced", f"must be null or [step, detection id], got {show(un)}")
+    elif un is not None and names is not None and un[1] not in names[un[0]]:
+        pr.add("header.meta.unpriced", f"{show(un[1])} is no detection of step {un[0]}")
 
 
 def _check_states(arrays: dict[str, np.ndarray], head: dict[str, Any], pr: Problems) -> None:
@@ -304,6 +313,14 @@ def _check_states(arrays: dict[str, np.ndarray], head: dict[str, Any], pr: Probl
         pr.add("array 'step'", "state 0 must be the only state of step 0")
     elif np.any(np.diff(step) < 0) or np.any(np.diff(step) > 1) or step[-1] > end:
         pr.add("array 'step'", f"must number the states level by level, steps 0..{end} in order")
+    for name in ("box", "refbox"):  # nan: no box; every other entry finite
+        infinite = np.argwhere(np.isinf(arrays[name]))
+        if infinite.size:
+            i, j = (int(v) for v in infinite[0])
+            pr.add(
+                f"array '{name}'[{i}, {j}]",
+                f"must be finite (nan: no box), got {float(arrays[name][i, j])}",
+            )
     for name in ("tid", "last"):
         bad = np.nonzero(arrays[name] < NONE)[0]
         if bad.size:
@@ -348,7 +365,13 @@ def _check_transitions(arrays: dict[str, np.ndarray], head: dict[str, Any], pr: 
     if bad.size:
         pr.add(
             f"array 'payoff'[{int(bad[0])}]",
-            f"must be a finite payoff >= 0 (nan: unpriced), got {pay[bad[0]]!r}",
+            f"must be a finite payoff >= 0 (nan: unpriced), got {float(pay[bad[0]])!r}",
+        )
+    unpriced = np.nonzero(np.isnan(pay))[0]
+    if unpriced.size and head["meta"]["unpriced"] is None:
+        pr.add(
+            f"array 'payoff'[{int(unpriced[0])}]",
+            "is nan (an unpriced detection hidden), but header.meta.unpriced is null",
         )
 
 

@@ -16,7 +16,7 @@ import math
 from dataclasses import dataclass, replace
 from typing import Any
 
-from lesmc.common.errors import UsageError
+from lesmc.common.errors import InputError, ModelError, UsageError
 from lesmc.engines.multi import BuildKey, bind_model, bind_multi, build_key, unpriced_text
 from lesmc.language.properties import Property, SpecFile
 from lesmc.language.semantics import BoundProperty
@@ -163,6 +163,33 @@ def build_for(scene: Scene, path: str, key: BuildKey, max_states: int | None = N
         "unpriced": None if first is None else [first[0], first[1]],
     }
     return replace(model, meta=meta)
+
+
+def check_meta(model: MultiModel, where: str) -> MultiModel:
+    """``model`` (read from ``where``) if its header's ``meta.design`` is a registered
+    multi-target design and ``meta.tracker`` a valid tracker block of that design, as
+    :func:`build_for` writes them (the model layer cannot read the registry); else a
+    located ModelError, exit 2."""
+    from lesmc.designs import registry
+    from lesmc.scene.io import tracker_from_dict
+
+    design, tracker = model.meta.get("design"), model.meta.get("tracker")
+    multi = tuple(n for n in registry.tracker_names() if registry.get(n).multi)
+    if design not in multi:
+        got = design if isinstance(design, str) else str(design)
+        raise ModelError.many(
+            where, [("header.meta.design", f"must be {' or '.join(multi)}, got {got!r}")]
+        )
+    try:
+        cfg = tracker_from_dict(tracker, "header.meta.tracker")
+    except InputError as exc:
+        raise ModelError.many(where, [("", line) for line in exc.render().splitlines()]) from None
+    if cfg.design != design:
+        raise ModelError.many(
+            where,
+            [("header.meta.tracker", f"design {cfg.design!r} must be meta.design {design!r}")],
+        )
+    return model
 
 
 def property_key(scene: Scene, spec: SpecFile, name: str | None) -> BuildKey:
