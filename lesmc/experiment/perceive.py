@@ -190,7 +190,7 @@ def perceive_with_file(
     if det.spec.kind == "boxes":
         return _with_boxes(req, det, on_start, save_attacks)
     inputs = open_inputs(req, minimum=1)
-    check_frames(inputs.frames, det, req.frames_dir)
+    det = check_frames(inputs.frames, det, req.frames_dir)
     price = _pricer(req, det, save_attacks) if req.scene else None
     on_frame = on_start(len(inputs.frames)) if on_start else None
     dets = run_detector(inputs.frames, det, on_frame, price)
@@ -238,7 +238,7 @@ def _with_boxes(
             "convolutional heatmap detectors (drop --certify)",
         )  # fmt: skip
     inputs = open_inputs(req, minimum=1)
-    check_frames(inputs.frames, det, req.frames_dir)
+    det = check_frames(inputs.frames, det, req.frames_dir)
     att = attack_config(req)
 
     def price(frame: Any, bd: BoxDetections) -> BoxDetections:
