@@ -875,7 +875,7 @@ def _patch_figures(
                 "For each detection a counterexample hides: the frame's crop that the detector "
                 "file's attack perturbs, the perturbation (its last input channel, in the "
                 "network's input units times 255; red brighter, blue darker) and the attacked "
-                "crop (docs/detectors.md, \"Replay\")."
+                'crop (docs/detectors.md, "Replay").'
                 + (f" The first 8 of {len(triples)} are drawn." if len(triples) > 8 else ""),
             )
         ]
