@@ -323,7 +323,23 @@ def networks_meta(nets: NetFiles) -> dict[str, Any]:
     (lesmc.pipeline.check.replay_command); none for the shipped networks."""
     given = dict(zip(("nets", "detector", "locator"), nets, strict=True))
     named = {k: str(v) for k, v in given.items() if v is not None}
-    return {"networks": named} if named else {}
+    return ({"networks": named} if named else {}) | {"network_files": network_files(nets)}
+
+
+def network_files(nets: NetFiles) -> dict[str, dict[str, str]]:
+    """Each file the window pipeline's networks were loaded from, by role (``settings``:
+    the pair's nets.json; ``N_dr``, ``N_lp``: the user's file where given, else the
+    pair's weights), with the sha256 of its bytes: a scene's ``meta.network_files``."""
+    from lesmc.common.files import file_sha256
+    from lesmc.experiment.cache import net_files
+
+    settings, dr, lp = net_files((nets[0], None, None))
+    files = {
+        "settings": settings,
+        "N_dr": Path(nets[1]) if nets[1] else dr,
+        "N_lp": Path(nets[2]) if nets[2] else lp,
+    }
+    return {role: {"path": str(p), "sha256": file_sha256(p)} for role, p in files.items()}
 
 
 def _scene(

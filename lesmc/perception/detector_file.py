@@ -178,11 +178,16 @@ class DetectorFile:
         )
 
     def to_meta(self) -> dict[str, Any]:
-        """What a scene's ``meta.detector_file`` records."""
+        """What a scene's ``meta.detector_file`` records: the file and its network, each with
+        the sha256 of its bytes (which networks made the scene), and the decoding."""
+        from lesmc.common.files import file_sha256
+
         out: dict[str, Any] = {
             "path": self.path,
+            "sha256": file_sha256(self.path),
             "kind": self.kind,
             "network": self.network,
+            "network_sha256": file_sha256(self.network),
             "channels": self.channels,
             "scale": list(self.scale),
             "threshold": self.threshold,
