@@ -160,9 +160,7 @@ def mot_cmd(
     scene = import_mot(det, 1.0 / fps, at, payoffs, gt_path, track_id, tracker, inject)
     if tracker is not None and isinstance(scene, Scene):  # refused here, where it is named
         check_fits(tracker, scene.target, tracker_file or "--tracker", "model.state")
-    unmatched: list[str] = []
-    if detector_file is not None and frames_dir is not None:
-        scene, unmatched = _priced(scene, det, frames_dir, detector_file)
+    scene, unmatched = _priced(scene, det, frames_dir, detector_file)
     save_scene(scene, output)
     doc = _document(scene, det, output, at, payoffs, f"{gt_path} track {track_id}")
     doc["warnings"] = unmatched + doc["warnings"]
@@ -225,10 +223,12 @@ def _refuse_with_detector(
 
 
 def _priced(
-    scene: Footage | Scene, det: str, frames_dir: str, detector_file: str
+    scene: Footage | Scene, det: str, frames_dir: str | None, detector_file: str | None
 ) -> tuple[Footage | Scene, list[str]]:
     """``scene`` with each box priced by the detector file (lesmc/experiment/mot_priced.py),
-    and one warning per unmatched box."""
+    and one warning per unmatched box; unchanged without --detector."""
+    if frames_dir is None or detector_file is None:
+        return scene, []
     from lesmc.experiment.mot_priced import price_mot, refuse_outside
     from lesmc.scene.mot import read_boxes
 

@@ -867,18 +867,7 @@ def _patch_figures(
             triples.append((f"{prop}, step {h.step}, {h.obs}", orig, delta))
             crops |= delta.shape != (figures.WINDOW, figures.WINDOW)  # a detector file's crop
     if triples and crops:
-        name = f"{run.tag}-perturbations.png"
-        figs.draw(name, figures.perturbations, triples[:8])
-        return [
-            Figure(
-                name,
-                "For each detection a counterexample hides: the frame's crop that the detector "
-                "file's attack perturbs, the perturbation (its last input channel, in the "
-                "network's input units times 255; red brighter, blue darker) and the attacked "
-                'crop (docs/detectors.md, "Replay").'
-                + (f" The first 8 of {len(triples)} are drawn." if len(triples) > 8 else ""),
-            )
-        ]
+        return _crop_figures(run, triples, figs)
     if triples:
         name = f"{run.tag}-perturbations.png"
         figs.draw(name, figures.perturbations, triples[:8])
@@ -909,6 +898,24 @@ def _patch_figures(
             )
         ]
     return []
+
+
+def _crop_figures(
+    run: _Run, triples: list[tuple[str, np.ndarray, np.ndarray]], figs: FigureSet
+) -> list[Figure]:
+    """The hidden detections' crops of a detector file's replay (docs/detectors.md)."""
+    name = f"{run.tag}-perturbations.png"
+    figs.draw(name, figures.perturbations, triples[:8])
+    return [
+        Figure(
+            name,
+            "For each detection a counterexample hides: the frame's crop that the detector "
+            "file's attack perturbs, the perturbation (its last input channel, in the "
+            "network's input units times 255; red brighter, blue darker) and the attacked "
+            'crop (docs/detectors.md, "Replay").'
+            + (f" The first 8 of {len(triples)} are drawn." if len(triples) > 8 else ""),
+        )
+    ]
 
 
 def _replay_lines(run: _Run) -> list[Text]:
