@@ -123,6 +123,9 @@ def test_recall_precision_match_onnxruntime(run: dict[str, Any]) -> None:
     assert facts["recall"] == pytest.approx(tp / n_veh)
     assert facts["precision"] == pytest.approx(tp / n_det)
     assert doc["perception"]["detector_file"]["kind"] == "heatmap"
+    jsonschema = pytest.importorskip("jsonschema")
+    schema = json.loads((ROOT / "lesmc" / "schemas" / "results.json").read_text())
+    jsonschema.validate(doc, schema)
     scene = json.loads((run["out"] / "scene.json").read_text())
     pays = [d["payoff"] for fr in scene["frames"] for d in fr["detections"]]
     assert len(pays) == n_det and "unpriced" not in pays  # every detection priced
