@@ -124,8 +124,9 @@ def test_recall_precision_match_onnxruntime(run: dict[str, Any]) -> None:
     assert facts["precision"] == pytest.approx(tp / n_det)
     assert doc["perception"]["detector_file"]["kind"] == "heatmap"
     jsonschema = pytest.importorskip("jsonschema")
-    schema = json.loads((ROOT / "lesmc" / "schemas" / "results.json").read_text())
-    jsonschema.validate(doc, schema)
+    from lesmc.schemas import schema  # the file with the registries' enums filled in
+
+    jsonschema.validate(doc, schema("results"))
     scene = json.loads((run["out"] / "scene.json").read_text())
     pays = [d["payoff"] for fr in scene["frames"] for d in fr["detections"]]
     assert len(pays) == n_det and "unpriced" not in pays  # every detection priced
@@ -144,3 +145,15 @@ def test_verify_refuses_window_networks_with_a_detector_file(tmp_path: Path) -> 
               "--target", "10,10@0", "--out", str(tmp_path / "o"))  # fmt: skip
     assert r.returncode == 2, r.stdout + r.stderr
     assert "Traceback" not in r.stderr and "--locator" in r.stderr
+
+
+def test_verify_scene_replays_through_the_detector_file(run: dict[str, Any]) -> None:
+    """``verify --scene S --frames F --detector FILE.toml`` checks the detector file's scene
+    and replays its violations through the file, as verify on the video did."""
+    out = run["dir"] / "again"
+    r = lesmc("verify", "--scene", str(run["out"] / "scene.json"), "--frames",
+              str(run["frames"]), "--detector", str(TOML), "--out", str(out))  # fmt: skip
+    assert "Traceback" not in r.stderr and r.returncode == 1, r.stdout + r.stderr
+    doc = json.loads((out / "results.json").read_text())
+    replays = [x["replay"] for rr in doc["runs"] for x in rr["results"] if x.get("replay")]
+    assert replays and all(rp["status"] == "confirmed" for rp in replays), replays
