@@ -388,7 +388,8 @@ def test_a_detector_files_violations_are_replayed_through_the_file(
 ) -> None:
     """A violation on a scene perceived with a detector file offers ``lesmc replay`` through
     that file, never a command replaying it through the window pipeline's networks (which
-    ``lesmc verify --scene`` uses); verify refuses such a scene, exit 2."""
+    ``lesmc verify --scene`` uses); verify checks such a scene, and refuses to replay it
+    through the window pipeline (--frames without the detector file: exit 2)."""
     from lesmc.pipeline.check import replay_command
     from lesmc.report.text import not_replayed_text
 
@@ -402,5 +403,10 @@ def test_a_detector_files_violations_are_replayed_through_the_file(
     doc.setdefault("meta", {})["detector_file"] = {"path": "det.toml"}
     scene = tmp_path / "scene.json"
     scene.write_text(json.dumps(doc))
+    # checked without a replay (its results offer the replay through the file) ...
     r = lesmc("verify", "--scene", str(scene), "--out", str(tmp_path / "out"))
+    assert r.returncode in (0, 1, 3) and "Traceback" not in r.stderr, r.stderr
+    # ... and refused with frames but not the file: the window pipeline would replay it
+    r = lesmc("verify", "--scene", str(scene), "--frames", str(tmp_path),
+              "--out", str(tmp_path / "out2"))  # fmt: skip
     assert r.returncode == 2 and "detector file" in r.stderr and "Traceback" not in r.stderr

@@ -162,6 +162,7 @@ def campaign_cmd(
     out = Path(out_dir)
     count, target_file = _targets_option(targets_text)
     nets = (nets_dir, detector_file, locator_file)
+    _refuse_detector_file(detector_file)
     with _removed_if_empty(out):
         videos = _videos(frames_dirs, out, no_truth)
         listed = _file_targets(target_file, videos)
@@ -171,6 +172,21 @@ def campaign_cmd(
         with resumable(lambda: _kept(out)):
             rows = _run(prepared, spec_files, windows, designs, out, limits, payoffs, nets)
     _finish(rows, out, out_dir, prepared, windows, design, as_json)
+
+
+def _refuse_detector_file(detector_file: str | None) -> None:
+    """``--detector FILE.toml``: a campaign perceives its videos through the window pipeline's
+    front end and prices on demand per worker; a detector file's path is not built into it."""
+    from lesmc.perception.detector_file import is_detector_file
+
+    if detector_file is not None and is_detector_file(detector_file):
+        raise UsageError(
+            f"--detector {detector_file}: lesmc campaign runs the window pipeline's networks "
+            "(.pt2 or .onnx N_dr); a detector file (docs/detectors.md) is not built into "
+            "campaigns yet: run lesmc verify FRAMES --detector FILE.toml --target X,Y@STEP per "
+            "video and target, or lesmc perceive FRAMES --detector FILE.toml -o SCENE with "
+            "lesmc check"
+        )
 
 
 @contextmanager

@@ -41,17 +41,6 @@ def file_facts(path: str | Path) -> dict[str, Any]:
     return {"path": str(path), "bytes": os.stat(path).st_size}
 
 
-def file_sha256(path: str | Path) -> str:
-    """sha256 of a file's bytes (of a written weights file, say)."""
-    import hashlib
-
-    h = hashlib.sha256()
-    with open(path, "rb") as fh:
-        for block in iter(lambda: fh.read(1 << 20), b""):
-            h.update(block)
-    return h.hexdigest()
-
-
 def run_provenance(seeds: dict[str, Any] | None = None) -> dict[str, Any]:
     """Tool version, Python, command line, date and seeds (as in results files)."""
     from lesmc.results.document import provenance

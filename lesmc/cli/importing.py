@@ -15,7 +15,7 @@ from lesmc.cli.documents import (
     say,
     unattacked_warnings,
 )
-from lesmc.cli.options import distinct_files, tracker_option
+from lesmc.cli.options import distinct_files, frames_option, tracker_option
 from lesmc.common.errors import UsageError, escape_control
 
 if TYPE_CHECKING:
@@ -88,6 +88,20 @@ def import_group() -> None:
     help="Frames per second of the sequence (seqinfo.ini's frameRate): dt = 1/fps.",
 )
 @tracker_option
+@frames_option(
+    "With --detector: the sequence's frames (MOT frame f is the directory's frame f - 1, "
+    "natural sort order)."
+)
+@click.option(
+    "--detector",
+    "detector_file",
+    type=click.Path(dir_okay=False),
+    default=None,
+    help="A detector file (FILE.toml or .json, docs/detectors.md) run on --frames: each box "
+    "takes the payoff of the detection it matches (IoU >= 0.5 for a box detector; for a "
+    "heatmap, the nearest peak within nms_radius cells); an unmatched box is unpriced, "
+    "with a warning naming its line.",
+)
 @click.option(
     "--json",
     "as_json",
@@ -107,6 +121,8 @@ def mot_cmd(
     inject_threshold: float | None,
     fps: float,
     tracker_file: str | None,
+    frames_dir: str | None,
+    detector_file: str | None,
     as_json: bool,
 ) -> None:
     """Make a scene from a MOTChallenge DET file (det.txt or gt.txt layout).
@@ -118,6 +134,8 @@ def mot_cmd(
     --gt/--track the scene has no target: give --target X,Y@STEP to track, build, check
     or verify. With a target, warns when its unattacked track does not follow it (a
     single-target design's; a multi-target design such as sort tracks every object).
+    With --frames and --detector FILE.toml, each box is priced by the user's detector
+    (docs/detectors.md, "MOT detections priced").
     Exit status: 0 written, 2 bad input, 4 internal error, 130 interrupted.
     """
     from lesmc.scene import Scene, load_tracker, save_scene
@@ -136,13 +154,16 @@ def mot_cmd(
         raise UsageError(f"--fps must be a number in {shown}, got {fps:g}")
     payoffs = _payoffs(payoff_constant, payoff_column)
     inject = _inject(inject_column, inject_threshold)
+    _refuse_with_detector(frames_dir, detector_file, payoff_constant, payoff_column, inject)
     tracker = load_tracker(tracker_file) if tracker_file else None
     at: Point = "bottom" if point == "bottom" else "center"
     scene = import_mot(det, 1.0 / fps, at, payoffs, gt_path, track_id, tracker, inject)
     if tracker is not None and isinstance(scene, Scene):  # refused here, where it is named
         check_fits(tracker, scene.target, tracker_file or "--tracker", "model.state")
+    scene, unmatched = _priced(scene, det, frames_dir, detector_file)
     save_scene(scene, output)
     doc = _document(scene, det, output, at, payoffs, f"{gt_path} track {track_id}")
+    doc["warnings"] = unmatched + doc["warnings"]
     _summary(doc, output, track_id, as_json)
     print_warnings(doc["warnings"], err=as_json)
     if as_json:
@@ -165,6 +186,56 @@ def _summary(doc: dict[str, Any], output: str, track_id: int | None, as_json: bo
         f"wrote {escape_control(output)}: {doc['detections']} detections in {frames}, {where}",
         as_json,
     )
+
+
+def _refuse_with_detector(
+    frames_dir: str | None,
+    detector_file: str | None,
+    constant: float | None,
+    column: int | None,
+    inject: Inject | None,
+) -> None:
+    """--detector needs --frames (and a detector file); it replaces the other payoffs."""
+    if (frames_dir is None) != (detector_file is None):
+        raise UsageError(
+            "--frames and --detector go together: the detector file prices the boxes on the frames"
+        )
+    if detector_file is None:
+        return
+    from lesmc.perception.detector_file import is_detector_file
+
+    if not is_detector_file(detector_file):
+        raise UsageError(
+            f"--detector {detector_file}: give a detector file (FILE.toml or FILE.json, "
+            "docs/detectors.md)"
+        )
+    given = [
+        name
+        for name, v in (
+            ("--payoff", constant),
+            ("--payoff-column", column),
+            ("--inject-column", inject),
+        )
+        if v is not None
+    ]
+    if given:
+        raise UsageError(f"{given[0]} prices the boxes too: give it or --detector, not both")
+
+
+def _priced(
+    scene: Footage | Scene, det: str, frames_dir: str | None, detector_file: str | None
+) -> tuple[Footage | Scene, list[str]]:
+    """``scene`` with each box priced by the detector file (lesmc/experiment/mot_priced.py),
+    and one warning per unmatched box; unchanged without --detector."""
+    if frames_dir is None or detector_file is None:
+        return scene, []
+    from lesmc.experiment.mot_priced import price_mot, refuse_outside
+    from lesmc.scene.mot import read_boxes
+
+    boxes = read_boxes(det, True)
+    refuse_outside(boxes, det)
+    priced = price_mot(scene, boxes, det, frames_dir, detector_file)
+    return priced.footage, priced.warnings
 
 
 def _inject(column: int | None, threshold: float | None) -> Inject | None:

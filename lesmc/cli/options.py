@@ -118,7 +118,9 @@ def network_options(f: F) -> F:
         "detector_file",
         "The user's N_dr (.pt2 or .onnx): (B, m+1, 21, 21) windows -> (B, 2) logits; "
         "payoffs by its attack, certified bounds if its operations allow "
-        "(docs/own-system.md).",
+        "(docs/own-system.md). A FILE.toml or FILE.json is a detector file instead: the "
+        "user's whole-frame heatmap or box detector, without the front end "
+        "(docs/detectors.md; perceive, verify, replay; campaign refuses it).",
     )(f)
 
 

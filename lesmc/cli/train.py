@@ -8,8 +8,9 @@ from typing import TYPE_CHECKING, Any
 
 import click
 
-from lesmc.cli.documents import emit, file_facts, file_sha256, run_provenance, say
+from lesmc.cli.documents import emit, file_facts, run_provenance, say
 from lesmc.common.errors import UsageError, escape_control
+from lesmc.common.files import file_sha256
 
 if TYPE_CHECKING:
     from rich.table import Table

@@ -76,6 +76,17 @@ def decode_text(data: bytes, path: str, error: type[LesmcError] = InputError) ->
         ) from None
 
 
+def file_sha256(path: str | Path) -> str:
+    """sha256 of a file's bytes (a written weights file; a network a scene was made with)."""
+    import hashlib
+
+    h = hashlib.sha256()
+    with open(path, "rb") as fh:
+        for block in iter(lambda: fh.read(1 << 20), b""):
+            h.update(block)
+    return h.hexdigest()
+
+
 def read_text(path: str | Path, error: type[LesmcError] = InputError) -> str:
     """Read a UTF-8 text file (BOM skipped); unreadable files and bad bytes become ``error``."""
     return decode_text(_read_bytes(path, error), str(path), error)

@@ -26,7 +26,7 @@ from lesmc.common.files import json_text
 from lesmc.common.memory import release
 from lesmc.common.progress import Reporter
 from lesmc.designs import registry
-from lesmc.experiment import video_perception
+from lesmc.experiment import detector_verify, video_perception
 from lesmc.experiment.cache import (
     FigureStore,
     StageCache,
@@ -132,6 +132,8 @@ class _Source:
     #: payoffs priced on demand (lesmc/experiment/pricing.py): the shared prices, the pricer
     #: and the footage they price (stored again in OUT/cache with what was priced)
     pricing: tuple[OnDemandPayoffs, VideoPricer, Footage] | None = None
+    #: a detector file's detections: counts, recall and precision, payoffs (detector_verify)
+    detections: dict[str, Any] | None = None
 
     def networks(self) -> Any:
         """The networks: loaded now if perception came from the cache."""
@@ -165,6 +167,8 @@ def verify(req: Request, rep: Reporter) -> Outcome:
     started = time.monotonic()
     specs = load_specs([Path(s) for s in req.specs] or bundled_specs(), req.window)
     faults = load_faults(req.faults) if req.faults is not None else None
+    if detector_verify.detector_file_of(req.nets) is not None:  # docs/detectors.md
+        detector_verify.refuse_window_options(req.nets, bool(neuron_faults(faults)))
     _check_neuron_faults(req, faults)
     if req.scene_path is not None:
         src = _scene_file(req)
@@ -271,15 +275,19 @@ def _scene_file(req: Request) -> _Source:
             "--frames too"
         )
     scene = load_scene_with_target(req.scene_path or "", req.target, None, _tracker(req))
-    if isinstance(scene.meta.get("detector_file"), dict):
+    by_file = detector_verify.detector_file_of(req.nets) is not None
+    if isinstance(scene.meta.get("detector_file"), dict) != by_file and req.scene_frames:
         raise UsageError(
-            f"{req.scene_path} was perceived with a detector file (meta.detector_file): verify "
-            "replays through the window pipeline's networks, and a replay through a detector "
-            "file is not built yet (docs/detectors.md); check the scene with lesmc check"
+            f"{req.scene_path} was perceived with a detector file (meta.detector_file): give it "
+            "as --detector FILE.toml to replay through it (docs/detectors.md)"
+            if not by_file
+            else f"--detector {req.nets[1]} is a detector file; {req.scene_path} was perceived "
+            "by the window pipeline (no meta.detector_file)"
         )
     from lesmc.video.reader import open_frames
 
-    frames = open_frames(req.scene_frames, HISTORY + 1) if req.scene_frames else None
+    least = 1 if by_file else HISTORY + 1  # a detector file has no background
+    frames = open_frames(req.scene_frames, least) if req.scene_frames else None
     nets = req.nets if frames is not None else None  # loaded by the replay, if it runs
     return _Source(
         scene, frames, meta={"scene": req.scene_path}, net_files=nets, cache=StageCache(req.out)
@@ -304,16 +312,27 @@ def _perceived(
 
     # frames this run rendered need no decoding up front to be checked (0.7 s); any
     # other file beside them (an older video's) makes every frame checked
-    frames = open_frames(frames_dir, HISTORY + 1, check=fresh is None)
+    by_file = detector_verify.detector_file_of(req.nets)
+    least = HISTORY + 1 if by_file is None else 1  # a detector file has no background
+    frames = open_frames(frames_dir, least, check=fresh is None)
     if fresh is not None and frames.paths != fresh:
-        frames = open_frames(frames_dir, HISTORY + 1)
+        frames = open_frames(frames_dir, least)
     target = parse_target(req.target) if req.target else None
     if target is not None:
         check_target(target, frames.width, frames.height, len(frames))
     truths = load_truth(truth) if truth else None
     dt = (truths.dt if truths else None) or 1 / FPS
     cache = StageCache(req.out)
-    seen = _perception(req, frames, frames_dir, dt, cache, rep, maxima, on_demand)
+    if by_file is None:
+        seen = _perception(req, frames, frames_dir, dt, cache, rep, maxima, on_demand)
+    else:  # every detection priced now, not cached (lesmc/experiment/detector_verify.py)
+        footage, facts = detector_verify.perceive_video(
+            frames_dir, frames, by_file, truth, truths, req.payoffs != "attack", dt, rep,
+            lambda stage: _spent(req.budget, stage),
+        )  # fmt: skip
+        meta["detections"] = detector_verify.describe(facts)
+        rep.log(f"detector file: {meta['detections']}")
+        seen = _Perception(footage, None, None, {}, "", detections=facts)
     footage = seen.footage
     tracker = _tracker(req)
     if tracker is not None:
@@ -329,7 +348,8 @@ def _perceived(
     meta |= {"detector": footage.meta.get("detector", ""), "scene": str(req.out / "scene.json")}
     return _Source(
         scene, frames, truths, seen.nets, seen.run, meta, True, req.nets, truth, cache,
-        (seen.key, seen.unit_max, dt), seen.pricing,
+        (seen.key, seen.unit_max, dt) if by_file is None else None, seen.pricing,
+        seen.detections,
     )  # fmt: skip
 
 
@@ -344,6 +364,8 @@ class _Perception:
     unit_max: UnitMax
     key: str
     pricing: tuple[OnDemandPayoffs, VideoPricer, Footage] | None = None
+    #: a detector file's detections: counts, recall and precision, payoffs (detector_verify)
+    detections: dict[str, Any] | None = None
 
 
 def _perception(
@@ -764,6 +786,10 @@ def _perception_facts(req: Request, src: _Source, results: Results) -> dict[str,
         out["certified"] = results.certified
     if src.pricing is not None:  # this run priced on demand (lesmc/experiment/pricing.py)
         out["priced"] = src.scene.meta["priced"]
+    if isinstance(src.scene.meta.get("detector_file"), dict):  # docs/detectors.md
+        out["detector_file"] = src.scene.meta["detector_file"]
+    if src.detections is not None:
+        out["detections"] = src.detections
     return out
 
 
@@ -785,6 +811,12 @@ def _replay(
     if not todo or src.frames is None or (src.nets is None and src.net_files is None):
         return
     t0 = time.monotonic()
+    by_file = detector_verify.detector_file_of(src.net_files or (None, None, None))
+    if by_file is not None:  # through the detector file (lesmc/replay/detector_file.py)
+        frames_dir = str(src.frames.paths[0].parent)
+        apply(doc, detector_verify.replay(typed, frames_dir, by_file, rep), results)
+        timings["replay"] = time.monotonic() - t0
+        return
     key = _replay_key(doc, src, todo)
     hit = None if src.cache is None or key is None else src.cache.get("replay", key)
     outcome = _cached_replay(hit, doc)

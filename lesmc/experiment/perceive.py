@@ -207,7 +207,7 @@ def perceive_with_file(
     if det.spec.kind == "boxes":
         return _with_boxes(req, det, on_start, save_attacks)
     inputs = open_inputs(req, minimum=1)
-    check_frames(inputs.frames, det, req.frames_dir)
+    det = check_frames(inputs.frames, det, req.frames_dir)
     price = _pricer(req, det, save_attacks) if req.scene else None
     on_frame = on_start(len(inputs.frames)) if on_start else None
     dets = run_detector(inputs.frames, det, on_frame, price)
@@ -255,7 +255,7 @@ def _with_boxes(
             "convolutional heatmap detectors (drop --certify)",
         )  # fmt: skip
     inputs = open_inputs(req, minimum=1)
-    check_frames(inputs.frames, det, req.frames_dir)
+    det = check_frames(inputs.frames, det, req.frames_dir)
     att = attack_config(req)
 
     def price(frame: Any, bd: BoxDetections) -> BoxDetections:
@@ -352,7 +352,23 @@ def networks_meta(nets: NetFiles) -> dict[str, Any]:
     (lesmc.pipeline.check.replay_command); none for the shipped networks."""
     given = dict(zip(("nets", "detector", "locator"), nets, strict=True))
     named = {k: str(v) for k, v in given.items() if v is not None}
-    return {"networks": named} if named else {}
+    return ({"networks": named} if named else {}) | {"network_files": network_files(nets)}
+
+
+def network_files(nets: NetFiles) -> dict[str, dict[str, str]]:
+    """Each file the window pipeline's networks were loaded from, by role (``settings``:
+    the pair's nets.json; ``N_dr``, ``N_lp``: the user's file where given, else the
+    pair's weights), with the sha256 of its bytes: a scene's ``meta.network_files``."""
+    from lesmc.common.files import file_sha256
+    from lesmc.experiment.cache import net_files
+
+    settings, dr, lp = net_files((nets[0], None, None))
+    files = {
+        "settings": settings,
+        "N_dr": Path(nets[1]) if nets[1] else dr,
+        "N_lp": Path(nets[2]) if nets[2] else lp,
+    }
+    return {role: {"path": str(p), "sha256": file_sha256(p)} for role, p in files.items()}
 
 
 def _scene(

@@ -14,7 +14,7 @@ inside the network; the CLI exits 2.
 from __future__ import annotations
 
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -35,6 +35,9 @@ MAX_STRIDE = 1024
 MAX_RADIUS = 64
 #: Largest magnitude of a scale bound or threshold.
 MAX_VALUE = 1e6
+#: The side of the square inputs a network of any size is first probed on (pixels; rounded
+#: up to a multiple of the stride).
+PROBE_SIDE = 64
 
 
 @dataclass(frozen=True)
@@ -175,11 +178,16 @@ class DetectorFile:
         )
 
     def to_meta(self) -> dict[str, Any]:
-        """What a scene's ``meta.detector_file`` records."""
+        """What a scene's ``meta.detector_file`` records: the file and its network, each with
+        the sha256 of its bytes (which networks made the scene), and the decoding."""
+        from lesmc.common.files import file_sha256
+
         out: dict[str, Any] = {
             "path": self.path,
+            "sha256": file_sha256(self.path),
             "kind": self.kind,
             "network": self.network,
+            "network_sha256": file_sha256(self.network),
             "channels": self.channels,
             "scale": list(self.scale),
             "threshold": self.threshold,
@@ -309,6 +317,9 @@ class LoadedDetector:
 
     spec: DetectorFile
     net: UserNet
+    #: the network file reads any height and width (ONNX exported with dynamic H, W): ``net``
+    #: is given the frames' size by :func:`sized`
+    any_size: bool = False
 
     @property
     def height(self) -> int:
@@ -329,10 +340,14 @@ def load_detector(path: str | Path) -> LoadedDetector:
     the channels, the stride dividing the input, the output's name and shape (a batch of
     :data:`~lesmc.perception.graphs.PROBE_BATCH` random inputs must give one finite
     heatmap each)."""
-    from lesmc.perception.graphs import load_network
+    from lesmc.perception.graphs import ANY_SIZE, load_network
 
     spec = read_detector_file(path)
     net = load_network(spec.network)
+    any_size = net.in_shape[1] == ANY_SIZE
+    if any_size:  # checked on a probe size now, on the frames' later (sized)
+        side = PROBE_SIDE if spec.kind == "boxes" else -(-PROBE_SIDE // spec.stride) * spec.stride
+        net = replace(net, in_shape=(net.in_shape[0], side, side))
     c, h, w = net.in_shape
     if c != spec.n_channels:
         raise located(
@@ -351,9 +366,30 @@ def load_detector(path: str | Path) -> LoadedDetector:
             f"the network {spec.network} has no output '{clipped(spec.output, 80)}'; its "
             f"output is '{clipped(net.output, 80)}'",
         )  # fmt: skip
-    det = LoadedDetector(spec, net)
+    det = LoadedDetector(spec, net, any_size)
     _probe(det)
     return det
+
+
+def sized(det: LoadedDetector, width: int, height: int, where: Location) -> LoadedDetector:
+    """``det`` reading ``width`` x ``height`` inputs (its network reads any size): the stride
+    must divide them (an error at ``where``, the frames, naming the detector file's
+    ``stride`` line) and the network must answer them as the file says."""
+    if not det.any_size or (width, height) == (det.width, det.height):
+        return det
+    spec = det.spec
+    if spec.kind == "heatmap" and (height % spec.stride or width % spec.stride):
+        at = spec.at("stride")
+        raise InputError(
+            f"the frames are {width}x{height} (width x height); stride {spec.stride} "
+            f"({at.path}:{at.line}) does not divide them: the heatmap's cells would not cover "
+            "the frame",
+            where,
+        )
+    net = replace(det.net, in_shape=(det.net.in_shape[0], height, width))
+    out = LoadedDetector(spec, net, any_size=True)
+    _probe(out)
+    return out
 
 
 def _probe(det: LoadedDetector) -> None:

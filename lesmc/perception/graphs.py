@@ -63,13 +63,18 @@ class Unsupported(Exception):
         self.node, self.op = node, op
 
 
+#: ``UserNet.in_shape``'s height and width for an ONNX network exported with dynamic H and W
+#: (a fully convolutional detector reads frames of any size; docs/detectors.md).
+ANY_SIZE = 0
+
+
 @dataclass
 class UserNet:
     """A network loaded from a file: its module, input shape, and its certification view."""
 
     path: str
     module: nn.Module
-    in_shape: tuple[int, int, int]
+    in_shape: tuple[int, int, int]  #: (C, H, W); H = W = ANY_SIZE: dynamic in the file
     ops: list[Op] | Unsupported
     #: the name of its output in the file (ONNX: the graph's; .pt2: the exported program's)
     output: str = ""
@@ -132,8 +137,9 @@ def check_network(net: UserNet, role: str, channels: int, size: int, out: tuple[
     want = (channels, size, size)
     if net.in_shape != want:
         c, h, w = net.in_shape
+        size_text = "any height and width" if h == ANY_SIZE else f"{h}x{w}"
         raise InputError(
-            f"the {role} takes inputs of {c} channels of {h}x{w}; lesmc's {role} windows "
+            f"the {role} takes inputs of {c} channels of {size_text}; lesmc's {role} windows "
             f"are {channels} channels (the m = {channels - 1} previous frames and the current "
             f"one) of {size}x{size} (docs/own-system.md)",
             Location(net.path),
@@ -668,8 +674,12 @@ def _from_onnx(path: str) -> UserNet:
         raise InputError(f"cannot read the ONNX graph ({exc})", Location(path)) from None
     dims = next(i for i in model.graph.input if i.name == net.input).type.tensor_type.shape.dim
     shape = [d.dim_value if d.HasField("dim_value") else None for d in dims]
-    if len(shape) != 4 or any(d is None for d in shape[1:]):
-        raise InputError(f"the input must be (batch, C, H, W), got {shape}", Location(path))
+    if len(shape) != 4 or shape[1] is None or (shape[2] is None) != (shape[3] is None):
+        raise InputError(
+            f"the input must be (batch, C, H, W), C fixed, H and W both fixed or both dynamic; "
+            f"got {shape}",
+            Location(path),
+        )
     if shape[0] is not None:
         raise InputError(
             f"the batch dimension is fixed at {shape[0]}: {DYNAMIC_BATCH}", Location(path)
@@ -679,7 +689,8 @@ def _from_onnx(path: str) -> UserNet:
         ops: list[Op] | Unsupported = _onnx_ops(net)
     except Unsupported as exc:
         ops = exc
-    c, h, w = (int(d) for d in shape[1:])  # type: ignore[arg-type]  # None refused above
+    c = int(shape[1])
+    h, w = (ANY_SIZE, ANY_SIZE) if shape[2] is None else (int(shape[2]), int(shape[3] or 0))
     return UserNet(path, net, (c, h, w), ops, net.output)
 
 

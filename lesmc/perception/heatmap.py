@@ -108,15 +108,21 @@ def _rgb8(path: Path, scale: float) -> np.ndarray:
     return np.asarray(cv2.convertScaleAbs(img, alpha=scale))
 
 
-def check_frames(frames: FrameSet, det: LoadedDetector, frames_dir: str) -> None:
-    """The frames must be the network's input size (a fully convolutional network read
-    from a file has one fixed H x W)."""
+def check_frames(frames: FrameSet, det: LoadedDetector, frames_dir: str) -> LoadedDetector:
+    """The detector reading the frames: a network that reads any size (ONNX exported with
+    dynamic H, W) is given theirs; a network of one fixed H x W must have the frames' size."""
+    from lesmc.perception.detector_file import sized
+
+    det = sized(det, frames.width, frames.height, Location(frames_dir))
     if (frames.width, frames.height) != (det.width, det.height):
         raise InputError(
             f"the frames are {frames.width}x{frames.height}; the detector's network "
-            f"{det.spec.network} takes {det.width}x{det.height} inputs (width x height)",
+            f"{det.spec.network} takes {det.width}x{det.height} inputs (width x height); "
+            "export it with dynamic height and width to read frames of any size "
+            "(docs/detectors.md)",
             Location(frames_dir),
         )
+    return det
 
 
 #: ``price(frame input, detections)``: the detections with their payoffs (and certified

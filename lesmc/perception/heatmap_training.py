@@ -185,7 +185,8 @@ def validate(net: nn.Module, cfg: HeatmapTrainConfig) -> HeatmapValidation:
 
 
 def export(net: nn.Module, cfg: HeatmapTrainConfig, out_dir: Path, history: str) -> list[Path]:
-    """Write ``heatmap.onnx`` (dynamic batch, weights inside) and ``heatmap.toml``."""
+    """Write ``heatmap.onnx`` (dynamic batch, height and width; weights inside) and
+    ``heatmap.toml``."""
     import json
     import warnings
 
@@ -200,7 +201,15 @@ def export(net: nn.Module, cfg: HeatmapTrainConfig, out_dir: Path, history: str)
             input_names=["frame"],
             output_names=["heatmap"],
             dynamo=True,
-            dynamic_shapes=({0: torch.export.Dim("batch")},),
+            # any batch, and any height and width (multiples of the stride): a fully
+            # convolutional network reads frames of every size (docs/detectors.md)
+            dynamic_shapes=(
+                {
+                    0: torch.export.Dim("batch"),
+                    2: torch.export.Dim("height", min=STRIDE),
+                    3: torch.export.Dim("width", min=STRIDE),
+                },
+            ),
             external_data=False,
         )
     toml_path.write_text(

@@ -72,7 +72,7 @@ def replay_with_file(
     todo = cases(doc, prop)
     det = load_detector(path)
     frames = open_frames(frames_dir, 1)
-    check_frames(frames, det, frames_dir)
+    det = check_frames(frames, det, frames_dir)
     if not todo:
         return Outcome({}, 0.0)
     cfg = _attack_settings(doc)

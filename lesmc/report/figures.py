@@ -401,17 +401,25 @@ def _draw_track(
         )
 
 
-def patch(image: np.ndarray, centre: tuple[float, float], half: int = 10) -> np.ndarray:
+#: The side of the N_dr window a hidden detection's patch shows (docs/cnn.md).
+WINDOW = 21
+
+
+def patch(image: np.ndarray, centre: tuple[float, float], half: int = WINDOW // 2) -> np.ndarray:
     """The (2·half+1)² patch of a frame around a detection, zero-padded at the border."""
+    side = 2 * half + 1
+    return crop(image, round(centre[0]) - half, round(centre[1]) - half, side, side)
+
+
+def crop(image: np.ndarray, left: int, top: int, width: int, height: int) -> np.ndarray:
+    """The ``width`` x ``height`` crop of a frame at (``left``, ``top``), zero-padded where it
+    leaves the frame."""
     h, w = image.shape[:2]
-    cx, cy = round(centre[0]), round(centre[1])
-    out = np.zeros((2 * half + 1, 2 * half + 1), dtype=float)
-    y0, y1 = max(cy - half, 0), min(cy + half + 1, h)
-    x0, x1 = max(cx - half, 0), min(cx + half + 1, w)
+    out = np.zeros((height, width), dtype=float)
+    y0, y1 = max(top, 0), min(top + height, h)
+    x0, x1 = max(left, 0), min(left + width, w)
     if y1 > y0 and x1 > x0:
-        out[y0 - (cy - half) : y1 - (cy - half), x0 - (cx - half) : x1 - (cx - half)] = image[
-            y0:y1, x0:x1
-        ]
+        out[y0 - top : y1 - top, x0 - left : x1 - left] = image[y0:y1, x0:x1]
     return out
 
 

@@ -849,6 +849,7 @@ def _patch_figures(
 ) -> list[Figure]:
     """The hidden detections' patches: with the replayed perturbation where there is one."""
     triples, singles = [], []
+    crops = False
     for prop, items in hidden.items():
         perts = {p.obs: p for p in replays.get(prop, ())}
         for e in items:
@@ -857,13 +858,16 @@ def _patch_figures(
             if img is None:
                 continue
             pert = perts.get(h.obs)
-            if pert is None:
+            if pert is None or not pert.delta:  # not replayed, or no perturbation found
                 singles.append((f"{prop} step {h.step}\n{h.obs}", figures.patch(img, (h.x, h.y))))
                 continue
             x0, y0 = pert.window_origin
-            orig = figures.patch(img, (x0 + 10, y0 + 10))
-            delta = np.asarray(pert.delta, float)[-1]  # the current frame's channel
+            delta = np.asarray(pert.delta, float)[-1]  # the current frame's (the last) channel
+            orig = figures.crop(img, x0, y0, delta.shape[1], delta.shape[0])
             triples.append((f"{prop}, step {h.step}, {h.obs}", orig, delta))
+            crops |= delta.shape != (figures.WINDOW, figures.WINDOW)  # a detector file's crop
+    if triples and crops:
+        return _crop_figures(run, triples, figs)
     if triples:
         name = f"{run.tag}-perturbations.png"
         figs.draw(name, figures.perturbations, triples[:8])
@@ -894,6 +898,24 @@ def _patch_figures(
             )
         ]
     return []
+
+
+def _crop_figures(
+    run: _Run, triples: list[tuple[str, np.ndarray, np.ndarray]], figs: FigureSet
+) -> list[Figure]:
+    """The hidden detections' crops of a detector file's replay (docs/detectors.md)."""
+    name = f"{run.tag}-perturbations.png"
+    figs.draw(name, figures.perturbations, triples[:8])
+    return [
+        Figure(
+            name,
+            "For each detection a counterexample hides: the frame's crop that the detector "
+            "file's attack perturbs, the perturbation (its last input channel, in the "
+            "network's input units times 255; red brighter, blue darker) and the attacked "
+            'crop (docs/detectors.md, "Replay").'
+            + (f" The first 8 of {len(triples)} are drawn." if len(triples) > 8 else ""),
+        )
+    ]
 
 
 def _replay_lines(run: _Run) -> list[Text]:
