@@ -10,8 +10,9 @@ from __future__ import annotations
 import time
 from typing import Any
 
-from lesmc.cli.documents import emit, file_facts, file_sha256, given, run_provenance, say
+from lesmc.cli.documents import emit, file_facts, given, run_provenance, say
 from lesmc.common.errors import Location, UsageError, escape_control, source_line
+from lesmc.common.files import file_sha256
 from lesmc.engines.multi import BuildKey
 from lesmc.language.actions import DEFAULT as DEFAULT_ACTIONS
 from lesmc.model.lts_binary import is_binary
