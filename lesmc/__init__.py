@@ -27,7 +27,6 @@ _API = (
     "check_job",
     "expand_designs",
     "export",
-    "export_model",
     "load_model",
     "load_model_or_scene",
     "load_scene",

@@ -70,7 +70,6 @@ __all__ = [
     "check_job",
     "expand_designs",
     "export",
-    "export_model",
     "load_model",
     "load_model_or_scene",
     "load_scene",
@@ -468,14 +467,15 @@ def export_model(
     max_nodes: int | None = None,
 ) -> dict[str, object]:
     """:func:`export` with positional arguments (``fmt`` is ``format``, ``prop``
-    ``property``)."""
+    ``property``): what ``lesmc export`` calls. Not in ``__all__``: the API's one way to
+    export is :func:`export`, whose keyword names its messages use."""
     from lesmc.exporters import formats
     from lesmc.exporters.request import Request
 
     model, path, spec, roles = _export_arguments(model, path, spec, prop, strict, roles, max_nodes)
     ok = isinstance(model, ArrayModel | MultiModel)
     _need(ok, "model must be a model (lesmc.load_model, lesmc.build)", model)
-    _need(fmt in formats.names(), f"fmt: {formats.spelled()}", fmt)
+    _need(fmt in formats.names(), f"format: {formats.spelled()}", fmt)
     if isinstance(model, MultiModel):
         formats.refuse_multi(formats.get(fmt))
     _format_takes(formats.get(fmt), spec, prop, strict, roles, max_nodes)

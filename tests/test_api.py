@@ -157,5 +157,5 @@ def test_perceive_refuses_settings_the_command_line_would(tmp_path: Path) -> Non
 
 def test_export_json_writes_json_whatever_the_name(tmp_path: Path) -> None:
     model = lesmc.load_model(ROOT / "tests" / "golden" / "tiny" / "model.lts")
-    lesmc.export_model(model, tmp_path / "m.npz", "json")
+    lesmc.export(model, tmp_path / "m.npz", format="json")
     assert json.loads((tmp_path / "m.npz").read_text())["format"] == "lesmc-lts"

@@ -75,19 +75,19 @@ CASES: list[tuple[str, str, type[Exception], Call]] = [
         "export_model-path-None",
         "path",
         lesmc.UsageError,
-        lambda m, s, sc, out: lesmc.export_model(m, None, "json"),
+        lambda m, s, sc, out: lesmc.api.export_model(m, None, "json"),
     ),
     (
         "export_model-path-int",
         "path",
         lesmc.UsageError,
-        lambda m, s, sc, out: lesmc.export_model(m, 5, "json"),
+        lambda m, s, sc, out: lesmc.api.export_model(m, 5, "json"),
     ),
     (
         "export_model-max_nodes-str",
         "max_nodes",
         lesmc.UsageError,
-        lambda m, s, sc, out: lesmc.export_model(m, out, "dot", max_nodes="5"),
+        lambda m, s, sc, out: lesmc.api.export_model(m, out, "dot", max_nodes="5"),
     ),
     (
         "save_scene-None",
@@ -136,19 +136,19 @@ CASES: list[tuple[str, str, type[Exception], Call]] = [
         "export_model-roles-unknown",
         "roles",
         lesmc.UsageError,
-        lambda m, s, sc, out: lesmc.export_model(m, out, "dot", roles={"zz": [1]}),
+        lambda m, s, sc, out: lesmc.api.export_model(m, out, "dot", roles={"zz": [1]}),
     ),
     (
         "export_model-strict-yes",
         "strict",
         lesmc.UsageError,
-        lambda m, s, sc, out: lesmc.export_model(m, out, "drn", s, "robustness", strict="yes"),
+        lambda m, s, sc, out: lesmc.api.export_model(m, out, "drn", s, "robustness", strict="yes"),
     ),
     (
         "export_model-max_nodes-negative",
         "max_nodes",
         lesmc.UsageError,
-        lambda m, s, sc, out: lesmc.export_model(m, out, "dot", max_nodes=-1),
+        lambda m, s, sc, out: lesmc.api.export_model(m, out, "dot", max_nodes=-1),
     ),
     # ours
     (

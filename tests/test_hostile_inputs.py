@@ -428,7 +428,7 @@ API_MISUSE = [
     ("build", lambda a, m, s, sp: a.build(s, (6, 8), end=-1), "end must be None or a step"),
     ("build", lambda a, m, s, sp: a.build(None, (6, 8)), "scene must be a file path"),
     ("export", lambda a, m, s, sp: a.export_model(m, "x.dot", "dot", roles=[1]), "roles must"),
-    ("export", lambda a, m, s, sp: a.export_model(m, "x", "svg"), "fmt: dot, graphml"),
+    ("export", lambda a, m, s, sp: a.export_model(m, "x", "svg"), "format: dot, graphml"),
     ("load", lambda a, m, s, sp: a.load_scene(MERGE, design="bogus"), "design must be"),
 ]
 

@@ -117,7 +117,7 @@ def test_mutated_space_files_are_read_or_refused_at_a_line(
     """The example space file, mutated: read, or an InputError at FILE:LINE:COL; never
     another exception, never a space of more designs than the limit."""
     from lesmc.common.errors import InputError
-    from lesmc.experiment.tune import MAX_DESIGNS, read_space
+    from lesmc.experiment.tune_space import MAX_DESIGNS, read_space
     from lesmc.scene.scene import TrackerConfig
 
     text = (ROOT / "examples" / "tune-space.toml").read_text()

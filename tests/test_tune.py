@@ -178,10 +178,11 @@ def test_sharing_the_model_between_monitors_changes_no_optimum(tmp_path: Path) -
     from lesmc.api import load_scene, load_spec
     from lesmc.experiment import tune
     from lesmc.experiment.alarms import scene_starts
+    from lesmc.experiment.tune_space import read_space
 
     scene = load_scene(_scene(tmp_path / "s.json", 11))
     specs = [load_spec(s) for s in SPECS]
-    space = tune.read_space(str(_space(tmp_path / "space.toml", 11)), scene.tracker)
+    space = read_space(str(_space(tmp_path / "space.toml", 11)), scene.tracker)
     starts, _ = scene_starts(scene)
     truth = tune.scene_truth(scene, starts)
     args = (scene, specs, space, starts, truth, 10, "levels", "attack", None, None, "s")
@@ -307,7 +308,7 @@ def test_bad_space_files_are_located_errors(
 
 
 def test_the_docs_table_is_the_registrys() -> None:
-    from lesmc.experiment.tune import docs_table
+    from lesmc.experiment.tune_space import docs_table
 
     assert docs_table() in (ROOT / "docs" / "cli.md").read_text()
 

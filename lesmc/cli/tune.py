@@ -26,7 +26,8 @@ from lesmc.engines import registry as engines
 
 if TYPE_CHECKING:
     from lesmc.experiment.false_alarms import TruthStart
-    from lesmc.experiment.tune import Group, Outcome, Space, Tuned
+    from lesmc.experiment.tune import Group, Outcome, Tuned
+    from lesmc.experiment.tune_space import Space
     from lesmc.language.properties import SpecFile
     from lesmc.scene import Scene
 
@@ -141,7 +142,7 @@ def tune_cmd(
     property's optimum up, false alarms and tracking error down) and the best design
     whose false-alarm rate is within --budget.
     """
-    from lesmc.experiment import tune
+    from lesmc.experiment import tune, tune_space
 
     _refuse_early(bool(workers and scheduler), [source, *specs], space_file, truth,
                   tracker_file, best_out, plot)  # fmt: skip
@@ -150,7 +151,7 @@ def tune_cmd(
         source, space_file, truth, out_dir, tracker_file, bool(workers or scheduler)
     )
     if budget is None:
-        budget = tune.DEFAULT_BUDGET if space.budget is None else space.budget
+        budget = tune_space.DEFAULT_BUDGET if space.budget is None else space.budget
     all_groups = tune.groups(
         scene, parsed, space, starts, truths, min(last, steps or last), engines.DEFAULT,
         payoff_modes.DEFAULT, max_states, timeout, where,
@@ -210,11 +211,11 @@ def _source(
 ) -> tuple[Scene, list[TruthStart], list[dict[int, tuple[float, float]]], int, Space, str]:
     """SOURCE's scene, starts, their truth, the last step, the space read for its tracker,
     and the name checks give the scene in messages."""
-    from lesmc.experiment import tune
+    from lesmc.experiment.tune_space import read_space
 
     if Path(source).is_file():
         scene, starts, truths, last = _scene_source(source, truth, tracker_file)
-        space = tune.read_space(space_file, scene.tracker)
+        space = read_space(space_file, scene.tracker)
         where = source
     else:
         if on_dask:
@@ -226,9 +227,9 @@ def _source(
         from lesmc.scene.scene import TrackerConfig
 
         base = load_tracker(tracker_file) if tracker_file else TrackerConfig()
-        tune.read_space(space_file, base)  # its mistakes before the video's perception
+        read_space(space_file, base)  # its mistakes before the video's perception
         scene, starts, truths, last = _video_source(source, truth, out_dir, tracker_file)
-        space = tune.read_space(space_file, scene.tracker)
+        space = read_space(space_file, scene.tracker)
         where = str(Path(out_dir) / "scene.json")
     return scene, starts, truths, last, space, where
 

@@ -206,7 +206,7 @@ def _inject(within: float | None, cap: int, scene_path: str | None) -> tuple[flo
 def _space(space_file: str | None, tracker_file: str | None) -> str | None:
     """``--space``: read now, so that its mistakes stop verify before any work (exit 2)."""
     if space_file is not None:
-        from lesmc.experiment.tune import read_space
+        from lesmc.experiment.tune_space import read_space
         from lesmc.scene.io import load_tracker
         from lesmc.scene.scene import TrackerConfig
 

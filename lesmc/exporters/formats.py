@@ -8,7 +8,7 @@ property of ``--spec`` (``--property``, ``--strict``), paths marked from
 
 Everything that names export formats reads this module: the command line's
 ``--format`` choices, option checks and ``--help`` texts (lesmc/cli/export.py),
-:func:`lesmc.api.export_model`, the JSON schema's enum (lesmc/schemas) and the
+:func:`lesmc.api.export`, the JSON schema's enum (lesmc/schemas) and the
 table of docs/export.md (:func:`docs_table`; tests/test_export_round18.py checks
 that the page's table is this one). Adding a format is one module with its
 writer and one :func:`register` line here (docs/architecture.md says how).

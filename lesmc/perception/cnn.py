@@ -175,7 +175,8 @@ def load_nets(
     nets = _load_pair(directory)
     if detector is None and locator is None:
         return nets
-    from lesmc.perception.graphs import check_network, load_network
+    from lesmc.perception.graphs import check_network
+    from lesmc.perception.network_file import load_network
 
     channels = nets.settings.m + 1
     if detector is not None:

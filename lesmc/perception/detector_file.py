@@ -340,7 +340,8 @@ def load_detector(path: str | Path) -> LoadedDetector:
     the channels, the stride dividing the input, the output's name and shape (a batch of
     :data:`~lesmc.perception.graphs.PROBE_BATCH` random inputs must give one finite
     heatmap each)."""
-    from lesmc.perception.graphs import ANY_SIZE, load_network
+    from lesmc.perception.graphs import ANY_SIZE
+    from lesmc.perception.network_file import load_network
 
     spec = read_detector_file(path)
     net = load_network(spec.network)
