@@ -212,11 +212,14 @@ def footage_of(
     source: str,
     attack: dict[str, Any] | None = None,
     certify: dict[str, Any] | None = None,
+    candidates: dict[str, Any] | None = None,
 ) -> Footage:
     """A scene without a target: step k holds frame k's detections ``k:K``, their payoffs
     (``"unpriced"`` where not priced), no homographies (a still camera); ``meta`` records
     the detector file and its network, ``attack``, the settings of the payoffs, and
-    ``certify``, those of the certified lower bounds (``payoff_lower``) if computed."""
+    ``certify``, those of the certified lower bounds (``payoff_lower``) if computed, and
+    ``candidates``, where the injection candidates came from (scene format 3: the priced
+    ones, :func:`with_candidates`, ids ``FRAME:cK``) if asked for."""
     from lesmc.scene import Detection, Footage, Frame, TrackerConfig
 
     frames = tuple(
@@ -247,6 +250,8 @@ def footage_of(
         meta["attack"] = attack
     if certify is not None:
         meta["certify"] = certify
+    if candidates is not None:
+        meta["candidates"] = candidates
     return Footage(dt, frames, TrackerConfig(), meta)
 
 
