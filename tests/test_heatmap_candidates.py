@@ -61,8 +61,9 @@ def made(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Any]:
                   "--save-attacks", str(saved))  # fmt: skip
         assert r.returncode == 0, r.stderr
         assert "Traceback" not in r.stderr
+        scene = json.loads(out.read_text())
         runs[name] = {"path": path, "keys": keys, "xs": xs, "scores": scores, "thr": thr,
-                      "toml": toml, "scene": json.loads(out.read_text()), "saved": saved}  # fmt: skip
+                      "toml": toml, "scene": scene, "saved": saved}  # fmt: skip
     return {"dir": d, "frames": frames, "runs": runs}
 
 
