@@ -5,7 +5,8 @@
   from onnxruntime's outputs;
 * each saved perturbation ``FRAME_cK.npy``, added to the frame, makes onnxruntime's
   decode hold a detection at the candidate's cell, and its norm is the payoff;
-* the CLI writes them (scene format 3, ``meta.candidates``); bad combinations exit 2.
+* the CLI writes them (scene format 3, ``meta.candidates``); bad combinations exit 2,
+  and lesmc verify refuses --inject-within with a detector file (not yet wired there).
 """
 
 from __future__ import annotations
@@ -201,4 +202,16 @@ def test_bad_combinations_exit_2(made: dict[str, Any]) -> None:
     assert r.returncode == 2, r.stderr
     assert "Traceback" not in r.stderr
     assert f"{btoml}:" in r.stderr and "inject" in r.stderr
+    assert not out.exists()
+
+
+def test_verify_refuses_inject_within_with_a_detector_file(made: dict[str, Any]) -> None:
+    """lesmc verify does not perceive candidates through a detector file: --inject-within
+    is an error (exit 2), not silently dropped."""
+    out = made["dir"] / "vout"
+    r = lesmc("verify", str(made["frames"]), "--detector", str(made["runs"]["a"]["toml"]),
+              "--inject-within", "5", "--out", str(out))  # fmt: skip
+    assert r.returncode == 2, r.stderr
+    assert "Traceback" not in r.stderr
+    assert "--inject-within" in r.stderr and "detector file" in r.stderr
     assert not out.exists()
