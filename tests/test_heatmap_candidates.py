@@ -215,3 +215,28 @@ def test_verify_refuses_inject_within_with_a_detector_file(made: dict[str, Any])
     assert "Traceback" not in r.stderr
     assert "--inject-within" in r.stderr and "detector file" in r.stderr
     assert not out.exists()
+
+
+def test_replay_through_the_file_refuses_an_inject_property(
+    made: dict[str, Any], tmp_path: Path
+) -> None:
+    """A violated ``allow hide, inject`` property checked on the candidates' scene: lesmc
+    replay through the detector file is exit 2 naming it (not built yet), not a claim that
+    the frames differ."""
+    run = made["runs"]["a"]
+    fr = run["scene"]["frames"][0]
+    d0 = fr["detections"][0]
+    spec = tmp_path / "inj.spec"
+    spec.write_text(
+        "property grab {\n    attack window 1..2 allow hide, inject\n    minimize payoff\n"
+        "    subject to dist.sum(0..end) > 1\n    holds if optimum > 1e9\n    on x, y\n}\n"
+    )
+    scene = made["dir"] / "a.json"
+    r = lesmc("check", str(scene), str(spec), "--design", "single", "--report",
+              str(tmp_path / "rep"), "--target", f"{d0['x']:g},{d0['y']:g}@0")  # fmt: skip
+    assert r.returncode == 1, r.stderr
+    r = lesmc("replay", str(tmp_path / "rep" / "results.json"), "--frames",
+              str(made["frames"]), "--detector", str(run["toml"]))  # fmt: skip
+    assert r.returncode == 2, r.stderr
+    assert "Traceback" not in r.stderr
+    assert "property grab" in r.stderr and "inject" in r.stderr
