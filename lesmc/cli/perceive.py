@@ -91,7 +91,10 @@ if TYPE_CHECKING:
     help="With -o: injection candidates (scene format 3; issue 61): the candidates N_dr "
     "rejects within PX of one of the frame's detections (at most --inject-cap a frame, "
     "nearest first), each priced by the attack towards 'vehicle' (what `allow hide, inject` in a "
-    'spec lets the attacker add; docs/cnn.md, "Injection candidates").',
+    'spec lets the attacker add; docs/cnn.md, "Injection candidates"). With a heatmap '
+    "detector file: its local maxima below the threshold within PX of a detection, ids "
+    "FRAME:cK, each priced by the smallest crop perturbation found that makes it a "
+    'detection (docs/detectors.md, "Injection candidates").',
 )
 @click.option(
     "--inject-cap",
@@ -108,7 +111,7 @@ if TYPE_CHECKING:
     default=None,
     metavar="DIR",
     help="With a detector file and -o: write each hiding perturbation to DIR/FRAME_K.npy "
-    "(docs/detectors.md).",
+    "(with --inject-within, each injecting one to DIR/FRAME_cK.npy; docs/detectors.md).",
 )
 @click.option(
     "--history",
@@ -240,7 +243,7 @@ def _with_windows(req: PerceiveRequest, output: str | None, as_json: bool, start
 #: Options of the window pipeline (front end, N_dr and N_lp) that a detector file replaces.
 _WINDOW_ONLY = (
     "nets_dir", "locator_file", "no_cnn", "history", "delta_bc", "truth",
-    "payoff_norm", "as_json", "inject_within", "inject_cap",
+    "payoff_norm", "as_json",
 )  # fmt: skip
 
 

@@ -44,8 +44,9 @@ def detector_file_of(nets: NetFiles) -> str | None:
     return path if path is not None and is_detector_file(path) else None
 
 
-def refuse_window_options(nets: NetFiles, neuron_faults: bool) -> None:
-    """Options of the window pipeline that a detector file replaces are errors naming them."""
+def refuse_window_options(nets: NetFiles, neuron_faults: bool, inject: bool = False) -> None:
+    """Options of the window pipeline that a detector file replaces are errors naming them;
+    so is ``inject`` (--inject-within), which verify does not yet perceive through a file."""
     if nets[0] is not None or nets[2] is not None:
         given = "--nets" if nets[0] is not None else "--locator"
         raise UsageError(
@@ -56,6 +57,12 @@ def refuse_window_options(nets: NetFiles, neuron_faults: bool) -> None:
         raise UsageError(
             "neuron faults stick a unit of the window pipeline's networks; a detector file's "
             "network has no such faults yet (drop the neuron faults, or --detector FILE.toml)"
+        )
+    if inject:
+        raise UsageError(
+            f"--inject-within: lesmc verify does not perceive injection candidates through "
+            f"a detector file yet (--detector {nets[1]}); lesmc perceive --detector "
+            f"{nets[1]} -o SCENE --inject-within PX writes them (docs/detectors.md)"
         )
 
 

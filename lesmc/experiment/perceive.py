@@ -210,7 +210,8 @@ def perceive_with_file(
     det = check_frames(inputs.frames, det, req.frames_dir)
     price = _pricer(req, det, save_attacks) if req.scene else None
     on_frame = on_start(len(inputs.frames)) if on_start else None
-    dets = run_detector(inputs.frames, det, on_frame, price)
+    inject = None if req.inject_within is None else (req.inject_within, req.inject_cap)
+    dets = run_detector(inputs.frames, det, on_frame, price, inject)
     if not req.scene:
         return PerceivedWithFile(det, dets, None, "")
     dt = req.dt or (inputs.truth.dt if inputs.truth else None) or 1 / FPS
@@ -219,7 +220,10 @@ def perceive_with_file(
     from lesmc.perception.certify import CertifyConfig
 
     cert = certify_meta(CertifyConfig()) if req.certify else None
-    footage = footage_of(dets, det, dt, str(Path(req.frames_dir)), recorded, cert)
+    cands = None
+    if req.inject_within is not None:
+        cands = candidates_meta(req.inject_within, req.inject_cap, HEATMAP_CANDIDATES)
+    footage = footage_of(dets, det, dt, str(Path(req.frames_dir)), recorded, cert, cands)
     scene, note = _placed(footage, inputs)
     return PerceivedWithFile(det, dets, scene, note)
 
@@ -254,6 +258,12 @@ def _with_boxes(
             "box-list detectors are attack-only: certified bounds are built for fully "
             "convolutional heatmap detectors (drop --certify)",
         )  # fmt: skip
+    if req.inject_within is not None:
+        raise located(
+            det.spec, "kind",
+            "box-list detectors offer no injection candidates: --inject-within reads a "
+            "heatmap detector's local maxima below its threshold (docs/detectors.md)",
+        )  # fmt: skip
     inputs = open_inputs(req, minimum=1)
     det = check_frames(inputs.frames, det, req.frames_dir)
     att = attack_config(req)
@@ -275,7 +285,13 @@ def _with_boxes(
 
 def _pricer(req: PerceiveRequest, det: LoadedDetector, save_attacks: str | None) -> Any:
     """``price(frame input, detections)`` with the request's attack settings."""
-    from lesmc.perception.heatmap_attack import price_frame, pricing, raw_threshold, saver
+    from lesmc.perception.heatmap_attack import (
+        price_candidates,
+        price_frame,
+        pricing,
+        raw_threshold,
+        saver,
+    )
 
     how = pricing(det, attack_config(req))
     conv = None
@@ -287,6 +303,10 @@ def _pricer(req: PerceiveRequest, det: LoadedDetector, save_attacks: str | None)
     def price(frame: Any, fd: HeatmapDetections) -> HeatmapDetections:
         save = None if save_attacks is None else saver(save_attacks, fd.index)
         pays = price_frame(how, frame, fd, save)
+        if req.inject_within is not None:
+            keys = fd.cand_keys
+            save_c = None if save_attacks is None else saver(save_attacks, fd.index, keys)
+            fd = replace(fd, cand_payoffs=price_candidates(how, frame, fd, save_c))
         if conv is None:
             return replace(fd, payoffs=pays)
         from lesmc.perception.heatmap_certify import certify_frame
@@ -324,13 +344,31 @@ def scene_meta(
     return meta
 
 
-def candidates_meta(within: float, cap: int) -> dict[str, Any]:
-    """Where a perceived scene's injection candidates came from, for its ``meta.candidates``."""
+#: ``meta.candidates`` source and payoff of the window pipeline's injection candidates.
+WINDOW_CANDIDATES = (
+    "candidates of Q_bc that N_dr rejects",
+    "the attack towards 'vehicle' on the candidate's N_dr window",
+)
+#: ... and of a heatmap detector file's (docs/detectors.md, "Injection candidates").
+HEATMAP_CANDIDATES = (
+    "local maxima of the heatmap below the threshold, ids FRAME:cK (K: the place among "
+    "the frame's sub-threshold maxima, row-major)",
+    "the L2 norm of the smallest perturbation found of the crop covered by the receptive "
+    "fields of the candidate's nms square after which the decoded frame has a detection "
+    "at the candidate's cell",
+)
+
+
+def candidates_meta(
+    within: float, cap: int, how: tuple[str, str] = WINDOW_CANDIDATES
+) -> dict[str, Any]:
+    """Where a perceived scene's injection candidates came from, for its ``meta.candidates``
+    (``how``: their source and payoff)."""
     return {
-        "source": "candidates of Q_bc that N_dr rejects",
+        "source": how[0],
         "within_px": within,
         "cap_per_frame": cap,
-        "payoff": "the attack towards 'vehicle' on the candidate's N_dr window",
+        "payoff": how[1],
     }
 
 

@@ -12,7 +12,7 @@ step k, and detection K of it is ``k:K``.
 from __future__ import annotations
 
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -22,7 +22,7 @@ from lesmc.common.errors import InputError, Location
 
 if TYPE_CHECKING:
     from lesmc.perception.detector_file import LoadedDetector
-    from lesmc.scene import Footage
+    from lesmc.scene import Detection, Footage
     from lesmc.video.reader import FrameSet
 
 
@@ -37,21 +37,42 @@ class HeatmapDetections:
     cells: np.ndarray
     payoffs: np.ndarray | None = None  #: (n,) inf: unattackable; None: unpriced
     lower: np.ndarray | None = None  #: (n,) certified lower bounds; None: not certified
+    #: injection candidates (:func:`with_candidates`): (c, 2) cells (row, col), row-major
+    cand_cells: np.ndarray = field(default_factory=lambda: np.zeros((0, 2), np.int64))
+    #: (c,) each candidate's K: its place, row-major, among all of the frame's local maxima
+    #: below the threshold (its id is ``FRAME:cK``, to_scene.candidate_id)
+    cand_keys: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int64))
+    #: (c,) the prices of injecting them (inf: the attack found none); None: unpriced
+    cand_payoffs: np.ndarray | None = None
 
 
 def peaks(scores: np.ndarray, threshold: float, radius: int) -> np.ndarray:
     """(n, 2) the (row, col) of the detections of the (rows, cols) ``scores``, row-major.
 
-    A cell is kept when its score is ``>= threshold``, ``>=`` every cell within
-    ``radius`` (Chebyshev distance) and ``>`` every such cell that comes before it in
-    row-major order (of equal cells, the first wins).
+    A cell is kept when its score is ``>= threshold`` and it is a local maximum
+    (:func:`maxima`).
     """
+    s = np.asarray(scores, dtype=np.float64)
+    return np.argwhere(maxima(s, radius) & (s >= threshold))
+
+
+def sub_peaks(scores: np.ndarray, threshold: float, radius: int) -> np.ndarray:
+    """(n, 2) the (row, col) of the local maxima (:func:`maxima`) of ``scores`` that score
+    below ``threshold``, row-major: where a heatmap detector's injection candidates sit."""
+    s = np.asarray(scores, dtype=np.float64)
+    return np.argwhere(maxima(s, radius) & (s < threshold))
+
+
+def maxima(scores: np.ndarray, radius: int) -> np.ndarray:
+    """(rows, cols) bool: the cells ``>=`` every cell within ``radius`` (Chebyshev
+    distance; the square is cut at the map's edges) and ``>`` every such cell that comes
+    before them in row-major order (of equal cells, the first wins)."""
     s = np.asarray(scores, dtype=np.float64)
     rows, cols = s.shape
     r = int(radius)
     padded = np.full((rows + 2 * r, cols + 2 * r), -np.inf)
     padded[r : r + rows, r : r + cols] = s
-    keep = s >= threshold
+    keep = np.ones(s.shape, bool)
     for dy in range(-r, r + 1):
         for dx in range(-r, r + 1):
             if dy == 0 and dx == 0:
@@ -59,7 +80,7 @@ def peaks(scores: np.ndarray, threshold: float, radius: int) -> np.ndarray:
             other = padded[r + dy : r + dy + rows, r + dx : r + dx + cols]
             earlier = dy < 0 or (dy == 0 and dx < 0)
             keep &= (s > other) if earlier else (s >= other)
-    return np.argwhere(keep)
+    return keep
 
 
 def decode(raw: np.ndarray, det: LoadedDetector, index: int) -> HeatmapDetections:
@@ -69,8 +90,36 @@ def decode(raw: np.ndarray, det: LoadedDetector, index: int) -> HeatmapDetection
     spec = det.spec
     sc = score_of(raw, spec.score)
     cells = peaks(sc, spec.threshold, spec.nms_radius)
-    pos = (cells[:, ::-1].astype(np.float64) + 0.5) * spec.stride
-    return HeatmapDetections(index, pos.reshape(-1, 2), sc[cells[:, 0], cells[:, 1]], cells)
+    pos = cell_positions(cells, spec.stride)
+    return HeatmapDetections(index, pos, sc[cells[:, 0], cells[:, 1]], cells)
+
+
+def with_candidates(
+    raw: np.ndarray, det: LoadedDetector, fd: HeatmapDetections, within: float, cap: int
+) -> HeatmapDetections:
+    """``fd`` with its injection candidates (docs/detectors.md, "Injection candidates"):
+    the local maxima of the score map ``raw`` decodes to that score below the threshold
+    (:func:`sub_peaks`), whose cell centre lies within ``within`` px of one of ``fd``'s
+    detections; nearest a detection first (ties: the lower K), at most ``cap``; kept in
+    row-major order."""
+    from scipy.spatial import cKDTree
+
+    from lesmc.perception.detector_file import score_of
+
+    spec = det.spec
+    subs = sub_peaks(score_of(raw, spec.score), spec.threshold, spec.nms_radius)
+    if not len(subs) or not len(fd.positions):
+        return fd
+    pos = cell_positions(subs, spec.stride)
+    d, _ = cKDTree(fd.positions).query(pos)
+    near = np.flatnonzero(d <= within)
+    keys = np.sort(near[np.lexsort((near, d[near]))][:cap]).astype(np.int64)
+    return replace(fd, cand_cells=subs[keys].astype(np.int64), cand_keys=keys)
+
+
+def cell_positions(cells: np.ndarray, stride: int) -> np.ndarray:
+    """(n, 2) the input-pixel centres (x, y) of (n, 2) cells (row, col)."""
+    return ((np.asarray(cells)[:, ::-1].astype(np.float64) + 0.5) * stride).reshape(-1, 2)
 
 
 def frame_input(frames: FrameSet, i: int, det: LoadedDetector) -> np.ndarray:
@@ -135,8 +184,10 @@ def run_detector(
     det: LoadedDetector,
     on_frame: Callable[[], None] | None = None,
     price: Pricer | None = None,
+    inject: tuple[float, int] | None = None,
 ) -> list[HeatmapDetections]:
-    """The detector on every frame, one frame a batch; with ``price``, the payoffs."""
+    """The detector on every frame, one frame a batch; with ``inject`` (within px, cap),
+    the injection candidates (:func:`with_candidates`); with ``price``, the payoffs."""
     import torch
 
     out = []
@@ -144,7 +195,10 @@ def run_detector(
         arr = frame_input(frames, i, det)
         with torch.no_grad():
             y = det.net.module(torch.from_numpy(arr))
-        fd = decode(y.reshape(det.cells).double().numpy(), det, i)
+        raw = y.reshape(det.cells).double().numpy()
+        fd = decode(raw, det, i)
+        if inject is not None:
+            fd = with_candidates(raw, det, fd, *inject)
         out.append(fd if price is None else price(arr, fd))
         if on_frame is not None:
             on_frame()
@@ -158,11 +212,14 @@ def footage_of(
     source: str,
     attack: dict[str, Any] | None = None,
     certify: dict[str, Any] | None = None,
+    candidates: dict[str, Any] | None = None,
 ) -> Footage:
     """A scene without a target: step k holds frame k's detections ``k:K``, their payoffs
     (``"unpriced"`` where not priced), no homographies (a still camera); ``meta`` records
     the detector file and its network, ``attack``, the settings of the payoffs, and
-    ``certify``, those of the certified lower bounds (``payoff_lower``) if computed."""
+    ``certify``, those of the certified lower bounds (``payoff_lower``) if computed, and
+    ``candidates``, where the injection candidates came from (scene format 3: the priced
+    ones, :func:`with_candidates`, ids ``FRAME:cK``) if asked for."""
     from lesmc.scene import Detection, Footage, Frame, TrackerConfig
 
     frames = tuple(
@@ -178,6 +235,7 @@ def footage_of(
                 )
                 for k, (x, y) in enumerate(fd.positions)
             ),
+            candidates=_candidates(fd, det.spec.stride),
         )
         for fd in dets
     )
@@ -192,4 +250,22 @@ def footage_of(
         meta["attack"] = attack
     if certify is not None:
         meta["certify"] = certify
+    if candidates is not None:
+        meta["candidates"] = candidates
     return Footage(dt, frames, TrackerConfig(), meta)
+
+
+def _candidates(fd: HeatmapDetections, stride: int) -> tuple[Detection, ...]:
+    """Frame ``fd``'s priced injection candidates (scene format 3), ids ``FRAME:cK``, at
+    their cells' centres; those the attack found no perturbation for are left out."""
+    from lesmc.perception.to_scene import candidate_id
+    from lesmc.scene import Detection
+
+    if fd.cand_payoffs is None:
+        return ()
+    pos = cell_positions(fd.cand_cells, stride)
+    return tuple(
+        Detection(candidate_id(fd.index, int(k)), float(x), float(y), float(p))
+        for k, (x, y), p in zip(fd.cand_keys, pos, fd.cand_payoffs, strict=True)
+        if np.isfinite(p)
+    )

@@ -16,6 +16,13 @@ not a payoff, and the detection is unattackable.
 The payoff is the L2 norm of the perturbation in the network's input units
 (``scale`` of the detector file), computed from the float32 array
 ``--save-attacks`` writes.
+
+Injection (issue 61; docs/detectors.md, "Injection candidates") is the same attack
+the other way (``towards="inject"``) on a local maximum below the threshold at cell
+(i, j): its margin is the cell's raw output − the larger of the threshold's raw
+value and the square's other cells (each a little raised, :data:`SLACK`), > 0 once
+the cell decodes as a detection; same crop, same settings, same validation by
+decoding the perturbed frame, which must then hold a detection at (i, j).
 """
 
 from __future__ import annotations
@@ -30,7 +37,7 @@ import torch
 from torch import nn
 
 from lesmc.perception.attack_settings import AttackConfig
-from lesmc.perception.attacks import payoffs
+from lesmc.perception.attacks import Towards, payoffs
 from lesmc.perception.detector_file import LoadedDetector
 from lesmc.perception.graphs import Unsupported
 from lesmc.perception.heatmap import HeatmapDetections, decode
@@ -78,18 +85,36 @@ def receptive_field(det: LoadedDetector) -> ReceptiveField:
     )
 
 
+def _margin(
+    out: torch.Tensor, t: float, cell: tuple[int, int] | None, slack: float
+) -> torch.Tensor:
+    """(B,) the margin of a square's (B, h, w) raw cells: hiding (``cell`` None), the
+    largest cell − ``t``, > 0 while some cell is a detection's; injecting at ``cell`` (its
+    place in the square), the cell − max(``t``, every other cell + ``slack``), > 0 once it
+    is one."""
+    if cell is None:
+        return out.flatten(1).amax(dim=1) - t
+    ci, cj = cell
+    mask = torch.zeros(out.shape[1:], dtype=torch.bool)
+    mask[ci, cj] = True
+    others = torch.where(mask, torch.full_like(out, -math.inf), out).flatten(1).amax(dim=1)
+    return out[:, ci, cj] - torch.clamp(others + slack, min=t)
+
+
 class _Hide(nn.Module):
-    """The margin of one detection as two "logits" ``[0, m]`` of a crop in [0, 1] units:
-    ``m`` = the largest raw output of the square − the threshold's raw value, > 0 while
-    some cell of the square is a detection's (attacks.margin with t = 0)."""
+    """The margin of one detection (or candidate: ``cell``, :func:`_margin`) as two
+    "logits" ``[0, m]`` of a crop in [0, 1] units: ``m`` = the largest raw output of the
+    square − the threshold's raw value, > 0 while some cell of the square is a
+    detection's (attacks.margin with t = 0)."""
 
     def __init__(
         self, det: LoadedDetector, frame: torch.Tensor, box: tuple[int, int, int, int],
         square: tuple[int, int, int, int], raw_threshold: float,
+        cell: tuple[int, int] | None = None, slack: float = 0.0,
     ) -> None:  # fmt: skip
         super().__init__()
         self.det, self.frame, self.box, self.square = det, frame, box, square
-        self.t = raw_threshold
+        self.t, self.cell, self.slack = raw_threshold, cell, slack
 
     def full(self, crop_u: torch.Tensor) -> torch.Tensor:
         """The whole input with the crop (in [0, 1] units) put in."""
@@ -103,7 +128,7 @@ class _Hide(nn.Module):
         rows, cols = self.det.cells
         out = self.det.net.module(self.full(crop_u)).reshape(len(crop_u), rows, cols)
         i0, i1, j0, j1 = self.square
-        m = out[:, i0:i1, j0:j1].flatten(1).amax(dim=1) - self.t
+        m = _margin(out[:, i0:i1, j0:j1], self.t, self.cell, self.slack)
         return torch.stack([torch.zeros_like(m), m], dim=1)
 
 
@@ -152,20 +177,61 @@ def price_frame(
     """Each detection of ``fd`` (frame input ``frame``, (1, C, H, W)): its payoff, ``inf``
     when the attack finds no perturbation that hides it. ``save(K, delta)`` gets each
     hiding perturbation (float32 (1, C, H, W), input units)."""
+    return _price(p, frame, fd.cells, fd.index, "hide", save)
+
+
+def price_candidates(
+    p: Pricing,
+    frame: np.ndarray,
+    fd: HeatmapDetections,
+    save: Callable[[int, np.ndarray], None] | None = None,
+) -> np.ndarray:
+    """Each injection candidate of ``fd`` (``fd.cand_cells``): the price of injecting it,
+    the norm of the smallest perturbation found after which the decoded frame has a
+    detection at its cell; ``inf`` when none is found. ``save(i, delta)`` gets the
+    perturbation of candidate ``i`` (its place in ``fd.cand_cells``)."""
+    return _price(p, frame, fd.cand_cells, fd.index, "inject", save)
+
+
+def _price(
+    p: Pricing,
+    frame: np.ndarray,
+    cells: np.ndarray,
+    index: int,
+    towards: Towards,
+    save: Callable[[int, np.ndarray], None] | None,
+) -> np.ndarray:
+    """:func:`price_frame` (``towards="hide"``) or :func:`price_candidates` (``"inject"``)
+    of the (n, 2) ``cells`` of frame ``index``."""
     det = p.det
-    out = np.full(len(fd.cells), np.inf)
+    out = np.full(len(cells), np.inf)
     t = raw_threshold(det)
-    if not math.isfinite(t) or not len(fd.cells):  # nothing is ever a detection, or all is
+    if not math.isfinite(t) or not len(cells):  # nothing is ever a detection, or all is
         return out
-    t_hide = t - SLACK * max(1.0, abs(t))
+    slack = SLACK * max(1.0, abs(t))
+    aim = _Aim(t - slack if towards == "hide" else t + slack, towards, slack)
     found: list[Found] = []
-    on_frame = list(range(len(fd.cells)))
+    on_frame = list(range(len(cells)))
     if p.conv is not None:
-        on_frame = _price_crops(p, p.conv, frame, fd, t_hide, found)
+        on_frame = _price_crops(p, p.conv, frame, cells, aim, found)
     for k in on_frame:
-        _price_on_frame(p, frame, fd, k, t_hide, found)
-    _validate(p, frame, fd, found, out, save)
+        _price_on_frame(p, frame, cells, k, aim, found)
+    _validate(p, frame, cells, index, towards, found, out, save)
     return out
+
+
+@dataclass(frozen=True)
+class _Aim:
+    """What an attack aims at: the raw threshold ``t`` it drives the margin past (lowered
+    by the slack to hide, raised to inject), its direction, and the slack."""
+
+    t: float
+    towards: Towards
+    slack: float
+
+    def cell(self, i: int, j: int, square: tuple[int, int, int, int]) -> tuple[int, int] | None:
+        """Cell (i, j)'s place in its ``square`` when injecting (None when hiding)."""
+        return None if self.towards == "hide" else (i - square[0], j - square[2])
 
 
 @dataclass(frozen=True)
@@ -182,8 +248,8 @@ def _price_crops(
     p: Pricing,
     conv: ConvNet,
     frame: np.ndarray,
-    fd: HeatmapDetections,
-    t: float,
+    cells: np.ndarray,
+    aim: _Aim,
     found: list[Found],
 ) -> list[int]:
     """The attack on each detection's crop (module docstring), detections whose crops
@@ -196,14 +262,15 @@ def _price_crops(
     scale = float(full.abs().max())
     s = conv.stride
     groups: dict[tuple[int, ...], list[tuple[int, tuple[int, int, int, int]]]] = {}
-    for k, (i, j) in enumerate(fd.cells):
+    for k, (i, j) in enumerate(cells):
         i0, i1, j0, j1 = _square(det, int(i), int(j))
         y0, y1 = conv.crop(i0, i1 - 1, det.height)
         x0, x1 = conv.crop(j0, j1 - 1, det.width)
-        key = (y1 - y0, x1 - x0, i0 - y0 // s, i1 - y0 // s, j0 - x0 // s, j1 - x0 // s)
+        at = aim.cell(int(i), int(j), (i0, i1, j0, j1)) or ()
+        key = (y1 - y0, x1 - x0, i0 - y0 // s, i1 - y0 // s, j0 - x0 // s, j1 - x0 // s, *at)
         groups.setdefault(key, []).append((k, (y0, y1, x0, x1)))
     rest: list[int] = []
-    for (_h, _w, a0, a1, b0, b1), items in groups.items():
+    for (_h, _w, a0, a1, b0, b1, *rel), items in groups.items():
         crops = np.stack([frame[0, :, y0:y1, x0:x1] for _, (y0, y1, x0, x1) in items])
         with torch.no_grad():
             got = conv(torch.from_numpy(crops))[:, a0:a1, b0:b1]
@@ -215,8 +282,9 @@ def _price_crops(
         if not kept:
             continue
         crop_u = ((crops[exact] - lo) / (hi - lo)).astype(np.float32)
-        hide = _CropHide(conv, (a0, a1, b0, b1), t, (lo, hi))
-        res = payoffs(hide, crop_u, 0.5, replace(p.cfg, norm="l2"))
+        cell = (rel[0], rel[1]) if rel else None
+        hide = _CropHide(conv, (a0, a1, b0, b1), aim.t, (lo, hi), cell, aim.slack)
+        res = payoffs(hide, crop_u, 0.5, replace(p.cfg, norm="l2"), aim.towards)
         for n, (k, (y0, y1, x0, x1)) in enumerate(kept):
             if not bool(res.flipped[n]):
                 continue
@@ -229,21 +297,22 @@ def _price_crops(
 def _price_on_frame(
     p: Pricing,
     frame: np.ndarray,
-    fd: HeatmapDetections,
+    cells: np.ndarray,
     k: int,
-    t: float,
+    aim: _Aim,
     found: list[Found],
 ) -> None:
     """Detection ``k``'s attack with the network run on the whole frame at each step, the
     crop of its measured receptive field perturbed; adds to ``found``."""
     det = p.det
     lo, hi = det.spec.scale
-    i, j = (int(v) for v in fd.cells[k])
+    i, j = (int(v) for v in cells[k])
     square, box = _square_and_box(det, i, j, p.field)
     y0, y1, x0, x1 = box
-    hide = _Hide(det, torch.from_numpy(frame), box, square, t)
+    cell = aim.cell(i, j, square)
+    hide = _Hide(det, torch.from_numpy(frame), box, square, aim.t, cell, aim.slack)
     crop_u = ((frame[:, :, y0:y1, x0:x1] - lo) / (hi - lo)).astype(np.float32)
-    res = payoffs(hide, crop_u, 0.5, replace(p.cfg, norm="l2"))
+    res = payoffs(hide, crop_u, 0.5, replace(p.cfg, norm="l2"), aim.towards)
     if not bool(res.flipped[0]):
         return
     delta = np.zeros_like(frame)
@@ -254,30 +323,38 @@ def _price_on_frame(
 def _validate(
     p: Pricing,
     frame: np.ndarray,
-    fd: HeatmapDetections,
+    cells: np.ndarray,
+    index: int,
+    towards: Towards,
     found: list[Found],
     out: np.ndarray,
     save: Callable[[int, np.ndarray], None] | None,
 ) -> None:
     """A perturbation's norm is its detection's payoff when decoding the whole perturbed
     frame shows no detection in the detection's square (else the detection stays
-    unattackable). Perturbations that cannot touch each other's decoding
+    unattackable); a candidate's (``towards="inject"``), when it shows a detection at the
+    candidate's cell. Perturbations that cannot touch each other's decoding
     (:func:`_apart`) are added into one frame and decoded together: each square then
     decodes exactly as with its own perturbation alone."""
-    for group in _apart(p, fd, found):
+    for group in _apart(p, cells, found):
         x = frame + sum((f.delta for f in group), np.zeros_like(frame))
-        got = _decoded_cells(p.det, x, fd.index)
+        got = _decoded_cells(p.det, x, index)
         for f in group:
-            i0, i1, j0, j1 = _square(p.det, *(int(v) for v in fd.cells[f.k]))
-            inside = (got[:, 0] >= i0) & (got[:, 0] < i1) & (got[:, 1] >= j0) & (got[:, 1] < j1)
-            if inside.any():
-                continue
+            i, j = (int(v) for v in cells[f.k])
+            if towards == "inject":
+                if not ((got[:, 0] == i) & (got[:, 1] == j)).any():
+                    continue
+            else:
+                i0, i1, j0, j1 = _square(p.det, i, j)
+                inside = (got[:, 0] >= i0) & (got[:, 0] < i1) & (got[:, 1] >= j0)
+                if (inside & (got[:, 1] < j1)).any():
+                    continue
             out[f.k] = float(np.sqrt((f.delta.astype(np.float64) ** 2).sum()))
             if save is not None:
                 save(f.k, f.delta)
 
 
-def _apart(p: Pricing, fd: HeatmapDetections, found: list[Found]) -> list[list[Found]]:
+def _apart(p: Pricing, cells: np.ndarray, found: list[Found]) -> list[list[Found]]:
     """``found`` in groups (greedily, in order) whose members cannot change what another
     member's square decodes to: the cells a perturbation's crop reaches (those whose
     receptive field meets it) stay outside the cells another's square reads (the square
@@ -296,7 +373,7 @@ def _apart(p: Pricing, fd: HeatmapDetections, found: list[Found]) -> list[list[F
             continue
         y0, y1, x0, x1 = f.box
         reach = (-((hi0 - y0) // s), (y1 - 1 - lo0) // s, -((hi0 - x0) // s), (x1 - 1 - lo0) // s)
-        i, j = (int(v) for v in fd.cells[f.k])
+        i, j = (int(v) for v in cells[f.k])
         reads = (i - 2 * r, i + 2 * r, j - 2 * r, j + 2 * r)
         for g in groups:
             if all(not _meet(reach, b) and not _meet(a, reads) for _, a, b in g):
@@ -318,16 +395,17 @@ class _CropHide(nn.Module):
 
     def __init__(
         self, conv: ConvNet, square: tuple[int, int, int, int], raw_threshold: float,
-        scale: tuple[float, float],
+        scale: tuple[float, float], cell: tuple[int, int] | None = None, slack: float = 0.0,
     ) -> None:  # fmt: skip
         super().__init__()
         self.conv, self.square, self.t, self.scale = conv, square, raw_threshold, scale
+        self.cell, self.slack = cell, slack
 
     def forward(self, crop_u: torch.Tensor) -> torch.Tensor:
         lo, hi = self.scale
         a0, a1, b0, b1 = self.square
         out = self.conv(lo + (hi - lo) * crop_u)[:, a0:a1, b0:b1]
-        m = out.flatten(1).amax(dim=1) - self.t
+        m = _margin(out, self.t, self.cell, self.slack)
         return torch.stack([torch.zeros_like(m), m], dim=1)
 
 
@@ -358,8 +436,12 @@ def _decoded_cells(det: LoadedDetector, x: np.ndarray, index: int) -> np.ndarray
     return decode(y.reshape(det.cells).double().numpy(), det, index).cells
 
 
-def saver(directory: str, index: int) -> Callable[[int, np.ndarray], None]:
-    """``save(K, delta)`` writing ``DIR/FRAME_K.npy`` (frame ``index``), atomically."""
+def saver(
+    directory: str, index: int, keys: np.ndarray | None = None
+) -> Callable[[int, np.ndarray], None]:
+    """``save(K, delta)`` writing ``DIR/FRAME_K.npy`` (frame ``index``), atomically; with
+    ``keys`` (injection candidates' K, :func:`price_candidates`), ``save(i, delta)``
+    writing candidate ``i``'s ``DIR/FRAME_cK.npy``, K = ``keys[i]``."""
     import io
 
     from lesmc.common.files import atomic_write_bytes
@@ -367,6 +449,7 @@ def saver(directory: str, index: int) -> Callable[[int, np.ndarray], None]:
     def save(k: int, delta: np.ndarray) -> None:
         buf = io.BytesIO()
         np.save(buf, delta.astype(np.float32), allow_pickle=False)
-        atomic_write_bytes(Path(directory) / f"{index}_{k}.npy", buf.getvalue())
+        name = f"{k}" if keys is None else f"c{int(keys[k])}"
+        atomic_write_bytes(Path(directory) / f"{index}_{name}.npy", buf.getvalue())
 
     return save

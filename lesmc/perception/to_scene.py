@@ -61,7 +61,10 @@ def frames_of(
 
 def candidate_id(frame: int, row: int) -> str:
     """The scene id of the injection candidate that is row ``row`` of frame ``frame``'s
-    Q_bc: ``"FRAME:cROW"`` (a replay finds its window by the row)."""
+    Q_bc: ``"FRAME:cROW"`` (a replay finds its window by the row). A heatmap detector
+    file's candidates (lesmc/perception/heatmap.py) take the same form, ROW their place,
+    row-major, among the frame's local maxima below the threshold; a ``c`` never begins a
+    detection's ``FRAME:K``, so the ids cannot clash."""
     return f"{frame}:c{row}"
 
 

@@ -27,7 +27,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from lesmc.common.errors import InputError, Location
+from lesmc.common.errors import InputError, Location, UsageError
 from lesmc.replay.run import (
     DET_TOL_PX,
     PERTURBATION_DIGITS,
@@ -70,6 +70,13 @@ def replay_with_file(
 
     t0 = time.monotonic()
     todo = cases(doc, prop)
+    injecting = next((c for c in todo if c.injects), None)
+    if injecting is not None:  # not built: refused rather than misread as a mismatch
+        raise UsageError(
+            f"property {injecting.prop} ({injecting.design}) lets the attacker inject "
+            "(allow hide, inject): replaying injections through a detector file is not "
+            'built yet (docs/detectors.md, "Replay"); give --property to replay another'
+        )
     det = load_detector(path)
     frames = open_frames(frames_dir, 1)
     det = check_frames(frames, det, frames_dir)
