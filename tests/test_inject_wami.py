@@ -327,3 +327,32 @@ def test_verify_refuses_candidates_it_cannot_perceive(
     assert needle in r.stderr
     assert "Traceback" not in r.stderr
     assert not (out / "results.json").exists()
+
+
+def test_an_inject_grid_counterexample_is_not_replayed(perceived: tuple, tmp_path: Path) -> None:
+    """An ``inject grid`` property's points are a modelling device, not places on the
+    frames: its violation stays "not replayed" (no command offered) and ``lesmc replay``
+    skips it instead of failing on a grid point's id (the review of round 20)."""
+    video, scene, _ = perceived
+    spec = tmp_path / "grid.spec"
+    text = SPEC.format(allow=" allow hide, inject").replace(
+        "    on x, y\n", "    on x, y\n    inject grid 4 within 8 payoff 0.001\n"
+    )
+    spec.write_text(text)
+    r = lesmc(
+        "check", str(scene), str(spec), "--design", "single", "--json",
+        "--report", str(tmp_path / "r"),
+    )  # fmt: skip
+    assert "Traceback" not in r.stderr
+    assert r.returncode == 1, r.stderr
+    res = json.loads(r.stdout)["results"][0]
+    steps = [s for s in res["counterexample"]["steps"] if s.get("obs")]
+    assert any("grid" in str(s["obs"]) for s in steps), steps  # the grid is what is cheap
+    assert res["replay"] == {"status": "not replayed"}
+    doc = json.loads((tmp_path / "r" / "results.json").read_text())
+    assert doc["runs"][0]["properties"][0]["inject_grid"] == {
+        "spacing": 4.0, "radius": 8.0, "payoff": 0.001,
+    }  # fmt: skip
+    r = lesmc("replay", str(tmp_path / "r" / "results.json"), "--frames", str(video), "--json")
+    assert "Traceback" not in r.stderr and "internal error" not in r.stderr
+    assert r.returncode in (0, 1, 2), r.stderr

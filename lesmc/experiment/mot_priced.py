@@ -88,6 +88,8 @@ def price_mot(
     )
     meta["detector"] = got.detector.spec.describe()
     meta["detector_file"] = got.detector.spec.to_meta()
+    meta["frames"] = frames_dir  # what a replay reads (lesmc/pipeline/check.py replay_command)
+    meta["frames_offset"] = -1  # MOT frame f is the directory's frame f - 1 (a replay's too)
     if got.scene is not None and "attack" in got.scene.meta:
         meta["attack"] = got.scene.meta["attack"]
     if unmatched:

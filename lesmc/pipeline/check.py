@@ -374,11 +374,11 @@ def _spent(budget: Budget, model: GrowingModel, stage: str) -> None:
         )
 
 
-def _not_replayed(r: CheckResult, command: str) -> CheckResult:
+def _not_replayed(r: CheckResult, command: str | None) -> CheckResult:
     """A violation found on the model of a perceived scene: its counterexample is a claim
     about the model until it is replayed through the detector (docs/semantics.md, "Replay");
-    ``command`` replays it. No note says so: the status and the ``replay`` object do, and
-    a replay (lesmc/replay/run.py) replaces both."""
+    ``command`` replays it (None: no replay is built for it). No note says so: the status
+    and the ``replay`` object do, and a replay (lesmc/replay/run.py) replaces both."""
     if r.verdict != "violated":
         return r
     return replace(r, replay="not replayed", replay_command=command)
@@ -395,7 +395,7 @@ def replay_command(
     (verify refuses such scenes)."""
     import shlex
 
-    frames = meta.get("source")
+    frames = meta.get("frames", meta.get("source"))  # import mot --detector: its --frames
     given = meta.get("detector_file")
     if isinstance(given, Mapping):  # through the detector file (lesmc/replay/detector_file.py)
         words = ["lesmc", "replay", "RESULTS.json", "--frames"]
@@ -440,7 +440,10 @@ def _design_run(
     if models.scene.meta.get("detector"):  # perception's scene: replayable on its video
         specs = [bp.spec for bp in plan.bound]
         command = replay_command(job.source, models.scene.meta, specs, plan.design)
-        results = [_not_replayed(r, command) for r in results]
+        results = [  # an inject grid is a modelling device: nothing on the frames to replay
+            _not_replayed(r, None if bp.prop.grid is not None else command)
+            for r, bp in zip(results, plan.bound, strict=True)
+        ]
     results = [
         replace(r, design=plan.design, notes=[*grid_notes(bp), *r.notes])
         for r, bp in zip(results, plan.bound, strict=True)

@@ -83,23 +83,24 @@ def replay_with_file(
     if not todo:
         return Outcome({}, 0.0)
     cfg = _attack_settings(doc)
+    off = next((r.replay_inputs.frames_offset for r in doc.runs if r.replay_inputs), 0)
     last = max(c.first_frame + len(c.positions) - 1 for c in todo)
-    if last >= len(frames):
+    if last + off >= len(frames):
         raise InputError(
-            f"the frames stop before frame {last}, the last step of a counterexample",
+            f"the frames stop before frame {last + off}, the last step of a counterexample",
             Location("--frames"),
         )
     by_frame = _hidden_by_frame(todo)
     attacked: list[dict[int, FrameAttack]] = [{} for _ in todo]
     clean: dict[int, Decoded] = {}
     bar.update(total=last + 1 + len(by_frame))
-    for i in range(last + 1):
-        clean[i] = _decode(det, frame_input(frames, i, det), i)
+    for i in range(max(0, -off), last + 1):  # scene frame i is the directory's i + off
+        clean[i] = _decode(det, frame_input(frames, i + off, det), i)
         bar.advance()
     for c in todo:  # every detection the results name, where they say, before any attack
         _check_known(c, clean)  # type: ignore[arg-type]  # Decoded has what it reads
     for i, items in sorted(by_frame.items()):
-        x = frame_input(frames, i, det)
+        x = frame_input(frames, i + off, det)
         per_case: dict[int, list[Hidden]] = {}
         for ci, h in items:
             per_case.setdefault(ci, []).append(h)

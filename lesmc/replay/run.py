@@ -172,7 +172,7 @@ def cases(doc: ResultsDoc, prop: str | None = None) -> list[Case]:
             if res.payoffs == "certified":
                 continue  # violated with lower payoffs proves nothing (docs/semantics.md)
             cex_no = run.counterexamples[j]
-            if cex_no is None or _injects_off_single(run, res.property):
+            if cex_no is None or _not_derivable(run, res.property):
                 continue
             out.append(_case(run, i, j, cex_no))
     if prop is not None and prop not in names:
@@ -182,11 +182,18 @@ def cases(doc: ResultsDoc, prop: str | None = None) -> list[Case]:
     return out
 
 
-def _injects_off_single(run: RunDoc, prop: str) -> bool:
-    """Whether ``prop`` lets the attacker inject on a design other than ``single``: the
-    replay of such a counterexample is not built (it stays violated, not replayed)."""
+def _not_derivable(run: RunDoc, prop: str) -> bool:
+    """Whether ``prop``'s counterexample has no replay built: it injects on a design whose
+    tracker is not ``single`` (``monitor`` is single's), or on an ``inject grid`` (points
+    around the prediction, a modelling device, not places on the frames). It stays
+    violated, not replayed."""
+    from lesmc.designs import registry
+
     p = next((p for p in run.properties if p.name == prop), None)
-    return p is not None and "inject" in p.actions and run.design != "single"
+    if p is None or "inject" not in p.actions:
+        return False
+    tracker = registry.get(run.design).tracker if run.design in registry.names() else ""
+    return p.inject_grid or tracker != "single"
 
 
 def _case(run: RunDoc, i: int, j: int, cex_no: int) -> Case:

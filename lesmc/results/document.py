@@ -103,25 +103,38 @@ def property_json(bp: BoundProperty, components: tuple[str, ...]) -> dict[str, A
             "parameter": bp.monitor_parameter,
             "window": bp.monitor_window,
         }
-    return {
-        "name": bp.name,
-        "spec": bp.spec,
-        "window": [bp.l, bp.u],
-        "end": bp.end,
-        "objective": bp.objective.text,
-        "objective_source": bp.objective.source,
-        "constraint": f"{c.text} {bp.op} {bp.bound:g}",
-        "constraint_source": c.source,
-        "constraint_aggregate": c.aggregate,
-        "constraint_range": [c.lo, c.hi],
-        "constraint_op": bp.op,
-        "bound": bp.bound,
-        "holds_op": bp.prop.holds_op,
-        "threshold": bp.prop.threshold,
-        "components": [components[i] for i in bp.components],
-        "norm": num(bp.norm),
-        "monitor": monitor,
-    } | ({} if bp.prop.actions == ("hide",) else {"actions": list(bp.prop.actions)})
+    return (
+        {
+            "name": bp.name,
+            "spec": bp.spec,
+            "window": [bp.l, bp.u],
+            "end": bp.end,
+            "objective": bp.objective.text,
+            "objective_source": bp.objective.source,
+            "constraint": f"{c.text} {bp.op} {bp.bound:g}",
+            "constraint_source": c.source,
+            "constraint_aggregate": c.aggregate,
+            "constraint_range": [c.lo, c.hi],
+            "constraint_op": bp.op,
+            "bound": bp.bound,
+            "holds_op": bp.prop.holds_op,
+            "threshold": bp.prop.threshold,
+            "components": [components[i] for i in bp.components],
+            "norm": num(bp.norm),
+            "monitor": monitor,
+        }
+        | ({} if bp.prop.actions == ("hide",) else {"actions": list(bp.prop.actions)})
+        | _grid_json(bp)
+    )
+
+
+def _grid_json(bp: BoundProperty) -> dict[str, Any]:
+    """``inject grid D within R payoff P`` as data (a replay skips such a property: its
+    grid points are a modelling device, not places on the frames)."""
+    g = bp.prop.grid
+    if g is None:
+        return {}
+    return {"inject_grid": {"spacing": g.spacing, "radius": g.radius, "payoff": g.payoff}}
 
 
 def _path_no(cm: ArrayModel, number: dict[tuple[int, ...], int], p: PathInfo | None) -> int | None:
@@ -392,11 +405,12 @@ def run_json(
 def replay_inputs(scene: Scene) -> dict[str, Any]:
     """What ``lesmc replay`` needs of a run's scene besides the frames (lesmc/replay)."""
     t = scene.target
+    off = scene.meta.get("frames_offset", 0)
     return {
         "tracker": scene.tracker.to_json(),
         "dt": scene.dt,
         "target": {"step": t.step, "start": list(t.start), "velocity": list(t.velocity)},
-    }
+    } | ({"frames_offset": off} if isinstance(off, int) and off else {})
 
 
 #: What a payoff made by perception is (docs/cnn.md).

@@ -231,6 +231,9 @@ class ReplayInputs:
     tracker: Mapping[str, Any]
     dt: float
     target: SceneTarget
+    #: the frames directory's index of scene frame f is f + frames_offset (``import mot
+    #: --detector``: -1, MOT frames count from 1)
+    frames_offset: int = 0
 
 
 @dataclass(frozen=True)
@@ -291,6 +294,8 @@ class PropertyDoc:
     monitor: Monitor | None
     #: the attacker's actions (``allow hide, inject``); hide only when the document omits them
     actions: tuple[str, ...] = ("hide",)
+    #: whether the property injects on an ``inject grid`` (a modelling device: not replayed)
+    inject_grid: bool = False
 
 
 @dataclass(frozen=True)
@@ -572,6 +577,7 @@ def _property(p: Mapping[str, Any]) -> PropertyDoc:
         constraint_range=tuple(p["constraint_range"]),
         bound=float(p["bound"]),
         actions=tuple(p.get("actions", ("hide",))),
+        inject_grid=p.get("inject_grid") is not None,
         monitor=None
         if mon is None
         else Monitor(
@@ -614,7 +620,12 @@ def _run(run: Mapping[str, Any]) -> RunDoc:
         scene=None if scene is None else _scene(scene),
         replay_inputs=None
         if rp is None
-        else ReplayInputs(tracker=rp["tracker"], dt=float(rp["dt"]), target=_target(rp["target"])),
+        else ReplayInputs(
+            tracker=rp["tracker"],
+            dt=float(rp["dt"]),
+            target=_target(rp["target"]),
+            frames_offset=int(rp.get("frames_offset", 0)),
+        ),
         faults=tuple(
             (_property(f["property"]), _result(f["result"])) for f in run.get("faults", [])
         ),
