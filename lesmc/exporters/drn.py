@@ -123,7 +123,8 @@ def not_exported_line(bp: BoundProperty, strict: bool) -> str:
         raise UsageError(f"{what}: not exported (--strict)")
     return (
         f"{what}: the MDP and its label 'violated' are written, the reward model is not; "
-        f"{REACH_PROPERTY} > 0 says whether a path violates (the optimum is finite)"
+        f"{REACH_PROPERTY} > 0 says whether some path violates (its objective may still "
+        "be +inf, e.g. a deleted track's deviation)"
     )
 
 
