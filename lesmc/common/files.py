@@ -436,10 +436,9 @@ def atomic_open(path: str | Path, binary: bool = False) -> Iterator[IO[Any]]:
     with :class:`UsageError`, since renaming over it would replace it.
     """
     target = output_target(path)
-    target.parent.mkdir(parents=True, exist_ok=True)
     tmp: str | None = None
     try:
-        fd, tmp = tempfile.mkstemp(prefix=f".{target.name}.", dir=target.parent)
+        fd, tmp = _temporary_beside(path, target)
         mode = new_file_mode(target)
         with os.fdopen(fd, "wb" if binary else "w", encoding=None if binary else "utf-8") as fh:
             os.fchmod(fh.fileno(), mode)
@@ -449,6 +448,20 @@ def atomic_open(path: str | Path, binary: bool = False) -> Iterator[IO[Any]]:
     finally:
         if tmp is not None:
             Path(tmp).unlink(missing_ok=True)
+
+
+def _temporary_beside(path: str | Path, target: Path) -> tuple[int, str]:
+    """A new temporary file in ``target``'s directory (made if missing), for
+    :func:`atomic_open`. :class:`UsageError` naming ``path`` if that cannot be: a
+    parent is a file, the directory is not writable."""
+    try:
+        target.parent.mkdir(parents=True, exist_ok=True)
+        return tempfile.mkstemp(prefix=f".{target.name}.", dir=target.parent)
+    except OSError as exc:
+        why = exc.strerror or str(exc)
+        if isinstance(exc, FileExistsError | NotADirectoryError):
+            why = "a directory on its path is a file"
+        raise UsageError(f"cannot write the file: {why}", Location(str(path))) from None
 
 
 def atomic_write_bytes(path: str | Path, data: bytes) -> None:
