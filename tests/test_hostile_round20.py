@@ -165,3 +165,15 @@ def test_a_hand_edited_multi_document_is_refused_at_its_field(
     _refused(r, f"results[0].counterexample[{last}].{item}: ", message)
     assert str(tmp_path / "results.json") in r.stderr, r.stderr
     assert not (tmp_path / "out").exists()
+
+
+def test_an_output_ending_in_a_slash_is_not_written_as_a_file(tmp_path: Path) -> None:
+    """``-o OUT/`` (a directory's name): the slash was dropped and a file OUT written,
+    or an existing file OUT replaced."""
+    existing = tmp_path / "m.npz"
+    existing.write_bytes(b"kept")
+    for out in (f"{existing}/", f"{tmp_path / 'new'}/"):
+        r = lesmc("build", str(CROSSING), "--design", "sort", "--window", "1..3", "-o", out)
+        _refused(r, f"{out}: not a regular file")
+    assert existing.read_bytes() == b"kept"
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["m.npz"]

@@ -415,9 +415,11 @@ def new_file_mode(target: str | Path) -> int:
 
 def output_target(path: str | Path) -> Path:
     """The file an output named ``path`` replaces: ``path`` with its symlinks resolved.
-    :class:`UsageError` if that exists and is not a regular file."""
+    :class:`UsageError` if that exists and is not a regular file, or if ``path`` ends in
+    a slash (a directory's name: the file would be written without it)."""
     target = Path(os.path.realpath(path))
-    if target.exists() and not target.is_file():
+    named_dir = str(path).endswith(("/", os.sep))  # realpath drops the slash
+    if named_dir or (target.exists() and not target.is_file()):
         shown = escape_control(str(path))
         raise UsageError(f"{shown}: not a regular file: lesmc writes its outputs to files only")
     return target
