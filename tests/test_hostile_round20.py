@@ -177,3 +177,23 @@ def test_an_output_ending_in_a_slash_is_not_written_as_a_file(tmp_path: Path) ->
         _refused(r, f"{out}: not a regular file")
     assert existing.read_bytes() == b"kept"
     assert sorted(p.name for p in tmp_path.iterdir()) == ["m.npz"]
+
+
+@pytest.mark.parametrize("design", ["single", "sort"])
+def test_verify_refuses_inject_within_with_a_detector_file_before_perceiving(
+    tmp_path: Path, design: str
+) -> None:
+    """``perceive --detector det.toml --inject-within`` was refused, ``verify`` perceived
+    the whole video first (and then ignored the option, or stopped on something else)."""
+    frames = tmp_path / "frames"
+    made = lesmc("synth", str(frames), "--frames", "6", "--size", "128x128", "--seed", "3")
+    assert made.returncode == 0, made.stderr
+    out = tmp_path / "out"
+    detector = ROOT / "examples" / "detectors" / "heatmap.toml"
+    r = lesmc(
+        "verify", str(frames), "--detector", str(detector), "--inject-within", "5",
+        "--target", "10,10", "--design", design, "--out", str(out), timeout=300,
+    )  # fmt: skip
+    _refused(r, "--inject-within makes injection candidates", "is a detector file")
+    assert "detector file:" not in r.stderr, r.stderr  # nothing was perceived
+    assert not out.exists()

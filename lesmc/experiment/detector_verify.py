@@ -44,8 +44,12 @@ def detector_file_of(nets: NetFiles) -> str | None:
     return path if path is not None and is_detector_file(path) else None
 
 
-def refuse_window_options(nets: NetFiles, neuron_faults: bool) -> None:
-    """Options of the window pipeline that a detector file replaces are errors naming them."""
+def refuse_window_options(
+    nets: NetFiles, neuron_faults: bool, inject: tuple[float, int] | None = None
+) -> None:
+    """Options of the window pipeline that a detector file replaces are errors naming them
+    (``inject``: ``--inject-within``'s candidates, which N_dr's rejects make), before any
+    frame is perceived."""
     if nets[0] is not None or nets[2] is not None:
         given = "--nets" if nets[0] is not None else "--locator"
         raise UsageError(
@@ -56,6 +60,11 @@ def refuse_window_options(nets: NetFiles, neuron_faults: bool) -> None:
         raise UsageError(
             "neuron faults stick a unit of the window pipeline's networks; a detector file's "
             "network has no such faults yet (drop the neuron faults, or --detector FILE.toml)"
+        )
+    if inject is not None:
+        raise UsageError(
+            f"--inject-within makes injection candidates from the window pipeline's N_dr; "
+            f"--detector {nets[1]} is a detector file, which has none (docs/detectors.md)"
         )
 
 

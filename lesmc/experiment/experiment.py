@@ -168,7 +168,7 @@ def verify(req: Request, rep: Reporter) -> Outcome:
     specs = load_specs([Path(s) for s in req.specs] or bundled_specs(), req.window)
     faults = load_faults(req.faults) if req.faults is not None else None
     if detector_verify.detector_file_of(req.nets) is not None:  # docs/detectors.md
-        detector_verify.refuse_window_options(req.nets, bool(neuron_faults(faults)))
+        detector_verify.refuse_window_options(req.nets, bool(neuron_faults(faults)), req.inject)
     _check_neuron_faults(req, faults)
     if req.scene_path is not None:
         src = _scene_file(req)

@@ -67,6 +67,7 @@ def multi_designs(designs: tuple[str, ...]) -> tuple[str, ...]:
 
 def verify_multi(req: Request, rep: Reporter) -> MultiOutcome:
     """Run the experiment of ``req`` (one multi-target design) and write its report."""
+    from lesmc.experiment import detector_verify as dv
     from lesmc.experiment import experiment as ex
     from lesmc.unfold.multi import composed
 
@@ -79,6 +80,8 @@ def verify_multi(req: Request, rep: Reporter) -> MultiOutcome:
             f"--design {design}: --faults, --space and --payoffs certified|interval apply to "
             "the point designs; a multi-target design is checked on attack payoffs"
         )
+    if dv.detector_file_of(req.nets) is not None:  # docs/detectors.md
+        dv.refuse_window_options(req.nets, False, req.inject)
     if req.scene_path is not None:
         src = ex._scene_file(req)
     else:  # every detection priced up front: the multi-target check reads payoffs directly
