@@ -197,3 +197,22 @@ def test_verify_refuses_inject_within_with_a_detector_file_before_perceiving(
     _refused(r, "--inject-within makes injection candidates", "is a detector file")
     assert "detector file:" not in r.stderr, r.stderr  # nothing was perceived
     assert not out.exists()
+
+
+def test_verify_sort_with_a_heatmap_detector_file_is_refused_before_perceiving(
+    tmp_path: Path,
+) -> None:
+    """A heatmap detector's detections are points; SORT's IoU needs boxes: verify used to
+    perceive and price the whole video first, then stop at OUT/scene.json's first box."""
+    frames = tmp_path / "frames"
+    made = lesmc("synth", str(frames), "--frames", "6", "--size", "128x128", "--seed", "3")
+    assert made.returncode == 0, made.stderr
+    out = tmp_path / "out"
+    detector = ROOT / "examples" / "detectors" / "heatmap.toml"
+    r = lesmc(
+        "verify", str(frames), "--detector", str(detector), "--target", "10,10",
+        "--design", "sort", "--out", str(out), timeout=300,
+    )  # fmt: skip
+    _refused(r, "--design sort reads a box on every detection", "heatmap detector file")
+    assert "detector file:" not in r.stderr, r.stderr  # nothing was perceived
+    assert not out.exists()
