@@ -216,3 +216,24 @@ def test_verify_sort_with_a_heatmap_detector_file_is_refused_before_perceiving(
     _refused(r, "--design sort reads a box on every detection", "heatmap detector file")
     assert "detector file:" not in r.stderr, r.stderr  # nothing was perceived
     assert not out.exists()
+
+
+@pytest.mark.parametrize("verb", ["import", "perceive"])
+def test_an_output_that_would_be_a_frame_is_refused(tmp_path: Path, verb: str) -> None:
+    """``import mot DET --frames DIR --detector det.toml -o DIR/frame_00001.png`` wrote the
+    scene over an input frame (exit 0); so did ``perceive DIR --detector det.toml``."""
+    frames = tmp_path / "frames"
+    made = lesmc("synth", str(frames), "--frames", "6", "--size", "128x128", "--seed", "3")
+    assert made.returncode == 0, made.stderr
+    before = {p.name: p.read_bytes() for p in frames.iterdir()}
+    detector = str(ROOT / "examples" / "detectors" / "heatmap.toml")
+    det = tmp_path / "det.txt"
+    det.write_text("1,-1,60,60,12,8,0.9,-1,-1,-1\n")
+    for out in (frames / "frame_00001.png", frames / "extra.png"):
+        args = {
+            "import": ["import", "mot", str(det), "--frames", str(frames)],
+            "perceive": ["perceive", str(frames)],
+        }[verb]
+        r = lesmc(*args, "--detector", detector, "-o", str(out), timeout=300)
+        _refused(r, f"-o/--output {out} would be a frame of {frames}")
+    assert {p.name: p.read_bytes() for p in frames.iterdir()} == before
