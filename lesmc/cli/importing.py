@@ -15,7 +15,12 @@ from lesmc.cli.documents import (
     say,
     unattacked_warnings,
 )
-from lesmc.cli.options import distinct_files, frames_option, tracker_option
+from lesmc.cli.options import (
+    distinct_files,
+    frames_option,
+    refuse_output_among_frames,
+    tracker_option,
+)
 from lesmc.common.errors import UsageError, escape_control
 
 if TYPE_CHECKING:
@@ -147,6 +152,7 @@ def mot_cmd(
     distinct_files(
         {"DET": det, "--gt": gt_path, "--tracker": tracker_file}, {"-o/--output": output}
     )
+    refuse_output_among_frames(frames_dir, output, "-o/--output")
     from lesmc.scene.io import MAX_DT
 
     if not (math.isfinite(fps) and 0 < fps <= 1e6 and 1.0 / fps <= MAX_DT):

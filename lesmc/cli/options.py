@@ -348,3 +348,23 @@ def distinct_files(inputs: dict[str, str | None], outputs: dict[str, str]) -> No
         if key in named:
             raise UsageError(f"{named[key]} and {what} name the same file ({escape_control(out)})")
         named[key] = what
+
+
+def refuse_output_among_frames(frames_dir: str | None, output: str, what: str) -> None:
+    """Refuse, before any work, an output that would be a frame of ``frames_dir`` (a file
+    of a frame's extension in it, as lesmc/video/reader.py lists them): it would replace
+    one of the command's input frames, or add one to the video."""
+    if frames_dir is None:
+        return
+    from lesmc.video.reader import EXTENSIONS
+
+    out = Path(output).resolve()
+    if (
+        out.parent == Path(frames_dir).resolve()
+        and out.suffix.lower() in EXTENSIONS
+        and not out.name.startswith(".")
+    ):
+        raise UsageError(
+            f"{what} {escape_control(output)} would be a frame of {escape_control(frames_dir)} "
+            "(the frames read): write it elsewhere"
+        )

@@ -10,7 +10,13 @@ from typing import TYPE_CHECKING, Any
 import click
 
 from lesmc.cli.documents import emit, file_facts, refuse_given, run_provenance, say
-from lesmc.cli.options import FiniteRange, distinct_files, network_options, tracker_option
+from lesmc.cli.options import (
+    FiniteRange,
+    distinct_files,
+    network_options,
+    refuse_output_among_frames,
+    tracker_option,
+)
 from lesmc.common.errors import escape_control
 from lesmc.experiment.perceive import (
     Perceived,
@@ -260,6 +266,7 @@ def _with_detector_file(
         refuse_given(("save_attacks",), "saves the attacks that price a scene: it needs -o")
     else:
         distinct_files({"--detector": path, "--tracker": req.tracker}, {"-o/--output": output})
+        refuse_output_among_frames(req.frames_dir, output, "-o/--output")
     with progress_bar("perceive", "perceiving", None) as bar:
 
         def start(n: int) -> Any:

@@ -415,9 +415,11 @@ def new_file_mode(target: str | Path) -> int:
 
 def output_target(path: str | Path) -> Path:
     """The file an output named ``path`` replaces: ``path`` with its symlinks resolved.
-    :class:`UsageError` if that exists and is not a regular file."""
+    :class:`UsageError` if that exists and is not a regular file, or if ``path`` ends in
+    a slash (a directory's name: the file would be written without it)."""
     target = Path(os.path.realpath(path))
-    if target.exists() and not target.is_file():
+    named_dir = str(path).endswith(("/", os.sep))  # realpath drops the slash
+    if named_dir or (target.exists() and not target.is_file()):
         shown = escape_control(str(path))
         raise UsageError(f"{shown}: not a regular file: lesmc writes its outputs to files only")
     return target
@@ -436,10 +438,9 @@ def atomic_open(path: str | Path, binary: bool = False) -> Iterator[IO[Any]]:
     with :class:`UsageError`, since renaming over it would replace it.
     """
     target = output_target(path)
-    target.parent.mkdir(parents=True, exist_ok=True)
     tmp: str | None = None
     try:
-        fd, tmp = tempfile.mkstemp(prefix=f".{target.name}.", dir=target.parent)
+        fd, tmp = _temporary_beside(path, target)
         mode = new_file_mode(target)
         with os.fdopen(fd, "wb" if binary else "w", encoding=None if binary else "utf-8") as fh:
             os.fchmod(fh.fileno(), mode)
@@ -449,6 +450,20 @@ def atomic_open(path: str | Path, binary: bool = False) -> Iterator[IO[Any]]:
     finally:
         if tmp is not None:
             Path(tmp).unlink(missing_ok=True)
+
+
+def _temporary_beside(path: str | Path, target: Path) -> tuple[int, str]:
+    """A new temporary file in ``target``'s directory (made if missing), for
+    :func:`atomic_open`. :class:`UsageError` naming ``path`` if that cannot be: a
+    parent is a file, the directory is not writable."""
+    try:
+        target.parent.mkdir(parents=True, exist_ok=True)
+        return tempfile.mkstemp(prefix=f".{target.name}.", dir=target.parent)
+    except OSError as exc:
+        why = exc.strerror or str(exc)
+        if isinstance(exc, FileExistsError | NotADirectoryError):
+            why = "a directory on its path is a file"
+        raise UsageError(f"cannot write the file: {why}", Location(str(path))) from None
 
 
 def atomic_write_bytes(path: str | Path, data: bytes) -> None:

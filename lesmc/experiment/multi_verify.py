@@ -67,6 +67,7 @@ def multi_designs(designs: tuple[str, ...]) -> tuple[str, ...]:
 
 def verify_multi(req: Request, rep: Reporter) -> MultiOutcome:
     """Run the experiment of ``req`` (one multi-target design) and write its report."""
+    from lesmc.experiment import detector_verify as dv
     from lesmc.experiment import experiment as ex
     from lesmc.unfold.multi import composed
 
@@ -79,6 +80,11 @@ def verify_multi(req: Request, rep: Reporter) -> MultiOutcome:
             f"--design {design}: --faults, --space and --payoffs certified|interval apply to "
             "the point designs; a multi-target design is checked on attack payoffs"
         )
+    detector = dv.detector_file_of(req.nets)
+    if detector is not None:  # docs/detectors.md
+        dv.refuse_window_options(req.nets, False, req.inject is not None)
+        if req.scene_path is None:
+            _refuse_points_for_boxes(detector, design)
     if req.scene_path is not None:
         src = ex._scene_file(req)
     else:  # every detection priced up front: the multi-target check reads payoffs directly
@@ -106,3 +112,18 @@ def verify_multi(req: Request, rep: Reporter) -> MultiOutcome:
     files = {"scene.json": json_text(scene_to_dict(src.scene))} if src.new else {}
     report = write_multi_report(doc, req.out, ex._frame_reader(src.frames), files)
     return MultiOutcome(results, doc, report)
+
+
+def _refuse_points_for_boxes(detector: str, design: str) -> None:
+    """A heatmap detector file's detections are points: a design that reads a box on
+    every detection (SORT's IoU) is refused before the video is perceived."""
+    from lesmc.perception.detector_file import read_detector_file
+    from lesmc.tracking.trackers import tracker_class
+
+    kind = read_detector_file(detector).kind
+    if kind == "heatmap" and getattr(tracker_class(design), "needs_boxes", False):
+        raise UsageError(
+            f"--design {design} reads a box on every detection, and --detector {detector} "
+            "is a heatmap detector file, whose detections are points: use a box detector "
+            'file (kind = "boxes") or a point design such as gnn (docs/detectors.md)'
+        )

@@ -225,13 +225,18 @@ def _num_text(node: Tree[Any]) -> str:
     return _clip(str(node.children[0]))
 
 
-#: ``allow`` and what follows it, up to where the parser stopped: a keyword or nothing
-_ALLOW_TAIL = re.compile(r"\ballow(?P<gap>\s+)(?P<word>[A-Za-z_][A-Za-z0-9_\-]*)?\s*$")
+#: ``allow``, the actions already listed (each followed by a comma), and what follows,
+#: up to where the parser stopped: a keyword or nothing
+_ALLOW_TAIL = re.compile(
+    r"\ballow(?P<gap>\s+)(?:[A-Za-z_][A-Za-z0-9_\-]*\s*,\s*)*"
+    r"(?P<word>[A-Za-z_][A-Za-z0-9_\-]*)?\s*$"
+)
 
 
 def _bare_allow(exc: UnexpectedInput, text: str, path: str) -> SpecError | None:
-    """``allow`` followed by a keyword of the language (``allow end 5``, which the lexer
-    reads as an action named ``end``) or by no name at all (``allow }``): "allow needs an
+    """``allow`` (or ``allow hide,``) followed by a keyword of the language (``allow end 5``,
+    which the lexer reads as an action named ``end``) or by no name at all (``allow }``,
+    ``allow hide,`` then ``minimize`` on the next line): "allow needs an
     action" at the keyword or the token after ``allow``; None for any other error."""
     if isinstance(exc, UnexpectedToken):
         stop = len(text) if exc.token.type == "$END" else exc.token.start_pos
@@ -605,7 +610,7 @@ class _Builder:
             if not ok:
                 raise self.error(message, _tok_pos(ch[i].children[0]))
         grid = InjectGrid(spacing, radius, payoff)
-        if (2 * radius / spacing + 1) ** 2 > 4 * MAX_GRID_POINTS or len(
+        if (2 * (radius / spacing) + 1) ** 2 > 4 * MAX_GRID_POINTS or len(
             grid.offsets()
         ) > MAX_GRID_POINTS:
             raise self.error(

@@ -9,7 +9,7 @@ from lesmc.common.errors import InputError, Location
 from lesmc.common.fields import is_version, show
 from lesmc.common.files import read_json
 from lesmc.results.document import FORMAT, VERSION
-from lesmc.results.references import check_references
+from lesmc.results.references import check_multi_steps, check_references
 from lesmc.schemas import validate
 
 
@@ -20,6 +20,7 @@ def load_results(path: str | Path) -> dict[str, Any]:
     doc = read_json(Path(path), InputError)
     if isinstance(doc, dict) and doc.get("format") == "lesmc-multi-check":
         validate(doc, "multi-check", str(path))
+        check_multi_steps(doc, str(path))
         return doc
     if not isinstance(doc, dict) or doc.get("format") != FORMAT:
         raise InputError(

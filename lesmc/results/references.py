@@ -14,7 +14,12 @@ import math
 from typing import Any
 
 from lesmc.common.errors import InputError, Problems
-from lesmc.scene.io import MAX_DT
+from lesmc.common.fields import within
+from lesmc.scene.io import MAX_COORD, MAX_DT
+
+#: |coordinate| of a drawn box or position: detections lie within MAX_COORD, a track
+#: coasting past them a little beyond; far beyond, the report's view overflows
+MAX_DRAWN = 100 * MAX_COORD
 
 
 def check_references(doc: dict[str, Any], path: str) -> None:
@@ -102,3 +107,47 @@ def _replay_inputs(run: dict[str, Any], at: str, pr: Problems) -> None:
 
 def _number(v: Any) -> bool:
     return isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v)
+
+
+def check_multi_steps(doc: dict[str, Any], path: str) -> None:
+    """What the multi-check schema cannot say, for the report that draws a
+    ``lesmc-multi-check`` document's counterexamples (lesmc/report/multi.py): each
+    counterexample's steps in increasing order on frames >= 0; each track and attacked
+    detection with a ``box`` [x1, y1, x2, y2] or a ``position`` [x, y], each reference a
+    box, every coordinate finite and within :data:`MAX_DRAWN`. One :class:`InputError`
+    listing every problem."""
+    pr = Problems()
+    for i, res in enumerate(doc["results"]):
+        last = -1
+        for k, s in enumerate(res["counterexample"] or []):
+            at = f"results[{i}].counterexample[{k}]"
+            if s["step"] <= last:
+                pr.add(f"{at}.step", f"must exceed the step before, {last} (steps in order)")
+            last = max(last, s["step"])
+            if s["frame"] < 0:
+                pr.add(f"{at}.frame", f"must be at least 0, got {s['frame']}")
+            if s.get("reference") is not None:
+                _place(s["reference"], f"{at}.reference", (4,), pr)
+            for key in ("tracks", "attacked"):
+                for j, item in enumerate(s.get(key) or []):
+                    _drawn(item, f"{at}.{key}[{j}]", pr)
+    if pr.items:
+        raise InputError.many(path, pr.items)
+
+
+def _drawn(item: dict[str, Any], at: str, pr: Problems) -> None:
+    """A track or an attacked detection: its box (4 numbers) or position (2), drawn as is."""
+    if "box" not in item and "position" not in item:
+        pr.add(at, "needs a box [x1, y1, x2, y2] or a position [x, y]")
+    if "box" in item:
+        _place(item["box"], f"{at}.box", (4,), pr)
+    if "position" in item:
+        _place(item["position"], f"{at}.position", (2,), pr)
+
+
+def _place(row: list[Any], at: str, sizes: tuple[int, ...], pr: Problems) -> None:
+    """A box or a position: ``sizes`` numbers, each finite with |v| <= MAX_DRAWN."""
+    if len(row) not in sizes:
+        pr.add(at, f"must hold {' or '.join(map(str, sizes))} numbers, got {len(row)}")
+    elif not all(within(v, MAX_DRAWN) for v in row):
+        pr.add(at, f"every coordinate must be finite with |v| <= {MAX_DRAWN:g} (pixels)")

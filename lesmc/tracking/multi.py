@@ -18,7 +18,7 @@ so far (lesmc/designs/registry.py ``not_yet``).
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import Any, Protocol
+from typing import Any, ClassVar, Protocol
 
 import numpy as np
 
@@ -169,6 +169,9 @@ class ComposedDesign:
     (:meth:`target_of`). Not a :class:`~lesmc.tracking.design.Design`: its attacked runs
     are unfolded by lesmc/unfold/multi.py, not by the batched unfolder."""
 
+    #: the design reads a box on every detection (SORT's IoU); False: points suffice
+    needs_boxes: ClassVar[bool] = False
+
     scene: Scene | Footage
     tracker: Any
 
@@ -226,6 +229,9 @@ class ComposedDesign:
 class SortDesign(ComposedDesign):
     """The ``sort`` design: SORT on a scene's boxes (the tracker file's ``min_hits``,
     ``max_age``, ``iou_threshold``)."""
+
+    #: every detection needs a box (:func:`need_boxes`): a point detector cannot feed it
+    needs_boxes: ClassVar[bool] = True
 
     def __init__(self, scene: Scene | Footage, path: str = "<scene>") -> None:
         cfg = scene.tracker
