@@ -10,6 +10,7 @@ of ``minimize payoff subject to dist.max(0..end) > D`` must be the brute force's
 
 from __future__ import annotations
 
+import dataclasses
 import itertools
 import math
 import sys
@@ -321,3 +322,17 @@ def test_storm_agrees_on_joint_drn_exports_with_injections(tmp_path: Path) -> No
         assert_equal_exactly(storm_optimum(text, tmp_path), want, text, end + 1)
         done += 1
     assert done == cases(10, 60)
+
+
+def test_a_joint_injection_result_says_its_hidden_detections_are_not_listed() -> None:
+    """joint does not say which detections the cheapest way to an injected outcome hides:
+    the result says so in a note, instead of an empty list passing for "none hidden" (the
+    review of round 20); single, which says it, has no such note."""
+    scene, window = _cases(1, 501, max_trace=1e12)[0]
+    end = unfold.original_end(scene, make_tracker(scene))
+    spec = api.parse_spec(_spec(window, end, 0.0, " allow hide, inject"))
+    joint = api.check(scene, spec)[0]
+    assert any("does not yet say which detections" in n for n in joint.notes), joint.notes
+    single = dataclasses.replace(scene, tracker=dataclasses.replace(scene.tracker, design="single"))
+    res = api.check(single, spec)[0]
+    assert not any("does not yet say which detections" in n for n in res.notes), res.notes
