@@ -218,7 +218,8 @@ def _within_budget(
     if max_states is not None and so_far + count > max_states:
         raise BudgetError(
             f"--max-states {max_states}: step {k} would compute {count} "
-            f"successors of {states} states ({so_far} so far); shorten the attack window"
+            f"successors of {states} states ({so_far} so far); shorten the attack window or "
+            "limit it to the target's neighbourhood (attack window L..U within R)"
         )
     if count > MAX_STEP_SUCCESSORS:
         cands = f" and {len(f.candidates)} candidates" if "inject" in attack[1] else ""
@@ -226,7 +227,8 @@ def _within_budget(
         raise BudgetError(
             f"step {k} would compute {count} successors of {states} states (every "
             f"subset of {hidable} detections{cands}): more than "
-            f"{MAX_STEP_SUCCESSORS:,}; shorten the attack window"
+            f"{MAX_STEP_SUCCESSORS:,}; shorten the attack window or limit it to the "
+            "target's neighbourhood (attack window L..U within R)"
         )
 
 
