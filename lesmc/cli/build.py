@@ -27,6 +27,7 @@ if TYPE_CHECKING:
     from rich.table import Table
 
     from lesmc.model.arrays import ArrayModel
+    from lesmc.model.multi import MultiModel
     from lesmc.scene import Footage, Scene
     from lesmc.tracking.monitor import TrackPoint
 
@@ -179,27 +180,29 @@ def _say_built(
             "write": written - unfolded,
             "total": time.monotonic() - started,
         }
-        emit(_build_document(scene, output, model, sc, window, seconds))
+        from lesmc.results.document import model_hash
+
+        emit(build_document(scene, output, model, model_hash(model), sc, window, seconds))
 
 
-def _build_document(
+def build_document(
     scene: str,
     output: str,
-    model: ArrayModel,
+    model: ArrayModel | MultiModel,
+    sha256: str,
     sc: Scene,
     window: tuple[int, int],
     seconds: dict[str, float],
 ) -> dict[str, Any]:
-    """``lesmc build --json``: what was built (format lesmc-build, schemas/build.json)."""
-    from lesmc.results.document import model_hash
-
+    """``lesmc build --json``: what was built (format lesmc-build, schemas/build.json);
+    ``sha256``: the model's (a single-target model's hash, a multi-target model file's)."""
     return {
         "format": "lesmc-build",
         "version": 1,
         "provenance": run_provenance(),
         "scene": scene,
         "model": file_facts(output),
-        "model_sha256": model_hash(model),
+        "model_sha256": sha256,
         "states": model.n_states,
         "transitions": model.n_transitions,
         "end": model.end,

@@ -10,7 +10,7 @@ from __future__ import annotations
 import time
 from typing import Any
 
-from lesmc.cli.documents import emit, file_facts, given, run_provenance, say
+from lesmc.cli.documents import emit, given, say
 from lesmc.common.errors import Location, UsageError, escape_control, source_line
 from lesmc.common.files import file_sha256
 from lesmc.engines.multi import BuildKey
@@ -71,33 +71,18 @@ def _document(
     key: BuildKey,
     times: tuple[float, float, float],
 ) -> dict[str, Any]:
-    """``lesmc build --json`` of a multi-target model (format lesmc-build; its sha256 is
-    the file's; ``times``: started, scene loaded, model unfolded)."""
+    """``lesmc build --json`` of a multi-target model (its sha256 is the file's;
+    ``times``: started, scene loaded, model unfolded)."""
+    from lesmc.cli.build import build_document
+
     started, loaded, unfolded = times
-    return {
-        "format": "lesmc-build",
-        "version": 1,
-        "provenance": run_provenance(),
-        "scene": scene,
-        "model": file_facts(output),
-        "model_sha256": file_sha256(output),
-        "states": model.n_states,
-        "transitions": model.n_transitions,
-        "end": model.end,
-        "window": [key[0], key[1]],
-        "design": model.meta["design"],
-        "target": {
-            "step": sc.target.step,
-            "x": float(sc.target.start[0]),
-            "y": float(sc.target.start[1]),
-        },
-        "seconds": {
-            "load": loaded - started,
-            "unfold": unfolded - loaded,
-            "write": time.monotonic() - unfolded,
-            "total": time.monotonic() - started,
-        },
+    seconds = {
+        "load": loaded - started,
+        "unfold": unfolded - loaded,
+        "write": time.monotonic() - unfolded,
+        "total": time.monotonic() - started,
     }
+    return build_document(scene, output, model, file_sha256(output), sc, (key[0], key[1]), seconds)
 
 
 def _key(
