@@ -4,12 +4,17 @@ from __future__ import annotations
 
 import json
 import time
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING
 
 import click
 
 from lesmc.cli.budgets import stop_if_spent, write_model
-from lesmc.cli.documents import emit, file_facts, print_warnings, run_provenance, say
+from lesmc.cli.documents import (
+    build_document,
+    emit,
+    print_warnings,
+    say,
+)
 from lesmc.cli.options import (
     budget_from,
     budget_options,
@@ -27,7 +32,6 @@ if TYPE_CHECKING:
     from rich.table import Table
 
     from lesmc.model.arrays import ArrayModel
-    from lesmc.model.multi import MultiModel
     from lesmc.scene import Footage, Scene
     from lesmc.tracking.monitor import TrackPoint
 
@@ -183,38 +187,6 @@ def _say_built(
         from lesmc.results.document import model_hash
 
         emit(build_document(scene, output, model, model_hash(model), sc, window, seconds))
-
-
-def build_document(
-    scene: str,
-    output: str,
-    model: ArrayModel | MultiModel,
-    sha256: str,
-    sc: Scene,
-    window: tuple[int, int],
-    seconds: dict[str, float],
-) -> dict[str, Any]:
-    """``lesmc build --json``: what was built (format lesmc-build, schemas/build.json);
-    ``sha256``: the model's (a single-target model's hash, a multi-target model file's)."""
-    return {
-        "format": "lesmc-build",
-        "version": 1,
-        "provenance": run_provenance(),
-        "scene": scene,
-        "model": file_facts(output),
-        "model_sha256": sha256,
-        "states": model.n_states,
-        "transitions": model.n_transitions,
-        "end": model.end,
-        "window": [window[0], window[1]],
-        "design": model.meta["design"],
-        "target": {
-            "step": sc.target.step,
-            "x": float(sc.target.start[0]),
-            "y": float(sc.target.start[1]),
-        },
-        "seconds": seconds,
-    }
 
 
 @click.command("track")

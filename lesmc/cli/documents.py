@@ -23,6 +23,8 @@ from click.core import ParameterSource
 from lesmc.common.errors import UsageError, escape_control
 
 if TYPE_CHECKING:
+    from lesmc.model.arrays import ArrayModel
+    from lesmc.model.multi import MultiModel
     from lesmc.scene import Scene
 
 
@@ -96,3 +98,35 @@ def print_warnings(warnings: Iterable[str], err: bool = False) -> None:
     """Each warning on a line of its own, ``warning: ...`` (on stderr if ``err``)."""
     for w in warnings:
         click.echo(f"warning: {escape_control(w)}", err=err)
+
+
+def build_document(
+    scene: str,
+    output: str,
+    model: ArrayModel | MultiModel,
+    sha256: str,
+    sc: Scene,
+    window: tuple[int, int],
+    seconds: dict[str, float],
+) -> dict[str, Any]:
+    """``lesmc build --json``: what was built (format lesmc-build, schemas/build.json);
+    ``sha256``: the model's (a single-target model's hash, a multi-target model file's)."""
+    return {
+        "format": "lesmc-build",
+        "version": 1,
+        "provenance": run_provenance(),
+        "scene": scene,
+        "model": file_facts(output),
+        "model_sha256": sha256,
+        "states": model.n_states,
+        "transitions": model.n_transitions,
+        "end": model.end,
+        "window": [window[0], window[1]],
+        "design": model.meta["design"],
+        "target": {
+            "step": sc.target.step,
+            "x": float(sc.target.start[0]),
+            "y": float(sc.target.start[1]),
+        },
+        "seconds": seconds,
+    }

@@ -10,7 +10,7 @@ from __future__ import annotations
 import time
 from typing import Any
 
-from lesmc.cli.documents import emit, given, say
+from lesmc.cli.documents import build_document, emit, given, say
 from lesmc.common.errors import Location, UsageError, escape_control, source_line
 from lesmc.common.files import file_sha256
 from lesmc.engines.multi import BuildKey
@@ -73,8 +73,6 @@ def _document(
 ) -> dict[str, Any]:
     """``lesmc build --json`` of a multi-target model (its sha256 is the file's;
     ``times``: started, scene loaded, model unfolded)."""
-    from lesmc.cli.build import build_document
-
     started, loaded, unfolded = times
     seconds = {
         "load": loaded - started,
