@@ -20,16 +20,12 @@ from dataclasses import dataclass
 import numpy as np
 
 from lesmc.common.errors import Location, SpecError, UsageError, source_line
+from lesmc.language import measures
 from lesmc.language.properties import Measure, Property, SpecFile
 from lesmc.language.semantics import BoundMeasure, BoundProperty, bind
 from lesmc.model.identity import NONE, indicators
 from lesmc.model.kernel import COMPARE, contributions, holds, initial_value
 from lesmc.model.multi import COMPONENTS, MultiModel
-
-#: The objectives the engine minimises (besides ``dist`` measures), and the identity
-#: constraints it takes (``dist`` measures too: the track of the target's id).
-OBJECTIVES = ("payoff", "count", "frames")
-CONSTRAINTS = ("switches", "lost")
 
 
 @dataclass(frozen=True)
@@ -53,15 +49,16 @@ def measure_values(
     measure over ``components`` in the ``norm`` (:meth:`MultiModel.deviations`)."""
     k = model.step[model.dst]
     ident = None
-    if m.source in CONSTRAINTS:
+    reads = m.declared.quantity
+    if reads == "identity":
         ident = indicators(
             m.source, model.last[model.src], model.tid[model.dst], model.ref[model.dst]
         )
-    dist = model.deviations(components, norm) if m.source == "dist" else np.zeros(model.n_states)
+    dist = model.deviations(components, norm) if reads == "dist_dst" else np.zeros(model.n_states)
     frames = model.count.astype(float)
     per = contributions(m, k, model.payoff, dist[model.dst], counted=frames, identity=ident)
     first = initial_value(m, float(dist[0]))
-    if m.source in CONSTRAINTS:
+    if reads == "identity":
         i0 = indicators(m.source, np.array([NONE]), model.tid[:1], model.ref[:1])
         first = float(
             contributions(m, np.zeros(1, dtype=np.int64), np.zeros(1), np.zeros(1), identity=i0)[0]
@@ -188,17 +185,24 @@ def _unsupported(spec: SpecFile, what: str, m: Measure) -> SpecError:
     return SpecError(f"{what} (multi-target designs: not supported yet)", loc)
 
 
+def _taken(role: str) -> str:
+    """The measures this engine takes as ``role`` (objective, constraint), as a message lists
+    them: ``payoff, count or a dist measure`` (lesmc/language/measures/)."""
+    names = [
+        n for n in measures.names() if getattr(measures.get(n), f"multi_{role}") and n != "dist"
+    ]
+    return ", ".join(names) + " or a dist measure"
+
+
 def supported(spec: SpecFile, prop: Property) -> None:
     """A located error unless the property is one this engine answers."""
     obj, con = prop.objective, prop.constraint.measure
-    if obj.kind not in ("payoff", "count", "dist") or obj.aggregate == "nearest":
-        raise _unsupported(
-            spec, f"objective '{obj.text()}': minimize payoff, count or a dist measure", obj
-        )
-    if con.kind not in (*CONSTRAINTS, "dist") or con.aggregate == "nearest":
+    if not obj.declared.multi_objective or obj.aggregate == "nearest":
+        raise _unsupported(spec, f"objective '{obj.text()}': minimize {_taken('objective')}", obj)
+    if not con.declared.multi_constraint or con.aggregate == "nearest":
         raise _unsupported(
             spec,
-            f"constraint '{con.text()}': the constraint must be switches, lost or a dist measure",
+            f"constraint '{con.text()}': the constraint must be {_taken('constraint')}",
             con,
         )
     if prop.monitor is not None:

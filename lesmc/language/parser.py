@@ -33,7 +33,7 @@ from lark.lexer import TerminalDef
 from lesmc.common.errors import Location, SpecError, source_line, split_lines
 from lesmc.common.fields import MAX_STEP
 from lesmc.common.files import read_text
-from lesmc.language import actions, monitors
+from lesmc.language import actions, measures, monitors
 from lesmc.language.properties import (
     Constraint,
     Fault,
@@ -555,27 +555,21 @@ class _Builder:
         return tuple(names)
 
     def measure(self, node: Tree[Any]) -> Measure:
+        """The measure of one grammar rule, read by the measure the registry declares for
+        it (lesmc/language/measures/): its tokens (suffix or name) and its steps."""
         pos = _pos(node)
         ch: list[Any] = node.children
-        if node.data in ("payoff", "count"):
-            agg = str(ch[0]) if ch else "sum"
-            return Measure(node.data, agg, pos=pos)  # type: ignore[arg-type]
-        if node.data in ("dist_at", "dist_nearest"):
-            at = self.step(ch[0])
-            agg = "at" if node.data == "dist_at" else "nearest"
-            return Measure("dist", agg, at, at, pos=pos)  # type: ignore[arg-type]
-        lo, hi = self.step(ch[1]), self.step(ch[2])
+        tokens = [str(c) for c in ch if not isinstance(c, Tree)]
+        steps = [self.step(c) for c in ch if isinstance(c, Tree)]
+        lo, hi = steps if len(steps) == 2 else (None, None)
         if lo is not None and hi is not None and lo > hi:
             raise self.error(f"empty step range {lo}..{hi}", pos)
-        if node.data == "identity_range":
-            return Measure(str(ch[0]), "sum", lo, hi, pos=pos)  # type: ignore[arg-type]
-        kind = "tau" if node.data == "tau_range" else "dist"
-        if kind == "tau" and lo == 0:
-            raise self.error(
-                "tau.rise starts at step 1 or later (a rise enters a step from the one before)",
-                pos,
-            )
-        return Measure(kind, str(ch[0]), lo, hi, pos=pos)  # type: ignore[arg-type]
+        declared = measures.by_rule(str(node.data), tokens[0] if tokens else None)
+        try:
+            got = declared.parse(str(node.data), tokens, steps)
+        except measures.MeasureError as exc:
+            raise self.error(str(exc), pos) from None
+        return Measure(got.kind, got.aggregate, got.lo, got.hi, pos=pos)  # type: ignore[arg-type]
 
     def step(self, node: Tree[Any]) -> StepRef:
         tok: Any = node.children[0]

@@ -14,6 +14,7 @@ from dataclasses import dataclass, field, replace
 from typing import Literal, Protocol, TypeVar
 
 from lesmc.common.errors import UsageError
+from lesmc.language import measures
 
 #: A step reference in a spec: a number, or None for ``end``.
 StepRef = int | None
@@ -21,9 +22,8 @@ StepRef = int | None
 #: Relative rise of τ the runtime monitor ignores by default: it only absorbs rounding.
 DEFAULT_MONITOR_TOLERANCE = 1e-9
 
-MeasureKind = Literal["payoff", "count", "dist", "tau", "switches", "lost"]
-#: The identity measures of multi-target designs (docs/trackers.md): sums over a step range.
-IDENTITY = ("switches", "lost")
+#: A measure's kind: the name of a registered measure (lesmc/language/measures/).
+MeasureKind = str
 Aggregate = Literal["sum", "mean", "max", "at", "frames", "rise", "nearest"]
 Comparison = Literal[">", ">=", "<", "<="]
 
@@ -48,7 +48,9 @@ class Measure:
     every payoff 1: the outcomes hidden) and
     ``count.frames`` (the attacked steps) over the attack window; ``tau.rise(a..b)``
     (the largest one-step rise of the uncertainty τ of Eq. 12 entering steps a..b, 0
-    when τ never rises: section 9.1's trend).
+    when τ never rises: section 9.1's trend); ``switches(a..b)`` and ``lost(a..b)`` (the
+    identity measures of multi-target designs). ``kind`` names a measure of the registry
+    (lesmc/language/measures/), which decides everything measure-specific.
     """
 
     kind: MeasureKind
@@ -59,13 +61,12 @@ class Measure:
 
     def text(self) -> str:
         """The measure as it is written in the language."""
-        if self.kind in ("payoff", "count"):
-            return self.kind if self.aggregate == "sum" else f"{self.kind}.{self.aggregate}"
-        if self.aggregate in ("at", "nearest"):
-            return f"dist.{self.aggregate}({_step_text(self.lo)})"
-        if self.kind in IDENTITY:
-            return f"{self.kind}({_step_text(self.lo)}..{_step_text(self.hi)})"
-        return f"{self.kind}.{self.aggregate}({_step_text(self.lo)}..{_step_text(self.hi)})"
+        return measures.get(self.kind).text(self.aggregate, self.lo, self.hi)
+
+    @property
+    def declared(self) -> measures.DeclaredMeasure:
+        """The measure's declaration (lesmc/language/measures/)."""
+        return measures.get(self.kind)
 
 
 @dataclass(frozen=True)
@@ -183,7 +184,7 @@ class Property:
         own = self.window
 
         def move(m: Measure) -> Measure:
-            moves = m.kind in ("dist", "tau") and m.aggregate not in ("at", "nearest")
+            moves = m.declared.follows_window(m.aggregate)
             if moves and (m.lo, m.hi) == own:
                 return replace(m, lo=window[0], hi=window[1])
             return m
@@ -271,10 +272,6 @@ class SpecFile:
         mon = monitor or Monitor()
         props = tuple(p if p.monitor else replace(p, monitor=mon) for p in self.properties)
         return replace(self, properties=props)
-
-
-def _step_text(ref: StepRef) -> str:
-    return "end" if ref is None else str(ref)
 
 
 def _num(x: float) -> str:

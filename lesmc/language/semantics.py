@@ -12,8 +12,8 @@ from dataclasses import dataclass
 from typing import Any
 
 from lesmc.common.errors import Location, SpecError, source_line
-from lesmc.language import actions, monitors
-from lesmc.language.properties import IDENTITY, Measure, Pos, Property, SpecFile, StepRef
+from lesmc.language import actions, measures, monitors
+from lesmc.language.properties import Measure, Pos, Property, SpecFile, StepRef
 
 #: Names that ``monitor uncertainty`` takes as the location block (Eq. 12) by default.
 LOCATION_COMPONENTS = ("x", "y")
@@ -21,7 +21,9 @@ LOCATION_COMPONENTS = ("x", "y")
 
 @dataclass(frozen=True)
 class BoundMeasure:
-    """A measure with concrete steps: ``kind`` payoff/dist, ``aggregate`` sum/max.
+    """A measure with concrete steps: ``source``, one of a registered measure's sources
+    (lesmc/language/measures/: payoff, count, frames, dist, near, tau, switches, lost),
+    ``aggregate`` sum/max.
 
     ``dist.at(k)`` becomes a sum over k..k; ``payoff.mean`` a sum with
     ``weight`` 1/(u−l+1).
@@ -33,6 +35,11 @@ class BoundMeasure:
     hi: int
     weight: float
     text: str
+
+    @property
+    def declared(self) -> measures.DeclaredMeasure:
+        """The measure it binds (lesmc/language/measures/), found by its source."""
+        return measures.by_source(self.source)
 
 
 @dataclass(frozen=True)
@@ -74,7 +81,7 @@ class BoundProperty:
     @property
     def uses_tau(self) -> bool:
         """A measure reads the uncertainty τ (``tau.rise``)."""
-        return "tau" in (self.objective.source, self.constraint.source)
+        return any(m.declared.needs_covariance for m in (self.objective, self.constraint))
 
     @property
     def name(self) -> str:
@@ -148,7 +155,7 @@ def _single_target(spec: SpecFile, prop: Property) -> None:
             prop.clause_pos.get("window", prop.pos),
         )
     for m in (prop.objective, prop.constraint.measure):
-        if m.kind in IDENTITY:
+        if m.declared.multi_only:
             raise _fail(
                 spec,
                 f"'{m.kind}' measures a multi-target design's identities: check the scene "
@@ -270,28 +277,21 @@ def _window(spec: SpecFile, prop: Property, e: int) -> tuple[int, int, int]:
 
 
 def _measure(spec: SpecFile, m: Measure, l: int, u: int, end: int) -> BoundMeasure:
-    """A measure with its steps resolved: payoffs over the window, deviations over lo..hi."""
-    if m.kind == "payoff":
-        weight = 1.0 / (u - l + 1) if m.aggregate == "mean" else 1.0
-        return BoundMeasure("payoff", "sum", l, u, weight, m.text())
-    if m.kind == "count":
-        source = "frames" if m.aggregate == "frames" else "count"
-        return BoundMeasure(source, "sum", l, u, 1.0, m.text())
-    lo, hi = _resolve(m.lo, end), _resolve(m.hi, end)
-    if lo > hi:
-        raise _fail(spec, f"empty step range {lo}..{hi}", m.pos)
-    if hi > end:
-        raise _fail(spec, f"step {hi} is beyond end = {end}", m.pos)
-    if m.kind in IDENTITY:
-        return BoundMeasure(m.kind, "sum", lo, hi, 1.0, m.text())
-    if m.kind == "tau":
-        if lo < 1:
-            raise _fail(spec, "tau.rise starts at step 1 or later", m.pos)
-        return BoundMeasure("tau", "max", lo, hi, 1.0, m.text())
-    if m.aggregate == "nearest":
-        return BoundMeasure("near", "sum", lo, hi, 1.0, m.text())
-    agg = "sum" if m.aggregate in ("sum", "at") else "max"
-    return BoundMeasure("dist", agg, lo, hi, 1.0, m.text())
+    """A measure with its steps resolved: payoffs over the window, deviations over lo..hi
+    (the measure's own binding: lesmc/language/measures/)."""
+    declared = m.declared
+    lo, hi = l, u
+    if declared.ranged:
+        lo, hi = _resolve(m.lo, end), _resolve(m.hi, end)
+        if lo > hi:
+            raise _fail(spec, f"empty step range {lo}..{hi}", m.pos)
+        if hi > end:
+            raise _fail(spec, f"step {hi} is beyond end = {end}", m.pos)
+    try:
+        b = declared.bind(m.aggregate, l, u, lo, hi)
+    except measures.MeasureError as exc:
+        raise _fail(spec, str(exc), m.pos) from None
+    return BoundMeasure(b.source, b.aggregate, b.lo, b.hi, b.weight, m.text())
 
 
 def _indices(
@@ -354,7 +354,9 @@ def _tau(
 ) -> tuple[int, ...] | None:
     """The components of τ for a ``tau.rise`` measure: the monitor's when the property has
     one, else the location x, y (Eq. 12's Σ_ll), else every component."""
-    tau_measures = [m for m in (prop.objective, prop.constraint.measure) if m.kind == "tau"]
+    tau_measures = [
+        m for m in (prop.objective, prop.constraint.measure) if m.declared.needs_covariance
+    ]
     if not tau_measures:
         return None
     if not has_covariance:

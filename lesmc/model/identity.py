@@ -25,8 +25,10 @@ from collections.abc import Sequence
 
 import numpy as np
 
-NONE = -1
-"""A step without the target's track (and a state that never saw it)."""
+from lesmc.language import measures
+from lesmc.language.measures.identity import NONE
+
+__all__ = ["NONE", "TARGET_IOU", "indicators", "last_seen", "switches", "target_track"]
 
 #: The IoU an output track needs with the target's reference box to be the target's track.
 TARGET_IOU = 0.5
@@ -50,13 +52,9 @@ def indicators(
     source: str, last_src: np.ndarray, tid_dst: np.ndarray, ref_dst: np.ndarray
 ) -> np.ndarray:
     """Each transition's 0/1 of identity measure ``source`` (``switches`` or ``lost``) at
-    the step it enters (the kernel keeps those inside the measure's range)."""
-    if source == "switches":
-        hit = (tid_dst != NONE) & (last_src != NONE) & (tid_dst != last_src)
-    else:
-        hit = ref_dst & (tid_dst == NONE)
-    out: np.ndarray = hit.astype(float)
-    return out
+    the step it enters (the kernel keeps those inside the measure's range): the measure's
+    own indicator (lesmc/language/measures/)."""
+    return measures.by_source(source).indicator(last_src, tid_dst, ref_dst)
 
 
 def switch_contributions(

@@ -30,7 +30,8 @@ import numpy as np
 from numpy.typing import ArrayLike
 
 from lesmc.language import monitors
-from lesmc.language.properties import DEFAULT_MONITOR_TOLERANCE, IDENTITY
+from lesmc.language.measures import Quantities
+from lesmc.language.properties import DEFAULT_MONITOR_TOLERANCE
 from lesmc.language.semantics import BoundMeasure
 
 #: Comparison operators of the language, on scalars and arrays alike.
@@ -168,27 +169,12 @@ def contributions(
     :func:`tau_rise` (``rise``); ``near`` (``dist.nearest``) the entered state's
     :func:`nearest` deviation (``near_dst``). ``switches`` and ``lost`` (multi-target
     designs) add the transition's identity indicator (``identity``:
-    lesmc/model/identity.py ``indicators``).
+    lesmc/model/identity.py ``indicators``). Which of these quantities a measure reads and
+    how it weights them is its declaration's ``per_transition`` (lesmc/language/measures/).
     """
     inside = (k >= m.lo) & (k <= m.hi)
-    if m.source in IDENTITY:
-        assert identity is not None
-        return np.where(inside, identity, 0.0)
-    if m.source == "near":
-        assert near_dst is not None
-        return np.where(inside, near_dst, 0.0)
-    if m.source == "tau":
-        assert rise is not None
-        return np.where(inside, rise, 0.0)
-    if m.source == "payoff":
-        return np.where(inside, combined * m.weight, 0.0)
-    if m.source in ("count", "frames"):
-        assert counted is not None
-        per = counted
-        if m.source == "frames":
-            per = np.where(np.isinf(counted), np.inf, (counted > 0).astype(float))
-        return np.where(inside, per * m.weight, 0.0)
-    return np.where(inside, dist_dst, 0.0)
+    q = Quantities(combined, dist_dst, counted, rise, near_dst, identity)
+    return np.where(inside, m.declared.per_transition(m.source, m.weight, q), 0.0)
 
 
 def initial_value(m: BoundMeasure, dist0: float, near0: float = 0.0) -> float:
@@ -196,7 +182,7 @@ def initial_value(m: BoundMeasure, dist0: float, near0: float = 0.0) -> float:
     ``dist0`` of Eq. 4, ``near0`` of :func:`nearest`)."""
     if m.lo != 0:
         return 0.0
-    return dist0 if m.source == "dist" else near0 if m.source == "near" else 0.0
+    return m.declared.at_step0(m.source, dist0, near0)
 
 
 def aggregate(is_max: bool, acc: float, c: float) -> float:
@@ -221,7 +207,7 @@ def tail(m: BoundMeasure, h: int, end: int) -> float:
     a dist measure is infinite (docs/semantics.md), and so is the rise of its
     uncertainty (``tau.rise``: trace(P) passed ``max_trace``); payoffs add nothing.
     """
-    if h >= end or m.source not in ("dist", "near", "tau"):
+    if h >= end or not m.declared.halted_tail(m.source):
         return 0.0
     return math.inf if m.hi > h else 0.0
 

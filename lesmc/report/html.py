@@ -22,6 +22,7 @@ import numpy as np
 
 from lesmc.common.numbers import fmt
 from lesmc.engines.result import verdict_words
+from lesmc.language import measures
 from lesmc.report import figures
 from lesmc.report.figure_cache import FigureSet, PngStore
 from lesmc.report.figures import COLOURS, Series, TreePath
@@ -551,12 +552,13 @@ def _property_figures(run: _Run, i: int, figs: FigureSet, image_for: ImageFor | 
         Series(_label(run, no, role, p), role, run.deviations(i, role), p, number=no)
         for no, role, p in drawn
     ]
+    on_figure = measures.plotted(prop.constraint_source)
     cumulative = (
-        prop.constraint_source == "dist"
+        on_figure
         and prop.constraint_aggregate == "sum"
         and prop.constraint_range[1] > prop.constraint_range[0]
     )
-    bound = prop.bound if prop.constraint_source == "dist" else None
+    bound = prop.bound if on_figure else None
     name = f"{run.tag}-{_tag(prop.name)}-deviation.png"
     figs.draw(
         name,
