@@ -24,7 +24,7 @@ from lesmc.language.semantics import BoundProperty
 def payoff_monotone(bp: BoundProperty) -> bool:
     """Lowering payoffs can only lower the optimum: true unless the constraint asks for a
     large payoff (``subject to payoff > c``), which lower payoffs can make false."""
-    return not (bp.constraint.source == "payoff" and bp.op in (">", ">="))
+    return not (bp.constraint.declared.reads_payoffs and bp.op in (">", ">="))
 
 
 def combine(certified: CheckResult, attack: CheckResult, monotone: bool = True) -> CheckResult:

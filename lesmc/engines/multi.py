@@ -161,7 +161,7 @@ def bind_model(model: MultiModel, spec: SpecFile, prop: Property) -> BoundProper
             Location(spec.path, pos.line, pos.column, source_line(spec.text, pos.line)),
         )
     unpriced = meta.get("unpriced")
-    if b.objective.source == "payoff" and unpriced is not None:
+    if b.objective.declared.reads_payoffs and unpriced is not None:
         raise UsageError(unpriced_text(str(unpriced[1]), int(unpriced[0])))
     return b
 
@@ -197,9 +197,9 @@ def _taken(role: str) -> str:
 def supported(spec: SpecFile, prop: Property) -> None:
     """A located error unless the property is one this engine answers."""
     obj, con = prop.objective, prop.constraint.measure
-    if not obj.declared.multi_objective or obj.aggregate == "nearest":
+    if not obj.declared.multi_takes("objective", obj.aggregate):
         raise _unsupported(spec, f"objective '{obj.text()}': minimize {_taken('objective')}", obj)
-    if not con.declared.multi_constraint or con.aggregate == "nearest":
+    if not con.declared.multi_takes("constraint", con.aggregate):
         raise _unsupported(
             spec,
             f"constraint '{con.text()}': the constraint must be {_taken('constraint')}",

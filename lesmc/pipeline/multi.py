@@ -118,7 +118,7 @@ def check_multi_design(
     out: list[MultiCheckResult] = []
     for spec, prop in _chosen(specs, only):
         b = bind_multi(spec, prop, len(scene.frames) - 1)
-        if b.objective.source == "payoff":
+        if b.objective.declared.reads_payoffs:
             _priced(scene, b.l, b.u)
         key = build_key(b)
         if key not in models:
@@ -228,7 +228,7 @@ def _result(
         res.constraint,
         res.states,
         res.transitions,
-        _steps(model, b.objective.source, res.path, scene, path),
+        _steps(model, b.objective.declared.reads_payoffs, res.path, scene, path),
     )
 
 
@@ -277,15 +277,16 @@ def _priced(scene: Scene, l: int, u: int) -> None:
 
 
 def _steps(
-    model: Any, objective: str, trans: Any, scene: Scene | None, path: str
+    model: Any, by_payoff: bool, trans: Any, scene: Scene | None, path: str
 ) -> tuple[AttackStep, ...] | None:
     """The counterexample's steps along ``trans`` (the engine's transitions; None: no
     path), each with the detections hidden and the candidates injected at it, the
     target's track id and, with the ``scene`` (read from ``path``), what the report
-    draws of it."""
+    draws of it; ``by_payoff``: the objective reads the payoffs (each merged transition's
+    cheapest subset, else its smallest)."""
     if trans is None:
         return None
-    hidden = model.by_payoff if objective == "payoff" else model.by_count
+    hidden = model.by_payoff if by_payoff else model.by_count
     states = [0, *(int(model.dst[t]) for t in trans)]
     subs: list[tuple[int, ...]] = [(), *(hidden[t] for t in trans)]
     ids = [None if model.tid[s] < 0 else int(model.tid[s]) for s in states]

@@ -141,6 +141,17 @@ class DeclaredMeasure:
         """An identity measure's 0/1 per transition (lesmc/model/identity.py)."""
         raise NotImplementedError(f"'{self.name}' is not an identity measure")
 
+    def multi_takes(self, role: str, aggregate: str) -> bool:
+        """The multi-target engine (lesmc/engines/multi.py) takes the measure with
+        ``aggregate`` as ``role`` (``objective`` or ``constraint``)."""
+        return bool(self.multi_objective if role == "objective" else self.multi_constraint)
+
+    @property
+    def reads_payoffs(self) -> bool:
+        """It reads the detections' payoffs (the combined payoff of Eq. 5): an unpriced
+        detection in its window is an error, and lower payoffs can only lower it."""
+        return self.quantity == "combined"
+
     def plotted(self, source: str) -> bool:
         """The report draws the constraint's bound on the deviation plot (the measure is the
         deviation from the original path that figure shows)."""

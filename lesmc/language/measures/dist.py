@@ -70,6 +70,10 @@ class Dist(DeclaredMeasure):
     def at_step0(self, source: str, dist0: float, near0: float) -> float:
         return near0 if source == "near" else dist0
 
+    def multi_takes(self, role: str, aggregate: str) -> bool:
+        """Not ``dist.nearest``: a multi-target model has no ground-truth tracks' states."""
+        return aggregate != "nearest"
+
     def halted_tail(self, source: str) -> bool:
         return True
 
