@@ -236,3 +236,26 @@ def test_a_new_measure_is_one_object_and_one_registration(hits: DeclaredMeasure)
     assert got.tolist() == [0.0, 10.0, 10.0, 0.0]  # the old kernel gave the deviation, 7
     assert kernel.initial_value(b, 7.0) == 0.0 and kernel.tail(b, 2, 8) == 0.0
     supported(spec, prop)  # the multi-target engine takes it as a constraint
+
+
+@pytest.mark.parametrize("name", ["results", "check", "campaign-row"])
+def test_the_schemas_measure_sources_are_the_registrys(name: str) -> None:
+    from lesmc.schemas import errors, schema
+
+    root = schema(name)
+    want = ["payoff", "count", "frames", "dist", "near", "tau", "switches", "lost"]
+    assert root["$defs"]["measure_sources"]["enum"] == want
+    text = (ROOT / "lesmc" / "schemas" / f"{name}.json").read_text(encoding="utf-8")
+    assert '"$ref": "#/$defs/measure_sources"' in text and '"dist"\n' not in text
+    # a results file's property may minimise tau.rise or dist.nearest (the old enum of
+    # results.json's property refused both), never an unknown source
+    prop = root["$defs"].get("property", {}).get("properties", {}).get("objective_source")
+    if prop is not None:
+        assert errors("tau", prop, root) == [] and errors("near", prop, root) == []
+        assert errors("speed", prop, root) != []
+
+
+def test_a_registered_measures_sources_reach_the_schemas(hits: DeclaredMeasure) -> None:
+    from lesmc.schemas import schema
+
+    assert "hits" in schema("results")["$defs"]["measure_sources"]["enum"]

@@ -22,6 +22,7 @@ from lesmc.designs import registry
 from lesmc.engines import payoff_modes
 from lesmc.engines import registry as engines
 from lesmc.exporters import formats
+from lesmc.language import measures
 
 #: format name of each document -> its schema file (without .json)
 SCHEMAS = {
@@ -62,8 +63,9 @@ def schema(name: str) -> dict[str, Any]:
     document, the MDP facts each property-stating format writes under its name.
     a tracker) are filled from lesmc/designs/registry.py now, ``#/$defs/engines``
     from lesmc/engines/registry.py and ``#/$defs/payoff_modes`` from
-    lesmc/engines/payoff_modes.py, so that a variant registered at run time is
-    accepted too.
+    lesmc/engines/payoff_modes.py, and ``#/$defs/measure_sources`` (a property's
+    ``objective_source``, ``constraint_source``) from lesmc/language/measures/, so that
+    a variant registered at run time is accepted too.
     """
     out: dict[str, Any] = json.loads(_text(name))
     defs = out.setdefault("$defs", {})
@@ -72,6 +74,7 @@ def schema(name: str) -> dict[str, Any]:
     defs["engines"] = {"enum": list(engines.names())}
     defs["payoff_modes"] = {"enum": list(payoff_modes.names())}
     defs["export_formats"] = {"enum": list(formats.names())}
+    defs["measure_sources"] = {"enum": list(measures.sources())}
     if name == "export":  # a property's MDP: its size, under the format's name
         for fmt in formats.where(lambda f: f.states_property):
             out["properties"][fmt] = {"$ref": "#/$defs/mdp"}

@@ -35,6 +35,7 @@ __all__ = [
     "names",
     "plotted",
     "register",
+    "sources",
     "unregister",
 ]
 
@@ -75,6 +76,12 @@ def names() -> tuple[str, ...]:
 def get(name: str) -> DeclaredMeasure:
     """The measure called ``name`` (KeyError: none)."""
     return _BY_NAME[name]
+
+
+def sources() -> tuple[str, ...]:
+    """Every bound source of every measure (``BoundMeasure.source``; the documents'
+    ``objective_source`` and ``constraint_source``), in registration order."""
+    return tuple(_BY_SOURCE)
 
 
 def by_source(source: str) -> DeclaredMeasure:
