@@ -259,3 +259,24 @@ def test_a_registered_measures_sources_reach_the_schemas(hits: DeclaredMeasure) 
     from lesmc.schemas import schema
 
     assert "hits" in schema("results")["$defs"]["measure_sources"]["enum"]
+
+
+def test_a_tau_rise_results_file_is_read_back_by_lesmc_report(tmp_path: Path) -> None:
+    """``lesmc check --report`` on a ``tau.rise`` constraint wrote a results.json whose
+    ``constraint_source`` "tau" the schema's hand-written enum refused, so ``lesmc report``
+    exited 2 on it; the enum is the registry's now."""
+    from cli_run import lesmc as run_lesmc
+
+    spec = tmp_path / "settles.spec"
+    spec.write_text(
+        "property settles { attack window 6..8 minimize payoff\n"
+        "  subject to tau.rise(10..end) > 1 holds if optimum > 3 }\n"
+    )
+    out = tmp_path / "check"
+    r = run_lesmc("check", str(ROOT / "examples" / "merge.json"), str(spec), "--report", str(out))
+    assert r.returncode in (0, 1) and "Traceback" not in r.stderr, r.stderr
+    doc = (out / "results.json").read_text(encoding="utf-8")
+    assert '"constraint_source": "tau"' in doc
+    r = run_lesmc("report", str(out / "results.json"), "--out", str(tmp_path / "report"))
+    assert r.returncode == 0 and "Traceback" not in r.stderr, r.stderr
+    assert (tmp_path / "report" / "report.html").is_file()
