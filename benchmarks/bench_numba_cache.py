@@ -6,13 +6,15 @@
 one new temporary directory (the first run finds it empty: it compiles and writes the
 cache; the later ones load it). In each: ``import lesmc.engines.levels`` (numba must not
 be imported by it), then one knapsack reduction (bench_knapsack.py's ``instance``) checked
-by ``levels`` three ways, each timed:
+by ``levels`` four ways, each timed:
 
 1. the numpy passes alone (``levels.COMPILED_AFTER`` out of reach);
-2. the compiled pass from the first label of the exact pass (``COMPILED_AFTER = 0``, no
-   value table), first call: numba's import, the kernel's compilation or its load from
-   the cache, and the search;
-3. the same again in the same process: the search alone.
+2. ``levels`` as shipped: the compiled pass after ``COMPILED_AFTER`` labels of the exact
+   pass, if the search gets that far (then this call pays numba's first use);
+3. the compiled pass from the first label of the exact pass (``COMPILED_AFTER = 0``, no
+   value table), first compiled call of the process unless 2. made it: numba's import,
+   the kernel's compilation or its load from the cache, and the search;
+4. the same again in the same process: the search alone.
 
 It prints the seconds of each (wall and the process's CPU: the machine is shared) and
 the cache's files. Figures: docs/performance.md, "Issue 62, fifth round".
@@ -47,19 +49,21 @@ cost, cap, demand = instance({n}, {r}, {costs!r}, {seed})
 model = knapsack_lts([Item(float(c), float(g)) for c, g in zip(cost, cap)])
 spec = parse_spec(knapsack_spec({n}, demand, 0.0), "<knapsack>")
 bp = bind(spec, spec.properties[0], model.end, model.components, False)
+shipped = (levels.COMPILED_AFTER, levels.VALUE_CELLS)
 def run(after, cells):
     levels.COMPILED_AFTER, levels.VALUE_CELLS = after, cells
     t, c = time.perf_counter(), time.process_time()
     r = check_bound(model, bp, "levels")
     return (time.perf_counter() - t, r.optimum, r.stats.extra.get("compiled", False),
-        time.process_time() - c)
-plain = run(10**15, -1)
+        time.process_time() - c, r.stats.states_expanded)
+plain = run(10**15, shipped[1])
 numba_after_plain = "numba" in sys.modules
+default = run(*shipped)
 first = run(0, -1)
 again = run(0, -1)
 print(json.dumps(dict(imported=imported, imported_cpu=imported_cpu,
-    numba_after_import=numba_after_import,
-    numba_after_plain=numba_after_plain, plain=plain, first=first, again=again)))
+    numba_after_import=numba_after_import, numba_after_plain=numba_after_plain,
+    plain=plain, default=default, first=first, again=again)))
 """
 
 
@@ -92,15 +96,18 @@ def main() -> int:
     with tempfile.TemporaryDirectory() as cache:
         for k in range(args.runs):
             got = child(args, cache)
-            plain, first, again = got["plain"], got["first"], got["again"]
-            assert isinstance(plain, list) and isinstance(first, list) and isinstance(again, list)
-            same = plain[1] == first[1] == again[1]
+            plain, default, first, again = (got[k] for k in ("plain", "default", "first", "again"))
+            assert isinstance(plain, list) and isinstance(default, list)
+            assert isinstance(first, list) and isinstance(again, list)
+            same = plain[1] == default[1] == first[1] == again[1]
             print(
                 f"run {k + 1} ({'cold' if k == 0 else 'warm'} cache), seconds wall/CPU:"
                 f" import lesmc.engines {got['imported']:.3f}/{got['imported_cpu']:.3f}"
                 f" (numba imported: {got['numba_after_import']});"
-                f" numpy passes {plain[0]:.3f}/{plain[3]:.3f}"
+                f" numpy passes {plain[0]:.3f}/{plain[3]:.3f} ({plain[4]:,} labels)"
                 f" (numba imported: {got['numba_after_plain']});"
+                f" as shipped {default[0]:.3f}/{default[3]:.3f} ({default[4]:,} labels,"
+                f" compiled: {default[2]});"
                 f" compiled, first call {first[0]:.3f}/{first[3]:.3f};"
                 f" again {again[0]:.3f}/{again[3]:.3f};"
                 f" compiled used: {first[2]}; equal optima: {same}",
