@@ -52,7 +52,16 @@ def available() -> bool:
 
 
 def kernel() -> Callable[..., Any] | None:
-    """:func:`dfs_chunk` compiled by numba (cached on disk), or None without numba."""
+    """:func:`dfs_chunk` compiled by numba and cached on disk, or None: without numba, or
+    where numba finds no writable place for its cache (then every process would pay the
+    compilation, several seconds: the numpy passes decide instead).
+
+    numba keeps the cache in ``NUMBA_CACHE_DIR`` when set, else in the ``__pycache__``
+    beside this file when it is writable, else in the user's cache directory
+    (``~/.cache/numba``, or under ``XDG_CACHE_HOME``); with none of them writable,
+    ``njit(cache=True)`` raises RuntimeError (docs/engines.md, "The compiled depth-first
+    pass").
+    """
     global _kernel, _tried
     if not _tried:
         _tried = True
@@ -60,7 +69,10 @@ def kernel() -> Callable[..., Any] | None:
             numba = importlib.import_module("numba")
         except ImportError:
             return None
-        _kernel = numba.njit(cache=True)(dfs_chunk)
+        try:
+            _kernel = numba.njit(cache=True)(dfs_chunk)
+        except RuntimeError:  # "cannot cache function ...: no locator available"
+            _kernel = None
     return _kernel
 
 
