@@ -219,10 +219,10 @@ def test_report_and_replay_refuse_a_broken_reference_with_exit_2(
     doc["runs"][i]["roles"]["counterexample"][0] = 999
     (tmp_path / "r.json").write_text(json.dumps(doc))
     r = lesmc("report", "r.json", "--out", "rep", cwd=tmp_path)
-    _failed(r, "r.json: runs[")
+    _failed(r, "r.json:1:", ": runs[")
     assert not (tmp_path / "rep").exists()
     r = lesmc("replay", "r.json", "--frames", str(tmp_path), cwd=tmp_path)
-    _failed(r, "r.json: runs[")
+    _failed(r, "r.json:1:", ": runs[")
 
 
 # ------------------------------------------------------------------ campaign, synth

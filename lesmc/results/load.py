@@ -32,8 +32,8 @@ def load_results(path: str | Path) -> dict[str, Any]:
         )
     if not is_version(doc.get("version"), VERSION):
         raise InputError(
-            f"version: must be {VERSION}, got {show(doc.get('version'))} (this lesmc reads results files "
-            f"of version {VERSION}: make it again with this lesmc)",
+            f"version: must be {VERSION}, got {show(doc.get('version'))} (this lesmc reads "
+            f"results files of version {VERSION}: make it again with this lesmc)",
             json_location(str(path), text, "version"),
         )
     validate(doc, "results", str(path), text)

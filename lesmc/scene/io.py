@@ -193,9 +193,11 @@ def _json_item(data: Any, item: str, msg: str) -> str:
     when that object has it."""
     head, _, rest = item.partition(", ")
     if (m := _FRAME.fullmatch(head)) is not None:
-        head = _find(data.get("frames"), "frames", lambda f: f.get("step") == int(m.group(1)))
+        step = int(m.group(1))
+        head = _find(data.get("frames"), "frames", lambda f: f.get("step") == step)
     elif (m := _NAMED.fullmatch(head)) is not None:
-        head = _find(data.get("truth"), "truth", lambda t: t.get("id") == m.group(2))
+        tid = m.group(2)
+        head = _find(data.get("truth"), "truth", lambda t: t.get("id") == tid)
     elif head.startswith("key '"):
         head = head[len("key '") : -1]
     if (m := _NAMED.fullmatch(rest)) is not None:
@@ -203,8 +205,8 @@ def _json_item(data: Any, item: str, msg: str) -> str:
         frame = _at(data, head)
         got = frame.get(kind) if isinstance(frame, dict) else None
         # a duplicate id is the later of the two objects, and the id is what is wrong
-        dup = msg.startswith("duplicate")
-        head = _find(got, f"{head}.{kind}", lambda d: d.get("id") == m.group(2), dup)
+        dup, did = msg.startswith("duplicate"), m.group(2)
+        head = _find(got, f"{head}.{kind}", lambda d: d.get("id") == did, dup)
         msg = "id" if dup else msg
     elif rest:
         head = f"{head}.{rest}"

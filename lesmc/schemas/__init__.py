@@ -155,4 +155,6 @@ def validate(doc: Any, name: str, path: str = "<document>", text: str | None = N
         if text is None:
             raise InputError(f"{what}{more}", Location(path, item=field))
         whole = field == "(document)"
-        raise error_at_items(path, text, [(field, f"{what}{more}")], lambda f, _: "" if whole else f)
+        raise error_at_items(
+            path, text, [(field, f"{what}{more}")], lambda f, _: "" if whole else f
+        )
