@@ -251,3 +251,16 @@ def test_a_detector_file_in_json_is_refused_at_its_key(tmp_path: Path) -> None:
     )  # fmt: skip
     _refused_at(r, path, *_place(text, '"stride": -4'), "stride: must be an integer")
     assert not (tmp_path / "s.json").exists()
+
+
+def test_a_detection_without_a_box_for_sort_is_refused_at_its_line(tmp_path: Path) -> None:
+    doc = json.loads((EXAMPLES / "crossing.json").read_text())
+    det = doc["frames"][2]["detections"][1]
+    del det["w"], det["h"]
+    path = tmp_path / "scene.json"
+    text = json.dumps(doc, indent=1)
+    path.write_text(text)
+    line = _place(text, f'"id": "{det["id"]}"')[0] - 1  # the object's brace: the line before
+    col = text.split("\n")[line - 1].index("{") + 1
+    r = lesmc("track", str(path), "--design", "sort")
+    _refused_at(r, path, line, col, f"detection '{det['id']}': has no box (w, h)")

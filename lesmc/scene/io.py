@@ -162,23 +162,27 @@ def footage_from_dict(
 
 def scene_error(path: str, data: Any, problems: list[tuple[str, str]]) -> InputError:
     """One error listing a scene's problems, each at its ``FILE:LINE:COL`` when ``path`` is
-    the file ``data`` was read from (it is read again: errors only), else as ``FILE:
-    item: message``."""
-    text = _text_of(path, data)
-    if text is None:
+    the file ``data`` was read from (it is read again: errors only; ``data`` None: the
+    file as it is), else as ``FILE: item: message``."""
+    read = _text_of(path, data)
+    if read is None:
         return InputError.many(path, problems)
-    return error_at_items(path, text, problems, lambda item, msg: _json_item(data, item, msg))
+    text, doc = read
+    return error_at_items(path, text, problems, lambda item, msg: _json_item(doc, item, msg))
 
 
-def _text_of(path: str, data: Any) -> str | None:
-    """The text of the regular file ``path`` when it still parses to ``data``; else None."""
+def _text_of(path: str, data: Any) -> tuple[str, dict[str, Any]] | None:
+    """The text of the regular file ``path`` and its document, when that is an object and
+    ``data`` (unless None); else None."""
     try:
         if not Path(path).is_file():
             return None
         text = read_text(path)
-        return text if parse_json(text, path) == data else None
+        doc = parse_json(text, path)
     except (InputError, OSError):
         return None
+    ok = isinstance(doc, dict) and (data is None or doc == data)
+    return (text, doc) if ok else None
 
 
 _FRAME = re.compile(r"frame (\d+)")
