@@ -187,7 +187,11 @@ def _text_of(path: str, data: Any) -> tuple[str, dict[str, Any]] | None:
 
 _FRAME = re.compile(r"frame (\d+)")
 _NAMED = re.compile(r"(detection|candidate|truth track) '(.*)'")
-_LEADING_KEY = re.compile(r"(?:unknown key '([^']*)'|([A-Za-z_][A-Za-z0-9_]*(?:\[\d+\])?))")
+#: The key a problem's message starts with (``payoff must ...``, ``model.R[0][1] must ...``)
+#: or names as unknown.
+_LEADING_KEY = re.compile(
+    r"(?:unknown key '([^']*)'|([A-Za-z_][A-Za-z0-9_]*(?:\.[A-Za-z_][A-Za-z0-9_]*|\[\d+\])*))"
+)
 
 
 def _json_item(data: Any, item: str, msg: str) -> str:
@@ -218,7 +222,7 @@ def _json_item(data: Any, item: str, msg: str) -> str:
     key = _LEADING_KEY.match(msg)
     if key is not None and isinstance(obj, dict):
         name = key.group(1) or key.group(2)
-        if name.partition("[")[0] in obj:
+        if re.split(r"[.\[]", name)[0] in obj:
             return f"{head}.{name}"
     return head
 
