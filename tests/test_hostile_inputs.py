@@ -339,7 +339,7 @@ def test_export_refuses_results_whose_paths_are_not_state_ids(tmp_path: Path) ->
     (tmp_path / "r.json").write_text(json.dumps(bad))
     r = lesmc("export", "m.lts", "--format", "dot", "-o", "m.dot", "--results", "r.json",
               cwd=tmp_path)  # fmt: skip
-    _failed(r, "r.json: counterexample.states: must be a list of state ids")
+    _failed(r, "r.json:1:", ": results[0].counterexample.states: must be a list of state ids")
     (tmp_path / "r.json").write_text(json.dumps({"results": [3]}))
     r = lesmc("export", "m.lts", "--format", "dot", "-o", "m.dot", "--results", "r.json",
               cwd=tmp_path)  # fmt: skip

@@ -264,3 +264,24 @@ def test_a_detection_without_a_box_for_sort_is_refused_at_its_line(tmp_path: Pat
     col = text.split("\n")[line - 1].index("{") + 1
     r = lesmc("track", str(path), "--design", "sort")
     _refused_at(r, path, line, col, f"detection '{det['id']}': has no box (w, h)")
+
+
+def test_export_refuses_a_results_file_at_the_states_it_cannot_mark(
+    tmp_path: Path, results_doc: dict[str, Any]
+) -> None:
+    r = lesmc(
+        "build", str(EXAMPLES / "merge.json"), "--window", "6..8", "-o", "m.lts", cwd=tmp_path
+    )
+    assert r.returncode == 0, r.stderr
+    doc = copy.deepcopy(results_doc)
+    doc["runs"][0]["results"][0]["witness"]["states"] = ["q-sentinel", 7]
+    path = tmp_path / "r.json"
+    text = json.dumps(doc, indent=1)
+    path.write_text(text)
+    before = text[: text.index('"q-sentinel"')]
+    line, col = _place(before, '"states"', before.count('"states"') - 1)
+    r = lesmc(
+        "export", "m.lts", "--format", "dot", "-o", "m.dot", "--results", str(path), cwd=tmp_path
+    )
+    _refused_at(r, path, line, col, "runs[0].results[0].witness.states: must be a list")
+    assert not (tmp_path / "m.dot").exists()
