@@ -108,7 +108,7 @@ def test_cli_scene_errors(tmp_path: Path) -> None:
     bad = tmp_path / "bad.json"
     bad.write_text('{"format": "lesmc-scene", "version": 1, "frames": []}')
     r = lesmc("build", str(bad), "--window", "1..2", "-o", str(tmp_path / "m.lts"))
-    assert r.returncode == 2 and f"{bad}: frames: must be a non-empty list" in r.stderr
+    assert r.returncode == 2 and f"{bad}:1:41: frames: must be a non-empty list" in r.stderr
     assert not (tmp_path / "m.lts").exists()
     r = lesmc(
         "build", str(SCENES / "rq2_stop.json"), "--window", "8-6", "-o", str(tmp_path / "m.lts")

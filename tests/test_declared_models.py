@@ -226,7 +226,9 @@ def test_a_bad_model_in_a_scene_names_the_scene(tmp_path: Path) -> None:
     path.write_text(json.dumps(doc))
     r = lesmc("track", str(path))
     assert r.returncode == 2 and "Traceback" not in r.stderr
-    assert f"{path}: tracker: model.R[0][1] must be a finite number" in r.stderr
+    text = path.read_text()
+    col = text.index(json.dumps(1e13)) + 1  # the entry, on the file's one line
+    assert f"{path}:1:{col}: tracker: model.R[0][1] must be a finite number" in r.stderr
 
 
 def test_toml_syntax_errors_are_located(tmp_path: Path) -> None:

@@ -219,10 +219,10 @@ def test_report_and_replay_refuse_a_broken_reference_with_exit_2(
     doc["runs"][i]["roles"]["counterexample"][0] = 999
     (tmp_path / "r.json").write_text(json.dumps(doc))
     r = lesmc("report", "r.json", "--out", "rep", cwd=tmp_path)
-    _failed(r, "r.json: runs[")
+    _failed(r, "r.json:1:", ": runs[")
     assert not (tmp_path / "rep").exists()
     r = lesmc("replay", "r.json", "--frames", str(tmp_path), cwd=tmp_path)
-    _failed(r, "r.json: runs[")
+    _failed(r, "r.json:1:", ": runs[")
 
 
 # ------------------------------------------------------------------ campaign, synth
@@ -339,7 +339,7 @@ def test_export_refuses_results_whose_paths_are_not_state_ids(tmp_path: Path) ->
     (tmp_path / "r.json").write_text(json.dumps(bad))
     r = lesmc("export", "m.lts", "--format", "dot", "-o", "m.dot", "--results", "r.json",
               cwd=tmp_path)  # fmt: skip
-    _failed(r, "r.json: counterexample.states: must be a list of state ids")
+    _failed(r, "r.json:1:", ": results[0].counterexample.states: must be a list of state ids")
     (tmp_path / "r.json").write_text(json.dumps({"results": [3]}))
     r = lesmc("export", "m.lts", "--format", "dot", "-o", "m.dot", "--results", "r.json",
               cwd=tmp_path)  # fmt: skip

@@ -93,7 +93,7 @@ def test_a_box_too_small_for_its_position_is_refused_at_the_detection(
     scene = tmp_path / "scene.json"
     scene.write_text(json.dumps(_boxed({"x": x, "y": y, "w": w, "h": h})))
     r = lesmc("track", str(scene), "--design", design)
-    _refused(r, f"{scene}: frame 0, detection '0:0'", "too small for its position")
+    _refused(r, f"{scene}:1:", ": frame 0, detection '0:0'", "too small for its position")
     assert "target" not in r.stderr  # the frame's problem alone, no follow-on error
     assert r.stdout == ""
 

@@ -175,7 +175,7 @@ def test_an_iou_tracker_on_a_scene_without_boxes_is_located(tmp_path: Path) -> N
     p = _write(tmp_path, doc)
     r = lesmc("track", str(p), "--json")
     assert r.returncode == 2 and "Traceback" not in r.stderr
-    assert f"{p}: frame 1, detection '1:0': has no box (w, h)" in r.stderr
+    assert f"{p}:1:" in r.stderr and ": frame 1, detection '1:0': has no box (w, h)" in r.stderr
     assert json.loads(r.stdout)["format"] == "lesmc-error"  # no track printed
 
 

@@ -6,7 +6,7 @@ registry, lesmc/exporters/formats.py.
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 import click
 
@@ -307,37 +307,53 @@ def _scene_window(
 
 
 def _roles(cm: ArrayModel, path: str, prop: str | None) -> dict[str, list[int]]:
-    """The counterexample and witness paths of a results file, as model rows."""
-    from lesmc.common.files import read_json
+    """The counterexample and witness paths of a results file, as model rows; a bad one
+    is refused at its ``FILE:LINE:COL``."""
+    from lesmc.common.files import json_location, parse_json, read_text
 
-    doc = read_json(path, InputError)
-    results = []
-    if isinstance(doc, dict) and isinstance(doc.get("results"), list):
-        results = doc["results"]  # lesmc check --json
-    elif isinstance(doc, dict) and isinstance(doc.get("runs"), list):
-        results = [r for run in doc["runs"] for r in run.get("results", [])]
-    else:
-        raise InputError("not a results file (lesmc check --json or results.json)", Location(path))
+    text = read_text(path)
+    doc = parse_json(text, path)
     chosen = [
-        r for r in results if isinstance(r, dict) and (prop is None or r.get("property") == prop)
+        (at, r)
+        for at, r in _results(doc, path)
+        if isinstance(r, dict) and (prop is None or r.get("property") == prop)
     ]
     if not chosen:
         what = "no result" if prop is None else f"no result for property '{prop}'"
         raise InputError(what, Location(path))
+    at, first = chosen[0]
     roles: dict[str, list[int]] = {"original": cm.original.tolist()}
     for role in ("witness", "counterexample"):
-        got = chosen[0].get(role)
+        got = first.get(role)
         states = got.get("states") if isinstance(got, dict) else None
+        item = f"{at}.{role}.states"
         if states is not None and not (
             isinstance(states, list) and all(isinstance(s, str) for s in states)
         ):
-            raise InputError("must be a list of state ids", Location(path, item=f"{role}.states"))
+            raise InputError(
+                f"{item}: must be a list of state ids", json_location(path, text, item)
+            )
         if states:
             try:
                 roles[role] = [cm.index(s) for s in states]
             except KeyError as exc:
                 raise InputError(
-                    f"{role} state {exc} is not in this model (results of another model?)",
-                    Location(path, item=f"{role}.states"),
+                    f"{item}: {role} state {exc} is not in this model (results of another model?)",
+                    json_location(path, text, item),
                 ) from None
     return roles
+
+
+def _results(doc: Any, path: str) -> list[tuple[str, Any]]:
+    """Each result of ``lesmc check --json`` (``results``) or of a results file (``runs``),
+    with its JSON path."""
+    if isinstance(doc, dict) and isinstance(doc.get("results"), list):
+        return [(f"results[{i}]", r) for i, r in enumerate(doc["results"])]
+    if isinstance(doc, dict) and isinstance(doc.get("runs"), list):
+        return [
+            (f"runs[{k}].results[{i}]", r)
+            for k, run in enumerate(doc["runs"])
+            if isinstance(run, dict)
+            for i, r in enumerate(run.get("results", []))
+        ]
+    raise InputError("not a results file (lesmc check --json or results.json)", Location(path))

@@ -105,6 +105,11 @@ def tracker_names() -> tuple[str, ...]:
     return tuple(n for n, d in _DESIGNS.items() if d.implementation is not None)
 
 
+def multi_names() -> tuple[str, ...]:
+    """The multi-target designs (what a ``lesmc-multi-check`` document's ``design`` names)."""
+    return tuple(n for n, d in _DESIGNS.items() if d.multi)
+
+
 def get(name: str) -> Design:
     """The design called ``name`` (KeyError if none)."""
     return _DESIGNS[name]

@@ -1,4 +1,5 @@
-"""Reading a results file: strictly, and checked against the shipped schema."""
+"""Reading a results file: strictly, and checked against the shipped schema; each problem
+at its field's ``FILE:LINE:COL``."""
 
 from __future__ import annotations
 
@@ -7,7 +8,7 @@ from typing import Any
 
 from lesmc.common.errors import InputError, Location
 from lesmc.common.fields import is_version, show
-from lesmc.common.files import read_json
+from lesmc.common.files import json_location, parse_json, read_text
 from lesmc.results.document import FORMAT, VERSION
 from lesmc.results.references import check_multi_steps, check_references
 from lesmc.schemas import validate
@@ -17,10 +18,11 @@ def load_results(path: str | Path) -> dict[str, Any]:
     """A results file (``lesmc-results``, or a multi-target design's ``lesmc-multi-check``:
     ``lesmc verify --design sort``, ``lesmc check --design sort --json``), validated; an
     :class:`InputError` otherwise."""
-    doc = read_json(Path(path), InputError)
+    text = read_text(Path(path))
+    doc = parse_json(text, str(path))
     if isinstance(doc, dict) and doc.get("format") == "lesmc-multi-check":
-        validate(doc, "multi-check", str(path))
-        check_multi_steps(doc, str(path))
+        validate(doc, "multi-check", str(path), text)
+        check_multi_steps(doc, str(path), text)
         return doc
     if not isinstance(doc, dict) or doc.get("format") != FORMAT:
         raise InputError(
@@ -30,10 +32,10 @@ def load_results(path: str | Path) -> dict[str, Any]:
         )
     if not is_version(doc.get("version"), VERSION):
         raise InputError(
-            f"must be {VERSION}, got {show(doc.get('version'))} (this lesmc reads results files "
-            f"of version {VERSION}: make it again with this lesmc)",
-            Location(str(path), item="version"),
+            f"version: must be {VERSION}, got {show(doc.get('version'))} (this lesmc reads "
+            f"results files of version {VERSION}: make it again with this lesmc)",
+            json_location(str(path), text, "version"),
         )
-    validate(doc, "results", str(path))
-    check_references(doc, str(path))
+    validate(doc, "results", str(path), text)
+    check_references(doc, str(path), text)
     return doc

@@ -5,7 +5,7 @@ the replay also follow references between them: a path's state ids into the run'
 ``states``, ``roles`` into the numbered ``paths``, a result's property into the run's
 ``properties``, the hidden detections into the scene's. A file edited or cut by hand
 could break one of them; :func:`check_references` reports every broken reference as
-``FILE: item: message``, so that nothing downstream meets a missing key.
+``FILE:LINE:COL: item: message``, so that nothing downstream meets a missing key.
 """
 
 from __future__ import annotations
@@ -15,6 +15,7 @@ from typing import Any
 
 from lesmc.common.errors import InputError, Problems
 from lesmc.common.fields import within
+from lesmc.common.files import error_at_items
 from lesmc.scene.io import MAX_COORD, MAX_DT
 
 #: |coordinate| of a drawn box or position: detections lie within MAX_COORD, a track
@@ -22,8 +23,9 @@ from lesmc.scene.io import MAX_COORD, MAX_DT
 MAX_DRAWN = 100 * MAX_COORD
 
 
-def check_references(doc: dict[str, Any], path: str) -> None:
-    """Raise one :class:`InputError` listing every broken reference of ``doc``."""
+def check_references(doc: dict[str, Any], path: str, text: str | None = None) -> None:
+    """Raise one :class:`InputError` listing every broken reference of ``doc`` (given the
+    JSON ``text`` it was read from, each at its ``FILE:LINE:COL``)."""
     pr = Problems()
     seen: dict[str, int] = {}
     for i, run in enumerate(doc["runs"]):
@@ -33,7 +35,14 @@ def check_references(doc: dict[str, Any], path: str) -> None:
         seen.setdefault(run["design"], i)
         _run(run, at, pr)
     if pr.items:
-        raise InputError.many(path, pr.items)
+        raise _error(path, text, pr.items)
+
+
+def _error(path: str, text: str | None, problems: list[tuple[str, str]]) -> InputError:
+    """The error listing ``problems``: at their lines when the file's ``text`` is known."""
+    if text is None:
+        return InputError.many(path, problems)
+    return error_at_items(path, text, problems)
 
 
 def _run(run: dict[str, Any], at: str, pr: Problems) -> None:
@@ -109,13 +118,13 @@ def _number(v: Any) -> bool:
     return isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v)
 
 
-def check_multi_steps(doc: dict[str, Any], path: str) -> None:
+def check_multi_steps(doc: dict[str, Any], path: str, text: str | None = None) -> None:
     """What the multi-check schema cannot say, for the report that draws a
     ``lesmc-multi-check`` document's counterexamples (lesmc/report/multi.py): each
     counterexample's steps in increasing order on frames >= 0; each track and attacked
     detection with a ``box`` [x1, y1, x2, y2] or a ``position`` [x, y], each reference a
     box, every coordinate finite and within :data:`MAX_DRAWN`. One :class:`InputError`
-    listing every problem."""
+    listing every problem (given the JSON ``text``, each at its ``FILE:LINE:COL``)."""
     pr = Problems()
     for i, res in enumerate(doc["results"]):
         last = -1
@@ -132,7 +141,7 @@ def check_multi_steps(doc: dict[str, Any], path: str) -> None:
                 for j, item in enumerate(s.get(key) or []):
                     _drawn(item, f"{at}.{key}[{j}]", pr)
     if pr.items:
-        raise InputError.many(path, pr.items)
+        raise _error(path, text, pr.items)
 
 
 def _drawn(item: dict[str, Any], at: str, pr: Problems) -> None:

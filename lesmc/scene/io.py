@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import itertools
 import math
+import re
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any
@@ -26,8 +27,12 @@ from lesmc.common.fields import (
     within,
 )
 from lesmc.common.files import (
+    error_at_items,
     error_at_keys,
+    item_keys,
+    json_location,
     key_locations,
+    parse_json,
     read_json,
     read_text,
     read_toml,
@@ -149,10 +154,103 @@ def footage_from_dict(
     meta: dict[str, Any] = raw_meta if isinstance(raw_meta, dict) else {}
     recorded_attack(meta, pr)
     if pr.items:
-        raise InputError.many(path, pr.items)
+        raise scene_error(path, data, pr.items)
     assert tracker is not None
     check_fits(tracker, target, path)
     return Footage(float(dt), tuple(frames), tracker, meta, truth), target
+
+
+def scene_error(path: str, data: Any, problems: list[tuple[str, str]]) -> InputError:
+    """One error listing a scene's problems, each at its ``FILE:LINE:COL`` when ``path`` is
+    the file ``data`` was read from (it is read again: errors only; ``data`` None: the
+    file as it is), else as ``FILE: item: message``."""
+    read = _text_of(path, data)
+    if read is None:
+        return InputError.many(path, problems)
+    text, doc = read
+    return error_at_items(path, text, problems, lambda item, msg: _json_item(doc, item, msg))
+
+
+def _text_of(path: str, data: Any) -> tuple[str, dict[str, Any]] | None:
+    """The text of the regular file ``path`` and its document, when that is an object and
+    ``data`` (unless None); else None."""
+    try:
+        if not Path(path).is_file():
+            return None
+        text = read_text(path)
+        doc = parse_json(text, path)
+    except (InputError, OSError):
+        return None
+    ok = isinstance(doc, dict) and (data is None or doc == data)
+    return (text, doc) if ok else None
+
+
+_FRAME = re.compile(r"frame (\d+)")
+_NAMED = re.compile(r"(detection|candidate|truth track) '(.*)'")
+#: The key a problem's message starts with (``payoff must ...``, ``model.R[0][1] must ...``)
+#: or names as unknown.
+_LEADING_KEY = re.compile(
+    r"(?:unknown key '([^']*)'|([A-Za-z_][A-Za-z0-9_]*(?:\.[A-Za-z_][A-Za-z0-9_]*|\[\d+\])*))"
+)
+
+
+def _json_item(data: Any, item: str, msg: str) -> str:
+    """The JSON path (``frames[5].detections[1].payoff``) of a scene problem the loader
+    names by frame step and id (``frame 5, detection '5:c'``: ``payoff must be ...``): the
+    frame and the object by their step and id, then the key the message starts with
+    when that object has it."""
+    head, _, rest = item.partition(", ")
+    if (m := _FRAME.fullmatch(head)) is not None:
+        step = int(m.group(1))
+        head = _find(data.get("frames"), "frames", lambda f: f.get("step") == step)
+    elif (m := _NAMED.fullmatch(head)) is not None:
+        tid = m.group(2)
+        head = _find(data.get("truth"), "truth", lambda t: t.get("id") == tid)
+    elif head.startswith("key '"):
+        head = head[len("key '") : -1]
+    if (m := _NAMED.fullmatch(rest)) is not None:
+        kind = "detections" if m.group(1) == "detection" else "candidates"
+        frame = _at(data, head)
+        got = frame.get(kind) if isinstance(frame, dict) else None
+        # a duplicate id is the later of the two objects, and the id is what is wrong
+        dup, did = msg.startswith("duplicate"), m.group(2)
+        head = _find(got, f"{head}.{kind}", lambda d: d.get("id") == did, dup)
+        msg = "id" if dup else msg
+    elif rest:
+        head = f"{head}.{rest}"
+    obj = _at(data, head)
+    key = _LEADING_KEY.match(msg)
+    if key is not None and isinstance(obj, dict):
+        name = key.group(1) or key.group(2)
+        if re.split(r"[.\[]", name)[0] in obj:
+            return f"{head}.{name}"
+    return head
+
+
+def _find(
+    items: Any, where: str, match: Callable[[dict[str, Any]], bool], last: bool = False
+) -> str:
+    """``where[i]`` of the first (``last``: the last) object of ``items`` that ``match`` es;
+    ``where`` if none."""
+    found = where
+    if isinstance(items, list):
+        for i, x in enumerate(items):
+            if isinstance(x, dict) and match(x):
+                found = f"{where}[{i}]"
+                if not last:
+                    break
+    return found
+
+
+def _at(data: Any, item: str) -> Any:
+    """The value of ``data`` at ``item`` (:func:`~lesmc.common.files.item_keys`); None if
+    there is none."""
+    for key in item_keys(item) or []:
+        ok = isinstance(data, dict) if isinstance(key, str) else isinstance(data, list)
+        if not ok or (isinstance(key, int) and key >= len(data)):
+            return None
+        data = data.get(key) if isinstance(key, str) else data[key]
+    return data
 
 
 #: The attack settings a scene's ``meta.attack`` records that lesmc reads back (the
@@ -642,11 +740,15 @@ def _monitor(raw: Any, pr: Problems, item: str) -> str | None:
 
 
 def tracker_from_dict(
-    data: Any, path: str = "<tracker>", where: dict[str, Location] | None = None
+    data: Any,
+    path: str = "<tracker>",
+    where: dict[str, Location] | None = None,
+    text: str | None = None,
 ) -> TrackerConfig:
     """A tracker file's configuration: the keys of a scene's ``tracker`` block, and an
     optional ``comment``. ``where`` (each key's place in the file) puts each problem at
-    its key's ``FILE:LINE:COL``."""
+    its key's ``FILE:LINE:COL``; the JSON ``text`` of the file, at the very field a
+    problem names (``model.Q[3][2]``)."""
     pr = Problems()
     if not isinstance(data, dict):
         keys = ", ".join(k for k in tracker_keys() if k != "faults")
@@ -666,20 +768,35 @@ def tracker_from_dict(
         problems = pr.items or [("", "not a tracker")]
         if where is None:
             raise InputError.many(path, problems)
-        raise _at_keys(path, problems, owners, where)
+        raise _at_keys(path, problems, owners, where, text)
     return cfg
 
 
 def _at_keys(
-    path: str, problems: list[tuple[str, str]], owners: dict[int, str], where: dict[str, Location]
+    path: str,
+    problems: list[tuple[str, str]],
+    owners: dict[int, str],
+    where: dict[str, Location],
+    text: str | None = None,
 ) -> InputError:
     """One error listing each problem at its key's ``FILE:LINE:COL`` (``FILE`` when the
-    key is not in the file, as for a missing key)."""
-    found = [
-        (owners.get(i, ""), f"{item}: {msg}" if item else msg)
-        for i, (item, msg) in enumerate(problems)
-    ]
-    return error_at_keys(path, where, found, name_keys=False)
+    key is not in the file, as for a missing key); given the file's JSON ``text``, at
+    the field under the key that the message starts with (``model.Q[3][2] must ...``)."""
+    places: dict[str, Location] = {}
+    found = []
+    for i, (item, msg) in enumerate(problems):
+        key = owners.get(i, "")
+        field = _LEADING_FIELD.match(msg)
+        if text is not None and key and field and field.group(0).startswith(key):
+            places[f"#{i}"] = json_location(path, text, field.group(0))
+        elif key in where:
+            places[f"#{i}"] = where[key]
+        found.append((f"#{i}", f"{item}: {msg}" if item else msg))
+    return error_at_keys(path, places, found, name_keys=False)
+
+
+#: The field a tracker problem's message starts with: ``model.Q[3][2]``, ``gate``.
+_LEADING_FIELD = re.compile(r"[A-Za-z_][A-Za-z0-9_]*(?:\.[A-Za-z_][A-Za-z0-9_]*|\[\d+\])*")
 
 
 def load_tracker(path: str | Path, design: str | None = None) -> TrackerConfig:
@@ -692,7 +809,8 @@ def load_tracker(path: str | Path, design: str | None = None) -> TrackerConfig:
     data = read_json(p, InputError) if is_json else read_toml(p)
     if design is not None and isinstance(data, dict):
         data = {**data, "design": design}
-    return tracker_from_dict(data, p, key_locations(p, read_text(p), is_json))
+    text = read_text(p)
+    return tracker_from_dict(data, p, key_locations(p, text, is_json), text if is_json else None)
 
 
 def check_fits(

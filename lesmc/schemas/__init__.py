@@ -18,6 +18,7 @@ from importlib import resources
 from typing import Any
 
 from lesmc.common.errors import InputError, Location
+from lesmc.common.files import error_at_items
 from lesmc.designs import registry
 from lesmc.engines import payoff_modes
 from lesmc.engines import registry as engines
@@ -56,21 +57,21 @@ def schema(name: str) -> dict[str, Any]:
     """The schema ``lesmc/schemas/NAME.json``, with the registries' names.
 
     The enums of registered names are not spelled in the files: ``#/$defs/designs``
-    (every registered design) and ``#/$defs/trackers`` (the designs that bring
-    a tracker) are filled from lesmc/designs/registry.py now, so that a design
-    registered at run time is accepted too; so are the export formats
-    (``#/$defs/export_formats``, lesmc/exporters/formats.py) and, in the export
-    document, the MDP facts each property-stating format writes under its name.
-    a tracker) are filled from lesmc/designs/registry.py now, ``#/$defs/engines``
-    from lesmc/engines/registry.py and ``#/$defs/payoff_modes`` from
-    lesmc/engines/payoff_modes.py, and ``#/$defs/measure_sources`` (a property's
-    ``objective_source``, ``constraint_source``) from lesmc/language/measures/, so that
-    a variant registered at run time is accepted too.
+    (every registered design), ``#/$defs/trackers`` (the designs that bring a
+    tracker) and ``#/$defs/multi_designs`` (the multi-target designs) are filled
+    from lesmc/designs/registry.py now, ``#/$defs/engines`` from
+    lesmc/engines/registry.py, ``#/$defs/payoff_modes`` from
+    lesmc/engines/payoff_modes.py, ``#/$defs/export_formats`` from
+    lesmc/exporters/formats.py and ``#/$defs/measure_sources`` (a property's
+    ``objective_source``, ``constraint_source``) from lesmc/language/measures/, so
+    that a variant registered at run time is accepted too; in the export document,
+    so are the MDP facts each property-stating format writes under its name.
     """
     out: dict[str, Any] = json.loads(_text(name))
     defs = out.setdefault("$defs", {})
     defs["designs"] = {"enum": list(registry.names())}
     defs["trackers"] = {"enum": list(registry.tracker_names())}
+    defs["multi_designs"] = {"enum": list(registry.multi_names())}
     defs["engines"] = {"enum": list(engines.names())}
     defs["payoff_modes"] = {"enum": list(payoff_modes.names())}
     defs["export_formats"] = {"enum": list(formats.names())}
@@ -146,11 +147,17 @@ def errors(value: Any, sch: dict[str, Any], root: dict[str, Any], where: str = "
     return out
 
 
-def validate(doc: Any, name: str, path: str = "<document>") -> None:
-    """Raise an InputError naming the first offending field when ``doc`` breaks schema NAME."""
+def validate(doc: Any, name: str, path: str = "<document>", text: str | None = None) -> None:
+    """Raise an InputError naming the first offending field when ``doc`` breaks schema NAME;
+    given the JSON ``text`` ``doc`` was read from, at the field's ``FILE:LINE:COL``."""
     sch = schema(name)
     problems = errors(doc, sch, sch)
     if problems:
         field, _, what = problems[0].partition(": ")
         more = f" (and {len(problems) - 1} more)" if len(problems) > 1 else ""
-        raise InputError(f"{what}{more}", Location(path, item=field))
+        if text is None:
+            raise InputError(f"{what}{more}", Location(path, item=field))
+        whole = field == "(document)"
+        raise error_at_items(
+            path, text, [(field, f"{what}{more}")], lambda f, _: "" if whole else f
+        )

@@ -22,9 +22,10 @@ from typing import Any, ClassVar, Protocol
 
 import numpy as np
 
-from lesmc.common.errors import InputError, UsageError
+from lesmc.common.errors import UsageError
 from lesmc.model.identity import NONE, target_track
 from lesmc.scene import Footage, Frame, Scene
+from lesmc.scene.io import scene_error
 from lesmc.tracking.parts.associator import GlobalAssociator
 from lesmc.tracking.parts.box_filter import BoxFilter
 from lesmc.tracking.parts.boxes import iou
@@ -127,8 +128,9 @@ def need_boxes(frames: tuple[Frame, ...], design: str, path: str) -> None:
                 for d in ds
                 if d.w is None or d.h is None
             )
-            raise InputError.many(
+            raise scene_error(
                 path,
+                None,
                 [
                     (
                         f"frame {f.step}, {kind} '{d.id}'",
