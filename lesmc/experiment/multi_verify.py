@@ -23,11 +23,16 @@ from lesmc.common.errors import UsageError
 from lesmc.common.files import json_text
 from lesmc.common.progress import Reporter
 from lesmc.designs import registry
+from lesmc.language.properties import SpecFile
+from lesmc.perception import HISTORY
 from lesmc.pipeline.multi import MultiCheckResult, check_multi_design, multi_document
-from lesmc.scene import scene_to_dict
+from lesmc.scene import Scene, scene_to_dict
 
 if TYPE_CHECKING:
+    from lesmc.common.progress import Bar
     from lesmc.experiment.experiment import Request
+    from lesmc.perception import NetFiles
+    from lesmc.replay.run import Outcome
 
 
 @dataclass
@@ -99,13 +104,16 @@ def verify_multi(req: Request, rep: Reporter) -> MultiOutcome:
         "video, perception and scene": checked - started,
         "models and checks": time.monotonic() - checked,
     }
-    doc = multi_document(
-        design,
-        composed(scene, where).reference_kind(),
-        results,
-        {**src.meta, "target": ex._target_text(scene), "properties": [str(p) for p in paths]},
-        timings,
-    )
+    meta = {
+        **src.meta,
+        "target": ex._target_text(scene),
+        "properties": [str(p.resolve()) for p in paths],
+        "window": None if req.window is None else list(req.window),
+    }
+    if req.scene_path is not None:
+        meta["scene"] = str(Path(req.scene_path).resolve())
+    doc = multi_document(design, composed(scene, where).reference_kind(), results, meta, timings)
+    _replay(doc, scene, where, specs, src, rep)
     rep.stage("writing the report")
     from lesmc.report.multi import write_multi_report
 
@@ -127,3 +135,130 @@ def _refuse_points_for_boxes(detector: str, design: str) -> None:
             "is a heatmap detector file, whose detections are points: use a box detector "
             'file (kind = "boxes") or a point design such as gnn (docs/detectors.md)'
         )
+
+
+def _replay(
+    doc: dict[str, Any], scene: Scene, where: str, specs: list[SpecFile], src: Any, rep: Reporter
+) -> None:
+    """Replay every violated counterexample of ``doc`` through the real detector and the
+    production tracker (lesmc/replay/multi.py); each result records its replay and the
+    timings the replay's seconds. Not through a detector file (its replay is the point
+    designs'): the counterexamples stay as the model gives them."""
+    from lesmc.experiment import detector_verify as dv
+    from lesmc.replay.multi import multi_cases, replay_multi
+
+    bound = bound_properties(specs, scene)
+    todo = multi_cases(doc, scene, bound)
+    if not todo or src.frames is None or (src.nets is None and src.net_files is None):
+        return
+    if dv.detector_file_of(src.net_files or (None, None, None)) is not None:
+        rep.log("a detector file's multi-target counterexamples are not replayed (yet)")
+        return
+    t0 = time.monotonic()
+    clean = None if src.run is None else {fd.index: fd for fd in src.run.detections}
+    known = None if src.run is None else src.run.registrations
+    with rep.bar("replaying", len(src.frames) if clean is None else None) as bar:
+        outcome = replay_multi(
+            doc, scene, where, bound, src.frames, src.networks(), None, bar.advance, clean, known
+        )
+    record_multi_replays(doc, outcome.replays)
+    doc.setdefault("timings", {})["replay"] = round(time.monotonic() - t0, 3)
+
+
+def bound_properties(specs: list[SpecFile], scene: Scene) -> dict[str, Any]:
+    """Every property of ``specs`` bound to the multi-target model of ``scene``, by name."""
+    from lesmc.engines.multi import bind_multi
+
+    last = len(scene.frames) - 1
+    return {p.name: bind_multi(s, p, last) for s in specs for p in s.properties}
+
+
+def record_multi_replays(doc: dict[str, Any], replays: dict[tuple[int, int], Any]) -> None:
+    """Each replay into its result of the ``lesmc-multi-check`` document ``doc``."""
+    for (_, j), obj in sorted(replays.items()):
+        doc["results"][j]["replay"] = obj
+
+
+def replay_document(
+    doc: dict[str, Any],
+    path: str,
+    frames_dir: str | None,
+    nets: NetFiles,
+    prop: str | None,
+    bar: Bar,
+) -> tuple[Outcome, str]:
+    """``lesmc replay`` of a ``lesmc-multi-check`` document ``doc`` (read from ``path``, as
+    ``lesmc verify --design sort|gnn`` wrote it): its scene (``meta.scene``, else the
+    scene.json beside it), its properties (``meta.properties``, moved to ``meta.window``),
+    the frames (``frames_dir``, else ``meta.video``) and the networks; the replays and
+    the frames' directory."""
+    from lesmc.experiment import experiment as ex
+    from lesmc.perception.cnn import load_nets
+    from lesmc.perception.detector_file import is_detector_file
+    from lesmc.replay.multi import multi_cases, replay_multi
+    from lesmc.scene.io import load_scene
+    from lesmc.video.reader import open_frames
+
+    meta = doc.get("meta") or {}
+    scene_path = _scene_of(meta, path)
+    frames_dir = frames_dir or (str(meta["video"]) if isinstance(meta.get("video"), str) else None)
+    if frames_dir is None:
+        raise UsageError(
+            "replay runs the detector on the video: give its frames with --frames DIR (the "
+            "results file does not name them)"
+        )
+    if nets[1] is not None and is_detector_file(nets[1]):
+        raise UsageError(
+            f"--detector {nets[1]}: a multi-target design's counterexamples replay through the "
+            "window pipeline's networks (--nets, --detector, --locator) only, so far"
+        )
+    scene = load_scene(scene_path).with_tracker(design=doc["design"])
+    window = meta.get("window")
+    props = [Path(p) for p in meta.get("properties") or ()] or identity_specs()
+    specs = ex.load_specs(props, None if window is None else (int(window[0]), int(window[1])))
+    bound = bound_properties(specs, scene)
+    multi_cases(doc, scene, bound, prop)  # an unknown property is an error before the video
+    frames = open_frames(frames_dir, HISTORY + 1)
+    bar.update(total=len(frames))
+    outcome = replay_multi(
+        doc, scene, scene_path, bound, frames, load_nets(*nets), prop, bar.advance
+    )
+    return outcome, frames_dir
+
+
+def _scene_of(meta: dict[str, Any], path: str) -> str:
+    """The scene the results were made from: ``meta.scene``, else scene.json beside them."""
+    named = meta.get("scene")
+    for p in (Path(named) if isinstance(named, str) else None, Path(path).parent / "scene.json"):
+        if p is not None and p.is_file():
+            return str(p)
+    raise UsageError(
+        f"{path}: the scene the results were made from is not found (meta.scene "
+        f"{named!r}, nor scene.json beside the results): the replay reads its detections"
+    )
+
+
+def multi_rows(
+    doc: dict[str, Any], outcome: Outcome, prop: str | None
+) -> tuple[list[dict[str, Any]], set[str]]:
+    """One ``lesmc replay`` row per replayed counterexample (as lesmc/replay/run.py's
+    ``verdict_rows``: confirmed is violated, diverged unknown) and every verdict after it."""
+    rows = []
+    for (_, j), obj in sorted(outcome.replays.items()):
+        verdict = "violated" if obj["status"] == "confirmed" else "unknown"
+        rows.append(
+            {
+                "design": doc["design"],
+                "property": doc["results"][j]["property"],
+                "verdict_model": "violated",
+                "verdict": verdict,
+                "replay": obj,
+            }
+        )
+    done = {j for _, j in outcome.replays}
+    others = {
+        r["verdict"]
+        for j, r in enumerate(doc["results"])
+        if j not in done and prop in (None, r["property"])
+    }
+    return rows, {r["verdict"] for r in rows} | others
