@@ -54,6 +54,10 @@ def replay_cmd(
     the reason are printed (docs/semantics.md, "Replay"). With --detector
     FILE.toml (a detector file, docs/detectors.md) the attacks, the perturbed
     frames and the detections go through that file's network instead.
+    A multi-target design's results (lesmc-multi-check, verify --design sort|gnn):
+    the production tracker runs on the replayed detections and the replay is
+    confirmed when the property is violated on that run with the model's target
+    track ids (docs/trackers.md, "Replaying a multi-target counterexample").
     Exit status (the verdicts after the replay, as lesmc check): 0 nothing violated,
     1 some violation confirmed, 2 bad input, 3 some replay diverged (unknown) and
     none confirmed, 4 internal error, 130 interrupted.
