@@ -158,9 +158,8 @@ def verify_cmd(
     WAMI video (seed 1, 24 frames, 2048x2048) is generated into OUT/video and a
     target with neighbouring traffic is chosen from its truth.
     Writes OUT/scene.json, OUT/report.html, OUT/figures/*.png and OUT/results.json.
-    --design sort|gnn (multi-target): specs/identity.spec by default, each
-    counterexample replayed through the detector and the production tracker,
-    results.json a lesmc-multi-check document whose report draws every track.
+    --design sort|gnn (multi-target): specs/identity.spec by default, replayed by
+    the production tracker, results.json a lesmc-multi-check document.
     OUT/cache keeps perception, replays and figures by content. Exit status as check's.
     """
     preload = ("torch", "cv2") if timeout is not None else ()  # under the deadline's watchdog

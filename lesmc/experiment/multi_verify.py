@@ -25,7 +25,12 @@ from lesmc.common.progress import Reporter
 from lesmc.designs import registry
 from lesmc.language.properties import SpecFile
 from lesmc.perception import HISTORY
-from lesmc.pipeline.multi import MultiCheckResult, check_multi_design, multi_document
+from lesmc.pipeline.multi import (
+    MultiCheckResult,
+    bound_properties,
+    check_multi_design,
+    multi_document,
+)
 from lesmc.scene import Scene, scene_to_dict
 
 if TYPE_CHECKING:
@@ -163,14 +168,6 @@ def _replay(
         )
     record_multi_replays(doc, outcome.replays)
     doc.setdefault("timings", {})["replay"] = round(time.monotonic() - t0, 3)
-
-
-def bound_properties(specs: list[SpecFile], scene: Scene) -> dict[str, Any]:
-    """Every property of ``specs`` bound to the multi-target model of ``scene``, by name."""
-    from lesmc.engines.multi import bind_multi
-
-    last = len(scene.frames) - 1
-    return {p.name: bind_multi(s, p, last) for s in specs for p in s.properties}
 
 
 def record_multi_replays(doc: dict[str, Any], replays: dict[tuple[int, int], Any]) -> None:

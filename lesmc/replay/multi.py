@@ -322,41 +322,11 @@ def _verdict(
 ) -> dict[str, Any]:
     """The replay object: the property checked on the replayed run (``model``), and its
     target's track ids against the counterexample's."""
-    from lesmc.engines.multi import _combine
-
-    res = check_multi(model, c.prop)
-    first, per = measure_values(model, c.prop.constraint, c.prop.components, c.prop.norm)
-    value = first
-    for v in per.tolist():
-        value = _combine(c.prop.constraint)(value, v)
-    cost_first, cost_per = measure_values(model, c.prop.objective, c.prop.components, c.prop.norm)
-    objective = cost_first
-    for v in cost_per.tolist():
-        objective = _combine(c.prop.objective)(objective, v)
+    holds = check_multi(model, c.prop).holds
+    value = _value(model, c.prop.constraint, c.prop)
+    objective = _value(model, c.prop.objective, c.prop)
     ids = [None if t == NONE else int(t) for t in model.tid.tolist()]
-    want = [s.get("target_id") for s in c.steps]
-    differ = next((k for k, (a, b) in enumerate(zip(ids, want, strict=True)) if a != b), None)
-    prop, reason, step = c.prop.prop, None, None
-    met = COMPARE[c.prop.op](value, c.prop.bound)
-    if differ is not None:
-        step = differ
-        reason = (
-            f"at step {differ} the target's track is "
-            f"{'none' if ids[differ] is None else f'id {ids[differ]}'} where the model's is "
-            f"{'none' if want[differ] is None else f'id {want[differ]}'}"
-        )
-    elif not met:
-        step = c.end
-        reason = (
-            f"{prop.constraint.measure.text()} is {value:g} on the replayed run: the "
-            f"constraint ({c.prop.op} {c.prop.bound:g}) is not met"
-        )
-    elif res.holds:
-        step = c.end
-        reason = (
-            f"the replayed attack's {prop.objective.text()} is {objective:g}: the property "
-            f"holds for it (optimum {prop.holds_op} {prop.threshold:g})"
-        )
+    step, reason = _why(c, ids, value, objective, holds)
     fas = [attacked[f] for f in sorted(attacked) if f <= c.steps[-1]["frame"]]
     if reason is not None and step is not None:
         near = [fa for fa in fas if fa.frame <= c.steps[step]["frame"]]
@@ -380,6 +350,46 @@ def _verdict(
         "constraint_value": value if math.isfinite(value) else "inf",
         "objective": objective if math.isfinite(objective) else "inf",
     }
+
+
+def _value(model: MultiModel, m: Any, prop: Any) -> float:
+    """Measure ``m`` of property ``prop`` on the one path of ``model``: the engine's
+    contributions (lesmc/engines/multi.py), summed or maxed as the engine combines them."""
+    from lesmc.engines.multi import _combine
+
+    first, per = measure_values(model, m, prop.components, prop.norm)
+    value, add = float(first), _combine(m)
+    for v in per.tolist():
+        value = add(value, float(v))
+    return value
+
+
+def _why(
+    c: MultiCase, ids: list[int | None], value: float, objective: float, holds: bool
+) -> tuple[int | None, str | None]:
+    """Where and why the replayed run differs from the counterexample (None, None: it
+    confirms it): a target's track id that differs, the constraint not met, or an
+    attack that costs enough for the property to hold."""
+    want = [s.get("target_id") for s in c.steps]
+    differ = next((k for k, (a, b) in enumerate(zip(ids, want, strict=True)) if a != b), None)
+    prop = c.prop.prop
+    if differ is not None:
+        got, theirs = ids[differ], want[differ]
+        return differ, (
+            f"at step {differ} the target's track is {'none' if got is None else f'id {got}'} "
+            f"where the model's is {'none' if theirs is None else f'id {theirs}'}"
+        )
+    if not COMPARE[c.prop.op](value, c.prop.bound):
+        return c.end, (
+            f"{prop.constraint.measure.text()} is {value:g} on the replayed run: the "
+            f"constraint ({c.prop.op} {c.prop.bound:g}) is not met"
+        )
+    if holds:
+        return c.end, (
+            f"the replayed attack's {prop.objective.text()} is {objective:g}: the property "
+            f"holds for it (optimum {prop.holds_op} {prop.threshold:g})"
+        )
+    return None, None
 
 
 def _box_error(c: MultiCase, fts: list[Any]) -> float | None:
