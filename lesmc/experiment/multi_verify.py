@@ -189,13 +189,9 @@ def replay_document(
     scene.json beside it), its properties (``meta.properties``, moved to ``meta.window``),
     the frames (``frames_dir``, else ``meta.video``) and the networks; the replays and
     the frames' directory."""
-    from lesmc.experiment import experiment as ex
-    from lesmc.perception.cnn import load_nets
-    from lesmc.perception.detector_file import is_detector_file
-    from lesmc.replay.multi import multi_cases, replay_multi
-    from lesmc.scene.io import load_scene
-    from lesmc.video.reader import open_frames
+    from lesmc.replay.multi import known_property, multi_cases, replay_multi
 
+    known_property(doc, prop)  # bad input is refused before anything heavy is imported
     meta = doc.get("meta") or {}
     scene_path = _scene_of(meta, path)
     frames_dir = frames_dir or (str(meta["video"]) if isinstance(meta.get("video"), str) else None)
@@ -204,6 +200,12 @@ def replay_document(
             "replay runs the detector on the video: give its frames with --frames DIR (the "
             "results file does not name them)"
         )
+    from lesmc.experiment import experiment as ex
+    from lesmc.perception.cnn import load_nets
+    from lesmc.perception.detector_file import is_detector_file
+    from lesmc.scene.io import load_scene
+    from lesmc.video.reader import open_frames
+
     if nets[1] is not None and is_detector_file(nets[1]):
         raise UsageError(
             f"--detector {nets[1]}: a multi-target design's counterexamples replay through the "
@@ -214,7 +216,7 @@ def replay_document(
     props = [Path(p) for p in meta.get("properties") or ()] or identity_specs()
     specs = ex.load_specs(props, None if window is None else (int(window[0]), int(window[1])))
     bound = bound_properties(specs, scene)
-    multi_cases(doc, scene, bound, prop)  # an unknown property is an error before the video
+    multi_cases(doc, scene, bound, prop)  # its bad input is refused before the video is read
     frames = open_frames(frames_dir, HISTORY + 1)
     bar.update(total=len(frames))
     outcome = replay_multi(

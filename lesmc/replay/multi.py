@@ -88,11 +88,7 @@ def multi_cases(
     """The counterexamples of ``doc`` to replay: each violated result's (or ``prop``'s) that
     hides detections only; ``bound``: the document's properties, bound to ``scene``."""
     results = list(doc.get("results", []))
-    names = {str(r.get("property")) for r in results}
-    if prop is not None and prop not in names:
-        raise UsageError(
-            f"no property named {prop}; the results hold {', '.join(sorted(names)) or 'none'}"
-        )
+    known_property(doc, prop)
     out = []
     for j, res in enumerate(results):
         steps = res.get("counterexample")
@@ -108,6 +104,15 @@ def multi_cases(
             )
         out.append(MultiCase(j, b, tuple(steps), _hidden(scene, steps)))
     return out
+
+
+def known_property(doc: Mapping[str, Any], prop: str | None) -> None:
+    """A UsageError unless ``prop`` (None: every property) is a result of ``doc``."""
+    names = {str(r.get("property")) for r in doc.get("results", [])}
+    if prop is not None and prop not in names:
+        raise UsageError(
+            f"no property named {prop}; the results hold {', '.join(sorted(names)) or 'none'}"
+        )
 
 
 def _hidden(scene: Scene, steps: list[dict[str, Any]]) -> tuple[Hidden, ...]:
