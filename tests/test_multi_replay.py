@@ -42,21 +42,25 @@ property lose {
 TARGET = "119.0,71.5@4"
 
 
-@pytest.fixture(scope="module")
-def verified(tmp_path_factory: pytest.TempPathFactory) -> Path:
-    """``lesmc verify VIDEO --design sort`` on a 12-frame 448 x 448 video: its OUT."""
-    base = tmp_path_factory.mktemp("multireplay")
-    video = base / "video"
-    write_video(SynthConfig(frames=12, width=448, height=448, seed=5, density=3.0), video)
-    spec = base / "lose.spec"
-    spec.write_text(SPEC)
-    out = base / "out"
+def _verify(out: Path) -> Any:
+    """``lesmc verify VIDEO --design sort`` into ``out`` (the video and spec beside it)."""
+    video, spec = out.parent / "video", out.parent / "identity.spec"
     r = lesmc("verify", str(video), "--truth", str(video / "truth.json"), "--out", str(out),
               "--design", "sort", "--spec", str(spec), "--target", TARGET)  # fmt: skip
     assert "Traceback" not in r.stderr, r.stderr
     assert r.returncode == 1, r.stderr  # violated, and the replay confirmed it
     assert "replay: confirmed" in r.stdout
-    return out
+    return r
+
+
+@pytest.fixture(scope="module")
+def verified(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """``lesmc verify VIDEO --design sort`` on a 12-frame 448 x 448 video: its OUT."""
+    base = tmp_path_factory.mktemp("multireplay")
+    write_video(SynthConfig(frames=12, width=448, height=448, seed=5, density=3.0), base / "video")
+    (base / "identity.spec").write_text(SPEC)
+    _verify(base / "out")
+    return base / "out"
 
 
 def _iou(a: np.ndarray, b: np.ndarray) -> float:
@@ -180,3 +184,12 @@ def test_replay_of_multi_results_refuses_bad_input(verified: Path, tmp_path: Pat
         # the scene is looked for before the frames, the networks and the bar
         replay_document(doc, str(tmp_path / "results.json"), None, (None, None, None), None, None)
     assert "scene" in err.value.message
+
+
+def test_a_rerun_reuses_the_replay(verified: Path) -> None:
+    """The same verify again: the replays come from OUT/cache, the same objects."""
+    before = json.loads((verified / "results.json").read_text())
+    r = _verify(verified)
+    assert "reusing the replay of 2 counterexamples from the cache" in r.stderr
+    after = json.loads((verified / "results.json").read_text())
+    assert [x["replay"] for x in after["results"]] == [x["replay"] for x in before["results"]]

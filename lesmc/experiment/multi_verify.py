@@ -160,14 +160,45 @@ def _replay(
         rep.log("a detector file's multi-target counterexamples are not replayed (yet)")
         return
     t0 = time.monotonic()
-    clean = None if src.run is None else {fd.index: fd for fd in src.run.detections}
-    known = None if src.run is None else src.run.registrations
-    with rep.bar("replaying", len(src.frames) if clean is None else None) as bar:
-        outcome = replay_multi(
-            doc, scene, where, bound, src.frames, src.networks(), None, bar.advance, clean, known
-        )
-    record_multi_replays(doc, outcome.replays)
+    key = _replay_key(doc, scene, src)
+    hit = None if src.cache is None or key is None else src.cache.get("multi-replay", key)
+    if isinstance(hit, dict) and all(isinstance(v, dict) for v in hit.values()):
+        rep.log(f"reusing the replay of {len(hit)} counterexamples from the cache")
+        replays = {(0, int(j)): obj for j, obj in hit.items()}
+    else:
+        clean = None if src.run is None else {fd.index: fd for fd in src.run.detections}
+        known = None if src.run is None else src.run.registrations
+        with rep.bar("replaying", len(src.frames) if clean is None else None) as bar:
+            nets = src.networks()
+            outcome = replay_multi(
+                doc, scene, where, bound, src.frames, nets, None, bar.advance, clean, known
+            )
+        replays = outcome.replays
+        if src.cache is not None and key is not None:
+            src.cache.put("multi-replay", key, {str(j): obj for (_, j), obj in replays.items()})
+    record_multi_replays(doc, replays)
     doc.setdefault("timings", {})["replay"] = round(time.monotonic() - t0, 3)
+
+
+def _replay_key(doc: dict[str, Any], scene: Scene, src: Any) -> str | None:
+    """The digest of what the replay reads (the results without their timings, the
+    scene, the frames, the networks and the code), as the point designs' replay keys
+    OUT/cache (lesmc/experiment/experiment.py); None: not cacheable."""
+    from lesmc.experiment.cache import code_digest, digest, file_digests, net_files
+
+    if src.net_files is None or src.frames is None:
+        return None
+    return digest(
+        {
+            "code": code_digest(
+                "replay", "perception", "video", "tracking", "scene", "engines", "model"
+            ),
+            "frames": file_digests(src.frames.paths),
+            "nets": file_digests(net_files(src.net_files)),
+            "scene": scene_to_dict(scene),
+            "results": doc["results"],
+        }
+    )
 
 
 def record_multi_replays(doc: dict[str, Any], replays: dict[tuple[int, int], Any]) -> None:
