@@ -170,12 +170,21 @@ def test_a_corrupted_counterexample_replays_diverged(verified: Path, tmp_path: P
 
 
 def test_replay_of_multi_results_refuses_bad_input(verified: Path, tmp_path: Path) -> None:
-    """An unknown property, and results whose scene is nowhere: exit 2 before the video is
-    read, no traceback."""
+    """An unknown property, a hidden detection the scene lacks (located in the results) and
+    results whose scene is nowhere: exit 2 before the video is read, no traceback."""
     r = lesmc("replay", str(verified / "results.json"), "--property", "nope")
     assert r.returncode == 2 and "Traceback" not in r.stderr, r.stderr
     assert "no property named nope" in r.stderr
     doc = json.loads((verified / "results.json").read_text())
+    steps = doc["results"][1]["counterexample"]
+    i = next(i for i, s in enumerate(steps) if s["hidden"])
+    steps[i]["hidden"] = [f"{steps[i]['frame']}:999"]
+    odd = tmp_path / "odd.json"
+    odd.write_text(json.dumps(doc))
+    r = lesmc("replay", str(odd))
+    assert r.returncode == 2 and "Traceback" not in r.stderr, r.stderr
+    assert f"{odd}: results[1].counterexample[{i}].hidden" in r.stderr
+    assert f"'{steps[i]['frame']}:999' is not in the scene's frame" in r.stderr
     doc["meta"]["scene"] = str(tmp_path / "gone.json")
     from lesmc.common.errors import UsageError
     from lesmc.experiment.multi_verify import replay_document

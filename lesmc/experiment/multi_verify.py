@@ -247,11 +247,11 @@ def replay_document(
     props = [Path(p) for p in meta.get("properties") or ()] or identity_specs()
     specs = ex.load_specs(props, None if window is None else (int(window[0]), int(window[1])))
     bound = bound_properties(specs, scene)
-    multi_cases(doc, scene, bound, prop)  # its bad input is refused before the video is read
+    multi_cases(doc, scene, bound, prop, path)  # bad input is refused before the video is read
     frames = open_frames(frames_dir, HISTORY + 1)
     bar.update(total=len(frames))
     outcome = replay_multi(
-        doc, scene, scene_path, bound, frames, load_nets(*nets), prop, bar.advance
+        doc, scene, scene_path, bound, frames, load_nets(*nets), prop, bar.advance, path=path
     )
     return outcome, frames_dir
 

@@ -84,9 +84,11 @@ def multi_cases(
     scene: Scene,
     bound: Mapping[str, Any],
     prop: str | None = None,
+    path: str = "<results>",
 ) -> list[MultiCase]:
-    """The counterexamples of ``doc`` to replay: each violated result's (or ``prop``'s) that
-    hides detections only; ``bound``: the document's properties, bound to ``scene``."""
+    """The counterexamples of ``doc`` (read from ``path``) to replay: each violated result's
+    (or ``prop``'s) that hides detections only; ``bound``: the document's properties,
+    bound to ``scene``."""
     results = list(doc.get("results", []))
     known_property(doc, prop)
     out = []
@@ -102,7 +104,7 @@ def multi_cases(
                 f"property {res['property']} of the results is in none of the property files "
                 "the results name (meta.properties): give the files they were checked with"
             )
-        out.append(MultiCase(j, b, tuple(steps), _hidden(scene, steps)))
+        out.append(MultiCase(j, b, tuple(steps), _hidden(scene, steps, Location(path), j)))
     return out
 
 
@@ -115,11 +117,14 @@ def known_property(doc: Mapping[str, Any], prop: str | None) -> None:
         )
 
 
-def _hidden(scene: Scene, steps: list[dict[str, Any]]) -> tuple[Hidden, ...]:
-    """The detections the steps hide, each with its step, frame, position and payoff as
-    the scene gives them (a hidden id the scene's frame lacks: an input error)."""
+def _hidden(
+    scene: Scene, steps: list[dict[str, Any]], where: Location, j: int
+) -> tuple[Hidden, ...]:
+    """The detections the steps of result ``j`` hide, each with its step, frame, position
+    and payoff as the scene gives them (a hidden id the scene's frame lacks: an input
+    error located in the results file ``where``)."""
     out = []
-    for s in steps:
+    for i, s in enumerate(steps):
         k = int(s["step"])
         frame = scene.frames[k] if 0 <= k < len(scene.frames) else None
         by_id = {} if frame is None else {d.id: d for d in frame.detections}
@@ -127,9 +132,9 @@ def _hidden(scene: Scene, steps: list[dict[str, Any]]) -> tuple[Hidden, ...]:
             d = by_id.get(obs)
             if d is None or frame is None:
                 raise InputError(
-                    f"step {k} hides detection '{obs}', which the scene's frame "
-                    f"{s['frame']} does not hold: the results were not made from this scene",
-                    Location("results.json"),
+                    f"detection '{obs}' is not in the scene's frame {s['frame']}: the "
+                    "results were not made from this scene",
+                    replace(where, item=f"results[{j}].counterexample[{i}].hidden"),
                 )
             out.append(Hidden(k, frame.step, obs, d.x, d.y, d.payoff))
     return tuple(out)
@@ -146,18 +151,20 @@ def replay_multi(
     on_frame: Callable[[], None] | None = None,
     clean: Mapping[int, FrameDetections] | None = None,
     registrations: Mapping[int, Registration] | None = None,
+    path: str = "<results>",
 ) -> single.Outcome:
     """Replay the counterexamples of ``doc`` (a ``lesmc-multi-check`` document made from
     ``scene``, read from ``where``) on ``frames`` through ``nets``: the replays by
     ``(0, result index)``. ``clean`` and ``registrations``: the perception of these frames
-    (``lesmc verify`` hands over its own), as :func:`lesmc.replay.run.replay` takes them."""
+    (``lesmc verify`` hands over its own), as :func:`lesmc.replay.run.replay` takes them;
+    ``path``: the results' file, for errors."""
     from lesmc.perception.attack_settings import attack_of
     from lesmc.perception.blobs import BlobConfig
     from lesmc.perception.detector import Detector, DetectorConfig
     from lesmc.perception.frontend import FrontEndConfig
 
     t0 = time.monotonic()
-    todo = multi_cases(doc, scene, bound, prop)
+    todo = multi_cases(doc, scene, bound, prop, path)
     if not todo:
         return single.Outcome({}, 0.0)
     # the front end's settings as verify's perception ran it (replay.run._settings' defaults)
