@@ -31,7 +31,7 @@ property lose {
 }
 """
 #: Two targets of the video (seed 5) whose identity hiding detections switches.
-TARGETS = ("119.0,71.5@4", "194.71,80.92@4")
+TARGETS = ("119,71.5@4", "194.71,80.92@4")
 
 
 @pytest.fixture(scope="module")
@@ -79,6 +79,33 @@ def test_rows_hold_the_identity_verdicts_that_verify_gives(campaign: tuple[Path,
             assert row["attacked_frames"] == (hidden if res["verdict"] == "violated" else None)
     summary = (out / "campaign.html").read_text()
     assert "hijack" in summary and "lose" in summary
+
+
+def test_a_model_past_max_states_makes_its_rows_unknown(
+    campaign: tuple[Path, Path], tmp_path: Path
+) -> None:
+    """The same campaign (its perceived scene copied: not perceived again) with
+    ``--max-states 1``: every row unknown, exit 3, no traceback."""
+    import shutil
+
+    out, spec = campaign
+    again = tmp_path / "out"
+    shutil.copytree(out / "scenes", again / "scenes")
+    targets = out.parent / "targets.txt"
+    r = lesmc("campaign", str(out.parent / "v5"), "--out", str(again), "--design", "sort",
+              "--spec", str(spec), "--windows", "2..2:2..2", "--targets", str(targets),
+              "--workers", "0", "--max-states", "1")  # fmt: skip
+    assert "Traceback" not in r.stderr, r.stderr
+    assert r.returncode == 3, r.stderr
+    rows = [json.loads(line) for line in (again / "results.jsonl").read_text().splitlines()]
+    assert len(rows) == 4
+    for row in rows:
+        jsonschema.validate(row, schema("campaign-row"))
+        assert (row["verdict"], row["optimum"], row["stats"]["stopped"]) == (
+            "unknown",
+            "unknown",
+            "max_states",
+        )
 
 
 def test_a_multi_target_campaign_refuses_certified_payoffs(tmp_path: Path) -> None:
