@@ -13,6 +13,7 @@ from typing import Any
 
 from lesmc.campaign.plan import Group
 from lesmc.common.budget import Budget
+from lesmc.designs import registry
 from lesmc.engines.result import CheckResult
 from lesmc.language.parser import parse_spec
 from lesmc.pipeline.check import run
@@ -71,9 +72,14 @@ def group_job(group: Group, doc: dict[str, Any]) -> Job:
 
 
 def run_group(group: Group, doc: dict[str, Any]) -> list[dict[str, Any]]:
-    """Check every unit of ``group``; one row per unit."""
+    """Check every unit of ``group``; one row per unit (a multi-target design's group:
+    lesmc/campaign/multi_rows.py)."""
     if not group.units:
         return []
+    if registry.get(group.units[0].design).multi:
+        from lesmc.campaign.multi_rows import run_multi_group
+
+        return run_multi_group(group, footage_of(group.scene_key, doc))
     keys = {(u.design, u.window, u.prop): u.key for u in group.units}
     rows = []
     for dr in run(group_job(group, doc)).runs:

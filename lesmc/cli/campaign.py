@@ -155,10 +155,11 @@ def campaign_cmd(
     from lesmc.api import expand_designs
     from lesmc.campaign.plan import parse_windows
 
-    designs = expand_designs(design)  # before any work: a multi-target design is refused
+    designs = expand_designs(design, multi=True)
+    multi = _multi(designs, payoffs)  # before any work
     limits = _limits(workers, scheduler, timeout, max_states)
     windows = parse_windows(windows_text)
-    spec_files = _spec_files(specs)
+    spec_files = _spec_files(specs, multi)
     out = Path(out_dir)
     count, target_file = _targets_option(targets_text)
     nets = (nets_dir, detector_file, locator_file)
@@ -253,11 +254,28 @@ def _prepared(
     return [prepare(v, out, nets, tracker) for v in videos]
 
 
-def _spec_files(specs: tuple[str, ...]) -> list[Any]:
-    """The property files (default: the bundled ones), each property named once."""
-    from lesmc.experiment.experiment import bundled_specs, load_specs
+def _multi(designs: tuple[str, ...], payoffs: str) -> bool:
+    """Whether the campaign checks a multi-target design (``--design sort|gnn``: on attack
+    payoffs only, as lesmc verify checks one)."""
+    from lesmc.experiment.multi_verify import multi_designs
 
-    spec_files = load_specs([Path(s) for s in specs] or bundled_specs(), None)
+    multi = bool(multi_designs(designs))
+    if multi and payoffs != "attack":
+        raise UsageError(
+            f"--design {designs[0]}: --payoffs certified|interval apply to the point designs; "
+            "a multi-target design is checked on attack payoffs"
+        )
+    return multi
+
+
+def _spec_files(specs: tuple[str, ...], multi: bool = False) -> list[Any]:
+    """The property files (default: the bundled ones; a multi-target design's:
+    specs/identity.spec), each property named once."""
+    from lesmc.experiment.experiment import bundled_specs, load_specs
+    from lesmc.experiment.multi_verify import identity_specs
+
+    default = identity_specs() if multi else bundled_specs()
+    spec_files = load_specs([Path(s) for s in specs] or default, None)
     names = [p.name for s in spec_files for p in s.properties]
     dup = sorted({n for n in names if names.count(n) > 1})
     if dup:

@@ -71,6 +71,8 @@ def check_multi_file(
 def print_multi(doc: dict[str, Any], as_json: bool) -> None:
     """A ``lesmc-multi-check`` document on stdout: as JSON, or a line per property and
     per counterexample step (``lesmc verify --design sort`` prints the same)."""
+    from lesmc.report.multi import replay_text
+
     if as_json:
         click.echo(json.dumps(doc, indent=1))
         return
@@ -78,7 +80,7 @@ def print_multi(doc: dict[str, Any], as_json: bool) -> None:
         opt = "inf" if r["optimum"] is None else f"{r['optimum']:g}"
         click.echo(
             f"{r['property']}: {r['verdict']}, optimum {opt} "
-            f"({r['states']} states, {r['transitions']} transitions)"
+            f"({r['states']} states, {r['transitions']} transitions)" + replay_text(r.get("replay"))
         )
         for s in r["counterexample"] or []:
             hid = ", ".join(s["hidden"]) or "-"

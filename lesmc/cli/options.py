@@ -158,8 +158,8 @@ def designs_option() -> Callable[[F], F]:
         + "; ".join(f"{d.name}: {d.summary}" for d in map(registry.get, registry.names()))
         + "; "
         + "; ".join(f"{k} = {', '.join(v)}" for k, v in registry.SETS.items())
-        + "; all = every single-target design. verify checks a multi-target design (sort, "
-        "gnn) alone, on specs/identity.spec by default; campaign refuses one.",
+        + "; all = every single-target design. verify and campaign check a multi-target "
+        "design (sort, gnn) alone, on specs/identity.spec by default.",
     )
 
 

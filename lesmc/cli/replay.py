@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, NoReturn
 
 import click
 
@@ -54,18 +54,23 @@ def replay_cmd(
     the reason are printed (docs/semantics.md, "Replay"). With --detector
     FILE.toml (a detector file, docs/detectors.md) the attacks, the perturbed
     frames and the detections go through that file's network instead.
+    A multi-target design's results (lesmc-multi-check, verify --design sort|gnn):
+    the production tracker runs on the replayed detections and the replay is
+    confirmed when the property is violated on that run with the model's target
+    track ids (docs/trackers.md, "Replaying a multi-target counterexample").
     Exit status (the verdicts after the replay, as lesmc check): 0 nothing violated,
     1 some violation confirmed, 2 bad input, 3 some replay diverged (unknown) and
     none confirmed, 4 internal error, 130 interrupted.
     """
-    import json
-    import sys
-
     from lesmc.common.progress import progress_bar
     from lesmc.replay.run import verdict_rows
-    from lesmc.results.read import read_results
+    from lesmc.results.load import load_results
+    from lesmc.results.read import results_of
 
-    doc = read_results(results)
+    raw = load_results(results)
+    if raw.get("format") == "lesmc-multi-check":  # verify --design sort|gnn
+        _multi(raw, results, frames_dir, prop, (nets_dir, detector_file, locator_file), as_json)
+    doc = results_of(raw)
     frames_dir = frames_dir or doc.perception.frames
     if frames_dir is None:
         raise UsageError(
@@ -79,13 +84,49 @@ def replay_cmd(
         nets = (nets_dir, detector_file, locator_file)
         outcome = _replay(doc, frames_dir, nets, prop, bar)
     rows, verdicts = verdict_rows(doc, outcome, prop)
+    _finish(rows, verdicts, outcome.seconds, results, frames_dir, as_json)
+
+
+def _multi(
+    doc: dict[str, Any],
+    results: str,
+    frames_dir: str | None,
+    prop: str | None,
+    nets: NetFiles,
+    as_json: bool,
+) -> NoReturn:
+    """The replay of a multi-target design's results (lesmc/replay/multi.py), then exit."""
+    from lesmc.common.progress import progress_bar
+    from lesmc.experiment.multi_verify import multi_rows, replay_document
+
+    with (
+        resumable(lambda: f"nothing: replay writes no file ({results} is unchanged)"),
+        progress_bar("replay", "replaying", None) as bar,
+    ):
+        outcome, frames_dir = replay_document(doc, results, frames_dir, nets, prop, bar)
+    rows, verdicts = multi_rows(doc, outcome, prop)
+    _finish(rows, verdicts, outcome.seconds, results, frames_dir, as_json)
+
+
+def _finish(
+    rows: list[dict[str, Any]],
+    verdicts: set[str],
+    seconds: float,
+    results: str,
+    frames_dir: str,
+    as_json: bool,
+) -> NoReturn:
+    """The rows on stdout (a table, or lesmc-replay JSON), then the exit status."""
+    import json
+    import sys
+
     if as_json:
         out = {
             "format": "lesmc-replay",
             "version": 1,
             "results": results,
             "frames": frames_dir,
-            "seconds": round(outcome.seconds, 3),
+            "seconds": round(seconds, 3),
             "replays": rows,
         }
         click.echo(json.dumps(out, indent=1, allow_nan=False))

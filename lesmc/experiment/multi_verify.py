@@ -23,11 +23,21 @@ from lesmc.common.errors import UsageError
 from lesmc.common.files import json_text
 from lesmc.common.progress import Reporter
 from lesmc.designs import registry
-from lesmc.pipeline.multi import MultiCheckResult, check_multi_design, multi_document
-from lesmc.scene import scene_to_dict
+from lesmc.language.properties import SpecFile
+from lesmc.perception import HISTORY
+from lesmc.pipeline.multi import (
+    MultiCheckResult,
+    bound_properties,
+    check_multi_design,
+    multi_document,
+)
+from lesmc.scene import Scene, scene_to_dict
 
 if TYPE_CHECKING:
+    from lesmc.common.progress import Bar
     from lesmc.experiment.experiment import Request
+    from lesmc.perception import NetFiles
+    from lesmc.replay.run import Outcome
 
 
 @dataclass
@@ -99,13 +109,16 @@ def verify_multi(req: Request, rep: Reporter) -> MultiOutcome:
         "video, perception and scene": checked - started,
         "models and checks": time.monotonic() - checked,
     }
-    doc = multi_document(
-        design,
-        composed(scene, where).reference_kind(),
-        results,
-        {**src.meta, "target": ex._target_text(scene), "properties": [str(p) for p in paths]},
-        timings,
-    )
+    meta = {
+        **src.meta,
+        "target": ex._target_text(scene),
+        "properties": [str(p.resolve()) for p in paths],
+        "window": None if req.window is None else list(req.window),
+    }
+    if req.scene_path is not None:
+        meta["scene"] = str(Path(req.scene_path).resolve())
+    doc = multi_document(design, composed(scene, where).reference_kind(), results, meta, timings)
+    _replay(doc, scene, where, specs, src, rep)
     rep.stage("writing the report")
     from lesmc.report.multi import write_multi_report
 
@@ -127,3 +140,155 @@ def _refuse_points_for_boxes(detector: str, design: str) -> None:
             "is a heatmap detector file, whose detections are points: use a box detector "
             'file (kind = "boxes") or a point design such as gnn (docs/detectors.md)'
         )
+
+
+def _replay(
+    doc: dict[str, Any], scene: Scene, where: str, specs: list[SpecFile], src: Any, rep: Reporter
+) -> None:
+    """Replay every violated counterexample of ``doc`` through the real detector and the
+    production tracker (lesmc/replay/multi.py); each result records its replay and the
+    timings the replay's seconds. Not through a detector file (its replay is the point
+    designs'): the counterexamples stay as the model gives them."""
+    from lesmc.experiment import detector_verify as dv
+    from lesmc.replay.multi import multi_cases, replay_multi
+
+    bound = bound_properties(specs, scene)
+    todo = multi_cases(doc, scene, bound)
+    if not todo or src.frames is None or (src.nets is None and src.net_files is None):
+        return
+    if dv.detector_file_of(src.net_files or (None, None, None)) is not None:
+        rep.log("a detector file's multi-target counterexamples are not replayed (yet)")
+        return
+    t0 = time.monotonic()
+    key = _replay_key(doc, scene, src)
+    hit = None if src.cache is None or key is None else src.cache.get("multi-replay", key)
+    if isinstance(hit, dict) and all(isinstance(v, dict) for v in hit.values()):
+        rep.log(f"reusing the replay of {len(hit)} counterexamples from the cache")
+        replays = {(0, int(j)): obj for j, obj in hit.items()}
+    else:
+        clean = None if src.run is None else {fd.index: fd for fd in src.run.detections}
+        known = None if src.run is None else src.run.registrations
+        with rep.bar("replaying", len(src.frames) if clean is None else None) as bar:
+            nets = src.networks()
+            outcome = replay_multi(
+                doc, scene, where, bound, src.frames, nets, None, bar.advance, clean, known
+            )
+        replays = outcome.replays
+        if src.cache is not None and key is not None:
+            src.cache.put("multi-replay", key, {str(j): obj for (_, j), obj in replays.items()})
+    record_multi_replays(doc, replays)
+    doc.setdefault("timings", {})["replay"] = round(time.monotonic() - t0, 3)
+
+
+def _replay_key(doc: dict[str, Any], scene: Scene, src: Any) -> str | None:
+    """The digest of what the replay reads (the results without their timings, the
+    scene, the frames, the networks and the code), as the point designs' replay keys
+    OUT/cache (lesmc/experiment/experiment.py); None: not cacheable."""
+    from lesmc.experiment.cache import code_digest, digest, file_digests, net_files
+
+    if src.net_files is None or src.frames is None:
+        return None
+    return digest(
+        {
+            "code": code_digest(
+                "replay", "perception", "video", "tracking", "scene", "engines", "model"
+            ),
+            "frames": file_digests(src.frames.paths),
+            "nets": file_digests(net_files(src.net_files)),
+            "scene": scene_to_dict(scene),
+            "results": doc["results"],
+        }
+    )
+
+
+def record_multi_replays(doc: dict[str, Any], replays: dict[tuple[int, int], Any]) -> None:
+    """Each replay into its result of the ``lesmc-multi-check`` document ``doc``."""
+    for (_, j), obj in sorted(replays.items()):
+        doc["results"][j]["replay"] = obj
+
+
+def replay_document(
+    doc: dict[str, Any],
+    path: str,
+    frames_dir: str | None,
+    nets: NetFiles,
+    prop: str | None,
+    bar: Bar,
+) -> tuple[Outcome, str]:
+    """``lesmc replay`` of a ``lesmc-multi-check`` document ``doc`` (read from ``path``, as
+    ``lesmc verify --design sort|gnn`` wrote it): its scene (``meta.scene``, else the
+    scene.json beside it), its properties (``meta.properties``, moved to ``meta.window``),
+    the frames (``frames_dir``, else ``meta.video``) and the networks; the replays and
+    the frames' directory."""
+    from lesmc.replay.multi import known_property, multi_cases, replay_multi
+
+    known_property(doc, prop)  # bad input is refused before anything heavy is imported
+    meta = doc.get("meta") or {}
+    scene_path = _scene_of(meta, path)
+    frames_dir = frames_dir or (str(meta["video"]) if isinstance(meta.get("video"), str) else None)
+    if frames_dir is None:
+        raise UsageError(
+            "replay runs the detector on the video: give its frames with --frames DIR (the "
+            "results file does not name them)"
+        )
+    from lesmc.experiment import experiment as ex
+    from lesmc.perception.cnn import load_nets
+    from lesmc.perception.detector_file import is_detector_file
+    from lesmc.scene.io import load_scene
+    from lesmc.video.reader import open_frames
+
+    if nets[1] is not None and is_detector_file(nets[1]):
+        raise UsageError(
+            f"--detector {nets[1]}: a multi-target design's counterexamples replay through the "
+            "window pipeline's networks (--nets, --detector, --locator) only, so far"
+        )
+    scene = load_scene(scene_path).with_tracker(design=doc["design"])
+    window = meta.get("window")
+    props = [Path(p) for p in meta.get("properties") or ()] or identity_specs()
+    specs = ex.load_specs(props, None if window is None else (int(window[0]), int(window[1])))
+    bound = bound_properties(specs, scene)
+    multi_cases(doc, scene, bound, prop, path)  # bad input is refused before the video is read
+    frames = open_frames(frames_dir, HISTORY + 1)
+    bar.update(total=len(frames))
+    outcome = replay_multi(
+        doc, scene, scene_path, bound, frames, load_nets(*nets), prop, bar.advance, path=path
+    )
+    return outcome, frames_dir
+
+
+def _scene_of(meta: dict[str, Any], path: str) -> str:
+    """The scene the results were made from: ``meta.scene``, else scene.json beside them."""
+    named = meta.get("scene")
+    for p in (Path(named) if isinstance(named, str) else None, Path(path).parent / "scene.json"):
+        if p is not None and p.is_file():
+            return str(p)
+    raise UsageError(
+        f"{path}: the scene the results were made from is not found (meta.scene "
+        f"{named!r}, nor scene.json beside the results): the replay reads its detections"
+    )
+
+
+def multi_rows(
+    doc: dict[str, Any], outcome: Outcome, prop: str | None
+) -> tuple[list[dict[str, Any]], set[str]]:
+    """One ``lesmc replay`` row per replayed counterexample (as lesmc/replay/run.py's
+    ``verdict_rows``: confirmed is violated, diverged unknown) and every verdict after it."""
+    rows = []
+    for (_, j), obj in sorted(outcome.replays.items()):
+        verdict = "violated" if obj["status"] == "confirmed" else "unknown"
+        rows.append(
+            {
+                "design": doc["design"],
+                "property": doc["results"][j]["property"],
+                "verdict_model": "violated",
+                "verdict": verdict,
+                "replay": obj,
+            }
+        )
+    done = {j for _, j in outcome.replays}
+    others = {
+        r["verdict"]
+        for j, r in enumerate(doc["results"])
+        if j not in done and prop in (None, r["property"])
+    }
+    return rows, {r["verdict"] for r in rows} | others

@@ -127,6 +127,13 @@ def check_multi_design(
     return out
 
 
+def bound_properties(specs: list[SpecFile], scene: Scene) -> dict[str, BoundProperty]:
+    """Every property of ``specs`` bound to the multi-target model of ``scene``, by name
+    (what the replay of its counterexamples checks them with: lesmc/replay/multi.py)."""
+    last = len(scene.frames) - 1
+    return {p.name: bind_multi(s, p, last) for s in specs for p in s.properties}
+
+
 def check_multi_model(
     model: MultiModel, specs: tuple[SpecFile, ...], only: tuple[str, ...] = ()
 ) -> list[MultiCheckResult]:

@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import json
 from collections.abc import Callable, Sequence
+from html import escape
 from pathlib import Path
 from typing import Any
 
@@ -109,8 +110,18 @@ def _verdict_line(r: dict[str, Any]) -> Markup:
     return Markup(
         f"<span class='{word}'>{word}</span>: optimum {_opt(r['optimum'])}, constraint's "
         f"measure {_opt(r['constraint_value'])} ({r['states']} states, "
-        f"{r['transitions']} transitions)"
+        f"{r['transitions']} transitions)" + escape(replay_text(r.get("replay")))
     )
+
+
+def replay_text(rp: Any) -> str:
+    """What the replay of a result's counterexample found (lesmc/replay/multi.py), as a
+    clause after its verdict; empty when it was not replayed."""
+    if not isinstance(rp, dict):
+        return ""
+    if rp.get("status") == "confirmed":
+        return "; replay: confirmed on the real frames"
+    return f"; replay: diverged at step {rp.get('step')} ({rp.get('reason')})"
 
 
 def _verdicts(results: Sequence[dict[str, Any]]) -> Any:

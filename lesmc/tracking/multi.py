@@ -370,3 +370,24 @@ def targets_of(
     return np.array(
         [target_track(score[i], ids[i], confirmed[i]) for i in range(n)], dtype=np.int64
     )
+
+
+#: What a state shows the ``dist`` measures: the box of the track with the target's id
+#: (nan: no such track now) and whether that track was deleted (born, and gone since).
+TargetLook = tuple[np.ndarray, bool]
+
+
+def target_look(ft: FrameTracks, state: MultiState, me: int) -> TargetLook:
+    """The track of id ``me`` after a frame whose tracks are ``ft`` (the state after it:
+    ``state``): its box, and whether it was deleted."""
+    mine = np.nonzero(ft.ids == me)[0]
+    if mine.size:
+        return as_box(ft.boxes[mine[0]]).copy(), False
+    return np.full(4, np.nan), bool(me != NONE and me < state.next_id)
+
+
+def as_box(v: np.ndarray) -> np.ndarray:
+    """A box [x1, y1, x2, y2]; a point tracker's position (x, y) is the box of size 0 at
+    it, so the ``dist`` measures read a point design's w and h as 0."""
+    v = np.asarray(v, dtype=float)
+    return np.concatenate([v, v]) if v.shape[-1] == 2 else v

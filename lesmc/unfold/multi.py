@@ -25,10 +25,12 @@ from lesmc.scene import Frame, Scene
 from lesmc.tracking.design import CovarianceTable
 from lesmc.tracking.multi import (
     ComposedDesign,
-    FrameTracks,
     MultiState,
     MultiTargetTracker,
+    TargetLook,
+    as_box,
     target_id,
+    target_look,
     targets_of,
 )
 from lesmc.tracking.parts.attacker_subsets import (
@@ -79,7 +81,7 @@ def build_multi(
     d = tracker.filter.m.dim
     level = MultiBatch.pack([(s0.tracks, s0.next_id, s0.frames, tid0)], d, table)
     st = _Arrays()
-    st.add_state(0, tid0, refs[0] is not None, tid0, _look(ft0, s0, me))
+    st.add_state(0, tid0, refs[0] is not None, tid0, target_look(ft0, s0, me))
     for k in range(1, end + 1):
         f = frames[k]
         boxes = np.vstack([design.measurements(f), design.candidate_measurements(f)])
@@ -173,7 +175,7 @@ def _stepped(
             states.append(nxt)
             tids.append(tid)
             lasts.append(int(last_seen(np.array([last[base + i]]), np.array([tid]))[0]))
-            looks.append(_look(ft, nxt, me))
+            looks.append(target_look(ft, nxt, me))
     d = design.tracker.filter.m.dim
     packed = [(s.tracks, s.next_id, s.frames, x) for s, x in zip(states, lasts, strict=True)]
     return _Made(
@@ -183,13 +185,6 @@ def _stepped(
         np.array([x[0] for x in looks], dtype=float).reshape(-1, 4),
         np.array([x[1] for x in looks], dtype=bool),
     )
-
-
-def as_box(v: np.ndarray) -> np.ndarray:
-    """A box [x1, y1, x2, y2]; a point tracker's position (x, y) is the box of size 0 at
-    it, so the ``dist`` measures read a point design's w and h as 0."""
-    v = np.asarray(v, dtype=float)
-    return np.concatenate([v, v]) if v.shape[-1] == 2 else v
 
 
 def _need_reference(scene: Scene, design: ComposedDesign, refs: list[np.ndarray | None]) -> None:
@@ -232,20 +227,6 @@ def _within_budget(
         )
 
 
-#: What a state shows the ``dist`` measures: the box of the track with the target's id
-#: (nan: no such track now) and whether that track was deleted (born, and gone since).
-_Look = tuple[np.ndarray, bool]
-
-
-def _look(ft: FrameTracks, state: MultiState, me: int) -> _Look:
-    """The track of id ``me`` after a frame whose tracks are ``ft`` (the state after it:
-    ``state``): its box, and whether it was deleted."""
-    mine = np.nonzero(ft.ids == me)[0]
-    if mine.size:
-        return as_box(ft.boxes[mine[0]]).copy(), False
-    return np.full(4, np.nan), bool(me != NONE and me < state.next_id)
-
-
 class _Arrays:
     """The model's arrays as they grow, level by level."""
 
@@ -262,7 +243,7 @@ class _Arrays:
     def n(self) -> int:
         return len(self.step)
 
-    def add_state(self, k: int, tid: int, ref: bool, last: int, look: _Look) -> None:
+    def add_state(self, k: int, tid: int, ref: bool, last: int, look: TargetLook) -> None:
         self.step.append(k)
         self.tid.append(tid)
         self.ref.append(ref)

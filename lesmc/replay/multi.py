@@ -1,0 +1,420 @@
+"""Replaying the counterexamples of a multi-target design (``sort``, ``gnn``) through the real
+detector and tracker (issue 58; docs/trackers.md, "Replaying a multi-target
+counterexample").
+
+A ``lesmc-multi-check`` counterexample says: hide these detections (``"hidden":
+["FRAME:K", ...]`` at each step) and the target's track ids are these, so the property's
+constraint (``switches``, ``lost`` or a ``dist`` measure) is met at this cost.
+:func:`replay_multi` checks it on the real frames, as the single-target replay
+(lesmc/replay/run.py) does, with that module's functions:
+
+1. the frames go through the real detector again; every detection of the scene the
+   results were made from must come out where the scene says (else: an input error);
+2. at each attacked frame the attack that priced each hidden detection is run again
+   and the perturbations of the frame's hidden detections are applied together
+   (:func:`~lesmc.replay.run.attack_frame`, with its repair), and the frame is detected
+   again;
+3. the design's production tracker (lesmc/tracking/multi.py, the scene's tracker block)
+   runs over the replayed detections, each with the box the scene gives its nearest
+   clean detection (the WAMI front end's: its N_dr window);
+4. the target's track at each step is identity's rule applied to the target's reference
+   of the unattacked scene (:meth:`~lesmc.tracking.multi.ComposedDesign.references`), and
+   the replayed run is checked as a one-path model (:class:`~lesmc.model.multi.MultiModel`)
+   by the multi-target engine: the property's constraint through the kernel and
+   lesmc/model/identity.py, its objective with the recomputed attack costs.
+
+``confirmed``: the replayed run meets the constraint, its cost (or ``dist`` objective)
+violates the property, and its target's track ids are the model's at every step;
+otherwise ``diverged`` at the first step where the ids differ (or the last step), with
+the reason. A counterexample that injects candidates is not replayed (the injection
+replay is the single design's: it stays violated, as the model says).
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass, replace
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+
+from lesmc.common.errors import InputError, Location, UsageError
+from lesmc.engines.multi import check_multi, measure_values
+from lesmc.model.identity import NONE, last_seen
+from lesmc.model.kernel import COMPARE
+from lesmc.model.multi import MultiModel
+from lesmc.perception import HISTORY
+from lesmc.replay import run as single
+from lesmc.results.read import HiddenDoc as Hidden
+from lesmc.scene import Detection, Frame, Scene
+from lesmc.tracking.multi import ComposedDesign, target_id, target_look
+
+if TYPE_CHECKING:
+    from lesmc.perception.cnn import Nets
+    from lesmc.perception.detector import FrameDetections
+    from lesmc.perception.frontend import FrontEndOutput
+    from lesmc.perception.registration import Registration
+    from lesmc.video.reader import FrameSet
+
+#: A scene's detection and the detector's, on the clean frames, agree within this (px).
+KNOWN_TOL_PX = 1e-3
+
+
+@dataclass(frozen=True)
+class MultiCase:
+    """One violated property's counterexample in a ``lesmc-multi-check`` document: its index
+    among the document's ``results``, the bound property, the steps as the document holds
+    them, and the detections hidden (with their positions and payoffs from the scene)."""
+
+    result: int
+    prop: Any  #: a BoundProperty (language/semantics.py), bound by the layers above
+    steps: tuple[dict[str, Any], ...]
+    hidden: tuple[Hidden, ...]
+
+    @property
+    def end(self) -> int:
+        """The counterexample's last step."""
+        return len(self.steps) - 1
+
+
+def multi_cases(
+    doc: Mapping[str, Any],
+    scene: Scene,
+    bound: Mapping[str, Any],
+    prop: str | None = None,
+    path: str = "<results>",
+) -> list[MultiCase]:
+    """The counterexamples of ``doc`` (read from ``path``) to replay: each violated result's
+    (or ``prop``'s) that hides detections only; ``bound``: the document's properties,
+    bound to ``scene``."""
+    results = list(doc.get("results", []))
+    known_property(doc, prop)
+    out = []
+    for j, res in enumerate(results):
+        steps = res.get("counterexample")
+        if prop not in (None, res["property"]) or res.get("verdict") != "violated" or not steps:
+            continue
+        if any(s.get("injected") for s in steps):
+            continue  # injection is replayed for the single design only (lesmc/replay/run.py)
+        b = bound.get(res["property"])
+        if b is None:
+            raise UsageError(
+                f"property {res['property']} of the results is in none of the property files "
+                "the results name (meta.properties): give the files they were checked with"
+            )
+        out.append(MultiCase(j, b, tuple(steps), _hidden(scene, steps, Location(path), j)))
+    return out
+
+
+def known_property(doc: Mapping[str, Any], prop: str | None) -> None:
+    """A UsageError unless ``prop`` (None: every property) is a result of ``doc``."""
+    names = {str(r.get("property")) for r in doc.get("results", [])}
+    if prop is not None and prop not in names:
+        raise UsageError(
+            f"no property named {prop}; the results hold {', '.join(sorted(names)) or 'none'}"
+        )
+
+
+def _hidden(
+    scene: Scene, steps: list[dict[str, Any]], where: Location, j: int
+) -> tuple[Hidden, ...]:
+    """The detections the steps of result ``j`` hide, each with its step, frame, position
+    and payoff as the scene gives them (a hidden id the scene's frame lacks: an input
+    error located in the results file ``where``)."""
+    out = []
+    for i, s in enumerate(steps):
+        k = int(s["step"])
+        frame = scene.frames[k] if 0 <= k < len(scene.frames) else None
+        by_id = {} if frame is None else {d.id: d for d in frame.detections}
+        for obs in s["hidden"]:
+            d = by_id.get(obs)
+            if d is None or frame is None:
+                raise InputError(
+                    f"detection '{obs}' is not in the scene's frame {s['frame']}: the "
+                    "results were not made from this scene",
+                    replace(where, item=f"results[{j}].counterexample[{i}].hidden"),
+                )
+            out.append(Hidden(k, frame.step, obs, d.x, d.y, d.payoff))
+    return tuple(out)
+
+
+def replay_multi(
+    doc: Mapping[str, Any],
+    scene: Scene,
+    where: str,
+    bound: Mapping[str, Any],
+    frames: FrameSet,
+    nets: Nets,
+    prop: str | None = None,
+    on_frame: Callable[[], None] | None = None,
+    clean: Mapping[int, FrameDetections] | None = None,
+    registrations: Mapping[int, Registration] | None = None,
+    path: str = "<results>",
+) -> single.Outcome:
+    """Replay the counterexamples of ``doc`` (a ``lesmc-multi-check`` document made from
+    ``scene``, read from ``where``) on ``frames`` through ``nets``: the replays by
+    ``(0, result index)``. ``clean`` and ``registrations``: the perception of these frames
+    (``lesmc verify`` hands over its own), as :func:`lesmc.replay.run.replay` takes them;
+    ``path``: the results' file, for errors."""
+    from lesmc.perception.attack_settings import attack_of
+    from lesmc.perception.blobs import BlobConfig
+    from lesmc.perception.detector import Detector, DetectorConfig
+    from lesmc.perception.frontend import FrontEndConfig
+
+    t0 = time.monotonic()
+    todo = multi_cases(doc, scene, bound, prop, path)
+    if not todo:
+        return single.Outcome({}, 0.0)
+    # the front end's settings as verify's perception ran it (replay.run._settings' defaults)
+    fe = FrontEndConfig(history=HISTORY, blobs=BlobConfig())
+    cfg = attack_of(dict(scene.meta), where)
+    attacked: list[dict[int, single.FrameAttack]] = [{} for _ in todo]
+    by_frame: dict[int, list[tuple[int, Hidden]]] = {}
+    for ci, c in enumerate(todo):
+        for h in c.hidden:
+            by_frame.setdefault(h.frame, []).append((ci, h))
+
+    def attack(det: Any, out: FrontEndOutput, fd: FrameDetections) -> None:
+        def one(group: list[Hidden]) -> single.FrameAttack:
+            return single.attack_frame(nets, det, out, fd, group, cfg)
+
+        for ci, fa in single._shared(single._groups(by_frame.get(fd.index, [])), one).items():
+            attacked[ci][fd.index] = fa
+
+    def detector() -> Any:
+        det = Detector(nets, DetectorConfig(frontend=fe))
+        det.frontend.known = registrations or {}
+        return det
+
+    last = max(c.steps[-1]["frame"] for c in todo)
+    if clean is None:
+        clean = single._all_frames(frames, detector(), last, attack, on_frame)
+    else:
+        single._attacked_frames(frames, detector, sorted(by_frame), fe.history, attack, on_frame)
+    single._check_last(clean, last)
+    replays = {
+        (0, c.result): replay_case(c, scene, where, clean, attacked[ci])
+        for ci, c in enumerate(todo)
+    }
+    return single.Outcome(replays, time.monotonic() - t0)
+
+
+def replay_case(
+    c: MultiCase,
+    scene: Scene,
+    where: str,
+    clean: Mapping[int, FrameDetections],
+    attacked: Mapping[int, single.FrameAttack],
+) -> dict[str, Any]:
+    """One counterexample: the production tracker on the frames' detections with the
+    attacked frames' replayed ones, its target's track at each step, and the property
+    checked on that one run (the replay object ``lesmc replay --json`` prints)."""
+    from lesmc.tracking.trackers import make_multi
+
+    _check_known(scene, c.end, clean)
+    design = make_multi(scene, where)
+    assert isinstance(design, ComposedDesign)
+    run = design.run(c.end)
+    refs = design.references([s.tracks for s in run])
+    me = target_id([s.target_id for s in run])
+    frames = tuple(_replayed_frame(f, attacked.get(f.step)) for f in scene.frames[: c.end + 1])
+    again = make_multi(replace(scene, frames=frames), where)
+    assert isinstance(again, ComposedDesign)
+    state, fts, looks = again.tracker.initial(), [], []
+    for f in frames:
+        state, ft = again.tracker.step(state, again.measurements(f))
+        fts.append(ft)
+        looks.append(target_look(ft, state, me))
+    tid = [NONE if r is None else again.target_of(ft, r) for ft, r in zip(fts, refs, strict=True)]
+    model = _chain(c, frames, tid, refs, looks, me, attacked)
+    return _verdict(c, model, fts, attacked)
+
+
+def _check_known(scene: Scene, end: int, clean: Mapping[int, FrameDetections]) -> None:
+    """The detector must reproduce every detection of the scene's steps 0..``end`` where the
+    scene says (else the frames or networks are not those the results were made from)."""
+    for f in scene.frames[: end + 1]:
+        fd = clean.get(f.step)
+        have = np.zeros((0, 2)) if fd is None else fd.positions
+        for j, d in enumerate(f.detections):
+            ok = j < len(have) and math.hypot(have[j, 0] - d.x, have[j, 1] - d.y) <= KNOWN_TOL_PX
+            if not ok:
+                raise InputError(
+                    f"the detector does not reproduce detection {d.id} at ({d.x:.2f}, "
+                    f"{d.y:.2f}) on these frames: they are not the frames (or networks) the "
+                    "results were made from",
+                    Location("--frames"),
+                )
+
+
+def _replayed_frame(f: Frame, fa: single.FrameAttack | None) -> Frame:
+    """Frame ``f`` with the replayed detections of its attack ``fa`` (None: unattacked),
+    each with the box of the frame's nearest clean detection (the WAMI front end's N_dr
+    window; a point detection stays a point)."""
+    if fa is None:
+        return f
+    pos = fa.detections.positions
+    near = [int(np.argmin(((f.positions() - p) ** 2).sum(axis=1))) for p in pos]
+    ds = tuple(
+        Detection(
+            f"{f.step}:{j}",
+            float(p[0]),
+            float(p[1]),
+            math.nan,
+            None,
+            f.detections[i].w if f.detections else None,
+            f.detections[i].h if f.detections else None,
+        )
+        for j, (p, i) in enumerate(zip(pos, near or [0] * len(pos), strict=True))
+    )
+    return replace(f, detections=ds)
+
+
+def _chain(
+    c: MultiCase,
+    frames: tuple[Frame, ...],
+    tid: list[int],
+    refs: list[np.ndarray | None],
+    looks: list[tuple[np.ndarray, bool]],
+    me: int,
+    attacked: Mapping[int, single.FrameAttack],
+) -> MultiModel:
+    """The replayed run as a model of one path (lesmc/model/multi.py): its states' target
+    track ids, references and what the ``dist`` measures read; each transition at the
+    recomputed cost of its frame's attack (the repair's included) and its count."""
+    from lesmc.tracking.multi import as_box
+
+    n = len(frames)
+    t = np.array(tid, dtype=np.int64)
+    last = t.copy()
+    for k in range(1, n):
+        last[k] = last_seen(last[k - 1 : k], t[k : k + 1])[0]
+    names = tuple(tuple(d.id for d in f.detections) for f in frames)
+    hidden = [tuple(int(h.split(":")[1]) for h in s["hidden"]) for s in c.steps]
+    cost = [_cost(attacked.get(f.step)) for f in frames]
+    refbox = [np.full(4, np.nan) if r is None else as_box(r) for r in refs]
+    return MultiModel(
+        step=np.arange(n, dtype=np.int64),
+        tid=t,
+        ref=np.array([r is not None for r in refs], dtype=bool),
+        last=last,
+        src=np.arange(n - 1, dtype=np.int64),
+        dst=np.arange(1, n, dtype=np.int64),
+        payoff=np.array(cost[1:], dtype=float),
+        count=np.array([len(h) for h in hidden[1:]], dtype=np.int64),
+        by_payoff=tuple(hidden[1:]),
+        by_count=tuple(hidden[1:]),
+        frames=tuple(f.step for f in frames),
+        names=names,
+        end=n - 1,
+        window=(int(c.prop.l), int(c.prop.u)),
+        box=np.array([lk[0] for lk in looks], dtype=float).reshape(-1, 4),
+        gone=np.array([lk[1] for lk in looks], dtype=bool),
+        refbox=np.array(refbox, dtype=float).reshape(-1, 4),
+        target=me,
+        detections=tuple(len(f.detections) for f in frames),
+    )
+
+
+def _cost(fa: single.FrameAttack | None) -> float:
+    """The recomputed cost of a frame's attack: its perturbations' norms and the repair's."""
+    if fa is None:
+        return 0.0
+    norms = [float(p["payoff_recomputed"]) for p in fa.perturbations]
+    return float(sum(norms)) + fa.extra_cost
+
+
+def _verdict(
+    c: MultiCase,
+    model: MultiModel,
+    fts: list[Any],
+    attacked: Mapping[int, single.FrameAttack],
+) -> dict[str, Any]:
+    """The replay object: the property checked on the replayed run (``model``), and its
+    target's track ids against the counterexample's."""
+    holds = check_multi(model, c.prop).holds
+    value = _value(model, c.prop.constraint, c.prop)
+    objective = _value(model, c.prop.objective, c.prop)
+    ids = [None if t == NONE else int(t) for t in model.tid.tolist()]
+    step, reason = _why(c, ids, value, objective, holds)
+    fas = [attacked[f] for f in sorted(attacked) if f <= c.steps[-1]["frame"]]
+    if reason is not None and step is not None:
+        near = [fa for fa in fas if fa.frame <= c.steps[step]["frame"]]
+        story = single.frame_story(near[-1]) if near else ""
+        reason = "; ".join(w for w in (reason, story) if w)
+    repaired = sum(fa.repaired_rounds for fa in fas)
+    return {
+        "status": "confirmed" if reason is None else "diverged",
+        "step": step,
+        "max_error_px": _box_error(c, fts),
+        "reason": reason,
+        "attack": "repaired" if repaired else "as modelled",
+        "repair_cost": round(sum(fa.extra_cost for fa in fas), 6),
+        "frames": [f"frame {fa.frame}: {s}" for fa in fas if (s := single.frame_story(fa))],
+        "tolerance_px": {"detection": single.DET_TOL_PX, "track": single.TRACK_TOL_PX},
+        "perturbations": [p for fa in fas for p in fa.perturbations],
+        "target_ids": ids,
+        "detections": [
+            {"frame": fa.frame, "positions": fa.detections.positions.tolist()} for fa in fas
+        ],
+        "constraint_value": value if math.isfinite(value) else "inf",
+        "objective": objective if math.isfinite(objective) else "inf",
+    }
+
+
+def _value(model: MultiModel, m: Any, prop: Any) -> float:
+    """Measure ``m`` of property ``prop`` on the one path of ``model``: the engine's
+    contributions (lesmc/engines/multi.py), summed or maxed as the engine combines them."""
+    from lesmc.engines.multi import _combine
+
+    first, per = measure_values(model, m, prop.components, prop.norm)
+    value, add = float(first), _combine(m)
+    for v in per.tolist():
+        value = add(value, float(v))
+    return value
+
+
+def _why(
+    c: MultiCase, ids: list[int | None], value: float, objective: float, holds: bool
+) -> tuple[int | None, str | None]:
+    """Where and why the replayed run differs from the counterexample (None, None: it
+    confirms it): a target's track id that differs, the constraint not met, or an
+    attack that costs enough for the property to hold."""
+    want = [s.get("target_id") for s in c.steps]
+    differ = next((k for k, (a, b) in enumerate(zip(ids, want, strict=True)) if a != b), None)
+    prop = c.prop.prop
+    if differ is not None:
+        got, theirs = ids[differ], want[differ]
+        return differ, (
+            f"at step {differ} the target's track is {'none' if got is None else f'id {got}'} "
+            f"where the model's is {'none' if theirs is None else f'id {theirs}'}"
+        )
+    if not COMPARE[c.prop.op](value, c.prop.bound):
+        return c.end, (
+            f"{prop.constraint.measure.text()} is {value:g} on the replayed run: the "
+            f"constraint ({c.prop.op} {c.prop.bound:g}) is not met"
+        )
+    if holds:
+        return c.end, (
+            f"the replayed attack's {prop.objective.text()} is {objective:g}: the property "
+            f"holds for it (optimum {prop.holds_op} {prop.threshold:g})"
+        )
+    return None, None
+
+
+def _box_error(c: MultiCase, fts: list[Any]) -> float | None:
+    """The largest difference (px) between a replayed track's box and the counterexample's
+    track of the same id at the same step, over the tracks the results list (None: they
+    list none, a results file of version 1)."""
+    err: float | None = None
+    for s, ft in zip(c.steps, fts, strict=True):
+        for t in s.get("tracks", []):
+            place = t.get("box", t.get("position"))
+            mine = np.nonzero(ft.ids == t["id"])[0]
+            if place is None or not mine.size:
+                continue
+            e = float(np.abs(np.asarray(place, dtype=float) - ft.boxes[mine[0]]).max())
+            err = e if err is None else max(err, e)
+    return None if err is None else round(err, 6)
