@@ -28,17 +28,9 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from lesmc.common.errors import InputError, Location, UsageError
-from lesmc.replay.run import (
-    DET_TOL_PX,
-    PERTURBATION_DIGITS,
-    FrameAttack,
-    Outcome,
-    _check_known,
-    _hidden_by_frame,
-    _hidden_indices,
-    _replay_case,
-    cases,
-)
+from lesmc.replay.case import DET_TOL_PX, PAYOFF_RTOL, PERTURBATION_DIGITS, FrameAttack, cases
+from lesmc.replay.perturbed import hidden_indices
+from lesmc.replay.run import Outcome, _check_known, _hidden_by_frame, _replay_case
 from lesmc.results.read import HiddenDoc as Hidden
 from lesmc.results.read import ResultsDoc
 
@@ -159,7 +151,7 @@ def attack_frame(
 ) -> FrameAttack:
     """The hidden detections' attacks run again on frame input ``x``, their perturbations
     added together, the frame decoded again."""
-    idx = _hidden_indices(clean, hidden)  # type: ignore[arg-type]  # reads positions only
+    idx = hidden_indices(clean, hidden)  # type: ignore[arg-type]  # reads positions only
     deltas = _perturbations(det, x, clean, idx, cfg)
     fa = FrameAttack(clean.index, hidden[0].step, clean)  # type: ignore[arg-type]
     total = np.zeros_like(x)
@@ -209,8 +201,6 @@ def _record(
     """One hidden detection's recomputed attack (the replay schema's perturbation: the
     nonzero crop of the network input, C x h x w, and its origin x, y), refused if its
     payoff differs from the results'."""
-    from lesmc.replay.run import PAYOFF_RTOL
-
     if math.isfinite(h.payoff) and not (
         math.isfinite(rec) and abs(rec - h.payoff) <= PAYOFF_RTOL * max(h.payoff, 1e-9)
     ):
