@@ -57,6 +57,14 @@ class Case:
     #: (n, dim) the model's whole state at steps 0..n-1 (predictions are made from it)
     states: np.ndarray = field(default_factory=lambda: np.zeros((0, 0)))
     window: tuple[int, int] = (0, -1)  #: the run's attack window (steps; the model's)
+    #: the tracker of the run's design (lesmc/designs: ``single``, ``joint``, ...)
+    tracker_kind: str = "single"
+    #: under inject on ``joint``: per step, the ids the cheapest way along the path hides
+    #: and injects (lesmc/replay/joint_forcing.py; None: derived per step, ``single``)
+    forced: dict[int, tuple[list[str], list[str]]] | None = None
+    #: whether the attack of every step was derived (not: the path leaves the design on
+    #: the scene, the replay diverges there and the path's cost is not compared)
+    derived: bool = True
 
     @property
     def injects(self) -> bool:
@@ -124,16 +132,20 @@ def cases(doc: ResultsDoc, prop: str | None = None) -> list[Case]:
 
 def _not_derivable(run: RunDoc, prop: str) -> bool:
     """Whether ``prop``'s counterexample has no replay built: it injects on a design whose
-    tracker is not ``single`` (``monitor`` is single's), or on an ``inject grid`` (points
-    around the prediction, a modelling device, not places on the frames). It stays
-    violated, not replayed."""
-    from lesmc.designs import registry
-
+    tracker is neither ``single`` (``monitor`` is single's) nor ``joint`` (``improved`` is
+    joint's), or on an ``inject grid`` (points around the prediction, a modelling device,
+    not places on the frames). It stays violated, not replayed."""
     p = next((p for p in run.properties if p.name == prop), None)
     if p is None or "inject" not in p.actions:
         return False
-    tracker = registry.get(run.design).tracker if run.design in registry.names() else ""
-    return p.inject_grid or tracker != "single"
+    return p.inject_grid or _tracker_kind(run) not in ("single", "joint")
+
+
+def _tracker_kind(run: RunDoc) -> str:
+    """The tracker of the run's design ("": a design this lesmc does not know)."""
+    from lesmc.designs import registry
+
+    return registry.get(run.design).tracker if run.design in registry.names() else ""
 
 
 def _case(run: RunDoc, i: int, j: int, cex_no: int) -> Case:
@@ -173,4 +185,5 @@ def _case(run: RunDoc, i: int, j: int, cex_no: int) -> Case:
         actions=actions,
         states=full,
         window=run.window,
+        tracker_kind=_tracker_kind(run),
     )

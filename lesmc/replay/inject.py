@@ -64,72 +64,114 @@ def inject_frame(
     repair: bool = True,
 ) -> FrameAttack:
     """Step ``step`` of an ``allow hide, inject`` counterexample (``case``) on its clean
-    frame: the cheapest attack that makes the tracker take the path's measurement there
-    (hide the detections before it; inject it if it is a candidate), each window attacked
-    alone, all perturbations applied together, the frame detected again (with ``repair``,
-    detections the model does not have hidden too, as :func:`attack_frame` does)."""
+    frame: the cheapest attack that forces the path's outcome there (:func:`_derived`),
+    each window attacked alone, all perturbations applied together, the frame detected
+    again (with ``repair``, detections the model does not have hidden too, as
+    :func:`~lesmc.replay.perturbed.attack_frame` does)."""
     from lesmc.perception.cnn import DR_SIZE
 
     m_nets = nets.settings.m
     fa = FrameAttack(fd.index, step, fd)
-    taken = case.obs[step - 1]
-    if taken is None:  # a skip: not derived (the comparison says if the tracker skips too)
-        return fa
-    hidden, row = _forced(case, step, fd, out, taken)
+    hidden, injected = _derived(case, step, fd, out)
     idx = hidden_indices(fd, hidden)
     rounds: list[Round] = []
     if idx:
         rounds.append(_hide_round(nets, det, out, fd, fa, hidden, idx, cfg))
-    if row is not None:
-        rounds.append(_inject_round(nets, out, fa, step, taken, row, cfg))
+    if injected:
+        rounds.append(_inject_round(nets, out, fa, step, injected, cfg))
     release()
     if not rounds:
         return fa
     base = stack(out.frame, out.aligned.frames, m_nets)
     after, kept = redetect(det, out, perturb(base, rounds, DR_SIZE), m_nets)
     diagnose(fa, fd, after, idx)
-    wanted = None if row is None else out.candidates.centroid[[row]]
+    wanted = out.candidates.centroid[[row for _, row in injected]] if injected else None
     if repair:
         after = repair_frame(nets, det, out, fd, fa, idx, rounds, after, kept, cfg, wanted)
-    if wanted is not None:  # the injected detection is wanted: not an extra one
-        if nearest_within(wanted, after.positions, DET_TOL_PX)[0] < 0:
-            fa.not_injected.append(taken)
-        cx, cy = float(wanted[0, 0]), float(wanted[0, 1])
-        fa.extra = [e for e in fa.extra if math.hypot(e[0] - cx, e[1] - cy) > DET_TOL_PX]
+    if wanted is not None:  # the injected detections are wanted: not extra ones
+        missing = nearest_within(wanted, after.positions, DET_TOL_PX) < 0
+        fa.not_injected += [cid for (cid, _), m in zip(injected, missing, strict=True) if m]
+        near = nearest_within(np.array(fa.extra, float).reshape(-1, 2), wanted, DET_TOL_PX)
+        fa.extra = [e for e, j in zip(fa.extra, near, strict=True) if j < 0]
     fa.detections = after
     return fa
+
+
+def _derived(
+    case: Case, step: int, fd: FrameDetections, out: FrontEndOutput
+) -> tuple[list[Hidden], list[tuple[str, int]]]:
+    """The detections to hide and the candidates to inject (id, row of Q_bc) at ``step``:
+    on ``joint`` those the walk along the path found (``case.forced``,
+    lesmc/replay/joint_forcing.py), on ``single`` the cheapest way to take the path's
+    measurement (:func:`_forced`; a skip is not derived: nothing)."""
+    nan = math.nan
+    if case.forced is not None:
+        hid, inj = case.forced.get(step, ([], []))
+        hidden = [Hidden(step, fd.index, h, nan, nan, nan) for h in hid]
+        return hidden, [(cid, _candidate(case, fd, out, cid)) for cid in inj]
+    taken = case.obs[step - 1]
+    if taken is None:  # a skip: not derived (the comparison says if the tracker skips too)
+        return [], []
+    hidden, row = _forced(case, step, fd, out, taken)
+    return hidden, [] if row is None else [(taken, row)]
+
+
+def _candidate(case: Case, fd: FrameDetections, out: FrontEndOutput, cid: str) -> int:
+    """The row of Q_bc of injection candidate ``cid`` (``FRAME:cROW``), its position recorded
+    in ``case.known``; refused if the frame has no such candidate."""
+    from lesmc.perception.to_scene import candidate_row
+
+    row = candidate_row(cid)
+    cands = out.candidates.centroid
+    if row is None or not 0 <= row < len(cands):
+        raise InputError(
+            f"frame {fd.index} has {len(cands)} candidates, not {cid}: the frames are "
+            "not those the results were made from",
+            Location("--frames"),
+        )
+    case.known[cid] = (float(cands[row, 0]), float(cands[row, 1]))
+    return row
 
 
 def _forced(
     case: Case, step: int, fd: FrameDetections, out: FrontEndOutput, taken: str
 ) -> tuple[list[Hidden], int | None]:
     """The detections to hide and the candidate (its row of Q_bc; None: none) to inject
-    so that the tracker takes ``taken`` at ``step``: the cheapest way
-    (tracking/parts/attacker.py ``forcing_update``), measured from the tracker's
-    prediction out of the model's state at the step before."""
+    so that ``single`` takes ``taken`` at ``step`` (:func:`single_forcing`)."""
     from lesmc.perception.to_scene import candidate_row
+
+    row = None if candidate_row(taken) is None else _candidate(case, fd, out, taken)
+    at = None if row is None else out.candidates.centroid[row]
+    hid = single_forcing(case, step, fd.positions, fd.from_prev, taken, at)
+    nan = math.nan
+    return [Hidden(step, fd.index, f"{fd.index}:{int(j)}", nan, nan, nan) for j in hid], row
+
+
+def single_forcing(
+    case: Case,
+    step: int,
+    positions: np.ndarray,
+    from_prev: np.ndarray | None,
+    taken: str,
+    cand_at: np.ndarray | None,
+) -> np.ndarray:
+    """The detections (indices into the frame's ``positions``) to hide so that ``single``
+    takes ``taken`` at ``step``: the cheapest way (tracking/parts/attacker.py
+    ``forcing_update``), measured from the tracker's prediction out of the model's state
+    at the step before (carried by ``from_prev``, None: a still camera); ``cand_at``: the
+    position of ``taken`` when it is an injection candidate (None: a detection)."""
     from lesmc.tracking.kalman import matrices, measure
     from lesmc.tracking.parts.attacker import forcing_update
     from lesmc.tracking.single import carried_prediction
 
     km = matrices(tracker_from_dict(case.tracker, "results: replay_inputs.tracker"), case.dt)
-    at = measure(km, carried_prediction(km, case.states[step - 1][None], fd.from_prev))[0]
-    det_dist = np.linalg.norm(fd.positions - at, axis=1)
-    row = candidate_row(taken)
-    cands = out.candidates.centroid
-    if row is None:
+    at = measure(km, carried_prediction(km, case.states[step - 1][None], from_prev))[0]
+    det_dist = np.linalg.norm(positions - at, axis=1)
+    if cand_at is None:
         hid, _ = forcing_update(det_dist, np.zeros(0), int(taken.split(":")[1]), False)
-    elif row < len(cands):
-        case.known[taken] = (float(cands[row, 0]), float(cands[row, 1]))
-        hid, _ = forcing_update(det_dist, np.linalg.norm(cands[[row]] - at, axis=1), 0, True)
     else:
-        raise InputError(
-            f"frame {fd.index} has {len(cands)} candidates, not {taken}: the frames are "
-            "not those the results were made from",
-            Location("--frames"),
-        )
-    nan = math.nan
-    return [Hidden(step, fd.index, f"{fd.index}:{int(j)}", nan, nan, nan) for j in hid], row
+        hid, _ = forcing_update(det_dist, np.linalg.norm(cand_at[None] - at, axis=1), 0, True)
+    return hid
 
 
 def _hide_round(
@@ -167,38 +209,39 @@ def _inject_round(
     out: FrontEndOutput,
     fa: FrameAttack,
     step: int,
-    taken: str,
-    row: int,
+    injected: list[tuple[str, int]],
     cfg: AttackConfig,
 ) -> Round:
-    """The attack towards "vehicle" on candidate ``row``'s N_dr window (the one that priced
-    it); its cost and perturbation into ``fa``."""
+    """The attacks towards "vehicle" on the injected candidates' N_dr windows (id, row of
+    Q_bc: the windows that priced them), each alone; their costs and perturbations into
+    ``fa``."""
     from lesmc.perception.attacks import payoffs
     from lesmc.perception.cnn import DR_SIZE
 
     frames = stack(out.frame, out.aligned.frames, nets.settings.m)
-    centre = out.candidates.centroid[[row]]
-    inj = payoffs(nets.dr, cut(frames, centre, DR_SIZE), nets.settings.delta_dr, cfg, "inject")
-    rec, ok = float(inj.payoff[0]), bool(inj.flipped[0])
-    fa.cost += rec
-    fa.injected.append(taken)
-    shown: float | str = rec if math.isfinite(rec) else "inf"
-    fa.perturbations.append(
-        {
-            "step": step,
-            "frame": fa.frame,
-            "obs": taken,
-            "x": float(centre[0, 0]),
-            "y": float(centre[0, 1]),
-            "window_origin": [int(v) for v in np.rint(centre[0]).astype(int) - DR_SIZE // 2],
-            "payoff": shown,
-            "payoff_recomputed": shown,
-            "flipped_alone": ok,
-            "action": "inject",
-            "delta": np.round(inj.perturbation[0], PERTURBATION_DIGITS).tolist(),
-        }
-    )
-    return centre, inj.perturbation
+    centres = out.candidates.centroid[[row for _, row in injected]]
+    inj = payoffs(nets.dr, cut(frames, centres, DR_SIZE), nets.settings.delta_dr, cfg, "inject")
+    for r, (cid, _) in enumerate(injected):
+        rec, ok = float(inj.payoff[r]), bool(inj.flipped[r])
+        fa.cost += rec
+        fa.injected.append(cid)
+        shown: float | str = rec if math.isfinite(rec) else "inf"
+        fa.perturbations.append(
+            {
+                "step": step,
+                "frame": fa.frame,
+                "obs": cid,
+                "x": float(centres[r, 0]),
+                "y": float(centres[r, 1]),
+                "window_origin": [int(v) for v in np.rint(centres[r]).astype(int) - DR_SIZE // 2],
+                "payoff": shown,
+                "payoff_recomputed": shown,
+                "flipped_alone": ok,
+                "action": "inject",
+                "delta": np.round(inj.perturbation[r], PERTURBATION_DIGITS).tolist(),
+            }
+        )
+    return centres, inj.perturbation
 
 
 def inject_cases(

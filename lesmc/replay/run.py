@@ -60,6 +60,7 @@ from lesmc.replay.case import (
     cases,
 )
 from lesmc.replay.inject import inject_by_frame, inject_cases
+from lesmc.replay.joint_forcing import derive_joint
 from lesmc.replay.perturbed import (
     attack_frame,
 )
@@ -204,7 +205,8 @@ def frame_story(fa: FrameAttack) -> str:
         )
     if fa.injected:
         parts.append(
-            f"injected {', '.join(fa.injected)} (its N_dr window perturbed until N_dr accepts it)"
+            f"injected {', '.join(fa.injected)} (perturbed until the detector reports it: "
+            "its N_dr window towards vehicle, a heatmap cell above the threshold)"
         )
     if fa.not_injected:
         parts.append(f"injected {', '.join(fa.not_injected)} not detected after all")
@@ -251,6 +253,7 @@ def replay(
     todo = cases(doc, prop)
     if not todo:
         return Outcome({}, 0.0)
+    derive_joint(doc.meta, todo)
     fe, attack_cfg = _settings(doc, history, delta_bc)
     history = fe.history
     last = max(c.first_frame + len(c.positions) - 1 for c in todo)
@@ -377,7 +380,7 @@ def _replay_case(
     property to hold (Eq. 5 + the repair) is no counterexample."""
 
     first = c.first_frame
-    if c.injects and c.objective_is_payoff and math.isfinite(c.optimum):
+    if c.injects and c.derived and c.objective_is_payoff and math.isfinite(c.optimum):
         cost = sum(fa.cost for fa in attacked.values())
         if not abs(cost - c.optimum) <= PAYOFF_RTOL * max(c.optimum, 1e-9):
             raise InputError(
