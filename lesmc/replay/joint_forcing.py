@@ -37,28 +37,30 @@ Forced = dict[int, tuple[list[str], list[str]]]
 MAX_FOLLOWED = 256
 
 
-def derive_joint(meta: Mapping[str, Any], todo: list[Case]) -> None:
-    """Each ``joint`` injection case's attack along its path into ``case.forced``."""
+def derive_joint(meta: Mapping[str, Any], todo: list[Case], scene: Scene | None = None) -> None:
+    """Each ``joint`` injection case's attack along its path into ``case.forced``, on
+    ``scene`` (None: the file the results name, ``meta.scene``)."""
     for c in todo:
         if c.injects and c.tracker_kind == "joint":
-            c.forced, c.derived = joint_forcing(c, scene_of(meta, c))
+            c.forced, c.derived = joint_forcing(c, scene_of(meta, c, scene))
 
 
-def scene_of(meta: Mapping[str, Any], case: Case) -> Scene:
-    """The scene the results' model was built from (``meta.scene``), with the case's target
-    and tracker (the run's design and configuration)."""
+def scene_of(meta: Mapping[str, Any], case: Case, scene: Scene | None = None) -> Scene:
+    """The scene the results' model was built from (``scene``, else the file ``meta.scene``),
+    with the case's target and tracker (the run's design and configuration)."""
     from dataclasses import replace
 
     from lesmc.scene.io import load_scene
 
     path = meta.get("scene")
-    if not isinstance(path, str) or not Path(path).is_file():
+    if scene is None and (not isinstance(path, str) or not Path(path).is_file()):
         raise UsageError(
             f"replaying {case.design}'s injection counterexample of {case.prop} walks its path "
             "on the scene the model was built from, and the results name none that exists "
             f"(meta.scene: {path!r}); run the replay where lesmc check or verify was run"
         )
-    scene = load_scene(path)
+    if scene is None:
+        scene = load_scene(str(path))
     cfg = tracker_from_dict(case.tracker, "results: replay_inputs.tracker")
     return replace(scene.footage.with_target(case.target, scene.meta), tracker=cfg)
 

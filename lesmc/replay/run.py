@@ -38,6 +38,8 @@ perturbations is added to the payoff, and the track is replayed again.
 
 from __future__ import annotations
 
+__all__ = ["Outcome", "apply", "cases", "frame_story", "replay", "replay_file", "verdict_rows"]
+
 import math
 import time
 from collections.abc import Callable, Mapping
@@ -237,6 +239,7 @@ def replay(
     repair: bool = True,
     clean: Mapping[int, FrameDetections] | None = None,
     registrations: Mapping[int, Registration] | None = None,
+    scene: Scene | None = None,
 ) -> Outcome:
     """Replay every violated property's counterexample of ``doc`` (or ``prop``'s) on ``frames``.
 
@@ -245,7 +248,8 @@ def replay(
     frames, after the ``history`` frames before each that the front end needs, go
     through the detector; ``registrations``, that perception's (``PerceiveRun``), spare
     the front end describing and matching those frames again (tests/test_replay.py
-    checks that every way agrees).
+    checks that every way agrees). ``scene``: the scene the results were checked on, for
+    ``joint``'s injections (None: the file they name; replay/joint_forcing.py).
     """
     from lesmc.perception.detector import Detector, DetectorConfig
 
@@ -253,12 +257,10 @@ def replay(
     todo = cases(doc, prop)
     if not todo:
         return Outcome({}, 0.0)
-    derive_joint(doc.meta, todo)
+    derive_joint(doc.meta, todo, scene)
     fe, attack_cfg = _settings(doc, history, delta_bc)
-    history = fe.history
     last = max(c.first_frame + len(c.positions) - 1 for c in todo)
-    by_frame = _hidden_by_frame(todo)
-    by_inject = inject_by_frame(todo)
+    by_frame, by_inject = _hidden_by_frame(todo), inject_by_frame(todo)
     attacked: list[dict[int, FrameAttack]] = [{} for _ in todo]
 
     def attack(det: Any, out: FrontEndOutput, fd: FrameDetections) -> None:
@@ -280,7 +282,7 @@ def replay(
     else:  # the clean frames' detections are given: only the attacked ones are detected
         clean = dict(clean)
         wanted = sorted(set(by_frame) | set(by_inject))
-        _attacked_frames(frames, detector, wanted, history, attack, on_frame)
+        _attacked_frames(frames, detector, wanted, fe.history, attack, on_frame)
     _check_last(clean, last)
     for c in todo:
         _check_known(c, clean)
