@@ -217,12 +217,12 @@ def test_verify_refuses_inject_within_with_a_detector_file(made: dict[str, Any])
     assert not out.exists()
 
 
-def test_replay_through_the_file_refuses_an_inject_property(
+def test_replay_through_the_file_replays_an_inject_property(
     made: dict[str, Any], tmp_path: Path
 ) -> None:
     """A violated ``allow hide, inject`` property checked on the candidates' scene: lesmc
-    replay through the detector file is exit 2 naming it (not built yet), not a claim that
-    the frames differ."""
+    replay through the detector file replays it (confirmed or diverged: exit 1 or 3), not
+    a claim that the frames differ (tests/test_inject_replay_heatmap.py checks one)."""
     run = made["runs"]["a"]
     fr = run["scene"]["frames"][0]
     d0 = fr["detections"][0]
@@ -237,6 +237,5 @@ def test_replay_through_the_file_refuses_an_inject_property(
     assert r.returncode == 1, r.stderr
     r = lesmc("replay", str(tmp_path / "rep" / "results.json"), "--frames",
               str(made["frames"]), "--detector", str(run["toml"]))  # fmt: skip
-    assert r.returncode == 2, r.stderr
+    assert r.returncode in (1, 3), r.stderr
     assert "Traceback" not in r.stderr
-    assert "property grab" in r.stderr and "inject" in r.stderr

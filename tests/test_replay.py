@@ -212,19 +212,19 @@ def test_without_repair_interacting_perturbations_diverge_where_they_act(verifie
 
 
 def test_perturbations_of_one_frame_add_up_where_windows_overlap() -> None:
-    from lesmc.replay.run import _apply
+    from lesmc.replay.perturbed import perturb
 
     frame = np.full((40, 40), 100.0)
     stack = [frame.copy() for _ in range(4)]
     d = np.zeros((2, 4, 21, 21))
     d[:, -1] = 0.1  # +25.5 grey levels over each window of the current frame
-    out = _apply(stack, [(np.array([[15.0, 15.0], [20.0, 15.0]]), d)], 21).frames
+    out = perturb(stack, [(np.array([[15.0, 15.0], [20.0, 15.0]]), d)], 21).frames
     cur = out[-1]
     assert cur[15, 7] == pytest.approx(125.5)  # first window only
     assert cur[15, 15] == pytest.approx(151.0)  # both windows
     assert cur[15, 29] == pytest.approx(125.5)  # second window only
     assert cur[0, 39] == 100.0 and np.array_equal(out[0], frame)
-    big = _apply(stack, [(np.array([[15.0, 15.0]]), np.ones((1, 4, 21, 21)))], 21).frames
+    big = perturb(stack, [(np.array([[15.0, 15.0]]), np.ones((1, 4, 21, 21)))], 21).frames
     assert big[-1].max() == 255.0  # clipped to the pixel range
 
 
@@ -377,7 +377,7 @@ def test_perturbed_inputs_and_difference_equal_whole_float64_frames(data: st.Dat
     from lesmc.perception.background import Aligned, median
     from lesmc.perception.frontend import FrontEndOutput
     from lesmc.perception.windows import cut
-    from lesmc.replay.run import _apply, _difference
+    from lesmc.replay.perturbed import difference, perturb
 
     seed = data.draw(st.integers(0, 2**31))
     rng = np.random.default_rng(seed)
@@ -418,7 +418,7 @@ def test_perturbed_inputs_and_difference_equal_whole_float64_frames(data: st.Dat
         bg64[sl] += alpha * (now - was)
     want_diff = np.abs(whole[-1] - bg64).astype(np.float32)
 
-    p = _apply(base, rounds, size)
+    p = perturb(base, rounds, size)
     centres = rng.uniform(0, [w, h], (30, 2))
     assert np.array_equal(cut(p.frames, centres, size), cut(whole, centres, size))
-    assert np.array_equal(_difference(out, p, m), want_diff)
+    assert np.array_equal(difference(out, p, m), want_diff)

@@ -15,7 +15,12 @@ from lesmc.results.read import read_row
 ROOT = Path(__file__).resolve().parents[1]
 
 #: The readers migrated to the typed objects.
-READERS = ("lesmc/campaign/summary.py", "lesmc/replay/run.py", "lesmc/report/html.py")
+READERS = (
+    "lesmc/campaign/summary.py",
+    "lesmc/replay/case.py",
+    "lesmc/replay/run.py",
+    "lesmc/report/html.py",
+)
 
 
 def string_key_reads(source: str) -> list[int]:

@@ -836,8 +836,9 @@ def _replay(
                 _spent(budget, "replaying the counterexamples")
 
             outcome = replay(
-                typed, frames, nets, on_frame=advance, clean=clean, registrations=known
-            )
+                typed, frames, nets, on_frame=advance, clean=clean, registrations=known,
+                scene=src.scene,
+            )  # fmt: skip
         if src.cache is not None and key is not None:
             rows = [[i, j, obj] for (i, j), obj in outcome.replays.items()]
             src.cache.put("replay", key, {"replays": rows, "seconds": outcome.seconds})

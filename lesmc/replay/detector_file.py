@@ -16,29 +16,36 @@ with a detector file is replayed through that file's network instead:
 
 No repair is tried: perturbations of a frame add up in the input, and the
 replay says whether their sum still hides every hidden detection.
+
+Under ``allow hide, inject`` (heatmap files; issue 61) the attack of each window step is
+derived from the path as lesmc/replay/inject.py does for the window pipeline
+(:func:`inject_frame`): the detections to hide and the candidates ``k:cK`` to inject,
+each candidate's raise above the threshold recomputed (``price_candidates``) and added
+to the frame with the hiding perturbations.
 """
 
 from __future__ import annotations
 
 import math
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 from lesmc.common.errors import InputError, Location, UsageError
-from lesmc.replay.run import (
+from lesmc.replay.case import (
     DET_TOL_PX,
+    PAYOFF_RTOL,
     PERTURBATION_DIGITS,
+    Case,
     FrameAttack,
-    Outcome,
-    _check_known,
-    _hidden_by_frame,
-    _hidden_indices,
-    _replay_case,
     cases,
 )
+from lesmc.replay.inject import inject_by_frame, single_forcing
+from lesmc.replay.joint_forcing import derive_joint
+from lesmc.replay.perturbed import hidden_indices
+from lesmc.replay.run import Outcome, _check_known, _hidden_by_frame, _replay_case
 from lesmc.results.read import HiddenDoc as Hidden
 from lesmc.results.read import ResultsDoc
 
@@ -70,18 +77,19 @@ def replay_with_file(
 
     t0 = time.monotonic()
     todo = cases(doc, prop)
+    det = load_detector(path)
     injecting = next((c for c in todo if c.injects), None)
-    if injecting is not None:  # not built: refused rather than misread as a mismatch
+    if injecting is not None and det.spec.kind == "boxes":  # a box list has no candidates
         raise UsageError(
             f"property {injecting.prop} ({injecting.design}) lets the attacker inject "
-            "(allow hide, inject): replaying injections through a detector file is not "
-            'built yet (docs/detectors.md, "Replay"); give --property to replay another'
+            "(allow hide, inject): a box-list detector file has no injection candidates "
+            '(docs/detectors.md, "Replay"); give --property to replay another'
         )
-    det = load_detector(path)
     frames = open_frames(frames_dir, 1)
     det = check_frames(frames, det, frames_dir)
     if not todo:
         return Outcome({}, 0.0)
+    derive_joint(doc.meta, todo)
     cfg = _attack_settings(doc)
     off = next((r.replay_inputs.frames_offset for r in doc.runs if r.replay_inputs), 0)
     last = max(c.first_frame + len(c.positions) - 1 for c in todo)
@@ -90,22 +98,26 @@ def replay_with_file(
             f"the frames stop before frame {last + off}, the last step of a counterexample",
             Location("--frames"),
         )
-    by_frame = _hidden_by_frame(todo)
+    by_frame, by_inject = _hidden_by_frame(todo), inject_by_frame(todo)
     attacked: list[dict[int, FrameAttack]] = [{} for _ in todo]
     clean: dict[int, Decoded] = {}
-    bar.update(total=last + 1 + len(by_frame))
+    bar.update(total=last + 1 + len(set(by_frame) | set(by_inject)))
     for i in range(max(0, -off), last + 1):  # scene frame i is the directory's i + off
         clean[i] = _decode(det, frame_input(frames, i + off, det), i)
         bar.advance()
     for c in todo:  # every detection the results name, where they say, before any attack
         _check_known(c, clean)  # type: ignore[arg-type]  # Decoded has what it reads
-    for i, items in sorted(by_frame.items()):
+    for i in sorted(set(by_frame) | set(by_inject)):
         x = frame_input(frames, i + off, det)
         per_case: dict[int, list[Hidden]] = {}
-        for ci, h in items:
+        for ci, h in by_frame.get(i, []):
             per_case.setdefault(ci, []).append(h)
         for ci, hidden in per_case.items():
             attacked[ci][i] = attack_frame(det, x, clean[i], hidden, cfg)
+        for ci, step in by_inject.get(i, []):
+            fa = inject_frame(det, x, clean[i], todo[ci], step, cfg)
+            if fa.perturbations:
+                attacked[ci][i] = fa
         bar.advance()
     replays = {
         (c.run, c.result): _replay_case(c, clean, attacked[ci])  # type: ignore[arg-type]
@@ -159,7 +171,7 @@ def attack_frame(
 ) -> FrameAttack:
     """The hidden detections' attacks run again on frame input ``x``, their perturbations
     added together, the frame decoded again."""
-    idx = _hidden_indices(clean, hidden)  # type: ignore[arg-type]  # reads positions only
+    idx = hidden_indices(clean, hidden)  # type: ignore[arg-type]  # reads positions only
     deltas = _perturbations(det, x, clean, idx, cfg)
     fa = FrameAttack(clean.index, hidden[0].step, clean)  # type: ignore[arg-type]
     total = np.zeros_like(x)
@@ -178,7 +190,6 @@ def _perturbations(
     det: LoadedDetector, x: np.ndarray, clean: Decoded, idx: list[int], cfg: AttackConfig
 ) -> dict[int, tuple[float, np.ndarray]]:
     """Detection index -> (payoff, perturbation) of each of ``idx`` that the attack hides."""
-    from dataclasses import replace
 
     got: dict[int, tuple[float, np.ndarray]] = {}
     if det.spec.kind == "boxes":
@@ -209,8 +220,6 @@ def _record(
     """One hidden detection's recomputed attack (the replay schema's perturbation: the
     nonzero crop of the network input, C x h x w, and its origin x, y), refused if its
     payoff differs from the results'."""
-    from lesmc.replay.run import PAYOFF_RTOL
-
     if math.isfinite(h.payoff) and not (
         math.isfinite(rec) and abs(rec - h.payoff) <= PAYOFF_RTOL * max(h.payoff, 1e-9)
     ):
@@ -220,13 +229,7 @@ def _record(
             "that wrote the results",
             Location("--frames"),
         )
-    crop: list[Any] = []
-    origin = [0, 0]
-    if delta is not None and np.any(delta):
-        ys, xs = np.nonzero(np.abs(delta[0]).sum(axis=0))
-        y0, y1, x0, x1 = int(ys.min()), int(ys.max()) + 1, int(xs.min()), int(xs.max()) + 1
-        origin = [x0, y0]
-        crop = np.round(delta[0, :, y0:y1, x0:x1].astype(np.float64), PERTURBATION_DIGITS).tolist()
+    origin, crop = _crop(delta)
     return {
         "step": h.step,
         "frame": clean.index,
@@ -241,11 +244,28 @@ def _record(
     }
 
 
+def _crop(delta: np.ndarray | None) -> tuple[list[int], list[Any]]:
+    """The nonzero crop of a perturbation of the network input (C x h x w) and its origin
+    x, y (none: [0, 0] and an empty crop)."""
+    if delta is None or not np.any(delta):
+        return [0, 0], []
+    ys, xs = np.nonzero(np.abs(delta[0]).sum(axis=0))
+    y0, y1, x0, x1 = int(ys.min()), int(ys.max()) + 1, int(xs.min()), int(xs.max()) + 1
+    crop = np.round(delta[0, :, y0:y1, x0:x1].astype(np.float64), PERTURBATION_DIGITS).tolist()
+    return [x0, y0], crop
+
+
 def _diagnose(
-    det: LoadedDetector, fa: FrameAttack, clean: Decoded, after: Decoded, idx: list[int]
+    det: LoadedDetector,
+    fa: FrameAttack,
+    clean: Decoded,
+    after: Decoded,
+    idx: list[int],
+    wanted: np.ndarray | None = None,
 ) -> None:
     """What the frame's perturbations did: hidden detections still there, other detections
-    lost or moved, extra detections."""
+    lost or moved, extra detections (not those at a cell of ``wanted``, (c, 2) the
+    injected candidates' cells)."""
     a, b = clean.positions, after.positions
     for j in range(len(a)):
         d = np.hypot(*(b - a[j]).T) if len(b) else np.zeros(0)
@@ -261,6 +281,8 @@ def _diagnose(
     for q in range(len(b)):
         d = np.hypot(*(a - b[q]).T) if len(a) else np.zeros(0)
         far = not len(d) or float(d.min()) > DET_TOL_PX
+        if wanted is not None and (wanted == after.raw.cells[q]).all(axis=1).any():
+            continue  # an injected detection
         if far and not any(_covers(det, clean, j, after, q) for j in idx):
             fa.extra.append((float(b[q, 0]), float(b[q, 1])))
 
@@ -281,3 +303,145 @@ def _covers(det: LoadedDetector, clean: Decoded, j: int, after: Decoded, q: int)
     ci, cj = clean.raw.cells[j]
     ai, aj = after.raw.cells[q]
     return abs(int(ai) - int(ci)) <= r and abs(int(aj) - int(cj)) <= r
+
+
+# ---------------------------------------------------------------- injections (heatmap)
+
+
+def inject_frame(
+    det: LoadedDetector, x: np.ndarray, clean: Decoded, case: Case, step: int, cfg: AttackConfig
+) -> FrameAttack:
+    """Step ``step`` of an ``allow hide, inject`` counterexample through a heatmap file: the
+    cheapest attack that forces the path's outcome (``joint``: ``case.forced``;
+    ``single``: :func:`~lesmc.replay.inject.single_forcing`), each detection's hiding and
+    each candidate's raising above the threshold (lesmc/perception/heatmap_attack.py)
+    recomputed on frame input ``x``, added together, the frame decoded again."""
+    fa = FrameAttack(clean.index, step, clean)  # type: ignore[arg-type]
+    hidden, inject = _derived(det, x, clean, case, step)
+    idx = hidden_indices(clean, hidden)  # type: ignore[arg-type]  # reads positions only
+    deltas = _perturbations(det, x, clean, idx, cfg) if idx else {}
+    total = np.zeros_like(x)
+    for h, j in zip(hidden, idx, strict=True):
+        pay, delta = deltas.get(j, (math.inf, None))
+        total += 0 if delta is None else delta
+        fa.cost += pay  # the results record no per-detection payoff under inject: the
+        # recomputed one stands in, and the path's cost is checked as a whole (run.py)
+        fa.perturbations.append(_record(replace(h, payoff=pay), clean, j, pay, delta))
+    cells = _inject(det, x, clean, fa, inject, total, cfg)
+    if not fa.perturbations:
+        return fa
+    after = _decode(det, x + total, clean.index)
+    _diagnose(det, fa, clean, after, idx, cells)
+    got = after.raw.cells
+    fa.not_injected = [
+        cid for (cid, _), c in zip(inject, cells, strict=True) if not (got == c).all(axis=1).any()
+    ]
+    fa.detections = after  # type: ignore[assignment]  # Decoded has what the tracker reads
+    return fa
+
+
+def _derived(
+    det: LoadedDetector, x: np.ndarray, clean: Decoded, case: Case, step: int
+) -> tuple[list[Hidden], list[tuple[str, np.ndarray]]]:
+    """The detections to hide and the candidates (id, cell) to inject at ``step``; each
+    candidate's position into ``case.known``."""
+    nan = math.nan
+    if case.forced is not None:
+        hid, inj = case.forced.get(step, ([], []))
+    else:
+        taken = case.obs[step - 1]
+        if taken is None:  # a skip: not derived (the comparison says if the tracker skips)
+            return [], []
+        cell = _candidate_cells(det, x, clean.index, [taken])[0] if ":c" in taken else None
+        at = None if cell is None else _cell_position(det, cell)
+        rows = single_forcing(case, step, clean.positions, None, taken, at)
+        hid, inj = [f"{clean.index}:{int(j)}" for j in rows], [] if cell is None else [taken]
+    cells = _candidate_cells(det, x, clean.index, inj)
+    for cid, c in zip(inj, cells, strict=True):
+        p = _cell_position(det, c)
+        case.known[cid] = (float(p[0]), float(p[1]))
+    hidden = [Hidden(step, clean.index, h, nan, nan, nan) for h in hid]
+    return hidden, list(zip(inj, cells, strict=True))
+
+
+def _candidate_cells(det: LoadedDetector, x: np.ndarray, index: int, ids: list[str]) -> np.ndarray:
+    """(c, 2) the cells of candidates ``FRAME:cK`` of frame input ``x``: K-th, row-major,
+    of its local maxima below the threshold (lesmc/perception/heatmap.py ``sub_peaks``)."""
+    import torch
+
+    from lesmc.perception.detector_file import score_of
+    from lesmc.perception.heatmap import sub_peaks
+    from lesmc.perception.to_scene import candidate_row
+
+    if not ids:
+        return np.zeros((0, 2), np.int64)
+    with torch.no_grad():
+        y = det.net.module(torch.from_numpy(np.ascontiguousarray(x, np.float32)))
+    raw = y.reshape(det.cells).double().numpy()
+    subs = sub_peaks(score_of(raw, det.spec.score), det.spec.threshold, det.spec.nms_radius)
+    keys = [candidate_row(cid) for cid in ids]
+    for cid, k in zip(ids, keys, strict=True):
+        if k is None or not 0 <= k < len(subs):
+            raise InputError(
+                f"frame {index} has {len(subs)} local maxima below the threshold, not {cid}: "
+                "the frames or detector file are not those the results were made from",
+                Location("--frames"),
+            )
+    out: np.ndarray = subs[np.array(keys, np.int64)]
+    return out
+
+
+def _cell_position(det: LoadedDetector, cell: np.ndarray) -> np.ndarray:
+    """The input-pixel centre (x, y) of a cell (row, col)."""
+    from lesmc.perception.heatmap import cell_positions
+
+    out: np.ndarray = cell_positions(cell[None], det.spec.stride)[0]
+    return out
+
+
+def _inject(
+    det: LoadedDetector,
+    x: np.ndarray,
+    clean: Decoded,
+    fa: FrameAttack,
+    inject: list[tuple[str, np.ndarray]],
+    total: np.ndarray,
+    cfg: AttackConfig,
+) -> np.ndarray:
+    """Each candidate's attack towards a detection at its cell, alone on ``x``
+    (``price_candidates``), added into ``total``; costs and records into ``fa``. Returns
+    the candidates' cells."""
+
+    from lesmc.perception.heatmap_attack import price_candidates, pricing
+
+    cells = np.array([c for _, c in inject], np.int64).reshape(-1, 2)
+    if not len(cells):
+        return cells
+    deltas: dict[int, np.ndarray] = {}
+    one = replace(clean.raw, cand_cells=cells, cand_keys=np.arange(len(cells)))
+    pays = price_candidates(pricing(det, cfg), x, one, lambda k, d: deltas.__setitem__(k, d))
+    for r, (cid, c) in enumerate(inject):
+        delta = deltas.get(r)
+        total += 0 if delta is None else delta
+        rec = float(pays[r])
+        fa.cost += rec
+        fa.injected.append(cid)
+        origin, crop = _crop(delta)
+        p = _cell_position(det, c)
+        shown: float | str = rec if math.isfinite(rec) else "inf"
+        fa.perturbations.append(
+            {
+                "step": fa.step,
+                "frame": clean.index,
+                "obs": cid,
+                "x": float(p[0]),
+                "y": float(p[1]),
+                "window_origin": origin,
+                "payoff": shown,
+                "payoff_recomputed": shown,
+                "flipped_alone": delta is not None,
+                "action": "inject",
+                "delta": crop,
+            }
+        )
+    return cells

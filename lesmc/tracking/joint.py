@@ -103,6 +103,11 @@ class _Expanded:
     halted: np.ndarray
     states: JointStates
     nis: np.ndarray  # the primary's NIS yᵀ S⁻¹ y where it updates, NaN where it skips
+    #: at an attacked frame, the cheapest option kept for each outcome: how many of the
+    #: detections nearest the primary it hides, and which subset of the frame's candidates
+    #: it injects (its place in ``injected_subsets``); None: unattacked
+    opt: np.ndarray | None = None
+    subset: np.ndarray | None = None
 
 
 class JointDesign:
@@ -217,6 +222,8 @@ class JointDesign:
                 halt[rows, 0],
                 states.take(rows),
                 primary_nis(p, s[rows], assign[rows, 0]),
+                opt[rows].astype(np.int64),
+                np.zeros(rows.size, dtype=np.int64),
             )
         # unattacked: option 0, and its own payoff, the cost of the first option that differs
         s, opt, assign, halt, states = self._rows(
@@ -287,7 +294,37 @@ class JointDesign:
             halted[kept],
             states.take(kept),
             primary_nis(p, s[kept], det[kept]),
+            opt[order][kept].astype(np.int64),
+            sub_k[order][kept].astype(np.int64),
         )
+
+    def forcing(
+        self, batch: Batch, step: int
+    ) -> tuple[Successors, list[tuple[list[str], list[str]]]]:
+        """The outcomes of ``batch`` at attacked frame ``step`` (as :meth:`successors`, in
+        one chunk: a small batch) and, per outcome, the cheapest way to force it that the
+        model kept: the ids of the frame's detections it hides (the primary's nearest) and
+        of the candidates it injects (docs/semantics.md, "Injection on the joint design";
+        the replay applies them, lesmc/replay/inject.py)."""
+        js = batch.objects
+        assert isinstance(js, JointStates)
+        e = self._expand(js, step, True)
+        assert e.opt is not None and e.subset is not None
+        frame = self.scene.frame(step)
+        inj = self.inject and bool(frame.candidates or not self.hide)
+        p = prepare(self.scene, self.schedule, self.parts, self.m.pos, js, step, inj, self.hide)
+        nd = len(frame.detections)
+        shown = visible(p.visible_rank(e.src), e.opt)[:, :nd]
+        subsets = list(injected_subsets(frame, inj))
+        how = [
+            (
+                [frame.detections[int(j)].id for j in np.flatnonzero(~row)],
+                [frame.candidates[c].id for c in subsets[int(k)]],
+            )
+            for row, k in zip(shown, e.subset, strict=True)
+        ]
+        succ = self._batch(e.states, e.halted)
+        return Successors(e.src, e.rank, e.payoff, e.det, succ, e.nis), how
 
     def _rows(
         self, p: Prepared, lo: np.ndarray, hi: np.ndarray, shown: np.ndarray | None = None
