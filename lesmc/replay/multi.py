@@ -47,6 +47,8 @@ from lesmc.model.kernel import COMPARE
 from lesmc.model.multi import MultiModel
 from lesmc.perception import HISTORY
 from lesmc.replay import run as single
+from lesmc.replay.case import DET_TOL_PX, TRACK_TOL_PX, FrameAttack
+from lesmc.replay.perturbed import attack_frame
 from lesmc.results.read import HiddenDoc as Hidden
 from lesmc.scene import Detection, Frame, Scene
 from lesmc.tracking.multi import ComposedDesign, target_id, target_look
@@ -170,17 +172,19 @@ def replay_multi(
     # the front end's settings as verify's perception ran it (replay.run._settings' defaults)
     fe = FrontEndConfig(history=HISTORY, blobs=BlobConfig())
     cfg = attack_of(dict(scene.meta), where)
-    attacked: list[dict[int, single.FrameAttack]] = [{} for _ in todo]
+    attacked: list[dict[int, FrameAttack]] = [{} for _ in todo]
     by_frame: dict[int, list[tuple[int, Hidden]]] = {}
     for ci, c in enumerate(todo):
         for h in c.hidden:
             by_frame.setdefault(h.frame, []).append((ci, h))
 
     def attack(det: Any, out: FrontEndOutput, fd: FrameDetections) -> None:
-        def one(group: list[Hidden]) -> single.FrameAttack:
-            return single.attack_frame(nets, det, out, fd, group, cfg)
+        def one(group: list[Hidden]) -> FrameAttack:
+            return attack_frame(nets, det, out, fd, group, cfg)
 
-        for ci, fa in single._shared(single._groups(by_frame.get(fd.index, [])), one).items():
+        for ci, fa in single.shared_attacks(
+            single.group_by_case(by_frame.get(fd.index, [])), one
+        ).items():
             attacked[ci][fd.index] = fa
 
     def detector() -> Any:
@@ -190,10 +194,12 @@ def replay_multi(
 
     last = max(c.steps[-1]["frame"] for c in todo)
     if clean is None:
-        clean = single._all_frames(frames, detector(), last, attack, on_frame)
+        clean = single.detect_all_frames(frames, detector(), last, attack, on_frame)
     else:
-        single._attacked_frames(frames, detector, sorted(by_frame), fe.history, attack, on_frame)
-    single._check_last(clean, last)
+        single.detect_attacked_frames(
+            frames, detector, sorted(by_frame), fe.history, attack, on_frame
+        )
+    single.check_last_frame(clean, last)
     replays = {
         (0, c.result): replay_case(c, scene, where, clean, attacked[ci])
         for ci, c in enumerate(todo)
@@ -206,7 +212,7 @@ def replay_case(
     scene: Scene,
     where: str,
     clean: Mapping[int, FrameDetections],
-    attacked: Mapping[int, single.FrameAttack],
+    attacked: Mapping[int, FrameAttack],
 ) -> dict[str, Any]:
     """One counterexample: the production tracker on the frames' detections with the
     attacked frames' replayed ones, its target's track at each step, and the property
@@ -249,7 +255,7 @@ def _check_known(scene: Scene, end: int, clean: Mapping[int, FrameDetections]) -
                 )
 
 
-def _replayed_frame(f: Frame, fa: single.FrameAttack | None) -> Frame:
+def _replayed_frame(f: Frame, fa: FrameAttack | None) -> Frame:
     """Frame ``f`` with the replayed detections of its attack ``fa`` (None: unattacked),
     each with the box of the frame's nearest clean detection (the WAMI front end's N_dr
     window; a point detection stays a point)."""
@@ -279,7 +285,7 @@ def _chain(
     refs: list[np.ndarray | None],
     looks: list[tuple[np.ndarray, bool]],
     me: int,
-    attacked: Mapping[int, single.FrameAttack],
+    attacked: Mapping[int, FrameAttack],
 ) -> MultiModel:
     """The replayed run as a model of one path (lesmc/model/multi.py): its states' target
     track ids, references and what the ``dist`` measures read; each transition at the
@@ -318,7 +324,7 @@ def _chain(
     )
 
 
-def _cost(fa: single.FrameAttack | None) -> float:
+def _cost(fa: FrameAttack | None) -> float:
     """The recomputed cost of a frame's attack: its perturbations' norms and the repair's."""
     if fa is None:
         return 0.0
@@ -330,7 +336,7 @@ def _verdict(
     c: MultiCase,
     model: MultiModel,
     fts: list[Any],
-    attacked: Mapping[int, single.FrameAttack],
+    attacked: Mapping[int, FrameAttack],
 ) -> dict[str, Any]:
     """The replay object: the property checked on the replayed run (``model``), and its
     target's track ids against the counterexample's."""
@@ -353,7 +359,7 @@ def _verdict(
         "attack": "repaired" if repaired else "as modelled",
         "repair_cost": round(sum(fa.extra_cost for fa in fas), 6),
         "frames": [f"frame {fa.frame}: {s}" for fa in fas if (s := single.frame_story(fa))],
-        "tolerance_px": {"detection": single.DET_TOL_PX, "track": single.TRACK_TOL_PX},
+        "tolerance_px": {"detection": DET_TOL_PX, "track": TRACK_TOL_PX},
         "perturbations": [p for fa in fas for p in fa.perturbations],
         "target_ids": ids,
         "detections": [

@@ -38,7 +38,20 @@ perturbations is added to the payoff, and the track is replayed again.
 
 from __future__ import annotations
 
-__all__ = ["Outcome", "apply", "cases", "frame_story", "replay", "replay_file", "verdict_rows"]
+__all__ = [
+    "Outcome",
+    "apply",
+    "cases",
+    "check_last_frame",
+    "detect_all_frames",
+    "detect_attacked_frames",
+    "frame_story",
+    "group_by_case",
+    "replay",
+    "replay_file",
+    "shared_attacks",
+    "verdict_rows",
+]
 
 import math
 import time
@@ -267,7 +280,7 @@ def replay(
         def one(group: list[Hidden]) -> FrameAttack:
             return attack_frame(nets, det, out, fd, group, attack_cfg, repair)
 
-        for ci, fa in _shared(_groups(by_frame.get(fd.index, [])), one).items():
+        for ci, fa in shared_attacks(group_by_case(by_frame.get(fd.index, [])), one).items():
             attacked[ci][fd.index] = fa
         inject_cases(nets, det, out, fd, todo, by_inject, attacked, attack_cfg, repair)
         release()  # the frame's temporaries go back to the system (common/memory.py)
@@ -278,19 +291,19 @@ def replay(
         return det
 
     if clean is None:  # every frame through the detector
-        clean = _all_frames(frames, detector(), last, attack, on_frame)
+        clean = detect_all_frames(frames, detector(), last, attack, on_frame)
     else:  # the clean frames' detections are given: only the attacked ones are detected
         clean = dict(clean)
         wanted = sorted(set(by_frame) | set(by_inject))
-        _attacked_frames(frames, detector, wanted, fe.history, attack, on_frame)
-    _check_last(clean, last)
+        detect_attacked_frames(frames, detector, wanted, fe.history, attack, on_frame)
+    check_last_frame(clean, last)
     for c in todo:
         _check_known(c, clean)
     replays = {(c.run, c.result): _replay_case(c, clean, attacked[ci]) for ci, c in enumerate(todo)}
     return Outcome(replays, time.monotonic() - t0)
 
 
-def _check_last(clean: Mapping[int, FrameDetections], last: int) -> None:
+def check_last_frame(clean: Mapping[int, FrameDetections], last: int) -> None:
     """The frames must reach ``last``, the last step of a counterexample."""
     if last not in clean:
         raise InputError(
@@ -322,7 +335,7 @@ def _hidden_by_frame(todo: list[Case]) -> dict[int, list[tuple[int, Hidden]]]:
     return out
 
 
-def _all_frames(
+def detect_all_frames(
     frames: FrameSet,
     det: Any,
     last: int,
@@ -344,7 +357,7 @@ def _all_frames(
     return clean
 
 
-def _attacked_frames(
+def detect_attacked_frames(
     frames: FrameSet,
     detector: Callable[[], Any],
     wanted: list[int],
@@ -421,7 +434,7 @@ def _replay_case(
     }
 
 
-def _shared(
+def shared_attacks(
     groups: list[tuple[int, list[Hidden]]], attack: Callable[[list[Hidden]], FrameAttack]
 ) -> dict[int, FrameAttack]:
     """Each case's attack of one frame. Cases that hide the same detections there (two
@@ -437,7 +450,7 @@ def _shared(
     return out
 
 
-def _groups(items: list[tuple[int, Hidden]]) -> list[tuple[int, list[Hidden]]]:
+def group_by_case(items: list[tuple[int, Hidden]]) -> list[tuple[int, list[Hidden]]]:
     out: dict[int, list[Hidden]] = {}
     for ci, h in items:
         out.setdefault(ci, []).append(h)
