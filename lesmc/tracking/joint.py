@@ -105,6 +105,23 @@ class _Expanded:
     nis: np.ndarray  # the primary's NIS yᵀ S⁻¹ y where it updates, NaN where it skips
 
 
+@dataclass
+class _Injected:
+    """The outcomes of a chunk of states at an attacked step under inject (see
+    :meth:`JointDesign._injected_outcomes`), each with its cheapest way: ``opt`` hides the
+    ``opt`` detections nearest the primary, ``subsets`` the candidates injected."""
+
+    p: Prepared
+    s: np.ndarray
+    rank: np.ndarray
+    payoff: np.ndarray
+    det: np.ndarray
+    halted: np.ndarray
+    states: JointStates
+    opt: np.ndarray
+    subsets: list[tuple[int, ...]]
+
+
 class JointDesign:
     """Primary plus refining tracks with likelihood-sorted one-to-one association."""
 
@@ -259,13 +276,22 @@ class JointDesign:
         """The outcomes of ``js`` at an attacked frame under ``allow hide, inject``: each
         hiding option × each subset of the frame's candidates (candidate j: detection n + j),
         equal joint states merged at the cheapest, ranked by cost (docs/semantics.md)."""
+        o = self._injected_outcomes(js, step)
+        return _Expanded(
+            o.s, o.rank, o.payoff, o.det, o.halted, o.states, primary_nis(o.p, o.s, o.det)
+        )
+
+    def _injected_outcomes(self, js: JointStates, step: int) -> _Injected:
+        """Every outcome of ``js`` at an attacked frame under inject, at its cheapest way
+        (the hiding option and the subset of candidates that force it), in rank order."""
         frame = self.scene.frame(step)
         p = prepare(self.scene, self.schedule, self.parts, self.m.pos, js, step, True, self.hide)
         nd, cpay = len(frame.detections), frame.injectable.payoffs()
         zero = np.zeros(len(js), dtype=np.int64)
         rows: list[tuple[np.ndarray, ...]] = []
         parts: list[JointStates] = []
-        for k, sub in enumerate(injected_subsets(frame, True)):
+        subsets = list(injected_subsets(frame, True))
+        for k, sub in enumerate(subsets):
             shown = np.arange(len(p.Z)) < nd
             shown[nd + np.array(sub, dtype=np.int64)] = True
             s, opt, assign, halt, states = self._rows(p, zero, p.n_opt, shown)
@@ -276,17 +302,36 @@ class JointDesign:
         unattacked = (opt == 0) & (sub_k == 0)
         order = np.lexsort((opt, sub_k, ~unattacked, cost, s))
         states = concat(parts).take(order)
-        s, cost, det, halted = s[order], cost[order], det[order], halted[order]
-        kept = np.nonzero(first_of_equals(states, s))[0]  # the first of equals: the cheapest
+        here = np.nonzero(first_of_equals(states, s[order]))[0]  # the first of equals
+        kept = order[here]  # the cheapest
         rank, payoff = ranks_and_payoffs(s[kept], cost[kept])
-        return _Expanded(
+        return _Injected(
+            p,
             s[kept].astype(np.int64),
             rank,
             payoff,
             det[kept].astype(np.int64),
             halted[kept],
-            states.take(kept),
-            primary_nis(p, s[kept], det[kept]),
+            states.take(here),
+            opt[kept],
+            [subsets[int(i)] for i in sub_k[kept]],
+        )
+
+    def attack_in(self, batch: Batch, step: int, rank: int) -> tuple[list[str], list[str]]:
+        """Under inject: the ids of the detections hidden and of the candidates injected by
+        the cheapest way to force the outcome of rank ``rank`` from the one joint state of
+        ``batch`` at frame ``step`` (the hiding option hides the detections nearest the
+        primary's prediction; lesmc/unfold/attack_path.py walks a path to its states)."""
+        assert isinstance(batch.objects, JointStates) and len(batch.objects) == 1
+        o = self._injected_outcomes(batch.objects, step)
+        i = int(np.flatnonzero(o.rank == rank)[0])
+        frame = self.scene.frame(step)
+        nearest = o.p.visible_rank(o.s[i : i + 1])[0][: len(frame.detections)]
+        hidden = np.flatnonzero(nearest < o.opt[i])
+        hidden = hidden[np.argsort(nearest[hidden], kind="stable")]
+        return (
+            [frame.detections[int(d)].id for d in hidden],
+            [frame.candidates[int(c)].id for c in o.subsets[i]],
         )
 
     def _rows(
