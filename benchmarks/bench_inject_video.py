@@ -11,10 +11,19 @@ count.frames`` (the fewest frames to move the track beyond epsilon), once hide o
 once ``allow hide, inject``, for every design (``joint`` and ``improved`` take inject as
 ``single`` does). Prints the optima, the states built and the check's wall-clock seconds
 side by side. A check stopped by ``--max-states`` or ``--timeout`` prints its verdict
-``unknown`` and the bounds found (``unknown [lo, hi]``), never a guessed optimum.
+``unknown`` and the bounds found (``unknown [lo, hi]``), never a guessed optimum; a
+check that stops with exit status 3 before any verdict (the joint design refuses to
+build 2^m subsets of a frame's m candidates past its limit: a BudgetError) prints
+``budget`` and its message goes to stderr.
+
+``--near K`` (a modelling restriction, named as such in the results): each frame keeps
+only the K injection candidates nearest the target's unattacked track (the scene's
+single tracker) at that frame, for every design, so that the joint design's 2^K
+subsets a frame can be built. The perceived scene is cached in ``--out`` (sceneS.json
+and its facts): a second run with other designs or ``--near`` does not perceive again.
 
 Usage: PYTHONPATH=. python benchmarks/bench_inject_video.py [--seeds 1,2,3] [--within 30] [--cap N]
-       [--designs single,joint,improved] [--max-states N] [--timeout S]
+       [--designs single,joint,improved] [--max-states N] [--timeout S] [--near K]
        [--out /tmp/lesmc-inject-video]
 """
 
@@ -52,6 +61,10 @@ def _scene(seed: int, within: float, cap: int, out: Path) -> tuple[Path, dict[st
     from lesmc.experiment.targets import auto_target
     from lesmc.scene import Scene
 
+    path, facts_path = out / f"scene{seed}.json", out / f"scene{seed}.facts.json"
+    if path.exists() and facts_path.exists():
+        facts: dict[str, float] = json.loads(facts_path.read_text())
+        return path, facts
     video = out / f"v{seed}"
     if not (video / "truth.json").exists():
         r = _run("-m", "lesmc", "synth", str(video), "--seed", str(seed), "--frames", "24")
@@ -68,7 +81,6 @@ def _scene(seed: int, within: float, cap: int, out: Path) -> tuple[Path, dict[st
     specs = [load_spec(ROOT / "specs" / f"{n}.spec") for n in ("robustness", "resilience")]
     assert inputs.truth is not None
     scene = auto_target(got.scene, inputs.frames, inputs.truth, specs)
-    path = out / f"scene{seed}.json"
     save_scene(scene, path)
     facts = {
         "perceive_s": secs,
@@ -76,7 +88,37 @@ def _scene(seed: int, within: float, cap: int, out: Path) -> tuple[Path, dict[st
         "detections": sum(len(f.detections) for f in scene.frames),
         "candidates": sum(len(f.candidates) for f in scene.frames),
     }
+    facts_path.write_text(json.dumps(facts))
     return path, facts
+
+
+def _near(scene_path: Path, k: int) -> Path:
+    """The scene with each frame's injection candidates cut to the ``k`` nearest the
+    target's unattacked track (single tracker) at that frame (ties: the lower index)."""
+    import dataclasses
+
+    import numpy as np
+
+    from lesmc.api import load_scene, save_scene
+    from lesmc.tracking.monitor import track
+    from lesmc.tracking.trackers import make_tracker
+
+    scene = load_scene(scene_path)
+    single = scene.with_tracker(design="single")
+    at = {p.frame: p.x[:2] for p in track(make_tracker(single))}
+    frames = []
+    for f in scene.frames:
+        c = f.candidates
+        if f.step in at and len(c) > k:
+            d = np.hypot(*(np.array([[x.x, x.y] for x in c]) - at[f.step]).T)
+            keep = sorted(np.argsort(d, kind="stable")[:k].tolist())
+            c = tuple(c[i] for i in keep)
+        elif f.step not in at:
+            c = ()
+        frames.append(dataclasses.replace(f, candidates=c))
+    out = scene_path.with_name(f"{scene_path.stem}.near{k}.json")
+    save_scene(dataclasses.replace(scene, frames=tuple(frames)), out)
+    return out
 
 
 def _check(scene: Path, design: str, allow: str, out: Path, budget: list[str]) -> dict[str, object]:
@@ -88,6 +130,9 @@ def _check(scene: Path, design: str, allow: str, out: Path, budget: list[str]) -
     cmd = ["-m", "lesmc", "check", str(scene), str(spec), "--design", design, "--json"]
     r = _run(*cmd, *budget)
     secs = time.perf_counter() - t0
+    if r.returncode == 3 and not r.stdout.strip():  # stopped before any verdict
+        print(f"{design}{allow}: {r.stderr.strip()}", file=sys.stderr)
+        return {"payoff": "budget", "frames": "", "states": 0, "seconds": round(secs, 1)}
     if r.returncode not in (0, 1, 3):
         raise SystemExit(r.stderr)
     res = {x["property"]: x for x in json.loads(r.stdout)["results"]}
@@ -120,6 +165,7 @@ def main() -> None:
     ap.add_argument("--designs", default="single,joint,improved")
     ap.add_argument("--max-states", type=int, default=None, help="lesmc check's budget")
     ap.add_argument("--timeout", type=float, default=None, help="lesmc check's seconds")
+    ap.add_argument("--near", type=int, default=None, help="candidates a frame near the target")
     ap.add_argument("--out", default="/tmp/lesmc-inject-video")
     args = ap.parse_args()
     budget = [] if args.max_states is None else ["--max-states", str(args.max_states)]
@@ -133,6 +179,8 @@ def main() -> None:
     for seed in (int(s) for s in args.seeds.split(",")):
         scene, facts = _scene(seed, args.within, args.cap, out)
         print(f"seed {seed}: {json.dumps(facts)}", file=sys.stderr)
+        if args.near is not None:
+            scene = _near(scene, args.near)
         for design in args.designs.split(","):
             row = [str(seed), design]
             for allow in ("", " allow hide, inject"):
@@ -140,7 +188,7 @@ def main() -> None:
                 row += [
                     str(got["payoff"]),
                     str(got["frames"]),
-                    f"{got['states']:,}",
+                    f"{got['states']:,}" if got["states"] else "",
                     str(got["seconds"]),
                 ]
             print("| " + " | ".join(row) + " |", flush=True)

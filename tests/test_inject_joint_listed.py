@@ -121,7 +121,7 @@ def test_the_results_document_lists_a_joint_counterexamples_attack(tmp_path: Pat
         api.save_scene(scene, path)
         spec.write_text(_spec(window, end, bound, " allow hide, inject"))
         out = tmp_path / f"o{done}"
-        r = lesmc("check", str(path), str(spec), "--out", str(out))
+        r = lesmc("check", str(path), str(spec), "--report", str(out))
         assert r.returncode in (0, 1), r.stderr
         assert "Traceback" not in r.stderr
         doc = json.loads((out / "results.json").read_text())
@@ -133,6 +133,7 @@ def test_the_results_document_lists_a_joint_counterexamples_attack(tmp_path: Pat
         for key, i in (("hidden", 0), ("injected", 1)):
             for item in run[key]["p"]:
                 steps.setdefault(item["step"], ([], []))[i].append(item["obs"])
+        assert steps  # an attack of positive cost hides or injects something
         oracle, st, cost, xs = Applied(scene), None, 0.0, []
         st = oracle.initial()
         xs.append(st.tracks[0][0][:2])
@@ -148,6 +149,5 @@ def test_the_results_document_lists_a_joint_counterexamples_attack(tmp_path: Pat
         assert dev > bound
         assert cost == pytest.approx(float(run["results"][0]["optimum"]), abs=1e-9)
         done += 1
-        if done == 3:
-            break
+        break  # one document (a report takes seconds)
     assert done

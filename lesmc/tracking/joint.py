@@ -61,6 +61,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from lesmc.common.errors import BudgetError
 from lesmc.scene import Scene
 from lesmc.tracking.design import Batch, CovarianceTable, Schedule, Successors
 from lesmc.tracking.kalman import Matrices, initial_mean, matrices, positions
@@ -90,6 +91,9 @@ from lesmc.tracking.parts.joint_step import (
 
 #: (states × (tracks + detections)) cells of one chunk: bounds the temporaries of an expansion.
 CHUNK_CELLS = 1 << 20
+#: (states × candidate subsets) one attacked step under inject may build at most: past it
+#: the step is a BudgetError (exit 3) before any subset is listed, not a memory blow-up
+MAX_INJECT_ROWS = 1 << 20
 
 
 @dataclass
@@ -120,6 +124,17 @@ class _Injected:
     states: JointStates
     opt: np.ndarray
     subsets: list[tuple[int, ...]]
+
+
+def _within_inject_budget(states: int, candidates: int, step: int) -> None:
+    """A BudgetError unless ``states`` joint states × every subset of ``candidates``
+    injection candidates fit in :data:`MAX_INJECT_ROWS` (checked before listing any)."""
+    if candidates >= 64 or states << candidates > MAX_INJECT_ROWS:
+        raise BudgetError(
+            f"frame {step}: the joint design under inject would build {states} state(s) × "
+            f"2^{candidates} subsets of the frame's injection candidates (more than "
+            f"{MAX_INJECT_ROWS:,}); offer fewer candidates a frame (perceive --inject-cap N)"
+        )
 
 
 class JointDesign:
@@ -285,6 +300,7 @@ class JointDesign:
         """Every outcome of ``js`` at an attacked frame under inject, at its cheapest way
         (the hiding option and the subset of candidates that force it), in rank order."""
         frame = self.scene.frame(step)
+        _within_inject_budget(len(js), len(frame.candidates), step)
         p = prepare(self.scene, self.schedule, self.parts, self.m.pos, js, step, True, self.hide)
         nd, cpay = len(frame.detections), frame.injectable.payoffs()
         zero = np.zeros(len(js), dtype=np.int64)
