@@ -151,3 +151,26 @@ def test_the_results_document_lists_a_joint_counterexamples_attack(tmp_path: Pat
         done += 1
         break  # one document (a report takes seconds)
     assert done
+
+
+def test_too_many_candidates_for_joint_is_a_budget_stop_not_a_blow_up(tmp_path: Path) -> None:
+    """A frame with 21 injection candidates would make the joint design build 2^21
+    subsets per state (the default video offers 100-175 a frame): ``lesmc check`` stops
+    with exit status 3 and says so, before listing any (it used to grow without bound)."""
+    import dataclasses
+
+    from lesmc.scene import Detection
+
+    scene, window = _cases(1, 610)[0]
+    frames = []
+    for f in scene.frames:
+        extra = tuple(Detection(f"{f.step}:x{i}", 400.0 + 7 * i, 300.0, 1.0) for i in range(21))
+        frames.append(dataclasses.replace(f, candidates=f.candidates + extra))
+    path, spec = tmp_path / "s.json", tmp_path / "p.spec"
+    api.save_scene(dataclasses.replace(scene, frames=tuple(frames)), path)
+    end = unfold.original_end(scene, make_tracker(scene))
+    spec.write_text(_spec(window, end, 1.0, " allow hide, inject"))
+    r = lesmc("check", str(path), str(spec), timeout=120)
+    assert r.returncode == 3, r.stderr
+    assert "subsets of the frame's injection candidates" in r.stderr
+    assert "Traceback" not in r.stderr
