@@ -130,12 +130,13 @@ def _check(scene: Path, design: str, allow: str, out: Path, budget: list[str]) -
     cmd = ["-m", "lesmc", "check", str(scene), str(spec), "--design", design, "--json"]
     r = _run(*cmd, *budget)
     secs = time.perf_counter() - t0
-    if r.returncode == 3 and not r.stdout.strip():  # stopped before any verdict
-        print(f"{design}{allow}: {r.stderr.strip()}", file=sys.stderr)
-        return {"payoff": "budget", "frames": "", "states": 0, "seconds": round(secs, 1)}
     if r.returncode not in (0, 1, 3):
         raise SystemExit(r.stderr)
-    res = {x["property"]: x for x in json.loads(r.stdout)["results"]}
+    doc = json.loads(r.stdout) if r.stdout.strip() else {}
+    if "results" not in doc:  # exit 3 before any verdict: a BudgetError (its error document)
+        print(f"seed {scene.stem} {design}{allow}: {r.stderr.strip()}", file=sys.stderr)
+        return {"payoff": "budget", "frames": "", "states": 0, "seconds": round(secs, 1)}
+    res = {x["property"]: x for x in doc["results"]}
     return {
         "payoff": _optimum(res["rob"]),
         "frames": _optimum(res["frames"]),
