@@ -7,7 +7,6 @@ path's primary estimates step by step, at exactly the path's cost."""
 
 from __future__ import annotations
 
-import json
 import math
 from pathlib import Path
 
@@ -17,11 +16,15 @@ from cli_run import lesmc
 from inject_scale import cases
 from joint_oracle import Joint, Oracle, _warp, oracle_paths
 from test_inject_joint import _cases, _spec
+from test_inject_single import _cases as _single_cases
 
 import lesmc.unfold.unfold as unfold
 from lesmc import api
 from lesmc.model.arrays import ArrayModel
-from lesmc.scene import Scene
+from lesmc.pipeline.check import run
+from lesmc.pipeline.job import Job
+from lesmc.results.document import run_json
+from lesmc.scene import Scene, scene_from_dict
 from lesmc.tracking.trackers import make_tracker
 
 
@@ -102,40 +105,34 @@ def test_listed_attacks_reproduce_every_joint_path_through_the_oracle() -> None:
     assert checked and injected and hidden_n  # both actions were listed somewhere
 
 
-def test_the_results_document_lists_a_joint_counterexamples_attack(tmp_path: Path) -> None:
-    """``lesmc check --out`` on joint under hide + inject: the results document's
-    ``hidden`` and ``injected`` lists of the violated property, applied through the oracle,
-    move the track beyond the bound at exactly the optimum's cost (before this round the
-    lists were empty and a note said they were not derived)."""
-    rng = np.random.default_rng(4)
+def test_the_results_document_lists_a_joint_counterexamples_attack() -> None:
+    """The results document of a joint check under hide + inject (lesmc check --report's
+    results.json, built in process): the violated property's ``hidden`` and ``injected``
+    lists, applied through the oracle, move the track beyond the bound at exactly the
+    optimum's cost (before, the lists were empty and a note said they were not derived)."""
     done = 0
     for scene, window in _cases(30, 620, max_trace=1e12):
         end = unfold.original_end(scene, make_tracker(scene))
         original = oracle_paths(scene, (end + 1, end + 1), end)[0][0]
-        res = api.check(scene, api.parse_spec(_spec(window, end, 0.0, " allow hide, inject")))
-        got = res[0].optimum
-        if got is None or not float(got) > 0:
+        spec = api.parse_spec(_spec(window, end, 1e-3, " allow hide, inject"))
+        res = run(Job((spec,), scene=scene, full_models=True))
+        (r,) = res.results
+        if r.verdict != "violated" or not float(r.optimum or 0) > 0:
             continue  # no attack needed or none possible: nothing listed to check
-        bound = float(rng.uniform(0.0, 1e-3))
-        path, spec = tmp_path / f"s{done}.json", tmp_path / f"p{done}.spec"
-        api.save_scene(scene, path)
-        spec.write_text(_spec(window, end, bound, " allow hide, inject"))
-        out = tmp_path / f"o{done}"
-        r = lesmc("check", str(path), str(spec), "--report", str(out))
-        assert r.returncode in (0, 1), r.stderr
-        assert "Traceback" not in r.stderr
-        doc = json.loads((out / "results.json").read_text())
-        run = doc["runs"][0]
-        assert not any("does not yet say" in n for n in run["results"][0].get("notes", []))
-        if run["results"][0]["verdict"] != "violated":
-            continue
+        assert not any("does not yet say" in n for n in r.notes)
+        doc = run_json(res.runs[0])
         steps: dict[int, tuple[list[str], list[str]]] = {}
         for key, i in (("hidden", 0), ("injected", 1)):
-            for item in run[key]["p"]:
+            for item in doc[key]["p"]:
                 steps.setdefault(item["step"], ([], []))[i].append(item["obs"])
+                if key == "injected":
+                    c = next(
+                        c for c in scene.frame(item["frame"]).candidates if c.id == item["obs"]
+                    )
+                    assert (item["x"], item["y"], item["payoff"]) == (c.x, c.y, c.payoff)
         assert steps  # an attack of positive cost hides or injects something
-        oracle, st, cost, xs = Applied(scene), None, 0.0, []
-        st = oracle.initial()
+        oracle = Applied(scene)
+        st, cost, xs = oracle.initial(), 0.0, []
         xs.append(st.tracks[0][0][:2])
         for k in range(1, end + 1):
             if st.halted:
@@ -146,11 +143,41 @@ def test_the_results_document_lists_a_joint_counterexamples_attack(tmp_path: Pat
             st = oracle.apply(st, step, hid, inj)
             xs.append(st.tracks[0][0][:2])
         dev = max(math.dist(a, b[:2]) for a, b in zip(xs, original, strict=False))
-        assert dev > bound
-        assert cost == pytest.approx(float(run["results"][0]["optimum"]), abs=1e-9)
+        assert dev > 1e-3
+        assert cost == pytest.approx(float(r.optimum), abs=1e-9)
         done += 1
-        break  # one document (a report takes seconds)
+        if done == 3:
+            break
     assert done
+
+
+def test_single_lists_the_candidate_it_injects() -> None:
+    """On single the ``injected`` list names the candidate the cheapest attack injects
+    (1:1, 3 px below the prediction (10, 0), cheaper than hiding 1:0), with its payoff and
+    position; ``hidden`` is empty."""
+    doc = _single_cases(1, 1)[0]["doc"]  # its tracker and target: prediction (10, 0)
+    doc |= {
+        "frames": [
+            {"step": 0, "detections": []},
+            {
+                "step": 1,
+                "detections": [{"id": "1:0", "x": 10.0, "y": 6.0, "payoff": 5.0}],
+                "candidates": [{"id": "1:1", "x": 10.0, "y": -3.0, "payoff": 1.0}],
+            },
+            {"step": 2, "detections": [{"id": "2:0", "x": 20.0, "y": 0.0, "payoff": 5.0}]},
+        ],
+    }
+    spec = api.parse_spec(
+        "property p { attack window 1..1 allow hide, inject end 2 minimize payoff "
+        "subject to dist.max(0..end) > 3 holds if optimum > 10 }\n"
+    )
+    res = run(Job((spec,), scene=scene_from_dict(doc), full_models=True))
+    assert float(res.results[0].optimum) == pytest.approx(1.0)
+    got = run_json(res.runs[0])
+    assert got["hidden"]["p"] == []
+    assert [(i["step"], i["obs"], i["payoff"], i["x"], i["y"]) for i in got["injected"]["p"]] == [
+        (1, "1:1", 1.0, 10.0, -3.0)
+    ]
 
 
 def test_too_many_candidates_for_joint_is_a_budget_stop_not_a_blow_up(tmp_path: Path) -> None:
