@@ -428,18 +428,27 @@ def run_json(
         "paths_total": tracks.count_paths(cm),
         "paths": [_track_json(cm, i + 1, t, win, judged[i]) for i, t in enumerate(listed)],
         "states": _states_json(cm, listed, to_ref, loc),
-        "hidden": {
-            bp.name: _hidden(cm, listed[n - 1], run.scene, (bp.l, bp.u), run.attack_of)
-            for bp, n in zip(run.bound, cex, strict=True)
-            if n is not None
-        },
-        "injected": {
-            bp.name: _injected(cm, listed[n - 1], run.scene, (bp.l, bp.u), run.attack_of)
-            for bp, n in zip(run.bound, cex, strict=True)
-            if n is not None and "inject" in bp.prop.actions
-        },
+        **_attacks_json(run, cm, listed, cex),
         "scene": scene_part,
         "replay_inputs": None if run.scene is None else replay_inputs(run.scene),
+    }
+
+
+def _attacks_json(
+    run: DesignRun, cm: ArrayModel, listed: list[Track], cex: list[int | None]
+) -> dict[str, Any]:
+    """Per property with a counterexample (path ``cex`` of ``listed``): the detections it
+    hides (``hidden``) and, under inject, the candidates it injects (``injected``)."""
+    with_cex = [(bp, listed[n - 1]) for bp, n in zip(run.bound, cex, strict=True) if n]
+    return {
+        "hidden": {
+            bp.name: _hidden(cm, tr, run.scene, (bp.l, bp.u), run.attack_of) for bp, tr in with_cex
+        },
+        "injected": {
+            bp.name: _injected(cm, tr, run.scene, (bp.l, bp.u), run.attack_of)
+            for bp, tr in with_cex
+            if "inject" in bp.prop.actions
+        },
     }
 
 
