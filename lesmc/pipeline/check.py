@@ -445,9 +445,7 @@ def _design_run(
             for r, bp in zip(results, plan.bound, strict=True)
         ]
     results = [
-        replace(
-            r, design=plan.design, notes=[*grid_notes(bp), *r.notes]
-        )
+        replace(r, design=plan.design, notes=[*grid_notes(bp), *r.notes])
         for r, bp in zip(results, plan.bound, strict=True)
     ]
     run = DesignRun(plan.design, plan.bound, results, window=plan.window, order=plan.order)
