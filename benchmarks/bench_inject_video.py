@@ -8,11 +8,23 @@ target ``lesmc verify`` chooses (experiment/targets.py ``auto_target`` with the 
 specs), then per design ``lesmc check`` of the bundled robustness property (window
 6..8, ``dist.sum(0..end) > 120``) as ``minimize payoff`` and as ``minimize
 count.frames`` (the fewest frames to move the track beyond epsilon), once hide only and
-once ``allow hide, inject`` (``joint`` and ``improved`` refuse inject: "refused").
-Prints the optima, the states built and the check's wall-clock seconds side by side.
+once ``allow hide, inject``, for every design (``joint`` and ``improved`` take inject as
+``single`` does). Prints the optima, the states built and the check's wall-clock seconds
+side by side. A check stopped by ``--max-states`` or ``--timeout`` prints its verdict
+``unknown`` and the bounds found (``unknown [lo, hi]``), never a guessed optimum; a
+check that stops with exit status 3 before any verdict (the joint design refuses to
+build 2^m subsets of a frame's m candidates past its limit: a BudgetError) prints
+``budget`` and its message goes to stderr.
+
+``--near K`` (a modelling restriction, named as such in the results): each frame keeps
+only the K injection candidates nearest the target's unattacked track (the scene's
+single tracker) at that frame, for every design, so that the joint design's 2^K
+subsets a frame can be built. The perceived scene is cached in ``--out`` (sceneS.json
+and its facts): a second run with other designs or ``--near`` does not perceive again.
 
 Usage: PYTHONPATH=. python benchmarks/bench_inject_video.py [--seeds 1,2,3] [--within 30] [--cap N]
-       [--designs single,joint,improved] [--out /tmp/lesmc-inject-video]
+       [--designs single,joint,improved] [--max-states N] [--timeout S] [--near K]
+       [--out /tmp/lesmc-inject-video]
 """
 
 from __future__ import annotations
@@ -49,6 +61,10 @@ def _scene(seed: int, within: float, cap: int, out: Path) -> tuple[Path, dict[st
     from lesmc.experiment.targets import auto_target
     from lesmc.scene import Scene
 
+    path, facts_path = out / f"scene{seed}.json", out / f"scene{seed}.facts.json"
+    if path.exists() and facts_path.exists():
+        facts: dict[str, float] = json.loads(facts_path.read_text())
+        return path, facts
     video = out / f"v{seed}"
     if not (video / "truth.json").exists():
         r = _run("-m", "lesmc", "synth", str(video), "--seed", str(seed), "--frames", "24")
@@ -65,7 +81,6 @@ def _scene(seed: int, within: float, cap: int, out: Path) -> tuple[Path, dict[st
     specs = [load_spec(ROOT / "specs" / f"{n}.spec") for n in ("robustness", "resilience")]
     assert inputs.truth is not None
     scene = auto_target(got.scene, inputs.frames, inputs.truth, specs)
-    path = out / f"scene{seed}.json"
     save_scene(scene, path)
     facts = {
         "perceive_s": secs,
@@ -73,26 +88,70 @@ def _scene(seed: int, within: float, cap: int, out: Path) -> tuple[Path, dict[st
         "detections": sum(len(f.detections) for f in scene.frames),
         "candidates": sum(len(f.candidates) for f in scene.frames),
     }
+    facts_path.write_text(json.dumps(facts))
     return path, facts
 
 
-def _check(scene: Path, design: str, allow: str, out: Path) -> dict[str, object]:
+def _near(scene_path: Path, k: int) -> Path:
+    """The scene with each frame's injection candidates cut to the ``k`` nearest the
+    target's unattacked track (single tracker) at that frame (ties: the lower index)."""
+    import dataclasses
+
+    import numpy as np
+
+    from lesmc.api import load_scene, save_scene
+    from lesmc.tracking.monitor import track
+    from lesmc.tracking.trackers import make_tracker
+
+    scene = load_scene(scene_path)
+    single = scene.with_tracker(design="single")
+    at = {p.frame: p.x[:2] for p in track(make_tracker(single))}
+    frames = []
+    for f in scene.frames:
+        c = f.candidates
+        if f.step in at and len(c) > k:
+            d = np.hypot(*(np.array([[x.x, x.y] for x in c]) - at[f.step]).T)
+            keep = sorted(np.argsort(d, kind="stable")[:k].tolist())
+            c = tuple(c[i] for i in keep)
+        elif f.step not in at:
+            c = ()
+        frames.append(dataclasses.replace(f, candidates=c))
+    out = scene_path.with_name(f"{scene_path.stem}.near{k}.json")
+    save_scene(dataclasses.replace(scene, frames=tuple(frames)), out)
+    return out
+
+
+def _check(scene: Path, design: str, allow: str, out: Path, budget: list[str]) -> dict[str, object]:
+    """One ``lesmc check`` of both properties on ``scene``: the optima (or, for a
+    property the budget stopped, ``unknown [lo, hi]``), the states built and seconds."""
     spec = out / "p.spec"
     spec.write_text(SPEC.format(allow=allow))
     t0 = time.perf_counter()
-    r = _run("-m", "lesmc", "check", str(scene), str(spec), "--design", design, "--json")
+    cmd = ["-m", "lesmc", "check", str(scene), str(spec), "--design", design, "--json"]
+    r = _run(*cmd, *budget)
     secs = time.perf_counter() - t0
-    if r.returncode == 2 and "inject" in r.stderr:
-        return {"refused": True}
     if r.returncode not in (0, 1, 3):
         raise SystemExit(r.stderr)
-    res = {x["property"]: x for x in json.loads(r.stdout)["results"]}
+    doc = json.loads(r.stdout) if r.stdout.strip() else {}
+    if "results" not in doc:  # exit 3 before any verdict: a BudgetError (its error document)
+        print(f"seed {scene.stem} {design}{allow}: {r.stderr.strip()}", file=sys.stderr)
+        return {"payoff": "budget", "frames": "", "states": 0, "seconds": round(secs, 1)}
+    res = {x["property"]: x for x in doc["results"]}
     return {
-        "payoff": res["rob"]["optimum"],
-        "frames": res["frames"]["optimum"],
+        "payoff": _optimum(res["rob"]),
+        "frames": _optimum(res["frames"]),
         "states": max(res[p]["stats"].get("states_built", 0) for p in res),
         "seconds": round(secs, 1),
     }
+
+
+def _optimum(res: dict[str, object]) -> str:
+    """The optimum as printed, or ``unknown [lo, hi]`` when the budget stopped the check."""
+    if res["verdict"] == "unknown":
+        b = res.get("bounds")
+        lo, hi = (b["lower"], b["upper"]) if isinstance(b, dict) else (None, None)
+        return f"unknown [{_num(lo)}, {_num(hi)}]"
+    return _num(res["optimum"])
 
 
 def _num(v: object) -> str:
@@ -105,8 +164,13 @@ def main() -> None:
     ap.add_argument("--within", type=float, default=30.0)
     ap.add_argument("--cap", type=int, default=100000, help="candidates a frame at most")
     ap.add_argument("--designs", default="single,joint,improved")
+    ap.add_argument("--max-states", type=int, default=None, help="lesmc check's budget")
+    ap.add_argument("--timeout", type=float, default=None, help="lesmc check's seconds")
+    ap.add_argument("--near", type=int, default=None, help="candidates a frame near the target")
     ap.add_argument("--out", default="/tmp/lesmc-inject-video")
     args = ap.parse_args()
+    budget = [] if args.max_states is None else ["--max-states", str(args.max_states)]
+    budget += [] if args.timeout is None else ["--timeout", str(args.timeout)]
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     print(
@@ -116,19 +180,16 @@ def main() -> None:
     for seed in (int(s) for s in args.seeds.split(",")):
         scene, facts = _scene(seed, args.within, args.cap, out)
         print(f"seed {seed}: {json.dumps(facts)}", file=sys.stderr)
+        if args.near is not None:
+            scene = _near(scene, args.near)
         for design in args.designs.split(","):
             row = [str(seed), design]
             for allow in ("", " allow hide, inject"):
-                got = _check(scene, design, allow, out)
-                if got.get("refused"):
-                    row += ["refused", "", "", ""]
-                    continue
+                got = _check(scene, design, allow, out, budget)
                 row += [
-                    f"{got['payoff']:.4g}"
-                    if isinstance(got["payoff"], float)
-                    else str(got["payoff"]),
+                    str(got["payoff"]),
                     str(got["frames"]),
-                    f"{got['states']:,}",
+                    f"{got['states']:,}" if got["states"] else "",
                     str(got["seconds"]),
                 ]
             print("| " + " | ".join(row) + " |", flush=True)

@@ -324,15 +324,15 @@ def test_storm_agrees_on_joint_drn_exports_with_injections(tmp_path: Path) -> No
     assert done == cases(10, 60)
 
 
-def test_a_joint_injection_result_says_its_hidden_detections_are_not_listed() -> None:
-    """joint does not say which detections the cheapest way to an injected outcome hides:
-    the result says so in a note, instead of an empty list passing for "none hidden" (the
-    review of round 20); single, which says it, has no such note."""
+def test_a_joint_injection_result_no_longer_says_its_hidden_detections_are_not_listed() -> None:
+    """joint now says which detections the cheapest way to an injected outcome hides
+    (tests/test_inject_joint_listed.py checks the lists): no result carries round 20's
+    note that they are not listed, on joint or on single."""
     scene, window = _cases(1, 501, max_trace=1e12)[0]
     end = unfold.original_end(scene, make_tracker(scene))
     spec = api.parse_spec(_spec(window, end, 0.0, " allow hide, inject"))
     joint = api.check(scene, spec)[0]
-    assert any("does not yet say which detections" in n for n in joint.notes), joint.notes
+    assert not any("does not yet say which detections" in n for n in joint.notes), joint.notes
     single = dataclasses.replace(scene, tracker=dataclasses.replace(scene.tracker, design="single"))
     res = api.check(single, spec)[0]
     assert not any("does not yet say which detections" in n for n in res.notes), res.notes

@@ -128,17 +128,19 @@ def verify_multi(req: Request, rep: Reporter) -> MultiOutcome:
 
 
 def _refuse_points_for_boxes(detector: str, design: str) -> None:
-    """A heatmap detector file's detections are points: a design that reads a box on
-    every detection (SORT's IoU) is refused before the video is perceived."""
+    """A heatmap detector file that declares no ``box`` gives points: a design that reads a
+    box on every detection (SORT's IoU) is refused before the video is perceived."""
     from lesmc.perception.detector_file import read_detector_file
     from lesmc.tracking.trackers import tracker_class
 
-    kind = read_detector_file(detector).kind
-    if kind == "heatmap" and getattr(tracker_class(design), "needs_boxes", False):
+    spec = read_detector_file(detector)
+    points = spec.kind == "heatmap" and spec.box is None
+    if points and getattr(tracker_class(design), "needs_boxes", False):
         raise UsageError(
             f"--design {design} reads a box on every detection, and --detector {detector} "
-            "is a heatmap detector file, whose detections are points: use a box detector "
-            'file (kind = "boxes") or a point design such as gnn (docs/detectors.md)'
+            "is a heatmap detector file that declares no box, whose detections are points: "
+            'declare one (box = [w, h]), use a box detector file (kind = "boxes") or a '
+            "point design such as gnn (docs/detectors.md)"
         )
 
 

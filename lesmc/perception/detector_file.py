@@ -29,7 +29,7 @@ if TYPE_CHECKING:
 #: the window pair is given with --detector/--locator network files).
 KINDS = ("heatmap", "boxes")
 #: Keys that only one kind reads.
-ONLY_FOR = {"stride": "heatmap", "nms_radius": "heatmap", "iou_nms": "boxes"}
+ONLY_FOR = {"stride": "heatmap", "nms_radius": "heatmap", "iou_nms": "boxes", "box": "heatmap"}
 #: Largest stride and NMS radius a file may declare (cells; pixels for the stride).
 MAX_STRIDE = 1024
 MAX_RADIUS = 64
@@ -63,6 +63,12 @@ def _scale_ok(v: Any) -> bool:
         and len(v) == 2
         and all(is_finite(x) and abs(x) <= MAX_VALUE for x in v)
         and v[0] != v[1]
+    )
+
+
+def _box_ok(v: Any) -> bool:
+    return (
+        isinstance(v, list) and len(v) == 2 and all(is_finite(x) and 0 < x <= MAX_VALUE for x in v)
     )
 
 
@@ -122,6 +128,13 @@ FIELDS: tuple[Field, ...] = (
         lambda v: is_finite(v) and 0.0 <= v <= 1.0,
     ),
     Field(
+        "box", False, None, f"[w, h], two finite numbers > 0, each at most {MAX_VALUE:g}",
+        "heatmap: the box (width, height in input pixels) centred on every detection and "
+        "injection candidate (a heatmap has no size output); not given: they are points, "
+        "which a design that reads boxes (sort) refuses.",
+        _box_ok,
+    ),
+    Field(
         "output", False, None, "a string",
         "The name of the network's output, checked against the file (ONNX: the graph's "
         "output; .pt2: the exported program's); not given: not checked.",
@@ -153,6 +166,8 @@ class DetectorFile:
     iou_nms: float  #: boxes
     #: where each key is in the file (for errors found once the network is read)
     where: dict[str, Location]
+    #: heatmap: the declared box (w, h) of every detection and candidate; None: points
+    box: tuple[float, float] | None = None
 
     @property
     def n_channels(self) -> int:
@@ -174,8 +189,11 @@ class DetectorFile:
         return (
             f"the user's {self.kind} detector file {self.path} (network {self.network}, "
             f"{self.channels}, stride {self.stride}, {self.score} score >= {self.threshold:g}, "
-            f"nms_radius {self.nms_radius})"
+            f"nms_radius {self.nms_radius}{self._box_words()})"
         )
+
+    def _box_words(self) -> str:
+        return "" if self.box is None else f", box {self.box[0]:g}x{self.box[1]:g}"
 
     def to_meta(self) -> dict[str, Any]:
         """What a scene's ``meta.detector_file`` records: the file and its network, each with
@@ -195,7 +213,8 @@ class DetectorFile:
         }
         if self.kind == "boxes":
             return out | {"iou_nms": self.iou_nms}
-        return out | {"stride": self.stride, "nms_radius": self.nms_radius}
+        out |= {"stride": self.stride, "nms_radius": self.nms_radius}
+        return out if self.box is None else out | {"box": list(self.box)}
 
 
 def fields_table() -> str:
@@ -255,6 +274,7 @@ def read_detector_file(path: str | Path) -> DetectorFile:
         p, v["kind"], network, v["channels"], (lo, hi), int(v["stride"]) if heat else 0,
         float(v["threshold"]), v["score"], int(v["nms_radius"]) if heat else 0, v["output"],
         float(v["iou_nms"]), where,
+        None if v["box"] is None or not heat else (float(v["box"][0]), float(v["box"][1])),
     )  # fmt: skip
 
 

@@ -232,10 +232,11 @@ def footage_of(
                     float(y),
                     float("nan") if fd.payoffs is None else float(fd.payoffs[k]),
                     None if fd.lower is None else float(fd.lower[k]),
+                    *_size(det),
                 )
                 for k, (x, y) in enumerate(fd.positions)
             ),
-            candidates=_candidates(fd, det.spec.stride),
+            candidates=_candidates(fd, det),
         )
         for fd in dets
     )
@@ -255,17 +256,25 @@ def footage_of(
     return Footage(dt, frames, TrackerConfig(), meta)
 
 
-def _candidates(fd: HeatmapDetections, stride: int) -> tuple[Detection, ...]:
+def _candidates(fd: HeatmapDetections, det: LoadedDetector) -> tuple[Detection, ...]:
     """Frame ``fd``'s priced injection candidates (scene format 3), ids ``FRAME:cK``, at
-    their cells' centres; those the attack found no perturbation for are left out."""
+    their cells' centres, with the detector file's declared box if any (:func:`_size`);
+    those the attack found no perturbation for are left out."""
     from lesmc.perception.to_scene import candidate_id
     from lesmc.scene import Detection
 
     if fd.cand_payoffs is None:
         return ()
-    pos = cell_positions(fd.cand_cells, stride)
+    pos = cell_positions(fd.cand_cells, det.spec.stride)
     return tuple(
-        Detection(candidate_id(fd.index, int(k)), float(x), float(y), float(p))
+        Detection(candidate_id(fd.index, int(k)), float(x), float(y), float(p), None, *_size(det))
         for k, (x, y), p in zip(fd.cand_keys, pos, fd.cand_payoffs, strict=True)
         if np.isfinite(p)
     )
+
+
+def _size(det: LoadedDetector) -> tuple[float | None, float | None]:
+    """The (w, h) every detection and candidate of a heatmap file carries: its declared
+    ``box`` (docs/detectors.md), or (None, None): points."""
+    box = det.spec.box
+    return (None, None) if box is None else box

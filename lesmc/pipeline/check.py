@@ -155,19 +155,6 @@ def grid_notes(bp: BoundProperty) -> list[str]:
     ]
 
 
-def unlisted_notes(bp: BoundProperty, tracker: str) -> list[str]:
-    """A note on an injecting property whose tracker does not say which detections the
-    cheapest way to an outcome hides (``joint``): its results list none, which is not
-    "none hidden" (lesmc/results/document.py ``_hidden``)."""
-    if "inject" not in bp.prop.actions or tracker == "single":
-        return []
-    return [
-        f"under inject the {tracker} tracker does not yet say which detections the cheapest "
-        "attack hides, so the results list none for this property (its optimum and path "
-        "are exact)"
-    ]
-
-
 def _plans(job: Job, scene: Scene) -> list[_Plan]:
     """Every (design, window) with the properties the job wants checked there."""
     designs = job.designs or (scene.tracker.design,)
@@ -458,9 +445,7 @@ def _design_run(
             for r, bp in zip(results, plan.bound, strict=True)
         ]
     results = [
-        replace(
-            r, design=plan.design, notes=[*grid_notes(bp), *unlisted_notes(bp, tracker), *r.notes]
-        )
+        replace(r, design=plan.design, notes=[*grid_notes(bp), *r.notes])
         for r, bp in zip(results, plan.bound, strict=True)
     ]
     run = DesignRun(plan.design, plan.bound, results, window=plan.window, order=plan.order)

@@ -219,25 +219,61 @@ def _hidden_by(
 ) -> list[dict[str, Any]]:
     """:func:`_hidden` under inject: the detections ``attack_of`` says the cheapest way to
     each attacked step's outcome hides, with their own payoffs from the scene."""
+    return _attacked(cm, tr, scene, window, attack_of, 0)
+
+
+def _injected(
+    cm: ArrayModel,
+    tr: Track,
+    scene: Scene | None,
+    window: tuple[int, int],
+    attack_of: Callable[[int, int, int], tuple[list[str], list[str]]] | None,
+) -> list[dict[str, Any]]:
+    """The candidates the attacker injects on a track (``attack_of``: the cheapest way to
+    each attacked step's outcome), with positions and payoffs; none without inject."""
+    if attack_of is None or "inject" not in cm.meta.get("actions", ()):
+        return []
+    return _attacked(cm, tr, scene, window, attack_of, 1)
+
+
+def _attacked(
+    cm: ArrayModel,
+    tr: Track,
+    scene: Scene | None,
+    window: tuple[int, int],
+    attack_of: Callable[[int, int, int], tuple[list[str], list[str]]],
+    which: int,
+) -> list[dict[str, Any]]:
+    """The detections hidden (``which`` 0) or the candidates injected (1) at each attacked
+    step of a track, by ``attack_of``, with their payoffs and positions from the scene."""
     out: list[dict[str, Any]] = []
     first = int(cm.meta.get("first_frame", 0))
     for k, t in enumerate(tr.transitions, start=1):
         if not window[0] <= k <= window[1]:
             continue
-        hidden, _ = attack_of(int(tr.states[k - 1]), k, int(cm.rank[t]))
-        pay = {} if scene is None else {d.id: d.payoff for d in scene.frame(first + k).detections}
-        for obs in hidden:
+        ids = attack_of(int(tr.states[k - 1]), k, int(cm.rank[t]))[which]
+        items = () if scene is None else scene.frame(first + k).detections
+        if which and scene is not None:
+            items = scene.frame(first + k).candidates
+        pay = {d.id: d.payoff for d in items}
+        if which and "inject_grid" in cm.meta:  # a grid point (single): the grid's payoff
+            pay |= {o: float(cm.meta["inject_grid"]["payoff"]) for o in ids if ":grid" in o}
+        for obs in ids:
             item: dict[str, Any] = {"step": k, "frame": first + k, "obs": obs}
             item["payoff"] = num(float(pay.get(obs, math.nan)))
-            out.append(item | _detection_facts(scene, first + k, obs))
+            out.append(item | _detection_facts(scene, first + k, obs, which == 1))
     return out
 
 
-def _detection_facts(scene: Scene | None, frame: int, obs: str) -> dict[str, Any]:
-    """Where a detection of the scene is and its certified lower payoff, if known."""
+def _detection_facts(
+    scene: Scene | None, frame: int, obs: str, candidate: bool = False
+) -> dict[str, Any]:
+    """Where a detection (``candidate``: an injection candidate) of the scene is and its
+    certified lower payoff, if known."""
     if scene is None or frame > scene.last_step:
         return {}
-    for d in scene.frame(frame).detections:
+    f = scene.frame(frame)
+    for d in f.candidates if candidate else f.detections:
         if d.id == obs:
             out: dict[str, Any] = {"x": d.x, "y": d.y}
             if d.payoff_lower is not None:
@@ -392,13 +428,27 @@ def run_json(
         "paths_total": tracks.count_paths(cm),
         "paths": [_track_json(cm, i + 1, t, win, judged[i]) for i, t in enumerate(listed)],
         "states": _states_json(cm, listed, to_ref, loc),
-        "hidden": {
-            bp.name: _hidden(cm, listed[n - 1], run.scene, (bp.l, bp.u), run.attack_of)
-            for bp, n in zip(run.bound, cex, strict=True)
-            if n is not None
-        },
+        **_attacks_json(run, cm, listed, cex),
         "scene": scene_part,
         "replay_inputs": None if run.scene is None else replay_inputs(run.scene),
+    }
+
+
+def _attacks_json(
+    run: DesignRun, cm: ArrayModel, listed: list[Track], cex: list[int | None]
+) -> dict[str, Any]:
+    """Per property with a counterexample (path ``cex`` of ``listed``): the detections it
+    hides (``hidden``) and, under inject, the candidates it injects (``injected``)."""
+    with_cex = [(bp, listed[n - 1]) for bp, n in zip(run.bound, cex, strict=True) if n]
+    return {
+        "hidden": {
+            bp.name: _hidden(cm, tr, run.scene, (bp.l, bp.u), run.attack_of) for bp, tr in with_cex
+        },
+        "injected": {
+            bp.name: _injected(cm, tr, run.scene, (bp.l, bp.u), run.attack_of)
+            for bp, tr in with_cex
+            if "inject" in bp.prop.actions
+        },
     }
 
 

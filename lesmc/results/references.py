@@ -60,9 +60,10 @@ def _run(run: dict[str, Any], at: str, pr: Problems) -> None:
             pr.add(f"{at}.paths[{k}].no", f"must be {k + 1} (paths are numbered in order)")
         _ids(p["states"], f"{at}.paths[{k}].states", states, pr)
     _roles(run["roles"], f"{at}.roles", len(run["paths"]), len(run["results"]), pr)
-    for name in run.get("hidden") or {}:
-        if name not in names:
-            pr.add(f"{at}.hidden.{name}", "is not a property of the run")
+    for key in ("hidden", "injected"):
+        for name in run.get(key) or {}:
+            if name not in names:
+                pr.add(f"{at}.{key}.{name}", "is not a property of the run")
     _replay_inputs(run, at, pr)
 
 

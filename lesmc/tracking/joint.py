@@ -61,6 +61,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from lesmc.common.errors import BudgetError
 from lesmc.scene import Scene
 from lesmc.tracking.design import Batch, CovarianceTable, Schedule, Successors
 from lesmc.tracking.kalman import Matrices, initial_mean, matrices, positions
@@ -90,6 +91,9 @@ from lesmc.tracking.parts.joint_step import (
 
 #: (states × (tracks + detections)) cells of one chunk: bounds the temporaries of an expansion.
 CHUNK_CELLS = 1 << 20
+#: (states × candidate subsets) one attacked step under inject may build at most: past it
+#: the step is a BudgetError (exit 3) before any subset is listed, not a memory blow-up
+MAX_INJECT_ROWS = 1 << 20
 
 
 @dataclass
@@ -108,6 +112,17 @@ class _Expanded:
     #: it injects (its place in ``injected_subsets``); None: unattacked
     opt: np.ndarray | None = None
     subset: np.ndarray | None = None
+
+
+def _within_inject_budget(states: int, candidates: int, step: int) -> None:
+    """A BudgetError unless ``states`` joint states × every subset of ``candidates``
+    injection candidates fit in :data:`MAX_INJECT_ROWS` (checked before listing any)."""
+    if candidates >= 64 or states << candidates > MAX_INJECT_ROWS:
+        raise BudgetError(
+            f"frame {step}: the joint design under inject would build {states} state(s) × "
+            f"2^{candidates} subsets of the frame's injection candidates (more than "
+            f"{MAX_INJECT_ROWS:,}); offer fewer candidates a frame (perceive --inject-cap N)"
+        )
 
 
 class JointDesign:
@@ -267,6 +282,7 @@ class JointDesign:
         hiding option × each subset of the frame's candidates (candidate j: detection n + j),
         equal joint states merged at the cheapest, ranked by cost (docs/semantics.md)."""
         frame = self.scene.frame(step)
+        _within_inject_budget(len(js), len(frame.candidates), step)
         p = prepare(self.scene, self.schedule, self.parts, self.m.pos, js, step, True, self.hide)
         nd, cpay = len(frame.detections), frame.injectable.payoffs()
         zero = np.zeros(len(js), dtype=np.int64)
@@ -325,6 +341,15 @@ class JointDesign:
         ]
         succ = self._batch(e.states, e.halted)
         return Successors(e.src, e.rank, e.payoff, e.det, succ, e.nis), how
+
+    def attack_in(self, batch: Batch, step: int, rank: int) -> tuple[list[str], list[str]]:
+        """Under inject: the ids of the detections hidden and of the candidates injected by
+        the cheapest way to force the outcome of rank ``rank`` from the one joint state of
+        ``batch`` at frame ``step`` (:meth:`forcing`'s; lesmc/unfold/attack_path.py walks a
+        path to its states)."""
+        assert isinstance(batch.objects, JointStates) and len(batch.objects) == 1
+        succ, how = self.forcing(batch, step)
+        return how[int(np.flatnonzero(succ.rank == rank)[0])]
 
     def _rows(
         self, p: Prepared, lo: np.ndarray, hi: np.ndarray, shown: np.ndarray | None = None

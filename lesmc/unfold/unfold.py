@@ -31,6 +31,7 @@ from lesmc.scene import Scene
 from lesmc.tracking.design import Batch, Design, PayloadStore
 from lesmc.tracking.single import grid_point_name
 from lesmc.tracking.trackers import make_tracker
+from lesmc.unfold.attack_path import walked_attack_of
 from lesmc.unfold.hashing import HashIndex, row_hash
 
 #: States expanded together when building eagerly: bounds the temporaries of one batch.
@@ -328,11 +329,15 @@ def attack_of(
 ) -> Callable[[int, int, int], tuple[list[str], list[str]]] | None:
     """For a model of ``scene`` built with inject: (state, step, rank) -> the ids of the
     detections hidden and of what is injected by the cheapest way to that outcome, from
-    the tracker's ``attack_at`` (None: its tracker does not say)."""
+    the tracker's ``attack_at`` (the state's estimate and covariance suffice: single), else
+    from its ``attack_in`` on the whole state walked to (joint: lesmc/unfold/attack_path.py;
+    None: its tracker says neither)."""
     design = make_tracker(scene, True, hide, grid)
     at = getattr(design, "attack_at", None)
     if at is None:
-        return None
+        if getattr(design, "attack_in", None) is None:
+            return None
+        return walked_attack_of(design, model)
     first = int(model.meta.get("first_frame", 0))
 
     def of(q: int, k: int, rank: int) -> tuple[list[str], list[str]]:
