@@ -142,6 +142,15 @@ def _hidden(
     return tuple(out)
 
 
+def _hidden_by_frame(todo: list[MultiCase]) -> dict[int, list[tuple[int, Hidden]]]:
+    """The hidden detections of the cases ``todo``, by frame, each with its case's index."""
+    by_frame: dict[int, list[tuple[int, Hidden]]] = {}
+    for ci, c in enumerate(todo):
+        for h in c.hidden:
+            by_frame.setdefault(h.frame, []).append((ci, h))
+    return by_frame
+
+
 def replay_multi(
     doc: Mapping[str, Any],
     scene: Scene,
@@ -173,10 +182,7 @@ def replay_multi(
     fe = FrontEndConfig(history=HISTORY, blobs=BlobConfig())
     cfg = attack_of(dict(scene.meta), where)
     attacked: list[dict[int, FrameAttack]] = [{} for _ in todo]
-    by_frame: dict[int, list[tuple[int, Hidden]]] = {}
-    for ci, c in enumerate(todo):
-        for h in c.hidden:
-            by_frame.setdefault(h.frame, []).append((ci, h))
+    by_frame = _hidden_by_frame(todo)
 
     def attack(det: Any, out: FrontEndOutput, fd: FrameDetections) -> None:
         def one(group: list[Hidden]) -> FrameAttack:
