@@ -13,7 +13,7 @@ a true positive when it matches a visible vehicle one to one within 4 px.
 
 from __future__ import annotations
 
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
@@ -129,23 +129,21 @@ def quality(
 ) -> dict[str, Any]:
     """Recall and precision against every visible (not occluded) true vehicle, moving or
     not: a detection is a true positive when it matches one one to one within
-    :data:`MATCH_PX` pixels (lesmc/perception/quality.py ``match``)."""
-    from lesmc.perception.quality import match
+    :data:`MATCH_PX` pixels (lesmc/perception/quality.py ``visible_counts``)."""
+    from lesmc.perception.quality import visible_counts
 
-    vehicles = tp = n = 0
-    for d in dets:
-        tf = truth.frames.get(frames.paths[d.index].name)
-        if tf is None:
-            continue
-        visible = tf.positions[~tf.occluded]
-        vehicles += len(visible)
-        n += len(d.positions)
-        tp += len(match(np.asarray(d.positions, np.float64).reshape(-1, 2), visible, MATCH_PX))
+    def pairs() -> Iterator[tuple[np.ndarray, np.ndarray]]:
+        for d in dets:
+            tf = truth.frames.get(frames.paths[d.index].name)
+            if tf is not None:
+                yield np.asarray(d.positions), tf.positions[~tf.occluded]
+
+    got = visible_counts(pairs(), MATCH_PX)
     return {
-        "vehicles": vehicles,
-        "true_positives": tp,
-        "recall": tp / vehicles if vehicles else None,
-        "precision": tp / n if n else None,
+        "vehicles": got.vehicles,
+        "true_positives": got.true_positives,
+        "recall": got.recall,
+        "precision": got.precision,
         "match": f"one to one within {MATCH_PX:g} px of a visible vehicle, moving or not",
     }
 
