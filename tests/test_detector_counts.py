@@ -51,12 +51,11 @@ def test_no_vehicle_or_detection_has_no_rate() -> None:
 def test_verify_facts_count_the_visible_vehicles_only() -> None:
     """detector_verify.quality: occluded vehicles are left out, frames without truth too."""
     from lesmc.experiment.detector_verify import quality
-    from lesmc.perception.heatmap import HeatmapDetections
     from lesmc.perception.quality import Truth, TruthFrame
+    from lesmc.scene import Detection, Footage, Frame, TrackerConfig
 
-    def dets(i: int, xy: list[tuple[float, float]]) -> HeatmapDetections:
-        pos = np.array(xy, np.float64).reshape(-1, 2)
-        return HeatmapDetections(i, pos, np.ones(len(pos)), np.zeros((len(pos), 2), np.int64))
+    def frame(i: int, xy: list[tuple[float, float]]) -> Frame:
+        return Frame(i, tuple(Detection(f"{i}:{k}", x, y, 1.0) for k, (x, y) in enumerate(xy)))
 
     a = TruthFrame(
         np.array([[10.0, 10.0], [50.0, 50.0], [90.0, 90.0]]),
@@ -64,15 +63,15 @@ def test_verify_facts_count_the_visible_vehicles_only() -> None:
         np.array([False, True, False]),
     )
     truth = Truth(0.5, {"a.png": a})
-
     frames = SimpleNamespace(paths=[Path("a.png"), Path("b.png")])
-
     # frame a: one hit (10,10), one on the occluded vehicle (a false positive), one far
     # frame b has no truth: its detections do not count
-    got = quality(
-        [dets(0, [(11.0, 10.0), (50.0, 50.0), (200.0, 0.0)]), dets(1, [(10.0, 10.0)])],
-        frames,  # type: ignore[arg-type]
-        truth,
+    footage = Footage(
+        0.5,
+        (frame(0, [(11.0, 10.0), (50.0, 50.0), (200.0, 0.0)]), frame(1, [(10.0, 10.0)])),
+        TrackerConfig(),
+        {},
     )
+    got = quality(footage, frames, truth)  # type: ignore[arg-type]
     assert (got["vehicles"], got["true_positives"]) == (2, 1)
     assert got["recall"] == 0.5 and got["precision"] == 1 / 3

@@ -327,14 +327,11 @@ def _perceived(
     cache = StageCache(req.out)
     if by_file is None:
         seen = _perception(req, frames, frames_dir, dt, cache, rep, maxima, on_demand)
-    else:  # every detection priced now, not cached (lesmc/experiment/detector_verify.py)
-        footage, facts = detector_verify.perceive_video(
-            frames_dir, frames, by_file, truth, truths, req.payoffs != "attack", dt, rep,
-            lambda stage: _spent(req.budget, stage),
-        )  # fmt: skip
-        meta["detections"] = detector_verify.describe(facts)
+    else:
+        seen = _file_perception(req, frames, frames_dir, by_file, (truth, truths), dt, rep)
+        assert seen.detections is not None
+        meta["detections"] = detector_verify.describe(seen.detections)
         rep.log(f"detector file: {meta['detections']}")
-        seen = _Perception(footage, None, None, {}, "", detections=facts)
     footage = seen.footage
     tracker = _tracker(req)
     if tracker is not None:
@@ -350,8 +347,8 @@ def _perceived(
     meta |= {"detector": footage.meta.get("detector", ""), "scene": str(req.out / "scene.json")}
     return _Source(
         scene, frames, truths, seen.nets, seen.run, meta, True, req.nets, truth, cache,
-        (seen.key, seen.unit_max, dt) if by_file is None else None, seen.pricing,
-        seen.detections,
+        (seen.key, seen.unit_max, dt) if by_file is None or seen.pricing else None,
+        seen.pricing, seen.detections,
     )  # fmt: skip
 
 
@@ -419,6 +416,29 @@ def _perception(
     if not on_demand:
         return seen
     return _on_demand(seen, VideoPricer(nets, run, lambda: (nets, run)), req.budget)
+
+
+def _file_perception(
+    req: Request,
+    frames: FrameSet,
+    frames_dir: str,
+    path: str,
+    truth: tuple[str | None, Any],
+    dt: float,
+    rep: Reporter,
+) -> _Perception:
+    """The video through the detector file ``path`` (lesmc/experiment/detector_verify.py),
+    kept in OUT/cache: a heatmap detector's payoffs priced when a model reads them (as the
+    window pipeline's: --payoffs attack, no --price-all), else every detection priced now."""
+    lazy = req.payoffs == "attack" and not req.price_all and detector_verify.prices_lazily(path)
+    footage, facts, key = detector_verify.perceive_cached(
+        frames_dir, frames, path, truth[0], truth[1], req.payoffs != "attack", dt, rep,
+        lambda stage: _spent(req.budget, stage), StageCache(req.out), lazy,
+    )  # fmt: skip
+    seen = _Perception(footage, None, None, {}, key, detections=facts)
+    if not lazy or not footage.has_unpriced:
+        return seen
+    return _on_demand(seen, detector_verify.FilePricer(path, frames, footage), req.budget)
 
 
 def _perception_key(req: Request, frames: FrameSet, frames_dir: str, dt: float) -> str:
@@ -518,6 +538,9 @@ def _settled(results: Results, src: _Source, rep: Reporter) -> Results:
         f"{meta['detections']} of {meta['of']} detections attacked, on demand: the ones the "
         "checked models read (the others are unpriced in scene.json)"
     )
+    if src.detections is not None:  # a detector file's: its payoffs' facts as settled
+        src.detections |= detector_verify.payoff_facts(settled.frames)
+        src.meta["detections"] = detector_verify.describe(src.detections)
     for run in results.runs:
         if run.scene is not None:
             run.scene = dataclasses.replace(run.scene, frames=settled.frames)
