@@ -36,7 +36,7 @@ SPEC = """property hide_cheap {
 }
 """
 WINDOWS = "5..6:2..2"  # 5..7 and 6..8
-DESIGNS = ("single", "improved")
+DESIGNS = ("single",)
 
 
 def _frames(d: Path, dy: int) -> Path:
@@ -102,7 +102,7 @@ def _campaign(c: dict[str, Any], *extra: str) -> Any:
     return lesmc(
         "campaign", str(c["videos"][0]), str(c["videos"][1]), "--detector", str(c["toml"]),
         "--out", str(c["out"]), "--workers", "0", "--spec", str(c["spec"]),
-        "--windows", WINDOWS, "--targets", str(c["targets"]), "--design", "both", *extra,
+        "--windows", WINDOWS, "--targets", str(c["targets"]), "--design", "single", *extra,
     )  # fmt: skip
 
 
