@@ -5,7 +5,8 @@ On a tiny video (a spot moving past a static one) and a hand-set heatmap network
 here: the default run prices only the detections its model reads (the others are
 ``"unpriced"`` in OUT/scene.json), and its verdict and optimum equal those of a run with
 ``--price-all``, whose scene carries every payoff, equal to the ones priced on demand. A
-rerun in the same OUT reads the perception back from OUT/cache and prices nothing.
+rerun in the same OUT reads the perception (and the replay) back from OUT/cache and
+prices nothing.
 """
 
 from __future__ import annotations
@@ -86,5 +87,7 @@ def test_a_rerun_reads_the_cache_and_prices_nothing(runs: dict[str, Any]) -> Non
     err = runs["again"].stderr
     assert "reusing the perception of" in err, err
     assert "priced 0 detections on demand" in err, err
+    if runs["lazy"].returncode == 1:  # violated: the counterexamples' replay is kept too
+        assert "reusing the replay of" in err, err
     d = runs["dir"]
     assert _result(d, "lazy")["verdict"] == _result(d, "full")["verdict"]

@@ -299,6 +299,19 @@ def describe(facts: dict[str, Any]) -> str:
     return text
 
 
+def replay_key(nets: NetFiles) -> dict[str, Any]:
+    """What a replay through a detector file reads beyond the files ``nets`` names: the
+    file's network (its sha256), for the key of OUT/cache's replay; nothing for the window
+    pipeline (the keys of its runs stay as they were)."""
+    from lesmc.experiment.cache import file_digests
+    from lesmc.perception.detector_file import read_detector_file
+
+    path = detector_file_of(nets)
+    if path is None:
+        return {}
+    return {"detector_network": file_digests([Path(read_detector_file(path).network)])}
+
+
 def replay(doc: ResultsDoc, frames_dir: str, path: str, rep: Reporter) -> Outcome:
     """Every violated counterexample of ``doc`` replayed through the detector file."""
     from lesmc.replay.detector_file import replay_with_file

@@ -836,37 +836,40 @@ def _replay(
     if not todo or src.frames is None or (src.nets is None and src.net_files is None):
         return
     t0 = time.monotonic()
-    by_file = detector_verify.detector_file_of(src.net_files or (None, None, None))
-    if by_file is not None:  # through the detector file (lesmc/replay/detector_file.py)
-        frames_dir = str(src.frames.paths[0].parent)
-        apply(doc, detector_verify.replay(typed, frames_dir, by_file, rep), results)
-        timings["replay"] = time.monotonic() - t0
-        return
     key = _replay_key(doc, src, todo)
     hit = None if src.cache is None or key is None else src.cache.get("replay", key)
     outcome = _cached_replay(hit, doc)
     if outcome is not None:
         rep.log(f"reusing the replay of {len(outcome.replays)} counterexamples from the cache")
     else:
-        frames, nets = src.frames, src.networks()
-        # this run's perception made the clean detections: only attacked frames are redone
-        clean = None if src.run is None else {fd.index: fd for fd in src.run.detections}
-        known = None if src.run is None else src.run.registrations
-        with rep.bar("replaying", len(frames) if clean is None else None) as bar:
-
-            def advance() -> None:
-                bar.advance()
-                _spent(budget, "replaying the counterexamples")
-
-            outcome = replay(
-                typed, frames, nets, on_frame=advance, clean=clean, registrations=known
-            )
+        outcome = _replay_now(typed, src, rep, budget)
         if src.cache is not None and key is not None:
             rows = [[i, j, obj] for (i, j), obj in outcome.replays.items()]
             src.cache.put("replay", key, {"replays": rows, "seconds": outcome.seconds})
     assert isinstance(outcome, Outcome)
     apply(doc, outcome, results)
     timings["replay"] = time.monotonic() - t0
+
+
+def _replay_now(typed: Any, src: _Source, rep: Reporter, budget: Budget) -> Any:
+    """The counterexamples of ``typed`` replayed now: through the detector file, or the
+    window pipeline's networks (only the attacked frames redone when this run perceived)."""
+    assert src.frames is not None
+    by_file = detector_verify.detector_file_of(src.net_files or (None, None, None))
+    if by_file is not None:  # through the detector file (lesmc/replay/detector_file.py)
+        frames_dir = str(src.frames.paths[0].parent)
+        return detector_verify.replay(typed, frames_dir, by_file, rep)
+    frames, nets = src.frames, src.networks()
+    # this run's perception made the clean detections: only attacked frames are redone
+    clean = None if src.run is None else {fd.index: fd for fd in src.run.detections}
+    known = None if src.run is None else src.run.registrations
+    with rep.bar("replaying", len(frames) if clean is None else None) as bar:
+
+        def advance() -> None:
+            bar.advance()
+            _spent(budget, "replaying the counterexamples")
+
+        return replay(typed, frames, nets, on_frame=advance, clean=clean, registrations=known)
 
 
 def _replay_key(doc: dict[str, Any], src: _Source, todo: list[Any]) -> str | None:
@@ -889,6 +892,7 @@ def _replay_key(doc: dict[str, Any], src: _Source, todo: list[Any]) -> str | Non
             "code": code_digest("replay", "perception", "video", "tracking", "scene", "designs"),
             "frames": file_digests(src.frames.paths),
             "nets": file_digests(net_files(src.net_files)),
+            **detector_verify.replay_key(src.net_files),
             "settings": {k: perception.get(k) for k in ("history", "delta_bc", "attack")},
             "runs": runs,
             "cases": [[c.run, c.result] for c in todo],
