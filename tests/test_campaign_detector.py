@@ -178,3 +178,20 @@ def test_window_networks_beside_a_detector_file_are_refused(camp: dict[str, Any]
     assert r.returncode == 2, r.stdout + r.stderr
     assert "Traceback" not in r.stderr and "--locator" in r.stderr
     assert not out.exists()
+
+
+def test_certified_payoffs_certify_the_kept_scene(camp: dict[str, Any]) -> None:
+    """--payoffs certified on the attack run's OUT: each kept scene is perceived again with
+    certified bounds (the same detections and payoffs), each bound at most its payoff."""
+    before = len(_rows(camp))
+    r = _campaign(camp, "--payoffs", "certified")
+    assert "Traceback" not in r.stderr and r.returncode in (0, 1), r.stdout + r.stderr
+    rows = _rows(camp)[before:]
+    assert len(rows) == before and all(x["payoffs"] == "certified" for x in rows)
+    for video in camp["videos"]:
+        scene = json.loads((camp["out"] / "scenes" / f"{video.name}.json").read_text())
+        assert "certify" in scene["meta"]
+        for fr in scene["frames"]:
+            for d in fr["detections"]:
+                low, pay = d["payoff_lower"], d["payoff"]
+                assert low == "unattackable" or pay == "unattackable" or low <= pay + 1e-9

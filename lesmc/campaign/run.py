@@ -143,7 +143,7 @@ def _prepare(video: Video, out: Path, files: NetFiles, certified: bool) -> Prepa
     frames = open_frames(video.frames_dir, least_frames(files), check=not path.exists())
     fp = fingerprint(frames.paths)
     kept = _kept_scene(video, path, fp, by_file)
-    if kept is not None and not (by_file and certified and _lacks_bounds(kept.footage)):
+    if kept is not None and not (by_file and certified and "certify" not in kept.footage.meta):
         return kept
     truth = load_truth(str(video.truth)) if video.truth else None
     dt = (truth.dt if truth else None) or 1 / FPS
@@ -204,11 +204,6 @@ def _other_detector(recorded: Any, by_file: str | None) -> str:
     if not net.is_file() or recorded.get("network_sha256") != file_sha256(net):
         return f"with another network than {net} holds now"
     return ""
-
-
-def _lacks_bounds(footage: Footage) -> bool:
-    """Whether some detection of ``footage`` carries no certified lower payoff."""
-    return any(d.payoff_lower is None for f in footage.frames for d in f.detections)
 
 
 def _perceive_file(
