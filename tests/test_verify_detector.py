@@ -5,7 +5,7 @@ the detector file perceives and prices the video (no WAMI front end), the bundle
 properties are checked on the paper's designs, a violation replays ``confirmed``
 through the detector file and the tracker, and the results' ``perception.detections``
 holds recall and precision equal to a matching written here from onnxruntime's
-output and the truth. ``lesmc campaign`` with a detector file is refused (exit 2).
+output and the truth; the payoffs the checked models read are priced, the others not.
 """
 
 from __future__ import annotations
@@ -129,14 +129,20 @@ def test_recall_precision_match_onnxruntime(run: dict[str, Any]) -> None:
     jsonschema.validate(doc, schema("results"))
     scene = json.loads((run["out"] / "scene.json").read_text())
     pays = [d["payoff"] for fr in scene["frames"] for d in fr["detections"]]
-    assert len(pays) == n_det and "unpriced" not in pays  # every detection priced
+    assert len(pays) == n_det  # priced when a model reads them: the others are unpriced
+    priced = [p for p in pays if p != "unpriced"]
+    assert priced and facts["priced"] == len(priced) == scene["meta"]["priced"]["detections"]
+    assert facts["attackable"] == sum(p != "unattackable" for p in priced)
 
 
-def test_campaign_refuses_a_detector_file(tmp_path: Path) -> None:
-    r = lesmc("campaign", str(tmp_path), "--detector", str(TOML), "--out", str(tmp_path / "o"))
+def test_campaign_refuses_window_networks_with_a_detector_file(tmp_path: Path) -> None:
+    """A campaign perceives through a detector file (tests/test_campaign_detector.py); the
+    window pipeline's networks beside it are an error before any work."""
+    r = lesmc("campaign", str(tmp_path), "--detector", str(TOML), "--nets", str(tmp_path),
+              "--out", str(tmp_path / "o"))  # fmt: skip
     assert r.returncode == 2, r.stdout + r.stderr
     assert "Traceback" not in r.stderr
-    assert "--detector" in r.stderr and "detector file" in r.stderr
+    assert "--nets" in r.stderr and "detector file" in r.stderr
     assert not (tmp_path / "o").exists()
 
 

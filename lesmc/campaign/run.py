@@ -109,10 +109,13 @@ def prepare(
     out: Path,
     files: NetFiles = (None, None, None),
     tracker: TrackerConfig | None = None,
+    certified: bool = False,
 ) -> Prepared:
     """The video's scene: ``DIR/scenes/<name>.json`` if made from these frames, else perceived;
-    with ``tracker`` (``--tracker``) as its tracker (the file is rewritten if it had another)."""
-    p = _prepare(video, out, files)
+    with ``tracker`` (``--tracker``) as its scene's tracker (the file is rewritten if it had
+    another). A detector file (``files[1]``, docs/detectors.md) perceives the whole frames,
+    every detection priced (and certified when ``certified``: --payoffs certified|interval)."""
+    p = _prepare(video, out, files, certified)
     if tracker is not None and p.footage.tracker != tracker:
         p.set_footage(replace(p.footage, tracker=tracker))
         p.key = scene_key(p.doc)
@@ -120,39 +123,118 @@ def prepare(
     return p
 
 
-def _prepare(video: Video, out: Path, files: NetFiles) -> Prepared:
+def least_frames(files_or_meta: NetFiles | dict[str, Any]) -> int:
+    """The fewest frames a video needs: L + 1 for the window pipeline (its background), one
+    for a detector file (given as the networks' files, or a scene's meta recording it)."""
+    from lesmc.experiment.detector_verify import detector_file_of
+
+    if isinstance(files_or_meta, dict):
+        return 1 if isinstance(files_or_meta.get("detector_file"), dict) else HISTORY + 1
+    return 1 if detector_file_of(files_or_meta) is not None else HISTORY + 1
+
+
+def _prepare(video: Video, out: Path, files: NetFiles, certified: bool) -> Prepared:
+    from lesmc.experiment.detector_verify import detector_file_of
     from lesmc.perception.to_scene import footage_from_run
     from lesmc.video.reader import open_frames
 
     path = out / "scenes" / f"{video.name}.json"
-    frames = open_frames(video.frames_dir, HISTORY + 1, check=not path.exists())
+    by_file = detector_file_of(files)
+    frames = open_frames(video.frames_dir, least_frames(files), check=not path.exists())
     fp = fingerprint(frames.paths)
-    if path.exists():
-        doc = read_json(path, InputError)
-        meta = doc.get("meta") if isinstance(doc, dict) else None
-        if not (isinstance(meta, dict) and meta.get("fingerprint") == fp):
-            raise UsageError(
-                f"{path} was perceived from other frames than {video.frames_dir}: "
-                "use another --out (or remove that scene to perceive again)"
-            )
-        footage, _ = footage_from_dict(doc, str(path))
-        return Prepared(video, footage, doc, scene_key(doc), path)
-
+    kept = _kept_scene(video, path, fp, by_file)
+    if kept is not None and not (by_file and certified and "certify" not in kept.footage.meta):
+        return kept
     truth = load_truth(str(video.truth)) if video.truth else None
     dt = (truth.dt if truth else None) or 1 / FPS
-    run, nets = perceive_video(video, frames, files)
     meta = {
         "source": str(video.frames_dir),
         "video": video.origin,
         "fingerprint": fp,
         "size": [frames.width, frames.height],
-        "detector": nets.settings.trained_on,
     }
-    footage = footage_from_run(run, dt, meta)
+    run = None
+    if by_file is not None:
+        footage = _perceive_file(video, frames, by_file, certified, dt, meta)
+        if kept is not None:  # perceived again for its bounds: the same detections
+            _same_file_detections(kept, footage)
+    else:
+        run, nets = perceive_video(video, frames, files)
+        footage = footage_from_run(run, dt, meta | {"detector": nets.settings.trained_on})
     path.parent.mkdir(parents=True, exist_ok=True)
     save_scene(footage, path)
     doc = scene_to_dict(footage)
     return Prepared(video, footage, doc, scene_key(doc), path, run=run)
+
+
+def _kept_scene(video: Video, path: Path, fp: str, by_file: str | None) -> Prepared | None:
+    """The scene an earlier run perceived from these frames (None: none yet); made from
+    other frames, or by other networks than ``by_file`` (a detector file) says, is an error."""
+    if not path.exists():
+        return None
+    doc = read_json(path, InputError)
+    meta = doc.get("meta") if isinstance(doc, dict) else None
+    if not (isinstance(meta, dict) and meta.get("fingerprint") == fp):
+        raise UsageError(
+            f"{path} was perceived from other frames than {video.frames_dir}: "
+            "use another --out (or remove that scene to perceive again)"
+        )
+    why = _other_detector(meta.get("detector_file"), by_file)
+    if why:
+        raise UsageError(
+            f"{path} was perceived {why}: use another --out (or remove that scene to "
+            "perceive again)"
+        )
+    footage, _ = footage_from_dict(doc, str(path))
+    return Prepared(video, footage, doc, scene_key(doc), path)
+
+
+def _other_detector(recorded: Any, by_file: str | None) -> str:
+    """How a scene's ``meta.detector_file`` differs from this run's detector file
+    ``by_file`` (None: the window pipeline); empty when the same files made it."""
+    from lesmc.common.files import file_sha256
+
+    if not isinstance(recorded, dict):
+        return "" if by_file is None else f"by the window pipeline, not by {by_file}"
+    if by_file is None:
+        return f"with the detector file {recorded.get('path')}: give it as --detector"
+    net = Path(str(recorded.get("network")))
+    if recorded.get("sha256") != file_sha256(by_file):
+        return f"with another detector file than {by_file} ({recorded.get('path')})"
+    if not net.is_file() or recorded.get("network_sha256") != file_sha256(net):
+        return f"with another network than {net} holds now"
+    return ""
+
+
+def _perceive_file(
+    video: Video, frames: Any, path: str, certified: bool, dt: float, meta: dict[str, Any]
+) -> Footage:
+    """The video perceived through the detector file ``path`` as ``lesmc verify --detector``
+    perceives it (lesmc/experiment/detector_verify.py): every detection priced, and
+    certified when ``certified``; ``meta`` and the detections' facts added to its meta."""
+    from lesmc.common.progress import Reporter
+    from lesmc.experiment import detector_verify
+
+    truth = str(video.truth) if video.truth else None
+    truths = load_truth(truth) if truth else None
+    with Reporter("campaign") as rep:
+        footage, facts = detector_verify.perceive_video(
+            str(video.frames_dir), frames, path, truth, truths, certified, dt, rep,
+            lambda _stage: None,
+        )  # fmt: skip
+    meta = footage.meta | meta | {"detections": detector_verify.describe(facts)}
+    return replace(footage, meta=meta)
+
+
+def _same_file_detections(kept: Prepared, again: Footage) -> None:
+    """A scene perceived again through its detector file (for certified bounds) must
+    give the kept scene's detections and payoffs, else its results would not be its own."""
+    ok = scene_key(scene_to_dict(replace(again, tracker=kept.footage.tracker))) == kept.key
+    if not ok:
+        raise UsageError(
+            f"{kept.scene_path}: perceived again for certified bounds, the detector file "
+            "gives other detections or payoffs: use another --out"
+        )
 
 
 def perceive_video(video: Video, frames: Any, files: NetFiles) -> tuple[Any, Any]:
@@ -223,7 +305,9 @@ def certify_scenes(prepared: list[Prepared], groups: list[Group], files: NetFile
             low = certify.certify(
                 p.footage,
                 found,
-                _certifier(p, files, sum(len(v) for v in todo.values())),
+                _certifier(p, files, sum(len(v) for v in todo.values()))
+                if "detector_file" not in p.footage.meta
+                else _no_more_bounds,
                 "the detections the campaign's models can hide; the others have no bound",
             )
             p.set_footage(replace(p.footage, frames=low.frames, meta=low.meta))
@@ -251,6 +335,12 @@ def _probes(p: Prepared, groups: list[Group]) -> dict[Group, list[certify.Probed
                 out[g].append(certify.probe(scene, w, budget))
                 bar.advance()
     return out
+
+
+def _no_more_bounds(_wanted: Any) -> dict[int, Any]:
+    """A detector file's scene is certified whole when perceived (:func:`prepare`): a
+    detection left without a bound stays so (the units' notes count it)."""
+    return {}
 
 
 def _certifier(p: Prepared, files: NetFiles, n: int) -> Certifier:
@@ -292,7 +382,7 @@ def truth_targets(p: Prepared, window: tuple[int, int], horizon: int) -> list[Au
 
     assert p.video.truth is not None
     truth = load_truth(str(p.video.truth))
-    frames = open_frames(p.video.frames_dir, HISTORY + 1, check=False)
+    frames = open_frames(p.video.frames_dir, least_frames(p.footage.meta), check=False)
     first = p.footage.frames[0].step
     tfs = [truth.frames.get(f.name) for f in frames.paths[first : p.footage.last_step + 1]]
     found: list[tuple[int, int, int, AutoTarget]] = []

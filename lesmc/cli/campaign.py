@@ -140,11 +140,13 @@ def campaign_cmd(
     \b
     Each video (FRAMES_DIR; none: the embedded default, generated into
     OUT/video) is perceived once into OUT/scenes/VIDEO.json, a scene without a
-    target. Targets come from --targets: automatic ones from the video's
-    truth.json when it has one, else from tracks the tracker initiates on the
-    detections and keeps through the last window. Every (target, window,
-    design, property) is one line of OUT/results.jsonl, appended as soon as it
-    is known; a rerun of the same command skips the lines already there.
+    target (with --detector FILE.toml, through that whole-frame detector, every
+    detection priced: docs/detectors.md). Targets come from --targets: automatic
+    ones from the video's truth.json when it has one, else from tracks the
+    tracker initiates on the detections and keeps through the last window.
+    Every (target, window, design, property) is one line of OUT/results.jsonl,
+    appended as soon as it is known; a rerun of the same command skips the
+    lines already there.
     Each line is reproduced by
       lesmc verify --scene OUT/scenes/VIDEO.json --target X,Y@STEP --window L..U --design D
     (and --payoffs MODE).
@@ -163,31 +165,28 @@ def campaign_cmd(
     out = Path(out_dir)
     count, target_file = _targets_option(targets_text)
     nets = (nets_dir, detector_file, locator_file)
-    _refuse_detector_file(detector_file)
+    _check_detector_file(nets)
     with _removed_if_empty(out):
         videos = _videos(frames_dirs, out, no_truth)
         listed = _file_targets(target_file, videos)
         out.mkdir(parents=True, exist_ok=True)
-        prepared = _prepared(videos, out, nets, tracker_file)
+        prepared = _prepared(videos, out, nets, tracker_file, payoffs != "attack")
         _choose_targets(prepared, count, listed, windows, not no_truth)
         with resumable(lambda: _kept(out)):
             rows = _run(prepared, spec_files, windows, designs, out, limits, payoffs, nets)
     _finish(rows, out, out_dir, prepared, windows, design, as_json)
 
 
-def _refuse_detector_file(detector_file: str | None) -> None:
-    """``--detector FILE.toml``: a campaign perceives its videos through the window pipeline's
-    front end and prices on demand per worker; a detector file's path is not built into it."""
-    from lesmc.perception.detector_file import is_detector_file
+def _check_detector_file(nets: NetFiles) -> None:
+    """``--detector FILE.toml``: a detector file replaces the window pipeline's networks
+    (--nets and --locator are errors beside it), checked before any video is perceived."""
+    from lesmc.experiment.detector_verify import detector_file_of, refuse_window_options
+    from lesmc.perception.detector_file import read_detector_file
 
-    if detector_file is not None and is_detector_file(detector_file):
-        raise UsageError(
-            f"--detector {detector_file}: lesmc campaign runs the window pipeline's networks "
-            "(.pt2 or .onnx N_dr); a detector file (docs/detectors.md) is not built into "
-            "campaigns yet: run lesmc verify FRAMES --detector FILE.toml --target X,Y@STEP per "
-            "video and target, or lesmc perceive FRAMES --detector FILE.toml -o SCENE with "
-            "lesmc check"
-        )
+    path = detector_file_of(nets)
+    if path is not None:
+        refuse_window_options(nets, False)
+        read_detector_file(path)
 
 
 @contextmanager
@@ -239,9 +238,11 @@ def _prepared(
     out: Path,
     nets: NetFiles,
     tracker_file: str | None,
+    certified: bool = False,
 ) -> list[Any]:
     """Each video perceived into OUT/scenes (or read back from there), with the tracker of
-    ``tracker_file`` (``--tracker``) as its scene's tracker."""
+    ``tracker_file`` (``--tracker``) as its scene's tracker; ``certified``: a detector file
+    certifies every detection as it perceives (--payoffs certified|interval)."""
     from lesmc.campaign.run import prepare
     from lesmc.scene import load_tracker
 
@@ -251,7 +252,7 @@ def _prepared(
             f"--tracker {tracker_file}: a campaign's monitored designs use Eq. 13's monitor; "
             f"it cannot apply the tracker's monitor ({tracker.monitor}) yet"
         )
-    return [prepare(v, out, nets, tracker) for v in videos]
+    return [prepare(v, out, nets, tracker, certified) for v in videos]
 
 
 def _multi(designs: tuple[str, ...], payoffs: str) -> bool:

@@ -120,7 +120,7 @@ def network_options(f: F) -> F:
         "payoffs by its attack, certified bounds if its operations allow "
         "(docs/own-system.md). A FILE.toml or FILE.json is a detector file instead: the "
         "user's whole-frame heatmap or box detector, without the front end "
-        "(docs/detectors.md; perceive, verify, replay; campaign refuses it).",
+        "(docs/detectors.md; perceive, verify, campaign, replay).",
     )(f)
 
 

@@ -13,22 +13,24 @@ a true positive when it matches a visible vehicle one to one within 4 px.
 
 from __future__ import annotations
 
-from collections.abc import Callable
+import time
+from collections.abc import Callable, Iterable, Iterator, Mapping
+from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 from lesmc.common.errors import UsageError
 from lesmc.common.progress import Reporter
+from lesmc.experiment.pricing import VideoPricer
 from lesmc.perception import NetFiles
 
 if TYPE_CHECKING:
-    from lesmc.perception.boxes import BoxDetections
-    from lesmc.perception.heatmap import HeatmapDetections
+    from lesmc.experiment.cache import StageCache
     from lesmc.perception.quality import Truth
     from lesmc.replay.run import Outcome
     from lesmc.results.read import ResultsDoc
-    from lesmc.scene import Footage
+    from lesmc.scene import Footage, Frame
     from lesmc.video.reader import FrameSet
 
 #: A detection matches a visible vehicle within this many pixels (one to one).
@@ -76,10 +78,12 @@ def perceive_video(
     dt: float,
     rep: Reporter,
     spent: Callable[[str], None],
+    priced: bool = True,
 ) -> tuple[Footage, dict[str, Any]]:
     """The detector file on every frame of ``frames_dir``, every detection priced (and
-    certified when ``certify``): the footage (no target), and the detections' facts
-    (counts; with ``truth``, recall and precision) for the results' ``perception``."""
+    certified when ``certify``; none priced when not ``priced``: :func:`perceive_cached`):
+    the footage (no target), and the detections' facts (counts; with ``truth``, recall
+    and precision) for the results' ``perception``."""
     from lesmc.experiment.perceive import PerceiveRequest, perceive_with_file
     from lesmc.scene import Footage
 
@@ -94,58 +98,190 @@ def perceive_video(
             bar.update(total=n)
             return advance
 
-        got = perceive_with_file(req, path, start)
+        got = perceive_with_file(req, path, start, priced=priced)
     footage = got.scene
     assert isinstance(footage, Footage)  # no target asked: the caller places it
-    if not any(len(d.positions) for d in got.detections):
-        raise UsageError(f"the detector file {path} found no detection in {frames_dir}")
-    return footage, detection_facts(got.detections, footage, frames, truths)
+    return footage, detection_facts(footage, frames, truths, path)
+
+
+def perceive_cached(
+    frames_dir: str,
+    frames: FrameSet,
+    path: str,
+    truth: str | None,
+    truths: Truth | None,
+    certify: bool,
+    dt: float,
+    rep: Reporter,
+    spent: Callable[[str], None],
+    cache: StageCache,
+    lazy: bool,
+) -> tuple[Footage, dict[str, Any], str]:
+    """:func:`perceive_video`, kept in OUT/cache (lesmc/experiment/cache.py) as the window
+    pipeline keeps its perception: a rerun on the same frames, detector file, network,
+    settings and code reads the footage back (no network is run). ``lazy``: the payoffs
+    are left unpriced, for :class:`FilePricer` to price those the models read (an entry
+    is stored again with them, lesmc/experiment/experiment.py ``_keep_priced``); else a
+    kept entry with unpriced payoffs is perceived again. Also the facts and the key."""
+    from lesmc.experiment import video_perception
+
+    key = perception_key(frames_dir, frames, path, certify, dt)
+    hit = video_perception.read(cache, STAGE, key)
+    if hit is not None and not lazy and hit[0].has_unpriced:
+        rep.log("perceiving the video again: its cached perception has unpriced payoffs")
+        hit = None
+    if hit is not None:
+        rep.log(f"reusing the perception of {frames_dir} through {path} from {cache.dir}")
+        return hit[0], detection_facts(hit[0], frames, truths, path), key
+    footage, facts = perceive_video(frames_dir, frames, path, truth, truths, certify, dt, rep,
+                                    spent, priced=not lazy)  # fmt: skip
+    video_perception.store(cache, STAGE, key, footage, {})
+    return footage, facts, key
+
+
+def prices_lazily(path: str) -> bool:
+    """Whether verify prices the detector file's detections on demand: a heatmap detector's
+    (a box detector's are priced up front)."""
+    from lesmc.perception.detector_file import read_detector_file
+
+    return read_detector_file(path).kind == "heatmap"
+
+
+class FilePricer(VideoPricer):
+    """Prices a heatmap detector file's detections when a model first reads them
+    (:class:`~lesmc.scene.OnDemandPayoffs`): frame k's wanted detections, found again by
+    their cells (``cells_of`` their positions), by the attack ``lesmc perceive --detector``
+    runs on each (heatmap_attack.price_cells), with the same settings. The detector is
+    loaded on the first request (none for a run whose models read no payoff)."""
+
+    def __init__(self, path: str, frames: FrameSet, footage: Footage) -> None:
+        super().__init__(None, None, _no_run)
+        self.path, self.frames = path, frames
+        self.positions = {f.step: f.positions() for f in footage.frames}
+        self.how: Any = None
+
+    def __call__(self, wanted: Mapping[int, np.ndarray]) -> dict[int, np.ndarray]:
+        from lesmc.perception.heatmap import cells_of, frame_input
+        from lesmc.perception.heatmap_attack import price_cells
+
+        if self.released:
+            raise RuntimeError("payoffs asked for after the pricer let go of its detector")
+        if self.how is None:
+            self.how = _pricing(self.path, self.frames)
+        if self.on_price is not None:
+            self.on_price(sum(len(v) for v in wanted.values()))
+        t0 = time.monotonic()
+        out = {}
+        for k, idx in sorted(wanted.items()):
+            pos = self.positions[k]
+            cells = cells_of(pos, self.how.det.spec.stride)[idx]
+            col = np.full(len(pos), np.nan)
+            col[idx] = price_cells(self.how, frame_input(self.frames, k, self.how.det), cells, k)
+            out[k] = col
+        self.seconds += time.monotonic() - t0
+        return out
+
+    def release(self) -> None:
+        """Let go of the detector (the checks are done: nothing is priced after)."""
+        self.released = True
+        self.how = None
+
+
+def _no_run() -> Any:
+    """A detector file's pricer has no perception run to perceive again."""
+    raise RuntimeError("a detector file's pricer perceives nothing again")
+
+
+def _pricing(path: str, frames: FrameSet) -> Any:
+    """The detector file's pricing (heatmap_attack.pricing) with verify's attack settings,
+    those of ``lesmc perceive --detector`` (its default ``PerceiveRequest``)."""
+    from lesmc.experiment.perceive import PerceiveRequest, attack_config
+    from lesmc.perception.detector_file import load_detector
+    from lesmc.perception.heatmap import check_frames
+    from lesmc.perception.heatmap_attack import pricing
+
+    det = check_frames(frames, load_detector(path), str(frames.paths[0].parent))
+    return pricing(det, attack_config(PerceiveRequest(str(frames.paths[0].parent))))
+
+
+#: The OUT/cache stage of a detector file's perception (the window pipeline's: keys differ).
+STAGE = "perception"
+
+
+def perception_key(frames_dir: str, frames: FrameSet, path: str, certify: bool, dt: float) -> str:
+    """The cache key of a video perceived through the detector file ``path``: the frames'
+    bytes, the detector file's and its network's bytes, the settings (seconds between
+    frames, attack, certification) and the code that perceives."""
+    from dataclasses import asdict
+
+    from lesmc.experiment.cache import code_digest, digest, file_digests
+    from lesmc.perception.attack_settings import AttackConfig
+    from lesmc.perception.certify import CertifyConfig
+    from lesmc.perception.detector_file import read_detector_file
+
+    spec = read_detector_file(path)
+    return digest(
+        {
+            "code": code_digest("perception", "video", "scene"),
+            "frames": file_digests(frames.paths),
+            "detector_file": file_digests([Path(path), Path(spec.network)]),
+            "source": str(frames_dir),
+            "dt": dt,
+            "attack": asdict(AttackConfig()),
+            "certify": asdict(CertifyConfig()) if certify else None,
+        }
+    )
 
 
 def detection_facts(
-    dets: list[HeatmapDetections] | list[BoxDetections],
-    footage: Footage,
-    frames: FrameSet,
-    truth: Truth | None,
+    footage: Footage, frames: FrameSet, truth: Truth | None, path: str
 ) -> dict[str, Any]:
-    """How many detections, how many priced finite, their payoffs' median and least; with
-    the video's ``truth``, the detections matched to the visible vehicles (:func:`quality`)."""
-    pays = np.array([d.payoff for f in footage.frames for d in f.detections], np.float64)
-    finite = pays[np.isfinite(pays)]
-    out: dict[str, Any] = {
-        "frames": len(dets),
-        "detections": int(sum(len(d.positions) for d in dets)),
+    """How many detections the detector file ``path`` made in ``footage``, and their
+    payoffs' facts (:func:`payoff_facts`); with the video's ``truth``, the detections
+    matched to the visible vehicles (:func:`quality`). No detection at all is an error."""
+    n = sum(len(f.detections) for f in footage.frames)
+    if not n:
+        raise UsageError(f"the detector file {path} found no detection in {footage.meta['source']}")
+    out: dict[str, Any] = {"frames": len(footage.frames), "detections": n}
+    out |= payoff_facts(footage.frames)
+    if truth is not None:
+        out |= quality(footage, frames, truth)
+    return out
+
+
+def payoff_facts(frames: Iterable[Frame]) -> dict[str, Any]:
+    """How many detections of ``frames`` carry a payoff (``priced``: verify prices those
+    its models read), how many of those are finite (``attackable``), their median and
+    least."""
+    pays = np.array([d.payoff for f in frames for d in f.detections], np.float64)
+    priced = pays[~np.isnan(pays)]
+    finite = priced[np.isfinite(priced)]
+    return {
+        "priced": len(priced),
         "attackable": len(finite),
         "payoff_median": float(np.median(finite)) if len(finite) else None,
         "payoff_min": float(finite.min()) if len(finite) else None,
     }
-    if truth is not None:
-        out |= quality(dets, frames, truth)
-    return out
 
 
-def quality(
-    dets: list[HeatmapDetections] | list[BoxDetections], frames: FrameSet, truth: Truth
-) -> dict[str, Any]:
+def quality(footage: Footage, frames: FrameSet, truth: Truth) -> dict[str, Any]:
     """Recall and precision against every visible (not occluded) true vehicle, moving or
     not: a detection is a true positive when it matches one one to one within
-    :data:`MATCH_PX` pixels (lesmc/perception/quality.py ``match``)."""
-    from lesmc.perception.quality import match
+    :data:`MATCH_PX` pixels (lesmc/perception/quality.py ``visible_counts``)."""
+    from lesmc.perception.quality import visible_counts
 
-    vehicles = tp = n = 0
-    for d in dets:
-        tf = truth.frames.get(frames.paths[d.index].name)
-        if tf is None:
-            continue
-        visible = tf.positions[~tf.occluded]
-        vehicles += len(visible)
-        n += len(d.positions)
-        tp += len(match(np.asarray(d.positions, np.float64).reshape(-1, 2), visible, MATCH_PX))
+    def pairs() -> Iterator[tuple[np.ndarray, np.ndarray]]:
+        for f in footage.frames:
+            tf = truth.frames.get(frames.paths[f.step].name)
+            if tf is not None:
+                yield f.positions(), tf.positions[~tf.occluded]
+
+    got = visible_counts(pairs(), MATCH_PX)
     return {
-        "vehicles": vehicles,
-        "true_positives": tp,
-        "recall": tp / vehicles if vehicles else None,
-        "precision": tp / n if n else None,
+        "vehicles": got.vehicles,
+        "true_positives": got.true_positives,
+        "recall": got.recall,
+        "precision": got.precision,
         "match": f"one to one within {MATCH_PX:g} px of a visible vehicle, moving or not",
     }
 
@@ -155,10 +291,25 @@ def describe(facts: dict[str, Any]) -> str:
     text = f"{facts['detections']} detections in {facts['frames']} frames"
     if facts.get("recall") is not None and facts.get("precision") is not None:
         text += f", recall {facts['recall']:.3f}, precision {facts['precision']:.3f}"
+    if facts.get("priced", facts["detections"]) < facts["detections"]:
+        text += f", {facts['priced']} priced (those the checked models read)"
     text += f", {facts['attackable']} attackable"
     if facts["payoff_median"] is not None:
         text += f" (payoff median {facts['payoff_median']:.3g}, min {facts['payoff_min']:.3g})"
     return text
+
+
+def replay_key(nets: NetFiles) -> dict[str, Any]:
+    """What a replay through a detector file reads beyond the files ``nets`` names: the
+    file's network (its sha256), for the key of OUT/cache's replay; nothing for the window
+    pipeline (the keys of its runs stay as they were)."""
+    from lesmc.experiment.cache import file_digests
+    from lesmc.perception.detector_file import read_detector_file
+
+    path = detector_file_of(nets)
+    if path is None:
+        return {}
+    return {"detector_network": file_digests([Path(read_detector_file(path).network)])}
 
 
 def replay(doc: ResultsDoc, frames_dir: str, path: str, rep: Reporter) -> Outcome:

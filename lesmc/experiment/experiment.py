@@ -327,14 +327,11 @@ def _perceived(
     cache = StageCache(req.out)
     if by_file is None:
         seen = _perception(req, frames, frames_dir, dt, cache, rep, maxima, on_demand)
-    else:  # every detection priced now, not cached (lesmc/experiment/detector_verify.py)
-        footage, facts = detector_verify.perceive_video(
-            frames_dir, frames, by_file, truth, truths, req.payoffs != "attack", dt, rep,
-            lambda stage: _spent(req.budget, stage),
-        )  # fmt: skip
-        meta["detections"] = detector_verify.describe(facts)
+    else:
+        seen = _file_perception(req, frames, frames_dir, by_file, (truth, truths), dt, rep)
+        assert seen.detections is not None
+        meta["detections"] = detector_verify.describe(seen.detections)
         rep.log(f"detector file: {meta['detections']}")
-        seen = _Perception(footage, None, None, {}, "", detections=facts)
     footage = seen.footage
     tracker = _tracker(req)
     if tracker is not None:
@@ -350,8 +347,8 @@ def _perceived(
     meta |= {"detector": footage.meta.get("detector", ""), "scene": str(req.out / "scene.json")}
     return _Source(
         scene, frames, truths, seen.nets, seen.run, meta, True, req.nets, truth, cache,
-        (seen.key, seen.unit_max, dt) if by_file is None else None, seen.pricing,
-        seen.detections,
+        (seen.key, seen.unit_max, dt) if by_file is None or seen.pricing else None,
+        seen.pricing, seen.detections,
     )  # fmt: skip
 
 
@@ -419,6 +416,29 @@ def _perception(
     if not on_demand:
         return seen
     return _on_demand(seen, VideoPricer(nets, run, lambda: (nets, run)), req.budget)
+
+
+def _file_perception(
+    req: Request,
+    frames: FrameSet,
+    frames_dir: str,
+    path: str,
+    truth: tuple[str | None, Any],
+    dt: float,
+    rep: Reporter,
+) -> _Perception:
+    """The video through the detector file ``path`` (lesmc/experiment/detector_verify.py),
+    kept in OUT/cache: a heatmap detector's payoffs priced when a model reads them (as the
+    window pipeline's: --payoffs attack, no --price-all), else every detection priced now."""
+    lazy = req.payoffs == "attack" and not req.price_all and detector_verify.prices_lazily(path)
+    footage, facts, key = detector_verify.perceive_cached(
+        frames_dir, frames, path, truth[0], truth[1], req.payoffs != "attack", dt, rep,
+        lambda stage: _spent(req.budget, stage), StageCache(req.out), lazy,
+    )  # fmt: skip
+    seen = _Perception(footage, None, None, {}, key, detections=facts)
+    if not lazy or not footage.has_unpriced:
+        return seen
+    return _on_demand(seen, detector_verify.FilePricer(path, frames, footage), req.budget)
 
 
 def _perception_key(req: Request, frames: FrameSet, frames_dir: str, dt: float) -> str:
@@ -518,6 +538,9 @@ def _settled(results: Results, src: _Source, rep: Reporter) -> Results:
         f"{meta['detections']} of {meta['of']} detections attacked, on demand: the ones the "
         "checked models read (the others are unpriced in scene.json)"
     )
+    if src.detections is not None:  # a detector file's: its payoffs' facts as settled
+        src.detections |= detector_verify.payoff_facts(settled.frames)
+        src.meta["detections"] = detector_verify.describe(src.detections)
     for run in results.runs:
         if run.scene is not None:
             run.scene = dataclasses.replace(run.scene, frames=settled.frames)
@@ -813,38 +836,43 @@ def _replay(
     if not todo or src.frames is None or (src.nets is None and src.net_files is None):
         return
     t0 = time.monotonic()
-    by_file = detector_verify.detector_file_of(src.net_files or (None, None, None))
-    if by_file is not None:  # through the detector file (lesmc/replay/detector_file.py)
-        frames_dir = str(src.frames.paths[0].parent)
-        apply(doc, detector_verify.replay(typed, frames_dir, by_file, rep), results)
-        timings["replay"] = time.monotonic() - t0
-        return
     key = _replay_key(doc, src, todo)
     hit = None if src.cache is None or key is None else src.cache.get("replay", key)
     outcome = _cached_replay(hit, doc)
     if outcome is not None:
         rep.log(f"reusing the replay of {len(outcome.replays)} counterexamples from the cache")
     else:
-        frames, nets = src.frames, src.networks()
-        # this run's perception made the clean detections: only attacked frames are redone
-        clean = None if src.run is None else {fd.index: fd for fd in src.run.detections}
-        known = None if src.run is None else src.run.registrations
-        with rep.bar("replaying", len(frames) if clean is None else None) as bar:
-
-            def advance() -> None:
-                bar.advance()
-                _spent(budget, "replaying the counterexamples")
-
-            outcome = replay(
-                typed, frames, nets, on_frame=advance, clean=clean, registrations=known,
-                scene=src.scene,
-            )  # fmt: skip
+        outcome = _replay_now(typed, src, rep, budget)
         if src.cache is not None and key is not None:
             rows = [[i, j, obj] for (i, j), obj in outcome.replays.items()]
             src.cache.put("replay", key, {"replays": rows, "seconds": outcome.seconds})
     assert isinstance(outcome, Outcome)
     apply(doc, outcome, results)
     timings["replay"] = time.monotonic() - t0
+
+
+def _replay_now(typed: Any, src: _Source, rep: Reporter, budget: Budget) -> Any:
+    """The counterexamples of ``typed`` replayed now: through the detector file, or the
+    window pipeline's networks (only the attacked frames redone when this run perceived)."""
+    assert src.frames is not None
+    by_file = detector_verify.detector_file_of(src.net_files or (None, None, None))
+    if by_file is not None:  # through the detector file (lesmc/replay/detector_file.py)
+        frames_dir = str(src.frames.paths[0].parent)
+        return detector_verify.replay(typed, frames_dir, by_file, rep)
+    frames, nets = src.frames, src.networks()
+    # this run's perception made the clean detections: only attacked frames are redone
+    clean = None if src.run is None else {fd.index: fd for fd in src.run.detections}
+    known = None if src.run is None else src.run.registrations
+    with rep.bar("replaying", len(frames) if clean is None else None) as bar:
+
+        def advance() -> None:
+            bar.advance()
+            _spent(budget, "replaying the counterexamples")
+
+        return replay(
+            typed, frames, nets, on_frame=advance, clean=clean, registrations=known,
+            scene=src.scene,
+        )  # fmt: skip
 
 
 def _replay_key(doc: dict[str, Any], src: _Source, todo: list[Any]) -> str | None:
@@ -867,6 +895,7 @@ def _replay_key(doc: dict[str, Any], src: _Source, todo: list[Any]) -> str | Non
             "code": code_digest("replay", "perception", "video", "tracking", "scene", "designs"),
             "frames": file_digests(src.frames.paths),
             "nets": file_digests(net_files(src.net_files)),
+            **detector_verify.replay_key(src.net_files),
             "settings": {k: perception.get(k) for k in ("history", "delta_bc", "attack")},
             "runs": runs,
             "cases": [[c.run, c.result] for c in todo],

@@ -195,11 +195,14 @@ def perceive_with_file(
     path: str,
     on_start: Callable[[int], Any] | None = None,
     save_attacks: str | None = None,
+    priced: bool = True,
 ) -> PerceivedWithFile:
     """The detector file ``path`` on every frame (no front end: lesmc/perception/heatmap.py);
     with ``req.scene`` each detection's payoff (lesmc/perception/heatmap_attack.py; each
     hiding perturbation saved to ``save_attacks`` as FRAME_K.npy) and the footage, its
-    target placed when asked for. ``on_start(n_frames)`` gives the per-frame callback."""
+    target placed when asked for. ``on_start(n_frames)`` gives the per-frame callback.
+    ``priced=False`` (a heatmap detector, no certification): the footage's payoffs are left
+    unpriced, for ``lesmc verify`` to price those its models read."""
     from lesmc.perception.detector_file import load_detector
     from lesmc.perception.heatmap import check_frames, footage_of, run_detector
 
@@ -208,7 +211,7 @@ def perceive_with_file(
         return _with_boxes(req, det, on_start, save_attacks)
     inputs = open_inputs(req, minimum=1)
     det = check_frames(inputs.frames, det, req.frames_dir)
-    price = _pricer(req, det, save_attacks) if req.scene else None
+    price = _pricer(req, det, save_attacks) if req.scene and priced else None
     on_frame = on_start(len(inputs.frames)) if on_start else None
     inject = None if req.inject_within is None else (req.inject_within, req.inject_cap)
     dets = run_detector(inputs.frames, det, on_frame, price, inject)

@@ -122,6 +122,13 @@ def cell_positions(cells: np.ndarray, stride: int) -> np.ndarray:
     return ((np.asarray(cells)[:, ::-1].astype(np.float64) + 0.5) * stride).reshape(-1, 2)
 
 
+def cells_of(positions: np.ndarray, stride: int) -> np.ndarray:
+    """(n, 2) the cells (row, col) whose centres are the (n, 2) ``positions`` (x, y): the
+    inverse of :func:`cell_positions` (a scene's detections back to their cells)."""
+    xy = np.asarray(positions, np.float64).reshape(-1, 2)
+    return np.rint(xy[:, ::-1] / stride - 0.5).astype(np.int64)
+
+
 def frame_input(frames: FrameSet, i: int, det: LoadedDetector) -> np.ndarray:
     """Frame ``i`` as the network's input (1, C, H, W), float32 in the detector file's
     ``scale``: grey as every verb reads frames (``FrameSet.read``), or red, green, blue."""

@@ -177,7 +177,21 @@ def price_frame(
     """Each detection of ``fd`` (frame input ``frame``, (1, C, H, W)): its payoff, ``inf``
     when the attack finds no perturbation that hides it. ``save(K, delta)`` gets each
     hiding perturbation (float32 (1, C, H, W), input units)."""
-    return _price(p, frame, fd.cells, fd.index, "hide", save)
+    return price_cells(p, frame, fd.cells, fd.index, save)
+
+
+def price_cells(
+    p: Pricing,
+    frame: np.ndarray,
+    cells: np.ndarray,
+    index: int,
+    save: Callable[[int, np.ndarray], None] | None = None,
+) -> np.ndarray:
+    """:func:`price_frame` of some of frame ``index``'s detections, their (n, 2) ``cells``
+    (row, col): what ``lesmc verify`` prices on demand (lesmc/experiment/detector_verify.py).
+    Each detection's attack and validation are its own (crops of one shape share a batch),
+    so a detection priced with others of its frame gets its payoff up to float32 rounding."""
+    return _price(p, frame, cells, index, "hide", save)
 
 
 def price_candidates(

@@ -13,7 +13,7 @@ Everything is seeded: the same seeds give the same weights (on one machine).
 
 from __future__ import annotations
 
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -22,8 +22,8 @@ import numpy as np
 import torch
 from torch import nn
 
-from lesmc.perception.heatmap import peaks
-from lesmc.perception.quality import match, truth_frame
+from lesmc.perception.heatmap import cell_positions, peaks
+from lesmc.perception.quality import truth_frame, visible_counts
 from lesmc.video.synth import SynthConfig, frames
 
 Progress = Callable[[str, int, int], None]
@@ -174,14 +174,14 @@ def validate(net: nn.Module, cfg: HeatmapTrainConfig) -> HeatmapValidation:
     imgs, pos = video(cfg, cfg.val_seed)
     with torch.no_grad():
         raw = net(torch.from_numpy(imgs).float().div_(255.0)[:, None])[:, 0].numpy()
-    n_veh = n_det = tp = 0
-    for r, truth in zip(raw, pos, strict=True):
-        cells = peaks(1.0 / (1.0 + np.exp(-r.astype(np.float64))), cfg.threshold, NMS_RADIUS)
-        det = (cells[:, ::-1].astype(np.float64) + 0.5) * STRIDE
-        tp += len(match(det.reshape(-1, 2), truth, cfg.radius))
-        n_veh += len(truth)
-        n_det += len(det)
-    return HeatmapValidation(len(imgs), n_veh, n_det, tp)
+
+    def pairs() -> Iterator[tuple[np.ndarray, np.ndarray]]:
+        for r, truth in zip(raw, pos, strict=True):
+            score = 1.0 / (1.0 + np.exp(-r.astype(np.float64)))
+            yield cell_positions(peaks(score, cfg.threshold, NMS_RADIUS), STRIDE), truth
+
+    got = visible_counts(pairs(), cfg.radius)
+    return HeatmapValidation(len(imgs), got.vehicles, got.detections, got.true_positives)
 
 
 def export(net: nn.Module, cfg: HeatmapTrainConfig, out_dir: Path, history: str) -> list[Path]:

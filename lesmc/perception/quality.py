@@ -11,6 +11,7 @@ where all L aligned frames have data (``valid``).
 from __future__ import annotations
 
 import math
+from collections.abc import Iterable
 from dataclasses import dataclass, field
 from typing import Any, TypeGuard
 
@@ -93,6 +94,40 @@ def match(det: np.ndarray, truth: np.ndarray, radius: float) -> list[tuple[int, 
     return [
         (rows[a], cols[b], float(d[a, b])) for a, b in zip(r, c, strict=True) if d[a, b] <= radius
     ]
+
+
+@dataclass(frozen=True)
+class VisibleCounts:
+    """Detections against the visible vehicles over frames: how many of each and how many
+    detections matched one (one to one within the radius, :func:`match`)."""
+
+    vehicles: int
+    detections: int
+    true_positives: int
+
+    @property
+    def recall(self) -> float | None:
+        """True positives over visible vehicles (None: no vehicle)."""
+        return self.true_positives / self.vehicles if self.vehicles else None
+
+    @property
+    def precision(self) -> float | None:
+        """True positives over detections (None: no detection)."""
+        return self.true_positives / self.detections if self.detections else None
+
+
+def visible_counts(frames: Iterable[tuple[np.ndarray, np.ndarray]], radius: float) -> VisibleCounts:
+    """Recall's and precision's counts over ``frames``, each (detections (n, 2), visible
+    vehicles (m, 2)): every vehicle counts, moving or not (no don't-care vehicles, unlike
+    :func:`score`); a detection is a true positive when it matches one within ``radius``."""
+    vehicles = detections = tp = 0
+    for det, visible in frames:
+        det = np.asarray(det, np.float64).reshape(-1, 2)
+        visible = np.asarray(visible, np.float64).reshape(-1, 2)
+        vehicles += len(visible)
+        detections += len(det)
+        tp += len(match(det, visible, radius))
+    return VisibleCounts(vehicles, detections, tp)
 
 
 def score(det: np.ndarray, truth: np.ndarray, care: np.ndarray, radius: float) -> Score:
