@@ -15,7 +15,15 @@ from lesmc.results.read import read_row
 ROOT = Path(__file__).resolve().parents[1]
 
 #: The readers migrated to the typed objects.
-READERS = ("lesmc/campaign/summary.py", "lesmc/replay/run.py", "lesmc/report/html.py")
+READERS = (
+    "lesmc/campaign/summary.py",
+    "lesmc/replay/run.py",
+    "lesmc/report/html.py",
+    "lesmc/report/run_view.py",
+    "lesmc/report/document_tables.py",
+    "lesmc/report/design_section.py",
+    "lesmc/report/attack_images.py",
+)
 
 
 def string_key_reads(source: str) -> list[int]:
