@@ -52,7 +52,15 @@ from lesmc.model.multi import MultiModel
 from lesmc.model.multi_format import load_model_file
 from lesmc.pipeline.check import run
 from lesmc.pipeline.job import Job
-from lesmc.pipeline.multi import AttackStep, MultiCheckResult, check_meta
+from lesmc.pipeline.multi import (
+    DESIGN_IGNORES,
+    MODEL_IGNORES,
+    AttackStep,
+    MultiCheckResult,
+    check_meta,
+    check_multi_design,
+    check_multi_model,
+)
 from lesmc.results.record import DesignRun, Results
 from lesmc.scene import Footage, Scene, TrackerConfig, load_tracker
 from lesmc.scene import save_scene as write_scene
@@ -372,6 +380,16 @@ def check(
     return run(job).results
 
 
+#: :func:`check`'s defaults of the arguments a multi-target search may not read
+#: (lesmc.pipeline.multi's ``MODEL_IGNORES``, ``DESIGN_IGNORES``): any other value is refused.
+_CHECK_DEFAULTS: dict[str, Any] = {
+    "engine": engines.DEFAULT,
+    "timeout": None,
+    "payoffs": payoff_modes.DEFAULT,
+    "max_states": DEFAULT_MAX_STATES,
+}
+
+
 def _check_multi_model(
     model: MultiModel,
     specs: tuple[SpecFile, ...],
@@ -383,16 +401,9 @@ def _check_multi_model(
 ) -> list[MultiCheckResult]:
     """:func:`check` on a built multi-target model (``lesmc check MODEL.npz``): the
     arguments its search does not read are refused, as the command line refuses them."""
-    from lesmc.pipeline.multi import check_multi_model
-
-    need(engine == engines.DEFAULT, "engine: a multi-target model has one search", engine)
-    need(timeout is None, "timeout: a multi-target model's search has none", timeout)
-    need(payoffs == payoff_modes.DEFAULT, "payoffs: a model's are built in", payoffs)
-    need(
-        max_states == DEFAULT_MAX_STATES,
-        "max_states: a built multi-target model is searched whole",
-        max_states,
-    )
+    given = {"engine": engine, "timeout": timeout, "payoffs": payoffs, "max_states": max_states}
+    for name, why in MODEL_IGNORES.items():
+        need(given[name] == _CHECK_DEFAULTS[name], f"{name}: {why}", given[name])
     need(not any(s.faults for s in specs), "specs: faults need a scene", [s.path for s in specs])
     return check_multi_model(model, specs, only)
 
@@ -423,11 +434,10 @@ def _check_multi(
     """:func:`check` on a multi-target design (``lesmc check --design sort``'s check,
     lesmc/pipeline/multi.py): the arguments its exact search does not read are refused, as
     the command line refuses its options."""
-    from lesmc.pipeline.multi import check_multi_design
-
     need(len(designs) <= 1, "designs: one multi-target design at a time", designs)
-    need(engine == engines.DEFAULT, "engine: a multi-target design has one search", engine)
-    need(timeout is None, "timeout: a multi-target design is bounded by max_states", timeout)
+    given = {"engine": engine, "timeout": timeout}
+    for name, why in DESIGN_IGNORES.items():
+        need(given[name] == _CHECK_DEFAULTS[name], f"{name}: {why}", given[name])
     need(
         payoffs != "interval",
         "payoffs: interval is not supported yet on a multi-target design",

@@ -29,7 +29,7 @@ LAYERS: dict[str, set[str]] = {
     "common": set(),
     "language": set(),
     "video": set(),
-    "schemas": {"designs", "engines", "exporters"},
+    "schemas": {"designs", "engines", "exporters", "language"},
     "designs": set(),
     "model": {"language"},
     "scene": {"designs", "language"},

@@ -22,6 +22,7 @@ from lesmc.designs import registry
 from lesmc.engines import payoff_modes
 from lesmc.engines import registry as engines
 from lesmc.exporters import formats
+from lesmc.language import actions
 
 #: format name of each document -> its schema file (without .json)
 SCHEMAS = {
@@ -54,16 +55,15 @@ def _text(name: str) -> str:
 def schema(name: str) -> dict[str, Any]:
     """The schema ``lesmc/schemas/NAME.json``, with the registries' names.
 
-    The enums of registered names are not spelled in the files: ``#/$defs/designs``
-    (every registered design) and ``#/$defs/trackers`` (the designs that bring
-    a tracker) are filled from lesmc/designs/registry.py now, so that a design
-    registered at run time is accepted too; so are the export formats
-    (``#/$defs/export_formats``, lesmc/exporters/formats.py) and, in the export
-    document, the MDP facts each property-stating format writes under its name.
-    a tracker) are filled from lesmc/designs/registry.py now, ``#/$defs/engines``
-    from lesmc/engines/registry.py and ``#/$defs/payoff_modes`` from
-    lesmc/engines/payoff_modes.py, so that a variant registered at run time is
-    accepted too.
+    The enums of registered names are not spelled in the files; they are filled from
+    the registries now, so that a variant registered at run time is accepted too:
+    ``#/$defs/designs`` (every registered design) and ``#/$defs/trackers`` (the designs
+    that bring a tracker) from lesmc/designs/registry.py, ``#/$defs/engines`` from
+    lesmc/engines/registry.py, ``#/$defs/payoff_modes`` from
+    lesmc/engines/payoff_modes.py, ``#/$defs/export_formats`` from
+    lesmc/exporters/formats.py (and, in the export document, the MDP facts each
+    property-stating format writes under its name) and ``#/$defs/attack_actions`` from
+    lesmc/language/actions.py.
     """
     out: dict[str, Any] = json.loads(_text(name))
     defs = out.setdefault("$defs", {})
@@ -72,6 +72,7 @@ def schema(name: str) -> dict[str, Any]:
     defs["engines"] = {"enum": list(engines.names())}
     defs["payoff_modes"] = {"enum": list(payoff_modes.names())}
     defs["export_formats"] = {"enum": list(formats.names())}
+    defs["attack_actions"] = {"enum": list(actions.names())}
     if name == "export":  # a property's MDP: its size, under the format's name
         for fmt in formats.where(lambda f: f.states_property):
             out["properties"][fmt] = {"$ref": "#/$defs/mdp"}
