@@ -58,8 +58,8 @@ LAYERS: dict[str, set[str]] = {
         "pipeline", "results", "scene", "tracking", "experiment",
     },
     "cli": {
-        "api", "api_checks", "unfold", "campaign", "designs", "engines", "exporters", "language", "model",
-        "perception",
+        "api", "api_checks", "unfold", "campaign", "designs", "engines", "exporters", "language",
+        "model", "perception",
         "pipeline", "replay", "report", "results", "scene", "tracking", "experiment", "video",
     },
     "__main__": {"cli"},
