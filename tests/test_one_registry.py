@@ -146,7 +146,10 @@ def test_no_module_spells_the_actions_list() -> None:
     as a value (a type's ``Literal["hide", "inject"]`` below the language layer is no list)."""
     spelled = []
     for path in (ROOT / "lesmc").rglob("*.py"):
-        tree = ast.parse(path.read_text())
+        text = path.read_text()
+        if '"hide"' not in text or '"inject"' not in text:
+            continue  # parse only the modules that spell both names
+        tree = ast.parse(text)
         types = {id(n.slice) for n in ast.walk(tree) if isinstance(n, ast.Subscript)}
         for node in ast.walk(tree):
             if isinstance(node, ast.Tuple | ast.List | ast.Set) and id(node) not in types:
