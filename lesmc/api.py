@@ -8,15 +8,26 @@ column of a bad input; none of them exits the interpreter. The command line
 
 from __future__ import annotations
 
-import itertools
 import os
 from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
+from lesmc.api_checks import (
+    are_steps,
+    attack_window,
+    check_limits,
+    design_list,
+    file_path,
+    format_takes,
+    marked_paths,
+    need,
+    sequence,
+    spec_files,
+)
 from lesmc.common.budget import Budget
 from lesmc.common.errors import BudgetError, InputError, UsageError
-from lesmc.common.fields import MAX_STEP, is_finite, is_int, parse_window
+from lesmc.common.fields import is_int
 from lesmc.common.files import read_json
 from lesmc.common.progress import Reporter
 from lesmc.designs import registry
@@ -41,7 +52,15 @@ from lesmc.model.multi import MultiModel
 from lesmc.model.multi_format import load_model_file
 from lesmc.pipeline.check import run
 from lesmc.pipeline.job import Job
-from lesmc.pipeline.multi import AttackStep, MultiCheckResult, check_meta
+from lesmc.pipeline.multi import (
+    DESIGN_IGNORES,
+    MODEL_IGNORES,
+    AttackStep,
+    MultiCheckResult,
+    check_meta,
+    check_multi_design,
+    check_multi_model,
+)
 from lesmc.results.record import DesignRun, Results
 from lesmc.scene import Footage, Scene, TrackerConfig, load_tracker
 from lesmc.scene import save_scene as write_scene
@@ -52,7 +71,6 @@ if TYPE_CHECKING:
     from lesmc.experiment.experiment import Outcome as VerifyOutcome
     from lesmc.experiment.experiment import Request as VerifyRequest
     from lesmc.experiment.multi_verify import MultiOutcome
-    from lesmc.exporters.formats import ExportFormat
 
 __all__ = [
     "AttackStep",
@@ -92,7 +110,7 @@ WindowArg = str | tuple[int, int] | Sequence[int] | range
 def load_model(path: PathArg) -> ArrayModel | MultiModel:
     """A model file, validated: a .lts, or its binary .npz form, or a multi-target model
     (``lesmc build --design sort|gnn``'s .npz; docs/lts-format.md)."""
-    where = _path(path, "path")
+    where = file_path(path, "path")
     return _checked(load_model_file(where), where)
 
 
@@ -104,26 +122,26 @@ def save_model(model: ArrayModel | MultiModel, path: PathArg) -> None:
     from lesmc.model.lts_format import save_lts
     from lesmc.model.multi_format import save_multi
 
-    where = _path(path, "path", read=False)
+    where = file_path(path, "path", read=False)
     if isinstance(model, MultiModel):
-        _need(is_binary(where), "path: a multi-target model is written as .npz only", path)
+        need(is_binary(where), "path: a multi-target model is written as .npz only", path)
         save_multi(model, where)
         return
-    _need(isinstance(model, ArrayModel), "model must be a model (lesmc.build)", model)
+    need(isinstance(model, ArrayModel), "model must be a model (lesmc.build)", model)
     (save_lts_npz if is_binary(where) else save_lts)(model, where)
 
 
 def load_spec(path: PathArg) -> SpecFile:
     """A property file, parsed (docs/language.md)."""
-    return parse.load_spec(_path(path, "path"))
+    return parse.load_spec(file_path(path, "path"))
 
 
 def parse_spec(text: str, path: str = "<spec>", need_properties: bool = True) -> SpecFile:
     """The text of a property file, parsed; ``path`` names it in messages. With
     ``need_properties=False`` a file of a faults block alone is accepted."""
-    _need(isinstance(text, str), "text must be the text of a spec file (a str)", text)
-    _need(isinstance(path, str), "path must be a str (the name used in messages)", path)
-    _need(
+    need(isinstance(text, str), "text must be the text of a spec file (a str)", text)
+    need(isinstance(path, str), "path must be a str (the name used in messages)", path)
+    need(
         isinstance(need_properties, bool), "need_properties must be True or False", need_properties
     )
     return parse.parse_spec(text, path, need_properties)
@@ -138,7 +156,7 @@ def load_scene(
     """A scene file (docs/scene-format.md); ``target`` (``"X,Y@STEP"``) places or moves its
     target, ``tracker`` (a tracker file or configuration) replaces its tracker, ``design``
     names another tracker of the registry (``single``, ``joint``, ``sort``, ``gnn``)."""
-    where = _path(path, "path")
+    where = file_path(path, "path")
     cfg = _scene_options(target, design, tracker)
     return scene_with_target(read_json(Path(where), InputError), where, target, design, cfg)
 
@@ -146,9 +164,9 @@ def load_scene(
 def _scene_options(target: Any, design: Any, tracker: Any) -> TrackerConfig | None:
     """Check a scene's ``target``, ``design`` and ``tracker`` arguments; the tracker's
     configuration (read from its file) or None."""
-    _need(target is None or isinstance(target, str), 'target must be None or "X,Y@STEP"', target)
+    need(target is None or isinstance(target, str), 'target must be None or "X,Y@STEP"', target)
     trackers = registry.tracker_names()
-    _need(
+    need(
         design is None or design in trackers,
         f"design must be None or a tracker among {', '.join(trackers)} (a monitored design "
         "is a check's: lesmc.check(..., designs=...))",
@@ -156,7 +174,7 @@ def _scene_options(target: Any, design: Any, tracker: Any) -> TrackerConfig | No
     )
     if tracker is None or isinstance(tracker, TrackerConfig):
         return tracker
-    return load_tracker(_path(tracker, "tracker", "or a TrackerConfig"), design)
+    return load_tracker(file_path(tracker, "tracker", "or a TrackerConfig"), design)
 
 
 def load_model_or_scene(
@@ -167,7 +185,7 @@ def load_model_or_scene(
 ) -> ArrayModel | MultiModel | Scene:
     """A model (.lts, or its binary .npz form, or a multi-target model's .npz) or a scene,
     told apart by the file's ``format`` field."""
-    where = _path(path, "path")
+    where = file_path(path, "path")
     cfg = _scene_options(target, design, tracker)
     binary = is_binary(where)
     data = None if binary else read_json(Path(where), InputError)
@@ -195,18 +213,18 @@ def _checked(model: ArrayModel | MultiModel, where: str) -> ArrayModel | MultiMo
 def save_scene(scene: Scene | Footage, path: PathArg) -> None:
     """Write a scene (or a scene without a target, lesmc.perceive's) atomically
     (docs/scene-format.md)."""
-    _need(
+    need(
         isinstance(scene, Scene | Footage),
         "scene must be a Scene or a Footage (lesmc.load_scene, lesmc.perceive)",
         scene,
     )
-    write_scene(scene, _path(path, "path", read=False))
+    write_scene(scene, file_path(path, "path", read=False))
 
 
 def expand_designs(choice: str, multi: bool = False) -> tuple[str, ...]:
     """The designs a ``--design`` choice names (a design, a set, or ``all``); a
     multi-target design (``sort``, ``gnn``) only with ``multi`` (``lesmc verify``)."""
-    _need(isinstance(choice, str), "choice must be a design or a set's name", choice)
+    need(isinstance(choice, str), "choice must be a design or a set's name", choice)
     if choice not in registry.choices():
         raise UsageError(
             f"unknown design {choice!r}; choose one of {', '.join(registry.choices())}"
@@ -238,17 +256,17 @@ def build(
     detection attackable by hiding, or for property ``property`` of ``spec`` (its window,
     end, ``within R`` and ``allow``; ``window`` None, or the property's); ``timeout`` is
     refused there (its unfolding is bounded by ``max_states``)."""
-    sc = scene if isinstance(scene, Scene) else load_scene(_path(scene, "scene", "or a Scene"))
-    steps = None if window is None and spec is not None else _window(window)
-    _need(end is None or _steps((end,), 1), "end must be None or a step >= 0", end)
-    _check_limits(timeout, max_states)
+    sc = scene if isinstance(scene, Scene) else load_scene(file_path(scene, "scene", "or a Scene"))
+    steps = None if window is None and spec is not None else attack_window(window)
+    need(end is None or are_steps((end,), 1), "end must be None or a step >= 0", end)
+    check_limits(timeout, max_states)
     _scene_options(None, design, None)
     if design is not None:
         sc = sc.with_tracker(design=registry.get(design).tracker)
     if registry.get(sc.tracker.design).multi:
-        where = scene if isinstance(scene, Scene) else _path(scene, "scene")
+        where = scene if isinstance(scene, Scene) else file_path(scene, "scene")
         return _build_multi(sc, where, steps, end, max_states, timeout, spec, property)
-    _need(spec is None and property is None, "spec, property: for multi-target designs", spec)
+    need(spec is None and property is None, "spec, property: for multi-target designs", spec)
     assert steps is not None
     budget = Budget(timeout, max_states)
 
@@ -280,28 +298,28 @@ def _build_multi(
     from lesmc.language.actions import DEFAULT as DEFAULT_ACTIONS
     from lesmc.pipeline.multi import build_for, property_key
 
-    _need(timeout is None, "timeout: a multi-target design is bounded by max_states", timeout)
-    _need(prop is None or isinstance(prop, str), "property must be None or a name", prop)
+    need(timeout is None, "timeout: a multi-target design is bounded by max_states", timeout)
+    need(prop is None or isinstance(prop, str), "property must be None or a name", prop)
     path = "<scene>" if isinstance(where, Scene) else where
     last = len(sc.frames) - 1
     if spec is None:
-        _need(prop is None, "property names a property of spec: give spec", prop)
+        need(prop is None, "property names a property of spec: give spec", prop)
         assert window is not None
         key: BuildKey = (*window, last if end is None else end, None, DEFAULT_ACTIONS)
     else:
-        key = property_key(sc, _specs(spec, "spec")[0], prop)
-        _need(
+        key = property_key(sc, spec_files(spec, "spec")[0], prop)
+        need(
             window is None or window == key[:2],
             f"window: the property's is {key[0]}..{key[1]}",
             window,
         )
-        _need(end is None or end == key[2], f"end: the property's is {key[2]}", end)
+        need(end is None or end == key[2], f"end: the property's is {key[2]}", end)
     return build_for(sc, path, key, max_states)
 
 
 def check_job(job: Job) -> Results:
     """Run a :class:`~lesmc.pipeline.job.Job` (the pipeline behind every verb)."""
-    _need(isinstance(job, Job), "job must be a lesmc.pipeline.job.Job", job)
+    need(isinstance(job, Job), "job must be a lesmc.pipeline.job.Job", job)
     return run(job)
 
 
@@ -326,25 +344,25 @@ def check(
     src = (
         source
         if isinstance(source, ArrayModel | MultiModel | Scene)
-        else load_model_or_scene(_path(source, "source", "or a model or a Scene"))
+        else load_model_or_scene(file_path(source, "source", "or a model or a Scene"))
     )
-    spec_list = _specs(specs)
-    _need(engine in engines.names(), f"engine must be one of {', '.join(engines.names())}", engine)
+    spec_list = spec_files(specs)
+    need(engine in engines.names(), f"engine must be one of {', '.join(engines.names())}", engine)
     modes = payoff_modes.names()
-    _need(payoffs in modes, f"payoffs must be one of {', '.join(modes)}", payoffs)
-    _check_limits(timeout, max_states)
-    chosen = _designs(designs)
-    _need(
+    need(payoffs in modes, f"payoffs must be one of {', '.join(modes)}", payoffs)
+    check_limits(timeout, max_states)
+    chosen = design_list(designs)
+    need(
         not chosen or isinstance(src, Scene),
         "designs apply to scenes: a model was built with one",
         designs,
     )
-    names = (only,) if isinstance(only, str) else _items(only, "only")
-    _need(all(isinstance(n, str) for n in names), "only holds property names", only)
+    names = (only,) if isinstance(only, str) else sequence(only, "only")
+    need(all(isinstance(n, str) for n in names), "only holds property names", only)
     if isinstance(src, MultiModel):
         return _check_multi_model(src, spec_list, names, engine, payoffs, timeout, max_states)
     if isinstance(src, Scene) and _multi(src, chosen):
-        where = "<scene>" if isinstance(source, Scene) else _path(source, "source")
+        where = "<scene>" if isinstance(source, Scene) else file_path(source, "source")
         return _check_multi(
             src, where, spec_list, chosen, engine, payoffs, timeout, max_states, names
         )
@@ -362,6 +380,16 @@ def check(
     return run(job).results
 
 
+#: :func:`check`'s defaults of the arguments a multi-target search may not read
+#: (lesmc.pipeline.multi's ``MODEL_IGNORES``, ``DESIGN_IGNORES``): any other value is refused.
+_CHECK_DEFAULTS: dict[str, Any] = {
+    "engine": engines.DEFAULT,
+    "timeout": None,
+    "payoffs": payoff_modes.DEFAULT,
+    "max_states": DEFAULT_MAX_STATES,
+}
+
+
 def _check_multi_model(
     model: MultiModel,
     specs: tuple[SpecFile, ...],
@@ -373,17 +401,10 @@ def _check_multi_model(
 ) -> list[MultiCheckResult]:
     """:func:`check` on a built multi-target model (``lesmc check MODEL.npz``): the
     arguments its search does not read are refused, as the command line refuses them."""
-    from lesmc.pipeline.multi import check_multi_model
-
-    _need(engine == engines.DEFAULT, "engine: a multi-target model has one search", engine)
-    _need(timeout is None, "timeout: a multi-target model's search has none", timeout)
-    _need(payoffs == payoff_modes.DEFAULT, "payoffs: a model's are built in", payoffs)
-    _need(
-        max_states == DEFAULT_MAX_STATES,
-        "max_states: a built multi-target model is searched whole",
-        max_states,
-    )
-    _need(not any(s.faults for s in specs), "specs: faults need a scene", [s.path for s in specs])
+    given = {"engine": engine, "timeout": timeout, "payoffs": payoffs, "max_states": max_states}
+    for name, why in MODEL_IGNORES.items():
+        need(given[name] == _CHECK_DEFAULTS[name], f"{name}: {why}", given[name])
+    need(not any(s.faults for s in specs), "specs: faults need a scene", [s.path for s in specs])
     return check_multi_model(model, specs, only)
 
 
@@ -391,7 +412,7 @@ def _multi(scene: Scene, designs: tuple[str, ...]) -> bool:
     """Whether a check of ``scene`` with ``designs`` (none: the scene's own) is of a
     multi-target design; a list mixing them with single-target designs is refused."""
     multi = [registry.get(d).multi for d in designs or (scene.tracker.design,)]
-    _need(
+    need(
         all(multi) or not any(multi),
         "designs: a multi-target design (sort, gnn) is checked alone, not with others",
         designs,
@@ -413,17 +434,16 @@ def _check_multi(
     """:func:`check` on a multi-target design (``lesmc check --design sort``'s check,
     lesmc/pipeline/multi.py): the arguments its exact search does not read are refused, as
     the command line refuses its options."""
-    from lesmc.pipeline.multi import check_multi_design
-
-    _need(len(designs) <= 1, "designs: one multi-target design at a time", designs)
-    _need(engine == engines.DEFAULT, "engine: a multi-target design has one search", engine)
-    _need(timeout is None, "timeout: a multi-target design is bounded by max_states", timeout)
-    _need(
+    need(len(designs) <= 1, "designs: one multi-target design at a time", designs)
+    given = {"engine": engine, "timeout": timeout}
+    for name, why in DESIGN_IGNORES.items():
+        need(given[name] == _CHECK_DEFAULTS[name], f"{name}: {why}", given[name])
+    need(
         payoffs != "interval",
         "payoffs: interval is not supported yet on a multi-target design",
         payoffs,
     )
-    _need(
+    need(
         not any(s.faults for s in specs),
         "specs: faults with a multi-target design are not supported yet",
         [s.path for s in specs if s.faults],
@@ -474,16 +494,16 @@ def export_model(
 
     model, path, spec, roles = _export_arguments(model, path, spec, prop, strict, roles, max_nodes)
     ok = isinstance(model, ArrayModel | MultiModel)
-    _need(ok, "model must be a model (lesmc.load_model, lesmc.build)", model)
-    _need(fmt in formats.names(), f"format: {formats.spelled()}", fmt)
+    need(ok, "model must be a model (lesmc.load_model, lesmc.build)", model)
+    need(fmt in formats.names(), f"format: {formats.spelled()}", fmt)
     if isinstance(model, MultiModel):
         formats.refuse_multi(formats.get(fmt))
-    _format_takes(formats.get(fmt), spec, prop, strict, roles, max_nodes)
-    _need(spec is None or isinstance(spec, SpecFile), "spec must be a SpecFile or None", spec)
+    format_takes(formats.get(fmt), spec, prop, strict, roles, max_nodes)
+    need(spec is None or isinstance(spec, SpecFile), "spec must be a SpecFile or None", spec)
     ok = roles is None or (
         isinstance(roles, dict) and all(isinstance(v, list) for v in roles.values())
     )
-    _need(ok, "roles must map role names to lists of model rows", roles)
+    need(ok, "roles must map role names to lists of model rows", roles)
     request = Request(spec, prop, strict, roles, max_nodes)
     return {"export_format": fmt} | formats.get(fmt).write(model, path, request)
 
@@ -503,9 +523,9 @@ def perceive(
     req = (
         request
         if isinstance(request, PerceiveRequest)
-        else PerceiveRequest(_path(request, "request", "or a PerceiveRequest"))
+        else PerceiveRequest(file_path(request, "request", "or a PerceiveRequest"))
     )
-    _need(on_frame is None or callable(on_frame), "on_frame must be None or callable", on_frame)
+    need(on_frame is None or callable(on_frame), "on_frame must be None or callable", on_frame)
     refuse_mismatched(req)
     return perceive_frames(req, open_inputs(req), on_frame)
 
@@ -519,8 +539,8 @@ def verify(
     from lesmc.experiment.experiment import Request
     from lesmc.experiment.experiment import verify as run_verify
 
-    _need(isinstance(request, Request), "request must be a lesmc.VerifyRequest", request)
-    _need(
+    need(isinstance(request, Request), "request must be a lesmc.VerifyRequest", request)
+    need(
         reporter is None or isinstance(reporter, Reporter),
         "reporter must be None or a lesmc.common.progress.Reporter",
         reporter,
@@ -544,188 +564,26 @@ def __getattr__(name: str) -> Any:
     raise AttributeError(f"module 'lesmc.api' has no attribute {name!r}")
 
 
-# ------------------------------------------------------------------ arguments
-
-
-def _need(ok: bool, what: str, got: Any) -> None:
-    """A UsageError naming the argument's rule and the value given, unless ``ok``."""
-    if not ok:
-        shown = repr(got)
-        raise UsageError(f"{what}; got {shown if len(shown) <= 60 else shown[:57] + '...'}")
-
-
-def _path(value: Any, name: str, alternative: str = "", read: bool = True) -> str:
-    """A file argument as a string: a str or an ``os.PathLike`` (not bytes, not an open
-    file), neither empty nor holding a NUL; ``alternative`` says what else the argument
-    may be. A file to write (not ``read``) must not be a directory."""
-    ok = isinstance(value, str) or (
-        isinstance(value, os.PathLike) and isinstance(os.fspath(value), str)
-    )
-    more = f" {alternative}" if alternative else ""
-    _need(ok, f"{name} must be a file path (a str or a pathlib.Path){more}", value)
-    text = str(os.fspath(value))
-    _need(text != "", f"{name} must be a file path, not an empty string", value)
-    _need("\0" not in text, f"{name} must be a file path without a NUL character", value)
-    if not read:  # a file to read that is missing or a directory: InputError at the file
-        _need(not os.path.isdir(text), f"{name} must be a file to write, not a directory", value)
-    return text
-
-
-def _specs(specs: Any, name: str = "specs") -> tuple[SpecFile, ...]:
-    """``specs``: one spec file or a list of them, each parsed or a path (read now);
-    ``name``: the argument's, for messages."""
-    rule = f"{name} must be a spec file (a SpecFile or its path) or a non-empty list of them"
-    one = isinstance(specs, SpecFile | str | os.PathLike)
-    _need(one or (isinstance(specs, Sequence) and not isinstance(specs, bytes)), rule, specs)
-    given = (specs,) if one else tuple(specs)
-    _need(bool(given), rule, specs)
-    out = []
-    for s in given:
-        if isinstance(s, SpecFile):
-            out.append(s)
-        else:
-            _need(isinstance(s, str | os.PathLike), rule, s)
-            out.append(load_spec(_path(s, name)))
-    return tuple(out)
-
-
-def _designs(designs: Any) -> tuple[str, ...]:
-    """``designs``: a ``--design`` choice (a design, a set, ``all``) or a list of designs."""
-    if isinstance(designs, str):
-        _need(
-            designs in registry.choices(),
-            f"designs must be one of {', '.join(registry.choices())} or a list of designs",
-            designs,
-        )
-        return registry.expand(designs)
-    chosen = _items(designs, "designs")
-    _check_designs(chosen)
-    return chosen
-
-
-def _window(window: Any) -> tuple[int, int]:
-    """An attack window from ``"L..U"``, ``(L, U)`` or ``range(L, U + 1)``."""
-    if isinstance(window, str):
-        return parse_window(window, "window")
-    if isinstance(window, range):
-        ok = window.step == 1 and len(window) > 0
-        _need(ok, "window must be a non-empty range of step 1 (range(6, 9) is 6..8)", window)
-        window = (window.start, window[-1])
-    _need(
-        _steps(window, 2) and window[0] <= window[1],
-        'window must be "L..U", (L, U) or range(L, U + 1) with 0 <= L <= U',
-        window,
-    )
-    return int(window[0]), int(window[1])
-
-
-def _items(values: Any, name: str) -> tuple[Any, ...]:
-    """A sequence argument as a tuple; one string is refused (it would iterate by letter)."""
-    ok = not isinstance(values, (str, bytes)) and isinstance(values, Sequence | set | frozenset)
-    _need(ok, f"{name} must be a list or tuple (not one string)", values)
-    return tuple(values)
-
-
-def _steps(values: Any, n: int) -> bool:
-    """``values`` is ``n`` integer steps in 0..MAX_STEP (booleans are not integers here)."""
-    return (
-        isinstance(values, Sequence)
-        and len(values) == n
-        and all(type(v) is int and 0 <= v <= MAX_STEP for v in values)
-    )
-
-
-def _check_limits(timeout: Any, max_states: Any) -> None:
-    good_t = timeout is None or (is_finite(timeout) and timeout > 0)
-    _need(good_t, "timeout must be None or a finite number of seconds > 0", timeout)
-    good_n = max_states is None or (is_int(max_states) and max_states > 0)
-    _need(good_n, "max_states must be None or an integer > 0", max_states)
-
-
-def _check_designs(designs: tuple[Any, ...]) -> None:
-    known = registry.names()
-    bad = [d for d in designs if not (isinstance(d, str) and d in known)]
-    _need(
-        not bad,
-        f"designs are names among {', '.join(known)} (or one of "
-        f"{', '.join((*registry.SETS, 'all'))})",
-        bad[0] if bad else None,
-    )
-
-
 def _export_arguments(
     model: Any, path: Any, spec: Any, prop: Any, strict: Any, roles: Any, max_nodes: Any
 ) -> tuple[ArrayModel | MultiModel, str, SpecFile | None, dict[str, list[int]] | None]:
     """Check :func:`export_model`'s arguments; the model and spec (read when given as
     paths) and the roles as model rows (a CheckResult's paths looked up)."""
-    where = _path(path, "path", read=False)
+    where = file_path(path, "path", read=False)
     inputs = {"model": model, "spec": spec}
     for name, given in inputs.items():
         if isinstance(given, str | os.PathLike) and Path(given).resolve() == Path(where).resolve():
-            _need(False, f"path and {name} name the same file (writing would destroy it)", path)
+            need(False, f"path and {name} name the same file (writing would destroy it)", path)
     if not isinstance(model, ArrayModel | MultiModel):
-        model = load_model(_path(model, "model", "or a model (lesmc.load_model)"))
+        model = load_model(file_path(model, "model", "or a model (lesmc.load_model)"))
     if spec is not None:
         one = isinstance(spec, SpecFile | str | os.PathLike)
-        spec = _specs(spec, "spec")[0] if one else spec
-    _need(prop is None or isinstance(prop, str), "property must be None or a name", prop)
-    _need(isinstance(strict, bool), "strict must be True or False", strict)
+        spec = spec_files(spec, "spec")[0] if one else spec
+    need(prop is None or isinstance(prop, str), "property must be None or a name", prop)
+    need(isinstance(strict, bool), "strict must be True or False", strict)
     good_n = max_nodes is None or (is_int(max_nodes) and max_nodes >= 1)
-    _need(good_n, "max_nodes must be None or an integer >= 1", max_nodes)
+    need(good_n, "max_nodes must be None or an integer >= 1", max_nodes)
     if isinstance(model, MultiModel):
-        _need(roles is None, "roles: a multi-target model's paths are not marked", roles)
+        need(roles is None, "roles: a multi-target model's paths are not marked", roles)
         return model, where, spec, None
-    return model, where, spec, _roles(model, roles)
-
-
-def _format_takes(
-    fmt: ExportFormat, spec: Any, prop: Any, strict: Any, roles: Any, max_nodes: Any
-) -> None:
-    """Arguments that format ``fmt`` would ignore are errors, as ``lesmc export`` refuses
-    the options (the one rule: :func:`lesmc.exporters.formats.refused`)."""
-    from lesmc.exporters import formats
-
-    values = {"spec": spec, "property": prop, "strict": strict or None, "paths": roles}
-    values["max_nodes"] = max_nodes
-    given = {k: v is not None for k, v in values.items()}
-    spelling = {k: k for k in values} | {"paths": "roles", "format": "format"}
-    why = formats.refused(fmt, given, spelling)
-    if why is not None:
-        _need(False, why[1], values[why[0]])
-
-
-def _roles(model: ArrayModel, roles: Any) -> dict[str, list[int]] | None:
-    """The paths to mark: a CheckResult's counterexample and witness (and the unattacked
-    path), or role names mapped to model rows, each consecutive pair a transition."""
-    from lesmc.exporters.graphs import ROLE_STYLE
-
-    if roles is None:
-        return None
-    if isinstance(roles, CheckResult):
-        out = {"original": [int(q) for q in model.original]}
-        for role in ("witness", "counterexample"):
-            path = getattr(roles, role)
-            if path is None:
-                continue
-            missing = [s for s in path.states if s not in model.state_ids()]
-            _need(
-                not missing,
-                f"roles: the {role}'s states are not this model's (a result of another model?)",
-                missing[:3],
-            )
-            out[role] = [model.index(s) for s in path.states]
-        return out
-    _need(isinstance(roles, dict), "roles must be a CheckResult or map role names to rows", roles)
-    bad = [k for k in roles if k not in ROLE_STYLE]
-    _need(not bad, f"roles are named {', '.join(ROLE_STYLE)}", bad[:3])
-    for name, rows in roles.items():
-        ok = isinstance(rows, list | tuple) and all(
-            is_int(q) and 0 <= q < model.n_states for q in rows
-        )
-        _need(ok, f"roles[{name!r}] must be a list of model rows 0..{model.n_states - 1}", rows)
-        for a, b in itertools.pairwise(rows):
-            try:
-                model.edge(a, b)
-            except KeyError:
-                _need(False, f"roles[{name!r}]: rows {a} -> {b} are not a transition", rows)
-    return {k: list(v) for k, v in roles.items()}
+    return model, where, spec, marked_paths(model, roles)

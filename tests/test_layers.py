@@ -52,13 +52,14 @@ LAYERS: dict[str, set[str]] = {
         "unfold", "designs", "engines", "language", "perception", "pipeline", "report",
         "results", "scene", "tracking", "experiment", "video",
     },
+    "api_checks": {"designs", "engines", "exporters", "language", "model"},
     "api": {
-        "unfold", "designs", "engines", "exporters", "language", "model", "pipeline", "results",
-        "scene", "tracking", "experiment",
+        "api_checks", "unfold", "designs", "engines", "exporters", "language", "model",
+        "pipeline", "results", "scene", "tracking", "experiment",
     },
     "cli": {
-        "api", "unfold", "campaign", "designs", "engines", "exporters", "language", "model",
-        "perception",
+        "api", "api_checks", "unfold", "campaign", "designs", "engines", "exporters", "language",
+        "model", "perception",
         "pipeline", "replay", "report", "results", "scene", "tracking", "experiment", "video",
     },
     "__main__": {"cli"},

@@ -144,8 +144,8 @@ def test_a_bad_sweep_is_refused(sweep: str, words: str) -> None:
 def test_the_report_plots_each_swept_optimum_and_where_the_verdict_flips(tmp_path: Path) -> None:
     """``--sweep ... --report``: one figure per design whose curve holds each variant's
     optimum and verdict from results.json, with a flip between the values whose verdicts
-    differ (lesmc.report.html._sweep_curves read against the document itself)."""
-    from lesmc.report.html import _sweep_curves
+    differ (lesmc.report.design_section.sweep_curves read against the document itself)."""
+    from lesmc.report.design_section import sweep_curves as _sweep_curves
     from lesmc.results.read import results_of
 
     out = tmp_path / "rep"

@@ -20,6 +20,10 @@ READERS = (
     "lesmc/replay/case.py",
     "lesmc/replay/run.py",
     "lesmc/report/html.py",
+    "lesmc/report/run_view.py",
+    "lesmc/report/document_tables.py",
+    "lesmc/report/design_section.py",
+    "lesmc/report/attack_images.py",
 )
 
 

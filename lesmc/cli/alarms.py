@@ -12,6 +12,7 @@ from lesmc.cli.documents import emit
 from lesmc.cli.options import RegistryChoice, load_scene_file, tracker_option, video_truth_option
 from lesmc.common.errors import UsageError
 from lesmc.designs import registry
+from lesmc.language import monitors
 
 if TYPE_CHECKING:
     from lesmc.experiment.false_alarms import TruthStart
@@ -34,9 +35,8 @@ if TYPE_CHECKING:
     nargs=2,
     default=None,
     metavar="KIND PARAM",
-    help="The monitor: tau_rise TOLERANCE, nis QUANTILE, misses K or trace BOUND "
-    "(lesmc/language/monitors.py) [default: the tracker's monitor, else tau_rise 1e-9, "
-    "the paper's Eq. 13].",
+    help=f"The monitor: {monitors.spelled()} (lesmc/language/monitors.py) [default: the "
+    "tracker's monitor, else tau_rise 1e-9, the paper's Eq. 13].",
 )
 @click.option(
     "--window",

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import sys
 import time
+from collections.abc import Iterable
 from dataclasses import replace
 from typing import TYPE_CHECKING, Any
 
@@ -305,8 +306,15 @@ def _inputs(
     return parsed, source, is_scene
 
 
-#: ``check``'s options the multi-target search does not read (lesmc/cli/multi_check.py).
-_MULTI_IGNORED = ("engine", "timeout", "no_paths", "max_memory")
+#: ``check``'s options of the command line alone that the multi-target search does not read
+#: (lesmc/cli/multi_check.py); those the API has too are lesmc/pipeline/multi.py's
+#: ``DESIGN_IGNORES`` and ``MODEL_IGNORES``.
+_MULTI_CLI_IGNORED = ("no_paths", "max_memory")
+
+
+def _given_flags(names: Iterable[str]) -> list[str]:
+    """The options among ``names`` (Python names) given on the command line, as spelled there."""
+    return [f"--{n.replace('_', '-')}" for n in names if given(n)]
 
 
 def _check_multi(source: Any, parsed: tuple[SpecFile, ...], is_scene: bool) -> None:
@@ -315,6 +323,7 @@ def _check_multi(source: Any, parsed: tuple[SpecFile, ...], is_scene: bool) -> N
     lesmc/report/multi.py draws its results); sweeps and faults are not supported for it
     yet. Nothing happens otherwise."""
     from lesmc.model.multi_format import is_multi
+    from lesmc.pipeline.multi import DESIGN_IGNORES
 
     p = click.get_current_context().params
     design = p["design"]
@@ -328,7 +337,7 @@ def _check_multi(source: Any, parsed: tuple[SpecFile, ...], is_scene: bool) -> N
         )
     if p["payoffs"] == "interval":
         raise UsageError("--payoffs interval with a multi-target design: not supported yet")
-    ignored = [f"--{n.replace('_', '-')}" for n in _MULTI_IGNORED if given(n)]
+    ignored = _given_flags((*DESIGN_IGNORES, *_MULTI_CLI_IGNORED))
     if ignored:  # options that would be ignored are errors
         raise UsageError(
             f"{', '.join(ignored)} with a multi-target design: not supported yet (its exact "
@@ -347,13 +356,13 @@ def _check_multi_model(model: Any, parsed: tuple[SpecFile, ...], p: dict[str, An
     """A built multi-target model (lesmc build --design sort|gnn): checked by
     lesmc/cli/multi_check.py, which exits; the options its check does not read are
     refused."""
+    from lesmc.pipeline.multi import MODEL_IGNORES
+
     if p["sweep_texts"] or p["faults_file"] or p["report_dir"] or any(s.faults for s in parsed):
         raise UsageError(
             "--sweep, --report and faults with a multi-target model: not supported yet (issue 58)"
         )
-    ignored = [f"--{n.replace('_', '-')}" for n in (*_MULTI_IGNORED, "max_states") if given(n)]
-    if given("payoffs"):  # a model's payoffs are built in
-        ignored.append("--payoffs")
+    ignored = _given_flags((*MODEL_IGNORES, *_MULTI_CLI_IGNORED))
     if ignored:
         raise UsageError(
             f"{', '.join(ignored)} with a multi-target model: not supported yet (its exact "

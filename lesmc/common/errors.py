@@ -50,6 +50,13 @@ def clipped(text: str, limit: int = 40) -> str:
     return escape_control(text if len(text) <= limit else text[: limit - 3] + "...")
 
 
+def exception_line(exc: BaseException) -> str:
+    """An exception's message as one line of a user's error (a library's, torch's for one,
+    may run to many lines)."""
+    lines = str(exc).strip().splitlines()
+    return clipped(f"{type(exc).__name__}: {lines[0] if lines else ''}", 300)
+
+
 def escape_text(text: str) -> str:
     """``text`` made safe to print through rich: no markup, no control characters.
 

@@ -146,6 +146,13 @@ def implementations() -> tuple[str, ...]:
     return tuple(d.implementation for d in _DESIGNS.values() if d.implementation is not None)
 
 
+def docs_table() -> str:
+    """The table of docs/cli.md (the designs ``--design`` accepts), from the registry."""
+    rows = ["| design | label in tables | what it is |", "| --- | --- | --- |"]
+    rows += [f"| `{d.name}` | {d.label} | {d.summary} |" for d in _DESIGNS.values()]
+    return "\n".join(rows)
+
+
 tracker(
     "single",
     "lesmc.tracking.single:SingleDesign",

@@ -115,6 +115,13 @@ def get(name: str) -> MonitorKind:
     return _KINDS[name]
 
 
+def spelled() -> str:
+    """The kinds with their parameter, as ``--help`` lists them: ``tau_rise TOLERANCE, ...
+    or trace BOUND``."""
+    words = [f"{k.name} {k.parameter.upper()}" for k in _KINDS.values()]
+    return words[0] if len(words) == 1 else ", ".join(words[:-1]) + " or " + words[-1]
+
+
 #: The longest window (and ``misses`` run) a monitor may read: a scene's last step.
 MAX_WINDOW = 10**6
 

@@ -23,6 +23,7 @@ import numpy as np
 from lesmc.common.errors import ModelError, Problems
 from lesmc.common.fields import MAX_STEP, header, is_int, show
 from lesmc.common.files import atomic_open
+from lesmc.language import actions
 from lesmc.model.arrays import ArrayModel
 from lesmc.model.identity import NONE
 from lesmc.model.lts_binary import (
@@ -66,7 +67,6 @@ _HEADER_KEYS = {"format", "version", "end", "window", "target", "frames", "names
 _HEADER_KEYS |= {"meta"}
 #: What ``meta`` holds (MultiModel.meta), each checked on reading.
 META_KEYS = ("design", "tracker", "reference", "radius", "actions", "last_step", "unpriced")
-_ACTIONS = ("hide", "inject")
 
 
 def is_multi(model: object) -> bool:
@@ -270,10 +270,13 @@ def _meta(meta: Any, end: int, pr: Problems, names: list[list[str]] | None = Non
     if not (
         isinstance(acts, list)
         and acts
-        and all(a in _ACTIONS for a in acts)
+        and all(a in actions.names() for a in acts)
         and len(set(acts)) == len(acts)
     ):
-        pr.add("header.meta.actions", f"must be a non-empty list of hide, inject, got {show(acts)}")
+        pr.add(
+            "header.meta.actions",
+            f"must be a non-empty list of {', '.join(actions.names())}, got {show(acts)}",
+        )
     last = meta["last_step"]
     if not (is_int(last) and end <= last <= MAX_STEP):
         pr.add("header.meta.last_step", f"must be the scene's last step (>= end = {end})")

@@ -35,7 +35,7 @@ from typing import Any
 import torch
 from torch import nn
 
-from lesmc.common.errors import InputError, Location, clipped
+from lesmc.common.errors import InputError, Location, clipped, exception_line
 from lesmc.perception.chain import Chain, Conv, Dense, margin_of
 
 
@@ -171,7 +171,7 @@ def answer(net: UserNet, x: torch.Tensor, role: str) -> Any:
         raise
     except Exception as exc:
         raise InputError(
-            f"the {role} fails on a batch of {len(x)} inputs: {_first_line(exc)}",
+            f"the {role} fails on a batch of {len(x)} inputs: {exception_line(exc)}",
             Location(net.path),
         ) from None
 
@@ -185,12 +185,6 @@ def refuse_nonfinite_answer(net: UserNet, y: torch.Tensor, role: str) -> None:
             f"{PROBE_BATCH} random inputs)",
             Location(net.path),
         )
-
-
-def _first_line(exc: BaseException) -> str:
-    """An exception's message as one line of a user's error (torch's run to many)."""
-    lines = str(exc).strip().splitlines()
-    return clipped(f"{type(exc).__name__}: {lines[0] if lines else ''}", 300)
 
 
 def refuse_nonfinite(tensors: Iterable[tuple[str, torch.Tensor]], path: str) -> None:
@@ -262,7 +256,9 @@ def load_pt2(path: str) -> Any:
         raise InputError(f"cannot read the exported program ({exc})", Location(path)) from None
 
 
-def _from_pt2(path: str) -> UserNet:
+def from_pt2(path: str) -> UserNet:
+    """A ``.pt2`` file (``torch.export``) as a :class:`UserNet`: its module and its ops for
+    the certified bounds (lesmc/perception/network_file.py opens a file by its suffix)."""
     ep = load_pt2(path)
     sig = ep.graph_signature
     if len(sig.user_inputs) != 1:
@@ -304,7 +300,7 @@ class _Frozen(nn.Module):
             out: torch.Tensor = self.inner(x)
         except Exception as exc:  # the exported program's guards and shape errors
             raise InputError(
-                f"the network fails on inputs of shape {tuple(x.shape)}: {_first_line(exc)}",
+                f"the network fails on inputs of shape {tuple(x.shape)}: {exception_line(exc)}",
                 Location(self.path),
             ) from None
         return out
@@ -368,7 +364,7 @@ def _fx_op(name: str, target: str, args: list[Any], tensors: dict[str, torch.Ten
         b = t(2)
         if (len(args) > 5 and ints(5, [1, 1]) != [1, 1]) or (len(args) > 6 and args[6] != 1):
             raise Unsupported(name, target, " with dilation or groups")
-        return _conv(name, target, w, b, ints(3, [1, 1]), ints(4, [0, 0]))
+        return conv_op(name, target, w, b, ints(3, [1, 1]), ints(4, [0, 0]))
     if target == "linear.default":
         w, b = t(1), t(2)
         assert w is not None
@@ -386,11 +382,11 @@ def _fx_op(name: str, target: str, args: list[Any], tensors: dict[str, torch.Ten
         c = t(1)
         if c is None:
             raise Unsupported(name, target, " with a non-constant operand")
-        return _arith(name, target, target.split(".")[0], c)
+        return arith_op(name, target, target.split(".")[0], c)
     if target in ("_native_batch_norm_legit_no_training.default", "batch_norm.default"):
-        return _batchnorm(name, target, t(1), t(2), t(3), t(4), float(args[-1]))
+        return batchnorm_op(name, target, t(1), t(2), t(3), t(4), float(args[-1]))
     if target == "avg_pool2d.default":
-        return _avgpool(name, target, ints(1, [1, 1]), ints(2, ints(1, [1, 1])), ints(3, [0, 0]))
+        return avgpool_op(name, target, ints(1, [1, 1]), ints(2, ints(1, [1, 1])), ints(3, [0, 0]))
     if target == "getitem" or target.endswith("getitem"):
         return Op("identity", name, target)
     if target in ("contiguous.default", "clone.default"):  # a copy, perhaps in another layout
@@ -398,17 +394,20 @@ def _fx_op(name: str, target: str, args: list[Any], tensors: dict[str, torch.Ten
     raise Unsupported(name, target.split(".")[0])
 
 
-def _conv(
+def conv_op(
     name: str, op: str, w: torch.Tensor, b: torch.Tensor | None, stride: list[int], pad: list[int]
 ) -> Op:
+    """A convolution's op (square kernel, stride and padding only; no bias: zeros), as
+    both readers (``.pt2`` here, ``.onnx`` in onnx_graph.py) build it."""
     if w.shape[2] != w.shape[3] or stride[0] != stride[1] or pad[0] != pad[1]:
         raise Unsupported(name, op, " with non-square kernels, strides or padding")
     bias = b if b is not None else torch.zeros(w.shape[0])
     return Op("conv", name, op, {"weight": w, "bias": bias, "stride": stride[0], "padding": pad[0]})
 
 
-def _arith(name: str, op: str, how: str, c: torch.Tensor) -> Op:
-    """x + c, x − c, x·c or x / c: an affine op (whether c fits is checked when folding)."""
+def arith_op(name: str, op: str, how: str, c: torch.Tensor) -> Op:
+    """x + c, x − c, x·c or x / c: an affine op (whether c fits is checked when folding);
+    both readers build it."""
     c = c.float()
     one, zero = torch.ones_like(c), torch.zeros_like(c)
     scale, shift = {
@@ -420,7 +419,9 @@ def _arith(name: str, op: str, how: str, c: torch.Tensor) -> Op:
     return Op("affine", name, op, {"scale": scale, "shift": shift})
 
 
-def _batchnorm(name: str, op: str, gamma: Any, beta: Any, mean: Any, var: Any, eps: float) -> Op:
+def batchnorm_op(name: str, op: str, gamma: Any, beta: Any, mean: Any, var: Any, eps: float) -> Op:
+    """An inference batch norm as the affine op it is (running statistics needed; no
+    ``gamma``/``beta``: 1/0), as both readers build it."""
     if mean is None or var is None:
         raise Unsupported(name, op, " without running statistics")
     g = gamma if gamma is not None else torch.ones_like(mean)
@@ -434,7 +435,8 @@ def _batchnorm(name: str, op: str, gamma: Any, beta: Any, mean: Any, var: Any, e
     )
 
 
-def _avgpool(name: str, op: str, k: list[int], s: list[int], pad: list[int]) -> Op:
+def avgpool_op(name: str, op: str, k: list[int], s: list[int], pad: list[int]) -> Op:
+    """An average pool's op (square kernel and stride, no padding), as both readers build it."""
     if k[0] != k[1] or s[0] != s[1] or pad != [0, 0]:
         raise Unsupported(name, op, " with non-square kernels or padding")
     return Op("avgpool", name, op, {"kernel": k[0], "stride": s[0]})
@@ -453,7 +455,7 @@ def chain_of_ops(ops: list[Op], in_shape: tuple[int, int, int], t: float) -> Any
     convolution of its own, composed with the layer before it, or with the next
     one when it follows a ReLU.
     """
-    built = _Layers(channels=in_shape[0], hw=in_shape[1])
+    built = Layers(channels=in_shape[0], hw=in_shape[1])
     for i, op in enumerate(ops):
         if op.kind == "center" and i != 0:
             raise Unsupported(op.node, op.op, " (mean subtraction only first)")
@@ -481,9 +483,10 @@ def chain_of_ops(ops: list[Op], in_shape: tuple[int, int, int], t: float) -> Any
 
 
 @dataclass
-class _Layers:
+class Layers:
     """The chain's layers as ops arrive: linear ops wait in ``pending`` for the next layer
-    when no layer without its ReLU precedes them (:func:`chain_of_ops`)."""
+    when no layer without its ReLU precedes them (:func:`chain_of_ops`; heatmap_crop.py
+    builds a crop's chain with it too)."""
 
     channels: int
     hw: int

@@ -26,7 +26,7 @@ from torch.nn import functional as F
 
 from lesmc.perception.chain import Chain, Conv, Dense
 from lesmc.perception.detector_file import LoadedDetector
-from lesmc.perception.graphs import Unsupported, _Layers
+from lesmc.perception.graphs import Layers, Unsupported
 
 #: Crop cells and whole-frame cells agree to this (relative to the map's largest value).
 SAME_CELLS = 1e-4
@@ -84,7 +84,7 @@ def conv_net(det: LoadedDetector) -> ConvNet:
     does not fit (a flatten, a linear layer, a missing ReLU, an input mean subtracted
     over the whole frame, a total stride other than the detector file's)."""
     ops = det.net.certifiable_ops()
-    built = _Layers(channels=det.net.in_shape[0], hw=det.height)
+    built = Layers(channels=det.net.in_shape[0], hw=det.height)
     for op in ops:
         if op.kind in ("center", "flatten", "linear"):
             raise Unsupported(op.node, op.op, " in a fully convolutional heatmap network")

@@ -7,8 +7,8 @@ from __future__ import annotations
 from pathlib import Path
 
 from lesmc.common.errors import InputError, Location
-from lesmc.perception.graphs import UserNet, _from_pt2
-from lesmc.perception.onnx_graph import _from_onnx
+from lesmc.perception.graphs import UserNet, from_pt2
+from lesmc.perception.onnx_graph import from_onnx
 
 
 def load_network(path: str | Path) -> UserNet:
@@ -17,9 +17,9 @@ def load_network(path: str | Path) -> UserNet:
     if not Path(p).is_file():
         raise InputError("no such network file", Location(p))
     if p.endswith(".pt2"):
-        return _from_pt2(p)
+        return from_pt2(p)
     if p.endswith(".onnx"):
-        return _from_onnx(p)
+        return from_onnx(p)
     raise InputError(
         "a network file must be a torch.export archive (.pt2) or ONNX (.onnx)", Location(p)
     )

@@ -18,18 +18,17 @@ import torch
 from torch import nn
 from torch.nn import functional as F
 
-from lesmc.common.errors import InputError, Location, UsageError, clipped
+from lesmc.common.errors import InputError, Location, UsageError, clipped, exception_line
 from lesmc.perception.graphs import (
     ANY_SIZE,
     DYNAMIC_BATCH,
     Op,
     Unsupported,
     UserNet,
-    _arith,
-    _avgpool,
-    _batchnorm,
-    _conv,
-    _first_line,
+    arith_op,
+    avgpool_op,
+    batchnorm_op,
+    conv_op,
     refuse_nonfinite,
 )
 
@@ -100,7 +99,7 @@ class OnnxNet(nn.Module):
                 shapes = ", ".join(str(tuple(i.shape)) for i in ins if i is not None)
                 raise InputError(
                     f"node '{clipped(n.name or n.output[0], 80)}' ({n.op_type}) fails on "
-                    f"inputs of shapes {shapes}: {_first_line(exc)}",
+                    f"inputs of shapes {shapes}: {exception_line(exc)}",
                     Location(self.path),
                 ) from None
         return env[self.output]
@@ -230,7 +229,9 @@ _ONNX_RUN: dict[str, Callable[[Any, list[Any], dict[str, Any]], Any]] = {
 ONNX_OPS = ("Constant", *sorted(_ONNX_RUN))
 
 
-def _from_onnx(path: str) -> UserNet:
+def from_onnx(path: str) -> UserNet:
+    """An ``.onnx`` file as a :class:`~lesmc.perception.graphs.UserNet`: run by
+    :class:`OnnxNet`, read as ops for the certified bounds (network_file.py opens it)."""
     onnx = _onnx()
     try:
         model = onnx.load(path, load_external_data=False)
@@ -309,7 +310,7 @@ def _onnx_op(name: str, op: str, c: list[torch.Tensor | None], at: dict[str, Any
             raise Unsupported(name, op, " with groups or dilations")
         if len(set(pads)) != 1:
             raise Unsupported(name, op, " with uneven padding")
-        return _conv(
+        return conv_op(
             name,
             op,
             w,
@@ -338,12 +339,12 @@ def _onnx_op(name: str, op: str, c: list[torch.Tensor | None], at: dict[str, Any
         k = c[1] if c[1] is not None else c[0]
         if k is None or (op in ("Sub", "Div") and c[1] is None):
             raise Unsupported(name, op, " with a non-constant operand")
-        return _arith(name, op, op.lower(), k)
+        return arith_op(name, op, op.lower(), k)
     if op == "BatchNormalization":
-        return _batchnorm(name, op, c[1], c[2], c[3], c[4], float(at.get("epsilon", 1e-5)))
+        return batchnorm_op(name, op, c[1], c[2], c[3], c[4], float(at.get("epsilon", 1e-5)))
     if op == "AveragePool":
         pads = at.get("pads", [0, 0, 0, 0])
-        return _avgpool(
+        return avgpool_op(
             name,
             op,
             list(at["kernel_shape"]),

@@ -101,6 +101,25 @@ class MultiCheckResult:
         }
 
 
+#: The check arguments the exact search of a multi-target design does not read, each with
+#: why (``lesmc.check``'s names; ``lesmc check`` spells them ``--engine``, ``--timeout``):
+#: refused when given, by the API (lesmc/api.py) and the command line (lesmc/cli/check.py).
+DESIGN_IGNORES: dict[str, str] = {
+    "engine": "a multi-target design has one search",
+    "timeout": "a multi-target design is bounded by max_states",
+}
+
+#: The check arguments the search of a built multi-target model does not read (its one
+#: search, on the model as built, with the payoffs it was built with), each with why:
+#: refused when given, by the API and the command line alike.
+MODEL_IGNORES: dict[str, str] = {
+    "engine": "a multi-target model has one search",
+    "timeout": "a multi-target model's search has none",
+    "payoffs": "a model's are built in",
+    "max_states": "a built multi-target model is searched whole",
+}
+
+
 def check_multi_design(
     scene: Scene,
     path: str,

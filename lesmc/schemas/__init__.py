@@ -23,7 +23,7 @@ from lesmc.designs import registry
 from lesmc.engines import payoff_modes
 from lesmc.engines import registry as engines
 from lesmc.exporters import formats
-from lesmc.language import measures
+from lesmc.language import actions, measures
 
 #: format name of each document -> its schema file (without .json)
 SCHEMAS = {
@@ -56,16 +56,17 @@ def _text(name: str) -> str:
 def schema(name: str) -> dict[str, Any]:
     """The schema ``lesmc/schemas/NAME.json``, with the registries' names.
 
-    The enums of registered names are not spelled in the files: ``#/$defs/designs``
-    (every registered design), ``#/$defs/trackers`` (the designs that bring a
-    tracker) and ``#/$defs/multi_designs`` (the multi-target designs) are filled
-    from lesmc/designs/registry.py now, ``#/$defs/engines`` from
-    lesmc/engines/registry.py, ``#/$defs/payoff_modes`` from
-    lesmc/engines/payoff_modes.py, ``#/$defs/export_formats`` from
-    lesmc/exporters/formats.py and ``#/$defs/measure_sources`` (a property's
-    ``objective_source``, ``constraint_source``) from lesmc/language/measures/, so
-    that a variant registered at run time is accepted too; in the export document,
-    so are the MDP facts each property-stating format writes under its name.
+    The enums of registered names are not spelled in the files; they are filled from
+    the registries now, so that a variant registered at run time is accepted too:
+    ``#/$defs/designs`` (every registered design), ``#/$defs/trackers`` (the designs
+    that bring a tracker) and ``#/$defs/multi_designs`` (the multi-target designs) from
+    lesmc/designs/registry.py, ``#/$defs/engines`` from lesmc/engines/registry.py,
+    ``#/$defs/payoff_modes`` from lesmc/engines/payoff_modes.py,
+    ``#/$defs/export_formats`` from lesmc/exporters/formats.py (and, in the export
+    document, the MDP facts each property-stating format writes under its name),
+    ``#/$defs/measure_sources`` (a property's ``objective_source``,
+    ``constraint_source``) from lesmc/language/measures/ and ``#/$defs/attack_actions``
+    from lesmc/language/actions.py.
     """
     out: dict[str, Any] = json.loads(_text(name))
     defs = out.setdefault("$defs", {})
@@ -76,6 +77,7 @@ def schema(name: str) -> dict[str, Any]:
     defs["payoff_modes"] = {"enum": list(payoff_modes.names())}
     defs["export_formats"] = {"enum": list(formats.names())}
     defs["measure_sources"] = {"enum": list(measures.sources())}
+    defs["attack_actions"] = {"enum": list(actions.names())}
     if name == "export":  # a property's MDP: its size, under the format's name
         for fmt in formats.where(lambda f: f.states_property):
             out["properties"][fmt] = {"$ref": "#/$defs/mdp"}
