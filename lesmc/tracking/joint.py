@@ -1,58 +1,33 @@
 """Design "joint": joint Kalman filters around the target (paper section 7.2).
 
-A joint state holds the primary track, the refining tracks of nearby vehicles
-and the unassociated detections of the previous frame (candidates to start
-tracks). The design is a composition of parts (:class:`JointParts`,
-docs/trackers.md "Parts"); one step:
+A joint state holds the primary track, the refining tracks of nearby vehicles and the
+unassociated detections of the previous frame (candidates to start tracks). The design is a
+composition of parts (:class:`JointParts`, docs/trackers.md "Parts"); one step:
 
-1. carry every position into the new frame (homography) and predict every track
-   (the predictor: lesmc/tracking/kalman.py);
-2. score every gated (track, detection) pair by the likelihood N(z; Hx̂, S), sort
-   from the largest (ties: lower track, then lower detection), and associate
-   greedily one-to-one (the hypothesiser ``GateHypothesiser``, the data associator
-   ``GreedyAssociator``);
+1. carry every position into the new frame (homography) and predict every track (the
+   predictor: lesmc/tracking/kalman.py);
+2. score every gated (track, detection) pair by the likelihood N(z; Hx̂, S), sort from the
+   largest (ties: lower track, then lower detection), and associate greedily one-to-one
+   (the hypothesiser ``GateHypothesiser``, the data associator ``GreedyAssociator``);
 3. update the associated tracks (the others skip the update);
-4. an unassociated detection within ``init_radius`` of the primary starts a
-   refining track if a previous unassociated detection lies within
-   ``init_distance`` (their difference over dt is its velocity; detections in
-   index order, each with the nearest remaining previous one); otherwise it is
-   kept for the next step (the initiator ``NearTargetInitiator``);
-5. refining tracks farther than ``prune_radius`` from the primary, or whose
-   trace(P) exceeds ``max_trace``, are dropped (the deleters ``DistanceDeleter``,
-   ``TraceDeleter``).
+4. an unassociated detection within ``init_radius`` of the primary starts a refining track
+   if a previous unassociated detection lies within ``init_distance`` (their difference
+   over dt is its velocity; detections in index order, each with the nearest remaining
+   previous one); otherwise it is kept for the next step (``NearTargetInitiator``);
+5. refining tracks farther than ``prune_radius`` from the primary, or whose trace(P)
+   exceeds ``max_trace``, are dropped (the deleters ``DistanceDeleter``, ``TraceDeleter``).
 
-Attacks (docs/scene-format.md#joint-design): the attacker hides the detections
-nearest to the primary's prediction, as for the single design: option j hides
-the j nearest (up to the last one the primary's gate accepts) and costs their
-payoffs (the attacker's options part, lesmc/tracking/parts/attacker.py:
-``hiding_options``, ``visible``, ``ranks_and_payoffs``). The hidden detections are
-gone for every track. Outcomes that leave the whole joint state identical are
-merged (the cheapest kept). Under ``allow hide, inject`` each hiding option is combined
-with every subset of the frame's injection candidates (docs/semantics.md, "Injection on
-the joint design"; :meth:`JointDesign._expand_injected`).
+Attacks (docs/scene-format.md#joint-design): the attacker hides the detections nearest to
+the primary's prediction, as for the single design: option j hides the j nearest (up to the
+last one the primary's gate accepts) and costs their payoffs (the attacker's options part,
+lesmc/tracking/parts/attacker.py). The hidden detections are gone for every track. Outcomes
+that leave the whole joint state identical are merged (the cheapest kept). Under ``allow
+hide, inject`` each hiding option is combined with every subset of the frame's injection
+candidates (docs/semantics.md, "Injection on the joint design"; :meth:`_expand_injected`).
 
-Speed: a batch of joint states travels as padded arrays (:class:`JointStates`,
-lesmc/tracking/parts/joint_states.py),
-and a whole batch is expanded with array operations, in chunks that bound the
-(rows × (tracks + detections)) temporaries. What derives from a track's
-covariance is computed once per distinct P (tracking/design.py's
-:class:`~lesmc.tracking.design.Gains` over the design's table of track
-covariances). The states of a batch share most of their tracks (on the dense
-benchmark scene about 40 slots per distinct track), so a track's prediction,
-gated detections, likelihoods (``math.exp``, as the per-state loop) and updated
-means are computed once per distinct track and (track, detection) pair; a
-state's pairs are those of its tracks, each with its place in the scan
-(likelihood rank, track, detection). Its options become rows; the greedy
-association runs on all rows at once, in rounds (every pair that is first among
-the remaining pairs of both its track and its detection is taken, then the
-spent tracks' and detections' pairs go), and so do track initiation (one round
-per candidate detection) and pruning (a mask). The next states' tracks are rows
-of one table of the step's possible tracks; they keep those ids
-(:class:`TrackTable`) and 128-bit hashes, so the next step neither hashes their
-means nor searches for the distinct ones. Outside the window only option 0 is
-built, plus as many further options as its own payoff needs.
-tests/joint_oracle.py is an independent oracle written from the paper
-(filterpy filters, one path at a time); tests/test_joint.py compares paths.
+Speed: a batch of joint states travels as padded arrays and is expanded with array
+operations (lesmc/tracking/parts/joint_states.py says how). tests/joint_oracle.py is an
+independent oracle written from the paper (filterpy filters, one path at a time).
 """
 
 from __future__ import annotations
@@ -61,25 +36,21 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from lesmc.common.errors import BudgetError
 from lesmc.scene import Scene
 from lesmc.tracking.design import Batch, CovarianceTable, Schedule, Successors
 from lesmc.tracking.kalman import Matrices, initial_mean, matrices, positions
 from lesmc.tracking.parts.associator import GreedyAssociator
 from lesmc.tracking.parts.attacker import ranks_and_payoffs, visible
-from lesmc.tracking.parts.attacker_subsets import injected_subsets, subset_cost
+from lesmc.tracking.parts.attacker_subsets import (
+    injected_subsets,
+    subset_cost,
+    within_inject_budget,
+)
 from lesmc.tracking.parts.deleter import DistanceDeleter, TraceDeleter
 from lesmc.tracking.parts.groups import starts, within
 from lesmc.tracking.parts.hypothesiser import GateHypothesiser
 from lesmc.tracking.parts.initiator import NearTargetInitiator, still_pending
-from lesmc.tracking.parts.joint_digest import hash_tracks
-from lesmc.tracking.parts.joint_states import (
-    JointStates,
-    TrackTable,
-    concat,
-    digest,
-    same_as,
-)
+from lesmc.tracking.parts.joint_states import JointStates, TrackTable, concat, digest, same_as
 from lesmc.tracking.parts.joint_step import (
     JointParts,
     Prepared,
@@ -87,13 +58,11 @@ from lesmc.tracking.parts.joint_step import (
     option_one_differs,
     prepare,
     primary_nis,
+    track_table,
 )
 
 #: (states × (tracks + detections)) cells of one chunk: bounds the temporaries of an expansion.
 CHUNK_CELLS = 1 << 20
-#: (states × candidate subsets) one attacked step under inject may build at most: past it
-#: the step is a BudgetError (exit 3) before any subset is listed, not a memory blow-up
-MAX_INJECT_ROWS = 1 << 20
 
 
 @dataclass
@@ -112,17 +81,6 @@ class _Expanded:
     #: it injects (its place in ``injected_subsets``); None: unattacked
     opt: np.ndarray | None = None
     subset: np.ndarray | None = None
-
-
-def _within_inject_budget(states: int, candidates: int, step: int) -> None:
-    """A BudgetError unless ``states`` joint states × every subset of ``candidates``
-    injection candidates fit in :data:`MAX_INJECT_ROWS` (checked before listing any)."""
-    if candidates >= 64 or states << candidates > MAX_INJECT_ROWS:
-        raise BudgetError(
-            f"frame {step}: the joint design under inject would build {states} state(s) × "
-            f"2^{candidates} subsets of the frame's injection candidates (more than "
-            f"{MAX_INJECT_ROWS:,}); offer fewer candidates a frame (perceive --inject-cap N)"
-        )
 
 
 class JointDesign:
@@ -282,7 +240,7 @@ class JointDesign:
         hiding option × each subset of the frame's candidates (candidate j: detection n + j),
         equal joint states merged at the cheapest, ranked by cost (docs/semantics.md)."""
         frame = self.scene.frame(step)
-        _within_inject_budget(len(js), len(frame.candidates), step)
+        within_inject_budget(len(js), len(frame.candidates), step)
         p = prepare(self.scene, self.schedule, self.parts, self.m.pos, js, step, True, self.hide)
         nd, cpay = len(frame.detections), frame.injectable.payoffs()
         zero = np.zeros(len(js), dtype=np.int64)
@@ -419,7 +377,7 @@ class JointDesign:
         # the tracks of the next states as rows of one table: the children, a row of
         # zeros (padding), the new tracks
         M = len(p.child_X)
-        table_X, table_cov, table_h = self._track_table(p, mz, v)
+        table_X, table_cov, table_h = track_table(p, self.m, self._p0, mz, v)
         at = np.full((R, W), M, dtype=np.int64)
         at[:, :T] = child
         keep = np.zeros((R, W), dtype=bool)
@@ -440,22 +398,3 @@ class JointDesign:
             tid=at,
             table=TrackTable(table_X, table_cov, M),
         )
-
-    def _track_table(
-        self, p: Prepared, mz: np.ndarray, v: np.ndarray
-    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """Means, covariance indices and hashes of the children, a padding row, then new tracks.
-
-        A new track starts at position ``mz`` with velocity ``v`` and covariance P0.
-        """
-        new_X = np.zeros((mz.shape[0], self.m.dim))
-        new_X[:, list(self.m.pos)] = mz
-        if self.m.vel is not None:
-            new_X[:, list(self.m.vel)] = v
-        new_cov = np.full(mz.shape[0], self._p0, dtype=np.int64)
-        table_X = np.concatenate([p.child_X, np.zeros((1, self.m.dim)), new_X])
-        table_cov = np.concatenate([p.child_cov, np.zeros(1, dtype=np.int64), new_cov])
-        table_h = np.concatenate(
-            [p.child_h, np.zeros((1, 2), dtype=np.uint64), hash_tracks(new_X, new_cov)]
-        )
-        return table_X, table_cov, table_h

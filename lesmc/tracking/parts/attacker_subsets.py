@@ -21,7 +21,23 @@ from collections.abc import Iterator
 
 import numpy as np
 
+from lesmc.common.errors import BudgetError
 from lesmc.scene import Frame
+
+#: (states × candidate subsets) one attacked step under inject may build at most: past it
+#: the step is a BudgetError (exit 3) before any subset is listed, not a memory blow-up
+MAX_INJECT_ROWS = 1 << 20
+
+
+def within_inject_budget(states: int, candidates: int, step: int) -> None:
+    """A BudgetError unless ``states`` joint states × every subset of ``candidates``
+    injection candidates fit in :data:`MAX_INJECT_ROWS` (checked before listing any)."""
+    if candidates >= 64 or states << candidates > MAX_INJECT_ROWS:
+        raise BudgetError(
+            f"frame {step}: the joint design under inject would build {states} state(s) × "
+            f"2^{candidates} subsets of the frame's injection candidates (more than "
+            f"{MAX_INJECT_ROWS:,}); offer fewer candidates a frame (perceive --inject-cap N)"
+        )
 
 
 def attackable(frame: Frame, ref: np.ndarray | None, radius: float | None) -> np.ndarray:

@@ -16,6 +16,7 @@ import numpy as np
 from lesmc.scene import Scene
 from lesmc.tracking.design import GainRows, Schedule
 from lesmc.tracking.kalman import (
+    Matrices,
     mahalanobis2,
     measure,
     positions,
@@ -260,3 +261,24 @@ def first_of_equals(states: JointStates, s: np.ndarray) -> np.ndarray:
     kept = np.zeros(len(s), dtype=bool)
     kept[o[head]] = True
     return kept
+
+
+def track_table(
+    p: Prepared, m: Matrices, p0: int, mz: np.ndarray, v: np.ndarray
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Means, covariance indices and hashes of the children, a padding row, then new tracks.
+
+    A new track starts at position ``mz`` with velocity ``v`` and covariance ``p0`` (its
+    index in the design's covariance table).
+    """
+    new_X = np.zeros((mz.shape[0], m.dim))
+    new_X[:, list(m.pos)] = mz
+    if m.vel is not None:
+        new_X[:, list(m.vel)] = v
+    new_cov = np.full(mz.shape[0], p0, dtype=np.int64)
+    table_X = np.concatenate([p.child_X, np.zeros((1, m.dim)), new_X])
+    table_cov = np.concatenate([p.child_cov, np.zeros(1, dtype=np.int64), new_cov])
+    table_h = np.concatenate(
+        [p.child_h, np.zeros((1, 2), dtype=np.uint64), hash_tracks(new_X, new_cov)]
+    )
+    return table_X, table_cov, table_h
