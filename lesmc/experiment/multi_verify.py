@@ -31,7 +31,7 @@ from lesmc.pipeline.multi import (
     check_multi_design,
     multi_document,
 )
-from lesmc.scene import Scene, scene_to_dict
+from lesmc.scene import Scene, scene_to_dict, target_to_dict
 
 if TYPE_CHECKING:
     from lesmc.common.progress import Bar
@@ -112,6 +112,7 @@ def verify_multi(req: Request, rep: Reporter) -> MultiOutcome:
     meta = {
         **src.meta,
         "target": ex._target_text(scene),
+        "scene_target": target_to_dict(scene.target),  # what lesmc replay places on meta.scene
         "properties": [str(p.resolve()) for p in paths],
         "window": None if req.window is None else list(req.window),
     }
@@ -236,7 +237,6 @@ def replay_document(
     from lesmc.experiment import experiment as ex
     from lesmc.perception.cnn import load_nets
     from lesmc.perception.detector_file import is_detector_file
-    from lesmc.scene.io import load_scene
     from lesmc.video.reader import open_frames
 
     if nets[1] is not None and is_detector_file(nets[1]):
@@ -244,7 +244,7 @@ def replay_document(
             f"--detector {nets[1]}: a multi-target design's counterexamples replay through the "
             "window pipeline's networks (--nets, --detector, --locator) only, so far"
         )
-    scene = load_scene(scene_path).with_tracker(design=doc["design"])
+    scene = _placed_scene(meta, scene_path, doc["design"])
     window = meta.get("window")
     props = [Path(p) for p in meta.get("properties") or ()] or identity_specs()
     specs = ex.load_specs(props, None if window is None else (int(window[0]), int(window[1])))
@@ -256,6 +256,27 @@ def replay_document(
         doc, scene, scene_path, bound, frames, load_nets(*nets), prop, bar.advance, path=path
     )
     return outcome, frames_dir
+
+
+def _placed_scene(meta: dict[str, Any], scene_path: str, design: str) -> Scene:
+    """The scene file ``scene_path`` with the target the check placed on it
+    (``meta.scene_target``, as ``verify --scene S --target X,Y@K`` recorded it; else the
+    file's own target) and the results' ``design``."""
+    from lesmc.common.errors import InputError
+    from lesmc.common.files import read_json
+    from lesmc.tracking.targets import footage_or_scene
+
+    data = read_json(Path(scene_path), InputError)
+    placed = meta.get("scene_target")
+    if isinstance(placed, dict) and isinstance(data, dict):
+        data = {**data, "target": placed}
+    scene = footage_or_scene(data, scene_path, None, design)
+    if not isinstance(scene, Scene):
+        raise UsageError(
+            f"{scene_path} has no target and the results record none (meta.scene_target): "
+            "make them again with this lesmc's verify to replay them"
+        )
+    return scene
 
 
 def _scene_of(meta: dict[str, Any], path: str) -> str:
