@@ -75,6 +75,18 @@ def multi_designs(designs: tuple[str, ...]) -> tuple[str, ...]:
     return multi
 
 
+def refuse_point_options(design: str, payoffs: str, given: tuple[str, ...] = ()) -> None:
+    """A multi-target design is checked on attack payoffs only (``lesmc verify`` and
+    ``lesmc campaign``): ``--payoffs certified|interval`` and the point designs' options
+    ``given`` (verify's ``--faults``, ``--space``) are a UsageError before any work."""
+    used = [*given, *([f"--payoffs {payoffs}"] if payoffs != "attack" else [])]
+    if used:
+        raise UsageError(
+            f"--design {design}: {', '.join(used)} apply to the point designs; a "
+            "multi-target design is checked on attack payoffs"
+        )
+
+
 def verify_multi(req: Request, rep: Reporter) -> MultiOutcome:
     """Run the experiment of ``req`` (one multi-target design) and write its report."""
     from lesmc.experiment import detector_verify as dv
@@ -85,16 +97,13 @@ def verify_multi(req: Request, rep: Reporter) -> MultiOutcome:
     (design,) = req.designs
     paths = [Path(s) for s in req.specs] or identity_specs()
     specs = ex.load_specs(paths, req.window)
-    if req.faults is not None or req.space is not None or req.payoffs != "attack":
-        raise UsageError(
-            f"--design {design}: --faults, --space and --payoffs certified|interval apply to "
-            "the point designs; a multi-target design is checked on attack payoffs"
-        )
+    given = (("--faults", req.faults), ("--space", req.space))
+    refuse_point_options(design, req.payoffs, tuple(o for o, v in given if v is not None))
     detector = dv.detector_file_of(req.nets)
     if detector is not None:  # docs/detectors.md
         dv.refuse_window_options(req.nets, False, req.inject is not None)
         if req.scene_path is None:
-            _refuse_points_for_boxes(detector, design)
+            refuse_points_for_boxes(detector, design)
     if req.scene_path is not None:
         src = ex._scene_file(req)
     else:  # every detection priced up front: the multi-target check reads payoffs directly
@@ -128,7 +137,7 @@ def verify_multi(req: Request, rep: Reporter) -> MultiOutcome:
     return MultiOutcome(results, doc, report)
 
 
-def _refuse_points_for_boxes(detector: str, design: str) -> None:
+def refuse_points_for_boxes(detector: str, design: str) -> None:
     """A heatmap detector file that declares no ``box`` gives points: a design that reads a
     box on every detection (SORT's IoU) is refused before the video is perceived."""
     from lesmc.perception.detector_file import read_detector_file
