@@ -82,8 +82,8 @@ def refuse_point_options(design: str, payoffs: str, given: tuple[str, ...] = ())
     used = [*given, *([f"--payoffs {payoffs}"] if payoffs != "attack" else [])]
     if used:
         raise UsageError(
-            f"--design {design}: {', '.join(used)} apply to the point designs; a "
-            "multi-target design is checked on attack payoffs"
+            f"--design {design}: {', '.join(used)} {'apply' if len(used) > 1 else 'applies'} "
+            "to the point designs; a multi-target design is checked on attack payoffs"
         )
 
 
