@@ -229,7 +229,8 @@ def replay_document(
 ) -> tuple[Outcome, str]:
     """``lesmc replay`` of a ``lesmc-multi-check`` document ``doc`` (read from ``path``, as
     ``lesmc verify --design sort|gnn`` wrote it): its scene (``meta.scene``, else the
-    scene.json beside it), its properties (``meta.properties``, moved to ``meta.window``),
+    scene.json beside it) with the target the check placed (``meta.scene_target``), its
+    properties (``meta.properties``, moved to ``meta.window``),
     the frames (``frames_dir``, else ``meta.video``) and the networks; the replays and
     the frames' directory."""
     from lesmc.replay.multi import known_property, multi_cases, replay_multi
