@@ -79,13 +79,13 @@ def multi_tracker(name: str, impl: str, label: str, summary: str) -> Design:
     return register(Design(name, label, summary, name, False, impl, multi=True))
 
 
-def not_yet(name: str, what: str = "a campaign") -> str:
+def not_yet(name: str, what: str) -> str:
     """What a verb says of multi-target design ``name`` when it needs ``what``, which the
     multi-target designs do not support yet."""
     return (
-        f"design '{name}' is a multi-target tracker: `lesmc track`, `lesmc build`, `lesmc "
-        "check` (a scene or its built model), `lesmc export --format drn|prism` and `lesmc "
-        f"verify` take it; {what} is not supported yet (issue 58)"
+        f"design '{name}' is a multi-target tracker: `lesmc track`, `build`, `check`, "
+        "`export --format drn|prism`, `verify`, `replay` and `campaign` take it; "
+        f"{what} is not supported yet (docs/trackers.md)"
     )
 
 

@@ -40,7 +40,7 @@ def make_tracker(
     design = registry.get(scene.tracker.design)
     if design.multi:
         raise UsageError(
-            registry.not_yet(design.name, "this single-target step (campaign, replay, alarms)")
+            registry.not_yet(design.name, "this single-target step (e.g. `lesmc alarms`)")
         )
     cls = tracker_class(design.name)
     if not inject and hide:
