@@ -36,11 +36,13 @@ import math
 import time
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, replace
+from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 from lesmc.common.errors import InputError, Location, UsageError
+from lesmc.common.files import json_location, read_text
 from lesmc.engines.multi import check_multi, measure_values
 from lesmc.model.identity import NONE, last_seen
 from lesmc.model.kernel import COMPARE
@@ -106,7 +108,7 @@ def multi_cases(
                 f"property {res['property']} of the results is in none of the property files "
                 "the results name (meta.properties): give the files they were checked with"
             )
-        out.append(MultiCase(j, b, tuple(steps), _hidden(scene, steps, Location(path), j)))
+        out.append(MultiCase(j, b, tuple(steps), _hidden(scene, steps, path, j)))
     return out
 
 
@@ -119,27 +121,35 @@ def known_property(doc: Mapping[str, Any], prop: str | None) -> None:
         )
 
 
-def _hidden(
-    scene: Scene, steps: list[dict[str, Any]], where: Location, j: int
-) -> tuple[Hidden, ...]:
+def _hidden(scene: Scene, steps: list[dict[str, Any]], path: str, j: int) -> tuple[Hidden, ...]:
     """The detections the steps of result ``j`` hide, each with its step, frame, position
     and payoff as the scene gives them (a hidden id the scene's frame lacks: an input
-    error located in the results file ``where``)."""
+    error at its ``FILE:LINE:COL`` in the results file ``path``)."""
     out = []
     for i, s in enumerate(steps):
         k = int(s["step"])
         frame = scene.frames[k] if 0 <= k < len(scene.frames) else None
         by_id = {} if frame is None else {d.id: d for d in frame.detections}
-        for obs in s["hidden"]:
+        for m, obs in enumerate(s["hidden"]):
             d = by_id.get(obs)
             if d is None or frame is None:
+                item = f"results[{j}].counterexample[{i}].hidden[{m}]"
                 raise InputError(
-                    f"detection '{obs}' is not in the scene's frame {s['frame']}: the "
+                    f"{item}: detection '{obs}' is not in the scene's frame {s['frame']}: the "
                     "results were not made from this scene",
-                    replace(where, item=f"results[{j}].counterexample[{i}].hidden"),
+                    results_location(path, item),
                 )
             out.append(Hidden(k, frame.step, obs, d.x, d.y, d.payoff))
     return tuple(out)
+
+
+def results_location(path: str, item: str) -> Location:
+    """The ``FILE:LINE:COL`` of JSON item ``item`` in the results file ``path``
+    (:func:`lesmc.common.files.json_location`); ``FILE: item`` when ``path`` is no file
+    (results not written yet, as ``lesmc verify`` replays them)."""
+    if not Path(path).is_file():
+        return Location(path, item=item)
+    return json_location(path, read_text(path), item)
 
 
 def _hidden_by_frame(todo: list[MultiCase]) -> dict[int, list[tuple[int, Hidden]]]:
