@@ -99,3 +99,128 @@ def test_a_hidden_id_the_scene_lacks_is_located_at_its_line(tmp_path: Path) -> N
     assert f"{odd}:{line}:{col}: results[0].counterexample[1].hidden[1]: detection '1:99'" in (
         r.stderr
     ), r.stderr
+
+
+def _perturbation_problems(record: dict[str, object]) -> list[str]:
+    """Where ``record`` breaks the replay schema's ``perturbation`` (empty: it conforms)."""
+    from lesmc.schemas import errors, schema
+
+    sch = schema("replay")
+    return errors(record, sch["$defs"]["perturbation"], sch)
+
+
+def test_a_hidden_detection_of_infinite_payoff_is_recorded_as_inf() -> None:
+    """The window pipeline's perturbation record (replay/perturbed.py), built by the one
+    function all four places call: an infinite recorded payoff is written "inf" (the
+    schema's number), not a float JSON cannot hold (review 21, item 3)."""
+    from lesmc.perception.cnn import DR_SIZE
+    from lesmc.replay.perturbed import perturbation
+    from lesmc.results.read import HiddenDoc
+
+    h = HiddenDoc(step=3, frame=7, obs="7:1", x=10.0, y=20.0, payoff=math.inf)
+    fd = SimpleNamespace(index=7, positions=np.array([[0.0, 0.0], [10.25, 20.5]]))
+    delta = np.full((2, 3, 3), 0.1234567891)
+    got = perturbation(h, 1, fd, np.array([10.4, 19.6]), math.inf, False, delta)  # type: ignore[arg-type]
+    assert got["payoff"] == "inf" and got["payoff_recomputed"] == "inf"
+    assert (got["step"], got["frame"], got["obs"], got["x"], got["y"]) == (3, 7, "7:1", 10.25, 20.5)
+    assert got["window_origin"] == [10 - DR_SIZE // 2, 20 - DR_SIZE // 2]
+    assert np.array_equal(np.array(got["delta"]), np.full((2, 3, 3), 0.123457))
+    assert "action" not in got and got["flipped_alone"] is False
+    assert _perturbation_problems(got) == []
+    json.dumps(got, allow_nan=False)  # strict JSON
+
+
+def test_the_perturbation_record_of_an_injected_candidate() -> None:
+    from lesmc.replay.case import perturbation_record
+
+    got = perturbation_record(
+        (2, 5, "5:c0"),
+        (np.float64(1.5), 2),
+        np.array([3, 4]),
+        (0.5, 0.5),
+        True,
+        [[[0.0]]],
+        inject=True,
+    )
+    want = {
+        "step": 2,
+        "frame": 5,
+        "obs": "5:c0",
+        "x": 1.5,
+        "y": 2.0,
+        "window_origin": [3, 4],
+        "payoff": 0.5,
+        "payoff_recomputed": 0.5,
+        "flipped_alone": True,
+        "action": "inject",
+        "delta": [[[0.0]]],
+    }
+    assert got == want and list(got) == list(want)
+    assert all(type(v) is int for v in got["window_origin"])
+    assert _perturbation_problems(got) == []
+
+
+def test_hidden_by_frame_and_group_by_case_serve_both_kinds_of_case() -> None:
+    """One grouping of the hidden detections, by frame and then by case, for the single
+    cases and the multi-target ones (review 21, item 4)."""
+    from lesmc.replay.case import group_by_case, hidden_by_frame
+    from lesmc.results.read import HiddenDoc
+
+    def h(frame: int, obs: str) -> HiddenDoc:
+        return HiddenDoc(frame - 4, frame, obs, 0.0, 0.0, 1.0)
+
+    a, b, c, d = h(5, "5:0"), h(6, "6:1"), h(5, "5:2"), h(6, "6:0")
+    todo = [
+        SimpleNamespace(hidden=[a, b]),
+        SimpleNamespace(hidden=()),
+        SimpleNamespace(hidden=(c, d, h(5, "5:3"))),
+    ]
+    by_frame = hidden_by_frame(todo)  # type: ignore[arg-type]
+    assert by_frame == {5: [(0, a), (2, c), (2, h(5, "5:3"))], 6: [(0, b), (2, d)]}
+    assert group_by_case(list(reversed(by_frame[5]))) == [(0, [a]), (2, [h(5, "5:3"), c])]
+
+
+def _private_imports(path: Path) -> list[str]:
+    """The private names ``path`` takes from other modules: ``from M import _x`` and
+    ``m._x`` on a name it imported."""
+    import ast
+
+    tree = ast.parse(path.read_text())
+    imported, found = set(), []
+    for node in ast.walk(tree):
+        if isinstance(node, ast.ImportFrom | ast.Import):
+            for alias in node.names:
+                name = alias.asname or alias.name.split(".")[0]
+                imported.add(name)
+                if alias.name.rsplit(".", 1)[-1].startswith("_") and alias.name != "__future__":
+                    found.append(f"{path.name}:{node.lineno}: {alias.name}")
+    for node in ast.walk(tree):
+        if (
+            isinstance(node, ast.Attribute)
+            and isinstance(node.value, ast.Name)
+            and node.value.id in imported
+            and node.attr.startswith("_")
+            and not node.attr.startswith("__")
+        ):
+            found.append(f"{path.name}:{node.lineno}: {node.value.id}.{node.attr}")
+    return found
+
+
+def test_no_private_name_crosses_a_module_in_replay() -> None:
+    """lesmc/replay/ uses the other modules' public functions only (review 21, item 5)."""
+    files = sorted((ROOT / "lesmc" / "replay").glob("*.py"))
+    assert len(files) > 5
+    assert [p for f in files for p in _private_imports(f)] == []
+
+
+def test_private_imports_are_found() -> None:
+    """The scan above finds both forms (it can fail)."""
+    import tempfile
+
+    with tempfile.TemporaryDirectory() as tmp:
+        f = Path(tmp) / "m.py"
+        f.write_text(
+            "from lesmc.replay.run import Outcome, _x\n"
+            "import lesmc.engines.multi as em\nem._combine\n"
+        )
+        assert _private_imports(f) == ["m.py:1: _x", "m.py:3: em._combine"]

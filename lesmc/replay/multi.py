@@ -43,13 +43,19 @@ import numpy as np
 
 from lesmc.common.errors import InputError, Location, UsageError
 from lesmc.common.files import json_location, read_text
-from lesmc.engines.multi import check_multi, measure_values
+from lesmc.engines.multi import check_multi, measure_value
 from lesmc.model.identity import NONE, last_seen
 from lesmc.model.kernel import COMPARE
 from lesmc.model.multi import MultiModel
 from lesmc.perception import HISTORY
 from lesmc.replay import run as single
-from lesmc.replay.case import DET_TOL_PX, TRACK_TOL_PX, FrameAttack
+from lesmc.replay.case import (
+    DET_TOL_PX,
+    TRACK_TOL_PX,
+    FrameAttack,
+    group_by_case,
+    hidden_by_frame,
+)
 from lesmc.replay.perturbed import attack_frame
 from lesmc.results.read import HiddenDoc as Hidden
 from lesmc.scene import Detection, Frame, Scene
@@ -152,15 +158,6 @@ def results_location(path: str, item: str) -> Location:
     return json_location(path, read_text(path), item)
 
 
-def _hidden_by_frame(todo: list[MultiCase]) -> dict[int, list[tuple[int, Hidden]]]:
-    """The hidden detections of the cases ``todo``, by frame, each with its case's index."""
-    by_frame: dict[int, list[tuple[int, Hidden]]] = {}
-    for ci, c in enumerate(todo):
-        for h in c.hidden:
-            by_frame.setdefault(h.frame, []).append((ci, h))
-    return by_frame
-
-
 def replay_multi(
     doc: Mapping[str, Any],
     scene: Scene,
@@ -192,15 +189,13 @@ def replay_multi(
     fe = FrontEndConfig(history=HISTORY, blobs=BlobConfig())
     cfg = attack_of(dict(scene.meta), where)
     attacked: list[dict[int, FrameAttack]] = [{} for _ in todo]
-    by_frame = _hidden_by_frame(todo)
+    by_frame = hidden_by_frame(todo)
 
     def attack(det: Any, out: FrontEndOutput, fd: FrameDetections) -> None:
         def one(group: list[Hidden]) -> FrameAttack:
             return attack_frame(nets, det, out, fd, group, cfg)
 
-        for ci, fa in single.shared_attacks(
-            single.group_by_case(by_frame.get(fd.index, [])), one
-        ).items():
+        for ci, fa in single.shared_attacks(group_by_case(by_frame.get(fd.index, [])), one).items():
             attacked[ci][fd.index] = fa
 
     def detector() -> Any:
@@ -357,8 +352,8 @@ def _verdict(
     """The replay object: the property checked on the replayed run (``model``), and its
     target's track ids against the counterexample's."""
     holds = check_multi(model, c.prop).holds
-    value = _value(model, c.prop.constraint, c.prop)
-    objective = _value(model, c.prop.objective, c.prop)
+    value = measure_value(model, c.prop.constraint, c.prop)
+    objective = measure_value(model, c.prop.objective, c.prop)
     ids = [None if t == NONE else int(t) for t in model.tid.tolist()]
     step, reason = _why(c, ids, value, objective, holds)
     fas = [attacked[f] for f in sorted(attacked) if f <= c.steps[-1]["frame"]]
@@ -384,18 +379,6 @@ def _verdict(
         "constraint_value": value if math.isfinite(value) else "inf",
         "objective": objective if math.isfinite(objective) else "inf",
     }
-
-
-def _value(model: MultiModel, m: Any, prop: Any) -> float:
-    """Measure ``m`` of property ``prop`` on the one path of ``model``: the engine's
-    contributions (lesmc/engines/multi.py), summed or maxed as the engine combines them."""
-    from lesmc.engines.multi import _combine
-
-    first, per = measure_values(model, m, prop.components, prop.norm)
-    value, add = float(first), _combine(m)
-    for v in per.tolist():
-        value = add(value, float(v))
-    return value
 
 
 def _why(
