@@ -224,3 +224,13 @@ def test_private_imports_are_found() -> None:
             "import lesmc.engines.multi as em\nem._combine\n"
         )
         assert _private_imports(f) == ["m.py:1: _x", "m.py:3: em._combine"]
+
+
+def test_replay_help_says_a_multi_target_document_refuses_a_detector_file() -> None:
+    """``lesmc replay --help`` no longer promises a detector file's network for every
+    results document (review 21, item 6)."""
+    r = lesmc("replay", "--help", timeout=120)
+    assert r.returncode == 0 and "Traceback" not in r.stderr, r.stderr
+    text = " ".join(r.stdout.split())
+    assert "--detector FILE.toml is refused for them" in text
+    assert "those that inject candidates are not replayed" in text

@@ -12,7 +12,7 @@ constraint (``switches``, ``lost`` or a ``dist`` measure) is met at this cost.
    results were made from must come out where the scene says (else: an input error);
 2. at each attacked frame the attack that priced each hidden detection is run again
    and the perturbations of the frame's hidden detections are applied together
-   (:func:`~lesmc.replay.run.attack_frame`, with its repair), and the frame is detected
+   (:func:`~lesmc.replay.perturbed.attack_frame`, with its repair), and the frame is detected
    again;
 3. the design's production tracker (lesmc/tracking/multi.py, the scene's tracker block)
    runs over the replayed detections, each with the box the scene gives its nearest
@@ -26,8 +26,9 @@ constraint (``switches``, ``lost`` or a ``dist`` measure) is met at this cost.
 ``confirmed``: the replayed run meets the constraint, its cost (or ``dist`` objective)
 violates the property, and its target's track ids are the model's at every step;
 otherwise ``diverged`` at the first step where the ids differ (or the last step), with
-the reason. A counterexample that injects candidates is not replayed (the injection
-replay is the single design's: it stays violated, as the model says).
+the reason. A counterexample that injects candidates is not replayed (injection is
+replayed for the point designs only, ``single``'s and ``joint``'s: lesmc/replay/inject.py,
+lesmc/replay/joint_forcing.py); it stays violated, as the model says.
 """
 
 from __future__ import annotations
@@ -107,7 +108,7 @@ def multi_cases(
         if prop not in (None, res["property"]) or res.get("verdict") != "violated" or not steps:
             continue
         if any(s.get("injected") for s in steps):
-            continue  # injection is replayed for the single design only (lesmc/replay/run.py)
+            continue  # injection is replayed for the point designs only (replay/inject.py)
         b = bound.get(res["property"])
         if b is None:
             raise UsageError(
