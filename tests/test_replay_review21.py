@@ -234,3 +234,17 @@ def test_replay_help_says_a_multi_target_document_refuses_a_detector_file() -> N
     text = " ".join(r.stdout.split())
     assert "--detector FILE.toml is refused for them" in text
     assert "those that inject candidates are not replayed" in text
+
+
+def test_one_function_gives_the_replays_front_end_settings() -> None:
+    """The point designs' replay (recorded settings) and the multi-target one (none
+    recorded: the defaults) take their front end from one function (review 21, item 7)."""
+    from lesmc.perception import HISTORY
+    from lesmc.perception.blobs import BlobConfig
+    from lesmc.replay.run import frontend_settings
+
+    fe = frontend_settings(7, 20)
+    assert (fe.history, fe.blobs.delta_bc) == (7, 20)
+    fe = frontend_settings()
+    assert (fe.history, fe.blobs) == (HISTORY, BlobConfig())
+    assert "frontend_settings()" in (ROOT / "lesmc" / "replay" / "multi.py").read_text()

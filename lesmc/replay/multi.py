@@ -48,7 +48,6 @@ from lesmc.engines.multi import check_multi, measure_value
 from lesmc.model.identity import NONE, last_seen
 from lesmc.model.kernel import COMPARE
 from lesmc.model.multi import MultiModel
-from lesmc.perception import HISTORY
 from lesmc.replay import run as single
 from lesmc.replay.case import (
     DET_TOL_PX,
@@ -178,16 +177,15 @@ def replay_multi(
     (``lesmc verify`` hands over its own), as :func:`lesmc.replay.run.replay` takes them;
     ``path``: the results' file, for errors."""
     from lesmc.perception.attack_settings import attack_of
-    from lesmc.perception.blobs import BlobConfig
     from lesmc.perception.detector import Detector, DetectorConfig
-    from lesmc.perception.frontend import FrontEndConfig
 
     t0 = time.monotonic()
     todo = multi_cases(doc, scene, bound, prop, path)
     if not todo:
         return single.Outcome({}, 0.0)
-    # the front end's settings as verify's perception ran it (replay.run._settings' defaults)
-    fe = FrontEndConfig(history=HISTORY, blobs=BlobConfig())
+    # the front end as verify's perception ran it: a multi-check document records no
+    # perception settings, so the defaults (the point designs' results record theirs)
+    fe = single.frontend_settings()
     cfg = attack_of(dict(scene.meta), where)
     attacked: list[dict[int, FrameAttack]] = [{} for _ in todo]
     by_frame = hidden_by_frame(todo)

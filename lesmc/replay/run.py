@@ -47,6 +47,7 @@ __all__ = [
     "detect_all_frames",
     "detect_attacked_frames",
     "frame_story",
+    "frontend_settings",
     "replay",
     "replay_case",
     "replay_file",
@@ -319,14 +320,24 @@ def _settings(doc: ResultsDoc, history: int, delta_bc: int) -> tuple[FrontEndCon
     """The front end's and the attack's settings, as the results' perception recorded them
     (``history`` and ``delta_bc`` where it did not)."""
     from lesmc.perception.attack_settings import AttackConfig
+
+    perception = doc.perception
+    fe = frontend_settings(
+        history if perception.history is None else perception.history,
+        delta_bc if perception.delta_bc is None else perception.delta_bc,
+    )
+    return fe, AttackConfig(**perception.attack)
+
+
+def frontend_settings(history: int | None = None, delta_bc: int | None = None) -> FrontEndConfig:
+    """The front end's settings a perception ran with: its ``history`` (frames) and its
+    blobs' ``delta_bc`` (grey levels) as recorded, the defaults where not (None:
+    :data:`lesmc.perception.HISTORY`, :class:`~lesmc.perception.blobs.BlobConfig`'s)."""
     from lesmc.perception.blobs import BlobConfig
     from lesmc.perception.frontend import FrontEndConfig
 
-    perception = doc.perception
-    history = int(history if perception.history is None else perception.history)
-    delta_bc = int(delta_bc if perception.delta_bc is None else perception.delta_bc)
-    fe = FrontEndConfig(history=history, blobs=BlobConfig(delta_bc=delta_bc))
-    return fe, AttackConfig(**perception.attack)
+    blobs = BlobConfig() if delta_bc is None else BlobConfig(delta_bc=int(delta_bc))
+    return FrontEndConfig(history=HISTORY if history is None else int(history), blobs=blobs)
 
 
 def detect_all_frames(
