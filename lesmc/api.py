@@ -223,14 +223,19 @@ def save_scene(scene: Scene | Footage, path: PathArg) -> None:
 
 def expand_designs(choice: str, multi: bool = False) -> tuple[str, ...]:
     """The designs a ``--design`` choice names (a design, a set, or ``all``); a
-    multi-target design (``sort``, ``gnn``) only with ``multi`` (``lesmc verify``)."""
+    multi-target design (``sort``, ``gnn``) only with ``multi`` (``lesmc verify`` and
+    ``lesmc campaign`` pass it; a caller of the point designs' functions does not)."""
     need(isinstance(choice, str), "choice must be a design or a set's name", choice)
     if choice not in registry.choices():
         raise UsageError(
             f"unknown design {choice!r}; choose one of {', '.join(registry.choices())}"
         )
     if not multi and choice in registry.names() and registry.get(choice).multi:
-        raise UsageError(f"--design {choice}: {registry.not_yet(choice, 'a campaign')}")
+        raise UsageError(
+            f"--design {choice} is a multi-target design: expand_designs(..., multi=True) "
+            "names it (lesmc verify and lesmc campaign check it; the point designs' "
+            "functions do not)"
+        )
     return registry.expand(choice)
 
 

@@ -111,13 +111,13 @@ def test_sort_with_a_heatmap_file_needs_a_box(made: dict[str, Any]) -> None:
     """verify's refusal of a point detector for a box design: with the box declared it
     passes; without it, it names ``box = [w, h]``."""
     from lesmc.common.errors import UsageError
-    from lesmc.experiment.multi_verify import _refuse_points_for_boxes
+    from lesmc.experiment.multi_verify import refuse_points_for_boxes
 
     d = made["dir"]
-    _refuse_points_for_boxes(str(d / "det.toml"), "sort")
+    refuse_points_for_boxes(str(d / "det.toml"), "sort")
     points = write_toml(d / "points.toml", made["base"])
     with pytest.raises(UsageError, match=re.escape("box = [w, h]")):
-        _refuse_points_for_boxes(str(points), "sort")
+        refuse_points_for_boxes(str(points), "sort")
 
 
 BAD = [

@@ -12,14 +12,12 @@ from typing import Any
 
 from lesmc.campaign.plan import Group, Unit, design_specs
 from lesmc.common.errors import BudgetError
+from lesmc.engines import registry as engines
 from lesmc.language.parser import parse_spec
 from lesmc.language.properties import Property, SpecFile
 from lesmc.pipeline.multi import MultiCheckResult, bound_properties, check_multi_design
 from lesmc.results.document import num
 from lesmc.tracking.targets import place_target
-
-#: The engine a multi-target row names in its ``stats`` (lesmc/engines/multi.py).
-ENGINE = "multi"
 
 
 def run_multi_group(group: Group, footage: Any) -> list[dict[str, Any]]:
@@ -41,7 +39,7 @@ def run_multi_group(group: Group, footage: Any) -> list[dict[str, Any]]:
         try:
             results = check_multi_design(
                 scene.with_tracker(design=design),
-                f"<scene of {group.video}>",
+                group.scene_file or group.video,
                 tuple(moved),
                 tuple(u.prop for u in units),
                 group.max_states,
@@ -80,7 +78,7 @@ def _answer(r: MultiCheckResult | None, prop: Property, seconds: float) -> dict[
     """The check's answer in a row: the exact optimum as both bounds and the constraint's
     value on the counterexample as ``witness_value``; None: the model passed
     ``--max-states`` (``unknown``, nothing known)."""
-    stats = {"engine": ENGINE, "seconds": round(seconds, 6)}
+    stats = {"engine": engines.MULTI, "seconds": round(seconds, 6)}
     if r is None:
         return {
             "verdict": "unknown",

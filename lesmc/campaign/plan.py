@@ -18,6 +18,7 @@ from typing import Any
 from lesmc.common.errors import UsageError, clipped
 from lesmc.common.fields import MAX_STEP
 from lesmc.designs import registry
+from lesmc.language import actions
 from lesmc.language.properties import Property, SpecFile
 from lesmc.pipeline.certify import PROBE_STOPPED
 from lesmc.tracking.targets import TargetSpec
@@ -70,7 +71,21 @@ def property_text(p: Property) -> str:
     return (
         f"{p.name}|window {p.window}|min {p.objective.text()}|s.t. {p.constraint.text()}|"
         f"{p.holds_text()}|end {p.end}|norm {p.norm!r}|on {p.components}|monitor {mon}"
+        f"{_attacker_text(p)}"
     )
+
+
+def _attacker_text(p: Property) -> str:
+    """The attacker's clauses that are not the defaults (``within R``, ``allow ...``,
+    ``inject grid D within R payoff P``), exactly; empty for the paper's attacker, so the
+    keys of properties without them stay those of earlier versions."""
+    out = "" if p.radius is None else f"|within {p.radius!r}"
+    if p.actions != actions.DEFAULT:
+        out += f"|allow {', '.join(sorted(p.actions))}"
+    if p.grid is not None:
+        g = p.grid
+        out += f"|inject grid {g.spacing!r} within {g.radius!r} payoff {g.payoff!r}"
+    return out
 
 
 def unit_key(
@@ -111,6 +126,8 @@ class Group:
     #: certified modes: per probed window (lesmc.campaign.run.widest), how many of the
     #: detections its model can hide carry no certified bound (normally none)
     unbounded: tuple[tuple[tuple[int, int], int], ...] = ()
+    #: the scene file the units read (OUT/scenes/VIDEO.json): where its errors are located
+    scene_file: str = ""
 
     def unbounded_in(self, window: tuple[int, int]) -> int:
         """``unbounded`` for a unit's ``window``: the least over the probed windows holding

@@ -527,6 +527,7 @@ def make_groups(
                             timeout,
                             max_states,
                             payoffs,
+                            scene_file=str(p.scene_path),
                         )
                     )
     groups.sort(key=group_order)

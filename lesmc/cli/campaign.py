@@ -165,7 +165,7 @@ def campaign_cmd(
     out = Path(out_dir)
     count, target_file = _targets_option(targets_text)
     nets = (nets_dir, detector_file, locator_file)
-    _check_detector_file(nets)
+    _check_detector_file(nets, designs if multi else ())
     with _removed_if_empty(out):
         videos = _videos(frames_dirs, out, no_truth)
         listed = _file_targets(target_file, videos)
@@ -177,16 +177,21 @@ def campaign_cmd(
     _finish(rows, out, out_dir, prepared, windows, design, as_json)
 
 
-def _check_detector_file(nets: NetFiles) -> None:
+def _check_detector_file(nets: NetFiles, multi: tuple[str, ...] = ()) -> None:
     """``--detector FILE.toml``: a detector file replaces the window pipeline's networks
-    (--nets and --locator are errors beside it), checked before any video is perceived."""
+    (--nets and --locator are errors beside it), checked before any video is perceived;
+    so is a heatmap file without a box for a multi-target design of ``multi`` that reads
+    boxes (sort), as lesmc verify checks it."""
     from lesmc.experiment.detector_verify import detector_file_of, refuse_window_options
+    from lesmc.experiment.multi_verify import refuse_points_for_boxes
     from lesmc.perception.detector_file import read_detector_file
 
     path = detector_file_of(nets)
     if path is not None:
         refuse_window_options(nets, False)
         read_detector_file(path)
+        for design in multi:
+            refuse_points_for_boxes(path, design)
 
 
 @contextmanager
@@ -258,14 +263,11 @@ def _prepared(
 def _multi(designs: tuple[str, ...], payoffs: str) -> bool:
     """Whether the campaign checks a multi-target design (``--design sort|gnn``: on attack
     payoffs only, as lesmc verify checks one)."""
-    from lesmc.experiment.multi_verify import multi_designs
+    from lesmc.experiment.multi_verify import multi_designs, refuse_point_options
 
     multi = bool(multi_designs(designs))
-    if multi and payoffs != "attack":
-        raise UsageError(
-            f"--design {designs[0]}: --payoffs certified|interval apply to the point designs; "
-            "a multi-target design is checked on attack payoffs"
-        )
+    if multi:
+        refuse_point_options(designs[0], payoffs)
     return multi
 
 

@@ -46,6 +46,9 @@ _ENGINES: dict[str, Engine] = {}
 
 #: The engine of every verb unless told otherwise.
 DEFAULT = "levels"
+#: The multi-target designs' exact engine (lesmc/engines/multi.py): not a registered
+#: engine (no --engine choice), the name a campaign row's ``stats.engine`` gives it.
+MULTI = "multi"
 
 
 def register(engine: Engine) -> Engine:

@@ -31,7 +31,7 @@ from lesmc.pipeline.multi import (
     check_multi_design,
     multi_document,
 )
-from lesmc.scene import Scene, scene_to_dict
+from lesmc.scene import Scene, scene_to_dict, target_to_dict
 
 if TYPE_CHECKING:
     from lesmc.common.progress import Bar
@@ -75,6 +75,18 @@ def multi_designs(designs: tuple[str, ...]) -> tuple[str, ...]:
     return multi
 
 
+def refuse_point_options(design: str, payoffs: str, given: tuple[str, ...] = ()) -> None:
+    """A multi-target design is checked on attack payoffs only (``lesmc verify`` and
+    ``lesmc campaign``): ``--payoffs certified|interval`` and the point designs' options
+    ``given`` (verify's ``--faults``, ``--space``) are a UsageError before any work."""
+    used = [*given, *([f"--payoffs {payoffs}"] if payoffs != "attack" else [])]
+    if used:
+        raise UsageError(
+            f"--design {design}: {', '.join(used)} {'apply' if len(used) > 1 else 'applies'} "
+            "to the point designs; a multi-target design is checked on attack payoffs"
+        )
+
+
 def verify_multi(req: Request, rep: Reporter) -> MultiOutcome:
     """Run the experiment of ``req`` (one multi-target design) and write its report."""
     from lesmc.experiment import detector_verify as dv
@@ -85,16 +97,13 @@ def verify_multi(req: Request, rep: Reporter) -> MultiOutcome:
     (design,) = req.designs
     paths = [Path(s) for s in req.specs] or identity_specs()
     specs = ex.load_specs(paths, req.window)
-    if req.faults is not None or req.space is not None or req.payoffs != "attack":
-        raise UsageError(
-            f"--design {design}: --faults, --space and --payoffs certified|interval apply to "
-            "the point designs; a multi-target design is checked on attack payoffs"
-        )
+    given = (("--faults", req.faults), ("--space", req.space))
+    refuse_point_options(design, req.payoffs, tuple(o for o, v in given if v is not None))
     detector = dv.detector_file_of(req.nets)
     if detector is not None:  # docs/detectors.md
         dv.refuse_window_options(req.nets, False, req.inject is not None)
         if req.scene_path is None:
-            _refuse_points_for_boxes(detector, design)
+            refuse_points_for_boxes(detector, design)
     if req.scene_path is not None:
         src = ex._scene_file(req)
     else:  # every detection priced up front: the multi-target check reads payoffs directly
@@ -112,6 +121,7 @@ def verify_multi(req: Request, rep: Reporter) -> MultiOutcome:
     meta = {
         **src.meta,
         "target": ex._target_text(scene),
+        "scene_target": target_to_dict(scene.target),  # what lesmc replay places on meta.scene
         "properties": [str(p.resolve()) for p in paths],
         "window": None if req.window is None else list(req.window),
     }
@@ -127,7 +137,7 @@ def verify_multi(req: Request, rep: Reporter) -> MultiOutcome:
     return MultiOutcome(results, doc, report)
 
 
-def _refuse_points_for_boxes(detector: str, design: str) -> None:
+def refuse_points_for_boxes(detector: str, design: str) -> None:
     """A heatmap detector file that declares no ``box`` gives points: a design that reads a
     box on every detection (SORT's IoU) is refused before the video is perceived."""
     from lesmc.perception.detector_file import read_detector_file
@@ -219,7 +229,8 @@ def replay_document(
 ) -> tuple[Outcome, str]:
     """``lesmc replay`` of a ``lesmc-multi-check`` document ``doc`` (read from ``path``, as
     ``lesmc verify --design sort|gnn`` wrote it): its scene (``meta.scene``, else the
-    scene.json beside it), its properties (``meta.properties``, moved to ``meta.window``),
+    scene.json beside it) with the target the check placed (``meta.scene_target``), its
+    properties (``meta.properties``, moved to ``meta.window``),
     the frames (``frames_dir``, else ``meta.video``) and the networks; the replays and
     the frames' directory."""
     from lesmc.replay.multi import known_property, multi_cases, replay_multi
@@ -236,7 +247,6 @@ def replay_document(
     from lesmc.experiment import experiment as ex
     from lesmc.perception.cnn import load_nets
     from lesmc.perception.detector_file import is_detector_file
-    from lesmc.scene.io import load_scene
     from lesmc.video.reader import open_frames
 
     if nets[1] is not None and is_detector_file(nets[1]):
@@ -244,7 +254,7 @@ def replay_document(
             f"--detector {nets[1]}: a multi-target design's counterexamples replay through the "
             "window pipeline's networks (--nets, --detector, --locator) only, so far"
         )
-    scene = load_scene(scene_path).with_tracker(design=doc["design"])
+    scene = _placed_scene(meta, scene_path, doc["design"])
     window = meta.get("window")
     props = [Path(p) for p in meta.get("properties") or ()] or identity_specs()
     specs = ex.load_specs(props, None if window is None else (int(window[0]), int(window[1])))
@@ -256,6 +266,27 @@ def replay_document(
         doc, scene, scene_path, bound, frames, load_nets(*nets), prop, bar.advance, path=path
     )
     return outcome, frames_dir
+
+
+def _placed_scene(meta: dict[str, Any], scene_path: str, design: str) -> Scene:
+    """The scene file ``scene_path`` with the target the check placed on it
+    (``meta.scene_target``, as ``verify --scene S --target X,Y@K`` recorded it; else the
+    file's own target) and the results' ``design``."""
+    from lesmc.common.errors import InputError
+    from lesmc.common.files import read_json
+    from lesmc.tracking.targets import footage_or_scene
+
+    data = read_json(Path(scene_path), InputError)
+    placed = meta.get("scene_target")
+    if isinstance(placed, dict) and isinstance(data, dict):
+        data = {**data, "target": placed}
+    scene = footage_or_scene(data, scene_path, None, design)
+    if not isinstance(scene, Scene):
+        raise UsageError(
+            f"{scene_path} has no target and the results record none (meta.scene_target): "
+            "make them again with this lesmc's verify to replay them"
+        )
+    return scene
 
 
 def _scene_of(meta: dict[str, Any], path: str) -> str:

@@ -25,6 +25,7 @@ from lesmc.scene.io import (
     save_scene,
     scene_from_dict,
     scene_to_dict,
+    target_to_dict,
     tracker_from_dict,
 )
 from lesmc.scene.scene import (
@@ -64,5 +65,6 @@ __all__ = [
     "save_scene",
     "scene_from_dict",
     "scene_to_dict",
+    "target_to_dict",
     "tracker_from_dict",
 ]

@@ -870,6 +870,11 @@ def _matrix3(raw: Any) -> np.ndarray | None:
 # ---------------------------------------------------------------- writing
 
 
+def target_to_dict(target: Target) -> dict[str, Any]:
+    """The file form of a scene's target (its ``target`` object: step, start, velocity)."""
+    return {"step": target.step, "start": list(target.start), "velocity": list(target.velocity)}
+
+
 def scene_to_dict(scene: Scene | Footage) -> dict[str, Any]:
     """The file form of a scene (a :class:`Footage` is written without ``target``)."""
     frames = []
@@ -890,11 +895,7 @@ def scene_to_dict(scene: Scene | Footage) -> dict[str, Any]:
         "frames": frames,
     }
     if isinstance(scene, Scene):
-        doc["target"] = {
-            "step": scene.target.step,
-            "start": list(scene.target.start),
-            "velocity": list(scene.target.velocity),
-        }
+        doc["target"] = target_to_dict(scene.target)
     doc["tracker"] = scene.tracker.to_json()
     if scene.truth:
         doc["truth"] = [{"id": t.id, "positions": _truth_json(t)} for t in scene.truth]

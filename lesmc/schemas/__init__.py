@@ -60,7 +60,8 @@ def schema(name: str) -> dict[str, Any]:
     the registries now, so that a variant registered at run time is accepted too:
     ``#/$defs/designs`` (every registered design), ``#/$defs/trackers`` (the designs
     that bring a tracker) and ``#/$defs/multi_designs`` (the multi-target designs) from
-    lesmc/designs/registry.py, ``#/$defs/engines`` from lesmc/engines/registry.py,
+    lesmc/designs/registry.py, ``#/$defs/engines`` and ``#/$defs/multi_engine`` (the
+    multi-target designs' engine) from lesmc/engines/registry.py,
     ``#/$defs/payoff_modes`` from lesmc/engines/payoff_modes.py,
     ``#/$defs/export_formats`` from lesmc/exporters/formats.py (and, in the export
     document, the MDP facts each property-stating format writes under its name),
@@ -74,6 +75,7 @@ def schema(name: str) -> dict[str, Any]:
     defs["trackers"] = {"enum": list(registry.tracker_names())}
     defs["multi_designs"] = {"enum": list(registry.multi_names())}
     defs["engines"] = {"enum": list(engines.names())}
+    defs["multi_engine"] = {"const": engines.MULTI}
     defs["payoff_modes"] = {"enum": list(payoff_modes.names())}
     defs["export_formats"] = {"enum": list(formats.names())}
     defs["measure_sources"] = {"enum": list(measures.sources())}
