@@ -20,8 +20,10 @@ from typing import Any
 import cv2
 import numpy as np
 import pytest
-from cli_run import ROOT, lesmc
+from cli_run import lesmc
 from test_detector_replay import H, W, _network
+
+from lesmc.schemas import schema
 
 pytest.importorskip("onnx")
 ort = pytest.importorskip("onnxruntime")
@@ -94,7 +96,7 @@ def test_injection_replays_confirmed_through_the_file(checked: dict[str, Any]) -
     assert "Traceback" not in r.stderr
     assert r.returncode == 1, r.stderr  # a violation confirmed
     out = json.loads(r.stdout)
-    jsonschema.validate(out, json.loads((ROOT / "lesmc" / "schemas" / "replay.json").read_text()))
+    jsonschema.validate(out, schema("replay"))  # with the registries' $defs (attack_actions)
     (row,) = out["replays"]
     assert row["replay"]["status"] == "confirmed", row["replay"]["reason"]
     perts = row["replay"]["perturbations"]

@@ -57,7 +57,10 @@ def replay_cmd(
     A multi-target design's results (lesmc-multi-check, verify --design sort|gnn):
     the production tracker runs on the replayed detections and the replay is
     confirmed when the property is violated on that run with the model's target
-    track ids (docs/trackers.md, "Replaying a multi-target counterexample").
+    track ids (docs/trackers.md, "Replaying a multi-target counterexample"); they
+    replay through the window pipeline's networks only (a detector file given as
+    --detector FILE.toml is refused for them), and those that inject candidates
+    are not replayed.
     Exit status (the verdicts after the replay, as lesmc check): 0 nothing violated,
     1 some violation confirmed, 2 bad input, 3 some replay diverged (unknown) and
     none confirmed, 4 internal error, 130 interrupted.

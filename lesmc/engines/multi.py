@@ -71,6 +71,17 @@ def _combine(m: BoundMeasure) -> Callable[[float, float], float]:
     return max if m.aggregate == "max" else operator.add
 
 
+def measure_value(model: MultiModel, m: BoundMeasure, prop: BoundProperty) -> float:
+    """Measure ``m`` of property ``prop`` on a model of one path whose transitions are in
+    path order (a replayed run's, lesmc/replay/multi.py): its first value and each
+    transition's contribution, combined as :func:`check_multi` combines them (max or sum)."""
+    first, per = measure_values(model, m, prop.components, prop.norm)
+    value, add = float(first), _combine(m)
+    for v in per.tolist():
+        value = add(value, float(v))
+    return value
+
+
 def check_multi(model: MultiModel, prop: BoundProperty) -> MultiResult:
     """Minimise ``prop``'s objective over the model's paths from step 0 to the end whose
     constraint holds (docs/trackers.md)."""

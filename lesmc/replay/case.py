@@ -4,13 +4,13 @@
 from __future__ import annotations
 
 import math
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, Protocol
 
 import numpy as np
 
-from lesmc.common.errors import UsageError
+from lesmc.common.errors import InputError, Location, UsageError
 from lesmc.results.read import HiddenDoc as Hidden
 from lesmc.results.read import ResultsDoc, RunDoc, number
 from lesmc.scene import Target, tracker_from_dict
@@ -103,6 +103,81 @@ class FrameAttack:
     injected: list[str] = field(default_factory=list)  # candidate ids injected
     not_injected: list[str] = field(default_factory=list)  # injected ids not detected after
     cost: float = 0.0  # the recomputed cost of the frame's attack (allow hide, inject)
+
+
+class Hides(Protocol):
+    """A counterexample that hides detections (a :class:`Case`, a multi-target one)."""
+
+    @property
+    def hidden(self) -> Sequence[Hidden]:
+        """The detections it hides, each with its step and frame."""
+        ...
+
+
+def hidden_by_frame(todo: Sequence[Hides]) -> dict[int, list[tuple[int, Hidden]]]:
+    """Per frame, the detections the cases ``todo`` hide there: (case number, detection)."""
+    out: dict[int, list[tuple[int, Hidden]]] = {}
+    for ci, c in enumerate(todo):
+        for h in c.hidden:
+            out.setdefault(h.frame, []).append((ci, h))
+    return out
+
+
+def group_by_case(items: list[tuple[int, Hidden]]) -> list[tuple[int, list[Hidden]]]:
+    """One frame's hidden detections (``hidden_by_frame``'s list) grouped by case: each
+    case number, in order, with the detections it hides there."""
+    out: dict[int, list[Hidden]] = {}
+    for ci, h in items:
+        out.setdefault(ci, []).append(h)
+    return sorted(out.items())
+
+
+def check_payoff(h: Hidden, rec: float, inputs: str) -> None:
+    """An input error unless ``rec``, the recomputed payoff of hiding ``h``, is the one the
+    results record (within :data:`PAYOFF_RTOL`; an infinite recorded payoff is not
+    compared); ``inputs``: what else the replay reads (networks, a detector file)."""
+    if math.isfinite(h.payoff) and not (
+        math.isfinite(rec) and abs(rec - h.payoff) <= PAYOFF_RTOL * max(h.payoff, 1e-9)
+    ):
+        raise InputError(
+            f"the attack on detection {h.obs} now costs {rec:g}, the results say "
+            f"{h.payoff:g}: the frames, {inputs} or attack settings differ from the run "
+            "that wrote the results",
+            Location("--frames"),
+        )
+
+
+def perturbation_record(
+    at: tuple[int, int, str],
+    position: tuple[float, float],
+    origin: Sequence[int],
+    payoffs: tuple[float, float],
+    flipped: bool,
+    delta: list[Any],
+    inject: bool = False,
+) -> dict[str, Any]:
+    """One perturbation as the replay records it (lesmc/schemas/replay.json,
+    ``perturbation``): ``at`` its step, frame and detection (or candidate) id, the
+    detection's ``position``, the ``origin`` of the window perturbed, the recorded and
+    the recomputed payoff (``"inf"`` for infinity), whether it alone flips the network's
+    decision, the perturbation and, for a candidate injected, ``"action": "inject"``."""
+    step, frame, obs = at
+    payoff, recomputed = payoffs
+    out: dict[str, Any] = {
+        "step": step,
+        "frame": frame,
+        "obs": obs,
+        "x": float(position[0]),
+        "y": float(position[1]),
+        "window_origin": [int(v) for v in origin],
+        "payoff": payoff if math.isfinite(payoff) else "inf",
+        "payoff_recomputed": recomputed if math.isfinite(recomputed) else "inf",
+        "flipped_alone": flipped,
+    }
+    if inject:
+        out["action"] = "inject"
+    out["delta"] = delta
+    return out
 
 
 def cases(doc: ResultsDoc, prop: str | None = None) -> list[Case]:

@@ -36,16 +36,19 @@ import numpy as np
 from lesmc.common.errors import InputError, Location, UsageError
 from lesmc.replay.case import (
     DET_TOL_PX,
-    PAYOFF_RTOL,
     PERTURBATION_DIGITS,
     Case,
     FrameAttack,
     cases,
+    check_payoff,
+    group_by_case,
+    hidden_by_frame,
+    perturbation_record,
 )
 from lesmc.replay.inject import inject_by_frame, single_forcing
 from lesmc.replay.joint_forcing import derive_joint
 from lesmc.replay.perturbed import hidden_indices
-from lesmc.replay.run import Outcome, _check_known, _hidden_by_frame, _replay_case
+from lesmc.replay.run import Outcome, check_known, replay_case
 from lesmc.results.read import HiddenDoc as Hidden
 from lesmc.results.read import ResultsDoc
 
@@ -98,7 +101,7 @@ def replay_with_file(
             f"the frames stop before frame {last + off}, the last step of a counterexample",
             Location("--frames"),
         )
-    by_frame, by_inject = _hidden_by_frame(todo), inject_by_frame(todo)
+    by_frame, by_inject = hidden_by_frame(todo), inject_by_frame(todo)
     attacked: list[dict[int, FrameAttack]] = [{} for _ in todo]
     clean: dict[int, Decoded] = {}
     bar.update(total=last + 1 + len(set(by_frame) | set(by_inject)))
@@ -106,13 +109,10 @@ def replay_with_file(
         clean[i] = _decode(det, frame_input(frames, i + off, det), i)
         bar.advance()
     for c in todo:  # every detection the results name, where they say, before any attack
-        _check_known(c, clean)  # type: ignore[arg-type]  # Decoded has what it reads
+        check_known(c, clean)  # type: ignore[arg-type]  # Decoded has what it reads
     for i in sorted(set(by_frame) | set(by_inject)):
         x = frame_input(frames, i + off, det)
-        per_case: dict[int, list[Hidden]] = {}
-        for ci, h in by_frame.get(i, []):
-            per_case.setdefault(ci, []).append(h)
-        for ci, hidden in per_case.items():
+        for ci, hidden in group_by_case(by_frame.get(i, [])):
             attacked[ci][i] = attack_frame(det, x, clean[i], hidden, cfg)
         for ci, step in by_inject.get(i, []):
             fa = inject_frame(det, x, clean[i], todo[ci], step, cfg)
@@ -120,7 +120,7 @@ def replay_with_file(
                 attacked[ci][i] = fa
         bar.advance()
     replays = {
-        (c.run, c.result): _replay_case(c, clean, attacked[ci])  # type: ignore[arg-type]
+        (c.run, c.result): replay_case(c, clean, attacked[ci])  # type: ignore[arg-type]
         for ci, c in enumerate(todo)
     }
     return Outcome(replays, time.monotonic() - t0)
@@ -220,28 +220,12 @@ def _record(
     """One hidden detection's recomputed attack (the replay schema's perturbation: the
     nonzero crop of the network input, C x h x w, and its origin x, y), refused if its
     payoff differs from the results'."""
-    if math.isfinite(h.payoff) and not (
-        math.isfinite(rec) and abs(rec - h.payoff) <= PAYOFF_RTOL * max(h.payoff, 1e-9)
-    ):
-        raise InputError(
-            f"the attack on detection {h.obs} now costs {rec:g}, the results say "
-            f"{h.payoff:g}: the frames, detector file or attack settings differ from the run "
-            "that wrote the results",
-            Location("--frames"),
-        )
+    check_payoff(h, rec, "detector file")
     origin, crop = _crop(delta)
-    return {
-        "step": h.step,
-        "frame": clean.index,
-        "obs": h.obs,
-        "x": float(clean.positions[j, 0]),
-        "y": float(clean.positions[j, 1]),
-        "window_origin": origin,
-        "payoff": h.payoff,
-        "payoff_recomputed": rec if math.isfinite(rec) else "inf",
-        "flipped_alone": delta is not None,
-        "delta": crop,
-    }
+    pos = (clean.positions[j, 0], clean.positions[j, 1])
+    return perturbation_record(
+        (h.step, clean.index, h.obs), pos, origin, (h.payoff, rec), delta is not None, crop
+    )
 
 
 def _crop(delta: np.ndarray | None) -> tuple[list[int], list[Any]]:
@@ -428,20 +412,15 @@ def _inject(
         fa.injected.append(cid)
         origin, crop = _crop(delta)
         p = _cell_position(det, c)
-        shown: float | str = rec if math.isfinite(rec) else "inf"
         fa.perturbations.append(
-            {
-                "step": fa.step,
-                "frame": clean.index,
-                "obs": cid,
-                "x": float(p[0]),
-                "y": float(p[1]),
-                "window_origin": origin,
-                "payoff": shown,
-                "payoff_recomputed": shown,
-                "flipped_alone": delta is not None,
-                "action": "inject",
-                "delta": crop,
-            }
+            perturbation_record(
+                (fa.step, clean.index, cid),
+                (p[0], p[1]),
+                origin,
+                (rec, rec),
+                delta is not None,
+                crop,
+                inject=True,
+            )
         )
     return cells

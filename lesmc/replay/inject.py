@@ -31,6 +31,7 @@ from lesmc.replay.case import (
     PERTURBATION_DIGITS,
     Case,
     FrameAttack,
+    perturbation_record,
 )
 from lesmc.replay.perturbed import (
     Round,
@@ -225,21 +226,16 @@ def _inject_round(
         rec, ok = float(inj.payoff[r]), bool(inj.flipped[r])
         fa.cost += rec
         fa.injected.append(cid)
-        shown: float | str = rec if math.isfinite(rec) else "inf"
         fa.perturbations.append(
-            {
-                "step": step,
-                "frame": fa.frame,
-                "obs": cid,
-                "x": float(centres[r, 0]),
-                "y": float(centres[r, 1]),
-                "window_origin": [int(v) for v in np.rint(centres[r]).astype(int) - DR_SIZE // 2],
-                "payoff": shown,
-                "payoff_recomputed": shown,
-                "flipped_alone": ok,
-                "action": "inject",
-                "delta": np.round(inj.perturbation[r], PERTURBATION_DIGITS).tolist(),
-            }
+            perturbation_record(
+                (step, fa.frame, cid),
+                (centres[r, 0], centres[r, 1]),
+                np.rint(centres[r]).astype(int) - DR_SIZE // 2,
+                (rec, rec),
+                ok,
+                np.round(inj.perturbation[r], PERTURBATION_DIGITS).tolist(),
+                inject=True,
+            )
         )
     return centres, inj.perturbation
 

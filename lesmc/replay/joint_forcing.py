@@ -24,6 +24,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from lesmc.common.errors import UsageError
+from lesmc.model.kernel import combined_payoffs
 from lesmc.replay.case import Case
 from lesmc.scene import Scene, tracker_from_dict
 
@@ -99,15 +100,13 @@ def joint_forcing(case: Case, scene: Scene) -> tuple[Forced, bool]:
 
 def forcing_costs(succ: Successors) -> np.ndarray:
     """Each outcome's cost of forcing it from its source: the sum of the own payoffs of the
-    same source's lower ranks (Eq. 5)."""
+    same source's lower ranks (Eq. 5, :func:`lesmc.model.kernel.combined_payoffs`)."""
     order = np.lexsort((succ.rank, succ.src))
-    pay = succ.payoff[order]
-    total = np.cumsum(pay) - pay
     src = succ.src[order]
-    head = np.r_[True, src[1:] != src[:-1]] if src.size else np.zeros(0, dtype=bool)
-    first = np.maximum.accumulate(np.where(head, np.arange(src.size), 0))
+    n = int(src.max()) + 1 if src.size else 0
+    ptr = np.r_[0, np.cumsum(np.bincount(src, minlength=n))]
     out = np.empty(src.size)
-    out[order] = total - total[first]
+    out[order] = combined_payoffs(ptr, succ.payoff[order], succ.rank[order])
     return out
 
 

@@ -12,7 +12,7 @@ constraint (``switches``, ``lost`` or a ``dist`` measure) is met at this cost.
    results were made from must come out where the scene says (else: an input error);
 2. at each attacked frame the attack that priced each hidden detection is run again
    and the perturbations of the frame's hidden detections are applied together
-   (:func:`~lesmc.replay.run.attack_frame`, with its repair), and the frame is detected
+   (:func:`~lesmc.replay.perturbed.attack_frame`, with its repair), and the frame is detected
    again;
 3. the design's production tracker (lesmc/tracking/multi.py, the scene's tracker block)
    runs over the replayed detections, each with the box the scene gives its nearest
@@ -26,8 +26,9 @@ constraint (``switches``, ``lost`` or a ``dist`` measure) is met at this cost.
 ``confirmed``: the replayed run meets the constraint, its cost (or ``dist`` objective)
 violates the property, and its target's track ids are the model's at every step;
 otherwise ``diverged`` at the first step where the ids differ (or the last step), with
-the reason. A counterexample that injects candidates is not replayed (the injection
-replay is the single design's: it stays violated, as the model says).
+the reason. A counterexample that injects candidates is not replayed (injection is
+replayed for the point designs only, ``single``'s and ``joint``'s: lesmc/replay/inject.py,
+lesmc/replay/joint_forcing.py); it stays violated, as the model says.
 """
 
 from __future__ import annotations
@@ -36,18 +37,25 @@ import math
 import time
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, replace
+from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 from lesmc.common.errors import InputError, Location, UsageError
-from lesmc.engines.multi import check_multi, measure_values
+from lesmc.common.files import json_location, read_text
+from lesmc.engines.multi import check_multi, measure_value
 from lesmc.model.identity import NONE, last_seen
 from lesmc.model.kernel import COMPARE
 from lesmc.model.multi import MultiModel
-from lesmc.perception import HISTORY
 from lesmc.replay import run as single
-from lesmc.replay.case import DET_TOL_PX, TRACK_TOL_PX, FrameAttack
+from lesmc.replay.case import (
+    DET_TOL_PX,
+    TRACK_TOL_PX,
+    FrameAttack,
+    group_by_case,
+    hidden_by_frame,
+)
 from lesmc.replay.perturbed import attack_frame
 from lesmc.results.read import HiddenDoc as Hidden
 from lesmc.scene import Detection, Frame, Scene
@@ -99,14 +107,14 @@ def multi_cases(
         if prop not in (None, res["property"]) or res.get("verdict") != "violated" or not steps:
             continue
         if any(s.get("injected") for s in steps):
-            continue  # injection is replayed for the single design only (lesmc/replay/run.py)
+            continue  # injection is replayed for the point designs only (replay/inject.py)
         b = bound.get(res["property"])
         if b is None:
             raise UsageError(
                 f"property {res['property']} of the results is in none of the property files "
                 "the results name (meta.properties): give the files they were checked with"
             )
-        out.append(MultiCase(j, b, tuple(steps), _hidden(scene, steps, Location(path), j)))
+        out.append(MultiCase(j, b, tuple(steps), _hidden(scene, steps, path, j)))
     return out
 
 
@@ -119,36 +127,35 @@ def known_property(doc: Mapping[str, Any], prop: str | None) -> None:
         )
 
 
-def _hidden(
-    scene: Scene, steps: list[dict[str, Any]], where: Location, j: int
-) -> tuple[Hidden, ...]:
+def _hidden(scene: Scene, steps: list[dict[str, Any]], path: str, j: int) -> tuple[Hidden, ...]:
     """The detections the steps of result ``j`` hide, each with its step, frame, position
     and payoff as the scene gives them (a hidden id the scene's frame lacks: an input
-    error located in the results file ``where``)."""
+    error at its ``FILE:LINE:COL`` in the results file ``path``)."""
     out = []
     for i, s in enumerate(steps):
         k = int(s["step"])
         frame = scene.frames[k] if 0 <= k < len(scene.frames) else None
         by_id = {} if frame is None else {d.id: d for d in frame.detections}
-        for obs in s["hidden"]:
+        for m, obs in enumerate(s["hidden"]):
             d = by_id.get(obs)
             if d is None or frame is None:
+                item = f"results[{j}].counterexample[{i}].hidden[{m}]"
                 raise InputError(
-                    f"detection '{obs}' is not in the scene's frame {s['frame']}: the "
+                    f"{item}: detection '{obs}' is not in the scene's frame {s['frame']}: the "
                     "results were not made from this scene",
-                    replace(where, item=f"results[{j}].counterexample[{i}].hidden"),
+                    results_location(path, item),
                 )
             out.append(Hidden(k, frame.step, obs, d.x, d.y, d.payoff))
     return tuple(out)
 
 
-def _hidden_by_frame(todo: list[MultiCase]) -> dict[int, list[tuple[int, Hidden]]]:
-    """The hidden detections of the cases ``todo``, by frame, each with its case's index."""
-    by_frame: dict[int, list[tuple[int, Hidden]]] = {}
-    for ci, c in enumerate(todo):
-        for h in c.hidden:
-            by_frame.setdefault(h.frame, []).append((ci, h))
-    return by_frame
+def results_location(path: str, item: str) -> Location:
+    """The ``FILE:LINE:COL`` of JSON item ``item`` in the results file ``path``
+    (:func:`lesmc.common.files.json_location`); ``FILE: item`` when ``path`` is no file
+    (results not written yet, as ``lesmc verify`` replays them)."""
+    if not Path(path).is_file():
+        return Location(path, item=item)
+    return json_location(path, read_text(path), item)
 
 
 def replay_multi(
@@ -170,27 +177,24 @@ def replay_multi(
     (``lesmc verify`` hands over its own), as :func:`lesmc.replay.run.replay` takes them;
     ``path``: the results' file, for errors."""
     from lesmc.perception.attack_settings import attack_of
-    from lesmc.perception.blobs import BlobConfig
     from lesmc.perception.detector import Detector, DetectorConfig
-    from lesmc.perception.frontend import FrontEndConfig
 
     t0 = time.monotonic()
     todo = multi_cases(doc, scene, bound, prop, path)
     if not todo:
         return single.Outcome({}, 0.0)
-    # the front end's settings as verify's perception ran it (replay.run._settings' defaults)
-    fe = FrontEndConfig(history=HISTORY, blobs=BlobConfig())
+    # the front end as verify's perception ran it: a multi-check document records no
+    # perception settings, so the defaults (the point designs' results record theirs)
+    fe = single.frontend_settings()
     cfg = attack_of(dict(scene.meta), where)
     attacked: list[dict[int, FrameAttack]] = [{} for _ in todo]
-    by_frame = _hidden_by_frame(todo)
+    by_frame = hidden_by_frame(todo)
 
     def attack(det: Any, out: FrontEndOutput, fd: FrameDetections) -> None:
         def one(group: list[Hidden]) -> FrameAttack:
             return attack_frame(nets, det, out, fd, group, cfg)
 
-        for ci, fa in single.shared_attacks(
-            single.group_by_case(by_frame.get(fd.index, [])), one
-        ).items():
+        for ci, fa in single.shared_attacks(group_by_case(by_frame.get(fd.index, [])), one).items():
             attacked[ci][fd.index] = fa
 
     def detector() -> Any:
@@ -347,8 +351,8 @@ def _verdict(
     """The replay object: the property checked on the replayed run (``model``), and its
     target's track ids against the counterexample's."""
     holds = check_multi(model, c.prop).holds
-    value = _value(model, c.prop.constraint, c.prop)
-    objective = _value(model, c.prop.objective, c.prop)
+    value = measure_value(model, c.prop.constraint, c.prop)
+    objective = measure_value(model, c.prop.objective, c.prop)
     ids = [None if t == NONE else int(t) for t in model.tid.tolist()]
     step, reason = _why(c, ids, value, objective, holds)
     fas = [attacked[f] for f in sorted(attacked) if f <= c.steps[-1]["frame"]]
@@ -374,18 +378,6 @@ def _verdict(
         "constraint_value": value if math.isfinite(value) else "inf",
         "objective": objective if math.isfinite(objective) else "inf",
     }
-
-
-def _value(model: MultiModel, m: Any, prop: Any) -> float:
-    """Measure ``m`` of property ``prop`` on the one path of ``model``: the engine's
-    contributions (lesmc/engines/multi.py), summed or maxed as the engine combines them."""
-    from lesmc.engines.multi import _combine
-
-    first, per = measure_values(model, m, prop.components, prop.norm)
-    value, add = float(first), _combine(m)
-    for v in per.tolist():
-        value = add(value, float(v))
-    return value
 
 
 def _why(

@@ -10,7 +10,6 @@ hidden detections of a hide-only counterexample; lesmc/replay/inject.py for inje
 
 from __future__ import annotations
 
-import math
 import re
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any
@@ -22,10 +21,11 @@ from lesmc.common.memory import release
 from lesmc.perception.windows import cut, origins, stack
 from lesmc.replay.case import (
     DET_TOL_PX,
-    PAYOFF_RTOL,
     PERTURBATION_DIGITS,
     REPAIR_ROUNDS,
     FrameAttack,
+    check_payoff,
+    perturbation_record,
 )
 from lesmc.results.read import HiddenDoc as Hidden
 
@@ -203,27 +203,15 @@ def perturbation(
     """One hidden detection's recomputed attack, refused if its payoff differs from the results."""
     from lesmc.perception.cnn import DR_SIZE
 
-    if math.isfinite(h.payoff) and not (
-        math.isfinite(rec) and abs(rec - h.payoff) <= PAYOFF_RTOL * max(h.payoff, 1e-9)
-    ):
-        raise InputError(
-            f"the attack on detection {h.obs} now costs {rec:g}, the results say "
-            f"{h.payoff:g}: the frames, networks or attack settings differ from the run "
-            "that wrote the results",
-            Location("--frames"),
-        )
-    return {
-        "step": h.step,
-        "frame": fd.index,
-        "obs": h.obs,
-        "x": float(fd.positions[j, 0]),
-        "y": float(fd.positions[j, 1]),
-        "window_origin": [int(v) for v in np.rint(centre).astype(int) - DR_SIZE // 2],
-        "payoff": h.payoff,
-        "payoff_recomputed": rec if math.isfinite(rec) else "inf",
-        "flipped_alone": flipped,
-        "delta": np.round(delta, PERTURBATION_DIGITS).tolist(),
-    }
+    check_payoff(h, rec, "networks")
+    return perturbation_record(
+        (h.step, fd.index, h.obs),
+        (fd.positions[j, 0], fd.positions[j, 1]),
+        np.rint(centre).astype(int) - DR_SIZE // 2,
+        (h.payoff, rec),
+        flipped,
+        np.round(delta, PERTURBATION_DIGITS).tolist(),
+    )
 
 
 def attack_frame(

@@ -42,12 +42,14 @@ __all__ = [
     "Outcome",
     "apply",
     "cases",
+    "check_known",
     "check_last_frame",
     "detect_all_frames",
     "detect_attacked_frames",
     "frame_story",
-    "group_by_case",
+    "frontend_settings",
     "replay",
+    "replay_case",
     "replay_file",
     "shared_attacks",
     "verdict_rows",
@@ -73,6 +75,8 @@ from lesmc.replay.case import (
     FrameAttack,
     Replayed,
     cases,
+    group_by_case,
+    hidden_by_frame,
 )
 from lesmc.replay.inject import inject_by_frame, inject_cases
 from lesmc.replay.joint_forcing import derive_joint
@@ -273,7 +277,7 @@ def replay(
     derive_joint(doc.meta, todo, scene)
     fe, attack_cfg = _settings(doc, history, delta_bc)
     last = max(c.first_frame + len(c.positions) - 1 for c in todo)
-    by_frame, by_inject = _hidden_by_frame(todo), inject_by_frame(todo)
+    by_frame, by_inject = hidden_by_frame(todo), inject_by_frame(todo)
     attacked: list[dict[int, FrameAttack]] = [{} for _ in todo]
 
     def attack(det: Any, out: FrontEndOutput, fd: FrameDetections) -> None:
@@ -298,8 +302,8 @@ def replay(
         detect_attacked_frames(frames, detector, wanted, fe.history, attack, on_frame)
     check_last_frame(clean, last)
     for c in todo:
-        _check_known(c, clean)
-    replays = {(c.run, c.result): _replay_case(c, clean, attacked[ci]) for ci, c in enumerate(todo)}
+        check_known(c, clean)
+    replays = {(c.run, c.result): replay_case(c, clean, attacked[ci]) for ci, c in enumerate(todo)}
     return Outcome(replays, time.monotonic() - t0)
 
 
@@ -316,23 +320,24 @@ def _settings(doc: ResultsDoc, history: int, delta_bc: int) -> tuple[FrontEndCon
     """The front end's and the attack's settings, as the results' perception recorded them
     (``history`` and ``delta_bc`` where it did not)."""
     from lesmc.perception.attack_settings import AttackConfig
-    from lesmc.perception.blobs import BlobConfig
-    from lesmc.perception.frontend import FrontEndConfig
 
     perception = doc.perception
-    history = int(history if perception.history is None else perception.history)
-    delta_bc = int(delta_bc if perception.delta_bc is None else perception.delta_bc)
-    fe = FrontEndConfig(history=history, blobs=BlobConfig(delta_bc=delta_bc))
+    fe = frontend_settings(
+        history if perception.history is None else perception.history,
+        delta_bc if perception.delta_bc is None else perception.delta_bc,
+    )
     return fe, AttackConfig(**perception.attack)
 
 
-def _hidden_by_frame(todo: list[Case]) -> dict[int, list[tuple[int, Hidden]]]:
-    """Per frame, the detections the cases hide there: (case number, detection)."""
-    out: dict[int, list[tuple[int, Hidden]]] = {}
-    for ci, c in enumerate(todo):
-        for h in c.hidden:
-            out.setdefault(h.frame, []).append((ci, h))
-    return out
+def frontend_settings(history: int | None = None, delta_bc: int | None = None) -> FrontEndConfig:
+    """The front end's settings a perception ran with: its ``history`` (frames) and its
+    blobs' ``delta_bc`` (grey levels) as recorded, the defaults where not (None:
+    :data:`lesmc.perception.HISTORY`, :class:`~lesmc.perception.blobs.BlobConfig`'s)."""
+    from lesmc.perception.blobs import BlobConfig
+    from lesmc.perception.frontend import FrontEndConfig
+
+    blobs = BlobConfig() if delta_bc is None else BlobConfig(delta_bc=int(delta_bc))
+    return FrontEndConfig(history=HISTORY if history is None else int(history), blobs=blobs)
 
 
 def detect_all_frames(
@@ -387,7 +392,7 @@ def detect_attacked_frames(
                 attack(det, *got)
 
 
-def _replay_case(
+def replay_case(
     c: Case, clean: dict[int, FrameDetections], attacked: dict[int, FrameAttack]
 ) -> dict[str, Any]:
     """One counterexample: the tracker on the frames' detections with the attacked frames'
@@ -450,19 +455,12 @@ def shared_attacks(
     return out
 
 
-def group_by_case(items: list[tuple[int, Hidden]]) -> list[tuple[int, list[Hidden]]]:
-    out: dict[int, list[Hidden]] = {}
-    for ci, h in items:
-        out.setdefault(ci, []).append(h)
-    return sorted(out.items())
-
-
 def _light(fd: FrameDetections) -> FrameDetections:
     """The detections without their windows (the tracker needs positions only)."""
     return replace(fd, windows=fd.windows[:0])
 
 
-def _check_known(c: Case, clean: dict[int, FrameDetections]) -> None:
+def check_known(c: Case, clean: dict[int, FrameDetections]) -> None:
     """Every detection the results list must come out of the detector where they say."""
     for did, (x, y) in c.known.items():
         f, _, j = did.partition(":")
