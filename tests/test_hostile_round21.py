@@ -1,0 +1,156 @@
+"""The hostile-input run repeated on round 21's inputs: ``lesmc replay RESULTS --frames
+VIDEO`` on a ``lesmc-multi-check`` document edited by hand. Each case was mishandled
+before its fix: an internal error (exit 4: a ``meta.window`` or ``meta.properties`` of
+the wrong type, a document whose ``design`` is not the one its tracks were made with), a
+replay that ran on a counterexample whose steps were cut or renumbered or moved to other
+frames (a silent ``diverged``, exit 1), or an error naming the whole counterexample
+("matches none of the allowed forms") rather than the field. Every case goes through the
+real entry point and must exit 2, at the offending field's ``FILE:LINE:COL``, with no
+traceback, and leave the results file as it was."""
+
+from __future__ import annotations
+
+import copy
+import json
+import re
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+import pytest
+from cli_run import lesmc
+
+from lesmc.video.synth import SynthConfig
+from lesmc.video.write import write_video
+
+#: A hijack of the target of the seed-5 video (as tests/test_multi_replay.py finds it).
+SPEC = """property hijack {
+    attack window 2..4 within 30
+    minimize payoff
+    subject to switches(0..end) > 0
+    holds if optimum > 3.0
+}
+"""
+TARGET = "119.0,71.5@4"
+
+
+@pytest.fixture(scope="module")
+def verified(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """``lesmc verify VIDEO --design sort`` on a 12-frame 448 x 448 video: the base dir
+    (``video/``, ``out/results.json``, ``out/scene.json``)."""
+    base = tmp_path_factory.mktemp("hostile21")
+    write_video(SynthConfig(frames=12, width=448, height=448, seed=5, density=3.0), base / "video")
+    (base / "hijack.spec").write_text(SPEC)
+    r = lesmc("verify", "video", "--truth", "video/truth.json", "--out", "out", "--design",
+              "sort", "--spec", "hijack.spec", "--target", TARGET, cwd=base)  # fmt: skip
+    assert "Traceback" not in r.stderr, r.stderr
+    assert r.returncode == 1, r.stderr  # violated, and the counterexample has hidden steps
+    return base
+
+
+def _steps(d: dict[str, Any]) -> list[dict[str, Any]]:
+    return d["results"][0]["counterexample"]  # type: ignore[no-any-return]
+
+
+def _line_of(text: str, pattern: str, nth: int = 0) -> int:
+    """The 1-based line of the ``nth`` match of ``pattern`` in ``text`` (found here, by a
+    regex over the written file, independently of lesmc's JSON locator)."""
+    m = list(re.finditer(pattern, text))[nth]
+    return text.count("\n", 0, m.start()) + 1
+
+
+#: (label, edit of the document, the field named, pattern of its line, its match index)
+EDITS: list[tuple[str, Callable[[dict[str, Any]], None], str, str, int]] = [
+    ("a step cut", lambda d: _steps(d).pop(4), "counterexample[4].step", r'"step": 5', 0),
+    (
+        "steps renumbered",
+        lambda d: [s.update(step=s["step"] + 1) for s in _steps(d)],
+        "counterexample[0].step",
+        r'"step": 1',
+        0,
+    ),
+    (
+        "a frame moved",
+        lambda d: _steps(d)[2].update(frame=5),
+        "counterexample[2].frame",
+        r'"frame": 5',
+        1,
+    ),
+    (
+        "the last frame beyond the video",
+        lambda d: _steps(d)[-1].update(frame=1000),
+        "counterexample[7].frame",
+        r'"frame": 1000',
+        0,
+    ),
+    (
+        "a step's frame missing",
+        lambda d: _steps(d)[2].pop("frame"),
+        "counterexample[2]: missing 'frame'",
+        r'\{\s*\n\s*"step": 2',
+        0,
+    ),
+    (
+        "a target id of text",
+        lambda d: _steps(d)[0].update(target_id="x"),
+        "counterexample[0].target_id",
+        r'"target_id": "x"',
+        0,
+    ),
+    (
+        "meta.window of text",
+        lambda d: d["meta"].update(window="x"),
+        "meta.window",
+        r'"window": "x"',
+        0,
+    ),
+    (
+        "meta.window from step 0",
+        lambda d: d["meta"].update(window=[0, 3]),
+        "meta.window[0]",
+        r'(?<="window": \[\n)\s+0,',
+        0,
+    ),
+    (
+        "meta.properties holding a number",
+        lambda d: d["meta"].update(properties=[5]),
+        "meta.properties[0]",
+        r'(?<="properties": \[\n)\s+5',
+        0,
+    ),
+    (
+        "the design another than the tracks'",
+        lambda d: d.update(design="gnn"),
+        "counterexample[0].tracks[0].box",
+        r'"box": \[',
+        0,
+    ),
+]
+
+
+@pytest.mark.parametrize(
+    ("label", "edit", "field", "pattern", "nth"), EDITS, ids=[e[0] for e in EDITS]
+)
+def test_edited_multi_check_refused_at_its_field(
+    verified: Path,
+    label: str,
+    edit: Callable[[dict[str, Any]], None],
+    field: str,
+    pattern: str,
+    nth: int,
+) -> None:
+    doc = json.loads((verified / "out" / "results.json").read_text())
+    bad = copy.deepcopy(doc)
+    edit(bad)
+    path = verified / "edited.json"
+    text = json.dumps(bad, indent=1)
+    path.write_text(text)
+    r = lesmc("replay", "edited.json", "--frames", "video", cwd=verified)
+    assert "Traceback" not in r.stderr and "internal error" not in r.stderr, r.stderr
+    assert r.returncode == 2, (label, r.returncode, r.stdout, r.stderr)
+    line = _line_of(text, pattern, nth)
+    assert re.search(rf"edited\.json:{line}:\d+: .*{re.escape(field)}", r.stderr), (
+        line,
+        r.stderr,
+    )
+    assert path.read_text() == text  # nothing written over the refused file
