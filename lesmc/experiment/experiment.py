@@ -906,6 +906,7 @@ def _replay_key(doc: dict[str, Any], src: _Source, todo: list[Any]) -> str | Non
 def _cached_replay(hit: Any, doc: dict[str, Any]) -> Any:
     """A cache entry as the replay's Outcome, if it is one for these cases; else None."""
     from lesmc.replay.run import Outcome
+    from lesmc.results.load import replay_ok
 
     if not isinstance(hit, dict) or not isinstance(hit.get("replays"), list):
         return None
@@ -915,7 +916,7 @@ def _cached_replay(hit: Any, doc: dict[str, Any]) -> Any:
             return None
         i, j, obj = row
         ok = isinstance(i, int) and isinstance(j, int) and 0 <= i < len(doc["runs"])
-        if not ok or not 0 <= j < len(doc["runs"][i]["results"]) or "status" not in obj:
+        if not ok or not 0 <= j < len(doc["runs"][i]["results"]) or not replay_ok(obj, "results"):
             return None
         replays[(i, j)] = obj
     seconds = hit.get("seconds")
