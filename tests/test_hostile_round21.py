@@ -88,13 +88,6 @@ EDITS: list[tuple[str, Callable[[dict[str, Any]], None], str, str, int]] = [
         0,
     ),
     (
-        "meta.properties holding a number",
-        lambda d: d["meta"].update(properties=[5]),
-        "meta.properties[0]",
-        r'(?<="properties": \[\n)\s+5',
-        0,
-    ),
-    (
         "the design another than the tracks'",
         lambda d: d.update(design="gnn"),
         "counterexample[0].tracks[0].box",
@@ -162,30 +155,58 @@ def test_a_corrupted_multi_replay_cache_entry_is_replayed_again(verified: Path) 
     assert json.loads(entry.read_text())["value"] == kept  # the entry made again
 
 
-def test_a_corrupted_replay_cache_entry_is_replayed_again(tmp_path: Path) -> None:
-    """A point design's replay entry (verify --detector FILE.toml) whose replay object has
-    a status the results schema does not know."""
+@pytest.fixture(scope="module")
+def spot(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """tests/test_campaign_detector.py's tiny video (video0/) and heatmap network
+    (spot.toml, spot.onnx), and that file with a declared box (boxed.toml)."""
     pytest.importorskip("onnx")
     pytest.importorskip("onnxruntime")
     pytest.importorskip("onnxscript")
-    from test_campaign_detector import SPEC as DET_SPEC
     from test_campaign_detector import _frames, _network
 
-    _frames(tmp_path, 0)
-    _network(tmp_path)
-    (tmp_path / "p.spec").write_text(DET_SPEC)
+    d = tmp_path_factory.mktemp("spot")
+    _frames(d, 0)
+    _network(d)
+    (d / "boxed.toml").write_text((d / "spot.toml").read_text() + "box = [4, 4]\n")
+    return d
+
+
+def test_a_corrupted_replay_cache_entry_is_replayed_again(spot: Path) -> None:
+    """A point design's replay entry (verify --detector FILE.toml) whose replay object has
+    a status the results schema does not know."""
+    from test_campaign_detector import SPEC as DET_SPEC
+
+    (spot / "p.spec").write_text(DET_SPEC)
     args = ("verify", "video0", "--detector", "spot.toml", "--target", "10,30@0", "--spec",
             "p.spec", "--design", "single", "--out", "out")  # fmt: skip
-    assert lesmc(*args, cwd=tmp_path).returncode == 1  # violated: its replay is kept
-    entry = _entry(tmp_path / "out" / "cache", "replay")
+    assert lesmc(*args, cwd=spot).returncode == 1  # violated: its replay is kept
+    entry = _entry(spot / "out" / "cache", "replay")
     kept = json.loads(entry.read_text())["value"]
     (row,) = kept["replays"]
     assert row[2]["status"] == "confirmed"
     _corrupt(entry, {"replays": [[row[0], row[1], {"status": "zzz"}]], "seconds": 1.0})
-    r = lesmc(*args, cwd=tmp_path)
+    r = lesmc(*args, cwd=spot)
     assert "Traceback" not in r.stderr and "internal error" not in r.stderr, r.stderr
     assert r.returncode == 1, r.stderr
     assert "reusing the replay" not in r.stderr, r.stderr
-    doc = json.loads((tmp_path / "out" / "results.json").read_text())
+    doc = json.loads((spot / "out" / "results.json").read_text())
     (res,) = [x for run in doc["runs"] for x in run["results"]]
     assert res["replay"]["status"] == "confirmed"
+
+
+def test_verify_through_a_heatmap_file_with_a_box_checks_sort(spot: Path) -> None:
+    """``verify FRAMES --detector FILE.toml --design sort``: a heatmap file's payoffs were
+    left to be priced on demand, which only the point designs do, and the check refused
+    its own scene (exit 2, "has no payoff (unpriced) ... price the scene"); every
+    detection is priced up front now, as the multi-target check reads the payoffs."""
+    (spot / "identity.spec").write_text(SPEC)
+    r = lesmc("verify", "video0", "--detector", "boxed.toml", "--target", "14,30@0", "--spec",
+              "identity.spec", "--design", "sort", "--out", "sort", cwd=spot)  # fmt: skip
+    assert "Traceback" not in r.stderr and "internal error" not in r.stderr, r.stderr
+    assert r.returncode in (0, 1), r.stderr
+    scene = json.loads((spot / "sort" / "scene.json").read_text())
+    dets = [d for f in scene["frames"] for d in f["detections"]]
+    assert dets and all(isinstance(d["payoff"], float) and d["payoff"] > 0 for d in dets), dets
+    assert all((d["w"], d["h"]) == (4.0, 4.0) for d in dets)
+    doc = json.loads((spot / "sort" / "results.json").read_text())
+    assert {x["property"] for x in doc["results"]} == {"hijack"}

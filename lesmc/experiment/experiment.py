@@ -328,7 +328,9 @@ def _perceived(
     if by_file is None:
         seen = _perception(req, frames, frames_dir, dt, cache, rep, maxima, on_demand)
     else:
-        seen = _file_perception(req, frames, frames_dir, by_file, (truth, truths), dt, rep)
+        seen = _file_perception(
+            req, frames, frames_dir, by_file, (truth, truths), dt, rep, on_demand
+        )
         assert seen.detections is not None
         meta["detections"] = detector_verify.describe(seen.detections)
         rep.log(f"detector file: {meta['detections']}")
@@ -426,11 +428,18 @@ def _file_perception(
     truth: tuple[str | None, Any],
     dt: float,
     rep: Reporter,
+    on_demand: bool,
 ) -> _Perception:
     """The video through the detector file ``path`` (lesmc/experiment/detector_verify.py),
     kept in OUT/cache: a heatmap detector's payoffs priced when a model reads them (as the
-    window pipeline's: --payoffs attack, no --price-all), else every detection priced now."""
-    lazy = req.payoffs == "attack" and not req.price_all and detector_verify.prices_lazily(path)
+    window pipeline's: ``on_demand``, --payoffs attack, no --price-all), else every
+    detection priced now (a multi-target design reads the scene's payoffs directly)."""
+    lazy = (
+        on_demand
+        and req.payoffs == "attack"
+        and not req.price_all
+        and detector_verify.prices_lazily(path)
+    )
     footage, facts, key = detector_verify.perceive_cached(
         frames_dir, frames, path, truth[0], truth[1], req.payoffs != "attack", dt, rep,
         lambda stage: _spent(req.budget, stage), StageCache(req.out), lazy,
