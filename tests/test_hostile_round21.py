@@ -210,3 +210,47 @@ def test_verify_through_a_heatmap_file_with_a_box_checks_sort(spot: Path) -> Non
     assert all((d["w"], d["h"]) == (4.0, 4.0) for d in dets)
     doc = json.loads((spot / "sort" / "results.json").read_text())
     assert {x["property"] for x in doc["results"]} == {"hijack"}
+
+
+def _joint_scene() -> dict[str, Any]:
+    """A target moving 10 px a step past a cheap injection candidate 30 px off its track
+    (each frame), and a far detection: joint's cheapest attack injects the candidate."""
+    frames = []
+    for k in range(8):
+        x = 100.0 + 10 * k
+        dets = [{"id": f"{k}:0", "x": x, "y": 50.0, "payoff": 5.0},
+                {"id": f"{k}:1", "x": x + 200, "y": 50.0, "payoff": 5.0}]  # fmt: skip
+        cands = [{"id": f"{k}:c0", "x": x, "y": 80.0, "payoff": 0.1}]
+        frames.append({"step": k, "detections": dets, "candidates": cands})
+    return {"format": "lesmc-scene", "version": 3, "dt": 1.0, "frames": frames,
+            "target": {"step": 0, "start": [100.0, 50.0], "velocity": [10.0, 0.0]}}  # fmt: skip
+
+
+INJECT_SPEC = """property inj {
+    attack window 2..4 allow hide, inject
+    minimize payoff
+    subject to dist.sum(0..end) > 20
+    holds if optimum > 100
+    on x, y
+}
+"""
+
+
+def test_joint_injection_results_whose_target_is_off_the_scene(tmp_path: Path) -> None:
+    """A joint injection counterexample's ``replay_inputs.target`` moved past the scene's
+    frames: the replay walked the path on the scene and crashed (IndexError, exit 4)."""
+    (tmp_path / "scene.json").write_text(json.dumps(_joint_scene()))
+    (tmp_path / "inj.spec").write_text(INJECT_SPEC)
+    r = lesmc("check", "scene.json", "inj.spec", "--design", "joint", "--report", "r",
+              cwd=tmp_path)  # fmt: skip
+    assert r.returncode == 1, r.stderr
+    doc = json.loads((tmp_path / "r" / "results.json").read_text())
+    (res,) = doc["runs"][0]["results"]
+    assert any(":c" in (s["obs"] or "") for s in res["counterexample"]["steps"])  # injects
+    doc["runs"][0]["replay_inputs"]["target"]["step"] = 500
+    (tmp_path / "edited.json").write_text(json.dumps(doc))
+    write_video(SynthConfig(frames=6, width=64, height=64, seed=1, density=1.0), tmp_path / "v")
+    r = lesmc("replay", "edited.json", "--frames", "v", cwd=tmp_path)
+    assert "Traceback" not in r.stderr and "internal error" not in r.stderr, r.stderr
+    assert r.returncode == 2, r.stderr
+    assert "runs[0].replay_inputs.target" in r.stderr and "0..7" in r.stderr, r.stderr
