@@ -183,7 +183,8 @@ def test_replay_of_multi_results_refuses_bad_input(verified: Path, tmp_path: Pat
     odd.write_text(json.dumps(doc))
     r = lesmc("replay", str(odd))
     assert r.returncode == 2 and "Traceback" not in r.stderr, r.stderr
-    assert f"{odd}: results[1].counterexample[{i}].hidden" in r.stderr
+    # at the hidden list's FILE:LINE:COL (the document is on one line)
+    assert f"{odd}:1:" in r.stderr and f"results[1].counterexample[{i}].hidden" in r.stderr
     assert f"'{steps[i]['frame']}:999' is not in the scene's frame" in r.stderr
     doc["meta"]["scene"] = str(tmp_path / "gone.json")
     from lesmc.common.errors import UsageError
