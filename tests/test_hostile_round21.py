@@ -171,9 +171,9 @@ def spot(tmp_path_factory: pytest.TempPathFactory) -> Path:
     return d
 
 
-def test_a_corrupted_replay_cache_entry_is_replayed_again(spot: Path) -> None:
+def test_corrupted_cache_entries_of_verify_detector_are_made_again(spot: Path) -> None:
     """A point design's replay entry (verify --detector FILE.toml) whose replay object has
-    a status the results schema does not know."""
+    a status the results schema does not know; then its perception entry cut short."""
     from test_campaign_detector import SPEC as DET_SPEC
 
     (spot / "p.spec").write_text(DET_SPEC)
@@ -192,6 +192,20 @@ def test_a_corrupted_replay_cache_entry_is_replayed_again(spot: Path) -> None:
     doc = json.loads((spot / "out" / "results.json").read_text())
     (res,) = [x for run in doc["runs"] for x in run["results"]]
     assert res["replay"]["status"] == "confirmed"
+    # the perception entry cut to 2 of the video's 12 frames: trusted, the spec was blamed
+    # ("attack window 6..8 must satisfy 1 <= l <= u <= end = 1"); perceived again now
+    entry = _entry(spot / "out" / "cache", "perception")
+    whole = json.loads(entry.read_text())
+    footage = whole["value"]["footage"]
+    assert len(footage["frames"]) == 12
+    footage["frames"] = footage["frames"][:2]
+    entry.write_text(json.dumps(whole))
+    r = lesmc(*args, cwd=spot)
+    assert "Traceback" not in r.stderr and "internal error" not in r.stderr, r.stderr
+    assert r.returncode == 1, r.stderr
+    assert "its cached perception is not of every frame" in r.stderr, r.stderr
+    scene = json.loads((spot / "out" / "scene.json").read_text())
+    assert len(scene["frames"]) == 12
 
 
 def test_verify_through_a_heatmap_file_with_a_box_checks_sort(spot: Path) -> None:
