@@ -61,7 +61,7 @@ def scene_of(meta: Mapping[str, Any], case: Case, scene: Scene | None = None) ->
         )
     if scene is None:
         scene = load_scene(str(path))
-    _within(case, scene, str(path))
+    _within(case, scene, path if isinstance(path, str) else "the checked scene")
     cfg = tracker_from_dict(case.tracker, "results: replay_inputs.tracker")
     return replace(scene.footage.with_target(case.target, scene.meta), tracker=cfg)
 
