@@ -130,6 +130,9 @@ def perceive_cached(
     if hit is not None and not lazy and hit[0].has_unpriced:
         rep.log("perceiving the video again: its cached perception has unpriced payoffs")
         hit = None
+    if hit is not None and len(hit[0].frames) != len(frames):  # an entry cut or edited
+        rep.log("perceiving the video again: its cached perception is not of every frame")
+        hit = None
     if hit is not None:
         rep.log(f"reusing the perception of {frames_dir} through {path} from {cache.dir}")
         return hit[0], detection_facts(hit[0], frames, truths, path), key

@@ -328,7 +328,9 @@ def _perceived(
     if by_file is None:
         seen = _perception(req, frames, frames_dir, dt, cache, rep, maxima, on_demand)
     else:
-        seen = _file_perception(req, frames, frames_dir, by_file, (truth, truths), dt, rep)
+        seen = _file_perception(
+            req, frames, frames_dir, by_file, (truth, truths), dt, rep, on_demand
+        )
         assert seen.detections is not None
         meta["detections"] = detector_verify.describe(seen.detections)
         rep.log(f"detector file: {meta['detections']}")
@@ -426,11 +428,18 @@ def _file_perception(
     truth: tuple[str | None, Any],
     dt: float,
     rep: Reporter,
+    on_demand: bool,
 ) -> _Perception:
     """The video through the detector file ``path`` (lesmc/experiment/detector_verify.py),
     kept in OUT/cache: a heatmap detector's payoffs priced when a model reads them (as the
-    window pipeline's: --payoffs attack, no --price-all), else every detection priced now."""
-    lazy = req.payoffs == "attack" and not req.price_all and detector_verify.prices_lazily(path)
+    window pipeline's: ``on_demand``, --payoffs attack, no --price-all), else every
+    detection priced now (a multi-target design reads the scene's payoffs directly)."""
+    lazy = (
+        on_demand
+        and req.payoffs == "attack"
+        and not req.price_all
+        and detector_verify.prices_lazily(path)
+    )
     footage, facts, key = detector_verify.perceive_cached(
         frames_dir, frames, path, truth[0], truth[1], req.payoffs != "attack", dt, rep,
         lambda stage: _spent(req.budget, stage), StageCache(req.out), lazy,
@@ -906,6 +915,7 @@ def _replay_key(doc: dict[str, Any], src: _Source, todo: list[Any]) -> str | Non
 def _cached_replay(hit: Any, doc: dict[str, Any]) -> Any:
     """A cache entry as the replay's Outcome, if it is one for these cases; else None."""
     from lesmc.replay.run import Outcome
+    from lesmc.results.load import replay_ok
 
     if not isinstance(hit, dict) or not isinstance(hit.get("replays"), list):
         return None
@@ -915,7 +925,7 @@ def _cached_replay(hit: Any, doc: dict[str, Any]) -> Any:
             return None
         i, j, obj = row
         ok = isinstance(i, int) and isinstance(j, int) and 0 <= i < len(doc["runs"])
-        if not ok or not 0 <= j < len(doc["runs"][i]["results"]) or "status" not in obj:
+        if not ok or not 0 <= j < len(doc["runs"][i]["results"]) or not replay_ok(obj, "results"):
             return None
         replays[(i, j)] = obj
     seconds = hit.get("seconds")

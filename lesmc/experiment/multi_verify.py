@@ -174,7 +174,8 @@ def _replay(
     t0 = time.monotonic()
     key = _replay_key(doc, scene, src)
     hit = None if src.cache is None or key is None else src.cache.get("multi-replay", key)
-    if isinstance(hit, dict) and all(isinstance(v, dict) for v in hit.values()):
+    if _cached_replays_ok(hit, {str(c.result) for c in todo}):
+        assert isinstance(hit, dict)
         rep.log(f"reusing the replay of {len(hit)} counterexamples from the cache")
         replays = {(0, int(j)): obj for j, obj in hit.items()}
     else:
@@ -210,6 +211,18 @@ def _replay_key(doc: dict[str, Any], scene: Scene, src: Any) -> str | None:
             "scene": scene_to_dict(scene),
             "results": doc["results"],
         }
+    )
+
+
+def _cached_replays_ok(hit: Any, wanted: set[str]) -> bool:
+    """Whether an OUT/cache entry holds a replay object for each result ``wanted`` (their
+    indices), and nothing else: a corrupted or hand-edited entry is replayed again."""
+    from lesmc.results.load import replay_ok
+
+    return (
+        isinstance(hit, dict)
+        and set(hit) == wanted
+        and all(replay_ok(v, "multi-check") for v in hit.values())
     )
 
 

@@ -23,7 +23,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from lesmc.common.errors import UsageError
+from lesmc.common.errors import InputError, Location, UsageError
 from lesmc.model.kernel import combined_payoffs
 from lesmc.replay.case import Case
 from lesmc.scene import Scene, tracker_from_dict
@@ -62,8 +62,23 @@ def scene_of(meta: Mapping[str, Any], case: Case, scene: Scene | None = None) ->
         )
     if scene is None:
         scene = load_scene(str(path))
+    _within(case, scene, path if isinstance(path, str) else "the checked scene")
     cfg = tracker_from_dict(case.tracker, "results: replay_inputs.tracker")
     return replace(scene.footage.with_target(case.target, scene.meta), tracker=cfg)
+
+
+def _within(case: Case, scene: Scene, path: str) -> None:
+    """An input error unless ``case``'s target and steps are frames of ``scene`` (read from
+    ``path``): results edited by hand, or made from another scene."""
+    first, last = case.target.step, case.first_frame + len(case.positions) - 1
+    lo, hi = scene.frames[0].step, scene.last_step
+    if not (lo <= first <= hi and lo <= case.first_frame and last <= hi):
+        raise InputError(
+            f"runs[{case.run}].replay_inputs.target: the target (step {first}) and the "
+            f"counterexample of {case.prop} (steps {case.first_frame}..{last}) are not within "
+            f"the scene's frames {lo}..{hi}: the results were not made from this scene",
+            Location(path),
+        )
 
 
 def joint_forcing(case: Case, scene: Scene) -> tuple[Forced, bool]:

@@ -82,6 +82,7 @@ class MultiCase:
     prop: Any  #: a BoundProperty (language/semantics.py), bound by the layers above
     steps: tuple[dict[str, Any], ...]
     hidden: tuple[Hidden, ...]
+    path: str = "<results>"  #: the results file, for errors
 
     @property
     def end(self) -> int:
@@ -114,8 +115,41 @@ def multi_cases(
                 f"property {res['property']} of the results is in none of the property files "
                 "the results name (meta.properties): give the files they were checked with"
             )
-        out.append(MultiCase(j, b, tuple(steps), _hidden(scene, steps, path, j)))
+        _check_steps(scene, steps, path, j)
+        out.append(MultiCase(j, b, tuple(steps), _hidden(scene, steps, path, j), path))
     return out
+
+
+def _results_error(path: str, problems: list[tuple[str, str]]) -> InputError:
+    """The error listing ``problems`` (``(item, message)``) of the results file ``path``:
+    each at its ``FILE:LINE:COL`` when the file can be read (else ``FILE: item``)."""
+    from lesmc.common.files import error_at_items, read_text
+
+    if not Path(path).is_file():
+        return InputError.many(path, problems)
+    return error_at_items(path, read_text(path), problems)
+
+
+def _check_steps(scene: Scene, steps: list[dict[str, Any]], path: str, j: int) -> None:
+    """A counterexample is a path from the scene's first frame: its step ``i`` is the
+    ``i``-th, on the scene's ``i``-th frame (pipeline/multi.py writes them so); a step
+    cut, renumbered or moved to another frame by hand is an input error, located."""
+    problems = []
+    for i, s in enumerate(steps):
+        at = f"results[{j}].counterexample[{i}]"
+        if s["step"] != i:
+            problems.append((f"{at}.step", f"must be {i} (the steps are 0, 1, 2, ... in order)"))
+        elif i >= len(scene.frames):
+            problems.append(
+                (f"{at}.step", f"the scene the results were made from has {len(scene.frames)} "
+                 "frames only")
+            )  # fmt: skip
+        elif s["frame"] != scene.frames[i].step:
+            problems.append(
+                (f"{at}.frame", f"must be {scene.frames[i].step}, the scene's frame at step {i}")
+            )
+        if problems:
+            raise _results_error(path, problems)
 
 
 def known_property(doc: Mapping[str, Any], prop: str | None) -> None:
@@ -408,6 +442,21 @@ def _why(
     return None, None
 
 
+def _place_problem(
+    c: MultiCase, s: Mapping[str, Any], t: Mapping[str, Any], n: int
+) -> tuple[str, str]:
+    """A listed track whose place is not of the replayed tracker's shape (``n`` numbers):
+    the results were made with another design than their ``design``."""
+    i, k = c.steps.index(s), list(s["tracks"]).index(t)
+    key = "box" if "box" in t else "position"
+    return (
+        f"results[{c.result}].counterexample[{i}].tracks[{k}].{key}",
+        f"a track of {len(t[key])} numbers, where the document's design tracks "
+        f"{'boxes [x1, y1, x2, y2]' if n == 4 else 'positions [x, y]'}: the results were "
+        "made with another design",
+    )
+
+
 def _box_error(c: MultiCase, fts: list[Any]) -> float | None:
     """The largest difference (px) between a replayed track's box and the counterexample's
     track of the same id at the same step, over the tracks the results list (None: they
@@ -419,6 +468,8 @@ def _box_error(c: MultiCase, fts: list[Any]) -> float | None:
             mine = np.nonzero(ft.ids == t["id"])[0]
             if place is None or not mine.size:
                 continue
+            if len(place) != ft.boxes.shape[1]:
+                raise _results_error(c.path, [_place_problem(c, s, t, ft.boxes.shape[1])])
             e = float(np.abs(np.asarray(place, dtype=float) - ft.boxes[mine[0]]).max())
             err = e if err is None else max(err, e)
     return None if err is None else round(err, 6)

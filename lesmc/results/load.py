@@ -14,6 +14,19 @@ from lesmc.results.references import check_multi_steps, check_references
 from lesmc.schemas import validate
 
 
+def replay_ok(obj: Any, document: str) -> bool:
+    """Whether ``obj`` is a replay object as a result of the ``document`` schema holds one
+    (``"results"``: a point design's, ``"multi-check"``: a multi-target design's): an
+    OUT/cache entry read back is trusted only then (a corrupted or hand-edited one is
+    replayed again, not copied into the results)."""
+    from lesmc.schemas import errors, schema
+
+    root = schema(document)
+    defs = root["$defs"]
+    part = defs["replay"] if document == "results" else defs["result"]["properties"]["replay"]
+    return isinstance(obj, dict) and not errors(obj, part, root)
+
+
 def load_results(path: str | Path) -> dict[str, Any]:
     """A results file (``lesmc-results``, or a multi-target design's ``lesmc-multi-check``:
     ``lesmc verify --design sort``, ``lesmc check --design sort --json``), validated; an

@@ -110,9 +110,12 @@ def errors(value: Any, sch: dict[str, Any], root: dict[str, Any], where: str = "
         return errors(value, root["$defs"][name], root, where)
     at = where or "(document)"
     if "anyOf" in sch:
-        if all(errors(value, s, root, where) for s in sch["anyOf"]):
-            return [f"{at}: matches none of the allowed forms"]
-        return []
+        each = [errors(value, s, root, where) for s in sch["anyOf"]]
+        if not all(each):
+            return []
+        # the one form of the value's type (a nullable array, say): the field it breaks
+        typed = [e for e in each if not e[0].startswith(f"{at}: expected ")]
+        return typed[0] if len(typed) == 1 else [f"{at}: matches none of the allowed forms"]
     out: list[str] = []
     if "type" in sch:
         types = sch["type"] if isinstance(sch["type"], list) else [sch["type"]]
