@@ -19,7 +19,7 @@ import pytest
 from cli_run import ROOT, lesmc
 from pipeline_run import design_runs
 
-from lesmc.common.files import item_keys, json_offset
+from lesmc.common.locations import item_keys, json_offset
 from lesmc.language.parser import load_spec
 from lesmc.report.publish import publish
 from lesmc.results.document import provenance

@@ -309,7 +309,8 @@ def _scene_window(
 def _roles(cm: ArrayModel, path: str, prop: str | None) -> dict[str, list[int]]:
     """The counterexample and witness paths of a results file, as model rows; a bad one
     is refused at its ``FILE:LINE:COL``."""
-    from lesmc.common.files import json_location, parse_json, read_text
+    from lesmc.common.files import parse_json, read_text
+    from lesmc.common.locations import json_location
 
     text = read_text(path)
     doc = parse_json(text, path)

@@ -24,7 +24,8 @@ import numpy as np
 
 from lesmc.common.errors import InputError, Location, clipped
 from lesmc.common.fields import MAX_STEP
-from lesmc.common.files import key_locations, read_text, read_toml
+from lesmc.common.files import read_text, read_toml
+from lesmc.common.locations import key_locations
 from lesmc.designs import registry
 from lesmc.language import monitors
 from lesmc.language.monitors import Domain

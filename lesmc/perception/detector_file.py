@@ -20,7 +20,8 @@ from typing import TYPE_CHECKING, Any
 
 from lesmc.common.errors import InputError, Location, clipped
 from lesmc.common.fields import is_finite, is_int, show
-from lesmc.common.files import error_at_keys, key_locations, read_json, read_text, read_toml
+from lesmc.common.files import read_json, read_text, read_toml
+from lesmc.common.locations import error_at_keys, key_locations
 
 if TYPE_CHECKING:
     from lesmc.perception.graphs import UserNet

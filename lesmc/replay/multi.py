@@ -43,7 +43,8 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from lesmc.common.errors import InputError, Location, UsageError
-from lesmc.common.files import json_location, read_text
+from lesmc.common.files import read_text
+from lesmc.common.locations import json_location
 from lesmc.engines.multi import check_multi, measure_value
 from lesmc.model.identity import NONE, last_seen
 from lesmc.model.kernel import COMPARE
@@ -123,7 +124,8 @@ def multi_cases(
 def _results_error(path: str, problems: list[tuple[str, str]]) -> InputError:
     """The error listing ``problems`` (``(item, message)``) of the results file ``path``:
     each at its ``FILE:LINE:COL`` when the file can be read (else ``FILE: item``)."""
-    from lesmc.common.files import error_at_items, read_text
+    from lesmc.common.files import read_text
+    from lesmc.common.locations import error_at_items
 
     if not Path(path).is_file():
         return InputError.many(path, problems)
@@ -185,7 +187,7 @@ def _hidden(scene: Scene, steps: list[dict[str, Any]], path: str, j: int) -> tup
 
 def results_location(path: str, item: str) -> Location:
     """The ``FILE:LINE:COL`` of JSON item ``item`` in the results file ``path``
-    (:func:`lesmc.common.files.json_location`); ``FILE: item`` when ``path`` is no file
+    (:func:`lesmc.common.locations.json_location`); ``FILE: item`` when ``path`` is no file
     (results not written yet, as ``lesmc verify`` replays them)."""
     if not Path(path).is_file():
         return Location(path, item=item)

@@ -8,7 +8,8 @@ from typing import Any
 
 from lesmc.common.errors import InputError, Location
 from lesmc.common.fields import is_version, show
-from lesmc.common.files import json_location, parse_json, read_text
+from lesmc.common.files import parse_json, read_text
+from lesmc.common.locations import json_location
 from lesmc.results.document import FORMAT, VERSION
 from lesmc.results.references import check_multi_steps, check_references
 from lesmc.schemas import validate

@@ -15,7 +15,7 @@ from typing import Any
 
 from lesmc.common.errors import InputError, Problems
 from lesmc.common.fields import within
-from lesmc.common.files import error_at_items
+from lesmc.common.locations import error_at_items
 from lesmc.scene.io import MAX_COORD, MAX_DT
 
 #: |coordinate| of a drawn box or position: detections lie within MAX_COORD, a track

@@ -26,17 +26,13 @@ from lesmc.common.fields import (
     show,
     within,
 )
-from lesmc.common.files import (
+from lesmc.common.files import parse_json, read_json, read_text, read_toml, write_json
+from lesmc.common.locations import (
     error_at_items,
     error_at_keys,
     item_keys,
     json_location,
     key_locations,
-    parse_json,
-    read_json,
-    read_text,
-    read_toml,
-    write_json,
 )
 from lesmc.designs import registry
 from lesmc.language import monitors
@@ -243,7 +239,7 @@ def _find(
 
 
 def _at(data: Any, item: str) -> Any:
-    """The value of ``data`` at ``item`` (:func:`~lesmc.common.files.item_keys`); None if
+    """The value of ``data`` at ``item`` (:func:`~lesmc.common.locations.item_keys`); None if
     there is none."""
     for key in item_keys(item) or []:
         ok = isinstance(data, dict) if isinstance(key, str) else isinstance(data, list)

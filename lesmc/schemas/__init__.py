@@ -18,7 +18,7 @@ from importlib import resources
 from typing import Any
 
 from lesmc.common.errors import InputError, Location
-from lesmc.common.files import error_at_items
+from lesmc.common.locations import error_at_items
 from lesmc.designs import registry
 from lesmc.engines import payoff_modes
 from lesmc.engines import registry as engines
