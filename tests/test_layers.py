@@ -222,13 +222,3 @@ def test_a_long_function_is_caught() -> None:
     body = "\n".join(f"    x{i} = {i}" for i in range(MAX_FUNCTION_LINES))
     assert _long_functions(ast.parse(f"def f():\n{body}\n")) == [(1, "f", 61)]
     assert _long_functions(ast.parse("def g():\n    return 1\n")) == []
-
-
-def test_no_tracker_module_is_longer_than_400_lines() -> None:
-    """Issue 58: trackers are composed from parts; no module of lesmc/tracking/ (the parts
-    included) grows past 400 lines."""
-    sizes = {
-        p: len(p.read_text().splitlines()) for p in (ROOT / "lesmc" / "tracking").rglob("*.py")
-    }
-    long = [f"{p.relative_to(ROOT)}: {n} lines" for p, n in sorted(sizes.items()) if n > 400]
-    assert not long, long

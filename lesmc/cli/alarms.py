@@ -9,15 +9,30 @@ from typing import TYPE_CHECKING, Any
 import click
 
 from lesmc.cli.documents import emit
-from lesmc.cli.options import RegistryChoice, load_scene_file, tracker_option, video_truth_option
+from lesmc.cli.options import (
+    LazyHelpOption,
+    RegistryChoice,
+    load_scene_file,
+    tracker_option,
+    video_truth_option,
+)
 from lesmc.common.errors import UsageError
 from lesmc.designs import registry
-from lesmc.language import monitors
 
 if TYPE_CHECKING:
     from lesmc.experiment.false_alarms import TruthStart
     from lesmc.perception.quality import TruthFrame
     from lesmc.scene import Scene
+
+
+def _monitor_help() -> str:
+    """``--monitor``'s help, from the monitor registry (imported when shown: it loads numpy)."""
+    from lesmc.language import monitors
+
+    return (
+        f"The monitor: {monitors.spelled()} (lesmc/language/monitors.py) [default: the "
+        "tracker's monitor, else tau_rise 1e-9, the paper's Eq. 13]."
+    )
 
 
 @click.command("alarms")
@@ -35,8 +50,8 @@ if TYPE_CHECKING:
     nargs=2,
     default=None,
     metavar="KIND PARAM",
-    help=f"The monitor: {monitors.spelled()} (lesmc/language/monitors.py) [default: the "
-    "tracker's monitor, else tau_rise 1e-9, the paper's Eq. 13].",
+    cls=LazyHelpOption,
+    help_from=_monitor_help,
 )
 @click.option(
     "--window",

@@ -51,6 +51,24 @@ class RegistryChoice(click.Choice):  # type: ignore[type-arg, unused-ignore]
         """click sets the choices once; they are read from the registry instead."""
 
 
+class LazyHelpOption(click.Option):
+    """An option whose help is made whenever it is shown (``help_from``), so that a registry
+    whose module imports numpy (the monitors') is read by ``--help`` and docs/cli-options.md
+    but not imported by every verb's start."""
+
+    def __init__(self, *args: Any, help_from: Callable[[], str], **kwargs: Any) -> None:
+        self._help_from = help_from
+        super().__init__(*args, **kwargs)
+
+    @property  # type: ignore[override, unused-ignore]
+    def help(self) -> str:
+        return self._help_from()
+
+    @help.setter
+    def help(self, _value: Any) -> None:
+        """click sets the help once; it is made from ``help_from`` instead."""
+
+
 class FiniteRange(click.FloatRange):
     """``click.FloatRange`` without nan and the infinities (nan passes its comparisons)."""
 

@@ -11,10 +11,12 @@ from __future__ import annotations
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass, field, replace
-from typing import Literal, Protocol, TypeVar
+from typing import TYPE_CHECKING, Literal, Protocol, TypeVar
 
 from lesmc.common.errors import UsageError
-from lesmc.language import measures
+
+if TYPE_CHECKING:  # the registry loads numpy: imported where a measure is asked for
+    from lesmc.language import measures
 
 #: A step reference in a spec: a number, or None for ``end``.
 StepRef = int | None
@@ -61,11 +63,13 @@ class Measure:
 
     def text(self) -> str:
         """The measure as it is written in the language."""
-        return measures.get(self.kind).text(self.aggregate, self.lo, self.hi)
+        return self.declared.text(self.aggregate, self.lo, self.hi)
 
     @property
     def declared(self) -> measures.DeclaredMeasure:
         """The measure's declaration (lesmc/language/measures/)."""
+        from lesmc.language import measures
+
         return measures.get(self.kind)
 
 
