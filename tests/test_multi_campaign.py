@@ -12,10 +12,9 @@ from pathlib import Path
 import jsonschema
 import pytest
 from cli_run import lesmc
+from multi_video import write_small_video
 
 from lesmc.schemas import schema
-from lesmc.video.synth import SynthConfig
-from lesmc.video.write import write_video
 
 SPEC = """property hijack {
     attack window 2..4 within 30
@@ -39,7 +38,7 @@ def campaign(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, Path]:
     """The campaign's OUT and its spec file."""
     base = tmp_path_factory.mktemp("multicampaign")
     video = base / "v5"
-    write_video(SynthConfig(frames=12, width=448, height=448, seed=5, density=3.0), video)
+    write_small_video(video)
     spec = base / "identity.spec"
     spec.write_text(SPEC)
     targets = base / "targets.txt"

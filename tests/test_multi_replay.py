@@ -15,10 +15,9 @@ from typing import Any
 import numpy as np
 import pytest
 from cli_run import lesmc
+from multi_video import SPEC, write_small_video
 
 from lesmc.schemas import validate
-from lesmc.video.synth import SynthConfig
-from lesmc.video.write import write_video
 
 pytest.importorskip("sort_tracker")
 import sort_reference
@@ -26,19 +25,6 @@ import sort_reference
 #: A target of the video (seed 5) whose identity a hidden detection in frames 6 and 7 each
 #: switches (SORT's max_age 1 deletes its track; a later one takes the reference), and
 #: which is lost at every step between: a hijack and a loss at a payoff under 3.
-SPEC = """property hijack {
-    attack window 2..4 within 30
-    minimize payoff
-    subject to switches(0..end) > 0
-    holds if optimum > 3.0
-}
-property lose {
-    attack window 2..4 within 30
-    minimize payoff
-    subject to lost(0..end) > 1
-    holds if optimum > 3.0
-}
-"""
 TARGET = "119.0,71.5@4"
 
 
@@ -57,7 +43,7 @@ def _verify(out: Path) -> Any:
 def verified(tmp_path_factory: pytest.TempPathFactory) -> Path:
     """``lesmc verify VIDEO --design sort`` on a 12-frame 448 x 448 video: its OUT."""
     base = tmp_path_factory.mktemp("multireplay")
-    write_video(SynthConfig(frames=12, width=448, height=448, seed=5, density=3.0), base / "video")
+    write_small_video(base / "video")
     (base / "identity.spec").write_text(SPEC)
     _verify(base / "out")
     return base / "out"

@@ -21,23 +21,8 @@ from typing import Any
 
 import pytest
 from cli_run import lesmc
+from multi_video import SPEC, write_small_video
 
-from lesmc.video.synth import SynthConfig
-from lesmc.video.write import write_video
-
-SPEC = """property hijack {
-    attack window 2..4 within 30
-    minimize payoff
-    subject to switches(0..end) > 0
-    holds if optimum > 3.0
-}
-property lose {
-    attack window 2..4 within 30
-    minimize payoff
-    subject to lost(0..end) > 1
-    holds if optimum > 3.0
-}
-"""
 #: tests/test_multi_replay.py's target: a hijack and a loss, both confirmed by the replay
 X, Y, STEP = 119.0, 71.5, 4
 
@@ -49,7 +34,7 @@ def made(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Path]:
     verify does not replay)."""
     base = tmp_path_factory.mktemp("review21")
     video, scene, spec, out = base / "video", base / "scene.json", base / "id.spec", base / "out"
-    write_video(SynthConfig(frames=12, width=448, height=448, seed=5, density=3.0), video)
+    write_small_video(video)
     spec.write_text(SPEC)
     r = lesmc("perceive", str(video), "-o", str(scene))
     assert r.returncode == 0 and "Traceback" not in r.stderr, r.stderr
