@@ -571,7 +571,7 @@ def test_one_unattacked_track_decides_lasts_and_follows(base: tuple[Path, Path])
     a track that halts before the horizon while its truth track ends earlier still."""
     from collections import Counter
 
-    from lesmc.campaign.run import _lasts, _lasts_and_follows
+    from lesmc.campaign.targets import _lasts, _lasts_and_follows
     from lesmc.common.errors import UsageError
     from lesmc.experiment.targets import follows, rank_targets
     from lesmc.perception.quality import load_truth

@@ -341,7 +341,7 @@ def _targets_option(text: str) -> tuple[int | None, Path | None]:
 def _file_targets(target_file: Path | None, videos: list[Any]) -> dict[str, list[Any]] | None:
     """The targets of ``--targets FILE`` by video (None without a file), read before any
     video is perceived, so that a mistake in the file costs nothing."""
-    from lesmc.campaign.run import file_targets
+    from lesmc.campaign.targets import file_targets
 
     return None if target_file is None else file_targets(target_file, [v.name for v in videos])
 
@@ -355,7 +355,7 @@ def _choose_targets(
 ) -> None:
     from rich.console import Console
 
-    from lesmc.campaign.run import auto_targets, check_file_target
+    from lesmc.campaign.targets import auto_targets, check_file_target
 
     err = Console(stderr=True)
     if by_video is not None:
