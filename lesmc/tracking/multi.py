@@ -25,7 +25,7 @@ import numpy as np
 from lesmc.common.errors import UsageError
 from lesmc.model.identity import NONE, target_track
 from lesmc.scene import Footage, Frame, Scene
-from lesmc.scene.io import scene_error
+from lesmc.scene.located import scene_error
 from lesmc.tracking.parts.associator import GlobalAssociator
 from lesmc.tracking.parts.box_filter import BoxFilter
 from lesmc.tracking.parts.boxes import iou
