@@ -44,7 +44,6 @@ import numpy as np
 
 from lesmc.common.errors import InputError, Location, UsageError
 from lesmc.common.files import read_text
-from lesmc.common.locations import json_location
 from lesmc.engines.multi import check_multi, measure_value
 from lesmc.model.identity import NONE, last_seen
 from lesmc.model.kernel import COMPARE
@@ -124,7 +123,6 @@ def multi_cases(
 def _results_error(path: str, problems: list[tuple[str, str]]) -> InputError:
     """The error listing ``problems`` (``(item, message)``) of the results file ``path``:
     each at its ``FILE:LINE:COL`` when the file can be read (else ``FILE: item``)."""
-    from lesmc.common.files import read_text
     from lesmc.common.locations import error_at_items
 
     if not Path(path).is_file():
@@ -176,22 +174,13 @@ def _hidden(scene: Scene, steps: list[dict[str, Any]], path: str, j: int) -> tup
             d = by_id.get(obs)
             if d is None or frame is None:
                 item = f"results[{j}].counterexample[{i}].hidden[{m}]"
-                raise InputError(
-                    f"{item}: detection '{obs}' is not in the scene's frame {s['frame']}: the "
-                    "results were not made from this scene",
-                    results_location(path, item),
+                msg = (
+                    f"detection '{obs}' is not in the scene's frame {s['frame']}: the results "
+                    "were not made from this scene"
                 )
+                raise _results_error(path, [(item, msg)])
             out.append(Hidden(k, frame.step, obs, d.x, d.y, d.payoff))
     return tuple(out)
-
-
-def results_location(path: str, item: str) -> Location:
-    """The ``FILE:LINE:COL`` of JSON item ``item`` in the results file ``path``
-    (:func:`lesmc.common.locations.json_location`); ``FILE: item`` when ``path`` is no file
-    (results not written yet, as ``lesmc verify`` replays them)."""
-    if not Path(path).is_file():
-        return Location(path, item=item)
-    return json_location(path, read_text(path), item)
 
 
 def replay_multi(
