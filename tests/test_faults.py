@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import itertools
 import math
+import os
 from dataclasses import replace
 from pathlib import Path
 from typing import Any
@@ -196,15 +197,21 @@ def _oracle_optimum(
     return best
 
 
+#: Random scenes the fault test checks: 60 in the suite (CI time), 200 (the issue's count)
+#: with LESMC_FAULT_CASES=200.
+FAULT_CASES = int(os.environ.get("LESMC_FAULT_CASES", "60"))
+
+
 def test_optima_under_faults_equal_brute_force() -> None:
-    """200 random scenes, trackers (cv2d, ca2d, random models; single and joint designs),
-    faults (matrix entries, outages, stuck neurons with a random faulty perception per set
-    of them) and budgets (1 or 2): every NAME+FAULT optimum and verdict equals the least
-    brute-force optimum over every activation of those faults."""
+    """FAULT_CASES random scenes (200 with LESMC_FAULT_CASES=200), trackers (cv2d, ca2d,
+    random models; single and joint designs), faults (matrix entries, outages, stuck
+    neurons with a random faulty perception per set of them) and budgets (1 or 2): every
+    NAME+FAULT optimum and verdict equals the least brute-force optimum over every
+    activation of those faults."""
     cases = compared = violated = 0
     engines = ("levels", "bnb", "enumerate")
-    for seed in range(260):
-        if cases >= 200:
+    for seed in range(2 * FAULT_CASES + 60):
+        if cases >= FAULT_CASES:
             break
         rng = np.random.default_rng(7300 + seed)
         tracker = random_model(rng, ("cv2d", "ca2d", "random")[seed % 3])
@@ -261,7 +268,8 @@ def test_optima_under_faults_equal_brute_force() -> None:
                 violated += r.verdict == "violated"
             compared += 1
         cases += 1
-    assert cases == 200 and compared >= 300 and violated >= 50, (cases, compared, violated)
+    assert cases == FAULT_CASES, (cases, compared, violated)
+    assert compared >= 1.5 * cases and violated >= cases // 4, (cases, compared, violated)
 
 
 BAD_FAULTS = [
