@@ -8,7 +8,8 @@ network (examples/detectors/heatmap.onnx, its ONNX graph extended here: every he
 cell becomes a row [x1, y1, x2, y2, raw], a 16x16 box on the cell's centre; ``iou_nms
 = 0.3``, so a detection suppresses boxes up to two cells away, as the example's
 ``nms_radius = 2``), then runs ``lesmc verify FRAMES --detector box.toml --truth
-truth.json`` twice in fresh OUT directories: with ``--price-all`` (every detection
+truth.json --target X,Y@0`` (the fastest vehicle of frame 0 that stays in view) twice
+in fresh OUT directories: with ``--price-all`` (every detection
 priced up front) and without (priced when a model reads it). Prints per run the wall
 seconds, the CPU seconds of the lesmc process, the exit status, the detections and how
 many were priced, and the verdicts. Figures: docs/performance.md, "Issue 60, round 22".
@@ -82,6 +83,16 @@ def box_network(out: Path, size: int) -> Path:
     return toml
 
 
+def target(truth: Path) -> str:
+    """``X,Y@0``: the fastest vehicle of frame 0 that every frame shows unoccluded."""
+    frames = json.loads(truth.read_text())["frames"]
+    seen = [{v["id"] for v in f["vehicles"] if not v["occluded"]} for f in frames]
+    always = set.intersection(*seen)
+    best = max((v for v in frames[0]["vehicles"] if v["id"] in always),
+               key=lambda v: v["speed_mps"])  # fmt: skip
+    return f"{best['x']:.1f},{best['y']:.1f}@0"
+
+
 def facts(out: Path) -> dict[str, Any]:
     """The run's detections, priced count and verdicts, from its results.json."""
     doc = json.loads((out / "results.json").read_text())
@@ -103,12 +114,14 @@ def main() -> int:
                               f"{args.size}x{args.size}", "--seed", "103")  # fmt: skip
         assert code == 0, err
     toml = box_network(out, args.size)
+    at = target(video / "truth.json")
+    print(f"target {at}", flush=True)
     for name, extra in (("up front", ["--price-all"]), ("on demand", [])):
         run = out / name.replace(" ", "_")
         subprocess.run(["rm", "-rf", str(run)], check=True)
         code, wall, cpu, err = lesmc(
             "verify", str(video), "--detector", str(toml), "--truth", str(video / "truth.json"),
-            "--out", str(run), *extra,
+            "--target", at, "--out", str(run), *extra,
         )  # fmt: skip
         got = facts(run) if (run / "results.json").exists() else {"error": err[-2000:]}
         print(f"{name}: exit {code}, {wall:.1f} s wall, {cpu:.1f} s CPU, {got}", flush=True)
