@@ -97,8 +97,26 @@ def facts(out: Path) -> dict[str, Any]:
     """The run's detections, priced count and verdicts, from its results.json."""
     doc = json.loads((out / "results.json").read_text())
     det = doc["perception"]["detections"]
-    verdicts = [f"{x['design']}:{x['verdict']}" for r in doc["runs"] for x in r["results"]]
+    verdicts = [
+        f"{x['design']}/{x['property']}:{x['verdict']}@{x.get('optimum')}"
+        for r in doc["runs"]
+        for x in r["results"]
+    ]
     return {"detections": det["detections"], "priced": det["priced"], "verdicts": verdicts}
+
+
+def same_payoffs(a: Path, b: Path) -> str:
+    """How the payoffs run ``b`` priced compare with run ``a``'s (its scene.json)."""
+    pays = [
+        [x["payoff"] for f in json.loads((r / "scene.json").read_text())["frames"]
+         for x in f["detections"]]
+        for r in (a, b)
+    ]  # fmt: skip
+    both = [(p, q) for p, q in zip(*pays, strict=True) if q != "unpriced"]
+    nums = [abs(p - q) / max(abs(p), 1e-12) for p, q in both if not isinstance(p, str)]
+    same = all(p == q for p, q in both if isinstance(p, str) or isinstance(q, str))
+    worst = max(nums, default=0.0)
+    return f"{len(both)} priced both ways, largest relative difference {worst:.2g}, same: {same}"
 
 
 def main() -> int:
@@ -125,6 +143,7 @@ def main() -> int:
         )  # fmt: skip
         got = facts(run) if (run / "results.json").exists() else {"error": err[-2000:]}
         print(f"{name}: exit {code}, {wall:.1f} s wall, {cpu:.1f} s CPU, {got}", flush=True)
+    print(same_payoffs(out / "up_front", out / "on_demand"))
     return 0
 
 
