@@ -26,13 +26,14 @@ import numpy as np
 import pytest
 import torch
 from cli_run import lesmc
-from test_campaign_detector import SPEC, WINDOWS, H, W, _frames, _network
+from test_campaign_detector import SPEC, H, W, _frames, _network
 from torch import nn
 
 pytest.importorskip("onnx")
 
 S = 8  #: one box per S x S cell
 LEVEL = 0.15  #: a cell's mean brightness (in [0, 1]) above which its box is a detection
+WINDOW = "6..6:2..2"  #: the campaigns' one window, 6..8 (the spec's)
 
 
 class SpotBoxes(nn.Module):
@@ -167,7 +168,7 @@ def test_a_campaign_certifies_on_demand_what_perceive_certifies_up_front(
     (d / "targets.txt").write_text("video0 10,30@0\n")
     r = lesmc(
         "campaign", str(made["video"]), "--detector", str(made["spot"]), "--out",
-        str(d / "camp"), "--workers", "0", "--spec", str(d / "p.spec"), "--windows", WINDOWS,
+        str(d / "camp"), "--workers", "0", "--spec", str(d / "p.spec"), "--windows", WINDOW,
         "--targets", str(d / "targets.txt"), "--design", "single", "--payoffs", "certified",
     )  # fmt: skip
     _ok(r)
@@ -193,7 +194,7 @@ def test_a_campaign_refuses_a_box_detectors_bounds_before_perceiving(
     r = lesmc(
         "campaign", str(made["video"]), "--detector", str(made["box"]), "--out",
         str(d / "boxcamp"), "--workers", "0", "--spec", str(d / "p.spec"), "--windows",
-        WINDOWS, "--targets", str(d / "targets.txt"), "--design", "single", "--payoffs",
+        WINDOW, "--targets", str(d / "targets.txt"), "--design", "single", "--payoffs",
         "interval",
     )  # fmt: skip
     assert r.returncode == 2, r.stdout + r.stderr
