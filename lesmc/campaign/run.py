@@ -108,7 +108,9 @@ def prepare(
     """The video's scene: ``DIR/scenes/<name>.json`` if made from these frames, else perceived;
     with ``tracker`` (``--tracker``) as its scene's tracker (the file is rewritten if it had
     another). A detector file (``files[1]``, docs/detectors.md) perceives the whole frames,
-    every detection priced (and certified when ``certified``: --payoffs certified|interval)."""
+    every detection priced; ``certified`` (--payoffs certified|interval): a detector file
+    that gives no certified bounds is refused first (:func:`certify_scenes` bounds the
+    detections the models can hide)."""
     p = _prepare(video, out, files, certified)
     if tracker is not None and p.footage.tracker != tracker:
         p.set_footage(replace(p.footage, tracker=tracker))
@@ -136,8 +138,12 @@ def _prepare(video: Video, out: Path, files: NetFiles, certified: bool) -> Prepa
     by_file = detector_file_of(files)
     frames = open_frames(video.frames_dir, least_frames(files), check=not path.exists())
     fp = fingerprint(frames.paths)
+    if by_file is not None and certified:
+        from lesmc.experiment.detector_verify import refuse_uncertifiable
+
+        refuse_uncertifiable(by_file, "--payoffs certified|interval")
     kept = _kept_scene(video, path, fp, by_file)
-    if kept is not None and not (by_file and certified and "certify" not in kept.footage.meta):
+    if kept is not None:
         return kept
     truth = load_truth(str(video.truth)) if video.truth else None
     dt = (truth.dt if truth else None) or 1 / FPS
@@ -149,9 +155,7 @@ def _prepare(video: Video, out: Path, files: NetFiles, certified: bool) -> Prepa
     }
     run = None
     if by_file is not None:
-        footage = _perceive_file(video, frames, by_file, certified, dt, meta)
-        if kept is not None:  # perceived again for its bounds: the same detections
-            _same_file_detections(kept, footage)
+        footage = _perceive_file(video, frames, by_file, dt, meta)
     else:
         run, nets = perceive_video(video, frames, files)
         footage = footage_from_run(run, dt, meta | {"detector": nets.settings.trained_on})
@@ -201,11 +205,12 @@ def _other_detector(recorded: Any, by_file: str | None) -> str:
 
 
 def _perceive_file(
-    video: Video, frames: Any, path: str, certified: bool, dt: float, meta: dict[str, Any]
+    video: Video, frames: Any, path: str, dt: float, meta: dict[str, Any]
 ) -> Footage:
-    """The video perceived through the detector file ``path`` as ``lesmc verify --detector``
-    perceives it (lesmc/experiment/detector_verify.py): every detection priced, and
-    certified when ``certified``; ``meta`` and the detections' facts added to its meta."""
+    """The video perceived through the detector file ``path`` as ``lesmc verify --detector
+    --price-all`` perceives it (lesmc/experiment/detector_verify.py): every detection
+    priced (none certified: :func:`certify_scenes`); ``meta`` and the detections' facts
+    added to its meta."""
     from lesmc.common.progress import Reporter
     from lesmc.experiment import detector_verify
 
@@ -213,22 +218,11 @@ def _perceive_file(
     truths = load_truth(truth) if truth else None
     with Reporter("campaign") as rep:
         footage, facts = detector_verify.perceive_video(
-            str(video.frames_dir), frames, path, truth, truths, certified, dt, rep,
+            str(video.frames_dir), frames, path, truth, truths, False, dt, rep,
             lambda _stage: None,
         )  # fmt: skip
     meta = footage.meta | meta | {"detections": detector_verify.describe(facts)}
     return replace(footage, meta=meta)
-
-
-def _same_file_detections(kept: Prepared, again: Footage) -> None:
-    """A scene perceived again through its detector file (for certified bounds) must
-    give the kept scene's detections and payoffs, else its results would not be its own."""
-    ok = scene_key(scene_to_dict(replace(again, tracker=kept.footage.tracker))) == kept.key
-    if not ok:
-        raise UsageError(
-            f"{kept.scene_path}: perceived again for certified bounds, the detector file "
-            "gives other detections or payoffs: use another --out"
-        )
 
 
 def perceive_video(video: Video, frames: Any, files: NetFiles) -> tuple[Any, Any]:
@@ -299,9 +293,7 @@ def certify_scenes(prepared: list[Prepared], groups: list[Group], files: NetFile
             low = certify.certify(
                 p.footage,
                 found,
-                _certifier(p, files, sum(len(v) for v in todo.values()))
-                if "detector_file" not in p.footage.meta
-                else _no_more_bounds,
+                _certifier(p, files, sum(len(v) for v in todo.values())),
                 "the detections the campaign's models can hide; the others have no bound",
             )
             p.set_footage(replace(p.footage, frames=low.frames, meta=low.meta))
@@ -331,14 +323,15 @@ def _probes(p: Prepared, groups: list[Group]) -> dict[Group, list[certify.Probed
     return out
 
 
-def _no_more_bounds(_wanted: Any) -> dict[int, Any]:
-    """A detector file's scene is certified whole when perceived (:func:`prepare`): a
-    detection left without a bound stays so (the units' notes count it)."""
-    return {}
-
-
 def _certifier(p: Prepared, files: NetFiles, n: int) -> Certifier:
-    """Perception's certification of the video's detections (perceived again if need be)."""
+    """Perception's certification of the video's detections (perceived again if need be);
+    through a detector file, its crop bounds on the detections asked for
+    (lesmc/experiment/detector_verify.py ``file_certifier``)."""
+    from lesmc.experiment.detector_verify import detector_file_of
+
+    by_file = detector_file_of(files)
+    if by_file is not None:
+        return _file_certifier(p, files, by_file, n)
 
     def run(wanted: Any) -> dict[int, Any]:
         from lesmc.perception.cnn import load_nets
@@ -359,6 +352,26 @@ def _certifier(p: Prepared, files: NetFiles, n: int) -> Certifier:
             return certify_on_demand(
                 nets, p.run, wanted, lambda done, total: bar.update(total=total, completed=done)
             )
+
+    return run
+
+
+def _file_certifier(p: Prepared, files: NetFiles, path: str, n: int) -> Certifier:
+    """The crop bounds of the detector file ``path`` on the detections of ``p`` asked for
+    (lesmc/experiment/detector_verify.py ``file_certifier``), saying how many first."""
+    from lesmc.experiment.detector_verify import file_certifier
+    from lesmc.video.reader import open_frames
+
+    frames = open_frames(p.video.frames_dir, least_frames(files), check=False)
+    bound = file_certifier(path, frames, p.footage)
+
+    def run(wanted: Any) -> dict[int, Any]:
+        of = sum(len(f.detections) for f in p.footage.frames)
+        Console(stderr=True).print(
+            f"{p.video.name}: certifying {n} of {of} detections through {path} (those the "
+            "models can hide and the scene does not yet bound)"
+        )
+        return bound(wanted)
 
     return run
 

@@ -246,8 +246,8 @@ def _prepared(
     certified: bool = False,
 ) -> list[Any]:
     """Each video perceived into OUT/scenes (or read back from there), with the tracker of
-    ``tracker_file`` (``--tracker``) as its scene's tracker; ``certified``: a detector file
-    certifies every detection as it perceives (--payoffs certified|interval)."""
+    ``tracker_file`` (``--tracker``) as its scene's tracker; ``certified`` (--payoffs
+    certified|interval): a detector file that gives no certified bounds is refused."""
     from lesmc.campaign.run import prepare
     from lesmc.scene import load_tracker
 

@@ -88,8 +88,8 @@ if TYPE_CHECKING:
     help="Attack every detection of the video up front. By default verify attacks only "
     'the detections whose payoffs its models read (the others are "unpriced" in '
     "OUT/scene.json; a later check that reads one stops with exit 2). Certified payoffs "
-    "and --faults price every detection anyway (so does a box-list detector file; a "
-    "heatmap detector file's are priced on demand, docs/detectors.md).",
+    "and --faults price every detection anyway (a heatmap or box-list detector file's "
+    "are priced on demand too, docs/detectors.md).",
 )
 @click.option(
     "--inject-within",

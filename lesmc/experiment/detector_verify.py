@@ -2,8 +2,11 @@
 
 The detector file (docs/detectors.md) runs on every frame with no WAMI front end, as
 ``lesmc perceive --detector FILE.toml -o`` does (lesmc/experiment/perceive.py,
-:func:`~lesmc.experiment.perceive.perceive_with_file`): every detection is priced up
-front (and certified with ``--payoffs certified|interval``). The scene then gets its
+:func:`~lesmc.experiment.perceive.perceive_with_file`). A heatmap or box detector's
+detections are priced when a model first reads them (:class:`FilePricer`; up front with
+``--price-all``, and certified up front with ``--payoffs certified|interval``); a
+campaign's certified payoffs bound those its models can hide (:func:`file_certifier`).
+The scene then gets its
 target and goes through the same checks as the window pipeline's
 (lesmc/experiment/experiment.py); a violation is replayed through the detector file
 (lesmc/replay/detector_file.py). With the video's truth, the detections' recall and
@@ -27,6 +30,7 @@ from lesmc.perception import NetFiles
 
 if TYPE_CHECKING:
     from lesmc.experiment.cache import StageCache
+    from lesmc.perception.file_pricing import FilePricing
     from lesmc.perception.quality import Truth
     from lesmc.replay.run import Outcome
     from lesmc.results.read import ResultsDoc
@@ -142,20 +146,13 @@ def perceive_cached(
     return footage, facts, key
 
 
-def prices_lazily(path: str) -> bool:
-    """Whether verify prices the detector file's detections on demand: a heatmap detector's
-    (a box detector's are priced up front)."""
-    from lesmc.perception.detector_file import read_detector_file
-
-    return read_detector_file(path).kind == "heatmap"
-
-
 class FilePricer(VideoPricer):
-    """Prices a heatmap detector file's detections when a model first reads them
-    (:class:`~lesmc.scene.OnDemandPayoffs`): frame k's wanted detections, found again by
-    their cells (``cells_of`` their positions), by the attack ``lesmc perceive --detector``
-    runs on each (heatmap_attack.price_cells), with the same settings. The detector is
-    loaded on the first request (none for a run whose models read no payoff)."""
+    """Prices a detector file's detections when a model first reads them
+    (:class:`~lesmc.scene.OnDemandPayoffs`): frame k's wanted detections, known by their
+    positions, by the attack ``lesmc perceive --detector`` runs on each, with the same
+    settings (:class:`~lesmc.perception.file_pricing.FilePricing`, for a heatmap or a box
+    detector alike). The detector is loaded on the first request (none for a run whose
+    models read no payoff)."""
 
     def __init__(self, path: str, frames: FrameSet, footage: Footage) -> None:
         super().__init__(None, None, _no_run)
@@ -164,22 +161,18 @@ class FilePricer(VideoPricer):
         self.how: Any = None
 
     def __call__(self, wanted: Mapping[int, np.ndarray]) -> dict[int, np.ndarray]:
-        from lesmc.perception.heatmap import cells_of, frame_input
-        from lesmc.perception.heatmap_attack import price_cells
-
         if self.released:
             raise RuntimeError("payoffs asked for after the pricer let go of its detector")
         if self.how is None:
-            self.how = _pricing(self.path, self.frames)
+            self.how = file_pricing(self.path, self.frames)
         if self.on_price is not None:
             self.on_price(sum(len(v) for v in wanted.values()))
         t0 = time.monotonic()
         out = {}
         for k, idx in sorted(wanted.items()):
             pos = self.positions[k]
-            cells = cells_of(pos, self.how.det.spec.stride)[idx]
             col = np.full(len(pos), np.nan)
-            col[idx] = price_cells(self.how, frame_input(self.frames, k, self.how.det), cells, k)
+            col[idx] = self.how.price(k, pos, idx)
             out[k] = col
         self.seconds += time.monotonic() - t0
         return out
@@ -195,16 +188,53 @@ def _no_run() -> Any:
     raise RuntimeError("a detector file's pricer perceives nothing again")
 
 
-def _pricing(path: str, frames: FrameSet) -> Any:
-    """The detector file's pricing (heatmap_attack.pricing) with verify's attack settings,
-    those of ``lesmc perceive --detector`` (its default ``PerceiveRequest``)."""
+def file_pricing(path: str, frames: FrameSet) -> FilePricing:
+    """The detector file's :class:`~lesmc.perception.file_pricing.FilePricing` on
+    ``frames`` with the attack settings of ``lesmc perceive --detector`` (its default
+    ``PerceiveRequest``): verify's and campaign's."""
     from lesmc.experiment.perceive import PerceiveRequest, attack_config
     from lesmc.perception.detector_file import load_detector
+    from lesmc.perception.file_pricing import FilePricing
     from lesmc.perception.heatmap import check_frames
-    from lesmc.perception.heatmap_attack import pricing
 
     det = check_frames(frames, load_detector(path), str(frames.paths[0].parent))
-    return pricing(det, attack_config(PerceiveRequest(str(frames.paths[0].parent))))
+    return FilePricing(det, frames, attack_config(PerceiveRequest(str(frames.paths[0].parent))))
+
+
+def file_certifier(
+    path: str, frames: FrameSet, footage: Footage
+) -> Callable[[Mapping[int, np.ndarray]], dict[int, np.ndarray]]:
+    """A certifier (lesmc/pipeline/certify.py) of ``footage``'s detections through the
+    detector file ``path``: per frame step, the wanted detections' certified lower bounds
+    (``nan`` for the others), each bounded as ``lesmc perceive --detector --certify``
+    bounds it, below its payoff in ``footage``. What ``lesmc campaign --payoffs
+    certified|interval`` runs on the detections its models can hide; the detector is
+    loaded on the first request."""
+    how: list[FilePricing] = []
+
+    def certify(wanted: Mapping[int, np.ndarray]) -> dict[int, np.ndarray]:
+        if not how:
+            how.append(file_pricing(path, frames))
+        out = {}
+        for k, idx in sorted(wanted.items()):
+            frame = footage.frame(k)
+            pos, pays = frame.positions(), frame.payoff_values()
+            col = np.full(len(pos), np.nan)
+            col[idx] = how[0].certify(k, pos, idx, pays[idx])
+            out[k] = col
+        return out
+
+    return certify
+
+
+def refuse_uncertifiable(path: str, option: str) -> None:
+    """A detector file whose detections get no certified bounds (a box detector, or a
+    network outside the supported chain) is a located error, before anything is perceived
+    (lesmc/perception/file_pricing.py); ``option`` asked for the bounds."""
+    from lesmc.perception.detector_file import load_detector
+    from lesmc.perception.file_pricing import refuse_uncertifiable as refuse
+
+    refuse(load_detector(path), option)
 
 
 #: The OUT/cache stage of a detector file's perception (the window pipeline's: keys differ).

@@ -431,15 +431,10 @@ def _file_perception(
     on_demand: bool,
 ) -> _Perception:
     """The video through the detector file ``path`` (lesmc/experiment/detector_verify.py),
-    kept in OUT/cache: a heatmap detector's payoffs priced when a model reads them (as the
-    window pipeline's: ``on_demand``, --payoffs attack, no --price-all), else every
+    kept in OUT/cache: a heatmap or box detector's payoffs priced when a model reads them
+    (as the window pipeline's: ``on_demand``, --payoffs attack, no --price-all), else every
     detection priced now (a multi-target design reads the scene's payoffs directly)."""
-    lazy = (
-        on_demand
-        and req.payoffs == "attack"
-        and not req.price_all
-        and detector_verify.prices_lazily(path)
-    )
+    lazy = on_demand and req.payoffs == "attack" and not req.price_all
     footage, facts, key = detector_verify.perceive_cached(
         frames_dir, frames, path, truth[0], truth[1], req.payoffs != "attack", dt, rep,
         lambda stage: _spent(req.budget, stage), StageCache(req.out), lazy,

@@ -201,14 +201,14 @@ def perceive_with_file(
     with ``req.scene`` each detection's payoff (lesmc/perception/heatmap_attack.py; each
     hiding perturbation saved to ``save_attacks`` as FRAME_K.npy) and the footage, its
     target placed when asked for. ``on_start(n_frames)`` gives the per-frame callback.
-    ``priced=False`` (a heatmap detector, no certification): the footage's payoffs are left
-    unpriced, for ``lesmc verify`` to price those its models read."""
+    ``priced=False`` (no certification): the footage's payoffs are left unpriced, for
+    ``lesmc verify`` to price those its models read (lesmc/perception/file_pricing.py)."""
     from lesmc.perception.detector_file import load_detector
     from lesmc.perception.heatmap import check_frames, footage_of, run_detector
 
     det = load_detector(path)
     if det.spec.kind == "boxes":
-        return _with_boxes(req, det, on_start, save_attacks)
+        return _with_boxes(req, det, on_start, save_attacks, priced)
     inputs = open_inputs(req, minimum=1)
     det = check_frames(inputs.frames, det, req.frames_dir)
     price = _pricer(req, det, save_attacks) if req.scene and priced else None
@@ -247,20 +247,18 @@ def _with_boxes(
     det: LoadedDetector,
     on_start: Callable[[int], Any] | None,
     save_attacks: str | None,
+    priced: bool = True,
 ) -> PerceivedWithFile:
     """:func:`perceive_with_file` for a box-list detector (lesmc/perception/boxes.py):
-    attack-only, certified bounds are refused."""
+    attack-only, certified bounds are refused; ``priced=False``: payoffs left unpriced."""
     from lesmc.perception.boxes import footage_of_boxes, price_boxes, run_boxes
     from lesmc.perception.detector_file import located
+    from lesmc.perception.file_pricing import refuse_uncertifiable
     from lesmc.perception.heatmap import check_frames
     from lesmc.perception.heatmap_attack import saver
 
     if req.certify:
-        raise located(
-            det.spec, "kind",
-            "box-list detectors are attack-only: certified bounds are built for fully "
-            "convolutional heatmap detectors (drop --certify)",
-        )  # fmt: skip
+        refuse_uncertifiable(det)
     if req.inject_within is not None:
         raise located(
             det.spec, "kind",
@@ -276,7 +274,7 @@ def _with_boxes(
         return price_boxes(det, frame, bd, att, save)
 
     on_frame = on_start(len(inputs.frames)) if on_start else None
-    dets = run_boxes(inputs.frames, det, on_frame, price if req.scene else None)
+    dets = run_boxes(inputs.frames, det, on_frame, price if req.scene and priced else None)
     if not req.scene:
         return PerceivedWithFile(det, dets, None, "")
     dt = req.dt or (inputs.truth.dt if inputs.truth else None) or 1 / FPS

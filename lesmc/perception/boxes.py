@@ -100,13 +100,18 @@ def run_boxes(
     out = []
     for i in range(len(frames)):
         arr = frame_input(frames, i, det)
-        with torch.no_grad():
-            y = det.net.module(torch.from_numpy(arr))
-        bd = decode_boxes(y[0].double().numpy(), det, i)
+        bd = detect_boxes(arr, det, i)
         out.append(bd if price is None else price(arr, bd))
         if on_frame is not None:
             on_frame()
     return out
+
+
+def detect_boxes(arr: np.ndarray, det: LoadedDetector, index: int) -> BoxDetections:
+    """Frame ``index``'s detections: the network on its input ``arr`` (1, C, H, W), decoded."""
+    with torch.no_grad():
+        y = det.net.module(torch.from_numpy(arr))
+    return decode_boxes(y[0].double().numpy(), det, index)
 
 
 def price_boxes(
@@ -119,15 +124,29 @@ def price_boxes(
     """``bd`` with each detection's payoff (``inf`` when the attack finds no perturbation
     that hides it); ``save(K, delta)`` gets each hiding perturbation (float32 (1, C, H, W),
     input units)."""
+    return replace(bd, payoffs=price_box_list(det, frame, bd.boxes, cfg, save))
+
+
+def price_box_list(
+    det: LoadedDetector,
+    frame: np.ndarray,
+    boxes: np.ndarray,
+    cfg: AttackConfig,
+    save: Callable[[int, np.ndarray], None] | None = None,
+) -> np.ndarray:
+    """(n,) the payoffs of hiding the (n, 4) ``boxes`` of one frame (:func:`price_boxes`;
+    ``save(K, delta)``, K a box's place in ``boxes``). Each box's attack and validation are
+    its own, so a box priced alone (``lesmc verify`` on demand,
+    lesmc/perception/file_pricing.py) gets the payoff it gets with the others."""
     from lesmc.perception.attacks import payoffs
     from lesmc.perception.heatmap_attack import SLACK, raw_threshold
 
-    out = np.full(len(bd.boxes), np.inf)
+    out = np.full(len(boxes), np.inf)
     t = raw_threshold(det)
     lo, hi = det.spec.scale
     if math.isfinite(t):
         base_u = ((frame - lo) / (hi - lo)).astype(np.float32)
-        for k, box in enumerate(bd.boxes):
+        for k, box in enumerate(boxes):
             hide = _BoxHide(det, box, t - SLACK * max(1.0, abs(t)))
             res = payoffs(hide, base_u, 0.5, replace(cfg, norm="l2"))
             if not bool(res.flipped[0]):
@@ -137,7 +156,7 @@ def price_boxes(
                 out[k] = float(np.sqrt((delta.astype(np.float64) ** 2).sum()))
                 if save is not None:
                     save(k, delta)
-    return replace(bd, payoffs=out)
+    return out
 
 
 def hidden(det: LoadedDetector, x: np.ndarray, box: np.ndarray) -> bool:

@@ -72,15 +72,30 @@ def certify_frame(
     """(n,) each detection's certified lower bound (L2, network input units): its peak
     cell's raw output stays ``> t`` within it. ``upper``: the payoffs found (they steer the
     search, and bound the result: the lower bound is at most the payoff)."""
+    return certify_cells(det, frame, fd.cells, upper, t, cfg, conv)
+
+
+def certify_cells(
+    det: LoadedDetector,
+    frame: np.ndarray,
+    cells: np.ndarray,
+    upper: np.ndarray | None,
+    t: float,
+    cfg: CertifyConfig | None = None,
+    conv: ConvNet | None = None,
+) -> np.ndarray:
+    """:func:`certify_frame` of some of a frame's detections, their (n, 2) ``cells`` (row,
+    col): what ``lesmc campaign`` certifies on demand (lesmc/perception/file_pricing.py).
+    Each detection's bound is its own (crops of one peak place share a batch)."""
     conv = conv or certifiable(det)
-    out = np.zeros(len(fd.cells))
-    if not len(fd.cells):
+    out = np.zeros(len(cells))
+    if not len(cells):
         return out
     side, s = crop_side(det, conv), conv.stride
     with torch.no_grad():
         full = det.net.module(torch.from_numpy(frame)).reshape(det.cells)
     groups: dict[tuple[int, int], list[tuple[int, int, int]]] = {}
-    for k, (i, j) in enumerate(fd.cells):
+    for k, (i, j) in enumerate(cells):
         y0 = _start(conv.reads(int(i), int(i))[0], s, det.height - side)
         x0 = _start(conv.reads(int(j), int(j))[0], s, det.width - side)
         groups.setdefault((int(i) - y0 // s, int(j) - x0 // s), []).append((k, y0, x0))
@@ -88,7 +103,7 @@ def certify_frame(
         chain = peak_chain(conv, side, pi, pj, t)
         crops = np.stack([frame[0, :, y0 : y0 + side, x0 : x0 + side] for _, y0, x0 in items])
         ks = [k for k, _, _ in items]
-        want = torch.tensor([float(full[int(fd.cells[k][0]), int(fd.cells[k][1])]) for k in ks])
+        want = torch.tensor([float(full[int(cells[k][0]), int(cells[k][1])]) for k in ks])
         with torch.no_grad():
             got = margin_of(chain, torch.from_numpy(crops)) + t
         if not bool(same_cells(got[:, None], want[:, None], float(full.abs().max())).all()):
