@@ -344,8 +344,9 @@ def check(
     ``"all"``) or a list of designs (scenes only); ``only``: a property's name or a list
     of them. On a multi-target design (``designs="sort"`` or ``"gnn"``, or a scene whose
     tracker is one) the results are :class:`MultiCheckResult` (``lesmc check --design sort
-    --json``'s entries: ``to_dict()``); ``engine``, ``timeout`` and ``payoffs="interval"``
-    are refused there, as the command line refuses them."""
+    --json``'s entries: ``to_dict()``); ``timeout`` bounds each property's check there
+    (unfolding included; past it the result is ``unknown``), and ``engine`` and
+    ``payoffs="interval"`` are refused, as the command line refuses them."""
     src = (
         source
         if isinstance(source, ArrayModel | MultiModel | Scene)
@@ -410,7 +411,7 @@ def _check_multi_model(
     for name, why in MODEL_IGNORES.items():
         need(given[name] == _CHECK_DEFAULTS[name], f"{name}: {why}", given[name])
     need(not any(s.faults for s in specs), "specs: faults need a scene", [s.path for s in specs])
-    return check_multi_model(model, specs, only)
+    return check_multi_model(model, specs, only, Budget(timeout))  # the clock starts here
 
 
 def _multi(scene: Scene, designs: tuple[str, ...]) -> bool:
@@ -440,7 +441,7 @@ def _check_multi(
     lesmc/pipeline/multi.py): the arguments its exact search does not read are refused, as
     the command line refuses its options."""
     need(len(designs) <= 1, "designs: one multi-target design at a time", designs)
-    given = {"engine": engine, "timeout": timeout}
+    given = {"engine": engine}
     for name, why in DESIGN_IGNORES.items():
         need(given[name] == _CHECK_DEFAULTS[name], f"{name}: {why}", given[name])
     need(
@@ -454,7 +455,9 @@ def _check_multi(
         [s.path for s in specs if s.faults],
     )
     sc = scene if not designs else scene.with_tracker(design=designs[0])
-    return check_multi_design(sc.priced(payoffs, path), path, specs, only, max_states)
+    sc = sc.priced(payoffs, path)
+    budget = Budget(timeout)  # the clock starts once the arguments are checked
+    return check_multi_design(sc, path, specs, only, max_states, False, budget)
 
 
 def export(

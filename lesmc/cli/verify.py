@@ -5,7 +5,7 @@ from __future__ import annotations
 import json
 import sys
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING
 
 import click
 
@@ -233,7 +233,7 @@ def _finish(outcome: Outcome | MultiOutcome, as_json: bool) -> None:
     from lesmc.results.exit import exit_status
 
     if isinstance(outcome, MultiOutcome):  # a multi-target design: lesmc check's lines
-        from lesmc.cli.multi_check import print_multi
+        from lesmc.cli.multi_check import multi_exit_status, print_multi
 
         print_multi(outcome.doc, as_json)
         if not as_json:
@@ -245,17 +245,6 @@ def _finish(outcome: Outcome | MultiOutcome, as_json: bool) -> None:
         print_runs(make_console(), "lesmc verify", outcome.results.runs)
         click.echo(f"report: {outcome.report}")
     sys.exit(exit_status(outcome.results.results))
-
-
-def multi_exit_status(doc: dict[str, Any]) -> int:
-    """The exit status of a multi-target verify (as lesmc check's): 0 when every property
-    holds, 1 when some is violated with its counterexample confirmed by the replay (or not
-    replayed), 3 when every violation's replay diverged (unknown: no proof)."""
-    bad = [r for r in doc["results"] if r["verdict"] == "violated"]
-    if not bad:
-        return 0
-    diverged = [r for r in bad if (r.get("replay") or {}).get("status") == "diverged"]
-    return 3 if len(diverged) == len(bad) else 1
 
 
 def _kept(out: Path) -> str:
