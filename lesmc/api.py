@@ -259,8 +259,8 @@ def build(
     A multi-target design (``sort``, ``gnn``) gives a :class:`MultiModel`
     (``lesmc build --design sort``'s), unfolded for ``window`` and ``end`` with every
     detection attackable by hiding, or for property ``property`` of ``spec`` (its window,
-    end, ``within R`` and ``allow``; ``window`` None, or the property's); ``timeout`` is
-    refused there (its unfolding is bounded by ``max_states``)."""
+    end, ``within R`` and ``allow``; ``window`` None, or the property's), within
+    ``max_states`` and ``timeout`` alike."""
     sc = scene if isinstance(scene, Scene) else load_scene(file_path(scene, "scene", "or a Scene"))
     steps = None if window is None and spec is not None else attack_window(window)
     need(end is None or are_steps((end,), 1), "end must be None or a step >= 0", end)
@@ -301,9 +301,8 @@ def _build_multi(
     """:func:`build` of a multi-target design (lesmc/pipeline/multi.py ``build_for``)."""
     from lesmc.engines.multi import BuildKey
     from lesmc.language.actions import DEFAULT as DEFAULT_ACTIONS
-    from lesmc.pipeline.multi import build_for, property_key
+    from lesmc.pipeline.multi import build_within, property_key
 
-    need(timeout is None, "timeout: a multi-target design is bounded by max_states", timeout)
     need(prop is None or isinstance(prop, str), "property must be None or a name", prop)
     path = "<scene>" if isinstance(where, Scene) else where
     last = len(sc.frames) - 1
@@ -319,7 +318,7 @@ def _build_multi(
             window,
         )
         need(end is None or end == key[2], f"end: the property's is {key[2]}", end)
-    return build_for(sc, path, key, max_states)
+    return build_within(sc, path, key, max_states, Budget(timeout), f"timeout={timeout} s")
 
 
 def check_job(job: Job) -> Results:

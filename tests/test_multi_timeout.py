@@ -24,6 +24,7 @@ import lesmc as api
 from lesmc.campaign.plan import Group, Unit
 from lesmc.campaign.work import run_group
 from lesmc.common.budget import Budget, SearchBudget
+from lesmc.common.errors import BudgetError
 from lesmc.engines import multi as engine
 from lesmc.engines.multi import check_multi
 from lesmc.language.parser import parse_spec
@@ -167,6 +168,26 @@ def test_the_api_takes_a_timeout_on_a_scene_and_on_a_built_model(tmp_path: Path)
     (r,) = api.check(model, small_spec, only="hijack", timeout=1e-9)
     assert r.verdict == "unknown" and r.stopped == "timeout" and r.states_expanded == 0
     assert r.states == model.n_states  # the model was there whole: the search stopped
+
+
+def test_build_takes_a_timeout_too(tmp_path: Path) -> None:
+    """``lesmc.build`` and ``lesmc build`` of a multi-target design: past the timeout a
+    BudgetError (exit 3, nothing written); within it, the model built without one."""
+    scene, spec = _big(tmp_path)
+    with pytest.raises(BudgetError, match=r"timeout=1e-09 s ran out while unfolding"):
+        api.build(scene, None, spec=spec, property="hijack", timeout=1e-9)
+    out = tmp_path / "m.npz"
+    args = ("--spec", str(spec), "--property", "hijack", "--timeout", "1e-9", "-o", str(out))
+    r = lesmc("build", str(scene), *args)
+    assert "Traceback" not in r.stderr, r.stderr
+    assert r.returncode == 3 and "--timeout 1e-09 s ran out" in r.stderr, r.stderr
+    assert not out.exists()
+    small, small_spec, _, _ = _small(tmp_path)
+    free = api.build(small, None, spec=small_spec, property="lose")
+    timed = api.build(small, None, spec=small_spec, property="lose", timeout=600.0)
+    assert isinstance(free, MultiModel) and isinstance(timed, MultiModel)
+    assert (timed.n_states, timed.n_transitions) == (free.n_states, free.n_transitions)
+    assert np.array_equal(timed.dst, free.dst) and np.array_equal(timed.payoff, free.payoff)
 
 
 # ------------------------------------------------------------------ the engine's stops

@@ -23,6 +23,7 @@ from lesmc.cli.options import (
     scene_target,
     tracker_option,
 )
+from lesmc.cli.signals import polite_stop
 from lesmc.common.errors import UsageError
 from lesmc.designs import registry
 from lesmc.engines import registry as engines
@@ -126,7 +127,6 @@ def check_cmd(
     budget = budget_from(timeout, max_states, max_memory, armed=False)  # armed once valid
     _refuse_mismatched(frames_dir, report_dir, no_paths, as_json, payoffs)
     from lesmc.api import check_job  # imported when the verb runs: --help stays light
-    from lesmc.cli.signals import polite_stop
     from lesmc.common.progress import Reporter
     from lesmc.pipeline.job import Job
 

@@ -270,6 +270,25 @@ def build_for(
     return replace(model, meta=meta)
 
 
+def build_within(
+    scene: Scene, path: str, key: BuildKey, max_states: int | None, budget: Budget, limit: str
+) -> MultiModel:
+    """:func:`build_for` within what is left of ``budget``'s time (``lesmc build``,
+    ``lesmc.build``): past it a BudgetError (exit 3, nothing written) naming ``limit``
+    (``--timeout 9 s``), the step and the states made."""
+    from lesmc.common.errors import BudgetError
+    from lesmc.unfold.multi import UnfoldStopped
+
+    try:
+        return build_for(scene, path, key, max_states, _search(budget))
+    except UnfoldStopped as stop:
+        what = limit if stop.reason == "timeout" else stop.reason
+        raise BudgetError(
+            f"{what} ran out while unfolding the model, before step {stop.step} "
+            f"({stop.states} states made); nothing was written"
+        ) from None
+
+
 def check_meta(model: MultiModel, where: str) -> MultiModel:
     """``model`` (read from ``where``) if its header's ``meta.design`` is a registered
     multi-target design and ``meta.tracker`` a valid tracker block of that design, as

@@ -107,8 +107,7 @@ def build_multi(
         pay = np.array([d.payoff for d in (*f.detections, *f.candidates)], dtype=float)
         attack = (window[0] <= k <= window[1], actions, attackable(f, refbox[k], radius))
         count = _within_budget(f, k, len(level), attack, st.n, max_states)
-        _on_time(search, rate * count, k, st.n)
-        began = time.perf_counter()
+        began = _on_time(search, rate * count, k, st.n)
         subsets = subset_options(f, *attack)
         keeps = [_kept(len(f.detections), len(boxes), sub) for sub in subsets]
         base = st.n - len(level)
@@ -250,14 +249,15 @@ def _within_budget(
     return count
 
 
-def _on_time(search: SearchBudget | None, seconds: float, k: int, states: int) -> None:
+def _on_time(search: SearchBudget | None, seconds: float, k: int, states: int) -> float:
     """An :class:`UnfoldStopped` when ``search``'s deadline has passed, or would pass during
-    step ``k``'s successors (``seconds``, estimated), with ``states`` made so far."""
-    if search is None:
-        return
-    reason = search.over() or search.would_pass(seconds)
-    if reason is not None:
-        raise UnfoldStopped(reason, k, states)
+    step ``k``'s successors (``seconds``, estimated), with ``states`` made so far; else the
+    time now (``time.perf_counter``), when the step starts."""
+    if search is not None:
+        reason = search.over() or search.would_pass(seconds)
+        if reason is not None:
+            raise UnfoldStopped(reason, k, states)
+    return time.perf_counter()
 
 
 class _Arrays:
