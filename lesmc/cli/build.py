@@ -28,6 +28,7 @@ from lesmc.cli.options import (
     tracker_option,
 )
 from lesmc.common.errors import UsageError, escape_control, escape_text
+from lesmc.designs import registry
 
 if TYPE_CHECKING:
     from rich.table import Table
@@ -112,7 +113,6 @@ def build_cmd(
     inputs = {"SCENE": scene, "--tracker": tracker_file, "--spec": spec_path}
     distinct_files(inputs, {"-o/--output": output})
     from lesmc.common.progress import Reporter
-    from lesmc.designs import registry
     from lesmc.scene import UnpricedPayoff
     from lesmc.unfold.unfold import build_model, max_end
 
