@@ -56,7 +56,8 @@ def build_multi_model(
     key = _key(sc, window, end, spec_path, prop)
     preload()  # then the alarm: a usage error first, and no import past the deadline
     arm_budget(budget)
-    model = build_within(sc, scene, key, max_states, budget, budget.describe("timeout"))
+    limit = "--timeout" if budget.timeout is None else budget.describe("timeout")
+    model = build_within(sc, scene, key, max_states, budget, limit)
     unfolded = time.monotonic()
     save_multi(model, output)
     l, u, last = key[0], key[1], key[2]
