@@ -259,8 +259,8 @@ def build(
     A multi-target design (``sort``, ``gnn``) gives a :class:`MultiModel`
     (``lesmc build --design sort``'s), unfolded for ``window`` and ``end`` with every
     detection attackable by hiding, or for property ``property`` of ``spec`` (its window,
-    end, ``within R`` and ``allow``; ``window`` None, or the property's); ``timeout`` is
-    refused there (its unfolding is bounded by ``max_states``)."""
+    end, ``within R`` and ``allow``; ``window`` None, or the property's), within
+    ``max_states`` and ``timeout`` alike."""
     sc = scene if isinstance(scene, Scene) else load_scene(file_path(scene, "scene", "or a Scene"))
     steps = None if window is None and spec is not None else attack_window(window)
     need(end is None or are_steps((end,), 1), "end must be None or a step >= 0", end)
@@ -301,9 +301,8 @@ def _build_multi(
     """:func:`build` of a multi-target design (lesmc/pipeline/multi.py ``build_for``)."""
     from lesmc.engines.multi import BuildKey
     from lesmc.language.actions import DEFAULT as DEFAULT_ACTIONS
-    from lesmc.pipeline.multi import build_for, property_key
+    from lesmc.pipeline.multi import build_within, property_key
 
-    need(timeout is None, "timeout: a multi-target design is bounded by max_states", timeout)
     need(prop is None or isinstance(prop, str), "property must be None or a name", prop)
     path = "<scene>" if isinstance(where, Scene) else where
     last = len(sc.frames) - 1
@@ -319,7 +318,7 @@ def _build_multi(
             window,
         )
         need(end is None or end == key[2], f"end: the property's is {key[2]}", end)
-    return build_for(sc, path, key, max_states)
+    return build_within(sc, path, key, max_states, Budget(timeout), f"timeout={timeout} s")
 
 
 def check_job(job: Job) -> Results:
@@ -344,8 +343,9 @@ def check(
     ``"all"``) or a list of designs (scenes only); ``only``: a property's name or a list
     of them. On a multi-target design (``designs="sort"`` or ``"gnn"``, or a scene whose
     tracker is one) the results are :class:`MultiCheckResult` (``lesmc check --design sort
-    --json``'s entries: ``to_dict()``); ``engine``, ``timeout`` and ``payoffs="interval"``
-    are refused there, as the command line refuses them."""
+    --json``'s entries: ``to_dict()``); ``timeout`` bounds each property's check there
+    (unfolding included; past it the result is ``unknown``), and ``engine`` and
+    ``payoffs="interval"`` are refused, as the command line refuses them."""
     src = (
         source
         if isinstance(source, ArrayModel | MultiModel | Scene)
@@ -410,7 +410,7 @@ def _check_multi_model(
     for name, why in MODEL_IGNORES.items():
         need(given[name] == _CHECK_DEFAULTS[name], f"{name}: {why}", given[name])
     need(not any(s.faults for s in specs), "specs: faults need a scene", [s.path for s in specs])
-    return check_multi_model(model, specs, only)
+    return check_multi_model(model, specs, only, Budget(timeout))  # the clock starts here
 
 
 def _multi(scene: Scene, designs: tuple[str, ...]) -> bool:
@@ -440,7 +440,7 @@ def _check_multi(
     lesmc/pipeline/multi.py): the arguments its exact search does not read are refused, as
     the command line refuses its options."""
     need(len(designs) <= 1, "designs: one multi-target design at a time", designs)
-    given = {"engine": engine, "timeout": timeout}
+    given = {"engine": engine}
     for name, why in DESIGN_IGNORES.items():
         need(given[name] == _CHECK_DEFAULTS[name], f"{name}: {why}", given[name])
     need(
@@ -454,7 +454,9 @@ def _check_multi(
         [s.path for s in specs if s.faults],
     )
     sc = scene if not designs else scene.with_tracker(design=designs[0])
-    return check_multi_design(sc.priced(payoffs, path), path, specs, only, max_states)
+    sc = sc.priced(payoffs, path)
+    budget = Budget(timeout)  # the clock starts once the arguments are checked
+    return check_multi_design(sc, path, specs, only, max_states, False, budget)
 
 
 def export(

@@ -110,7 +110,6 @@ def test_typed_results_agree_with_brute_force_on_reference_sort(tmp_path: Path) 
     ("kwargs", "word"),
     [
         ({"engine": "bnb"}, "engine"),
-        ({"timeout": 5.0}, "timeout"),
         ({"payoffs": "interval"}, "payoffs"),
         ({"designs": ["sort", "single"]}, "designs"),
         ({"designs": ["sort", "gnn"]}, "designs"),

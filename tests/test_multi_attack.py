@@ -385,9 +385,7 @@ def test_a_crowded_frame_is_refused_before_its_subsets_are_listed(tmp_path: Path
     assert r.returncode == 3 and "successors" in r.stderr and "Traceback" not in r.stderr
 
 
-@pytest.mark.parametrize(
-    "option", [["--engine", "bnb"], ["--timeout", "5"], ["--no-paths"], ["--max-memory", "1G"]]
-)
+@pytest.mark.parametrize("option", [["--engine", "bnb"], ["--no-paths"], ["--max-memory", "1G"]])
 def test_options_the_multi_target_search_does_not_read_are_refused(
     tmp_path: Path, option: list[str]
 ) -> None:

@@ -123,8 +123,6 @@ def test_python_api_builds_saves_loads_and_checks(tmp_path: Path) -> None:
     by_window = api.build(api.load_scene(scene), (spec_l, spec_u))
     assert isinstance(by_window, MultiModel)
     assert by_window.n_states == model.n_states and by_window.n_transitions == model.n_transitions
-    with pytest.raises(UsageError, match="timeout"):
-        api.build(scene, None, spec=sp, property="lose", timeout=5.0)
     with pytest.raises(UsageError, match=r"\.npz"):
         api.save_model(model, tmp_path / "m.lts")
     with pytest.raises(UsageError, match="engine"):
@@ -207,9 +205,6 @@ def test_what_a_multi_target_model_does_not_take_is_refused(tmp_path: Path) -> N
             str(tmp_path / "x.lts"),
         ),
         "lts": lesmc("build", str(scene), "--window", "1..1", "-o", str(tmp_path / "m.lts")),
-        "timeout": lesmc(
-            "build", str(scene), "--window", "1..1", "--timeout", "9", "-o", str(tmp_path / "t.npz")
-        ),
         "engine": lesmc("check", str(model), str(sp), "--engine", "bnb"),
         "spec single": lesmc(
             "build",

@@ -11,6 +11,7 @@ import time
 from typing import Any
 
 from lesmc.campaign.plan import Group, Unit, design_specs
+from lesmc.common.budget import Budget
 from lesmc.common.errors import BudgetError
 from lesmc.engines import registry as engines
 from lesmc.language.parser import parse_spec
@@ -24,7 +25,8 @@ def run_multi_group(group: Group, footage: Any) -> list[dict[str, Any]]:
     """Check every unit of ``group`` (a multi-target design's) on ``footage``, the video's
     scene without a target; one row per unit. One model per (window, design) is built
     for all the properties that share its attack window, radius and actions; a model
-    past ``--max-states`` makes its units' rows ``unknown``."""
+    past ``--max-states`` makes its units' rows ``unknown``, and so does a unit's check
+    (unfolding included) past ``--timeout`` (stats.stopped ``timeout``)."""
     specs = [parse_spec(text, path) for path, text in group.specs]
     scene = place_target(footage, group.target)
     by_run: dict[tuple[tuple[int, int], str], list[Unit]] = {}
@@ -43,6 +45,7 @@ def run_multi_group(group: Group, footage: Any) -> list[dict[str, Any]]:
                 tuple(moved),
                 tuple(u.prop for u in units),
                 group.max_states,
+                budget=Budget(check_timeout=group.timeout),
             )
         except BudgetError:
             results = []
@@ -75,7 +78,8 @@ def _base(group: Group, u: Unit, spec: SpecFile, prop: Property, source: str) ->
 
 
 def _answer(r: MultiCheckResult | None, prop: Property, seconds: float) -> dict[str, Any]:
-    """The check's answer in a row: the exact optimum as both bounds and the constraint's
+    """The check's answer in a row: the exact optimum as both bounds (a check stopped by
+    ``--timeout``: its bounds, ``unknown`` unless they decide it) and the constraint's
     value on the counterexample as ``witness_value``; None: the model passed
     ``--max-states`` (``unknown``, nothing known)."""
     stats = {"engine": engines.MULTI, "seconds": round(seconds, 6)}
@@ -92,13 +96,15 @@ def _answer(r: MultiCheckResult | None, prop: Property, seconds: float) -> dict[
     steps = r.counterexample or ()
     value = r.constraint_value
     violated = r.verdict == "violated"
+    lower, upper = (r.optimum, r.optimum) if r.bounds is None else r.bounds
+    expanded = r.states if r.states_expanded is None else r.states_expanded
     return {
         "verdict": r.verdict,
-        "status": "violated (not replayed)" if violated else "holds",
-        "optimum": num(r.optimum),
+        "status": "violated (not replayed)" if violated else r.verdict,
+        "optimum": num(r.optimum) if r.optimum_known else "unknown",
         "witness_value": None if value is None else num(value),
-        "bounds": [num(r.optimum), num(r.optimum)],
+        "bounds": [num(lower), num(upper)],
         "stats": stats
-        | {"states_expanded": r.states, "transitions": r.transitions, "stopped": "finished"},
+        | {"states_expanded": expanded, "transitions": r.transitions, "stopped": r.stopped},
         "attacked_frames": sum(1 for s in steps if s.hidden or s.injected) if violated else None,
     }

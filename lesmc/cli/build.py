@@ -16,6 +16,7 @@ from lesmc.cli.documents import (
     say,
 )
 from lesmc.cli.options import (
+    arm_budget,
     budget_from,
     budget_options,
     design_option,
@@ -27,6 +28,7 @@ from lesmc.cli.options import (
     tracker_option,
 )
 from lesmc.common.errors import UsageError, escape_control, escape_text
+from lesmc.designs import registry
 
 if TYPE_CHECKING:
     from rich.table import Table
@@ -107,11 +109,10 @@ def build_cmd(
     Exit status: 0 written, 2 bad input, 3 a budget ran out (nothing written),
     4 internal error, 130 interrupted.
     """
-    budget = budget_from(timeout, max_states, max_memory)
+    budget = budget_from(timeout, max_states, max_memory, armed=False)  # armed once valid
     inputs = {"SCENE": scene, "--tracker": tracker_file, "--spec": spec_path}
     distinct_files(inputs, {"-o/--output": output})
     from lesmc.common.progress import Reporter
-    from lesmc.designs import registry
     from lesmc.scene import UnpricedPayoff
     from lesmc.unfold.unfold import build_model, max_end
 
@@ -120,9 +121,10 @@ def build_cmd(
     if registry.get(sc.tracker.design).multi:
         from lesmc.cli.multi_build import build_multi_model
 
-        args = (window, end, spec_path, prop, output, max_states, as_json, budget.started)
+        args = (window, end, spec_path, prop, output, max_states, as_json, budget)
         return build_multi_model(sc, scene, *args)
     window = _single_window(sc, window, spec_path, prop)
+    arm_budget(budget)
     loaded = time.monotonic()
     stop_if_spent(budget, None, "loading the scene")
     with Reporter("build") as rep, rep.bar("building", end or max_end(sc)) as bar:

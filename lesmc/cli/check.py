@@ -14,6 +14,7 @@ from lesmc.cli.documents import given, print_warnings, unattacked_warnings
 from lesmc.cli.options import (
     DEFAULT_MAX_STATES,
     RegistryChoice,
+    arm_budget,
     budget_from,
     budget_options,
     faults_option,
@@ -22,11 +23,13 @@ from lesmc.cli.options import (
     scene_target,
     tracker_option,
 )
+from lesmc.cli.signals import polite_stop
 from lesmc.common.errors import UsageError
 from lesmc.designs import registry
 from lesmc.engines import registry as engines
 
 if TYPE_CHECKING:
+    from lesmc.common.budget import Budget
     from lesmc.language.properties import FaultSet, SpecFile
     from lesmc.results.record import Results
 
@@ -121,15 +124,14 @@ def check_cmd(
     Exit status: 0 all hold, 1 some violated, 2 bad input, 3 some unknown,
     4 internal error, 130 interrupted.
     """
-    budget = budget_from(timeout, max_states, max_memory)
+    budget = budget_from(timeout, max_states, max_memory, armed=False)  # armed once valid
     _refuse_mismatched(frames_dir, report_dir, no_paths, as_json, payoffs)
     from lesmc.api import check_job  # imported when the verb runs: --help stays light
-    from lesmc.cli.signals import polite_stop
     from lesmc.common.progress import Reporter
     from lesmc.pipeline.job import Job
 
     parsed, source, is_scene = _inputs(model, specs, target_text, design, tracker_file)
-    _check_multi(source, parsed, is_scene)  # a multi-target design: checked there (exits)
+    _check_multi(source, parsed, is_scene, budget)  # a multi-target design: checked there (exits)
     parsed, only = _swept(parsed, sweep_texts, only, source.meta if is_scene else None)
     job = Job(
         parsed,
@@ -144,6 +146,7 @@ def check_cmd(
         faults=_faults(faults_file, parsed, is_scene),
         source=model,
     )
+    arm_budget(budget)
     warnings = unattacked_warnings(source, design) if is_scene else []
     with Reporter("check") as rep, polite_stop():
         results = check_job(replace(job, on_stage=rep.stage))
@@ -317,18 +320,19 @@ def _given_flags(names: Iterable[str]) -> list[str]:
     return [f"--{n.replace('_', '-')}" for n in names if given(n)]
 
 
-def _check_multi(source: Any, parsed: tuple[SpecFile, ...], is_scene: bool) -> None:
+def _check_multi(source: Any, parsed: tuple[SpecFile, ...], is_scene: bool, budget: Budget) -> None:
     """A scene of a multi-target design (``--design`` or the scene's): checked by
-    lesmc/cli/multi_check.py with the command's options, which exits (``--report DIR``:
+    lesmc/cli/multi_check.py with the command's options within ``budget`` (its alarm set
+    once the options are known to be valid), which exits (``--report DIR``:
     lesmc/report/multi.py draws its results); sweeps and faults are not supported for it
     yet. Nothing happens otherwise."""
     from lesmc.model.multi_format import is_multi
-    from lesmc.pipeline.multi import DESIGN_IGNORES
+    from lesmc.pipeline.multi import DESIGN_IGNORES, preload
 
     p = click.get_current_context().params
     design = p["design"]
     if is_multi(source):
-        _check_multi_model(source, parsed, p)
+        _check_multi_model(source, parsed, p, budget)
     if not is_scene or not registry.get(design or source.tracker.design).multi:
         return
     if p["sweep_texts"] or p["faults_file"] or any(s.faults for s in parsed):
@@ -341,7 +345,7 @@ def _check_multi(source: Any, parsed: tuple[SpecFile, ...], is_scene: bool) -> N
     if ignored:  # options that would be ignored are errors
         raise UsageError(
             f"{', '.join(ignored)} with a multi-target design: not supported yet (its exact "
-            "search has one engine and is bounded by --max-states)"
+            "search has one engine, bounded by --max-states and --timeout)"
         )
     from lesmc.cli.multi_check import check_multi_scene
 
@@ -349,10 +353,14 @@ def _check_multi(source: Any, parsed: tuple[SpecFile, ...], is_scene: bool) -> N
     path = p["model"]
     sc = sc.priced(p["payoffs"], path)
     report = None if p["report_dir"] is None else (p["report_dir"], p["frames_dir"])
-    check_multi_scene(sc, path, parsed, p["only"], p["as_json"], p["max_states"], report)
+    preload()
+    arm_budget(budget)
+    check_multi_scene(sc, path, parsed, p["only"], p["as_json"], p["max_states"], report, budget)
 
 
-def _check_multi_model(model: Any, parsed: tuple[SpecFile, ...], p: dict[str, Any]) -> None:
+def _check_multi_model(
+    model: Any, parsed: tuple[SpecFile, ...], p: dict[str, Any], budget: Budget
+) -> None:
     """A built multi-target model (lesmc build --design sort|gnn): checked by
     lesmc/cli/multi_check.py, which exits; the options its check does not read are
     refused."""
@@ -369,8 +377,11 @@ def _check_multi_model(model: Any, parsed: tuple[SpecFile, ...], p: dict[str, An
             "search has one engine, on the model as built, with the payoffs it was built with)"
         )
     from lesmc.cli.multi_check import check_multi_file
+    from lesmc.pipeline.multi import preload
 
-    check_multi_file(model, parsed, p["only"], p["as_json"])
+    preload()
+    arm_budget(budget)
+    check_multi_file(model, parsed, p["only"], p["as_json"], budget)
 
 
 def _refuse_mismatched(

@@ -8,7 +8,7 @@ unfolded for one attack window (``--window``, or ``--spec``'s property: its wind
 from __future__ import annotations
 
 import time
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from lesmc.cli.documents import build_document, emit, given, say
 from lesmc.common.errors import Location, UsageError, escape_control, source_line
@@ -18,6 +18,9 @@ from lesmc.language.actions import DEFAULT as DEFAULT_ACTIONS
 from lesmc.model.lts_binary import is_binary
 from lesmc.model.multi import MultiModel
 from lesmc.scene import Scene
+
+if TYPE_CHECKING:
+    from lesmc.common.budget import Budget
 
 
 def build_multi_model(
@@ -30,18 +33,19 @@ def build_multi_model(
     output: str,
     max_states: int | None,
     as_json: bool,
-    started: float,
+    budget: Budget,
 ) -> None:
     """Build and write the model of ``sc``'s multi-target design (``lesmc build``'s
-    arguments); the options its unfolding does not read are refused."""
+    arguments) within ``budget``'s time (past it a BudgetError, exit 3, nothing written);
+    the options its unfolding does not read are refused."""
+    from lesmc.cli.options import arm_budget
     from lesmc.model.multi_format import save_multi
-    from lesmc.pipeline.multi import build_for
+    from lesmc.pipeline.multi import build_within, preload
 
-    ignored = [f"--{n.replace('_', '-')}" for n in ("timeout", "max_memory") if given(n)]
-    if ignored:
+    if given("max_memory"):
         raise UsageError(
-            f"{', '.join(ignored)} with a multi-target design: not supported yet (its "
-            "unfolding is bounded by --max-states)"
+            "--max-memory with a multi-target design: not supported yet (its unfolding is "
+            "bounded by --max-states and --timeout)"
         )
     if not is_binary(output):
         raise UsageError(
@@ -50,7 +54,10 @@ def build_multi_model(
         )
     loaded = time.monotonic()
     key = _key(sc, window, end, spec_path, prop)
-    model = build_for(sc, scene, key, max_states)
+    preload()  # then the alarm: a usage error first, and no import past the deadline
+    arm_budget(budget)
+    limit = "--timeout" if budget.timeout is None else budget.describe("timeout")
+    model = build_within(sc, scene, key, max_states, budget, limit)
     unfolded = time.monotonic()
     save_multi(model, output)
     l, u, last = key[0], key[1], key[2]
@@ -60,7 +67,7 @@ def build_multi_model(
         as_json,
     )
     if as_json:
-        emit(_document(sc, scene, output, model, key, (started, loaded, unfolded)))
+        emit(_document(sc, scene, output, model, key, (budget.started, loaded, unfolded)))
 
 
 def _document(

@@ -6,7 +6,9 @@ The check itself is lesmc/pipeline/multi.py's (the Python API returns the same r
 ``count.frames`` or a ``dist`` measure; constraints: ``switches(a..b)``, ``lost(a..b)`` or
 a ``dist`` measure (the track of the target's id against its reference, on the box's
 x, y, w, h); anything else is an error (exit status 2), as are the options a
-multi-target check does not take yet. ``--report DIR`` writes the results file and
+multi-target check does not take yet. ``--timeout`` bounds each property's check (the
+model's unfolding included): past it the property is ``unknown`` (exit status 3) with
+the bounds and the best attack found. ``--report DIR`` writes the results file and
 its report (lesmc/report/multi.py).
 """
 
@@ -14,7 +16,7 @@ from __future__ import annotations
 
 import json
 import sys
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import click
 
@@ -23,7 +25,10 @@ from lesmc.model.multi import MultiModel
 from lesmc.pipeline.multi import check_multi_design, multi_document, multi_results
 from lesmc.scene import Scene
 
-__all__ = ["check_multi_file", "check_multi_scene", "multi_results"]
+if TYPE_CHECKING:
+    from lesmc.common.budget import Budget
+
+__all__ = ["check_multi_file", "check_multi_scene", "multi_exit_status", "multi_results"]
 
 
 def check_multi_scene(
@@ -34,14 +39,16 @@ def check_multi_scene(
     as_json: bool,
     max_states: int | None = None,
     report: tuple[str, str | None] | None = None,
+    budget: Budget | None = None,
 ) -> None:
     """Check every property (or those named in ``only``) of ``specs`` on the multi-target
-    design of ``scene``; print the results; with ``report`` (``--report DIR``, ``--frames``)
-    write the results file and draw its report there; exit 0 (all hold) or 1 (some
-    violated)."""
+    design of ``scene`` within ``budget``; print the results; with ``report``
+    (``--report DIR``, ``--frames``) write the results file and draw its report there;
+    exit with :func:`multi_exit_status`."""
     from lesmc.unfold.multi import composed
 
-    out = check_multi_design(scene, path, specs, only, max_states, draw=report is not None)
+    draw = report is not None
+    out = check_multi_design(scene, path, specs, only, max_states, draw, budget)
     kind = composed(scene, path).reference_kind()
     doc = multi_document(scene.tracker.design, kind, out)
     if report is not None:
@@ -51,21 +58,43 @@ def check_multi_scene(
         page = write_multi_report(doc, report[0], frames_reader(report[1]))
         click.echo(f"report: {page}", err=True)
     print_multi(doc, as_json)
-    sys.exit(0 if all(r.verdict == "holds" for r in out) else 1)
+    sys.exit(multi_exit_status(doc))
 
 
 def check_multi_file(
-    model: MultiModel, specs: tuple[SpecFile, ...], only: tuple[str, ...], as_json: bool
+    model: MultiModel,
+    specs: tuple[SpecFile, ...],
+    only: tuple[str, ...],
+    as_json: bool,
+    budget: Budget | None = None,
 ) -> None:
     """Check every property (or those named in ``only``) of ``specs`` on a built
-    multi-target model (``lesmc check MODEL.npz SPEC``); print the results as
-    :func:`check_multi_scene` prints them; exit 0 (all hold) or 1 (some violated)."""
+    multi-target model (``lesmc check MODEL.npz SPEC``) within ``budget``; print the
+    results as :func:`check_multi_scene` prints them; exit with :func:`multi_exit_status`."""
     from lesmc.pipeline.multi import check_multi_model
 
-    out = check_multi_model(model, specs, only)
+    out = check_multi_model(model, specs, only, budget)
     design, reference = str(model.meta["design"]), str(model.meta["reference"])
-    print_multi(multi_document(design, reference, out), as_json)
-    sys.exit(0 if all(r.verdict == "holds" for r in out) else 1)
+    doc = multi_document(design, reference, out)
+    print_multi(doc, as_json)
+    sys.exit(multi_exit_status(doc))
+
+
+def multi_exit_status(doc: dict[str, Any]) -> int:
+    """The exit status of a ``lesmc-multi-check`` document (``check`` and ``verify`` with a
+    multi-target design; lesmc/results/exit.py's contract): 1 when some property is
+    violated with its counterexample confirmed by the replay (or not replayed), else 3
+    when some is unknown (a budget stopped its check) or every violation's replay
+    diverged (no proof), else 0."""
+    from lesmc.results.exit import EXIT_HOLDS, EXIT_UNKNOWN, EXIT_VIOLATED
+
+    results = doc["results"]
+    bad = [r for r in results if r["verdict"] == "violated"]
+    if any((r.get("replay") or {}).get("status") != "diverged" for r in bad):
+        return EXIT_VIOLATED
+    if bad or any(r["verdict"] == "unknown" for r in results):
+        return EXIT_UNKNOWN
+    return EXIT_HOLDS
 
 
 def print_multi(doc: dict[str, Any], as_json: bool) -> None:
@@ -77,11 +106,14 @@ def print_multi(doc: dict[str, Any], as_json: bool) -> None:
         click.echo(json.dumps(doc, indent=1))
         return
     for r in doc["results"]:
-        opt = "inf" if r["optimum"] is None else f"{r['optimum']:g}"
+        opt = r["optimum"]
+        opt = "inf" if opt is None else opt if isinstance(opt, str) else f"{opt:g}"
         click.echo(
             f"{r['property']}: {r['verdict']}, optimum {opt} "
             f"({r['states']} states, {r['transitions']} transitions)" + replay_text(r.get("replay"))
         )
+        for note in r.get("notes", ()):
+            click.echo(f"  note: {note}")
         for s in r["counterexample"] or []:
             hid = ", ".join(s["hidden"]) or "-"
             inj = f"; injected {', '.join(s['injected'])}" if s["injected"] else ""

@@ -270,6 +270,7 @@ def budget_from(
     max_states: int | None,
     max_memory: int | None,
     preload: tuple[str, ...] = (),
+    armed: bool = True,
 ) -> Budget:
     """The command's :class:`~lesmc.common.budget.Budget`; its clock starts now (call it
     first thing in the command, so that loading counts).
@@ -277,28 +278,22 @@ def budget_from(
     With a timeout, an alarm also stops the command :data:`~lesmc.cli.signals.HARD_GRACE`
     seconds past it, should it be in work that checks no clock; it is disarmed when
     the command ends, and the process then exits without the interpreter's teardown
-    (:func:`~lesmc.cli.signals.exit_fast`). ``preload``: modules whose first import
+    (:func:`~lesmc.cli.signals.exit_fast`). Not ``armed``: the caller sets the alarm
+    with :func:`arm_budget` once its usage errors are out (``check``: a slow load
+    must not hide them). ``preload``: modules whose first import
     holds the interpreter in one long C call (torch): imported here, under a watchdog
     that stops the command (exit 3) even inside that call,
     :data:`~lesmc.cli.signals.IMPORT_GRACE` past the timeout
     (:func:`~lesmc.cli.signals.native_deadline`), then the deadline is looked at again.
     """
-    from lesmc.cli.signals import (
-        IMPORT_GRACE,
-        WATCHDOG_LAG,
-        arm_deadline,
-        exit_fast,
-        native_deadline,
-    )
+    from lesmc.cli.signals import IMPORT_GRACE, WATCHDOG_LAG, exit_fast, native_deadline
     from lesmc.common.budget import Budget
 
     budget = Budget(timeout, max_states, max_memory)
     if timeout is not None:
         exit_fast()
-        disarm = arm_deadline(timeout)
-        ctx = click.get_current_context(silent=True)
-        if ctx is not None:
-            ctx.call_on_close(disarm)
+    if armed:
+        arm_budget(budget)
     if preload:
         import importlib
 
@@ -310,6 +305,21 @@ def budget_from(
                 importlib.import_module(name)
         stop_if_spent(budget, None, f"importing {', '.join(preload)}")
     return budget
+
+
+def arm_budget(budget: Budget) -> None:
+    """Set the alarm that stops the command :data:`~lesmc.cli.signals.HARD_GRACE` seconds
+    past ``budget``'s deadline (what is left of its timeout; none without one), disarmed
+    when the command ends."""
+    from lesmc.cli.signals import arm_deadline
+
+    left = budget.seconds_left()
+    if left is None:
+        return
+    disarm = arm_deadline(left)
+    ctx = click.get_current_context(silent=True)
+    if ctx is not None:
+        ctx.call_on_close(disarm)
 
 
 def load_scene_file(

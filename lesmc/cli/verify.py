@@ -5,7 +5,7 @@ from __future__ import annotations
 import json
 import sys
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING
 
 import click
 
@@ -163,8 +163,8 @@ def verify_cmd(
     the production tracker, results.json a lesmc-multi-check document.
     OUT/cache keeps perception, replays and figures by content. Exit status as check's.
     """
-    preload = ("torch", "cv2") if timeout is not None else ()  # under the deadline's watchdog
-    budget = budget_from(timeout, max_states, max_memory, preload=preload)
+    preload = ("torch", "cv2", *_checks_on(design)) if timeout is not None else ()
+    budget = budget_from(timeout, max_states, max_memory, preload=preload)  # under a watchdog
     from lesmc.api import VerifyRequest, expand_designs  # --help stays light
 
     request = VerifyRequest(
@@ -187,6 +187,19 @@ def verify_cmd(
         inject=_inject(inject_within, inject_cap, scene_path),
     )
     _run(request, as_json)
+
+
+def _checks_on(design: str | None) -> tuple[str, ...]:
+    """The modules a check of ``design`` imports as it runs, when it is a multi-target
+    design (lesmc/pipeline/multi.py ``RUNS_ON``): imported with torch, before the clock's
+    alarm can stop the check in an import, so that its deadline ends in a result."""
+    from lesmc.designs import registry
+
+    if design not in registry.multi_names():
+        return ()
+    from lesmc.pipeline.multi import RUNS_ON
+
+    return RUNS_ON
 
 
 def _inject(within: float | None, cap: int, scene_path: str | None) -> tuple[float, int] | None:
@@ -233,7 +246,7 @@ def _finish(outcome: Outcome | MultiOutcome, as_json: bool) -> None:
     from lesmc.results.exit import exit_status
 
     if isinstance(outcome, MultiOutcome):  # a multi-target design: lesmc check's lines
-        from lesmc.cli.multi_check import print_multi
+        from lesmc.cli.multi_check import multi_exit_status, print_multi
 
         print_multi(outcome.doc, as_json)
         if not as_json:
@@ -245,17 +258,6 @@ def _finish(outcome: Outcome | MultiOutcome, as_json: bool) -> None:
         print_runs(make_console(), "lesmc verify", outcome.results.runs)
         click.echo(f"report: {outcome.report}")
     sys.exit(exit_status(outcome.results.results))
-
-
-def multi_exit_status(doc: dict[str, Any]) -> int:
-    """The exit status of a multi-target verify (as lesmc check's): 0 when every property
-    holds, 1 when some is violated with its counterexample confirmed by the replay (or not
-    replayed), 3 when every violation's replay diverged (unknown: no proof)."""
-    bad = [r for r in doc["results"] if r["verdict"] == "violated"]
-    if not bad:
-        return 0
-    diverged = [r for r in bad if (r.get("replay") or {}).get("status") == "diverged"]
-    return 3 if len(diverged) == len(bad) else 1
 
 
 def _kept(out: Path) -> str:

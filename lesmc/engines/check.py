@@ -112,7 +112,7 @@ def to_result(space: SearchSpace, out: EngineOutcome) -> CheckResult:
     def above(x: float) -> bool:
         return holds(prop.holds_op, x, prop.threshold)
 
-    known, optimum, lower, upper, verdict, notes = _verdict(out, above)
+    known, optimum, lower, upper, verdict, notes = bounded_verdict(out, above)
     cex = None if out.counterexample is None else path_info(space, out.counterexample)
     wit = None if out.witness is None else path_info(space, out.witness)
     if not out.witness_exact and wit is not None:
@@ -159,11 +159,12 @@ def to_result(space: SearchSpace, out: EngineOutcome) -> CheckResult:
     )
 
 
-def _verdict(
+def bounded_verdict(
     out: EngineOutcome, above: Callable[[float], bool]
 ) -> tuple[bool, float, float, float, Verdict, list[str]]:
     """Section 4's rule on the engine's bounds: whether the optimum is known, the optimum
-    (or the best upper bound), the bounds, the verdict, and a note when stopped early."""
+    (or the best upper bound), the bounds, the verdict, and a note when stopped early
+    (every engine's, the multi-target search's too: lesmc/pipeline/multi.py)."""
     exact = out.stats.stopped == "finished"
     notes: list[str] = []
     verdict: Verdict

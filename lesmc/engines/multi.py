@@ -16,10 +16,13 @@ import math
 import operator
 from collections.abc import Callable
 from dataclasses import dataclass
+from typing import cast
 
 import numpy as np
 
+from lesmc.common.budget import SearchBudget
 from lesmc.common.errors import Location, SpecError, UsageError, source_line
+from lesmc.engines.result import StopReason
 from lesmc.language import measures
 from lesmc.language.properties import Measure, Property, SpecFile
 from lesmc.language.semantics import BoundMeasure, BoundProperty, bind
@@ -27,12 +30,22 @@ from lesmc.model.identity import NONE, indicators
 from lesmc.model.kernel import COMPARE, contributions, holds, initial_value
 from lesmc.model.multi import COMPONENTS, MultiModel
 
+#: States the forward pass expands between two looks at the clock (one look costs about a
+#: microsecond; 256 states of a large model take about a millisecond).
+CLOCK_EVERY = 256
+
 
 @dataclass(frozen=True)
 class MultiResult:
     """A property's verdict on a multi-target model: the optimum (∞: no path satisfies the
     constraint), the constraint's value on the counterexample, and the counterexample as
-    the transitions it takes (None when there is none)."""
+    the transitions it takes (None when there is none).
+
+    A search stopped by its budget (``stopped`` not ``finished``: the deadline passed)
+    reports as ``optimum`` the best path found so far (its incumbent; ∞: none), as
+    ``lower`` a proven lower bound on the optimum, and in ``expanded`` the states it
+    expanded; ``holds`` is then the incumbent's, and the caller decides the verdict from
+    the bounds (lesmc/engines/check.py ``bounded_verdict``)."""
 
     holds: bool
     optimum: float
@@ -40,6 +53,9 @@ class MultiResult:
     path: tuple[int, ...] | None
     states: int
     transitions: int
+    stopped: StopReason = "finished"
+    lower: float = math.nan
+    expanded: int = 0
 
 
 def measure_values(
@@ -82,18 +98,60 @@ def measure_value(model: MultiModel, m: BoundMeasure, prop: BoundProperty) -> fl
     return value
 
 
-def check_multi(model: MultiModel, prop: BoundProperty) -> MultiResult:
+#: best[state][constraint value] = (objective, transition taken into it, value before)
+Best = list[dict[float, tuple[float, int, float]]]
+
+
+def check_multi(
+    model: MultiModel, prop: BoundProperty, search: SearchBudget | None = None
+) -> MultiResult:
     """Minimise ``prop``'s objective over the model's paths from step 0 to the end whose
-    constraint holds (docs/trackers.md)."""
+    constraint holds (docs/trackers.md); ``search``: the deadline (lesmc/common/budget.py),
+    looked at every :data:`CLOCK_EVERY` states, past which the search stops with its
+    incumbent and bounds (:class:`MultiResult`)."""
     c0, cons = measure_values(model, prop.constraint, prop.components, prop.norm)
     o0, obj = measure_values(model, prop.objective, prop.components, prop.norm)
-    add_c, add_o = _combine(prop.constraint), _combine(prop.objective)
+    best: Best = [{} for _ in range(model.n_states)]
+    best[0][c0] = (o0, -1, math.nan)
+    adds = (_combine(prop.constraint), _combine(prop.objective))
+    stopped, done = _forward(model, best, cons, obj, adds, search)
+    top = _top(model, prop, best)
+    verdict = prop.prop
+    upper = math.inf if top is None else top[0]
+    lower = upper if stopped == "finished" else _lower(model, prop, obj, best, done, upper)
+    path = None if top is None else _path(model, best, top[1], top[2])
+    return MultiResult(
+        holds(verdict.holds_op, upper, verdict.threshold),
+        upper,
+        None if top is None else top[2],
+        path,
+        model.n_states,
+        model.n_transitions,
+        stopped,
+        lower,
+        done,
+    )
+
+
+def _forward(
+    model: MultiModel,
+    best: Best,
+    cons: np.ndarray,
+    obj: np.ndarray,
+    adds: tuple[Callable[[float, float], float], Callable[[float, float], float]],
+    search: SearchBudget | None,
+) -> tuple[StopReason, int]:
+    """The forward pass over the states in index order (a topological order), keeping in
+    ``best`` the cheapest prefix per state and constraint value; why it stopped and the
+    states it expanded (all of them when it finished)."""
+    add_c, add_o = adds
     order = np.argsort(model.src, kind="stable")
     ptr = np.searchsorted(model.src[order], np.arange(model.n_states + 1))
-    # best[state][constraint value] = (objective, transition taken into it, value before)
-    best: list[dict[float, tuple[float, int, float]]] = [{} for _ in range(model.n_states)]
-    best[0][c0] = (o0, -1, math.nan)
     for s in range(model.n_states):
+        if search is not None and s % CLOCK_EVERY == 0:
+            reason = search.over()
+            if reason is not None:
+                return cast(StopReason, reason), s
         if not best[s]:
             continue
         for t in order[ptr[s] : ptr[s + 1]].tolist():
@@ -103,38 +161,44 @@ def check_multi(model: MultiModel, prop: BoundProperty) -> MultiResult:
                 cur = best[d].get(ncv)
                 if cur is None or nov < cur[0]:
                     best[d][ncv] = (nov, t, cv)
-    op, bound = prop.op, prop.bound
+    return "finished", model.n_states
+
+
+def _top(model: MultiModel, prop: BoundProperty, best: Best) -> tuple[float, int, float] | None:
+    """The cheapest entry of a last step's state whose constraint value satisfies the
+    constraint: (objective, state, constraint value); None: no such entry (yet)."""
     top: tuple[float, int, float] | None = None
     for s in np.nonzero(model.step == model.end)[0].tolist():
         for cv, (ov, _, _) in best[s].items():
-            if COMPARE[op](cv, bound) and (top is None or ov < top[0]):
+            if COMPARE[prop.op](cv, prop.bound) and (top is None or ov < top[0]):
                 top = (ov, s, cv)
-    verdict = prop.prop
-    if top is None:
-        return MultiResult(
-            holds(verdict.holds_op, math.inf, verdict.threshold),
-            math.inf,
-            None,
-            None,
-            model.n_states,
-            model.n_transitions,
-        )
+    return top
+
+
+def _lower(
+    model: MultiModel, prop: BoundProperty, obj: np.ndarray, best: Best, done: int, upper: float
+) -> float:
+    """A proven lower bound on the optimum when the forward pass stopped before state
+    ``done``: every path to the end not yet complete enters a state ``>= done`` from one
+    expanded, so its objective is at least the least one kept there, when the objective
+    never decreases along a path (a max, or no negative contribution); else -∞."""
+    if prop.objective.aggregate != "max" and bool((obj < 0).any()):
+        return -math.inf
+    kept = (ov for s in range(done, model.n_states) for ov, _, _ in best[s].values())
+    return min(min(kept, default=math.inf), upper)
+
+
+def _path(model: MultiModel, best: Best, s: int, cv: float) -> tuple[int, ...]:
+    """The transitions of the kept prefix ending at state ``s`` with constraint value
+    ``cv``, from step 0 on."""
     path: list[int] = []
-    s, cv = top[1], top[2]
     while True:
         _, t, before = best[s][cv]
         if t < 0:
             break
         path.append(t)
         s, cv = int(model.src[t]), before
-    return MultiResult(
-        holds(verdict.holds_op, top[0], verdict.threshold),
-        top[0],
-        top[2],
-        tuple(reversed(path)),
-        model.n_states,
-        model.n_transitions,
-    )
+    return tuple(reversed(path))
 
 
 # ------------------------------------------------------------ properties and models

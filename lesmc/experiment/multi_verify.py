@@ -113,7 +113,9 @@ def verify_multi(req: Request, rep: Reporter) -> MultiOutcome:
     rep.log(f"target: {ex._target_text(scene)}")
     checked = time.monotonic()
     rep.stage(f"checking the {registry.label(design)} design")
-    results = check_multi_design(scene, where, tuple(specs), (), req.budget.max_states, draw=True)
+    results = check_multi_design(
+        scene, where, tuple(specs), (), req.budget.max_states, True, req.budget
+    )
     timings = {
         "video, perception and scene": checked - started,
         "models and checks": time.monotonic() - checked,

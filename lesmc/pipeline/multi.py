@@ -14,15 +14,28 @@ from __future__ import annotations
 import builtins
 import math
 from dataclasses import dataclass, replace
-from typing import Any
+from typing import TYPE_CHECKING, Any, cast
 
+from lesmc.common.budget import Budget, SearchBudget
 from lesmc.common.errors import InputError, ModelError, UsageError
-from lesmc.engines.multi import BuildKey, bind_model, bind_multi, build_key, unpriced_text
+from lesmc.engines.multi import (
+    BuildKey,
+    MultiResult,
+    bind_model,
+    bind_multi,
+    build_key,
+    unpriced_text,
+)
+from lesmc.engines.result import StopReason
 from lesmc.language.properties import Property, SpecFile
 from lesmc.language.semantics import BoundProperty
 from lesmc.model.multi import MultiModel
 from lesmc.pipeline.multi_tracks import StepDrawing, step_drawings
+from lesmc.results.document import num
 from lesmc.scene import Scene
+
+if TYPE_CHECKING:
+    from lesmc.unfold.multi import UnfoldStopped
 
 #: The version of the ``lesmc-multi-check`` document (2: each counterexample step holds
 #: what the report draws: ``switch``, ``reference``, ``tracks``, ``attacked``).
@@ -69,7 +82,13 @@ class MultiCheckResult:
     no attack reaches the constraint (JSON: ``null``); ``constraint_value`` is the
     constraint's measure on the optimal path; ``counterexample`` the optimal path's steps
     (None when there is none); ``reference`` what the target's reference is (``truth`` or
-    ``unattacked``)."""
+    ``unattacked``).
+
+    A check stopped by its budget (``stopped``: ``timeout``, ``interrupted``) says so as the
+    point designs' results do: ``bounds`` (lower, upper) on the optimum, the best path
+    found (its steps as ``counterexample``, its cost ``optimum`` when ``optimum_known``,
+    else JSON ``"unknown"``), ``states_expanded`` and a note; the verdict is ``unknown``
+    unless the bounds decide it (lesmc/engines/check.py ``bounded_verdict``)."""
 
     design: str
     reference: str
@@ -80,6 +99,11 @@ class MultiCheckResult:
     states: int
     transitions: int
     counterexample: tuple[AttackStep, ...] | None
+    stopped: str = "finished"
+    optimum_known: bool = True
+    bounds: tuple[float, float] | None = None  #: None: the search finished
+    states_expanded: int | None = None
+    notes: tuple[str, ...] = ()
 
     @builtins.property  # the field ``property`` shadows the builtin in the class body
     def status(self) -> str:
@@ -90,15 +114,23 @@ class MultiCheckResult:
         """The entry of ``results`` that ``lesmc check --design ... --json`` prints."""
         steps = self.counterexample
         value = self.constraint_value
-        return {
+        out: dict[str, Any] = {
             "property": self.property,
             "verdict": self.verdict,
-            "optimum": None if math.isinf(self.optimum) else self.optimum,
+            "optimum": (None if math.isinf(self.optimum) else self.optimum)
+            if self.optimum_known
+            else "unknown",
             "constraint_value": "inf" if value == math.inf else value,
             "states": self.states,
             "transitions": self.transitions,
             "counterexample": None if steps is None else [s.to_dict() for s in steps],
+            "stopped": self.stopped,
         }
+        if self.bounds is not None:
+            out["bounds"] = {"lower": num(self.bounds[0]), "upper": num(self.bounds[1])}
+            out["states_expanded"] = self.states_expanded
+            out["notes"] = list(self.notes)
+        return out
 
 
 #: The check arguments the exact search of a multi-target design does not read, each with
@@ -106,7 +138,6 @@ class MultiCheckResult:
 #: refused when given, by the API (lesmc/api.py) and the command line (lesmc/cli/check.py).
 DESIGN_IGNORES: dict[str, str] = {
     "engine": "a multi-target design has one search",
-    "timeout": "a multi-target design is bounded by max_states",
 }
 
 #: The check arguments the search of a built multi-target model does not read (its one
@@ -114,7 +145,6 @@ DESIGN_IGNORES: dict[str, str] = {
 #: refused when given, by the API and the command line alike.
 MODEL_IGNORES: dict[str, str] = {
     "engine": "a multi-target model has one search",
-    "timeout": "a multi-target model's search has none",
     "payoffs": "a model's are built in",
     "max_states": "a built multi-target model is searched whole",
 }
@@ -127,23 +157,58 @@ def check_multi_design(
     only: tuple[str, ...] = (),
     max_states: int | None = None,
     draw: bool = False,
+    budget: Budget | None = None,
 ) -> list[MultiCheckResult]:
     """Each property of ``specs`` (those named in ``only``, or all) checked on the
     multi-target design of ``scene`` (read from ``path``, the name its errors give); with
     ``draw``, each counterexample step also holds what the report draws of it (every
     track: ``lesmc verify`` and ``check --report``), else the steps are those a check of
-    the built model gives."""
-    models: dict[BuildKey, MultiModel] = {}
+    the built model gives. Each property gets :meth:`Budget.check_seconds` of ``budget``
+    (the unfolding of a model it is the first to need included); past them it is
+    ``unknown`` (:class:`MultiCheckResult`). A model whose unfolding ran out of time is
+    not unfolded again for the properties that share it: they are ``unknown`` too."""
+    from lesmc.unfold.multi import UnfoldStopped
+
+    models: dict[BuildKey, MultiModel | UnfoldStopped] = {}
     out: list[MultiCheckResult] = []
     for spec, prop in _chosen(specs, only):
         b = bind_multi(spec, prop, len(scene.frames) - 1)
         if b.objective.declared.reads_payoffs:
             _priced(scene, b.l, b.u)
-        key = build_key(b)
+        key, search = build_key(b), _search(budget)
         if key not in models:
-            models[key] = build_for(scene, path, key, max_states)
-        out.append(_result(models[key], b, scene if draw else None, path))
+            try:
+                models[key] = build_for(scene, path, key, max_states, search)
+            except UnfoldStopped as stop:
+                models[key] = stop
+        got = models[key]
+        if isinstance(got, UnfoldStopped):
+            out.append(_unfinished(scene, path, b, got))
+        else:
+            out.append(_result(got, b, scene if draw else None, path, search))
     return out
+
+
+def _search(budget: Budget | None) -> SearchBudget | None:
+    """The running deadline of one property's check starting now (None: no budget)."""
+    if budget is None:
+        return None
+    return SearchBudget(None, budget.check_seconds())
+
+
+#: The modules a multi-target check imports as it runs (the unfolding, SORT's and GNN's
+#: assignment, the verdict rule of a stopped check): :func:`preload` imports them.
+RUNS_ON = ("lesmc.unfold.multi", "scipy.optimize", "lesmc.engines.check")
+
+
+def preload() -> None:
+    """Import :data:`RUNS_ON` now: a command sets its ``--timeout`` alarm after this, so
+    that the check's first look at the clock comes before any long import (one that looks
+    at no clock; scipy's takes about a second on a loaded machine)."""
+    import importlib
+
+    for name in RUNS_ON:
+        importlib.import_module(name)
 
 
 def bound_properties(specs: list[SpecFile], scene: Scene) -> dict[str, BoundProperty]:
@@ -154,27 +219,41 @@ def bound_properties(specs: list[SpecFile], scene: Scene) -> dict[str, BoundProp
 
 
 def check_multi_model(
-    model: MultiModel, specs: tuple[SpecFile, ...], only: tuple[str, ...] = ()
+    model: MultiModel,
+    specs: tuple[SpecFile, ...],
+    only: tuple[str, ...] = (),
+    budget: Budget | None = None,
 ) -> list[MultiCheckResult]:
     """Each property of ``specs`` (those named in ``only``, or all) checked on a built
     multi-target model (``lesmc check MODEL SPEC``): the same results as checking the
     scene it was built from, for the properties whose attack window, end, radius and
-    actions are the model's (any other is a located error)."""
+    actions are the model's (any other is a located error); each within what is left of
+    ``budget``'s time, as :func:`check_multi_design`."""
     out: list[MultiCheckResult] = []
     for spec, prop in _chosen(specs, only):
-        out.append(_result(model, bind_model(model, spec, prop)))
+        b = bind_model(model, spec, prop)
+        out.append(_result(model, b, search=_search(budget)))
     return out
 
 
-def build_for(scene: Scene, path: str, key: BuildKey, max_states: int | None = None) -> MultiModel:
+def build_for(
+    scene: Scene,
+    path: str,
+    key: BuildKey,
+    max_states: int | None = None,
+    search: SearchBudget | None = None,
+) -> MultiModel:
     """The model of ``scene``'s multi-target design (read from ``path``, the name its
     errors give) unfolded for ``key`` (:func:`build_key`), with what it was built for in
-    its ``meta`` (the file's header: lesmc/model/multi_format.py)."""
+    its ``meta`` (the file's header: lesmc/model/multi_format.py); past ``search``'s
+    deadline an :class:`~lesmc.unfold.multi.UnfoldStopped`."""
     from lesmc.unfold.multi import build_multi, composed
 
     design = composed(scene, path)
     l, u, end, radius, actions = key
-    model = build_multi(scene, design, (l, u), end, max_states, radius, actions=actions)
+    model = build_multi(
+        scene, design, (l, u), end, max_states, radius, actions=actions, search=search
+    )
     first = next(
         ((f.step, d.id) for f in scene.frames[l : u + 1] for d in f.detections if not d.priced),
         None,
@@ -189,6 +268,25 @@ def build_for(scene: Scene, path: str, key: BuildKey, max_states: int | None = N
         "unpriced": None if first is None else [first[0], first[1]],
     }
     return replace(model, meta=meta)
+
+
+def build_within(
+    scene: Scene, path: str, key: BuildKey, max_states: int | None, budget: Budget, limit: str
+) -> MultiModel:
+    """:func:`build_for` within what is left of ``budget``'s time (``lesmc build``,
+    ``lesmc.build``): past it a BudgetError (exit 3, nothing written) naming ``limit``
+    (``--timeout 9 s``), the step and the states made."""
+    from lesmc.common.errors import BudgetError
+    from lesmc.unfold.multi import UnfoldStopped
+
+    try:
+        return build_for(scene, path, key, max_states, _search(budget))
+    except UnfoldStopped as stop:
+        what = limit if stop.reason == "timeout" else stop.reason
+        raise BudgetError(
+            f"{what} ran out while unfolding the model, before step {stop.step} "
+            f"({stop.states} states made); nothing was written"
+        ) from None
 
 
 def check_meta(model: MultiModel, where: str) -> MultiModel:
@@ -237,25 +335,79 @@ def _chosen(specs: tuple[SpecFile, ...], only: tuple[str, ...]) -> list[tuple[Sp
 
 
 def _result(
-    model: MultiModel, b: BoundProperty, scene: Scene | None = None, path: str = ""
+    model: MultiModel,
+    b: BoundProperty,
+    scene: Scene | None = None,
+    path: str = "",
+    search: SearchBudget | None = None,
 ) -> MultiCheckResult:
-    """Property ``b`` checked on ``model`` (lesmc/engines/multi.py) as a typed result; with
-    the ``scene`` it was built from (read from ``path``), each counterexample step holds
-    what the report draws (a built model alone has no frames to re-run)."""
+    """Property ``b`` checked on ``model`` (lesmc/engines/multi.py) within ``search``'s
+    deadline as a typed result; with the ``scene`` it was built from (read from
+    ``path``), each counterexample step holds what the report draws (a built model alone
+    has no frames to re-run)."""
     from lesmc.engines.multi import check_multi
 
-    res = check_multi(model, b)
+    res = check_multi(model, b, search)
+    steps = _steps(model, b.objective.declared.reads_payoffs, res.path, scene, path)
+    head = (str(model.meta["design"]), str(model.meta["reference"]), b.name)
+    if res.stopped == "finished":
+        verdict = "holds" if res.holds else "violated"
+        return MultiCheckResult(
+            *head, verdict, res.optimum, res.constraint, res.states, res.transitions, steps
+        )
+    return _stopped(head, b, res, steps)
+
+
+def _stopped(
+    head: tuple[str, str, str],
+    b: BoundProperty,
+    res: MultiResult,
+    steps: tuple[AttackStep, ...] | None,
+    note: str | None = None,
+) -> MultiCheckResult:
+    """The result of a check its budget stopped (``res.stopped``), as the point designs'
+    engines report one (lesmc/engines/check.py ``bounded_verdict``: the bounds, the verdict
+    they decide, else ``unknown``, and the note; ``note`` instead, when given)."""
+    from lesmc.engines import registry as engines
+    from lesmc.engines.check import bounded_verdict
+    from lesmc.engines.result import EngineOutcome, Stats
+    from lesmc.model.kernel import holds
+
+    stats = Stats(engines.MULTI, res.expanded, res.transitions, stopped=res.stopped)
+    out = EngineOutcome(res.optimum, res.lower, res.optimum, None, None, False, stats)
+    prop = b.prop
+    known, optimum, lower, upper, verdict, notes = bounded_verdict(
+        out, lambda v: holds(prop.holds_op, v, prop.threshold)
+    )
     return MultiCheckResult(
-        str(model.meta["design"]),
-        str(model.meta["reference"]),
-        b.name,
-        "holds" if res.holds else "violated",
-        res.optimum,
+        *head,
+        verdict,
+        optimum,
         res.constraint,
         res.states,
         res.transitions,
-        _steps(model, b.objective.declared.reads_payoffs, res.path, scene, path),
+        steps,
+        res.stopped,
+        known,
+        (lower, upper),
+        res.expanded,
+        tuple(notes if note is None else [note]),
     )
+
+
+def _unfinished(scene: Scene, path: str, b: BoundProperty, stop: UnfoldStopped) -> MultiCheckResult:
+    """The result of a check whose model's unfolding ``stop`` ended: nothing is known of
+    the optimum (bounds -∞..∞), no path was searched."""
+    from lesmc.unfold.multi import composed
+
+    reason = cast(StopReason, stop.reason)
+    res = MultiResult(False, math.inf, None, None, stop.states, 0, reason, -math.inf, 0)
+    head = (scene.tracker.design, composed(scene, path).reference_kind(), b.name)
+    note = (
+        f"search stopped ({stop.reason}) while unfolding the model, before step {stop.step} "
+        f"({stop.states} states made): nothing is known of the optimum"
+    )
+    return _stopped(head, b, res, None, note)
 
 
 def multi_results(

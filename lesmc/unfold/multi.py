@@ -14,10 +14,12 @@ its cheapest (docs/trackers.md, "The multi-target model").
 
 from __future__ import annotations
 
+import time
 from dataclasses import dataclass, replace
 
 import numpy as np
 
+from lesmc.common.budget import SearchBudget
 from lesmc.common.errors import BudgetError, UsageError
 from lesmc.model.identity import NONE, last_seen
 from lesmc.model.multi import MultiModel
@@ -47,6 +49,19 @@ from lesmc.tracking.parts.states import MultiBatch, distinct_rows
 MAX_STEP_SUCCESSORS = 10_000_000
 
 
+class UnfoldStopped(Exception):
+    """The unfolding's deadline (``search``) passed, or would pass during the next step's
+    successors (a step is one piece of work that looks at no clock): ``reason`` (as
+    :meth:`~lesmc.common.budget.SearchBudget.over` names it), the step it stopped before
+    and the states made so far. The caller reports the check as stopped (unknown)."""
+
+    def __init__(self, reason: str, step: int, states: int) -> None:
+        super().__init__(f"{reason} before step {step} ({states} states)")
+        self.reason = reason
+        self.step = step
+        self.states = states
+
+
 def build_multi(
     scene: Scene,
     design: ComposedDesign,
@@ -56,14 +71,17 @@ def build_multi(
     radius: float | None = None,
     *,
     actions: tuple[str, ...],
+    search: SearchBudget | None = None,
 ) -> MultiModel:
     """The model of ``scene`` under ``design`` for attacks at steps ``window`` (l..u),
     up to step ``end``, by an attacker taking ``actions`` (hide, inject) on the detections
     :func:`~lesmc.tracking.parts.attacker.attackable` (``radius``: ``within R``).
     ``max_states`` bounds the successors computed (before merging): a BudgetError (exit
-    status 3) before a step that would pass it. Each state records the box of the track
-    with the target's id (:func:`~lesmc.tracking.multi.target_id`) and whether that track
-    was deleted, which the ``dist`` measures read."""
+    status 3) before a step that would pass it; ``search``'s deadline, looked at before
+    each step (and the step's successors at the last step's rate a successor), an
+    :class:`UnfoldStopped` before a step that would end past it. Each state records the
+    box of the track with the target's id (:func:`~lesmc.tracking.multi.target_id`) and
+    whether that track was deleted, which the ``dist`` measures read."""
     frames = scene.frames
     if not 1 <= window[0] <= window[1] <= end <= len(frames) - 1:
         raise UsageError(
@@ -82,12 +100,14 @@ def build_multi(
     level = MultiBatch.pack([(s0.tracks, s0.next_id, s0.frames, tid0)], d, table)
     st = _Arrays()
     st.add_state(0, tid0, refs[0] is not None, tid0, target_look(ft0, s0, me))
+    rate = 0.0  # seconds a successor took at the last step
     for k in range(1, end + 1):
         f = frames[k]
         boxes = np.vstack([design.measurements(f), design.candidate_measurements(f)])
         pay = np.array([d.payoff for d in (*f.detections, *f.candidates)], dtype=float)
         attack = (window[0] <= k <= window[1], actions, attackable(f, refbox[k], radius))
-        _within_budget(f, k, len(level), attack, st.n, max_states)
+        count = _within_budget(f, k, len(level), attack, st.n, max_states)
+        began = _on_time(search, rate * count, k, st.n)
         subsets = subset_options(f, *attack)
         keeps = [_kept(len(f.detections), len(boxes), sub) for sub in subsets]
         base = st.n - len(level)
@@ -96,6 +116,7 @@ def build_multi(
         else:
             made = _stepped(design, level, boxes, keeps, table, refs[k], me, st.last, base)
         level = st.add_level(k, made, subsets, pay, refs[k] is not None)
+        rate = (time.perf_counter() - began) / max(count, 1)
     shown = frames[: end + 1]
     names = tuple(tuple(d.id for d in (*f.detections, *f.candidates)) for f in shown)
     rows = np.array([np.full(4, np.nan) if r is None else r for r in refbox]).reshape(-1, 4)
@@ -205,10 +226,10 @@ def _within_budget(
     attack: tuple[bool, tuple[str, ...], np.ndarray],
     so_far: int,
     max_states: int | None,
-) -> None:
+) -> int:
     """A BudgetError unless step ``k`` may compute the successors of its ``states`` states
     under the attacker's options (``attack``: attacked, actions, attackable detections),
-    checked before any is listed."""
+    checked before any is listed; else how many it computes."""
     count = states * option_count(f, *attack)
     if max_states is not None and so_far + count > max_states:
         raise BudgetError(
@@ -225,6 +246,18 @@ def _within_budget(
             f"{MAX_STEP_SUCCESSORS:,}; shorten the attack window or limit it to the "
             "target's neighbourhood (attack window L..U within R)"
         )
+    return count
+
+
+def _on_time(search: SearchBudget | None, seconds: float, k: int, states: int) -> float:
+    """An :class:`UnfoldStopped` when ``search``'s deadline has passed, or would pass during
+    step ``k``'s successors (``seconds``, estimated), with ``states`` made so far; else the
+    time now (``time.perf_counter``), when the step starts."""
+    if search is not None:
+        reason = search.over() or search.would_pass(seconds)
+        if reason is not None:
+            raise UnfoldStopped(reason, k, states)
+    return time.perf_counter()
 
 
 class _Arrays:
