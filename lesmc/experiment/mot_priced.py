@@ -6,8 +6,9 @@ The detector file runs on every frame and prices each of its detections
 1) is frame ``f - 1`` of the directory (natural sort order). Each det.txt box takes the
 payoff of the detector's detection it matches, one to one, greedily, best match first:
 
-* a box detector: the detection box of largest IoU with it, IoU >= 0.5;
-* a heatmap detector: the detection whose peak cell is nearest (in pixels, between cell
+* a box detector, or a heatmap detector with size outputs (``size = "wh"``: each
+  detection's box from them): the detection box of largest IoU with it, IoU >= 0.5;
+* another heatmap detector: the detection whose peak cell is nearest (in pixels, between cell
   centres) to the cell the box's centre falls in, within ``nms_radius`` cells
   (Chebyshev) of it: the square whose cells hiding lowers.
 
@@ -120,12 +121,13 @@ def _match(
     if not n or not boxes:
         return [None] * len(boxes)
     pairs: list[tuple[float, int, int]] = []  # (badness, box, detection)
-    if det.spec.kind == "boxes":
+    boxed = _boxes_of(found)
+    if boxed is not None:
         from lesmc.perception.boxes import iou
 
         for i, b in enumerate(boxes):
             xyxy = np.array([b.left, b.top, b.left + b.width, b.top + b.height])
-            for j, v in enumerate(iou(xyxy, found.boxes)):  # type: ignore[union-attr]
+            for j, v in enumerate(iou(xyxy, boxed)):
                 if v >= MIN_IOU:
                     pairs.append((-float(v), i, j))
     else:
@@ -144,6 +146,19 @@ def _match(
             out[i] = j
             taken.add(j)
     return out
+
+
+def _boxes_of(found: HeatmapDetections | BoxDetections) -> np.ndarray | None:
+    """(n, 4) the detections' boxes [x1, y1, x2, y2] where the detector measures them (a box
+    detector's; a heatmap's with ``size = "wh"``, centred on each detection), else None."""
+    from lesmc.perception.heatmap import HeatmapDetections
+
+    if not isinstance(found, HeatmapDetections):
+        return np.asarray(found.boxes)
+    if found.sizes is None:
+        return None
+    half = found.sizes / 2.0
+    return np.concatenate([found.positions - half, found.positions + half], axis=1)
 
 
 def refuse_outside(boxes: list[Box], det_path: str) -> None:

@@ -140,19 +140,21 @@ def verify_multi(req: Request, rep: Reporter) -> MultiOutcome:
 
 
 def refuse_points_for_boxes(detector: str, design: str) -> None:
-    """A heatmap detector file that declares no ``box`` gives points: a design that reads a
-    box on every detection (SORT's IoU) is refused before the video is perceived."""
+    """A heatmap detector file that declares no ``box`` and no ``size`` gives points: a
+    design that reads a box on every detection (SORT's IoU) is refused before the video is
+    perceived."""
     from lesmc.perception.detector_file import read_detector_file
     from lesmc.tracking.trackers import tracker_class
 
     spec = read_detector_file(detector)
-    points = spec.kind == "heatmap" and spec.box is None
+    points = spec.kind == "heatmap" and spec.box is None and spec.size is None
     if points and getattr(tracker_class(design), "needs_boxes", False):
         raise UsageError(
             f"--design {design} reads a box on every detection, and --detector {detector} "
             "is a heatmap detector file that declares no box, whose detections are points: "
-            'declare one (box = [w, h]), use a box detector file (kind = "boxes") or a '
-            "point design such as gnn (docs/detectors.md)"
+            'declare one (box = [w, h], or size = "wh" for a network with size outputs), use '
+            'a box detector file (kind = "boxes") or a point design such as gnn '
+            "(docs/detectors.md)"
         )
 
 

@@ -30,7 +30,16 @@ if TYPE_CHECKING:
 #: the window pair is given with --detector/--locator network files).
 KINDS = ("heatmap", "boxes")
 #: Keys that only one kind reads.
-ONLY_FOR = {"stride": "heatmap", "nms_radius": "heatmap", "iou_nms": "boxes", "box": "heatmap"}
+ONLY_FOR = {
+    "stride": "heatmap", "nms_radius": "heatmap", "iou_nms": "boxes", "box": "heatmap",
+    "size": "heatmap",
+}  # fmt: skip
+#: What ``size`` may declare: the heatmap's output channels 1 and 2 hold each cell's
+#: width and height (input pixels).
+SIZES = ("wh",)
+#: The output channels a heatmap network with ``size = "wh"`` must have at least: the
+#: score map, widths, heights.
+SIZE_CHANNELS = 3
 #: Largest stride and NMS radius a file may declare (cells; pixels for the stride).
 MAX_STRIDE = 1024
 MAX_RADIUS = 64
@@ -87,7 +96,8 @@ FIELDS: tuple[Field, ...] = (
         "network", True, None, "a path ending in .onnx or .pt2",
         "The network file, relative to the detector file's directory: input (B, C, H, W) "
         "floats, dynamic batch B; output (B, 1, H/stride, W/stride) or (B, H/stride, "
-        "W/stride) for a heatmap, (B, N, 5) rows [x1, y1, x2, y2, score] for boxes.",
+        "W/stride) for a heatmap ((B, K, H/stride, W/stride), K >= 3, with size = \"wh\"), "
+        "(B, N, 5) rows [x1, y1, x2, y2, score] for boxes.",
         _network_ok,
     ),
     Field(
@@ -131,9 +141,16 @@ FIELDS: tuple[Field, ...] = (
     Field(
         "box", False, None, f"[w, h], two finite numbers > 0, each at most {MAX_VALUE:g}",
         "heatmap: the box (width, height in input pixels) centred on every detection and "
-        "injection candidate (a heatmap has no size output); not given: they are points, "
-        "which a design that reads boxes (sort) refuses.",
+        "injection candidate (for a heatmap without size outputs; not with size); "
+        "neither given: they are points, which a design that reads boxes (sort) refuses.",
         _box_ok,
+    ),
+    Field(
+        "size", False, None, '"wh"',
+        "heatmap: output channel 0 is the score map, channels 1 and 2 hold each cell's "
+        "width and height in input pixels; a detection's box is the (w, h) at its peak "
+        "cell, centred on it (docs/detectors.md, \"Sizes\"). Not with box.",
+        _one_of(*SIZES),
     ),
     Field(
         "output", False, None, "a string",
@@ -169,6 +186,9 @@ class DetectorFile:
     where: dict[str, Location]
     #: heatmap: the declared box (w, h) of every detection and candidate; None: points
     box: tuple[float, float] | None = None
+    #: heatmap: ``"wh"``, each detection's box from output channels 1, 2; None: no size
+    #: outputs (the declared ``box``, or points)
+    size: str | None = None
 
     @property
     def n_channels(self) -> int:
@@ -194,6 +214,8 @@ class DetectorFile:
         )
 
     def _box_words(self) -> str:
+        if self.size is not None:
+            return f", size {self.size} from output channels 1, 2"
         return "" if self.box is None else f", box {self.box[0]:g}x{self.box[1]:g}"
 
     def to_meta(self) -> dict[str, Any]:
@@ -215,6 +237,8 @@ class DetectorFile:
         if self.kind == "boxes":
             return out | {"iou_nms": self.iou_nms}
         out |= {"stride": self.stride, "nms_radius": self.nms_radius}
+        if self.size is not None:
+            out["size"] = self.size
         return out if self.box is None else out | {"box": list(self.box)}
 
 
@@ -276,6 +300,7 @@ def read_detector_file(path: str | Path) -> DetectorFile:
         float(v["threshold"]), v["score"], int(v["nms_radius"]) if heat else 0, v["output"],
         float(v["iou_nms"]), where,
         None if v["box"] is None or not heat else (float(v["box"][0]), float(v["box"][1])),
+        v["size"] if heat else None,
     )  # fmt: skip
 
 
@@ -291,6 +316,11 @@ def _kind_keys(data: dict[str, Any]) -> list[tuple[str, str]]:
     ]
     if kind == "heatmap" and "stride" not in data:
         out.append(("stride", f"is missing: {_BY_NAME['stride'].values}"))
+    if kind == "heatmap" and "size" in data and "box" in data:
+        out.append((
+            "size", "and box exclude each other: size reads each detection's box from the "
+            "network's outputs, box declares one for all (give one of them)",
+        ))  # fmt: skip
     return out
 
 
@@ -354,6 +384,18 @@ class LoadedDetector:
     def cells(self) -> tuple[int, int]:
         """(rows, cols) of the heatmap."""
         return self.height // self.spec.stride, self.width // self.spec.stride
+
+    def maps(self, y: Any) -> Any:
+        """A heatmap network's output ``y`` (a tensor or array, (B, 1, rows, cols), (B, rows,
+        cols) or, with ``size = "wh"``, (B, K, rows, cols)) as (B, K, rows, cols): channel
+        0 the raw score map; with ``size``, channels 1 and 2 each cell's width and height."""
+        rows, cols = self.cells
+        return y.reshape(y.shape[0], -1, rows, cols)
+
+    def score_maps(self, y: Any) -> Any:
+        """(B, rows, cols): the raw score maps of a heatmap network's output ``y``
+        (:meth:`maps`' channel 0; what decoding, pricing and certifying read)."""
+        return self.maps(y)[:, 0]
 
 
 def load_detector(path: str | Path) -> LoadedDetector:
@@ -436,13 +478,34 @@ def _probe(det: LoadedDetector) -> None:
             )
         return
     rows, cols = det.cells
-    if shape not in ((PROBE_BATCH, 1, rows, cols), (PROBE_BATCH, rows, cols)):
+    if det.spec.size is not None:
+        _probe_sizes(det, shape)
+    elif shape not in ((PROBE_BATCH, 1, rows, cols), (PROBE_BATCH, rows, cols)):
+        more = len(shape) == 4 and shape[0] == PROBE_BATCH and shape[2:] == (rows, cols)
         raise InputError(
             f"the heatmap detector must answer a batch of B inputs of {det.width}x{det.height} "
             f"with (B, 1, {rows}, {cols}) or (B, {rows}, {cols}) cells (stride "
-            f"{det.spec.stride}, {det.spec.path}); on {PROBE_BATCH} inputs it gave {shape}",
+            f"{det.spec.stride}, {det.spec.path}); on {PROBE_BATCH} inputs it gave {shape}"
+            + (' (if channels 1, 2 hold widths and heights, declare size = "wh")' if more else ""),
             Location(det.net.path),
         )
+
+
+def _probe_sizes(det: LoadedDetector, shape: tuple[int, ...]) -> None:
+    """A heatmap network with ``size = "wh"`` must answer (B, K, rows, cols), K >=
+    :data:`SIZE_CHANNELS` (an error at the file's ``size`` line naming the shape)."""
+    from lesmc.perception.graphs import PROBE_BATCH
+
+    rows, cols = det.cells
+    ok = len(shape) == 4 and shape[0] == PROBE_BATCH and shape[2:] == (rows, cols)
+    if not ok or shape[1] < SIZE_CHANNELS:
+        raise located(
+            det.spec, "size",
+            f'"{det.spec.size}" reads widths and heights from output channels 1 and 2: the '
+            f"network {det.spec.network} must answer a batch of B inputs of {det.width}x"
+            f"{det.height} with (B, K, {rows}, {cols}) cells, K >= {SIZE_CHANNELS} (channel 0 "
+            f"the score map; stride {det.spec.stride}); on {PROBE_BATCH} inputs it gave {shape}",
+        )  # fmt: skip
 
 
 def score_of(raw: Any, how: str) -> Any:

@@ -7,6 +7,11 @@ square, the first in row-major order wins. It sits at its cell's centre,
 ((col + 0.5) · stride, (row + 0.5) · stride) in input pixels. Detections come in
 row-major order of their cells; frame k of the directory (natural sort order) is
 step k, and detection K of it is ``k:K``.
+
+Sizes (docs/detectors.md, "Sizes"): with ``size = "wh"`` the score map is the output's
+channel 0 and a detection's box is (w, h) = channels 1, 2 at its peak cell, in input
+pixels, centred on the detection. A detection whose w or h is not a finite number > 0
+is an error (:func:`with_sizes`); an injection candidate's, a candidate left out.
 """
 
 from __future__ import annotations
@@ -44,6 +49,11 @@ class HeatmapDetections:
     cand_keys: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int64))
     #: (c,) the prices of injecting them (inf: the attack found none); None: unpriced
     cand_payoffs: np.ndarray | None = None
+    #: (n, 2) each detection's box (w, h) in input pixels (``size = "wh"``); None: no size
+    #: outputs
+    sizes: np.ndarray | None = None
+    #: (c, 2) each candidate's box (w, h) at its cell (``size = "wh"``); None: no size outputs
+    cand_sizes: np.ndarray | None = None
 
 
 def peaks(scores: np.ndarray, threshold: float, radius: int) -> np.ndarray:
@@ -94,14 +104,72 @@ def decode(raw: np.ndarray, det: LoadedDetector, index: int) -> HeatmapDetection
     return HeatmapDetections(index, pos, sc[cells[:, 0], cells[:, 1]], cells)
 
 
+def sizes_at(maps: np.ndarray, cells: np.ndarray) -> np.ndarray:
+    """(n, 2) the (w, h) that channels 1, 2 of the (K, rows, cols) ``maps`` hold at the
+    (n, 2) ``cells`` (row, col): the boxes of ``size = "wh"``, in input pixels."""
+    c = np.asarray(cells, np.int64).reshape(-1, 2)
+    return np.stack([maps[1, c[:, 0], c[:, 1]], maps[2, c[:, 0], c[:, 1]]], axis=1).astype(
+        np.float64
+    )
+
+
+def good_sizes(positions: np.ndarray, sizes: np.ndarray) -> np.ndarray:
+    """(n,) bool: the (n, 2) boxes (w, h) centred on the (n, 2) ``positions`` (x, y) that
+    a scene holds (lesmc/scene/io.py: w and h finite, > 0 and at most ``MAX_COORD``, with
+    corners x ± w/2, y ± h/2 apart in floating point, ``box_problem``)."""
+    from lesmc.common.fields import positive
+    from lesmc.scene.io import MAX_COORD, box_problem
+
+    pos = np.asarray(positions, np.float64).reshape(-1, 2).tolist()
+    wh = np.asarray(sizes, np.float64).reshape(-1, 2).tolist()
+    ok = [
+        positive(w, MAX_COORD) and positive(h, MAX_COORD) and box_problem(x, y, w, h) is None
+        for (x, y), (w, h) in zip(pos, wh, strict=True)
+    ]
+    return np.array(ok, dtype=bool)
+
+
+def with_sizes(
+    fd: HeatmapDetections, maps: np.ndarray, det: LoadedDetector, where: Location
+) -> HeatmapDetections:
+    """``fd`` with each detection's box read from the (K, rows, cols) ``maps`` at its cell
+    (:func:`sizes_at`). A detection whose box a scene cannot hold (:func:`good_sizes`: w
+    or h not a finite number > 0, or too small for its position) is an InputError at
+    ``where`` (the frame) naming the detector file's ``size`` line: a box the tracker
+    could read (SORT's IoU) cannot be made up for it."""
+    from lesmc.scene.io import MAX_COORD
+
+    sizes = sizes_at(maps, fd.cells)
+    bad = np.flatnonzero(~good_sizes(fd.positions, sizes))
+    if len(bad):
+        k = int(bad[0])
+        (i, j), (w, h), at = fd.cells[k], sizes[k], det.spec.at("size")
+        raise InputError(
+            f"detection {fd.index}:{k} (cell row {int(i)}, col {int(j)}) has width {w:g} and "
+            f"height {h:g} in output channels 1, 2 ({len(bad)} detection(s) of this frame "
+            f'have no box a scene can hold); size = "wh" ({at.path}:{at.line}) needs '
+            "finite widths and heights > 0 at every detection's cell (each at most "
+            f"{MAX_COORD:g}, and not too small for its position)",
+            where,
+        )
+    return replace(fd, sizes=sizes)
+
+
 def with_candidates(
-    raw: np.ndarray, det: LoadedDetector, fd: HeatmapDetections, within: float, cap: int
+    raw: np.ndarray,
+    det: LoadedDetector,
+    fd: HeatmapDetections,
+    within: float,
+    cap: int,
+    maps: np.ndarray | None = None,
 ) -> HeatmapDetections:
     """``fd`` with its injection candidates (docs/detectors.md, "Injection candidates"):
     the local maxima of the score map ``raw`` decodes to that score below the threshold
     (:func:`sub_peaks`), whose cell centre lies within ``within`` px of one of ``fd``'s
     detections; nearest a detection first (ties: the lower K), at most ``cap``; kept in
-    row-major order."""
+    row-major order. With ``maps`` (``size = "wh"``, (K, rows, cols)), each candidate's box
+    is the one at its cell, and a candidate whose box a scene cannot hold
+    (:func:`good_sizes`) is left out (before the cap)."""
     from scipy.spatial import cKDTree
 
     from lesmc.perception.detector_file import score_of
@@ -113,8 +181,12 @@ def with_candidates(
     pos = cell_positions(subs, spec.stride)
     d, _ = cKDTree(fd.positions).query(pos)
     near = np.flatnonzero(d <= within)
+    sizes = None if maps is None else sizes_at(maps, subs)
+    if sizes is not None:
+        near = near[good_sizes(pos[near], sizes[near])]
     keys = np.sort(near[np.lexsort((near, d[near]))][:cap]).astype(np.int64)
-    return replace(fd, cand_cells=subs[keys].astype(np.int64), cand_keys=keys)
+    got = replace(fd, cand_cells=subs[keys].astype(np.int64), cand_keys=keys)
+    return got if sizes is None else replace(got, cand_sizes=sizes[keys])
 
 
 def cell_positions(cells: np.ndarray, stride: int) -> np.ndarray:
@@ -193,8 +265,9 @@ def run_detector(
     price: Pricer | None = None,
     inject: tuple[float, int] | None = None,
 ) -> list[HeatmapDetections]:
-    """The detector on every frame, one frame a batch; with ``inject`` (within px, cap),
-    the injection candidates (:func:`with_candidates`); with ``price``, the payoffs."""
+    """The detector on every frame, one frame a batch; with ``size = "wh"`` each detection's
+    box (:func:`with_sizes`); with ``inject`` (within px, cap), the injection candidates
+    (:func:`with_candidates`); with ``price``, the payoffs."""
     import torch
 
     out = []
@@ -202,10 +275,13 @@ def run_detector(
         arr = frame_input(frames, i, det)
         with torch.no_grad():
             y = det.net.module(torch.from_numpy(arr))
-        raw = y.reshape(det.cells).double().numpy()
-        fd = decode(raw, det, i)
+        maps = det.maps(y).double().numpy()[0]
+        fd = decode(maps[0], det, i)
+        sized = det.spec.size is not None
+        if sized:
+            fd = with_sizes(fd, maps, det, Location(str(frames.paths[i])))
         if inject is not None:
-            fd = with_candidates(raw, det, fd, *inject)
+            fd = with_candidates(maps[0], det, fd, *inject, maps if sized else None)
         out.append(fd if price is None else price(arr, fd))
         if on_frame is not None:
             on_frame()
@@ -239,7 +315,7 @@ def footage_of(
                     float(y),
                     float("nan") if fd.payoffs is None else float(fd.payoffs[k]),
                     None if fd.lower is None else float(fd.lower[k]),
-                    *_size(det),
+                    *_size(det, fd.sizes, k),
                 )
                 for k, (x, y) in enumerate(fd.positions)
             ),
@@ -265,8 +341,8 @@ def footage_of(
 
 def _candidates(fd: HeatmapDetections, det: LoadedDetector) -> tuple[Detection, ...]:
     """Frame ``fd``'s priced injection candidates (scene format 3), ids ``FRAME:cK``, at
-    their cells' centres, with the detector file's declared box if any (:func:`_size`);
-    those the attack found no perturbation for are left out."""
+    their cells' centres, with the box at their cell or the detector file's declared box
+    if any (:func:`_size`); those the attack found no perturbation for are left out."""
     from lesmc.perception.to_scene import candidate_id
     from lesmc.scene import Detection
 
@@ -274,14 +350,22 @@ def _candidates(fd: HeatmapDetections, det: LoadedDetector) -> tuple[Detection, 
         return ()
     pos = cell_positions(fd.cand_cells, det.spec.stride)
     return tuple(
-        Detection(candidate_id(fd.index, int(k)), float(x), float(y), float(p), None, *_size(det))
-        for k, (x, y), p in zip(fd.cand_keys, pos, fd.cand_payoffs, strict=True)
+        Detection(
+            candidate_id(fd.index, int(k)), float(x), float(y), float(p), None,
+            *_size(det, fd.cand_sizes, n),
+        )
+        for n, (k, (x, y), p) in enumerate(zip(fd.cand_keys, pos, fd.cand_payoffs, strict=True))
         if np.isfinite(p)
-    )
+    )  # fmt: skip
 
 
-def _size(det: LoadedDetector) -> tuple[float | None, float | None]:
-    """The (w, h) every detection and candidate of a heatmap file carries: its declared
-    ``box`` (docs/detectors.md), or (None, None): points."""
+def _size(
+    det: LoadedDetector, sizes: np.ndarray | None, k: int
+) -> tuple[float | None, float | None]:
+    """The (w, h) detection or candidate ``k`` of a heatmap file carries: its own, from the
+    size outputs (``sizes``, ``size = "wh"``), else the file's declared ``box``
+    (docs/detectors.md), else (None, None): points."""
+    if sizes is not None:
+        return float(sizes[k, 0]), float(sizes[k, 1])
     box = det.spec.box
     return (None, None) if box is None else box

@@ -71,7 +71,7 @@ def receptive_field(det: LoadedDetector) -> ReceptiveField:
     x.requires_grad_(True)
     rows, cols = det.cells
     ci, cj = rows // 2, cols // 2
-    out = det.net.module(x).reshape(FIELD_PROBES, rows, cols)
+    out = det.score_maps(det.net.module(x))
     (grad,) = torch.autograd.grad(out[:, ci, cj].sum(), x)
     ys, xs = np.nonzero(grad.abs().sum(dim=(0, 1)).numpy())
     s = det.spec.stride
@@ -125,8 +125,7 @@ class _Hide(nn.Module):
         return x
 
     def forward(self, crop_u: torch.Tensor) -> torch.Tensor:
-        rows, cols = self.det.cells
-        out = self.det.net.module(self.full(crop_u)).reshape(len(crop_u), rows, cols)
+        out = self.det.score_maps(self.det.net.module(self.full(crop_u)))
         i0, i1, j0, j1 = self.square
         m = _margin(out[:, i0:i1, j0:j1], self.t, self.cell, self.slack)
         return torch.stack([torch.zeros_like(m), m], dim=1)
@@ -272,7 +271,7 @@ def _price_crops(
     det = p.det
     lo, hi = det.spec.scale
     with torch.no_grad():
-        full = det.net.module(torch.from_numpy(frame)).reshape(det.cells)
+        full = det.score_maps(det.net.module(torch.from_numpy(frame)))[0]
     scale = float(full.abs().max())
     s = conv.stride
     groups: dict[tuple[int, ...], list[tuple[int, tuple[int, int, int, int]]]] = {}
@@ -447,7 +446,7 @@ def _decoded_cells(det: LoadedDetector, x: np.ndarray, index: int) -> np.ndarray
     """(n, 2) the detections' cells when the whole frame ``x`` is decoded."""
     with torch.no_grad():
         y = det.net.module(torch.from_numpy(np.ascontiguousarray(x, np.float32)))
-    return decode(y.reshape(det.cells).double().numpy(), det, index).cells
+    return decode(det.score_maps(y)[0].double().numpy(), det, index).cells
 
 
 def saver(

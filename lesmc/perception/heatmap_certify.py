@@ -93,7 +93,7 @@ def certify_cells(
         return out
     side, s = crop_side(det, conv), conv.stride
     with torch.no_grad():
-        full = det.net.module(torch.from_numpy(frame)).reshape(det.cells)
+        full = det.score_maps(det.net.module(torch.from_numpy(frame)))[0]
     groups: dict[tuple[int, int], list[tuple[int, int, int]]] = {}
     for k, (i, j) in enumerate(cells):
         y0 = _start(conv.reads(int(i), int(i))[0], s, det.height - side)

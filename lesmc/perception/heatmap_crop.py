@@ -35,7 +35,8 @@ SAME_CELLS = 1e-4
 @dataclass(frozen=True)
 class ConvNet:
     """A heatmap network as convolutions, each but the last followed by a ReLU; the last
-    has one output channel, the raw heatmap."""
+    has one output channel, the raw heatmap (a network with size outputs, ``size = "wh"``:
+    its last convolution's channel 0; the sizes are not priced or certified)."""
 
     layers: tuple[Conv, ...]
     in_channels: int
@@ -99,9 +100,11 @@ def conv_net(det: LoadedDetector) -> ConvNet:
             "a ReLU)",
         )  # fmt: skip
     layers = tuple(built.layers)
-    if layers[-1].weight.shape[0] != 1:
+    if layers[-1].weight.shape[0] != 1 and det.spec.size is None:
         raise Unsupported(*where, f" (the last convolution has {layers[-1].weight.shape[0]} "
                           "output channels, not 1)")  # fmt: skip
+    last = layers[-1]  # with size = "wh": its channel 0 alone, the score map
+    layers = (*layers[:-1], replace(last, weight=last.weight[:1], bias=last.bias[:1]))
     net = ConvNet(layers, det.net.in_shape[0])
     if net.stride != det.spec.stride:
         raise Unsupported(*where, f" (the layers' strides make {net.stride}, the detector "

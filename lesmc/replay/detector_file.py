@@ -158,7 +158,7 @@ def _decode(det: LoadedDetector, x: np.ndarray, index: int) -> Decoded:
         return Decoded(index, bd.positions, bd)
     from lesmc.perception.heatmap import decode
 
-    fd = decode(y.reshape(det.cells).double().numpy(), det, index)
+    fd = decode(det.score_maps(y)[0].double().numpy(), det, index)
     return Decoded(index, fd.positions, fd)
 
 
@@ -205,6 +205,7 @@ def _perturbations(
 
         fd = clean.raw
         one = replace(fd, positions=fd.positions[idx], scores=fd.scores[idx], cells=fd.cells[idx])
+        one = one if fd.sizes is None else replace(one, sizes=fd.sizes[idx])
         deltas = {}
         pays = price_frame(pricing(det, cfg), x, one, lambda k, d: deltas.__setitem__(k, d))
     assert pays is not None
@@ -361,7 +362,7 @@ def _candidate_cells(det: LoadedDetector, x: np.ndarray, index: int, ids: list[s
         return np.zeros((0, 2), np.int64)
     with torch.no_grad():
         y = det.net.module(torch.from_numpy(np.ascontiguousarray(x, np.float32)))
-    raw = y.reshape(det.cells).double().numpy()
+    raw = det.score_maps(y)[0].double().numpy()
     subs = sub_peaks(score_of(raw, det.spec.score), det.spec.threshold, det.spec.nms_radius)
     keys = [candidate_row(cid) for cid in ids]
     for cid, k in zip(ids, keys, strict=True):
