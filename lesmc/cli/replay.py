@@ -108,6 +108,14 @@ def _multi(
     ):
         outcome, frames_dir = replay_document(doc, results, frames_dir, nets, prop, bar)
     rows, verdicts = multi_rows(doc, outcome, prop)
+    fe = next((r["replay"]["frontend"] for r in rows if "frontend" in r["replay"]), None)
+    if fe is not None and fe["from"] == "defaults":  # docs/trackers.md
+        click.echo(
+            f"lesmc replay: {results} records no front-end settings (perception.history, "
+            f"perception.delta_bc): the frames were detected with the defaults (history "
+            f"{fe['history']}, delta_bc {fe['delta_bc']})",
+            err=True,
+        )
     _finish(rows, verdicts, outcome.seconds, results, frames_dir, as_json)
 
 

@@ -340,6 +340,8 @@ def scene_meta(
         },
     }
     meta |= networks_meta(req.nets)
+    # the front end's settings: a replay of the scene's counterexamples reruns it with them
+    meta["frontend"] = {"history": req.history, "delta_bc": req.delta_bc}
     if cert is not None:
         meta["certify"] = certify_meta(cert)
     if req.inject_within is not None:
