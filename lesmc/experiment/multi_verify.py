@@ -24,7 +24,7 @@ from lesmc.common.files import json_text
 from lesmc.common.progress import Reporter
 from lesmc.designs import registry
 from lesmc.language.properties import SpecFile
-from lesmc.perception import HISTORY
+from lesmc.perception import DELTA_BC, HISTORY
 from lesmc.pipeline.multi import (
     MultiCheckResult,
     bound_properties,
@@ -146,16 +146,14 @@ def perception_facts(src: Any, from_scene: bool) -> dict[str, Any]:
     writes them; an older scene records none: the replay then says it uses the defaults)."""
     from dataclasses import asdict
 
-    from lesmc.perception.attack_settings import attack_of
-    from lesmc.perception.blobs import BlobConfig
+    from lesmc.perception.attack_settings import attack_of, frontend_of
 
     meta = dict(src.scene.meta)
     out: dict[str, Any] = {"attack": asdict(attack_of(meta))}
     if from_scene:
-        fe = meta.get("frontend")
-        out |= {k: fe[k] for k in ("history", "delta_bc") if isinstance(fe, dict) and k in fe}
+        out |= frontend_of(meta)
     elif not isinstance(meta.get("detector_file"), dict):  # a detector file has no front end
-        out |= {"history": HISTORY, "delta_bc": BlobConfig().delta_bc}
+        out |= {"history": HISTORY, "delta_bc": DELTA_BC}
     if src.nets is not None:
         out["nets"] = str(src.nets.settings.trained_on)
     if src.frames is not None and src.frames.paths:
