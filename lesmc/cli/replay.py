@@ -59,8 +59,10 @@ def replay_cmd(
     confirmed when the property is violated on that run with the model's target
     track ids (docs/trackers.md, "Replaying a multi-target counterexample"); they
     replay through the window pipeline's networks only (a detector file given as
-    --detector FILE.toml is refused for them), and those that inject candidates
-    are not replayed.
+    --detector FILE.toml is refused for them); an injected candidate's N_dr window
+    is perturbed until N_dr accepts it; the front end runs with the settings the
+    results' perception records (the defaults where it records none, as said on
+    stderr).
     Exit status (the verdicts after the replay, as lesmc check): 0 nothing violated,
     1 some violation confirmed, 2 bad input, 3 some replay diverged (unknown) and
     none confirmed, 4 internal error, 130 interrupted.
