@@ -255,8 +255,38 @@ def replay_multi(
     fe, recorded = perception_settings(doc)  # the front end as verify's perception ran it
     cfg = attack_of(dict(scene.meta), where)
     attacked: list[dict[int, FrameAttack]] = [{} for _ in todo]
+    attack = _attacker(nets, todo, cfg, attacked)
+
+    def detector() -> Any:
+        det = Detector(nets, DetectorConfig(frontend=fe))
+        det.frontend.known = registrations or {}
+        return det
+
+    last = max(c.steps[-1]["frame"] for c in todo)
+    if clean is None:
+        clean = single.detect_all_frames(frames, detector(), last, attack, on_frame)
+    else:
+        wanted = sorted({h.frame for c in todo for h in c.hidden} | _injecting(todo))
+        single.detect_attacked_frames(frames, detector, wanted, fe.history, attack, on_frame)
+    single.check_last_frame(clean, last)
+    used = frontend_record(fe, recorded)
+    for c in todo:
+        _check_known(scene, c.end, clean, used)
+    replays = {
+        (0, c.result): {**replay_case(c, scene, where, clean, attacked[ci]), "frontend": used}
+        for ci, c in enumerate(todo)
+    }
+    return single.Outcome(replays, time.monotonic() - t0)
+
+
+def _attacker(
+    nets: Nets, todo: list[MultiCase], cfg: AttackConfig, attacked: list[dict[int, FrameAttack]]
+) -> Callable[[Any, FrontEndOutput, FrameDetections], None]:
+    """What attacks a frame for the cases ``todo`` (their attacks into ``attacked``): the
+    hiding attacks of each case that only hides there (shared by cases that hide the same,
+    :func:`~lesmc.replay.perturbed.attack_frame`), and :func:`_inject` for each case that
+    injects there."""
     by_frame = hidden_by_frame(todo)
-    injecting = {f for c in todo for _, f, _, _ in c.injected}
 
     def attack(det: Any, out: FrontEndOutput, fd: FrameDetections) -> None:
         def one(group: list[Hidden]) -> FrameAttack:
@@ -270,26 +300,12 @@ def replay_multi(
             if c.injects_at(fd.index):
                 attacked[ci][fd.index] = _inject(nets, det, (out, fd), c, cfg)
 
-    def detector() -> Any:
-        det = Detector(nets, DetectorConfig(frontend=fe))
-        det.frontend.known = registrations or {}
-        return det
+    return attack
 
-    last = max(c.steps[-1]["frame"] for c in todo)
-    if clean is None:
-        clean = single.detect_all_frames(frames, detector(), last, attack, on_frame)
-    else:
-        wanted = sorted(set(by_frame) | injecting)
-        single.detect_attacked_frames(frames, detector, wanted, fe.history, attack, on_frame)
-    single.check_last_frame(clean, last)
-    used = frontend_record(fe, recorded)
-    for c in todo:
-        _check_known(scene, c.end, clean, used)
-    replays = {
-        (0, c.result): {**replay_case(c, scene, where, clean, attacked[ci]), "frontend": used}
-        for ci, c in enumerate(todo)
-    }
-    return single.Outcome(replays, time.monotonic() - t0)
+
+def _injecting(todo: list[MultiCase]) -> set[int]:
+    """The frames where some case of ``todo`` injects a candidate."""
+    return {f for c in todo for _, f, _, _ in c.injected}
 
 
 def perception_settings(doc: Mapping[str, Any]) -> tuple[FrontEndConfig, bool]:
