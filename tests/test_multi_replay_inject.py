@@ -13,6 +13,7 @@ replayed detections."""
 from __future__ import annotations
 
 import json
+import re
 from pathlib import Path
 from typing import Any
 
@@ -148,16 +149,23 @@ def test_a_swapped_candidate_replays_diverged(verified: Path, tmp_path: Path) ->
 
 
 def test_an_injected_id_the_scene_lacks_is_a_located_error(verified: Path, tmp_path: Path) -> None:
-    """A candidate id that is none of its frame's: exit 2 at the id's place in the
-    results file, before the video is read."""
+    """A candidate id that is none of its frame's: an input error at the id's
+    ``FILE:LINE:COL`` in the results file, raised while the cases are read (before the
+    video; in process: the CLI's exit 2 for it is tests/test_multi_replay.py's)."""
+    from lesmc.common.errors import InputError
+    from lesmc.replay.multi import multi_cases
+    from lesmc.scene import scene_from_dict
+
     doc = json.loads((verified / "results.json").read_text())
     steps = doc["results"][0]["counterexample"]
     k, _ = _injected(steps)[0]
     steps[k]["injected"] = [f"{steps[k]['frame']}:c9999"]
     odd = tmp_path / "odd.json"
     odd.write_text(json.dumps(doc, indent=1))
-    r = lesmc("replay", str(odd), "--frames", str(verified.parent / "video"))
-    assert r.returncode == 2 and "Traceback" not in r.stderr, r.stderr
-    assert f"{odd}:" in r.stderr
-    assert f"results[0].counterexample[{k}].injected[0]" in r.stderr
-    assert "is not an injection candidate of the scene's frame" in r.stderr
+    scene = scene_from_dict(_scene(verified))
+    with pytest.raises(InputError) as err:
+        multi_cases(doc, scene, {"hijack": object()}, None, str(odd))
+    text = err.value.render()
+    assert re.search(rf"{re.escape(str(odd))}:\d+:\d+: ", text), text  # FILE:LINE:COL
+    assert f"results[0].counterexample[{k}].injected[0]" in text
+    assert "is not an injection candidate of the scene's frame" in text
