@@ -59,8 +59,10 @@ def replay_cmd(
     confirmed when the property is violated on that run with the model's target
     track ids (docs/trackers.md, "Replaying a multi-target counterexample"); they
     replay through the window pipeline's networks only (a detector file given as
-    --detector FILE.toml is refused for them), and those that inject candidates
-    are not replayed.
+    --detector FILE.toml is refused for them); an injected candidate's N_dr window
+    is perturbed until N_dr accepts it; the front end runs with the settings the
+    results' perception records (the defaults where it records none, as said on
+    stderr).
     Exit status (the verdicts after the replay, as lesmc check): 0 nothing violated,
     1 some violation confirmed, 2 bad input, 3 some replay diverged (unknown) and
     none confirmed, 4 internal error, 130 interrupted.
@@ -108,6 +110,14 @@ def _multi(
     ):
         outcome, frames_dir = replay_document(doc, results, frames_dir, nets, prop, bar)
     rows, verdicts = multi_rows(doc, outcome, prop)
+    fe = next((r["replay"]["frontend"] for r in rows if "frontend" in r["replay"]), None)
+    if fe is not None and fe["from"] == "defaults":  # docs/trackers.md
+        click.echo(
+            f"lesmc replay: {results} records no front-end settings (perception.history, "
+            f"perception.delta_bc): the frames were detected with the defaults (history "
+            f"{fe['history']}, delta_bc {fe['delta_bc']})",
+            err=True,
+        )
     _finish(rows, verdicts, outcome.seconds, results, frames_dir, as_json)
 
 

@@ -43,7 +43,7 @@ from lesmc.experiment.pricing import on_demand as on_demand_footage
 from lesmc.experiment.video_perception import UnitMax
 from lesmc.language.parser import load_faults, load_spec
 from lesmc.language.properties import FaultSet, SpecFile
-from lesmc.perception import HISTORY, NetFiles
+from lesmc.perception import DELTA_BC, HISTORY, NetFiles
 from lesmc.perception.quality import TruthFrame, load_truth
 from lesmc.pipeline.check import run as run_job
 from lesmc.pipeline.job import Certifier, Job, PayoffMode
@@ -791,16 +791,18 @@ def video_truth(
 
 def _perception_facts(req: Request, src: _Source, results: Results) -> dict[str, Any]:
     """How the scene's detections and payoffs were made (for the report and the replay)."""
-    from lesmc.perception.attack_settings import AttackConfig, attack_of
+    from lesmc.perception.attack_settings import AttackConfig, attack_of, frontend_of
 
     attack = (
         attack_of(src.scene.meta, str(req.scene_path))
         if req.scene_path is not None
         else AttackConfig()
     )
+    # a scene's front end as it records it (lesmc perceive -o), else the defaults
+    fe = frontend_of(dict(src.scene.meta)) if req.scene_path is not None else {}
     out: dict[str, Any] = {
-        "history": HISTORY,
-        "delta_bc": 12,
+        "history": fe.get("history", HISTORY),
+        "delta_bc": fe.get("delta_bc", DELTA_BC),
         "nets": (
             src.nets.settings.trained_on
             if src.nets is not None

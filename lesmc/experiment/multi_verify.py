@@ -24,7 +24,7 @@ from lesmc.common.files import json_text
 from lesmc.common.progress import Reporter
 from lesmc.designs import registry
 from lesmc.language.properties import SpecFile
-from lesmc.perception import HISTORY
+from lesmc.perception import DELTA_BC, HISTORY
 from lesmc.pipeline.multi import (
     MultiCheckResult,
     bound_properties,
@@ -130,6 +130,7 @@ def verify_multi(req: Request, rep: Reporter) -> MultiOutcome:
     if req.scene_path is not None:
         meta["scene"] = str(Path(req.scene_path).resolve())
     doc = multi_document(design, composed(scene, where).reference_kind(), results, meta, timings)
+    doc["perception"] = perception_facts(src, req.scene_path is not None)
     _replay(doc, scene, where, specs, src, rep)
     rep.stage("writing the report")
     from lesmc.report.multi import write_multi_report
@@ -137,6 +138,29 @@ def verify_multi(req: Request, rep: Reporter) -> MultiOutcome:
     files = {"scene.json": json_text(scene_to_dict(src.scene))} if src.new else {}
     report = write_multi_report(doc, req.out, ex._frame_reader(src.frames), files)
     return MultiOutcome(results, doc, report)
+
+
+def perception_facts(src: Any, from_scene: bool) -> dict[str, Any]:
+    """The settings the scene's perception ran with, for the replay (the document's
+    ``perception``, as a lesmc-results file's): a video perceived by this run, with the
+    front end's ``history`` and ``delta_bc`` (lesmc/perception/run.py's defaults); a scene
+    file (``from_scene``), with those its ``meta.frontend`` records (``lesmc perceive -o``
+    writes them; an older scene records none: the replay then says it uses the defaults)."""
+    from dataclasses import asdict
+
+    from lesmc.perception.attack_settings import attack_of, frontend_of
+
+    meta = dict(src.scene.meta)
+    out: dict[str, Any] = {"attack": asdict(attack_of(meta))}
+    if from_scene:
+        out |= frontend_of(meta)
+    elif not isinstance(meta.get("detector_file"), dict):  # a detector file has no front end
+        out |= {"history": HISTORY, "delta_bc": DELTA_BC}
+    if src.nets is not None:
+        out["nets"] = str(src.nets.settings.trained_on)
+    if src.frames is not None and src.frames.paths:
+        out["frames"] = str(src.frames.paths[0].parent.resolve())
+    return out
 
 
 def refuse_points_for_boxes(detector: str, design: str) -> None:
@@ -248,14 +272,16 @@ def replay_document(
     ``lesmc verify --design sort|gnn`` wrote it): its scene (``meta.scene``, else the
     scene.json beside it) with the target the check placed (``meta.scene_target``), its
     properties (``meta.properties``, moved to ``meta.window``),
-    the frames (``frames_dir``, else ``meta.video``) and the networks; the replays and
-    the frames' directory."""
+    the frames (``frames_dir``, else ``meta.video``, else ``perception.frames``) and the
+    networks; the replays and the frames' directory."""
     from lesmc.replay.multi import known_property, multi_cases, replay_multi
 
     known_property(doc, prop)  # bad input is refused before anything heavy is imported
     meta = doc.get("meta") or {}
     scene_path = _scene_of(meta, path)
-    frames_dir = frames_dir or (str(meta["video"]) if isinstance(meta.get("video"), str) else None)
+    seen = doc.get("perception") or {}  # verify --scene S --frames DIR: no meta.video
+    named = [v for v in (meta.get("video"), seen.get("frames")) if isinstance(v, str)]
+    frames_dir = frames_dir or next(iter(named), None)
     if frames_dir is None:
         raise UsageError(
             "replay runs the detector on the video: give its frames with --frames DIR (the "

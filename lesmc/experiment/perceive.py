@@ -14,7 +14,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any, Literal
 
 from lesmc.common.errors import InputError, Location, UsageError
-from lesmc.perception import HISTORY, NetFiles
+from lesmc.perception import DELTA_BC, HISTORY, NetFiles
 from lesmc.video import FPS
 
 if TYPE_CHECKING:
@@ -50,7 +50,7 @@ class PerceiveRequest:
     max_iter: int = 50
     certify: bool = False  #: also certified lower bounds on the payoffs (slow)
     history: int = HISTORY  #: L, previous frames in the background median
-    delta_bc: int = 12  #: background subtraction threshold (grey levels)
+    delta_bc: int = DELTA_BC  #: background subtraction threshold (grey levels)
     dt: float | None = None  #: seconds between frames [from the truth, else 1/FPS]
     radius: float = 4.0  #: match distance to the truth (pixels)
     min_speed: float = 1.5  #: slower true vehicles (m/s) are don't care
@@ -338,6 +338,8 @@ def scene_meta(
         },
     }
     meta |= networks_meta(req.nets)
+    # the front end's settings: a replay of the scene's counterexamples reruns it with them
+    meta["frontend"] = {"history": req.history, "delta_bc": req.delta_bc}
     if cert is not None:
         meta["certify"] = certify_meta(cert)
     if req.inject_within is not None:

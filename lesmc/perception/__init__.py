@@ -19,6 +19,10 @@ os.environ.setdefault("ONEDNN_PRIMITIVE_CACHE_CAPACITY", "64")
 #: front end's default, and what verify, campaign and replay perceive with.
 HISTORY = 4
 
+#: delta_bc, the background subtraction's threshold in grey levels (Eq. 16): the front
+#: end's default (``BlobConfig``), and what verify perceives a video with.
+DELTA_BC = 12
+
 #: Bisection steps of on-demand certification (``verify``, ``campaign --payoffs``): it
 #: bounds a handful of detections, so it can afford three times ``perceive --certify``'s 2
 #: (docs/cnn.md: median ratio 0.057 -> 0.070).

@@ -56,3 +56,17 @@ def attack_of(meta: dict[str, Any], where: str = "<scene>") -> AttackConfig:
     if pr.items:
         raise InputError.many(where, pr.items)
     return AttackConfig(**got)
+
+
+def frontend_of(meta: dict[str, Any]) -> dict[str, int]:
+    """The front end's settings a scene's meta records (``meta.frontend``: ``history`` and
+    ``delta_bc``, as ``lesmc perceive -o`` writes them), those that are integers; {} for
+    a scene that records none (made before they were recorded, or not by perception)."""
+    fe = meta.get("frontend")
+    if not isinstance(fe, dict):
+        return {}
+    return {
+        k: int(fe[k])
+        for k in ("history", "delta_bc")
+        if isinstance(fe.get(k), int) and not isinstance(fe.get(k), bool)
+    }

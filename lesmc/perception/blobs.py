@@ -12,12 +12,14 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
+from lesmc.perception import DELTA_BC
+
 
 @dataclass(frozen=True)
 class BlobConfig:
     """Subtraction threshold and blob filters."""
 
-    delta_bc: int = 12  #: grey levels
+    delta_bc: int = DELTA_BC  #: grey levels
     close_px: int = 1  #: odd closing kernel size; 1 = no closing (see docs/perception.md)
     min_area: int = 3  #: area opening: blobs of fewer pixels are noise
 

@@ -69,11 +69,31 @@ def inject_frame(
     each window attacked alone, all perturbations applied together, the frame detected
     again (with ``repair``, detections the model does not have hidden too, as
     :func:`~lesmc.replay.perturbed.attack_frame` does)."""
+    hidden, injected = _derived(case, step, fd, out)
+    return attack_listed(nets, det, (out, fd), step, (hidden, injected), cfg, repair)
+
+
+def attack_listed(
+    nets: Nets,
+    det: Detector,
+    seen: tuple[FrontEndOutput, FrameDetections],
+    step: int,
+    attack: tuple[list[Hidden], list[tuple[str, int]]],
+    cfg: AttackConfig,
+    repair: bool = True,
+) -> FrameAttack:
+    """Step ``step``'s attack on its clean frame (``seen``: the front end's output and the
+    frame's detections): hide the detections and inject the candidates (id, row of Q_bc)
+    of ``attack``, each window attacked alone, all perturbations applied together, the
+    frame detected again (with ``repair``, detections the model does not have hidden too);
+    :func:`inject_frame` derives the attack from a point design's path, a multi-target
+    counterexample lists it (lesmc/replay/multi.py)."""
     from lesmc.perception.cnn import DR_SIZE
 
+    out, fd = seen
+    hidden, injected = attack
     m_nets = nets.settings.m
     fa = FrameAttack(fd.index, step, fd)
-    hidden, injected = _derived(case, step, fd, out)
     idx = hidden_indices(fd, hidden)
     rounds: list[Round] = []
     if idx:
@@ -120,6 +140,15 @@ def _derived(
 def _candidate(case: Case, fd: FrameDetections, out: FrontEndOutput, cid: str) -> int:
     """The row of Q_bc of injection candidate ``cid`` (``FRAME:cROW``), its position recorded
     in ``case.known``; refused if the frame has no such candidate."""
+    row = candidate_at(fd, out, cid)
+    cands = out.candidates.centroid
+    case.known[cid] = (float(cands[row, 0]), float(cands[row, 1]))
+    return row
+
+
+def candidate_at(fd: FrameDetections, out: FrontEndOutput, cid: str) -> int:
+    """The row of Q_bc of injection candidate ``cid`` (``FRAME:cROW``) on the frame the
+    front end made ``out`` of; an input error if the frame has no such candidate."""
     from lesmc.perception.to_scene import candidate_row
 
     row = candidate_row(cid)
@@ -130,7 +159,6 @@ def _candidate(case: Case, fd: FrameDetections, out: FrontEndOutput, cid: str) -
             "not those the results were made from",
             Location("--frames"),
         )
-    case.known[cid] = (float(cands[row, 0]), float(cands[row, 1]))
     return row
 
 

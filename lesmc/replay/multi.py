@@ -26,9 +26,17 @@ constraint (``switches``, ``lost`` or a ``dist`` measure) is met at this cost.
 ``confirmed``: the replayed run meets the constraint, its cost (or ``dist`` objective)
 violates the property, and its target's track ids are the model's at every step;
 otherwise ``diverged`` at the first step where the ids differ (or the last step), with
-the reason. A counterexample that injects candidates is not replayed (injection is
-replayed for the point designs only, ``single``'s and ``joint``'s: lesmc/replay/inject.py,
-lesmc/replay/joint_forcing.py); it stays violated, as the model says.
+the reason.
+
+A counterexample under ``allow hide, inject`` also lists ``"injected": ["FRAME:cROW",
+...]`` at a step: the N_dr window of each such candidate (a candidate of Q_bc that N_dr
+rejects) is perturbed towards "vehicle" and the frame's hidden detections' windows
+away from it, all applied together and the frame detected again
+(:func:`~lesmc.replay.inject.attack_listed`, the point designs' injection replay).
+
+The front end runs with the settings the document's ``perception`` records (verify
+writes them: :func:`perception_settings`); a document without them (made before they
+were recorded) replays with the defaults, and the replay says so.
 """
 
 from __future__ import annotations
@@ -62,14 +70,22 @@ from lesmc.scene import Detection, Frame, Scene
 from lesmc.tracking.multi import ComposedDesign, target_id, target_look
 
 if TYPE_CHECKING:
+    from lesmc.perception.attack_settings import AttackConfig
     from lesmc.perception.cnn import Nets
     from lesmc.perception.detector import FrameDetections
-    from lesmc.perception.frontend import FrontEndOutput
+    from lesmc.perception.frontend import FrontEndConfig, FrontEndOutput
     from lesmc.perception.registration import Registration
     from lesmc.video.reader import FrameSet
 
 #: A scene's detection and the detector's, on the clean frames, agree within this (px).
 KNOWN_TOL_PX = 1e-3
+
+
+#: Where the front end's settings come from, in words (:func:`frontend_record`'s ``from``).
+_SETTINGS_FROM = {
+    "results": "as the results' perception records them",
+    "defaults": "the defaults: the results record no perception settings",
+}
 
 
 @dataclass(frozen=True)
@@ -83,6 +99,12 @@ class MultiCase:
     steps: tuple[dict[str, Any], ...]
     hidden: tuple[Hidden, ...]
     path: str = "<results>"  #: the results file, for errors
+    #: the candidates injected: (step, frame, id ``FRAME:cROW``, (x, y) as the scene gives it)
+    injected: tuple[tuple[int, int, str, tuple[float, float]], ...] = ()
+
+    def injects_at(self, frame: int) -> list[tuple[int, str, tuple[float, float]]]:
+        """The candidates injected at ``frame``: (step, id, scene position)."""
+        return [(k, cid, at) for k, f, cid, at in self.injected if f == frame]
 
     @property
     def end(self) -> int:
@@ -98,8 +120,8 @@ def multi_cases(
     path: str = "<results>",
 ) -> list[MultiCase]:
     """The counterexamples of ``doc`` (read from ``path``) to replay: each violated result's
-    (or ``prop``'s) that hides detections only; ``bound``: the document's properties,
-    bound to ``scene``."""
+    (or ``prop``'s), with the detections it hides and the candidates it injects;
+    ``bound``: the document's properties, bound to ``scene``."""
     results = list(doc.get("results", []))
     known_property(doc, prop)
     out = []
@@ -107,8 +129,6 @@ def multi_cases(
         steps = res.get("counterexample")
         if prop not in (None, res["property"]) or res.get("verdict") != "violated" or not steps:
             continue
-        if any(s.get("injected") for s in steps):
-            continue  # injection is replayed for the point designs only (replay/inject.py)
         b = bound.get(res["property"])
         if b is None:
             raise UsageError(
@@ -116,7 +136,8 @@ def multi_cases(
                 "the results name (meta.properties): give the files they were checked with"
             )
         _check_steps(scene, steps, path, j)
-        out.append(MultiCase(j, b, tuple(steps), _hidden(scene, steps, path, j), path))
+        hidden, injected = _hidden(scene, steps, path, j), _injected(scene, steps, path, j)
+        out.append(MultiCase(j, b, tuple(steps), hidden, path, injected))
     return out
 
 
@@ -183,6 +204,29 @@ def _hidden(scene: Scene, steps: list[dict[str, Any]], path: str, j: int) -> tup
     return tuple(out)
 
 
+def _injected(
+    scene: Scene, steps: list[dict[str, Any]], path: str, j: int
+) -> tuple[tuple[int, int, str, tuple[float, float]], ...]:
+    """The candidates the steps of result ``j`` inject: (step, frame, id, the scene's
+    position); an id that is none of the scene frame's candidates is an input error at its
+    ``FILE:LINE:COL`` in the results file ``path``."""
+    out = []
+    for i, s in enumerate(steps):
+        frame = scene.frames[i]  # _check_steps: step i is the scene's i-th frame
+        by_id = {d.id: d for d in frame.candidates}
+        for m, cid in enumerate(s.get("injected") or ()):
+            d = by_id.get(cid)
+            if d is None:
+                item = f"results[{j}].counterexample[{i}].injected[{m}]"
+                msg = (
+                    f"'{cid}' is not an injection candidate of the scene's frame {frame.step}: "
+                    "the results were not made from this scene"
+                )
+                raise _results_error(path, [(item, msg)])
+            out.append((i, frame.step, cid, (d.x, d.y)))
+    return tuple(out)
+
+
 def replay_multi(
     doc: Mapping[str, Any],
     scene: Scene,
@@ -208,19 +252,10 @@ def replay_multi(
     todo = multi_cases(doc, scene, bound, prop, path)
     if not todo:
         return single.Outcome({}, 0.0)
-    # the front end as verify's perception ran it: a multi-check document records no
-    # perception settings, so the defaults (the point designs' results record theirs)
-    fe = single.frontend_settings()
+    fe, recorded = perception_settings(doc)  # the front end as verify's perception ran it
     cfg = attack_of(dict(scene.meta), where)
     attacked: list[dict[int, FrameAttack]] = [{} for _ in todo]
-    by_frame = hidden_by_frame(todo)
-
-    def attack(det: Any, out: FrontEndOutput, fd: FrameDetections) -> None:
-        def one(group: list[Hidden]) -> FrameAttack:
-            return attack_frame(nets, det, out, fd, group, cfg)
-
-        for ci, fa in single.shared_attacks(group_by_case(by_frame.get(fd.index, [])), one).items():
-            attacked[ci][fd.index] = fa
+    attack = _attacker(nets, todo, cfg, attacked)
 
     def detector() -> Any:
         det = Detector(nets, DetectorConfig(frontend=fe))
@@ -231,15 +266,99 @@ def replay_multi(
     if clean is None:
         clean = single.detect_all_frames(frames, detector(), last, attack, on_frame)
     else:
-        single.detect_attacked_frames(
-            frames, detector, sorted(by_frame), fe.history, attack, on_frame
-        )
+        wanted = sorted({h.frame for c in todo for h in c.hidden} | _injecting(todo))
+        single.detect_attacked_frames(frames, detector, wanted, fe.history, attack, on_frame)
     single.check_last_frame(clean, last)
+    used = frontend_record(fe, recorded)
+    for c in todo:
+        _check_known(scene, c.end, clean, used)
     replays = {
-        (0, c.result): replay_case(c, scene, where, clean, attacked[ci])
+        (0, c.result): {**replay_case(c, scene, where, clean, attacked[ci]), "frontend": used}
         for ci, c in enumerate(todo)
     }
     return single.Outcome(replays, time.monotonic() - t0)
+
+
+def _attacker(
+    nets: Nets, todo: list[MultiCase], cfg: AttackConfig, attacked: list[dict[int, FrameAttack]]
+) -> Callable[[Any, FrontEndOutput, FrameDetections], None]:
+    """What attacks a frame for the cases ``todo`` (their attacks into ``attacked``): the
+    hiding attacks of each case that only hides there (shared by cases that hide the same,
+    :func:`~lesmc.replay.perturbed.attack_frame`), and :func:`_inject` for each case that
+    injects there."""
+    by_frame = hidden_by_frame(todo)
+
+    def attack(det: Any, out: FrontEndOutput, fd: FrameDetections) -> None:
+        def one(group: list[Hidden]) -> FrameAttack:
+            return attack_frame(nets, det, out, fd, group, cfg)
+
+        groups = group_by_case(by_frame.get(fd.index, []))
+        plain = [(ci, g) for ci, g in groups if not todo[ci].injects_at(fd.index)]
+        for ci, fa in single.shared_attacks(plain, one).items():
+            attacked[ci][fd.index] = fa
+        for ci, c in enumerate(todo):
+            if c.injects_at(fd.index):
+                attacked[ci][fd.index] = _inject(nets, det, (out, fd), c, cfg)
+
+    return attack
+
+
+def _injecting(todo: list[MultiCase]) -> set[int]:
+    """The frames where some case of ``todo`` injects a candidate."""
+    return {f for c in todo for _, f, _, _ in c.injected}
+
+
+def perception_settings(doc: Mapping[str, Any]) -> tuple[FrontEndConfig, bool]:
+    """The front end's settings verify's perception ran with, as the document's
+    ``perception`` records them (``history``, ``delta_bc``; lesmc/experiment/multi_verify.py
+    writes it), and whether it recorded them: a document without them (made before they
+    were recorded, or from a scene that does not say) gets the defaults
+    (:func:`lesmc.replay.run.frontend_settings`)."""
+    p = doc.get("perception")
+    p = p if isinstance(p, Mapping) else {}
+    history, delta_bc = p.get("history"), p.get("delta_bc")
+    return single.frontend_settings(history, delta_bc), history is not None and delta_bc is not None
+
+
+def frontend_record(fe: FrontEndConfig, recorded: bool) -> dict[str, Any]:
+    """What a replay object says of the front end it ran (``frontend``): its ``history``,
+    its blobs' ``delta_bc`` and where they come from (the results, or the defaults)."""
+    return {
+        "history": fe.history,
+        "delta_bc": fe.blobs.delta_bc,
+        "from": "results" if recorded else "defaults",
+    }
+
+
+def _inject(
+    nets: Nets,
+    det: Any,
+    seen: tuple[FrontEndOutput, FrameDetections],
+    c: MultiCase,
+    cfg: AttackConfig,
+) -> FrameAttack:
+    """Case ``c``'s attack on a frame where it injects candidates: its hidden detections
+    and injected candidates there, as the point designs' injection replay runs them
+    (:func:`~lesmc.replay.inject.attack_listed`). Each candidate must be one of the
+    front end's candidates of the frame, where the scene says (else an input error)."""
+    from lesmc.replay.inject import attack_listed, candidate_at
+
+    out, fd = seen
+    listed = c.injects_at(fd.index)
+    rows = []
+    for _, cid, (x, y) in listed:
+        row = candidate_at(fd, out, cid)
+        cx, cy = (float(v) for v in out.candidates.centroid[row])
+        if math.hypot(cx - x, cy - y) > KNOWN_TOL_PX:
+            raise InputError(
+                f"injection candidate {cid} is at ({cx:.2f}, {cy:.2f}) on these frames, the "
+                f"scene says ({x:.2f}, {y:.2f}): they are not the frames (or front-end "
+                "settings) the results were made from",
+                Location("--frames"),
+            )
+        rows.append((cid, row))
+    hidden = [h for h in c.hidden if h.frame == fd.index]
+    return attack_listed(nets, det, seen, listed[0][0], (hidden, rows), cfg)
 
 
 def replay_case(
@@ -254,7 +373,6 @@ def replay_case(
     checked on that one run (the replay object ``lesmc replay --json`` prints)."""
     from lesmc.tracking.trackers import make_multi
 
-    _check_known(scene, c.end, clean)
     design = make_multi(scene, where)
     assert isinstance(design, ComposedDesign)
     run = design.run(c.end)
@@ -273,9 +391,12 @@ def replay_case(
     return _verdict(c, model, fts, attacked)
 
 
-def _check_known(scene: Scene, end: int, clean: Mapping[int, FrameDetections]) -> None:
+def _check_known(
+    scene: Scene, end: int, clean: Mapping[int, FrameDetections], used: Mapping[str, Any]
+) -> None:
     """The detector must reproduce every detection of the scene's steps 0..``end`` where the
-    scene says (else the frames or networks are not those the results were made from)."""
+    scene says (else the frames, networks or front-end settings, ``used``
+    (:func:`frontend_record`), are not those the results were made from)."""
     for f in scene.frames[: end + 1]:
         fd = clean.get(f.step)
         have = np.zeros((0, 2)) if fd is None else fd.positions
@@ -284,8 +405,9 @@ def _check_known(scene: Scene, end: int, clean: Mapping[int, FrameDetections]) -
             if not ok:
                 raise InputError(
                     f"the detector does not reproduce detection {d.id} at ({d.x:.2f}, "
-                    f"{d.y:.2f}) on these frames: they are not the frames (or networks) the "
-                    "results were made from",
+                    f"{d.y:.2f}) on these frames with history {used['history']} and delta_bc "
+                    f"{used['delta_bc']} ({_SETTINGS_FROM[used['from']]}): they are not the "
+                    "frames, networks or front-end settings the results were made from",
                     Location("--frames"),
                 )
 
@@ -334,6 +456,7 @@ def _chain(
         last[k] = last_seen(last[k - 1 : k], t[k : k + 1])[0]
     names = tuple(tuple(d.id for d in f.detections) for f in frames)
     hidden = [tuple(int(h.split(":")[1]) for h in s["hidden"]) for s in c.steps]
+    acts = [len(s["hidden"]) + len(s.get("injected") or ()) for s in c.steps]
     cost = [_cost(attacked.get(f.step)) for f in frames]
     refbox = [np.full(4, np.nan) if r is None else as_box(r) for r in refs]
     return MultiModel(
@@ -344,7 +467,7 @@ def _chain(
         src=np.arange(n - 1, dtype=np.int64),
         dst=np.arange(1, n, dtype=np.int64),
         payoff=np.array(cost[1:], dtype=float),
-        count=np.array([len(h) for h in hidden[1:]], dtype=np.int64),
+        count=np.array(acts[1:], dtype=np.int64),
         by_payoff=tuple(hidden[1:]),
         by_count=tuple(hidden[1:]),
         frames=tuple(f.step for f in frames),
