@@ -14,13 +14,10 @@ from __future__ import annotations
 
 import dataclasses
 import time
-from collections.abc import Callable
 from dataclasses import dataclass
 from importlib import resources
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
-
-import numpy as np
 
 from lesmc.common.budget import Budget
 from lesmc.common.errors import UsageError
@@ -49,6 +46,7 @@ from lesmc.unfold.unfold import original_end
 from lesmc.video import FPS
 
 if TYPE_CHECKING:  # reading frames imports cv2: only where a video is read
+    from lesmc.report.figures import ImageFor
     from lesmc.video.reader import FrameSet
 
 
@@ -382,7 +380,7 @@ def _write(doc: dict[str, Any], out: Path, src: Source, results: Results, rep: R
     return page
 
 
-def _frame_reader(frames: FrameSet | None) -> Callable[[int], np.ndarray | None] | None:
+def _frame_reader(frames: FrameSet | None) -> ImageFor | None:
     """``index -> grey frame`` for the report's images (None past the video's end, or for
     a frame that cannot be read)."""
     from lesmc.report.publish import frame_reader
