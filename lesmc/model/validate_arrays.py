@@ -13,16 +13,8 @@ import numpy as np
 
 from lesmc.common.errors import ModelError
 from lesmc.model.arrays import ArrayModel, IdArray
-from lesmc.model.validate import (
-    Report,
-    Rows,
-    check_order,
-    check_original,
-    check_states,
-    check_transitions,
-    id_array_problems,
-    state_order,
-)
+from lesmc.model.path_rules import Report, Rows, check_order, check_original, check_states
+from lesmc.model.validate import check_transitions, id_array_problems, state_order
 
 
 def check_arrays(cm: ArrayModel, path: str = "<model>") -> None:
