@@ -29,12 +29,8 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from lesmc.campaign.plan import DEFAULT_WINDOWS, parse_windows
 from lesmc.campaign.run import Video, auto_targets, execute, make_groups, prepare
 from lesmc.designs import registry
-from lesmc.experiment.experiment import (
-    bundled_specs,
-    default_video_ready,
-    load_specs,
-    write_default_video,
-)
+from lesmc.experiment.default_video import default_video_ready, write_default_video
+from lesmc.experiment.experiment import bundled_specs, load_specs
 
 
 def main() -> None:

@@ -31,12 +31,8 @@ from lesmc.campaign import run as campaign_run
 from lesmc.campaign.plan import DEFAULT_WINDOWS, parse_windows
 from lesmc.campaign.run import Video, auto_targets, certify_scenes, execute, make_groups, prepare
 from lesmc.designs import registry
-from lesmc.experiment.experiment import (
-    bundled_specs,
-    default_video_ready,
-    load_specs,
-    write_default_video,
-)
+from lesmc.experiment.default_video import default_video_ready, write_default_video
+from lesmc.experiment.experiment import bundled_specs, load_specs
 
 
 def main() -> None:

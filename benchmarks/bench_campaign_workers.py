@@ -35,7 +35,7 @@ from rich.table import Table
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from lesmc.experiment.experiment import default_video_ready, write_default_video
+from lesmc.experiment.default_video import default_video_ready, write_default_video
 
 #: each phase and the log line that ends it, in order; the summary ends with the process
 PHASES = (

@@ -107,7 +107,7 @@ def main() -> None:
             subprocess.run(
                 [sys.executable, "-c",
                  "import sys; from pathlib import Path; "
-                 "from lesmc.experiment.experiment import write_default_video as w; "
+                 "from lesmc.experiment.default_video import write_default_video as w; "
                  "w(Path(sys.argv[1]))", str(seed)],
                 check=True,
             )  # fmt: skip

@@ -37,7 +37,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from lesmc.campaign.plan import DEFAULT_WINDOWS, parse_windows
 from lesmc.campaign.run import Video, auto_targets, place_target, prepare
 from lesmc.designs import registry
-from lesmc.experiment.experiment import default_video_ready, write_default_video
+from lesmc.experiment.default_video import default_video_ready, write_default_video
 from lesmc.perception.attack_settings import AttackConfig
 from lesmc.perception.cnn import load_nets
 from lesmc.perception.run import price_detections

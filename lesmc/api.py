@@ -69,8 +69,8 @@ from lesmc.unfold.unfold import build_model
 
 if TYPE_CHECKING:
     from lesmc.experiment.experiment import Outcome as VerifyOutcome
-    from lesmc.experiment.experiment import Request as VerifyRequest
     from lesmc.experiment.multi_verify import MultiOutcome
+    from lesmc.experiment.verify_request import Request as VerifyRequest
 
 __all__ = [
     "AttackStep",
@@ -543,8 +543,8 @@ def verify(
     """The paper's whole experiment (``lesmc verify``): see :class:`VerifyRequest`. On a
     multi-target design (``designs=("sort",)``) the outcome is a
     :class:`~lesmc.experiment.multi_verify.MultiOutcome`."""
-    from lesmc.experiment.experiment import Request
     from lesmc.experiment.experiment import verify as run_verify
+    from lesmc.experiment.verify_request import Request
 
     need(isinstance(request, Request), "request must be a lesmc.VerifyRequest", request)
     need(
@@ -565,9 +565,9 @@ def __getattr__(name: str) -> Any:
     """``VerifyRequest`` and ``VerifyOutcome``, imported when first asked for: the verify
     stage loads the perception's libraries, which checking a model does not need."""
     if name in ("VerifyRequest", "VerifyOutcome"):
-        from lesmc.experiment import experiment
+        from lesmc.experiment import experiment, verify_request
 
-        return experiment.Request if name == "VerifyRequest" else experiment.Outcome
+        return verify_request.Request if name == "VerifyRequest" else experiment.Outcome
     raise AttributeError(f"module 'lesmc.api' has no attribute {name!r}")
 
 

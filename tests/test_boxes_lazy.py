@@ -26,7 +26,8 @@ import numpy as np
 import pytest
 import torch
 from cli_run import lesmc
-from test_campaign_detector import SPEC, H, W, _frames, _network
+from spot_detector import SPEC, H, W, write_spot_detector
+from test_campaign_detector import _frames
 from torch import nn
 
 pytest.importorskip("onnx")
@@ -91,7 +92,12 @@ def made(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Any]:
     d = tmp_path_factory.mktemp("boxlazy")
     video = _frames(d, 0)
     (d / "p.spec").write_text(SPEC)
-    return {"dir": d, "video": video, "box": _box_network(d), "spot": _network(d, dynamo=False)}
+    return {
+        "dir": d,
+        "video": video,
+        "box": _box_network(d),
+        "spot": write_spot_detector(d, dynamo=False),
+    }
 
 
 @pytest.fixture(scope="module")

@@ -11,30 +11,20 @@ and a rerun reuses the scenes and the rows. A detector file changed since is an 
 from __future__ import annotations
 
 import json
-import warnings
 from pathlib import Path
 from typing import Any
 
 import cv2
 import numpy as np
 import pytest
-import torch
 from cli_run import lesmc
-from torch import nn
+from spot_detector import SPEC, H, W, write_spot_detector
 
 pytest.importorskip("onnx")
 ort = pytest.importorskip("onnxruntime")
 pytest.importorskip("onnxscript")
 
-H, W, N = 64, 96, 12
-SPEC = """property hide_cheap {
-    attack window 6..8
-    minimize payoff
-    subject to dist.max(0..end) > 5
-    holds if optimum > 10
-    on x, y
-}
-"""
+N = 12
 WINDOWS = "5..6:2..2"  # 5..7 and 6..8
 DESIGNS = ("single",)
 
@@ -51,41 +41,6 @@ def _frames(d: Path, dy: int) -> Path:
             img += 210 * np.exp(-((xx - x) ** 2 + (yy - y) ** 2) / (2 * 2.0**2))
         cv2.imwrite(str(fr / f"f{k:02d}.png"), np.clip(np.rint(img), 0, 255).astype(np.uint8))
     return fr
-
-
-def _network(d: Path, dynamo: bool = True) -> Path:
-    """Brightness above a level, blurred: a heatmap of stride 4 (raw scores >= 0);
-    ``dynamo=False``: exported by torch's TorchScript exporter (the same graph, seconds
-    faster)."""
-    net = nn.Sequential(
-        nn.Conv2d(1, 2, 5, stride=2, padding=2), nn.ReLU(),
-        nn.Conv2d(2, 1, 3, stride=2, padding=1),
-    )  # fmt: skip
-    with torch.no_grad():
-        g = torch.ones(5, 5) / 25
-        net[0].weight[:] = torch.stack([g, -g])[:, None]
-        net[0].bias[:] = torch.tensor([-0.2, 0.3])
-        net[2].weight.zero_()
-        net[2].weight[0, 0] = torch.tensor([[1.0, 2, 1], [2, 4, 2], [1, 2, 1]]) / 4
-        net[2].bias[:] = torch.tensor([-0.3])
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore")
-        if not dynamo:
-            torch.onnx.export(
-                net.eval(), (torch.rand(2, 1, H, W),), d / "spot.onnx", dynamo=False,
-                input_names=["x"], dynamic_axes={"x": {0: "batch"}},
-            )  # fmt: skip
-        else:
-            torch.onnx.export(
-                net.eval(), (torch.rand(2, 1, H, W),), d / "spot.onnx", dynamo=True,
-                dynamic_shapes=({0: torch.export.Dim("batch")},), external_data=False,
-            )  # fmt: skip
-    toml = d / "spot.toml"
-    toml.write_text(
-        'kind = "heatmap"\nnetwork = "spot.onnx"\nstride = 4\nthreshold = 0.0\n'
-        'score = "raw"\nnms_radius = 2\n'
-    )
-    return toml
 
 
 def _decode(path: Path, sess: Any) -> list[tuple[float, float]]:
@@ -118,7 +73,7 @@ def _campaign(c: dict[str, Any], *extra: str) -> Any:
 def camp(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Any]:
     d = tmp_path_factory.mktemp("campdet")
     videos = [_frames(d, 0), _frames(d, 4)]
-    toml = _network(d)
+    toml = write_spot_detector(d)
     (d / "p.spec").write_text(SPEC)
     targets = d / "targets.txt"
     targets.write_text("video0 10,30@0\nvideo4 10,34@0\n")

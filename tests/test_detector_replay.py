@@ -12,16 +12,14 @@ the results' are a located error (exit 2).
 from __future__ import annotations
 
 import json
-import warnings
 from pathlib import Path
 from typing import Any
 
 import cv2
 import numpy as np
 import pytest
-import torch
 from cli_run import lesmc
-from torch import nn
+from spot_detector import SPEC, H, W, write_spot_detector
 
 from lesmc.schemas import schema
 
@@ -29,16 +27,6 @@ pytest.importorskip("onnx")
 ort = pytest.importorskip("onnxruntime")
 pytest.importorskip("onnxscript")
 jsonschema = pytest.importorskip("jsonschema")
-
-H, W = 64, 96
-SPEC = """property hide_cheap {
-    attack window 6..8
-    minimize payoff
-    subject to dist.max(0..end) > 5
-    holds if optimum > 10
-    on x, y
-}
-"""
 
 
 def _frames(d: Path, dy: float = 0.0) -> Path:
@@ -54,37 +42,10 @@ def _frames(d: Path, dy: float = 0.0) -> Path:
     return fr
 
 
-def _network(d: Path) -> Path:
-    """Brightness above a level, blurred: a heatmap of stride 4."""
-    net = nn.Sequential(
-        nn.Conv2d(1, 2, 5, stride=2, padding=2), nn.ReLU(),
-        nn.Conv2d(2, 1, 3, stride=2, padding=1),
-    )  # fmt: skip
-    with torch.no_grad():
-        g = torch.ones(5, 5) / 25
-        net[0].weight[:] = torch.stack([g, -g])[:, None]
-        net[0].bias[:] = torch.tensor([-0.2, 0.3])
-        net[2].weight.zero_()
-        net[2].weight[0, 0] = torch.tensor([[1.0, 2, 1], [2, 4, 2], [1, 2, 1]]) / 4
-        net[2].bias[:] = torch.tensor([-0.3])
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore")
-        torch.onnx.export(
-            net.eval(), (torch.rand(2, 1, H, W),), d / "spot.onnx", dynamo=True,
-            dynamic_shapes=({0: torch.export.Dim("batch")},), external_data=False,
-        )  # fmt: skip
-    toml = d / "spot.toml"
-    toml.write_text(
-        'kind = "heatmap"\nnetwork = "spot.onnx"\nstride = 4\nthreshold = 0.0\n'
-        'score = "raw"\nnms_radius = 2\n'
-    )
-    return toml
-
-
 @pytest.fixture(scope="module")
 def checked(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Any]:
     d = tmp_path_factory.mktemp("detreplay")
-    frames, toml = _frames(d), _network(d)
+    frames, toml = _frames(d), write_spot_detector(d)
     scene = d / "scene.json"
     r = lesmc("perceive", str(frames), "--detector", str(toml), "-o", str(scene),
               "--target", "10,30@0")  # fmt: skip

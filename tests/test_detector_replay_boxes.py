@@ -20,7 +20,8 @@ import numpy as np
 import pytest
 import torch
 from cli_run import lesmc
-from test_detector_replay import SPEC, H, W, _frames
+from spot_detector import SPEC, H, W
+from test_detector_replay import _frames
 from torch import nn
 
 pytest.importorskip("onnx")

@@ -162,11 +162,12 @@ def spot(tmp_path_factory: pytest.TempPathFactory) -> Path:
     pytest.importorskip("onnx")
     pytest.importorskip("onnxruntime")
     pytest.importorskip("onnxscript")
-    from test_campaign_detector import _frames, _network
+    from spot_detector import write_spot_detector
+    from test_campaign_detector import _frames
 
     d = tmp_path_factory.mktemp("spot")
     _frames(d, 0)
-    _network(d)
+    write_spot_detector(d)
     (d / "boxed.toml").write_text((d / "spot.toml").read_text() + "box = [4, 4]\n")
     return d
 
@@ -174,7 +175,7 @@ def spot(tmp_path_factory: pytest.TempPathFactory) -> Path:
 def test_corrupted_cache_entries_of_verify_detector_are_made_again(spot: Path) -> None:
     """A point design's replay entry (verify --detector FILE.toml) whose replay object has
     a status the results schema does not know; then its perception entry cut short."""
-    from test_campaign_detector import SPEC as DET_SPEC
+    from spot_detector import SPEC as DET_SPEC
 
     (spot / "p.spec").write_text(DET_SPEC)
     args = ("verify", "video0", "--detector", "spot.toml", "--target", "10,30@0", "--spec",

@@ -21,7 +21,7 @@ import cv2
 import numpy as np
 import pytest
 from cli_run import lesmc
-from test_detector_replay import H, W, _network
+from spot_detector import H, W, write_spot_detector
 
 from lesmc.schemas import schema
 
@@ -70,7 +70,7 @@ def _check(d: Path, scene: Path, allow: str) -> dict[str, Any]:
 @pytest.fixture(scope="module")
 def checked(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Any]:
     d = tmp_path_factory.mktemp("injheat")
-    frames, toml = _frames(d), _network(d)
+    frames, toml = _frames(d), write_spot_detector(d)
     scene = d / "scene.json"
     r = lesmc("perceive", str(frames), "--detector", str(toml), "-o", str(scene),
               "--target", "10,30@0", "--inject-within", "25")  # fmt: skip

@@ -19,6 +19,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 from cli_run import lesmc
+from wami_video import perceive_with_candidates, synth_wami_video
 
 SPEC = """property robustness {
     attack window 3..5 allow hide, inject
@@ -55,17 +56,9 @@ def _near_target(doc: dict) -> dict:
 def checked(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, Path, dict, dict]:
     tmp = tmp_path_factory.mktemp("injectjoint")
     video = tmp / "video"
-    r = lesmc(
-        "synth", str(video), "--frames", "16", "--size", "768x768", "--seed", "4",
-        "--density", "2.5",
-    )  # fmt: skip
-    assert r.returncode == 0, r.stderr
+    synth_wami_video(video)
     full = tmp / "full.json"
-    r = lesmc(
-        "perceive", str(video), "-o", str(full), "--target", "206.434,202.672@4",
-        "--truth", str(video / "truth.json"), "--inject-within", "30",
-    )  # fmt: skip
-    assert r.returncode == 0, r.stderr
+    perceive_with_candidates(video, full)
     scene = tmp / "scene.json"
     sdoc = _near_target(json.loads(full.read_text()))
     scene.write_text(json.dumps(sdoc))

@@ -21,6 +21,7 @@ import pytest
 import torch
 from cli_run import lesmc
 from torch import nn
+from wami_video import TARGET, perceive_with_candidates, synth_wami_video
 
 from lesmc.perception.attack_settings import AttackConfig, threshold_logit
 from lesmc.perception.attacks import payoffs
@@ -143,18 +144,9 @@ SPEC = """property robustness {{
 def perceived(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, Path, dict]:
     tmp = tmp_path_factory.mktemp("injectwami")
     video = tmp / "video"
-    r = lesmc(
-        "synth", str(video), "--frames", "16", "--size", "768x768", "--seed", "4",
-        "--density", "2.5",
-    )  # fmt: skip
-    assert r.returncode == 0, r.stderr
+    synth_wami_video(video)
     scene = tmp / "scene.json"
-    r = lesmc(
-        "perceive", str(video), "-o", str(scene), "--target", "206.434,202.672@4",
-        "--truth", str(video / "truth.json"), "--inject-within", "30",
-    )  # fmt: skip
-    assert r.returncode == 0, r.stderr
-    assert "Traceback" not in r.stderr
+    perceive_with_candidates(video, scene)
     return video, scene, json.loads(scene.read_text())
 
 
@@ -251,7 +243,7 @@ def test_injection_candidates_within_a_smaller_radius_are_fewer(
     video, _, doc = perceived
     scene = tmp_path / "near.json"
     r = lesmc(
-        "perceive", str(video), "-o", str(scene), "--target", "206.434,202.672@4",
+        "perceive", str(video), "-o", str(scene), "--target", TARGET,
         "--inject-within", "12",
     )  # fmt: skip
     assert r.returncode == 0, r.stderr
@@ -293,7 +285,7 @@ def test_verify_with_candidates_replays_the_injection(perceived: tuple, tmp_path
     r = lesmc(
         "verify", str(video), "--truth", str(video / "truth.json"), "--spec", str(spec),
         "--design", "single", "--out", str(out), "--inject-within", "30",
-        "--target", "206.434,202.672@4", "--json",
+        "--target", TARGET, "--json",
     )  # fmt: skip
     assert "Traceback" not in r.stderr
     assert r.returncode == 1, r.stderr

@@ -22,7 +22,8 @@ from lesmc.model.lts import to_arrays
 from lesmc.model.lts_binary import load_lts_npz, save_lts_npz
 from lesmc.model.lts_format import load_lts, lts_from_dict, lts_to_dict, save_lts
 from lesmc.model.random_models import RandomModelConfig, random_lts
-from lesmc.model.validate import check_arrays, id_array_problems
+from lesmc.model.validate import id_array_problems
+from lesmc.model.validate_arrays import check_arrays
 
 ROOT = Path(__file__).resolve().parents[1]
 TINY = ROOT / "tests" / "golden" / "tiny"

@@ -416,7 +416,7 @@ def test_price_all_perceives_an_entry_with_unpriced_payoffs_again(
 def test_a_cache_that_does_not_match_the_video_is_refused(tmp_path: Path) -> None:
     from lesmc.common.errors import UsageError
     from lesmc.experiment.cache import StageCache
-    from lesmc.experiment.experiment import _same_detections
+    from lesmc.experiment.verify_perception import same_detections
 
     footage = load_scene(SCENES / "rq1_platoon.json").footage
     moved = replace(
@@ -430,6 +430,6 @@ def test_a_cache_that_does_not_match_the_video_is_refused(tmp_path: Path) -> Non
         ),
     )
     cache = StageCache(tmp_path)
-    _same_detections(footage, footage, cache)
+    same_detections(footage, footage, cache)
     with pytest.raises(UsageError, match="differ"):
-        _same_detections(footage, moved, cache)
+        same_detections(footage, moved, cache)

@@ -18,6 +18,7 @@ import pytest
 from cli_run import lesmc
 from hypothesis import given, settings
 from hypothesis import strategies as st
+from wami_video import synth_wami_video
 
 from lesmc.results.read import results_of
 
@@ -28,11 +29,7 @@ ROOT = Path(__file__).resolve().parents[1]
 def verified(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, Path, dict]:
     tmp = tmp_path_factory.mktemp("replay")
     video = tmp / "video"
-    r = lesmc(
-        "synth", str(video), "--frames", "16", "--size", "768x768", "--seed", "4",
-        "--density", "2.5",
-    )  # fmt: skip
-    assert r.returncode == 0, r.stderr
+    synth_wami_video(video)
     out = tmp / "v"
     r = lesmc(
         "verify", str(video), "--truth", str(video / "truth.json"), "--window", "3..5",

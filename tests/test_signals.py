@@ -85,10 +85,10 @@ sys.meta_path.insert(0, Hold())
 """,
     # while the default video renders in its child process (verify imports torch then)
     "rendering": """
-import lesmc.experiment.experiment as e
-def _import_perception():
+import lesmc.experiment.default_video as v
+def import_perception():
     ready()
-e._import_perception = _import_perception
+v.import_perception = import_perception
 """,
     # every batch of the unfolding takes 0.2 s (for the budget tests)
     "slow": """

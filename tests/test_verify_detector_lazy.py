@@ -17,7 +17,8 @@ from typing import Any
 
 import pytest
 from cli_run import lesmc
-from test_campaign_detector import SPEC, _frames, _network
+from spot_detector import SPEC, write_spot_detector
+from test_campaign_detector import _frames
 
 pytest.importorskip("onnx")
 pytest.importorskip("onnxscript")
@@ -35,7 +36,7 @@ def _verify(d: Path, out: str, *extra: str) -> Any:
 def runs(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Any]:
     d = tmp_path_factory.mktemp("lazydet")
     _frames(d, 0)
-    _network(d)
+    write_spot_detector(d)
     (d / "p.spec").write_text(SPEC)
     lazy = _verify(d, "lazy")
     again = _verify(d, "lazy")

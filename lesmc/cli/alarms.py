@@ -147,7 +147,8 @@ def video_source(
     a model reads them, for ``lesmc tune``'s checks)."""
     from lesmc.common.progress import Reporter
     from lesmc.experiment.alarms import video_starts
-    from lesmc.experiment.experiment import Request, video_truth
+    from lesmc.experiment.experiment import video_truth
+    from lesmc.experiment.verify_request import Request
 
     if source is not None and not Path(source).is_dir():
         raise UsageError(f"{source}: no such video directory or scene file")

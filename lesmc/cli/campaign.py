@@ -292,7 +292,7 @@ def _videos(frames_dirs: tuple[str, ...], out: Path, no_truth: bool) -> list[Any
 
     if not frames_dirs:
         from lesmc.common.progress import progress_bar
-        from lesmc.experiment.experiment import (
+        from lesmc.experiment.default_video import (
             DEFAULT_VIDEO,
             default_video_ready,
             write_default_video,

@@ -30,8 +30,8 @@ from lesmc.cli.signals import resumable
 
 if TYPE_CHECKING:
     from lesmc.experiment.experiment import Outcome
-    from lesmc.experiment.experiment import Request as VerifyRequest
     from lesmc.experiment.multi_verify import MultiOutcome
+    from lesmc.experiment.verify_request import Request as VerifyRequest
 
 
 @click.command("verify")
@@ -263,7 +263,7 @@ def _finish(outcome: Outcome | MultiOutcome, as_json: bool) -> None:
 def _kept(out: Path) -> str:
     """What an interrupted verify leaves for its rerun: the rendered default video; the
     report in OUT is the previous run's or none (it is moved in whole, at the end)."""
-    from lesmc.experiment.experiment import default_video_ready
+    from lesmc.experiment.default_video import default_video_ready
 
     video = out / "video"
     report = "the previous report" if (out / "results.json").exists() else "no report"

@@ -35,7 +35,7 @@ from lesmc.scene import Scene, scene_to_dict, target_to_dict
 
 if TYPE_CHECKING:
     from lesmc.common.progress import Bar
-    from lesmc.experiment.experiment import Request
+    from lesmc.experiment.verify_request import Request
     from lesmc.perception import NetFiles
     from lesmc.replay.run import Outcome
 
@@ -105,12 +105,12 @@ def verify_multi(req: Request, rep: Reporter) -> MultiOutcome:
         if req.scene_path is None:
             refuse_points_for_boxes(detector, design)
     if req.scene_path is not None:
-        src = ex._scene_file(req)
+        src = ex.scene_file(req)
     else:  # every detection priced up front: the multi-target check reads payoffs directly
-        src = ex._perceived(req, specs, rep, False, False)
+        src = ex.perceived(req, specs, rep, False, False)
     where = req.scene_path or str(req.out / "scene.json")
     scene = src.scene.with_tracker(design=design)
-    rep.log(f"target: {ex._target_text(scene)}")
+    rep.log(f"target: {ex.target_text(scene)}")
     checked = time.monotonic()
     rep.stage(f"checking the {registry.label(design)} design")
     results = check_multi_design(
@@ -122,7 +122,7 @@ def verify_multi(req: Request, rep: Reporter) -> MultiOutcome:
     }
     meta = {
         **src.meta,
-        "target": ex._target_text(scene),
+        "target": ex.target_text(scene),
         "scene_target": target_to_dict(scene.target),  # what lesmc replay places on meta.scene
         "properties": [str(p.resolve()) for p in paths],
         "window": None if req.window is None else list(req.window),
@@ -136,7 +136,7 @@ def verify_multi(req: Request, rep: Reporter) -> MultiOutcome:
     from lesmc.report.multi import write_multi_report
 
     files = {"scene.json": json_text(scene_to_dict(src.scene))} if src.new else {}
-    report = write_multi_report(doc, req.out, ex._frame_reader(src.frames), files)
+    report = write_multi_report(doc, req.out, ex.frame_reader(src.frames), files)
     return MultiOutcome(results, doc, report)
 
 
@@ -224,7 +224,7 @@ def _replay(
 def _replay_key(doc: dict[str, Any], scene: Scene, src: Any) -> str | None:
     """The digest of what the replay reads (the results without their timings, the
     scene, the frames, the networks and the code), as the point designs' replay keys
-    OUT/cache (lesmc/experiment/experiment.py); None: not cacheable."""
+    OUT/cache (lesmc/experiment/verify_replay.py); None: not cacheable."""
     from lesmc.experiment.cache import code_digest, digest, file_digests, net_files
 
     if src.net_files is None or src.frames is None:

@@ -8,12 +8,18 @@ unknown one is a located error), binding checks that the design takes them
 (lesmc/language/semantics.py), the multi-target unfolder applies them
 (lesmc/unfold/multi.py), and :func:`docs_table` is the table of docs/language.md.
 Adding an action is one :func:`register` call at the end of this file, and its
-semantics in the unfolders.
+semantics in the unfolders. The checks of a spec's attack clauses live here too: an
+``allow`` list against the registry (:func:`allow_problem`) and an ``inject grid``
+within its limits (:func:`grid_problem`); the parser reports what they find at
+``FILE:LINE:COL``.
 """
 
 from __future__ import annotations
 
+from collections.abc import Collection, Sequence
 from dataclasses import dataclass
+
+from lesmc.language.properties import InjectGrid
 
 
 @dataclass(frozen=True)
@@ -35,6 +41,9 @@ _ACTIONS: dict[str, AttackAction] = {}
 
 #: The actions of a spec without ``allow``.
 DEFAULT = ("hide",)
+
+#: The most points an ``inject grid`` may have.
+MAX_GRID_POINTS = 1000
 
 
 def register(action: AttackAction) -> None:
@@ -58,6 +67,52 @@ def spelled() -> str:
     """The actions' names as a message lists them: ``hide or inject``."""
     quoted = [f"'{n}'" for n in names()]
     return quoted[0] if len(quoted) == 1 else ", ".join(quoted[:-1]) + " or " + quoted[-1]
+
+
+def needs_action(word: str | None) -> str:
+    """The message for ``allow`` followed by the keyword ``word`` (None: by nothing)."""
+    what = f"'{word}' is a keyword, not an action" if word else "no action follows"
+    return f"allow needs an action ({spelled()}): {what}"
+
+
+def allow_problem(
+    listed: Sequence[str], keywords: Collection[str], shown: Sequence[str]
+) -> tuple[int, str] | None:
+    """The first problem of ``allow A, B`` listing ``listed``: the index of the name at
+    fault and the message (a keyword of the language, ``keywords``; an action not
+    registered; one allowed twice); None: each is registered and named once. ``shown``:
+    each name as a message quotes it (clipped)."""
+    for i, name in enumerate(listed):
+        if name not in _ACTIONS and name in keywords:
+            return i, needs_action(name)
+        if name not in _ACTIONS:
+            return i, f"unknown attack action '{shown[i]}': allow takes {spelled()}"
+        if name in listed[:i]:
+            return i, f"attack action '{name}' is allowed twice"
+    return None
+
+
+def grid_problem(grid: InjectGrid, written: Sequence[str]) -> tuple[int, str] | None:
+    """The first problem of ``inject grid D within R payoff P``: the index of the number at
+    fault (0: D, 1: R, 2: P) and the message; D > 0 px, R >= 0 px, P >= 0, at most
+    :data:`MAX_GRID_POINTS` points (too many: at D). ``written``: D, R and P as the spec
+    wrote them (clipped). None: a grid within its limits."""
+    d, r, p = written
+    checks = (
+        (grid.spacing > 0, f"the grid spacing must be positive (px), got {d}"),
+        (grid.radius >= 0, f"the grid radius must be at least 0 (px), got {r}"),
+        (grid.payoff >= 0, f"an inject payoff must be at least 0, got {p}"),
+    )
+    for i, (ok, message) in enumerate(checks):
+        if not ok:
+            return i, message
+    bound = (2 * (grid.radius / grid.spacing) + 1) ** 2  # the square's points, before counting
+    if bound > 4 * MAX_GRID_POINTS or len(grid.offsets()) > MAX_GRID_POINTS:
+        return 0, (
+            f"the grid has more than {MAX_GRID_POINTS} points: widen its spacing or "
+            "narrow its radius"
+        )
+    return None
 
 
 def docs_table() -> str:

@@ -216,10 +216,6 @@ def _syntax_error(exc: UnexpectedInput, text: str, path: str) -> SpecError:
     return SpecError(message, Location(path, line, col, source_line(text, line)))
 
 
-#: The most points an ``inject grid`` may have.
-MAX_GRID_POINTS = 1000
-
-
 def _num_text(node: Tree[Any]) -> str:
     """A number as the spec wrote it (clipped)."""
     return _clip(str(node.children[0]))
@@ -253,13 +249,7 @@ def _bare_allow(exc: UnexpectedInput, text: str, path: str) -> SpecError | None:
     at = m.start("word") if word is not None else stop
     line = text.count("\n", 0, at) + 1
     col = at - (text.rfind("\n", 0, at) + 1) + 1
-    return SpecError(_needs_action(word), Location(path, line, col, source_line(text, line)))
-
-
-def _needs_action(word: str | None) -> str:
-    """The message for ``allow`` followed by the keyword ``word`` (None: by nothing)."""
-    what = f"'{word}' is a keyword, not an action" if word else "no action follows"
-    return f"allow needs an action ({actions.spelled()}): {what}"
+    return SpecError(actions.needs_action(word), Location(path, line, col, source_line(text, line)))
 
 
 @cache
@@ -527,23 +517,15 @@ class _Builder:
         return self.whole(tok) if tok.type == "INT" else str(tok)
 
     def allowed(self, node: Tree[Any]) -> tuple[str, ...]:
-        """``allow A, B``: the attacker's actions, each registered
-        (lesmc/language/actions.py) and named once."""
-        got: list[str] = []
+        """``allow A, B``: the attacker's actions, each registered and named once
+        (lesmc/language/actions.py, :func:`~lesmc.language.actions.allow_problem`)."""
         toks: list[Any] = node.children
-        for tok in toks:
-            name = str(tok)
-            if name not in actions.names() and name in _keywords():
-                raise self.error(_needs_action(name), _tok_pos(tok))
-            if name not in actions.names():
-                raise self.error(
-                    f"unknown attack action '{_clip(name)}': allow takes {actions.spelled()}",
-                    _tok_pos(tok),
-                )
-            if name in got:
-                raise self.error(f"attack action '{name}' is allowed twice", _tok_pos(tok))
-            got.append(name)
-        return tuple(got)
+        listed = [str(tok) for tok in toks]
+        problem = actions.allow_problem(listed, _keywords(), [_clip(n) for n in listed])
+        if problem is not None:
+            i, message = problem
+            raise self.error(message, _tok_pos(toks[i]))
+        return tuple(listed)
 
     def names(self, node: Tree[Any]) -> tuple[str, ...]:
         names: list[str] = []
@@ -590,28 +572,14 @@ class _Builder:
         return int(significant)
 
     def grid(self, ch: list[Any]) -> InjectGrid:
-        """``inject grid D within R payoff P``: D > 0 px, R >= 0 px, P >= 0, at most
-        :data:`MAX_GRID_POINTS` points."""
-        spacing = self.number(ch[0], "grid spacing")
-        radius = self.number(ch[1], "grid radius")
-        payoff = self.number(ch[2], "grid payoff")
-        checks = (
-            (0, spacing > 0, f"the grid spacing must be positive (px), got {_num_text(ch[0])}"),
-            (1, radius >= 0, f"the grid radius must be at least 0 (px), got {_num_text(ch[1])}"),
-            (2, payoff >= 0, f"an inject payoff must be at least 0, got {_num_text(ch[2])}"),
-        )
-        for i, ok, message in checks:
-            if not ok:
-                raise self.error(message, _tok_pos(ch[i].children[0]))
-        grid = InjectGrid(spacing, radius, payoff)
-        if (2 * (radius / spacing) + 1) ** 2 > 4 * MAX_GRID_POINTS or len(
-            grid.offsets()
-        ) > MAX_GRID_POINTS:
-            raise self.error(
-                f"the grid has more than {MAX_GRID_POINTS} points: widen its spacing or "
-                "narrow its radius",
-                _tok_pos(ch[0].children[0]),
-            )
+        """``inject grid D within R payoff P``, within the grid's limits
+        (lesmc/language/actions.py, :func:`~lesmc.language.actions.grid_problem`)."""
+        what = ("grid spacing", "grid radius", "grid payoff")
+        grid = InjectGrid(*(self.number(ch[i], what[i]) for i in range(3)))
+        problem = actions.grid_problem(grid, [_num_text(ch[i]) for i in range(3)])
+        if problem is not None:
+            i, message = problem
+            raise self.error(message, _tok_pos(ch[i].children[0]))
         return grid
 
     def radius(self, rest: list[Any]) -> float | None:

@@ -13,7 +13,7 @@ written for the rare ids a fixed width cannot hold (ending in a NUL character).
 
 Read with ``allow_pickle=False`` (an object array is refused, never unpickled),
 each array's dtype and shape checked, then every rule of the JSON form
-(:func:`lesmc.model.validate.check_arrays`): a bad file is a located
+(:func:`lesmc.model.validate_arrays.check_arrays`): a bad file is a located
 :class:`~lesmc.common.errors.ModelError`, never an internal error.
 """
 
@@ -36,7 +36,8 @@ from lesmc.common.errors import Location, ModelError, Problems
 from lesmc.common.fields import header, is_name, is_version, show
 from lesmc.common.files import atomic_open, parse_json
 from lesmc.model.arrays import ArrayModel, IdArray
-from lesmc.model.validate import HALTED, check_arrays, check_tracks, meta_problems
+from lesmc.model.validate import HALTED, check_tracks, meta_problems
+from lesmc.model.validate_arrays import check_arrays
 
 FORMAT = "lesmc-lts-npz"
 VERSION = 2

@@ -10,7 +10,10 @@ transitions grouped by source (CSR) and sorted by (rank, target id).
 Messages and their order are those of the object-based checker this replaces:
 first the states' and transitions' own problems (duplicate ids, sizes, unknown
 endpoints, steps, duplicate pairs); only when there are none, the order and
-path rules (unique lowest rank, initial, original, reachability, halting).
+path rules (unique lowest rank, initial, original, reachability, halting:
+lesmc/model/path_rules.py). A model
+given as laid-out arrays (the binary form) is checked against the same rules by
+lesmc/model/validate_arrays.py.
 """
 
 from __future__ import annotations
@@ -18,21 +21,19 @@ from __future__ import annotations
 import operator
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
-from itertools import islice, pairwise, repeat
+from itertools import islice, repeat
 from typing import Any
 
 import numpy as np
 
 from lesmc.common.errors import ModelError, Problems
 from lesmc.common.fields import MAX_STEP, show
-from lesmc.model.arrays import ArrayModel, IdArray, Tracks
+from lesmc.model.arrays import ArrayModel, Tracks
+from lesmc.model.path_rules import Report, Rows, check_order, check_original, check_states
 
 HALTED = "halted"
 """Label of a state where the tracker stopped (trace(P) too large): no successors."""
 
-_LEVEL_LOOP_MAX = 2048
-"""Reachability propagates level by level (one numpy pass per step) up to this many
-distinct steps; beyond, a plain depth-first search over the CSR lists is cheaper."""
 
 _HASH = np.random.default_rng(0x1E5).integers(-(2**62), 2**62, size=4096, dtype=np.int64)
 """Fixed multipliers of the row hash that deduplicates covariances (deterministic)."""
@@ -67,45 +68,6 @@ class Parts:
     nis: np.ndarray | None = None  # (m,) float64, NaN: no update; None: no transition has one
 
 
-@dataclass(frozen=True)
-class Rows:
-    """A model laid out: states in (step, id) order, transitions grouped by source (CSR)
-    in (rank, target) order. ``perm`` maps a row to its file row (None: the same) and
-    ``ids`` names states by file row, for messages."""
-
-    step: np.ndarray
-    halted: np.ndarray
-    ptr: np.ndarray
-    src: np.ndarray  # each transition's source row
-    dst: np.ndarray
-    rank: np.ndarray
-    perm: np.ndarray | None
-    ids: Sequence[str]
-
-    def file_rows(self, rows: np.ndarray) -> np.ndarray:
-        """The file rows of sorted rows, so that problems are listed in file order."""
-        return rows if self.perm is None else self.perm[rows]
-
-    def id_of(self, row: int) -> str:
-        return self.ids[row] if self.perm is None else self.ids[int(self.perm[row])]
-
-
-class Report:
-    """Problems keyed by (section, row, field) so that they come out in file order."""
-
-    def __init__(self) -> None:
-        self.items: list[tuple[tuple[int, int, int], str, str]] = []
-
-    def add(self, key: tuple[int, int, int], item: str, message: str) -> None:
-        self.items.append((key, item, message))
-
-    def raise_if_any(self, path: str, before: list[tuple[str, str]] | None = None) -> None:
-        if self.items or before:
-            self.items.sort(key=lambda x: x[0])  # stable: same-key messages keep their order
-            listed = [*(before or []), *((item, msg) for _, item, msg in self.items)]
-            raise ModelError.many(path, listed)
-
-
 def build(parts: Parts, path: str = "<model>") -> ArrayModel:
     """Check every structural rule and lay the model out; raise one ModelError listing all."""
     ids = parts.ids
@@ -127,7 +89,7 @@ def build(parts: Parts, path: str = "<model>") -> ArrayModel:
 
     rows = Rows(step, halted, ptr, src, dst, rank, perm, ids)
     rep = Report()
-    _check_order(rep, rows)
+    check_order(rep, rows)
     original = _check_paths(rep, parts, index, pos, rows)
     rep.raise_if_any(path)
     assert original is not None
@@ -158,129 +120,6 @@ def build(parts: Parts, path: str = "<model>") -> ArrayModel:
         labels=dict(sorted(labels.items())),
         meta=parts.meta,
     )
-
-
-def check_arrays(cm: ArrayModel, path: str = "<model>") -> None:
-    """The rules of :func:`build` on a model given as arrays (the binary .npz form, laid
-    out already): the layout itself first (shapes, CSR offsets, index ranges, finite
-    numbers, states in step order, each state's transitions in (rank, target) order),
-    then the same transition, order, path and state rules, with the same messages."""
-    src = _check_layout(cm, path)
-    ids: Sequence[str] = cm.ids if cm.ids is not None else _DefaultIds(cm)
-    rep = Report()
-
-    def item(j: int) -> str:
-        return f"transition {j} ({ids[src[j]]} -> {ids[cm.dst[j]]})"
-
-    check_transitions(rep, None, src, cm.dst, cm.step, cm.payoff, item)
-    rep.raise_if_any(path)
-    rows = Rows(cm.step, cm.halted, cm.ptr, src, cm.dst, cm.rank, None, ids)
-    _check_order(rep, rows)
-    original = [ids[q] for q in cm.original.tolist()]
-    if cm.step[cm.initial] != 0:
-        rep.add((1, 0, 1), "initial", f"state '{original[0]}' must be at step 0")
-    _check_original(rep, original, cm.original, rows)
-    check_states(rep, cm.initial, cm.end, rows)
-    rep.raise_if_any(path)
-
-
-def _check_layout(cm: ArrayModel, path: str) -> np.ndarray:
-    """Shapes, offsets, index ranges, finite numbers and the order of rows: what the
-    arrays must be before the model's own rules can be checked. Returns each
-    transition's source row."""
-    n, m = cm.step.shape[0], cm.dst.shape[0]
-    d = cm.S.shape[1] if cm.S.ndim == 2 else -1
-    bad: list[tuple[str, str]] = []
-
-    def need(ok: bool, item: str, message: str) -> None:
-        if not ok:
-            bad.append((item, message))
-
-    need(n > 0, "step", "the model has no states")
-    need(cm.S.shape == (n, d) and d >= 1, "S", f"must be {n} x d (d >= 1), got {cm.S.shape}")
-    need(cm.halted.shape == (n,), "halted", f"must have {n} entries, got {cm.halted.shape}")
-    need(cm.ptr.shape == (n + 1,), "ptr", f"must have {n + 1} entries, got {cm.ptr.shape}")
-    for name in ("payoff", "rank") + (("obs",) if cm.obs is not None else ()):
-        got = getattr(cm, name).shape
-        need(got == (m,), name, f"must have {m} entries (one per transition), got {got}")
-    need(cm.original.ndim == 1 and cm.original.size > 0, "original", "must be a non-empty path")
-    need(len(cm.components) == d, "components", f"must name the {d} components of S")
-    need(len(set(cm.components)) == len(cm.components), "components", "names must be unique")
-    if cm.ids is not None:
-        need(len(cm.ids) == n, "ids", f"must have {n} entries, got {len(cm.ids)}")
-        if isinstance(cm.ids, IdArray):
-            if len(cm.ids) == n:
-                for item, msg in id_array_problems(cm.ids.raw, cm.step):
-                    need(False, item, msg)
-        else:
-            need(len(set(cm.ids)) == len(cm.ids), "ids", "state ids must be unique")
-    if bad:
-        raise ModelError.many(path, bad)
-    ptr = cm.ptr
-    deg = np.diff(ptr)
-    need(ptr[0] == 0 and ptr[-1] == m, "ptr", f"must run from 0 to {m} (the transitions)")
-    need(bool((deg >= 0).all()), "ptr", "must not decrease")
-    need(_within(cm.dst, n), "dst", f"must be states 0..{n - 1}")
-    need(_within(cm.original, n), "original", "unknown state")
-    need(bool(np.isfinite(cm.S).all()), "S", "must be finite numbers")
-    need(bool((cm.step[1:] >= cm.step[:-1]).all()), "step", "states must be in step order")
-    ids = cm.ids
-    if ids is not None and not isinstance(ids, IdArray) and state_order(cm.step, ids) is not None:
-        need(False, "ids", "states must be in (step, id) order, as the JSON form lays them out")
-    _check_tables(cm, need, d)
-    if bad:
-        raise ModelError.many(path, bad)
-    src = np.repeat(np.arange(n, dtype=np.int64), deg)
-    r, t = cm.rank, cm.dst
-    up = (r[1:] > r[:-1]) | ((r[1:] == r[:-1]) & (t[1:] >= t[:-1]))
-    ordered = bool((up | (src[1:] != src[:-1])).all())
-    need(ordered, "rank", "each state's transitions must be in (rank, target) order")
-    if bad:
-        raise ModelError.many(path, bad)
-    return src
-
-
-def _within(rows: np.ndarray, n: int) -> bool:
-    """Every entry a row 0..n-1 (two reductions, no mask)."""
-    return rows.size == 0 or (int(rows.min()) >= 0 and int(rows.max()) < n)
-
-
-class _DefaultIds(Sequence[str]):
-    """The default ids ``k{step}.{row}`` of a model without ids, made when a message
-    names one (a list of them all would cost more than the checks)."""
-
-    def __init__(self, cm: ArrayModel) -> None:
-        self._cm = cm
-
-    def __len__(self) -> int:
-        return self._cm.n_states
-
-    def __getitem__(self, i: Any) -> Any:
-        if isinstance(i, slice):
-            return [self[j] for j in range(*i.indices(len(self)))]
-        return self._cm.state_id(int(i))
-
-
-def _check_tables(cm: ArrayModel, need: Callable[[bool, str, str], None], d: int) -> None:
-    """Covariances and observations: their tables, and indices into them (−1: none)."""
-    if (cm.cov is None) != (cm.P_table is None):
-        need(False, "cov", "cov and P_table come together")
-        return
-    if cm.cov is not None and cm.P_table is not None:
-        c = cm.P_table.shape[0]
-        need(cm.cov.shape == cm.step.shape, "cov", "must have one entry per state")
-        need(cm.P_table.shape == (c, d, d), "P_table", f"must be c x {d} x {d}")
-        need(bool(np.isfinite(cm.P_table).all()), "P_table", "must be finite numbers")
-        need(bool(((cm.cov >= -1) & (cm.cov < c)).all()), "cov", f"must be -1..{c - 1}")
-    if cm.obs is not None:
-        k = len(cm.obs_names)
-        need(bool(((cm.obs >= -1) & (cm.obs < k)).all()), "obs", f"must be -1..{k - 1}")
-    if cm.nis is not None:
-        ok = cm.nis.shape == cm.dst.shape
-        need(ok, "nis", f"must have {cm.dst.shape[0]} entries (one per transition)")
-        if ok:
-            bad = ~(np.isnan(cm.nis) | (np.isfinite(cm.nis) & (cm.nis >= 0)))
-            need(not bad.any(), "nis", "must be finite numbers >= 0, or NaN (no update)")
 
 
 def _layout(parts: Parts, src_f: np.ndarray, dst_f: np.ndarray) -> tuple[Any, ...]:
@@ -492,32 +331,6 @@ def check_transitions(
             rep.add((1, j, 3), item(j), "a second transition between the same states")
 
 
-def _check_order(rep: Report, rows: Rows) -> None:
-    """≺ must have a unique minimum per state: the transition taken when not attacked.
-
-    Each state's transitions are in rank order (both readers lay them out so), so the
-    minimum is unique where a state's first two ranks differ; the ties are counted
-    only when there are some."""
-    ptr, src, rank, ids = rows.ptr, rows.src, rows.rank, rows.ids
-    m = rank.shape[0]
-    if m < 2:
-        return
-    first = ptr[:-1][np.diff(ptr) >= 2]
-    if not bool((rank[first] == rank[first + 1]).any()):
-        return
-    lowest = rank[np.minimum(ptr[:-1], m - 1)]  # each state's first (lowest) rank
-    at_min = rank == lowest[src]
-    count = np.bincount(src[at_min], minlength=ptr.shape[0] - 1)
-    bad = np.flatnonzero(count > 1)
-    file_rows = rows.file_rows(bad).tolist()
-    for r, c, lo in zip(file_rows, count[bad].tolist(), lowest[bad].tolist(), strict=True):
-        rep.add(
-            (0, r, 0),
-            f"state '{ids[r]}'",
-            f"{c} transitions share the lowest rank {lo}; the unattacked successor must be unique",
-        )
-
-
 def _check_paths(
     rep: Report,
     parts: Parts,
@@ -542,103 +355,12 @@ def _check_paths(
     missing = np.flatnonzero(found < 0)
     stop = int(missing[0]) if missing.size else len(original)
     op: np.ndarray = pos[found[:stop]]
-    _check_original(rep, original, op, rows)
+    check_original(rep, original, op, rows)
     if missing.size:
         rep.add((2, stop, 0), f"original[{stop}]", f"unknown state '{original[stop]}'")
         return None
     check_states(rep, q0, len(original) - 1, rows)
     return op
-
-
-def _check_original(rep: Report, original: list[str], op: np.ndarray, rows: Rows) -> None:
-    """The original path (rows ``op``): state k at step k, each link rank-minimal."""
-    step = rows.step
-    k = np.arange(op.shape[0], dtype=np.int64)
-    for kk in np.flatnonzero(step[op] != k).tolist():
-        sid = original[kk]
-        rep.add((2, kk, 0), f"original[{kk}]", f"state '{sid}' is at step {step[op[kk]]}, not {kk}")
-    _check_links(rep, original, op, rows)
-
-
-def check_states(rep: Report, q0: int, e: int, rows: Rows) -> None:
-    """Every state reachable from ``q0``, at a step <= e, halted exactly where it has no
-    successor before e."""
-    step, halted = rows.step, rows.halted
-    deg = np.diff(rows.ptr)
-    reach = _reachable(q0, step, rows.ptr, rows.src, rows.dst)
-    succ = deg > 0
-    masks = (~reach, step > e, (halted & succ) | (~succ & (step < e) & ~halted))
-    for kind, mask in enumerate(masks):
-        qs = np.flatnonzero(mask)
-        for r, q in zip(rows.file_rows(qs).tolist(), qs.tolist(), strict=True):
-            if kind == 0:
-                msg = "not reachable from the initial state"
-            elif kind == 1:
-                msg = f"step {step[q]} is beyond the original path's end {e}"
-            elif halted[q]:
-                msg = "is labelled halted but has successors"
-            else:
-                msg = (
-                    f"has no successor before step {e}; label it 'halted' if the "
-                    "tracker stopped there"
-                )
-            rep.add((3, r, kind), f"state '{rows.ids[r]}'", msg)
-
-
-def _check_links(rep: Report, original: list[str], op: np.ndarray, rows: Rows) -> None:
-    """Each step of the original path (rows ``op``) is the rank-minimal transition."""
-    ptr, src, dst, n = rows.ptr, rows.src, rows.dst, len(rows.ids)
-    stop, m, deg = len(op), dst.shape[0], np.diff(ptr)
-    if stop > 1 and m:
-        prev, cur = op[:-1], op[1:]
-        pick = np.where(deg[prev] > 0, dst[np.minimum(ptr[prev], m - 1)], -1)
-        off = np.flatnonzero(pick != cur)
-        if off.size:
-            edges = src * n + dst
-            exists = np.isin(prev[off] * n + cur[off], edges)
-            for i, ok in zip(off.tolist(), exists.tolist(), strict=True):
-                kk, a, b = i + 1, original[i], original[i + 1]
-                if ok:
-                    p = rows.id_of(int(pick[i]))
-                    msg = (
-                        f"'{b}' is not the unattacked (rank-minimal) successor of '{a}', "
-                        f"which is '{p}'"
-                    )
-                else:
-                    msg = f"no transition from '{a}' to '{b}'"
-                rep.add((2, kk, 1), f"original[{kk}]", msg)
-    elif stop > 1:
-        for kk in range(1, stop):
-            msg = f"no transition from '{original[kk - 1]}' to '{original[kk]}'"
-            rep.add((2, kk, 1), f"original[{kk}]", msg)
-
-
-def _reachable(
-    q0: int, step: np.ndarray, ptr: np.ndarray, src: np.ndarray, dst: np.ndarray
-) -> np.ndarray:
-    """States reachable from q0; rows are sorted by step and every transition climbs one step."""
-    n = step.shape[0]
-    reach = np.zeros(n, dtype=bool)
-    reach[q0] = True
-    starts = np.flatnonzero(np.r_[True, step[1:] != step[:-1]])
-    if starts.size <= _LEVEL_LOOP_MAX:
-        bounds = np.r_[starts, n]
-        tb = ptr[bounds].tolist()
-        for a, b in pairwise(tb):
-            if a < b:
-                reach[dst[a:b][reach[src[a:b]]]] = True
-        return reach
-    ptr_l, dst_l = ptr.tolist(), dst.tolist()
-    seen = bytearray(n)
-    seen[q0] = 1
-    todo = [q0]
-    while todo:
-        q = todo.pop()
-        for t in dst_l[ptr_l[q] : ptr_l[q + 1]]:
-            if not seen[t]:
-                seen[t] = 1
-                todo.append(t)
-    return np.frombuffer(bytes(seen), dtype=np.uint8).astype(bool)
 
 
 def _covariances(

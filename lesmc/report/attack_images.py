@@ -14,8 +14,9 @@ import numpy as np
 from lesmc.common.numbers import fmt
 from lesmc.report import figures
 from lesmc.report.figure_cache import FigureSet
+from lesmc.report.figures import ImageFor
 from lesmc.report.pages import Cell, Figure, Markup, Text, para, table
-from lesmc.report.run_view import ImageFor, RunView, number
+from lesmc.report.run_view import RunView, number
 from lesmc.results.read import HiddenEntry, Perturbation
 
 

@@ -17,10 +17,9 @@ from lesmc.language import measures
 from lesmc.report import figures
 from lesmc.report.attack_images import patches
 from lesmc.report.figure_cache import FigureSet
-from lesmc.report.figures import Series, TreePath
+from lesmc.report.figures import ImageFor, Series, TreePath
 from lesmc.report.pages import Cell, Figure, Markup, Row, Table, Text, para, table
 from lesmc.report.run_view import (
-    ImageFor,
     RunView,
     css_tag,
     number,

@@ -41,6 +41,9 @@ ROLE_WORDS = {
     "cheapest": "cheapest path breaking a property that holds (not a counterexample)",
     "witness": "witness",
 }
+#: ``frame index -> grey image`` (None past the video's end): the frames the report's
+#: image figures draw on (lesmc/report/publish.py's frame_reader makes one).
+ImageFor = Callable[[int], np.ndarray | None]
 #: One marker per property (by its index in the run).
 MARKERS = ["o", "s", "^", "D", "v", "P"]
 DPI = 200

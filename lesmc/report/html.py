@@ -29,9 +29,9 @@ from lesmc.report.document_tables import (
     verdict_lines,
 )
 from lesmc.report.figure_cache import FigureSet, PngStore
-from lesmc.report.figures import COLOURS
+from lesmc.report.figures import COLOURS, ImageFor
 from lesmc.report.pages import images, render_page
-from lesmc.report.run_view import ImageFor, RunView, payoff_words
+from lesmc.report.run_view import RunView, payoff_words
 from lesmc.report.staging import staged
 from lesmc.results.read import ResultsDoc, results_of
 

@@ -15,7 +15,7 @@ tracks, and its report lists the steps without panels.
 from __future__ import annotations
 
 import json
-from collections.abc import Callable, Sequence
+from collections.abc import Sequence
 from html import escape
 from pathlib import Path
 from typing import Any
@@ -23,11 +23,9 @@ from typing import Any
 import numpy as np
 
 from lesmc.common.numbers import fmt
-from lesmc.report.figures import COLOURS, _png, _pyplot, _square_view
+from lesmc.report.figures import COLOURS, ImageFor, _png, _pyplot, _square_view
 from lesmc.report.pages import Figure, Markup, images, key_values, para, render_page, table
 from lesmc.report.staging import staged
-
-ImageFor = Callable[[int], np.ndarray | None]
 
 #: At most this many steps get a panel (the attacked steps and those after them first).
 MAX_PANELS = 12

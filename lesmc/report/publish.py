@@ -8,7 +8,6 @@ Video frames come only from a directory named on the command line.
 
 from __future__ import annotations
 
-from collections.abc import Callable
 from functools import lru_cache
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
@@ -16,6 +15,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from lesmc.common.errors import LesmcError
+from lesmc.report.figures import ImageFor
 from lesmc.results.document import results_document
 from lesmc.results.record import DesignRun
 
@@ -23,7 +23,7 @@ if TYPE_CHECKING:
     from lesmc.video.reader import FrameSet
 
 
-def frames_reader(frames_dir: str | None) -> Callable[[int], np.ndarray | None] | None:
+def frames_reader(frames_dir: str | None) -> ImageFor | None:
     """``frame index -> grey image`` from a directory the user named (None: no images)."""
     if frames_dir is None:
         return None
@@ -32,7 +32,7 @@ def frames_reader(frames_dir: str | None) -> Callable[[int], np.ndarray | None] 
     return frame_reader(open_frames(frames_dir, 1, check=False))
 
 
-def frame_reader(fs: FrameSet, skip_unreadable: bool = False) -> Callable[[int], np.ndarray | None]:
+def frame_reader(fs: FrameSet, skip_unreadable: bool = False) -> ImageFor:
     """``frame index -> grey image`` of ``fs``: None past its end and, with
     ``skip_unreadable``, for a frame that cannot be read (else its error). The figures of
     one counterexample draw the same few frames again and again (the default report: 12
@@ -60,7 +60,7 @@ def publish(
     out_dir: str | Path,
     meta: dict[str, Any],
     prov: dict[str, Any],
-    image_for: Callable[[int], np.ndarray | None] | None = None,
+    image_for: ImageFor | None = None,
     timings: dict[str, float] | None = None,
     truth: list[Any] | None = None,
     extra: dict[str, Any] | None = None,

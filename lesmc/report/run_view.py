@@ -6,7 +6,6 @@ result's verdict words, CSS class and optimum cell; the payoff words of a docume
 from __future__ import annotations
 
 import math
-from collections.abc import Callable
 
 import numpy as np
 
@@ -14,8 +13,6 @@ from lesmc.engines.result import verdict_words
 from lesmc.report.text import optimum_cell
 from lesmc.results.document import ATTACK_PAYOFF
 from lesmc.results.read import Num, ResultDoc, ResultsDoc, RunDoc
-
-ImageFor = Callable[[int], np.ndarray | None]
 
 
 def number(x: Num | None) -> float:

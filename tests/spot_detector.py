@@ -1,0 +1,59 @@
+"""The tiny heatmap detector file the detector-file tests share (issue 60): a hand-set
+two-layer network on H x W frames, exported to ONNX as spot.onnx beside its spot.toml
+(tests/test_detector_replay.py, tests/test_campaign_detector.py and the tests that reuse
+their videos)."""
+
+from __future__ import annotations
+
+import warnings
+from pathlib import Path
+
+import torch
+from torch import nn
+
+#: The frames' size: the network is exported for it (only its batch is dynamic).
+H, W = 64, 96
+#: The property the tests check on the spots: a cheap hiding attack at steps 6..8 breaks it.
+SPEC = """property hide_cheap {
+    attack window 6..8
+    minimize payoff
+    subject to dist.max(0..end) > 5
+    holds if optimum > 10
+    on x, y
+}
+"""
+
+
+def write_spot_detector(d: Path, dynamo: bool = True) -> Path:
+    """Brightness above a level, blurred: a heatmap of stride 4 (raw scores >= 0), written
+    to ``d``/spot.onnx; its detector file ``d``/spot.toml (returned). ``dynamo=False``:
+    exported by torch's TorchScript exporter (the same graph, seconds faster)."""
+    net = nn.Sequential(
+        nn.Conv2d(1, 2, 5, stride=2, padding=2), nn.ReLU(),
+        nn.Conv2d(2, 1, 3, stride=2, padding=1),
+    )  # fmt: skip
+    with torch.no_grad():
+        g = torch.ones(5, 5) / 25
+        net[0].weight[:] = torch.stack([g, -g])[:, None]
+        net[0].bias[:] = torch.tensor([-0.2, 0.3])
+        net[2].weight.zero_()
+        net[2].weight[0, 0] = torch.tensor([[1.0, 2, 1], [2, 4, 2], [1, 2, 1]]) / 4
+        net[2].bias[:] = torch.tensor([-0.3])
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        if not dynamo:
+            torch.onnx.export(
+                net.eval(), (torch.rand(2, 1, H, W),), d / "spot.onnx", dynamo=False,
+                input_names=["x"], dynamic_axes={"x": {0: "batch"}},
+            )  # fmt: skip
+        else:
+            torch.onnx.export(
+                net.eval(), (torch.rand(2, 1, H, W),), d / "spot.onnx", dynamo=True,
+                dynamic_shapes=({0: torch.export.Dim("batch")},), external_data=False,
+            )  # fmt: skip
+    toml = d / "spot.toml"
+    toml.write_text(
+        'kind = "heatmap"\nnetwork = "spot.onnx"\nstride = 4\nthreshold = 0.0\n'
+        'score = "raw"\nnms_radius = 2\n'
+    )
+    return toml
