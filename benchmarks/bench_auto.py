@@ -12,13 +12,15 @@ within ``--timeout`` seconds and ENUMERATE_BUDGET labels.
 The runs of one instance are interleaved: ``--repeat`` rounds (default 7), each running
 every engine once, the order rotated by one each round (auto, levels, bnb, enumerate;
 then levels, bnb, enumerate, auto; ...), garbage collected before each run, so that the
-machine's drift between runs falls on every engine alike. An instance whose fastest run
-of the first round took under TINY seconds gets TINY_TIMES x as many rounds; an engine
-whose first run took SHORT seconds or more runs LONG_RUNS times only, and one that did not
-finish is not run again ("unfinished"). Each engine's figure is the MEDIAN of its runs;
-auto / best is auto's median over the smallest median of the other engines that
-finished, and chosen / best is the median of the engine ``auto`` chose (``enumerate``:
-the probe answered), run by itself, over the same: the rule's own quality.
+machine's drift between runs falls on every engine alike. A short instance then gets more
+rounds, until the fastest engine's median times the rounds reaches TARGET seconds (at
+most MAX_TIMES x ``--repeat`` rounds), run by auto and the engines within CONTENDER x
+the fastest; an engine whose first run took SHORT seconds or more runs LONG_RUNS times
+only, and one that did not finish is not run again ("unfinished"). Each engine's figure
+is the MEDIAN of its runs; auto / best is auto's median over the smallest median of the
+other engines that finished, and chosen / best is the median of the engine ``auto``
+chose (``enumerate``: the probe answered), run by itself, over the same: the rule's own
+quality.
 
 The seconds are the process's CPU time around ``check_bound`` (``--clock cpu``, the
 default: on a shared machine the wall clock mostly measures the other jobs) or the
@@ -70,12 +72,25 @@ ENUMERATE_BUDGET = 6_000_000
 #: An engine whose first run took this many seconds or more runs LONG_RUNS times only.
 SHORT = 1.0
 LONG_RUNS = 3
-#: An instance whose fastest first-round run took under TINY seconds gets TINY_TIMES x
-#: --repeat rounds (the engines that took TINY or more stop after --repeat).
-TINY = 0.05
-TINY_TIMES = 3
+#: After --repeat rounds, a short instance gets more, until the fastest engine's median
+#: times the rounds reaches TARGET seconds, at most MAX_TIMES x --repeat rounds in all;
+#: the extra rounds run auto and the engines within CONTENDER x the fastest median only
+#: (a median of 7 runs of 3 ms still moves by 1.3x on a loaded 2-core machine).
+TARGET = 1.0
+MAX_TIMES = 15
+CONTENDER = 2.0
 
 Case = tuple[str, ArrayModel, BoundProperty]
+
+
+@dataclass(frozen=True)
+class Args:
+    """How each instance is measured (the command line's ``--repeat``, ``--timeout``
+    and ``--clock``)."""
+
+    repeat: int = 7
+    timeout: float = 20.0
+    clock: str = "cpu"
 
 
 def knapsack_set(draws: int, base: int, quick: bool) -> list[Case]:
@@ -140,6 +155,7 @@ class Runs:
     secs: dict[str, list[float]] = field(default_factory=dict)
     results: dict[str, CheckResult] = field(default_factory=dict)
     unfinished: set[str] = field(default_factory=set)
+    extra: set[str] = field(default_factory=set)  #: the engines run past --repeat
 
     def median(self, engine: str) -> float:
         """The engine's median seconds; inf when it did not finish."""
@@ -151,31 +167,43 @@ class Runs:
         """Whether ``engine`` runs in round ``k`` (the module's docstring gives the rule)."""
         if engine in self.unfinished:
             return False
-        if k == 0:
-            return True
-        first = self.secs[engine][0]
-        return (k < LONG_RUNS or first < SHORT) and (k < repeat or first < TINY)
+        if k >= repeat:
+            return engine in self.extra
+        return k == 0 or k < LONG_RUNS or self.secs[engine][0] < SHORT
+
+    def extend(self, repeat: int) -> int:
+        """The rounds in all, after ``repeat``: more for a short instance (TARGET), run
+        by auto and the engines close to the fastest (:attr:`extra`)."""
+        med = {e: self.median(e) for e in ENGINES if math.isfinite(self.median(e))}
+        if not med:
+            return repeat
+        fastest = max(min(med.values()), 1e-9)
+        self.extra = {e for e, s in med.items() if e == "auto" or s <= CONTENDER * fastest}
+        return min(repeat * MAX_TIMES, max(repeat, math.ceil(TARGET / fastest)))
 
 
-def measure(cm: ArrayModel, bp: BoundProperty, repeat: int, timeout: float, clock: str) -> Runs:
-    """Every engine on one instance, in interleaved rotated rounds."""
+def one_round(runs: Runs, case: tuple[ArrayModel, BoundProperty], k: int, args: Args) -> None:
+    """Round ``k``: each engine due in it once, in the round's rotated order."""
+    for e in rotated(k):
+        if not runs.due(e, k, args.repeat):
+            continue
+        r, cpu = once(*case, e, args.timeout)
+        if r.stats.stopped != "finished":
+            runs.unfinished.add(e)
+            runs.results.pop(e, None)
+            continue
+        runs.results[e] = r
+        runs.secs.setdefault(e, []).append(cpu if args.clock == "cpu" else r.stats.seconds)
+
+
+def measure(cm: ArrayModel, bp: BoundProperty, args: Args) -> Runs:
+    """Every engine on one instance, in interleaved rotated rounds: ``args.repeat``,
+    then more for a short instance (:meth:`Runs.extend`)."""
     runs = Runs()
-    rounds = repeat
-    k = 0
-    while k < rounds:
-        for e in rotated(k):
-            if not runs.due(e, k, repeat):
-                continue
-            r, cpu = once(cm, bp, e, timeout)
-            if r.stats.stopped != "finished":
-                runs.unfinished.add(e)
-                runs.results.pop(e, None)
-                continue
-            runs.results[e] = r
-            runs.secs.setdefault(e, []).append(cpu if clock == "cpu" else r.stats.seconds)
-        if k == 0 and min(map(runs.median, ENGINES)) < TINY:
-            rounds = repeat * TINY_TIMES
-        k += 1
+    for k in range(args.repeat):
+        one_round(runs, (cm, bp), k, args)
+    for k in range(args.repeat, runs.extend(args.repeat)):
+        one_round(runs, (cm, bp), k, args)
     return runs
 
 
@@ -309,7 +337,7 @@ def main() -> int:
         once(cm, bp, e, args.timeout)
     rows, ok = [], True
     for name, cm, bp in cases:
-        runs = measure(cm, bp, args.repeat, args.timeout, args.clock)
+        runs = measure(cm, bp, Args(args.repeat, args.timeout, args.clock))
         ok = not mismatch(name, runs) and ok
         rows.append(row(name, runs, decide_seconds(cm, bp, args.repeat)))
         print(f"done: {name}", file=sys.stderr, flush=True)

@@ -64,7 +64,8 @@ def test_the_rounds_are_rotated_so_each_engine_holds_each_place_once() -> None:
 def test_runs_are_interleaved_and_each_engine_reads_its_median(
     monkeypatch: pytest.MonkeyPatch,
 ) -> None:
-    """Five rounds of runs of 0.1-0.5 s (no tiny instance: five rounds, not fifteen)."""
+    """Five rounds of runs of 0.1-0.5 s (five times the fastest median is past TARGET:
+    no more rounds)."""
     secs = {
         "auto": [0.30, 0.10, 0.50, 0.12, 0.11],  # median 0.12 (the best of them: 0.10)
         "levels": [0.11, 0.13, 0.09, 0.20, 0.10],  # median 0.11
@@ -73,7 +74,8 @@ def test_runs_are_interleaved_and_each_engine_reads_its_median(
     }
     calls, once = _fake(secs)
     monkeypatch.setattr(bench, "once", once)
-    runs = bench.measure(None, None, 5, 20.0, "cpu")
+    monkeypatch.setattr(bench, "TARGET", 0.5)
+    runs = bench.measure(None, None, bench.Args(5))
     first = ["auto", "levels", "bnb", "enumerate"]
     assert calls[:4] == first
     assert calls[4:7] == ["levels", "bnb", "auto"]  # round 1: rotated, enumerate left out
@@ -90,32 +92,44 @@ def test_runs_are_interleaved_and_each_engine_reads_its_median(
     assert r.spread == pytest.approx(0.50 / 0.10)
 
 
-def test_a_tiny_instance_gets_three_times_the_rounds_and_a_long_engine_three_runs(
+def test_a_short_instance_gets_more_rounds_for_auto_and_the_close_engines(
     monkeypatch: pytest.MonkeyPatch,
 ) -> None:
-    """The fastest first run under TINY: 3 x repeat rounds for the engines under TINY,
-    repeat for the others, LONG_RUNS for one past SHORT."""
+    """Medians of 2 and 3 ms: TARGET / 2 ms rounds (at most MAX_TIMES x repeat) for auto
+    and levels (within CONTENDER x 2 ms); repeat runs for bnb (100x slower) and LONG_RUNS
+    for enumerate (past SHORT)."""
     repeat = 4
+    monkeypatch.setattr(bench, "TARGET", 0.03)  # 15 rounds of 2 ms
     secs = {
-        "auto": [0.002] * 12,
-        "levels": [0.003] * 12,
-        "bnb": [0.2] * 12,  # past TINY: repeat runs
-        "enumerate": [2.0] * 12,  # past SHORT: LONG_RUNS runs
+        "auto": [0.002] * 15,
+        "levels": [0.003] * 15,
+        "bnb": [0.2] * 4,
+        "enumerate": [2.0] * 3,
     }
     calls, once = _fake(secs, chose="enumerate")
     monkeypatch.setattr(bench, "once", once)
-    runs = bench.measure(None, None, repeat, 20.0, "cpu")
-    assert bench.TINY_TIMES == 3 and bench.LONG_RUNS == 3
+    runs = bench.measure(None, None, bench.Args(repeat))
+    assert bench.LONG_RUNS == 3 and bench.CONTENDER >= 1.5
     assert {e: calls.count(e) for e in ENGINES} == {
-        "auto": 12,
-        "levels": 12,
+        "auto": 15,
+        "levels": 15,
         "bnb": 4,
         "enumerate": 3,
     }
+    assert calls[-2:] == ["auto", "levels"]  # round 14: bnb, enumerate, auto, levels
     r = bench.row("x", runs, 0.0)
     assert r.best == "levels"
     assert r.ratio == pytest.approx(2 / 3)
     assert r.rule == pytest.approx(2.0 / 0.003)
+
+
+def test_the_extra_rounds_are_capped(monkeypatch: pytest.MonkeyPatch) -> None:
+    """Runs of 1 µs: MAX_TIMES x repeat rounds, not TARGET / 1 µs."""
+    calls, once = _fake({e: [1e-6] * 1000 for e in ENGINES})
+    monkeypatch.setattr(bench, "once", once)
+    bench.measure(None, None, bench.Args(2))
+    assert calls.count("auto") == 2 * bench.MAX_TIMES
+    assert calls.count("enumerate") == 2 * bench.MAX_TIMES
 
 
 def test_wall_clock_reads_the_engines_own_seconds(monkeypatch: pytest.MonkeyPatch) -> None:
@@ -126,7 +140,8 @@ def test_wall_clock_reads_the_engines_own_seconds(monkeypatch: pytest.MonkeyPatc
         return r, 10 * took  # CPU seconds that wall-clock mode must not read
 
     monkeypatch.setattr(bench, "once", slower)
-    runs = bench.measure(None, None, 3, 20.0, "wall")
+    monkeypatch.setattr(bench, "TARGET", 0.1)
+    runs = bench.measure(None, None, bench.Args(3, 20.0, "wall"))
     assert runs.median("bnb") == pytest.approx(0.3)
 
 
@@ -142,11 +157,12 @@ def test_a_mismatch_is_found(capsys: pytest.CaptureFixture[str]) -> None:
     assert not bench.mismatch("inst", runs)
 
 
-def test_one_real_knapsack_through_check_bound() -> None:
+def test_one_real_knapsack_through_check_bound(monkeypatch: pytest.MonkeyPatch) -> None:
     """n = 20, one round: every engine finishes with the same optimum, auto chooses
     ``levels``, and its decision takes a sliver of its run."""
     cm, bp = bench.engines_set(True)[-2][1:]  # bench_engines' knapsack n = 20
-    runs = bench.measure(cm, bp, 1, 60.0, "cpu")
+    monkeypatch.setattr(bench, "TARGET", 0.0)  # one round
+    runs = bench.measure(cm, bp, bench.Args(1, 60.0))
     assert not bench.mismatch("n=20", runs)
     assert set(runs.results) == set(ENGINES)
     decide = bench.decide_seconds(cm, bp, 3)
