@@ -77,7 +77,7 @@ LONG_RUNS = 3
 #: the extra rounds run auto and the engines within CONTENDER x the fastest median only
 #: (a median of 7 runs of 3 ms still moves by 1.3x on a loaded 2-core machine).
 TARGET = 1.0
-MAX_TIMES = 15
+MAX_TIMES = 3
 CONTENDER = 2.0
 
 Case = tuple[str, ArrayModel, BoundProperty]
