@@ -1,6 +1,7 @@
 """Benchmark: engine ``auto`` against every other engine, per instance (issue 62, item 4).
 
-Run ``python benchmarks/bench_auto.py`` (``--quick``: n = 40 only, one draw). The set is
+Run ``python benchmarks/bench_auto.py`` (``--quick``: n = 40 only, one draw; ``--only
+TEXT``: the instances whose name contains TEXT). The set is
 the knapsack instances of bench_knapsack.py (n = 40 and 80, weights up to 10^3 and
 10^6, uncorrelated and strongly correlated costs, ``--draws`` instances each from seeds
 ``--seed-base``, ... drawn from the operating system and printed when not given) and
@@ -288,7 +289,9 @@ def table(rows: list[Row], clock: str) -> Table:
 def summary(rows: list[Row]) -> str:
     """The medians and worsts over the instances, and auto's decision against its time."""
     ratios = [r.ratio for r in rows if math.isfinite(r.ratio)]
-    rules = [r.rule for r in rows if math.isfinite(r.rule)]
+    if not ratios:
+        return "no instance where auto and another engine finished"
+    rules = [r.rule for r in rows if math.isfinite(r.rule)] or [math.nan]
     share = [r.decide / r.medians["auto"] for r in rows if math.isfinite(r.ratio)]
     worst = max((r for r in rows if math.isfinite(r.ratio)), key=lambda r: r.ratio)
     return (
@@ -317,6 +320,7 @@ def parse_args() -> argparse.Namespace:
     ap.add_argument("--repeat", type=int, default=7, help="interleaved rounds (default 7)")
     ap.add_argument("--seed-base", type=int, default=None)
     ap.add_argument("--draws", type=int, default=1)
+    ap.add_argument("--only", default="", help="the instances whose name contains this text")
     ap.add_argument(
         "--clock",
         choices=("cpu", "wall"),
@@ -332,9 +336,12 @@ def main() -> int:
     args = parse_args()
     base = seed_base(args.seed_base, args.draws)
     cases = knapsack_set(args.draws, base, args.quick) + engines_set(args.quick)
-    _, cm, bp = cases[-1]
+    cases = [c for c in cases if args.only in c[0]]
+    if not cases:
+        print(f"bench_auto.py: no instance's name contains {args.only!r}", file=sys.stderr)
+        return 2
     for e in ENGINES:  # imports and first calls out of the figures
-        once(cm, bp, e, args.timeout)
+        once(*cases[-1][1:], e, args.timeout)
     rows, ok = [], True
     for name, cm, bp in cases:
         runs = measure(cm, bp, Args(args.repeat, args.timeout, args.clock))

@@ -173,3 +173,9 @@ def test_one_real_knapsack_through_check_bound(monkeypatch: pytest.MonkeyPatch) 
     table = bench.table([r], "cpu")
     assert table.row_count == 1
     assert "auto / best over 1 instances" in bench.summary([r])
+
+
+def test_the_summary_of_instances_no_two_engines_finished() -> None:
+    med = dict.fromkeys(ENGINES, math.inf)
+    r = bench.Row("n=80", med, "-", None, math.nan, math.nan, 0.001, math.nan)
+    assert bench.summary([r]) == "no instance where auto and another engine finished"
