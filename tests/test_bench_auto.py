@@ -8,6 +8,8 @@ from __future__ import annotations
 
 import importlib.util
 import math
+import os
+import subprocess
 import sys
 from collections.abc import Iterator
 from types import ModuleType, SimpleNamespace
@@ -179,3 +181,18 @@ def test_the_summary_of_instances_no_two_engines_finished() -> None:
     med = dict.fromkeys(ENGINES, math.inf)
     r = bench.Row("n=80", med, "-", None, math.nan, math.nan, 0.001, math.nan)
     assert bench.summary([r]) == "no instance where auto and another engine finished"
+
+
+def test_the_pairs_script_alternates_auto_and_its_partner() -> None:
+    """benchmarks/bench_auto_pairs.py through its command line: 3 pairs on a small
+    layered model; an unknown name exits 2 with a one-line message and no traceback."""
+    script = str(ROOT / "benchmarks" / "bench_auto_pairs.py")
+    env = {**os.environ, "PYTHONPATH": str(ROOT)}
+    run = [sys.executable, script, "--pairs", "3", "--engine", "bnb", "--only"]
+    ok = subprocess.run([*run, "b=2 w=8 resilience"], capture_output=True, text=True, env=env)
+    assert ok.returncode == 0, ok.stderr
+    assert "layered b=2 w=8 resilience: 3 pairs" in ok.stdout
+    assert "auto / bnb (medians)" in ok.stdout
+    bad = subprocess.run([*run, "no such instance"], capture_output=True, text=True, env=env)
+    assert bad.returncode == 2
+    assert bad.stderr == "bench_auto_pairs.py: no instance's name contains 'no such instance'\n"
