@@ -79,7 +79,7 @@ from lesmc.replay.case import (
     hidden_by_frame,
 )
 from lesmc.replay.inject import inject_by_frame, inject_cases
-from lesmc.replay.joint_forcing import derive_joint
+from lesmc.replay.joint_forcing import check_joint_cases, derive_joint
 from lesmc.replay.perturbed import (
     attack_frame,
 )
@@ -497,10 +497,12 @@ def replay_file(
     """``lesmc replay``: the frames and networks (``--nets``, ``--detector``, ``--locator``) of
     a results document, then :func:`replay` (``bar`` counts the frames). The networks must
     be those the results were made with."""
+    # an unknown property, or results that do not fit their scene, are refused before the
+    # video is read and torch imported
+    check_joint_cases(doc.meta, cases(doc, prop))
     from lesmc.perception.cnn import load_nets
     from lesmc.video.reader import open_frames
 
-    cases(doc, prop)  # an unknown property is an error before the video is read
     history = 4 if doc.perception.history is None else doc.perception.history
     frames = open_frames(frames_dir, history + 1)
     loaded = load_nets(*nets)
