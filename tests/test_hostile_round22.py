@@ -186,3 +186,85 @@ def test_results_pointed_at_another_scene_are_refused(joint: Path, change: str) 
     line = text.count("\n", 0, m.end()) + 1  # its detections[0][0]: the third '['
     said = "is at (100, 50) in the results, at (103, 50)" if change == "moved" else "is not in"
     _refused(r, "edited.json", line, "runs[0].scene.detections[0][0]", said, "other.json")
+
+
+def _heatmap_file(d: Path) -> Path:
+    """A heatmap network written with onnx.helper (no torch export): one 4x4 convolution
+    of stride 4 averaging the grey input, minus 0.3 (raw scores); its detector file."""
+    onnx = pytest.importorskip("onnx")
+    pytest.importorskip("onnxruntime")
+    from onnx import TensorProto, helper, numpy_helper
+
+    from test_campaign_detector import H, W
+
+    w = numpy_helper.from_array(np.full((1, 1, 4, 4), 1 / 16, np.float32), "w")
+    b = numpy_helper.from_array(np.array([-0.3], np.float32), "b")
+    conv = helper.make_node("Conv", ["x", "w", "b"], ["y"], strides=[4, 4], kernel_shape=[4, 4])
+    io = [
+        helper.make_tensor_value_info(n, TensorProto.FLOAT, ["B", 1, h, w_])
+        for n, h, w_ in (("x", H, W), ("y", H // 4, W // 4))
+    ]
+    graph = helper.make_graph([conv], "spot", [io[0]], [io[1]], [w, b])
+    model = helper.make_model(graph, opset_imports=[helper.make_opsetid("", 17)])
+    model.ir_version = 8
+    onnx.save(model, str(d / "spot.onnx"))
+    toml = d / "spot.toml"
+    toml.write_text(
+        'kind = "heatmap"\nnetwork = "spot.onnx"\nstride = 4\nthreshold = 0.0\n'
+        'score = "raw"\nnms_radius = 2\n'
+    )
+    return toml
+
+
+def test_a_box_too_thin_for_a_scene_is_refused_at_its_line(tmp_path: Path) -> None:
+    """``box = [1e-300, 4]``: each a number > 0, but at x = 100 both corners of the box are
+    100: perceive wrote a scene its own loader refused ("too small for its position")."""
+    toml = _heatmap_file(tmp_path)
+    toml.write_text(toml.read_text() + "box = [1e-300, 4]\n")
+    (tmp_path / "frames").mkdir()
+    r = lesmc("perceive", "frames", "--detector", "spot.toml", "-o", "s.json", cwd=tmp_path)
+    _refused(r, "spot.toml", 7, "box: must be [w, h]")
+    assert not (tmp_path / "s.json").exists()
+
+
+def test_a_campaigns_kept_scene_of_other_files_is_refused_at_its_field(tmp_path: Path) -> None:
+    """``campaign --detector`` run again after the detector file changed, or its network:
+    refused (as before) at the kept scene's field that records the file's sha256."""
+    from test_campaign_detector import SPEC as DET_SPEC
+    from test_campaign_detector import _frames
+
+    _frames(tmp_path, 0)
+    toml = _heatmap_file(tmp_path)
+    (tmp_path / "p.spec").write_text(DET_SPEC)
+    (tmp_path / "targets.txt").write_text("video0 10,30@0\n")
+
+    def campaign(det: str) -> Any:
+        return lesmc("campaign", "video0", "--detector", det, "--out", "out", "--workers", "0",
+                     "--spec", "p.spec", "--windows", "5..5:2..2", "--targets", "targets.txt",
+                     "--design", "single", cwd=tmp_path)  # fmt: skip
+
+    r = campaign("spot.toml")
+    assert "Traceback" not in r.stderr and r.returncode in (0, 1), r.stderr
+    kept = tmp_path / "out" / "scenes" / "video0.json"
+    rows = (tmp_path / "out" / "results.jsonl").read_text()
+    text = kept.read_text()
+    other = tmp_path / "other.toml"
+    other.write_text(toml.read_text().replace("threshold = 0.0", "threshold = 0.1"))
+    r = campaign("other.toml")
+    _refused(r, "out/scenes/video0.json", _line_of(text, r'"sha256": "'), "meta.detector_file.sha256")
+    net = tmp_path / "spot.onnx"
+    net.write_bytes(net.read_bytes() + b"\0")  # another network file (an ONNX reader ignores it)
+    r = campaign("spot.toml")
+    _refused(r, "out/scenes/video0.json", _line_of(text, r'"network_sha256": "'), "network")
+    assert kept.read_text() == text and (tmp_path / "out" / "results.jsonl").read_text() == rows
+
+
+def test_frames_the_front_end_cannot_register_are_refused_at_the_frame(joint: Path) -> None:
+    """The results replayed on a 64 x 64 video with no corner features: the front end's
+    RegistrationError escaped (internal error, exit 4); now an input error at the frame's
+    file, as ``lesmc perceive`` says it."""
+    r = lesmc("replay", "r/results.json", "--frames", "v", cwd=joint)
+    assert "Traceback" not in r.stderr and "internal error" not in r.stderr, r.stderr
+    assert r.returncode == 2, r.stderr
+    first = sorted((joint / "v").glob("*.png"))[1]  # the second frame meets the first
+    assert f"v/{first.name}: cannot register with the previous frame" in r.stderr, r.stderr

@@ -351,7 +351,7 @@ def detect_all_frames(
     detections of every frame."""
     clean: dict[int, FrameDetections] = {}
     for i in range(min(len(frames), last + 1)):
-        got = det.push(frames.read(i))
+        got = _pushed(det, frames, i)
         if on_frame:
             on_frame()
         if got is None:
@@ -385,11 +385,25 @@ def detect_attacked_frames(
         det = detector()
         det.frontend.index = start - 1
         for i in range(start, min(len(frames), run[-1] + 1)):
-            got = det.push(frames.read(i))
+            got = _pushed(det, frames, i)
             if on_frame:
                 on_frame()
             if got is not None and got[1].index in run:
                 attack(det, *got)
+
+
+def _pushed(det: Any, frames: FrameSet, i: int) -> Any:
+    """Frame ``i`` through the detector ``det``; a frame the front end cannot register with
+    the one before (too few features: not the video the results were made from) is an
+    input error at that frame's file, as perception says it."""
+    from lesmc.perception.registration import RegistrationError
+
+    try:
+        return det.push(frames.read(i))
+    except RegistrationError as exc:
+        raise InputError(
+            f"cannot register with the previous frame: {exc}", Location(str(frames.paths[i]))
+        ) from None
 
 
 def replay_case(
