@@ -268,3 +268,28 @@ def test_frames_the_front_end_cannot_register_are_refused_at_the_frame(joint: Pa
     assert r.returncode == 2, r.stderr
     first = sorted((joint / "v").glob("*.png"))[1]  # the second frame meets the first
     assert f"v/{first.name}: cannot register with the previous frame" in r.stderr, r.stderr
+
+
+def test_a_multi_check_whose_scene_is_gone_is_refused_at_meta_scene(tmp_path: Path) -> None:
+    """A ``lesmc-multi-check`` document (``check --design sort --json``) whose
+    ``meta.scene`` names no file, and no scene.json beside it: refused naming the file
+    only (``FILE: the scene ... is not found``); now at ``meta.scene``'s line."""
+
+    def boxes(doc: dict[str, Any]) -> None:
+        doc["version"] = 2
+        for f in doc["frames"]:
+            for d in f["detections"]:
+                d["w"] = d["h"] = 8.0
+
+    name, _ = _point_scene(tmp_path, "s.json", boxes)
+    r = lesmc("check", name, "p.spec", "--design", "sort", "--json", cwd=tmp_path)
+    assert r.returncode in (0, 1), r.stderr
+    doc = json.loads(r.stdout)
+    assert doc["format"] == "lesmc-multi-check"
+    doc["meta"] = {"scene": "gone.json"}
+    (tmp_path / "m").mkdir()
+    (tmp_path / "v").mkdir()  # frames never read
+    text = json.dumps(doc, indent=1)
+    (tmp_path / "m" / "mc.json").write_text(text)
+    r = lesmc("replay", "m/mc.json", "--frames", "v", cwd=tmp_path)
+    _refused(r, "m/mc.json", _line_of(text, r'"scene": "gone.json"'), "meta.scene", "not found")
