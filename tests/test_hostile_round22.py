@@ -194,7 +194,6 @@ def _heatmap_file(d: Path) -> Path:
     onnx = pytest.importorskip("onnx")
     pytest.importorskip("onnxruntime")
     from onnx import TensorProto, helper, numpy_helper
-
     from test_campaign_detector import H, W
 
     w = numpy_helper.from_array(np.full((1, 1, 4, 4), 1 / 16, np.float32), "w")
@@ -251,7 +250,9 @@ def test_a_campaigns_kept_scene_of_other_files_is_refused_at_its_field(tmp_path:
     other = tmp_path / "other.toml"
     other.write_text(toml.read_text().replace("threshold = 0.0", "threshold = 0.1"))
     r = campaign("other.toml")
-    _refused(r, "out/scenes/video0.json", _line_of(text, r'"sha256": "'), "meta.detector_file.sha256")
+    _refused(
+        r, "out/scenes/video0.json", _line_of(text, r'"sha256": "'), "meta.detector_file.sha256"
+    )
     net = tmp_path / "spot.onnx"
     net.write_bytes(net.read_bytes() + b"\0")  # another network file (an ONNX reader ignores it)
     r = campaign("spot.toml")
