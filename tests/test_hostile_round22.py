@@ -254,7 +254,7 @@ def test_a_campaigns_kept_scene_of_other_files_is_refused_at_its_field(tmp_path:
         r, "out/scenes/video0.json", _line_of(text, r'"sha256": "'), "meta.detector_file.sha256"
     )
     net = tmp_path / "spot.onnx"
-    net.write_bytes(net.read_bytes() + b"\0")  # another network file (an ONNX reader ignores it)
+    net.write_bytes(net.read_bytes() + b"\0")  # another network file (refused unread)
     r = campaign("spot.toml")
     _refused(r, "out/scenes/video0.json", _line_of(text, r'"network_sha256": "'), "network")
     assert kept.read_text() == text and (tmp_path / "out" / "results.jsonl").read_text() == rows
