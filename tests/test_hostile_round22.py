@@ -294,3 +294,39 @@ def test_a_multi_check_whose_scene_is_gone_is_refused_at_meta_scene(tmp_path: Pa
     (tmp_path / "m" / "mc.json").write_text(text)
     r = lesmc("replay", "m/mc.json", "--frames", "v", cwd=tmp_path)
     _refused(r, "m/mc.json", _line_of(text, r'"scene": "gone.json"'), "meta.scene", "not found")
+
+
+def _unref(doc: dict[str, Any]) -> str:
+    """The third state of the counterexample's path without its ``ref``; its id."""
+    run = doc["runs"][0]
+    q = run["paths"][run["roles"]["counterexample"][0] - 1]["states"][3]
+    del run["states"][q]["ref"]
+    return str(q)
+
+
+def _unlabel(doc: dict[str, Any]) -> str:
+    """The counterexample's path with one label fewer than its states."""
+    run = doc["runs"][0]
+    run["paths"][run["roles"]["counterexample"][0] - 1]["labels"].pop(3)
+    return "labels"
+
+
+@pytest.mark.parametrize("edit", [_unref, _unlabel], ids=["a state's ref", "a label"])
+def test_a_path_the_report_cannot_draw_is_refused(joint: Path, edit: Any) -> None:
+    """A state of a listed path without a position in the reference frame while the others
+    have one (ValueError), a path with fewer labels than states (IndexError): internal
+    errors of ``lesmc report``; now refused at the path."""
+    doc = json.loads((joint / "r" / "results.json").read_text())
+    no = doc["runs"][0]["roles"]["counterexample"][0]
+    said = edit(doc)
+    text = json.dumps(doc, indent=1)
+    (joint / "drawn.json").write_text(text)
+    r = lesmc("report", "drawn.json", "--out", "drawn", cwd=joint)
+    starts = [m.start() for m in re.finditer(r'\{\s*"no": ', text)]
+    path_at = text[starts[no - 1] :]  # the listed path's text (the paths are in order)
+    key = '"labels": \\[' if said == "labels" else '"states": \\[\\s*(?:"[^"]*",\\s*){3}'
+    m = re.search(key, path_at)
+    assert m is not None
+    line = text.count("\n", 0, starts[no - 1] + (m.start() if said == "labels" else m.end())) + 1
+    _refused(r, "drawn.json", line, f"runs[0].paths[{no - 1}]", said)
+    assert not (joint / "drawn").exists()

@@ -59,6 +59,7 @@ def _run(run: dict[str, Any], at: str, pr: Problems) -> None:
         if p["no"] != k + 1:
             pr.add(f"{at}.paths[{k}].no", f"must be {k + 1} (paths are numbered in order)")
         _ids(p["states"], f"{at}.paths[{k}].states", states, pr)
+        _drawable(p, f"{at}.paths[{k}]", states, pr)
     _roles(run["roles"], f"{at}.roles", len(run["paths"]), len(run["results"]), pr)
     if not pr.items:
         _steps_follow_paths(run, at, pr)
@@ -84,6 +85,23 @@ def _ids(ids: list[str], at: str, states: dict[str, Any], pr: Problems) -> None:
     unknown = [q for q in ids if q not in states]
     if unknown:
         pr.add(at, f"state '{unknown[0]}' is not in the run's states")
+
+
+def _drawable(p: dict[str, Any], at: str, states: dict[str, Any], pr: Problems) -> None:
+    """A listed path as the report draws it: a label per state, and a position in the
+    reference frame (``ref``) for every state or for none."""
+    if len(p["labels"]) != len(p["states"]):
+        pr.add(f"{at}.labels", f"has {len(p['labels'])} entries for {len(p['states'])} states")
+    if any(q not in states for q in p["states"]):
+        return  # an unknown state: said by _ids
+    placed = [states[q].get("ref") is not None for q in p["states"]]
+    if any(placed) and not all(placed):
+        m = placed.index(False)
+        pr.add(
+            f"{at}.states[{m}]",
+            f"state '{clipped(str(p['states'][m]))}' has no ref (its position in the "
+            "reference frame), but other states of the path have one",
+        )
 
 
 def _roles(roles: dict[str, Any], at: str, n_paths: int, n_results: int, pr: Problems) -> None:
