@@ -164,7 +164,8 @@ def test_a_state_without_vx_vy_is_refused_at_import_where_the_tracker_is_named(
     (x4, y4), (x5, y5) = (_centre(g) for g in sorted(gt))
     vx, vy = (x5 - x4) * 1.25, (y5 - y4) * 1.25
     assert round(vx, 9) == 17.975 and round(vy, 9) == 0.67  # the velocity gt.txt gives
-    _failed(r, f"{pv}: model.state: the target's velocity [17.975, 0.67] needs state components")
+    # located at "state" of the one-line JSON file: line 1, column 12 ({"model": {"state")
+    _failed(r, f"{pv}:1:12: model.state: the target's velocity [17.975, 0.67] needs state")
     assert "17.97499" not in r.stderr
     assert not (tmp_path / "scene.json").exists()
     # a scene made with the default tracker, checked with that tracker: the same numbers

@@ -36,6 +36,7 @@ from lesmc.perception.quality import load_truth
 from lesmc.pipeline import certify
 from lesmc.pipeline.job import Certifier
 from lesmc.scene import Footage, TrackerConfig, footage_from_dict, save_scene, scene_to_dict
+from lesmc.scene.located import scene_error
 from lesmc.tracking.targets import (
     TargetSpec,
     place_target,
@@ -172,36 +173,35 @@ def _kept_scene(video: Video, path: Path, fp: str, by_file: str | None) -> Prepa
         return None
     doc = read_json(path, InputError)
     meta = doc.get("meta") if isinstance(doc, dict) else None
+    again = "use another --out (or remove that scene to perceive again)"
     if not (isinstance(meta, dict) and meta.get("fingerprint") == fp):
-        raise UsageError(
-            f"{path} was perceived from other frames than {video.frames_dir}: "
-            "use another --out (or remove that scene to perceive again)"
-        )
-    why = _other_detector(meta.get("detector_file"), by_file)
+        why = f"the scene was perceived from other frames than {video.frames_dir}: {again}"
+        raise scene_error(str(path), None, [("meta.fingerprint", why)])
+    item, why = _other_detector(meta.get("detector_file"), by_file)
     if why:
-        raise UsageError(
-            f"{path} was perceived {why}: use another --out (or remove that scene to "
-            "perceive again)"
-        )
+        raise scene_error(str(path), None, [(item, f"the scene was perceived {why}: {again}")])
     footage, _ = footage_from_dict(doc, str(path))
     return Prepared(video, footage, doc, scene_key(doc), path)
 
 
-def _other_detector(recorded: Any, by_file: str | None) -> str:
+def _other_detector(recorded: Any, by_file: str | None) -> tuple[str, str]:
     """How a scene's ``meta.detector_file`` differs from this run's detector file
-    ``by_file`` (None: the window pipeline); empty when the same files made it."""
+    ``by_file`` (None: the window pipeline): the scene's field that says so and how (empty
+    when the same files made it)."""
     from lesmc.common.files import file_sha256
 
+    at = "meta.detector_file"
     if not isinstance(recorded, dict):
-        return "" if by_file is None else f"by the window pipeline, not by {by_file}"
+        return at, "" if by_file is None else f"by the window pipeline, not by {by_file}"
     if by_file is None:
-        return f"with the detector file {recorded.get('path')}: give it as --detector"
+        return at, f"with the detector file {recorded.get('path')}: give it as --detector"
     net = Path(str(recorded.get("network")))
     if recorded.get("sha256") != file_sha256(by_file):
-        return f"with another detector file than {by_file} ({recorded.get('path')})"
+        why = f"with another detector file than {by_file} ({recorded.get('path')})"
+        return f"{at}.sha256", why
     if not net.is_file() or recorded.get("network_sha256") != file_sha256(net):
-        return f"with another network than {net} holds now"
-    return ""
+        return f"{at}.network_sha256", f"with another network than {net} holds now"
+    return at, ""
 
 
 def _perceive_file(

@@ -69,6 +69,7 @@ def replay_cmd(
     """
     from lesmc.common.progress import progress_bar
     from lesmc.replay.run import verdict_rows
+    from lesmc.replay.scene_match import ResultsMismatch
     from lesmc.results.load import load_results
     from lesmc.results.read import results_of
 
@@ -87,7 +88,10 @@ def replay_cmd(
         progress_bar("replay", "replaying", None) as bar,
     ):
         nets = (nets_dir, detector_file, locator_file)
-        outcome = _replay(doc, frames_dir, nets, prop, bar)
+        try:
+            outcome = _replay(doc, frames_dir, nets, prop, bar)
+        except ResultsMismatch as exc:  # a field of the results, located in their file
+            raise exc.at(results) from None
     rows, verdicts = verdict_rows(doc, outcome, prop)
     _finish(rows, verdicts, outcome.seconds, results, frames_dir, as_json)
 

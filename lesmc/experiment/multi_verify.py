@@ -20,7 +20,8 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from lesmc.common.errors import UsageError
-from lesmc.common.files import json_text
+from lesmc.common.files import json_text, read_text
+from lesmc.common.locations import error_at_items
 from lesmc.common.progress import Reporter
 from lesmc.designs import registry
 from lesmc.language.properties import SpecFile
@@ -338,10 +339,13 @@ def _scene_of(meta: dict[str, Any], path: str) -> str:
     for p in (Path(named) if isinstance(named, str) else None, Path(path).parent / "scene.json"):
         if p is not None and p.is_file():
             return str(p)
-    raise UsageError(
-        f"{path}: the scene the results were made from is not found (meta.scene "
-        f"{named!r}, nor scene.json beside the results): the replay reads its detections"
+    why = (
+        f"the scene the results were made from is not found (meta.scene {named!r}, nor "
+        "scene.json beside the results): the replay reads its detections"
     )
+    if not Path(path).is_file():
+        raise UsageError(f"{path}: {why}")
+    raise error_at_items(path, read_text(path), [("meta.scene", why)])
 
 
 def multi_rows(

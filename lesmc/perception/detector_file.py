@@ -77,8 +77,14 @@ def _scale_ok(v: Any) -> bool:
 
 
 def _box_ok(v: Any) -> bool:
+    """[w, h] within the limits, and a box at every position a scene allows (not 1e-300)."""
+    from lesmc.scene.io import MAX_COORD, box_problem
+
     return (
-        isinstance(v, list) and len(v) == 2 and all(is_finite(x) and 0 < x <= MAX_VALUE for x in v)
+        isinstance(v, list)
+        and len(v) == 2
+        and all(is_finite(x) and 0 < x <= MAX_VALUE for x in v)
+        and box_problem(MAX_COORD, MAX_COORD, float(v[0]), float(v[1])) is None
     )
 
 
@@ -139,7 +145,9 @@ FIELDS: tuple[Field, ...] = (
         lambda v: is_finite(v) and 0.0 <= v <= 1.0,
     ),
     Field(
-        "box", False, None, f"[w, h], two finite numbers > 0, each at most {MAX_VALUE:g}",
+        "box", False, None,
+        f"[w, h], two finite numbers > 0, each at most {MAX_VALUE:g} (and wide enough to "
+        "stay a box at the largest position a scene allows: at least about 1e-8)",
         "heatmap: the box (width, height in input pixels) centred on every detection and "
         "injection candidate (for a heatmap without size outputs; not with size); "
         "neither given: they are points, which a design that reads boxes (sort) refuses.",

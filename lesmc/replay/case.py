@@ -12,7 +12,7 @@ import numpy as np
 
 from lesmc.common.errors import InputError, Location, UsageError
 from lesmc.results.read import HiddenDoc as Hidden
-from lesmc.results.read import ResultsDoc, RunDoc, number
+from lesmc.results.read import ResultsDoc, RunDoc, SceneDoc, number
 from lesmc.scene import Target, tracker_from_dict
 
 if TYPE_CHECKING:
@@ -65,6 +65,10 @@ class Case:
     #: whether the attack of every step was derived (not: the path leaves the design on
     #: the scene, the replay diverges there and the path's cost is not compared)
     derived: bool = True
+    #: the listed path of the counterexample (``runs[run].paths[path_no - 1]``)
+    path_no: int = 0
+    #: the detections the results record near the listed paths (``runs[run].scene``)
+    recorded: SceneDoc | None = None
 
     @property
     def injects(self) -> bool:
@@ -261,4 +265,6 @@ def _case(run: RunDoc, i: int, j: int, cex_no: int) -> Case:
         states=full,
         window=run.window,
         tracker_kind=_tracker_kind(run),
+        path_no=cex_no,
+        recorded=run.scene,
     )

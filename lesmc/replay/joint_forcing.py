@@ -23,9 +23,10 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from lesmc.common.errors import InputError, Location, UsageError
+from lesmc.common.errors import UsageError
 from lesmc.model.kernel import combined_payoffs
 from lesmc.replay.case import Case
+from lesmc.replay.scene_match import ResultsMismatch, check_scene
 from lesmc.scene import Scene, tracker_from_dict
 
 if TYPE_CHECKING:
@@ -46,6 +47,14 @@ def derive_joint(meta: Mapping[str, Any], todo: list[Case], scene: Scene | None 
             c.forced, c.derived = joint_forcing(c, scene_of(meta, c, scene))
 
 
+def check_joint_cases(meta: Mapping[str, Any], todo: list[Case]) -> None:
+    """Refuse results whose ``joint`` injection cases do not fit the scene ``meta.scene``
+    names (:func:`scene_of`): before the frames are read and the networks loaded."""
+    for c in todo:
+        if c.injects and c.tracker_kind == "joint":
+            scene_of(meta, c)
+
+
 def scene_of(meta: Mapping[str, Any], case: Case, scene: Scene | None = None) -> Scene:
     """The scene the results' model was built from (``scene``, else the file ``meta.scene``),
     with the case's target and tracker (the run's design and configuration)."""
@@ -62,7 +71,9 @@ def scene_of(meta: Mapping[str, Any], case: Case, scene: Scene | None = None) ->
         )
     if scene is None:
         scene = load_scene(str(path))
-    _within(case, scene, path if isinstance(path, str) else "the checked scene")
+    where = path if isinstance(path, str) else "the checked scene"
+    _within(case, scene, where)
+    check_scene(case, scene, where)
     cfg = tracker_from_dict(case.tracker, "results: replay_inputs.tracker")
     return replace(scene.footage.with_target(case.target, scene.meta), tracker=cfg)
 
@@ -73,12 +84,12 @@ def _within(case: Case, scene: Scene, path: str) -> None:
     first, last = case.target.step, case.first_frame + len(case.positions) - 1
     lo, hi = scene.frames[0].step, scene.last_step
     if not (lo <= first <= hi and lo <= case.first_frame and last <= hi):
-        raise InputError(
-            f"runs[{case.run}].replay_inputs.target: the target (step {first}) and the "
-            f"counterexample of {case.prop} (steps {case.first_frame}..{last}) are not within "
-            f"the scene's frames {lo}..{hi}: the results were not made from this scene",
-            Location(path),
+        why = (
+            f"the target (step {first}) and the counterexample of {case.prop} (steps "
+            f"{case.first_frame}..{last}) are not within the frames {lo}..{hi} of {path} "
+            "(meta.scene): the results were not made from this scene"
         )
+        raise ResultsMismatch([(f"runs[{case.run}].replay_inputs.target", why)])
 
 
 def joint_forcing(case: Case, scene: Scene) -> tuple[Forced, bool]:

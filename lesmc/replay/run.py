@@ -79,7 +79,7 @@ from lesmc.replay.case import (
     hidden_by_frame,
 )
 from lesmc.replay.inject import inject_by_frame, inject_cases
-from lesmc.replay.joint_forcing import derive_joint
+from lesmc.replay.joint_forcing import check_joint_cases, derive_joint
 from lesmc.replay.perturbed import (
     attack_frame,
 )
@@ -351,7 +351,7 @@ def detect_all_frames(
     detections of every frame."""
     clean: dict[int, FrameDetections] = {}
     for i in range(min(len(frames), last + 1)):
-        got = det.push(frames.read(i))
+        got = _pushed(det, frames, i)
         if on_frame:
             on_frame()
         if got is None:
@@ -385,11 +385,25 @@ def detect_attacked_frames(
         det = detector()
         det.frontend.index = start - 1
         for i in range(start, min(len(frames), run[-1] + 1)):
-            got = det.push(frames.read(i))
+            got = _pushed(det, frames, i)
             if on_frame:
                 on_frame()
             if got is not None and got[1].index in run:
                 attack(det, *got)
+
+
+def _pushed(det: Any, frames: FrameSet, i: int) -> Any:
+    """Frame ``i`` through the detector ``det``; a frame the front end cannot register with
+    the one before (too few features: not the video the results were made from) is an
+    input error at that frame's file, as perception says it."""
+    from lesmc.perception.registration import RegistrationError
+
+    try:
+        return det.push(frames.read(i))
+    except RegistrationError as exc:
+        raise InputError(
+            f"cannot register with the previous frame: {exc}", Location(str(frames.paths[i]))
+        ) from None
 
 
 def replay_case(
@@ -497,10 +511,12 @@ def replay_file(
     """``lesmc replay``: the frames and networks (``--nets``, ``--detector``, ``--locator``) of
     a results document, then :func:`replay` (``bar`` counts the frames). The networks must
     be those the results were made with."""
+    # an unknown property, or results that do not fit their scene, are refused before the
+    # video is read and torch imported
+    check_joint_cases(doc.meta, cases(doc, prop))
     from lesmc.perception.cnn import load_nets
     from lesmc.video.reader import open_frames
 
-    cases(doc, prop)  # an unknown property is an error before the video is read
     history = 4 if doc.perception.history is None else doc.perception.history
     frames = open_frames(frames_dir, history + 1)
     loaded = load_nets(*nets)

@@ -13,7 +13,7 @@ from __future__ import annotations
 import math
 from typing import Any
 
-from lesmc.common.errors import InputError, Problems
+from lesmc.common.errors import InputError, Problems, clipped
 from lesmc.common.fields import within
 from lesmc.common.locations import error_at_items
 from lesmc.scene.io import MAX_COORD, MAX_DT
@@ -59,7 +59,10 @@ def _run(run: dict[str, Any], at: str, pr: Problems) -> None:
         if p["no"] != k + 1:
             pr.add(f"{at}.paths[{k}].no", f"must be {k + 1} (paths are numbered in order)")
         _ids(p["states"], f"{at}.paths[{k}].states", states, pr)
+        _drawable(p, f"{at}.paths[{k}]", states, pr)
     _roles(run["roles"], f"{at}.roles", len(run["paths"]), len(run["results"]), pr)
+    if not pr.items:
+        _steps_follow_paths(run, at, pr)
     for key in ("hidden", "injected"):
         for name in run.get(key) or {}:
             if name not in names:
@@ -84,6 +87,23 @@ def _ids(ids: list[str], at: str, states: dict[str, Any], pr: Problems) -> None:
         pr.add(at, f"state '{unknown[0]}' is not in the run's states")
 
 
+def _drawable(p: dict[str, Any], at: str, states: dict[str, Any], pr: Problems) -> None:
+    """A listed path as the report draws it: a label per state, and a position in the
+    reference frame (``ref``) for every state or for none."""
+    if len(p["labels"]) != len(p["states"]):
+        pr.add(f"{at}.labels", f"has {len(p['labels'])} entries for {len(p['states'])} states")
+    if any(q not in states for q in p["states"]):
+        return  # an unknown state: said by _ids
+    placed = [states[q].get("ref") is not None for q in p["states"]]
+    if any(placed) and not all(placed):
+        m = placed.index(False)
+        pr.add(
+            f"{at}.states[{m}]",
+            f"state '{clipped(str(p['states'][m]))}' has no ref (its position in the "
+            "reference frame), but other states of the path have one",
+        )
+
+
 def _roles(roles: dict[str, Any], at: str, n_paths: int, n_results: int, pr: Problems) -> None:
     """Path numbers in 1..n_paths; one counterexample and one witness per result."""
     numbers = [("original", roles["original"])]
@@ -94,6 +114,31 @@ def _roles(roles: dict[str, Any], at: str, n_paths: int, n_results: int, pr: Pro
     for item, no in numbers:
         if no is not None and not 1 <= no <= n_paths:
             pr.add(f"{at}.{item}", f"path {no} is not one of the run's {n_paths} paths")
+
+
+def _steps_follow_paths(run: dict[str, Any], at: str, pr: Problems) -> None:
+    """Each result's counterexample and witness steps take the measurements (``obs``) of the
+    listed path its role names (the replay and the report read the path, a table the
+    steps: a step edited alone would show one attack and replay another)."""
+    for kind in ("counterexample", "witness"):
+        for j, no in enumerate(run["roles"][kind]):
+            info = run["results"][j].get(kind)
+            if no is None or info is None or "steps" not in info:
+                continue
+            obs = [None, *run["paths"][no - 1]["obs"]]
+            for k, step in enumerate(info["steps"][: len(obs)]):
+                if step.get("obs") != obs[k]:
+                    pr.add(
+                        f"{at}.results[{j}].{kind}.steps[{k}].obs",
+                        f"is {_shown(step.get('obs'))}, but the {kind}'s path "
+                        f"(paths[{no - 1}].obs[{k - 1}]) takes {_shown(obs[k])}",
+                    )
+                    break
+
+
+def _shown(obs: Any) -> str:
+    """A step's measurement as an error names it: ``'2:c0'``, or ``none`` (no update)."""
+    return "none" if obs is None else f"'{clipped(str(obs))}'"
 
 
 def _replay_inputs(run: dict[str, Any], at: str, pr: Problems) -> None:

@@ -24,6 +24,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from lesmc.common.errors import InputError, Location
+from lesmc.scene.located import scene_error
 
 if TYPE_CHECKING:
     from scipy.spatial import cKDTree
@@ -340,8 +341,14 @@ class UnpricedPayoff(InputError):
         )
 
     def at(self, path: str) -> UnpricedPayoff:
-        """The same error, naming the scene file ``path``."""
-        return UnpricedPayoff(self.frame, self.index, path)
+        """The same error, naming the scene file ``path``: at the payoff's ``FILE:LINE:COL``
+        when ``path`` is a scene file (:func:`~lesmc.scene.located.scene_error`)."""
+        err = UnpricedPayoff(self.frame, self.index, path)
+        item = err.location.item if err.location is not None else None
+        located = scene_error(path, None, [(item or "", err.message)])
+        err.message, err.location = located.message, located.location
+        err.preformatted = located.preformatted
+        return err
 
 
 class _GuardedPayoffs:

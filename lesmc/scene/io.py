@@ -727,7 +727,7 @@ def check_fits(
     shown = ", ".join(f"{v:.12g}" for v in target.velocity)
     whose = "velocity" if item == "target" else "the target's velocity"
     why = f"{whose} [{shown}] needs state components named {' and '.join(VELOCITY)}"
-    raise InputError.many(path, [(item, f"{why}; the tracker's state is {state}")])
+    raise scene_error(path, None, [(item, f"{why}; the tracker's state is {state}")])
 
 
 def _target(raw: Any, pr: Problems) -> Target | None:
