@@ -14,6 +14,7 @@ import re
 from collections.abc import Callable
 
 from lesmc.common.errors import InputError, Location, clipped
+from lesmc.common.files import read_text
 
 _WS_RE = re.compile(r"[ \t\n\r]*")
 _STRING_DECODER = json.JSONDecoder()  # raw_decode at a '"' reads one string token
@@ -179,3 +180,18 @@ _JSON_KEY = re.compile(r'"((?:[^"\\]|\\.)*)"\s*:')
 _TOML_KEY = re.compile(
     r'^[ \t]*\[?[ \t]*(?:"([^"]*)"|\'([^\']*)\'|([A-Za-z0-9_-]+))[ \t]*[=\]]', re.M
 )
+
+
+def error_in_file(
+    path: str, problems: list[tuple[str, str]], text: str | None = None
+) -> InputError:
+    """:func:`error_at_items` of the JSON file ``path`` (its ``text`` when the caller has
+    read it): each ``(item, message)`` at its ``FILE:LINE:COL``; ``FILE: item`` for a
+    file that is not there to read (a document given as data)."""
+    if text is None:
+        from pathlib import Path
+
+        if not Path(path).is_file():
+            return InputError.many(path, problems)
+        text = read_text(path)
+    return error_at_items(path, text, problems)

@@ -45,13 +45,12 @@ import math
 import time
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, replace
-from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 from lesmc.common.errors import InputError, Location, UsageError
-from lesmc.common.files import read_text
+from lesmc.common.locations import error_in_file
 from lesmc.engines.multi import check_multi, measure_value
 from lesmc.model.identity import NONE, last_seen
 from lesmc.model.kernel import COMPARE
@@ -141,16 +140,6 @@ def multi_cases(
     return out
 
 
-def _results_error(path: str, problems: list[tuple[str, str]]) -> InputError:
-    """The error listing ``problems`` (``(item, message)``) of the results file ``path``:
-    each at its ``FILE:LINE:COL`` when the file can be read (else ``FILE: item``)."""
-    from lesmc.common.locations import error_at_items
-
-    if not Path(path).is_file():
-        return InputError.many(path, problems)
-    return error_at_items(path, read_text(path), problems)
-
-
 def _check_steps(scene: Scene, steps: list[dict[str, Any]], path: str, j: int) -> None:
     """A counterexample is a path from the scene's first frame: its step ``i`` is the
     ``i``-th, on the scene's ``i``-th frame (pipeline/multi.py writes them so); a step
@@ -170,7 +159,7 @@ def _check_steps(scene: Scene, steps: list[dict[str, Any]], path: str, j: int) -
                 (f"{at}.frame", f"must be {scene.frames[i].step}, the scene's frame at step {i}")
             )
         if problems:
-            raise _results_error(path, problems)
+            raise error_in_file(path, problems)
 
 
 def known_property(doc: Mapping[str, Any], prop: str | None) -> None:
@@ -199,7 +188,7 @@ def _hidden(scene: Scene, steps: list[dict[str, Any]], path: str, j: int) -> tup
                     f"detection '{obs}' is not in the scene's frame {s['frame']}: the results "
                     "were not made from this scene"
                 )
-                raise _results_error(path, [(item, msg)])
+                raise error_in_file(path, [(item, msg)])
             out.append(Hidden(k, frame.step, obs, d.x, d.y, d.payoff))
     return tuple(out)
 
@@ -222,7 +211,7 @@ def _injected(
                     f"'{cid}' is not an injection candidate of the scene's frame {frame.step}: "
                     "the results were not made from this scene"
                 )
-                raise _results_error(path, [(item, msg)])
+                raise error_in_file(path, [(item, msg)])
             out.append((i, frame.step, cid, (d.x, d.y)))
     return tuple(out)
 
@@ -583,7 +572,7 @@ def _box_error(c: MultiCase, fts: list[Any]) -> float | None:
             if place is None or not mine.size:
                 continue
             if len(place) != ft.boxes.shape[1]:
-                raise _results_error(c.path, [_place_problem(c, s, t, ft.boxes.shape[1])])
+                raise error_in_file(c.path, [_place_problem(c, s, t, ft.boxes.shape[1])])
             e = float(np.abs(np.asarray(place, dtype=float) - ft.boxes[mine[0]]).max())
             err = e if err is None else max(err, e)
     return None if err is None else round(err, 6)

@@ -11,12 +11,10 @@ located in the results file by the command that read it (:meth:`ResultsMismatch.
 
 from __future__ import annotations
 
-from pathlib import Path
 from typing import TYPE_CHECKING
 
 from lesmc.common.errors import InputError, clipped
-from lesmc.common.files import read_text
-from lesmc.common.locations import error_at_items
+from lesmc.common.locations import error_in_file
 
 if TYPE_CHECKING:
     from lesmc.replay.case import Case
@@ -39,9 +37,7 @@ class ResultsMismatch(InputError):
 
     def at(self, path: str) -> InputError:
         """The same problems, each at its ``FILE:LINE:COL`` in the results file ``path``."""
-        if not Path(path).is_file():
-            return InputError.many(path, self.problems)
-        return error_at_items(path, read_text(path), self.problems)
+        return error_in_file(path, self.problems)
 
 
 def check_scene(case: Case, scene: Scene, path: str) -> None:

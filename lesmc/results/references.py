@@ -13,9 +13,9 @@ from __future__ import annotations
 import math
 from typing import Any
 
-from lesmc.common.errors import InputError, Problems, clipped
+from lesmc.common.errors import Problems, clipped
 from lesmc.common.fields import within
-from lesmc.common.locations import error_at_items
+from lesmc.common.locations import error_in_file
 from lesmc.scene.io import MAX_COORD, MAX_DT
 
 #: |coordinate| of a drawn box or position: detections lie within MAX_COORD, a track
@@ -35,14 +35,7 @@ def check_references(doc: dict[str, Any], path: str, text: str | None = None) ->
         seen.setdefault(run["design"], i)
         _run(run, at, pr)
     if pr.items:
-        raise _error(path, text, pr.items)
-
-
-def _error(path: str, text: str | None, problems: list[tuple[str, str]]) -> InputError:
-    """The error listing ``problems``: at their lines when the file's ``text`` is known."""
-    if text is None:
-        return InputError.many(path, problems)
-    return error_at_items(path, text, problems)
+        raise error_in_file(path, pr.items, text)
 
 
 def _run(run: dict[str, Any], at: str, pr: Problems) -> None:
@@ -187,7 +180,7 @@ def check_multi_steps(doc: dict[str, Any], path: str, text: str | None = None) -
                 for j, item in enumerate(s.get(key) or []):
                     _drawn(item, f"{at}.{key}[{j}]", pr)
     if pr.items:
-        raise _error(path, text, pr.items)
+        raise error_in_file(path, pr.items, text)
 
 
 def _drawn(item: dict[str, Any], at: str, pr: Problems) -> None:
