@@ -94,7 +94,6 @@ class JointDesign:
         self._model_cov = np.full(0, -1, dtype=np.int64)  # track table -> model table
         self._p0 = self.track_covariances.add(self.m.P0.copy())
         self._p0_kept = not bool(self.parts.deleter.halts(self.m.P0[None])[0])
-        self.subsets_built = 0  # (state, candidate subset) rows built under inject, in all
 
     def initial(self) -> Batch:
         t = self.scene.target
@@ -231,7 +230,6 @@ class JointDesign:
         relevant = candidate_relevance(p, self.parts.initiator, nd)
         within_inject_budget(relevant, step)
         vstate, local, sub_id, subsets = pruned_subsets(relevant)
-        self.subsets_built += len(vstate)
         rows: list[tuple[np.ndarray, ...]] = []
         parts: list[JointStates] = []
         size = max(1, CHUNK_CELLS // (js.width + nz))
