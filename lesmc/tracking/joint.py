@@ -22,8 +22,9 @@ the primary's prediction, as for the single design: option j hides the j nearest
 last one the primary's gate accepts) and costs their payoffs (the attacker's options part,
 lesmc/tracking/parts/attacker.py). The hidden detections are gone for every track. Outcomes
 that leave the whole joint state identical are merged (the cheapest kept). Under ``allow
-hide, inject`` each hiding option is combined with every subset of the frame's injection
-candidates (docs/semantics.md, "Injection on the joint design"; :meth:`_expand_injected`).
+hide, inject`` each hiding option is combined with every subset of the injection
+candidates that can change the state's successor (docs/semantics.md, "Injection on the
+joint design" and "Pruning injection candidates"; :meth:`_expand_injected`).
 
 Speed: a batch of joint states travels as padded arrays and is expanded with array
 operations (lesmc/tracking/parts/joint_states.py says how). tests/joint_oracle.py is an
