@@ -16,14 +16,17 @@ check that stops with exit status 3 before any verdict (the joint design refuses
 build 2^m subsets of a frame's m candidates past its limit: a BudgetError) prints
 ``budget`` and its message goes to stderr.
 
-``--near K`` (a modelling restriction, named as such in the results): each frame keeps
-only the K injection candidates nearest the target's unattacked track (the scene's
-single tracker) at that frame, for every design, so that the joint design's 2^K
-subsets a frame can be built. The perceived scene is cached in ``--out`` (sceneS.json
-and its facts): a second run with other designs or ``--near`` does not perceive again.
+``--near all`` (the default) offers every perceived candidate: the joint design builds,
+per state, the subsets of only the candidates that can change its successor (those in
+a track's gate or in the birth region of a position its primary can take;
+docs/semantics.md, "Pruning injection candidates"). ``--near K`` (a modelling
+restriction, named as such in the results): each frame keeps only the K injection
+candidates nearest the target's unattacked track (the scene's single tracker) at that
+frame, for every design. The perceived scene is cached in ``--out`` (sceneS.json and
+its facts): a second run with other designs or ``--near`` does not perceive again.
 
 Usage: PYTHONPATH=. python benchmarks/bench_inject_video.py [--seeds 1,2,3] [--within 30] [--cap N]
-       [--designs single,joint,improved] [--max-states N] [--timeout S] [--near K]
+       [--designs single,joint,improved] [--max-states N] [--timeout S] [--near all|K]
        [--out /tmp/lesmc-inject-video]
 """
 
@@ -158,6 +161,13 @@ def _num(v: object) -> str:
     return f"{v:.4g}" if isinstance(v, float) else str(v)
 
 
+def _near_arg(v: str) -> str:
+    """``--near``: ``all`` or a positive count."""
+    if v != "all" and not (v.isdigit() and int(v) > 0):
+        raise argparse.ArgumentTypeError(f"expected 'all' or a positive count, got {v!r}")
+    return v
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--seeds", default="1,2,3")
@@ -166,7 +176,12 @@ def main() -> None:
     ap.add_argument("--designs", default="single,joint,improved")
     ap.add_argument("--max-states", type=int, default=None, help="lesmc check's budget")
     ap.add_argument("--timeout", type=float, default=None, help="lesmc check's seconds")
-    ap.add_argument("--near", type=int, default=None, help="candidates a frame near the target")
+    ap.add_argument(
+        "--near",
+        type=_near_arg,
+        default="all",
+        help="candidates a frame near the target: all (default) or K",
+    )
     ap.add_argument("--out", default="/tmp/lesmc-inject-video")
     args = ap.parse_args()
     budget = [] if args.max_states is None else ["--max-states", str(args.max_states)]
@@ -180,8 +195,8 @@ def main() -> None:
     for seed in (int(s) for s in args.seeds.split(",")):
         scene, facts = _scene(seed, args.within, args.cap, out)
         print(f"seed {seed}: {json.dumps(facts)}", file=sys.stderr)
-        if args.near is not None:
-            scene = _near(scene, args.near)
+        if args.near != "all":
+            scene = _near(scene, int(args.near))
         for design in args.designs.split(","):
             row = [str(seed), design]
             for allow in ("", " allow hide, inject"):

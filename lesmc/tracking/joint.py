@@ -22,8 +22,9 @@ the primary's prediction, as for the single design: option j hides the j nearest
 last one the primary's gate accepts) and costs their payoffs (the attacker's options part,
 lesmc/tracking/parts/attacker.py). The hidden detections are gone for every track. Outcomes
 that leave the whole joint state identical are merged (the cheapest kept). Under ``allow
-hide, inject`` each hiding option is combined with every subset of the frame's injection
-candidates (docs/semantics.md, "Injection on the joint design"; :meth:`_expand_injected`).
+hide, inject`` each hiding option is combined with every subset of the injection
+candidates that can change the state's successor (docs/semantics.md, "Injection on the
+joint design" and "Pruning injection candidates"; :meth:`_expand_injected`).
 
 Speed: a batch of joint states travels as padded arrays and is expanded with array
 operations (lesmc/tracking/parts/joint_states.py says how). tests/joint_oracle.py is an
@@ -31,8 +32,6 @@ independent oracle written from the paper (filterpy filters, one path at a time)
 """
 
 from __future__ import annotations
-
-from dataclasses import dataclass
 
 import numpy as np
 
@@ -42,8 +41,8 @@ from lesmc.tracking.kalman import Matrices, initial_mean, matrices, positions
 from lesmc.tracking.parts.associator import GreedyAssociator
 from lesmc.tracking.parts.attacker import ranks_and_payoffs, visible
 from lesmc.tracking.parts.attacker_subsets import (
-    injected_subsets,
-    subset_cost,
+    pruned_subsets,
+    shown_and_cost,
     within_inject_budget,
 )
 from lesmc.tracking.parts.deleter import DistanceDeleter, TraceDeleter
@@ -52,35 +51,20 @@ from lesmc.tracking.parts.hypothesiser import GateHypothesiser
 from lesmc.tracking.parts.initiator import NearTargetInitiator, still_pending
 from lesmc.tracking.parts.joint_states import JointStates, TrackTable, concat, digest, same_as
 from lesmc.tracking.parts.joint_step import (
+    Expanded,
     JointParts,
     Prepared,
+    candidate_relevance,
     first_of_equals,
     option_one_differs,
     prepare,
     primary_nis,
     track_table,
+    with_subsets,
 )
 
 #: (states × (tracks + detections)) cells of one chunk: bounds the temporaries of an expansion.
 CHUNK_CELLS = 1 << 20
-
-
-@dataclass
-class _Expanded:
-    """Successors of one chunk of states (see :meth:`JointDesign._expand`)."""
-
-    src: np.ndarray
-    rank: np.ndarray
-    payoff: np.ndarray
-    det: np.ndarray
-    halted: np.ndarray
-    states: JointStates
-    nis: np.ndarray  # the primary's NIS yᵀ S⁻¹ y where it updates, NaN where it skips
-    #: at an attacked frame, the cheapest option kept for each outcome: how many of the
-    #: detections nearest the primary it hides, and which subset of the frame's candidates
-    #: it injects (its place in ``injected_subsets``); None: unattacked
-    opt: np.ndarray | None = None
-    subset: np.ndarray | None = None
 
 
 class JointDesign:
@@ -176,7 +160,7 @@ class JointDesign:
         )
 
     # -------------------------------------------------------------- one chunk
-    def _expand(self, js: JointStates, step: int, attacked: bool) -> _Expanded:
+    def _expand(self, js: JointStates, step: int, attacked: bool) -> Expanded:
         """The outcomes of the states ``js`` at frame ``step`` (see the module docstring)."""
         frame = self.scene.frame(step)
         if attacked and self.inject and (frame.candidates or not self.hide):
@@ -187,7 +171,7 @@ class JointDesign:
             s, opt, assign, halt, states = self._rows(p, np.zeros(n, dtype=np.int64), p.n_opt)
             rows = np.nonzero(first_of_equals(states, s))[0]
             rank, payoff = ranks_and_payoffs(s[rows], p.cost[s[rows], opt[rows]])
-            return _Expanded(
+            return Expanded(
                 s[rows].astype(np.int64),
                 rank,
                 payoff,
@@ -225,7 +209,7 @@ class JointDesign:
             payoff[sj[differs]] = p.cost[sj[differs], j]
             todo = sj[~differs]
             j += 1
-        return _Expanded(
+        return Expanded(
             s.astype(np.int64),
             np.zeros(n, dtype=np.int64),
             payoff,
@@ -235,32 +219,39 @@ class JointDesign:
             primary_nis(p, s, assign[:, 0]),
         )
 
-    def _expand_injected(self, js: JointStates, step: int) -> _Expanded:
+    def _expand_injected(self, js: JointStates, step: int) -> Expanded:
         """The outcomes of ``js`` at an attacked frame under ``allow hide, inject``: each
-        hiding option × each subset of the frame's candidates (candidate j: detection n + j),
-        equal joint states merged at the cheapest, ranked by cost (docs/semantics.md)."""
+        hiding option × each subset of the candidates that can change the state's successor
+        (candidate j: measurement n + j; the others only add their payoff: attacker_subsets.py
+        ``relevant_candidates``), equal joint states merged at the cheapest, ranked by cost
+        (docs/semantics.md)."""
         frame = self.scene.frame(step)
-        within_inject_budget(len(js), len(frame.candidates), step)
         p = prepare(self.scene, self.schedule, self.parts, self.m.pos, js, step, True, self.hide)
-        nd, cpay = len(frame.detections), frame.injectable.payoffs()
-        zero = np.zeros(len(js), dtype=np.int64)
+        nd, nz, cpay = len(frame.detections), len(p.Z), frame.injectable.payoffs()
+        relevant = candidate_relevance(p, self.parts.initiator, nd)
+        within_inject_budget(relevant, step)
+        vstate, local, sub_id, subsets = pruned_subsets(relevant)
         rows: list[tuple[np.ndarray, ...]] = []
         parts: list[JointStates] = []
-        for k, sub in enumerate(injected_subsets(frame, True)):
-            shown = np.arange(len(p.Z)) < nd
-            shown[nd + np.array(sub, dtype=np.int64)] = True
-            s, opt, assign, halt, states = self._rows(p, zero, p.n_opt, shown)
-            cost = p.cost[s, opt] + subset_cost(cpay, sub)
-            rows.append((s, opt, np.full(s.size, k), cost, assign[:, 0], halt[:, 0]))
+        size = max(1, CHUNK_CELLS // (js.width + nz))
+        for lo in range(0, len(vstate), size):
+            v = np.arange(lo, min(lo + size, len(vstate)))
+            shown, vcost = shown_and_cost(sub_id[v], subsets, nd, nz, cpay)
+            q = with_subsets(p, vstate[v], shown)
+            s, opt, assign, halt, states = self._rows(q, np.zeros(v.size, np.int64), q.n_opt, shown)
+            cost = q.cost[s, opt] + vcost[s]
+            rows.append(
+                (vstate[v][s], opt, local[v][s], sub_id[v][s], cost, assign[:, 0], halt[:, 0])
+            )
             parts.append(states)
-        s, opt, sub_k, cost, det, halted = (np.concatenate(a) for a in zip(*rows, strict=True))
+        s, opt, sub_k, sid, cost, det, halted = (np.concatenate(a) for a in zip(*rows, strict=True))
         unattacked = (opt == 0) & (sub_k == 0)
         order = np.lexsort((opt, sub_k, ~unattacked, cost, s))
         states = concat(parts).take(order)
         s, cost, det, halted = s[order], cost[order], det[order], halted[order]
         kept = np.nonzero(first_of_equals(states, s))[0]  # the first of equals: the cheapest
         rank, payoff = ranks_and_payoffs(s[kept], cost[kept])
-        return _Expanded(
+        return Expanded(
             s[kept].astype(np.int64),
             rank,
             payoff,
@@ -269,7 +260,8 @@ class JointDesign:
             states.take(kept),
             primary_nis(p, s[kept], det[kept]),
             opt[order][kept].astype(np.int64),
-            sub_k[order][kept].astype(np.int64),
+            sid[order][kept].astype(np.int64),
+            subsets,
         )
 
     def forcing(
@@ -289,7 +281,7 @@ class JointDesign:
         p = prepare(self.scene, self.schedule, self.parts, self.m.pos, js, step, inj, self.hide)
         nd = len(frame.detections)
         shown = visible(p.visible_rank(e.src), e.opt)[:, :nd]
-        subsets = list(injected_subsets(frame, inj))
+        subsets = e.subsets or [()]
         how = [
             (
                 [frame.detections[int(j)].id for j in np.flatnonzero(~row)],
@@ -314,8 +306,9 @@ class JointDesign:
     ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, JointStates]:
         """The next states of options lo[i] .. hi[i] − 1 of every state i, as rows (by state,
         then option): source, option, association (rows, tracks), halted flags (rows, tracks).
-        ``shown`` (z,): the detections of ``p.Z`` the rows may see at all (the injected
-        candidates among them; None: every one)."""
+        ``shown`` (n, z): the measurements of ``p.Z`` each state's rows may see at all (the
+        injected candidates among them; its pairs already filtered: ``with_subsets``; None:
+        every one)."""
         Z = p.Z
         nz = len(Z)
         count = hi - lo
@@ -326,9 +319,7 @@ class JointDesign:
         visible_ = visible(p.visible_rank(s), opt)  # option j hides the j nearest to the primary
         ps, pt, pz, prio, pu = p.ps, p.pt, p.pz, p.prio, p.pu
         if shown is not None:
-            visible_ &= shown
-            keep = shown[pz]
-            ps, pt, pz, prio, pu = ps[keep], pt[keep], pz[keep], prio[keep], pu[keep]
+            visible_ &= shown[s]
         first = len(lo) == R and not lo.any()  # option 0 of every state
         pair_rank = None if first else p.rank_of[p.tu[ps, 0], pz]
         assign, pair = self.parts.associator.assign(

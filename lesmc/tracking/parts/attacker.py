@@ -38,7 +38,8 @@ valid, injected, key)``, each (g, k), detections and candidates merged nearest f
 OptionRows``): the distinct outcomes, each at its cheapest cost, ranked by cost, and
 (``OptionRows.via``) the column whose way is the cheapest. ``joint`` under inject: each of
 :func:`hiding_options`' options (which never hide the injected measurements, those past
-its ``payoffs``) with every subset of the candidates (attacker_subsets.py), merged and
+its ``payoffs``) with every subset of the candidates that can change the state's
+successor (attacker_subsets.py ``relevant_candidates``), merged and
 ranked by cost with :func:`ranks_and_payoffs` (lesmc/tracking/joint.py).
 :func:`forcing_update` says which detections and candidates that cheapest way hides and
 injects to make the tracker update with a given measurement (a replay applies them).

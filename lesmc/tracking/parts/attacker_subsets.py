@@ -11,6 +11,11 @@ adds any subset of the frame's injection candidates (scene format 3) at their pa
 :func:`injected_subsets`, and :func:`subset_options` / :func:`option_count` (``(frame,
 attacked, actions, can)``) combine both. lesmc/unfold/multi.py merges the options that
 lead to the same successor.
+
+The joint design under inject (lesmc/tracking/joint.py) offers, per state, the subsets of
+only the candidates that can change its successor (:func:`relevant_candidates`; the
+proof: docs/semantics.md, "Pruning injection candidates"): :func:`pruned_subsets`,
+:func:`shown_and_cost`, and :func:`within_inject_budget` bounds their number.
 """
 
 from __future__ import annotations
@@ -29,15 +34,74 @@ from lesmc.scene import Frame
 MAX_INJECT_ROWS = 1 << 20
 
 
-def within_inject_budget(states: int, candidates: int, step: int) -> None:
-    """A BudgetError unless ``states`` joint states × every subset of ``candidates``
-    injection candidates fit in :data:`MAX_INJECT_ROWS` (checked before listing any)."""
-    if candidates >= 64 or states << candidates > MAX_INJECT_ROWS:
+def within_inject_budget(relevant: np.ndarray, step: int) -> None:
+    """A BudgetError unless every state's subsets of its ``relevant`` (n, m) injection
+    candidates (:func:`relevant_candidates`), 2^k for a state with k, fit in
+    :data:`MAX_INJECT_ROWS` together (checked before listing any)."""
+    k = relevant.sum(axis=1) if relevant.size else np.zeros(len(relevant), dtype=np.int64)
+    big = int(k.max(initial=0))
+    if big >= 64 or sum(1 << int(x) for x in k.tolist()) > MAX_INJECT_ROWS:
         raise BudgetError(
-            f"frame {step}: the joint design under inject would build {states} state(s) × "
-            f"2^{candidates} subsets of the frame's injection candidates (more than "
-            f"{MAX_INJECT_ROWS:,}); offer fewer candidates a frame (perceive --inject-cap N)"
+            f"frame {step}: the joint design under inject would build {len(k)} state(s) × "
+            f"up to 2^{big} subsets of the frame's injection candidates that can change it "
+            f"(more than {MAX_INJECT_ROWS:,} together); offer fewer candidates a frame "
+            "(perceive --inject-cap N)"
         )
+
+
+def relevant_candidates(
+    n: int,
+    nd: int,
+    pairs: tuple[np.ndarray, np.ndarray],
+    primary: tuple[np.ndarray, np.ndarray],
+    births: np.ndarray,
+) -> np.ndarray:
+    """(n, m) which of the frame's m injection candidates can change state i's successor
+    under the joint design (docs/semantics.md, "Pruning injection candidates"): those some
+    track of the state gates (``pairs``: the gated (state, measurement) pairs, candidate j
+    being measurement nd + j) and those in the initiator's birth region around a position
+    the state's primary can take (``births`` (c, m): whether each candidate lies in the
+    region around one of the positions c stands for; ``primary``: (state, c) pairs, that
+    cover every position the state's primary may take: predicted, or updated with each
+    measurement its gate admits). Any other
+    candidate leaves the successor of every option unchanged and only adds its payoff, so
+    every subset holding one is dominated by the same subset without it."""
+    m = births.shape[1]
+    rel = np.zeros((n, m), dtype=bool)
+    ps, pz = pairs
+    c = pz >= nd
+    rel[ps[c], pz[c] - nd] = True
+    st, centre = primary
+    hit_s, hit_j = np.nonzero(births[centre])
+    rel[st[hit_s], hit_j] = True
+    return rel
+
+
+def pruned_subsets(
+    relevant: np.ndarray,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, list[tuple[int, ...]]]:
+    """Every state's subsets of its ``relevant`` (n, m) candidates, as rows: the state,
+    each subset's place among its state's subsets (in the order of :func:`injected_subsets`
+    restricted to them: by size, then lexicographic; 0 the empty one) and its index into
+    the returned list of subsets (candidate indices). States with the same relevant
+    candidates share their subsets' entries."""
+    if not relevant.size:
+        zero = np.zeros(len(relevant), dtype=np.int64)
+        return np.arange(len(relevant)), zero, zero, [()]
+    groups, inv = np.unique(relevant, axis=0, return_inverse=True)
+    inv = inv.reshape(-1)
+    subsets: list[tuple[int, ...]] = []
+    first: list[int] = []
+    size: list[int] = []
+    for g in groups:
+        idx = np.flatnonzero(g).tolist()
+        first.append(len(subsets))
+        subsets += [s for r in range(len(idx) + 1) for s in itertools.combinations(idx, r)]
+        size.append(len(subsets) - first[-1])
+    count = np.asarray(size, dtype=np.int64)[inv]
+    state = np.repeat(np.arange(len(relevant)), count)
+    local = np.arange(int(count.sum())) - np.repeat(np.cumsum(count) - count, count)
+    return state, local, np.asarray(first, dtype=np.int64)[inv[state]] + local, subsets
 
 
 def attackable(frame: Frame, ref: np.ndarray | None, radius: float | None) -> np.ndarray:
@@ -90,6 +154,25 @@ def injected_subsets(frame: Frame, attacked: bool) -> Iterator[tuple[int, ...]]:
         return
     for r in range(len(frame.candidates) + 1):
         yield from itertools.combinations(range(len(frame.candidates)), r)
+
+
+def shown_and_cost(
+    ids: np.ndarray, subsets: list[tuple[int, ...]], nd: int, nz: int, payoffs: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    """For rows injecting ``subsets[ids[r]]`` (candidate indices; candidate j is
+    measurement nd + j of nz): (rows, nz) which measurements each row sees (every
+    detection, its subset's candidates) and what injecting its subset costs
+    (:func:`subset_cost` of the candidates' ``payoffs``)."""
+    u, inv = np.unique(ids, return_inverse=True)
+    seen = np.zeros((u.size, nz), dtype=bool)
+    seen[:, :nd] = True
+    cost = np.zeros(u.size)
+    for k, i in enumerate(u.tolist()):
+        sub = subsets[i]
+        seen[k, [nd + j for j in sub]] = True
+        cost[k] = subset_cost(payoffs, sub)
+    inv = inv.reshape(-1)
+    return seen[inv], cost[inv]
 
 
 def subset_options(

@@ -52,6 +52,15 @@ class NearTargetInitiator:
         out: np.ndarray = near.reshape(-1, 2)
         return out
 
+    def in_region(self, Z: np.ndarray, centres: np.ndarray) -> np.ndarray:
+        """(c, z) whether each detection of Z lies in the birth region (within
+        ``init_radius``, the test of :meth:`candidates`, a hair wider) of each updated
+        primary position ``centres`` (c, 2): a superset of the detections that can be
+        born or kept pending there."""
+        d = np.hypot(Z[None, :, 0] - centres[:, 0, None], Z[None, :, 1] - centres[:, 1, None])
+        out: np.ndarray = d <= self.init_radius * (1 + 1e-9) + 1e-9
+        return out
+
     def candidates(
         self,
         Z: np.ndarray,

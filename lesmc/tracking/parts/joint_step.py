@@ -9,6 +9,7 @@ that is computed once per distinct track (:func:`distinct_tracks`).
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass
 
 import numpy as np
@@ -26,7 +27,9 @@ from lesmc.tracking.kalman import (
 )
 from lesmc.tracking.parts.associator import GreedyAssociator
 from lesmc.tracking.parts.attacker import hiding_options
+from lesmc.tracking.parts.attacker_subsets import relevant_candidates
 from lesmc.tracking.parts.deleter import DistanceDeleter, TraceDeleter
+from lesmc.tracking.parts.groups import starts, within
 from lesmc.tracking.parts.hypothesiser import GateHypothesiser
 from lesmc.tracking.parts.initiator import NearTargetInitiator
 from lesmc.tracking.parts.joint_digest import hash_tracks
@@ -91,6 +94,25 @@ class Prepared:
         return out
 
 
+@dataclass
+class Expanded:
+    """Successors of one chunk of states (lesmc/tracking/joint.py, ``JointDesign._expand``)."""
+
+    src: np.ndarray
+    rank: np.ndarray
+    payoff: np.ndarray
+    det: np.ndarray
+    halted: np.ndarray
+    states: JointStates
+    nis: np.ndarray  # the primary's NIS yᵀ S⁻¹ y where it updates, NaN where it skips
+    #: at an attacked frame, the cheapest option kept for each outcome: how many of the
+    #: detections nearest the primary it hides, and which subset of the frame's candidates
+    #: it injects (its index into ``subsets``, candidate indices); None: unattacked
+    opt: np.ndarray | None = None
+    subset: np.ndarray | None = None
+    subsets: list[tuple[int, ...]] | None = None
+
+
 def prepare(
     scene: Scene,
     schedule: Schedule,
@@ -150,6 +172,52 @@ def prepare(
         near_z=near_z,
         n_near=per,
         pos=pos,
+    )
+
+
+def candidate_relevance(p: Prepared, initiator: NearTargetInitiator, nd: int) -> np.ndarray:
+    """(n, m) which of the frame's m injection candidates (measurements nd.. of ``p.Z``)
+    can change each state's successor (the attacker's rule: attacker_subsets.py
+    ``relevant_candidates``): gated by one of its tracks, or in the initiator's birth
+    region around a position its primary can take. Depends on the primary track only for
+    the births, so those are computed once per distinct primary."""
+    n, m = len(p.tu), len(p.Z) - nd
+    u0, first, inv = np.unique(p.tu[:, 0], return_index=True, return_inverse=True)
+    inv = inv.reshape(-1)
+    mine = np.flatnonzero((p.pt == 0) & (first[inv[p.ps]] == p.ps))  # the first states' pairs
+    owner = np.concatenate([np.arange(u0.size), inv[p.ps[mine]]])
+    child = np.concatenate([u0, len(p.X) + p.pu[mine]])  # predicted; updated by each pair
+    centres = p.child_X[child][:, list(p.pos)]
+    births = initiator.in_region(p.Z[nd:], centres)
+    per_u = np.zeros((u0.size, m), dtype=bool)
+    hit_c, hit_j = np.nonzero(births)
+    per_u[owner[hit_c], hit_j] = True
+    return relevant_candidates(n, nd, (p.ps, p.pz), (np.arange(n), inv), per_u)
+
+
+def with_subsets(p: Prepared, state: np.ndarray, shown: np.ndarray) -> Prepared:
+    """``p`` for virtual states: row v is state ``state[v]`` seeing only the measurements
+    ``shown[v]`` (the frame's detections and one subset of its injection candidates), its
+    gated pairs those of its state whose measurement it sees (in the same order)."""
+    cnt = np.bincount(p.ps, minlength=len(p.tu))
+    reps = cnt[state]
+    idx = np.repeat(starts(cnt)[state], reps) + within(reps)
+    vs = np.repeat(np.arange(len(state)), reps)
+    keep = shown[vs, p.pz[idx]]
+    idx, vs = idx[keep], vs[keep]
+    return dataclasses.replace(
+        p,
+        tu=p.tu[state],
+        live=p.live[state],
+        pend=p.pend[state],
+        npend=p.npend[state],
+        n_opt=p.n_opt[state],
+        cost=p.cost[state],
+        ps=vs,
+        pt=p.pt[idx],
+        pz=p.pz[idx],
+        prio=p.prio[idx],
+        pu=p.pu[idx],
     )
 
 
