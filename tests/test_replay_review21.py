@@ -233,12 +233,14 @@ def test_replay_help_says_a_multi_target_document_refuses_a_detector_file() -> N
     assert r.returncode == 0 and "Traceback" not in r.stderr, r.stderr
     text = " ".join(r.stdout.split())
     assert "--detector FILE.toml is refused for them" in text
-    assert "those that inject candidates are not replayed" in text
+    # round 22: a multi-target injection is replayed, with the recorded front end
+    assert "an injected candidate's N_dr window is perturbed until N_dr accepts it" in text
+    assert "the settings the results' perception records" in text
 
 
 def test_one_function_gives_the_replays_front_end_settings() -> None:
-    """The point designs' replay (recorded settings) and the multi-target one (none
-    recorded: the defaults) take their front end from one function (review 21, item 7)."""
+    """The point designs' replay and the multi-target one (its recorded settings, else
+    the defaults) take their front end from one function (review 21, item 7)."""
     from lesmc.perception import HISTORY
     from lesmc.perception.blobs import BlobConfig
     from lesmc.replay.run import frontend_settings
@@ -247,4 +249,7 @@ def test_one_function_gives_the_replays_front_end_settings() -> None:
     assert (fe.history, fe.blobs.delta_bc) == (7, 20)
     fe = frontend_settings()
     assert (fe.history, fe.blobs) == (HISTORY, BlobConfig())
-    assert "frontend_settings()" in (ROOT / "lesmc" / "replay" / "multi.py").read_text()
+    assert (
+        "single.frontend_settings(history, delta_bc)"
+        in (ROOT / "lesmc" / "replay" / "multi.py").read_text()
+    )

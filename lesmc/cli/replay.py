@@ -77,12 +77,7 @@ def replay_cmd(
     if raw.get("format") == "lesmc-multi-check":  # verify --design sort|gnn
         _multi(raw, results, frames_dir, prop, (nets_dir, detector_file, locator_file), as_json)
     doc = results_of(raw)
-    frames_dir = frames_dir or doc.perception.frames
-    if frames_dir is None:
-        raise UsageError(
-            "replay runs the detector on the video: give its frames with --frames DIR (the "
-            "results file does not name them)"
-        )
+    frames_dir = _frames_of(frames_dir or doc.perception.frames)
     with (
         resumable(lambda: f"nothing: replay writes no file ({results} is unchanged)"),
         progress_bar("replay", "replaying", None) as bar,
@@ -94,6 +89,16 @@ def replay_cmd(
             raise exc.at(results) from None
     rows, verdicts = verdict_rows(doc, outcome, prop)
     _finish(rows, verdicts, outcome.seconds, results, frames_dir, as_json)
+
+
+def _frames_of(frames_dir: str | None) -> str:
+    """The video's frames directory: --frames DIR, else the one the results name."""
+    if frames_dir is None:
+        raise UsageError(
+            "replay runs the detector on the video: give its frames with --frames DIR (the "
+            "results file does not name them)"
+        )
+    return frames_dir
 
 
 def _multi(
