@@ -7,6 +7,9 @@ the detection or injection candidate taken (``runs[].paths[].obs``). A scene tha
 one of them, or has it elsewhere, is not the scene the results were made from (or the
 results were edited): :class:`ResultsMismatch`, an input error at the results field,
 located in the results file by the command that read it (:meth:`ResultsMismatch.at`).
+A ``lesmc-multi-check`` document records, per counterexample step, the detections hidden
+and candidates injected with their boxes (``attacked``): lesmc/replay/multi.py checks them
+with :func:`first_misplaced`.
 """
 
 from __future__ import annotations
