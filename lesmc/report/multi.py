@@ -23,7 +23,7 @@ from typing import Any
 import numpy as np
 
 from lesmc.common.numbers import fmt
-from lesmc.report.figures import COLOURS, ImageFor, _png, _pyplot, _square_view
+from lesmc.report.figures import COLOURS, ImageFor, png, pyplot, square_view
 from lesmc.report.pages import Figure, Markup, images, key_values, para, render_page, table
 from lesmc.report.staging import staged
 
@@ -48,8 +48,8 @@ def write_multi_report(
         for name, text in (files or {}).items():
             (tmp / name).write_text(text, encoding="utf-8")
         (tmp / "figures").mkdir()
-        for name, png in figs.items():
-            (tmp / "figures" / name).write_bytes(png)
+        for name, data in figs.items():
+            (tmp / "figures" / name).write_bytes(data)
         (tmp / "results.json").write_text(json.dumps(doc, indent=1, allow_nan=False) + "\n")
         (tmp / "report.html").write_text(page, encoding="utf-8")
     return Path(out_dir) / "report.html"
@@ -210,7 +210,7 @@ def _in_view(row: Sequence[float], lo: np.ndarray, hi: np.ndarray) -> bool:
 
 
 def _views(steps: Sequence[dict[str, Any]]) -> list[tuple[np.ndarray, np.ndarray]]:
-    """Each step's view: a square (at least 160 px, figures' ``_square_view``) around its
+    """Each step's view: a square (at least 160 px, figures' ``square_view``) around its
     reference box, the target's track and the attacked detections; a step with none of
     them keeps the previous step's view (the first such: around all its tracks). Each
     frame of a video is in its own pixel coordinates, so each step has its own."""
@@ -228,7 +228,7 @@ def _views(steps: Sequence[dict[str, Any]]) -> list[tuple[np.ndarray, np.ndarray
             continue
         if not pts:
             pts = [_corners(t.get("box") or t["position"]) for t in s["tracks"]]
-        out.append(_square_view(np.vstack(pts)) if pts else (np.zeros(2), np.full(2, 160.0)))
+        out.append(square_view(np.vstack(pts)) if pts else (np.zeros(2), np.full(2, 160.0)))
     return out
 
 
@@ -236,7 +236,7 @@ def track_panels(steps: Sequence[dict[str, Any]], image_for: ImageFor | None = N
     """One panel per shown step (:func:`_shown`) of a counterexample: every track's box
     (or position) and id, the target's track thick, the reference dotted, hidden
     detections crossed, injected ones green, SWITCH in the title of a switch step."""
-    plt = _pyplot()
+    plt = pyplot()
     shown = _shown(steps)
     views = _views(steps)
     at = {s["step"]: i for i, s in enumerate(steps)}
@@ -248,7 +248,7 @@ def track_panels(steps: Sequence[dict[str, Any]], image_for: ImageFor | None = N
     for ax, s in zip(axes.flat, shown, strict=False):
         _panel(ax, s, *views[at[s["step"]]], image_for)
     fig.subplots_adjust(wspace=0.08, hspace=0.25)
-    return _png(fig)
+    return png(fig)
 
 
 def _panel(
@@ -258,9 +258,9 @@ def _panel(
 
     image = image_for(int(s["frame"])) if image_for is not None else None
     if image is not None:
-        from lesmc.report.figures import _image_crop
+        from lesmc.report.figures import image_crop
 
-        _image_crop(ax, image, lo, hi)
+        image_crop(ax, image, lo, hi)
     ax.set_xlim(lo[0], hi[0])
     ax.set_ylim(hi[1], lo[1])  # image rows grow downwards
     ax.set_xticks([])
