@@ -8,7 +8,7 @@ ways, nothing cached (issue 31):
 
 - the reference: ``savefig(bbox_inches="tight")``, which lays the figure out in a
   drawing pass of its own before drawing it, in one process;
-- lesmc in one process: ``figures._png``, which finds the same box without that pass
+- lesmc in one process: ``figures.png``, which finds the same box without that pass
   (what ``lesmc verify`` does);
 - lesmc in two processes: every second figure drawn by a forked copy
   (lesmc/report/drawing.py; ``lesmc report``, ``lesmc check --report``).
@@ -37,12 +37,12 @@ from lesmc.report.publish import frames_reader
 
 
 def reference(fig: Any) -> bytes:
-    """What figures._png did before: savefig's own tight box."""
+    """What figures.png did before: savefig's own tight box."""
     buf = io.BytesIO()
     fig.savefig(
         buf, format="png", dpi=figures.DPI, bbox_inches="tight", pil_kwargs={"compress_level": 1}
     )
-    figures._pyplot().close(fig)
+    figures.pyplot().close(fig)
     return buf.getvalue()
 
 
@@ -66,16 +66,16 @@ def main() -> None:
     args = ap.parse_args()
     doc = json.loads(Path(args.results).read_text())
     frames_dir = Path(args.frames) if Path(args.frames).is_dir() else None
-    own = figures._png
-    figures._pyplot()  # imported once, outside the timings
+    own = figures.png
+    figures.pyplot()  # imported once, outside the timings
     table = Table(title=f"the report's figures of {args.results}")
     for col in ("round", "figures", "tight, 1 process s", "lesmc, 1 s", "lesmc, 2 s", "2 / tight"):
         table.add_column(col, justify="right")
     same = True
     for i in range(args.rounds):
-        figures._png = reference
+        figures.png = reference
         tight, want = draw_all(doc, frames_dir, 1)
-        figures._png = own
+        figures.png = own
         one, got = draw_all(doc, frames_dir, 1)
         two, got2 = draw_all(doc, frames_dir, 2)
         same &= got == want == got2

@@ -452,14 +452,14 @@ def test_a_table_refuses_rows_narrower_or_wider_than_its_header() -> None:
 def test_figures_are_the_bytes_of_savefigs_tight_box(
     monkeypatch: pytest.MonkeyPatch, tmp_path: Path
 ) -> None:
-    """figures._png finds the tight box without savefig's extra drawing pass: each figure of
+    """figures.png finds the tight box without savefig's extra drawing pass: each figure of
     a report (three designs), of frame crops and of attack patches must be the very PNG
     that ``savefig(bbox_inches="tight")`` writes."""
     import io
 
     from lesmc.report import figures
 
-    own = figures._png
+    own = figures.png
     compared = []
 
     def both(fig: object) -> bytes:
@@ -473,7 +473,7 @@ def test_figures_are_the_bytes_of_savefigs_tight_box(
         compared.append(1)
         return png
 
-    monkeypatch.setattr(figures, "_png", both)
+    monkeypatch.setattr(figures, "png", both)
     monkeypatch.setenv("LESMC_DRAW_PROCESSES", "1")  # every figure compared here
     scene = load_scene(SCENES / "rq4_merge.json")
     specs = [load_spec(str(SCENES / "rq4_merge.spec"))]

@@ -124,8 +124,9 @@ if TYPE_CHECKING:
 @click.option("--json", "as_json", is_flag=True, help="Print results.json on stdout.")
 @budget_options(
     DEFAULT_MAX_STATES,
-    "the remaining verdicts are 'unknown' (while perceiving or building a model, verify "
-    "stops with exit 3 and writes nothing)",
+    "the remaining verdicts are 'unknown' (while perceiving or building a point design's "
+    "model, verify stops with exit 3 and writes nothing; a --design sort|gnn unfolding "
+    "past --timeout gives 'unknown' results that are written, past --max-states it stops)",
 )
 def verify_cmd(
     frames_dir: str | None,

@@ -168,12 +168,7 @@ class FilePricer(VideoPricer):
         if self.on_price is not None:
             self.on_price(sum(len(v) for v in wanted.values()))
         t0 = time.monotonic()
-        out = {}
-        for k, idx in sorted(wanted.items()):
-            pos = self.positions[k]
-            col = np.full(len(pos), np.nan)
-            col[idx] = self.how.price(k, pos, idx)
-            out[k] = col
+        out = per_frame(wanted, self.positions.__getitem__, self.how.price)
         self.seconds += time.monotonic() - t0
         return out
 
@@ -215,16 +210,31 @@ def file_certifier(
     def certify(wanted: Mapping[int, np.ndarray]) -> dict[int, np.ndarray]:
         if not how:
             how.append(file_pricing(path, frames))
-        out = {}
-        for k, idx in sorted(wanted.items()):
-            frame = footage.frame(k)
-            pos, pays = frame.positions(), frame.payoff_values()
-            col = np.full(len(pos), np.nan)
-            col[idx] = how[0].certify(k, pos, idx, pays[idx])
-            out[k] = col
-        return out
+
+        def bound(k: int, pos: np.ndarray, idx: np.ndarray) -> np.ndarray:
+            return how[0].certify(k, pos, idx, footage.frame(k).payoff_values()[idx])
+
+        return per_frame(wanted, lambda k: footage.frame(k).positions(), bound)
 
     return certify
+
+
+def per_frame(
+    wanted: Mapping[int, np.ndarray],
+    positions: Callable[[int], np.ndarray],
+    value: Callable[[int, np.ndarray, np.ndarray], np.ndarray],
+) -> dict[int, np.ndarray]:
+    """Per frame step ``k`` of ``wanted``, a column over the frame's detections (their
+    ``positions(k)``): ``value(k, positions, idx)`` at the wanted indices ``idx``, ``nan``
+    elsewhere. The loop of :class:`FilePricer` (payoffs) and :func:`file_certifier`
+    (certified lower bounds) alike."""
+    out = {}
+    for k, idx in sorted(wanted.items()):
+        pos = positions(k)
+        col = np.full(len(pos), np.nan)
+        col[idx] = value(k, pos, idx)
+        out[k] = col
+    return out
 
 
 def refuse_uncertifiable(path: str, option: str) -> None:

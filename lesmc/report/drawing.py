@@ -47,9 +47,9 @@ def draw_all(jobs: Sequence[Job]) -> list[bytes]:
     process may use two cores (:func:`may_fork`)."""
     if len(jobs) < 2 or not may_fork():
         return draw_each(jobs)
-    from lesmc.report.figures import _pyplot
+    from lesmc.report.figures import pyplot
 
-    _pyplot()  # imported before the fork: the copy shares matplotlib's modules and fonts
+    pyplot()  # imported before the fork: the copy shares matplotlib's modules and fonts
     ours, theirs = list(jobs[0::2]), list(jobs[1::2])
     with tempfile.TemporaryFile() as out:
         try:

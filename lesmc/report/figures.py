@@ -69,7 +69,7 @@ class Series:
         return "o" if self.prop is None else MARKERS[self.prop % len(MARKERS)]
 
 
-def _pyplot() -> Any:
+def pyplot() -> Any:
     """matplotlib's pyplot on the Agg backend (no display), imported with the first figure
     drawn: a report whose figures all come from a cache does not pay its 0.6 s of imports."""
     import matplotlib
@@ -80,7 +80,7 @@ def _pyplot() -> Any:
     return plt
 
 
-def _png(fig: Figure) -> bytes:
+def png(fig: Figure) -> bytes:
     """The figure as PNG at :data:`DPI`, cropped to what is drawn (``bbox_inches="tight"``).
 
     savefig's "tight" first draws the whole figure, drawing disabled, to lay it out;
@@ -95,7 +95,7 @@ def _png(fig: Figure) -> bytes:
     box = fig.get_tightbbox(renderer).padded(rcParams["savefig.pad_inches"])
     # zlib level 1: a third of the encoding time of the default 6, files within 5%
     fig.savefig(buf, format="png", dpi=DPI, bbox_inches=box, pil_kwargs={"compress_level": 1})
-    _pyplot().close(fig)
+    pyplot().close(fig)
     return buf.getvalue()
 
 
@@ -123,7 +123,7 @@ def _plot(ax: Axes, s: Series, ks: np.ndarray, ys: np.ndarray) -> None:
     )
 
 
-def _square_view(points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def square_view(points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """A square view (at least 160 px) around ``points`` with a 40 px margin: (lo, hi) corners."""
     lo, hi = points.min(axis=0) - 40, points.max(axis=0) + 40
     size = max(float((hi - lo).max()), 160.0)
@@ -131,7 +131,7 @@ def _square_view(points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return centre - size / 2, centre + size / 2
 
 
-def _image_crop(ax: Axes, image: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> None:
+def image_crop(ax: Axes, image: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> None:
     """Draw the part of the grey ``image`` inside the view [lo, hi] in pixel coordinates."""
     h, w = image.shape[:2]
     x0, y0 = int(max(lo[0], 0)), int(max(lo[1], 0))
@@ -160,11 +160,11 @@ def track_crop(
 
     ``tracks`` pairs each series with its (n, 2) positions, already in that frame's pixels.
     """
-    fig, ax = _pyplot().subplots(figsize=(6.0, 6.0))
+    fig, ax = pyplot().subplots(figsize=(6.0, 6.0))
     pts_all = [p for _, p in tracks] + ([truth] if truth is not None else [])
-    lo, hi = _square_view(np.concatenate([p[np.isfinite(p).all(axis=1)] for p in pts_all]))
+    lo, hi = square_view(np.concatenate([p[np.isfinite(p).all(axis=1)] for p in pts_all]))
     if image is not None:
-        _image_crop(ax, image, lo, hi)
+        image_crop(ax, image, lo, hi)
     if detections is not None and len(detections):
         ax.scatter(
             detections[:, 0],
@@ -198,7 +198,7 @@ def track_crop(
     ax.set_ylabel("y (pixels)")
     ax.set_title(title, fontsize=10)
     ax.legend(loc="upper left", fontsize=8, framealpha=0.9)
-    return _png(fig)
+    return png(fig)
 
 
 def deviation(
@@ -210,7 +210,7 @@ def deviation(
 ) -> bytes:
     """dist.at(k) per step (and the running sum) against the threshold (Figure 7c-d)."""
     n = 2 if cumulative else 1
-    fig, axes = _pyplot().subplots(1, n, figsize=(5.4 * n, 3.6), squeeze=False)
+    fig, axes = pyplot().subplots(1, n, figsize=(5.4 * n, 3.6), squeeze=False)
     ax = axes[0][0]
     for s in series:
         ks = np.arange(len(s.values))
@@ -234,12 +234,12 @@ def deviation(
         _steps_axis(ax2, window)
         ax2.set_ylabel("accumulated deviation (pixels)")
         ax2.legend(fontsize=8)
-    return _png(fig)
+    return png(fig)
 
 
 def uncertainty(series: Sequence[Series], window: tuple[int, int]) -> bytes:
     """τ = tr(P_ll) per step with the monitor's alarms, Eq. 12-13 (Figure 10)."""
-    fig, ax = _pyplot().subplots(figsize=(7.0, 3.8))
+    fig, ax = pyplot().subplots(figsize=(7.0, 3.8))
     for s in series:
         ks = np.arange(len(s.values))
         ok = np.isfinite(s.values)
@@ -253,7 +253,7 @@ def uncertainty(series: Sequence[Series], window: tuple[int, int]) -> bytes:
     ax.set_ylabel("τ = trace of P over (x, y), px²")
     ax.set_title("Bayesian uncertainty τ (Eq. 12) and the monitor's alarms", fontsize=9)
     ax.legend(fontsize=8, loc="upper left", bbox_to_anchor=(1.01, 1.0))
-    return _png(fig)
+    return png(fig)
 
 
 @dataclass
@@ -307,7 +307,7 @@ def tree(
         return float(np.mean(acc[prefix]))
 
     fig_h = max(3.2, 0.36 * len(paths) + 1.4)
-    fig, ax = _pyplot().subplots(figsize=(2.0 + 1.5 * len(cols), fig_h))
+    fig, ax = pyplot().subplots(figsize=(2.0 + 1.5 * len(cols), fig_h))
     seen_edges: set[tuple[tuple[str, ...], tuple[str, ...]]] = set()
     labelled: set[tuple[str, ...]] = set()
     legend_roles: dict[str, str] = {}
@@ -327,7 +327,7 @@ def tree(
     note = f"{len(paths)} of {total} attacked tracks" + (f", {left} not drawn" if left else "")
     ax.set_title(f"attacked tracks from step {start} ({note}); #n = row n of Table 3", fontsize=10)
     ax.legend(loc="upper center", bbox_to_anchor=(0.5, -0.14), fontsize=8, ncol=4)
-    return _png(fig)
+    return png(fig)
 
 
 def _leaf_tag(ax: Axes, p: TreePath, x: float, y: float, halted: bool) -> None:
@@ -429,13 +429,13 @@ def crop(image: np.ndarray, left: int, top: int, width: int, height: int) -> np.
 def patches(rows: Sequence[tuple[str, np.ndarray]]) -> bytes:
     """The original patches of the detections an attack hides, one per column, with titles."""
     n = len(rows)
-    fig, axes = _pyplot().subplots(1, n, figsize=(1.6 * n + 0.4, 2.0), squeeze=False)
+    fig, axes = pyplot().subplots(1, n, figsize=(1.6 * n + 0.4, 2.0), squeeze=False)
     for ax, (title, img) in zip(axes[0], rows, strict=True):
         ax.imshow(img, cmap="gray", vmin=0, vmax=255, interpolation="nearest")
         ax.set_title(title, fontsize=7)
         ax.set_xticks([])
         ax.set_yticks([])
-    return _png(fig)
+    return png(fig)
 
 
 def amplification(delta: np.ndarray) -> tuple[float, float]:
@@ -451,7 +451,7 @@ def perturbations(rows: Sequence[tuple[str, np.ndarray, np.ndarray]]) -> bytes:
     change, amplified (×k in its title, :func:`amplification`) when that change is under 64
     grey levels, so that small ones stay visible."""
     n = len(rows)
-    fig, axes = _pyplot().subplots(n, 3, figsize=(5.4, 1.9 * n + 0.3), squeeze=False)
+    fig, axes = pyplot().subplots(n, 3, figsize=(5.4, 1.9 * n + 0.3), squeeze=False)
     for (title, orig, delta), ax in zip(rows, axes, strict=True):
         grey = delta * 255.0
         peak, gain = amplification(delta)
@@ -467,7 +467,7 @@ def perturbations(rows: Sequence[tuple[str, np.ndarray, np.ndarray]]) -> bytes:
             a.set_title(t, fontsize=7)
             a.set_xticks([])
             a.set_yticks([])
-    return _png(fig)
+    return png(fig)
 
 
 @dataclass(frozen=True)
@@ -491,7 +491,7 @@ def sweep(curves: Sequence[SweepCurve]) -> bytes:
     """Section 4.4's sensitivity: the optimum against the swept ε (or the norm p), the
     threshold dashed, each point coloured by its verdict, a dotted line where it flips.
     +inf (no violating path) is drawn at the top edge with an upward triangle."""
-    fig, ax = _pyplot().subplots(figsize=(7.0, 3.8))
+    fig, ax = pyplot().subplots(figsize=(7.0, 3.8))
     finite = [y for c in curves for y in c.optima if np.isfinite(y)]
     finite += [c.threshold for c in curves]
     top = max(finite) * 1.15 + 1e-9 if finite else 1.0
@@ -528,4 +528,4 @@ def sweep(curves: Sequence[SweepCurve]) -> bytes:
     ax.plot([], [], color=COLOURS["counterexample"], linestyle=":", lw=1, label="verdict flips")
     ax.set_title("Sensitivity (section 4.4): the optimum against the swept parameter", fontsize=9)
     ax.legend(fontsize=8, loc="upper left", bbox_to_anchor=(1.01, 1.0))
-    return _png(fig)
+    return png(fig)

@@ -2,14 +2,16 @@
 document alone (``lesmc verify --design sort``'s results.json, or ``lesmc check --design
 sort --json``'s output): nothing is checked again.
 
-Per property: its verdict and optimum, and for its counterexample one panel per step
+Per property: its verdict and optimum (for a check stopped by its budget, the bounds it
+proved and its notes), and for its counterexample one panel per step
 drawing every track of the attacked run (its box and id; a point design's position),
 the target's track thick, the target's reference box dotted, the detections hidden
 (red, crossed) and the candidates injected (green); the panel of a step where the
 target's id switches is titled SWITCH. A table lists each step's target id, switch,
 hidden and injected detections and every track's id and status. All of it is in the
 document (version 2: lesmc/pipeline/multi_tracks.py); a version 1 document has no
-tracks, and its report lists the steps without panels.
+tracks, and its report lists the steps without panels. The path of a check stopped by its
+budget whose verdict is not ``violated`` is only the best attack found, and is labelled so.
 """
 
 from __future__ import annotations
@@ -23,8 +25,17 @@ from typing import Any
 import numpy as np
 
 from lesmc.common.numbers import fmt
-from lesmc.report.figures import COLOURS, ImageFor, _png, _pyplot, _square_view
-from lesmc.report.pages import Figure, Markup, images, key_values, para, render_page, table
+from lesmc.report.figures import COLOURS, ImageFor, png, pyplot, square_view
+from lesmc.report.pages import (
+    Figure,
+    Markup,
+    Text,
+    images,
+    key_values,
+    para,
+    render_page,
+    table,
+)
 from lesmc.report.staging import staged
 
 #: At most this many steps get a panel (the attacked steps and those after them first).
@@ -48,8 +59,8 @@ def write_multi_report(
         for name, text in (files or {}).items():
             (tmp / name).write_text(text, encoding="utf-8")
         (tmp / "figures").mkdir()
-        for name, png in figs.items():
-            (tmp / "figures" / name).write_bytes(png)
+        for name, data in figs.items():
+            (tmp / "figures" / name).write_bytes(data)
         (tmp / "results.json").write_text(json.dumps(doc, indent=1, allow_nan=False) + "\n")
         (tmp / "report.html").write_text(page, encoding="utf-8")
     return Path(out_dir) / "report.html"
@@ -65,6 +76,8 @@ def render_multi(
     sections = []
     for i, r in enumerate(doc["results"]):
         parts: list[Any] = [para(_verdict_line(r))]
+        if r.get("notes"):
+            parts.append(Text("ul", items=list(r["notes"])))
         steps = r.get("counterexample") or []
         views = _views(steps) if steps and "tracks" in steps[0] else None
         if views is not None:
@@ -106,10 +119,32 @@ def _opt(x: Any) -> str:
 def _verdict_line(r: dict[str, Any]) -> Markup:
     word = r["verdict"]
     return Markup(
-        f"<span class='{word}'>{word}</span>: optimum {_opt(r['optimum'])}, constraint's "
-        f"measure {_opt(r['constraint_value'])} ({r['states']} states, "
+        f"<span class='{word}'>{word}</span>: optimum {_opt(r['optimum'])}"
+        f"{escape(bounds_text(r))}, constraint's measure "
+        f"{_opt(r['constraint_value'])} ({r['states']} states, "
         f"{r['transitions']} transitions)" + escape(replay_text(r.get("replay")))
     )
+
+
+def bounds_text(r: dict[str, Any]) -> str:
+    """What a result stopped by its budget proved (``stopped``, ``bounds``: the schema's
+    lesmc-multi-check), as a parenthesis after its optimum; empty for a finished check."""
+    b = r.get("bounds")
+    if not isinstance(b, dict):
+        return ""
+    return (
+        f" (stopped by {r.get('stopped', 'a budget')}; the optimum lies between "
+        f"{_opt(b['lower'])} and {_opt(b['upper'])})"
+    )
+
+
+def _path_name(r: dict[str, Any]) -> str:
+    """What a result's path is: a counterexample when violated; the best attack found by a
+    check its budget stopped (``bounds`` given) before it decided; else the optimal attack
+    of a property that holds. Only the first is a counterexample."""
+    if r["verdict"] == "violated":
+        return "the counterexample"
+    return "the best attack found" if "bounds" in r else "the optimal attack"
 
 
 def replay_text(rp: Any) -> str:
@@ -127,7 +162,7 @@ def _verdicts(results: Sequence[dict[str, Any]]) -> Any:
         [
             r["property"],
             r["verdict"],
-            _opt(r["optimum"]),
+            _opt(r["optimum"]) + bounds_text(r),
             _opt(r["constraint_value"]),
             r["states"],
             r["transitions"],
@@ -141,10 +176,14 @@ def _verdicts(results: Sequence[dict[str, Any]]) -> Any:
 
 
 def _caption(r: dict[str, Any]) -> str:
+    label = _path_name(r)
+    why = "" if label == "the counterexample" else f" {label.capitalize()} is not a counterexample."
+    if "bounds" in r and r["verdict"] != "violated":
+        why += f" The check did not finish{bounds_text(r)}."
     return (
-        f"{r['property']}: every track of the counterexample's attacked run, step by step "
+        f"{r['property']}: every track of the attacked run of {label}, step by step "
         "(ids beside the boxes); the target's track thick, its reference dotted, hidden "
-        f"detections crossed in red, injected ones green; {SWITCH}: the target's id changes."
+        f"detections crossed in red, injected ones green; {SWITCH}: the target's id changes." + why
     )
 
 
@@ -210,7 +249,7 @@ def _in_view(row: Sequence[float], lo: np.ndarray, hi: np.ndarray) -> bool:
 
 
 def _views(steps: Sequence[dict[str, Any]]) -> list[tuple[np.ndarray, np.ndarray]]:
-    """Each step's view: a square (at least 160 px, figures' ``_square_view``) around its
+    """Each step's view: a square (at least 160 px, figures' ``square_view``) around its
     reference box, the target's track and the attacked detections; a step with none of
     them keeps the previous step's view (the first such: around all its tracks). Each
     frame of a video is in its own pixel coordinates, so each step has its own."""
@@ -228,7 +267,7 @@ def _views(steps: Sequence[dict[str, Any]]) -> list[tuple[np.ndarray, np.ndarray
             continue
         if not pts:
             pts = [_corners(t.get("box") or t["position"]) for t in s["tracks"]]
-        out.append(_square_view(np.vstack(pts)) if pts else (np.zeros(2), np.full(2, 160.0)))
+        out.append(square_view(np.vstack(pts)) if pts else (np.zeros(2), np.full(2, 160.0)))
     return out
 
 
@@ -236,7 +275,7 @@ def track_panels(steps: Sequence[dict[str, Any]], image_for: ImageFor | None = N
     """One panel per shown step (:func:`_shown`) of a counterexample: every track's box
     (or position) and id, the target's track thick, the reference dotted, hidden
     detections crossed, injected ones green, SWITCH in the title of a switch step."""
-    plt = _pyplot()
+    plt = pyplot()
     shown = _shown(steps)
     views = _views(steps)
     at = {s["step"]: i for i, s in enumerate(steps)}
@@ -248,7 +287,7 @@ def track_panels(steps: Sequence[dict[str, Any]], image_for: ImageFor | None = N
     for ax, s in zip(axes.flat, shown, strict=False):
         _panel(ax, s, *views[at[s["step"]]], image_for)
     fig.subplots_adjust(wspace=0.08, hspace=0.25)
-    return _png(fig)
+    return png(fig)
 
 
 def _panel(
@@ -258,9 +297,9 @@ def _panel(
 
     image = image_for(int(s["frame"])) if image_for is not None else None
     if image is not None:
-        from lesmc.report.figures import _image_crop
+        from lesmc.report.figures import image_crop
 
-        _image_crop(ax, image, lo, hi)
+        image_crop(ax, image, lo, hi)
     ax.set_xlim(lo[0], hi[0])
     ax.set_ylim(hi[1], lo[1])  # image rows grow downwards
     ax.set_xticks([])
