@@ -112,6 +112,7 @@ def _multi(
     """The replay of a multi-target design's results (lesmc/replay/multi.py), then exit."""
     from lesmc.common.progress import progress_bar
     from lesmc.experiment.multi_verify import multi_rows, replay_document
+    from lesmc.replay.run import frontend_note
 
     with (
         resumable(lambda: f"nothing: replay writes no file ({results} is unchanged)"),
@@ -120,13 +121,9 @@ def _multi(
         outcome, frames_dir = replay_document(doc, results, frames_dir, nets, prop, bar)
     rows, verdicts = multi_rows(doc, outcome, prop)
     fe = next((r["replay"]["frontend"] for r in rows if "frontend" in r["replay"]), None)
-    if fe is not None and fe["from"] == "defaults":  # docs/trackers.md
-        click.echo(
-            f"lesmc replay: {results} records no front-end settings (perception.history, "
-            f"perception.delta_bc): the frames were detected with the defaults (history "
-            f"{fe['history']}, delta_bc {fe['delta_bc']})",
-            err=True,
-        )
+    note = None if fe is None else frontend_note(results, fe)
+    if note is not None:  # docs/trackers.md
+        click.echo(note, err=True)
     _finish(rows, verdicts, outcome.seconds, results, frames_dir, as_json)
 
 
