@@ -250,6 +250,6 @@ def test_one_function_gives_the_replays_front_end_settings() -> None:
     fe = frontend_settings()
     assert (fe.history, fe.blobs) == (HISTORY, BlobConfig())
     assert (
-        "single.frontend_settings(history, delta_bc)"
+        "single.recorded_frontend("
         in (ROOT / "lesmc" / "replay" / "multi.py").read_text()
     )

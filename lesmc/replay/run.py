@@ -360,11 +360,11 @@ def frontend_note(results: str, used: Mapping[str, Any]) -> str | None:
         return None
     fields = ", ".join(f"perception.{k}" for k in defaulted)
     values = ", ".join(f"{k} {used[k]}" for k in defaulted)
-    kept = [f"{k} {used[k]}" for k in FRONTEND_FIELDS if k not in defaulted]
-    also = f"; the recorded {', '.join(kept)}" if kept else ""
+    kept = ", ".join(f"{k} {used[k]}" for k in FRONTEND_FIELDS if k not in defaulted)
     return (
-        f"lesmc replay: {results} records no {fields}: the frames were detected with the "
-        f"default {values}{also}"
+        f"lesmc replay: {results} records no front-end settings ({fields}): the frames "
+        f"were detected with the defaults ({values})"
+        + (f" and the recorded ({kept})" if kept else "")
     )
 
 
