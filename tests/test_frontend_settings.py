@@ -33,7 +33,7 @@ from lesmc.common.progress import Reporter
 
 ROOT = Path(__file__).resolve().parents[1]
 POINT_SPEC = """property robustness {
-    attack window 5..6
+    attack window 2..4
     minimize payoff
     subject to dist.sum(0..end) > 5
     holds if optimum > 3.0
