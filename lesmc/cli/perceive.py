@@ -258,7 +258,7 @@ def _with_detector_file(
 ) -> None:
     """``--detector FILE.toml|.json``: the user's whole-frame detector on every frame
     (docs/detectors.md); with -o, each detection's payoff and the scene."""
-    from lesmc.common.progress import progress_bar
+    from lesmc.common.progress import deferred_bar
     from lesmc.experiment.perceive import perceive_with_file
 
     refuse_given(_WINDOW_ONLY, "does not apply to a detector file (docs/detectors.md)")
@@ -267,7 +267,7 @@ def _with_detector_file(
     else:
         distinct_files({"--detector": path, "--tracker": req.tracker}, {"-o/--output": output})
         refuse_output_among_frames(req.frames_dir, output, "-o/--output")
-    with progress_bar("perceive", "perceiving", None) as bar:
+    with deferred_bar("perceive", "perceiving") as bar:  # started once the file is read
 
         def start(n: int) -> Any:
             bar.update(total=n)

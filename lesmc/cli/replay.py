@@ -67,7 +67,7 @@ def replay_cmd(
     1 some violation confirmed, 2 bad input, 3 some replay diverged (unknown) and
     none confirmed, 4 internal error, 130 interrupted.
     """
-    from lesmc.common.progress import progress_bar
+    from lesmc.common.progress import deferred_bar
     from lesmc.replay.run import verdict_rows
     from lesmc.replay.scene_match import ResultsMismatch
     from lesmc.results.load import load_results
@@ -80,7 +80,7 @@ def replay_cmd(
     frames_dir = _frames_of(frames_dir or doc.perception.frames)
     with (
         resumable(lambda: f"nothing: replay writes no file ({results} is unchanged)"),
-        progress_bar("replay", "replaying", None) as bar,
+        deferred_bar("replay", "replaying") as bar,
     ):
         nets = (nets_dir, detector_file, locator_file)
         try:
@@ -110,13 +110,13 @@ def _multi(
     as_json: bool,
 ) -> NoReturn:
     """The replay of a multi-target design's results (lesmc/replay/multi.py), then exit."""
-    from lesmc.common.progress import progress_bar
+    from lesmc.common.progress import deferred_bar
     from lesmc.experiment.multi_verify import multi_rows, replay_document
     from lesmc.replay.run import frontend_note
 
     with (
         resumable(lambda: f"nothing: replay writes no file ({results} is unchanged)"),
-        progress_bar("replay", "replaying", None) as bar,
+        deferred_bar("replay", "replaying") as bar,
     ):
         outcome, frames_dir = replay_document(doc, results, frames_dir, nets, prop, bar)
     rows, verdicts = multi_rows(doc, outcome, prop)

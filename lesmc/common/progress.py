@@ -13,7 +13,7 @@ import sys
 import threading
 import time
 from collections.abc import Iterator
-from contextlib import contextmanager
+from contextlib import ExitStack, contextmanager
 from typing import Any
 
 from rich.console import Console
@@ -166,3 +166,31 @@ def progress_bar(verb: str, label: str, total: int | None) -> Iterator[Bar]:
     """A counted stage ``label`` of command ``verb`` (a reporter for one bar)."""
     with Reporter(verb) as rep, rep.bar(label, total) as bar:
         yield bar
+
+
+class _Deferred(Bar):
+    """A counted stage that starts (its reporter, its ``started`` line) at its first
+    :meth:`update`: what a command checks before, its inputs, fails without it."""
+
+    def __init__(self, stack: ExitStack, verb: str, label: str) -> None:
+        self._stack, self._verb = stack, verb
+        self._bar: Bar | None = None
+        self.label, self.total, self.done = label, None, 0
+
+    def update(
+        self, total: int | None = None, completed: int | None = None, description: str = ""
+    ) -> None:
+        if self._bar is None:
+            self._bar = self._stack.enter_context(progress_bar(self._verb, self.label, total))
+        self._bar.update(total, completed, description)
+        self.label, self.total, self.done = self._bar.label, self._bar.total, self._bar.done
+
+
+@contextmanager
+def deferred_bar(verb: str, label: str) -> Iterator[Bar]:
+    """A counted stage ``label`` of command ``verb`` whose reporter starts when the work
+    first counts (sets its total or advances): the input errors found before that come
+    alone, with no ``label: started`` line before them (``lesmc replay``, ``lesmc
+    perceive --detector FILE.toml``)."""
+    with ExitStack() as stack:
+        yield _Deferred(stack, verb, label)

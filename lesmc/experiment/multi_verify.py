@@ -180,7 +180,7 @@ def _replay(
     from lesmc.replay.multi import multi_cases, replay_multi
 
     bound = bound_properties(specs, scene)
-    todo = multi_cases(doc, scene, bound)
+    todo = multi_cases(doc, scene, bound, where=where)
     if not todo or src.frames is None or (src.nets is None and src.net_files is None):
         return
     if dv.detector_file_of(src.net_files or (None, None, None)) is not None:
@@ -294,7 +294,9 @@ def replay_document(
     props = [Path(p) for p in meta.get("properties") or ()] or identity_specs()
     specs = ex.load_specs(props, None if window is None else (int(window[0]), int(window[1])))
     bound = bound_properties(specs, scene)
-    multi_cases(doc, scene, bound, prop, path)  # bad input is refused before the video is read
+    multi_cases(
+        doc, scene, bound, prop, path, scene_path
+    )  # bad input is refused before the video is read
     fe, _ = perception_settings(doc)  # the front end the replay runs: its frames before
     frames = open_frames(frames_dir, fe.history + 1)
     bar.update(total=len(frames))

@@ -411,10 +411,10 @@ def load_detector(path: str | Path) -> LoadedDetector:
     the channels, the stride dividing the input, the output's name and shape (a batch of
     :data:`~lesmc.perception.graphs.PROBE_BATCH` random inputs must give one finite
     heatmap each)."""
+    spec = read_detector_file(path)  # its fields first: the reader needs no torch
     from lesmc.perception.graphs import ANY_SIZE
     from lesmc.perception.network_file import load_network
 
-    spec = read_detector_file(path)
     net = load_network(spec.network)
     any_size = net.in_shape[1] == ANY_SIZE
     if any_size:  # checked on a probe size now, on the frames' later (sized)

@@ -43,7 +43,7 @@ from __future__ import annotations
 
 import math
 import time
-from collections.abc import Callable, Mapping
+from collections.abc import Callable, Iterator, Mapping
 from dataclasses import dataclass, replace
 from typing import TYPE_CHECKING, Any
 
@@ -118,10 +118,14 @@ def multi_cases(
     bound: Mapping[str, Any],
     prop: str | None = None,
     path: str = "<results>",
+    where: str = "the scene",
 ) -> list[MultiCase]:
     """The counterexamples of ``doc`` (read from ``path``) to replay: each violated result's
     (or ``prop``'s), with the detections it hides and the candidates it injects;
-    ``bound``: the document's properties, bound to ``scene``."""
+    ``bound``: the document's properties, bound to ``scene`` (read from ``where``). A
+    step's ``attacked`` entry whose detection or candidate ``scene`` lacks or has
+    elsewhere is an input error at that entry: the results were made from another
+    scene."""
     results = list(doc.get("results", []))
     known_property(doc, prop)
     out = []
@@ -136,6 +140,7 @@ def multi_cases(
                 "the results name (meta.properties): give the files they were checked with"
             )
         _check_steps(scene, steps, path, j)
+        _check_attacked(scene, steps, (path, where), j)
         hidden, injected = _hidden(scene, steps, path, j), _injected(scene, steps, path, j)
         out.append(MultiCase(j, b, tuple(steps), hidden, path, injected))
     return out
@@ -161,6 +166,32 @@ def _check_steps(scene: Scene, steps: list[dict[str, Any]], path: str, j: int) -
             )
         if problems:
             raise error_in_file(path, problems)
+
+
+def _check_attacked(
+    scene: Scene, steps: list[dict[str, Any]], paths: tuple[str, str], j: int
+) -> None:
+    """Each step's ``attacked`` entries (the detections hidden and candidates injected,
+    with their boxes or positions, as the check wrote them) must be in the scene (read
+    from ``paths[1]``) where they say, as :func:`~lesmc.replay.scene_match.first_misplaced`
+    checks a point design's recorded detections; else an input error at the entry's
+    ``FILE:LINE:COL`` in the results file ``paths[0]``."""
+    from lesmc.replay.scene_match import first_misplaced
+
+    def records() -> Iterator[tuple[str, str, int, str, tuple[float, float]]]:
+        for i, s in enumerate(steps):
+            for m, a in enumerate(s.get("attacked") or ()):
+                v = a.get("box", a.get("position"))
+                if v is None or len(v) not in (2, 4):
+                    continue
+                at = ((v[0] + v[2]) / 2, (v[1] + v[3]) / 2) if len(v) == 4 else (v[0], v[1])
+                what = "detection" if a["action"] == "hidden" else "injection candidate"
+                item = f"results[{j}].counterexample[{i}].attacked[{m}]"
+                yield item, what, int(s["frame"]), str(a["id"]), at
+
+    problem = first_misplaced(records(), {f.step: f for f in scene.frames}, paths[1])
+    if problem is not None:
+        raise error_in_file(paths[0], [problem])
 
 
 def known_property(doc: Mapping[str, Any], prop: str | None) -> None:
@@ -239,7 +270,7 @@ def replay_multi(
     from lesmc.perception.detector import Detector, DetectorConfig
 
     t0 = time.monotonic()
-    todo = multi_cases(doc, scene, bound, prop, path)
+    todo = multi_cases(doc, scene, bound, prop, path, where)
     if not todo:
         return single.Outcome({}, 0.0)
     fe, recorded = perception_settings(doc)  # the front end as verify's perception ran it

@@ -7,10 +7,14 @@ the detection or injection candidate taken (``runs[].paths[].obs``). A scene tha
 one of them, or has it elsewhere, is not the scene the results were made from (or the
 results were edited): :class:`ResultsMismatch`, an input error at the results field,
 located in the results file by the command that read it (:meth:`ResultsMismatch.at`).
+A ``lesmc-multi-check`` document records, per counterexample step, the detections hidden
+and candidates injected with their boxes (``attacked``): lesmc/replay/multi.py checks them
+with :func:`first_misplaced`.
 """
 
 from __future__ import annotations
 
+from collections.abc import Iterable
 from typing import TYPE_CHECKING
 
 from lesmc.common.errors import InputError, clipped
@@ -56,22 +60,49 @@ def _recorded_elsewhere(case: Case, by_step: dict[int, Frame], path: str) -> tup
     if case.recorded is None:
         return None
     first = case.recorded.first_frame
-    for s, dets in enumerate(case.recorded.detections):
-        frame = by_step.get(first + s)
-        for m, d in enumerate(dets):
-            item = f"runs[{case.run}].scene.detections[{s}][{m}]"
-            got = None if frame is None else _named(frame, d.id)
-            if got is None:
-                return item, (
-                    f"detection '{clipped(d.id)}' of frame {first + s} is not in {path} "
-                    "(meta.scene): the results were not made from this scene"
-                )
-            if max(abs(got[0] - d.x), abs(got[1] - d.y)) > SAME_PX:
-                return item, (
-                    f"detection '{clipped(d.id)}' of frame {first + s} is at ({d.x:g}, {d.y:g}) "
-                    f"in the results, at ({got[0]:g}, {got[1]:g}) in {path} (meta.scene): the "
-                    "results were not made from this scene"
-                )
+    return first_misplaced(
+        (
+            (
+                f"runs[{case.run}].scene.detections[{s}][{m}]",
+                "detection",
+                first + s,
+                d.id,
+                (d.x, d.y),
+            )
+            for s, dets in enumerate(case.recorded.detections)
+            for m, d in enumerate(dets)
+        ),
+        by_step,
+        path,
+    )
+
+
+#: One place a results document records: its item (a JSON path of the document), what
+#: it is (``detection``, ``injection candidate``), its frame, its id and (x, y).
+Recorded = tuple[str, str, int, str, tuple[float, float]]
+
+
+def first_misplaced(
+    records: Iterable[Recorded], by_step: dict[int, Frame], path: str
+) -> tuple[str, str] | None:
+    """The first of ``records`` that ``path``'s scene (its frames ``by_step``) lacks or
+    has elsewhere (farther than :data:`SAME_PX`): its item and what differs (the point
+    designs' ``runs[].scene.detections``; a ``lesmc-multi-check`` document's ``attacked``
+    entries, lesmc/replay/multi.py)."""
+    for item, what, step, did, (x, y) in records:
+        frame = by_step.get(step)
+        got = None if frame is None else _named(frame, did)
+        if got is None:
+            return item, (
+                f"{what} '{clipped(did)}' of frame {step} is not in {path} "
+                "(meta.scene): the results were not made from this scene"
+            )
+        if max(abs(got[0] - x), abs(got[1] - y)) > SAME_PX:
+            return item, (
+                f"{what} '{clipped(did)}' of frame {step} is at ({x:g}, {y:g}) "
+                f"in the results, at ({got[0]:g}, {got[1]:g}) in {path} (meta.scene): the "
+                "results were not made from this scene"
+            )
     return None
 
 

@@ -1,0 +1,65 @@
+"""Why seed 3's joint injection attack diverges on replay (docs/results.md, "Attacks that
+inject"): frame 12's attack (hide 12:45, inject 12:c386) run as the replay runs it
+(lesmc/replay/inject.py ``attack_listed``), together and the injection alone, each with
+and without the repair round; for each, whether the candidate is detected (within 1 px)
+and how far the nearest detection is from the candidate and from 12:45.
+
+DIR holds bench_inject_video.py's ``scene3.json`` (``--within 30``, every candidate)
+and its video ``v3``.
+
+Usage: PYTHONPATH=. python benchmarks/why_inject_seed3.py DIR
+"""
+
+from __future__ import annotations
+
+import os
+import sys
+from typing import Any
+
+import numpy as np
+
+
+def main(where: str) -> None:
+    from lesmc.perception.attack_settings import attack_of
+    from lesmc.perception.cnn import load_nets
+    from lesmc.perception.detector import Detector, DetectorConfig
+    from lesmc.replay import run as single
+    from lesmc.replay.inject import attack_listed, candidate_at
+    from lesmc.results.read import HiddenDoc
+    from lesmc.scene.io import load_scene
+    from lesmc.video.reader import open_frames
+
+    os.chdir(where)
+    scene = load_scene("scene3.json")
+    fe = single.frontend_settings(4, 12)
+    nets = load_nets(None, None, None)
+    cfg = attack_of(dict(scene.meta), "scene3.json")
+    f12 = next(f for f in scene.frames if f.step == 12)
+    h = next(d for d in f12.detections if d.id == "12:45")
+    c = next(d for d in f12.candidates if d.id == "12:c386")
+    print(f"hide 12:45 at ({h.x:.1f}, {h.y:.1f}), payoff {h.payoff:.4f}; "
+          f"inject 12:c386 at ({c.x:.1f}, {c.y:.1f}), payoff {c.payoff:.4f}")  # fmt: skip
+
+    def attack(det: Any, out: Any, fd: Any) -> None:
+        row = candidate_at(fd, out, "12:c386")
+        hid = [HiddenDoc(8, 12, "12:45", h.x, h.y, h.payoff)]
+        ways = [("together", hid, True), ("together, no repair", hid, False),
+                ("inject alone", [], True), ("inject alone, no repair", [], False)]  # fmt: skip
+        for name, hh, rep in ways:
+            fa = attack_listed(nets, det, (out, fd), 8, (hh, [("12:c386", row)]), cfg, repair=rep)
+            pos = fa.detections.positions
+            d = np.hypot(pos[:, 0] - c.x, pos[:, 1] - c.y)
+            dh = np.hypot(pos[:, 0] - h.x, pos[:, 1] - h.y)
+            print(f"{name}: not detected {fa.not_injected}; nearest detection to the "
+                  f"candidate {d.min():.2f} px, to 12:45 {dh.min():.2f} px; repair rounds "
+                  f"{fa.repaired_rounds}")  # fmt: skip
+
+    single.detect_attacked_frames(
+        open_frames("v3", fe.history + 1),
+        lambda: Detector(nets, DetectorConfig(frontend=fe)),
+        [12], fe.history, attack, None,
+    )  # fmt: skip
+
+
+if __name__ == "__main__":
+    main(sys.argv[1] if len(sys.argv) > 1 else "/tmp/lesmc-inject-video")
