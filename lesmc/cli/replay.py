@@ -51,7 +51,9 @@ def replay_cmd(
     runs on them and the tracker runs over the video. The track is confirmed when
     it takes the same detections as the model's counterexample (within 1 px) and
     stays within 0.5 px of its positions; otherwise the first diverging step and
-    the reason are printed (docs/semantics.md, "Replay"). With --detector
+    the reason are printed (docs/semantics.md, "Replay"); the front end runs with
+    the history and delta_bc the results' perception records (the defaults where
+    it records none, as said on stderr). With --detector
     FILE.toml (a detector file, docs/detectors.md) the attacks, the perturbed
     frames and the detections go through that file's network instead.
     A multi-target design's results (lesmc-multi-check, verify --design sort|gnn):
@@ -84,7 +86,7 @@ def replay_cmd(
     ):
         nets = (nets_dir, detector_file, locator_file)
         try:
-            outcome = _replay(doc, frames_dir, nets, prop, bar)
+            outcome = _replay(doc, frames_dir, nets, prop, bar, results)
         except ResultsMismatch as exc:  # a field of the results, located in their file
             raise exc.at(results) from None
     rows, verdicts = verdict_rows(doc, outcome, prop)
@@ -155,10 +157,12 @@ def _finish(
 
 
 def _replay(
-    doc: ResultsDoc, frames_dir: str, nets: NetFiles, prop: str | None, bar: Bar
+    doc: ResultsDoc, frames_dir: str, nets: NetFiles, prop: str | None, bar: Bar, results: str
 ) -> Outcome:
-    """The replay through the window pipeline's networks (lesmc/replay/run.py), or through a
-    detector file given as --detector FILE.toml (lesmc/replay/detector_file.py)."""
+    """The replay through the window pipeline's networks (lesmc/replay/run.py; a note on
+    stderr names the front-end settings ``results`` does not record, as the multi-target
+    replay's), or through a detector file given as --detector FILE.toml
+    (lesmc/replay/detector_file.py)."""
     from lesmc.perception.detector_file import is_detector_file
 
     if nets[1] is not None and is_detector_file(nets[1]):
