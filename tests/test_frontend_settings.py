@@ -301,3 +301,25 @@ def test_verify_refuses_a_detector_files_bounds_before_perceiving(
         with pytest.raises(UsageError, match="refused"):
             ex.perceived(req, [], Reporter("verify", live=False), False, False)
     assert calls == [(toml, "--payoffs certified|interval")] * 2
+
+
+def test_the_point_designs_replay_notes_the_defaulted_settings(
+    monkeypatch: pytest.MonkeyPatch, capfd: pytest.CaptureFixture[str]
+) -> None:
+    """``lesmc replay`` of a point design's results that record ``history`` only: the
+    note names ``delta_bc`` alone as the default (the multi-target replay's note)."""
+    from lesmc.cli import replay as cli
+    from lesmc.replay import run
+    from lesmc.results.read import Perception
+
+    monkeypatch.setattr(run, "replay_file", lambda *a: run.Outcome({(0, 0): {}}, 0.0))
+    doc = SimpleNamespace(
+        perception=Perception(history=6, delta_bc=None, nets=None, frames=None, attack={})
+    )
+    cli._replay(doc, "frames", (None, None, None), None, None, "r.json")  # type: ignore[arg-type]
+    err = capfd.readouterr().err
+    assert "r.json records no front-end settings (perception.delta_bc)" in err, err
+    assert "defaults (delta_bc 12) and the recorded (history 6)" in err, err
+    full = Perception(history=6, delta_bc=9, nets=None, frames=None, attack={})
+    cli._replay(SimpleNamespace(perception=full), "f", (None,) * 3, None, None, "r.json")  # type: ignore[arg-type]
+    assert capfd.readouterr().err == ""

@@ -169,9 +169,15 @@ def _replay(
         from lesmc.replay.detector_file import replay_with_file
 
         return replay_with_file(doc, frames_dir, nets[1], prop, bar)
-    from lesmc.replay.run import replay_file
+    from lesmc.replay.run import frontend_note, recorded_frontend, replay_file
 
-    return replay_file(doc, frames_dir, nets, prop, bar)
+    outcome = replay_file(doc, frames_dir, nets, prop, bar)
+    fe, recorded = recorded_frontend(doc.perception)  # the front end it ran, as multi says
+    used = {"history": fe.history, "delta_bc": fe.blobs.delta_bc, "recorded": recorded}
+    note = frontend_note(results, used) if outcome.replays else None
+    if note is not None:  # docs/semantics.md, "Replay"
+        click.echo(note, err=True)
+    return outcome
 
 
 def _table(rows: list[dict[str, Any]]) -> None:
