@@ -49,6 +49,7 @@ __all__ = [
     "frame_story",
     "frontend_note",
     "frontend_settings",
+    "recorded_frontend",
     "replay",
     "replay_case",
     "replay_file",
