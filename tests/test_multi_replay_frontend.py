@@ -51,7 +51,12 @@ def test_the_recorded_front_end_settings_replay_confirmed(verified: Path) -> Non
     for res in doc["results"]:
         rp = res["replay"]
         assert rp["status"] == "confirmed", rp["reason"]
-        assert rp["frontend"] == {"history": 4, "delta_bc": DELTA_BC, "from": "results"}
+        assert rp["frontend"] == {
+            "history": 4,
+            "delta_bc": DELTA_BC,
+            "recorded": ["history", "delta_bc"],
+            "from": "results",
+        }
     # lesmc replay finds the frames from the perception (verify --scene records no video)
     r = lesmc("replay", str(verified / "results.json"), "--json")
     assert r.returncode == 1 and "Traceback" not in r.stderr, r.stderr

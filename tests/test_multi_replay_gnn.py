@@ -95,7 +95,12 @@ def test_verify_gnn_replays_its_counterexamples_confirmed(verified: Path) -> Non
         assert res["verdict"] == "violated" and res["optimum"] < 3.0
         rp = res["replay"]
         assert rp["status"] == "confirmed", rp["reason"]
-        assert rp["frontend"] == {"history": 4, "delta_bc": 12, "from": "results"}
+        assert rp["frontend"] == {
+            "history": 4,
+            "delta_bc": 12,
+            "recorded": ["history", "delta_bc"],
+            "from": "results",
+        }
         steps = res["counterexample"]
         end = len(steps) - 1
         assert rp["target_ids"] == [s["target_id"] for s in steps]
@@ -150,7 +155,7 @@ def test_a_corrupted_gnn_counterexample_replays_diverged(verified: Path, tmp_pat
     rp = row["replay"]
     assert (row["verdict_model"], row["verdict"]) == ("violated", "unknown")
     assert rp["status"] == "diverged" and rp["constraint_value"] == 0
-    assert rp["frontend"] == {"history": 4, "delta_bc": 12, "from": "defaults"}
+    assert rp["frontend"] == {"history": 4, "delta_bc": 12, "recorded": [], "from": "defaults"}
     assert "records no front-end settings" in r.stderr and "delta_bc 12" in r.stderr
     end = len(steps) - 1
     got = scoring._score(_run(_params(scene), _frames(scene, rp, end)), _references(steps), 0, end)

@@ -249,7 +249,4 @@ def test_one_function_gives_the_replays_front_end_settings() -> None:
     assert (fe.history, fe.blobs.delta_bc) == (7, 20)
     fe = frontend_settings()
     assert (fe.history, fe.blobs) == (HISTORY, BlobConfig())
-    assert (
-        "single.frontend_settings(history, delta_bc)"
-        in (ROOT / "lesmc" / "replay" / "multi.py").read_text()
-    )
+    assert "single.recorded_frontend(" in (ROOT / "lesmc" / "replay" / "multi.py").read_text()

@@ -51,7 +51,9 @@ def replay_cmd(
     runs on them and the tracker runs over the video. The track is confirmed when
     it takes the same detections as the model's counterexample (within 1 px) and
     stays within 0.5 px of its positions; otherwise the first diverging step and
-    the reason are printed (docs/semantics.md, "Replay"). With --detector
+    the reason are printed (docs/semantics.md, "Replay"); the front end runs with
+    the history and delta_bc the results' perception records (the defaults where
+    it records none, as said on stderr). With --detector
     FILE.toml (a detector file, docs/detectors.md) the attacks, the perturbed
     frames and the detections go through that file's network instead.
     A multi-target design's results (lesmc-multi-check, verify --design sort|gnn):
@@ -84,7 +86,7 @@ def replay_cmd(
     ):
         nets = (nets_dir, detector_file, locator_file)
         try:
-            outcome = _replay(doc, frames_dir, nets, prop, bar)
+            outcome = _replay(doc, frames_dir, nets, prop, bar, results)
         except ResultsMismatch as exc:  # a field of the results, located in their file
             raise exc.at(results) from None
     rows, verdicts = verdict_rows(doc, outcome, prop)
@@ -112,6 +114,7 @@ def _multi(
     """The replay of a multi-target design's results (lesmc/replay/multi.py), then exit."""
     from lesmc.common.progress import deferred_bar
     from lesmc.experiment.multi_verify import multi_rows, replay_document
+    from lesmc.replay.run import frontend_note
 
     with (
         resumable(lambda: f"nothing: replay writes no file ({results} is unchanged)"),
@@ -120,13 +123,9 @@ def _multi(
         outcome, frames_dir = replay_document(doc, results, frames_dir, nets, prop, bar)
     rows, verdicts = multi_rows(doc, outcome, prop)
     fe = next((r["replay"]["frontend"] for r in rows if "frontend" in r["replay"]), None)
-    if fe is not None and fe["from"] == "defaults":  # docs/trackers.md
-        click.echo(
-            f"lesmc replay: {results} records no front-end settings (perception.history, "
-            f"perception.delta_bc): the frames were detected with the defaults (history "
-            f"{fe['history']}, delta_bc {fe['delta_bc']})",
-            err=True,
-        )
+    note = None if fe is None else frontend_note(results, fe)
+    if note is not None:  # docs/trackers.md
+        click.echo(note, err=True)
     _finish(rows, verdicts, outcome.seconds, results, frames_dir, as_json)
 
 
@@ -158,19 +157,27 @@ def _finish(
 
 
 def _replay(
-    doc: ResultsDoc, frames_dir: str, nets: NetFiles, prop: str | None, bar: Bar
+    doc: ResultsDoc, frames_dir: str, nets: NetFiles, prop: str | None, bar: Bar, results: str
 ) -> Outcome:
-    """The replay through the window pipeline's networks (lesmc/replay/run.py), or through a
-    detector file given as --detector FILE.toml (lesmc/replay/detector_file.py)."""
+    """The replay through the window pipeline's networks (lesmc/replay/run.py; a note on
+    stderr names the front-end settings ``results`` does not record, as the multi-target
+    replay's), or through a detector file given as --detector FILE.toml
+    (lesmc/replay/detector_file.py)."""
     from lesmc.perception.detector_file import is_detector_file
 
     if nets[1] is not None and is_detector_file(nets[1]):
         from lesmc.replay.detector_file import replay_with_file
 
         return replay_with_file(doc, frames_dir, nets[1], prop, bar)
-    from lesmc.replay.run import replay_file
+    from lesmc.replay.run import frontend_note, recorded_frontend, replay_file
 
-    return replay_file(doc, frames_dir, nets, prop, bar)
+    outcome = replay_file(doc, frames_dir, nets, prop, bar)
+    fe, recorded = recorded_frontend(doc.perception)  # the front end it ran, as multi says
+    used = {"history": fe.history, "delta_bc": fe.blobs.delta_bc, "recorded": recorded}
+    note = frontend_note(results, used) if outcome.replays else None
+    if note is not None:  # docs/semantics.md, "Replay"
+        click.echo(note, err=True)
+    return outcome
 
 
 def _table(rows: list[dict[str, Any]]) -> None:

@@ -189,6 +189,11 @@ def scene_file(req: Request) -> Source:
             "--frames too"
         )
     scene = load_scene_with_target(req.scene_path or "", req.target, None, _tracker(req))
+    from lesmc.perception.attack_settings import frontend_of
+
+    # the front end the scene records, refused out of range before any work (the replay
+    # reruns it: its history frames before the first)
+    history = frontend_of(dict(scene.meta), req.scene_path or "").get("history", HISTORY)
     by_file = detector_verify.detector_file_of(req.nets) is not None
     if isinstance(scene.meta.get("detector_file"), dict) != by_file and req.scene_frames:
         raise UsageError(
@@ -200,7 +205,7 @@ def scene_file(req: Request) -> Source:
         )
     from lesmc.video.reader import open_frames
 
-    least = 1 if by_file else HISTORY + 1  # a detector file has no background
+    least = 1 if by_file else history + 1  # a detector file has no background
     frames = open_frames(req.scene_frames, least) if req.scene_frames else None
     nets = req.nets if frames is not None else None  # loaded by the replay, if it runs
     return Source(
@@ -227,6 +232,8 @@ def perceived(
     # frames this run rendered need no decoding up front to be checked (0.7 s); any
     # other file beside them (an older video's) makes every frame checked
     by_file = detector_verify.detector_file_of(req.nets)
+    if by_file is not None and req.payoffs != "attack":  # before perceiving, as campaign
+        detector_verify.refuse_uncertifiable(by_file, "--payoffs certified|interval")
     least = HISTORY + 1 if by_file is None else 1  # a detector file has no background
     frames = open_frames(frames_dir, least, check=fresh is None)
     if fresh is not None and frames.paths != fresh:

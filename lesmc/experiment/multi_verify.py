@@ -25,7 +25,6 @@ from lesmc.common.locations import error_at_items
 from lesmc.common.progress import Reporter
 from lesmc.designs import registry
 from lesmc.language.properties import SpecFile
-from lesmc.perception import DELTA_BC, HISTORY
 from lesmc.pipeline.multi import (
     MultiCheckResult,
     bound_properties,
@@ -35,6 +34,7 @@ from lesmc.pipeline.multi import (
 from lesmc.scene import Scene, scene_to_dict, target_to_dict
 
 if TYPE_CHECKING:
+    from lesmc.common.budget import Budget
     from lesmc.common.progress import Bar
     from lesmc.experiment.verify_request import Request
     from lesmc.perception import NetFiles
@@ -131,37 +131,16 @@ def verify_multi(req: Request, rep: Reporter) -> MultiOutcome:
     if req.scene_path is not None:
         meta["scene"] = str(Path(req.scene_path).resolve())
     doc = multi_document(design, composed(scene, where).reference_kind(), results, meta, timings)
-    doc["perception"] = perception_facts(src, req.scene_path is not None)
-    _replay(doc, scene, where, specs, src, rep)
+    from lesmc.experiment.verify_results import perception_facts
+
+    doc["perception"] = perception_facts(src, where)  # as the point designs record it
+    _replay(doc, scene, where, specs, src, rep, req.budget)
     rep.stage("writing the report")
     from lesmc.report.multi import write_multi_report
 
     files = {"scene.json": json_text(scene_to_dict(src.scene))} if src.new else {}
     report = write_multi_report(doc, req.out, ex.frame_reader(src.frames), files)
     return MultiOutcome(results, doc, report)
-
-
-def perception_facts(src: Any, from_scene: bool) -> dict[str, Any]:
-    """The settings the scene's perception ran with, for the replay (the document's
-    ``perception``, as a lesmc-results file's): a video perceived by this run, with the
-    front end's ``history`` and ``delta_bc`` (lesmc/perception/run.py's defaults); a scene
-    file (``from_scene``), with those its ``meta.frontend`` records (``lesmc perceive -o``
-    writes them; an older scene records none: the replay then says it uses the defaults)."""
-    from dataclasses import asdict
-
-    from lesmc.perception.attack_settings import attack_of, frontend_of
-
-    meta = dict(src.scene.meta)
-    out: dict[str, Any] = {"attack": asdict(attack_of(meta))}
-    if from_scene:
-        out |= frontend_of(meta)
-    elif not isinstance(meta.get("detector_file"), dict):  # a detector file has no front end
-        out |= {"history": HISTORY, "delta_bc": DELTA_BC}
-    if src.nets is not None:
-        out["nets"] = str(src.nets.settings.trained_on)
-    if src.frames is not None and src.frames.paths:
-        out["frames"] = str(src.frames.paths[0].parent.resolve())
-    return out
 
 
 def refuse_points_for_boxes(detector: str, design: str) -> None:
@@ -184,13 +163,20 @@ def refuse_points_for_boxes(detector: str, design: str) -> None:
 
 
 def _replay(
-    doc: dict[str, Any], scene: Scene, where: str, specs: list[SpecFile], src: Any, rep: Reporter
+    doc: dict[str, Any],
+    scene: Scene,
+    where: str,
+    specs: list[SpecFile],
+    src: Any,
+    rep: Reporter,
+    budget: Budget,
 ) -> None:
     """Replay every violated counterexample of ``doc`` through the real detector and the
     production tracker (lesmc/replay/multi.py); each result records its replay and the
     timings the replay's seconds. Not through a detector file (its replay is the point
     designs'): the counterexamples stay as the model gives them."""
     from lesmc.experiment import detector_verify as dv
+    from lesmc.experiment.verify_request import spent
     from lesmc.replay.multi import multi_cases, replay_multi
 
     bound = bound_properties(specs, scene)
@@ -211,9 +197,14 @@ def _replay(
         clean = None if src.run is None else {fd.index: fd for fd in src.run.detections}
         known = None if src.run is None else src.run.registrations
         with rep.bar("replaying", len(src.frames) if clean is None else None) as bar:
+
+            def advance() -> None:  # the clock, as the point designs' replay checks it
+                bar.advance()
+                spent(budget, "replaying the counterexamples")
+
             nets = src.networks()
             outcome = replay_multi(
-                doc, scene, where, bound, src.frames, nets, None, bar.advance, clean, known
+                doc, scene, where, bound, src.frames, nets, None, advance, clean, known
             )
         replays = outcome.replays
         if src.cache is not None and key is not None:
@@ -275,7 +266,7 @@ def replay_document(
     properties (``meta.properties``, moved to ``meta.window``),
     the frames (``frames_dir``, else ``meta.video``, else ``perception.frames``) and the
     networks; the replays and the frames' directory."""
-    from lesmc.replay.multi import known_property, multi_cases, replay_multi
+    from lesmc.replay.multi import known_property, multi_cases, perception_settings, replay_multi
 
     known_property(doc, prop)  # bad input is refused before anything heavy is imported
     meta = doc.get("meta") or {}
@@ -306,7 +297,8 @@ def replay_document(
     multi_cases(
         doc, scene, bound, prop, path, scene_path
     )  # bad input is refused before the video is read
-    frames = open_frames(frames_dir, HISTORY + 1)
+    fe, _ = perception_settings(doc)  # the front end the replay runs: its frames before
+    frames = open_frames(frames_dir, fe.history + 1)
     bar.update(total=len(frames))
     outcome = replay_multi(
         doc, scene, scene_path, bound, frames, load_nets(*nets), prop, bar.advance, path=path

@@ -14,7 +14,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any, Literal
 
 from lesmc.common.errors import InputError, Location, UsageError
-from lesmc.perception import DELTA_BC, HISTORY, NetFiles
+from lesmc.perception import DELTA_BC, FRONTEND_RANGES, HISTORY, NetFiles
 from lesmc.video import FPS
 
 if TYPE_CHECKING:
@@ -82,8 +82,7 @@ class Perceived:
 
 #: Each setting's allowed values, as the command line's options have them.
 _RANGES: dict[str, tuple[float, float]] = {
-    "history": (3, 16),
-    "delta_bc": (1, 255),
+    **FRONTEND_RANGES,
     "overshoot": (0.0, 1.0),
     "max_iter": (1, 10000),
     "radius": (0.1, math.inf),

@@ -21,7 +21,7 @@ from lesmc.experiment.pricing import VideoPricer
 from lesmc.experiment.pricing import on_demand as on_demand_footage
 from lesmc.experiment.verify_request import Request, spent
 from lesmc.experiment.video_perception import UnitMax
-from lesmc.perception import HISTORY
+from lesmc.perception import DELTA_BC, HISTORY
 from lesmc.scene import Footage, OnDemandPayoffs
 
 if TYPE_CHECKING:  # reading frames imports cv2: only where a video is read
@@ -180,7 +180,9 @@ def _perceive_now(
             bar.advance()
             spent(req.budget, "perceiving the video")
 
-        meta = {"source": str(frames_dir), "detector": nets.settings.trained_on}
+        meta: dict[str, Any] = {"source": str(frames_dir), "detector": nets.settings.trained_on}
+        # the front end perceive_video runs (the defaults), for the replay (as perceive -o)
+        meta["frontend"] = {"history": HISTORY, "delta_bc": DELTA_BC}
         meta |= networks_meta(req.nets)
         keep = req.payoffs != "attack" or on_demand
         footage, run = video_perception.perceive_video(

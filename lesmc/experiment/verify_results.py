@@ -18,7 +18,6 @@ from lesmc.experiment.false_alarms import false_alarm_report, truth_track
 from lesmc.experiment.verify_replay import replay_counterexamples
 from lesmc.experiment.verify_request import Request, Source
 from lesmc.language.properties import SpecFile
-from lesmc.perception import DELTA_BC, HISTORY
 from lesmc.perception.quality import TruthFrame
 from lesmc.results.document import provenance, results_document
 from lesmc.results.record import Results
@@ -122,30 +121,32 @@ def truth_frames(src: Source, scene: Scene) -> list[TruthFrame]:
     return [t for t in tfs[: next((i for i, t in enumerate(tfs) if t is None), len(tfs))] if t]
 
 
-def _perception_facts(req: Request, src: Source, results: Results) -> dict[str, Any]:
-    """How the scene's detections and payoffs were made (for the report and the replay)."""
-    from lesmc.perception.attack_settings import AttackConfig, attack_of, frontend_of
+def perception_facts(src: Source, where: str) -> dict[str, Any]:
+    """How the scene's detections were made, for the report and the replay (the results'
+    ``perception``; a multi-target document's too: lesmc/experiment/multi_verify.py): the
+    attack's settings, the front end's ``history`` and ``delta_bc`` as the scene's
+    ``meta.frontend`` records them (``lesmc perceive -o`` and verify's own perception write
+    them; a scene that records none, older or made through a detector file, has none, and
+    the replay then says it uses the defaults), the networks and the frames. ``where``: the
+    scene file, for a recorded setting out of range."""
+    from lesmc.perception.attack_settings import attack_of, frontend_of
 
-    attack = (
-        attack_of(src.scene.meta, str(req.scene_path))
-        if req.scene_path is not None
-        else AttackConfig()
-    )
-    # a scene's front end as it records it (lesmc perceive -o), else the defaults
-    fe = frontend_of(dict(src.scene.meta)) if req.scene_path is not None else {}
-    out: dict[str, Any] = {
-        "history": fe.get("history", HISTORY),
-        "delta_bc": fe.get("delta_bc", DELTA_BC),
-        "nets": (
-            src.nets.settings.trained_on
-            if src.nets is not None
-            else str(src.scene.meta.get("detector", ""))
-        ),
-        "attack": asdict(attack),
-        "payoffs": req.payoffs,
-    }
+    meta = dict(src.scene.meta)
+    out: dict[str, Any] = {**frontend_of(meta, where), "attack": asdict(attack_of(meta, where))}
+    if src.nets is not None:
+        out["nets"] = str(src.nets.settings.trained_on)
+    elif isinstance(meta.get("detector"), str) and meta["detector"]:
+        out["nets"] = meta["detector"]
     if src.frames is not None and src.frames.paths:
         out["frames"] = str(src.frames.paths[0].parent.resolve())
+    return out
+
+
+def _perception_facts(req: Request, src: Source, results: Results) -> dict[str, Any]:
+    """:func:`perception_facts` and what the point designs' check adds: the payoffs asked,
+    the certification and pricing this run did, the detector file and its detections."""
+    out = perception_facts(src, req.scene_path or str(req.out / "scene.json"))
+    out["payoffs"] = req.payoffs
     if results.certified is not None:  # this run's certification (a --scene keeps its own)
         out["certified"] = results.certified
     if src.pricing is not None:  # this run priced on demand (lesmc/experiment/pricing.py)

@@ -23,6 +23,11 @@ HISTORY = 4
 #: end's default (``BlobConfig``), and what verify perceives a video with.
 DELTA_BC = 12
 
+#: The values the front end's settings may take (``lesmc perceive --history``,
+#: ``--delta-bc``; a scene's ``meta.frontend``, a results document's ``perception``; the
+#: schemas say the same, tests/test_frontend_settings.py checks that they agree).
+FRONTEND_RANGES: dict[str, tuple[int, int]] = {"history": (3, 16), "delta_bc": (1, 255)}
+
 #: Bisection steps of on-demand certification (``verify``, ``campaign --payoffs``): it
 #: bounds a handful of detections, so it can afford three times ``perceive --certify``'s 2
 #: (docs/cnn.md: median ratio 0.057 -> 0.070).

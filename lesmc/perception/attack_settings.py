@@ -11,7 +11,10 @@ from dataclasses import dataclass
 from typing import Any, Literal
 
 from lesmc.common.errors import InputError, Problems
+from lesmc.common.fields import show
+from lesmc.perception import FRONTEND_RANGES
 from lesmc.scene.io import recorded_attack
+from lesmc.scene.located import scene_error
 
 Method = Literal["deepfool", "pgd"]
 Norm = Literal["l2", "per-pixel"]
@@ -58,15 +61,27 @@ def attack_of(meta: dict[str, Any], where: str = "<scene>") -> AttackConfig:
     return AttackConfig(**got)
 
 
-def frontend_of(meta: dict[str, Any]) -> dict[str, int]:
+def frontend_of(meta: dict[str, Any], where: str = "<scene>") -> dict[str, int]:
     """The front end's settings a scene's meta records (``meta.frontend``: ``history`` and
-    ``delta_bc``, as ``lesmc perceive -o`` writes them), those that are integers; {} for
-    a scene that records none (made before they were recorded, or not by perception)."""
+    ``delta_bc``, as ``lesmc perceive -o`` writes them); {} for a scene that records none
+    (made before they were recorded, or not by the window pipeline). A recorded value that
+    is not an integer in :data:`lesmc.perception.FRONTEND_RANGES` (perceive's own ranges)
+    is an InputError at its field (``meta.frontend.history``) in ``where``, the scene file."""
     fe = meta.get("frontend")
     if not isinstance(fe, dict):
         return {}
-    return {
-        k: int(fe[k])
-        for k in ("history", "delta_bc")
-        if isinstance(fe.get(k), int) and not isinstance(fe.get(k), bool)
-    }
+    got: dict[str, int] = {}
+    problems: list[tuple[str, str]] = []
+    for key, (lo, hi) in FRONTEND_RANGES.items():
+        if key not in fe:
+            continue
+        v = fe[key]
+        if isinstance(v, int) and not isinstance(v, bool) and lo <= v <= hi:
+            got[key] = v
+        else:
+            problems.append(
+                (f"meta.frontend.{key}", f"must be an integer in {lo}..{hi}, got {show(v)}")
+            )
+    if problems:
+        raise scene_error(where, None, problems)
+    return got

@@ -84,6 +84,7 @@ KNOWN_TOL_PX = 1e-3
 _SETTINGS_FROM = {
     "results": "as the results' perception records them",
     "defaults": "the defaults: the results record no perception settings",
+    "partly": "as the results' perception records them where it does, else the defaults",
 }
 
 
@@ -328,25 +329,26 @@ def _injecting(todo: list[MultiCase]) -> set[int]:
     return {f for c in todo for _, f, _, _ in c.injected}
 
 
-def perception_settings(doc: Mapping[str, Any]) -> tuple[FrontEndConfig, bool]:
+def perception_settings(doc: Mapping[str, Any]) -> tuple[FrontEndConfig, tuple[str, ...]]:
     """The front end's settings verify's perception ran with, as the document's
     ``perception`` records them (``history``, ``delta_bc``; lesmc/experiment/multi_verify.py
-    writes it), and whether it recorded them: a document without them (made before they
-    were recorded, or from a scene that does not say) gets the defaults
-    (:func:`lesmc.replay.run.frontend_settings`)."""
+    writes it), and which it records: the defaults for those it does not (made before
+    they were recorded, or from a scene that does not say), as the point designs' replay
+    reads them (:func:`lesmc.replay.run.recorded_frontend`)."""
     p = doc.get("perception")
-    p = p if isinstance(p, Mapping) else {}
-    history, delta_bc = p.get("history"), p.get("delta_bc")
-    return single.frontend_settings(history, delta_bc), history is not None and delta_bc is not None
+    return single.recorded_frontend(p if isinstance(p, Mapping) else {})
 
 
-def frontend_record(fe: FrontEndConfig, recorded: bool) -> dict[str, Any]:
+def frontend_record(fe: FrontEndConfig, recorded: tuple[str, ...]) -> dict[str, Any]:
     """What a replay object says of the front end it ran (``frontend``): its ``history``,
-    its blobs' ``delta_bc`` and where they come from (the results, or the defaults)."""
+    its blobs' ``delta_bc``, the settings the results record (``recorded``) and where
+    they come from (``from``: the results, the defaults, or partly each)."""
+    every = set(recorded) == set(single.FRONTEND_FIELDS)
     return {
         "history": fe.history,
         "delta_bc": fe.blobs.delta_bc,
-        "from": "results" if recorded else "defaults",
+        "recorded": list(recorded),
+        "from": "results" if every else "partly" if recorded else "defaults",
     }
 
 

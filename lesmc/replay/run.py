@@ -47,7 +47,9 @@ __all__ = [
     "detect_all_frames",
     "detect_attacked_frames",
     "frame_story",
+    "frontend_note",
     "frontend_settings",
+    "recorded_frontend",
     "replay",
     "replay_case",
     "replay_file",
@@ -66,7 +68,7 @@ import numpy as np
 from lesmc.common.errors import InputError, Location, UsageError
 from lesmc.common.memory import release
 from lesmc.model import kernel
-from lesmc.perception import HISTORY, NetFiles
+from lesmc.perception import DELTA_BC, HISTORY, NetFiles
 from lesmc.replay.case import (
     DET_TOL_PX,
     PAYOFF_RTOL,
@@ -251,7 +253,7 @@ def replay(
     nets: Nets,
     prop: str | None = None,
     history: int = HISTORY,
-    delta_bc: int = 12,
+    delta_bc: int = DELTA_BC,
     on_frame: Callable[[], None] | None = None,
     repair: bool = True,
     clean: Mapping[int, FrameDetections] | None = None,
@@ -321,12 +323,50 @@ def _settings(doc: ResultsDoc, history: int, delta_bc: int) -> tuple[FrontEndCon
     (``history`` and ``delta_bc`` where it did not)."""
     from lesmc.perception.attack_settings import AttackConfig
 
-    perception = doc.perception
-    fe = frontend_settings(
-        history if perception.history is None else perception.history,
-        delta_bc if perception.delta_bc is None else perception.delta_bc,
+    p = doc.perception
+    fe, _ = recorded_frontend(
+        {"history": history if p.history is None else p.history,
+         "delta_bc": delta_bc if p.delta_bc is None else p.delta_bc}
+    )  # fmt: skip
+    return fe, AttackConfig(**p.attack)
+
+
+#: The front end's settings a results document's ``perception`` may record.
+FRONTEND_FIELDS = ("history", "delta_bc")
+
+
+def recorded_frontend(perception: Any) -> tuple[FrontEndConfig, tuple[str, ...]]:
+    """The front end a replay runs and which of its settings the results record: the
+    results' ``perception`` (a document's object, or :class:`~lesmc.results.read.Perception`)
+    gives ``history`` and ``delta_bc`` where it records them, the defaults the others
+    (:func:`frontend_settings`). Both replays read it (this module's and
+    lesmc/replay/multi.py's), and ``lesmc replay``'s note (:func:`frontend_note`)."""
+    if isinstance(perception, Mapping):
+        got = {k: perception.get(k) for k in FRONTEND_FIELDS}
+    else:
+        got = {k: getattr(perception, k, None) for k in FRONTEND_FIELDS}
+    recorded = tuple(k for k in FRONTEND_FIELDS if got[k] is not None)
+    return frontend_settings(got["history"], got["delta_bc"]), recorded
+
+
+def frontend_note(results: str, used: Mapping[str, Any]) -> str | None:
+    """``lesmc replay``'s note on stderr when the front end ran with some default settings:
+    ``used``, a replay's ``frontend`` object (lesmc.replay.multi.frontend_record); None
+    when the results record every setting."""
+    recorded = used.get("recorded")
+    if recorded is None:  # a replay object from before ``recorded``
+        recorded = FRONTEND_FIELDS if used.get("from") == "results" else ()
+    defaulted = [k for k in FRONTEND_FIELDS if k not in recorded]
+    if not defaulted:
+        return None
+    fields = ", ".join(f"perception.{k}" for k in defaulted)
+    values = ", ".join(f"{k} {used[k]}" for k in defaulted)
+    kept = ", ".join(f"{k} {used[k]}" for k in FRONTEND_FIELDS if k not in defaulted)
+    return (
+        f"lesmc replay: {results} records no front-end settings ({fields}): the frames "
+        f"were detected with the defaults ({values})"
+        + (f" and the recorded ({kept})" if kept else "")
     )
-    return fe, AttackConfig(**perception.attack)
 
 
 def frontend_settings(history: int | None = None, delta_bc: int | None = None) -> FrontEndConfig:
@@ -517,8 +557,8 @@ def replay_file(
     from lesmc.perception.cnn import load_nets
     from lesmc.video.reader import open_frames
 
-    history = 4 if doc.perception.history is None else doc.perception.history
-    frames = open_frames(frames_dir, history + 1)
+    fe, _ = recorded_frontend(doc.perception)
+    frames = open_frames(frames_dir, fe.history + 1)
     loaded = load_nets(*nets)
     want = doc.perception.nets
     if want and want != loaded.settings.trained_on:
