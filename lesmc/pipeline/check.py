@@ -354,9 +354,10 @@ class _Models:
         )
         self.job.on_stage(f"building {what}")
         budget = self.job.budget
-        return build_model(
+        return build_model(  # to the plans' last end, as lazy_model: the same model
             sc,
             window,
+            end,
             on_batch=lambda m: _spent(budget, m, f"building {what}"),
             inject=inject,
             hide=hide,
