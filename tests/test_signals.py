@@ -289,7 +289,8 @@ def run(hook: str, args: list[str], cwd: Path) -> subprocess.CompletedProcess[st
 @pytest.mark.parametrize(
     ("budget", "message"),
     [
-        (["--timeout", "0.5"], "--timeout 0.5 s ran out while unfolding"),
+        # on a loaded machine the half second can run out before the unfolding starts
+        (["--timeout", "0.5"], "--timeout 0.5 s ran out while "),
         (["--max-states", "30"], "--max-states 30 ran out while unfolding"),
         (["--max-memory", "1M"], "--max-memory 1.0 MiB ran out while loading the scene"),
     ],
