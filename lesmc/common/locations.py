@@ -12,6 +12,7 @@ from __future__ import annotations
 import json
 import re
 from collections.abc import Callable
+from pathlib import Path
 
 from lesmc.common.errors import InputError, Location, clipped
 from lesmc.common.files import read_text
@@ -189,8 +190,6 @@ def error_in_file(
     read it): each ``(item, message)`` at its ``FILE:LINE:COL``; ``FILE: item`` for a
     file that is not there to read (a document given as data)."""
     if text is None:
-        from pathlib import Path
-
         if not Path(path).is_file():
             return InputError.many(path, problems)
         text = read_text(path)
