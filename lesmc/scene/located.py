@@ -17,34 +17,6 @@ from lesmc.common.locations import (
     item_keys,
 )
 
-#: Ranges of a scene's numbers (docs/scene-format.md, "Limits"): wide enough for any
-#: real video, narrow enough that the tracker's arithmetic stays finite.
-MAX_DT = 3600.0  #: seconds between frames
-MAX_COORD = 1e7  #: |x|, |y| of detections and of the target's start (pixels)
-MAX_VELOCITY = 1e6  #: |vx|, |vy| of the target's initial velocity (pixels per second)
-MAX_PAYOFF = 1e12  #: a detection's payoff
-MAX_HOMOGRAPHY = 1e6  #: |entry| of a frame-to-frame homography
-#: Upper limits of the tracker's parameters (all must also be > 0).
-TRACKER_LIMITS = {
-    "sigma_q": 1e6,
-    "sigma_r": 1e6,
-    "P0_sd": 1e6,
-    "gate": 1e6,
-    "max_trace": 1e30,
-    "init_radius": 1e7,
-    "init_distance": 1e7,
-    "prune_radius": 1e7,
-}
-FORMAT = "lesmc-scene"
-#: The newest version: 2 added detection boxes (``w``, ``h``), 3 injection candidates
-#: (a frame's ``candidates``). The loader reads every version in :data:`VERSIONS`; the
-#: writer writes the lowest one that holds the scene (1 when no detection has a box and
-#: no frame a candidate), so older lesmc releases still read the scenes they could.
-VERSION = 3
-VERSIONS = (1, 2, 3)
-#: The version that added each feature a scene may use.
-BOXES_VERSION, CANDIDATES_VERSION = 2, 3
-
 
 def scene_error(path: str, data: Any, problems: list[tuple[str, str]]) -> InputError:
     """One error listing a scene's problems, each at its ``FILE:LINE:COL`` when ``path`` is
