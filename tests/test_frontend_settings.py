@@ -246,7 +246,7 @@ def test_the_multi_replay_in_verify_checks_the_clock(monkeypatch: pytest.MonkeyP
     from lesmc.common.budget import Budget
     from lesmc.common.errors import BudgetError
     from lesmc.experiment import multi_verify
-    from lesmc.replay import multi
+    from lesmc.replay import multi, multi_cases
 
     frames_seen: list[int] = []
 
@@ -257,7 +257,7 @@ def test_the_multi_replay_in_verify_checks_the_clock(monkeypatch: pytest.MonkeyP
             on_frame()
         raise AssertionError("the clock was not checked")
 
-    monkeypatch.setattr(multi, "multi_cases", lambda *a, **k: [SimpleNamespace(result=0)])
+    monkeypatch.setattr(multi_cases, "multi_cases", lambda *a, **k: [SimpleNamespace(result=0)])
     monkeypatch.setattr(multi, "replay_multi", fake_replay)
     monkeypatch.setattr(multi_verify, "bound_properties", lambda *a: [])
     monkeypatch.setattr(multi_verify, "_replay_key", lambda *a: None)

@@ -153,7 +153,7 @@ def test_an_injected_id_the_scene_lacks_is_a_located_error(verified: Path, tmp_p
     ``FILE:LINE:COL`` in the results file, raised while the cases are read (before the
     video; in process: the CLI's exit 2 for it is tests/test_multi_replay.py's)."""
     from lesmc.common.errors import InputError
-    from lesmc.replay.multi import multi_cases
+    from lesmc.replay.multi_cases import multi_cases
     from lesmc.scene import scene_from_dict
 
     doc = json.loads((verified / "results.json").read_text())

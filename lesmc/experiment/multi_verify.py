@@ -177,7 +177,8 @@ def _replay(
     designs'): the counterexamples stay as the model gives them."""
     from lesmc.experiment import detector_verify as dv
     from lesmc.experiment.verify_request import spent
-    from lesmc.replay.multi import multi_cases, replay_multi
+    from lesmc.replay.multi import replay_multi
+    from lesmc.replay.multi_cases import multi_cases
 
     bound = bound_properties(specs, scene)
     todo = multi_cases(doc, scene, bound, where=where)
@@ -266,7 +267,8 @@ def replay_document(
     properties (``meta.properties``, moved to ``meta.window``),
     the frames (``frames_dir``, else ``meta.video``, else ``perception.frames``) and the
     networks; the replays and the frames' directory."""
-    from lesmc.replay.multi import known_property, multi_cases, perception_settings, replay_multi
+    from lesmc.replay.multi import perception_settings, replay_multi
+    from lesmc.replay.multi_cases import known_property, multi_cases
 
     known_property(doc, prop)  # bad input is refused before anything heavy is imported
     meta = doc.get("meta") or {}
