@@ -238,7 +238,7 @@ def test_mutated_gnn_tracker_files_are_read_or_refused(
     """A gnn tracker file, mutated: read (M ≤ N, the probability in (0, 1)), or an
     InputError of that file, each problem about a key in the file at its line."""
     from lesmc.common.errors import InputError
-    from lesmc.scene.io import load_tracker
+    from lesmc.scene.tracker_file import load_tracker
 
     text = _GNN_TRACKER
     for at, op, token, n in edits:

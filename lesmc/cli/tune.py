@@ -223,8 +223,8 @@ def _source(
                 "a video's payoffs are priced in this process when a model reads them: "
                 "--workers and --scheduler need a scene file"
             )
-        from lesmc.scene.io import load_tracker
         from lesmc.scene.scene import TrackerConfig
+        from lesmc.scene.tracker_file import load_tracker
 
         base = load_tracker(tracker_file) if tracker_file else TrackerConfig()
         read_space(space_file, base)  # its mistakes before the video's perception

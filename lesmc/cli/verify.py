@@ -222,8 +222,8 @@ def _space(space_file: str | None, tracker_file: str | None) -> str | None:
     """``--space``: read now, so that its mistakes stop verify before any work (exit 2)."""
     if space_file is not None:
         from lesmc.experiment.tune_space import read_space
-        from lesmc.scene.io import load_tracker
         from lesmc.scene.scene import TrackerConfig
+        from lesmc.scene.tracker_file import load_tracker
 
         read_space(space_file, load_tracker(tracker_file) if tracker_file else TrackerConfig())
     return space_file

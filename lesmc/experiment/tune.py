@@ -452,7 +452,7 @@ def _toml(v: Any) -> str:
 
 def write_tracker(path: str, cfg: TrackerConfig, comment: str) -> None:
     """Write ``cfg`` as a tracker file: JSON for a ``.json`` name, TOML otherwise (as
-    :func:`lesmc.scene.io.load_tracker` reads them), atomically."""
+    :func:`lesmc.scene.tracker_file.load_tracker` reads them), atomically."""
     from lesmc.common.files import atomic_write_text, write_json
 
     if path.endswith(".json"):

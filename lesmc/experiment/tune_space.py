@@ -30,8 +30,8 @@ from lesmc.designs import registry
 from lesmc.language import monitors
 from lesmc.language.monitors import Domain
 from lesmc.language.properties import Monitor
-from lesmc.scene.io import TRACKER_LIMITS
 from lesmc.scene.scene import TrackerConfig
+from lesmc.scene.tracker_file import TRACKER_LIMITS
 from lesmc.scene.tracker_model import DeclaredModel
 
 #: ``--budget``: the false-alarm rate (alarms per step of the unattacked tracks) the best

@@ -295,7 +295,7 @@ def check_meta(model: MultiModel, where: str) -> MultiModel:
     :func:`build_for` writes them (the model layer cannot read the registry); else a
     located ModelError, exit 2."""
     from lesmc.designs import registry
-    from lesmc.scene.io import tracker_from_dict
+    from lesmc.scene.tracker_file import tracker_from_dict
 
     design, tracker = model.meta.get("design"), model.meta.get("tracker")
     multi = tuple(n for n in registry.tracker_names() if registry.get(n).multi)

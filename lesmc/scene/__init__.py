@@ -21,12 +21,10 @@ from lesmc.scene.io import (
     check_fits,
     footage_from_dict,
     load_scene,
-    load_tracker,
     save_scene,
     scene_from_dict,
     scene_to_dict,
     target_to_dict,
-    tracker_from_dict,
 )
 from lesmc.scene.scene import (
     UNATTACKABLE,
@@ -38,6 +36,7 @@ from lesmc.scene.scene import (
     TrackerConfig,
     TruthTrack,
 )
+from lesmc.scene.tracker_file import load_tracker, tracker_from_dict
 
 __all__ = [
     "FORMAT",
