@@ -36,21 +36,9 @@ from lesmc.tracking.targets import TargetSpec
 from lesmc.unfold.multi import UnfoldStopped
 
 pytest.importorskip("sort_tracker")
+# the two identity properties tests/test_multi_api.py checks without a clock
+from test_multi_api import SPEC
 from test_multi_attack import _brute, _doc, _frames, _reference_boxes, _score
-
-SPEC = """property hijack {{
-  attack window {l}..{u}
-  minimize payoff
-  subject to switches(0..end) > 0
-  holds if optimum > 3
-}}
-property lose {{
-  attack window {l}..{u}
-  minimize count.frames
-  subject to lost(0..end) > 0
-  holds if optimum > 1
-}}
-"""
 
 
 def _small(tmp_path: Path, window: str = "2..3") -> tuple[Path, Path, list[Any], list[Any]]:
