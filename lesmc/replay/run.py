@@ -342,11 +342,12 @@ def recorded_frontend(perception: Any) -> tuple[FrontEndConfig, tuple[str, ...]]
     (:func:`frontend_settings`). Both replays read it (this module's and
     lesmc/replay/multi.py's), and ``lesmc replay``'s note (:func:`frontend_note`)."""
     if isinstance(perception, Mapping):
-        got = {k: perception.get(k) for k in FRONTEND_FIELDS}
+        history, delta_bc = (perception.get(k) for k in FRONTEND_FIELDS)
     else:
-        got = {k: getattr(perception, k, None) for k in FRONTEND_FIELDS}
-    recorded = tuple(k for k in FRONTEND_FIELDS if got[k] is not None)
-    return frontend_settings(got["history"], got["delta_bc"]), recorded
+        history, delta_bc = (getattr(perception, k, None) for k in FRONTEND_FIELDS)
+    values = dict(zip(FRONTEND_FIELDS, (history, delta_bc), strict=True))
+    recorded = tuple(k for k, v in values.items() if v is not None)
+    return frontend_settings(history, delta_bc), recorded
 
 
 def frontend_note(results: str, used: Mapping[str, Any]) -> str | None:
