@@ -4,8 +4,9 @@ The detector file (docs/detectors.md) runs on every frame with no WAMI front end
 ``lesmc perceive --detector FILE.toml -o`` does (lesmc/experiment/perceive.py,
 :func:`~lesmc.experiment.perceive.perceive_with_file`). A heatmap or box detector's
 detections are priced when a model first reads them (:class:`FilePricer`; up front with
-``--price-all``, and certified up front with ``--payoffs certified|interval``); a
-campaign's certified payoffs bound those its models can hide (:func:`file_certifier`).
+``--price-all`` or ``--payoffs certified|interval``); the certified payoffs of verify
+(:func:`verify_certifier`) and of a campaign bound those the models can hide, through
+:func:`file_certifier` (up front, as ``perceive --certify``, with ``--price-all``).
 The scene then gets its
 target and goes through the same checks as the window pipeline's
 (lesmc/experiment/experiment.py); a violation is replayed through the detector file
@@ -32,9 +33,10 @@ if TYPE_CHECKING:
     from lesmc.experiment.cache import StageCache
     from lesmc.perception.file_pricing import FilePricing
     from lesmc.perception.quality import Truth
+    from lesmc.pipeline.job import Certifier
     from lesmc.replay.run import Outcome
     from lesmc.results.read import ResultsDoc
-    from lesmc.scene import Footage, Frame
+    from lesmc.scene import Footage, Frame, Scene
     from lesmc.video.reader import FrameSet
 
 #: A detection matches a visible vehicle within this many pixels (one to one).
@@ -196,15 +198,13 @@ def file_pricing(path: str, frames: FrameSet) -> FilePricing:
     return FilePricing(det, frames, attack_config(PerceiveRequest(str(frames.paths[0].parent))))
 
 
-def file_certifier(
-    path: str, frames: FrameSet, footage: Footage
-) -> Callable[[Mapping[int, np.ndarray]], dict[int, np.ndarray]]:
+def file_certifier(path: str, frames: FrameSet, footage: Footage | Scene) -> Certifier:
     """A certifier (lesmc/pipeline/certify.py) of ``footage``'s detections through the
     detector file ``path``: per frame step, the wanted detections' certified lower bounds
     (``nan`` for the others), each bounded as ``lesmc perceive --detector --certify``
-    bounds it, below its payoff in ``footage``. What ``lesmc campaign --payoffs
-    certified|interval`` runs on the detections its models can hide; the detector is
-    loaded on the first request."""
+    bounds it, below its payoff in ``footage``. What ``lesmc campaign`` and ``lesmc
+    verify`` (:func:`verify_certifier`) with ``--payoffs certified|interval`` run on the
+    detections their models can hide; the detector is loaded on the first request."""
     how: list[FilePricing] = []
 
     def certify(wanted: Mapping[int, np.ndarray]) -> dict[int, np.ndarray]:
@@ -215,6 +215,37 @@ def file_certifier(
             return how[0].certify(k, pos, idx, footage.frame(k).payoff_values()[idx])
 
         return per_frame(wanted, lambda k: footage.frame(k).positions(), bound)
+
+    return certify
+
+
+def verify_certifier(
+    path: str,
+    frames: FrameSet,
+    scene: Scene,
+    rep: Reporter,
+    spent: Callable[[str], None],
+) -> Certifier:
+    """``lesmc verify --payoffs certified|interval``'s certifier through the detector file
+    ``path``: the campaign's (:func:`file_certifier`) on the detections of ``scene`` the
+    checked models can hide (lesmc/pipeline/certify.py finds them), a frame at a time
+    under a progress bar, saying how many first; ``spent(stage)`` stops the run once the
+    budget is spent."""
+    bound = file_certifier(path, frames, scene)
+    of = sum(len(f.detections) for f in scene.frames)
+
+    def certify(wanted: Mapping[int, np.ndarray]) -> dict[int, np.ndarray]:
+        n = sum(len(v) for v in wanted.values())
+        rep.log(
+            f"certifying {n} of {of} detections through {path} (those the checked models can hide)"
+        )
+        out: dict[int, np.ndarray] = {}
+        with rep.bar("certifying", n) as bar:
+            for k, idx in sorted(wanted.items()):
+                out |= bound({k: idx})
+                bar.advance(len(idx))
+                spent("certifying payoff lower bounds")
+        return out
 
     return certify
 

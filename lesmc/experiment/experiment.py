@@ -340,17 +340,19 @@ def check_window(scene: Scene, window: tuple[int, int]) -> None:
 
 
 def _certifier(src: Source, rep: Reporter, budget: Budget) -> Certifier | None:
-    """Perception's certification of the video's detections (none for a scene file: its
-    bounds come with it, from ``perceive --certify``)."""
-    if src.run is None:
+    """Perception's certification of the video's detections, or the detector file's
+    (lesmc/experiment/detector_verify.py); none for a scene file (its bounds come with it,
+    from ``perceive --certify``) nor for a scene already bounded (``--price-all``)."""
+
+    def stop(_: str) -> None:
+        spent(budget, "certifying payoff lower bounds")
+
+    if src.run is not None:
+        return video_perception.certifier(src.nets, src.run, "certifying", rep, stop)
+    by_file = detector_verify.detector_file_of(src.net_files or (None, None, None))
+    if by_file is None or not src.new or src.frames is None or src.scene.has_lower:
         return None
-    return video_perception.certifier(
-        src.nets,
-        src.run,
-        "certifying",
-        rep,
-        lambda _: spent(budget, "certifying payoff lower bounds"),
-    )
+    return detector_verify.verify_certifier(by_file, src.frames, src.scene, rep, stop)
 
 
 def video_truth(

@@ -107,10 +107,13 @@ def file_perception(
     """The video through the detector file ``path`` (lesmc/experiment/detector_verify.py),
     kept in OUT/cache: a heatmap or box detector's payoffs priced when a model reads them
     (as the window pipeline's: ``on_demand``, --payoffs attack, no --price-all), else every
-    detection priced now (a multi-target design reads the scene's payoffs directly)."""
+    detection priced now (a multi-target design reads the scene's payoffs directly). In a
+    certified payoff mode the checks certify what their models can hide
+    (detector_verify.verify_certifier); with --price-all every detection is certified now."""
     lazy = on_demand and req.payoffs == "attack" and not req.price_all
+    certify = req.payoffs != "attack" and req.price_all
     footage, facts, key = detector_verify.perceive_cached(
-        frames_dir, frames, path, truth[0], truth[1], req.payoffs != "attack", dt, rep,
+        frames_dir, frames, path, truth[0], truth[1], certify, dt, rep,
         lambda stage: spent(req.budget, stage), StageCache(req.out), lazy,
     )  # fmt: skip
     seen = Perception(footage, None, None, {}, key, detections=facts)
