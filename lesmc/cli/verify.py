@@ -89,7 +89,9 @@ if TYPE_CHECKING:
     'the detections whose payoffs its models read (the others are "unpriced" in '
     "OUT/scene.json; a later check that reads one stops with exit 2). Certified payoffs "
     "and --faults price every detection anyway (a heatmap or box-list detector file's "
-    "are priced on demand too, docs/detectors.md).",
+    "are priced on demand too, docs/detectors.md). With a heatmap detector file and "
+    "--payoffs certified|interval it also certifies every detection up front (by "
+    "default, only those the models can hide).",
 )
 @click.option(
     "--inject-within",
