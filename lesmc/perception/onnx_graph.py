@@ -21,14 +21,7 @@ from torch.nn import functional as F
 
 from lesmc.common.errors import InputError, Location, UsageError, clipped, exception_line
 from lesmc.perception.graphs import ANY_SIZE, DYNAMIC_BATCH, UserNet, refuse_nonfinite
-from lesmc.perception.net_ops import (
-    Op,
-    Unsupported,
-    arith_op,
-    avgpool_op,
-    batchnorm_op,
-    conv_op,
-)
+from lesmc.perception.net_ops import Op, Unsupported, arith_op, avgpool_op, batchnorm_op, conv_op
 
 
 def _onnx() -> Any:

@@ -19,14 +19,7 @@ from torch import nn
 
 from lesmc.common.errors import InputError, Location, exception_line
 from lesmc.perception.graphs import DYNAMIC_BATCH, UserNet, refuse_nonfinite
-from lesmc.perception.net_ops import (
-    Op,
-    Unsupported,
-    arith_op,
-    avgpool_op,
-    batchnorm_op,
-    conv_op,
-)
+from lesmc.perception.net_ops import Op, Unsupported, arith_op, avgpool_op, batchnorm_op, conv_op
 
 
 def load_pt2(path: str) -> Any:
