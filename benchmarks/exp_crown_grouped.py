@@ -28,6 +28,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from bench_certify import sample_windows
 
 import lesmc.perception.certify as C
+from lesmc.perception import crown
 from lesmc.perception.attack_settings import AttackConfig, threshold_logit
 from lesmc.perception.attacks import payoffs
 from lesmc.perception.cnn import load_nets
@@ -50,26 +51,30 @@ def main() -> int:
         layer = chain.layers[i]
         if not isinstance(layer, C.Conv):
             continue
-        lo, hi = C._interval_step(layer, *bounds[i - 1])
+        lo, hi = crown._interval_step(layer, *bounds[i - 1])
         unstable = ((lo < 0) & (hi > 0)).flatten(1)
         todo = unstable.nonzero()
-        views = C._conv_views(chain, i, relaxes, ball)
+        views = crown._conv_views(chain, i, relaxes, ball)
         cells, cout = layer.out_hw, layer.weight.shape[0]
         places = unstable.view(len(unstable), cout, cells * cells).any(1).nonzero()
         for mult in (0.125, 0.25, 0.5, 1.0, 1.0, 0.5, 0.25, 0.125):
-            step = max(1, C.CHUNK_FLOATS // (2 * C._row_floats(chain, i)))
+            step = max(1, crown.CHUNK_FLOATS // (2 * crown._row_floats(chain, i)))
             t0 = time.perf_counter()
             rows = [
-                C._crown_conv(chain, i, views, ball, todo[s : s + step, 0], todo[s : s + step, 1])
+                crown._crown_conv(
+                    chain, i, views, ball, todo[s : s + step, 0], todo[s : s + step, 1]
+                )
                 for s in range(0, len(todo), step)
             ]
             t1 = time.perf_counter()
-            gstep = max(1, int(mult * C.CHUNK_FLOATS) // (2 * cout * C._row_floats(chain, i)))
+            gstep = max(
+                1, int(mult * crown.CHUNK_FLOATS) // (2 * cout * crown._row_floats(chain, i))
+            )
             low = torch.full((len(unstable), cout, cells * cells), -math.inf)
             up = torch.full_like(low, math.inf)
             for s in range(0, len(places), gstep):
                 win, pos = places[s : s + gstep, 0], places[s : s + gstep, 1]
-                gl, gu = C._crown_conv_at(chain, i, views, ball, win, pos)
+                gl, gu = crown._crown_conv_at(chain, i, views, ball, win, pos)
                 low[win, :, pos], up[win, :, pos] = gl.T, gu.T
             t2 = time.perf_counter()
             ch, p = todo[:, 1] // cells**2, todo[:, 1] % cells**2

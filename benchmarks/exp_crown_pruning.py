@@ -31,6 +31,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from bench_certify import sample_windows
 
 from lesmc.perception import certify as C
+from lesmc.perception import crown, relaxations
 from lesmc.perception.attack_settings import AttackConfig, threshold_logit
 from lesmc.perception.attacks import payoffs
 from lesmc.perception.cnn import load_nets
@@ -40,11 +41,11 @@ def influence(chain: C.Chain, relaxes: list[C.Relax], layer: int, nb: int) -> to
     """The margin's coefficients on the post-activations of ``layer`` (channels last)."""
     last = len(chain.layers) - 1
     out = chain.layers[last]
-    a = C._channels_last(out.weight.expand(1, nb, -1), C._shape(chain, last - 1))
+    a = relaxations.channels_last(out.weight.expand(1, nb, -1), crown._shape(chain, last - 1))
     const = out.bias.expand(1, nb)
     for j in range(last - 1, layer, -1):
-        a, const = C._relu_back(a, const, C._lines(relaxes[j].maps))
-        a, const = C._back_full(a, const, chain.layers[j], C._shape(chain, j - 1))
+        a, const = relaxations.relu_back(a, const, relaxations.relax_lines(relaxes[j].maps))
+        a, const = relaxations.back_full(a, const, chain.layers[j], crown._shape(chain, j - 1))
     return a[0]
 
 
@@ -54,17 +55,17 @@ def deeper(chain: C.Chain, ball: C.Ball, bounds: C.Bounds, relaxes: list[C.Relax
     do without recomputing, and so tightening, the layers before)."""
     bounds, relaxes = list(bounds), list(relaxes)
     for i in range(len(bounds), len(chain.layers) - 1):
-        lo, hi = (t.contiguous() for t in C._interval_step(chain.layers[i], *bounds[-1]))
+        lo, hi = (t.contiguous() for t in crown._interval_step(chain.layers[i], *bounds[-1]))
         todo = ((lo < 0) & (hi > 0)).flatten(1).nonzero()
         win, neuron = todo[:, 0], todo[:, 1]
         layer = chain.layers[i]
         if isinstance(layer, C.Conv):
-            views = C._conv_views(chain, i, relaxes, ball)
-            low, up = C._crown_conv(chain, i, views, ball, win, neuron)
+            views = crown._conv_views(chain, i, relaxes, ball)
+            low, up = crown._crown_conv(chain, i, views, ball, win, neuron)
         else:
             w, b = layer.weight[neuron], layer.bias[neuron]
             rows, bias = torch.stack([w, -w]), torch.stack([b, -b])
-            value, norm = C._crown_full(chain, i, relaxes, ball, win, rows, bias)
+            value, norm = crown._crown_full(chain, i, relaxes, ball, win, rows, bias)
             bound = value - ball.eps[win] * norm
             low, up = bound[0], -bound[1]
         flo, fhi = lo.flatten(1), hi.flatten(1)
@@ -97,7 +98,7 @@ def main() -> None:
               f"first radius, median r*/R {float((full / r).median()):.2f}")  # fmt: skip
         for layer, name in ((2, "conv3"), (3, "conv4")):
             lam = influence(chain, relaxes, layer, len(w))
-            ilo, ihi = C._interval_step(chain.layers[layer], *bounds[layer - 1])
+            ilo, ihi = crown._interval_step(chain.layers[layer], *bounds[layer - 1])
             unstable = ((ilo < 0) & (ihi > 0)).movedim(1, -1)
             score = (lam.abs() * (ihi - ilo).movedim(1, -1) * unstable).flatten(1)
             for frac in (float(f) for f in args.fractions.split(",")):

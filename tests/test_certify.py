@@ -10,7 +10,7 @@ import pytest
 import torch
 from torch import nn
 
-from lesmc.perception import certify
+from lesmc.perception import certify, crown, relaxations
 from lesmc.perception.certify import (
     Ball,
     CertifyConfig,
@@ -191,11 +191,11 @@ def test_local_patches_equal_whole_level_propagation() -> None:
             n = layer.weight.shape[0] * layer.out_hw**2
             win = torch.arange(len(x)).repeat_interleave(n)
             neuron = torch.arange(n).repeat(len(x))
-            views = certify._conv_views(chain, i, relaxes, ball)
-            low, up = certify._crown_conv(chain, i, views, ball, win, neuron)
+            views = crown._conv_views(chain, i, relaxes, ball)
+            low, up = crown._crown_conv(chain, i, views, ball, win, neuron)
             # the same rows as whole maps: W^T applied to a one-hot of the neuron
-            below = certify._shape(chain, i - 1)
-            onehot = torch.eye(n).view(n, *certify._shape(chain, i))
+            below = crown._shape(chain, i - 1)
+            onehot = torch.eye(n).view(n, *crown._shape(chain, i))
             size = (layer.out_hw - 1) * layer.stride - 2 * layer.padding + 3
             rows = torch.nn.functional.conv_transpose2d(
                 onehot,
@@ -205,14 +205,14 @@ def test_local_patches_equal_whole_level_propagation() -> None:
                 output_padding=below[1] - size,
             ).repeat(len(x), 1, 1, 1)
             bias = layer.bias.repeat_interleave(layer.out_hw**2).repeat(len(x))
-            value, norm = certify._crown_full(
+            value, norm = crown._crown_full(
                 chain, i, relaxes, ball, win, torch.stack([rows, -rows]), torch.stack([bias, -bias])
             )
             assert torch.allclose(low, value[0] - 0.3 * norm[0], atol=1e-4)
             assert torch.allclose(up, -(value[1] - 0.3 * norm[1]), atol=1e-4)
             # by position, every channel at once: the same bounds
             cells, c_out = layer.out_hw**2, layer.weight.shape[0]
-            g_low, g_up = certify._crown_conv_at(
+            g_low, g_up = crown._crown_conv_at(
                 chain,
                 i,
                 views,
@@ -237,7 +237,7 @@ def test_stacked_transposed_convolution_equals_torchs(n: int, c_out: int, stride
     x = torch.randn(n, 5, 5, 6, generator=gen)
     weight = torch.randn(6, c_out, 3, 3, generator=gen)
     want = torch.nn.functional.conv_transpose2d(x.permute(0, 3, 1, 2), weight, stride=stride)
-    got = certify._transpose_conv(x, weight, stride)
+    got = relaxations._transpose_conv(x, weight, stride)
     assert got.shape == (n, *want.shape[2:], c_out)
     torch.testing.assert_close(got, want.permute(0, 2, 3, 1), rtol=1e-5, atol=1e-5)
 
@@ -245,7 +245,7 @@ def test_stacked_transposed_convolution_equals_torchs(n: int, c_out: int, stride
 def test_batched_and_chunked_runs_equal_one_window_at_a_time(monkeypatch) -> None:
     _, chain, x = strided_case()
     together = certified_radius(chain, x, cfg=CertifyConfig(steps=3, batch=5))
-    monkeypatch.setattr(certify, "CHUNK_FLOATS", 1)  # one row per propagation chunk
+    monkeypatch.setattr(crown, "CHUNK_FLOATS", 1)  # one row per propagation chunk
     alone = np.concatenate(
         [certified_radius(chain, x[k : k + 1], cfg=CertifyConfig(steps=3)) for k in range(5)]
     )
@@ -360,7 +360,7 @@ def test_flip_distances_set_the_first_layers_unstable_fraction() -> None:
     layer = chain.layers[0]
     assert isinstance(layer, Conv)
     k = int(dist[0].argmin())
-    onehot = torch.zeros(1, *certify._shape(chain, 0))
+    onehot = torch.zeros(1, *crown._shape(chain, 0))
     onehot.view(-1)[k] = 1
     g = torch.nn.functional.conv_transpose2d(onehot, layer.weight, padding=layer.padding)
     g = g - g.mean()

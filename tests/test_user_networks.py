@@ -19,8 +19,8 @@ from torch import nn
 from lesmc.perception.certify import CertifyConfig, certified_radius
 from lesmc.perception.chain import margin_of
 from lesmc.perception.cnn import LP_SIZE, load_nets
-from lesmc.perception.graphs import chain_of_ops
 from lesmc.perception.network_file import load_network
+from lesmc.perception.ops_to_chain import chain_of_ops
 
 onnx = pytest.importorskip("onnx")
 pytest.importorskip("onnxscript")

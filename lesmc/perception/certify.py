@@ -36,8 +36,14 @@ Everything runs batched over windows in float32 without autograd, with the
 channels last (oneDNN's transposed convolutions run 2x faster that way on these small
 patches), a neuron's lower and upper rows side by side so its relaxation is read
 once (from the third convolution on, every channel of a position side by side:
-:func:`_crown_layer`); the final radius is reduced by ``SAFETY`` (relative) to absorb float32
-rounding (not a formally verified floating-point bound).
+``crown._crown_layer``); the final radius is reduced by ``SAFETY`` (relative) to absorb
+float32 rounding (not a formally verified floating-point bound).
+
+Here: a shipped CNN as a chain (:func:`chain_of`, :func:`detect_chain`) and the search
+for the radius (:func:`certified_radius`, its settings :class:`CertifyConfig`, one
+propagation :func:`ball_radius`). The layer bounds and the margin's bound are
+lesmc/perception/crown.py's, the relaxations and the steps that pass a bound back one
+layer lesmc/perception/relaxations.py's.
 """
 
 from __future__ import annotations
@@ -51,18 +57,50 @@ from typing import Literal
 import numpy as np
 import torch
 from torch import nn
-from torch.nn import functional as F
 
-from lesmc.perception.chain import Chain, Conv, Dense, Layer, affine, centred, margin_of
+from lesmc.perception.chain import Chain, Conv, Dense, Layer, centred, margin_of
+from lesmc.perception.crown import (
+    CHUNK_FLOATS,
+    GROUPED_FROM,
+    first_layer,
+    interval_margin,
+    layer_bounds,
+    margin_form,
+)
 from lesmc.perception.heap import kept_heap
+from lesmc.perception.relaxations import STACK, STACK_BELOW, Ball, Relax
 from lesmc.perception.threads import all_torch_threads
 
+#: This module's names, and those of the bound propagation it was split from (crown.py,
+#: relaxations.py), still importable from here.
+__all__ = [
+    "CHUNK_FLOATS",
+    "GROUPED_FROM",
+    "SAFETY",
+    "STACK",
+    "STACK_BELOW",
+    "START_MODEL",
+    "START_MODEL_LEVELS",
+    "START_MODEL_NET",
+    "Ball",
+    "Bounds",
+    "CertifyConfig",
+    "Relax",
+    "ball_radius",
+    "certified_radius",
+    "chain_of",
+    "detect_chain",
+    "flip_distances",
+    "interval_margin",
+    "layer_bounds",
+    "margin_form",
+    "model_features",
+    "quantile_radii",
+    "start_model",
+    "weights_digest",
+]
+
 SAFETY = 1e-3  #: relative reduction of every certified radius (float32 rounding)
-CHUNK_FLOATS = 1 << 23  #: coefficients in flight per propagation chunk (32 MiB of float32)
-#: Conv layers from this index on get CROWN by position, every channel at once (_crown_layer).
-GROUPED_FROM = 2
-#: Local transposed convolutions to fewer channels than this stack STACK patches a sample.
-STACK_BELOW, STACK = 8, 4
 
 
 def chain_of(net: nn.Module, t: float, subtract_mean: bool = True, detach: bool = True) -> Chain:
@@ -146,461 +184,6 @@ def detect_chain(net: nn.Module, t: float, detach: bool = True) -> Chain:
         return chain_of(net, t, subtract_mean=True, detach=detach)
     finally:
         del net.in_shape
-
-
-def _affine_abs(layer: Layer, r: torch.Tensor) -> torch.Tensor:
-    if isinstance(layer, Conv):
-        return F.conv2d(r, layer.weight.abs(), None, layer.stride, layer.padding)
-    return F.linear(r.flatten(1), layer.weight.abs())
-
-
-def _interval_step(
-    layer: Layer, lower: torch.Tensor, upper: torch.Tensor
-) -> tuple[torch.Tensor, torch.Tensor]:
-    """Interval bounds of ``layer(ReLU(y))`` from bounds ``lower <= y <= upper`` (IBP)."""
-    hl, hu = lower.clamp(min=0), upper.clamp(min=0)
-    mid = affine(layer, (hl + hu) / 2)
-    rad = _affine_abs(layer, (hu - hl) / 2)
-    return mid - rad, mid + rad
-
-
-def interval_margin(chain: Chain, ball: Ball) -> torch.Tensor:
-    """A lower bound on the margin over each ball: exact first layer, then interval steps.
-
-    Looser than CROWN (``layer_bounds`` + ``margin_form``) but a few forward
-    passes, and differentiable in the weights of a ``chain_of(..., detach=False)``:
-    the robust loss of certified training (benchmarks/exp_certified_training.py).
-    """
-    lo, hi = _first_layer(chain, ball)
-    for layer in chain.layers[1:]:
-        lo, hi = _interval_step(layer, lo, hi)
-    return lo[:, 0]
-
-
-# ---------------------------------------------------------------- relaxations
-
-
-@dataclass
-class Relax:
-    """Per window and neuron, the lines replacing ReLU(y) on [l, u].
-
-    ``lo * y <= ReLU(y) <= up * y + cut``; ``maps`` holds (lo, up - lo, cut) with
-    the channels last: (B, H, W, 3, C) for a convolution's maps, (B, 3, F) for a
-    dense layer's.
-    """
-
-    maps: torch.Tensor
-
-    @staticmethod
-    def of(lower: torch.Tensor, upper: torch.Tensor) -> Relax:
-        """CROWN's lines: the chord above, ``y`` or 0 below (whichever is closer)."""
-        lower, upper = lower.movedim(1, -1), upper.movedim(1, -1)
-        active = lower >= 0
-        unstable = (lower < 0) & (upper > 0)
-        den = torch.where(unstable, upper - lower, torch.ones_like(upper))
-        up = torch.where(unstable, upper / den, active.to(upper.dtype))
-        cut = torch.where(unstable, -lower * upper / den, torch.zeros_like(upper))
-        lo = torch.where(unstable, (upper > -lower).to(upper.dtype), active.to(upper.dtype))
-        return Relax(torch.stack([lo, up - lo, cut], dim=-2))
-
-
-@dataclass
-class Ball:
-    """The windows' centres (mean removed when the chain does) and radii."""
-
-    z0: torch.Tensor  # (B, C, H, W)
-    eps: torch.Tensor  # (B,)
-    d: int  # input dimension
-    subtract_mean: bool
-
-
-def _relu_back(
-    a: torch.Tensor, const: torch.Tensor, lines: tuple[torch.Tensor, torch.Tensor, torch.Tensor]
-) -> tuple[torch.Tensor, torch.Tensor]:
-    """Coefficients on h = ReLU(y) -> on y, for a lower bound (a >= 0 takes the lower line).
-
-    ``a`` (T, n, *s): T sets of rows (a neuron's lower and upper bound) sharing the
-    relaxation of window row n; ``lines`` = (lo, up - lo, cut), each (n, *s).
-    """
-    lo, gap, cut = lines
-    neg = a.clamp(max=0)
-    const = const + (neg * cut).flatten(2).sum(2)
-    return torch.addcmul(a * lo, neg, gap), const
-
-
-def _lines(maps: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
-    """(lo, up - lo, cut) of relaxation maps (..., 3, C), each (..., C)."""
-    lo, gap, cut = maps.unbind(-2)
-    return lo, gap, cut
-
-
-def _conv_back_local(
-    a: torch.Tensor, const: torch.Tensor, layer: Conv
-) -> tuple[torch.Tensor, torch.Tensor]:
-    """Patch coefficients on y = conv(h) + b -> on h: a patch (r-1)s + k wide, no padding.
-
-    ``a`` (T, n, r, r, C) channels last, the layout oneDNN's transposed convolution
-    runs fastest in (2x NCHW's on these small patches).
-    """
-    t, n = a.shape[:2]
-    const = const + a.sum(dim=(2, 3)) @ layer.bias
-    out = _transpose_conv(a.flatten(0, 1), layer.weight, layer.stride)
-    return out.reshape(t, n, *out.shape[1:]), const
-
-
-def _transpose_conv(x: torch.Tensor, weight: torch.Tensor, stride: int) -> torch.Tensor:
-    """The transposed convolution of patches ``x`` (N, r, r, C), channels last, no padding.
-
-    oneDNN's cost on such small maps is mostly per sample when the output has few
-    channels (the first layer's: the input's 4): there, every :data:`STACK` patches
-    go as one sample, side by side on the channel axis, through a block-diagonal
-    weight. 4x the multiplications, by zeros, in 0.6-0.93x the time (docs/performance.md,
-    sixteenth round; a grouped convolution, ``groups=STACK``, was no faster). The same
-    sums, plus exact zeros: on the shipped N_dr the radii came out bit for bit equal.
-    """
-    n, r, _, c = x.shape
-    c_out = weight.shape[1]
-    if c_out >= STACK_BELOW or n < STACK:
-        out = F.conv_transpose2d(x.permute(0, 3, 1, 2), weight, stride=stride)
-        return out.permute(0, 2, 3, 1)  # a channels-last view, no copy
-    if n % STACK:
-        x = torch.cat([x, x.new_zeros(-n % STACK, r, r, c)])
-    m = len(x) // STACK
-    side = x.reshape(m, STACK, r, r, c).permute(0, 2, 3, 1, 4).reshape(m, r, r, STACK * c)
-    wide = weight.new_zeros(STACK * c, STACK * c_out, *weight.shape[2:])
-    for k in range(STACK):
-        wide[k * c : (k + 1) * c, k * c_out : (k + 1) * c_out] = weight
-    out = F.conv_transpose2d(side.permute(0, 3, 1, 2), wide, stride=stride).permute(0, 2, 3, 1)
-    size = out.shape[1]
-    out = out.reshape(m, size, size, STACK, c_out).permute(0, 3, 1, 2, 4)
-    return out.reshape(m * STACK, size, size, c_out)[:n]
-
-
-def _back_full(
-    a: torch.Tensor, const: torch.Tensor, layer: Layer, below: tuple[int, ...]
-) -> tuple[torch.Tensor, torch.Tensor]:
-    """Whole-level coefficients (T, n, *shape), channels last, on y = layer(h) -> on h
-    (``below``: h's shape, channels first as the network has it)."""
-    t, n = a.shape[:2]
-    if isinstance(layer, Dense):
-        const = const + a @ layer.bias
-        return _channels_last(a @ layer.weight, below), const
-    const = const + a.sum(dim=(2, 3)) @ layer.bias
-    size = (layer.out_hw - 1) * layer.stride - 2 * layer.padding + layer.weight.shape[-1]
-    out = F.conv_transpose2d(
-        a.flatten(0, 1).permute(0, 3, 1, 2),  # a channels-last view, no copy
-        layer.weight,
-        stride=layer.stride,
-        padding=layer.padding,
-        output_padding=layer.in_hw - size,
-    ).permute(0, 2, 3, 1)
-    return out.reshape(t, n, *out.shape[1:]), const
-
-
-def _channels_last(rows: torch.Tensor, shape: tuple[int, ...]) -> torch.Tensor:
-    """Rows (T, n, prod(shape)) over a level in the network's order (channels first) as
-    (T, n, *shape) with the channels last (a dense level: unchanged)."""
-    a = rows.reshape(*rows.shape[:2], *shape)
-    return a.movedim(2, -1).contiguous() if len(shape) == 3 else a
-
-
-@dataclass(frozen=True)
-class _Grid:
-    """Where a conv neuron's patch lies on a level: top-left ``pos * stride + origin``."""
-
-    r: int
-    stride: int
-    origin: int
-    cells: int  # positions per side (the neuron's layer)
-
-    def back(self, layer: Conv) -> _Grid:
-        """The same neuron's patch one conv layer further down."""
-        r = (self.r - 1) * layer.stride + layer.weight.shape[-1]
-        return _Grid(
-            r, self.stride * layer.stride, self.origin * layer.stride - layer.padding, self.cells
-        )
-
-    def patches(self, maps: torch.Tensor) -> torch.Tensor:
-        """(B * cells^2, r, r, M): every position's patch of ``maps`` (B, H, H, M), zero outside."""
-        h = maps.shape[1]
-        left = -self.origin
-        right = (self.cells - 1) * self.stride + self.origin + self.r - h
-        padded = F.pad(maps, (0, 0, left, right, left, right)).contiguous()
-        sb, sh, sw, sm = padded.stride()
-        view = padded.as_strided(
-            (len(maps), self.cells, self.cells, self.r, self.r, maps.shape[-1]),
-            (sb, self.stride * sh, self.stride * sw, sh, sw, sm),
-        )
-        return view.reshape(-1, self.r, self.r, maps.shape[-1])
-
-
-def _concretise(
-    a: torch.Tensor, const: torch.Tensor, z: torch.Tensor, ball: Ball
-) -> tuple[torch.Tensor, torch.Tensor]:
-    """(a.z0 + c, ||P a||_2) per row for coefficients ``a`` (T, n, *s) on the input (zero
-    outside it); ``z`` (n, *s)."""
-    value = (a * z).flatten(2).sum(2) + const
-    sq = a.square().flatten(2).sum(2)
-    if ball.subtract_mean:
-        sq = sq - a.flatten(2).sum(2).square() / ball.d
-    return value, sq.clamp(min=0).sqrt()
-
-
-# ---------------------------------------------------------------- layer bounds
-
-
-def _shape(chain: Chain, i: int) -> tuple[int, ...]:
-    """The output shape of layer ``i`` (``-1``: the input)."""
-    if i < 0:
-        return chain.in_shape
-    layer = chain.layers[i]
-    if isinstance(layer, Conv):
-        return (layer.weight.shape[0], layer.out_hw, layer.out_hw)
-    return (layer.weight.shape[0],)
-
-
-def _first_layer(chain: Chain, ball: Ball) -> tuple[torch.Tensor, torch.Tensor]:
-    """Exact bounds of the first layer (linear in x): ``y(x0) -+ eps ||P w||``."""
-    layer = chain.layers[0]
-    shape = (1, *chain.in_shape)
-    ones = torch.ones(shape)
-    if isinstance(layer, Conv):
-        sq = F.conv2d(ones, layer.weight.square(), None, layer.stride, layer.padding)
-        total = F.conv2d(ones, layer.weight, None, layer.stride, layer.padding)
-    else:
-        sq, total = layer.weight.square().sum(1)[None], layer.weight.sum(1)[None]
-    if ball.subtract_mean:
-        sq = sq - total.square() / ball.d
-    norm = sq.clamp(min=0).sqrt()
-    mid = affine(layer, ball.z0)
-    rad = ball.eps.view(-1, *[1] * (mid.dim() - 1)) * norm
-    return mid - rad, mid + rad
-
-
-def _conv_views(
-    chain: Chain, i: int, relaxes: list[Relax], ball: Ball
-) -> tuple[list[torch.Tensor], torch.Tensor]:
-    """Every position's patches (channels last), for the neurons of conv layer ``i``: of each
-    level's relaxation lines (layers ``i-1`` down to 0; lo, up - lo and cut side by side on
-    the last axis), and of the input with an inside-the-image channel."""
-    layer = chain.layers[i]
-    assert isinstance(layer, Conv)
-    grid = _Grid(layer.weight.shape[-1], layer.stride, -layer.padding, layer.out_hw)
-    views = []
-    for j in range(i - 1, -1, -1):
-        views.append(grid.patches(relaxes[j].maps.flatten(3)))  # (B, H, W, 3C)
-        below = chain.layers[j]
-        assert isinstance(below, Conv)
-        grid = grid.back(below)
-    inside = torch.ones_like(ball.z0[:, :1])
-    return views, grid.patches(torch.cat([ball.z0, inside], dim=1).permute(0, 2, 3, 1))
-
-
-def _crown_conv(
-    chain: Chain,
-    i: int,
-    views: tuple[list[torch.Tensor], torch.Tensor],
-    ball: Ball,
-    win: torch.Tensor,
-    neuron: torch.Tensor,
-) -> tuple[torch.Tensor, torch.Tensor]:
-    """Lower and upper CROWN bounds of conv neurons ``(win, neuron)`` of layer ``i`` (local form).
-
-    A row's coefficients are a patch of its receptive field (``_Grid``): +W and -W
-    of the neuron pass back through each ReLU's lines and transposed convolution,
-    side by side, reading the patch tables once.
-    """
-    layer = chain.layers[i]
-    assert isinstance(layer, Conv)
-    cells = layer.out_hw
-    ch, pos = neuron // (cells * cells), neuron % (cells * cells)
-    w = layer.weight.permute(0, 2, 3, 1)[ch]  # (n, k, k, C): channels last
-    a = torch.stack([w, -w])
-    const = torch.stack([layer.bias[ch], -layer.bias[ch]])
-    bound = _conv_rows_back(chain, i, views, ball, win, pos, a, const)
-    return bound[0], -bound[1]
-
-
-def _crown_conv_at(
-    chain: Chain,
-    i: int,
-    views: tuple[list[torch.Tensor], torch.Tensor],
-    ball: Ball,
-    win: torch.Tensor,
-    pos: torch.Tensor,
-) -> tuple[torch.Tensor, torch.Tensor]:
-    """Lower and upper CROWN bounds, each (C_out, n), of every channel of conv layer ``i``
-    at positions ``(win, pos)``: the 2 C_out rows of a position share each gather of its
-    relaxation lines (:func:`_crown_conv`'s rows, stable channels included)."""
-    layer = chain.layers[i]
-    assert isinstance(layer, Conv)
-    w = layer.weight.permute(0, 2, 3, 1)  # (C_out, k, k, C): channels last
-    a = torch.cat([w, -w]).unsqueeze(1).expand(-1, len(pos), *w.shape[1:])
-    const = torch.cat([layer.bias, -layer.bias]).unsqueeze(1).expand(-1, len(pos))
-    bound = _conv_rows_back(chain, i, views, ball, win, pos, a, const)
-    c_out = w.shape[0]
-    return bound[:c_out], -bound[c_out:]
-
-
-def _conv_rows_back(
-    chain: Chain,
-    i: int,
-    views: tuple[list[torch.Tensor], torch.Tensor],
-    ball: Ball,
-    win: torch.Tensor,
-    pos: torch.Tensor,
-    a: torch.Tensor,
-    const: torch.Tensor,
-) -> torch.Tensor:
-    """Lower bounds (T, n) of rows ``a`` (T, n, k, k, C) + ``const`` (T, n) on layer ``i``'s
-    pre-activations: row set t of column n lies on window ``win[n]``, position ``pos[n]``,
-    passed back through each ReLU's lines and transposed convolution to the input."""
-    layer = chain.layers[i]
-    assert isinstance(layer, Conv)
-    at = win * layer.out_hw**2 + pos  # row of the patch tables
-    for j, view in zip(range(i - 1, -1, -1), views[0], strict=True):
-        patch = view.index_select(0, at)
-        a, const = _relu_back(a, const, _lines(patch.reshape(*patch.shape[:-1], 3, -1)))
-        below = chain.layers[j]
-        assert isinstance(below, Conv)
-        a, const = _conv_back_local(a, const, below)
-    zm = views[1].index_select(0, at)
-    value, norm = _concretise(a * zm[..., -1:], const, zm[..., :-1], ball)
-    out: torch.Tensor = value - ball.eps[win] * norm
-    return out
-
-
-def _crown_full(
-    chain: Chain,
-    i: int,
-    relaxes: list[Relax],
-    ball: Ball,
-    win: torch.Tensor,
-    rows: torch.Tensor,
-    bias: torch.Tensor,
-) -> tuple[torch.Tensor, torch.Tensor]:
-    """(value at x0, dual norm), each (T, n), of ``rows . h_{i-1} + bias`` propagated as
-    whole levels: ``rows`` (T, n, ...) in the network's order and ``bias`` (T, n), for
-    windows ``win`` (n,). T row sets share a window's relaxation, read once."""
-    a = _channels_last(rows, _shape(chain, i - 1))
-    const = bias
-    for j in range(i - 1, -1, -1):
-        a, const = _relu_back(a, const, _lines(relaxes[j].maps[win]))
-        a, const = _back_full(a, const, chain.layers[j], _shape(chain, j - 1))
-    return _concretise(a, const, ball.z0[win].movedim(1, -1), ball)
-
-
-def _row_floats(chain: Chain, i: int) -> int:
-    """Most floats one row of layer ``i`` carries while propagating (x 3 for the relaxations)."""
-    layer = chain.layers[i]
-    if isinstance(layer, Dense):
-        return 3 * max(math.prod(_shape(chain, j)) for j in range(-1, i))
-    grid = _Grid(layer.weight.shape[-1], layer.stride, -layer.padding, layer.out_hw)
-    most = 0
-    for j in range(i - 1, -1, -1):
-        most = max(most, 3 * _shape(chain, j)[0] * grid.r**2)
-        below = chain.layers[j]
-        assert isinstance(below, Conv)
-        grid = grid.back(below)
-    return max(most, (chain.in_shape[0] + 1) * grid.r**2)
-
-
-def layer_bounds(
-    chain: Chain,
-    ball: Ball,
-    prior: list[tuple[torch.Tensor, torch.Tensor]] | None = None,
-    give_up: float = 1.0,
-) -> tuple[list[tuple[torch.Tensor, torch.Tensor]], list[Relax]]:
-    """Bounds (l, u) on every hidden pre-activation over the balls, and their relaxations.
-
-    The first layer's are exact. A deeper neuron first gets one interval step
-    from the previous layer's bounds; only those still unstable get CROWN.
-    ``prior``: bounds valid for balls at least as large (intersected with the new ones).
-    ``give_up``: once more than this fraction of a window's neurons in a layer is
-    unstable, its deeper layers keep their interval bounds (sound, loose, cheap):
-    such a ball is too large to certify anyway.
-    """
-    bounds: list[tuple[torch.Tensor, torch.Tensor]] = []
-    relaxes: list[Relax] = []
-    nb = len(ball.z0)
-    hopeful = torch.ones(nb, dtype=torch.bool)
-    for i in range(len(chain.layers) - 1):
-        layer = chain.layers[i]
-        if i == 0:
-            lo, hi = _first_layer(chain, ball)
-        else:
-            lo, hi = _interval_step(layer, *bounds[-1])
-        if prior is not None:
-            lo, hi = torch.maximum(lo, prior[i][0]), torch.minimum(hi, prior[i][1])
-        todo = (((lo < 0) & (hi > 0)).flatten(1) & hopeful[:, None]).nonzero()
-        if i > 0 and len(todo):
-            _crown_layer(chain, i, relaxes, ball, todo, lo, hi)
-        bounds.append((lo, hi))
-        relaxes.append(Relax.of(lo, hi))
-        hopeful &= ((lo < 0) & (hi > 0)).flatten(1).float().mean(1) <= give_up
-    return bounds, relaxes
-
-
-def _crown_layer(
-    chain: Chain,
-    i: int,
-    relaxes: list[Relax],
-    ball: Ball,
-    todo: torch.Tensor,
-    lo: torch.Tensor,
-    hi: torch.Tensor,
-) -> None:
-    """Tighten ``lo``, ``hi`` (layer ``i``'s bounds, in place) by CROWN for the neurons
-    ``todo`` ((window, neuron) rows), in chunks of about CHUNK_FLOATS coefficients.
-
-    Conv layers from :data:`GROUPED_FROM` on are propagated by position (every channel of
-    a position with a neuron to do, :func:`_crown_conv_at`): on the shipped N_dr about 90%
-    of their neurons are unstable, and the relaxation patches a row reads are several
-    times its own size (docs/performance.md, fifteenth round).
-    """
-    layer = chain.layers[i]
-    if isinstance(layer, Conv) and i >= GROUPED_FROM:
-        views = _conv_views(chain, i, relaxes, ball)
-        c_out, cells = layer.weight.shape[0], layer.out_hw**2
-        places = torch.unique(todo[:, 0] * cells + todo[:, 1] % cells)
-        step = max(1, CHUNK_FLOATS // (2 * c_out * _row_floats(chain, i)))
-        map_lo, map_hi = lo.view(len(lo), c_out, cells), hi.view(len(hi), c_out, cells)
-        for s in range(0, len(places), step):
-            win, pos = places[s : s + step] // cells, places[s : s + step] % cells
-            low, up = _crown_conv_at(chain, i, views, ball, win, pos)
-            map_lo[win, :, pos] = torch.maximum(map_lo[win, :, pos], low.T)
-            map_hi[win, :, pos] = torch.minimum(map_hi[win, :, pos], up.T)
-        return
-    flat_lo, flat_hi = lo.flatten(1), hi.flatten(1)
-    step = max(1, CHUNK_FLOATS // (2 * _row_floats(chain, i)))
-    tables = _conv_views(chain, i, relaxes, ball) if isinstance(layer, Conv) else None
-    for s in range(0, len(todo), step):
-        win, neuron = todo[s : s + step, 0], todo[s : s + step, 1]
-        if tables is not None:
-            low, up = _crown_conv(chain, i, tables, ball, win, neuron)
-        else:
-            w, b = layer.weight[neuron], layer.bias[neuron]
-            value, norm = _crown_full(
-                chain, i, relaxes, ball, win, torch.stack([w, -w]), torch.stack([b, -b])
-            )
-            bound = value - ball.eps[win] * norm
-            low, up = bound[0], -bound[1]
-        flat_lo[win, neuron] = torch.maximum(flat_lo[win, neuron], low)
-        flat_hi[win, neuron] = torch.minimum(flat_hi[win, neuron], up)
-
-
-def margin_form(
-    chain: Chain, ball: Ball, relaxes: list[Relax]
-) -> tuple[torch.Tensor, torch.Tensor]:
-    """The margin's linear lower bound at x0 and its dual norm: f >= value - eps * norm."""
-    last = len(chain.layers) - 1
-    layer = chain.layers[last]
-    nb = len(ball.z0)
-    win = torch.arange(nb)
-    value, norm = _crown_full(
-        chain, last, relaxes, ball, win, layer.weight.expand(1, nb, -1), layer.bias.expand(1, nb)
-    )
-    return value[0], norm[0]
 
 
 # ---------------------------------------------------------------- radius search
@@ -706,7 +289,7 @@ def flip_distances(chain: Chain, z0: torch.Tensor) -> torch.Tensor:
     A ball of radius r makes exactly the neurons with distance < r unstable;
     its quantiles put the radius search on a per-window scale.
     """
-    lo, hi = _first_layer(chain, Ball(z0, torch.ones(len(z0)), _dim(chain), chain.subtract_mean))
+    lo, hi = first_layer(chain, Ball(z0, torch.ones(len(z0)), _dim(chain), chain.subtract_mean))
     mid, rad = (lo + hi) / 2, (hi - lo) / 2
     dist = torch.where(rad > 0, mid.abs() / rad.clamp(min=1e-30), torch.full_like(mid, math.inf))
     return dist.flatten(1)

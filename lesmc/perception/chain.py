@@ -1,7 +1,7 @@
 """A network as the bound propagation sees it: a chain of convolutions and dense layers.
 
-The types here are shared by the readers of user networks (graphs.py), which build a
-:class:`Chain` from a file, and by the certification (certify.py), which propagates
+The types here are shared by the folding of a user network's ops (ops_to_chain.py),
+which builds a :class:`Chain` from a file, and by the certification (certify.py), which propagates
 bounds through one; :func:`margin_of` is the chain's own forward pass.
 """
 

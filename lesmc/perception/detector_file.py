@@ -1,7 +1,7 @@
 """Detector files: how the user's whole-frame network's outputs become detections.
 
 A detector file (TOML, or JSON by its ``.json`` suffix) names a network file
-(``.onnx`` or ``.pt2``, read by lesmc/perception/graphs.py) and declares how
+(``.onnx`` or ``.pt2``, opened by lesmc/perception/network_file.py) and declares how
 its output is decoded (docs/detectors.md). :data:`FIELDS` declares every key
 once: :func:`read_detector_file` validates by it, and docs/detectors.md's table
 is :func:`fields_table`'s text.

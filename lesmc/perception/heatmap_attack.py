@@ -39,9 +39,9 @@ from torch import nn
 from lesmc.perception.attack_settings import AttackConfig
 from lesmc.perception.attacks import Towards, payoffs
 from lesmc.perception.detector_file import LoadedDetector
-from lesmc.perception.graphs import Unsupported
 from lesmc.perception.heatmap import HeatmapDetections, decode
 from lesmc.perception.heatmap_crop import ConvNet, conv_net, same_cells
+from lesmc.perception.net_ops import Unsupported
 
 #: The attack drives the square's raw outputs this far (relative) below the threshold, so
 #: that another runtime's rounding (onnxruntime's) decodes the perturbed frame alike.

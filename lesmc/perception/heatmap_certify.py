@@ -26,9 +26,9 @@ from lesmc.common.errors import InputError, Location
 from lesmc.perception.certify import CertifyConfig, certified_radius
 from lesmc.perception.chain import margin_of
 from lesmc.perception.detector_file import LoadedDetector
-from lesmc.perception.graphs import Unsupported
 from lesmc.perception.heatmap import HeatmapDetections
 from lesmc.perception.heatmap_crop import ConvNet, conv_net, peak_chain, same_cells
+from lesmc.perception.net_ops import Unsupported
 
 
 def certifiable(det: LoadedDetector) -> ConvNet:

@@ -2,10 +2,10 @@
 
 A network read from a file has one input size (the ``.pt2`` exported program
 guards it), but a fully convolutional one computes a cell from its receptive
-field alone. :func:`conv_net` reads the network's operations (graphs.py, the
-same reading certification uses for window classifiers: convolutions, ReLUs,
-batch norms, scalings and average pools folded into the convolutions) into a
-:class:`ConvNet`, our own layers, which run on any H x W.
+field alone. :func:`conv_net` reads the network's operations (net_ops.py and
+ops_to_chain.py: the same reading certification uses for window classifiers:
+convolutions, ReLUs, batch norms, scalings and average pools folded into the
+convolutions) into a :class:`ConvNet`, our own layers, which run on any H x W.
 
 Geometry (one axis; the other is the same). Output cells ``a..b`` read input
 pixels ``lo..hi``: backwards through each layer (kernel k, stride s, padding p),
@@ -26,7 +26,8 @@ from torch.nn import functional as F
 
 from lesmc.perception.chain import Chain, Conv, Dense
 from lesmc.perception.detector_file import LoadedDetector
-from lesmc.perception.graphs import Layers, Unsupported
+from lesmc.perception.net_ops import Unsupported
+from lesmc.perception.ops_to_chain import Layers
 
 #: Crop cells and whole-frame cells agree to this (relative to the map's largest value).
 SAME_CELLS = 1e-4

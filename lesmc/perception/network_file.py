@@ -1,5 +1,5 @@
 """A user's network file (``--detector``, ``--locator``, a detector file's network),
-opened by its suffix: ``.pt2`` by lesmc/perception/graphs.py, ``.onnx`` by
+opened by its suffix: ``.pt2`` by lesmc/perception/pt2_graph.py, ``.onnx`` by
 lesmc/perception/onnx_graph.py (docs/cnn.md, "Your own networks")."""
 
 from __future__ import annotations
@@ -7,8 +7,9 @@ from __future__ import annotations
 from pathlib import Path
 
 from lesmc.common.errors import InputError, Location
-from lesmc.perception.graphs import UserNet, from_pt2
+from lesmc.perception.graphs import UserNet
 from lesmc.perception.onnx_graph import from_onnx
+from lesmc.perception.pt2_graph import from_pt2
 
 
 def load_network(path: str | Path) -> UserNet:

@@ -1,11 +1,12 @@
 """The ``.onnx`` reader: an ONNX graph run node by node in torch (:class:`OnnxNet`, so it
-has gradients for DeepFool and PGD), and read as :class:`~lesmc.perception.graphs.Op` s
+has gradients for DeepFool and PGD), and read as :class:`~lesmc.perception.net_ops.Op` s
 for the certified bounds (:func:`_onnx_ops`).
 
 Why not onnx2torch: it would convert ONNX to torch, but it imports torchvision, whose
 PyPI wheel does not load beside the pinned torch; the interpreter here covers the
-operations of small detection CNNs (:data:`ONNX_OPS`). What a network is to lesmc, and
-the ``.pt2`` reader, are lesmc/perception/graphs.py's; a file is opened by its suffix in
+operations of small detection CNNs (:data:`ONNX_OPS`). What a network is to lesmc is
+lesmc/perception/graphs.py's, its ops and their builders lesmc/perception/net_ops.py's;
+the ``.pt2`` reader is lesmc/perception/pt2_graph.py; a file is opened by its suffix in
 lesmc/perception/network_file.py.
 """
 
@@ -19,18 +20,8 @@ from torch import nn
 from torch.nn import functional as F
 
 from lesmc.common.errors import InputError, Location, UsageError, clipped, exception_line
-from lesmc.perception.graphs import (
-    ANY_SIZE,
-    DYNAMIC_BATCH,
-    Op,
-    Unsupported,
-    UserNet,
-    arith_op,
-    avgpool_op,
-    batchnorm_op,
-    conv_op,
-    refuse_nonfinite,
-)
+from lesmc.perception.graphs import ANY_SIZE, DYNAMIC_BATCH, UserNet, refuse_nonfinite
+from lesmc.perception.net_ops import Op, Unsupported, arith_op, avgpool_op, batchnorm_op, conv_op
 
 
 def _onnx() -> Any:
