@@ -131,3 +131,35 @@ def test_scene_frontend_not_an_object_or_misspelt(
     path.write_text(json.dumps(scene, indent=1))
     r = lesmc("verify", "--scene", str(path), "--out", str(tmp_path / "out"))
     _refused(r, path, _line_of(path.read_text(), needle), what)
+
+
+def test_multi_replay_reads_the_frames_perception_names(
+    multi_doc: dict[str, Any], tmp_path: Path
+) -> None:
+    """``lesmc replay`` of a multi-check document without --frames: ``meta.video`` is what
+    verify was given (the default video's is a description, a FRAMES_DIR is relative to
+    where verify ran); the replay must open ``perception.frames`` (absolute) then, not
+    stop at ``meta.video``: "embedded default: ...: not a directory of frames"."""
+    video = tmp_path / "tiny"
+    r = lesmc("synth", str(video), "--frames", "6", "--size", "128x128", "--seed", "3")
+    assert r.returncode == 0, r.stderr
+    doc = {
+        **multi_doc,
+        "meta": {
+            "scene": str(EXAMPLES / "crossing.json"),
+            "properties": [str(EXAMPLES / "hijack.spec")],
+            "video": "embedded default: lesmc synth lesmc-verify/video --seed 1 --frames 24",
+        },
+        "perception": {"frames": str(video)},
+    }
+    path = tmp_path / "results.json"
+    path.write_text(json.dumps(doc, indent=1))
+    r = lesmc("replay", str(path))
+    assert "Traceback" not in r.stderr, r.stderr
+    assert "not a directory of frames" not in r.stderr, r.stderr
+    frames = len(list(video.glob("*.png")))
+    assert frames == 6
+    # it detected the video's frames: crossing.json is hand-made, so its payoffs are not
+    # the attack's on them (exit 2, naming the difference)
+    assert f"started ({frames} to do)" in r.stderr, r.stderr
+    assert r.returncode == 2 and "differ from the run that wrote the results" in r.stderr
