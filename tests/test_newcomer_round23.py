@@ -131,6 +131,7 @@ def test_scene_frontend_not_an_object_or_misspelt(
     path.write_text(json.dumps(scene, indent=1))
     r = lesmc("verify", "--scene", str(path), "--out", str(tmp_path / "out"))
     _refused(r, path, _line_of(path.read_text(), needle), what)
+    assert not (tmp_path / "out").exists()  # refused before any work
 
 
 def test_multi_replay_reads_the_frames_perception_names(
