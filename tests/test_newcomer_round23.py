@@ -164,3 +164,19 @@ def test_multi_replay_reads_the_frames_perception_names(
     # the attack's on them (exit 2, naming the difference)
     assert f"started ({frames} to do)" in r.stderr, r.stderr
     assert r.returncode == 2 and "differ from the run that wrote the results" in r.stderr
+
+
+@pytest.mark.parametrize("design", ["sort", "gnn"])
+def test_multi_monitor_is_located_at_its_clause(tmp_path: Path, design: str) -> None:
+    """A monitor on a multi-target design is not supported yet: the error points at the
+    ``monitor`` clause (it pointed at the objective, two lines above)."""
+    spec = tmp_path / "m.spec"
+    spec.write_text(
+        "property p {\n  attack window 2..4\n  minimize payoff\n"
+        "  subject to switches(0..end) > 0\n  holds if optimum > 1\n  monitor uncertainty\n}\n"
+    )
+    r = lesmc("check", str(EXAMPLES / "crossing.json"), str(spec), "--design", design)
+    col = spec.read_text().splitlines()[5].index("monitor") + 1
+    _refused(r, spec, 6, "")
+    assert f"m.spec:6:{col}: a runtime monitor" in r.stderr, r.stderr
+    assert "not supported yet" in r.stderr
