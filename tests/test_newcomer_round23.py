@@ -180,3 +180,49 @@ def test_multi_monitor_is_located_at_its_clause(tmp_path: Path, design: str) -> 
     _refused(r, spec, 6, "")
     assert f"m.spec:6:{col}: a runtime monitor" in r.stderr, r.stderr
     assert "not supported yet" in r.stderr
+
+
+def _agrees(value: Any, name: str, part: str) -> tuple[bool, bool]:
+    """(lesmc's run-time validator finds no problem, jsonschema finds none) for ``value``
+    read as ``part`` of schema ``name``: a top-level field, or one of its ``$defs``."""
+    import jsonschema
+
+    from lesmc.schemas import errors, schema
+
+    sch = schema(name)
+    sub = sch["$defs"][part] if part in sch["$defs"] else sch["properties"][part]
+    theirs = jsonschema.Draft202012Validator({**sub, "$defs": sch["$defs"]}).is_valid(value)
+    return not errors(value, sub, sch), theirs
+
+
+@pytest.mark.parametrize("value", [2, 3, 16, 17, -1, 255, 256, "8", None, True, [8]])
+@pytest.mark.parametrize("field", ["history", "delta_bc"])
+@pytest.mark.parametrize("name", ["multi-check", "results"])
+def test_run_time_validator_agrees_with_jsonschema_on_perception(
+    name: str, field: str, value: Any
+) -> None:
+    """The run-time validator and the jsonschema package (an independent implementation)
+    accept the same ``perception`` values, in both documents that carry one."""
+    mine, theirs = _agrees({field: value}, name, "perception")
+    assert mine == theirs, (name, field, value, mine, theirs)
+
+
+@pytest.mark.parametrize(
+    ("key", "value"),
+    [
+        ("actions", ["hide", "inject"]),
+        ("actions", ["hide", "hide"]),
+        ("actions", []),
+        ("inject_grid", {"spacing": 0, "radius": 1, "payoff": 1}),
+        ("inject_grid", {"spacing": 1e-9, "radius": 0, "payoff": 0}),
+        ("inject_grid", {"spacing": -2, "radius": 1, "payoff": 1}),
+    ],
+)
+def test_run_time_validator_agrees_with_jsonschema_on_properties(
+    results_doc: dict[str, Any], key: str, value: Any
+) -> None:
+    """uniqueItems, minItems and exclusiveMinimum as jsonschema reads them, on a property
+    of a results file lesmc wrote."""
+    prop = _with_property(results_doc, key, value)["runs"][0]["properties"][0]
+    mine, theirs = _agrees(prop, "results", "property")
+    assert mine == theirs, (key, value, mine, theirs)
