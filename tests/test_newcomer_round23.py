@@ -114,17 +114,16 @@ def test_results_file_bounds_are_checked(
     ("frontend", "needle", "what"),
     [
         ([3, 4], '"frontend"', r"meta\.frontend: must be an object"),
-        (None, '"frontend"', r"meta\.frontend: must be an object"),
         ({"histroy": 8}, '"histroy"', r"meta\.frontend\.histroy: unknown setting"),
     ],
-    ids=["list", "null", "misspelt"],
+    ids=["list", "misspelt"],
 )
 def test_scene_frontend_not_an_object_or_misspelt(
     tmp_path: Path, frontend: Any, needle: str, what: str
 ) -> None:
     """``lesmc verify --scene S`` records the scene's ``meta.frontend`` for the replay;
-    a list, null or a misspelt key was read as "records none" (defaults replayed,
-    exit 1 after the whole check)."""
+    a list (or null: the same branch) or a misspelt key was read as "records none"
+    (defaults replayed, exit 1 after the whole check)."""
     scene = json.loads((EXAMPLES / "merge.json").read_text())
     scene.setdefault("meta", {})["frontend"] = frontend
     path = tmp_path / "scene.json"
@@ -166,16 +165,15 @@ def test_multi_replay_reads_the_frames_perception_names(
     assert r.returncode == 2 and "differ from the run that wrote the results" in r.stderr
 
 
-@pytest.mark.parametrize("design", ["sort", "gnn"])
-def test_multi_monitor_is_located_at_its_clause(tmp_path: Path, design: str) -> None:
-    """A monitor on a multi-target design is not supported yet: the error points at the
-    ``monitor`` clause (it pointed at the objective, two lines above)."""
+def test_multi_monitor_is_located_at_its_clause(tmp_path: Path) -> None:
+    """A monitor on a multi-target design (sort; gnn takes the same check) is not supported
+    yet: the error points at the ``monitor`` clause (it pointed at the objective)."""
     spec = tmp_path / "m.spec"
     spec.write_text(
         "property p {\n  attack window 2..4\n  minimize payoff\n"
         "  subject to switches(0..end) > 0\n  holds if optimum > 1\n  monitor uncertainty\n}\n"
     )
-    r = lesmc("check", str(EXAMPLES / "crossing.json"), str(spec), "--design", design)
+    r = lesmc("check", str(EXAMPLES / "crossing.json"), str(spec), "--design", "sort")
     col = spec.read_text().splitlines()[5].index("monitor") + 1
     _refused(r, spec, 6, "")
     assert f"m.spec:6:{col}: a runtime monitor" in r.stderr, r.stderr
