@@ -24,7 +24,7 @@ from lesmc.common.budget import SearchBudget
 from lesmc.common.errors import Location, SpecError, UsageError, source_line
 from lesmc.engines.result import StopReason
 from lesmc.language import measures
-from lesmc.language.properties import Measure, Property, SpecFile
+from lesmc.language.properties import Measure, Monitor, Property, SpecFile
 from lesmc.language.semantics import BoundMeasure, BoundProperty, bind
 from lesmc.model.identity import NONE, indicators
 from lesmc.model.kernel import COMPARE, contributions, holds, initial_value
@@ -255,7 +255,8 @@ def unpriced_text(detection: str, step: int) -> str:
     )
 
 
-def _unsupported(spec: SpecFile, what: str, m: Measure) -> SpecError:
+def _unsupported(spec: SpecFile, what: str, m: Measure | Monitor) -> SpecError:
+    """``what`` is not supported yet, at ``m``'s place in the spec."""
     loc = Location(spec.path, m.pos.line, m.pos.column, source_line(spec.text, m.pos.line))
     return SpecError(f"{what} (multi-target designs: not supported yet)", loc)
 
@@ -280,5 +281,6 @@ def supported(spec: SpecFile, prop: Property) -> None:
             f"constraint '{con.text()}': the constraint must be {_taken('constraint')}",
             con,
         )
-    if prop.monitor is not None:
-        raise _unsupported(spec, "'monitor uncertainty'", obj)
+    if prop.monitor is not None:  # at the monitor clause (a spec's own: no design adds one)
+        at = prop.monitor if prop.monitor.pos.line > 0 else obj
+        raise _unsupported(spec, "a runtime monitor ('monitor')", at)

@@ -265,8 +265,8 @@ def replay_document(
     ``lesmc verify --design sort|gnn`` wrote it): its scene (``meta.scene``, else the
     scene.json beside it) with the target the check placed (``meta.scene_target``), its
     properties (``meta.properties``, moved to ``meta.window``),
-    the frames (``frames_dir``, else ``meta.video``, else ``perception.frames``) and the
-    networks; the replays and the frames' directory."""
+    the frames (``frames_dir``, else the first of ``meta.video`` and ``perception.frames``
+    that is a directory) and the networks; the replays and the frames' directory."""
     from lesmc.replay.multi import perception_settings, replay_multi
     from lesmc.replay.multi_cases import known_property, multi_cases
 
@@ -275,7 +275,10 @@ def replay_document(
     scene_path = _scene_of(meta, path)
     seen = doc.get("perception") or {}  # verify --scene S --frames DIR: no meta.video
     named = [v for v in (meta.get("video"), seen.get("frames")) if isinstance(v, str)]
-    frames_dir = frames_dir or next(iter(named), None)
+    # meta.video is as verify was given it (relative to its directory; for the default
+    # video, a description): the first that is a directory here, else the first named
+    here = [v for v in named if Path(v).is_dir()]
+    frames_dir = frames_dir or next(iter(here + named), None)
     if frames_dir is None:
         raise UsageError(
             "replay runs the detector on the video: give its frames with --frames DIR (the "

@@ -66,12 +66,21 @@ def frontend_of(meta: dict[str, Any], where: str = "<scene>") -> dict[str, int]:
     ``delta_bc``, as ``lesmc perceive -o`` writes them); {} for a scene that records none
     (made before they were recorded, or not by the window pipeline). A recorded value that
     is not an integer in :data:`lesmc.perception.FRONTEND_RANGES` (perceive's own ranges)
-    is an InputError at its field (``meta.frontend.history``) in ``where``, the scene file."""
-    fe = meta.get("frontend")
-    if not isinstance(fe, dict):
+    is an InputError at its field (``meta.frontend.history``) in ``where``, the scene file;
+    so is a ``meta.frontend`` that is not an object, or one with another field (a misspelt
+    setting would otherwise replay with the default)."""
+    if "frontend" not in meta:
         return {}
+    fe = meta["frontend"]
+    if not isinstance(fe, dict):
+        what = f"must be an object with history and delta_bc, got {show(fe)}"
+        raise scene_error(where, None, [("meta.frontend", what)])
     got: dict[str, int] = {}
-    problems: list[tuple[str, str]] = []
+    problems = [
+        (f"meta.frontend.{k}", f"unknown setting (known: {', '.join(FRONTEND_RANGES)})")
+        for k in fe
+        if k not in FRONTEND_RANGES
+    ]
     for key, (lo, hi) in FRONTEND_RANGES.items():
         if key not in fe:
             continue

@@ -4,9 +4,9 @@ Every document lesmc writes (``--json`` of each verb, results files) has a
 ``format`` and a ``version`` and is described by one schema here; the tests
 validate every output against its schema with the ``jsonschema`` package.
 :func:`validate` checks a document at run time with a small validator of the
-subset these schemas use (type, enum, const, minimum, pattern, minItems,
-maxItems, properties, required, additionalProperties, items, anyOf, $ref to
-#/$defs), so that reading a results file needs no extra dependency.
+subset these schemas use (type, enum, const, minimum, maximum, exclusiveMinimum,
+pattern, minItems, maxItems, uniqueItems, properties, required, additionalProperties,
+items, anyOf, oneOf, $ref to #/$defs), so that reading a results file needs no extra dependency.
 """
 
 from __future__ import annotations
@@ -109,13 +109,9 @@ def errors(value: Any, sch: dict[str, Any], root: dict[str, Any], where: str = "
         name = sch["$ref"].removeprefix("#/$defs/")
         return errors(value, root["$defs"][name], root, where)
     at = where or "(document)"
-    if "anyOf" in sch:
-        each = [errors(value, s, root, where) for s in sch["anyOf"]]
-        if not all(each):
-            return []
-        # the one form of the value's type (a nullable array, say): the field it breaks
-        typed = [e for e in each if not e[0].startswith(f"{at}: expected ")]
-        return typed[0] if len(typed) == 1 else [f"{at}: matches none of the allowed forms"]
+    for key in ("anyOf", "oneOf"):
+        if key in sch:
+            return _forms(value, sch[key], root, where, one=key == "oneOf")
     out: list[str] = []
     if "type" in sch:
         types = sch["type"] if isinstance(sch["type"], list) else [sch["type"]]
@@ -125,8 +121,7 @@ def errors(value: Any, sch: dict[str, Any], root: dict[str, Any], where: str = "
         out.append(f"{at}: must be {sch['const']!r}")
     if "enum" in sch and value not in sch["enum"]:
         out.append(f"{at}: must be one of {', '.join(map(repr, sch['enum']))}")
-    if "minimum" in sch and _is(value, "number") and value < sch["minimum"]:
-        out.append(f"{at}: must be >= {sch['minimum']}")
+    out += _bounds(value, sch, at)
     if "pattern" in sch and isinstance(value, str) and not re.search(sch["pattern"], value):
         out.append(f"{at}: must match {sch['pattern']}")
     if isinstance(value, list):
@@ -134,6 +129,10 @@ def errors(value: Any, sch: dict[str, Any], root: dict[str, Any], where: str = "
             out.append(f"{at}: must have at least {sch['minItems']} items")
         if "maxItems" in sch and len(value) > sch["maxItems"]:
             out.append(f"{at}: must have at most {sch['maxItems']} items")
+        if sch.get("uniqueItems") and len({json.dumps(v, sort_keys=True) for v in value}) < len(
+            value
+        ):
+            out.append(f"{at}: must not repeat an item")
     if isinstance(value, dict):
         for key in sch.get("required", []):
             if key not in value:
@@ -151,6 +150,37 @@ def errors(value: Any, sch: dict[str, Any], root: dict[str, Any], where: str = "
     if isinstance(value, list) and "items" in sch:
         for i, v in enumerate(value):
             out += errors(v, sch["items"], root, f"{where}[{i}]")
+    return out
+
+
+def _forms(
+    value: Any, forms: list[dict[str, Any]], root: dict[str, Any], where: str, one: bool
+) -> list[str]:
+    """``anyOf`` (``one`` False) or ``oneOf``: where ``value`` matches none of ``forms``
+    (or, for ``oneOf``, more than one)."""
+    at = where or "(document)"
+    each = [errors(value, s, root, where) for s in forms]
+    matched = sum(not e for e in each)
+    if one and matched > 1:
+        return [f"{at}: matches more than one of the allowed forms"]
+    if matched:
+        return []
+    # the one form of the value's type (a nullable array, say): the field it breaks
+    typed = [e for e in each if not e[0].startswith(f"{at}: expected ")]
+    return typed[0] if len(typed) == 1 else [f"{at}: matches none of the allowed forms"]
+
+
+def _bounds(value: Any, sch: dict[str, Any], at: str) -> list[str]:
+    """A number's ``minimum``, ``maximum`` and ``exclusiveMinimum``."""
+    if not _is(value, "number"):
+        return []
+    out = []
+    if "minimum" in sch and value < sch["minimum"]:
+        out.append(f"{at}: must be >= {sch['minimum']}")
+    if "maximum" in sch and value > sch["maximum"]:
+        out.append(f"{at}: must be <= {sch['maximum']}")
+    if "exclusiveMinimum" in sch and value <= sch["exclusiveMinimum"]:
+        out.append(f"{at}: must be > {sch['exclusiveMinimum']}")
     return out
 
 
