@@ -140,13 +140,26 @@ ATTACK_SETTINGS: dict[str, tuple[Callable[[Any], bool], str]] = {
 }
 
 
+#: What ``meta.attack`` may say besides its settings: descriptions for a reader
+#: (``lesmc perceive -o`` writes them), never read back.
+ATTACK_NOTES = ("pixel_scale", "input", "where")
+
+
 def recorded_attack(meta: dict[str, Any], pr: Problems) -> dict[str, Any]:
     """The settings of :data:`ATTACK_SETTINGS` that ``meta.attack`` records, each checked
-    (a bad one is a problem in ``pr`` and left out)."""
-    attack = meta.get("attack")
+    (a bad one is a problem in ``pr`` and left out). A ``meta.attack`` that is not an
+    object, or a field that is neither a setting nor one of :data:`ATTACK_NOTES` (a
+    misspelt setting would otherwise price and replay with the default), is a problem too."""
     got: dict[str, Any] = {}
-    if not isinstance(attack, dict):
+    if "attack" not in meta:
         return got
+    attack = meta["attack"]
+    if not isinstance(attack, dict):
+        pr.add("meta.attack", f"must be an object of attack settings, got {show(attack)}")
+        return got
+    for key in attack:
+        if key not in ATTACK_SETTINGS and key not in ATTACK_NOTES:
+            pr.add(f"meta.attack.{key}", f"unknown setting (known: {', '.join(ATTACK_SETTINGS)})")
     for key, (ok, what) in ATTACK_SETTINGS.items():
         if key in attack:
             if ok(attack[key]):
