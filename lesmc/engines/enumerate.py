@@ -250,18 +250,25 @@ def _unfold(space: Space, q: np.ndarray, budget: SearchBudget) -> str | None:
     """On a model unfolded on demand (lesmc/engines/lazy.py): unfold the distinct states
     of ``q`` in slices of about ``slice_size()`` states, looking at the budget between
     slices, so that a deadline holds while a large level unfolds; why it stopped, or None.
-    An explicit model has nothing to unfold."""
+    An explicit model has nothing to unfold.
+
+    The tree nodes the level makes are counted as its slices unfold (a node of ``q``
+    makes one per allowed transition of its state), so that a level past the budget's
+    node limit stops within a slice of the limit instead of being unfolded whole first
+    (on the joint design with injection a level's unfolding is most of the walk's time).
+    """
     size = getattr(space, "slice_size", None)
     if size is None:
         return None
-    todo = np.unique(q)
-    lo = 0
+    todo, times = np.unique(q, return_counts=True)
+    lo, made = 0, 0
     while lo < todo.size:
-        why = budget.over()
+        why = budget.over(made)
         if why is not None:
             return why
         n = max(1, int(size()))
-        space.successors_batch(todo[lo : lo + n])
+        owner, _ = space.successors_batch(todo[lo : lo + n])
+        made += int(times[lo : lo + n][owner].sum())
         lo += n
     return None
 
