@@ -67,7 +67,7 @@ def enumerate_many(spaces: list[Space], budget: Budget | None = None) -> list[En
     stopped, transitions = "finished", 0
     shared = {"tree_shared_by": len(spaces)} if len(spaces) > 1 else {}
     level = 0
-    rate = 0.0  # seconds per expanded node of the last level
+    rate = 0.0  # seconds per expanded node of the last level's array work
     while node.size:
         leaf = first.leaves(node)
         if leaf.any():
@@ -75,8 +75,9 @@ def enumerate_many(spaces: list[Space], budget: Budget | None = None) -> list[En
             for i, s in enumerate(spaces):
                 done[i].append((level, idx, *_completed(s, node[idx], obj[i][idx], con[i][idx])))
         live = np.nonzero(~leaf)[0]
-        started = time.perf_counter()
-        why = _unfold(first, node[live], search) or _would_overrun(search, rate, int(live.size))
+        why = _unfold(first, node[live], search)  # looks at the clock between its slices
+        started = time.perf_counter()  # the rate is the level's array work's, unfolding aside
+        why = why or _would_overrun(search, rate, int(live.size))
         if why is not None:
             stopped = why
             break
