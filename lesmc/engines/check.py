@@ -266,8 +266,14 @@ def _walk_once(
 
 
 #: A shared enumeration tried for ``levels``/``bnb`` on a model unfolded on demand stops
-#: past this many tree nodes (then each property is searched on its own).
+#: past this many tree nodes (then each property is searched on its own) ...
 SHARED_LAZY_TREE = 1 << 19
+#: ... or past this many seconds: the walk unfolds every state of the tree, which on a
+#: costly unfolding (the joint design with injection candidates: 2^m subsets a state)
+#: takes minutes where each property's search unfolds the few states its bounds keep
+#: (docs/performance.md, "Issue 61, frames under inject"); the states it unfolded stay
+#: in the model for those searches.
+SHARED_LAZY_SECONDS = 2.0
 
 
 def check_shared(
@@ -280,8 +286,8 @@ def check_shared(
     one window) in one walk of it (:func:`check_many`), for any engine: ``enumerate``
     always; ``levels`` and ``bnb`` when the tree is small (on a whole model: counted,
     at most enumerate.SMALL_TREE nodes; on one unfolded on demand: the walk finishes
-    within SHARED_LAZY_TREE nodes), the answers then marked ``exhaustive`` as their
-    probe's are. None: search each property on its own."""
+    within SHARED_LAZY_TREE nodes and SHARED_LAZY_SECONDS), the answers then marked
+    ``exhaustive`` as their probe's are. None: search each property on its own."""
     if engines.get(engine).exhaustive:
         return check_many(model, bps, budget)
     limit = enum_engine.SMALL_TREE if budget.max_states is None else budget.max_states
@@ -293,7 +299,9 @@ def check_shared(
         tried = _walk_once(model, spaces, budget)
     else:
         limit = min(limit, SHARED_LAZY_TREE)
-        tried = check_many(model, bps, Budget(budget.seconds_left(), limit, budget.max_memory))
+        left = budget.seconds_left()
+        seconds = SHARED_LAZY_SECONDS if left is None else min(left, SHARED_LAZY_SECONDS)
+        tried = check_many(model, bps, Budget(seconds, limit, budget.max_memory))
     if any(r.stats.stopped != "finished" for r in tried):
         return None
     for r in tried:

@@ -67,7 +67,7 @@ def enumerate_many(spaces: list[Space], budget: Budget | None = None) -> list[En
     stopped, transitions = "finished", 0
     shared = {"tree_shared_by": len(spaces)} if len(spaces) > 1 else {}
     level = 0
-    rate = 0.0  # seconds per expanded node of the last level
+    rate = 0.0  # seconds per expanded node of the last level's array work
     while node.size:
         leaf = first.leaves(node)
         if leaf.any():
@@ -75,8 +75,9 @@ def enumerate_many(spaces: list[Space], budget: Budget | None = None) -> list[En
             for i, s in enumerate(spaces):
                 done[i].append((level, idx, *_completed(s, node[idx], obj[i][idx], con[i][idx])))
         live = np.nonzero(~leaf)[0]
-        started = time.perf_counter()
-        why = _unfold(first, node[live], search) or _would_overrun(search, rate, int(live.size))
+        why = _unfold(first, node[live], search)  # looks at the clock between its slices
+        started = time.perf_counter()  # the rate is the level's array work's, unfolding aside
+        why = why or _would_overrun(search, rate, int(live.size))
         if why is not None:
             stopped = why
             break
@@ -250,18 +251,25 @@ def _unfold(space: Space, q: np.ndarray, budget: SearchBudget) -> str | None:
     """On a model unfolded on demand (lesmc/engines/lazy.py): unfold the distinct states
     of ``q`` in slices of about ``slice_size()`` states, looking at the budget between
     slices, so that a deadline holds while a large level unfolds; why it stopped, or None.
-    An explicit model has nothing to unfold."""
+    An explicit model has nothing to unfold.
+
+    The tree nodes the level makes are counted as its slices unfold (a node of ``q``
+    makes one per allowed transition of its state), so that a level past the budget's
+    node limit stops within a slice of the limit instead of being unfolded whole first
+    (on the joint design with injection a level's unfolding is most of the walk's time).
+    """
     size = getattr(space, "slice_size", None)
     if size is None:
         return None
-    todo = np.unique(q)
-    lo = 0
+    todo, times = np.unique(q, return_counts=True)
+    lo, made = 0, 0
     while lo < todo.size:
-        why = budget.over()
+        why = budget.over(made)
         if why is not None:
             return why
         n = max(1, int(size()))
-        space.successors_batch(todo[lo : lo + n])
+        owner, _ = space.successors_batch(todo[lo : lo + n])
+        made += int(times[lo : lo + n][owner].sum())
         lo += n
     return None
 
