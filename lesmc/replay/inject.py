@@ -104,18 +104,39 @@ def attack_listed(
     if not rounds:
         return fa
     base = stack(out.frame, out.aligned.frames, m_nets)
-    after, kept = redetect(det, out, perturb(base, rounds, DR_SIZE), m_nets)
+    after, cands = redetect(det, out, perturb(base, rounds, DR_SIZE), m_nets)
     diagnose(fa, fd, after, idx)
     wanted = out.candidates.centroid[[row for _, row in injected]] if injected else None
-    if repair:
-        after = repair_frame(nets, det, out, fd, fa, idx, rounds, after, kept, cfg, wanted)
+    if repair:  # re-hides what survives and re-injects what is not detected
+        after = repair_frame(nets, det, out, fd, fa, idx, rounds, (after, cands), cfg, wanted)
     if wanted is not None:  # the injected detections are wanted: not extra ones
+        fa.overlaps += window_overlaps(fd, idx, injected, wanted)
         missing = nearest_within(wanted, after.positions, DET_TOL_PX) < 0
         fa.not_injected += [cid for (cid, _), m in zip(injected, missing, strict=True) if m]
         near = nearest_within(np.array(fa.extra, float).reshape(-1, 2), wanted, DET_TOL_PX)
         fa.extra = [e for e, j in zip(fa.extra, near, strict=True) if j < 0]
     fa.detections = after
     return fa
+
+
+def window_overlaps(
+    fd: FrameDetections,
+    idx: list[int],
+    injected: list[tuple[str, int]],
+    at: np.ndarray,
+) -> list[tuple[str, str]]:
+    """The pairs (hidden detection, injected candidate) of one frame whose 21 x 21 N_dr
+    windows share pixels (``idx``: the hidden detections' indices, ``at``: the
+    candidates' centroids), in :func:`~lesmc.replay.perturbed.diagnose`'s measure: the
+    perturbations add up there, and the replay says so rather than pricing them apart."""
+    from lesmc.perception.cnn import DR_SIZE
+
+    pairs = []
+    for j in sorted(set(idx)):
+        for (cid, _), c in zip(injected, at, strict=True):
+            if np.all(np.abs(fd.positions[j] - c) <= 2 * (DR_SIZE // 2)):
+                pairs.append((f"{fd.index}:{j}", cid))
+    return pairs
 
 
 def _derived(

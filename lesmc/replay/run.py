@@ -230,7 +230,11 @@ def frame_story(fa: FrameAttack) -> str:
             "its N_dr window towards vehicle, a heatmap cell above the threshold)"
         )
     if fa.not_injected:
-        parts.append(f"injected {', '.join(fa.not_injected)} not detected after all")
+        ov = sorted({a for a, b in fa.overlaps if b in fa.not_injected})
+        parts.append(
+            f"injected {', '.join(fa.not_injected)} not detected after all"
+            + (f" (21x21 windows overlap {', '.join(ov)})" if ov else "")
+        )
     if fa.repaired_rounds:
         parts.append(f"after {fa.repaired_rounds} round(s) of the repaired joint attack")
     return "; ".join(parts)
