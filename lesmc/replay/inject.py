@@ -10,7 +10,9 @@ takes give the cheapest way to force it (:func:`~lesmc.tracking.parts.attacker.f
 hide every detection before it, and if it is an injection candidate (``FRAME:cROW``,
 a window of Q_bc that N_dr rejects) perturb that window towards "vehicle" until
 N_dr accepts it. The frame's perturbations are applied together and the frame
-detected again, as for hiding (lesmc/replay/perturbed.py); the recomputed cost of the
+detected again, as for hiding (lesmc/replay/perturbed.py), and repaired as hiding is:
+detections that survive are hidden again and injected candidates not detected are
+injected again, on the perturbed frame (``repair_frame``); the recomputed cost of the
 path's attacks must equal its optimum (``minimize payoff``). A skip that only an attack
 forces is not derived: the replay then diverges there.
 """

@@ -30,9 +30,11 @@ attacked frame's attack from the model's path (lesmc/replay/inject.py).
 The first step where they differ, and why (a hidden detection still detected,
 a neighbour's detection lost or moved by an overlapping window, an extra
 detection), is reported. When a hidden detection survives because windows
-interact, the attack is *repaired*: the still-detected windows are attacked
-again on the perturbed inputs (jointly with the rest of the frame's
-perturbation) for up to :data:`REPAIR_ROUNDS` rounds, the cost of the extra
+interact (or an injected candidate is not detected), the attack is *repaired*:
+the still-detected windows are attacked again on the perturbed inputs (jointly
+with the rest of the frame's perturbation), the missed candidates' windows
+towards "vehicle", for up to :data:`REPAIR_ROUNDS` rounds
+(:func:`~lesmc.replay.perturbed.repair_frame`), the cost of the extra
 perturbations is added to the payoff, and the track is replayed again.
 """
 
