@@ -273,10 +273,11 @@ def repair_frame(
     Q_bc, :func:`redetect`), hide every detection the model does not have (hidden ones
     that survive, extra ones; not those at ``wanted``, the injected ones), detect again,
     then perturb towards "vehicle" the N_dr window of every ``wanted`` position not
-    detected (priced as the first injection), detect again; up to REPAIR_ROUNDS rounds.
-    Each round's perturbations are cut from the already perturbed inputs and added to
-    them; ``fa`` records the rounds and their cost (``extra_cost``: each extra window's
-    norm once, where it overlaps another window too). Returns the detections after it."""
+    detected (priced as the first injection), detect again; up to REPAIR_ROUNDS rounds
+    (a round in which no window flips ends the repair and is not counted). Each round's
+    perturbations are cut from the already perturbed inputs and added to them; ``fa``
+    records the rounds and their cost (``extra_cost``: each extra window's norm once,
+    where it overlaps another window too). Returns the detections after it."""
     m = nets.settings.m
     after, cands = seen
     frames = _perturbed(out, applied, m)
@@ -284,7 +285,6 @@ def repair_frame(
     while rounds < REPAIR_ROUNDS:
         if not _unwanted(fd, after, idx, wanted) and not _missing(wanted, after):
             break
-        rounds += 1
         moved = False
         for act in (_rehide, _reinject):
             got = act(nets, (after, cands, frames), fd, idx, wanted, cfg)
@@ -297,8 +297,9 @@ def repair_frame(
             after, cands = redetect(det, out, frames, m)
             diagnose(fa, fd, after, idx)
             moved = True
-        if not moved:
+        if not moved:  # a round that changes nothing is not counted
             break
+        rounds += 1
     fa.repaired_rounds = rounds
     return after
 
