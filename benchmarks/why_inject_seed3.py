@@ -1,8 +1,10 @@
-"""Why seed 3's joint injection attack diverges on replay (docs/results.md, "Attacks that
-inject"): frame 12's attack (hide 12:45, inject 12:c386) run as the replay runs it
+"""Why seed 3's joint injection attack needs the repair that re-injects (docs/results.md,
+"Attacks that inject"; it diverged in round 22, before the repair re-injected): frame
+12's attack (hide 12:45, inject 12:c386) run as the replay runs it
 (lesmc/replay/inject.py ``attack_listed``), together and the injection alone, each with
-and without the repair round; for each, whether the candidate is detected (within 1 px)
-and how far the nearest detection is from the candidate and from 12:45.
+and without the repair round; for each, whether the candidate is detected (within 1 px),
+how far the nearest detection is from the candidate and from 12:45, and the repair's
+rounds and cost.
 
 DIR holds bench_inject_video.py's ``scene3.json`` (``--within 30``, every candidate)
 and its video ``v3``.
@@ -52,7 +54,7 @@ def main(where: str) -> None:
             dh = np.hypot(pos[:, 0] - h.x, pos[:, 1] - h.y)
             print(f"{name}: not detected {fa.not_injected}; nearest detection to the "
                   f"candidate {d.min():.2f} px, to 12:45 {dh.min():.2f} px; repair rounds "
-                  f"{fa.repaired_rounds}")  # fmt: skip
+                  f"{fa.repaired_rounds}, cost {fa.extra_cost:.4f}")  # fmt: skip
 
     single.detect_attacked_frames(
         open_frames("v3", fe.history + 1),
