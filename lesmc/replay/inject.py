@@ -110,11 +110,15 @@ def attack_listed(
     diagnose(fa, fd, after, idx)
     wanted = out.candidates.centroid[[row for _, row in injected]] if injected else None
     if repair:  # re-hides what survives and re-injects what is not detected
-        after = repair_frame(nets, det, out, fd, fa, idx, rounds, (after, cands), cfg, wanted)
+        after, cands = repair_frame(
+            nets, det, out, fd, fa, idx, rounds, (after, cands), cfg, wanted
+        )
     if wanted is not None:  # the injected detections are wanted: not extra ones
         fa.overlaps += window_overlaps(fd, idx, injected, wanted)
         missing = nearest_within(wanted, after.positions, DET_TOL_PX) < 0
         fa.not_injected += [cid for (cid, _), m in zip(injected, missing, strict=True) if m]
+        gone = missing & (nearest_within(wanted, cands, DET_TOL_PX) < 0)
+        fa.no_blob += [cid for (cid, _), g in zip(injected, gone, strict=True) if g]
         near = nearest_within(np.array(fa.extra, float).reshape(-1, 2), wanted, DET_TOL_PX)
         fa.extra = [e for e, j in zip(fa.extra, near, strict=True) if j < 0]
     fa.detections = after

@@ -251,7 +251,7 @@ def attack_frame(
     )
     diagnose(fa, fd, after, idx)
     if repair:
-        after = repair_frame(nets, det, out, fd, fa, idx, rounds, (after, cands), cfg)
+        after, _ = repair_frame(nets, det, out, fd, fa, idx, rounds, (after, cands), cfg)
     fa.detections = after
     return fa
 
@@ -267,7 +267,7 @@ def repair_frame(
     seen: tuple[FrameDetections, np.ndarray],
     cfg: AttackConfig,
     wanted: np.ndarray | None = None,
-) -> FrameDetections:
+) -> tuple[FrameDetections, np.ndarray]:
     """The repaired attack, for hiding and injecting alike: on the frame as the
     perturbations ``applied`` leave it (``seen``: its detections and the centroids of its
     Q_bc, :func:`redetect`), hide every detection the model does not have (hidden ones
@@ -277,7 +277,8 @@ def repair_frame(
     (a round in which no window flips ends the repair and is not counted). Each round's
     perturbations are cut from the already perturbed inputs and added to them; ``fa``
     records the rounds and their cost (``extra_cost``: each extra window's norm once,
-    where it overlaps another window too). Returns the detections after it."""
+    where it overlaps another window too). Returns the detections after it and the
+    centroids of the perturbed frame's Q_bc."""
     m = nets.settings.m
     after, cands = seen
     frames = _perturbed(out, applied, m)
@@ -301,7 +302,7 @@ def repair_frame(
             break
         rounds += 1
     fa.repaired_rounds = rounds
-    return after
+    return after, cands
 
 
 #: What a repair round sees of the perturbed frame: its detections, the centroids of its

@@ -232,14 +232,22 @@ def frame_story(fa: FrameAttack) -> str:
             "its N_dr window towards vehicle, a heatmap cell above the threshold)"
         )
     if fa.not_injected:
-        ov = sorted({a for a, b in fa.overlaps if b in fa.not_injected})
-        parts.append(
-            f"injected {', '.join(fa.not_injected)} not detected after all"
-            + (f" (21x21 windows overlap {', '.join(ov)})" if ov else "")
-        )
+        parts.append(_not_injected(fa))
     if fa.repaired_rounds:
         parts.append(f"after {fa.repaired_rounds} round(s) of the repaired joint attack")
     return "; ".join(parts)
+
+
+def _not_injected(fa: FrameAttack) -> str:
+    """The injected candidates not detected, in words: the hidden detections whose windows
+    overlap theirs, and those whose blob the perturbed frame no longer has."""
+    ov = sorted({a for a, b in fa.overlaps if b in fa.not_injected})
+    gone = ", ".join(fa.no_blob)
+    return (
+        f"injected {', '.join(fa.not_injected)} not detected after all"
+        + (f" (21x21 windows overlap {', '.join(ov)})" if ov else "")
+        + (f": no blob of the perturbed frame within 1 px of {gone} to attack" if gone else "")
+    )
 
 
 # ---------------------------------------------------------------- the whole replay
