@@ -1,7 +1,7 @@
 """The replay's repair round re-injects (issue 61 item 4; docs/semantics.md, "Repaired
 attack"; lesmc/replay/perturbed.py ``repair_frame``).
 
-On the small WAMI video of tests/wami_video.py (its first 8 frames: ``lesmc synth`` gives
+On the small WAMI video of tests/wami_video.py (its first 6 frames: ``lesmc synth`` gives
 the same frames for any length), the car at (162.9, 480.0) in frame 4 is the target. At
 frame 5 its detection 5:29 (160.5, 453.0) and the candidate 5:c488 (160.5, 443.0), 10 px
 ahead, have N_dr windows that overlap (21 x 21 px, 11 rows in common). A ``single``
@@ -36,9 +36,9 @@ HIDDEN, INJECTED = "5:29", "5:c488"
 SPEC = """property hijack {
     attack window 1..1 allow hide, inject
     minimize dist.max(0..end)
-    subject to dist.max(0..end) > 1
+    subject to dist.max(0..end) > 0.5
     holds if optimum > 100
-    end 3
+    end 1
     on x, y
 }
 """
@@ -50,7 +50,7 @@ def checked(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, dict[str, A
     5:c488 as the only candidate: the directory and the scene."""
     tmp = tmp_path_factory.mktemp("reinject")
     video = tmp / "video"
-    r = lesmc("synth", str(video), "--frames", "8", "--size", "768x768", "--seed", "4",
+    r = lesmc("synth", str(video), "--frames", "6", "--size", "768x768", "--seed", "4",
               "--density", "2.5")  # fmt: skip
     assert r.returncode == 0, r.stderr
     r = lesmc("perceive", str(video), "-o", str(tmp / "perceived.json"), "--target", TARGET,
