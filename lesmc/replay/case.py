@@ -106,6 +106,9 @@ class FrameAttack:
     extra_cost: float = 0.0
     injected: list[str] = field(default_factory=list)  # candidate ids injected
     not_injected: list[str] = field(default_factory=list)  # injected ids not detected after
+    #: of those, the ids whose blob the perturbed frame no longer has (no candidate of its
+    #: Q_bc within DET_TOL_PX): nothing there for the repair to perturb towards vehicle
+    no_blob: list[str] = field(default_factory=list)
     cost: float = 0.0  # the recomputed cost of the frame's attack (allow hide, inject)
 
 

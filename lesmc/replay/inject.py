@@ -10,7 +10,9 @@ takes give the cheapest way to force it (:func:`~lesmc.tracking.parts.attacker.f
 hide every detection before it, and if it is an injection candidate (``FRAME:cROW``,
 a window of Q_bc that N_dr rejects) perturb that window towards "vehicle" until
 N_dr accepts it. The frame's perturbations are applied together and the frame
-detected again, as for hiding (lesmc/replay/perturbed.py); the recomputed cost of the
+detected again, as for hiding (lesmc/replay/perturbed.py), and repaired as hiding is:
+detections that survive are hidden again and injected candidates not detected are
+injected again, on the perturbed frame (``repair_frame``); the recomputed cost of the
 path's attacks must equal its optimum (``minimize payoff``). A skip that only an attack
 forces is not derived: the replay then diverges there.
 """
@@ -104,18 +106,43 @@ def attack_listed(
     if not rounds:
         return fa
     base = stack(out.frame, out.aligned.frames, m_nets)
-    after, kept = redetect(det, out, perturb(base, rounds, DR_SIZE), m_nets)
+    after, cands = redetect(det, out, perturb(base, rounds, DR_SIZE), m_nets)
     diagnose(fa, fd, after, idx)
     wanted = out.candidates.centroid[[row for _, row in injected]] if injected else None
-    if repair:
-        after = repair_frame(nets, det, out, fd, fa, idx, rounds, after, kept, cfg, wanted)
+    if repair:  # re-hides what survives and re-injects what is not detected
+        after, cands = repair_frame(
+            nets, det, out, fd, fa, idx, rounds, (after, cands), cfg, wanted
+        )
     if wanted is not None:  # the injected detections are wanted: not extra ones
+        fa.overlaps += window_overlaps(fd, idx, injected, wanted)
         missing = nearest_within(wanted, after.positions, DET_TOL_PX) < 0
         fa.not_injected += [cid for (cid, _), m in zip(injected, missing, strict=True) if m]
+        gone = missing & (nearest_within(wanted, cands, DET_TOL_PX) < 0)
+        fa.no_blob += [cid for (cid, _), g in zip(injected, gone, strict=True) if g]
         near = nearest_within(np.array(fa.extra, float).reshape(-1, 2), wanted, DET_TOL_PX)
         fa.extra = [e for e, j in zip(fa.extra, near, strict=True) if j < 0]
     fa.detections = after
     return fa
+
+
+def window_overlaps(
+    fd: FrameDetections,
+    idx: list[int],
+    injected: list[tuple[str, int]],
+    at: np.ndarray,
+) -> list[tuple[str, str]]:
+    """The pairs (hidden detection, injected candidate) of one frame whose 21 x 21 N_dr
+    windows share pixels (``idx``: the hidden detections' indices, ``at``: the
+    candidates' centroids), in :func:`~lesmc.replay.perturbed.diagnose`'s measure: the
+    perturbations add up there, and the replay says so rather than pricing them apart."""
+    from lesmc.perception.cnn import DR_SIZE
+
+    pairs = []
+    for j in sorted(set(idx)):
+        for (cid, _), c in zip(injected, at, strict=True):
+            if np.all(np.abs(fd.positions[j] - c) <= 2 * (DR_SIZE // 2)):
+                pairs.append((f"{fd.index}:{j}", cid))
+    return pairs
 
 
 def _derived(

@@ -99,8 +99,8 @@ def redetect(
     (with no perturbation everything equals the clean run, bit for bit). Outside
     ``p.box`` nothing moved, so the difference image there is the clean one; inside,
     it is computed from the float64 values.
-    Returns the detections and the centres of the candidates N_dr accepted (the
-    rows of their ``windows``).
+    Returns the detections and the centroids of every candidate of Q_bc (those N_dr
+    accepted are the rows ``fd.accepted``, in the order of the detections' ``windows``).
     """
     import cv2
 
@@ -130,7 +130,7 @@ def redetect(
     )
     fd = det.detect(pert_out)
     assert fd.accepted is not None  # detect() records the rows N_dr accepted
-    return fd, cands.centroid[fd.accepted]
+    return fd, cands.centroid
 
 
 def difference(out: FrontEndOutput, p: Perturbed, m: int) -> np.ndarray:
@@ -246,12 +246,12 @@ def attack_frame(
             perturbation(h, j, fd, centres[r], rec, flipped, res.perturbation[r])
         )
     rounds = [(centres, res.perturbation)]
-    after, kept = redetect(
+    after, cands = redetect(
         det, out, perturb(stack(out.frame, out.aligned.frames, m), rounds, DR_SIZE), m
     )
     diagnose(fa, fd, after, idx)
     if repair:
-        after = repair_frame(nets, det, out, fd, fa, idx, rounds, after, kept, cfg)
+        after, _ = repair_frame(nets, det, out, fd, fa, idx, rounds, (after, cands), cfg)
     fa.detections = after
     return fa
 
@@ -264,38 +264,123 @@ def repair_frame(
     fa: FrameAttack,
     idx: list[int],
     applied: list[Round],
-    after: FrameDetections,
-    kept: np.ndarray,
+    seen: tuple[FrameDetections, np.ndarray],
     cfg: AttackConfig,
     wanted: np.ndarray | None = None,
-) -> FrameDetections:
-    """The repaired attack: hide, jointly with the frame's perturbation (``applied``), every
-    detection the model does not have (hidden ones that survive, extra ones; not those
-    at ``wanted``, the injected ones), up to REPAIR_ROUNDS times; the detections after it
-    (``fa`` records the rounds and the extra cost)."""
+) -> tuple[FrameDetections, np.ndarray]:
+    """The repaired attack, for hiding and injecting alike: on the frame as the
+    perturbations ``applied`` leave it (``seen``: its detections and the centroids of its
+    Q_bc, :func:`redetect`), hide every detection the model does not have (hidden ones
+    that survive, extra ones; not those at ``wanted``, the injected ones), detect again,
+    then perturb towards "vehicle" the N_dr window of every ``wanted`` position not
+    detected (priced as the first injection), detect again; up to REPAIR_ROUNDS rounds
+    (a round in which no window flips ends the repair and is not counted). Each round's
+    perturbations are cut from the already perturbed inputs and added to them; ``fa``
+    records the rounds and their cost (``extra_cost``: each extra window's norm once,
+    where it overlaps another window too). Returns the detections after it and the
+    centroids of the perturbed frame's Q_bc."""
+    m = nets.settings.m
+    after, cands = seen
+    frames = _perturbed(out, applied, m)
+    rounds = 0
+    while rounds < REPAIR_ROUNDS:
+        if not _unwanted(fd, after, idx, wanted) and not _missing(wanted, after):
+            break
+        moved = False
+        for act in (_rehide, _reinject):
+            got = act(nets, (after, cands, frames), fd, idx, wanted, cfg)
+            if got is None:
+                continue
+            cost, more = got
+            fa.extra_cost += cost
+            applied.append(more)
+            frames = _perturbed(out, applied, m)
+            after, cands = redetect(det, out, frames, m)
+            diagnose(fa, fd, after, idx)
+            moved = True
+        if not moved:  # a round that changes nothing is not counted
+            break
+        rounds += 1
+    fa.repaired_rounds = rounds
+    return after, cands
+
+
+#: What a repair round sees of the perturbed frame: its detections, the centroids of its
+#: Q_bc and the perturbed detector inputs.
+Seen = tuple["FrameDetections", np.ndarray, Perturbed]
+
+
+def _perturbed(out: FrontEndOutput, applied: list[Round], m: int) -> Perturbed:
+    """The frame's detector inputs with every round of ``applied``."""
+    from lesmc.perception.cnn import DR_SIZE
+
+    return perturb(stack(out.frame, out.aligned.frames, m), applied, DR_SIZE)
+
+
+def _rehide(
+    nets: Nets,
+    seen: Seen,
+    fd: FrameDetections,
+    idx: list[int],
+    wanted: np.ndarray | None,
+    cfg: AttackConfig,
+) -> tuple[float, Round] | None:
+    """The repair's hiding step: the N_dr windows (of the perturbed inputs) of the
+    detections the model does not have, attacked away from "vehicle"; their cost and
+    the perturbations that flip (None: nothing to hide, or no window flips)."""
+    from lesmc.perception.attacks import payoffs
+
+    after, cands, _ = seen
+    unwanted = _unwanted(fd, after, idx, wanted)
+    if not unwanted:
+        return None
+    rows = sorted({int(after.source[j]) for j in unwanted})
+    more = payoffs(nets.dr, after.windows[rows], nets.settings.delta_dr, cfg)
+    ok = more.flipped
+    if not ok.any():
+        return None
+    assert after.accepted is not None  # redetect() keeps the rows N_dr accepts
+    return float(more.payoff[ok].sum()), (cands[after.accepted[rows]][ok], more.perturbation[ok])
+
+
+def _reinject(
+    nets: Nets,
+    seen: Seen,
+    fd: FrameDetections,
+    idx: list[int],
+    wanted: np.ndarray | None,
+    cfg: AttackConfig,
+) -> tuple[float, Round] | None:
+    """The repair's injecting step: each ``wanted`` position not detected whose blob the
+    perturbed frame still has in Q_bc (a centroid within DET_TOL_PX) gets that blob's
+    N_dr window, cut from the perturbed inputs, attacked towards "vehicle"; their cost
+    and the perturbations that flip (None: nothing missing, no such blob, or none flips)."""
     from lesmc.perception.attacks import payoffs
     from lesmc.perception.cnn import DR_SIZE
 
-    m = nets.settings.m
-    rounds = 0
-    while (fa.still or fa.extra) and rounds < REPAIR_ROUNDS:
-        unwanted = _unwanted(fd, after, idx, wanted)
-        if not unwanted:
-            break
-        rounds += 1
-        rows = sorted({int(after.source[j]) for j in unwanted})
-        more = payoffs(nets.dr, after.windows[rows], nets.settings.delta_dr, cfg)
-        if not more.flipped.any():
-            break
-        ok = more.flipped
-        fa.extra_cost += float(more.payoff[ok].sum())
-        cs = kept[rows][ok]
-        applied.append((cs, more.perturbation[ok]))
-        base = stack(out.frame, out.aligned.frames, m)
-        after, kept = redetect(det, out, perturb(base, applied, DR_SIZE), m)
-        diagnose(fa, fd, after, idx)
-    fa.repaired_rounds = rounds
-    return after
+    after, cands, frames = seen
+    if wanted is None or not _missing(wanted, after):
+        return None
+    gone = wanted[nearest_within(wanted, after.positions, DET_TOL_PX) < 0]
+    at = nearest_within(gone, cands, DET_TOL_PX)
+    centres = cands[at[at >= 0]]
+    if not len(centres):
+        return None
+    res = payoffs(
+        nets.dr, cut(frames.frames, centres, DR_SIZE), nets.settings.delta_dr, cfg, "inject"
+    )
+    ok = res.flipped
+    if not ok.any():
+        return None
+    return float(res.payoff[ok].sum()), (centres[ok], res.perturbation[ok])
+
+
+def _missing(wanted: np.ndarray | None, after: FrameDetections) -> bool:
+    """Whether a ``wanted`` position (an injected candidate) has no detection within
+    DET_TOL_PX in ``after``."""
+    if wanted is None or not len(wanted):
+        return False
+    return bool((nearest_within(wanted, after.positions, DET_TOL_PX) < 0).any())
 
 
 def _unwanted(

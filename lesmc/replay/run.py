@@ -30,9 +30,11 @@ attacked frame's attack from the model's path (lesmc/replay/inject.py).
 The first step where they differ, and why (a hidden detection still detected,
 a neighbour's detection lost or moved by an overlapping window, an extra
 detection), is reported. When a hidden detection survives because windows
-interact, the attack is *repaired*: the still-detected windows are attacked
-again on the perturbed inputs (jointly with the rest of the frame's
-perturbation) for up to :data:`REPAIR_ROUNDS` rounds, the cost of the extra
+interact (or an injected candidate is not detected), the attack is *repaired*:
+the still-detected windows are attacked again on the perturbed inputs (jointly
+with the rest of the frame's perturbation), the missed candidates' windows
+towards "vehicle", for up to :data:`REPAIR_ROUNDS` rounds
+(:func:`~lesmc.replay.perturbed.repair_frame`), the cost of the extra
 perturbations is added to the payoff, and the track is replayed again.
 """
 
@@ -230,10 +232,22 @@ def frame_story(fa: FrameAttack) -> str:
             "its N_dr window towards vehicle, a heatmap cell above the threshold)"
         )
     if fa.not_injected:
-        parts.append(f"injected {', '.join(fa.not_injected)} not detected after all")
+        parts.append(_not_injected(fa))
     if fa.repaired_rounds:
         parts.append(f"after {fa.repaired_rounds} round(s) of the repaired joint attack")
     return "; ".join(parts)
+
+
+def _not_injected(fa: FrameAttack) -> str:
+    """The injected candidates not detected, in words: the hidden detections whose windows
+    overlap theirs, and those whose blob the perturbed frame no longer has."""
+    ov = sorted({a for a, b in fa.overlaps if b in fa.not_injected})
+    gone = ", ".join(fa.no_blob)
+    return (
+        f"injected {', '.join(fa.not_injected)} not detected after all"
+        + (f" (21x21 windows overlap {', '.join(ov)})" if ov else "")
+        + (f": no blob of the perturbed frame within 1 px of {gone} to attack" if gone else "")
+    )
 
 
 # ---------------------------------------------------------------- the whole replay

@@ -1,0 +1,137 @@
+"""The replay's repair round re-injects (issue 61 item 4; docs/semantics.md, "Repaired
+attack"; lesmc/replay/perturbed.py ``repair_frame``).
+
+On the small WAMI video of tests/wami_video.py (its first 6 frames: ``lesmc synth`` gives
+the same frames for any length), the car at (162.9, 480.0) in frame 4 is the target. At
+frame 5 its detection 5:29 (160.5, 453.0) and the candidate 5:c488 (160.5, 443.0), 10 px
+ahead, have N_dr windows that overlap (21 x 21 px, 11 rows in common). A ``single``
+counterexample under ``allow hide, inject`` takes 5:c488 at step 1, so the replay hides
+5:29 and injects 5:c488. Each perturbation flips N_dr on its own window, but applied
+together the candidate is not detected, and re-hiding what survives does not bring it
+back (the replay before this change diverged here). The repair that perturbs the
+candidate's window again, on the perturbed frame, does: the replay is ``confirmed``
+with the repair's cost reported. With the round limit at one round (it takes two) the
+same counterexample stays ``diverged``, and the reason names the overlapping windows.
+
+The scene keeps 5:c488 as the only injection candidate (a smaller threat model: any subset
+of the candidates is one) and a tracker that trusts its prediction more (``sigma_r`` 20,
+``P0_sd`` 5): the detector reports the injected candidate 0.9 px from its clean centroid
+(its blob moved under the perturbation), inside the 1 px detection tolerance, and the
+Kalman gain keeps the track within the 0.5 px track tolerance.
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pytest
+from cli_run import lesmc
+
+TARGET = "162.9,480.0@4"
+HIDDEN, INJECTED = "5:29", "5:c488"
+
+SPEC = """property hijack {
+    attack window 1..1 allow hide, inject
+    minimize dist.max(0..end)
+    subject to dist.max(0..end) > 0.5
+    holds if optimum > 100
+    end 1
+    on x, y
+}
+"""
+
+
+@pytest.fixture(scope="module")
+def checked(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, dict[str, Any]]:
+    """The video, and ``lesmc check --report`` of :data:`SPEC` on its perceived scene with
+    5:c488 as the only candidate: the directory and the scene."""
+    tmp = tmp_path_factory.mktemp("reinject")
+    video = tmp / "video"
+    r = lesmc("synth", str(video), "--frames", "6", "--size", "768x768", "--seed", "4",
+              "--density", "2.5")  # fmt: skip
+    assert r.returncode == 0, r.stderr
+    r = lesmc("perceive", str(video), "-o", str(tmp / "perceived.json"), "--target", TARGET,
+              "--truth", str(video / "truth.json"), "--inject-within", "30")  # fmt: skip
+    assert r.returncode == 0 and "Traceback" not in r.stderr, r.stderr
+    scene = json.loads((tmp / "perceived.json").read_text())
+    for f in scene["frames"]:
+        f["candidates"] = [c for c in f.get("candidates", []) if c["id"] == INJECTED]
+    scene["tracker"].update(sigma_r=20.0, P0_sd=[5.0, 5.0, 5.0, 5.0])
+    (tmp / "scene.json").write_text(json.dumps(scene))
+    (tmp / "hijack.spec").write_text(SPEC)
+    r = lesmc("check", str(tmp / "scene.json"), str(tmp / "hijack.spec"), "--design",
+              "single", "--report", str(tmp / "out"))  # fmt: skip
+    assert r.returncode == 1 and "Traceback" not in r.stderr, r.stderr
+    return tmp, scene
+
+
+def _item(scene: dict[str, Any], did: str) -> dict[str, Any]:
+    """The scene's detection or candidate ``did``."""
+    f = next(f for f in scene["frames"] if f["step"] == int(did.split(":")[0]))
+    return next(d for d in f["detections"] + f["candidates"] if d["id"] == did)
+
+
+def test_the_fixture_is_the_overlapping_case(checked: tuple[Path, dict[str, Any]]) -> None:
+    """The counterexample takes the candidate at step 1; the two windows overlap."""
+    tmp, scene = checked
+    doc = json.loads((tmp / "out" / "results.json").read_text())
+    (run,) = doc["runs"]
+    (res,) = run["results"]
+    assert res["verdict"] == "violated"
+    h, c = _item(scene, HIDDEN), _item(scene, INJECTED)
+    # 21 x 21 windows around both centres share pixels
+    assert abs(h["x"] - c["x"]) <= 20 and abs(h["y"] - c["y"]) <= 20
+
+
+def test_the_repair_reinjects_and_the_replay_confirms(
+    checked: tuple[Path, dict[str, Any]],
+) -> None:
+    tmp, scene = checked
+    r = lesmc("replay", str(tmp / "out" / "results.json"), "--frames", str(tmp / "video"),
+              "--json")  # fmt: skip
+    assert "Traceback" not in r.stderr, r.stderr
+    assert r.returncode == 1, r.stderr  # violated: confirmed
+    (row,) = json.loads(r.stdout)["replays"]
+    rp = row["replay"]
+    assert rp["status"] == "confirmed", rp["reason"]
+    assert row["verdict"] == "violated"
+    assert rp["attack"] == "repaired"
+    assert rp["repair_cost"] > 0  # the extra perturbations' norms, reported
+    assert rp["max_error_px"] <= 0.5
+    # the first application: the scene's two attacks, recomputed at the scene's prices
+    perts = {p["obs"]: p for p in rp["perturbations"]}
+    assert set(perts) == {HIDDEN, INJECTED}
+    assert perts[INJECTED]["action"] == "inject"
+    for did, p in perts.items():
+        assert p["payoff_recomputed"] == pytest.approx(_item(scene, did)["payoff"], rel=1e-3)
+        assert np.linalg.norm(np.asarray(p["delta"])) == pytest.approx(
+            _item(scene, did)["payoff"], rel=1e-3
+        )
+    assert "not detected" not in " ".join(rp["frames"])
+
+
+def test_within_one_round_the_repair_fails_and_the_replay_diverges(
+    checked: tuple[Path, dict[str, Any]], monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """The round limit at 1 (the re-injection needs 2): the candidate stays undetected,
+    the replay diverges at step 1, and the reason says why (the windows overlap)."""
+    from lesmc.perception.cnn import load_nets
+    from lesmc.replay import perturbed
+    from lesmc.replay.run import replay
+    from lesmc.results.load import load_results
+    from lesmc.results.read import results_of
+    from lesmc.video.reader import open_frames
+
+    tmp, _ = checked
+    monkeypatch.setattr(perturbed, "REPAIR_ROUNDS", 1)
+    doc = results_of(load_results(str(tmp / "out" / "results.json")))
+    out = replay(doc, open_frames(str(tmp / "video"), 5), load_nets(None, None, None))
+    rp = out.replays[(0, 0)]
+    assert rp["status"] == "diverged"
+    assert rp["step"] == 1
+    assert rp["attack"] == "repaired"
+    assert f"injected {INJECTED} not detected after all" in rp["reason"]
+    assert f"(21x21 windows overlap {HIDDEN})" in rp["reason"]
