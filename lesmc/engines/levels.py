@@ -330,8 +330,14 @@ def _pareto(q: np.ndarray, o: np.ndarray, c: np.ndarray, up: bool) -> np.ndarray
 class _Pass(NamedTuple):
     """What :func:`_optimum_pass` found: the best objective, where its label is (trail,
     level, index), a proven lower bound on the optimum (−inf for a beam that dropped
-    labels: see :func:`_optimum_pass`), why it stopped early (None: it finished), and per
-    lane whether it found a path below its threshold."""
+    labels), why it stopped early (None: it finished), and per lane whether it found a
+    path below its threshold.
+
+    A dive whose beam never had to drop a label (no level of any lane past ``beam``
+    labels after the cuts and the Pareto filter) kept exactly the labels the exact pass
+    keeps: the lane of the highest threshold is then the exact pass below it, and its
+    best is proven, as the exact pass's is (docs/engines.md, `levels` item 3).
+    """
 
     best: float
     where: tuple[_Trail, int, int] | None
@@ -355,18 +361,12 @@ def _optimum_pass(
     Several thresholds (beam only) are dives side by side, one *lane* each, unfolded in
     one batch a level: a label keeps its lane, whose threshold (and the incumbent) cuts
     it and whose beam it shares. Stopped early, the lower bound is the least label bound.
-
-    A dive whose beam never had to drop a label (no level of any lane past ``beam``
-    labels after the cuts and the Pareto filter) kept exactly the labels the exact pass
-    keeps: the lane of the highest threshold is then the exact pass below it, and its
-    best is proven (its lower bound), as the exact pass's is (docs/engines.md, "dives").
     """
     thresholds = np.atleast_1d(np.asarray(upper, dtype=float))
     lane_cut = np.array([bounds.cut(float(x)) for x in thresholds])
     hits = np.zeros(thresholds.size, dtype=bool)
     trail, fq, fo, fc, fg = _roots(space, thresholds.size)
-    best, where, cm = float(thresholds.max()), None, space.cm
-    whole = True  # no level lost a label to the beam so far
+    best, where, cm, whole = float(thresholds.max()), None, space.cm, True  # whole: see _Pass
     while fq.size:
         leaf = space.leaves(fq)
         found = _cheapest_leaf(space, fq, fo, fc, leaf, best, thresholds, fg, hits)
@@ -386,8 +386,7 @@ def _optimum_pass(
                 rest = live[s0 - sl.size :]  # this slice was not expanded
                 lower = min(best, bounds.least_lb(fq[rest], fo[rest], fc[rest]), _least(parts))
                 return _Pass(best, where, lower, stop.reason, hits)
-            par = sl[idx]
-            dst = cm.dst[t]
+            par, dst = sl[idx], cm.dst[t]
             o2 = aggregate_arrays(space.obj_max, fo[par], space.c_obj[t])
             c2 = _saturate(space, aggregate_arrays(space.con_max, fc[par], space.c_con[t]))
             lb2 = bounds.violating_lb(dst, o2, c2)
@@ -402,7 +401,7 @@ def _optimum_pass(
         g = fg[p]
         cut = np.minimum(bounds.cut(best), lane_cut[g])
         keep, all_kept = _kept(space, q, o, c, lb, cut, g, beam, saturated_first)
-        whole &= all_kept
+        whole = whole and all_kept
         trail.add(q[keep], p[keep], t[keep])
         fq, fo, fc, fg = q[keep], o[keep], c[keep], g[keep]
     return _Pass(best, where, (best if beam is None or whole else -math.inf), None, hits)
