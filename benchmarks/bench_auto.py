@@ -31,7 +31,7 @@ engine's own wall-clock seconds (``--clock wall``); the timeout is wall-clock ei
 spends before the engine it runs, so that an excess of auto / best over chosen / best is
 either that or the jitter between runs. Every finished answer (optimum and θ*) must
 equal the others' (else MISMATCH and exit 1). Target: the worst auto / best at most 1.2x.
-Figures: docs/performance.md, "Issue 62, sixth round".
+Figures: docs/performance.md, "Issue 62, sixth round" and "seventh round".
 """
 
 from __future__ import annotations

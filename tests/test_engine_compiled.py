@@ -35,14 +35,18 @@ SUMS = ["payoff", "count", "dist.sum({a}..{b})", "dist.at({b})"]
 @contextmanager
 def forced(kernel: object = None) -> Iterator[None]:
     """levels hands the optimum to the compiled pass at once, run by ``kernel`` (default:
-    the plain Python function)."""
+    the plain Python function). The dives' beam has no width, so that every dive drops
+    labels: a dive that kept them all would be the exact pass, and no pass would follow."""
     saved = (levels.COMPILED_AFTER, compiled._kernel, compiled._tried, levels.VALUE_CELLS)
+    beam = levels.BEAM
     levels.COMPILED_AFTER, levels.VALUE_CELLS = 0, -1  # no value table (values.py) either
+    levels.BEAM = 0
     compiled._kernel, compiled._tried = kernel or compiled.dfs_chunk, True
     try:
         yield
     finally:
         levels.COMPILED_AFTER, compiled._kernel, compiled._tried, levels.VALUE_CELLS = saved
+        levels.BEAM = beam
 
 
 @st.composite
@@ -179,14 +183,15 @@ def test_without_numba_the_exact_pass_has_no_cap() -> None:
     """No kernel (numba missing): the exact pass is not capped (no label of it is spent
     twice), and the optimum is the brute force's."""
     items, demand = knapsack(5, 16, real=False)
-    saved = (levels.COMPILED_AFTER, compiled._kernel, compiled._tried)
+    saved = (levels.COMPILED_AFTER, compiled._kernel, compiled._tried, levels.BEAM)
     try:
         levels.COMPILED_AFTER, compiled._kernel, compiled._tried = 3, None, True
+        levels.BEAM = 0  # dives that drop labels: the exact pass runs (see forced)
         opt, extra, _ = solve(items, demand)
         levels.COMPILED_AFTER = 10**12  # never reached: the same search, uncapped
         _, plain, _ = solve(items, demand)
     finally:
-        levels.COMPILED_AFTER, compiled._kernel, compiled._tried = saved
+        levels.COMPILED_AFTER, compiled._kernel, compiled._tried, levels.BEAM = saved
     assert "compiled" not in extra
     assert extra["optimum_states"] == plain["optimum_states"]
     assert opt == brute_knapsack(items, demand)
@@ -198,6 +203,7 @@ def test_a_kernel_that_will_not_load_leaves_the_exact_pass_to_decide(
     """numba found but not importable: the capped exact pass runs again without the cap."""
     items, demand = knapsack(6, 16, real=True)
     monkeypatch.setattr(levels, "COMPILED_AFTER", 0)
+    monkeypatch.setattr(levels, "BEAM", 0)  # dives that drop labels: the exact pass runs
     monkeypatch.setattr(compiled, "available", lambda: True)
     monkeypatch.setattr(compiled, "kernel", lambda: None)
     opt, extra, _ = solve(items, demand)

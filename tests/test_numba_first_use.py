@@ -117,6 +117,7 @@ def test_no_writable_cache_leaves_the_numpy_passes_to_decide(
     monkeypatch.setattr(compiled, "_found", True)  # numba "installed": the cap applies
     monkeypatch.setattr(levels, "COMPILED_AFTER", 3)
     monkeypatch.setattr(levels, "VALUE_CELLS", -1)  # the label passes, not the value table
+    monkeypatch.setattr(levels, "BEAM", 0)  # dives that drop labels: the exact pass runs
     items, demand = knapsack(7, 14, real=False)
     opt, extra, _ = solve(items, demand)
     assert "compiled" not in extra

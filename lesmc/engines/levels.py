@@ -329,8 +329,15 @@ def _pareto(q: np.ndarray, o: np.ndarray, c: np.ndarray, up: bool) -> np.ndarray
 
 class _Pass(NamedTuple):
     """What :func:`_optimum_pass` found: the best objective, where its label is (trail,
-    level, index), a proven lower bound on the optimum (−inf for a beam), why it stopped
-    early (None: it finished), and per lane whether it found a path below its threshold."""
+    level, index), a proven lower bound on the optimum (−inf for a beam that dropped
+    labels), why it stopped early (None: it finished), and per lane whether it found a
+    path below its threshold.
+
+    A dive whose beam never had to drop a label (no level of any lane past ``beam``
+    labels after the cuts and the Pareto filter) kept exactly the labels the exact pass
+    keeps: the lane of the highest threshold is then the exact pass below it, and its
+    best is proven, as the exact pass's is (docs/engines.md, `levels` item 3).
+    """
 
     best: float
     where: tuple[_Trail, int, int] | None
@@ -359,7 +366,7 @@ def _optimum_pass(
     lane_cut = np.array([bounds.cut(float(x)) for x in thresholds])
     hits = np.zeros(thresholds.size, dtype=bool)
     trail, fq, fo, fc, fg = _roots(space, thresholds.size)
-    best, where, cm = float(thresholds.max()), None, space.cm
+    best, where, cm, whole = float(thresholds.max()), None, space.cm, True  # whole: see _Pass
     while fq.size:
         leaf = space.leaves(fq)
         found = _cheapest_leaf(space, fq, fo, fc, leaf, best, thresholds, fg, hits)
@@ -379,8 +386,7 @@ def _optimum_pass(
                 rest = live[s0 - sl.size :]  # this slice was not expanded
                 lower = min(best, bounds.least_lb(fq[rest], fo[rest], fc[rest]), _least(parts))
                 return _Pass(best, where, lower, stop.reason, hits)
-            par = sl[idx]
-            dst = cm.dst[t]
+            par, dst = sl[idx], cm.dst[t]
             o2 = aggregate_arrays(space.obj_max, fo[par], space.c_obj[t])
             c2 = _saturate(space, aggregate_arrays(space.con_max, fc[par], space.c_con[t]))
             lb2 = bounds.violating_lb(dst, o2, c2)
@@ -394,10 +400,11 @@ def _optimum_pass(
             return _Pass(best, where, min(best, float(lb.min(initial=math.inf))), why, hits)
         g = fg[p]
         cut = np.minimum(bounds.cut(best), lane_cut[g])
-        keep = _kept(space, q, o, c, lb, cut, g, beam, saturated_first)
+        keep, all_kept = _kept(space, q, o, c, lb, cut, g, beam, saturated_first)
+        whole = whole and all_kept
         trail.add(q[keep], p[keep], t[keep])
         fq, fo, fc, fg = q[keep], o[keep], c[keep], g[keep]
-    return _Pass(best, where, (best if beam is None else -math.inf), None, hits)
+    return _Pass(best, where, (best if beam is None or whole else -math.inf), None, hits)
 
 
 def _roots(
@@ -463,22 +470,22 @@ def _kept(
     lane: np.ndarray,
     beam: int | None,
     saturated_first: bool,
-) -> np.ndarray:
+) -> tuple[np.ndarray, bool]:
     """The labels of a level worth going on with: under their cut (the incumbent, which
     may have improved, and their lane's threshold), not dominated at their state within
-    their lane, and within their lane's beam."""
+    their lane, and within their lane's beam; and whether the beam kept all of them."""
     keep: np.ndarray = np.nonzero(lb < cut)[0]
     lanes = int(lane.max(initial=0)) + 1
     at = q[keep] if lanes == 1 else q[keep] * lanes + lane[keep]  # a state of one lane
     keep = keep[_pareto(at, o[keep], c[keep], space.con_up)]
     if beam is None or keep.size <= beam:
-        return keep
+        return keep, True
     if lanes == 1:
-        return _beam(space, keep, lb, q, c, beam, saturated_first)
+        return _beam(space, keep, lb, q, c, beam, saturated_first), False
     parts = [keep[lane[keep] == g] for g in range(lanes)]
     kept = [_beam(space, x, lb, q, c, beam, saturated_first) if x.size > beam else x for x in parts]
     out: np.ndarray = np.sort(np.concatenate(kept))
-    return out
+    return out, all(x.size <= beam for x in parts)
 
 
 def _cheapest_leaf(
@@ -529,20 +536,14 @@ def level_search(space: SearchSpace, limits: Budget | None = None) -> EngineOutc
     bounds = _Bounds(space)
     if bounds.exact:
         stats.extra["bound_states"] = bounds.reachable
-    # phase 1: a dive for an incumbent, then the exact pass below it
-    beam = _dive_beam(space)
-    upper, at, _, stopped, _ = _optimum_pass(space, bounds, budget, stats, math.inf, beam)
-    if stopped is None and space.con_up:
-        best, got, _, stopped, _ = _optimum_pass(space, bounds, budget, stats, upper, beam, False)
-        if got is not None and best < upper:
-            upper, at = best, got
-    if stopped is None and math.isfinite(upper):
-        upper, at, stopped = _tighten(space, bounds, budget, stats, upper, at)
+    # phase 1: dives for an incumbent, then the exact pass below it
+    upper, at, lower, stopped = _dives(space, bounds, budget, stats)
     stats.extra["dive_states"] = budget.used
     stats.extra["dive_upper"] = upper if math.isfinite(upper) else None
-    lower = -math.inf
     cex = None
-    if stopped is None:
+    if stopped is None and lower >= upper:  # a dive kept every label: it was the exact pass
+        stats.extra["dive_exact"] = True
+    elif stopped is None:
         upper, at, cex, lower, stopped = _exact_optimum(space, bounds, budget, stats, upper, at)
     cex = cex if cex is not None else _path_of(at)
     stats.extra["optimum_states"] = budget.used
@@ -572,6 +573,29 @@ def level_search(space: SearchSpace, limits: Budget | None = None) -> EngineOutc
         witness_exact=w_exact,
         stats=stats,
     )
+
+
+def _dives(
+    space: SearchSpace, bounds: _Bounds, budget: SearchBudget, stats: Stats
+) -> tuple[float, tuple[_Trail, int, int] | None, float, str | None]:
+    """Phase 1's dives: the incumbent, where it was found, a proven lower bound on the
+    optimum (−inf unless a dive's beam kept every label, :func:`_optimum_pass`) and why
+    they stopped early (None: they finished).
+
+    A first dive ranks the labels that already violate first, a second one below its
+    incumbent leaves them to the bounds (``>``/``>=`` constraints, :func:`_beam`); then
+    :func:`_tighten` bisects, unless a dive already proved its incumbent the optimum.
+    """
+    beam = _dive_beam(space)
+    upper, at, lower, stopped, _ = _optimum_pass(space, bounds, budget, stats, math.inf, beam)
+    if stopped is None and space.con_up and lower < upper:
+        best, got, low, stopped, _ = _optimum_pass(space, bounds, budget, stats, upper, beam, False)
+        if got is not None and best < upper:
+            upper, at = best, got
+        lower = max(lower, low)
+    if stopped is None and math.isfinite(upper) and lower < upper:
+        upper, at, stopped = _tighten(space, bounds, budget, stats, upper, at)
+    return upper, at, lower, stopped
 
 
 def _by_values(
