@@ -80,11 +80,14 @@ def _nets() -> list[tuple[str, nn.Module, dict[str, Any]]]:
 
 
 def _export(net: nn.Module, channels: int, path: Path) -> Path:
+    """``net`` as ONNX with a dynamic batch, by torch's TorchScript exporter: the same
+    operators and the same outputs, bit for bit, as the dynamo exporter's (checked on
+    a, b, c), seconds faster per network (tests/spot_detector.py does the same)."""
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         torch.onnx.export(
-            net, (torch.rand(2, channels, H, W),), str(path), dynamo=True,
-            external_data=False, dynamic_shapes=({0: torch.export.Dim("batch")},),
+            net, (torch.rand(2, channels, H, W),), str(path), dynamo=False,
+            input_names=["x"], dynamic_axes={"x": {0: "batch"}},
         )  # fmt: skip
     return path
 
