@@ -224,3 +224,90 @@ def test_run_time_validator_agrees_with_jsonschema_on_properties(
     prop = _with_property(results_doc, key, value)["runs"][0]["properties"][0]
     mine, theirs = _agrees(prop, "results", "property")
     assert mine == theirs, (key, value, mine, theirs)
+
+
+def _track_item_node() -> tuple[dict[str, Any], dict[str, Any]]:
+    """(track.json's node for one track of a multi-target step, the whole schema): a
+    ``oneOf`` (box or position) beside ``type``, ``required``, ``properties`` and
+    ``additionalProperties: false``."""
+    from lesmc.schemas import schema
+
+    sch = schema("track")
+    step = sch["properties"]["track"]["items"]["oneOf"][1]
+    return step["properties"]["tracks"]["items"], sch
+
+
+@pytest.mark.parametrize(
+    "value",
+    [
+        {"id": 1, "status": "confirmed", "box": [0, 0, 4, 4]},
+        {"id": 2, "status": "coasting", "position": [1.5, 2]},
+        {"id": "not-an-int", "status": "confirmed", "box": [0, 0, 4, 4], "bogus": 1},
+        {"id": 1, "status": "confirmed", "box": [0, 0, 4, 4], "bogus": 1},
+        {"id": 0, "status": "confirmed", "position": [1, 2]},
+        {"status": "confirmed", "box": [0, 0, 4, 4]},
+        {"id": 1, "status": "lost", "box": [0, 0, 4, 4]},
+        {"id": 1, "status": "confirmed"},
+        {"id": 1, "status": "confirmed", "box": [0, 0, 4, 4], "position": [1, 2]},
+        [1, 2],
+    ],
+)
+def test_run_time_validator_checks_the_siblings_of_a_one_of(value: Any) -> None:
+    """The node's own checks beside its ``oneOf`` were skipped (an unknown field, an id
+    that is not an integer, a missing status passed at run time): jsonschema's verdict."""
+    import jsonschema
+
+    from lesmc.schemas import errors
+
+    node, sch = _track_item_node()
+    theirs = jsonschema.Draft202012Validator(node).is_valid(value)
+    assert (not errors(value, node, sch)) == theirs, (value, errors(value, node, sch))
+
+
+def test_run_time_validator_reports_each_sibling_error_of_a_one_of() -> None:
+    """The reviewer's case: the three problems jsonschema finds (the id's type, the unknown
+    field, the missing status), each reported at run time too (none was before)."""
+    import jsonschema
+
+    from lesmc.schemas import errors
+
+    node, sch = _track_item_node()
+    value = {"box": [0, 0, 4, 4], "id": "not-an-int", "bogus": 1}
+    mine = errors(value, node, sch)
+    theirs = list(jsonschema.Draft202012Validator(node).iter_errors(value))
+    assert len(theirs) == 3
+    assert any("id: expected integer" in e for e in mine), mine
+    assert any("unknown field 'bogus'" in e for e in mine), mine
+    assert any("missing 'status'" in e for e in mine), mine
+
+
+@pytest.mark.parametrize(
+    "items",
+    [[1, 1.0], [0, -0.0], [1, True], [0, False], [[1], [1.0]], [{"a": 1}, {"a": 1.0}],
+     [{"a": 1, "b": 2}, {"b": 2, "a": 1}], [1, 2], ["1", 1], [None, 0], [2.5, 2.5]],
+)  # fmt: skip
+def test_unique_items_reads_numbers_as_json_schema_does(items: list[Any]) -> None:
+    """``uniqueItems`` compared items' JSON text, so [1, 1.0] was "unique"; JSON Schema
+    calls numerically equal numbers equal (and true is not 1)."""
+    import jsonschema
+
+    from lesmc.schemas import errors
+
+    node = {"type": "array", "uniqueItems": True}
+    theirs = jsonschema.Draft202012Validator(node).is_valid(items)
+    assert (not errors(items, node, node)) == theirs, items
+
+
+def test_documents_lesmc_writes_still_validate(
+    multi_doc: dict[str, Any], results_doc: dict[str, Any]
+) -> None:
+    """With a node's siblings of ``oneOf``/``anyOf`` now checked, the documents this file's
+    runs wrote still conform at run time, as jsonschema says they do."""
+    import jsonschema
+
+    from lesmc.schemas import errors, schema
+
+    for doc, name in ((multi_doc, "multi-check"), (results_doc, "results")):
+        sch = schema(name)
+        assert jsonschema.Draft202012Validator(sch).is_valid(doc), name
+        assert errors(doc, sch, sch) == [], name

@@ -87,11 +87,11 @@ if TYPE_CHECKING:
     is_flag=True,
     help="Attack every detection of the video up front. By default verify attacks only "
     'the detections whose payoffs its models read (the others are "unpriced" in '
-    "OUT/scene.json; a later check that reads one stops with exit 2). Certified payoffs "
-    "and --faults price every detection anyway (a heatmap or box-list detector file's "
-    "are priced on demand too, docs/detectors.md). With a heatmap detector file and "
-    "--payoffs certified|interval it also certifies every detection up front (by "
-    "default, only those the models can hide).",
+    "OUT/scene.json; a later check that reads one stops with exit 2), through the window "
+    "pipeline or a heatmap or box-list detector file alike (docs/detectors.md). Certified "
+    "payoffs and --faults price every detection up front anyway. With a heatmap detector "
+    "file and --payoffs certified|interval, --price-all also certifies every detection up "
+    "front (by default, only those the models can hide are certified, on demand).",
 )
 @click.option(
     "--inject-within",

@@ -269,7 +269,7 @@ def perceived(
     return Source(
         scene, frames, truths, seen.nets, seen.run, meta, True, req.nets, truth, cache,
         (seen.key, seen.unit_max, dt) if by_file is None or seen.pricing else None,
-        seen.pricing, seen.detections,
+        seen.pricing, seen.detections, seen.certified,
     )  # fmt: skip
 
 
@@ -342,7 +342,8 @@ def check_window(scene: Scene, window: tuple[int, int]) -> None:
 def _certifier(src: Source, rep: Reporter, budget: Budget) -> Certifier | None:
     """Perception's certification of the video's detections, or the detector file's
     (lesmc/experiment/detector_verify.py); none for a scene file (its bounds come with it,
-    from ``perceive --certify``) nor for a scene already bounded (``--price-all``)."""
+    from ``perceive --certify``) nor for a video whose detections were all certified up
+    front (``--price-all``: ``src.certified``, decided by verify_perception.py)."""
 
     def stop(_: str) -> None:
         spent(budget, "certifying payoff lower bounds")
@@ -350,7 +351,7 @@ def _certifier(src: Source, rep: Reporter, budget: Budget) -> Certifier | None:
     if src.run is not None:
         return video_perception.certifier(src.nets, src.run, "certifying", rep, stop)
     by_file = detector_verify.detector_file_of(src.net_files or (None, None, None))
-    if by_file is None or not src.new or src.frames is None or src.scene.has_lower:
+    if by_file is None or not src.new or src.frames is None or src.certified:
         return None
     return detector_verify.verify_certifier(by_file, src.frames, src.scene, rep, stop)
 

@@ -217,8 +217,10 @@ def perceive_with_file(
     if not req.scene:
         return PerceivedWithFile(det, dets, None, "")
     dt = req.dt or (inputs.truth.dt if inputs.truth else None) or 1 / FPS
-    recorded = _recorded(req, det, "the crop covered by the receptive fields of the "
-                         "detection's nms square")  # fmt: skip
+    recorded = file_attack_meta(
+        req, det.spec.scale, "the crop covered by the receptive fields of the detection's "
+        "nms square",
+    )  # fmt: skip
     from lesmc.perception.certify import CertifyConfig
 
     cert = certify_meta(CertifyConfig()) if req.certify else None
@@ -230,15 +232,22 @@ def perceive_with_file(
     return PerceivedWithFile(det, dets, scene, note)
 
 
-def _recorded(req: PerceiveRequest, det: LoadedDetector, where: str) -> dict[str, Any]:
-    """A detector file's attack settings, for the scene's ``meta.attack``."""
+def file_attack_meta(
+    req: PerceiveRequest, scale: tuple[float, float], where: str
+) -> dict[str, Any]:
+    """A detector file's attack settings and notes (its input's ``scale``, the part of the
+    frame ``where`` a perturbation may change), for the scene's ``meta.attack``."""
+    from lesmc.scene.io import AttackNotes
+
     att = attack_config(req)
+    notes = AttackNotes(
+        input=f"the detector file's network input (1, C, H, W), units {list(scale)}",
+        where=where,
+    )
     return {
         "method": att.method, "overshoot": att.overshoot, "max_iter": att.max_iter,
         "converged": att.converged, "norm": "l2",
-        "input": f"the detector file's network input (1, C, H, W), units {list(det.spec.scale)}",
-        "where": where,
-    }  # fmt: skip
+    } | notes.meta()  # fmt: skip
 
 
 def _with_boxes(
@@ -277,7 +286,7 @@ def _with_boxes(
     if not req.scene:
         return PerceivedWithFile(det, dets, None, "")
     dt = req.dt or (inputs.truth.dt if inputs.truth else None) or 1 / FPS
-    recorded = _recorded(req, det, "the whole frame")
+    recorded = file_attack_meta(req, det.spec.scale, "the whole frame")
     footage = footage_of_boxes(dets, det, dt, str(Path(req.frames_dir)), recorded)
     scene, note = _placed(footage, inputs)
     return PerceivedWithFile(det, dets, scene, note)
@@ -322,7 +331,10 @@ def scene_meta(
 ) -> dict[str, Any]:
     """How the scene's detections and payoffs were made (its ``meta``); ``cert``: the
     settings the certified lower bounds were computed with, if any."""
+    from lesmc.scene.io import AttackNotes
+
     att = attack_config(req)
+    notes = AttackNotes(input="N_dr window, 21x21 x (m+1) frames", pixel_scale="[0, 1]")
     meta: dict[str, Any] = {
         "source": str(Path(req.frames_dir)),
         "detector": trained_on,
@@ -332,9 +344,8 @@ def scene_meta(
             "max_iter": att.max_iter,
             "converged": att.converged,
             "norm": att.norm,
-            "pixel_scale": "[0, 1]",
-            "input": "N_dr window, 21x21 x (m+1) frames",
-        },
+        }
+        | notes.meta(),
     }
     meta |= networks_meta(req.nets)
     # the front end's settings: a replay of the scene's counterexamples reruns it with them

@@ -41,6 +41,9 @@ class Perception:
     pricing: tuple[OnDemandPayoffs, VideoPricer, Footage] | None = None
     #: a detector file's detections: counts, recall and precision, payoffs (detector_verify)
     detections: dict[str, Any] | None = None
+    #: a detector file's detections all certified now (--price-all, certified payoffs):
+    #: no check certifies them on demand then
+    certified: bool = False
 
 
 def perception(
@@ -116,7 +119,7 @@ def file_perception(
         frames_dir, frames, path, truth[0], truth[1], certify, dt, rep,
         lambda stage: spent(req.budget, stage), StageCache(req.out), lazy,
     )  # fmt: skip
-    seen = Perception(footage, None, None, {}, key, detections=facts)
+    seen = Perception(footage, None, None, {}, key, detections=facts, certified=certify)
     if not lazy or not footage.has_unpriced:
         return seen
     return _on_demand(seen, detector_verify.FilePricer(path, frames, footage), req.budget)

@@ -77,6 +77,9 @@ class Source:
     pricing: tuple[OnDemandPayoffs, VideoPricer, Footage] | None = None
     #: a detector file's detections: counts, recall and precision, payoffs (detector_verify)
     detections: dict[str, Any] | None = None
+    #: every detection certified up front (lesmc/experiment/verify_perception.py decides):
+    #: no certifier on demand then
+    certified: bool = False
 
     def networks(self) -> Any:
         """The networks: loaded now if perception came from the cache."""

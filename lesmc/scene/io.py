@@ -7,9 +7,11 @@ arithmetic finite for any real video.
 
 from __future__ import annotations
 
+import dataclasses
 import itertools
 import math
 from collections.abc import Callable
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -140,9 +142,23 @@ ATTACK_SETTINGS: dict[str, tuple[Callable[[Any], bool], str]] = {
 }
 
 
-#: What ``meta.attack`` may say besides its settings: descriptions for a reader
-#: (``lesmc perceive -o`` writes them), never read back.
-ATTACK_NOTES = ("pixel_scale", "input", "where")
+@dataclass(frozen=True)
+class AttackNotes:
+    """What ``meta.attack`` may say besides its settings: descriptions for a reader, never
+    read back. The writers (``lesmc perceive -o``, lesmc/experiment/perceive.py) build
+    them here, and the reader accepts exactly these fields (:data:`ATTACK_NOTES`)."""
+
+    pixel_scale: str | None = None  #: the pixels' range as the attack sees them
+    input: str | None = None  #: what the attack perturbs (the network input's shape, units)
+    where: str | None = None  #: the part of the frame a perturbation may change
+
+    def meta(self) -> dict[str, str]:
+        """The notes given, as ``meta.attack`` fields."""
+        return {k: v for k, v in dataclasses.asdict(self).items() if v is not None}
+
+
+#: The fields of :class:`AttackNotes`: what ``meta.attack`` may say besides its settings.
+ATTACK_NOTES = tuple(f.name for f in dataclasses.fields(AttackNotes))
 
 
 def recorded_attack(meta: dict[str, Any], pr: Problems) -> dict[str, Any]:

@@ -109,14 +109,21 @@ def errors(value: Any, sch: dict[str, Any], root: dict[str, Any], where: str = "
         name = sch["$ref"].removeprefix("#/$defs/")
         return errors(value, root["$defs"][name], root, where)
     at = where or "(document)"
-    for key in ("anyOf", "oneOf"):
-        if key in sch:
-            return _forms(value, sch[key], root, where, one=key == "oneOf")
-    out: list[str] = []
     if "type" in sch:
         types = sch["type"] if isinstance(sch["type"], list) else [sch["type"]]
         if not any(_is(value, t) for t in types):
             return [f"{at}: expected {' or '.join(types)}, got {type(value).__name__}"]
+    out = _siblings(value, sch, root, where)
+    for key in ("anyOf", "oneOf"):  # beside the node's own checks, not instead of them
+        if key in sch:
+            out += _forms(value, sch[key], root, where, one=key == "oneOf")
+    return out
+
+
+def _siblings(value: Any, sch: dict[str, Any], root: dict[str, Any], where: str) -> list[str]:
+    """Where ``value`` breaks the checks of ``sch`` other than ``type`` and its forms."""
+    at = where or "(document)"
+    out: list[str] = []
     if "const" in sch and value != sch["const"]:
         out.append(f"{at}: must be {sch['const']!r}")
     if "enum" in sch and value not in sch["enum"]:
@@ -129,9 +136,7 @@ def errors(value: Any, sch: dict[str, Any], root: dict[str, Any], where: str = "
             out.append(f"{at}: must have at least {sch['minItems']} items")
         if "maxItems" in sch and len(value) > sch["maxItems"]:
             out.append(f"{at}: must have at most {sch['maxItems']} items")
-        if sch.get("uniqueItems") and len({json.dumps(v, sort_keys=True) for v in value}) < len(
-            value
-        ):
+        if sch.get("uniqueItems") and _repeats(value):
             out.append(f"{at}: must not repeat an item")
     if isinstance(value, dict):
         for key in sch.get("required", []):
@@ -151,6 +156,26 @@ def errors(value: Any, sch: dict[str, Any], root: dict[str, Any], where: str = "
         for i, v in enumerate(value):
             out += errors(v, sch["items"], root, f"{where}[{i}]")
     return out
+
+
+def _repeats(items: list[Any]) -> bool:
+    """Whether two of ``items`` are equal as JSON Schema reads them (1 and 1.0 are)."""
+    seen = [_canonical(v) for v in items]
+    return any(a == b for i, a in enumerate(seen) for b in seen[:i])
+
+
+def _canonical(value: Any) -> Any:
+    """``value`` with each number as a float and each bool kept apart from the numbers,
+    so that Python equality is JSON Schema's (1 == 1.0, true != 1, key order ignored)."""
+    if isinstance(value, bool):
+        return ("bool", value)
+    if isinstance(value, (int, float)):
+        return float(value)
+    if isinstance(value, list):
+        return [_canonical(v) for v in value]
+    if isinstance(value, dict):
+        return {k: _canonical(v) for k, v in value.items()}
+    return value
 
 
 def _forms(
