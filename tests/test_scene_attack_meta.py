@@ -46,11 +46,25 @@ def test_a_bad_meta_attack_is_located(tmp_path: Path, attack: Any, field: str, a
     assert field in got.stderr
 
 
-def test_the_notes_perceive_writes_still_load(tmp_path: Path) -> None:
-    attack = {
-        "method": "pgd", "norm": "l2", "overshoot": 0.02, "max_iter": 50, "converged": 0.5,
-        "pixel_scale": "[0, 1]", "input": "N_dr window", "where": "the whole frame",
-    }  # fmt: skip
+def _written_attacks() -> list[dict[str, Any]]:
+    """``meta.attack`` as ``lesmc perceive -o`` writes it: the window pipeline's
+    (``scene_meta``) and a detector file's (``file_attack_meta``), from the writers."""
+    from lesmc.experiment.perceive import PerceiveRequest, file_attack_meta, scene_meta
+
+    req = PerceiveRequest("frames", attack="pgd", max_iter=40)
+    window: dict[str, Any] = scene_meta(req, "synthetic")["attack"]
+    return [window, file_attack_meta(req, (0.0, 255.0), "the whole frame")]
+
+
+@pytest.mark.parametrize("which", [0, 1], ids=["window", "detector-file"])
+def test_the_notes_perceive_writes_still_load(tmp_path: Path, which: int) -> None:
+    """Each field the writers write is a setting or a note the reader knows, and a scene
+    with them checks as the example does."""
+    from lesmc.scene.io import ATTACK_NOTES, ATTACK_SETTINGS
+
+    attack = _written_attacks()[which]
+    assert set(attack) <= set(ATTACK_SETTINGS) | set(ATTACK_NOTES), attack
+    assert set(attack) - set(ATTACK_SETTINGS)  # it does write notes
     scene = _scene(tmp_path, attack)
     got = lesmc("check", str(scene), str(SPEC), "--json")
     plain = lesmc("check", str(ROOT / "examples" / "merge.json"), str(SPEC), "--json")
