@@ -13,6 +13,13 @@ candidate's window again, on the perturbed frame, does: the replay is ``confirme
 with the repair's cost reported. With the round limit at one round (it takes two) the
 same counterexample stays ``diverged``, and the reason names the overlapping windows.
 
+A repaired attack costs more than the model's optimum (the repair's norms added): under a
+``minimize payoff`` property the replay checks that this cost still breaks the property
+(``holds if optimum > T``). With every detection of frame 5 but 5:29 made expensive, the
+cheapest attack hides 5:29 (0.6429) and the repair re-hides what survives (0.1202): at
+T = 0.7 the repaired attack's 0.7631 makes the property hold, so the replay is
+``diverged`` (exit 3); at T = 100 it is ``confirmed`` (exit 1).
+
 The scene keeps 5:c488 as the only injection candidate (a smaller threat model: any subset
 of the candidates is one) and a tracker that trusts its prediction more (``sigma_r`` 20,
 ``P0_sd`` 5): the detector reports the injected candidate 0.9 px from its clean centroid
@@ -135,3 +142,95 @@ def test_within_one_round_the_repair_fails_and_the_replay_diverges(
     assert rp["attack"] == "repaired"
     assert f"injected {INJECTED} not detected after all" in rp["reason"]
     assert f"(21x21 windows overlap {HIDDEN})" in rp["reason"]
+
+
+PAY_SPEC = """property PROP {
+    attack window 1..1 allow hide, inject
+    minimize payoff
+    subject to dist.max(0..end) > 0.5
+    holds if optimum > T
+    end 1
+    on x, y
+}
+"""
+HIDE_ONLY = "5:29"  #: the one detection of frame 5 cheap to hide in the payoff scene
+THRESHOLDS = {"tight": 0.7, "loose": 100.0}
+
+
+@pytest.fixture(scope="module")
+def priced_check(checked: tuple[Path, dict[str, Any]]) -> tuple[Path, dict[str, Any]]:
+    """``lesmc check --report`` of two ``minimize payoff`` properties (``tight`` at
+    T = 0.7, ``loose`` at T = 100) on :func:`checked`'s scene with every detection of
+    frame 5 but 5:29 costing 1e6 to hide: the directory and its results document."""
+    tmp, scene = checked
+    scene = json.loads(json.dumps(scene))
+    for f in scene["frames"]:
+        if f["step"] == 5:
+            for d in f["detections"]:
+                if d["id"] != HIDE_ONLY:
+                    d["payoff"] = 1e6
+    (tmp / "pay.json").write_text(json.dumps(scene))
+    spec = "".join(
+        PAY_SPEC.replace("PROP", name).replace("> T", f"> {t}") for name, t in THRESHOLDS.items()
+    )
+    (tmp / "pay.spec").write_text(spec)
+    r = lesmc("check", str(tmp / "pay.json"), str(tmp / "pay.spec"), "--design", "single",
+              "--report", str(tmp / "pay"))  # fmt: skip
+    assert r.returncode == 1 and "Traceback" not in r.stderr, r.stderr
+    return tmp, json.loads((tmp / "pay" / "results.json").read_text())
+
+
+def _replay_one(tmp: Path, prop: str) -> tuple[int, dict[str, Any], dict[str, Any]]:
+    """``lesmc replay --property PROP --json`` of :func:`priced_check`'s results: the exit
+    status, the row and its replay."""
+    r = lesmc("replay", str(tmp / "pay" / "results.json"), "--frames", str(tmp / "video"),
+              "--property", prop, "--json")  # fmt: skip
+    assert "Traceback" not in r.stderr, r.stderr
+    (row,) = json.loads(r.stdout)["replays"]
+    return r.returncode, row, row["replay"]
+
+
+def _optimum(doc: dict[str, Any], prop: str) -> float:
+    (run,) = doc["runs"]
+    res = next(x for x in run["results"] if x["property"] == prop)
+    assert res["verdict"] == "violated"  # optimum <= T: the model says it breaks
+    return float(res["optimum"])
+
+
+def _hiding_cost(scene: dict[str, Any]) -> float:
+    """What hiding 5:29 costs in the scene: the cheapest attack's price."""
+    return float(_item(scene, HIDE_ONLY)["payoff"])
+
+
+def test_a_repaired_attack_that_costs_too_much_diverges(
+    checked: tuple[Path, dict[str, Any]], priced_check: tuple[Path, dict[str, Any]]
+) -> None:
+    """T = 0.7: optimum (hiding 5:29) + the repair's cost > 0.7, so the property holds
+    for the attack that replays: ``diverged``, exit 3 (unknown)."""
+    tmp, doc = priced_check
+    optimum = _optimum(doc, "tight")
+    assert optimum == pytest.approx(_hiding_cost(checked[1]), rel=1e-9)
+    assert optimum <= THRESHOLDS["tight"]
+    code, row, rp = _replay_one(tmp, "tight")
+    assert rp["attack"] == "repaired" and rp["repair_cost"] > 0
+    cost = optimum + rp["repair_cost"]
+    assert cost > THRESHOLDS["tight"]  # the reviewer's run: 0.6429 + 0.1202
+    assert rp["status"] == "diverged", rp
+    assert f"costs {cost:.4f}: the property holds for it" in rp["reason"], rp["reason"]
+    assert row["verdict"] == "unknown"
+    assert code == 3
+
+
+def test_a_repaired_attack_within_the_threshold_confirms(
+    priced_check: tuple[Path, dict[str, Any]],
+) -> None:
+    """T = 100: the same repaired attack (the same cost) still breaks the property:
+    ``confirmed``, exit 1 (violated)."""
+    tmp, doc = priced_check
+    optimum = _optimum(doc, "loose")
+    code, row, rp = _replay_one(tmp, "loose")
+    assert rp["attack"] == "repaired" and rp["repair_cost"] > 0
+    assert optimum + rp["repair_cost"] <= THRESHOLDS["loose"]
+    assert rp["status"] == "confirmed", rp["reason"]
+    assert row["verdict"] == "violated"
+    assert code == 1
