@@ -157,6 +157,7 @@ class JointDesign:
             np.concatenate([e.det for e in parts]),
             succ,
             np.concatenate([e.nis for e in parts]),
+            sum(e.track_rows for e in parts),
         )
 
     # -------------------------------------------------------------- one chunk
@@ -181,6 +182,7 @@ class JointDesign:
                 primary_nis(p, s[rows], assign[rows, 0]),
                 opt[rows].astype(np.int64),
                 np.zeros(rows.size, dtype=np.int64),
+                track_rows=int(s.size) * max(js.width, 1),
             )
         # unattacked: option 0, and its own payoff, the cost of the first option that differs
         s, opt, assign, halt, states = self._rows(
@@ -192,7 +194,7 @@ class JointDesign:
         if sure.any():
             payoff[sure] = p.cost[sure, 1]
         todo = np.flatnonzero(~sure)
-        j = 1
+        j, rows = 1, int(s.size)
         while True:
             todo = todo[p.n_opt[todo] > j]
             if not todo.size:
@@ -202,6 +204,7 @@ class JointDesign:
             hi = lo.copy()
             hi[todo] = j + 1
             sj, _, _, _, nxt = self._rows(p, lo, hi)
+            rows += int(sj.size)
             differs = (digest(nxt) != key0[sj]).any(axis=1)
             same = nxt.take(np.nonzero(~differs)[0])
             if not same_as(same, states, sj[~differs]):
@@ -217,6 +220,7 @@ class JointDesign:
             halt[:, 0],
             states,
             primary_nis(p, s, assign[:, 0]),
+            track_rows=rows * max(js.width, 1),
         )
 
     def _expand_injected(self, js: JointStates, step: int) -> Expanded:
@@ -262,6 +266,7 @@ class JointDesign:
             opt[order][kept].astype(np.int64),
             sid[order][kept].astype(np.int64),
             subsets,
+            int(s.size) * max(js.width, 1),  # every (state, hiding option, subset) row × its tracks
         )
 
     def forcing(
