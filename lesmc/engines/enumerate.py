@@ -54,8 +54,8 @@ def enumerate_many(
     along it, then Algorithm 2 per property (one unfolding per scene, issue 31).
 
     ``max_work``: on a model unfolded on demand, stop (``max_states``) once the unfolding
-    has done more than this much work since the walk began (:func:`_work`: rows its
-    expander examined), looked at in slices of a share of it (:func:`_work_slice`), so
+    has done this much work since the walk began (:func:`_work`: rows its
+    expander examined), looked at between slices counted in work (:func:`_unfold`), so
     that where the walk stops is the same on every run, whatever the machine's load."""
     t0 = time.perf_counter()
     first = spaces[0]
@@ -264,28 +264,15 @@ class WorkCap:
     most: int
 
 
-#: A walk under a work cap unfolds a level in slices of about this share of the cap.
-WORK_SLICES = 16
-
-
 def _work(space: Space) -> int:
     """The work the model of ``space`` has done unfolding so far (GrowingModel.work: rows
     its expander examined, the same on every run); 0 for an explicit model."""
     return int(getattr(space.cm, "work", 0))
 
 
-def _work_slice(space: Space, cap: WorkCap) -> int:
-    """States to unfold at once under ``cap``: about cap.most / WORK_SLICES work at the
-    model's work per state so far (a count, so the slices, and where the walk stops, are
-    the same on every run; at least one state)."""
-    done = int(getattr(space.cm, "states_expanded", 0))
-    per = _work(space) / done if done else 1.0
-    return max(1, int(cap.most / WORK_SLICES / max(per, 1.0)))
-
-
 def _over_work(space: Space, cap: WorkCap | None) -> str | None:
-    """``max_states`` once the unfolding has done more than ``cap`` allows, else None."""
-    if cap is None or _work(space) - cap.start <= cap.most:
+    """``max_states`` once the unfolding has done the work ``cap`` allows, else None."""
+    if cap is None or _work(space) - cap.start < cap.most:
         return None
     return "max_states"
 
@@ -294,9 +281,9 @@ def _unfold(
     space: Space, q: np.ndarray, budget: SearchBudget, cap: WorkCap | None = None
 ) -> str | None:
     """On a model unfolded on demand (lesmc/engines/lazy.py): unfold the distinct states
-    of ``q`` in slices of about ``slice_size()`` states (under a work cap ``cap``: of
-    :func:`_work_slice` states), looking at the budget and the cap between slices, so that
-    a deadline holds while a large level unfolds; why it stopped, or None.
+    of ``q`` in slices of about ``slice_size()`` states (a count: lazy.BATCH_WORK of work),
+    looking at the budget and the work cap ``cap`` between slices, so that a deadline
+    holds while a large level unfolds; why it stopped, or None.
     An explicit model has nothing to unfold.
 
     The tree nodes the level makes are counted as its slices unfold (a node of ``q``
@@ -313,7 +300,7 @@ def _unfold(
         why = budget.over(made) or _over_work(space, cap)
         if why is not None:
             return why
-        n = max(1, int(size())) if cap is None else _work_slice(space, cap)
+        n = max(1, int(size()))
         owner, _ = space.successors_batch(todo[lo : lo + n])
         made += int(times[lo : lo + n][owner].sum())
         lo += n

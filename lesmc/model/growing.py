@@ -23,6 +23,11 @@ if TYPE_CHECKING:
 #: Seconds one batch of expansions should take at most: batches shrink for designs whose
 #: states are expensive (joint), so that a deadline is looked at often enough.
 BATCH_SECONDS = 0.05
+#: Work (GrowingModel.work) one batch of expansions on demand does at most (engines/lazy.py):
+#: about BATCH_SECONDS at about 1-2 µs a unit (a transition on ``single``, a track of an
+#: examined row on ``joint``), counted rather than timed so that the batches, and what
+#: a budget looked at between them stops, are the same on every run.
+BATCH_WORK = 1 << 15
 
 
 class GrowArray:
@@ -65,8 +70,8 @@ class Expansion:
     nis: np.ndarray | None = None
     #: the work done for it, in track moves (lesmc/tracking/design.py Successors.examined:
     #: on the joint design the rows it examined before merging equal outcomes, times their
-    #: tracks); None: one per transition. Counted, not timed, so that what a budget of it decides does not depend
-    #: on the machine's load (:attr:`GrowingModel.work`)
+    #: tracks); None: one per transition. Counted, not timed, so that what a budget of it
+    #: decides does not depend on the machine's load (:attr:`GrowingModel.work`)
     work: int | None = None
 
 
