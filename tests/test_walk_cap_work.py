@@ -24,9 +24,10 @@ from typing import Any
 
 import numpy as np
 import pytest
-from test_count_frames_bound import WINDOW, _bound, _eps, _lazy, _scene, _spec
+from test_count_frames_bound import _bound, _eps, _lazy, _scene, _spec
 
 import lesmc.engines.check as check_mod
+import lesmc.engines.lazy as lazy
 from lesmc import api
 from lesmc.common.budget import Budget
 from lesmc.model.growing import Expansion, GrowingModel
@@ -99,7 +100,7 @@ def test_work_counts_the_rows_times_the_tracks() -> None:
     """GrowingModel.work adds what each expansion reports, one per transition where it
     reports none; on the joint design under inject at least the transitions kept (each
     kept outcome is one examined row, moving at least one track), and the same for the
-    same states however they are batched."""
+    same walk however its states are batched."""
     model = GrowingModel(("x", "y"), 2)
 
     class Two:
@@ -125,10 +126,13 @@ def test_work_counts_the_rows_times_the_tracks() -> None:
     assert (model.work, model.states_expanded) == (9, 3)
 
     scene, end = _scene()
-    one, many = _lazy(scene, end), _lazy(scene, end)
-    w1, w2 = one.work, many.work
-    q = np.array([int(one.original[0])])
-    one.expand(q, 0)
-    many.expand(q, 0)
-    assert one.work - w1 == many.work - w2 >= one.n_transitions - 1 > 0
-    assert WINDOW[0] == 1  # step 1 is attacked: the rows are the candidate subsets
+    bps = _bound(scene, end, _eps(scene, end))
+    works = []
+    for batch in (0, 1 << 30):  # one state a batch; every state of a step at once
+        with pytest.MonkeyPatch.context() as mp:
+            mp.setattr(lazy, "BATCH_WORK", batch)
+            model = _lazy(scene, end)
+            check_mod.check_many(model, bps, Budget())
+        assert model.work >= model.n_transitions > model.states_expanded > 1
+        works.append((model.work, model.n_states, model.states_expanded))
+    assert works[0] == works[1]

@@ -67,6 +67,13 @@ from lesmc.tracking.parts.joint_step import (
 CHUNK_CELLS = 1 << 20
 
 
+def tracks_moved(js: JointStates, rows: np.ndarray) -> int:
+    """The work of evaluating rows whose source states are ``rows`` (positions in ``js``):
+    each row moves every track of its state (at least one unit a row), counted per state
+    so that it does not depend on how the states were batched (Successors.examined)."""
+    return int(np.maximum(js.ntrack[rows], 1).sum())
+
+
 class JointDesign:
     """Primary plus refining tracks with likelihood-sorted one-to-one association."""
 
@@ -182,7 +189,7 @@ class JointDesign:
                 primary_nis(p, s[rows], assign[rows, 0]),
                 opt[rows].astype(np.int64),
                 np.zeros(rows.size, dtype=np.int64),
-                track_rows=int(s.size) * max(js.width, 1),
+                track_rows=tracks_moved(js, s),
             )
         # unattacked: option 0, and its own payoff, the cost of the first option that differs
         s, opt, assign, halt, states = self._rows(
@@ -194,7 +201,7 @@ class JointDesign:
         if sure.any():
             payoff[sure] = p.cost[sure, 1]
         todo = np.flatnonzero(~sure)
-        j, rows = 1, int(s.size)
+        j, moved = 1, tracks_moved(js, s)
         while True:
             todo = todo[p.n_opt[todo] > j]
             if not todo.size:
@@ -204,7 +211,7 @@ class JointDesign:
             hi = lo.copy()
             hi[todo] = j + 1
             sj, _, _, _, nxt = self._rows(p, lo, hi)
-            rows += int(sj.size)
+            moved += tracks_moved(js, sj)
             differs = (digest(nxt) != key0[sj]).any(axis=1)
             same = nxt.take(np.nonzero(~differs)[0])
             if not same_as(same, states, sj[~differs]):
@@ -220,7 +227,7 @@ class JointDesign:
             halt[:, 0],
             states,
             primary_nis(p, s, assign[:, 0]),
-            track_rows=rows * max(js.width, 1),
+            track_rows=moved,
         )
 
     def _expand_injected(self, js: JointStates, step: int) -> Expanded:
@@ -266,7 +273,7 @@ class JointDesign:
             opt[order][kept].astype(np.int64),
             sid[order][kept].astype(np.int64),
             subsets,
-            int(s.size) * max(js.width, 1),  # every (state, hiding option, subset) row × its tracks
+            tracks_moved(js, s),  # every (state, hiding option, subset) row's tracks
         )
 
     def forcing(
