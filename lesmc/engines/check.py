@@ -283,7 +283,7 @@ SHARED_LAZY_TREE = 1 << 19
 #: inject", "Issue 61, the walk's cap counted"); the states it unfolded stay in the model
 #: for those searches. Work, not seconds, so that which of the two answers, and so the
 #: states built and the counterexample printed, is the same on every run.
-SHARED_LAZY_WORK = 1 << 20
+SHARED_LAZY_WORK = 1 << 18
 
 
 def check_shared(
