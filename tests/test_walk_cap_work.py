@@ -11,15 +11,15 @@ looks at it in slices counted in states (enumerate._work_slice), so that where i
 is the same on every run.
 
 The checks: ``lesmc check``'s results document (api.check, CheckResult.to_dict; the
-seconds aside) is the same under the real clock and under a clock running 100x slower,
+seconds aside) is the same under the real clock and under a clock running 1000x slower,
 whether the walk answers (the default cap) or gives up halfway (a cap of half the
 walk's work); the model's work counter against an independent count.
 """
 
 from __future__ import annotations
 
+import functools
 import time
-from collections.abc import Iterator
 from typing import Any
 
 import numpy as np
@@ -31,9 +31,10 @@ import lesmc.engines.lazy as lazy
 from lesmc import api
 from lesmc.common.budget import Budget
 from lesmc.model.growing import Expansion, GrowingModel
+from lesmc.scene import Scene
 
 #: How much slower the slowed clock runs.
-SLOWER = 100.0
+SLOWER = 1000.0
 
 
 def _slow_clock(monkeypatch: pytest.MonkeyPatch) -> None:
@@ -45,14 +46,21 @@ def _slow_clock(monkeypatch: pytest.MonkeyPatch) -> None:
         monkeypatch.setattr(time, name, lambda real=real, t0=t0: t0 + (real() - t0) * SLOWER)
 
 
+@functools.cache
+def _case() -> tuple[Scene, int, float]:
+    """The scene, its end and the constraint's ε (the whole model built once)."""
+    scene, end = _scene()
+    return scene, end, _eps(scene, end)
+
+
 def _document(cap: int | None, monkeypatch: pytest.MonkeyPatch) -> list[dict[str, Any]]:
     """The results of ``rob`` and ``frames`` (one tree) on the joint scene with injection
     candidates, as ``lesmc check --json`` prints them, without the seconds; ``cap``: the
     walk's work cap (None: the default)."""
     if cap is not None:
         monkeypatch.setattr(check_mod, "SHARED_LAZY_WORK", cap, raising=False)
-    scene, end = _scene()
-    got = api.check(scene, api.parse_spec(_spec(end, _eps(scene, end))))
+    scene, end, eps = _case()
+    got = api.check(scene, api.parse_spec(_spec(end, eps)))
     out = []
     for r in got:
         d = r.to_dict()
@@ -61,31 +69,27 @@ def _document(cap: int | None, monkeypatch: pytest.MonkeyPatch) -> list[dict[str
     return out
 
 
+@functools.cache
 def _walk_work() -> int:
     """The work the shared walk of the two properties does when it answers (counted on a
     model of its own, without a cap)."""
-    scene, end = _scene()
+    scene, end, eps = _case()
     model = _lazy(scene, end)
     before = model.work
-    tried = check_mod.check_many(model, _bound(scene, end, _eps(scene, end)), Budget())
+    tried = check_mod.check_many(model, _bound(scene, end, eps), Budget())
     assert all(r.stats.stopped == "finished" for r in tried)
     return model.work - before
 
 
-@pytest.fixture(scope="module")
-def walk_work() -> Iterator[int]:
-    yield _walk_work()
-
-
 @pytest.mark.parametrize("half", [False, True], ids=["walked", "given_up"])
 def test_the_results_do_not_depend_on_the_clock(
-    monkeypatch: pytest.MonkeyPatch, walk_work: int, half: bool
+    monkeypatch: pytest.MonkeyPatch, half: bool
 ) -> None:
     """The same document, counterexample, states built and ``exhaustive`` included, when
-    every second counts 100x: the walk answers both times, or (a cap of half its work)
+    every second counts 1000x: the walk answers both times, or (a cap of half its work)
     gives up at the same place both times and the same searches answer. With the 2 s cap
     the slow clock gave the walk up and the searches answered (no ``exhaustive``)."""
-    cap = walk_work // 2 if half else None
+    cap = _walk_work() // 2 if half else None
     fast = _document(cap, monkeypatch)
     walked = ["exhaustive" in d["stats"] for d in fast]
     assert walked == [not half] * 2
@@ -125,10 +129,10 @@ def test_work_counts_the_rows_times_the_tracks() -> None:
     model.expand(np.array([1, 2]), 1)
     assert (model.work, model.states_expanded) == (9, 3)
 
-    scene, end = _scene()
-    bps = _bound(scene, end, _eps(scene, end))
+    scene, end, eps = _case()
+    bps = _bound(scene, end, eps)
     works = []
-    for batch in (0, 1 << 30):  # one state a batch; every state of a step at once
+    for batch in (1 << 8, 1 << 30):  # a few states a batch; every state of a step at once
         with pytest.MonkeyPatch.context() as mp:
             mp.setattr(lazy, "BATCH_WORK", batch)
             model = _lazy(scene, end)
