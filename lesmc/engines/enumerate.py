@@ -51,12 +51,8 @@ def enumerate_many(
 ) -> list[EngineOutcome]:
     """Algorithms 1 and 2 for several properties of one model whose trees are the same
     (:func:`tree_key`): the tree is walked once, each property's measures aggregated
-    along it, then Algorithm 2 per property (one unfolding per scene, issue 31).
-
-    ``max_work``: on a model unfolded on demand, stop (``max_states``) once the unfolding
-    has done this much work since the walk began (:func:`_work`: rows its
-    expander examined), looked at between slices counted in work (:func:`_unfold`), so
-    that where the walk stops is the same on every run, whatever the machine's load."""
+    along it, then Algorithm 2 per property (one unfolding per scene, issue 31);
+    ``max_work``: a cap on the unfolding's work since the walk began (:func:`_over_work`)."""
     t0 = time.perf_counter()
     first = spaces[0]
     assert all(tree_key(s.bp) == tree_key(first.bp) and s.cm is first.cm for s in spaces)
@@ -271,7 +267,9 @@ def _work(space: Space) -> int:
 
 
 def _over_work(space: Space, cap: WorkCap | None) -> str | None:
-    """``max_states`` once the unfolding has done the work ``cap`` allows, else None."""
+    """``max_states`` once the unfolding has done the work ``cap`` allows (:func:`_work`,
+    looked at between :func:`_unfold`'s slices, which are counted too: where a walk stops
+    is the same on every run, whatever the machine's load), else None."""
     if cap is None or _work(space) - cap.start < cap.most:
         return None
     return "max_states"

@@ -191,8 +191,13 @@ class JointDesign:
                 np.zeros(rows.size, dtype=np.int64),
                 track_rows=tracks_moved(js, s),
             )
-        # unattacked: option 0, and its own payoff, the cost of the first option that differs
-        s, opt, assign, halt, states = self._rows(
+        return self._expand_unattacked(js, p)
+
+    def _expand_unattacked(self, js: JointStates, p: Prepared) -> Expanded:
+        """The outcome of each state of ``js`` at an unattacked frame (``p``: prepared):
+        option 0, and its own payoff, the cost of the first option that differs."""
+        n = len(js)
+        s, _, assign, halt, states = self._rows(
             p, np.zeros(n, dtype=np.int64), np.minimum(p.n_opt, 1)
         )
         states.key = key0 = digest(states)
