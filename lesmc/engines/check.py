@@ -234,11 +234,15 @@ def check_lazy(
 
 
 def check_many(
-    model: ArrayModel | GrowingModel, bps: list[BoundProperty], budget: Budget | None = None
+    model: ArrayModel | GrowingModel,
+    bps: list[BoundProperty],
+    budget: Budget | None = None,
+    max_work: int | None = None,
 ) -> list[CheckResult]:
     """Properties whose trees are the same (enumerate.tree_key) by ``enumerate`` with one
-    walk of the tree (enumerate.enumerate_many): the results of checking each alone."""
-    return _walk_once(model, _spaces(model, bps), budget or Budget())
+    walk of the tree (enumerate.enumerate_many, ``max_work`` its cap on the unfolding's
+    work): the results of checking each alone."""
+    return _walk_once(model, _spaces(model, bps), budget or Budget(), max_work)
 
 
 def _spaces(model: ArrayModel | GrowingModel, bps: list[BoundProperty]) -> list[Any]:
@@ -249,10 +253,13 @@ def _spaces(model: ArrayModel | GrowingModel, bps: list[BoundProperty]) -> list[
 
 
 def _walk_once(
-    model: ArrayModel | GrowingModel, spaces: list[Any], budget: Budget
+    model: ArrayModel | GrowingModel,
+    spaces: list[Any],
+    budget: Budget,
+    max_work: int | None = None,
 ) -> list[CheckResult]:
     """:func:`check_many` on spaces already built."""
-    outs = enumerate_many(spaces, budget)
+    outs = enumerate_many(spaces, budget, max_work)
     results = []
     for space, out in zip(spaces, outs, strict=True):
         out.stats.extra["states_built"] = (
@@ -268,12 +275,15 @@ def _walk_once(
 #: A shared enumeration tried for ``levels``/``bnb`` on a model unfolded on demand stops
 #: past this many tree nodes (then each property is searched on its own) ...
 SHARED_LAZY_TREE = 1 << 19
-#: ... or past this many seconds: the walk unfolds every state of the tree, which on a
-#: costly unfolding (the joint design with injection candidates: 2^m subsets a state)
-#: takes minutes where each property's search unfolds the few states its bounds keep
-#: (docs/performance.md, "Issue 61, frames under inject"); the states it unfolded stay
-#: in the model for those searches.
-SHARED_LAZY_SECONDS = 2.0
+#: ... or once the unfolding has done more than this much work since the walk began
+#: (GrowingModel.work: the rows its expander examined, e.g. (state, candidate subset)
+#: pairs on the joint design under inject, 2^m a state): the walk unfolds every state of
+#: the tree, which on a costly unfolding takes minutes where each property's search
+#: unfolds the few states its bounds keep (docs/performance.md, "Issue 61, frames under
+#: inject", "Issue 61, the walk's cap counted"); the states it unfolded stay in the model
+#: for those searches. Work, not seconds, so that which of the two answers, and so the
+#: states built and the counterexample printed, is the same on every run.
+SHARED_LAZY_WORK = 1 << 18
 
 
 def check_shared(
@@ -286,8 +296,9 @@ def check_shared(
     one window) in one walk of it (:func:`check_many`), for any engine: ``enumerate``
     always; ``levels`` and ``bnb`` when the tree is small (on a whole model: counted,
     at most enumerate.SMALL_TREE nodes; on one unfolded on demand: the walk finishes
-    within SHARED_LAZY_TREE nodes and SHARED_LAZY_SECONDS), the answers then marked
-    ``exhaustive`` as their probe's are. None: search each property on its own."""
+    within SHARED_LAZY_TREE nodes and SHARED_LAZY_WORK work; the user's --timeout is its
+    only clock), the answers then marked ``exhaustive`` as their probe's are. None: search
+    each property on its own."""
     if engines.get(engine).exhaustive:
         return check_many(model, bps, budget)
     limit = enum_engine.SMALL_TREE if budget.max_states is None else budget.max_states
@@ -299,9 +310,8 @@ def check_shared(
         tried = _walk_once(model, spaces, budget)
     else:
         limit = min(limit, SHARED_LAZY_TREE)
-        left = budget.seconds_left()
-        seconds = SHARED_LAZY_SECONDS if left is None else min(left, SHARED_LAZY_SECONDS)
-        tried = check_many(model, bps, Budget(seconds, limit, budget.max_memory))
+        walk = Budget(budget.seconds_left(), limit, budget.max_memory)
+        tried = check_many(model, bps, walk, SHARED_LAZY_WORK)
     if any(r.stats.stopped != "finished" for r in tried):
         return None
     for r in tried:

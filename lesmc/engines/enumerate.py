@@ -46,14 +46,18 @@ def tree_key(bp: BoundProperty) -> tuple[object, ...]:
     )
 
 
-def enumerate_many(spaces: list[Space], budget: Budget | None = None) -> list[EngineOutcome]:
+def enumerate_many(
+    spaces: list[Space], budget: Budget | None = None, max_work: int | None = None
+) -> list[EngineOutcome]:
     """Algorithms 1 and 2 for several properties of one model whose trees are the same
     (:func:`tree_key`): the tree is walked once, each property's measures aggregated
-    along it, then Algorithm 2 per property (one unfolding per scene, issue 31)."""
+    along it, then Algorithm 2 per property (one unfolding per scene, issue 31);
+    ``max_work``: a cap on the unfolding's work since the walk began (:func:`_over_work`)."""
     t0 = time.perf_counter()
     first = spaces[0]
     assert all(tree_key(s.bp) == tree_key(first.bp) and s.cm is first.cm for s in spaces)
     search = (budget or Budget()).search()
+    cap = None if max_work is None else WorkCap(_work(first), max_work)
     search.used = 1  # the root
     cm = first.cm
     # one level of the tree: state, accumulated objective/constraint (per property),
@@ -75,7 +79,7 @@ def enumerate_many(spaces: list[Space], budget: Budget | None = None) -> list[En
             for i, s in enumerate(spaces):
                 done[i].append((level, idx, *_completed(s, node[idx], obj[i][idx], con[i][idx])))
         live = np.nonzero(~leaf)[0]
-        why = _unfold(first, node[live], search)  # looks at the clock between its slices
+        why = _unfold(first, node[live], search, cap)  # looks at its budget between slices
         started = time.perf_counter()  # the rate is the level's array work's, unfolding aside
         why = why or _would_overrun(search, rate, int(live.size))
         if why is not None:
@@ -247,10 +251,37 @@ def tree_size(space: Space, past: float = math.inf) -> float:
     return total
 
 
-def _unfold(space: Space, q: np.ndarray, budget: SearchBudget) -> str | None:
+@dataclass(frozen=True)
+class WorkCap:
+    """A walk's cap on the unfolding's work: ``start``, the model's work when it began;
+    ``most``, the work it may add."""
+
+    start: int
+    most: int
+
+
+def _work(space: Space) -> int:
+    """The work the model of ``space`` has done unfolding so far (GrowingModel.work: rows
+    its expander examined, the same on every run); 0 for an explicit model."""
+    return int(getattr(space.cm, "work", 0))
+
+
+def _over_work(space: Space, cap: WorkCap | None) -> str | None:
+    """``max_states`` once the unfolding has done the work ``cap`` allows (:func:`_work`,
+    looked at between :func:`_unfold`'s slices, which are counted too: where a walk stops
+    is the same on every run, whatever the machine's load), else None."""
+    if cap is None or _work(space) - cap.start < cap.most:
+        return None
+    return "max_states"
+
+
+def _unfold(
+    space: Space, q: np.ndarray, budget: SearchBudget, cap: WorkCap | None = None
+) -> str | None:
     """On a model unfolded on demand (lesmc/engines/lazy.py): unfold the distinct states
-    of ``q`` in slices of about ``slice_size()`` states, looking at the budget between
-    slices, so that a deadline holds while a large level unfolds; why it stopped, or None.
+    of ``q`` in slices of about ``slice_size()`` states (a count: lazy.BATCH_WORK of work),
+    looking at the budget and the work cap ``cap`` between slices, so that a deadline
+    holds while a large level unfolds; why it stopped, or None.
     An explicit model has nothing to unfold.
 
     The tree nodes the level makes are counted as its slices unfold (a node of ``q``
@@ -264,7 +295,7 @@ def _unfold(space: Space, q: np.ndarray, budget: SearchBudget) -> str | None:
     todo, times = np.unique(q, return_counts=True)
     lo, made = 0, 0
     while lo < todo.size:
-        why = budget.over(made)
+        why = budget.over(made) or _over_work(space, cap)
         if why is not None:
             return why
         n = max(1, int(size()))

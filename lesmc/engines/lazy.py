@@ -17,8 +17,6 @@ allowed only if it is rank-minimal (the unattacked outcome).
 
 from __future__ import annotations
 
-import time
-
 import numpy as np
 
 from lesmc.engines.space import (
@@ -32,7 +30,7 @@ from lesmc.engines.space import (
 from lesmc.language.semantics import BoundProperty
 from lesmc.model import kernel
 from lesmc.model.arrays import reference_states
-from lesmc.model.growing import BATCH_SECONDS, GrowArray, GrowingModel
+from lesmc.model.growing import BATCH_WORK, GrowArray, GrowingModel
 
 #: Most states expanded together outside the window (bounds one batch's temporaries).
 BATCH = 65_536
@@ -56,7 +54,6 @@ class LazySpace(SpaceOps):
         self._allowed: dict[int, np.ndarray] = {}  # per expanded state: its allowed transitions
         self._mask = GrowArray(np.bool_)
         self._t_known = 0  # transitions whose contributions are computed
-        self._per_state = 0.0  # seconds one state's expansion took, as last measured
         self._waiting: dict[int, list[int]] = {}  # per step outside the window: unexpanded states
         self._queued: set[int] = set()  # every state ever put in _waiting
         self._known = 0  # states whose deviation and τ are computed
@@ -186,7 +183,7 @@ class LazySpace(SpaceOps):
         steps = cm.step[todo]
         for k in np.unique(steps).tolist():
             group = todo[steps == k]
-            while group.size:  # batches of about BATCH_SECONDS, so that deadlines hold
+            while group.size:  # batches of about BATCH_WORK, so that deadlines hold
                 n = self._cap(BATCH)
                 self._expand_batch(group[:n], int(k))
                 group = group[n:]
@@ -195,21 +192,24 @@ class LazySpace(SpaceOps):
         return owner[ok], t[ok]
 
     def slice_size(self) -> int:
-        """How many states to hand :meth:`successors_batch` at once: about BATCH_SECONDS of
-        unfolding, so that the caller's clock is read often enough."""
+        """How many states to hand :meth:`successors_batch` at once: about BATCH_WORK of
+        unfolding, so that the caller's clock and budgets are read often enough."""
         return self._cap(64)
 
     def _cap(self, unmeasured: int) -> int:
-        """States that take about BATCH_SECONDS to expand (``unmeasured`` before any)."""
-        if self._per_state <= 0:
+        """States whose expansion does about BATCH_WORK work at the model's work per
+        state so far (``unmeasured`` before any state is expanded). Counted, not timed, so
+        that the batches, and so the states a search or walk stopped between them has
+        built, are the same on every run whatever the machine's load."""
+        done = self.cm.states_expanded
+        if done <= 0:
             return unmeasured
-        return max(1, min(BATCH, int(BATCH_SECONDS / self._per_state) + 1))
+        per = max(self.cm.work / done, 1e-9)
+        return max(1, min(BATCH, int(BATCH_WORK / per) + 1))
 
     def _expand_batch(self, states: np.ndarray, k: int) -> None:
-        """Expand ``states`` (all at step k), timing it, and sync the new arrays."""
-        t0 = time.perf_counter()
+        """Expand ``states`` (all at step k) and sync the new arrays."""
         self.cm.expand(states, k)
-        self._per_state = (time.perf_counter() - t0) / states.size
         self._sync()
 
     def _queue(self, states: np.ndarray) -> None:

@@ -23,6 +23,11 @@ if TYPE_CHECKING:
 #: Seconds one batch of expansions should take at most: batches shrink for designs whose
 #: states are expensive (joint), so that a deadline is looked at often enough.
 BATCH_SECONDS = 0.05
+#: Work (GrowingModel.work) one batch of expansions on demand does at most (engines/lazy.py):
+#: about BATCH_SECONDS at about 1-2 µs a unit (a transition on ``single``, a track of an
+#: examined row on ``joint``), counted rather than timed so that the batches, and what
+#: a budget looked at between them stops, are the same on every run.
+BATCH_WORK = 1 << 15
 
 
 class GrowArray:
@@ -63,6 +68,11 @@ class Expansion:
     obs: np.ndarray  # codes into the expander's observation names, −1 none
     #: the NIS of each transition's update, NaN where it takes none; None: not reported
     nis: np.ndarray | None = None
+    #: the work done for it, in track moves (lesmc/tracking/design.py Successors.examined:
+    #: on the joint design the rows it examined before merging equal outcomes, times their
+    #: tracks); None: one per transition. Counted, not timed, so that what a budget of it
+    #: decides does not depend on the machine's load (:attr:`GrowingModel.work`)
+    work: int | None = None
 
 
 class Expander(Protocol):
@@ -101,6 +111,11 @@ class GrowingModel:
         self.P_table = np.zeros((0, dim, dim))
         self.obs_names: tuple[str, ...] = ()
         self.expander: Expander | None = None
+        #: the unfolding's work so far (the sum of Expansion.work), a measure of its cost
+        #: that is the same on every run (check.check_shared's cap)
+        self.work = 0
+        #: how many states have been expanded so far
+        self.states_expanded = 0
 
     # -- states -------------------------------------------------------------
     def add_states(self, step: int, S: np.ndarray, cov: np.ndarray, halted: np.ndarray) -> int:
@@ -191,6 +206,8 @@ class GrowingModel:
         halted); returns the indices of their transitions."""
         assert self.expander is not None
         exp = self.expander.expand(states, step)
+        self.work += len(exp.dst) if exp.work is None else int(exp.work)
+        self.states_expanded += len(states)
         first = self._dst.n
         ptr = np.concatenate(([0], np.cumsum(exp.counts)))
         self._src.extend(np.repeat(states, exp.counts))

@@ -278,6 +278,13 @@ class Successors:
     #: the NIS yᵀ S⁻¹ y of each outcome's update (NaN: it skips the update); None: the
     #: design does not report it (the ``nis`` and ``misses`` monitors need it)
     nis: np.ndarray | None = None
+    #: the work the design did for them, a count that is the same on every run and grows
+    #: about as its time (lesmc/model/growing.py, ``GrowingModel.work``): the joint design
+    #: counts the (state, attacker option) rows it evaluated before merging the options
+    #: with equal outcomes (under inject: each hiding option × each candidate subset),
+    #: times a row's tracks (each row moves them all); None: one per outcome (a
+    #: single-target design moves one track an outcome)
+    examined: int | None = None
 
 
 class Design(Protocol):

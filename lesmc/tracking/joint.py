@@ -67,6 +67,13 @@ from lesmc.tracking.parts.joint_step import (
 CHUNK_CELLS = 1 << 20
 
 
+def tracks_moved(js: JointStates, rows: np.ndarray) -> int:
+    """The work of evaluating rows whose source states are ``rows`` (positions in ``js``):
+    each row moves every track of its state (at least one unit a row), counted per state
+    so that it does not depend on how the states were batched (Successors.examined)."""
+    return int(np.maximum(js.ntrack[rows], 1).sum())
+
+
 class JointDesign:
     """Primary plus refining tracks with likelihood-sorted one-to-one association."""
 
@@ -157,6 +164,7 @@ class JointDesign:
             np.concatenate([e.det for e in parts]),
             succ,
             np.concatenate([e.nis for e in parts]),
+            sum(e.track_rows for e in parts),
         )
 
     # -------------------------------------------------------------- one chunk
@@ -181,9 +189,15 @@ class JointDesign:
                 primary_nis(p, s[rows], assign[rows, 0]),
                 opt[rows].astype(np.int64),
                 np.zeros(rows.size, dtype=np.int64),
+                track_rows=tracks_moved(js, s),
             )
-        # unattacked: option 0, and its own payoff, the cost of the first option that differs
-        s, opt, assign, halt, states = self._rows(
+        return self._expand_unattacked(js, p)
+
+    def _expand_unattacked(self, js: JointStates, p: Prepared) -> Expanded:
+        """The outcome of each state of ``js`` at an unattacked frame (``p``: prepared):
+        option 0, and its own payoff, the cost of the first option that differs."""
+        n = len(js)
+        s, _, assign, halt, states = self._rows(
             p, np.zeros(n, dtype=np.int64), np.minimum(p.n_opt, 1)
         )
         states.key = key0 = digest(states)
@@ -192,7 +206,7 @@ class JointDesign:
         if sure.any():
             payoff[sure] = p.cost[sure, 1]
         todo = np.flatnonzero(~sure)
-        j = 1
+        j, moved = 1, tracks_moved(js, s)
         while True:
             todo = todo[p.n_opt[todo] > j]
             if not todo.size:
@@ -202,6 +216,7 @@ class JointDesign:
             hi = lo.copy()
             hi[todo] = j + 1
             sj, _, _, _, nxt = self._rows(p, lo, hi)
+            moved += tracks_moved(js, sj)
             differs = (digest(nxt) != key0[sj]).any(axis=1)
             same = nxt.take(np.nonzero(~differs)[0])
             if not same_as(same, states, sj[~differs]):
@@ -217,6 +232,7 @@ class JointDesign:
             halt[:, 0],
             states,
             primary_nis(p, s, assign[:, 0]),
+            track_rows=moved,
         )
 
     def _expand_injected(self, js: JointStates, step: int) -> Expanded:
@@ -262,6 +278,7 @@ class JointDesign:
             opt[order][kept].astype(np.int64),
             sid[order][kept].astype(np.int64),
             subsets,
+            tracks_moved(js, s),  # every (state, hiding option, subset) row's tracks
         )
 
     def forcing(

@@ -151,7 +151,7 @@ class SceneExpander:
         obs_base = int(self._obs_offset[frame - self._first_frame])
         obs = np.where(succ.det >= 0, succ.det + obs_base, -1)
         counts = np.bincount(succ.src, minlength=len(states))
-        return Expansion(counts, dst, succ.payoff, succ.rank, obs, succ.nis)
+        return Expansion(counts, dst, succ.payoff, succ.rank, obs, succ.nis, succ.examined)
 
 
 def scene_tracks(scene: Scene, steps: int) -> Tracks | None:

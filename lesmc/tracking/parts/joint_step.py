@@ -111,6 +111,9 @@ class Expanded:
     opt: np.ndarray | None = None
     subset: np.ndarray | None = None
     subsets: list[tuple[int, ...]] | None = None
+    #: the chunk's work: the (state, option) rows it evaluated before merging equal outcomes,
+    #: times the tracks of a row (each row moves every track of its joint state)
+    track_rows: int = 0
 
 
 def prepare(
