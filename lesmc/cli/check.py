@@ -133,6 +133,7 @@ def check_cmd(
     parsed, source, is_scene = _inputs(model, specs, target_text, design, tracker_file)
     _check_multi(source, parsed, is_scene, budget)  # a multi-target design: checked there (exits)
     parsed, only = _swept(parsed, sweep_texts, only, source.meta if is_scene else None)
+    perception = _perception(source, model) if report_dir is not None and is_scene else None
     job = Job(
         parsed,
         scene=source if is_scene else None,
@@ -151,7 +152,8 @@ def check_cmd(
     with Reporter("check") as rep, polite_stop():
         results = check_job(replace(job, on_stage=rep.stage))
     if report_dir is not None:
-        _report(results, parsed, report_dir, model, frames_dir, budget.started, is_scene, warnings)
+        rep_in = (model, frames_dir, budget.started, is_scene)
+        _report(results, parsed, report_dir, rep_in, perception, warnings)
     _finish(results, parsed, as_json, no_paths, warnings)
 
 
@@ -261,27 +263,46 @@ def _print(
         print_warnings(warnings)
 
 
+def _perception(scene: Any, path: str) -> dict[str, Any]:
+    """``--report`` on a scene: the results' ``perception``, the front end's and the
+    attack's settings the scene's meta records, which ``lesmc replay`` reruns the detector
+    with (lesmc.perception.attack_settings ``scene_perception``, as ``lesmc verify``
+    records them). Read before the check, so that a bad ``meta.frontend`` is an error
+    (at its field in ``path``) before the check's time is spent."""
+    from lesmc.perception.attack_settings import scene_perception
+
+    return scene_perception(dict(scene.meta), path)
+
+
 def _report(
     results: Results,
     parsed: tuple[SpecFile, ...],
     report_dir: str,
-    path: str,
-    frames_dir: str | None,
-    started: float,
-    is_scene: bool,
+    inputs: tuple[str, str | None, float, bool],
+    perception: dict[str, Any] | None,
     warnings: list[str],
 ) -> None:
-    """Write the results file and draw the report from it (lesmc/report/publish.py); the
-    warnings are a line of its meta table."""
+    """Write the results file and draw the report from it (lesmc/report/publish.py);
+    ``inputs``: the model or scene's path, the frames directory, when the command started
+    and whether the path is a scene; ``perception`` (a scene's, :func:`_perception`) is
+    the results' ``perception``; the warnings are a line of its meta table."""
     from lesmc.report.publish import frames_reader, publish
     from lesmc.results.document import provenance
 
+    path, frames_dir, started, is_scene = inputs
     meta = {"scene" if is_scene else "model": path}
     if warnings:
         meta["warning"] = " ".join(f"{w}." for w in warnings)
     timings = {"load, build and check": time.monotonic() - started}
+    extra = None if perception is None else {"perception": perception}
     out, _ = publish(
-        results.runs, report_dir, meta, provenance(parsed), frames_reader(frames_dir), timings
+        results.runs,
+        report_dir,
+        meta,
+        provenance(parsed),
+        frames_reader(frames_dir),
+        timings,
+        extra=extra,
     )
     click.echo(f"report: {out}", err=True)
 
