@@ -123,11 +123,13 @@ def truth_frames(src: Source, scene: Scene) -> list[TruthFrame]:
 def perception_facts(src: Source, where: str) -> dict[str, Any]:
     """How the scene's detections were made, for the report and the replay (the results'
     ``perception``; a multi-target document's too: lesmc/experiment/multi_verify.py): the
-    attack's settings, the front end's ``history`` and ``delta_bc`` as the scene's
-    ``meta.frontend`` records them (``lesmc perceive -o`` and verify's own perception write
-    them; a scene that records none, older or made through a detector file, has none, and
-    the replay then says it uses the defaults), the networks and the frames. ``where``: the
-    scene file, for a recorded setting out of range."""
+    scene's part (:func:`~lesmc.perception.attack_settings.scene_perception`, which ``lesmc
+    check --report`` records too: the attack's settings, the front end's ``history`` and
+    ``delta_bc`` as the scene's ``meta.frontend`` records them; ``lesmc perceive -o`` and
+    verify's own perception write them; a scene that records none, older or made through
+    a detector file, has none, and the replay then says it uses the defaults), the
+    networks and the frames. ``where``: the scene file, for a recorded setting out of
+    range."""
     from lesmc.perception.attack_settings import scene_perception
 
     meta = dict(src.scene.meta)
