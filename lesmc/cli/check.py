@@ -5,7 +5,7 @@ from __future__ import annotations
 import sys
 import time
 from collections.abc import Iterable
-from dataclasses import replace
+from dataclasses import dataclass, replace
 from typing import TYPE_CHECKING, Any
 
 import click
@@ -133,6 +133,7 @@ def check_cmd(
     parsed, source, is_scene = _inputs(model, specs, target_text, design, tracker_file)
     _check_multi(source, parsed, is_scene, budget)  # a multi-target design: checked there (exits)
     parsed, only = _swept(parsed, sweep_texts, only, source.meta if is_scene else None)
+    report = _report_to(report_dir, frames_dir, model, source if is_scene else None)
     job = Job(
         parsed,
         scene=source if is_scene else None,
@@ -150,8 +151,7 @@ def check_cmd(
     warnings = unattacked_warnings(source, design) if is_scene else []
     with Reporter("check") as rep, polite_stop():
         results = check_job(replace(job, on_stage=rep.stage))
-    if report_dir is not None:
-        _report(results, parsed, report_dir, model, frames_dir, budget.started, is_scene, warnings)
+    _report(report, results, parsed, budget.started, warnings)  # --report DIR: nothing without
     _finish(results, parsed, as_json, no_paths, warnings)
 
 
@@ -261,27 +261,64 @@ def _print(
         print_warnings(warnings)
 
 
+@dataclass(frozen=True)
+class _ReportTo:
+    """``--report DIR``: where the results file and the report go, the frames for its
+    images (``--frames``), the model or scene file checked and, for a scene, the results'
+    ``perception`` (None: a model file, which has none)."""
+
+    dir: str
+    frames_dir: str | None
+    path: str
+    perception: dict[str, Any] | None
+
+
+def _report_to(
+    report_dir: str | None, frames_dir: str | None, path: str, scene: Any
+) -> _ReportTo | None:
+    """What ``--report`` writes (None: not asked). A scene's ``perception`` is the front
+    end's and the attack's settings its meta records, which ``lesmc replay`` reruns the
+    detector with (lesmc.perception.attack_settings ``scene_perception``, as ``lesmc
+    verify`` records them); read before the check, so that a bad ``meta.frontend`` is an
+    error (at its field in ``path``) before the check's time is spent."""
+    if report_dir is None:
+        return None
+    perception = None
+    if scene is not None:
+        from lesmc.perception.attack_settings import scene_perception
+
+        perception = scene_perception(dict(scene.meta), path)
+    return _ReportTo(report_dir, frames_dir, path, perception)
+
+
 def _report(
+    to: _ReportTo | None,
     results: Results,
     parsed: tuple[SpecFile, ...],
-    report_dir: str,
-    path: str,
-    frames_dir: str | None,
     started: float,
-    is_scene: bool,
     warnings: list[str],
 ) -> None:
-    """Write the results file and draw the report from it (lesmc/report/publish.py); the
-    warnings are a line of its meta table."""
+    """With ``--report`` (``to``), write the results file and draw the report from it
+    (lesmc/report/publish.py); the warnings are a line of its meta table. Nothing
+    without it."""
+    if to is None:
+        return
     from lesmc.report.publish import frames_reader, publish
     from lesmc.results.document import provenance
 
-    meta = {"scene" if is_scene else "model": path}
+    meta = {"model" if to.perception is None else "scene": to.path}
     if warnings:
         meta["warning"] = " ".join(f"{w}." for w in warnings)
     timings = {"load, build and check": time.monotonic() - started}
+    extra = None if to.perception is None else {"perception": to.perception}
     out, _ = publish(
-        results.runs, report_dir, meta, provenance(parsed), frames_reader(frames_dir), timings
+        results.runs,
+        to.dir,
+        meta,
+        provenance(parsed),
+        frames_reader(to.frames_dir),
+        timings,
+        extra=extra,
     )
     click.echo(f"report: {out}", err=True)
 

@@ -6,7 +6,6 @@ on it (lesmc/experiment/false_alarms.py), what perception did, the replay's find
 from __future__ import annotations
 
 import time
-from dataclasses import asdict
 from pathlib import Path
 from typing import Any
 
@@ -124,15 +123,17 @@ def truth_frames(src: Source, scene: Scene) -> list[TruthFrame]:
 def perception_facts(src: Source, where: str) -> dict[str, Any]:
     """How the scene's detections were made, for the report and the replay (the results'
     ``perception``; a multi-target document's too: lesmc/experiment/multi_verify.py): the
-    attack's settings, the front end's ``history`` and ``delta_bc`` as the scene's
-    ``meta.frontend`` records them (``lesmc perceive -o`` and verify's own perception write
-    them; a scene that records none, older or made through a detector file, has none, and
-    the replay then says it uses the defaults), the networks and the frames. ``where``: the
-    scene file, for a recorded setting out of range."""
-    from lesmc.perception.attack_settings import attack_of, frontend_of
+    scene's part (:func:`~lesmc.perception.attack_settings.scene_perception`, which ``lesmc
+    check --report`` records too: the attack's settings, the front end's ``history`` and
+    ``delta_bc`` as the scene's ``meta.frontend`` records them; ``lesmc perceive -o`` and
+    verify's own perception write them; a scene that records none, older or made through
+    a detector file, has none, and the replay then says it uses the defaults), the
+    networks and the frames. ``where``: the scene file, for a recorded setting out of
+    range."""
+    from lesmc.perception.attack_settings import scene_perception
 
     meta = dict(src.scene.meta)
-    out: dict[str, Any] = {**frontend_of(meta, where), "attack": asdict(attack_of(meta, where))}
+    out = scene_perception(meta, where)
     if src.nets is not None:
         out["nets"] = str(src.nets.settings.trained_on)
     elif isinstance(meta.get("detector"), str) and meta["detector"]:

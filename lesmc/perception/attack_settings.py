@@ -7,7 +7,7 @@ a cached verify reads them to key its cache without loading torch.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import asdict, dataclass
 from typing import Any, Literal
 
 from lesmc.common.errors import InputError, Problems
@@ -94,3 +94,16 @@ def frontend_of(meta: dict[str, Any], where: str = "<scene>") -> dict[str, int]:
     if problems:
         raise scene_error(where, None, problems)
     return got
+
+
+def scene_perception(meta: dict[str, Any], where: str = "<scene>") -> dict[str, Any]:
+    """The part of a results document's ``perception`` that a scene's meta gives, the
+    settings a replay reruns the front end and the attack with: the front end's
+    ``history`` and ``delta_bc`` as ``meta.frontend`` records them (:func:`frontend_of`;
+    none for a scene that records none, and the replay then says it uses the defaults)
+    and the ``attack`` settings (:func:`attack_of`, defaults for those not recorded).
+    ``lesmc verify``'s results (lesmc/experiment/verify_results.py ``perception_facts``,
+    which adds the networks and the frames) and ``lesmc check --report``'s
+    (lesmc/cli/check.py) both record it. ``where``: the scene file, for a recorded
+    setting out of range (an InputError at its field)."""
+    return {**frontend_of(meta, where), "attack": asdict(attack_of(meta, where))}
