@@ -67,13 +67,6 @@ from lesmc.tracking.parts.joint_step import (
 CHUNK_CELLS = 1 << 20
 
 
-def tracks_moved(js: JointStates, rows: np.ndarray) -> int:
-    """The work of evaluating rows whose source states are ``rows`` (positions in ``js``):
-    each row moves every track of its state (at least one unit a row), counted per state
-    so that it does not depend on how the states were batched (Successors.examined)."""
-    return int(np.maximum(js.ntrack[rows], 1).sum())
-
-
 class JointDesign:
     """Primary plus refining tracks with likelihood-sorted one-to-one association."""
 
@@ -167,7 +160,6 @@ class JointDesign:
             sum(e.track_rows for e in parts),
         )
 
-    # -------------------------------------------------------------- one chunk
     def _expand(self, js: JointStates, step: int, attacked: bool) -> Expanded:
         """The outcomes of the states ``js`` at frame ``step`` (see the module docstring)."""
         frame = self.scene.frame(step)
@@ -189,7 +181,7 @@ class JointDesign:
                 primary_nis(p, s[rows], assign[rows, 0]),
                 opt[rows].astype(np.int64),
                 np.zeros(rows.size, dtype=np.int64),
-                track_rows=tracks_moved(js, s),
+                track_rows=js.tracks_moved(s),
             )
         return self._expand_unattacked(js, p)
 
@@ -206,7 +198,7 @@ class JointDesign:
         if sure.any():
             payoff[sure] = p.cost[sure, 1]
         todo = np.flatnonzero(~sure)
-        j, moved = 1, tracks_moved(js, s)
+        j, moved = 1, js.tracks_moved(s)
         while True:
             todo = todo[p.n_opt[todo] > j]
             if not todo.size:
@@ -216,7 +208,7 @@ class JointDesign:
             hi = lo.copy()
             hi[todo] = j + 1
             sj, _, _, _, nxt = self._rows(p, lo, hi)
-            moved += tracks_moved(js, sj)
+            moved += js.tracks_moved(sj)
             differs = (digest(nxt) != key0[sj]).any(axis=1)
             same = nxt.take(np.nonzero(~differs)[0])
             if not same_as(same, states, sj[~differs]):
@@ -278,7 +270,7 @@ class JointDesign:
             opt[order][kept].astype(np.int64),
             sid[order][kept].astype(np.int64),
             subsets,
-            tracks_moved(js, s),  # every (state, hiding option, subset) row's tracks
+            js.tracks_moved(s),  # every (state, hiding option, subset) row's tracks
         )
 
     def forcing(

@@ -139,6 +139,13 @@ class JointStates:
             return self.table.X[self.tid[:, 0]], self.table.cov[self.tid[:, 0]]
         return self.tracks[:, 0].copy(), self.tcov[:, 0]
 
+    def tracks_moved(self, rows: np.ndarray) -> int:
+        """The work of evaluating rows whose source states are ``rows`` (positions in
+        these states): each row moves every track of its state (at least one unit a row),
+        counted per state so that it does not depend on how the states were batched
+        (Successors.examined, GrowingModel.work)."""
+        return int(np.maximum(self.ntrack[rows], 1).sum())
+
     def take(self, idx: np.ndarray) -> JointStates:
         nt, npd = self.ntrack[idx], self.npend[idx]
         T = int(nt.max(initial=1))
