@@ -2,10 +2,12 @@
 
 from __future__ import annotations
 
+import json
 import os
 import subprocess
 import sys
 from pathlib import Path
+from typing import Any
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -69,3 +71,16 @@ def lesmc_logged(
     times.append(time.monotonic() - t0)  # the end: the last gap counts too
     done = subprocess.CompletedProcess(proc.args, proc.returncode, "".join(out), "".join(lines))
     return done, times
+
+
+def sort_hijack_document() -> dict[str, Any]:
+    """``lesmc check examples/crossing.json examples/hijack.spec --design sort --json``'s
+    ``lesmc-multi-check`` document (the example's hijack is violated: exit 1)."""
+    r = lesmc(
+        "check", str(ROOT / "examples" / "crossing.json"), str(ROOT / "examples" / "hijack.spec"),
+        "--design", "sort", "--json",
+    )  # fmt: skip
+    assert r.returncode == 1, r.stderr
+    doc: dict[str, Any] = json.loads(r.stdout)
+    assert doc["format"] == "lesmc-multi-check"
+    return doc

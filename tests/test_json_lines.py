@@ -16,7 +16,7 @@ from pathlib import Path
 from typing import Any
 
 import pytest
-from cli_run import ROOT, lesmc
+from cli_run import ROOT, lesmc, sort_hijack_document
 from pipeline_run import design_runs
 
 from lesmc.common.locations import item_keys, json_offset
@@ -161,13 +161,8 @@ def test_a_broken_reference_of_a_results_file_is_refused_at_its_element(
 
 @pytest.fixture(scope="module")
 def multi_doc(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Any]:
-    r = lesmc(
-        "check", str(EXAMPLES / "crossing.json"), str(EXAMPLES / "hijack.spec"),
-        "--design", "sort", "--json",
-    )  # fmt: skip
-    assert r.returncode == 1, r.stderr
-    doc: dict[str, Any] = json.loads(r.stdout)
-    assert doc["format"] == "lesmc-multi-check" and doc["results"][0]["counterexample"]
+    doc = sort_hijack_document()
+    assert doc["results"][0]["counterexample"]
     return doc
 
 

@@ -20,7 +20,7 @@ from pathlib import Path
 from typing import Any
 
 import pytest
-from cli_run import ROOT, lesmc
+from cli_run import ROOT, lesmc, sort_hijack_document
 
 EXAMPLES = ROOT / "examples"
 
@@ -40,14 +40,7 @@ def _refused(r: Any, path: Path, line: int, what: str) -> None:
 @pytest.fixture(scope="module")
 def multi_doc(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Any]:
     """``lesmc check crossing.json hijack.spec --design sort --json``'s document."""
-    r = lesmc(
-        "check", str(EXAMPLES / "crossing.json"), str(EXAMPLES / "hijack.spec"),
-        "--design", "sort", "--json",
-    )  # fmt: skip
-    assert r.returncode == 1, r.stderr  # the example's hijack is violated
-    doc: dict[str, Any] = json.loads(r.stdout)
-    assert doc["format"] == "lesmc-multi-check"
-    return doc
+    return sort_hijack_document()
 
 
 @pytest.mark.parametrize(
