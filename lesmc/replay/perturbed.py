@@ -31,6 +31,7 @@ from lesmc.results.read import HiddenDoc as Hidden
 
 if TYPE_CHECKING:
     from lesmc.perception.attack_settings import AttackConfig
+    from lesmc.perception.attacks import AttackResult
     from lesmc.perception.cnn import Nets
     from lesmc.perception.detector import Detector, FrameDetections
     from lesmc.perception.frontend import FrontEndOutput
@@ -336,11 +337,8 @@ def _rehide(
         return None
     rows = sorted({int(after.source[j]) for j in unwanted})
     more = payoffs(nets.dr, after.windows[rows], nets.settings.delta_dr, cfg)
-    ok = more.flipped
-    if not ok.any():
-        return None
     assert after.accepted is not None  # redetect() keeps the rows N_dr accepts
-    return float(more.payoff[ok].sum()), (cands[after.accepted[rows]][ok], more.perturbation[ok])
+    return _flipped(more, cands[after.accepted[rows]])
 
 
 def _reinject(
@@ -359,16 +357,22 @@ def _reinject(
     from lesmc.perception.cnn import DR_SIZE
 
     after, cands, frames = seen
-    if wanted is None or not _missing(wanted, after):
+    if wanted is None or not len(wanted):
         return None
     gone = wanted[nearest_within(wanted, after.positions, DET_TOL_PX) < 0]
     at = nearest_within(gone, cands, DET_TOL_PX)
     centres = cands[at[at >= 0]]
-    if not len(centres):
+    if not len(centres):  # nothing missing, or no blob left where it is
         return None
     res = payoffs(
         nets.dr, cut(frames.frames, centres, DR_SIZE), nets.settings.delta_dr, cfg, "inject"
     )
+    return _flipped(res, centres)
+
+
+def _flipped(res: AttackResult, centres: np.ndarray) -> tuple[float, Round] | None:
+    """A repair step's windows at ``centres`` attacked (``res``): the cost and the
+    perturbations of those that flip N_dr; None when none does."""
     ok = res.flipped
     if not ok.any():
         return None

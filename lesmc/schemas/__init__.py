@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import json
 import re
+from collections.abc import Hashable
 from functools import cache
 from importlib import resources
 from typing import Any
@@ -159,23 +160,24 @@ def _siblings(value: Any, sch: dict[str, Any], root: dict[str, Any], where: str)
 
 
 def _repeats(items: list[Any]) -> bool:
-    """Whether two of ``items`` are equal as JSON Schema reads them (1 and 1.0 are)."""
-    seen = [_canonical(v) for v in items]
-    return any(a == b for i, a in enumerate(seen) for b in seen[:i])
+    """Whether two of ``items`` are equal as JSON Schema reads them (1 and 1.0 are); one
+    pass over hashable keys, so that a long hostile list costs linear time."""
+    keys = {_canonical(v) for v in items}
+    return len(keys) < len(items)
 
 
-def _canonical(value: Any) -> Any:
-    """``value`` with each number as a float and each bool kept apart from the numbers,
-    so that Python equality is JSON Schema's (1 == 1.0, true != 1, key order ignored)."""
+def _canonical(value: Any) -> Hashable:
+    """A hashable key of ``value`` that is equal exactly where JSON Schema calls two values
+    equal: each number as a float, each bool apart from the numbers, key order ignored."""
     if isinstance(value, bool):
         return ("bool", value)
     if isinstance(value, (int, float)):
-        return float(value)
+        return ("number", float(value))
     if isinstance(value, list):
-        return [_canonical(v) for v in value]
+        return ("array", tuple(_canonical(v) for v in value))
     if isinstance(value, dict):
-        return {k: _canonical(v) for k, v in value.items()}
-    return value
+        return ("object", frozenset((k, _canonical(v)) for k, v in value.items()))
+    return ("other", value)
 
 
 def _forms(
