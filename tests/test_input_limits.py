@@ -427,12 +427,12 @@ def test_a_boolean_version_is_refused_in_every_input(tmp_path: Path, kind: str) 
 
 
 def test_the_attack_settings_a_scene_may_record_are_what_perceive_accepts() -> None:
-    """The scene loader's table (scene.io.ATTACK_SETTINGS) and ``lesmc perceive``'s options
+    """The scene loader's table (scene.meta_attack.ATTACK_SETTINGS) and ``lesmc perceive``'s options
     allow the same values: each range's ends and the choices, nothing just outside."""
     import click
 
     from lesmc.cli.perceive import perceive_cmd as perceive
-    from lesmc.scene.io import ATTACK_SETTINGS
+    from lesmc.scene.meta_attack import ATTACK_SETTINGS
 
     opts = {p.name: p.type for p in perceive.params}
     for key, option in (("method", "attack"), ("norm", "payoff_norm")):

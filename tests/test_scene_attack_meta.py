@@ -60,7 +60,7 @@ def _written_attacks() -> list[dict[str, Any]]:
 def test_the_notes_perceive_writes_still_load(tmp_path: Path, which: int) -> None:
     """Each field the writers write is a setting or a note the reader knows, and a scene
     with them checks as the example does."""
-    from lesmc.scene.io import ATTACK_NOTES, ATTACK_SETTINGS
+    from lesmc.scene.meta_attack import ATTACK_NOTES, ATTACK_SETTINGS
 
     attack = _written_attacks()[which]
     assert set(attack) <= set(ATTACK_SETTINGS) | set(ATTACK_NOTES), attack

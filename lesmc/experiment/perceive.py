@@ -237,7 +237,7 @@ def file_attack_meta(
 ) -> dict[str, Any]:
     """A detector file's attack settings and notes (its input's ``scale``, the part of the
     frame ``where`` a perturbation may change), for the scene's ``meta.attack``."""
-    from lesmc.scene.io import AttackNotes
+    from lesmc.scene.meta_attack import AttackNotes
 
     att = attack_config(req)
     notes = AttackNotes(
@@ -331,7 +331,7 @@ def scene_meta(
 ) -> dict[str, Any]:
     """How the scene's detections and payoffs were made (its ``meta``); ``cert``: the
     settings the certified lower bounds were computed with, if any."""
-    from lesmc.scene.io import AttackNotes
+    from lesmc.scene.meta_attack import AttackNotes
 
     att = attack_config(req)
     notes = AttackNotes(input="N_dr window, 21x21 x (m+1) frames", pixel_scale="[0, 1]")

@@ -13,8 +13,8 @@ from typing import Any, Literal
 from lesmc.common.errors import InputError, Problems
 from lesmc.common.fields import show
 from lesmc.perception import FRONTEND_RANGES
-from lesmc.scene.io import recorded_attack
 from lesmc.scene.located import scene_error
+from lesmc.scene.meta_attack import recorded_attack
 
 Method = Literal["deepfool", "pgd"]
 Norm = Literal["l2", "per-pixel"]
@@ -52,7 +52,7 @@ def threshold_logit(delta_dr: float) -> float:
 
 def attack_of(meta: dict[str, Any], where: str = "<scene>") -> AttackConfig:
     """The attack settings a scene's meta records (lesmc perceive -o), defaults for those
-    it does not; a recorded value out of range (``lesmc.scene.io.ATTACK_SETTINGS``) is an
+    it does not; a recorded value out of range (``lesmc.scene.meta_attack.ATTACK_SETTINGS``) is an
     InputError naming its field in ``where`` (the scene file)."""
     pr = Problems()
     got = recorded_attack(meta, pr)
