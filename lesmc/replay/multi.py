@@ -65,6 +65,7 @@ from lesmc.replay.case import (
 )
 from lesmc.replay.multi_cases import MultiCase, multi_cases
 from lesmc.replay.perturbed import attack_frame
+from lesmc.replay.story import frame_story
 from lesmc.results.read import HiddenDoc as Hidden
 from lesmc.scene import Detection, Frame, Scene
 from lesmc.tracking.multi import ComposedDesign, target_id, target_look
@@ -369,7 +370,7 @@ def _verdict(
     fas = [attacked[f] for f in sorted(attacked) if f <= c.steps[-1]["frame"]]
     if reason is not None and step is not None:
         near = [fa for fa in fas if fa.frame <= c.steps[step]["frame"]]
-        story = single.frame_story(near[-1]) if near else ""
+        story = frame_story(near[-1]) if near else ""
         reason = "; ".join(w for w in (reason, story) if w)
     repaired = sum(fa.repaired_rounds for fa in fas)
     return {
@@ -379,7 +380,7 @@ def _verdict(
         "reason": reason,
         "attack": "repaired" if repaired else "as modelled",
         "repair_cost": round(sum(fa.extra_cost for fa in fas), 6),
-        "frames": [f"frame {fa.frame}: {s}" for fa in fas if (s := single.frame_story(fa))],
+        "frames": [f"frame {fa.frame}: {s}" for fa in fas if (s := frame_story(fa))],
         "tolerance_px": {"detection": DET_TOL_PX, "track": TRACK_TOL_PX},
         "perturbations": [p for fa in fas for p in fa.perturbations],
         "target_ids": ids,
