@@ -12,7 +12,7 @@ arrays (issue 62: is a compiled inner loop worth it?).
    ``COMPILED_AFTER`` labels (numba imported in this process by then: see below);
 2. a depth-first branch and bound compiled by numba over the same arrays: the explicit
    space's CSR successors, contributions and leaves, and the same bounds the engine built
-   (``levels._Bounds``: suffix minima/maxima, the Lagrangian table ``h`` and each state's
+   (``level_bounds.LevelBounds``: suffix minima/maxima, the Lagrangian table ``h`` and each state's
    two λ per grid point), starting from the engine's optimum + the grain so that it must
    find the optimum and prove it; no dominance (a DFS has no level to compare in). It
    stops after ``--max-transitions``.
@@ -42,6 +42,7 @@ from bench_knapsack import instance
 from lesmc.common.budget import Budget
 from lesmc.engines import levels
 from lesmc.engines.check import check_bound
+from lesmc.engines.level_bounds import LAMBDA_GRID, LevelBounds
 from lesmc.engines.space import Space, build_space
 from lesmc.language.parser import parse_spec
 from lesmc.language.semantics import BoundProperty, bind
@@ -169,7 +170,7 @@ def main() -> int:
             f"{st.seconds / s2.seconds:.1f}x less time",
             flush=True,
         )
-        b = levels._Bounds(space)
+        b = LevelBounds(space)
         assert b.h is not None and b.lam is not None and b.best_k is not None
         assert b.grain is not None and r.optimum is not None and math.isfinite(r.optimum)
         sp = space
@@ -187,7 +188,7 @@ def main() -> int:
             b.lam,
             b.best_k,
             demand,
-            levels.LAMBDA_GRID,
+            LAMBDA_GRID,
             sp.root,
             sp.root_obj,
             sp.root_con,

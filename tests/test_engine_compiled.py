@@ -20,8 +20,9 @@ from oracle import brute_force
 from test_engines import OPS, _bound_property
 
 from lesmc.common.budget import Budget
-from lesmc.engines import compiled, levels
+from lesmc.engines import compiled, level_compiled, levels
 from lesmc.engines.check import to_result
+from lesmc.engines.level_bounds import LevelBounds
 from lesmc.engines.space import build_space
 from lesmc.language.parser import parse_spec
 from lesmc.language.semantics import bind
@@ -253,10 +254,10 @@ def test_compiled_pass_alone_finds_the_optimum_from_no_incumbent(case: tuple) ->
     bp = _bound_property(model, params, quantile)
     truth = brute_force(model, bp)
     space = build_space(to_arrays(model), bp)
-    bounds = levels._Bounds(space)
-    assume(levels._compiled_applies(space, bounds))
+    bounds = LevelBounds(space)
+    assume(level_compiled.applies(space, bounds))
     stats = Stats(engine="levels")
-    best, path, lower, why = levels._compiled_optimum(
+    best, path, lower, why = level_compiled.optimum(
         space, bounds, Budget().search(None), stats, math.inf, None, compiled.dfs_chunk
     )
     assert why is None and lower == best

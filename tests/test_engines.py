@@ -153,6 +153,7 @@ def test_exact_lanes_each_find_a_path_below_their_threshold_iff_one_exists(
     objective is a multiple of g: the pass then looks for objectives of T − g or less)."""
     from lesmc.common.budget import Budget as B
     from lesmc.engines import levels
+    from lesmc.engines.level_bounds import LevelBounds
     from lesmc.engines.result import Stats
 
     model, params, quantile = case
@@ -161,7 +162,7 @@ def test_exact_lanes_each_find_a_path_below_their_threshold_iff_one_exists(
     scale = opt if math.isfinite(opt) and opt > 0 else 1.0
     tries = np.array(sorted({f * scale for f in fractions}, reverse=True))
     space = build_space(to_arrays(model), bp)
-    bounds = levels._Bounds(space)
+    bounds = LevelBounds(space)
     got = levels._optimum_pass(space, bounds, B().search(None), Stats(engine="levels"), tries, None)
     cuts = [bounds.cut(float(t)) for t in tries]
     assert got.why is None

@@ -3,7 +3,7 @@
 On an explicit model whose objective and constraint are both sums and whose constraint
 must rise past its bound (``>``/``>=``: the knapsack's class), :func:`dfs_chunk` searches
 depth first with the bounds ``levels`` built (suffix minima and maxima and the Lagrangian
-table with each state's two λ per grid point, :class:`levels._Bounds`), and improves its
+table with each state's two λ per grid point, :class:`level_bounds.LevelBounds`), and improves its
 incumbent at every leaf it reaches, where the breadth-first exact pass prunes with the
 dives' incumbent down to the last level. numba compiles it (``pip install numba``, the
 ``fast`` extra) when it is installed; the plain Python function is the same code, which
@@ -12,7 +12,7 @@ the tests run without numba. It is imported only by a search that has already sp
 do not search, and searches that end fast, never pay numba's import (about a second).
 
 :func:`dfs_chunk`'s arguments: ``model`` = (adj_ptr, adj, dst, c_obj, c_con, leaf,
-tail_obj, tail_con); ``bounds`` = (omin, cmax, alive, h, lam, best_k) of levels._Bounds;
+tail_obj, tail_con); ``bounds`` = (omin, cmax, alive, h, lam, best_k) of level_bounds.LevelBounds;
 ``scalars`` = (the λ grid's size, the bound B, ``>`` (else ``>=``), the grain, 0 for
 none); ``stack`` rows (state, depth, entering transition) and ``stack_f`` rows
 (objective, constraint, lower bound): the labels left; ``path`` and ``best_path``: the
@@ -89,7 +89,7 @@ def dfs_chunk(
 ) -> int:
     """Go on with a depth-first search for up to ``limit`` transitions; 0 when it ended.
 
-    The arguments are described in the module's docstring (levels._compiled_arrays
+    The arguments are described in the module's docstring (level_compiled._arrays
     makes them). A label is kept while its bound is below the incumbent less the grain
     (the exact pass's cut); the labels left are on the stack.
     """

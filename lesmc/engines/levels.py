@@ -31,25 +31,24 @@ from __future__ import annotations
 
 import math
 import time
-from collections.abc import Callable
-from typing import Any, NamedTuple
+from typing import NamedTuple
 
 import numpy as np
 
 from lesmc.common.budget import Budget, SearchBudget, resident_bytes
-from lesmc.engines import compiled
+from lesmc.engines import compiled, level_compiled
 from lesmc.engines.below import greedy_witness
-from lesmc.engines.bounds import Bounds, suffix_bounds
-from lesmc.engines.labels import BEAM, SLICE
+from lesmc.engines.bounds import Bounds
+from lesmc.engines.labels import BEAM
 from lesmc.engines.labels import Stop as _Stop
 from lesmc.engines.labels import Trail as _Trail
 from lesmc.engines.labels import expand as _expand
 from lesmc.engines.labels import grain as _grain
-from lesmc.engines.labels import hi as _hi
 from lesmc.engines.labels import joined as _joined
 from lesmc.engines.labels import lo as _lo
 from lesmc.engines.labels import slice_size as _slice
 from lesmc.engines.labels import truth as _truth
+from lesmc.engines.level_bounds import LevelBounds
 from lesmc.engines.meet import representative_search as _representative
 from lesmc.engines.meet import witness_cap as _witness_cap
 from lesmc.engines.result import EngineOutcome, Stats
@@ -65,19 +64,12 @@ LAZY_LANES = 4
 #: Most extra dives that bisect a threshold, and the relative gap at which they stop.
 TIGHTEN = 8
 TIGHT_GAP = 0.02
-#: λ values of the Lagrangian bound.
-LAMBDAS = 48
-#: :meth:`_Bounds._useful_lambdas` looks at this many states (at most) and constraint values.
-LAMBDA_SAMPLE_STATES = 4096
-LAMBDA_SAMPLE_VALUES = 33
-#: Grid points over [0, B] at which :meth:`_Bounds._best_lambdas` picks each state's λ.
-LAMBDA_GRID = 64
 #: Levels up to this many labels rank constraint values by a searchsorted (see _pareto).
 PARETO_SEARCHSORTED = 1 << 14
 
 
-#: Labels the exact pass for the optimum expands before the compiled depth-first pass
-#: takes over, where it applies (:func:`_compiled_applies`) and numba is installed.
+#: Labels the exact pass for the optimum expands before the compiled depth-first pass takes
+#: over, where it applies (lesmc/engines/level_compiled.py) and numba is installed.
 COMPILED_AFTER = 1_000_000
 
 #: the value table (values.py) runs instead of the label passes where it has at most this
@@ -88,215 +80,6 @@ VALUE_MOVES = 4096
 #: θ* of a max objective by one backward pass over the states built (below.py) before any
 #: witness search; False: the label passes alone (tests compare both).
 STATE_WITNESS = True
-
-
-# ----------------------------------------------------------------------------- bounds
-class _Bounds:
-    """What can still happen after a label: trivial on a lazy space, exact suffix bounds
-    (and Lagrangian ones) on an explicit one."""
-
-    def __init__(
-        self, space: SearchSpace, lagrangian: bool = True, suffix: Bounds | None = None
-    ) -> None:
-        self.space = space
-        self.omin = self.omax = self.cmin = self.cmax = None
-        self.alive: np.ndarray | None = None
-        self.lam: np.ndarray | None = None
-        self.h: np.ndarray | None = None  # (n, K): min suffix Σ(c_obj − sλ c_con)
-        self.best_k: np.ndarray | None = None  # see _best_lambdas
-        self.grain: float | None = None  # every objective a multiple of it (explicit sums)
-        if isinstance(space, Space):
-            b = suffix if suffix is not None else suffix_bounds(space)
-            self.omin, self.omax, self.cmin, self.cmax = b.obj_min, b.obj_max, b.con_min, b.con_max
-            self.alive = b.alive
-            self.reachable = b.states
-            if lagrangian and not space.obj_max and not space.con_max:
-                self._lagrangian(space)
-            if not space.obj_max:
-                self.grain = _grain(space)
-
-    @property
-    def exact(self) -> bool:
-        return self.omin is not None
-
-    def cut(self, best: float) -> float:
-        """Labels whose violating lower bound is not below this cannot beat ``best``.
-
-        On an explicit model whose objective contributions are all multiples of g
-        (sums), a better path ends at best − g or lower, so the cut is best − g
-        (less a hair, so that a bound equal to best − g is kept).
-        """
-        g = self.grain
-        return best if g is None or not math.isfinite(best) else best - g * (1 - 1e-9)
-
-    def violating_lb(self, q: np.ndarray, o: np.ndarray, c: np.ndarray) -> np.ndarray:
-        """A lower bound on the final objective of any *violating* completion; +inf
-        where none can violate."""
-        sp = self.space
-        if self.omin is None:
-            return o.copy()
-        assert self.alive is not None and self.cmax is not None and self.cmin is not None
-        # a dead state's suffix bounds are ±inf: with an infinite label value they give
-        # nan, which the `can` mask below replaces by +inf
-        with np.errstate(invalid="ignore"):
-            lb = _lo(aggregate_arrays(sp.obj_max, o, self.omin[q]))
-            if sp.con_up:
-                reach = _hi(aggregate_arrays(sp.con_max, c, self.cmax[q]))
-            else:
-                reach = _lo(aggregate_arrays(sp.con_max, c, self.cmin[q]))
-        can = self.alive[q] & _truth(sp.satisfies(reach, sp.bp.bound))
-        if self.h is not None and self.lam is not None:
-            lb = np.maximum(lb, _lo(o + self._lagrangian_at(q, c)))
-        return np.where(can, lb, math.inf)
-
-    def _lagrangian_at(self, q: np.ndarray, c: np.ndarray) -> np.ndarray:
-        """max over λ of h[q, λ] + sλ(B − c): a lower bound on the objective still to come
-        of a violating completion (each λ alone gives one).
-
-        Where ``best_k`` is built, each label tries only the two λ that are best at the
-        grid points around its x = B − min(c, B) (the max over λ is convex in x), not
-        every λ: a max over fewer λ is still a valid bound, and nearly as tight.
-        """
-        assert self.h is not None and self.lam is not None
-        sp = self.space
-        B = sp.bp.bound
-        s = 1.0 if sp.con_up else -1.0
-        # past the bound, λ·(B − c) ≤ 0 only weakens the bound; λ = 0 alone is valid there
-        cb = np.minimum(c, B) if sp.con_up else c
-        with np.errstate(invalid="ignore"):
-            x = s * (B - cb)
-        finite = bool(np.isfinite(x).all())
-        if self.best_k is not None and finite:
-            j = np.minimum((x * ((LAMBDA_GRID - 1) / B)).astype(np.int64), LAMBDA_GRID - 2)
-            row = q * LAMBDA_GRID + j
-            k1, k2 = self.best_k[row], self.best_k[row + 1]
-            v1 = self.h[q, k1] + self.lam[k1] * x
-            v2 = self.h[q, k2] + self.lam[k2] * x
-            best: np.ndarray = np.maximum(v1, v2)
-            return best
-        lag = np.multiply.outer(x, self.lam)  # (labels × λ)
-        lag += self.h[q]
-        if not finite:  # only then can inf − inf give nan
-            lag[np.isnan(lag)] = -math.inf
-        out: np.ndarray = lag.max(axis=1)
-        return out
-
-    def _best_lambdas(self) -> np.ndarray | None:
-        """best_k[q·G + j]: the λ that maximizes h[q, λ] + λ x_j at G grid points x_j
-        spanning [0, B] (``>``/``>=`` constraints with a finite bound B > 0 only, and one
-        whose grid step (G − 1)/B is finite: not a subnormal B; None where the table would
-        be too big to be worth it)."""
-        assert self.h is not None and self.lam is not None
-        sp = self.space
-        B = sp.bp.bound
-        n, k = self.h.shape
-        if not (sp.con_up and math.isfinite(B) and B > 0) or n * k * LAMBDA_GRID > 1 << 26:
-            return None
-        if not math.isfinite((LAMBDA_GRID - 1) / B):  # B subnormal: the exact max instead
-            return None
-        return _winning_lambdas(self.h, self.lam, np.linspace(0.0, B, LAMBDA_GRID)).ravel()
-
-    def least_lb(self, q: np.ndarray, o: np.ndarray, c: np.ndarray) -> float:
-        """The least :meth:`violating_lb` of many labels, in chunks (its λ grid is wide)."""
-        out = math.inf
-        for a in range(0, q.size, SLICE):
-            lb = self.violating_lb(q[a : a + SLICE], o[a : a + SLICE], c[a : a + SLICE])
-            out = min(out, float(lb.min(initial=math.inf)))
-        return out
-
-    def range(self, q: np.ndarray, o: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Smallest and largest final objective over all completions (dead: +inf, −inf)."""
-        sp = self.space
-        if self.omin is None:
-            return o.copy(), np.full(o.shape, math.inf)
-        assert self.omax is not None and self.alive is not None
-        lo = _lo(aggregate_arrays(sp.obj_max, o, self.omin[q]))
-        hi = _hi(aggregate_arrays(sp.obj_max, o, self.omax[q]))
-        return np.where(self.alive[q], lo, math.inf), np.where(self.alive[q], hi, -math.inf)
-
-    def _lagrangian(self, space: Space) -> None:
-        """h[q, k] = min over completions of Σ(c_obj − sλ_k c_con), tails included.
-
-        λ runs over a geometric grid spanning the transitions' cost/constraint ratios,
-        then over a finer grid around the λ that bounds the root best.
-        """
-        co, cc = space.c_obj[space.adj], space.c_con[space.adj]
-        ok = (cc > 0) & np.isfinite(cc) & np.isfinite(co) & (co > 0)
-        if not ok.any() or space.cm.n_states == 0:
-            return
-        k = max(2, min(LAMBDAS, int(1e7 // max(space.cm.n_states, 1))))
-        lo, hi = np.quantile(co[ok] / cc[ok], [0.01, 0.99])
-        lam = np.r_[0.0, np.geomspace(lo / 4, hi * 4, k - 1)]
-        h = self._suffix_lagrangian(space, lam)
-        s = 1.0 if space.con_up else -1.0
-        with np.errstate(invalid="ignore"):
-            root = h[space.root] + s * lam * (space.bp.bound - space.root_con)
-        i = int(np.nanargmax(np.where(np.isnan(root), -math.inf, root)))
-        fine = np.linspace(lam[max(i - 1, 0)], lam[min(i + 1, lam.size - 1)], k + 2)[1:-1]
-        self.lam = np.r_[lam, fine]
-        self.h = np.concatenate([h, self._suffix_lagrangian(space, fine)], axis=1)
-        if space.con_up:
-            keep = self._useful_lambdas(space)
-            self.lam, self.h = self.lam[keep], self.h[:, keep]
-        self.best_k = self._best_lambdas()
-
-    def _useful_lambdas(self, space: Space) -> np.ndarray:
-        """The λ that give the best bound for some state and some constraint value in
-        [0, B] (sampled): every λ gives a valid bound, so dropping the others keeps the
-        bound valid; on the knapsack classes a quarter of the grid wins anywhere, and
-        each label's bound then costs a quarter as much."""
-        assert self.h is not None and self.lam is not None
-        h, lam = self.h, self.lam
-        states = np.flatnonzero(np.isfinite(h).any(axis=1))
-        if states.size > LAMBDA_SAMPLE_STATES:
-            states = np.random.default_rng(0).choice(states, LAMBDA_SAMPLE_STATES, replace=False)
-        B = space.bp.bound
-        if not (math.isfinite(B) and B > 0 and states.size):
-            return np.arange(lam.size)
-        win = np.zeros(lam.size, dtype=bool)
-        win[0] = True  # λ = 0: the plain suffix minimum, kept always
-        xs = B - np.linspace(0.0, B, LAMBDA_SAMPLE_VALUES)  # x = B − c
-        win[_winning_lambdas(h[states], lam, xs)] = True
-        return np.flatnonzero(win)
-
-    @staticmethod
-    def _suffix_lagrangian(space: Space, lam: np.ndarray) -> np.ndarray:
-        cm = space.cm
-        s = 1.0 if space.con_up else -1.0
-        leaf = space.leaves()
-        h = np.full((cm.n_states, lam.size), math.inf)
-        levels = space.reachable_levels()
-        for i in reversed(range(len(levels))):
-            level = levels[i]
-            ends = level[leaf[level]]
-            if ends.size:
-                to, tc = space.tails(ends)
-                with np.errstate(invalid="ignore"):
-                    rows = to[:, None] - s * lam[None, :] * tc[:, None]
-                h[ends] = np.where(np.isnan(rows), to[:, None], rows)
-            inner, t, seg, has = space.level_moves(i)
-            if not t.size:
-                continue
-            vals = (space.c_obj[t] - s * np.outer(space.c_con[t], lam).T).T + h[cm.dst[t]]
-            vals = np.where(np.isnan(vals), math.inf, vals)
-            h[inner[has]] = np.minimum.reduceat(vals, seg[:-1][has], axis=0)
-        return h
-
-
-def _winning_lambdas(h: np.ndarray, lam: np.ndarray, xs: np.ndarray) -> np.ndarray:
-    """(states × x): the index of the λ that maximizes h[q, λ] + λ x at each x (a nan
-    from inf − inf counts as −inf); in chunks of states of 4 M values at most."""
-    out = np.empty((h.shape[0], xs.size), dtype=np.int64)
-    rows = max(1, (1 << 22) // max(1, lam.size * xs.size))
-    lx = lam[None, :] * xs[:, None]  # (x, λ)
-    exact = bool(np.isfinite(lx).all())  # then no inf − inf (h holds no nan)
-    for a in range(0, h.shape[0], rows):
-        with np.errstate(invalid="ignore"):
-            v = h[a : a + rows, None, :] + lx[None]
-        if not exact:
-            v[np.isnan(v)] = -math.inf
-        out[a : a + rows] = v.argmax(axis=2)
-    return out
 
 
 # ----------------------------------------------------------------------------- search
@@ -348,7 +131,7 @@ class _Pass(NamedTuple):
 
 def _optimum_pass(
     space: SearchSpace,
-    bounds: _Bounds,
+    bounds: LevelBounds,
     budget: SearchBudget,
     stats: Stats,
     upper: float | np.ndarray,
@@ -533,7 +316,7 @@ def level_search(space: SearchSpace, limits: Budget | None = None) -> EngineOutc
     by_values = _by_values(space, budget, stats, t0)
     if by_values is not None:
         return by_values
-    bounds = _Bounds(space)
+    bounds = LevelBounds(space)
     if bounds.exact:
         stats.extra["bound_states"] = bounds.reachable
     # phase 1: dives for an incumbent, then the exact pass below it
@@ -576,7 +359,7 @@ def level_search(space: SearchSpace, limits: Budget | None = None) -> EngineOutc
 
 
 def _dives(
-    space: SearchSpace, bounds: _Bounds, budget: SearchBudget, stats: Stats
+    space: SearchSpace, bounds: LevelBounds, budget: SearchBudget, stats: Stats
 ) -> tuple[float, tuple[_Trail, int, int] | None, float, str | None]:
     """Phase 1's dives: the incumbent, where it was found, a proven lower bound on the
     optimum (−inf unless a dive's beam kept every label, :func:`_optimum_pass`) and why
@@ -634,7 +417,7 @@ def _by_values(
 
 def _exact_optimum(
     space: SearchSpace,
-    bounds: _Bounds,
+    bounds: LevelBounds,
     budget: SearchBudget,
     stats: Stats,
     upper: float,
@@ -647,7 +430,7 @@ def _exact_optimum(
     path when that pass improved on it (else None), a proven lower bound and why it
     stopped early (None: it finished).
     """
-    switch = _compiled_applies(space, bounds) and compiled.available()
+    switch = level_compiled.applies(space, bounds) and compiled.available()
     allowed = budget.max_states
     if switch:  # the exact pass first, up to COMPILED_AFTER labels
         cap = budget.used + COMPILED_AFTER
@@ -669,94 +452,10 @@ def _exact_optimum(
             else (upper, at, None, lower, stopped)
         )
     stats.extra["compiled"] = True
-    upper, path, lower, stopped = _compiled_optimum(
+    upper, path, lower, stopped = level_compiled.optimum(
         space, bounds, budget, stats, upper, _path_of(at), run
     )
     return upper, at, path, lower, stopped
-
-
-def _compiled_applies(space: SearchSpace, bounds: _Bounds) -> bool:
-    """The compiled pass (compiled.py) searches this space: explicit, objective and
-    constraint both sums, a constraint that must rise past a finite bound B > 0 (the
-    Lagrangian table with each state's λ per grid point is built)."""
-    return (
-        isinstance(space, Space)
-        and not space.obj_max
-        and not space.con_max
-        and space.con_up
-        and bounds.h is not None
-        and bounds.best_k is not None
-    )
-
-
-def _compiled_optimum(
-    space: SearchSpace,
-    bounds: _Bounds,
-    budget: SearchBudget,
-    stats: Stats,
-    upper: float,
-    path: list[int] | None,
-    run: Callable[..., Any],
-) -> tuple[float, list[int] | None, float, str | None]:
-    """The exact optimum below ``upper`` (whose path is ``path``) by the compiled
-    depth-first pass, in chunks between which the budgets are looked at.
-
-    Returns the optimum or incumbent, its path, a proven lower bound (the least bound of
-    the labels left when it stopped early) and why it stopped (None: it finished).
-    """
-    model, bound_arrays, scalars = _compiled_arrays(space, bounds)
-    depth = int(space.cm.step.max(initial=0)) + 2
-    deg = int(np.diff(model[0]).max(initial=1))
-    stack = np.zeros(((depth + 1) * max(deg, 1) + 1, 3), dtype=np.int64)
-    stack_f = np.zeros(stack.shape)
-    stack[0] = (space.root, 0, -1)
-    stack_f[0] = (space.root_obj, space.root_con, -math.inf)
-    trail = np.zeros(depth, dtype=np.int64)
-    best_path = np.zeros(depth, dtype=np.int64)
-    state = np.array([1.0, upper, 0.0, 0.0, 0.0])
-    arrays = (model, bound_arrays, scalars, stack, stack_f, trail, best_path, state)
-    found, expanded = False, 0
-    while True:
-        why = budget.over(0)
-        if why is not None:
-            top = int(state[0])
-            lower = min(float(state[1]), float(stack_f[:top, 2].min(initial=math.inf)))
-            break
-        before = state[1]
-        left = run(*arrays, compiled.CHUNK)
-        found = found or state[1] < before
-        expanded += int(state[3])  # the chunk's labels and transitions, counted as they go
-        budget.used += int(state[3])
-        stats.transitions += int(state[4])
-        state[3] = state[4] = 0.0
-        if left == 0:
-            lower, why = float(state[1]), None
-            break
-    stats.extra["compiled_states"] = expanded
-    out = best_path[: int(state[2])].tolist() if found else path
-    return float(state[1]), out, lower, why
-
-
-def _compiled_arrays(
-    space: SearchSpace, bounds: _Bounds
-) -> tuple[tuple[np.ndarray, ...], tuple[np.ndarray, ...], tuple[int, float, bool, float]]:
-    """compiled.dfs_chunk's ``model``, ``bounds`` and ``scalars`` for this space."""
-    assert isinstance(space, Space)
-    assert bounds.h is not None and bounds.lam is not None and bounds.best_k is not None
-    assert bounds.omin is not None and bounds.cmax is not None and bounds.alive is not None
-    cm = space.cm
-    leaf = space.leaves()
-    tail_obj = np.zeros(cm.n_states)
-    tail_con = np.zeros(cm.n_states)
-    ends = np.flatnonzero(leaf)
-    if ends.size:
-        tail_obj[ends], tail_con[ends] = space.tails(ends)
-    c_obj = np.asarray(space.c_obj, dtype=float)
-    c_con = np.asarray(space.c_con, dtype=float)
-    model = (space.adj_ptr, space.adj, cm.dst, c_obj, c_con, leaf, tail_obj, tail_con)
-    b = (bounds.omin, bounds.cmax, bounds.alive, bounds.h, bounds.lam, bounds.best_k)
-    scalars = (LAMBDA_GRID, float(space.bp.bound), space.bp.op == ">", bounds.grain or 0.0)
-    return model, b, scalars
 
 
 def _dive_beam(space: SearchSpace) -> int:
@@ -774,7 +473,7 @@ def _dive_beam(space: SearchSpace) -> int:
 
 def _tighten(
     space: SearchSpace,
-    bounds: _Bounds,
+    bounds: LevelBounds,
     budget: SearchBudget,
     stats: Stats,
     upper: float,
@@ -841,7 +540,7 @@ def representative(
     optimum cannot violate), so only suffix bounds are needed (``suffix``: already built).
     """
     try:
-        bounds = _Bounds(space, lagrangian=False, suffix=suffix)
+        bounds = LevelBounds(space, lagrangian=False, suffix=suffix)
         return _representative(space, bounds, budget, stats, opt)
     except _Stop as stop:  # raised while the bounds were built: nothing found yet
         return None, -math.inf, _witness_cap(space, opt), stop.reason

@@ -25,7 +25,7 @@ from lesmc.model.kernel import aggregate_arrays
 
 
 class Ranges(Protocol):
-    """What θ*'s passes read of the optimum's bounds (levels._Bounds)."""
+    """What θ*'s passes read of the optimum's bounds (level_bounds.LevelBounds)."""
 
     #: Reachable states (explicit models only).
     reachable: int
