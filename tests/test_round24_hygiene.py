@@ -1,0 +1,93 @@
+"""Round 24's leftovers (task hygiene).
+
+1. The run-time schema validator (lesmc/schemas/__init__.py) compares ``enum`` and
+   ``const`` as JSON Schema does: 1 and 1.0 are equal, true and 1 (false and 0) are not.
+   The oracle is the ``jsonschema`` package, on every enum/const node of the shipped
+   schemas and on hand-made ones, for values of each JSON type.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterator
+from typing import Any
+
+import pytest
+
+#: Values of every JSON type, among them those Python's ``==`` confuses (True == 1 == 1.0).
+PROBES: list[Any] = [
+    True, False, 0, 1, 2, 0.0, 1.0, 2.0, 1.5, -1, "1", "true", "", None,
+    [], [1], [True], [1.0], [0], [False], {}, {"a": 1}, {"a": True}, {"a": 1.0},
+]  # fmt: skip
+
+#: Nodes where Python's equality and JSON Schema's differ.
+HAND_MADE: list[dict[str, Any]] = [
+    {"const": 1},
+    {"const": 1.0},
+    {"const": True},
+    {"const": False},
+    {"const": 0},
+    {"enum": [0, "x"]},
+    {"enum": [True, None]},
+    {"enum": [1.0, [False]]},
+    {"const": [1, {"a": False}]},
+    {"const": {"a": 1}},
+]
+
+
+def _nodes(node: Any) -> Iterator[dict[str, Any]]:
+    """Every enum/const node under ``node`` (a schema), as a node of that check alone."""
+    if isinstance(node, dict):
+        for key in ("enum", "const"):
+            if key in node:
+                yield {key: node[key]}
+        for v in node.values():
+            yield from _nodes(v)
+    elif isinstance(node, list):
+        for v in node:
+            yield from _nodes(v)
+
+
+def _shipped_nodes() -> list[dict[str, Any]]:
+    from lesmc.schemas import SCHEMAS, schema
+
+    return [n for name in sorted(set(SCHEMAS.values())) for n in _nodes(schema(name))]
+
+
+def _agree(node: dict[str, Any]) -> list[str]:
+    """The probes (and the node's own values) on which lesmc's validator and jsonschema's
+    disagree about ``node``."""
+    import jsonschema
+
+    from lesmc.schemas import errors
+
+    oracle = jsonschema.Draft202012Validator(node)
+    values = [*PROBES, *node.get("enum", ()), *([node["const"]] if "const" in node else [])]
+    return [
+        f"{node} on {v!r}: lesmc {not errors(v, node, node)}, jsonschema {oracle.is_valid(v)}"
+        for v in values
+        if (not errors(v, node, node)) != oracle.is_valid(v)
+    ]
+
+
+@pytest.mark.parametrize("node", HAND_MADE, ids=str)
+def test_enum_and_const_compare_as_json_schema_does(node: dict[str, Any]) -> None:
+    assert _agree(node) == []
+
+
+def test_the_shipped_schemas_enum_and_const_nodes_agree_with_jsonschema() -> None:
+    nodes = _shipped_nodes()
+    assert len(nodes) > 20  # the schemas have many (versions, formats, registered names)
+    bad = [line for n in nodes for line in _agree(n)]
+    assert bad == [], bad[:5]
+
+
+def test_a_boolean_version_is_refused_at_run_time() -> None:
+    from lesmc.common.errors import InputError
+    from lesmc.schemas import validate
+
+    doc = {"format": "lesmc-multi-check", "design": "sort", "reference": "truth", "results": []}
+    for version in (1, 1.0, 2):
+        validate({**doc, "version": version}, "multi-check")  # versions 1 and 2 (1.0 is 1)
+    for version in (True, "1"):  # true is not 1
+        with pytest.raises(InputError, match="version"):
+            validate({**doc, "version": version}, "multi-check")
