@@ -4,14 +4,22 @@
    ``const`` as JSON Schema does: 1 and 1.0 are equal, true and 1 (false and 0) are not.
    The oracle is the ``jsonschema`` package, on every enum/const node of the shipped
    schemas and on hand-made ones, for values of each JSON type.
+2. The eager build (lesmc/unfold/unfold.py ``build_model``) sizes its batches by counted
+   work (lesmc/model/growing.py ``counted_batch``, the lazy model's notion), not by the
+   wall clock: the states at which it looks at its budget, and so where ``--max-states``
+   stops it, are the same under the real clock and a clock 1000x slower.
 """
 
 from __future__ import annotations
 
+import time
 from collections.abc import Iterator
 from typing import Any
 
+import numpy as np
 import pytest
+
+from lesmc.scene import Scene
 
 #: Values of every JSON type, among them those Python's ``==`` confuses (True == 1 == 1.0).
 PROBES: list[Any] = [
@@ -91,3 +99,70 @@ def test_a_boolean_version_is_refused_at_run_time() -> None:
     for version in (True, "1"):  # true is not 1
         with pytest.raises(InputError, match="version"):
             validate({**doc, "version": version}, "multi-check")
+
+
+#: How much slower the slowed clock runs (tests/test_walk_cap_work.py's).
+SLOWER = 1000.0
+
+
+def _slow_clock(monkeypatch: pytest.MonkeyPatch) -> None:
+    """time.perf_counter and time.monotonic running SLOWER times slower than real time."""
+    for name in ("perf_counter", "monotonic"):
+        real = getattr(time, name)
+        t0 = real()
+        monkeypatch.setattr(time, name, lambda real=real, t0=t0: t0 + (real() - t0) * SLOWER)
+
+
+def _dense() -> Scene:
+    """A target among 6 straight-line vehicles (benchmarks/bench_unfold.py's scene kind)."""
+    from lesmc.scene.toy import Vehicle, vehicle_scene
+
+    rng = np.random.default_rng(4)
+    t = Vehicle("t", 500, 500, 10, 0, 3.0)
+    others = [
+        Vehicle(f"v{i}", 500 + float(dx), 500 + float(dy), 10, 0, float(p))
+        for i, (dx, dy, p) in enumerate(rng.uniform((-15, -15, 1), (15, 15, 5), size=(6, 3)))
+    ]
+    return vehicle_scene([t, *others], 10, t)
+
+
+class _Stop(Exception):
+    """The budget of :func:`_batches` is spent."""
+
+
+def _batches(max_states: int | None) -> tuple[list[int], int]:
+    """The model's size each time the eager build looks at its budget (before each batch)
+    and the size it ends at, stopped (as a budget stops it) once it has ``max_states``."""
+    from lesmc.unfold.unfold import build_model
+
+    seen: list[int] = []
+
+    def on_batch(model: Any) -> None:
+        seen.append(model.n_states)
+        if max_states is not None and model.n_states >= max_states:
+            raise _Stop
+
+    try:
+        built = build_model(_dense(), (2, 6), on_batch=on_batch, max_states=max_states)
+        return seen, len(built.step)
+    except _Stop:
+        return seen, seen[-1]
+
+
+@pytest.mark.parametrize("max_states", [None, 3000])
+def test_the_eager_builds_batches_do_not_depend_on_the_clock(
+    max_states: int | None, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    import lesmc.model.growing as growing
+
+    monkeypatch.setattr(growing, "BATCH_WORK", 256)  # a step's states in several batches
+    real = _batches(max_states)
+    levels = 10
+    assert len(real[0]) > 2 * levels, real  # many batches: their sizes are what is tested
+    if max_states is not None:
+        whole = _batches(None)[1]
+        assert max_states <= real[1] < whole, (real[1], whole)  # stopped, past the limit
+    with monkeypatch.context() as m:
+        _slow_clock(m)
+        slowed = _batches(max_states)
+    assert slowed == real
