@@ -20,11 +20,10 @@ from lesmc.model.kernel import combined_counts, combined_payoffs
 if TYPE_CHECKING:
     from lesmc.model.arrays import Tracks
 
-#: Seconds one batch of expansions should take at most: batches shrink for designs whose
-#: states are expensive (joint), so that a deadline is looked at often enough.
-BATCH_SECONDS = 0.05
-#: Work (GrowingModel.work) one batch of expansions on demand does at most (engines/lazy.py):
-#: about BATCH_SECONDS at about 1-2 µs a unit (a transition on ``single``, a track of an
+#: Work (GrowingModel.work) one batch of expansions does at most, on demand (engines/lazy.py)
+#: and in the eager build (unfold/unfold.py): batches shrink for designs whose states are
+#: expensive (joint), so that a deadline is looked at often enough; about 0.05 s at
+#: about 1-2 µs a unit (a transition on ``single``, a track of an
 #: examined row on ``joint``), counted rather than timed so that the batches, and what
 #: a budget looked at between them stops, are the same on every run.
 BATCH_WORK = 1 << 15
