@@ -12,7 +12,8 @@ import numpy as np
 
 from lesmc.common.errors import InputError, Location, UsageError
 from lesmc.results.read import HiddenDoc as Hidden
-from lesmc.results.read import ResultsDoc, RunDoc, SceneDoc, number
+from lesmc.results.read import ResultsDoc, RunDoc, SceneDoc
+from lesmc.results.result_doc import number
 from lesmc.scene import Target, tracker_from_dict
 
 if TYPE_CHECKING:

@@ -87,7 +87,8 @@ from lesmc.replay.perturbed import attack_frame
 from lesmc.replay.story import frame_story
 from lesmc.results.document import record_replays
 from lesmc.results.read import HiddenDoc as Hidden
-from lesmc.results.read import ResultsDoc, read_replay
+from lesmc.results.read import ResultsDoc
+from lesmc.results.result_doc import read_replay
 from lesmc.scene import Detection, Frame, Scene, tracker_from_dict
 from lesmc.tracking.monitor import track
 from lesmc.tracking.trackers import make_tracker

@@ -17,7 +17,8 @@ from lesmc.report.figure_cache import FigureSet
 from lesmc.report.figures import ImageFor
 from lesmc.report.pages import Cell, Figure, Markup, Text, para, table
 from lesmc.report.run_view import RunView, number
-from lesmc.results.read import HiddenEntry, Perturbation
+from lesmc.results.read import HiddenEntry
+from lesmc.results.result_doc import Perturbation
 
 
 def patches(run: RunView, figs: FigureSet, image_for: ImageFor | None, payoffs: str) -> list[Any]:
