@@ -8,16 +8,29 @@
    work (lesmc/model/growing.py ``counted_batch``, the lazy model's notion), not by the
    wall clock: the states at which it looks at its budget, and so where ``--max-states``
    stops it, are the same under the real clock and a clock 1000x slower.
+3. ``lesmc check SCENE SPEC --design sort --report DIR`` writes a ``lesmc-multi-check``
+   document that ``lesmc replay`` replays, as verify's: with the scene's ``perception``
+   (lesmc.perception.attack_settings ``scene_perception``, the function the point designs'
+   check and verify call) and the ``meta`` that places the check's target on the scene
+   (lesmc/experiment/multi_verify.py ``replay_meta``, verify's); the replay reruns the
+   front end the scene was perceived with (``--delta-bc 16``, not the default 12), and its
+   counterexamples are confirmed. A bad ``meta.frontend`` is refused before anything is
+   written.
+4. Every module of lesmc/ (but the generated parser tables) is at most 600 lines.
 """
 
 from __future__ import annotations
 
+import json
 import time
 from collections.abc import Iterator
+from pathlib import Path
 from typing import Any
 
 import numpy as np
 import pytest
+from cli_run import lesmc
+from multi_video import SPEC, write_small_video
 
 from lesmc.scene import Scene
 
@@ -166,3 +179,91 @@ def test_the_eager_builds_batches_do_not_depend_on_the_clock(
         _slow_clock(m)
         slowed = _batches(max_states)
     assert slowed == real
+
+
+#: Not the default (12): blobs need a larger difference from the background
+#: (tests/test_multi_replay_frontend.py's setting and target on the same video).
+DELTA_BC = 16
+TARGET = "119.0,71.5@4"
+
+
+@pytest.fixture(scope="module")
+def perceived(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, Path, Path]:
+    """The small video perceived with ``--delta-bc 16``: (frames, scene, spec)."""
+    base = tmp_path_factory.mktemp("multicheck")
+    video, scene, spec = base / "video", base / "scene.json", base / "identity.spec"
+    write_small_video(video)
+    r = lesmc("perceive", str(video), "-o", str(scene), "--delta-bc", str(DELTA_BC))
+    assert r.returncode == 0 and "Traceback" not in r.stderr, r.stderr
+    spec.write_text(SPEC)
+    return video, scene, spec
+
+
+def _check(scene: Path, spec: Path, out: Path) -> Any:
+    return lesmc("check", str(scene), str(spec), "--design", "sort", "--target", TARGET,
+                 "--report", str(out), timeout=300)  # fmt: skip
+
+
+def test_a_multi_target_checks_report_replays_with_the_recorded_front_end(
+    perceived: tuple[Path, Path, Path], tmp_path: Path
+) -> None:
+    from lesmc.perception.blobs import BlobConfig
+    from lesmc.schemas import validate
+
+    video, scene, spec = perceived
+    out = tmp_path / "out"
+    r = _check(scene, spec, out)
+    assert r.returncode == 1 and "Traceback" not in r.stderr, r.stdout + r.stderr
+    doc = json.loads((out / "results.json").read_text())
+    validate(doc, "multi-check")
+    assert doc["perception"]["delta_bc"] == DELTA_BC != BlobConfig().delta_bc
+    assert doc["meta"]["scene"] == str(scene.resolve())
+    assert doc["meta"]["properties"] == [str(spec.resolve())]
+    x, y, step = 119.0, 71.5, 4  # TARGET
+    assert doc["meta"]["scene_target"]["step"] == step
+    assert doc["meta"]["scene_target"]["start"][:2] == [x, y]
+    violated = [res["property"] for res in doc["results"] if res["verdict"] == "violated"]
+    assert violated
+    r = lesmc("replay", str(out / "results.json"), "--frames", str(video), "--json", timeout=300)
+    assert "Traceback" not in r.stderr, r.stderr
+    assert r.returncode == 1, r.stdout + r.stderr  # confirmed violations
+    rows = json.loads(r.stdout)["replays"]
+    validate(json.loads(r.stdout), "replay")
+    assert sorted(row["property"] for row in rows) == sorted(violated)
+    for row in rows:
+        rp = row["replay"]
+        assert rp["status"] == "confirmed", rp.get("reason")
+        assert rp["frontend"] == {
+            "history": 4,
+            "delta_bc": DELTA_BC,
+            "recorded": ["history", "delta_bc"],
+            "from": "results",
+        }
+
+
+def test_a_bad_front_end_setting_is_refused_before_a_multi_target_check(
+    perceived: tuple[Path, Path, Path], tmp_path: Path
+) -> None:
+    _, scene, spec = perceived
+    data = json.loads(scene.read_text())
+    data["meta"]["frontend"] = {"history": 4, "delta_bc": 300}
+    bad = tmp_path / "bad.json"
+    bad.write_text(json.dumps(data, indent=1))
+    lines = bad.read_text().splitlines()
+    line = next(i for i, t in enumerate(lines) if t.strip().startswith('"delta_bc": 300')) + 1
+    out = tmp_path / "out"
+    r = _check(bad, spec, out)
+    assert r.returncode == 2 and "Traceback" not in r.stderr, r.stdout + r.stderr
+    assert f"{bad}:{line}:" in r.stderr and "meta.frontend.delta_bc" in r.stderr, r.stderr
+    assert not out.exists()
+
+
+def test_every_module_is_at_most_600_lines() -> None:
+    root = Path(__file__).resolve().parents[1] / "lesmc"
+    sizes = {
+        str(p.relative_to(root)): len(p.read_text(encoding="utf-8").splitlines())
+        for p in root.rglob("*.py")
+        if p.name != "lark_tables.py"  # generated (python -m lesmc.language.parser)
+    }
+    assert len(sizes) > 100
+    assert {p: n for p, n in sizes.items() if n > 600} == {}
