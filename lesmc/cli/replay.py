@@ -56,7 +56,8 @@ def replay_cmd(
     it records none, as said on stderr). With --detector
     FILE.toml (a detector file, docs/detectors.md) the attacks, the perturbed
     frames and the detections go through that file's network instead.
-    A multi-target design's results (lesmc-multi-check, verify --design sort|gnn):
+    A multi-target design's results (lesmc-multi-check: verify --design sort|gnn,
+    check --design sort|gnn --report DIR):
     the production tracker runs on the replayed detections and the replay is
     confirmed when the property is violated on that run with the model's target
     track ids (docs/trackers.md, "Replaying a multi-target counterexample"); they
@@ -76,7 +77,7 @@ def replay_cmd(
     from lesmc.results.read import results_of
 
     raw = load_results(results)
-    if raw.get("format") == "lesmc-multi-check":  # verify --design sort|gnn
+    if raw.get("format") == "lesmc-multi-check":  # verify or check --report, sort|gnn
         _multi(raw, results, frames_dir, prop, (nets_dir, detector_file, locator_file), as_json)
     doc = results_of(raw)
     frames_dir = _frames_of(frames_dir or doc.perception.frames)

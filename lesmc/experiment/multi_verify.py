@@ -281,9 +281,10 @@ def replay_document(
     bar: Bar,
 ) -> tuple[Outcome, str]:
     """``lesmc replay`` of a ``lesmc-multi-check`` document ``doc`` (read from ``path``, as
-    ``lesmc verify --design sort|gnn`` wrote it): its scene (``meta.scene``, else the
-    scene.json beside it) with the target the check placed (``meta.scene_target``), its
-    properties (``meta.properties``, moved to ``meta.window``),
+    ``lesmc verify --design sort|gnn`` or ``lesmc check --design sort|gnn --report`` wrote
+    it): its scene (``meta.scene``, else the scene.json beside it) with the target the
+    check placed (``meta.scene_target``), its properties (``meta.properties``, moved to
+    ``meta.window``),
     the frames (``frames_dir``, else the first of ``meta.video`` and ``perception.frames``
     that is a directory) and the networks; the replays and the frames' directory."""
     from lesmc.replay.multi import perception_settings, replay_multi
