@@ -166,9 +166,9 @@ def _batches(max_states: int | None) -> tuple[list[int], int]:
 def test_the_eager_builds_batches_do_not_depend_on_the_clock(
     max_states: int | None, monkeypatch: pytest.MonkeyPatch
 ) -> None:
-    import lesmc.model.growing as growing
+    import lesmc.unfold.unfold as unfold
 
-    monkeypatch.setattr(growing, "BATCH_WORK", 256)  # a step's states in several batches
+    monkeypatch.setattr(unfold, "BATCH_WORK", 256)  # a step's states in several batches
     real = _batches(max_states)
     levels = 10
     assert len(real[0]) > 2 * levels, real  # many batches: their sizes are what is tested

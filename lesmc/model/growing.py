@@ -29,16 +29,17 @@ if TYPE_CHECKING:
 BATCH_WORK = 1 << 15
 
 
-def counted_batch(work: float, states: int, most: int, unmeasured: int) -> int:
-    """How many states to expand next so that the batch does about :data:`BATCH_WORK` work,
-    at ``work`` per ``states`` expanded as measured so far (``unmeasured`` when none is),
-    at most ``most``. Counted, not timed: the batches, and so the states a budget looked
-    at between them stops at, are the same on every run whatever the machine's load (the
-    lazy model's batches, engines/lazy.py, and the eager build's, unfold/unfold.py)."""
+def counted_batch(work: float, states: int, most: int, unmeasured: int, per_batch: int) -> int:
+    """How many states to expand next so that the batch does about ``per_batch`` work
+    (:data:`BATCH_WORK`, which each caller passes), at ``work`` per ``states`` expanded as
+    measured so far (``unmeasured`` when none is), at most ``most``. Counted, not timed:
+    the batches, and so the states a budget looked at between them stops at, are the same
+    on every run whatever the machine's load (the lazy model's batches, engines/lazy.py,
+    and the eager build's, unfold/unfold.py)."""
     if states <= 0:
         return unmeasured
     per = max(work / states, 1e-9)
-    return max(1, min(most, int(BATCH_WORK / per) + 1))
+    return max(1, min(most, int(per_batch / per) + 1))
 
 
 class GrowArray:

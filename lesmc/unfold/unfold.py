@@ -25,7 +25,7 @@ import numpy as np
 
 from lesmc.common.errors import UsageError
 from lesmc.model.arrays import ArrayModel, Tracks
-from lesmc.model.growing import Expansion, GrowingModel, counted_batch
+from lesmc.model.growing import BATCH_WORK, Expansion, GrowingModel, counted_batch
 from lesmc.scene import Scene
 from lesmc.tracking.design import Batch, Design, PayloadStore
 from lesmc.tracking.single import grid_point_name
@@ -294,7 +294,7 @@ def build_model(
             model.expand(batch, k)
             fan = max(fan, (model.n_states - made) / len(batch))
             lo += n
-            cap = counted_batch(model.work - work, len(batch), EAGER_BATCH, EAGER_BATCH)
+            cap = counted_batch(model.work - work, len(batch), EAGER_BATCH, EAGER_BATCH, BATCH_WORK)
         frontier = np.arange(before, model.n_states, dtype=np.int64)
         if on_level is not None:
             on_level(k + 1, model.n_states)
