@@ -116,6 +116,17 @@ class ReplayDoc:
     attack: str | None
     command: str | None
     perturbations: tuple[Perturbation, ...]
+    #: a diverged replay: the property judged on the replayed run (None: not judged)
+    on_frames: OnFrames | None = None
+
+
+@dataclass(frozen=True)
+class OnFrames:
+    """A diverged replay's ``on_frames``: whether the replayed run (another path than the
+    model's) violates the property at the cost of the perturbations it applied, and why."""
+
+    violated: bool
+    why: str
 
 
 @dataclass(frozen=True)
@@ -296,6 +307,12 @@ class PropertyDoc:
     actions: tuple[str, ...] = ("hide",)
     #: whether the property injects on an ``inject grid`` (a modelling device: not replayed)
     inject_grid: bool = False
+    #: the constraint's comparison (None: not recorded), Eq. 4's norm, the state
+    #: components the deviation reads and the attack window L..U (None: not recorded)
+    constraint_op: str | None = None
+    norm: float = 2.0
+    components: tuple[str, ...] = ()
+    window: tuple[int, ...] | None = None
 
 
 @dataclass(frozen=True)
@@ -443,6 +460,7 @@ def number(x: Num) -> float:
 
 
 def _replay(obj: Mapping[str, Any]) -> ReplayDoc:
+    of = obj.get("on_frames")
     return ReplayDoc(
         status=obj["status"],
         step=obj.get("step"),
@@ -459,6 +477,7 @@ def _replay(obj: Mapping[str, Any]) -> ReplayDoc:
             )
             for p in obj.get("perturbations", [])
         ),
+        on_frames=None if of is None else OnFrames(bool(of["violated"]), str(of["why"])),
     )
 
 
@@ -578,6 +597,10 @@ def _property(p: Mapping[str, Any]) -> PropertyDoc:
         bound=float(p["bound"]),
         actions=tuple(p.get("actions", ("hide",))),
         inject_grid=p.get("inject_grid") is not None,
+        constraint_op=p.get("constraint_op"),
+        norm=number(p.get("norm", 2.0)),
+        components=tuple(p.get("components", ())),
+        window=tuple(p["window"]) if "window" in p else None,
         monitor=None
         if mon is None
         else Monitor(
