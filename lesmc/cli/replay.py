@@ -65,14 +65,11 @@ def replay_cmd(
     is perturbed until N_dr accepts it; the front end runs with the settings the
     results' perception records (the defaults where it records none, as said on
     stderr).
-    A point design's replay that diverges is judged on the replayed run: when its
-    deviation from the unattacked run (the same tracker on the clean detections) meets
-    the constraint at the cost of the perturbations applied (the repair's included) and
-    that cost fails the threshold, the verdict is violated all the same ("violated on
-    the frames by another path", docs/semantics.md).
-    Exit status (the verdicts after the replay, as lesmc check): 0 nothing violated,
-    1 some violation confirmed or violated on the frames, 2 bad input, 3 some replay
-    diverged (unknown) and none violated, 4 internal error, 130 interrupted.
+    A point design's diverged replay whose run violates the property all the same is
+    violated "on the frames by another path" (docs/semantics.md). Exit status (the
+    verdicts after the replay, as lesmc check): 0 nothing violated, 1 some violation
+    confirmed or on the frames, 2 bad input, 3 some replay diverged (unknown) and none
+    violated, 4 internal error, 130 interrupted.
     """
     from lesmc.common.progress import deferred_bar
     from lesmc.replay.run import verdict_rows

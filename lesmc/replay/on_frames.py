@@ -141,8 +141,9 @@ def _cost(j: Judged, fas: list[FrameAttack]) -> float:
 def _why(c: Case, j: Judged, measured: tuple[float, bool], cost: float, violated: bool) -> str:
     """The judgement in words."""
     value, met = measured
-    on = f"on the replayed run the constraint {c.constraint} measures {value:.4g}"
-    paid = f"at {j.objective.text} {cost:.4g}"
+    measure = c.constraint.rpartition(f" {j.op} ")[0] or c.constraint
+    on = f"on the replayed run {measure} is {value:.4g} (constraint {j.op} {j.bound:g})"
+    paid = f"at a cost of {cost:.4g} ({j.objective.text}, the repair's included)"
     if violated:
         return (
             f"violated on the frames by another path: {on} {paid}, for which the property "

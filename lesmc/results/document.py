@@ -583,9 +583,11 @@ def record_replays(
 
 
 def diverged_note(optimum: Any, obj: Mapping[str, Any]) -> str:
-    """The note of a result whose counterexample did not replay."""
+    """The note of a result whose counterexample did not replay (and what its replayed run
+    says of the property, when judged: ``on_frames``)."""
+    on = obj.get("on_frames")
     return (
         f"unknown: the model's counterexample (optimum {optimum}) did not replay through the "
         f"detector and tracker; it diverges at step {obj['step']} ({obj['reason']}); "
-        "not a proof of violation"
+        "not a proof of violation" + ("" if on is None else f"; {on['why']}")
     )
