@@ -226,3 +226,5 @@ def test_a_repair_that_did_not_count_its_windows_claims_no_count() -> None:
     assert frame_count(fa) == 3
     fa.extra_windows = 0
     assert math.isinf(frame_count(fa))
+    fa.extra_windows, fa.perturbations = 2, [{"payoff_recomputed": "inf"}]
+    assert math.isinf(frame_count(fa))  # an outcome the attack cannot force counts ∞

@@ -49,9 +49,10 @@ def frame_cost(fa: FrameAttack | None) -> float:
 
 def frame_count(fa: FrameAttack) -> float:
     """The windows a frame's attack perturbed: one per hidden detection or injected
-    candidate, and the repair's; infinite when a repair cost something but did not count
-    its windows (no count is claimed then)."""
-    if fa.extra_cost > 0 and fa.extra_windows == 0:
+    candidate, and the repair's; infinite (no count is claimed) when one of them has no
+    finite payoff (the model counts such an outcome ∞) or a repair cost something but did
+    not count its windows."""
+    if not math.isfinite(frame_cost(fa)) or (fa.extra_cost > 0 and fa.extra_windows == 0):
         return math.inf
     return float(len(fa.perturbations) + fa.extra_windows)
 
