@@ -66,9 +66,11 @@ def replay_cmd(
     is perturbed until N_dr accepts it; the front end runs with the settings the
     results' perception records (the defaults where it records none, as said on
     stderr).
-    Exit status (the verdicts after the replay, as lesmc check): 0 nothing violated,
-    1 some violation confirmed, 2 bad input, 3 some replay diverged (unknown) and
-    none confirmed, 4 internal error, 130 interrupted.
+    A point design's diverged replay whose run violates the property all the same is
+    violated "on the frames by another path" (docs/semantics.md). Exit status (the
+    verdicts after the replay, as lesmc check): 0 nothing violated, 1 some violation
+    confirmed or on the frames, 2 bad input, 3 some replay diverged (unknown) and none
+    violated, 4 internal error, 130 interrupted.
     """
     from lesmc.common.progress import deferred_bar
     from lesmc.replay.run import verdict_rows
@@ -205,6 +207,15 @@ def _table(rows: list[dict[str, Any]]) -> None:
             "-" if rp["step"] is None else str(rp["step"]),
             "-" if rp["max_error_px"] is None else f"{rp['max_error_px']:.3g}",
             r["verdict"],
-            escape_text(rp["reason"] or "-"),
+            escape_text(_reason(rp)),
         )
     console.print(table)
+
+
+def _reason(rp: dict[str, Any]) -> str:
+    """Why the replay diverged, and what its replayed run says of the property (a point
+    design's ``on_frames``: violated on the frames by another path, or not)."""
+    why = [rp["reason"] or "-"]
+    if "on_frames" in rp:
+        why.append(rp["on_frames"]["why"])
+    return "; ".join(why)

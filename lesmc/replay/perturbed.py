@@ -294,6 +294,7 @@ def repair_frame(
                 continue
             cost, more = got
             fa.extra_cost += cost
+            fa.extra_windows += len(more[0])
             applied.append(more)
             frames = _perturbed(out, applied, m)
             after, cands = redetect(det, out, frames, m)

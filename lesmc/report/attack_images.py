@@ -194,11 +194,18 @@ def _replay_lines(run: RunView) -> list[Text]:
                 "<b>confirmed</b>{}: the real detector and tracker take the same "
                 "detections; largest position error {} px"
             ).format(how, f"{rp.max_error_px:.3g}")
+        elif rp.on_frames is not None and rp.on_frames.violated:
+            text = Markup(
+                "<b>diverged</b>{} at step {}: {}; but the replayed run is real: {}, and the "
+                "verdict is violated"
+            ).format(how, rp.step, rp.reason, rp.on_frames.why)
         else:
             text = Markup(
                 "<b>diverged</b>{} at step {}: {}; the "
-                "counterexample is no proof of violation and the verdict is unknown"
-            ).format(how, rp.step, rp.reason)
+                "counterexample is no proof of violation and the verdict is unknown{}"
+            ).format(
+                how, rp.step, rp.reason, "" if rp.on_frames is None else f" ({rp.on_frames.why})"
+            )
         items.append(Markup("{}: {}").format(r.property, text))
     if not items:
         return []

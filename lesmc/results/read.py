@@ -175,6 +175,12 @@ class PropertyDoc:
     actions: tuple[str, ...] = ("hide",)
     #: whether the property injects on an ``inject grid`` (a modelling device: not replayed)
     inject_grid: bool = False
+    #: the constraint's comparison (None: not recorded), Eq. 4's norm, the state
+    #: components the deviation reads and the attack window L..U (None: not recorded)
+    constraint_op: str | None = None
+    norm: float = 2.0
+    components: tuple[str, ...] = ()
+    window: tuple[int, ...] | None = None
 
 
 @dataclass(frozen=True)
@@ -385,6 +391,10 @@ def _property(p: Mapping[str, Any]) -> PropertyDoc:
         bound=float(p["bound"]),
         actions=tuple(p.get("actions", ("hide",))),
         inject_grid=p.get("inject_grid") is not None,
+        constraint_op=p.get("constraint_op"),
+        norm=number(p.get("norm", 2.0)),
+        components=tuple(p.get("components", ())),
+        window=tuple(p["window"]) if "window" in p else None,
         monitor=None
         if mon is None
         else Monitor(

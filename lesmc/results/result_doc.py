@@ -40,6 +40,17 @@ class ReplayDoc:
     attack: str | None
     command: str | None
     perturbations: tuple[Perturbation, ...]
+    #: a diverged replay: the property judged on the replayed run (None: not judged)
+    on_frames: OnFrames | None = None
+
+
+@dataclass(frozen=True)
+class OnFrames:
+    """A diverged replay's ``on_frames``: whether the replayed run (another path than the
+    model's) violates the property at the cost of the perturbations it applied, and why."""
+
+    violated: bool
+    why: str
 
 
 @dataclass(frozen=True)
@@ -91,6 +102,7 @@ def number(x: Num) -> float:
 
 
 def _replay(obj: Mapping[str, Any]) -> ReplayDoc:
+    of = obj.get("on_frames")
     return ReplayDoc(
         status=obj["status"],
         step=obj.get("step"),
@@ -107,6 +119,7 @@ def _replay(obj: Mapping[str, Any]) -> ReplayDoc:
             )
             for p in obj.get("perturbations", [])
         ),
+        on_frames=None if of is None else OnFrames(bool(of["violated"]), str(of["why"])),
     )
 
 
