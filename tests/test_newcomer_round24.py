@@ -25,11 +25,10 @@ SPEC = """property reach {
 }
 """
 
-#: Two frames of a target moving right, a detection on it and a low-score line beside
+#: Three frames of a target moving right, a detection on it and a low-score line beside
 #: it in each (conf 0.1 below the threshold 0.5: a candidate priced 0.25 by column 8).
 DET = "".join(
-    f"{f},-1,{98 + 5 * f},98,4,4,0.9,1.0\n{f},-1,{98 + 5 * f},118,4,4,0.1,0.25\n"
-    for f in (1, 2, 3)
+    f"{f},-1,{98 + 5 * f},98,4,4,0.9,1.0\n{f},-1,{98 + 5 * f},118,4,4,0.1,0.25\n" for f in (1, 2, 3)
 )
 GT = "".join(f"{f},7,{98 + 5 * f},98,4,4,1,1,1\n" for f in (1, 2, 3))
 
