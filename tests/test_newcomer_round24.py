@@ -72,3 +72,28 @@ def test_language_doc_does_not_call_the_injection_replay_open() -> None:
     text = (ROOT / "docs" / "language.md").read_text()
     assert (ROOT / "lesmc" / "replay" / "inject.py").is_file()
     assert "Still open\n(issue 61): the replay of an injection" not in text
+
+
+def _problems(scene: Path) -> list[str]:
+    """The located problems ``lesmc track SCENE`` reports (exit 2, no traceback)."""
+    out = lesmc("track", str(scene))
+    assert out.returncode == 2 and "Traceback" not in out.stderr, out.stderr
+    return [ln for ln in out.stderr.splitlines() if ln.startswith(f"{scene}:")]
+
+
+def test_a_bad_candidate_payoff_is_one_problem_not_every_truth_row(tmp_path: Path) -> None:
+    """A negative candidate payoff in frame 1 used to report, besides itself, the truth
+    row of frame 1 as "not a frame of the scene" (the frame was left out of the steps)."""
+    scene = _scene(tmp_path)
+    doc = json.loads(scene.read_text())
+    first = next(f for f in doc["frames"] if f.get("candidates"))
+    first["candidates"][0]["payoff"] = -1
+    bad = tmp_path / "bad.json"
+    bad.write_text(json.dumps(doc, indent=1))
+    got = _problems(bad)
+    assert len(got) == 1 and f"frame {first['step']}, candidate" in got[0], got
+    # a truth row outside the scene's frames is still refused, at the truth track
+    doc["truth"][0]["positions"][0][0] = 99
+    bad.write_text(json.dumps(doc, indent=1))
+    got = _problems(bad)
+    assert len(got) == 2 and "truth track '7'" in got[1], got
