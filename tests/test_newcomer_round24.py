@@ -97,3 +97,25 @@ def test_a_bad_candidate_payoff_is_one_problem_not_every_truth_row(tmp_path: Pat
     bad.write_text(json.dumps(doc, indent=1))
     got = _problems(bad)
     assert len(got) == 2 and "truth track '7'" in got[1], got
+
+
+def test_cli_md_synopses_name_every_option_of_the_verb() -> None:
+    """docs/cli.md's synopsis of a verb (its longest one-line `lesmc VERB ...`) names
+    every option ``lesmc VERB --help`` has: ``perceive`` lacked --save-attacks,
+    ``verify`` --detector, --locator, --tracker, --price-all, ``campaign`` --detector,
+    --locator, --tracker."""
+    import click
+
+    from lesmc.cli.main import cli
+
+    doc = (ROOT / "docs" / "cli.md").read_text()
+    for verb in ("perceive", "verify", "campaign", "replay"):
+        cmd = cli.commands[verb]
+        lines = re.findall(rf"`lesmc {verb} ([^`]*)`", doc)
+        synopsis = max(lines, key=lambda t: t.count("--"))
+        named = set(re.findall(r"--[a-z0-9][-a-z0-9]*", synopsis)) | set(
+            re.findall(r"(?<![-\w])-[a-z](?![-\w])", synopsis)
+        )
+        for p in cmd.params:
+            if isinstance(p, click.Option) and "--help" not in p.opts:
+                assert named & set(p.opts), (verb, p.opts, synopsis)
