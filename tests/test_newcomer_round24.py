@@ -119,3 +119,17 @@ def test_cli_md_synopses_name_every_option_of_the_verb() -> None:
         for p in cmd.params:
             if isinstance(p, click.Option) and "--help" not in p.opts:
                 assert named & set(p.opts), (verb, p.opts, synopsis)
+
+
+def test_perceive_says_when_inject_within_found_no_candidates(tmp_path: Path) -> None:
+    """``perceive -o S --inject-within PX`` that finds none wrote ``meta.candidates`` and
+    said nothing about candidates: a user could not tell "none found" from "not asked"."""
+    video = tmp_path / "v"
+    made = lesmc("synth", str(video), "--frames", "7", "--size", "256x256", "--seed", "3")
+    assert made.returncode == 0, made.stderr
+    scene = tmp_path / "s.json"
+    out = lesmc("perceive", str(video), "-o", str(scene), "--inject-within", "0")
+    assert out.returncode == 0 and "Traceback" not in out.stderr, out.stderr
+    doc = json.loads(scene.read_text())
+    assert not any(f.get("candidates") for f in doc["frames"])  # none within 0 px
+    assert "no injection candidates" in out.stdout + out.stderr
