@@ -22,10 +22,18 @@ from lesmc.cli.options import (
     tracker_option,
 )
 from lesmc.common.errors import UsageError, escape_control
+from lesmc.language import actions
 
 if TYPE_CHECKING:
     from lesmc.scene import Footage, Scene
     from lesmc.scene.mot import Inject, Payoffs
+
+
+def _inject_takers() -> str:
+    """The trackers that take ``inject``, as the registry declares them
+    (lesmc/language/actions.py; docs/language.md, "Attack actions")."""
+    takers = actions.get("inject").trackers
+    return "every design" if takers is None else ", ".join(sorted(takers))
 
 
 @click.group("import")
@@ -75,7 +83,7 @@ def import_group() -> None:
     default=None,
     help="With --threshold: the lines whose conf (column 7) is below the threshold become "
     "injection candidates (not detections), priced by this column (1-based; a number >= 0): "
-    "what `allow inject` in a spec lets the attacker add (single, sort, gnn).",
+    f"what `allow inject` in a spec lets the attacker add ({_inject_takers()}).",
 )
 @click.option(
     "--threshold",

@@ -338,9 +338,15 @@ def _write_scene(
 
 
 def _candidates(scene: Scene | Footage) -> str:
-    """How many injection candidates the scene has (none: nothing said)."""
+    """How many injection candidates the scene has (none: nothing said, unless
+    ``--inject-within`` asked for them: then that it found none)."""
     n = sum(len(f.candidates) for f in scene.frames)
-    return f", {n} injection candidates" if n else ""
+    if n:
+        return f", {n} injection candidates"
+    made = scene.meta.get("candidates")
+    if isinstance(made, dict):
+        return f", no injection candidates (none within {made.get('within_px')} px of a detection)"
+    return ""
 
 
 def _priced(scene: Scene | Footage, unattackable: int) -> str:

@@ -99,7 +99,7 @@ def footage_from_dict(
         pr.add("dt", f"must be a number of seconds in (0, {MAX_DT:g}], got {show(dt)}")
         dt = 1.0
     frames = _frames(data.get("frames"), pr, version)
-    truth = _truth(data.get("truth", []), frames, pr, version)
+    truth = _truth(data.get("truth", []), _steps(data.get("frames"), frames), pr, version)
     tracker = tracker_block(data.get("tracker", {}), pr)
     target = None
     if need_target or data.get("target") is not None:
@@ -130,16 +130,29 @@ def footage_from_dict(
 MAX_TRUTH = 10_000
 
 
+def _steps(raw_frames: Any, frames: list[Frame]) -> set[int]:
+    """The scene's frame steps, for the truth's rows: those of the frames read, and of
+    every frame object with a valid step when some frame had a problem (else a bad payoff
+    in frame 4 would also report every truth row of frame 4 as outside the scene)."""
+    steps = {fr.step for fr in frames}
+    if isinstance(raw_frames, list) and len(frames) != len(raw_frames):
+        steps |= {
+            rf["step"]
+            for rf in raw_frames
+            if isinstance(rf, dict) and is_int(rf.get("step")) and 0 <= rf["step"] <= MAX_STEP
+        }
+    return steps
+
+
 def _truth(
-    raw: Any, frames: list[Frame], pr: Problems, version: int = VERSION
+    raw: Any, steps: set[int], pr: Problems, version: int = VERSION
 ) -> tuple[TruthTrack, ...]:
     """``truth``: ground-truth tracks, each ``{"id", "positions": [[frame, x, y], ...]}``
-    with frames among the scene's, increasing; from version 2 a track's positions may all
-    be ``[frame, x, y, w, h]``, its boxes (w, h around x, y)."""
+    with frames among the scene's (``steps``), increasing; from version 2 a track's
+    positions may all be ``[frame, x, y, w, h]``, its boxes (w, h around x, y)."""
     if not isinstance(raw, list) or len(raw) > MAX_TRUTH:
         pr.add("truth", f"must be a list of at most {MAX_TRUTH} tracks, got {show(raw)}")
         return ()
-    steps = {fr.step for fr in frames}
     out: list[TruthTrack] = []
     seen: set[str] = set()
     for i, tr in enumerate(raw):
