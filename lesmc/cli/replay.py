@@ -53,12 +53,11 @@ def replay_cmd(
     stays within 0.5 px of its positions; otherwise the first diverging step and
     the reason are printed (docs/semantics.md, "Replay"); the front end runs with
     the history and delta_bc the results' perception records (the defaults where
-    it records none, as said on stderr). With --detector
-    FILE.toml (a detector file, docs/detectors.md) the attacks, the perturbed
-    frames and the detections go through that file's network instead.
-    A multi-target design's results (lesmc-multi-check: verify --design sort|gnn,
-    check --design sort|gnn --report DIR):
-    the production tracker runs on the replayed detections and the replay is
+    it records none, as said on stderr). With --detector FILE.toml (a detector file,
+    docs/detectors.md) the attacks, the perturbed frames and the detections go
+    through that file's network instead. A multi-target design's results
+    (lesmc-multi-check: verify or check --report with --design sort|gnn): the
+    production tracker runs on the replayed detections and the replay is
     confirmed when the property is violated on that run with the model's target
     track ids (docs/trackers.md, "Replaying a multi-target counterexample"); they
     replay through the window pipeline's networks only (a detector file given as
