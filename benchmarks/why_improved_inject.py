@@ -21,6 +21,7 @@ steps past the window's first to go, default to the window's end)
 from __future__ import annotations
 
 import argparse
+import itertools
 import math
 import time
 
@@ -59,11 +60,44 @@ def _level(
     return dst, c, facts
 
 
+def _all_updates(scene: object, bp: object) -> str:
+    """τ (Eq. 12) of the primary along the pattern that updates at every step from the
+    window's root to the end (the design's own gains, frame by frame), and the steps
+    where it rises past Eq. 13's tolerance: τ depends only on the steps at which the
+    primary updated, so a state whose every pattern alarms has no completion the
+    monitor allows."""
+    from lesmc.language.semantics import BoundProperty
+    from lesmc.model.kernel import tau
+    from lesmc.scene import Scene
+    from lesmc.tracking.joint import JointDesign
+    from lesmc.tracking.monitor import track
+    from lesmc.tracking.trackers import make_tracker
+
+    assert isinstance(scene, Scene) and isinstance(bp, BoundProperty)
+    design = make_tracker(scene)
+    assert isinstance(design, JointDesign)
+    loc = scene.tracker.measured
+    P = track(design, bp.l - 1)[-1].P
+    ci = design.track_covariances.add(P.copy())
+    taus = [float(tau(P, loc))]
+    for k in range(bp.l, bp.end + 1):
+        _, gains = design.schedule.at(scene.target.step + k)
+        ci = int(gains.rows(np.array([ci])).post[0])
+        taus.append(float(tau(design.track_covariances[ci], loc)))
+    tol = 1.0 + float(bp.monitor_parameter)
+    rises = [bp.l + i for i, (a, b) in enumerate(itertools.pairwise(taus)) if b > a * tol]
+    return (
+        f"τ updating at every step {bp.l - 1}..{bp.end}: "
+        + ", ".join(f"{t:.5f}" for t in taus)
+        + f"; rises entering {rises or 'no step'}"
+    )
+
+
 def _cheapest(q: np.ndarray, c: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """One label per state: the cheapest."""
     o = np.lexsort((c, q))
     q, c = q[o], c[o]
-    first = np.r_[True, q[1:] != q[:-1]]
+    first = np.r_[q[:1] >= 0, q[1:] != q[:-1]]
     return q[first], c[first]
 
 
@@ -91,6 +125,7 @@ def main() -> None:
     rng = np.random.default_rng(0)
     q, c = np.array([space.root]), np.array([space.root_obj])
     print(f"window {bp.l}..{bp.u}, end {bp.end}; improved = joint + Eq. 13's monitor")
+    print(_all_updates(scene, bp), flush=True)
     for k in range(bp.l, last + 1):
         q, c = _cheapest(q, c)
         q, c = q[c <= cut], c[c <= cut]
@@ -98,6 +133,9 @@ def main() -> None:
         if args.sample is not None and q.size > args.sample:
             pick = np.sort(rng.choice(q.size, args.sample, replace=False))
             q, c = q[pick], c[pick]
+        if not q.size:
+            print(f"step {k}: no path the monitor allows is left")
+            break
         q, c, f = _level(model, space, q, c, k)
         per = f["built"] / max(f["labels"], 1.0)
         print(
