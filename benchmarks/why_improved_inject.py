@@ -93,6 +93,20 @@ def _all_updates(scene: object, bp: object) -> str:
     )
 
 
+def _dead(model: object, space: object, q: np.ndarray) -> int:
+    """How many of the model's states ``q`` have no completion the property's monitor
+    allows, by the joint design's relaxation to its primary (the question lazy.py asks of
+    the window's root: lesmc/tracking/parts/relaxed.py)."""
+    from lesmc.engines.lazy import LazySpace
+    from lesmc.model.growing import GrowingModel
+
+    assert isinstance(model, GrowingModel) and isinstance(space, LazySpace)
+    cut = space.monitor_cut()
+    ask = getattr(model.expander, "primary_alive", None)
+    assert cut is not None and ask is not None
+    return sum(ask(s, space.bp.end, cut) is False for s in q.tolist())
+
+
 def _cheapest(q: np.ndarray, c: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """One label per state: the cheapest."""
     o = np.lexsort((c, q))
@@ -114,6 +128,9 @@ def main() -> None:
     ap.add_argument("--sample", type=int, default=None, help="labels expanded a level at most")
     ap.add_argument("--cut", type=float, default=None, help="drop labels costing more")
     ap.add_argument("--steps", type=int, default=None)
+    ap.add_argument(
+        "--relax", action="store_true", help="count each level's states with no relaxed path"
+    )
     args = ap.parse_args()
     scene = load_scene(args.scene).with_tracker(design="joint")
     bp = bind_scene(scene, [load_spec(args.spec).with_monitor()])[0]
@@ -136,6 +153,14 @@ def main() -> None:
         if not q.size:
             print(f"step {k}: no path the monitor allows is left")
             break
+        if args.relax:
+            t0 = time.perf_counter()
+            n = _dead(model, space, q)
+            print(
+                f"  relaxed primary: {n:,} of the {q.size:,} states at step {k - 1} have no "
+                f"completion the monitor allows ({time.perf_counter() - t0:.1f} s)",
+                flush=True,
+            )
         q, c, f = _level(model, space, q, c, k)
         per = f["built"] / max(f["labels"], 1.0)
         print(
