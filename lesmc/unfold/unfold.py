@@ -148,7 +148,7 @@ class SceneExpander:
         (step entered, P before, P after) allows, by the design's relaxation to its primary
         (lesmc/tracking/parts/relaxed.py: False only if none has); None: the design has no
         such relaxation."""
-        if not isinstance(self.design, JointDesign):
+        if type(self.design) is not JointDesign:  # a subclass may move its primary otherwise
             return None
         m = self.model
         P = np.array(m.P_table[int(m.cov[q])], copy=True)
