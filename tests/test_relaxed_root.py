@@ -8,17 +8,20 @@ the test."""
 
 from __future__ import annotations
 
+import json
 import math
+from pathlib import Path
 
 import numpy as np
 import pytest
+from cli_run import lesmc
 from test_inject_joint import random_scene
 
 import lesmc.engines.lazy as lazy
 import lesmc.unfold.unfold as unfold
 from lesmc import api
 from lesmc.model.arrays import ArrayModel
-from lesmc.scene import Scene
+from lesmc.scene import Scene, save_scene
 from lesmc.tracking.trackers import make_tracker
 
 TOL = 1e-9  # Eq. 13's default tolerance (monitor uncertainty)
@@ -119,3 +122,30 @@ def test_checks_are_the_same_with_and_without_the_dead_root(
         monkeypatch.setattr(lazy, "DEAD_ROOT", True)
         assert with_test[0] == without[0]
         assert with_test[1] == pytest.approx(without[1], abs=1e-9)
+
+
+def test_the_cli_says_holds_vacuous_for_a_dead_root(tmp_path: Path) -> None:
+    """Through the real entry point: on a scene whose root the relaxation calls dead, `lesmc
+    check --design improved` exits 0 with no traceback, and its verdict and optimum are those
+    the API gives with the test switched off (the full search)."""
+    scene, window, end = next(c for c in _cases(60, 61) if _relaxed(*c) is False)
+    save_scene(scene, tmp_path / "scene.json")
+    (tmp_path / "p.spec").write_text(_spec(window, end).replace("monitor uncertainty ", ""))
+    run = lesmc(
+        "check",
+        str(tmp_path / "scene.json"),
+        str(tmp_path / "p.spec"),
+        "--design",
+        "improved",
+        "--json",
+    )
+    assert run.returncode == 0 and "Traceback" not in run.stderr, run.stderr
+    got = json.loads(run.stdout)["results"][0]
+    old = lazy.DEAD_ROOT
+    try:
+        lazy.DEAD_ROOT = False
+        want = _results(scene.with_tracker(design="joint"), window, end)
+    finally:
+        lazy.DEAD_ROOT = old
+    assert got["verdict"] == want[0] == "holds"
+    assert got["optimum"] in ("inf", None, math.inf) and want[1] == math.inf
