@@ -87,7 +87,9 @@ class LazySpace(SpaceOps):
         property's monitor to the end (False when it cannot tell)."""
         ask = getattr(self.cm.expander, "primary_alive", None)
         cut = self.monitor_cut()
-        return ask is not None and cut is not None and ask(self.root, self.bp.end, cut) is False
+        if ask is None or cut is None or self.cm.halted[self.root]:  # a halted root is a leaf
+            return False
+        return ask(self.root, self.bp.end, cut) is False
 
     def monitor_cut(self) -> Callable[[int, np.ndarray, np.ndarray], bool] | None:
         """The property's monitor as a function of a transition's step entered and the
