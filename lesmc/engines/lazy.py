@@ -17,11 +17,14 @@ allowed only if it is rank-minimal (the unattacked outcome).
 
 from __future__ import annotations
 
+from collections.abc import Callable
+
 import numpy as np
 
 from lesmc.engines.space import (
     SpaceOps,
     excused_steps,
+    monitor_reads_nis,
     nearest_deviations,
     original_nis,
     ranges,
@@ -34,6 +37,10 @@ from lesmc.model.growing import BATCH_WORK, GrowArray, GrowingModel, counted_bat
 
 #: Most states expanded together outside the window (bounds one batch's temporaries).
 BATCH = 65_536
+#: Under a monitor that reads only covariances, ask the model's expander whether the
+#: window's root has any completion the monitor allows (docs/semantics.md, "A root no
+#: monitored path leaves"); a root without one is not expanded at all.
+DEAD_ROOT = True
 
 
 class LazySpace(SpaceOps):
@@ -72,6 +79,37 @@ class LazySpace(SpaceOps):
             con = self.agg(self.con_max, con, float(self.c_con[t]))
         self.root = int(model.original[bp.l - 1])
         self.root_obj, self.root_con = obj, con
+        #: the root has no completion the monitor allows (its transitions are left out)
+        self.dead_root = DEAD_ROOT and self._root_dead()
+
+    def _root_dead(self) -> bool:
+        """Whether the model's expander proves that no path from the root passes the
+        property's monitor to the end (False when it cannot tell)."""
+        ask = getattr(self.cm.expander, "primary_alive", None)
+        cut = self.monitor_cut()
+        if ask is None or cut is None or self.cm.halted[self.root]:  # a halted root is a leaf
+            return False
+        return ask(self.root, self.bp.end, cut) is False
+
+    def monitor_cut(self) -> Callable[[int, np.ndarray, np.ndarray], bool] | None:
+        """The property's monitor as a function of a transition's step entered and the
+        covariances P before and after it (True: the transition is cut); None without a
+        monitor, or for one that reads more than P (the NIS)."""
+        bp = self.bp
+        comps = bp.monitor_components
+        if comps is None or monitor_reads_nis(bp):
+            return None
+
+        def cut(k: int, p0: np.ndarray, p1: np.ndarray) -> bool:
+            t = kernel.tau(np.stack([p0, p1]), comps)
+            ks = np.array([k])
+            return bool(
+                kernel.monitor_cuts(
+                    bp.l, ks, t[:1], t[1:], bp.monitor_parameter, self._excused, bp.monitor_kind
+                )[0]
+            )
+
+        return cut
 
     @property
     def dist(self) -> np.ndarray:
@@ -163,6 +201,8 @@ class LazySpace(SpaceOps):
 
     def successors(self, q: int) -> np.ndarray:
         got = self._allowed.get(q)
+        if got is None and q == self.root and self.dead_root:
+            got = self._allowed[q] = np.zeros(0, dtype=np.int64)
         if got is None:
             if not self.cm.expanded(q):
                 self._expand(q)
@@ -189,6 +229,8 @@ class LazySpace(SpaceOps):
                 group = group[n:]
         owner, t = ranges(cm.out_lo[q], cm.out_hi[q])
         ok = self._mask.data[t]
+        if self.dead_root:
+            ok &= q[owner] != self.root
         return owner[ok], t[ok]
 
     def slice_size(self) -> int:

@@ -28,6 +28,8 @@ from lesmc.model.arrays import ArrayModel, Tracks
 from lesmc.model.growing import BATCH_WORK, Expansion, GrowingModel, counted_batch
 from lesmc.scene import Scene
 from lesmc.tracking.design import Batch, Design, PayloadStore
+from lesmc.tracking.joint import JointDesign
+from lesmc.tracking.parts.relaxed import Cut, primary_alive
 from lesmc.tracking.single import grid_point_name
 from lesmc.tracking.trackers import make_tracker
 from lesmc.unfold.attack_path import walked_attack_of
@@ -140,6 +142,19 @@ class SceneExpander:
         return out
 
     # ------------------------------------------------------------ successors
+    def primary_alive(self, q: int, end: int, cut: Cut) -> bool | None:
+        """Whether state ``q`` has a completion to step ``end`` that the monitor ``cut``
+        (step entered, P before, P after) allows, by the design's relaxation to its primary
+        (lesmc/tracking/parts/relaxed.py: False only if none has); None: the design has no
+        such relaxation."""
+        if type(self.design) is not JointDesign:  # a subclass may move its primary otherwise
+            return None
+        m = self.model
+        P = np.array(m.P_table[int(m.cov[q])], copy=True)
+        c = self.design.track_covariances.add(P)
+        k = int(m.step[q])
+        return primary_alive(self.design, m.S[q].copy(), c, k, self.window, end, cut)
+
     def expand(self, states: np.ndarray, step: int) -> Expansion:
         """All successors of ``states`` (at ``step``) at step + 1, new states added."""
         k = step + 1
