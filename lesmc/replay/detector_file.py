@@ -14,8 +14,14 @@ with a detector file is replayed through that file's network instead:
 4. the tracker runs over the replayed detections and its track is compared with
    the counterexample's, as run.py does: ``confirmed`` or ``diverged``.
 
-No repair is tried: perturbations of a frame add up in the input, and the
-replay says whether their sum still hides every hidden detection.
+When the sum of a frame's perturbations does not leave the detections the model has
+(a hidden detection survives, an extra one appears, an injected candidate is not
+detected), the attack is repaired as the window pipeline's is (docs/semantics.md,
+"Repaired attack"; the loop is lesmc/replay/repair.py's): up to REPAIR_ROUNDS rounds,
+each attacking, on the input as every perturbation so far leaves it, the detections
+the model does not have (the same hiding attack, heatmap or boxes), then raising the
+injected candidates not detected (``price_candidates``), the frame decoded after each
+(:class:`_FileFrame`); the extra payoffs are the ``repair_cost``.
 
 Under ``allow hide, inject`` (heatmap files; issue 61) the attack of each window step is
 derived from the path as lesmc/replay/inject.py does for the window pipeline
