@@ -12,10 +12,20 @@ on the perturbed input, and the frame has no detection left. The repair's cost i
 L2 norm of the perturbations it added (recomputed here from the perturbations the attack
 hands back, not from the replay's bookkeeping), and onnxruntime, given the frame plus
 every perturbation, decodes no cell at or above the threshold.
+
+The same two spots move right 4 px a frame (one stride: every frame decodes alike) past a
+static spot 16 px above the track at frame 6. The model's cheapest counterexample
+(``SPEC``) hides the moving spot at step 6 so that the tracker takes the static one.
+Replayed without the repair, the revealed faint spot, 13 px from the track, is nearer
+than the static one: the tracker takes it and the replay diverges at step 6. With the
+repair it is confirmed, ``"attack": "repaired"``; and under a
+threshold between the optimum and the optimum plus ``repair_cost`` the repaired attack
+makes the property hold, so the replay is diverged (docs/semantics.md, "Repaired attack").
 """
 
 from __future__ import annotations
 
+import json
 import math
 from collections.abc import Callable
 from pathlib import Path
@@ -24,7 +34,8 @@ from typing import Any
 import cv2
 import numpy as np
 import pytest
-from spot_detector import H, W, write_spot_detector
+from cli_run import lesmc
+from spot_detector import SPEC, H, W, write_spot_detector
 
 from lesmc.perception.attack_settings import AttackConfig
 from lesmc.results.read import HiddenDoc
@@ -135,3 +146,99 @@ def test_the_repair_hides_the_neighbour_at_the_cost_of_its_norm(
     )
     x = _frame() + first[0] + sum(repair, np.zeros_like(first[0]))
     assert float(_raw(d, x).max()) < 0.0  # onnxruntime: no cell at or above the threshold
+
+
+STATIC = (32, 12)  # the static spot (x, y), 16 px above the track at frame 6
+
+
+def _video(d: Path) -> Path:
+    """12 frames: the bright spot at (8 + 4k, 28), the faint one 13 px below, the static one."""
+    fr = d / "frames"
+    fr.mkdir()
+    for k in range(12):
+        img = np.full((H, W), 20, np.uint8)
+        cv2.circle(img, (8 + 4 * k, BRIGHT[1]), 3, 230, -1)
+        cv2.circle(img, (8 + 4 * k, FAINT[1]), 3, 110, -1)
+        cv2.circle(img, STATIC, 3, 230, -1)
+        cv2.imwrite(str(fr / f"f{k:02d}.png"), cv2.GaussianBlur(img, (5, 5), 1.0))
+    return fr
+
+
+@pytest.fixture(scope="module")
+def checked(spot: tuple[Any, Path]) -> dict[str, Any]:
+    """``lesmc perceive`` and ``lesmc check --report`` of :data:`SPEC` on the video."""
+    _, d = spot
+    frames, scene = _video(d), d / "scene.json"
+    r = lesmc("perceive", str(frames), "--detector", str(d / "spot.toml"), "-o", str(scene),
+              "--target", "8,28@0")  # fmt: skip
+    assert r.returncode == 0, r.stderr
+    (d / "p.spec").write_text(SPEC)
+    r = lesmc("check", str(scene), str(d / "p.spec"), "--json", "--report", str(d / "rep"))
+    assert r.returncode == 1, r.stdout + r.stderr
+    res = json.loads(r.stdout)["results"][0]
+    return {"dir": d, "frames": frames, "results": d / "rep" / "results.json", "res": res}
+
+
+class _Bar:
+    """A progress bar that shows nothing."""
+
+    def update(self, **_: Any) -> None:
+        pass
+
+    def advance(self, n: int = 1) -> None:
+        pass
+
+
+def _replay(checked: dict[str, Any], threshold: float | None = None) -> dict[str, Any]:
+    """The in-process replay of the results (their threshold replaced by ``threshold``)."""
+    from lesmc.replay.detector_file import replay_with_file
+    from lesmc.results.load import load_results
+    from lesmc.results.read import results_of
+
+    raw = load_results(str(checked["results"]))
+    if threshold is not None:
+        raw["runs"][0]["results"][0]["threshold"] = threshold
+    doc = results_of(raw)
+    toml = str(checked["dir"] / "spot.toml")
+    out = replay_with_file(doc, str(checked["frames"]), toml, None, _Bar())  # type: ignore[arg-type]
+    rp: dict[str, Any] = out.replays[(0, 0)]
+    return rp
+
+
+def test_the_counterexample_hides_the_track_for_the_static_spot(checked: dict[str, Any]) -> None:
+    run = json.loads(checked["results"].read_text())["runs"][0]
+    (hid,) = run["hidden"]["hide_cheap"]  # the moving spot at frame 6 (34, 30), alone
+    assert (hid["step"], hid["obs"], hid["x"], hid["y"]) == (6, "6:1", 34.0, 30.0)
+    taken = {s["step"]: s["obs"] for s in checked["res"]["counterexample"]["steps"]}
+    assert taken[6] == "6:0"  # the static spot, 16 px from the track
+    assert checked["res"]["optimum"] < 10
+
+
+def test_without_the_repair_the_replay_diverges(
+    checked: dict[str, Any], monkeypatch: pytest.MonkeyPatch
+) -> None:
+    from lesmc.replay import detector_file
+
+    monkeypatch.setattr(detector_file, "REPAIR_ROUNDS", 0)
+    rp = _replay(checked)
+    assert rp["status"] == "diverged" and rp["step"] == 6, rp
+    assert rp["attack"] == "as modelled" and rp["repair_cost"] == 0.0
+    # the faint spot at frame 6, (32, 41): the centre of its cell (10, 8) is (34, 42)
+    assert "extra detection (34.0, 42.0)" in rp["reason"]
+
+
+def test_the_repaired_replay_is_confirmed(checked: dict[str, Any]) -> None:
+    rp = _replay(checked)
+    assert rp["status"] == "confirmed", rp
+    assert rp["attack"] == "repaired" and rp["repair_cost"] > 0
+    assert rp["frames"] == ["frame 6: after 1 round(s) of the repaired joint attack"]
+    checked["repaired"] = rp
+
+
+def test_a_repair_that_costs_the_property_diverges(checked: dict[str, Any]) -> None:
+    full = checked.get("repaired") or _replay(checked)
+    opt, extra = checked["res"]["optimum"], full["repair_cost"]
+    assert full["status"] == "confirmed" and extra > 0
+    rp = _replay(checked, opt + extra / 2)  # optimum > T only with the repair's cost
+    assert rp["status"] == "diverged" and rp["step"] == 6, rp
+    assert "the repaired joint attack replays, but costs" in rp["reason"]
