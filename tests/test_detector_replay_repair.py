@@ -27,7 +27,7 @@ from __future__ import annotations
 
 import json
 import math
-from collections.abc import Callable
+import warnings
 from pathlib import Path
 from typing import Any
 
@@ -72,14 +72,19 @@ def _raw(d: Path, x: np.ndarray) -> np.ndarray:
     return out
 
 
-def _spy(monkeypatch: pytest.MonkeyPatch) -> list[list[np.ndarray]]:
-    """Every call of the heatmap hiding attack records the perturbations it hands back."""
+def _spy(monkeypatch: pytest.MonkeyPatch, boxes: bool = False) -> list[list[np.ndarray]]:
+    """Every call of the hiding attack (heatmap, or ``boxes``) records the perturbations
+    it hands back."""
+    from lesmc.perception import boxes as box_module
     from lesmc.perception import heatmap_attack
 
+    module: Any = box_module if boxes else heatmap_attack
+    name = "price_boxes" if boxes else "price_frame"
     calls: list[list[np.ndarray]] = []
-    real = heatmap_attack.price_frame
+    real = getattr(module, name)
 
-    def spying(p: Any, frame: np.ndarray, fd: Any, save: Callable[..., None] | None = None) -> Any:
+    def spying(*args: Any) -> Any:
+        *rest, save = args if len(args) == (5 if boxes else 4) else (*args, None)
         got: list[np.ndarray] = []
         calls.append(got)
 
@@ -88,9 +93,9 @@ def _spy(monkeypatch: pytest.MonkeyPatch) -> list[list[np.ndarray]]:
             if save is not None:
                 save(k, delta)
 
-        return real(p, frame, fd, keep)
+        return real(*rest, keep)
 
-    monkeypatch.setattr(heatmap_attack, "price_frame", spying)
+    monkeypatch.setattr(module, name, spying)
     return calls
 
 
@@ -242,3 +247,64 @@ def test_a_repair_that_costs_the_property_diverges(checked: dict[str, Any]) -> N
     rp = _replay(checked, opt + extra / 2)  # optimum > T only with the repair's cost
     assert rp["status"] == "diverged" and rp["step"] == 6, rp
     assert "the repaired joint attack replays, but costs" in rp["reason"]
+
+
+def _box_detector(d: Path) -> Any:
+    """tests/test_detector_replay_boxes.py's box head on the spot network (reshaped to
+    constant sizes: TorchScript's exporter then writes no Shape node, in a fraction of
+    the dynamo exporter's time), loaded."""
+    import torch
+    from test_detector_replay_boxes import HALF, SpotBoxes
+
+    from lesmc.perception.detector_file import load_detector
+
+    class Fixed(SpotBoxes):
+        def forward(self, x: torch.Tensor) -> torch.Tensor:
+            s = self.body(x).reshape(-1, 1, (H // 4) * (W // 4))
+            cx, cy = self.cx + 0.0 * s, self.cy + 0.0 * s
+            rows = torch.cat([cx - HALF, cy - HALF, cx + HALF, cy + HALF, s], dim=1)
+            return rows.transpose(1, 2)
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        torch.onnx.export(
+            Fixed().eval(), (torch.rand(2, 1, H, W),), d / "boxes.onnx", dynamo=False,
+            input_names=["x"], dynamic_axes={"x": {0: "batch"}},
+        )  # fmt: skip
+    toml = d / "boxes.toml"
+    toml.write_text(
+        'kind = "boxes"\nnetwork = "boxes.onnx"\nthreshold = 0.0\nscore = "raw"\niou_nms = 0.1\n'
+    )
+    return load_detector(str(toml))
+
+
+def test_a_box_list_repair_hides_the_box_its_neighbour_suppressed(
+    spot: tuple[Any, Path], monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """Boxes: a faint spot 8 px below the bright one; its 12 x 12 box overlaps the bright
+    one's by IoU 0.2 > ``iou_nms`` 0.1, so NMS drops it; the bright box hidden, it is an
+    extra detection; the repair hides it too."""
+    from lesmc.replay.detector_file import _decode, attack_frame
+
+    _, d = spot
+    det = _box_detector(d)
+    img = np.full((H, W), 20, np.uint8)
+    cv2.circle(img, BRIGHT, 3, 230, -1)
+    cv2.circle(img, (BRIGHT[0], BRIGHT[1] + 8), 3, 110, -1)
+    x = (cv2.GaussianBlur(img, (5, 5), 1.0).astype(np.float32) / np.float32(255.0))[None, None]
+    clean = _decode(det, x, 0)
+    assert clean.positions.tolist() == [[42.0, 30.0]]  # the bright spot's box alone
+    hidden = HiddenDoc(1, 0, "0:0", math.nan, math.nan, math.nan)
+    calls = _spy(monkeypatch, boxes=True)
+    fa = attack_frame(det, x, clean, [hidden], AttackConfig())
+    assert fa.repaired_rounds == 1 and not fa.extra and len(fa.detections.positions) == 0
+    first, repair = calls[0], [delta for call in calls[1:] for delta in call]
+    assert len(first) == 1 and repair
+    norms = [float(np.sqrt((r.astype(np.float64) ** 2).sum())) for r in repair]
+    assert fa.extra_cost == pytest.approx(sum(norms), rel=1e-9)
+    sess = ort.InferenceSession(str(d / "boxes.onnx"))
+    rows = sess.run(None, {sess.get_inputs()[0].name: x + first[0]})[0][0]
+    live = rows[rows[:, 4] >= 0.0]  # the priced hiding alone: the faint spot's box is left
+    assert len(live) and np.allclose(live[:, :4].mean(axis=0), [36.0, 32.0, 48.0, 44.0])
+    rows = sess.run(None, {sess.get_inputs()[0].name: x + first[0] + sum(repair)})[0][0]
+    assert float(rows[:, 4].max()) < 0.0  # with the repair's: no box scores at the threshold
