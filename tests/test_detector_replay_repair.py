@@ -21,6 +21,11 @@ than the static one: the tracker takes it and the replay diverges at step 6. Wit
 repair it is confirmed, ``"attack": "repaired"``; and under a
 threshold between the optimum and the optimum plus ``repair_cost`` the repaired attack
 makes the property hold, so the replay is diverged (docs/semantics.md, "Repaired attack").
+
+A box-list file (tests/test_detector_replay_boxes.py's box head) has the same case: a
+faint spot's box that NMS drops beside the bright one's comes out once that is hidden,
+and the repair hides it. And an injection whose perturbation falls short (handed back at
+half its size) leaves the candidate undetected; the repair raises it again.
 """
 
 from __future__ import annotations
@@ -308,3 +313,54 @@ def test_a_box_list_repair_hides_the_box_its_neighbour_suppressed(
     assert len(live) and np.allclose(live[:, :4].mean(axis=0), [36.0, 32.0, 48.0, 44.0])
     rows = sess.run(None, {sess.get_inputs()[0].name: x + first[0] + sum(repair)})[0][0]
     assert float(rows[:, 4].max()) < 0.0  # with the repair's: no box scores at the threshold
+
+
+def test_an_injection_that_falls_short_is_raised_again(
+    spot: tuple[Any, Path], monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """Hide the bright spot and inject the faint one 14 px below it (a local maximum
+    below the threshold), the injection's first perturbation handed back at half its
+    size: the candidate is not detected, and the repair raises it again on the perturbed
+    input, at the cost of that second perturbation's norm."""
+    import torch
+
+    from lesmc.perception import heatmap_attack
+    from lesmc.perception.detector_file import score_of
+    from lesmc.perception.heatmap import sub_peaks
+    from lesmc.replay.detector_file import _decode, attack_listed
+
+    det, d = spot
+    img = np.full((H, W), 20, np.uint8)
+    cv2.circle(img, BRIGHT, 3, 230, -1)
+    cv2.circle(img, (BRIGHT[0], BRIGHT[1] + 14), 3, 100, -1)
+    x = (cv2.GaussianBlur(img, (5, 5), 1.0).astype(np.float32) / np.float32(255.0))[None, None]
+    clean = _decode(det, x, 0)
+    with torch.no_grad():
+        raw = det.score_maps(det.net.module(torch.from_numpy(x)))[0].double().numpy()
+    subs = sub_peaks(score_of(raw, det.spec.score), det.spec.threshold, det.spec.nms_radius)
+    k = int(np.argmin(np.abs(subs - [(BRIGHT[1] + 14) / 4, BRIGHT[0] / 4]).sum(axis=1)))
+    cell = subs[k]
+    assert cell.tolist() == [11, 10]  # the faint spot's peak, 3 rows below the bright one's
+    real, handed = heatmap_attack.price_candidates, []
+
+    def short(p: Any, frame: np.ndarray, fd: Any, save: Any) -> Any:
+        def keep(k: int, delta: np.ndarray) -> None:
+            handed.append(delta.copy())
+            save(k, delta * np.float32(0.5) if len(handed) == 1 else delta)
+
+        return real(p, frame, fd, keep)
+
+    monkeypatch.setattr(heatmap_attack, "price_candidates", short)
+    hides = _spy(monkeypatch)
+    hidden = HiddenDoc(1, 0, "0:0", math.nan, math.nan, math.nan)
+    fa = attack_listed(det, (x, clean), 1, ([hidden], [(f"0:c{k}", cell)]), AttackConfig())
+    assert len(handed) == 2 and fa.repaired_rounds == 1
+    assert not fa.not_injected and not fa.still and not fa.extra
+    assert fa.detections.raw.cells.tolist() == [cell.tolist()]
+    second = float(np.sqrt((handed[1].astype(np.float64) ** 2).sum()))
+    assert fa.extra_cost == pytest.approx(second, rel=1e-9)
+    (hide,) = hides[0]
+    y = _raw(d, x + hide + np.float32(0.5) * handed[0] + handed[1])  # through onnxruntime
+    i, j = (int(v) for v in cell)
+    assert float(y[i, j]) >= 0.0 and y[i, j] == y[i - 2 : i + 3, j - 2 : j + 3].max()
+    assert float(y[5:10, 8:13].max()) < 0.0  # the bright spot's square still hidden
