@@ -35,7 +35,7 @@ from __future__ import annotations
 import math
 import time
 from dataclasses import dataclass, replace
-from typing import TYPE_CHECKING, Any, Literal
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -63,6 +63,7 @@ from lesmc.results.read import ResultsDoc
 if TYPE_CHECKING:
     from lesmc.common.progress import Bar
     from lesmc.perception.attack_settings import AttackConfig
+    from lesmc.perception.attacks import Towards
     from lesmc.perception.detector_file import LoadedDetector
 
 
@@ -219,7 +220,7 @@ class _FileFrame:
         """A detection the model does not have, or an injected candidate not detected."""
         return bool(self._unwanted()) or bool(len(self._missing()))
 
-    def attack(self, towards: Literal["hide", "inject"]) -> tuple[float, np.ndarray] | None:
+    def attack(self, towards: Towards) -> tuple[float, np.ndarray] | None:
         """``hide``: the detections the model does not have, each attacked as the first
         hiding was (:func:`_perturbations`) on the perturbed input; ``inject``: the
         candidates not detected, each raised again (``price_candidates``). The cost

@@ -12,7 +12,7 @@ from __future__ import annotations
 
 import re
 from dataclasses import dataclass
-from typing import TYPE_CHECKING, Any, Literal
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -32,7 +32,7 @@ from lesmc.results.read import HiddenDoc as Hidden
 
 if TYPE_CHECKING:
     from lesmc.perception.attack_settings import AttackConfig
-    from lesmc.perception.attacks import AttackResult
+    from lesmc.perception.attacks import AttackResult, Towards
     from lesmc.perception.cnn import Nets
     from lesmc.perception.detector import Detector, FrameDetections
     from lesmc.perception.frontend import FrontEndOutput
@@ -312,7 +312,7 @@ class _WindowFrame:
         unwanted = _unwanted(self.fd, self.after, self.idx, self.wanted)
         return bool(unwanted) or _missing(self.wanted, self.after)
 
-    def attack(self, towards: Literal["hide", "inject"]) -> tuple[float, Round] | None:
+    def attack(self, towards: Towards) -> tuple[float, Round] | None:
         """:func:`_rehide` or :func:`_reinject` on the perturbed frame."""
         act = _rehide if towards == "hide" else _reinject
         seen = (self.after, self.cands, self.frames)

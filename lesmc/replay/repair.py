@@ -13,16 +13,14 @@ detector (lesmc/replay/perturbed.py) or a detector file (lesmc/replay/detector_f
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING, Literal, Protocol, TypeVar
+from typing import TYPE_CHECKING, Protocol, TypeVar
 
 if TYPE_CHECKING:
+    from lesmc.perception.attacks import Towards
     from lesmc.replay.case import FrameAttack
 
 #: What a repair round's perturbations are, as the detector that applies them has them.
 P = TypeVar("P")
-
-#: The two steps of a repair round, in order.
-STEPS: tuple[Literal["hide", "inject"], ...] = ("hide", "inject")
 
 
 class Repairable(Protocol[P]):
@@ -34,7 +32,7 @@ class Repairable(Protocol[P]):
         not detected."""
         ...
 
-    def attack(self, towards: Literal["hide", "inject"]) -> tuple[float, P] | None:
+    def attack(self, towards: Towards) -> tuple[float, P] | None:
         """On the frame as it is now: ``hide``, every detection the model does not have
         attacked away; ``inject``, every injected candidate not detected attacked towards
         a detection. The cost and the perturbations of the attacks that succeed alone
@@ -55,16 +53,21 @@ def run_repair(fa: FrameAttack, frame: Repairable[P], limit: int) -> None:
     perturbations (each extra one at its own norm) into ``fa``."""
     rounds = 0
     while rounds < limit and frame.wrong():
-        moved = False
-        for towards in STEPS:
-            got = frame.attack(towards)
-            if got is None:
-                continue
-            cost, more = got
-            fa.extra_cost += cost
-            frame.apply(more)
-            moved = True
-        if not moved:  # a round that changes nothing is not counted
+        hid = _step(fa, frame, "hide")
+        injected = _step(fa, frame, "inject")
+        if not hid and not injected:  # a round that changes nothing is not counted
             break
         rounds += 1
     fa.repaired_rounds = rounds
+
+
+def _step(fa: FrameAttack, frame: Repairable[P], towards: Towards) -> bool:
+    """One step of a repair round: ``frame``'s attack ``towards``, applied and its cost
+    added to ``fa.extra_cost``; whether it succeeded."""
+    got = frame.attack(towards)
+    if got is None:
+        return False
+    cost, more = got
+    fa.extra_cost += cost
+    frame.apply(more)
+    return True
