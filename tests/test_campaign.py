@@ -152,7 +152,7 @@ def test_resume_adds_no_row_and_the_summary_counts_the_rows(base: tuple[Path, Pa
 
 def test_the_worst_case_command_reproduces_its_row(base: tuple[Path, Path]) -> None:
     from lesmc.campaign.summary import command
-    from lesmc.results.read import read_row
+    from lesmc.results.campaign_row import read_row
 
     rows = read_rows(base[1] / "results.jsonl")
     bad = [x for x in rows if x["verdict"] == "violated" and x["design"] == "single"]
@@ -359,7 +359,7 @@ def test_interval_rows_match_brute_force_over_both_payoff_sets(
     assert "violated" in verdicts
     # the row's command (lesmc verify on the saved scene) gives the row's interval
     from lesmc.campaign.summary import command
-    from lesmc.results.read import read_row
+    from lesmc.results.campaign_row import read_row
 
     w = max(rows, key=lambda x: (x["verdict"] != "holds", str(x["optimum_certified"]), x["key"]))
     cmd = command(read_row(w), str(out / "scenes")).split()[1:]

@@ -151,6 +151,7 @@ def test_the_repair_hides_the_neighbour_at_the_cost_of_its_norm(
     assert len(first) == 1 and repair
     norms = [float(np.sqrt((r.astype(np.float64) ** 2).sum())) for r in repair]
     assert fa.extra_cost == pytest.approx(sum(norms), rel=1e-9)
+    assert fa.extra_windows == len(repair)  # each extra perturbation counted once
     assert fa.perturbations[0]["payoff_recomputed"] == pytest.approx(
         float(np.sqrt((first[0].astype(np.float64) ** 2).sum())), rel=1e-9
     )
@@ -307,6 +308,7 @@ def test_a_box_list_repair_hides_the_box_its_neighbour_suppressed(
     assert len(first) == 1 and repair
     norms = [float(np.sqrt((r.astype(np.float64) ** 2).sum())) for r in repair]
     assert fa.extra_cost == pytest.approx(sum(norms), rel=1e-9)
+    assert fa.extra_windows == len(repair)  # each extra perturbation counted once
     sess = ort.InferenceSession(str(d / "boxes.onnx"))
     rows = sess.run(None, {sess.get_inputs()[0].name: x + first[0]})[0][0]
     live = rows[rows[:, 4] >= 0.0]  # the priced hiding alone: the faint spot's box is left
@@ -358,7 +360,7 @@ def test_an_injection_that_falls_short_is_raised_again(
     assert not fa.not_injected and not fa.still and not fa.extra
     assert fa.detections.raw.cells.tolist() == [cell.tolist()]
     second = float(np.sqrt((handed[1].astype(np.float64) ** 2).sum()))
-    assert fa.extra_cost == pytest.approx(second, rel=1e-9)
+    assert fa.extra_cost == pytest.approx(second, rel=1e-9) and fa.extra_windows == 1
     (hide,) = hides[0]
     y = _raw(d, x + hide + np.float32(0.5) * handed[0] + handed[1])  # through onnxruntime
     i, j = (int(v) for v in cell)

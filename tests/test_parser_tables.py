@@ -11,7 +11,7 @@ import pytest
 from lark import Lark, UnexpectedInput
 
 from lesmc.language import lark_tables
-from lesmc.language.parser import _LARK_OPTIONS, _parser, grammar_text
+from lesmc.language.lark_parser import LARK_OPTIONS, grammar_text, lalr_parser
 
 ROOT = Path(__file__).resolve().parents[1]
 SPECS = sorted([*ROOT.glob("specs/*.spec"), *ROOT.glob("examples/**/*.spec")])
@@ -19,7 +19,7 @@ SPECS = sorted([*ROOT.glob("specs/*.spec"), *ROOT.glob("examples/**/*.spec")])
 
 @pytest.fixture(scope="module")
 def built() -> Lark:
-    return Lark((ROOT / "grammars" / "lesmc.lark").read_text(encoding="utf-8"), **_LARK_OPTIONS)
+    return Lark((ROOT / "grammars" / "lesmc.lark").read_text(encoding="utf-8"), **LARK_OPTIONS)
 
 
 def test_the_tables_were_made_from_this_grammar() -> None:
@@ -30,7 +30,7 @@ def test_the_tables_were_made_from_this_grammar() -> None:
 def test_the_parser_is_loaded_from_the_tables_under_their_lark() -> None:
     if lark.__version__ != lark_tables.LARK_VERSION:
         pytest.skip(f"tables made by lark {lark_tables.LARK_VERSION}, not {lark.__version__}")
-    assert _parser().source_path == "<deserialized>"
+    assert lalr_parser().source_path == "<deserialized>"
 
 
 def outcome(parser: Lark, text: str) -> object:
@@ -44,7 +44,7 @@ def outcome(parser: Lark, text: str) -> object:
 
 def test_loaded_and_built_parsers_agree_on_specs_and_every_truncation(built: Lark) -> None:
     assert SPECS
-    loaded = _parser()
+    loaded = lalr_parser()
     for path in SPECS:
         text = path.read_text(encoding="utf-8")
         assert outcome(loaded, text) == outcome(built, text), path

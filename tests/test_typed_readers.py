@@ -10,7 +10,7 @@ from typing import Any
 import pytest
 
 from lesmc.campaign.summary import command, summarise
-from lesmc.results.read import read_row
+from lesmc.results.campaign_row import read_row
 
 ROOT = Path(__file__).resolve().parents[1]
 

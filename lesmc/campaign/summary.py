@@ -26,7 +26,7 @@ from lesmc.common.numbers import fmt
 from lesmc.designs import registry
 from lesmc.engines.result import status_word
 from lesmc.report.pages import Figure, Markup, Table, images, render_page, table
-from lesmc.results.read import CampaignRow, Target, read_row
+from lesmc.results.campaign_row import CampaignRow, Target, read_row
 
 FORMAT = "lesmc-campaign-summary"
 VERSION = 2
@@ -227,7 +227,7 @@ class Summary:
 
 def summarise(documents: Sequence[Mapping[str, Any]], scenes: str) -> Summary:
     """Every number of the summary of the campaign rows ``documents`` (``results.jsonl``
-    objects, read through lesmc.results.read.read_row)."""
+    objects, read through lesmc.results.campaign_row.read_row)."""
     rows = [read_row(d) for d in documents]
     by: dict[tuple[str, str], list[CampaignRow]] = defaultdict(list)
     for r in rows:

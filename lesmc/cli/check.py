@@ -131,9 +131,9 @@ def check_cmd(
     from lesmc.pipeline.job import Job
 
     parsed, source, is_scene = _inputs(model, specs, target_text, design, tracker_file)
-    _check_multi(source, parsed, is_scene, budget)  # a multi-target design: checked there (exits)
-    parsed, only = _swept(parsed, sweep_texts, only, source.meta if is_scene else None)
     report = _report_to(report_dir, frames_dir, model, source if is_scene else None)
+    _check_multi(source, parsed, is_scene, budget, report)  # multi-target: checked there (exits)
+    parsed, only = _swept(parsed, sweep_texts, only, source.meta if is_scene else None)
     job = Job(
         parsed,
         scene=source if is_scene else None,
@@ -357,12 +357,18 @@ def _given_flags(names: Iterable[str]) -> list[str]:
     return [f"--{n.replace('_', '-')}" for n in names if given(n)]
 
 
-def _check_multi(source: Any, parsed: tuple[SpecFile, ...], is_scene: bool, budget: Budget) -> None:
+def _check_multi(
+    source: Any,
+    parsed: tuple[SpecFile, ...],
+    is_scene: bool,
+    budget: Budget,
+    report: _ReportTo | None,
+) -> None:
     """A scene of a multi-target design (``--design`` or the scene's): checked by
     lesmc/cli/multi_check.py with the command's options within ``budget`` (its alarm set
-    once the options are known to be valid), which exits (``--report DIR``:
-    lesmc/report/multi.py draws its results); sweeps and faults are not supported for it
-    yet. Nothing happens otherwise."""
+    once the options are known to be valid), which exits (``--report DIR``, ``report``:
+    lesmc/report/multi.py draws its results, which record the scene's perception read
+    there); sweeps and faults are not supported for it yet. Nothing happens otherwise."""
     from lesmc.model.multi_format import is_multi
     from lesmc.pipeline.multi import DESIGN_IGNORES, preload
 
@@ -384,15 +390,17 @@ def _check_multi(source: Any, parsed: tuple[SpecFile, ...], is_scene: bool, budg
             f"{', '.join(ignored)} with a multi-target design: not supported yet (its exact "
             "search has one engine, bounded by --max-states and --timeout)"
         )
-    from lesmc.cli.multi_check import check_multi_scene
+    from lesmc.cli.multi_check import MultiReport, check_multi_scene
 
     sc = source if design is None else source.with_tracker(design=design)
     path = p["model"]
     sc = sc.priced(p["payoffs"], path)
-    report = None if p["report_dir"] is None else (p["report_dir"], p["frames_dir"])
+    to = None
+    if report is not None and report.perception is not None:  # a scene's: always
+        to = MultiReport(report.dir, report.frames_dir, report.perception)
     preload()
     arm_budget(budget)
-    check_multi_scene(sc, path, parsed, p["only"], p["as_json"], p["max_states"], report, budget)
+    check_multi_scene(sc, path, parsed, p["only"], p["as_json"], p["max_states"], to, budget)
 
 
 def _check_multi_model(

@@ -9,13 +9,19 @@ x, y, w, h); anything else is an error (exit status 2), as are the options a
 multi-target check does not take yet. ``--timeout`` bounds each property's check (the
 model's unfolding included): past it the property is ``unknown`` (exit status 3) with
 the bounds and the best attack found. ``--report DIR`` writes the results file and
-its report (lesmc/report/multi.py).
+its report (lesmc/report/multi.py); the results record what ``lesmc replay`` reruns, as
+``lesmc verify --design sort|gnn`` records it: the scene's ``perception`` (the front end's
+and the attack's settings, lesmc.perception.attack_settings ``scene_perception``) and the
+``meta`` that places the check's target on the scene file and names its property files
+(lesmc/experiment/multi_verify.py ``replay_meta``).
 """
 
 from __future__ import annotations
 
 import json
 import sys
+from dataclasses import dataclass
+from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 import click
@@ -28,7 +34,25 @@ from lesmc.scene import Scene
 if TYPE_CHECKING:
     from lesmc.common.budget import Budget
 
-__all__ = ["check_multi_file", "check_multi_scene", "multi_exit_status", "multi_results"]
+__all__ = [
+    "MultiReport",
+    "check_multi_file",
+    "check_multi_scene",
+    "multi_exit_status",
+    "multi_results",
+]
+
+
+@dataclass(frozen=True)
+class MultiReport:
+    """``--report DIR`` of a multi-target check: where the results file and the report go,
+    the frames for its images (``--frames``) and the scene's ``perception``, read before
+    the check (lesmc/cli/check.py ``_report_to``: a bad ``meta.frontend`` is an error
+    before the check's time is spent and before anything is written)."""
+
+    dir: str
+    frames_dir: str | None
+    perception: dict[str, Any]
 
 
 def check_multi_scene(
@@ -38,24 +62,30 @@ def check_multi_scene(
     only: tuple[str, ...],
     as_json: bool,
     max_states: int | None = None,
-    report: tuple[str, str | None] | None = None,
+    report: MultiReport | None = None,
     budget: Budget | None = None,
 ) -> None:
     """Check every property (or those named in ``only``) of ``specs`` on the multi-target
-    design of ``scene`` within ``budget``; print the results; with ``report``
-    (``--report DIR``, ``--frames``) write the results file and draw its report there;
-    exit with :func:`multi_exit_status`."""
+    design of ``scene`` (read from ``path``) within ``budget``; print the results; with
+    ``report`` (``--report DIR``, ``--frames``) write the results file, with what
+    ``lesmc replay`` reruns, and draw its report there; exit with
+    :func:`multi_exit_status`."""
     from lesmc.unfold.multi import composed
 
     draw = report is not None
     out = check_multi_design(scene, path, specs, only, max_states, draw, budget)
     kind = composed(scene, path).reference_kind()
-    doc = multi_document(scene.tracker.design, kind, out)
-    if report is not None:
+    if report is None:
+        doc = multi_document(scene.tracker.design, kind, out)
+    else:
+        from lesmc.experiment.multi_verify import replay_meta
         from lesmc.report.multi import write_multi_report
         from lesmc.report.publish import frames_reader
 
-        page = write_multi_report(doc, report[0], frames_reader(report[1]))
+        meta = replay_meta(scene, path, [Path(s.path) for s in specs], None)
+        doc = multi_document(scene.tracker.design, kind, out, meta)
+        doc["perception"] = report.perception  # as verify's (lesmc/experiment/multi_verify.py)
+        page = write_multi_report(doc, report.dir, frames_reader(report.frames_dir))
         click.echo(f"report: {page}", err=True)
     print_multi(doc, as_json)
     sys.exit(multi_exit_status(doc))

@@ -56,7 +56,8 @@ def replay_cmd(
     it records none, as said on stderr). With --detector
     FILE.toml (a detector file, docs/detectors.md) the attacks, the perturbed
     frames and the detections go through that file's network instead.
-    A multi-target design's results (lesmc-multi-check, verify --design sort|gnn):
+    A multi-target design's results (lesmc-multi-check: verify --design sort|gnn,
+    check --design sort|gnn --report DIR):
     the production tracker runs on the replayed detections and the replay is
     confirmed when the property is violated on that run with the model's target
     track ids (docs/trackers.md, "Replaying a multi-target counterexample"); they
@@ -65,9 +66,11 @@ def replay_cmd(
     is perturbed until N_dr accepts it; the front end runs with the settings the
     results' perception records (the defaults where it records none, as said on
     stderr).
-    Exit status (the verdicts after the replay, as lesmc check): 0 nothing violated,
-    1 some violation confirmed, 2 bad input, 3 some replay diverged (unknown) and
-    none confirmed, 4 internal error, 130 interrupted.
+    A point design's diverged replay whose run violates the property all the same is
+    violated "on the frames by another path" (docs/semantics.md). Exit status (the
+    verdicts after the replay, as lesmc check): 0 nothing violated, 1 some violation
+    confirmed or on the frames, 2 bad input, 3 some replay diverged (unknown) and none
+    violated, 4 internal error, 130 interrupted.
     """
     from lesmc.common.progress import deferred_bar
     from lesmc.replay.run import verdict_rows
@@ -76,7 +79,7 @@ def replay_cmd(
     from lesmc.results.read import results_of
 
     raw = load_results(results)
-    if raw.get("format") == "lesmc-multi-check":  # verify --design sort|gnn
+    if raw.get("format") == "lesmc-multi-check":  # verify or check --report, sort|gnn
         _multi(raw, results, frames_dir, prop, (nets_dir, detector_file, locator_file), as_json)
     doc = results_of(raw)
     frames_dir = _frames_of(frames_dir or doc.perception.frames)
@@ -204,6 +207,15 @@ def _table(rows: list[dict[str, Any]]) -> None:
             "-" if rp["step"] is None else str(rp["step"]),
             "-" if rp["max_error_px"] is None else f"{rp['max_error_px']:.3g}",
             r["verdict"],
-            escape_text(rp["reason"] or "-"),
+            escape_text(_reason(rp)),
         )
     console.print(table)
+
+
+def _reason(rp: dict[str, Any]) -> str:
+    """Why the replay diverged, and what its replayed run says of the property (a point
+    design's ``on_frames``: violated on the frames by another path, or not)."""
+    why = [rp["reason"] or "-"]
+    if "on_frames" in rp:
+        why.append(rp["on_frames"]["why"])
+    return "; ".join(why)

@@ -30,7 +30,7 @@ from lesmc.engines.space import (
 from lesmc.language.semantics import BoundProperty
 from lesmc.model import kernel
 from lesmc.model.arrays import reference_states
-from lesmc.model.growing import BATCH_WORK, GrowArray, GrowingModel
+from lesmc.model.growing import BATCH_WORK, GrowArray, GrowingModel, counted_batch
 
 #: Most states expanded together outside the window (bounds one batch's temporaries).
 BATCH = 65_536
@@ -201,11 +201,7 @@ class LazySpace(SpaceOps):
         state so far (``unmeasured`` before any state is expanded). Counted, not timed, so
         that the batches, and so the states a search or walk stopped between them has
         built, are the same on every run whatever the machine's load."""
-        done = self.cm.states_expanded
-        if done <= 0:
-            return unmeasured
-        per = max(self.cm.work / done, 1e-9)
-        return max(1, min(BATCH, int(BATCH_WORK / per) + 1))
+        return counted_batch(self.cm.work, self.cm.states_expanded, BATCH, unmeasured, BATCH_WORK)
 
     def _expand_batch(self, states: np.ndarray, k: int) -> None:
         """Expand ``states`` (all at step k) and sync the new arrays."""

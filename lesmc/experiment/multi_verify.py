@@ -124,12 +124,8 @@ def verify_multi(req: Request, rep: Reporter) -> MultiOutcome:
     meta = {
         **src.meta,
         "target": ex.target_text(scene),
-        "scene_target": target_to_dict(scene.target),  # what lesmc replay places on meta.scene
-        "properties": [str(p.resolve()) for p in paths],
-        "window": None if req.window is None else list(req.window),
+        **replay_meta(scene, req.scene_path, paths, req.window),
     }
-    if req.scene_path is not None:
-        meta["scene"] = str(Path(req.scene_path).resolve())
     doc = multi_document(design, composed(scene, where).reference_kind(), results, meta, timings)
     from lesmc.experiment.verify_results import perception_facts
 
@@ -141,6 +137,29 @@ def verify_multi(req: Request, rep: Reporter) -> MultiOutcome:
     files = {"scene.json": json_text(scene_to_dict(src.scene))} if src.new else {}
     report = write_multi_report(doc, req.out, ex.frame_reader(src.frames), files)
     return MultiOutcome(results, doc, report)
+
+
+def replay_meta(
+    scene: Scene,
+    scene_file: str | None,
+    properties: list[Path],
+    window: tuple[int, int] | None,
+) -> dict[str, Any]:
+    """What a ``lesmc-multi-check`` document's ``meta`` records for ``lesmc replay``
+    (:func:`replay_document` reads it): the target the check placed on the scene
+    (``scene_target``), the property files (``properties``), the window they were moved
+    to (``window``; None: as written) and the scene file the check read (``scene``; none
+    for ``scene_file`` None: verify's own perception, whose scene.json sits beside the
+    results). ``lesmc verify --design sort|gnn`` and ``lesmc check --design sort|gnn
+    --report DIR`` (lesmc/cli/multi_check.py) both record it."""
+    meta: dict[str, Any] = {
+        "scene_target": target_to_dict(scene.target),  # what lesmc replay places on meta.scene
+        "properties": [str(p.resolve()) for p in properties],
+        "window": None if window is None else list(window),
+    }
+    if scene_file is not None:
+        meta["scene"] = str(Path(scene_file).resolve())
+    return meta
 
 
 def refuse_points_for_boxes(detector: str, design: str) -> None:
@@ -262,9 +281,10 @@ def replay_document(
     bar: Bar,
 ) -> tuple[Outcome, str]:
     """``lesmc replay`` of a ``lesmc-multi-check`` document ``doc`` (read from ``path``, as
-    ``lesmc verify --design sort|gnn`` wrote it): its scene (``meta.scene``, else the
-    scene.json beside it) with the target the check placed (``meta.scene_target``), its
-    properties (``meta.properties``, moved to ``meta.window``),
+    ``lesmc verify --design sort|gnn`` or ``lesmc check --design sort|gnn --report`` wrote
+    it): its scene (``meta.scene``, else the scene.json beside it) with the target the
+    check placed (``meta.scene_target``), its properties (``meta.properties``, moved to
+    ``meta.window``),
     the frames (``frames_dir``, else the first of ``meta.video`` and ``perception.frames``
     that is a directory) and the networks; the replays and the frames' directory."""
     from lesmc.replay.multi import perception_settings, replay_multi

@@ -9,31 +9,17 @@ live in :mod:`.semantics`. Lines are counted at ``\n`` only, as lark does
 
 from __future__ import annotations
 
-import hashlib
 import math
-import re
-from collections.abc import Collection
-from contextlib import suppress
-from functools import cache
 from pathlib import Path
 from typing import Any
 
-from lark import (
-    Lark,
-    Tree,
-    UnexpectedCharacters,
-    UnexpectedEOF,
-    UnexpectedInput,
-    UnexpectedToken,
-)
-from lark import __version__ as lark_version
-from lark.grammar import Rule
-from lark.lexer import TerminalDef
+from lark import Tree, UnexpectedInput
 
-from lesmc.common.errors import Location, SpecError, source_line, split_lines
+from lesmc.common.errors import Location, SpecError, source_line
 from lesmc.common.fields import MAX_STEP
 from lesmc.common.files import read_text
 from lesmc.language import actions, measures, monitors
+from lesmc.language.lark_parser import TABLES, lalr_parser, tables_source
 from lesmc.language.properties import (
     Constraint,
     Fault,
@@ -46,36 +32,10 @@ from lesmc.language.properties import (
     SpecFile,
     StepRef,
 )
+from lesmc.language.syntax_errors import clip, keywords, syntax_error
 
 #: Most faults that may strike at once (``budget``): every combination is a check of its own.
 MAX_FAULT_BUDGET = 4
-
-#: Longest token text quoted in a message; longer tokens are clipped.
-_SHOWN_TOKEN = 24
-
-#: Readable names for grammar terminals in "expected ..." messages.
-_TERMINAL_NAMES = {
-    "NAME": "a name",
-    "INT": "a whole number",
-    "NUMBER": "a number",
-    "CMP": "a comparison (>, >=, <, <=)",
-    "MATRIX": "a matrix (F, H, Q or R)",
-    "FAULT_OP": "'*' (scale) or '=' (set)",
-    "NET": "a network (detector or locator)",
-    "HOLDS_CMP": "'>' or '>='",
-    "NORM": "1, 2 or inf",
-    "END": "'end'",
-    "PAYOFF_AGG": "'sum' or 'mean'",
-    "RANGE_AGG": "'sum' or 'max'",
-    "TAU_AGG": "'rise'",
-    "LBRACE": "'{'",
-    "RBRACE": "'}'",
-    "LPAR": "'('",
-    "RPAR": "')'",
-    "COMMA": "','",
-    "DOT": "'.'",
-    "$END": "end of file",
-}
 
 _REQUIRED = {
     "window": "'attack window L..U'",
@@ -85,59 +45,6 @@ _REQUIRED = {
 }
 
 
-def grammar_text() -> str:
-    """The grammar source: packaged copy when installed, else the repository's."""
-    packaged = Path(__file__).with_name("lesmc.lark")  # importlib.resources costs 50 ms
-    if packaged.is_file():
-        return packaged.read_text(encoding="utf-8")
-    repo = Path(__file__).resolve().parents[2] / "grammars" / "lesmc.lark"
-    return repo.read_text(encoding="utf-8")
-
-
-_LARK_OPTIONS: dict[str, Any] = {
-    "parser": "lalr",
-    "lexer": "contextual",
-    "propagate_positions": True,
-}
-_TABLES = Path(__file__).with_name("lark_tables.py")
-
-
-@cache
-def _parser() -> Lark:
-    """The LALR parser: loaded from :mod:`.lark_tables` (5 ms) when they were made
-    from this grammar by this lark, else built from the grammar (70 ms)."""
-    text = grammar_text()
-    from lesmc.language import lark_tables
-
-    if _grammar_key(text) == (lark_tables.GRAMMAR_SHA256, lark_tables.LARK_VERSION):
-        with suppress(Exception):  # a private lark API (as its standalone tool uses)
-            return Lark._load_from_dict(lark_tables.DATA, lark_tables.MEMO)  # type: ignore[no-untyped-call,no-any-return]
-    return Lark(text, **_LARK_OPTIONS)
-
-
-def _grammar_key(text: str) -> tuple[str, str]:
-    return hashlib.sha256(text.encode("utf-8")).hexdigest(), lark_version
-
-
-def tables_source() -> str:
-    """The source of :mod:`.lark_tables`, built now from the grammar."""
-    text = grammar_text()
-    built = Lark(text, **_LARK_OPTIONS)
-    data, memo = built.memo_serialize([TerminalDef, Rule])
-    digest, version = _grammar_key(text)
-    return (
-        '"""LALR tables of grammars/lesmc.lark, serialized by lark: generated, do not edit.\n\n'
-        "Made by ``python -m lesmc.language.parser``; loading them saves building the\n"
-        "parser at every start. They are used only while the grammar's hash and lark's\n"
-        'version match (tests/test_parser_tables.py checks that they are current)."""\n\n'
-        "from typing import Any\n\n"
-        f"GRAMMAR_SHA256 = {digest!r}\n"
-        f"LARK_VERSION = {version!r}\n"
-        f"DATA: dict[str, Any] = {data!r}\n"
-        f"MEMO: dict[Any, Any] = {memo!r}\n"
-    )
-
-
 def parse_spec(text: str, path: str = "<spec>", need_properties: bool = True) -> SpecFile:
     """Parse the text of a property file; raise :class:`SpecError` on any problem.
 
@@ -145,9 +52,9 @@ def parse_spec(text: str, path: str = "<spec>", need_properties: bool = True) ->
     ``need_properties=False`` admits a file of faults alone (``--faults FILE``)."""
     text = text.removeprefix("\ufeff")
     try:
-        tree = _parser().parse(text)
+        tree = lalr_parser().parse(text)
     except UnexpectedInput as exc:
-        raise _syntax_error(exc, text, path) from None
+        raise syntax_error(exc, text, path) from None
     builder = _Builder(text, path)
     nodes: list[Any] = tree.children
     props = tuple(builder.property(node) for node in nodes if node.data == "property")
@@ -189,97 +96,9 @@ def load_faults(path: str | Path) -> FaultSet:
     return spec.faults
 
 
-def _syntax_error(exc: UnexpectedInput, text: str, path: str) -> SpecError:
-    bare = _bare_allow(exc, text, path)
-    if bare is not None:
-        return bare
-    line = getattr(exc, "line", None) or 1
-    col = getattr(exc, "column", None) or 1
-    expected: Collection[str]
-    if isinstance(exc, UnexpectedEOF):
-        lines = split_lines(text)
-        line, col = len(lines), len(lines[-1]) + 1
-        found = "end of file"
-        expected = exc.expected
-    elif isinstance(exc, UnexpectedToken):
-        found = "end of file" if exc.token.type == "$END" else f"'{_clip(str(exc.token))}'"
-        expected = exc.accepts or exc.expected
-    elif isinstance(exc, UnexpectedCharacters):
-        found = f"'{exc.char}'"
-        expected = exc.allowed or set()
-    else:  # pragma: no cover - lark has no other subclasses
-        found, expected = "input", set()
-    names = sorted({_terminal_name(t) for t in expected})
-    message = f"unexpected {found}"
-    if names:
-        message += "; expected " + _join(names)
-    return SpecError(message, Location(path, line, col, source_line(text, line)))
-
-
 def _num_text(node: Tree[Any]) -> str:
     """A number as the spec wrote it (clipped)."""
-    return _clip(str(node.children[0]))
-
-
-#: ``allow``, the actions already listed (each followed by a comma), and what follows,
-#: up to where the parser stopped: a keyword or nothing
-_ALLOW_TAIL = re.compile(
-    r"\ballow(?P<gap>\s+)(?:[A-Za-z_][A-Za-z0-9_\-]*\s*,\s*)*"
-    r"(?P<word>[A-Za-z_][A-Za-z0-9_\-]*)?\s*$"
-)
-
-
-def _bare_allow(exc: UnexpectedInput, text: str, path: str) -> SpecError | None:
-    """``allow`` (or ``allow hide,``) followed by a keyword of the language (``allow end 5``,
-    which the lexer reads as an action named ``end``) or by no name at all (``allow }``,
-    ``allow hide,`` then ``minimize`` on the next line): "allow needs an
-    action" at the keyword or the token after ``allow``; None for any other error."""
-    if isinstance(exc, UnexpectedToken):
-        stop = len(text) if exc.token.type == "$END" else exc.token.start_pos
-    else:
-        stop = getattr(exc, "pos_in_stream", None)
-    if stop is None:
-        return None
-    m = _ALLOW_TAIL.search(text, 0, stop)
-    if m is None:
-        return None
-    word = m.group("word")
-    if word is not None and (word not in _keywords() or word in actions.names()):
-        return None
-    at = m.start("word") if word is not None else stop
-    line = text.count("\n", 0, at) + 1
-    col = at - (text.rfind("\n", 0, at) + 1) + 1
-    return SpecError(actions.needs_action(word), Location(path, line, col, source_line(text, line)))
-
-
-@cache
-def _keywords() -> frozenset[str]:
-    """The grammar's keywords (its string terminals that read as names)."""
-    out = set()
-    for t in _parser().terminals:
-        if t.pattern.type == "str" and str(t.pattern.value).isidentifier():
-            out.add(str(t.pattern.value))
-    return frozenset(out)
-
-
-def _terminal_name(name: str) -> str:
-    if name in _TERMINAL_NAMES:
-        return _TERMINAL_NAMES[name]
-    pattern = _parser().get_terminal(name).pattern if name in _terminals() else None
-    if pattern is not None and pattern.type == "str":
-        return f"'{pattern.value}'"
-    return name.lower()
-
-
-@cache
-def _terminals() -> frozenset[str]:
-    return frozenset(t.name for t in _parser().terminals)
-
-
-def _join(items: list[str]) -> str:
-    if len(items) <= 1:
-        return "".join(items)
-    return ", ".join(items[:-1]) + " or " + items[-1]
+    return clip(str(node.children[0]))
 
 
 class _Builder:
@@ -371,7 +190,7 @@ class _Builder:
             kind = str(what.children[0])
             if kind not in monitors.names():
                 raise self.error(
-                    f"unknown monitor '{_clip(kind)}'; the monitors are "
+                    f"unknown monitor '{clip(kind)}'; the monitors are "
                     f"{', '.join(monitors.names())} (or 'uncertainty', the tau_rise monitor)",
                     _pos(what),
                 )
@@ -434,7 +253,7 @@ class _Builder:
                 if value < 0 or value != int(value) or value > MAX_FAULT_BUDGET:
                     raise self.error(
                         f"the fault budget must be a whole number in 0..{MAX_FAULT_BUDGET}, "
-                        f"got {_clip(str(item.children[0].children[0]))}",
+                        f"got {clip(str(item.children[0].children[0]))}",
                         _pos(item.children[0]),
                     )
                 budget = int(value)
@@ -460,7 +279,7 @@ class _Builder:
             lo, hi = self.whole(ch[0]), self.step(ch[1])
             if lo < 1 or (hi is not None and hi < lo):
                 raise self.error(
-                    f"activation steps {lo}..{_clip(str(ch[1].children[0]))} must satisfy "
+                    f"activation steps {lo}..{clip(str(ch[1].children[0]))} must satisfy "
                     "1 <= from <= to",
                     _pos(node.children[2]),
                 )
@@ -521,7 +340,7 @@ class _Builder:
         (lesmc/language/actions.py, :func:`~lesmc.language.actions.allow_problem`)."""
         toks: list[Any] = node.children
         listed = [str(tok) for tok in toks]
-        problem = actions.allow_problem(listed, _keywords(), [_clip(n) for n in listed])
+        problem = actions.allow_problem(listed, keywords(), [clip(n) for n in listed])
         if problem is not None:
             i, message = problem
             raise self.error(message, _tok_pos(toks[i]))
@@ -562,12 +381,12 @@ class _Builder:
         digits = str(tok)
         if not (digits.isascii() and digits.isdigit()):  # the grammar admits only 0-9
             raise self.error(
-                f"a step must be written with digits 0-9, got '{_clip(digits)}'", _tok_pos(tok)
+                f"a step must be written with digits 0-9, got '{clip(digits)}'", _tok_pos(tok)
             )
         significant = digits.lstrip("0") or "0"  # int() refuses over 4300 digits
         if len(significant) > len(str(MAX_STEP)) or int(significant) > MAX_STEP:
             raise self.error(
-                f"step {_clip(digits)} is too large (steps are at most {MAX_STEP})", _tok_pos(tok)
+                f"step {clip(digits)} is too large (steps are at most {MAX_STEP})", _tok_pos(tok)
             )
         return int(significant)
 
@@ -591,14 +410,14 @@ class _Builder:
             tok = rest[0].children[0]
             raise self.error(
                 f"the attack radius must be positive (px around the target's reference), "
-                f"got {_clip(str(tok))}",
+                f"got {clip(str(tok))}",
                 _tok_pos(tok),
             )
         return r
 
     def number(self, node: Tree[Any], what: str) -> float:
         tok: Any = node.children[0]
-        shown = _clip(str(tok))
+        shown = clip(str(tok))
         if not str(tok).isascii():  # the grammar admits only 0-9
             raise self.error(
                 f"the {what} must be written with digits 0-9, got {shown}", _tok_pos(tok)
@@ -617,16 +436,9 @@ def _tok_pos(tok: Any) -> Pos:
     return Pos(tok.line, tok.column)
 
 
-def _clip(token: str) -> str:
-    """``token`` for a message: long ones (a 5000-digit number) shortened."""
-    if len(token) <= _SHOWN_TOKEN:
-        return token
-    return f"{token[: _SHOWN_TOKEN - 4]}... ({len(token)} characters)"
-
-
 if __name__ == "__main__":  # regenerate lark_tables.py after editing the grammar
-    _TABLES.write_text(tables_source(), encoding="utf-8")
-    print(f"wrote {_TABLES}")
+    TABLES.write_text(tables_source(), encoding="utf-8")
+    print(f"wrote {TABLES}")
 
 
 def _is_allow(node: Any) -> bool:

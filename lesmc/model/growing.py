@@ -20,14 +20,26 @@ from lesmc.model.kernel import combined_counts, combined_payoffs
 if TYPE_CHECKING:
     from lesmc.model.arrays import Tracks
 
-#: Seconds one batch of expansions should take at most: batches shrink for designs whose
-#: states are expensive (joint), so that a deadline is looked at often enough.
-BATCH_SECONDS = 0.05
-#: Work (GrowingModel.work) one batch of expansions on demand does at most (engines/lazy.py):
-#: about BATCH_SECONDS at about 1-2 µs a unit (a transition on ``single``, a track of an
+#: Work (GrowingModel.work) one batch of expansions does at most, on demand (engines/lazy.py)
+#: and in the eager build (unfold/unfold.py): batches shrink for designs whose states are
+#: expensive (joint), so that a deadline is looked at often enough; about 0.05 s at
+#: about 1-2 µs a unit (a transition on ``single``, a track of an
 #: examined row on ``joint``), counted rather than timed so that the batches, and what
 #: a budget looked at between them stops, are the same on every run.
 BATCH_WORK = 1 << 15
+
+
+def counted_batch(work: float, states: int, most: int, unmeasured: int, per_batch: int) -> int:
+    """How many states to expand next so that the batch does about ``per_batch`` work
+    (:data:`BATCH_WORK`, which each caller passes), at ``work`` per ``states`` expanded as
+    measured so far (``unmeasured`` when none is), at most ``most``. Counted, not timed:
+    the batches, and so the states a budget looked at between them stops at, are the same
+    on every run whatever the machine's load (the lazy model's batches, engines/lazy.py,
+    and the eager build's, unfold/unfold.py)."""
+    if states <= 0:
+        return unmeasured
+    per = max(work / states, 1e-9)
+    return max(1, min(most, int(per_batch / per) + 1))
 
 
 class GrowArray:

@@ -12,8 +12,10 @@ import numpy as np
 
 from lesmc.common.errors import InputError, Location, UsageError
 from lesmc.results.read import HiddenDoc as Hidden
-from lesmc.results.read import ResultsDoc, RunDoc, SceneDoc, number
-from lesmc.scene import Target, tracker_from_dict
+from lesmc.results.read import ResultsDoc, RunDoc, SceneDoc
+from lesmc.results.replay_measures import Judged, judged_measures
+from lesmc.results.result_doc import number
+from lesmc.scene import Detection, Frame, Scene, Target, tracker_from_dict
 
 if TYPE_CHECKING:
     from lesmc.perception.detector import FrameDetections
@@ -69,6 +71,14 @@ class Case:
     path_no: int = 0
     #: the detections the results record near the listed paths (``runs[run].scene``)
     recorded: SceneDoc | None = None
+    #: the property as a diverged replay judges it on the replayed run, or why it cannot
+    #: (lesmc/results/replay_measures.py; lesmc/replay/on_frames.py)
+    judged: Judged | str = "the results record no property for it"
+    #: the model's last step and its state components' names
+    end: int = 0
+    state_names: tuple[str, ...] = ()
+    #: the constraint as the results spell it (``dist.sum(0..end) > 120``)
+    constraint: str = ""
 
     @property
     def injects(self) -> bool:
@@ -104,6 +114,8 @@ class FrameAttack:
     shared: list[str] = field(default_factory=list)  # lost ids from a hidden one's N_dr window
     repaired_rounds: int = 0
     extra_cost: float = 0.0
+    #: the windows the repair perturbed (each counted once, as in ``extra_cost``)
+    extra_windows: int = 0
     injected: list[str] = field(default_factory=list)  # candidate ids injected
     not_injected: list[str] = field(default_factory=list)  # injected ids not detected after
     #: of those, the ids whose blob the perturbed frame no longer has (no candidate of its
@@ -185,6 +197,24 @@ def perturbation_record(
         out["action"] = "inject"
     out["delta"] = delta
     return out
+
+
+def footage(
+    dets: Mapping[int, FrameDetections], case: Case, attacked: Mapping[int, FrameDetections]
+) -> Scene:
+    """The scene of the frames' detections ``dets`` (the attacked frames' replaced by
+    ``attacked``'s), with the case's tracker: what the production tracker runs on."""
+    steps = sorted(dets)
+    frames = []
+    for k in steps:
+        fd = attacked.get(k, dets[k])
+        to_next = dets[k + 1].from_prev if k + 1 in dets else None
+        ds = tuple(
+            Detection(f"{k}:{j}", float(x), float(y), 1.0) for j, (x, y) in enumerate(fd.positions)
+        )
+        frames.append(Frame(k, ds, to_next))
+    tracker = tracker_from_dict(case.tracker, "results: replay_inputs.tracker")
+    return Scene(case.dt, tuple(frames), case.target, tracker, {})
 
 
 def cases(doc: ResultsDoc, prop: str | None = None) -> list[Case]:
@@ -270,4 +300,10 @@ def _case(run: RunDoc, i: int, j: int, cex_no: int) -> Case:
         tracker_kind=_tracker_kind(run),
         path_no=cex_no,
         recorded=run.scene,
+        judged="the results record no property for it"
+        if prop is None
+        else judged_measures(prop, res.objective_source, res.objective),
+        end=run.model.end,
+        state_names=run.model.components,
+        constraint=res.constraint,
     )

@@ -220,11 +220,12 @@ class _FileFrame:
         """A detection the model does not have, or an injected candidate not detected."""
         return bool(self._unwanted()) or bool(len(self._missing()))
 
-    def attack(self, towards: Towards) -> tuple[float, np.ndarray] | None:
+    def attack(self, towards: Towards) -> tuple[float, int, np.ndarray] | None:
         """``hide``: the detections the model does not have, each attacked as the first
         hiding was (:func:`_perturbations`) on the perturbed input; ``inject``: the
         candidates not detected, each raised again (``price_candidates``). The cost
-        (their payoffs) and the sum of the perturbations found (None: none)."""
+        (their payoffs), their number and the sum of the perturbations found (None:
+        none)."""
         now = self.x + self.total
         if towards == "hide":
             rows = self._unwanted()
@@ -235,7 +236,7 @@ class _FileFrame:
         if not found:
             return None
         more = sum((d for _, d in found), np.zeros_like(self.x))
-        return float(sum(pay for pay, _ in found)), more
+        return float(sum(pay for pay, _ in found)), len(found), more
 
     def apply(self, more: np.ndarray) -> None:
         """``more`` added to the input; the frame decoded again and diagnosed."""

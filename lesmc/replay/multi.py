@@ -64,6 +64,7 @@ from lesmc.replay.case import (
     hidden_by_frame,
 )
 from lesmc.replay.multi_cases import MultiCase, multi_cases
+from lesmc.replay.on_frames import frame_cost
 from lesmc.replay.perturbed import attack_frame
 from lesmc.replay.story import frame_story
 from lesmc.results.read import HiddenDoc as Hidden
@@ -321,7 +322,7 @@ def _chain(
     names = tuple(tuple(d.id for d in f.detections) for f in frames)
     hidden = [tuple(int(h.split(":")[1]) for h in s["hidden"]) for s in c.steps]
     acts = [len(s["hidden"]) + len(s.get("injected") or ()) for s in c.steps]
-    cost = [_cost(attacked.get(f.step)) for f in frames]
+    cost = [frame_cost(attacked.get(f.step)) for f in frames]
     refbox = [np.full(4, np.nan) if r is None else as_box(r) for r in refs]
     return MultiModel(
         step=np.arange(n, dtype=np.int64),
@@ -344,14 +345,6 @@ def _chain(
         target=me,
         detections=tuple(len(f.detections) for f in frames),
     )
-
-
-def _cost(fa: FrameAttack | None) -> float:
-    """The recomputed cost of a frame's attack: its perturbations' norms and the repair's."""
-    if fa is None:
-        return 0.0
-    norms = [float(p["payoff_recomputed"]) for p in fa.perturbations]
-    return float(sum(norms)) + fa.extra_cost
 
 
 def _verdict(

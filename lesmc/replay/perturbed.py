@@ -312,11 +312,13 @@ class _WindowFrame:
         unwanted = _unwanted(self.fd, self.after, self.idx, self.wanted)
         return bool(unwanted) or _missing(self.wanted, self.after)
 
-    def attack(self, towards: Towards) -> tuple[float, Round] | None:
-        """:func:`_rehide` or :func:`_reinject` on the perturbed frame."""
+    def attack(self, towards: Towards) -> tuple[float, int, Round] | None:
+        """:func:`_rehide` or :func:`_reinject` on the perturbed frame (and the number of
+        windows they perturb)."""
         act = _rehide if towards == "hide" else _reinject
         seen = (self.after, self.cands, self.frames)
-        return act(self.nets, seen, self.fd, self.idx, self.wanted, self.cfg)
+        got = act(self.nets, seen, self.fd, self.idx, self.wanted, self.cfg)
+        return None if got is None else (got[0], len(got[1][0]), got[1])
 
     def apply(self, more: Round) -> None:
         """``more`` added to the rounds, the frame detected again and diagnosed."""

@@ -6,9 +6,10 @@ detected), the replay repairs the attack: round after round, on the frame as eve
 perturbation so far leaves it, the detections the model does not have are attacked
 away, then the injected candidates that are not detected are attacked towards a
 detection, the frame detected again after each. :func:`run_repair` is that loop and its
-bookkeeping (``FrameAttack.repaired_rounds``, ``extra_cost``); a :class:`Repairable`
-says what is wrong with a frame and attacks it, through the window pipeline's
-detector (lesmc/replay/perturbed.py) or a detector file (lesmc/replay/detector_file.py).
+bookkeeping (``FrameAttack.repaired_rounds``, ``extra_cost``, ``extra_windows``); a
+:class:`Repairable` says what is wrong with a frame and attacks it, through the window
+pipeline's detector (lesmc/replay/perturbed.py) or a detector file
+(lesmc/replay/detector_file.py).
 """
 
 from __future__ import annotations
@@ -32,11 +33,12 @@ class Repairable(Protocol[P]):
         not detected."""
         ...
 
-    def attack(self, towards: Towards) -> tuple[float, P] | None:
+    def attack(self, towards: Towards) -> tuple[float, int, P] | None:
         """On the frame as it is now: ``hide``, every detection the model does not have
         attacked away; ``inject``, every injected candidate not detected attacked towards
-        a detection. The cost and the perturbations of the attacks that succeed alone
-        (None: nothing to attack, or no attack succeeds)."""
+        a detection. The cost, the number of windows (or detections) and the
+        perturbations of the attacks that succeed alone (None: nothing to attack, or no
+        attack succeeds)."""
         ...
 
     def apply(self, more: P) -> None:
@@ -50,7 +52,7 @@ def run_repair(fa: FrameAttack, frame: Repairable[P], limit: int) -> None:
     wrong (``hide`` then ``inject``, each applied and the frame detected again before the
     next); a round in which no attack succeeds ends the repair and is not counted, as
     does a frame with nothing wrong. Records the rounds and the cost of the extra
-    perturbations (each extra one at its own norm) into ``fa``."""
+    perturbations (each extra one at its own norm) and their number into ``fa``."""
     rounds = 0
     while rounds < limit and frame.wrong():
         hid = _step(fa, frame, "hide")
@@ -62,12 +64,13 @@ def run_repair(fa: FrameAttack, frame: Repairable[P], limit: int) -> None:
 
 
 def _step(fa: FrameAttack, frame: Repairable[P], towards: Towards) -> bool:
-    """One step of a repair round: ``frame``'s attack ``towards``, applied and its cost
-    added to ``fa.extra_cost``; whether it succeeded."""
+    """One step of a repair round: ``frame``'s attack ``towards``, applied, its cost added
+    to ``fa.extra_cost`` and its windows to ``fa.extra_windows``; whether it succeeded."""
     got = frame.attack(towards)
     if got is None:
         return False
-    cost, more = got
+    cost, windows, more = got
     fa.extra_cost += cost
+    fa.extra_windows += windows
     frame.apply(more)
     return True

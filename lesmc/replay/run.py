@@ -55,6 +55,7 @@ __all__ = [
     "replay_case",
     "replay_file",
     "shared_attacks",
+    "verdict_after",
     "verdict_rows",
 ]
 
@@ -70,6 +71,7 @@ from lesmc.common.errors import InputError, Location, UsageError
 from lesmc.common.memory import release
 from lesmc.model import kernel
 from lesmc.perception import DELTA_BC, HISTORY, NetFiles
+from lesmc.replay import on_frames
 from lesmc.replay.case import (
     DET_TOL_PX,
     PAYOFF_RTOL,
@@ -78,6 +80,7 @@ from lesmc.replay.case import (
     FrameAttack,
     Replayed,
     cases,
+    footage,
     group_by_case,
     hidden_by_frame,
 )
@@ -87,8 +90,9 @@ from lesmc.replay.perturbed import attack_frame
 from lesmc.replay.story import frame_story
 from lesmc.results.document import record_replays
 from lesmc.results.read import HiddenDoc as Hidden
-from lesmc.results.read import ResultsDoc, read_replay
-from lesmc.scene import Detection, Frame, Scene, tracker_from_dict
+from lesmc.results.read import ResultsDoc
+from lesmc.results.result_doc import ReplayDoc, read_replay
+from lesmc.scene import Scene
 from lesmc.tracking.monitor import track
 from lesmc.tracking.trackers import make_tracker
 
@@ -104,22 +108,6 @@ if TYPE_CHECKING:
 
 
 # ---------------------------------------------------------------- the tracker
-
-
-def _footage(dets: dict[int, FrameDetections], case: Case, attacked: dict[int, FrameDetections]):  # type: ignore[no-untyped-def]
-    """The scene of the replayed detections (attacked frames replaced), the case's tracker."""
-
-    steps = sorted(dets)
-    frames = []
-    for k in steps:
-        fd = attacked.get(k, dets[k])
-        to_next = dets[k + 1].from_prev if k + 1 in dets else None
-        ds = tuple(
-            Detection(f"{k}:{j}", float(x), float(y), 1.0) for j, (x, y) in enumerate(fd.positions)
-        )
-        frames.append(Frame(k, ds, to_next))
-    tracker = tracker_from_dict(case.tracker, "results: replay_inputs.tracker")
-    return Scene(case.dt, tuple(frames), case.target, tracker, {})
 
 
 def _compare(
@@ -404,7 +392,8 @@ def replay_case(
 ) -> dict[str, Any]:
     """One counterexample: the tracker on the frames' detections with the attacked frames'
     ones, compared with the model's path; a repaired attack that costs enough for the
-    property to hold (Eq. 5 + the repair) is no counterexample."""
+    property to hold (Eq. 5 + the repair) is no counterexample. A diverged one is judged on
+    the replayed run (lesmc/replay/on_frames.py: ``on_frames``)."""
 
     first = c.first_frame
     if c.injects and c.derived and c.objective_is_payoff and math.isfinite(c.optimum):
@@ -417,7 +406,7 @@ def replay_case(
                 Location("--frames"),
             )
     dets = {k: v for k, v in clean.items() if first <= k <= first + len(c.positions) - 1}
-    scene = _footage(dets, c, {k: fa.detections for k, fa in attacked.items()})
+    scene = footage(dets, c, {k: fa.detections for k, fa in attacked.items()})
     points = track(make_tracker(scene), len(c.positions) - 1)
     got = _compare(c, points, scene, attacked)
     fas = list(attacked.values())
@@ -433,7 +422,7 @@ def replay_case(
                 reason=f"the repaired joint attack replays, but costs {cost:.4g}: the property "
                 f"holds for it (optimum {c.holds_op} {c.threshold:g})",
             )
-    return {
+    out = {
         "status": got.status,
         "step": got.step,
         "max_error_px": got.max_error_px,
@@ -444,6 +433,9 @@ def replay_case(
         "tolerance_px": {"detection": DET_TOL_PX, "track": TRACK_TOL_PX},
         "perturbations": [p for fa in fas for p in fa.perturbations],
     }
+    if got.status == "diverged":  # another path: does it violate the property all the same?
+        out["on_frames"] = on_frames.judge(c, clean, attacked)
+    return out
 
 
 def shared_attacks(
@@ -524,6 +516,14 @@ def replay_file(
     return replay(doc, frames, loaded, prop, on_frame=bar.advance)
 
 
+def verdict_after(rp: ReplayDoc) -> str:
+    """A violated counterexample's verdict after its replay: ``violated`` when it replays
+    ``confirmed`` or its replayed run violates the property all the same (``on_frames``:
+    another path), else ``unknown``."""
+    on = rp.on_frames
+    return "violated" if rp.status == "confirmed" or (on is not None and on.violated) else "unknown"
+
+
 def verdict_rows(
     doc: ResultsDoc, outcome: Outcome, prop: str | None
 ) -> tuple[list[dict[str, Any]], set[str]]:
@@ -533,7 +533,7 @@ def verdict_rows(
     verdicts: set[str] = set()
     for c in cases(doc, prop):
         obj = outcome.replays[(c.run, c.result)]
-        verdict = "violated" if read_replay(obj).status == "confirmed" else "unknown"
+        verdict = verdict_after(read_replay(obj))
         verdicts.add(verdict)
         rows.append(
             {

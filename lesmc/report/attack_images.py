@@ -17,7 +17,8 @@ from lesmc.report.figure_cache import FigureSet
 from lesmc.report.figures import ImageFor
 from lesmc.report.pages import Cell, Figure, Markup, Text, para, table
 from lesmc.report.run_view import RunView, number
-from lesmc.results.read import HiddenEntry, Perturbation
+from lesmc.results.read import HiddenEntry
+from lesmc.results.result_doc import Perturbation
 
 
 def patches(run: RunView, figs: FigureSet, image_for: ImageFor | None, payoffs: str) -> list[Any]:
@@ -193,11 +194,18 @@ def _replay_lines(run: RunView) -> list[Text]:
                 "<b>confirmed</b>{}: the real detector and tracker take the same "
                 "detections; largest position error {} px"
             ).format(how, f"{rp.max_error_px:.3g}")
+        elif rp.on_frames is not None and rp.on_frames.violated:
+            text = Markup(
+                "<b>diverged</b>{} at step {}: {}; but the replayed run is real: {}, and the "
+                "verdict is violated"
+            ).format(how, rp.step, rp.reason, rp.on_frames.why)
         else:
             text = Markup(
                 "<b>diverged</b>{} at step {}: {}; the "
-                "counterexample is no proof of violation and the verdict is unknown"
-            ).format(how, rp.step, rp.reason)
+                "counterexample is no proof of violation and the verdict is unknown{}"
+            ).format(
+                how, rp.step, rp.reason, "" if rp.on_frames is None else f" ({rp.on_frames.why})"
+            )
         items.append(Markup("{}: {}").format(r.property, text))
     if not items:
         return []

@@ -28,7 +28,8 @@ from lesmc.report.run_view import (
     verdict_of,
 )
 from lesmc.report.text import not_replayed_text
-from lesmc.results.read import ResultDoc, RunDoc, SceneDoc
+from lesmc.results.read import RunDoc, SceneDoc
+from lesmc.results.result_doc import ResultDoc
 
 #: Table 3 lists at most this many paths (those with a role first).
 MAX_TABLE_ROWS = 60

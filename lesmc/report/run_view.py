@@ -12,7 +12,8 @@ import numpy as np
 from lesmc.engines.result import verdict_words
 from lesmc.report.text import optimum_cell
 from lesmc.results.document import ATTACK_PAYOFF
-from lesmc.results.read import Num, ResultDoc, ResultsDoc, RunDoc
+from lesmc.results.read import ResultsDoc, RunDoc
+from lesmc.results.result_doc import Num, ResultDoc
 
 
 def number(x: Num | None) -> float:

@@ -107,6 +107,10 @@ def print_runs(console: Console, title: str, runs: Sequence[DesignRun]) -> None:
     }
     for command in commands:
         console.print(escape_text(not_replayed_text(command)))
+    for run in runs:  # a diverged replay whose replayed run violates all the same
+        for r in run.results:
+            if r.replay == "diverged" and r.verdict == "violated" and r.notes:
+                console.print(escape_text(f"{run.label}, {r.property}: {r.notes[-1]}"))
 
 
 def not_replayed_text(command: str | None) -> str:

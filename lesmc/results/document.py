@@ -557,14 +557,19 @@ def record_replays(
 ) -> None:
     """Record each replay object (lesmc/replay/run.py) of result ``(run, result)`` in the
     document (and in the typed ``results`` it was written from, if given): the status, and
-    for a diverged counterexample (no proof) the verdict ``unknown`` with a note; the
-    model's optimum stays in the bounds."""
+    for a diverged counterexample (no proof) the verdict ``unknown`` with a note, unless its
+    replayed run violates the property all the same (``on_frames``: ``violated``, with a
+    note); the model's optimum stays in the bounds."""
     for (i, j), obj in replays.items():
         res = doc["runs"][i]["results"][j]
         res["replay"] = obj
         if obj["status"] == "diverged" and res["verdict"] == "violated":
-            res["verdict"] = "unknown"
-            res["notes"].append(diverged_note(res["optimum"], obj))
+            on = obj.get("on_frames") or {}
+            if on.get("violated"):  # another path, real and costed: lesmc/replay/on_frames.py
+                res["notes"].append(f"{on['why']} (the path diverges at step {obj['step']})")
+            else:
+                res["verdict"] = "unknown"
+                res["notes"].append(diverged_note(res["optimum"], obj))
         res["status"] = status_word(res["verdict"], res["vacuous"], obj["status"])
         if results is not None:
             run = results.runs[i]
@@ -578,9 +583,11 @@ def record_replays(
 
 
 def diverged_note(optimum: Any, obj: Mapping[str, Any]) -> str:
-    """The note of a result whose counterexample did not replay."""
+    """The note of a result whose counterexample did not replay (and what its replayed run
+    says of the property, when judged: ``on_frames``)."""
+    on = obj.get("on_frames")
     return (
         f"unknown: the model's counterexample (optimum {optimum}) did not replay through the "
         f"detector and tracker; it diverges at step {obj['step']} ({obj['reason']}); "
-        "not a proof of violation"
+        "not a proof of violation" + ("" if on is None else f"; {on['why']}")
     )

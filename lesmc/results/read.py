@@ -5,7 +5,9 @@ The documents stay the file format (``results.json``, written by
 lesmc/results/document.py; a campaign's ``results.jsonl`` rows, written by
 lesmc/campaign/work.py). Their schemas (lesmc/schemas) have validated them
 before they come here: the functions below only convert, and each key of a
-document is spelled once, in this module.
+document is spelled once, in this module or in the two it is split into: one
+property's result (lesmc/results/result_doc.py) and a campaign's row
+(lesmc/results/campaign_row.py).
 """
 
 from __future__ import annotations
@@ -17,66 +19,8 @@ from pathlib import Path
 from typing import Any
 
 from lesmc.results.load import load_results
+from lesmc.results.result_doc import Num, ResultDoc, number, read_result
 from lesmc.scene import Target as SceneTarget
-
-#: A number as the documents write it: a JSON number, "inf"/"-inf", or "unknown" (optima).
-Num = float | int | str
-
-
-@dataclass(frozen=True)
-class Target:
-    """A campaign target: its position (pixels) at step ``step``."""
-
-    step: int
-    x: float
-    y: float
-
-    def to_dict(self) -> dict[str, Any]:
-        """The target as the row writes it."""
-        return {"step": self.step, "x": self.x, "y": self.y}
-
-
-@dataclass(frozen=True)
-class CampaignRow:
-    """One line of a campaign's ``results.jsonl`` (lesmc/schemas/campaign-row.json): what the
-    summary reads of it. ``optimum`` as written (a number, "inf" or "unknown");
-    ``payoffs`` None for the attack's payoffs (the row omits it)."""
-
-    key: str
-    video: str
-    target: Target
-    window: tuple[int, int]
-    design: str
-    property: str
-    verdict: str
-    status: str
-    vacuous: bool
-    optimum: Num
-    payoffs: str | None
-    objective_source: str | None
-    attacked_frames: int | None
-
-
-def read_row(row: Mapping[str, Any]) -> CampaignRow:
-    """The typed row of a (validated) ``results.jsonl`` object."""
-    t = row["target"]
-    w = row["window"]
-    return CampaignRow(
-        key=row["key"],
-        video=row["video"],
-        target=Target(step=t["step"], x=t["x"], y=t["y"]),
-        window=(w[0], w[1]),
-        design=row["design"],
-        property=row["property"],
-        verdict=row["verdict"],
-        status=row["status"],
-        vacuous=bool(row.get("vacuous", False)),
-        optimum=row["optimum"],
-        payoffs=row.get("payoffs"),
-        objective_source=row.get("objective_source"),
-        attacked_frames=row.get("attacked_frames"),
-    )
-
 
 # ---------------------------------------------------------------- results.json
 
@@ -90,71 +34,6 @@ class Perception:
     nets: str | None
     frames: str | None
     attack: Mapping[str, Any]
-
-
-@dataclass(frozen=True)
-class Perturbation:
-    """What a replay's attack added to one hidden detection's N_dr window
-    (``replay.perturbations[]``): the window's origin, the payoff recomputed on the frames and
-    the perturbation, (m+1, 21, 21), oldest channel first."""
-
-    obs: str
-    window_origin: tuple[int, ...]
-    payoff_recomputed: Num
-    delta: list[Any]
-
-
-@dataclass(frozen=True)
-class ReplayDoc:
-    """A result's replay (``replay``): its status, where and why it diverged, how the attack
-    went, and (not replayed) the command that replays it."""
-
-    status: str
-    step: int | None
-    reason: str | None
-    max_error_px: float | None
-    attack: str | None
-    command: str | None
-    perturbations: tuple[Perturbation, ...]
-
-
-@dataclass(frozen=True)
-class Stats:
-    """How a property's search went (``stats``)."""
-
-    engine: str
-    states_expanded: int
-    seconds: float
-    stopped: str
-
-
-@dataclass(frozen=True)
-class ResultDoc:
-    """One property's result in a design run (``runs[].results[]``). Numbers as written (a
-    number, "inf", "-inf"; ``optimum`` also "unknown"); ``payoffs`` the payoff mode;
-    ``counterexample`` and ``witness``: their paths' deviations per step (None: no path)."""
-
-    property: str
-    verdict: str
-    status: str
-    vacuous: bool
-    optimum: Num
-    bounds: tuple[Num, Num]
-    threshold: float
-    holds_op: str
-    holds_if: str
-    objective: str
-    objective_source: str
-    constraint: str
-    payoffs: str
-    witness_value: Num | None
-    is_counterexample: bool | None
-    counterexample: tuple[Num, ...] | None
-    witness: tuple[Num, ...] | None
-    original_alarms: tuple[int, ...] | None
-    notes: tuple[str, ...]
-    stats: Stats
-    replay: ReplayDoc | None
 
 
 @dataclass(frozen=True)
@@ -296,6 +175,12 @@ class PropertyDoc:
     actions: tuple[str, ...] = ("hide",)
     #: whether the property injects on an ``inject grid`` (a modelling device: not replayed)
     inject_grid: bool = False
+    #: the constraint's comparison (None: not recorded), Eq. 4's norm, the state
+    #: components the deviation reads and the attack window L..U (None: not recorded)
+    constraint_op: str | None = None
+    norm: float = 2.0
+    components: tuple[str, ...] = ()
+    window: tuple[int, ...] | None = None
 
 
 @dataclass(frozen=True)
@@ -433,78 +318,6 @@ class ResultsDoc:
     design_search: DesignSearch | None = None
 
 
-def number(x: Num) -> float:
-    """A number as the documents write it: "inf" and "-inf" are infinite."""
-    if x == "inf":
-        return math.inf
-    if x == "-inf":
-        return -math.inf
-    return float(x)
-
-
-def _replay(obj: Mapping[str, Any]) -> ReplayDoc:
-    return ReplayDoc(
-        status=obj["status"],
-        step=obj.get("step"),
-        reason=obj.get("reason"),
-        max_error_px=obj.get("max_error_px"),
-        attack=obj.get("attack"),
-        command=obj.get("command"),
-        perturbations=tuple(
-            Perturbation(
-                obs=p["obs"],
-                window_origin=tuple(p["window_origin"]),
-                payoff_recomputed=p["payoff_recomputed"],
-                delta=p["delta"],
-            )
-            for p in obj.get("perturbations", [])
-        ),
-    )
-
-
-def read_replay(obj: Mapping[str, Any]) -> ReplayDoc:
-    """The typed replay object of a result (lesmc/replay/run.py writes them)."""
-    return _replay(obj)
-
-
-def _deviation(path: Mapping[str, Any] | None) -> tuple[Num, ...] | None:
-    return None if path is None else tuple(path["deviation"])
-
-
-def _result(res: Mapping[str, Any]) -> ResultDoc:
-    rp = res["replay"]
-    st = res["stats"]
-    alarms = res["original_alarms"]
-    return ResultDoc(
-        property=res["property"],
-        verdict=res["verdict"],
-        status=res["status"],
-        vacuous=bool(res["vacuous"]),
-        optimum=res["optimum"],
-        bounds=(res["bounds"]["lower"], res["bounds"]["upper"]),
-        threshold=float(res["threshold"]),
-        holds_op=res["holds_op"],
-        holds_if=res["holds_if"],
-        objective=res["objective"],
-        objective_source=res["objective_source"],
-        constraint=res["constraint"],
-        payoffs=res["payoffs"],
-        witness_value=res["witness_value"],
-        is_counterexample=res.get("is_counterexample"),
-        counterexample=_deviation(res["counterexample"]),
-        witness=_deviation(res["witness"]),
-        original_alarms=None if alarms is None else tuple(alarms),
-        notes=tuple(res["notes"]),
-        stats=Stats(
-            engine=st["engine"],
-            states_expanded=st["states_expanded"],
-            seconds=st["seconds"],
-            stopped=st["stopped"],
-        ),
-        replay=None if rp is None else _replay(rp),
-    )
-
-
 def _path(p: Mapping[str, Any]) -> PathDoc:
     return PathDoc(
         no=p["no"],
@@ -578,6 +391,10 @@ def _property(p: Mapping[str, Any]) -> PropertyDoc:
         bound=float(p["bound"]),
         actions=tuple(p.get("actions", ("hide",))),
         inject_grid=p.get("inject_grid") is not None,
+        constraint_op=p.get("constraint_op"),
+        norm=number(p.get("norm", 2.0)),
+        components=tuple(p.get("components", ())),
+        window=tuple(p["window"]) if "window" in p else None,
         monitor=None
         if mon is None
         else Monitor(
@@ -609,7 +426,7 @@ def _run(run: Mapping[str, Any]) -> RunDoc:
         ),
         window=(int(run["window"][0]), int(run["window"][1])),
         properties=tuple(_property(p) for p in run["properties"]),
-        results=tuple(_result(r) for r in run["results"]),
+        results=tuple(read_result(r) for r in run["results"]),
         original=roles["original"],
         counterexamples=tuple(roles["counterexample"]),
         witnesses=tuple(roles["witness"]),
@@ -627,7 +444,7 @@ def _run(run: Mapping[str, Any]) -> RunDoc:
             frames_offset=int(rp.get("frames_offset", 0)),
         ),
         faults=tuple(
-            (_property(f["property"]), _result(f["result"])) for f in run.get("faults", [])
+            (_property(f["property"]), read_result(f["result"])) for f in run.get("faults", [])
         ),
     )
 

@@ -125,9 +125,10 @@ def _siblings(value: Any, sch: dict[str, Any], root: dict[str, Any], where: str)
     """Where ``value`` breaks the checks of ``sch`` other than ``type`` and its forms."""
     at = where or "(document)"
     out: list[str] = []
-    if "const" in sch and value != sch["const"]:
+    # equal as JSON Schema reads them: 1 and 1.0 are, true and 1 (or false and 0) are not
+    if "const" in sch and _canonical(value) != _canonical(sch["const"]):
         out.append(f"{at}: must be {sch['const']!r}")
-    if "enum" in sch and value not in sch["enum"]:
+    if "enum" in sch and _canonical(value) not in {_canonical(e) for e in sch["enum"]}:
         out.append(f"{at}: must be one of {', '.join(map(repr, sch['enum']))}")
     out += _bounds(value, sch, at)
     if "pattern" in sch and isinstance(value, str) and not re.search(sch["pattern"], value):

@@ -19,14 +19,13 @@ coinciding ones. Following stormpy: ``build_model(scene, ...)``, then
 
 from __future__ import annotations
 
-import time
 from collections.abc import Callable
 
 import numpy as np
 
 from lesmc.common.errors import UsageError
 from lesmc.model.arrays import ArrayModel, Tracks
-from lesmc.model.growing import BATCH_SECONDS, Expansion, GrowingModel
+from lesmc.model.growing import BATCH_WORK, Expansion, GrowingModel, counted_batch
 from lesmc.scene import Scene
 from lesmc.tracking.design import Batch, Design, PayloadStore
 from lesmc.tracking.single import grid_point_name
@@ -262,8 +261,10 @@ def build_model(
     """The whole LTS of ``scene`` for attacks in ``window`` = (l, u), up to step ``end``.
 
     Level by level: every state of step k is expanded (in batches of at most
-    :data:`EAGER_BATCH`, fewer when states are slow to expand: about
-    :data:`~lesmc.engines.lazy.BATCH_SECONDS` each) before any of step k + 1.
+    :data:`EAGER_BATCH`, fewer when states do much work to expand: about
+    :data:`~lesmc.model.growing.BATCH_WORK` each, at the last batch's work per state,
+    counted and not timed, so that where a budget stops the build is the same on every
+    run whatever the machine's load) before any of step k + 1.
     ``on_level(step, states)`` is called after each step (for progress bars),
     ``on_batch(model)`` before each batch (budgets: it raises to stop).
     With ``max_states`` (the caller's budget, enforced by ``on_batch``) batches
@@ -289,12 +290,11 @@ def build_model(
                 on_batch(model)
             n = cap if max_states is None else _room(max_states - model.n_states, fan, cap)
             batch = live[lo : lo + n]
-            t0, made = time.perf_counter(), model.n_states
+            work, made = model.work, model.n_states
             model.expand(batch, k)
-            took = (time.perf_counter() - t0) / len(batch)
             fan = max(fan, (model.n_states - made) / len(batch))
             lo += n
-            cap = max(1, min(EAGER_BATCH, int(BATCH_SECONDS / max(took, 1e-9)) + 1))
+            cap = counted_batch(model.work - work, len(batch), EAGER_BATCH, EAGER_BATCH, BATCH_WORK)
         frontier = np.arange(before, model.n_states, dtype=np.int64)
         if on_level is not None:
             on_level(k + 1, model.n_states)
