@@ -14,8 +14,14 @@ with a detector file is replayed through that file's network instead:
 4. the tracker runs over the replayed detections and its track is compared with
    the counterexample's, as run.py does: ``confirmed`` or ``diverged``.
 
-No repair is tried: perturbations of a frame add up in the input, and the
-replay says whether their sum still hides every hidden detection.
+When the sum of a frame's perturbations does not leave the detections the model has
+(a hidden detection survives, an extra one appears, an injected candidate is not
+detected), the attack is repaired as the window pipeline's is (docs/semantics.md,
+"Repaired attack"; the loop is lesmc/replay/repair.py's): up to REPAIR_ROUNDS rounds,
+each attacking, on the input as every perturbation so far leaves it, the detections
+the model does not have (the same hiding attack, heatmap or boxes), then raising the
+injected candidates not detected (``price_candidates``), the frame decoded after each
+(:class:`_FileFrame`); the extra payoffs are the ``repair_cost``.
 
 Under ``allow hide, inject`` (heatmap files; issue 61) the attack of each window step is
 derived from the path as lesmc/replay/inject.py does for the window pipeline
@@ -37,6 +43,7 @@ from lesmc.common.errors import InputError, Location, UsageError
 from lesmc.replay.case import (
     DET_TOL_PX,
     PERTURBATION_DIGITS,
+    REPAIR_ROUNDS,
     Case,
     FrameAttack,
     cases,
@@ -48,6 +55,7 @@ from lesmc.replay.case import (
 from lesmc.replay.inject import inject_by_frame, single_forcing
 from lesmc.replay.joint_forcing import derive_joint
 from lesmc.replay.perturbed import hidden_indices
+from lesmc.replay.repair import run_repair
 from lesmc.replay.run import Outcome, check_known, replay_case
 from lesmc.results.read import HiddenDoc as Hidden
 from lesmc.results.read import ResultsDoc
@@ -55,6 +63,7 @@ from lesmc.results.read import ResultsDoc
 if TYPE_CHECKING:
     from lesmc.common.progress import Bar
     from lesmc.perception.attack_settings import AttackConfig
+    from lesmc.perception.attacks import Towards
     from lesmc.perception.detector_file import LoadedDetector
 
 
@@ -180,10 +189,98 @@ def attack_frame(
         if delta is not None:
             total += delta
         fa.perturbations.append(_record(h, clean, j, pay, delta))
-    after = _decode(det, x + total, clean.index)
-    _diagnose(det, fa, clean, after, idx)
-    fa.detections = after  # type: ignore[assignment]  # Decoded has what the tracker reads
+    frame = _FileFrame(det, (x, total), clean, fa, idx, cfg)
+    run_repair(fa, frame, REPAIR_ROUNDS)
+    fa.detections = frame.after  # type: ignore[assignment]  # Decoded has what it reads
     return fa
+
+
+class _FileFrame:
+    """A frame through a detector file as :func:`~lesmc.replay.repair.run_repair` sees
+    it: the network input ``x`` plus the perturbations so far (``total``), decoded and
+    compared with the ``clean`` frame; ``idx`` the hidden detections, ``wanted`` the
+    injected candidates' cells ((c, 2); None: nothing injected)."""
+
+    def __init__(
+        self,
+        det: LoadedDetector,
+        inputs: tuple[np.ndarray, np.ndarray],
+        clean: Decoded,
+        fa: FrameAttack,
+        idx: list[int],
+        cfg: AttackConfig,
+        wanted: np.ndarray | None = None,
+    ) -> None:
+        self.det, (self.x, self.total), self.clean, self.fa = det, inputs, clean, fa
+        self.idx, self.cfg, self.wanted = idx, cfg, wanted
+        self.after = clean
+        self.apply(np.zeros_like(self.x))
+
+    def wrong(self) -> bool:
+        """A detection the model does not have, or an injected candidate not detected."""
+        return bool(self._unwanted()) or bool(len(self._missing()))
+
+    def attack(self, towards: Towards) -> tuple[float, int, np.ndarray] | None:
+        """``hide``: the detections the model does not have, each attacked as the first
+        hiding was (:func:`_perturbations`) on the perturbed input; ``inject``: the
+        candidates not detected, each raised again (``price_candidates``). The cost
+        (their payoffs), their number and the sum of the perturbations found (None:
+        none)."""
+        now = self.x + self.total
+        if towards == "hide":
+            rows = self._unwanted()
+            got = _perturbations(self.det, now, self.after, rows, self.cfg) if rows else {}
+            found = list(got.values())
+        else:
+            found = _raise(self.det, now, self.after, self._missing(), self.cfg)
+        if not found:
+            return None
+        more = sum((d for _, d in found), np.zeros_like(self.x))
+        return float(sum(pay for pay, _ in found)), len(found), more
+
+    def apply(self, more: np.ndarray) -> None:
+        """``more`` added to the input; the frame decoded again and diagnosed."""
+        self.total = self.total + more
+        self.after = _decode(self.det, self.x + self.total, self.clean.index)
+        _diagnose(self.det, self.fa, self.clean, self.after, self.idx, self.wanted)
+
+    def _unwanted(self) -> list[int]:
+        """Rows of the perturbed frame's detections within DET_TOL_PX of no clean detection
+        the attack keeps, and not at an injected candidate's cell."""
+        a, b = self.clean.positions, self.after.positions
+        keep = a[[j for j in range(len(a)) if j not in set(self.idx)]]
+        out = []
+        for q in range(len(b)):
+            if len(keep) and float(np.hypot(*(keep - b[q]).T).min()) <= DET_TOL_PX:
+                continue
+            if self.wanted is not None and (self.wanted == self.after.raw.cells[q]).all(1).any():
+                continue
+            out.append(q)
+        return out
+
+    def _missing(self) -> np.ndarray:
+        """The cells of ``wanted`` without a detection of the perturbed frame."""
+        if self.wanted is None:
+            return np.zeros((0, 2), np.int64)
+        got = self.after.raw.cells
+        hit = [bool((got == c).all(axis=1).any()) for c in self.wanted]
+        out: np.ndarray = self.wanted[~np.array(hit, bool)]
+        return out
+
+
+def _raise(
+    det: LoadedDetector, x: np.ndarray, now: Decoded, cells: np.ndarray, cfg: AttackConfig
+) -> list[tuple[float, np.ndarray]]:
+    """Each of ``cells`` raised to a detection on input ``x`` (``price_candidates``, as an
+    injection is priced): (payoff, perturbation) of those it finds a perturbation for."""
+    from lesmc.perception.heatmap_attack import price_candidates, pricing
+
+    if not len(cells):
+        return []
+    deltas: dict[int, np.ndarray] = {}
+    one = replace(now.raw, cand_cells=cells, cand_keys=np.arange(len(cells)))
+    pays = price_candidates(pricing(det, cfg), x, one, lambda k, d: deltas.__setitem__(k, d))
+    return [(float(pays[k]), d) for k, d in sorted(deltas.items())]
 
 
 def _perturbations(
@@ -252,6 +349,7 @@ def _diagnose(
     lost or moved, extra detections (not those at a cell of ``wanted``, (c, 2) the
     injected candidates' cells)."""
     a, b = clean.positions, after.positions
+    fa.still, fa.lost, fa.moved, fa.extra = [], [], [], []  # a repair diagnoses again
     for j in range(len(a)):
         d = np.hypot(*(b - a[j]).T) if len(b) else np.zeros(0)
         near = float(d.min()) if len(d) else math.inf
@@ -301,8 +399,24 @@ def inject_frame(
     ``single``: :func:`~lesmc.replay.inject.single_forcing`), each detection's hiding and
     each candidate's raising above the threshold (lesmc/perception/heatmap_attack.py)
     recomputed on frame input ``x``, added together, the frame decoded again."""
-    fa = FrameAttack(clean.index, step, clean)  # type: ignore[arg-type]
     hidden, inject = _derived(det, x, clean, case, step)
+    return attack_listed(det, (x, clean), step, (hidden, inject), cfg)
+
+
+def attack_listed(
+    det: LoadedDetector,
+    seen: tuple[np.ndarray, Decoded],
+    step: int,
+    attack: tuple[list[Hidden], list[tuple[str, np.ndarray]]],
+    cfg: AttackConfig,
+) -> FrameAttack:
+    """Step ``step``'s attack on its clean frame (``seen``: its network input and its
+    decoded detections): hide the detections and inject the candidates (id, cell) of
+    ``attack``, each attacked alone, all perturbations added together, the frame decoded
+    again and the attack repaired (:class:`_FileFrame`)."""
+    x, clean = seen
+    hidden, inject = attack
+    fa = FrameAttack(clean.index, step, clean)  # type: ignore[arg-type]
     idx = hidden_indices(clean, hidden)  # type: ignore[arg-type]  # reads positions only
     deltas = _perturbations(det, x, clean, idx, cfg) if idx else {}
     total = np.zeros_like(x)
@@ -315,8 +429,9 @@ def inject_frame(
     cells = _inject(det, x, clean, fa, inject, total, cfg)
     if not fa.perturbations:
         return fa
-    after = _decode(det, x + total, clean.index)
-    _diagnose(det, fa, clean, after, idx, cells)
+    frame = _FileFrame(det, (x, total), clean, fa, idx, cfg, cells)
+    run_repair(fa, frame, REPAIR_ROUNDS)  # re-hides what survives, re-injects what is not
+    after = frame.after
     got = after.raw.cells
     fa.not_injected = [
         cid for (cid, _), c in zip(inject, cells, strict=True) if not (got == c).all(axis=1).any()

@@ -27,11 +27,12 @@ from lesmc.replay.case import (
     check_payoff,
     perturbation_record,
 )
+from lesmc.replay.repair import run_repair
 from lesmc.results.read import HiddenDoc as Hidden
 
 if TYPE_CHECKING:
     from lesmc.perception.attack_settings import AttackConfig
-    from lesmc.perception.attacks import AttackResult
+    from lesmc.perception.attacks import AttackResult, Towards
     from lesmc.perception.cnn import Nets
     from lesmc.perception.detector import Detector, FrameDetections
     from lesmc.perception.frontend import FrontEndOutput
@@ -280,31 +281,52 @@ def repair_frame(
     records the rounds and their cost (``extra_cost``: each extra window's norm once,
     where it overlaps another window too). Returns the detections after it and the
     centroids of the perturbed frame's Q_bc."""
-    m = nets.settings.m
-    after, cands = seen
-    frames = _perturbed(out, applied, m)
-    rounds = 0
-    while rounds < REPAIR_ROUNDS:
-        if not _unwanted(fd, after, idx, wanted) and not _missing(wanted, after):
-            break
-        moved = False
-        for act in (_rehide, _reinject):
-            got = act(nets, (after, cands, frames), fd, idx, wanted, cfg)
-            if got is None:
-                continue
-            cost, more = got
-            fa.extra_cost += cost
-            fa.extra_windows += len(more[0])
-            applied.append(more)
-            frames = _perturbed(out, applied, m)
-            after, cands = redetect(det, out, frames, m)
-            diagnose(fa, fd, after, idx)
-            moved = True
-        if not moved:  # a round that changes nothing is not counted
-            break
-        rounds += 1
-    fa.repaired_rounds = rounds
-    return after, cands
+    w = _WindowFrame(nets, det, (out, fd), fa, idx, applied, seen, cfg, wanted)
+    run_repair(fa, w, REPAIR_ROUNDS)
+    return w.after, w.cands
+
+
+class _WindowFrame:
+    """A frame of the window pipeline as :func:`~lesmc.replay.repair.run_repair` sees it:
+    its detections and Q_bc centroids as the perturbations ``applied`` leave it."""
+
+    def __init__(
+        self,
+        nets: Nets,
+        det: Detector,
+        clean: tuple[FrontEndOutput, FrameDetections],
+        fa: FrameAttack,
+        idx: list[int],
+        applied: list[Round],
+        seen: tuple[FrameDetections, np.ndarray],
+        cfg: AttackConfig,
+        wanted: np.ndarray | None,
+    ) -> None:
+        self.nets, self.det, (self.out, self.fd), self.fa = nets, det, clean, fa
+        self.idx, self.applied, self.cfg, self.wanted = idx, applied, cfg, wanted
+        self.after, self.cands = seen
+        self.frames = _perturbed(self.out, applied, nets.settings.m)
+
+    def wrong(self) -> bool:
+        """A detection the model does not have, or a wanted position not detected."""
+        unwanted = _unwanted(self.fd, self.after, self.idx, self.wanted)
+        return bool(unwanted) or _missing(self.wanted, self.after)
+
+    def attack(self, towards: Towards) -> tuple[float, int, Round] | None:
+        """:func:`_rehide` or :func:`_reinject` on the perturbed frame (and the number of
+        windows they perturb)."""
+        act = _rehide if towards == "hide" else _reinject
+        seen = (self.after, self.cands, self.frames)
+        got = act(self.nets, seen, self.fd, self.idx, self.wanted, self.cfg)
+        return None if got is None else (got[0], len(got[1][0]), got[1])
+
+    def apply(self, more: Round) -> None:
+        """``more`` added to the rounds, the frame detected again and diagnosed."""
+        m = self.nets.settings.m
+        self.applied.append(more)
+        self.frames = _perturbed(self.out, self.applied, m)
+        self.after, self.cands = redetect(self.det, self.out, self.frames, m)
+        diagnose(self.fa, self.fd, self.after, self.idx)
 
 
 #: What a repair round sees of the perturbed frame: its detections, the centroids of its
