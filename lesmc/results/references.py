@@ -167,8 +167,13 @@ def check_multi_steps(doc: dict[str, Any], path: str, text: str | None = None) -
     pr = Problems()
     for i, res in enumerate(doc["results"]):
         last = -1
-        for k, s in enumerate(res["counterexample"] or []):
+        steps = res["counterexample"] or []
+        drawn = bool(steps) and "tracks" in steps[0]  # the report then draws every step
+        for k, s in enumerate(steps):
             at = f"results[{i}].counterexample[{k}]"
+            for key in ("tracks", "attacked"):
+                if drawn and key not in s:
+                    pr.add(at, f"needs {key!r}, as the counterexample's first step has 'tracks'")
             if s["step"] <= last:
                 pr.add(f"{at}.step", f"must exceed the step before, {last} (steps in order)")
             last = max(last, s["step"])

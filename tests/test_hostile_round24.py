@@ -1,0 +1,70 @@
+"""Round 24's hostile inputs (issue 61's additions: injection candidates, multi-check
+documents fed to ``lesmc report``, tracker and detector files, ``import mot``):
+
+- a ``lesmc-multi-check`` document one of whose counterexample steps lost its
+  ``attacked`` (or ``tracks``) list, while its first step has them (so the report draws
+  every step), was an internal error (KeyError, exit 4) in ``lesmc report``: now refused
+  at that step's ``FILE:LINE:COL``;
+
+Every case goes through the real entry point: exit 2, the location, no traceback."""
+
+from __future__ import annotations
+
+import json
+import re
+from pathlib import Path
+from typing import Any
+
+import pytest
+from cli_run import ROOT, lesmc
+
+
+def _refused_at(r: Any, path: str, line: int, *said: str) -> str:
+    """Exit 2, no traceback, stderr's first line at ``path:line:COL`` saying ``said``."""
+    assert "Traceback" not in r.stderr and "internal error" not in r.stderr, r.stderr
+    assert r.returncode == 2, (r.returncode, r.stdout, r.stderr)
+    first = r.stderr.splitlines()[0]
+    assert re.match(rf"{re.escape(path)}:{line}:\d+: ", first), (line, r.stderr)
+    for s in said:
+        assert s in first, (s, r.stderr)
+    return first
+
+
+def _line_of(text: str, needle: str, nth: int = 0) -> int:
+    """The 1-based line of the ``nth`` occurrence of ``needle`` in ``text``."""
+    pos = -1
+    for _ in range(nth + 1):
+        pos = text.index(needle, pos + 1)
+    return text.count("\n", 0, pos) + 1
+
+
+@pytest.fixture(scope="module")
+def multi_doc(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Any]:
+    """The SORT hijack's ``lesmc-multi-check`` document as ``check --report`` writes it
+    (version 2: every step with its tracks and attacked detections; exit 1: violated)."""
+    base = tmp_path_factory.mktemp("hostile24")
+    r = lesmc(
+        "check", str(ROOT / "examples" / "crossing.json"), str(ROOT / "examples" / "hijack.spec"),
+        "--design", "sort", "--report", str(base / "r"),
+    )  # fmt: skip
+    assert r.returncode == 1, r.stderr
+    doc: dict[str, Any] = json.loads((base / "r" / "results.json").read_text())
+    return doc
+
+
+@pytest.mark.parametrize("key", ["attacked", "tracks"])
+def test_a_multi_check_step_without_its_drawn_lists_is_refused(
+    tmp_path: Path, multi_doc: dict[str, Any], key: str
+) -> None:
+    """Step 3 of the counterexample loses ``key``: refused at that step's line (the
+    report would draw it from the list), not an internal error; nothing written."""
+    doc = json.loads(json.dumps(multi_doc))
+    steps = doc["results"][0]["counterexample"]
+    assert "tracks" in steps[0] and len(steps) > 3
+    del steps[3][key]
+    text = json.dumps(doc, indent=1)
+    (tmp_path / "r.json").write_text(text)
+    r = lesmc("report", "r.json", "--out", "out", cwd=tmp_path)
+    step_line = _line_of(text, '"step": 3', 0) - 1  # the step's "{" is the line before
+    _refused_at(r, "r.json", step_line, "counterexample[3]", repr(key))
+    assert not (tmp_path / "out").exists()
