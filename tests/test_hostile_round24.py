@@ -5,6 +5,9 @@ documents fed to ``lesmc report``, tracker and detector files, ``import mot``):
   ``attacked`` (or ``tracks``) list, while its first step has them (so the report draws
   every step), was an internal error (KeyError, exit 4) in ``lesmc report``: now refused
   at that step's ``FILE:LINE:COL``;
+- ``inject grid D within R`` with R / D above about 1e154 (``10 within 1e308``,
+  ``1e-200 within 1e-40``) overflowed counting the grid's points (OverflowError, exit 4):
+  now "more than 1000 points" at D;
 
 Every case goes through the real entry point: exit 2, the location, no traceback."""
 
@@ -68,3 +71,20 @@ def test_a_multi_check_step_without_its_drawn_lists_is_refused(
     step_line = _line_of(text, '"step": 3', 0) - 1  # the step's "{" is the line before
     _refused_at(r, "r.json", step_line, "counterexample[3]", repr(key))
     assert not (tmp_path / "out").exists()
+
+
+@pytest.mark.parametrize("grid", ["10 within 1e308", "1e-200 within 1e-40"])
+def test_an_astronomical_inject_grid_is_too_big_not_an_overflow(tmp_path: Path, grid: str) -> None:
+    """A grid whose radius / spacing overflows a float square: refused at D as too big."""
+    (tmp_path / "g.spec").write_text(
+        "property g {\n"
+        "  attack window 6..8 allow hide, inject\n"
+        f"  inject grid {grid} payoff 1\n"
+        "  minimize payoff\n"
+        "  subject to dist.sum(0..end) > 120\n"
+        "  holds if optimum > 3\n"
+        "}\n"
+    )
+    r = lesmc("check", str(ROOT / "examples" / "merge.json"), "g.spec", cwd=tmp_path)
+    first = _refused_at(r, "g.spec", 3, "more than 1000 points")
+    assert first.startswith("g.spec:3:15: "), first
