@@ -8,6 +8,11 @@ documents fed to ``lesmc report``, tracker and detector files, ``import mot``):
 - ``inject grid D within R`` with R / D above about 1e154 (``10 within 1e308``,
   ``1e-200 within 1e-40``) overflowed counting the grid's points (OverflowError, exit 4):
   now "more than 1000 points" at D;
+- a scene's ``meta.frontend`` out of range, misspelt or not an object was refused only
+  where it was recorded (``check --report`` on a point design, ``verify --scene``):
+  ``check --design sort`` (whose results the multi replay reruns), ``track`` and the rest
+  read it silently. Now the scene's reader checks it, as it checks ``meta.attack``; a
+  ``meta`` that is not an object (``[]``) is refused too;
 
 Every case goes through the real entry point: exit 2, the location, no traceback."""
 
@@ -88,3 +93,23 @@ def test_an_astronomical_inject_grid_is_too_big_not_an_overflow(tmp_path: Path, 
     r = lesmc("check", str(ROOT / "examples" / "merge.json"), "g.spec", cwd=tmp_path)
     first = _refused_at(r, "g.spec", 3, "more than 1000 points")
     assert first.startswith("g.spec:3:15: "), first
+
+
+@pytest.mark.parametrize(
+    ("meta", "field", "said"),
+    [
+        ({"frontend": {"history": 2}}, '"history"', "meta.frontend.history"),
+        ({"frontend": {"Delta_bc": 12}}, '"Delta_bc"', "unknown setting"),
+        ([], '"meta"', "meta: must be an object"),
+    ],
+)
+def test_a_bad_meta_frontend_is_refused_when_the_scene_is_read(
+    tmp_path: Path, meta: Any, field: str, said: str
+) -> None:
+    """``lesmc track`` (and every verb reading the scene) refuses it at its line."""
+    doc = json.loads((ROOT / "examples" / "crossing.json").read_text())
+    doc["meta"] = meta
+    text = json.dumps(doc, indent=1)
+    (tmp_path / "s.json").write_text(text)
+    r = lesmc("track", "s.json", cwd=tmp_path)
+    _refused_at(r, "s.json", _line_of(text, field), said)
