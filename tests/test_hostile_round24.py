@@ -13,6 +13,10 @@ documents fed to ``lesmc report``, tracker and detector files, ``import mot``):
   ``check --design sort`` (whose results the multi replay reruns), ``track`` and the rest
   read it silently. Now the scene's reader checks it, as it checks ``meta.attack``; a
   ``meta`` that is not an object (``[]``) is refused too;
+- a TOML integer beyond 64 bits (``gate = 1000...0``, 401 digits, in a ``tune --space``
+  file) was kept by ``tomllib`` and overflowed in ``float()`` (exit 4): the TOML reader
+  (lesmc/common/files.py ``read_toml``, which every TOML input goes through) now refuses
+  it at its token, as the JSON reader does, skipping comments and strings;
 
 Every case goes through the real entry point: exit 2, the location, no traceback."""
 
@@ -113,3 +117,35 @@ def test_a_bad_meta_frontend_is_refused_when_the_scene_is_read(
     (tmp_path / "s.json").write_text(text)
     r = lesmc("track", "s.json", cwd=tmp_path)
     _refused_at(r, "s.json", _line_of(text, field), said)
+
+
+def _scene_with_truth(tmp_path: Path) -> str:
+    """examples/merge.json with a truth track (each frame's first detection), which
+    ``lesmc tune`` needs before it reads the space: the file's name in ``tmp_path``."""
+    doc = json.loads((ROOT / "examples" / "merge.json").read_text())
+    first = [[f["step"], f["detections"][0]["x"], f["detections"][0]["y"]] for f in doc["frames"]]
+    doc["truth"] = [{"id": "v1", "positions": first}]
+    (tmp_path / "s.json").write_text(json.dumps(doc))
+    return "s.json"
+
+
+BIG = "1" + "0" * 400
+
+
+@pytest.mark.parametrize(
+    ("space", "line", "col"),
+    [
+        (f"gate = [2.0, {BIG}]\n", 1, 14),
+        (f"# {BIG} in a comment\nsigma_q = 3.0\n[monitor]\nnis = 0x{BIG}\n", 4, 7),
+    ],
+)
+def test_a_toml_integer_beyond_64_bits_is_refused_at_its_token(
+    tmp_path: Path, space: str, line: int, col: int
+) -> None:
+    """Not an OverflowError (exit 4): ``FILE:LINE:COL`` of the integer, not of the comment."""
+    scene = _scene_with_truth(tmp_path)
+    (tmp_path / "space.toml").write_text(space)
+    spec = str(ROOT / "examples" / "merge.spec")
+    r = lesmc("tune", scene, spec, "--space", "space.toml", cwd=tmp_path)
+    first = _refused_at(r, "space.toml", line, "out of range", "64 bits")
+    assert first.startswith(f"space.toml:{line}:{col}: "), first
