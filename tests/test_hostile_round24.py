@@ -17,6 +17,10 @@ documents fed to ``lesmc report``, tracker and detector files, ``import mot``):
   file) was kept by ``tomllib`` and overflowed in ``float()`` (exit 4): the TOML reader
   (lesmc/common/files.py ``read_toml``, which every TOML input goes through) now refuses
   it at its token, as the JSON reader does, skipping comments and strings;
+- a point design's results whose ``runs[].replay_inputs.tracker`` is not a tracker (a
+  ``P0_sd`` of 3 entries for the 4-state model) went through ``lesmc replay`` to the
+  frames and perception, the tracker read only after perceiving (with no line): now the
+  results reader checks it as a scene's ``tracker`` block, at its ``FILE:LINE:COL``;
 
 Every case goes through the real entry point: exit 2, the location, no traceback."""
 
@@ -149,3 +153,24 @@ def test_a_toml_integer_beyond_64_bits_is_refused_at_its_token(
     r = lesmc("tune", scene, spec, "--space", "space.toml", cwd=tmp_path)
     first = _refused_at(r, "space.toml", line, "out of range", "64 bits")
     assert first.startswith(f"space.toml:{line}:{col}: "), first
+
+
+def test_a_replay_tracker_that_is_no_tracker_is_refused_before_the_frames(tmp_path: Path) -> None:
+    """``lesmc replay`` refuses it at the results file's ``tracker`` line, before it
+    looks at the (empty) frames directory."""
+    (tmp_path / "p.spec").write_text(
+        "property p {\n  attack window 6..7\n  minimize payoff\n"
+        "  subject to dist.at(end) > 1\n  holds if optimum > 1\n}\n"
+    )
+    r = lesmc(
+        "check", str(ROOT / "examples" / "merge.json"), "p.spec", "--report", "r", cwd=tmp_path
+    )
+    assert r.returncode in (0, 1), r.stderr
+    doc = json.loads((tmp_path / "r" / "results.json").read_text())
+    doc["runs"][0]["replay_inputs"]["tracker"]["P0_sd"] = [30.0, 30.0, 20.0]
+    text = json.dumps(doc, indent=1)
+    (tmp_path / "bad.json").write_text(text)
+    (tmp_path / "frames").mkdir()
+    r = lesmc("replay", "bad.json", "--frames", "frames", cwd=tmp_path)
+    line = text.count("\n", 0, text.index('"tracker"', text.index('"replay_inputs"'))) + 1
+    _refused_at(r, "bad.json", line, "replay_inputs.tracker", "P0_sd must have 4 entries")
