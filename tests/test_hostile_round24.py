@@ -21,6 +21,9 @@ documents fed to ``lesmc report``, tracker and detector files, ``import mot``):
   ``P0_sd`` of 3 entries for the 4-state model) went through ``lesmc replay`` to the
   frames and perception, the tracker read only after perceiving (with no line): now the
   results reader checks it as a scene's ``tracker`` block, at its ``FILE:LINE:COL``;
+- ``lesmc campaign --targets FILE`` (no FRAMES_DIR) rendered the embedded video into
+  OUT/video (half a minute) before reading the file, and a bad line then left OUT/video
+  behind: the file is now read first (the videos' names are known without them);
 
 Every case goes through the real entry point: exit 2, the location, no traceback."""
 
@@ -174,3 +177,15 @@ def test_a_replay_tracker_that_is_no_tracker_is_refused_before_the_frames(tmp_pa
     r = lesmc("replay", "bad.json", "--frames", "frames", cwd=tmp_path)
     line = text.count("\n", 0, text.index('"tracker"', text.index('"replay_inputs"'))) + 1
     _refused_at(r, "bad.json", line, "replay_inputs.tracker", "P0_sd must have 4 entries")
+
+
+def test_a_bad_campaign_targets_file_is_refused_before_rendering(tmp_path: Path) -> None:
+    """Exit 2 at the file's line, nothing rendered, no OUT left behind."""
+    (tmp_path / "t.txt").write_text("# targets\n812.5,96@4\nnan,2@3\n")
+    r = lesmc(
+        "campaign", "--out", "o", "--targets", "t.txt", "--windows", "4..4:1..1",
+        "--design", "single", cwd=tmp_path,
+    )  # fmt: skip
+    _refused_at(r, "t.txt", 3, "nan,2@3")
+    assert "rendering" not in r.stderr, r.stderr
+    assert not (tmp_path / "o").exists()
