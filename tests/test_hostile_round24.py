@@ -16,7 +16,9 @@ documents fed to ``lesmc report``, tracker and detector files, ``import mot``):
 - a TOML integer beyond 64 bits (``gate = 1000...0``, 401 digits, in a ``tune --space``
   file) was kept by ``tomllib`` and overflowed in ``float()`` (exit 4): the TOML reader
   (lesmc/common/files.py ``read_toml``, which every TOML input goes through) now refuses
-  it at its token, as the JSON reader does, skipping comments and strings;
+  it at its token, as the JSON reader does, skipping comments and strings; and TOML
+  arrays or inline tables nested thousands deep (a ``--tracker`` file) were a
+  RecursionError (exit 4): now "nesting deeper than 64" where the 65th opens;
 - a point design's results whose ``runs[].replay_inputs.tracker`` is not a tracker (a
   ``P0_sd`` of 3 entries for the 4-state model) went through ``lesmc replay`` to the
   frames and perception, the tracker read only after perceiving (with no line): now the
@@ -189,3 +191,17 @@ def test_a_bad_campaign_targets_file_is_refused_before_rendering(tmp_path: Path)
     _refused_at(r, "t.txt", 3, "nan,2@3")
     assert "rendering" not in r.stderr, r.stderr
     assert not (tmp_path / "o").exists()
+
+
+@pytest.mark.parametrize(("opens", "closes"), [("[", "]"), ("{b = ", "}")])
+def test_a_toml_file_nested_thousands_deep_is_refused(
+    tmp_path: Path, opens: str, closes: str
+) -> None:
+    """``--tracker deep.toml``: exit 2 at the 65th bracket, not a RecursionError."""
+    head = "gate = " if opens == "[" else "a = "
+    (tmp_path / "deep.toml").write_text(head + opens * 5000 + "1" + closes * 5000 + "\n")
+    scene = str(ROOT / "examples" / "crossing.json")
+    r = lesmc("track", scene, "--tracker", "deep.toml", cwd=tmp_path)
+    first = _refused_at(r, "deep.toml", 1, "nesting deeper than 64")
+    col = len(head) + 64 * len(opens) + 1
+    assert first.startswith(f"deep.toml:1:{col}: "), first

@@ -107,6 +107,8 @@ def read_toml(path: str | Path, error: type[LesmcError] = InputError) -> Any:
     text = read_text(path, error)
     try:
         data = tomllib.loads(text)
+    except RecursionError:  # arrays or inline tables nested thousands deep
+        raise error(f"nesting deeper than {MAX_JSON_DEPTH}", _toml_deep(str(path), text)) from None
     except tomllib.TOMLDecodeError as exc:
         msg = str(exc)
         at = re.search(r"\s*\(at line (\d+), column (\d+)\)$", msg)
@@ -129,6 +131,17 @@ def read_toml(path: str | Path, error: type[LesmcError] = InputError) -> Any:
 _TOML_INT = re.compile(
     r"(?<![\w.:-])[+-]?(?:0x[0-9a-fA-F_]+|0o[0-7_]+|0b[01_]+|\d[\d_]*)(?![\w.:-])"
 )
+
+
+def _toml_deep(path: str, text: str) -> Location:
+    """Where TOML ``text`` first opens more than :data:`MAX_JSON_DEPTH` arrays or inline
+    tables (brackets counted, comments and strings not told apart: a hint)."""
+    depth = 0
+    for pos, ch in enumerate(text):
+        depth += (ch in "[{") - (ch in "]}")
+        if depth > MAX_JSON_DEPTH:
+            return Location.at(path, text, pos)
+    return Location(path)
 
 
 def _big_ints(value: Any) -> int:
