@@ -26,6 +26,9 @@ documents fed to ``lesmc report``, tracker and detector files, ``import mot``):
 - ``lesmc campaign --targets FILE`` (no FRAMES_DIR) rendered the embedded video into
   OUT/video (half a minute) before reading the file, and a bad line then left OUT/video
   behind: the file is now read first (the videos' names are known without them);
+- ``monitor trace 1e999`` said "the the trace monitor's parameter must be finite", and
+  ``monitor uncertainty tolerance 1e308`` printed numpy's RuntimeWarning (overflow) on
+  stderr: the bound is inf (the alarm never fires), now without the warning;
 
 Every case goes through the real entry point: exit 2, the location, no traceback."""
 
@@ -205,3 +208,25 @@ def test_a_toml_file_nested_thousands_deep_is_refused(
     first = _refused_at(r, "deep.toml", 1, "nesting deeper than 64")
     col = len(head) + 64 * len(opens) + 1
     assert first.startswith(f"deep.toml:1:{col}: "), first
+
+
+def _monitored_spec(monitor: str) -> str:
+    return (
+        "property m {\n  attack window 6..7\n  minimize payoff\n"
+        f"  subject to dist.at(end) > 1\n  holds if optimum > 1\n  monitor {monitor}\n}}\n"
+    )
+
+
+def test_an_infinite_monitor_parameter_is_named_once(tmp_path: Path) -> None:
+    (tmp_path / "m.spec").write_text(_monitored_spec("trace 1e999"))
+    r = lesmc("check", str(ROOT / "examples" / "merge.json"), "m.spec", cwd=tmp_path)
+    first = _refused_at(r, "m.spec", 6, "the trace monitor's parameter must be finite")
+    assert "the the" not in first, first
+
+
+def test_a_huge_tolerance_checks_without_a_numpy_warning(tmp_path: Path) -> None:
+    """The alarm never fires: the result is the unmonitored one, stderr without warnings."""
+    (tmp_path / "m.spec").write_text(_monitored_spec("uncertainty tolerance 1e308"))
+    r = lesmc("check", str(ROOT / "examples" / "merge.json"), "m.spec", cwd=tmp_path)
+    assert r.returncode in (0, 1), r.stderr
+    assert "Warning" not in r.stderr and "Traceback" not in r.stderr, r.stderr
