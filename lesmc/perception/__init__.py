@@ -23,9 +23,9 @@ HISTORY = 4
 #: end's default (``BlobConfig``), and what verify perceives a video with.
 DELTA_BC = 12
 
-#: The values the front end's settings may take (lesmc/scene/meta_attack.py, where a
-#: scene's ``meta.frontend`` is checked as the scene is read).
-from lesmc.scene.meta_attack import FRONTEND_RANGES as FRONTEND_RANGES  # noqa: E402
+#: The values the front end's settings may take (lesmc/common/fields.py; a scene's
+#: ``meta.frontend`` is checked as the scene is read, lesmc/scene/meta_attack.py).
+from lesmc.common.fields import FRONTEND_RANGES as FRONTEND_RANGES  # noqa: E402
 
 #: Bisection steps of on-demand certification (``verify``, ``campaign --payoffs``): it
 #: bounds a handful of detections, so it can afford three times ``perceive --certify``'s 2

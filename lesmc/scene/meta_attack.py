@@ -11,7 +11,7 @@ from dataclasses import dataclass
 from typing import Any
 
 from lesmc.common.errors import Problems
-from lesmc.common.fields import is_finite, is_int, show
+from lesmc.common.fields import FRONTEND_RANGES, is_finite, is_int, show
 
 #: The attack settings a scene's ``meta.attack`` records that lesmc reads back (the
 #: replay attacks with them), and the values each may take: what ``lesmc perceive``
@@ -68,12 +68,6 @@ def recorded_attack(meta: dict[str, Any], pr: Problems) -> dict[str, Any]:
             else:
                 pr.add(f"meta.attack.{key}", f"must be {what}, got {show(attack[key])}")
     return got
-
-
-#: The values the front end's settings may take (``lesmc perceive --history``,
-#: ``--delta-bc``; a scene's ``meta.frontend``, a results document's ``perception``; the
-#: schemas say the same, tests/test_frontend_settings.py checks that they agree).
-FRONTEND_RANGES: dict[str, tuple[int, int]] = {"history": (3, 16), "delta_bc": (1, 255)}
 
 
 def recorded_frontend(meta: dict[str, Any], pr: Problems) -> dict[str, int]:
