@@ -150,6 +150,7 @@ BIG = "1" + "0" * 400
         (f"gate = [2.0, {BIG}]\n", 1, 14),
         (f"# {BIG} in a comment\nsigma_q = 3.0\n[monitor]\nnis = 0x{BIG}\n", 4, 7),
     ],
+    ids=["in-a-list", "hex-after-a-comment"],
 )
 def test_a_toml_integer_beyond_64_bits_is_refused_at_its_token(
     tmp_path: Path, space: str, line: int, col: int
