@@ -25,7 +25,8 @@ documents fed to ``lesmc report``, tracker and detector files, ``import mot``):
   results reader checks it as a scene's ``tracker`` block, at its ``FILE:LINE:COL``;
 - ``lesmc campaign --targets FILE`` (no FRAMES_DIR) rendered the embedded video into
   OUT/video (half a minute) before reading the file, and a bad line then left OUT/video
-  behind: the file is now read first (the videos' names are known without them);
+  behind: the file is now read first (the videos' names are known without them); its
+  message no longer says ``t.txt:3:1: error: --target ...``;
 - ``monitor trace 1e999`` said "the the trace monitor's parameter must be finite", and
   ``monitor uncertainty tolerance 1e308`` printed numpy's RuntimeWarning (overflow) on
   stderr: the bound is inf (the alarm never fires), now without the warning;
@@ -192,7 +193,8 @@ def test_a_bad_campaign_targets_file_is_refused_before_rendering(tmp_path: Path)
         "campaign", "--out", "o", "--targets", "t.txt", "--windows", "4..4:1..1",
         "--design", "single", cwd=tmp_path,
     )  # fmt: skip
-    _refused_at(r, "t.txt", 3, "nan,2@3")
+    first = _refused_at(r, "t.txt", 3, "nan,2@3")
+    assert first.startswith("t.txt:3:1: --target must look like"), first  # no "error: " inside
     assert "rendering" not in r.stderr, r.stderr
     assert not (tmp_path / "o").exists()
 
