@@ -118,7 +118,7 @@ def file_targets(path: Path, videos: list[str]) -> dict[str, list[tuple[TargetSp
         try:
             spec = parse_target(text_t)
         except UsageError as exc:
-            raise InputError(str(exc), where) from None
+            raise InputError(exc.message, where) from None
         if spec.step is None:
             raise InputError("give the target's frame: X,Y@STEP", where)
         out[name].append((spec, where))
@@ -135,7 +135,7 @@ def check_file_target(
     try:
         scene = place_target(p.footage, spec)
     except UsageError as exc:
-        raise InputError(str(exc), where) from None
+        raise InputError(exc.message, where) from None
     e = original_end(scene)
     hi = max(w[1] for w in windows)
     if e < hi:

@@ -166,9 +166,9 @@ def campaign_cmd(
     count, target_file = _targets_option(targets_text)
     nets = (nets_dir, detector_file, locator_file)
     _check_detector_file(nets, designs if multi else ())
+    listed = _file_targets(target_file, _video_names(frames_dirs))
     with _removed_if_empty(out):
         videos = _videos(frames_dirs, out, no_truth)
-        listed = _file_targets(target_file, videos)
         out.mkdir(parents=True, exist_ok=True)
         prepared = _prepared(videos, out, nets, tracker_file, payoffs != "attack")
         _choose_targets(prepared, count, listed, windows, not no_truth)
@@ -309,18 +309,32 @@ def _videos(frames_dirs: tuple[str, ...], out: Path, no_truth: bool) -> list[Any
             f"--frames {DEFAULT_VIDEO['frames']}"
         )
         truth = None if no_truth else video / "truth.json"
-        return [Video("default", video, truth, origin)]
+        return [Video(DEFAULT_NAME, video, truth, origin)]
     out_v = []
-    seen: dict[str, str] = {}
-    for d in frames_dirs:
+    for d, name in zip(frames_dirs, _video_names(frames_dirs), strict=True):
         p = Path(d)
-        name = p.resolve().name or "video"
-        if name in seen:
-            raise UsageError(f"two videos are named '{name}' ({seen[name]} and {d}): rename one")
-        seen[name] = d
         truth = p / "truth.json"
         out_v.append(Video(name, p, truth if truth.is_file() and not no_truth else None, d))
     return out_v
+
+
+#: The name of the embedded default video (no FRAMES_DIR), as a ``--targets`` file names it.
+DEFAULT_NAME = "default"
+
+
+def _video_names(frames_dirs: tuple[str, ...]) -> list[str]:
+    """Each video's name: its directory's (``video`` for one without a name), or
+    :data:`DEFAULT_NAME` for the embedded default; two of the same name are an error.
+    Known before any video is rendered or read, for the ``--targets`` file."""
+    if not frames_dirs:
+        return [DEFAULT_NAME]
+    seen: dict[str, str] = {}
+    for d in frames_dirs:
+        name = Path(d).resolve().name or "video"
+        if name in seen:
+            raise UsageError(f"two videos are named '{name}' ({seen[name]} and {d}): rename one")
+        seen[name] = d
+    return list(seen)
 
 
 def _targets_option(text: str) -> tuple[int | None, Path | None]:
@@ -338,12 +352,13 @@ def _targets_option(text: str) -> tuple[int | None, Path | None]:
     return None, path
 
 
-def _file_targets(target_file: Path | None, videos: list[Any]) -> dict[str, list[Any]] | None:
-    """The targets of ``--targets FILE`` by video (None without a file), read before any
-    video is perceived, so that a mistake in the file costs nothing."""
+def _file_targets(target_file: Path | None, names: list[str]) -> dict[str, list[Any]] | None:
+    """The targets of ``--targets FILE`` by video name (None without a file), read before
+    any video is rendered or perceived and before OUT is made, so that a mistake in the
+    file costs nothing and leaves nothing behind."""
     from lesmc.campaign.targets import file_targets
 
-    return None if target_file is None else file_targets(target_file, [v.name for v in videos])
+    return None if target_file is None else file_targets(target_file, names)
 
 
 def _choose_targets(

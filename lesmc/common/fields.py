@@ -27,6 +27,14 @@ _REPR.maxdict = 4
 _REPR.maxlevel = 2
 
 
+#: The values the front end's settings may take (``lesmc perceive --history``,
+#: ``--delta-bc``; a scene's ``meta.frontend``, checked as the scene is read by
+#: lesmc/scene/meta_attack.py; a results document's ``perception``; the schemas say the
+#: same, tests/test_frontend_settings.py checks that they agree). Here, at the bottom of
+#: the layers, so that the scene's reader and perception share it without numpy.
+FRONTEND_RANGES: dict[str, tuple[int, int]] = {"history": (3, 16), "delta_bc": (1, 255)}
+
+
 def is_int(x: Any) -> TypeGuard[int]:
     """An integer, not a boolean."""
     return isinstance(x, int) and not isinstance(x, bool)

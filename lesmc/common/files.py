@@ -106,7 +106,9 @@ def read_toml(path: str | Path, error: type[LesmcError] = InputError) -> Any:
 
     text = read_text(path, error)
     try:
-        return tomllib.loads(text)
+        data = tomllib.loads(text)
+    except RecursionError:  # arrays or inline tables nested thousands deep
+        raise error(f"nesting deeper than {MAX_JSON_DEPTH}", _toml_deep(str(path), text)) from None
     except tomllib.TOMLDecodeError as exc:
         msg = str(exc)
         at = re.search(r"\s*\(at line (\d+), column (\d+)\)$", msg)
@@ -119,6 +121,61 @@ def read_toml(path: str | Path, error: type[LesmcError] = InputError) -> Any:
             shown = lines[line - 1].removesuffix("\r") if line <= len(lines) else None
             loc = Location(str(path), line, col, shown)
         raise error(msg[: at.start()] if at else msg, loc) from None
+    if _big_ints(data):
+        raise _toml_big_int(str(path), text, error)
+    return data
+
+
+#: What may be an integer token of TOML (decimal with underscores, hex, octal, binary),
+#: not part of a float, a date or a bare key; it may also be in a comment or a string.
+_TOML_INT = re.compile(
+    r"(?<![\w.:-])[+-]?(?:0x[0-9a-fA-F_]+|0o[0-7_]+|0b[01_]+|\d[\d_]*)(?![\w.:-])"
+)
+
+
+def _toml_deep(path: str, text: str) -> Location:
+    """Where TOML ``text`` first opens more than :data:`MAX_JSON_DEPTH` arrays or inline
+    tables (brackets counted, comments and strings not told apart: a hint)."""
+    depth = 0
+    for pos, ch in enumerate(text):
+        depth += (ch in "[{") - (ch in "]}")
+        if depth > MAX_JSON_DEPTH:
+            return Location.at(path, text, pos)
+    return Location(path)
+
+
+def _big_ints(value: Any) -> int:
+    """How many integers outside 64 bits a parsed TOML document holds (``tomllib`` keeps
+    any size; TOML allows 64 bits, and a float() of a bigger one overflows)."""
+    if isinstance(value, dict):
+        return sum(_big_ints(v) for v in value.values())
+    if isinstance(value, list):
+        return sum(_big_ints(v) for v in value)
+    return int(type(value) is int and not INT64_MIN <= value <= INT64_MAX)
+
+
+def _toml_big_int(path: str, text: str, error: type[LesmcError]) -> LesmcError:
+    """The error for a TOML integer outside 64 bits, at its token's ``FILE:LINE:COL``: the
+    first big token whose replacement by 0 removes a big integer from the document (one
+    in a comment or a string does not)."""
+    import tomllib
+
+    count = _big_ints(tomllib.loads(text))
+    for m in _TOML_INT.finditer(text):
+        try:
+            v = int(m.group(), 0)
+        except ValueError:  # a leading zero: not an integer TOML reads
+            continue
+        if INT64_MIN <= v <= INT64_MAX:
+            continue
+        try:
+            fewer = _big_ints(tomllib.loads(text[: m.start()] + "0" + text[m.end() :])) < count
+        except tomllib.TOMLDecodeError:
+            continue
+        if fewer:
+            what = f"integer {_clip(m.group())} is out of range (integers must fit in 64 bits)"
+            return error(what, Location.at(path, text, m.start()))
+    return error("an integer is out of range (integers must fit in 64 bits)", Location(path))
 
 
 def _read_bytes(path: str | Path, error: type[LesmcError]) -> bytes:

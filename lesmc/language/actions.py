@@ -106,7 +106,8 @@ def grid_problem(grid: InjectGrid, written: Sequence[str]) -> tuple[int, str] | 
     for i, (ok, message) in enumerate(checks):
         if not ok:
             return i, message
-    bound = (2 * (grid.radius / grid.spacing) + 1) ** 2  # the square's points, before counting
+    side = 2 * (grid.radius / grid.spacing) + 1  # the square's points, before counting:
+    bound = side * side  # a float product (inf when huge); ** would raise OverflowError
     if bound > 4 * MAX_GRID_POINTS or len(grid.offsets()) > MAX_GRID_POINTS:
         return 0, (
             f"the grid has more than {MAX_GRID_POINTS} points: widen its spacing or "

@@ -205,8 +205,10 @@ def declared(text: str | None) -> Monitor:
 
 
 def rises(tau_prev: np.ndarray, tau_next: np.ndarray, tolerance: float) -> np.ndarray:
-    """Eq. 13's Γ = 0: τ rose from one step to the next beyond the relative tolerance."""
-    out: np.ndarray = np.asarray(tau_next) > np.asarray(tau_prev) * (1.0 + tolerance) + 1e-300
+    """Eq. 13's Γ = 0: τ rose from one step to the next beyond the relative tolerance (a
+    tolerance so large that the bound overflows to inf: never)."""
+    with np.errstate(over="ignore"):
+        out: np.ndarray = np.asarray(tau_next) > np.asarray(tau_prev) * (1.0 + tolerance) + 1e-300
     return out
 
 

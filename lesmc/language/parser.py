@@ -196,7 +196,7 @@ class _Builder:
                 )
             if len(what.children) > 1 and what.children[1] is not None:
                 param_pos = _pos(what.children[1])
-                param = self.number(what.children[1], f"the {kind} monitor's parameter")
+                param = self.number(what.children[1], f"{kind} monitor's parameter")
         declared = monitors.get(kind)
         names: tuple[str, ...] | None = None
         window = 1

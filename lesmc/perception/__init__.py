@@ -23,10 +23,9 @@ HISTORY = 4
 #: end's default (``BlobConfig``), and what verify perceives a video with.
 DELTA_BC = 12
 
-#: The values the front end's settings may take (``lesmc perceive --history``,
-#: ``--delta-bc``; a scene's ``meta.frontend``, a results document's ``perception``; the
-#: schemas say the same, tests/test_frontend_settings.py checks that they agree).
-FRONTEND_RANGES: dict[str, tuple[int, int]] = {"history": (3, 16), "delta_bc": (1, 255)}
+#: The values the front end's settings may take (lesmc/common/fields.py; a scene's
+#: ``meta.frontend`` is checked as the scene is read, lesmc/scene/meta_attack.py).
+from lesmc.common.fields import FRONTEND_RANGES as FRONTEND_RANGES  # noqa: E402
 
 #: Bisection steps of on-demand certification (``verify``, ``campaign --payoffs``): it
 #: bounds a handful of detections, so it can afford three times ``perceive --certify``'s 2

@@ -11,10 +11,8 @@ from dataclasses import asdict, dataclass
 from typing import Any, Literal
 
 from lesmc.common.errors import InputError, Problems
-from lesmc.common.fields import show
-from lesmc.perception import FRONTEND_RANGES
 from lesmc.scene.located import scene_error
-from lesmc.scene.meta_attack import recorded_attack
+from lesmc.scene.meta_attack import recorded_attack, recorded_frontend
 
 Method = Literal["deepfool", "pgd"]
 Norm = Literal["l2", "per-pixel"]
@@ -64,35 +62,13 @@ def attack_of(meta: dict[str, Any], where: str = "<scene>") -> AttackConfig:
 def frontend_of(meta: dict[str, Any], where: str = "<scene>") -> dict[str, int]:
     """The front end's settings a scene's meta records (``meta.frontend``: ``history`` and
     ``delta_bc``, as ``lesmc perceive -o`` writes them); {} for a scene that records none
-    (made before they were recorded, or not by the window pipeline). A recorded value that
-    is not an integer in :data:`lesmc.perception.FRONTEND_RANGES` (perceive's own ranges)
-    is an InputError at its field (``meta.frontend.history``) in ``where``, the scene file;
-    so is a ``meta.frontend`` that is not an object, or one with another field (a misspelt
-    setting would otherwise replay with the default)."""
-    if "frontend" not in meta:
-        return {}
-    fe = meta["frontend"]
-    if not isinstance(fe, dict):
-        what = f"must be an object with history and delta_bc, got {show(fe)}"
-        raise scene_error(where, None, [("meta.frontend", what)])
-    got: dict[str, int] = {}
-    problems = [
-        (f"meta.frontend.{k}", f"unknown setting (known: {', '.join(FRONTEND_RANGES)})")
-        for k in fe
-        if k not in FRONTEND_RANGES
-    ]
-    for key, (lo, hi) in FRONTEND_RANGES.items():
-        if key not in fe:
-            continue
-        v = fe[key]
-        if isinstance(v, int) and not isinstance(v, bool) and lo <= v <= hi:
-            got[key] = v
-        else:
-            problems.append(
-                (f"meta.frontend.{key}", f"must be an integer in {lo}..{hi}, got {show(v)}")
-            )
-    if problems:
-        raise scene_error(where, None, problems)
+    (made before they were recorded, or not by the window pipeline). A bad one
+    (lesmc.scene.meta_attack ``recorded_frontend``, which the scene's reader runs too) is
+    an InputError at its field (``meta.frontend.history``) in ``where``, the scene file."""
+    pr = Problems()
+    got = recorded_frontend(meta, pr)
+    if pr.items:
+        raise scene_error(where, None, pr.items)
     return got
 
 

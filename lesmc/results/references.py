@@ -17,6 +17,7 @@ from lesmc.common.errors import Problems, clipped
 from lesmc.common.fields import within
 from lesmc.common.locations import error_in_file
 from lesmc.scene.io import MAX_COORD, MAX_DT
+from lesmc.scene.tracker_file import tracker_block
 
 #: |coordinate| of a drawn box or position: detections lie within MAX_COORD, a track
 #: coasting past them a little beyond; far beyond, the report's view overflows
@@ -136,11 +137,15 @@ def _shown(obs: Any) -> str:
 
 def _replay_inputs(run: dict[str, Any], at: str, pr: Problems) -> None:
     """The replay's time step as a scene's (0 < dt <= MAX_DT); the scene part's detections
-    as [x, y, id, payoff, x_ref, y_ref]. (A hidden detection may lie outside the scene
-    part, which keeps only the detections near a listed track.)"""
+    as [x, y, id, payoff, x_ref, y_ref]; the tracker as a scene's ``tracker`` block
+    (lesmc/scene/tracker_file.py, which the replay reads it with after perceiving).
+    (A hidden detection may lie outside the scene part, which keeps only the detections
+    near a listed track.)"""
     rp, scene = run.get("replay_inputs"), run.get("scene")
     if rp is not None and not (_number(rp["dt"]) and 0 < rp["dt"] <= MAX_DT):
         pr.add(f"{at}.replay_inputs.dt", f"must be a number in (0, {MAX_DT:g}]")
+    if rp is not None and "tracker" in rp:
+        tracker_block(rp["tracker"], pr, f"{at}.replay_inputs.tracker")
     if scene is None:
         return
     for k, step in enumerate(scene["detections"]):
@@ -167,8 +172,13 @@ def check_multi_steps(doc: dict[str, Any], path: str, text: str | None = None) -
     pr = Problems()
     for i, res in enumerate(doc["results"]):
         last = -1
-        for k, s in enumerate(res["counterexample"] or []):
+        steps = res["counterexample"] or []
+        drawn = bool(steps) and "tracks" in steps[0]  # the report then draws every step
+        for k, s in enumerate(steps):
             at = f"results[{i}].counterexample[{k}]"
+            for key in ("tracks", "attacked"):
+                if drawn and key not in s:
+                    pr.add(at, f"needs {key!r}, as the counterexample's first step has 'tracks'")
             if s["step"] <= last:
                 pr.add(f"{at}.step", f"must exceed the step before, {last} (steps in order)")
             last = max(last, s["step"])

@@ -27,7 +27,7 @@ from lesmc.common.fields import (
 from lesmc.common.files import read_json, write_json
 from lesmc.scene.frames import Detection, Frame
 from lesmc.scene.located import scene_error
-from lesmc.scene.meta_attack import recorded_attack
+from lesmc.scene.meta_attack import recorded_attack, recorded_frontend
 from lesmc.scene.scene import (
     UNATTACKABLE,
     UNPRICED,
@@ -118,7 +118,10 @@ def footage_from_dict(
         )
     raw_meta = data.get("meta")
     meta: dict[str, Any] = raw_meta if isinstance(raw_meta, dict) else {}
+    if raw_meta is not None and not isinstance(raw_meta, dict):
+        pr.add("meta", f"must be an object, got {show(raw_meta)}")
     recorded_attack(meta, pr)
+    recorded_frontend(meta, pr)
     if pr.items:
         raise scene_error(path, data, pr.items)
     assert tracker is not None

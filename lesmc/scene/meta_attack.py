@@ -1,6 +1,7 @@
-"""A scene's ``meta.attack`` (docs/scene-format.md): the attack settings ``lesmc perceive -o``
-records and a replay attacks with again, the notes it writes beside them for a reader, and
-their check when a scene is read (lesmc/scene/io.py)."""
+"""A scene's ``meta.attack`` and ``meta.frontend`` (docs/scene-format.md): the attack
+settings ``lesmc perceive -o`` records and a replay attacks with again, the notes it writes
+beside them for a reader, the front end's settings the replay reruns, and their check when
+a scene is read (lesmc/scene/io.py)."""
 
 from __future__ import annotations
 
@@ -10,7 +11,7 @@ from dataclasses import dataclass
 from typing import Any
 
 from lesmc.common.errors import Problems
-from lesmc.common.fields import is_finite, is_int, show
+from lesmc.common.fields import FRONTEND_RANGES, is_finite, is_int, show
 
 #: The attack settings a scene's ``meta.attack`` records that lesmc reads back (the
 #: replay attacks with them), and the values each may take: what ``lesmc perceive``
@@ -66,4 +67,30 @@ def recorded_attack(meta: dict[str, Any], pr: Problems) -> dict[str, Any]:
                 got[key] = attack[key]
             else:
                 pr.add(f"meta.attack.{key}", f"must be {what}, got {show(attack[key])}")
+    return got
+
+
+def recorded_frontend(meta: dict[str, Any], pr: Problems) -> dict[str, int]:
+    """The front end's settings ``meta.frontend`` records (``history``, ``delta_bc``), each
+    an integer in :data:`FRONTEND_RANGES` ({} when there is no ``meta.frontend``); a bad
+    one is a problem in ``pr`` and left out, and so is a ``meta.frontend`` that is not an
+    object (null too) or a field of another name (a misspelt setting would replay with
+    the default)."""
+    if "frontend" not in meta:
+        return {}
+    fe = meta["frontend"]
+    if not isinstance(fe, dict):
+        pr.add("meta.frontend", f"must be an object with history and delta_bc, got {show(fe)}")
+        return {}
+    for k in fe:
+        if k not in FRONTEND_RANGES:
+            pr.add(f"meta.frontend.{k}", f"unknown setting (known: {', '.join(FRONTEND_RANGES)})")
+    got: dict[str, int] = {}
+    for key, (lo, hi) in FRONTEND_RANGES.items():
+        if key not in fe:
+            continue
+        if is_int(fe[key]) and lo <= fe[key] <= hi:
+            got[key] = fe[key]
+        else:
+            pr.add(f"meta.frontend.{key}", f"must be an integer in {lo}..{hi}, got {show(fe[key])}")
     return got
