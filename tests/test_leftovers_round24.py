@@ -1,0 +1,81 @@
+"""Round 24's leftovers (docs/cli.md "replay", docs/semantics.md): bugs found by other
+helpers, each checked through the CLI entry point.
+
+1. An ``allow hide, inject`` counterexample on ``single`` whose path skips at a step
+   only an attack forces (every gated detection hidden) replays through a heatmap
+   detector file: the skip's hiding is part of the replayed attack, whose recomputed
+   cost is the optimum (it was left out, and the replay refused the results).
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+from typing import Any
+
+import pytest
+from cli_run import lesmc
+
+SPEC_INJ = """property grab {
+    attack window 3..5 allow hide, inject
+    minimize payoff
+    subject to dist.max(0..end) > 5
+    holds if optimum > 10
+    on x, y
+}
+"""
+
+
+def _spot_frames(d: Path) -> Path:
+    """12 frames: a bright spot moving past a static one, a faint spot (grey 90) 12 px
+    below the moving one (tests/test_inject_replay_heatmap.py's, the faint one nearer)."""
+    import cv2
+    import numpy as np
+    from spot_detector import H, W
+
+    fr = d / "frames"
+    fr.mkdir()
+    for k in range(12):
+        img = np.full((H, W), 20, np.uint8)
+        x, y = 10 + 6 * k + 0.15 * k * k, 30 + 0.1 * k * k
+        cv2.circle(img, (round(x), round(y)), 3, 230, -1)
+        cv2.circle(img, (60, 44), 3, 230, -1)
+        cv2.circle(img, (round(x), round(y + 12)), 3, 90, -1)
+        cv2.imwrite(str(fr / f"f{k:02d}.png"), cv2.GaussianBlur(img, (5, 5), 1.0))
+    return fr
+
+
+def test_forced_skip_replays_through_a_heatmap_file(tmp_path: Path) -> None:
+    pytest.importorskip("onnx")
+    pytest.importorskip("onnxscript")
+    pytest.importorskip("cv2")
+    from spot_detector import write_spot_detector
+
+    frames, toml = _spot_frames(tmp_path), write_spot_detector(tmp_path)
+    scene = tmp_path / "scene.json"
+    r = lesmc("perceive", str(frames), "--detector", str(toml), "-o", str(scene),
+              "--target", "10,30@0", "--inject-within", "25")  # fmt: skip
+    assert r.returncode == 0, r.stderr
+    spec = tmp_path / "p.spec"
+    spec.write_text(SPEC_INJ)
+    rep = tmp_path / "rep"
+    r = lesmc("check", str(scene), str(spec), "--design", "single", "--json",
+              "--report", str(rep))  # fmt: skip
+    assert r.returncode == 1 and "Traceback" not in r.stderr, r.stderr
+    res = json.loads(r.stdout)["results"][0]
+    steps = res["counterexample"]["steps"]
+    skips = [s["step"] for s in steps if s["attacked"] and s["obs"] is None and s["rank"]]
+    assert skips, "the scenario no longer has a forced skip"
+    r = lesmc("replay", str(rep / "results.json"), "--frames", str(frames),
+              "--detector", str(toml), "--json")  # fmt: skip
+    assert "Traceback" not in r.stderr
+    assert r.returncode == 1, r.stderr  # a violation confirmed (was: exit 2, "differ")
+    (row,) = json.loads(r.stdout)["replays"]
+    assert row["replay"]["status"] == "confirmed", row["replay"]["reason"]
+    perts = row["replay"]["perturbations"]
+    assert {p["step"] for p in perts} >= set(skips)  # the skip's hiding is replayed
+    doc: dict[str, Any] = json.loads(scene.read_text())
+    pay = {d["id"]: d["payoff"] for f in doc["frames"] for d in f["detections"]}
+    pay |= {c["id"]: c["payoff"] for f in doc["frames"] for c in f.get("candidates", [])}
+    # the scene's own prices of what the replay attacked add up to the optimum
+    assert sum(pay[p["obs"]] for p in perts) == pytest.approx(res["optimum"], rel=1e-3)
