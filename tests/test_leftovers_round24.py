@@ -5,6 +5,9 @@ helpers, each checked through the CLI entry point.
    only an attack forces (every gated detection hidden) replays through a heatmap
    detector file: the skip's hiding is part of the replayed attack, whose recomputed
    cost is the optimum (it was left out, and the replay refused the results).
+2. ``lesmc check SCENE SPEC --design sort --tracker FILE --report DIR`` records the tracker
+   it ran (``meta.tracker``), and ``lesmc replay DIR/results.json`` tracks with it, not
+   with the scene file's block (with which the replay diverged).
 """
 
 from __future__ import annotations
@@ -15,6 +18,8 @@ from typing import Any
 
 import pytest
 from cli_run import lesmc
+
+from lesmc.schemas import validate
 
 SPEC_INJ = """property grab {
     attack window 3..5 allow hide, inject
@@ -79,3 +84,40 @@ def test_forced_skip_replays_through_a_heatmap_file(tmp_path: Path) -> None:
     pay |= {c["id"]: c["payoff"] for f in doc["frames"] for c in f.get("candidates", [])}
     # the scene's own prices of what the replay attacked add up to the optimum
     assert sum(pay[p["obs"]] for p in perts) == pytest.approx(res["optimum"], rel=1e-3)
+
+
+def test_multi_replay_tracks_with_the_checked_tracker_file(tmp_path: Path) -> None:
+    """SORT with min_hits 1, max_age 0 (``--tracker``) on the small video: the check's
+    counterexamples replay confirmed, their target ids those of the check's (the scene's
+    tracker block, a single design's defaults with SORT's min_hits 3, max_age 1, loses the
+    target where the file's tracker gives it a new track)."""
+    import tomllib
+
+    from multi_video import SPEC, write_small_video
+
+    write_small_video(tmp_path / "video")
+    (tmp_path / "identity.spec").write_text(SPEC)
+    scene = tmp_path / "scene.json"
+    video = tmp_path / "video"
+    r = lesmc("perceive", str(video), "-o", str(scene), "--truth", str(video / "truth.json"),
+              "--target", "119.0,71.5@4")  # fmt: skip
+    assert r.returncode == 0, r.stderr
+    tracker = tmp_path / "t.toml"
+    tracker.write_text('design = "sort"\nmin_hits = 1\nmax_age = 0\niou_threshold = 0.2\n')
+    rep = tmp_path / "rep"
+    r = lesmc("check", str(scene), str(tmp_path / "identity.spec"), "--design", "sort",
+              "--tracker", str(tracker), "--report", str(rep), "--json")  # fmt: skip
+    assert r.returncode == 1 and "Traceback" not in r.stderr, r.stderr
+    doc = json.loads((rep / "results.json").read_text())
+    validate(doc, "multi-check")
+    ran = doc["meta"]["tracker"]
+    given = tomllib.loads(tracker.read_text())
+    assert {k: ran[k] for k in given} == given  # the file's, not the scene's single block
+    r = lesmc("replay", str(rep / "results.json"), "--frames", str(tmp_path / "video"), "--json")
+    assert "Traceback" not in r.stderr
+    assert r.returncode == 1, r.stderr  # confirmed (was: exit 3, diverged at step 5)
+    rows = json.loads(r.stdout)["replays"]
+    assert len(rows) == len(doc["results"]) == 2
+    for row, res in zip(rows, doc["results"], strict=True):
+        assert row["replay"]["status"] == "confirmed", row["replay"]["reason"]
+        assert row["replay"]["target_ids"] == [s["target_id"] for s in res["counterexample"]]
