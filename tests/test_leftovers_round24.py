@@ -8,6 +8,10 @@ helpers, each checked through the CLI entry point.
 2. ``lesmc check SCENE SPEC --design sort --tracker FILE --report DIR`` records the tracker
    it ran (``meta.tracker``), and ``lesmc replay DIR/results.json`` tracks with it, not
    with the scene file's block (with which the replay diverged).
+3. ``lesmc check SCENE SPEC --design sort`` on a scene whose unattacked run already loses
+   and then switches the target (a ground-truth reference, the target's detections
+   missing at two frames): each violated result at optimum 0 says so in a note, in the
+   JSON and in the text output; a violation that needs an attack has no such note.
 """
 
 from __future__ import annotations
@@ -121,3 +125,77 @@ def test_multi_replay_tracks_with_the_checked_tracker_file(tmp_path: Path) -> No
     for row, res in zip(rows, doc["results"], strict=True):
         assert row["replay"]["status"] == "confirmed", row["replay"]["reason"]
         assert row["replay"]["target_ids"] == [s["target_id"] for s in res["counterexample"]]
+
+
+SPEC_IDENTITY = """property hijack {
+    attack window 2..5
+    minimize payoff
+    subject to switches(0..end) > 0
+    holds if optimum > 3
+}
+property lose {
+    attack window 2..5
+    minimize payoff
+    subject to lost(0..end) > 0
+    holds if optimum > 3
+}
+"""
+
+
+def _identity_scene(path: Path, gap: tuple[int, ...]) -> None:
+    """Nine frames: the target (20 x 30 box) moving 8 px a frame, its detection missing at
+    the frames ``gap``, a still object far away; the target's ground truth has a box at
+    every frame (its reference, docs/trackers.md)."""
+    frames = []
+    for k in range(9):
+        d = [] if k in gap else [{"id": f"{k}:0", "x": 40.0 + 8 * k, "y": 50.0}]
+        d.append({"id": f"{k}:1", "x": 200.0, "y": 150.0})
+        frames.append(
+            {"step": k, "detections": [e | {"w": 20.0, "h": 30.0, "payoff": 1.0} for e in d]}
+        )
+    truth = [{"id": "v1", "positions": [[k, 40.0 + 8 * k, 50.0, 20.0, 30.0] for k in range(9)]}]
+    doc = {"format": "lesmc-scene", "version": 2, "frames": frames, "truth": truth,
+           "tracker": {"design": "sort"}, "target": {"step": 0, "start": [40.0, 50.0]}}  # fmt: skip
+    path.write_text(json.dumps(doc))
+
+
+def _first_loss_and_switch(ids: list[int | None]) -> tuple[int | None, int | None]:
+    """The first step (from 1) without the target's track, and the first whose track id
+    differs from the last id the target had (the reference exists at every step)."""
+    lost = next((k for k in range(1, len(ids)) if ids[k] is None), None)
+    last, switch = ids[0], None
+    for k in range(1, len(ids)):
+        if ids[k] is not None:
+            if last is not None and ids[k] != last and switch is None:
+                switch = k
+            last = ids[k]
+    return lost, switch
+
+
+def test_multi_violation_without_attack_says_so(tmp_path: Path) -> None:
+    scene, spec = tmp_path / "s.json", tmp_path / "p.spec"
+    spec.write_text(SPEC_IDENTITY)
+    _identity_scene(scene, (3, 4))
+    r = lesmc("check", str(scene), str(spec), "--design", "sort", "--json")
+    assert r.returncode == 1 and "Traceback" not in r.stderr, r.stderr
+    doc = json.loads(r.stdout)
+    validate(doc, "multi-check")
+    for res in doc["results"]:
+        assert res["verdict"] == "violated" and res["optimum"] == 0
+        steps = res["counterexample"]
+        assert not any(s["hidden"] or s["injected"] for s in steps)
+        lost, switch = _first_loss_and_switch([s["target_id"] for s in steps])
+        assert lost is not None and switch is not None
+        (note,) = res["notes"]
+        assert note.startswith("violated without attack: the unattacked run itself violates")
+        assert f"loses the target at step {lost}" in note
+        assert f"switches the target's id at step {switch}" in note
+    text = lesmc("check", str(scene), str(spec), "--design", "sort")
+    assert text.returncode == 1 and "Traceback" not in text.stderr, text.stderr
+    assert text.stdout.count("note: violated without attack") == 2
+    _identity_scene(scene, ())  # no gap: losing the target takes an attack
+    r = lesmc("check", str(scene), str(spec), "--design", "sort", "--json")
+    assert "Traceback" not in r.stderr, r.stderr
+    for res in json.loads(r.stdout)["results"]:
+        assert res["verdict"] == "violated" and res["optimum"] > 0
+        assert "notes" not in res
