@@ -12,6 +12,8 @@ helpers, each checked through the CLI entry point.
    and then switches the target (a ground-truth reference, the target's detections
    missing at two frames): each violated result at optimum 0 says so in a note, in the
    JSON and in the text output; a violation that needs an attack has no such note.
+4. ``inject grid D within R payoff P`` refuses P above a scene's largest payoff (1e12,
+   lesmc/common/numbers.py), at P's FILE:LINE:COL: two such injections summed to inf.
 """
 
 from __future__ import annotations
@@ -21,7 +23,7 @@ from pathlib import Path
 from typing import Any
 
 import pytest
-from cli_run import lesmc
+from cli_run import ROOT, lesmc
 
 from lesmc.schemas import validate
 
@@ -199,3 +201,38 @@ def test_multi_violation_without_attack_says_so(tmp_path: Path) -> None:
     for res in json.loads(r.stdout)["results"]:
         assert res["verdict"] == "violated" and res["optimum"] > 0
         assert "notes" not in res
+
+
+GRID_SPEC = """property g {{
+  attack window 6..8 allow hide, inject
+  inject grid 5 within 10 payoff {p}
+  minimize payoff
+  subject to dist.sum(0..end) > 120
+  holds if optimum > 3
+}}
+"""
+
+
+@pytest.mark.parametrize("p", ["1.5e12", "1e308"])
+def test_an_inject_grid_payoff_above_the_scene_cap_is_refused_at_p(tmp_path: Path, p: str) -> None:
+    spec = tmp_path / "g.spec"
+    spec.write_text(GRID_SPEC.format(p=p))
+    line = spec.read_text().split("\n")[2]
+    col = line.index(p) + 1  # P's column, counted here
+    r = lesmc("check", str(ROOT / "examples" / "merge.json"), "g.spec", cwd=tmp_path)
+    assert r.returncode == 2 and "Traceback" not in r.stderr, r.stderr
+    assert r.stdout == ""
+    first = r.stderr.strip().splitlines()[0]
+    assert first.startswith(f"g.spec:3:{col}: "), first
+    assert "at most 1e+12" in first and p in first
+
+
+def test_an_inject_grid_payoff_at_the_cap_is_taken(tmp_path: Path) -> None:
+    """P = 1e12 (the cap itself) is a valid price: the check runs (no grid point is then
+    worth taking at a threshold of 3)."""
+    spec = tmp_path / "g.spec"
+    spec.write_text(GRID_SPEC.format(p="1e12"))
+    r = lesmc("check", str(ROOT / "examples" / "merge.json"), "g.spec", "--json", cwd=tmp_path)
+    assert "Traceback" not in r.stderr, r.stderr
+    assert r.returncode in (0, 1), r.stderr
+    assert json.loads(r.stdout)["results"][0]["property"] == "g"
