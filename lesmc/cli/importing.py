@@ -270,7 +270,7 @@ def _inject(column: int | None, threshold: float | None) -> Inject | None:
 
 def _payoffs(constant: float | None, column: int | None) -> Payoffs:
     """``--payoff`` or ``--payoff-column`` (default: every detection costs 1)."""
-    from lesmc.scene.io import MAX_PAYOFF
+    from lesmc.common.numbers import MAX_PAYOFF
     from lesmc.scene.mot import Payoffs
 
     if constant is not None and column is not None:

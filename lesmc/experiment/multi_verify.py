@@ -31,7 +31,7 @@ from lesmc.pipeline.multi import (
     check_multi_design,
     multi_document,
 )
-from lesmc.scene import Scene, scene_to_dict, target_to_dict
+from lesmc.scene import Scene, scene_to_dict, target_to_dict, tracker_from_dict
 
 if TYPE_CHECKING:
     from lesmc.common.budget import Budget
@@ -148,12 +148,14 @@ def replay_meta(
     """What a ``lesmc-multi-check`` document's ``meta`` records for ``lesmc replay``
     (:func:`replay_document` reads it): the target the check placed on the scene
     (``scene_target``), the property files (``properties``), the window they were moved
-    to (``window``; None: as written) and the scene file the check read (``scene``; none
-    for ``scene_file`` None: verify's own perception, whose scene.json sits beside the
-    results). ``lesmc verify --design sort|gnn`` and ``lesmc check --design sort|gnn
-    --report DIR`` (lesmc/cli/multi_check.py) both record it."""
+    to (``window``; None: as written), the tracker the check ran (``tracker``: the
+    scene's block, or ``--tracker FILE``'s, which replaces it) and the scene file the check
+    read (``scene``; none for ``scene_file`` None: verify's own perception, whose
+    scene.json sits beside the results). ``lesmc verify --design sort|gnn`` and ``lesmc
+    check --design sort|gnn --report DIR`` (lesmc/cli/multi_check.py) both record it."""
     meta: dict[str, Any] = {
         "scene_target": target_to_dict(scene.target),  # what lesmc replay places on meta.scene
+        "tracker": scene.tracker.to_json(),  # what lesmc replay tracks with (not the file's)
         "properties": [str(p.resolve()) for p in properties],
         "window": None if window is None else list(window),
     }
@@ -314,7 +316,7 @@ def replay_document(
             f"--detector {nets[1]}: a multi-target design's counterexamples replay through the "
             "window pipeline's networks (--nets, --detector, --locator) only, so far"
         )
-    scene = _placed_scene(meta, scene_path, doc["design"])
+    scene = _placed_scene(meta, (scene_path, path), doc["design"])
     window = meta.get("window")
     props = [Path(p) for p in meta.get("properties") or ()] or identity_specs()
     specs = ex.load_specs(props, None if window is None else (int(window[0]), int(window[1])))
@@ -331,19 +333,24 @@ def replay_document(
     return outcome, frames_dir
 
 
-def _placed_scene(meta: dict[str, Any], scene_path: str, design: str) -> Scene:
-    """The scene file ``scene_path`` with the target the check placed on it
+def _placed_scene(meta: dict[str, Any], paths: tuple[str, str], design: str) -> Scene:
+    """The scene file ``paths[0]`` with the target the check placed on it
     (``meta.scene_target``, as ``verify --scene S --target X,Y@K`` recorded it; else the
-    file's own target) and the results' ``design``."""
+    file's own target), the tracker the check ran (``meta.tracker``: ``--tracker FILE``'s
+    when given; else the file's own block) and the results' ``design``; ``paths[1]``:
+    the results file, which a bad ``meta.tracker`` is an error of."""
     from lesmc.common.errors import InputError
     from lesmc.common.files import read_json
     from lesmc.tracking.targets import footage_or_scene
 
+    scene_path, path = paths
     data = read_json(Path(scene_path), InputError)
     placed = meta.get("scene_target")
     if isinstance(placed, dict) and isinstance(data, dict):
         data = {**data, "target": placed}
-    scene = footage_or_scene(data, scene_path, None, design)
+    ran = meta.get("tracker")
+    tracker = None if ran is None else tracker_from_dict(ran, f"{path}: meta.tracker")
+    scene = footage_or_scene(data, scene_path, None, design, tracker)
     if not isinstance(scene, Scene):
         raise UsageError(
             f"{scene_path} has no target and the results record none (meta.scene_target): "

@@ -19,6 +19,7 @@ from __future__ import annotations
 from collections.abc import Collection, Sequence
 from dataclasses import dataclass
 
+from lesmc.common.numbers import MAX_PAYOFF
 from lesmc.language.properties import InjectGrid
 
 
@@ -94,7 +95,8 @@ def allow_problem(
 
 def grid_problem(grid: InjectGrid, written: Sequence[str]) -> tuple[int, str] | None:
     """The first problem of ``inject grid D within R payoff P``: the index of the number at
-    fault (0: D, 1: R, 2: P) and the message; D > 0 px, R >= 0 px, P >= 0, at most
+    fault (0: D, 1: R, 2: P) and the message; D > 0 px, R >= 0 px, 0 <= P <= MAX_PAYOFF
+    (lesmc/common/numbers.py, a scene's prices' cap: sums of payoffs stay finite), at most
     :data:`MAX_GRID_POINTS` points (too many: at D). ``written``: D, R and P as the spec
     wrote them (clipped). None: a grid within its limits."""
     d, r, p = written
@@ -102,10 +104,14 @@ def grid_problem(grid: InjectGrid, written: Sequence[str]) -> tuple[int, str] | 
         (grid.spacing > 0, f"the grid spacing must be positive (px), got {d}"),
         (grid.radius >= 0, f"the grid radius must be at least 0 (px), got {r}"),
         (grid.payoff >= 0, f"an inject payoff must be at least 0, got {p}"),
+        (
+            grid.payoff <= MAX_PAYOFF,
+            f"an inject payoff must be at most {MAX_PAYOFF:g} (a scene's largest payoff), got {p}",
+        ),
     )
     for i, (ok, message) in enumerate(checks):
         if not ok:
-            return i, message
+            return min(i, 2), message
     side = 2 * (grid.radius / grid.spacing) + 1  # the square's points, before counting:
     bound = side * side  # a float product (inf when huge); ** would raise OverflowError
     if bound > 4 * MAX_GRID_POINTS or len(grid.offsets()) > MAX_GRID_POINTS:

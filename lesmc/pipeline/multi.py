@@ -129,6 +129,7 @@ class MultiCheckResult:
         if self.bounds is not None:
             out["bounds"] = {"lower": num(self.bounds[0]), "upper": num(self.bounds[1])}
             out["states_expanded"] = self.states_expanded
+        if self.bounds is not None or self.notes:
             out["notes"] = list(self.notes)
         return out
 
@@ -352,10 +353,37 @@ def _result(
     head = (str(model.meta["design"]), str(model.meta["reference"]), b.name)
     if res.stopped == "finished":
         verdict = "holds" if res.holds else "violated"
+        note = unattacked_note(model, steps) if verdict == "violated" else None
         return MultiCheckResult(
-            *head, verdict, res.optimum, res.constraint, res.states, res.transitions, steps
-        )
+            *head, verdict, res.optimum, res.constraint, res.states, res.transitions, steps,
+            notes=() if note is None else (note,),
+        )  # fmt: skip
     return _stopped(head, b, res, steps)
+
+
+def unattacked_note(model: MultiModel, steps: tuple[AttackStep, ...] | None) -> str | None:
+    """A violation whose counterexample attacks no step is the unattacked run's own: the
+    note that says so, with the first step where that run loses the target and the first
+    where it switches its id (the ``lost`` and ``switches`` measures' indicators,
+    lesmc/model/identity.py); None when the counterexample attacks."""
+    import numpy as np
+
+    from lesmc.model.identity import NONE, indicators, last_seen
+
+    if not steps or any(s.hidden or s.injected for s in steps):
+        return None
+    head = "violated without attack: the unattacked run itself violates the property"
+    tid = np.array([NONE if s.target_id is None else s.target_id for s in steps], np.int64)
+    last = tid.copy()
+    for k in range(1, len(tid)):
+        last[k] = last_seen(last[k - 1 : k], tid[k : k + 1])[0]
+    ref = ~np.isnan(np.asarray(model.refbox, float)[[s.step for s in steps[1:]]]).any(axis=1)
+    said = []
+    for what, source in (("loses the target", "lost"), ("switches the target's id", "switches")):
+        hit = np.flatnonzero(indicators(source, last[:-1], tid[1:], ref))
+        if hit.size:
+            said.append((int(hit[0]) + 1, f"{what} at step {int(hit[0]) + 1}"))
+    return f"{head} ({'; '.join(w for _, w in sorted(said))})" if said else head
 
 
 def _stopped(

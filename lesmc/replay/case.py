@@ -79,6 +79,10 @@ class Case:
     state_names: tuple[str, ...] = ()
     #: the constraint as the results spell it (``dist.sum(0..end) > 120``)
     constraint: str = ""
+    #: under inject on ``single``: per step the path skips, the ids of the detections the
+    #: results record hidden there (``runs[].hidden``: every gated detection, the skip the
+    #: attack forces; :func:`forced_skip`)
+    skips: dict[int, list[str]] = field(default_factory=dict)
 
     @property
     def injects(self) -> bool:
@@ -306,4 +310,25 @@ def _case(run: RunDoc, i: int, j: int, cex_no: int) -> Case:
         end=run.model.end,
         state_names=run.model.components,
         constraint=res.constraint,
+        skips=_skips(run, res.property, list(path.obs)) if "inject" in actions else {},
     )
+
+
+def _skips(run: RunDoc, prop: str, obs: list[str | None]) -> dict[int, list[str]]:
+    """Per step the path skips (``obs[step - 1]`` None), the ids of the detections the
+    results record ``prop``'s counterexample hiding there."""
+    out: dict[int, list[str]] = {}
+    for e in run.hidden.get(prop, ()):
+        k = e.hidden.step
+        if 1 <= k <= len(obs) and obs[k - 1] is None:
+            out.setdefault(k, []).append(e.hidden.obs)
+    return out
+
+
+def forced_skip(case: Case, step: int, frame: int) -> list[Hidden]:
+    """The detections to hide at ``step`` of an ``allow hide, inject`` counterexample on
+    ``single`` whose path skips there: those the results record hidden at the step (the
+    cheapest way to force a skip hides every gated detection; none: the tracker skips
+    unattacked). Their payoffs are recomputed by the replay (NaN here)."""
+    nan = math.nan
+    return [Hidden(step, frame, h, nan, nan, nan) for h in case.skips.get(step, [])]

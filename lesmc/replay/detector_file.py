@@ -48,6 +48,7 @@ from lesmc.replay.case import (
     FrameAttack,
     cases,
     check_payoff,
+    forced_skip,
     group_by_case,
     hidden_by_frame,
     perturbation_record,
@@ -450,8 +451,8 @@ def _derived(
         hid, inj = case.forced.get(step, ([], []))
     else:
         taken = case.obs[step - 1]
-        if taken is None:  # a skip: not derived (the comparison says if the tracker skips)
-            return [], []
+        if taken is None:  # a skip: hide what the results record hidden there
+            return forced_skip(case, step, clean.index), []
         cell = _candidate_cells(det, x, clean.index, [taken])[0] if ":c" in taken else None
         at = None if cell is None else _cell_position(det, cell)
         rows = single_forcing(case, step, clean.positions, None, taken, at)

@@ -14,7 +14,8 @@ detected again, as for hiding (lesmc/replay/perturbed.py), and repaired as hidin
 detections that survive are hidden again and injected candidates not detected are
 injected again, on the perturbed frame (``repair_frame``); the recomputed cost of the
 path's attacks must equal its optimum (``minimize payoff``). A skip that only an attack
-forces is not derived: the replay then diverges there.
+forces hides what the results record hidden at that step
+(:func:`~lesmc.replay.case.forced_skip`).
 """
 
 from __future__ import annotations
@@ -33,6 +34,7 @@ from lesmc.replay.case import (
     PERTURBATION_DIGITS,
     Case,
     FrameAttack,
+    forced_skip,
     perturbation_record,
 )
 from lesmc.replay.perturbed import (
@@ -151,15 +153,15 @@ def _derived(
     """The detections to hide and the candidates to inject (id, row of Q_bc) at ``step``:
     on ``joint`` those the walk along the path found (``case.forced``,
     lesmc/replay/joint_forcing.py), on ``single`` the cheapest way to take the path's
-    measurement (:func:`_forced`; a skip is not derived: nothing)."""
+    measurement (:func:`_forced`; a skip: :func:`~lesmc.replay.case.forced_skip`)."""
     nan = math.nan
     if case.forced is not None:
         hid, inj = case.forced.get(step, ([], []))
         hidden = [Hidden(step, fd.index, h, nan, nan, nan) for h in hid]
         return hidden, [(cid, _candidate(case, fd, out, cid)) for cid in inj]
     taken = case.obs[step - 1]
-    if taken is None:  # a skip: not derived (the comparison says if the tracker skips too)
-        return [], []
+    if taken is None:  # a skip: hide what the results record hidden there
+        return forced_skip(case, step, fd.index), []
     hidden, row = _forced(case, step, fd, out, taken)
     return hidden, [] if row is None else [(taken, row)]
 

@@ -25,6 +25,7 @@ from lesmc.common.fields import (
     within,
 )
 from lesmc.common.files import read_json, write_json
+from lesmc.common.numbers import MAX_PAYOFF
 from lesmc.scene.frames import Detection, Frame
 from lesmc.scene.located import scene_error
 from lesmc.scene.meta_attack import recorded_attack, recorded_frontend
@@ -48,7 +49,6 @@ from lesmc.scene.tracker_model import (
 MAX_DT = 3600.0  #: seconds between frames
 MAX_COORD = 1e7  #: |x|, |y| of detections and of the target's start (pixels)
 MAX_VELOCITY = 1e6  #: |vx|, |vy| of the target's initial velocity (pixels per second)
-MAX_PAYOFF = 1e12  #: a detection's payoff
 MAX_HOMOGRAPHY = 1e6  #: |entry| of a frame-to-frame homography
 FORMAT = "lesmc-scene"
 #: The newest version: 2 added detection boxes (``w``, ``h``), 3 injection candidates

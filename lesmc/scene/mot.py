@@ -32,8 +32,9 @@ from typing import Literal
 from lesmc.common.errors import InputError, Location, UsageError
 from lesmc.common.fields import MAX_STEP
 from lesmc.common.files import atomic_write_text, read_text
+from lesmc.common.numbers import MAX_PAYOFF
 from lesmc.scene.frames import Detection, Frame
-from lesmc.scene.io import MAX_COORD, MAX_PAYOFF, MAX_TRUTH, box_problem
+from lesmc.scene.io import MAX_COORD, MAX_TRUTH, box_problem
 from lesmc.scene.scene import Footage, Scene, Target, TrackerConfig, TruthTrack
 
 Point = Literal["center", "bottom"]
