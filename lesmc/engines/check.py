@@ -18,9 +18,9 @@ from lesmc.engines.result import CheckResult, EngineOutcome, PathInfo, Verdict, 
 from lesmc.engines.space import (
     SearchSpace,
     build_space,
-    original_alarms,
     original_nis,
     transition_nis,
+    unattacked_alarm_steps,
 )
 from lesmc.language import actions
 from lesmc.language.properties import SpecFile
@@ -214,8 +214,7 @@ def monitor_facts(space: SearchSpace) -> tuple[list[int] | None, bool]:
     tau_orig = np.zeros(len(cm.original))
     if bp.monitor_components:
         tau_orig = kernel.tau(cm.P_table, bp.monitor_components)[cm.cov[cm.original]]
-    fired = original_alarms(bp, tau_orig, original_nis(cm, transition_nis(cm, bp)))
-    steps = [k for k in range(bp.l, min(bp.end, len(fired) - 1) + 1) if fired[k]]
+    steps = unattacked_alarm_steps(bp, tau_orig, original_nis(cm, transition_nis(cm, bp)))
     return steps, bool(steps) and not bp.monitor_except_original
 
 
@@ -227,7 +226,7 @@ def check_lazy(
 ) -> CheckResult:
     """One bound property on a model unfolded on demand (the engine expands what it visits;
     ``enumerate`` every state its paths reach)."""
-    space = LazySpace(model, bp)
+    space = LazySpace(model, bp, budget)
     out = engines.get(engine).load()(space, budget or Budget())
     out.stats.extra["states_built"] = space.states_built
     return to_result(space, out)

@@ -15,6 +15,7 @@ model does. A halted primary ends a path (alive if the step into it is not cut).
 
 from __future__ import annotations
 
+import time
 from collections.abc import Callable, Iterator
 from typing import TYPE_CHECKING
 
@@ -45,13 +46,14 @@ def primary_alive(
     end: int,
     cut: Cut,
     max_nodes: int = MAX_NODES,
+    deadline: float | None = None,
 ) -> bool:
     """Whether a primary of mean ``x`` and covariance ``cov`` (the design's track table) at
     model step ``k`` has a relaxed path to step ``end`` that ``cut`` never cuts (False: no
     path of the model from such a state survives the monitor). ``window``: the model's
     attack window (candidates are measurements there under inject). A depth-first search
     with an explicit stack (a horizon of any length) and a memo; past ``max_nodes`` nodes
-    every node not yet decided counts as alive (``cut`` may stop it too, by raising)."""
+    or past ``deadline`` (time.monotonic()), every node not yet decided counts as alive."""
     memo: dict[tuple[bytes, int, int], bool] = {}
     stack: list[_Node] = []
     left = [max_nodes]
@@ -59,6 +61,9 @@ def primary_alive(
     def known(x: np.ndarray, c: int, k: int) -> bool | None:
         """The node's answer when known without its moves; else None, the node pushed."""
         if k >= end or left[0] <= 0:
+            return True
+        if deadline is not None and time.monotonic() >= deadline:
+            left[0] = 0
             return True
         key = (x.tobytes(), c, k)
         if key in memo:
