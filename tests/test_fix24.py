@@ -82,14 +82,26 @@ def moves(monkeypatch: pytest.MonkeyPatch) -> list[int]:
 
 
 # ------------------------------------------------------------------ 1. the horizon
+def _tau(P: np.ndarray, pos: tuple[int, ...]) -> float:
+    """Eq. 12: the trace of P's position block, written out."""
+    return float(sum(P[i, i] for i in pos))
+
+
 def test_the_relaxation_runs_a_horizon_of_hundreds_of_steps() -> None:
-    """Asked directly on 450 steps with a monitor that never cuts, the relaxation answers
-    alive (the unattacked path is a relaxed path to the end) instead of overflowing
-    Python's recursion limit."""
+    """Asked directly on 450 steps under Eq. 13's monitor (a skip raises τ, so the only
+    paths that pass update at every step: a path 450 deep), the relaxation answers alive
+    (the unattacked path passes: its τ never rises) instead of overflowing Python's
+    recursion limit."""
     scene, end = _long_scene(451), 450
+    pos = scene.tracker.measured
+    assert not _unattacked_alarms(scene, (1, 1), end)
     model = unfold.lazy_model(scene, (1, 1), end, inject=True)
+
+    def cut(k: int, p0: np.ndarray, p1: np.ndarray) -> bool:
+        return _tau(p1, pos) > _tau(p0, pos) * (1 + TOL)
+
     ask = model.expander.primary_alive  # type: ignore[union-attr]
-    assert ask(int(model.original[0]), end, lambda k, p0, p1: False) is True
+    assert ask(int(model.original[0]), end, cut) is True
 
 
 def test_a_long_joint_check_through_the_cli(tmp_path: Path) -> None:
@@ -121,7 +133,7 @@ def _unattacked_alarms(scene: Scene, window: tuple[int, int], end: int) -> bool:
     model = unfold.lazy_model(scene, window, end, inject=True)
     pos = scene.tracker.measured
     P = model.P_table[model.cov[np.asarray(model.original)]]
-    tau = [float(sum(p[i, i] for i in pos)) for p in P]
+    tau = [_tau(p, pos) for p in P]
     return any(
         tau[k] > tau[k - 1] * (1 + TOL) for k in range(window[0], min(end, len(tau) - 1) + 1)
     )
