@@ -241,13 +241,17 @@ def check_many(
     """Properties whose trees are the same (enumerate.tree_key) by ``enumerate`` with one
     walk of the tree (enumerate.enumerate_many, ``max_work`` its cap on the unfolding's
     work): the results of checking each alone."""
-    return _walk_once(model, _spaces(model, bps), budget or Budget(), max_work)
+    budget = budget or Budget()
+    return _walk_once(model, _spaces(model, bps, budget), budget, max_work)
 
 
-def _spaces(model: ArrayModel | GrowingModel, bps: list[BoundProperty]) -> list[Any]:
-    """Each property's search space on ``model`` (explicit or unfolded on demand)."""
+def _spaces(
+    model: ArrayModel | GrowingModel, bps: list[BoundProperty], budget: Budget | None = None
+) -> list[Any]:
+    """Each property's search space on ``model`` (explicit or unfolded on demand; a lazy
+    space's dead-root question within ``budget``)."""
     if isinstance(model, GrowingModel):
-        return [LazySpace(model, bp) for bp in bps]
+        return [LazySpace(model, bp, budget) for bp in bps]
     return [build_space(model, bp) for bp in bps]
 
 
