@@ -196,11 +196,11 @@ def _prop(**kw: Any) -> PropertyDoc:
 
 
 def test_the_cost_objectives_are_bound_by_the_registry() -> None:
-    mean = judged_measures(_prop(), "payoff", "payoff.mean")
+    mean = judged_measures(_prop(), "payoff", "payoff.mean", "single")
     assert not isinstance(mean, str)
     assert mean.objective.weight == pytest.approx(1 / 3)  # window 6..8: three steps
     assert (mean.objective.lo, mean.objective.hi) == (6, 8)
-    frames = judged_measures(_prop(), "frames", "count.frames")
+    frames = judged_measures(_prop(), "frames", "count.frames", "single")
     assert not isinstance(frames, str) and frames.objective.source == "frames"
     assert frames.constraint.source == "dist" and frames.constraint.hi == 19
 
@@ -216,7 +216,7 @@ def test_the_cost_objectives_are_bound_by_the_registry() -> None:
 )
 def test_what_the_replay_does_not_judge(kw: dict[str, Any], source: str, text: str) -> None:
     assert "dist" in measures.sources()
-    assert isinstance(judged_measures(_prop(**kw), source, text), str)
+    assert isinstance(judged_measures(_prop(**kw), source, text, "single"), str)
 
 
 def test_a_repair_that_did_not_count_its_windows_claims_no_count() -> None:

@@ -18,9 +18,9 @@ from lesmc.engines.result import CheckResult, EngineOutcome, PathInfo, Verdict, 
 from lesmc.engines.space import (
     SearchSpace,
     build_space,
-    original_alarms,
     original_nis,
     transition_nis,
+    unattacked_alarm_steps,
 )
 from lesmc.language import actions
 from lesmc.language.properties import SpecFile
@@ -214,8 +214,7 @@ def monitor_facts(space: SearchSpace) -> tuple[list[int] | None, bool]:
     tau_orig = np.zeros(len(cm.original))
     if bp.monitor_components:
         tau_orig = kernel.tau(cm.P_table, bp.monitor_components)[cm.cov[cm.original]]
-    fired = original_alarms(bp, tau_orig, original_nis(cm, transition_nis(cm, bp)))
-    steps = [k for k in range(bp.l, min(bp.end, len(fired) - 1) + 1) if fired[k]]
+    steps = unattacked_alarm_steps(bp, tau_orig, original_nis(cm, transition_nis(cm, bp)))
     return steps, bool(steps) and not bp.monitor_except_original
 
 
@@ -227,7 +226,7 @@ def check_lazy(
 ) -> CheckResult:
     """One bound property on a model unfolded on demand (the engine expands what it visits;
     ``enumerate`` every state its paths reach)."""
-    space = LazySpace(model, bp)
+    space = LazySpace(model, bp, budget)
     out = engines.get(engine).load()(space, budget or Budget())
     out.stats.extra["states_built"] = space.states_built
     return to_result(space, out)
@@ -242,13 +241,17 @@ def check_many(
     """Properties whose trees are the same (enumerate.tree_key) by ``enumerate`` with one
     walk of the tree (enumerate.enumerate_many, ``max_work`` its cap on the unfolding's
     work): the results of checking each alone."""
-    return _walk_once(model, _spaces(model, bps), budget or Budget(), max_work)
+    budget = budget or Budget()
+    return _walk_once(model, _spaces(model, bps, budget), budget, max_work)
 
 
-def _spaces(model: ArrayModel | GrowingModel, bps: list[BoundProperty]) -> list[Any]:
-    """Each property's search space on ``model`` (explicit or unfolded on demand)."""
+def _spaces(
+    model: ArrayModel | GrowingModel, bps: list[BoundProperty], budget: Budget | None = None
+) -> list[Any]:
+    """Each property's search space on ``model`` (explicit or unfolded on demand; a lazy
+    space's dead-root question within ``budget``)."""
     if isinstance(model, GrowingModel):
-        return [LazySpace(model, bp) for bp in bps]
+        return [LazySpace(model, bp, budget) for bp in bps]
     return [build_space(model, bp) for bp in bps]
 
 

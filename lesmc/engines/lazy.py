@@ -17,10 +17,12 @@ allowed only if it is rank-minimal (the unattacked outcome).
 
 from __future__ import annotations
 
+import time
 from collections.abc import Callable
 
 import numpy as np
 
+from lesmc.common.budget import Budget
 from lesmc.engines.space import (
     SpaceOps,
     excused_steps,
@@ -29,6 +31,7 @@ from lesmc.engines.space import (
     original_nis,
     ranges,
     transition_nis,
+    unattacked_alarm_steps,
 )
 from lesmc.language.semantics import BoundProperty
 from lesmc.model import kernel
@@ -39,7 +42,9 @@ from lesmc.model.growing import BATCH_WORK, GrowArray, GrowingModel, counted_bat
 BATCH = 65_536
 #: Under a monitor that reads only covariances, ask the model's expander whether the
 #: window's root has any completion the monitor allows (docs/semantics.md, "A root no
-#: monitored path leaves"); a root without one is not expanded at all.
+#: monitored path leaves"); a root without one is not expanded at all. Asked only where
+#: the property can be vacuous: the unattacked path (a path from the root) alarms in
+#: l..end and the monitor does not excuse it (``except original``).
 DEAD_ROOT = True
 
 
@@ -48,7 +53,9 @@ class LazySpace(SpaceOps):
 
     cm: GrowingModel
 
-    def __init__(self, model: GrowingModel, bp: BoundProperty) -> None:
+    def __init__(
+        self, model: GrowingModel, bp: BoundProperty, budget: Budget | None = None
+    ) -> None:
         self.cm = model
         self.bp = bp
         self.satisfies = kernel.COMPARE[bp.op]
@@ -67,6 +74,8 @@ class LazySpace(SpaceOps):
         self._ref = reference_states(model)
         self._excused: np.ndarray | None = None
         self._near = GrowArray(np.float64)  # dist.nearest per state, when the property asks
+        #: the root has no completion the monitor allows (its transitions are not allowed)
+        self.dead_root = False
         self._sync()
         q0 = int(model.original[0])
         d0 = float(self.dist[q0])
@@ -79,17 +88,30 @@ class LazySpace(SpaceOps):
             con = self.agg(self.con_max, con, float(self.c_con[t]))
         self.root = int(model.original[bp.l - 1])
         self.root_obj, self.root_con = obj, con
-        #: the root has no completion the monitor allows (its transitions are left out)
-        self.dead_root = DEAD_ROOT and self._root_dead()
+        self.dead_root = DEAD_ROOT and self._root_dead(budget or Budget())
+        if self.dead_root and model.expanded(self.root):  # later ones: _sync leaves them out
+            self._mask.data[int(model.out_lo[self.root]) : int(model.out_hi[self.root])] = False
 
-    def _root_dead(self) -> bool:
+    def _root_dead(self, budget: Budget) -> bool:
         """Whether the model's expander proves that no path from the root passes the
-        property's monitor to the end (False when it cannot tell)."""
+        property's monitor to the end (False when it cannot tell, or when the unattacked
+        path shows it does: see DEAD_ROOT). The question stops, answering False, at the
+        budget's deadline or past its ``max_states`` relaxed nodes."""
         ask = getattr(self.cm.expander, "primary_alive", None)
         cut = self.monitor_cut()
         if ask is None or cut is None or self.cm.halted[self.root]:  # a halted root is a leaf
             return False
-        return ask(self.root, self.bp.end, cut) is False
+        if self.bp.monitor_except_original or not self._unattacked_alarms():
+            return False
+        seconds = budget.check_seconds()
+        deadline = None if seconds is None else time.monotonic() + seconds
+        return ask(self.root, self.bp.end, cut, budget.max_states, deadline) is False
+
+    def _unattacked_alarms(self) -> bool:
+        """The monitor alarms on the unattacked path in l..end (no monitor reading the
+        NIS: :meth:`monitor_cut`)."""
+        tau = self._tau.data[np.asarray(self.cm.original)]
+        return bool(unattacked_alarm_steps(self.bp, tau, None))
 
     def monitor_cut(self) -> Callable[[int, np.ndarray, np.ndarray], bool] | None:
         """The property's monitor as a function of a transition's step entered and the
@@ -169,6 +191,8 @@ class LazySpace(SpaceOps):
         self._c_obj.extend(kernel.contributions(bp.objective, ks, comb, dist, cnt, rise, near))
         self._c_con.extend(kernel.contributions(bp.constraint, ks, comb, dist, cnt, rise, near))
         allowed = ((ks >= bp.l) & (ks <= bp.u)) | (cm.rank[t] == 0)
+        if self.dead_root:
+            allowed &= cm.src[t] != self.root
         if bp.monitor_components is not None:
             tau = self._tau.data
             src = cm.src[t]
@@ -196,7 +220,8 @@ class LazySpace(SpaceOps):
         return self._tau_table.data
 
     def allowed_mask(self) -> np.ndarray:
-        """Per transition built so far: the property allows it (window, monitor)."""
+        """Per transition built so far: the property allows it (window, monitor; none of
+        a dead root's)."""
         return self._mask.data
 
     def successors(self, q: int) -> np.ndarray:
@@ -229,8 +254,6 @@ class LazySpace(SpaceOps):
                 group = group[n:]
         owner, t = ranges(cm.out_lo[q], cm.out_hi[q])
         ok = self._mask.data[t]
-        if self.dead_root:
-            ok &= q[owner] != self.root
         return owner[ok], t[ok]
 
     def slice_size(self) -> int:

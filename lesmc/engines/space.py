@@ -86,6 +86,15 @@ def original_alarms(
     return kernel.original_alarms(tau_original, bp.monitor_parameter, bp.monitor_kind, nis_original)
 
 
+def unattacked_alarm_steps(
+    bp: BoundProperty, tau_original: np.ndarray, nis_original: np.ndarray | None
+) -> list[int]:
+    """The steps l..end where the unattacked (original) track raises the property's
+    monitor's alarm (``tau_original``, ``nis_original``: per step 0..e of that path)."""
+    fired = original_alarms(bp, tau_original, nis_original)
+    return [k for k in range(bp.l, min(bp.end, len(fired) - 1) + 1) if fired[k]]
+
+
 def monitor_reads_nis(bp: BoundProperty) -> bool:
     """The property's monitor reads the NIS of the transitions' updates (nis, misses)."""
     return monitors.get(bp.monitor_kind).reads == "nis"

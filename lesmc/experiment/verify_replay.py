@@ -75,6 +75,15 @@ def _replay_now(typed: Any, src: Source, rep: Reporter, budget: Budget) -> Any:
         )  # fmt: skip
 
 
+#: The packages whose code decides a cached replay object: the replay through the detector
+#: and tracker, and its ``on_frames`` judgement (lesmc/results/replay_measures.py, folded by
+#: lesmc/model/kernel.py with the measures of lesmc/language/measures/).
+REPLAY_CODE = (
+    "replay", "perception", "video", "tracking", "scene", "designs", "results", "model",
+    "language",
+)  # fmt: skip
+
+
 def _replay_key(doc: dict[str, Any], src: Source, todo: list[Any]) -> str | None:
     """The digest of what the replay reads: each case's run (its scene, paths and results
     without their timings), the frames, the networks and the code; None: not cacheable
@@ -92,7 +101,7 @@ def _replay_key(doc: dict[str, Any], src: Source, todo: list[Any]) -> str | None
     perception = doc.get("perception", {})
     return digest(
         {
-            "code": code_digest("replay", "perception", "video", "tracking", "scene", "designs"),
+            "code": code_digest(*REPLAY_CODE),
             "frames": file_digests(src.frames.paths),
             "nets": file_digests(net_files(src.net_files)),
             **detector_verify.replay_key(src.net_files),

@@ -306,7 +306,7 @@ def _case(run: RunDoc, i: int, j: int, cex_no: int) -> Case:
         recorded=run.scene,
         judged="the results record no property for it"
         if prop is None
-        else judged_measures(prop, res.objective_source, res.objective),
+        else judged_measures(prop, res.objective_source, res.objective, _tracker_kind(run)),
         end=run.model.end,
         state_names=run.model.components,
         constraint=res.constraint,

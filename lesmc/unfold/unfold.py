@@ -29,7 +29,7 @@ from lesmc.model.growing import BATCH_WORK, Expansion, GrowingModel, counted_bat
 from lesmc.scene import Scene
 from lesmc.tracking.design import Batch, Design, PayloadStore
 from lesmc.tracking.joint import JointDesign
-from lesmc.tracking.parts.relaxed import Cut, primary_alive
+from lesmc.tracking.parts.relaxed import MAX_NODES, Cut, primary_alive
 from lesmc.tracking.single import grid_point_name
 from lesmc.tracking.trackers import make_tracker
 from lesmc.unfold.attack_path import walked_attack_of
@@ -142,10 +142,18 @@ class SceneExpander:
         return out
 
     # ------------------------------------------------------------ successors
-    def primary_alive(self, q: int, end: int, cut: Cut) -> bool | None:
+    def primary_alive(
+        self,
+        q: int,
+        end: int,
+        cut: Cut,
+        max_nodes: int | None = None,
+        deadline: float | None = None,
+    ) -> bool | None:
         """Whether state ``q`` has a completion to step ``end`` that the monitor ``cut``
         (step entered, P before, P after) allows, by the design's relaxation to its primary
-        (lesmc/tracking/parts/relaxed.py: False only if none has); None: the design has no
+        (lesmc/tracking/parts/relaxed.py: False only if none has; True past ``max_nodes``
+        relaxed nodes or the ``deadline``, time.monotonic()); None: the design has no
         such relaxation."""
         if type(self.design) is not JointDesign:  # a subclass may move its primary otherwise
             return None
@@ -153,7 +161,10 @@ class SceneExpander:
         P = np.array(m.P_table[int(m.cov[q])], copy=True)
         c = self.design.track_covariances.add(P)
         k = int(m.step[q])
-        return primary_alive(self.design, m.S[q].copy(), c, k, self.window, end, cut)
+        nodes = MAX_NODES if max_nodes is None else min(max_nodes, MAX_NODES)
+        return primary_alive(
+            self.design, m.S[q].copy(), c, k, self.window, end, cut, nodes, deadline
+        )
 
     def expand(self, states: np.ndarray, step: int) -> Expansion:
         """All successors of ``states`` (at ``step``) at step + 1, new states added."""

@@ -136,14 +136,10 @@ def prepare(
     Hm = scene.frame(step - 1).to_next
     live = np.arange(T) < js.ntrack[:, None]
     tu, X, cu = distinct_tracks(js, live)
-    m, gains = schedule.at(step)
-    if Hm is not None:
-        X[:, list(m.pos)] = warp(Hm, positions(m, X))
-    X = predict_means(m, X)
+    m, X, g, gated = predict_and_gate(scene, schedule, parts.hypothesiser, X, cu, Z, step)
     pend = warp(Hm, js.pending) if Hm is not None else js.pending
-    g = gains.rows(cu)
-    U, at = len(cu), measure(m, X)
-    track, pz, dx, dy, d2, ok = parts.hypothesiser.pairs(Z, at, g.radius, g.S_inv, g.spread)
+    U = len(cu)
+    track, pz, dx, dy, d2, ok = gated
     hiding = hiding_options(tu[:, 0], track, pz, dx, dy, ok, g.radius, pays, U, nz)
     (n_opt, cost, rank_of, near_z, per), (track, pz, d2) = hiding, (track[ok], pz[ok], d2[ok])
     del dx, dy, ok, hiding  # the candidates' arrays: only the gated pairs go on
@@ -176,6 +172,28 @@ def prepare(
         n_near=per,
         pos=pos,
     )
+
+
+def predict_and_gate(
+    scene: Scene,
+    schedule: Schedule,
+    hypothesiser: GateHypothesiser,
+    X: np.ndarray,
+    cu: np.ndarray,
+    Z: np.ndarray,
+    step: int,
+) -> tuple[Matrices, np.ndarray, GainRows, tuple[np.ndarray, ...]]:
+    """Tracks of means ``X`` (u, d; overwritten) and covariance indices ``cu`` (u,) moved
+    into frame ``step``: warped by the camera's motion, predicted, their gains, and the
+    pairs (track, measurement of ``Z``) the gate admits (``hypothesiser.pairs``). Used by
+    :func:`prepare` and by the relaxation to the primary (relaxed.py)."""
+    m, gains = schedule.at(step)
+    Hm = scene.frame(step - 1).to_next
+    if Hm is not None:
+        X[:, list(m.pos)] = warp(Hm, positions(m, X))
+    X = predict_means(m, X)
+    g = gains.rows(cu)
+    return m, X, g, hypothesiser.pairs(Z, measure(m, X), g.radius, g.S_inv, g.spread)
 
 
 def candidate_relevance(p: Prepared, initiator: NearTargetInitiator, nd: int) -> np.ndarray:
