@@ -19,12 +19,12 @@ For a scene, per design (lesmc/designs/registry.py) and attack window:
 from __future__ import annotations
 
 import os
-from collections.abc import Iterable, Mapping
+from collections.abc import Callable, Iterable, Mapping
 from dataclasses import dataclass, field, replace
 
 import numpy as np
 
-from lesmc.common.budget import Budget
+from lesmc.common.budget import Budget, stop_requested
 from lesmc.common.errors import BudgetError, Location, SpecError, UsageError
 from lesmc.designs import registry
 from lesmc.engines.check import bind_all, model_design
@@ -34,7 +34,7 @@ from lesmc.language.actions import DEFAULT as DEFAULT_ACTIONS
 from lesmc.language.properties import InjectGrid, SpecFile
 from lesmc.language.semantics import BoundProperty, bind
 from lesmc.model.arrays import ArrayModel, reference_states
-from lesmc.model.growing import GrowingModel
+from lesmc.model.growing import ExpansionStopped, GrowingModel
 from lesmc.pipeline import certify
 from lesmc.pipeline.job import Certifier, Job, Unit
 from lesmc.pipeline.payoffs import check_all, check_payoffs, mode_of
@@ -348,7 +348,13 @@ class _Models:
         window, end = window_of(bound), max(bp.end for bp in bound)
         sc = self.scene.with_tracker(design=tracker).priced(payoffs, self.job.source)
         if not self.job.full_models:
-            return lazy_model(sc, window, end, inject=inject, hide=hide, grid=grid_points(grid))
+            stop = _stop_past(self.job.budget, f"unfolding the {registry.label(tracker)} model")
+            try:
+                return lazy_model(
+                    sc, window, end, inject=inject, hide=hide, grid=grid_points(grid), stop=stop
+                )
+            except ExpansionStopped as e:  # on the unattacked path, before any search
+                raise BudgetError(f"{e}; nothing was written") from None
         what = f"the {registry.label(tracker)} model" + (
             " with certified payoffs" if payoffs == "certified" else ""
         )
@@ -373,6 +379,24 @@ def _spent(budget: Budget, model: GrowingModel, stage: str) -> None:
             f"{budget.describe(reason)} ran out while {stage} ({model.n_states} states); "
             "nothing was written"
         )
+
+
+def _stop_past(budget: Budget, stage: str) -> Callable[[], None]:
+    """What a long expansion calls between its chunks: an ExpansionStopped once ``--timeout``
+    or ``--max-memory`` has passed or a signal asked to stop (the search ends ``unknown``;
+    on the unattacked path, before a search, a BudgetError), naming ``stage``."""
+
+    def stop() -> None:
+        reason = "interrupted" if stop_requested() is not None else budget.exceeded()
+        if reason is not None:
+            limit = "a signal" if reason == "interrupted" else budget.describe(reason)
+            raise ExpansionStopped(
+                reason,
+                f"{limit} ran out while {stage}, inside one expansion (docs/performance.md, "
+                '"Injection on a small video")',
+            )
+
+    return stop
 
 
 def _not_replayed(r: CheckResult, command: str | None) -> CheckResult:
