@@ -389,11 +389,11 @@ def _stop_past(budget: Budget, stage: str) -> Callable[[], None]:
     def stop() -> None:
         reason = "interrupted" if stop_requested() is not None else budget.exceeded()
         if reason is not None:
-            limit = "a signal" if reason == "interrupted" else budget.describe(reason)
+            why = "a signal" if reason == "interrupted" else budget.describe(reason)
             raise ExpansionStopped(
                 reason,
-                f"{limit} ran out while {stage}, inside one expansion (docs/performance.md, "
-                '"Injection on a small video")',
+                f"{why} stopped the work while {stage}, inside one expansion "
+                '(docs/performance.md, "Round 24: injection on a small video")',
             )
 
     return stop
