@@ -19,7 +19,7 @@ For a scene, per design (lesmc/designs/registry.py) and attack window:
 from __future__ import annotations
 
 import os
-from collections.abc import Callable, Iterable, Mapping
+from collections.abc import Iterable, Mapping
 from dataclasses import dataclass, field, replace
 
 import numpy as np
@@ -348,13 +348,15 @@ class _Models:
         window, end = window_of(bound), max(bp.end for bp in bound)
         sc = self.scene.with_tracker(design=tracker).priced(payoffs, self.job.source)
         if not self.job.full_models:
-            stop = _stop_past(self.job.budget, f"unfolding the {registry.label(tracker)} model")
+            stop = _StopPast(self.job.budget, f"unfolding the {registry.label(tracker)} model")
             try:
-                return lazy_model(
+                made = lazy_model(
                     sc, window, end, inject=inject, hide=hide, grid=grid_points(grid), stop=stop
                 )
             except ExpansionStopped as e:  # on the unattacked path, before any search
                 raise BudgetError(f"{e}; nothing was written") from None
+            stop.searching = True
+            return made
         what = f"the {registry.label(tracker)} model" + (
             " with certified payoffs" if payoffs == "certified" else ""
         )
@@ -381,22 +383,25 @@ def _spent(budget: Budget, model: GrowingModel, stage: str) -> None:
         )
 
 
-def _stop_past(budget: Budget, stage: str) -> Callable[[], None]:
+class _StopPast:
     """What a long expansion calls between its chunks: an ExpansionStopped once ``--timeout``
-    or ``--max-memory`` has passed or a signal asked to stop (the search ends ``unknown``;
-    on the unattacked path, before a search, a BudgetError), naming ``stage``."""
+    or ``--max-memory`` has passed (the search ends ``unknown``; on the unattacked path,
+    before a search, a BudgetError), naming ``stage``; once ``searching``, also when a signal
+    asked the searches to stop (before, the signal is left to the search, as it was)."""
 
-    def stop() -> None:
-        reason = "interrupted" if stop_requested() is not None else budget.exceeded()
+    def __init__(self, budget: Budget, stage: str) -> None:
+        self.budget, self.stage, self.searching = budget, stage, False
+
+    def __call__(self) -> None:
+        asked = self.searching and stop_requested() is not None
+        reason = "interrupted" if asked else self.budget.exceeded()
         if reason is not None:
-            why = "a signal" if reason == "interrupted" else budget.describe(reason)
+            why = "a signal" if reason == "interrupted" else self.budget.describe(reason)
             raise ExpansionStopped(
                 reason,
-                f"{why} stopped the work while {stage}, inside one expansion "
+                f"{why} stopped the work while {self.stage}, inside one expansion "
                 '(docs/performance.md, "Round 24: injection on a small video")',
             )
-
-    return stop
 
 
 def _not_replayed(r: CheckResult, command: str | None) -> CheckResult:
