@@ -5,7 +5,7 @@ from __future__ import annotations
 import math
 from collections.abc import Callable, Iterable
 from dataclasses import replace
-from typing import Any
+from typing import Any, cast
 
 import numpy as np
 
@@ -14,7 +14,15 @@ from lesmc.engines import enumerate as enum_engine
 from lesmc.engines import registry as engines
 from lesmc.engines.enumerate import enumerate_many, probe_then, tree_size
 from lesmc.engines.lazy import LazySpace
-from lesmc.engines.result import CheckResult, EngineOutcome, PathInfo, Verdict, path_info
+from lesmc.engines.result import (
+    CheckResult,
+    EngineOutcome,
+    PathInfo,
+    Stats,
+    StopReason,
+    Verdict,
+    path_info,
+)
 from lesmc.engines.space import (
     SearchSpace,
     build_space,
@@ -27,7 +35,7 @@ from lesmc.language.properties import SpecFile
 from lesmc.language.semantics import BoundProperty, bind
 from lesmc.model import kernel
 from lesmc.model.arrays import ArrayModel
-from lesmc.model.growing import GrowingModel
+from lesmc.model.growing import ExpansionStopped, GrowingModel
 from lesmc.model.kernel import holds
 
 #: An engine's name (lesmc/engines/registry.py).
@@ -227,9 +235,20 @@ def check_lazy(
     """One bound property on a model unfolded on demand (the engine expands what it visits;
     ``enumerate`` every state its paths reach)."""
     space = LazySpace(model, bp, budget)
-    out = engines.get(engine).load()(space, budget or Budget())
+    try:
+        out = engines.get(engine).load()(space, budget or Budget())
+    except ExpansionStopped as stop:
+        out = stopped_outcome(engine, stop)
     out.stats.extra["states_built"] = space.states_built
     return to_result(space, out)
+
+
+def stopped_outcome(engine: str, stop: ExpansionStopped) -> EngineOutcome:
+    """What a search stopped inside one long expansion answers: unknown, within the bounds
+    that hold without a search (its own are lost with its stack)."""
+    stats = Stats(engine, stopped=cast(StopReason, stop.reason))
+    stats.extra["stopped_inside"] = str(stop)
+    return EngineOutcome(math.inf, -math.inf, math.inf, None, None, False, stats)
 
 
 def check_many(
@@ -262,7 +281,10 @@ def _walk_once(
     max_work: int | None = None,
 ) -> list[CheckResult]:
     """:func:`check_many` on spaces already built."""
-    outs = enumerate_many(spaces, budget, max_work)
+    try:
+        outs = enumerate_many(spaces, budget, max_work)
+    except ExpansionStopped as stop:
+        outs = [stopped_outcome("enumerate", stop) for _ in spaces]
     results = []
     for space, out in zip(spaces, outs, strict=True):
         out.stats.extra["states_built"] = (

@@ -29,6 +29,17 @@ if TYPE_CHECKING:
 BATCH_WORK = 1 << 15
 
 
+class ExpansionStopped(Exception):
+    """A budget (``reason``: ``timeout``, ``max_memory``, ``interrupted``) ran out inside one
+    expansion too long to wait for (the joint design under inject looks between its chunks:
+    lesmc/tracking/joint.py ``stop``). Raised before any successor is added, so the model
+    stays as it was; the search that asked ends ``unknown`` (lesmc/engines/check.py)."""
+
+    def __init__(self, reason: str, message: str) -> None:
+        super().__init__(message)
+        self.reason = reason
+
+
 def counted_batch(work: float, states: int, most: int, unmeasured: int, per_batch: int) -> int:
     """How many states to expand next so that the batch does about ``per_batch`` work
     (:data:`BATCH_WORK`, which each caller passes), at ``work`` per ``states`` expanded as

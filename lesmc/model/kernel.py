@@ -103,6 +103,46 @@ def exact_sum(values: Iterable[float]) -> float:
         return math.inf
 
 
+def prefix_sums(vals: list[float], starts: list[int], ends: list[int]) -> list[float]:
+    """``exact_sum(vals[a:b])`` for each (a, b) of ``starts``, ``ends`` (pairs of one ``a``
+    adjacent, ``b`` ascending), in time linear in a row's length, not quadratic: the exact
+    partials of Shewchuk's summation (as ``math.fsum`` keeps them) carried from one ``b``
+    to the next, each sum ``fsum`` of them. The same numbers: both are the correctly
+    rounded exact sum. A partial past the largest float falls back to ``exact_sum``."""
+    out: list[float] = []
+    partials: list[float] = []
+    a0, i, ok = -1, 0, True
+    for a, b in zip(starts, ends, strict=True):
+        if a != a0:
+            a0, i, ok, partials = a, a, True, []
+        while ok and i < b:
+            ok = _add_exact(partials, vals[i])
+            i += 1
+        out.append(exact_sum(partials) if ok else exact_sum(vals[a:b]))
+    return out
+
+
+def _add_exact(partials: list[float], x: float) -> bool:
+    """Add ``x`` to the non-overlapping ``partials`` exactly (Shewchuk; the recipe
+    ``math.fsum`` is built on); False where a partial would leave the finite floats."""
+    if not math.isfinite(x):
+        return False
+    j = 0
+    for y in partials:
+        if abs(x) < abs(y):
+            x, y = y, x
+        hi = x + y
+        if not math.isfinite(hi):
+            return False
+        lo = y - (hi - x)
+        if lo:
+            partials[j] = lo
+            j += 1
+        x = hi
+    partials[j:] = [x]
+    return True
+
+
 def combined_payoffs(ptr: np.ndarray, payoff: np.ndarray, rank: np.ndarray) -> np.ndarray:
     """Eq. 5 for every transition of a CSR model whose rows are sorted by rank.
 
@@ -123,9 +163,7 @@ def combined_payoffs(ptr: np.ndarray, payoff: np.ndarray, rank: np.ndarray) -> n
         sums[two] = payoff[lead[two] - 2] + payoff[lead[two] - 1]
     many = np.nonzero(n_terms >= 3)[0]
     if many.size:
-        vals = payoff.tolist()
-        rows = zip(row[many].tolist(), lead[many].tolist(), strict=True)
-        sums[many] = [exact_sum(vals[a:b]) for a, b in rows]
+        sums[many] = prefix_sums(payoff.tolist(), row[many].tolist(), lead[many].tolist())
     out[new_group] = sums
     combined: np.ndarray = out[first]
     return combined

@@ -24,7 +24,7 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
-from lesmc.common.budget import Budget
+from lesmc.common.budget import Budget, stop_requested
 from lesmc.common.errors import BudgetError, Location, SpecError, UsageError
 from lesmc.designs import registry
 from lesmc.engines.check import bind_all, model_design
@@ -34,7 +34,7 @@ from lesmc.language.actions import DEFAULT as DEFAULT_ACTIONS
 from lesmc.language.properties import InjectGrid, SpecFile
 from lesmc.language.semantics import BoundProperty, bind
 from lesmc.model.arrays import ArrayModel, reference_states
-from lesmc.model.growing import GrowingModel
+from lesmc.model.growing import ExpansionStopped, GrowingModel
 from lesmc.pipeline import certify
 from lesmc.pipeline.job import Certifier, Job, Unit
 from lesmc.pipeline.payoffs import check_all, check_payoffs, mode_of
@@ -348,7 +348,15 @@ class _Models:
         window, end = window_of(bound), max(bp.end for bp in bound)
         sc = self.scene.with_tracker(design=tracker).priced(payoffs, self.job.source)
         if not self.job.full_models:
-            return lazy_model(sc, window, end, inject=inject, hide=hide, grid=grid_points(grid))
+            stop = _StopPast(self.job.budget, f"unfolding the {registry.label(tracker)} model")
+            try:
+                made = lazy_model(
+                    sc, window, end, inject=inject, hide=hide, grid=grid_points(grid), stop=stop
+                )
+            except ExpansionStopped as e:  # on the unattacked path, before any search
+                raise BudgetError(f"{e}; nothing was written") from None
+            stop.searching = True
+            return made
         what = f"the {registry.label(tracker)} model" + (
             " with certified payoffs" if payoffs == "certified" else ""
         )
@@ -373,6 +381,27 @@ def _spent(budget: Budget, model: GrowingModel, stage: str) -> None:
             f"{budget.describe(reason)} ran out while {stage} ({model.n_states} states); "
             "nothing was written"
         )
+
+
+class _StopPast:
+    """What a long expansion calls between its chunks: an ExpansionStopped once ``--timeout``
+    or ``--max-memory`` has passed (the search ends ``unknown``; on the unattacked path,
+    before a search, a BudgetError), naming ``stage``; once ``searching``, also when a signal
+    asked the searches to stop (before, the signal is left to the search, as it was)."""
+
+    def __init__(self, budget: Budget, stage: str) -> None:
+        self.budget, self.stage, self.searching = budget, stage, False
+
+    def __call__(self) -> None:
+        asked = self.searching and stop_requested() is not None
+        reason = "interrupted" if asked else self.budget.exceeded()
+        if reason is not None:
+            why = "a signal" if reason == "interrupted" else self.budget.describe(reason)
+            raise ExpansionStopped(
+                reason,
+                f"{why} stopped the work while {self.stage}, inside one expansion "
+                '(docs/performance.md, "Round 24: injection on a small video")',
+            )
 
 
 def _not_replayed(r: CheckResult, command: str | None) -> CheckResult:

@@ -4,8 +4,7 @@ A joint state holds the primary track, the refining tracks of nearby vehicles an
 unassociated detections of the previous frame (candidates to start tracks). The design is a
 composition of parts (:class:`JointParts`, docs/trackers.md "Parts"); one step:
 
-1. carry every position into the new frame (homography) and predict every track (the
-   predictor: lesmc/tracking/kalman.py);
+1. carry every position into the new frame (homography), predict every track (kalman.py);
 2. score every gated (track, detection) pair by the likelihood N(z; Hx̂, S), sort from the
    largest (ties: lower track, then lower detection), and associate greedily one-to-one
    (the hypothesiser ``GateHypothesiser``, the data associator ``GreedyAssociator``);
@@ -17,21 +16,22 @@ composition of parts (:class:`JointParts`, docs/trackers.md "Parts"); one step:
 5. refining tracks farther than ``prune_radius`` from the primary, or whose trace(P)
    exceeds ``max_trace``, are dropped (the deleters ``DistanceDeleter``, ``TraceDeleter``).
 
-Attacks (docs/scene-format.md#joint-design): the attacker hides the detections nearest to
-the primary's prediction, as for the single design: option j hides the j nearest (up to the
-last one the primary's gate accepts) and costs their payoffs (the attacker's options part,
-lesmc/tracking/parts/attacker.py). The hidden detections are gone for every track. Outcomes
-that leave the whole joint state identical are merged (the cheapest kept). Under ``allow
-hide, inject`` each hiding option is combined with every subset of the injection
-candidates that can change the state's successor (docs/semantics.md, "Injection on the
-joint design" and "Pruning injection candidates"; :meth:`_expand_injected`).
+Attacks (docs/scene-format.md#joint-design): as for the single design, option j hides the
+j detections nearest the primary's prediction (up to the last its gate accepts) at their
+payoffs (lesmc/tracking/parts/attacker.py), gone for every track. Outcomes that leave the
+whole joint state identical merge (the cheapest kept). Under ``allow hide, inject`` each
+hiding option is combined with every subset of the injection candidates that can change
+the state's successor (docs/semantics.md, "Injection on the joint design" and "Pruning
+injection candidates"; :meth:`_expand_injected`).
 
-Speed: a batch of joint states travels as padded arrays and is expanded with array
-operations (lesmc/tracking/parts/joint_states.py says how). tests/joint_oracle.py is an
-independent oracle written from the paper (filterpy filters, one path at a time).
+Speed: batches of joint states as padded arrays (lesmc/tracking/parts/joint_states.py), in
+chunks; :attr:`JointDesign.stop` is called between chunks (a deadline: docs/engines.md).
+tests/joint_oracle.py is an independent oracle from the paper (filterpy, one path at a time).
 """
 
 from __future__ import annotations
+
+from collections.abc import Callable
 
 import numpy as np
 
@@ -95,6 +95,7 @@ class JointDesign:
         self._model_cov = np.full(0, -1, dtype=np.int64)  # track table -> model table
         self._p0 = self.track_covariances.add(self.m.P0.copy())
         self._p0_kept = not bool(self.parts.deleter.halts(self.m.P0[None])[0])
+        self.stop: Callable[[], None] = lambda: None
 
     def initial(self) -> Batch:
         t = self.scene.target
@@ -142,6 +143,7 @@ class JointDesign:
         size = max(1, CHUNK_CELLS // (T + len(Z)))
         parts = []
         for lo in range(0, len(js), size):
+            self.stop()
             part = js.take(np.arange(lo, min(lo + size, len(js))))
             e = self._expand(part, step, attacked)
             e.src += lo
@@ -237,12 +239,13 @@ class JointDesign:
         p = prepare(self.scene, self.schedule, self.parts, self.m.pos, js, step, True, self.hide)
         nd, nz, cpay = len(frame.detections), len(p.Z), frame.injectable.payoffs()
         relevant = candidate_relevance(p, self.parts.initiator, nd)
-        within_inject_budget(relevant, step)
+        within_inject_budget(relevant, step, p.n_opt)
         vstate, local, sub_id, subsets = pruned_subsets(relevant)
         rows: list[tuple[np.ndarray, ...]] = []
         parts: list[JointStates] = []
-        size = max(1, CHUNK_CELLS // (js.width + nz))
+        size = max(1, CHUNK_CELLS // ((js.width + nz) * int(p.n_opt.max(initial=1))))
         for lo in range(0, len(vstate), size):
+            self.stop()
             v = np.arange(lo, min(lo + size, len(vstate)))
             shown, vcost = shown_and_cost(sub_id[v], subsets, nd, nz, cpay)
             q = with_subsets(p, vstate[v], shown)
@@ -302,10 +305,9 @@ class JointDesign:
         return Successors(e.src, e.rank, e.payoff, e.det, succ, e.nis), how
 
     def attack_in(self, batch: Batch, step: int, rank: int) -> tuple[list[str], list[str]]:
-        """Under inject: the ids of the detections hidden and of the candidates injected by
-        the cheapest way to force the outcome of rank ``rank`` from the one joint state of
-        ``batch`` at frame ``step`` (:meth:`forcing`'s; lesmc/unfold/attack_path.py walks a
-        path to its states)."""
+        """Under inject: the ids of the detections hidden and candidates injected by the
+        cheapest way to force outcome ``rank`` from ``batch``'s one joint state at frame
+        ``step`` (:meth:`forcing`'s; lesmc/unfold/attack_path.py walks a path's states)."""
         assert isinstance(batch.objects, JointStates) and len(batch.objects) == 1
         succ, how = self.forcing(batch, step)
         return how[int(np.flatnonzero(succ.rank == rank)[0])]
@@ -357,12 +359,11 @@ class JointDesign:
     ) -> JointStates:
         """Rows' next states: new tracks from free detections near the primary, pruning.
 
-        ``child`` (rows, T) gives each track's next value as a row of the
-        ``p.child_*`` tables. Free detections within ``init_radius`` of the
-        updated primary are taken in index order, one round each: each is matched
-        to the nearest remaining pending detection (first of equals) closer than
-        ``init_distance``, which starts a track, or is kept pending for the next step.
-        """
+        ``child`` (rows, T) gives each track's next value as a row of the ``p.child_*``
+        tables. Free detections within ``init_radius`` of the updated primary are taken in
+        index order, one round each: each is matched to the nearest remaining pending
+        detection (first of equals) closer than ``init_distance``, which starts a track, or
+        is kept pending for the next step."""
         Z = p.Z
         R, T = child.shape
         prim = positions(self.m, p.child_X[child[:, 0]])
@@ -374,8 +375,7 @@ class JointDesign:
         v = (mz - pend[mr, partner[matched]]) / self.scene.dt
         nnew = np.bincount(mr, minlength=R)
         W = T + int(nnew.max(initial=0))
-        # the tracks of the next states as rows of one table: the children, a row of
-        # zeros (padding), the new tracks
+        # the next states' tracks as rows of one table: the children, zeros (padding), the new
         M = len(p.child_X)
         table_X, table_cov, table_h = track_table(p, self.m, self._p0, mz, v)
         at = np.full((R, W), M, dtype=np.int64)

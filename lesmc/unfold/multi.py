@@ -234,8 +234,7 @@ def _within_budget(
     if max_states is not None and so_far + count > max_states:
         raise BudgetError(
             f"--max-states {max_states}: step {k} would compute {count} "
-            f"successors of {states} states ({so_far} so far); shorten the attack window or "
-            "limit it to the target's neighbourhood (attack window L..U within R)"
+            f"successors of {states} states ({so_far} so far); {_fewer(f, attack)}"
         )
     if count > MAX_STEP_SUCCESSORS:
         cands = f" and {len(f.candidates)} candidates" if "inject" in attack[1] else ""
@@ -243,10 +242,23 @@ def _within_budget(
         raise BudgetError(
             f"step {k} would compute {count} successors of {states} states (every "
             f"subset of {hidable} detections{cands}): more than "
-            f"{MAX_STEP_SUCCESSORS:,}; shorten the attack window or limit it to the "
-            "target's neighbourhood (attack window L..U within R)"
+            f"{MAX_STEP_SUCCESSORS:,}; {_fewer(f, attack)}"
         )
     return count
+
+
+def _fewer(f: Frame, attack: tuple[bool, tuple[str, ...], np.ndarray]) -> str:
+    """What limits a step's options: ``within R`` the detections hidden; the injection
+    candidates only the scene does (``within R`` does not reach them)."""
+    hide = "shorten the attack window or limit hiding to the target's neighbourhood (attack "
+    hide += "window L..U within R)"
+    if "inject" not in attack[1] or not f.candidates:
+        return hide
+    inj = (
+        f"offer fewer injection candidates a frame (frame {f.step} has {len(f.candidates)}: "
+        "perceive --inject-cap N or a smaller --inject-within PX; a lower import mot --threshold)"
+    )
+    return inj if "hide" not in attack[1] else f"{inj}; {hide}"
 
 
 def _on_time(search: SearchBudget | None, seconds: float, k: int, states: int) -> float:

@@ -244,6 +244,7 @@ def lazy_model(
     inject: bool = False,
     hide: bool = True,
     grid: tuple[np.ndarray, float] | None = None,
+    stop: Callable[[], None] | None = None,
 ) -> GrowingModel:
     """The model of ``scene`` for attacks in ``window``, unfolded as an engine asks.
 
@@ -254,9 +255,13 @@ def lazy_model(
     track may halt anywhere after the window opens: the fault alone lost the target.
     ``inject``: the attacker may also inject the frames' candidates (``allow hide,
     inject``); ``hide``: it may hide detections (not under ``allow inject`` alone);
-    ``grid``: ``inject grid``'s offsets (G, 2) from the prediction and payoff.
+    ``grid``: ``inject grid``'s offsets (G, 2) from the prediction and payoff; ``stop``:
+    called between chunks of a long expansion (the joint design's), raises to end it.
     """
-    model = SceneExpander(scene, window, inject, hide, grid).model
+    expander = SceneExpander(scene, window, inject, hide, grid)
+    if stop is not None and isinstance(expander.design, JointDesign):
+        expander.design.stop = stop
+    model = expander.model
     last = last_step(scene, end)
     original = [0]
     while len(original) <= last and not model.halted[original[-1]]:

@@ -29,24 +29,32 @@ import numpy as np
 from lesmc.common.errors import BudgetError
 from lesmc.scene import Frame
 
-#: (states × candidate subsets) one attacked step under inject may build at most: past it
-#: the step is a BudgetError (exit 3) before any subset is listed, not a memory blow-up
+#: (state, hiding option, candidate subset) rows one attacked step under inject may build at
+#: most (each runs the tracker: ~40,000 a second): past it the step is a BudgetError (exit 3)
+#: before any subset is listed, not minutes of work or a memory blow-up
 MAX_INJECT_ROWS = 1 << 20
 
 
-def within_inject_budget(relevant: np.ndarray, step: int) -> None:
-    """A BudgetError unless every state's subsets of its ``relevant`` (n, m) injection
-    candidates (:func:`relevant_candidates`), 2^k for a state with k, fit in
-    :data:`MAX_INJECT_ROWS` together (checked before listing any)."""
+def within_inject_budget(relevant: np.ndarray, step: int, options: np.ndarray) -> None:
+    """A BudgetError unless every state's rows, its ``options`` hiding options × the subsets
+    of its ``relevant`` (n, m) injection candidates (:func:`relevant_candidates`), 2^k for a
+    state with k, fit in :data:`MAX_INJECT_ROWS` together (checked before listing any)."""
     k = relevant.sum(axis=1) if relevant.size else np.zeros(len(relevant), dtype=np.int64)
     big = int(k.max(initial=0))
-    if big >= 64 or sum(1 << int(x) for x in k.tolist()) > MAX_INJECT_ROWS:
-        raise BudgetError(
-            f"frame {step}: the joint design under inject would build {len(k)} state(s) × "
-            f"up to 2^{big} subsets of the frame's injection candidates that can change it "
-            f"(more than {MAX_INJECT_ROWS:,} together); offer fewer candidates a frame "
-            "(perceive --inject-cap N)"
-        )
+    opts = np.maximum(np.asarray(options, dtype=np.int64).reshape(-1), 1).tolist()
+    rows = sum(o << int(x) for o, x in zip(opts, k.tolist(), strict=True)) if big < 64 else 0
+    if big < 64 and rows <= MAX_INJECT_ROWS:
+        return
+    most = max(opts, default=1)
+    cap = max(0, (MAX_INJECT_ROWS // max(1, most * len(k))).bit_length() - 1)
+    raise BudgetError(
+        f"frame {step}: the joint design under inject would build {len(k)} state(s) × up "
+        f"to {most} hiding option(s) × up to 2^{big} subsets of the frame's injection "
+        f"candidates that can change it ({'more than 2^64' if big >= 64 else f'{rows:,}'} "
+        f"rows, each a tracker step; the limit is {MAX_INJECT_ROWS:,}): every candidate "
+        f"within the initiator's radius of the target counts; offer at most {cap} "
+        "candidates a frame (perceive --inject-cap N, or a smaller --inject-within PX)"
+    )
 
 
 def relevant_candidates(
