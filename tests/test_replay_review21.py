@@ -61,6 +61,7 @@ def _multi_doc(scene: Path, hidden: list[str]) -> dict[str, object]:
             "switch": False,
             "reference": None,
             "tracks": [],
+            "attacked": [],
         }
         for k, h in ((0, []), (1, hidden))
     ]
