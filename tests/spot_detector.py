@@ -59,3 +59,22 @@ def write_spot_detector(d: Path, dynamo: bool = False) -> Path:
         'score = "raw"\nnms_radius = 2\n'
     )
     return toml
+
+
+def write_spot_frames(d: Path, faint_below: int) -> Path:
+    """12 frames in ``d/frames``: a bright spot moving past a static one (the spots of
+    tests/test_detector_replay.py) and a faint spot (grey 90) ``faint_below`` px below the
+    moving one: an injection candidate of the spot network."""
+    import cv2
+    import numpy as np
+
+    fr = d / "frames"
+    fr.mkdir()
+    for k in range(12):
+        img = np.full((H, W), 20, np.uint8)
+        x, y = 10 + 6 * k + 0.15 * k * k, 30 + 0.1 * k * k
+        cv2.circle(img, (round(x), round(y)), 3, 230, -1)
+        cv2.circle(img, (60, 44), 3, 230, -1)
+        cv2.circle(img, (round(x), round(y + faint_below)), 3, 90, -1)
+        cv2.imwrite(str(fr / f"f{k:02d}.png"), cv2.GaussianBlur(img, (5, 5), 1.0))
+    return fr

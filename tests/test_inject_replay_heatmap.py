@@ -21,7 +21,7 @@ import cv2
 import numpy as np
 import pytest
 from cli_run import lesmc
-from spot_detector import H, W, write_spot_detector
+from spot_detector import write_spot_detector, write_spot_frames
 
 from lesmc.schemas import schema
 
@@ -41,21 +41,6 @@ SPEC = """property grab {{
 STRIDE, RADIUS = 4, 2  # the network's (tests/test_detector_replay.py)
 
 
-def _frames(d: Path) -> Path:
-    """12 frames: the spot of test_detector_replay.py, the static one, and a faint spot
-    (grey 90) 16 px below the moving one."""
-    fr = d / "frames"
-    fr.mkdir()
-    for k in range(12):
-        img = np.full((H, W), 20, np.uint8)
-        x, y = 10 + 6 * k + 0.15 * k * k, 30 + 0.1 * k * k
-        cv2.circle(img, (round(x), round(y)), 3, 230, -1)
-        cv2.circle(img, (60, 44), 3, 230, -1)
-        cv2.circle(img, (round(x), round(y + 16)), 3, 90, -1)
-        cv2.imwrite(str(fr / f"f{k:02d}.png"), cv2.GaussianBlur(img, (5, 5), 1.0))
-    return fr
-
-
 def _check(d: Path, scene: Path, allow: str) -> dict[str, Any]:
     spec = d / f"p{len(allow)}.spec"
     spec.write_text(SPEC.format(allow=allow))
@@ -70,7 +55,7 @@ def _check(d: Path, scene: Path, allow: str) -> dict[str, Any]:
 @pytest.fixture(scope="module")
 def checked(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Any]:
     d = tmp_path_factory.mktemp("injheat")
-    frames, toml = _frames(d), write_spot_detector(d)
+    frames, toml = write_spot_frames(d, 16), write_spot_detector(d)
     scene = d / "scene.json"
     r = lesmc("perceive", str(frames), "--detector", str(toml), "-o", str(scene),
               "--target", "10,30@0", "--inject-within", "25")  # fmt: skip

@@ -37,32 +37,13 @@ SPEC_INJ = """property grab {
 """
 
 
-def _spot_frames(d: Path) -> Path:
-    """12 frames: a bright spot moving past a static one, a faint spot (grey 90) 12 px
-    below the moving one (tests/test_inject_replay_heatmap.py's, the faint one nearer)."""
-    import cv2
-    import numpy as np
-    from spot_detector import H, W
-
-    fr = d / "frames"
-    fr.mkdir()
-    for k in range(12):
-        img = np.full((H, W), 20, np.uint8)
-        x, y = 10 + 6 * k + 0.15 * k * k, 30 + 0.1 * k * k
-        cv2.circle(img, (round(x), round(y)), 3, 230, -1)
-        cv2.circle(img, (60, 44), 3, 230, -1)
-        cv2.circle(img, (round(x), round(y + 12)), 3, 90, -1)
-        cv2.imwrite(str(fr / f"f{k:02d}.png"), cv2.GaussianBlur(img, (5, 5), 1.0))
-    return fr
-
-
 def test_forced_skip_replays_through_a_heatmap_file(tmp_path: Path) -> None:
     pytest.importorskip("onnx")
     pytest.importorskip("onnxscript")
     pytest.importorskip("cv2")
-    from spot_detector import write_spot_detector
+    from spot_detector import write_spot_detector, write_spot_frames
 
-    frames, toml = _spot_frames(tmp_path), write_spot_detector(tmp_path)
+    frames, toml = write_spot_frames(tmp_path, 12), write_spot_detector(tmp_path)
     scene = tmp_path / "scene.json"
     r = lesmc("perceive", str(frames), "--detector", str(toml), "-o", str(scene),
               "--target", "10,30@0", "--inject-within", "25")  # fmt: skip

@@ -25,6 +25,7 @@ from typing import Any
 import numpy as np
 import pytest
 from cli_run import lesmc
+from wami_video import perceive_with_candidates, synth_wami_video
 
 from lesmc.language import measures
 from lesmc.replay.case import FrameAttack
@@ -58,12 +59,8 @@ def replayed(tmp_path_factory: pytest.TempPathFactory) -> tuple[int, dict[str, A
     moved by :data:`SHIFT_PX`: the exit status, the rows by property, the results."""
     tmp = tmp_path_factory.mktemp("replayprop")
     video = tmp / "video"
-    r = lesmc("synth", str(video), "--frames", "6", "--size", "768x768", "--seed", "4",
-              "--density", "2.5")  # fmt: skip
-    assert r.returncode == 0, r.stderr
-    r = lesmc("perceive", str(video), "-o", str(tmp / "perceived.json"), "--target", TARGET,
-              "--truth", str(video / "truth.json"), "--inject-within", "30")  # fmt: skip
-    assert r.returncode == 0 and "Traceback" not in r.stderr, r.stderr
+    synth_wami_video(video, frames=6)
+    perceive_with_candidates(video, tmp / "perceived.json", TARGET)
     scene = json.loads((tmp / "perceived.json").read_text())
     for f in scene["frames"]:
         f["candidates"] = [c for c in f.get("candidates", []) if c["id"] == CANDIDATE]

@@ -12,20 +12,20 @@ from cli_run import lesmc
 TARGET = "206.434,202.672@4"
 
 
-def synth_wami_video(video: Path) -> None:
-    """Write the shared video (and its truth.json) to ``video``."""
+def synth_wami_video(video: Path, frames: int = 16) -> None:
+    """Write the shared video (and its truth.json) to ``video``: its first ``frames``."""
     r = lesmc(
-        "synth", str(video), "--frames", "16", "--size", "768x768", "--seed", "4",
+        "synth", str(video), "--frames", str(frames), "--size", "768x768", "--seed", "4",
         "--density", "2.5",
     )  # fmt: skip
     assert r.returncode == 0, r.stderr
 
 
-def perceive_with_candidates(video: Path, scene: Path) -> None:
-    """``lesmc perceive`` the shared video into ``scene``: :data:`TARGET`, the truth, the
+def perceive_with_candidates(video: Path, scene: Path, target: str = TARGET) -> None:
+    """``lesmc perceive`` the shared video into ``scene``: ``target``, the truth, the
     injection candidates within 30 px."""
     r = lesmc(
-        "perceive", str(video), "-o", str(scene), "--target", TARGET,
+        "perceive", str(video), "-o", str(scene), "--target", target,
         "--truth", str(video / "truth.json"), "--inject-within", "30",
     )  # fmt: skip
     assert r.returncode == 0, r.stderr
